@@ -1,0 +1,95 @@
+"""Physical parameters of the wheeled inverted pendulum (WIP).
+
+The paper [1]_ gives no numerical parameters; the defaults below are the project's
+1.2 m service robot (see ``shared/spec/model-and-controllers.md``, section 1), chosen
+so that the paper's limits make sense: holding θ = 0.1 rad takes about 7 N·m of the
+30 N·m available, and the yaw authority 0.8·g1 ≈ 2 rad/s² exceeds the unit-amplitude
+yaw disturbance.
+
+References
+----------
+.. [1] M. Yue, C. An, Z. Li, "Constrained Adaptive Robust Trajectory Tracking for WIP
+   Vehicles Using Model Predictive Control and Extended State Observer", IEEE Trans.
+   Syst., Man, Cybern.: Systems, 2016, doi:10.1109/TSMC.2016.2621181.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+#: Standard gravity [m/s²].
+STANDARD_GRAVITY = 9.81
+
+
+@dataclasses.dataclass(frozen=True)
+class WipParameters:
+    """Masses, lengths and inertias of a WIP, in SI units.
+
+    Attribute names are descriptive; the paper's symbol is given for each.
+    """
+
+    #: m_p, mass of the pendulum body [kg].
+    body_mass: float = 25.0
+    #: l, distance from the wheel axle to the body's centre of mass [m].
+    com_height: float = 0.6
+    #: I_c, pitch inertia of the body about its own centre of mass [kg m²].
+    body_pitch_inertia_com: float = 4.0
+    #: m_c, mass of the chassis (axle, motors), which does not tilt [kg].
+    chassis_mass: float = 5.0
+    #: m_w, mass of one wheel [kg].
+    wheel_mass: float = 2.5
+    #: r, wheel radius [m].
+    wheel_radius: float = 0.20
+    #: J_ω, spin inertia of one wheel about its axle [kg m²].
+    wheel_inertia: float = 0.05
+    #: d, distance between the two wheel contact points (track width) [m].
+    track_width: float = 0.5
+    #: J_υ, yaw inertia of body and chassis about the vertical axis [kg m²].
+    yaw_inertia: float = 0.5
+    #: g, gravitational acceleration [m/s²].
+    gravity: float = STANDARD_GRAVITY
+
+    def __post_init__(self) -> None:
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f'WipParameters.{field.name} must be a finite number, '
+                                 f'got {value!r}')
+            if value <= 0.0:
+                raise ValueError(f'WipParameters.{field.name} must be > 0, got {value!r}')
+
+    # Derived quantities (section 1 of the spec: the only reading under which (1) is
+    # the Euler-Lagrange system of a consistent Lagrangian).
+
+    @property
+    def effective_mass(self) -> float:
+        """m_v = m_p + m_c + 2 (m_w + J_ω / r²), total translational mass [kg]."""
+        return (self.body_mass + self.chassis_mass
+                + 2.0 * (self.wheel_mass + self.wheel_inertia / self.wheel_radius ** 2))
+
+    @property
+    def pitch_inertia(self) -> float:
+        """J_θ = I_c + m_p l², body pitch inertia about the axle [kg m²]."""
+        return self.body_pitch_inertia_com + self.body_mass * self.com_height ** 2
+
+    @property
+    def yaw_inertia_total(self) -> float:
+        """J_ϕ = J_υ + d² (m_w + J_ω / r²) / 2, yaw inertia at θ = 0 [kg m²]."""
+        return (self.yaw_inertia
+                + self.track_width ** 2
+                * (self.wheel_mass + self.wheel_inertia / self.wheel_radius ** 2) / 2.0)
+
+    def omega_denominator(self, theta: float) -> float:
+        """Ω(θ) = m_v J_θ − m_p² l² cos²θ, the determinant of the pitch/forward mass matrix."""
+        c = math.cos(theta)
+        return (self.effective_mass * self.pitch_inertia
+                - (self.body_mass * self.com_height * c) ** 2)
+
+    def replace(self, **overrides: float) -> 'WipParameters':
+        """Return a copy with some fields changed; unknown names raise ``TypeError``."""
+        return dataclasses.replace(self, **overrides)
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclasses.fields(cls))
