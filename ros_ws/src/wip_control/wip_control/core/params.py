@@ -18,6 +18,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from .config import param
+
 #: Standard gravity [m/s²].
 STANDARD_GRAVITY = 9.81
 
@@ -29,26 +31,27 @@ class WipParameters:
     Attribute names are descriptive; the paper's symbol is given for each.
     """
 
-    #: m_p, mass of the pendulum body [kg].
-    body_mass: float = 25.0
-    #: l, distance from the wheel axle to the body's centre of mass [m].
-    com_height: float = 0.6
-    #: I_c, pitch inertia of the body about its own centre of mass [kg m²].
-    body_pitch_inertia_com: float = 4.0
-    #: m_c, mass of the chassis (axle, motors), which does not tilt [kg].
-    chassis_mass: float = 5.0
-    #: m_w, mass of one wheel [kg].
-    wheel_mass: float = 2.5
-    #: r, wheel radius [m].
-    wheel_radius: float = 0.20
-    #: J_ω, spin inertia of one wheel about its axle [kg m²].
-    wheel_inertia: float = 0.05
-    #: d, distance between the two wheel contact points (track width) [m].
-    track_width: float = 0.5
-    #: J_υ, yaw inertia of body and chassis about the vertical axis [kg m²].
-    yaw_inertia: float = 0.5
-    #: g, gravitational acceleration [m/s²].
-    gravity: float = STANDARD_GRAVITY
+    body_mass: float = param(25.0, 'kg', 'm_p, mass of the pendulum body',
+                             minimum=0.0, exclusive_minimum=True)
+    com_height: float = param(0.6, 'm', 'l, distance from the wheel axle to the centre of '
+                              'mass of the body', minimum=0.0, exclusive_minimum=True)
+    body_pitch_inertia_com: float = param(4.0, 'kg m^2', 'I_c, pitch inertia of the body '
+                                          'about its own centre of mass', minimum=0.0,
+                                          exclusive_minimum=True)
+    chassis_mass: float = param(5.0, 'kg', 'm_c, mass of the chassis (axle, motors), which '
+                                'does not tilt', minimum=0.0, exclusive_minimum=True)
+    wheel_mass: float = param(2.5, 'kg', 'm_w, mass of one wheel', minimum=0.0,
+                              exclusive_minimum=True)
+    wheel_radius: float = param(0.20, 'm', 'r, wheel radius', minimum=0.0,
+                                exclusive_minimum=True)
+    wheel_inertia: float = param(0.05, 'kg m^2', 'J_w, spin inertia of one wheel about its '
+                                 'axle', minimum=0.0, exclusive_minimum=True)
+    track_width: float = param(0.5, 'm', 'd, distance between the two wheel contact points',
+                               minimum=0.0, exclusive_minimum=True)
+    yaw_inertia: float = param(0.5, 'kg m^2', 'J_v, yaw inertia of body and chassis about '
+                               'the vertical axis', minimum=0.0, exclusive_minimum=True)
+    gravity: float = param(STANDARD_GRAVITY, 'm/s^2', 'g, gravitational acceleration',
+                           minimum=0.0, exclusive_minimum=True)
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):

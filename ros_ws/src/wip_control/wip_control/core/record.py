@@ -1,0 +1,92 @@
+"""Time series of one run, with named channels, as plain numpy arrays.
+
+Both the in-process runner and the bag reader of ``scripts/report`` produce a
+:class:`RunRecord`; :mod:`~wip_control.core.metrics` and the figures consume it, so
+the two paths compute their metrics with the same code.
+
+Channels are grouped; each group has its own time base because the MPC runs at
+10 Hz while the rest runs at the control rate:
+
+- ``truth``: t, x, y, phi, x_v, theta, omega, v, theta_dot, d1, d2, d3 (the
+  disturbances acting, eq. (1)'s τd), tau_left, tau_right (applied) — absent for a
+  run recorded on a robot;
+- ``reference``: t, x, y, phi, v, omega;
+- ``estimate``: t, phi, omega, f1, x_v, v, f2, theta, theta_dot, f3, x, y;
+- ``command``: t, v_d, omega_d, omega_d_dot, x_e, y_e, phi_e;
+- ``arc``: t, tau_omega, alpha_hat, e_omega;
+- ``wheels``: t, tau_left, tau_right (commanded);
+- ``mpc``: t, tau_v, delta_tau, status, iterations, solve_time, used_fallback,
+  slack_v, slack_theta.
+"""
+
+from __future__ import annotations
+
+import pathlib
+from typing import Iterable, Mapping
+
+import numpy as np
+
+GROUPS: dict[str, tuple[str, ...]] = {
+    'truth': ('t', 'x', 'y', 'phi', 'x_v', 'theta', 'omega', 'v', 'theta_dot',
+              'd1', 'd2', 'd3', 'tau_left', 'tau_right'),
+    'reference': ('t', 'x', 'y', 'phi', 'v', 'omega'),
+    'estimate': ('t', 'phi', 'omega', 'f1', 'x_v', 'v', 'f2', 'theta', 'theta_dot', 'f3',
+                 'x', 'y'),
+    'command': ('t', 'v_d', 'omega_d', 'omega_d_dot', 'x_e', 'y_e', 'phi_e'),
+    'arc': ('t', 'tau_omega', 'alpha_hat', 'e_omega'),
+    'wheels': ('t', 'tau_left', 'tau_right'),
+    'mpc': ('t', 'tau_v', 'delta_tau', 'status', 'iterations', 'solve_time',
+            'used_fallback', 'slack_v', 'slack_theta'),
+}
+
+
+class RecordBuffer:
+    """Preallocated rows for one group; ``append`` is a single row copy."""
+
+    def __init__(self, group: str, capacity: int) -> None:
+        self.columns = GROUPS[group]
+        self._data = np.full((max(capacity, 1), len(self.columns)), np.nan)
+        self._size = 0
+
+    def append(self, row: Iterable[float]) -> None:
+        if self._size == self._data.shape[0]:
+            self._data = np.concatenate([self._data, np.full_like(self._data, np.nan)])
+        self._data[self._size] = row
+        self._size += 1
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        data = self._data[:self._size]
+        return {name: data[:, i].copy() for i, name in enumerate(self.columns)}
+
+
+class RunRecord:
+    """Named time series of one run: ``record['estimate']['theta']``."""
+
+    def __init__(self, groups: Mapping[str, Mapping[str, np.ndarray]],
+                 attributes: Mapping[str, object] | None = None) -> None:
+        self.groups = {name: dict(columns) for name, columns in groups.items()}
+        self.attributes = dict(attributes or {})
+        for name, columns in self.groups.items():
+            lengths = {len(v) for v in columns.values()}
+            if len(lengths) > 1:
+                raise ValueError(f'group {name!r} has columns of different lengths {lengths}')
+
+    def __getitem__(self, group: str) -> dict[str, np.ndarray]:
+        return self.groups[group]
+
+    def __contains__(self, group: str) -> bool:
+        return group in self.groups and len(self.groups[group].get('t', ())) > 0
+
+    def save_npz(self, path: str | pathlib.Path) -> None:
+        """One npz file; keys are ``group.column``."""
+        flat = {f'{g}.{c}': v for g, cols in self.groups.items() for c, v in cols.items()}
+        np.savez_compressed(path, **flat)
+
+    @classmethod
+    def load_npz(cls, path: str | pathlib.Path) -> 'RunRecord':
+        groups: dict[str, dict[str, np.ndarray]] = {}
+        with np.load(path) as data:
+            for key in data.files:
+                group, column = key.split('.', 1)
+                groups.setdefault(group, {})[column] = data[key]
+        return cls(groups)

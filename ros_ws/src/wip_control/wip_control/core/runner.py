@@ -1,0 +1,204 @@
+"""In-process closed loop: the same core objects, rates and holds as the node graph.
+
+Timeline of one control period k (t_k = k / control_rate, default 5 ms):
+
+1. the sensors sample the true state at t_k (encoders, IMU; GPS every
+   control_rate / gps_rate periods);
+2. the ESO (eqs. (4), (8)) updates with those measurements and with the wheel
+   torques applied over [t_{k−1}, t_k);
+3. the planar position estimator fuses wheel odometry and GPS;
+4. the reference is sampled at t_k and the trajectory generator (eq. (9)) gives
+   (υd, ωd, ω̇d);
+5. the ARC (eqs. (12), (13)) gives τω;
+6. every ``mpc_decimation``-th period the MPC (eqs. (16)–(23)) gives τυ, held
+   until its next tick;
+7. the mixer (eq. (24)) gives (τl, τr), held over [t_k, t_{k+1});
+8. the plant integrates ``substeps`` RK4 steps (default 5 × 1 ms), the
+   disturbances sampled at each step.
+
+The node graph in lockstep reproduces this order, which is why its metrics match.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Callable
+
+import numpy as np
+
+from .angles import unwrap_next
+from .arc import AdaptiveRobustYawController
+from .disturbances import Disturbances
+from .eso import WipStateObserver
+from .mixer import drive_torque_limit, mix
+from .model import PHI, THETA, X, XV, Y, input_gains
+from .mpc import LongitudinalMpc
+from .plant import Plant
+from .position import PlanarPositionEstimator
+from .record import RecordBuffer, RunRecord
+from .references import make_reference
+from .scenario import Scenario
+from .sensors import Sensors, wheel_odometry
+from .trajectory_generator import TrajectoryGenerator
+
+
+def initial_state(scenario: Scenario, reference_state) -> np.ndarray:
+    """True initial state from the scenario; a relative pose is a body-frame error.
+
+    With (x_e, y_e, ϕ_e) defined as in eq. (9) (body frame), the pose is
+    ϕ = ϕr − ϕe and (x, y) = (xr, yr) − R(ϕ) (x_e, y_e). Section V's ϕ(0) = 0.5
+    contradicts ϕr(0) − ϕe(0); the spec adopts ϕ(0) = ϕr(0) − 0.1.
+    """
+    init = scenario.initial_state
+    a, b, c = init.pose
+    if init.pose_relative_to_reference:
+        phi = reference_state.phi - c
+        cos_phi, sin_phi = math.cos(phi), math.sin(phi)
+        x = reference_state.x - (cos_phi * a - sin_phi * b)
+        y = reference_state.y - (sin_phi * a + cos_phi * b)
+    else:
+        x, y, phi = a, b, c
+    return np.array([x, y, phi, init.x_v, init.theta, init.omega, init.v, init.theta_dot])
+
+
+@dataclasses.dataclass
+class RunResult:
+    """Outcome of :func:`run_scenario`."""
+
+    record: RunRecord
+    fell: bool
+    fall_time: float | None
+    wall_time_s: float
+    simulated_time_s: float
+    mpc_inputs: list[dict] | None = None
+
+
+ProgressCallback = Callable[[float, float], None]
+
+
+def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
+                 record_mpc_inputs: bool = False) -> RunResult:
+    """Simulate ``scenario`` in one Python loop and record everything.
+
+    Parameters
+    ----------
+    progress : called as ``progress(t, duration)`` about once per simulated second.
+    record_mpc_inputs : keep the arguments of every MPC call (for ``scripts/bench``).
+    """
+    wall_start = time.perf_counter()
+    true_params = scenario.plant.parameters
+    nominal = scenario.controller_model.parameters
+    plant = Plant(true_params, scenario.plant.model.model)
+    disturbances = Disturbances(scenario.disturbances, seed=scenario.seed)
+    reference = make_reference(scenario.reference)
+    state = initial_state(scenario, reference.sample(0.0))
+
+    sensors = Sensors(true_params, scenario.sensors, initial_yaw=float(state[PHI]),
+                      seed=scenario.seed)
+    relative_to_body = scenario.sensors.encoders_relative_to_body
+    eso = WipStateObserver(nominal, scenario.eso,
+                           initial_positions=(state[PHI], state[XV], state[THETA]))
+    position = PlanarPositionEstimator(scenario.position)
+    position.reset(state[X], state[Y], state[XV], state[PHI])
+    generator = TrajectoryGenerator(scenario.trajectory_generator)
+    g1_hat = scenario.eso.yaw_input_gain_scale * input_gains(nominal, state[THETA])[0]
+    arc = AdaptiveRobustYawController(scenario.arc, alpha_initial=1.0 / g1_hat)
+    mpc = LongitudinalMpc(nominal, scenario.mpc)
+    max_wheel = scenario.mixer.max_wheel_torque
+
+    dt_control = scenario.control_period
+    substeps = scenario.rates.substeps
+    dt_plant = dt_control / substeps
+    n_ticks = int(round(scenario.duration / dt_control))
+    mpc_every = scenario.mpc_decimation
+    gps_every = max(1, int(round(scenario.rates.control_rate / scenario.sensors.gps_rate)))
+    n_mpc = n_ticks // mpc_every + 1
+
+    buffers = {g: RecordBuffer(g, n_ticks + 1) for g in
+               ('truth', 'reference', 'estimate', 'command', 'arc', 'wheels')}
+    buffers['mpc'] = RecordBuffer('mpc', n_mpc)
+    mpc_inputs: list[dict] | None = [] if record_mpc_inputs else None
+
+    tau_left = tau_right = 0.0          # applied over the previous control period
+    tau_v = 0.0                         # MPC output, held between MPC ticks
+    yaw_unwrapped = float(state[PHI])
+    fell, fall_time = False, None
+    next_progress = 1.0
+
+    for k in range(n_ticks + 1):
+        t = k * dt_control
+        d1, d2, d3 = disturbances.sample(t)
+        buffers['truth'].append((t, *state, d1, d2, d3, tau_left, tau_right))
+        if abs(state[THETA]) >= scenario.fall_threshold:
+            fell, fall_time = True, t
+            break
+        if k == n_ticks:
+            break
+
+        # 1-3: measurements -> estimates (positions only, as in the paper).
+        phi_left, phi_right = sensors.encoders(state)
+        pitch, yaw = sensors.imu(state)
+        yaw_unwrapped = unwrap_next(yaw_unwrapped, yaw)
+        x_v_meas, odometry_yaw = wheel_odometry(
+            phi_left, phi_right, pitch, true_params, state_initial_yaw(sensors),
+            relative_to_body)
+        tau_v_applied = tau_left + tau_right
+        tau_omega_applied = tau_right - tau_left
+        estimate = eso.update(t, yaw_unwrapped, x_v_meas, pitch, tau_v_applied,
+                              tau_omega_applied)
+        x_hat, y_hat = position.update_odometry(x_v_meas, estimate.phi)
+        if k % gps_every == 0:
+            x_hat, y_hat = position.update_gps(*sensors.gps(state))
+
+        # 4-5: reference, saturated trajectory generator, yaw ARC.
+        ref = reference.sample(t)
+        command = generator.step(t, ref, x_hat, y_hat, estimate.phi)
+        arc_out = arc.step(dt_control, estimate.omega, estimate.f1, command.omega_d,
+                           command.omega_d_dot)
+
+        # 6: MPC of the longitudinal/tilt subsystem at its own sampling period.
+        if k % mpc_every == 0:
+            limit = drive_torque_limit(arc_out.tau_omega, max_wheel)
+            mpc_args = dict(v_hat=estimate.v, theta_hat=estimate.theta,
+                            theta_dot_hat=estimate.theta_dot, f2_hat=estimate.f2,
+                            f3_hat=estimate.f3, v_d=command.v_d, tau_limit=limit)
+            if mpc_inputs is not None:
+                mpc_inputs.append(dict(mpc_args, tau_previous=tau_v))
+            result = mpc.step(**mpc_args)
+            tau_v = result.tau_v
+            buffers['mpc'].append((t, result.tau_v, result.delta_tau, result.status,
+                                   result.iterations, result.solve_time_s,
+                                   float(result.used_fallback), result.slack_v,
+                                   result.slack_theta))
+
+        # 7: mixer, eq. (24).
+        tau_left, tau_right = mix(tau_v, arc_out.tau_omega, max_wheel)
+
+        buffers['reference'].append((t, ref.x, ref.y, ref.phi, ref.v, ref.omega))
+        buffers['estimate'].append((t, estimate.phi, estimate.omega, estimate.f1,
+                                    estimate.x_v, estimate.v, estimate.f2, estimate.theta,
+                                    estimate.theta_dot, estimate.f3, x_hat, y_hat))
+        buffers['command'].append((t, command.v_d, command.omega_d, command.omega_d_dot,
+                                   command.x_e, command.y_e, command.phi_e))
+        buffers['arc'].append((t, arc_out.tau_omega, arc_out.alpha_hat, arc_out.e_omega))
+        buffers['wheels'].append((t, tau_left, tau_right))
+
+        # 8: the plant, RK4 at plant_rate with the torques held.
+        state = plant.simulate_hold(state, tau_left, tau_right, disturbances.sample, t,
+                                    dt_plant, substeps)
+        if progress is not None and t >= next_progress:
+            progress(t, scenario.duration)
+            next_progress += 1.0
+
+    groups = {name: buf.to_arrays() for name, buf in buffers.items()}
+    record = RunRecord(groups, attributes={'scenario': scenario.name})
+    return RunResult(record=record, fell=fell, fall_time=fall_time,
+                     wall_time_s=time.perf_counter() - wall_start,
+                     simulated_time_s=float(groups['truth']['t'][-1]),
+                     mpc_inputs=mpc_inputs)
+
+
+def state_initial_yaw(sensors: Sensors) -> float:
+    return sensors.initial_yaw

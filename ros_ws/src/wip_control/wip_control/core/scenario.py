@@ -1,0 +1,276 @@
+"""Scenario files: one YAML file describes one run.
+
+A scenario holds the duration, the reference path, the initial state, the true plant
+(model and parameter overrides, so the plant can differ from the controllers'
+nominal model), the disturbances, the sensors, every controller's parameters and the
+rates. Every key is optional: its default is the paper's Section V [1]_ as decoded in
+``shared/spec/model-and-controllers.md`` section 6. Unknown keys, values of the wrong
+type and values out of range raise :class:`~wip_control.core.config.ConfigError`
+whose message starts with the dotted path of the key (``mpc.max_tilt: must be > 0``).
+
+Schema (top level; ``scripts/simulate --list-parameters`` prints every leaf with its
+unit, default and range)::
+
+    name: str                     # free text
+    description: str
+    duration: float [s]
+    seed: int                     # seeds sensor and disturbance noise
+    rates: {plant_rate, control_rate}           [Hz]
+    fall_threshold: float [rad]
+    initial_state: {pose_relative_to_reference, pose, x_v, theta, omega, v, theta_dot}
+    plant: {model: paper|full, parameters: {<WipParameters field>: value}}
+    controller_model: {parameters: {...}}       # nominal model used by the controllers
+    reference: {kind: trifolium|circle|line|figure_eight|waypoints, ...}
+    disturbances: {yaw: [..], longitudinal: [..], tilt: [..]}
+    sensors, eso, position, trajectory_generator, arc, mpc, mixer: component configs
+
+References
+----------
+.. [1] Yue, An, Li, IEEE T-SMC: Systems, 2016, Section V.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+from typing import Any, Mapping
+
+import yaml
+
+from .arc import ArcConfig
+from .config import ConfigError, from_mapping, param, to_mapping
+from .disturbances import DisturbanceConfig
+from .eso import EsoConfig
+from .mixer import MixerConfig
+from .mpc import MpcConfig
+from .params import WipParameters
+from .plant import PlantConfig
+from .position import PositionConfig
+from .references import ReferenceConfig
+from .sensors import SensorConfig
+from .trajectory_generator import TrajectoryGeneratorConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class RatesConfig:
+    """Loop rates shared by the in-process runner and the node graph."""
+
+    plant_rate: float = param(1000.0, 'Hz', 'RK4 integration rate of the plant',
+                              minimum=10.0, maximum=100000.0)
+    control_rate: float = param(200.0, 'Hz', 'rate of the ESO, trajectory generator, ARC '
+                                'and mixer (the encoder/IMU rate)', minimum=1.0,
+                                maximum=10000.0)
+
+    def validate(self) -> None:
+        ratio = self.plant_rate / self.control_rate
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ConfigError('plant_rate: must be an integer multiple of control_rate '
+                              f'({self.plant_rate} / {self.control_rate} = {ratio})')
+
+    @property
+    def substeps(self) -> int:
+        """Plant RK4 steps per control period."""
+        return int(round(self.plant_rate / self.control_rate))
+
+
+@dataclasses.dataclass(frozen=True)
+class InitialStateConfig:
+    """Initial state of the true plant; all velocities default to zero (Section V)."""
+
+    pose_relative_to_reference: bool = param(
+        True, '-', 'if true, pose is the body-frame error (x_e, y_e, phi_e) to the '
+        'reference at t = 0; if false, pose is the absolute (x, y, phi) in the map frame')
+    pose: tuple[float, float, float] = param(
+        (0.5, 0.5, 0.1), 'm, m, rad', 'initial pose or initial body-frame error, see '
+        'pose_relative_to_reference (paper: (x_e, y_e, phi_e)(0) = (0.5, 0.5, 0.1))',
+        minimum=-1e4, maximum=1e4)
+    x_v: float = param(0.1, 'm', 'initial distance rolled (paper: 0.1)',
+                       minimum=-1e4, maximum=1e4)
+    theta: float = param(0.05, 'rad', 'initial tilt, positive leaning forward (paper: 0.05)',
+                         minimum=-1.2, maximum=1.2)
+    omega: float = param(0.0, 'rad/s', 'initial yaw rate', minimum=-10.0, maximum=10.0)
+    v: float = param(0.0, 'm/s', 'initial forward speed', minimum=-10.0, maximum=10.0)
+    theta_dot: float = param(0.0, 'rad/s', 'initial tilt rate', minimum=-10.0, maximum=10.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class PlantSection:
+    """The true plant: model and parameter overrides of :class:`WipParameters`."""
+
+    model: PlantConfig = dataclasses.field(default_factory=PlantConfig)
+    parameters: WipParameters = dataclasses.field(default_factory=WipParameters)
+
+
+@dataclasses.dataclass(frozen=True)
+class ControllerModelSection:
+    """The controllers' nominal model (eq. (1)); defaults equal the true plant's."""
+
+    parameters: WipParameters = dataclasses.field(default_factory=WipParameters)
+
+
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    """Everything one run needs. Build with :func:`load_scenario` or :func:`scenario_from_mapping`."""
+
+    name: str = 'paper_section_v'
+    description: str = ('Section V of Yue, An, Li (2016): trifolium, sine yaw disturbance, '
+                        'collision pulse at 30 s, 90 s')
+    duration: float = 90.0
+    seed: int = 0
+    fall_threshold: float = 0.5
+    rates: RatesConfig = dataclasses.field(default_factory=RatesConfig)
+    initial_state: InitialStateConfig = dataclasses.field(default_factory=InitialStateConfig)
+    plant: PlantSection = dataclasses.field(default_factory=PlantSection)
+    controller_model: ControllerModelSection = dataclasses.field(
+        default_factory=ControllerModelSection)
+    reference: ReferenceConfig = dataclasses.field(default_factory=ReferenceConfig)
+    disturbances: DisturbanceConfig = dataclasses.field(default_factory=DisturbanceConfig)
+    sensors: SensorConfig = dataclasses.field(default_factory=SensorConfig)
+    eso: EsoConfig = dataclasses.field(default_factory=EsoConfig)
+    position: PositionConfig = dataclasses.field(default_factory=PositionConfig)
+    trajectory_generator: TrajectoryGeneratorConfig = dataclasses.field(
+        default_factory=TrajectoryGeneratorConfig)
+    arc: ArcConfig = dataclasses.field(default_factory=ArcConfig)
+    mpc: MpcConfig = dataclasses.field(default_factory=MpcConfig)
+    mixer: MixerConfig = dataclasses.field(default_factory=MixerConfig)
+
+    @property
+    def control_period(self) -> float:
+        """Period of the ESO/generator/ARC/mixer loop [s]."""
+        return 1.0 / self.rates.control_rate
+
+    @property
+    def mpc_decimation(self) -> int:
+        """Control periods per MPC sampling period."""
+        return int(round(self.mpc.sampling_period * self.rates.control_rate))
+
+
+_TOP_LEVEL_SCALARS = {
+    'name': (str, 'free-text name of the scenario'),
+    'description': (str, 'free-text description'),
+    'duration': (float, 'simulated time [s], in (0, 36000]'),
+    'seed': (int, 'seed of every random generator (sensor and disturbance noise)'),
+    'fall_threshold': (float, '|theta| [rad] beyond which the vehicle counts as fallen and '
+                       'the run stops, in (0, 1.5]'),
+}
+
+
+def _parameters_from_mapping(mapping: Any, path: str) -> WipParameters:
+    return from_mapping(WipParameters, mapping, path)
+
+
+def _section(mapping: Mapping[str, Any], key: str) -> Any:
+    value = mapping.get(key)
+    return {} if value is None else value
+
+
+def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
+    """Validate a parsed YAML mapping and build a :class:`Scenario`."""
+    data = {} if data is None else data
+    if not isinstance(data, Mapping):
+        raise ConfigError(f'scenario: expected a mapping at the top level, got {type(data).__name__}')
+    sections = {'rates', 'initial_state', 'plant', 'controller_model', 'reference',
+                'disturbances', 'sensors', 'eso', 'position', 'trajectory_generator', 'arc',
+                'mpc', 'mixer'}
+    known = set(_TOP_LEVEL_SCALARS) | sections
+    for key in data:
+        if key not in known:
+            raise ConfigError(f'{key}: unknown key; expected one of {sorted(known)}')
+    kwargs: dict[str, Any] = {}
+    for key, (kind, _) in _TOP_LEVEL_SCALARS.items():
+        if key not in data:
+            continue
+        value = data[key]
+        if kind is str and not isinstance(value, str):
+            raise ConfigError(f'{key}: expected a string, got {value!r}')
+        if kind in (int, float):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not math.isfinite(value):
+                raise ConfigError(f'{key}: expected a finite number, got {value!r}')
+            if kind is int and not float(value).is_integer():
+                raise ConfigError(f'{key}: expected an integer, got {value!r}')
+            value = kind(value)
+        kwargs[key] = value
+    if 'duration' in kwargs and not 0.0 < kwargs['duration'] <= 36000.0:
+        raise ConfigError(f'duration: must be in (0, 36000] s, got {kwargs["duration"]!r}')
+    if 'fall_threshold' in kwargs and not 0.0 < kwargs['fall_threshold'] <= 1.5:
+        raise ConfigError('fall_threshold: must be in (0, 1.5] rad, got '
+                          f'{kwargs["fall_threshold"]!r}')
+    if 'seed' in kwargs and kwargs['seed'] < 0:
+        raise ConfigError(f'seed: must be >= 0, got {kwargs["seed"]!r}')
+
+    plant = _section(data, 'plant')
+    if not isinstance(plant, Mapping):
+        raise ConfigError(f'plant: expected a mapping, got {plant!r}')
+    for key in plant:
+        if key not in ('model', 'parameters'):
+            raise ConfigError(f'plant.{key}: unknown key; expected one of [\'model\', '
+                              '\'parameters\']')
+    kwargs['plant'] = PlantSection(
+        model=from_mapping(PlantConfig, {'model': plant['model']} if 'model' in plant else {},
+                           'plant'),
+        parameters=_parameters_from_mapping(plant.get('parameters'), 'plant.parameters'))
+    nominal = _section(data, 'controller_model')
+    if not isinstance(nominal, Mapping):
+        raise ConfigError(f'controller_model: expected a mapping, got {nominal!r}')
+    for key in nominal:
+        if key != 'parameters':
+            raise ConfigError(f'controller_model.{key}: unknown key; expected [\'parameters\']')
+    kwargs['controller_model'] = ControllerModelSection(
+        parameters=_parameters_from_mapping(nominal.get('parameters'),
+                                            'controller_model.parameters'))
+    kwargs['disturbances'] = DisturbanceConfig.from_mapping(
+        _section(data, 'disturbances'), 'disturbances')
+    for key, cls in (('rates', RatesConfig), ('initial_state', InitialStateConfig),
+                     ('reference', ReferenceConfig), ('sensors', SensorConfig),
+                     ('eso', EsoConfig), ('position', PositionConfig),
+                     ('trajectory_generator', TrajectoryGeneratorConfig), ('arc', ArcConfig),
+                     ('mpc', MpcConfig), ('mixer', MixerConfig)):
+        kwargs[key] = from_mapping(cls, _section(data, key), key)
+    scenario = Scenario(**kwargs)
+    _check_consistency(scenario)
+    return scenario
+
+
+def _check_consistency(scenario: Scenario) -> None:
+    """Cross-section checks: rates that must divide each other."""
+    ratio = scenario.mpc.sampling_period * scenario.rates.control_rate
+    if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+        raise ConfigError('mpc.sampling_period: must be an integer multiple of the control '
+                          f'period 1/rates.control_rate = {scenario.control_period} s')
+    eso_period = scenario.eso.sample_period
+    if abs(eso_period - scenario.control_period) > 1e-12:
+        raise ConfigError(f'eso.sample_period: must equal 1/rates.control_rate = '
+                          f'{scenario.control_period} s (the ESO runs at the sensor rate), '
+                          f'got {eso_period}')
+
+
+def load_scenario(path: str | pathlib.Path | None = None) -> Scenario:
+    """Load and validate a scenario file; ``None`` gives the paper's Section V."""
+    if path is None:
+        return Scenario()
+    path = pathlib.Path(path)
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as err:
+        raise ConfigError(f'scenario file {str(path)!r}: {err.strerror}') from err
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ConfigError(f'scenario file {str(path)!r} is not valid YAML: {err}') from err
+    try:
+        return scenario_from_mapping(data)
+    except ConfigError as err:
+        raise ConfigError(f'{path}: {err}') from err
+
+
+def scenario_to_mapping(scenario: Scenario) -> dict[str, Any]:
+    """Plain-data form of a scenario (round-trips through :func:`scenario_from_mapping`)."""
+    out = to_mapping(scenario)
+    out['plant'] = {'model': scenario.plant.model.model,
+                    'parameters': dataclasses.asdict(scenario.plant.parameters)}
+    out['controller_model'] = {
+        'parameters': dataclasses.asdict(scenario.controller_model.parameters)}
+    out['disturbances'] = scenario.disturbances.to_mapping()
+    return out
