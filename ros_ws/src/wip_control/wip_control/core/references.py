@@ -1,0 +1,477 @@
+"""Reference trajectories (x_r, y_r, ϕ_r, υ_r, ω_r, ω̇_r) for the generator of eq. (9) in [1]_.
+
+Every reference is a planar curve p(t) = (x_r(t), y_r(t)) with analytic derivatives up to
+the third order, from which
+
+.. math::
+
+    \\upsilon_r = |\\dot p|, \\quad
+    \\omega_r = \\frac{\\dot x \\ddot y - \\dot y \\ddot x}{\\dot x^2 + \\dot y^2}, \\quad
+    \\dot\\omega_r = \\frac{\\dot x \\dddot y - \\dot y \\dddot x}{\\upsilon_r^2}
+        - 2 \\omega_r \\frac{\\dot x \\ddot x + \\dot y \\ddot y}{\\upsilon_r^2}
+
+and ϕ_r = atan2(ẏ_r, ẋ_r) given by a closed form on a continuous branch (never
+jumping by 2π). ``sample`` uses floats and ``math`` only.
+
+Kinds
+-----
+``trifolium`` (Section V): x_r = κ cos(3Ω t) cos(Ω t), y_r = κ cos(3Ω t) sin(Ω t),
+κ = 3 m, Ω = π/45 rad/s. Its speed is κΩ √(1 + 8 sin²(3Ω t)) ∈ [κΩ, 3κΩ] =
+[0.21, 0.63] m/s, never zero, and |ω_r| peaks at 0.70 rad/s at the petal tips.
+``circle``, ``line``, ``figure_eight`` (lemniscate of Gerono x = a sin τ,
+y = (a/2) sin 2τ, τ = 2π t/P), and ``waypoints``: a polyline with circular fillets at
+the corners and a trapezoidal speed profile (see :class:`Waypoints`).
+
+References
+----------
+.. [1] M. Yue, C. An, Z. Li, IEEE T-SMC: Systems, 2016 (see ``eso.py``).
+"""
+
+from __future__ import annotations
+
+import bisect
+import dataclasses
+import math
+from typing import NamedTuple, Sequence
+
+from .config import ConfigError, param
+
+_HALF_PI = 0.5 * math.pi
+KINDS = ('trifolium', 'circle', 'line', 'figure_eight', 'waypoints')
+#: Sharpest corner a waypoint list may have [rad] (a U-turn has no fillet).
+MAX_CORNER_ANGLE = math.radians(179.0)
+
+
+class ReferenceState(NamedTuple):
+    """Reference pose and velocities at one time."""
+
+    x: float          #: x_r in the map frame [m]
+    y: float          #: y_r in the map frame [m]
+    phi: float        #: ϕ_r, heading, continuous (not wrapped) [rad]
+    v: float          #: υ_r, speed [m/s]
+    omega: float      #: ω_r, yaw rate [rad/s]
+    omega_dot: float  #: ω̇_r, yaw acceleration [rad/s²]
+
+
+def _from_derivatives(x: float, y: float, phi: float, xd: float, yd: float, xdd: float,
+                      ydd: float, xddd: float, yddd: float) -> ReferenceState:
+    """ReferenceState from position derivatives (speed must be > 0)."""
+    v2 = xd * xd + yd * yd
+    omega = (xd * ydd - yd * xdd) / v2
+    omega_dot = ((xd * yddd - yd * xddd) - 2.0 * omega * (xd * xdd + yd * ydd)) / v2
+    return ReferenceState(x, y, phi, math.sqrt(v2), omega, omega_dot)
+
+
+class Reference:
+    """A reference trajectory: :meth:`sample` gives the state at time t [s]."""
+
+    def sample(self, t: float) -> ReferenceState:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def derivatives(self, t: float) -> tuple[float, ...]:  # pragma: no cover - interface
+        """(ẋ, ẏ, ẍ, ÿ, x⃛, y⃛) at t, where defined analytically."""
+        raise NotImplementedError
+
+
+class Trifolium(Reference):
+    """The paper's trifolium, Section V of [1]_: r = κ cos(3Ω t) at polar angle Ω t.
+
+    Written as p = (κ/2)(e^{i4Ωt} + e^{−i2Ωt}) (complex plane), so every derivative is a
+    sum of two phasors. Heading on a continuous branch: with u = 3Ω t,
+    ϕ_r = 4Ω t + π/2 + atan2(sin 2u, 1 + 2 sin² u) (the atan2 argument has a positive
+    real part, so it never jumps); ϕ_r grows by 4π per figure (π/Ω = 45 s).
+
+    Parameters
+    ----------
+    size : κ [m], > 0.
+    angular_frequency : Ω [rad/s], > 0.
+    """
+
+    def __init__(self, size: float = 3.0, angular_frequency: float = math.pi / 45.0) -> None:
+        if not (size > 0.0 and angular_frequency > 0.0):
+            raise ValueError('Trifolium: size and angular_frequency must be > 0')
+        self.size = size
+        self.angular_frequency = angular_frequency
+
+    def derivatives(self, t: float) -> tuple[float, ...]:
+        a_half, w = 0.5 * self.size, self.angular_frequency
+        ca, sa = math.cos(4.0 * w * t), math.sin(4.0 * w * t)
+        cb, sb = math.cos(2.0 * w * t), math.sin(2.0 * w * t)
+        w2, w3 = w * w, w * w * w
+        return (a_half * w * (-4.0 * sa - 2.0 * sb), a_half * w * (4.0 * ca - 2.0 * cb),
+                -a_half * w2 * (16.0 * ca + 4.0 * cb), -a_half * w2 * (16.0 * sa - 4.0 * sb),
+                a_half * w3 * (64.0 * sa + 8.0 * sb), a_half * w3 * (-64.0 * ca + 8.0 * cb))
+
+    def sample(self, t: float) -> ReferenceState:
+        w = self.angular_frequency
+        r = self.size * math.cos(3.0 * w * t)
+        su = math.sin(3.0 * w * t)
+        phi = 4.0 * w * t + _HALF_PI + math.atan2(math.sin(6.0 * w * t), 1.0 + 2.0 * su * su)
+        return _from_derivatives(r * math.cos(w * t), r * math.sin(w * t), phi,
+                                 *self.derivatives(t))
+
+
+class Circle(Reference):
+    """Uniform motion on a circle.
+
+    Parameters
+    ----------
+    center : (x, y) [m].
+    radius : R [m], > 0.
+    speed : υ_r [m/s], > 0.
+    direction : ``'ccw'`` (ω_r = υ/R) or ``'cw'`` (ω_r = −υ/R).
+    start_angle : polar angle of the start point about the centre [rad].
+    """
+
+    def __init__(self, center: Sequence[float] = (0.0, 0.0), radius: float = 2.0,
+                 speed: float = 0.5, direction: str = 'ccw', start_angle: float = 0.0) -> None:
+        if not (radius > 0.0 and speed > 0.0):
+            raise ValueError('Circle: radius and speed must be > 0')
+        if direction not in ('ccw', 'cw'):
+            raise ValueError(f"Circle: direction must be 'ccw' or 'cw', got {direction!r}")
+        self.cx, self.cy = center
+        self.radius, self.speed, self.start_angle = radius, speed, start_angle
+        self.sign = 1.0 if direction == 'ccw' else -1.0
+        self.rate = self.sign * speed / radius
+
+    def derivatives(self, t: float) -> tuple[float, ...]:
+        beta = self.start_angle + self.rate * t
+        c, s = math.cos(beta), math.sin(beta)
+        r, w = self.radius, self.rate
+        return (-r * w * s, r * w * c, -r * w * w * c, -r * w * w * s, r * w ** 3 * s,
+                -r * w ** 3 * c)
+
+    def sample(self, t: float) -> ReferenceState:
+        beta = self.start_angle + self.rate * t
+        return ReferenceState(self.cx + self.radius * math.cos(beta),
+                              self.cy + self.radius * math.sin(beta),
+                              beta + self.sign * _HALF_PI, self.speed, self.rate, 0.0)
+
+
+class StraightLine(Reference):
+    """Uniform motion on a straight line from ``start`` [m] along ``heading`` [rad] at
+    ``speed`` [m/s] (≥ 0)."""
+
+    def __init__(self, start: Sequence[float] = (0.0, 0.0), heading: float = 0.0,
+                 speed: float = 0.5) -> None:
+        if not speed >= 0.0:
+            raise ValueError('StraightLine: speed must be >= 0')
+        self.x0, self.y0 = start
+        self.heading, self.speed = heading, speed
+        self._c, self._s = math.cos(heading), math.sin(heading)
+
+    def derivatives(self, t: float) -> tuple[float, ...]:
+        return (self.speed * self._c, self.speed * self._s, 0.0, 0.0, 0.0, 0.0)
+
+    def sample(self, t: float) -> ReferenceState:
+        d = self.speed * t
+        return ReferenceState(self.x0 + d * self._c, self.y0 + d * self._s, self.heading,
+                              self.speed, 0.0, 0.0)
+
+
+class FigureEight(Reference):
+    """Lemniscate of Gerono: x = cx + a sin τ, y = cy + (a/2) sin 2τ, τ = 2π t/P.
+
+    Starts at the centre heading 45°, first lobe to the right (counter-clockwise), the
+    second clockwise. ẋ ∝ cos τ and ẏ ∝ 2cos²τ − 1 depend on τ only through c = cos τ, so
+    ϕ_r = −π/2 + atan2(c, 1 − 2c²), continuous for c ∈ [−1, 1] (range [−5π/4, π/4]).
+    The speed a(2π/P)√(4c⁴ − 3c² + 1) lies in [0.66, 1.41]·a 2π/P, never zero.
+
+    Parameters
+    ----------
+    center : (x, y) [m].
+    size : half-width a [m], > 0.
+    period : P, time for the whole figure [s], > 0.
+    """
+
+    def __init__(self, center: Sequence[float] = (0.0, 0.0), size: float = 3.0,
+                 period: float = 60.0) -> None:
+        if not (size > 0.0 and period > 0.0):
+            raise ValueError('FigureEight: size and period must be > 0')
+        self.cx, self.cy = center
+        self.size, self.period = size, period
+        self.rate = 2.0 * math.pi / period
+
+    def derivatives(self, t: float) -> tuple[float, ...]:
+        a, w = self.size, self.rate
+        tau = w * t
+        c1, s1 = math.cos(tau), math.sin(tau)
+        c2, s2 = math.cos(2.0 * tau), math.sin(2.0 * tau)
+        return (a * w * c1, a * w * c2, -a * w * w * s1, -2.0 * a * w * w * s2,
+                -a * w ** 3 * c1, -4.0 * a * w ** 3 * c2)
+
+    def sample(self, t: float) -> ReferenceState:
+        tau = self.rate * t
+        c = math.cos(tau)
+        phi = -_HALF_PI + math.atan2(c, 1.0 - 2.0 * c * c)
+        return _from_derivatives(self.cx + self.size * math.sin(tau),
+                                 self.cy + 0.5 * self.size * math.sin(2.0 * tau), phi,
+                                 *self.derivatives(t))
+
+
+class _Piece(NamedTuple):
+    """One line or arc of a waypoint path with its speed-profile phases."""
+
+    t_start: float      # time the piece is entered [s]
+    x0: float           # start point [m]
+    y0: float
+    heading0: float     # heading at the start [rad]
+    curvature: float    # κ [1/m], 0 for a line, signed (left > 0) for an arc
+    length: float       # [m]
+    v_in: float         # speed at the start [m/s]
+    v_peak: float       # cruise speed reached [m/s]
+    v_out: float        # speed at the end [m/s]
+    t_accel: float      # duration of the acceleration phase [s]
+    t_cruise: float     # duration of the cruise phase [s]
+    t_decel: float      # duration of the deceleration phase [s]
+
+
+class Waypoints(Reference):
+    """A polyline through waypoints, corners filleted, trapezoidal speed profile.
+
+    Geometry: every interior corner of turn angle Δ gets a circular fillet of radius R
+    (``corner_radius``), tangent to both legs at distance R tan(|Δ|/2) from the corner;
+    where that does not fit (half of each adjacent leg, all of an end leg) R is reduced
+    for that corner. The path is thus G1 (continuous heading) with piecewise-constant
+    curvature: 0 on legs, ±1/R on fillets.
+
+    Speed: starts and ends at rest, accelerates and brakes at ``acceleration``, cruises
+    at ``speed``, and on each fillet is limited to ``max_yaw_rate``·R so that ω_r = υ_r κ
+    never exceeds ``max_yaw_rate``. The profile is the time-optimal one under these
+    limits (forward/backward pass over the piece boundaries, then a trapezoid or
+    triangle per piece). Piecewise constant curvature means ω_r steps at the ends of a
+    fillet; ω̇_r = υ̇_r κ omits those (Dirac) steps. Before t = 0 and after the end the
+    reference rests at the first and last waypoint.
+
+    Parameters
+    ----------
+    points : sequence of (x, y) [m], at least 2, consecutive points distinct.
+    speed : cruise speed [m/s], > 0.
+    acceleration : |υ̇_r| limit [m/s²], > 0.
+    corner_radius : fillet radius [m], > 0.
+    max_yaw_rate : |ω_r| limit on fillets [rad/s], > 0.
+
+    Raises
+    ------
+    ValueError
+        on coincident consecutive points, a corner sharper than 179°, or bad limits.
+    """
+
+    def __init__(self, points: Sequence[Sequence[float]], speed: float = 0.5,
+                 acceleration: float = 0.2, corner_radius: float = 1.0,
+                 max_yaw_rate: float = 0.25) -> None:
+        if len(points) < 2:
+            raise ValueError(f'Waypoints: need at least 2 points, got {len(points)}')
+        for label, value in (('speed', speed), ('acceleration', acceleration),
+                             ('corner_radius', corner_radius),
+                             ('max_yaw_rate', max_yaw_rate)):
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f'Waypoints: {label} must be finite and > 0, got {value!r}')
+        self.points = [(float(x), float(y)) for x, y in points]
+        self.speed, self.acceleration = speed, acceleration
+        geometry = self._geometry(self.points, corner_radius)
+        self._pieces = self._profile(geometry, speed, acceleration, max_yaw_rate)
+        self._starts = [p.t_start for p in self._pieces]
+        last = self._pieces[-1]
+        self.duration = last.t_start + last.t_accel + last.t_cruise + last.t_decel
+        self._end = self._at_piece(last, last.length, 0.0, 0.0)
+
+    @staticmethod
+    def _geometry(points: list[tuple[float, float]], radius: float) -> list[tuple]:
+        """Pieces (x0, y0, heading0, curvature, length) of the filleted polyline."""
+        n_legs = len(points) - 1
+        legs = []
+        for i in range(n_legs):
+            dx = points[i + 1][0] - points[i][0]
+            dy = points[i + 1][1] - points[i][1]
+            length = math.hypot(dx, dy)
+            if not length > 1e-9:
+                raise ValueError(f'Waypoints: points {i} and {i + 1} coincide')
+            legs.append((math.atan2(dy, dx), length))
+        # Continuous headings along the path (each turn in (−π, π)).
+        headings = [legs[0][0]]
+        turns = [0.0]  # turns[i] = turn at interior point i (index 0 unused)
+        for i in range(1, n_legs):
+            turn = math.remainder(legs[i][0] - legs[i - 1][0], 2.0 * math.pi)
+            if abs(turn) > MAX_CORNER_ANGLE:
+                raise ValueError(f'Waypoints: the turn at point {i} is '
+                                 f'{math.degrees(abs(turn)):.1f} deg, more than '
+                                 f'{math.degrees(MAX_CORNER_ANGLE):.0f} deg')
+            turns.append(turn)
+            headings.append(headings[-1] + turn)
+        tangent = [0.0] * (n_legs + 1)   # distance from point i to the fillet's ends
+        radii = [0.0] * (n_legs + 1)
+        for i in range(1, n_legs):
+            half_tan = math.tan(0.5 * abs(turns[i]))
+            if half_tan < 1e-12:
+                continue
+            room_in = legs[i - 1][1] if i - 1 == 0 else 0.5 * legs[i - 1][1]
+            room_out = legs[i][1] if i == n_legs - 1 else 0.5 * legs[i][1]
+            radii[i] = min(radius, min(room_in, room_out) / half_tan)
+            tangent[i] = radii[i] * half_tan
+        pieces = []
+        for i in range(n_legs):
+            heading = headings[i]
+            c, s = math.cos(heading), math.sin(heading)
+            if i > 0 and radii[i] > 0.0:  # fillet at point i, entered on leg i−1
+                prev = headings[i - 1]
+                px, py = points[i]
+                d = tangent[i]
+                pieces.append((px - d * math.cos(prev), py - d * math.sin(prev), prev,
+                               math.copysign(1.0 / radii[i], turns[i]),
+                               radii[i] * abs(turns[i])))
+            length = legs[i][1] - tangent[i] - tangent[i + 1]
+            if length > 1e-9:
+                x0, y0 = points[i][0] + tangent[i] * c, points[i][1] + tangent[i] * s
+                pieces.append((x0, y0, heading, 0.0, length))
+        return pieces
+
+    @staticmethod
+    def _profile(geometry: list[tuple], speed: float, accel: float,
+                 max_yaw_rate: float) -> list[_Piece]:
+        limits = [min(speed, max_yaw_rate / abs(k)) if k != 0.0 else speed
+                  for (_, _, _, k, _) in geometry]
+        m = len(geometry)
+        node = [0.0] * (m + 1)  # speeds at the piece boundaries, at rest at both ends
+        for j in range(1, m):
+            node[j] = min(limits[j - 1], limits[j])
+        for j in range(m):  # forward pass: reachable by accelerating
+            node[j + 1] = min(node[j + 1], math.sqrt(node[j] ** 2 + 2.0 * accel
+                                                     * geometry[j][4]))
+        for j in range(m - 1, -1, -1):  # backward pass: able to brake
+            node[j] = min(node[j], math.sqrt(node[j + 1] ** 2 + 2.0 * accel
+                                             * geometry[j][4]))
+        pieces, t = [], 0.0
+        for j, (x0, y0, heading, k, length) in enumerate(geometry):
+            v_in, v_out = node[j], node[j + 1]
+            v_peak = min(limits[j], math.sqrt(accel * length + 0.5 * (v_in ** 2
+                                                                       + v_out ** 2)))
+            v_peak = max(v_peak, v_in, v_out)
+            d_acc = (v_peak ** 2 - v_in ** 2) / (2.0 * accel)
+            d_dec = (v_peak ** 2 - v_out ** 2) / (2.0 * accel)
+            d_cruise = max(0.0, length - d_acc - d_dec)
+            t_acc, t_dec = (v_peak - v_in) / accel, (v_peak - v_out) / accel
+            t_cruise = d_cruise / v_peak if v_peak > 0.0 else 0.0
+            pieces.append(_Piece(t, x0, y0, heading, k, length, v_in, v_peak, v_out,
+                                 t_acc, t_cruise, t_dec))
+            t += t_acc + t_cruise + t_dec
+        return pieces
+
+    def _at_piece(self, p: _Piece, s: float, v: float, v_dot: float) -> ReferenceState:
+        k = p.curvature
+        if k == 0.0:
+            x = p.x0 + s * math.cos(p.heading0)
+            y = p.y0 + s * math.sin(p.heading0)
+            return ReferenceState(x, y, p.heading0, v, 0.0, 0.0)
+        heading = p.heading0 + k * s
+        x = p.x0 + (math.sin(heading) - math.sin(p.heading0)) / k
+        y = p.y0 - (math.cos(heading) - math.cos(p.heading0)) / k
+        return ReferenceState(x, y, heading, v, v * k, v_dot * k)
+
+    def sample(self, t: float) -> ReferenceState:
+        if t >= self.duration:
+            return self._end
+        if t <= 0.0:
+            return self._at_piece(self._pieces[0], 0.0, 0.0, 0.0)
+        p = self._pieces[bisect.bisect_right(self._starts, t) - 1]
+        tau = t - p.t_start
+        a = self.acceleration
+        if tau < p.t_accel:
+            v = p.v_in + a * tau
+            return self._at_piece(p, (p.v_in + 0.5 * a * tau) * tau, v, a)
+        s = (p.v_in + p.v_peak) * 0.5 * p.t_accel
+        tau -= p.t_accel
+        if tau < p.t_cruise:
+            return self._at_piece(p, s + p.v_peak * tau, p.v_peak, 0.0)
+        s += p.v_peak * p.t_cruise
+        tau = min(tau - p.t_cruise, p.t_decel)
+        v = p.v_peak - a * tau
+        return self._at_piece(p, min(s + (p.v_peak - 0.5 * a * tau) * tau, p.length), v, -a)
+
+
+@dataclasses.dataclass(frozen=True)
+class ReferenceConfig:
+    """Which reference to follow and its parameters (prefixed by the kind).
+
+    Only the fields of the selected ``kind`` are used; all are validated.
+    """
+
+    kind: str = param('trifolium', '1', 'reference trajectory', choices=KINDS)
+    trifolium_size: float = param(3.0, 'm', 'kappa of the trifolium (Section V: 3)',
+                                  minimum=0.0, exclusive_minimum=True)
+    trifolium_angular_frequency: float = param(
+        math.pi / 45.0, 'rad/s', 'Omega_r of the trifolium (Section V: pi/45, one figure '
+        'every 45 s)', minimum=0.0, exclusive_minimum=True)
+    circle_center: tuple[float, float] = param((0.0, 0.0), 'm', 'centre of the circle')
+    circle_radius: float = param(2.0, 'm', 'radius of the circle', minimum=0.0,
+                                 exclusive_minimum=True)
+    circle_speed: float = param(0.5, 'm/s', 'speed on the circle', minimum=0.0,
+                                exclusive_minimum=True)
+    circle_direction: str = param('ccw', '1', 'sense of travel on the circle',
+                                  choices=('ccw', 'cw'))
+    circle_start_angle: float = param(0.0, 'rad', 'polar angle of the start point about '
+                                      'the centre')
+    line_start: tuple[float, float] = param((0.0, 0.0), 'm', 'start point of the line')
+    line_heading: float = param(0.0, 'rad', 'direction of the line (REP 103: 0 = +x)')
+    line_speed: float = param(0.5, 'm/s', 'speed along the line', minimum=0.0)
+    figure_eight_center: tuple[float, float] = param((0.0, 0.0), 'm',
+                                                     'crossing point of the figure eight')
+    figure_eight_size: float = param(3.0, 'm', 'half-width a of the lemniscate of Gerono',
+                                     minimum=0.0, exclusive_minimum=True)
+    figure_eight_period: float = param(60.0, 's', 'time to run the whole figure eight',
+                                       minimum=0.0, exclusive_minimum=True)
+    waypoints_x: tuple[float, ...] = param((0.0, 4.0, 4.0, 0.0), 'm',
+                                           'x of the waypoints, in order')
+    waypoints_y: tuple[float, ...] = param((0.0, 0.0, 4.0, 4.0), 'm',
+                                           'y of the waypoints (same length as waypoints_x)')
+    waypoints_speed: float = param(0.5, 'm/s', 'cruise speed between waypoints',
+                                   minimum=0.0, exclusive_minimum=True)
+    waypoints_acceleration: float = param(0.2, 'm/s^2', 'acceleration and braking limit '
+                                          'of the speed profile', minimum=0.0,
+                                          exclusive_minimum=True)
+    waypoints_corner_radius: float = param(1.0, 'm', 'radius of the corner fillets '
+                                           '(reduced where a leg is too short)',
+                                           minimum=0.0, exclusive_minimum=True)
+    waypoints_max_yaw_rate: float = param(0.25, 'rad/s', 'yaw-rate limit on the fillets '
+                                          '(keep below the generator max_yaw_rate)',
+                                          minimum=0.0, exclusive_minimum=True)
+
+    def validate(self) -> None:
+        if len(self.waypoints_x) != len(self.waypoints_y):
+            raise ConfigError(f'waypoints_y: has {len(self.waypoints_y)} values but '
+                              f'waypoints_x has {len(self.waypoints_x)}')
+        if len(self.waypoints_x) < 2:
+            raise ConfigError(f'waypoints_x: need at least 2 waypoints, got '
+                              f'{len(self.waypoints_x)}')
+        if self.kind == 'waypoints':
+            try:
+                _make_waypoints(self)
+            except ValueError as err:
+                raise ConfigError(f'waypoints_x: {err}') from err
+
+
+def _make_waypoints(config: ReferenceConfig) -> Waypoints:
+    return Waypoints(list(zip(config.waypoints_x, config.waypoints_y)),
+                     speed=config.waypoints_speed,
+                     acceleration=config.waypoints_acceleration,
+                     corner_radius=config.waypoints_corner_radius,
+                     max_yaw_rate=config.waypoints_max_yaw_rate)
+
+
+def make_reference(config: ReferenceConfig | None = None) -> Reference:
+    """Build the reference selected by ``config.kind`` (default: the paper's trifolium)."""
+    config = config if config is not None else ReferenceConfig()
+    config.validate()
+    if config.kind == 'trifolium':
+        return Trifolium(config.trifolium_size, config.trifolium_angular_frequency)
+    if config.kind == 'circle':
+        return Circle(config.circle_center, config.circle_radius, config.circle_speed,
+                      config.circle_direction, config.circle_start_angle)
+    if config.kind == 'line':
+        return StraightLine(config.line_start, config.line_heading, config.line_speed)
+    if config.kind == 'figure_eight':
+        return FigureEight(config.figure_eight_center, config.figure_eight_size,
+                           config.figure_eight_period)
+    if config.kind == 'waypoints':
+        return _make_waypoints(config)
+    raise ConfigError(f'kind: {config.kind!r} is not one of {list(KINDS)}')

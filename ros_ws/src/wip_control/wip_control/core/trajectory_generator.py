@@ -1,0 +1,166 @@
+"""Saturated trajectory generator, eq. (9) in [1]_, with body-frame errors.
+
+.. math::
+
+    x_e = \\cos\\phi (x_r - x) + \\sin\\phi (y_r - y), \\quad
+    y_e = -\\sin\\phi (x_r - x) + \\cos\\phi (y_r - y), \\quad
+    \\phi_e = \\mathrm{wrap}(\\phi_r - \\phi)
+
+    \\omega_d = \\omega_r + \\frac{\\lambda_1 \\upsilon_r y_e \\,\\mathrm{sinc}\\,\\phi_e}
+        {1 + x_e^2 + y_e^2} + \\lambda_2 \\tanh \\phi_e, \\quad
+    \\upsilon_d = \\upsilon_r \\cos \\phi_e + \\lambda_3 \\tanh x_e
+
+then |ω_d| ≤ ω_max, |υ_d| ≤ υ_max by explicit saturation.
+
+Deviations from the paper, as adopted in the spec (section 3):
+
+- the errors are in the **body frame** (the paper's text says earth frame, but its
+  Lyapunov function V2 = λ1 ln(1 + x_e² + y_e²)/2 + ϕ_e²/2 only decreases with
+  body-frame errors: along ẋ = υ_d cos ϕ, ẏ = υ_d sin ϕ, ϕ̇ = ω_d,
+  V̇2 = −λ1 λ3 x_e tanh x_e/(1 + x_e² + y_e²) − λ2 ϕ_e tanh ϕ_e ≤ 0);
+- (9) bounds |ω_d| only by |ω_r| + λ1|υ_r|/2 + λ2, so the commands are saturated
+  explicitly;
+- ω̇_d, which the ARC (12) needs, is not given by the paper. It is the **filtered
+  derivative of the saturated ω_d**, D(s) = s/(τ s + 1) discretised by backward Euler:
+  ω̇_d,k = (τ ω̇_d,k−1 + ω_d,k − ω_d,k−1)/(τ + Δt), then clipped to
+  ±``max_yaw_acceleration``; while ω_d stays saturated at the same limit (this sample
+  and the previous one) ω̇_d is exactly 0 and the filter is reset, as
+  d/dt sat(u) = 0 there. Why not analytic: the exact derivative of (9) needs the
+  vehicle's actual (υ, ω), υ̇_r (not in the reference state) and the derivative of the
+  saturation, and it would differentiate the position estimate, which jumps at each
+  GPS fix. The filtered derivative is model-free, consistent with the saturation (zero
+  when ω_d is held at ±ω_max), bounded by 2 ω_max/(τ + Δt) by construction (Abel
+  summation of bounded increments), and lags by τ (default 0.05 s, against the 0.02 s time constant 1/(g1 kω) of the yaw
+  loop, where it is only a feed-forward). The clip keeps a GPS jump from kicking the
+  feed-forward harder than the ARC could follow anyway (0.8 N·m · g1 ≈ 2 rad/s²).
+
+References
+----------
+.. [1] M. Yue, C. An, Z. Li, IEEE T-SMC: Systems, 2016 (see ``eso.py``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+from .config import param
+from .references import ReferenceState
+
+_TWO_PI = 2.0 * math.pi
+
+
+@dataclasses.dataclass(frozen=True)
+class TrajectoryGeneratorConfig:
+    """Gains and limits of the saturated trajectory generator, eq. (9) in [1]_."""
+
+    lambda1: float = param(1.0, '1', 'lambda1 of eq. (9): weight of the lateral error y_e',
+                           minimum=0.0, exclusive_minimum=True)
+    lambda2: float = param(0.1, 'rad/s', 'lambda2 of eq. (9): weight of tanh(phi_e)',
+                           minimum=0.0, exclusive_minimum=True)
+    lambda3: float = param(1.0, 'm/s', 'lambda3 of eq. (9): weight of tanh(x_e)',
+                           minimum=0.0, exclusive_minimum=True)
+    max_yaw_rate: float = param(0.3, 'rad/s', 'omega_max: |omega_d| saturation (Section V)',
+                                minimum=0.0, exclusive_minimum=True)
+    max_speed: float = param(1.5, 'm/s', 'upsilon_max: |upsilon_d| saturation (Section V)',
+                             minimum=0.0, exclusive_minimum=True)
+    yaw_rate_derivative_time_constant: float = param(
+        0.05, 's', 'tau of the filtered derivative s/(tau s + 1) giving omega_d_dot',
+        minimum=0.0, exclusive_minimum=True)
+    max_yaw_acceleration: float = param(
+        2.0, 'rad/s^2', '|omega_d_dot| clip (about the yaw authority tau_omega_max * g1)',
+        minimum=0.0, exclusive_minimum=True)
+
+
+class VelocityCommand(NamedTuple):
+    """Output of the generator at one sample."""
+
+    v_d: float          #: υ_d, desired speed, saturated [m/s]
+    omega_d: float      #: ω_d, desired yaw rate, saturated [rad/s]
+    omega_d_dot: float  #: ω̇_d, filtered derivative of ω_d [rad/s²]
+    x_e: float          #: body-frame longitudinal error [m]
+    y_e: float          #: body-frame lateral error [m]
+    phi_e: float        #: heading error wrap(ϕ_r − ϕ) [rad]
+
+
+def tracking_errors(ref: ReferenceState, x: float, y: float,
+                    phi: float) -> tuple[float, float, float]:
+    """Body-frame errors (x_e [m], y_e [m], ϕ_e [rad]) of eq. (9), ϕ_e in (−π, π]."""
+    dx, dy = ref.x - x, ref.y - y
+    c, s = math.cos(phi), math.sin(phi)
+    phi_e = math.remainder(ref.phi - phi, _TWO_PI)
+    return c * dx + s * dy, -s * dx + c * dy, phi_e
+
+
+def unsaturated_commands(config: TrajectoryGeneratorConfig, ref: ReferenceState,
+                         x_e: float, y_e: float, phi_e: float) -> tuple[float, float]:
+    """(υ_d [m/s], ω_d [rad/s]) of eq. (9) before saturation."""
+    sinc = math.sin(phi_e) / phi_e if abs(phi_e) > 1e-6 else 1.0 - phi_e * phi_e / 6.0
+    omega_d = (ref.omega
+               + config.lambda1 * ref.v * y_e * sinc / (1.0 + x_e * x_e + y_e * y_e)
+               + config.lambda2 * math.tanh(phi_e))                      # Eq. (9) in [1]
+    v_d = ref.v * math.cos(phi_e) + config.lambda3 * math.tanh(x_e)      # Eq. (9) in [1]
+    return v_d, omega_d
+
+
+class TrajectoryGenerator:
+    """Desired velocities (υ_d, ω_d, ω̇_d) from the reference and the estimated pose.
+
+    Parameters
+    ----------
+    config : gains λ1..λ3, limits ω_max, υ_max, derivative filter.
+    """
+
+    def __init__(self, config: TrajectoryGeneratorConfig | None = None) -> None:
+        self.config = config if config is not None else TrajectoryGeneratorConfig()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the derivative filter's history (ω̇_d = 0 at the next step)."""
+        self._t_prev: float | None = None
+        self._omega_prev = 0.0
+        self._omega_dot = 0.0
+        self._sat_sign_prev = 0.0
+        self.saturated_speed = False     #: whether |υ_d| was clipped at the last step
+        self.saturated_yaw_rate = False  #: whether |ω_d| was clipped at the last step
+
+    def step(self, t: float, ref: ReferenceState, x: float, y: float,
+             phi: float) -> VelocityCommand:
+        """Commands at time ``t`` [s] for the pose (x [m], y [m], ϕ [rad]) and ``ref``.
+
+        Raises
+        ------
+        ValueError
+            on non-finite inputs or time going backwards.
+        """
+        if not math.isfinite(t + x + y + phi + ref.x + ref.y + ref.phi + ref.v + ref.omega):
+            raise ValueError(f'TrajectoryGenerator.step: non-finite input t={t!r}, '
+                             f'pose=({x!r}, {y!r}, {phi!r}), ref={ref!r}')
+        cfg = self.config
+        x_e, y_e, phi_e = tracking_errors(ref, x, y, phi)
+        v_d, omega_d = unsaturated_commands(cfg, ref, x_e, y_e, phi_e)
+        # Explicit saturation (spec section 3): (9) alone exceeds omega_max.
+        self.saturated_speed = abs(v_d) > cfg.max_speed
+        if self.saturated_speed:
+            v_d = math.copysign(cfg.max_speed, v_d)
+        self.saturated_yaw_rate = abs(omega_d) > cfg.max_yaw_rate
+        if self.saturated_yaw_rate:
+            omega_d = math.copysign(cfg.max_yaw_rate, omega_d)
+        # ω̇_d: backward-Euler filtered derivative of the saturated ω_d (module docstring).
+        sat_sign = math.copysign(1.0, omega_d) if self.saturated_yaw_rate else 0.0
+        if self._t_prev is None or (sat_sign != 0.0 and sat_sign == self._sat_sign_prev):
+            # d/dt sat(u) = 0 while the saturation holds: exactly zero, filter reset.
+            omega_dot = 0.0
+        else:
+            dt = t - self._t_prev
+            if dt < 0.0:
+                raise ValueError(f'TrajectoryGenerator.step: time went backwards from '
+                                 f'{self._t_prev} to {t}')
+            tau = cfg.yaw_rate_derivative_time_constant
+            omega_dot = (tau * self._omega_dot + omega_d - self._omega_prev) / (tau + dt)
+            limit = cfg.max_yaw_acceleration
+            omega_dot = max(-limit, min(limit, omega_dot))
+        self._t_prev, self._omega_prev, self._omega_dot = t, omega_d, omega_dot
+        self._sat_sign_prev = sat_sign
+        return VelocityCommand(v_d, omega_d, omega_dot, x_e, y_e, phi_e)
