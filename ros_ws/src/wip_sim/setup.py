@@ -1,0 +1,34 @@
+"""Install the wip_sim ament_python package.
+
+Console scripts go to ``lib/wip_sim`` (see setup.cfg), where ``ros2 run`` looks for them.
+"""
+
+from glob import glob
+import os
+
+from setuptools import find_packages, setup
+
+package_name = 'wip_sim'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        (os.path.join('share', package_name, 'config'), sorted(glob('config/*.yaml'))),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='wip-ros maintainers',
+    maintainer_email='wip-ros@example.com',
+    description='Wheeled inverted pendulum simulator node and bag recorder.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'plant = wip_sim.plant_node:main',
+            'recorder = wip_sim.recorder_node:main',
+        ],
+    },
+)

