@@ -390,6 +390,13 @@ def test_non_finite_inputs_raise_and_leave_the_state_unchanged(bad):
     observer.update(2 * H, 0.02, 0.02, 0.0, 1.0, 0.1)
 
 
+def test_single_channel_rejects_non_finite_input():
+    observer = ExtendedStateObserver(PAPER_GAINS, name='tilt')
+    with pytest.raises(ValueError, match='tilt: non-finite input'):
+        observer.update(H, math.nan, 0.0)
+    assert observer.state == (0.0, 0.0, 0.0)
+
+
 def test_time_going_backwards_raises():
     observer = WipStateObserver(WipParameters(), EsoConfig(), (0.0, 0.0, 0.0))
     observer.update(2 * H, 0.0, 0.0, 0.0, 0.0, 0.0)

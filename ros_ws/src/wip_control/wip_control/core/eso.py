@@ -263,8 +263,11 @@ class ExtendedStateObserver:
         the previous update; returns (x̂1, x̂2, f̂).
 
         ``t`` equal to the previous time leaves the estimate unchanged (e.g. a first call
-        at the initial time). Inputs are assumed finite (checked by the caller).
+        at the initial time). Non-finite inputs or a time going backwards raise
+        ``ValueError`` and leave the state unchanged.
         """
+        if not math.isfinite(t + y + b_u):
+            raise ValueError(f'{self.name}: non-finite input t={t!r}, y={y!r}, b_u={b_u!r}')
         dt = t - self._t_prev
         if dt <= 0.0:
             if dt < 0.0:
