@@ -89,13 +89,6 @@ class MessageDefinition(NamedTuple):
     text: str
 
 
-class TopicSummary(NamedTuple):
-    """Per-topic figures of a written bag."""
-
-    type_name: str
-    message_count: int
-
-
 def split_type_name(type_name):
     """Split ``pkg/msg/Type`` or ``pkg/Type`` into ``(package, namespace, name)``."""
     match = _TYPE_NAME_RE.match(type_name)

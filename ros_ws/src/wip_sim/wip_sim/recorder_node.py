@@ -1,0 +1,360 @@
+"""Recorder node: record topics to a rosbag2 bag (MCAP storage), like ``ros2 bag record``.
+
+rosbag2 is not on PyPI, so this node records with :mod:`wip_sim.bag_writer`; its bags are
+rosbag2 bags (``ros2 bag info/play`` on a full ROS 2 install, ``rosbags``, Foxglove, the
+project's report read them).
+
+Parameters (all read-only, read at start-up)
+--------------------------------------------
+output : str
+    Bag directory to create; default ``rosbag2_YYYY_MM_DD-HH_MM_SS`` in the working directory.
+    An existing non-empty directory is an error (a bag is never overwritten).
+topics : string array
+    Topics to record; empty (default) = every topic of the graph, including topics that
+    appear later (the graph is polled every ``discovery_period``), hidden topics excepted.
+exclude : string array
+    Topics never recorded (exact names, resolved like ``topics``).
+compression : str
+    MCAP chunk compression: 'zstd' (default), 'lz4' or 'none'.
+discovery_period : float
+    Period of the graph polling that subscribes to new topics [s] (wall time).
+flush_period : float
+    The bag file is flushed (chunk closed, data handed to the OS) at least this often [s],
+    bounding what a crash loses (see ``bag_writer.recover_bag``); 0 = only at close.
+
+Behaviour
+---------
+- A topic is subscribed once the graph knows its type (a publisher exists), with a raw
+  subscription (serialized CDR, no deserialization). Its QoS follows rosbag2's
+  ``adapt_request_to_offers``: reliable if every publisher offers reliable, else best effort;
+  transient local if every publisher offers it, else volatile; history keep-last with depth
+  1000 (a deep queue: the recorder must not drop a burst). The offered profiles and the
+  publishers' RIHS01 type hash are stored in the bag.
+- Each message is stamped with its receive time on the node's clock: simulation time when
+  ``use_sim_time`` is true (lockstep runs then give bags in simulation time), else system
+  time. rosbag2 also stores a send time from the middleware's message info, which this
+  node cannot get with the EventsExecutor (its callbacks take one argument), so the receive
+  time is used for both.
+- Callbacks only queue ``(topic, bytes, time)``; a writer thread writes the bag, so a
+  compressing chunk write never delays the executor. Nothing received is dropped.
+- SIGINT/SIGTERM: the subscriptions stop, the queue is drained, the bag is closed
+  (MCAP summary and ``metadata.yaml`` written).
+- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once per second (wall time): the bag
+  path, the messages recorded in total and per topic, the write backlog, and any topic that
+  could not be recorded.
+"""
+
+import datetime
+import importlib
+import os
+import queue
+import sys
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+import rclpy
+import rclpy.logging
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import ParameterUninitializedException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
+                       QoSReliabilityPolicy)
+
+from .bag_writer import (BagExistsError, BagWriterError, message_definition,
+                         Rosbag2McapWriter, type_description_hash)
+
+SUBSCRIPTION_DEPTH = 1000  # keep-last depth of the recording subscriptions [messages]
+DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
+SPIN_TIMEOUT = 0.1  # [s] of one spin_once; bounds the reaction time to a shutdown
+_STOP = object()  # Sentinel that ends the writer thread.
+
+
+def default_output_name(now=None):
+    """rosbag2's default bag name: ``rosbag2_YYYY_MM_DD-HH_MM_SS``."""
+    now = now or datetime.datetime.now()
+    return now.strftime('rosbag2_%Y_%m_%d-%H_%M_%S')
+
+
+def is_hidden_topic(name):
+    """True for topics with a path segment starting with '_' (rcl's hidden topics)."""
+    return any(part.startswith('_') for part in name.split('/') if part)
+
+
+def import_message_class(type_name):
+    """Return the Python class of a ROS message type 'pkg/msg/Type'."""
+    try:
+        package, namespace, name = type_name.split('/')
+        return getattr(importlib.import_module(f'{package}.{namespace}'), name)
+    except (ValueError, ImportError, AttributeError) as err:
+        raise BagWriterError(f'cannot import message type {type_name!r}: {err}') from err
+
+
+def request_qos(offered_profiles):
+    """QoS to subscribe with, given the publishers' offered profiles (rosbag2's rule)."""
+    reliable = bool(offered_profiles) and all(
+        p.reliability == QoSReliabilityPolicy.RELIABLE for p in offered_profiles)
+    transient_local = bool(offered_profiles) and all(
+        p.durability == QoSDurabilityPolicy.TRANSIENT_LOCAL for p in offered_profiles)
+    return QoSProfile(
+        history=QoSHistoryPolicy.KEEP_LAST, depth=SUBSCRIPTION_DEPTH,
+        reliability=(QoSReliabilityPolicy.RELIABLE if reliable or not offered_profiles
+                     else QoSReliabilityPolicy.BEST_EFFORT),
+        durability=(QoSDurabilityPolicy.TRANSIENT_LOCAL if transient_local
+                    else QoSDurabilityPolicy.VOLATILE))
+
+
+class RecorderNode(Node):
+    """Records topics to a rosbag2 MCAP bag; see the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__('recorder', **kwargs)
+        self._declare('output', '', 'Bag directory to create (must not exist or be empty); '
+                      'default rosbag2_YYYY_MM_DD-HH_MM_SS in the working directory')
+        self._declare('topics', Parameter.Type.STRING_ARRAY,
+                      'Topics to record; empty: all topics of the graph, also later ones')
+        self._declare('exclude', Parameter.Type.STRING_ARRAY, 'Topics never recorded')
+        self._declare('compression', 'zstd', "MCAP chunk compression: 'zstd', 'lz4' or 'none'")
+        self._declare('discovery_period', 1.0, 'Period of the graph polling for new topics '
+                      '[s] (wall time)')
+        self._declare('flush_period', 1.0, 'Maximum time between two flushes of the bag '
+                      'file [s] (wall time); 0: flush only at close')
+
+        output = self.get_parameter('output').value or default_output_name()
+        self.output = os.path.abspath(os.path.expanduser(output))
+        self.requested = [self.resolve_topic_name(t) for t in self._string_array('topics')]
+        self.excluded = {self.resolve_topic_name(t) for t in self._string_array('exclude')}
+        compression = self.get_parameter('compression').value
+        discovery_period = self.get_parameter('discovery_period').value
+        self.flush_period = self.get_parameter('flush_period').value
+        if discovery_period <= 0.0:
+            raise ValueError(f'discovery_period must be positive, got {discovery_period}')
+        if self.flush_period < 0.0:
+            raise ValueError(f'flush_period must be >= 0, got {self.flush_period}')
+
+        self.bag = Rosbag2McapWriter(self.output, compression=compression, custom_data={
+            'recorder': self.get_fully_qualified_name()})
+        self._closed = False
+        self._queue = queue.SimpleQueue()
+        self._received = {}  # topic -> messages received (the writer thread counts writes)
+        self._recorded = {}  # topic -> Subscription
+        self._failed = {}  # topic -> reason it is not recorded
+        self._writer_error = None
+        self._writer = threading.Thread(target=self._write_loop, name='bag_writer',
+                                        daemon=True)
+        self._writer.start()
+        try:
+            # Wall-clock timers: with use_sim_time, a paused or absent /clock must not stop
+            # the discovery of topics nor the diagnostics.
+            wall = Clock(clock_type=ClockType.STEADY_TIME)
+            self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+            self.create_timer(discovery_period, self.discover, clock=wall)
+            self.create_timer(DIAGNOSTICS_PERIOD, self.publish_diagnostics, clock=wall)
+            self._last_diagnostics = (time.monotonic(), 0)
+            self.get_logger().info(
+                f'recording {"all topics" if not self.requested else self.requested} '
+                f'to {self.output} ({compression})')
+            self.discover()
+        except BaseException:
+            self.close()  # Leave a valid (maybe empty) bag, never a half-written one.
+            raise
+
+    # -- parameters ------------------------------------------------------------------------
+    def _declare(self, name, default, description):
+        self.declare_parameter(name, default, ParameterDescriptor(
+            description=description, read_only=True))
+
+    def _string_array(self, name):
+        # Declared by type (an empty list default would make it a byte array): unset = [].
+        try:
+            return list(self.get_parameter(name).value or [])
+        except ParameterUninitializedException:
+            return []
+
+    # -- topics ----------------------------------------------------------------------------
+    def _wanted(self, topic):
+        if topic in self.excluded or topic in self._recorded or topic in self._failed:
+            return False
+        if self.requested:
+            return topic in self.requested
+        return not is_hidden_topic(topic)
+
+    def discover(self):
+        """Subscribe to the wanted topics that the graph now knows (timer callback)."""
+        if self._closed:
+            return
+        for topic, types in self.get_topic_names_and_types():
+            if not self._wanted(topic):
+                continue
+            if len(types) != 1:
+                self._fail(topic, f'has several types {types}')
+                continue
+            try:
+                self._subscribe(topic, types[0])
+            except (BagWriterError, LookupError, ValueError) as err:
+                self._fail(topic, str(err))
+
+    def _fail(self, topic, reason):
+        self._failed[topic] = reason
+        self.get_logger().error(f'not recording {topic}: {reason}')
+
+    def _subscribe(self, topic, type_name):
+        publishers = self.get_publishers_info_by_topic(topic)
+        if not publishers:
+            # Known from a subscriber only: wait for a publisher, whose QoS decides ours
+            # (a reliable request would never match a best-effort publisher).
+            return
+        message_class = import_message_class(type_name)
+        offered = [info.qos_profile for info in publishers]
+        hashes = {str(info.topic_type_hash) for info in publishers}
+        hashes = {h for h in hashes if h.startswith('RIHS01_')}
+        type_hash = hashes.pop() if len(hashes) == 1 else type_description_hash(type_name)
+        encoding, definition = message_definition(type_name)
+        # Declared to the writer through the queue so that the writer thread alone touches
+        # the bag; messages of this topic are queued after it.
+        self._queue.put(('topic', topic, type_name, definition, offered, type_hash, encoding))
+        self._received[topic] = 0
+        self._recorded[topic] = self.create_subscription(
+            message_class, topic, lambda data, topic=topic: self._on_message(topic, data),
+            request_qos(offered), raw=True)
+        self.get_logger().info(f'recording {topic} [{type_name}]')
+
+    def _on_message(self, topic, data):
+        # One-argument callback (the EventsExecutor does not support MessageInfo).
+        if self._closed:
+            return
+        self._queue.put(('message', topic, data, self.get_clock().now().nanoseconds))
+        self._received[topic] += 1
+
+    # -- writer thread ---------------------------------------------------------------------
+    def _write_loop(self):
+        last_flush = time.monotonic()
+        while True:
+            try:
+                item = self._queue.get(timeout=0.2)
+            except queue.Empty:
+                item = None
+            if item is _STOP:
+                return
+            try:
+                if item is not None and item[0] == 'message':
+                    _, topic, data, stamp = item
+                    self.bag.write(topic, data, stamp)
+                elif item is not None:
+                    _, topic, type_name, definition, offered, type_hash, encoding = item
+                    self.bag.add_topic(topic, type_name, definition, offered, type_hash,
+                                       definition_encoding=encoding)
+                now = time.monotonic()
+                if self.flush_period > 0.0 and now - last_flush >= self.flush_period:
+                    self.bag.flush()
+                    last_flush = now
+            except Exception as err:  # noqa: B902 - reported, never silent
+                self._writer_error = f'{type(err).__name__}: {err}'
+                return
+
+    # -- diagnostics -----------------------------------------------------------------------
+    def publish_diagnostics(self):
+        """Publish the recording figures on /diagnostics (timer callback)."""
+        total = sum(self._received.values())
+        now = time.monotonic()
+        then, total_then = self._last_diagnostics
+        rate = (total - total_then) / max(now - then, 1e-9)
+        self._last_diagnostics = (now, total)
+        backlog = self._queue.qsize()
+        status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: recorder',
+                                  hardware_id='')
+        if self._writer_error is not None:
+            status.level = DiagnosticStatus.ERROR
+            status.message = f'bag write failed: {self._writer_error}'
+        elif self._failed:
+            status.level = DiagnosticStatus.WARN
+            status.message = f'{len(self._failed)} topic(s) not recorded'
+        else:
+            status.level = DiagnosticStatus.OK
+            status.message = f'recording {len(self._recorded)} topic(s)'
+        status.values = [
+            KeyValue(key='bag', value=self.output),
+            KeyValue(key='messages received', value=str(total)),
+            KeyValue(key='messages written', value=str(self.bag.message_count)),
+            KeyValue(key='receive rate [1/s]', value=f'{rate:.1f}'),
+            KeyValue(key='write backlog', value=str(backlog)),
+        ]
+        status.values += [KeyValue(key=f'received {topic}', value=str(count))
+                          for topic, count in sorted(self._received.items())]
+        status.values += [KeyValue(key=f'not recorded {topic}', value=reason)
+                          for topic, reason in sorted(self._failed.items())]
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics_pub.publish(array)
+
+    # -- shutdown --------------------------------------------------------------------------
+    def close(self):
+        """Stop recording, write what was received and close the bag; idempotent."""
+        if self._closed:
+            return
+        self._closed = True  # From now on callbacks queue nothing.
+        self._queue.put(_STOP)  # Last item: everything received before is written.
+        self._writer.join()
+        # After a SIGINT the context is shut down: log without the /rosout publisher.
+        logger = (self.get_logger() if self.context.ok()
+                  else rclpy.logging.get_logger(self.get_name()))
+        if self._writer_error is not None:
+            logger.error(
+                f'bag {self.output} not closed: {self._writer_error}; '
+                'wip_sim.bag_writer.recover_bag() can make it readable')
+        else:
+            self.bag.close()
+            logger.info(
+                f'closed {self.output}: {self.bag.message_count} messages on '
+                f'{len(self.bag.message_counts())} topic(s)')
+        for subscription in self._recorded.values():
+            self.destroy_subscription(subscription)
+
+    def destroy_node(self):
+        self.close()
+        return super().destroy_node()
+
+
+def make_executor(context=None):
+    """EventsExecutor when this rclpy has it (10x lower latency), else SingleThreaded."""
+    try:
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    except (ImportError, AttributeError, RuntimeError):
+        return SingleThreadedExecutor(context=context)
+
+
+def spin(node, executor):
+    """Spin with a timeout: the EventsExecutor's spin() ignores SIGINT (ros-from-pip.md)."""
+    executor.add_node(node)
+    while rclpy.ok(context=node.context):
+        executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+
+
+def main(args=None):
+    """Entry point ``recorder`` (``ros2 run wip_sim recorder --ros-args -p output:=...``)."""
+    rclpy.init(args=args)
+    node = None
+    status = 0
+    try:
+        node = RecorderNode()
+        executor = make_executor()
+        node.get_logger().debug(f'executor: {type(executor).__name__}')
+        spin(node, executor)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (BagExistsError, ValueError) as err:
+        print(f'recorder: error: {err}', file=sys.stderr)
+        status = 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())
