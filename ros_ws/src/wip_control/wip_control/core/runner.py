@@ -103,8 +103,8 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
     position = PlanarPositionEstimator(scenario.position)
     position.reset(state[X], state[Y], state[XV], state[PHI])
     generator = TrajectoryGenerator(scenario.trajectory_generator)
-    g1_hat = scenario.eso.yaw_input_gain_scale * input_gains(nominal, state[THETA])[0]
-    arc = AdaptiveRobustYawController(scenario.arc, alpha_initial=1.0 / g1_hat)
+    arc = AdaptiveRobustYawController(scenario.arc,
+                                      alpha_initial=initial_alpha(scenario))
     mpc = LongitudinalMpc(nominal, scenario.mpc)
     max_wheel = scenario.mixer.max_wheel_torque
 
@@ -198,6 +198,16 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
                      wall_time_s=time.perf_counter() - wall_start,
                      simulated_time_s=float(groups['truth']['t'][-1]),
                      mpc_inputs=mpc_inputs)
+
+
+def initial_alpha(scenario: Scenario) -> float:
+    """α̂(0) = 1/ĝ1 of eq. (13), with ĝ1 the ESO's yaw input gain at θ = 0.
+
+    Evaluated upright rather than at θ(0) so that the ARC node can be given the same
+    value without knowing the initial tilt (g1 changes by 0.2 % at θ = 0.05).
+    """
+    g1 = input_gains(scenario.controller_model.parameters, 0.0)[0]
+    return 1.0 / (scenario.eso.yaw_input_gain_scale * g1)
 
 
 def state_initial_yaw(sensors: Sensors) -> float:

@@ -1,0 +1,135 @@
+"""ROS parameters declared from the core's config dataclasses (one source of truth).
+
+Every field of a config dataclass (see :mod:`wip_control.core.config`) becomes one ROS
+parameter named ``<section>.<field>`` with a descriptor carrying its unit, description
+and range. Values are validated by the same :func:`~wip_control.core.config.from_mapping`
+as a scenario file, so a params file with a typo'd value fails with the same message,
+and a parameter set at run time to a bad value is rejected with the reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from typing import Any, Callable
+
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from ..core.config import ConfigError, from_mapping
+
+
+def _ros_default(value: Any, field_type: Any) -> Any:
+    # The default's Python type fixes the ROS parameter type (rclpy ignores the
+    # descriptor's type), so a float field with an integer default must become 0.0.
+    if field_type is float:
+        return float(value)
+    if isinstance(value, tuple):
+        if all(isinstance(v, bool) for v in value):
+            return list(value)
+        if all(isinstance(v, str) for v in value):
+            return list(value)
+        return [float(v) for v in value]
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if isinstance(value, float):
+        return value
+    return value
+
+
+def _descriptor(name: str, field: dataclasses.Field, field_type: Any,
+                read_only: bool) -> ParameterDescriptor:
+    meta = field.metadata
+    unit = meta.get('unit', '')
+    text = meta.get('description', '')
+    descriptor = ParameterDescriptor(name=name, description=f'{text} [{unit}]' if unit else text,
+                                     read_only=read_only)
+    low, high = meta.get('minimum'), meta.get('maximum')
+    constraints = []
+    if meta.get('choices'):
+        constraints.append('one of: ' + ', '.join(meta['choices']))
+    if low is not None or high is not None:
+        constraints.append(f'range [{low}, {high}]' + (' (minimum excluded)'
+                                                       if meta.get('exclusive_minimum') else ''))
+    descriptor.additional_constraints = '; '.join(constraints)
+    finite = (low is not None and high is not None and math.isfinite(low)
+              and math.isfinite(high) and not meta.get('exclusive_minimum'))
+    if finite and field_type is float:
+        descriptor.floating_point_range = [FloatingPointRange(
+            from_value=float(low), to_value=float(high), step=0.0)]
+    elif finite and field_type is int:
+        descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high),
+                                                 step=1)]
+    return descriptor
+
+
+class ConfigParameters:
+    """Declares a config dataclass as ROS parameters and keeps the built instance current.
+
+    Parameters
+    ----------
+    node : the node to declare on.
+    section : prefix of the parameter names (``'mpc'`` gives ``mpc.max_tilt``).
+    config_cls : the frozen config dataclass.
+    on_change : called with the new config instance after a valid run-time change; if
+        ``None`` the parameters are read-only.
+    """
+
+    def __init__(self, node: Node, section: str, config_cls: type,
+                 on_change: Callable[[Any], None] | None = None) -> None:
+        self._node = node
+        self._section = section
+        self._cls = config_cls
+        self._on_change = on_change
+        self._types = typing.get_type_hints(config_cls)
+        self._fields = {f.name: f for f in dataclasses.fields(config_cls)}
+        values = {}
+        for name, field in self._fields.items():
+            full = f'{section}.{name}'
+            descriptor = _descriptor(full, field, self._types[name], on_change is None)
+            param = node.declare_parameter(full, _ros_default(field.default, self._types[name]), descriptor)
+            values[name] = _from_ros(param.value)
+        self.config = self._build(values)
+        node.add_on_set_parameters_callback(self._validate_change)
+
+    def _build(self, values: dict[str, Any]) -> Any:
+        # Raises ConfigError naming the parameter: the node refuses to start on a bad
+        # params file rather than running with a silently different value.
+        return from_mapping(self._cls, values, self._section)
+
+    def _validate_change(self, parameters: list[Parameter]) -> SetParametersResult:
+        mine = [p for p in parameters if p.name.startswith(self._section + '.')
+                and p.name[len(self._section) + 1:] in self._fields]
+        if not mine:
+            return SetParametersResult(successful=True)
+        if self._on_change is None:
+            return SetParametersResult(successful=False,
+                                       reason=f'{mine[0].name} is read-only at run time')
+        values = {n: getattr(self.config, n) for n in self._fields}
+        for p in mine:
+            values[p.name[len(self._section) + 1:]] = _from_ros(p.value)
+        try:
+            new_config = self._build(values)
+        except ConfigError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        self.config = new_config
+        self._on_change(new_config)
+        return SetParametersResult(successful=True)
+
+
+def _from_ros(value: Any) -> Any:
+    if isinstance(value, (list, tuple)) or type(value).__name__ == 'array':
+        return tuple(value)
+    return value
+
+
+def declare_plain(node: Node, name: str, default: Any, unit: str, description: str,
+                  read_only: bool = True) -> Any:
+    """One parameter that is not part of a core config (topic names, joint names, ...)."""
+    descriptor = ParameterDescriptor(name=name, read_only=read_only,
+                                     description=f'{description} [{unit}]' if unit
+                                     else description)
+    return node.declare_parameter(name, default, descriptor).value
