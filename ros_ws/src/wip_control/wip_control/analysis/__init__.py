@@ -1,0 +1,1 @@
+"""Offline analysis of runs: figures and benchmarks (no ROS imports)."""

@@ -1,0 +1,412 @@
+"""Tests of the longitudinal/tilt MPC, eqs. (16)–(23) (core/mpc.py, mpc_prediction.py, qp.py).
+
+What is checked, and against what:
+- the condensed prediction against an explicit Euler simulation of x(k+1) = A x + B τ + c
+  written out here from the spec's formulas (not from the code's matrices);
+- the unconstrained solution against the closed form (G̃ᵀQG̃ + R)⁻¹ G̃ᵀQ(ȳr − ȳ_free);
+- at random realistic states: every hard constraint, and the optimum against DAQP (an
+  exact active-set solver) on the same QP, whose own KKT conditions are checked too;
+- closed loops with perfect state knowledge on the paper plant (1): the paper's literal
+  G̃ falls, the adopted gravity-aware prediction balances and tracks;
+- the fallbacks: failed solve (injected and real), NaN input, unreachable torque limit.
+"""
+
+import dataclasses
+import math
+
+import daqp
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from wip_control.analysis.bench_mpc import (STEP_KEYS, bench_mpc_against_daqp,
+                                            simulate_longitudinal)
+from wip_control.core.config import ConfigError, from_mapping
+from wip_control.core.model import input_gains, nominal_terms
+from wip_control.core.mpc import (LongitudinalMpc, MpcConfig, MpcInputError, MpcResult,
+                                  MpcStatus)
+from wip_control.core.mpc_prediction import CondensedPrediction
+from wip_control.core.params import WipParameters
+from wip_control.core.qp import QpSolution, make_solver
+
+PARAMS = WipParameters()
+CONFIG = MpcConfig()
+TS = CONFIG.sampling_period
+NP, NC = CONFIG.prediction_horizon, CONFIG.control_horizon
+DMAX = CONFIG.max_delta_torque
+
+# ProxSuite stops when the primal and dual residuals are below eps_abs + eps_rel·(norms)
+# and checks no complementarity, so there is no sharp a-priori bound on its distance to
+# the optimum. Residuals of ~1e-6 (up to ~1e-4 through eps_rel when multipliers reach
+# ~1e7 with the 1e4 slack penalties), amplified by at most about cond(H)^½ ≈ 200
+# (cond(H) ≈ 4e4), stay below 1e-3 N m; measured: at most 6.6e-4 N m over 6000 QPs at
+# random states. 1e-3 N m is 3e-5 of the torque range, far below any motor's resolution.
+SOLUTION_TOL = 1e-3
+# Hard limits hold up to ProxSuite's primal residual (eps_abs = 1e-6 N m plus eps_rel
+# times norms of ~1e2 N m); the applied torque is clipped exactly.
+CONSTRAINT_TOL = 1e-5
+
+
+def state_matrix_from_spec(prediction):
+    """A of the spec (section 5), written out independently of mpc_prediction.py."""
+    p = PARAMS
+    a = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, TS], [0.0, 0.0, 1.0]])
+    if prediction == 'gravity_aware':
+        omega0 = p.effective_mass * p.pitch_inertia - (p.body_mass * p.com_height) ** 2
+        a[0, 1] = -TS * p.body_mass ** 2 * p.com_height ** 2 * p.gravity / omega0
+        a[2, 1] = TS * p.effective_mass * p.body_mass * p.gravity * p.com_height / omega0
+    return a
+
+
+def euler_rollout(x0, f2, f3, g2, g3, tau_previous, plan, prediction='gravity_aware'):
+    """(Np, 3) states x(k+1..k+Np) of the Euler model with τ(k+i) = τ(k−1) + Σ_{j≤i} Δτ."""
+    a = state_matrix_from_spec(prediction)
+    a_paper = state_matrix_from_spec('paper')
+    x0 = np.asarray(x0, dtype=float)
+    c = TS * np.array([f2, 0.0, f3]) - (a - a_paper) @ x0
+    b = TS * np.array([g2, 0.0, g3])
+    x, tau, out = x0.copy(), tau_previous, []
+    for i in range(NP):
+        if i < len(plan):
+            tau += plan[i]
+        x = a @ x + b * tau + c
+        out.append(x)
+    return np.array(out)
+
+
+def realistic_state(v, theta, theta_dot, d2, d3):
+    """Estimates as an ideal ESO would give them: f̂ = f(x) of eq. (1) + disturbance."""
+    terms = nominal_terms(PARAMS, theta, 0.0, theta_dot)
+    return dict(v_hat=v, theta_hat=theta, theta_dot_hat=theta_dot, f2_hat=terms.f2 + d2,
+                f3_hat=terms.f3 + d3)
+
+
+# ---------------------------------------------------------------- prediction
+
+@pytest.mark.parametrize('seed', range(5))
+def test_condensed_prediction_equals_euler_simulation(seed):
+    rng = np.random.default_rng(seed)
+    pred = CondensedPrediction(PARAMS, TS, NP, NC, 'gravity_aware')
+    x0 = rng.uniform([-1.5, -0.1, -1.0], [1.5, 0.1, 1.0])
+    f2, f3, tau_prev = rng.uniform(-10, 10), rng.uniform(-3, 3), rng.uniform(-30, 30)
+    _, g2, g3 = input_gains(PARAMS, x0[1])
+    plan = rng.uniform(-DMAX, DMAX, NC)
+    condensed = (pred.input_matrix(g2, g3) @ plan
+                 + pred.free_response(x0, f2, f3, g2, g3, tau_prev)).reshape(NP, 3)
+    expected = euler_rollout(x0, f2, f3, g2, g3, tau_prev, plan)
+    # Both are sums of ≤ 20 products of O(1..100) numbers: round-off ~1e-13.
+    np.testing.assert_allclose(condensed, expected, rtol=0, atol=1e-10)
+
+
+def test_first_predicted_step_matches_the_paper_one_step_model():
+    # The gravity terms are compensated in c: x(k+1) must be eq. (17) exactly.
+    pred = CondensedPrediction(PARAMS, TS, NP, NC, 'gravity_aware')
+    x0, f2, f3, tau = np.array([0.3, 0.07, -0.2]), 1.5, -2.0, 4.0
+    _, g2, g3 = input_gains(PARAMS, x0[1])
+    first = pred.free_response(x0, f2, f3, g2, g3, tau)[:3]
+    paper = np.array([x0[0] + TS * (f2 + g2 * tau), x0[1] + TS * x0[2],
+                      x0[2] + TS * (f3 + g3 * tau)])
+    np.testing.assert_allclose(first, paper, rtol=0, atol=1e-14)
+
+
+def test_paper_prediction_is_the_literal_one_step_gain_without_propagation():
+    pred = CondensedPrediction(PARAMS, TS, NP, NC, 'paper')
+    g2, g3 = 0.25, -0.29
+    gt = pred.input_matrix(g2, g3).reshape(NP, 3, NC)
+    for i in range(NP):
+        for j in range(NC):
+            expected = TS * np.array([g2, 0.0, g3]) if j <= i else np.zeros(3)
+            np.testing.assert_array_equal(gt[i, :, j], expected)
+    # Hence the θ rows do not depend on the decision variable at all (the spec's finding).
+    assert not np.any(gt[:, 1, :])
+    # Its free response is the held-τ trajectory of the paper's A.
+    x0, f2, f3, tau = np.array([0.2, 0.05, 0.1]), 0.5, 1.0, 3.0
+    np.testing.assert_allclose(
+        pred.free_response(x0, f2, f3, g2, g3, tau).reshape(NP, 3),
+        euler_rollout(x0, f2, f3, g2, g3, tau, np.zeros(NC), 'paper'), rtol=0, atol=1e-10)
+
+
+def test_mpc_reports_the_prediction_of_the_applied_plan():
+    mpc = LongitudinalMpc(PARAMS, CONFIG)
+    mpc.reset(2.0)
+    state = realistic_state(0.4, 0.04, -0.1, 0.3, 0.0)
+    result = mpc.step(**state, v_d=0.8, tau_limit=30.0)
+    assert result.status == MpcStatus.SOLVED
+    _, g2, g3 = input_gains(PARAMS, state['theta_hat'])
+    expected = euler_rollout([state['v_hat'], state['theta_hat'], state['theta_dot_hat']],
+                             state['f2_hat'], state['f3_hat'], g2, g3, 2.0, result.plan)
+    assert result.predicted.shape == (NP, 3)
+    np.testing.assert_allclose(result.predicted, expected, rtol=0, atol=1e-10)
+    assert result.tau_v == pytest.approx(2.0 + result.plan[0], abs=1e-12)  # eq. (23)
+    assert mpc.tau_previous == result.tau_v
+
+
+# ---------------------------------------------------------------- closed form
+
+def test_unconstrained_solution_equals_closed_form():
+    far = dataclasses.replace(CONFIG, max_drive_torque=1e6, max_delta_torque=1e6,
+                              max_speed=1e3, max_tilt=1e3)
+    mpc = LongitudinalMpc(PARAMS, far)
+    tau_prev = 1.0
+    mpc.reset(tau_prev)
+    state = realistic_state(0.2, 0.03, 0.05, 0.2, 0.1)
+    result = mpc.step(**state, v_d=0.6, tau_limit=1e6)
+    assert result.status == MpcStatus.SOLVED
+    # Closed form from an explicit simulation (independent of the code's matrices).
+    x0 = [state['v_hat'], state['theta_hat'], state['theta_dot_hat']]
+    _, g2, g3 = input_gains(PARAMS, state['theta_hat'])
+    free = euler_rollout(x0, state['f2_hat'], state['f3_hat'], g2, g3, tau_prev,
+                         np.zeros(NC)).reshape(-1)
+    gt = np.column_stack([
+        euler_rollout(x0, state['f2_hat'], state['f3_hat'], g2, g3, tau_prev,
+                      np.eye(NC)[j]).reshape(-1) - free for j in range(NC)])
+    q = np.diag(np.tile(CONFIG.output_weights, NP))
+    reference = np.tile([0.6, 0.0, 0.0], NP)
+    expected = np.linalg.solve(gt.T @ q @ gt + CONFIG.input_weight * np.eye(NC),
+                               gt.T @ q @ (reference - free))
+    # Strongly convex (λmin(H) ≥ 2): a dual residual ≤ eps_abs = 1e-6 moves z by ≤ 5e-7.
+    np.testing.assert_allclose(result.plan, expected, rtol=0, atol=1e-5)
+    # The same from the QP the MPC built: −H⁻¹g on the Δτ block.
+    qp = mpc.last_qp
+    np.testing.assert_allclose(-np.linalg.solve(qp.H[:NC, :NC], qp.g[:NC]), expected,
+                               rtol=1e-9, atol=1e-9)
+    assert abs(result.slack_v) < CONSTRAINT_TOL and abs(result.slack_theta) < CONSTRAINT_TOL
+
+
+# ---------------------------------------------------------------- random states
+
+def daqp_reference(qp):
+    """Exact optimum of the MPC's QP by DAQP, with its KKT conditions verified."""
+    n = qp.H.shape[0]
+    z, objective, flag, info = daqp.solve(qp.H, qp.g, qp.C, np.r_[qp.ub, qp.u],
+                                          np.r_[qp.lb, qp.l])
+    assert flag == 1
+    lam = info['lam']
+    lam_box, lam_rows = lam[:n], lam[n:]
+    gradient = qp.H @ z + qp.g
+    scale = max(1.0, np.abs(gradient).max(), np.abs(qp.g).max())
+    # Stationarity Hz + g + λ_box + Cᵀλ = 0 (DAQP: λ > 0 at an upper, < 0 at a lower
+    # bound), to round-off relative to the gradient's size.
+    assert np.abs(gradient + lam_box + qp.C.T @ lam_rows).max() <= 1e-8 * scale
+    # Feasibility and activity up to DAQP's primal tolerance (1e-6, absolute).
+    primal_tol = daqp.Model().settings['primal_tol']
+    rows, box = qp.C @ z, z
+    for value, lower, upper, multiplier in ((rows, qp.l, qp.u, lam_rows),
+                                            (box, qp.lb, qp.ub, lam_box)):
+        assert np.all(value <= upper + primal_tol) and np.all(value >= lower - primal_tol)
+        # Complementarity: a non-zero multiplier only on an active bound of its sign.
+        active_upper = np.isclose(value, upper, rtol=0, atol=primal_tol)
+        active_lower = np.isclose(value, lower, rtol=0, atol=primal_tol)
+        assert np.all((multiplier <= 1e-9 * scale) | active_upper)
+        assert np.all((multiplier >= -1e-9 * scale) | active_lower)
+    return z, objective, gradient
+
+
+@settings(max_examples=300, deadline=None)
+@given(v=st.floats(-1.8, 1.8), theta=st.floats(-0.15, 0.15), theta_dot=st.floats(-1.0, 1.0),
+       d2=st.floats(-12.0, 12.0), d3=st.floats(-2.0, 2.0), v_d=st.floats(-1.5, 1.5),
+       tau_previous=st.floats(-30.0, 30.0), tau_limit=st.floats(0.0, 30.0))
+def test_random_states_respect_hard_limits_and_match_daqp(v, theta, theta_dot, d2, d3, v_d,
+                                                          tau_previous, tau_limit):
+    # Ranges: |υ| a little beyond its limit, |θ| up to 1.5 θmax, f̂ = f(x) of (1) plus a
+    # disturbance up to the paper's 10 m/s² push; τ(k−1) anywhere in ±30 N m, also
+    # beyond a shrunken limit.
+    mpc = LongitudinalMpc(PARAMS, CONFIG)
+    mpc.reset(tau_previous)
+    result = mpc.step(**realistic_state(v, theta, theta_dot, d2, d3), v_d=v_d,
+                      tau_limit=tau_limit)
+    assert result.status == MpcStatus.SOLVED and not result.used_fallback
+    plan = result.plan
+    assert np.all(np.abs(plan) <= DMAX + CONSTRAINT_TOL)
+    taus = tau_previous + np.cumsum(plan)
+    # |τ(k+j)| ≤ τlim, relaxed to the reachable max(τlim, |τ(k−1)| − (j+1)Δτmax).
+    reachable = np.maximum(tau_limit, abs(tau_previous) - DMAX * np.arange(1, NC + 1))
+    assert np.all(np.abs(taus) <= reachable + CONSTRAINT_TOL)
+    assert abs(result.tau_v) <= reachable[0] + 1e-12  # applied torque: clipped exactly
+    assert abs(result.delta_tau) <= DMAX + 1e-12
+    assert result.slack_v >= -CONSTRAINT_TOL and result.slack_theta >= -CONSTRAINT_TOL
+
+    qp = mpc.last_qp
+    z_ref, objective_ref, gradient_ref = daqp_reference(qp)
+    z = np.r_[plan, result.slack_v, result.slack_theta]
+    assert np.abs(z[:NC] - z_ref[:NC]).max() <= SOLUTION_TOL
+    # Objective: J(z) − J(z*) = ∇J(z*)ᵀΔz + ½ΔzᵀHΔz, so with ‖Δz‖∞ ≤ δ it is bounded by
+    # ‖∇J(z*)‖₁ δ + ½ λmax(H) n δ² (δ from the solution difference actually found).
+    delta = max(np.abs(z - z_ref).max(), 1e-12)
+    bound = (np.abs(gradient_ref).sum() * delta
+             + 0.5 * np.linalg.eigvalsh(qp.H)[-1] * len(z) * delta ** 2)
+    objective = 0.5 * z @ qp.H @ z + qp.g @ z
+    assert abs(objective - objective_ref) <= bound + 1e-9 * (1.0 + abs(objective_ref))
+
+
+def test_daqp_backend_gives_the_same_plan_as_proxsuite():
+    rng = np.random.default_rng(3)
+    prox = LongitudinalMpc(PARAMS, CONFIG)
+    exact = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, backend='daqp'))
+    for _ in range(20):
+        tau_prev = rng.uniform(-20, 20)
+        state = realistic_state(*rng.uniform([-1.5, -0.1, -0.5, -5, -1], [1.5, 0.1, 0.5, 5, 1]))
+        v_d, limit = rng.uniform(-1, 1), rng.uniform(5, 30)
+        prox.reset(tau_prev)
+        exact.reset(tau_prev)
+        a = prox.step(**state, v_d=v_d, tau_limit=limit)
+        b = exact.step(**state, v_d=v_d, tau_limit=limit)
+        assert a.status == b.status == MpcStatus.SOLVED
+        np.testing.assert_allclose(a.plan, b.plan, rtol=0, atol=SOLUTION_TOL)
+
+
+# ---------------------------------------------------------------- soft limits, pushes
+
+def test_qp_stays_feasible_after_a_hard_push():
+    mpc = LongitudinalMpc(PARAMS, CONFIG)
+    mpc.reset(0.0)
+    steady = realistic_state(0.5, 0.0, 0.0, 0.0, 0.0)
+    for _ in range(5):
+        mpc.step(**steady, v_d=0.5, tau_limit=30.0)
+    # The collision: υ̂ jumps by +1 m/s beyond υmax and the ESO sees f̂2 = 10 m/s².
+    pushed = realistic_state(1.5 + 0.5, 0.0, 0.0, 10.0, 0.0)
+    result = mpc.step(**pushed, v_d=0.5, tau_limit=30.0)
+    assert result.status == MpcStatus.SOLVED and not result.used_fallback
+    assert result.slack_v > 0.1  # the soft speed limit absorbs what cannot be helped
+    assert abs(result.delta_tau) <= DMAX + 1e-12 and abs(result.tau_v) <= 30.0
+
+
+def test_torque_beyond_a_shrunken_limit_returns_at_the_increment_limit():
+    mpc = LongitudinalMpc(PARAMS, CONFIG)
+    mpc.reset(28.0)
+    result = mpc.step(**realistic_state(0.0, 0.0, 0.0, 0.0, 0.0), v_d=0.0, tau_limit=5.0)
+    assert result.status == MpcStatus.SOLVED
+    # Unreachable in one step: the fastest way back, 28 − 10 = 18 N m, then 8, then ≤ 5.
+    assert result.tau_v == pytest.approx(18.0, abs=CONSTRAINT_TOL)
+    taus = 28.0 + np.cumsum(result.plan)
+    assert taus[1] <= 8.0 + CONSTRAINT_TOL and np.all(np.abs(taus[2:]) <= 5.0 + CONSTRAINT_TOL)
+
+
+# ---------------------------------------------------------------- closed loop
+
+def test_paper_literal_prediction_falls_and_gravity_aware_balances():
+    # Perfect state knowledge, f̂ = true f of (1), θ(0) = 0.05 rad, υd = 0.5 m/s, 10 s.
+    literal = simulate_longitudinal(PARAMS, dataclasses.replace(CONFIG, prediction='paper'),
+                                    duration=10.0, theta_initial=0.05, v_d=0.5)
+    over = np.abs(literal.theta) > 0.5
+    assert over.any(), 'the literal G̃ of (18) was expected to lose the pendulum'
+    assert literal.t[np.argmax(over)] < 3.0  # the spec saw it fall within about 1.5 s
+
+    adopted = simulate_longitudinal(PARAMS, CONFIG, duration=10.0, theta_initial=0.05,
+                                    v_d=0.5)
+    assert not adopted.fell
+    assert np.abs(adopted.theta).max() <= CONFIG.max_tilt
+    assert all(r.status == MpcStatus.SOLVED for r in adopted.results)
+    # Tracks the constant υd: after 5 s within 1 cm/s (a type-1 loop through Δτ; the
+    # measured error is ~1e-5 m/s at 10 s).
+    settled = adopted.t >= 5.0
+    assert np.abs(adopted.v[settled] - 0.5).max() < 0.01
+
+
+# ---------------------------------------------------------------- fallbacks
+
+class FailingSolver:
+    """Stands in for ProxSuite: after ``successes`` real solves, every solve reports
+    MAX_ITER with a garbage iterate."""
+
+    def __init__(self, successes=0):
+        self.real = make_solver('proxsuite', NC + 2, NC + 4 * NP, CONFIG.qp_settings())
+        self.successes = successes
+
+    def solve(self, *qp):
+        if self.successes > 0:
+            self.successes -= 1
+            return self.real.solve(*qp)
+        return QpSolution(np.full(NC + 2, np.nan), MpcStatus.MAX_ITER_REACHED, 1000)
+
+    def reset(self):
+        self.real.reset()
+
+
+def test_failed_solve_applies_the_shifted_previous_plan():
+    mpc = LongitudinalMpc(PARAMS, CONFIG, solver=FailingSolver(successes=1))
+    mpc.reset(0.0)
+    state = realistic_state(0.0, 0.05, 0.0, 0.0, 0.0)
+    first = mpc.step(**state, v_d=0.5, tau_limit=30.0)
+    assert first.status == MpcStatus.SOLVED
+    second = mpc.step(**state, v_d=0.5, tau_limit=30.0)
+    assert second.used_fallback and second.status == MpcStatus.MAX_ITER_REACHED
+    assert second.status_text == 'MAX_ITER_REACHED'
+    assert second.delta_tau == pytest.approx(first.plan[1], abs=1e-12)
+    np.testing.assert_allclose(second.plan, np.r_[first.plan[1:], 0.0], atol=1e-12)
+    third = mpc.step(**state, v_d=0.5, tau_limit=30.0)
+    assert third.delta_tau == pytest.approx(first.plan[2], abs=1e-12)
+    assert math.isnan(third.slack_v)
+    assert third.tau_v == pytest.approx(first.tau_v + first.plan[1] + first.plan[2])
+
+
+def test_failed_solve_without_a_plan_holds_the_torque_within_the_limits():
+    mpc = LongitudinalMpc(PARAMS, CONFIG, solver=FailingSolver())
+    mpc.reset(25.0)
+    state = realistic_state(0.0, 0.0, 0.0, 0.0, 0.0)
+    held = mpc.step(**state, v_d=0.0, tau_limit=30.0)
+    assert held.used_fallback and held.delta_tau == 0.0 and held.tau_v == 25.0
+    clipped = mpc.step(**state, v_d=0.0, tau_limit=10.0)  # limit shrank below τ(k−1)
+    assert clipped.tau_v == pytest.approx(15.0) and clipped.delta_tau == pytest.approx(-DMAX)
+
+
+def test_real_solver_failure_is_reported_and_falls_back():
+    # One outer iteration is not enough for this QP: ProxSuite returns MAX_ITER.
+    mpc = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, max_iter=1, max_inner_iter=1))
+    mpc.reset(3.0)
+    result = mpc.step(**realistic_state(1.0, 0.08, 0.3, 2.0, 0.5), v_d=-0.5, tau_limit=30.0)
+    assert result.status == MpcStatus.MAX_ITER_REACHED and result.used_fallback
+    assert result.tau_v == 3.0 and result.iterations >= 1
+
+
+def test_invalid_input_ramps_the_torque_toward_zero_without_solving():
+    mpc = LongitudinalMpc(PARAMS, CONFIG, solver=FailingSolver())
+    mpc.reset(25.0)
+    state = realistic_state(0.0, 0.0, 0.0, 0.0, 0.0)
+    state['theta_hat'] = math.nan
+    taus = [mpc.step(**state, v_d=0.0, tau_limit=30.0) for _ in range(4)]
+    assert [r.tau_v for r in taus] == [15.0, 5.0, 0.0, 0.0]
+    assert all(r.status == MpcStatus.INPUT_INVALID and r.used_fallback for r in taus)
+    assert np.isnan(taus[0].predicted).all()
+    bad_limit = realistic_state(0.0, 0.0, 0.0, 0.0, 0.0)
+    assert mpc.step(**bad_limit, v_d=0.0, tau_limit=math.inf).status == MpcStatus.INPUT_INVALID
+    with pytest.raises(MpcInputError, match='tau_limit'):
+        mpc.step(**bad_limit, v_d=0.0, tau_limit=-1.0)
+    with pytest.raises(MpcInputError, match='tau_previous'):
+        mpc.reset(math.nan)
+
+
+# ---------------------------------------------------------------- config, result, bench
+
+def test_config_from_mapping_checks_keys_and_horizons():
+    config = from_mapping(MpcConfig, {'prediction_horizon': 30, 'output_weights': [1, 10, 1]},
+                          'mpc')
+    assert config.prediction_horizon == 30 and config.output_weights == (1.0, 10.0, 1.0)
+    with pytest.raises(ConfigError, match='mpc.control_horizon'):
+        from_mapping(MpcConfig, {'control_horizon': 25}, 'mpc')
+    with pytest.raises(ConfigError, match='mpc.prediction: '):
+        from_mapping(MpcConfig, {'prediction': 'linear'}, 'mpc')
+    with pytest.raises(ConfigError, match='mpc.epsilon: unknown key'):
+        from_mapping(MpcConfig, {'epsilon': 0.1}, 'mpc')
+
+
+def test_result_fields_are_what_the_runner_records():
+    assert MpcResult._fields[:10] == (
+        'tau_v', 'delta_tau', 'status', 'iterations', 'solve_time_s', 'build_time_s',
+        'slack_v', 'slack_theta', 'used_fallback', 'predicted')
+    assert int(MpcStatus.SOLVED) == 0 and MpcStatus(8).name == 'INPUT_INVALID'
+
+
+def test_bench_times_both_solvers_on_the_same_qps():
+    run = simulate_longitudinal(PARAMS, CONFIG, duration=3.0, v_d=0.8)
+    report = bench_mpc_against_daqp(run.inputs, PARAMS, CONFIG, repeats=1)
+    assert report['ticks'] == len(run.inputs) == 30 and report['samples'] == 30
+    assert report['proxsuite_failures'] == 0 and report['daqp_failures'] == 0
+    assert report['max_plan_difference'] <= SOLUTION_TOL
+    for key in ('tick', 'build', 'proxsuite_solve', 'daqp_solve'):
+        stats = report[key]
+        assert 0.0 < stats['median'] <= stats['p99'] <= stats['max']
+    # The tick contains the build and the solve that are timed inside it.
+    assert report['tick']['median'] >= report['proxsuite_solve']['median']
+    with pytest.raises(ValueError, match='lacks'):
+        bench_mpc_against_daqp([{k: 0.0 for k in STEP_KEYS}], PARAMS, CONFIG)
