@@ -1,0 +1,436 @@
+"""The simulated WIP: the paper model (1) of [1]_ or a full Lagrange–d'Alembert model.
+
+State layout (:mod:`.model`): ``(x, y, ϕ, x_v, θ, ω, υ, θ̇)``. Both models share the
+kinematics
+
+.. math::
+
+    \\dot x = \\upsilon \\cos\\phi, \\quad \\dot y = \\upsilon \\sin\\phi, \\quad
+    \\dot\\phi = \\omega, \\quad \\dot x_v = \\upsilon, \\quad \\dot\\theta = \\dot\\theta
+
+and differ in the dynamics of (ω, υ, θ̇). Disturbances enter both models as in eq. (1):
+d1 [rad/s²] adds to ω̇, d2 [m/s²] to υ̇, d3 [rad/s²] to θ̈ (τd1..τd3 of [1]_).
+
+Model ``'paper'``
+    Eq. (1) of [1]_ exactly, with τυ = τl + τr and τω = τr − τl (REP 103, see
+    :mod:`.model`); the tests check it against :func:`.model.nominal_terms`.
+
+Model ``'full'``: derivation
+    Same bodies and parameters as the spec's reading of (1) (``WipParameters``):
+
+    - body (pendulum): mass m_p, centre of mass at distance l above the axle along
+      the body axis, pitch inertia I_c about its centre of mass, tilt θ (positive
+      leaning forward, a rotation about the axle axis e_lat = left);
+    - chassis: point mass m_c on the axle (it turns with the body; on the axle it adds
+      nothing to the pitch inertia);
+    - two wheels of mass m_w, spin inertia J_ω, radius r, at ±d/2 along the axle;
+    - J_υ: yaw inertia about the vertical of everything that is not modelled above,
+      i.e. the body's own yaw inertia about its centre of mass (assumed the same
+      about the body's long axis and its forward axis, I_x = I_z, which is what makes
+      it independent of θ as in (1)), the chassis and the wheels' diametral inertia.
+
+    Generalised coordinates q = (x, y, ϕ, θ, φ_l, φ_r), φ_i the absolute spin angle of
+    wheel i about the axle (positive rolls forward). Unit vectors e_f = (cos ϕ, sin ϕ, 0),
+    e_lat = (−sin ϕ, cos ϕ, 0), e_z. Positions: axle centre p = (x, y, r); body centre of
+    mass p + l sinθ e_f + l cosθ e_z; wheel centres p ± (d/2) e_lat.
+
+    Lagrangian L = T − V with V = m_p g l cosθ and
+
+    .. math::
+
+        T = \\tfrac12 m_p |\\dot p_{cm}|^2 + \\tfrac12 I_c \\dot\\theta^2
+          + \\tfrac12 m_c |\\dot p|^2
+          + \\sum_{i=l,r} \\big(\\tfrac12 m_w |\\dot p_i|^2
+                                 + \\tfrac12 J_\\omega \\dot\\varphi_i^2\\big)
+          + \\tfrac12 J_\\upsilon \\dot\\phi^2 .
+
+    Nonholonomic constraints (no lateral slip, rolling without slip of each wheel):
+    ẋ sinϕ − ẏ cosϕ = 0, r φ̇_l = υ − (d/2) ω, r φ̇_r = υ + (d/2) ω with υ = ẋ cosϕ + ẏ sinϕ.
+    Hence q̇ = S(q) ν with quasi-velocities ν = (ω, υ, θ̇).
+
+    Generalised forces: motor i applies τ_i to wheel i about e_lat and, its stator being
+    fixed to the body, −τ_i to the body (the reaction torque): virtual work
+    δW = Σ τ_i (δφ_i − δθ). Lagrange–d'Alembert, Sᵀ (d/dt ∂L/∂q̇ − ∂L/∂q − Q) = 0, gives
+    (derived and checked with sympy; the kinetic energy in ν equals the spec's E − V)
+
+    .. math::
+
+        J(\\theta)\\dot\\omega + m_p l^2 \\sin 2\\theta\\, \\omega\\dot\\theta
+            + m_p l \\sin\\theta\\, \\upsilon\\omega = \\frac{d}{2r}\\tau_\\omega
+
+        m_v \\dot\\upsilon + m_p l \\cos\\theta\\, \\ddot\\theta
+            - m_p l \\sin\\theta\\,(\\dot\\theta^2 + \\omega^2) = \\tau_\\upsilon / r
+
+        m_p l \\cos\\theta\\, \\dot\\upsilon + J_\\theta \\ddot\\theta - m_p g l \\sin\\theta
+            - m_p l^2 \\sin\\theta\\cos\\theta\\, \\omega^2 = -\\tau_\\upsilon
+
+    with J(θ) = J_ϕ + m_p l² sin²θ, m_v, J_θ, J_ϕ as in ``WipParameters``. Solving the
+    2×2 block (determinant Ω) gives g2 = (J_θ + m_p l r cosθ)/(Ω r),
+    g3 = −(m_v r + m_p l cosθ)/(Ω r), as the spec lists.
+
+    Differences from (1), all found by the derivation:
+
+    - reaction torque −τυ on the body pitch (changes g2 and g3, see above);
+    - centrifugal term −m_p l ω² sinθ in the forward equation;
+    - Coriolis term +m_p l υ ω sinθ on the left of the yaw equation. It is gyroscopic
+      with the centrifugal term (their power υ(−m_p l ω² sinθ) + ω(m_p l υ ω sinθ) is
+      zero), so E is conserved; the yaw momentum J(θ) ω is **not** conserved in the
+      full model: d/dt (J(θ) ω) = −m_p l sinθ υ ω + (d/2r) τω (the ground's lateral
+      and longitudinal forces at the wheels act on it);
+    - **yaw input gain g1 = d / (2 r J(θ)), half of the paper's d / (r J(θ))**: with d
+      the distance between the wheels (as in J_ϕ and in the odometry), the wheel
+      forces τ_i / r act at ±d/2, so their yaw moment is (τr − τl) d / (2r). The paper's
+      g1 is twice the physical value (it would be right if d were the half-track). This
+      follows the derivation, as the brief asks; the controllers keep using (1).
+
+    Energy: E = ½ m_v υ² + m_p l cosθ υ θ̇ + ½ J_θ θ̇² + ½ J(θ) ω² + m_p g l cosθ for
+    both models (same kinetic energy), conserved with zero inputs and disturbances.
+
+Both models share one right-hand side: the full model's extra terms carry
+coefficients that are zero for the paper model, and the yaw gain is d/r or d/(2r).
+
+Implementation: the RK4 step works on plain floats with ``math`` (no numpy in the
+inner loop), because the simulator takes 90 000 steps per 90 s run.
+
+References
+----------
+.. [1] Yue, An, Li, IEEE T-SMC: Systems, 2016 (see ``params.py``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .config import param
+from .model import STATE_SIZE, THETA
+from .params import WipParameters
+
+#: Plant models: the paper's eq. (1) and the full Lagrange–d'Alembert model.
+MODELS = ('paper', 'full')
+
+#: Default tilt [rad] past which :meth:`Plant.has_fallen` reports a fall (0.9 · π/2).
+DEFAULT_FALL_LIMIT = 0.45 * math.pi
+
+Disturbance = Sequence[float]
+DisturbanceFunction = Callable[[float], Sequence[float]]
+
+
+@dataclasses.dataclass(frozen=True)
+class PlantConfig:
+    """Which dynamics the simulated plant integrates."""
+
+    model: str = param('paper', '1', "plant dynamics: 'paper' = eq. (1) of the paper, "
+                       "'full' = Lagrange-d'Alembert model with the motor reaction torque, "
+                       'centrifugal and Coriolis terms and the physical yaw gain d/(2 r J)',
+                       choices=MODELS)
+
+
+def tilt_pole(params: WipParameters, model: str = 'paper') -> float:
+    """Unstable pitch pole [rad/s] of the linearisation at rest (θ = 0, all rates 0).
+
+    .. math:: \\lambda = \\sqrt{m_v m_p g l / \\Omega_0}, \\quad
+              \\Omega_0 = m_v J_\\theta - m_p^2 l^2
+
+    Identical for both models: their extra terms are quadratic in the velocities
+    (ω², υω) or act through the input, so they vanish from the linearisation at rest
+    with zero input. About 4.58 rad/s with the default parameters.
+    """
+    _check_model(model)
+    p = params
+    return math.sqrt(p.effective_mass * p.body_mass * p.gravity * p.com_height
+                     / p.omega_denominator(0.0))
+
+
+def full_input_gains(params: WipParameters, theta: float) -> tuple[float, float, float]:
+    """(g1, g2, g3) of the full model at tilt θ [rad] (units as in eq. (1)).
+
+    g1 = d / (2 r J(θ)), g2 = (J_θ + m_p l r cosθ)/(Ω r), g3 = −(m_v r + m_p l cosθ)/(Ω r).
+    """
+    p = params
+    mp, l, r = p.body_mass, p.com_height, p.wheel_radius
+    s, c = math.sin(theta), math.cos(theta)
+    big_omega = p.omega_denominator(theta)
+    g1 = p.track_width / (2.0 * r * (p.yaw_inertia_total + mp * l * l * s * s))
+    g2 = (p.pitch_inertia + mp * l * r * c) / (big_omega * r)
+    g3 = -(p.effective_mass * r + mp * l * c) / (big_omega * r)
+    return g1, g2, g3
+
+
+def _check_model(model: str) -> None:
+    if model not in MODELS:
+        raise ValueError(f'unknown plant model {model!r}; expected one of {list(MODELS)}')
+
+
+def _state_floats(state: Sequence[float]) -> list[float]:
+    """The 8 state entries as Python floats; ValueError on a wrong size or NaN/inf."""
+    if isinstance(state, np.ndarray):
+        if state.shape != (STATE_SIZE,):
+            raise ValueError(f'plant state must have shape ({STATE_SIZE},), got {state.shape}')
+        values = state.tolist()
+    else:
+        values = [float(v) for v in state]
+        if len(values) != STATE_SIZE:
+            raise ValueError(f'plant state must have {STATE_SIZE} entries, got {len(values)}')
+    if not math.isfinite(math.fsum(values)):
+        raise ValueError(f'plant state must be finite, got {values}')
+    return values
+
+
+def _check_inputs(tau_left: float, tau_right: float, disturbance: Disturbance) -> tuple:
+    d1, d2, d3 = disturbance
+    if not math.isfinite(tau_left + tau_right + d1 + d2 + d3):
+        raise ValueError('wheel torques and disturbances must be finite, got '
+                         f'tau_left={tau_left!r}, tau_right={tau_right!r}, '
+                         f'disturbance={tuple(disturbance)!r}')
+    return float(tau_left), float(tau_right), float(d1), float(d2), float(d3)
+
+
+class Plant:
+    """Simulated WIP: right-hand side, RK4 step, energy and yaw momentum.
+
+    Parameters
+    ----------
+    params : true physical parameters (may differ from the controllers' nominal ones).
+    model : ``'paper'`` (eq. (1)) or ``'full'`` (see the module docstring).
+    """
+
+    def __init__(self, params: WipParameters, model: str = 'paper') -> None:
+        _check_model(model)
+        self.params = params
+        self.model = model
+        p = params
+        mp, l, g, r = p.body_mass, p.com_height, p.gravity, p.wheel_radius
+        full = model == 'full'
+        # Constants of the right-hand side, bound as closure variables of the stepper.
+        self._consts = dict(
+            mv=p.effective_mass, jt=p.pitch_inertia, jphi=p.yaw_inertia_total,
+            mpl=mp * l, mpl2=mp * l * l, mpgl=mp * g * l,
+            mvjt=p.effective_mass * p.pitch_inertia, mpl_sq=(mp * l) ** 2, inv_r=1.0 / r,
+            # Yaw gain: d/r in (1), d/(2r) from the derivation.
+            yaw_gain=p.track_width / (2.0 * r if full else r),
+            # Full-model extra terms: coefficients are 0 for the paper model.
+            k_centrifugal=1.0 if full else 0.0,     # m_p l sinθ ω² in the forward eq.
+            k_coriolis=mp * l if full else 0.0,     # m_p l sinθ υ ω in the yaw eq.
+            k_reaction=1.0 if full else 0.0)        # −τυ on the body pitch
+        self._accelerations, self.step_floats = _make_rhs(**self._consts)
+
+    @classmethod
+    def from_config(cls, params: WipParameters, config: PlantConfig) -> 'Plant':
+        return cls(params, config.model)
+
+    # ------------------------------------------------------------------ dynamics
+
+    def derivative(self, state: Sequence[float], tau_left: float, tau_right: float,
+                   disturbance: Disturbance = (0.0, 0.0, 0.0)) -> np.ndarray:
+        """State derivative ẋ (8,) at ``state`` for wheel torques [N·m] and (d1, d2, d3)."""
+        _, _, phi, _, th, om, v, thd = _state_floats(state)
+        tl, tr, d1, d2, d3 = _check_inputs(tau_left, tau_right, disturbance)
+        tv, tw = tl + tr, tr - tl
+        omd, vd, thdd = self._accelerations(th, om, v, thd, tv, tw)
+        return np.array((v * math.cos(phi), v * math.sin(phi), om, v, thd,
+                         omd + d1, vd + d2, thdd + d3))
+
+    def step(self, state: Sequence[float], tau_left: float, tau_right: float,
+             disturbance: Disturbance, dt: float) -> np.ndarray:
+        """One classic RK4 step of ``dt`` [s], torques and disturbance held over it."""
+        values = _state_floats(state)
+        inputs = _check_inputs(tau_left, tau_right, disturbance)
+        _check_dt(dt)
+        return np.array(self.step_floats(*values, *inputs, dt))
+
+    def simulate_hold(self, state: Sequence[float], tau_left: float, tau_right: float,
+                      disturbance_fn: DisturbanceFunction | None, t0: float, dt: float,
+                      n_steps: int) -> np.ndarray:
+        """``n_steps`` RK4 steps of ``dt`` [s] from time ``t0`` [s], torques held.
+
+        The disturbance is sampled at each step's start, ``disturbance_fn(t0 + k dt)``,
+        and held over that step (``None``: no disturbance). Returns the final state.
+        """
+        values = _state_floats(state)
+        tl, tr, _, _, _ = _check_inputs(tau_left, tau_right, (0.0, 0.0, 0.0))
+        _check_dt(dt)
+        if n_steps < 0 or int(n_steps) != n_steps:
+            raise ValueError(f'n_steps must be a non-negative integer, got {n_steps!r}')
+        step = self.step_floats
+        x = tuple(values)
+        for k in range(int(n_steps)):
+            if disturbance_fn is None:
+                d1 = d2 = d3 = 0.0
+            else:
+                d1, d2, d3 = disturbance_fn(t0 + k * dt)
+            x = step(*x, tl, tr, d1, d2, d3, dt)
+        if not math.isfinite(math.fsum(x)):
+            raise ValueError(f'plant state became non-finite: {x} (check the disturbances)')
+        return np.array(x)
+
+    # ------------------------------------------------------------------ invariants
+
+    def energy(self, state: Sequence[float]) -> float:
+        """Total mechanical energy [J], the same expression for both models.
+
+        E = ½ m_v υ² + m_p l cosθ υ θ̇ + ½ J_θ θ̇² + ½ (J_ϕ + m_p l² sin²θ) ω² + m_p g l cosθ.
+        """
+        _, _, _, _, th, om, v, thd = _state_floats(state)
+        k = self._consts
+        s, c = math.sin(th), math.cos(th)
+        return (0.5 * k['mv'] * v * v + k['mpl'] * c * v * thd + 0.5 * k['jt'] * thd * thd
+                + 0.5 * (k['jphi'] + k['mpl2'] * s * s) * om * om + k['mpgl'] * c)
+
+    def yaw_momentum(self, state: Sequence[float]) -> float:
+        """(J_ϕ + m_p l² sin²θ) ω [kg m²/s].
+
+        Conserved by the paper model with zero input; in the full model its rate is
+        −m_p l sinθ υ ω + (d/2r) τω (see the module docstring).
+        """
+        _, _, _, _, th, om, _, _ = _state_floats(state)
+        k = self._consts
+        s = math.sin(th)
+        return (k['jphi'] + k['mpl2'] * s * s) * om
+
+    @staticmethod
+    def has_fallen(state: Sequence[float], limit: float = DEFAULT_FALL_LIMIT) -> bool:
+        """True if |θ| ≥ ``limit`` [rad]."""
+        return abs(float(state[THETA])) >= limit
+
+    def linearize(self, state_eq: Sequence[float], tau_left: float = 0.0,
+                  tau_right: float = 0.0, disturbance: Disturbance = (0.0, 0.0, 0.0),
+                  step: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+        """Jacobians (A (8×8), B (8×2) w.r.t. (τl, τr)) by central differences.
+
+        ``step`` is the perturbation of each variable (rad, m, m/s or N·m); the
+        truncation error is O(step²) and the rounding error O(1e-16 / step).
+        """
+        x0 = np.array(_state_floats(state_eq))
+        a = np.empty((STATE_SIZE, STATE_SIZE))
+        for j in range(STATE_SIZE):
+            e = np.zeros(STATE_SIZE)
+            e[j] = step
+            a[:, j] = (self.derivative(x0 + e, tau_left, tau_right, disturbance)
+                       - self.derivative(x0 - e, tau_left, tau_right, disturbance)) / (2 * step)
+        b = np.empty((STATE_SIZE, 2))
+        for j, (dl, dr) in enumerate(((step, 0.0), (0.0, step))):
+            plus = self.derivative(x0, tau_left + dl, tau_right + dr, disturbance)
+            minus = self.derivative(x0, tau_left - dl, tau_right - dr, disturbance)
+            b[:, j] = (plus - minus) / (2 * step)
+        return a, b
+
+
+def _check_dt(dt: float) -> None:
+    if not (math.isfinite(dt) and dt > 0.0):
+        raise ValueError(f'dt must be a positive finite time step [s], got {dt!r}')
+
+
+def _make_rhs(mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_gain,
+              k_centrifugal, k_coriolis, k_reaction):
+    """Build the dynamics function and the RK4 stepper on plain floats.
+
+    Constants are closure variables (fast to load). The stepper inlines the four
+    stages: a call per stage would cost about as much as the arithmetic itself.
+    """
+    sin, cos = math.sin, math.cos
+
+    def accelerations(th, om, v, thd, tv, tw):
+        """(ω̇, υ̇, θ̈) without disturbances, for τυ = tv, τω = tw [N·m]."""
+        s = sin(th)
+        c = cos(th)
+        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)                       # 1/Ω(θ)
+        omd = ((yaw_gain * tw - (2.0 * mpl2 * c * thd + k_coriolis * v) * s * om)
+               / (jphi + mpl2 * s * s))
+        rv = mpl * s * (thd * thd + k_centrifugal * om * om) + tv * inv_r
+        rt = mpgl * s + mpl2 * s * c * om * om - k_reaction * tv
+        mplc = mpl * c
+        return omd, (jt * rv - mplc * rt) * inv_omega, (mv * rt - mplc * rv) * inv_omega
+
+    def step_floats(x, y, phi, xv, th, om, v, thd, tau_left, tau_right, d1, d2, d3, h):
+        """One RK4 step on floats; returns the new state as an 8-tuple. No input checks."""
+        tw = tau_right - tau_left
+        tvr = (tau_left + tau_right) * inv_r
+        tvk = k_reaction * (tau_left + tau_right)
+        ytw = yaw_gain * tw
+        hh = 0.5 * h
+
+        # Stage 1 at (th, om, v, thd, phi).
+        s = sin(th)
+        c = cos(th)
+        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
+        a1o = (ytw - (2.0 * mpl2 * c * thd + k_coriolis * v) * s * om) / (jphi + mpl2 * s * s) + d1
+        rv = mpl * s * (thd * thd + k_centrifugal * om * om) + tvr
+        rt = mpgl * s + mpl2 * s * c * om * om - tvk
+        mplc = mpl * c
+        a1v = (jt * rv - mplc * rt) * inv_omega + d2
+        a1t = (mv * rt - mplc * rv) * inv_omega + d3
+        cp1 = cos(phi)
+        sp1 = sin(phi)
+
+        # Stage 2 at t + h/2 along stage 1's slope.
+        th2 = th + hh * thd
+        om2 = om + hh * a1o
+        v2 = v + hh * a1v
+        thd2 = thd + hh * a1t
+        phi2 = phi + hh * om
+        s = sin(th2)
+        c = cos(th2)
+        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
+        a2o = ((ytw - (2.0 * mpl2 * c * thd2 + k_coriolis * v2) * s * om2)
+               / (jphi + mpl2 * s * s) + d1)
+        rv = mpl * s * (thd2 * thd2 + k_centrifugal * om2 * om2) + tvr
+        rt = mpgl * s + mpl2 * s * c * om2 * om2 - tvk
+        mplc = mpl * c
+        a2v = (jt * rv - mplc * rt) * inv_omega + d2
+        a2t = (mv * rt - mplc * rv) * inv_omega + d3
+        cp2 = cos(phi2)
+        sp2 = sin(phi2)
+
+        # Stage 3 at t + h/2 along stage 2's slope.
+        th3 = th + hh * thd2
+        om3 = om + hh * a2o
+        v3 = v + hh * a2v
+        thd3 = thd + hh * a2t
+        phi3 = phi + hh * om2
+        s = sin(th3)
+        c = cos(th3)
+        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
+        a3o = ((ytw - (2.0 * mpl2 * c * thd3 + k_coriolis * v3) * s * om3)
+               / (jphi + mpl2 * s * s) + d1)
+        rv = mpl * s * (thd3 * thd3 + k_centrifugal * om3 * om3) + tvr
+        rt = mpgl * s + mpl2 * s * c * om3 * om3 - tvk
+        mplc = mpl * c
+        a3v = (jt * rv - mplc * rt) * inv_omega + d2
+        a3t = (mv * rt - mplc * rv) * inv_omega + d3
+        cp3 = cos(phi3)
+        sp3 = sin(phi3)
+
+        # Stage 4 at t + h along stage 3's slope.
+        th4 = th + h * thd3
+        om4 = om + h * a3o
+        v4 = v + h * a3v
+        thd4 = thd + h * a3t
+        phi4 = phi + h * om3
+        s = sin(th4)
+        c = cos(th4)
+        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
+        a4o = ((ytw - (2.0 * mpl2 * c * thd4 + k_coriolis * v4) * s * om4)
+               / (jphi + mpl2 * s * s) + d1)
+        rv = mpl * s * (thd4 * thd4 + k_centrifugal * om4 * om4) + tvr
+        rt = mpgl * s + mpl2 * s * c * om4 * om4 - tvk
+        mplc = mpl * c
+        a4v = (jt * rv - mplc * rt) * inv_omega + d2
+        a4t = (mv * rt - mplc * rv) * inv_omega + d3
+        cp4 = cos(phi4)
+        sp4 = sin(phi4)
+
+        h6 = h / 6.0
+        return (x + h6 * (v * cp1 + 2.0 * (v2 * cp2 + v3 * cp3) + v4 * cp4),
+                y + h6 * (v * sp1 + 2.0 * (v2 * sp2 + v3 * sp3) + v4 * sp4),
+                phi + h6 * (om + 2.0 * (om2 + om3) + om4),
+                xv + h6 * (v + 2.0 * (v2 + v3) + v4),
+                th + h6 * (thd + 2.0 * (thd2 + thd3) + thd4),
+                om + h6 * (a1o + 2.0 * (a2o + a3o) + a4o),
+                v + h6 * (a1v + 2.0 * (a2v + a3v) + a4v),
+                thd + h6 * (a1t + 2.0 * (a2t + a3t) + a4t))
+
+    return accelerations, step_floats
