@@ -196,6 +196,12 @@ class Plant:
     ----------
     params : true physical parameters (may differ from the controllers' nominal ones).
     model : ``'paper'`` (eq. (1)) or ``'full'`` (see the module docstring).
+
+    Attributes
+    ----------
+    step_floats : ``(x, y, ϕ, x_v, θ, ω, υ, θ̇, τl, τr, d1, d2, d3, dt) -> 8-tuple``,
+        the RK4 step on plain floats without input checks (the fast path behind
+        :meth:`step` and :meth:`simulate_hold`; about 2.3 µs per step).
     """
 
     def __init__(self, params: WipParameters, model: str = 'paper') -> None:
