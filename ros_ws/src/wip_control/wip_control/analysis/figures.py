@@ -18,8 +18,7 @@ import numpy as np  # noqa: E402
 
 from ..core.angles import wrap_to_pi  # noqa: E402
 from ..core.metrics import _interp, true_lumped_disturbances  # noqa: E402
-from ..core.model import input_gains  # noqa: E402
-from ..core.plant import Plant  # noqa: E402
+from ..core.plant import Plant, plant_input_gains  # noqa: E402
 from ..core.record import RunRecord  # noqa: E402
 
 _TRUE = dict(color='black', linewidth=1.0, label='true')
@@ -171,7 +170,8 @@ def figure_adaptation(record: RunRecord, out: pathlib.Path, scenario) -> pathlib
     arc = record['arc']
     ax.plot(arc['t'], arc['alpha_hat'], color='tab:red', label='α̂')
     source = record['truth'] if 'truth' in record else record['estimate']
-    g1 = np.array([input_gains(scenario.plant.parameters, th)[0] for th in source['theta']])
+    g1 = np.array([plant_input_gains(scenario.plant.parameters, scenario.plant.model.model,
+                                     th)[0] for th in source['theta']])
     ax.plot(source['t'], 1.0 / g1, color='black', label='1/g1 (true)')
     ax.set_xlabel('t [s]')
     ax.set_ylabel('α [N·m per rad/s²]')

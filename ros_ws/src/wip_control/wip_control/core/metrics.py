@@ -28,7 +28,7 @@ import numpy as np
 
 from .angles import wrap_to_pi
 from .model import input_gains
-from .plant import Plant
+from .plant import Plant, plant_input_gains
 from .record import RunRecord
 
 SETTLE_TIME_S = 10.0
@@ -152,7 +152,8 @@ def compute_metrics(record: RunRecord, scenario, fell: bool | None = None,
         metrics['max_position_error_m'] = _max_abs(position_error[late])
         metrics['rms_heading_error_rad'] = _rms(heading_error[late])
         metrics['eso_rms_error'] = _eso_errors(record, scenario)
-        g1 = np.array([input_gains(scenario.plant.parameters, th)[0] for th in truth['theta']])
+        g1 = np.array([plant_input_gains(scenario.plant.parameters, scenario.plant.model.model,
+                                         th)[0] for th in truth['theta']])
         metrics['one_over_g1_range'] = [float(np.min(1 / g1)), float(np.max(1 / g1))]
     else:
         for key in ('convergence_time_s', 'rms_position_error_m', 'max_position_error_m',

@@ -106,7 +106,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .config import param
-from .model import STATE_SIZE, THETA
+from .model import STATE_SIZE, THETA, input_gains
 from .params import WipParameters
 
 #: Plant models: the paper's eq. (1) and the full Lagrange–d'Alembert model.
@@ -143,6 +143,14 @@ def tilt_pole(params: WipParameters, model: str = 'paper') -> float:
     p = params
     return math.sqrt(p.effective_mass * p.body_mass * p.gravity * p.com_height
                      / p.omega_denominator(0.0))
+
+
+def plant_input_gains(params: WipParameters, model: str,
+                      theta: float) -> tuple[float, float, float]:
+    """(g1, g2, g3) of the plant ``model`` ('paper' or 'full') at tilt θ [rad]."""
+    if model == 'full':
+        return full_input_gains(params, theta)
+    return input_gains(params, theta)
 
 
 def full_input_gains(params: WipParameters, theta: float) -> tuple[float, float, float]:
