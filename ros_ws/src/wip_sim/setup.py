@@ -29,6 +29,7 @@ setup(
         'console_scripts': [
             'plant = wip_sim.plant_node:main',
             'recorder = wip_sim.recorder_node:main',
+            'replayer = wip_sim.replayer_node:main',
         ],
     },
 )

@@ -7,6 +7,7 @@ or more ``.mcap`` files) or on a single ``.mcap`` file, including one whose writ
 before finishing it (read up to its last complete record).
 """
 
+import heapq
 import pathlib
 import struct
 from typing import Any, NamedTuple
@@ -234,3 +235,144 @@ def _iter_records(file, finished):
             yield 'channel', (schemas.get(record.schema_id), record)
         elif record.channel_id in channels:
             yield 'message', (channels[record.channel_id], record)
+
+
+# -- raw access (the replayer republishes serialized messages as they are) ----------------
+
+class RawMessage(NamedTuple):
+    """One serialized message of a bag, as recorded."""
+
+    topic: str
+    log_time_ns: int  # receive time [ns] (MCAP log time)
+    publish_time_ns: int  # send time [ns] (MCAP publish time)
+    data: bytes  # serialized message (CDR for rosbag2 bags)
+
+
+class TopicMetadata(NamedTuple):
+    """What a bag holds of a topic: its type, definition, offered QoS and message count."""
+
+    name: str
+    type_name: str
+    serialization_format: str  # MCAP message encoding, 'cdr' for rosbag2 bags
+    offered_qos_profiles: str  # YAML string of the MCAP channel metadata ('' if absent)
+    type_hash: str  # RIHS01 hash ('' if absent)
+    definition_encoding: str  # 'ros2msg', 'ros2idl' or ''
+    definition: str  # full message definition (rosbag2's schema format)
+    message_count: int
+
+
+def _channels_and_counts(file):
+    """(schemas, channels, counts per channel id) of one MCAP file."""
+    with open(file, 'rb') as stream:
+        finished = _has_summary(stream)
+        if finished:
+            summary = SeekingReader(stream).get_summary()
+            counts = dict(summary.statistics.channel_message_counts) if (
+                summary.statistics is not None) else None
+            if counts is None:
+                counts = {cid: 0 for cid in summary.channels}
+                stream.seek(0)
+                for _, channel, _ in SeekingReader(stream).iter_messages(
+                        log_time_order=False):
+                    counts[channel.id] += 1
+            return dict(summary.schemas), dict(summary.channels), counts
+    schemas, channels, counts = {}, {}, {}
+    for kind, record in scan_mcap_records(file):
+        if kind == 'schema':
+            schemas[record.id] = record
+        elif kind == 'channel':
+            channels[record.id] = record
+            counts.setdefault(record.id, 0)
+        elif record.channel_id in counts:
+            counts[record.channel_id] += 1
+    return schemas, channels, counts
+
+
+def read_topics(path):
+    """Return the topics of a bag (directory or single file) from its MCAP content.
+
+    Returns
+    -------
+    dict
+        topic -> :class:`TopicMetadata`, in the order the topics first appear; message
+        counts are summed over the files.
+    """
+    topics = {}
+    for file in mcap_files(path):
+        schemas, channels, counts = _channels_and_counts(file)
+        for channel_id, channel in channels.items():
+            schema = schemas.get(channel.schema_id)
+            count = counts.get(channel_id, 0)
+            known = topics.get(channel.topic)
+            if known is not None:
+                if known.type_name != (schema.name if schema else ''):
+                    raise BagReadError(
+                        f'{path}: topic {channel.topic} has two types, {known.type_name} '
+                        f'and {schema.name if schema else None}')
+                topics[channel.topic] = known._replace(
+                    message_count=known.message_count + count)
+                continue
+            metadata = channel.metadata or {}
+            topics[channel.topic] = TopicMetadata(
+                name=channel.topic,
+                type_name=schema.name if schema else '',
+                serialization_format=channel.message_encoding,
+                offered_qos_profiles=metadata.get('offered_qos_profiles', ''),
+                type_hash=metadata.get('topic_type_hash', ''),
+                definition_encoding=schema.encoding if schema else '',
+                definition=schema.data.decode('utf-8', 'replace') if schema else '',
+                message_count=count)
+    return topics
+
+
+def _iter_raw_file(file, topics, start_ns, end_ns):
+    with open(file, 'rb') as stream:
+        if _has_summary(stream):
+            reader = SeekingReader(stream)
+            for _, channel, message in reader.iter_messages(
+                    topics=topics, starting_at=start_ns, ending_at=end_ns,
+                    log_time_order=True):
+                yield RawMessage(channel.topic, message.log_time, message.publish_time,
+                                 message.data)
+            return
+    channels = {}
+    for kind, record in scan_mcap_records(file):
+        if kind == 'channel':
+            channels[record.id] = record.topic
+        elif kind == 'message':
+            topic = channels.get(record.channel_id)
+            if topic is None or (topics is not None and topic not in topics):
+                continue
+            if start_ns is not None and record.log_time < start_ns:
+                continue
+            if end_ns is not None and record.log_time > end_ns:
+                continue
+            yield RawMessage(topic, record.log_time, record.publish_time, record.data)
+
+
+def iter_raw_messages(path, topics=None, start_ns=None, end_ns=None):
+    """Iterate over the serialized messages of a bag in receive-time order.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A bag directory or a single ``.mcap`` file.
+    topics : iterable of str, optional
+        Only these topics (default: all).
+    start_ns, end_ns : int, optional
+        Only messages with ``start_ns <= log time <= end_ns`` [ns].
+
+    Yields
+    ------
+    RawMessage
+        ``(topic, log_time_ns, publish_time_ns, data)``. The files of a split bag are
+        merged by log time (stable: equal times keep the file order).
+    """
+    if isinstance(topics, str):
+        topics = [topics]
+    topics = None if topics is None else sorted(set(topics))
+    iterators = [_iter_raw_file(f, topics, start_ns, end_ns) for f in mcap_files(path)]
+    if len(iterators) == 1:
+        yield from iterators[0]
+    else:
+        yield from heapq.merge(*iterators, key=lambda m: m.log_time_ns)

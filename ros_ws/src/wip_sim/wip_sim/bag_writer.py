@@ -4,7 +4,8 @@ The layout follows rosbag2 Jazzy (``rosbag2_storage_mcap`` and ``rosbag2_storage
 version 9), so that ``ros2 bag info/play`` on a full ROS 2 install, ``rosbags`` and the MCAP
 tools read the bags:
 
-- a bag is a directory ``<name>/`` holding ``<name>_0.mcap`` and ``metadata.yaml``;
+- a bag is a directory ``<name>/`` holding ``<name>_0.mcap`` (and ``<name>_1.mcap`` ... when
+  split by size or duration) and ``metadata.yaml``;
 - the MCAP file has profile ``ros2``; one schema per message type, named like
   ``std_msgs/msg/Header``, with encoding ``ros2msg`` and the full message definition as data
   (see :func:`message_definition`); one channel per topic with message encoding ``cdr`` and
@@ -13,6 +14,10 @@ tools read the bags:
 - at close, a metadata record ``rosbag2`` with key ``serialized_metadata`` (what
   ``MCAPStorage::update_metadata`` writes), then ``metadata.yaml`` with the top-level key
   ``rosbag2_bagfile_information``.
+
+Robustness: MCAP chunks are self-contained (compressed, with their own CRC), so a file whose
+writer died keeps every chunk written before the crash; :mod:`wip_sim.bag_repair` rewrites
+such files and rebuilds ``metadata.yaml`` from the files' contents.
 
 MCAP chunk compression (zstd, lz4) is a property of the storage, as with rosbag2's MCAP
 storage configuration, so ``compression_format`` and ``compression_mode`` of metadata.yaml
@@ -68,6 +73,11 @@ PRIMITIVE_TYPES = frozenset((
     'bool', 'byte', 'char', 'float32', 'float64', 'int8', 'uint8', 'int16', 'uint16',
     'int32', 'uint32', 'int64', 'uint64', 'string', 'wstring'))
 _MAX_DEFINITION_DEPTH = 50  # MESSAGE_DEFINITION_SOURCE_MAX_RECURSION_DEPTH of [1]
+# Bytes a message adds to an MCAP file besides its data: its record (opcode 1, length 8,
+# channel id 2, sequence 4, log time 8, publish time 8) and its message index entry (16).
+_MESSAGE_RECORD_OVERHEAD = 31 + 16
+# With max_bag_size, a file is closed once less than 1/_MIN_FILL_FRACTION of it is left.
+_MIN_FILL_FRACTION = 16
 
 
 class BagWriterError(Exception):
@@ -248,8 +258,27 @@ def _time_dict(nanoseconds, key):
     return {key: int(nanoseconds)}
 
 
+class FileStatistics:
+    """Messages of one MCAP file of a bag: count and first/last log time [ns]."""
+
+    __slots__ = ('path', 'count', 'start_ns', 'end_ns')
+
+    def __init__(self, path, count=0, start_ns=None, end_ns=None):
+        self.path = str(path)
+        self.count = int(count)
+        self.start_ns = start_ns
+        self.end_ns = end_ns
+
+    def add(self, log_time_ns):
+        self.count += 1
+        if self.start_ns is None or log_time_ns < self.start_ns:
+            self.start_ns = log_time_ns
+        if self.end_ns is None or log_time_ns > self.end_ns:
+            self.end_ns = log_time_ns
+
+
 class Rosbag2McapWriter:
-    """Writer of one rosbag2 bag directory with MCAP storage (one file, no splitting).
+    """Writer of one rosbag2 bag directory with MCAP storage, split into files on demand.
 
     Parameters
     ----------
@@ -264,23 +293,41 @@ class Rosbag2McapWriter:
         Value of ``ros_distro`` in the metadata; default ``$ROS_DISTRO`` or 'jazzy'.
     custom_data : dict of str to str, optional
         Free key-value pairs stored in ``custom_data`` of the metadata.
+    max_bag_size : int
+        Split: a new file is started before a message that could make the data section of
+        the current one larger than this [bytes]. The summary written when the file is
+        closed comes on top (the schemas, channels and bag metadata, a few KiB, and about
+        100 bytes per chunk). 0 (default): no limit. Like rosbag2's ``max_bagfile_size``.
+    max_bag_duration : float
+        Split: a new file is started before a message logged ``max_bag_duration`` [s] or more
+        after the first message of the current file. 0 (default): no limit.
 
     Notes
     -----
+    Files are named ``<directory name>_<index>.mcap`` (index from 0), as rosbag2 names them,
+    and listed in order in ``relative_file_paths`` and ``files`` of ``metadata.yaml``. Each
+    file is a complete MCAP file of its own: every topic is declared again in each file.
+    ``metadata.yaml`` is written at each split (listing the files closed so far) and at
+    :meth:`close`.
+
     Not thread-safe: call it from one thread (the recorder queues messages to one writer
     thread). Use it as a context manager, or call :meth:`close`, which finishes the MCAP file
-    (summary, indexes) and writes ``metadata.yaml``; without it the file has no footer (see
-    :func:`recover_bag`).
+    (summary, indexes) and writes ``metadata.yaml``; without it the last file has no footer
+    (see :func:`wip_sim.bag_repair.repair_bag`).
     """
 
     def __init__(self, directory, compression='zstd', chunk_size=DEFAULT_CHUNK_SIZE,
-                 ros_distro=None, custom_data=None):
+                 ros_distro=None, custom_data=None, max_bag_size=0, max_bag_duration=0.0):
         if compression not in _COMPRESSION:
             raise ValueError(
                 f'compression {compression!r} not supported; expected one of '
                 f'{sorted(_COMPRESSION)}')
         if int(chunk_size) <= 0:
             raise ValueError(f'chunk_size must be positive, got {chunk_size}')
+        if int(max_bag_size) < 0:
+            raise ValueError(f'max_bag_size must be >= 0 bytes, got {max_bag_size}')
+        if not float(max_bag_duration) >= 0.0:
+            raise ValueError(f'max_bag_duration must be >= 0 s, got {max_bag_duration}')
         self.directory = pathlib.Path(directory)
         if self.directory.exists():
             if not self.directory.is_dir():
@@ -290,21 +337,96 @@ class Rosbag2McapWriter:
                     f'{self.directory} exists and is not empty; refusing to overwrite a bag')
         self.directory.mkdir(parents=True, exist_ok=True)
         self.compression = compression
+        self.chunk_size = int(chunk_size)
+        self.max_bag_size = int(max_bag_size)
+        self.max_bag_duration_ns = int(round(float(max_bag_duration) * 1e9))
         self.ros_distro = ros_distro or os.environ.get('ROS_DISTRO') or 'jazzy'
         self.custom_data = {str(k): str(v) for k, v in (custom_data or {}).items()}
-        self.file_name = f'{self.directory.name}_0.mcap'
-        self.mcap_path = self.directory / self.file_name
         self.metadata_path = self.directory / METADATA_FILE_NAME
-        self._stream = open(self.mcap_path, 'xb')
-        self._writer = Writer(
-            self._stream, chunk_size=int(chunk_size), compression=_COMPRESSION[compression])
-        self._writer.start(profile=MCAP_PROFILE, library=_library_identifier())
-        self._schema_ids = {}  # type name -> schema id
-        self._topics = {}  # topic -> dict(channel_id, type, qos list, hash, count)
+        self._topics = {}  # topic -> dict(type, qos, hash, count, definition, encoding, ...)
+        self._files = []  # FileStatistics of the closed files, in order
+        self._file = None  # FileStatistics of the current file
         self._message_count = 0
-        self._start_ns = None
-        self._end_ns = None
         self._closed = False
+        self._open_file(0)
+
+    # -- files -----------------------------------------------------------------------------
+    def _open_file(self, index):
+        self.file_name = f'{self.directory.name}_{index}.mcap'
+        self.mcap_path = self.directory / self.file_name
+        self._stream = open(self.mcap_path, 'xb')
+        self._writer = Writer(self._stream, chunk_size=self.chunk_size,
+                              compression=_COMPRESSION[self.compression])
+        self._writer.start(profile=MCAP_PROFILE, library=_library_identifier())
+        self._file = FileStatistics(self.file_name)
+        self._schema_ids = {}  # type name -> schema id in the current file
+        self._stream_position = self._stream.tell()
+        self._pending_bytes = 0  # estimated uncompressed bytes of the chunk in progress
+        for name, info in self._topics.items():  # Every file declares every topic.
+            info['channel_id'] = self._register(name, info)
+
+    def _register(self, name, info):
+        schema_id = self._schema_ids.get(info['type'])
+        if schema_id is None:
+            schema_id = self._writer.register_schema(
+                info['type'], info['encoding'], info['definition'].encode('utf-8'))
+            self._schema_ids[info['type']] = schema_id
+        return self._writer.register_channel(
+            topic=name, message_encoding=SERIALIZATION_FORMAT, schema_id=schema_id,
+            metadata={'offered_qos_profiles': dump_offered_qos(info['qos']),
+                      'topic_type_hash': str(info['hash'])})
+
+    def _finish_file(self):
+        """Finish the current MCAP file (summary, footer) and close it."""
+        try:
+            # What MCAPStorage::update_metadata stores, so that a lone .mcap file still
+            # carries the bag metadata.
+            self._writer.add_metadata('rosbag2', {'serialized_metadata': _dump_yaml(
+                self.metadata())})
+            self._writer.finish()
+            self._stream.flush()
+            os.fsync(self._stream.fileno())
+        finally:
+            self._stream.close()
+        self._files.append(self._file)
+
+    def split(self):
+        """Close the current file and continue in the next one (``<name>_<i+1>.mcap``)."""
+        self._check_open()
+        self._finish_file()
+        self._file = None
+        write_metadata_file(self.metadata_path, self.metadata())
+        self._open_file(len(self._files))
+
+    @property
+    def file_names(self):
+        """Names of the bag's files so far, the current one last."""
+        names = [f.path for f in self._files]
+        if self._file is not None:
+            names.append(self._file.path)
+        return names
+
+    def _size_estimate(self):
+        """Bytes the current file would have if the chunk in progress were written now."""
+        position = self._stream.tell()
+        if position != self._stream_position:  # The writer wrote a chunk: none pending.
+            self._stream_position = position
+            self._pending_bytes = 0
+        return position + self._pending_bytes
+
+    def _should_split(self, log_time_ns, size):
+        if self._file.count == 0:
+            return False  # Never leave an empty file behind.
+        if (self.max_bag_duration_ns > 0
+                and log_time_ns - self._file.start_ns >= self.max_bag_duration_ns):
+            return True
+        if self.max_bag_size > 0 and self._size_estimate() + size > self.max_bag_size:
+            # The estimate counts the chunk in progress uncompressed. Write it (compressed)
+            # to know the real size; split only if the file is (nearly) full.
+            self._writer.flush()
+            remaining = self.max_bag_size - self._size_estimate()
+            return remaining < size or remaining < self.max_bag_size // _MIN_FILL_FRACTION
+        return False
 
     # -- context manager -------------------------------------------------------------------
     def __enter__(self):
@@ -364,21 +486,18 @@ class Rosbag2McapWriter:
         qos = normalize_offered_qos(qos_profiles)
         if type_hash is None:
             type_hash = type_description_hash(type_name)
-        schema_id = self._schema_ids.get(type_name)
-        if schema_id is None:
-            if message_definition_text is None:
-                definition_encoding, message_definition_text = message_definition(type_name)
-            if definition_encoding not in ('ros2msg', 'ros2idl'):
-                raise ValueError(f'unknown definition encoding {definition_encoding!r}')
-            schema_id = self._writer.register_schema(
-                type_name, definition_encoding, message_definition_text.encode('utf-8'))
-            self._schema_ids[type_name] = schema_id
-        channel_id = self._writer.register_channel(
-            topic=name, message_encoding=SERIALIZATION_FORMAT, schema_id=schema_id,
-            metadata={'offered_qos_profiles': dump_offered_qos(qos),
-                      'topic_type_hash': str(type_hash)})
-        self._topics[name] = {'channel_id': channel_id, 'type': type_name, 'qos': qos,
-                              'hash': str(type_hash), 'count': 0}
+        known = next((t for t in self._topics.values() if t['type'] == type_name), None)
+        if known is not None:  # One schema per type: the first definition given wins.
+            definition_encoding, message_definition_text = known['encoding'], known[
+                'definition']
+        elif message_definition_text is None:
+            definition_encoding, message_definition_text = message_definition(type_name)
+        if definition_encoding not in ('ros2msg', 'ros2idl'):
+            raise ValueError(f'unknown definition encoding {definition_encoding!r}')
+        info = {'type': type_name, 'qos': qos, 'hash': str(type_hash), 'count': 0,
+                'definition': message_definition_text, 'encoding': definition_encoding}
+        info['channel_id'] = self._register(name, info)
+        self._topics[name] = info
 
     def write(self, topic, data, log_time_ns, publish_time_ns=None, sequence=0):
         """Write one serialized message.
@@ -396,6 +515,12 @@ class Rosbag2McapWriter:
             ``log_time_ns``.
         sequence : int
             Optional sequence number of the message.
+
+        Raises
+        ------
+        OSError
+            When the file cannot be written (disk full, file size limit ...). The bag is then
+            unusable: close it (which may fail too) and repair it (:mod:`wip_sim.bag_repair`).
         """
         self._check_open()
         info = self._topics.get(topic)
@@ -405,51 +530,67 @@ class Rosbag2McapWriter:
         if log_time_ns < 0:
             raise ValueError(f'negative log time {log_time_ns} ns')
         publish_time_ns = log_time_ns if publish_time_ns is None else int(publish_time_ns)
+        data = bytes(data)
+        size = len(data) + _MESSAGE_RECORD_OVERHEAD
+        if (self.max_bag_size or self.max_bag_duration_ns) and self._should_split(
+                log_time_ns, size):
+            self.split()
+            info = self._topics[topic]
         self._writer.add_message(
-            channel_id=info['channel_id'], log_time=log_time_ns, data=bytes(data),
+            channel_id=info['channel_id'], log_time=log_time_ns, data=data,
             publish_time=publish_time_ns, sequence=int(sequence))
+        if self.max_bag_size:
+            self._size_estimate()  # Notices a chunk written by add_message.
+            self._pending_bytes += size
         info['count'] += 1
         self._message_count += 1
-        if self._start_ns is None or log_time_ns < self._start_ns:
-            self._start_ns = log_time_ns
-        if self._end_ns is None or log_time_ns > self._end_ns:
-            self._end_ns = log_time_ns
+        self._file.add(log_time_ns)
 
-    def flush(self):
+    def flush(self, fsync=False):
         """Close the chunk in progress and push everything written so far to the OS.
 
         Bounds what a crash loses: the file stays readable up to the last flush (see
-        :func:`recover_bag`). Each flush ends a chunk, so flushing very often costs
-        compression ratio.
+        :mod:`wip_sim.bag_repair`). Each flush ends a chunk, so flushing very often costs
+        compression ratio. With ``fsync`` the data also reaches the disk (survives a power
+        loss), at the cost of a disk write.
         """
         self._check_open()
         self._writer.flush()
+        if fsync:
+            os.fsync(self._stream.fileno())
 
     # -- closing ---------------------------------------------------------------------------
     def metadata(self):
         """Return the bag metadata (the content of ``rosbag2_bagfile_information``)."""
+        files = list(self._files)
+        if self._file is not None:
+            files.append(self._file)
         return _bag_metadata(
-            file_name=self.file_name,
+            files=files,
             topics=[(name, info['type'], info['qos'], info['hash'], info['count'])
                     for name, info in self._topics.items()],
-            start_ns=self._start_ns, end_ns=self._end_ns, message_count=self._message_count,
             custom_data=self.custom_data, ros_distro=self.ros_distro)
 
     def close(self):
-        """Finish the MCAP file and write ``metadata.yaml``; idempotent."""
+        """Finish the MCAP file and write ``metadata.yaml``; idempotent.
+
+        If finishing the file fails (e.g. the disk is full), the exception propagates, no
+        ``metadata.yaml`` is written and the bag is left for :mod:`wip_sim.bag_repair`.
+        """
         if self._closed:
             return
         self._closed = True
+        self._finish_file()
+        self._file = None
+        write_metadata_file(self.metadata_path, self.metadata())
+
+    def abandon(self):
+        """Close the file without finishing it (after a write error); idempotent."""
+        self._closed = True
         try:
-            information = self.metadata()
-            # What MCAPStorage::update_metadata stores, so that a lone .mcap file still
-            # carries the bag metadata.
-            self._writer.add_metadata('rosbag2', {'serialized_metadata': _dump_yaml(
-                information)})
-            self._writer.finish()
-        finally:
             self._stream.close()
-        write_metadata_file(self.metadata_path, information)
+        except OSError:
+            pass
 
     def _check_open(self):
         if self._closed:
@@ -461,17 +602,25 @@ def _library_identifier():
     return f'wip_sim.bag_writer ({LIBRARY_IDENTIFIER})'
 
 
-def _bag_metadata(file_name, topics, start_ns, end_ns, message_count, custom_data,
-                  ros_distro):
-    """Build rosbag2's BagMetadata mapping (version 9, key order of yaml.hpp in [1])."""
-    start_ns = 0 if start_ns is None else start_ns
-    duration_ns = 0 if end_ns is None else end_ns - start_ns
+def _bag_metadata(files, topics, custom_data, ros_distro):
+    """Build rosbag2's BagMetadata mapping (version 9, key order of yaml.hpp in [1]).
+
+    Parameters
+    ----------
+    files : sequence of FileStatistics
+        The bag's files in order (path relative to the bag directory).
+    topics : sequence of (name, type, qos list, type hash, message count)
+    """
+    starts = [f.start_ns for f in files if f.start_ns is not None]
+    ends = [f.end_ns for f in files if f.end_ns is not None]
+    start_ns = min(starts) if starts else 0
+    duration_ns = max(ends) - start_ns if ends else 0
     return {
         'version': METADATA_VERSION,
         'storage_identifier': STORAGE_IDENTIFIER,
         'duration': _time_dict(duration_ns, 'nanoseconds'),
         'starting_time': _time_dict(start_ns, 'nanoseconds_since_epoch'),
-        'message_count': int(message_count),
+        'message_count': int(sum(f.count for f in files)),
         'topics_with_message_count': [
             {'topic_metadata': {
                 'name': name,
@@ -484,12 +633,13 @@ def _bag_metadata(file_name, topics, start_ns, end_ns, message_count, custom_dat
             for name, type_name, qos, type_hash, count in topics],
         'compression_format': '',
         'compression_mode': '',
-        'relative_file_paths': [file_name],
+        'relative_file_paths': [f.path for f in files],
         'files': [{
-            'path': file_name,
-            'starting_time': _time_dict(start_ns, 'nanoseconds_since_epoch'),
-            'duration': _time_dict(duration_ns, 'nanoseconds'),
-            'message_count': int(message_count)}],
+            'path': f.path,
+            'starting_time': _time_dict(f.start_ns or 0, 'nanoseconds_since_epoch'),
+            'duration': _time_dict(
+                0 if f.start_ns is None else f.end_ns - f.start_ns, 'nanoseconds'),
+            'message_count': int(f.count)} for f in files],
         'custom_data': dict(custom_data) or None,
         'ros_distro': ros_distro,
     }
@@ -508,72 +658,17 @@ def write_metadata_file(path, information):
     os.replace(temporary, path)
 
 
-def recover_bag(directory, compression='zstd'):
+def recover_bag(directory, compression=None):
     """Make a readable bag of a directory whose writer died before :meth:`close`.
 
-    Reads what the unfinished MCAP file holds up to its last complete chunk, rewrites it as a
-    finished MCAP file (summary, indexes) and writes ``metadata.yaml``. The original file is
-    kept as ``<name>.mcap.unfinished``.
-
-    Parameters
-    ----------
-    directory : str or pathlib.Path
-        Bag directory holding one ``*.mcap`` file.
-    compression : str
-        Chunk compression of the rewritten file.
+    See :func:`wip_sim.bag_repair.repair_bag` (this is its short form, kept for the
+    recorder's messages and older callers): every unfinished MCAP file is rewritten from its
+    complete chunks, and ``metadata.yaml`` is rebuilt from the files' contents.
 
     Returns
     -------
     dict
         The metadata written (``rosbag2_bagfile_information``).
     """
-    from .bag_reader import scan_mcap_records  # Imported here: bag_reader is optional.
-
-    directory = pathlib.Path(directory)
-    files = sorted(directory.glob('*.mcap'))
-    if len(files) != 1:
-        raise BagWriterError(f'{directory}: expected one .mcap file, found {len(files)}')
-    original = files[0]
-    unfinished = original.with_name(original.name + '.unfinished')
-    os.replace(original, unfinished)
-    schemas, channels = {}, {}
-    counts, qos, hashes = {}, {}, {}
-    start_ns = end_ns = None
-    message_count = 0
-    with open(original, 'xb') as stream:
-        writer = Writer(stream, compression=_COMPRESSION[compression])
-        writer.start(profile=MCAP_PROFILE, library=_library_identifier())
-        schema_ids, channel_ids = {}, {}
-        for kind, record in scan_mcap_records(unfinished):
-            if kind == 'schema' and record.id not in schema_ids:
-                schemas[record.id] = record
-                schema_ids[record.id] = writer.register_schema(
-                    record.name, record.encoding, record.data)
-            elif kind == 'channel' and record.id not in channel_ids:
-                channels[record.id] = record
-                channel_ids[record.id] = writer.register_channel(
-                    record.topic, record.message_encoding, schema_ids.get(record.schema_id, 0),
-                    dict(record.metadata))
-                counts[record.id] = 0
-                qos[record.id] = normalize_offered_qos(
-                    record.metadata.get('offered_qos_profiles', ''))
-                hashes[record.id] = record.metadata.get('topic_type_hash', '')
-            elif kind == 'message' and record.channel_id in channel_ids:
-                writer.add_message(channel_ids[record.channel_id], record.log_time,
-                                   record.data, record.publish_time, record.sequence)
-                counts[record.channel_id] += 1
-                message_count += 1
-                start_ns = record.log_time if start_ns is None else min(start_ns,
-                                                                        record.log_time)
-                end_ns = record.log_time if end_ns is None else max(end_ns, record.log_time)
-        topics = [
-            (channel.topic, schemas[channel.schema_id].name if channel.schema_id in schemas
-             else '', qos[cid], hashes[cid], counts[cid])
-            for cid, channel in channels.items()]
-        information = _bag_metadata(
-            original.name, topics, start_ns, end_ns, message_count, {},
-            os.environ.get('ROS_DISTRO') or 'jazzy')
-        writer.add_metadata('rosbag2', {'serialized_metadata': _dump_yaml(information)})
-        writer.finish()
-    write_metadata_file(directory / METADATA_FILE_NAME, information)
-    return information
+    from .bag_repair import repair_bag  # Imported here: bag_repair imports this module.
+    return repair_bag(directory, compression=compression).metadata

@@ -1,0 +1,614 @@
+"""Replayer node: play a rosbag2 bag back, like ``ros2 bag play``.
+
+rosbag2 is not on PyPI; this node plays the project's bags and any rosbag2 MCAP bag (a bag
+directory with ``metadata.yaml``, split into several files or not, or a single ``.mcap``
+file; also an unfinished one, up to its last complete chunk). The serialized messages are
+republished as recorded (``publisher.publish(bytes)``: no decoding, no re-encoding), so
+subscribers receive the recorded bytes exactly.
+
+Run it as ``scripts/replay BAG [options]`` (``--help`` lists them; each sets the parameter
+of the same name) or ``ros2 run wip_sim replayer --ros-args -p bag:=BAG ...``.
+
+Parameters (read-only, read at start-up)
+----------------------------------------
+bag : str
+    Bag directory or ``.mcap`` file (required; also the first positional argument).
+rate : float
+    Playback speed factor: 2 plays twice as fast as recorded (default 1).
+start_offset : float
+    Start this many seconds [s] after the bag's first message (default 0).
+duration : float
+    Play only this many seconds [s] of the bag from the start point; 0 = to the end.
+loop : bool
+    Play again from the start point when the end is reached (default false).
+topics : string array
+    Topics to play; empty (default) = all topics of the bag.
+exclude : string array
+    Topics never played.
+remap : string array
+    ``'from:=to'`` pairs renaming played topics (ROS remapping arguments
+    ``--ros-args -r from:=to`` work too, as for any node).
+clock : bool
+    Publish ``/clock`` (rosgraph_msgs/Clock) with the recorded time (default false): before
+    each message with a newer receive time than the last clock published, and in between
+    at ``clock_rate``. A recorded ``/clock`` topic is then not played.
+clock_rate : float
+    Rate [Hz] of the ``/clock`` messages between recorded messages, in wall time (default
+    100); 0 = only with the messages.
+start_paused : bool
+    Start paused (resume with the ``~/pause`` service).
+wait_for_subscribers : int
+    Before playing, wait until every topic of ``wait_topics`` has at least this many
+    matched subscriptions (default 0: do not wait) ...
+wait_topics : string array
+    ... (played names, after remapping; empty = every played topic) ...
+wait_timeout : float
+    ... for at most this long [s] (wall time), then play anyway with a warning (default 10).
+delay : float
+    Wall-clock delay [s] before playing (after the wait for subscribers).
+qos_depth : int
+    History depth (keep last) of the publishers (default 100).
+exit_when_done : bool
+    Exit at the end of the bag (default true); false: stay up (paused at the end) until
+    stopped, e.g. to keep transient-local topics available.
+
+QoS
+---
+Each topic is published with the QoS its publishers offered when it was recorded (the
+``offered_qos_profiles`` of the bag), as rosbag2's player does
+(``Rosbag2QoS::adapt_offer_to_recorded_offers``): the recorded profile if all recorded
+publishers offered the same reliability, durability, deadline and liveliness, else the
+default (reliable, volatile). The history is keep-last ``qos_depth`` (rosbag2 uses 10;
+100 gives subscribers more slack against bursts).
+
+Timing
+------
+Messages are sent at their recorded receive times (MCAP log times, the order of the bag),
+spaced by (recorded spacing) / ``rate``, measured on the steady wall clock from the start
+of playback; the time spent paused is added. A message late on its schedule (slow
+subscriber, loaded machine) is sent at once and the schedule is kept, so lateness does not
+accumulate.
+
+Services
+--------
+``~/pause`` (std_srvs/SetBool): ``data: true`` pauses, ``false`` resumes; the response
+tells the new state and the bag time reached. ``~/toggle_pause`` (std_srvs/Trigger).
+
+``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once a second: bag time reached,
+messages published, state.
+
+Exit codes: 0 end of the bag (or SIGINT/SIGTERM), 1 the bag cannot be read, 2 invalid
+parameters.
+"""
+
+import argparse
+import importlib
+import sys
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration, Infinite
+from rclpy.exceptions import ParameterUninitializedException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSLivelinessPolicy, QoSProfile,
+                       QoSReliabilityPolicy)
+from rosgraph_msgs.msg import Clock as ClockMsg
+from std_srvs.srv import SetBool, Trigger
+
+from .bag_reader import BagReadError, iter_raw_messages, read_topics
+from .qos_yaml import INFINITE_DURATION_NS, normalize_offered_qos
+
+EXIT_OK = 0
+EXIT_BAG_ERROR = 1
+EXIT_BAD_PARAMETERS = 2
+
+CLOCK_TOPIC = '/clock'
+DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
+SPIN_SLICE = 0.05  # [s]: longest spin_once while waiting; bounds the reaction time
+FINE_WAIT = 0.002  # [s]: the last part of a wait is a plain sleep, more precise than spinning
+FLUSH_TIMEOUT = 5.0  # [s] to wait for the acknowledgements of the last messages
+
+_RELIABILITY = {'system_default': QoSReliabilityPolicy.SYSTEM_DEFAULT,
+                'reliable': QoSReliabilityPolicy.RELIABLE,
+                'best_effort': QoSReliabilityPolicy.BEST_EFFORT,
+                'best_available': QoSReliabilityPolicy.BEST_AVAILABLE}
+_DURABILITY = {'system_default': QoSDurabilityPolicy.SYSTEM_DEFAULT,
+               'transient_local': QoSDurabilityPolicy.TRANSIENT_LOCAL,
+               'volatile': QoSDurabilityPolicy.VOLATILE,
+               'best_available': QoSDurabilityPolicy.BEST_AVAILABLE}
+_LIVELINESS = {'system_default': QoSLivelinessPolicy.SYSTEM_DEFAULT,
+               'automatic': QoSLivelinessPolicy.AUTOMATIC,
+               'manual_by_topic': QoSLivelinessPolicy.MANUAL_BY_TOPIC,
+               'best_available': QoSLivelinessPolicy.BEST_AVAILABLE}
+
+
+class ReplayError(Exception):
+    """The bag cannot be played as asked."""
+
+
+def import_message_class(type_name):
+    """The Python class of a ROS message type 'pkg/msg/Type' (rosidl_runtime_py's
+    ``get_message``, which is not in the PyPI wheels)."""
+    try:
+        package, namespace, name = type_name.split('/')
+        return getattr(importlib.import_module(f'{package}.{namespace}'), name)
+    except (ValueError, ImportError, AttributeError) as err:
+        raise ReplayError(f'cannot import message type {type_name!r}: {err}') from err
+
+
+def _duration(mapping):
+    nanoseconds = int(mapping['sec']) * 1_000_000_000 + int(mapping['nsec'])
+    if nanoseconds >= INFINITE_DURATION_NS:
+        return Infinite
+    return Duration(nanoseconds=nanoseconds)
+
+
+def playback_qos(offered_profiles, depth):
+    """QoS to publish a recorded topic with (rosbag2's adapt_offer_to_recorded_offers).
+
+    Parameters
+    ----------
+    offered_profiles : str or sequence
+        The recorded ``offered_qos_profiles`` (YAML string or v9 mappings).
+    depth : int
+        Keep-last depth of the history.
+    """
+    profiles = normalize_offered_qos(offered_profiles)
+    default = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=depth,
+                         reliability=QoSReliabilityPolicy.RELIABLE,
+                         durability=QoSDurabilityPolicy.VOLATILE)
+    if not profiles:
+        return default
+    keys = ('reliability', 'durability', 'deadline', 'liveliness', 'liveliness_lease_duration')
+    first = profiles[0]
+    if any(tuple(p[k] for k in keys) != tuple(first[k] for k in keys) for p in profiles[1:]):
+        return default
+    try:
+        return QoSProfile(
+            history=QoSHistoryPolicy.KEEP_LAST, depth=depth,
+            reliability=_RELIABILITY[first['reliability']],
+            durability=_DURABILITY[first['durability']],
+            deadline=_duration(first['deadline']),
+            lifespan=_duration(first['lifespan']),
+            liveliness=_LIVELINESS[first['liveliness']],
+            liveliness_lease_duration=_duration(first['liveliness_lease_duration']),
+            avoid_ros_namespace_conventions=bool(first['avoid_ros_namespace_conventions']))
+    except KeyError:  # 'unknown' policies: fall back like rosbag2
+        return default
+
+
+def parse_remaps(pairs):
+    """{'from': 'to'} from ``['from:=to', ...]``."""
+    out = {}
+    for pair in pairs:
+        source, sep, target = pair.partition(':=')
+        if not sep or not source or not target:
+            raise ValueError(f'remap {pair!r} is not of the form from:=to')
+        out[source] = target
+    return out
+
+
+class PlaybackClock:
+    """Bag time as a function of the steady wall clock, with a rate and pauses.
+
+    bag_time(now) = anchor_bag + (now - anchor_wall) * rate while playing; frozen while
+    paused. Times in integer nanoseconds (bag) and float seconds (wall).
+    """
+
+    def __init__(self, rate, start_bag_ns, now):
+        self.rate = float(rate)
+        self.paused = False
+        self.restart(start_bag_ns, now)
+
+    def restart(self, start_bag_ns, now):
+        self.anchor_bag_ns = int(start_bag_ns)
+        self.anchor_wall = now
+
+    def bag_time_ns(self, now):
+        if self.paused:
+            return self.anchor_bag_ns
+        return self.anchor_bag_ns + int(round((now - self.anchor_wall) * self.rate * 1e9))
+
+    def wall_time(self, bag_ns):
+        """Wall time [s] at which bag time ``bag_ns`` is reached (inf while paused)."""
+        if self.paused:
+            return float('inf')
+        return self.anchor_wall + (bag_ns - self.anchor_bag_ns) * 1e-9 / self.rate
+
+    def pause(self, now):
+        if not self.paused:
+            self.anchor_bag_ns = self.bag_time_ns(now)
+            self.paused = True
+
+    def resume(self, now):
+        if self.paused:
+            self.paused = False
+            self.anchor_wall = now
+
+
+class ReplayerNode(Node):
+    """Plays a bag back; see the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__('replayer', **kwargs)
+        self._declare('bag', '', 'bag directory or .mcap file to play')
+        self._declare('rate', 1.0, 'playback speed factor')
+        self._declare('start_offset', 0.0, 'start this long after the first message [s]')
+        self._declare('duration', 0.0, 'play this long from the start point [s]; 0: all')
+        self._declare('loop', False, 'play again from the start point at the end')
+        self._declare('topics', Parameter.Type.STRING_ARRAY, 'topics to play; empty: all')
+        self._declare('exclude', Parameter.Type.STRING_ARRAY, 'topics never played')
+        self._declare('remap', Parameter.Type.STRING_ARRAY, "'from:=to' topic renames")
+        self._declare('clock', False, 'publish /clock with the recorded time')
+        self._declare('clock_rate', 100.0, 'rate of /clock between messages [Hz]; 0: only '
+                      'with the messages')
+        self._declare('start_paused', False, 'start paused (see ~/pause)')
+        self._declare('wait_for_subscribers', 0, 'matched subscriptions each topic of '
+                      'wait_topics needs before playing')
+        self._declare('wait_topics', Parameter.Type.STRING_ARRAY, 'topics whose '
+                      'subscriptions are awaited; empty: all played topics')
+        self._declare('wait_timeout', 10.0, 'longest wait for the subscribers [s]')
+        self._declare('delay', 0.0, 'wall-clock delay before playing [s]')
+        self._declare('qos_depth', 100, 'keep-last depth of the publishers')
+        self._declare('exit_when_done', True, 'exit at the end of the bag')
+
+        get = self._value
+        self.bag = get('bag')
+        self.rate = get('rate')
+        self.start_offset = get('start_offset')
+        self.duration = get('duration')
+        self.loop = get('loop')
+        self.clock_enabled = get('clock')
+        self.clock_rate = get('clock_rate')
+        self.wait_for = get('wait_for_subscribers')
+        self.wait_timeout = get('wait_timeout')
+        self.delay = get('delay')
+        self.qos_depth = get('qos_depth')
+        self.exit_when_done = get('exit_when_done')
+        if not self.bag:
+            raise ValueError('parameter bag: no bag given')
+        for name, value, ok in (
+                ('rate', self.rate, self.rate > 0.0),
+                ('start_offset', self.start_offset, self.start_offset >= 0.0),
+                ('duration', self.duration, self.duration >= 0.0),
+                ('clock_rate', self.clock_rate, self.clock_rate >= 0.0),
+                ('wait_for_subscribers', self.wait_for, self.wait_for >= 0),
+                ('wait_timeout', self.wait_timeout, self.wait_timeout >= 0.0),
+                ('delay', self.delay, self.delay >= 0.0),
+                ('qos_depth', self.qos_depth, self.qos_depth >= 1)):
+            if not ok:
+                raise ValueError(f'parameter {name}: invalid value {value!r}')
+        remaps = parse_remaps(self._string_array('remap'))
+
+        # -- the bag's topics and their publishers ---------------------------------------
+        try:
+            recorded = read_topics(self.bag)
+        except (BagReadError, OSError) as err:
+            raise ReplayError(f'cannot read bag {self.bag}: {err}') from err
+        wanted = self._string_array('topics')
+        excluded = set(self._string_array('exclude'))
+        missing = [t for t in wanted if t not in recorded]
+        if missing:
+            self.get_logger().warning(f'topics not in the bag: {missing}')
+        if self.clock_enabled and CLOCK_TOPIC in recorded and CLOCK_TOPIC not in excluded:
+            self.get_logger().warning(f'the bag holds {CLOCK_TOPIC}: not played, the replayer '
+                                      'publishes its own clock')
+            excluded.add(CLOCK_TOPIC)
+        self.publishers_by_topic = {}  # recorded topic -> publisher
+        self.skipped = {}  # recorded topic -> reason
+        for topic, meta in recorded.items():
+            if (wanted and topic not in wanted) or topic in excluded:
+                continue
+            if meta.serialization_format != 'cdr':
+                self.skipped[topic] = f'serialization {meta.serialization_format!r}'
+                continue
+            try:
+                message_class = import_message_class(meta.type_name)
+                qos = playback_qos(meta.offered_qos_profiles, self.qos_depth)
+            except (ReplayError, ValueError) as err:
+                self.skipped[topic] = str(err)
+                continue
+            self.publishers_by_topic[topic] = self.create_publisher(
+                message_class, remaps.get(topic, topic), qos)
+        for topic, reason in self.skipped.items():
+            self.get_logger().error(f'not playing {topic}: {reason}')
+        if not self.publishers_by_topic:
+            raise ReplayError(f'{self.bag}: no topic to play')
+        self.clock_pub = (self.create_publisher(ClockMsg, CLOCK_TOPIC, QoSProfile(depth=10))
+                          if self.clock_enabled else None)
+        wait_topics = self._string_array('wait_topics')
+        self.wait_publishers = [p for p in self.publishers_by_topic.values()
+                                if not wait_topics or p.topic_name in wait_topics]
+
+        # -- the time window ----------------------------------------------------------------
+        starts = []
+        for file_start in self._first_times():
+            starts.append(file_start)
+        if not starts:
+            raise ReplayError(f'{self.bag}: no message on the played topics')
+        self.bag_start_ns = min(starts)
+        self.start_ns = self.bag_start_ns + int(round(self.start_offset * 1e9))
+        self.end_ns = (self.start_ns + int(round(self.duration * 1e9))
+                       if self.duration > 0.0 else None)
+
+        # -- state, services, diagnostics -------------------------------------------------
+        self.clock = PlaybackClock(self.rate, self.start_ns, time.monotonic())
+        self.clock.paused = get('start_paused')
+        self.published = 0
+        self.loops = 0
+        self.last_clock_ns = None
+        self.last_bag_ns = self.start_ns
+        self.state = 'starting'
+        self.create_service(SetBool, '~/pause', self._on_pause)
+        self.create_service(Trigger, '~/toggle_pause', self._on_toggle)
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(DIAGNOSTICS_PERIOD, self.publish_diagnostics, clock=wall)
+        self.get_logger().info(
+            f'playing {len(self.publishers_by_topic)} topic(s) of {self.bag} at rate '
+            f'{self.rate:g}' + (' with /clock' if self.clock_enabled else '')
+            + (f', from +{self.start_offset:g} s' if self.start_offset else '')
+            + (f' for {self.duration:g} s' if self.duration else '')
+            + (', looping' if self.loop else ''))
+
+    # -- parameters ------------------------------------------------------------------------
+    def _declare(self, name, default, description):
+        self.declare_parameter(name, default, ParameterDescriptor(
+            description=description, read_only=True))
+
+    def _value(self, name):
+        return self.get_parameter(name).value
+
+    def _string_array(self, name):
+        try:
+            return list(self.get_parameter(name).value or [])
+        except ParameterUninitializedException:
+            return []
+
+    def _first_times(self):
+        for message in iter_raw_messages(self.bag, topics=list(self.publishers_by_topic)):
+            yield message.log_time_ns
+            return
+
+    # -- services --------------------------------------------------------------------------
+    def set_paused(self, paused):
+        now = time.monotonic()
+        if paused:
+            self.clock.pause(now)
+        else:
+            self.clock.resume(now)
+        self.get_logger().info(f'{"paused" if paused else "resumed"} at bag time '
+                               f'{self.clock.bag_time_ns(now) * 1e-9:.3f} s')
+
+    def _on_pause(self, request, response):
+        self.set_paused(bool(request.data))
+        response.success = True
+        response.message = (f'{"paused" if self.clock.paused else "playing"} at bag time '
+                             f'{self.clock.bag_time_ns(time.monotonic()) * 1e-9:.9f} s')
+        return response
+
+    def _on_toggle(self, request, response):
+        self.set_paused(not self.clock.paused)
+        response.success = True
+        response.message = 'paused' if self.clock.paused else 'playing'
+        return response
+
+    # -- playback --------------------------------------------------------------------------
+    def wait_for_subscribers(self, executor):
+        """Wait (spinning) until the awaited topics have enough subscriptions, or time out."""
+        if self.wait_for <= 0:
+            return True
+        deadline = time.monotonic() + self.wait_timeout
+        self.state = 'waiting for subscribers'
+        while rclpy.ok(context=self.context):
+            short = [p.topic_name for p in self.wait_publishers
+                     if p.get_subscription_count() < self.wait_for]
+            if not short:
+                return True
+            if time.monotonic() >= deadline:
+                self.get_logger().warning(
+                    f'playing without {self.wait_for} subscription(s) on {short} after '
+                    f'{self.wait_timeout:g} s')
+                return False
+            executor.spin_once(timeout_sec=SPIN_SLICE)
+        return False
+
+    def _publish_clock(self, bag_ns):
+        if self.clock_pub is None or (self.last_clock_ns is not None
+                                      and bag_ns <= self.last_clock_ns):
+            return
+        msg = ClockMsg()
+        msg.clock.sec, msg.clock.nanosec = divmod(int(bag_ns), 1_000_000_000)
+        self.clock_pub.publish(msg)
+        self.last_clock_ns = bag_ns
+
+    def _wait_until(self, bag_ns, executor):
+        """Wait (spinning, publishing /clock) until the playback reaches ``bag_ns``."""
+        clock_period = 1.0 / self.clock_rate if (self.clock_pub and self.clock_rate) else None
+        next_clock = time.monotonic()
+        while rclpy.ok(context=self.context):
+            now = time.monotonic()
+            target = self.clock.wall_time(bag_ns)
+            remaining = target - now
+            if clock_period is not None and not self.clock.paused and now >= next_clock:
+                self._publish_clock(min(self.clock.bag_time_ns(now), bag_ns))
+                next_clock = now + clock_period
+            if remaining <= 0.0:
+                return True
+            if remaining <= FINE_WAIT:
+                time.sleep(remaining)
+                return rclpy.ok(context=self.context)
+            slice_ = min(remaining - FINE_WAIT, SPIN_SLICE)
+            if clock_period is not None and not self.clock.paused:
+                slice_ = min(slice_, max(0.0, next_clock - now))
+            executor.spin_once(timeout_sec=slice_)
+        return False
+
+    def play(self, executor):
+        """Play the bag (looping if asked); returns when done or shut down."""
+        self.wait_for_subscribers(executor)
+        if self.delay > 0.0:
+            end = time.monotonic() + self.delay
+            while rclpy.ok(context=self.context) and time.monotonic() < end:
+                executor.spin_once(timeout_sec=min(SPIN_SLICE, end - time.monotonic()))
+        topics = list(self.publishers_by_topic)
+        self.clock.restart(self.start_ns, time.monotonic())
+        while rclpy.ok(context=self.context):
+            self.state = 'playing'
+            last_spin = time.monotonic()
+            for message in iter_raw_messages(self.bag, topics=topics, start_ns=self.start_ns,
+                                             end_ns=self.end_ns):
+                if not self._wait_until(message.log_time_ns, executor):
+                    return
+                self._publish_clock(message.log_time_ns)
+                self.publishers_by_topic[message.topic].publish(message.data)
+                self.published += 1
+                self.last_bag_ns = message.log_time_ns
+                now = time.monotonic()
+                if now - last_spin > SPIN_SLICE:  # Late messages never wait: serve the rest.
+                    executor.spin_once(timeout_sec=0.0)
+                    last_spin = now
+            if not self.loop:
+                break
+            self.loops += 1
+            self.last_clock_ns = None  # The clock jumps back to the start point.
+            self.clock.restart(self.start_ns, time.monotonic())
+        self.state = 'done'
+        self.get_logger().info(f'done: {self.published} messages published')
+
+    def flush(self, timeout=FLUSH_TIMEOUT):
+        """Wait until the reliable subscribers acknowledged everything published."""
+        deadline = time.monotonic() + timeout
+        for publisher in list(self.publishers_by_topic.values()) + [self.clock_pub]:
+            if publisher is None:
+                continue
+            left = max(0.0, deadline - time.monotonic())
+            publisher.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+
+    def publish_diagnostics(self):
+        """Playback progress on /diagnostics (timer callback, wall clock)."""
+        status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: replayer',
+                                  hardware_id='')
+        status.level = DiagnosticStatus.WARN if self.skipped else DiagnosticStatus.OK
+        state = 'paused' if self.clock.paused and self.state == 'playing' else self.state
+        status.message = state + (f'; {len(self.skipped)} topic(s) not played'
+                                  if self.skipped else '')
+        status.values = [
+            KeyValue(key='bag', value=str(self.bag)),
+            KeyValue(key='rate', value=f'{self.rate:g}'),
+            KeyValue(key='bag time [s]', value=f'{self.last_bag_ns * 1e-9:.3f}'),
+            KeyValue(key='from start [s]',
+                     value=f'{(self.last_bag_ns - self.bag_start_ns) * 1e-9:.3f}'),
+            KeyValue(key='messages published', value=str(self.published)),
+            KeyValue(key='loops completed', value=str(self.loops)),
+        ] + [KeyValue(key=f'not played {t}', value=r) for t, r in sorted(self.skipped.items())]
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics_pub.publish(array)
+
+
+# -- command line --------------------------------------------------------------------------
+_OPTIONS = (
+    # (option, parameter, type, help)
+    ('--rate', 'rate', float, 'playback speed factor (default 1)'),
+    ('--start-offset', 'start_offset', float, 'start this many seconds into the bag'),
+    ('--duration', 'duration', float, 'play this many seconds of the bag'),
+    ('--clock-rate', 'clock_rate', float, '/clock rate between messages [Hz] (default 100)'),
+    ('--wait-for-subscribers', 'wait_for_subscribers', int,
+     'subscriptions each played topic needs before playing'),
+    ('--wait-timeout', 'wait_timeout', float, 'longest wait for subscribers [s]'),
+    ('--delay', 'delay', float, 'wall-clock delay before playing [s]'),
+    ('--qos-depth', 'qos_depth', int, 'keep-last depth of the publishers (default 100)'),
+)
+_FLAGS = (
+    ('--loop', 'loop', 'play in a loop'),
+    ('--clock', 'clock', 'publish /clock from the recorded times'),
+    ('--start-paused', 'start_paused', 'start paused (resume: ~/pause service)'),
+    ('--stay', 'exit_when_done', 'stay up at the end of the bag (default: exit)'),
+)
+_LISTS = (
+    ('--topics', 'topics', 'topics to play (default: all)'),
+    ('--exclude', 'exclude', 'topics not played'),
+    ('--remap', 'remap', 'topic renames from:=to'),
+    ('--wait-topics', 'wait_topics', 'topics whose subscribers are awaited'),
+)
+
+
+def parse_command_line(argv):
+    """Split ``argv`` into (parameter overrides, ROS arguments).
+
+    Everything from ``--ros-args`` on is left to rclpy; the options before it are this
+    tool's (see ``--help``).
+    """
+    argv = list(argv)
+    ros_args = []
+    if '--ros-args' in argv:
+        index = argv.index('--ros-args')
+        argv, ros_args = argv[:index], argv[index:]
+    parser = argparse.ArgumentParser(
+        prog='replay', description='Play a rosbag2 MCAP bag (directory or .mcap file) like '
+        '`ros2 bag play`; options set the replayer node parameters of the same name.',
+        epilog='Anything after --ros-args goes to ROS (e.g. -r /imu/data:=/replay/imu).')
+    parser.add_argument('bag', nargs='?', help='bag directory or .mcap file')
+    for option, _, kind, text in _OPTIONS:
+        parser.add_argument(option, type=kind, help=text)
+    for option, _, text in _FLAGS:
+        parser.add_argument(option, action='store_true', help=text)
+    for option, _, text in _LISTS:
+        parser.add_argument(option, nargs='+', metavar='TOPIC', help=text)
+    args = parser.parse_args(argv)
+    overrides = []
+    if args.bag:
+        overrides.append(Parameter('bag', value=args.bag))
+    for option, name, _, _ in _OPTIONS:
+        value = getattr(args, option[2:].replace('-', '_'))
+        if value is not None:
+            overrides.append(Parameter(name, value=value))
+    for option, name, _ in _FLAGS:
+        if getattr(args, option[2:].replace('-', '_')):
+            overrides.append(Parameter(name, value=(name != 'exit_when_done')))
+    for option, name, _ in _LISTS:
+        value = getattr(args, option[2:].replace('-', '_'))
+        if value:
+            overrides.append(Parameter(name, Parameter.Type.STRING_ARRAY, list(value)))
+    return overrides, ros_args
+
+
+def main(args=None):
+    """Entry point ``replayer`` and ``scripts/replay``; returns the exit code."""
+    argv = sys.argv[1:] if args is None else list(args)
+    overrides, ros_args = parse_command_line(argv)
+    rclpy.init(args=[sys.argv[0]] + ros_args)
+    node = None
+    status = EXIT_OK
+    try:
+        node = ReplayerNode(parameter_overrides=overrides)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        node.play(executor)
+        if rclpy.ok():
+            node.flush()
+            while not node.exit_when_done and rclpy.ok():
+                executor.spin_once(timeout_sec=SPIN_SLICE)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ReplayError as err:
+        print(f'replayer: error: {err}', file=sys.stderr)
+        status = EXIT_BAG_ERROR
+    except ValueError as err:
+        print(f'replayer: error: {err}', file=sys.stderr)
+        status = EXIT_BAD_PARAMETERS
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())
