@@ -1,0 +1,721 @@
+"""Open-loop re-run of the controllers on a recorded bag: ``scripts/rerun BAG --out DIR``.
+
+How a user checks a tuning change against a recorded run (or a recorded fall): the
+recorded sensor and command inputs of a bag are fed into freshly built controller objects
+of the core, in this process, with the same order and holds as the in-process runner
+(``wip_control.core.runner``) and the controller nodes, and what they compute now is
+written next to what was recorded.
+
+Inputs read from the bag (sensor_msgs / wip_msgs, as the node graph publishes them):
+``/joint_states`` (wheel joint angles), ``/imu/data`` (orientation -> pitch, yaw),
+``/gps/fix`` (-> map-frame x, y about the scenario's datum), ``/wip/reference`` (the
+recorded reference, not recomputed), ``/wip/wheel_torques`` (the recorded commands, used as
+the torques applied over the following period, the ESO's input).
+
+Per control tick k (the stamps t_k present on both /joint_states and /imu/data, in order):
+
+1. the ESO (eqs. (4), (8)) with the measurements of t_k and the wheel torques stamped
+   t_{k-1} (the last recorded command before t_k; zero before the first), built at the
+   first tick from the measured positions (as the ESO node does);
+2. the planar position: odometry, then the GPS fix stamped t_k if there is one (the
+   estimator starts at the first fix);
+3. the trajectory generator (eq. (9)) with the recorded reference stamped t_k (or the
+   newest before it), then the ARC (eqs. (12), (13));
+4. every ``mpc.sampling_period`` (every ``mpc_decimation``-th tick from the first) the MPC
+   (eqs. (16)-(23)), its torque held in between; then the mixer (eq. (24)).
+
+The message conversions are those of the controller nodes
+(``wip_control.nodes.conversions``), so the re-run reads a bag exactly as the nodes read the
+live topics.
+
+**Open loop**: the applied torques come from the bag, so the recorded states (the sensors,
+the ground truth) do not respond to the recomputed torques. With the controllers unchanged
+the re-run reproduces the recorded estimates, commands and torques (to rounding); with a
+change it shows how the controllers would have reacted to the same data at the first
+instants, diverging in meaning as the recorded trajectory no longer follows them.
+
+Outputs in ``--out DIR``:
+
+- ``bag/``: a rosbag2 MCAP bag with every recorded topic copied (same bytes and times) and
+  the recomputed ``/rerun/wip/state_estimate``, ``/rerun/wip/velocity_command``,
+  ``/rerun/wip/yaw_torque``, ``/rerun/wip/drive_torque``, ``/rerun/wip/wheel_torques``
+  (prefix ``--prefix``), stamped like the recorded ones;
+- ``comparison.json``: per compared field, the max and RMS difference recomputed - recorded
+  on the common stamps, and the largest recorded magnitude for scale;
+- the report of :func:`wip_control.tools.simulate.write_run_outputs` on the recomputed
+  run: ``metrics.json`` (with the comparison under ``rerun``), ``timeseries.npz``,
+  ``scenario.yaml``, ``figures/`` (unless ``--no-figures``; plus
+  ``figures/rerun_comparison.png``).
+
+The scenario (controller parameters, rates, datum) is ``--scenario FILE``, else the one
+stored in the bag's metadata (``custom_data['wip.scenario']``, written by
+:func:`write_record_as_bag`), else ``scenario.yaml`` beside the bag directory, else the
+paper's Section V (with a warning).
+"""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import dataclasses
+import heapq
+import json
+import math
+import pathlib
+import sys
+from typing import Any, NamedTuple
+
+import numpy as np
+from rclpy.serialization import deserialize_message, serialize_message
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
+from std_msgs.msg import Header
+from wip_msgs.msg import (ArcState, GroundTruth, MpcOutput, ReferenceState as ReferenceMsg,
+                          StateEstimate as StateEstimateMsg, VelocityCommand as CommandMsg,
+                          WheelTorques)
+import yaml
+
+from wip_control.core.angles import unwrap_next
+from wip_control.core.arc import AdaptiveRobustYawController
+from wip_control.core.config import ConfigError
+from wip_control.core.eso import StateEstimate, WipStateObserver
+from wip_control.core.metrics import compute_metrics
+from wip_control.core.mixer import drive_torque_limit, mix
+from wip_control.core.mpc import LongitudinalMpc
+from wip_control.core.position import PlanarPositionEstimator
+from wip_control.core.record import GROUPS, RunRecord
+from wip_control.core.references import make_reference
+from wip_control.core.runner import initial_alpha
+from wip_control.core.scenario import (load_scenario, Scenario, scenario_from_mapping,
+                                       scenario_to_mapping)
+from wip_control.core.sensors import local_to_geodetic, Sensors, wheel_odometry
+from wip_control.core.trajectory_generator import TrajectoryGenerator
+from wip_control.nodes.conversions import (arc_to_msg, command_to_msg, estimate_to_msg,
+                                           gps_local_position, imu_pitch_yaw, InvalidMessage,
+                                           mpc_to_msg, quaternion_from_euler,
+                                           reference_from_msg, reference_to_msg, wheel_angles,
+                                           wheel_torques_from_msg, wheel_torques_to_msg)
+
+from .bag_reader import BagReadError, iter_raw_messages, read_topics
+from .bag_writer import BagWriterError, Rosbag2McapWriter
+
+SCENARIO_KEY = 'wip.scenario'  # custom_data key of the scenario YAML in a bag
+DEFAULT_PREFIX = '/rerun'
+LEFT_JOINT, RIGHT_JOINT = 'left_wheel_joint', 'right_wheel_joint'
+MAP_FRAME = 'map'
+RELIABLE_QOS = [{'history': 'keep_last', 'depth': 10, 'reliability': 'reliable',
+                 'durability': 'volatile'}]
+
+TOPICS = {
+    'joint_states': ('/joint_states', 'sensor_msgs/msg/JointState'),
+    'imu': ('/imu/data', 'sensor_msgs/msg/Imu'),
+    'gps': ('/gps/fix', 'sensor_msgs/msg/NavSatFix'),
+    'reference': ('/wip/reference', 'wip_msgs/msg/ReferenceState'),
+    'wheel_torques': ('/wip/wheel_torques', 'wip_msgs/msg/WheelTorques'),
+    'estimate': ('/wip/state_estimate', 'wip_msgs/msg/StateEstimate'),
+    'command': ('/wip/velocity_command', 'wip_msgs/msg/VelocityCommand'),
+    'arc': ('/wip/yaw_torque', 'wip_msgs/msg/ArcState'),
+    'mpc': ('/wip/drive_torque', 'wip_msgs/msg/MpcOutput'),
+    'truth': ('/wip/ground_truth', 'wip_msgs/msg/GroundTruth'),
+    'clock': ('/clock', 'rosgraph_msgs/msg/Clock'),
+}
+_CLASSES = {'joint_states': JointState, 'imu': Imu, 'gps': NavSatFix,
+            'reference': ReferenceMsg, 'wheel_torques': WheelTorques,
+            'estimate': StateEstimateMsg, 'command': CommandMsg, 'arc': ArcState,
+            'mpc': MpcOutput, 'truth': GroundTruth}
+#: Recomputed outputs: (key, record group, fields compared with the recorded message).
+COMPARED = (
+    ('estimate', ('phi', 'omega', 'f1', 'x_v', 'v', 'f2', 'theta', 'theta_dot', 'f3', 'x',
+                  'y')),
+    ('command', ('v_d', 'omega_d', 'omega_d_dot', 'x_e', 'y_e', 'phi_e')),
+    ('arc', ('tau_omega', 'alpha_hat', 'e_omega')),
+    ('mpc', ('tau_v', 'delta_tau')),
+    ('wheel_torques', ('left', 'right')),
+)
+
+
+class RerunError(Exception):
+    """The bag cannot be re-run (missing topics, unreadable bag, bad scenario)."""
+
+
+def stamp_ns(header) -> int:
+    return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+
+
+# ============================================================== reading the recorded inputs
+
+@dataclasses.dataclass
+class RecordedRun:
+    """The inputs and recorded outputs of a bag, keyed by header stamp [ns]."""
+
+    joint_states: dict  # stamp -> (left, right) [rad]
+    imu: dict  # stamp -> (pitch, yaw) [rad]
+    gps: dict  # stamp -> NavSatFix (converted with the scenario's datum later)
+    reference: dict  # stamp -> core ReferenceState
+    wheel_torques: dict  # stamp -> (left, right) [N m]
+    outputs: dict  # key of COMPARED -> {stamp: message}
+    log_times: dict  # stamp of a /joint_states message -> its log time [ns]
+    truth: dict  # stamp -> GroundTruth
+    invalid: dict  # topic key -> number of malformed messages skipped
+
+
+def read_recorded_run(bag, left_joint=LEFT_JOINT, right_joint=RIGHT_JOINT) -> RecordedRun:
+    """Deserialize the re-run's input topics and the recorded controller outputs."""
+    wanted = {TOPICS[key][0]: key for key in _CLASSES}
+    run = RecordedRun({}, {}, {}, {}, {}, {key: {} for key, _ in COMPARED}, {}, {}, {})
+    for raw in iter_raw_messages(bag, topics=list(wanted)):
+        key = wanted[raw.topic]
+        msg = deserialize_message(raw.data, _CLASSES[key])
+        stamp = stamp_ns(msg.header)
+        try:
+            if key == 'joint_states':
+                run.joint_states[stamp] = wheel_angles(msg, left_joint, right_joint)
+                run.log_times.setdefault(stamp, raw.log_time_ns)
+            elif key == 'imu':
+                run.imu[stamp] = imu_pitch_yaw(msg)
+            elif key == 'gps':
+                run.gps[stamp] = msg
+            elif key == 'reference':
+                run.reference[stamp] = reference_from_msg(msg)
+            elif key == 'wheel_torques':
+                run.wheel_torques[stamp] = wheel_torques_from_msg(msg)
+                run.outputs[key][stamp] = msg
+            elif key == 'truth':
+                run.truth[stamp] = msg
+            else:
+                run.outputs[key][stamp] = msg
+        except InvalidMessage:
+            run.invalid[key] = run.invalid.get(key, 0) + 1
+    return run
+
+
+# ============================================================== the re-run
+
+class TickOutputs(NamedTuple):
+    """What the controllers computed at one tick (core values)."""
+
+    stamp_ns: int
+    t: float
+    estimate: Any  # core StateEstimate
+    x: float
+    y: float
+    settled: bool
+    reference: Any  # core ReferenceState
+    command: Any  # core VelocityCommand
+    arc: Any  # core ArcOutput
+    mpc: Any  # core MpcResult, or None between MPC ticks
+    wheels: tuple  # (left, right) [N m]
+
+
+def rerun_controllers(run: RecordedRun, scenario: Scenario) -> list[TickOutputs]:
+    """Feed the recorded inputs to fresh core controllers; see the module docstring.
+
+    Raises
+    ------
+    RerunError
+        If the bag has no control tick (no stamp with both joint states and IMU) or no
+        reference.
+    """
+    ticks = sorted(set(run.joint_states) & set(run.imu))
+    if not ticks:
+        raise RerunError('no control tick: the bag has no /joint_states and /imu/data '
+                         'messages with equal stamps')
+    if not run.reference:
+        raise RerunError('the bag has no /wip/reference message')
+    nominal = scenario.controller_model.parameters
+    sensors = scenario.sensors
+    datum = (sensors.gps_datum_latitude, sensors.gps_datum_longitude,
+             sensors.gps_datum_altitude)
+    position = PlanarPositionEstimator(scenario.position)
+    generator = TrajectoryGenerator(scenario.trajectory_generator)
+    arc = AdaptiveRobustYawController(scenario.arc, alpha_initial=initial_alpha(scenario))
+    mpc = LongitudinalMpc(nominal, scenario.mpc)
+    max_wheel = scenario.mixer.max_wheel_torque
+    dt_control = scenario.control_period
+    mpc_every = scenario.mpc_decimation
+
+    torque_stamps = sorted(run.wheel_torques)
+    reference_stamps = sorted(run.reference)
+    origin = ticks[0]
+    observer = None
+    yaw_unwrapped = None
+    position_started = has_fix = False
+    tau_v = 0.0
+    previous = None
+    outputs = []
+    for k, stamp in enumerate(ticks):
+        t = (stamp - origin) / 1e9  # as the nodes' TimeBase: 0 at the first sample
+        left, right = run.joint_states[stamp]
+        pitch, yaw = run.imu[stamp]
+        # 1: the torques applied over [t_{k-1}, t_k): the command stamped t_{k-1}, i.e. the
+        # newest recorded before t_k (zero before the first).
+        tau_left = tau_right = 0.0
+        if previous is not None:
+            index = _newest_at_or_before(torque_stamps, stamp - 1)
+            if index is not None:
+                tau_left, tau_right = run.wheel_torques[torque_stamps[index]]
+        yaw_unwrapped = yaw if yaw_unwrapped is None else unwrap_next(yaw_unwrapped, yaw)
+        x_v, _ = wheel_odometry(left, right, pitch, nominal, 0.0,
+                                sensors.encoders_relative_to_body)
+        if observer is None:
+            observer = WipStateObserver(nominal, scenario.eso,
+                                        initial_positions=(yaw_unwrapped, x_v, pitch),
+                                        initial_time=t)
+        estimate = observer.update(t, yaw_unwrapped, x_v, pitch, tau_left + tau_right,
+                                   tau_right - tau_left)
+        # 2: position, as the ESO node: start at the first fix.
+        fix = run.gps.get(stamp)
+        gps = None
+        if fix is not None and fix.status.status >= NavSatStatus.STATUS_FIX:
+            try:
+                gps = gps_local_position(fix, *datum)
+            except InvalidMessage:
+                run.invalid['gps'] = run.invalid.get('gps', 0) + 1
+        if gps is not None and not has_fix:
+            position.reset(gps[0], gps[1], x_v, estimate.phi)
+            has_fix = position_started = True
+        elif not position_started:
+            position.reset(0.0, 0.0, x_v, estimate.phi)
+            position_started = True
+        x, y = position.update_odometry(x_v, estimate.phi)
+        if gps is not None:
+            x, y = position.update_gps(*gps)
+        # 3: generator with the recorded reference, ARC.
+        index = _newest_at_or_before(reference_stamps, stamp)
+        if index is None:
+            previous = stamp
+            continue  # No reference yet: the graph's generator would wait too.
+        reference = run.reference[reference_stamps[index]]
+        command = generator.step(t, reference, x, y, estimate.phi)
+        arc_out = arc.step(dt_control, estimate.omega, estimate.f1, command.omega_d,
+                           command.omega_d_dot)
+        # 4: MPC every mpc_every ticks, held in between; mixer.
+        result = None
+        if k % mpc_every == 0:
+            result = mpc.step(v_hat=estimate.v, theta_hat=estimate.theta,
+                              theta_dot_hat=estimate.theta_dot, f2_hat=estimate.f2,
+                              f3_hat=estimate.f3, v_d=command.v_d,
+                              tau_limit=drive_torque_limit(arc_out.tau_omega, max_wheel))
+            tau_v = result.tau_v
+        wheels = mix(tau_v, arc_out.tau_omega, max_wheel)
+        outputs.append(TickOutputs(stamp, t, estimate, x, y, not observer.yaw.in_ramp(t),
+                                   reference, command, arc_out, result, wheels))
+        previous = stamp
+    return outputs
+
+
+def _newest_at_or_before(stamps, stamp):
+    """Index of the largest element of the sorted ``stamps`` that is <= ``stamp``."""
+    index = bisect.bisect_right(stamps, stamp) - 1
+    return index if index >= 0 else None
+
+
+# ============================================================== comparison and report
+
+def _recomputed_values(tick: TickOutputs, key: str):
+    if key == 'estimate':
+        return dict(tick.estimate._asdict(), x=tick.x, y=tick.y)
+    if key == 'command':
+        return tick.command._asdict()
+    if key == 'arc':
+        return tick.arc._asdict()
+    if key == 'mpc':
+        return None if tick.mpc is None else {'tau_v': tick.mpc.tau_v,
+                                              'delta_tau': tick.mpc.delta_tau}
+    return {'left': tick.wheels[0], 'right': tick.wheels[1]}
+
+
+def compare(run: RecordedRun, outputs: list[TickOutputs]) -> dict:
+    """Recomputed minus recorded on the common stamps, per output and field.
+
+    Returns
+    -------
+    dict
+        ``{key: {'topic', 'compared', 'fields': {field: {'max_abs_difference',
+        'rms_difference', 'max_abs_recorded'}}}}``; a key whose topic was not recorded has
+        ``compared: 0`` and no fields.
+    """
+    result = {}
+    for key, fields in COMPARED:
+        recorded = run.outputs[key]
+        pairs = [(_recomputed_values(tick, key), recorded[tick.stamp_ns]) for tick in outputs
+                 if tick.stamp_ns in recorded]
+        pairs = [(new, old) for new, old in pairs if new is not None]
+        entry = {'topic': TOPICS[key][0], 'compared': len(pairs), 'fields': {}}
+        for field in fields:
+            if not pairs:
+                break
+            new = np.array([p[0][field] for p in pairs], dtype=float)
+            old = np.array([getattr(p[1], field) for p in pairs], dtype=float)
+            diff = new - old
+            entry['fields'][field] = {
+                'max_abs_difference': float(np.max(np.abs(diff))),
+                'rms_difference': float(np.sqrt(np.mean(diff ** 2))),
+                'max_abs_recorded': float(np.max(np.abs(old))),
+            }
+        result[key] = entry
+    return result
+
+
+def run_record(run: RecordedRun, outputs: list[TickOutputs], scenario: Scenario) -> RunRecord:
+    """A RunRecord of the recomputed run (truth: the recorded ground truth, if any)."""
+    rows = {group: [] for group in GROUPS}
+    for tick in outputs:
+        e, c, a = tick.estimate, tick.command, tick.arc
+        rows['reference'].append((tick.t, tick.reference.x, tick.reference.y,
+                                  tick.reference.phi, tick.reference.v, tick.reference.omega))
+        rows['estimate'].append((tick.t, e.phi, e.omega, e.f1, e.x_v, e.v, e.f2, e.theta,
+                                 e.theta_dot, e.f3, tick.x, tick.y))
+        rows['command'].append((tick.t, c.v_d, c.omega_d, c.omega_d_dot, c.x_e, c.y_e,
+                                c.phi_e))
+        rows['arc'].append((tick.t, a.tau_omega, a.alpha_hat, a.e_omega))
+        rows['wheels'].append((tick.t, tick.wheels[0], tick.wheels[1]))
+        if tick.mpc is not None:
+            m = tick.mpc
+            rows['mpc'].append((tick.t, m.tau_v, m.delta_tau, int(m.status), m.iterations,
+                                m.solve_time_s, float(m.used_fallback), m.slack_v,
+                                m.slack_theta))
+    if outputs and run.truth:
+        origin = outputs[0].stamp_ns - int(round(outputs[0].t * 1e9))
+        for stamp in sorted(run.truth):
+            g = run.truth[stamp]
+            rows['truth'].append(((stamp - origin) / 1e9, g.x, g.y, g.phi, g.x_v, g.theta,
+                                  g.omega, g.v, g.theta_dot, g.tau_d1, g.tau_d2, g.tau_d3,
+                                  g.tau_left, g.tau_right))
+    groups = {}
+    for group, columns in GROUPS.items():
+        data = np.array(rows[group], dtype=float).reshape(-1, len(columns))
+        groups[group] = {name: data[:, i].copy() for i, name in enumerate(columns)}
+    return RunRecord(groups, attributes={'scenario': scenario.name, 'source': 'rerun'})
+
+
+def _output_messages(outputs, run, scenario, prefix):
+    """(log time, topic, serialized) of the recomputed outputs, in log time order."""
+    period = scenario.mpc.sampling_period
+    items = []
+    for tick in outputs:
+        log_time = run.log_times.get(tick.stamp_ns, tick.stamp_ns)
+        s = tick.stamp_ns
+        items.append((log_time, 0, f'{prefix}/wip/state_estimate', serialize_message(
+            estimate_to_msg(tick.estimate, tick.x, tick.y, tick.settled, s, MAP_FRAME))))
+        items.append((log_time, 1, f'{prefix}/wip/velocity_command',
+                      serialize_message(command_to_msg(tick.command, s))))
+        items.append((log_time, 2, f'{prefix}/wip/yaw_torque',
+                      serialize_message(arc_to_msg(tick.arc, s))))
+        if tick.mpc is not None:
+            items.append((log_time, 3, f'{prefix}/wip/drive_torque',
+                          serialize_message(mpc_to_msg(tick.mpc, s, period))))
+        items.append((log_time, 4, f'{prefix}/wip/wheel_torques',
+                      serialize_message(wheel_torques_to_msg(*tick.wheels, s))))
+    items.sort(key=lambda item: (item[0], item[1]))
+    return items
+
+
+def write_rerun_bag(bag, out_bag, outputs, run, scenario, prefix=DEFAULT_PREFIX,
+                    compression='zstd'):
+    """Copy every recorded topic of ``bag`` and add the recomputed outputs."""
+    recorded = read_topics(bag)
+    custom = {SCENARIO_KEY: yaml.safe_dump(scenario_to_mapping(scenario), sort_keys=False),
+              'wip.rerun_of': str(pathlib.Path(bag).resolve())}
+    with Rosbag2McapWriter(out_bag, compression=compression, custom_data=custom) as writer:
+        for topic, meta in recorded.items():
+            writer.add_topic(topic, meta.type_name, meta.definition or None,
+                             meta.offered_qos_profiles, meta.type_hash or None,
+                             definition_encoding=meta.definition_encoding or 'ros2msg')
+        for key, _ in COMPARED:
+            topic, type_name = TOPICS[key]
+            writer.add_topic(f'{prefix}{topic}', type_name, qos_profiles=RELIABLE_QOS)
+        computed = ((log_time, topic, data) for log_time, _, topic, data in
+                    _output_messages(outputs, run, scenario, prefix))
+        original = ((m.log_time_ns, m.topic, m.data, m.publish_time_ns)
+                    for m in iter_raw_messages(bag))
+        for item in heapq.merge(original, computed, key=lambda item: item[0]):
+            writer.write(item[1], item[2], item[0],
+                         publish_time_ns=item[3] if len(item) > 3 else None)
+        return writer.message_counts()
+
+
+def comparison_figure(run, outputs, path):
+    """Recorded vs recomputed wheel torques, drive/yaw torques and tilt/yaw-rate estimates."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    origin = outputs[0].stamp_ns - int(round(outputs[0].t * 1e9))
+    panels = (('wheel_torques', 'left', 'left wheel torque [N m]'),
+              ('wheel_torques', 'right', 'right wheel torque [N m]'),
+              ('arc', 'tau_omega', 'yaw torque tau_omega [N m]'),
+              ('mpc', 'tau_v', 'drive torque tau_v [N m]'),
+              ('estimate', 'theta', 'tilt estimate [rad]'),
+              ('estimate', 'omega', 'yaw rate estimate [rad/s]'))
+    fig, axes = plt.subplots(len(panels), 1, figsize=(9, 2.0 * len(panels)), sharex=True)
+    for ax, (key, field, label) in zip(axes, panels):
+        recorded = run.outputs[key]
+        if recorded:
+            stamps = sorted(recorded)
+            ax.plot([(s - origin) / 1e9 for s in stamps],
+                    [getattr(recorded[s], field) for s in stamps], color='black',
+                    linewidth=1.0, label='recorded')
+        pairs = [(tick.t, _recomputed_values(tick, key)) for tick in outputs]
+        pairs = [(t, v[field]) for t, v in pairs if v is not None]
+        ax.plot([p[0] for p in pairs], [p[1] for p in pairs], color='tab:red',
+                linewidth=1.0, linestyle='--', label='re-run (open loop)')
+        ax.set_ylabel(label, fontsize=8)
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(loc='best', fontsize=8)
+    axes[-1].set_xlabel('t [s]')
+    fig.suptitle('Open-loop re-run against the recording')
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+# ============================================================== scenario
+
+def scenario_for_bag(bag, scenario_file=None):
+    """(Scenario, where it came from); see the module docstring for the order."""
+    if scenario_file:
+        return load_scenario(scenario_file), str(scenario_file)
+    path = pathlib.Path(bag)
+    metadata = path / 'metadata.yaml'
+    if metadata.is_file():
+        info = (yaml.safe_load(metadata.read_text(encoding='utf-8')) or {}).get(
+            'rosbag2_bagfile_information', {})
+        text = (info.get('custom_data') or {}).get(SCENARIO_KEY)
+        if text:
+            return scenario_from_mapping(yaml.safe_load(text)), f'{metadata} (custom_data)'
+    beside = (path if path.is_dir() else path.parent).parent / 'scenario.yaml'
+    if beside.is_file():
+        return load_scenario(beside), str(beside)
+    return load_scenario(None), 'default (paper Section V): no scenario found for the bag'
+
+
+# ============================================================== test bags from the runner
+
+def write_record_as_bag(result, scenario: Scenario, directory, clock=True,
+                        compression='zstd', **writer_options):
+    """Write an in-process run (``core.runner.run_scenario``) as the node graph's bag.
+
+    The topics, types, stamps and contents are those of a lockstep graph run recorded with
+    ``use_sim_time`` (log time = stamp = t_k): ``/clock``, ``/wip/ground_truth``,
+    ``/joint_states``, ``/imu/data``, ``/gps/fix``, ``/wip/reference``,
+    ``/wip/state_estimate``, ``/wip/velocity_command``, ``/wip/yaw_torque``,
+    ``/wip/drive_torque`` (MPC ticks), ``/wip/wheel_torques``. The sensor samples are
+    drawn again from the recorded true states with the scenario's sensor models and seed,
+    in the runner's order, so they are the ones the runner's controllers used. The
+    scenario is stored in ``custom_data['wip.scenario']``.
+
+    Returns
+    -------
+    dict
+        Messages written per topic.
+    """
+    record = result.record
+    truth, est = record['truth'], record['estimate']
+    n_ticks = len(est['t'])
+    params = scenario.plant.parameters
+    sensors = Sensors(params, scenario.sensors, initial_yaw=float(truth['phi'][0]),
+                      seed=scenario.seed)
+    c = scenario.sensors
+    datum = (c.gps_datum_latitude, c.gps_datum_longitude, c.gps_datum_altitude)
+    gps_every = max(1, int(round(scenario.rates.control_rate / c.gps_rate)))
+    reference = make_reference(scenario.reference)
+    observer = WipStateObserver(scenario.controller_model.parameters, scenario.eso)
+    mpc_rows = {round(t * scenario.rates.control_rate): i
+                for i, t in enumerate(record['mpc']['t'])}
+    state_keys = ('x', 'y', 'phi', 'x_v', 'theta', 'omega', 'v', 'theta_dot')
+    half_track, radius = 0.5 * params.track_width, params.wheel_radius
+    custom = {SCENARIO_KEY: yaml.safe_dump(scenario_to_mapping(scenario), sort_keys=False)}
+    with Rosbag2McapWriter(directory, compression=compression, custom_data=custom,
+                           **writer_options) as bag:
+        for key in ('clock', 'truth', 'joint_states', 'imu', 'gps', 'reference', 'estimate',
+                    'command', 'arc', 'mpc', 'wheel_torques'):
+            if key == 'clock' and not clock:
+                continue
+            bag.add_topic(TOPICS[key][0], TOPICS[key][1], qos_profiles=RELIABLE_QOS)
+
+        def put(key, msg, stamp):
+            bag.write(TOPICS[key][0], serialize_message(msg), stamp)
+
+        for k in range(len(truth['t'])):
+            t = float(truth['t'][k])
+            s = int(round(t * 1e9))
+            state = [float(truth[name][k]) for name in state_keys]
+            last = k >= n_ticks
+            if clock and not last:
+                msg = Clock()
+                msg.clock.sec, msg.clock.nanosec = divmod(s, 1_000_000_000)
+                put('clock', msg, s)
+            put('truth', _ground_truth(truth, k, s), s)
+            if last:
+                break
+            # Sensors in the runner's order (separate random streams per sensor).
+            left, right = sensors.encoders(state)
+            pitch, yaw = sensors.imu(state)
+            body = state[7] if c.encoders_relative_to_body else 0.0
+            joints = JointState(name=[LEFT_JOINT, RIGHT_JOINT], position=[left, right],
+                                velocity=[(state[6] - half_track * state[5]) / radius - body,
+                                          (state[6] + half_track * state[5]) / radius - body],
+                                effort=[float(truth['tau_left'][k]),
+                                        float(truth['tau_right'][k])])
+            joints.header.stamp.sec, joints.header.stamp.nanosec = divmod(s, 1_000_000_000)
+            put('joint_states', joints, s)
+            put('imu', _imu(pitch, yaw, s, state, c), s)
+            if k % gps_every == 0:
+                put('gps', _fix(*sensors.gps(state), datum, s, c), s)
+            put('reference', reference_to_msg(reference.sample(t), s, MAP_FRAME), s)
+            estimate = StateEstimate(*(float(est[name][k]) for name in (
+                'phi', 'omega', 'f1', 'x_v', 'v', 'f2', 'theta', 'theta_dot', 'f3')),
+                observer.yaw.epsilon_at(t))
+            put('estimate', estimate_to_msg(estimate, float(est['x'][k]), float(est['y'][k]),
+                                            not observer.yaw.in_ramp(t), s, MAP_FRAME), s)
+            cmd = record['command']
+            put('command', CommandMsg(
+                header=_header(s), **{f: float(cmd[f][k]) for f in (
+                    'v_d', 'omega_d', 'omega_d_dot', 'x_e', 'y_e', 'phi_e')}), s)
+            arc = record['arc']
+            put('arc', ArcState(header=_header(s), **{f: float(arc[f][k]) for f in (
+                'tau_omega', 'alpha_hat', 'e_omega')}), s)
+            row = mpc_rows.get(k)
+            if row is not None:
+                put('mpc', _mpc_output(record['mpc'], row, s, scenario), s)
+            wheels = record['wheels']
+            put('wheel_torques', wheel_torques_to_msg(float(wheels['tau_left'][k]),
+                                                      float(wheels['tau_right'][k]), s), s)
+        return bag.message_counts()
+
+
+def _header(stamp):
+    header = Header()
+    header.stamp.sec, header.stamp.nanosec = divmod(int(stamp), 1_000_000_000)
+    return header
+
+
+def _ground_truth(truth, k, stamp):
+    fields = ('x', 'y', 'phi', 'x_v', 'theta', 'omega', 'v', 'theta_dot')
+    msg = GroundTruth(header=_header(stamp), **{f: float(truth[f][k]) for f in fields})
+    msg.header.frame_id = MAP_FRAME
+    msg.tau_d1, msg.tau_d2, msg.tau_d3 = (float(truth[d][k]) for d in ('d1', 'd2', 'd3'))
+    msg.tau_left, msg.tau_right = float(truth['tau_left'][k]), float(truth['tau_right'][k])
+    return msg
+
+
+def _imu(pitch, yaw, stamp, state, config):
+    msg = Imu(header=_header(stamp))
+    msg.header.frame_id = 'imu_link'
+    q = msg.orientation
+    q.x, q.y, q.z, q.w = quaternion_from_euler(0.0, pitch, yaw)
+    msg.orientation_covariance = [0.0, 0.0, 0.0, 0.0, config.imu_pitch_noise_std ** 2, 0.0,
+                                  0.0, 0.0, config.imu_yaw_noise_std ** 2]
+    if config.gyro_noise_std == 0.0:  # As the plant node: exact rates only without noise.
+        msg.angular_velocity.y, msg.angular_velocity.z = state[7], state[5]
+    else:
+        msg.angular_velocity_covariance[0] = -1.0
+    msg.linear_acceleration_covariance[0] = -1.0
+    return msg
+
+
+def _fix(x, y, datum, stamp, config):
+    msg = NavSatFix(header=_header(stamp))
+    msg.header.frame_id = 'gps_link'
+    msg.status.status = NavSatStatus.STATUS_FIX
+    msg.status.service = NavSatStatus.SERVICE_GPS
+    msg.latitude, msg.longitude, msg.altitude = local_to_geodetic(x, y, *datum)
+    variance = config.gps_noise_std ** 2
+    msg.position_covariance = [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0, 0.0]
+    msg.position_covariance_type = NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN
+    return msg
+
+
+def _mpc_output(mpc, row, stamp, scenario):
+    used_fallback = bool(mpc['used_fallback'][row] > 0.5)
+    slack_v, slack_theta = float(mpc['slack_v'][row]), float(mpc['slack_theta'][row])
+    return MpcOutput(
+        header=_header(stamp), tau_v=float(mpc['tau_v'][row]),
+        delta_tau=float(mpc['delta_tau'][row]),
+        status=MpcOutput.FALLBACK_SHIFTED_PLAN if used_fallback else MpcOutput.SOLVED,
+        status_text='', iterations=int(mpc['iterations'][row]),
+        solve_time=float(mpc['solve_time'][row]),
+        slack_v=slack_v if math.isfinite(slack_v) else 0.0,
+        slack_theta=slack_theta if math.isfinite(slack_theta) else 0.0,
+        sampling_period=scenario.mpc.sampling_period, used_fallback=used_fallback)
+
+
+# ============================================================== command line
+
+def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, quiet=False):
+    """Run the whole tool; returns (metrics dict, comparison dict)."""
+    out = pathlib.Path(out)
+    scenario, source = scenario_for_bag(bag, scenario_file)
+    if not quiet:
+        print(f'scenario: {source}', file=sys.stderr)
+    run = read_recorded_run(bag)
+    outputs = rerun_controllers(run, scenario)
+    comparison = compare(run, outputs)
+    out.mkdir(parents=True, exist_ok=True)
+    counts = write_rerun_bag(bag, out / 'bag', outputs, run, scenario, prefix)
+    record = run_record(run, outputs, scenario)
+    metrics = compute_metrics(record, scenario)
+    metrics['rerun'] = {
+        'bag': str(pathlib.Path(bag).resolve()),
+        'scenario_source': source,
+        'open_loop': True,
+        'note': 'applied torques and states are the recorded ones; the recomputed torques '
+                'were not applied (metrics of the truth group describe the recording)',
+        'ticks': len(outputs),
+        'invalid_messages_skipped': run.invalid,
+        'comparison': comparison,
+        'messages_written': counts,
+    }
+    from wip_control.tools.simulate import write_run_outputs
+    write_run_outputs(out, record, scenario, metrics, figures=figures)
+    (out / 'comparison.json').write_text(json.dumps(comparison, indent=2) + '\n')
+    if figures:
+        (out / 'figures').mkdir(exist_ok=True)
+        comparison_figure(run, outputs, out / 'figures' / 'rerun_comparison.png')
+    return metrics, comparison
+
+
+def summary_lines(comparison):
+    lines = []
+    for key, entry in comparison.items():
+        if not entry['compared']:
+            lines.append(f'{entry["topic"]}: not recorded, nothing to compare')
+            continue
+        worst = max(entry['fields'].items(), key=lambda kv: kv[1]['max_abs_difference'])
+        lines.append(f'{entry["topic"]}: {entry["compared"]} samples, largest difference '
+                     f'{worst[1]["max_abs_difference"]:.3g} on {worst[0]} (recorded up to '
+                     f'{worst[1]["max_abs_recorded"]:.3g})')
+    return lines
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(
+        prog='rerun', description='Open-loop re-run: feed the recorded sensors, reference '
+        'and wheel torques of a bag to freshly built controllers (in-process core, same '
+        'holds as the runner) and write a bag and report of what they compute now next to '
+        'what was recorded.')
+    parser.add_argument('bag', help='bag directory or .mcap file')
+    parser.add_argument('--scenario', help='scenario YAML with the controller parameters '
+                        '(default: the bag\'s, else the paper\'s)')
+    parser.add_argument('--out', required=True, help='output directory')
+    parser.add_argument('--prefix', default=DEFAULT_PREFIX,
+                        help='namespace of the recomputed topics (default /rerun)')
+    parser.add_argument('--no-figures', action='store_true', help='skip the PNG figures')
+    parser.add_argument('--quiet', action='store_true')
+    args = parser.parse_args(argv)
+    try:
+        _, comparison = rerun(args.bag, args.out, args.scenario, figures=not args.no_figures,
+                              prefix=args.prefix.rstrip('/'), quiet=args.quiet)
+    except (RerunError, BagReadError, BagWriterError, ConfigError, OSError) as err:
+        print(f'rerun: error: {err}', file=sys.stderr)
+        return 1
+    if not args.quiet:
+        print('\n'.join(summary_lines(comparison)))
+        print(f'wrote {pathlib.Path(args.out) / "bag"}, comparison.json, metrics.json')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
