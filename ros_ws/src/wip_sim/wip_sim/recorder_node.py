@@ -16,11 +16,28 @@ exclude : string array
     Topics never recorded (exact names, resolved like ``topics``).
 compression : str
     MCAP chunk compression: 'zstd' (default), 'lz4' or 'none'.
+chunk_size : int
+    Uncompressed size of an MCAP chunk [bytes] (default 1 MiB); a chunk is also closed at
+    each flush.
+max_bag_size : int
+    Split the bag into files ``<name>_0.mcap``, ``<name>_1.mcap`` ... of at most this
+    many bytes of data each (plus a few KiB of summary); 0 (default) = no limit.
+max_bag_duration : float
+    Split the bag into files covering at most this long [s] (of receive time); 0 (default)
+    = no limit.
 discovery_period : float
     Period of the graph polling that subscribes to new topics [s] (wall time).
 flush_period : float
-    The bag file is flushed (chunk closed, data handed to the OS) at least this often [s],
-    bounding what a crash loses (see ``bag_writer.recover_bag``); 0 = only at close.
+    The bag file is flushed at least this often [s] (chunk closed, data handed to the OS
+    and fsync'ed to the disk), bounding what a crash (SIGKILL, power loss) loses: every
+    chunk flushed is recovered by ``scripts/bag_repair``; 0 = only at close.
+close_timeout : float
+    Longest wait [s] at shutdown for the writer to write what is queued and close the bag
+    (default 30); past it the recorder exits anyway and says so (the bag is then repaired
+    with ``scripts/bag_repair``).
+scenario_file : str
+    Optional scenario YAML stored in the bag's ``custom_data['wip.scenario']``, where
+    ``scripts/rerun`` finds the controller parameters of the run.
 
 Behaviour
 ---------
@@ -38,10 +55,20 @@ Behaviour
 - Callbacks only queue ``(topic, bytes, time)``; a writer thread writes the bag, so a
   compressing chunk write never delays the executor. Nothing received is dropped.
 - SIGINT/SIGTERM: the subscriptions stop, the queue is drained, the bag is closed
-  (MCAP summary and ``metadata.yaml`` written).
+  (MCAP summary and ``metadata.yaml`` written). The main thread never blocks (it spins
+  with a timeout), so a signal is served within 0.1 s even while the writer is busy.
+- Failures. A bag that exists (never overwritten) or cannot be created (unwritable path):
+  ERROR log and exit code 1 at once. A write that fails during the run (disk full, file
+  size limit, I/O error): the recorder logs it at ERROR level, reports it on
+  ``/diagnostics`` (level ERROR, with the count of messages dropped since), stops writing
+  (the file is closed as it is, without a summary: ``scripts/bag_repair`` recovers every
+  complete chunk) and drops what it receives from then on, without buffering it; it stays
+  up until it is stopped (exit code 1) so that nothing else of the graph is disturbed. The
+  nodes being recorded never wait for the recorder: it is a separate process and its
+  subscriptions are keep-last, so a stalled recorder only loses its own messages.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once per second (wall time): the bag
-  path, the messages recorded in total and per topic, the write backlog, and any topic that
-  could not be recorded.
+  path, the file being written, the messages recorded in total and per topic, the write
+  backlog, and any topic that could not be recorded.
 """
 
 import datetime
@@ -64,13 +91,18 @@ from rclpy.parameter import Parameter
 from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
                        QoSReliabilityPolicy)
 
-from .bag_writer import (BagExistsError, BagWriterError, message_definition,
-                         Rosbag2McapWriter, type_description_hash)
+from .bag_writer import (BagExistsError, BagWriterError, DEFAULT_CHUNK_SIZE,
+                         message_definition, Rosbag2McapWriter, type_description_hash)
 
 SUBSCRIPTION_DEPTH = 1000  # keep-last depth of the recording subscriptions [messages]
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
 SPIN_TIMEOUT = 0.1  # [s] of one spin_once; bounds the reaction time to a shutdown
 _STOP = object()  # Sentinel that ends the writer thread.
+SCENARIO_KEY = 'wip.scenario'  # custom_data key read by scripts/rerun
+
+
+class RecorderStartError(Exception):
+    """The bag cannot be created (unwritable path, ...)."""
 
 
 def default_output_name(now=None):
@@ -122,6 +154,15 @@ class RecorderNode(Node):
                       '[s] (wall time)')
         self._declare('flush_period', 1.0, 'Maximum time between two flushes of the bag '
                       'file [s] (wall time); 0: flush only at close')
+        self._declare('chunk_size', DEFAULT_CHUNK_SIZE, 'Uncompressed MCAP chunk size [bytes]')
+        self._declare('max_bag_size', 0, 'Split into files of at most this many bytes; 0: '
+                      'no limit')
+        self._declare('max_bag_duration', 0.0, 'Split into files of at most this long [s]; '
+                      '0: no limit')
+        self._declare('close_timeout', 30.0, 'Longest wait at shutdown for the writer to '
+                      'close the bag [s]')
+        self._declare('scenario_file', '', 'Scenario YAML stored in the bag metadata '
+                      '(custom_data wip.scenario) for scripts/rerun')
 
         output = self.get_parameter('output').value or default_output_name()
         self.output = os.path.abspath(os.path.expanduser(output))
@@ -134,10 +175,29 @@ class RecorderNode(Node):
             raise ValueError(f'discovery_period must be positive, got {discovery_period}')
         if self.flush_period < 0.0:
             raise ValueError(f'flush_period must be >= 0, got {self.flush_period}')
-
-        self.bag = Rosbag2McapWriter(self.output, compression=compression, custom_data={
-            'recorder': self.get_fully_qualified_name()})
+        self.close_timeout = self.get_parameter('close_timeout').value
+        custom_data = {'recorder': self.get_fully_qualified_name()}
+        scenario_file = self.get_parameter('scenario_file').value
+        if scenario_file:
+            try:
+                with open(scenario_file, encoding='utf-8') as stream:
+                    custom_data[SCENARIO_KEY] = stream.read()
+            except OSError as err:
+                raise ValueError(f'scenario_file {scenario_file!r}: {err.strerror}') from err
+        try:
+            self.bag = Rosbag2McapWriter(
+                self.output, compression=compression, custom_data=custom_data,
+                chunk_size=self.get_parameter('chunk_size').value,
+                max_bag_size=self.get_parameter('max_bag_size').value,
+                max_bag_duration=self.get_parameter('max_bag_duration').value)
+        except BagExistsError:
+            raise
+        except OSError as err:
+            raise RecorderStartError(f'cannot create the bag {self.output}: '
+                                     f'{err.strerror or err}') from err
+        self._dropped = 0  # messages received after a write failure
         self._closed = False
+        self._closed_ok = False
         self._queue = queue.SimpleQueue()
         self._received = {}  # topic -> messages received (the writer thread counts writes)
         self._recorded = {}  # topic -> Subscription
@@ -226,8 +286,11 @@ class RecorderNode(Node):
         # One-argument callback (the EventsExecutor does not support MessageInfo).
         if self._closed:
             return
-        self._queue.put(('message', topic, data, self.get_clock().now().nanoseconds))
         self._received[topic] += 1
+        if self._writer_error is not None:
+            self._dropped += 1  # Recording stopped: nothing is buffered.
+            return
+        self._queue.put(('message', topic, data, self.get_clock().now().nanoseconds))
 
     # -- writer thread ---------------------------------------------------------------------
     def _write_loop(self):
@@ -239,6 +302,8 @@ class RecorderNode(Node):
                 item = None
             if item is _STOP:
                 return
+            if self._writer_error is not None:
+                continue  # Failed: discard what was queued before the failure was seen.
             try:
                 if item is not None and item[0] == 'message':
                     _, topic, data, stamp = item
@@ -249,11 +314,19 @@ class RecorderNode(Node):
                                        definition_encoding=encoding)
                 now = time.monotonic()
                 if self.flush_period > 0.0 and now - last_flush >= self.flush_period:
-                    self.bag.flush()
+                    self.bag.flush(fsync=True)
                     last_flush = now
             except Exception as err:  # noqa: B902 - reported, never silent
-                self._writer_error = f'{type(err).__name__}: {err}'
-                return
+                self._on_write_failure(err)
+
+    def _on_write_failure(self, err):
+        """Stop writing after a failed write; report it (called in the writer thread)."""
+        reason = f'{type(err).__name__}: {err}'
+        self._writer_error = reason
+        self.bag.abandon()  # Finishing would write again; the repair recovers the chunks.
+        rclpy.logging.get_logger(self.get_name()).error(
+            f'bag write failed, recording stopped: {reason}; the bag {self.output} is left '
+            f'unfinished: scripts/bag_repair {self.output} recovers every complete chunk')
 
     # -- diagnostics -----------------------------------------------------------------------
     def publish_diagnostics(self):
@@ -268,7 +341,9 @@ class RecorderNode(Node):
                                   hardware_id='')
         if self._writer_error is not None:
             status.level = DiagnosticStatus.ERROR
-            status.message = f'bag write failed: {self._writer_error}'
+            status.message = (f'bag write failed, recording stopped: {self._writer_error}; '
+                              f'{self._dropped} message(s) dropped since; run '
+                              'scripts/bag_repair on the bag')
         elif self._failed:
             status.level = DiagnosticStatus.WARN
             status.message = f'{len(self._failed)} topic(s) not recorded'
@@ -281,6 +356,8 @@ class RecorderNode(Node):
             KeyValue(key='messages written', value=str(self.bag.message_count)),
             KeyValue(key='receive rate [1/s]', value=f'{rate:.1f}'),
             KeyValue(key='write backlog', value=str(backlog)),
+            KeyValue(key='file', value=self.bag.file_name),
+            KeyValue(key='messages dropped (write failure)', value=str(self._dropped)),
         ]
         status.values += [KeyValue(key=f'received {topic}', value=str(count))
                           for topic, count in sorted(self._received.items())]
@@ -292,26 +369,47 @@ class RecorderNode(Node):
 
     # -- shutdown --------------------------------------------------------------------------
     def close(self):
-        """Stop recording, write what was received and close the bag; idempotent."""
+        """Stop recording, write what was received and close the bag; idempotent.
+
+        Returns
+        -------
+        bool
+            True if the bag was closed properly (summary and metadata.yaml written).
+        """
         if self._closed:
-            return
+            return self._closed_ok
         self._closed = True  # From now on callbacks queue nothing.
+        self._closed_ok = False
         self._queue.put(_STOP)  # Last item: everything received before is written.
-        self._writer.join()
+        self._writer.join(timeout=self.close_timeout)
         # After a SIGINT the context is shut down: log without the /rosout publisher.
         logger = (self.get_logger() if self.context.ok()
                   else rclpy.logging.get_logger(self.get_name()))
-        if self._writer_error is not None:
+        if self._writer.is_alive():
+            logger.error(
+                f'the writer did not finish within close_timeout = {self.close_timeout:g} s '
+                f'({self._queue.qsize()} item(s) left): bag {self.output} left unfinished; '
+                f'scripts/bag_repair {self.output} recovers every complete chunk')
+        elif self._writer_error is not None:
             logger.error(
                 f'bag {self.output} not closed: {self._writer_error}; '
-                'wip_sim.bag_writer.recover_bag() can make it readable')
+                f'scripts/bag_repair {self.output} recovers every complete chunk')
         else:
-            self.bag.close()
-            logger.info(
-                f'closed {self.output}: {self.bag.message_count} messages on '
-                f'{len(self.bag.message_counts())} topic(s)')
+            try:
+                self.bag.close()
+                self._closed_ok = True
+                logger.info(
+                    f'closed {self.output}: {self.bag.message_count} messages on '
+                    f'{len(self.bag.message_counts())} topic(s) in '
+                    f'{len(self.bag.file_names)} file(s)')
+            except OSError as err:
+                self._writer_error = f'{type(err).__name__}: {err}'
+                self.bag.abandon()
+                logger.error(f'closing bag {self.output} failed: {err}; '
+                             f'scripts/bag_repair {self.output} recovers every complete chunk')
         for subscription in self._recorded.values():
             self.destroy_subscription(subscription)
+        return self._closed_ok
 
     def destroy_node(self):
         self.close()
@@ -346,11 +444,14 @@ def main(args=None):
         spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (BagExistsError, ValueError) as err:
+    except (BagExistsError, RecorderStartError, ValueError) as err:
+        rclpy.logging.get_logger('recorder').error(str(err))
         print(f'recorder: error: {err}', file=sys.stderr)
         status = 1
     finally:
         if node is not None:
+            if not node.close():
+                status = 1
             node.destroy_node()
         rclpy.try_shutdown()
     return status

@@ -1,0 +1,203 @@
+"""The recorder never loses a recording: SIGKILL, a full disk, a bad path, split files.
+
+Each test runs ``python -m wip_sim.recorder_node`` as its own process (see
+bagtools_helpers) and checks the bag with ``rosbags``, an independent rosbag2 reader, after
+``scripts/bag_repair`` where the recorder could not close it. Messages are std_msgs/String
+carrying their index, so "every message, in order" is an exact comparison.
+"""
+
+import os
+import resource
+import signal
+import time
+
+from diagnostic_msgs.msg import DiagnosticStatus
+import pytest
+from rclpy.qos import QoSProfile
+from rosbags.rosbag2 import Reader
+from std_msgs.msg import String
+import yaml
+
+from bagtools_helpers import (DISCOVERY_TIMEOUT, domain, spin_until,  # noqa: F401
+                              test_node, Tool, tools)
+from wip_sim.bag_info import bag_information
+from wip_sim.bag_reader import bag_summary, read_bag
+from wip_sim.bag_repair import mcap_files_by_index, read_file_contents, repair_bag
+
+pytestmark = pytest.mark.ros
+
+PUBLISH_PERIOD = 0.002  # [s]: 500 Hz, above every rate of the project's graph
+
+
+def _recorder(node, bag, topic, *params):
+    args = ['--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topic}]',
+            '-p', 'discovery_period:=0.1']
+    for param in params:
+        args += ['-p', param]
+    return Tool(node, 'recorder_node', args, '/recorder')
+
+
+def _received(recorder, topic):
+    return int(recorder.values.get(f'received {topic}', 0))
+
+
+def _publish_for(node, publisher, seconds, start, make=str, stop=None):
+    """Publish make(k) for k = start, start+1 ... at PUBLISH_PERIOD for ``seconds``,
+    spinning the test node in between; returns the next k."""
+    k = start
+    next_time = time.monotonic()
+    end = next_time + seconds
+    while time.monotonic() < end and not (stop and stop()):
+        publisher.publish(String(data=make(k)))
+        k += 1
+        next_time += PUBLISH_PERIOD
+        node.executor_for_test.spin_once(timeout_sec=max(0.0, next_time - time.monotonic()))
+    return k
+
+
+def _assert_metadata_matches_content(directory):
+    info = yaml.safe_load((directory / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']
+    assert info['relative_file_paths'] == [p.name for p in mcap_files_by_index(directory)]
+    summary = bag_summary(directory)
+    assert summary['finished']
+    assert info['message_count'] == summary['message_count']
+    assert {t['topic_metadata']['name']: t['message_count']
+            for t in info['topics_with_message_count']} == {
+        topic: v['message_count'] for topic, v in summary['topics'].items()}
+    assert info['starting_time']['nanoseconds_since_epoch'] == summary['start_ns']
+    assert info['duration']['nanoseconds'] == summary['duration_ns']
+    assert sum(f['message_count'] for f in info['files']) == info['message_count']
+    return info
+
+
+def test_sigkill_mid_run_then_repair_keeps_every_complete_chunk(test_node, tools, tmp_path):
+    bag = tmp_path / 'killed'
+    topic = f'/robust_{os.getpid()}/kill'
+    recorder = _recorder(test_node, bag, topic, 'flush_period:=0.2', 'max_bag_duration:=1.0')
+    tools.append(recorder)
+    publisher = test_node.create_publisher(String, topic, QoSProfile(depth=1000))
+    recorder.spin_until(lambda: publisher.get_subscription_count() >= 1, DISCOVERY_TIMEOUT,
+                        'the recorder to subscribe')
+    k = _publish_for(test_node, publisher, 2.0, 0)
+    # What the recorder reported received (diagnostics of <= 1 s ago) must survive the kill:
+    # the writer flushes (and fsyncs) a chunk every 0.2 s; 1 s more of publishing leaves 5
+    # flush periods of margin for the queue and the scheduler.
+    reported = _received(recorder, topic)
+    assert reported > 100
+    k = _publish_for(test_node, publisher, 1.0, k)
+    recorder.process.send_signal(signal.SIGKILL)  # mid-run: messages still arriving
+    recorder.wait(10.0, expected_code=-signal.SIGKILL)
+
+    files = mcap_files_by_index(bag)
+    assert len(files) >= 2  # split by duration: finished files and the killed one
+    contents = [read_file_contents(f) for f in files]
+    assert [c.finished for c in contents] == [True] * (len(files) - 1) + [False]
+    in_complete_chunks = sum(c.stats.count for c in contents)
+
+    result = repair_bag(bag)
+    assert result.files[-1].action == 'rewritten'
+    info = _assert_metadata_matches_content(bag)
+    # Every message of every complete chunk, nothing else, in publication order.
+    assert info['message_count'] == in_complete_chunks
+    with Reader(bag) as reader:
+        data = [bytes(d) for _, _, d in reader.messages()]
+    assert len(data) == in_complete_chunks
+    indices = [int(m.message.data) for m in read_bag(bag)]
+    assert indices == list(range(len(indices)))
+    assert reported <= len(indices) <= k
+
+
+def test_a_full_disk_is_reported_and_harms_nobody(test_node, tools, tmp_path):
+    bag = tmp_path / 'full'
+    topic = f'/robust_{os.getpid()}/full'
+    limit = 200 * 1024  # [bytes]: the recorder's "disk" fills after ~50 messages of 4 KiB
+
+    def small_disk():  # in the child: writes past `limit` fail with EFBIG (SIGXFSZ ignored)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    recorder = Tool(test_node, 'recorder_node', [
+        '--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topic}]',
+        '-p', 'discovery_period:=0.1', '-p', 'flush_period:=0.1', '-p', 'chunk_size:=16384',
+        '-p', 'compression:=none'], '/recorder', preexec_fn=small_disk)
+    tools.append(recorder)
+    publisher = test_node.create_publisher(String, topic, QoSProfile(depth=1000))
+    # An unaffected consumer of the same topic: it must get every message throughout.
+    got = []
+    test_node.create_subscription(String, topic, lambda m: got.append(m.data),
+                                  QoSProfile(depth=1000))
+    recorder.spin_until(lambda: publisher.get_subscription_count() >= 2, DISCOVERY_TIMEOUT,
+                        'the subscriptions')
+    payload = os.urandom(1536).hex()  # 3 KiB of text (stored uncompressed)
+
+    def failed():
+        return (recorder.status is not None
+                and recorder.status.level == DiagnosticStatus.ERROR)
+
+    k = _publish_for(test_node, publisher, 8.0, 0, lambda k: f'{k}:{payload}', stop=failed)
+    recorder.spin_until(failed, 5.0, 'the recorder to report the write failure')
+    assert 'write failed' in recorder.status.message
+    assert 'File too large' in recorder.status.message
+    assert 'bag_repair' in recorder.status.message
+    # Publishing goes on at full rate: the recorder holds nobody back.
+    started = time.monotonic()
+    k = _publish_for(test_node, publisher, 0.4, k, lambda k: f'{k}:{payload}')
+    assert time.monotonic() - started < 0.4 + 0.2  # no publish call blocked
+    spin_until(test_node, lambda: len(got) == k, 5.0, 'the other subscriber')
+    recorder.spin_until(lambda: int(recorder.values.get(
+        'messages dropped (write failure)', 0)) > 0, 3.0, 'the drop count')
+    assert recorder.process.poll() is None  # still up, reporting
+    output = recorder.stop(signal.SIGINT, expected_code=1)
+    assert '[ERROR]' in output and 'recording stopped' in output
+
+    result = repair_bag(bag)
+    _assert_metadata_matches_content(bag)
+    indices = [int(m.message.data.split(':')[0]) for m in read_bag(bag)]
+    assert indices == list(range(len(indices)))
+    assert 0 < len(indices) == result.metadata['message_count']
+    assert sum(os.path.getsize(f) for f in mcap_files_by_index(bag)) <= limit
+    with Reader(bag) as reader:
+        assert reader.message_count == len(indices)
+
+
+def test_an_unwritable_path_fails_clearly_at_start(test_node, tools, tmp_path):
+    blocker = tmp_path / 'a_file'
+    blocker.write_text('not a directory')  # fails for root too, unlike permissions
+    recorder = _recorder(test_node, blocker / 'bag', '/x')
+    tools.append(recorder)
+    output = recorder.wait(30.0, expected_code=1)
+    assert '[ERROR]' in output
+    assert f'cannot create the bag {blocker / "bag"}: Not a directory' in output
+
+
+def test_split_by_size_while_recording_then_sigterm(test_node, tools, tmp_path):
+    bag = tmp_path / 'split'
+    topic = f'/robust_{os.getpid()}/split'
+    recorder = _recorder(test_node, bag, topic, 'max_bag_size:=60000',
+                         'chunk_size:=16384', 'compression:=zstd')
+    tools.append(recorder)
+    publisher = test_node.create_publisher(String, topic, QoSProfile(depth=1000))
+    recorder.spin_until(lambda: publisher.get_subscription_count() >= 1, DISCOVERY_TIMEOUT,
+                        'the recorder to subscribe')
+    n = 400  # of 512 random hex digits each (about 2:1 compressible): ~100 kB compressed
+
+    k = 0
+    next_time = time.monotonic()
+    while k < n:
+        publisher.publish(String(data=f'{k}:{os.urandom(256).hex()}'))
+        k += 1
+        next_time += PUBLISH_PERIOD
+        test_node.executor_for_test.spin_once(
+            timeout_sec=max(0.0, next_time - time.monotonic()))
+    recorder.spin_until(lambda: _received(recorder, topic) == n, 10.0,
+                        'the recorder to receive everything')
+    output = recorder.stop(signal.SIGTERM)
+    assert 'closed' in output
+    info = _assert_metadata_matches_content(bag)
+    assert len(info['relative_file_paths']) >= 3
+    assert [int(m.message.data.split(':')[0]) for m in read_bag(bag)] == list(range(n))
+    with Reader(bag) as reader:
+        assert reader.message_count == n
+    bag_info = bag_information(bag)
+    assert bag_info['problems'] == []
+    assert {t['name']: t['count'] for t in bag_info['topics']} == {topic: n}
