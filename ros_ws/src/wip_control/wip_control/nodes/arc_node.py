@@ -1,0 +1,115 @@
+"""ARC node: adaptive robust yaw-rate control, eqs. (12), (13) in [1]_.
+
+Topics
+------
+Subscribes ``/wip/velocity_command`` (ωd, ω̇d) and ``/wip/state_estimate`` (ω̂, f̂1).
+Publishes ``/wip/yaw_torque`` (wip_msgs/ArcState: τω, α̂, eω) stamped like the estimate,
+and ``/diagnostics``.
+
+Per sample: ``core.arc.AdaptiveRobustYawController.step(dt, ω̂, f̂1, ωd, ω̇d)`` with dt the
+control period 1/``rates.control_rate`` (the runner's step 5; the same nominal dt is
+used in real time: the controller runs at the sensor rate).
+
+Synchronisation: lockstep: command(t_k) + estimate(t_k); realtime: on each estimate, with
+the latest command. Malformed or non-finite input is dropped and reported.
+
+Parameters: section ``arc`` (changeable at run time; α̂ is kept, projected into the new
+bounds), section ``rates`` (read-only), ``alpha_initial`` [kg m^2] (α̂(0); default
+1/(1.2 g1(0)) of the default model, as ``core.runner.initial_alpha``), ``clock_mode``,
+``diagnostics_period``.
+
+References
+----------
+.. [1] Yue, An, Li, IEEE T-SMC: Systems, 2016.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+from wip_msgs.msg import (ArcState, StateEstimate as StateEstimateMsg,
+                          VelocityCommand as VelocityCommandMsg)
+
+from ..core.arc import AdaptiveRobustYawController, ArcConfig
+from ..core.config import ConfigError
+from ..core.eso import EsoConfig
+from ..core.model import input_gains
+from ..core.params import WipParameters
+from ..core.scenario import RatesConfig
+from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
+from .conversions import arc_to_msg, command_from_msg, estimate_from_msg
+from .diagnostics import OK
+from .parameters import ConfigParameters, declare_plain
+from .sync import ExactTimeSync, LatestSync
+
+_INPUTS = ('velocity_command', 'state_estimate')
+
+
+def default_alpha_initial() -> float:
+    """α̂(0) = 1/ĝ1(θ = 0) of the default model and ESO (``core.runner.initial_alpha``)."""
+    return 1.0 / (EsoConfig().yaw_input_gain_scale * input_gains(WipParameters(), 0.0)[0])
+
+
+class ArcNode(ControllerNode):
+    """See the module docstring."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('arc', 'adaptive robust yaw control (12)-(13)', _INPUTS, **kwargs)
+        self.parameters = ConfigParameters(self, 'arc', ArcConfig, self._on_config)
+        self.rates = ConfigParameters(self, 'rates', RatesConfig).config
+        alpha_initial = declare_plain(self, 'alpha_initial', default_alpha_initial(),
+                                      'kg m^2', 'initial adaptive estimate of alpha = 1/g1 '
+                                      '(paper: 1/g1_hat); projected into [alpha_min, '
+                                      'alpha_max]')
+        if not (isinstance(alpha_initial, float) and math.isfinite(alpha_initial)):
+            raise ConfigError(f'alpha_initial: must be a finite number, got {alpha_initial!r}')
+        self.dt = 1.0 / self.rates.control_rate
+        self.controller = AdaptiveRobustYawController(self.parameters.config, alpha_initial)
+        if self.lockstep:
+            self.sync = ExactTimeSync(_INPUTS, self._compute)
+        else:
+            self.sync = LatestSync(_INPUTS, self._compute, triggers=('state_estimate',),
+                                   required=('velocity_command',))
+        self.publisher = self.create_publisher(ArcState, '/wip/yaw_torque', RELIABLE_QOS)
+        self.subscribe(VelocityCommandMsg, '/wip/velocity_command', 'velocity_command',
+                       self._on_command)
+        self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
+                       self._on_estimate)
+
+    def _on_config(self, config: ArcConfig) -> None:
+        self.controller.config = config
+        self.controller.reset(self.controller.alpha_hat)  # Project into the new bounds.
+
+    def _on_command(self, msg: VelocityCommandMsg) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input('velocity_command', stamp)
+        self.feed('velocity_command', stamp, command_from_msg(msg))
+
+    def _on_estimate(self, msg: StateEstimateMsg) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input('state_estimate', stamp)
+        self.feed('state_estimate', stamp, estimate_from_msg(msg))
+
+    def _compute(self, stamp: int, values) -> None:
+        start = time.perf_counter()
+        estimate = values['state_estimate'].estimate
+        command = values['velocity_command']
+        out = self.controller.step(self.dt, estimate.omega, estimate.f1, command.omega_d,
+                                   command.omega_d_dot)
+        self.publisher.publish(arc_to_msg(out, stamp))
+        self.diagnostics.output(stamp, time.perf_counter() - start)
+        limit = self.controller.config.max_yaw_torque
+        self.diagnostics.state(OK, f'tau_omega saturated at {math.copysign(limit, out.tau_omega)}'
+                               ' N m' if abs(out.tau_omega) >= limit else 'tracking omega_d')
+        self.diagnostics.values['alpha_hat [kg m^2]'] = f'{self.controller.alpha_hat:.6g}'
+
+
+def main(args=None) -> int:
+    """Entry point ``arc``."""
+    return run_node(ArcNode, 'arc', args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,227 @@
+"""Boilerplate shared by the controller nodes: QoS, time stamps, clock modes, ``main``.
+
+Clock modes (parameter ``clock_mode`` of every node)
+----------------------------------------------------
+``'lockstep'``: deterministic simulation. The plant owns ``/clock``, every controller node
+runs with ``use_sim_time`` and computes its output for stamp t_k only when all its inputs
+for t_k have arrived (:mod:`.sync`). Nothing depends on wall-clock timing, so a run
+reproduces the in-process runner (``core/runner.py``) step for step.
+
+``'realtime'``: the plant (or a robot) runs on its own clock; the nodes compute on the
+arrival of their primary input with the latest other inputs, and the MPC and the
+reference run on timers of the node clock.
+
+Why the lockstep nodes do not use sim-time timers for their ticks: a ROS timer first
+fires one period *after* it starts, so a timer started at t = 0 never fires for t_0 = 0,
+the first sample of the run, and the whole lockstep graph would wait for it. Verified
+with rclpy 7.1.6 (both ``EventsExecutor`` and ``SingleThreadedExecutor``): a 0.1 s
+timer on sim time driven by /clock = 0, 0.005, ... fires at 0.1, 0.2, 0.3, not at 0.
+A timer would also alias to the next sample if a stamp were off the timer's grid by a
+nanosecond of rounding. So, in lockstep, the reference node publishes on each ``/clock``
+sample of its grid (:class:`ClockTicker`) and the MPC ticks on the stamps of its inputs
+(:func:`.sync.is_decimated_tick`), both including t = 0 exactly like the runner.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Callable, Sequence
+
+from builtin_interfaces.msg import Time
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
+                       QoSReliabilityPolicy)
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Header
+
+from ..core.config import ConfigError
+from .diagnostics import NodeDiagnostics
+from .parameters import declare_plain
+from .sync import on_grid
+
+CLOCK_MODES = ('lockstep', 'realtime')
+#: Default of ``clock_mode``: the nodes are drop-in controllers for a real base; the graph
+#: runner sets 'lockstep' for simulations.
+DEFAULT_CLOCK_MODE = 'realtime'
+#: One spin_once of the EventsExecutor [s]: bounds the reaction time to a shutdown.
+SPIN_TIMEOUT = 0.1
+
+#: Sensors and commands: reliable, keep last 10 (the graph design).
+RELIABLE_QOS = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=10,
+                          reliability=QoSReliabilityPolicy.RELIABLE,
+                          durability=QoSDurabilityPolicy.VOLATILE)
+#: /clock: best effort like rclpy's own time source subscription (which uses depth 1), so it
+#: matches both best-effort and reliable publishers; depth 10 so that no sample is lost
+#: when two arrive between two spins.
+CLOCK_QOS = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=10,
+                       reliability=QoSReliabilityPolicy.BEST_EFFORT,
+                       durability=QoSDurabilityPolicy.VOLATILE)
+
+_NS_PER_S = 1_000_000_000
+
+
+def stamp_to_ns(stamp: Time) -> int:
+    """builtin_interfaces/Time -> integer nanoseconds (exact)."""
+    return stamp.sec * _NS_PER_S + stamp.nanosec
+
+
+def ns_to_stamp(stamp_ns: int) -> Time:
+    """Integer nanoseconds -> builtin_interfaces/Time (exact, nanosec in [0, 1e9))."""
+    sec, nanosec = divmod(int(stamp_ns), _NS_PER_S)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def make_header(stamp_ns: int, frame_id: str = '') -> Header:
+    """std_msgs/Header with the stamp [ns] and frame."""
+    return Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
+
+
+class TimeBase:
+    """Float seconds of a stamp for the core, relative to an origin.
+
+    Lockstep: origin 0, so t is the simulation time (t = ns / 1e9, correctly rounded).
+    Real time: the stamps are wall-clock times (about 1.7e9 s, whose float spacing is
+    0.24 us); the core only needs time differences and the ESO's ramp origin, so the
+    origin is the first stamp converted, which keeps nanosecond resolution.
+    """
+
+    def __init__(self, lockstep: bool) -> None:
+        self.origin_ns: int | None = 0 if lockstep else None
+
+    def seconds(self, stamp_ns: int) -> float:
+        if self.origin_ns is None:
+            self.origin_ns = int(stamp_ns)
+        return (int(stamp_ns) - self.origin_ns) / 1e9
+
+
+def declare_clock_mode(node: Node) -> str:
+    """Declare ``clock_mode`` and return it; ConfigError on a value not in CLOCK_MODES."""
+    mode = declare_plain(node, 'clock_mode', DEFAULT_CLOCK_MODE, '',
+                         "'lockstep' (deterministic simulation on /clock, exact-time input "
+                         "sets) or 'realtime' (latest inputs, timers)")
+    if mode not in CLOCK_MODES:
+        raise ConfigError(f'clock_mode: {mode!r} is not one of {list(CLOCK_MODES)}')
+    if mode == 'lockstep' and not node.get_parameter('use_sim_time').value:
+        node.get_logger().warning('clock_mode lockstep without use_sim_time: input ages '
+                                  'and diagnostics use the wall clock')
+    return mode
+
+
+def finite(*values: float) -> bool:
+    """True if every value is a finite number (one sum: inf - inf and NaN propagate)."""
+    total = 0.0
+    for v in values:
+        total += v
+    return total - total == 0.0
+
+
+class ClockTicker:
+    """Calls ``callback(stamp_ns)`` for each new /clock sample on a ``period`` [s] grid.
+
+    The lockstep replacement of a sim-time timer (see the module docstring): one call per
+    grid sample including t = 0, strictly increasing, never aliased.
+    """
+
+    def __init__(self, node: Node, period: float, callback: Callable[[int], None],
+                 topic: str = '/clock') -> None:
+        self.period = float(period)
+        self._callback = callback
+        self.last_ns: int | None = None
+        self.subscription = node.create_subscription(Clock, topic, self._on_clock, CLOCK_QOS)
+
+    def _on_clock(self, msg: Clock) -> None:
+        stamp_ns = stamp_to_ns(msg.clock)
+        if self.last_ns is not None and stamp_ns <= self.last_ns:
+            return
+        if not on_grid(stamp_ns, self.period):
+            return
+        self.last_ns = stamp_ns
+        self._callback(stamp_ns)
+
+
+def make_executor(context=None):
+    """EventsExecutor (10x lower latency) if this rclpy has it, else SingleThreadedExecutor.
+
+    Verified with rclpy 7.1.6: the EventsExecutor fires sim-time timers driven by /clock and
+    steady-clock timers, and runs one-argument subscription callbacks; it must be driven by
+    ``spin_once(timeout_sec=...)`` (its ``spin()`` ignores SIGINT).
+    """
+    try:
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    except (ImportError, AttributeError, RuntimeError):
+        return SingleThreadedExecutor(context=context)
+
+
+def run_node(node_factory: Callable[[], Node], program: str, args=None) -> int:
+    """Jazzy ``main``: init, build the node, spin until shutdown, clean up; exit status.
+
+    A configuration error (a parameter out of range, of the wrong type, an unknown choice)
+    makes the node refuse to start: the message, which names the parameter, goes to
+    stderr and the status is 1.
+    """
+    rclpy.init(args=args)
+    node = None
+    status = 0
+    try:
+        node = node_factory()
+        executor = make_executor()
+        executor.add_node(node)
+        node.get_logger().debug(f'executor: {type(executor).__name__}')
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ConfigError, ParameterException) as err:
+        print(f'{program}: error: {err}', file=sys.stderr)
+        status = 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+class ControllerNode(Node):
+    """Base of the controller nodes: clock mode, time base, diagnostics, guarded callbacks.
+
+    Parameters declared here: ``clock_mode``, ``diagnostics_period`` [s].
+    """
+
+    def __init__(self, node_name: str, role: str, inputs: Sequence[str], **kwargs) -> None:
+        super().__init__(node_name, **kwargs)
+        self.clock_mode = declare_clock_mode(self)
+        self.lockstep = self.clock_mode == 'lockstep'
+        self.time_base = TimeBase(self.lockstep)
+        period = declare_plain(self, 'diagnostics_period', 1.0, 's',
+                               'period of the /diagnostics messages (wall time); 0: none')
+        if not (isinstance(period, float) and period >= 0.0):
+            raise ConfigError(f'diagnostics_period: must be >= 0, got {period!r}')
+        self.diagnostics = NodeDiagnostics(self, role, inputs, period)
+
+    def subscribe(self, msg_type, topic: str, name: str, handler: Callable) -> None:
+        """Subscription whose callback never raises: a ValueError (malformed or non-finite
+        input, rejected by a conversion or the core) drops the message as 'invalid', any
+        other error as 'error'; both are counted and reported on /diagnostics."""
+        def callback(msg) -> None:
+            try:
+                handler(msg)
+            except ValueError as err:
+                self.diagnostics.drop(name, 'invalid', str(err))
+            except Exception as err:  # noqa: B902 - a callback must not stop the executor
+                self.diagnostics.drop(name, 'error', f'{type(err).__name__}: {err}')
+        self.create_subscription(msg_type, topic, callback, RELIABLE_QOS)
+
+    def now_ns(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    def feed(self, name: str, stamp_ns: int, value) -> None:
+        """Give one converted input to ``self.sync``; report it if it came too late."""
+        stale = self.sync.dropped['stale']
+        self.sync.add(name, stamp_ns, value)
+        if self.sync.dropped['stale'] > stale:
+            self.diagnostics.drop(name, 'stale',
+                                  f'stamp {stamp_ns} ns not after the last computed one')

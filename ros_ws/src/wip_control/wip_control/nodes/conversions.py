@@ -1,0 +1,254 @@
+"""Messages <-> core values: no control math, only unpacking, packing and validation.
+
+Sign conventions (REP 103): x forward, y left, z up; yaw ϕ about z, counter-clockwise
+positive; pitch θ about y, positive leaning forward (a positive rotation about the
+left-pointing y axis tips the body's z axis toward +x). Orientation quaternions are
+the ZYX (yaw, pitch, roll) Euler composition R = Rz(ϕ) Ry(θ) Rx(roll), as tf2 and
+the plant node use ("orientation from roll 0, pitch θ, yaw ϕ").
+
+Every ``*_from_msg`` that reads an external message raises :class:`InvalidMessage`
+(a ValueError) with the reason on malformed or non-finite content; the nodes drop or
+neutralise such input and report it on /diagnostics.
+"""
+
+from __future__ import annotations
+
+import array
+import math
+from typing import NamedTuple, Sequence
+
+from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
+from std_msgs.msg import Float64MultiArray
+from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateMsg,
+                          StateEstimate as StateEstimateMsg,
+                          VelocityCommand as VelocityCommandMsg, WheelTorques)
+
+from ..core.arc import ArcOutput
+from ..core.eso import StateEstimate
+from ..core.mpc import MpcResult, MpcStatus
+from ..core.references import ReferenceState
+from ..core.sensors import geodetic_to_local
+from ..core.trajectory_generator import VelocityCommand
+from .common import make_header
+
+#: Quaternions whose norm is further than this from 1 are rejected as malformed [1]
+#: (a normalised float quaternion is within 1e-15; 1e-3 tolerates single-precision drivers).
+QUATERNION_NORM_TOLERANCE = 1e-3
+
+
+class InvalidMessage(ValueError):
+    """A message is malformed (missing field, wrong size) or carries non-finite numbers."""
+
+
+def _check_finite(what: str, **values: float) -> None:
+    bad = [f'{k}={v!r}' for k, v in values.items() if not math.isfinite(v)]
+    if bad:
+        raise InvalidMessage(f'{what}: non-finite {", ".join(bad)}')
+
+
+# --------------------------------------------------------------------- orientation
+
+def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, ...]:
+    """(x, y, z, w) of R = Rz(yaw) Ry(pitch) Rx(roll) [rad] (REP 103, as tf2)."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return (sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy)
+
+
+def pitch_yaw_from_quaternion(x: float, y: float, z: float, w: float) -> tuple[float, float]:
+    """(pitch θ, yaw ϕ) [rad] of the ZYX decomposition; yaw in (−π, π].
+
+    Inverse of :func:`quaternion_from_euler` for |pitch| < π/2 (the round trip is exact to
+    about 1e-16 rad). The quaternion is normalised first; its roll is ignored (the WIP
+    does not roll).
+    """
+    _check_finite('orientation', x=x, y=y, z=z, w=w)
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+        raise InvalidMessage(f'orientation: quaternion norm {norm!r} is not 1')
+    x, y, z, w = x / norm, y / norm, z / norm, w / norm
+    sin_pitch = 2.0 * (w * y - z * x)
+    pitch = math.asin(max(-1.0, min(1.0, sin_pitch)))
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return pitch, yaw
+
+
+# --------------------------------------------------------------------- sensors
+
+def wheel_angles(msg: JointState, left_joint: str, right_joint: str) -> tuple[float, float]:
+    """(φl, φr) [rad]: the positions of the two wheel joints, found by name."""
+    names = list(msg.name)
+    positions = msg.position
+    try:
+        i_left, i_right = names.index(left_joint), names.index(right_joint)
+    except ValueError:
+        raise InvalidMessage(f'joint_states: needs joints {left_joint!r} and '
+                             f'{right_joint!r}, got {names}') from None
+    if len(positions) != len(names):
+        raise InvalidMessage(f'joint_states: {len(names)} names but {len(positions)} '
+                             'positions')
+    left, right = float(positions[i_left]), float(positions[i_right])
+    _check_finite('joint_states', left=left, right=right)
+    return left, right
+
+
+def imu_pitch_yaw(msg: Imu) -> tuple[float, float]:
+    """(pitch θ, yaw ϕ) [rad] from the IMU orientation (REP 145: ENU world frame)."""
+    if msg.orientation_covariance[0] == -1.0:
+        raise InvalidMessage('imu: no orientation (orientation_covariance[0] == -1)')
+    q = msg.orientation
+    return pitch_yaw_from_quaternion(q.x, q.y, q.z, q.w)
+
+
+def gps_local_position(msg: NavSatFix, datum_latitude: float, datum_longitude: float,
+                       datum_altitude: float) -> tuple[float, float]:
+    """(x east, y north) [m] of a fix in the map frame whose origin is the datum."""
+    if msg.status.status < NavSatStatus.STATUS_FIX:
+        raise InvalidMessage(f'gps: no fix (status {msg.status.status})')
+    lat, lon, alt = float(msg.latitude), float(msg.longitude), float(msg.altitude)
+    _check_finite('gps', latitude=lat, longitude=lon, altitude=alt)
+    if not -90.0 <= lat <= 90.0:
+        raise InvalidMessage(f'gps: latitude {lat!r} outside [-90, 90] deg')
+    east, north, _ = geodetic_to_local(lat, lon, alt, datum_latitude, datum_longitude,
+                                       datum_altitude)
+    return east, north
+
+
+def wheel_torques_from_msg(msg: WheelTorques) -> tuple[float, float]:
+    """(τl, τr) [N m] of an applied command."""
+    left, right = float(msg.left), float(msg.right)
+    _check_finite('wheel_torques', left=left, right=right)
+    return left, right
+
+
+# --------------------------------------------------------------------- project messages
+
+def reference_to_msg(ref: ReferenceState, stamp_ns: int, frame_id: str) -> ReferenceStateMsg:
+    return ReferenceStateMsg(header=make_header(stamp_ns, frame_id), x=ref.x, y=ref.y,
+                             phi=ref.phi, v=ref.v, omega=ref.omega, omega_dot=ref.omega_dot)
+
+
+def reference_from_msg(msg: ReferenceStateMsg) -> ReferenceState:
+    ref = ReferenceState(msg.x, msg.y, msg.phi, msg.v, msg.omega, msg.omega_dot)
+    _check_finite('reference', **ref._asdict())
+    return ref
+
+
+class PoseEstimate(NamedTuple):
+    """A StateEstimate message as core values."""
+
+    estimate: StateEstimate
+    x: float   #: planar position [m]
+    y: float
+
+
+def estimate_to_msg(est: StateEstimate, x: float, y: float, settled: bool, stamp_ns: int,
+                    frame_id: str) -> StateEstimateMsg:
+    return StateEstimateMsg(
+        header=make_header(stamp_ns, frame_id), phi=est.phi, omega=est.omega, f1=est.f1,
+        x_v=est.x_v, v=est.v, f2=est.f2, theta=est.theta, theta_dot=est.theta_dot, f3=est.f3,
+        epsilon=est.epsilon, x=x, y=y, settled=settled)
+
+
+def estimate_from_msg(msg: StateEstimateMsg, check: bool = True) -> PoseEstimate:
+    est = StateEstimate(msg.phi, msg.omega, msg.f1, msg.x_v, msg.v, msg.f2, msg.theta,
+                        msg.theta_dot, msg.f3, msg.epsilon)
+    out = PoseEstimate(est, msg.x, msg.y)
+    if check:
+        # ε is inf at the very start of the paper's ramp: not an input of any controller.
+        values = est._asdict()
+        del values['epsilon']
+        _check_finite('state_estimate', x=out.x, y=out.y, **values)
+    return out
+
+
+def command_to_msg(cmd: VelocityCommand, stamp_ns: int) -> VelocityCommandMsg:
+    return VelocityCommandMsg(header=make_header(stamp_ns), v_d=cmd.v_d, omega_d=cmd.omega_d,
+                              omega_d_dot=cmd.omega_d_dot, x_e=cmd.x_e, y_e=cmd.y_e,
+                              phi_e=cmd.phi_e)
+
+
+def command_from_msg(msg: VelocityCommandMsg, check: bool = True) -> VelocityCommand:
+    cmd = VelocityCommand(msg.v_d, msg.omega_d, msg.omega_d_dot, msg.x_e, msg.y_e, msg.phi_e)
+    if check:
+        _check_finite('velocity_command', **cmd._asdict())
+    return cmd
+
+
+def arc_to_msg(out: ArcOutput, stamp_ns: int) -> ArcState:
+    return ArcState(header=make_header(stamp_ns), tau_omega=out.tau_omega,
+                    alpha_hat=out.alpha_hat, e_omega=out.e_omega)
+
+
+def arc_from_msg(msg: ArcState, check: bool = True) -> ArcOutput:
+    out = ArcOutput(msg.tau_omega, msg.alpha_hat, msg.e_omega)
+    if check:
+        _check_finite('yaw_torque', **out._asdict())
+    return out
+
+
+# --------------------------------------------------------------------- MPC
+
+def mpc_status(status: MpcStatus) -> int:
+    """MpcOutput status constant of a core status.
+
+    SOLVED -> SOLVED; INPUT_INVALID -> INPUT_INVALID; every solver failure -> the core's
+    documented fallback, the previous plan shifted (which holds τ(k−1) when there is no
+    plan yet): FALLBACK_SHIFTED_PLAN. ``status_text`` carries the core status name.
+    """
+    if status == MpcStatus.SOLVED:
+        return MpcOutput.SOLVED
+    if status == MpcStatus.INPUT_INVALID:
+        return MpcOutput.INPUT_INVALID
+    return MpcOutput.FALLBACK_SHIFTED_PLAN
+
+
+def _column(values: Sequence[float]) -> array.array:
+    return array.array('d', values)
+
+
+def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> MpcOutput:
+    """MpcOutput of a core tick. Unknown quantities are not sent as NaN: slacks are 0 and
+    the predictions empty when the QP was not solved (``status`` says so)."""
+    predicted = result.predicted
+    have_prediction = bool(predicted.size) and bool(math.isfinite(float(predicted.sum())))
+    slack_v = result.slack_v if math.isfinite(result.slack_v) else 0.0
+    slack_theta = result.slack_theta if math.isfinite(result.slack_theta) else 0.0
+    return MpcOutput(
+        header=make_header(stamp_ns), tau_v=float(result.tau_v),
+        delta_tau=float(result.delta_tau), status=mpc_status(result.status),
+        status_text=result.status.name, iterations=int(result.iterations),
+        solve_time=float(result.solve_time_s + result.build_time_s),
+        slack_v=float(slack_v), slack_theta=float(slack_theta),
+        sampling_period=float(sampling_period),
+        predicted_v=_column(predicted[:, 0].tolist() if have_prediction else ()),
+        predicted_theta=_column(predicted[:, 1].tolist() if have_prediction else ()),
+        predicted_theta_dot=_column(predicted[:, 2].tolist() if have_prediction else ()),
+        used_fallback=bool(result.used_fallback))
+
+
+def mpc_idle_msg(stamp_ns: int, status: int, text: str, sampling_period: float) -> MpcOutput:
+    """MpcOutput with τυ = 0 when the MPC did not run (NOT_READY, INPUT_INVALID)."""
+    return MpcOutput(header=make_header(stamp_ns), tau_v=0.0, delta_tau=0.0, status=status,
+                     status_text=text, sampling_period=float(sampling_period),
+                     used_fallback=True)
+
+
+# --------------------------------------------------------------------- wheel torques
+
+def wheel_torques_to_msg(left: float, right: float, stamp_ns: int, zeroed: bool = False,
+                         reason: str = '') -> WheelTorques:
+    return WheelTorques(header=make_header(stamp_ns), left=left, right=right,
+                        tau_v=left + right, tau_omega=right - left, zeroed=zeroed,
+                        reason=reason)
+
+
+def effort_command(left: float, right: float, joints: Sequence[str], left_joint: str,
+                   right_joint: str) -> Float64MultiArray:
+    """ros2_control JointGroupEffortController command: one effort per joint of ``joints``."""
+    by_name = {left_joint: left, right_joint: right}
+    return Float64MultiArray(data=_column([by_name[j] for j in joints]))

@@ -1,0 +1,139 @@
+"""/diagnostics of the controller nodes (diagnostic_msgs/DiagnosticArray).
+
+Every node has one :class:`NodeDiagnostics`. The node reports what happens (inputs
+received, inputs dropped and why, outputs with their compute time, the reason for what
+it commands); a steady-clock timer publishes one DiagnosticStatus per period
+(default 1 s of wall time, so diagnostics keep coming when the simulation clock stops):
+
+- level: ERROR if the node says so, WARN if inputs were dropped in the last period or
+  the node says so, else OK; message: the node's reason (or the latest drop);
+- values: outputs, output rate per wall second and per second of stamps (simulated
+  time in lockstep), age of each input (node clock minus its last stamp), counts of
+  received and dropped inputs per reason, compute time per output (mean and max).
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+from typing import Sequence
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+
+OK = DiagnosticStatus.OK
+WARN = DiagnosticStatus.WARN
+ERROR = DiagnosticStatus.ERROR
+#: Drops of one kind logged individually before the log goes quiet (then every 1000th).
+_LOGGED_DROPS = 5
+
+
+class NodeDiagnostics:
+    """Counters and state of one node, published on /diagnostics.
+
+    Parameters
+    ----------
+    node : the node (its clock gives the input ages).
+    role : short description, e.g. ``'extended state observer'``.
+    inputs : names of the inputs whose age is reported.
+    period : publishing period [s] of wall time; 0 disables the timer.
+    """
+
+    def __init__(self, node: Node, role: str, inputs: Sequence[str],
+                 period: float = 1.0) -> None:
+        self._node = node
+        self.name = f'{node.get_fully_qualified_name()}: {role}'
+        self.inputs = tuple(inputs)
+        self.last_stamp: dict[str, int | None] = {n: None for n in self.inputs}
+        self.received: collections.Counter = collections.Counter()
+        self.dropped: collections.Counter = collections.Counter()  # (input, reason)
+        self.outputs = 0
+        self.last_output_ns: int | None = None
+        self.compute_count = 0
+        self.compute_total = 0.0
+        self.compute_max = 0.0
+        self.level = OK
+        self.message = 'waiting for inputs'
+        self.values: dict[str, str] = {}
+        self.last_drop = ''
+        self._drops_reported = 0
+        self._previous = (time.monotonic(), 0, None)  # wall time, outputs, last stamp
+        self.publisher = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        if period > 0.0:
+            node.create_timer(period, self.publish,
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    # -- reports from the node -------------------------------------------------------------
+    def input(self, name: str, stamp_ns: int) -> None:
+        """An input message arrived (valid or not)."""
+        self.received[name] += 1
+        self.last_stamp[name] = stamp_ns
+
+    def drop(self, name: str, kind: str, detail: str = '') -> None:
+        """An input was dropped: count it by ``kind`` ('invalid', 'stale', ...) and log it."""
+        key = (name, kind)
+        self.dropped[key] += 1
+        self.last_drop = f'dropped {name} ({kind}){": " + detail if detail else ""}'
+        count = self.dropped[key]
+        if count <= _LOGGED_DROPS or count % 1000 == 0:
+            self._node.get_logger().warning(f'{self.last_drop} (#{count} of this kind)')
+
+    def output(self, stamp_ns: int, compute_time: float) -> None:
+        """An output was published; ``compute_time`` [s] from inputs to message."""
+        self.outputs += 1
+        self.last_output_ns = stamp_ns
+        self.compute_count += 1
+        self.compute_total += compute_time
+        self.compute_max = max(self.compute_max, compute_time)
+
+    def state(self, level: int, message: str) -> None:
+        """Why the node commands what it commands (or why it does not)."""
+        self.level, self.message = level, message
+
+    # -- publishing ------------------------------------------------------------------------
+    def status(self) -> DiagnosticStatus:
+        """The DiagnosticStatus of now (also resets the per-period rates)."""
+        wall, outputs, stamp = time.monotonic(), self.outputs, self.last_output_ns
+        wall0, outputs0, stamp0 = self._previous
+        self._previous = (wall, outputs, stamp)
+        n_drops = sum(self.dropped.values())
+        new_drops = n_drops - self._drops_reported
+        self._drops_reported = n_drops
+        level, message = self.level, self.message
+        if new_drops and level == OK:
+            level, message = WARN, f'{message}; {new_drops} input(s) dropped, last: ' \
+                                   f'{self.last_drop}'
+        now_ns = self._node.get_clock().now().nanoseconds
+        values = [
+            KeyValue(key='outputs', value=str(outputs)),
+            KeyValue(key='output rate [1/s wall]',
+                     value=f'{(outputs - outputs0) / max(wall - wall0, 1e-9):.1f}'),
+        ]
+        if stamp is not None and stamp0 is not None and stamp > stamp0:
+            values.append(KeyValue(key='output rate [1/s of stamps]',
+                                   value=f'{(outputs - outputs0) * 1e9 / (stamp - stamp0):.1f}'))
+        for name in self.inputs:
+            last = self.last_stamp[name]
+            age = 'never received' if last is None else f'{(now_ns - last) * 1e-9:.4f}'
+            values.append(KeyValue(key=f'age {name} [s]', value=age))
+            values.append(KeyValue(key=f'received {name}', value=str(self.received[name])))
+        for (name, reason), count in sorted(self.dropped.items()):
+            values.append(KeyValue(key=f'dropped {name} ({reason})', value=str(count)))
+        if self.compute_count:
+            values.append(KeyValue(key='compute time mean [us]',
+                                   value=f'{1e6 * self.compute_total / self.compute_count:.1f}'))
+            values.append(KeyValue(key='compute time max [us]',
+                                   value=f'{1e6 * self.compute_max:.1f}'))
+        values += [KeyValue(key=k, value=v) for k, v in self.values.items()]
+        return DiagnosticStatus(level=level, name=self.name, message=message,
+                                hardware_id=self._node.get_name(), values=values)
+
+    def publish(self) -> None:
+        """Publish the status (timer callback; never raises into the executor)."""
+        try:
+            array = DiagnosticArray(status=[self.status()])
+            array.header.stamp = self._node.get_clock().now().to_msg()
+            self.publisher.publish(array)
+        except Exception as err:  # noqa: B902 - diagnostics must not stop the node
+            self._node.get_logger().error(f'diagnostics failed: {err!r}')

@@ -1,0 +1,253 @@
+"""ESO node: the three extended state observers (eqs. (4), (8) in [1]_) and the planar
+position, from standard sensor topics.
+
+Topics
+------
+Subscribes ``/joint_states`` (sensor_msgs/JointState: wheel joint angles, by name),
+``/imu/data`` (sensor_msgs/Imu: orientation -> pitch θ, yaw ϕ), ``/gps/fix``
+(sensor_msgs/NavSatFix -> map-frame (x, y) about the datum), ``/wip/wheel_torques``
+(wip_msgs/WheelTorques: the torques applied, the ESO's input).
+Publishes ``/wip/state_estimate`` (wip_msgs/StateEstimate) stamped with the sensor sample
+time, and ``/diagnostics``.
+
+What it does per sample (exactly the in-process runner's steps 1–3, ``core/runner.py``)
+----------------------------------------------------------------------------------------
+1. yaw: the IMU yaw (wrapped) is unwrapped onto the branch of the previous sample
+   (``core.angles.unwrap_next``); x_v: ``core.sensors.wheel_odometry`` of the two wheel
+   angles and the IMU pitch; θ: the IMU pitch;
+2. the observer (``core.eso.WipStateObserver``) updates with these and the applied
+   torques τυ = τl + τr, τω = τr − τl of the previous period (zero before any arrived);
+3. the planar position (``core.position.PlanarPositionEstimator``) dead-reckons with
+   x_v and ϕ̂, then takes the GPS fix if there is one for this sample.
+
+Initialisation: the observer is built at the FIRST complete measurement set, with the
+measured positions (ϕ, x_v, θ) as its initial state and zero rates and disturbances
+(Section V: "ESO initial state = the true positions"), and that sample's time as the
+origin of the ε schedule. The position estimator starts at the first GPS fix (position
+= the fix); until a fix arrives it dead-reckons from (0, 0) and /diagnostics says so
+(decision: a robot without GPS still gets a usable relative position; in the simulator
+the first set contains the fix at t = 0, so this never shows). Later fixes go through
+the estimator's blend and outlier gate.
+
+Synchronisation
+---------------
+lockstep: the set for t_k is joint_states(t_k) + imu(t_k) [+ gps(t_k) at GPS ticks,
+every round(gps_period / eso.sample_period)-th sample from t = 0]; in addition the wheel
+torques stamped t_{k−1} (the previous sample processed) must have arrived, so the
+result never depends on which of the plant's and the mixer's messages DDS delivers
+first. A GPS fix off the GPS ticks is dropped (its use would depend on arrival order).
+realtime: update when both an IMU and an encoder message newer than at the last update
+have arrived; the latest torques and the latest unused GPS fix are used.
+
+Bad input: a malformed or non-finite message (missing joint, wrong sizes, NaN, no fix,
+no orientation, non-unit quaternion) is dropped, counted and reported on /diagnostics;
+callbacks never raise.
+
+References
+----------
+.. [1] Yue, An, Li, IEEE T-SMC: Systems, 2016.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from sensor_msgs.msg import Imu, JointState, NavSatFix
+from wip_msgs.msg import StateEstimate as StateEstimateMsg, WheelTorques
+
+from ..core.angles import unwrap_next
+from ..core.config import ConfigError
+from ..core.eso import EsoConfig, WipStateObserver
+from ..core.params import WipParameters
+from ..core.position import PlanarPositionEstimator, PositionConfig
+from ..core.sensors import SensorConfig, wheel_odometry
+from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
+from .conversions import (estimate_to_msg, gps_local_position, imu_pitch_yaw, wheel_angles,
+                          wheel_torques_from_msg)
+from .diagnostics import OK, WARN
+from .parameters import ConfigParameters, declare_plain
+from .sync import decimation, ExactTimeSync, is_decimated_tick, LatestSync
+
+_SENSORS = ('joint_states', 'imu', 'gps')
+#: Torque messages kept by stamp in lockstep (only the previous period's is needed).
+_MAX_TORQUE_STAMPS = 64
+
+
+class EsoNode(ControllerNode):
+    """See the module docstring. Parameters: sections ``eso``, ``position``, ``model``;
+    plain ``encoders_relative_to_body``, ``gps_period``, ``left_joint``, ``right_joint``,
+    ``datum.latitude``, ``datum.longitude``, ``datum.altitude``, ``frame_id``,
+    ``clock_mode``, ``diagnostics_period`` (all read-only)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('eso', 'extended state observer', (*_SENSORS, 'wheel_torques'),
+                         **kwargs)
+        self.eso_config = ConfigParameters(self, 'eso', EsoConfig).config
+        self.position_config = ConfigParameters(self, 'position', PositionConfig).config
+        self.model = ConfigParameters(self, 'model', WipParameters).config
+        sensors = SensorConfig()
+        self.relative_to_body = declare_plain(
+            self, 'encoders_relative_to_body', sensors.encoders_relative_to_body, '',
+            'encoders measure the wheel relative to the tilting body (x_v adds the pitch)')
+        gps_period = declare_plain(self, 'gps_period', 1.0 / sensors.gps_rate, 's',
+                                   'period of the GPS fixes (lockstep: a fix is expected '
+                                   'every round(gps_period / eso.sample_period) samples)')
+        if not gps_period > 0.0:
+            raise ConfigError(f'gps_period: must be > 0, got {gps_period!r}')
+        self.left_joint = declare_plain(self, 'left_joint', 'left_wheel_joint', '',
+                                        'name of the left wheel joint in /joint_states')
+        self.right_joint = declare_plain(self, 'right_joint', 'right_wheel_joint', '',
+                                         'name of the right wheel joint in /joint_states')
+        self.datum = (
+            declare_plain(self, 'datum.latitude', sensors.gps_datum_latitude, 'deg',
+                          'latitude of the map origin'),
+            declare_plain(self, 'datum.longitude', sensors.gps_datum_longitude, 'deg',
+                          'longitude of the map origin'),
+            declare_plain(self, 'datum.altitude', sensors.gps_datum_altitude, 'm',
+                          'ellipsoidal height of the map origin'))
+        if not -90.0 <= self.datum[0] <= 90.0:
+            raise ConfigError(f'datum.latitude: must be in [-90, 90] deg, got {self.datum[0]}')
+        self.frame_id = declare_plain(self, 'frame_id', 'map', '',
+                                      'frame of the planar position x, y')
+        self.sample_period = self.eso_config.sample_period
+        self.gps_every = decimation(gps_period, self.sample_period)
+
+        self.observer: WipStateObserver | None = None
+        self.position = PlanarPositionEstimator(self.position_config)
+        self.has_fix = False
+        self.position_started = False
+        self.yaw_unwrapped: float | None = None
+        self.last_update_ns: int | None = None
+        self.last_gps_ns: int | None = None
+        self.torques_by_stamp: dict[int, tuple[float, float]] = {}
+        self.latest_torques = (0.0, 0.0)
+        if self.lockstep:
+            self.sync = ExactTimeSync(_SENSORS, self._update, required=self._required,
+                                      gate=self._torques_ready)
+        else:
+            self.sync = LatestSync(_SENSORS, self._update, triggers=('joint_states', 'imu'),
+                                   required=('joint_states', 'imu'))
+
+        self.publisher = self.create_publisher(StateEstimateMsg, '/wip/state_estimate',
+                                               RELIABLE_QOS)
+        self.subscribe(JointState, '/joint_states', 'joint_states', self._on_joint_states)
+        self.subscribe(Imu, '/imu/data', 'imu', self._on_imu)
+        self.subscribe(NavSatFix, '/gps/fix', 'gps', self._on_gps)
+        self.subscribe(WheelTorques, '/wip/wheel_torques', 'wheel_torques', self._on_torques)
+        self.diagnostics.state(OK, 'waiting for the first measurement set')
+
+    # -- lockstep set definition ------------------------------------------------------------
+    def _is_gps_tick(self, stamp_ns: int) -> bool:
+        return is_decimated_tick(stamp_ns, self.sample_period, self.gps_every)
+
+    def _required(self, stamp_ns: int) -> tuple[str, ...]:
+        return _SENSORS if self._is_gps_tick(stamp_ns) else ('joint_states', 'imu')
+
+    def _torques_ready(self, _stamp_ns: int) -> bool:
+        return self.last_update_ns is None or self.last_update_ns in self.torques_by_stamp
+
+    # -- subscriptions -----------------------------------------------------------------------
+    def _on_joint_states(self, msg: JointState) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input('joint_states', stamp)
+        angles = wheel_angles(msg, self.left_joint, self.right_joint)
+        self.feed('joint_states', stamp, angles)
+
+    def _on_imu(self, msg: Imu) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input('imu', stamp)
+        self.feed('imu', stamp, imu_pitch_yaw(msg))
+
+    def _on_gps(self, msg: NavSatFix) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input('gps', stamp)
+        position = gps_local_position(msg, *self.datum)
+        if self.lockstep and not self._is_gps_tick(stamp):
+            self.diagnostics.drop('gps', 'off the GPS ticks',
+                                  f'stamp {stamp} ns is not a multiple of gps_period')
+            return
+        self.feed('gps', stamp, position)
+
+    def _on_torques(self, msg: WheelTorques) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input('wheel_torques', stamp)
+        torques = wheel_torques_from_msg(msg)
+        if self.lockstep:
+            if len(self.torques_by_stamp) >= _MAX_TORQUE_STAMPS:
+                del self.torques_by_stamp[min(self.torques_by_stamp)]
+            self.torques_by_stamp[stamp] = torques
+            self.sync.drain()
+        else:
+            self.latest_torques = torques
+
+    # -- the update ---------------------------------------------------------------------------
+    def _update(self, stamp: int, values) -> None:
+        start = time.perf_counter()
+        left, right = values['joint_states']
+        pitch, yaw = values['imu']
+        gps = values.get('gps')
+        if self.lockstep:
+            torques = (self.torques_by_stamp.get(self.last_update_ns, (0.0, 0.0))
+                       if self.last_update_ns is not None else (0.0, 0.0))
+            for old in [s for s in self.torques_by_stamp
+                        if self.last_update_ns is not None and s < self.last_update_ns]:
+                del self.torques_by_stamp[old]
+        else:
+            torques = self.latest_torques
+            gps_stamp = self.sync.stamps.get('gps')
+            if gps is not None and gps_stamp == self.last_gps_ns:
+                gps = None  # Each fix is used once.
+            self.last_gps_ns = gps_stamp
+        t = self.time_base.seconds(stamp)
+        yaw_unwrapped = yaw if self.yaw_unwrapped is None else unwrap_next(
+            self.yaw_unwrapped, yaw)
+        x_v, _ = wheel_odometry(left, right, pitch, self.model, 0.0, self.relative_to_body)
+        if self.observer is None:
+            self.observer = WipStateObserver(self.model, self.eso_config,
+                                             initial_positions=(yaw_unwrapped, x_v, pitch),
+                                             initial_time=t)
+        tau_left, tau_right = torques
+        estimate = self.observer.update(t, yaw_unwrapped, x_v, pitch, tau_left + tau_right,
+                                        tau_right - tau_left)
+        self.yaw_unwrapped = yaw_unwrapped
+        self.last_update_ns = stamp
+        if gps is not None and not self.has_fix:
+            # The position starts at the first fix (then odometry adds nothing, and the
+            # fix itself is a zero innovation).
+            self.position.reset(gps[0], gps[1], x_v, estimate.phi)
+            self.has_fix = self.position_started = True
+        elif not self.position_started:
+            self.position.reset(0.0, 0.0, x_v, estimate.phi)
+            self.position_started = True
+        x, y = self.position.update_odometry(x_v, estimate.phi)
+        if gps is not None:
+            x, y = self.position.update_gps(*gps)
+        settled = not self.observer.yaw.in_ramp(t)
+        self.publisher.publish(estimate_to_msg(estimate, x, y, settled, stamp, self.frame_id))
+        self.diagnostics.output(stamp, time.perf_counter() - start)
+        self._report(settled)
+
+    def _report(self, settled: bool) -> None:
+        diag = self.diagnostics
+        if not self.has_fix:
+            diag.state(WARN, 'no GPS fix yet: x, y are odometry from (0, 0)')
+        elif not settled:
+            diag.state(OK, 'estimating; epsilon ramp still running (not settled)')
+        else:
+            diag.state(OK, 'estimating')
+        diag.values['GPS fixes accepted'] = str(self.position.accepted_fixes)
+        diag.values['GPS fixes rejected'] = str(self.position.rejected_fixes)
+        if self.lockstep:
+            diag.values['pending sets'] = str(self.sync.pending)
+            diag.values['sets superseded/evicted'] = (
+                f'{self.sync.dropped["superseded"]}/{self.sync.dropped["evicted"]}')
+
+
+def main(args=None) -> int:
+    """Entry point ``eso`` (``ros2 run wip_control eso --ros-args ...``)."""
+    return run_node(EsoNode, 'eso', args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,163 @@
+"""MPC node: the longitudinal/tilt model predictive controller, eqs. (16)–(23) in [1]_.
+
+Topics
+------
+Subscribes ``/wip/state_estimate`` (υ̂, θ̂, θ̂̇, f̂2, f̂3), ``/wip/velocity_command`` (υd) and
+``/wip/yaw_torque`` (τω, which sets the drive torque bound
+``core.mixer.drive_torque_limit(τω, mixer.max_wheel_torque)`` = 2 τmax − |τω|).
+Publishes ``/wip/drive_torque`` (wip_msgs/MpcOutput: τυ, Δτ, status, iterations, build +
+solve time, slacks, predicted υ/θ/θ̇) every ``mpc.sampling_period``, and ``/diagnostics``.
+
+Per tick: ``core.mpc.LongitudinalMpc.step(...)`` (the runner's step 6). The core keeps
+τυ(k−1). Status: SOLVED; FALLBACK_SHIFTED_PLAN on any solver failure (``status_text`` is
+the core's status name); INPUT_INVALID when an input is not finite (the core then ramps
+τυ toward 0) or, in real time, stale; NOT_READY (τυ = 0) in real time before every input
+has arrived once. Unknown slacks are sent as 0 and unknown predictions as empty arrays,
+never NaN.
+
+Ticks
+-----
+lockstep: t_k is a tick when k = round(t_k / h) is a multiple of
+round(``mpc.sampling_period`` / h), h = 1/``rates.control_rate`` (the runner's
+``k % mpc_decimation == 0``, t = 0 included); the tick is computed as soon as
+estimate(t_k), command(t_k) and yaw_torque(t_k) have all arrived, in any order. Inputs
+at other stamps are not needed. (Not a sim-time timer: see ``common.py`` for why.)
+realtime: a timer of period ``mpc.sampling_period`` on the node clock computes with the
+latest inputs; if one is missing (NOT_READY) or older than ``max_input_age``
+(INPUT_INVALID) it publishes τυ = 0 and tells the core that 0 was applied.
+
+Parameters (all read-only): sections ``mpc``, ``model`` (the nominal model), ``mixer``
+(max_wheel_torque), ``rates`` (control_rate, for the tick grid); ``max_input_age`` [s],
+``clock_mode``, ``diagnostics_period``.
+
+References
+----------
+.. [1] Yue, An, Li, IEEE T-SMC: Systems, 2016.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg,
+                          VelocityCommand as VelocityCommandMsg)
+
+from ..core.config import ConfigError
+from ..core.mixer import drive_torque_limit, MixerConfig
+from ..core.mpc import LongitudinalMpc, MpcConfig
+from ..core.params import WipParameters
+from ..core.scenario import RatesConfig
+from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
+from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc_idle_msg,
+                          mpc_to_msg)
+from .diagnostics import OK, WARN
+from .parameters import ConfigParameters, declare_plain
+from .sync import decimation, ExactTimeSync, is_decimated_tick
+
+_INPUTS = ('state_estimate', 'velocity_command', 'yaw_torque')
+
+
+class MpcNode(ControllerNode):
+    """See the module docstring."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('mpc', 'longitudinal/tilt MPC (16)-(23)', _INPUTS, **kwargs)
+        self.config = ConfigParameters(self, 'mpc', MpcConfig).config
+        self.model = ConfigParameters(self, 'model', WipParameters).config
+        self.max_wheel_torque = ConfigParameters(self, 'mixer',
+                                                 MixerConfig).config.max_wheel_torque
+        self.rates = ConfigParameters(self, 'rates', RatesConfig).config
+        self.max_input_age = declare_plain(
+            self, 'max_input_age', 0.25, 's', 'realtime: inputs older than this make the '
+            'MPC publish tau_v = 0 with status INPUT_INVALID')
+        if not (isinstance(self.max_input_age, float) and self.max_input_age > 0.0):
+            raise ConfigError(f'max_input_age: must be > 0, got {self.max_input_age!r}')
+        self.sampling_period = self.config.sampling_period
+        self.control_period = 1.0 / self.rates.control_rate
+        self.every = decimation(self.sampling_period, self.control_period)
+        self.mpc = LongitudinalMpc(self.model, self.config)
+        self.latest: dict[str, tuple[int, object]] = {}
+        self.publisher = self.create_publisher(MpcOutput, '/wip/drive_torque', RELIABLE_QOS)
+        if self.lockstep:
+            self.sync = ExactTimeSync(_INPUTS, self._tick)
+        else:
+            self.create_timer(self.sampling_period, self._realtime_tick)
+        self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
+                       lambda msg: self._on_input('state_estimate', msg,
+                                                  estimate_from_msg(msg, check=False)))
+        self.subscribe(VelocityCommandMsg, '/wip/velocity_command', 'velocity_command',
+                       lambda msg: self._on_input('velocity_command', msg,
+                                                  command_from_msg(msg, check=False)))
+        self.subscribe(ArcState, '/wip/yaw_torque', 'yaw_torque',
+                       lambda msg: self._on_input('yaw_torque', msg,
+                                                  arc_from_msg(msg, check=False)))
+        self.diagnostics.state(OK, 'waiting for the first tick')
+
+    def is_tick(self, stamp_ns: int) -> bool:
+        """Whether ``stamp_ns`` is an MPC tick of the lockstep grid (from t = 0)."""
+        return is_decimated_tick(stamp_ns, self.control_period, self.every)
+
+    def _on_input(self, name: str, msg, value) -> None:
+        # Non-finite values are passed on: the core answers INPUT_INVALID with a finite
+        # torque, and in lockstep the tick must be answered or the graph would stop.
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input(name, stamp)
+        if self.lockstep:
+            if self.is_tick(stamp):
+                self.feed(name, stamp, value)
+        else:
+            self.latest[name] = (stamp, value)
+
+    def _realtime_tick(self) -> None:
+        try:
+            now = self.now_ns()
+            missing = [n for n in _INPUTS if n not in self.latest]
+            if missing:
+                self._idle(now, MpcOutput.NOT_READY, f'NOT_READY: no {", ".join(missing)} yet')
+                return
+            stale = [f'{n} {(now - s) * 1e-9:.3f} s old' for n, (s, _) in self.latest.items()
+                     if now - s > self.max_input_age * 1e9]
+            if stale:
+                self._idle(now, MpcOutput.INPUT_INVALID, f'INPUT_INVALID: stale {stale}')
+                return
+            self._tick(self.latest['state_estimate'][0],
+                       {n: v for n, (_, v) in self.latest.items()})
+        except Exception as err:  # noqa: B902 - a timer callback must not stop the node
+            self.diagnostics.drop('tick', 'error', f'{type(err).__name__}: {err}')
+
+    def _idle(self, stamp: int, status: int, text: str) -> None:
+        """Publish τυ = 0 without solving; the core's τυ(k−1) becomes the applied 0."""
+        self.mpc.set_previous_torque(0.0)
+        self.publisher.publish(mpc_idle_msg(stamp, status, text, self.sampling_period))
+        self.diagnostics.output(stamp, 0.0)
+        self.diagnostics.state(WARN, text)
+
+    def _tick(self, stamp: int, values) -> None:
+        start = time.perf_counter()
+        estimate = values['state_estimate'].estimate
+        tau_omega = values['yaw_torque'].tau_omega
+        # A NaN limit makes the core answer INPUT_INVALID (max(0, NaN) would give 0).
+        limit = (drive_torque_limit(tau_omega, self.max_wheel_torque)
+                 if finite(tau_omega) else float('nan'))
+        result = self.mpc.step(v_hat=estimate.v, theta_hat=estimate.theta,
+                               theta_dot_hat=estimate.theta_dot, f2_hat=estimate.f2,
+                               f3_hat=estimate.f3, v_d=values['velocity_command'].v_d,
+                               tau_limit=limit)
+        self.publisher.publish(mpc_to_msg(result, stamp, self.sampling_period))
+        self.diagnostics.output(stamp, time.perf_counter() - start)
+        self.diagnostics.state(OK if not result.used_fallback else WARN,
+                               f'{result.status.name}: tau_v {result.tau_v:.4g} N m, '
+                               f'|tau_v| limit {min(limit, self.config.max_drive_torque):.4g}'
+                               ' N m')
+        self.diagnostics.values['last solve [us]'] = (
+            f'{1e6 * (result.solve_time_s + result.build_time_s):.1f}')
+
+
+def main(args=None) -> int:
+    """Entry point ``mpc``."""
+    return run_node(MpcNode, 'mpc', args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

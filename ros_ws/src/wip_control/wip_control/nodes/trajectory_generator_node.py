@@ -1,0 +1,94 @@
+"""Trajectory generator node: desired velocities (υd, ωd, ω̇d) of eq. (9) in [1]_.
+
+Topics
+------
+Subscribes ``/wip/reference`` (wip_msgs/ReferenceState) and ``/wip/state_estimate``
+(wip_msgs/StateEstimate: x̂, ŷ, ϕ̂). Publishes ``/wip/velocity_command``
+(wip_msgs/VelocityCommand) stamped like the estimate, and ``/diagnostics``.
+
+Per sample: ``core.trajectory_generator.TrajectoryGenerator.step(t, reference, x̂, ŷ, ϕ̂)``
+(body-frame errors, saturated (9), filtered ω̇d), as the runner's step 4.
+
+Synchronisation: lockstep: estimate(t_k) + reference(t_k); realtime: on each estimate,
+with the latest reference. Malformed or non-finite input is dropped and reported.
+
+Parameters: section ``trajectory_generator`` (changeable at run time: the gains and
+limits apply from the next sample), ``clock_mode``, ``diagnostics_period``.
+
+References
+----------
+.. [1] Yue, An, Li, IEEE T-SMC: Systems, 2016.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from wip_msgs.msg import (ReferenceState as ReferenceStateMsg,
+                          StateEstimate as StateEstimateMsg,
+                          VelocityCommand as VelocityCommandMsg)
+
+from ..core.trajectory_generator import TrajectoryGenerator, TrajectoryGeneratorConfig
+from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
+from .conversions import command_to_msg, estimate_from_msg, reference_from_msg
+from .diagnostics import OK
+from .parameters import ConfigParameters
+from .sync import ExactTimeSync, LatestSync
+
+_INPUTS = ('reference', 'state_estimate')
+
+
+class TrajectoryGeneratorNode(ControllerNode):
+    """See the module docstring."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('trajectory_generator', 'saturated trajectory generator (9)',
+                         _INPUTS, **kwargs)
+        self.parameters = ConfigParameters(self, 'trajectory_generator',
+                                           TrajectoryGeneratorConfig, self._on_config)
+        self.generator = TrajectoryGenerator(self.parameters.config)
+        if self.lockstep:
+            self.sync = ExactTimeSync(_INPUTS, self._compute)
+        else:
+            self.sync = LatestSync(_INPUTS, self._compute, triggers=('state_estimate',),
+                                   required=('reference',))
+        self.publisher = self.create_publisher(VelocityCommandMsg, '/wip/velocity_command',
+                                               RELIABLE_QOS)
+        self.subscribe(ReferenceStateMsg, '/wip/reference', 'reference', self._on_reference)
+        self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
+                       self._on_estimate)
+
+    def _on_config(self, config: TrajectoryGeneratorConfig) -> None:
+        self.generator.config = config
+
+    def _on_reference(self, msg: ReferenceStateMsg) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input('reference', stamp)
+        self.feed('reference', stamp, reference_from_msg(msg))
+
+    def _on_estimate(self, msg: StateEstimateMsg) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input('state_estimate', stamp)
+        self.feed('state_estimate', stamp, estimate_from_msg(msg))
+
+    def _compute(self, stamp: int, values) -> None:
+        start = time.perf_counter()
+        pose = values['state_estimate']
+        command = self.generator.step(self.time_base.seconds(stamp), values['reference'],
+                                      pose.x, pose.y, pose.estimate.phi)
+        self.publisher.publish(command_to_msg(command, stamp))
+        self.diagnostics.output(stamp, time.perf_counter() - start)
+        limits = [name for name, on in (('v_d', self.generator.saturated_speed),
+                                        ('omega_d', self.generator.saturated_yaw_rate)) if on]
+        self.diagnostics.state(OK, f'{" and ".join(limits)} saturated' if limits
+                               else 'tracking, commands within limits')
+
+
+def main(args=None) -> int:
+    """Entry point ``trajectory_generator``."""
+    return run_node(TrajectoryGeneratorNode, 'trajectory_generator', args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
