@@ -454,6 +454,27 @@ def test_eso_realtime_updates_once_per_imu_and_encoder_pair_with_the_latest_torq
     assert (out[0].x, out[0].y) == (0.0, 0.0) and out[-1].x != 0.0
 
 
+def test_eso_lockstep_waits_for_the_fix_at_gps_ticks_and_drops_fixes_off_them(
+        context, harnesses):
+    harness = eso_harness(harnesses, context)
+    out = harness.outputs['/wip/state_estimate']
+    dropped = harness.node.diagnostics.dropped
+    s = eso_measurements(1)[0]
+    harness.publish('/joint_states', joint_states(0, s['left'], s['right']))
+    harness.publish('/imu/data', imu(0, s['pitch'], s['yaw']))
+    harness.spin_for(0.03)
+    assert out == []                       # t = 0 is a GPS tick: the set needs the fix
+    harness.publish('/gps/fix', gps_fix(0, 1.0, 2.0))
+    harness.spin_until(lambda: len(out) == 1, 'the estimate at t = 0')
+    harness.publish('/gps/fix', gps_fix(H_NS, 5.0, 5.0))   # k = 1: not a GPS tick
+    harness.publish('/wip/wheel_torques', torques(0, 0.0, 0.0))
+    harness.publish('/joint_states', joint_states(H_NS, s['left'], s['right']))
+    harness.publish('/imu/data', imu(H_NS, s['pitch'], s['yaw']))
+    harness.spin_until(lambda: len(out) == 2, 'the estimate at t = h')
+    assert dropped[('gps', 'off the GPS ticks')] == 1
+    assert (out[1].x, out[1].y) == (out[0].x, out[0].y)   # the off-tick fix was not used
+
+
 def test_eso_refuses_to_start_on_out_of_range_or_non_hurwitz_parameters(params_context):
     ctx = params_context('eso', {'eso': {'epsilon': -0.01}})
     with pytest.raises(ConfigError, match=r'eso\.epsilon: must be > 0'):
@@ -501,6 +522,21 @@ def test_reference_lockstep_publishes_one_sample_per_clock_tick_from_zero(contex
         ref = reference.sample(stamp / 1e9)
         assert (msg.x, msg.y, msg.phi, msg.v, msg.omega, msg.omega_dot) == tuple(ref)
         assert msg.header.frame_id == 'map'
+
+
+def test_reference_realtime_runs_on_a_timer_from_its_first_tick(context, harnesses):
+    harness = start(harnesses, context, ReferenceNode, 'realtime',
+                    **{'rates.control_rate': 100.0, 'rates.plant_rate': 1000.0})
+    out = harness.listen(ReferenceStateMsg, '/wip/reference')
+    harness.wait_matched()
+    harness.spin_until(lambda: len(out) >= 5, 'five references')
+    stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in out]
+    reference = make_reference()
+    assert (out[0].x, out[0].y) == reference.sample(0.0)[:2]    # the path starts at t = 0
+    for msg, stamp in zip(out, stamps):
+        assert msg.phi == reference.sample((stamp - stamps[0]) / 1e9).phi
+    # Wall-clock timer at 100 Hz: 10 ms apart on average (loose: a shared 2-core machine).
+    assert 5e6 < (stamps[-1] - stamps[0]) / (len(stamps) - 1) < 30e6
 
 
 def test_reference_kind_from_parameters(context, harnesses):

@@ -24,6 +24,7 @@ sample of its grid (:class:`ClockTicker`) and the MPC ticks on the stamps of its
 
 from __future__ import annotations
 
+import math
 import sys
 from typing import Callable, Sequence
 
@@ -111,11 +112,8 @@ def declare_clock_mode(node: Node) -> str:
 
 
 def finite(*values: float) -> bool:
-    """True if every value is a finite number (one sum: inf - inf and NaN propagate)."""
-    total = 0.0
-    for v in values:
-        total += v
-    return total - total == 0.0
+    """True if every value is a finite number."""
+    return all(math.isfinite(v) for v in values)
 
 
 class ClockTicker:
