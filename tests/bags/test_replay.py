@@ -279,5 +279,9 @@ def test_replays_a_bag_written_by_rosbags_with_pause_remap_and_recorded_qos(
     assert any(len(d) % 4 for _, d in written)  # the padding case is exercised
     msg = deserialize_message(received[1][1], Imu)
     assert (msg.header.frame_id, msg.angular_velocity.y) == ('imu', 0.0)
-    replayer.stop(signal.SIGINT)
+    # Paused again (the replayer stays up at the end: --stay), then SIGTERM: a clean exit.
+    future = client.call_async(SetBool.Request(data=True))
+    spin_until(test_node, future.done, 10.0, 'the pause service answer', replayer.process)
+    assert 'paused' in future.result().message
+    replayer.stop(signal.SIGTERM, expected_code=0, timeout=5.0)
 

@@ -49,8 +49,9 @@ Outputs in ``--out DIR``:
 
 The scenario (controller parameters, rates, datum) is ``--scenario FILE``, else the one
 stored in the bag's metadata (``custom_data['wip.scenario']``, written by
-:func:`write_record_as_bag`), else ``scenario.yaml`` beside the bag directory, else the
-paper's Section V (with a warning).
+:func:`write_record_as_bag` and by the recorder's ``scenario_file`` parameter), else
+``scenario.yaml`` in the bag directory (where ``scripts/run_graph`` puts it) or beside it,
+else the paper's Section V (with a warning).
 """
 
 from __future__ import annotations
@@ -485,9 +486,10 @@ def scenario_for_bag(bag, scenario_file=None):
         text = (info.get('custom_data') or {}).get(SCENARIO_KEY)
         if text:
             return scenario_from_mapping(yaml.safe_load(text)), f'{metadata} (custom_data)'
-    beside = (path if path.is_dir() else path.parent).parent / 'scenario.yaml'
-    if beside.is_file():
-        return load_scenario(beside), str(beside)
+    directory = path if path.is_dir() else path.parent
+    for candidate in (directory / 'scenario.yaml', directory.parent / 'scenario.yaml'):
+        if candidate.is_file():  # scripts/run_graph copies it into the bag directory
+            return load_scenario(candidate), str(candidate)
     return load_scenario(None), 'default (paper Section V): no scenario found for the bag'
 
 
