@@ -1,0 +1,217 @@
+"""The ROS params file of one graph run, made from a scenario (one source of truth).
+
+:func:`graph_parameters` maps a :class:`~wip_control.core.scenario.Scenario` to the
+parameters of every node of the graph (the sections each node declares from the core's
+config dataclasses, ``wip_control.nodes.*_node``);
+:func:`write_params_file` writes them as one params YAML::
+
+    plant:
+      ros__parameters:
+        scenario_file: /path/scenario.yaml
+        clock_mode: lockstep
+        ...
+    eso:
+      ros__parameters:
+        use_sim_time: true
+        clock_mode: lockstep
+        eso: {yaw_gains: [...], epsilon: 0.01, ...}   # flattened by ROS to eso.yaw_gains
+        ...
+
+Sections of config dataclasses are written with :func:`~wip_control.core.config.to_mapping`
+and then typed from the dataclass field types, because the type of a ROS parameter is the
+type of its value: a ``float`` field is always written as a float (``25.0``, never ``25``,
+which ROS would reject as an integer for a double parameter), an ``int`` field as an int,
+tuples as lists of their element type.
+
+Node to sections (ROS prefix <- scenario key)
+--------------------------------------------
+========================  =================================================================
+``plant``                 scenario_file, clock_mode, datum.* <- sensors.gps_datum_*,
+                          left_joint, right_joint
+``reference``             reference <- reference, rates <- rates
+``eso``                   eso <- eso, position <- position, model <-
+                          controller_model.parameters; encoders_relative_to_body <-
+                          sensors.encoders_relative_to_body, gps_period = 1/sensors.gps_rate,
+                          left_joint, right_joint, datum.* <- sensors.gps_datum_*
+``trajectory_generator``  trajectory_generator <- trajectory_generator
+``arc``                   arc <- arc, rates <- rates, alpha_initial =
+                          core.runner.initial_alpha(scenario)
+``mpc``                   mpc <- mpc, model <- controller_model.parameters, mixer <- mixer,
+                          rates <- rates
+``torque_mixer``          mixer <- mixer, rates <- rates, mpc_period = mpc.sampling_period,
+                          left_joint, right_joint, joints
+``recorder`` (optional)   output, topics, compression, discovery_period
+========================  =================================================================
+
+Every node gets ``clock_mode``; in lockstep every node but the plant gets
+``use_sim_time: true`` (the plant owns ``/clock``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+import typing
+from typing import Any, Mapping
+
+import yaml
+
+from ..core.config import to_mapping
+from ..core.runner import initial_alpha
+from ..core.scenario import Scenario
+
+CLOCK_MODES = ('lockstep', 'realtime')
+#: Node names of the graph, in start order (the plant last: it waits for the others).
+CONTROLLER_NODES = ('reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
+                    'torque_mixer')
+DEFAULT_JOINTS = ('left_wheel_joint', 'right_wheel_joint')
+
+
+def _typed(value: Any, field_type: Any) -> Any:
+    """``value`` as the ROS parameter value of a field of type ``field_type``."""
+    origin = typing.get_origin(field_type)
+    if field_type is float:
+        return float(value)
+    if field_type is int:
+        return int(value)
+    if field_type is bool or field_type is str:
+        return value
+    if origin is tuple:
+        args = typing.get_args(field_type)
+        element = args[0]
+        values = list(value)
+        if not values:
+            # An empty YAML list has no element type: ROS could not declare it.
+            raise ValueError('an empty list cannot be written as a ROS parameter')
+        return [_typed(v, element) for v in values]
+    if origin is typing.Union:
+        args = [a for a in typing.get_args(field_type) if a is not type(None)]
+        if value is None:
+            raise ValueError('None cannot be written as a ROS parameter')
+        return _typed(value, args[0])
+    raise TypeError(f'unsupported field type {field_type!r}')
+
+
+def config_section(instance: Any) -> dict[str, Any]:
+    """One config dataclass as a flat mapping of ROS parameter values (see module doc)."""
+    hints = typing.get_type_hints(type(instance))
+    plain = to_mapping(instance)
+    out = {}
+    for field in dataclasses.fields(instance):
+        if dataclasses.is_dataclass(hints[field.name]):
+            raise TypeError(f'{type(instance).__name__}.{field.name}: nested sections are '
+                            'not ROS parameters')
+        try:
+            out[field.name] = _typed(plain[field.name], hints[field.name])
+        except ValueError as err:
+            raise ValueError(f'{type(instance).__name__}.{field.name}: {err}') from err
+    return out
+
+
+def graph_parameters(scenario: Scenario, clock_mode: str = 'lockstep',
+                     scenario_path: str | pathlib.Path | None = None,
+                     joints: tuple[str, str] = DEFAULT_JOINTS,
+                     plant_extra: Mapping[str, Any] | None = None,
+                     recorder: Mapping[str, Any] | None = None) -> dict[str, dict]:
+    """``{node_name: {'ros__parameters': {...}}}`` of every node of a graph run.
+
+    Parameters
+    ----------
+    scenario : the run's scenario.
+    clock_mode : 'lockstep' or 'realtime'.
+    scenario_path : file the plant loads (it must hold ``scenario``); ``None``: '' (the
+        plant's default, the paper scenario; only right for the default scenario).
+    joints : (left, right) wheel joint names.
+    plant_extra : more plant parameters (start handshake, stats file, ...).
+    recorder : parameters of a ``recorder`` node; ``None``: no recorder section.
+    """
+    if clock_mode not in CLOCK_MODES:
+        raise ValueError(f'clock_mode: {clock_mode!r} is not one of {list(CLOCK_MODES)}')
+    lockstep = clock_mode == 'lockstep'
+    left, right = joints
+    sensors = scenario.sensors
+    datum = {'latitude': float(sensors.gps_datum_latitude),
+             'longitude': float(sensors.gps_datum_longitude),
+             'altitude': float(sensors.gps_datum_altitude)}
+    rates = config_section(scenario.rates)
+    model = config_section(scenario.controller_model.parameters)
+    mixer = config_section(scenario.mixer)
+    nodes: dict[str, dict[str, Any]] = {
+        'reference': {'reference': config_section(scenario.reference), 'rates': rates},
+        'eso': {
+            'eso': config_section(scenario.eso),
+            'position': config_section(scenario.position),
+            'model': model,
+            'encoders_relative_to_body': bool(sensors.encoders_relative_to_body),
+            'gps_period': 1.0 / float(sensors.gps_rate),
+            'left_joint': left, 'right_joint': right,
+            'datum': dict(datum),
+        },
+        'trajectory_generator': {
+            'trajectory_generator': config_section(scenario.trajectory_generator)},
+        'arc': {'arc': config_section(scenario.arc), 'rates': rates,
+                'alpha_initial': float(initial_alpha(scenario))},
+        'mpc': {'mpc': config_section(scenario.mpc), 'model': model, 'mixer': mixer,
+                'rates': rates},
+        'torque_mixer': {'mixer': mixer, 'rates': rates,
+                         'mpc_period': float(scenario.mpc.sampling_period),
+                         'left_joint': left, 'right_joint': right,
+                         'joints': [left, right]},
+    }
+    out: dict[str, dict] = {}
+    for name in CONTROLLER_NODES:
+        parameters = {'clock_mode': clock_mode, **nodes[name]}
+        if lockstep:
+            parameters['use_sim_time'] = True
+        out[name] = {'ros__parameters': parameters}
+    plant = {'scenario_file': '' if scenario_path is None else str(scenario_path),
+             'clock_mode': clock_mode, 'left_joint': left, 'right_joint': right,
+             'datum': dict(datum)}
+    plant.update(plant_extra or {})
+    out['plant'] = {'ros__parameters': plant}
+    if recorder is not None:
+        parameters = dict(recorder)
+        if lockstep:
+            # Bag log times in simulation time, like the messages' stamps.
+            parameters.setdefault('use_sim_time', True)
+        out['recorder'] = {'ros__parameters': parameters}
+    return out
+
+
+def flatten(parameters: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
+    """Nested parameter mapping -> ``{'section.field': value}`` as ROS reads it."""
+    flat = {}
+    for key, value in parameters.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, Mapping):
+            flat.update(flatten(value, name + '.'))
+        else:
+            flat[name] = value
+    return flat
+
+
+class _NoAliasDumper(yaml.SafeDumper):
+    """Block-style YAML without anchors/aliases (``&id001``), which rcl's parser rejects."""
+
+    def ignore_aliases(self, data: Any) -> bool:
+        return True
+
+
+def write_params_file(scenario: Scenario, path: str | pathlib.Path, clock_mode: str,
+                      scenario_path: str | pathlib.Path | None,
+                      joints: tuple[str, str] = DEFAULT_JOINTS,
+                      plant_extra: Mapping[str, Any] | None = None,
+                      recorder: Mapping[str, Any] | None = None) -> pathlib.Path:
+    """Write the params YAML of a graph run (see :func:`graph_parameters`); returns the path."""
+    data = graph_parameters(scenario, clock_mode, scenario_path, joints, plant_extra,
+                            recorder)
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = (f'# ROS parameters of a wip-ros graph run (scenario {scenario.name!r}, '
+              f'clock {clock_mode}),\n# written by wip_control.tools.params_files from the '
+              'scenario; use with --ros-args --params-file.\n')
+    text = yaml.dump(data, Dumper=_NoAliasDumper, sort_keys=False, default_flow_style=False,
+                     width=99)
+    path.write_text(header + text, encoding='utf-8')
+    return path
+

@@ -1,0 +1,741 @@
+"""``scripts/run_graph``: run a scenario through the ROS 2 node graph, one process per node.
+
+Examples
+--------
+    scripts/run_graph                                   # paper scenario, lockstep
+    scripts/run_graph --duration 10 --out /tmp/g10
+    scripts/run_graph --scenario my.yaml --record out/my/bag --out out/my/run
+    scripts/run_graph --clock realtime --duration 20
+
+What it does
+------------
+1. Loads and validates the scenario (``--scenario``, default the paper's Section V;
+   ``--duration`` overrides its duration), writes it to ``OUT/scenario.yaml`` and the ROS
+   parameters of every node to ``OUT/params.yaml``
+   (:func:`wip_control.tools.params_files.write_params_file`).
+2. Starts every node as its own process, running the very executable ``ros2 run`` would
+   run, ``<prefix>/lib/<package>/<executable>`` with the prefix from
+   ``ament_index_python.get_package_prefix``, with ``--ros-args --params-file
+   OUT/params.yaml -r __node:=<name>``: reference, eso, trajectory_generator, arc, mpc,
+   torque_mixer (wip_control), plant (wip_sim) and, with ``--record BAG``, the recorder
+   (wip_sim) recording every topic of the graph into the rosbag2 directory BAG. Each
+   process logs to ``OUT/logs/<name>.log`` (ROS log files in ``OUT/logs/ros``).
+   The DDS domain is ``$ROS_DOMAIN_ID`` if set, else a random one in 1..101; discovery
+   stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
+3. Waits, with a timeout and without fixed sleeps, until a probe node of this process sees
+   every node and, on every topic, at least the publishers and subscriptions of the
+   design (:data:`SUBSCRIBERS`; the recorder adds one subscription per recorded topic).
+4. Starts the plant with its ``/plant/start`` service (std_srvs/Trigger). The plant
+   answers ``success: false`` until its own publishers and its wheel-torque subscription
+   are matched at the DDS level (stricter than the graph view); the call is retried.
+5. Shows progress (simulated time, real-time factor) from the plant's ``/diagnostics``
+   (about 1 message/s: no per-tick traffic into this process), polls every process, and
+   stops the run when a node dies (which it names) or the simulation stalls.
+6. When the plant has exited: waits until the recorder's received counts are stable (the
+   last messages are in), stops the controllers with SIGINT (SIGKILL after a grace
+   period), then the recorder (SIGINT: it writes the bag's summary and metadata.yaml), and
+   copies the scenario into the bag directory (``BAG/scenario.yaml``, read by
+   ``scripts/report``).
+
+Outputs in OUT: ``params.yaml``, ``scenario.yaml``, ``logs/``, ``plant_stats.json``
+(per-tick timings of the plant) and ``run.json`` (exit status, wall time, real-time
+factor, exit code of every node).
+
+Exit status: 0 the scenario ran to its end; 1 a node failed; 2 bad arguments or
+scenario; 3 the vehicle fell; 4 timeout (discovery, start or stall); 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import pathlib
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from typing import Any
+
+import yaml
+
+from wip_control.core.config import ConfigError
+from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
+from wip_control.tools.params_files import CONTROLLER_NODES, write_params_file
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_FELL, EXIT_TIMEOUT = 0, 1, 2, 3, 4
+EXIT_INTERRUPTED = 130
+
+#: Executable of each node: (package, executable).
+EXECUTABLES = {
+    'reference': ('wip_control', 'reference'),
+    'eso': ('wip_control', 'eso'),
+    'trajectory_generator': ('wip_control', 'trajectory_generator'),
+    'arc': ('wip_control', 'arc'),
+    'mpc': ('wip_control', 'mpc'),
+    'torque_mixer': ('wip_control', 'torque_mixer'),
+    'plant': ('wip_sim', 'plant'),
+    'recorder': ('wip_sim', 'recorder'),
+}
+
+#: Publishers of each topic in the graph design.
+PUBLISHERS = {
+    '/joint_states': ('plant',),
+    '/imu/data': ('plant',),
+    '/gps/fix': ('plant',),
+    '/wip/ground_truth': ('plant',),
+    '/wip/reference': ('reference',),
+    '/wip/state_estimate': ('eso',),
+    '/wip/velocity_command': ('trajectory_generator',),
+    '/wip/yaw_torque': ('arc',),
+    '/wip/drive_torque': ('mpc',),
+    '/wip/wheel_torques': ('torque_mixer',),
+    '/effort_controller/commands': ('torque_mixer',),
+}
+#: Subscriptions of each topic in the graph design (without the recorder).
+SUBSCRIBERS = {
+    '/joint_states': ('eso',),
+    '/imu/data': ('eso',),
+    '/gps/fix': ('eso',),
+    '/wip/ground_truth': (),
+    '/wip/reference': ('trajectory_generator',),
+    '/wip/state_estimate': ('trajectory_generator', 'arc', 'mpc'),
+    '/wip/velocity_command': ('arc', 'mpc'),
+    '/wip/yaw_torque': ('mpc', 'torque_mixer'),
+    '/wip/drive_torque': ('torque_mixer',),
+    '/wip/wheel_torques': ('plant', 'eso'),
+    '/effort_controller/commands': (),
+}
+#: Lockstep: /clock is published by the plant; every controller node's time source
+#: subscribes to it, and the reference node ticks on it.
+CLOCK_SUBSCRIPTIONS = len(CONTROLLER_NODES) + 1
+#: Topics recorded with --record (with /clock in lockstep).
+RECORDED_TOPICS = tuple(PUBLISHERS) + ('/diagnostics',)
+
+#: /diagnostics key prefix of a node's DDS-matched subscription count of one publisher:
+#: '<MATCHED_KEY> <topic>' (see :meth:`GraphRunner.unmatched_publishers`).
+MATCHED_KEY = 'matched subscriptions'
+
+PROBE_PERIOD = 0.5  # [s] wall: process polling and probe spinning
+GRACE_PERIOD = 5.0  # [s] after SIGINT before SIGKILL (controllers)
+RECORDER_GRACE_PERIOD = 60.0  # [s] the recorder writes the rest of its queue first
+DRAIN_TIMEOUT = 10.0  # [s] for the recorder to receive the last messages
+LOG_TAIL_LINES = 15
+
+
+class GraphError(Exception):
+    """The graph could not be started or did not run to its end; ``exit_code`` says how."""
+
+    def __init__(self, message: str, exit_code: int = EXIT_FAILED) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
+
+
+@dataclasses.dataclass
+class GraphOptions:
+    """Arguments of :func:`run_graph` (see ``scripts/run_graph --help``)."""
+
+    scenario: str | None = None
+    clock: str = 'lockstep'
+    record: str | None = None
+    duration: float | None = None
+    out: str = 'out/graph'
+    discovery_timeout: float = 60.0  # [s] wall: processes started -> graph complete
+    stall_timeout: float = 30.0  # [s] wall without simulated-time progress
+    quiet: bool = False
+
+
+@dataclasses.dataclass
+class GraphResult:
+    """What :func:`run_graph` returns (also written to ``OUT/run.json``)."""
+
+    exit_code: int
+    message: str
+    out: pathlib.Path
+    bag: pathlib.Path | None
+    domain_id: int
+    scenario: Scenario | None = None
+    node_exit_codes: dict[str, int | None] = dataclasses.field(default_factory=dict)
+    plant_stats: dict | None = None
+    startup_s: float | None = None
+    wall_time_s: float | None = None
+    #: Wall times [s] of the start-up steps and the plant's refusals to start.
+    timeline: dict[str, Any] = dataclasses.field(default_factory=dict)
+    #: Latest /diagnostics status of every node: name -> {'message': ..., key: value}.
+    node_diagnostics: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        stats = self.plant_stats or {}
+        return {'exit_code': self.exit_code, 'message': self.message,
+                'scenario': self.scenario.name if self.scenario else None,
+                'out': str(self.out), 'bag': str(self.bag) if self.bag else None,
+                'domain_id': self.domain_id, 'startup_s': self.startup_s,
+                'wall_time_s': self.wall_time_s, 'sim_time_s': stats.get('sim_time_s'),
+                'real_time_factor': stats.get('real_time_factor'),
+                'node_exit_codes': self.node_exit_codes, 'plant_stats': self.plant_stats,
+                'timeline': self.timeline, 'node_diagnostics': self.node_diagnostics}
+
+
+def executable_path(package: str, executable: str) -> pathlib.Path:
+    """``<prefix>/lib/<package>/<executable>``, what ``ros2 run package executable`` runs."""
+    from ament_index_python.packages import get_package_prefix, PackageNotFoundError
+    try:
+        prefix = get_package_prefix(package)
+    except PackageNotFoundError as err:
+        raise GraphError(f'package {package!r} not found in the ament index '
+                         '(AMENT_PREFIX_PATH): source ros_ws/install/setup.bash or use '
+                         'scripts/run_graph', EXIT_USAGE) from err
+    path = pathlib.Path(prefix) / 'lib' / package / executable
+    if not os.access(path, os.X_OK):
+        raise GraphError(f'{path} is not an executable: rebuild the workspace '
+                         '(scripts/setup)', EXIT_USAGE)
+    return path
+
+
+def graph_environment(domain_id: int) -> dict[str, str]:
+    """Environment of the node processes: our DDS domain, localhost only, plain logs."""
+    env = dict(os.environ)
+    env['ROS_DOMAIN_ID'] = str(domain_id)
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    env['PYTHONUNBUFFERED'] = '1'
+    env.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
+    return env
+
+
+def choose_domain_id() -> int:
+    """``$ROS_DOMAIN_ID`` if set, else random in 1..101 (higher ids of Fast DDS run into
+    Linux's ephemeral port range)."""
+    value = os.environ.get('ROS_DOMAIN_ID', '').strip()
+    if value:
+        try:
+            return int(value)
+        except ValueError as err:
+            raise GraphError(f'ROS_DOMAIN_ID={value!r} is not an integer', EXIT_USAGE) from err
+    return random.randint(1, 101)
+
+
+class NodeProcess:
+    """One node's process, its log file and how to stop it."""
+
+    def __init__(self, name: str, command: list[str], log_path: pathlib.Path,
+                 env: dict[str, str]) -> None:
+        self.name = name
+        self.command = command
+        self.log_path = log_path
+        self._log = open(log_path, 'w', encoding='utf-8')
+        self.process = subprocess.Popen(command, stdout=self._log, stderr=subprocess.STDOUT,
+                                        stdin=subprocess.DEVNULL, env=env)
+        self.pid = self.process.pid
+        self._interrupted = False
+        self.killed = False
+
+    def poll(self) -> int | None:
+        return self.process.poll()
+
+    @property
+    def returncode(self) -> int | None:
+        return self.process.returncode
+
+    def interrupt(self) -> None:
+        """Send SIGINT (once) if the process is still running."""
+        if self.process.poll() is None and not self._interrupted:
+            self.process.send_signal(signal.SIGINT)
+            self._interrupted = True
+
+    def stop(self, grace: float) -> int | None:
+        """SIGINT (if not sent yet), then SIGKILL after ``grace`` [s]; the exit code."""
+        self.interrupt()
+        try:
+            self.process.wait(timeout=max(grace, 0.0))
+        except subprocess.TimeoutExpired:
+            self.killed = True
+            self.process.kill()
+            self.process.wait()
+        self._log.close()
+        return self.process.returncode
+
+    def log_tail(self, lines: int = LOG_TAIL_LINES) -> str:
+        self._log.flush()
+        try:
+            text = self.log_path.read_text(encoding='utf-8', errors='replace')
+        except OSError:
+            return ''
+        return '\n'.join(text.splitlines()[-lines:])
+
+
+class Probe:
+    """A node of this process that looks at the graph and reads /diagnostics."""
+
+    def __init__(self, domain_id: int) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile
+        self._rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id, args=[])
+        self.node = rclpy.create_node('run_graph', context=self.context,
+                                      start_parameter_services=False)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.diagnostics: dict[str, Any] = {}  # status name -> latest DiagnosticStatus
+        self.received_at: dict[str, float] = {}  # status name -> time.monotonic() [s]
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
+                                      QoSProfile(depth=100))
+        from std_srvs.srv import Trigger
+        self._trigger = Trigger
+        self.start_client = self.node.create_client(Trigger, '/plant/start')
+
+    def _on_diagnostics(self, msg) -> None:
+        now = time.monotonic()
+        for status in msg.status:
+            self.diagnostics[status.name] = status
+            self.received_at[status.name] = now
+
+    def reporting_since(self, since: float) -> set[str]:
+        """Names of the nodes with a /diagnostics status received after ``since``."""
+        return {name.split(':', 1)[0].lstrip('/') for name, at in self.received_at.items()
+                if at > since}
+
+    def spin(self, duration: float) -> None:
+        """Handle what arrived, for about ``duration`` [s]."""
+        deadline = time.monotonic() + duration
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            self.executor.spin_once(timeout_sec=left)
+
+    def node_names(self) -> set[str]:
+        return {name for name, namespace in self.node.get_node_names_and_namespaces()
+                if namespace == '/'}
+
+    def count(self, topic: str) -> tuple[int, int]:
+        return self.node.count_publishers(topic), self.node.count_subscribers(topic)
+
+    def status_values(self, text: str,
+                      prefix: bool = False) -> tuple[Any, dict[str, str]] | None:
+        """Latest status whose name ends (or starts) with ``text``, with its values."""
+        for name, status in self.diagnostics.items():
+            if name.startswith(text) if prefix else name.endswith(text):
+                return status, {kv.key: kv.value for kv in status.values}
+        return None
+
+    def call_start(self, timeout: float):
+        """Call /plant/start once; returns the response or None (no answer in time)."""
+        if not self.start_client.service_is_ready():
+            return None
+        future = self.start_client.call_async(self._trigger.Request())
+        deadline = time.monotonic() + timeout
+        while not future.done() and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+        return future.result() if future.done() else None
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self._rclpy.try_shutdown(context=self.context)
+
+
+def expected_endpoints(clock_mode: str, recording: bool) -> dict[str, tuple[int, int]]:
+    """Minimum (publishers, subscriptions) of each topic before the plant may start."""
+    extra = 1 if recording else 0
+    expected = {topic: (len(PUBLISHERS[topic]), len(SUBSCRIBERS[topic]) + extra)
+                for topic in PUBLISHERS}
+    if clock_mode == 'lockstep':
+        # The recorder runs on sim time too (its time source) and records /clock.
+        expected['/clock'] = (1, CLOCK_SUBSCRIPTIONS + 2 * extra)
+    return expected
+
+
+def missing_endpoints(probe: Probe, expected: dict[str, tuple[int, int]],
+                      nodes: list[str]) -> list[str]:
+    """What the graph still lacks (empty when complete)."""
+    missing = []
+    present = probe.node_names()
+    absent = [n for n in nodes if n not in present]
+    if absent:
+        missing.append('nodes ' + ', '.join(absent))
+    for topic, (publishers, subscribers) in expected.items():
+        have_pub, have_sub = probe.count(topic)
+        if have_pub < publishers or have_sub < subscribers:
+            missing.append(f'{topic} ({have_pub}/{publishers} publishers, '
+                           f'{have_sub}/{subscribers} subscriptions)')
+    return missing
+
+
+class GraphRunner:
+    """One run: start, watch and stop the processes; see the module docstring."""
+
+    def __init__(self, options: GraphOptions) -> None:
+        self.options = options
+        self.out = pathlib.Path(options.out).resolve()
+        self.bag = pathlib.Path(options.record).resolve() if options.record else None
+        self.processes: dict[str, NodeProcess] = {}
+        self.probe: Probe | None = None
+        self.domain_id = choose_domain_id()
+        self.scenario: Scenario | None = None
+        self._interactive = sys.stderr.isatty()
+        self.t0 = time.monotonic()
+        #: Wall times [s] of the start-up steps, from the start of the run.
+        self.timeline: dict[str, float] = {}
+        self.start_refusals: list[str] = []  # why /plant/start said no, with times
+
+    # -- output -------------------------------------------------------------------------
+    def say(self, text: str) -> None:
+        if not self.options.quiet:
+            if self._interactive:
+                sys.stderr.write('\r\033[K')
+            print(f'run_graph: {text}', file=sys.stderr, flush=True)
+
+    def progress(self, text: str) -> None:
+        if self.options.quiet:
+            return
+        if self._interactive:
+            sys.stderr.write('\r\033[K  ' + text)
+            sys.stderr.flush()
+        else:
+            print('  ' + text, file=sys.stderr, flush=True)
+
+    # -- set-up ---------------------------------------------------------------------------
+    def prepare(self) -> pathlib.Path:
+        """Scenario, run directory, params file; returns the params file."""
+        options = self.options
+        if options.clock not in ('lockstep', 'realtime'):
+            raise GraphError(f'--clock: {options.clock!r} is not lockstep or realtime',
+                             EXIT_USAGE)
+        try:
+            scenario = load_scenario(options.scenario)
+        except ConfigError as err:
+            raise GraphError(str(err), EXIT_USAGE) from err
+        if options.duration is not None:
+            if not 0.0 < options.duration <= 36000.0:
+                raise GraphError(f'--duration: must be in (0, 36000] s, got '
+                                 f'{options.duration}', EXIT_USAGE)
+            scenario = dataclasses.replace(scenario, duration=float(options.duration))
+        self.scenario = scenario
+        if self.bag is not None and self.bag.exists() and any(self.bag.iterdir()):
+            raise GraphError(f'--record: {self.bag} exists and is not empty; refusing to '
+                             'overwrite a bag', EXIT_USAGE)
+        self.out.mkdir(parents=True, exist_ok=True)
+        logs = self.out / 'logs'
+        if logs.exists():
+            shutil.rmtree(logs)
+        (logs / 'ros').mkdir(parents=True)
+        for stale in ('plant_stats.json', 'run.json'):
+            (self.out / stale).unlink(missing_ok=True)
+        scenario_path = self.out / 'scenario.yaml'
+        scenario_path.write_text(yaml.safe_dump(scenario_to_mapping(scenario),
+                                                sort_keys=False), encoding='utf-8')
+        recorder = None
+        if self.bag is not None:
+            topics = list(RECORDED_TOPICS)
+            if options.clock == 'lockstep':
+                topics.insert(0, '/clock')
+            recorder = {'output': str(self.bag), 'topics': topics,
+                        'discovery_period': 0.2}
+        plant_extra = {
+            'autostart': False,
+            'start.expected_sensor_subscribers': 1 + (recorder is not None),
+            'start.expected_ground_truth_subscribers': int(recorder is not None),
+            'start.expected_clock_subscribers': (
+                CLOCK_SUBSCRIPTIONS + 2 * (recorder is not None)
+                if options.clock == 'lockstep' else 0),
+            'stats_file': str(self.out / 'plant_stats.json'),
+        }
+        return write_params_file(scenario, self.out / 'params.yaml', options.clock,
+                                 scenario_path, plant_extra=plant_extra, recorder=recorder)
+
+    def start_processes(self, params_file: pathlib.Path) -> None:
+        env = graph_environment(self.domain_id)
+        env['ROS_LOG_DIR'] = str(self.out / 'logs' / 'ros')
+        names = list(CONTROLLER_NODES) + ['plant']
+        if self.bag is not None:
+            names.insert(0, 'recorder')
+        commands = {}
+        for name in names:
+            package, executable = EXECUTABLES[name]
+            commands[name] = [str(executable_path(package, executable)), '--ros-args',
+                              '--params-file', str(params_file), '-r', f'__node:={name}']
+        for name in names:
+            self.processes[name] = NodeProcess(name, commands[name],
+                                               self.out / 'logs' / f'{name}.log', env)
+
+    # -- watching ---------------------------------------------------------------------------
+    def check_alive(self, allow_plant_exit: bool = False) -> None:
+        """Raise GraphError naming a node that exited when it should not have."""
+        for name, process in self.processes.items():
+            code = process.poll()
+            if code is None or (allow_plant_exit and name == 'plant'):
+                continue
+            raise GraphError(f'node {name!r} (pid {process.pid}) exited with code {code}; '
+                             f'last lines of {process.log_path}:\n{process.log_tail()}')
+
+    def wait_for_graph(self) -> None:
+        expected = expected_endpoints(self.options.clock, self.bag is not None)
+        nodes = list(self.processes)
+        deadline = time.monotonic() + self.options.discovery_timeout
+        missing = ['(not checked yet)']
+        complete_since = None
+        while time.monotonic() < deadline:
+            self.check_alive()
+            missing = missing_endpoints(self.probe, expected, nodes)
+            if missing:
+                complete_since = None
+            else:
+                if complete_since is None:
+                    complete_since = time.monotonic()
+                # The probe's view is complete, but two other nodes may not have matched
+                # each other yet (their DDS endpoint discovery is separate): also wait for
+                # a /diagnostics message of every node sent after that moment (<= 1 s).
+                silent = set(nodes) - self.probe.reporting_since(complete_since)
+                unmatched = self.unmatched_publishers()
+                if not silent and not unmatched:
+                    self.timeline['graph complete'] = complete_since - self.t0
+                    self.timeline['diagnostics from every node'] = time.monotonic() - self.t0
+                    return
+                missing = (['/diagnostics from ' + ', '.join(sorted(silent))] if silent
+                           else []) + unmatched
+            self.probe.spin(0.1)
+        raise GraphError(f'the graph was not complete after {self.options.discovery_timeout:g} '
+                         f's; missing: {"; ".join(missing)}', EXIT_TIMEOUT)
+
+    def unmatched_publishers(self) -> list[str]:
+        """Publishers of the controllers that report fewer DDS-matched subscriptions than
+        the design has (``matched subscriptions <topic>`` values of their /diagnostics;
+        nodes that do not report them are not checked)."""
+        extra = 1 if self.bag is not None else 0
+        missing = []
+        for topic, publishers in PUBLISHERS.items():
+            wanted = len(SUBSCRIBERS[topic]) + extra
+            for name in publishers:
+                if name == 'plant':
+                    continue  # Checked by the plant itself before it starts.
+                found = self.probe.status_values(f'/{name}:', prefix=True)
+                if found is None:
+                    continue
+                value = found[1].get(f'{MATCHED_KEY} {topic}')
+                if value is not None and int(value) < wanted:
+                    missing.append(f'{topic}: {value}/{wanted} matched subscriptions')
+        return missing
+
+    def start_plant(self) -> None:
+        deadline = time.monotonic() + self.options.discovery_timeout
+        last = 'the service /plant/start did not answer'
+        while time.monotonic() < deadline:
+            self.check_alive()
+            response = self.probe.call_start(timeout=2.0)
+            if response is not None:
+                if response.success:
+                    self.timeline['plant started'] = time.monotonic() - self.t0
+                    return
+                last = response.message
+                self.start_refusals.append(f'{time.monotonic() - self.t0:.3f}: {last}')
+            self.probe.spin(0.1)
+        raise GraphError(f'the plant did not start: {last}', EXIT_TIMEOUT)
+
+    def watch(self) -> int:
+        """Until the plant exits: progress, node health, stall detection; its exit code."""
+        plant = self.processes['plant']
+        duration = self.scenario.duration
+        last_sim, last_progress = -1.0, time.monotonic()
+        while True:
+            self.probe.spin(PROBE_PERIOD)
+            code = plant.poll()
+            if code is not None:
+                return code
+            self.check_alive()
+            found = self.probe.status_values(': plant')
+            if found is None:
+                continue
+            status, values = found
+            try:
+                sim = float(values.get('sim time [s]', 'nan'))
+            except ValueError:
+                sim = float('nan')
+            now = time.monotonic()
+            if sim > last_sim:
+                last_sim, last_progress = sim, now
+                self.progress(f'sim {sim:7.2f} / {duration:g} s   '
+                              f'{values.get("real-time factor", "n/a")}x real time')
+            elif now - last_progress > self.options.stall_timeout:
+                raise GraphError(
+                    f'no progress for {self.options.stall_timeout:g} s at t = {last_sim:g} s: '
+                    f'{status.message}\n{self.describe_nodes()}', EXIT_TIMEOUT)
+
+    def describe_nodes(self) -> str:
+        """Latest /diagnostics message of every node (to explain a stall)."""
+        lines = []
+        for name, status in sorted(self.probe.diagnostics.items()):
+            lines.append(f'  {name}: {status.message}')
+            for kv in status.values:
+                if kv.key.startswith(('received', 'dropped', 'pending', 'age')):
+                    lines.append(f'      {kv.key}: {kv.value}')
+        return '\n'.join(lines)
+
+    def drain_recorder(self) -> None:
+        """Wait until the recorder received everything the graph published."""
+        if 'recorder' not in self.processes:
+            return
+        deadline = time.monotonic() + DRAIN_TIMEOUT
+        previous = None
+        stable_since = None
+        while time.monotonic() < deadline:
+            if self.processes['recorder'].poll() is not None:
+                return
+            self.probe.spin(0.2)
+            found = self.probe.status_values(': recorder')
+            if found is None:
+                continue
+            _, values = found
+            counts = {k: v for k, v in values.items()
+                      if k.startswith('received /') and k != 'received /diagnostics'}
+            if counts != previous:
+                previous, stable_since = counts, time.monotonic()
+            elif time.monotonic() - stable_since >= 1.5:
+                # Two recorder diagnostics (1 s apart) with the same counts.
+                return
+        self.say(f'warning: the recorder was still receiving after {DRAIN_TIMEOUT:g} s')
+
+    def stop_all(self) -> None:
+        """SIGINT every process (recorder last), SIGKILL after the grace period."""
+        others = [p for n, p in self.processes.items() if n != 'recorder']
+        for process in others:  # All at once: they shut down in parallel.
+            process.interrupt()
+        deadline = time.monotonic() + GRACE_PERIOD
+        for process in others:
+            process.stop(deadline - time.monotonic())
+            if process.killed:
+                self.say(f'warning: {process.name} (pid {process.pid}) ignored SIGINT for '
+                         f'{GRACE_PERIOD:g} s: killed')
+        if 'recorder' in self.processes:
+            recorder = self.processes['recorder']
+            code = recorder.stop(RECORDER_GRACE_PERIOD)
+            if code not in (0, None):
+                self.say(f'warning: the recorder exited with code {code}; see '
+                         f'{recorder.log_path} (wip_sim.bag_writer.recover_bag can repair '
+                         'a bag that was not closed)')
+
+    # -- the run ----------------------------------------------------------------------------
+    def run(self) -> GraphResult:
+        result = GraphResult(EXIT_FAILED, '', self.out, self.bag, self.domain_id)
+        started = time.monotonic()
+        try:
+            params_file = self.prepare()
+            result.scenario = self.scenario
+            self.say(f'scenario {self.scenario.name!r} ({self.scenario.duration:g} s), clock '
+                     f'{self.options.clock}, ROS_DOMAIN_ID={self.domain_id}, outputs in '
+                     f'{self.out}')
+            self.probe = Probe(self.domain_id)
+            self.start_processes(params_file)
+            self.timeline['processes started'] = time.monotonic() - self.t0
+            self.say(f'started {len(self.processes)} processes; waiting for the graph')
+            self.wait_for_graph()
+            self.start_plant()
+            result.startup_s = time.monotonic() - started
+            self.say(f'graph connected in {result.startup_s:.1f} s; plant started')
+            run_start = time.monotonic()
+            code = self.watch()
+            result.wall_time_s = time.monotonic() - run_start
+            if not self.options.quiet and self._interactive:
+                sys.stderr.write('\n')
+            self.check_alive(allow_plant_exit=True)
+            self.drain_recorder()
+            if code == 0:
+                result.exit_code, result.message = EXIT_OK, 'the scenario ran to its end'
+            elif code == 3:
+                result.exit_code, result.message = EXIT_FELL, 'the vehicle fell'
+            else:
+                plant = self.processes['plant']
+                raise GraphError(f'node \'plant\' (pid {plant.pid}) exited with code {code}; '
+                                 f'last lines of {plant.log_path}:\n{plant.log_tail()}')
+        except GraphError as err:
+            result.exit_code, result.message = err.exit_code, str(err)
+        except KeyboardInterrupt:
+            result.exit_code, result.message = EXIT_INTERRUPTED, 'interrupted'
+        finally:
+            if self.probe is not None:
+                result.node_diagnostics = {
+                    name: {'message': status.message,
+                           **{kv.key: kv.value for kv in status.values}}
+                    for name, status in sorted(self.probe.diagnostics.items())}
+            self.stop_all()
+            if self.probe is not None:
+                self.probe.close()
+        result.node_exit_codes = {n: p.returncode for n, p in self.processes.items()}
+        result.timeline = dict(self.timeline, start_refusals=self.start_refusals)
+        stats_path = self.out / 'plant_stats.json'
+        if stats_path.is_file():
+            result.plant_stats = json.loads(stats_path.read_text(encoding='utf-8'))
+        if self.bag is not None and self.bag.is_dir() and self.scenario is not None:
+            shutil.copyfile(self.out / 'scenario.yaml', self.bag / 'scenario.yaml')
+        if self.out.is_dir():
+            (self.out / 'run.json').write_text(json.dumps(result.summary(), indent=2) + '\n',
+                                               encoding='utf-8')
+        return result
+
+
+def run_graph(options: GraphOptions) -> GraphResult:
+    """Run one scenario through the graph; see the module docstring."""
+    return GraphRunner(options).run()
+
+
+def format_result(result: GraphResult) -> str:
+    """Human-readable summary of a run: outcome, timings, where the outputs are."""
+    lines = [f'{"OK" if result.exit_code == 0 else "FAILED"}: {result.message}']
+    stats = result.plant_stats or {}
+    if stats.get('real_time_factor'):
+        lines.append(f'simulated {stats["sim_time_s"]:.2f} s in {stats["wall_time_s"]:.2f} s '
+                     f'wall: {stats["real_time_factor"]:.2f}x real time '
+                     f'({stats["ticks"]} ticks, start-up {result.startup_s or 0:.1f} s)')
+
+        def fmt(key):
+            entry = stats.get(key) or {}
+            if not entry.get('count'):
+                return 'n/a'
+            return f'mean {entry["mean_us"]:.0f} us, p99 {entry["p99_us"]:.0f} us'
+        lines.append(f'per tick: plant publish {fmt("publish_s")}; controllers (sensors '
+                     f'published -> wheel torques received) {fmt("wait_for_torques_s")}; '
+                     f'plant step {fmt("step_s")}')
+    failed = {n: c for n, c in result.node_exit_codes.items() if c not in (0, None, 3)}
+    if failed and result.exit_code != 0:
+        lines.append('node exit codes: ' + ', '.join(f'{n}={c}' for n, c in failed.items()))
+    lines.append(f'outputs: {result.out} (run.json, params.yaml, scenario.yaml, logs/)')
+    if result.bag is not None:
+        lines.append(f'bag: {result.bag}   report: scripts/report {result.bag} --out DIR')
+    return '\n'.join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog='scripts/run_graph', description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--scenario', help='scenario YAML file (default: paper Section V)')
+    parser.add_argument('--clock', choices=('lockstep', 'realtime'), default='lockstep',
+                        help='lockstep (deterministic, faster than real time) or realtime')
+    parser.add_argument('--record', metavar='DIR',
+                        help='record every graph topic into this rosbag2 directory')
+    parser.add_argument('--duration', type=float, metavar='S',
+                        help='override the scenario duration [s]')
+    parser.add_argument('--out', default='out/graph', metavar='DIR',
+                        help='run directory: params, logs, timings (default out/graph)')
+    parser.add_argument('--discovery-timeout', type=float, default=60.0, metavar='S',
+                        help='wall time allowed for the graph to connect [s]')
+    parser.add_argument('--stall-timeout', type=float, default=30.0, metavar='S',
+                        help='wall time without simulated progress before giving up [s]')
+    parser.add_argument('--quiet', action='store_true', help='no progress output')
+    args = parser.parse_args(argv)
+    options = GraphOptions(scenario=args.scenario, clock=args.clock, record=args.record,
+                           duration=args.duration, out=args.out,
+                           discovery_timeout=args.discovery_timeout,
+                           stall_timeout=args.stall_timeout, quiet=args.quiet)
+    result = run_graph(options)
+    print(format_result(result))
+    return result.exit_code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,633 @@
+"""Plant node: the simulated WIP as sensor topics, ground truth and (in lockstep) the clock.
+
+The node runs the same core objects as the in-process runner (``core.runner``): the true
+:class:`~wip_control.core.plant.Plant`, the
+:class:`~wip_control.core.disturbances.Disturbances`, the
+:class:`~wip_control.core.sensors.Sensors` and the initial state of
+:func:`~wip_control.core.runner.initial_state`, all built from one scenario file.
+
+Clock modes (parameter ``clock_mode``)
+--------------------------------------
+``lockstep`` (default; every other node runs with ``use_sim_time``)
+    Control tick k, t_k = k / rates.control_rate, exactly as ``core/runner.py``:
+
+    1. publish ``/clock`` = t_k, then the sensors sampled at t_k: ``/joint_states``,
+       ``/imu/data`` and, every control_rate / gps_rate ticks, ``/gps/fix``, then
+       ``/wip/ground_truth`` (state at t_k, disturbances at t_k, wheel torques applied over
+       [t_{k-1}, t_k)); all stamped t_k;
+    2. wait for ``/wip/wheel_torques`` stamped t_k (older stamps are ignored);
+    3. integrate to t_{k+1}: ``rates.substeps`` RK4 steps (``Plant.simulate_hold``) with
+       the torques held and the disturbances sampled at each step.
+
+    The run ends like the runner's loop: at t_N = duration, or at the first t_k with
+    |θ| >= ``fall_threshold``, the last ground truth sample is published (stamped t_k)
+    and the node exits, with code 0 at the end of the scenario and 3 after a fall. No
+    ``/clock`` and no sensors are published for that last sample: no control step follows
+    it, so the controllers compute for t_0 ... t_{N-1} only, as in the runner. Message
+    counts of a full run: ``/wip/ground_truth`` N + 1; ``/clock``, ``/joint_states``,
+    ``/imu/data`` N; ``/gps/fix`` ceil(N / gps_every).
+``realtime``
+    A wall-clock timer at the control rate. Each tick integrates one control period with
+    the latest wheel torques (zero if none arrived, or if the newest is older than
+    ``max_torque_age``), then publishes the ground truth and the sensors stamped with the
+    wall-clock time. The simulated time advances one control period per tick. No
+    ``/clock``.
+
+Start handshake
+---------------
+The plant publishes nothing until it is started: by the service ``~/start``
+(std_srvs/Trigger, used by ``scripts/run_graph`` after it has checked the whole graph), or
+by itself when ``autostart`` is true. Either way it starts only when its own endpoints are
+matched: ``/wip/wheel_torques`` has a publisher, and each sensor topic, ``/wip/ground_truth``
+and ``/clock`` have at least ``start.expected_sensor_subscribers``,
+``start.expected_ground_truth_subscribers`` and ``start.expected_clock_subscribers``
+matched subscriptions (DDS matching seen by the publisher, which is stricter than the
+graph view: a message published before the match would be lost). The service answers
+``success: false`` with the unmatched topics until then; it can simply be retried.
+
+Parameters
+----------
+scenario_file (str, default '': the paper's Section V), clock_mode, left_joint,
+right_joint, map_frame, imu_frame, gps_frame, datum.latitude/longitude/altitude [deg, deg,
+m] (default: the scenario's ``sensors.gps_datum_*``), autostart, start.*,
+max_torque_age [s] (realtime only), stats_file (JSON with per-tick timings, written at
+exit; '' = none). All read-only.
+
+Exit codes: 0 end of the scenario (or SIGINT), 1 runtime error, 2 invalid parameters or
+scenario, 3 the vehicle fell.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import rclpy
+import rclpy.logging
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
+from std_srvs.srv import Trigger
+from wip_msgs.msg import GroundTruth, WheelTorques
+
+from wip_control.core.config import ConfigError
+from wip_control.core.disturbances import Disturbances
+from wip_control.core.model import OMEGA, PHI, THETA, THETA_DOT, V
+from wip_control.core.plant import Plant
+from wip_control.core.references import make_reference
+from wip_control.core.runner import initial_state
+from wip_control.core.scenario import load_scenario
+from wip_control.core.sensors import local_to_geodetic, Sensors
+from wip_control.nodes.parameters import declare_plain
+
+EXIT_OK = 0
+EXIT_ERROR = 1
+EXIT_CONFIG = 2
+EXIT_FELL = 3
+
+CLOCK_MODES = ('lockstep', 'realtime')
+SENSOR_DEPTH = 10  # keep-last depth of every publisher/subscription [messages]
+SPIN_TIMEOUT = 0.1  # [s] of one spin_once: bounds the reaction time to a shutdown
+DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
+AUTOSTART_PERIOD = 0.05  # [s], wall time: how often autostart checks the matches
+# Variance reported when a quantity is exact (noise-free simulation): REP 145 reserves
+# -1 for "not provided", 0 is a legitimate "known exactly".
+EXACT = 0.0
+
+
+def stamp_to_ns(stamp) -> int:
+    """builtin_interfaces/Time -> integer nanoseconds."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def set_stamp(stamp, nanoseconds: int) -> None:
+    """Write integer nanoseconds into a builtin_interfaces/Time in place."""
+    stamp.sec, stamp.nanosec = divmod(nanoseconds, 1_000_000_000)
+
+
+def pitch_yaw_quaternion(pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of roll 0, ``pitch``, ``yaw`` [rad] (REP 103 ZYX: R = Rz(yaw) Ry(pitch)).
+
+    q = q_z(yaw) q_y(pitch) = (−sin(ψ/2) sin(θ/2), cos(ψ/2) sin(θ/2), sin(ψ/2) cos(θ/2),
+    cos(ψ/2) cos(θ/2)). Positive pitch about the left (y) axis tips the forward axis down:
+    the vehicle leans forward, the sign of θ in the paper.
+    """
+    sp, cp = math.sin(0.5 * pitch), math.cos(0.5 * pitch)
+    sy, cy = math.sin(0.5 * yaw), math.cos(0.5 * yaw)
+    return -sy * sp, cy * sp, sy * cp, cy * cp
+
+
+class TickTimer:
+    """Per-tick durations [s] kept in a growing list; summary statistics at the end."""
+
+    def __init__(self) -> None:
+        self.values: list[float] = []
+
+    def add(self, seconds: float) -> None:
+        self.values.append(seconds)
+
+    def summary(self) -> dict[str, float | int | None]:
+        values = sorted(self.values)
+        n = len(values)
+        if n == 0:
+            return {'count': 0, 'mean_us': None, 'p50_us': None, 'p99_us': None,
+                    'max_us': None}
+        return {'count': n, 'mean_us': 1e6 * math.fsum(values) / n,
+                'p50_us': 1e6 * values[n // 2], 'p99_us': 1e6 * values[min(n - 1,
+                                                                          int(0.99 * n))],
+                'max_us': 1e6 * values[-1]}
+
+
+class PlantNode(Node):
+    """The simulator; see the module docstring."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('plant', **kwargs)
+        self.exit_code: int | None = None  # set when the run is over
+        scenario_file = declare_plain(
+            self, 'scenario_file', '', '', 'scenario YAML file (core.scenario); empty: '
+            "the paper's Section V")
+        self.clock_mode = declare_plain(
+            self, 'clock_mode', 'lockstep', '', "'lockstep': publish /clock and step when "
+            "the wheel torques of the current tick arrived; 'realtime': step on a wall "
+            'timer with the latest torques')
+        if self.clock_mode not in CLOCK_MODES:
+            raise ConfigError(f'clock_mode: {self.clock_mode!r} is not one of '
+                              f'{list(CLOCK_MODES)}')
+        self.scenario = scenario = load_scenario(scenario_file or None)
+        self.left_joint = declare_plain(self, 'left_joint', 'left_wheel_joint', '',
+                                        'name of the left wheel joint in /joint_states')
+        self.right_joint = declare_plain(self, 'right_joint', 'right_wheel_joint', '',
+                                         'name of the right wheel joint in /joint_states')
+        map_frame = declare_plain(self, 'map_frame', 'map', '',
+                                  'frame of the ground truth position')
+        imu_frame = declare_plain(self, 'imu_frame', 'imu_link', '', 'frame_id of /imu/data')
+        gps_frame = declare_plain(self, 'gps_frame', 'gps_link', '', 'frame_id of /gps/fix')
+        sensors_config = scenario.sensors
+        self.datum = (
+            declare_plain(self, 'datum.latitude', sensors_config.gps_datum_latitude, 'deg',
+                          'latitude of the map origin (default: the scenario\'s '
+                          'sensors.gps_datum_latitude)'),
+            declare_plain(self, 'datum.longitude', sensors_config.gps_datum_longitude, 'deg',
+                          'longitude of the map origin'),
+            declare_plain(self, 'datum.altitude', sensors_config.gps_datum_altitude, 'm',
+                          'ellipsoidal height of the map origin'))
+        autostart = declare_plain(
+            self, 'autostart', True, '', 'start by itself once the endpoints are matched; '
+            'false: wait for the ~/start service')
+        self.expected = {
+            'sensors': declare_plain(self, 'start.expected_sensor_subscribers', 1, '1',
+                                     'matched subscriptions each sensor topic needs '
+                                     'before the start'),
+            'ground_truth': declare_plain(self, 'start.expected_ground_truth_subscribers',
+                                          0, '1', 'matched subscriptions /wip/ground_truth '
+                                          'needs before the start'),
+            'clock': declare_plain(self, 'start.expected_clock_subscribers', 0, '1',
+                                   'matched subscriptions /clock needs before the start '
+                                   '(lockstep)'),
+        }
+        self.max_torque_age = declare_plain(
+            self, 'max_torque_age', 0.05, 's', 'realtime: wheel torques older than this '
+            '(stamp against the wall clock) are replaced by zero')
+        self.stats_file = declare_plain(self, 'stats_file', '', '',
+                                        'JSON file of per-tick timings written at exit; '
+                                        'empty: none')
+
+        # -- the simulation, built exactly as core.runner.run_scenario does --------------
+        true_params = scenario.plant.parameters
+        self.plant = Plant(true_params, scenario.plant.model.model)
+        self.disturbances = Disturbances(scenario.disturbances, seed=scenario.seed)
+        reference = make_reference(scenario.reference)
+        self.state = tuple(float(v) for v in initial_state(scenario, reference.sample(0.0)))
+        self.sensors = Sensors(true_params, scenario.sensors,
+                               initial_yaw=self.state[PHI], seed=scenario.seed)
+        self.dt_control = scenario.control_period
+        self.substeps = scenario.rates.substeps
+        self.dt_plant = self.dt_control / self.substeps
+        self.n_ticks = int(round(scenario.duration / self.dt_control))
+        self.gps_every = max(1, int(round(scenario.rates.control_rate
+                                          / scenario.sensors.gps_rate)))
+        self.fall_threshold = scenario.fall_threshold
+        self.wheel_radius = true_params.wheel_radius
+        self.half_track = 0.5 * true_params.track_width
+        self.relative_to_body = scenario.sensors.encoders_relative_to_body
+        # The gyro rates share the IMU's random stream: drawing them would shift the IMU
+        # angle noise against the runner, which does not sample rates. With gyro noise the
+        # Imu message therefore carries no angular velocity (covariance[0] = -1, REP 145).
+        self.publish_rates = scenario.sensors.gyro_noise_std == 0.0
+        self.k = 0
+        self.tau = (0.0, 0.0)  # applied over the previous control period [N m]
+        self.started = False
+        self.wall_start: float | None = None  # perf_counter at the start [s]
+        self.wall_end: float | None = None  # perf_counter at the end [s]
+
+        # -- ROS interfaces -----------------------------------------------------------------
+        # Reliable, keep last 10 (the graph design). Publishers offer transient-local
+        # durability: compatible with volatile subscriptions, and a subscription that asks
+        # for transient-local gets the samples published before it matched.
+        qos = QoSProfile(depth=SENSOR_DEPTH, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        # Volatile: matches any publisher (a transient-local request would not match a
+        # volatile publisher).
+        torque_qos = QoSProfile(depth=SENSOR_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+        # /clock: reliable publisher (compatible with rclpy's best-effort time source and
+        # with a reliable recorder).
+        self.clock_pub = (self.create_publisher(ClockMsg, '/clock', qos)
+                          if self.clock_mode == 'lockstep' else None)
+        self.joint_pub = self.create_publisher(JointState, '/joint_states', qos)
+        self.imu_pub = self.create_publisher(Imu, '/imu/data', qos)
+        self.gps_pub = self.create_publisher(NavSatFix, '/gps/fix', qos)
+        self.truth_pub = self.create_publisher(GroundTruth, '/wip/ground_truth', qos)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        callback = (self._on_torques_lockstep if self.clock_mode == 'lockstep'
+                    else self._on_torques_realtime)
+        self.torque_sub = self.create_subscription(WheelTorques, '/wip/wheel_torques',
+                                                   callback, torque_qos)
+        self.start_srv = self.create_service(Trigger, '~/start', self._on_start)
+        wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(DIAGNOSTICS_PERIOD, self.publish_diagnostics, clock=wall)
+        self.autostart_timer = (self.create_timer(AUTOSTART_PERIOD, self._autostart,
+                                                  clock=wall) if autostart else None)
+        self.realtime_timer = None
+        self.latest_torques: tuple[float, float, int] | None = None  # left, right, stamp
+
+        # -- preallocated messages (fields are overwritten each tick) -----------------------
+        self._clock_msg = ClockMsg()
+        self._truth_msg = GroundTruth()
+        self._truth_msg.header.frame_id = map_frame
+        self._joint_msg = JointState()
+        self._joint_msg.name = [self.left_joint, self.right_joint]
+        self._imu_msg = Imu()
+        self._imu_msg.header.frame_id = imu_frame
+        c = sensors_config
+        self._imu_msg.orientation_covariance = [
+            EXACT, 0.0, 0.0,
+            0.0, c.imu_pitch_noise_std ** 2, 0.0,
+            0.0, 0.0, c.imu_yaw_noise_std ** 2]
+        if self.publish_rates:
+            self._imu_msg.angular_velocity_covariance = [
+                EXACT, 0.0, 0.0, 0.0, c.gyro_noise_std ** 2, 0.0, 0.0, 0.0,
+                c.gyro_noise_std ** 2]
+        else:
+            self._imu_msg.angular_velocity_covariance[0] = -1.0
+        self._imu_msg.linear_acceleration_covariance[0] = -1.0  # not provided
+        self._gps_msg = NavSatFix()
+        self._gps_msg.header.frame_id = gps_frame
+        self._gps_msg.status.status = NavSatStatus.STATUS_FIX
+        self._gps_msg.status.service = NavSatStatus.SERVICE_GPS
+        gps_variance = c.gps_noise_std ** 2
+        self._gps_msg.position_covariance = [gps_variance, 0.0, 0.0, 0.0, gps_variance, 0.0,
+                                             0.0, 0.0, EXACT]
+        self._gps_msg.position_covariance_type = NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN
+
+        # -- timing statistics --------------------------------------------------------------
+        self.publish_time = TickTimer()  # publishing one sample [s]
+        self.wait_time = TickTimer()  # sample published -> torques of that tick received
+        self.step_time = TickTimer()  # simulate_hold [s]
+        self._published_at = 0.0
+        self.stale_torques = 0  # lockstep: torque messages with an unexpected stamp
+        self.zeroed_torques = 0  # realtime: ticks run with zero torques (none or stale)
+        self.end_reason = ''
+        self.get_logger().info(
+            f'scenario {scenario.name!r}: {scenario.duration:g} s, {self.n_ticks} ticks of '
+            f'{self.dt_control * 1e3:g} ms, plant model {scenario.plant.model.model!r}, '
+            f'clock {self.clock_mode}; waiting for '
+            f'{"the start conditions" if autostart else "~/start"}')
+
+    # -- start --------------------------------------------------------------------------------
+    def unmatched(self) -> list[str]:
+        """What the start still waits for (empty when every endpoint is matched)."""
+        missing = []
+        if self.torque_sub.get_publisher_count() < 1:
+            missing.append('/wip/wheel_torques has no publisher')
+        checks = [(self.joint_pub, self.expected['sensors']),
+                  (self.imu_pub, self.expected['sensors']),
+                  (self.gps_pub, self.expected['sensors']),
+                  (self.truth_pub, self.expected['ground_truth'])]
+        if self.clock_pub is not None:
+            checks.append((self.clock_pub, self.expected['clock']))
+        for publisher, wanted in checks:
+            have = publisher.get_subscription_count()
+            if have < wanted:
+                missing.append(f'{publisher.topic_name}: {have}/{wanted} subscriptions')
+        return missing
+
+    def _on_start(self, request, response):
+        if self.started:
+            response.success = False
+            response.message = 'already started'
+            return response
+        missing = self.unmatched()
+        if missing:
+            response.success = False
+            response.message = 'not connected: ' + '; '.join(missing)
+            return response
+        self.start()
+        response.success = True
+        response.message = f'started at t = {self.k * self.dt_control:g} s'
+        return response
+
+    def _autostart(self) -> None:
+        if not self.started and not self.unmatched():
+            self.start()
+
+    def start(self) -> None:
+        """Publish the sample of t_0 and begin stepping."""
+        if self.started:
+            return
+        self.started = True
+        if self.autostart_timer is not None:
+            self.autostart_timer.cancel()
+        self.wall_start = time.perf_counter()
+        self.get_logger().info('started')
+        if self.clock_mode == 'lockstep':
+            self._publish_tick()
+        else:
+            self._publish_tick()
+            self.realtime_timer = self.create_timer(self.dt_control, self._realtime_tick)
+
+    # -- one tick -------------------------------------------------------------------------
+    def _publish_tick(self) -> None:
+        """Publish the sample of tick self.k; finish the run at its end or after a fall."""
+        started_at = time.perf_counter()
+        k = self.k
+        t = k * self.dt_control  # exactly the runner's time
+        if self.clock_mode == 'lockstep':
+            stamp_ns = int(round(t * 1e9))
+        else:
+            stamp_ns = self.get_clock().now().nanoseconds
+        state = self.state
+        d1, d2, d3 = self.disturbances.sample(t)
+        fell = abs(state[THETA]) >= self.fall_threshold
+        last = fell or k >= self.n_ticks
+        if last:
+            # No control step follows the last sample: no /clock, no sensors.
+            self._publish_truth(stamp_ns, state, d1, d2, d3)
+            self._finish(fell, t)
+            return
+        set_stamp(self._clock_msg.clock, stamp_ns)
+        if self.clock_pub is not None:
+            self.clock_pub.publish(self._clock_msg)
+        self._publish_sensors(stamp_ns, k, state)
+        # The controllers are at work now: the ground truth (for recorders only) last.
+        self._publish_truth(stamp_ns, state, d1, d2, d3)
+        self._published_at = now = time.perf_counter()
+        self.publish_time.add(now - started_at)
+
+    def _publish_truth(self, stamp_ns, state, d1, d2, d3) -> None:
+        msg = self._truth_msg
+        set_stamp(msg.header.stamp, stamp_ns)
+        (msg.x, msg.y, msg.phi, msg.x_v, msg.theta, msg.omega, msg.v,
+         msg.theta_dot) = state
+        msg.tau_d1, msg.tau_d2, msg.tau_d3 = d1, d2, d3
+        msg.tau_left, msg.tau_right = self.tau
+        self.truth_pub.publish(msg)
+
+    def _publish_sensors(self, stamp_ns, k, state) -> None:
+        sensors = self.sensors
+        # The runner's order: encoders, IMU, then GPS on GPS ticks (separate noise streams).
+        left, right = sensors.encoders(state)
+        pitch, yaw = sensors.imu(state)
+
+        joint = self._joint_msg
+        set_stamp(joint.header.stamp, stamp_ns)
+        joint.position = [left, right]
+        # Joint rates of the true motion, noise-free: rolling rate (υ ∓ (d/2) ω) / r, minus
+        # the tilt rate when the encoders measure against the body.
+        v, omega = state[V], state[OMEGA]
+        body = state[THETA_DOT] if self.relative_to_body else 0.0
+        joint.velocity = [(v - self.half_track * omega) / self.wheel_radius - body,
+                          (v + self.half_track * omega) / self.wheel_radius - body]
+        joint.effort = list(self.tau)
+        self.joint_pub.publish(joint)
+
+        imu = self._imu_msg
+        set_stamp(imu.header.stamp, stamp_ns)
+        q = imu.orientation
+        q.x, q.y, q.z, q.w = pitch_yaw_quaternion(pitch, yaw)
+        if self.publish_rates:
+            pitch_rate, yaw_rate = sensors.imu_rates(state)
+            imu.angular_velocity.y = pitch_rate
+            imu.angular_velocity.z = yaw_rate
+        self.imu_pub.publish(imu)
+
+        if k % self.gps_every == 0:
+            x, y = sensors.gps(state)
+            fix = self._gps_msg
+            set_stamp(fix.header.stamp, stamp_ns)
+            fix.latitude, fix.longitude, fix.altitude = local_to_geodetic(x, y, *self.datum)
+            self.gps_pub.publish(fix)
+
+    def _step(self, tau_left: float, tau_right: float) -> None:
+        """Integrate [t_k, t_{k+1}] with the torques held (the runner's step 8)."""
+        started_at = time.perf_counter()
+        t = self.k * self.dt_control
+        self.tau = (tau_left, tau_right)
+        self.state = tuple(self.plant.simulate_hold(
+            self.state, tau_left, tau_right, self.disturbances.sample, t, self.dt_plant,
+            self.substeps).tolist())
+        self.k += 1
+        self.step_time.add(time.perf_counter() - started_at)
+
+    def _on_torques_lockstep(self, msg: WheelTorques) -> None:
+        if not self.started or self.exit_code is not None:
+            return
+        received_at = time.perf_counter()
+        expected_ns = int(round(self.k * self.dt_control * 1e9))
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        if stamp_ns != expected_ns:
+            # An older command (e.g. a repeated one); the plant waits for t_k's.
+            self.stale_torques += 1
+            if stamp_ns > expected_ns:
+                self.get_logger().error(
+                    f'wheel torques stamped {stamp_ns * 1e-9:.9f} s, ahead of the plant '
+                    f'at {expected_ns * 1e-9:.9f} s: is another plant running?')
+            return
+        self.wait_time.add(received_at - self._published_at)
+        try:
+            left, right = float(msg.left), float(msg.right)
+            if not (math.isfinite(left) and math.isfinite(right)):
+                raise ValueError(f'non-finite wheel torques ({left}, {right})')
+            self._step(left, right)
+            self._publish_tick()
+        except ValueError as err:
+            self.get_logger().error(f'simulation failed at t = '
+                                    f'{self.k * self.dt_control:.3f} s: {err}')
+            self.end_reason = str(err)
+            self.exit_code = EXIT_ERROR
+
+    def _on_torques_realtime(self, msg: WheelTorques) -> None:
+        self.latest_torques = (float(msg.left), float(msg.right),
+                               stamp_to_ns(msg.header.stamp))
+
+    def _realtime_tick(self) -> None:
+        if self.exit_code is not None:
+            return
+        left = right = 0.0
+        latest = self.latest_torques
+        now_ns = self.get_clock().now().nanoseconds
+        if (latest is not None and now_ns - latest[2] <= self.max_torque_age * 1e9
+                and math.isfinite(latest[0]) and math.isfinite(latest[1])):
+            left, right = latest[0], latest[1]
+        else:
+            self.zeroed_torques += 1
+        try:
+            self._step(left, right)
+            self._publish_tick()
+        except ValueError as err:
+            self.get_logger().error(f'simulation failed: {err}')
+            self.end_reason = str(err)
+            self.exit_code = EXIT_ERROR
+
+    def _finish(self, fell: bool, t: float) -> None:
+        if self.realtime_timer is not None:
+            self.realtime_timer.cancel()
+        self.wall_end = time.perf_counter()
+        wall = self.wall_end - (self.wall_start or self.wall_end)
+        factor = t / wall if wall > 0 else float('inf')
+        if fell:
+            self.end_reason = (f'fell at t = {t:.3f} s: |theta| = {abs(self.state[THETA]):.3f} '
+                               f'rad >= fall_threshold {self.fall_threshold:g} rad')
+            self.get_logger().error(self.end_reason)
+            self.exit_code = EXIT_FELL
+        else:
+            self.end_reason = f'end of the scenario at t = {t:g} s'
+            self.exit_code = EXIT_OK
+        self.get_logger().info(
+            f'{self.end_reason}; {self.k} control ticks in {wall:.2f} s wall '
+            f'({factor:.1f}x real time); per tick: publish '
+            f'{_fmt(self.publish_time.summary())}, step {_fmt(self.step_time.summary())}, '
+            f'wait for torques {_fmt(self.wait_time.summary())}')
+
+    # -- reporting ------------------------------------------------------------------------
+    def stats(self) -> dict:
+        """Timings and counters of the run so far (also written to ``stats_file``)."""
+        wall = self._wall_elapsed()
+        t = self.k * self.dt_control
+        return {
+            'clock_mode': self.clock_mode,
+            'scenario': self.scenario.name,
+            'ticks': self.k,
+            'sim_time_s': t,
+            'wall_time_s': wall,
+            'real_time_factor': t / wall if wall > 0 else None,
+            'exit_code': self.exit_code,
+            'end_reason': self.end_reason,
+            'publish_s': self.publish_time.summary(),
+            'step_s': self.step_time.summary(),
+            'wait_for_torques_s': self.wait_time.summary(),
+            'stale_torque_messages': self.stale_torques,
+            'zeroed_torque_ticks': self.zeroed_torques,
+        }
+
+    def write_stats(self) -> None:
+        if self.stats_file:
+            with open(self.stats_file, 'w', encoding='utf-8') as stream:
+                json.dump(self.stats(), stream, indent=2)
+                stream.write('\n')
+
+    def _wall_elapsed(self) -> float:
+        if self.wall_start is None:
+            return 0.0
+        return (self.wall_end or time.perf_counter()) - self.wall_start
+
+    def publish_diagnostics(self) -> None:
+        """/diagnostics, once per second of wall time."""
+        status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: plant',
+                                  hardware_id='simulation')
+        t = self.k * self.dt_control
+        if self.exit_code is not None:
+            status.level = (DiagnosticStatus.OK if self.exit_code == EXIT_OK
+                            else DiagnosticStatus.ERROR)
+            status.message = self.end_reason
+        elif not self.started:
+            status.level = DiagnosticStatus.WARN
+            missing = self.unmatched()
+            status.message = ('waiting for the start' if not missing
+                              else 'waiting for the graph: ' + '; '.join(missing))
+        else:
+            waiting = time.perf_counter() - self._published_at
+            if self.clock_mode == 'lockstep' and waiting > 1.0:
+                status.level = DiagnosticStatus.WARN
+                status.message = (f'waiting {waiting:.1f} s for /wip/wheel_torques stamped '
+                                  f'{t:.3f} s')
+            else:
+                status.level = DiagnosticStatus.OK
+                status.message = f'running, t = {t:.2f} s'
+        wall = self._wall_elapsed()
+        wait = self.wait_time.values[-200:]
+        values = {
+            'clock_mode': self.clock_mode,
+            'sim time [s]': f'{t:.3f}',
+            'duration [s]': f'{self.scenario.duration:g}',
+            'ticks': str(self.k),
+            'real-time factor': f'{t / wall:.2f}' if wall > 0 else 'n/a',
+            'mean wait for torques, last 200 ticks [us]':
+                f'{1e6 * sum(wait) / len(wait):.0f}' if wait else 'n/a',
+            'stale torque messages': str(self.stale_torques),
+            'ticks with zero torques (stale or none)': str(self.zeroed_torques),
+        }
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diagnostics_pub.publish(array)
+
+
+def _fmt(summary: dict) -> str:
+    if not summary['count']:
+        return 'n/a'
+    return f'mean {summary["mean_us"]:.0f} us / p99 {summary["p99_us"]:.0f} us'
+
+
+def make_executor(context=None):
+    """EventsExecutor when this rclpy has it (much lower latency), else SingleThreaded."""
+    try:
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    except (ImportError, AttributeError, RuntimeError):
+        return SingleThreadedExecutor(context=context)
+
+
+def main(args=None) -> int:
+    """Entry point ``plant`` (``ros2 run wip_sim plant --ros-args -p scenario_file:=...``)."""
+    rclpy.init(args=args)
+    node = None
+    status = EXIT_OK
+    try:
+        node = PlantNode()
+        executor = make_executor()
+        executor.add_node(node)
+        # spin_once with a timeout: the EventsExecutor's spin() ignores SIGINT.
+        while rclpy.ok() and node.exit_code is None:
+            executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+        if node.exit_code is not None:
+            status = node.exit_code
+            # rmw_fastrtps publishes synchronously (the default since Humble): the last
+            # samples are handed to the transport before publish() returns, so exiting
+            # now loses nothing.
+            node.publish_diagnostics()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ConfigError as err:
+        print(f'plant: error: {err}', file=sys.stderr)
+        status = EXIT_CONFIG
+    finally:
+        if node is not None:
+            try:
+                node.write_stats()
+            except OSError as err:
+                print(f'plant: cannot write stats: {err}', file=sys.stderr)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())

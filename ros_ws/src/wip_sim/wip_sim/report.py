@@ -1,0 +1,212 @@
+"""``scripts/report``: metrics and figures of a recorded run, from its rosbag2 bag.
+
+Examples
+--------
+    scripts/report out/demo/bag --out out/demo/report
+    scripts/report robot_bag --out out/robot --scenario my_robot.yaml
+    scripts/report BAG --out DIR --no-figures
+
+The bag's messages are turned into the same :class:`~wip_control.core.record.RunRecord`
+as the in-process runner builds, and the outputs are written by the same code as
+``scripts/simulate`` (:func:`wip_control.tools.simulate.write_run_outputs`,
+:func:`wip_control.core.metrics.compute_metrics`): ``metrics.json``, ``timeseries.npz``,
+``scenario.yaml`` and ``figures/*.png``. A run of the graph in lockstep and the same
+scenario in-process therefore give the same metrics.
+
+Record groups and their topics (time = the message's header stamp)
+------------------------------------------------------------------
+========== ========================== ==============================================
+group      topic                      columns
+========== ========================== ==============================================
+truth      /wip/ground_truth          state, tau_d1..3 -> d1..d3, tau_left, tau_right
+reference  /wip/reference             x, y, phi, v, omega
+estimate   /wip/state_estimate        phi, omega, f1, x_v, v, f2, theta, theta_dot, f3,
+                                      x, y
+command    /wip/velocity_command      v_d, omega_d, omega_d_dot, x_e, y_e, phi_e
+arc        /wip/yaw_torque            tau_omega, alpha_hat, e_omega
+wheels     /wip/wheel_torques         left, right -> tau_left, tau_right
+mpc        /wip/drive_torque          tau_v, delta_tau, status, iterations, solve_time,
+                                      used_fallback, slack_v, slack_theta
+========== ========================== ==============================================
+
+``mpc.status`` holds the MpcOutput status constant (SOLVED = 0, ...), and
+``mpc.solve_time`` the message's build + solve time. A bag without ground truth (recorded
+on a robot) gives every metric that needs no truth; the others are null.
+
+Time origin: a bag in simulation time (stamps from t = 0) keeps its times; a bag in
+wall-clock time (the realtime graph, a robot) is shifted so that its first sample is at
+t = 0, so that the metrics' windows (settling after 10 s, pulse windows) apply.
+
+The scenario (limits, disturbance windows, parameters of the metrics) comes from
+``--scenario``, else from ``BAG/scenario.yaml`` (``scripts/run_graph --record`` copies
+the run's scenario there), else the paper's Section V with a warning.
+
+Exit status: 0 done, 1 the run fell, 2 the bag or the scenario cannot be read.
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+from typing import Any, Iterable
+
+import numpy as np
+
+from wip_control.core.config import ConfigError
+from wip_control.core.metrics import compute_metrics
+from wip_control.core.record import GROUPS, RunRecord
+from wip_control.core.scenario import load_scenario, Scenario
+
+from .bag_reader import BagReadError, read_bag
+
+#: Stamps beyond this [s] are wall-clock (epoch) times, not simulation times (~3 years).
+WALL_CLOCK_THRESHOLD_S = 1e8
+SCENARIO_FILE_NAME = 'scenario.yaml'
+
+
+def _truth(m) -> tuple:
+    return (m.x, m.y, m.phi, m.x_v, m.theta, m.omega, m.v, m.theta_dot, m.tau_d1, m.tau_d2,
+            m.tau_d3, m.tau_left, m.tau_right)
+
+
+def _mpc(m) -> tuple:
+    return (m.tau_v, m.delta_tau, float(m.status), float(m.iterations), m.solve_time,
+            float(bool(m.used_fallback)), m.slack_v, m.slack_theta)
+
+
+#: topic -> (group, row of the columns after 't').
+TOPICS = {
+    '/wip/ground_truth': ('truth', _truth),
+    '/wip/reference': ('reference', lambda m: (m.x, m.y, m.phi, m.v, m.omega)),
+    '/wip/state_estimate': ('estimate', lambda m: (
+        m.phi, m.omega, m.f1, m.x_v, m.v, m.f2, m.theta, m.theta_dot, m.f3, m.x, m.y)),
+    '/wip/velocity_command': ('command', lambda m: (
+        m.v_d, m.omega_d, m.omega_d_dot, m.x_e, m.y_e, m.phi_e)),
+    '/wip/yaw_torque': ('arc', lambda m: (m.tau_omega, m.alpha_hat, m.e_omega)),
+    '/wip/wheel_torques': ('wheels', lambda m: (m.left, m.right)),
+    '/wip/drive_torque': ('mpc', _mpc),
+}
+
+
+class ReportError(Exception):
+    """The bag or the scenario cannot be used."""
+
+
+def _stamp_ns(message) -> int:
+    stamp = message.header.stamp
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def record_from_bag(bag: str | pathlib.Path,
+                    topics: dict[str, tuple] | None = None) -> RunRecord:
+    """The :class:`RunRecord` of a bag (see the module docstring for the mapping).
+
+    Rows are sorted by stamp (a stable sort: messages with equal stamps keep the bag's
+    order). Groups whose topic is absent are empty.
+    """
+    topics = TOPICS if topics is None else topics
+    rows: dict[str, list[tuple[int, tuple]]] = {group: [] for group, _ in topics.values()}
+    try:
+        for topic, _, _, message in read_bag(bag, topics=list(topics)):
+            group, convert = topics[topic]
+            rows[group].append((_stamp_ns(message), convert(message)))
+    except BagReadError as err:
+        raise ReportError(str(err)) from err
+    firsts = [min(s for s, _ in group_rows) for group_rows in rows.values() if group_rows]
+    if not firsts:
+        raise ReportError(f'{bag}: none of the topics {sorted(topics)} has a message')
+    first = min(firsts)
+    origin = first if first * 1e-9 > WALL_CLOCK_THRESHOLD_S else 0
+    groups = {}
+    for group in GROUPS:
+        columns = GROUPS[group]
+        group_rows = sorted(rows.get(group, []), key=lambda row: row[0])
+        if group_rows:
+            t = np.array([(s - origin) / 1e9 for s, _ in group_rows])
+            data = np.array([values for _, values in group_rows], dtype=float)
+        else:
+            t = np.zeros(0)
+            data = np.zeros((0, len(columns) - 1))
+        groups[group] = {'t': t, **{name: data[:, i].copy()
+                                    for i, name in enumerate(columns[1:])}}
+    return RunRecord(groups, attributes={'source': str(bag), 'time_origin_ns': origin})
+
+
+def scenario_for(bag: str | pathlib.Path,
+                 scenario_path: str | pathlib.Path | None) -> tuple[Scenario, str]:
+    """The scenario of a report and where it came from (see the module docstring)."""
+    candidates = []
+    if scenario_path is not None:
+        candidates.append(pathlib.Path(scenario_path))
+    else:
+        bag = pathlib.Path(bag)
+        if bag.is_dir():
+            candidates.append(bag / SCENARIO_FILE_NAME)
+    for path in candidates:
+        if scenario_path is None and not path.is_file():
+            continue
+        try:
+            return load_scenario(path), str(path)
+        except ConfigError as err:
+            raise ReportError(str(err)) from err
+    return Scenario(), "the paper's Section V (default: no --scenario and no " \
+                      f'{SCENARIO_FILE_NAME} in the bag)'
+
+
+def report(bag: str | pathlib.Path, out: str | pathlib.Path,
+           scenario_path: str | pathlib.Path | None = None, figures: bool = True,
+           quiet: bool = True) -> dict[str, Any]:
+    """Write the report of ``bag`` into ``out``; returns the metrics.
+
+    Raises
+    ------
+    ReportError
+        If the bag cannot be read, has no usable message, or the scenario is invalid.
+    """
+    from wip_control.tools.simulate import write_run_outputs  # matplotlib lazily
+
+    scenario, source = scenario_for(bag, scenario_path)
+    if not quiet:
+        print(f'report: scenario {scenario.name!r} from {source}', file=sys.stderr)
+    record = record_from_bag(bag)
+    if 'truth' not in record and 'estimate' not in record:
+        raise ReportError(f'{bag}: no /wip/ground_truth and no /wip/state_estimate: '
+                          'nothing to report')
+    record.attributes['scenario'] = scenario.name
+    metrics = compute_metrics(record, scenario)
+    metrics['source'] = {'bag': str(bag), 'scenario': source,
+                         'messages': {group: int(len(record[group]['t']))
+                                      for group in GROUPS}}
+    write_run_outputs(pathlib.Path(out), record, scenario, metrics, figures=figures)
+    return metrics
+
+
+def main(argv: Iterable[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog='scripts/report', description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('bag', help='rosbag2 directory (or a single .mcap file)')
+    parser.add_argument('--out', required=True, help='output directory')
+    parser.add_argument('--scenario', help='scenario YAML (default: BAG/scenario.yaml, '
+                        'else the paper scenario)')
+    parser.add_argument('--no-figures', action='store_true', help='skip the PNG figures')
+    parser.add_argument('--quiet', action='store_true', help='no summary')
+    args = parser.parse_args(None if argv is None else list(argv))
+    try:
+        metrics = report(args.bag, args.out, args.scenario, figures=not args.no_figures,
+                         quiet=args.quiet)
+    except ReportError as err:
+        print(f'ERROR: {err}', file=sys.stderr)
+        return 2
+    if not args.quiet:
+        from wip_control.tools.simulate import summary
+        print(summary(metrics))
+        out = pathlib.Path(args.out)
+        print(f'wrote {out / "metrics.json"}'
+              + ('' if args.no_figures else f' and figures in {out / "figures"}'))
+    return 1 if metrics['fell'] else 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,176 @@
+"""``ros2 run <package> <executable>`` works for every executable of the project.
+
+ros2cli is not on PyPI, so the contract is tested directly: ``ros2 run pkg exe`` runs
+``<prefix>/lib/<pkg>/<exe>`` with the prefix from the ament index. Each executable of
+wip_control and wip_sim is resolved that way and started as its own process in a DDS
+domain of its own; a probe node in that domain must see the node's name and its topics
+(publishers and subscriptions of the design); then SIGINT must end it cleanly.
+
+Clean exit = exit code 0 and no traceback. Every entry point catches KeyboardInterrupt
+and ExternalShutdownException (Jazzy raises either on SIGINT) and returns 0 after
+destroying its node, as the Jazzy demos do; -2 or 130 would mean the interrupt escaped as
+an uncaught exception (a traceback, possibly a half-written output), which is what this
+test must catch.
+
+All executables start at once (each in its own domain), so the whole module costs one
+start-up (imports and discovery, a few seconds on two cores), not one per executable.
+"""
+
+import os
+import pathlib
+import random
+import signal
+import subprocess
+import time
+
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+from ament_index_python.packages import get_package_prefix  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+PACKAGES = ('wip_control', 'wip_sim')
+START_TIMEOUT = 60.0  # [s] all processes start together on 2 cores; discovery up to ~3 s
+STOP_TIMEOUT = 10.0  # [s] from SIGINT to exit: the recorder closes its bag first
+
+#: executable -> (node name, published topics, subscribed topics) of the design
+#: (README / architecture: node graph and topics). /diagnostics: every node publishes it.
+CONTRACT = {
+    'reference': ('reference', {'/wip/reference', '/diagnostics'}, set()),
+    'eso': ('eso', {'/wip/state_estimate', '/diagnostics'},
+            {'/joint_states', '/imu/data', '/gps/fix', '/wip/wheel_torques'}),
+    'trajectory_generator': ('trajectory_generator',
+                             {'/wip/velocity_command', '/diagnostics'},
+                             {'/wip/reference', '/wip/state_estimate'}),
+    'arc': ('arc', {'/wip/yaw_torque', '/diagnostics'},
+            {'/wip/velocity_command', '/wip/state_estimate'}),
+    'mpc': ('mpc', {'/wip/drive_torque', '/diagnostics'},
+            {'/wip/state_estimate', '/wip/velocity_command', '/wip/yaw_torque'}),
+    'torque_mixer': ('torque_mixer',
+                     {'/wip/wheel_torques', '/effort_controller/commands', '/diagnostics'},
+                     {'/wip/yaw_torque', '/wip/drive_torque'}),
+    'plant': ('plant', {'/clock', '/joint_states', '/imu/data', '/gps/fix',
+                        '/wip/ground_truth', '/diagnostics'}, {'/wip/wheel_torques'}),
+    'recorder': ('recorder', {'/diagnostics'}, set()),
+    'replayer': ('replayer', {'/contract/chatter', '/diagnostics'}, set()),
+}
+
+
+def executables():
+    """(package, executable, path) of everything ``ros2 run`` could start."""
+    found = []
+    for package in PACKAGES:
+        directory = pathlib.Path(get_package_prefix(package)) / 'lib' / package
+        for path in sorted(directory.iterdir()):
+            if path.is_file() and os.access(path, os.X_OK):
+                found.append((package, path.name, path))
+    return found
+
+
+def make_bag(directory):
+    """A tiny bag for the replayer: 5 std_msgs/String on /contract/chatter."""
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import String
+    from wip_sim.bag_writer import Rosbag2McapWriter
+    with Rosbag2McapWriter(directory) as bag:
+        bag.add_topic('/contract/chatter', 'std_msgs/msg/String')
+        for i in range(5):
+            bag.write('/contract/chatter', serialize_message(String(data=f'{i}')),
+                      1_000_000_000 + i * 10_000_000)
+    return directory
+
+
+class Started:
+    """One executable's process and a probe node in its own domain."""
+
+    def __init__(self, executable, path, domain, extra_args, cwd):
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
+                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+        self.executable = executable
+        self.process = subprocess.Popen(
+            [str(path), '--ros-args', *extra_args], env=env, cwd=cwd,
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.probe = rclpy.create_node('contract_probe', context=self.context)
+
+    def topics_of(self, node_name):
+        get_pubs = self.probe.get_publisher_names_and_types_by_node
+        get_subs = self.probe.get_subscriber_names_and_types_by_node
+        try:
+            return ({name for name, _ in get_pubs(node_name, '/')},
+                    {name for name, _ in get_subs(node_name, '/')})
+        except Exception:  # noqa: B902 - the node is not known yet (NodeNameNonExistentError)
+            return set(), set()
+
+    def close(self):
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.communicate()
+        self.probe.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+@pytest.fixture(scope='module')
+def started(tmp_path_factory):
+    """Every executable started at once, each in its own domain."""
+    work = tmp_path_factory.mktemp('contract')
+    bag = make_bag(work / 'replay_bag')
+    extra = {
+        'recorder': ['-p', f'output:={work / "recorded"}'],
+        'replayer': ['-p', f'bag:={bag}', '-p', 'exit_when_done:=false', '-p', 'loop:=true'],
+        'plant': ['-p', 'autostart:=false'],
+    }
+    found = executables()
+    domains = random.sample(range(1, 102), len(found))
+    processes = {}
+    try:
+        for (package, executable, path), domain in zip(found, domains):
+            processes[executable] = Started(executable, path, domain,
+                                            extra.get(executable, []), work)
+        yield processes
+    finally:
+        for process in processes.values():
+            process.close()
+
+
+def test_every_executable_has_a_contract_entry():
+    names = {executable for _, executable, _ in executables()}
+    assert names == set(CONTRACT), 'update CONTRACT (and the README) for new executables'
+    packages = {package for package, _, _ in executables()}
+    assert packages == set(PACKAGES)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('executable', sorted(CONTRACT))
+def test_executable_runs_as_ros2_run_would_and_stops_cleanly_on_sigint(executable, started):
+    one = started[executable]
+    node_name, publishes, subscribes = CONTRACT[executable]
+    deadline = time.monotonic() + START_TIMEOUT
+    while True:
+        if one.process.poll() is not None:
+            output, _ = one.process.communicate()
+            pytest.fail(f'{executable} exited ({one.process.returncode}) during start-up:\n'
+                        f'{output}')
+        names = {name for name, namespace in one.probe.get_node_names_and_namespaces()
+                 if namespace == '/'}
+        pubs, subs = one.topics_of(node_name) if node_name in names else (set(), set())
+        if node_name in names and publishes <= pubs and subscribes <= subs:
+            break
+        if time.monotonic() > deadline:
+            pytest.fail(f'{executable}: after {START_TIMEOUT} s, node {node_name!r} present: '
+                        f'{node_name in names}; missing publishers {publishes - pubs}, '
+                        f'missing subscriptions {subscribes - subs}')
+        time.sleep(0.1)  # graph polling (discovery is asynchronous, no event to wait on)
+
+    one.process.send_signal(signal.SIGINT)
+    try:
+        output, _ = one.process.communicate(timeout=STOP_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        one.process.kill()
+        output, _ = one.process.communicate()
+        pytest.fail(f'{executable} did not stop within {STOP_TIMEOUT} s of SIGINT:\n{output}')
+    assert one.process.returncode == 0, f'{executable} exit code ' \
+                                        f'{one.process.returncode}:\n{output}'
+    assert 'Traceback' not in output, output
