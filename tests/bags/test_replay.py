@@ -285,3 +285,54 @@ def test_replays_a_bag_written_by_rosbags_with_pause_remap_and_recorded_qos(
     assert 'paused' in future.result().message
     replayer.stop(signal.SIGTERM, expected_code=0, timeout=5.0)
 
+
+
+def test_start_offset_duration_loop_and_topic_selection(test_node, tools, tmp_path):
+    bag = tmp_path / 'window'
+    other = f'{DATA}_other'
+    with Rosbag2McapWriter(bag) as writer:
+        writer.add_topic(DATA, 'std_msgs/msg/String')
+        writer.add_topic(other, 'std_msgs/msg/String')
+        for k in range(100):  # 10 ms apart, 2000 s + 0 .. 0.99 s
+            writer.write(DATA, serialize_message(String(data=str(k))),
+                         2000 * 10**9 + k * 10_000_000)
+            writer.write(other, serialize_message(String(data='no')),
+                         2000 * 10**9 + k * 10_000_000 + 1)
+    received, unwanted = [], []
+    test_node.create_subscription(String, DATA, lambda m: received.append(int(m.data)),
+                                  QoSProfile(depth=100))
+    test_node.create_subscription(String, other, lambda m: unwanted.append(m.data),
+                                  QoSProfile(depth=100))
+    # From 0.2 s for 0.3 s: the messages logged in [+0.2 s, +0.5 s], k = 20 .. 50, looped.
+    replayer = _replayer(test_node, bag, '--start-offset', '0.2', '--duration', '0.3',
+                         '--loop', '--topics', DATA, '--wait-for-subscribers', '1')
+    tools.append(replayer)
+    window = list(range(20, 51))
+    spin_until(test_node, lambda: len(received) >= 2 * len(window) + 5, 20.0,
+               'two loops', replayer.process)
+    replayer.stop(signal.SIGINT)
+    assert received[:2 * len(window)] == window * 2
+    assert unwanted == []
+
+
+def test_command_line_and_qos_rules():
+    from rclpy.qos import QoSDurabilityPolicy
+    from wip_sim.replayer_node import parse_command_line, playback_qos
+    overrides, ros_args = parse_command_line([
+        'bag_dir', '--rate', '2', '--clock', '--topics', '/a', '/b', '--stay',
+        '--ros-args', '-r', '/a:=/c'])
+    values = {p.name: p.value for p in overrides}
+    assert values == {'bag': 'bag_dir', 'rate': 2.0, 'clock': True, 'topics': ['/a', '/b'],
+                      'exit_when_done': False}
+    assert ros_args == ['--ros-args', '-r', '/a:=/c']
+    latched = {'history': 'keep_last', 'depth': 1, 'reliability': 'reliable',
+               'durability': 'transient_local'}
+    volatile = dict(latched, durability='volatile')
+    # One recorded profile (or several equal ones): offered again, history keep-last depth.
+    qos = playback_qos([latched, dict(latched, depth=5)], depth=100)
+    assert (qos.durability, qos.depth) == (QoSDurabilityPolicy.TRANSIENT_LOCAL, 100)
+    # Mixed offers: rosbag2's default (reliable, volatile), as adapt_offer_to_recorded_offers.
+    qos = playback_qos([latched, volatile], depth=10)
+    assert (qos.reliability, qos.durability) == (QoSReliabilityPolicy.RELIABLE,
+                                                 QoSDurabilityPolicy.VOLATILE)
+    assert playback_qos('', depth=10).reliability == QoSReliabilityPolicy.RELIABLE

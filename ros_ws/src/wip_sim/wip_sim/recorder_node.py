@@ -448,6 +448,11 @@ def main(args=None):
         rclpy.logging.get_logger('recorder').error(str(err))
         print(f'recorder: error: {err}', file=sys.stderr)
         status = 1
+    except Exception:  # noqa: B902
+        # A signal shuts the context down at any point, also inside a ROS call (e.g. "failed
+        # to initialize wait set: the given context is not valid"): that is a normal stop.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             if not node.close():

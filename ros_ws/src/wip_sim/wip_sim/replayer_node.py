@@ -603,6 +603,11 @@ def main(args=None):
     except ValueError as err:
         print(f'replayer: error: {err}', file=sys.stderr)
         status = EXIT_BAD_PARAMETERS
+    except Exception:  # noqa: B902
+        # A signal shuts the context down at any point, also inside a ROS call (e.g. "failed
+        # to initialize wait set: the given context is not valid"): that is a normal stop.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()
