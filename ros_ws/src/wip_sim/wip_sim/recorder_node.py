@@ -382,9 +382,10 @@ class RecorderNode(Node):
         self._closed_ok = False
         self._queue.put(_STOP)  # Last item: everything received before is written.
         self._writer.join(timeout=self.close_timeout)
-        # After a SIGINT the context is shut down: log without the /rosout publisher.
+        # After a SIGINT the context is shut down: log without the /rosout publisher (a
+        # logger of another name than the node's, which rcl would route to /rosout).
         logger = (self.get_logger() if self.context.ok()
-                  else rclpy.logging.get_logger(self.get_name()))
+                  else rclpy.logging.get_logger(f'wip_sim.{self.get_name()}'))
         if self._writer.is_alive():
             logger.error(
                 f'the writer did not finish within close_timeout = {self.close_timeout:g} s '
