@@ -116,3 +116,28 @@ def test_rerun_refuses_a_bag_without_sensor_topics(tmp_path, capsys):
         bag.write('/chatter', serialize_message(String(data='hi')), 1)
     assert main([str(tmp_path / 'chatter'), '--out', str(tmp_path / 'out'), '--quiet']) == 1
     assert 'no control tick' in capsys.readouterr().err
+
+
+def test_timing_rules_for_a_bag_without_clock(recorded_bag, tmp_path):
+    # The same run recorded without /clock, as in real time: 'auto' picks the receive
+    # order. Here every message of a tick has the same log time, so the newest command
+    # received before a tick is the one stamped t_(k-1), exactly as with stamps: the three
+    # ESO channels and the yaw ARC reproduce to the same tolerance. A GPS fix received
+    # with (not before) the tick's samples is used at the next tick, as by the real-time
+    # ESO node, so the planar position (and the commands and drive torque built on it) may
+    # differ; with --timing stamps everything reproduces again.
+    _, _, result = recorded_bag
+    scenario = scenario_from_mapping({'duration': DURATION})
+    bag = tmp_path / 'no_clock'
+    write_record_as_bag(result, scenario, bag, clock=False)
+    metrics, comparison = rerun(bag, tmp_path / 'auto', figures=False, quiet=True)
+    assert metrics['rerun']['timing'] == 'receive'
+    for field in ('phi', 'omega', 'f1', 'x_v', 'v', 'f2', 'theta', 'theta_dot', 'f3'):
+        assert comparison['estimate']['fields'][field]['max_abs_difference'] <= (
+            REPRODUCE_TOLERANCE), field
+    assert _worst(comparison['arc']) <= REPRODUCE_TOLERANCE
+    metrics, comparison = rerun(bag, tmp_path / 'stamps', figures=False, quiet=True,
+                                timing='stamps')
+    assert metrics['rerun']['timing'] == 'stamps'
+    for key, entry in comparison.items():
+        assert _worst(entry) <= REPRODUCE_TOLERANCE, key

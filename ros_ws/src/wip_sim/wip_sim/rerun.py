@@ -24,6 +24,18 @@ Per control tick k (the stamps t_k present on both /joint_states and /imu/data, 
 4. every ``mpc.sampling_period`` (every ``mpc_decimation``-th tick from the first) the MPC
    (eqs. (16)-(23)), its torque held in between; then the mixer (eq. (24)).
 
+This is exact for a bag recorded in lockstep (it holds ``/clock``; ``--timing stamps``):
+the graph then computes exactly this, and the re-run of unchanged controllers reproduces
+its recording to rounding. For a bag recorded in real time (``--timing receive``, the
+default without ``/clock``) what each node used is decided by arrival order, which a bag
+records only as the recorder's receive times: the ticks are those the recorded ESO
+estimated; the command applied is the newest the recorder had received before the tick's
+samples; a GPS fix is used at the first tick after it was received; the MPC runs on the
+estimates its recorded outputs are stamped with, and its torque is mixed from the first
+recorded command received after that output. This approximates the nodes' own arrival
+order (measured on a 3 s real-time graph run: estimates and positions reproduced except
+around scheduling gaps, wheel torques within 0.7 N m RMS).
+
 The message conversions are those of the controller nodes
 (``wip_control.nodes.conversions``), so the re-run reads a bag exactly as the nodes read the
 live topics.
@@ -158,16 +170,23 @@ class RecordedRun:
     log_times: dict  # stamp of a /joint_states message -> its log time [ns]
     truth: dict  # stamp -> GroundTruth
     invalid: dict  # topic key -> number of malformed messages skipped
+    receive_times: dict = dataclasses.field(default_factory=dict)  # key -> {stamp: log time}
+    has_clock: bool = False  # the bag holds /clock: recorded in lockstep simulation time
 
 
 def read_recorded_run(bag, left_joint=LEFT_JOINT, right_joint=RIGHT_JOINT) -> RecordedRun:
     """Deserialize the re-run's input topics and the recorded controller outputs."""
     wanted = {TOPICS[key][0]: key for key in _CLASSES}
     run = RecordedRun({}, {}, {}, {}, {}, {key: {} for key, _ in COMPARED}, {}, {}, {})
+    run.receive_times = {key: {} for key in ('joint_states', 'imu', 'gps', 'wheel_torques',
+                                             'mpc')}
+    run.has_clock = read_topics(bag).get(TOPICS['clock'][0]) is not None
     for raw in iter_raw_messages(bag, topics=list(wanted)):
         key = wanted[raw.topic]
         msg = deserialize_message(raw.data, _CLASSES[key])
         stamp = stamp_ns(msg.header)
+        if key in run.receive_times:
+            run.receive_times[key].setdefault(stamp, raw.log_time_ns)
         try:
             if key == 'joint_states':
                 run.joint_states[stamp] = wheel_angles(msg, left_joint, right_joint)
@@ -208,8 +227,30 @@ class TickOutputs(NamedTuple):
     wheels: tuple  # (left, right) [N m]
 
 
-def rerun_controllers(run: RecordedRun, scenario: Scenario) -> list[TickOutputs]:
+TIMINGS = ('auto', 'stamps', 'receive')
+
+
+def resolve_timing(run: RecordedRun, timing: str = 'auto') -> str:
+    """'stamps' for a bag recorded in lockstep simulation time (it holds /clock), else
+    'receive'; an explicit 'stamps' or 'receive' is returned as is."""
+    if timing not in TIMINGS:
+        raise ValueError(f'timing {timing!r} is not one of {TIMINGS}')
+    if timing == 'auto':
+        return 'stamps' if run.has_clock else 'receive'
+    return timing
+
+
+def rerun_controllers(run: RecordedRun, scenario: Scenario,
+                      timing: str = 'auto') -> list[TickOutputs]:
     """Feed the recorded inputs to fresh core controllers; see the module docstring.
+
+    ``timing`` chooses which recorded command was applied at a tick and when the MPC ran:
+    'stamps' (lockstep: the command stamped t_{k-1}; the MPC every ``mpc_decimation``-th
+    tick, exactly as the graph and the runner do), 'receive' (real time: the newest
+    command the recorder had received before the tick's sensor samples, the MPC at the
+    ticks after which the recorder received an MPC output; the controller nodes' own
+    receive times are not recorded, so this approximates them by the recorder's), or
+    'auto' (:func:`resolve_timing`).
 
     Raises
     ------
@@ -217,7 +258,13 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario) -> list[TickOutputs]
         If the bag has no control tick (no stamp with both joint states and IMU) or no
         reference.
     """
+    timing = resolve_timing(run, timing)
     ticks = sorted(set(run.joint_states) & set(run.imu))
+    if timing == 'receive' and run.outputs['estimate']:
+        # The samples the recorded ESO used (in real time it skips a sample whose IMU and
+        # encoder messages did not both arrive before the next ones).
+        used = set(ticks) & set(run.outputs['estimate'])
+        ticks = sorted(used) if used else ticks
     if not ticks:
         raise RerunError('no control tick: the bag has no /joint_states and /imu/data '
                          'messages with equal stamps')
@@ -237,6 +284,17 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario) -> list[TickOutputs]
 
     torque_stamps = sorted(run.wheel_torques)
     reference_stamps = sorted(run.reference)
+    receive = run.receive_times
+    by_receive = sorted((t, s) for s, t in receive.get('wheel_torques', {}).items())
+    torque_receive_times = [t for t, _ in by_receive]
+    # Real time: the MPC ran on the estimates its recorded outputs are stamped with, and the
+    # mixer used an output from the first command it sent after the output arrived.
+    tick_set = set(ticks)
+    mpc_runs = {s: t for s, t in receive.get('mpc', {}).items() if s in tick_set}
+    pending = []  # (receive time of the recorded output, tau_v) not yet used by the mixer
+    gps_order = [s for _, s in sorted((t, s) for s, t in receive.get('gps', {}).items())]
+    gps_by_receive = [receive['gps'][s] for s in gps_order]
+    last_fix = None
     origin = ticks[0]
     observer = None
     yaw_unwrapped = None
@@ -251,7 +309,12 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario) -> list[TickOutputs]
         # 1: the torques applied over [t_{k-1}, t_k): the command stamped t_{k-1}, i.e. the
         # newest recorded before t_k (zero before the first).
         tau_left = tau_right = 0.0
-        if previous is not None:
+        tick_receive = max(receive['joint_states'].get(stamp, 0), receive['imu'].get(stamp, 0))
+        if timing == 'receive':
+            index = _newest_at_or_before(torque_receive_times, tick_receive - 1)
+            if index is not None:
+                tau_left, tau_right = run.wheel_torques[by_receive[index][1]]
+        elif previous is not None:
             index = _newest_at_or_before(torque_stamps, stamp - 1)
             if index is not None:
                 tau_left, tau_right = run.wheel_torques[torque_stamps[index]]
@@ -264,8 +327,18 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario) -> list[TickOutputs]
                                         initial_time=t)
         estimate = observer.update(t, yaw_unwrapped, x_v, pitch, tau_left + tau_right,
                                    tau_right - tau_left)
-        # 2: position, as the ESO node: start at the first fix.
-        fix = run.gps.get(stamp)
+        # 2: position, as the ESO node: start at the first fix. Lockstep: the fix of t_k;
+        # real time: the newest fix received before the tick's samples and not used yet
+        # (the ESO updates when the IMU and encoder samples are in; a fix published with
+        # them usually arrives just after and is used at the next update).
+        if timing == 'receive':
+            index = _newest_at_or_before(gps_by_receive, tick_receive - 1)
+            fix = None
+            if index is not None and gps_order[index] != last_fix:
+                last_fix = gps_order[index]
+                fix = run.gps[last_fix]
+        else:
+            fix = run.gps.get(stamp)
         gps = None
         if fix is not None and fix.status.status >= NavSatStatus.STATUS_FIX:
             try:
@@ -282,6 +355,10 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario) -> list[TickOutputs]
         if gps is not None:
             x, y = position.update_gps(*gps)
         # 3: generator with the recorded reference, ARC.
+        if timing == 'receive' and mpc_runs:
+            mpc_tick = stamp in mpc_runs
+        else:
+            mpc_tick = k % mpc_every == 0
         index = _newest_at_or_before(reference_stamps, stamp)
         if index is None:
             previous = stamp
@@ -292,12 +369,19 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario) -> list[TickOutputs]
                            command.omega_d_dot)
         # 4: MPC every mpc_every ticks, held in between; mixer.
         result = None
-        if k % mpc_every == 0:
+        if mpc_tick:
             result = mpc.step(v_hat=estimate.v, theta_hat=estimate.theta,
                               theta_dot_hat=estimate.theta_dot, f2_hat=estimate.f2,
                               f3_hat=estimate.f3, v_d=command.v_d,
                               tau_limit=drive_torque_limit(arc_out.tau_omega, max_wheel))
-            tau_v = result.tau_v
+            if timing == 'receive' and mpc_runs:
+                pending.append((mpc_runs[stamp], result.tau_v))
+            else:
+                tau_v = result.tau_v
+        if pending:
+            mixed_at = receive['wheel_torques'].get(stamp, tick_receive)
+            while pending and pending[0][0] <= mixed_at:
+                tau_v = pending.pop(0)[1]
         wheels = mix(tau_v, arc_out.tau_omega, max_wheel)
         outputs.append(TickOutputs(stamp, t, estimate, x, y, not observer.yaw.in_ramp(t),
                                    reference, command, arc_out, result, wheels))
@@ -646,14 +730,16 @@ def _mpc_output(mpc, row, stamp, scenario):
 
 # ============================================================== command line
 
-def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, quiet=False):
+def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, quiet=False,
+          timing='auto'):
     """Run the whole tool; returns (metrics dict, comparison dict)."""
     out = pathlib.Path(out)
     scenario, source = scenario_for_bag(bag, scenario_file)
     if not quiet:
         print(f'scenario: {source}', file=sys.stderr)
     run = read_recorded_run(bag)
-    outputs = rerun_controllers(run, scenario)
+    timing = resolve_timing(run, timing)
+    outputs = rerun_controllers(run, scenario, timing)
     comparison = compare(run, outputs)
     out.mkdir(parents=True, exist_ok=True)
     counts = write_rerun_bag(bag, out / 'bag', outputs, run, scenario, prefix)
@@ -663,6 +749,7 @@ def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, qui
         'bag': str(pathlib.Path(bag).resolve()),
         'scenario_source': source,
         'open_loop': True,
+        'timing': timing,
         'note': 'applied torques and states are the recorded ones; the recomputed torques '
                 'were not applied (metrics of the truth group describe the recording)',
         'ticks': len(outputs),
@@ -704,13 +791,20 @@ def main(argv=None):
     parser.add_argument('--out', required=True, help='output directory')
     parser.add_argument('--prefix', default=DEFAULT_PREFIX,
                         help='namespace of the recomputed topics (default /rerun)')
+    parser.add_argument('--timing', choices=TIMINGS, default='auto',
+                        help="which recorded command was applied and when the MPC ran: "
+                        "'stamps' (lockstep bags, exact), 'receive' (real-time bags, "
+                        "from the recorder's receive order); default: stamps if the bag "
+                        "holds /clock")
     parser.add_argument('--no-figures', action='store_true', help='skip the PNG figures')
     parser.add_argument('--quiet', action='store_true')
     args = parser.parse_args(argv)
     try:
         _, comparison = rerun(args.bag, args.out, args.scenario, figures=not args.no_figures,
-                              prefix=args.prefix.rstrip('/'), quiet=args.quiet)
-    except (RerunError, BagReadError, BagWriterError, ConfigError, OSError) as err:
+                              prefix=args.prefix.rstrip('/'), quiet=args.quiet,
+                              timing=args.timing)
+    except (RerunError, BagReadError, BagWriterError, ConfigError, OSError,
+            ValueError) as err:
         print(f'rerun: error: {err}', file=sys.stderr)
         return 1
     if not args.quiet:
