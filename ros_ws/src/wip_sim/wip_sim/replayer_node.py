@@ -560,7 +560,8 @@ def parse_command_line(argv):
     for option, _, text in _FLAGS:
         parser.add_argument(option, action='store_true', help=text)
     for option, _, text in _LISTS:
-        parser.add_argument(option, nargs='+', metavar='TOPIC', help=text)
+        parser.add_argument(option, nargs='+', help=text,
+                            metavar='FROM:=TO' if option == '--remap' else 'TOPIC')
     args = parser.parse_args(argv)
     overrides = []
     if args.bag:
