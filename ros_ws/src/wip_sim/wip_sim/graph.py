@@ -24,22 +24,28 @@ What it does
    stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
 3. Waits, with a timeout and without fixed sleeps, until a probe node of this process sees
    every node and, on every topic, at least the publishers and subscriptions of the
-   design (:data:`SUBSCRIBERS`; the recorder adds one subscription per recorded topic).
+   design (:data:`PUBLISHERS`, :data:`SUBSCRIBERS`; the recorder adds one subscription
+   per recorded topic), and then a /diagnostics message of every node sent after that
+   moment (the probe's view of the graph can be complete before two *other* nodes have
+   matched each other; their discovery exchange takes milliseconds, the wait up to 1 s).
+   A node that reports ``matched subscriptions <topic>`` in its /diagnostics (the DDS
+   match count of its publisher) must also reach the design's count.
 4. Starts the plant with its ``/plant/start`` service (std_srvs/Trigger). The plant
    answers ``success: false`` until its own publishers and its wheel-torque subscription
    are matched at the DDS level (stricter than the graph view); the call is retried.
 5. Shows progress (simulated time, real-time factor) from the plant's ``/diagnostics``
    (about 1 message/s: no per-tick traffic into this process), polls every process, and
-   stops the run when a node dies (which it names) or the simulation stalls.
-6. When the plant has exited: waits until the recorder's received counts are stable (the
-   last messages are in), stops the controllers with SIGINT (SIGKILL after a grace
-   period), then the recorder (SIGINT: it writes the bag's summary and metadata.yaml), and
-   copies the scenario into the bag directory (``BAG/scenario.yaml``, read by
-   ``scripts/report``).
+   stops the run when a node dies (which it names, with the end of its log) or the
+   simulation stalls (with every node's latest /diagnostics: inputs received and pending).
+6. When the plant has exited: waits until the recorder has received what was published
+   (lockstep: the counts implied by the plant's tick count; else stable counts), stops
+   the other nodes with SIGINT (SIGKILL after a grace period), then the recorder (SIGINT:
+   it writes the bag's summary and metadata.yaml), and copies the scenario into the bag
+   directory (``BAG/scenario.yaml``, read by ``scripts/report``).
 
 Outputs in OUT: ``params.yaml``, ``scenario.yaml``, ``logs/``, ``plant_stats.json``
-(per-tick timings of the plant) and ``run.json`` (exit status, wall time, real-time
-factor, exit code of every node).
+(per-tick timings of the plant) and ``run.json`` (exit status, real-time factor, start-up
+timeline, exit code, CPU time and last /diagnostics of every node).
 
 Exit status: 0 the scenario ran to its end; 1 a node failed; 2 bad arguments or
 scenario; 3 the vehicle fell; 4 timeout (discovery, start or stall); 130 interrupted.
@@ -162,6 +168,8 @@ class GraphResult:
     plant_stats: dict | None = None
     startup_s: float | None = None
     wall_time_s: float | None = None
+    #: CPU time [s] of each node process during the run (plant: from its own stats).
+    cpu_s: dict[str, float] = dataclasses.field(default_factory=dict)
     #: Wall times [s] of the start-up steps and the plant's refusals to start.
     timeline: dict[str, Any] = dataclasses.field(default_factory=dict)
     #: Latest /diagnostics status of every node: name -> {'message': ..., key: value}.
@@ -176,7 +184,8 @@ class GraphResult:
                 'wall_time_s': self.wall_time_s, 'sim_time_s': stats.get('sim_time_s'),
                 'real_time_factor': stats.get('real_time_factor'),
                 'node_exit_codes': self.node_exit_codes, 'plant_stats': self.plant_stats,
-                'timeline': self.timeline, 'node_diagnostics': self.node_diagnostics}
+                'cpu_s': self.cpu_s, 'timeline': self.timeline,
+                'node_diagnostics': self.node_diagnostics}
 
 
 def executable_path(package: str, executable: str) -> pathlib.Path:
@@ -256,6 +265,16 @@ class NodeProcess:
             self.process.wait()
         self._log.close()
         return self.process.returncode
+
+    def cpu_seconds(self) -> float | None:
+        """CPU time [s] used so far (user + system, all threads), from /proc; None if
+        unavailable (not Linux, or the process has exited)."""
+        try:
+            with open(f'/proc/{self.pid}/stat', encoding='ascii') as stream:
+                fields = stream.read().rsplit(')', 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+        except (OSError, ValueError, IndexError):
+            return None
 
     def log_tail(self, lines: int = LOG_TAIL_LINES) -> str:
         self._log.flush()
@@ -576,27 +595,60 @@ class GraphRunner:
                     lines.append(f'      {kv.key}: {kv.value}')
         return '\n'.join(lines)
 
+    def expected_recorded(self) -> dict[str, int]:
+        """Messages a lockstep run published per topic, from the plant's tick count.
+
+        Every control tick t_0 .. t_{k-1} produces one message of each topic (the MPC one
+        every ``mpc_decimation`` ticks, GPS every control_rate / gps_rate ticks), and the
+        final ground truth at t_k has no tick after it.
+        """
+        stats_path = self.out / 'plant_stats.json'
+        if self.options.clock != 'lockstep' or not stats_path.is_file():
+            return {}
+        ticks = json.loads(stats_path.read_text(encoding='utf-8')).get('ticks')
+        if not isinstance(ticks, int):
+            return {}
+        scenario = self.scenario
+        gps_every = max(1, round(scenario.rates.control_rate / scenario.sensors.gps_rate))
+        expected = {topic: ticks for topic in PUBLISHERS}
+        expected['/clock'] = ticks
+        expected['/wip/ground_truth'] = ticks + 1
+        expected['/gps/fix'] = -(-ticks // gps_every)
+        expected['/wip/drive_torque'] = -(-ticks // scenario.mpc_decimation)
+        return expected
+
     def drain_recorder(self) -> None:
-        """Wait until the recorder received everything the graph published."""
+        """Wait until the recorder received everything the graph published.
+
+        Lockstep: until its /diagnostics counts reach :meth:`expected_recorded`; otherwise
+        (or if they never do) until its counts stopped changing over two of its
+        /diagnostics messages.
+        """
         if 'recorder' not in self.processes:
             return
+        expected = self.expected_recorded()
         deadline = time.monotonic() + DRAIN_TIMEOUT
         previous = None
         stable_since = None
         while time.monotonic() < deadline:
             if self.processes['recorder'].poll() is not None:
                 return
-            self.probe.spin(0.2)
+            self.probe.spin(0.1)
             found = self.probe.status_values(': recorder')
             if found is None:
                 continue
             _, values = found
-            counts = {k: v for k, v in values.items()
+            counts = {k[len('received '):]: int(v) for k, v in values.items()
                       if k.startswith('received /') and k != 'received /diagnostics'}
+            if expected and all(counts.get(t, 0) >= n for t, n in expected.items()):
+                return
             if counts != previous:
                 previous, stable_since = counts, time.monotonic()
-            elif time.monotonic() - stable_since >= 1.5:
-                # Two recorder diagnostics (1 s apart) with the same counts.
+            elif time.monotonic() - stable_since >= 2.5:
+                if expected:
+                    short = {t: f'{counts.get(t, 0)}/{n}' for t, n in expected.items()
+                             if counts.get(t, 0) < n}
+                    self.say(f'warning: the recorder missed messages: {short}')
                 return
         self.say(f'warning: the recorder was still receiving after {DRAIN_TIMEOUT:g} s')
 
@@ -638,8 +690,13 @@ class GraphRunner:
             result.startup_s = time.monotonic() - started
             self.say(f'graph connected in {result.startup_s:.1f} s; plant started')
             run_start = time.monotonic()
+            cpu_start = {n: p.cpu_seconds() for n, p in self.processes.items()}
             code = self.watch()
             result.wall_time_s = time.monotonic() - run_start
+            for name, process in self.processes.items():
+                now = process.cpu_seconds()
+                if now is not None and cpu_start[name] is not None:
+                    result.cpu_s[name] = now - cpu_start[name]
             if not self.options.quiet and self._interactive:
                 sys.stderr.write('\n')
             self.check_alive(allow_plant_exit=True)
@@ -670,6 +727,8 @@ class GraphRunner:
         stats_path = self.out / 'plant_stats.json'
         if stats_path.is_file():
             result.plant_stats = json.loads(stats_path.read_text(encoding='utf-8'))
+            if result.plant_stats.get('cpu_s') is not None:
+                result.cpu_s['plant'] = result.plant_stats['cpu_s']
         if self.bag is not None and self.bag.is_dir() and self.scenario is not None:
             shutil.copyfile(self.out / 'scenario.yaml', self.bag / 'scenario.yaml')
         if self.out.is_dir():
@@ -700,6 +759,12 @@ def format_result(result: GraphResult) -> str:
         lines.append(f'per tick: plant publish {fmt("publish_s")}; controllers (sensors '
                      f'published -> wheel torques received) {fmt("wait_for_torques_s")}; '
                      f'plant step {fmt("step_s")}')
+    ticks = stats.get('ticks')
+    if result.cpu_s and ticks:
+        per_tick = {n: 1e6 * c / ticks for n, c in result.cpu_s.items()}
+        lines.append(f'CPU per tick: {sum(per_tick.values()):.0f} us in all ('
+                     + ', '.join(f'{n} {v:.0f}' for n, v in sorted(
+                         per_tick.items(), key=lambda item: -item[1])) + ')')
     failed = {n: c for n, c in result.node_exit_codes.items() if c not in (0, None, 3)}
     if failed and result.exit_code != 0:
         lines.append('node exit codes: ' + ', '.join(f'{n}={c}' for n, c in failed.items()))

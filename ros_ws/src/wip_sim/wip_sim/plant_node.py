@@ -227,6 +227,8 @@ class PlantNode(Node):
         self.started = False
         self.wall_start: float | None = None  # perf_counter at the start [s]
         self.wall_end: float | None = None  # perf_counter at the end [s]
+        self.cpu_start: float | None = None  # process_time at the start [s]
+        self.cpu_end: float | None = None  # process_time at the end [s]
 
         # -- ROS interfaces -----------------------------------------------------------------
         # Reliable, keep last 10 (the graph design). Publishers offer transient-local
@@ -346,6 +348,7 @@ class PlantNode(Node):
         if self.autostart_timer is not None:
             self.autostart_timer.cancel()
         self.wall_start = time.perf_counter()
+        self.cpu_start = time.process_time()
         self.get_logger().info('started')
         if self.clock_mode == 'lockstep':
             self._publish_tick()
@@ -490,6 +493,7 @@ class PlantNode(Node):
         if self.realtime_timer is not None:
             self.realtime_timer.cancel()
         self.wall_end = time.perf_counter()
+        self.cpu_end = time.process_time()
         wall = self.wall_end - (self.wall_start or self.wall_end)
         factor = t / wall if wall > 0 else float('inf')
         if fell:
@@ -518,6 +522,9 @@ class PlantNode(Node):
             'sim_time_s': t,
             'wall_time_s': wall,
             'real_time_factor': t / wall if wall > 0 else None,
+            # CPU time of this process (all threads, DDS included) from start to end [s].
+            'cpu_s': ((self.cpu_end or time.process_time()) - self.cpu_start
+                      if self.cpu_start is not None else None),
             'exit_code': self.exit_code,
             'end_reason': self.end_reason,
             'publish_s': self.publish_time.summary(),
