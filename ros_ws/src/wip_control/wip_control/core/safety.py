@@ -1,0 +1,451 @@
+"""Safety layer of the wheel-torque output: when to send torque to a real base, and how much.
+
+Pure Python (no rclpy): the torque_mixer node feeds a :class:`SafetyMonitor` with its
+inputs as they arrive and asks it, once per control tick, for the wheel torques to send.
+Not part of the paper [1]_; written for the drop-in use on a real two-wheeled base
+(``shared/spec/architecture.md``, "Drop-in on a real base"), whose ros2_control
+``JointGroupEffortController`` holds the last command forever and has no timeout.
+
+The fail-safe state is zero torque
+----------------------------------
+Every fault sets both wheel torques to exactly zero *in the tick at which it is seen*,
+without any rate limit. For a wheeled inverted pendulum zero torque is not a stable state:
+a balancing robot whose torque is cut falls over. That is the accepted fail-safe here. A
+robot commanded by a controller that is blind (stale or NaN estimates), confused (a diverged
+observer) or already falling past recovery is far more dangerous: it can drive off at full
+torque into people. Without torque it tips over where it stands, with the energy of one
+fall and no more (wheels unpowered, so it does not run away). A soft landing (e.g. driving
+the wheels to keep the body off the ground) needs trustworthy estimates, which is exactly
+what is missing at a fault; it is not attempted.
+
+States
+------
+``STARTING``  zero torque. Waiting for every input to arrive, the ESO to report
+              ``settled``, the MPC to be ready, and then for all of it to hold for
+              ``settle_time`` (re-arming after a fault or an e-stop reset goes through
+              here too, so torque never comes back abruptly).
+``ACTIVE``    torque = eq. (24) mix of the latest τυ, τω, within the per-wheel torque
+              limit and rate limited toward it (from zero after a zeroed tick).
+``SHADOW``    ``shadow_mode``: ACTIVE, but the torques are only reported
+              (:attr:`SafetyDecision.tau_left` ...) and :attr:`SafetyDecision.command`,
+              what goes to the base, is zero.
+``FAULT``     zero torque: an input is stale, invalid (non-finite, wrong size), the tilt
+              is past ``fall_threshold``, the ESO diverged, or the MPC failed. A "not
+              yet" condition (e.g. the ESO not settled) that appears while ACTIVE is a
+              fault too. Returns to STARTING when every condition has cleared (with
+              ``latch_faults``: only on :meth:`SafetyMonitor.reset`).
+``ESTOP``     zero torque: an e-stop message said engaged; latched until
+              :meth:`SafetyMonitor.reset`, which refuses while the e-stop is still engaged.
+
+Priority: ESTOP > FAULT > STARTING > ACTIVE/SHADOW. :attr:`SafetyDecision.reasons` lists
+every reason present, so /diagnostics says why.
+
+Controller failure: the MPC's status (values of ``wip_msgs/MpcOutput``, :class:`DriveStatus`).
+SOLVED is fine; FALLBACK_SHIFTED_PLAN (the previous plan, shifted: a valid plan for up to
+Np periods) is tolerated for ``max_mpc_fallbacks`` consecutive MPC outputs; FAILED_ZERO,
+INPUT_INVALID and unknown statuses are faults at once; NOT_READY is a "not yet" condition.
+A controller that stops publishing is a stale input (ages below).
+
+Timing
+------
+An input's age is ``now`` minus the time the monitor *received* its last valid value (the
+caller's clock; the node uses its steady clock in real time), not its header stamp: a
+watchdog must see a stream that stops, whatever the stamps of the sender's clock say (no
+clock synchronisation with the base is required). With ``timing_checks=False`` (the
+node's lockstep mode, a deterministic simulation) ages, the start-up wait and the
+``settled`` flag are not checked: the exact-time synchronisation already guarantees that
+each tick's inputs are the ones of that tick, and lockstep must reproduce the in-process
+runner, which starts controlling at t = 0; the value checks (non-finite, tilt, ESO
+divergence, MPC failure, e-stop) and the limits still apply.
+
+Limits: the mix (``core.mixer.mix``) keeps each wheel within ±τmax; the rate limit moves
+each wheel by at most ``max_wheel_torque_rate`` · Δt per tick toward the mixed value
+(Δt = ``now`` − the previous update, the nominal ``period`` at the first). Both come
+from ``MixerConfig`` (section ``mixer``), not from :class:`SafetyConfig`, so each limit
+has one source.
+
+References
+----------
+.. [1] M. Yue, C. An, Z. Li, IEEE T-SMC: Systems, 2016 (see ``eso.py``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+from typing import NamedTuple, Sequence
+
+from .config import param
+from .eso import StateEstimate
+from .mixer import mix
+
+STARTING, ACTIVE, SHADOW, FAULT, ESTOP = 'STARTING', 'ACTIVE', 'SHADOW', 'FAULT', 'ESTOP'
+STATES = (STARTING, ACTIVE, SHADOW, FAULT, ESTOP)
+
+#: Inputs watched by the monitor (the torque_mixer node's subscriptions).
+ESTIMATE, YAW_TORQUE, DRIVE_TORQUE, ESTOP_INPUT = ('state_estimate', 'yaw_torque',
+                                                   'drive_torque', 'estop')
+_CONTROL_INPUTS = (ESTIMATE, YAW_TORQUE, DRIVE_TORQUE)
+#: Tolerance of the time comparisons (ages, settle time) [s]: absorbs the rounding of
+#: sums of float times (1e-13 s at 1e3 s) and is far below any period (>= 1 ms).
+TIME_TOLERANCE = 1e-9
+#: Index of ε in a StateEstimate: inf at the start of the paper's ramp, not checked.
+_EPSILON = StateEstimate._fields.index('epsilon')
+
+
+class DriveStatus(enum.IntEnum):
+    """Status of a drive torque: the values of the ``wip_msgs/MpcOutput`` constants."""
+
+    SOLVED = 0
+    FALLBACK_SHIFTED_PLAN = 1
+    FAILED_ZERO = 2
+    INPUT_INVALID = 3
+    NOT_READY = 4
+
+
+@dataclasses.dataclass(frozen=True)
+class SafetyConfig:
+    """Tunables of the safety layer (ROS section ``safety`` of the torque_mixer node).
+
+    Defaults: the inputs come at 200 Hz (estimate, yaw torque: 0.05 s = 10 periods of
+    tolerated jitter) and 10 Hz (drive torque: 0.25 s = 2.5 MPC periods). The fall
+    threshold of 0.35 rad (20°) is far beyond anything the controllers recover from (the
+    MPC's soft tilt limit is 0.1 rad; the paper run stays below 0.092 rad) and before the
+    body hits the ground; the simulator's scenarios count a fall at 0.5 rad. The divergence
+    bounds are 5 to 40 times the largest estimates of the paper run (|υ̂| 1.35 m/s, |ω̂|
+    0.31 rad/s, |θ̂̇| 0.35 rad/s, |f̂1| 1.2 rad/s², |f̂2| 10 m/s² during the collision
+    pulse, |f̂3| 1.9 rad/s²): an observer beyond them is diverging, not estimating.
+    """
+
+    max_estimate_age: float = param(
+        0.05, 's', 'zero torque when the last valid /wip/state_estimate was received longer '
+        'ago than this', minimum=0.0, exclusive_minimum=True)
+    max_yaw_torque_age: float = param(
+        0.05, 's', 'zero torque when the last valid /wip/yaw_torque (ARC) was received '
+        'longer ago than this', minimum=0.0, exclusive_minimum=True)
+    max_drive_torque_age: float = param(
+        0.25, 's', 'zero torque when the last valid /wip/drive_torque (MPC, 10 Hz) was '
+        'received longer ago than this', minimum=0.0, exclusive_minimum=True)
+    max_estop_age: float = param(
+        0.0, 's', 'if > 0: the e-stop topic is a heartbeat that must be received at least '
+        'this often (zero torque otherwise); 0: not required', minimum=0.0)
+    fall_threshold: float = param(
+        0.35, 'rad', 'zero torque when the estimated tilt |theta_hat| exceeds this',
+        minimum=0.0, exclusive_minimum=True, maximum=1.5)
+    max_speed_estimate: float = param(
+        5.0, 'm/s', 'ESO divergence: zero torque when |v_hat| exceeds this', minimum=0.0,
+        exclusive_minimum=True)
+    max_yaw_rate_estimate: float = param(
+        10.0, 'rad/s', 'ESO divergence: zero torque when |omega_hat| exceeds this',
+        minimum=0.0, exclusive_minimum=True)
+    max_tilt_rate_estimate: float = param(
+        10.0, 'rad/s', 'ESO divergence: zero torque when |theta_dot_hat| exceeds this',
+        minimum=0.0, exclusive_minimum=True)
+    max_yaw_disturbance_estimate: float = param(
+        50.0, 'rad/s^2', 'ESO divergence: zero torque when |f1_hat| exceeds this',
+        minimum=0.0, exclusive_minimum=True)
+    max_longitudinal_disturbance_estimate: float = param(
+        50.0, 'm/s^2', 'ESO divergence: zero torque when |f2_hat| exceeds this',
+        minimum=0.0, exclusive_minimum=True)
+    max_tilt_disturbance_estimate: float = param(
+        100.0, 'rad/s^2', 'ESO divergence: zero torque when |f3_hat| exceeds this',
+        minimum=0.0, exclusive_minimum=True)
+    max_mpc_fallbacks: int = param(
+        3, '1', 'consecutive MPC outputs with status FALLBACK_SHIFTED_PLAN tolerated; one '
+        'more is a fault', minimum=0)
+    settle_time: float = param(
+        0.25, 's', 'start-up and re-arming: every input present and valid and the ESO '
+        'settled for this long before torque is sent', minimum=0.0)
+    shadow_mode: bool = param(
+        False, '1', 'compute and report the torques (on /wip/wheel_torques) but send zero '
+        'to the base (/effort_controller/commands)')
+    latch_faults: bool = param(
+        False, '1', 'a fault stays until an explicit reset (like the e-stop) instead of '
+        'clearing when its cause does')
+
+
+class SafetyDecision(NamedTuple):
+    """What one tick sends.
+
+    ``tau_left``, ``tau_right`` [N·m]: the torques of this tick after every check and limit
+    (zero unless ACTIVE or SHADOW), reported on /wip/wheel_torques; ``command``: what goes
+    to the base (zero in shadow mode).
+    """
+
+    tau_left: float
+    tau_right: float
+    zeroed: bool                #: a safety condition forced both torques to zero
+    reasons: tuple[str, ...]    #: why (every condition present), empty when ACTIVE
+    state: str                  #: one of :data:`STATES`
+    shadow: bool = False        #: shadow mode: ``command`` is zero
+
+    @property
+    def command(self) -> tuple[float, float]:
+        """(τl, τr) [N·m] for the base: zero in shadow mode."""
+        return (0.0, 0.0) if self.shadow else (self.tau_left, self.tau_right)
+
+    @property
+    def reason(self) -> str:
+        """The reasons as one line."""
+        return '; '.join(self.reasons)
+
+
+class _Input:
+    """The last valid value of one input, when it arrived, and whether the last was bad."""
+
+    __slots__ = ('value', 'arrival', 'invalid')
+
+    def __init__(self) -> None:
+        self.value = None
+        self.arrival: float | None = None
+        self.invalid = ''
+
+
+class SafetyMonitor:
+    """State machine of the safety layer (see the module docstring).
+
+    Feed each input as it arrives (:meth:`estimate`, :meth:`yaw_torque`,
+    :meth:`drive_torque`, :meth:`invalid_input`, :meth:`estop`); call :meth:`update` once
+    per control tick. Times are seconds of one monotonic clock of the caller's choice.
+
+    Parameters
+    ----------
+    config : the safety tunables.
+    max_wheel_torque : τmax [N·m] of each wheel (``MixerConfig.max_wheel_torque``).
+    max_wheel_torque_rate : [N·m/s] (``MixerConfig.max_wheel_torque_rate``).
+    period : nominal tick period [s], the Δt of the rate limit at the first update.
+    timing_checks : False in lockstep: no ages, no start-up wait, ``settled`` not required.
+    """
+
+    def __init__(self, config: SafetyConfig, max_wheel_torque: float,
+                 max_wheel_torque_rate: float, period: float,
+                 timing_checks: bool = True) -> None:
+        if not (math.isfinite(period) and period > 0.0):
+            raise ValueError(f'SafetyMonitor: period must be finite and > 0, got {period!r}')
+        self.config = config
+        self.set_limits(max_wheel_torque, max_wheel_torque_rate)
+        self.period = float(period)
+        self.timing_checks = bool(timing_checks)
+        self.inputs = {name: _Input() for name in (*_CONTROL_INPUTS, ESTOP_INPUT)}
+        self.settled = False
+        self.consecutive_fallbacks = 0
+        self.estop_engaged = False      # the e-stop input says engaged now
+        self.estop_latched = False
+        self.fault_latched: tuple[str, ...] = ()
+        self.state = STARTING
+        self.ready_since: float | None = None
+        self.last_update: float | None = None
+        self.tau_left = self.tau_right = 0.0   # output of the previous tick
+        self.ticks = 0
+
+    # -- limits ----------------------------------------------------------------------------
+    def set_limits(self, max_wheel_torque: float, max_wheel_torque_rate: float) -> None:
+        """Change τmax [N·m] and the rate limit [N·m/s] (both finite and > 0)."""
+        for name, value in (('max_wheel_torque', max_wheel_torque),
+                            ('max_wheel_torque_rate', max_wheel_torque_rate)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
+                raise ValueError(f'SafetyMonitor: {name} must be finite and > 0, got {value!r}')
+        self.max_wheel_torque = float(max_wheel_torque)
+        self.max_wheel_torque_rate = float(max_wheel_torque_rate)
+
+    # -- inputs ------------------------------------------------------------------------------
+    def _accept(self, name: str, t: float, value) -> None:
+        slot = self.inputs[name]
+        slot.value, slot.arrival, slot.invalid = value, float(t), ''
+
+    def invalid_input(self, name: str, t: float, reason: str) -> None:
+        """A message of input ``name`` was unusable (e.g. failed to convert): a fault
+        until the next valid one. The last valid value is kept but not used."""
+        self.inputs[name].invalid = reason or 'invalid'
+
+    def estimate(self, t: float, estimate: Sequence[float], settled: bool) -> None:
+        """A state estimate (a ``core.eso.StateEstimate`` or a sequence in its field
+        order) received at ``t`` [s]; ``settled``: the ESO's start-up flag."""
+        n = len(StateEstimate._fields)
+        try:
+            values = tuple(float(v) for v in estimate)
+        except (TypeError, ValueError) as err:
+            self.invalid_input(ESTIMATE, t, f'not a sequence of numbers: {err}')
+            return
+        if len(values) != n:
+            self.invalid_input(ESTIMATE, t, f'{len(values)} values, expected {n}')
+            return
+        bad = [f'{k}={v!r}' for i, (k, v) in enumerate(zip(StateEstimate._fields, values))
+               if i != _EPSILON and not math.isfinite(v)]
+        if bad:
+            self.invalid_input(ESTIMATE, t, f'non-finite {", ".join(bad)}')
+            return
+        self._accept(ESTIMATE, t, StateEstimate(*values))
+        self.settled = bool(settled)
+
+    def yaw_torque(self, t: float, tau_omega: float) -> None:
+        """τω [N·m] of the ARC, received at ``t`` [s]."""
+        if not _is_finite_number(tau_omega):
+            self.invalid_input(YAW_TORQUE, t, f'non-finite yaw torque {tau_omega!r}')
+            return
+        self._accept(YAW_TORQUE, t, float(tau_omega))
+
+    def drive_torque(self, t: float, tau_v: float, status: int = DriveStatus.SOLVED) -> None:
+        """τυ [N·m] and status of the MPC, received at ``t`` [s]."""
+        if not _is_finite_number(tau_v):
+            self.invalid_input(DRIVE_TORQUE, t, f'non-finite drive torque {tau_v!r}')
+            return
+        if status == DriveStatus.FALLBACK_SHIFTED_PLAN:
+            self.consecutive_fallbacks += 1
+        else:
+            self.consecutive_fallbacks = 0
+        self._accept(DRIVE_TORQUE, t, (float(tau_v), int(status)))
+
+    def estop(self, t: float, engaged: bool) -> None:
+        """An e-stop message received at ``t`` [s]: engaged latches the e-stop; not engaged
+        only allows a later :meth:`reset` (and is the heartbeat if ``max_estop_age`` > 0)."""
+        self._accept(ESTOP_INPUT, t, bool(engaged))
+        self.estop_engaged = bool(engaged)
+        if engaged:
+            self.estop_latched = True
+
+    def reset(self) -> tuple[bool, str]:
+        """Explicit reset of a latched e-stop (and latched faults): (success, message).
+
+        Refused while the e-stop input still says engaged. After a reset the monitor
+        re-arms through STARTING (``settle_time``)."""
+        if self.estop_engaged:
+            return False, 'e-stop still engaged: release it (publish false) before the reset'
+        was = []
+        if self.estop_latched:
+            was.append('e-stop')
+        if self.fault_latched:
+            was.append('latched fault (' + '; '.join(self.fault_latched) + ')')
+        self.estop_latched = False
+        self.fault_latched = ()
+        if self.state in (ESTOP, FAULT):
+            self.state = STARTING
+            self.ready_since = None
+        return True, ('reset ' + ' and '.join(was) + '; re-arming' if was
+                      else 'nothing to reset')
+
+    # -- the tick ----------------------------------------------------------------------------
+    def ages(self, now: float) -> dict[str, float | None]:
+        """Seconds since each input's last valid value (None: never received)."""
+        return {name: None if slot.arrival is None else now - slot.arrival
+                for name, slot in self.inputs.items()}
+
+    def _conditions(self, now: float) -> tuple[list[str], list[str]]:
+        """(faults, not-yet conditions) at ``now``."""
+        cfg = self.config
+        faults: list[str] = []
+        waiting: list[str] = []
+        max_age = {ESTIMATE: cfg.max_estimate_age, YAW_TORQUE: cfg.max_yaw_torque_age,
+                   DRIVE_TORQUE: cfg.max_drive_torque_age, ESTOP_INPUT: cfg.max_estop_age}
+        watched = list(_CONTROL_INPUTS)
+        if cfg.max_estop_age > 0.0:
+            watched.append(ESTOP_INPUT)
+        for name in watched:
+            slot = self.inputs[name]
+            if slot.invalid:
+                faults.append(f'{name} invalid: {slot.invalid}')
+            elif slot.arrival is None:
+                if self.timing_checks or name in (YAW_TORQUE, DRIVE_TORQUE):
+                    waiting.append(f'no {name} yet')
+            elif self.timing_checks and now - slot.arrival > max_age[name] + TIME_TOLERANCE:
+                faults.append(f'{name} stale: {now - slot.arrival:.3f} s old > '
+                              f'{max_age[name]:g} s (publisher stopped?)')
+        estimate = self.inputs[ESTIMATE]
+        if estimate.value is not None and not estimate.invalid:
+            faults += self._estimate_faults(estimate.value)
+            if self.timing_checks and not self.settled:
+                waiting.append('ESO not settled')
+        drive = self.inputs[DRIVE_TORQUE]
+        if drive.value is not None and not drive.invalid:
+            status = drive.value[1]
+            if status == DriveStatus.NOT_READY:
+                waiting.append('MPC not ready (NOT_READY)')
+            elif status == DriveStatus.FALLBACK_SHIFTED_PLAN:
+                if self.consecutive_fallbacks > cfg.max_mpc_fallbacks:
+                    faults.append(f'MPC failed: {self.consecutive_fallbacks} consecutive '
+                                  f'FALLBACK_SHIFTED_PLAN outputs > {cfg.max_mpc_fallbacks}')
+            elif status in (DriveStatus.FAILED_ZERO, DriveStatus.INPUT_INVALID):
+                faults.append(f'MPC failed: status {DriveStatus(status).name}')
+            elif status != DriveStatus.SOLVED:
+                faults.append(f'MPC failed: unknown status {status}')
+        return faults, waiting
+
+    def _estimate_faults(self, est: StateEstimate) -> list[str]:
+        cfg = self.config
+        faults = []
+        if abs(est.theta) > cfg.fall_threshold:
+            faults.append(f'fallen: |theta_hat| {abs(est.theta):.3f} rad > fall_threshold '
+                          f'{cfg.fall_threshold:g} rad')
+        for label, value, bound, unit in (
+                ('v_hat', est.v, cfg.max_speed_estimate, 'm/s'),
+                ('omega_hat', est.omega, cfg.max_yaw_rate_estimate, 'rad/s'),
+                ('theta_dot_hat', est.theta_dot, cfg.max_tilt_rate_estimate, 'rad/s'),
+                ('f1_hat', est.f1, cfg.max_yaw_disturbance_estimate, 'rad/s^2'),
+                ('f2_hat', est.f2, cfg.max_longitudinal_disturbance_estimate, 'm/s^2'),
+                ('f3_hat', est.f3, cfg.max_tilt_disturbance_estimate, 'rad/s^2')):
+            if abs(value) > bound:
+                faults.append(f'ESO diverged: |{label}| {abs(value):.4g} {unit} > {bound:g}')
+        return faults
+
+    def update(self, now: float) -> SafetyDecision:
+        """The torques of the tick at ``now`` [s] (one call per control tick)."""
+        self.ticks += 1
+        dt = self.period if self.last_update is None else max(0.0, now - self.last_update)
+        self.last_update = now
+        faults, waiting = self._conditions(now)
+        if self.fault_latched and not faults:
+            faults = [f'latched fault ({"; ".join(self.fault_latched)}): reset required']
+        was_active = self.state in (ACTIVE, SHADOW)
+        reasons: list[str] = []
+        if self.estop_latched:
+            state = ESTOP
+            reasons.append('e-stop engaged' if self.estop_engaged
+                           else 'e-stop latched: reset required')
+        elif faults or (waiting and (was_active or self.state == FAULT)):
+            state = FAULT
+        elif waiting:
+            state = STARTING
+        elif was_active:
+            state = ACTIVE
+        else:
+            if self.ready_since is None:
+                self.ready_since = now
+            settling = now - self.ready_since
+            if not self.timing_checks or settling >= self.config.settle_time - TIME_TOLERANCE:
+                state = ACTIVE
+            else:
+                state = STARTING
+                reasons.append(f'settling: {settling:.3f} of {self.config.settle_time:g} s')
+        reasons += faults + waiting
+        if state == FAULT and self.config.latch_faults and not self.fault_latched:
+            self.fault_latched = tuple(faults + waiting)
+        if state != STARTING or faults or waiting:
+            self.ready_since = None
+        if state == ACTIVE and self.config.shadow_mode:
+            state = SHADOW
+        self.state = state
+        if state not in (ACTIVE, SHADOW):
+            self.tau_left = self.tau_right = 0.0   # Immediate, not rate limited.
+            return SafetyDecision(0.0, 0.0, True, tuple(reasons), state,
+                                  self.config.shadow_mode)
+        tau_v = self.inputs[DRIVE_TORQUE].value[0]
+        tau_omega = self.inputs[YAW_TORQUE].value
+        left, right = mix(tau_v, tau_omega, self.max_wheel_torque)
+        step = self.max_wheel_torque_rate * dt
+        self.tau_left = _toward(self.tau_left, left, step)
+        self.tau_right = _toward(self.tau_right, right, step)
+        return SafetyDecision(self.tau_left, self.tau_right, False, (), state,
+                              self.config.shadow_mode)
+
+
+def _toward(previous: float, target: float, step: float) -> float:
+    """``target`` if within ``step`` of ``previous`` (exactly), else previous ± step."""
+    if abs(target - previous) <= step:
+        return target
+    return previous + math.copysign(step, target - previous)
+
+
+def _is_finite_number(value) -> bool:
+    return (isinstance(value, (int, float)) and not isinstance(value, bool)
+            and math.isfinite(value))
