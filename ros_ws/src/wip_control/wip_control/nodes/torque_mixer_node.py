@@ -1,30 +1,55 @@
-"""Torque mixer node: wheel torques from (τυ, τω), eq. (24) in [1]_, REP 103 signs.
+"""Torque mixer node: wheel torques from (τυ, τω), eq. (24) in [1]_, behind the safety layer.
+
+This node is the only one that commands the wheels, so it is the safety layer of the
+drop-in controller (``core/safety.py`` has the state machine and why zero torque is the
+fail-safe of a balancing robot).
 
 Topics
 ------
-Subscribes ``/wip/yaw_torque`` (wip_msgs/ArcState: τω) and ``/wip/drive_torque``
-(wip_msgs/MpcOutput: τυ, held between MPC ticks). Publishes ``/wip/wheel_torques``
-(wip_msgs/WheelTorques) stamped like the yaw torque, the same command as
-``/effort_controller/commands`` (std_msgs/Float64MultiArray, one effort per joint in the
-order of the ``joints`` parameter, for a ros2_control JointGroupEffortController), and
-``/diagnostics``.
+Subscribes
+    ``/wip/yaw_torque`` (wip_msgs/ArcState: τω), ``/wip/drive_torque`` (wip_msgs/MpcOutput:
+    τυ and the MPC's status, held between MPC ticks), ``/wip/state_estimate``
+    (wip_msgs/StateEstimate: θ̂ for the fall threshold, rates and disturbances for the ESO
+    divergence check, ``settled`` for the start-up), ``/wip/estop`` (std_msgs/Bool: true
+    engages the e-stop, latched; false releases the button, which allows a reset),
+    ``/wip/estop_reset`` (std_msgs/Empty: the reset, as the service below).
+Publishes
+    ``/wip/wheel_torques`` (wip_msgs/WheelTorques: the torques of the tick, ``zeroed`` and
+    the ``reason`` when the safety layer forced zero; in shadow mode the torques that would
+    be sent), the command of the base on ``effort_topic`` (default
+    ``/effort_controller/commands``, std_msgs/Float64MultiArray, one effort per joint in the
+    order of ``joints``, for a ros2_control ``JointGroupEffortController``; zero in shadow
+    mode), ``/diagnostics`` (safety state, every reason, input ages, counters; also at once
+    on each change of the safety state).
+Service
+    ``~/reset_estop`` (std_srvs/Trigger): reset a latched e-stop (and latched faults);
+    refused, with the reason, while ``/wip/estop`` still says true.
 
-Per sample: ``core.mixer.mix(τυ, τω, mixer.max_wheel_torque)`` (the runner's step 7): yaw
-first, then the drive torque within 2 τmax − |τω|, each wheel within ±τmax.
+Per tick: ``core.safety.SafetyMonitor.update`` — ``core.mixer.mix(τυ, τω, τmax)`` (the
+runner's step 7: yaw first, each wheel within ±τmax) when every check passes, rate limited
+by ``mixer.max_wheel_torque_rate``; zero torque at once, with the reason, otherwise.
 
-Safety (a first part of the safety layer; stale inputs, e-stop, tilt limit and the torque
-rate limit are a later issue): a non-finite τω or τυ gives zero torque on both wheels with
-``zeroed = true`` and the reason; a message is published for the sample all the same, so
-a lockstep plant never waits forever. Before the first drive torque τυ = 0.
+Clock modes
+-----------
+realtime: the mixer ticks on its own timer of period 1/``rates.control_rate`` on the
+steady clock, with the latest inputs. Each tick publishes one command, also when no input
+came, so an input stream that stops is seen at the first tick after its age limit; input
+ages are measured from the steady-clock time of arrival (independent of the sender's
+clock). A command lags the yaw torque it uses by at most one period (mean half a period).
+lockstep: one command per stamp t_k, computed when yaw_torque(t_k) has arrived, plus
+drive_torque(t_k) when t_k is an MPC tick (k = round(t_k / h) a multiple of
+round(``mpc_period`` / h), h = 1/``rates.control_rate``, from t = 0, as in the runner),
+else the drive torque of the last tick; once a state estimate has been received, also
+estimate(t_k), so that the checks use the estimate of the same sample whatever the
+arrival order. The safety layer runs without ages and start-up wait (see
+``core/safety.py``: exact-time sets guarantee freshness, and lockstep reproduces the
+in-process runner, which controls from t = 0); the value checks and limits apply. A tick
+is answered even when zeroed, so a lockstep plant never waits forever.
 
-Synchronisation: lockstep: yaw_torque(t_k), plus drive_torque(t_k) when t_k is an MPC
-tick (k = round(t_k / h) a multiple of round(``mpc_period`` / h), h = 1/``rates.control_rate``,
-from t = 0, as in the runner), else the drive torque of the last tick; realtime: on each
-yaw torque, with the latest drive torque.
-
-Parameters: section ``mixer`` (changeable at run time), section ``rates`` (read-only),
-``mpc_period`` [s], ``joints``, ``left_joint``, ``right_joint``, ``clock_mode``,
-``diagnostics_period``.
+Parameters: section ``mixer`` (changeable at run time, validated), sections ``rates`` and
+``safety`` (read-only: a safety setting does not change under a running robot),
+``mpc_period`` [s], ``joints``, ``left_joint``, ``right_joint``, ``effort_topic``,
+``clock_mode``, ``diagnostics_period`` (all read-only).
 
 References
 ----------
@@ -36,30 +61,41 @@ from __future__ import annotations
 import sys
 import time
 
-from std_msgs.msg import Float64MultiArray
-from wip_msgs.msg import ArcState, MpcOutput, WheelTorques
+from rclpy.clock import Clock, ClockType
+from std_msgs.msg import Bool, Empty, Float64MultiArray
+from std_srvs.srv import Trigger
+from wip_msgs.msg import ArcState, MpcOutput, StateEstimate as StateEstimateMsg, WheelTorques
 
 from ..core.config import ConfigError
-from ..core.mixer import MixerConfig, mix
+from ..core.mixer import MixerConfig
 from ..core.mpc import MpcConfig
+from ..core.safety import (ACTIVE, ESTOP, FAULT, SafetyConfig, SafetyDecision,
+                           SafetyMonitor, SHADOW, STARTING)
 from ..core.scenario import RatesConfig
-from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
-from .conversions import effort_command, wheel_torques_to_msg
-from .diagnostics import OK, WARN
+from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
+from .conversions import effort_command, estimate_from_msg, wheel_torques_to_msg
+from .diagnostics import ERROR, OK, WARN
 from .parameters import ConfigParameters, declare_plain
-from .sync import decimation, ExactTimeSync, is_decimated_tick, LatestSync
+from .sync import decimation, ExactTimeSync, is_decimated_tick
 
 _INPUTS = ('yaw_torque', 'drive_torque')
+_DIAGNOSED = (*_INPUTS, 'state_estimate', 'estop')
+#: Estimates kept by stamp in lockstep (only the current tick's is needed).
+_MAX_ESTIMATE_STAMPS = 64
+#: Least wall time between two /diagnostics sent at once on a state change [s].
+_DIAGNOSTICS_ON_CHANGE_PERIOD = 0.05
+_LEVEL = {ACTIVE: OK, SHADOW: WARN, STARTING: WARN, FAULT: ERROR, ESTOP: ERROR}
 
 
 class TorqueMixerNode(ControllerNode):
     """See the module docstring."""
 
     def __init__(self, **kwargs) -> None:
-        super().__init__('torque_mixer', 'torque mixer (24) and safety', _INPUTS, **kwargs)
+        super().__init__('torque_mixer', 'torque mixer (24) and safety', _DIAGNOSED, **kwargs)
         self.parameters = ConfigParameters(self, 'mixer', MixerConfig, self._on_config)
         self.mixer = self.parameters.config
         self.rates = ConfigParameters(self, 'rates', RatesConfig).config
+        self.safety = ConfigParameters(self, 'safety', SafetyConfig).config
         self.mpc_period = declare_plain(self, 'mpc_period', MpcConfig().sampling_period, 's',
                                         'MPC sampling period: in lockstep a drive torque '
                                         'is awaited at every MPC tick')
@@ -71,27 +107,58 @@ class TorqueMixerNode(ControllerNode):
                                          'name of the right wheel joint')
         self.joints = list(declare_plain(
             self, 'joints', [self.left_joint, self.right_joint], '',
-            'joints of /effort_controller/commands, in the order of its data'))
+            'joints of the effort command, in the order of its data'))
         if sorted(self.joints) != sorted([self.left_joint, self.right_joint]):
             raise ConfigError(f'joints: must list left_joint {self.left_joint!r} and '
                               f'right_joint {self.right_joint!r} once each, got {self.joints}')
+        effort_topic = declare_plain(self, 'effort_topic', '/effort_controller/commands', '',
+                                     'topic of the ros2_control JointGroupEffortController '
+                                     'command (std_msgs/Float64MultiArray)')
+        if not (isinstance(effort_topic, str) and effort_topic):
+            raise ConfigError(f'effort_topic: must be a topic name, got {effort_topic!r}')
         self.control_period = 1.0 / self.rates.control_rate
         self.every = decimation(self.mpc_period, self.control_period)
-        self.held_drive = 0.0
+        self.monitor = SafetyMonitor(self.safety, self.mixer.max_wheel_torque,
+                                     self.mixer.max_wheel_torque_rate, self.control_period,
+                                     timing_checks=not self.lockstep)
+        self.last_decision: SafetyDecision | None = None
+        self.zeroed_ticks = 0
+        self._diagnostics_sent_at = 0.0
+        self.estimates: dict[int, tuple] = {}        # lockstep: stamp -> (estimate, settled)
+        self.latest_estimate_stamp: int | None = None
         self.torques_publisher = self.create_publisher(WheelTorques, '/wip/wheel_torques',
                                                        RELIABLE_QOS)
-        self.effort_publisher = self.create_publisher(
-            Float64MultiArray, '/effort_controller/commands', RELIABLE_QOS)
+        self.effort_publisher = self.create_publisher(Float64MultiArray, effort_topic,
+                                                      RELIABLE_QOS)
         if self.lockstep:
-            self.sync = ExactTimeSync(_INPUTS, self._mix, required=self._required)
+            self.sync = ExactTimeSync(_INPUTS, self._mix_set, required=self._required,
+                                      gate=self._estimate_ready)
         else:
-            self.sync = LatestSync(_INPUTS, self._mix, triggers=('yaw_torque',))
+            self.timer = self.create_timer(self.control_period, self._tick,
+                                           clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.subscribe(ArcState, '/wip/yaw_torque', 'yaw_torque', self._on_yaw)
         self.subscribe(MpcOutput, '/wip/drive_torque', 'drive_torque', self._on_drive)
-        self.diagnostics.state(OK, 'waiting for the first yaw torque')
+        self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
+                       self._on_estimate)
+        self.subscribe(Bool, '/wip/estop', 'estop', self._on_estop)
+        self.subscribe(Empty, '/wip/estop_reset', 'estop_reset',
+                       lambda _msg: self.reset_estop('/wip/estop_reset'))
+        self.create_service(Trigger, '~/reset_estop', self._on_reset_service)
+        self.diagnostics.state(WARN, 'STARTING: waiting for the first inputs')
+        # Ages and counters are filled in when a status is made, not at every tick.
+        self._base_status = self.diagnostics.status
+        self.diagnostics.status = self._status
 
+    # -- parameters and time -------------------------------------------------------------------
     def _on_config(self, config: MixerConfig) -> None:
         self.mixer = config
+        self.monitor.set_limits(config.max_wheel_torque, config.max_wheel_torque_rate)
+
+    def monitor_time(self) -> float:
+        """Time of the safety monitor [s]: steady clock in real time, node clock in lockstep."""
+        if self.lockstep:
+            return self.time_base.seconds(self.now_ns())
+        return time.monotonic()
 
     def is_tick(self, stamp_ns: int) -> bool:
         """Whether ``stamp_ns`` is an MPC tick of the lockstep grid (from t = 0)."""
@@ -100,51 +167,147 @@ class TorqueMixerNode(ControllerNode):
     def _required(self, stamp_ns: int) -> tuple[str, ...]:
         return _INPUTS if self.is_tick(stamp_ns) else ('yaw_torque',)
 
+    def _estimate_ready(self, stamp_ns: int) -> bool:
+        # Lockstep: once estimates come, the set of t_k waits for estimate(t_k).
+        return self.latest_estimate_stamp is None or self.latest_estimate_stamp >= stamp_ns
+
+    # -- subscriptions -----------------------------------------------------------------------
     def _on_yaw(self, msg: ArcState) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input('yaw_torque', stamp)
-        self.feed('yaw_torque', stamp, float(msg.tau_omega))
+        if self.lockstep:
+            self.feed('yaw_torque', stamp, msg.tau_omega)
+        else:
+            self.monitor.yaw_torque(self.monitor_time(), msg.tau_omega)
 
     def _on_drive(self, msg: MpcOutput) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input('drive_torque', stamp)
-        tau_v = float(msg.tau_v)
-        if self.lockstep and not self.is_tick(stamp):
+        value = (msg.tau_v, msg.status)
+        if not self.lockstep:
+            self.monitor.drive_torque(self.monitor_time(), *value)
+        elif not self.is_tick(stamp):
             # Not awaited at this stamp: hold it from now on (the MPC's period differs
             # from mpc_period, which /diagnostics reports).
             self.diagnostics.drop('drive_torque', 'off the MPC ticks',
                                   f'stamp {stamp} ns; held without synchronisation')
-            self.held_drive = tau_v
-            return
-        self.feed('drive_torque', stamp, tau_v)
-
-    def _mix(self, stamp: int, values) -> None:
-        start = time.perf_counter()
-        tau_omega = values['yaw_torque']
-        if 'drive_torque' in values:
-            self.held_drive = values['drive_torque']
-        tau_v = self.held_drive
-        reason = ''
-        if not finite(tau_omega):
-            reason = f'non-finite yaw torque {tau_omega!r}'
-        elif not finite(tau_v):
-            reason = f'non-finite drive torque {tau_v!r}'
-        if reason:
-            left = right = 0.0
+            self.monitor.drive_torque(self.time_base.seconds(stamp), *value)
         else:
-            left, right = mix(tau_v, tau_omega, self.mixer.max_wheel_torque)
-        self.torques_publisher.publish(wheel_torques_to_msg(left, right, stamp, bool(reason),
-                                                            reason))
-        self.effort_publisher.publish(effort_command(left, right, self.joints,
+            self.feed('drive_torque', stamp, value)
+
+    def _on_estimate(self, msg: StateEstimateMsg) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input('state_estimate', stamp)
+        value = (estimate_from_msg(msg, check=False).estimate, bool(msg.settled))
+        if not self.lockstep:
+            self.monitor.estimate(self.monitor_time(), *value)
+            return
+        last = self.sync.last_emitted
+        if last is not None and stamp <= last:
+            self.diagnostics.drop('state_estimate', 'stale',
+                                  f'stamp {stamp} ns not after the last computed one')
+            return
+        if len(self.estimates) >= _MAX_ESTIMATE_STAMPS:
+            del self.estimates[min(self.estimates)]
+        self.estimates[stamp] = value
+        if self.latest_estimate_stamp is None or stamp > self.latest_estimate_stamp:
+            self.latest_estimate_stamp = stamp
+        self.sync.drain()
+
+    def _on_estop(self, msg: Bool) -> None:
+        engaged = bool(msg.data)
+        self.diagnostics.input('estop', self.now_ns())
+        was_latched = self.monitor.estop_latched
+        self.monitor.estop(self.monitor_time(), engaged)
+        if engaged and not was_latched:
+            self.get_logger().error('e-stop engaged: zero torque until released and reset')
+
+    def _on_reset_service(self, _request, response):
+        response.success, response.message = self.reset_estop('~/reset_estop')
+        return response
+
+    def reset_estop(self, source: str) -> tuple[bool, str]:
+        """Reset a latched e-stop (and latched faults); (success, message), logged."""
+        ok, message = self.monitor.reset()
+        if ok:
+            self.get_logger().warning(f'reset via {source}: {message}')
+        else:
+            self.get_logger().error(f'reset refused via {source}: {message}')
+        return ok, message
+
+    # -- ticks ---------------------------------------------------------------------------------
+    def _tick(self) -> None:
+        """Realtime timer: one command per period with the latest inputs."""
+        try:
+            self._publish(self.now_ns(), self.monitor.update(self.monitor_time()))
+        except Exception as err:  # noqa: B902 - a timer callback must not stop the node
+            self.diagnostics.drop('tick', 'error', f'{type(err).__name__}: {err}')
+
+    def _mix_set(self, stamp: int, values) -> None:
+        """Lockstep: the command of stamp t_k from its complete input set."""
+        t = self.time_base.seconds(stamp)
+        self.monitor.yaw_torque(t, values['yaw_torque'])
+        if 'drive_torque' in values:
+            self.monitor.drive_torque(t, *values['drive_torque'])
+        if self.estimates:
+            usable = [s for s in self.estimates if s <= stamp]
+            if usable:
+                newest = max(usable)
+                self.monitor.estimate(t, *self.estimates[newest])
+                for s in usable:
+                    del self.estimates[s]
+        self._publish(stamp, self.monitor.update(t))
+
+    def _publish(self, stamp: int, decision: SafetyDecision) -> None:
+        start = time.perf_counter()
+        left, right = decision.tau_left, decision.tau_right
+        self.torques_publisher.publish(wheel_torques_to_msg(
+            left, right, stamp, decision.zeroed, decision.reason))
+        self.effort_publisher.publish(effort_command(*decision.command, self.joints,
                                                      self.left_joint, self.right_joint))
         self.diagnostics.output(stamp, time.perf_counter() - start)
-        if reason:
-            self.diagnostics.state(WARN, f'zeroed: {reason}')
-        else:
+        self.zeroed_ticks += decision.zeroed
+        previous = self.last_decision
+        self.last_decision = decision
+        self._report(decision)
+        changed = previous is None or previous.state != decision.state
+        if changed:
+            log = self.get_logger()
+            text = f'safety state {decision.state}' + (f': {decision.reason}'
+                                                       if decision.reason else '')
+            # One call site per severity: rclpy refuses to change it between calls.
+            if decision.state in (ACTIVE, SHADOW, STARTING):
+                log.info(text)
+            else:
+                log.error(text)
+            wall = time.monotonic()
+            if wall - self._diagnostics_sent_at >= _DIAGNOSTICS_ON_CHANGE_PERIOD:
+                self._diagnostics_sent_at = wall
+                self.diagnostics.publish()
+
+    def _report(self, decision: SafetyDecision) -> None:
+        diag = self.diagnostics
+        if decision.state == ACTIVE:
             limit = self.mixer.max_wheel_torque
-            clipped = max(abs(left), abs(right)) >= limit
-            self.diagnostics.state(OK, f'mixing; wheel torque at the {limit:g} N m limit'
-                                   if clipped else 'mixing within the limits')
+            clipped = max(abs(decision.tau_left), abs(decision.tau_right)) >= limit
+            diag.state(OK, f'ACTIVE: wheel torque at the {limit:g} N m limit' if clipped
+                       else 'ACTIVE: mixing within the limits')
+        elif decision.state == SHADOW:
+            diag.state(WARN, 'SHADOW: computing, commanding zero to the base (shadow_mode)')
+        else:
+            diag.state(_LEVEL[decision.state], f'{decision.state}: zero torque: '
+                       f'{decision.reason}')
+        diag.values['safety state'] = decision.state
+        diag.values['safety reasons'] = decision.reason or 'none'
+
+    def _status(self):
+        """The node's DiagnosticStatus with the safety counters and input ages of now."""
+        values = self.diagnostics.values
+        for name, age in self.monitor.ages(self.monitor_time()).items():
+            values[f'received {name} ago [s]'] = 'never' if age is None else f'{age:.4f}'
+        values['ticks'] = str(self.monitor.ticks)
+        values['zeroed ticks'] = str(self.zeroed_ticks)
+        return self._base_status()
 
 
 def main(args=None) -> int:

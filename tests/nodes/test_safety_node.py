@@ -1,0 +1,455 @@
+"""The torque_mixer node as the safety layer, in real time: faults injected into a running
+graph, and the number of mixer ticks until /effort_controller/commands says zero.
+
+The mixer runs in this process (private rclpy context and DDS domain) on its own 200 Hz
+steady-clock timer, as on a robot. A stand-in for the upstream controllers publishes the
+state estimate and the yaw torque at 200 Hz and the drive torque at 10 Hz on timers of a
+harness node in the same executor; in the last test the drive torque comes from the real
+MPC, started as its own process from its installed executable, and that process is
+SIGKILLed.
+
+How the reaction is counted: the test wraps the node's safety monitor (not the node's
+code) to log, on the monitor's own clock, each input it receives and each tick's
+decision. The fault time is when the bad input reached the monitor (value faults), or
+when the last good input became older than its age limit (stale inputs, stopped
+processes). The count is the number of mixer ticks from the fault time to the first
+zeroed tick, inclusive: 1 means the very first tick after the fault commands zero.
+That tick is located on /effort_controller/commands: after the run the timer is stopped,
+the topic drained, and the messages received must equal, in order, the commands of the
+last ticks logged (each tick publishes exactly one).
+"""
+
+import itertools
+import math
+import os
+import random
+import signal
+import subprocess
+import time
+
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+pytest.importorskip('wip_msgs.msg')
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from std_msgs.msg import Bool, Float64MultiArray  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg,  # noqa: E402
+                          VelocityCommand, WheelTorques)
+
+from wip_control.core.mixer import mix  # noqa: E402
+from wip_control.core.safety import (ACTIVE, DriveStatus, ESTOP, FAULT, SHADOW,  # noqa: E402
+                                     STARTING, TIME_TOLERANCE)
+from wip_control.nodes.common import make_header  # noqa: E402
+from wip_control.nodes.torque_mixer_node import TorqueMixerNode  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+TIMEOUT = 20.0          # [s] for any wait (normally a fraction of a second)
+PERIOD = 0.005          # mixer and upstream period [s] (200 Hz)
+#: Generous ages: a loaded 2-core machine must not trip them by accident; the count of
+#: ticks after the age is what is tested, not the age itself.
+AGES = {'state_estimate': 0.2, 'yaw_torque': 0.2, 'drive_torque': 0.5}
+SETTLE = 0.05           # [s]
+TAU_V, TAU_OMEGA = 4.0, 0.6
+_ids = itertools.count()
+
+
+@pytest.fixture(scope='module')
+def context():
+    saved = {k: os.environ.get(k) for k in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')}
+    domain = random.randint(1, 101)
+    os.environ['ROS_DOMAIN_ID'] = str(domain)
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
+
+
+class Log:
+    """Wraps a SafetyMonitor's methods to log inputs and decisions on the monitor's clock."""
+
+    def __init__(self, monitor):
+        self.inputs = []     # (t, name, args)
+        self.ticks = []      # (t, decision)
+        update = monitor.update
+
+        def logged_update(now):
+            decision = update(now)
+            self.ticks.append((now, decision))
+            return decision
+        monitor.update = logged_update
+        for name in ('estimate', 'yaw_torque', 'drive_torque', 'estop', 'invalid_input'):
+            method = getattr(monitor, name)
+
+            def logged(t, *args, _method=method, _name=name):
+                self.inputs.append((t, _name, args))
+                return _method(t, *args)
+            setattr(monitor, name, logged)
+
+    def first_input(self, predicate, after=-math.inf):
+        return next(t for t, name, args in self.inputs if t > after and predicate(name, args))
+
+    def last_input(self, name, before=math.inf):
+        return max(t for t, n, _ in self.inputs if n == name and t < before)
+
+    def count(self, fault_time):
+        """(ticks from fault_time to the first zeroed one inclusive, that tick's index)."""
+        for n, (i, (t, decision)) in enumerate(
+                ((i, tick) for i, tick in enumerate(self.ticks) if tick[0] >= fault_time),
+                start=1):
+            if decision.zeroed:
+                return n, i
+        raise AssertionError('no zeroed tick after the fault')
+
+
+class Graph:
+    """The mixer node, a harness node with the upstream stand-in, one executor."""
+
+    def __init__(self, context, upstream=True, **params):
+        values = {'clock_mode': 'realtime', 'use_sim_time': False, 'diagnostics_period': 0.5,
+                  'safety.settle_time': SETTLE,
+                  'safety.max_estimate_age': AGES['state_estimate'],
+                  'safety.max_yaw_torque_age': AGES['yaw_torque'],
+                  'safety.max_drive_torque_age': AGES['drive_torque'], **params}
+        self.io = rclpy.create_node(f'safety_harness_{next(_ids)}', context=context)
+        self.efforts = []
+        self.wheels = []
+        self.diagnostics = []
+        self.io.create_subscription(Float64MultiArray, '/effort_controller/commands',
+                                    self.efforts.append, 1000)
+        self.io.create_subscription(WheelTorques, '/wip/wheel_torques', self.wheels.append,
+                                    1000)
+        self.io.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append,
+                                    100)
+        self.pubs = {topic: self.io.create_publisher(kind, topic, 100) for topic, kind in (
+            ('/wip/state_estimate', StateEstimateMsg), ('/wip/yaw_torque', ArcState),
+            ('/wip/drive_torque', MpcOutput), ('/wip/estop', Bool),
+            ('/wip/velocity_command', VelocityCommand))}
+        self.node = TorqueMixerNode(context=context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in values.items()])
+        self.log = Log(self.node.monitor)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.io)
+        # Upstream stand-in: what the ESO, ARC and MPC would publish.
+        self.estimate = dict(theta=0.02, v=0.1, settled=True)
+        self.status = MpcOutput.SOLVED
+        self.sending = {'/wip/state_estimate', '/wip/yaw_torque', '/wip/drive_torque'}
+        self.k = 0
+        if upstream:
+            self.io.create_timer(PERIOD, self._upstream)
+        self.spin_until(lambda: all(p.get_subscription_count() > 0 for t, p in
+                                    self.pubs.items() if t != '/wip/velocity_command')
+                        and self.io.count_publishers('/effort_controller/commands') > 0,
+                        'matched topics')
+
+    def _upstream(self):
+        stamp = make_header(self.io.get_clock().now().nanoseconds)
+        if '/wip/state_estimate' in self.sending:
+            self.pubs['/wip/state_estimate'].publish(StateEstimateMsg(header=stamp,
+                                                                      **self.estimate))
+        if '/wip/yaw_torque' in self.sending:
+            self.pubs['/wip/yaw_torque'].publish(ArcState(header=stamp, tau_omega=TAU_OMEGA))
+        if '/wip/velocity_command' in self.sending:
+            self.pubs['/wip/velocity_command'].publish(VelocityCommand(header=stamp,
+                                                                       v_d=0.1))
+        if self.k % 20 == 0 and '/wip/drive_torque' in self.sending:
+            self.pubs['/wip/drive_torque'].publish(MpcOutput(header=stamp, tau_v=TAU_V,
+                                                             status=self.status))
+        self.k += 1
+
+    def spin_until(self, condition, what):
+        deadline = time.monotonic() + TIMEOUT
+        while not condition():
+            assert time.monotonic() < deadline, f'timeout waiting for {what}'
+            self.executor.spin_once(timeout_sec=0.002)
+
+    def spin_for(self, seconds):
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.002)
+
+    @property
+    def state(self):
+        decision = self.node.last_decision
+        return None if decision is None else decision.state
+
+    def wait_active(self, state=ACTIVE):
+        self.spin_until(lambda: self.state == state, state)
+        self.spin_for(0.1)
+        assert self.state == state, self.node.last_decision
+
+    def wait_zeroed(self):
+        self.spin_until(lambda: self.node.last_decision.zeroed, 'a zeroed tick')
+        self.spin_for(0.05)
+
+    def diagnosed(self, *words):
+        """Spin until /diagnostics has a status of the mixer that names ``words``."""
+        def found():
+            for array in self.diagnostics:
+                for status in array.status:
+                    text = status.message + ' '.join(v.value for v in status.values)
+                    if 'torque_mixer' in status.name and all(w in text for w in words):
+                        return status
+            return None
+        self.spin_until(found, f'/diagnostics naming {words}')
+        return found()
+
+    def commands_on_the_topic(self):
+        """Stop the mixer's timer, drain the topic; check it against the logged ticks and
+        return the offset of the received messages in the log."""
+        self.node.timer.cancel()
+        self.spin_for(0.2)
+        commands = [d.command for _, d in self.log.ticks]
+        received = [tuple(m.data) for m in self.efforts]
+        assert len(received) > 0 and len(received) <= len(commands)
+        offset = len(commands) - len(received)
+        # Joint order [left, right] (the default joints parameter).
+        assert received == commands[offset:], 'the topic carries one command per tick'
+        return offset
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.io.destroy_node()
+
+
+@pytest.fixture
+def graphs():
+    made = []
+    yield made
+    for graph in made:
+        graph.close()
+
+
+def graph(graphs, context, **params):
+    g = Graph(context, **params)
+    graphs.append(g)
+    return g
+
+
+def assert_first_zero_within_one_tick(g, fault_time, *reason_words):
+    ticks, index = g.log.count(fault_time)
+    before = [d for t, d in g.log.ticks if t < fault_time]
+    assert before[-1].state == ACTIVE and not before[-1].zeroed, 'active before the fault'
+    decision = g.log.ticks[index][1]
+    for word in reason_words:
+        assert word in decision.reason, (word, decision.reasons)
+    offset = g.commands_on_the_topic()
+    assert index >= offset, 'the zeroed tick was received on the topic'
+    assert g.efforts[index - offset].data.tolist() == [0.0, 0.0]
+    assert ticks == 1, f'{ticks} mixer ticks from the fault to zero torque'
+    return ticks
+
+
+# ----------------------------------------------------------------------------- tests
+
+def test_start_up_sends_zero_until_every_input_arrived_and_settled(context, graphs):
+    g = graph(graphs, context, upstream=False)
+    g.spin_for(0.1)
+    assert g.state == STARTING and g.efforts and all(
+        m.data.tolist() == [0.0, 0.0] for m in g.efforts)
+    assert 'no state_estimate yet' in g.node.last_decision.reason
+    g.diagnosed('STARTING', 'no state_estimate yet')
+    g.estimate['settled'] = False
+    g.io.create_timer(PERIOD, g._upstream)
+    g.spin_for(0.2)
+    assert g.state == STARTING and 'ESO not settled' in g.node.last_decision.reason
+    g.estimate['settled'] = True
+    g.wait_active()
+    first_active = next(i for i, (_, d) in enumerate(g.log.ticks) if d.state == ACTIVE)
+    settled_at = g.log.first_input(lambda n, a: n == 'estimate' and a[1])
+    # Torque only settle_time after everything was present, valid and settled.
+    assert g.log.ticks[first_active][0] - settled_at >= SETTLE - TIME_TOLERANCE
+    assert all(d.zeroed for _, d in g.log.ticks[:first_active])
+    left, right = mix(TAU_V, TAU_OMEGA, 15.0)
+    assert g.efforts[-1].data.tolist() == [left, right]
+
+
+@pytest.mark.parametrize('name, topic', [('state_estimate', '/wip/state_estimate'),
+                                         ('yaw_torque', '/wip/yaw_torque')])
+def test_a_stopped_input_stream_zeroes_at_the_first_tick_past_its_age(context, graphs,
+                                                                      name, topic):
+    g = graph(graphs, context)
+    g.wait_active()
+    stop = time.monotonic()
+    g.sending.discard(topic)
+    g.wait_zeroed()
+    monitor_name = {'state_estimate': 'estimate'}.get(name, name)
+    fault_time = g.log.last_input(monitor_name, before=math.inf) + AGES[name] \
+        + TIME_TOLERANCE
+    assert fault_time > stop
+    assert_first_zero_within_one_tick(g, fault_time, f'{name} stale')
+    g.diagnosed('FAULT', f'{name} stale')
+
+
+@pytest.mark.parametrize('change, words', [
+    (dict(theta=math.nan), ('state_estimate invalid', 'theta=nan')),
+    (dict(v=math.inf), ('state_estimate invalid', 'v=inf')),
+    (dict(theta=0.5), ('fallen', 'fall_threshold')),
+    (dict(theta=-0.4), ('fallen',)),
+    (dict(f3=1e3), ('ESO diverged', 'f3_hat')),
+    (dict(omega=-50.0), ('ESO diverged', 'omega_hat')),
+])
+def test_a_bad_estimate_zeroes_at_the_next_tick_and_diagnostics_say_why(context, graphs,
+                                                                        change, words):
+    g = graph(graphs, context)
+    g.wait_active()
+    start = time.monotonic()
+    g.estimate.update(change)
+    g.wait_zeroed()
+    key, value = next(iter(change.items()))
+
+    def bad(name, args):
+        if name == 'invalid_input':
+            return True
+        if name != 'estimate':
+            return False
+        got = getattr(args[0], key)
+        return got == value or (math.isnan(value) and math.isnan(got))
+    fault_time = g.log.first_input(bad, after=start)
+    assert_first_zero_within_one_tick(g, fault_time, *words)
+    status = g.diagnosed('FAULT', *words)
+    assert status.level == DiagnosticStatus.ERROR
+
+
+@pytest.mark.parametrize('status, words', [
+    (MpcOutput.FAILED_ZERO, ('MPC failed', 'FAILED_ZERO')),
+    (MpcOutput.INPUT_INVALID, ('MPC failed', 'INPUT_INVALID'))])
+def test_an_mpc_failure_status_zeroes_at_the_next_tick(context, graphs, status, words):
+    g = graph(graphs, context)
+    g.wait_active()
+    start = time.monotonic()
+    g.status = status
+    g.wait_zeroed()
+    fault_time = g.log.first_input(lambda n, a: n == 'drive_torque' and a[1] == status,
+                                   after=start)
+    assert_first_zero_within_one_tick(g, fault_time, *words)
+    g.diagnosed('FAULT', *words)
+
+
+def test_estop_zeroes_at_the_next_tick_and_latches_until_reset(context, graphs):
+    g = graph(graphs, context)
+    client = g.io.create_client(Trigger, '/torque_mixer/reset_estop')
+    g.wait_active()
+    start = time.monotonic()
+    g.pubs['/wip/estop'].publish(Bool(data=True))
+    g.wait_zeroed()
+    fault_time = g.log.first_input(lambda n, a: n == 'estop' and a[0], after=start)
+    ticks, index = g.log.count(fault_time)
+    assert ticks == 1 and g.log.ticks[index][1].state == ESTOP
+    g.diagnosed('ESTOP', 'e-stop engaged')
+
+    def reset():
+        future = client.call_async(Trigger.Request())
+        g.spin_until(future.done, 'the reset service')
+        return future.result()
+    g.spin_until(client.service_is_ready, 'the reset service')
+    answer = reset()
+    assert not answer.success and 'still engaged' in answer.message
+    g.pubs['/wip/estop'].publish(Bool(data=False))        # released: still latched
+    g.spin_for(0.3)
+    assert g.state == ESTOP and 'reset required' in g.node.last_decision.reason
+    assert all(d.zeroed for t, d in g.log.ticks if t >= fault_time)
+    answer = reset()
+    assert answer.success and 'e-stop' in answer.message
+    g.wait_active()
+    after_reset = [d.state for t, d in g.log.ticks if t > fault_time]
+    assert STARTING in after_reset                      # re-armed through STARTING
+    offset = g.commands_on_the_topic()
+    assert g.efforts[index - offset].data.tolist() == [0.0, 0.0]
+
+
+def test_estop_reset_topic_works_like_the_service(context, graphs):
+    from std_msgs.msg import Empty
+    g = graph(graphs, context)
+    reset = g.io.create_publisher(Empty, '/wip/estop_reset', 10)
+    g.wait_active()
+    g.pubs['/wip/estop'].publish(Bool(data=True))
+    g.pubs['/wip/estop'].publish(Bool(data=False))
+    g.spin_until(lambda: reset.get_subscription_count() > 0, 'reset topic')
+    g.spin_for(0.2)
+    assert g.state == ESTOP
+    reset.publish(Empty())
+    g.wait_active()
+
+
+def test_shadow_mode_publishes_the_torques_but_commands_zero(context, graphs):
+    g = graph(graphs, context, **{'safety.shadow_mode': True})
+    g.wait_active(SHADOW)
+    left, right = mix(TAU_V, TAU_OMEGA, 15.0)
+    assert (g.wheels[-1].left, g.wheels[-1].right, g.wheels[-1].zeroed) == (left, right, False)
+    assert g.efforts[-1].data.tolist() == [0.0, 0.0]
+    g.diagnosed('SHADOW')
+
+
+def test_safety_parameters_are_read_only_and_mixer_limits_are_validated(context, graphs):
+    g = graph(graphs, context)
+    node = g.node
+    for name, value in (('safety.fall_threshold', 1.0), ('safety.shadow_mode', False),
+                        ('safety.max_estimate_age', 10.0)):
+        result = node.set_parameters([Parameter(name, value=value)])[0]
+        assert not result.successful and 'read-only' in result.reason
+    for value in (math.nan, -1.0, 0.0, math.inf):
+        result = node.set_parameters([Parameter('mixer.max_wheel_torque_rate',
+                                                value=value)])[0]
+        assert not result.successful and result.reason
+    assert node.set_parameters([Parameter('mixer.max_wheel_torque_rate', value=100.0)])[0] \
+        .successful
+    assert node.monitor.max_wheel_torque_rate == 100.0
+    g.wait_active()
+    ticks = g.log.ticks
+    for (t0, a), (t1, b) in zip(ticks, ticks[1:]):
+        for before, after in ((a.tau_left, b.tau_left), (a.tau_right, b.tau_right)):
+            if not b.zeroed:   # 1e-12: one rounding of the step
+                assert abs(after - before) <= 100.0 * (t1 - t0) + 1e-12
+
+
+def test_mpc_process_killed_mid_run_zeroes_at_the_first_tick_past_the_drive_age(
+        context, graphs):
+    from ament_index_python.packages import get_package_prefix
+    executable = os.path.join(get_package_prefix('wip_control'), 'lib', 'wip_control', 'mpc')
+    assert os.access(executable, os.X_OK), executable
+    env = dict(os.environ)
+    env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
+    g = graph(graphs, context)
+    g.sending.discard('/wip/drive_torque')              # the real MPC publishes it
+    g.sending.add('/wip/velocity_command')
+    process = subprocess.Popen([executable, '--ros-args', '-p', 'clock_mode:=realtime',
+                                '-p', 'diagnostics_period:=0.0'], env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        g.spin_until(lambda: process.poll() is None and g.log.inputs and any(
+            n == 'drive_torque' and a[1] == DriveStatus.SOLVED for _, n, a in g.log.inputs),
+            'SOLVED drive torques from the MPC process')
+        g.wait_active()
+        kill_time = time.monotonic()
+        process.send_signal(signal.SIGKILL)
+        process.wait(timeout=10)
+        g.wait_zeroed()
+        fault_time = g.log.last_input('drive_torque') + AGES['drive_torque'] + TIME_TOLERANCE
+        assert fault_time > kill_time
+        assert_first_zero_within_one_tick(g, fault_time, 'drive_torque stale',
+                                          'publisher stopped')
+        status = g.diagnosed('FAULT', 'drive_torque stale')
+        assert status.level == DiagnosticStatus.ERROR
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+
+
+def test_drive_status_values_are_the_mpc_output_constants():
+    assert {s.name: int(s) for s in DriveStatus} == {
+        name: getattr(MpcOutput, name) for name in
+        ('SOLVED', 'FALLBACK_SHIFTED_PLAN', 'FAILED_ZERO', 'INPUT_INVALID', 'NOT_READY')}
