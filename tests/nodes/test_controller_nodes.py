@@ -821,17 +821,26 @@ def test_mixer_zeroes_both_wheels_on_non_finite_input_and_says_why(context, harn
 
 
 def test_mixer_run_time_limit_change_and_bad_joints(context, params_context, harnesses):
-    harness = mixer_harness(harnesses, context, 'realtime')
-    wheels = harness.outputs['/wip/wheel_torques']
+    # Real time: the safety layer (tests/nodes/test_safety_node.py) sends torque only
+    # once a settled estimate has arrived too; no settle time here.
+    harness = start(harnesses, context, TorqueMixerNode, 'realtime',
+                    **{'safety.settle_time': 0.0})
+    harness.publisher(ArcState, '/wip/yaw_torque')
+    harness.publisher(MpcOutput, '/wip/drive_torque')
+    harness.publisher(StateEstimateMsg, '/wip/state_estimate')
+    wheels = harness.listen(WheelTorques, '/wip/wheel_torques')
+    harness.wait_matched()
     node = harness.node
     assert not node.set_parameters([Parameter('mixer.max_wheel_torque', value=-2.0)])[0] \
         .successful
     assert node.set_parameters([Parameter('mixer.max_wheel_torque', value=2.0)])[0].successful
+    harness.publish('/wip/state_estimate', estimate_msg(4, settled=True))
     harness.publish('/wip/drive_torque', MpcOutput(header=make_header(5), tau_v=10.0))
     harness.spin_for(0.02)
     harness.publish('/wip/yaw_torque', ArcState(header=make_header(6), tau_omega=0.5))
-    harness.spin_until(lambda: wheels, 'wheel torques')
-    assert (wheels[0].left, wheels[0].right) == mix(10.0, 0.5, 2.0)
+    harness.spin_until(lambda: any(not m.zeroed for m in wheels), 'wheel torques')
+    active = next(m for m in wheels if not m.zeroed)
+    assert (active.left, active.right) == mix(10.0, 0.5, 2.0)
     ctx = params_context('torque_mixer', {'joints': ['left_wheel_joint', 'caster']})
     with pytest.raises(ConfigError, match=r'joints: must list'):
         TorqueMixerNode(context=ctx)
