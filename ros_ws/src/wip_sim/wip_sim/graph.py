@@ -621,12 +621,15 @@ class GraphRunner:
         """Wait until the recorder received everything the graph published.
 
         Lockstep: until its /diagnostics counts reach :meth:`expected_recorded`; otherwise
-        (or if they never do) until its counts stopped changing over two of its
-        /diagnostics messages.
+        (or if they never do) until the counts of the topics that end with the plant
+        stopped changing over two of its /diagnostics messages.
         """
         if 'recorder' not in self.processes:
             return
         expected = self.expected_recorded()
+        # Topics that stop when the plant does (in real time the controllers run on timers
+        # too: the reference, the MPC, the mixer's watchdog).
+        watched = set(expected) or {t for t, p in PUBLISHERS.items() if p == ('plant',)}
         deadline = time.monotonic() + DRAIN_TIMEOUT
         previous = None
         stable_since = None
@@ -639,7 +642,7 @@ class GraphRunner:
                 continue
             _, values = found
             counts = {k[len('received '):]: int(v) for k, v in values.items()
-                      if k.startswith('received /') and k != 'received /diagnostics'}
+                      if k.startswith('received /') and k[len('received '):] in watched}
             if expected and all(counts.get(t, 0) >= n for t, n in expected.items()):
                 return
             if counts != previous:
@@ -663,9 +666,11 @@ class GraphRunner:
             if process.killed:
                 self.say(f'warning: {process.name} (pid {process.pid}) ignored SIGINT for '
                          f'{GRACE_PERIOD:g} s: killed')
+        self.timeline['nodes stopped'] = time.monotonic() - self.t0
         if 'recorder' in self.processes:
             recorder = self.processes['recorder']
             code = recorder.stop(RECORDER_GRACE_PERIOD)
+            self.timeline['recorder stopped'] = time.monotonic() - self.t0
             if code not in (0, None):
                 self.say(f'warning: the recorder exited with code {code}; see '
                          f'{recorder.log_path} (wip_sim.bag_writer.recover_bag can repair '
@@ -699,8 +704,10 @@ class GraphRunner:
                     result.cpu_s[name] = now - cpu_start[name]
             if not self.options.quiet and self._interactive:
                 sys.stderr.write('\n')
+            self.timeline['plant ended'] = time.monotonic() - self.t0
             self.check_alive(allow_plant_exit=True)
             self.drain_recorder()
+            self.timeline['recorder drained'] = time.monotonic() - self.t0
             if code == 0:
                 result.exit_code, result.message = EXIT_OK, 'the scenario ran to its end'
             elif code == 3:

@@ -47,11 +47,17 @@ graph view: a message published before the match would be lost). The service ans
 
 Parameters
 ----------
-scenario_file (str, default '': the paper's Section V), clock_mode, left_joint,
-right_joint, map_frame, imu_frame, gps_frame, datum.latitude/longitude/altitude [deg, deg,
-m] (default: the scenario's ``sensors.gps_datum_*``), autostart, start.*,
-max_torque_age [s] (realtime only), stats_file (JSON with per-tick timings, written at
-exit; '' = none). All read-only.
+scenario_file (str, default '': the paper's Section V), clock_mode (default 'lockstep':
+the plant is a simulator; the controller nodes default to 'realtime', for a real base),
+left_joint, right_joint, map_frame, imu_frame, gps_frame,
+datum.latitude/longitude/altitude [deg, deg, m] (default: the scenario's
+``sensors.gps_datum_*``; ``scripts/run_graph`` writes the same values for the plant and
+the eso), autostart (default true), start.* (default 1 subscription per sensor topic, none
+for the ground truth and /clock), max_torque_age [s] (realtime only), stats_file (JSON
+with per-tick timings and CPU time, written at exit; '' = none). All read-only.
+
+The in-process runner's time t_k = k * dt is used for the dynamics, the disturbances and
+the sensors; the stamps carry round(t_k * 1e9) ns.
 
 Exit codes: 0 end of the scenario (or SIGINT), 1 runtime error, 2 invalid parameters or
 scenario, 3 the vehicle fell.
@@ -64,12 +70,11 @@ import math
 import sys
 import time
 
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import rclpy
-import rclpy.logging
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -85,6 +90,8 @@ from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_state
 from wip_control.core.scenario import load_scenario
 from wip_control.core.sensors import local_to_geodetic, Sensors
+from wip_control.nodes.common import make_executor, stamp_to_ns
+from wip_control.nodes.conversions import quaternion_from_euler, wheel_torques_from_msg
 from wip_control.nodes.parameters import declare_plain
 
 EXIT_OK = 0
@@ -102,26 +109,10 @@ AUTOSTART_PERIOD = 0.05  # [s], wall time: how often autostart checks the matche
 EXACT = 0.0
 
 
-def stamp_to_ns(stamp) -> int:
-    """builtin_interfaces/Time -> integer nanoseconds."""
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-
 def set_stamp(stamp, nanoseconds: int) -> None:
-    """Write integer nanoseconds into a builtin_interfaces/Time in place."""
+    """Write integer nanoseconds into a builtin_interfaces/Time in place (the messages are
+    preallocated; ``common.ns_to_stamp`` would allocate a new Time per message)."""
     stamp.sec, stamp.nanosec = divmod(nanoseconds, 1_000_000_000)
-
-
-def pitch_yaw_quaternion(pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of roll 0, ``pitch``, ``yaw`` [rad] (REP 103 ZYX: R = Rz(yaw) Ry(pitch)).
-
-    q = q_z(yaw) q_y(pitch) = (−sin(ψ/2) sin(θ/2), cos(ψ/2) sin(θ/2), sin(ψ/2) cos(θ/2),
-    cos(ψ/2) cos(θ/2)). Positive pitch about the left (y) axis tips the forward axis down:
-    the vehicle leans forward, the sign of θ in the paper.
-    """
-    sp, cp = math.sin(0.5 * pitch), math.cos(0.5 * pitch)
-    sy, cy = math.sin(0.5 * yaw), math.cos(0.5 * yaw)
-    return -sy * sp, cy * sp, sy * cp, cy * cp
 
 
 class TickTimer:
@@ -414,7 +405,7 @@ class PlantNode(Node):
         imu = self._imu_msg
         set_stamp(imu.header.stamp, stamp_ns)
         q = imu.orientation
-        q.x, q.y, q.z, q.w = pitch_yaw_quaternion(pitch, yaw)
+        q.x, q.y, q.z, q.w = quaternion_from_euler(0.0, pitch, yaw)
         if self.publish_rates:
             pitch_rate, yaw_rate = sensors.imu_rates(state)
             imu.angular_velocity.y = pitch_rate
@@ -455,9 +446,7 @@ class PlantNode(Node):
             return
         self.wait_time.add(received_at - self._published_at)
         try:
-            left, right = float(msg.left), float(msg.right)
-            if not (math.isfinite(left) and math.isfinite(right)):
-                raise ValueError(f'non-finite wheel torques ({left}, {right})')
+            left, right = wheel_torques_from_msg(msg)  # ValueError if not finite
             self._step(left, right)
             self._publish_tick()
         except ValueError as err:
@@ -593,15 +582,6 @@ def _fmt(summary: dict) -> str:
     return f'mean {summary["mean_us"]:.0f} us / p99 {summary["p99_us"]:.0f} us'
 
 
-def make_executor(context=None):
-    """EventsExecutor when this rclpy has it (much lower latency), else SingleThreaded."""
-    try:
-        from rclpy.experimental import EventsExecutor
-        return EventsExecutor(context=context)
-    except (ImportError, AttributeError, RuntimeError):
-        return SingleThreadedExecutor(context=context)
-
-
 def main(args=None) -> int:
     """Entry point ``plant`` (``ros2 run wip_sim plant --ros-args -p scenario_file:=...``)."""
     rclpy.init(args=args)
@@ -622,7 +602,7 @@ def main(args=None) -> int:
             node.publish_diagnostics()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ConfigError as err:
+    except (ConfigError, ParameterException) as err:
         print(f'plant: error: {err}', file=sys.stderr)
         status = EXIT_CONFIG
     finally:

@@ -34,8 +34,9 @@ mpc        /wip/drive_torque          tau_v, delta_tau, status, iterations, solv
 on a robot) gives every metric that needs no truth; the others are null.
 
 Time origin: a bag in simulation time (stamps from t = 0) keeps its times; a bag in
-wall-clock time (the realtime graph, a robot) is shifted so that its first sample is at
-t = 0, so that the metrics' windows (settling after 10 s, pulse windows) apply.
+wall-clock time (the realtime graph, a robot) is shifted so that its first ground truth
+(else its first state estimate) is at t = 0, so that the metrics' windows (settling after
+10 s, pulse windows) apply. Samples before that origin get negative times.
 
 The scenario (limits, disturbance windows, parameters of the metrics) comes from
 ``--scenario``, else from ``BAG/scenario.yaml`` (``scripts/run_graph --record`` copies
@@ -113,10 +114,14 @@ def record_from_bag(bag: str | pathlib.Path,
             rows[group].append((_stamp_ns(message), convert(message)))
     except BagReadError as err:
         raise ReportError(str(err)) from err
-    firsts = [min(s for s, _ in group_rows) for group_rows in rows.values() if group_rows]
-    if not firsts:
+    if not any(rows.values()):
         raise ReportError(f'{bag}: none of the topics {sorted(topics)} has a message')
-    first = min(firsts)
+    # The run starts with the plant's first sample (the truth), on a robot with the first
+    # state estimate; other nodes (the reference) may have published before.
+    for group in ('truth', 'estimate', *rows):
+        if rows.get(group):
+            first = min(s for s, _ in rows[group])
+            break
     origin = first if first * 1e-9 > WALL_CLOCK_THRESHOLD_S else 0
     groups = {}
     for group in GROUPS:

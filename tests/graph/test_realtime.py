@@ -1,0 +1,71 @@
+"""The node graph in real time: the plant keeps the wall clock and the loop is closed.
+
+One 4 s run of the paper scenario with ``--clock realtime`` (no /clock, every node on the
+wall clock, latest-input synchronisation), recorded.
+
+Whether the vehicle stays up in real time depends on every controller keeping up with
+200 Hz on the machine, which a loaded 2-core CI host does not guarantee (measured: the
+ESO node takes 1-1.5 ms per update in real time there; the vehicle fell after 2.7 s in one
+of three runs with other jobs running). So a fall (exit code 3) is accepted here and the
+tests check what the graph runner and the plant promise: wall-clock pacing, wall-clock
+stamps, torques that arrive in time.
+"""
+
+import random
+
+import numpy as np
+import pytest
+
+pytest.importorskip('rclpy')
+
+from wip_sim.bag_reader import bag_summary  # noqa: E402
+from wip_sim.graph import GraphOptions, run_graph  # noqa: E402
+from wip_sim.report import record_from_bag  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+DURATION = 4.0  # [s]
+CONTROL_PERIOD = 0.005  # [s], 200 Hz
+
+
+@pytest.fixture(scope='module')
+def realtime_run(tmp_path_factory):
+    directory = tmp_path_factory.mktemp('realtime')
+    monkeypatch = pytest.MonkeyPatch()
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 101)))
+    try:
+        result = run_graph(GraphOptions(clock='realtime', duration=DURATION,
+                                        out=str(directory / 'run'),
+                                        record=str(directory / 'bag'), quiet=True))
+    finally:
+        monkeypatch.undo()
+    return result
+
+
+def test_realtime_plant_runs_at_the_wall_clock_rate(realtime_run):
+    assert realtime_run.exit_code in (0, 3), realtime_run.message
+    stats = realtime_run.plant_stats
+    if realtime_run.exit_code == 0:
+        assert stats['ticks'] == round(DURATION / CONTROL_PERIOD)
+    # A wall timer at 200 Hz: the simulated time advances with the wall clock (timer jitter
+    # and a loaded machine may stretch it by a few %; it is never faster).
+    assert stats['ticks'] * CONTROL_PERIOD == pytest.approx(stats['sim_time_s'])
+    assert 0.7 <= stats['real_time_factor'] <= 1.02
+
+
+def test_realtime_plant_applies_the_latest_fresh_torques(realtime_run):
+    stats = realtime_run.plant_stats
+    # Ticks that ran with zero torque because none newer than max_torque_age (50 ms)
+    # had arrived: only before the first command (the chain's first pass).
+    assert stats['zeroed_torque_ticks'] <= 0.05 * stats['ticks']
+    record = record_from_bag(realtime_run.bag)
+    truth = record['truth']
+    # Wall-clock stamps shifted to the first sample; spaced by the control period.
+    assert truth['t'][0] == 0.0
+    assert np.median(np.diff(truth['t'])) == pytest.approx(CONTROL_PERIOD, rel=0.1)
+    # What the plant applied is what the mixer sent last (zero when its safety layer
+    # zeroes it): every applied pair is one of the commanded pairs.
+    wheels = record['wheels']
+    commanded = set(zip(wheels['tau_left'], wheels['tau_right'])) | {(0.0, 0.0)}
+    assert set(zip(truth['tau_left'], truth['tau_right'])) <= commanded
+    assert '/clock' not in bag_summary(realtime_run.bag)['topics']
