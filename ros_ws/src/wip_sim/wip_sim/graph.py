@@ -43,6 +43,15 @@ What it does
    it writes the bag's summary and metadata.yaml), and copies the scenario into the bag
    directory (``BAG/scenario.yaml``, read by ``scripts/report``).
 
+Start-up race: the graph view of step 3 does not prove that every publisher has matched
+every subscription of another node (DDS matches pairwise, and the nodes' reliable topics
+are volatile: a message sent before the match is lost for that subscription). In lockstep
+one lost message of the first tick stalls the run (about 1 start in 30 on a loaded 2-core
+machine). Such a stall on the first ticks is detected after :data:`STARTUP_STALL_TIMEOUT`
+and the graph is started again (``--startup-retries``, default 1; the first attempt's logs
+stay in ``OUT/logs_attempt_1``). Transient-local durability on the controllers' topics
+would remove the race (a late-matched subscription then receives the message).
+
 Outputs in OUT: ``params.yaml``, ``scenario.yaml``, ``logs/``, ``plant_stats.json``
 (per-tick timings of the plant) and ``run.json`` (exit status, real-time factor, start-up
 timeline, exit code, CPU time and last /diagnostics of every node).
@@ -127,6 +136,10 @@ MATCHED_KEY = 'matched subscriptions'
 
 PROBE_PERIOD = 0.5  # [s] wall: process polling and probe spinning
 GRACE_PERIOD = 5.0  # [s] after SIGINT before SIGKILL (controllers)
+#: A run whose plant has not passed its second tick this long [s] after its start has
+#: stalled at start-up (the first ticks normally take milliseconds; 10 s covers the
+#: slowest first MPC solve on a loaded machine many times over).
+STARTUP_STALL_TIMEOUT = 10.0
 RECORDER_GRACE_PERIOD = 60.0  # [s] the recorder writes the rest of its queue first
 DRAIN_TIMEOUT = 10.0  # [s] for the recorder to receive the last messages
 LOG_TAIL_LINES = 15
@@ -140,6 +153,14 @@ class GraphError(Exception):
         self.exit_code = exit_code
 
 
+class StartupStall(GraphError):
+    """The run stalled on its first ticks: a message published before its subscription
+    was matched is lost (see :meth:`GraphRunner.run`)."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message, EXIT_TIMEOUT)
+
+
 @dataclasses.dataclass
 class GraphOptions:
     """Arguments of :func:`run_graph` (see ``scripts/run_graph --help``)."""
@@ -151,6 +172,7 @@ class GraphOptions:
     out: str = 'out/graph'
     discovery_timeout: float = 60.0  # [s] wall: processes started -> graph complete
     stall_timeout: float = 30.0  # [s] wall without simulated-time progress
+    startup_retries: int = 1  # new attempts after a stall on the first ticks
     quiet: bool = False
 
 
@@ -441,8 +463,9 @@ class GraphRunner:
                              'overwrite a bag', EXIT_USAGE)
         self.out.mkdir(parents=True, exist_ok=True)
         logs = self.out / 'logs'
-        if logs.exists():
-            shutil.rmtree(logs)
+        for old in [logs, *self.out.glob('logs_attempt_*')]:
+            if old.is_dir():
+                shutil.rmtree(old)
         (logs / 'ros').mkdir(parents=True)
         for stale in ('plant_stats.json', 'run.json'):
             (self.out / stale).unlink(missing_ok=True)
@@ -560,7 +583,9 @@ class GraphRunner:
         """Until the plant exits: progress, node health, stall detection; its exit code."""
         plant = self.processes['plant']
         duration = self.scenario.duration
-        last_sim, last_progress = -1.0, time.monotonic()
+        started = time.monotonic()
+        last_sim, last_progress = -1.0, started
+        first_ticks = 2.5 * self.scenario.control_period
         while True:
             self.probe.spin(PROBE_PERIOD)
             code = plant.poll()
@@ -580,6 +605,10 @@ class GraphRunner:
                 last_sim, last_progress = sim, now
                 self.progress(f'sim {sim:7.2f} / {duration:g} s   '
                               f'{values.get("real-time factor", "n/a")}x real time')
+            elif last_sim < first_ticks and now - started > STARTUP_STALL_TIMEOUT:
+                raise StartupStall(
+                    f'no progress for {now - started:.0f} s at t = {last_sim:g} s, the first '
+                    f'ticks: {status.message}\n{self.describe_nodes()}')
             elif now - last_progress > self.options.stall_timeout:
                 raise GraphError(
                     f'no progress for {self.options.stall_timeout:g} s at t = {last_sim:g} s: '
@@ -677,6 +706,35 @@ class GraphRunner:
                          'a bag that was not closed)')
 
     # -- the run ----------------------------------------------------------------------------
+    def start_graph(self, params_file: pathlib.Path) -> None:
+        """Start the processes, wait for the graph, start the plant."""
+        if self.probe is None:
+            self.probe = Probe(self.domain_id)
+        self.start_processes(params_file)
+        self.timeline['processes started'] = time.monotonic() - self.t0
+        self.say(f'started {len(self.processes)} processes in ROS_DOMAIN_ID='
+                 f'{self.domain_id}; waiting for the graph')
+        self.wait_for_graph()
+        self.start_plant()
+
+    def retry(self, attempt: int) -> None:
+        """Stop the stalled attempt and clean up for a new one (a new domain when it is
+        ours, so that nothing of the old processes can be discovered again)."""
+        self.stop_all()
+        self.probe.close()
+        self.probe = None
+        logs = self.out / 'logs'
+        logs.rename(self.out / f'logs_attempt_{attempt}')
+        (logs / 'ros').mkdir(parents=True)
+        if self.bag is not None and self.bag.exists():
+            shutil.rmtree(self.bag)  # ours: prepare() checked it was absent or empty
+        (self.out / 'plant_stats.json').unlink(missing_ok=True)
+        self.processes = {}
+        self.timeline = {f'attempt {attempt} stalled': time.monotonic() - self.t0}
+        self.start_refusals = []
+        if not os.environ.get('ROS_DOMAIN_ID', '').strip():
+            self.domain_id = random.choice([d for d in range(1, 102) if d != self.domain_id])
+
     def run(self) -> GraphResult:
         result = GraphResult(EXIT_FAILED, '', self.out, self.bag, self.domain_id)
         started = time.monotonic()
@@ -686,17 +744,22 @@ class GraphRunner:
             self.say(f'scenario {self.scenario.name!r} ({self.scenario.duration:g} s), clock '
                      f'{self.options.clock}, ROS_DOMAIN_ID={self.domain_id}, outputs in '
                      f'{self.out}')
-            self.probe = Probe(self.domain_id)
-            self.start_processes(params_file)
-            self.timeline['processes started'] = time.monotonic() - self.t0
-            self.say(f'started {len(self.processes)} processes; waiting for the graph')
-            self.wait_for_graph()
-            self.start_plant()
-            result.startup_s = time.monotonic() - started
-            self.say(f'graph connected in {result.startup_s:.1f} s; plant started')
-            run_start = time.monotonic()
-            cpu_start = {n: p.cpu_seconds() for n, p in self.processes.items()}
-            code = self.watch()
+            for attempt in range(self.options.startup_retries + 1):
+                try:
+                    self.start_graph(params_file)
+                    result.startup_s = time.monotonic() - started
+                    self.say(f'graph connected in {result.startup_s:.1f} s; plant started')
+                    run_start = time.monotonic()
+                    cpu_start = {n: p.cpu_seconds() for n, p in self.processes.items()}
+                    code = self.watch()
+                    break
+                except StartupStall as err:
+                    if attempt == self.options.startup_retries:
+                        raise
+                    self.say(f'warning: {err}\nrun_graph: a message of the first tick was '
+                             'lost (published before its subscription matched): '
+                             f'starting the graph again (attempt {attempt + 2})')
+                    self.retry(attempt + 1)
             result.wall_time_s = time.monotonic() - run_start
             for name, process in self.processes.items():
                 now = process.cpu_seconds()
@@ -729,6 +792,7 @@ class GraphRunner:
             self.stop_all()
             if self.probe is not None:
                 self.probe.close()
+        result.domain_id = self.domain_id
         result.node_exit_codes = {n: p.returncode for n, p in self.processes.items()}
         result.timeline = dict(self.timeline, start_refusals=self.start_refusals)
         stats_path = self.out / 'plant_stats.json'
@@ -763,9 +827,10 @@ def format_result(result: GraphResult) -> str:
             if not entry.get('count'):
                 return 'n/a'
             return f'mean {entry["mean_us"]:.0f} us, p99 {entry["p99_us"]:.0f} us'
-        lines.append(f'per tick: plant publish {fmt("publish_s")}; controllers (sensors '
-                     f'published -> wheel torques received) {fmt("wait_for_torques_s")}; '
-                     f'plant step {fmt("step_s")}')
+        lines.append(f'per tick: /clock published -> wheel torques received '
+                     f'{fmt("clock_to_torques_s")} (plant publishing {fmt("publish_s")}, '
+                     f'then the controllers {fmt("wait_for_torques_s")}); plant step '
+                     f'{fmt("step_s")}')
     ticks = stats.get('ticks')
     if result.cpu_s and ticks:
         per_tick = {n: 1e6 * c / ticks for n, c in result.cpu_s.items()}
@@ -798,12 +863,16 @@ def main(argv: list[str] | None = None) -> int:
                         help='wall time allowed for the graph to connect [s]')
     parser.add_argument('--stall-timeout', type=float, default=30.0, metavar='S',
                         help='wall time without simulated progress before giving up [s]')
+    parser.add_argument('--startup-retries', type=int, default=1, metavar='N',
+                        help='start the graph again after a stall on the first ticks '
+                        '(a start-up message lost to DDS discovery), at most N times')
     parser.add_argument('--quiet', action='store_true', help='no progress output')
     args = parser.parse_args(argv)
     options = GraphOptions(scenario=args.scenario, clock=args.clock, record=args.record,
                            duration=args.duration, out=args.out,
                            discovery_timeout=args.discovery_timeout,
-                           stall_timeout=args.stall_timeout, quiet=args.quiet)
+                           stall_timeout=args.stall_timeout,
+                           startup_retries=args.startup_retries, quiet=args.quiet)
     result = run_graph(options)
     print(format_result(result))
     return result.exit_code

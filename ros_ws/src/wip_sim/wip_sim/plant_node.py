@@ -284,7 +284,9 @@ class PlantNode(Node):
         self.publish_time = TickTimer()  # publishing one sample [s]
         self.wait_time = TickTimer()  # sample published -> torques of that tick received
         self.step_time = TickTimer()  # simulate_hold [s]
+        self.loop_time = TickTimer()  # /clock published -> torques of that tick received
         self._published_at = 0.0
+        self._tick_started_at = 0.0
         self.stale_torques = 0  # lockstep: torque messages with an unexpected stamp
         self.zeroed_torques = 0  # realtime: ticks run with zero torques (none or stale)
         self.end_reason = ''
@@ -373,6 +375,7 @@ class PlantNode(Node):
         # The controllers are at work now: the ground truth (for recorders only) last.
         self._publish_truth(stamp_ns, state, d1, d2, d3)
         self._published_at = now = time.perf_counter()
+        self._tick_started_at = started_at
         self.publish_time.add(now - started_at)
 
     def _publish_truth(self, stamp_ns, state, d1, d2, d3) -> None:
@@ -445,6 +448,7 @@ class PlantNode(Node):
                     f'at {expected_ns * 1e-9:.9f} s: is another plant running?')
             return
         self.wait_time.add(received_at - self._published_at)
+        self.loop_time.add(received_at - self._tick_started_at)
         try:
             left, right = wheel_torques_from_msg(msg)  # ValueError if not finite
             self._step(left, right)
@@ -519,6 +523,7 @@ class PlantNode(Node):
             'publish_s': self.publish_time.summary(),
             'step_s': self.step_time.summary(),
             'wait_for_torques_s': self.wait_time.summary(),
+            'clock_to_torques_s': self.loop_time.summary(),
             'stale_torque_messages': self.stale_torques,
             'zeroed_torque_ticks': self.zeroed_torques,
         }
