@@ -11,7 +11,8 @@ control period 1/``rates.control_rate`` (the runner's step 5; the same nominal d
 used in real time: the controller runs at the sensor rate).
 
 Synchronisation: lockstep: command(t_k) + estimate(t_k); realtime: on each estimate, with
-the latest command. Malformed or non-finite input is dropped and reported.
+the latest command. Malformed or non-finite input is dropped and reported; so is input
+whose result overflows (never published; α̂ is kept).
 
 Parameters: section ``arc`` (changeable at run time; α̂ is kept, projected into the new
 bounds), section ``rates`` (read-only), ``alpha_initial`` [kg m^2] (α̂(0); default
@@ -38,7 +39,7 @@ from ..core.eso import EsoConfig
 from ..core.model import input_gains
 from ..core.params import WipParameters
 from ..core.scenario import RatesConfig
-from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
+from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import arc_to_msg, command_from_msg, estimate_from_msg
 from .diagnostics import OK
 from .parameters import ConfigParameters, declare_plain
@@ -96,8 +97,15 @@ class ArcNode(ControllerNode):
         start = time.perf_counter()
         estimate = values['state_estimate'].estimate
         command = values['velocity_command']
+        alpha = self.controller.alpha_hat
         out = self.controller.step(self.dt, estimate.omega, estimate.f1, command.omega_d,
                                    command.omega_d_dot)
+        if not finite(*out, self.controller.alpha_hat):
+            # Finite but huge inputs can overflow to NaN in (12)-(13); a NaN alpha_hat
+            # would then clip tau_omega to +max_yaw_torque forever. Keep alpha_hat, drop.
+            self.controller.alpha_hat = alpha
+            raise ValueError(f'non-finite yaw control {tuple(out)} from finite inputs '
+                             '(overflow); input dropped, alpha_hat kept')
         self.publisher.publish(arc_to_msg(out, stamp))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         limit = self.controller.config.max_yaw_torque

@@ -154,6 +154,33 @@ def make_executor(context=None):
         return SingleThreadedExecutor(context=context)
 
 
+_callback_failures = 0
+
+
+def spin_once_guarded(executor, node: Node, timeout_sec: float = SPIN_TIMEOUT) -> bool:
+    """``executor.spin_once``; an exception from a callback is logged, not fatal. False then.
+
+    The nodes' own callbacks never raise (:meth:`ControllerNode.subscribe`), but rclpy's
+    callbacks are not theirs: with ``use_sim_time`` rclpy's /clock subscription raises
+    ValueError on a message with a negative time, which would end the node. A controller
+    keeps running (its safety layer judges its inputs); the log says what happened.
+    """
+    global _callback_failures
+    try:
+        executor.spin_once(timeout_sec=timeout_sec)
+        return True
+    except (KeyboardInterrupt, ExternalShutdownException):
+        raise
+    except Exception as err:  # noqa: B902 - any callback error, see the docstring
+        if not rclpy.ok(context=node.context):
+            raise
+        _callback_failures += 1
+        if _callback_failures <= 5 or _callback_failures % 1000 == 0:
+            node.get_logger().error(f'a callback failed (#{_callback_failures}), node goes '
+                                    f'on: {type(err).__name__}: {err}')
+        return False
+
+
 def run_node(node_factory: Callable[[], Node], program: str, args=None) -> int:
     """Jazzy ``main``: init, build the node, spin until shutdown, clean up; exit status.
 
@@ -170,7 +197,7 @@ def run_node(node_factory: Callable[[], Node], program: str, args=None) -> int:
         executor.add_node(node)
         node.get_logger().debug(f'executor: {type(executor).__name__}')
         while rclpy.ok():
-            executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+            spin_once_guarded(executor, node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ConfigError, ParameterException) as err:

@@ -41,7 +41,9 @@ have arrived; the latest torques and the latest unused GPS fix are used.
 
 Bad input: a malformed or non-finite message (missing joint, wrong sizes, NaN, no fix,
 no orientation, non-unit quaternion) is dropped, counted and reported on /diagnostics;
-callbacks never raise.
+callbacks never raise. Finite but huge input that overflows the observer (e.g. a wheel
+angle of 1e300 rad) gives no estimate: it is dropped and the observer and the position
+restart from the next measurement set, so one bad sample cannot poison them for good.
 
 References
 ----------
@@ -62,7 +64,7 @@ from ..core.eso import EsoConfig, WipStateObserver
 from ..core.params import WipParameters
 from ..core.position import PlanarPositionEstimator, PositionConfig
 from ..core.sensors import SensorConfig, wheel_odometry
-from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
+from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import (estimate_to_msg, gps_local_position, imu_pitch_yaw, wheel_angles,
                           wheel_torques_from_msg)
 from .diagnostics import OK, WARN
@@ -223,10 +225,22 @@ class EsoNode(ControllerNode):
         x, y = self.position.update_odometry(x_v, estimate.phi)
         if gps is not None:
             x, y = self.position.update_gps(*gps)
+        if not finite(*estimate[:-1], x, y):   # ε (last) is inf at the paper ramp's start
+            self._restart()
+            raise ValueError(f'non-finite estimate from finite inputs (overflow): '
+                             f'{estimate}, x={x!r}, y={y!r}; not published, observer and '
+                             'position restart at the next measurement set')
         settled = not self.observer.yaw.in_ramp(t)
         self.publisher.publish(estimate_to_msg(estimate, x, y, settled, stamp, self.frame_id))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self._report(settled)
+
+    def _restart(self) -> None:
+        """Forget the observer and the position: re-initialised by the next set."""
+        self.observer = None
+        self.yaw_unwrapped = None
+        self.has_fix = self.position_started = False
+        self.position = PlanarPositionEstimator(self.position_config)
 
     def _report(self, settled: bool) -> None:
         diag = self.diagnostics

@@ -10,7 +10,9 @@ Per sample: ``core.trajectory_generator.TrajectoryGenerator.step(t, reference, x
 (body-frame errors, saturated (9), filtered ω̇d), as the runner's step 4.
 
 Synchronisation: lockstep: estimate(t_k) + reference(t_k); realtime: on each estimate,
-with the latest reference. Malformed or non-finite input is dropped and reported.
+with the latest reference. Malformed or non-finite input is dropped and reported; so is
+input whose command overflows (a non-finite command is never published, and the
+generator's filter state is restored).
 
 Parameters: section ``trajectory_generator`` (changeable at run time: the gains and
 limits apply from the next sample), ``clock_mode``, ``diagnostics_period``.
@@ -30,7 +32,7 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg,
                           VelocityCommand as VelocityCommandMsg)
 
 from ..core.trajectory_generator import TrajectoryGenerator, TrajectoryGeneratorConfig
-from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
+from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import command_to_msg, estimate_from_msg, reference_from_msg
 from .diagnostics import OK
 from .parameters import ConfigParameters
@@ -75,8 +77,15 @@ class TrajectoryGeneratorNode(ControllerNode):
     def _compute(self, stamp: int, values) -> None:
         start = time.perf_counter()
         pose = values['state_estimate']
+        saved = dict(vars(self.generator))
         command = self.generator.step(self.time_base.seconds(stamp), values['reference'],
                                       pose.x, pose.y, pose.estimate.phi)
+        if not finite(*command):
+            # Finite but huge inputs can overflow (e.g. a heading of 1e308 rad): never
+            # publish it, and keep the derivative filter's state unpoisoned.
+            vars(self.generator).update(saved)
+            raise ValueError(f'non-finite command {tuple(command)} from finite inputs '
+                             '(overflow); input dropped, generator state kept')
         self.publisher.publish(command_to_msg(command, stamp))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         limits = [name for name, on in (('v_d', self.generator.saturated_speed),
