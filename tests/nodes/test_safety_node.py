@@ -243,6 +243,7 @@ def assert_first_zero_within_one_tick(g, fault_time, *reason_words):
     before = [d for t, d in g.log.ticks if t < fault_time]
     assert before[-1].state == ACTIVE and not before[-1].zeroed, 'active before the fault'
     decision = g.log.ticks[index][1]
+    assert decision.state == FAULT
     for word in reason_words:
         assert word in decision.reason, (word, decision.reasons)
     offset = g.commands_on_the_topic()

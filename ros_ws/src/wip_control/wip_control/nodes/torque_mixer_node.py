@@ -19,7 +19,9 @@ Publishes
     be sent), the command of the base on ``effort_topic`` (default
     ``/effort_controller/commands``, std_msgs/Float64MultiArray, one effort per joint in the
     order of ``joints``, for a ros2_control ``JointGroupEffortController``; zero in shadow
-    mode), ``/diagnostics`` (safety state, every reason, input ages, counters; also at once
+    mode: the ESO, which reads /wip/wheel_torques as the applied torques, then assumes
+    torques the base does not get, and its disturbance estimates absorb the difference),
+    ``/diagnostics`` (safety state, every reason, input ages, counters; also at once
     on each change of the safety state).
 Service
     ``~/reset_estop`` (std_srvs/Trigger): reset a latched e-stop (and latched faults);
