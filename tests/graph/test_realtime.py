@@ -39,6 +39,8 @@ def realtime_run(tmp_path_factory):
                                         record=str(directory / 'bag'), quiet=True))
     finally:
         monkeypatch.undo()
+    if result.exit_code not in (0, 3) or result.plant_stats is None:
+        pytest.fail(f'run_graph failed ({result.exit_code}): {result.message}')
     return result
 
 
