@@ -3,10 +3,12 @@ position, from standard sensor topics.
 
 Topics
 ------
-Subscribes ``/joint_states`` (sensor_msgs/JointState: wheel joint angles, by name),
-``/imu/data`` (sensor_msgs/Imu: orientation -> pitch θ, yaw ϕ), ``/gps/fix``
-(sensor_msgs/NavSatFix -> map-frame (x, y) about the datum), ``/wip/wheel_torques``
-(wip_msgs/WheelTorques: the torques applied, the ESO's input).
+Subscribes ``/joint_states`` (sensor_msgs/JointState: wheel joint angles, by name, times
+their signs), ``/imu/data`` (sensor_msgs/Imu: orientation, corrected for the IMU's
+mounting -> pitch θ, yaw ϕ), ``/gps/fix`` (sensor_msgs/NavSatFix -> map-frame (x, y)
+about the datum) or, with ``position_source: odometry``, ``/odom`` (nav_msgs/Odometry ->
+(x, y) of its pose), ``/wip/wheel_torques`` (wip_msgs/WheelTorques: the torques applied,
+the ESO's input).
 Publishes ``/wip/state_estimate`` (wip_msgs/StateEstimate) stamped with the sensor sample
 time, and ``/diagnostics``.
 
@@ -37,13 +39,31 @@ torques stamped t_{k−1} (the previous sample processed) must have arrived, so 
 result never depends on which of the plant's and the mixer's messages DDS delivers
 first. A GPS fix off the GPS ticks is dropped (its use would depend on arrival order).
 realtime: update when both an IMU and an encoder message newer than at the last update
-have arrived; the latest torques and the latest unused GPS fix are used.
+have arrived; the latest torques and the latest unused GPS fix are used. The observer's
+time advances by whole sample periods: the time between two samples (their stamps) is
+rounded to a multiple n >= 1 of ``eso.sample_period`` (a missed sample counts as two
+periods). Decision: the exact discretisation of the observer (``core/eso.py``) is
+precomputed for the nominal period, and any other period costs a matrix exponential per
+channel (measured: about 1.5 ms per update on the project's machine, which saturated one
+core at 200 Hz); the stamps' jitter, typically tens of microseconds of the base's timer,
+is not worth it.
 
 Bad input: a malformed or non-finite message (missing joint, wrong sizes, NaN, no fix,
 no orientation, non-unit quaternion) is dropped, counted and reported on /diagnostics;
 callbacks never raise. Finite but huge input that overflows the observer (e.g. a wheel
 angle of 1e300 rad) gives no estimate: it is dropped and the observer and the position
 restart from the next measurement set, so one bad sample cannot poison them for good.
+
+Real base (see ``hardware_inputs.py`` for the conventions)
+-----------------------------------------------------------
+``left_wheel_sign``, ``right_wheel_sign`` (1 or −1, integers): −1 for a joint whose
+positive direction rolls the robot backwards; ``imu_mounting_rpy`` [rad]: the rotation
+from base_link to the IMU frame (roll, pitch, yaw about base_link's fixed axes, as a URDF
+joint's rpy); ``position_source``: 'gps' (NavSatFix about ``datum.*``) or 'odometry'
+(nav_msgs/Odometry on ``/odom``, real time only: its (x, y) is used like a fix, every
+message once); wheel radius and track width: ``model.wheel_radius``, ``model.track_width``.
+The defaults (1, 1, [0, 0, 0], 'gps') are the simulator's conventions and change nothing
+(no arithmetic is done on the inputs with them).
 
 References
 ----------
@@ -55,6 +75,7 @@ from __future__ import annotations
 import sys
 import time
 
+from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState, NavSatFix
 from wip_msgs.msg import StateEstimate as StateEstimateMsg, WheelTorques
 
@@ -65,9 +86,11 @@ from ..core.params import WipParameters
 from ..core.position import PlanarPositionEstimator, PositionConfig
 from ..core.sensors import SensorConfig, wheel_odometry
 from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
-from .conversions import (estimate_to_msg, gps_local_position, imu_pitch_yaw, wheel_angles,
-                          wheel_torques_from_msg)
+from .conversions import estimate_to_msg, gps_local_position, wheel_torques_from_msg
 from .diagnostics import OK, WARN
+from .hardware_inputs import (body_pitch_yaw, check_mounting_rpy, check_position_source,
+                              check_wheel_sign, mounting_inverse, odometry_position,
+                              signed_wheel_angles)
 from .parameters import ConfigParameters, declare_plain
 from .sync import decimation, ExactTimeSync, is_decimated_tick, LatestSync
 
@@ -79,6 +102,7 @@ _MAX_TORQUE_STAMPS = 64
 class EsoNode(ControllerNode):
     """See the module docstring. Parameters: sections ``eso``, ``position``, ``model``;
     plain ``encoders_relative_to_body``, ``gps_period``, ``left_joint``, ``right_joint``,
+    ``left_wheel_sign``, ``right_wheel_sign``, ``imu_mounting_rpy``, ``position_source``,
     ``datum.latitude``, ``datum.longitude``, ``datum.altitude``, ``frame_id``,
     ``clock_mode``, ``diagnostics_period`` (all read-only)."""
 
@@ -101,6 +125,25 @@ class EsoNode(ControllerNode):
                                         'name of the left wheel joint in /joint_states')
         self.right_joint = declare_plain(self, 'right_joint', 'right_wheel_joint', '',
                                          'name of the right wheel joint in /joint_states')
+        try:
+            self.left_sign = check_wheel_sign('left_wheel_sign', declare_plain(
+                self, 'left_wheel_sign', 1, '1', '+1: the left joint angle grows when the '
+                'wheel rolls the robot forward; -1: the joint turns the other way'))
+            self.right_sign = check_wheel_sign('right_wheel_sign', declare_plain(
+                self, 'right_wheel_sign', 1, '1', 'as left_wheel_sign, for the right wheel'))
+            self.imu_inverse_mount = mounting_inverse(check_mounting_rpy(
+                'imu_mounting_rpy', declare_plain(
+                    self, 'imu_mounting_rpy', [0.0, 0.0, 0.0], 'rad', 'rotation from '
+                    'base_link to the IMU frame: roll, pitch, yaw about the fixed x, y, z '
+                    'axes of base_link (a URDF joint rpy)')))
+            self.position_source = check_position_source('position_source', declare_plain(
+                self, 'position_source', 'gps', '', "'gps': NavSatFix on /gps/fix about the "
+                "datum; 'odometry': nav_msgs/Odometry on /odom (real time only)"))
+        except ValueError as err:
+            raise ConfigError(str(err)) from err
+        if self.position_source == 'odometry' and self.lockstep:
+            raise ConfigError("position_source: 'odometry' needs clock_mode realtime (the "
+                              'lockstep sets wait for GPS fixes)')
         self.datum = (
             declare_plain(self, 'datum.latitude', sensors.gps_datum_latitude, 'deg',
                           'latitude of the map origin'),
@@ -121,6 +164,9 @@ class EsoNode(ControllerNode):
         self.position_started = False
         self.yaw_unwrapped: float | None = None
         self.last_update_ns: int | None = None
+        # Real time: the observer's sample clock (see _observer_time).
+        self.sample_index: int | None = None
+        self.sample_origin = self.last_sample_time = 0.0
         self.last_gps_ns: int | None = None
         self.torques_by_stamp: dict[int, tuple[float, float]] = {}
         self.latest_torques = (0.0, 0.0)
@@ -135,7 +181,13 @@ class EsoNode(ControllerNode):
                                                RELIABLE_QOS)
         self.subscribe(JointState, '/joint_states', 'joint_states', self._on_joint_states)
         self.subscribe(Imu, '/imu/data', 'imu', self._on_imu)
-        self.subscribe(NavSatFix, '/gps/fix', 'gps', self._on_gps)
+        if self.position_source == 'odometry':
+            # The position input keeps its slot name 'gps' in the sync; diagnostics say odom.
+            self.diagnostics.inputs = ('joint_states', 'imu', 'odom', 'wheel_torques')
+            self.diagnostics.last_stamp = {n: None for n in self.diagnostics.inputs}
+            self.subscribe(Odometry, '/odom', 'odom', self._on_odometry)
+        else:
+            self.subscribe(NavSatFix, '/gps/fix', 'gps', self._on_gps)
         self.subscribe(WheelTorques, '/wip/wheel_torques', 'wheel_torques', self._on_torques)
         self.diagnostics.state(OK, 'waiting for the first measurement set')
 
@@ -153,13 +205,14 @@ class EsoNode(ControllerNode):
     def _on_joint_states(self, msg: JointState) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input('joint_states', stamp)
-        angles = wheel_angles(msg, self.left_joint, self.right_joint)
+        angles = signed_wheel_angles(msg, self.left_joint, self.right_joint, self.left_sign,
+                                     self.right_sign)
         self.feed('joint_states', stamp, angles)
 
     def _on_imu(self, msg: Imu) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input('imu', stamp)
-        self.feed('imu', stamp, imu_pitch_yaw(msg))
+        self.feed('imu', stamp, body_pitch_yaw(msg, self.imu_inverse_mount))
 
     def _on_gps(self, msg: NavSatFix) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
@@ -170,6 +223,11 @@ class EsoNode(ControllerNode):
                                   f'stamp {stamp} ns is not a multiple of gps_period')
             return
         self.feed('gps', stamp, position)
+
+    def _on_odometry(self, msg: Odometry) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input('odom', stamp)
+        self.feed('gps', stamp, odometry_position(msg))
 
     def _on_torques(self, msg: WheelTorques) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
@@ -201,7 +259,7 @@ class EsoNode(ControllerNode):
             if gps is not None and gps_stamp == self.last_gps_ns:
                 gps = None  # Each fix is used once.
             self.last_gps_ns = gps_stamp
-        t = self.time_base.seconds(stamp)
+        t = self._observer_time(stamp)
         yaw_unwrapped = yaw if self.yaw_unwrapped is None else unwrap_next(
             self.yaw_unwrapped, yaw)
         x_v, _ = wheel_odometry(left, right, pitch, self.model, 0.0, self.relative_to_body)
@@ -235,9 +293,24 @@ class EsoNode(ControllerNode):
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self._report(settled)
 
+    def _observer_time(self, stamp: int) -> float:
+        """Time [s] of the sample for the observer: the stamp's in lockstep; in real time
+        the previous sample's plus a whole number of periods (see the module docstring)."""
+        t = self.time_base.seconds(stamp)
+        if self.lockstep:
+            return t
+        if self.observer is None or self.sample_index is None:
+            self.sample_index, self.sample_origin = 0, t
+        else:
+            periods = round((t - self.last_sample_time) / self.sample_period)
+            self.sample_index += max(1, periods)
+        self.last_sample_time = t
+        return self.sample_origin + self.sample_index * self.sample_period
+
     def _restart(self) -> None:
         """Forget the observer and the position: re-initialised by the next set."""
         self.observer = None
+        self.sample_index = None
         self.yaw_unwrapped = None
         self.has_fix = self.position_started = False
         self.position = PlanarPositionEstimator(self.position_config)

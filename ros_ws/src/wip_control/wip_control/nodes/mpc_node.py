@@ -24,7 +24,14 @@ estimate(t_k), command(t_k) and yaw_torque(t_k) have all arrived, in any order. 
 at other stamps are not needed. (Not a sim-time timer: see ``common.py`` for why.)
 realtime: a timer of period ``mpc.sampling_period`` on the node clock computes with the
 latest inputs; if one is missing (NOT_READY) or older than ``max_input_age``
-(INPUT_INVALID) it publishes τυ = 0 and tells the core that 0 was applied.
+(INPUT_INVALID) it publishes τυ = 0 and tells the core that 0 was applied. The node also
+subscribes ``/wip/wheel_torques`` and, before each tick, gives the core the drive torque
+τυ = τl + τr the mixer last applied (``LongitudinalMpc.set_previous_torque``): when the
+safety layer holds the torque at zero (start-up, a fault) or limits it, the next plan
+starts from what the wheels really got, not from the MPC's own unapplied output. Without
+this, an MPC that runs for seconds while the mixer waits for the ESO to settle (a robot
+held by hand before it is released) starts with a torque step when the mixer engages.
+(lockstep reproduces the in-process runner, where the applied torque is the MPC's.)
 
 Parameters (all read-only): sections ``mpc``, ``model`` (the nominal model), ``mixer``
 (max_wheel_torque), ``rates`` (control_rate, for the tick grid); ``max_input_age`` [s],
@@ -41,7 +48,7 @@ import sys
 import time
 
 from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg,
-                          VelocityCommand as VelocityCommandMsg)
+                          VelocityCommand as VelocityCommandMsg, WheelTorques)
 
 from ..core.config import ConfigError
 from ..core.mixer import drive_torque_limit, MixerConfig
@@ -50,7 +57,7 @@ from ..core.params import WipParameters
 from ..core.scenario import RatesConfig
 from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc_idle_msg,
-                          mpc_to_msg)
+                          mpc_to_msg, wheel_torques_from_msg)
 from .diagnostics import OK, WARN
 from .parameters import ConfigParameters, declare_plain
 from .sync import decimation, ExactTimeSync, is_decimated_tick
@@ -83,6 +90,9 @@ class MpcNode(ControllerNode):
             self.sync = ExactTimeSync(_INPUTS, self._tick)
         else:
             self.create_timer(self.sampling_period, self._realtime_tick)
+            self.subscribe(WheelTorques, '/wip/wheel_torques', 'wheel_torques',
+                           self._on_applied)
+        self.applied_drive_torque: float | None = None
         self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
                        lambda msg: self._on_input('state_estimate', msg,
                                                   estimate_from_msg(msg, check=False)))
@@ -109,8 +119,15 @@ class MpcNode(ControllerNode):
         else:
             self.latest[name] = (stamp, value)
 
+    def _on_applied(self, msg: WheelTorques) -> None:
+        """realtime: the torques the mixer applied (ValueError on non-finite: dropped)."""
+        left, right = wheel_torques_from_msg(msg)
+        self.applied_drive_torque = left + right
+
     def _realtime_tick(self) -> None:
         try:
+            if self.applied_drive_torque is not None:
+                self.mpc.set_previous_torque(self.applied_drive_torque)
             now = self.now_ns()
             missing = [n for n in _INPUTS if n not in self.latest]
             if missing:

@@ -8,12 +8,19 @@ lockstep: one reference per ``/clock`` sample on the control grid (t = k / contr
 t = 0 included), stamped with that sample's time, so that the generator finds
 reference(t_k) for every estimate(t_k). (A sim-time timer would first fire one period
 after t = 0: see ``common.py``.)
-realtime: a timer of period 1/``rates.control_rate`` on the node clock; the reference
-time is the time since the first tick (the path starts when the node does), the stamp
-is the node clock's now.
+realtime: a timer of period 1/``rates.control_rate`` on the node clock, the stamp is the
+node clock's now. The reference time is, with ``realtime_start``:
+
+- ``'first_tick'`` (default): the time since the node's first tick (the path starts when
+  the node does);
+- ``'engaged'`` (hardware mode): the time since the first /wip/wheel_torques message that
+  is not ``zeroed``, i.e. since the safety layer first let torque through. Until then the
+  node publishes the path's start, reference(0), so that a robot that is held, or waits
+  for its sensors and the ESO to settle, does not fall behind a path that already runs.
+  Later safety stops do not pause the path.
 
 Parameters (read-only): sections ``reference`` and ``rates``; ``frame_id``,
-``clock_mode``, ``diagnostics_period``.
+``realtime_start``, ``clock_mode``, ``diagnostics_period``.
 """
 
 from __future__ import annotations
@@ -21,14 +28,19 @@ from __future__ import annotations
 import sys
 import time
 
-from wip_msgs.msg import ReferenceState as ReferenceStateMsg
+from wip_msgs.msg import ReferenceState as ReferenceStateMsg, WheelTorques
 
 from ..core.references import make_reference, ReferenceConfig
 from ..core.scenario import RatesConfig
-from .common import ClockTicker, ControllerNode, RELIABLE_QOS, run_node
+from ..core.config import ConfigError
+from .common import ClockTicker, ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import reference_to_msg
-from .diagnostics import OK
+from .diagnostics import OK, WARN
 from .parameters import ConfigParameters, declare_plain
+
+
+#: Values of ``realtime_start``.
+REALTIME_STARTS = ('first_tick', 'engaged')
 
 
 class ReferenceNode(ControllerNode):
@@ -40,6 +52,14 @@ class ReferenceNode(ControllerNode):
         self.rates = ConfigParameters(self, 'rates', RatesConfig).config
         self.frame_id = declare_plain(self, 'frame_id', 'map', '',
                                       'frame of the reference position')
+        self.realtime_start = declare_plain(
+            self, 'realtime_start', 'first_tick', '', "realtime: the path starts at the "
+            "node's first tick ('first_tick') or when the safety layer first sends torque "
+            "('engaged': the first /wip/wheel_torques not zeroed)")
+        if self.realtime_start not in REALTIME_STARTS:
+            raise ConfigError(f'realtime_start: {self.realtime_start!r} is not one of '
+                              f'{list(REALTIME_STARTS)}')
+        self.waiting = not self.lockstep and self.realtime_start == 'engaged'
         self.reference = make_reference(self.config)
         self.period = 1.0 / self.rates.control_rate
         self.publisher = self.create_publisher(ReferenceStateMsg, '/wip/reference',
@@ -48,8 +68,26 @@ class ReferenceNode(ControllerNode):
             self.ticker = ClockTicker(self, self.period, self._guarded)
         else:
             self.create_timer(self.period, lambda: self._guarded(self.now_ns()))
-        self.diagnostics.state(OK, f'{self.config.kind} reference at '
-                               f'{self.rates.control_rate:g} Hz')
+        if self.waiting:
+            self.subscribe(WheelTorques, '/wip/wheel_torques', 'wheel_torques',
+                           self._on_torques)
+            self.diagnostics.state(WARN, f'{self.config.kind} reference at '
+                                   f'{self.rates.control_rate:g} Hz: holding its start '
+                                   'until the safety layer engages')
+        else:
+            self.diagnostics.state(OK, f'{self.config.kind} reference at '
+                                   f'{self.rates.control_rate:g} Hz')
+
+    def _on_torques(self, msg: WheelTorques) -> None:
+        """realtime_start 'engaged': the path's time starts at the first torque sent."""
+        if self.waiting and not msg.zeroed:
+            stamp = stamp_to_ns(msg.header.stamp)
+            self.time_base.origin_ns = stamp
+            self.waiting = False
+            self.get_logger().info('the safety layer engaged: the path starts now')
+            self.diagnostics.state(OK, f'{self.config.kind} reference at '
+                                   f'{self.rates.control_rate:g} Hz, started when the '
+                                   'safety layer engaged')
 
     def _guarded(self, stamp_ns: int) -> None:
         try:
@@ -61,7 +99,10 @@ class ReferenceNode(ControllerNode):
         """Publish the reference at the time of ``stamp_ns`` [ns]."""
         start = time.perf_counter()
         self.diagnostics.input('clock', stamp_ns)
-        ref = self.reference.sample(self.time_base.seconds(stamp_ns))
+        # Before the start (realtime_start 'engaged'), and for a stamp older than it, the
+        # path's start point.
+        t = 0.0 if self.waiting else max(0.0, self.time_base.seconds(stamp_ns))
+        ref = self.reference.sample(t)
         self.publisher.publish(reference_to_msg(ref, stamp_ns, self.frame_id))
         self.diagnostics.output(stamp_ns, time.perf_counter() - start)
 

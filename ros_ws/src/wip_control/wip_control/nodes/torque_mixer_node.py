@@ -18,7 +18,10 @@ Publishes
     the ``reason`` when the safety layer forced zero; in shadow mode the torques that would
     be sent), the command of the base on ``effort_topic`` (default
     ``/effort_controller/commands``, std_msgs/Float64MultiArray, one effort per joint in the
-    order of ``joints``, for a ros2_control ``JointGroupEffortController``; zero in shadow
+    order of ``joints``, for a ros2_control ``JointGroupEffortController``; each effort is
+    the wheel torque times the joint's ``left_wheel_sign`` / ``right_wheel_sign`` (−1 for
+    a joint whose positive direction rolls the robot backwards; the wheel torques are
+    REP 103, positive driving forward); zero in shadow
     mode: the ESO, which reads /wip/wheel_torques as the applied torques, then assumes
     torques the base does not get, and its disturbance estimates absorb the difference),
     ``/diagnostics`` (safety state, every reason, input ages, counters; also at once
@@ -50,8 +53,9 @@ is answered even when zeroed, so a lockstep plant never waits forever.
 
 Parameters: section ``mixer`` (changeable at run time, validated), sections ``rates`` and
 ``safety`` (read-only: a safety setting does not change under a running robot),
-``mpc_period`` [s], ``joints``, ``left_joint``, ``right_joint``, ``effort_topic``,
-``clock_mode``, ``diagnostics_period`` (all read-only).
+``mpc_period`` [s], ``joints``, ``left_joint``, ``right_joint``, ``left_wheel_sign``,
+``right_wheel_sign`` (1 or −1), ``effort_topic``, ``clock_mode``, ``diagnostics_period``
+(all read-only).
 
 References
 ----------
@@ -77,6 +81,7 @@ from ..core.scenario import RatesConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import effort_command, estimate_from_msg, wheel_torques_to_msg
 from .diagnostics import ERROR, OK, WARN
+from .hardware_inputs import check_wheel_sign, signed_efforts
 from .parameters import ConfigParameters, declare_plain
 from .sync import decimation, ExactTimeSync, is_decimated_tick
 
@@ -113,6 +118,14 @@ class TorqueMixerNode(ControllerNode):
         if sorted(self.joints) != sorted([self.left_joint, self.right_joint]):
             raise ConfigError(f'joints: must list left_joint {self.left_joint!r} and '
                               f'right_joint {self.right_joint!r} once each, got {self.joints}')
+        try:
+            self.left_sign = check_wheel_sign('left_wheel_sign', declare_plain(
+                self, 'left_wheel_sign', 1, '1', '+1: a positive effort on the left joint '
+                'drives the robot forward; -1: backwards (the effort is the torque negated)'))
+            self.right_sign = check_wheel_sign('right_wheel_sign', declare_plain(
+                self, 'right_wheel_sign', 1, '1', 'as left_wheel_sign, for the right wheel'))
+        except ValueError as err:
+            raise ConfigError(str(err)) from err
         effort_topic = declare_plain(self, 'effort_topic', '/effort_controller/commands', '',
                                      'topic of the ros2_control JointGroupEffortController '
                                      'command (std_msgs/Float64MultiArray)')
@@ -265,8 +278,9 @@ class TorqueMixerNode(ControllerNode):
         left, right = decision.tau_left, decision.tau_right
         self.torques_publisher.publish(wheel_torques_to_msg(
             left, right, stamp, decision.zeroed, decision.reason))
-        self.effort_publisher.publish(effort_command(*decision.command, self.joints,
-                                                     self.left_joint, self.right_joint))
+        efforts = signed_efforts(*decision.command, self.left_sign, self.right_sign)
+        self.effort_publisher.publish(effort_command(*efforts, self.joints, self.left_joint,
+                                                     self.right_joint))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self.zeroed_ticks += decision.zeroed
         previous = self.last_decision

@@ -1,0 +1,178 @@
+"""Input adapters for a real base: wheel signs, IMU mounting, position from odometry.
+
+Pure functions (no node state) between a base's standard messages and the values the
+ESO node feeds the core. With the default parameters every adapter returns exactly what
+the plain conversions of :mod:`.conversions` return (no arithmetic is done), so the
+simulated graph, whose plant follows the project's conventions, is unchanged bit for bit.
+
+Wheel signs (parameters ``left_wheel_sign``, ``right_wheel_sign``, each +1 or −1)
+    The project's wheel angle φ is positive when the wheel rolls the robot FORWARD (REP
+    103: +x). A base whose joint axis points the other way (typically one of two mirrored
+    motors: its URDF joint axis is −y for one wheel and +y for the other, or the same axis
+    with the motor mounted backwards) reports the opposite angle: its sign is −1. The
+    sign multiplies the joint position read from sensor_msgs/JointState, and the same sign
+    multiplies the effort sent to that joint (``torque_mixer``), because a positive effort
+    turns the joint in its own positive direction.
+
+IMU mounting (parameter ``imu_mounting_rpy`` [rad], 3 values)
+    The rotation from ``base_link`` to the IMU's frame, as roll, pitch, yaw about the
+    fixed axes x, y, z of base_link (the ``rpy`` of a URDF joint from base_link to the
+    IMU's link): R_mount = Rz(yaw) Ry(pitch) Rx(roll). The IMU reports the orientation of
+    its own frame in the world (REP 145, ENU): R_world_imu = R_world_base R_mount, so the
+    body's orientation is
+
+    .. math:: q_{body} = q_{imu} \\otimes q_{mount}^{-1}
+
+    and pitch θ and yaw ϕ are read from q_body (ZYX decomposition, roll ignored).
+
+    Example: an IMU mounted **upside down**, turned half a turn about the robot's forward
+    axis (its z axis points down, its y axis to the right): ``imu_mounting_rpy: [3.14159,
+    0.0, 0.0]``. Standing upright and facing east, the IMU reports roll π; q_body is the
+    identity (θ = 0, ϕ = 0). Leaning forward by 0.1 rad, the IMU reports a rotation of
+    +0.1 rad about the body's y axis composed with its mounting, and θ = +0.1 rad comes
+    out. An IMU turned a quarter turn counter-clockwise (its x axis pointing to the
+    robot's left): ``[0.0, 0.0, 1.5708]``; without the parameter the robot's pitch would
+    appear as the IMU's roll and be ignored.
+
+Position source (parameter ``position_source``: 'gps' | 'odometry')
+    'gps': sensor_msgs/NavSatFix about the datum (:func:`.conversions.gps_local_position`);
+    'odometry': nav_msgs/Odometry (topic ``/odom``): ``pose.pose.position`` x, y [m] in the
+    odometry's frame (e.g. ``odom`` of a diff_drive_controller or a localisation filter),
+    which then is the frame of the reference path too.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import Imu, JointState
+
+from .conversions import (_check_finite, imu_pitch_yaw, InvalidMessage, pitch_yaw_from_quaternion,
+                          quaternion_from_euler, QUATERNION_NORM_TOLERANCE, wheel_angles)
+
+#: Values of the ``position_source`` parameter.
+POSITION_SOURCES = ('gps', 'odometry')
+#: The identity rotation (x, y, z, w).
+IDENTITY = (0.0, 0.0, 0.0, 1.0)
+
+Quaternion = tuple[float, float, float, float]
+
+
+# --------------------------------------------------------------------- parameters
+
+def check_wheel_sign(name: str, value) -> float:
+    """``value`` as +1.0 or −1.0; ValueError naming the parameter otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value not in (1, -1):
+        raise ValueError(f'{name}: must be 1 or -1, got {value!r}')
+    return float(value)
+
+
+def check_mounting_rpy(name: str, value) -> tuple[float, float, float]:
+    """``value`` as 3 finite angles [rad]; ValueError naming the parameter otherwise."""
+    try:
+        angles = tuple(float(v) for v in value)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f'{name}: must be 3 angles [rad], got {value!r}') from err
+    if len(angles) != 3 or not all(math.isfinite(a) for a in angles):
+        raise ValueError(f'{name}: must be 3 finite angles [rad] (roll, pitch, yaw), got '
+                         f'{value!r}')
+    return angles
+
+
+def check_position_source(name: str, value) -> str:
+    if value not in POSITION_SOURCES:
+        raise ValueError(f'{name}: {value!r} is not one of {list(POSITION_SOURCES)}')
+    return value
+
+
+# --------------------------------------------------------------------- quaternions
+
+def quaternion_multiply(a: Sequence[float], b: Sequence[float]) -> Quaternion:
+    """Hamilton product a ⊗ b of (x, y, z, w) quaternions (rotation b first, then a)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz)
+
+
+def quaternion_conjugate(q: Sequence[float]) -> Quaternion:
+    """Inverse rotation of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = q
+    return (-x, -y, -z, w)
+
+
+def mounting_inverse(rpy: Sequence[float]) -> Quaternion | None:
+    """q_mount⁻¹ of ``imu_mounting_rpy`` [rad]; None for the identity (no rotation done)."""
+    roll, pitch, yaw = check_mounting_rpy('imu_mounting_rpy', rpy)
+    if roll == 0.0 and pitch == 0.0 and yaw == 0.0:
+        return None
+    return quaternion_conjugate(quaternion_from_euler(roll, pitch, yaw))
+
+
+def imu_orientation_of_body(body: Sequence[float], rpy: Sequence[float]) -> Quaternion:
+    """What an IMU mounted with ``rpy`` reports when the body has orientation ``body``:
+    q_imu = q_body ⊗ q_mount (the inverse of :func:`body_pitch_yaw`; for simulators and
+    tests)."""
+    roll, pitch, yaw = check_mounting_rpy('imu_mounting_rpy', rpy)
+    return quaternion_multiply(body, quaternion_from_euler(roll, pitch, yaw))
+
+
+def rotate_vector_into(q: Sequence[float], v: Sequence[float]) -> tuple[float, float, float]:
+    """Coordinates in the rotated frame of a vector given in the parent frame: R(q)ᵀ v."""
+    x, y, z, w = q
+    # R(q)^T v = conj(q) v q
+    p = quaternion_multiply(quaternion_multiply((-x, -y, -z, w), (v[0], v[1], v[2], 0.0)),
+                            (x, y, z, w))
+    return p[0], p[1], p[2]
+
+
+# --------------------------------------------------------------------- messages
+
+def signed_wheel_angles(msg: JointState, left_joint: str, right_joint: str,
+                        left_sign: float = 1.0,
+                        right_sign: float = 1.0) -> tuple[float, float]:
+    """(φl, φr) [rad], positive rolling forward: the joint positions times their signs."""
+    left, right = wheel_angles(msg, left_joint, right_joint)
+    if left_sign != 1.0:
+        left = -left
+    if right_sign != 1.0:
+        right = -right
+    return left, right
+
+
+def body_pitch_yaw(msg: Imu, inverse_mount: Sequence[float] | None = None) -> tuple[float, float]:
+    """(pitch θ, yaw ϕ) [rad] of the body from an IMU mounted with q_mount.
+
+    ``inverse_mount`` is :func:`mounting_inverse` of the mounting (None: the IMU frame is
+    base_link, and this is exactly :func:`.conversions.imu_pitch_yaw`).
+    """
+    if inverse_mount is None:
+        return imu_pitch_yaw(msg)
+    if msg.orientation_covariance[0] == -1.0:
+        raise InvalidMessage('imu: no orientation (orientation_covariance[0] == -1)')
+    q = msg.orientation
+    x, y, z, w = q.x, q.y, q.z, q.w
+    _check_finite('orientation', x=x, y=y, z=z, w=w)
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+        raise InvalidMessage(f'orientation: quaternion norm {norm!r} is not 1')
+    return pitch_yaw_from_quaternion(*quaternion_multiply((x, y, z, w), inverse_mount))
+
+
+def odometry_position(msg: Odometry) -> tuple[float, float]:
+    """(x, y) [m] of ``pose.pose.position`` in the odometry's frame (header.frame_id)."""
+    p = msg.pose.pose.position
+    x, y = float(p.x), float(p.y)
+    _check_finite('odometry', x=x, y=y)
+    return x, y
+
+
+def signed_efforts(tau_left: float, tau_right: float, left_sign: float = 1.0,
+                   right_sign: float = 1.0) -> tuple[float, float]:
+    """Joint efforts [N m] of the wheel torques (REP 103, positive driving forward)."""
+    return (tau_left if left_sign == 1.0 else -tau_left,
+            tau_right if right_sign == 1.0 else -tau_right)
