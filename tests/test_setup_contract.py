@@ -46,6 +46,9 @@ EXECUTABLES = {
     'wip_sim': {
         'plant': 'wip_sim.plant_node:main',
         'recorder': 'wip_sim.recorder_node:main',
+        'replayer': 'wip_sim.replayer_node:main',
+        'standin_base': 'wip_sim.standin_base:main',
+        'check_base': 'wip_sim.check_base:main',
     },
 }
 PIN = re.compile(r'^([A-Za-z0-9][A-Za-z0-9._-]*)==([A-Za-z0-9.+!-]+)$')

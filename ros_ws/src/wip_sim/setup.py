@@ -30,6 +30,8 @@ setup(
             'plant = wip_sim.plant_node:main',
             'recorder = wip_sim.recorder_node:main',
             'replayer = wip_sim.replayer_node:main',
+            'standin_base = wip_sim.standin_base:main',
+            'check_base = wip_sim.check_base:main',
         ],
     },
 )

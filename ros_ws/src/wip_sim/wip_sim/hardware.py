@@ -1,0 +1,582 @@
+"""Hardware mode of ``scripts/run_graph``: the controller nodes alone, against a real base.
+
+Examples
+--------
+    scripts/run_graph --mode hardware --params-file my_base.yaml
+    scripts/run_graph --no-plant --scenario line.yaml --params-file my_base.yaml \\
+        --remap /joint_states:=/base/joint_states --remap /imu/data:=/base/imu \\
+        --remap /effort_controller/commands:=/base/wheel_effort_controller/commands \\
+        --record out/robot/bag --duration 60
+
+What it does
+------------
+1. Loads the scenario (``--scenario``, default the paper's Section V) for the
+   CONTROLLER sections only (reference, eso, position, trajectory_generator, arc, mpc,
+   mixer, rates, controller_model; the plant, disturbances and initial state of a
+   scenario describe a simulation and are ignored), writes ``OUT/scenario.yaml`` and
+   ``OUT/params.yaml`` (clock_mode realtime, no use_sim_time; the reference node starts
+   its path when the safety layer first engages: ``realtime_start: engaged``).
+2. Starts reference, eso, trajectory_generator, arc, mpc and torque_mixer (and, with
+   ``--record BAG``, the recorder of every controller topic and of the base's topics),
+   each as its own process running ``<prefix>/lib/<package>/<executable>`` (what ``ros2
+   run`` runs) with ``--ros-args --params-file OUT/params.yaml`` followed by every
+   ``--params-file`` given (a later file overrides an earlier one, as in ROS: use
+   ``/**:`` sections for the base's joint names, wheel signs, IMU mounting, datum...),
+   ``-r __node:=<name>`` and every ``--remap FROM:=TO``, applied to every node.
+3. Waits until every node is up and has sent /diagnostics, then reports which of the
+   base's topics (after the remaps) have a publisher (sensors) or a subscription (the
+   effort command). A missing base is not an error: the safety layer commands zero
+   torque until every input has arrived and the ESO has settled.
+4. Runs until SIGINT (Ctrl-C) or ``--duration`` [s of wall time], printing the safety
+   state and the node rates every few seconds and recording every change of the safety
+   state (with its reasons, from the mixer's /diagnostics) in ``OUT/run.json``. A node
+   that dies ends the run (exit 1).
+5. Stops every node by its pid (SIGINT, SIGKILL after a grace period; the recorder last)
+   and then publishes a zero effort command on the base's command topic: a
+   ``JointGroupEffortController`` holds the last command forever, and the mixer does not
+   send one when it is killed. The same zero command is sent at once if the mixer dies
+   during the run. (Nothing can be sent if this process itself is killed with SIGKILL.)
+
+Outputs in OUT: ``params.yaml``, ``scenario.yaml``, ``logs/``, ``run.json`` (exit status,
+start-up timeline, safety events, node rates, CPU time and last /diagnostics of every
+node).
+
+Exit status: 0 stopped by SIGINT or at the end of ``--duration``; 1 a node failed; 2 bad
+arguments; 4 the nodes did not come up in time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import fnmatch
+import json
+import pathlib
+import shutil
+import signal
+import sys
+import time
+from typing import Any, Callable, Iterable, Mapping
+
+import yaml
+
+from wip_control.core.config import ConfigError
+from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
+from wip_control.tools.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
+                                            graph_parameters, _NoAliasDumper)
+
+from .graph import (choose_domain_id, executable_path, EXECUTABLES, EXIT_FAILED, EXIT_OK,
+                    EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError, graph_environment,
+                    NodeProcess, Probe, RECORDER_GRACE_PERIOD)
+
+#: The nodes of hardware mode, in start order.
+HARDWARE_NODES = CONTROLLER_NODES
+#: The base's side of the graph: default topic names -> what the controllers do with them.
+BASE_SENSOR_TOPICS = ('/joint_states', '/imu/data', '/gps/fix', '/odom')
+DEFAULT_EFFORT_TOPIC = '/effort_controller/commands'
+#: Topics of the controllers recorded with --record (plus the base's, remapped).
+CONTROLLER_TOPICS = ('/wip/reference', '/wip/state_estimate', '/wip/velocity_command',
+                     '/wip/yaw_torque', '/wip/drive_torque', '/wip/wheel_torques',
+                     '/wip/estop', '/diagnostics')
+STATUS_PERIOD = 5.0  # [s] wall, progress lines
+PROBE_PERIOD = 0.2  # [s] wall
+#: Zero commands sent at the stop (a few, in case one is lost before the match settles).
+ZERO_COMMANDS = 3
+
+
+@dataclasses.dataclass
+class HardwareOptions:
+    """Arguments of :func:`run_hardware` (see ``scripts/run_graph --help``)."""
+
+    scenario: str | None = None
+    params_files: list[str] = dataclasses.field(default_factory=list)
+    remaps: list[str] = dataclasses.field(default_factory=list)
+    duration: float | None = None  # [s] wall; None: until SIGINT
+    out: str = 'out/hardware'
+    record: str | None = None
+    discovery_timeout: float = 60.0  # [s] wall: processes started -> every node reporting
+    quiet: bool = False
+    #: Programmatic stop (tests): polled while running; a non-empty string ends the run
+    #: (exit 0) with that message.
+    stop_when: Callable[[], str | None] | None = None
+
+
+@dataclasses.dataclass
+class HardwareResult:
+    """What :func:`run_hardware` returns (also written to ``OUT/run.json``)."""
+
+    exit_code: int
+    message: str
+    out: pathlib.Path
+    bag: pathlib.Path | None
+    domain_id: int
+    node_exit_codes: dict[str, int | None] = dataclasses.field(default_factory=dict)
+    startup_s: float | None = None
+    wall_time_s: float | None = None
+    cpu_s: dict[str, float] = dataclasses.field(default_factory=dict)
+    timeline: dict[str, Any] = dataclasses.field(default_factory=dict)
+    #: Each change of the mixer's safety state: {'t': [s] since the run start, 'state',
+    #: 'reasons'}.
+    safety_events: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    #: Mean output rate [1/s] of each node over the run, from its /diagnostics counts.
+    rates: dict[str, float] = dataclasses.field(default_factory=dict)
+    #: Base topics (remapped) -> publisher / subscription counts seen at the start.
+    base_topics: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
+    node_diagnostics: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
+    zero_commands_sent: int = 0
+
+    def summary(self) -> dict[str, Any]:
+        return {'mode': 'hardware', 'exit_code': self.exit_code, 'message': self.message,
+                'out': str(self.out), 'bag': str(self.bag) if self.bag else None,
+                'domain_id': self.domain_id, 'startup_s': self.startup_s,
+                'wall_time_s': self.wall_time_s, 'node_exit_codes': self.node_exit_codes,
+                'cpu_s': self.cpu_s, 'timeline': self.timeline,
+                'safety_events': self.safety_events, 'rates': self.rates,
+                'base_topics': self.base_topics, 'zero_commands_sent': self.zero_commands_sent,
+                'node_diagnostics': self.node_diagnostics}
+
+
+# ----------------------------------------------------------------------------- parameters
+
+def parse_remap(text: str) -> tuple[str, str]:
+    """``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; GraphError on bad syntax."""
+    source, sep, target = text.partition(':=')
+    source, target = source.strip(), target.strip()
+    if not sep or not source or not target or ':=' in target:
+        raise GraphError(f'--remap: expected FROM:=TO (e.g. /joint_states:=/base/joint_states'
+                         f'), got {text!r}', EXIT_USAGE)
+    return ('/' + source.lstrip('/'), '/' + target.lstrip('/'))
+
+
+def remapped(topic: str, remaps: Iterable[tuple[str, str]]) -> str:
+    """The name ``topic`` has after the remaps (the first rule that matches, as in ROS)."""
+    for source, target in remaps:
+        if source == topic:
+            return target
+    return topic
+
+
+def load_params_file(path: str | pathlib.Path) -> dict[str, Any]:
+    """A ROS params YAML ``{node: {ros__parameters: {...}}}``; GraphError if malformed."""
+    path = pathlib.Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except (OSError, yaml.YAMLError) as err:
+        raise GraphError(f'--params-file {path}: {err}', EXIT_USAGE) from err
+    if not isinstance(data, Mapping):
+        raise GraphError(f'--params-file {path}: expected a mapping of node names',
+                         EXIT_USAGE)
+    for node, section in data.items():
+        if not (isinstance(section, Mapping) and isinstance(
+                section.get('ros__parameters'), Mapping)):
+            raise GraphError(f'--params-file {path}: {node!r} has no ros__parameters '
+                             'mapping', EXIT_USAGE)
+    return dict(data)
+
+
+def _matches(pattern: str, node: str) -> bool:
+    """Whether a params-file key (``/**``, ``eso``, ``/eso``, ``/**/eso``...) applies to the
+    node ``node`` of the root namespace."""
+    pattern = str(pattern).lstrip('/')
+    return pattern == node or fnmatch.fnmatchcase(node, pattern.replace('**', '*'))
+
+
+def node_parameters(node: str, generated: Mapping[str, Any],
+                    params_files: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
+    """The parameters ``node`` gets, flattened (``'model.wheel_radius'``): the generated
+    params file's, then each extra file's matching sections in order (later wins)."""
+    flat = flatten(generated.get(node, {}).get('ros__parameters', {}))
+    for data in params_files:
+        for key, section in data.items():
+            if _matches(key, node):
+                flat.update(flatten(section['ros__parameters']))
+    return flat
+
+
+def hardware_parameters(scenario: Scenario, recorder: Mapping[str, Any] | None = None,
+                        joints: tuple[str, str] = DEFAULT_JOINTS) -> dict[str, dict]:
+    """The generated params file of a hardware run: the controller nodes of
+    :func:`~wip_control.tools.params_files.graph_parameters` in real time, no plant."""
+    data = graph_parameters(scenario, 'realtime', None, joints, recorder=recorder)
+    del data['plant']
+    data['reference']['ros__parameters']['realtime_start'] = 'engaged'
+    return data
+
+
+# ----------------------------------------------------------------------------- the runner
+
+class HardwareRunner:
+    """One hardware-mode run: start, watch and stop the controller processes."""
+
+    def __init__(self, options: HardwareOptions) -> None:
+        self.options = options
+        self.out = pathlib.Path(options.out).resolve()
+        self.bag = pathlib.Path(options.record).resolve() if options.record else None
+        self.processes: dict[str, NodeProcess] = {}
+        self.probe: Probe | None = None
+        self.domain_id = choose_domain_id()
+        self.scenario: Scenario | None = None
+        self.remaps: list[tuple[str, str]] = []
+        self.extra: list[dict[str, Any]] = []
+        self.generated: dict[str, dict] = {}
+        self.t0 = time.monotonic()
+        self.timeline: dict[str, float] = {}
+        self.safety_events: list[dict[str, Any]] = []
+        self._safety: tuple[str, str] | None = None
+        self._counts: dict[str, list[tuple[float, int]]] = {}
+        self.effort_publisher = None
+        self.zero_command: list[float] = [0.0, 0.0]
+        self.zero_commands_sent = 0
+
+    def say(self, text: str) -> None:
+        if not self.options.quiet:
+            print(f'run_graph: {text}', file=sys.stderr, flush=True)
+
+    # -- set-up ---------------------------------------------------------------------------
+    def prepare(self) -> pathlib.Path:
+        options = self.options
+        try:
+            self.scenario = load_scenario(options.scenario)
+        except ConfigError as err:
+            raise GraphError(str(err), EXIT_USAGE) from err
+        if options.duration is not None and not 0.0 < options.duration <= 1e6:
+            raise GraphError(f'--duration: must be > 0 s, got {options.duration}', EXIT_USAGE)
+        self.remaps = [parse_remap(text) for text in options.remaps]
+        self.extra = [load_params_file(path) for path in options.params_files]
+        if self.bag is not None and self.bag.exists() and any(self.bag.iterdir()):
+            raise GraphError(f'--record: {self.bag} exists and is not empty; refusing to '
+                             'overwrite a bag', EXIT_USAGE)
+        self.out.mkdir(parents=True, exist_ok=True)
+        logs = self.out / 'logs'
+        if logs.exists():
+            shutil.rmtree(logs)
+        (logs / 'ros').mkdir(parents=True)
+        (self.out / 'run.json').unlink(missing_ok=True)
+        (self.out / 'scenario.yaml').write_text(
+            yaml.safe_dump(scenario_to_mapping(self.scenario), sort_keys=False),
+            encoding='utf-8')
+        recorder = None
+        if self.bag is not None:
+            topics = list(CONTROLLER_TOPICS) + list(BASE_SENSOR_TOPICS) + [
+                DEFAULT_EFFORT_TOPIC]
+            recorder = {'output': str(self.bag), 'topics': topics, 'discovery_period': 0.5}
+        self.generated = hardware_parameters(self.scenario, recorder)
+        mixer = node_parameters('torque_mixer', self.generated, self.extra)
+        self.zero_command = [0.0] * len(mixer.get('joints', DEFAULT_JOINTS))
+        self.effort_topic = remapped(
+            '/' + str(mixer.get('effort_topic', DEFAULT_EFFORT_TOPIC)).lstrip('/'),
+            self.remaps)
+        path = self.out / 'params.yaml'
+        header = ('# ROS parameters of a wip-ros hardware-mode run (controllers only, real '
+                  f'time), scenario {self.scenario.name!r};\n# written by wip_sim.hardware; '
+                  'the --params-file files given come after it on each command line.\n')
+        path.write_text(header + yaml.dump(self.generated, Dumper=_NoAliasDumper,
+                                           sort_keys=False, width=99), encoding='utf-8')
+        return path
+
+    def commands(self, params_file: pathlib.Path) -> dict[str, list[str]]:
+        """The command line of every node process."""
+        names = list(HARDWARE_NODES) + (['recorder'] if self.bag is not None else [])
+        extra_files = [str(pathlib.Path(p).resolve()) for p in self.options.params_files]
+        out = {}
+        for name in names:
+            package, executable = EXECUTABLES[name]
+            command = [str(executable_path(package, executable)), '--ros-args',
+                       '--params-file', str(params_file)]
+            for extra in extra_files:
+                command += ['--params-file', extra]
+            command += ['-r', f'__node:={name}']
+            for source, target in self.remaps:
+                command += ['-r', f'{source}:={target}']
+            out[name] = command
+        return out
+
+    def start_processes(self, params_file: pathlib.Path) -> None:
+        env = graph_environment(self.domain_id)
+        env['ROS_LOG_DIR'] = str(self.out / 'logs' / 'ros')
+        commands = self.commands(params_file)
+        if 'recorder' in commands:  # First: it must not miss the start.
+            commands = {'recorder': commands.pop('recorder'), **commands}
+        for name, command in commands.items():
+            self.processes[name] = NodeProcess(name, command,
+                                               self.out / 'logs' / f'{name}.log', env)
+
+    # -- probe ------------------------------------------------------------------------------
+    def open_probe(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import Float64MultiArray
+        self.probe = Probe(self.domain_id)
+        node = self.probe.node
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
+                                 QoSProfile(depth=100))
+        # The last resort on the base's command topic (see the module docstring); created
+        # now so that it is matched long before it is needed.
+        self._float_array = Float64MultiArray
+        self.effort_publisher = node.create_publisher(
+            Float64MultiArray, self.effort_topic,
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+
+    def _on_diagnostics(self, msg) -> None:
+        now = time.monotonic() - self.t0
+        for status in msg.status:
+            name = status.name.split(':', 1)[0].lstrip('/')
+            values = {kv.key: kv.value for kv in status.values}
+            if 'outputs' in values:
+                try:
+                    self._counts.setdefault(name, []).append((now, int(values['outputs'])))
+                except ValueError:
+                    pass
+            if name == 'torque_mixer' and 'safety state' in values:
+                key = (values['safety state'], values.get('safety reasons', ''))
+                if key != self._safety:
+                    self._safety = key
+                    self.safety_events.append({'t': round(now, 4), 'state': key[0],
+                                               'reasons': key[1]})
+                    self.say(f'safety: {key[0]}' + (f' ({key[1]})' if key[1] not in (
+                        '', 'none') else ''))
+
+    def send_zero_commands(self) -> None:
+        """Publish zero efforts on the base's command topic (see the module docstring)."""
+        if self.effort_publisher is None or self.probe is None:
+            return
+        for _ in range(ZERO_COMMANDS):
+            self.effort_publisher.publish(self._float_array(data=list(self.zero_command)))
+            self.zero_commands_sent += 1
+            self.probe.spin(0.01)
+
+    # -- watching ---------------------------------------------------------------------------
+    def check_alive(self) -> None:
+        for name, process in self.processes.items():
+            code = process.poll()
+            if code is None:
+                continue
+            if name == 'torque_mixer':
+                self.send_zero_commands()
+            raise GraphError(f'node {name!r} (pid {process.pid}) exited with code {code}; '
+                             f'last lines of {process.log_path}:\n{process.log_tail()}')
+
+    def wait_for_nodes(self) -> None:
+        nodes = list(self.processes)
+        deadline = time.monotonic() + self.options.discovery_timeout
+        since = None
+        missing: list[str] = ['(not checked yet)']
+        while time.monotonic() < deadline:
+            self.check_alive()
+            absent = [n for n in nodes if n not in self.probe.node_names()]
+            if absent:
+                since = None
+                missing = ['nodes ' + ', '.join(absent)]
+            else:
+                since = time.monotonic() if since is None else since
+                silent = sorted(set(nodes) - self.probe.reporting_since(since))
+                if not silent:
+                    self.timeline['nodes up'] = since - self.t0
+                    self.timeline['diagnostics from every node'] = time.monotonic() - self.t0
+                    return
+                missing = ['/diagnostics from ' + ', '.join(silent)]
+            self.probe.spin(0.1)
+        raise GraphError(f'the controller nodes did not come up in '
+                         f'{self.options.discovery_timeout:g} s; missing: '
+                         f'{"; ".join(missing)}', EXIT_TIMEOUT)
+
+    def base_topics(self) -> dict[str, dict[str, int]]:
+        """Publishers/subscriptions of the base's topics (remapped names)."""
+        eso = node_parameters('eso', self.generated, self.extra)
+        sensors = ['/joint_states', '/imu/data']
+        sensors.append('/odom' if eso.get('position_source') == 'odometry' else '/gps/fix')
+        out = {}
+        for topic in sensors:
+            name = remapped(topic, self.remaps)
+            publishers, _ = self.probe.count(name)
+            out[name] = {'publishers': publishers}
+            if not publishers:
+                self.say(f'warning: no publisher on {name} (the base\'s {topic}) yet: the '
+                         'safety layer commands zero torque until every input arrives')
+        _, subscribers = self.probe.count(self.effort_topic)
+        out[self.effort_topic] = {'subscriptions': subscribers}
+        if not subscribers:
+            self.say(f'warning: nothing subscribes to {self.effort_topic}: is the base\'s '
+                     'effort controller running (and the topic remapped)?')
+        return out
+
+    def watch(self) -> str:
+        """Until SIGINT or the duration: progress, node health. Returns why it ended."""
+        duration = self.options.duration
+        start = time.monotonic()
+        next_status = start + STATUS_PERIOD
+        while True:
+            self.probe.spin(PROBE_PERIOD)
+            self.check_alive()
+            now = time.monotonic()
+            if duration is not None and now - start >= duration:
+                return f'the duration of {duration:g} s was reached'
+            if self.options.stop_when is not None:
+                reason = self.options.stop_when()
+                if reason:
+                    return reason
+            if now >= next_status:
+                next_status += STATUS_PERIOD
+                self.say(self.status_line(now - start))
+
+    def status_line(self, elapsed: float) -> str:
+        rates = self.rates(window=STATUS_PERIOD)
+        state = self._safety[0] if self._safety else 'unknown'
+        return (f't {elapsed:6.1f} s  safety {state}  rates [1/s]: '
+                + ', '.join(f'{n} {rates[n]:.0f}' for n in HARDWARE_NODES if n in rates))
+
+    def rates(self, window: float | None = None) -> dict[str, float]:
+        """Mean outputs per second of each node, from its /diagnostics output counts (over
+        the last ``window`` seconds, or the whole run)."""
+        out = {}
+        for name, samples in self._counts.items():
+            if window is not None:
+                last = samples[-1][0]
+                samples = [s for s in samples if s[0] >= last - window - 1.0]
+            if len(samples) >= 2 and samples[-1][0] > samples[0][0]:
+                out[name] = ((samples[-1][1] - samples[0][1])
+                             / (samples[-1][0] - samples[0][0]))
+        return out
+
+    def stop_all(self) -> None:
+        others = [p for n, p in self.processes.items() if n != 'recorder']
+        for process in others:
+            process.interrupt()
+        deadline = time.monotonic() + GRACE_PERIOD
+        for process in others:
+            process.stop(deadline - time.monotonic())
+            if process.killed:
+                self.say(f'warning: {process.name} (pid {process.pid}) ignored SIGINT: killed')
+        self.timeline['nodes stopped'] = time.monotonic() - self.t0
+        self.send_zero_commands()
+        if 'recorder' in self.processes:
+            code = self.processes['recorder'].stop(RECORDER_GRACE_PERIOD)
+            self.timeline['recorder stopped'] = time.monotonic() - self.t0
+            if code not in (0, None):
+                self.say(f'warning: the recorder exited with code {code}')
+
+    # -- the run ----------------------------------------------------------------------------
+    def run(self) -> HardwareResult:
+        result = HardwareResult(EXIT_FAILED, '', self.out, self.bag, self.domain_id)
+        cpu_start: dict[str, float | None] = {}
+        run_start = None
+        try:
+            params_file = self.prepare()
+            self.say(f'hardware mode: controllers of scenario {self.scenario.name!r} in real '
+                     f'time, ROS_DOMAIN_ID={self.domain_id}, outputs in {self.out}')
+            self.open_probe()
+            self.start_processes(params_file)
+            self.timeline['processes started'] = time.monotonic() - self.t0
+            self.wait_for_nodes()
+            result.base_topics = self.base_topics()
+            result.startup_s = time.monotonic() - self.t0
+            self.say(f'{len(self.processes)} nodes up in {result.startup_s:.1f} s; running '
+                     + (f'for {self.options.duration:g} s' if self.options.duration
+                        else 'until Ctrl-C'))
+            run_start = time.monotonic()
+            cpu_start = {n: p.cpu_seconds() for n, p in self.processes.items()}
+            reason = self.watch()
+            result.exit_code, result.message = EXIT_OK, reason
+        except GraphError as err:
+            result.exit_code, result.message = err.exit_code, str(err)
+        except KeyboardInterrupt:
+            result.exit_code, result.message = EXIT_OK, 'stopped by SIGINT'
+        finally:
+            if run_start is not None:
+                result.wall_time_s = time.monotonic() - run_start
+                for name, process in self.processes.items():
+                    now = process.cpu_seconds()
+                    if now is not None and cpu_start.get(name) is not None:
+                        result.cpu_s[name] = now - cpu_start[name]
+            if self.probe is not None:
+                self.probe.spin(0.05)
+                result.node_diagnostics = {
+                    name: {'message': status.message,
+                           **{kv.key: kv.value for kv in status.values}}
+                    for name, status in sorted(self.probe.diagnostics.items())}
+            # A second Ctrl-C must not leave the nodes running.
+            previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+            try:
+                self.stop_all()
+            finally:
+                signal.signal(signal.SIGINT, previous)
+            if self.probe is not None:
+                self.probe.close()
+        result.rates = self.rates()
+        result.safety_events = list(self.safety_events)
+        result.zero_commands_sent = self.zero_commands_sent
+        result.node_exit_codes = {n: p.returncode for n, p in self.processes.items()}
+        result.timeline = dict(self.timeline)
+        if self.bag is not None and self.bag.is_dir() and self.scenario is not None:
+            shutil.copyfile(self.out / 'scenario.yaml', self.bag / 'scenario.yaml')
+        if self.out.is_dir():
+            (self.out / 'run.json').write_text(json.dumps(result.summary(), indent=2) + '\n',
+                                               encoding='utf-8')
+        return result
+
+
+def run_hardware(options: HardwareOptions) -> HardwareResult:
+    """Run the controllers in hardware mode; see the module docstring."""
+    return HardwareRunner(options).run()
+
+
+def format_result(result: HardwareResult) -> str:
+    lines = [f'{"OK" if result.exit_code == 0 else "FAILED"}: {result.message}']
+    if result.rates:
+        lines.append('mean output rates [1/s]: ' + ', '.join(
+            f'{n} {r:.1f}' for n, r in sorted(result.rates.items())))
+    if result.safety_events:
+        lines.append('safety states: ' + ' -> '.join(e['state'] for e in result.safety_events))
+    if result.cpu_s and result.wall_time_s:
+        lines.append('CPU [% of one core]: ' + ', '.join(
+            f'{n} {100 * c / result.wall_time_s:.0f}' for n, c in sorted(
+                result.cpu_s.items(), key=lambda item: -item[1])))
+    lines.append(f'outputs: {result.out} (run.json, params.yaml, logs/)')
+    if result.bag is not None:
+        lines.append(f'bag: {result.bag}')
+    return '\n'.join(lines)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The hardware-mode options of ``scripts/run_graph``."""
+    parser.add_argument('--params-file', action='append', default=[], metavar='FILE',
+                        dest='params_files',
+                        help='hardware mode: extra ROS params file for every node, after the '
+                             "scenario's (repeatable; later wins): the base's joint names, "
+                             'wheel signs, IMU mounting, datum...')
+    parser.add_argument('--remap', action='append', default=[], metavar='FROM:=TO',
+                        dest='remaps',
+                        help='hardware mode: topic remapping applied to every node '
+                             '(repeatable), e.g. /imu/data:=/base/imu')
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog='scripts/run_graph --mode hardware', description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--scenario', help='scenario YAML (its controller sections)')
+    parser.add_argument('--duration', type=float, metavar='S',
+                        help='stop after this long [s of wall time] (default: Ctrl-C)')
+    parser.add_argument('--out', default='out/hardware', metavar='DIR',
+                        help='run directory (default out/hardware)')
+    parser.add_argument('--record', metavar='DIR', help='record into this rosbag2 directory')
+    parser.add_argument('--discovery-timeout', type=float, default=60.0, metavar='S')
+    parser.add_argument('--quiet', action='store_true')
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    return run_from_args(args)
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    """Run hardware mode from parsed arguments (also used by ``wip_sim.graph``)."""
+    options = HardwareOptions(scenario=args.scenario, params_files=list(args.params_files),
+                              remaps=list(args.remaps), duration=args.duration,
+                              out=args.out, record=args.record,
+                              discovery_timeout=args.discovery_timeout, quiet=args.quiet)
+    result = run_hardware(options)
+    print(format_result(result))
+    return result.exit_code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

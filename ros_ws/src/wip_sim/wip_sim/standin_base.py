@@ -1,0 +1,545 @@
+"""Stand-in base: a simulated two-wheeled base that speaks only ros2_control-style topics.
+
+A test fixture and a tool: the controllers in hardware mode (``scripts/run_graph --mode
+hardware``) run against it exactly as against a real base, and ``scripts/check_base`` can
+be tried on it. It is its own process with its own simulation: the core
+:class:`~wip_control.core.plant.Plant` of the scenario (model and true parameters, RK4 at
+``rates.plant_rate``), its disturbances and sensor noise, stepped on a wall-clock timer at
+``rates.control_rate`` (the sensor rate of the base). It knows nothing of the project's
+own topics.
+
+Topics (the usual names of a ros2_control base; remap them with ``-r``)
+-------------------------------------------------------------------------
+Publishes
+    ``/joint_states`` (sensor_msgs/JointState): the wheel joints in the order of ``joints``,
+    position [rad] and velocity [rad/s] in each JOINT's own sign convention
+    (``left_wheel_sign``, ``right_wheel_sign``: −1 for a joint whose positive direction
+    rolls the robot backwards), effort [N m] = the command applied;
+    ``/imu/data`` (sensor_msgs/Imu, frame ``imu_frame``): the orientation of the IMU frame
+    in ENU (REP 145), q_imu = q_body ⊗ q_mount with q_mount from ``imu_mounting_rpy``
+    (the same convention as the eso node's parameter, see
+    ``wip_control.nodes.hardware_inputs``); angular velocity [rad/s] in the IMU frame;
+    linear acceleration [m/s²]: the reaction to gravity only, in the IMU frame (the
+    body's own acceleration is left out: enough for a mounting check at rest);
+    ``/gps/fix`` (sensor_msgs/NavSatFix) every control_rate / ``sensors.gps_rate`` ticks,
+    about the datum ``datum.*``;
+    ``/odom`` (nav_msgs/Odometry, frame ``odom_frame``) when ``publish_odometry`` is true:
+    the true planar pose and speeds (the map frame of the simulation);
+    ``/diagnostics`` at 1 Hz.
+Subscribes
+    ``/effort_controller/commands`` (std_msgs/Float64MultiArray): one effort [N m] per joint
+    of ``joints``, in that order, like ``effort_controllers/JointGroupEffortController``.
+    Like that controller it has NO command timeout: the last valid command is held
+    forever (that is what the mixer's safety layer is for). A command of the wrong size
+    or with a non-finite value is rejected (counted and logged) and the previous one
+    stays.
+
+Held until engaged
+------------------
+A balancing robot cannot stand by itself before its controller runs: someone holds it.
+With ``hold_until_engaged`` (default true) the simulation is frozen at the scenario's
+initial state (still publishing its sensors) until the first command with a non-zero
+effort arrives — the hand lets go when the controller engages. Its time t = 0 is that
+moment. After a fall (|θ| >= the scenario's ``fall_threshold``) the body lies still
+(the state is frozen), the node logs an error, keeps publishing and recording the
+commands it receives for ``exit_after_fall`` seconds, then exits with code 3.
+
+Parameters (read-only)
+----------------------
+scenario_file ('' = the paper's Section V: plant, initial state about the reference at
+t = 0, disturbances, sensors, rates, fall threshold), joints, left_joint, right_joint,
+left_wheel_sign, right_wheel_sign, imu_mounting_rpy [rad], imu_frame, gps_frame,
+odom_frame, publish_odometry, datum.latitude/longitude/altitude (default the scenario's),
+hold_until_engaged, exit_after_fall [s], duration [s] (0: until SIGINT; counted from the
+release), expected_command_period [s] (default 1/rates.control_rate: the period of the
+controllers' mixer, for the deadline statistics), truth_period [s] (sampling of the
+ground truth in the stats file), stats_file (JSON written at exit; '' = none).
+
+Statistics (``stats_file``): ticks and their wall-clock periods (``stalls``: the ticks
+that came more than 4 periods late, with the simulated time), commands received and
+rejected, the gaps between commands, the age of the held command at each tick
+(``command_age``; a *deadline miss* is a tick whose newest command is older than 1.5
+``expected_command_period``: the mixer missed at least one of its ticks), the release
+time, the fall, the commands received after the fall, and the ground truth (t, x, y, ϕ,
+θ, υ) every ``truth_period``.
+
+Exit codes: 0 (SIGINT or ``duration`` reached), 1 runtime error, 2 invalid parameters,
+3 the robot fell.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from nav_msgs.msg import Odometry
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
+from std_msgs.msg import Float64MultiArray
+
+from wip_control.core.config import ConfigError
+from wip_control.core.disturbances import Disturbances
+from wip_control.core.model import OMEGA, PHI, THETA, THETA_DOT, V, X, Y
+from wip_control.core.plant import Plant
+from wip_control.core.references import make_reference
+from wip_control.core.runner import initial_state
+from wip_control.core.scenario import load_scenario
+from wip_control.core.sensors import local_to_geodetic, Sensors
+from wip_control.nodes.common import make_executor
+from wip_control.nodes.conversions import quaternion_from_euler
+from wip_control.nodes.hardware_inputs import (check_mounting_rpy, check_wheel_sign,
+                                               imu_orientation_of_body, rotate_vector_into)
+from wip_control.nodes.parameters import declare_plain
+
+EXIT_OK, EXIT_ERROR, EXIT_CONFIG, EXIT_FELL = 0, 1, 2, 3
+SPIN_TIMEOUT = 0.1  # [s]
+DIAGNOSTICS_PERIOD = 1.0  # [s] wall
+#: A tick whose newest command is older than this many command periods is a deadline miss.
+DEADLINE_FACTOR = 1.5
+#: A tick that comes this many periods after the previous one is a stall of the base
+#: process itself (its physics pause with it: the simulation advances one period a tick).
+STALL_FACTOR = 4.0
+
+
+def percentiles(values: list[float]) -> dict[str, float | int | None]:
+    """count, mean, p50, p99, max of ``values`` (seconds -> milliseconds)."""
+    ordered = sorted(values)
+    n = len(ordered)
+    if n == 0:
+        return {'count': 0, 'mean_ms': None, 'p50_ms': None, 'p99_ms': None, 'max_ms': None}
+    return {'count': n, 'mean_ms': 1e3 * math.fsum(ordered) / n,
+            'p50_ms': 1e3 * ordered[n // 2],
+            'p99_ms': 1e3 * ordered[min(n - 1, int(0.99 * n))], 'max_ms': 1e3 * ordered[-1]}
+
+
+def body_quaternion(pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """Orientation of base_link (roll 0) in ENU."""
+    return quaternion_from_euler(0.0, pitch, yaw)
+
+
+def body_angular_velocity(pitch: float, pitch_rate: float,
+                          yaw_rate: float) -> tuple[float, float, float]:
+    """Angular velocity [rad/s] in base_link of R = Rz(ϕ) Ry(θ) (roll 0):
+    (−ϕ̇ sin θ, θ̇, ϕ̇ cos θ)."""
+    return (-yaw_rate * math.sin(pitch), pitch_rate, yaw_rate * math.cos(pitch))
+
+
+class BaseConventions:
+    """How a base reports its wheels and IMU: joint names and order, per-joint signs, IMU
+    mounting. :meth:`fill` writes a JointState and an Imu from the body's motion in the
+    project's conventions (REP 103 wheel angles, body pitch and yaw); the stand-in base
+    publishes with it, and tests that play a base's motions by hand use it too."""
+
+    def __init__(self, joints, left_joint: str, right_joint: str, left_sign: float,
+                 right_sign: float, mounting) -> None:
+        self.joints = list(joints)
+        self.left_joint, self.right_joint = left_joint, right_joint
+        self.sign = {left_joint: float(left_sign), right_joint: float(right_sign)}
+        self.mounting = tuple(float(a) for a in mounting)
+        self.mount_q = quaternion_from_euler(*self.mounting)
+
+    def fill(self, joint: JointState, imu: Imu, wheels: tuple[float, float],
+             wheel_rates: tuple[float, float], torques: tuple[float, float], pitch: float,
+             yaw: float, pitch_rate: float, yaw_rate: float, gravity: float) -> None:
+        """Write the fields (not the headers) of ``joint`` and ``imu``.
+
+        wheels, wheel_rates, torques : (left, right) joint angle [rad], rate [rad/s], effort
+            [N m], positive rolling/driving forward; pitch, yaw [rad] and their rates
+            [rad/s] of the body; gravity [m/s²].
+        """
+        left, right = self.left_joint, self.right_joint
+        angle = {left: wheels[0], right: wheels[1]}
+        rate = {left: wheel_rates[0], right: wheel_rates[1]}
+        effort = {left: torques[0], right: torques[1]}
+        joint.name = self.joints
+        joint.position = [self.sign[j] * angle[j] for j in self.joints]
+        joint.velocity = [self.sign[j] * rate[j] for j in self.joints]
+        joint.effort = [self.sign[j] * effort[j] for j in self.joints]
+        q_imu = imu_orientation_of_body(body_quaternion(pitch, yaw), self.mounting)
+        imu.orientation.x, imu.orientation.y, imu.orientation.z, imu.orientation.w = q_imu
+        w_body = body_angular_velocity(pitch, pitch_rate, yaw_rate)
+        (imu.angular_velocity.x, imu.angular_velocity.y,
+         imu.angular_velocity.z) = rotate_vector_into(self.mount_q, w_body)
+        (imu.linear_acceleration.x, imu.linear_acceleration.y,
+         imu.linear_acceleration.z) = rotate_vector_into(q_imu, (0.0, 0.0, gravity))
+
+
+class StandinBase(Node):
+    """See the module docstring."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('standin_base', **kwargs)
+        self.exit_code: int | None = None
+        scenario_file = declare_plain(self, 'scenario_file', '', '',
+                                      "scenario YAML (plant, initial state, sensors, rates); "
+                                      "'': the paper's Section V")
+        self.scenario = scenario = load_scenario(scenario_file or None)
+        self.left_joint = declare_plain(self, 'left_joint', 'left_wheel_joint', '',
+                                        'name of the left wheel joint')
+        self.right_joint = declare_plain(self, 'right_joint', 'right_wheel_joint', '',
+                                         'name of the right wheel joint')
+        self.joints = list(declare_plain(self, 'joints', [self.left_joint, self.right_joint],
+                                         '', 'joints of /joint_states and of the command, '
+                                         'in order'))
+        if sorted(self.joints) != sorted([self.left_joint, self.right_joint]):
+            raise ConfigError(f'joints: must list left_joint {self.left_joint!r} and '
+                              f'right_joint {self.right_joint!r} once each, got {self.joints}')
+        try:
+            self.left_sign = check_wheel_sign(
+                'left_wheel_sign', declare_plain(self, 'left_wheel_sign', 1, '1',
+                                                 '+1: the joint angle grows when the wheel '
+                                                 'rolls the robot forward; -1: the opposite'))
+            self.right_sign = check_wheel_sign(
+                'right_wheel_sign', declare_plain(self, 'right_wheel_sign', 1, '1',
+                                                  'as left_wheel_sign, right wheel'))
+            self.mounting = check_mounting_rpy(
+                'imu_mounting_rpy', declare_plain(self, 'imu_mounting_rpy', [0.0, 0.0, 0.0],
+                                                  'rad', 'rotation base_link -> IMU frame '
+                                                  '(roll, pitch, yaw about fixed x, y, z)'))
+        except ValueError as err:
+            raise ConfigError(str(err)) from err
+        imu_frame = declare_plain(self, 'imu_frame', 'imu_link', '', 'frame_id of /imu/data')
+        gps_frame = declare_plain(self, 'gps_frame', 'gps_link', '', 'frame_id of /gps/fix')
+        odom_frame = declare_plain(self, 'odom_frame', 'odom', '', 'frame_id of /odom')
+        self.publish_odometry = declare_plain(self, 'publish_odometry', False, '',
+                                              'also publish nav_msgs/Odometry on /odom')
+        c = scenario.sensors
+        self.datum = (
+            declare_plain(self, 'datum.latitude', c.gps_datum_latitude, 'deg',
+                          'latitude of the map origin'),
+            declare_plain(self, 'datum.longitude', c.gps_datum_longitude, 'deg',
+                          'longitude of the map origin'),
+            declare_plain(self, 'datum.altitude', c.gps_datum_altitude, 'm',
+                          'ellipsoidal height of the map origin'))
+        self.hold = declare_plain(self, 'hold_until_engaged', True, '',
+                                  'frozen at the initial state until the first non-zero '
+                                  'command (someone holds the robot)')
+        self.exit_after_fall = declare_plain(self, 'exit_after_fall', 1.0, 's',
+                                             'keep publishing this long after a fall, '
+                                             'then exit with code 3')
+        self.duration = declare_plain(self, 'duration', 0.0, 's',
+                                      'exit with code 0 after this long from the release; '
+                                      '0: until SIGINT')
+        self.command_period = declare_plain(self, 'expected_command_period',
+                                            scenario.control_period, 's',
+                                            'period of the controllers\' commands (deadline '
+                                            'statistics)')
+        self.truth_period = declare_plain(self, 'truth_period', 0.02, 's',
+                                          'sampling of the ground truth in the stats file')
+        self.stats_file = declare_plain(self, 'stats_file', '', '',
+                                        'JSON statistics written at exit; empty: none')
+        for name, value in (('exit_after_fall', self.exit_after_fall),
+                            ('duration', self.duration)):
+            if not (isinstance(value, float) and value >= 0.0):
+                raise ConfigError(f'{name}: must be a number >= 0, got {value!r}')
+        for name, value in (('expected_command_period', self.command_period),
+                            ('truth_period', self.truth_period)):
+            if not (isinstance(value, float) and value > 0.0):
+                raise ConfigError(f'{name}: must be a number > 0, got {value!r}')
+
+        # -- the simulation (built like core.runner.run_scenario) ----------------------------
+        params = scenario.plant.parameters
+        self.plant = Plant(params, scenario.plant.model.model)
+        self.disturbances = Disturbances(scenario.disturbances, seed=scenario.seed)
+        reference = make_reference(scenario.reference)
+        self.state = tuple(float(v) for v in initial_state(scenario, reference.sample(0.0)))
+        self.sensors = Sensors(params, c, initial_yaw=self.state[PHI], seed=scenario.seed)
+        self.dt = scenario.control_period
+        self.substeps = scenario.rates.substeps
+        self.dt_plant = self.dt / self.substeps
+        self.gps_every = max(1, int(round(scenario.rates.control_rate / c.gps_rate)))
+        self.fall_threshold = scenario.fall_threshold
+        self.wheel_radius = params.wheel_radius
+        self.half_track = 0.5 * params.track_width
+        self.relative_to_body = c.encoders_relative_to_body
+        self.gravity = params.gravity
+        self.index = {name: i for i, name in enumerate(self.joints)}
+        self.sign = {self.left_joint: self.left_sign, self.right_joint: self.right_sign}
+        self.conventions = BaseConventions(self.joints, self.left_joint, self.right_joint,
+                                           self.left_sign, self.right_sign, self.mounting)
+
+        # -- run state ------------------------------------------------------------------------
+        self.k = 0                      # ticks published
+        self.t = 0.0                    # simulated time since the release [s]
+        self.released = not self.hold
+        self.release_wall: float | None = None if self.hold else 0.0
+        self.fell = False
+        self.fall_time: float | None = None
+        self.fall_wall: float | None = None
+        self.efforts = [0.0] * len(self.joints)   # the held command (joint order)
+        self.tau = (0.0, 0.0)                     # (τl, τr) applied, REP 103 [N m]
+        self.last_command_at: float | None = None
+        self.start_wall = time.perf_counter()
+        self.tick_walls: list[float] = []
+        self.stalls: list[dict[str, float]] = []
+        self.command_gaps: list[float] = []
+        self.command_ages: list[float] = []
+        self.commands = 0
+        self.rejected = 0
+        self.reject_reasons: dict[str, int] = {}
+        self.nonzero_after_fall = 0
+        self.commands_after_fall = 0
+        self.truth: dict[str, list[float]] = {k: [] for k in ('t', 'x', 'y', 'phi', 'theta',
+                                                                'v', 'tau_left', 'tau_right')}
+        self._next_truth = 0.0
+        self.end_reason = ''
+
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.joint_pub = self.create_publisher(JointState, '/joint_states', qos)
+        self.imu_pub = self.create_publisher(Imu, '/imu/data', qos)
+        self.gps_pub = self.create_publisher(NavSatFix, '/gps/fix', qos)
+        self.odom_pub = (self.create_publisher(Odometry, '/odom', qos)
+                         if self.publish_odometry else None)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_subscription(Float64MultiArray, '/effort_controller/commands',
+                                 self._on_command, qos)
+        self.create_timer(self.dt, self._tick)
+        self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+        self._joint_msg = JointState()
+        self._imu_msg = Imu()
+        self._imu_msg.header.frame_id = imu_frame
+        self._imu_msg.orientation_covariance = [0.0, 0.0, 0.0, 0.0, c.imu_pitch_noise_std ** 2,
+                                                0.0, 0.0, 0.0, c.imu_yaw_noise_std ** 2]
+        self._gps_msg = NavSatFix()
+        self._gps_msg.header.frame_id = gps_frame
+        self._gps_msg.status.status = NavSatStatus.STATUS_FIX
+        self._gps_msg.status.service = NavSatStatus.SERVICE_GPS
+        variance = c.gps_noise_std ** 2
+        self._gps_msg.position_covariance = [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0,
+                                             0.0]
+        self._gps_msg.position_covariance_type = NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN
+        self._odom_msg = Odometry()
+        self._odom_msg.header.frame_id = odom_frame
+        self._odom_msg.child_frame_id = 'base_link'
+        self.get_logger().info(
+            f'stand-in base: scenario {scenario.name!r}, plant model '
+            f'{scenario.plant.model.model!r}, {1.0 / self.dt:g} Hz, joints {self.joints}, '
+            f'signs (left {self.left_sign:+g}, right {self.right_sign:+g}), IMU mounting '
+            f'{list(self.mounting)} rad; '
+            + ('held until the first non-zero command' if self.hold else 'free from t = 0'))
+
+    # -- commands -------------------------------------------------------------------------
+    def _reject(self, reason: str) -> None:
+        self.rejected += 1
+        self.reject_reasons[reason] = self.reject_reasons.get(reason, 0) + 1
+        if self.reject_reasons[reason] <= 3:
+            self.get_logger().error(f'command rejected ({reason}); holding the previous one')
+
+    def _on_command(self, msg: Float64MultiArray) -> None:
+        now = time.perf_counter()
+        data = list(msg.data)
+        if len(data) != len(self.joints):
+            self._reject(f'{len(data)} values for {len(self.joints)} joints')
+            return
+        if not all(math.isfinite(v) for v in data):
+            self._reject('non-finite value')
+            return
+        if self.last_command_at is not None:
+            self.command_gaps.append(now - self.last_command_at)
+        self.last_command_at = now
+        self.commands += 1
+        self.efforts = data
+        if self.fell:
+            self.commands_after_fall += 1
+            self.nonzero_after_fall += any(v != 0.0 for v in data)
+        if not self.released and any(v != 0.0 for v in data):
+            self.released = True
+            self.release_wall = now - self.start_wall
+            self.get_logger().info(f'first non-zero command {data}: released at '
+                                   f'{self.release_wall:.3f} s')
+
+    def wheel_torques(self) -> tuple[float, float]:
+        """(τl, τr) [N m], REP 103, of the held joint efforts."""
+        left = self.sign[self.left_joint] * self.efforts[self.index[self.left_joint]]
+        right = self.sign[self.right_joint] * self.efforts[self.index[self.right_joint]]
+        return left, right
+
+    # -- one tick ---------------------------------------------------------------------------
+    def _tick(self) -> None:
+        if self.exit_code is not None:
+            return
+        now = time.perf_counter()
+        if self.tick_walls and now - self.tick_walls[-1] > STALL_FACTOR * self.dt:
+            self.stalls.append({'t': round(self.t, 4),
+                                'wall_gap_s': round(now - self.tick_walls[-1], 4)})
+        self.tick_walls.append(now)
+        if self.last_command_at is not None and self.released and not self.fell:
+            self.command_ages.append(now - self.last_command_at)
+        try:
+            if self.released and not self.fell:
+                self.tau = self.wheel_torques()
+                self.state = tuple(self.plant.simulate_hold(
+                    self.state, self.tau[0], self.tau[1], self.disturbances.sample, self.t,
+                    self.dt_plant, self.substeps).tolist())
+                self.t += self.dt
+                self._log_truth()
+                if abs(self.state[THETA]) >= self.fall_threshold:
+                    self.fell = True
+                    self.fall_time, self.fall_wall = self.t, now
+                    self.end_reason = (f'fell at t = {self.t:.3f} s after the release: |theta| '
+                                       f'{abs(self.state[THETA]):.3f} rad >= '
+                                       f'{self.fall_threshold:g} rad')
+                    self.get_logger().error(self.end_reason)
+            self._publish(self.get_clock().now().nanoseconds)
+            self.k += 1
+        except ValueError as err:
+            self.end_reason = f'simulation failed: {err}'
+            self.get_logger().error(self.end_reason)
+            self.exit_code = EXIT_ERROR
+            return
+        if self.fell and now - self.fall_wall >= self.exit_after_fall:
+            self.exit_code = EXIT_FELL
+        elif self.duration > 0.0 and self.released and self.t >= self.duration - 1e-9:
+            self.end_reason = f'duration {self.duration:g} s reached'
+            self.get_logger().info(self.end_reason)
+            self.exit_code = EXIT_OK
+
+    def _log_truth(self) -> None:
+        if self.t + 1e-9 < self._next_truth:
+            return
+        self._next_truth += self.truth_period
+        s = self.state
+        for key, value in (('t', self.t), ('x', s[X]), ('y', s[Y]), ('phi', s[PHI]),
+                           ('theta', s[THETA]), ('v', s[V]), ('tau_left', self.tau[0]),
+                           ('tau_right', self.tau[1])):
+            self.truth[key].append(value)
+
+    def _publish(self, stamp_ns: int) -> None:
+        state = self.state
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        sensors = self.sensors
+        left, right = sensors.encoders(state)
+        pitch, yaw = sensors.imu(state)
+        v, omega = state[V], state[OMEGA]
+        body_rate = state[THETA_DOT] if self.relative_to_body else 0.0
+        rates = ((v - self.half_track * omega) / self.wheel_radius - body_rate,
+                 (v + self.half_track * omega) / self.wheel_radius - body_rate)
+        joint, imu = self._joint_msg, self._imu_msg
+        self.conventions.fill(joint, imu, (left, right), rates, self.tau, pitch, yaw,
+                              state[THETA_DOT], omega, self.gravity)
+        joint.header.stamp.sec, joint.header.stamp.nanosec = sec, nanosec
+        imu.header.stamp.sec, imu.header.stamp.nanosec = sec, nanosec
+        self.joint_pub.publish(joint)
+        self.imu_pub.publish(imu)
+
+        if self.k % self.gps_every == 0:
+            x, y = sensors.gps(state)
+            fix = self._gps_msg
+            fix.header.stamp.sec, fix.header.stamp.nanosec = sec, nanosec
+            fix.latitude, fix.longitude, fix.altitude = local_to_geodetic(x, y, *self.datum)
+            self.gps_pub.publish(fix)
+        if self.odom_pub is not None:
+            odom = self._odom_msg
+            odom.header.stamp.sec, odom.header.stamp.nanosec = sec, nanosec
+            odom.pose.pose.position.x, odom.pose.pose.position.y = state[X], state[Y]
+            q = quaternion_from_euler(0.0, 0.0, state[PHI])
+            o = odom.pose.pose.orientation
+            o.x, o.y, o.z, o.w = q
+            odom.twist.twist.linear.x, odom.twist.twist.angular.z = v, omega
+            self.odom_pub.publish(odom)
+
+    # -- reporting ------------------------------------------------------------------------
+    def stats(self) -> dict:
+        periods = [b - a for a, b in zip(self.tick_walls, self.tick_walls[1:])]
+        limit = DEADLINE_FACTOR * self.command_period
+        misses = sum(age > limit for age in self.command_ages)
+        wall = (self.tick_walls[-1] - self.tick_walls[0]) if len(self.tick_walls) > 1 else 0.0
+        released_at = self.release_wall
+        return {
+            'scenario': self.scenario.name,
+            'plant_model': self.scenario.plant.model.model,
+            'rate_hz': 1.0 / self.dt,
+            'ticks': self.k,
+            'wall_time_s': wall,
+            'tick_period': percentiles(periods),
+            'stalls': self.stalls,
+            'released': self.released,
+            'release_wall_s': released_at,
+            'sim_time_s': self.t,
+            'fell': self.fell,
+            'fall_time_s': self.fall_time,
+            'end_reason': self.end_reason,
+            'exit_code': self.exit_code,
+            'commands': self.commands,
+            'command_rate_hz': (len(self.command_gaps) / math.fsum(self.command_gaps)
+                                if self.command_gaps else None),
+            'rejected_commands': self.rejected,
+            'reject_reasons': self.reject_reasons,
+            'command_gap': percentiles(self.command_gaps),
+            'command_age': percentiles(self.command_ages),
+            'expected_command_period_s': self.command_period,
+            'deadline_misses': misses,
+            'deadline_miss_limit_s': limit,
+            'ticks_checked': len(self.command_ages),
+            'commands_after_fall': self.commands_after_fall,
+            'nonzero_commands_after_fall': self.nonzero_after_fall,
+            'last_command': list(self.efforts),
+            'truth': self.truth,
+        }
+
+    def write_stats(self) -> None:
+        if self.stats_file:
+            with open(self.stats_file, 'w', encoding='utf-8') as stream:
+                json.dump(self.stats(), stream)
+                stream.write('\n')
+
+    def _publish_diagnostics(self) -> None:
+        if self.fell:
+            level, message = DiagnosticStatus.ERROR, self.end_reason
+        elif not self.released:
+            level, message = DiagnosticStatus.WARN, 'held: waiting for a non-zero command'
+        else:
+            level, message = DiagnosticStatus.OK, f'running, t = {self.t:.2f} s'
+        values = {'sim time [s]': f'{self.t:.3f}', 'commands': str(self.commands),
+                  'rejected commands': str(self.rejected),
+                  'command [N m]': str([round(v, 4) for v in self.efforts]),
+                  'theta [rad]': f'{self.state[THETA]:.4f}'}
+        status = DiagnosticStatus(level=level, name=f'{self.get_fully_qualified_name()}: '
+                                  'stand-in base', message=message, hardware_id='standin',
+                                  values=[KeyValue(key=k, value=v) for k, v in values.items()])
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diagnostics_pub.publish(array)
+
+
+def main(args=None) -> int:
+    """Entry point ``standin_base`` (``ros2 run wip_sim standin_base --ros-args ...``)."""
+    rclpy.init(args=args)
+    node = None
+    status = EXIT_OK
+    try:
+        node = StandinBase()
+        executor = make_executor()
+        executor.add_node(node)
+        while rclpy.ok() and node.exit_code is None:
+            executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+        if node.exit_code is not None:
+            status = node.exit_code
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ConfigError, ParameterException) as err:
+        print(f'standin_base: error: {err}', file=sys.stderr)
+        status = EXIT_CONFIG
+    finally:
+        if node is not None:
+            try:
+                node.write_stats()
+            except OSError as err:
+                print(f'standin_base: cannot write stats: {err}', file=sys.stderr)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == '__main__':
+    sys.exit(main())

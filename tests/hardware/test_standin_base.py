@@ -1,0 +1,213 @@
+"""The controllers in hardware mode against a stand-in base in its own process.
+
+The stand-in base (``wip_sim.standin_base``) simulates the robot (full model, RK4 at
+1 kHz, in real time) and speaks only the topics of a ros2_control base, under names of
+its own: ``/base/joint_states``, ``/base/imu``, ``/base/fix`` out and
+``/base/effort_controller/commands`` (std_msgs/Float64MultiArray) in. Its conventions
+differ from the simulator's on purpose: joints named ``wheel_l``/``wheel_r`` listed
+right first, the left joint's positive direction rolling backwards (sign −1), an IMU
+mounted upside down and turned a quarter turn. The controllers run as in
+``scripts/run_graph --mode hardware`` (:func:`wip_sim.hardware.run_hardware`), each node
+its own process, with ``--remap`` for the topic names and a ``--params-file`` with the
+base's conventions.
+
+1. Configured consistently, the controllers keep the robot up and on a straight line
+   (0.5 m/s, the paper's initial errors: 0.5 m behind, 0.5 m aside, 0.1 rad, tilt
+   0.05 rad) in real time; the achieved control rate and the deadline misses are
+   measured by the base (the gaps between the commands it receives).
+2. With the left wheel's sign wrong on the controllers' side, the robot cannot balance:
+   the safety layer sends zero torque, and says why, and no node crashes.
+
+Numbers measured on the 2-core development machine (200 Hz, 7 processes): see the
+module's report in ``OUT/measured.json`` of each run and the assertions' comments.
+"""
+
+import json
+import math
+import os
+import pathlib
+import random
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+pytest.importorskip('rclpy')
+
+from wip_control.core.references import make_reference, ReferenceConfig  # noqa: E402
+from wip_sim.graph import executable_path  # noqa: E402
+from wip_sim.hardware import HardwareOptions, run_hardware  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+CONTROL_RATE = 200.0  # [Hz]
+RUN_TIME = 16.0  # [s] of simulated (= wall) time after the release
+SCENARIO = {
+    'name': 'standin_line',
+    'description': 'hardware-mode test: a straight line at 0.5 m/s, full plant model',
+    'duration': 60.0,
+    'reference': {'kind': 'line', 'line_speed': 0.5},
+    'plant': {'model': 'full'},
+    'disturbances': {'yaw': [], 'longitudinal': []},
+    'rates': {'control_rate': CONTROL_RATE},
+    'eso': {'sample_period': 1.0 / CONTROL_RATE},
+}
+BASE = {
+    'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'joints': ['wheel_r', 'wheel_l'],
+    'left_wheel_sign': -1, 'right_wheel_sign': 1,
+    'imu_mounting_rpy': [math.pi, 0.0, math.pi / 2],
+}
+REMAPS = ['/joint_states:=/base/joint_states', '/imu/data:=/base/imu',
+          '/gps/fix:=/base/fix',
+          '/effort_controller/commands:=/base/effort_controller/commands']
+
+
+def write_params(path, parameters):
+    path.write_text(yaml.safe_dump({'/**': {'ros__parameters': parameters}}))
+    return path
+
+
+def run_against_standin(directory, controller_conventions, run_time, exit_after_fall=1.0):
+    """Start the stand-in base, run hardware mode until the base exits; both results."""
+    directory.mkdir(parents=True, exist_ok=True)
+    scenario = directory / 'scenario.yaml'
+    scenario.write_text(yaml.safe_dump(SCENARIO))
+    base_params = write_params(directory / 'base.yaml', dict(
+        BASE, duration=float(run_time), exit_after_fall=float(exit_after_fall),
+        stats_file=str(directory / 'base_stats.json'), scenario_file=str(scenario)))
+    controller_params = write_params(directory / 'controllers.yaml', controller_conventions)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 101)),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    command = [str(executable_path('wip_sim', 'standin_base')), '--ros-args',
+               '--params-file', str(base_params)]
+    for remap in REMAPS:
+        command += ['-r', remap]
+    log = open(directory / 'base.log', 'w')
+    base = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
+    monkeypatch = pytest.MonkeyPatch()
+    monkeypatch.setenv('ROS_DOMAIN_ID', env['ROS_DOMAIN_ID'])
+    try:
+        result = run_hardware(HardwareOptions(
+            scenario=str(scenario), params_files=[str(controller_params)], remaps=REMAPS,
+            duration=run_time + 40.0, out=str(directory / 'run'), quiet=True,
+            stop_when=lambda: base.poll() is not None and f'base exited ({base.returncode})'))
+    finally:
+        monkeypatch.undo()
+        if base.poll() is None:
+            base.send_signal(signal.SIGINT)
+        try:
+            base.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            base.kill()
+            base.wait()
+        log.close()
+    stats = json.loads((directory / 'base_stats.json').read_text())
+    return result, stats, base.returncode
+
+
+def summary(result, stats):
+    """The measured numbers of a run (also written next to it)."""
+    ticks = stats['ticks_checked']
+    return {
+        'control_rate_hz': CONTROL_RATE,
+        'commands_received_rate_hz': stats['command_rate_hz'],
+        'command_gap_ms': stats['command_gap'],
+        'command_age_ms': stats['command_age'],
+        'deadline_misses': stats['deadline_misses'],
+        'deadline_miss_limit_ms': 1e3 * stats['deadline_miss_limit_s'],
+        'base_ticks_checked': ticks,
+        'deadline_miss_fraction': stats['deadline_misses'] / ticks if ticks else None,
+        'base_tick_period_ms': stats['tick_period'],
+        'base_stalls': stats['stalls'],
+        'node_rates_hz': result.rates,
+        'node_cpu_fraction': {n: c / result.wall_time_s for n, c in result.cpu_s.items()}
+        if result.wall_time_s else {},
+        'safety_events': result.safety_events,
+    }
+
+
+@pytest.fixture(scope='module')
+def consistent_run(tmp_path_factory):
+    directory = tmp_path_factory.mktemp('standin') / 'consistent'
+    result, stats, code = run_against_standin(directory, BASE, RUN_TIME)
+    (directory / 'measured.json').write_text(json.dumps(summary(result, stats), indent=2))
+    return result, stats, code
+
+
+def test_hardware_mode_keeps_the_standin_base_up_and_on_the_line(consistent_run):
+    result, stats, code = consistent_run
+    assert result.exit_code == 0, result.message
+    assert code == 0, stats['end_reason']         # the base ran its time, did not fall
+    assert stats['released'] and not stats['fell']
+    assert stats['sim_time_s'] == pytest.approx(RUN_TIME, abs=0.01)
+    truth = {k: np.asarray(v) for k, v in stats['truth'].items()}
+    # Tilt: the in-process run of the same scenario peaks at 0.073 rad, and so does this
+    # graph normally (measured 0.063-0.069 rad). On this shared 2-core machine the whole
+    # base process once stalled for 0.34 s (stats['stalls']): the mixer saw stale inputs,
+    # cut the torque and re-armed after its settle time (0.3 s without torque in all),
+    # and the robot recovered from 0.173 rad. Bound: 0.3 rad, below the safety layer's
+    # fall threshold (0.35 rad).
+    assert np.abs(truth['theta']).max() < 0.3, stats['stalls']
+    # On the path: the reference starts when the safety layer engages, which is the
+    # base's release (its t = 0) within the chain's latency (< 0.05 s = 2.5 cm at
+    # 0.5 m/s). With the FULL plant model the controllers' speed loop oscillates (their
+    # nominal model is the paper's): the in-process runner of this scenario reaches a
+    # position error of 0.85 m after 10 s (0.34 m across the line), and this real-time
+    # graph, with one or two control periods of latency, 0.74-2.34 m (0.31-0.48 m across
+    # the line) over 7 runs. With the paper's model the graph tracks like the runner
+    # (0.21 vs 0.24 m). Bounds: 3 m along, 0.6 m across the line after 10 s.
+    reference = make_reference(ReferenceConfig(kind='line', line_speed=0.5))
+    later = truth['t'] > 10.0
+    ref = [reference.sample(t) for t in truth['t'][later]]
+    error = np.hypot(truth['x'][later] - [r.x for r in ref],
+                     truth['y'][later] - [r.y for r in ref])
+    assert error.max() < 3.0
+    assert np.abs(truth['y'][later]).max() < 0.6
+    # It went somewhere: at least 60 % of the reference's 8 m in 16 s.
+    assert truth['x'][-1] - truth['x'][0] > 0.6 * 0.5 * RUN_TIME
+
+
+def test_hardware_mode_sustains_the_control_rate_in_real_time(consistent_run):
+    result, stats, _ = consistent_run
+    # The base counts the commands it receives: the mixer's timer at 200 Hz with the
+    # latest inputs. On 2 shared cores the timer may slip; 90 % of the rate and a few %
+    # of late ticks are what a loaded machine gives (measured: 195-200 Hz, < 1 %).
+    assert stats['command_rate_hz'] > 0.9 * CONTROL_RATE
+    assert stats['deadline_misses'] < 0.05 * stats['ticks_checked']
+    assert stats['rejected_commands'] == 0
+    # Every controller node ran at its rate (mean over the run, from /diagnostics).
+    for name in ('eso', 'trajectory_generator', 'arc', 'torque_mixer', 'reference'):
+        assert result.rates[name] > 0.9 * CONTROL_RATE, (name, result.rates)
+    assert result.rates['mpc'] > 0.9 * 10.0
+    # The run engaged once, and the end (the base stopping) is a stale-input fault.
+    states = [e['state'] for e in result.safety_events]
+    assert 'ACTIVE' in states
+    assert result.zero_commands_sent > 0
+
+
+def test_a_wrong_wheel_sign_makes_the_safety_layer_zero_the_torque(tmp_path):
+    wrong = dict(BASE, left_wheel_sign=1)
+    result, stats, code = run_against_standin(tmp_path / 'wrong_sign', wrong, 10.0,
+                                              exit_after_fall=1.0)
+    (tmp_path / 'wrong_sign' / 'measured.json').write_text(
+        json.dumps(summary(result, stats), indent=2))
+    assert result.exit_code == 0, result.message
+    # No node crashed: each was stopped by SIGINT at the end.
+    assert all(c == 0 for c in result.node_exit_codes.values()), result.node_exit_codes
+    assert stats['released']                         # the controllers did engage ...
+    assert code == 3 and stats['fell']               # ... and could not balance it
+    faults = [e for e in result.safety_events if e['state'] == 'FAULT']
+    assert faults, result.safety_events
+    # The reason names the fall (|theta_hat| past 0.35 rad) or a diverging ESO, which is
+    # what a wheel turning the wrong way looks like to the controllers.
+    assert any('fallen' in e['reasons'] or 'ESO diverged' in e['reasons'] for e in faults)
+    # The base received only zero commands once it lay on the ground.
+    assert stats['commands_after_fall'] > 0
+    assert stats['nonzero_commands_after_fall'] == 0
+    assert stats['last_command'] == [0.0, 0.0]
+    mixer = next(v for k, v in result.node_diagnostics.items()
+                 if k.startswith('/torque_mixer'))
+    assert int(mixer['zeroed ticks']) > 0
