@@ -6,6 +6,11 @@ Examples
     scripts/run_graph --duration 10 --out /tmp/g10
     scripts/run_graph --scenario my.yaml --record out/my/bag --out out/my/run
     scripts/run_graph --clock realtime --duration 20
+    scripts/run_graph --mode hardware --params-file my_base.yaml   # a real base, no plant
+
+``--mode hardware`` (alias ``--no-plant``) runs the controller nodes alone, in real time,
+against a real base's topics: see ``wip_sim.hardware`` (``--params-file``, ``--remap``).
+The rest of this text is about the simulation mode.
 
 What it does
 ------------
@@ -850,15 +855,22 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog='scripts/run_graph', description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--mode', choices=('simulation', 'hardware'), default='simulation',
+                        help="simulation: the plant and the controllers; hardware: the "
+                        "controllers alone against a real base's topics (real time)")
+    parser.add_argument('--no-plant', action='store_true', help='same as --mode hardware')
     parser.add_argument('--scenario', help='scenario YAML file (default: paper Section V)')
-    parser.add_argument('--clock', choices=('lockstep', 'realtime'), default='lockstep',
-                        help='lockstep (deterministic, faster than real time) or realtime')
+    parser.add_argument('--clock', choices=('lockstep', 'realtime'), default=None,
+                        help='lockstep (deterministic, faster than real time; the default) or '
+                        'realtime; hardware mode is always realtime')
     parser.add_argument('--record', metavar='DIR',
                         help='record every graph topic into this rosbag2 directory')
     parser.add_argument('--duration', type=float, metavar='S',
-                        help='override the scenario duration [s]')
-    parser.add_argument('--out', default='out/graph', metavar='DIR',
-                        help='run directory: params, logs, timings (default out/graph)')
+                        help='override the scenario duration [s]; hardware mode: stop after '
+                        'this long [s of wall time] (default: at Ctrl-C)')
+    parser.add_argument('--out', default=None, metavar='DIR',
+                        help='run directory: params, logs, timings (default out/graph, '
+                        'hardware mode out/hardware)')
     parser.add_argument('--discovery-timeout', type=float, default=60.0, metavar='S',
                         help='wall time allowed for the graph to connect [s]')
     parser.add_argument('--stall-timeout', type=float, default=30.0, metavar='S',
@@ -867,9 +879,19 @@ def main(argv: list[str] | None = None) -> int:
                         help='start the graph again after a stall on the first ticks '
                         '(a start-up message lost to DDS discovery), at most N times')
     parser.add_argument('--quiet', action='store_true', help='no progress output')
+    from .hardware import add_arguments, run_from_args
+    add_arguments(parser)
     args = parser.parse_args(argv)
-    options = GraphOptions(scenario=args.scenario, clock=args.clock, record=args.record,
-                           duration=args.duration, out=args.out,
+    if args.no_plant or args.mode == 'hardware':
+        if args.clock == 'lockstep':
+            parser.error('--mode hardware runs in real time: --clock lockstep is not possible')
+        args.out = args.out or 'out/hardware'
+        return run_from_args(args)
+    if args.params_files or args.remaps:
+        parser.error('--params-file and --remap are options of --mode hardware')
+    options = GraphOptions(scenario=args.scenario, clock=args.clock or 'lockstep',
+                           record=args.record, duration=args.duration,
+                           out=args.out or 'out/graph',
                            discovery_timeout=args.discovery_timeout,
                            stall_timeout=args.stall_timeout,
                            startup_retries=args.startup_retries, quiet=args.quiet)

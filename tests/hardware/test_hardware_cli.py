@@ -1,0 +1,113 @@
+"""``scripts/run_graph --no-plant`` (hardware mode) from the command line, with no base.
+
+Without a base the controllers come up, say which of the base's topics are missing, and
+the safety layer never engages: every effort command sent on the (remapped) command topic
+is zero, and the runner sends zeros again when it stops the nodes.
+"""
+
+import json
+import os
+import random
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+import yaml
+
+rclpy = pytest.importorskip('rclpy')
+
+from std_msgs.msg import Float64MultiArray  # noqa: E402
+
+from wip_sim.hardware import (load_params_file, node_parameters,  # noqa: E402
+                              parse_remap, remapped)
+from wip_sim.graph import GraphError  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+EFFORT = '/base/effort_controller/commands'
+
+
+def test_remap_and_params_file_helpers():
+    assert parse_remap('joint_states:=/base/joint_states') == ('/joint_states',
+                                                               '/base/joint_states')
+    for bad in ('/a', '/a:=', ':=/b', '/a:=/b:=/c'):
+        with pytest.raises(GraphError, match='--remap: expected FROM:=TO'):
+            parse_remap(bad)
+    rules = [('/imu/data', '/base/imu'), ('/imu/data', '/other')]
+    assert remapped('/imu/data', rules) == '/base/imu'     # the first rule wins, as in ROS
+    assert remapped('/gps/fix', rules) == '/gps/fix'
+    generated = {'eso': {'ros__parameters': {'left_joint': 'a', 'model': {'wheel_radius': 0.2}}}}
+    extra = [{'/**': {'ros__parameters': {'left_joint': 'b'}}},
+             {'eso': {'ros__parameters': {'model': {'wheel_radius': 0.1}}}},
+             {'mpc': {'ros__parameters': {'left_joint': 'c'}}}]
+    assert node_parameters('eso', generated, extra) == {'left_joint': 'b',
+                                                        'model.wheel_radius': 0.1}
+
+
+def test_a_malformed_params_file_is_refused(tmp_path):
+    path = tmp_path / 'bad.yaml'
+    path.write_text(yaml.safe_dump({'eso': {'left_joint': 'x'}}))
+    with pytest.raises(GraphError, match='has no ros__parameters'):
+        load_params_file(path)
+
+
+def test_no_plant_without_a_base_never_commands_torque(tmp_path):
+    domain_id = random.randint(1, 101)
+    params = tmp_path / 'base.yaml'
+    params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
+        'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'joints': ['wheel_r', 'wheel_l'],
+        'left_wheel_sign': -1}}}))
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id, args=[])
+    node = rclpy.create_node('effort_listener', context=context)
+    received = []
+    node.create_subscription(Float64MultiArray, EFFORT, lambda m: received.append(list(m.data)),
+                             100)
+    stop = threading.Event()
+
+    def spin():
+        from rclpy.executors import SingleThreadedExecutor
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+        executor.shutdown()
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    out = tmp_path / 'run'
+    try:
+        result = subprocess.run(
+            [sys.executable, '-m', 'wip_sim.graph', '--no-plant', '--duration', '3',
+             '--out', str(out), '--params-file', str(params), '--remap',
+             '/joint_states:=/base/joint_states', '--remap',
+             f'/effort_controller/commands:={EFFORT}'],
+            env=env, capture_output=True, text=True, timeout=120)
+        time.sleep(0.5)
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    assert result.returncode == 0, result.stdout + result.stderr
+    run = json.loads((out / 'run.json').read_text())
+    assert run['mode'] == 'hardware'
+    # The base's topics under their remapped names, none present.
+    assert run['base_topics']['/base/joint_states'] == {'publishers': 0}
+    assert run['base_topics'][EFFORT] == {'subscriptions': 1}     # the test's listener
+    assert 'no publisher on /base/joint_states' in result.stderr
+    assert {e['state'] for e in run['safety_events']} <= {'STARTING', 'FAULT'}
+    assert set(run['node_exit_codes']) == {'reference', 'eso', 'trajectory_generator', 'arc',
+                                           'mpc', 'torque_mixer'}
+    # No plant in the generated parameters; the reference starts with the engagement.
+    generated = yaml.safe_load((out / 'params.yaml').read_text())
+    assert 'plant' not in generated
+    assert generated['reference']['ros__parameters']['realtime_start'] == 'engaged'
+    assert generated['eso']['ros__parameters']['clock_mode'] == 'realtime'
+    # Every command the base would have got: zero, two joints (the mixer's ticks and the
+    # runner's zeros at the stop).
+    assert received and all(c == [0.0, 0.0] for c in received)
+    assert run['zero_commands_sent'] >= 1
