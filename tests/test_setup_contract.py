@@ -9,7 +9,8 @@
   ``ros2 run`` searches, found through the ament index;
 - ``scripts/_env.sh`` exports the ROS environment the scripts rely on;
 - ``scripts/setup`` is idempotent: a second run reinstalls and rebuilds nothing;
-- hadolint passes on docker/Dockerfile.
+- hadolint passes on docker/Dockerfile, which copies only files of the repository, pip-installs
+  the versions of the venv's lock and runs colcon with scripts/setup's arguments.
 
 Tests marked ``ros`` need the environment of ``scripts/test`` (venv, sourced workspace).
 """
@@ -289,6 +290,80 @@ def test_setup_is_idempotent():
 
 
 # --- docker ----------------------------------------------------------------------------------
+# The image cannot be built here (no Docker engine): these tests check that every step it runs
+# is one the tests run outside Docker, on the same files and versions.
+
+DOCKERFILE = REPO_ROOT / 'docker' / 'Dockerfile'
+
+
+def _dockerfile_instructions():
+    """(INSTRUCTION, arguments) of docker/Dockerfile, continuation lines joined."""
+    instructions, current = [], ''
+    for raw in DOCKERFILE.read_text().splitlines():
+        line = raw.strip()
+        if not current and (not line or line.startswith('#')):
+            continue
+        if line.startswith('#'):
+            continue
+        current += ' ' + line.rstrip('\\').strip() if current else line.rstrip('\\').strip()
+        if not line.endswith('\\'):
+            keyword, _, rest = current.partition(' ')
+            instructions.append((keyword.upper(), rest.strip()))
+            current = ''
+    return instructions
+
+
+def test_dockerfile_copies_only_files_that_exist_in_the_build_context():
+    copies = [rest.split() for keyword, rest in _dockerfile_instructions()
+              if keyword in ('COPY', 'ADD')]
+    assert copies, 'no COPY in docker/Dockerfile'
+    for arguments in copies:
+        sources = [a for a in arguments[:-1] if not a.startswith('--')]
+        for source in sources:   # the build context is the repository root
+            assert (REPO_ROOT / source).exists(), f'COPY {source}: not in the repository'
+
+
+def test_dockerfile_pip_installs_exactly_the_versions_tested_in_the_venv():
+    docker = _pins(REPO_ROOT / 'requirements-docker.txt')
+    lock = _pins(REPO_ROOT / 'requirements-lock.txt')
+    assert docker, 'requirements-docker.txt pins nothing'
+    different = {name: (version, lock.get(name)) for name, version in docker.items()
+                 if lock.get(name) != version}
+    assert not different, f'docker pin vs the venv\'s lock: {different}'
+    runs = ' '.join(rest for keyword, rest in _dockerfile_instructions() if keyword == 'RUN')
+    assert '-r /tmp/requirements-docker.txt' in runs
+
+
+def test_dockerfile_builds_the_workspace_with_the_colcon_arguments_of_scripts_setup():
+    env_sh = (REPO_ROOT / 'scripts' / '_env.sh').read_text()
+    match = re.search(r'^WIP_COLCON_ARGS=\((.*)\)$', env_sh, re.MULTILINE)
+    assert match, 'WIP_COLCON_ARGS not found in scripts/_env.sh'
+    # --symlink-install is a development convenience (edit without rebuilding); the image
+    # installs normally. scripts/setup adds -DPython3_EXECUTABLE=<venv python>: the image
+    # uses the system Python that /opt/ros/jazzy is built for.
+    expected = [a for a in match.group(1).split() if a != '--symlink-install']
+    runs = [rest for keyword, rest in _dockerfile_instructions() if keyword == 'RUN']
+    builds = [r for r in runs if 'colcon build' in r]
+    assert len(builds) == 1, builds
+    arguments = builds[0].split('colcon build', 1)[1].split('&&')[0].split()
+    assert arguments == expected
+    instructions = _dockerfile_instructions()
+    # The whole workspace source tree (every package scripts/setup builds) is copied.
+    assert ('COPY', 'ros_ws/src ./src') in instructions
+    assert ('WORKDIR', '/ws') in instructions
+    entrypoint = ' '.join(rest for keyword, rest in instructions if keyword == 'ENTRYPOINT')
+    assert 'source /opt/ros/jazzy/setup.bash' in entrypoint
+    assert 'source /ws/install/setup.bash' in entrypoint
+
+
+def test_docker_readme_lists_every_executable_of_ros2_run():
+    text = (REPO_ROOT / 'docker' / 'README.md').read_text()
+    for package, executables in EXECUTABLES.items():
+        row = next((line for line in text.splitlines() if line.startswith(f'| `{package}`')),
+                   '')
+        for executable in executables:
+            assert f'`{executable}`' in row, f'{package} {executable} not in docker/README.md'
+
 
 def test_hadolint_passes_on_the_dockerfile():
     hadolint = shutil.which('hadolint', path=str(pathlib.Path(sys.executable).parent))
