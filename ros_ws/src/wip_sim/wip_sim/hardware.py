@@ -27,6 +27,15 @@ What it does
    base's topics (after the remaps) have a publisher (sensors) or a subscription (the
    effort command). A missing base is not an error: the safety layer commands zero
    torque until every input has arrived and the ESO has settled.
+   **Arming**: the generated parameters make ``/wip/estop`` a heartbeat of the mixer
+   (``safety.max_estop_age`` = 1 s): no torque before the first e-stop message, zero
+   torque (FAULT) when none came for 1 s. This process publishes ``/wip/estop`` = false
+   at 10 Hz, starting ``--arm-delay`` seconds (default 2) after every node is up: the
+   controllers engage only once the start-up, and its DDS discovery, is over (measured:
+   a process's publish() can stall for 0.33 s while the others start, which a robot
+   released at that moment does not survive), and torque stops if this supervisor dies.
+   An e-stop of your own (``/wip/estop`` = true, from a joystick...) still latches.
+   ``--no-heartbeat``: no heartbeat, no arm delay (the mixer engages as soon as ready).
 4. Runs until SIGINT (Ctrl-C) or ``--duration`` [s of wall time], printing the safety
    state and the node rates every few seconds and recording every change of the safety
    state (with its reasons, from the mixer's /diagnostics) in ``OUT/run.json``. A node
@@ -52,6 +61,7 @@ import dataclasses
 import fnmatch
 import json
 import pathlib
+import re
 import shutil
 import signal
 import sys
@@ -78,6 +88,9 @@ DEFAULT_EFFORT_TOPIC = '/effort_controller/commands'
 CONTROLLER_TOPICS = ('/wip/reference', '/wip/state_estimate', '/wip/velocity_command',
                      '/wip/yaw_torque', '/wip/drive_torque', '/wip/wheel_torques',
                      '/wip/estop', '/diagnostics')
+#: The mixer's ``safety.max_estop_age`` in hardware mode [s] and the heartbeat period [s].
+HEARTBEAT_MAX_AGE = 1.0
+HEARTBEAT_PERIOD = 0.1
 STATUS_PERIOD = 5.0  # [s] wall, progress lines
 PROBE_PERIOD = 0.2  # [s] wall
 #: Zero commands sent at the stop (a few, in case one is lost before the match settles).
@@ -96,6 +109,8 @@ class HardwareOptions:
     record: str | None = None
     discovery_timeout: float = 60.0  # [s] wall: processes started -> every node reporting
     quiet: bool = False
+    arm_delay: float = 2.0  # [s] wall: every node up -> the e-stop heartbeat starts
+    heartbeat: bool = True  # publish the /wip/estop heartbeat (see the module docstring)
     #: Programmatic stop (tests): polled while running; a non-empty string ends the run
     #: (exit 0) with that message.
     stop_when: Callable[[], str | None] | None = None
@@ -194,12 +209,18 @@ def node_parameters(node: str, generated: Mapping[str, Any],
 
 
 def hardware_parameters(scenario: Scenario, recorder: Mapping[str, Any] | None = None,
-                        joints: tuple[str, str] = DEFAULT_JOINTS) -> dict[str, dict]:
+                        joints: tuple[str, str] = DEFAULT_JOINTS,
+                        heartbeat: bool = True) -> dict[str, dict]:
     """The generated params file of a hardware run: the controller nodes of
-    :func:`~wip_control.tools.params_files.graph_parameters` in real time, no plant."""
+    :func:`~wip_control.tools.params_files.graph_parameters` in real time, no plant; the
+    reference starts when the safety layer engages; with ``heartbeat``, /wip/estop is the
+    mixer's heartbeat (``safety.max_estop_age``)."""
     data = graph_parameters(scenario, 'realtime', None, joints, recorder=recorder)
     del data['plant']
     data['reference']['ros__parameters']['realtime_start'] = 'engaged'
+    if heartbeat:
+        mixer = data['torque_mixer']['ros__parameters']
+        mixer.setdefault('safety', {})['max_estop_age'] = HEARTBEAT_MAX_AGE
     return data
 
 
@@ -227,6 +248,7 @@ class HardwareRunner:
         self.effort_publisher = None
         self.zero_command: list[float] = [0.0, 0.0]
         self.zero_commands_sent = 0
+        self.armed = False
 
     def say(self, text: str) -> None:
         if not self.options.quiet:
@@ -260,7 +282,11 @@ class HardwareRunner:
             topics = list(CONTROLLER_TOPICS) + list(BASE_SENSOR_TOPICS) + [
                 DEFAULT_EFFORT_TOPIC]
             recorder = {'output': str(self.bag), 'topics': topics, 'discovery_period': 0.5}
-        self.generated = hardware_parameters(self.scenario, recorder)
+        if not options.arm_delay >= 0.0:
+            raise GraphError(f'--arm-delay: must be >= 0 s, got {options.arm_delay}',
+                             EXIT_USAGE)
+        self.generated = hardware_parameters(self.scenario, recorder,
+                                             heartbeat=options.heartbeat)
         mixer = node_parameters('torque_mixer', self.generated, self.extra)
         self.zero_command = [0.0] * len(mixer.get('joints', DEFAULT_JOINTS))
         self.effort_topic = remapped(
@@ -316,6 +342,30 @@ class HardwareRunner:
         self.effort_publisher = node.create_publisher(
             Float64MultiArray, self.effort_topic,
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        if self.options.heartbeat:
+            from std_msgs.msg import Bool
+            self._bool = Bool
+            self.estop_publisher = node.create_publisher(
+                Bool, remapped('/wip/estop', self.remaps),
+                QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+            node.create_timer(HEARTBEAT_PERIOD, self._heartbeat)
+
+    def _heartbeat(self) -> None:
+        if self.armed:
+            self.estop_publisher.publish(self._bool(data=False))
+
+    def arm(self) -> None:
+        """Wait ``arm_delay`` (nodes watched), then start the e-stop heartbeat."""
+        if not self.options.heartbeat:
+            return
+        deadline = time.monotonic() + self.options.arm_delay
+        while time.monotonic() < deadline:
+            self.check_alive()
+            self.probe.spin(min(PROBE_PERIOD, max(0.0, deadline - time.monotonic())))
+        self.armed = True
+        self.timeline['armed'] = time.monotonic() - self.t0
+        self.say('armed: /wip/estop heartbeat started; the safety layer engages once every '
+                 'input is fresh and the ESO has settled')
 
     def _on_diagnostics(self, msg) -> None:
         now = time.monotonic() - self.t0
@@ -328,12 +378,14 @@ class HardwareRunner:
                 except ValueError:
                     pass
             if name == 'torque_mixer' and 'safety state' in values:
-                key = (values['safety state'], values.get('safety reasons', ''))
+                state, reasons = values['safety state'], values.get('safety reasons', '')
+                # A change of state or of the causes (numbers aside: ages grow).
+                key = (state, re.sub(r'[-+]?\d+(\.\d+)?', '#', reasons))
                 if key != self._safety:
                     self._safety = key
-                    self.safety_events.append({'t': round(now, 4), 'state': key[0],
-                                               'reasons': key[1]})
-                    self.say(f'safety: {key[0]}' + (f' ({key[1]})' if key[1] not in (
+                    self.safety_events.append({'t': round(now, 4), 'state': state,
+                                               'reasons': reasons})
+                    self.say(f'safety: {state}' + (f' ({reasons})' if reasons not in (
                         '', 'none') else ''))
 
     def send_zero_commands(self) -> None:
@@ -469,6 +521,7 @@ class HardwareRunner:
             self.timeline['processes started'] = time.monotonic() - self.t0
             self.wait_for_nodes()
             result.base_topics = self.base_topics()
+            self.arm()
             result.startup_s = time.monotonic() - self.t0
             self.say(f'{len(self.processes)} nodes up in {result.startup_s:.1f} s; running '
                      + (f'for {self.options.duration:g} s' if self.options.duration
@@ -548,6 +601,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         dest='remaps',
                         help='hardware mode: topic remapping applied to every node '
                              '(repeatable), e.g. /imu/data:=/base/imu')
+    parser.add_argument('--arm-delay', type=float, default=2.0, metavar='S',
+                        help='hardware mode: seconds after every node is up before the '
+                             '/wip/estop heartbeat starts and the controllers may engage')
+    parser.add_argument('--no-heartbeat', action='store_true',
+                        help='hardware mode: no /wip/estop heartbeat (and no arm delay): '
+                             'the mixer engages as soon as its inputs are ready')
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -572,7 +631,8 @@ def run_from_args(args: argparse.Namespace) -> int:
     options = HardwareOptions(scenario=args.scenario, params_files=list(args.params_files),
                               remaps=list(args.remaps), duration=args.duration,
                               out=args.out, record=args.record,
-                              discovery_timeout=args.discovery_timeout, quiet=args.quiet)
+                              discovery_timeout=args.discovery_timeout, quiet=args.quiet,
+                              arm_delay=args.arm_delay, heartbeat=not args.no_heartbeat)
     result = run_hardware(options)
     print(format_result(result))
     return result.exit_code

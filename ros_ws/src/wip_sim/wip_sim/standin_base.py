@@ -10,6 +10,8 @@ own topics.
 
 Topics (the usual names of a ros2_control base; remap them with ``-r``)
 -------------------------------------------------------------------------
+Sensors are published best effort (sensor-data QoS), the command is subscribed reliable.
+
 Publishes
     ``/joint_states`` (sensor_msgs/JointState): the wheel joints in the order of ``joints``,
     position [rad] and velocity [rad/s] in each JOINT's own sign convention
@@ -280,6 +282,7 @@ class StandinBase(Node):
         self.start_wall = time.perf_counter()
         self.tick_walls: list[float] = []
         self.stalls: list[dict[str, float]] = []
+        self.publish_times: list[float] = []
         self.command_gaps: list[float] = []
         self.command_ages: list[float] = []
         self.commands = 0
@@ -292,11 +295,15 @@ class StandinBase(Node):
         self._next_truth = 0.0
         self.end_reason = ''
 
+        # Sensors: best effort, like drivers with sensor-data QoS (a reliable publisher can
+        # block in publish() for 0.33 s while a new subscriber matches: measured here);
+        # the command: reliable, like JointGroupEffortController's subscription.
+        sensor_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.joint_pub = self.create_publisher(JointState, '/joint_states', qos)
-        self.imu_pub = self.create_publisher(Imu, '/imu/data', qos)
-        self.gps_pub = self.create_publisher(NavSatFix, '/gps/fix', qos)
-        self.odom_pub = (self.create_publisher(Odometry, '/odom', qos)
+        self.joint_pub = self.create_publisher(JointState, '/joint_states', sensor_qos)
+        self.imu_pub = self.create_publisher(Imu, '/imu/data', sensor_qos)
+        self.gps_pub = self.create_publisher(NavSatFix, '/gps/fix', sensor_qos)
+        self.odom_pub = (self.create_publisher(Odometry, '/odom', sensor_qos)
                          if self.publish_odometry else None)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(Float64MultiArray, '/effort_controller/commands',
@@ -390,7 +397,9 @@ class StandinBase(Node):
                                        f'{abs(self.state[THETA]):.3f} rad >= '
                                        f'{self.fall_threshold:g} rad')
                     self.get_logger().error(self.end_reason)
+            publish_start = time.perf_counter()
             self._publish(self.get_clock().now().nanoseconds)
+            self.publish_times.append(time.perf_counter() - publish_start)
             self.k += 1
         except ValueError as err:
             self.end_reason = f'simulation failed: {err}'
@@ -463,6 +472,7 @@ class StandinBase(Node):
             'wall_time_s': wall,
             'tick_period': percentiles(periods),
             'stalls': self.stalls,
+            'publish_time': percentiles(self.publish_times),
             'released': self.released,
             'release_wall_s': released_at,
             'sim_time_s': self.t,

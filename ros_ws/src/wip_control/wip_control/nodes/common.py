@@ -54,6 +54,15 @@ SPIN_TIMEOUT = 0.1
 RELIABLE_QOS = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=10,
                           reliability=QoSReliabilityPolicy.RELIABLE,
                           durability=QoSDurabilityPolicy.VOLATILE)
+#: A real base's sensors in real time: best effort, keep last 10 (REP 2003's sensor data
+#: QoS). A best-effort subscription receives from reliable and best-effort publishers alike
+#: (IMU drivers often publish best effort, which a reliable subscription would never
+#: match), and a reliable publisher can block in publish() while it matches a new reliable
+#: reader: measured with rclpy/Fast DDS, the stand-in base's sensor publish() blocked for
+#: 0.33 s as the controllers started, which a balancing robot does not survive.
+SENSOR_QOS = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=10,
+                        reliability=QoSReliabilityPolicy.BEST_EFFORT,
+                        durability=QoSDurabilityPolicy.VOLATILE)
 #: /clock: best effort like rclpy's own time source subscription (which uses depth 1), so it
 #: matches both best-effort and reliable publishers; depth 10 so that no sample is lost
 #: when two arrive between two spins.
@@ -227,7 +236,8 @@ class ControllerNode(Node):
             raise ConfigError(f'diagnostics_period: must be >= 0, got {period!r}')
         self.diagnostics = NodeDiagnostics(self, role, inputs, period)
 
-    def subscribe(self, msg_type, topic: str, name: str, handler: Callable) -> None:
+    def subscribe(self, msg_type, topic: str, name: str, handler: Callable,
+                  qos: QoSProfile = RELIABLE_QOS) -> None:
         """Subscription whose callback never raises: a ValueError (malformed or non-finite
         input, rejected by a conversion or the core) drops the message as 'invalid', any
         other error as 'error'; both are counted and reported on /diagnostics."""
@@ -238,7 +248,7 @@ class ControllerNode(Node):
                 self.diagnostics.drop(name, 'invalid', str(err))
             except Exception as err:  # noqa: B902 - a callback must not stop the executor
                 self.diagnostics.drop(name, 'error', f'{type(err).__name__}: {err}')
-        self.create_subscription(msg_type, topic, callback, RELIABLE_QOS)
+        self.create_subscription(msg_type, topic, callback, qos)
 
     def now_ns(self) -> int:
         return self.get_clock().now().nanoseconds

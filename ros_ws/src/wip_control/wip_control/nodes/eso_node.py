@@ -39,7 +39,9 @@ torques stamped t_{k−1} (the previous sample processed) must have arrived, so 
 result never depends on which of the plant's and the mixer's messages DDS delivers
 first. A GPS fix off the GPS ticks is dropped (its use would depend on arrival order).
 realtime: update when both an IMU and an encoder message newer than at the last update
-have arrived; the latest torques and the latest unused GPS fix are used. The observer's
+have arrived; the latest torques and the latest unused GPS fix are used. The base's
+sensor topics are subscribed best effort (sensor-data QoS, ``common.SENSOR_QOS``), which
+matches reliable and best-effort publishers; lockstep uses reliable. The observer's
 time advances by whole sample periods: the time between two samples (their stamps) is
 rounded to a multiple n >= 1 of ``eso.sample_period`` (a missed sample counts as two
 periods). Decision: the exact discretisation of the observer (``core/eso.py``) is
@@ -85,7 +87,8 @@ from ..core.eso import EsoConfig, WipStateObserver
 from ..core.params import WipParameters
 from ..core.position import PlanarPositionEstimator, PositionConfig
 from ..core.sensors import SensorConfig, wheel_odometry
-from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
+from .common import (ControllerNode, finite, RELIABLE_QOS, run_node, SENSOR_QOS,
+                     stamp_to_ns)
 from .conversions import estimate_to_msg, gps_local_position, wheel_torques_from_msg
 from .diagnostics import OK, WARN
 from .hardware_inputs import (body_pitch_yaw, check_mounting_rpy, check_position_source,
@@ -179,15 +182,19 @@ class EsoNode(ControllerNode):
 
         self.publisher = self.create_publisher(StateEstimateMsg, '/wip/state_estimate',
                                                RELIABLE_QOS)
-        self.subscribe(JointState, '/joint_states', 'joint_states', self._on_joint_states)
-        self.subscribe(Imu, '/imu/data', 'imu', self._on_imu)
+        # The base's sensors: reliable in lockstep (every sample counts), sensor-data QoS
+        # in real time (see common.SENSOR_QOS).
+        sensor_qos = RELIABLE_QOS if self.lockstep else SENSOR_QOS
+        self.subscribe(JointState, '/joint_states', 'joint_states', self._on_joint_states,
+                       sensor_qos)
+        self.subscribe(Imu, '/imu/data', 'imu', self._on_imu, sensor_qos)
         if self.position_source == 'odometry':
             # The position input keeps its slot name 'gps' in the sync; diagnostics say odom.
             self.diagnostics.inputs = ('joint_states', 'imu', 'odom', 'wheel_torques')
             self.diagnostics.last_stamp = {n: None for n in self.diagnostics.inputs}
-            self.subscribe(Odometry, '/odom', 'odom', self._on_odometry)
+            self.subscribe(Odometry, '/odom', 'odom', self._on_odometry, sensor_qos)
         else:
-            self.subscribe(NavSatFix, '/gps/fix', 'gps', self._on_gps)
+            self.subscribe(NavSatFix, '/gps/fix', 'gps', self._on_gps, sensor_qos)
         self.subscribe(WheelTorques, '/wip/wheel_torques', 'wheel_torques', self._on_torques)
         self.diagnostics.state(OK, 'waiting for the first measurement set')
 
