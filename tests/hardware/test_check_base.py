@@ -13,7 +13,6 @@ motion a person would, in ``--auto`` mode it plays the motions on a schedule.
 import json
 import math
 import os
-import pathlib
 import random
 import subprocess
 import sys

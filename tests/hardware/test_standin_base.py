@@ -25,11 +25,9 @@ module's report in ``OUT/measured.json`` of each run and the assertions' comment
 import json
 import math
 import os
-import pathlib
 import random
 import signal
 import subprocess
-import time
 
 import numpy as np
 import pytest
