@@ -250,3 +250,13 @@ def test_auto_mode_detects_the_motions_without_confirmations(tmp_path):
     assert checks['tilt/pitch']['measured'] == pytest.approx(TILT, abs=1e-6)
     assert checks['left_wheel/sign']['measured'] == pytest.approx(2 * math.pi, abs=1e-6)
     assert checks['turn/imu_yaw']['measured'] == pytest.approx(math.pi / 2, abs=1e-6)
+
+
+def test_ros_arguments_from_ros2_run_are_split_off_and_remaps_kept():
+    from wip_sim.check_base import split_ros_arguments
+    own, remaps = split_ros_arguments(
+        ['--auto', '--ros-args', '-r', '/imu/data:=/base/imu', '-p', 'x:=1',
+         '--remap', 'a:=b', '--', '--timeout', '5'])
+    assert own == ['--auto', '--timeout', '5']
+    assert remaps == ['/imu/data:=/base/imu', 'a:=b']
+    assert split_ros_arguments(['--script']) == (['--script'], [])

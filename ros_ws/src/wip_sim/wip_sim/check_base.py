@@ -675,6 +675,25 @@ class Session:
             self.say(check.line())
 
 
+def split_ros_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
+    """(the tool's own arguments, 'FROM:=TO' remappings) of a command line that may hold
+    ``--ros-args ... [--]`` blocks, as ``ros2 run`` passes them."""
+    own: list[str] = []
+    remaps: list[str] = []
+    in_ros = False
+    words = iter(argv)
+    for word in words:
+        if word == '--ros-args':
+            in_ros = True
+        elif in_ros and word == '--':
+            in_ros = False
+        elif in_ros and word in ('-r', '--remap'):
+            remaps.append(next(words, ''))
+        elif not in_ros:
+            own.append(word)
+    return own, remaps
+
+
 def main(argv: list[str] | None = None, stdin: TextIO | None = None,
          stdout: TextIO | None = None) -> int:
     parser = argparse.ArgumentParser(prog='scripts/check_base', description=__doc__,
@@ -696,7 +715,12 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
     parser.add_argument('--window', type=float, default=0.3, metavar='S',
                         help='averaging window of a reading [s]')
     parser.add_argument('--json', metavar='FILE', help='write the checks as JSON')
-    args = parser.parse_args(argv)
+    # ``ros2 run wip_sim check_base [options] --ros-args -r a:=b`` passes ROS arguments
+    # after the tool's own: remappings among them are honoured like --remap, the rest
+    # (log levels, parameters) do not concern a listener and are ignored.
+    own, ros_remaps = split_ros_arguments(sys.argv[1:] if argv is None else list(argv))
+    args = parser.parse_args(own)
+    args.remaps = [*args.remaps, *ros_remaps]
     stdin = stdin or sys.stdin
     stdout = stdout or sys.stdout
     try:
