@@ -20,7 +20,7 @@ from wip_control.core.metrics import compute_metrics
 from wip_control.core.runner import run_scenario
 from wip_control.core.scenario import Scenario, scenario_from_mapping
 
-# Numerical slack on hard limits: the QP is solved to eps_abs = 1e-7 and the mixer clips
+# Numerical slack on hard limits: the QP is solved to eps_abs = 1e-6 and the mixer clips
 # in floating point, so a limit may be met to ~1e-9 but never exceeded by more.
 HARD_LIMIT_TOL = 1e-6
 

@@ -85,12 +85,18 @@ def test_record_replay_record_gives_identical_bytes_in_order_with_recorded_timin
                         'the first recording')
     recorder.stop()
 
-    # 2. Replay it into a second recorder (the replayer waits for its subscriptions).
+    # 2. Replay it into a second recorder. The replayer waits until its publishers have
+    # matched the recorder's subscriptions, but DDS matches each side on its own: seen once
+    # in a fresh-clone run, the recorder's side matched later and the first ~16 messages
+    # (0.33 s) arrived late in a bunch (presumably dropped by the not yet matched reader and
+    # sent again by the reliable protocol). --delay, as
+    # rosbag2's `ros2 bag play --delay`, leaves discovery time to finish before the timing
+    # that is tested here starts.
     second = tmp_path / 'second'
     recorder2 = _recorder(test_node, second, topics)
     tools.append(recorder2)
     replayer = _replayer(test_node, first, '--wait-for-subscribers', '1',
-                         '--wait-timeout', '20')
+                         '--wait-timeout', '20', '--delay', '1.0')
     tools.append(replayer)
     replayer.wait(40.0)
     recorder2.spin_until(lambda: _counts(recorder2) == {chatter: n, imu_topic: n}, 10.0,

@@ -1039,3 +1039,19 @@ def test_reference_message_and_core_tuple_have_the_same_fields():
     fields = ReferenceStateMsg.get_fields_and_field_types()
     assert list(ReferenceState._fields) == [f for f in fields if f != 'header']
 
+
+
+def test_an_executor_error_after_shutdown_is_a_stop_and_before_it_an_error():
+    from rclpy.executors import ExternalShutdownException
+    from wip_control.nodes.common import spin_once_or_stop
+
+    class Failing:
+        def spin_once(self, timeout_sec):
+            raise RuntimeError("Unable to convert call argument '0' to Python object")
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=0)
+    with pytest.raises(RuntimeError, match='Unable to convert'):
+        spin_once_or_stop(Failing(), 0.0, context=ctx)
+    rclpy.shutdown(context=ctx)
+    with pytest.raises(ExternalShutdownException, match='Unable to convert'):
+        spin_once_or_stop(Failing(), 0.0, context=ctx)

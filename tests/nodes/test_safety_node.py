@@ -454,3 +454,62 @@ def test_drive_status_values_are_the_mpc_output_constants():
     assert {s.name: int(s) for s in DriveStatus} == {
         name: getattr(MpcOutput, name) for name in
         ('SOLVED', 'FALLBACK_SHIFTED_PLAN', 'FAILED_ZERO', 'INPUT_INVALID', 'NOT_READY')}
+
+
+@pytest.mark.parametrize('stop_signal', [signal.SIGINT, signal.SIGTERM])
+def test_mixer_process_stopped_sends_a_last_zero_command_to_the_base(context, stop_signal):
+    """A JointGroupEffortController holds the last command forever: the mixer process,
+    stopped while it commands torque, must leave zero behind (its last message)."""
+    from ament_index_python.packages import get_package_prefix
+    executable = os.path.join(get_package_prefix('wip_control'), 'lib', 'wip_control',
+                              'torque_mixer')
+    env = dict(os.environ)
+    env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
+    process = subprocess.Popen(
+        [executable, '--ros-args', '-p', 'clock_mode:=realtime', '-p', 'use_sim_time:=false',
+         '-p', f'safety.settle_time:={SETTLE}', '-p', 'diagnostics_period:=0.0',
+         *itertools.chain.from_iterable(('-p', f'safety.max_{name}_age:={age}')
+                                        for name, age in AGES.items())],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    io = rclpy.create_node(f'stop_harness_{next(_ids)}', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(io)
+    efforts = []
+    io.create_subscription(Float64MultiArray, '/effort_controller/commands', efforts.append,
+                           1000)
+    pubs = {topic: io.create_publisher(kind, topic, 100) for topic, kind in (
+        ('/wip/state_estimate', StateEstimateMsg), ('/wip/yaw_torque', ArcState),
+        ('/wip/drive_torque', MpcOutput))}
+
+    def upstream():
+        stamp = make_header(io.get_clock().now().nanoseconds)
+        pubs['/wip/state_estimate'].publish(StateEstimateMsg(header=stamp, theta=0.02,
+                                                             settled=True))
+        pubs['/wip/yaw_torque'].publish(ArcState(header=stamp, tau_omega=TAU_OMEGA))
+        pubs['/wip/drive_torque'].publish(MpcOutput(header=stamp, tau_v=TAU_V))
+    io.create_timer(PERIOD, upstream)
+    torque = mix(TAU_V, TAU_OMEGA, 15.0)
+    try:
+        deadline = time.monotonic() + 60.0   # process start-up and discovery on 2 cores
+        while not any(list(m.data) == list(torque) for m in efforts):
+            assert process.poll() is None, process.communicate()[0]
+            assert time.monotonic() < deadline, 'no torque from the mixer process'
+            executor.spin_once(timeout_sec=0.01)
+        process.send_signal(stop_signal)
+        deadline = time.monotonic() + 10.0
+        while process.poll() is None:
+            assert time.monotonic() < deadline, 'the mixer did not stop'
+            executor.spin_once(timeout_sec=0.01)
+        executor.spin_once(timeout_sec=0.2)   # drain what is still on the way
+        output = process.communicate()[0]
+        assert process.returncode == 0, output
+        assert 'zero effort command sent' in output, output
+        assert list(efforts[-1].data) == [0.0, 0.0]
+        assert any(max(abs(v) for v in m.data) > 0.0 for m in efforts[-10:-1]), \
+            'the mixer was not commanding torque when it was stopped'
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+        executor.shutdown()
+        io.destroy_node()

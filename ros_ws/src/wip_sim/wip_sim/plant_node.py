@@ -90,7 +90,7 @@ from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_state
 from wip_control.core.scenario import load_scenario
 from wip_control.core.sensors import local_to_geodetic, Sensors
-from wip_control.nodes.common import make_executor, stamp_to_ns
+from wip_control.nodes.common import make_executor, spin_once_or_stop, stamp_to_ns
 from wip_control.nodes.conversions import quaternion_from_euler, wheel_torques_from_msg
 from wip_control.nodes.parameters import declare_plain
 
@@ -598,7 +598,7 @@ def main(args=None) -> int:
         executor.add_node(node)
         # spin_once with a timeout: the EventsExecutor's spin() ignores SIGINT.
         while rclpy.ok() and node.exit_code is None:
-            executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+            spin_once_or_stop(executor, SPIN_TIMEOUT)
         if node.exit_code is not None:
             status = node.exit_code
             # rmw_fastrtps publishes synchronously (the default since Humble): the last

@@ -95,7 +95,7 @@ from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_state
 from wip_control.core.scenario import load_scenario
 from wip_control.core.sensors import local_to_geodetic, Sensors
-from wip_control.nodes.common import make_executor
+from wip_control.nodes.common import make_executor, spin_once_or_stop
 from wip_control.nodes.conversions import quaternion_from_euler
 from wip_control.nodes.hardware_inputs import (check_mounting_rpy, check_wheel_sign,
                                                imu_orientation_of_body, rotate_vector_into)
@@ -532,7 +532,7 @@ def main(args=None) -> int:
         executor = make_executor()
         executor.add_node(node)
         while rclpy.ok() and node.exit_code is None:
-            executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+            spin_once_or_stop(executor, SPIN_TIMEOUT)
         if node.exit_code is not None:
             status = node.exit_code
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -25,6 +25,7 @@ sample of its grid (:class:`ClockTicker`) and the MPC ticks on the stamps of its
 from __future__ import annotations
 
 import math
+import signal
 import sys
 from typing import Callable, Sequence
 
@@ -33,6 +34,7 @@ import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
                        QoSReliabilityPolicy)
 from rosgraph_msgs.msg import Clock
@@ -163,6 +165,24 @@ def make_executor(context=None):
         return SingleThreadedExecutor(context=context)
 
 
+def spin_once_or_stop(executor, timeout_sec: float = SPIN_TIMEOUT, context=None) -> None:
+    """``executor.spin_once``; an error raised once the context is shut down is a stop.
+
+    On SIGINT rclpy shuts the context down while the executor may be busy, and rclpy's
+    EventsExecutor then sometimes fails inside pybind11 ("Unable to convert call argument
+    '0' to Python object", seen under load). That is raised as ExternalShutdownException,
+    which every entry point treats as a clean stop; any other error propagates.
+    """
+    try:
+        executor.spin_once(timeout_sec=timeout_sec)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        raise
+    except Exception as err:  # noqa: B902 - re-raised unless the context is shut down
+        if rclpy.ok(context=context):
+            raise
+        raise ExternalShutdownException(f'{type(err).__name__}: {err}') from err
+
+
 _callback_failures = 0
 
 
@@ -182,7 +202,10 @@ def spin_once_guarded(executor, node: Node, timeout_sec: float = SPIN_TIMEOUT) -
         raise
     except Exception as err:  # noqa: B902 - any callback error, see the docstring
         if not rclpy.ok(context=node.context):
-            raise
+            # The context was shut down (SIGINT) while the executor was busy: rclpy's
+            # EventsExecutor then sometimes fails inside pybind11 ("Unable to convert
+            # call argument '0' to Python object", seen under load). That is a stop.
+            raise ExternalShutdownException(f'{type(err).__name__}: {err}') from err
         _callback_failures += 1
         if _callback_failures <= 5 or _callback_failures % 1000 == 0:
             node.get_logger().error(f'a callback failed (#{_callback_failures}), node goes '
@@ -190,16 +213,33 @@ def spin_once_guarded(executor, node: Node, timeout_sec: float = SPIN_TIMEOUT) -
         return False
 
 
-def run_node(node_factory: Callable[[], Node], program: str, args=None) -> int:
+def _raise_keyboard_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt(f'signal {signum}')
+
+
+def run_node(node_factory: Callable[[], Node], program: str, args=None,
+             on_stop: Callable[[Node], None] | None = None) -> int:
     """Jazzy ``main``: init, build the node, spin until shutdown, clean up; exit status.
 
     A configuration error (a parameter out of range, of the wrong type, an unknown choice)
     makes the node refuse to start: the message, which names the parameter, goes to
     stderr and the status is 1.
+
+    ``on_stop(node)`` runs on SIGINT/SIGTERM before the node is destroyed, with the
+    context still valid so that it can publish (the mixer's last zero command). rclpy's
+    own signal handler shuts the context down before any ``finally`` runs, so a node
+    with ``on_stop`` takes SIGINT and SIGTERM over itself (they raise KeyboardInterrupt
+    in the spin loop, which returns to Python every :data:`SPIN_TIMEOUT`).
     """
-    rclpy.init(args=args)
+    if on_stop is None:
+        rclpy.init(args=args)
+    else:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        signal.signal(signal.SIGINT, _raise_keyboard_interrupt)
+        signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
     node = None
     status = 0
+    stopping = False
     try:
         node = node_factory()
         executor = make_executor()
@@ -208,12 +248,21 @@ def run_node(node_factory: Callable[[], Node], program: str, args=None) -> int:
         while rclpy.ok():
             spin_once_guarded(executor, node)
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        stopping = True
     except (ConfigError, ParameterException) as err:
         print(f'{program}: error: {err}', file=sys.stderr)
         status = 1
     finally:
         if node is not None:
+            if on_stop is not None and stopping and rclpy.ok():
+                # A second signal while stopping must not skip the destruction below.
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+                signal.signal(signal.SIGTERM, signal.SIG_IGN)
+                try:
+                    on_stop(node)
+                except Exception as err:  # noqa: B902 - report, then clean up anyway
+                    print(f'{program}: stopping: {type(err).__name__}: {err}',
+                          file=sys.stderr)
             node.destroy_node()
         rclpy.try_shutdown()
     return status

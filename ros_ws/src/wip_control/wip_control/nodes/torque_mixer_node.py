@@ -68,6 +68,7 @@ import sys
 import time
 
 from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from std_msgs.msg import Bool, Empty, Float64MultiArray
 from std_srvs.srv import Trigger
 from wip_msgs.msg import ArcState, MpcOutput, StateEstimate as StateEstimateMsg, WheelTorques
@@ -91,6 +92,8 @@ _DIAGNOSED = (*_INPUTS, 'state_estimate', 'estop')
 _MAX_ESTIMATE_STAMPS = 64
 #: Least wall time between two /diagnostics sent at once on a state change [s].
 _DIAGNOSTICS_ON_CHANGE_PERIOD = 0.05
+#: Longest wait [s] for the base to acknowledge the zero command sent on stopping.
+STOP_ACK_TIMEOUT = 1.0
 _LEVEL = {ACTIVE: OK, SHADOW: WARN, STARTING: WARN, FAULT: ERROR, ESTOP: ERROR}
 
 
@@ -326,9 +329,29 @@ class TorqueMixerNode(ControllerNode):
         return self._base_status()
 
 
+    def send_stop_command(self) -> bool:
+        """Real time: one zero effort command to the base, acknowledged; True if it was.
+
+        A ros2_control JointGroupEffortController holds the last command forever, so a
+        mixer that stops (Ctrl-C, ``ros2 run`` ended, SIGTERM from a supervisor) must not
+        leave a torque behind. Lockstep drives a simulated plant on /wip/wheel_torques
+        and has no base: nothing is sent (a run's command count stays one per tick).
+        """
+        if self.lockstep:
+            return False
+        self.effort_publisher.publish(effort_command(0.0, 0.0, self.joints, self.left_joint,
+                                                     self.right_joint))
+        acked = self.effort_publisher.wait_for_all_acked(Duration(seconds=STOP_ACK_TIMEOUT))
+        self.get_logger().info('stopping: zero effort command sent' +
+                               ('' if acked else ' (not acknowledged by every subscriber '
+                                f'within {STOP_ACK_TIMEOUT} s)'))
+        return acked
+
+
 def main(args=None) -> int:
-    """Entry point ``torque_mixer``."""
-    return run_node(TorqueMixerNode, 'torque_mixer', args)
+    """Entry point ``torque_mixer``: on SIGINT/SIGTERM a last zero command to the base."""
+    return run_node(TorqueMixerNode, 'torque_mixer', args,
+                    on_stop=TorqueMixerNode.send_stop_command)
 
 
 if __name__ == '__main__':
