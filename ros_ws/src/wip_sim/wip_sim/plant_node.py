@@ -71,10 +71,7 @@ import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -90,7 +87,7 @@ from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_state
 from wip_control.core.scenario import load_scenario
 from wip_control.core.sensors import local_to_geodetic, Sensors
-from wip_control.nodes.common import make_executor, spin_once_or_stop, stamp_to_ns
+from wip_control.nodes.common import run_simulator_node, stamp_to_ns
 from wip_control.nodes.conversions import quaternion_from_euler, wheel_torques_from_msg
 from wip_control.nodes.parameters import declare_plain
 
@@ -589,36 +586,11 @@ def _fmt(summary: dict) -> str:
 
 def main(args=None) -> int:
     """Entry point ``plant`` (``ros2 run wip_sim plant --ros-args -p scenario_file:=...``)."""
-    rclpy.init(args=args)
-    node = None
-    status = EXIT_OK
-    try:
-        node = PlantNode()
-        executor = make_executor()
-        executor.add_node(node)
-        # spin_once with a timeout: the EventsExecutor's spin() ignores SIGINT.
-        while rclpy.ok() and node.exit_code is None:
-            spin_once_or_stop(executor, SPIN_TIMEOUT)
-        if node.exit_code is not None:
-            status = node.exit_code
-            # rmw_fastrtps publishes synchronously (the default since Humble): the last
-            # samples are handed to the transport before publish() returns, so exiting
-            # now loses nothing.
-            node.publish_diagnostics()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ConfigError, ParameterException) as err:
-        print(f'plant: error: {err}', file=sys.stderr)
-        status = EXIT_CONFIG
-    finally:
-        if node is not None:
-            try:
-                node.write_stats()
-            except OSError as err:
-                print(f'plant: cannot write stats: {err}', file=sys.stderr)
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return status
+    # At the end of the scenario: rmw_fastrtps publishes synchronously (the default since
+    # Humble), so the last samples are handed to the transport before publish() returns
+    # and exiting right after the final /diagnostics loses nothing.
+    return run_simulator_node(PlantNode, 'plant', args, config_status=EXIT_CONFIG,
+                              on_end=PlantNode.publish_diagnostics)
 
 
 if __name__ == '__main__':

@@ -78,10 +78,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
@@ -95,7 +92,7 @@ from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_state
 from wip_control.core.scenario import load_scenario
 from wip_control.core.sensors import local_to_geodetic, Sensors
-from wip_control.nodes.common import make_executor, spin_once_or_stop
+from wip_control.nodes.common import run_simulator_node
 from wip_control.nodes.conversions import quaternion_from_euler
 from wip_control.nodes.hardware_inputs import (check_mounting_rpy, check_wheel_sign,
                                                imu_orientation_of_body, rotate_vector_into)
@@ -524,31 +521,7 @@ class StandinBase(Node):
 
 def main(args=None) -> int:
     """Entry point ``standin_base`` (``ros2 run wip_sim standin_base --ros-args ...``)."""
-    rclpy.init(args=args)
-    node = None
-    status = EXIT_OK
-    try:
-        node = StandinBase()
-        executor = make_executor()
-        executor.add_node(node)
-        while rclpy.ok() and node.exit_code is None:
-            spin_once_or_stop(executor, SPIN_TIMEOUT)
-        if node.exit_code is not None:
-            status = node.exit_code
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ConfigError, ParameterException) as err:
-        print(f'standin_base: error: {err}', file=sys.stderr)
-        status = EXIT_CONFIG
-    finally:
-        if node is not None:
-            try:
-                node.write_stats()
-            except OSError as err:
-                print(f'standin_base: cannot write stats: {err}', file=sys.stderr)
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return status
+    return run_simulator_node(StandinBase, 'standin_base', args, config_status=EXIT_CONFIG)
 
 
 if __name__ == '__main__':

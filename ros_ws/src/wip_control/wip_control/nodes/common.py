@@ -268,6 +268,46 @@ def run_node(node_factory: Callable[[], Node], program: str, args=None,
     return status
 
 
+def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None, *,
+                       config_status: int, on_end: Callable[[Node], None] | None = None
+                       ) -> int:
+    """``main`` of a simulator node (plant, stand-in base) that ends by itself.
+
+    Spins until SIGINT or until the node sets ``exit_code`` (the end of its scenario, a
+    fall...), which is then the status; ``on_end(node)`` runs in that case, before the
+    clean-up. A configuration error prints its message and returns ``config_status``.
+    The node's ``write_stats()`` always runs (an OSError is reported, not raised).
+    """
+    rclpy.init(args=args)
+    node = None
+    status = 0
+    try:
+        node = node_factory()
+        executor = make_executor()
+        executor.add_node(node)
+        # spin_once with a timeout: the EventsExecutor's spin() ignores SIGINT.
+        while rclpy.ok() and node.exit_code is None:
+            spin_once_or_stop(executor, SPIN_TIMEOUT)
+        if node.exit_code is not None:
+            status = node.exit_code
+            if on_end is not None:
+                on_end(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ConfigError, ParameterException) as err:
+        print(f'{program}: error: {err}', file=sys.stderr)
+        status = config_status
+    finally:
+        if node is not None:
+            try:
+                node.write_stats()
+            except OSError as err:
+                print(f'{program}: cannot write stats: {err}', file=sys.stderr)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
 class ControllerNode(Node):
     """Base of the controller nodes: clock mode, time base, diagnostics, guarded callbacks.
 
