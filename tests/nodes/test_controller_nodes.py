@@ -1055,3 +1055,32 @@ def test_an_executor_error_after_shutdown_is_a_stop_and_before_it_an_error():
     rclpy.shutdown(context=ctx)
     with pytest.raises(ExternalShutdownException, match='Unable to convert'):
         spin_once_or_stop(Failing(), 0.0, context=ctx)
+
+
+def test_realtime_input_stamped_far_ahead_is_refused_and_does_not_block_the_stream(
+        context, harnesses):
+    """Real time takes inputs newest stamp first: one message from a sender whose clock
+    jumped a day ahead must be refused (with the reason), not kept as the newest, which
+    would drop every correct message after it."""
+    harness = arc_harness(harnesses, context, 'realtime')
+    out = harness.outputs['/wip/yaw_torque']
+    dropped = harness.node.diagnostics.dropped
+    now = harness.node.now_ns()
+    est = dict(omega=0.1, f1=0.0)
+    cmd = dict(v_d=0.5, omega_d=0.2, omega_d_dot=0.0)
+    harness.publish('/wip/velocity_command', VelocityCommandMsg(header=make_header(now),
+                                                                **cmd))
+    harness.publish('/wip/state_estimate', estimate_msg(now + 86_400 * 10**9, **est))
+    harness.spin_until(lambda: dropped[('state_estimate', 'invalid')] == 1, 'the refusal')
+    assert out == []
+    reason = harness.node.diagnostics.last_drop      # what /diagnostics reports
+    assert 'ahead of this node' in reason and 'max_stamp_lead' in reason, reason
+    for k in range(1, 4):      # correct stamps right after it are used
+        stamp = now + k * H_NS
+        harness.publish('/wip/state_estimate', estimate_msg(stamp, **est))
+        harness.spin_until(lambda: len(out) == k, f'yaw torque {k}')
+        assert out[-1].header.stamp == ns_to_stamp(stamp)
+    # A small lead (clocks of two computers a few ms apart) is accepted.
+    stamp = harness.node.now_ns() + 10**8
+    harness.publish('/wip/state_estimate', estimate_msg(stamp, **est))
+    harness.spin_until(lambda: len(out) == 4, 'the input 0.1 s ahead')

@@ -324,6 +324,14 @@ class ControllerNode(Node):
         if not (isinstance(period, float) and period >= 0.0):
             raise ConfigError(f'diagnostics_period: must be >= 0, got {period!r}')
         self.diagnostics = NodeDiagnostics(self, role, inputs, period)
+        lead = declare_plain(
+            self, 'max_stamp_lead', 0.5, 's',
+            'real time: an input stamped more than this ahead of the node clock is refused '
+            '(inputs are taken newest stamp first, so one far-future stamp would block the '
+            'stream until the clock caught up)')
+        if not (isinstance(lead, float) and lead > 0.0):
+            raise ConfigError(f'max_stamp_lead: must be > 0, got {lead!r}')
+        self.max_stamp_lead_ns = round(lead * 1e9)
 
     def subscribe(self, msg_type, topic: str, name: str, handler: Callable,
                   qos: QoSProfile = RELIABLE_QOS) -> None:
@@ -343,7 +351,18 @@ class ControllerNode(Node):
         return self.get_clock().now().nanoseconds
 
     def feed(self, name: str, stamp_ns: int, value) -> None:
-        """Give one converted input to ``self.sync``; report it if it came too late."""
+        """Give one converted input to ``self.sync``; report it if it came too late.
+
+        Real time: ValueError (the message is dropped as invalid, with the reason on
+        /diagnostics) if it is stamped more than ``max_stamp_lead`` ahead of this node's
+        clock, e.g. a sender whose clock jumped or is not synchronised with this one.
+        """
+        if not self.lockstep:
+            lead_ns = stamp_ns - self.now_ns()
+            if lead_ns > self.max_stamp_lead_ns:
+                raise ValueError(f'stamp {lead_ns / 1e9:.3f} s ahead of this node\'s clock '
+                                 f'(max_stamp_lead {self.max_stamp_lead_ns / 1e9:g} s): is '
+                                 f'the sender\'s clock synchronised?')
         stale = self.sync.dropped['stale']
         self.sync.add(name, stamp_ns, value)
         if self.sync.dropped['stale'] > stale:
