@@ -68,13 +68,15 @@ def write_params(path, parameters):
     return path
 
 
-def run_against_standin(directory, controller_conventions, run_time, exit_after_fall=1.0):
+def run_against_standin(directory, controller_conventions, run_time, exit_after_fall=1.0,
+                        base_extra=None):
     """Start the stand-in base, run hardware mode until the base exits; both results."""
     directory.mkdir(parents=True, exist_ok=True)
     scenario = directory / 'scenario.yaml'
     scenario.write_text(yaml.safe_dump(SCENARIO))
     base_params = write_params(directory / 'base.yaml', dict(
-        BASE, duration=float(run_time), exit_after_fall=float(exit_after_fall),
+        BASE, **(base_extra or {}), duration=float(run_time),
+        exit_after_fall=float(exit_after_fall),
         stats_file=str(directory / 'base_stats.json'), scenario_file=str(scenario)))
     controller_params = write_params(directory / 'controllers.yaml', controller_conventions)
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 101)),
@@ -212,3 +214,26 @@ def test_a_wrong_wheel_sign_makes_the_safety_layer_zero_the_torque(tmp_path):
     mixer = next(v for k, v in result.node_diagnostics.items()
                  if k.startswith('/torque_mixer'))
     assert int(mixer['zeroed ticks']) > 0
+
+
+def test_position_from_odometry_instead_of_gps_keeps_the_base_up_and_on_the_line(tmp_path):
+    """``position_source: odometry``: the ESO takes x, y from nav_msgs/Odometry on /odom
+    (here the base's true pose, as a localisation filter would give it) and ignores the
+    GPS; the loop closes as with GPS (bounds of the GPS run above)."""
+    run_time = 12.0
+    result, stats, code = run_against_standin(
+        tmp_path / 'odometry', dict(BASE, position_source='odometry'), run_time,
+        base_extra={'publish_odometry': True})
+    assert result.exit_code == 0, result.message
+    assert code == 0, stats['end_reason']
+    assert stats['released'] and not stats['fell']
+    truth = {k: np.asarray(v) for k, v in stats['truth'].items()}
+    assert np.abs(truth['theta']).max() < 0.3
+    later = truth['t'] > 8.0
+    assert np.abs(truth['y'][later]).max() < 0.6
+    assert truth['x'][-1] - truth['x'][0] > 0.6 * 0.5 * run_time
+    # The ESO took its positions from /odom (about one per control period of the run)
+    # and has no GPS subscription at all.
+    eso = next(v for k, v in result.node_diagnostics.items() if k.startswith('/eso:'))
+    assert int(eso['received odom']) > 0.8 * CONTROL_RATE * run_time
+    assert not any('gps' in key for key in eso if key.startswith(('received', 'age')))
