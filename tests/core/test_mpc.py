@@ -13,6 +13,7 @@ What is checked, and against what:
 
 import dataclasses
 import math
+import warnings
 
 import daqp
 import numpy as np
@@ -410,3 +411,19 @@ def test_bench_times_both_solvers_on_the_same_qps():
     assert report['tick']['median'] >= report['proxsuite_solve']['median']
     with pytest.raises(ValueError, match='lacks'):
         bench_mpc_against_daqp([{k: 0.0 for k in STEP_KEYS}], PARAMS, CONFIG)
+
+
+@pytest.mark.parametrize('field', ['v_hat', 'theta_hat', 'theta_dot_hat', 'f2_hat', 'f3_hat'])
+def test_absurdly_large_finite_input_is_invalid_not_an_overflowing_qp(field):
+    """1e300 is finite but overflows the QP's gradient to inf (found by the node fuzzing);
+    it must be refused like NaN, silently, not solved."""
+    mpc = LongitudinalMpc(PARAMS, CONFIG)
+    state = realistic_state(0.5, 0.02, 0.0, 0.0, 0.0)
+    assert mpc.step(**state, v_d=0.5, tau_limit=30.0).status == MpcStatus.SOLVED
+    state[field] = 1e300
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')          # no overflow on the way
+        result = mpc.step(**state, v_d=0.5, tau_limit=30.0)
+    assert result.status == MpcStatus.INPUT_INVALID and math.isfinite(result.tau_v)
+    state[field] = 1e6                          # large, but taken as data
+    assert mpc.step(**state, v_d=0.5, tau_limit=30.0).status != MpcStatus.INPUT_INVALID

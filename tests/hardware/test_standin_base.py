@@ -237,3 +237,4 @@ def test_position_from_odometry_instead_of_gps_keeps_the_base_up_and_on_the_line
     eso = next(v for k, v in result.node_diagnostics.items() if k.startswith('/eso:'))
     assert int(eso['received odom']) > 0.8 * CONTROL_RATE * run_time
     assert not any('gps' in key for key in eso if key.startswith(('received', 'age')))
+    assert int(eso['odometry fixes accepted']) > 0 and eso['odometry fixes rejected'] == '0'

@@ -36,7 +36,8 @@ Failure handling (logged in :class:`MpcResult`):
 - solver status other than solved: apply the previous plan shifted by one step (last
   increment 0), clipped to the hard limits; with no previous plan hold τ(k−1) clipped
   (Δτ = 0 clipped). ``used_fallback`` is set and ``status`` says why.
-- NaN/inf input (estimates, υd or the limit): no solve, status ``INPUT_INVALID``, and τ
+- NaN/inf input, or a magnitude above :data:`INPUT_MAGNITUDE_LIMIT` (estimates, υd or the
+  limit; such values overflow the QP data to inf): no solve, status ``INPUT_INVALID``, and τ
   ramps toward 0 by at most Δτmax. Why not hold τ(k−1): a held drive torque accelerates
   the vehicle without bound while the state is unknown, and the safety layer (mixer)
   zeroes the applied torque on invalid estimates anyway; ramping the MPC's own τ(k−1)
@@ -65,6 +66,11 @@ from .model import input_gains
 from .mpc_prediction import PREDICTION_MODELS, CondensedPrediction
 from .params import WipParameters
 from .qp import MpcStatus, QpSettings, make_solver
+
+#: Largest magnitude of an input (SI units: m/s, rad, rad/s, m/s², rad/s², N m) taken as
+#: data. Far beyond anything physical (the safety layer's divergence bounds are ≤ 100),
+#: far below where the QP data would overflow (values ~1e300 made the gradient inf).
+INPUT_MAGNITUDE_LIMIT = 1e9
 
 __all__ = ['LongitudinalMpc', 'MpcConfig', 'MpcInputError', 'MpcResult', 'MpcStatus',
            'QpData']
@@ -297,7 +303,7 @@ class LongitudinalMpc:
         tau_prev = self._tau_previous
         limit = cfg.max_drive_torque if tau_limit is None else float(tau_limit)
         values = (v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit)
-        if not all(math.isfinite(v) for v in values):
+        if not all(math.isfinite(v) and abs(v) <= INPUT_MAGNITUDE_LIMIT for v in values):
             return self._hold_invalid_input()
         if limit < 0.0:
             raise MpcInputError(f'tau_limit must be >= 0 N m, got {limit!r}')

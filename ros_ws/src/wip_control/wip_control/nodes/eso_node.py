@@ -324,14 +324,15 @@ class EsoNode(ControllerNode):
 
     def _report(self, settled: bool) -> None:
         diag = self.diagnostics
+        source = 'GPS' if self.position_source == 'gps' else 'odometry'
         if not self.has_fix:
-            diag.state(WARN, 'no GPS fix yet: x, y are odometry from (0, 0)')
+            diag.state(WARN, f'no {source} position yet: x, y are wheel odometry from (0, 0)')
         elif not settled:
             diag.state(OK, 'estimating; epsilon ramp still running (not settled)')
         else:
             diag.state(OK, 'estimating')
-        diag.values['GPS fixes accepted'] = str(self.position.accepted_fixes)
-        diag.values['GPS fixes rejected'] = str(self.position.rejected_fixes)
+        diag.values[f'{source} fixes accepted'] = str(self.position.accepted_fixes)
+        diag.values[f'{source} fixes rejected'] = str(self.position.rejected_fixes)
         if self.lockstep:
             diag.values['pending sets'] = str(self.sync.pending)
             diag.values['sets superseded/evicted'] = (
