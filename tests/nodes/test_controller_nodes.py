@@ -1084,3 +1084,15 @@ def test_realtime_input_stamped_far_ahead_is_refused_and_does_not_block_the_stre
     stamp = harness.node.now_ns() + 10**8
     harness.publish('/wip/state_estimate', estimate_msg(stamp, **est))
     harness.spin_until(lambda: len(out) == 4, 'the input 0.1 s ahead')
+
+
+def test_diagnostics_report_the_dds_match_counts_of_both_sides(context, harnesses):
+    """The graph runner starts a lockstep run only when both sides of every pair count
+    each other: the node must report them (and not ROS infrastructure topics)."""
+    harness = arc_harness(harnesses, context)
+    values = {kv.key: kv.value for kv in harness.node.diagnostics.status().values}
+    assert values['matched publishers /wip/state_estimate'] == '1'
+    assert values['matched publishers /wip/velocity_command'] == '1'
+    assert values['matched subscriptions /wip/yaw_torque'] == '1'   # the harness
+    assert not any(k.endswith(('/rosout', '/parameter_events', '/diagnostics'))
+                   for k in values)

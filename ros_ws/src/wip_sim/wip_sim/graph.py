@@ -33,8 +33,10 @@ What it does
    per recorded topic), and then a /diagnostics message of every node sent after that
    moment (the probe's view of the graph can be complete before two *other* nodes have
    matched each other; their discovery exchange takes milliseconds, the wait up to 1 s).
-   A node that reports ``matched subscriptions <topic>`` in its /diagnostics (the DDS
-   match count of its publisher) must also reach the design's count.
+   The controllers report the DDS match counts of their endpoints in /diagnostics
+   (``matched subscriptions <topic>``, ``matched publishers <topic>``): both sides of
+   every designed pair, and each controller's /clock subscription in lockstep, must
+   count each other (:meth:`GraphRunner.unmatched_endpoints`).
 4. Starts the plant with its ``/plant/start`` service (std_srvs/Trigger). The plant
    answers ``success: false`` until its own publishers and its wheel-torque subscription
    are matched at the DDS level (stricter than the graph view); the call is retried.
@@ -49,13 +51,13 @@ What it does
    directory (``BAG/scenario.yaml``, read by ``scripts/report``).
 
 Start-up race: the graph view of step 3 does not prove that every publisher has matched
-every subscription of another node (DDS matches pairwise, and the nodes' reliable topics
-are volatile: a message sent before the match is lost for that subscription). In lockstep
-one lost message of the first tick stalls the run (about 1 start in 30 on a loaded 2-core
-machine). Such a stall on the first ticks is detected after :data:`STARTUP_STALL_TIMEOUT`
-and the graph is started again (``--startup-retries``, default 1; the first attempt's logs
-stay in ``OUT/logs_attempt_1``). Transient-local durability on the controllers' topics
-would remove the race (a late-matched subscription then receives the message).
+every subscription of another node (DDS matches pairwise, each side on its own, and the
+nodes' reliable topics are volatile: a message sent before the reader has matched is lost
+for it). In lockstep one lost message of the first tick stalls the run (about 1 start in
+30 on a loaded 2-core machine before the match counts of both sides were checked). Should
+it still happen, a stall on the first ticks is detected after
+:data:`STARTUP_STALL_TIMEOUT` and the graph is started again (``--startup-retries``,
+default 1; the first attempt's logs stay in ``OUT/logs_attempt_1``).
 
 Outputs in OUT: ``params.yaml``, ``scenario.yaml``, ``logs/``, ``plant_stats.json``
 (per-tick timings of the plant) and ``run.json`` (exit status, real-time factor, start-up
@@ -135,9 +137,11 @@ CLOCK_SUBSCRIPTIONS = len(CONTROLLER_NODES) + 1
 #: Topics recorded with --record (with /clock in lockstep).
 RECORDED_TOPICS = tuple(PUBLISHERS) + ('/diagnostics',)
 
-#: /diagnostics key prefix of a node's DDS-matched subscription count of one publisher:
-#: '<MATCHED_KEY> <topic>' (see :meth:`GraphRunner.unmatched_publishers`).
+#: /diagnostics key prefixes of a node's DDS match counts of one topic, '<KEY> <topic>':
+#: subscriptions matched by its publisher, publishers matched by its subscription (see
+#: :meth:`GraphRunner.unmatched_endpoints`, ``wip_control.nodes.diagnostics``).
 MATCHED_KEY = 'matched subscriptions'
+MATCHED_PUBLISHERS_KEY = 'matched publishers'
 
 PROBE_PERIOD = 0.5  # [s] wall: process polling and probe spinning
 GRACE_PERIOD = 5.0  # [s] after SIGINT before SIGKILL (controllers)
@@ -539,7 +543,7 @@ class GraphRunner:
                 # each other yet (their DDS endpoint discovery is separate): also wait for
                 # a /diagnostics message of every node sent after that moment (<= 1 s).
                 silent = set(nodes) - self.probe.reporting_since(complete_since)
-                unmatched = self.unmatched_publishers()
+                unmatched = self.unmatched_endpoints()
                 if not silent and not unmatched:
                     self.timeline['graph complete'] = complete_since - self.t0
                     self.timeline['diagnostics from every node'] = time.monotonic() - self.t0
@@ -550,23 +554,33 @@ class GraphRunner:
         raise GraphError(f'the graph was not complete after {self.options.discovery_timeout:g} '
                          f's; missing: {"; ".join(missing)}', EXIT_TIMEOUT)
 
-    def unmatched_publishers(self) -> list[str]:
-        """Publishers of the controllers that report fewer DDS-matched subscriptions than
-        the design has (``matched subscriptions <topic>`` values of their /diagnostics;
-        nodes that do not report them are not checked)."""
+    def unmatched_endpoints(self) -> list[str]:
+        """Designed pairs whose DDS match is not yet seen by BOTH sides, from the match
+        counts in the controllers' /diagnostics (``matched subscriptions <topic>`` of a
+        publisher, ``matched publishers <topic>`` of a subscription; the plant checks its
+        own endpoints before it starts). DDS matches each side on its own: a reliable
+        volatile reader that has not matched the writer yet loses what it sends, and in
+        lockstep one lost message of the first tick stalls the run. In lockstep every
+        controller must also have matched the plant's /clock."""
         extra = 1 if self.bag is not None else 0
-        missing = []
+        checks = []   # (node, key, wanted)
         for topic, publishers in PUBLISHERS.items():
-            wanted = len(SUBSCRIBERS[topic]) + extra
-            for name in publishers:
-                if name == 'plant':
-                    continue  # Checked by the plant itself before it starts.
-                found = self.probe.status_values(f'/{name}:', prefix=True)
-                if found is None:
-                    continue
-                value = found[1].get(f'{MATCHED_KEY} {topic}')
-                if value is not None and int(value) < wanted:
-                    missing.append(f'{topic}: {value}/{wanted} matched subscriptions')
+            checks += [(name, f'{MATCHED_KEY} {topic}', len(SUBSCRIBERS[topic]) + extra)
+                       for name in publishers]
+        for topic, subscribers in SUBSCRIBERS.items():
+            checks += [(name, f'{MATCHED_PUBLISHERS_KEY} {topic}', len(PUBLISHERS[topic]))
+                       for name in subscribers]
+        if self.options.clock == 'lockstep':
+            checks += [(name, f'{MATCHED_PUBLISHERS_KEY} /clock', 1)
+                       for name in CONTROLLER_NODES]
+        missing = []
+        for name, key, wanted in checks:
+            if name == 'plant':
+                continue  # Checked by the plant itself before it starts.
+            found = self.probe.status_values(f'/{name}:', prefix=True)
+            value = None if found is None else found[1].get(key)
+            if value is not None and int(value) < wanted:
+                missing.append(f'{name}: {key} {value}/{wanted}')
         return missing
 
     def start_plant(self) -> None:

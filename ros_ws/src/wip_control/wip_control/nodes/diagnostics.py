@@ -9,7 +9,8 @@ it commands); a steady-clock timer publishes one DiagnosticStatus per period
   the node says so, else OK; message: the node's reason (or the latest drop);
 - values: outputs, output rate per wall second and per second of stamps (simulated
   time in lockstep), age of each input (node clock minus its last stamp), counts of
-  received and dropped inputs per reason, compute time per output (mean and max).
+  received and dropped inputs per reason, compute time per output (mean and max), DDS
+  match counts of every publisher and subscription (see :meth:`NodeDiagnostics._match_counts`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ WARN = DiagnosticStatus.WARN
 ERROR = DiagnosticStatus.ERROR
 #: Drops of one kind logged individually before the log goes quiet (then every 1000th).
 _LOGGED_DROPS = 5
+#: ROS infrastructure topics left out of the match counts.
+_NOT_COUNTED = ('/diagnostics', '/rosout', '/parameter_events')
 
 
 class NodeDiagnostics:
@@ -126,8 +129,30 @@ class NodeDiagnostics:
             values.append(KeyValue(key='compute time max [us]',
                                    value=f'{1e6 * self.compute_max:.1f}'))
         values += [KeyValue(key=k, value=v) for k, v in self.values.items()]
+        values += self._match_counts()
         return DiagnosticStatus(level=level, name=self.name, message=message,
                                 hardware_id=self._node.get_name(), values=values)
+
+    def _match_counts(self) -> list[KeyValue]:
+        """DDS match counts of the node's endpoints, as each endpoint sees them.
+
+        ``matched subscriptions <topic>`` (of a publisher) and ``matched publishers
+        <topic>`` (of a subscription). DDS matches every pair on both sides on its own, and
+        a reliable volatile reader that has not matched the writer yet loses what the
+        writer sends; the ROS graph view does not show this, these counts do. The graph
+        runner starts a lockstep run only when both sides of every designed pair count
+        each other (a first message lost stalls it).
+        """
+        values = []
+        for publisher in self._node.publishers:
+            if publisher.topic_name not in _NOT_COUNTED:
+                values.append(KeyValue(key=f'matched subscriptions {publisher.topic_name}',
+                                       value=str(publisher.get_subscription_count())))
+        for subscription in self._node.subscriptions:
+            if subscription.topic_name not in _NOT_COUNTED:
+                values.append(KeyValue(key=f'matched publishers {subscription.topic_name}',
+                                       value=str(subscription.get_publisher_count())))
+        return values
 
     def publish(self) -> None:
         """Publish the status (timer callback; never raises into the executor)."""
