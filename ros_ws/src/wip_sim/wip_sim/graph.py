@@ -79,6 +79,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from typing import Any
 
@@ -830,6 +831,27 @@ class GraphRunner:
 def run_graph(options: GraphOptions) -> GraphResult:
     """Run one scenario through the graph; see the module docstring."""
     return GraphRunner(options).run()
+
+
+def run_graph_benchmark(scenario_path: str | None) -> dict[str, Any]:
+    """``scripts/bench``: one lockstep run of the whole scenario through the graph, not
+    recorded, in a temporary directory; its real-time factor, per-tick loop time and CPU.
+
+    Returns ``{'failed': message, 'exit_code': code}`` if the run did not complete.
+    """
+    with tempfile.TemporaryDirectory(prefix='wip_bench_graph_') as out:
+        result = run_graph(GraphOptions(scenario=scenario_path, clock='lockstep', out=out,
+                                        quiet=True))
+    stats = result.plant_stats or {}
+    if result.exit_code != EXIT_OK or not stats.get('real_time_factor'):
+        return {'failed': result.message, 'exit_code': result.exit_code}
+    ticks = stats['ticks']
+    loop = stats.get('clock_to_torques_s') or {}
+    return {'real_time_factor': stats['real_time_factor'], 'sim_time_s': stats['sim_time_s'],
+            'wall_time_s': stats['wall_time_s'], 'ticks': ticks,
+            'startup_s': result.startup_s,
+            'clock_to_torques_us': {'mean': loop.get('mean_us'), 'p99': loop.get('p99_us')},
+            'cpu_per_tick_us': {name: 1e6 * cpu / ticks for name, cpu in result.cpu_s.items()}}
 
 
 def format_result(result: GraphResult) -> str:

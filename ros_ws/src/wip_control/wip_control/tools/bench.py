@@ -102,6 +102,12 @@ def main(argv: list[str] | None = None) -> int:
         if graph and 'real_time_factor' in graph:
             ratio = in_process['real_time_factor_median'] / graph['real_time_factor']
             report['in_process_over_graph'] = ratio
+            cpu = graph['cpu_per_tick_us']
+            print(f'per tick: /clock -> wheel torques mean '
+                  f'{graph["clock_to_torques_us"]["mean"]:.0f} us, p99 '
+                  f'{graph["clock_to_torques_us"]["p99"]:.0f} us; CPU {sum(cpu.values()):.0f} us '
+                  'in all (' + ', '.join(f'{n} {v:.0f}' for n, v in sorted(
+                      cpu.items(), key=lambda item: -item[1])) + ')')
             print(f'-> graph {graph["real_time_factor"]:.1f}x real time; in-process / graph = '
                   f'{ratio:.1f} (goals: graph >= 5x, ratio <= 10)')
         else:

@@ -1,0 +1,34 @@
+"""``scripts/bench`` end to end on a short scenario: every part runs and reports (the
+numbers are benchmarks, not pass/fail; only their presence and sanity are checked)."""
+
+import json
+
+import pytest
+import yaml
+
+pytest.importorskip('rclpy')
+
+from wip_control.tools import bench  # noqa: E402
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+
+def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys):
+    scenario = tmp_path / 'short.yaml'
+    scenario.write_text(yaml.safe_dump({'name': 'bench_short', 'duration': 2.0}))
+    out = tmp_path / 'bench.json'
+    assert bench.main(['--scenario', str(scenario), '--repeats', '1', '--json',
+                       str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report['mpc']['ratio_tick'] > 0.0
+    assert report['in_process']['real_time_factor_median'] > 0.0
+    graph = report['graph']
+    assert 'failed' not in graph and 'skipped' not in graph, graph
+    assert graph['sim_time_s'] == pytest.approx(2.0)
+    assert graph['ticks'] == 400                          # 2 s at 200 Hz
+    assert graph['real_time_factor'] > 0.0
+    assert set(graph['cpu_per_tick_us']) >= {'plant', 'eso', 'mpc', 'torque_mixer'}
+    assert report['in_process_over_graph'] == pytest.approx(
+        report['in_process']['real_time_factor_median'] / graph['real_time_factor'])
+    printed = capsys.readouterr().out
+    assert 'in-process / graph' in printed and 'CPU' in printed
