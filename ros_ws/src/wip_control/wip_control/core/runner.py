@@ -141,8 +141,10 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
         phi_left, phi_right = sensors.encoders(state)
         pitch, yaw = sensors.imu(state)
         yaw_unwrapped = unwrap_next(yaw_unwrapped, yaw)
-        x_v_meas, odometry_yaw = wheel_odometry(
-            phi_left, phi_right, pitch, true_params, state_initial_yaw(sensors),
+        # The controllers know only the nominal wheel radius and track width (as the
+        # eso node and scripts/rerun): a mismatch shows up in x_v, as on a real robot.
+        x_v_meas, _ = wheel_odometry(
+            phi_left, phi_right, pitch, nominal, state_initial_yaw(sensors),
             relative_to_body)
         tau_v_applied = tau_left + tau_right
         tau_omega_applied = tau_right - tau_left
