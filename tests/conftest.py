@@ -5,11 +5,82 @@ rebuild; tests of nodes and of the graph use the colcon-built install tree, whic
 ``scripts/test`` builds first.
 """
 
+import contextlib
+import os
 import pathlib
+import random
 import sys
+
+import pytest
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 for package in ('wip_control', 'wip_sim'):
     path = str(REPO_ROOT / 'ros_ws' / 'src' / package)
     if path not in sys.path:
         sys.path.insert(0, path)
+
+
+# ----------------------------------------------------------------- ROS test isolation
+
+@contextlib.contextmanager
+def private_dds_domain():
+    """A random DDS domain with localhost-only discovery for this process and the
+    processes it starts (ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE), restored after.
+
+    1..101: Fast DDS ports of higher domain ids fall into Linux's ephemeral port range.
+    """
+    keys = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')
+    saved = {key: os.environ.get(key) for key in keys}
+    domain_id = random.randint(1, 101)
+    os.environ['ROS_DOMAIN_ID'] = str(domain_id)
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    try:
+        yield domain_id
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+@pytest.fixture
+def domain():
+    """A DDS domain of the test's own (see :func:`private_dds_domain`)."""
+    with private_dds_domain() as domain_id:
+        yield domain_id
+
+
+@pytest.fixture
+def test_node(domain):
+    """A node in a private rclpy context in the test's domain, with its own executor
+    (``node.executor_for_test``)."""
+    rclpy = pytest.importorskip('rclpy')
+    from rclpy.executors import SingleThreadedExecutor
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain)
+    node = rclpy.create_node('test_probe', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    node.executor_for_test = executor
+    yield node
+    executor.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown(context=context)
+
+
+@pytest.fixture(scope='module')
+def module_domain():
+    """A DDS domain for a whole test module (see :func:`private_dds_domain`)."""
+    with private_dds_domain() as domain_id:
+        yield domain_id
+
+
+@pytest.fixture(scope='module')
+def context(module_domain):
+    """One rclpy context for a whole test module, in its own DDS domain."""
+    rclpy = pytest.importorskip('rclpy')
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=module_domain)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)

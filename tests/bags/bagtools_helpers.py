@@ -8,7 +8,6 @@ fixed sleeps (discovery takes 0.1 s to 3 s on this host).
 
 import os
 import pathlib
-import random
 import signal
 import subprocess
 import sys
@@ -16,36 +15,10 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[2]
 WIP_SIM_SOURCE = REPO_ROOT / 'ros_ws' / 'src' / 'wip_sim'
 DISCOVERY_TIMEOUT = 15.0  # [s]; first discovery takes up to ~3 s on this host
-
-
-@pytest.fixture
-def domain(monkeypatch):
-    """A DDS domain of our own on localhost; set for this process and its children."""
-    # 1..101: Fast DDS ports of higher domain ids fall into Linux's ephemeral port range.
-    domain_id = random.randint(1, 101)
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain_id))
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    return domain_id
-
-
-@pytest.fixture
-def test_node(domain):
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain)
-    node = rclpy.create_node('bag_tools_test', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    node.executor_for_test = executor
-    yield node
-    executor.shutdown()
-    node.destroy_node()
-    rclpy.try_shutdown(context=context)
 
 
 def child_environment():

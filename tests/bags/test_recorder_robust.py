@@ -18,8 +18,7 @@ from rosbags.rosbag2 import Reader
 from std_msgs.msg import String
 import yaml
 
-from bagtools_helpers import (DISCOVERY_TIMEOUT, domain, spin_until,  # noqa: F401
-                              test_node, Tool, tools)
+from bagtools_helpers import DISCOVERY_TIMEOUT, spin_until, Tool, tools  # noqa: F401
 from wip_sim.bag_info import bag_information
 from wip_sim.bag_reader import bag_summary, read_bag
 from wip_sim.bag_repair import mcap_files_by_index, read_file_contents, repair_bag

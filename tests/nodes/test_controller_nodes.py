@@ -81,19 +81,9 @@ _ids = itertools.count()
 # ----------------------------------------------------------------------------- fixtures
 
 @pytest.fixture(scope='module')
-def domain_id():
-    """A DDS domain of our own on localhost, set before any rclpy.init of this module."""
-    saved = {k: os.environ.get(k) for k in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')}
-    # 1..101: Fast DDS ports of higher domain ids run into Linux's ephemeral port range.
-    domain = random.randint(1, 101)
-    os.environ['ROS_DOMAIN_ID'] = str(domain)
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    yield domain
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
+def domain_id(module_domain):
+    """The module's DDS domain (conftest), set before any rclpy.init of this module."""
+    return module_domain
 
 
 def _new_context(domain, args=None):

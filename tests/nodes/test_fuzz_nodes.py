@@ -24,8 +24,6 @@ Properties:
 
 import importlib
 import math
-import os
-import random
 import re
 
 from hypothesis import given, HealthCheck, settings, strategies as st
@@ -61,23 +59,6 @@ H_NS = 5_000_000               # control period [ns]
 EXAMPLES = 100
 _SENSORS = SensorConfig()
 DATUM = (_SENSORS.gps_datum_latitude, _SENSORS.gps_datum_longitude, _SENSORS.gps_datum_altitude)
-
-
-@pytest.fixture(scope='module')
-def context():
-    saved = {k: os.environ.get(k) for k in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')}
-    domain = random.randint(1, 101)
-    os.environ['ROS_DOMAIN_ID'] = str(domain)
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
 
 
 # ----------------------------------------------------------------------------- strategies

@@ -8,7 +8,6 @@ recorder's /diagnostics with timeouts; no fixed sleeps (discovery takes 0.1 s to
 
 import os
 import pathlib
-import random
 import signal
 import subprocess
 import sys
@@ -16,8 +15,6 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader
@@ -38,30 +35,6 @@ try:
     from wip_msgs.msg import StateEstimate
 except ImportError:  # Workspace not built or not sourced (scripts/test does both).
     StateEstimate = None
-
-
-@pytest.fixture
-def domain(monkeypatch):
-    """A DDS domain of our own on localhost; set for this process and the recorder."""
-    # 1..101: Fast DDS ports of higher domain ids fall into Linux's ephemeral port range.
-    domain_id = random.randint(1, 101)
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain_id))
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    return domain_id
-
-
-@pytest.fixture
-def test_node(domain):
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain)
-    node = rclpy.create_node('recorder_test', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    node.executor_for_test = executor
-    yield node
-    executor.shutdown()
-    node.destroy_node()
-    rclpy.try_shutdown(context=context)
 
 
 class Recorder:

@@ -22,7 +22,6 @@ last ticks logged (each tick publishes exactly one).
 import itertools
 import math
 import os
-import random
 import signal
 import subprocess
 import time
@@ -56,23 +55,6 @@ AGES = {'state_estimate': 0.2, 'yaw_torque': 0.2, 'drive_torque': 0.5}
 SETTLE = 0.05           # [s]
 TAU_V, TAU_OMEGA = 4.0, 0.6
 _ids = itertools.count()
-
-
-@pytest.fixture(scope='module')
-def context():
-    saved = {k: os.environ.get(k) for k in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')}
-    domain = random.randint(1, 101)
-    os.environ['ROS_DOMAIN_ID'] = str(domain)
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
 
 
 class Log:
