@@ -219,8 +219,9 @@ def test_a_wrong_wheel_sign_makes_the_safety_layer_zero_the_torque(tmp_path):
 def test_position_from_odometry_instead_of_gps_keeps_the_base_up_and_on_the_line(tmp_path):
     """``position_source: odometry``: the ESO takes x, y from nav_msgs/Odometry on /odom
     (here the base's true pose, as a localisation filter would give it) and ignores the
-    GPS; the loop closes as with GPS (bounds of the GPS run above)."""
-    run_time = 12.0
+    GPS; the loop closes as with GPS (the bounds and windows of the GPS run above: with
+    the full plant model the lateral error still swings to ~0.6 m before 10 s)."""
+    run_time = RUN_TIME
     result, stats, code = run_against_standin(
         tmp_path / 'odometry', dict(BASE, position_source='odometry'), run_time,
         base_extra={'publish_odometry': True})
@@ -229,7 +230,9 @@ def test_position_from_odometry_instead_of_gps_keeps_the_base_up_and_on_the_line
     assert stats['released'] and not stats['fell']
     truth = {k: np.asarray(v) for k, v in stats['truth'].items()}
     assert np.abs(truth['theta']).max() < 0.3
-    later = truth['t'] > 8.0
+    later = truth['t'] > 10.0
+    print(f'odometry source: max |theta| {np.abs(truth["theta"]).max():.3f} rad, max |y| '
+          f'after 10 s {np.abs(truth["y"][later]).max():.2f} m')
     assert np.abs(truth['y'][later]).max() < 0.6
     assert truth['x'][-1] - truth['x'][0] > 0.6 * 0.5 * run_time
     # The ESO took its positions from /odom (about one per control period of the run)
