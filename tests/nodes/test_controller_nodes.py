@@ -14,6 +14,7 @@ import dataclasses
 import itertools
 import math
 import os
+import pathlib
 import random
 import signal
 import subprocess
@@ -1086,3 +1087,30 @@ def test_diagnostics_report_the_dds_match_counts_of_both_sides(context, harnesse
     assert values['matched subscriptions /wip/yaw_torque'] == '1'   # the harness
     assert not any(k.endswith(('/rosout', '/parameter_events', '/diagnostics'))
                    for k in values)
+
+
+def test_the_readme_params_file_of_a_real_base_is_taken_by_the_eso_and_the_mixer(
+        domain_id, tmp_path):
+    """The README's "Running on a real base" example must stay loadable as written."""
+    readme = (pathlib.Path(__file__).resolve().parents[2] / 'README.md').read_text()
+    start = readme.index('```yaml\n/**:') + len('```yaml\n')
+    path = tmp_path / 'my_base.yaml'
+    path.write_text(readme[start:readme.index('```', start)])
+    example = yaml.safe_load(path.read_text())['/**']['ros__parameters']
+    ctx = _new_context(domain_id, ['--ros-args', '--params-file', str(path)])
+    try:
+        realtime = [Parameter('clock_mode', value='realtime')]
+        eso = EsoNode(context=ctx, parameter_overrides=realtime)
+        mixer = TorqueMixerNode(context=ctx, parameter_overrides=realtime)
+        assert (eso.left_joint, eso.right_joint) == (example['left_joint'],
+                                                     example['right_joint'])
+        assert (eso.left_sign, eso.right_sign) == (1.0, -1.0) == (mixer.left_sign,
+                                                                  mixer.right_sign)
+        assert eso.model.wheel_radius == example['model.wheel_radius']
+        assert eso.model.track_width == example['model.track_width']
+        assert eso.datum[0] == example['datum.latitude']
+        assert mixer.joints == example['joints']
+        eso.destroy_node()
+        mixer.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
