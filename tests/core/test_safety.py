@@ -14,8 +14,10 @@ import pytest
 from wip_control.core.config import ConfigError, from_mapping
 from wip_control.core.eso import StateEstimate
 from wip_control.core.mixer import mix
-from wip_control.core.safety import (ACTIVE, DriveStatus, ESTOP, FAULT, SafetyConfig,
-                                     SafetyMonitor, SHADOW, STARTING, TIME_TOLERANCE)
+from wip_control.core.params import WipParameters
+from wip_control.core.safety import (ACTIVE, DEGRADED, DriveStatus, ESTOP, FAULT,
+                                     SafetyConfig, SafetyMonitor, SHADOW, STARTING,
+                                     TIME_TOLERANCE, tilt_divergence_rate)
 
 H = 0.005                   # tick period [s]
 TAU_MAX = 15.0              # [N m], the default MixerConfig
@@ -151,13 +153,19 @@ def test_without_timing_checks_torque_flows_from_the_first_tick_as_in_lockstep()
 
 # ----------------------------------------------------------------------------- triggers
 
+@pytest.mark.parametrize('bridge', [0.0, SafetyConfig().bridge_time])
 @pytest.mark.parametrize('name, age_field', [
     ('state_estimate', 'max_estimate_age'), ('yaw_torque', 'max_yaw_torque_age'),
     ('drive_torque', 'max_drive_torque_age')])
-def test_an_input_older_than_its_age_zeroes_at_the_first_tick_past_the_age(name, age_field):
-    monitor, clock = active()
+def test_an_input_older_than_its_age_is_bridged_then_zeroes_at_the_first_tick_past_it(
+        name, age_field, bridge):
+    """ACTIVE up to the age limit, DEGRADED (torque flowing, the late input named) for
+    bridge_time more, zero torque at the first tick past age + bridge (bridge 0: at the
+    first tick past the age, the strict behaviour)."""
+    monitor, clock = active(SafetyConfig(bridge_time=bridge))
     max_age = getattr(SafetyConfig(), age_field)
     last = clock.t
+    degraded = 0
     while True:
         clock.t += H
         # Every input but one keeps coming.
@@ -168,15 +176,97 @@ def test_an_input_older_than_its_age_zeroes_at_the_first_tick_past_the_age(name,
         if name != 'drive_torque':
             monitor.drive_torque(clock.t, 4.0)
         d = monitor.update(clock.t)
-        if clock.t - last <= max_age + TIME_TOLERANCE:
-            assert d.state == ACTIVE, (clock.t - last, d)
+        age = clock.t - last
+        if age <= max_age + TIME_TOLERANCE:
+            assert d.state == ACTIVE, (age, d)
+        elif age <= max_age + bridge + TIME_TOLERANCE:
+            assert d.state == DEGRADED and not d.zeroed, (age, d)
+            assert (d.tau_left, d.tau_right) == mix(4.0, 0.6, TAU_MAX)
+            assert f'{name} late' in d.reason and 'bridged' in d.reason
+            degraded += 1
         else:
-            # The first tick at which the age exceeds the limit: zero in this tick.
+            # The first tick at which the age exceeds the bridge: zero in this tick.
             assert_zeroed(d, FAULT, f'{name} stale', 'publisher stopped')
             break
+    assert degraded == round(bridge / H)
     # It recovers through STARTING once the stream resumes.
     states = [clock.tick().state for _ in range(int(SafetyConfig().settle_time / H) + 2)]
     assert states[0] == STARTING and states[-1] == ACTIVE
+
+
+def test_a_late_input_that_resumes_within_the_bridge_returns_to_active_without_a_gap():
+    monitor, clock = active()
+    gap = SafetyConfig().max_estimate_age + 0.5 * SafetyConfig().bridge_time   # 57 ms+
+    t_last = clock.t
+    states = []
+    while clock.t - t_last < gap:
+        clock.t += H
+        monitor.yaw_torque(clock.t, 0.6)
+        monitor.drive_torque(clock.t, 4.0)
+        states.append(monitor.update(clock.t))
+    assert all(not d.zeroed for d in states)
+    assert {d.state for d in states} == {ACTIVE, DEGRADED}
+    d = clock.tick()                      # the estimate is back: no settle time, no step
+    assert d.state == ACTIVE and (d.tau_left, d.tau_right) == mix(4.0, 0.6, TAU_MAX)
+
+
+def test_a_late_mpc_output_is_followed_along_its_plan_then_held_at_its_end():
+    period = 0.1
+    plan = (4.0, 6.0, 7.0, 7.5)
+    monitor, clock = active(SafetyConfig(max_drive_torque_age=0.25, bridge_time=0.2))
+    clock.t += H
+    monitor.drive_torque(clock.t, plan[0], DriveStatus.SOLVED, plan=plan,
+                         plan_period=period)
+    t0 = clock.t
+    seen = {}
+    while True:
+        clock.t += H
+        monitor.estimate(clock.t, ESTIMATE, True)
+        monitor.yaw_torque(clock.t, 0.0)
+        d = monitor.update(clock.t)
+        if d.zeroed:
+            break
+        elapsed = clock.t - t0
+        expected = plan[min(len(plan) - 1, int(elapsed / period + 1e-9))]
+        assert d.tau_left + d.tau_right == pytest.approx(expected), elapsed
+        seen.setdefault(expected, set()).add(d.state)
+    assert clock.t - t0 == pytest.approx(0.25 + 0.2 + H, abs=1e-9)
+    # Late after 0.25 s (during the plan's third period), zero after 0.45 s.
+    assert seen == {4.0: {ACTIVE}, 6.0: {ACTIVE}, 7.0: {ACTIVE, DEGRADED}, 7.5: {DEGRADED}}
+    # A plan that is not finite is ignored: τυ is held.
+    monitor, clock = active()
+    monitor.drive_torque(clock.t + H, 3.0, plan=(3.0, math.nan), plan_period=period)
+    clock.t += 0.3
+    monitor.estimate(clock.t, ESTIMATE, True)
+    monitor.yaw_torque(clock.t, 0.0)
+    d = monitor.update(clock.t)
+    assert d.state == DEGRADED and d.tau_left + d.tau_right == pytest.approx(3.0)
+
+
+def test_late_inputs_before_engaging_are_never_bridged():
+    config = SafetyConfig(settle_time=0.05)
+    monitor = SafetyMonitor(config, TAU_MAX, RATE, H)
+    clock = Clock(monitor)
+    clock.tick()
+    clock.t += config.max_estimate_age + 0.01          # stale before ever being ACTIVE
+    monitor.yaw_torque(clock.t, 0.6)
+    monitor.drive_torque(clock.t, 4.0)
+    assert_zeroed(monitor.update(clock.t), STARTING, 'state_estimate late')
+
+
+def test_the_default_bridge_is_ln2_over_the_unstable_tilt_pole_of_the_nominal_model():
+    """The stated bound: with the torque held the tilt error grows like exp(λ t); bridging
+    ln 2 / λ at most doubles it. λ from the linearised model (1), checked here against the
+    eigenvalues of the tilt dynamics integrated numerically from the model's own terms."""
+    from wip_control.core.model import nominal_terms
+    params = WipParameters()
+    lam = tilt_divergence_rate(params)
+    eps = 1e-6                      # d f3 / d θ at the upright equilibrium, numerically
+    slope = (nominal_terms(params, eps, 0.0, 0.0).f3
+             - nominal_terms(params, -eps, 0.0, 0.0).f3) / (2 * eps)
+    assert lam == pytest.approx(math.sqrt(slope), rel=1e-6)
+    assert 4.0 < lam < 5.0          # the default robot: 4.6 rad/s
+    assert SafetyConfig().bridge_time == pytest.approx(math.log(2.0) / lam, abs=0.005)
 
 
 def test_non_finite_or_wrong_size_estimate_zeroes_in_the_same_tick():

@@ -813,9 +813,13 @@ def test_mixer_zeroes_both_wheels_on_non_finite_input_and_says_why(context, harn
 
 def test_mixer_run_time_limit_change_and_bad_joints(context, params_context, harnesses):
     # Real time: the safety layer (tests/nodes/test_safety_node.py) sends torque only
-    # once a settled estimate has arrived too; no settle time here.
+    # once a settled estimate has arrived too; no settle time here. Each input is sent
+    # once, so the age limits are long: a loaded machine may pause this process for more
+    # than the default 50 ms between two of them (ages are tested in test_safety_node.py).
     harness = start(harnesses, context, TorqueMixerNode, 'realtime',
-                    **{'safety.settle_time': 0.0})
+                    **{'safety.settle_time': 0.0, 'safety.max_estimate_age': 30.0,
+                       'safety.max_yaw_torque_age': 30.0,
+                       'safety.max_drive_torque_age': 30.0})
     harness.publisher(ArcState, '/wip/yaw_torque')
     harness.publisher(MpcOutput, '/wip/drive_torque')
     harness.publisher(StateEstimateMsg, '/wip/state_estimate')

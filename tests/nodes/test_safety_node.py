@@ -40,8 +40,8 @@ from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg
                           VelocityCommand, WheelTorques)
 
 from wip_control.core.mixer import mix  # noqa: E402
-from wip_control.core.safety import (ACTIVE, DriveStatus, ESTOP, FAULT, SHADOW,  # noqa: E402
-                                     STARTING, TIME_TOLERANCE)
+from wip_control.core.safety import (ACTIVE, DEGRADED, DriveStatus, ESTOP,  # noqa: E402
+                                     FAULT, SHADOW, STARTING, TIME_TOLERANCE)
 from wip_control.nodes.common import make_header  # noqa: E402
 from wip_control.nodes.torque_mixer_node import TorqueMixerNode  # noqa: E402
 
@@ -52,6 +52,8 @@ PERIOD = 0.005          # mixer and upstream period [s] (200 Hz)
 #: Generous ages: a loaded 2-core machine must not trip them by accident; the count of
 #: ticks after the age is what is tested, not the age itself.
 AGES = {'state_estimate': 0.2, 'yaw_torque': 0.2, 'drive_torque': 0.5}
+#: safety.bridge_time [s]: a stopped input is DEGRADED (bridged) for this long past its age.
+BRIDGE = 0.1
 SETTLE = 0.05           # [s]
 TAU_V, TAU_OMEGA = 4.0, 0.6
 _ids = itertools.count()
@@ -73,9 +75,9 @@ class Log:
         for name in ('estimate', 'yaw_torque', 'drive_torque', 'estop', 'invalid_input'):
             method = getattr(monitor, name)
 
-            def logged(t, *args, _method=method, _name=name):
+            def logged(t, *args, _method=method, _name=name, **kwargs):
                 self.inputs.append((t, _name, args))
-                return _method(t, *args)
+                return _method(t, *args, **kwargs)
             setattr(monitor, name, logged)
 
     def first_input(self, predicate, after=-math.inf):
@@ -102,7 +104,8 @@ class Graph:
                   'safety.settle_time': SETTLE,
                   'safety.max_estimate_age': AGES['state_estimate'],
                   'safety.max_yaw_torque_age': AGES['yaw_torque'],
-                  'safety.max_drive_torque_age': AGES['drive_torque'], **params}
+                  'safety.max_drive_torque_age': AGES['drive_torque'],
+                  'safety.bridge_time': BRIDGE, **params}
         self.io = rclpy.create_node(f'safety_harness_{next(_ids)}', context=context)
         self.efforts = []
         self.wheels = []
@@ -223,7 +226,8 @@ def graph(graphs, context, **params):
 def assert_first_zero_within_one_tick(g, fault_time, *reason_words):
     ticks, index = g.log.count(fault_time)
     before = [d for t, d in g.log.ticks if t < fault_time]
-    assert before[-1].state == ACTIVE and not before[-1].zeroed, 'active before the fault'
+    assert before[-1].state in (ACTIVE, DEGRADED) and not before[-1].zeroed, \
+        'active (or riding through) before the fault'
     decision = g.log.ticks[index][1]
     assert decision.state == FAULT
     for word in reason_words:
@@ -269,10 +273,14 @@ def test_a_stopped_input_stream_zeroes_at_the_first_tick_past_its_age(context, g
     g.sending.discard(topic)
     g.wait_zeroed()
     monitor_name = {'state_estimate': 'estimate'}.get(name, name)
-    fault_time = g.log.last_input(monitor_name, before=math.inf) + AGES[name] \
-        + TIME_TOLERANCE
+    last = g.log.last_input(monitor_name, before=math.inf)
+    fault_time = last + AGES[name] + BRIDGE + TIME_TOLERANCE
     assert fault_time > stop
     assert_first_zero_within_one_tick(g, fault_time, f'{name} stale')
+    # Between the age limit and the end of the bridge the torque kept flowing (DEGRADED).
+    bridged = [d for t, d in g.log.ticks if last + AGES[name] + 2 * PERIOD < t
+               < fault_time - 2 * PERIOD]
+    assert bridged and all(d.state == DEGRADED and not d.zeroed for d in bridged)
     g.diagnosed('FAULT', f'{name} stale')
 
 
@@ -420,7 +428,8 @@ def test_mpc_process_killed_mid_run_zeroes_at_the_first_tick_past_the_drive_age(
         process.send_signal(signal.SIGKILL)
         process.wait(timeout=10)
         g.wait_zeroed()
-        fault_time = g.log.last_input('drive_torque') + AGES['drive_torque'] + TIME_TOLERANCE
+        fault_time = (g.log.last_input('drive_torque') + AGES['drive_torque'] + BRIDGE
+                      + TIME_TOLERANCE)
         assert fault_time > kill_time
         assert_first_zero_within_one_tick(g, fault_time, 'drive_torque stale',
                                           'publisher stopped')

@@ -26,6 +26,9 @@ States
               here too, so torque never comes back abruptly).
 ``ACTIVE``    torque = eq. (24) mix of the latest τυ, τω, within the per-wheel torque
               limit and rate limited toward it (from zero after a zeroed tick).
+``DEGRADED``  ACTIVE, riding through a late input (see "Ride-through" below): torque
+              continues from the last values, the drive torque along the MPC's plan,
+              and the reasons say which input is late and until when it is bridged.
 ``SHADOW``    ``shadow_mode``: ACTIVE, but the torques are only reported
               (:attr:`SafetyDecision.tau_left` ...) and :attr:`SafetyDecision.command`,
               what goes to the base, is zero.
@@ -37,7 +40,7 @@ States
 ``ESTOP``     zero torque: an e-stop message said engaged; latched until
               :meth:`SafetyMonitor.reset`, which refuses while the e-stop is still engaged.
 
-Priority: ESTOP > FAULT > STARTING > ACTIVE/SHADOW. :attr:`SafetyDecision.reasons` lists
+Priority: ESTOP > FAULT > STARTING > DEGRADED > ACTIVE/SHADOW. :attr:`SafetyDecision.reasons` lists
 every reason present, so /diagnostics says why.
 
 Controller failure: the MPC's status (values of ``wip_msgs/MpcOutput``, :class:`DriveStatus`).
@@ -57,6 +60,23 @@ node's lockstep mode, a deterministic simulation) ages, the start-up wait and th
 each tick's inputs are the ones of that tick, and lockstep must reproduce the in-process
 runner, which starts controlling at t = 0; the value checks (non-finite, tilt, ESO
 divergence, MPC failure, e-stop) and the limits still apply.
+
+Ride-through
+------------
+A control input that is older than its age limit while the layer is ACTIVE is first
+*bridged* for ``bridge_time`` (state DEGRADED), and only then a fault: on a loaded
+computer one message 57 ms late (an age limit of 50 ms) used to zero the torque of a
+balancing robot, which then fell. While bridged the layer sends the mix of the last yaw
+torque and of the drive torque that the MPC's last plan (``MpcOutput.planned_tau_v``)
+gives for the time elapsed since it arrived, so a late MPC output is followed along its
+own prediction rather than held. The bound: with the torque not corrected, a tilt error
+grows at most like exp(λ t), λ = the unstable pole of the linearised tilt dynamics of the
+nominal model (:func:`tilt_divergence_rate`, 4.6 rad/s for the default robot). Bridging
+for ln 2 / λ (0.15 s) at most doubles the error the controller had when the input stopped
+(the MPC already runs the tilt loop open for its 0.1 s period), after which zero torque is
+safer than guessing. ``bridge_time: 0`` restores the strict behaviour (fault at the age
+limit). Invalid values (NaN, wrong size), a fall, a diverged ESO and the e-stop are never
+bridged. docs/realtime.md has the measurements.
 
 Limits: the mix (``core.mixer.mix``) keeps each wheel within ±τmax; the rate limit moves
 each wheel by at most ``max_wheel_torque_rate`` · Δt per tick toward the mixed value
@@ -80,8 +100,11 @@ from .config import param
 from .eso import StateEstimate
 from .mixer import mix
 
-STARTING, ACTIVE, SHADOW, FAULT, ESTOP = 'STARTING', 'ACTIVE', 'SHADOW', 'FAULT', 'ESTOP'
-STATES = (STARTING, ACTIVE, SHADOW, FAULT, ESTOP)
+STARTING, ACTIVE, DEGRADED, SHADOW, FAULT, ESTOP = (
+    'STARTING', 'ACTIVE', 'DEGRADED', 'SHADOW', 'FAULT', 'ESTOP')
+STATES = (STARTING, ACTIVE, DEGRADED, SHADOW, FAULT, ESTOP)
+#: States in which the mixed torque is sent (to the base unless in shadow mode).
+_TORQUE_STATES = (ACTIVE, DEGRADED, SHADOW)
 
 #: Inputs watched by the monitor (the torque_mixer node's subscriptions).
 ESTIMATE, YAW_TORQUE, DRIVE_TORQUE, ESTOP_INPUT = ('state_estimate', 'yaw_torque',
@@ -127,6 +150,11 @@ class SafetyConfig:
     max_drive_torque_age: float = param(
         0.25, 's', 'zero torque when the last valid /wip/drive_torque (MPC, 10 Hz) was '
         'received longer ago than this', minimum=0.0, exclusive_minimum=True)
+    bridge_time: float = param(
+        0.15, 's', 'ride-through: an input older than its age limit is bridged this much '
+        'longer (state DEGRADED: last yaw torque, drive torque along the MPC plan) before '
+        'zero torque; default ln 2 / (unstable tilt pole of the nominal model, 4.6 rad/s); '
+        '0: zero torque at the age limit', minimum=0.0, maximum=1.0)
     max_estop_age: float = param(
         0.0, 's', 'if > 0: the e-stop topic is a heartbeat that must be received at least '
         'this often (zero torque otherwise); 0: not required', minimum=0.0)
@@ -230,6 +258,7 @@ class SafetyMonitor:
         self.inputs = {name: _Input() for name in (*_CONTROL_INPUTS, ESTOP_INPUT)}
         self.settled = False
         self.consecutive_fallbacks = 0
+        self.drive_plan: tuple[tuple[float, ...], float] = ((), 0.0)
         self.estop_engaged = False      # the e-stop input says engaged now
         self.estop_latched = False
         self.fault_latched: tuple[str, ...] = ()
@@ -286,11 +315,25 @@ class SafetyMonitor:
             return
         self._accept(YAW_TORQUE, t, float(tau_omega))
 
-    def drive_torque(self, t: float, tau_v: float, status: int = DriveStatus.SOLVED) -> None:
-        """τυ [N·m] and status of the MPC, received at ``t`` [s]."""
+    def drive_torque(self, t: float, tau_v: float, status: int = DriveStatus.SOLVED,
+                     plan: Sequence[float] = (), plan_period: float = 0.0) -> None:
+        """τυ [N·m] and status of the MPC, received at ``t`` [s].
+
+        ``plan``: the MPC's planned τυ for its periods k, k+1, … (held after the last),
+        ``plan_period`` [s] apart (``MpcOutput.planned_tau_v``, ``sampling_period``); the
+        drive torque follows it when no newer output arrives. Empty: τυ is held. A plan
+        that is not finite or has no positive period is ignored (τυ is held)."""
         if not _is_finite_number(tau_v):
             self.invalid_input(DRIVE_TORQUE, t, f'non-finite drive torque {tau_v!r}')
             return
+        try:
+            planned = tuple(float(v) for v in plan)
+        except (TypeError, ValueError):
+            planned = ()
+        if not (planned and all(math.isfinite(v) for v in planned)
+                and _is_finite_number(plan_period) and plan_period > 0.0):
+            planned = ()
+        self.drive_plan = (planned, float(plan_period) if planned else 0.0)
         if status == DriveStatus.FALLBACK_SHIFTED_PLAN:
             self.consecutive_fallbacks += 1
         else:
@@ -331,11 +374,12 @@ class SafetyMonitor:
         return {name: None if slot.arrival is None else now - slot.arrival
                 for name, slot in self.inputs.items()}
 
-    def _conditions(self, now: float) -> tuple[list[str], list[str]]:
-        """(faults, not-yet conditions) at ``now``."""
+    def _conditions(self, now: float) -> tuple[list[str], list[str], list[str]]:
+        """(faults, not-yet conditions, late inputs within the bridge) at ``now``."""
         cfg = self.config
         faults: list[str] = []
         waiting: list[str] = []
+        late: list[str] = []
         max_age = {ESTIMATE: cfg.max_estimate_age, YAW_TORQUE: cfg.max_yaw_torque_age,
                    DRIVE_TORQUE: cfg.max_drive_torque_age, ESTOP_INPUT: cfg.max_estop_age}
         watched = list(_CONTROL_INPUTS)
@@ -349,8 +393,16 @@ class SafetyMonitor:
                 if self.timing_checks or name in (YAW_TORQUE, DRIVE_TORQUE):
                     waiting.append(f'no {name} yet')
             elif self.timing_checks and now - slot.arrival > max_age[name] + TIME_TOLERANCE:
-                faults.append(f'{name} stale: {now - slot.arrival:.3f} s old > '
-                              f'{max_age[name]:g} s (publisher stopped?)')
+                age = now - slot.arrival
+                bridge = cfg.bridge_time if name != ESTOP_INPUT else 0.0
+                if age <= max_age[name] + bridge + TIME_TOLERANCE:
+                    late.append(f'{name} late: {age:.3f} s old > {max_age[name]:g} s, '
+                                f'bridged up to {max_age[name] + bridge:g} s')
+                else:
+                    faults.append(f'{name} stale: {age:.3f} s old > '
+                                  f'{max_age[name] + bridge:g} s (age limit '
+                                  f'{max_age[name]:g} s + bridge {bridge:g} s; publisher '
+                                  'stopped?)')
         estimate = self.inputs[ESTIMATE]
         if estimate.value is not None and not estimate.invalid:
             faults += self._estimate_faults(estimate.value)
@@ -369,7 +421,7 @@ class SafetyMonitor:
                 faults.append(f'MPC failed: status {DriveStatus(status).name}')
             elif status != DriveStatus.SOLVED:
                 faults.append(f'MPC failed: unknown status {status}')
-        return faults, waiting
+        return faults, waiting, late
 
     def _estimate_faults(self, est: StateEstimate) -> list[str]:
         cfg = self.config
@@ -393,10 +445,10 @@ class SafetyMonitor:
         self.ticks += 1
         dt = self.period if self.last_update is None else max(0.0, now - self.last_update)
         self.last_update = now
-        faults, waiting = self._conditions(now)
+        faults, waiting, late = self._conditions(now)
         if self.fault_latched and not faults:
             faults = [f'latched fault ({"; ".join(self.fault_latched)}): reset required']
-        was_active = self.state in (ACTIVE, SHADOW)
+        was_active = self.state in _TORQUE_STATES
         reasons: list[str] = []
         if self.estop_latched:
             state = ESTOP
@@ -404,10 +456,10 @@ class SafetyMonitor:
                            else 'e-stop latched: reset required')
         elif faults or (waiting and (was_active or self.state == FAULT)):
             state = FAULT
-        elif waiting:
-            state = STARTING
+        elif waiting or (late and not was_active):
+            state = STARTING      # (late before engaging: not yet, never bridged)
         elif was_active:
-            state = ACTIVE
+            state = DEGRADED if late else ACTIVE
         else:
             if self.ready_since is None:
                 self.ready_since = now
@@ -417,26 +469,47 @@ class SafetyMonitor:
             else:
                 state = STARTING
                 reasons.append(f'settling: {settling:.3f} of {self.config.settle_time:g} s')
-        reasons += faults + waiting
+        reasons += faults + waiting + late
         if state == FAULT and self.config.latch_faults and not self.fault_latched:
             self.fault_latched = tuple(faults + waiting)
-        if state != STARTING or faults or waiting:
+        if state != STARTING or faults or waiting or late:
             self.ready_since = None
         if state == ACTIVE and self.config.shadow_mode:
             state = SHADOW
         self.state = state
-        if state not in (ACTIVE, SHADOW):
+        if state not in _TORQUE_STATES:
             self.tau_left = self.tau_right = 0.0   # Immediate, not rate limited.
             return SafetyDecision(0.0, 0.0, True, tuple(reasons), state,
                                   self.config.shadow_mode)
-        tau_v = self.inputs[DRIVE_TORQUE].value[0]
+        tau_v = self._drive_torque_now(now)
         tau_omega = self.inputs[YAW_TORQUE].value
         left, right = mix(tau_v, tau_omega, self.max_wheel_torque)
         step = self.max_wheel_torque_rate * dt
         self.tau_left = _toward(self.tau_left, left, step)
         self.tau_right = _toward(self.tau_right, right, step)
-        return SafetyDecision(self.tau_left, self.tau_right, False, (), state,
+        return SafetyDecision(self.tau_left, self.tau_right, False, tuple(late), state,
                               self.config.shadow_mode)
+
+    def _drive_torque_now(self, now: float) -> float:
+        """τυ of the MPC's last output at ``now``: its plan's entry for the periods elapsed
+        since it arrived (the last entry after the plan), or τυ itself without a plan."""
+        slot = self.inputs[DRIVE_TORQUE]
+        planned, period = self.drive_plan
+        if not planned:
+            return slot.value[0]
+        elapsed = max(0.0, now - slot.arrival)
+        return planned[min(len(planned) - 1, int(elapsed / period + TIME_TOLERANCE))]
+
+
+def tilt_divergence_rate(params) -> float:
+    """λ [1/s]: the unstable pole of model (1)'s tilt dynamics linearised upright.
+
+    From (1) at θ = θ̇ = ω = 0 with the torque held: θ̈ ≈ (mv mp g l / Ω0) θ, Ω0 = mv Jθ −
+    mp² l², so λ = sqrt(mv mp g l / Ω0). A held torque lets a tilt error grow like exp(λ t):
+    ``bridge_time`` defaults to ln 2 / λ of the default robot."""
+    mv, mp, l = params.effective_mass, params.body_mass, params.com_height
+    omega0 = mv * params.pitch_inertia - (mp * l) ** 2
+    return math.sqrt(mv * mp * params.gravity * l / omega0)
 
 
 def _toward(previous: float, target: float, step: float) -> float:

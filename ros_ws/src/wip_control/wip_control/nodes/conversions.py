@@ -228,7 +228,20 @@ def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> MpcO
         predicted_v=_column(predicted[:, 0].tolist() if have_prediction else ()),
         predicted_theta=_column(predicted[:, 1].tolist() if have_prediction else ()),
         predicted_theta_dot=_column(predicted[:, 2].tolist() if have_prediction else ()),
+        planned_tau_v=_column(planned_drive_torque(result)),
         used_fallback=bool(result.used_fallback))
+
+
+def planned_drive_torque(result: MpcResult) -> list[float]:
+    """τυ(k), τυ(k+1), … of the plan (eq. (23) applied to each planned increment); empty
+    when the plan is not finite."""
+    plan = [float(v) for v in result.plan]
+    if not (plan and all(math.isfinite(v) for v in plan) and math.isfinite(result.tau_v)):
+        return []
+    planned = [float(result.tau_v)]
+    for increment in plan[1:]:
+        planned.append(planned[-1] + increment)
+    return planned
 
 
 def mpc_idle_msg(stamp_ns: int, status: int, text: str, sampling_period: float) -> MpcOutput:

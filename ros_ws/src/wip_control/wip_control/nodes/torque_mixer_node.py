@@ -76,7 +76,7 @@ from wip_msgs.msg import ArcState, MpcOutput, StateEstimate as StateEstimateMsg,
 from ..core.config import ConfigError
 from ..core.mixer import MixerConfig
 from ..core.mpc import MpcConfig
-from ..core.safety import (ACTIVE, ESTOP, FAULT, SafetyConfig, SafetyDecision,
+from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyConfig, SafetyDecision,
                            SafetyMonitor, SHADOW, STARTING)
 from ..core.scenario import RatesConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
@@ -94,7 +94,8 @@ _MAX_ESTIMATE_STAMPS = 64
 _DIAGNOSTICS_ON_CHANGE_PERIOD = 0.05
 #: Longest wait [s] for the base to acknowledge the zero command sent on stopping.
 STOP_ACK_TIMEOUT = 1.0
-_LEVEL = {ACTIVE: OK, SHADOW: WARN, STARTING: WARN, FAULT: ERROR, ESTOP: ERROR}
+_LEVEL = {ACTIVE: OK, DEGRADED: WARN, SHADOW: WARN, STARTING: WARN, FAULT: ERROR,
+          ESTOP: ERROR}
 
 
 class TorqueMixerNode(ControllerNode):
@@ -203,7 +204,8 @@ class TorqueMixerNode(ControllerNode):
         self.diagnostics.input('drive_torque', stamp)
         value = (msg.tau_v, msg.status)
         if not self.lockstep:
-            self.monitor.drive_torque(self.monitor_time(), *value)
+            self.monitor.drive_torque(self.monitor_time(), *value, plan=msg.planned_tau_v,
+                                      plan_period=msg.sampling_period)
         elif not self.is_tick(stamp):
             # Not awaited at this stamp: hold it from now on (the MPC's period differs
             # from mpc_period, which /diagnostics reports).
@@ -297,6 +299,8 @@ class TorqueMixerNode(ControllerNode):
             # One call site per severity: rclpy refuses to change it between calls.
             if decision.state in (ACTIVE, SHADOW, STARTING):
                 log.info(text)
+            elif decision.state == DEGRADED:
+                log.warning(text)
             else:
                 log.error(text)
             wall = time.monotonic()
@@ -311,6 +315,8 @@ class TorqueMixerNode(ControllerNode):
             clipped = max(abs(decision.tau_left), abs(decision.tau_right)) >= limit
             diag.state(OK, f'ACTIVE: wheel torque at the {limit:g} N m limit' if clipped
                        else 'ACTIVE: mixing within the limits')
+        elif decision.state == DEGRADED:
+            diag.state(WARN, f'DEGRADED: riding through: {decision.reason}')
         elif decision.state == SHADOW:
             diag.state(WARN, 'SHADOW: computing, commanding zero to the base (shadow_mode)')
         else:
