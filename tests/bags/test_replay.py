@@ -121,15 +121,28 @@ def test_record_replay_record_gives_identical_bytes_in_order_with_recorded_timin
     # descheduled (seen: 330 ms, one message late; in a fresh-clone run ~80 ms, four
     # consecutive messages late by 0.3 to 1.3 spacings), which no replayer can prevent;
     # the percentile tolerates 6 of 60 such hits.
+    #
+    # On a machine 3x slower, or with other processes taking the cores, the two recorders
+    # and the replayer are descheduled for tens of ms at a time (measured with 4 other
+    # jobs on 2 cores: median error 0.23 spacing, growing along the run), so the check is
+    # robust statistics of the time map t1 -> t2: its rate (Theil-Sen slope: the median
+    # of the pairwise slopes, unaffected by up to 29 % of late messages) must be 1 within
+    # 20 % (a replay at twice the rate gives 0.5, one that bunches gives about 0), and the
+    # median error about the median shift within half a spacing (a replayer off its
+    # schedule moves most messages out of their slots). The quiet-machine figures are
+    # printed (measured: median 0.003, 90th percentile < 0.02 spacing).
     t1 = [m.log_time_ns for m in original if m.topic == chatter]
     t2 = [m.log_time_ns for m in replayed if m.topic == chatter]
+    slope = statistics.median(
+        (t2[j] - t2[i]) / (t1[j] - t1[i]) for i in range(len(t1))
+        for j in range(i + 1, len(t1)) if t1[j] - t1[i] >= 5 * SPACING * 1e9)
     shift = statistics.median(b - a for a, b in zip(t1, t2))
     errors = sorted(abs(b - a - shift) / 1e9 / SPACING for a, b in zip(t1, t2))
     p90 = errors[int(0.90 * (len(errors) - 1))]
-    assert statistics.median(errors) < 0.05, errors[-8:]
-    assert p90 < 0.25, errors[-8:]
-    print(f'replay timing error / spacing: median {statistics.median(errors):.4f}, 90th '
-          f'percentile {p90:.4f}, max {errors[-1]:.4f}')
+    print(f'replay timing: rate {slope:.4f}; error / spacing: median '
+          f'{statistics.median(errors):.4f}, 90th percentile {p90:.4f}, max {errors[-1]:.4f}')
+    assert 0.8 < slope < 1.2, slope
+    assert statistics.median(errors) < 0.5, errors[-8:]
 
 
 def _clock_bag(path, start_ns, n, period_ns):
@@ -244,12 +257,14 @@ def test_replays_a_bag_written_by_rosbags_with_pause_remap_and_recorded_qos(
     bag = tmp_path / 'from_rosbags'
     written = _rosbags_bag(bag)
     received = []
-    test_node.create_subscription(String, RENAMED, lambda d: received.append(
-        (CHATTER, bytes(d))), QoSProfile(depth=100), raw=True)
-    test_node.create_subscription(Imu, IMU, lambda d: received.append((IMU, bytes(d))),
-                                  QoSProfile(depth=100,
-                                             reliability=QoSReliabilityPolicy.BEST_EFFORT),
-                                  raw=True)
+    # (source timestamp, topic, bytes): the publication order is checked with the
+    # replayer's own send times, not the order in which this (possibly descheduled)
+    # process happens to take two messages that are both waiting.
+    test_node.create_subscription(String, RENAMED, lambda d, info: received.append(
+        (info['source_timestamp'], CHATTER, bytes(d))), QoSProfile(depth=100), raw=True)
+    test_node.create_subscription(Imu, IMU, lambda d, info: received.append(
+        (info['source_timestamp'], IMU, bytes(d))),
+        QoSProfile(depth=100, reliability=QoSReliabilityPolicy.BEST_EFFORT), raw=True)
     # The single .mcap file (rosbags names it <name>.mcap), started paused.
     replayer = _replayer(test_node, bag / 'from_rosbags.mcap', '--start-paused',
                          '--remap', f'{CHATTER}:={RENAMED}', '--stay')
@@ -276,17 +291,21 @@ def test_replays_a_bag_written_by_rosbags_with_pause_remap_and_recorded_qos(
     assert future.result().success and 'playing' in future.result().message
     spin_until(test_node, lambda: len(received) == len(written), 10.0, 'every message',
                replayer.process)
-    # The bytes rosbags wrote, in the recorded order (per topic; across topics too since
-    # they are 10 ms apart). Fast DDS sends a serialized payload as a whole number of 4-byte
+    # The bytes rosbags wrote, sent in the recorded order (per topic; across topics too
+    # since they are 10 ms apart: ordered by the replayer's send stamps). Fast DDS sends a serialized payload as a whole number of 4-byte
     # words: a message whose CDR is not (rosbags does not pad, rclpy does) arrives with up
     # to 3 zero bytes appended, which CDR readers ignore.
     def padded(data):
         return data + b'\x00' * (-len(data) % 4)
 
-    assert [t for t, _ in received] == [t for t, _ in written]
-    assert [d for _, d in received] == [padded(d) for _, d in written]
+    for topic in (CHATTER, IMU):        # per topic: the order of arrival itself
+        assert [d for _, t, d in received if t == topic] == [
+            padded(d) for t, d in written if t == topic]
+    received.sort(key=lambda item: item[0])
+    assert [t for _, t, _ in received] == [t for t, _ in written]
+    assert [d for _, _, d in received] == [padded(d) for _, d in written]
     assert any(len(d) % 4 for _, d in written)  # the padding case is exercised
-    msg = deserialize_message(received[1][1], Imu)
+    msg = deserialize_message(received[1][2], Imu)
     assert (msg.header.frame_id, msg.angular_velocity.y) == ('imu', 0.0)
     # Paused again (the replayer stays up at the end: --stay), then SIGTERM: a clean exit.
     future = client.call_async(SetBool.Request(data=True))
