@@ -61,6 +61,11 @@ CONTRACT = {
     'check_base': ('check_base', set(), {'/contract/joints', '/imu/data'}),
 }
 
+#: Executables that hold several nodes (composition): executable -> its nodes, each with
+#: the contract of its own executable.
+COMPOSED = {'controllers': ('reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
+                            'torque_mixer')}
+
 #: Exit status on SIGINT where it is not 0: check_base is an interactive check, and an
 #: interrupted check has not passed (130 = 128 + SIGINT, the shell's convention).
 SIGINT_STATUS = {'check_base': 130}
@@ -147,16 +152,17 @@ def started(tmp_path_factory):
 
 def test_every_executable_has_a_contract_entry():
     names = {executable for _, executable, _ in executables()}
-    assert names == set(CONTRACT), 'update CONTRACT (and the README) for new executables'
+    assert names == set(CONTRACT) | set(COMPOSED), \
+        'update CONTRACT or COMPOSED (and the README) for new executables'
     packages = {package for package, _, _ in executables()}
     assert packages == set(PACKAGES)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize('executable', sorted(CONTRACT))
+@pytest.mark.parametrize('executable', sorted(set(CONTRACT) | set(COMPOSED)))
 def test_executable_runs_as_ros2_run_would_and_stops_cleanly_on_sigint(executable, started):
     one = started[executable]
-    node_name, publishes, subscribes = CONTRACT[executable]
+    contracts = [CONTRACT[n] for n in COMPOSED.get(executable, (executable,))]
     deadline = time.monotonic() + START_TIMEOUT
     while True:
         if one.process.poll() is not None:
@@ -165,13 +171,17 @@ def test_executable_runs_as_ros2_run_would_and_stops_cleanly_on_sigint(executabl
                         f'{output}')
         names = {name for name, namespace in one.probe.get_node_names_and_namespaces()
                  if namespace == '/'}
-        pubs, subs = one.topics_of(node_name) if node_name in names else (set(), set())
-        if node_name in names and publishes <= pubs and subscribes <= subs:
+        missing = []
+        for node_name, publishes, subscribes in contracts:
+            pubs, subs = one.topics_of(node_name) if node_name in names else (set(), set())
+            if not (node_name in names and publishes <= pubs and subscribes <= subs):
+                missing.append(f'node {node_name!r} present: {node_name in names}; missing '
+                               f'publishers {publishes - pubs}, missing subscriptions '
+                               f'{subscribes - subs}')
+        if not missing:
             break
         if time.monotonic() > deadline:
-            pytest.fail(f'{executable}: after {START_TIMEOUT} s, node {node_name!r} present: '
-                        f'{node_name in names}; missing publishers {publishes - pubs}, '
-                        f'missing subscriptions {subscribes - subs}')
+            pytest.fail(f'{executable}: after {START_TIMEOUT} s: {"; ".join(missing)}')
         time.sleep(0.1)  # graph polling (discovery is asynchronous, no event to wait on)
 
     one.process.send_signal(signal.SIGINT)

@@ -25,8 +25,11 @@ def own_domain(monkeypatch):
     monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 101)))
 
 
-def test_run_graph_names_a_node_that_dies_and_stops_the_others(tmp_path):
-    runner = GraphRunner(GraphOptions(out=str(tmp_path / 'run'), duration=60.0, quiet=True))
+@pytest.mark.parametrize('layout, victim', [('separate', 'arc'),
+                                           ('composed', 'controllers')])
+def test_run_graph_names_a_process_that_dies_and_stops_the_others(tmp_path, layout, victim):
+    runner = GraphRunner(GraphOptions(out=str(tmp_path / 'run'), duration=60.0, quiet=True,
+                                      layout=layout))
     outcome = {}
     thread = threading.Thread(target=lambda: outcome.setdefault('result', runner.run()))
     thread.start()
@@ -34,16 +37,19 @@ def test_run_graph_names_a_node_that_dies_and_stops_the_others(tmp_path):
     while 'plant started' not in runner.timeline and thread.is_alive():
         assert time.monotonic() < deadline, 'the graph did not start'
         time.sleep(0.1)
-    runner.processes['arc'].process.kill()
+    runner.processes[victim].process.kill()
     thread.join(timeout=60.0)
     assert not thread.is_alive()
     result = outcome['result']
     assert result.exit_code == graph.EXIT_FAILED
-    assert "node 'arc'" in result.message and 'exited with code -9' in result.message
+    assert f"node '{victim}'" in result.message and 'exited with code -9' in result.message
     assert all(process.poll() is not None for process in runner.processes.values())
     # The others were stopped with SIGINT and exited cleanly.
-    others = {n: c for n, c in result.node_exit_codes.items() if n != 'arc'}
+    others = {n: c for n, c in result.node_exit_codes.items() if n != victim}
     assert all(code == 0 for code in others.values()), others
+    expected = {'plant'} | ({'reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
+                             'torque_mixer'} - {victim} if layout == 'separate' else set())
+    assert set(others) == expected
 
 
 def test_a_stall_on_the_first_ticks_starts_the_graph_again(tmp_path, monkeypatch):

@@ -100,8 +100,8 @@ def test_no_plant_without_a_base_never_commands_torque(tmp_path):
     assert run['base_topics'][EFFORT] == {'subscriptions': 1}     # the test's listener
     assert 'no publisher on /base/joint_states' in result.stderr
     assert {e['state'] for e in run['safety_events']} <= {'STARTING', 'FAULT'}
-    assert set(run['node_exit_codes']) == {'reference', 'eso', 'trajectory_generator', 'arc',
-                                           'mpc', 'torque_mixer'}
+    # The default layout: the six controller nodes in one process.
+    assert set(run['node_exit_codes']) == {'controllers'}
     # No plant in the generated parameters; the reference starts with the engagement.
     generated = yaml.safe_load((out / 'params.yaml').read_text())
     assert 'plant' not in generated

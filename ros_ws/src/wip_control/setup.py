@@ -34,6 +34,7 @@ setup(
             'arc = wip_control.nodes.arc_node:main',
             'mpc = wip_control.nodes.mpc_node:main',
             'torque_mixer = wip_control.nodes.torque_mixer_node:main',
+            'controllers = wip_control.nodes.controllers:main',
         ],
     },
 )

@@ -92,6 +92,11 @@ from wip_control.tools.params_files import CONTROLLER_NODES, write_params_file
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_FELL, EXIT_TIMEOUT = 0, 1, 2, 3, 4
 EXIT_INTERRUPTED = 130
 
+#: Process layouts of the controller nodes: 'separate' (one process per node, as six
+#: `ros2 run`) or 'composed' (the six nodes in one process, `ros2 run wip_control
+#: controllers`, one executor). Same nodes, names, parameters and topics either way.
+LAYOUTS = ('separate', 'composed')
+
 #: Executable of each node: (package, executable).
 EXECUTABLES = {
     'reference': ('wip_control', 'reference'),
@@ -100,6 +105,7 @@ EXECUTABLES = {
     'arc': ('wip_control', 'arc'),
     'mpc': ('wip_control', 'mpc'),
     'torque_mixer': ('wip_control', 'torque_mixer'),
+    'controllers': ('wip_control', 'controllers'),
     'plant': ('wip_sim', 'plant'),
     'recorder': ('wip_sim', 'recorder'),
 }
@@ -184,6 +190,7 @@ class GraphOptions:
     stall_timeout: float = 30.0  # [s] wall without simulated-time progress
     startup_retries: int = 1  # new attempts after a stall on the first ticks
     quiet: bool = False
+    layout: str = 'composed'  # see LAYOUTS
 
 
 @dataclasses.dataclass
@@ -458,6 +465,9 @@ class GraphRunner:
         if options.clock not in ('lockstep', 'realtime'):
             raise GraphError(f'--clock: {options.clock!r} is not lockstep or realtime',
                              EXIT_USAGE)
+        if options.layout not in LAYOUTS:
+            raise GraphError(f'--layout: {options.layout!r} is not one of {list(LAYOUTS)}',
+                             EXIT_USAGE)
         try:
             scenario = load_scenario(options.scenario)
         except ConfigError as err:
@@ -501,17 +511,25 @@ class GraphRunner:
         return write_params_file(scenario, self.out / 'params.yaml', options.clock,
                                  scenario_path, plant_extra=plant_extra, recorder=recorder)
 
+    def node_names(self) -> list[str]:
+        """The ROS nodes of the run (whatever the processes that hold them)."""
+        return list(CONTROLLER_NODES) + ['plant'] + (['recorder'] if self.bag else [])
+
     def start_processes(self, params_file: pathlib.Path) -> None:
         env = graph_environment(self.domain_id)
         env['ROS_LOG_DIR'] = str(self.out / 'logs' / 'ros')
-        names = list(CONTROLLER_NODES) + ['plant']
+        controllers = (['controllers'] if self.options.layout == 'composed'
+                       else list(CONTROLLER_NODES))
+        names = controllers + ['plant']
         if self.bag is not None:
             names.insert(0, 'recorder')
         commands = {}
         for name in names:
             package, executable = EXECUTABLES[name]
             commands[name] = [str(executable_path(package, executable)), '--ros-args',
-                              '--params-file', str(params_file), '-r', f'__node:={name}']
+                              '--params-file', str(params_file)]
+            if name != 'controllers':   # composed: each node keeps its own name
+                commands[name] += ['-r', f'__node:={name}']
         for name in names:
             self.processes[name] = NodeProcess(name, commands[name],
                                                self.out / 'logs' / f'{name}.log', env)
@@ -528,7 +546,7 @@ class GraphRunner:
 
     def wait_for_graph(self) -> None:
         expected = expected_endpoints(self.options.clock, self.bag is not None)
-        nodes = list(self.processes)
+        nodes = self.node_names()
         deadline = time.monotonic() + self.options.discovery_timeout
         missing = ['(not checked yet)']
         complete_since = None
@@ -930,7 +948,8 @@ def main(argv: list[str] | None = None) -> int:
                            out=args.out or 'out/graph',
                            discovery_timeout=args.discovery_timeout,
                            stall_timeout=args.stall_timeout,
-                           startup_retries=args.startup_retries, quiet=args.quiet)
+                           startup_retries=args.startup_retries, quiet=args.quiet,
+                           layout=args.layout or GraphOptions.layout)
     result = run_graph(options)
     print(format_result(result))
     return result.exit_code

@@ -77,13 +77,15 @@ from wip_control.tools.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, fl
 
 from .graph import (choose_domain_id, executable_path, EXECUTABLES, EXIT_FAILED, EXIT_OK,
                     EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError, graph_environment,
-                    NodeProcess, Probe, RECORDER_GRACE_PERIOD)
+                    LAYOUTS, NodeProcess, Probe, RECORDER_GRACE_PERIOD)
 
 #: The nodes of hardware mode, in start order.
 HARDWARE_NODES = CONTROLLER_NODES
 #: The base's side of the graph: default topic names -> what the controllers do with them.
 BASE_SENSOR_TOPICS = ('/joint_states', '/imu/data', '/gps/fix', '/odom')
 DEFAULT_EFFORT_TOPIC = '/effort_controller/commands'
+#: Longest wait [s] for the base's topics to be discovered before reporting them missing.
+BASE_DISCOVERY_WAIT = 2.0
 #: Topics of the controllers recorded with --record (plus the base's, remapped).
 CONTROLLER_TOPICS = ('/wip/reference', '/wip/state_estimate', '/wip/velocity_command',
                      '/wip/yaw_torque', '/wip/drive_torque', '/wip/wheel_torques',
@@ -111,6 +113,7 @@ class HardwareOptions:
     quiet: bool = False
     arm_delay: float = 2.0  # [s] wall: every node up -> the e-stop heartbeat starts
     heartbeat: bool = True  # publish the /wip/estop heartbeat (see the module docstring)
+    layout: str = 'composed'  # controller processes: see wip_sim.graph.LAYOUTS
     #: Programmatic stop (tests): polled while running; a non-empty string ends the run
     #: (exit 0) with that message.
     stop_when: Callable[[], str | None] | None = None
@@ -300,9 +303,15 @@ class HardwareRunner:
                                            sort_keys=False, width=99), encoding='utf-8')
         return path
 
+    def node_names(self) -> list[str]:
+        """The ROS nodes of the run (whatever the processes that hold them)."""
+        return list(HARDWARE_NODES) + (['recorder'] if self.bag is not None else [])
+
     def commands(self, params_file: pathlib.Path) -> dict[str, list[str]]:
-        """The command line of every node process."""
-        names = list(HARDWARE_NODES) + (['recorder'] if self.bag is not None else [])
+        """The command line of every process."""
+        controllers = (['controllers'] if self.options.layout == 'composed'
+                       else list(HARDWARE_NODES))
+        names = controllers + (['recorder'] if self.bag is not None else [])
         extra_files = [str(pathlib.Path(p).resolve()) for p in self.options.params_files]
         out = {}
         for name in names:
@@ -311,7 +320,8 @@ class HardwareRunner:
                        '--params-file', str(params_file)]
             for extra in extra_files:
                 command += ['--params-file', extra]
-            command += ['-r', f'__node:={name}']
+            if name != 'controllers':   # composed: each node keeps its own name
+                command += ['-r', f'__node:={name}']
             for source, target in self.remaps:
                 command += ['-r', f'{source}:={target}']
             out[name] = command
@@ -403,13 +413,13 @@ class HardwareRunner:
             code = process.poll()
             if code is None:
                 continue
-            if name == 'torque_mixer':
+            if name in ('torque_mixer', 'controllers'):
                 self.send_zero_commands()
             raise GraphError(f'node {name!r} (pid {process.pid}) exited with code {code}; '
                              f'last lines of {process.log_path}:\n{process.log_tail()}')
 
     def wait_for_nodes(self) -> None:
-        nodes = list(self.processes)
+        nodes = self.node_names()
         deadline = time.monotonic() + self.options.discovery_timeout
         since = None
         missing: list[str] = ['(not checked yet)']
@@ -437,9 +447,16 @@ class HardwareRunner:
         eso = node_parameters('eso', self.generated, self.extra)
         sensors = ['/joint_states', '/imu/data']
         sensors.append('/odom' if eso.get('position_source') == 'odometry' else '/gps/fix')
+        names = [remapped(topic, self.remaps) for topic in sensors]
+        # The probe is new: DDS discovery of the base's endpoints can take it a moment
+        # more than the controllers' own (seen: the base's subscription missing once).
+        deadline = time.monotonic() + BASE_DISCOVERY_WAIT
+        while time.monotonic() < deadline and not (
+                all(self.probe.count(n)[0] for n in names)
+                and self.probe.count(self.effort_topic)[1]):
+            self.probe.spin(0.1)
         out = {}
-        for topic in sensors:
-            name = remapped(topic, self.remaps)
+        for topic, name in zip(sensors, names):
             publishers, _ = self.probe.count(name)
             out[name] = {'publishers': publishers}
             if not publishers:
@@ -604,6 +621,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--arm-delay', type=float, default=2.0, metavar='S',
                         help='hardware mode: seconds after every node is up before the '
                              '/wip/estop heartbeat starts and the controllers may engage')
+    parser.add_argument('--layout', choices=LAYOUTS, default=None,
+                        help='controller processes: separate (one per node, as six ros2 '
+                        'run) or composed (the six nodes in one process, one executor: '
+                        'ros2 run wip_control controllers); default: '
+                        f'{HardwareOptions.layout} (docs/realtime.md)')
     parser.add_argument('--no-heartbeat', action='store_true',
                         help='hardware mode: no /wip/estop heartbeat (and no arm delay): '
                              'the mixer engages as soon as its inputs are ready')
@@ -632,7 +654,8 @@ def run_from_args(args: argparse.Namespace) -> int:
                               remaps=list(args.remaps), duration=args.duration,
                               out=args.out, record=args.record,
                               discovery_timeout=args.discovery_timeout, quiet=args.quiet,
-                              arm_delay=args.arm_delay, heartbeat=not args.no_heartbeat)
+                              arm_delay=args.arm_delay, heartbeat=not args.no_heartbeat,
+                              layout=args.layout or HardwareOptions.layout)
     result = run_hardware(options)
     print(format_result(result))
     return result.exit_code

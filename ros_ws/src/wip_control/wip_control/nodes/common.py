@@ -24,6 +24,7 @@ sample of its grid (:class:`ClockTicker`) and the MPC ticks on the stamps of its
 
 from __future__ import annotations
 
+import gc
 import math
 import signal
 import sys
@@ -219,50 +220,77 @@ def _raise_keyboard_interrupt(signum, frame) -> None:
 
 def run_node(node_factory: Callable[[], Node], program: str, args=None,
              on_stop: Callable[[Node], None] | None = None) -> int:
-    """Jazzy ``main``: init, build the node, spin until shutdown, clean up; exit status.
+    """Jazzy ``main`` of one node: :func:`run_nodes` with a single node."""
+    return run_nodes([(node_factory, on_stop)], program, args)
+
+
+def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] | None]],
+              program: str, args=None) -> int:
+    """Jazzy ``main``: init, build the nodes, spin them in one executor until shutdown,
+    clean up; exit status.
+
+    ``nodes``: (factory, on_stop) pairs. Several nodes in one process is ROS 2
+    composition done by hand (rclpy has no component container): each node keeps its
+    name, parameters (the ``--params-file`` sections by node name) and topics; they share
+    one context and one executor, so a control tick costs one process wake-up instead of
+    one per node (docs/realtime.md has the measurements).
 
     A configuration error (a parameter out of range, of the wrong type, an unknown choice)
-    makes the node refuse to start: the message, which names the parameter, goes to
+    makes the process refuse to start: the message, which names the parameter, goes to
     stderr and the status is 1.
 
     ``on_stop(node)`` runs on SIGINT/SIGTERM before the node is destroyed, with the
     context still valid so that it can publish (the mixer's last zero command). rclpy's
-    own signal handler shuts the context down before any ``finally`` runs, so a node
-    with ``on_stop`` takes SIGINT and SIGTERM over itself (they raise KeyboardInterrupt
-    in the spin loop, which returns to Python every :data:`SPIN_TIMEOUT`).
+    own signal handler shuts the context down before any ``finally`` runs, so when a node
+    has ``on_stop`` the process takes SIGINT and SIGTERM over itself (they raise
+    KeyboardInterrupt in the spin loop, which returns to Python every
+    :data:`SPIN_TIMEOUT`).
+
+    Real-time hygiene: once every node is built, the objects of the start-up are moved out
+    of the garbage collector's reach (``gc.freeze``), so that the collections that still
+    run during control (young objects only) do not walk them.
     """
-    if on_stop is None:
+    handles_signals = any(on_stop is not None for _, on_stop in nodes)
+    if not handles_signals:
         rclpy.init(args=args)
     else:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         signal.signal(signal.SIGINT, _raise_keyboard_interrupt)
         signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
-    node = None
+    built: list[tuple[Node, Callable[[Node], None] | None]] = []
     status = 0
     stopping = False
     try:
-        node = node_factory()
         executor = make_executor()
-        executor.add_node(node)
-        node.get_logger().debug(f'executor: {type(executor).__name__}')
+        for factory, on_stop in nodes:
+            node = factory()
+            built.append((node, on_stop))
+            executor.add_node(node)
+        first = built[0][0]
+        first.get_logger().debug(f'executor: {type(executor).__name__}')
+        gc.collect()
+        gc.freeze()
         while rclpy.ok():
-            spin_once_guarded(executor, node)
+            spin_once_guarded(executor, first)
     except (KeyboardInterrupt, ExternalShutdownException):
         stopping = True
     except (ConfigError, ParameterException) as err:
         print(f'{program}: error: {err}', file=sys.stderr)
         status = 1
     finally:
-        if node is not None:
-            if on_stop is not None and stopping and rclpy.ok():
-                # A second signal while stopping must not skip the destruction below.
-                signal.signal(signal.SIGINT, signal.SIG_IGN)
-                signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        if handles_signals and stopping and rclpy.ok():
+            # A second signal while stopping must not skip the destruction below.
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+            for node, on_stop in built:
+                if on_stop is None:
+                    continue
                 try:
                     on_stop(node)
                 except Exception as err:  # noqa: B902 - report, then clean up anyway
                     print(f'{program}: stopping: {type(err).__name__}: {err}',
                           file=sys.stderr)
+        for node, _ in built:
             node.destroy_node()
         rclpy.try_shutdown()
     return status
