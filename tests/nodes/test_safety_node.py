@@ -191,8 +191,11 @@ class Graph:
         return found()
 
     def commands_on_the_topic(self):
-        """Stop the mixer's timer, drain the topic; check it against the logged ticks and
-        return the offset of the received messages in the log."""
+        """Stop the mixer's watchdog timer and the upstream (whose yaw torques trigger
+        commands too), drain the topic; check it against the logged ticks and return the
+        offset of the received messages in the log."""
+        self.sending.clear()
+        self.spin_for(0.05)             # yaw torques in flight still make commands
         self.node.timer.cancel()
         self.spin_for(0.2)
         commands = [d.command for _, d in self.log.ticks]
