@@ -7,9 +7,10 @@ its own: ``/base/joint_states``, ``/base/imu``, ``/base/fix`` out and
 differ from the simulator's on purpose: joints named ``wheel_l``/``wheel_r`` listed
 right first, the left joint's positive direction rolling backwards (sign −1), an IMU
 mounted upside down and turned a quarter turn. The controllers run as in
-``scripts/run_graph --mode hardware`` (:func:`wip_sim.hardware.run_hardware`), each node
-its own process, with ``--remap`` for the topic names and a ``--params-file`` with the
-base's conventions.
+``scripts/run_graph --mode hardware`` (:func:`wip_sim.hardware.run_hardware`), in the
+default (composed) layout unless a test says otherwise, with ``--remap`` for the topic
+names and a ``--params-file`` with the base's conventions (the harness is
+:mod:`wip_sim.standin_run`).
 
 1. Configured consistently, the controllers keep the robot up and on a straight line
    (0.5 m/s, the paper's initial errors: 0.5 m behind, 0.5 m aside, 0.1 rad, tilt
@@ -17,124 +18,35 @@ base's conventions.
    measured by the base (the gaps between the commands it receives).
 2. With the left wheel's sign wrong on the controllers' side, the robot cannot balance:
    the safety layer sends zero torque, and says why, and no node crashes.
+3. Fault injection: controller processes frozen (SIGSTOP/SIGCONT) for 20, 60 and 150 ms
+   are ridden through; a 0.5 s freeze, past the safety layer's bound, zeroes the torque
+   with the cause named.
 
 Numbers measured on the 2-core development machine (200 Hz, 7 processes): see the
 module's report in ``OUT/measured.json`` of each run and the assertions' comments.
 """
 
-import json
-import math
-import os
-import random
-import signal
-import subprocess
+import time
 
 import numpy as np
 import pytest
-import yaml
 
 pytest.importorskip('rclpy')
 
 from wip_control.core.references import make_reference, ReferenceConfig  # noqa: E402
-from wip_sim.graph import executable_path  # noqa: E402
-from wip_sim.hardware import HardwareOptions, run_hardware  # noqa: E402
+from wip_sim.standin_run import (BASE, CONTROL_RATE, freeze_process,  # noqa: E402
+                                 run_against_standin)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
-CONTROL_RATE = 200.0  # [Hz]
 RUN_TIME = 16.0  # [s] of simulated (= wall) time after the release
-SCENARIO = {
-    'name': 'standin_line',
-    'description': 'hardware-mode test: a straight line at 0.5 m/s, full plant model',
-    'duration': 60.0,
-    'reference': {'kind': 'line', 'line_speed': 0.5},
-    'plant': {'model': 'full'},
-    'disturbances': {'yaw': [], 'longitudinal': []},
-    'rates': {'control_rate': CONTROL_RATE},
-    'eso': {'sample_period': 1.0 / CONTROL_RATE},
-}
-BASE = {
-    'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'joints': ['wheel_r', 'wheel_l'],
-    'left_wheel_sign': -1, 'right_wheel_sign': 1,
-    'imu_mounting_rpy': [math.pi, 0.0, math.pi / 2],
-}
-REMAPS = ['/joint_states:=/base/joint_states', '/imu/data:=/base/imu',
-          '/gps/fix:=/base/fix',
-          '/effort_controller/commands:=/base/effort_controller/commands']
-
-
-def write_params(path, parameters):
-    path.write_text(yaml.safe_dump({'/**': {'ros__parameters': parameters}}))
-    return path
-
-
-def run_against_standin(directory, controller_conventions, run_time, exit_after_fall=1.0,
-                        base_extra=None):
-    """Start the stand-in base, run hardware mode until the base exits; both results."""
-    directory.mkdir(parents=True, exist_ok=True)
-    scenario = directory / 'scenario.yaml'
-    scenario.write_text(yaml.safe_dump(SCENARIO))
-    base_params = write_params(directory / 'base.yaml', dict(
-        BASE, **(base_extra or {}), duration=float(run_time),
-        exit_after_fall=float(exit_after_fall),
-        stats_file=str(directory / 'base_stats.json'), scenario_file=str(scenario)))
-    controller_params = write_params(directory / 'controllers.yaml', controller_conventions)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 101)),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    command = [str(executable_path('wip_sim', 'standin_base')), '--ros-args',
-               '--params-file', str(base_params)]
-    for remap in REMAPS:
-        command += ['-r', remap]
-    log = open(directory / 'base.log', 'w')
-    base = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
-    monkeypatch = pytest.MonkeyPatch()
-    monkeypatch.setenv('ROS_DOMAIN_ID', env['ROS_DOMAIN_ID'])
-    try:
-        result = run_hardware(HardwareOptions(
-            scenario=str(scenario), params_files=[str(controller_params)], remaps=REMAPS,
-            duration=run_time + 40.0, out=str(directory / 'run'), quiet=True,
-            stop_when=lambda: base.poll() is not None and f'base exited ({base.returncode})'))
-    finally:
-        monkeypatch.undo()
-        if base.poll() is None:
-            base.send_signal(signal.SIGINT)
-        try:
-            base.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            base.kill()
-            base.wait()
-        log.close()
-    stats = json.loads((directory / 'base_stats.json').read_text())
-    return result, stats, base.returncode
-
-
-def summary(result, stats):
-    """The measured numbers of a run (also written next to it)."""
-    ticks = stats['ticks_checked']
-    return {
-        'control_rate_hz': CONTROL_RATE,
-        'commands_received_rate_hz': stats['command_rate_hz'],
-        'command_gap_ms': stats['command_gap'],
-        'command_age_ms': stats['command_age'],
-        'deadline_misses': stats['deadline_misses'],
-        'deadline_miss_limit_ms': 1e3 * stats['deadline_miss_limit_s'],
-        'base_ticks_checked': ticks,
-        'deadline_miss_fraction': stats['deadline_misses'] / ticks if ticks else None,
-        'base_tick_period_ms': stats['tick_period'],
-        'base_stalls': stats['stalls'],
-        'node_rates_hz': result.rates,
-        'node_cpu_fraction': {n: c / result.wall_time_s for n, c in result.cpu_s.items()}
-        if result.wall_time_s else {},
-        'safety_events': result.safety_events,
-    }
 
 
 @pytest.fixture(scope='module')
 def consistent_run(tmp_path_factory):
     directory = tmp_path_factory.mktemp('standin') / 'consistent'
-    result, stats, code = run_against_standin(directory, BASE, RUN_TIME)
-    (directory / 'measured.json').write_text(json.dumps(summary(result, stats), indent=2))
-    return result, stats, code
+    run = run_against_standin(directory, BASE, RUN_TIME)
+    return run.result, run.stats, run.base_code
 
 
 def test_hardware_mode_keeps_the_standin_base_up_and_on_the_line(consistent_run):
@@ -193,10 +105,8 @@ def test_hardware_mode_sustains_the_control_rate_in_real_time(consistent_run):
 
 def test_a_wrong_wheel_sign_makes_the_safety_layer_zero_the_torque(tmp_path):
     wrong = dict(BASE, left_wheel_sign=1)
-    result, stats, code = run_against_standin(tmp_path / 'wrong_sign', wrong, 10.0,
-                                              exit_after_fall=1.0)
-    (tmp_path / 'wrong_sign' / 'measured.json').write_text(
-        json.dumps(summary(result, stats), indent=2))
+    run = run_against_standin(tmp_path / 'wrong_sign', wrong, 10.0, exit_after_fall=1.0)
+    result, stats, code = run.result, run.stats, run.base_code
     assert result.exit_code == 0, result.message
     # No node crashed: each was stopped by SIGINT at the end.
     assert all(c == 0 for c in result.node_exit_codes.values()), result.node_exit_codes
@@ -222,9 +132,10 @@ def test_position_from_odometry_instead_of_gps_keeps_the_base_up_and_on_the_line
     GPS; the loop closes as with GPS (the bounds and windows of the GPS run above: with
     the full plant model the lateral error still swings to ~0.6 m before 10 s)."""
     run_time = RUN_TIME
-    result, stats, code = run_against_standin(
+    run = run_against_standin(
         tmp_path / 'odometry', dict(BASE, position_source='odometry'), run_time,
         base_extra={'publish_odometry': True})
+    result, stats, code = run.result, run.stats, run.base_code
     assert result.exit_code == 0, result.message
     assert code == 0, stats['end_reason']
     assert stats['released'] and not stats['fell']
@@ -241,3 +152,78 @@ def test_position_from_odometry_instead_of_gps_keeps_the_base_up_and_on_the_line
     assert int(eso['received odom']) > 0.8 * CONTROL_RATE * run_time
     assert not any('gps' in key for key in eso if key.startswith(('received', 'age')))
     assert int(eso['odometry fixes accepted']) > 0 and eso['odometry fixes rejected'] == '0'
+
+
+# ------------------------------------------------------------------ fault injection
+# The controllers' processes are frozen (SIGSTOP ... SIGCONT) while they balance the base:
+# a frozen process sends nothing, and the base (like a ros2_control effort controller)
+# holds the last command. Within the safety layer's bound (age limit + bridge_time:
+# 0.05 + 0.30 s for the estimate) the controllers ride through (DEGRADED, never FAULT)
+# and the base stays up and on the line; past it they command zero torque and say why.
+FREEZES = (0.02, 0.06, 0.15)   # [s] within the bound
+FREEZE_SPACING = 3.0           # [s] between two freezes: the robot settles again
+
+
+def _freezes(names, seconds, log):
+    def inject(runner, processes):
+        for name in names:
+            for duration in seconds:
+                time.sleep(FREEZE_SPACING)
+                try:
+                    log.append((name, freeze_process(processes[name].pid, duration)))
+                except ProcessLookupError:      # the run has ended (the test says why)
+                    return
+    return inject
+
+
+def _on_the_line(stats, after):
+    truth = {k: np.asarray(v) for k, v in stats['truth'].items()}
+    later = truth['t'] > after
+    return np.abs(truth['theta']).max(), np.abs(truth['y'][later]).max()
+
+
+def test_freezes_of_the_composed_controllers_within_the_bound_are_ridden_through(tmp_path):
+    log = []
+    run_time = RUN_TIME
+    run = run_against_standin(tmp_path / 'freeze', BASE, run_time,
+                              during=_freezes(['controllers'], FREEZES, log))
+    result, stats = run.result, run.stats
+    assert [name for name, _ in log] == ['controllers'] * len(FREEZES), log
+    assert all(measured >= wanted for (_, measured), wanted in zip(log, FREEZES)), log
+    assert run.base_code == 0 and not stats['fell'], stats['end_reason']
+    states = [e['state'] for e in result.safety_events]
+    engaged = states.index('ACTIVE')
+    # Never zeroed once engaged (the end of the run, the base stopping, aside).
+    faults = [e for e in result.safety_events[engaged:] if e['state'] == 'FAULT']
+    assert all(e['t'] >= result.safety_events[-1]['t'] for e in faults), result.safety_events
+    theta_max, y_max = _on_the_line(stats, after=10.0)
+    print(f'freezes {log}: max |theta| {theta_max:.3f} rad, max |y| after 10 s '
+          f'{y_max:.2f} m, safety events {states}')
+    assert theta_max < 0.3
+    assert y_max < 0.6
+
+
+def test_each_separate_controller_process_frozen_for_150_ms_is_ridden_through(tmp_path):
+    names = ['reference', 'eso', 'trajectory_generator', 'arc', 'mpc', 'torque_mixer']
+    log = []
+    run_time = 2.0 + FREEZE_SPACING * (len(names) + 1)
+    run = run_against_standin(tmp_path / 'freeze_each', BASE, run_time, layout='separate',
+                              during=_freezes(names, (0.15,), log))
+    stats = run.stats
+    assert [name for name, _ in log] == names
+    assert run.base_code == 0 and not stats['fell'], stats['end_reason']
+    theta_max, _ = _on_the_line(stats, after=0.0)
+    print(f'freezes {log}: max |theta| {theta_max:.3f} rad')
+    assert theta_max < 0.3
+
+
+def test_a_freeze_past_the_bound_zeroes_the_torque_and_names_the_cause(tmp_path):
+    log = []
+    run = run_against_standin(tmp_path / 'long_freeze', BASE, 8.0, exit_after_fall=1.0,
+                              during=_freezes(['controllers'], (0.5,), log))
+    result = run.result
+    assert log and log[0][1] >= 0.5
+    assert all(c == 0 for c in result.node_exit_codes.values()), result.node_exit_codes
+    after = [e for e in result.safety_events if e['state'] == 'FAULT']
+    assert any('stale' in e['reasons'] and 'bridge' in e['reasons'] for e in after), \
+        result.safety_events

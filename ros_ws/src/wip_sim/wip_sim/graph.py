@@ -177,6 +177,54 @@ class StartupStall(GraphError):
         super().__init__(message, EXIT_TIMEOUT)
 
 
+@dataclasses.dataclass(frozen=True)
+class Scheduling:
+    """Real-time scheduling of a process: SCHED_FIFO ``priority`` (1..99; 0: the normal
+    policy) and the CPUs it may run on (empty: all)."""
+
+    priority: int = 0
+    cpus: tuple[int, ...] = ()
+
+    def check(self) -> None:
+        """GraphError (usage) naming the option if the values are absurd or this user may
+        not apply them (tried on a throwaway child process)."""
+        if not 0 <= self.priority <= 99:
+            raise GraphError(f'--rt-priority: must be in 0..99, got {self.priority}',
+                             EXIT_USAGE)
+        available = os.sched_getaffinity(0)
+        if self.cpus and not set(self.cpus) <= available:
+            raise GraphError(f'--cpu-affinity: CPUs {sorted(set(self.cpus) - available)} are '
+                             f'not available (this process may use {sorted(available)})',
+                             EXIT_USAGE)
+        if self.priority or self.cpus:
+            try:
+                subprocess.run(['true'], preexec_fn=self.apply, check=True)
+            except (subprocess.SubprocessError, OSError) as err:
+                raise GraphError(
+                    f'--rt-priority {self.priority}: not permitted here ({err}); it needs '
+                    'root, CAP_SYS_NICE or an rtprio limit (/etc/security/limits.conf)',
+                    EXIT_USAGE) from err
+
+    def apply(self) -> None:
+        """In the child, before exec: inherited by the program and every thread it starts
+        (the DDS threads included)."""
+        if self.priority:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.priority))
+        if self.cpus:
+            os.sched_setaffinity(0, self.cpus)
+
+
+def parse_cpus(text: str) -> tuple[int, ...]:
+    """'0,1' or '1' -> (0, 1); ValueError with the reason otherwise."""
+    try:
+        cpus = tuple(sorted({int(part) for part in text.split(',') if part.strip()}))
+    except ValueError as err:
+        raise ValueError(f'expected CPU numbers separated by commas, got {text!r}') from err
+    if not cpus or min(cpus) < 0:
+        raise ValueError(f'expected CPU numbers >= 0, got {text!r}')
+    return cpus
+
+
 @dataclasses.dataclass
 class GraphOptions:
     """Arguments of :func:`run_graph` (see ``scripts/run_graph --help``)."""
@@ -191,6 +239,7 @@ class GraphOptions:
     startup_retries: int = 1  # new attempts after a stall on the first ticks
     quiet: bool = False
     layout: str = 'composed'  # see LAYOUTS
+    scheduling: Scheduling = Scheduling()  # of the controller processes
 
 
 @dataclasses.dataclass
@@ -269,13 +318,15 @@ class NodeProcess:
     """One node's process, its log file and how to stop it."""
 
     def __init__(self, name: str, command: list[str], log_path: pathlib.Path,
-                 env: dict[str, str]) -> None:
+                 env: dict[str, str], scheduling: Scheduling | None = None) -> None:
         self.name = name
         self.command = command
         self.log_path = log_path
         self._log = open(log_path, 'w', encoding='utf-8')
+        apply = scheduling.apply if scheduling and (scheduling.priority or scheduling.cpus) \
+            else None
         self.process = subprocess.Popen(command, stdout=self._log, stderr=subprocess.STDOUT,
-                                        stdin=subprocess.DEVNULL, env=env)
+                                        stdin=subprocess.DEVNULL, env=env, preexec_fn=apply)
         self.pid = self.process.pid
         self._interrupted = False
         self.killed = False
@@ -468,6 +519,7 @@ class GraphRunner:
         if options.layout not in LAYOUTS:
             raise GraphError(f'--layout: {options.layout!r} is not one of {list(LAYOUTS)}',
                              EXIT_USAGE)
+        options.scheduling.check()
         try:
             scenario = load_scenario(options.scenario)
         except ConfigError as err:
@@ -531,8 +583,10 @@ class GraphRunner:
             if name != 'controllers':   # composed: each node keeps its own name
                 commands[name] += ['-r', f'__node:={name}']
         for name in names:
+            scheduling = self.options.scheduling if name in controllers else None
             self.processes[name] = NodeProcess(name, commands[name],
-                                               self.out / 'logs' / f'{name}.log', env)
+                                               self.out / 'logs' / f'{name}.log', env,
+                                               scheduling)
 
     # -- watching ---------------------------------------------------------------------------
     def check_alive(self, allow_plant_exit: bool = False) -> None:
@@ -949,7 +1003,10 @@ def main(argv: list[str] | None = None) -> int:
                            discovery_timeout=args.discovery_timeout,
                            stall_timeout=args.stall_timeout,
                            startup_retries=args.startup_retries, quiet=args.quiet,
-                           layout=args.layout or GraphOptions.layout)
+                           layout=args.layout or GraphOptions.layout,
+                           # This module's class (python -m runs it as __main__).
+                           scheduling=Scheduling(priority=args.rt_priority,
+                                                 cpus=tuple(args.cpu_affinity)))
     result = run_graph(options)
     print(format_result(result))
     return result.exit_code

@@ -77,7 +77,8 @@ from wip_control.tools.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, fl
 
 from .graph import (choose_domain_id, executable_path, EXECUTABLES, EXIT_FAILED, EXIT_OK,
                     EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError, graph_environment,
-                    LAYOUTS, NodeProcess, Probe, RECORDER_GRACE_PERIOD)
+                    LAYOUTS, NodeProcess, parse_cpus, Probe, RECORDER_GRACE_PERIOD,
+                    Scheduling)
 
 #: The nodes of hardware mode, in start order.
 HARDWARE_NODES = CONTROLLER_NODES
@@ -114,9 +115,13 @@ class HardwareOptions:
     arm_delay: float = 2.0  # [s] wall: every node up -> the e-stop heartbeat starts
     heartbeat: bool = True  # publish the /wip/estop heartbeat (see the module docstring)
     layout: str = 'composed'  # controller processes: see wip_sim.graph.LAYOUTS
+    scheduling: Scheduling = Scheduling()  # of the controller processes
     #: Programmatic stop (tests): polled while running; a non-empty string ends the run
     #: (exit 0) with that message.
     stop_when: Callable[[], str | None] | None = None
+    #: Programmatic hook (tests, benchmarks): called with the runner when the run starts,
+    #: e.g. to reach its processes and safety events from another thread.
+    on_start: Callable[[Any], None] | None = None
 
 
 @dataclasses.dataclass
@@ -266,6 +271,10 @@ class HardwareRunner:
             raise GraphError(str(err), EXIT_USAGE) from err
         if options.duration is not None and not 0.0 < options.duration <= 1e6:
             raise GraphError(f'--duration: must be > 0 s, got {options.duration}', EXIT_USAGE)
+        if options.layout not in LAYOUTS:
+            raise GraphError(f'--layout: {options.layout!r} is not one of {list(LAYOUTS)}',
+                             EXIT_USAGE)
+        options.scheduling.check()
         self.remaps = [parse_remap(text) for text in options.remaps]
         self.extra = [load_params_file(path) for path in options.params_files]
         if self.bag is not None and self.bag.exists() and any(self.bag.iterdir()):
@@ -334,8 +343,10 @@ class HardwareRunner:
         if 'recorder' in commands:  # First: it must not miss the start.
             commands = {'recorder': commands.pop('recorder'), **commands}
         for name, command in commands.items():
+            scheduling = self.options.scheduling if name != 'recorder' else None
             self.processes[name] = NodeProcess(name, command,
-                                               self.out / 'logs' / f'{name}.log', env)
+                                               self.out / 'logs' / f'{name}.log', env,
+                                               scheduling)
 
     # -- probe ------------------------------------------------------------------------------
     def open_probe(self) -> None:
@@ -529,6 +540,8 @@ class HardwareRunner:
         result = HardwareResult(EXIT_FAILED, '', self.out, self.bag, self.domain_id)
         cpu_start: dict[str, float | None] = {}
         run_start = None
+        if self.options.on_start is not None:
+            self.options.on_start(self)
         try:
             params_file = self.prepare()
             self.say(f'hardware mode: controllers of scenario {self.scenario.name!r} in real '
@@ -626,9 +639,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'run) or composed (the six nodes in one process, one executor: '
                         'ros2 run wip_control controllers); default: '
                         f'{HardwareOptions.layout} (docs/realtime.md)')
+    parser.add_argument('--rt-priority', type=int, default=0, metavar='N',
+                        help='run the controller processes with SCHED_FIFO priority N '
+                        '(1..99; default 0: the normal policy); needs root or CAP_SYS_NICE')
+    parser.add_argument('--cpu-affinity', type=_cpus_argument, default=(), metavar='LIST',
+                        help='pin the controller processes to these CPUs, e.g. 1 or 0,1')
     parser.add_argument('--no-heartbeat', action='store_true',
                         help='hardware mode: no /wip/estop heartbeat (and no arm delay): '
                              'the mixer engages as soon as its inputs are ready')
+
+
+def _cpus_argument(text: str) -> tuple[int, ...]:
+    try:
+        return parse_cpus(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from err
+
+
+def scheduling_from_args(args: argparse.Namespace) -> Scheduling:
+    """The --rt-priority / --cpu-affinity options."""
+    return Scheduling(priority=args.rt_priority, cpus=tuple(args.cpu_affinity))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -655,7 +685,8 @@ def run_from_args(args: argparse.Namespace) -> int:
                               out=args.out, record=args.record,
                               discovery_timeout=args.discovery_timeout, quiet=args.quiet,
                               arm_delay=args.arm_delay, heartbeat=not args.no_heartbeat,
-                              layout=args.layout or HardwareOptions.layout)
+                              layout=args.layout or HardwareOptions.layout,
+                              scheduling=scheduling_from_args(args))
     result = run_hardware(options)
     print(format_result(result))
     return result.exit_code

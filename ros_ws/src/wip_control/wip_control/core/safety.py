@@ -72,9 +72,13 @@ gives for the time elapsed since it arrived, so a late MPC output is followed al
 own prediction rather than held. The bound: with the torque not corrected, a tilt error
 grows at most like exp(λ t), λ = the unstable pole of the linearised tilt dynamics of the
 nominal model (:func:`tilt_divergence_rate`, 4.6 rad/s for the default robot). Bridging
-for ln 2 / λ (0.15 s) at most doubles the error the controller had when the input stopped
-(the MPC already runs the tilt loop open for its 0.1 s period), after which zero torque is
-safer than guessing. ``bridge_time: 0`` restores the strict behaviour (fault at the age
+for ln 4 / λ (0.30 s) at most quadruples the tilt error the controller had when the input
+stopped, so an error of a quarter of the MPC's soft tilt limit (0.025 of 0.1 rad, more
+than the robot shows while balancing) stays within that limit; after that, zero torque is
+safer than guessing. (The MPC itself runs the tilt loop open for its 0.1 s period. Bridging
+only ln 2 / λ = 0.15 s was tried first: after a 60 ms freeze of the controllers' process on
+a loaded machine the chain took 215 ms to deliver a fresh yaw torque again, the layer cut
+the torque and the robot fell.) ``bridge_time: 0`` restores the strict behaviour (fault at the age
 limit). Invalid values (NaN, wrong size), a fall, a diverged ESO and the e-stop are never
 bridged. docs/realtime.md has the measurements.
 
@@ -151,10 +155,11 @@ class SafetyConfig:
         0.25, 's', 'zero torque when the last valid /wip/drive_torque (MPC, 10 Hz) was '
         'received longer ago than this', minimum=0.0, exclusive_minimum=True)
     bridge_time: float = param(
-        0.15, 's', 'ride-through: an input older than its age limit is bridged this much '
+        0.3, 's', 'ride-through: an input older than its age limit is bridged this much '
         'longer (state DEGRADED: last yaw torque, drive torque along the MPC plan) before '
-        'zero torque; default ln 2 / (unstable tilt pole of the nominal model, 4.6 rad/s); '
-        '0: zero torque at the age limit', minimum=0.0, maximum=1.0)
+        'zero torque; default ln 4 / (unstable tilt pole of the nominal model, 4.6 rad/s): '
+        'a tilt error at most quadruples; 0: zero torque at the age limit', minimum=0.0,
+        maximum=1.0)
     max_estop_age: float = param(
         0.0, 's', 'if > 0: the e-stop topic is a heartbeat that must be received at least '
         'this often (zero torque otherwise); 0: not required', minimum=0.0)
@@ -506,7 +511,7 @@ def tilt_divergence_rate(params) -> float:
 
     From (1) at θ = θ̇ = ω = 0 with the torque held: θ̈ ≈ (mv mp g l / Ω0) θ, Ω0 = mv Jθ −
     mp² l², so λ = sqrt(mv mp g l / Ω0). A held torque lets a tilt error grow like exp(λ t):
-    ``bridge_time`` defaults to ln 2 / λ of the default robot."""
+    ``bridge_time`` defaults to ln 4 / λ of the default robot."""
     mv, mp, l = params.effective_mass, params.body_mass, params.com_height
     omega0 = mv * params.pitch_inertia - (mp * l) ** 2
     return math.sqrt(mv * mp * params.gravity * l / omega0)

@@ -1,0 +1,229 @@
+"""Hardware mode against the stand-in base, both in their own processes: one measured run.
+
+The harness of the real-time tests (tests/hardware/test_standin_base.py, the fault
+injection tests) and of ``scripts/bench``'s real-time part. The stand-in base
+(:mod:`wip_sim.standin_base`: full plant, RK4 at 1 kHz, real time) speaks only the topics
+of a ros2_control base under names of its own (``/base/...``) and conventions that differ
+from the simulator's on purpose (joints ``wheel_l``/``wheel_r`` listed right first, the
+left joint's sign −1, an IMU mounted upside down and turned a quarter turn); the
+controllers run as ``scripts/run_graph --mode hardware`` with ``--remap`` and a
+``--params-file`` of the base's conventions.
+
+:func:`freeze_process` (SIGSTOP, sleep, SIGCONT) injects a stall of a controller process.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import pathlib
+import random
+import signal
+import subprocess
+import threading
+import time
+from typing import Any, Callable, Mapping
+
+import yaml
+
+from .graph import executable_path, GraphError, Scheduling
+from .hardware import HardwareOptions, HardwareResult, run_hardware
+
+CONTROL_RATE = 200.0  # [Hz]
+#: SCHED_FIFO priorities where permitted: the base above the controllers, as a base's
+#: firmware would be, both above everything else on the machine (a robot's computer runs
+#: its control at real-time priority; the tests then hold with other jobs running).
+BASE_PRIORITY = 30
+CONTROLLER_PRIORITY = 20
+#: The base's conventions (see the module docstring).
+BASE = {
+    'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'joints': ['wheel_r', 'wheel_l'],
+    'left_wheel_sign': -1, 'right_wheel_sign': 1,
+    'imu_mounting_rpy': [math.pi, 0.0, math.pi / 2],
+}
+REMAPS = ['/joint_states:=/base/joint_states', '/imu/data:=/base/imu',
+          '/gps/fix:=/base/fix',
+          '/effort_controller/commands:=/base/effort_controller/commands']
+
+
+def line_scenario(speed: float = 0.5, kind: str = 'line', **reference) -> dict[str, Any]:
+    """A full-plant scenario on a line (or another reference kind), no disturbance."""
+    return {
+        'name': f'standin_{kind}',
+        'description': f'hardware-mode run: {kind} at {speed} m/s, full plant model',
+        'duration': 600.0,
+        'reference': {'kind': kind, **({'line_speed': speed} if kind == 'line' else {}),
+                      **reference},
+        'plant': {'model': 'full'},
+        'disturbances': {'yaw': [], 'longitudinal': []},
+        'rates': {'control_rate': CONTROL_RATE},
+        'eso': {'sample_period': 1.0 / CONTROL_RATE},
+    }
+
+
+def write_params(path: pathlib.Path, parameters: Mapping[str, Any]) -> pathlib.Path:
+    """A params file applying ``parameters`` to every node."""
+    path.write_text(yaml.safe_dump({'/**': {'ros__parameters': dict(parameters)}}))
+    return path
+
+
+@dataclasses.dataclass
+class StandinRun:
+    """What one run gives: the controllers' result, the base's statistics and exit code."""
+
+    result: HardwareResult
+    stats: dict[str, Any]
+    base_code: int | None
+
+    def summary(self) -> dict[str, Any]:
+        """The measured numbers (also written to ``measured.json`` beside the run)."""
+        stats, result = self.stats, self.result
+        ticks = stats['ticks_checked']
+        wall = result.wall_time_s or 0.0
+        return {
+            'control_rate_hz': CONTROL_RATE,
+            'commands_received_rate_hz': stats['command_rate_hz'],
+            'command_gap_ms': stats['command_gap'],
+            'command_age_ms': stats['command_age'],
+            'deadline_misses': stats['deadline_misses'],
+            'deadline_miss_limit_ms': 1e3 * stats['deadline_miss_limit_s'],
+            'base_ticks_checked': ticks,
+            'deadline_miss_fraction': stats['deadline_misses'] / ticks if ticks else None,
+            'base_tick_period_ms': stats['tick_period'],
+            'base_stalls': stats['stalls'],
+            'fell': stats['fell'],
+            'node_rates_hz': result.rates,
+            'controller_cpu_fraction': controller_cpu_fraction(result),
+            'process_cpu_fraction': {n: c / wall for n, c in result.cpu_s.items()}
+            if wall else {},
+            'sensor_to_command_latency_ms': mixer_latency_ms(result),
+            'safety_events': result.safety_events,
+        }
+
+
+def controller_cpu_fraction(result: HardwareResult) -> float | None:
+    """CPU time of the controller processes (not the recorder) / wall time: the share of
+    one core the controllers used."""
+    if not result.wall_time_s:
+        return None
+    return sum(c for n, c in result.cpu_s.items() if n != 'recorder') / result.wall_time_s
+
+
+def mixer_latency_ms(result: HardwareResult) -> dict[str, float] | None:
+    """Sensor -> command latency percentiles [ms] from the mixer's last /diagnostics."""
+    mixer = next((v for k, v in result.node_diagnostics.items()
+                  if k.startswith('/torque_mixer')), {})
+    text = mixer.get('sensor to command latency [ms] p50/p99/max')
+    if not text:
+        return None
+    p50, p99, p100 = (float(v) for v in text.split()[0].split('/'))
+    return {'p50': p50, 'p99': p99, 'max': p100}
+
+
+def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping[str, Any],
+                        run_time: float, *, scenario: Mapping[str, Any] | None = None,
+                        exit_after_fall: float = 1.0,
+                        base_extra: Mapping[str, Any] | None = None,
+                        layout: str = HardwareOptions.layout,
+                        realtime_priority: bool = True,
+                        during: Callable[[HardwareResult | None, dict], None] | None = None
+                        ) -> StandinRun:
+    """Start the stand-in base, run hardware mode until the base exits; both results.
+
+    ``during(None, processes)``, if given, runs in a thread once the base has released the
+    robot (its stats file is not needed: it waits for the first ACTIVE safety state seen
+    by the runner), with the controller processes by name (to freeze one, say).
+    ``realtime_priority``: run the base and the controllers at SCHED_FIFO priorities
+    (:data:`BASE_PRIORITY`, :data:`CONTROLLER_PRIORITY`) if this user may; the run's
+    ``measured.json`` says whether they were.
+    """
+    base_scheduling = controller_scheduling = Scheduling()
+    if realtime_priority and permitted(Scheduling(BASE_PRIORITY)):
+        base_scheduling = Scheduling(BASE_PRIORITY)
+        controller_scheduling = Scheduling(CONTROLLER_PRIORITY)
+    directory.mkdir(parents=True, exist_ok=True)
+    scenario_path = directory / 'scenario.yaml'
+    scenario_path.write_text(yaml.safe_dump(dict(scenario or line_scenario())))
+    base_params = write_params(directory / 'base.yaml', dict(
+        BASE, **(base_extra or {}), duration=float(run_time),
+        exit_after_fall=float(exit_after_fall),
+        stats_file=str(directory / 'base_stats.json'), scenario_file=str(scenario_path)))
+    controller_params = write_params(directory / 'controllers.yaml', controller_conventions)
+    domain = os.environ.get('ROS_DOMAIN_ID') or str(random.randint(1, 101))
+    env = dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    command = [str(executable_path('wip_sim', 'standin_base')), '--ros-args',
+               '--params-file', str(base_params)]
+    for remap in REMAPS:
+        command += ['-r', remap]
+    previous_domain = os.environ.get('ROS_DOMAIN_ID')
+    os.environ['ROS_DOMAIN_ID'] = domain
+    runner_holder: dict[str, Any] = {}
+    injector = None
+    with open(directory / 'base.log', 'w', encoding='utf-8') as log:
+        base = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env,
+                                preexec_fn=base_scheduling.apply
+                                if base_scheduling.priority else None)
+        try:
+            options = HardwareOptions(
+                scenario=str(scenario_path), params_files=[str(controller_params)],
+                remaps=REMAPS, duration=run_time + 40.0, out=str(directory / 'run'),
+                quiet=True, layout=layout, scheduling=controller_scheduling,
+                stop_when=lambda: base.poll() is not None and f'base exited ({base.returncode})')
+            if during is not None:
+                options.on_start = lambda runner: runner_holder.setdefault('runner', runner)
+                injector = threading.Thread(target=_when_engaged,
+                                            args=(runner_holder, during), daemon=True)
+                injector.start()
+            result = run_hardware(options)
+        finally:
+            if previous_domain is None:
+                os.environ.pop('ROS_DOMAIN_ID', None)
+            else:
+                os.environ['ROS_DOMAIN_ID'] = previous_domain
+            if base.poll() is None:
+                base.send_signal(signal.SIGINT)
+            try:
+                base.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                base.kill()
+                base.wait()
+            if injector is not None:
+                injector.join(timeout=30)
+    stats = json.loads((directory / 'base_stats.json').read_text(encoding='utf-8'))
+    run = StandinRun(result, stats, base.returncode)
+    measured = dict(run.summary(), base_priority=base_scheduling.priority,
+                    controller_priority=controller_scheduling.priority, layout=layout)
+    (directory / 'measured.json').write_text(json.dumps(measured, indent=2))
+    return run
+
+
+def permitted(scheduling: Scheduling) -> bool:
+    """Whether this user may apply ``scheduling`` (tried on a throwaway child)."""
+    try:
+        scheduling.check()
+        return True
+    except GraphError:
+        return False
+
+
+def _when_engaged(holder: dict, during: Callable) -> None:
+    deadline = time.monotonic() + 120.0
+    while time.monotonic() < deadline:
+        runner = holder.get('runner')
+        if runner is not None and any(e['state'] == 'ACTIVE' for e in runner.safety_events):
+            during(runner, runner.processes)
+            return
+        time.sleep(0.01)
+
+
+def freeze_process(pid: int, seconds: float) -> float:
+    """SIGSTOP the process for ``seconds``, then SIGCONT it; the measured freeze [s]."""
+    start = time.monotonic()
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        time.sleep(seconds)
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    return time.monotonic() - start
