@@ -18,7 +18,7 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
     scenario.write_text(yaml.safe_dump({'name': 'bench_short', 'duration': 2.0}))
     out = tmp_path / 'bench.json'
     assert bench.main(['--scenario', str(scenario), '--repeats', '1', '--json',
-                       str(out)]) == 0
+                       str(out), '--realtime-seconds', '3']) == 0
     report = json.loads(out.read_text())
     assert report['mpc']['ratio_tick'] > 0.0
     assert report['in_process']['real_time_factor_median'] > 0.0
@@ -27,8 +27,20 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
     assert graph['sim_time_s'] == pytest.approx(2.0)
     assert graph['ticks'] == 400                          # 2 s at 200 Hz
     assert graph['real_time_factor'] > 0.0
-    assert set(graph['cpu_per_tick_us']) >= {'plant', 'eso', 'mpc', 'torque_mixer'}
+    assert set(graph['cpu_per_tick_us']) == {'plant', 'controllers'}     # composed
+    separate = report['graph_separate']
+    assert separate['ticks'] == 400
+    assert set(separate['cpu_per_tick_us']) >= {'plant', 'eso', 'mpc', 'torque_mixer'}
     assert report['in_process_over_graph'] == pytest.approx(
         report['in_process']['real_time_factor_median'] / graph['real_time_factor'])
+    # Real time: one row per (layout, priority), each with a CPU share and latencies
+    # measured by the mixer (the robot may fall in 3 s on a loaded machine: not checked).
+    rows = report['realtime']
+    assert [(r['layout']) for r in rows] == ['separate', 'composed', 'composed']
+    for row in rows:
+        assert 0.0 < row['controller_cpu_fraction'] < 2.0          # 2 cores at most
+        assert 0.0 < row['latency_ms']['p50'] <= row['latency_ms']['p99'] \
+            <= row['latency_ms']['max']
     printed = capsys.readouterr().out
     assert 'in-process / graph' in printed and 'CPU' in printed
+    assert 'sensor->command latency' in printed

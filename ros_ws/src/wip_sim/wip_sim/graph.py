@@ -139,8 +139,11 @@ SUBSCRIBERS = {
     '/effort_controller/commands': (),
 }
 #: Lockstep: /clock is published by the plant; every controller node's time source
-#: subscribes to it, and the reference node ticks on it.
-CLOCK_SUBSCRIPTIONS = len(CONTROLLER_NODES) + 1
+#: subscribes to it, and the reference node ticks on it. Composed, the nodes share the
+#: reference node's time source (wip_control.nodes.common.share_sim_clock).
+CLOCK_SUBSCRIPTIONS = {'separate': len(CONTROLLER_NODES) + 1, 'composed': 2}
+#: Nodes with a /clock subscription of their own in lockstep, per layout.
+CLOCK_NODES = {'separate': CONTROLLER_NODES, 'composed': ('reference',)}
 #: Topics recorded with --record (with /clock in lockstep).
 RECORDED_TOPICS = tuple(PUBLISHERS) + ('/diagnostics',)
 
@@ -449,14 +452,15 @@ class Probe:
         self._rclpy.try_shutdown(context=self.context)
 
 
-def expected_endpoints(clock_mode: str, recording: bool) -> dict[str, tuple[int, int]]:
+def expected_endpoints(clock_mode: str, recording: bool, layout: str = 'separate'
+                       ) -> dict[str, tuple[int, int]]:
     """Minimum (publishers, subscriptions) of each topic before the plant may start."""
     extra = 1 if recording else 0
     expected = {topic: (len(PUBLISHERS[topic]), len(SUBSCRIBERS[topic]) + extra)
                 for topic in PUBLISHERS}
     if clock_mode == 'lockstep':
         # The recorder runs on sim time too (its time source) and records /clock.
-        expected['/clock'] = (1, CLOCK_SUBSCRIPTIONS + 2 * extra)
+        expected['/clock'] = (1, CLOCK_SUBSCRIPTIONS[layout] + 2 * extra)
     return expected
 
 
@@ -556,7 +560,7 @@ class GraphRunner:
             'start.expected_sensor_subscribers': 1 + (recorder is not None),
             'start.expected_ground_truth_subscribers': int(recorder is not None),
             'start.expected_clock_subscribers': (
-                CLOCK_SUBSCRIPTIONS + 2 * (recorder is not None)
+                CLOCK_SUBSCRIPTIONS[options.layout] + 2 * (recorder is not None)
                 if options.clock == 'lockstep' else 0),
             'stats_file': str(self.out / 'plant_stats.json'),
         }
@@ -599,7 +603,8 @@ class GraphRunner:
                              f'last lines of {process.log_path}:\n{process.log_tail()}')
 
     def wait_for_graph(self) -> None:
-        expected = expected_endpoints(self.options.clock, self.bag is not None)
+        expected = expected_endpoints(self.options.clock, self.bag is not None,
+                                      self.options.layout)
         nodes = self.node_names()
         deadline = time.monotonic() + self.options.discovery_timeout
         missing = ['(not checked yet)']
@@ -645,7 +650,7 @@ class GraphRunner:
                        for name in subscribers]
         if self.options.clock == 'lockstep':
             checks += [(name, f'{MATCHED_PUBLISHERS_KEY} /clock', 1)
-                       for name in CONTROLLER_NODES]
+                       for name in CLOCK_NODES[self.options.layout]]
         missing = []
         for name, key, wanted in checks:
             if name == 'plant':
@@ -905,7 +910,8 @@ def run_graph(options: GraphOptions) -> GraphResult:
     return GraphRunner(options).run()
 
 
-def run_graph_benchmark(scenario_path: str | None) -> dict[str, Any]:
+def run_graph_benchmark(scenario_path: str | None, layout: str = GraphOptions.layout
+                        ) -> dict[str, Any]:
     """``scripts/bench``: one lockstep run of the whole scenario through the graph, not
     recorded, in a temporary directory; its real-time factor, per-tick loop time and CPU.
 
@@ -913,13 +919,14 @@ def run_graph_benchmark(scenario_path: str | None) -> dict[str, Any]:
     """
     with tempfile.TemporaryDirectory(prefix='wip_bench_graph_') as out:
         result = run_graph(GraphOptions(scenario=scenario_path, clock='lockstep', out=out,
-                                        quiet=True))
+                                        quiet=True, layout=layout))
     stats = result.plant_stats or {}
     if result.exit_code != EXIT_OK or not stats.get('real_time_factor'):
         return {'failed': result.message, 'exit_code': result.exit_code}
     ticks = stats['ticks']
     loop = stats.get('clock_to_torques_s') or {}
-    return {'real_time_factor': stats['real_time_factor'], 'sim_time_s': stats['sim_time_s'],
+    return {'layout': layout,
+            'real_time_factor': stats['real_time_factor'], 'sim_time_s': stats['sim_time_s'],
             'wall_time_s': stats['wall_time_s'], 'ticks': ticks,
             'startup_s': result.startup_s,
             'clock_to_torques_us': {'mean': loop.get('mean_us'), 'p99': loop.get('p99_us')},

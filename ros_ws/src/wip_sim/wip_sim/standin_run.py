@@ -227,3 +227,25 @@ def freeze_process(pid: int, seconds: float) -> float:
     finally:
         os.kill(pid, signal.SIGCONT)
     return time.monotonic() - start
+
+
+def realtime_benchmark(directory: pathlib.Path, seconds: float = 20.0,
+                       cases: tuple[tuple[str, bool], ...] = (
+                           ('separate', False), ('composed', False), ('composed', True))
+                       ) -> list[dict[str, Any]]:
+    """The controllers at 200 Hz against the stand-in base, one run per (layout, real-time
+    priority) case, side by side: CPU share of one core, sensor -> command latency, command
+    gaps seen by the base. ``scripts/bench`` prints it."""
+    rows = []
+    for layout, priority in cases:
+        name = f'{layout}{"_rt" if priority else ""}'
+        run = run_against_standin(directory / name, BASE, seconds, layout=layout,
+                                  realtime_priority=priority)
+        summary = run.summary()
+        rows.append({'layout': layout, 'rt_priority': priority and permitted(
+            Scheduling(BASE_PRIORITY)), 'fell': summary['fell'],
+            'controller_cpu_fraction': summary['controller_cpu_fraction'],
+            'latency_ms': summary['sensor_to_command_latency_ms'],
+            'command_gap_ms': summary['command_gap_ms'],
+            'deadline_misses': summary['deadline_misses']})
+    return rows

@@ -268,6 +268,7 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
             executor.add_node(node)
         first = built[0][0]
         first.get_logger().debug(f'executor: {type(executor).__name__}')
+        share_sim_clock([node for node, _ in built])
         gc.collect()
         gc.freeze()
         while rclpy.ok():
@@ -294,6 +295,27 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
             node.destroy_node()
         rclpy.try_shutdown()
     return status
+
+
+def share_sim_clock(nodes: Sequence[Node]) -> Node | None:
+    """Drive the clocks of every node on sim time from the first one's /clock subscription.
+
+    Each rclpy node has a time source of its own, and with ``use_sim_time`` each subscribes
+    /clock: in one process that is one delivery per node per tick (in lockstep, 6 of the
+    composed controllers' ~20 deliveries per control tick) for the same value. The others'
+    subscriptions are removed and their clocks attached to the first node's time source,
+    so every node's clock still reads the same sim time. (Turning ``use_sim_time`` off at
+    run time then works for the first node alone; it is read-only in this project.)
+    Returns the node that keeps the subscription, None if fewer than two use sim time.
+    """
+    on_sim_time = [n for n in nodes if n.get_parameter('use_sim_time').value]
+    if len(on_sim_time) < 2:
+        return None
+    source = on_sim_time[0]._time_source    # rclpy has no public accessor
+    for node in on_sim_time[1:]:
+        node._time_source.detach_node()
+        source.attach_clock(node.get_clock())
+    return on_sim_time[0]
 
 
 def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None, *,

@@ -10,6 +10,10 @@ made within one invocation, interleaved where possible:
 2. **In-process real-time factor** of the 90 s scenario (goal: ≥ 30×).
 3. **Graph real-time factor** in lockstep (if the node graph is available; ``--no-graph``
    skips it), next to the in-process one (goal: ≥ 5×, and within 10× of in-process).
+4. **Real time**: the controllers at 200 Hz against the stand-in base (its own process),
+   per layout (separate, composed, composed at SCHED_FIFO priority): their CPU share of
+   one core and the sensor -> command latency (p50, p99, max), beside the in-process cost
+   of the same loop (``--no-realtime`` skips it; about 90 s).
 
 Examples
 --------
@@ -58,13 +62,25 @@ def bench_in_process(scenario, repeats: int) -> dict:
             'real_time_factors': factors}
 
 
-def bench_graph(scenario_path: str | None) -> dict | None:
+def bench_graph(scenario_path: str | None, layout: str = 'composed') -> dict | None:
     """Real-time factor of the lockstep node graph (None if the graph is not available)."""
     try:
         from wip_sim.graph import run_graph_benchmark  # noqa: PLC0415 (optional, needs ROS)
     except ImportError as err:
         return {'skipped': f'node graph not available: {err}'}
-    return run_graph_benchmark(scenario_path)
+    return run_graph_benchmark(scenario_path, layout)
+
+
+def bench_realtime(seconds: float) -> list[dict]:
+    """Real-time runs against the stand-in base (see ``wip_sim.standin_run``)."""
+    import tempfile  # noqa: PLC0415
+    try:
+        from wip_sim.standin_run import realtime_benchmark  # noqa: PLC0415 (needs ROS)
+    except ImportError as err:
+        return [{'skipped': f'node graph not available: {err}'}]
+    with tempfile.TemporaryDirectory(prefix='wip_bench_rt_') as directory:
+        import pathlib  # noqa: PLC0415
+        return realtime_benchmark(pathlib.Path(directory), seconds)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -73,6 +89,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--scenario', help='scenario file (default: the paper Section V)')
     parser.add_argument('--repeats', type=int, default=5, help='passes / runs per benchmark')
     parser.add_argument('--no-graph', action='store_true', help='skip the node-graph run')
+    parser.add_argument('--no-realtime', action='store_true',
+                        help='skip the real-time runs against the stand-in base')
+    parser.add_argument('--realtime-seconds', type=float, default=20.0, metavar='S',
+                        help='length of each real-time run [s] (default 20)')
     parser.add_argument('--json', help='also write the results to this JSON file')
     args = parser.parse_args(argv)
     if args.repeats < 1:
@@ -96,22 +116,46 @@ def main(argv: list[str] | None = None) -> int:
           f'{args.repeats}; goal >= 30x)')
 
     if not args.no_graph:
-        print('\n== 3. Node graph in lockstep, same scenario')
-        graph = bench_graph(args.scenario)
-        report['graph'] = graph
-        if graph and 'real_time_factor' in graph:
-            ratio = in_process['real_time_factor_median'] / graph['real_time_factor']
-            report['in_process_over_graph'] = ratio
-            cpu = graph['cpu_per_tick_us']
-            print(f'per tick: /clock -> wheel torques mean '
-                  f'{graph["clock_to_torques_us"]["mean"]:.0f} us, p99 '
-                  f'{graph["clock_to_torques_us"]["p99"]:.0f} us; CPU {sum(cpu.values()):.0f} us '
-                  'in all (' + ', '.join(f'{n} {v:.0f}' for n, v in sorted(
-                      cpu.items(), key=lambda item: -item[1])) + ')')
-            print(f'-> graph {graph["real_time_factor"]:.1f}x real time; in-process / graph = '
-                  f'{ratio:.1f} (goals: graph >= 5x, ratio <= 10)')
-        else:
-            print(f'-> {graph}')
+        print('\n== 3. Node graph in lockstep, same scenario, per layout')
+        for layout in ('separate', 'composed'):
+            graph = bench_graph(args.scenario, layout)
+            key = 'graph' if layout == 'composed' else f'graph_{layout}'
+            report[key] = graph
+            if graph and 'real_time_factor' in graph:
+                ratio = in_process['real_time_factor_median'] / graph['real_time_factor']
+                report[f'in_process_over_{key}'] = ratio
+                cpu = graph['cpu_per_tick_us']
+                print(f'{layout}: per tick: /clock -> wheel torques mean '
+                      f'{graph["clock_to_torques_us"]["mean"]:.0f} us, p99 '
+                      f'{graph["clock_to_torques_us"]["p99"]:.0f} us; CPU '
+                      f'{sum(cpu.values()):.0f} us in all (' + ', '.join(
+                          f'{n} {v:.0f}' for n, v in sorted(
+                              cpu.items(), key=lambda item: -item[1])) + ')')
+                print(f'-> {layout}: graph {graph["real_time_factor"]:.1f}x real time; '
+                      f'in-process / graph = {ratio:.1f} (goals: graph >= 5x, ratio <= 10)')
+            else:
+                print(f'-> {layout}: {graph}')
+    if not args.no_graph and not args.no_realtime:
+        print(f'\n== 4. Real time: controllers at 200 Hz against the stand-in base, '
+              f'{args.realtime_seconds:g} s per layout')
+        per_tick_s = 1.0 / (in_process['real_time_factor_median'] * 200.0)
+        report['in_process_core_share_at_200hz'] = 200.0 * per_tick_s
+        print(f'in-process, the same loop (plant included): {1e6 * per_tick_s:.0f} us per '
+              f'tick = {100 * 200.0 * per_tick_s:.1f} % of a core at 200 Hz')
+        rows = bench_realtime(args.realtime_seconds)
+        report['realtime'] = rows
+        for row in rows:
+            if 'skipped' in row:
+                print(f'-> {row}')
+                continue
+            lat = row['latency_ms'] or {}
+            print(f'{row["layout"]:9s} rt-priority {"yes" if row["rt_priority"] else "no ":3s}: '
+                  f'controllers {100 * (row["controller_cpu_fraction"] or 0):.1f} % of a core; '
+                  f'sensor->command latency p50 {lat.get("p50", float("nan")):.2f} ms, p99 '
+                  f'{lat.get("p99", float("nan")):.2f} ms, max {lat.get("max", float("nan")):.2f}'
+                  f' ms; base command gap max {row["command_gap_ms"]["max_ms"]:.1f} ms'
+                  f'{"; FELL" if row["fell"] else ""}')
+        print('   (goals: <= 15 % of a core; latency p99 <= 2 ms, max <= 10 ms)')
     if args.json:
         with open(args.json, 'w', encoding='utf-8') as stream:
             json.dump(report, stream, indent=2, default=str)
