@@ -81,6 +81,7 @@ from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
 from std_msgs.msg import Float64MultiArray
 
@@ -235,6 +236,14 @@ class StandinBase(Node):
                                           'sampling of the ground truth in the stats file')
         self.stats_file = declare_plain(self, 'stats_file', '', '',
                                         'JSON statistics written at exit; empty: none')
+        self.sensor_bunch = declare_plain(
+            self, 'sensor_bunch', 1, '1', 'deliver the encoder and IMU samples in bunches of '
+            'this many (1..10, each with its own sample stamp), as a USB or CAN bridge that '
+            'buffers them: every N-th period the last N at once; 1: each when taken')
+        if not (isinstance(self.sensor_bunch, int) and 1 <= self.sensor_bunch <= 10):
+            raise ConfigError(f'sensor_bunch: must be an integer in 1..10, got '
+                              f'{self.sensor_bunch!r}')
+        self._bunch: list[tuple[bytes, bytes]] = []
         for name, value in (('exit_after_fall', self.exit_after_fall),
                             ('duration', self.duration)):
             if not (isinstance(value, float) and value >= 0.0):
@@ -435,8 +444,17 @@ class StandinBase(Node):
                               state[THETA_DOT], omega, self.gravity)
         joint.header.stamp.sec, joint.header.stamp.nanosec = sec, nanosec
         imu.header.stamp.sec, imu.header.stamp.nanosec = sec, nanosec
-        self.joint_pub.publish(joint)
-        self.imu_pub.publish(imu)
+        if self.sensor_bunch == 1:
+            self.joint_pub.publish(joint)
+            self.imu_pub.publish(imu)
+        else:
+            # The messages are reused objects: keep this sample's bytes for the bunch.
+            self._bunch.append((serialize_message(joint), serialize_message(imu)))
+            if len(self._bunch) >= self.sensor_bunch:
+                for joint_bytes, imu_bytes in self._bunch:
+                    self.joint_pub.publish(joint_bytes)
+                    self.imu_pub.publish(imu_bytes)
+                self._bunch.clear()
 
         if self.k % self.gps_every == 0:
             x, y = sensors.gps(state)
