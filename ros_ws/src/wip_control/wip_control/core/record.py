@@ -41,21 +41,41 @@ GROUPS: dict[str, tuple[str, ...]] = {
 
 
 class RecordBuffer:
-    """Preallocated rows for one group; ``append`` is a single row copy."""
+    """Rows of one group: ``append`` adds a tuple to a list (about 0.1 µs, against about
+    1 µs for a numpy row copy: the runner appends 6 rows per control period), and full
+    blocks of :data:`BLOCK_ROWS` rows become one numpy array each, so that a long run
+    does not keep millions of Python floats."""
 
-    def __init__(self, group: str, capacity: int) -> None:
+    #: Rows converted to numpy at a time.
+    BLOCK_ROWS = 4096
+
+    def __init__(self, group: str) -> None:
         self.columns = GROUPS[group]
-        self._data = np.full((max(capacity, 1), len(self.columns)), np.nan)
-        self._size = 0
+        self._blocks: list[np.ndarray] = []
+        self._rows: list[tuple] = []
 
     def append(self, row: Iterable[float]) -> None:
-        if self._size == self._data.shape[0]:
-            self._data = np.concatenate([self._data, np.full_like(self._data, np.nan)])
-        self._data[self._size] = row
-        self._size += 1
+        rows = self._rows
+        rows.append(row)
+        if len(rows) >= self.BLOCK_ROWS:
+            self._flush()
+
+    def _flush(self) -> None:
+        if self._rows:
+            block = np.array(self._rows, dtype=float)
+            if block.ndim != 2 or block.shape[1] != len(self.columns):
+                raise ValueError(f'rows of {len(self.columns)} values expected '
+                                 f'({", ".join(self.columns)}), got shape {block.shape}')
+            self._blocks.append(block)
+            self._rows = []
+
+    def __len__(self) -> int:
+        return sum(len(b) for b in self._blocks) + len(self._rows)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
-        data = self._data[:self._size]
+        self._flush()
+        data = (np.concatenate(self._blocks) if self._blocks
+                else np.empty((0, len(self.columns))))
         return {name: data[:, i].copy() for i, name in enumerate(self.columns)}
 
 
