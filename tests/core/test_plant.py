@@ -319,3 +319,20 @@ def test_has_fallen_uses_the_tilt_limit():
     assert not Plant.has_fallen((0, 0, 0, 0, 1.2, 0, 0, 0))
     assert Plant.has_fallen((0, 0, 0, 0, -1.5, 0, 0, 0))
     assert Plant.has_fallen((0, 0, 0, 0, 0.5, 0, 0, 0), limit=0.5)
+
+
+@pytest.mark.parametrize('model', ['paper', 'full'])
+def test_accelerations_on_arrays_equal_the_scalar_derivative(model):
+    # The metrics evaluate the dynamics of a whole run at once; they must be the same
+    # expressions as Plant.derivative (to rounding) at arbitrary states and torques.
+    plant = Plant(WipParameters(), model)
+    rng = np.random.default_rng(3)
+    n = 50
+    theta, omega = rng.uniform(-0.8, 0.8, n), rng.uniform(-2, 2, n)
+    v, theta_dot = rng.uniform(-2, 2, n), rng.uniform(-3, 3, n)
+    tau_l, tau_r = rng.uniform(-15, 15, n), rng.uniform(-15, 15, n)
+    omd, vd, thdd = plant.accelerations_array(theta, omega, v, theta_dot, tau_l, tau_r)
+    for i in range(n):
+        state = (0.0, 0.0, 0.3, 0.0, theta[i], omega[i], v[i], theta_dot[i])
+        expected = plant.derivative(state, tau_l[i], tau_r[i])[5:]
+        assert (omd[i], vd[i], thdd[i]) == pytest.approx(tuple(expected), rel=1e-12, abs=1e-12)

@@ -237,6 +237,8 @@ class Plant:
             k_coriolis=mp * l if full else 0.0,     # m_p l sinθ υ ω in the yaw eq.
             k_reaction=1.0 if full else 0.0)        # −τυ on the body pitch
         self._accelerations = _make_accelerations(**self._consts)
+        self._accelerations_array = _make_accelerations(**self._consts, sin=np.sin,
+                                                        cos=np.cos)
         # The same constants, in the order of _rk4_hold's first argument.
         self._k = tuple(float(self._consts[name]) for name in _CONSTANT_NAMES)
         _warm_up()
@@ -256,6 +258,17 @@ class Plant:
         omd, vd, thdd = self._accelerations(th, om, v, thd, tv, tw)
         return np.array((v * math.cos(phi), v * math.sin(phi), om, v, thd,
                          omd + d1, vd + d2, thdd + d3))
+
+    def accelerations_array(self, theta: np.ndarray, omega: np.ndarray, v: np.ndarray,
+                            theta_dot: np.ndarray, tau_left: np.ndarray,
+                            tau_right: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(ω̇, υ̇, θ̈) at many states at once (arrays of one shape), no disturbance.
+
+        The expressions of :meth:`derivative`, evaluated by numpy (equal to it to
+        rounding); for the metrics of a whole run, 18 000 states per 90 s.
+        """
+        return self._accelerations_array(theta, omega, v, theta_dot, tau_left + tau_right,
+                                         tau_right - tau_left)
 
     def step(self, state: Sequence[float], tau_left: float, tau_right: float,
              disturbance: Disturbance, dt: float) -> np.ndarray:
@@ -366,13 +379,13 @@ def _check_dt(dt: float) -> None:
 
 
 def _make_accelerations(mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_gain,
-                        k_centrifugal, k_coriolis, k_reaction):
-    """The dynamics (ω̇, υ̇, θ̈) on plain floats, constants bound as closure variables.
+                        k_centrifugal, k_coriolis, k_reaction, sin=math.sin, cos=math.cos):
+    """The dynamics (ω̇, υ̇, θ̈), constants bound as closure variables.
 
-    Used by :meth:`Plant.derivative` (linearisation, metrics); the integrator
-    :func:`_rk4_hold` inlines the same expressions.
+    On plain floats with ``math``'s sin and cos (:meth:`Plant.derivative`); on arrays
+    with numpy's (:meth:`Plant.accelerations_array`, for the metrics of a whole run).
+    The integrator :func:`_rk4_hold` inlines the same expressions.
     """
-    sin, cos = math.sin, math.cos
 
     def accelerations(th, om, v, thd, tv, tw):
         """(ω̇, υ̇, θ̈) without disturbances, for τυ = tv, τω = tw [N·m]."""
