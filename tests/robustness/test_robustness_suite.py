@@ -1,0 +1,85 @@
+"""The robustness suite: one scenario file per class of issue 9, each with its physical
+pass criterion beside it (``criteria:`` in the file, the why in its header comment).
+
+Each file is a campaign file of one run (docs/campaign.md), so that ``scripts/campaign
+FILE`` runs it too, and a campaign over seeds or parameters starts from it. Here every
+class runs once, in-process, and must meet its criterion.
+
+Classes that fail on this branch are marked ``xfail(strict=True)`` with the failure
+measured (the controller changes of issue 9 items 1–4 are made elsewhere): when a class
+starts to pass, its strict xfail fails, and the mark is to be removed.
+"""
+
+import pathlib
+
+import pytest
+
+from wip_control.core.criteria import Criteria
+from wip_control.tools.campaign import load_campaign, run_one, run_specs
+
+SCENARIOS = pathlib.Path(__file__).parent / 'scenarios'
+
+#: Classes run by this suite -> measured failure on this branch (None: it passes).
+SUITE = {
+    'sensor_noise': 'falls at 0.52 s (|θ| 0.50 rad), 1 QP failure',
+    'full_plant_mismatch': 'falls at 0.48 s (|θ| 0.51 rad)',
+    'pushes': 'back on the line only to 0.34 m (limit 0.1 m) in the last 5 s',
+    'stop_and_hold': 'holding offset 0.32 m under the 0.3 m/s² push (limit 0.05 m)',
+    'speed_limit': 'run-away: 2.31 m/s outside the 2 s after the push (limit 1.55), '
+                   'max 2.80 m/s, 11.9 m off the line at the end',
+    'sharp_corners': 'leaves the path by 2.2 m (limit 0.15 m), ends 1.7 m from the end point',
+    'large_initial_error': 'crosses the path at 14 s, then 6.9 m off it after 25 s '
+                           '(limit 0.1 m)',
+    'slope': 'holding offset 0.46 m on the 4° slope (limit 0.05 m)',
+    'wheel_radius_mismatch': None,
+    'slow_gps': 'RMS distance to the path 0.39 m after 10 s (limit 0.1 m)',
+    'full_plant_standing': 'oscillation 0.68 m peak to peak over the last 20 s (limit '
+                           '0.02 m), |θ| 0.023 rad (limit 0.01)',
+    'trifolium_path': 'converged at 7.8 s, but RMS distance to the path 0.33 m after 8 s '
+                      '(limit 0.1 m)',
+}
+#: Classes too long for the suite: run them with scripts/campaign.
+CAMPAIGN_ONLY = {'long_run_300s'}
+
+
+def _params():
+    for name, failure in SUITE.items():
+        marks = [pytest.mark.slow]
+        if failure is not None:
+            marks.append(pytest.mark.xfail(strict=True, reason=f'measured: {failure}'))
+        yield pytest.param(name, marks=marks, id=name)
+
+
+def test_every_scenario_file_is_in_the_suite_or_campaign_only():
+    files = {p.stem for p in SCENARIOS.glob('*.yaml')}
+    assert files == set(SUITE) | CAMPAIGN_ONLY
+    assert not set(SUITE) & CAMPAIGN_ONLY
+
+
+@pytest.mark.parametrize('name', sorted(set(SUITE) | CAMPAIGN_ONLY))
+def test_scenario_file_is_one_run_with_its_criterion_beside_it(name):
+    path = SCENARIOS / f'{name}.yaml'
+    campaign = load_campaign(path)
+    assert campaign.total_runs == 1 and not campaign.vary and not campaign.grid
+    # A class-specific criterion, beyond the hard limits every run meets by default.
+    defaults = Criteria()
+    specific = [f for f in ('max_abs_theta_outside_pulses', 'max_speed_outside_pulses',
+                            'max_speed', 'max_convergence_time',
+                            'max_rms_path_error_after_settle', 'max_path_error_after_settle',
+                            'max_final_position_error', 'max_final_path_error',
+                            'max_final_oscillation', 'max_final_abs_theta')
+                if getattr(campaign.criteria, f) != getattr(defaults, f)]
+    assert specific, f'{name}: no criterion of its own'
+    header = path.read_text(encoding='utf-8').split('\nname:')[0]
+    assert 'Criterion' in header and 'Class' in header, f'{name}: no comment with the why'
+    assert campaign.criteria.max_wheel_torque == 15.0
+    assert campaign.criteria.max_delta_tau_v == 10.0
+    assert campaign.criteria.max_qp_failures == 0 and campaign.criteria.no_fall
+
+
+@pytest.mark.parametrize('name', list(_params()))
+def test_robustness_class_meets_its_criterion(name):
+    campaign = load_campaign(SCENARIOS / f'{name}.yaml')
+    row = run_one(run_specs(campaign)[0])
+    assert not row['error'], row['error']
+    assert row['success'], f'{name}: {row["reasons"]}'
