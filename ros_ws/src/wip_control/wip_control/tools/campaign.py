@@ -308,7 +308,10 @@ def campaign_from_mapping(data: Any, source_dir: pathlib.Path | None = None,
             raise CampaignError(f'campaign.grid.{key}: expected a non-empty list of values')
         grid[key] = list(values)
 
-    criteria = criteria_from_mapping(data.get('criteria'), 'campaign.criteria')
+    try:
+        criteria = criteria_from_mapping(data.get('criteria'), 'campaign.criteria')
+    except ConfigError as err:
+        raise CampaignError(str(err)) from err
     campaign = Campaign(name=name, description=description, base=base, runs=runs, seed=seed,
                         vary=vary, grid=grid, criteria=criteria)
     if campaign.total_runs > MAX_RUNS:
