@@ -4,6 +4,7 @@ Dask LocalCluster end to end (outputs, summary, figures, resume, no overwrite)."
 import csv
 import json
 import math
+import pathlib
 
 import numpy as np
 import pytest
@@ -194,7 +195,7 @@ def test_campaign_on_a_dask_cluster_end_to_end(tmp_path, capsys, dask_cluster):
     for r in rows:
         assert float(r['max_abs_wheel_torque_nm']) <= 15.0 + 1e-6
     assert {c['success_rate'] for c in summary['grid_cells']} <= {0.0, 1.0}
-    for name in ('success_rate.png', 'error_distributions.png', 'heatmap_success.png'):
+    for name in ('success_rate.png', 'error_distributions.png', 'heatmap.png'):
         assert (out / 'figures' / name).stat().st_size > 1000
     try:
         import pyarrow  # noqa: F401
@@ -218,3 +219,14 @@ def test_campaign_on_a_dask_cluster_end_to_end(tmp_path, capsys, dask_cluster):
     path.write_text(path.read_text().replace('seed: 2', 'seed: 3'))
     assert cmp.main(args + ['--resume']) == 2
     assert 'holds another campaign' in capsys.readouterr().err
+
+
+CAMPAIGNS = pathlib.Path(__file__).parents[2] / 'campaigns'
+
+
+@pytest.mark.parametrize('name', sorted(p.name for p in CAMPAIGNS.glob('*.yaml')))
+def test_the_example_campaigns_are_valid(name):
+    path = CAMPAIGNS / name
+    campaign = cmp.load_campaign(path)
+    specs = cmp.run_specs(campaign)
+    assert len(specs) == campaign.total_runs >= 1

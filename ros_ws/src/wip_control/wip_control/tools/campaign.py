@@ -383,7 +383,7 @@ def run_one(spec: Mapping[str, Any]) -> dict[str, Any]:
     from ..core.runner import run_scenario      # noqa: PLC0415
 
     row: dict[str, Any] = {'run': spec['run'], **spec['values'], 'seed': spec['seed']}
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     try:
         scenario = scenario_from_mapping(spec['scenario'])
         criteria = criteria_from_mapping(spec['criteria'])
@@ -404,6 +404,7 @@ def run_one(spec: Mapping[str, Any]) -> dict[str, Any]:
                     'reasons': '', 'error': f'{type(err).__name__}: {err} '
                                             f'({pathlib.Path(last.filename).name}:{last.lineno})'})
     row['wall_time_s'] = time.perf_counter() - start
+    row['cpu_time_s'] = time.process_time() - cpu_start
     return row
 
 
@@ -445,14 +446,17 @@ def execute(specs: list[dict], jsonl: pathlib.Path, scheduler: str | None = None
                        for spec in todo]
             with jsonl.open('a', encoding='utf-8') as stream, \
                     tqdm(total=len(specs), initial=len(specs) - len(todo), unit='run',
-                         disable=not progress, file=sys.stderr) as bar:
+                         disable=not progress, file=sys.stderr,
+                         # In a log file (not a terminal) a line every 10 s, not per run.
+                         mininterval=0.1 if sys.stderr.isatty() else 10.0) as bar:
                 for future in as_completed(futures):
                     row = future.result()
                     done[row['run']] = row
                     stream.write(json.dumps(row) + '\n')
                     stream.flush()
                     bar.update(1)
-                    bar.set_postfix(failed=sum(1 for r in done.values() if not r['success']))
+                    bar.set_postfix(failed=sum(1 for r in done.values() if not r['success']),
+                                    refresh=False)
         finally:
             client.close()
             if cluster is not None:
@@ -510,6 +514,7 @@ def summarise(campaign: Campaign, rows: list[dict]) -> dict[str, Any]:
                    for k, (kind, args) in campaign.vary.items()},
         'grid': campaign.grid,
         'wall_time_s_sum': float(np.nansum(_values(rows, 'wall_time_s'))),
+        'cpu_time_s_sum': float(np.nansum(_values(rows, 'cpu_time_s'))),
         'simulated_s_sum': float(np.nansum(_values(rows, 'simulated_s'))),
     }
     percentiles = {}
@@ -585,17 +590,22 @@ def write_figures(campaign: Campaign, rows: list[dict], summary: dict,
         unique = np.unique(x)
         if len(unique) <= 12:
             centers = unique
-            rate = [success[x == u].mean() for u in unique]
+            members = [x == u for u in unique]
             width = 0.8 * (np.min(np.diff(unique)) if len(unique) > 1 else 1.0)
         else:
             edges = np.linspace(np.min(x), np.max(x), 9)
             index = np.clip(np.digitize(x, edges) - 1, 0, 7)
             centers = 0.5 * (edges[:-1] + edges[1:])
-            rate = [success[index == i].mean() if np.any(index == i) else np.nan
-                    for i in range(8)]
+            members = [index == i for i in range(8)]
             width = 0.9 * (edges[1] - edges[0])
-        ax.bar(centers, rate, width=width if width > 0 else 1.0, color='tab:blue')
-        ax.set_ylim(0, 1.05)
+        rate = [success[m].mean() if np.any(m) else np.nan for m in members]
+        ax.bar(centers, rate, width=width if width > 0 else 1.0, color='tab:blue',
+               edgecolor='black', linewidth=0.5)
+        for center, m in zip(centers, members):
+            if np.any(m):   # pass / runs above each bar: a 0 % bar is still readable
+                ax.text(center, 1.07, f'{int(success[m].sum())}/{int(m.sum())}',
+                        ha='center', va='bottom', fontsize=6)
+        ax.set_ylim(0, 1.15)
         ax.set_xlabel(key, fontsize=8)
         ax.set_ylabel('success rate')
     fig.tight_layout()
@@ -633,28 +643,41 @@ def write_figures(campaign: Campaign, rows: list[dict], summary: dict,
     fig.savefig(paths[-1], dpi=110)
     plt.close(fig)
 
-    # 3. Heatmap of the success rate over a 2-D grid.
+    # 3. Heatmaps over a 2-D grid: success rate, and the median RMS path error.
     if len(campaign.grid) == 2:
         (kx, xs), (ky, ys) = campaign.grid.items()
         rate = np.full((len(ys), len(xs)), np.nan)
-        for cell in summary['grid_cells']:
-            if cell['success_rate'] is not None:
-                rate[ys.index(cell[ky]), xs.index(cell[kx])] = cell['success_rate']
-        fig, ax = plt.subplots(figsize=(1.2 * len(xs) + 3, 0.8 * len(ys) + 2))
-        image = ax.imshow(rate, origin='lower', vmin=0, vmax=1, cmap='RdYlGn', aspect='auto')
-        ax.set_xticks(range(len(xs)), [str(v) for v in xs])
-        ax.set_yticks(range(len(ys)), [str(v) for v in ys])
-        ax.set_xlabel(kx)
-        ax.set_ylabel(ky)
-        for i in range(len(ys)):
-            for j in range(len(xs)):
-                if np.isfinite(rate[i, j]):
-                    ax.text(j, i, f'{100 * rate[i, j]:.0f}%', ha='center', va='center',
-                            fontsize=8)
-        fig.colorbar(image, ax=ax, label='success rate')
-        ax.set_title(f'{campaign.name}: success rate')
+        error = np.full((len(ys), len(xs)), np.nan)
+        label = np.full((len(ys), len(xs)), '', dtype=object)
+        for i, y in enumerate(ys):
+            for j, x in enumerate(xs):
+                cell = [r for r in rows if r.get(kx) == x and r.get(ky) == y]
+                if cell:
+                    passed = sum(bool(r['success']) for r in cell)
+                    rate[i, j] = passed / len(cell)
+                    label[i, j] = f'{passed}/{len(cell)}'
+                    values = _values(cell, 'rms_path_error_after_settle')
+                    if np.any(np.isfinite(values)):
+                        error[i, j] = np.nanmedian(values)
+        fig, axes = plt.subplots(1, 2, figsize=(2.4 * len(xs) + 5, 0.8 * len(ys) + 2.2))
+        panels = ((rate, 'success rate', 'RdYlGn', dict(vmin=0, vmax=1)),
+                  (error, 'median RMS path error after settle [m]', 'viridis', {}))
+        for ax, (data, title, cmap, scale) in zip(axes, panels):
+            image = ax.imshow(data, origin='lower', cmap=cmap, aspect='auto', **scale)
+            ax.set_xticks(range(len(xs)), [str(v) for v in xs])
+            ax.set_yticks(range(len(ys)), [str(v) for v in ys])
+            ax.set_xlabel(kx, fontsize=8)
+            ax.set_ylabel(ky, fontsize=8)
+            for i in range(len(ys)):
+                for j in range(len(xs)):
+                    text = label[i, j] if data is rate else (
+                        f'{data[i, j]:.3g}' if np.isfinite(data[i, j]) else 'n/a')
+                    ax.text(j, i, text, ha='center', va='center', fontsize=8)
+            fig.colorbar(image, ax=ax)
+            ax.set_title(title, fontsize=9)
+        fig.suptitle(campaign.name, fontsize=10)
         fig.tight_layout()
-        paths.append(out / 'heatmap_success.png')
+        paths.append(out / 'heatmap.png')
         fig.savefig(paths[-1], dpi=110)
         plt.close(fig)
     return paths
@@ -737,8 +760,9 @@ def main(argv: list[str] | None = None) -> int:
     summary['campaign_wall_time_s'] = wall
     write_table(rows, out)
     (out / 'summary.json').write_text(json.dumps(summary, indent=2, default=str) + '\n')
-    text = summary_text(summary) + (f'\nwall time {wall:.1f} s for '
-                                    f'{summary["simulated_s_sum"]:.0f} s simulated')
+    text = summary_text(summary) + (
+        f'\nwall time {wall:.1f} s for {summary["simulated_s_sum"]:.0f} s simulated; runs '
+        f'took {summary["cpu_time_s_sum"]:.1f} s of CPU in all')
     (out / 'summary.txt').write_text(text + '\n', encoding='utf-8')
     if not args.no_figures:
         write_figures(campaign, rows, summary, out / 'figures')
