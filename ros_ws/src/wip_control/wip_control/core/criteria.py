@@ -82,8 +82,8 @@ class Criteria:
     max_final_path_error: Optional[float] = param(
         None, 'm', 'largest distance to the path in the final window', minimum=0.0)
     max_final_oscillation: Optional[float] = param(
-        None, 'm', 'peak-to-peak of the distance rolled x_v minus its reference in the '
-        'final window, after removing the trend (a decaying oscillation is small there)',
+        None, 'm', 'peak-to-peak of the distance rolled x_v in the final window, its '
+        'linear trend removed (a decaying oscillation is small there)',
         minimum=0.0)
     max_final_abs_theta: Optional[float] = param(
         None, 'rad', 'limit of |theta| in the final window', minimum=0.0)
