@@ -44,7 +44,6 @@ EXECUTABLES = {
         'mpc': 'wip_control.nodes.mpc_node:main',
         'torque_mixer': 'wip_control.nodes.torque_mixer_node:main',
         'controllers': 'wip_control.nodes.controllers:main',
-        'campaign': 'wip_control.tools.campaign:main',
     },
     'wip_sim': {
         'plant': 'wip_sim.plant_node:main',
