@@ -42,7 +42,7 @@ def test_draws_are_reproducible_per_run_and_within_their_distributions():
     assert {s['values']['initial_state.pose[1]'] for s in specs} == {-2, -1, 0, 1, 2}
     # The value lands where its key says, in a valid scenario; every run its own seed.
     spec = specs[3]
-    scenario = scenario_from_mapping(spec['scenario'])
+    scenario = scenario_from_mapping(cmp.scenario_mapping(_campaign(data).base, spec))
     assert scenario.plant.parameters.body_mass == spec['values']['plant.parameters.body_mass']
     assert scenario.controller_model.parameters.body_mass == 25.0    # nominal untouched
     assert scenario.disturbances.longitudinal[0].amplitude == \

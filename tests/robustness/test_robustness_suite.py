@@ -14,7 +14,7 @@ import pathlib
 
 import pytest
 
-from wip_control.core.criteria import Criteria
+from wip_control.core.criteria import Criteria, criteria_to_mapping
 from wip_control.tools.campaign import load_campaign, run_one, run_specs
 
 SCENARIOS = pathlib.Path(__file__).parent / 'scenarios'
@@ -80,6 +80,6 @@ def test_scenario_file_is_one_run_with_its_criterion_beside_it(name):
 @pytest.mark.parametrize('name', list(_params()))
 def test_robustness_class_meets_its_criterion(name):
     campaign = load_campaign(SCENARIOS / f'{name}.yaml')
-    row = run_one(run_specs(campaign)[0])
+    row = run_one(run_specs(campaign)[0], campaign.base, criteria_to_mapping(campaign.criteria))
     assert not row['error'], row['error']
     assert row['success'], f'{name}: {row["reasons"]}'

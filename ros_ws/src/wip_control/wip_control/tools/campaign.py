@@ -73,7 +73,7 @@ DISTRIBUTIONS = {
     'choice': 'choice: [a, b, ...] -> one of the values, equally likely',
 }
 #: Upper bound on the runs of one campaign (a typo like 1e7 runs is a mistake).
-MAX_RUNS = 1_000_000
+MAX_RUNS = 100_000
 #: Metrics of a run copied into its row (see core/metrics.py for their definitions).
 METRIC_COLUMNS = ('max_abs_theta_rad', 'max_abs_theta_outside_pulse_windows_rad',
                   'max_abs_wheel_torque_nm', 'max_abs_delta_tau_v_nm', 'qp_failures',
@@ -338,55 +338,64 @@ def load_campaign(path: str | pathlib.Path) -> Campaign:
 # ----------------------------------------------------------------------------- runs
 
 def run_specs(campaign: Campaign) -> list[dict]:
-    """One spec per run: its id, the values drawn, the full scenario mapping.
+    """One spec per run: its id, the values drawn (by dotted key) and its scenario seed.
 
     Run ``i`` draws from its own generator, seeded by (campaign seed, i): a run's
     values do not depend on the number of workers, on the order of completion, or on
     which runs were already done (resume). Its scenario ``seed`` (sensor and
     disturbance noise) is ``campaign seed * 1_000_003 + i`` unless ``seed`` is varied.
-    Raises :class:`CampaignError` naming the key if a drawn value is not admissible.
+    Every run's scenario is built and validated here (about 2 ms a run), so that a bad
+    draw stops the campaign before it starts: :class:`CampaignError` names the run and
+    the key.
     """
     specs = []
     run = 0
     for point in campaign.grid_points:
         for _ in range(campaign.runs):
             rng = np.random.default_rng(np.random.SeedSequence((campaign.seed, run)))
-            scenario = copy.deepcopy(campaign.base)
-            values: dict[str, Any] = {}
-            for key, value in point.items():
-                _set(scenario, _split_key(key, 'campaign.grid'), copy.deepcopy(value))
-                values[key] = value
+            values: dict[str, Any] = {key: copy.deepcopy(value) for key, value in point.items()}
             for key, (kind, args) in campaign.vary.items():
                 parts = _split_key(key, 'campaign.vary')
-                value = _draw(kind, args, _get(campaign.base, parts, key, 'campaign.vary'), rng)
-                _set(scenario, parts, value)
-                values[key] = value
-            if 'seed' not in values:
-                scenario['seed'] = campaign.seed * 1_000_003 + run
+                values[key] = _draw(kind, args, _get(campaign.base, parts, key, 'campaign.vary'),
+                                    rng)
+            seed = values['seed'] if 'seed' in values else campaign.seed * 1_000_003 + run
+            spec = {'run': run, 'values': values, 'seed': seed}
             try:
-                scenario_from_mapping(scenario)
+                scenario_from_mapping(scenario_mapping(campaign.base, spec))
             except ConfigError as err:
                 shown = ', '.join(f'{k} = {v!r}' for k, v in values.items())
                 raise CampaignError(f'campaign: run {run} ({shown}) is not a valid scenario: '
                                     f'{err}') from err
-            specs.append({'run': run, 'values': values, 'seed': scenario['seed'],
-                          'scenario': scenario,
-                          'criteria': criteria_to_mapping(campaign.criteria)})
+            specs.append(spec)
             run += 1
     return specs
 
 
-def run_one(spec: Mapping[str, Any]) -> dict[str, Any]:
+def scenario_mapping(base: Mapping[str, Any], spec: Mapping[str, Any]) -> dict:
+    """The full scenario mapping of one run: ``base`` with the run's values and seed."""
+    scenario = copy.deepcopy(dict(base))
+    for key, value in spec['values'].items():
+        _set(scenario, _split_key(key, 'campaign'), copy.deepcopy(value))
+    scenario['seed'] = spec['seed']
+    return scenario
+
+
+def run_one(spec: Mapping[str, Any], base: Mapping[str, Any],
+            criteria: Mapping[str, Any]) -> dict[str, Any]:
     """Simulate one run (on a worker) and return its row. Never raises: an exception
-    of the run is reported in the row's ``error`` (the run then fails)."""
+    of the run is reported in the row's ``error`` (the run then fails).
+
+    ``base`` is the campaign's base scenario mapping and ``criteria`` its criteria as a
+    mapping (plain data: they travel to the workers once, see :func:`execute`).
+    """
     from ..core.metrics import compute_metrics  # noqa: PLC0415 (worker-side imports)
     from ..core.runner import run_scenario      # noqa: PLC0415
 
     row: dict[str, Any] = {'run': spec['run'], **spec['values'], 'seed': spec['seed']}
     start, cpu_start = time.perf_counter(), time.process_time()
     try:
-        scenario = scenario_from_mapping(spec['scenario'])
-        criteria = criteria_from_mapping(spec['criteria'])
+        scenario = scenario_from_mapping(scenario_mapping(base, spec))
+        criteria = criteria_from_mapping(criteria)
         result = run_scenario(scenario)
         metrics = compute_metrics(result.record, scenario, fell=result.fell,
                                   duration_s=result.simulated_time_s)
@@ -422,8 +431,9 @@ def _read_done(jsonl: pathlib.Path) -> dict[int, dict]:
     return done
 
 
-def execute(specs: list[dict], jsonl: pathlib.Path, scheduler: str | None = None,
-            workers: int | None = None, progress: bool = True) -> list[dict]:
+def execute(campaign: Campaign, specs: list[dict], jsonl: pathlib.Path,
+            scheduler: str | None = None, workers: int | None = None,
+            progress: bool = True) -> list[dict]:
     """Run the specs on Dask (a LocalCluster of ``workers`` processes, or the cluster at
     ``scheduler``), appending each finished row to ``jsonl``; returns all rows by run."""
     from dask.distributed import Client, LocalCluster, as_completed  # noqa: PLC0415
@@ -442,8 +452,12 @@ def execute(specs: list[dict], jsonl: pathlib.Path, scheduler: str | None = None
                                    dashboard_address=None, silence_logs=40)
             client = Client(cluster)
         try:
-            futures = [client.submit(run_one, spec, pure=False, key=f'run-{spec["run"]}')
-                       for spec in todo]
+            # The base scenario and the criteria go to every worker once; a task carries
+            # only its run's values.
+            base, criteria = client.scatter(
+                [campaign.base, criteria_to_mapping(campaign.criteria)], broadcast=True)
+            futures = [client.submit(run_one, spec, base, criteria, pure=False,
+                                     key=f'run-{spec["run"]}') for spec in todo]
             with jsonl.open('a', encoding='utf-8') as stream, \
                     tqdm(total=len(specs), initial=len(specs) - len(todo), unit='run',
                          disable=not progress, file=sys.stderr,
@@ -747,7 +761,7 @@ def main(argv: list[str] | None = None) -> int:
           file=sys.stderr)
     start = time.perf_counter()
     try:
-        rows = execute(specs, jsonl, scheduler=args.scheduler, workers=args.workers,
+        rows = execute(campaign, specs, jsonl, scheduler=args.scheduler, workers=args.workers,
                        progress=not args.no_progress)
     except OSError as err:           # a scheduler address that does not answer
         return _fail(f'--scheduler {args.scheduler}: {err}')
