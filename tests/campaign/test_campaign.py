@@ -116,6 +116,15 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
     assert cmp.main([str(tmp_path / 'broken.yaml')]) == 2
     assert 'not valid YAML' in capsys.readouterr().err
     assert not (tmp_path / 'out').exists()
+    good = tmp_path / 'good.yaml'
+    good.write_text(yaml.safe_dump({'overrides': {'duration': 0.5}}))
+    assert cmp.main([str(good), '--out', str(tmp_path / 'out'), '--scheduler', 'nowhere']) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith('ERROR: --scheduler nowhere:')
+    # Nothing ran: the same command may be given again without --force or --resume.
+    assert [p.name for p in (tmp_path / 'out').iterdir()] == ['campaign.yaml']
+    assert cmp.main([str(good), '--out', str(tmp_path / 'out'), '--scheduler', 'nowhere']) == 2
+    assert 'exists' not in capsys.readouterr().err
 
 
 # ----------------------------------------------------------------------------- criteria

@@ -443,7 +443,10 @@ def execute(campaign: Campaign, specs: list[dict], jsonl: pathlib.Path,
     todo = [s for s in specs if s['run'] not in done]
     if todo:
         if scheduler:
-            client = Client(scheduler, timeout='20s')
+            try:
+                client = Client(scheduler, timeout='20s')
+            except (OSError, ValueError, TypeError) as err:   # no answer, a bad address
+                raise CampaignError(f'--scheduler {scheduler}: {err}') from err
             cluster = None
         else:
             n = workers or os.cpu_count() or 1
@@ -743,7 +746,8 @@ def main(argv: list[str] | None = None) -> int:
     out = pathlib.Path(args.out or f'out/campaign/{campaign.name}')
     jsonl = out / 'runs.jsonl'
     stamp = out / 'campaign.yaml'
-    if out.exists() and any(out.iterdir()):
+    # A folder holding only the campaign file (a start that failed) has no results.
+    if out.exists() and any(p.name != stamp.name for p in out.iterdir()):
         if args.force:
             shutil.rmtree(out)
         elif args.resume:
@@ -763,8 +767,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rows = execute(campaign, specs, jsonl, scheduler=args.scheduler, workers=args.workers,
                        progress=not args.no_progress)
-    except OSError as err:           # a scheduler address that does not answer
-        return _fail(f'--scheduler {args.scheduler}: {err}')
+    except CampaignError as err:     # a scheduler address that does not answer
+        return _fail(str(err))
     except KeyboardInterrupt:
         print(f'\ninterrupted: finished runs are in {jsonl}; --resume continues',
               file=sys.stderr)
