@@ -167,3 +167,18 @@ def test_programmatic_config_is_checked_when_used():
         Disturbances(bad)
     with pytest.raises(ValueError, match='seed'):
         Disturbances(DisturbanceConfig(), seed=-1)
+
+
+def test_sample_many_equals_sample_at_every_time():
+    # The runner evaluates a block of plant steps at once: same values, all channels,
+    # including an empty one (tilt) and held noise.
+    config = DisturbanceConfig.from_mapping({
+        'yaw': [{'kind': 'sine', 'amplitude': 1.0, 'frequency': 0.5}],
+        'longitudinal': [{'kind': 'pulse', 'amplitude': 10.0, 'start_time': 0.3, 'width': 0.1},
+                         {'kind': 'noise', 'std': 0.2, 'noise_period': 0.01}],
+        'tilt': []}, 'disturbances')
+    disturbances = Disturbances(config, seed=4)
+    times = [k * 0.005 + j * 0.001 for k in range(200) for j in range(5)]
+    table = disturbances.sample_many(times)
+    assert table.shape == (1000, 3)
+    assert [tuple(row) for row in table] == [disturbances.sample(t) for t in times]

@@ -177,6 +177,20 @@ class Disturbances:
 
     __call__ = sample
 
+    def sample_many(self, times) -> np.ndarray:
+        """(n, 3) array of :meth:`sample` at each of ``times`` [s] (the same values).
+
+        Each channel's function is called once per time and a channel without
+        components is not called at all: the runner evaluates its disturbances so, a
+        block of plant steps at a time.
+        """
+        times = [float(t) for t in times]
+        out = np.zeros((len(times), 3))
+        for column, function in enumerate((self._d1, self._d2, self._d3)):
+            if function is not _zero:
+                out[:, column] = [function(t) for t in times]
+        return out
+
 
 def _zero(t: float) -> float:
     return 0.0

@@ -233,7 +233,7 @@ class _DisturbanceBlocks:
 
     def __init__(self, disturbances: Disturbances, dt_control: float, dt_plant: float,
                  substeps: int, ticks: int = 200) -> None:
-        self._sample = disturbances.sample
+        self._disturbances = disturbances
         self._dt_control, self._dt_plant = dt_control, dt_plant
         self._substeps, self._ticks = substeps, ticks
         self._first = -1
@@ -248,13 +248,12 @@ class _DisturbanceBlocks:
         return self._table[i]
 
     def _fill(self, first: int) -> None:
-        sample, dt_control, dt_plant = self._sample, self._dt_control, self._dt_plant
+        dt_control, dt_plant = self._dt_control, self._dt_plant
         steps = range(self._substeps)
-        values = []
-        for k in range(first, first + self._ticks):
-            t0 = k * dt_control
-            values.extend(sample(t0 + j * dt_plant) for j in steps)
-        self._table = np.array(values, dtype=float).reshape(self._ticks, self._substeps, 3)
+        times = [k * dt_control + j * dt_plant
+                 for k in range(first, first + self._ticks) for j in steps]
+        self._table = self._disturbances.sample_many(times).reshape(
+            self._ticks, self._substeps, 3)
         if not np.all(np.isfinite(self._table)):
             raise ValueError(f'disturbances must be finite (ticks from t = {first * dt_control} s)')
         self._first = first
