@@ -52,6 +52,8 @@ def _max_abs(values: np.ndarray) -> float | None:
 
 def _interp(t_to: np.ndarray, t_from: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Zero-order hold of (t_from, values) sampled at t_to (the signals are held)."""
+    if len(values) == 0:  # A run that fell (or ended) before its first command.
+        return np.full(len(t_to), np.nan)
     index = np.searchsorted(t_from, t_to, side='right') - 1
     return values[np.clip(index, 0, len(values) - 1)]
 
@@ -69,6 +71,9 @@ def true_lumped_disturbances(record: RunRecord, plant: Plant,
     states = np.column_stack([truth[c] for c in names])
     f = np.empty((n, 3))
     for i in range(n):
+        if not (math.isfinite(tau_l[i]) and math.isfinite(tau_r[i])):
+            f[i] = np.nan  # No command yet (a run shorter than one control period).
+            continue
         derivative = plant.derivative(states[i], tau_l[i], tau_r[i],
                                       (truth['d1'][i], truth['d2'][i], truth['d3'][i]))
         g1, g2, g3 = input_gains(nominal_params, states[i, 4])
