@@ -348,6 +348,8 @@ def _read_summary(data, start: int, footer_pos: int, scan: FileScan) -> None:
 
 def iter_chunk_records(path: str | pathlib.Path, scan: FileScan) -> Iterator[list]:
     """The records of each intact chunk of ``scan``, in file order (re-read from disk)."""
+    if not scan.chunks:
+        return
     with open(path, 'rb') as stream, mmap.mmap(stream.fileno(), 0,
                                                access=mmap.ACCESS_READ) as data:
         for good in scan.chunks:

@@ -66,6 +66,10 @@ _READ_ERRORS = (McapError, EOFError, ValueError, IndexError, OSError, MemoryErro
 _INDEX_RE = re.compile(r'_(\d+)\.mcap$')
 
 
+class NothingRecoverable(BagWriterError):
+    """No file of the bag has an intact chunk: no new bag is written."""
+
+
 class TopicInfo(NamedTuple):
     """What a bag records of a topic (from an MCAP channel and its schema)."""
 
@@ -358,6 +362,10 @@ def repair_bag(directory, out=None, compression=None, dry_run=False):
         work = pathlib.Path(tempfile.mkdtemp(prefix=f'.{out.name}.partial-', dir=out.parent))
     try:
         reports, kept = _repair_files(paths, work, compression, dry_run)
+        if not kept:
+            raise NothingRecoverable(
+                f'{directory}: no intact chunk in any file, nothing to recover ('
+                + '; '.join(line for r in reports for line in r.problems) + ')')
         information = _metadata_of(directory, kept)
         if work is not None:
             write_metadata_file(work / METADATA_FILE_NAME, information)
@@ -433,6 +441,9 @@ def main(argv=None):
     try:
         result = repair_bag(args.bag, out=args.out, compression=args.compression,
                             dry_run=args.dry_run)
+    except NothingRecoverable as err:
+        print(f'bag_repair: {err}; nothing written', file=sys.stderr)
+        return EXIT_FAILED
     except (BagWriterError, BagReadError, ValueError, OSError) as err:
         print(f'bag_repair: error: {err}', file=sys.stderr)
         return EXIT_USAGE
