@@ -381,3 +381,44 @@ def test_odd_paths_are_usage_errors(tmp_path, kind):
     assert code in (1, 2) and 'Traceback' not in out + err
     with pytest.raises(BagReadError):
         list(iter_raw_messages(target))
+
+
+# ------------------------------------------------- every declared parameter has a range
+
+def _config_classes():
+    """Every config dataclass of the core (fields made with param()), found by import."""
+    import importlib
+    import pkgutil
+    import wip_control.core as core
+    found = {}
+    for info in pkgutil.iter_modules(core.__path__):
+        module = importlib.import_module(f'wip_control.core.{info.name}')
+        for value in vars(module).values():
+            if isinstance(value, type) and dataclasses.is_dataclass(value) and any(
+                    'unit' in f.metadata for f in dataclasses.fields(value)):
+                found[f'{value.__module__}.{value.__qualname__}'] = value
+    return found
+
+
+def test_every_numeric_parameter_has_both_bounds_and_a_default_within_them():
+    classes = _config_classes()
+    assert len(classes) >= 10  # the sections of a scenario, at least
+    checked = 0
+    for name, cls in classes.items():
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            if 'unit' not in f.metadata or f.default is dataclasses.MISSING:
+                continue
+            values = f.default if isinstance(f.default, tuple) else (f.default,)
+            numbers = [v for v in values if isinstance(v, (int, float))
+                       and not isinstance(v, bool)]
+            if not numbers and hints[f.name] not in (int, float):
+                continue
+            lo, hi = f.metadata['minimum'], f.metadata['maximum']
+            assert lo is not None and hi is not None, f'{name}.{f.name} has no range'
+            for v in numbers:
+                assert lo <= v <= hi, f'{name}.{f.name}: default {v} outside [{lo}, {hi}]'
+                floor = f.metadata.get('floor')
+                assert floor is None or v >= floor, f'{name}.{f.name}: default below floor'
+            checked += 1
+    assert checked >= 80
