@@ -111,6 +111,11 @@ def test_simulate_checks_out_before_the_run(tmp_path, monkeypatch, capsys):
         assert simulate.main(['--out', str(out), '--quiet']) == 2
         assert 'is a file, not a directory' in capsys.readouterr().err
     assert a_file.read_text() == 'mine'
+    # An unwritable directory (as root every directory is writable: simulated).
+    monkeypatch.setattr(cli.os, 'access', lambda path, mode: False)
+    assert simulate.main(['--out', str(tmp_path / 'locked' / 'out'), '--quiet']) == 2
+    assert 'is not writable' in capsys.readouterr().err
+    assert not (tmp_path / 'locked').exists()
 
 
 # ----------------------------------------------------------------- run_graph outputs
