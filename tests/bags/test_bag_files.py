@@ -19,7 +19,7 @@ from wip_sim.bag_info import main as bag_info_main
 from wip_sim.bag_reader import bag_summary, iter_raw_messages, read_bag, read_topics
 from wip_sim.bag_repair import main as bag_repair_main
 from wip_sim.bag_repair import mcap_files_by_index, repair_bag
-from wip_sim.bag_writer import Rosbag2McapWriter
+from wip_sim.bag_writer import BagWriterError, Rosbag2McapWriter
 
 START_NS = 1_700_000_000_000_000_000
 PERIOD_NS = 1_000_000  # 1 kHz
@@ -78,6 +78,12 @@ def _assert_metadata_matches_content(directory):
 def _rosbags_messages(directory):
     with Reader(directory) as reader:
         return [(c.topic, t, bytes(d)) for c, t, d in reader.messages()]
+
+
+def _snapshot(directory):
+    """Name -> bytes of every file under ``directory`` (to show it was not touched)."""
+    return {p.relative_to(directory): p.read_bytes() for p in sorted(directory.rglob('*'))
+            if p.is_file()}
 
 
 def _expected(payloads, n=None):
@@ -161,18 +167,22 @@ def test_repair_recovers_every_complete_chunk_of_a_killed_split_bag(tmp_path):
     with Reader(directory) as reader:  # rosbags sees the stale metadata.yaml only ...
         assert reader.message_count == 1200
 
+    original = _snapshot(directory)
     result = repair_bag(directory)
-    assert [f.action for f in result.files] == ['kept', 'kept', 'rewritten']
+    assert result.out == tmp_path / 'killed_repaired'
+    assert [f.action for f in result.files] == ['copied', 'copied', 'rewritten']
     assert result.files[2].messages == 1500 - 1200
-    assert (directory / 'killed_2.mcap.unfinished').is_file()
-    _assert_metadata_matches_content(directory)  # ... and all of the repaired bag.
-    assert _rosbags_messages(directory) == _expected(payloads, 1500)
-    assert bag_information(directory)['problems'] == []
-    # Idempotent: a second run keeps every file and writes the same metadata.
-    metadata = _metadata(directory)
-    again = repair_bag(directory)
-    assert [f.action for f in again.files] == ['kept'] * 3
-    assert _metadata(directory) == metadata
+    assert _snapshot(directory) == original  # The original is never touched ...
+    repaired = result.out
+    _assert_metadata_matches_content(repaired)  # ... and all of the repaired bag.
+    assert _rosbags_messages(repaired) == _expected(payloads, 1500)
+    assert bag_information(repaired)['problems'] == []
+    # Idempotent: repairing the repaired bag copies every file and gives the same metadata.
+    again = repair_bag(repaired, out=tmp_path / 'again')
+    assert [f.action for f in again.files] == ['copied'] * 3
+    assert _metadata(tmp_path / 'again') == _metadata(repaired)
+    with pytest.raises(BagWriterError, match='exists'):  # Never into an existing directory.
+        repair_bag(directory, out=tmp_path / 'again')
 
 
 def test_repair_drops_a_partial_chunk_and_keeps_custom_data(tmp_path):
@@ -196,9 +206,9 @@ def test_repair_drops_a_partial_chunk_and_keeps_custom_data(tmp_path):
         'custom_data': {'scenario': 'test'}, 'ros_distro': 'jazzy'}}))
     result = repair_bag(directory, compression='lz4')
     assert result.files[0].messages == 300
-    assert _rosbags_messages(directory) == _expected(payloads, 300)
-    assert _metadata(directory)['custom_data'] == {'scenario': 'test'}
-    _assert_metadata_matches_content(directory)
+    assert _rosbags_messages(result.out) == _expected(payloads, 300)
+    assert _metadata(result.out)['custom_data'] == {'scenario': 'test'}
+    _assert_metadata_matches_content(result.out)
 
 
 def test_a_file_without_complete_chunk_is_set_aside(tmp_path):
@@ -208,10 +218,11 @@ def test_a_file_without_complete_chunk_is_set_aside(tmp_path):
     bag.split()  # The recorder dies right after opening a new file.
     bag._stream.close()
     result = repair_bag(directory)
-    assert result.files[-1].action == 'dropped (no complete chunk)'
-    assert not (directory / result.files[-1].name).exists()
-    _assert_metadata_matches_content(directory)
-    assert _rosbags_messages(directory) == _expected(payloads)
+    assert result.files[-1].action == 'dropped (no intact chunk)'
+    assert (directory / result.files[-1].name).exists()  # the original: untouched
+    assert not (result.out / result.files[-1].name).exists()
+    _assert_metadata_matches_content(result.out)
+    assert _rosbags_messages(result.out) == _expected(payloads)
 
 
 def test_command_line_tools(tmp_path, capsys):
@@ -219,17 +230,22 @@ def test_command_line_tools(tmp_path, capsys):
     directory = tmp_path / 'cli'
     bag = _write(directory, payloads, chunk_size=256)
     bag._stream.close()
-    assert bag_info_main([str(directory)]) == 0
+    assert bag_info_main([str(directory)]) == 1  # the verdict is the exit code
     assert 'NOT OK' in capsys.readouterr().out
-    assert bag_repair_main([str(directory), '--dry-run']) == 0
-    assert 'would write metadata.yaml: ' in capsys.readouterr().out
-    assert not (directory / 'metadata.yaml').exists()
-    assert bag_repair_main([str(directory)]) == 0
+    # Unfinished: the tail in the chunk in progress is lost, so the exit code is 1.
+    assert bag_repair_main([str(directory), '--dry-run']) == 1
     out = capsys.readouterr().out
-    assert 'cli_0.mcap: rewritten' in out
-    assert bag_info_main([str(directory / 'cli_0.mcap')]) == 0  # a single file
+    assert 'cli_0.mcap: would rewrite' in out and 'rewritten' not in out
+    assert f'would write {tmp_path / "cli_repaired"}/metadata.yaml: ' in out
+    assert not (directory / 'metadata.yaml').exists()
+    assert not (tmp_path / 'cli_repaired').exists()
+    assert bag_repair_main([str(directory)]) == 1
+    out = capsys.readouterr().out
+    assert 'cli_0.mcap: rewritten' in out and 'skipped: cli_0.mcap: unfinished' in out
+    repaired = tmp_path / 'cli_repaired'
+    assert bag_info_main([str(repaired / 'cli_0.mcap')]) == 0  # a single file
     out = capsys.readouterr().out
     assert 'Check:             OK' in out
     assert 'Messages:          ' in out
-    assert bag_info_main([str(tmp_path / 'nothing')]) == 1
-    assert read_topics(directory)['/fast'].type_name == 'std_msgs/msg/String'
+    assert bag_info_main([str(tmp_path / 'nothing')]) == 2
+    assert read_topics(repaired)['/fast'].type_name == 'std_msgs/msg/String'

@@ -42,7 +42,7 @@ def graph_bag(tmp_path_factory):
     return out / 'bag'
 
 
-def test_bag_info_and_repair_of_a_graph_bag(graph_bag):
+def test_bag_info_and_repair_of_a_graph_bag(graph_bag, tmp_path):
     info = bag_information(graph_bag)
     assert info['problems'] == []
     counts = {t['name']: t['count'] for t in info['topics']}
@@ -51,8 +51,10 @@ def test_bag_info_and_repair_of_a_graph_bag(graph_bag):
     assert counts['/wip/ground_truth'] == ticks + 1
     assert counts['/wip/drive_torque'] == ticks // 20
     before = yaml.safe_load((graph_bag / 'metadata.yaml').read_text())
-    result = repair_bag(graph_bag)  # a healthy bag: nothing to do, the same metadata
-    assert [f.action for f in result.files] == ['kept']
+    # A healthy bag: its file copied as it is, the same metadata, the original untouched.
+    result = repair_bag(graph_bag, out=tmp_path / 'repaired')
+    assert [f.action for f in result.files] == ['copied'] and not result.lost
+    assert yaml.safe_load((tmp_path / 'repaired' / 'metadata.yaml').read_text()) == before
     assert yaml.safe_load((graph_bag / 'metadata.yaml').read_text()) == before
 
 

@@ -94,15 +94,16 @@ def test_sigkill_mid_run_then_repair_keeps_every_complete_chunk(test_node, tools
     assert [c.finished for c in contents] == [True] * (len(files) - 1) + [False]
     in_complete_chunks = sum(c.stats.count for c in contents)
 
-    result = repair_bag(bag)
+    result = repair_bag(bag)  # into a new bag: killed_repaired
+    repaired = result.out
     assert result.files[-1].action == 'rewritten'
-    info = _assert_metadata_matches_content(bag)
+    info = _assert_metadata_matches_content(repaired)
     # Every message of every complete chunk, nothing else, in publication order.
     assert info['message_count'] == in_complete_chunks
-    with Reader(bag) as reader:
+    with Reader(repaired) as reader:
         data = [bytes(d) for _, _, d in reader.messages()]
     assert len(data) == in_complete_chunks
-    indices = [int(m.message.data) for m in read_bag(bag)]
+    indices = [int(m.message.data) for m in read_bag(repaired)]
     assert indices == list(range(len(indices)))
     assert reported <= len(indices) <= k
 
@@ -150,12 +151,13 @@ def test_a_full_disk_is_reported_and_harms_nobody(test_node, tools, tmp_path):
     assert '[ERROR]' in output and 'recording stopped' in output
 
     result = repair_bag(bag)
-    _assert_metadata_matches_content(bag)
-    indices = [int(m.message.data.split(':')[0]) for m in read_bag(bag)]
+    repaired = result.out
+    _assert_metadata_matches_content(repaired)
+    indices = [int(m.message.data.split(':')[0]) for m in read_bag(repaired)]
     assert indices == list(range(len(indices)))
     assert 0 < len(indices) == result.metadata['message_count']
-    assert sum(os.path.getsize(f) for f in mcap_files_by_index(bag)) <= limit
-    with Reader(bag) as reader:
+    assert sum(os.path.getsize(f) for f in mcap_files_by_index(repaired)) <= limit
+    with Reader(repaired) as reader:
         assert reader.message_count == len(indices)
 
 

@@ -114,8 +114,10 @@ def test_rerun_refuses_a_bag_without_sensor_topics(tmp_path, capsys):
     with Rosbag2McapWriter(tmp_path / 'chatter') as bag:
         bag.add_topic('/chatter', 'std_msgs/msg/String')
         bag.write('/chatter', serialize_message(String(data='hi')), 1)
-    assert main([str(tmp_path / 'chatter'), '--out', str(tmp_path / 'out'), '--quiet']) == 1
+    assert main([str(tmp_path / 'chatter'), '--out', str(tmp_path / 'out'), '--quiet']) == 2
     assert 'no control tick' in capsys.readouterr().err
+    # The failed re-run left no OUT/bag behind that would block the next one.
+    assert not (tmp_path / 'out' / 'bag').exists()
 
 
 def test_timing_rules_for_a_bag_without_clock(recorded_bag, tmp_path):

@@ -321,11 +321,12 @@ def test_recover_bag_keeps_everything_flushed_before_a_crash(tmp_path):
     bag._stream.close()  # The process dies: no finish(), no metadata.yaml.
     assert not (directory / 'metadata.yaml').exists()
     assert not bag_summary(directory)['finished']
-    assert [m.message.data for m in read_bag(directory)] == [str(k) for k in range(50)]
+    assert [m.message.data for m in read_bag(directory, allow_partial=True)] == [
+        str(k) for k in range(50)]
 
     information = recover_bag(directory)
     assert information['message_count'] == 50
-    with Reader(directory) as reader:
+    with Reader(directory.with_name('crashed_repaired')) as reader:
         assert [bytes(d) for _, _, d in reader.messages()] == [
             bytes(serialize_message(String(data=str(k)))) for k in range(50)]
         assert reader.connections[0].ext.offered_qos_profiles[0].reliability == (

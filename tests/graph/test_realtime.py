@@ -19,7 +19,7 @@ import pytest
 pytest.importorskip('rclpy')
 
 from wip_sim.bag_reader import bag_summary  # noqa: E402
-from wip_sim.graph import GraphOptions, run_graph  # noqa: E402
+from wip_sim.graph import EXIT_FELL, GraphOptions, run_graph  # noqa: E402
 from wip_sim.report import record_from_bag  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -39,13 +39,13 @@ def realtime_run(tmp_path_factory):
                                         record=str(directory / 'bag'), quiet=True))
     finally:
         monkeypatch.undo()
-    if result.exit_code not in (0, 3) or result.plant_stats is None:
+    if result.exit_code not in (0, EXIT_FELL) or result.plant_stats is None:
         pytest.fail(f'run_graph failed ({result.exit_code}): {result.message}')
     return result
 
 
 def test_realtime_plant_runs_at_the_wall_clock_rate(realtime_run):
-    assert realtime_run.exit_code in (0, 3), realtime_run.message
+    assert realtime_run.exit_code in (0, EXIT_FELL), realtime_run.message
     stats = realtime_run.plant_stats
     if realtime_run.exit_code == 0:
         assert stats['ticks'] == round(DURATION / CONTROL_PERIOD)

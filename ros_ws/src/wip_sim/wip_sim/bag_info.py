@@ -8,8 +8,11 @@ serialization format. Two lines are added after it:
 - ``Compression``: the MCAP chunk compression found in the files (rosbag2's own file or
   message compression, ``compression_format``/``compression_mode`` of metadata.yaml, is
   shown when set);
-- ``Check``: whether ``metadata.yaml`` matches the files' contents and every file was
-  finished; otherwise what is wrong and that ``scripts/bag_repair`` fixes it.
+- ``Check``: whether every chunk's CRC matches, every file was finished and
+  ``metadata.yaml`` matches the files' contents; otherwise what is wrong (the time range
+  and topics of a damaged part) and that ``scripts/bag_repair`` recovers the rest.
+
+The verdict is also the exit code: 0 OK, 1 NOT OK, 2 no bag there (or bad options).
 
 Like ``ros2 bag info``, the figures come from ``metadata.yaml`` when the bag directory has
 one; a single ``.mcap`` file, a directory without ``metadata.yaml`` or ``--from-content``
@@ -26,9 +29,9 @@ import pathlib
 import sys
 import time
 
-import yaml
+from wip_control.tools.cli import EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with
 
-from .bag_reader import BagReadError
+from .bag_reader import BagReadError, integrity_problems, read_metadata_file, scan
 from .bag_repair import mcap_files_by_index, read_file_contents
 from .bag_writer import METADATA_FILE_NAME
 
@@ -57,7 +60,11 @@ def format_seconds(nanoseconds):
 def format_time_point(nanoseconds):
     """'Jan  1 2024 12:00:00.123456789 (1704110400.123456789)' in local time."""
     seconds, fraction = divmod(int(nanoseconds), 1_000_000_000)
-    local = time.localtime(seconds)
+    try:
+        local = time.localtime(seconds)
+    except (OverflowError, OSError, ValueError):
+        return f'({format_seconds(nanoseconds)})'
+
     date = time.strftime('%b %e %Y', local)
     return f'{date} {time.strftime("%H:%M:%S", local)}.{fraction:09d} ' \
            f'({format_seconds(nanoseconds)})'
@@ -116,48 +123,32 @@ def bag_information(path, from_content=False):
         the contents and every file is finished).
     """
     directory, files = _files_of(path)
+    scans = [scan(f) for f in files]
     contents = [read_file_contents(f) for f in files]
     content = _from_content(contents)
     metadata = None
+    problems = integrity_problems(scans) + [n for s in scans for n in s.notes]
     metadata_path = directory / METADATA_FILE_NAME
     if pathlib.Path(path).is_dir() and metadata_path.is_file():
-        data = yaml.safe_load(metadata_path.read_text(encoding='utf-8')) or {}
-        metadata = data.get('rosbag2_bagfile_information')
-    problems = []
-    unfinished = [c.stats.path for c in contents if not c.finished]
-    if unfinished:
-        problems.append(f'unfinished file(s) {", ".join(unfinished)} (recorder killed?)')
+        try:
+            metadata = read_metadata_file(metadata_path)
+        except BagReadError as err:
+            problems.append(str(err))
+    unfinished = [s.path.name for s in scans if s.unfinished]
     info = dict(content)
     info['storage_identifier'] = 'mcap'
     info['ros_distro'] = ''
     info['rosbag2_compression'] = ''
     info['source'] = 'content'
     if metadata is not None:
-        listed = list(metadata.get('relative_file_paths') or [])
-        if listed != content['files']:
-            problems.append(f'metadata.yaml lists {listed}, the directory holds '
-                            f'{content["files"]}')
-        if int(metadata.get('message_count', -1)) != content['message_count']:
-            problems.append(f'metadata.yaml counts {metadata.get("message_count")} messages, '
-                            f'the files hold {content["message_count"]}')
-        info['ros_distro'] = metadata.get('ros_distro') or ''
-        info['storage_identifier'] = metadata.get('storage_identifier', 'mcap')
-        if metadata.get('compression_format'):
-            info['rosbag2_compression'] = (f'{metadata["compression_format"]} '
-                                           f'({metadata.get("compression_mode", "")})')
-        if not from_content:
-            info['source'] = METADATA_FILE_NAME
-            info['files'] = listed
-            info['message_count'] = int(metadata.get('message_count', 0))
-            info['start_ns'] = int(metadata['starting_time']['nanoseconds_since_epoch'])
-            info['duration_ns'] = int(metadata['duration']['nanoseconds'])
-            info['topics'] = [
-                {'name': t['topic_metadata']['name'], 'type': t['topic_metadata']['type'],
-                 'count': int(t['message_count']),
-                 'serialization_format': t['topic_metadata'].get('serialization_format',
-                                                                 'cdr')}
-                for t in metadata.get('topics_with_message_count') or []]
-    elif pathlib.Path(path).is_dir():
+        try:
+            _compare_metadata(metadata, content, info, problems, from_content)
+        except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as err:
+            problems.append(f'metadata.yaml is incomplete or malformed ({type(err).__name__}: '
+                            f'{err}); figures from the files\' contents')
+            info.update(content)
+            info['source'] = 'content'
+    elif pathlib.Path(path).is_dir() and not metadata_path.is_file():
         problems.append('no metadata.yaml')
     info['bag_size'] = sum(f.stat().st_size for f in files)
     chunks = {}
@@ -169,6 +160,36 @@ def bag_information(path, from_content=False):
     info['unfinished_files'] = unfinished
     info['problems'] = problems
     return info
+
+
+def _compare_metadata(metadata, content, info, problems, from_content):
+    """Compare metadata.yaml with the content; take its figures unless from_content."""
+    listed = [str(name) for name in metadata.get('relative_file_paths') or []]
+    if listed != content['files']:
+        problems.append(f'metadata.yaml lists {listed}, the directory holds '
+                        f'{content["files"]}')
+    if int(metadata.get('message_count', -1)) != content['message_count']:
+        problems.append(f'metadata.yaml counts {metadata.get("message_count")} messages, '
+                        f'the files hold {content["message_count"]}')
+    info['ros_distro'] = str(metadata.get('ros_distro') or '')
+    info['storage_identifier'] = str(metadata.get('storage_identifier', 'mcap'))
+    if metadata.get('compression_format'):
+        info['rosbag2_compression'] = (f'{metadata["compression_format"]} '
+                                       f'({metadata.get("compression_mode", "")})')
+    if not from_content:
+        info['source'] = METADATA_FILE_NAME
+        info['files'] = listed
+        info['message_count'] = int(metadata.get('message_count', 0))
+        info['start_ns'] = int(metadata['starting_time']['nanoseconds_since_epoch'])
+        info['duration_ns'] = int(metadata['duration']['nanoseconds'])
+        if not (0 <= info['start_ns'] < 2 ** 63 and 0 <= info['duration_ns'] < 2 ** 63):
+            raise ValueError('times out of range')
+        info['topics'] = [
+            {'name': t['topic_metadata']['name'], 'type': t['topic_metadata']['type'],
+             'count': int(t['message_count']),
+             'serialization_format': t['topic_metadata'].get('serialization_format',
+                                                             'cdr')}
+            for t in metadata.get('topics_with_message_count') or []]
 
 
 def _indented(lines):
@@ -193,8 +214,9 @@ def format_bag_information(info):
     if info['problems']:
         check = 'NOT OK: ' + '; '.join(info['problems']) + ' -> run scripts/bag_repair'
     else:
-        check = f'OK (metadata.yaml matches the files, every file finished)' if (
-            info['source'] == METADATA_FILE_NAME) else 'OK (every file finished)'
+        check = 'OK (every chunk CRC-checked, every file finished, metadata.yaml matches ' \
+                'the files)' if info['source'] == METADATA_FILE_NAME else \
+                'OK (every chunk CRC-checked, every file finished)'
     return (
         '\n'
         + 'Files:             ' + _indented(info['files'])
@@ -213,11 +235,12 @@ def format_bag_information(info):
 
 
 def main(argv=None):
-    """``scripts/bag_info BAG``; exit code 0, or 1 if the bag cannot be read."""
+    """``scripts/bag_info BAG``; exit code 0 (OK), 1 (NOT OK) or 2 (no bag there)."""
     parser = argparse.ArgumentParser(
         prog='bag_info', description='Print what `ros2 bag info` prints for a rosbag2 MCAP '
         'bag (directory or single .mcap file), plus its chunk compression and a check of '
-        'metadata.yaml against the files.')
+        'every chunk\'s CRC and of metadata.yaml against the files. Exit code: 0 OK, '
+        '1 NOT OK, 2 no bag there.')
     parser.add_argument('bag', help='bag directory or .mcap file')
     parser.add_argument('--from-content', action='store_true',
                         help='figures from the files\' contents, not from metadata.yaml')
@@ -225,15 +248,15 @@ def main(argv=None):
     args = parser.parse_args(argv)
     try:
         info = bag_information(args.bag, from_content=args.from_content)
-    except (BagReadError, OSError, ValueError, KeyError, yaml.YAMLError) as err:
+    except (BagReadError, OSError) as err:
         print(f'bag_info: error: {err}', file=sys.stderr)
-        return 1
+        return EXIT_USAGE
     if args.json:
         print(json.dumps(info, indent=2))
     else:
         sys.stdout.write(format_bag_information(info))
-    return 0
+    return EXIT_FAILED if info['problems'] else EXIT_OK
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    exit_with(main, 'bag_info')

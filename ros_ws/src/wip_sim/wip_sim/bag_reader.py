@@ -3,11 +3,17 @@
 Decoding uses ``mcap`` and ``mcap-ros2-support``, which build decoders from the ``ros2msg``
 schemas stored in the file, so neither rclpy nor the message packages are needed (a bag
 recorded on a robot can be read anywhere). Works on a bag directory (``metadata.yaml`` + one
-or more ``.mcap`` files) or on a single ``.mcap`` file, including one whose writer was killed
-before finishing it (read up to its last complete record).
+or more ``.mcap`` files) or on a single ``.mcap`` file.
+
+Every file is checked before it is read (:mod:`wip_sim.bag_integrity`: each chunk's CRC,
+the summary's CRC, a proper end). A damaged or unfinished file raises
+:class:`BagIntegrityError`, which names the time range and the topics affected, unless the
+caller asks for ``allow_partial=True``: then the intact chunks are read and the damaged
+ones skipped (the tools say so, and mark their results ``partial``).
 """
 
 import heapq
+import os
 import pathlib
 import struct
 from typing import Any, NamedTuple
@@ -19,6 +25,8 @@ from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 import yaml
 
+from .bag_integrity import FileScan, iter_chunk_records, scan_file
+
 METADATA_FILE_NAME = 'metadata.yaml'
 
 # What a truncated file raises while its last record is read.
@@ -28,6 +36,55 @@ _TRUNCATION_ERRORS = (McapError, EOFError, ValueError, IndexError, OSError, Memo
 
 class BagReadError(Exception):
     """A bag cannot be found or read."""
+
+
+class BagIntegrityError(BagReadError):
+    """A bag is damaged or unfinished; the message says where, when and which topics."""
+
+    def __init__(self, message: str, scans: list) -> None:
+        super().__init__(message)
+        self.scans = scans
+
+
+_SCAN_CACHE: dict = {}
+
+
+def scan(file) -> FileScan:
+    """:func:`wip_sim.bag_integrity.scan_file`, cached while the file is unchanged."""
+    file = pathlib.Path(file)
+    stat = file.stat()
+    key = (str(file.resolve()), stat.st_size, stat.st_mtime_ns, stat.st_ino)
+    found = _SCAN_CACHE.get(key)
+    if found is None:
+        if len(_SCAN_CACHE) > 64:
+            _SCAN_CACHE.clear()
+        try:
+            found = _SCAN_CACHE[key] = scan_file(file)
+        except OSError as err:
+            raise BagReadError(f'{file}: {err.strerror or err}') from err
+    return found
+
+
+def integrity_problems(scans) -> list[str]:
+    """One line per damaged part of the scanned files, times from the bag's first message."""
+    starts = [c.start_ns for s in scans for c in s.chunks]
+    origin = min(starts) if starts else None
+    return [line for s in scans for line in s.problems(origin)]
+
+
+def check_bag(path, allow_partial=False):
+    """Scan every file of a bag; raise :class:`BagIntegrityError` if one is damaged.
+
+    Returns the list of :class:`~wip_sim.bag_integrity.FileScan` (in file order). With
+    ``allow_partial`` a damaged bag is returned too (its ``problems`` tell what is lost).
+    """
+    scans = [scan(f) for f in mcap_files(path)]
+    problems = integrity_problems(scans)
+    if problems and not allow_partial:
+        raise BagIntegrityError(
+            f'{path}: damaged or unfinished bag: ' + '; '.join(problems)
+            + ' (scripts/bag_repair recovers the intact chunks into a new bag)', scans)
+    return scans
 
 
 class BagMessage(NamedTuple):
@@ -52,18 +109,50 @@ def mcap_files(path):
         raise BagReadError(f'no bag at {path}')
     metadata_path = path / METADATA_FILE_NAME
     if metadata_path.is_file():
-        info = yaml.safe_load(metadata_path.read_text(encoding='utf-8'))
-        info = (info or {}).get('rosbag2_bagfile_information', {})
+        info = read_metadata_file(metadata_path)
         if info.get('storage_identifier', 'mcap') != 'mcap':
             raise BagReadError(
                 f'{path}: storage {info.get("storage_identifier")!r} is not mcap')
-        files = [path / name for name in info.get('relative_file_paths', ())]
+        names = info.get('relative_file_paths') or ()
+        if not isinstance(names, (list, tuple)) or not all(
+                isinstance(n, str) and n and os.sep not in n and n not in ('.', '..')
+                for n in names):
+            raise BagReadError(f'{metadata_path}: relative_file_paths is not a list of file '
+                               'names (scripts/bag_repair rebuilds metadata.yaml)')
+        files = [path / name for name in names]
         if files and all(f.is_file() for f in files):
             return files
     files = sorted(path.glob('*.mcap'))
     if not files:
         raise BagReadError(f'{path}: no .mcap file')
     return files
+
+
+def read_metadata_file(metadata_path):
+    """The ``rosbag2_bagfile_information`` mapping of a metadata.yaml, or BagReadError."""
+    metadata_path = pathlib.Path(metadata_path)
+    hint = ' (scripts/bag_repair rebuilds metadata.yaml from the files)'
+    try:
+        text = metadata_path.read_bytes().decode('utf-8')
+    except UnicodeDecodeError:
+        raise BagReadError(f'{metadata_path}: not UTF-8 text{hint}') from None
+    except OSError as err:
+        raise BagReadError(f'{metadata_path}: {err.strerror or err}') from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        where = getattr(err, 'problem_mark', None)
+        line = f' at line {where.line + 1}' if where is not None else ''
+        raise BagReadError(f'{metadata_path}: not valid YAML{line}{hint}') from None
+    except (ValueError, RecursionError):
+        raise BagReadError(f'{metadata_path}: a value cannot be read{hint}') from None
+    info = data.get('rosbag2_bagfile_information') if isinstance(data, dict) else None
+    if data is None:
+        return {}
+    if not isinstance(info, dict):
+        raise BagReadError(f'{metadata_path}: not a rosbag2 metadata file (expected a '
+                           f'mapping with rosbag2_bagfile_information){hint}')
+    return info
 
 
 def scan_mcap_records(path):
@@ -99,42 +188,60 @@ def _has_summary(stream):
         stream.seek(0)
 
 
-def _read_file(path, topics):
+def _read_file(path, topics, file_scan):
     factory = DecoderFactory()
-    with open(path, 'rb') as stream:
-        if _has_summary(stream):
-            reader = SeekingReader(stream, decoder_factories=[factory])
+    if file_scan.seekable:
+        with open(path, 'rb') as stream:
+            reader = SeekingReader(stream, validate_crcs=True, decoder_factories=[factory])
             for schema, channel, message, decoded in reader.iter_decoded_messages(
                     topics=topics, log_time_order=True):
                 yield BagMessage(channel.topic, schema.name if schema else '',
                                  message.log_time, decoded)
-            return
-    # Unfinished file: linear scan in file (= receive) order.
-    schemas, channels, decoders = {}, {}, {}
-    for kind, record in scan_mcap_records(path):
-        if kind == 'schema':
-            schemas[record.id] = record
-        elif kind == 'channel':
-            channels[record.id] = record
-        else:
-            channel = channels.get(record.channel_id)
-            if channel is None or (topics is not None and channel.topic not in topics):
-                continue
-            schema = schemas.get(channel.schema_id)
-            decoder = decoders.get(channel.id)
+        return
+    # Damaged (partial read asked for) or without summary: the intact chunks, in order.
+    decoders = {}
+    for channel, schema, message in _intact_messages(path, file_scan, topics):
+        decoder = decoders.get(channel.id)
+        if decoder is None:
+            decoder = factory.decoder_for(channel.message_encoding, schema)
             if decoder is None:
-                decoder = factory.decoder_for(channel.message_encoding, schema)
-                if decoder is None:
-                    raise BagReadError(
-                        f'{path}: cannot decode topic {channel.topic} (encoding '
-                        f'{channel.message_encoding!r}, schema '
-                        f'{schema.encoding if schema else None!r})')
-                decoders[channel.id] = decoder
-            yield BagMessage(channel.topic, schema.name if schema else '', record.log_time,
-                             decoder(record.data))
+                raise BagReadError(
+                    f'{path}: cannot decode topic {channel.topic} (encoding '
+                    f'{channel.message_encoding!r}, schema '
+                    f'{schema.encoding if schema else None!r})')
+            decoders[channel.id] = decoder
+        yield BagMessage(channel.topic, schema.name if schema else '', message.log_time,
+                         decoder(message.data))
 
 
-def read_bag(path, topics=None):
+def _intact_messages(path, file_scan, topics=None, start_ns=None, end_ns=None):
+    """(channel, schema, message) of the intact chunks of a file, by log time per chunk."""
+    channels, schemas = dict(file_scan.channels), dict(file_scan.schemas)
+    for good, records in iter_chunk_records(path, file_scan):
+        if start_ns is not None and good.end_ns < start_ns:
+            continue
+        if end_ns is not None and good.start_ns > end_ns:
+            continue
+        batch = []
+        for record in records:
+            if isinstance(record, Schema):
+                schemas.setdefault(record.id, record)
+            elif isinstance(record, Channel):
+                channels.setdefault(record.id, record)
+            elif isinstance(record, Message):
+                channel = channels.get(record.channel_id)
+                if channel is None or (topics is not None and channel.topic not in topics):
+                    continue
+                if start_ns is not None and record.log_time < start_ns:
+                    continue
+                if end_ns is not None and record.log_time > end_ns:
+                    continue
+                batch.append((channel, schemas.get(channel.schema_id), record))
+        batch.sort(key=lambda item: item[2].log_time)  # stable: equal times keep order
+        yield from batch
+
+
+def read_bag(path, topics=None, allow_partial=False):
     """Iterate over the decoded messages of a bag, in receive-time order per file.
 
     Parameters
@@ -143,6 +250,8 @@ def read_bag(path, topics=None):
         A bag directory or a single ``.mcap`` file.
     topics : iterable of str, optional
         Only these topics (default: all).
+    allow_partial : bool
+        Read the intact chunks of a damaged or unfinished bag instead of raising.
 
     Yields
     ------
@@ -153,12 +262,16 @@ def read_bag(path, topics=None):
     ------
     BagReadError
         If the bag is missing or a topic's schema cannot be decoded (e.g. 'ros2idl').
+    BagIntegrityError
+        If a file is damaged or unfinished (before anything is yielded), unless
+        ``allow_partial``.
     """
     if isinstance(topics, str):
         topics = [topics]
     topics = None if topics is None else set(topics)
-    for file in mcap_files(path):
-        yield from _read_file(file, topics)
+    scans = check_bag(path, allow_partial)
+    for file_scan in scans:
+        yield from _read_file(file_scan.path, topics, file_scan)
 
 
 def bag_summary(path):
@@ -174,67 +287,41 @@ def bag_summary(path):
     dict
         ``path``, ``files`` (list of str), ``message_count``, ``start_ns``, ``end_ns``,
         ``duration_ns`` (log times [ns]; ``None``, ``None`` and 0 for an empty bag),
-        ``finished`` (every file has its summary section, i.e. was closed properly) and
-        ``topics``: topic -> dict(``type``, ``message_count``, ``start_ns``, ``end_ns``).
+        ``finished`` (every file has its summary section, i.e. was closed properly),
+        ``problems`` (damaged parts, see :func:`check_bag`; their messages are not counted)
+        and ``topics``: topic -> dict(``type``, ``message_count``, ``start_ns``, ``end_ns``).
     """
-    files = mcap_files(path)
+    scans = check_bag(path, allow_partial=True)
     topics = {}
-    finished = True
-    for file in files:
-        with open(file, 'rb') as stream:
-            file_finished = _has_summary(stream)
-        finished = finished and file_finished
-        for kind, record in _iter_records(file, file_finished):
-            if kind == 'channel':
-                schema, channel = record
-                topics.setdefault(channel.topic, {
-                    'type': schema.name if schema else '', 'message_count': 0,
-                    'start_ns': None, 'end_ns': None})
-            else:
-                channel, message = record
-                entry = topics[channel.topic]
-                entry['message_count'] += 1
-                if entry['start_ns'] is None or message.log_time < entry['start_ns']:
-                    entry['start_ns'] = message.log_time
-                if entry['end_ns'] is None or message.log_time > entry['end_ns']:
-                    entry['end_ns'] = message.log_time
+    finished = all(not s.unfinished for s in scans)
+    for file_scan in scans:
+        for channel in file_scan.channels.values():
+            schema = file_scan.schemas.get(channel.schema_id)
+            topics.setdefault(channel.topic, {
+                'type': schema.name if schema else '', 'message_count': 0,
+                'start_ns': None, 'end_ns': None})
+        for channel, _, message in _intact_messages(file_scan.path, file_scan):
+            entry = topics[channel.topic]
+            entry['message_count'] += 1
+            if entry['start_ns'] is None or message.log_time < entry['start_ns']:
+                entry['start_ns'] = message.log_time
+            if entry['end_ns'] is None or message.log_time > entry['end_ns']:
+                entry['end_ns'] = message.log_time
     starts = [t['start_ns'] for t in topics.values() if t['start_ns'] is not None]
     ends = [t['end_ns'] for t in topics.values() if t['end_ns'] is not None]
     start_ns = min(starts) if starts else None
     end_ns = max(ends) if ends else None
     return {
         'path': str(path),
-        'files': [str(f) for f in files],
+        'files': [str(s.path) for s in scans],
         'message_count': sum(t['message_count'] for t in topics.values()),
         'start_ns': start_ns,
         'end_ns': end_ns,
         'duration_ns': 0 if start_ns is None else end_ns - start_ns,
         'finished': finished,
+        'problems': integrity_problems(scans),
         'topics': topics,
     }
-
-
-def _iter_records(file, finished):
-    """Yield ('channel', (schema, channel)) and ('message', (channel, message)), undecoded."""
-    if finished:
-        with open(file, 'rb') as stream:
-            summary = SeekingReader(stream).get_summary()
-            for channel in summary.channels.values():
-                yield 'channel', (summary.schemas.get(channel.schema_id), channel)
-            stream.seek(0)
-            for _, channel, message in SeekingReader(stream).iter_messages(
-                    log_time_order=False):
-                yield 'message', (channel, message)
-        return
-    schemas, channels = {}, {}
-    for kind, record in scan_mcap_records(file):
-        if kind == 'schema':
-            schemas[record.id] = record
-        elif kind == 'channel':
-            channels[record.id] = record
-            yield 'channel', (schemas.get(record.schema_id), record)
-        elif record.channel_id in channels:
-            yield 'message', (channels[record.channel_id], record)
 
 
 # -- raw access (the replayer republishes serialized messages as they are) ----------------
@@ -261,35 +348,18 @@ class TopicMetadata(NamedTuple):
     message_count: int
 
 
-def _channels_and_counts(file):
-    """(schemas, channels, counts per channel id) of one MCAP file."""
-    with open(file, 'rb') as stream:
-        finished = _has_summary(stream)
-        if finished:
-            summary = SeekingReader(stream).get_summary()
-            counts = dict(summary.statistics.channel_message_counts) if (
-                summary.statistics is not None) else None
-            if counts is None:
-                counts = {cid: 0 for cid in summary.channels}
-                stream.seek(0)
-                for _, channel, _ in SeekingReader(stream).iter_messages(
-                        log_time_order=False):
-                    counts[channel.id] += 1
-            return dict(summary.schemas), dict(summary.channels), counts
-    schemas, channels, counts = {}, {}, {}
-    for kind, record in scan_mcap_records(file):
-        if kind == 'schema':
-            schemas[record.id] = record
-        elif kind == 'channel':
-            channels[record.id] = record
-            counts.setdefault(record.id, 0)
-        elif record.channel_id in counts:
-            counts[record.channel_id] += 1
-    return schemas, channels, counts
+def _channels_and_counts(file_scan):
+    """(schemas, channels, counts per channel id) of one scanned MCAP file."""
+    counts = {cid: 0 for cid in file_scan.channels}
+    for channel, _, _ in _intact_messages(file_scan.path, file_scan):
+        counts[channel.id] = counts.get(channel.id, 0) + 1
+    return dict(file_scan.schemas), dict(file_scan.channels), counts
 
 
-def read_topics(path):
+def read_topics(path, allow_partial=False):
     """Return the topics of a bag (directory or single file) from its MCAP content.
+
+    Raises :class:`BagIntegrityError` for a damaged bag unless ``allow_partial``.
 
     Returns
     -------
@@ -298,8 +368,8 @@ def read_topics(path):
         counts are summed over the files.
     """
     topics = {}
-    for file in mcap_files(path):
-        schemas, channels, counts = _channels_and_counts(file)
+    for file_scan in check_bag(path, allow_partial):
+        schemas, channels, counts = _channels_and_counts(file_scan)
         for channel_id, channel in channels.items():
             schema = schemas.get(channel.schema_id)
             count = counts.get(channel_id, 0)
@@ -325,32 +395,23 @@ def read_topics(path):
     return topics
 
 
-def _iter_raw_file(file, topics, start_ns, end_ns):
-    with open(file, 'rb') as stream:
-        if _has_summary(stream):
-            reader = SeekingReader(stream)
+def _iter_raw_file(file_scan, topics, start_ns, end_ns):
+    if file_scan.seekable:
+        with open(file_scan.path, 'rb') as stream:
+            reader = SeekingReader(stream, validate_crcs=True)
             for _, channel, message in reader.iter_messages(
                     topics=topics, starting_at=start_ns, ending_at=end_ns,
                     log_time_order=True):
                 yield RawMessage(channel.topic, message.log_time, message.publish_time,
                                  message.data)
-            return
-    channels = {}
-    for kind, record in scan_mcap_records(file):
-        if kind == 'channel':
-            channels[record.id] = record.topic
-        elif kind == 'message':
-            topic = channels.get(record.channel_id)
-            if topic is None or (topics is not None and topic not in topics):
-                continue
-            if start_ns is not None and record.log_time < start_ns:
-                continue
-            if end_ns is not None and record.log_time > end_ns:
-                continue
-            yield RawMessage(topic, record.log_time, record.publish_time, record.data)
+        return
+    wanted = None if topics is None else set(topics)
+    for channel, _, record in _intact_messages(file_scan.path, file_scan, wanted, start_ns,
+                                               end_ns):
+        yield RawMessage(channel.topic, record.log_time, record.publish_time, record.data)
 
 
-def iter_raw_messages(path, topics=None, start_ns=None, end_ns=None):
+def iter_raw_messages(path, topics=None, start_ns=None, end_ns=None, allow_partial=False):
     """Iterate over the serialized messages of a bag in receive-time order.
 
     Parameters
@@ -361,6 +422,9 @@ def iter_raw_messages(path, topics=None, start_ns=None, end_ns=None):
         Only these topics (default: all).
     start_ns, end_ns : int, optional
         Only messages with ``start_ns <= log time <= end_ns`` [ns].
+    allow_partial : bool
+        Read the intact chunks of a damaged or unfinished bag instead of raising
+        :class:`BagIntegrityError`.
 
     Yields
     ------
@@ -371,7 +435,8 @@ def iter_raw_messages(path, topics=None, start_ns=None, end_ns=None):
     if isinstance(topics, str):
         topics = [topics]
     topics = None if topics is None else sorted(set(topics))
-    iterators = [_iter_raw_file(f, topics, start_ns, end_ns) for f in mcap_files(path)]
+    iterators = [_iter_raw_file(s, topics, start_ns, end_ns)
+                 for s in check_bag(path, allow_partial)]
     if len(iterators) == 1:
         yield from iterators[0]
     else:

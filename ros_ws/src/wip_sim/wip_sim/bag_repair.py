@@ -1,45 +1,59 @@
-"""Repair a rosbag2 MCAP bag whose recorder died: ``scripts/bag_repair BAG``.
+"""Repair a damaged rosbag2 MCAP bag into a new bag: ``scripts/bag_repair BAG [--out NEW]``.
 
 What a killed recorder (SIGKILL, power loss, full disk) leaves behind: the last MCAP file
 without its summary and footer (plain readers fail with "File end magic is invalid"), maybe
 a partial chunk at its end, and no ``metadata.yaml`` or one that lists only the files closed
-before the crash. MCAP chunks are self-contained (compressed, with a CRC of their content),
-so every chunk written completely before the crash can be recovered. This tool:
+before the crash. A disk or a copy can also flip bits anywhere. MCAP chunks are
+self-contained (compressed, with a CRC of their content), so every intact chunk can be
+recovered, before and after a damaged one. This tool:
 
-1. reads every ``*.mcap`` file of the bag directory, in the order of their index
-   (``<name>_0.mcap``, ``<name>_1.mcap`` ...);
-2. rewrites each unfinished file from its complete chunks (CRC-checked) into a finished
-   MCAP file of the same name (summary, indexes, same chunk compression), keeping the
-   original as ``<file>.unfinished``; a file without any complete chunk is set aside the
-   same way and left out of the bag;
+1. scans every ``*.mcap`` file of the bag directory, in the order of their index
+   (``<name>_0.mcap``, ``<name>_1.mcap`` ...), checking every chunk's CRC
+   (:mod:`wip_sim.bag_integrity`);
+2. copies each intact, finished file as it is into the new bag, and rewrites each other
+   one from its intact chunks (skipping the damaged ones) into a finished MCAP file of the
+   same name (summary, indexes, same chunk compression); a file without any intact chunk
+   is left out;
 3. rebuilds ``metadata.yaml`` from the files' contents (topics, types, QoS, type hashes,
    message counts, times, per-file entries), keeping ``custom_data`` and ``ros_distro``
-   from the old ``metadata.yaml`` or from the ``rosbag2`` metadata record of a file.
+   from the old ``metadata.yaml`` when they can be read (whatever its encoding) or from
+   the ``rosbag2`` metadata record of a file.
 
-Finished files are not touched. Running the tool on a healthy bag only rewrites
-``metadata.yaml`` (with the same content). This is ``ros2 bag reindex`` plus the recovery of
-unfinished files, which rosbag2 leaves to the MCAP CLI (``mcap recover``).
+The original bag is never touched: the new bag goes to ``--out`` (default
+``<BAG>_repaired``), which must not exist; it is built in a temporary directory beside it
+and renamed into place when complete. This is ``ros2 bag reindex`` plus the recovery of
+damaged files, which rosbag2 leaves to the MCAP CLI (``mcap recover``).
 
 Usage::
 
-    scripts/bag_repair BAG [--compression zstd|lz4|none] [--dry-run]
+    scripts/bag_repair BAG [--out NEW] [--compression zstd|lz4|none] [--dry-run]
+
+Exit codes: 0 the new bag holds every message of the original (nothing was damaged, only
+the metadata or the summaries were rebuilt); 1 it was written but messages were lost (the
+damaged parts are listed); 2 a usage or input error (nothing written).
 """
 
 import argparse
 import os
 import pathlib
 import re
+import shutil
 import struct
 import sys
+import tempfile
 from typing import NamedTuple
 
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Message, Metadata, Schema
-from mcap.stream_reader import breakup_chunk, StreamReader
+from mcap.records import Channel, Message, Metadata, Schema
 from mcap.writer import Writer
 import yaml
 
+from wip_control.tools.cli import check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE
+from wip_control.tools.cli import exit_with
+
+from .bag_integrity import iter_chunk_records
+from .bag_reader import BagReadError, scan
 from .bag_writer import (_bag_metadata, _COMPRESSION, _library_identifier,
                          BagWriterError, FileStatistics, MCAP_PROFILE, METADATA_FILE_NAME,
                          write_metadata_file)
@@ -50,6 +64,10 @@ UNFINISHED_SUFFIX = '.unfinished'
 _READ_ERRORS = (McapError, EOFError, ValueError, IndexError, OSError, MemoryError,
                 struct.error)
 _INDEX_RE = re.compile(r'_(\d+)\.mcap$')
+
+
+class NothingRecoverable(BagWriterError):
+    """No file of the bag has an intact chunk: no new bag is written."""
 
 
 class TopicInfo(NamedTuple):
@@ -64,10 +82,11 @@ class FileReport(NamedTuple):
     """Outcome of the repair of one MCAP file."""
 
     name: str
-    finished: bool  # had its summary (untouched)
+    finished: bool  # intact and finished: copied as it is
     messages: int  # messages in the repaired file
-    chunks: int  # complete chunks read (unfinished files) or in the summary
-    action: str  # 'kept', 'rewritten' or 'dropped (no complete chunk)'
+    chunks: int  # intact chunks
+    action: str  # 'copied', 'rewritten' or 'dropped (no intact chunk)' ('would ...')
+    problems: list  # the damaged parts skipped (one line each)
 
 
 class RepairResult(NamedTuple):
@@ -75,6 +94,12 @@ class RepairResult(NamedTuple):
 
     metadata: dict  # the metadata written (rosbag2_bagfile_information)
     files: list  # FileReport per file, in order
+    out: pathlib.Path  # the new bag (not written with dry_run)
+
+    @property
+    def lost(self) -> bool:
+        """True if a damaged part of the original was skipped."""
+        return any(f.problems for f in self.files)
 
 
 def mcap_files_by_index(directory):
@@ -157,34 +182,6 @@ def _parse_serialized(metadata):
     return data if isinstance(data, dict) else None
 
 
-def _scan_complete_chunks(path):
-    """Yield the records of the complete, CRC-valid chunks of a file, in file order.
-
-    Yields ('chunk', compression) before the records of each chunk, then ('schema', r),
-    ('channel', r), ('message', r) and ('metadata', r). Stops quietly at the first
-    truncated or corrupt record.
-    """
-    with open(path, 'rb') as stream:
-        records = StreamReader(stream, emit_chunks=True, validate_crcs=False).records
-        while True:
-            try:
-                record = next(records)
-                if isinstance(record, Chunk):
-                    inner = breakup_chunk(record, validate_crc=True)
-                else:
-                    inner = None
-            except StopIteration:
-                return
-            except _READ_ERRORS:
-                return
-            if inner is not None:
-                yield 'chunk', record.compression
-                for item in inner:
-                    yield from _classify(item)
-            else:
-                yield from _classify(record)
-
-
 def _classify(record):
     if isinstance(record, Schema):
         yield 'schema', record
@@ -196,74 +193,83 @@ def _classify(record):
         yield 'metadata', record
 
 
-def _rewrite_unfinished(path, compression, dry_run):
-    """Rewrite an unfinished file from its complete chunks; returns its FileContents."""
+def _rewrite(path, target, compression):
+    """The intact chunks of ``path`` into a finished MCAP file ``target`` (None: only
+    count); returns its FileContents."""
+    file_scan = scan(path)
     contents = FileContents(path.name, False)
-    unfinished = path.with_name(path.name + UNFINISHED_SUFFIX)
-    if dry_run:
-        source, stream, writer = path, None, None
-    else:
-        if unfinished.exists():
-            raise BagWriterError(f'{unfinished} exists: a previous repair was interrupted; '
-                                 'move it away first')
-        os.replace(path, unfinished)
-        source = unfinished
-        stream = open(path, 'xb')
-        writer = None
-    schemas, schema_ids, channel_ids, channel_topics = {}, {}, {}, {}
+    contents.compression = file_scan.chunks[0].compression if file_scan.chunks else None
+    stream = writer = None
+    schema_ids, channel_ids, channel_topics = {}, {}, {}
+    schemas = dict(file_scan.schemas)
+    for record in file_scan.metadata:
+        if record.name == 'rosbag2':
+            contents.rosbag2_metadata = _parse_serialized(record.metadata)
     try:
-        for kind, record in _scan_complete_chunks(source):
-            if kind == 'chunk':
-                contents.chunks += 1
-                if contents.compression is None:
-                    contents.compression = record
-                continue
-            if writer is None and stream is not None:
-                chosen = compression or _compression_name(contents.compression)
-                writer = Writer(stream, compression=_COMPRESSION[chosen])
-                writer.start(profile=MCAP_PROFILE, library=_library_identifier())
-            if kind == 'schema' and record.id not in schemas:
-                schemas[record.id] = record
-                if writer is not None:
-                    schema_ids[record.id] = writer.register_schema(
-                        record.name, record.encoding, record.data)
-            elif kind == 'channel' and record.id not in channel_topics:
-                channel_topics[record.id] = record.topic
-                contents.topics.setdefault(
-                    record.topic, _topic_info(record, schemas.get(record.schema_id)))
-                contents.counts.setdefault(record.topic, 0)
-                if writer is not None:
-                    channel_ids[record.id] = writer.register_channel(
-                        record.topic, record.message_encoding,
-                        schema_ids.get(record.schema_id, 0), dict(record.metadata))
-            elif kind == 'message' and record.channel_id in channel_topics:
-                if writer is not None:
-                    writer.add_message(channel_ids[record.channel_id], record.log_time,
-                                       record.data, record.publish_time, record.sequence)
-                contents.counts[channel_topics[record.channel_id]] += 1
-                contents.stats.add(record.log_time)
-            elif kind == 'metadata' and record.name == 'rosbag2':
-                contents.rosbag2_metadata = _parse_serialized(record.metadata)
+        for _, records in iter_chunk_records(path, file_scan):
+            contents.chunks += 1
+            for record in records:
+                for kind, item in _classify(record):
+                    if target is not None and writer is None:
+                        stream = open(target, 'xb')
+                        chosen = compression or _compression_name(contents.compression)
+                        writer = Writer(stream, compression=_COMPRESSION[chosen])
+                        writer.start(profile=MCAP_PROFILE, library=_library_identifier())
+                    if kind == 'schema':
+                        schemas.setdefault(item.id, item)
+                    elif kind == 'channel' and item.id not in channel_topics:
+                        channel_topics[item.id] = item.topic
+                    elif kind == 'message':
+                        _add_message(item, file_scan, schemas, writer, schema_ids,
+                                     channel_ids, channel_topics, contents)
+                    elif kind == 'metadata' and item.name == 'rosbag2' and \
+                            contents.rosbag2_metadata is None:
+                        contents.rosbag2_metadata = _parse_serialized(item.metadata)
         if writer is not None and contents.stats.count > 0:
             writer.finish()
     finally:
         if stream is not None:
             stream.close()
-    if stream is not None and contents.stats.count == 0:
-        path.unlink()  # Nothing recoverable: leave only the .unfinished original.
+    if target is not None and contents.stats.count == 0:
+        pathlib.Path(target).unlink(missing_ok=True)
     return contents
+
+
+def _add_message(message, file_scan, schemas, writer, schema_ids, channel_ids,
+                 channel_topics, contents):
+    channel = file_scan.channels.get(message.channel_id)
+    if channel is None:
+        return  # Its channel was only in a damaged chunk: its topic is unknown.
+    if channel.id not in channel_ids:
+        schema = schemas.get(channel.schema_id)
+        contents.topics.setdefault(channel.topic, _topic_info(channel, schema))
+        contents.counts.setdefault(channel.topic, 0)
+        if writer is not None:
+            if schema is not None and schema.id not in schema_ids:
+                schema_ids[schema.id] = writer.register_schema(schema.name, schema.encoding,
+                                                               schema.data)
+            channel_ids[channel.id] = writer.register_channel(
+                channel.topic, channel.message_encoding,
+                schema_ids.get(channel.schema_id, 0), dict(channel.metadata))
+        else:
+            channel_ids[channel.id] = channel.id
+    if writer is not None:
+        writer.add_message(channel_ids[channel.id], message.log_time, message.data,
+                           message.publish_time, message.sequence)
+    contents.counts[channel.topic] += 1
+    contents.stats.add(message.log_time)
 
 
 def read_file_contents(path):
     """Topics, message counts, times and chunk compression of one MCAP file.
 
-    From the summary of a finished file; from a scan of the complete chunks of an unfinished
-    one (``FileContents.finished`` tells which).
+    From the summary of an intact, finished file; from its intact chunks otherwise
+    (``FileContents.finished`` tells which).
     """
     path = pathlib.Path(path)
-    if is_finished(path):
+    if scan(path).seekable:
         return _read_finished(path)
-    return _rewrite_unfinished(path, None, dry_run=True)
+    return _rewrite(path, None, None)
 
 
 def _compression_name(chunk_compression):
@@ -271,22 +277,49 @@ def _compression_name(chunk_compression):
 
 
 def _old_metadata(directory):
+    """``custom_data`` and ``ros_distro`` of an old metadata.yaml, whatever state it is in.
+
+    Undecodable bytes become U+FFFD (a damaged metadata.yaml is what this tool rebuilds),
+    and only values of the right type are kept.
+    """
     path = pathlib.Path(directory) / METADATA_FILE_NAME
     try:
-        data = yaml.safe_load(path.read_text(encoding='utf-8'))
-    except (OSError, yaml.YAMLError):
+        text = path.read_bytes().decode('utf-8', errors='replace')
+        data = yaml.safe_load(text)
+    except (OSError, yaml.YAMLError, ValueError, RecursionError):
         return None
-    info = (data or {}).get('rosbag2_bagfile_information') if isinstance(data, dict) else None
-    return info if isinstance(info, dict) else None
+    info = data.get('rosbag2_bagfile_information') if isinstance(data, dict) else None
+    return _usable_metadata(info)
 
 
-def repair_bag(directory, compression=None, dry_run=False):
-    """Make a bag whole again after its recorder died; see the module docstring.
+def _usable_metadata(info):
+    if not isinstance(info, dict):
+        return None
+    out = {}
+    custom = info.get('custom_data')
+    if isinstance(custom, dict) and all(isinstance(k, str) and isinstance(v, str)
+                                        for k, v in custom.items()):
+        out['custom_data'] = custom
+    if isinstance(info.get('ros_distro'), str):
+        out['ros_distro'] = info['ros_distro']
+    return out or None
+
+
+def default_output(directory):
+    """Where the repaired copy of ``directory`` goes by default: ``<BAG>_repaired``."""
+    directory = pathlib.Path(directory)
+    return directory.with_name(directory.name + '_repaired')
+
+
+def repair_bag(directory, out=None, compression=None, dry_run=False):
+    """Copy a damaged bag's intact content into a new, whole bag; see the module docstring.
 
     Parameters
     ----------
     directory : str or pathlib.Path
-        The bag directory.
+        The bag directory (never modified).
+    out : str or pathlib.Path, optional
+        The new bag directory; must not exist. Default ``<directory>_repaired``.
     compression : str, optional
         Chunk compression of rewritten files ('zstd', 'lz4', 'none'); default: that of the
         file's first chunk.
@@ -296,12 +329,12 @@ def repair_bag(directory, compression=None, dry_run=False):
     Returns
     -------
     RepairResult
-        The metadata (written unless ``dry_run``) and a report per file.
+        The metadata (written unless ``dry_run``), a report per file, the new bag's path.
 
     Raises
     ------
     BagWriterError
-        If the directory holds no ``.mcap`` file.
+        If the directory holds no ``.mcap`` file, or ``out`` exists or cannot be written.
     """
     directory = pathlib.Path(directory)
     if compression is not None and compression not in _COMPRESSION:
@@ -312,22 +345,68 @@ def repair_bag(directory, compression=None, dry_run=False):
     paths = mcap_files_by_index(directory)
     if not paths:
         raise BagWriterError(f'{directory}: no .mcap file to repair')
+    out = pathlib.Path(out) if out is not None else default_output(directory)
+    if out.exists() or out.is_symlink():
+        raise BagWriterError(f'--out {out} exists: the repaired bag goes to a new directory '
+                             '(give another --out)')
+    resolved = out.resolve()
+    if resolved == directory.resolve() or directory.resolve() in resolved.parents:
+        raise BagWriterError(f'--out {out}: inside the original bag, which is never touched')
+    try:
+        check_output_directory(out, '--out')
+    except ValueError as err:
+        raise BagWriterError(str(err)) from err
+    work = None
+    if not dry_run:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        work = pathlib.Path(tempfile.mkdtemp(prefix=f'.{out.name}.partial-', dir=out.parent))
+    try:
+        reports, kept = _repair_files(paths, work, compression, dry_run)
+        if not kept:
+            raise NothingRecoverable(
+                f'{directory}: no intact chunk in any file, nothing to recover ('
+                + '; '.join(line for r in reports for line in r.problems) + ')')
+        information = _metadata_of(directory, kept)
+        if work is not None:
+            write_metadata_file(work / METADATA_FILE_NAME, information)
+            os.rename(work, out)  # The new bag appears whole, or not at all.
+            work = None
+    finally:
+        if work is not None:
+            shutil.rmtree(work, ignore_errors=True)  # Ours: created above.
+    return RepairResult(information, reports, out)
+
+
+def _repair_files(paths, work, compression, dry_run):
     reports, kept = [], []
-    for path in paths:
-        if is_finished(path):
+    scans = [scan(p) for p in paths]
+    starts = [c.start_ns for s in scans for c in s.chunks]
+    origin = min(starts) if starts else None
+    for path, file_scan in zip(paths, scans):
+        lost = file_scan.problems(origin)
+        if file_scan.seekable:
             contents = _read_finished(path)
-            reports.append(FileReport(path.name, True, contents.stats.count, contents.chunks,
-                                      'kept'))
+            if work is not None:
+                shutil.copy2(path, work / path.name)
+            action = 'would copy' if dry_run else 'copied'
+            reports.append(FileReport(path.name, True, contents.stats.count,
+                                      contents.chunks, action, []))
         else:
-            contents = _rewrite_unfinished(path, compression, dry_run)
-            action = ('rewritten' if contents.stats.count > 0
-                      else 'dropped (no complete chunk)')
+            target = None if work is None else work / path.name
+            contents = _rewrite(path, target, compression)
+            if contents.stats.count > 0:
+                action = 'would rewrite' if dry_run else 'rewritten'
+            else:
+                action = ('would drop' if dry_run else 'dropped') + ' (no intact chunk)'
             reports.append(FileReport(path.name, False, contents.stats.count,
-                                      contents.chunks, action))
+                                      contents.chunks, action, lost))
             if contents.stats.count == 0:
                 continue
         kept.append(contents)
+    return reports, kept
 
+
+def _metadata_of(directory, kept):
     topics, counts = {}, {}
     for contents in kept:
         for topic, info in contents.topics.items():
@@ -335,46 +414,54 @@ def repair_bag(directory, compression=None, dry_run=False):
             counts[topic] = counts.get(topic, 0) + contents.counts.get(topic, 0)
     old = _old_metadata(directory)
     if old is None:
-        old = next((c.rosbag2_metadata for c in kept if c.rosbag2_metadata), None) or {}
-    information = _bag_metadata(
+        old = next((_usable_metadata(c.rosbag2_metadata) for c in kept
+                    if _usable_metadata(c.rosbag2_metadata)), None) or {}
+    return _bag_metadata(
         files=[c.stats for c in kept],
         topics=[(topic, info.type_name, info.qos, info.type_hash, counts[topic])
                 for topic, info in topics.items()],
         custom_data=old.get('custom_data') or {},
         ros_distro=old.get('ros_distro') or os.environ.get('ROS_DISTRO') or 'jazzy')
-    if not dry_run:
-        write_metadata_file(directory / METADATA_FILE_NAME, information)
-    return RepairResult(information, reports)
 
 
 def main(argv=None):
     """``scripts/bag_repair BAG``: see the module docstring."""
     parser = argparse.ArgumentParser(
-        prog='bag_repair', description='Recover the complete chunks of unfinished MCAP '
-        'files of a rosbag2 bag and rebuild its metadata.yaml from the files\' contents.')
+        prog='bag_repair', description='Copy the intact chunks of a damaged or unfinished '
+        'rosbag2 MCAP bag into a new bag with a rebuilt metadata.yaml; the original is never '
+        'touched.')
     parser.add_argument('bag', help='bag directory')
+    parser.add_argument('--out', help='the new bag directory (must not exist; default '
+                        '<BAG>_repaired)')
     parser.add_argument('--compression', choices=sorted(_COMPRESSION),
                         help='chunk compression of rewritten files (default: as found)')
     parser.add_argument('--dry-run', action='store_true',
                         help='report what would be done, write nothing')
     args = parser.parse_args(argv)
     try:
-        result = repair_bag(args.bag, compression=args.compression, dry_run=args.dry_run)
-    except (BagWriterError, ValueError, OSError) as err:
+        result = repair_bag(args.bag, out=args.out, compression=args.compression,
+                            dry_run=args.dry_run)
+    except NothingRecoverable as err:
+        print(f'bag_repair: {err}; nothing written', file=sys.stderr)
+        return EXIT_FAILED
+    except (BagWriterError, BagReadError, ValueError, OSError) as err:
         print(f'bag_repair: error: {err}', file=sys.stderr)
-        return 1
+        return EXIT_USAGE
     for report in result.files:
-        note = ''
-        if not report.finished and not args.dry_run:
-            note = f' (original kept as {report.name}{UNFINISHED_SUFFIX})'
         print(f'{report.name}: {report.action}, {report.messages} messages in '
-              f'{report.chunks} chunk(s){note}')
+              f'{report.chunks} intact chunk(s)')
+        for line in report.problems:
+            print(f'  skipped: {line}')
     info = result.metadata
-    print(f'{"would write" if args.dry_run else "wrote"} {METADATA_FILE_NAME}: '
+    print(f'{"would write" if args.dry_run else "wrote"} {result.out}/{METADATA_FILE_NAME}: '
           f'{info["message_count"]} messages on {len(info["topics_with_message_count"])} '
-          f'topic(s) in {len(info["relative_file_paths"])} file(s)')
-    return 0
+          f'topic(s) in {len(info["relative_file_paths"])} file(s); '
+          f'{args.bag} {"is" if args.dry_run else "was"} left untouched')
+    if result.lost:
+        print('bag_repair: the damaged parts listed above are lost', file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    exit_with(main, 'bag_repair')

@@ -658,12 +658,12 @@ def write_metadata_file(path, information):
     os.replace(temporary, path)
 
 
-def recover_bag(directory, compression=None):
+def recover_bag(directory, compression=None, out=None):
     """Make a readable bag of a directory whose writer died before :meth:`close`.
 
-    See :func:`wip_sim.bag_repair.repair_bag` (this is its short form, kept for the
-    recorder's messages and older callers): every unfinished MCAP file is rewritten from its
-    complete chunks, and ``metadata.yaml`` is rebuilt from the files' contents.
+    See :func:`wip_sim.bag_repair.repair_bag` (this is its short form, kept for older
+    callers): the intact chunks of the bag go into a new bag ``out`` (default
+    ``<directory>_repaired``) with a rebuilt ``metadata.yaml``; ``directory`` is not touched.
 
     Returns
     -------
@@ -671,4 +671,4 @@ def recover_bag(directory, compression=None):
         The metadata written (``rosbag2_bagfile_information``).
     """
     from .bag_repair import repair_bag  # Imported here: bag_repair imports this module.
-    return repair_bag(directory, compression=compression).metadata
+    return repair_bag(directory, out=out, compression=compression).metadata

@@ -45,7 +45,8 @@ Each reading is the mean over the last ``--window`` seconds (default 0.3 s).
 
 Output: one line per check (``OK``, ``WARN``, ``FAIL``, ``SKIP``) with the numbers, and
 with ``--json FILE`` all of it as JSON. Exit status: 0 every check OK (warnings allowed),
-1 a check failed, 2 bad arguments, 4 no data from the base (timeout), 130 interrupted.
+1 a check failed (also: no data from the base within the timeout), 2 bad arguments,
+3 internal error, 130 interrupted.
 """
 
 from __future__ import annotations
@@ -71,7 +72,10 @@ from wip_control.nodes.hardware_inputs import (check_mounting_rpy, check_wheel_s
 from .graph import GraphError
 from .hardware import hardware_parameters, load_params_file, node_parameters, parse_remap
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NO_DATA, EXIT_INTERRUPTED = 0, 1, 2, 4, 130
+# The exit-code table of every tool (wip_control.tools.cli); no data from the base is a
+# failed check (the connection check).
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_NO_DATA = EXIT_FAILED
 OK, WARN, FAIL, SKIP = 'OK', 'WARN', 'FAIL', 'SKIP'
 TWO_PI = 2.0 * math.pi
 #: Body roll/pitch accepted as "upright" [rad] (a robot held by hand, about 9°).
@@ -756,4 +760,5 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    from wip_control.tools.cli import exit_with
+    exit_with(main, 'check_base')

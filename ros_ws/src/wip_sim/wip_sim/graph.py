@@ -87,10 +87,16 @@ import yaml
 
 from wip_control.core.config import ConfigError
 from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
+from wip_control.tools.cli import check_output_directory, exit_with, write_atomic
 from wip_control.tools.params_files import CONTROLLER_NODES, write_params_file
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_FELL, EXIT_TIMEOUT = 0, 1, 2, 3, 4
+# The exit-code table of every tool (wip_control.tools.cli): 0 ok, 1 the vehicle fell,
+# 2 usage or input error, 3 internal error (a node crashed, the graph stalled), 130 Ctrl-C.
+EXIT_OK, EXIT_FELL, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
+EXIT_TIMEOUT = EXIT_FAILED
 EXIT_INTERRUPTED = 130
+#: Marker of a log directory written by run_graph: only such a directory is replaced.
+LOGS_MARKER = '.written-by-run_graph'
 
 #: Process layouts of the controller nodes: 'separate' (one process per node, as six
 #: `ros2 run`) or 'composed' (the six nodes in one process, `ros2 run wip_control
@@ -487,6 +493,8 @@ class GraphRunner:
         self.options = options
         self.out = pathlib.Path(options.out).resolve()
         self.bag = pathlib.Path(options.record).resolve() if options.record else None
+        self.prepared = False  # True once prepare() set up the run directory
+        self.bag_created = False  # True once this run's recorder may have written the bag
         self.processes: dict[str, NodeProcess] = {}
         self.probe: Probe | None = None
         self.domain_id = choose_domain_id()
@@ -534,20 +542,43 @@ class GraphRunner:
                                  f'{options.duration}', EXIT_USAGE)
             scenario = dataclasses.replace(scenario, duration=float(options.duration))
         self.scenario = scenario
+        # Every output is checked before anything is written or started.
+        try:
+            check_output_directory(self.out, '--out')
+            if self.bag is not None:
+                check_output_directory(self.bag, '--record')
+        except ValueError as err:
+            raise GraphError(str(err), EXIT_USAGE) from err
         if self.bag is not None and self.bag.exists() and any(self.bag.iterdir()):
             raise GraphError(f'--record: {self.bag} exists and is not empty; refusing to '
-                             'overwrite a bag', EXIT_USAGE)
-        self.out.mkdir(parents=True, exist_ok=True)
+                             'overwrite a bag (nothing was written)', EXIT_USAGE)
         logs = self.out / 'logs'
-        for old in [logs, *self.out.glob('logs_attempt_*')]:
-            if old.is_dir():
-                shutil.rmtree(old)
+        if self.bag is not None and (self.bag == self.out or self.bag == logs
+                                     or logs in self.bag.parents):
+            raise GraphError(f'--record {self.bag}: not the run directory or its logs',
+                             EXIT_USAGE)
+        old_logs = [old for old in [logs, *sorted(self.out.glob('logs_attempt_*'))]
+                    if old.exists() or old.is_symlink()]
+        for old in old_logs:
+            foreign = foreign_log_content(old)
+            if foreign:
+                raise GraphError(
+                    f'--out {self.out}: {old} holds {foreign}, which run_graph did not write; '
+                    'refusing to replace it (move it away or choose another --out)',
+                    EXIT_USAGE)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.prepared = True
+        for old in old_logs:  # Logs of an earlier run_graph run (checked above).
+            shutil.rmtree(old)
         (logs / 'ros').mkdir(parents=True)
+        (logs / LOGS_MARKER).write_text('run_graph writes this directory and replaces it on '
+                                        'the next run into the same --out\n',
+                                        encoding='utf-8')
         for stale in ('plant_stats.json', 'run.json'):
             (self.out / stale).unlink(missing_ok=True)
         scenario_path = self.out / 'scenario.yaml'
-        scenario_path.write_text(yaml.safe_dump(scenario_to_mapping(scenario),
-                                                sort_keys=False), encoding='utf-8')
+        write_atomic(scenario_path, yaml.safe_dump(scenario_to_mapping(scenario),
+                                                   sort_keys=False))
         recorder = None
         if self.bag is not None:
             topics = list(RECORDED_TOPICS)
@@ -799,8 +830,8 @@ class GraphRunner:
             self.timeline['recorder stopped'] = time.monotonic() - self.t0
             if code not in (0, None):
                 self.say(f'warning: the recorder exited with code {code}; see '
-                         f'{recorder.log_path} (wip_sim.bag_writer.recover_bag can repair '
-                         'a bag that was not closed)')
+                         f'{recorder.log_path}; if the bag was not closed, '
+                         f'scripts/bag_repair {self.bag} recovers every complete chunk')
 
     # -- the run ----------------------------------------------------------------------------
     def start_graph(self, params_file: pathlib.Path) -> None:
@@ -808,6 +839,7 @@ class GraphRunner:
         if self.probe is None:
             self.probe = Probe(self.domain_id)
         self.start_processes(params_file)
+        self.bag_created = self.bag is not None  # prepare() checked it was absent or empty
         self.timeline['processes started'] = time.monotonic() - self.t0
         self.say(f'started {len(self.processes)} processes in ROS_DOMAIN_ID='
                  f'{self.domain_id}; waiting for the graph')
@@ -897,12 +929,32 @@ class GraphRunner:
             result.plant_stats = json.loads(stats_path.read_text(encoding='utf-8'))
             if result.plant_stats.get('cpu_s') is not None:
                 result.cpu_s['plant'] = result.plant_stats['cpu_s']
-        if self.bag is not None and self.bag.is_dir() and self.scenario is not None:
+        if self.bag_created and self.bag.is_dir() and (self.out / 'scenario.yaml').is_file():
+            # Only into a bag this run recorded (never into one it refused).
             shutil.copyfile(self.out / 'scenario.yaml', self.bag / 'scenario.yaml')
-        if self.out.is_dir():
+        if self.prepared and self.out.is_dir():  # A refused run leaves --out untouched.
             (self.out / 'run.json').write_text(json.dumps(result.summary(), indent=2) + '\n',
                                                encoding='utf-8')
         return result
+
+
+def foreign_log_content(directory: pathlib.Path) -> str:
+    """'' if ``directory`` is a log directory run_graph wrote, else what is foreign in it.
+
+    run_graph's own: a directory with its marker file whose entries are the marker, the
+    ``ros`` folder and ``<node>.log`` files.
+    """
+    if directory.is_symlink():
+        return 'a symbolic link'
+    if not directory.is_dir():
+        return 'a file'
+    if not any(directory.iterdir()):
+        return ''  # Empty: nothing to lose.
+    if not (directory / LOGS_MARKER).is_file():
+        return 'content without the run_graph marker'
+    ours = {LOGS_MARKER, 'ros'} | {f'{name}.log' for name in EXECUTABLES}
+    foreign = sorted(p.name for p in directory.iterdir() if p.name not in ours)
+    return ', '.join(foreign[:3])
 
 
 def run_graph(options: GraphOptions) -> GraphResult:
@@ -1015,9 +1067,12 @@ def main(argv: list[str] | None = None) -> int:
                            scheduling=Scheduling(priority=args.rt_priority,
                                                  cpus=tuple(args.cpu_affinity)))
     result = run_graph(options)
+    if result.exit_code == EXIT_USAGE:  # Refused before anything ran: nothing to show.
+        print(f'run_graph: error: {result.message}', file=sys.stderr)
+        return EXIT_USAGE
     print(format_result(result))
     return result.exit_code
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    exit_with(main, 'run_graph')

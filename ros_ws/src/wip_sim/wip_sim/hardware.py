@@ -70,15 +70,17 @@ from typing import Any, Callable, Iterable, Mapping
 
 import yaml
 
-from wip_control.core.config import ConfigError
+from wip_control.core.config import ConfigError, load_yaml_text
 from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
 from wip_control.tools.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
                                             graph_parameters, _NoAliasDumper)
 
+from wip_control.tools.cli import check_output_directory, write_atomic
+
 from .graph import (choose_domain_id, executable_path, EXECUTABLES, EXIT_FAILED, EXIT_OK,
-                    EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError, graph_environment,
-                    LAYOUTS, NodeProcess, parse_cpus, Probe, RECORDER_GRACE_PERIOD,
-                    Scheduling)
+                    EXIT_TIMEOUT, EXIT_USAGE, foreign_log_content, GRACE_PERIOD, GraphError,
+                    graph_environment, LAYOUTS, LOGS_MARKER, NodeProcess, parse_cpus, Probe,
+                    RECORDER_GRACE_PERIOD, Scheduling)
 
 #: The nodes of hardware mode, in start order.
 HARDWARE_NODES = CONTROLLER_NODES
@@ -183,9 +185,11 @@ def load_params_file(path: str | pathlib.Path) -> dict[str, Any]:
     """A ROS params YAML ``{node: {ros__parameters: {...}}}``; GraphError if malformed."""
     path = pathlib.Path(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding='utf-8'))
-    except (OSError, yaml.YAMLError) as err:
-        raise GraphError(f'--params-file {path}: {err}', EXIT_USAGE) from err
+        data = load_yaml_text(path.read_bytes(), f'--params-file {path}')
+    except OSError as err:
+        raise GraphError(f'--params-file {path}: {err.strerror or err}', EXIT_USAGE) from err
+    except ConfigError as err:
+        raise GraphError(str(err), EXIT_USAGE) from err
     if not isinstance(data, Mapping):
         raise GraphError(f'--params-file {path}: expected a mapping of node names',
                          EXIT_USAGE)
@@ -241,6 +245,8 @@ class HardwareRunner:
         self.options = options
         self.out = pathlib.Path(options.out).resolve()
         self.bag = pathlib.Path(options.record).resolve() if options.record else None
+        self.prepared = False  # True once prepare() set up the run directory
+        self.bag_created = False  # True once this run's recorder may have written the bag
         self.processes: dict[str, NodeProcess] = {}
         self.probe: Probe | None = None
         self.domain_id = choose_domain_id()
@@ -277,18 +283,38 @@ class HardwareRunner:
         options.scheduling.check()
         self.remaps = [parse_remap(text) for text in options.remaps]
         self.extra = [load_params_file(path) for path in options.params_files]
+        try:
+            check_output_directory(self.out, '--out')
+            if self.bag is not None:
+                check_output_directory(self.bag, '--record')
+        except ValueError as err:
+            raise GraphError(str(err), EXIT_USAGE) from err
         if self.bag is not None and self.bag.exists() and any(self.bag.iterdir()):
             raise GraphError(f'--record: {self.bag} exists and is not empty; refusing to '
-                             'overwrite a bag', EXIT_USAGE)
-        self.out.mkdir(parents=True, exist_ok=True)
+                             'overwrite a bag (nothing was written)', EXIT_USAGE)
         logs = self.out / 'logs'
+        if self.bag is not None and (self.bag == self.out or self.bag == logs
+                                     or logs in self.bag.parents):
+            raise GraphError(f'--record {self.bag}: not the run directory or its logs',
+                             EXIT_USAGE)
+        if logs.exists() or logs.is_symlink():
+            foreign = foreign_log_content(logs)
+            if foreign:
+                raise GraphError(
+                    f'--out {self.out}: {logs} holds {foreign}, which run_graph did not '
+                    'write; refusing to replace it (move it away or choose another --out)',
+                    EXIT_USAGE)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.prepared = True
         if logs.exists():
-            shutil.rmtree(logs)
+            shutil.rmtree(logs)  # An earlier run_graph's logs (checked above).
         (logs / 'ros').mkdir(parents=True)
+        (logs / LOGS_MARKER).write_text('run_graph writes this directory and replaces it on '
+                                        'the next run into the same --out\n',
+                                        encoding='utf-8')
         (self.out / 'run.json').unlink(missing_ok=True)
-        (self.out / 'scenario.yaml').write_text(
-            yaml.safe_dump(scenario_to_mapping(self.scenario), sort_keys=False),
-            encoding='utf-8')
+        write_atomic(self.out / 'scenario.yaml',
+                     yaml.safe_dump(scenario_to_mapping(self.scenario), sort_keys=False))
         recorder = None
         if self.bag is not None:
             topics = list(CONTROLLER_TOPICS) + list(BASE_SENSOR_TOPICS) + [
@@ -548,6 +574,7 @@ class HardwareRunner:
                      f'time, ROS_DOMAIN_ID={self.domain_id}, outputs in {self.out}')
             self.open_probe()
             self.start_processes(params_file)
+            self.bag_created = self.bag is not None  # prepare() checked it was absent/empty
             self.timeline['processes started'] = time.monotonic() - self.t0
             self.wait_for_nodes()
             result.base_topics = self.base_topics()
@@ -590,9 +617,10 @@ class HardwareRunner:
         result.zero_commands_sent = self.zero_commands_sent
         result.node_exit_codes = {n: p.returncode for n, p in self.processes.items()}
         result.timeline = dict(self.timeline)
-        if self.bag is not None and self.bag.is_dir() and self.scenario is not None:
+        if self.bag_created and self.bag.is_dir() and (self.out / 'scenario.yaml').is_file():
+            # Only into a bag this run recorded (never into one it refused).
             shutil.copyfile(self.out / 'scenario.yaml', self.bag / 'scenario.yaml')
-        if self.out.is_dir():
+        if self.prepared and self.out.is_dir():  # A refused run leaves --out untouched.
             (self.out / 'run.json').write_text(json.dumps(result.summary(), indent=2) + '\n',
                                                encoding='utf-8')
         return result
@@ -688,6 +716,9 @@ def run_from_args(args: argparse.Namespace) -> int:
                               layout=args.layout or HardwareOptions.layout,
                               scheduling=scheduling_from_args(args))
     result = run_hardware(options)
+    if result.exit_code == EXIT_USAGE:  # Refused before anything ran: nothing to show.
+        print(f'run_graph: error: {result.message}', file=sys.stderr)
+        return EXIT_USAGE
     print(format_result(result))
     return result.exit_code
 

@@ -2,7 +2,9 @@
 
 rosbag2 is not on PyPI; this node plays the project's bags and any rosbag2 MCAP bag (a bag
 directory with ``metadata.yaml``, split into several files or not, or a single ``.mcap``
-file; also an unfinished one, up to its last complete chunk). The serialized messages are
+file). The bag is checked first (every chunk's CRC, a proper end): a damaged or unfinished
+bag is refused with what it lost, unless ``partial`` is set (then its intact chunks are
+played, with a warning naming what is missing). The serialized messages are
 republished as recorded (``publisher.publish(bytes)``: no decoding, no re-encoding), so
 subscribers receive the recorded bytes exactly.
 
@@ -48,6 +50,8 @@ delay : float
     Wall-clock delay [s] before playing (after the wait for subscribers).
 qos_depth : int
     History depth (keep last) of the publishers (default 1000).
+partial : bool
+    Play the intact part of a damaged or unfinished bag (default false: refuse it).
 exit_when_done : bool
     Exit at the end of the bag (default true); false: stay up (paused at the end) until
     stopped, e.g. to keep transient-local topics available.
@@ -104,12 +108,15 @@ from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSLivelinessPolic
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_srvs.srv import SetBool, Trigger
 
-from .bag_reader import BagReadError, iter_raw_messages, read_topics
+from wip_control.tools.cli import EXIT_INTERNAL, EXIT_USAGE, log_trace, one_line
+
+from .bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
 from .qos_yaml import INFINITE_DURATION_NS, normalize_offered_qos
 
+# The exit-code table of every tool (wip_control.tools.cli).
 EXIT_OK = 0
-EXIT_BAG_ERROR = 1
-EXIT_BAD_PARAMETERS = 2
+EXIT_BAG_ERROR = EXIT_USAGE  # the bag cannot be played: an input error
+EXIT_BAD_PARAMETERS = EXIT_USAGE
 
 CLOCK_TOPIC = '/clock'
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
@@ -260,6 +267,7 @@ class ReplayerNode(Node):
         self._declare('delay', 0.0, 'wall-clock delay before playing [s]')
         self._declare('qos_depth', 1000, 'keep-last depth of the publishers')
         self._declare('exit_when_done', True, 'exit at the end of the bag')
+        self._declare('partial', False, 'play the intact part of a damaged bag')
 
         get = self._value
         self.bag = get('bag')
@@ -267,6 +275,7 @@ class ReplayerNode(Node):
         self.start_offset = get('start_offset')
         self.duration = get('duration')
         self.loop = get('loop')
+        self.allow_partial = get('partial')
         self.clock_enabled = get('clock')
         self.clock_rate = get('clock_rate')
         self.wait_for = get('wait_for_subscribers')
@@ -291,9 +300,12 @@ class ReplayerNode(Node):
 
         # -- the bag's topics and their publishers ---------------------------------------
         try:
-            recorded = read_topics(self.bag)
+            recorded = read_topics(self.bag, self.allow_partial)
+            lost = bag_summary(self.bag)['problems'] if self.allow_partial else []
         except (BagReadError, OSError) as err:
             raise ReplayError(f'cannot read bag {self.bag}: {err}') from err
+        for line in lost:
+            self.get_logger().warning(f'playing a partial bag: {line}')
         wanted = self._string_array('topics')
         excluded = set(self._string_array('exclude'))
         missing = [t for t in wanted if t not in recorded]
@@ -375,7 +387,8 @@ class ReplayerNode(Node):
             return []
 
     def _first_times(self):
-        for message in iter_raw_messages(self.bag, topics=list(self.publishers_by_topic)):
+        for message in iter_raw_messages(self.bag, topics=list(self.publishers_by_topic),
+                                         allow_partial=self.allow_partial):
             yield message.log_time_ns
             return
 
@@ -466,7 +479,8 @@ class ReplayerNode(Node):
             self.state = 'playing'
             last_spin = time.monotonic()
             for message in iter_raw_messages(self.bag, topics=topics, start_ns=self.start_ns,
-                                             end_ns=self.end_ns):
+                                             end_ns=self.end_ns,
+                                             allow_partial=self.allow_partial):
                 if not self._wait_until(message.log_time_ns, executor):
                     return
                 self._publish_clock(message.log_time_ns)
@@ -534,6 +548,7 @@ _FLAGS = (
     ('--clock', 'clock', 'publish /clock from the recorded times'),
     ('--start-paused', 'start_paused', 'start paused (resume: ~/pause service)'),
     ('--stay', 'exit_when_done', 'stay up at the end of the bag (default: exit)'),
+    ('--partial', 'partial', 'play the intact part of a damaged or unfinished bag'),
 )
 _LISTS = (
     ('--topics', 'topics', 'topics to play (default: all)'),
@@ -608,11 +623,14 @@ def main(args=None):
     except ValueError as err:
         print(f'replayer: error: {err}', file=sys.stderr)
         status = EXIT_BAD_PARAMETERS
-    except Exception:  # noqa: B902
+    except Exception as err:  # noqa: B902
         # A signal shuts the context down at any point, also inside a ROS call (e.g. "failed
         # to initialize wait set: the given context is not valid"): that is a normal stop.
         if rclpy.ok():
-            raise
+            where = log_trace('replayer', err)
+            print(f'replayer: internal error: {one_line(err)} (full trace in {where})',
+                  file=sys.stderr)
+            status = EXIT_INTERNAL
     finally:
         if node is not None:
             node.destroy_node()

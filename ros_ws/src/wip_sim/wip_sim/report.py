@@ -42,7 +42,13 @@ The scenario (limits, disturbance windows, parameters of the metrics) comes from
 ``--scenario``, else from ``BAG/scenario.yaml`` (``scripts/run_graph --record`` copies
 the run's scenario there), else the paper's Section V with a warning.
 
-Exit status: 0 done, 1 the run fell, 2 the bag or the scenario cannot be read.
+Integrity: the bag is checked before it is read (every chunk's CRC, a proper end). A
+damaged or unfinished bag is refused with the time range and topics it lost (exit 2);
+with ``--partial`` the intact part is reported and ``metrics.json`` says
+``partial: true`` and lists what was lost in ``lost``.
+
+Exit status: 0 done, 1 the run fell, 2 the bag, the scenario or --out cannot be used
+(nothing written), 3 internal error.
 """
 
 from __future__ import annotations
@@ -58,8 +64,10 @@ from wip_control.core.config import ConfigError
 from wip_control.core.metrics import compute_metrics
 from wip_control.core.record import GROUPS, RunRecord
 from wip_control.core.scenario import load_scenario, Scenario
+from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE,
+                                   exit_with)
 
-from .bag_reader import BagReadError, read_bag
+from .bag_reader import bag_summary, BagReadError, read_bag
 
 #: Stamps beyond this [s] are wall-clock (epoch) times, not simulation times (~3 years).
 WALL_CLOCK_THRESHOLD_S = 1e8
@@ -100,7 +108,8 @@ def _stamp_ns(message) -> int:
 
 
 def record_from_bag(bag: str | pathlib.Path,
-                    topics: dict[str, tuple] | None = None) -> RunRecord:
+                    topics: dict[str, tuple] | None = None,
+                    allow_partial: bool = False) -> RunRecord:
     """The :class:`RunRecord` of a bag (see the module docstring for the mapping).
 
     Rows are sorted by stamp (a stable sort: messages with equal stamps keep the bag's
@@ -109,7 +118,8 @@ def record_from_bag(bag: str | pathlib.Path,
     topics = TOPICS if topics is None else topics
     rows: dict[str, list[tuple[int, tuple]]] = {group: [] for group, _ in topics.values()}
     try:
-        for topic, _, _, message in read_bag(bag, topics=list(topics)):
+        for topic, _, _, message in read_bag(bag, topics=list(topics),
+                                             allow_partial=allow_partial):
             group, convert = topics[topic]
             rows[group].append((_stamp_ns(message), convert(message)))
     except BagReadError as err:
@@ -161,8 +171,10 @@ def scenario_for(bag: str | pathlib.Path,
 
 def report(bag: str | pathlib.Path, out: str | pathlib.Path,
            scenario_path: str | pathlib.Path | None = None, figures: bool = True,
-           quiet: bool = True) -> dict[str, Any]:
+           quiet: bool = True, allow_partial: bool = False) -> dict[str, Any]:
     """Write the report of ``bag`` into ``out``; returns the metrics.
+
+    ``allow_partial``: report the intact part of a damaged bag (``partial: true``).
 
     Raises
     ------
@@ -171,10 +183,22 @@ def report(bag: str | pathlib.Path, out: str | pathlib.Path,
     """
     from wip_control.tools.simulate import write_run_outputs  # matplotlib lazily
 
+    try:
+        check_output_directory(out, '--out')
+    except ValueError as err:
+        raise ReportError(str(err)) from err
     scenario, source = scenario_for(bag, scenario_path)
     if not quiet:
         print(f'report: scenario {scenario.name!r} from {source}', file=sys.stderr)
-    record = record_from_bag(bag)
+    lost = []
+    if allow_partial:
+        try:
+            lost = bag_summary(bag)['problems']
+        except BagReadError as err:
+            raise ReportError(str(err)) from err
+        for line in lost:
+            print(f'report: warning: partial report, {line}', file=sys.stderr)
+    record = record_from_bag(bag, allow_partial=allow_partial)
     if 'truth' not in record and 'estimate' not in record:
         raise ReportError(f'{bag}: no /wip/ground_truth and no /wip/state_estimate: '
                           'nothing to report')
@@ -183,6 +207,9 @@ def report(bag: str | pathlib.Path, out: str | pathlib.Path,
     metrics['source'] = {'bag': str(bag), 'scenario': source,
                          'messages': {group: int(len(record[group]['t']))
                                       for group in GROUPS}}
+    if lost:
+        metrics['partial'] = True
+        metrics['lost'] = lost
     write_run_outputs(pathlib.Path(out), record, scenario, metrics, figures=figures)
     return metrics
 
@@ -197,21 +224,24 @@ def main(argv: Iterable[str] | None = None) -> int:
                         'else the paper scenario)')
     parser.add_argument('--no-figures', action='store_true', help='skip the PNG figures')
     parser.add_argument('--quiet', action='store_true', help='no summary')
+    parser.add_argument('--partial', action='store_true',
+                        help='report the intact part of a damaged or unfinished bag '
+                        '(metrics.json then has partial: true and lists what was lost)')
     args = parser.parse_args(None if argv is None else list(argv))
     try:
         metrics = report(args.bag, args.out, args.scenario, figures=not args.no_figures,
-                         quiet=args.quiet)
+                         quiet=args.quiet, allow_partial=args.partial)
     except ReportError as err:
         print(f'ERROR: {err}', file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     if not args.quiet:
         from wip_control.tools.simulate import summary
         print(summary(metrics))
         out = pathlib.Path(args.out)
         print(f'wrote {out / "metrics.json"}'
               + ('' if args.no_figures else f' and figures in {out / "figures"}'))
-    return 1 if metrics['fell'] else 0
+    return EXIT_FAILED if metrics['fell'] else EXIT_OK
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    exit_with(main, 'report')

@@ -75,7 +75,9 @@ import heapq
 import json
 import math
 import pathlib
+import shutil
 import sys
+import tempfile
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -90,7 +92,7 @@ import yaml
 
 from wip_control.core.angles import unwrap_next
 from wip_control.core.arc import AdaptiveRobustYawController
-from wip_control.core.config import ConfigError
+from wip_control.core.config import ConfigError, load_yaml_text
 from wip_control.core.eso import StateEstimate, WipStateObserver
 from wip_control.core.metrics import compute_metrics
 from wip_control.core.mixer import drive_torque_limit, mix
@@ -109,7 +111,10 @@ from wip_control.nodes.conversions import (arc_to_msg, command_to_msg, estimate_
                                            reference_from_msg, reference_to_msg, wheel_angles,
                                            wheel_torques_from_msg, wheel_torques_to_msg)
 
-from .bag_reader import BagReadError, iter_raw_messages, read_topics
+from wip_control.tools.cli import check_output_directory, EXIT_USAGE, exit_with, write_atomic
+
+from .bag_reader import (bag_summary, BagReadError, iter_raw_messages, read_metadata_file,
+                         read_topics)
 from .bag_writer import BagWriterError, Rosbag2McapWriter
 
 SCENARIO_KEY = 'wip.scenario'  # custom_data key of the scenario YAML in a bag
@@ -174,14 +179,19 @@ class RecordedRun:
     has_clock: bool = False  # the bag holds /clock: recorded in lockstep simulation time
 
 
-def read_recorded_run(bag, left_joint=LEFT_JOINT, right_joint=RIGHT_JOINT) -> RecordedRun:
-    """Deserialize the re-run's input topics and the recorded controller outputs."""
+def read_recorded_run(bag, left_joint=LEFT_JOINT, right_joint=RIGHT_JOINT,
+                      allow_partial=False) -> RecordedRun:
+    """Deserialize the re-run's input topics and the recorded controller outputs.
+
+    A damaged bag raises :class:`~wip_sim.bag_reader.BagIntegrityError` unless
+    ``allow_partial`` (then the intact chunks are used).
+    """
     wanted = {TOPICS[key][0]: key for key in _CLASSES}
     run = RecordedRun({}, {}, {}, {}, {}, {key: {} for key, _ in COMPARED}, {}, {}, {})
     run.receive_times = {key: {} for key in ('joint_states', 'imu', 'gps', 'wheel_torques',
                                              'mpc')}
-    run.has_clock = read_topics(bag).get(TOPICS['clock'][0]) is not None
-    for raw in iter_raw_messages(bag, topics=list(wanted)):
+    run.has_clock = read_topics(bag, allow_partial).get(TOPICS['clock'][0]) is not None
+    for raw in iter_raw_messages(bag, topics=list(wanted), allow_partial=allow_partial):
         key = wanted[raw.topic]
         msg = deserialize_message(raw.data, _CLASSES[key])
         stamp = stamp_ns(msg.header)
@@ -497,9 +507,9 @@ def _output_messages(outputs, run, scenario, prefix):
 
 
 def write_rerun_bag(bag, out_bag, outputs, run, scenario, prefix=DEFAULT_PREFIX,
-                    compression='zstd'):
+                    compression='zstd', allow_partial=False):
     """Copy every recorded topic of ``bag`` and add the recomputed outputs."""
-    recorded = read_topics(bag)
+    recorded = read_topics(bag, allow_partial)
     custom = {SCENARIO_KEY: yaml.safe_dump(scenario_to_mapping(scenario), sort_keys=False),
               'wip.rerun_of': str(pathlib.Path(bag).resolve())}
     with Rosbag2McapWriter(out_bag, compression=compression, custom_data=custom) as writer:
@@ -513,7 +523,7 @@ def write_rerun_bag(bag, out_bag, outputs, run, scenario, prefix=DEFAULT_PREFIX,
         computed = ((log_time, topic, data) for log_time, _, topic, data in
                     _output_messages(outputs, run, scenario, prefix))
         original = ((m.log_time_ns, m.topic, m.data, m.publish_time_ns)
-                    for m in iter_raw_messages(bag))
+                    for m in iter_raw_messages(bag, allow_partial=allow_partial))
         for item in heapq.merge(original, computed, key=lambda item: item[0]):
             writer.write(item[1], item[2], item[0],
                          publish_time_ns=item[3] if len(item) > 3 else None)
@@ -565,11 +575,15 @@ def scenario_for_bag(bag, scenario_file=None):
     path = pathlib.Path(bag)
     metadata = path / 'metadata.yaml'
     if metadata.is_file():
-        info = (yaml.safe_load(metadata.read_text(encoding='utf-8')) or {}).get(
-            'rosbag2_bagfile_information', {})
-        text = (info.get('custom_data') or {}).get(SCENARIO_KEY)
-        if text:
-            return scenario_from_mapping(yaml.safe_load(text)), f'{metadata} (custom_data)'
+        info = read_metadata_file(metadata)
+        custom = info.get('custom_data')
+        text = custom.get(SCENARIO_KEY) if isinstance(custom, dict) else None
+        if isinstance(text, str) and text:
+            where = f'{metadata} (custom_data)'
+            try:
+                return scenario_from_mapping(load_yaml_text(text, where)), where
+            except ConfigError as err:
+                raise ConfigError(f'{where}: {err}') from err
     directory = path if path.is_dir() else path.parent
     for candidate in (directory / 'scenario.yaml', directory.parent / 'scenario.yaml'):
         if candidate.is_file():  # scripts/run_graph copies it into the bag directory
@@ -731,18 +745,40 @@ def _mpc_output(mpc, row, stamp, scenario):
 # ============================================================== command line
 
 def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, quiet=False,
-          timing='auto'):
-    """Run the whole tool; returns (metrics dict, comparison dict)."""
+          timing='auto', allow_partial=False):
+    """Run the whole tool; returns (metrics dict, comparison dict).
+
+    ``OUT/bag`` must not exist (a bag is never overwritten): checked before anything is
+    computed. It is written into a temporary directory beside it and renamed when
+    complete, so a failed re-run leaves no half bag that would block the next one.
+    """
     out = pathlib.Path(out)
+    try:
+        check_output_directory(out, '--out')
+    except ValueError as err:
+        raise RerunError(str(err)) from err
+    out_bag = out / 'bag'
+    if out_bag.exists() or out_bag.is_symlink():
+        raise RerunError(f'{out_bag} exists: refusing to overwrite a bag (choose another '
+                         '--out or move it away)')
     scenario, source = scenario_for_bag(bag, scenario_file)
     if not quiet:
         print(f'scenario: {source}', file=sys.stderr)
-    run = read_recorded_run(bag)
+    lost = bag_summary(bag)['problems'] if allow_partial else []
+    for line in lost:
+        print(f'rerun: warning: partial re-run, {line}', file=sys.stderr)
+    run = read_recorded_run(bag, allow_partial=allow_partial)
     timing = resolve_timing(run, timing)
     outputs = rerun_controllers(run, scenario, timing)
     comparison = compare(run, outputs)
     out.mkdir(parents=True, exist_ok=True)
-    counts = write_rerun_bag(bag, out / 'bag', outputs, run, scenario, prefix)
+    work = pathlib.Path(tempfile.mkdtemp(prefix='.bag.partial-', dir=out))
+    try:
+        counts = write_rerun_bag(bag, work / 'bag', outputs, run, scenario, prefix,
+                                 allow_partial=allow_partial)
+        _rename_bag(work / 'bag', out_bag)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)  # ours: created above
     record = run_record(run, outputs, scenario)
     metrics = compute_metrics(record, scenario)
     metrics['rerun'] = {
@@ -757,13 +793,22 @@ def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, qui
         'comparison': comparison,
         'messages_written': counts,
     }
+    if lost:
+        metrics['partial'] = True
+        metrics['lost'] = lost
     from wip_control.tools.simulate import write_run_outputs
     write_run_outputs(out, record, scenario, metrics, figures=figures)
-    (out / 'comparison.json').write_text(json.dumps(comparison, indent=2) + '\n')
+    write_atomic(out / 'comparison.json', json.dumps(comparison, indent=2) + '\n')
     if figures:
         (out / 'figures').mkdir(exist_ok=True)
         comparison_figure(run, outputs, out / 'figures' / 'rerun_comparison.png')
     return metrics, comparison
+
+
+def _rename_bag(source, target):
+    """Move the finished bag into place (written in a directory also named ``bag``, so its
+    files already have the names rosbag2 gives them: ``bag_<i>.mcap``)."""
+    source.rename(target)
 
 
 def summary_lines(comparison):
@@ -798,15 +843,18 @@ def main(argv=None):
                         "holds /clock")
     parser.add_argument('--no-figures', action='store_true', help='skip the PNG figures')
     parser.add_argument('--quiet', action='store_true')
+    parser.add_argument('--partial', action='store_true',
+                        help='re-run the intact part of a damaged or unfinished bag '
+                        '(metrics.json then has partial: true and lists what was lost)')
     args = parser.parse_args(argv)
     try:
         _, comparison = rerun(args.bag, args.out, args.scenario, figures=not args.no_figures,
                               prefix=args.prefix.rstrip('/'), quiet=args.quiet,
-                              timing=args.timing)
+                              timing=args.timing, allow_partial=args.partial)
     except (RerunError, BagReadError, BagWriterError, ConfigError, OSError,
             ValueError) as err:
         print(f'rerun: error: {err}', file=sys.stderr)
-        return 1
+        return EXIT_USAGE
     if not args.quiet:
         print('\n'.join(summary_lines(comparison)))
         print(f'wrote {pathlib.Path(args.out) / "bag"}, comparison.json, metrics.json')
@@ -814,4 +862,4 @@ def main(argv=None):
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    exit_with(main, 'rerun')

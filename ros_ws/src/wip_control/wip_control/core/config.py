@@ -22,8 +22,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import typing
 from typing import Any, Mapping
+
+import yaml
 
 
 class ConfigError(ValueError):
@@ -33,9 +36,28 @@ class ConfigError(ValueError):
     """
 
 
+#: Generic physical limits by unit, used where a declaration gives no bound of its own:
+#: unit -> (largest magnitude, smallest admissible value of a quantity that must be > 0).
+#: They are deliberately wide (a 10 t vehicle, a 10 km path, 100 m/s) and only there to
+#: refuse the absurd (``body_mass: 1e300``, ``eso.epsilon: 1e-300``) before anything runs,
+#: so the QP size, the memory and the run time stay sane. A parameter whose unit is not
+#: listed gets ``GENERIC_LIMIT``.
+UNIT_LIMITS: dict[str, tuple[float, float]] = {
+    'm': (1e4, 1e-6), 'kg': (1e4, 1e-6), 'kg m^2': (1e4, 1e-9), 's': (1e5, 1e-4),
+    'Hz': (1e5, 1e-3), 'rad': (100.0, 1e-9), 'deg': (360.0, 1e-9), 'm/s': (100.0, 1e-6),
+    'rad/s': (100.0, 1e-6), 'm/s^2': (1e3, 1e-6), 'rad/s^2': (1e3, 1e-6),
+    'N m': (1e4, 1e-6), 'N m/s': (1e7, 1e-6), 'N m s/rad': (1e6, 1e-9),
+    'counts/rev': (1e9, 1.0), '1': (1e9, 1e-12),
+    'rad/s^2 (yaw, tilt) or m/s^2 (longitudinal)': (1e3, 1e-6),
+}
+GENERIC_LIMIT = (1e9, 1e-12)
+#: Most elements a variable-length list may have (waypoints, disturbance components).
+MAX_LIST_LENGTH = 10000
+
+
 def param(default: Any, unit: str, description: str, *, minimum: float | None = None,
           maximum: float | None = None, choices: tuple | None = None,
-          exclusive_minimum: bool = False) -> Any:
+          exclusive_minimum: bool = False, max_length: int | None = None) -> Any:
     """A dataclass field with its unit, description and admissible range.
 
     Parameters
@@ -43,16 +65,48 @@ def param(default: Any, unit: str, description: str, *, minimum: float | None = 
     default : value used when the key is absent. Tuples for vector values.
     unit : SI unit, e.g. ``'N m'``, ``'rad/s'``, or ``'1'`` for dimensionless.
     description : what the parameter does, citing the paper's equation if any.
-    minimum, maximum : inclusive bounds for numbers (per element for tuples).
-    exclusive_minimum : if true the minimum itself is not admissible (``> minimum``).
+    minimum, maximum : inclusive bounds for numbers (per element for tuples). A numeric
+        parameter always has both: when one is not given, the generic limit of its unit
+        (:data:`UNIT_LIMITS`) is used, so every number has an upper bound.
+    exclusive_minimum : if true the minimum itself is not admissible (``> minimum``); a
+        value must then also be at least the unit's smallest positive value (``floor``).
     choices : admissible values for strings.
+    max_length : most elements of a variable-length tuple (default ``MAX_LIST_LENGTH``).
     """
-    metadata = {'unit': unit, 'description': description, 'minimum': minimum,
-                'maximum': maximum, 'choices': choices,
-                'exclusive_minimum': exclusive_minimum}
     if isinstance(default, (list, dict)):
         raise TypeError('use a tuple for vector defaults (dataclass fields are shared)')
+    numeric = _is_number(default) or (
+        isinstance(default, tuple) and all(_is_number(v) for v in default)
+        and not (default == () and maximum is None and minimum is None))
+    floor = None
+    if numeric:
+        largest, smallest = UNIT_LIMITS.get(unit, GENERIC_LIMIT)
+        if maximum is None:
+            maximum = largest
+        if minimum is None:
+            minimum = -largest
+        if exclusive_minimum:
+            floor = minimum + smallest
+    metadata = {'unit': unit, 'description': description, 'minimum': minimum,
+                'maximum': maximum, 'choices': choices,
+                'exclusive_minimum': exclusive_minimum, 'floor': floor,
+                'max_length': MAX_LIST_LENGTH if max_length is None else max_length}
     return dataclasses.field(default=default, metadata=metadata)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _show(value: Any, limit: int = 60) -> str:
+    """repr() for an error message, shortened (a 5000-digit int cannot even be printed)."""
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 200:
+        return f'an integer of about {int(value.bit_length() * 0.30103) + 1} digits'
+    try:
+        text = repr(value)
+    except ValueError:
+        text = f'a {type(value).__name__}'
+    return text if len(text) <= limit else text[:limit - 3] + '...'
 
 
 def _field_types(cls: type) -> dict[str, Any]:
@@ -61,19 +115,25 @@ def _field_types(cls: type) -> dict[str, Any]:
 
 def _check_number(path: str, value: Any, meta: Mapping[str, Any], want_int: bool) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f'{path}: expected a number, got {value!r}')
-    if want_int and not float(value).is_integer():
-        raise ConfigError(f'{path}: expected an integer, got {value!r}')
-    if not math.isfinite(value):
-        raise ConfigError(f'{path}: must be finite, got {value!r}')
+        raise ConfigError(f'{path}: expected a number, got {_show(value)}')
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ConfigError(f'{path}: must be finite, got {_show(value)}')
+        if want_int and not value.is_integer():
+            raise ConfigError(f'{path}: expected an integer, got {_show(value)}')
+    # An int is compared exactly (a 5000-digit seed must not overflow float()).
     lo, hi = meta.get('minimum'), meta.get('maximum')
     if lo is not None:
         if meta.get('exclusive_minimum') and not value > lo:
-            raise ConfigError(f'{path}: must be > {lo}, got {value!r}')
+            raise ConfigError(f'{path}: must be > {lo}, got {_show(value)}')
         if value < lo:
-            raise ConfigError(f'{path}: must be >= {lo}, got {value!r}')
+            raise ConfigError(f'{path}: must be >= {lo}, got {_show(value)}')
+    floor = meta.get('floor')
+    if floor is not None and value < floor:
+        raise ConfigError(f'{path}: must be >= {floor:g} (a smaller value is not physically '
+                          f'meaningful), got {_show(value)}')
     if hi is not None and value > hi:
-        raise ConfigError(f'{path}: must be <= {hi}, got {value!r}')
+        raise ConfigError(f'{path}: must be <= {hi}, got {_show(value)}')
     return int(value) if want_int else float(value)
 
 
@@ -86,20 +146,23 @@ def check_value(path: str, value: Any, field_type: Any, meta: Mapping[str, Any])
         return _check_number(path, value, meta, want_int=True)
     if field_type is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f'{path}: expected true or false, got {value!r}')
+            raise ConfigError(f'{path}: expected true or false, got {_show(value)}')
         return value
     if field_type is str:
         if not isinstance(value, str):
-            raise ConfigError(f'{path}: expected a string, got {value!r}')
+            raise ConfigError(f'{path}: expected a string, got {_show(value)}')
         choices = meta.get('choices')
         if choices and value not in choices:
-            raise ConfigError(f'{path}: {value!r} is not one of {list(choices)}')
+            raise ConfigError(f'{path}: {_show(value)} is not one of {list(choices)}')
         return value
     if origin is tuple:
         args = typing.get_args(field_type)
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f'{path}: expected a list, got {value!r}')
+            raise ConfigError(f'{path}: expected a list, got {_show(value)}')
         if len(args) == 2 and args[1] is Ellipsis:
+            longest = meta.get('max_length') or MAX_LIST_LENGTH
+            if len(value) > longest:
+                raise ConfigError(f'{path}: at most {longest} values, got {len(value)}')
             element_types = [args[0]] * len(value)
         else:
             element_types = list(args)
@@ -171,3 +234,66 @@ def describe(cls: type) -> list[dict[str, Any]]:
                      **{k: f.metadata.get(k) for k in
                         ('unit', 'description', 'minimum', 'maximum', 'choices')}})
     return rows
+
+
+# -- strict YAML --------------------------------------------------------------------------
+
+class _StrictLoader(yaml.SafeLoader):
+    """SafeLoader with two fixes for configuration files.
+
+    - A duplicate key is an error (PyYAML keeps the last one silently).
+    - ``1e12`` is a float, as in YAML 1.2 (PyYAML's YAML 1.1 resolver wants a dot,
+      ``1.0e12``, and reads ``1e12`` as the string '1e12').
+    """
+
+
+def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode,
+                       deep: bool = False) -> dict:
+    loader.flatten_mapping(node)
+    seen: dict = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        try:
+            hash(key)
+        except TypeError:
+            raise yaml.constructor.ConstructorError(
+                'while constructing a mapping', node.start_mark,
+                'found an unhashable key', key_node.start_mark) from None
+        if key in seen:
+            raise yaml.constructor.ConstructorError(
+                None, None, f'duplicate key {key!r} on line {key_node.start_mark.line + 1} '
+                f'(first on line {seen[key]}; YAML would silently keep the last)', None)
+        seen[key] = key_node.start_mark.line + 1
+    return loader.construct_mapping(node, deep=deep)
+
+
+_StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
+                              _construct_mapping)
+_StrictLoader.add_implicit_resolver(
+    'tag:yaml.org,2002:float',
+    re.compile(r'^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$'),
+    list('-+0123456789'))
+
+
+def load_yaml_text(data: bytes | str, source: str) -> Any:
+    """Parse a configuration file's content strictly; any problem is one ConfigError.
+
+    ``source`` names the file in the message. Refused: bytes that are not UTF-8, invalid
+    YAML, duplicate keys, and numbers Python cannot even convert (a 5000-digit integer).
+    """
+    if isinstance(data, bytes):
+        try:
+            data = data.decode('utf-8')
+        except UnicodeDecodeError as err:
+            raise ConfigError(f'{source}: not a UTF-8 text file (byte {err.start}: '
+                              f'{data[err.start:err.start + 1]!r})') from None
+    try:
+        return yaml.load(data, Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
+    except yaml.YAMLError as err:
+        text = ' '.join(str(err).split())
+        raise ConfigError(f'{source}: not valid YAML: {text}') from None
+    except (ValueError, OverflowError, RecursionError) as err:
+        # int('9' * 5000) is a ValueError since Python 3.11; deep nesting a RecursionError.
+        if 'digits' in str(err):
+            raise ConfigError(f'{source}: a number has more than 4300 digits') from None
+        raise ConfigError(f'{source}: a value cannot be read: {str(err)[:120]}') from None

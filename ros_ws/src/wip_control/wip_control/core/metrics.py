@@ -52,6 +52,8 @@ def _max_abs(values: np.ndarray) -> float | None:
 
 def _interp(t_to: np.ndarray, t_from: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Zero-order hold of (t_from, values) sampled at t_to (the signals are held)."""
+    if len(values) == 0:  # A run that fell (or ended) before its first command.
+        return np.full(len(t_to), np.nan)
     index = np.searchsorted(t_from, t_to, side='right') - 1
     return values[np.clip(index, 0, len(values) - 1)]
 
@@ -64,6 +66,7 @@ def true_lumped_disturbances(record: RunRecord, plant: Plant,
     # Torques applied from t_k on: the command computed at t_k.
     tau_l = _interp(truth['t'], wheels['t'], wheels['tau_left'])
     tau_r = _interp(truth['t'], wheels['t'], wheels['tau_right'])
+    # No command yet (a run shorter than one control period): tau is NaN, and so is f.
     theta = truth['theta']
     omd, vd, thdd = plant.accelerations_array(theta, truth['omega'], truth['v'],
                                               truth['theta_dot'], tau_l, tau_r)

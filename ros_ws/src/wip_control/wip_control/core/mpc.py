@@ -87,9 +87,11 @@ class MpcConfig:
     sampling_period: float = param(
         0.1, 's', 'Ts: MPC sampling period and Euler step of the prediction (17) '
         '(the paper calls it ε, like the ESO gain)', minimum=0.0, exclusive_minimum=True)
-    prediction_horizon: int = param(20, '1', 'Np: predicted steps', minimum=1)
+    # Upper bounds keep the QP (Nc + 1 variables, about 4 Np constraints) and the
+    # prediction (powers of the unstable tilt dynamics up to Np) numerically sane.
+    prediction_horizon: int = param(20, '1', 'Np: predicted steps', minimum=1, maximum=60)
     control_horizon: int = param(6, '1', 'Nc: input increments optimised (<= Np)',
-                                 minimum=1)
+                                 minimum=1, maximum=60)
     output_weights: tuple[float, float, float] = param(
         (1.0, 50.0, 1.0), 's²/m², 1/rad², s²/rad²',
         'diagonal of the per-step output weight of Q in (20), for (υ, θ, θ̇)', minimum=0.0)
@@ -127,10 +129,10 @@ class MpcConfig:
         0.0, '1', 'ProxSuite dual infeasibility tolerance; 0 disables it (H is positive '
         'definite)', minimum=0.0, maximum=1e-3)
     max_iter: int = param(1000, '1', 'iteration limit of the QP solver (ProxSuite: outer '
-                          'iterations)', minimum=1)
+                          'iterations)', minimum=1, maximum=100000)
     max_inner_iter: int = param(
         30, '1', 'ProxSuite inner iterations per outer one; with max_iter it bounds the '
-        'worst-case solve time', minimum=1)
+        'worst-case solve time', minimum=1, maximum=10000)
 
     def validate(self) -> None:
         if self.control_horizon > self.prediction_horizon:

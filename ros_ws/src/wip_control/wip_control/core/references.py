@@ -413,7 +413,8 @@ class ReferenceConfig:
                                       'the centre')
     line_start: tuple[float, float] = param((0.0, 0.0), 'm', 'start point of the line')
     line_heading: float = param(0.0, 'rad', 'direction of the line (REP 103: 0 = +x)')
-    line_speed: float = param(0.5, 'm/s', 'speed along the line', minimum=0.0)
+    line_speed: float = param(0.5, 'm/s', 'speed along the line', minimum=0.0,
+                              exclusive_minimum=True)
     figure_eight_center: tuple[float, float] = param((0.0, 0.0), 'm',
                                                      'crossing point of the figure eight')
     figure_eight_size: float = param(3.0, 'm', 'half-width a of the lemniscate of Gerono',

@@ -39,7 +39,7 @@ from typing import Any, Mapping
 import yaml
 
 from .arc import ArcConfig
-from .config import ConfigError, from_mapping, param, to_mapping
+from .config import ConfigError, _show, from_mapping, load_yaml_text, param, to_mapping
 from .disturbances import DisturbanceConfig
 from .eso import EsoConfig
 from .mixer import MixerConfig
@@ -146,11 +146,21 @@ class Scenario:
         return int(round(self.mpc.sampling_period * self.rates.control_rate))
 
 
+MAX_DURATION_S = 36000.0
+MAX_SEED = 2 ** 63 - 1
+#: Most control periods one run may have: the in-process record preallocates about
+#: 400 bytes per control period, so 1e6 of them (83 min at 200 Hz) stay below 0.5 GB.
+MAX_CONTROL_SAMPLES = 1_000_000
+#: A scenario file is a few kB; a larger one is not a scenario (and YAML parsing is slow).
+MAX_SCENARIO_FILE_BYTES = 4 * 1024 * 1024
+
 _TOP_LEVEL_SCALARS = {
     'name': (str, 'free-text name of the scenario'),
     'description': (str, 'free-text description'),
-    'duration': (float, 'simulated time [s], in (0, 36000]'),
-    'seed': (int, 'seed of every random generator (sensor and disturbance noise)'),
+    'duration': (float, 'simulated time [s], in (0, 36000], at most '
+                 '1e6 control periods (memory of the in-process record)'),
+    'seed': (int, 'seed of every random generator (sensor and disturbance noise), '
+             'in [0, 2**63 - 1]'),
     'fall_threshold': (float, '|theta| [rad] beyond which the vehicle counts as fallen and '
                        'the run stops, in (0, 1.5]'),
 }
@@ -186,19 +196,22 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
             raise ConfigError(f'{key}: expected a string, got {value!r}')
         if kind in (int, float):
             if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                    or not math.isfinite(value):
-                raise ConfigError(f'{key}: expected a finite number, got {value!r}')
-            if kind is int and not float(value).is_integer():
-                raise ConfigError(f'{key}: expected an integer, got {value!r}')
+                    or (isinstance(value, float) and not math.isfinite(value)):
+                raise ConfigError(f'{key}: expected a finite number, got {_show(value)}')
+            if kind is int and isinstance(value, float) and not value.is_integer():
+                raise ConfigError(f'{key}: expected an integer, got {_show(value)}')
+            if kind is float and isinstance(value, int) and abs(value) > 1e300:
+                raise ConfigError(f'{key}: out of range, got {_show(value)}')
             value = kind(value)
         kwargs[key] = value
-    if 'duration' in kwargs and not 0.0 < kwargs['duration'] <= 36000.0:
-        raise ConfigError(f'duration: must be in (0, 36000] s, got {kwargs["duration"]!r}')
+    if 'duration' in kwargs and not 0.0 < kwargs['duration'] <= MAX_DURATION_S:
+        raise ConfigError(f'duration: must be in (0, {MAX_DURATION_S:g}] s, got '
+                          f'{_show(kwargs["duration"])}')
     if 'fall_threshold' in kwargs and not 0.0 < kwargs['fall_threshold'] <= 1.5:
         raise ConfigError('fall_threshold: must be in (0, 1.5] rad, got '
-                          f'{kwargs["fall_threshold"]!r}')
-    if 'seed' in kwargs and kwargs['seed'] < 0:
-        raise ConfigError(f'seed: must be >= 0, got {kwargs["seed"]!r}')
+                          f'{_show(kwargs["fall_threshold"])}')
+    if 'seed' in kwargs and not 0 <= kwargs['seed'] <= MAX_SEED:
+        raise ConfigError(f'seed: must be in [0, 2**63 - 1], got {_show(kwargs["seed"])}')
 
     plant = _section(data, 'plant')
     if not isinstance(plant, Mapping):
@@ -234,7 +247,17 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
 
 
 def _check_consistency(scenario: Scenario) -> None:
-    """Cross-section checks: rates that must divide each other."""
+    """Cross-section checks: rates that must divide each other, run size, initial tilt."""
+    samples = scenario.duration * scenario.rates.control_rate
+    if samples > MAX_CONTROL_SAMPLES:
+        raise ConfigError(f'duration: {scenario.duration:g} s at rates.control_rate '
+                          f'{scenario.rates.control_rate:g} Hz is {samples:.3g} control '
+                          f'periods, more than the {MAX_CONTROL_SAMPLES:.0e} one run may have '
+                          '(memory); shorten the run or lower the rate')
+    if abs(scenario.initial_state.theta) >= scenario.fall_threshold:
+        raise ConfigError(f'initial_state.theta: |{scenario.initial_state.theta:g}| rad is at '
+                          f'or beyond fall_threshold {scenario.fall_threshold:g} rad: the run '
+                          'would count as a fall before it starts')
     ratio = scenario.mpc.sampling_period * scenario.rates.control_rate
     if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
         raise ConfigError('mpc.sampling_period: must be an integer multiple of the control '
@@ -252,13 +275,13 @@ def load_scenario(path: str | pathlib.Path | None = None) -> Scenario:
         return Scenario()
     path = pathlib.Path(path)
     try:
-        text = path.read_text(encoding='utf-8')
+        raw = path.read_bytes()
     except OSError as err:
         raise ConfigError(f'scenario file {str(path)!r}: {err.strerror}') from err
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise ConfigError(f'scenario file {str(path)!r} is not valid YAML: {err}') from err
+    if len(raw) > MAX_SCENARIO_FILE_BYTES:
+        raise ConfigError(f'scenario file {str(path)!r}: {len(raw)} bytes, more than the '
+                          f'{MAX_SCENARIO_FILE_BYTES} a scenario file may have')
+    data = load_yaml_text(raw, f'scenario file {str(path)!r}')
     try:
         return scenario_from_mapping(data)
     except ConfigError as err:

@@ -24,6 +24,7 @@ sample of its grid (:class:`ClockTicker`) and the MPC ticks on the stamps of its
 
 from __future__ import annotations
 
+import difflib
 import gc
 import math
 import signal
@@ -214,8 +215,49 @@ def spin_once_guarded(executor, node: Node, timeout_sec: float = SPIN_TIMEOUT) -
         return False
 
 
-def _raise_keyboard_interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt(f'signal {signum}')
+_stop_signal: list[int] = []  # the signal that asked a node with ``on_stop`` to stop
+
+
+def _request_stop(signum, frame) -> None:
+    # Only a flag: raising here (KeyboardInterrupt) would land inside whatever callback is
+    # running, which rclpy's executor then logs as FATAL with a stack on a normal Ctrl-C.
+    _stop_signal.append(signum)
+
+
+def undeclared_overrides(node: Node, declared_elsewhere=()) -> list[str]:
+    """One line per parameter override given to ``node`` that it does not declare.
+
+    rclpy keeps such an override silently unused (a ``-p max_tilt:=0.2`` without its
+    ``mpc.`` prefix, a misspelt name): the node says so, with the names it meant if any.
+    ``declared_elsewhere``: names another node of the same process declares (a ``-p`` of
+    a composed process reaches every node in it).
+    """
+    overrides = getattr(node, '_parameter_overrides', None) or {}
+    declared = [name for name in getattr(node, '_parameters', {})]
+    lines = []
+    for name in sorted(overrides):
+        if node.has_parameter(name) or name in declared_elsewhere:
+            continue
+        meant = [d for d in declared if d.endswith('.' + name)] or \
+            difflib.get_close_matches(name, declared, n=2, cutoff=0.8)
+        lines.append(f'parameter {name!r} is not a parameter of this node and is ignored'
+                     + (f' (did you mean {" or ".join(repr(m) for m in meant)}?)'
+                        if meant else ''))
+    return lines
+
+
+def warn_undeclared_overrides(nodes, warned=None) -> None:
+    """Log :func:`undeclared_overrides` of each node (one node or a list), each name once."""
+    nodes = list(nodes) if isinstance(nodes, (list, tuple)) else [nodes]
+    everywhere = set()
+    for node in nodes:
+        everywhere.update(getattr(node, '_parameters', {}))
+    warned = set() if warned is None else warned
+    for node in nodes:
+        for line in undeclared_overrides(node, everywhere):
+            if line not in warned:
+                warned.add(line)
+                node.get_logger().warning(line)
 
 
 def run_node(node_factory: Callable[[], Node], program: str, args=None,
@@ -242,9 +284,10 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
     ``on_stop(node)`` runs on SIGINT/SIGTERM before the node is destroyed, with the
     context still valid so that it can publish (the mixer's last zero command). rclpy's
     own signal handler shuts the context down before any ``finally`` runs, so when a node
-    has ``on_stop`` the process takes SIGINT and SIGTERM over itself (they raise
-    KeyboardInterrupt in the spin loop, which returns to Python every
-    :data:`SPIN_TIMEOUT`).
+    has ``on_stop`` the process takes SIGINT and SIGTERM over itself (they set a flag
+    that the spin loop, which returns to Python every :data:`SPIN_TIMEOUT`, checks:
+    raising from the handler would land inside a callback, which rclpy's executor
+    logs as FATAL with a stack).
 
     Real-time hygiene: once every node is built, the objects of the start-up are moved out
     of the garbage collector's reach (``gc.freeze``), so that the collections that still
@@ -255,8 +298,9 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
         rclpy.init(args=args)
     else:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-        signal.signal(signal.SIGINT, _raise_keyboard_interrupt)
-        signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
+        _stop_signal.clear()
+        signal.signal(signal.SIGINT, _request_stop)
+        signal.signal(signal.SIGTERM, _request_stop)
     built: list[tuple[Node, Callable[[Node], None] | None]] = []
     status = 0
     stopping = False
@@ -267,12 +311,14 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
             built.append((node, on_stop))
             executor.add_node(node)
         first = built[0][0]
+        warn_undeclared_overrides([node for node, _ in built])
         first.get_logger().debug(f'executor: {type(executor).__name__}')
         share_sim_clock([node for node, _ in built])
         gc.collect()
         gc.freeze()
-        while rclpy.ok():
+        while rclpy.ok() and not _stop_signal:
             spin_once_guarded(executor, first)
+        stopping = bool(_stop_signal)
     except (KeyboardInterrupt, ExternalShutdownException):
         stopping = True
     except (ConfigError, ParameterException) as err:
@@ -333,6 +379,7 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
     status = 0
     try:
         node = node_factory()
+        warn_undeclared_overrides(node)
         executor = make_executor()
         executor.add_node(node)
         # spin_once with a timeout: the EventsExecutor's spin() ignores SIGINT.

@@ -72,6 +72,7 @@ References
 from __future__ import annotations
 
 import collections
+import dataclasses
 import sys
 import time
 
@@ -82,7 +83,7 @@ from std_msgs.msg import Bool, Empty, Float64MultiArray
 from std_srvs.srv import Trigger
 from wip_msgs.msg import ArcState, MpcOutput, StateEstimate as StateEstimateMsg, WheelTorques
 
-from ..core.config import ConfigError
+from ..core.config import check_value, ConfigError
 from ..core.mixer import MixerConfig
 from ..core.mpc import MpcConfig
 from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyConfig, SafetyDecision,
@@ -121,8 +122,13 @@ class TorqueMixerNode(ControllerNode):
         self.mpc_period = declare_plain(self, 'mpc_period', MpcConfig().sampling_period, 's',
                                         'MPC sampling period: in lockstep a drive torque '
                                         'is awaited at every MPC tick')
-        if not (isinstance(self.mpc_period, float) and self.mpc_period > 0.0):
-            raise ConfigError(f'mpc_period: must be > 0, got {self.mpc_period!r}')
+        # The same range as the scenario's mpc.sampling_period (one declaration: MpcConfig).
+        try:
+            self.mpc_period = check_value(
+                'mpc_period', self.mpc_period, float,
+                {f.name: f for f in dataclasses.fields(MpcConfig)}['sampling_period'].metadata)
+        except ConfigError as err:
+            raise ConfigError(str(err)) from None
         self.left_joint = declare_plain(self, 'left_joint', 'left_wheel_joint', '',
                                         'name of the left wheel joint')
         self.right_joint = declare_plain(self, 'right_joint', 'right_wheel_joint', '',

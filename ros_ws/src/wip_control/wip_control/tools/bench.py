@@ -179,4 +179,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    from .cli import exit_with
+    exit_with(main, 'bench')

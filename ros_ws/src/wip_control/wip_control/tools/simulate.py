@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import pathlib
 import sys
 import time
@@ -22,6 +23,8 @@ from ..core.config import ConfigError
 from ..core.metrics import compute_metrics
 from ..core.runner import run_scenario
 from ..core.scenario import Scenario, load_scenario, scenario_to_mapping
+from .cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with,
+                  write_atomic)
 from .parameters import parameter_table
 
 
@@ -46,10 +49,13 @@ def write_run_outputs(out: pathlib.Path, record, scenario: Scenario, metrics: di
                       figures: bool = True) -> list[pathlib.Path]:
     """metrics.json, timeseries.npz, scenario.yaml and figures/ into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
-    (out / 'metrics.json').write_text(json.dumps(metrics, indent=2) + '\n')
-    record.save_npz(out / 'timeseries.npz')
-    (out / 'scenario.yaml').write_text(yaml.safe_dump(scenario_to_mapping(scenario),
-                                                      sort_keys=False))
+    # Each file whole or not at all (a crash or Ctrl-C never leaves half a file).
+    write_atomic(out / 'metrics.json', json.dumps(metrics, indent=2) + '\n')
+    partial = out / '.timeseries.npz.tmp.npz'
+    record.save_npz(partial)
+    os.replace(partial, out / 'timeseries.npz')
+    write_atomic(out / 'scenario.yaml', yaml.safe_dump(scenario_to_mapping(scenario),
+                                                       sort_keys=False))
     paths = []
     if figures:
         from ..analysis.figures import write_figures  # matplotlib only when asked
@@ -62,9 +68,10 @@ def simulate(scenario_path: str | None, out_dir: str, figures: bool = True,
     """Run one scenario and write its outputs; returns a process exit code."""
     try:
         scenario = load_scenario(scenario_path)
-    except ConfigError as err:
+        out = check_output_directory(out_dir)
+    except (ConfigError, ValueError) as err:
         print(f'ERROR: {err}', file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     if not quiet:
         print(f'scenario {scenario.name!r}: {scenario.duration:.0f} s, plant model '
               f'{scenario.plant.model.model!r}', file=sys.stderr)
@@ -73,14 +80,13 @@ def simulate(scenario_path: str | None, out_dir: str, figures: bool = True,
                               duration_s=result.simulated_time_s)
     metrics['wall_time_s'] = result.wall_time_s
     metrics['real_time_factor'] = result.simulated_time_s / result.wall_time_s
-    out = pathlib.Path(out_dir)
     paths = write_run_outputs(out, result.record, scenario, metrics, figures)
     if not quiet:
         print('', file=sys.stderr)
         print(summary(metrics))
         print(f'wrote {out / "metrics.json"}, {out / "timeseries.npz"}'
               + (f' and {len(paths)} figures in {out / "figures"}' if paths else ''))
-    return 1 if metrics['fell'] else 0
+    return EXIT_FAILED if metrics['fell'] else EXIT_OK
 
 
 def summary(metrics: dict) -> str:
@@ -126,11 +132,11 @@ def main(argv: list[str] | None = None) -> int:
             scenario = load_scenario(args.scenario)
         except ConfigError as err:
             print(f'ERROR: {err}', file=sys.stderr)
-            return 2
+            return EXIT_USAGE
         print(yaml.safe_dump(scenario_to_mapping(scenario), sort_keys=False), end='')
         return 0
     return simulate(args.scenario, args.out, figures=not args.no_figures, quiet=args.quiet)
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    exit_with(main, 'simulate')

@@ -1,0 +1,141 @@
+"""One exit-code table and one last-resort error handler for every command-line tool.
+
+=====  ==================================================================================
+code   meaning
+=====  ==================================================================================
+0      success
+1      the vehicle fell, or a check failed (a damaged bag, a run that did not pass)
+2      usage or input error: a bad option, scenario, params file, bag or output path;
+       nothing was run and nothing was written
+3      internal error (a bug, a node that crashed, a graph that stalled): one line on
+       stderr says what and where the full trace was written
+130    interrupted (Ctrl-C)
+=====  ==================================================================================
+
+Every tool's ``__main__`` goes through :func:`run_main`, so an exception that escaped a
+tool's own checks never prints a traceback at the user: it is written to a log file and
+the tool exits 3, which a script can tell apart from "the vehicle fell" (1).
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+import pathlib
+import sys
+import tempfile
+import traceback
+from typing import Callable, Sequence
+
+EXIT_OK = 0
+EXIT_FAILED = 1  # the vehicle fell or a check failed
+EXIT_USAGE = 2  # usage or input error
+EXIT_INTERNAL = 3  # internal error
+EXIT_INTERRUPTED = 130
+
+#: Where full traces of internal errors go (the directory is created when needed).
+TRACE_DIR_ENV = 'WIP_TRACE_DIR'
+
+
+def trace_directory() -> pathlib.Path:
+    """``$WIP_TRACE_DIR``, else ``<tmp>/wip-ros-traces``."""
+    configured = os.environ.get(TRACE_DIR_ENV, '').strip()
+    return pathlib.Path(configured) if configured else (
+        pathlib.Path(tempfile.gettempdir()) / 'wip-ros-traces')
+
+
+def log_trace(prog: str, error: BaseException) -> str:
+    """Write the full trace of ``error`` to a new file; return its path (or why not)."""
+    text = ''.join(traceback.format_exception(type(error), error, error.__traceback__))
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime('%Y%m%dT%H%M%SZ')
+    try:
+        directory = trace_directory()
+        directory.mkdir(parents=True, exist_ok=True)
+        handle, path = tempfile.mkstemp(prefix=f'{prog}-{stamp}-', suffix='.txt',
+                                        dir=directory)
+        with os.fdopen(handle, 'w', encoding='utf-8') as stream:
+            stream.write(f'{prog} {" ".join(sys.argv[1:])}\n\n{text}')
+        return path
+    except OSError as err:  # Nowhere to write: the trace goes to stderr after all.
+        sys.stderr.write(text)
+        return f'(not written: {err.strerror}; printed above)'
+
+
+def one_line(error: BaseException, limit: int = 300) -> str:
+    """``Type: message`` on one line, shortened."""
+    text = ' '.join(str(error).split())
+    text = f'{type(error).__name__}: {text}' if text else type(error).__name__
+    return text if len(text) <= limit else text[:limit - 3] + '...'
+
+
+def run_main(main: Callable[[Sequence[str] | None], int], prog: str,
+             argv: Sequence[str] | None = None) -> int:
+    """Call a tool's ``main(argv)`` and map whatever happens onto the exit-code table."""
+    try:
+        code = main(argv)
+    except SystemExit as done:  # argparse: --help (0) or a usage error (2)
+        code = done.code
+        if code is None:
+            return EXIT_OK
+        if not isinstance(code, int):
+            print(code, file=sys.stderr)
+            return EXIT_USAGE
+        return code
+    except KeyboardInterrupt:
+        print(f'{prog}: interrupted', file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # `tool | head`: the reader left; not an error of ours.
+        try:
+            sys.stdout = open(os.devnull, 'w')  # noqa: SIM115 (closed at exit)
+        except OSError:
+            pass
+        return EXIT_OK
+    except Exception as error:  # noqa: BLE001 (the last resort, by design)
+        where = log_trace(prog, error)
+        print(f'{prog}: internal error: {one_line(error)} (full trace in {where})',
+              file=sys.stderr)
+        return EXIT_INTERNAL
+    return EXIT_OK if code is None else int(code)
+
+
+def exit_with(main: Callable[[Sequence[str] | None], int], prog: str) -> None:
+    """``if __name__ == '__main__': exit_with(main, 'simulate')``."""
+    sys.exit(run_main(main, prog))
+
+
+def check_output_directory(path: str | os.PathLike, option: str = '--out') -> pathlib.Path:
+    """Check before a run that ``path`` can be a run's output directory; return it.
+
+    It may exist (its files of the same name are replaced, each atomically) or be created.
+    Raises ``ValueError`` with a one-line message if it is a file, under a file, or not
+    writable, so the tool can refuse before it runs anything.
+    """
+    out = pathlib.Path(path)
+    if str(path).strip() == '':
+        raise ValueError(f'{option}: an empty path')
+    probe = out
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if probe.exists() and not probe.is_dir():
+        raise ValueError(f'{option} {out}: {probe} is a file, not a directory')
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ValueError(f'{option} {out}: {probe} is not writable')
+    return out
+
+
+def write_atomic(path: str | os.PathLike, data: bytes | str) -> None:
+    """Write a whole file or nothing: a temporary file beside it, then a rename."""
+    path = pathlib.Path(path)
+    payload = data.encode('utf-8') if isinstance(data, str) else data
+    handle, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', suffix='.tmp', dir=path.parent)
+    try:
+        with os.fdopen(handle, 'wb') as stream:
+            stream.write(payload)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        pathlib.Path(tmp).unlink(missing_ok=True)
+        raise
