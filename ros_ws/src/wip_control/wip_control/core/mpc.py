@@ -95,6 +95,10 @@ class MpcInputError(ValueError):
 class MpcConfig:
     """Tunables of the longitudinal/tilt MPC (eqs. (16)–(23) in [1])."""
 
+    controller: str = param(
+        'mpc', '-', "'mpc': this QP-based MPC; 'lqr': the saturated discrete LQR baseline "
+        'on the same model, rate, weights and torque limits (core/lqr.py)',
+        choices=('mpc', 'lqr'))
     sampling_period: float = param(
         0.1, 's', 'Ts: MPC sampling period and Euler step of the prediction (17) '
         '(the paper calls it ε, like the ESO gain)', minimum=0.0, exclusive_minimum=True)
@@ -310,15 +314,7 @@ class LongitudinalMpc:
         n_free = min(config.speed_limit_first_step - 1, n_p)
         self._free_speed_upper = slice(n_c, n_c + n_free)
         self._free_speed_lower = slice(n_c + 2 * n_p, n_c + 2 * n_p + n_free)
-        # Offset-free target (Pannocchia & Rawlings 2003; Maeder, Borrelli, Morari 2009):
-        # the linearisation at θ = 0 of (1), υ̇ = a_υθ θ + g2 τ + d2, θ̈ = a_θθ θ + g3 τ + d3,
-        # with the constant disturbance d estimated from the ESO's lumped drifts.
-        a_grav = gravity_aware_state_matrix(params, config.sampling_period)
-        ts = config.sampling_period
-        self._a_v_theta = a_grav[0, 1] / ts
-        self._a_theta_theta = a_grav[2, 1] / ts
-        self._disturbance = None  # filtered (d2, d3), None until the first valid tick
-        self._target_theta = 0.0
+        self._target = OffsetFreeTarget(params, config)
         self._reference = np.zeros(3 * n_p)
         self._x_hat = np.empty(3)
         self.last_qp = QpData(self._h, self._g, self._c, self._l, self._u, self._lb,
@@ -340,8 +336,7 @@ class LongitudinalMpc:
         """Forget the plan and the solver's workspace; τυ(k−1) = ``tau_previous`` [N m]."""
         self.set_previous_torque(tau_previous)
         self._plan = None
-        self._disturbance = None
-        self._target_theta = 0.0
+        self._target.reset()
         self._solver.reset()
 
     def set_previous_torque(self, tau_previous: float) -> None:
@@ -381,7 +376,7 @@ class LongitudinalMpc:
         _, g2, g3 = input_gains(self.params, theta_hat)
         scale2, scale3 = cfg.prediction_gain_scale
         g2p, g3p = scale2 * g2, scale3 * g3
-        self._update_target(theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev)
+        self._target.update(theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev)
         free = self._build(v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit, g2,
                            g3, g2p, g3p, tau_prev)
         t_built = time.perf_counter()
@@ -410,45 +405,12 @@ class LongitudinalMpc:
         return MpcResult(self._tau_previous, delta, solution.status, solution.iterations,
                          t_solved - t_built, t_built - t_start, slack_v, slack_theta,
                          used_fallback, predicted.reshape(-1, 3), plan.copy(),
-                         self._target_theta)
+                         self._target.theta)
 
     @property
     def target_theta(self) -> float:
         """θs [rad], the tilt reference of the last tick (0 unless ``offset_free``)."""
-        return self._target_theta
-
-    def _update_target(self, theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev) -> None:
-        """Offset-free steady-state target θs from the estimated constant disturbance.
-
-        The ESO's f̂ lumps everything but g τ of (1): the model's own drift and the external
-        disturbance. Against the prediction's linear model at θ = 0, the present
-        accelerations f̂ + g τ(k−1) leave the disturbance
-        d2 = f̂2 + (g2 − g2p) τ(k−1) − a_υθ θ̂,  d3 = f̂3 + (g3 − g3p) τ(k−1) − a_θθ θ̂,
-        low-passed (time constant ``disturbance_filter_time_constant``: it also holds the
-        transients of the unmodelled nonlinear terms). The steady state (υ̇ = θ̈ = 0) at
-        the target solves [a_υθ g2p; a_θθ g3p] (θs, τs) = −(d2, d3): θs is the lean that
-        holds the constant force (a slope, a push), and tracking it instead of θ = 0 (20)
-        removes the standing speed, hence position, offset.
-        """
-        cfg = self.config
-        if not cfg.offset_free:
-            self._target_theta = 0.0
-            return
-        d2 = f2_hat + (g2 - g2p) * tau_prev - self._a_v_theta * theta_hat
-        d3 = f3_hat + (g3 - g3p) * tau_prev - self._a_theta_theta * theta_hat
-        if self._disturbance is None:
-            self._disturbance = [d2, d3]
-        else:
-            ts = cfg.sampling_period
-            gain = ts / (cfg.disturbance_filter_time_constant + ts)  # backward Euler
-            self._disturbance[0] += gain * (d2 - self._disturbance[0])
-            self._disturbance[1] += gain * (d3 - self._disturbance[1])
-        d2f, d3f = self._disturbance
-        # Cramer's rule; det = −mp g l /(Ω0 r) · (scale) ≠ 0 for any admissible parameters.
-        det = self._a_v_theta * g3p - self._a_theta_theta * g2p
-        theta_s = (g2p * d3f - g3p * d2f) / det
-        bound = cfg.max_target_tilt
-        self._target_theta = min(max(theta_s, -bound), bound)
+        return self._target.theta
 
     def _build(self, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit, g2, g3,
                g2p, g3p, tau_prev) -> np.ndarray:
@@ -470,7 +432,7 @@ class LongitudinalMpc:
         # ȳr = 1 ⊗ (υd, θs, 0); θs = 0 in the paper's (20).
         error = self._reference
         error[0::3] = v_d
-        error[1::3] = self._target_theta
+        error[1::3] = self._target.theta
         error[2::3] = 0.0
         error -= free
         projected = self._weighted_gains @ error
@@ -503,25 +465,90 @@ class LongitudinalMpc:
         return np.clip(shifted, -dmax, dmax)
 
     def _admissible_increment(self, delta: float, tau_prev: float, limit: float) -> float:
-        """Clip Δτ to the hard limits: |Δτ| ≤ Δτmax and |τ(k−1) + Δτ| ≤ limit when reachable."""
-        dmax = self.config.max_delta_torque
-        delta = min(max(float(delta), -dmax), dmax)
-        tau = tau_prev + delta
-        if tau > limit:
-            tau = max(limit, tau_prev - dmax)
-        elif tau < -limit:
-            tau = min(-limit, tau_prev + dmax)
-        return tau - tau_prev
+        return admissible_increment(delta, tau_prev, limit, self.config.max_delta_torque)
 
     def _hold_invalid_input(self) -> MpcResult:
         """No solve on NaN/inf input: ramp τ toward 0 within Δτmax (see the module doc)."""
-        cfg = self.config
-        tau_prev = self._tau_previous
-        delta = min(max(-tau_prev, -cfg.max_delta_torque), cfg.max_delta_torque)
-        self._tau_previous = tau_prev + delta
         self._plan = None
-        plan = np.zeros(cfg.control_horizon)
-        plan[0] = delta
-        predicted = np.full((cfg.prediction_horizon, 3), np.nan)
-        return MpcResult(self._tau_previous, delta, MpcStatus.INPUT_INVALID, 0, 0.0, 0.0,
-                         math.nan, math.nan, True, predicted, plan)
+        result = invalid_input_result(self.config, self._tau_previous)
+        self._tau_previous = result.tau_v
+        return result
+
+
+def admissible_increment(delta: float, tau_prev: float, limit: float, dmax: float) -> float:
+    """Clip Δτ to the hard limits: |Δτ| ≤ Δτmax and |τ(k−1) + Δτ| ≤ limit when reachable."""
+    delta = min(max(float(delta), -dmax), dmax)
+    tau = tau_prev + delta
+    if tau > limit:
+        tau = max(limit, tau_prev - dmax)
+    elif tau < -limit:
+        tau = min(-limit, tau_prev + dmax)
+    return tau - tau_prev
+
+
+def invalid_input_result(config: MpcConfig, tau_prev: float) -> MpcResult:
+    """The tick's result on NaN/inf input: τ ramps toward 0 by at most Δτmax."""
+    delta = min(max(-tau_prev, -config.max_delta_torque), config.max_delta_torque)
+    plan = np.zeros(config.control_horizon)
+    plan[0] = delta
+    predicted = np.full((config.prediction_horizon, 3), np.nan)
+    return MpcResult(tau_prev + delta, delta, MpcStatus.INPUT_INVALID, 0, 0.0, 0.0,
+                     math.nan, math.nan, True, predicted, plan)
+
+
+class OffsetFreeTarget:
+    """Steady-state target θs, τs from the estimated constant disturbance.
+
+    Offset-free MPC (Pannocchia & Rawlings 2003; Maeder, Borrelli & Morari 2009) with the
+    ESO as the disturbance observer. The linearisation of (1) at θ = 0 is
+    υ̇ = a_υθ θ + g2 τ + d2, θ̈ = a_θθ θ + g3 τ + d3 (a_υθ = −mp² l² g/Ω0,
+    a_θθ = mv mp g l/Ω0, the gravity-aware prediction's terms). The ESO's f̂ lumps
+    everything but g τ: the model's own drift and the external disturbance. Against the
+    prediction's model (gains g2p, g3p) the present accelerations f̂ + g τ(k−1) leave
+
+        d2 = f̂2 + (g2 − g2p) τ(k−1) − a_υθ θ̂,   d3 = f̂3 + (g3 − g3p) τ(k−1) − a_θθ θ̂,
+
+    low-passed with ``disturbance_filter_time_constant`` (the transients of the
+    unmodelled nonlinear terms are not a constant disturbance). The steady state
+    (υ̇ = θ̈ = 0) solves [a_υθ g2p; a_θθ g3p] (θs, τs) = −(d2, d3): θs is the lean that
+    holds a constant force (a slope, a push). Tracking it instead of the paper's θ = 0
+    of (20) removes the standing speed offset that the position loop (9) turns into a
+    position offset. |θs| ≤ ``max_target_tilt``. With ``offset_free`` false, θs = 0.
+    """
+
+    def __init__(self, params: WipParameters, config: MpcConfig) -> None:
+        ts = config.sampling_period
+        a = gravity_aware_state_matrix(params, ts)
+        self.config = config
+        self.a_v_theta = a[0, 1] / ts
+        self.a_theta_theta = a[2, 1] / ts
+        self.reset()
+
+    def reset(self) -> None:
+        self.disturbance: list[float] | None = None  # filtered (d2, d3)
+        self.theta = 0.0
+        self.tau = 0.0
+
+    def update(self, theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev) -> float:
+        """Filter the disturbance estimate and return θs [rad] (τs in ``self.tau``)."""
+        cfg = self.config
+        if not cfg.offset_free:
+            return self.theta
+        d2 = f2_hat + (g2 - g2p) * tau_prev - self.a_v_theta * theta_hat
+        d3 = f3_hat + (g3 - g3p) * tau_prev - self.a_theta_theta * theta_hat
+        if self.disturbance is None:
+            self.disturbance = [d2, d3]
+        else:
+            ts = cfg.sampling_period
+            gain = ts / (cfg.disturbance_filter_time_constant + ts)  # backward Euler
+            self.disturbance[0] += gain * (d2 - self.disturbance[0])
+            self.disturbance[1] += gain * (d3 - self.disturbance[1])
+        d2f, d3f = self.disturbance
+        # Cramer's rule; at the nominal gains det = −mp g l / (Ω0 r) ≠ 0.
+        det = self.a_v_theta * g3p - self.a_theta_theta * g2p
+        theta_s = (g2p * d3f - g3p * d2f) / det
+        bound = cfg.max_target_tilt
+        self.theta = min(max(theta_s, -bound), bound)
+        # τs holds the (possibly saturated) θs against d2: the υ̇ = 0 row.
+        self.tau = -(self.a_v_theta * self.theta + d2f) / g2p
+        return self.theta

@@ -52,7 +52,8 @@ from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg
 
 from ..core.config import ConfigError
 from ..core.mixer import drive_torque_limit, MixerConfig
-from ..core.mpc import LongitudinalMpc, MpcConfig
+from ..core.lqr import make_longitudinal_controller
+from ..core.mpc import MpcConfig
 from ..core.params import WipParameters
 from ..core.scenario import RatesConfig
 from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
@@ -83,7 +84,7 @@ class MpcNode(ControllerNode):
         self.sampling_period = self.config.sampling_period
         self.control_period = 1.0 / self.rates.control_rate
         self.every = decimation(self.sampling_period, self.control_period)
-        self.mpc = LongitudinalMpc(self.model, self.config)
+        self.mpc = make_longitudinal_controller(self.model, self.config)  # MPC or LQR
         self.latest: dict[str, tuple[int, object]] = {}
         self.publisher = self.create_publisher(MpcOutput, '/wip/drive_torque', RELIABLE_QOS)
         if self.lockstep:
