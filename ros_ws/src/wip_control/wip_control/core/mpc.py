@@ -84,7 +84,8 @@ __all__ = ['LongitudinalMpc', 'MpcConfig', 'MpcInputError', 'MpcResult', 'MpcSta
 #: (one worst-case slack per limit, speed limited from the first step, θ reference 0, the
 #: paper's weights): ``mpc: {**PAPER_MPC_SETTINGS}`` in a scenario.
 PAPER_MPC_SETTINGS = {'soft_limits': 'worst_case', 'speed_limit_first_step': 1,
-                      'offset_free': False, 'output_weights': (1.0, 50.0, 1.0)}
+                      'speed_slack_linear_penalty': 1e4, 'offset_free': False,
+                      'output_weights': (1.0, 50.0, 1.0)}
 
 
 class MpcInputError(ValueError):
@@ -148,6 +149,11 @@ class MpcConfig:
         (1.0, 1.0), '1', '(g2, g3) of model (1) are multiplied by these in the prediction '
         'of the increments (robustness to the motor reaction torque that model (1) omits)',
         minimum=0.0, exclusive_minimum=True)
+    speed_slack_linear_penalty: float = param(
+        0.0, '1', 'rho1 of the speed slacks (the tilt slacks use slack_linear_penalty). 0: '
+        'quadratic only. The speed command never exceeds the limit (9), so no exact penalty is '
+        'needed, and a linear one makes the small overshoot that precedes braking cost more '
+        'than riding the limit; the paper uses rho1 for both', minimum=0.0)
     prediction: str = param(
         'gravity_aware', '-', "'gravity_aware' (adopted) or 'paper' (literal G̃ of (18), "
         'falls; for the ablation)', choices=PREDICTION_MODELS)
@@ -293,7 +299,8 @@ class LongitudinalMpc:
         slack_index = np.arange(n_c, n)
         self._h[slack_index, slack_index] = 2.0 * config.slack_quadratic_penalty
         self._g = np.zeros(n)
-        self._g[n_c:] = config.slack_linear_penalty
+        self._g[n_c:n_c + n_s] = config.speed_slack_linear_penalty
+        self._g[n_c + n_s:] = config.slack_linear_penalty
         self._c = np.zeros((m, n))
         self._c[:n_c, :n_c] = np.tril(np.ones((n_c, n_c)))
         limits = np.repeat([config.max_speed, config.max_tilt], n_p)
