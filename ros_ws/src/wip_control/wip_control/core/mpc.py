@@ -85,7 +85,7 @@ __all__ = ['LongitudinalMpc', 'MpcConfig', 'MpcInputError', 'MpcResult', 'MpcSta
 #: paper's weights): ``mpc: {**PAPER_MPC_SETTINGS}`` in a scenario.
 PAPER_MPC_SETTINGS = {'soft_limits': 'worst_case', 'speed_limit_first_step': 1,
                       'speed_slack_linear_penalty': 1e4, 'offset_free': False,
-                      'output_weights': (1.0, 50.0, 1.0)}
+                      'output_weights': (1.0, 50.0, 1.0), 'input_weight': 1.0}
 
 
 class MpcInputError(ValueError):
@@ -111,8 +111,10 @@ class MpcConfig:
         'diagonal of the per-step output weight of Q in (20), for (υ, θ, θ̇); the paper '
         'uses (1, 50, 1), whose speed loop lags 1.7 s and rides the speed limit',
         minimum=0.0)
-    input_weight: float = param(1.0, '1/(N m)²', 'R = r I: weight of Δτ in (20)',
-                                minimum=0.0, exclusive_minimum=True)
+    input_weight: float = param(
+        0.5, '1/(N m)²', 'R = r I: weight of Δτ in (20); the paper uses 1, with which the '
+        'full plant (motor reaction torque) decays 3x slower', minimum=0.0,
+        exclusive_minimum=True)
     max_drive_torque: float = param(
         30.0, 'N m', 'hard |τυ| limit 2 τmax (19); the per-call tau_limit is capped to it',
         minimum=0.0, exclusive_minimum=True)
