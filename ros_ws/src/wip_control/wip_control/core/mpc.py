@@ -13,18 +13,25 @@ Cost (20), with ȳ = G̃ Δτ̄ + ȳ_free from :mod:`.mpc_prediction`:
 .. math::
 
     J = \\|\\bar y_r - \\bar y\\|^2_Q + \\|\\Delta\\bar\\tau\\|^2_R
-        + \\rho_1 (s_\\upsilon + s_\\theta) + \\rho_2 (s_\\upsilon^2 + s_\\theta^2)
+        + \\sum_i \\left(\\rho_{1\\upsilon} s_{\\upsilon,i} + \\rho_1 s_{\\theta,i}
+        + \\rho_2 (s_{\\upsilon,i}^2 + s_{\\theta,i}^2)\\right)
 
-with ȳr = 1_Np ⊗ (υd, 0, 0), Q = I_Np ⊗ diag(q), R = r I_Nc. As a QP in
-z = (Δτ̄, sυ, sθ): ½ zᵀ H z + gᵀ z with H = 2(G̃ᵀQG̃ + R) and g = −2 G̃ᵀQ(ȳr − ȳ_free)
-on the Δτ̄ block (eq. (22)), 2ρ2 and ρ1 on the slack entries.
+with ȳr = 1_Np ⊗ (υd, θs, 0), Q = I_Np ⊗ diag(q), R = r I_Nc. θs is the offset-free
+target of :class:`OffsetFreeTarget` (0 in the paper's (20), ``offset_free: false``). As a
+QP in z = (Δτ̄, sυ, sθ): ½ zᵀ H z + gᵀ z with H = 2(G̃ᵀQG̃ + R) and
+g = −2 G̃ᵀQ(ȳr − ȳ_free) on the Δτ̄ block (eq. (22)), 2ρ2 and ρ1 (ρ1υ for the speed
+slacks, ``speed_slack_linear_penalty``) on the slack entries. ``soft_limits: per_step``
+(default): one slack per predicted step and limit (Np each); ``worst_case`` (the
+paper's): one per limit for the whole horizon. Why the default differs, with measured
+effects: ``docs/mpc.md``.
 
 Constraints (19), (21), as adopted in ``shared/spec/model-and-controllers.md`` §5:
 
 - hard, box: |Δτ(k+j)| ≤ Δτmax; hard, rows: |τ(k+j)| ≤ τlim for j < Nc (τ is constant
   after Nc−1), τlim = min(``tau_limit``, ``max_drive_torque``);
-- soft, rows: |υ(k+i)| ≤ υmax (1 + sυ) and |θ(k+i)| ≤ θmax (1 + sθ) for i = 1..Np,
-  one slack per quantity in units relative to its limit, sυ, sθ ≥ 0 (box); θ̇ unbounded.
+- soft, rows: |υ(k+i)| ≤ υmax (1 + sυ,i) for i = ``speed_limit_first_step``..Np and
+  |θ(k+i)| ≤ θmax (1 + sθ,i) for i = 1..Np, slacks in units relative to the limit,
+  ≥ 0 (box); θ̇ unbounded. (With ``worst_case`` every sυ,i is the one sυ.)
 
 Deviation (feasibility): if |τ(k−1)| > τlim (the limit shrinks when |τω| grows), the
 hard τ rows cannot all hold under the Δτ limit. The τ bound of step j is then relaxed
