@@ -398,6 +398,13 @@ def test_config_from_mapping_checks_keys_and_horizons():
         from_mapping(MpcConfig, {'prediction': 'linear'}, 'mpc')
     with pytest.raises(ConfigError, match='mpc.epsilon: unknown key'):
         from_mapping(MpcConfig, {'epsilon': 0.1}, 'mpc')
+    with pytest.raises(ConfigError, match=r'^mpc\.speed_limit_first_step: must be <= '):
+        from_mapping(MpcConfig, {'speed_limit_first_step': 21}, 'mpc')
+    with pytest.raises(ConfigError, match=r"^mpc\.soft_limits: 'max' is not one of"):
+        from_mapping(MpcConfig, {'soft_limits': 'max'}, 'mpc')
+    # The paper's formulation is one mapping of ordinary keys.
+    paper = from_mapping(MpcConfig, dict(PAPER_MPC_SETTINGS), 'mpc')
+    assert paper.soft_limits == 'worst_case' and not paper.offset_free
 
 
 def test_result_fields_are_what_the_runner_records():

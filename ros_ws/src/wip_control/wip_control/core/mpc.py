@@ -156,7 +156,8 @@ class MpcConfig:
         'disturbance is not held: the target saturates)', minimum=0.0)
     prediction_gain_scale: tuple[float, float] = param(
         (1.0, 1.0), '1', '(g2, g3) of model (1) are multiplied by these in the prediction '
-        'of the increments (robustness to the motor reaction torque that model (1) omits)',
+        'of the increments (toward the motor reaction torque that model (1) omits; (1.11, '
+        '1.22) helps the full plant but the paper plant then fell at speed, docs/mpc.md)',
         minimum=0.0, exclusive_minimum=True)
     speed_slack_linear_penalty: float = param(
         0.0, '1', 'rho1 of the speed slacks (the tilt slacks use slack_linear_penalty). 0: '
