@@ -137,8 +137,8 @@ class MpcConfig:
         1e4, '1', 'ρ2: cost per squared unit of relative violation of a soft limit',
         minimum=0.0, exclusive_minimum=True)
     soft_limits: str = param(
-        'per_step', '-', "'per_step': one slack per predicted step and limit, exact l1 "
-        "penalty (adopted: braking from above a limit is preferred to coasting); "
+        'per_step', '-', "'per_step': one slack per predicted step and limit (adopted: "
+        "braking from above a limit is preferred to coasting); "
         "'worst_case': one slack per limit for the whole horizon (the paper's reading of "
         '(19)-(21); above the speed limit it coasts)', choices=SOFT_LIMITS)
     speed_limit_first_step: int = param(
@@ -209,8 +209,8 @@ class MpcResult(NamedTuple):
     iterations: int          #: QP solver iterations (0 if not run)
     solve_time_s: float      #: wall time of the solver's update + solve [s]
     build_time_s: float      #: wall time of building H, g, C, l, u [s]
-    slack_v: float           #: largest sυ, relative violation of |υ| ≤ υmax (nan if not solved)
-    slack_theta: float       #: largest sθ, relative violation of |θ| ≤ θmax (nan if not solved)
+    slack_v: float           #: largest sυ,i: relative violation of |υ| ≤ υmax (nan: no solve)
+    slack_theta: float       #: largest sθ,i: relative violation of |θ| ≤ θmax (nan: no solve)
     used_fallback: bool      #: true if the applied plan is not a fresh QP solution
     predicted: np.ndarray    #: (Np, 3) predicted (υ, θ, θ̇) for the applied plan
     plan: np.ndarray         #: (Nc,) applied increments Δτ(k|k) … Δτ(k+Nc−1|k) [N m]
@@ -283,7 +283,7 @@ class LongitudinalMpc:
         self._hessian_coef = np.empty(4)
         # Gradient: g_Δ = −2 (g2 G2ᵀQ e + g3 G3ᵀQ e), e = ȳr − ȳ_free.
         self._weighted_gains = np.vstack([qg2.T, qg3.T])  # (2Nc, 3Np)
-                # Constraint rows on υ and θ: [υ rows; θ rows] = g2 C2 + g3 C3, stacked (2, 2Np·Nc).
+        # Constraint rows on υ and θ: [υ rows; θ rows] = g2 C2 + g3 C3, stacked (2, 2Np·Nc).
         self._row_blocks = np.stack([
             np.vstack([g2m[0::3], g2m[1::3]]).reshape(-1),
             np.vstack([g3m[0::3], g3m[1::3]]).reshape(-1)])
@@ -296,8 +296,9 @@ class LongitudinalMpc:
         # plan raises that maximum and, at ρ1 = 1e4, costs more than coasting forever.
         # 'per_step': one slack per step and limit with a linear (exact ℓ1) penalty
         # (Kerrigan & Maciejowski 2000): the cost is the summed violation over the horizon,
-        # which braking lowers. Both keep the QP feasible for any state (the slacks are
-        # unbounded above).
+        # which braking lowers (the speed slacks default to a quadratic penalty only, see
+        # ``speed_slack_linear_penalty``). Both keep the QP feasible for any state (the
+        # slacks are unbounded above).
         n_s = n_p if config.soft_limits == 'per_step' else 1
         self.n_slacks = n_s
         n = n_c + 2 * n_s
