@@ -38,8 +38,9 @@ On those sets the solutions agree with DAQP (exact active set) to 7e-4 N m at wo
 After any failure the workspace is set up afresh on the next call, so that a bad
 iterate never seeds the next solve. A failed solve is retried once, at once, from the
 equality-constrained initial guess (about 1 QP in 20 000 random states ran to max_iter
-from the default start and solves from that one). If that stalls too, DAQP solves the same data before the caller falls
-back to its previous plan (seen with the MPC's per-step slacks on extreme states).
+from the default start and solves from that one). If that stalls too, DAQP solves the
+same data before the caller falls back to its previous plan (seen with the MPC's
+per-step slacks on extreme states).
 """
 
 from __future__ import annotations
