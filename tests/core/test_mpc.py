@@ -698,3 +698,28 @@ def test_full_plant_standing_still_decays():
     t = truth_paper['t']
     theta_paper = np.abs(truth_paper['theta'])
     assert theta_paper[t >= 40.0].max() > theta_paper[t < 20.0].max()  # grows
+
+
+def test_prediction_gain_scale_applies_to_the_increments_only():
+    # f̂ + g τ(k−1) is the ESO's estimate of the present accelerations (model (1)'s g);
+    # the scaled gains act on the increments. Rollout written out here, independently.
+    scale = (1.2, 1.5)
+    mpc = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, prediction_gain_scale=scale))
+    tau_prev = 3.0
+    mpc.reset(tau_prev)
+    state = realistic_state(0.3, 0.02, -0.05, 0.4, 0.1)
+    result = mpc.step(**state, v_d=0.6, tau_limit=30.0)
+    assert result.status == MpcStatus.SOLVED
+    _, g2, g3 = input_gains(PARAMS, state['theta_hat'])
+    a = state_matrix_from_spec('gravity_aware')
+    x0 = np.array([state['v_hat'], state['theta_hat'], state['theta_dot_hat']])
+    c = TS * np.array([state['f2_hat'] + g2 * tau_prev, 0.0, state['f3_hat'] + g3 * tau_prev])
+    c -= (a - state_matrix_from_spec('paper')) @ x0
+    b_scaled = TS * np.array([scale[0] * g2, 0.0, scale[1] * g3])
+    x, increment, rows = x0.copy(), 0.0, []
+    for i in range(NP):
+        if i < NC:
+            increment += result.plan[i]
+        x = a @ x + c + b_scaled * increment
+        rows.append(x)
+    np.testing.assert_allclose(result.predicted, np.array(rows), rtol=0, atol=1e-10)
