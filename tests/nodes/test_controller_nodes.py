@@ -41,6 +41,7 @@ from wip_control.core.disturbances import Disturbances  # noqa: E402
 from wip_control.core.eso import EsoConfig, WipStateObserver  # noqa: E402
 from wip_control.core.mixer import drive_torque_limit, mix  # noqa: E402
 from wip_control.core.model import PHI  # noqa: E402
+from wip_control.core.lqr import LongitudinalLqr  # noqa: E402
 from wip_control.core.mpc import LongitudinalMpc, MpcConfig  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
 from wip_control.core.plant import Plant  # noqa: E402
@@ -706,6 +707,30 @@ def test_mpc_lockstep_solves_at_each_tick_from_t0_and_equals_the_core(
     harness.spin_for(0.05)
     assert [m.header.stamp for m in out] == [ns_to_stamp(k * H_NS) for k in (0, 20, 40)]
     assert len({round(m.tau_v, 6) for m in out}) == 3  # three different torques
+
+
+def test_mpc_node_runs_the_lqr_baseline_when_selected(context, harnesses):
+    # mpc.controller: lqr -> the node publishes core.lqr.LongitudinalLqr's torque (no QP,
+    # deterministic: exact equality).
+    harness = mpc_harness(harnesses, context, **{'mpc.controller': 'lqr'})
+    out = harness.outputs['/wip/drive_torque']
+    lqr = LongitudinalLqr(WipParameters(), MpcConfig(controller='lqr'))
+    ticks = 0
+    for stamp, est, v_d, tau_omega in mpc_inputs(45):
+        harness.publish('/wip/state_estimate', estimate_msg(stamp, **est))
+        harness.publish('/wip/velocity_command',
+                        VelocityCommandMsg(header=make_header(stamp), v_d=v_d))
+        harness.publish('/wip/yaw_torque',
+                        ArcState(header=make_header(stamp), tau_omega=tau_omega))
+        if stamp % (20 * H_NS) != 0:
+            continue
+        ticks += 1
+        harness.spin_until(lambda: len(out) == ticks, f'LQR tick at {stamp}')
+        expected = lqr.step(est['v'], est['theta'], est['theta_dot'], est['f2'], est['f3'],
+                            v_d, drive_torque_limit(tau_omega, 15.0))
+        assert (out[-1].tau_v, out[-1].delta_tau) == (expected.tau_v, expected.delta_tau)
+        assert out[-1].status == MpcOutput.SOLVED and out[-1].iterations == 0
+    assert ticks == 3
 
 
 def test_mpc_non_finite_input_answers_input_invalid_with_a_finite_torque(context, harnesses):

@@ -96,7 +96,7 @@ from wip_control.core.config import ConfigError, load_yaml_text
 from wip_control.core.eso import StateEstimate, WipStateObserver
 from wip_control.core.metrics import compute_metrics
 from wip_control.core.mixer import drive_torque_limit, mix
-from wip_control.core.mpc import LongitudinalMpc
+from wip_control.core.lqr import make_longitudinal_controller
 from wip_control.core.position import PlanarPositionEstimator
 from wip_control.core.record import GROUPS, RunRecord
 from wip_control.core.references import make_reference
@@ -287,7 +287,7 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario,
     position = PlanarPositionEstimator(scenario.position)
     generator = TrajectoryGenerator(scenario.trajectory_generator)
     arc = AdaptiveRobustYawController(scenario.arc, alpha_initial=initial_alpha(scenario))
-    mpc = LongitudinalMpc(nominal, scenario.mpc)
+    mpc = make_longitudinal_controller(nominal, scenario.mpc)
     max_wheel = scenario.mixer.max_wheel_torque
     dt_control = scenario.control_period
     mpc_every = scenario.mpc_decimation

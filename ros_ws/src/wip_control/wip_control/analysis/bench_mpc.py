@@ -221,7 +221,7 @@ def _objective_gap(mpc: LongitudinalMpc, result, z_daqp: np.ndarray) -> float:
     n_c = mpc.config.control_horizon
     z_prox = np.empty(mpc.n_variables)
     z_prox[:n_c] = result.plan
-    z_prox[n_c:] = result.slack_v, result.slack_theta
+    z_prox[n_c:] = mpc.last_solution.z[n_c:]  # every slack (one per step and limit)
 
     def objective(z):
         return 0.5 * z @ qp.H @ z + qp.g @ z

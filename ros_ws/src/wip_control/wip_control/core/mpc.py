@@ -13,18 +13,25 @@ Cost (20), with ȳ = G̃ Δτ̄ + ȳ_free from :mod:`.mpc_prediction`:
 .. math::
 
     J = \\|\\bar y_r - \\bar y\\|^2_Q + \\|\\Delta\\bar\\tau\\|^2_R
-        + \\rho_1 (s_\\upsilon + s_\\theta) + \\rho_2 (s_\\upsilon^2 + s_\\theta^2)
+        + \\sum_i \\left(\\rho_{1\\upsilon} s_{\\upsilon,i} + \\rho_1 s_{\\theta,i}
+        + \\rho_2 (s_{\\upsilon,i}^2 + s_{\\theta,i}^2)\\right)
 
-with ȳr = 1_Np ⊗ (υd, 0, 0), Q = I_Np ⊗ diag(q), R = r I_Nc. As a QP in
-z = (Δτ̄, sυ, sθ): ½ zᵀ H z + gᵀ z with H = 2(G̃ᵀQG̃ + R) and g = −2 G̃ᵀQ(ȳr − ȳ_free)
-on the Δτ̄ block (eq. (22)), 2ρ2 and ρ1 on the slack entries.
+with ȳr = 1_Np ⊗ (υd, θs, 0), Q = I_Np ⊗ diag(q), R = r I_Nc. θs is the offset-free
+target of :class:`OffsetFreeTarget` (0 in the paper's (20), ``offset_free: false``). As a
+QP in z = (Δτ̄, sυ, sθ): ½ zᵀ H z + gᵀ z with H = 2(G̃ᵀQG̃ + R) and
+g = −2 G̃ᵀQ(ȳr − ȳ_free) on the Δτ̄ block (eq. (22)), 2ρ2 and ρ1 (ρ1υ for the speed
+slacks, ``speed_slack_linear_penalty``) on the slack entries. ``soft_limits: per_step``
+(default): one slack per predicted step and limit (Np each); ``worst_case`` (the
+paper's): one per limit for the whole horizon. Why the default differs, with measured
+effects: ``docs/mpc.md``.
 
 Constraints (19), (21), as adopted in ``shared/spec/model-and-controllers.md`` §5:
 
 - hard, box: |Δτ(k+j)| ≤ Δτmax; hard, rows: |τ(k+j)| ≤ τlim for j < Nc (τ is constant
   after Nc−1), τlim = min(``tau_limit``, ``max_drive_torque``);
-- soft, rows: |υ(k+i)| ≤ υmax (1 + sυ) and |θ(k+i)| ≤ θmax (1 + sθ) for i = 1..Np,
-  one slack per quantity in units relative to its limit, sυ, sθ ≥ 0 (box); θ̇ unbounded.
+- soft, rows: |υ(k+i)| ≤ υmax (1 + sυ,i) for i = ``speed_limit_first_step``..Np and
+  |θ(k+i)| ≤ θmax (1 + sθ,i) for i = 1..Np, slacks in units relative to the limit,
+  ≥ 0 (box); θ̇ unbounded. (With ``worst_case`` every sυ,i is the one sυ.)
 
 Deviation (feasibility): if |τ(k−1)| > τlim (the limit shrinks when |τω| grows), the
 hard τ rows cannot all hold under the Δτ limit. The τ bound of step j is then relaxed
@@ -63,7 +70,8 @@ import numpy as np
 
 from .config import ConfigError, param
 from .model import input_gains
-from .mpc_prediction import PREDICTION_MODELS, CondensedPrediction
+from .mpc_prediction import (PREDICTION_MODELS, CondensedPrediction,
+                             gravity_aware_state_matrix)
 from .params import WipParameters
 from .qp import MpcStatus, QpSettings, make_solver
 
@@ -72,8 +80,19 @@ from .qp import MpcStatus, QpSettings, make_solver
 #: far below where the QP data would overflow (values ~1e300 made the gradient inf).
 INPUT_MAGNITUDE_LIMIT = 1e9
 
+#: Soft-limit formulations understood by :class:`MpcConfig`.
+SOFT_LIMITS = ('per_step', 'worst_case')
+
 __all__ = ['LongitudinalMpc', 'MpcConfig', 'MpcInputError', 'MpcResult', 'MpcStatus',
-           'QpData']
+           'PAPER_MPC_SETTINGS', 'QpData']
+
+
+#: The settings that reproduce the paper's formulation of (19)–(21) as first implemented
+#: (one worst-case slack per limit, speed limited from the first step, θ reference 0, the
+#: paper's weights): ``mpc: {**PAPER_MPC_SETTINGS}`` in a scenario.
+PAPER_MPC_SETTINGS = {'soft_limits': 'worst_case', 'speed_limit_first_step': 1,
+                      'speed_slack_linear_penalty': 1e4, 'offset_free': False,
+                      'output_weights': (1.0, 50.0, 1.0), 'input_weight': 1.0}
 
 
 class MpcInputError(ValueError):
@@ -84,6 +103,10 @@ class MpcInputError(ValueError):
 class MpcConfig:
     """Tunables of the longitudinal/tilt MPC (eqs. (16)–(23) in [1])."""
 
+    controller: str = param(
+        'mpc', '-', "'mpc': this QP-based MPC; 'lqr': the saturated discrete LQR baseline "
+        'on the same model, rate, weights and torque limits (core/lqr.py)',
+        choices=('mpc', 'lqr'))
     sampling_period: float = param(
         0.1, 's', 'Ts: MPC sampling period and Euler step of the prediction (17) '
         '(the paper calls it ε, like the ESO gain)', minimum=0.0, exclusive_minimum=True)
@@ -93,10 +116,14 @@ class MpcConfig:
     control_horizon: int = param(6, '1', 'Nc: input increments optimised (<= Np)',
                                  minimum=1, maximum=60)
     output_weights: tuple[float, float, float] = param(
-        (1.0, 50.0, 1.0), 's²/m², 1/rad², s²/rad²',
-        'diagonal of the per-step output weight of Q in (20), for (υ, θ, θ̇)', minimum=0.0)
-    input_weight: float = param(1.0, '1/(N m)²', 'R = r I: weight of Δτ in (20)',
-                                minimum=0.0, exclusive_minimum=True)
+        (10.0, 50.0, 1.0), 's²/m², 1/rad², s²/rad²',
+        'diagonal of the per-step output weight of Q in (20), for (υ, θ, θ̇); the paper '
+        'uses (1, 50, 1), whose speed loop lags 1.7 s and rides the speed limit',
+        minimum=0.0)
+    input_weight: float = param(
+        0.5, '1/(N m)²', 'R = r I: weight of Δτ in (20); the paper uses 1, with which the '
+        'full plant (motor reaction torque) decays 3x slower', minimum=0.0,
+        exclusive_minimum=True)
     max_drive_torque: float = param(
         30.0, 'N m', 'hard |τυ| limit 2 τmax (19); the per-call tau_limit is capped to it',
         minimum=0.0, exclusive_minimum=True)
@@ -111,6 +138,34 @@ class MpcConfig:
     slack_quadratic_penalty: float = param(
         1e4, '1', 'ρ2: cost per squared unit of relative violation of a soft limit',
         minimum=0.0, exclusive_minimum=True)
+    soft_limits: str = param(
+        'per_step', '-', "'per_step': one slack per predicted step and limit (adopted: "
+        "braking from above a limit is preferred to coasting); "
+        "'worst_case': one slack per limit for the whole horizon (the paper's reading of "
+        '(19)-(21); above the speed limit it coasts)', choices=SOFT_LIMITS)
+    speed_limit_first_step: int = param(
+        4, '1', 'first predicted step (1..Np) whose speed is limited: a WIP must speed up '
+        'before it brakes, so limiting the first steps makes every braking plan costlier '
+        'than riding the limit (1 = every step, as in the paper)', minimum=1)
+    offset_free: bool = param(
+        True, '-', 'track the steady-state target (tilt that balances the estimated '
+        'constant disturbance) instead of theta = 0 (false: the paper\'s reference (20))')
+    disturbance_filter_time_constant: float = param(
+        0.5, 's', 'low-pass time constant of the constant-disturbance estimate behind the '
+        'offset-free target', minimum=0.0)
+    max_target_tilt: float = param(
+        0.08, 'rad', '|theta| bound of the offset-free steady-state target (a larger '
+        'disturbance is not held: the target saturates)', minimum=0.0)
+    prediction_gain_scale: tuple[float, float] = param(
+        (1.0, 1.0), '1', '(g2, g3) of model (1) are multiplied by these in the prediction '
+        'of the increments (toward the motor reaction torque that model (1) omits; (1.11, '
+        '1.22) helps the full plant but the paper plant then fell at speed, docs/mpc.md)',
+        minimum=0.0, exclusive_minimum=True)
+    speed_slack_linear_penalty: float = param(
+        0.0, '1', 'rho1 of the speed slacks (the tilt slacks use slack_linear_penalty). 0: '
+        'quadratic only. The speed command never exceeds the limit (9), so no exact penalty is '
+        'needed, and a linear one makes the small overshoot that precedes braking cost more '
+        'than riding the limit; the paper uses rho1 for both', minimum=0.0)
     prediction: str = param(
         'gravity_aware', '-', "'gravity_aware' (adopted) or 'paper' (literal G̃ of (18), "
         'falls; for the ablation)', choices=PREDICTION_MODELS)
@@ -135,6 +190,9 @@ class MpcConfig:
         'worst-case solve time', minimum=1, maximum=10000)
 
     def validate(self) -> None:
+        if self.speed_limit_first_step > self.prediction_horizon:
+            raise ConfigError(f'speed_limit_first_step: must be <= prediction_horizon '
+                              f'({self.prediction_horizon}), got {self.speed_limit_first_step}')
         if self.control_horizon > self.prediction_horizon:
             raise ConfigError(f'control_horizon: must be <= prediction_horizon '
                               f'({self.prediction_horizon}), got {self.control_horizon}')
@@ -153,11 +211,12 @@ class MpcResult(NamedTuple):
     iterations: int          #: QP solver iterations (0 if not run)
     solve_time_s: float      #: wall time of the solver's update + solve [s]
     build_time_s: float      #: wall time of building H, g, C, l, u [s]
-    slack_v: float           #: sυ, relative violation of |υ| ≤ υmax (nan if not solved)
-    slack_theta: float       #: sθ, relative violation of |θ| ≤ θmax (nan if not solved)
+    slack_v: float           #: largest sυ,i: relative violation of |υ| ≤ υmax (nan: no solve)
+    slack_theta: float       #: largest sθ,i: relative violation of |θ| ≤ θmax (nan: no solve)
     used_fallback: bool      #: true if the applied plan is not a fresh QP solution
     predicted: np.ndarray    #: (Np, 3) predicted (υ, θ, θ̇) for the applied plan
     plan: np.ndarray         #: (Nc,) applied increments Δτ(k|k) … Δτ(k+Nc−1|k) [N m]
+    target_theta: float = 0.0  #: θs, tilt reference of the offset-free target [rad]
 
     @property
     def status_text(self) -> str:
@@ -226,8 +285,6 @@ class LongitudinalMpc:
         self._hessian_coef = np.empty(4)
         # Gradient: g_Δ = −2 (g2 G2ᵀQ e + g3 G3ᵀQ e), e = ȳr − ȳ_free.
         self._weighted_gains = np.vstack([qg2.T, qg3.T])  # (2Nc, 3Np)
-        self._reference_pattern = np.zeros(3 * n_p)
-        self._reference_pattern[0::3] = 1.0
         # Constraint rows on υ and θ: [υ rows; θ rows] = g2 C2 + g3 C3, stacked (2, 2Np·Nc).
         self._row_blocks = np.stack([
             np.vstack([g2m[0::3], g2m[1::3]]).reshape(-1),
@@ -236,33 +293,54 @@ class LongitudinalMpc:
         # Reachable |τ(k+j) − τ(k−1)| under the increment limit, for the τ rows.
         self._reach = config.max_delta_torque * np.arange(1, n_c + 1)
 
-        n = n_c + 2
+        # Soft limits. 'worst_case': one slack per limit, sυ ≥ max_i |υ(k+i)|/υmax − 1. A
+        # WIP must first speed up to brake (non-minimum phase), so above υmax every braking
+        # plan raises that maximum and, at ρ1 = 1e4, costs more than coasting forever.
+        # 'per_step': one slack per step and limit with a linear (exact ℓ1) penalty
+        # (Kerrigan & Maciejowski 2000): the cost is the summed violation over the horizon,
+        # which braking lowers (the speed slacks default to a quadratic penalty only, see
+        # ``speed_slack_linear_penalty``). Both keep the QP feasible for any state (the
+        # slacks are unbounded above).
+        n_s = n_p if config.soft_limits == 'per_step' else 1
+        self.n_slacks = n_s
+        n = n_c + 2 * n_s
         m = n_c + 4 * n_p
         self.n_variables, self.n_constraints = n, m
         self._slice_upper = slice(n_c, n_c + 2 * n_p)
         self._slice_lower = slice(n_c + 2 * n_p, n_c + 4 * n_p)
         self._h = np.zeros((n, n))
-        self._h[n_c, n_c] = self._h[n_c + 1, n_c + 1] = 2.0 * config.slack_quadratic_penalty
+        slack_index = np.arange(n_c, n)
+        self._h[slack_index, slack_index] = 2.0 * config.slack_quadratic_penalty
         self._g = np.zeros(n)
-        self._g[n_c:] = config.slack_linear_penalty
+        self._g[n_c:n_c + n_s] = config.speed_slack_linear_penalty
+        self._g[n_c + n_s:] = config.slack_linear_penalty
         self._c = np.zeros((m, n))
         self._c[:n_c, :n_c] = np.tril(np.ones((n_c, n_c)))
         limits = np.repeat([config.max_speed, config.max_tilt], n_p)
         self._limits = limits
-        self._c[self._slice_upper, n_c] = np.r_[-limits[:n_p], np.zeros(n_p)]
-        self._c[self._slice_upper, n_c + 1] = np.r_[np.zeros(n_p), -limits[n_p:]]
-        self._c[self._slice_lower, n_c] = np.r_[limits[:n_p], np.zeros(n_p)]
-        self._c[self._slice_lower, n_c + 1] = np.r_[np.zeros(n_p), limits[n_p:]]
+        # Row i of the υ (θ) block uses slack column i (per step) or the single column.
+        slack_map = np.eye(n_p) if n_s == n_p else np.ones((n_p, 1))
+        v_cols, theta_cols = slice(n_c, n_c + n_s), slice(n_c + n_s, n)
+        for rows, sign in ((self._slice_upper, -1.0), (self._slice_lower, 1.0)):
+            block = self._c[rows]
+            block[:n_p, v_cols] = sign * config.max_speed * slack_map
+            block[n_p:, theta_cols] = sign * config.max_tilt * slack_map
         self._l = np.full(m, -np.inf)
         self._u = np.full(m, np.inf)
         self._lb = np.zeros(n)
         self._ub = np.full(n, np.inf)
         self._lb[:n_c] = -config.max_delta_torque
         self._ub[:n_c] = config.max_delta_torque
+        n_free = min(config.speed_limit_first_step - 1, n_p)
+        self._free_speed_upper = slice(n_c, n_c + n_free)
+        self._free_speed_lower = slice(n_c + 2 * n_p, n_c + 2 * n_p + n_free)
+        self._target = OffsetFreeTarget(params, config)
+        self._reference = np.zeros(3 * n_p)
         self._x_hat = np.empty(3)
         self.last_qp = QpData(self._h, self._g, self._c, self._l, self._u, self._lb,
                               self._ub)
 
+        self.last_solution = None  # QpSolution of the last solve (z with every slack)
         self._solver = (make_solver(config.backend, n, m, config.qp_settings())
                         if solver is None else solver)
         self._tau_previous = 0.0
@@ -278,6 +356,7 @@ class LongitudinalMpc:
         """Forget the plan and the solver's workspace; τυ(k−1) = ``tau_previous`` [N m]."""
         self.set_previous_torque(tau_previous)
         self._plan = None
+        self._target.reset()
         self._solver.reset()
 
     def set_previous_torque(self, tau_previous: float) -> None:
@@ -312,18 +391,26 @@ class LongitudinalMpc:
         limit = min(limit, cfg.max_drive_torque)
 
         t_start = time.perf_counter()
+        # g2, g3 of model (1) at θ̂ (what the ESO assumes, so f̂ + g τ(k−1) is its estimate
+        # of the present accelerations); the increments are predicted with the scaled gains.
         _, g2, g3 = input_gains(self.params, theta_hat)
+        scale2, scale3 = cfg.prediction_gain_scale
+        g2p, g3p = scale2 * g2, scale3 * g3
+        self._target.update(theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev)
         free = self._build(v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit, g2,
-                           g3, tau_prev)
+                           g3, g2p, g3p, tau_prev)
         t_built = time.perf_counter()
         solution = self._solver.solve(self._h, self._g, self._c, self._l, self._u,
                                       self._lb, self._ub)
         t_solved = time.perf_counter()
 
         n_c = cfg.control_horizon
+        n_s = self.n_slacks
+        self.last_solution = solution
         if solution.status == MpcStatus.SOLVED:
             plan = solution.z[:n_c].copy()
-            slack_v, slack_theta = float(solution.z[n_c]), float(solution.z[n_c + 1])
+            slack_v = float(np.max(solution.z[n_c:n_c + n_s]))
+            slack_theta = float(np.max(solution.z[n_c + n_s:]))
             used_fallback = False
         else:
             plan = self._shifted_plan()
@@ -333,14 +420,20 @@ class LongitudinalMpc:
         plan[0] = delta
         self._plan = plan
         self._tau_previous = tau_prev + delta
-        predicted = (free + g2 * (self.prediction.gain_matrix_v @ plan)
-                     + g3 * (self.prediction.gain_matrix_theta_dot @ plan))
+        predicted = (free + g2p * (self.prediction.gain_matrix_v @ plan)
+                     + g3p * (self.prediction.gain_matrix_theta_dot @ plan))
         return MpcResult(self._tau_previous, delta, solution.status, solution.iterations,
                          t_solved - t_built, t_built - t_start, slack_v, slack_theta,
-                         used_fallback, predicted.reshape(-1, 3), plan.copy())
+                         used_fallback, predicted.reshape(-1, 3), plan.copy(),
+                         self._target.theta)
+
+    @property
+    def target_theta(self) -> float:
+        """θs [rad], the tilt reference of the last tick (0 unless ``offset_free``)."""
+        return self._target.theta
 
     def _build(self, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit, g2, g3,
-               tau_prev) -> np.ndarray:
+               g2p, g3p, tau_prev) -> np.ndarray:
         """Fill H, g, C, l, u in place; return the free response ȳ_free (3Np)."""
         n_c = self.config.control_horizon
         n_p = self.config.prediction_horizon
@@ -353,21 +446,29 @@ class LongitudinalMpc:
 
         # Eq. (22): H_ΔΔ = 2(G̃ᵀQG̃ + R), g_Δ = −2 G̃ᵀQ(ȳr − ȳ_free).
         coef = self._hessian_coef
-        coef[0], coef[1], coef[2], coef[3] = 2.0 * g2 * g2, 2.0 * g2 * g3, 2.0 * g3 * g3, 2.0
+        coef[0], coef[1], coef[2] = 2.0 * g2p * g2p, 2.0 * g2p * g3p, 2.0 * g3p * g3p
+        coef[3] = 2.0
         self._h[:n_c, :n_c] = (coef @ self._hessian_blocks).reshape(n_c, n_c)
-        error = self._reference_pattern * v_d
+        # ȳr = 1 ⊗ (υd, θs, 0); θs = 0 in the paper's (20).
+        error = self._reference
+        error[0::3] = v_d
+        error[1::3] = self._target.theta
+        error[2::3] = 0.0
         error -= free
         projected = self._weighted_gains @ error
-        self._g[:n_c] = -2.0 * (g2 * projected[:n_c] + g3 * projected[n_c:])
+        self._g[:n_c] = -2.0 * (g2p * projected[:n_c] + g3p * projected[n_c:])
 
         # Rows (21): υ and θ of the plan, identical for the ≤ and ≥ halves.
-        self._row_coef[0], self._row_coef[1] = g2, g3
+        self._row_coef[0], self._row_coef[1] = g2p, g3p
         rows = (self._row_coef @ self._row_blocks).reshape(2 * n_p, n_c)
         self._c[self._slice_upper, :n_c] = rows
         self._c[self._slice_lower, :n_c] = rows
         free_outputs = np.concatenate((free[0::3], free[1::3]))
         np.subtract(self._limits, free_outputs, out=self._u[self._slice_upper])
         np.subtract(-self._limits, free_outputs, out=self._l[self._slice_lower])
+        # Speed rows of the first steps are free (see ``speed_limit_first_step``).
+        self._u[self._free_speed_upper] = np.inf
+        self._l[self._free_speed_lower] = -np.inf
         # τ rows, relaxed to the reachable set if |τ(k−1)| is beyond the limit (see module).
         np.subtract(np.maximum(limit, tau_prev - self._reach), tau_prev, out=self._u[:n_c])
         np.subtract(np.minimum(-limit, tau_prev + self._reach), tau_prev, out=self._l[:n_c])
@@ -384,25 +485,90 @@ class LongitudinalMpc:
         return np.clip(shifted, -dmax, dmax)
 
     def _admissible_increment(self, delta: float, tau_prev: float, limit: float) -> float:
-        """Clip Δτ to the hard limits: |Δτ| ≤ Δτmax and |τ(k−1) + Δτ| ≤ limit when reachable."""
-        dmax = self.config.max_delta_torque
-        delta = min(max(float(delta), -dmax), dmax)
-        tau = tau_prev + delta
-        if tau > limit:
-            tau = max(limit, tau_prev - dmax)
-        elif tau < -limit:
-            tau = min(-limit, tau_prev + dmax)
-        return tau - tau_prev
+        return admissible_increment(delta, tau_prev, limit, self.config.max_delta_torque)
 
     def _hold_invalid_input(self) -> MpcResult:
         """No solve on NaN/inf input: ramp τ toward 0 within Δτmax (see the module doc)."""
-        cfg = self.config
-        tau_prev = self._tau_previous
-        delta = min(max(-tau_prev, -cfg.max_delta_torque), cfg.max_delta_torque)
-        self._tau_previous = tau_prev + delta
         self._plan = None
-        plan = np.zeros(cfg.control_horizon)
-        plan[0] = delta
-        predicted = np.full((cfg.prediction_horizon, 3), np.nan)
-        return MpcResult(self._tau_previous, delta, MpcStatus.INPUT_INVALID, 0, 0.0, 0.0,
-                         math.nan, math.nan, True, predicted, plan)
+        result = invalid_input_result(self.config, self._tau_previous)
+        self._tau_previous = result.tau_v
+        return result
+
+
+def admissible_increment(delta: float, tau_prev: float, limit: float, dmax: float) -> float:
+    """Clip Δτ to the hard limits: |Δτ| ≤ Δτmax and |τ(k−1) + Δτ| ≤ limit when reachable."""
+    delta = min(max(float(delta), -dmax), dmax)
+    tau = tau_prev + delta
+    if tau > limit:
+        tau = max(limit, tau_prev - dmax)
+    elif tau < -limit:
+        tau = min(-limit, tau_prev + dmax)
+    return tau - tau_prev
+
+
+def invalid_input_result(config: MpcConfig, tau_prev: float) -> MpcResult:
+    """The tick's result on NaN/inf input: τ ramps toward 0 by at most Δτmax."""
+    delta = min(max(-tau_prev, -config.max_delta_torque), config.max_delta_torque)
+    plan = np.zeros(config.control_horizon)
+    plan[0] = delta
+    predicted = np.full((config.prediction_horizon, 3), np.nan)
+    return MpcResult(tau_prev + delta, delta, MpcStatus.INPUT_INVALID, 0, 0.0, 0.0,
+                     math.nan, math.nan, True, predicted, plan)
+
+
+class OffsetFreeTarget:
+    """Steady-state target θs, τs from the estimated constant disturbance.
+
+    Offset-free MPC (Pannocchia & Rawlings 2003; Maeder, Borrelli & Morari 2009) with the
+    ESO as the disturbance observer. The linearisation of (1) at θ = 0 is
+    υ̇ = a_υθ θ + g2 τ + d2, θ̈ = a_θθ θ + g3 τ + d3 (a_υθ = −mp² l² g/Ω0,
+    a_θθ = mv mp g l/Ω0, the gravity-aware prediction's terms). The ESO's f̂ lumps
+    everything but g τ: the model's own drift and the external disturbance. Against the
+    prediction's model (gains g2p, g3p) the present accelerations f̂ + g τ(k−1) leave
+
+        d2 = f̂2 + (g2 − g2p) τ(k−1) − a_υθ θ̂,   d3 = f̂3 + (g3 − g3p) τ(k−1) − a_θθ θ̂,
+
+    low-passed with ``disturbance_filter_time_constant`` (the transients of the
+    unmodelled nonlinear terms are not a constant disturbance). The steady state
+    (υ̇ = θ̈ = 0) solves [a_υθ g2p; a_θθ g3p] (θs, τs) = −(d2, d3): θs is the lean that
+    holds a constant force (a slope, a push). Tracking it instead of the paper's θ = 0
+    of (20) removes the standing speed offset that the position loop (9) turns into a
+    position offset. |θs| ≤ ``max_target_tilt``. With ``offset_free`` false, θs = 0.
+    """
+
+    def __init__(self, params: WipParameters, config: MpcConfig) -> None:
+        ts = config.sampling_period
+        a = gravity_aware_state_matrix(params, ts)
+        self.config = config
+        self.a_v_theta = a[0, 1] / ts
+        self.a_theta_theta = a[2, 1] / ts
+        self.reset()
+
+    def reset(self) -> None:
+        self.disturbance: list[float] | None = None  # filtered (d2, d3)
+        self.theta = 0.0
+        self.tau = 0.0
+
+    def update(self, theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev) -> float:
+        """Filter the disturbance estimate and return θs [rad] (τs in ``self.tau``)."""
+        cfg = self.config
+        if not cfg.offset_free:
+            return self.theta
+        d2 = f2_hat + (g2 - g2p) * tau_prev - self.a_v_theta * theta_hat
+        d3 = f3_hat + (g3 - g3p) * tau_prev - self.a_theta_theta * theta_hat
+        if self.disturbance is None:
+            self.disturbance = [d2, d3]
+        else:
+            ts = cfg.sampling_period
+            gain = ts / (cfg.disturbance_filter_time_constant + ts)  # backward Euler
+            self.disturbance[0] += gain * (d2 - self.disturbance[0])
+            self.disturbance[1] += gain * (d3 - self.disturbance[1])
+        d2f, d3f = self.disturbance
+        # Cramer's rule; at the nominal gains det = −mp g l / (Ω0 r) ≠ 0.
+        det = self.a_v_theta * g3p - self.a_theta_theta * g2p
+        theta_s = (g2p * d3f - g3p * d2f) / det
+        bound = cfg.max_target_tilt
+        self.theta = min(max(theta_s, -bound), bound)
+        # τs holds the (possibly saturated) θs against d2: the υ̇ = 0 row.
+        self.tau = -(self.a_v_theta * self.theta + d2f) / g2p
+        return self.theta

@@ -38,7 +38,9 @@ On those sets the solutions agree with DAQP (exact active set) to 7e-4 N m at wo
 After any failure the workspace is set up afresh on the next call, so that a bad
 iterate never seeds the next solve. A failed solve is retried once, at once, from the
 equality-constrained initial guess (about 1 QP in 20 000 random states ran to max_iter
-from the default start and solves from that one).
+from the default start and solves from that one). If that stalls too, DAQP solves the
+same data before the caller falls back to its previous plan (seen with the MPC's
+per-step slacks on extreme states).
 """
 
 from __future__ import annotations
@@ -127,6 +129,7 @@ class ProxsuiteSolver:
         self._sizes = (n_variables, n_constraints)
         self._settings = settings
         self._qp = None
+        self._exact = None  # DaqpSolver, made on the first double failure
 
     def _new_workspace(self, initial_guess=None):
         # A fresh object, not init() on the old one: init() keeps the previous result,
@@ -179,6 +182,17 @@ class ProxsuiteSolver:
             iterations += iterations_retry
             if status_retry == MpcStatus.SOLVED:
                 z, status = z_retry, status_retry
+            else:
+                # Last resort, DAQP (exact dual active set) on the same data: with one
+                # slack per step a few badly scaled QPs (τ(k−1) far beyond a shrunken
+                # limit, so the held tail diverges and slacks reach ~1e3) stalled ProxSuite
+                # from both starts; DAQP solves them.
+                if self._exact is None:
+                    self._exact = DaqpSolver(*self._sizes, self._settings)
+                exact = self._exact.solve(h, g, c, lower, upper, lower_box, upper_box)
+                iterations += exact.iterations
+                if exact.status == MpcStatus.SOLVED:
+                    z, status = exact.z, exact.status
         return QpSolution(z, status, iterations)
 
     @staticmethod

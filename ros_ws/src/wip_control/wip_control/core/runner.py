@@ -34,7 +34,7 @@ from .disturbances import Disturbances
 from .eso import WipStateObserver
 from .mixer import drive_torque_limit, mix
 from .model import PHI, THETA, X, XV, Y, input_gains
-from .mpc import LongitudinalMpc
+from .lqr import make_longitudinal_controller
 from .plant import Plant
 from .position import PlanarPositionEstimator
 from .record import RecordBuffer, RunRecord
@@ -106,7 +106,7 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
     generator = TrajectoryGenerator(scenario.trajectory_generator)
     arc = AdaptiveRobustYawController(scenario.arc,
                                       alpha_initial=initial_alpha(scenario))
-    mpc = LongitudinalMpc(nominal, scenario.mpc)
+    mpc = make_longitudinal_controller(nominal, scenario.mpc)  # MPC or LQR baseline
     max_wheel = scenario.mixer.max_wheel_torque
 
     dt_control = scenario.control_period

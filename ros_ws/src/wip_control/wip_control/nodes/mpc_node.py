@@ -8,7 +8,9 @@ Subscribes ``/wip/state_estimate`` (υ̂, θ̂, θ̂̇, f̂2, f̂3), ``/wip/velo
 Publishes ``/wip/drive_torque`` (wip_msgs/MpcOutput: τυ, Δτ, status, iterations, build +
 solve time, slacks, predicted υ/θ/θ̇) every ``mpc.sampling_period``, and ``/diagnostics``.
 
-Per tick: ``core.mpc.LongitudinalMpc.step(...)`` (the runner's step 6). The core keeps
+Per tick: ``core.mpc.LongitudinalMpc.step(...)`` (the runner's step 6), or the LQR
+baseline ``core.lqr.LongitudinalLqr.step(...)`` when ``mpc.controller`` is ``lqr``
+(same interface and message; ``core.lqr.make_longitudinal_controller``). The core keeps
 τυ(k−1). Status: SOLVED; FALLBACK_SHIFTED_PLAN on any solver failure (``status_text`` is
 the core's status name); INPUT_INVALID when an input is not finite (the core then ramps
 τυ toward 0) or, in real time, stale; NOT_READY (τυ = 0) in real time before every input
@@ -52,7 +54,8 @@ from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg
 
 from ..core.config import ConfigError
 from ..core.mixer import drive_torque_limit, MixerConfig
-from ..core.mpc import LongitudinalMpc, MpcConfig
+from ..core.lqr import make_longitudinal_controller
+from ..core.mpc import MpcConfig
 from ..core.params import WipParameters
 from ..core.scenario import RatesConfig
 from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
@@ -83,7 +86,7 @@ class MpcNode(ControllerNode):
         self.sampling_period = self.config.sampling_period
         self.control_period = 1.0 / self.rates.control_rate
         self.every = decimation(self.sampling_period, self.control_period)
-        self.mpc = LongitudinalMpc(self.model, self.config)
+        self.mpc = make_longitudinal_controller(self.model, self.config)  # MPC or LQR
         self.latest: dict[str, tuple[int, object]] = {}
         self.publisher = self.create_publisher(MpcOutput, '/wip/drive_torque', RELIABLE_QOS)
         if self.lockstep:
