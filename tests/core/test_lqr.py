@@ -121,7 +121,7 @@ def test_lqr_in_the_runner_holds_a_push_without_offset():
     # Stop-and-hold, paper plant, a 0.3 m/s² push from 2 s: the LQR tracks the same
     # offset-free target as the MPC (measured offset 3e-4 m after 20 s).
     mapping = {'duration': 30.0, 'mpc': {'controller': 'lqr'},
-               'reference': {'kind': 'line', 'line_speed': 0.0},
+               'reference': {'kind': 'hold'},
                'initial_state': {'theta': 0.0, 'pose': [0.0, 0.0, 0.0]},
                'disturbances': {'yaw': [], 'longitudinal': [
                    {'kind': 'step', 'amplitude': 0.3, 'start_time': 2.0}]}}

@@ -620,7 +620,7 @@ def line_at_the_speed_limit(mpc, duration=20.0):
 def stop_and_hold(mpc, d2, d3, plant='paper', duration=30.0):
     """Stand still on a line of speed 0 while a constant (d2, d3) acts from 2 s on."""
     return {'duration': duration, 'plant': {'model': plant},
-            'reference': {'kind': 'line', 'line_speed': 0.0},
+            'reference': {'kind': 'hold'},
             'initial_state': {'theta': 0.0, 'pose': [0.0, 0.0, 0.0]}, 'mpc': mpc,
             'disturbances': {'yaw': [],
                              'longitudinal': [{'kind': 'step', 'amplitude': d2,
@@ -685,7 +685,7 @@ def test_full_plant_standing_still_decays():
     # oscillation. Default: the tilt envelope shrinks by ~3x every 20 s (measured
     # 0.0118, 0.0031, 0.0010 rad over 0-20, 20-40, 40-60 s).
     mapping = {'duration': 60.0, 'plant': {'model': 'full'},
-               'reference': {'kind': 'line', 'line_speed': 0.0},
+               'reference': {'kind': 'hold'},
                'initial_state': {'theta': 0.01, 'pose': [0.0, 0.0, 0.0]},
                'disturbances': {'yaw': [], 'longitudinal': []}}
     result, truth = _run(mapping)

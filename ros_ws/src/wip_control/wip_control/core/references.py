@@ -37,7 +37,7 @@ from typing import NamedTuple, Sequence
 from .config import ConfigError, param
 
 _HALF_PI = 0.5 * math.pi
-KINDS = ('trifolium', 'circle', 'line', 'figure_eight', 'waypoints')
+KINDS = ('trifolium', 'circle', 'line', 'figure_eight', 'waypoints', 'hold')
 #: Sharpest corner a waypoint list may have [rad] (a U-turn has no fillet).
 MAX_CORNER_ANGLE = math.radians(179.0)
 
@@ -411,8 +411,10 @@ class ReferenceConfig:
                                   choices=('ccw', 'cw'))
     circle_start_angle: float = param(0.0, 'rad', 'polar angle of the start point about '
                                       'the centre')
-    line_start: tuple[float, float] = param((0.0, 0.0), 'm', 'start point of the line')
-    line_heading: float = param(0.0, 'rad', 'direction of the line (REP 103: 0 = +x)')
+    line_start: tuple[float, float] = param((0.0, 0.0), 'm', 'start point of the line '
+                                            '(kind hold: the point to stand at)')
+    line_heading: float = param(0.0, 'rad', 'direction of the line (REP 103: 0 = +x; kind '
+                                'hold: the heading to stand at)')
     line_speed: float = param(0.5, 'm/s', 'speed along the line', minimum=0.0,
                               exclusive_minimum=True)
     figure_eight_center: tuple[float, float] = param((0.0, 0.0), 'm',
@@ -470,6 +472,8 @@ def make_reference(config: ReferenceConfig | None = None) -> Reference:
                       config.circle_direction, config.circle_start_angle)
     if config.kind == 'line':
         return StraightLine(config.line_start, config.line_heading, config.line_speed)
+    if config.kind == 'hold':       # stand still: the line's start, at zero speed
+        return StraightLine(config.line_start, config.line_heading, 0.0)
     if config.kind == 'figure_eight':
         return FigureEight(config.figure_eight_center, config.figure_eight_size,
                            config.figure_eight_period)
