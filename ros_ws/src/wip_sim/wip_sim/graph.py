@@ -543,37 +543,8 @@ class GraphRunner:
             scenario = dataclasses.replace(scenario, duration=float(options.duration))
         self.scenario = scenario
         # Every output is checked before anything is written or started.
-        try:
-            check_output_directory(self.out, '--out')
-            if self.bag is not None:
-                check_output_directory(self.bag, '--record')
-        except ValueError as err:
-            raise GraphError(str(err), EXIT_USAGE) from err
-        if self.bag is not None and self.bag.exists() and any(self.bag.iterdir()):
-            raise GraphError(f'--record: {self.bag} exists and is not empty; refusing to '
-                             'overwrite a bag (nothing was written)', EXIT_USAGE)
-        logs = self.out / 'logs'
-        if self.bag is not None and (self.bag == self.out or self.bag == logs
-                                     or logs in self.bag.parents):
-            raise GraphError(f'--record {self.bag}: not the run directory or its logs',
-                             EXIT_USAGE)
-        old_logs = [old for old in [logs, *sorted(self.out.glob('logs_attempt_*'))]
-                    if old.exists() or old.is_symlink()]
-        for old in old_logs:
-            foreign = foreign_log_content(old)
-            if foreign:
-                raise GraphError(
-                    f'--out {self.out}: {old} holds {foreign}, which run_graph did not write; '
-                    'refusing to replace it (move it away or choose another --out)',
-                    EXIT_USAGE)
-        self.out.mkdir(parents=True, exist_ok=True)
+        prepare_run_directory(self.out, self.bag, extra_logs=('logs_attempt_*',))
         self.prepared = True
-        for old in old_logs:  # Logs of an earlier run_graph run (checked above).
-            shutil.rmtree(old)
-        (logs / 'ros').mkdir(parents=True)
-        (logs / LOGS_MARKER).write_text('run_graph writes this directory and replaces it on '
-                                        'the next run into the same --out\n',
-                                        encoding='utf-8')
         for stale in ('plant_stats.json', 'run.json'):
             (self.out / stale).unlink(missing_ok=True)
         scenario_path = self.out / 'scenario.yaml'
@@ -936,6 +907,44 @@ class GraphRunner:
             (self.out / 'run.json').write_text(json.dumps(result.summary(), indent=2) + '\n',
                                                encoding='utf-8')
         return result
+
+
+def prepare_run_directory(out: pathlib.Path, bag: pathlib.Path | None,
+                          extra_logs: tuple[str, ...] = ()) -> None:
+    """Check the outputs of a run (``--out`` directory, ``--record`` bag) before anything is
+    written, then create ``OUT/logs`` (with its marker), replacing only the logs of an
+    earlier run of ours (``OUT/logs`` and the ``extra_logs`` glob patterns in OUT).
+
+    GraphError (usage) naming the option when an output is unusable or would replace what
+    this tool did not write; nothing is written then.
+    """
+    try:
+        check_output_directory(out, '--out')
+        if bag is not None:
+            check_output_directory(bag, '--record')
+    except ValueError as err:
+        raise GraphError(str(err), EXIT_USAGE) from err
+    if bag is not None and bag.exists() and any(bag.iterdir()):
+        raise GraphError(f'--record: {bag} exists and is not empty; refusing to '
+                         'overwrite a bag (nothing was written)', EXIT_USAGE)
+    logs = out / 'logs'
+    if bag is not None and (bag == out or bag == logs or logs in bag.parents):
+        raise GraphError(f'--record {bag}: not the run directory or its logs', EXIT_USAGE)
+    old_logs = [old for old in [logs, *(p for pattern in extra_logs
+                                         for p in sorted(out.glob(pattern)))]
+                if old.exists() or old.is_symlink()]
+    for old in old_logs:
+        foreign = foreign_log_content(old)
+        if foreign:
+            raise GraphError(
+                f'--out {out}: {old} holds {foreign}, which run_graph did not write; '
+                'refusing to replace it (move it away or choose another --out)', EXIT_USAGE)
+    out.mkdir(parents=True, exist_ok=True)
+    for old in old_logs:  # Logs of an earlier run_graph run (checked above).
+        shutil.rmtree(old)
+    (logs / 'ros').mkdir(parents=True)
+    (logs / LOGS_MARKER).write_text('run_graph writes this directory and replaces it on the '
+                                    'next run into the same --out\n', encoding='utf-8')
 
 
 def foreign_log_content(directory: pathlib.Path) -> str:

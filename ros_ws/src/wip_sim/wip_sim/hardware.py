@@ -75,11 +75,11 @@ from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mappi
 from wip_control.tools.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
                                             graph_parameters, _NoAliasDumper)
 
-from wip_control.tools.cli import check_output_directory, write_atomic
+from wip_control.tools.cli import write_atomic
 
 from .graph import (choose_domain_id, executable_path, EXECUTABLES, EXIT_FAILED, EXIT_OK,
-                    EXIT_TIMEOUT, EXIT_USAGE, foreign_log_content, GRACE_PERIOD, GraphError,
-                    graph_environment, LAYOUTS, LOGS_MARKER, NodeProcess, parse_cpus, Probe,
+                    EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError, graph_environment,
+                    LAYOUTS, NodeProcess, parse_cpus, prepare_run_directory, Probe,
                     RECORDER_GRACE_PERIOD, Scheduling)
 
 #: The nodes of hardware mode, in start order.
@@ -283,35 +283,8 @@ class HardwareRunner:
         options.scheduling.check()
         self.remaps = [parse_remap(text) for text in options.remaps]
         self.extra = [load_params_file(path) for path in options.params_files]
-        try:
-            check_output_directory(self.out, '--out')
-            if self.bag is not None:
-                check_output_directory(self.bag, '--record')
-        except ValueError as err:
-            raise GraphError(str(err), EXIT_USAGE) from err
-        if self.bag is not None and self.bag.exists() and any(self.bag.iterdir()):
-            raise GraphError(f'--record: {self.bag} exists and is not empty; refusing to '
-                             'overwrite a bag (nothing was written)', EXIT_USAGE)
-        logs = self.out / 'logs'
-        if self.bag is not None and (self.bag == self.out or self.bag == logs
-                                     or logs in self.bag.parents):
-            raise GraphError(f'--record {self.bag}: not the run directory or its logs',
-                             EXIT_USAGE)
-        if logs.exists() or logs.is_symlink():
-            foreign = foreign_log_content(logs)
-            if foreign:
-                raise GraphError(
-                    f'--out {self.out}: {logs} holds {foreign}, which run_graph did not '
-                    'write; refusing to replace it (move it away or choose another --out)',
-                    EXIT_USAGE)
-        self.out.mkdir(parents=True, exist_ok=True)
+        prepare_run_directory(self.out, self.bag)
         self.prepared = True
-        if logs.exists():
-            shutil.rmtree(logs)  # An earlier run_graph's logs (checked above).
-        (logs / 'ros').mkdir(parents=True)
-        (logs / LOGS_MARKER).write_text('run_graph writes this directory and replaces it on '
-                                        'the next run into the same --out\n',
-                                        encoding='utf-8')
         (self.out / 'run.json').unlink(missing_ok=True)
         write_atomic(self.out / 'scenario.yaml',
                      yaml.safe_dump(scenario_to_mapping(self.scenario), sort_keys=False))
