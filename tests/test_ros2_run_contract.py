@@ -59,6 +59,16 @@ CONTRACT = {
                                       '/diagnostics'}, {'/effort_controller/commands'}),
     # The guided sign/mounting check listens only; '-r' remaps as ros2 run passes them.
     'check_base': ('check_base', set(), {'/contract/joints', '/imu/data'}),
+    # Standard messages for 3-D viewers, from the graph's custom ones.
+    'viewer': ('viewer', {'/wip/odom/estimate', '/wip/odom/truth',
+                          '/wip/markers/vehicle', '/wip/markers/prediction',
+                          '/wip/path/reference', '/wip/path/travelled', '/diagnostics'},
+               {'/wip/state_estimate', '/wip/ground_truth', '/wip/reference',
+                '/wip/drive_torque'}),
+    # The Foxglove WebSocket bridge: forwards the e-stop from a client; subscribes to the
+    # graph's topics only while a client does.
+    'foxglove_bridge': ('foxglove_bridge', {'/wip/estop', '/wip/estop_reset', '/diagnostics'},
+                        set()),
 }
 
 #: Executables that hold several nodes (composition): executable -> its nodes, each with
@@ -136,6 +146,7 @@ def started(tmp_path_factory):
         'replayer': ['-p', f'bag:={bag}', '-p', 'exit_when_done:=false', '-p', 'loop:=true'],
         'plant': ['-p', 'autostart:=false'],
         'check_base': ['-r', '/joint_states:=/contract/joints'],
+        'foxglove_bridge': ['-p', 'port:=0'],
     }
     found = executables()
     domains = random.sample(range(1, 102), len(found))

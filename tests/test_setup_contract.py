@@ -51,6 +51,8 @@ EXECUTABLES = {
         'replayer': 'wip_sim.replayer_node:main',
         'standin_base': 'wip_sim.standin_base:main',
         'check_base': 'wip_sim.check_base:main',
+        'viewer': 'wip_sim.viewer_node:main',
+        'foxglove_bridge': 'wip_sim.foxglove_bridge:main',
     },
 }
 PIN = re.compile(r'^([A-Za-z0-9][A-Za-z0-9._-]*)==([A-Za-z0-9.+!-]+)$')

@@ -84,7 +84,7 @@ def test_no_plant_without_a_base_never_commands_torque(tmp_path):
             [sys.executable, '-m', 'wip_sim.graph', '--no-plant', '--duration', '3',
              '--out', str(out), '--params-file', str(params), '--remap',
              '/joint_states:=/base/joint_states', '--remap',
-             f'/effort_controller/commands:={EFFORT}'],
+             f'/effort_controller/commands:={EFFORT}', '--foxglove', '0'],
             env=env, capture_output=True, text=True, timeout=120)
         time.sleep(0.5)
     finally:
@@ -100,8 +100,11 @@ def test_no_plant_without_a_base_never_commands_torque(tmp_path):
     assert run['base_topics'][EFFORT] == {'subscriptions': 1}     # the test's listener
     assert 'no publisher on /base/joint_states' in result.stderr
     assert {e['state'] for e in run['safety_events']} <= {'STARTING', 'FAULT'}
-    # The default layout: the six controller nodes in one process.
-    assert set(run['node_exit_codes']) == {'controllers'}
+    # The default layout: the six controller nodes in one process; the viewer (on by
+    # default) and the Foxglove bridge (--foxglove 0) in their own.
+    assert set(run['node_exit_codes']) == {'controllers', 'viewer', 'foxglove_bridge'}
+    assert run['node_exit_codes']['foxglove_bridge'] == 0
+    assert 'live view: open ws://127.0.0.1:' in result.stderr
     # No plant in the generated parameters; the reference starts with the engagement.
     generated = yaml.safe_load((out / 'params.yaml').read_text())
     assert 'plant' not in generated

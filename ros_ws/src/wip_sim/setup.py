@@ -32,6 +32,8 @@ setup(
             'replayer = wip_sim.replayer_node:main',
             'standin_base = wip_sim.standin_base:main',
             'check_base = wip_sim.check_base:main',
+            'viewer = wip_sim.viewer_node:main',
+            'foxglove_bridge = wip_sim.foxglove_bridge:main',
         ],
     },
 )

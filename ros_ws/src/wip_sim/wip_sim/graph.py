@@ -7,6 +7,7 @@ Examples
     scripts/run_graph --scenario my.yaml --record out/my/bag --out out/my/run
     scripts/run_graph --clock realtime --duration 20
     scripts/run_graph --mode hardware --params-file my_base.yaml   # a real base, no plant
+    scripts/run_graph --clock realtime --foxglove         # watch it live in Foxglove
 
 ``--mode hardware`` (alias ``--no-plant``) runs the controller nodes alone, in real time,
 against a real base's topics: see ``wip_sim.hardware`` (``--params-file``, ``--remap``).
@@ -23,7 +24,11 @@ What it does
    ``ament_index_python.get_package_prefix``, with ``--ros-args --params-file
    OUT/params.yaml -r __node:=<name>``: reference, eso, trajectory_generator, arc, mpc,
    torque_mixer (wip_control), plant (wip_sim) and, with ``--record BAG``, the recorder
-   (wip_sim) recording every topic of the graph into the rosbag2 directory BAG. Each
+   (wip_sim) recording every topic of the graph into the rosbag2 directory BAG, the viewer
+   (wip_sim; unless ``--no-viewer``: nav_msgs/Odometry, nav_msgs/Path and
+   visualization_msgs/MarkerArray for 3-D viewers, recorded too, see
+   ``wip_sim.viewer_node``) and, with ``--foxglove [PORT]``, the Foxglove bridge
+   (``wip_sim.foxglove_bridge``: every topic live on ws://127.0.0.1:PORT). Each
    process logs to ``OUT/logs/<name>.log`` (ROS log files in ``OUT/logs/ros``).
    The DDS domain is ``$ROS_DOMAIN_ID`` if set, else a random one in 1..101; discovery
    stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
@@ -75,6 +80,7 @@ import json
 import os
 import pathlib
 import random
+import re
 import shutil
 import signal
 import subprocess
@@ -89,6 +95,8 @@ from wip_control.core.config import ConfigError
 from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
 from wip_control.tools.cli import check_output_directory, exit_with, write_atomic
 from wip_control.tools.params_files import CONTROLLER_NODES, write_params_file
+
+from .viewer_core import VIEWER_TOPICS as VIEWER_TOPIC_TYPES
 
 # The exit-code table of every tool (wip_control.tools.cli): 0 ok, 1 the vehicle fell,
 # 2 usage or input error, 3 internal error (a node crashed, the graph stalled), 130 Ctrl-C.
@@ -114,6 +122,8 @@ EXECUTABLES = {
     'controllers': ('wip_control', 'controllers'),
     'plant': ('wip_sim', 'plant'),
     'recorder': ('wip_sim', 'recorder'),
+    'viewer': ('wip_sim', 'viewer'),
+    'foxglove_bridge': ('wip_sim', 'foxglove_bridge'),
 }
 
 #: Publishers of each topic in the graph design.
@@ -150,8 +160,12 @@ SUBSCRIBERS = {
 CLOCK_SUBSCRIPTIONS = {'separate': len(CONTROLLER_NODES) + 1, 'composed': 2}
 #: Nodes with a /clock subscription of their own in lockstep, per layout.
 CLOCK_NODES = {'separate': CONTROLLER_NODES, 'composed': ('reference',)}
-#: Topics recorded with --record (with /clock in lockstep).
+#: Topics recorded with --record (with /clock in lockstep; with the viewer's topics,
+#: :data:`VIEWER_TOPICS`, unless --no-viewer).
 RECORDED_TOPICS = tuple(PUBLISHERS) + ('/diagnostics',)
+#: Published by the viewer node (standard messages for 3-D viewers; nothing in the
+#: control loop subscribes to them).
+VIEWER_TOPICS = tuple(VIEWER_TOPIC_TYPES)
 
 #: /diagnostics key prefixes of a node's DDS match counts of one topic, '<KEY> <topic>':
 #: subscriptions matched by its publisher, publishers matched by its subscription (see
@@ -249,6 +263,9 @@ class GraphOptions:
     quiet: bool = False
     layout: str = 'composed'  # see LAYOUTS
     scheduling: Scheduling = Scheduling()  # of the controller processes
+    viewer: bool = True  # the viewer node (Odometry, Path, markers; recorded)
+    foxglove_port: int | None = None  # serve the topics to Foxglove on this port
+    foxglove_host: str = '127.0.0.1'
 
 
 @dataclasses.dataclass
@@ -458,12 +475,24 @@ class Probe:
         self._rclpy.try_shutdown(context=self.context)
 
 
-def expected_endpoints(clock_mode: str, recording: bool, layout: str = 'separate'
-                       ) -> dict[str, tuple[int, int]]:
+def live_view_line(bridge: NodeProcess, host: str, port: int | None) -> str:
+    """Where the live view is: the URL the bridge printed (with port 0, the port it got)."""
+    match = re.search(r'foxglove_bridge: serving (ws://\S+)', bridge.log_tail(200))
+    url = match.group(1) if match else f'ws://{host}:{port}'
+    return (f'live view: open {url} in Foxglove (Open connection, Foxglove WebSocket; '
+            'layout foxglove/wip_live.json)')
+
+
+def expected_endpoints(clock_mode: str, recording: bool, layout: str = 'separate',
+                       viewer: bool = False) -> dict[str, tuple[int, int]]:
     """Minimum (publishers, subscriptions) of each topic before the plant may start."""
     extra = 1 if recording else 0
     expected = {topic: (len(PUBLISHERS[topic]), len(SUBSCRIBERS[topic]) + extra)
                 for topic in PUBLISHERS}
+    if viewer:
+        # Its outputs must reach the recorder from the first message; its own inputs are
+        # best effort and may miss the first ticks (nothing waits for it).
+        expected.update({topic: (1, extra) for topic in VIEWER_TOPICS})
     if clock_mode == 'lockstep':
         # The recorder runs on sim time too (its time source) and records /clock.
         expected['/clock'] = (1, CLOCK_SUBSCRIPTIONS[layout] + 2 * extra)
@@ -521,6 +550,11 @@ class GraphRunner:
         else:
             print('  ' + text, file=sys.stderr, flush=True)
 
+    def say_foxglove_url(self) -> None:
+        if 'foxglove_bridge' in self.processes:
+            self.say(live_view_line(self.processes['foxglove_bridge'],
+                                    self.options.foxglove_host, self.options.foxglove_port))
+
     # -- set-up ---------------------------------------------------------------------------
     def prepare(self) -> pathlib.Path:
         """Scenario, run directory, params file; returns the params file."""
@@ -552,7 +586,7 @@ class GraphRunner:
                                                    sort_keys=False))
         recorder = None
         if self.bag is not None:
-            topics = list(RECORDED_TOPICS)
+            topics = list(RECORDED_TOPICS) + (list(VIEWER_TOPICS) if options.viewer else [])
             if options.clock == 'lockstep':
                 topics.insert(0, '/clock')
             recorder = {'output': str(self.bag), 'topics': topics,
@@ -566,12 +600,37 @@ class GraphRunner:
                 if options.clock == 'lockstep' else 0),
             'stats_file': str(self.out / 'plant_stats.json'),
         }
-        return write_params_file(scenario, self.out / 'params.yaml', options.clock,
-                                 scenario_path, plant_extra=plant_extra, recorder=recorder)
+        params_file = write_params_file(scenario, self.out / 'params.yaml', options.clock,
+                                        scenario_path, plant_extra=plant_extra,
+                                        recorder=recorder)
+        self.add_view_parameters(params_file)
+        return params_file
+
+    def add_view_parameters(self, params_file: pathlib.Path) -> None:
+        """Parameters of the viewer and the Foxglove bridge, appended to the params file
+        (the vehicle drawn with the plant's true dimensions, the estimate's position
+        covariance from the GPS noise)."""
+        options, scenario = self.options, self.scenario
+        extra = {}
+        if options.viewer:
+            plant = scenario.plant.parameters
+            extra['viewer'] = {'ros__parameters': {
+                'viewer': {'wheel_radius': float(plant.wheel_radius),
+                           'track_width': float(plant.track_width),
+                           'com_height': float(plant.com_height),
+                           'position_std': float(scenario.sensors.gps_noise_std)}}}
+        if options.foxglove_port is not None:
+            extra['foxglove_bridge'] = {'ros__parameters': {
+                'host': options.foxglove_host, 'port': int(options.foxglove_port)}}
+        if extra:
+            with open(params_file, 'a', encoding='utf-8') as stream:
+                stream.write(yaml.safe_dump(extra, sort_keys=False))
 
     def node_names(self) -> list[str]:
         """The ROS nodes of the run (whatever the processes that hold them)."""
-        return list(CONTROLLER_NODES) + ['plant'] + (['recorder'] if self.bag else [])
+        return (list(CONTROLLER_NODES) + ['plant'] + (['recorder'] if self.bag else [])
+                + (['viewer'] if self.options.viewer else [])
+                + (['foxglove_bridge'] if self.options.foxglove_port is not None else []))
 
     def start_processes(self, params_file: pathlib.Path) -> None:
         env = graph_environment(self.domain_id)
@@ -579,6 +638,10 @@ class GraphRunner:
         controllers = (['controllers'] if self.options.layout == 'composed'
                        else list(CONTROLLER_NODES))
         names = controllers + ['plant']
+        if self.options.viewer:
+            names.append('viewer')
+        if self.options.foxglove_port is not None:
+            names.append('foxglove_bridge')
         if self.bag is not None:
             names.insert(0, 'recorder')
         commands = {}
@@ -606,7 +669,7 @@ class GraphRunner:
 
     def wait_for_graph(self) -> None:
         expected = expected_endpoints(self.options.clock, self.bag is not None,
-                                      self.options.layout)
+                                      self.options.layout, self.options.viewer)
         nodes = self.node_names()
         deadline = time.monotonic() + self.options.discovery_timeout
         missing = ['(not checked yet)']
@@ -849,6 +912,7 @@ class GraphRunner:
                     self.start_graph(params_file)
                     result.startup_s = time.monotonic() - started
                     self.say(f'graph connected in {result.startup_s:.1f} s; plant started')
+                    self.say_foxglove_url()
                     run_start = time.monotonic()
                     cpu_start = {n: p.cpu_seconds() for n, p in self.processes.items()}
                     code = self.watch()
@@ -1027,6 +1091,34 @@ def format_result(result: GraphResult) -> str:
     return '\n'.join(lines)
 
 
+FOXGLOVE_PORT = 8765  # Foxglove's default WebSocket port
+
+
+def foxglove_port(text: str) -> int:
+    """argparse type of --foxglove: a TCP port, 0..65535."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a port number') from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f'{port} is not in 0..65535')
+    return port
+
+
+def add_view_arguments(parser: argparse.ArgumentParser) -> None:
+    """--foxglove [PORT], --foxglove-host, --no-viewer (simulation and hardware mode)."""
+    parser.add_argument('--foxglove', nargs='?', type=foxglove_port, const=FOXGLOVE_PORT,
+                        default=None, metavar='PORT',
+                        help='serve the graph\'s topics live over the Foxglove WebSocket '
+                        f'protocol on PORT (default {FOXGLOVE_PORT}; 0 = any free port), '
+                        'with the e-stop services /wip/estop/{engage,release,reset}')
+    parser.add_argument('--foxglove-host', default='127.0.0.1', metavar='ADDRESS',
+                        help='address of the Foxglove server (default 127.0.0.1: this '
+                        'machine only; 0.0.0.0 serves the network)')
+    parser.add_argument('--no-viewer', action='store_true',
+                        help='no viewer node (Odometry, Path, markers for 3-D viewers)')
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog='scripts/run_graph', description=__doc__,
@@ -1055,6 +1147,7 @@ def main(argv: list[str] | None = None) -> int:
                         help='start the graph again after a stall on the first ticks '
                         '(a start-up message lost to DDS discovery), at most N times')
     parser.add_argument('--quiet', action='store_true', help='no progress output')
+    add_view_arguments(parser)
     from .hardware import add_arguments, run_from_args
     add_arguments(parser)
     args = parser.parse_args(argv)
@@ -1074,7 +1167,9 @@ def main(argv: list[str] | None = None) -> int:
                            layout=args.layout or GraphOptions.layout,
                            # This module's class (python -m runs it as __main__).
                            scheduling=Scheduling(priority=args.rt_priority,
-                                                 cpus=tuple(args.cpu_affinity)))
+                                                 cpus=tuple(args.cpu_affinity)),
+                           viewer=not args.no_viewer, foxglove_port=args.foxglove,
+                           foxglove_host=args.foxglove_host)
     result = run_graph(options)
     if result.exit_code == EXIT_USAGE:  # Refused before anything ran: nothing to show.
         print(f'run_graph: error: {result.message}', file=sys.stderr)

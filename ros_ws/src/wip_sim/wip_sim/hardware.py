@@ -77,10 +77,11 @@ from wip_control.tools.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, fl
 
 from wip_control.tools.cli import write_atomic
 
-from .graph import (choose_domain_id, executable_path, EXECUTABLES, EXIT_FAILED, EXIT_OK,
-                    EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError, graph_environment,
-                    LAYOUTS, NodeProcess, parse_cpus, prepare_run_directory, Probe,
-                    RECORDER_GRACE_PERIOD, Scheduling)
+from .graph import (add_view_arguments, choose_domain_id, executable_path, EXECUTABLES,
+                    EXIT_FAILED, EXIT_OK, EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError,
+                    graph_environment, LAYOUTS, live_view_line, NodeProcess, parse_cpus,
+                    prepare_run_directory, Probe, RECORDER_GRACE_PERIOD, Scheduling,
+                    VIEWER_TOPICS)
 
 #: The nodes of hardware mode, in start order.
 HARDWARE_NODES = CONTROLLER_NODES
@@ -124,6 +125,9 @@ class HardwareOptions:
     #: Programmatic hook (tests, benchmarks): called with the runner when the run starts,
     #: e.g. to reach its processes and safety events from another thread.
     on_start: Callable[[Any], None] | None = None
+    viewer: bool = True  # the viewer node (Odometry, Path, markers of the estimate)
+    foxglove_port: int | None = None  # serve the topics to Foxglove on this port
+    foxglove_host: str = '127.0.0.1'
 
 
 @dataclasses.dataclass
@@ -291,7 +295,7 @@ class HardwareRunner:
         recorder = None
         if self.bag is not None:
             topics = list(CONTROLLER_TOPICS) + list(BASE_SENSOR_TOPICS) + [
-                DEFAULT_EFFORT_TOPIC]
+                DEFAULT_EFFORT_TOPIC] + (list(VIEWER_TOPICS) if options.viewer else [])
             recorder = {'output': str(self.bag), 'topics': topics, 'discovery_period': 0.5}
         if not options.arm_delay >= 0.0:
             raise GraphError(f'--arm-delay: must be >= 0 s, got {options.arm_delay}',
@@ -307,19 +311,34 @@ class HardwareRunner:
         header = ('# ROS parameters of a wip-ros hardware-mode run (controllers only, real '
                   f'time), scenario {self.scenario.name!r};\n# written by wip_sim.hardware; '
                   'the --params-file files given come after it on each command line.\n')
-        path.write_text(header + yaml.dump(self.generated, Dumper=_NoAliasDumper,
+        view = {}
+        if options.viewer:
+            # The vehicle drawn with the controllers' nominal dimensions (no plant here).
+            model = self.scenario.controller_model.parameters
+            view['viewer'] = {'ros__parameters': {'viewer': {
+                'wheel_radius': float(model.wheel_radius),
+                'track_width': float(model.track_width),
+                'com_height': float(model.com_height)}}}
+        if options.foxglove_port is not None:
+            view['foxglove_bridge'] = {'ros__parameters': {
+                'host': options.foxglove_host, 'port': int(options.foxglove_port)}}
+        path.write_text(header + yaml.dump({**self.generated, **view}, Dumper=_NoAliasDumper,
                                            sort_keys=False, width=99), encoding='utf-8')
         return path
 
     def node_names(self) -> list[str]:
         """The ROS nodes of the run (whatever the processes that hold them)."""
-        return list(HARDWARE_NODES) + (['recorder'] if self.bag is not None else [])
+        return (list(HARDWARE_NODES) + (['recorder'] if self.bag is not None else [])
+                + (['viewer'] if self.options.viewer else [])
+                + (['foxglove_bridge'] if self.options.foxglove_port is not None else []))
 
     def commands(self, params_file: pathlib.Path) -> dict[str, list[str]]:
         """The command line of every process."""
         controllers = (['controllers'] if self.options.layout == 'composed'
                        else list(HARDWARE_NODES))
         names = controllers + (['recorder'] if self.bag is not None else [])
+        names += ['viewer'] if self.options.viewer else []
+        names += ['foxglove_bridge'] if self.options.foxglove_port is not None else []
         extra_files = [str(pathlib.Path(p).resolve()) for p in self.options.params_files]
         out = {}
         for name in names:
@@ -342,7 +361,10 @@ class HardwareRunner:
         if 'recorder' in commands:  # First: it must not miss the start.
             commands = {'recorder': commands.pop('recorder'), **commands}
         for name, command in commands.items():
-            scheduling = self.options.scheduling if name != 'recorder' else None
+            # Real-time scheduling for the controllers only: the recorder, the viewer and the
+            # bridge must never take the CPU from them.
+            scheduling = (self.options.scheduling
+                          if name not in ('recorder', 'viewer', 'foxglove_bridge') else None)
             self.processes[name] = NodeProcess(name, command,
                                                self.out / 'logs' / f'{name}.log', env,
                                                scheduling)
@@ -550,6 +572,9 @@ class HardwareRunner:
             self.bag_created = self.bag is not None  # prepare() checked it was absent/empty
             self.timeline['processes started'] = time.monotonic() - self.t0
             self.wait_for_nodes()
+            if 'foxglove_bridge' in self.processes:
+                self.say(live_view_line(self.processes['foxglove_bridge'],
+                                        self.options.foxglove_host, self.options.foxglove_port))
             result.base_topics = self.base_topics()
             self.arm()
             result.startup_s = time.monotonic() - self.t0
@@ -674,6 +699,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--record', metavar='DIR', help='record into this rosbag2 directory')
     parser.add_argument('--discovery-timeout', type=float, default=60.0, metavar='S')
     parser.add_argument('--quiet', action='store_true')
+    add_view_arguments(parser)
     add_arguments(parser)
     args = parser.parse_args(argv)
     return run_from_args(args)
@@ -687,7 +713,9 @@ def run_from_args(args: argparse.Namespace) -> int:
                               discovery_timeout=args.discovery_timeout, quiet=args.quiet,
                               arm_delay=args.arm_delay, heartbeat=not args.no_heartbeat,
                               layout=args.layout or HardwareOptions.layout,
-                              scheduling=scheduling_from_args(args))
+                              scheduling=scheduling_from_args(args),
+                              viewer=not args.no_viewer, foxglove_port=args.foxglove,
+                              foxglove_host=args.foxglove_host)
     result = run_hardware(options)
     if result.exit_code == EXIT_USAGE:  # Refused before anything ran: nothing to show.
         print(f'run_graph: error: {result.message}', file=sys.stderr)

@@ -10,8 +10,10 @@ The bag's messages are turned into the same :class:`~wip_control.core.record.Run
 as the in-process runner builds, and the outputs are written by the same code as
 ``scripts/simulate`` (:func:`wip_control.tools.simulate.write_run_outputs`,
 :func:`wip_control.core.metrics.compute_metrics`): ``metrics.json``, ``timeseries.npz``,
-``scenario.yaml`` and ``figures/*.png``. A run of the graph in lockstep and the same
-scenario in-process therefore give the same metrics.
+``scenario.yaml``, ``figures/*.png`` (and ``*.svg``) and ``report.html`` (one
+self-contained page: metrics against the paper's claims, every figure with a caption
+that explains its known effects, the scenario). Progress goes to stderr. A run of the
+graph in lockstep and the same scenario in-process therefore give the same metrics.
 
 Record groups and their topics (time = the message's header stamp)
 ------------------------------------------------------------------
@@ -181,12 +183,13 @@ def report(bag: str | pathlib.Path, out: str | pathlib.Path,
     ReportError
         If the bag cannot be read, has no usable message, or the scenario is invalid.
     """
-    from wip_control.tools.simulate import write_run_outputs  # matplotlib lazily
+    from wip_control.tools.simulate import step_printer, write_run_outputs  # matplotlib lazily
 
     try:
         check_output_directory(out, '--out')
     except ValueError as err:
         raise ReportError(str(err)) from err
+    progress = (lambda text: None) if quiet else step_printer('report')
     scenario, source = scenario_for(bag, scenario_path)
     if not quiet:
         print(f'report: scenario {scenario.name!r} from {source}', file=sys.stderr)
@@ -198,7 +201,9 @@ def report(bag: str | pathlib.Path, out: str | pathlib.Path,
             raise ReportError(str(err)) from err
         for line in lost:
             print(f'report: warning: partial report, {line}', file=sys.stderr)
+    progress(f'reading {bag}')
     record = record_from_bag(bag, allow_partial=allow_partial)
+    progress(f'{sum(len(record[g]["t"]) for g in GROUPS)} messages read; metrics')
     if 'truth' not in record and 'estimate' not in record:
         raise ReportError(f'{bag}: no /wip/ground_truth and no /wip/state_estimate: '
                           'nothing to report')
@@ -210,7 +215,9 @@ def report(bag: str | pathlib.Path, out: str | pathlib.Path,
     if lost:
         metrics['partial'] = True
         metrics['lost'] = lost
-    write_run_outputs(pathlib.Path(out), record, scenario, metrics, figures=figures)
+    write_run_outputs(pathlib.Path(out), record, scenario, metrics, figures=figures,
+                      progress=progress)
+    progress('done')
     return metrics
 
 
@@ -222,7 +229,8 @@ def main(argv: Iterable[str] | None = None) -> int:
     parser.add_argument('--out', required=True, help='output directory')
     parser.add_argument('--scenario', help='scenario YAML (default: BAG/scenario.yaml, '
                         'else the paper scenario)')
-    parser.add_argument('--no-figures', action='store_true', help='skip the PNG figures')
+    parser.add_argument('--no-figures', action='store_true',
+                        help='skip the figures (report.html then has none)')
     parser.add_argument('--quiet', action='store_true', help='no summary')
     parser.add_argument('--partial', action='store_true',
                         help='report the intact part of a damaged or unfinished bag '
@@ -238,8 +246,8 @@ def main(argv: Iterable[str] | None = None) -> int:
         from wip_control.tools.simulate import summary
         print(summary(metrics))
         out = pathlib.Path(args.out)
-        print(f'wrote {out / "metrics.json"}'
-              + ('' if args.no_figures else f' and figures in {out / "figures"}'))
+        print(f'wrote {out / "metrics.json"}, {out / "report.html"}'
+              + ('' if args.no_figures else f' and figures (PNG, SVG) in {out / "figures"}'))
     return EXIT_FAILED if metrics['fell'] else EXIT_OK
 
 

@@ -752,6 +752,8 @@ def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, qui
     computed. It is written into a temporary directory beside it and renamed when
     complete, so a failed re-run leaves no half bag that would block the next one.
     """
+    from wip_control.tools.simulate import step_printer
+    progress = (lambda text: None) if quiet else step_printer('rerun')
     out = pathlib.Path(out)
     try:
         check_output_directory(out, '--out')
@@ -767,11 +769,15 @@ def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, qui
     lost = bag_summary(bag)['problems'] if allow_partial else []
     for line in lost:
         print(f'rerun: warning: partial re-run, {line}', file=sys.stderr)
+    progress(f'reading {bag}')
     run = read_recorded_run(bag, allow_partial=allow_partial)
     timing = resolve_timing(run, timing)
+    progress(f're-running the controllers (timing: {timing})')
     outputs = rerun_controllers(run, scenario, timing)
+    progress(f'{len(outputs)} ticks re-run; comparing with the recording')
     comparison = compare(run, outputs)
     out.mkdir(parents=True, exist_ok=True)
+    progress(f'writing {out_bag}')
     work = pathlib.Path(tempfile.mkdtemp(prefix='.bag.partial-', dir=out))
     try:
         counts = write_rerun_bag(bag, work / 'bag', outputs, run, scenario, prefix,
@@ -780,6 +786,7 @@ def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, qui
     finally:
         shutil.rmtree(work, ignore_errors=True)  # ours: created above
     record = run_record(run, outputs, scenario)
+    progress('metrics')
     metrics = compute_metrics(record, scenario)
     metrics['rerun'] = {
         'bag': str(pathlib.Path(bag).resolve()),
@@ -797,11 +804,13 @@ def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, qui
         metrics['partial'] = True
         metrics['lost'] = lost
     from wip_control.tools.simulate import write_run_outputs
-    write_run_outputs(out, record, scenario, metrics, figures=figures)
+    write_run_outputs(out, record, scenario, metrics, figures=figures, progress=progress)
     write_atomic(out / 'comparison.json', json.dumps(comparison, indent=2) + '\n')
     if figures:
         (out / 'figures').mkdir(exist_ok=True)
+        progress('figure rerun_comparison')
         comparison_figure(run, outputs, out / 'figures' / 'rerun_comparison.png')
+    progress('done')
     return metrics, comparison
 
 

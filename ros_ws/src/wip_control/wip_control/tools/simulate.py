@@ -45,9 +45,21 @@ def progress_printer(stream=sys.stderr):
     return show
 
 
+def step_printer(program: str, stream=sys.stderr):
+    """A progress callback for the long steps of a command (reading a bag, each figure):
+    prints ``program: [elapsed] step`` on ``stream`` (stderr: stdout stays the result)."""
+    start = time.perf_counter()
+
+    def show(text: str) -> None:
+        stream.write(f'{program}: [{time.perf_counter() - start:5.1f} s] {text}\n')
+        stream.flush()
+    return show
+
+
 def write_run_outputs(out: pathlib.Path, record, scenario: Scenario, metrics: dict,
-                      figures: bool = True) -> list[pathlib.Path]:
-    """metrics.json, timeseries.npz, scenario.yaml and figures/ into ``out``."""
+                      figures: bool = True, progress=None) -> list[pathlib.Path]:
+    """metrics.json, timeseries.npz, scenario.yaml, figures/ (PNG and SVG) and report.html
+    into ``out``; ``progress(text)`` is told each step."""
     out.mkdir(parents=True, exist_ok=True)
     # Each file whole or not at all (a crash or Ctrl-C never leaves half a file).
     write_atomic(out / 'metrics.json', json.dumps(metrics, indent=2) + '\n')
@@ -59,7 +71,9 @@ def write_run_outputs(out: pathlib.Path, record, scenario: Scenario, metrics: di
     paths = []
     if figures:
         from ..analysis.figures import write_figures  # matplotlib only when asked
-        paths = write_figures(record, scenario, out / 'figures')
+        paths = write_figures(record, scenario, out / 'figures', progress=progress)
+    from ..analysis.report_page import write_report_page
+    write_report_page(out, metrics, scenario, paths, progress=progress)
     return paths
 
 
@@ -80,7 +94,10 @@ def simulate(scenario_path: str | None, out_dir: str, figures: bool = True,
                               duration_s=result.simulated_time_s)
     metrics['wall_time_s'] = result.wall_time_s
     metrics['real_time_factor'] = result.simulated_time_s / result.wall_time_s
-    paths = write_run_outputs(out, result.record, scenario, metrics, figures)
+    if not quiet:
+        print('', file=sys.stderr)
+    paths = write_run_outputs(out, result.record, scenario, metrics, figures,
+                              progress=None if quiet else step_printer('simulate'))
     if not quiet:
         print('', file=sys.stderr)
         print(summary(metrics))

@@ -1,0 +1,129 @@
+"""Foxglove layouts of wip-ros, built with foxglove-sdk's ``foxglove.layouts`` types.
+
+``foxglove/wip_bag.json`` opens a recorded bag as it is (every topic it names is in a bag
+of ``scripts/run_graph --record``); ``foxglove/wip_live.json`` is the same view plus
+e-stop buttons (Service Call panels on the bridge's ``/wip/estop/*`` services) for
+``scripts/run_graph --foxglove``. In Foxglove: Layouts, Import from file.
+
+Regenerate the files after a change here (a test checks that they match)::
+
+    python -m wip_sim.foxglove_layout foxglove/
+
+Panels: a 3-D view in ``map`` (the vehicle tilted by θ, the MPC's prediction, the reference,
+travelled and estimated paths, both Odometry arrows); plots of θ (true, estimated, the
+limit in the label and the axis range), wheel torques, speed against its limit, yaw rate;
+the /diagnostics summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+
+from wip_control.core.scenario import Scenario
+
+#: Written by :func:`main`: file name -> whether it carries the live-only e-stop panels.
+LAYOUT_FILES = {'wip_bag.json': False, 'wip_live.json': True}
+
+
+def _series(value: str, label: str, color: str | None = None, dashed: bool = False):
+    import foxglove.layouts as fl
+    return fl.PlotSeries(value=value, label=label, color=color, enabled=True,
+                         timestamp_method='headerStamp',
+                         line_style='dashed' if dashed else None)
+
+
+def build_layout(scenario: Scenario | None = None, live: bool = False):
+    """The layout; limits (labels and axis ranges) from ``scenario`` (default: the paper's)."""
+    import foxglove.layouts as fl
+    scenario = scenario or Scenario()
+    max_tilt = scenario.mpc.max_tilt
+    max_speed = scenario.trajectory_generator.max_speed
+    max_yaw_rate = scenario.trajectory_generator.max_yaw_rate
+    max_torque = scenario.mixer.max_wheel_torque
+    marker = fl.BaseRendererRosMarkerTopicSettings
+    three_d = fl.ThreeDeePanel(title='Vehicle in map', config=fl.ThreeDeeConfig(
+        follow_tf='map', fixed_frame='map', follow_mode='follow-none',
+        topics={
+            '/wip/markers/vehicle': marker(visible=True),
+            '/wip/markers/prediction': marker(visible=True),
+            '/wip/path/reference': fl.BaseRendererPosesTopicSettings(
+                visible=True, type='line', line_width=0.03, gradient=('#1f77b4', '#1f77b4')),
+            '/wip/path/travelled': fl.BaseRendererPosesTopicSettings(
+                visible=True, type='line', line_width=0.02, gradient=('#000000', '#000000')),
+            '/wip/path/estimated': fl.BaseRendererPosesTopicSettings(
+                visible=True, type='line', line_width=0.015, gradient=('#d62728', '#d62728')),
+            '/wip/odom/truth': fl.BaseRendererPoseTopicSettings(
+                visible=True, type='arrow', color='#000000'),
+            '/wip/odom/estimate': fl.BaseRendererPoseTopicSettings(
+                visible=True, type='arrow', color='#d62728'),
+        }))
+    tilt = fl.PlotPanel(title='Tilt θ [rad]', config=fl.PlotConfig(
+        min_y_value=-1.25 * max_tilt, max_y_value=1.25 * max_tilt, show_legend=True,
+        paths=[_series('/wip/ground_truth.theta', f'θ true (limit ±{max_tilt:g} rad)',
+                       '#000000'),
+               _series('/wip/state_estimate.theta', 'θ estimate', '#d62728', dashed=True)]))
+    torques = fl.PlotPanel(title='Torques [N·m]', config=fl.PlotConfig(
+        min_y_value=-1.1 * max_torque, max_y_value=1.1 * max_torque, show_legend=True,
+        paths=[_series('/wip/wheel_torques.left', f'τ_l (limit ±{max_torque:g} N·m)'),
+               _series('/wip/wheel_torques.right', 'τ_r'),
+               _series('/wip/drive_torque.tau_v', 'τ_υ (MPC)', dashed=True)]))
+    speed = fl.PlotPanel(title='Speed υ [m/s]', config=fl.PlotConfig(
+        min_y_value=-1.2 * max_speed, max_y_value=1.2 * max_speed, show_legend=True,
+        paths=[_series('/wip/ground_truth.v', f'υ true (limit ±{max_speed:g} m/s)',
+                       '#000000'),
+               _series('/wip/velocity_command.v_d', 'υ_d', '#2ca02c'),
+               _series('/wip/reference.v', 'υ_r', '#1f77b4', dashed=True)]))
+    yaw = fl.PlotPanel(title='Yaw rate ω [rad/s]', config=fl.PlotConfig(
+        min_y_value=-1.2 * max_yaw_rate, max_y_value=1.2 * max_yaw_rate, show_legend=True,
+        paths=[_series('/wip/ground_truth.omega', f'ω true (ω_d limit ±{max_yaw_rate:g})',
+                       '#000000'),
+               _series('/wip/velocity_command.omega_d', 'ω_d', '#2ca02c'),
+               _series('/wip/reference.omega', 'ω_r', '#1f77b4', dashed=True)]))
+    diagnostics = fl.DiagnosticsSummaryPanel(
+        title='Diagnostics', config=fl.DiagnosticsSummaryConfig(topic_to_render='/diagnostics'))
+    plots = fl.SplitContainer(direction='column', items=[
+        fl.SplitItem(content=tilt), fl.SplitItem(content=torques),
+        fl.SplitItem(content=speed), fl.SplitItem(content=yaw)])
+    left = [fl.SplitItem(proportion=3, content=three_d),
+            fl.SplitItem(proportion=1, content=diagnostics)]
+    if live:
+        buttons = [
+            fl.ServiceCallPanel(title=text, config=fl.ServiceCallConfig(
+                service_name=name, request_payload='{}', button_text=text,
+                button_color=color, editing_mode=False, timeout_seconds=5))
+            for name, text, color in (
+                ('/wip/estop/engage', 'E-STOP', '#d62728'),
+                ('/wip/estop/release', 'Release e-stop', '#7f7f7f'),
+                ('/wip/estop/reset', 'Reset e-stop', '#2ca02c'))]
+        left.append(fl.SplitItem(proportion=0.5, content=fl.SplitContainer(
+            direction='row', items=[fl.SplitItem(content=b) for b in buttons])))
+    return fl.Layout(content=fl.SplitContainer(direction='row', items=[
+        fl.SplitItem(proportion=3, content=fl.SplitContainer(direction='column', items=left)),
+        fl.SplitItem(proportion=2, content=plots)]))
+
+
+def layout_json(live: bool) -> str:
+    """The layout file's text (indented JSON, a final newline)."""
+    import json
+    return json.dumps(json.loads(build_layout(live=live).to_json()), indent=2,
+                      ensure_ascii=False) + '\n'
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog='python -m wip_sim.foxglove_layout',
+                                     description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('out', help='directory of the layout files (foxglove/)')
+    args = parser.parse_args(argv)
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, live in LAYOUT_FILES.items():
+        (out / name).write_text(layout_json(live), encoding='utf-8')
+        print(f'wrote {out / name}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,251 @@
+"""Viewer node: standard messages that a 3-D viewer (Foxglove, RViz) draws, from the graph.
+
+The graph's own messages (StateEstimate, GroundTruth, ReferenceState, MpcOutput) are custom
+types that no viewer can place in 3-D. This node turns them into standard ones, off the
+control loop: it only subscribes to the controllers' topics (best effort, keep-last 5:
+a slow viewer loses its own samples and never makes a publisher wait), and nothing in the
+graph subscribes to what it publishes. Its inputs at the control rate are subscribed raw:
+the stamp is read from the CDR bytes and a message is deserialized only when the node
+publishes from it (:func:`~wip_sim.viewer_core.cdr_stamp_ns`), which keeps its CPU per
+control tick small.
+
+Published (frame ``viewer.frame_id``, default ``map``; child ``base_link``)
+--------------------------------------------------------------------------
+=========================== ============================== ==============================
+topic                       type                           from / rate
+=========================== ============================== ==============================
+/wip/odom/estimate          nav_msgs/Odometry              /wip/state_estimate, pose_rate
+/wip/odom/truth             nav_msgs/Odometry              /wip/ground_truth, pose_rate
+/wip/markers/vehicle        visualization_msgs/MarkerArray body tilted by θ, two wheels
+                                                           (truth if any, else estimate)
+/wip/markers/prediction     visualization_msgs/MarkerArray the MPC's predicted υ, θ over
+                                                           its horizon (/wip/drive_torque)
+/wip/path/reference         nav_msgs/Path                  /wip/reference, path_rate
+/wip/path/travelled         nav_msgs/Path                  /wip/ground_truth, path_rate
+/wip/path/estimated         nav_msgs/Path                  /wip/state_estimate, path_rate
+=========================== ============================== ==============================
+
+No /tf: tf2_msgs is not among the ROS 2 wheels on PyPI (common_interfaces has no tf2_msgs),
+so every marker and path is drawn directly in ``map``; set the 3-D panel's display frame to
+``map``.
+
+Rates are of message stamps (simulated time in lockstep): a message goes out when an input
+arrives at least 1/rate after the previous one (the paths sample their source at the
+pose rate) (:class:`~wip_sim.viewer_core.RateGate`), so
+a lockstep bag holds the same viewer messages on every run and a replay needs no timer.
+Odometry twist: υ along base_link x, ω about z (the child frame). Covariance: the truth's
+is zero (exact); the estimate's holds ``viewer.position_std``² on x and y when set (the GPS
+noise, written by ``scripts/run_graph``), very large on z, roll, pitch; else all zero
+(unknown, the ROS convention).
+
+Parameters: ``viewer.*`` (:class:`~wip_sim.viewer_core.ViewerConfig`), read-only.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import Point, Pose, PoseStamped
+from nav_msgs.msg import Odometry, Path
+from rclpy.node import Node
+from rclpy.qos import QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+from wip_control.nodes.common import make_header, run_node, stamp_to_ns
+from wip_control.nodes.diagnostics import NodeDiagnostics
+from wip_control.nodes.parameters import ConfigParameters
+from wip_msgs.msg import GroundTruth, MpcOutput, ReferenceState, StateEstimate
+
+from rclpy.serialization import deserialize_message
+
+from .viewer_core import (cdr_stamp_ns, PathBuffer, planar_pose_covariance, predicted_track,
+                          quaternion_yaw_pitch, RateGate, vehicle_geometry, VIEWER_TOPICS,
+                          ViewerConfig)
+
+#: Topics it reads.
+VIEWER_INPUTS = ('/wip/state_estimate', '/wip/ground_truth', '/wip/reference',
+                 '/wip/drive_torque')
+
+_INPUT_QOS = QoSProfile(depth=5, history=QoSHistoryPolicy.KEEP_LAST,
+                        reliability=QoSReliabilityPolicy.BEST_EFFORT)
+
+
+def _color(r: float, g: float, b: float, a: float = 1.0) -> ColorRGBA:
+    return ColorRGBA(r=r, g=g, b=b, a=a)
+
+
+def _pose(position, orientation) -> Pose:
+    pose = Pose()
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in position)
+    (pose.orientation.x, pose.orientation.y, pose.orientation.z,
+     pose.orientation.w) = (float(v) for v in orientation)
+    return pose
+
+
+class ViewerNode(Node):
+    """See the module docstring."""
+
+    def __init__(self) -> None:
+        super().__init__('viewer')
+        self.config: ViewerConfig = ConfigParameters(self, 'viewer', ViewerConfig).config
+        c = self.config
+        # No input ages: the node runs on the wall clock also in lockstep (no /clock
+        # subscription, one callback less per tick); received counts are reported instead.
+        self.diagnostics = NodeDiagnostics(self, 'viewer topics', ())
+        self.create_timer(1.0, self._report_counts)
+        self.publishers_ = {topic: self.create_publisher(
+            {'nav_msgs/msg/Odometry': Odometry,
+             'visualization_msgs/msg/MarkerArray': MarkerArray,
+             'nav_msgs/msg/Path': Path}[kind], topic, 10)
+            for topic, kind in VIEWER_TOPICS.items()}
+        self.estimate_gate, self.truth_gate = RateGate(c.pose_rate), RateGate(c.pose_rate)
+        self.reference_gate = RateGate(c.pose_rate)
+        self.path_gate, self.prediction_gate = RateGate(c.path_rate), RateGate(c.pose_rate)
+        self.paths = {name: PathBuffer(c.path_resolution, c.max_path_points)
+                      for name in ('reference', 'travelled', 'estimated')}
+        self.estimate_covariance = planar_pose_covariance(c.position_std)
+        self.truth_covariance = [0.0] * 36
+        self.last_estimate: StateEstimate | None = None
+        self.have_truth = False
+        for msg_type, topic, name, gate, handler in (
+                (StateEstimate, '/wip/state_estimate', 'state_estimate', self.estimate_gate,
+                 self._on_estimate),
+                (GroundTruth, '/wip/ground_truth', 'ground_truth', self.truth_gate,
+                 self._on_truth),
+                (ReferenceState, '/wip/reference', 'reference', self.reference_gate,
+                 self._on_reference)):
+            self.create_subscription(
+                msg_type, topic, self._gated(msg_type, name, gate, handler), _INPUT_QOS,
+                raw=True)
+        self.create_subscription(MpcOutput, '/wip/drive_torque', self._on_mpc, _INPUT_QOS)
+        self.diagnostics.state(DiagnosticStatus.OK, 'waiting for inputs')
+
+    # -- helpers ------------------------------------------------------------------------------
+    def _report_counts(self) -> None:
+        for name, count in self.diagnostics.received.items():
+            self.diagnostics.values[f'received {name}'] = str(count)
+        self.diagnostics.values['path points'] = ', '.join(
+            f'{name} {len(buffer.points)}' for name, buffer in self.paths.items())
+
+    def _odometry(self, stamp_ns, x, y, phi, v, omega, covariance) -> Odometry:
+        msg = Odometry()
+        msg.header = make_header(stamp_ns, self.config.frame_id)
+        msg.child_frame_id = self.config.child_frame_id
+        msg.pose.pose = _pose((x, y, 0.0), quaternion_yaw_pitch(phi, 0.0))
+        msg.pose.covariance = covariance
+        msg.twist.twist.linear.x = float(v)
+        msg.twist.twist.angular.z = float(omega)
+        return msg
+
+    def _publish_paths(self, stamp_ns: int) -> None:
+        if not self.path_gate.ready(stamp_ns):
+            return
+        for name, buffer in self.paths.items():
+            if not buffer.changed:
+                continue
+            buffer.changed = False
+            msg = Path()
+            msg.header = make_header(stamp_ns, self.config.frame_id)
+            for point_ns, x, y, yaw in buffer.points:
+                pose = PoseStamped()
+                pose.header = make_header(point_ns, self.config.frame_id)
+                pose.pose = _pose((x, y, 0.0), quaternion_yaw_pitch(yaw, 0.0))
+                msg.poses.append(pose)
+            self.publishers_[f'/wip/path/{name}'].publish(msg)
+
+    def _publish_vehicle(self, stamp_ns: int, x: float, y: float, phi: float, theta: float,
+                         source: str) -> None:
+        g = vehicle_geometry(x, y, phi, theta, self.config)
+        header = make_header(stamp_ns, self.config.frame_id)
+        body = Marker(header=header, ns='vehicle', id=0, type=Marker.CUBE, action=Marker.ADD)
+        body.pose = _pose(g.body_center, g.body_orientation)
+        body.scale.x, body.scale.y, body.scale.z = g.body_size
+        body.color = _color(0.2, 0.45, 0.8, 0.9) if source == 'truth' \
+            else _color(0.85, 0.35, 0.2, 0.9)
+        markers = [body]
+        for index, center in ((1, g.left_wheel), (2, g.right_wheel)):
+            wheel = Marker(header=header, ns='vehicle', id=index, type=Marker.CYLINDER,
+                           action=Marker.ADD)
+            wheel.pose = _pose(center, g.wheel_orientation)
+            wheel.scale.x, wheel.scale.y, wheel.scale.z = g.wheel_size
+            wheel.color = _color(0.15, 0.15, 0.15, 1.0)
+            markers.append(wheel)
+        self.publishers_['/wip/markers/vehicle'].publish(MarkerArray(markers=markers))
+
+    # -- callbacks ------------------------------------------------------------------------------
+    def _gated(self, msg_type, name: str, gate: RateGate, handler):
+        """Raw-subscription callback: count, read the stamp, decode only past the gate."""
+        def callback(data: bytes) -> None:
+            try:
+                stamp_ns = cdr_stamp_ns(data)
+            except ValueError as err:
+                self.diagnostics.drop(name, 'invalid', str(err))
+                return
+            self.diagnostics.input(name, stamp_ns)
+            if gate.ready(stamp_ns):
+                started = time.perf_counter()
+                handler(deserialize_message(data, msg_type), stamp_ns)
+                self.diagnostics.output(stamp_ns, time.perf_counter() - started)
+        return callback
+
+    def _on_estimate(self, msg: StateEstimate, stamp_ns: int) -> None:
+        self.last_estimate = msg
+        self.paths['estimated'].add(stamp_ns, msg.x, msg.y, msg.phi)
+        self.publishers_['/wip/odom/estimate'].publish(self._odometry(
+            stamp_ns, msg.x, msg.y, msg.phi, msg.v, msg.omega, self.estimate_covariance))
+        if not self.have_truth:
+            self._publish_vehicle(stamp_ns, msg.x, msg.y, msg.phi, msg.theta, 'estimate')
+        self._publish_paths(stamp_ns)
+
+    def _on_truth(self, msg: GroundTruth, stamp_ns: int) -> None:
+        self.have_truth = True
+        self.paths['travelled'].add(stamp_ns, msg.x, msg.y, msg.phi)
+        self.publishers_['/wip/odom/truth'].publish(self._odometry(
+            stamp_ns, msg.x, msg.y, msg.phi, msg.v, msg.omega, self.truth_covariance))
+        self._publish_vehicle(stamp_ns, msg.x, msg.y, msg.phi, msg.theta, 'truth')
+        self._publish_paths(stamp_ns)
+
+    def _on_reference(self, msg: ReferenceState, stamp_ns: int) -> None:
+        self.paths['reference'].add(stamp_ns, msg.x, msg.y, msg.phi)
+        self._publish_paths(stamp_ns)
+
+    def _on_mpc(self, msg: MpcOutput) -> None:
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input('drive_torque', stamp_ns)
+        # The prediction starts at the latest decoded estimate (at most 1/pose_rate old).
+        estimate = self.last_estimate
+        if estimate is None or not self.prediction_gate.ready(stamp_ns):
+            return
+        c = self.config
+        axle, top = predicted_track(estimate.x, estimate.y, estimate.phi, estimate.omega,
+                                    msg.predicted_v, msg.predicted_theta,
+                                    msg.sampling_period, c.com_height, c.wheel_radius)
+        header = make_header(stamp_ns, c.frame_id)
+        track = Marker(header=header, ns='prediction', id=0, type=Marker.LINE_STRIP,
+                       action=Marker.ADD)
+        track.pose.orientation.w = 1.0
+        track.scale.x = 0.02
+        track.color = _color(0.1, 0.7, 0.3, 0.9)
+        track.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in axle]
+        sticks = Marker(header=header, ns='prediction', id=1, type=Marker.LINE_LIST,
+                        action=Marker.ADD)
+        sticks.pose.orientation.w = 1.0
+        sticks.scale.x = 0.01
+        sticks.color = _color(0.1, 0.7, 0.3, 0.5)
+        for a, b in zip(axle, top):
+            sticks.points.append(Point(x=float(a[0]), y=float(a[1]), z=float(a[2])))
+            sticks.points.append(Point(x=float(b[0]), y=float(b[1]), z=float(b[2])))
+        self.publishers_['/wip/markers/prediction'].publish(
+            MarkerArray(markers=[track, sticks]))
+
+
+def main(args=None) -> int:
+    """Entry point ``viewer`` (``ros2 run wip_sim viewer``)."""
+    return run_node(ViewerNode, 'viewer', args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

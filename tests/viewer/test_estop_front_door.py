@@ -1,0 +1,82 @@
+"""``scripts/estop``: the e-stop of a running graph without ros2cli.
+
+A test node stands in for the mixer (a /wip/estop subscription and a
+/torque_mixer/reset_estop service); the front door runs as its own process in the test's
+domain.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+
+import pytest
+
+pytest.importorskip('rclpy')
+
+pytestmark = pytest.mark.ros
+
+
+def front_door(*args, domain=None, timeout=60):
+    env = dict(os.environ)
+    if domain is not None:
+        env['ROS_DOMAIN_ID'] = str(domain)
+    else:
+        env.pop('ROS_DOMAIN_ID', None)
+    return subprocess.run([sys.executable, '-m', 'wip_sim.estop', *args], env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture
+def mixer(test_node):
+    from std_msgs.msg import Bool
+    from std_srvs.srv import Trigger
+    received = []
+    state = {'refuse': True}
+    test_node.create_subscription(Bool, '/wip/estop', lambda m: received.append(m.data), 10)
+
+    def reset(request, response):
+        response.success = not state['refuse']
+        response.message = 'refused: /wip/estop still says true' if state['refuse'] else 'ok'
+        return response
+    test_node.create_service(Trigger, '/torque_mixer/reset_estop', reset)
+    stop = threading.Event()
+
+    def spin():
+        while not stop.is_set():
+            test_node.executor_for_test.spin_once(timeout_sec=0.05)
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    yield received, state
+    stop.set()
+    thread.join(timeout=5)
+
+
+def test_engage_release_and_reset_reach_the_mixer(domain, mixer):
+    received, state = mixer
+    engage = front_door('engage', '--domain', str(domain))
+    assert engage.returncode == 0, engage.stderr
+    release = front_door('release', domain=domain)  # from $ROS_DOMAIN_ID
+    assert release.returncode == 0, release.stderr
+    assert received == [True, False]
+    refused = front_door('reset', '--domain', str(domain))
+    assert refused.returncode == 1
+    assert 'reset refused: refused: /wip/estop still says true' in refused.stdout
+    state['refuse'] = False
+    done = front_door('reset', '--domain', str(domain))
+    assert done.returncode == 0 and 'reset done' in done.stdout
+
+
+def test_bad_arguments_are_one_line_errors(domain):
+    for args, text in ((('engage',), 'no --domain and no $ROS_DOMAIN_ID'),
+                       (('stop', '--domain', '3'), "invalid choice: 'stop'"),
+                       (('engage', '--domain', '999'), 'not in 0..232')):
+        result = front_door(*args)
+        assert result.returncode == 2, result
+        assert text in result.stderr and 'Traceback' not in result.stderr
+    # Nothing there: a clear message, not a hang.
+    lonely = front_door('engage', '--domain', str(domain), '--timeout', '1')
+    assert lonely.returncode == 1
+    assert 'nothing subscribes to /wip/estop' in lonely.stderr

@@ -1,0 +1,149 @@
+"""A recorded demo bag holds the viewer topics, right, and the layouts name only its topics.
+
+One short lockstep run of the paper scenario through the graph (``run_graph`` with
+``--record`` and ``--foxglove 0``): the viewer's Odometry, Path and MarkerArray topics are
+in the bag with their standard types; they agree with the ground truth at the same stamp
+(the same numbers, not a re-computation: x, y, yaw and the tilt of the body marker); the
+Foxglove bridge ran alongside and stopped cleanly; every topic the layout files name is in
+the bag, and the committed layout files are those the generator writes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+
+import numpy as np
+import pytest
+
+pytest.importorskip('rclpy')
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+REPO_ROOT = pathlib.Path(__file__).resolve().parents[2]
+DURATION = 2.0  # [s] simulated
+
+
+@pytest.fixture(scope='module')
+def demo(tmp_path_factory, module_domain):
+    from wip_sim.graph import GraphOptions, run_graph
+    out = tmp_path_factory.mktemp('viewer_demo')
+    result = run_graph(GraphOptions(duration=DURATION, record=str(out / 'bag'),
+                                    out=str(out / 'run'), quiet=True, foxglove_port=0))
+    assert result.exit_code == 0, result.message
+    return result
+
+
+@pytest.fixture(scope='module')
+def messages(demo):
+    from wip_sim.bag_reader import read_bag
+    by_topic: dict[str, list] = {}
+    types = {}
+    for topic, type_name, _, message in read_bag(demo.bag):
+        by_topic.setdefault(topic, []).append(message)
+        types[topic] = type_name
+    return by_topic, types
+
+
+def stamp_ns(message) -> int:
+    return message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
+
+
+def yaw_pitch(q) -> tuple[float, float]:
+    """(yaw, pitch) of a quaternion R = Rz(yaw) Ry(pitch) (no roll)."""
+    x, y, z, w = q.x, q.y, q.z, q.w
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    return yaw, pitch
+
+
+def test_the_bag_holds_the_viewer_topics_with_standard_types(demo, messages):
+    from wip_sim.viewer_core import VIEWER_TOPICS, ViewerConfig
+    by_topic, types = messages
+    for topic, type_name in VIEWER_TOPICS.items():
+        assert types.get(topic) == type_name, f'{topic}: {types.get(topic)}'
+    # Viewer rates (of stamps): 25 Hz poses over 2 s; a best-effort viewer may lose the
+    # first ticks while it matches, hence the lower margin.
+    expected = ViewerConfig().pose_rate * DURATION
+    for topic in ('/wip/odom/truth', '/wip/odom/estimate', '/wip/markers/vehicle'):
+        assert 0.6 * expected <= len(by_topic[topic]) <= expected + 2, topic
+    assert 1 <= len(by_topic['/wip/path/reference']) <= ViewerConfig().path_rate * DURATION + 2
+    assert demo.node_exit_codes.get('foxglove_bridge') == 0
+    assert demo.node_exit_codes.get('viewer') == 0
+
+
+def test_odometry_and_vehicle_marker_match_the_ground_truth_at_their_stamp(messages):
+    by_topic, _ = messages
+    truth = {stamp_ns(m): m for m in by_topic['/wip/ground_truth']}
+    odometry = by_topic['/wip/odom/truth']
+    for odom in odometry:
+        t = truth[stamp_ns(odom)]
+        assert odom.header.frame_id == 'map' and odom.child_frame_id == 'base_link'
+        assert (odom.pose.pose.position.x, odom.pose.pose.position.y) == (t.x, t.y)
+        yaw, _ = yaw_pitch(odom.pose.pose.orientation)
+        assert math.remainder(yaw - t.phi, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+        assert (odom.twist.twist.linear.x, odom.twist.twist.angular.z) == (t.v, t.omega)
+    tilts = []
+    for array in by_topic['/wip/markers/vehicle']:
+        t = truth[stamp_ns(array.markers[0])]
+        body = next(m for m in array.markers if m.ns == 'vehicle' and m.id == 0)
+        yaw, pitch = yaw_pitch(body.pose.orientation)
+        assert pitch == pytest.approx(t.theta, abs=1e-9)
+        assert math.remainder(yaw - t.phi, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+        assert len(array.markers) == 3  # body and two wheels
+        tilts.append(t.theta)
+    # The paper's start: the vehicle moves (so the test is not of a vehicle at rest).
+    assert np.ptp(tilts) > 1e-3
+
+
+def test_paths_and_prediction_lie_where_their_sources_say(messages):
+    by_topic, _ = messages
+    reference = {(m.x, m.y) for m in by_topic['/wip/reference']}
+    last = by_topic['/wip/path/reference'][-1]
+    assert len(last.poses) >= 2
+    assert all((p.pose.position.x, p.pose.position.y) in reference for p in last.poses)
+    travelled = by_topic['/wip/path/travelled'][-1]
+    truth = {(m.x, m.y) for m in by_topic['/wip/ground_truth']}
+    assert all((p.pose.position.x, p.pose.position.y) in truth for p in travelled.poses)
+    mpc = {stamp_ns(m): m for m in by_topic['/wip/drive_torque']}
+    prediction = by_topic['/wip/markers/prediction']
+    assert prediction
+    for array in prediction:
+        track = next(m for m in array.markers if m.id == 0)
+        source = mpc[stamp_ns(track)]
+        assert len(track.points) == len(source.predicted_v) + 1
+
+
+def test_layout_files_are_generated_and_name_only_topics_the_bag_has(messages):
+    from wip_sim.foxglove_bridge import SERVICES
+    from wip_sim.foxglove_layout import layout_json, LAYOUT_FILES
+    by_topic, _ = messages
+    for name, live in LAYOUT_FILES.items():
+        path = REPO_ROOT / 'foxglove' / name
+        text = path.read_text(encoding='utf-8')
+        assert text == layout_json(live), f'{path} is stale: python -m ' \
+                                          'wip_sim.foxglove_layout foxglove/'
+        layout = json.loads(text)
+        topics, services = set(), set()
+
+        def walk(node):
+            if isinstance(node, dict):
+                if node.get('type') == 'panel':
+                    config = node.get('config', {})
+                    topics.update(config.get('topics', {}))
+                    topics.update(p['value'].split('.', 1)[0] for p in config.get('paths', []))
+                    if config.get('topicToRender'):
+                        topics.add(config['topicToRender'])
+                    if config.get('serviceName'):
+                        services.add(config['serviceName'])
+                for value in node.values():
+                    walk(value)
+            elif isinstance(node, list):
+                for value in node:
+                    walk(value)
+        walk(layout)
+        assert len(topics) >= 10, topics
+        assert topics <= set(by_topic), f'{name}: not in the bag: {topics - set(by_topic)}'
+        assert services <= set(SERVICES)
+        assert bool(services) == live
