@@ -47,8 +47,7 @@ def test_run_graph_names_a_process_that_dies_and_stops_the_others(tmp_path, layo
     # The others were stopped with SIGINT and exited cleanly.
     others = {n: c for n, c in result.node_exit_codes.items() if n != victim}
     assert all(code == 0 for code in others.values()), others
-    # The viewer node is part of the default graph (--no-viewer leaves it out).
-    expected = {'plant', 'viewer'} | ({'reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
+    expected = {'plant'} | ({'reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
                              'torque_mixer'} - {victim} if layout == 'separate' else set())
     assert set(others) == expected
 

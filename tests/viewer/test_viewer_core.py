@@ -111,3 +111,12 @@ def test_stamp_is_read_from_the_cdr_bytes_without_deserializing():
     assert cdr_stamp_ns(serialize_message(message)) == 1_700_000_123_999_999_999
     with pytest.raises(ValueError, match='>= 12 bytes'):
         cdr_stamp_ns(b'\x00\x01\x00\x00')
+
+
+def test_the_viewer_runs_when_someone_will_look():
+    from wip_sim.graph import GraphOptions, viewer_wanted
+    assert not viewer_wanted(GraphOptions())
+    assert viewer_wanted(GraphOptions(record='bag'))
+    assert viewer_wanted(GraphOptions(foxglove_port=0))
+    assert viewer_wanted(GraphOptions(viewer=True))
+    assert not viewer_wanted(GraphOptions(record='bag', viewer=False))

@@ -25,7 +25,7 @@ What it does
    OUT/params.yaml -r __node:=<name>``: reference, eso, trajectory_generator, arc, mpc,
    torque_mixer (wip_control), plant (wip_sim) and, with ``--record BAG``, the recorder
    (wip_sim) recording every topic of the graph into the rosbag2 directory BAG, the viewer
-   (wip_sim; unless ``--no-viewer``: nav_msgs/Odometry, nav_msgs/Path and
+   (wip_sim; with ``--record`` or ``--foxglove``, or ``--viewer``: nav_msgs/Odometry, nav_msgs/Path and
    visualization_msgs/MarkerArray for 3-D viewers, recorded too, see
    ``wip_sim.viewer_node``) and, with ``--foxglove [PORT]``, the Foxglove bridge
    (``wip_sim.foxglove_bridge``: every topic live on ws://127.0.0.1:PORT). Each
@@ -263,7 +263,10 @@ class GraphOptions:
     quiet: bool = False
     layout: str = 'composed'  # see LAYOUTS
     scheduling: Scheduling = Scheduling()  # of the controller processes
-    viewer: bool = True  # the viewer node (Odometry, Path, markers; recorded)
+    #: The viewer node (Odometry, Path, markers; recorded). None: when someone will look,
+    #: i.e. with --record or --foxglove (it costs the lockstep run about a quarter of its
+    #: speed on 2 cores: README, "Seeing the robot").
+    viewer: bool | None = None
     foxglove_port: int | None = None  # serve the topics to Foxglove on this port
     foxglove_host: str = '127.0.0.1'
 
@@ -475,6 +478,14 @@ class Probe:
         self._rclpy.try_shutdown(context=self.context)
 
 
+def viewer_wanted(options) -> bool:
+    """``options.viewer`` if set, else whether anyone will see its topics (a bag is
+    recorded or the live view is served)."""
+    if options.viewer is not None:
+        return bool(options.viewer)
+    return options.record is not None or options.foxglove_port is not None
+
+
 def live_view_line(bridge: NodeProcess, host: str, port: int | None) -> str:
     """Where the live view is: the URL the bridge printed (with port 0, the port it got)."""
     match = re.search(r'foxglove_bridge: serving (ws://\S+)', bridge.log_tail(200))
@@ -519,7 +530,7 @@ class GraphRunner:
     """One run: start, watch and stop the processes; see the module docstring."""
 
     def __init__(self, options: GraphOptions) -> None:
-        self.options = options
+        self.options = dataclasses.replace(options, viewer=viewer_wanted(options))
         self.out = pathlib.Path(options.out).resolve()
         self.bag = pathlib.Path(options.record).resolve() if options.record else None
         self.prepared = False  # True once prepare() set up the run directory
@@ -1115,8 +1126,9 @@ def add_view_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--foxglove-host', default='127.0.0.1', metavar='ADDRESS',
                         help='address of the Foxglove server (default 127.0.0.1: this '
                         'machine only; 0.0.0.0 serves the network)')
-    parser.add_argument('--no-viewer', action='store_true',
-                        help='no viewer node (Odometry, Path, markers for 3-D viewers)')
+    parser.add_argument('--viewer', action=argparse.BooleanOptionalAction, default=None,
+                        help='the viewer node (Odometry, Path, markers for 3-D viewers); '
+                        'default: on with --record or --foxglove, else off')
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -1168,7 +1180,7 @@ def main(argv: list[str] | None = None) -> int:
                            # This module's class (python -m runs it as __main__).
                            scheduling=Scheduling(priority=args.rt_priority,
                                                  cpus=tuple(args.cpu_affinity)),
-                           viewer=not args.no_viewer, foxglove_port=args.foxglove,
+                           viewer=args.viewer, foxglove_port=args.foxglove,
                            foxglove_host=args.foxglove_host)
     result = run_graph(options)
     if result.exit_code == EXIT_USAGE:  # Refused before anything ran: nothing to show.

@@ -81,7 +81,7 @@ from .graph import (add_view_arguments, choose_domain_id, executable_path, EXECU
                     EXIT_FAILED, EXIT_OK, EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError,
                     graph_environment, LAYOUTS, live_view_line, NodeProcess, parse_cpus,
                     prepare_run_directory, Probe, RECORDER_GRACE_PERIOD, Scheduling,
-                    VIEWER_TOPICS)
+                    VIEWER_TOPICS, viewer_wanted)
 
 #: The nodes of hardware mode, in start order.
 HARDWARE_NODES = CONTROLLER_NODES
@@ -125,7 +125,9 @@ class HardwareOptions:
     #: Programmatic hook (tests, benchmarks): called with the runner when the run starts,
     #: e.g. to reach its processes and safety events from another thread.
     on_start: Callable[[Any], None] | None = None
-    viewer: bool = True  # the viewer node (Odometry, Path, markers of the estimate)
+    #: The viewer node (Odometry, Path, markers of the estimate); None: with --record or
+    #: --foxglove (see wip_sim.graph.viewer_wanted).
+    viewer: bool | None = None
     foxglove_port: int | None = None  # serve the topics to Foxglove on this port
     foxglove_host: str = '127.0.0.1'
 
@@ -246,7 +248,7 @@ class HardwareRunner:
     """One hardware-mode run: start, watch and stop the controller processes."""
 
     def __init__(self, options: HardwareOptions) -> None:
-        self.options = options
+        self.options = dataclasses.replace(options, viewer=viewer_wanted(options))
         self.out = pathlib.Path(options.out).resolve()
         self.bag = pathlib.Path(options.record).resolve() if options.record else None
         self.prepared = False  # True once prepare() set up the run directory
@@ -714,7 +716,7 @@ def run_from_args(args: argparse.Namespace) -> int:
                               arm_delay=args.arm_delay, heartbeat=not args.no_heartbeat,
                               layout=args.layout or HardwareOptions.layout,
                               scheduling=scheduling_from_args(args),
-                              viewer=not args.no_viewer, foxglove_port=args.foxglove,
+                              viewer=args.viewer, foxglove_port=args.foxglove,
                               foxglove_host=args.foxglove_host)
     result = run_hardware(options)
     if result.exit_code == EXIT_USAGE:  # Refused before anything ran: nothing to show.
