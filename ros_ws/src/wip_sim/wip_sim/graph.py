@@ -25,8 +25,8 @@ What it does
    OUT/params.yaml -r __node:=<name>``: reference, eso, trajectory_generator, arc, mpc,
    torque_mixer (wip_control), plant (wip_sim) and, with ``--record BAG``, the recorder
    (wip_sim) recording every topic of the graph into the rosbag2 directory BAG, the viewer
-   (wip_sim; with ``--record`` or ``--foxglove``, or ``--viewer``: nav_msgs/Odometry, nav_msgs/Path and
-   visualization_msgs/MarkerArray for 3-D viewers, recorded too, see
+   (wip_sim; with ``--record`` or ``--foxglove``, or ``--viewer``: nav_msgs/Odometry,
+   nav_msgs/Path and visualization_msgs/MarkerArray for 3-D viewers, recorded too, see
    ``wip_sim.viewer_node``) and, with ``--foxglove [PORT]``, the Foxglove bridge
    (``wip_sim.foxglove_bridge``: every topic live on ws://127.0.0.1:PORT). Each
    process logs to ``OUT/logs/<name>.log`` (ROS log files in ``OUT/logs/ros``).
@@ -161,7 +161,7 @@ CLOCK_SUBSCRIPTIONS = {'separate': len(CONTROLLER_NODES) + 1, 'composed': 2}
 #: Nodes with a /clock subscription of their own in lockstep, per layout.
 CLOCK_NODES = {'separate': CONTROLLER_NODES, 'composed': ('reference',)}
 #: Topics recorded with --record (with /clock in lockstep; with the viewer's topics,
-#: :data:`VIEWER_TOPICS`, unless --no-viewer).
+#: :data:`VIEWER_TOPICS`, when the viewer runs).
 RECORDED_TOPICS = tuple(PUBLISHERS) + ('/diagnostics',)
 #: Published by the viewer node (standard messages for 3-D viewers; nothing in the
 #: control loop subscribes to them).
@@ -1117,7 +1117,7 @@ def foxglove_port(text: str) -> int:
 
 
 def add_view_arguments(parser: argparse.ArgumentParser) -> None:
-    """--foxglove [PORT], --foxglove-host, --no-viewer (simulation and hardware mode)."""
+    """--foxglove [PORT], --foxglove-host, --viewer/--no-viewer (simulation and hardware mode)."""
     parser.add_argument('--foxglove', nargs='?', type=foxglove_port, const=FOXGLOVE_PORT,
                         default=None, metavar='PORT',
                         help='serve the graph\'s topics live over the Foxglove WebSocket '
