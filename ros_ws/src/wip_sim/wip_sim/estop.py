@@ -12,8 +12,9 @@ has matched (a message published before the match would be lost), publish, and w
 the reliable delivery. ``reset`` calls the mixer's ``~/reset_estop`` (std_srvs/Trigger),
 which refuses while /wip/estop still says true.
 
-Exit status: 0 done (reset: the mixer said success); 1 refused, or nothing answered in
-``--timeout`` seconds; 2 bad arguments.
+Exit status (the tools' table, ``wip_control.tools.cli``): 0 done (reset: the mixer said
+success); 1 refused, or nothing answered in ``--timeout`` seconds; 2 bad arguments; 130
+Ctrl-C.
 """
 
 from __future__ import annotations
@@ -107,4 +108,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    from wip_control.tools.cli import exit_with
+    exit_with(main, 'estop')

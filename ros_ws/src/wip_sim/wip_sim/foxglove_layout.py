@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import pathlib
-import sys
 
 from wip_control.core.scenario import Scenario
 
@@ -126,4 +125,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    from wip_control.tools.cli import exit_with
+    exit_with(main, 'foxglove_layout')
