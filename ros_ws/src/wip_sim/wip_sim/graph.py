@@ -633,9 +633,9 @@ class GraphRunner:
         if options.foxglove_port is not None:
             extra['foxglove_bridge'] = {'ros__parameters': {
                 'host': options.foxglove_host, 'port': int(options.foxglove_port)}}
-        if extra:
-            with open(params_file, 'a', encoding='utf-8') as stream:
-                stream.write(yaml.safe_dump(extra, sort_keys=False))
+        if extra:  # The whole file again, atomically, like every output of a run.
+            write_atomic(params_file, params_file.read_text(encoding='utf-8')
+                         + yaml.safe_dump(extra, sort_keys=False))
 
     def node_names(self) -> list[str]:
         """The ROS nodes of the run (whatever the processes that hold them)."""
