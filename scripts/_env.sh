@@ -17,7 +17,7 @@
 # It also unsets _ROS_WHEELS_BOOTSTRAP_COMPLETE: the ros-wheels-bootstrapper .pth of a venv
 # re-executes Python once with LD_LIBRARY_PATH set for *that* venv and marks the environment
 # with this variable; a value inherited from a process of another venv would skip our venv's
-# set-up (shared/spec/ros-from-pip.md).
+# set-up (docs/ros-from-pip.md).
 #
 # Variables it defines: REPO_ROOT, WIP_VENV, WIP_WS (and exports WIP_REPO_ROOT).
 
@@ -84,7 +84,7 @@ wip_build_hash() {
 
 wip_unfixed_cmake_exports() {
     # Print the message wheels' CMake export files that still name the wheel build machine's
-    # paths (fix 3 of shared/spec/ros-from-pip.md), if any.
+    # paths (fix 3 of docs/ros-from-pip.md), if any.
     local files=("${WIP_VENV}"/share/*/cmake/*__rosidl_generator_pyExport.cmake)
     [ -e "${files[0]}" ] || return 0
     grep -l -F '/opt/python/' "${files[@]}" || true

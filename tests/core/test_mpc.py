@@ -2,7 +2,7 @@
 
 What is checked, and against what:
 - the condensed prediction against an explicit Euler simulation of x(k+1) = A x + B τ + c
-  written out here from the spec's formulas (not from the code's matrices);
+  written out here from docs/paper.md §5's formulas (not from the code's matrices);
 - the unconstrained solution against the closed form (G̃ᵀQG̃ + R)⁻¹ G̃ᵀQ(ȳr − ȳ_free);
 - at random realistic states: every hard constraint, and the optimum against DAQP (an
   exact active-set solver) on the same QP, whose own KKT conditions are checked too;
@@ -51,7 +51,7 @@ CONSTRAINT_TOL = 1e-5
 
 
 def state_matrix_from_spec(prediction):
-    """A of the spec (section 5), written out independently of mpc_prediction.py."""
+    """A of docs/paper.md §5, written out independently of mpc_prediction.py."""
     p = PARAMS
     a = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, TS], [0.0, 0.0, 1.0]])
     if prediction == 'gravity_aware':
@@ -120,7 +120,7 @@ def test_paper_prediction_is_the_literal_one_step_gain_without_propagation():
         for j in range(NC):
             expected = TS * np.array([g2, 0.0, g3]) if j <= i else np.zeros(3)
             np.testing.assert_array_equal(gt[i, :, j], expected)
-    # Hence the θ rows do not depend on the decision variable at all (the spec's finding).
+    # Hence the θ rows do not depend on the decision variable at all (docs/paper.md §5).
     assert not np.any(gt[:, 1, :])
     # Its free response is the held-τ trajectory of the paper's A.
     x0, f2, f3, tau = np.array([0.2, 0.05, 0.1]), 0.5, 1.0, 3.0
@@ -297,7 +297,7 @@ def test_paper_literal_prediction_falls_and_gravity_aware_balances():
                                     duration=10.0, theta_initial=0.05, v_d=0.5)
     over = np.abs(literal.theta) > 0.5
     assert over.any(), 'the literal G̃ of (18) was expected to lose the pendulum'
-    assert literal.t[np.argmax(over)] < 3.0  # the spec saw it fall within about 1.5 s
+    assert literal.t[np.argmax(over)] < 3.0  # docs/paper.md §5: falls within about 1.5 s
 
     adopted = simulate_longitudinal(PARAMS, CONFIG, duration=10.0, theta_initial=0.05,
                                     v_d=0.5)

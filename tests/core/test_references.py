@@ -67,7 +67,7 @@ def test_trifolium_matches_the_papers_formula_speed_range_and_peak_yaw_rate():
                                atol=1e-12)
     np.testing.assert_allclose(states[:, 1], 3 * np.cos(3 * w * ts) * np.sin(w * ts),
                                atol=1e-12)
-    # υ_r = κΩ√(1 + 8 sin²3Ωt) ∈ [κΩ, 3κΩ] = [0.2094, 0.6283]: the spec's [0.21, 0.63].
+    # υ_r = κΩ√(1 + 8 sin²3Ωt) ∈ [κΩ, 3κΩ] = [0.2094, 0.6283]: docs/paper.md §6's [0.21, 0.63].
     assert states[:, 3].min() == pytest.approx(3 * w, abs=1e-9)
     assert states[:, 3].max() == pytest.approx(9 * w, abs=1e-9)
     assert round(states[:, 3].min(), 2) == 0.21 and round(states[:, 3].max(), 2) == 0.63

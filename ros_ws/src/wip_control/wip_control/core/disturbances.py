@@ -28,7 +28,7 @@ Time edges (t0, t0 + width, noise sample boundaries) are taken with a tolerance 
 ulps before an edge counts as on it.
 
 The default is the paper's Section V: d1 = sin(0.5 t) and a pulse of 10 m/s² at 30 s
-on υ̇ (width 0.1 s, which the paper does not give; see the spec, section 6).
+on υ̇ (width 0.1 s, which the paper does not give; docs/paper.md §6).
 
 References
 ----------

@@ -10,7 +10,7 @@ writes τω = τl − τr (clockwise yaw); with REP 103 (yaw counter-clockwise p
 g1 > 0, a positive τω pushes the right wheel forward and turns the vehicle
 counter-clockwise.
 
-Limits, yaw first (the spec, section 5): τω is clipped to ±2 τmax, then τυ to
+Limits, yaw first (docs/paper.md §5): τω is clipped to ±2 τmax, then τυ to
 ±(2 τmax − |τω|) (:func:`drive_torque_limit`, which the MPC also receives as its input
 bound), so that |τl|, |τr| ≤ (|τυ| + |τω|)/2 ≤ τmax. When a wheel would saturate the
 yaw torque is kept and the drive torque gives way: with the default limits the yaw share

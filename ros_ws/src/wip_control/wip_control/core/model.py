@@ -7,7 +7,7 @@
     \\ddot\\theta = f_{\\theta 3} + g_3 \\tau_\\upsilon + \\tau_{d3}
 
 with τυ = τl + τr and, following REP 103 (yaw counter-clockwise positive),
-τω = τr − τl. The paper writes τω = τl − τr (clockwise yaw); see the spec's sign note.
+τω = τr − τl. The paper writes τω = τl − τr (clockwise yaw); see docs/paper.md §1.
 
 These terms are the controllers' nominal model and the right-hand side of the
 "paper" plant. Scalars are plain floats and ``math`` functions on purpose: the plant

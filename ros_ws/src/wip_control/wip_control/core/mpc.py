@@ -25,7 +25,7 @@ slacks, ``speed_slack_linear_penalty``) on the slack entries. ``soft_limits: per
 paper's): one per limit for the whole horizon. Why the default differs, with measured
 effects: ``docs/mpc.md``.
 
-Constraints (19), (21), as adopted in ``shared/spec/model-and-controllers.md`` §5:
+Constraints (19), (21), as adopted in docs/paper.md §5:
 
 - hard, box: |Δτ(k+j)| ≤ Δτmax; hard, rows: |τ(k+j)| ≤ τlim for j < Nc (τ is constant
   after Nc−1), τlim = min(``tau_limit``, ``max_drive_torque``);
@@ -256,7 +256,7 @@ class LongitudinalMpc:
     Decision vector z = (Δτ̄ (Nc), sυ, sθ); Δτ̄ and the slacks' signs are box constraints.
     Rows of C: τ(k..k+Nc−1) (Nc), υ ≤ (Np), θ ≤ (Np), υ ≥ (Np), θ ≥ (Np).
 
-    Not done: the spec's whitening of the Hessian (computed once at θ = 0). Tried: it cut
+    Not done: a whitening of the Hessian (computed once at θ = 0). Tried: it cut
     the closed-loop p99 iterations from 40 to 27, but the whitened Δτ limits become
     general rows and ProxSuite then reached MAX_ITER on about half of the QPs at random
     states and on 19 of 10 187 closed-loop QPs (0 without it).

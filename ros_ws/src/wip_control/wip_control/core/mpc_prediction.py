@@ -17,7 +17,7 @@ and τ(k+i) = τ(k−1) + Σ_{j ≤ min(i, Nc−1)} Δτ(k+j). Stacking the outp
 
 where ȳ_free is the trajectory with τ held at τ(k−1) (the paper's f̃ + g̃).
 
-Two predictions (``shared/spec/model-and-controllers.md``, section 5):
+Two predictions (docs/paper.md §5):
 
 ``'gravity_aware'`` (default)
     A = [[1, a01, 0], [0, 1, Ts], [0, a21, 1]] with the linearised gravity terms

@@ -1,7 +1,7 @@
 """Physical parameters of the wheeled inverted pendulum (WIP).
 
 The paper [1]_ gives no numerical parameters; the defaults below are the project's
-1.2 m service robot (see ``shared/spec/model-and-controllers.md``, section 1), chosen
+1.2 m service robot (see docs/paper.md §1), chosen
 so that the paper's limits make sense: holding θ = 0.1 rad takes about 7 N·m of the
 30 N·m available, and the yaw authority 0.8·g1 ≈ 2 rad/s² exceeds the unit-amplitude
 yaw disturbance.
@@ -62,7 +62,7 @@ class WipParameters:
             if value <= 0.0:
                 raise ValueError(f'WipParameters.{field.name} must be > 0, got {value!r}')
 
-    # Derived quantities (section 1 of the spec: the only reading under which (1) is
+    # Derived quantities (docs/paper.md §1: the only reading under which (1) is
     # the Euler-Lagrange system of a consistent Lagrangian).
 
     @property

@@ -16,7 +16,7 @@ Model ``'paper'``
     :mod:`.model`); the tests check it against :func:`.model.nominal_terms`.
 
 Model ``'full'``: derivation
-    Same bodies and parameters as the spec's reading of (1) (``WipParameters``):
+    Same bodies and parameters as the reading of (1) in docs/paper.md §1 (``WipParameters``):
 
     - body (pendulum): mass m_p, centre of mass at distance l above the axle along
       the body axis, pitch inertia I_c about its centre of mass, tilt θ (positive
@@ -51,7 +51,7 @@ Model ``'full'``: derivation
     Generalised forces: motor i applies τ_i to wheel i about e_lat and, its stator being
     fixed to the body, −τ_i to the body (the reaction torque): virtual work
     δW = Σ τ_i (δφ_i − δθ). Lagrange–d'Alembert, Sᵀ (d/dt ∂L/∂q̇ − ∂L/∂q − Q) = 0, gives
-    (derived and checked with sympy; the kinetic energy in ν equals the spec's E − V)
+    (derived and checked with sympy; the kinetic energy in ν equals E − V of docs/paper.md §1)
 
     .. math::
 
@@ -66,7 +66,7 @@ Model ``'full'``: derivation
 
     with J(θ) = J_ϕ + m_p l² sin²θ, m_v, J_θ, J_ϕ as in ``WipParameters``. Solving the
     2×2 block (determinant Ω) gives g2 = (J_θ + m_p l r cosθ)/(Ω r),
-    g3 = −(m_v r + m_p l cosθ)/(Ω r), as the spec lists.
+    g3 = −(m_v r + m_p l cosθ)/(Ω r), as docs/paper.md §1 lists.
 
     Differences from (1), all found by the derivation:
 
@@ -81,7 +81,7 @@ Model ``'full'``: derivation
       the distance between the wheels (as in J_ϕ and in the odometry), the wheel
       forces τ_i / r act at ±d/2, so their yaw moment is (τr − τl) d / (2r). The paper's
       g1 is twice the physical value (it would be right if d were the half-track). This
-      follows the derivation, as the brief asks; the controllers keep using (1).
+      follows the derivation; the controllers keep using (1).
 
     Energy: E = ½ m_v υ² + m_p l cosθ υ θ̇ + ½ J_θ θ̇² + ½ J(θ) ω² + m_p g l cosθ for
     both models (same kinetic energy), conserved with zero inputs and disturbances.

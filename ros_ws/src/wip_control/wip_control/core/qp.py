@@ -8,15 +8,14 @@ Both solve
     l \\le C z \\le u, \\quad lb \\le z \\le ub
 
 keeping one workspace alive between calls: the first call sets the problem up, later
-calls only update the data (``shared/spec/model-and-controllers.md``, section 5,
-"Solving it with ProxSuite: measured facts").
+calls only update the data (docs/paper.md §7, measured facts of ProxSuite on this QP).
 
 ProxSuite settings follow those measurements: ``COLD_START_WITH_PREVIOUS_RESULT`` (the
 warm-start mode produced MAX_ITER and false PRIMAL_INFEASIBLE results and unbounded
-solve times), the ``PrimalDualLDLT`` dense backend, ``eps_abs`` = 1e-6 (the spec allows
+solve times), the ``PrimalDualLDLT`` dense backend, ``eps_abs`` = 1e-6 (tolerances from
 1e-6 to 1e-8; at 1e-7 the primal residual of 1 to 2 in 3000 random-state QPs stagnated
 at 9e-7 until MAX_ITER; the solution error is negligible either way). Three settings
-differ from the spec. They were measured on 10 187 closed-loop QPs with pushes (made
+differ from those first planned. They were measured on 10 187 closed-loop QPs with pushes (made
 with ``analysis/bench_mpc.simulate_longitudinal``) and 6000 QPs at random states like
 those of ``tests/core/test_mpc.py``, and are fields of
 :class:`~wip_control.core.mpc.MpcConfig`:
@@ -172,7 +171,7 @@ class ProxsuiteSolver:
             # A few QPs (about 1 in 20 000 random states in the test's ranges; e.g. a
             # large negative τ(k−1) while υd asks for speed) make ProxSuite run to
             # max_iter from its default start, and solve from the equality-constrained
-            # initial guess (the spec's other failure-free mode, ~2x slower): one retry
+            # initial guess (the other failure-free mode measured, ~2x slower): one retry
             # with it, in a fresh workspace, before the caller falls back to its plan.
             self._qp = None
             retry = self._new_workspace(_PROXQP.InitialGuess.EQUALITY_CONSTRAINED_INITIAL_GUESS)

@@ -4,7 +4,7 @@ A scenario holds the duration, the reference path, the initial state, the true p
 (model and parameter overrides, so the plant can differ from the controllers'
 nominal model), the disturbances, the sensors, every controller's parameters and the
 rates. Every key is optional: its default is the paper's Section V [1]_ as decoded in
-``shared/spec/model-and-controllers.md`` section 6. Unknown keys, values of the wrong
+docs/paper.md §6. Unknown keys, values of the wrong
 type and values out of range raise :class:`~wip_control.core.config.ConfigError`
 whose message starts with the dotted path of the key (``mpc.max_tilt: must be > 0``).
 
