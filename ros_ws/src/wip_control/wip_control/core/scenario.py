@@ -262,6 +262,16 @@ def _check_consistency(scenario: Scenario) -> None:
     if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
         raise ConfigError('mpc.sampling_period: must be an integer multiple of the control '
                           f'period 1/rates.control_rate = {scenario.control_period} s')
+    ref, generator = scenario.reference, scenario.trajectory_generator
+    if ref.time_scaling:
+        if ref.path_max_speed > generator.max_speed:
+            raise ConfigError(f'reference.path_max_speed: must not exceed '
+                              f'trajectory_generator.max_speed = {generator.max_speed} m/s '
+                              f'(the generator saturates there), got {ref.path_max_speed}')
+        if ref.path_max_yaw_rate > generator.max_yaw_rate:
+            raise ConfigError(f'reference.path_max_yaw_rate: must not exceed '
+                              f'trajectory_generator.max_yaw_rate = {generator.max_yaw_rate} '
+                              f'rad/s, got {ref.path_max_yaw_rate}')
     eso_period = scenario.eso.sample_period
     if abs(eso_period - scenario.control_period) > 1e-12:
         raise ConfigError(f'eso.sample_period: must equal 1/rates.control_rate = '
