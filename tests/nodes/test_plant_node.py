@@ -32,8 +32,8 @@ from wip_control.core.references import make_reference  # noqa: E402
 from wip_control.core.runner import initial_state  # noqa: E402
 from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_control.core.sensors import geodetic_to_local, Sensors  # noqa: E402
-from wip_control.nodes.conversions import (pitch_yaw_from_quaternion,  # noqa: E402
-                                           quaternion_from_euler)
+from wip_control.nodes.conversions import (  # noqa: E402
+    euler_rates_from_body, pitch_yaw_from_quaternion, quaternion_from_euler)
 
 pytestmark = pytest.mark.ros
 
@@ -151,7 +151,11 @@ def check_sensors(harness, sensors, state, index, gps_expected):
                                                  abs=1e-15)
     rates = sensors.imu_rates(state)  # noise-free here: draws nothing from the IMU stream
     imu = harness.received['imu'][index]
-    assert (imu.angular_velocity.y, imu.angular_velocity.z) == rates
+    # The gyro reads the body angular velocity (x = −ϕ̇ sin θ, y = θ̇, z = ϕ̇ cos θ); the
+    # eso node's inverse returns the Euler rates to rounding.
+    w = imu.angular_velocity
+    assert euler_rates_from_body(pitch, (w.x, w.y, w.z)) == pytest.approx(rates, abs=1e-15)
+    assert w.y == rates[0]
     if gps_expected:
         x, y = sensors.gps(state)
         fix = harness.received['gps'][-1]
