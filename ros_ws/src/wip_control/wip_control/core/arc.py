@@ -44,7 +44,8 @@ from .config import ConfigError, param
 
 @dataclasses.dataclass(frozen=True)
 class ArcConfig:
-    """Gains and limits of the yaw ARC, eqs. (12), (13) in [1]_ (defaults: Section V)."""
+    """Gains and limits of the yaw ARC, eqs. (12), (13) in [1]_ (gains: Section V; the
+    robust adaptation terms default on, the scenario key ``design: paper`` turns them off)."""
 
     yaw_rate_gain: float = param(20.0, 'N m s/rad', 'k_omega of eq. (12)', minimum=0.0,
                                  exclusive_minimum=True)
@@ -57,19 +58,19 @@ class ArcConfig:
     alpha_max: float = param(5.0, 'kg m^2', 'upper projection bound of alpha_hat',
                              minimum=0.0, exclusive_minimum=True)
     adaptation_dead_zone: float = param(
-        0.0, 'rad/s', 'no adaptation while |e_omega| is below this (robust adaptive '
+        0.005, 'rad/s', 'no adaptation while |e_omega| is below this (robust adaptive '
         'control: noise and bounded disturbances alone must not drive alpha_hat; paper: 0)',
         minimum=0.0, maximum=10.0)
     adaptation_normalisation: float = param(
-        0.0, 's^4/rad^2', 'nu in d(alpha_hat)/dt = -gamma e phi / (1 + nu phi^2), phi = '
+        1.0, 's^4/rad^2', 'nu in d(alpha_hat)/dt = -gamma e phi / (1 + nu phi^2), phi = '
         'omega_d_dot - f1_hat: bounds the step when phi jumps (corners, GPS jumps; '
         'paper: 0)', minimum=0.0, maximum=1e6)
     adaptation_leakage: float = param(
-        0.0, '1/s', 'sigma-modification -sigma (alpha_hat - alpha_initial): alpha_hat '
+        0.01, '1/s', 'sigma-modification -sigma (alpha_hat - alpha_initial): alpha_hat '
         'returns to the nominal 1/g1 when not excited (paper: 0)', minimum=0.0,
         maximum=100.0)
     adapt_while_saturated: bool = param(
-        True, '1', 'run the adaptation while tau_omega is saturated (paper: true); false '
+        False, '1', 'run the adaptation while tau_omega is saturated (paper: true); false '
         'freezes alpha_hat then, since e_omega no longer reflects the model error (wind-up)')
 
     def validate(self) -> None:

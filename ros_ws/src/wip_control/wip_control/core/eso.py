@@ -135,7 +135,8 @@ def discretise(gains: Sequence[float], epsilon: float, period: float,
 
 @dataclasses.dataclass(frozen=True)
 class EsoConfig:
-    """Tunables of the three ESOs, eqs. (4) and (8) in [1]_ (defaults: Section V)."""
+    """Tunables of the observers: the paper's three ESOs, eqs. (4) and (8) in [1]_ (gains and
+    ε: Section V), or the gyro-aided design (default; docs/estimation.md)."""
 
     yaw_gains: tuple[float, float, float] = param(
         (6.0, 11.0, 6.0), '1', '(alpha1, alpha2, alpha3) of the yaw ESO, eq. (4); '
@@ -166,7 +167,7 @@ class EsoConfig:
         "(unbiased on ramps) or 'zero_order' hold of the newest sample (biased, see "
         'eso.py)', choices=MEASUREMENT_HOLDS)
     estimator: str = param(
-        'paper', '1', "'paper': third-order ESOs on the measured angles, eqs. (4), (8) "
+        'gyro', '1', "'paper': third-order ESOs on the measured angles, eqs. (4), (8) "
         "(Section V); 'gyro': the IMU angular rate is measured: complementary filter of "
         'angle and gyro with bias estimation, and a reduced-order ESO on the rate for '
         'the disturbance (docs/estimation.md)', choices=ESTIMATORS)

@@ -541,7 +541,7 @@ class ReferenceConfig:
                                           '(keep below the generator max_yaw_rate)',
                                           minimum=0.0, exclusive_minimum=True)
     time_scaling: bool = param(
-        False, '1', 'run the reference along its path with a progress that slows where '
+        True, '1', 'run the reference along its path with a progress that slows where '
         'its speed or yaw rate would exceed path_max_speed, path_max_yaw_rate (any kind; '
         'paper: false)')
     path_max_speed: float = param(
