@@ -407,7 +407,7 @@ class RateAidedChannel:
     slowly drifting bias):
 
     1. complementary filter with bias estimate (angle â, bias b̂):
-       â⁻ = â + h (r − b̂);  e = y_m − â⁻;  â = â⁻ + L1 e;  b̂ = b̂ − L2 e.
+       â⁻ = â + h ((r_prev + r)/2 − b̂);  e = y_m − â⁻;  â = â⁻ + L1 e;  b̂ = b̂ − L2 e.
        Error poles at −``angle_bandwidth`` and −``bias_bandwidth`` (discrete e^{−ω h}).
        The angle noise passes below ω_c, the integrated gyro noise above it;
     2. reduced-order ESO of the rate (the paper's eq. (4) with the position channel
@@ -461,6 +461,7 @@ class RateAidedChannel:
         self.bias = 0.0
         self._t_prev = float(initial_time)
         self._rate_started = False
+        self._rate_prev = 0.0
 
     @property
     def state(self) -> tuple[float, float, float]:
@@ -482,6 +483,7 @@ class RateAidedChannel:
             raise ValueError(f'{self.name}: time went backwards from {self._t_prev} to {t}')
         if not self._rate_started:
             self.x2 = rate - self.bias
+            self._rate_prev = rate
             self._rate_started = True
         if h == 0.0:
             return self.x1, self.x2, self.f
@@ -490,7 +492,10 @@ class RateAidedChannel:
         l1, l2, m1, m2 = self._gains(h)
         # 1: complementary filter with bias (predict with the corrected gyro, correct
         # with the angle).
-        angle = self.x1 + h * (rate - self.bias)
+        # Trapezoidal integration of the gyro: exact for a constant acceleration (the
+        # rectangle rule would leave a bias estimate off by h θ̈/2).
+        angle = self.x1 + h * (0.5 * (self._rate_prev + rate) - self.bias)
+        self._rate_prev = rate
         e = y - angle
         self.x1 = angle + l1 * e
         self.bias -= l2 * e
