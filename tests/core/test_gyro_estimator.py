@@ -179,7 +179,7 @@ def test_pitch_noise_is_filtered_before_it_reaches_the_mpc():
     # 0.002 rad of IMU pitch noise: the paper's ESO (poles up to 300 rad/s) turns it into
     # θ̂̇ noise of order σ/ε; the gyro estimator reads θ̇ and passes θ̂ through the
     # complementary filter. Measured on the same seed: θ̂̇ error std 0.0006 rad/s (gyro,
-    # the noise through the x_v correction) against 0.26 rad/s (paper); bounds 0.01 and
+    # the angle noise through the bias estimate) against 0.26 rad/s (paper); bounds 0.01 and
     # 0.2. θ̂ error 0.00027 against 0.0017 rad (paper); bound
     # σ/3.
     gyro = _simulate(EsoConfig(), 3.0, pitch_noise=0.002, seed=1)
