@@ -14,7 +14,7 @@ from wip_control.core.trajectory_generator import (TrajectoryGenerator,
                                                    tracking_errors, unsaturated_commands)
 
 # Eq. (9) with the paper's lambda1, lambda2 (the pole-placed design: test_heading_design.py).
-CONFIG = TrajectoryGeneratorConfig(heading_design='paper')
+CONFIG = TrajectoryGeneratorConfig(heading_design='paper', lambda3=1.0)
 DT = 0.005
 
 finite = dict(allow_nan=False, allow_infinity=False)
