@@ -393,48 +393,100 @@ class TimeScaled(Reference):
     """A reference run along the same path with a progress s(t) that slows where the
     path's speed or yaw rate would exceed the limits (time scaling, Hollerbach 1984).
 
-    The base reference p(s) is re-timed by ṡ = σ(s),
+    The base reference p(s) is re-timed by ṡ = σ(s), with
 
-    .. math:: \\sigma(s) = \\min\\Big(1, \\frac{\\upsilon_{max}}{\\upsilon_r(s)},
-        \\frac{\\omega_{max}}{|\\omega_r(s)|}\\Big)
+    .. math:: \\sigma_0(s) = \\min\\Big(1, \\frac{\\upsilon_{max}}{\\upsilon_r(s)},
+        \\frac{\\omega_{max}}{|\\omega_r(s)|}\\Big), \\qquad
+        \\sigma(s) = \\min_u \\big(\\sigma_0(u) + k |u - s|\\big)
 
     so that υ(t) = υ_r(s) σ(s) ≤ υmax and |ω(t)| = |ω_r(s)| σ(s) ≤ ωmax: the vehicle is
     asked to stay on the same curve, more slowly where it bends hard, instead of
-    following a point it cannot keep up with (the paper's trifolium needs 0.70 rad/s at
-    its petal tips against ωmax = 0.3). The pose is the base's at s(t), the rates are
-    υ_r σ, ω_r σ and ω̇ = σ (ω̇_r σ + ω_r dσ/ds). σ depends on the path only, so s(t) is
-    computed once, independent of the vehicle: the reference stays a pure function of
-    time (the reference node publishes it unchanged). s(t) is integrated by RK4 on a
-    fixed grid of ``step`` from t = 0 and interpolated by cubic Hermite (s and ṡ known
-    at the nodes), extended on demand.
+    chasing a point it cannot keep up with (the paper's trifolium needs 0.70 rad/s at
+    its petal tips against ωmax = 0.3). The envelope σ ≤ σ0 with |dσ/ds| ≤ k starts to
+    slow down before a sharp bend and speeds up gradually after it: where σ0 jumps (a
+    waypoint fillet's curvature step) the speed would otherwise jump too. The pose is
+    the base's at s(t); the rates are υ_r σ, ω_r σ and ω̇ = σ (ω̇_r σ + ω_r dσ/ds).
+
+    σ depends on the path only, so s(t) is computed once, independent of the vehicle:
+    the reference stays a pure function of time (the reference node publishes it
+    unchanged). σ0 is tabulated every ``step`` of s and the envelope taken on that grid
+    (σ linear between nodes, and never above σ0 at the sampled s); s(t) is integrated by
+    RK4 on a grid of ``step`` in t and interpolated by cubic Hermite (s and ṡ known at
+    the nodes). Both tables are extended on demand, always from the start, so the
+    values do not depend on the order of the queries.
 
     Parameters
     ----------
     base : the reference whose path is followed.
     max_speed, max_yaw_rate : limits [m/s], [rad/s] of the re-timed reference, > 0.
-    step : integration grid [s].
+    rate_limit : k [1/s], the largest |dσ/ds|, > 0.
+    step : grid [s].
     """
 
     def __init__(self, base: Reference, max_speed: float, max_yaw_rate: float,
-                 step: float = 0.01) -> None:
-        if not (max_speed > 0.0 and max_yaw_rate > 0.0 and step > 0.0):
-            raise ValueError('TimeScaled: max_speed, max_yaw_rate and step must be > 0')
+                 rate_limit: float = 0.5, step: float = 0.01) -> None:
+        if not (max_speed > 0.0 and max_yaw_rate > 0.0 and rate_limit > 0.0
+                and step > 0.0):
+            raise ValueError('TimeScaled: max_speed, max_yaw_rate, rate_limit and step '
+                             'must be > 0')
         self.base = base
         self.max_speed = float(max_speed)
         self.max_yaw_rate = float(max_yaw_rate)
+        self.rate_limit = float(rate_limit)
         self.step = float(step)
-        self._s = [0.0]
-        self._rate = [self.rate_at(0.0)]
+        # Envelope half-width in grid nodes: beyond 1/k the cone exceeds σ0 ≤ 1.
+        self._window = int(math.ceil(1.0 / (self.rate_limit * self.step)))
+        self._raw: list[float] = []       # σ0 at s = i·step
+        self._sigma: list[float] = []     # σ at s = i·step
+        self._s = [0.0]                   # s at t = n·step
+        self._rate = [self.rate_at(0.0)]  # σ(s) at those nodes
 
-    def rate_at(self, s: float) -> float:
-        """σ(s) = ds/dt ∈ (0, 1]."""
-        ref = self.base.sample(s)
+    def _raw_rate(self, ref: ReferenceState) -> float:
         sigma = 1.0
         if ref.v > self.max_speed:
             sigma = self.max_speed / ref.v
         if abs(ref.omega) * sigma > self.max_yaw_rate:
             sigma = self.max_yaw_rate / abs(ref.omega)
         return sigma
+
+    def _extend_sigma(self, index: int) -> None:
+        """Tabulate σ up to grid node ``index`` (σ0 up to ``index`` + window)."""
+        if len(self._sigma) > index:
+            return
+        import numpy as np
+        w, h = self._window, self.step
+        while len(self._sigma) <= index:
+            start = len(self._sigma)
+            stop = start + 2048
+            while len(self._raw) < stop + w + 1:
+                self._raw.append(self._raw_rate(self.base.sample(len(self._raw) * h)))
+            raw = np.asarray(self._raw)
+            env = raw[start:stop].copy()
+            for d in range(1, w + 1):
+                cone = self.rate_limit * d * h
+                env = np.minimum(env, raw[start + d:stop + d] + cone)
+                lo = max(0, start - d)
+                shifted = raw[lo:stop - d]
+                if len(shifted) < stop - start:   # before s = 0: no constraint
+                    shifted = np.concatenate([np.full(stop - start - len(shifted), np.inf),
+                                              shifted])
+                env = np.minimum(env, shifted + cone)
+            self._sigma.extend(float(v) for v in env)
+
+    def _sigma_and_slope(self, s: float) -> tuple[float, float]:
+        """σ(s) (linear between grid nodes) and dσ/ds; s < 0 takes σ(0)."""
+        if s <= 0.0:
+            self._extend_sigma(1)
+            return self._sigma[0], 0.0
+        u = s / self.step
+        i = int(u)
+        self._extend_sigma(i + 1)
+        a, b = self._sigma[i], self._sigma[i + 1]
+        return a + (b - a) * (u - i), (b - a) / self.step
+
+    def rate_at(self, s: float) -> float:
+        """σ(s) = ds/dt ∈ (0, 1] (linear between the grid nodes)."""
+        return self._sigma_and_slope(s)[0]
 
     def _extend(self, n: int) -> None:
         s_list, r_list, h = self._s, self._rate, self.step
@@ -465,9 +517,9 @@ class TimeScaled(Reference):
     def sample(self, t: float) -> ReferenceState:
         s = self.progress(t)
         ref = self.base.sample(s)
-        sigma = self.rate_at(s)
-        ds = 1e-4
-        d_sigma = (self.rate_at(s + ds) - self.rate_at(s - ds)) / (2.0 * ds)
+        sigma, d_sigma = self._sigma_and_slope(s)
+        # Between grid nodes the linear σ may exceed σ0 by O(step²): never above it.
+        sigma = min(sigma, self._raw_rate(ref))
         return ReferenceState(ref.x, ref.y, ref.phi, ref.v * sigma, ref.omega * sigma,
                               sigma * (ref.omega_dot * sigma + ref.omega * d_sigma))
 
@@ -551,6 +603,10 @@ class ReferenceConfig:
     path_max_yaw_rate: float = param(
         0.2, 'rad/s', 'time_scaling: yaw-rate limit of the reference (keep below the '
         'generator max_yaw_rate)', minimum=0.0, exclusive_minimum=True)
+    path_progress_rate_limit: float = param(
+        0.5, '1/s', 'time_scaling: largest change of the progress rate ds/dt per second '
+        'of path (the speed changes by at most this fraction of the path speed per '
+        'second, and slows before a sharp bend)', minimum=0.01, maximum=100.0)
 
     def validate(self) -> None:
         if len(self.waypoints_x) != len(self.waypoints_y):
@@ -581,7 +637,8 @@ def make_reference(config: ReferenceConfig | None = None) -> Reference:
     config.validate()
     base = _make_base_reference(config)
     if config.time_scaling:
-        return TimeScaled(base, config.path_max_speed, config.path_max_yaw_rate)
+        return TimeScaled(base, config.path_max_speed, config.path_max_yaw_rate,
+                          config.path_progress_rate_limit)
     return base
 
 
