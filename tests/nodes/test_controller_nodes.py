@@ -386,8 +386,6 @@ def test_eso_lockstep_equals_the_core_whatever_the_arrival_order(context, harnes
     assert harness.node.diagnostics.compute_count == len(samples)
 
 
-@pytest.mark.parametrize('section', [{'epsilon': 0.02, 'estimator': 'paper'},
-                                     {'longitudinal_bandwidth': 30.0}])
 def test_eso_lockstep_completes_a_gps_tick_without_a_fix(context, harnesses):
     # A dropout: the simulator publishes a NavSatFix with status NO_FIX at the GPS tick;
     # the set completes without a fix, as the runner skips it.
@@ -399,6 +397,8 @@ def test_eso_lockstep_completes_a_gps_tick_without_a_fix(context, harnesses):
         assert_estimate_equal(msg, exp, s['stamp'])
 
 
+@pytest.mark.parametrize('section', [{'epsilon': 0.02, 'estimator': 'paper'},
+                                     {'longitudinal_bandwidth': 30.0}])
 def test_eso_epsilon_from_a_params_file_changes_the_estimate_as_the_core_predicts(
         params_context, harnesses, section):
     # The paper's ESOs (ε) and the default gyro estimator (its x_v ESO's bandwidth,
