@@ -178,7 +178,7 @@ PAPER_DESIGN: dict[str, dict[str, Any]] = {
     'eso': {'estimator': 'paper'},
     'arc': {'adaptation_dead_zone': 0.0, 'adaptation_normalisation': 0.0,
             'adaptation_leakage': 0.0, 'adapt_while_saturated': True},
-    'trajectory_generator': {'heading_design': 'paper', 'lambda3': 1.0},
+    'trajectory_generator': {'heading_design': 'paper'},
     'reference': {'time_scaling': False},
     'mpc': dict(PAPER_MPC_SETTINGS),
 }
