@@ -74,8 +74,8 @@ def test_lambda1_stops_growing_below_the_minimum_design_speed():
 def test_reversed_heading_three_metres_off_is_recovered_in_seconds():
     # A line at 0.5 m/s, started 3 m to its side with the heading reversed, no
     # disturbance. Measured: the pole-placed loop (ω_n 1.2 rad/s, ζ 1) stays within 0.2 m
-    # of the line after 12.6 s (0.74 m overshoot, with ω_d saturated at 0.3 rad/s for the
-    # turn); the paper's λ2 = 0.1 (ζ ≈ 0.1) is still 0.2 m off after 45 s (7 m
+    # of the line after 13.4 s (1.4 m overshoot, with ω_d saturated at 0.3 rad/s for the
+    # turn); the paper's design (λ2 = 0.1, ζ ≈ 0.1) is still 0.2 m off after 45 s (6.9 m
     # overshoot). Bounds: 20 s; beyond 45 s.
     base = {'duration': 45.0,
             'reference': {'kind': 'line', 'line_speed': 0.5},
