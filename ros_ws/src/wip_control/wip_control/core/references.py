@@ -423,6 +423,9 @@ class TimeScaled(Reference):
     step : grid [s].
     """
 
+    #: Largest step ahead of the sampled times that one call may integrate [s].
+    MAX_EXTENSION = 3600.0
+
     def __init__(self, base: Reference, max_speed: float, max_yaw_rate: float,
                  rate_limit: float = 0.5, step: float = 0.01) -> None:
         if not (max_speed > 0.0 and max_yaw_rate > 0.0 and rate_limit > 0.0
@@ -500,12 +503,22 @@ class TimeScaled(Reference):
             r_list.append(self.rate_at(s_next))
 
     def progress(self, t: float) -> float:
-        """s(t) [s of the base reference]; s = σ(0) t before t = 0."""
+        """s(t) [s of the base reference]; s = σ(0) t before t = 0.
+
+        Raises ValueError for a time more than ``MAX_EXTENSION`` s beyond the times
+        sampled so far: s(t) is integrated from t = 0, so a jump far ahead (a clock
+        jump, not a run) would take minutes.
+        """
         if not math.isfinite(t):
             raise ValueError(f'TimeScaled: time must be finite, got {t!r}')
         if t <= 0.0:
             return self._rate[0] * t
         n = int(t / self.step)
+        known = (len(self._s) - 1) * self.step
+        if t > known + self.MAX_EXTENSION:
+            raise ValueError(f'TimeScaled: t = {t:g} s is more than {self.MAX_EXTENSION:g} s '
+                             f'beyond the times sampled so far ({known:g} s); the '
+                             'time-scaled reference is integrated from t = 0')
         self._extend(n + 1)
         h = self.step
         u = t / h - n
