@@ -84,13 +84,15 @@ def test_rerun_of_unchanged_controllers_reproduces_the_recording(recorded_bag, t
 def test_changing_an_eso_gain_changes_estimates_and_torques(recorded_bag, tmp_path):
     bag, _, result = recorded_bag
     scenario_file = tmp_path / 'slower_eso.yaml'
-    scenario_file.write_text('duration: 3.0\neso:\n  epsilon: 0.02\n')
+    scenario_file.write_text('duration: 3.0\neso:\n  tilt_rate_bandwidth: 20.0\n'
+                             '  yaw_rate_bandwidth: 10.0\n')
     out = tmp_path / 'slower'
     assert main([str(bag), '--scenario', str(scenario_file), '--out', str(out),
                  '--no-figures', '--quiet']) == 0
     comparison = json.loads((out / 'comparison.json').read_text())
-    # Doubling epsilon halves the observer bandwidth (poles at roots(alpha)/epsilon): the
-    # disturbance estimates lag visibly during the start-up transient. "Visibly" = more
+    # Halving the rate observers' bandwidths (the default gyro estimator; with the
+    # paper's ESOs, doubling epsilon does the same): the disturbance estimates lag
+    # visibly during the start-up transient. "Visibly" = more
     # than 5 % of the recorded range, i.e. 1e5 times the reproduction tolerance.
     estimate = comparison['estimate']['fields']
     for field in ('f1', 'f3'):
@@ -124,10 +126,11 @@ def test_timing_rules_for_a_bag_without_clock(recorded_bag, tmp_path):
     # The same run recorded without /clock, as in real time: 'auto' picks the receive
     # order. Here every message of a tick has the same log time, so the newest command
     # received before a tick is the one stamped t_(k-1), exactly as with stamps: the three
-    # ESO channels and the yaw ARC reproduce to the same tolerance. A GPS fix received
-    # with (not before) the tick's samples is used at the next tick, as by the real-time
-    # ESO node, so the planar position (and the commands and drive torque built on it) may
-    # differ; with --timing stamps everything reproduces again.
+    # ESO channels reproduce to the same tolerance. A GPS fix received with (not before)
+    # the tick's samples is used at the next tick, as by the real-time ESO node, so the
+    # planar position (and the commands, yaw and drive torques built on it) may differ
+    # (the yaw ARC did reproduce with the paper's design only because ω_d sat on its
+    # limit at the start); with --timing stamps everything reproduces again.
     _, _, result = recorded_bag
     scenario = scenario_from_mapping({'duration': DURATION})
     bag = tmp_path / 'no_clock'
@@ -137,7 +140,6 @@ def test_timing_rules_for_a_bag_without_clock(recorded_bag, tmp_path):
     for field in ('phi', 'omega', 'f1', 'x_v', 'v', 'f2', 'theta', 'theta_dot', 'f3'):
         assert comparison['estimate']['fields'][field]['max_abs_difference'] <= (
             REPRODUCE_TOLERANCE), field
-    assert _worst(comparison['arc']) <= REPRODUCE_TOLERANCE
     metrics, comparison = rerun(bag, tmp_path / 'stamps', figures=False, quiet=True,
                                 timing='stamps')
     assert metrics['rerun']['timing'] == 'stamps'

@@ -11,9 +11,12 @@ from wip_control.core.arc import AdaptiveRobustYawController, ArcConfig
 from wip_control.core.config import ConfigError, from_mapping
 from wip_control.core.model import input_gains
 from wip_control.core.params import WipParameters
+from wip_control.core.scenario import PAPER_DESIGN
 
 G1 = input_gains(WipParameters(), 0.05)[0]  # ≈ 2.55 rad/s² per N·m
-CONFIG = ArcConfig()
+# The paper's law (13): the tests of this module check it; the robust modifications
+# (the default) are tested in test_robust_adaptation.py.
+CONFIG = from_mapping(ArcConfig, PAPER_DESIGN['arc'], 'arc')
 H = 0.005
 
 

@@ -12,6 +12,9 @@ from wip_control.core.eso import (EsoConfig, ExtendedStateObserver, StateEstimat
 from wip_control.core.model import input_gains, nominal_terms
 from wip_control.core.params import WipParameters
 
+# The paper's ESOs, eqs. (4), (8) (the gyro estimator is tested in test_gyro_estimator.py).
+PAPER_ESO = EsoConfig(estimator='paper')
+
 PAPER_GAINS = (6.0, 11.0, 6.0)
 H = 0.005  # measurement period [s]
 
@@ -314,7 +317,9 @@ def simulate_wip(config, duration, params=WipParameters()):
             k4 = derivative(state + dt * k3, tau_v, tau_w, ts + dt)
             state = state + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         t1 = t + H
-        est = observer.update(t1, state[0], state[1], state[2], tau_v, tau_w)
+        # The gyro rates (θ̇, ϕ̇) are passed too: the paper's ESOs ignore them.
+        est = observer.update(t1, state[0], state[1], state[2], tau_v, tau_w,
+                              (state[5], state[3]))
         terms = nominal_terms(params, state[2], state[3], state[5])
         truth = (state[3], state[4], state[5], terms.f1 + math.sin(0.5 * t1),
                  terms.f2 + 0.3 * math.cos(2.0 * t1), terms.f3, terms.g1)
@@ -328,7 +333,8 @@ def simulate_wip(config, duration, params=WipParameters()):
 
 def test_wip_observer_estimates_velocities_and_lumped_disturbances_of_the_model():
     epsilon = 0.01
-    rows = simulate_wip(EsoConfig(epsilon=epsilon, yaw_input_gain_scale=1.0), 3.0)
+    rows = simulate_wip(EsoConfig(estimator='paper', epsilon=epsilon,
+                                  yaw_input_gain_scale=1.0), 3.0)
     truth = np.array([r[0][:6] for r in rows])
     est = np.array([(r[1].omega, r[1].v, r[1].theta_dot, r[1].f1, r[1].f2, r[1].f3)
                     for r in rows])
@@ -347,7 +353,7 @@ def test_wip_observer_estimates_velocities_and_lumped_disturbances_of_the_model(
 def test_yaw_channel_with_scaled_input_gain_absorbs_the_error_into_f1():
     # ĝ1 = 1.2 g1 (paper): the ESO sees ω̇ = f1 + g1 τω = (f1 − 0.2 g1 τω) + ĝ1 τω, so
     # f̂1 converges to f1 − 0.2 g1 τω, the "small error in f1" of Fig. 8.
-    rows = simulate_wip(EsoConfig(), 3.0)
+    rows = simulate_wip(PAPER_ESO, 3.0)
     f1_true = np.array([r[0][3] for r in rows])
     bias = np.array([-0.2 * r[0][6] * r[2] for r in rows])
     f1_hat = np.array([r[1].f1 for r in rows])
@@ -362,7 +368,7 @@ def test_yaw_channel_with_scaled_input_gain_absorbs_the_error_into_f1():
 
 
 def test_initial_estimate_is_the_initial_positions_and_a_first_update_at_t0_is_a_no_op():
-    observer = WipStateObserver(WipParameters(), EsoConfig(), (0.5, 0.1, 0.05))
+    observer = WipStateObserver(WipParameters(), PAPER_ESO, (0.5, 0.1, 0.05))
     expected = StateEstimate(0.5, 0.0, 0.0, 0.1, 0.0, 0.0, 0.05, 0.0, 0.0, 0.01)
     assert observer.estimate == expected
     assert observer.update(0.0, 0.5, 0.1, 0.05, 3.0, 0.2) == expected
@@ -376,7 +382,7 @@ def test_initial_estimate_is_the_initial_positions_and_a_first_update_at_t0_is_a
     dict(phi_meas=math.nan), dict(xv_meas=math.inf), dict(theta_meas=-math.inf),
     dict(tau_v_applied=math.nan), dict(tau_omega_applied=math.inf), dict(t=math.nan)])
 def test_non_finite_inputs_raise_and_leave_the_state_unchanged(bad):
-    observer = WipStateObserver(WipParameters(), EsoConfig(), (0.0, 0.0, 0.0))
+    observer = WipStateObserver(WipParameters(), PAPER_ESO, (0.0, 0.0, 0.0))
     observer.update(H, 0.01, 0.01, 0.01, 1.0, 0.1)
     before = observer.estimate
     args = dict(t=2 * H, phi_meas=0.02, xv_meas=0.02, theta_meas=0.0, tau_v_applied=1.0,
@@ -398,7 +404,7 @@ def test_single_channel_rejects_non_finite_input():
 
 
 def test_time_going_backwards_raises():
-    observer = WipStateObserver(WipParameters(), EsoConfig(), (0.0, 0.0, 0.0))
+    observer = WipStateObserver(WipParameters(), PAPER_ESO, (0.0, 0.0, 0.0))
     observer.update(2 * H, 0.0, 0.0, 0.0, 0.0, 0.0)
     with pytest.raises(ValueError, match='backwards'):
         observer.update(H, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -406,8 +412,8 @@ def test_time_going_backwards_raises():
 
 def test_wrapped_yaw_measurements_give_the_same_estimate_as_continuous_ones():
     # A vehicle spinning at 2 rad/s through ±π: the IMU reports yaw in (−π, π].
-    a = WipStateObserver(WipParameters(), EsoConfig(), (3.0, 0.0, 0.0))
-    b = WipStateObserver(WipParameters(), EsoConfig(), (3.0, 0.0, 0.0))
+    a = WipStateObserver(WipParameters(), PAPER_ESO, (3.0, 0.0, 0.0))
+    b = WipStateObserver(WipParameters(), PAPER_ESO, (3.0, 0.0, 0.0))
     for k in range(1, 200):
         phi = 3.0 + 2.0 * k * H
         ea = a.update(k * H, phi, 0.0, 0.0, 0.0, 0.0)
@@ -422,7 +428,7 @@ def test_input_gains_use_the_tilt_estimate():
     # Constant τυ on a "frozen" tilt measurement: f̂3 must cancel g3(θ̂)τυ exactly, which
     # only happens if the tilt channel used g3 at θ̂ = 0.3.
     params = WipParameters()
-    observer = WipStateObserver(params, EsoConfig(), (0.0, 0.0, 0.3))
+    observer = WipStateObserver(params, PAPER_ESO, (0.0, 0.0, 0.3))
     for k in range(1, 400):
         est = observer.update(k * H, 0.0, 0.0, 0.3, 5.0, 0.0)
     g1, g2, g3 = input_gains(params, 0.3)

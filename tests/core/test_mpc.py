@@ -598,7 +598,8 @@ def test_offset_free_push_at_stop_and_hold_leaves_no_speed_offset():
 # ---------------------------------------------------------------- closed loop, in-process runner
 # Whole graph in one process (ESO, trajectory generator, ARC, mixer): the scenarios of the
 # issue's findings, with the default (robust) MPC and, where the defect is the point, with
-# PAPER_MPC_SETTINGS, which must still show it.
+# PAPER_MPC_SETTINGS or the whole paper design (`design: paper`: its MPC, ESOs and
+# generator), which must still show it.
 
 def _run(mapping):
     from wip_control.core.runner import run_scenario
@@ -651,7 +652,8 @@ def test_at_the_speed_limit_a_push_is_braked_back_under_the_limit_within_2_s():
     # the end of the pulse (measured: 1.2 s), and never over it again (no run-away).
     over = np.abs(v) > limit * 1.002
     assert t[over].max() <= 10.1 + 2.0
-    paper, truth_paper = _run(line_at_the_speed_limit(dict(PAPER_MPC_SETTINGS)))
+    # The paper's design as a whole (its MPC, ESOs and generator: `design: paper`).
+    paper, truth_paper = _run({**line_at_the_speed_limit({}), 'design': 'paper'})
     late = truth_paper['t'] > 15.0
     assert truth_paper['v'][late].min() > limit + 0.5   # the defect: it runs away
 
@@ -694,7 +696,7 @@ def test_full_plant_standing_still_decays():
     early, late = theta[t < 20.0].max(), theta[t >= 40.0].max()
     assert late < 0.3 * early
     assert np.ptp(x[t >= 40.0]) < 0.3 * np.ptp(x[t < 20.0])
-    paper, truth_paper = _run({**mapping, 'mpc': dict(PAPER_MPC_SETTINGS)})
+    paper, truth_paper = _run({**mapping, 'design': 'paper'})  # its MPC and estimator
     t = truth_paper['t']
     theta_paper = np.abs(truth_paper['theta'])
     assert theta_paper[t >= 40.0].max() > theta_paper[t < 20.0].max()  # grows

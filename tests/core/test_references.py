@@ -1,12 +1,13 @@
 """Reference trajectories: analytic derivatives, the paper's trifolium, config checks."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from wip_control.core.config import ConfigError, from_mapping
-from wip_control.core.references import (Circle, FigureEight, ReferenceConfig,
+from wip_control.core.references import (Circle, FigureEight, ReferenceConfig, TimeScaled,
                                          ReferenceState, StraightLine, Trifolium, Waypoints,
                                          make_reference)
 
@@ -163,7 +164,10 @@ def test_bad_waypoint_lists_are_rejected(points, message):
 # --- Config ----------------------------------------------------------------------------
 
 def test_make_reference_defaults_to_the_papers_trifolium():
-    ref = make_reference()
+    # Default: the trifolium's path, time-scaled (path following, TimeScaled).
+    timed = make_reference()
+    assert isinstance(timed, TimeScaled)
+    ref = timed.base
     assert isinstance(ref, Trifolium)
     assert ref.size == 3.0 and ref.angular_frequency == pytest.approx(math.pi / 45)
     assert isinstance(ref.sample(1.0), ReferenceState)
@@ -176,7 +180,10 @@ def test_make_reference_builds_each_kind_from_yaml_data(kind, cls):
     config = from_mapping(ReferenceConfig, {'kind': kind, 'circle_radius': 3.0,
                                             'waypoints_x': [0, 2, 2],
                                             'waypoints_y': [0, 0, 2]}, 'reference')
-    assert isinstance(make_reference(config), cls)
+    timed = make_reference(config)
+    assert isinstance(timed, TimeScaled) and isinstance(timed.base, cls)
+    untimed = make_reference(dataclasses.replace(config, time_scaling=False))
+    assert isinstance(untimed, cls)
 
 
 def test_unknown_keys_and_bad_values_are_rejected_naming_the_key():

@@ -201,3 +201,43 @@ def test_bad_inputs_raise_value_error():
         geodetic_to_local(91.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     with pytest.raises(ValueError, match='seed'):
         Sensors(PARAMS, seed=-3)
+
+
+# ---------------------------------------------------------------- real-sensor models
+
+STATE = np.array([1.0, 2.0, 0.3, 4.0, 0.05, 0.2, 0.5, -0.1])
+
+
+def test_gyro_bias_adds_to_the_rates():
+    sensors = Sensors(WipParameters(), SensorConfig(gyro_pitch_bias=0.02,
+                                                    gyro_yaw_bias=-0.01))
+    assert sensors.imu_rates(STATE) == pytest.approx((-0.1 + 0.02, 0.2 - 0.01), abs=1e-15)
+
+
+def test_gps_dropouts_follow_the_configured_probability_on_their_own_stream():
+    # 4000 fixes at p = 0.3: binomial std √(n p (1 − p)) = 29, bound 4 std. The dropout
+    # draws do not shift the GPS noise sequence (separate stream).
+    config = SensorConfig(gps_dropout_probability=0.3, gps_noise_std=0.1)
+    sensors = Sensors(WipParameters(), config, seed=5)
+    reference = Sensors(WipParameters(), dataclasses.replace(
+        config, gps_dropout_probability=0.0), seed=5)
+    available = [sensors.gps_fix_available() for _ in range(4000)]
+    assert abs(available.count(False) - 1200) < 4 * 29
+    assert sensors.gps(STATE) == reference.gps(STATE)
+    assert all(Sensors(WipParameters()).gps_fix_available() for _ in range(10))
+
+
+def test_delays_return_the_states_of_earlier_samples():
+    # 200 Hz IMU: sensor_delay 0.01 s = 2 samples, gps_latency 0.1 s = 20 samples; the
+    # first state is repeated until the history is long enough.
+    config = SensorConfig(sensor_delay=0.01, gps_latency=0.1)
+    sensors = Sensors(WipParameters(), config)
+    assert (sensors.sensor_delay_samples, sensors.gps_latency_samples) == (2, 20)
+    states = [np.full(8, float(k)) for k in range(30)]
+    seen = [sensors.delayed(s) for s in states]
+    for k, (sensed, gps) in enumerate(seen):
+        assert sensed[0] == max(0, k - 2)
+        assert gps[0] == max(0, k - 20)
+    # No delay: the state itself, nothing stored.
+    plain = Sensors(WipParameters())
+    assert plain.delayed(STATE)[0] is STATE and plain.delayed(STATE)[1] is STATE

@@ -13,7 +13,8 @@ from wip_control.core.trajectory_generator import (TrajectoryGenerator,
                                                    TrajectoryGeneratorConfig,
                                                    tracking_errors, unsaturated_commands)
 
-CONFIG = TrajectoryGeneratorConfig()
+# Eq. (9) with the paper's lambda1, lambda2 (the pole-placed design: test_heading_design.py).
+CONFIG = TrajectoryGeneratorConfig(heading_design='paper', lambda3=1.0)
 DT = 0.005
 
 finite = dict(allow_nan=False, allow_infinity=False)
@@ -42,7 +43,7 @@ def test_errors_are_in_the_body_frame():
 
 def test_commands_follow_eq_9_inside_the_limits():
     ref = ReferenceState(0.0, 0.0, 0.0, 0.4, 0.05, 0.0)
-    gen = TrajectoryGenerator()
+    gen = TrajectoryGenerator(CONFIG)
     cmd = gen.step(0.0, ref, -0.2, -0.1, -0.05)
     x_e, y_e, phi_e = tracking_errors(ref, -0.2, -0.1, -0.05)
     sinc = math.sin(phi_e) / phi_e
@@ -60,7 +61,7 @@ def test_commands_follow_eq_9_inside_the_limits():
 @given(ref=references, poses=st.lists(st.tuples(positions, positions, angles),
                                       min_size=1, max_size=6))
 def test_commands_stay_within_their_limits_for_arbitrary_errors(ref, poses):
-    gen = TrajectoryGenerator()
+    gen = TrajectoryGenerator(CONFIG)
     for k, (x, y, phi) in enumerate(poses):
         cmd = gen.step(k * DT, ref, x, y, phi)
         # Explicit saturation: exact bounds (copysign of the limit).
@@ -147,7 +148,7 @@ def test_lyapunov_function_decreases_in_closed_loop_simulation_on_a_slow_circle(
 
 
 def test_omega_d_dot_is_zero_while_omega_d_is_saturated_and_constant():
-    gen = TrajectoryGenerator()
+    gen = TrajectoryGenerator(CONFIG)
     ref = ReferenceState(0.0, 0.0, 0.0, 0.6, 0.7, 0.0)  # ω_r = 0.7 > ω_max: petal tip
     cmds = [gen.step(k * DT, ref, 0.0, 0.0, 0.0) for k in range(5)]
     assert [c.omega_d for c in cmds] == [0.3] * 5
@@ -158,7 +159,7 @@ def test_omega_d_dot_tracks_a_ramp_of_omega_d_after_the_filter_lag():
     # Vehicle on the reference: ω_d = ω_r = a t. Backward-Euler filtered derivative of a
     # ramp: ω̇_k − a = (τ/(τ+Δt))(ω̇_{k−1} − a), so after 1 s (20 τ) it equals a to
     # (0.909)^200 ≈ 6e-9 relative.
-    gen = TrajectoryGenerator()
+    gen = TrajectoryGenerator(CONFIG)
     a = 0.1
     for k in range(201):
         t = k * DT
@@ -171,7 +172,7 @@ def test_omega_d_dot_tracks_a_ramp_of_omega_d_after_the_filter_lag():
 
 
 def test_non_finite_inputs_and_time_reversal_raise():
-    gen = TrajectoryGenerator()
+    gen = TrajectoryGenerator(CONFIG)
     ref = ReferenceState(0.0, 0.0, 0.0, 0.3, 0.0, 0.0)
     with pytest.raises(ValueError, match='non-finite'):
         gen.step(0.0, ref, math.nan, 0.0, 0.0)

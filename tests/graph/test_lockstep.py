@@ -20,6 +20,11 @@ closed loop (measured: at most 4e-9 absolute on any recorded value over 10 s):
   r((phi_l + phi_r)/2 + theta), one ulp from the true x_v the runner uses);
 - the nodes take t = stamp_ns / 1e9, which differs from the runner's k * dt by one ulp
   at 13 % of the ticks (5 ms is not a binary fraction).
+
+The default (robust) design amplifies these more than the paper's: the pole-placed
+heading gain λ1 υ_r = ω_n²/υ_r (up to 14 1/s), the filtered derivative giving ω̇_d
+(1/(τ + h) = 18 1/s) and k_ω = 20 turn the 2e-9 m GPS round trip into 7e-8 rad/s² on
+ω̇_d and 1.2e-7 N·m on τω (measured at 8.4 s; every other value below 1e-8).
 """
 
 import math
@@ -51,8 +56,9 @@ SCENARIO = {
     'mpc': {'backend': 'daqp'},
 }
 N_TICKS = 2000  # 10 s at 200 Hz
-# Graph vs runner: measured max 4e-9 (module docstring); 25x margin.
-VALUE_ATOL = 1e-7
+# Graph vs runner: measured max 4e-9 with the paper's design, 1.2e-7 (τω) with the
+# default one (module docstring); 15x margin.
+VALUE_ATOL = 2e-6
 METRIC_RTOL = 1e-7
 # Stamps: t = ns / 1e9 against k * dt, one ulp of t <= 10 s.
 TIME_ATOL = 2e-15

@@ -55,7 +55,8 @@ from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa:
                                                    TrajectoryGeneratorConfig)
 from wip_control.nodes.arc_node import ArcNode, default_alpha_initial  # noqa: E402
 from wip_control.nodes.common import CLOCK_QOS, make_header, ns_to_stamp  # noqa: E402
-from wip_control.nodes.conversions import (mpc_status,  # noqa: E402
+from wip_control.nodes.conversions import (body_rates_from_euler,  # noqa: E402
+                                           euler_rates_from_body, mpc_status,
                                            pitch_yaw_from_quaternion,
                                            quaternion_from_euler)
 from wip_control.nodes.eso_node import EsoNode  # noqa: E402
@@ -204,11 +205,23 @@ def joint_states(stamp_ns, left, right, names=('left_wheel_joint', 'right_wheel_
                       position=[left, right], velocity=[0.0, 0.0], effort=[0.0, 0.0])
 
 
-def imu(stamp_ns, pitch, yaw):
+def imu(stamp_ns, pitch, yaw, rates=(0.0, 0.0)):
+    """Orientation and gyro (the body angular velocity of the Euler rates (θ̇, ϕ̇))."""
     msg = Imu(header=make_header(stamp_ns))
     q = quaternion_from_euler(0.0, pitch, yaw)
     msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = q
+    (msg.angular_velocity.x, msg.angular_velocity.y,
+     msg.angular_velocity.z) = body_rates_from_euler(pitch, *rates)
     return msg
+
+
+def decoded_rates(s):
+    """(θ̇, ϕ̇) as the eso node decodes them from :func:`imu`'s message."""
+    msg = imu(0, s['pitch'], s['yaw'], s['rates'])
+    w = msg.angular_velocity
+    pitch, _ = pitch_yaw_from_quaternion(msg.orientation.x, msg.orientation.y,
+                                         msg.orientation.z, msg.orientation.w)
+    return euler_rates_from_body(pitch, (w.x, w.y, w.z))
 
 
 def gps_fix(stamp_ns, x, y):
@@ -273,8 +286,10 @@ def eso_measurements(n=60):
         right = (x_v + half_turn) / p.wheel_radius - pitch
         gps = (1.0 + 0.5 * t, -2.0 + 0.1 * t) if k % 20 == 0 else None
         applied = (2.0 * math.sin(10.0 * t), 1.5 * math.cos(7.0 * t))  # over [t_k, t_k+1)
+        rates = (-0.15 * math.sin(3.0 * t), 2.0)                         # (θ̇, ϕ̇)
         samples.append(dict(stamp=k * H_NS, left=left, right=right, pitch=pitch,
-                            yaw=math.remainder(yaw, 2 * math.pi), gps=gps, applied=applied))
+                            yaw=math.remainder(yaw, 2 * math.pi), gps=gps, applied=applied,
+                            rates=rates))
     return samples
 
 
@@ -298,9 +313,10 @@ def eso_expected(samples, config=EsoConfig(), applied_before=None, use_gps=True,
         yaw_u = yaw if yaw_u is None else unwrap_next(yaw_u, yaw)
         x_v = wheel_odometry(s['left'], s['right'], pitch, params, 0.0, True)[0]
         if observer is None:
-            observer = WipStateObserver(params, config, (yaw_u, x_v, pitch), initial_time=t)
+            observer = WipStateObserver(params, config, (yaw_u, x_v, pitch), initial_time=t,
+                                        encoders_relative_to_body=True)
         tl, tr = applied_before(k)
-        est = observer.update(t, yaw_u, x_v, pitch, tl + tr, tr - tl)
+        est = observer.update(t, yaw_u, x_v, pitch, tl + tr, tr - tl, decoded_rates(s))
         gps = None
         if use_gps and s['gps'] is not None:
             lat, lon, alt = local_to_geodetic(*s['gps'], *DATUM)
@@ -320,9 +336,13 @@ def run_eso_lockstep(harness, samples, seed=0):
     out = harness.outputs['/wip/state_estimate']
     for k, s in enumerate(samples):
         msgs = [('/joint_states', joint_states(s['stamp'], s['left'], s['right'])),
-                ('/imu/data', imu(s['stamp'], s['pitch'], s['yaw']))]
+                ('/imu/data', imu(s['stamp'], s['pitch'], s['yaw'], s['rates']))]
         if s['gps'] is not None:
             msgs.append(('/gps/fix', gps_fix(s['stamp'], *s['gps'])))
+        elif s.get('dropout'):  # a GPS tick without a fix (status NO_FIX)
+            fix = gps_fix(s['stamp'], 0.0, 0.0)
+            fix.status.status = NavSatStatus.STATUS_NO_FIX
+            msgs.append(('/gps/fix', fix))
         if k:  # The torques applied since the previous sample, stamped with it.
             msgs.append(('/wip/wheel_torques', torques(samples[k - 1]['stamp'],
                                                        *samples[k - 1]['applied'])))
@@ -366,18 +386,34 @@ def test_eso_lockstep_equals_the_core_whatever_the_arrival_order(context, harnes
     assert harness.node.diagnostics.compute_count == len(samples)
 
 
+def test_eso_lockstep_completes_a_gps_tick_without_a_fix(context, harnesses):
+    # A dropout: the simulator publishes a NavSatFix with status NO_FIX at the GPS tick;
+    # the set completes without a fix, as the runner skips it.
+    samples = eso_measurements(45)
+    samples[20] = dict(samples[20], gps=None, dropout=True)
+    harness = eso_harness(harnesses, context)
+    out = run_eso_lockstep(harness, samples)
+    for msg, exp, s in zip(out, eso_expected(samples), samples):
+        assert_estimate_equal(msg, exp, s['stamp'])
+
+
+@pytest.mark.parametrize('section', [{'epsilon': 0.02, 'estimator': 'paper'},
+                                     {'longitudinal_bandwidth': 30.0}])
 def test_eso_epsilon_from_a_params_file_changes_the_estimate_as_the_core_predicts(
-        params_context, harnesses):
-    ctx = params_context('eso', {'eso': {'epsilon': 0.02}})
+        params_context, harnesses, section):
+    # The paper's ESOs (ε) and the default gyro estimator (its x_v ESO's bandwidth,
+    # reported as ε = 1/ω_l).
+    ctx = params_context('eso', {'eso': section})
     samples = eso_measurements(30)
     harness = eso_harness(harnesses, ctx)
-    assert harness.node.get_parameter('eso.epsilon').value == 0.02
+    config = EsoConfig(**section)
+    assert harness.node.get_parameter('eso.epsilon').value == config.epsilon
     out = run_eso_lockstep(harness, samples)
-    expected = eso_expected(samples, EsoConfig(epsilon=0.02))
+    expected = eso_expected(samples, config)
     default = eso_expected(samples)
     for msg, exp, s in zip(out, expected, samples):
         assert_estimate_equal(msg, exp, s['stamp'])
-    assert out[-1].epsilon == 0.02
+    assert out[-1].epsilon == (0.02 if 'epsilon' in section else 1.0 / 30.0)
     assert out[-1].f2 != default[-1][0].f2  # the change is visible in the output
 
 
@@ -427,7 +463,7 @@ def test_eso_realtime_updates_once_per_imu_and_encoder_pair_with_the_latest_torq
     for k, s in enumerate(samples):
         harness.publish('/wip/wheel_torques', torques(s['stamp'] - 1, *s['applied']))
         harness.spin_until(lambda: received['wheel_torques'] == k + 1, f'torques {k}')
-        first, second = (('/imu/data', imu(s['stamp'], s['pitch'], s['yaw'])),
+        first, second = (('/imu/data', imu(s['stamp'], s['pitch'], s['yaw'], s['rates'])),
                          ('/joint_states', joint_states(s['stamp'], s['left'], s['right'])))
         if k % 2:
             first, second = second, first
@@ -453,7 +489,7 @@ def test_eso_lockstep_waits_for_the_fix_at_gps_ticks_and_drops_fixes_off_them(
     dropped = harness.node.diagnostics.dropped
     s = eso_measurements(1)[0]
     harness.publish('/joint_states', joint_states(0, s['left'], s['right']))
-    harness.publish('/imu/data', imu(0, s['pitch'], s['yaw']))
+    harness.publish('/imu/data', imu(0, s['pitch'], s['yaw'], s['rates']))
     harness.spin_for(0.03)
     assert out == []                       # t = 0 is a GPS tick: the set needs the fix
     harness.publish('/gps/fix', gps_fix(0, 1.0, 2.0))
@@ -461,7 +497,7 @@ def test_eso_lockstep_waits_for_the_fix_at_gps_ticks_and_drops_fixes_off_them(
     harness.publish('/gps/fix', gps_fix(H_NS, 5.0, 5.0))   # k = 1: not a GPS tick
     harness.publish('/wip/wheel_torques', torques(0, 0.0, 0.0))
     harness.publish('/joint_states', joint_states(H_NS, s['left'], s['right']))
-    harness.publish('/imu/data', imu(H_NS, s['pitch'], s['yaw']))
+    harness.publish('/imu/data', imu(H_NS, s['pitch'], s['yaw'], s['rates']))
     harness.spin_until(lambda: len(out) == 2, 'the estimate at t = h')
     assert dropped[('gps', 'off the GPS ticks')] == 1
     assert (out[1].x, out[1].y) == (out[0].x, out[0].y)   # the off-tick fix was not used
@@ -912,7 +948,8 @@ def test_six_nodes_in_lockstep_reproduce_the_in_process_runner(context, harnesse
         stamp = k * H_NS
         harness.publish('/clock', clock(stamp))
         harness.publish('/joint_states', joint_states(stamp, *sensors.encoders(state)))
-        harness.publish('/imu/data', imu(stamp, *sensors.imu(state)))
+        pitch, yaw = sensors.imu(state)
+        harness.publish('/imu/data', imu(stamp, pitch, yaw, sensors.imu_rates(state)))
         if k % 20 == 0:
             harness.publish('/gps/fix', gps_fix(stamp, *sensors.gps(state)))
         harness.spin_until(lambda: len(out) == k + 1, f'wheel torques at step {k}')

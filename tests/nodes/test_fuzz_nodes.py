@@ -447,7 +447,7 @@ def test_overflowing_finite_input_does_not_poison_the_trajectory_generator(conte
 
 
 def test_overflowing_finite_input_restarts_the_eso_instead_of_poisoning_it(context):
-    """A wheel angle of 1e306 rad (x_v ~ 1e305 m) is finite but overflows the observer
+    """A wheel angle of 5e307 rad (x_v ~ 1e307 m) is finite but overflows the observer
     (f̂2 = inf, then NaN): no estimate is published, and the observer restarts from the
     next measurement instead of staying NaN for good."""
     node = make_node(context, EsoNode, 'realtime')
@@ -461,14 +461,16 @@ def test_overflowing_finite_input_restarts_the_eso_instead_of_poisoning_it(conte
                 position=[angle, angle]))
             callbacks['/imu/data'](_imu(make_header(stamp), 0.01, 0.2))
         sample(0, 0.0)
-        sample(H_NS, 1e306)
-        sample(2 * H_NS, 1e306)
+        # (5e307 rad: the default gyro estimator's x_v ESO has gains up to ~1e3 per
+        # sample, so 1e306 no longer overflows it; the paper's ESOs overflow at 1e306.)
+        sample(H_NS, 5e307)
+        sample(2 * H_NS, 5e307)
         sample(3 * H_NS, 0.0)
         sample(4 * H_NS, 0.001)
         estimates = [m for m in outputs.messages if isinstance(m, StateEstimateMsg)]
         for m in estimates:
             assert_finite(m)
-        # 0: normal. H: the jump to 1e305 m overflows: dropped, restart. 2H: restarted at
+        # 0: normal. H: the jump to 1e307 m overflows: dropped, restart. 2H: restarted at
         # the measured 1e305 m (finite, published). 3H: the jump back overflows: dropped,
         # restart. 4H: restarted at the measured 0 m.
         assert [m.header.stamp.nanosec for m in estimates] == [0, 2 * H_NS, 4 * H_NS]

@@ -32,8 +32,8 @@ from wip_control.core.references import make_reference  # noqa: E402
 from wip_control.core.runner import initial_state  # noqa: E402
 from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_control.core.sensors import geodetic_to_local, Sensors  # noqa: E402
-from wip_control.nodes.conversions import (pitch_yaw_from_quaternion,  # noqa: E402
-                                           quaternion_from_euler)
+from wip_control.nodes.conversions import (  # noqa: E402
+    euler_rates_from_body, pitch_yaw_from_quaternion, quaternion_from_euler)
 
 pytestmark = pytest.mark.ros
 
@@ -50,6 +50,7 @@ NOISY = {
     'seed': 7,
     'plant': {'model': 'full'},
     'sensors': {'imu_pitch_noise_std': 0.01, 'imu_yaw_noise_std': 0.02, 'gps_noise_std': 0.5,
+                'gyro_noise_std': 0.05, 'gyro_pitch_bias': 0.01,
                 'encoder_counts_per_rev': 4096, 'gps_datum_latitude': -33.8688,
                 'gps_datum_longitude': 151.2093, 'gps_datum_altitude': 58.0},
     'disturbances': {'tilt': [{'kind': 'sine', 'amplitude': 0.3, 'frequency': 2.0}]},
@@ -149,10 +150,15 @@ def check_sensors(harness, sensors, state, index, gps_expected):
     # The plant's quaternion is the shared ZYX convention with roll 0.
     assert (q.x, q.y, q.z, q.w) == pytest.approx(quaternion_from_euler(0.0, pitch, yaw),
                                                  abs=1e-15)
-    rates = sensors.imu_rates(state)  # noise-free here: draws nothing from the IMU stream
+    rates = sensors.imu_rates(state)  # drawn after the angles, as the plant node does
     imu = harness.received['imu'][index]
-    assert (imu.angular_velocity.y, imu.angular_velocity.z) == rates
+    # The gyro reads the body angular velocity (x = −ϕ̇ sin θ, y = θ̇, z = ϕ̇ cos θ); the
+    # eso node's inverse returns the Euler rates to rounding.
+    w = imu.angular_velocity
+    assert euler_rates_from_body(pitch, (w.x, w.y, w.z)) == pytest.approx(rates, abs=1e-15)
+    assert w.y == rates[0]
     if gps_expected:
+        assert sensors.gps_fix_available()  # no dropouts configured: draws nothing
         x, y = sensors.gps(state)
         fix = harness.received['gps'][-1]
         config = sensors.config

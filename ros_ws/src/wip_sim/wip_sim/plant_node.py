@@ -88,7 +88,8 @@ from wip_control.core.runner import initial_state
 from wip_control.core.scenario import load_scenario
 from wip_control.core.sensors import local_to_geodetic, Sensors
 from wip_control.nodes.common import run_simulator_node, stamp_to_ns
-from wip_control.nodes.conversions import quaternion_from_euler, wheel_torques_from_msg
+from wip_control.nodes.conversions import (body_rates_from_euler, quaternion_from_euler,
+                                           wheel_torques_from_msg)
 from wip_control.nodes.parameters import declare_plain
 
 EXIT_OK = 0
@@ -206,10 +207,8 @@ class PlantNode(Node):
         self.wheel_radius = true_params.wheel_radius
         self.half_track = 0.5 * true_params.track_width
         self.relative_to_body = scenario.sensors.encoders_relative_to_body
-        # The gyro rates share the IMU's random stream: drawing them would shift the IMU
-        # angle noise against the runner, which does not sample rates. With gyro noise the
-        # Imu message therefore carries no angular velocity (covariance[0] = -1, REP 145).
-        self.publish_rates = scenario.sensors.gyro_noise_std == 0.0
+        # The gyro rates are drawn right after the IMU angles, as in the runner (same
+        # random stream, same order): the Imu message always carries the angular velocity.
         self.k = 0
         self.tau = (0.0, 0.0)  # applied over the previous control period [N m]
         self.started = False
@@ -261,12 +260,9 @@ class PlantNode(Node):
             EXACT, 0.0, 0.0,
             0.0, c.imu_pitch_noise_std ** 2, 0.0,
             0.0, 0.0, c.imu_yaw_noise_std ** 2]
-        if self.publish_rates:
-            self._imu_msg.angular_velocity_covariance = [
-                EXACT, 0.0, 0.0, 0.0, c.gyro_noise_std ** 2, 0.0, 0.0, 0.0,
-                c.gyro_noise_std ** 2]
-        else:
-            self._imu_msg.angular_velocity_covariance[0] = -1.0
+        self._imu_msg.angular_velocity_covariance = [
+            EXACT, 0.0, 0.0, 0.0, c.gyro_noise_std ** 2, 0.0, 0.0, 0.0,
+            c.gyro_noise_std ** 2]
         self._imu_msg.linear_acceleration_covariance[0] = -1.0  # not provided
         self._gps_msg = NavSatFix()
         self._gps_msg.header.frame_id = gps_frame
@@ -387,8 +383,11 @@ class PlantNode(Node):
     def _publish_sensors(self, stamp_ns, k, state) -> None:
         sensors = self.sensors
         # The runner's order: encoders, IMU, then GPS on GPS ticks (separate noise streams).
+        # Delays (sensors.sensor_delay, gps_latency): the states the sensors see.
+        state, gps_seen = sensors.delayed(state)
         left, right = sensors.encoders(state)
         pitch, yaw = sensors.imu(state)
+        pitch_rate, yaw_rate = sensors.imu_rates(state)
 
         joint = self._joint_msg
         set_stamp(joint.header.stamp, stamp_ns)
@@ -406,17 +405,24 @@ class PlantNode(Node):
         set_stamp(imu.header.stamp, stamp_ns)
         q = imu.orientation
         q.x, q.y, q.z, q.w = quaternion_from_euler(0.0, pitch, yaw)
-        if self.publish_rates:
-            pitch_rate, yaw_rate = sensors.imu_rates(state)
-            imu.angular_velocity.y = pitch_rate
-            imu.angular_velocity.z = yaw_rate
+        # A gyro measures the body's angular velocity, (−ϕ̇ sin θ, θ̇, ϕ̇ cos θ) in
+        # base_link; it is written at the published pitch so that the eso node's inverse
+        # (conversions.euler_rates_from_body) returns the runner's (θ̇, ϕ̇) to rounding.
+        (imu.angular_velocity.x, imu.angular_velocity.y,
+         imu.angular_velocity.z) = body_rates_from_euler(pitch, pitch_rate, yaw_rate)
         self.imu_pub.publish(imu)
 
         if k % self.gps_every == 0:
-            x, y = sensors.gps(state)
             fix = self._gps_msg
             set_stamp(fix.header.stamp, stamp_ns)
-            fix.latitude, fix.longitude, fix.altitude = local_to_geodetic(x, y, *self.datum)
+            if sensors.gps_fix_available():
+                x, y = sensors.gps(gps_seen)
+                fix.status.status = NavSatStatus.STATUS_FIX
+                fix.latitude, fix.longitude, fix.altitude = local_to_geodetic(
+                    x, y, *self.datum)
+            else:  # a dropout: the receiver reports no fix (the eso node skips it)
+                fix.status.status = NavSatStatus.STATUS_NO_FIX
+                fix.latitude = fix.longitude = fix.altitude = math.nan
             self.gps_pub.publish(fix)
 
     def _step(self, tau_left: float, tau_right: float) -> None:

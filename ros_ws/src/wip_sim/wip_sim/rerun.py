@@ -105,8 +105,10 @@ from wip_control.core.scenario import (load_scenario, Scenario, scenario_from_ma
                                        scenario_to_mapping)
 from wip_control.core.sensors import local_to_geodetic, Sensors, wheel_odometry
 from wip_control.core.trajectory_generator import TrajectoryGenerator
-from wip_control.nodes.conversions import (arc_to_msg, command_to_msg, estimate_to_msg,
-                                           gps_local_position, imu_pitch_yaw, InvalidMessage,
+from wip_control.nodes.conversions import (arc_to_msg, body_rates_from_euler,
+                                           command_to_msg, estimate_to_msg,
+                                           euler_rates_from_body, gps_local_position,
+                                           imu_has_rates, imu_pitch_yaw, InvalidMessage,
                                            mpc_to_msg, quaternion_from_euler,
                                            reference_from_msg, reference_to_msg, wheel_angles,
                                            wheel_torques_from_msg, wheel_torques_to_msg)
@@ -177,6 +179,7 @@ class RecordedRun:
     invalid: dict  # topic key -> number of malformed messages skipped
     receive_times: dict = dataclasses.field(default_factory=dict)  # key -> {stamp: log time}
     has_clock: bool = False  # the bag holds /clock: recorded in lockstep simulation time
+    imu_rates: dict = dataclasses.field(default_factory=dict)  # stamp -> (θ̇, ϕ̇) [rad/s]
 
 
 def read_recorded_run(bag, left_joint=LEFT_JOINT, right_joint=RIGHT_JOINT,
@@ -203,6 +206,10 @@ def read_recorded_run(bag, left_joint=LEFT_JOINT, right_joint=RIGHT_JOINT,
                 run.log_times.setdefault(stamp, raw.log_time_ns)
             elif key == 'imu':
                 run.imu[stamp] = imu_pitch_yaw(msg)
+                if imu_has_rates(msg):  # the gyro, for the gyro estimator
+                    w = msg.angular_velocity
+                    run.imu_rates[stamp] = euler_rates_from_body(run.imu[stamp][0],
+                                                                 (w.x, w.y, w.z))
             elif key == 'gps':
                 run.gps[stamp] = msg
             elif key == 'reference':
@@ -332,11 +339,11 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario,
         x_v, _ = wheel_odometry(left, right, pitch, nominal, 0.0,
                                 sensors.encoders_relative_to_body)
         if observer is None:
-            observer = WipStateObserver(nominal, scenario.eso,
-                                        initial_positions=(yaw_unwrapped, x_v, pitch),
-                                        initial_time=t)
+            observer = WipStateObserver(
+                nominal, scenario.eso, initial_positions=(yaw_unwrapped, x_v, pitch),
+                initial_time=t, encoders_relative_to_body=sensors.encoders_relative_to_body)
         estimate = observer.update(t, yaw_unwrapped, x_v, pitch, tau_left + tau_right,
-                                   tau_right - tau_left)
+                                   tau_right - tau_left, run.imu_rates.get(stamp))
         # 2: position, as the ESO node: start at the first fix. Lockstep: the fix of t_k;
         # real time: the newest fix received before the tick's samples and not used yet
         # (the ESO updates when the IMU and encoder samples are in; a fix published with
@@ -393,7 +400,7 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario,
             while pending and pending[0][0] <= mixed_at:
                 tau_v = pending.pop(0)[1]
         wheels = mix(tau_v, arc_out.tau_omega, max_wheel)
-        outputs.append(TickOutputs(stamp, t, estimate, x, y, not observer.yaw.in_ramp(t),
+        outputs.append(TickOutputs(stamp, t, estimate, x, y, not observer.in_ramp(t),
                                    reference, command, arc_out, result, wheels))
         previous = stamp
     return outputs
@@ -651,8 +658,11 @@ def write_record_as_bag(result, scenario: Scenario, directory, clock=True,
             if last:
                 break
             # Sensors in the runner's order (separate random streams per sensor).
+            true_state = state
+            state, gps_state = sensors.delayed(true_state)
             left, right = sensors.encoders(state)
             pitch, yaw = sensors.imu(state)
+            rates = sensors.imu_rates(state)
             body = state[7] if c.encoders_relative_to_body else 0.0
             joints = JointState(name=[LEFT_JOINT, RIGHT_JOINT], position=[left, right],
                                 velocity=[(state[6] - half_track * state[5]) / radius - body,
@@ -661,15 +671,22 @@ def write_record_as_bag(result, scenario: Scenario, directory, clock=True,
                                         float(truth['tau_right'][k])])
             joints.header.stamp.sec, joints.header.stamp.nanosec = divmod(s, 1_000_000_000)
             put('joint_states', joints, s)
-            put('imu', _imu(pitch, yaw, s, state, c), s)
+            put('imu', _imu(pitch, yaw, s, rates, c), s)
             if k % gps_every == 0:
-                put('gps', _fix(*sensors.gps(state), datum, s, c), s)
+                if sensors.gps_fix_available():
+                    put('gps', _fix(*sensors.gps(gps_state), datum, s, c), s)
+                else:  # a dropout, as the plant node publishes it
+                    fix = _fix(0.0, 0.0, datum, s, c)
+                    fix.status.status = NavSatStatus.STATUS_NO_FIX
+                    fix.latitude = fix.longitude = fix.altitude = math.nan
+                    put('gps', fix, s)
+            state = true_state
             put('reference', reference_to_msg(reference.sample(t), s, MAP_FRAME), s)
             estimate = StateEstimate(*(float(est[name][k]) for name in (
                 'phi', 'omega', 'f1', 'x_v', 'v', 'f2', 'theta', 'theta_dot', 'f3')),
-                observer.yaw.epsilon_at(t))
+                observer.epsilon_at(t))
             put('estimate', estimate_to_msg(estimate, float(est['x'][k]), float(est['y'][k]),
-                                            not observer.yaw.in_ramp(t), s, MAP_FRAME), s)
+                                            not observer.in_ramp(t), s, MAP_FRAME), s)
             cmd = record['command']
             put('command', CommandMsg(
                 header=_header(s), **{f: float(cmd[f][k]) for f in (
@@ -701,17 +718,18 @@ def _ground_truth(truth, k, stamp):
     return msg
 
 
-def _imu(pitch, yaw, stamp, state, config):
+def _imu(pitch, yaw, stamp, rates, config):
     msg = Imu(header=_header(stamp))
     msg.header.frame_id = 'imu_link'
     q = msg.orientation
     q.x, q.y, q.z, q.w = quaternion_from_euler(0.0, pitch, yaw)
     msg.orientation_covariance = [0.0, 0.0, 0.0, 0.0, config.imu_pitch_noise_std ** 2, 0.0,
                                   0.0, 0.0, config.imu_yaw_noise_std ** 2]
-    if config.gyro_noise_std == 0.0:  # As the plant node: exact rates only without noise.
-        msg.angular_velocity.y, msg.angular_velocity.z = state[7], state[5]
-    else:
-        msg.angular_velocity_covariance[0] = -1.0
+    # As the plant node: the gyro's body angular velocity at the published pitch.
+    (msg.angular_velocity.x, msg.angular_velocity.y,
+     msg.angular_velocity.z) = body_rates_from_euler(pitch, *rates)
+    msg.angular_velocity_covariance = [0.0, 0.0, 0.0, 0.0, config.gyro_noise_std ** 2, 0.0,
+                                       0.0, 0.0, config.gyro_noise_std ** 2]
     msg.linear_acceleration_covariance[0] = -1.0
     return msg
 

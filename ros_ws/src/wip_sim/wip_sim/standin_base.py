@@ -323,6 +323,8 @@ class StandinBase(Node):
         self._imu_msg.header.frame_id = imu_frame
         self._imu_msg.orientation_covariance = [0.0, 0.0, 0.0, 0.0, c.imu_pitch_noise_std ** 2,
                                                 0.0, 0.0, 0.0, c.imu_yaw_noise_std ** 2]
+        self._imu_msg.angular_velocity_covariance = [0.0, 0.0, 0.0, 0.0, c.gyro_noise_std ** 2,
+                                                     0.0, 0.0, 0.0, c.gyro_noise_std ** 2]
         self._gps_msg = NavSatFix()
         self._gps_msg.header.frame_id = gps_frame
         self._gps_msg.status.status = NavSatStatus.STATUS_FIX
@@ -433,15 +435,19 @@ class StandinBase(Node):
         state = self.state
         sec, nanosec = divmod(stamp_ns, 1_000_000_000)
         sensors = self.sensors
+        # The runner's order: delays, encoders, IMU angles, gyro (noise and bias), GPS.
+        true_state = state
+        state, gps_state = sensors.delayed(true_state)
         left, right = sensors.encoders(state)
         pitch, yaw = sensors.imu(state)
+        pitch_rate, yaw_rate = sensors.imu_rates(state)
         v, omega = state[V], state[OMEGA]
         body_rate = state[THETA_DOT] if self.relative_to_body else 0.0
         rates = ((v - self.half_track * omega) / self.wheel_radius - body_rate,
                  (v + self.half_track * omega) / self.wheel_radius - body_rate)
         joint, imu = self._joint_msg, self._imu_msg
         self.conventions.fill(joint, imu, (left, right), rates, self.tau, pitch, yaw,
-                              state[THETA_DOT], omega, self.gravity)
+                              pitch_rate, yaw_rate, self.gravity)
         joint.header.stamp.sec, joint.header.stamp.nanosec = sec, nanosec
         imu.header.stamp.sec, imu.header.stamp.nanosec = sec, nanosec
         if self.sensor_bunch == 1:
@@ -457,11 +463,18 @@ class StandinBase(Node):
                 self._bunch.clear()
 
         if self.k % self.gps_every == 0:
-            x, y = sensors.gps(state)
             fix = self._gps_msg
             fix.header.stamp.sec, fix.header.stamp.nanosec = sec, nanosec
-            fix.latitude, fix.longitude, fix.altitude = local_to_geodetic(x, y, *self.datum)
+            if sensors.gps_fix_available():
+                x, y = sensors.gps(gps_state)
+                fix.status.status = NavSatStatus.STATUS_FIX
+                fix.latitude, fix.longitude, fix.altitude = local_to_geodetic(
+                    x, y, *self.datum)
+            else:  # a dropout: no fix (NaN position, REP 145 / NavSatFix convention)
+                fix.status.status = NavSatStatus.STATUS_NO_FIX
+                fix.latitude = fix.longitude = fix.altitude = math.nan
             self.gps_pub.publish(fix)
+        state = true_state
         if self.odom_pub is not None:
             odom = self._odom_msg
             odom.header.stamp.sec, odom.header.stamp.nanosec = sec, nanosec

@@ -22,7 +22,9 @@ Deviations from the paper:
 - (13) is integrated by explicit Euler at the control period with the projection applied
   after each step (clip to the interval: the standard discrete projection, which makes
   the update non-expansive toward any α in the interval);
-- the saturation of (12) is the paper's "practical" remark after Theorem 3.
+- the saturation of (12) is the paper's "practical" remark after Theorem 3;
+- optional robust modifications of (13) (all off with the paper's settings): dead zone
+  on e_ω, normalisation by 1 + ν φ², σ-leakage toward α̂(0) (docs/estimation.md).
 
 The α̂ returned with τω is the one used to compute it (before this step's update).
 
@@ -42,7 +44,8 @@ from .config import ConfigError, param
 
 @dataclasses.dataclass(frozen=True)
 class ArcConfig:
-    """Gains and limits of the yaw ARC, eqs. (12), (13) in [1]_ (defaults: Section V)."""
+    """Gains and limits of the yaw ARC, eqs. (12), (13) in [1]_ (gains: Section V; the
+    robust adaptation terms default on, the scenario key ``design: paper`` turns them off)."""
 
     yaw_rate_gain: float = param(20.0, 'N m s/rad', 'k_omega of eq. (12)', minimum=0.0,
                                  exclusive_minimum=True)
@@ -54,6 +57,21 @@ class ArcConfig:
                              'estimate', minimum=0.0, exclusive_minimum=True)
     alpha_max: float = param(5.0, 'kg m^2', 'upper projection bound of alpha_hat',
                              minimum=0.0, exclusive_minimum=True)
+    adaptation_dead_zone: float = param(
+        0.005, 'rad/s', 'no adaptation while |e_omega| is below this (robust adaptive '
+        'control: noise and bounded disturbances alone must not drive alpha_hat; paper: 0)',
+        minimum=0.0, maximum=10.0)
+    adaptation_normalisation: float = param(
+        1.0, 's^4/rad^2', 'nu in d(alpha_hat)/dt = -gamma e phi / (1 + nu phi^2), phi = '
+        'omega_d_dot - f1_hat: bounds the step when phi jumps (corners, GPS jumps; '
+        'paper: 0)', minimum=0.0, maximum=1e6)
+    adaptation_leakage: float = param(
+        0.01, '1/s', 'sigma-modification -sigma (alpha_hat - alpha_initial): alpha_hat '
+        'returns to the nominal 1/g1 when not excited (paper: 0)', minimum=0.0,
+        maximum=100.0)
+    adapt_while_saturated: bool = param(
+        False, '1', 'run the adaptation while tau_omega is saturated (paper: true); false '
+        'freezes alpha_hat then, since e_omega no longer reflects the model error (wind-up)')
 
     def validate(self) -> None:
         if not self.alpha_max > self.alpha_min:
@@ -89,6 +107,7 @@ class AdaptiveRobustYawController:
             raise ValueError(f'alpha_initial must be finite, got {alpha_initial!r}')
         cfg = self.config
         self.alpha_hat = min(max(float(alpha_initial), cfg.alpha_min), cfg.alpha_max)
+        self.alpha_nominal = self.alpha_hat   #: the leakage's target [kg m²]
 
     def step(self, dt: float, omega_hat: float, f1_hat: float, omega_d: float,
              omega_d_dot: float) -> ArcOutput:
@@ -117,8 +136,22 @@ class AdaptiveRobustYawController:
         regressor = omega_d_dot - f1_hat
         tau = alpha * regressor - cfg.yaw_rate_gain * e_omega            # Eq. (12) in [1]
         limit = cfg.max_yaw_torque
+        saturated = abs(tau) > limit
         tau = max(-limit, min(limit, tau))
-        # Eq. (13), explicit Euler, then projection onto [alpha_min, alpha_max].
-        alpha_next = alpha - cfg.adaptation_gain * e_omega * regressor * dt
+        if saturated and not cfg.adapt_while_saturated:
+            return ArcOutput(tau, alpha, e_omega)
+        # Eq. (13), explicit Euler, then projection onto [alpha_min, alpha_max]; with the
+        # robust modifications (Ioannou & Sun, ch. 8): a dead zone on e_ω (the update is
+        # off while |e_ω| ≤ e0, and uses e_ω − e0 sign(e_ω) beyond, continuous), the
+        # normalised regressor φ/(1 + ν φ²) and the σ-leakage toward α̂(0).
+        dead = cfg.adaptation_dead_zone
+        if abs(e_omega) <= dead:
+            error = 0.0
+        else:
+            error = e_omega - math.copysign(dead, e_omega)
+        rate = -cfg.adaptation_gain * error * regressor / (
+            1.0 + cfg.adaptation_normalisation * regressor * regressor)
+        rate -= cfg.adaptation_leakage * (alpha - self.alpha_nominal)
+        alpha_next = alpha + rate * dt
         self.alpha_hat = min(max(alpha_next, cfg.alpha_min), cfg.alpha_max)
         return ArcOutput(tau, alpha, e_omega)

@@ -68,6 +68,9 @@ _PERIOD_TOLERANCE = 1e-6
 
 SCHEDULES = ('constant', 'paper_ramp')
 MEASUREMENT_HOLDS = ('linear', 'zero_order')
+#: 'paper': three third-order ESOs on the measured positions, eqs. (4), (8);
+#: 'gyro': the IMU's angular rate measured, see :class:`RateAidedChannel`.
+ESTIMATORS = ('paper', 'gyro')
 
 
 def check_hurwitz(gains: Sequence[float], name: str = 'gains') -> None:
@@ -132,7 +135,8 @@ def discretise(gains: Sequence[float], epsilon: float, period: float,
 
 @dataclasses.dataclass(frozen=True)
 class EsoConfig:
-    """Tunables of the three ESOs, eqs. (4) and (8) in [1]_ (defaults: Section V)."""
+    """Tunables of the observers: the paper's three ESOs, eqs. (4) and (8) in [1]_ (gains and
+    ε: Section V), or the gyro-aided design (default; docs/estimation.md)."""
 
     yaw_gains: tuple[float, float, float] = param(
         (6.0, 11.0, 6.0), '1', '(alpha1, alpha2, alpha3) of the yaw ESO, eq. (4); '
@@ -162,10 +166,50 @@ class EsoConfig:
         'linear', '1', "reconstruction of y between samples: 'linear' interpolation "
         "(unbiased on ramps) or 'zero_order' hold of the newest sample (biased, see "
         'eso.py)', choices=MEASUREMENT_HOLDS)
+    estimator: str = param(
+        'gyro', '1', "'paper': third-order ESOs on the measured angles, eqs. (4), (8) "
+        "(Section V); 'gyro': the IMU angular rate is measured: complementary filter of "
+        'angle and gyro with bias estimation, and a reduced-order ESO on the rate for '
+        'the disturbance (docs/estimation.md)', choices=ESTIMATORS)
+    tilt_angle_bandwidth: float = param(
+        5.0, 'rad/s', "'gyro': crossover of the tilt complementary filter; the "
+        'steady-state Kalman choice is sigma_gyro / sigma_angle (0.01 / 0.002)',
+        minimum=0.01, maximum=100.0)
+    yaw_angle_bandwidth: float = param(
+        5.0, 'rad/s', "'gyro': crossover of the yaw complementary filter (as the tilt's)",
+        minimum=0.01, maximum=100.0)
+    gyro_bias_bandwidth: float = param(
+        0.2, 'rad/s', "'gyro': pole of the gyro bias estimate (slower than the angle "
+        'bandwidths: the bias is a slow drift)', minimum=0.001, maximum=10.0)
+    tilt_rate_bandwidth: float = param(
+        40.0, 'rad/s', "'gyro': double pole of the reduced-order ESO of the tilt rate "
+        '(gives f3, which holds the gravity torque: it must track the pendulum, about '
+        '10x its 4 rad/s unstable pole); f3 noise std grows as bandwidth^1.5',
+        minimum=0.1, maximum=150.0)
+    yaw_rate_bandwidth: float = param(
+        20.0, 'rad/s', "'gyro': double pole of the reduced-order ESO of the yaw rate "
+        '(gives f1 to the ARC; the yaw disturbances are slower than the tilt\'s and f1 '
+        'noise drives the adaptation)', minimum=0.1, maximum=150.0)
+    longitudinal_bandwidth: float = param(
+        60.0, 'rad/s', "'gyro': triple pole of the x_v ESO (eq. (8), gains (3w, 3w^2, "
+        'w^3)); it differentiates encoder and pitch noise', minimum=0.1, maximum=300.0)
 
     def validate(self) -> None:
         for name in ('yaw_gains', 'longitudinal_gains', 'tilt_gains'):
             check_hurwitz(getattr(self, name), name)
+        if self.estimator == 'gyro':
+            h = self.sample_period
+            fastest = max(self.tilt_angle_bandwidth, self.yaw_angle_bandwidth,
+                          self.tilt_rate_bandwidth, self.yaw_rate_bandwidth,
+                          self.longitudinal_bandwidth)
+            if fastest * h > 1.0:
+                raise ConfigError(f'sample_period: the fastest observer pole '
+                                  f'{fastest:g} rad/s times sample_period {h:g} s must be '
+                                  '<= 1 (discrete observer)')
+            for name in ('tilt_angle_bandwidth', 'yaw_angle_bandwidth'):
+                if not self.gyro_bias_bandwidth < getattr(self, name):
+                    raise ConfigError(f'gyro_bias_bandwidth: must be below {name} = '
+                                      f'{getattr(self, name)} rad/s')
 
 
 class ExtendedStateObserver:
@@ -329,6 +373,161 @@ class ExtendedStateObserver:
         self.x1, self.x2, self.f = x1, x2, x3
 
 
+def complementary_bandwidth(angle_noise_std: float, rate_noise_std: float) -> float:
+    """Crossover ω_c [rad/s] of the angle/gyro complementary filter that minimises the
+    angle error variance for white angle noise σ_a [rad] and white rate noise σ_g
+    [rad/s] sampled at the same period: ω_c = σ_g / σ_a.
+
+    Why: the filter θ̂̇ = r + ω_c (θ_m − θ̂) is the steady-state Kalman filter of θ̇ = r
+    with process noise PSD q = σ_g² h and measurement noise PSD ρ = σ_a² h, whose gain
+    is √(q/ρ). The variance is then h (σ_a² ω_c + σ_g²/ω_c)/2 = h σ_a σ_g.
+    """
+    if not (angle_noise_std > 0.0 and rate_noise_std > 0.0):
+        raise ValueError('complementary_bandwidth: both noise levels must be > 0, got '
+                         f'{angle_noise_std!r}, {rate_noise_std!r}')
+    return rate_noise_std / angle_noise_std
+
+
+def discrete_pole_gains(pole_a: float, pole_b: float, period: float) -> tuple[float, float]:
+    """Gains (L1, L2) of the two-state predictor-corrector used twice in
+    :class:`RateAidedChannel` that put its error poles at e^{−a h}, e^{−b h}.
+
+    Both loops have the error matrix [[1 − L1, ∓(1 − L1) h], [±L2, 1 − L2 h]], whose
+    characteristic polynomial is z² − (2 − L1 − L2 h) z + (1 − L1): with p, q the wanted
+    discrete poles, L1 = 1 − p q and L2 = (1 − p)(1 − q)/h.
+    """
+    p, q = math.exp(-pole_a * period), math.exp(-pole_b * period)
+    return 1.0 - p * q, (1.0 - p) * (1.0 - q) / period
+
+
+class RateAidedChannel:
+    """One angle channel (tilt or yaw) of a WIP whose IMU measures the angle AND its rate.
+
+    Two discrete loops per sample of period h (the gyro reading r = ẏ + b + noise, b a
+    slowly drifting bias):
+
+    1. complementary filter with bias estimate (angle â, bias b̂):
+       â⁻ = â + h ((r_prev + r)/2 − b̂);  e = y_m − â⁻;  â = â⁻ + L1 e;  b̂ = b̂ − L2 e.
+       Error poles at −``angle_bandwidth`` and −``bias_bandwidth`` (discrete e^{−ω h}).
+       The angle noise passes below ω_c, the integrated gyro noise above it;
+    2. reduced-order ESO of the rate (the paper's eq. (4) with the position channel
+       removed, since the rate is measured): the rate ẑ1 and lumped disturbance f̂ of
+       ÿ = b u + f from the bias-corrected rate r − b̂:
+       ẑ1⁻ = ẑ1 + h (b u + f̂);  e = r − b̂ − ẑ1⁻;  ẑ1 = ẑ1⁻ + M1 e;  f̂ = f̂ + M2 e,
+       a double pole at −``rate_bandwidth``. f̂ is thereby a second-order low-pass of
+       the true f; its noise variance for white rate noise σ_g is ≈ σ_g² h ω_o³/4
+       (H2 norm of ω_o² s/(s + ω_o)², see :func:`rate_eso_noise_variance`).
+
+    The outputs (â, ẑ1, f̂) replace the paper ESO's (x̂1, x̂2, f̂).
+    """
+
+    def __init__(self, angle_bandwidth: float, bias_bandwidth: float,
+                 rate_bandwidth: float, sample_period: float, name: str = 'channel',
+                 initial_output: float = 0.0, initial_time: float = 0.0) -> None:
+        for label, value in (('angle_bandwidth', angle_bandwidth),
+                             ('bias_bandwidth', bias_bandwidth),
+                             ('rate_bandwidth', rate_bandwidth),
+                             ('sample_period', sample_period)):
+            if not (math.isfinite(value) and value > 0.0):
+                raise ConfigError(f'{name}.{label}: must be finite and > 0, got {value!r}')
+        self.name = name
+        self.angle_bandwidth = float(angle_bandwidth)
+        self.bias_bandwidth = float(bias_bandwidth)
+        self.rate_bandwidth = float(rate_bandwidth)
+        self.sample_period = float(sample_period)
+        self._gains_cache: dict[float, tuple[float, float, float, float]] = {}
+        self._gains(self.sample_period)
+        self.reset(initial_output, initial_time)
+
+    def _gains(self, h: float) -> tuple[float, float, float, float]:
+        gains = self._gains_cache.get(h)
+        if gains is None:
+            if len(self._gains_cache) > 16:
+                self._gains_cache.clear()
+            l1, l2 = discrete_pole_gains(self.angle_bandwidth, self.bias_bandwidth, h)
+            m1, m2 = discrete_pole_gains(self.rate_bandwidth, self.rate_bandwidth, h)
+            gains = self._gains_cache[h] = (l1, l2, m1, m2)
+        return gains
+
+    def reset(self, initial_output: float, initial_time: float = 0.0) -> None:
+        """Angle y0 at ``initial_time`` [s]; rate, bias, disturbance zero. The first
+        update at the same time takes the measured rate as the rate estimate."""
+        if not (math.isfinite(initial_output) and math.isfinite(initial_time)):
+            raise ValueError(f'{self.name}: non-finite reset ({initial_output!r}, '
+                             f'{initial_time!r})')
+        self.x1 = float(initial_output)
+        self.x2 = 0.0
+        self.f = 0.0
+        self.bias = 0.0
+        self._t_prev = float(initial_time)
+        self._rate_started = False
+        self._rate_prev = 0.0
+
+    @property
+    def state(self) -> tuple[float, float, float]:
+        """(â, ẑ1, f̂): angle, rate, lumped disturbance estimates."""
+        return self.x1, self.x2, self.f
+
+    @property
+    def time(self) -> float:
+        return self._t_prev
+
+    def update(self, t: float, y: float, rate: float, b_u: float) -> tuple[float, float, float]:
+        """Advance to ``t`` [s] with the angle ``y`` [rad], the gyro ``rate`` [rad/s] at t
+        and ``b_u`` [rad/s²] held since the previous update; returns (â, ẑ1, f̂)."""
+        if not math.isfinite(t + y + rate + b_u):
+            raise ValueError(f'{self.name}: non-finite input t={t!r}, y={y!r}, '
+                             f'rate={rate!r}, b_u={b_u!r}')
+        h = t - self._t_prev
+        if h < 0.0:
+            raise ValueError(f'{self.name}: time went backwards from {self._t_prev} to {t}')
+        if not self._rate_started:
+            self.x2 = rate - self.bias
+            self._rate_prev = rate
+            self._rate_started = True
+        if h == 0.0:
+            return self.x1, self.x2, self.f
+        if abs(h - self.sample_period) <= _PERIOD_TOLERANCE * self.sample_period:
+            h = self.sample_period
+        l1, l2, m1, m2 = self._gains(h)
+        # 1: complementary filter with bias (predict with the corrected gyro, correct
+        # with the angle).
+        # Trapezoidal integration of the gyro: exact for a constant acceleration (the
+        # rectangle rule would leave a bias estimate off by h θ̈/2).
+        angle = self.x1 + h * (0.5 * (self._rate_prev + rate) - self.bias)
+        self._rate_prev = rate
+        e = y - angle
+        self.x1 = angle + l1 * e
+        self.bias -= l2 * e
+        # 2: reduced-order ESO on the bias-corrected rate.
+        w = self.x2 + h * (b_u + self.f)
+        e = rate - self.bias - w
+        self.x2 = w + m1 * e
+        self.f += m2 * e
+        self._t_prev = t
+        return self.x1, self.x2, self.f
+
+
+def rate_eso_noise_variance(rate_noise_std: float, bandwidth: float, period: float,
+                            exact: bool = True) -> float:
+    """Stationary variance of f̂ [(rad/s²)²] of the reduced-order rate ESO of
+    :class:`RateAidedChannel` for white rate noise of std σ [rad/s] per sample.
+
+    ``exact``: the discrete Lyapunov equation of the error loop; else the continuous
+    approximation σ² h ω³/4 (valid for ω h ≪ 1).
+    """
+    if not exact:
+        return rate_noise_std ** 2 * period * bandwidth ** 3 / 4.0
+    m1, m2 = discrete_pole_gains(bandwidth, bandwidth, period)
+    # Error e = (e1, e2) = (w − ẑ1, f − f̂), noise n on the measured rate:
+    # e⁺ = A e + B n, A = [[1 − M1, (1 − M1) h], [−M2, 1 − M2 h]], B = (−M1, −M2)... sign
+    # irrelevant for the variance.
+    a = np.array([[1.0 - m1, (1.0 - m1) * period], [-m2, 1.0 - m2 * period]])
+    b = np.array([[m1], [m2]])
+    cov = scipy.linalg.solve_discrete_lyapunov(a, rate_noise_std ** 2 * (b @ b.T))
+    return float(cov[1, 1])
+
+
 class StateEstimate(NamedTuple):
     """Output of :class:`WipStateObserver` at one sample."""
 
@@ -362,17 +561,38 @@ class WipStateObserver:
 
     def __init__(self, params: WipParameters, config: EsoConfig | None = None,
                  initial_positions: Sequence[float] = (0.0, 0.0, 0.0),
-                 initial_time: float = 0.0) -> None:
+                 initial_time: float = 0.0, *,
+                 encoders_relative_to_body: bool = False) -> None:
         self.params = params
+        # 'gyro': x_v = r((φl + φr)/2 + θ) is recomputed with the filtered θ̂ instead of
+        # the raw IMU pitch, whose noise r·σθ the x_v ESO would otherwise differentiate.
+        self._xv_pitch_correction = (params.wheel_radius if encoders_relative_to_body
+                                     else 0.0)
         self.config = config = config if config is not None else EsoConfig()
         config.validate()
         common = dict(epsilon=config.epsilon, sample_period=config.sample_period,
                       schedule=config.epsilon_schedule, ramp_duration=config.ramp_duration,
                       measurement_hold=config.measurement_hold)
-        self.yaw = ExtendedStateObserver(config.yaw_gains, name='yaw_gains', **common)
-        self.longitudinal = ExtendedStateObserver(config.longitudinal_gains,
-                                                  name='longitudinal_gains', **common)
-        self.tilt = ExtendedStateObserver(config.tilt_gains, name='tilt_gains', **common)
+        self.gyro = config.estimator == 'gyro'
+        if self.gyro:
+            # The rates are measured: angle/rate channels, and a bandwidth-parameterised
+            # x_v ESO (all three poles at −ω_l: gains (3, 3, 1), ε = 1/ω_l).
+            h = config.sample_period
+            self.yaw = RateAidedChannel(config.yaw_angle_bandwidth,
+                                        config.gyro_bias_bandwidth,
+                                        config.yaw_rate_bandwidth, h, name='yaw')
+            self.tilt = RateAidedChannel(config.tilt_angle_bandwidth,
+                                         config.gyro_bias_bandwidth,
+                                         config.tilt_rate_bandwidth, h, name='tilt')
+            self.longitudinal = ExtendedStateObserver(
+                (3.0, 3.0, 1.0), 1.0 / config.longitudinal_bandwidth, h,
+                measurement_hold=config.measurement_hold, name='longitudinal')
+        else:
+            self.yaw = ExtendedStateObserver(config.yaw_gains, name='yaw_gains', **common)
+            self.longitudinal = ExtendedStateObserver(config.longitudinal_gains,
+                                                      name='longitudinal_gains', **common)
+            self.tilt = ExtendedStateObserver(config.tilt_gains, name='tilt_gains',
+                                              **common)
         self._yaw_scale = config.yaw_input_gain_scale
         self.reset(initial_positions, initial_time)
 
@@ -400,10 +620,24 @@ class WipStateObserver:
     def _make_estimate(self, t: float) -> StateEstimate:
         y, lon, tilt = self.yaw, self.longitudinal, self.tilt
         return StateEstimate(y.x1, y.x2, y.f, lon.x1, lon.x2, lon.f, tilt.x1, tilt.x2,
-                             tilt.f, y.epsilon_at(t))
+                             tilt.f, self.epsilon_at(t))
+
+    def epsilon_at(self, t: float) -> float:
+        """ε [s] in use at ``t`` (gyro estimator: 1/ω_l of the x_v ESO, constant)."""
+        return self.longitudinal.epsilon_at(t) if self.gyro else self.yaw.epsilon_at(t)
+
+    def in_ramp(self, t: float) -> bool:
+        """True while the paper's ε ramp runs (never with the gyro estimator)."""
+        return False if self.gyro else self.yaw.in_ramp(t)
+
+    @property
+    def needs_rates(self) -> bool:
+        """Whether :meth:`update` needs the IMU angular rates."""
+        return self.gyro
 
     def update(self, t: float, phi_meas: float, xv_meas: float, theta_meas: float,
-               tau_v_applied: float, tau_omega_applied: float) -> StateEstimate:
+               tau_v_applied: float, tau_omega_applied: float,
+               rates: Sequence[float] | None = None) -> StateEstimate:
         """Advance the three ESOs to time ``t`` [s].
 
         Parameters
@@ -411,10 +645,15 @@ class WipStateObserver:
         t : sample time [s], ≥ the previous one (equal: estimate unchanged).
         phi_meas : measured yaw ϕ [rad]; moved to the 2π branch nearest the previous
             sample, so a wrapped (−π, π] yaw is accepted.
-        xv_meas : measured distance rolled x_v [m] (wheel odometry).
+        xv_meas : measured distance rolled x_v [m] (wheel odometry; with
+            ``encoders_relative_to_body`` the 'gyro' estimator replaces the raw pitch in
+            it by θ̂).
         theta_meas : measured tilt θ [rad] (IMU).
         tau_v_applied, tau_omega_applied : τυ = τl + τr and τω = τr − τl [N·m] applied
             (held) since the previous update.
+        rates : (θ̇, ϕ̇) [rad/s] measured by the IMU's gyro (sensor_msgs/Imu
+            angular_velocity, as Euler rates); required by the 'gyro' estimator,
+            ignored by the 'paper' one.
 
         Raises
         ------
@@ -438,8 +677,20 @@ class WipStateObserver:
         self._phi_meas = phi_meas
         # Eq. (1) input gains at θ̂ of the start of the period, held like the torques.
         g1, g2, g3 = input_gains(self.params, self.tilt.x1)
-        self.yaw.update(t, phi_meas, self._yaw_scale * g1 * tau_omega_applied)
-        self.longitudinal.update(t, xv_meas, g2 * tau_v_applied)
-        self.tilt.update(t, theta_meas, g3 * tau_v_applied)
+        if self.gyro:
+            if rates is None or len(rates) != 2:
+                raise ValueError("WipStateObserver.update: the 'gyro' estimator needs the "
+                                 f'IMU rates (pitch_rate, yaw_rate), got {rates!r}')
+            pitch_rate, yaw_rate = float(rates[0]), float(rates[1])
+            if not math.isfinite(pitch_rate + yaw_rate):
+                raise ValueError(f'WipStateObserver.update: non-finite rates {rates!r}')
+            self.yaw.update(t, phi_meas, yaw_rate, self._yaw_scale * g1 * tau_omega_applied)
+            theta_hat = self.tilt.update(t, theta_meas, pitch_rate, g3 * tau_v_applied)[0]
+            xv_meas += self._xv_pitch_correction * (theta_hat - theta_meas)
+            self.longitudinal.update(t, xv_meas, g2 * tau_v_applied)
+        else:
+            self.yaw.update(t, phi_meas, self._yaw_scale * g1 * tau_omega_applied)
+            self.longitudinal.update(t, xv_meas, g2 * tau_v_applied)
+            self.tilt.update(t, theta_meas, g3 * tau_v_applied)
         self._estimate = estimate = self._make_estimate(t)
         return estimate

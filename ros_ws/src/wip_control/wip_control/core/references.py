@@ -389,6 +389,173 @@ class Waypoints(Reference):
         return self._at_piece(p, min(s + (p.v_peak - 0.5 * a * tau) * tau, p.length), v, -a)
 
 
+class TimeScaled(Reference):
+    """A reference run along the same path with a progress s(t) that slows where the
+    path's speed or yaw rate would exceed the limits (time scaling, Hollerbach 1984).
+
+    The base reference p(s) is re-timed by ṡ = σ(s), with
+
+    .. math:: \\sigma_0(s) = \\min\\Big(1, \\frac{\\upsilon_{max}}{\\upsilon_r(s)},
+        \\frac{\\omega_{max}}{|\\omega_r(s)|}\\Big), \\qquad
+        \\sigma(s) = \\min_u \\big(\\sigma_0(u) + k |u - s|\\big)
+
+    so that υ(t) = υ_r(s) σ(s) ≤ υmax and |ω(t)| = |ω_r(s)| σ(s) ≤ ωmax: the vehicle is
+    asked to stay on the same curve, more slowly where it bends hard, instead of
+    chasing a point it cannot keep up with (the paper's trifolium needs 0.70 rad/s at
+    its petal tips against ωmax = 0.3). The envelope σ ≤ σ0 with |dσ/ds| ≤ k starts to
+    slow down before a sharp bend and speeds up gradually after it: where σ0 jumps (a
+    waypoint fillet's curvature step) the speed would otherwise jump too. The pose is
+    the base's at s(t); the rates are υ_r σ, ω_r σ and ω̇ = σ (ω̇_r σ + ω_r dσ/ds).
+
+    σ depends on the path only, so s(t) is computed once, independent of the vehicle:
+    the reference stays a pure function of time (the reference node publishes it
+    unchanged). σ0 is tabulated every ``step`` of s and the envelope taken on that grid
+    (σ linear between nodes, and never above σ0 at the sampled s); s(t) is integrated by
+    RK4 on a grid of ``step`` in t and interpolated by cubic Hermite (s and ṡ known at
+    the nodes). Both tables are extended on demand, always from the start, so the
+    values do not depend on the order of the queries.
+
+    Parameters
+    ----------
+    base : the reference whose path is followed.
+    max_speed, max_yaw_rate : limits [m/s], [rad/s] of the re-timed reference, > 0.
+    rate_limit : k [1/s], the largest |dσ/ds|, > 0.
+    step : grid [s].
+    """
+
+    #: Largest step ahead of the sampled times that one call may integrate [s].
+    MAX_EXTENSION = 3600.0
+
+    def __init__(self, base: Reference, max_speed: float, max_yaw_rate: float,
+                 rate_limit: float = 0.5, step: float = 0.01) -> None:
+        if not (max_speed > 0.0 and max_yaw_rate > 0.0 and rate_limit > 0.0
+                and step > 0.0):
+            raise ValueError('TimeScaled: max_speed, max_yaw_rate, rate_limit and step '
+                             'must be > 0')
+        self.base = base
+        self.max_speed = float(max_speed)
+        self.max_yaw_rate = float(max_yaw_rate)
+        self.rate_limit = float(rate_limit)
+        self.step = float(step)
+        # Envelope half-width in grid nodes: beyond 1/k the cone exceeds σ0 ≤ 1.
+        self._window = int(math.ceil(1.0 / (self.rate_limit * self.step)))
+        self._raw: list[float] = []       # σ0 at s = i·step
+        self._sigma: list[float] = []     # σ at s = i·step
+        self._s = [0.0]                   # s at t = n·step
+        self._rate = [self.rate_at(0.0)]  # σ(s) at those nodes
+
+    def _raw_rate(self, ref: ReferenceState) -> float:
+        sigma = 1.0
+        if ref.v > self.max_speed:
+            sigma = self.max_speed / ref.v
+        if abs(ref.omega) * sigma > self.max_yaw_rate:
+            sigma = self.max_yaw_rate / abs(ref.omega)
+        return sigma
+
+    def _extend_sigma(self, index: int) -> None:
+        """Tabulate σ up to grid node ``index`` (σ0 up to ``index`` + window)."""
+        if len(self._sigma) > index:
+            return
+        import numpy as np
+        w, h = self._window, self.step
+        while len(self._sigma) <= index:
+            start = len(self._sigma)
+            stop = start + 2048
+            while len(self._raw) < stop + w + 1:
+                self._raw.append(self._raw_rate(self.base.sample(len(self._raw) * h)))
+            raw = np.asarray(self._raw)
+            env = raw[start:stop].copy()
+            for d in range(1, w + 1):
+                cone = self.rate_limit * d * h
+                env = np.minimum(env, raw[start + d:stop + d] + cone)
+                lo = max(0, start - d)
+                shifted = raw[lo:stop - d]
+                if len(shifted) < stop - start:   # before s = 0: no constraint
+                    shifted = np.concatenate([np.full(stop - start - len(shifted), np.inf),
+                                              shifted])
+                env = np.minimum(env, shifted + cone)
+            self._sigma.extend(float(v) for v in env)
+
+    def _sigma_and_slope(self, s: float) -> tuple[float, float]:
+        """σ(s) (linear between grid nodes) and dσ/ds; s < 0 takes σ(0)."""
+        if s <= 0.0:
+            self._extend_sigma(1)
+            return self._sigma[0], 0.0
+        u = s / self.step
+        i = int(u)
+        self._extend_sigma(i + 1)
+        a, b = self._sigma[i], self._sigma[i + 1]
+        return a + (b - a) * (u - i), (b - a) / self.step
+
+    def rate_at(self, s: float) -> float:
+        """σ(s) = ds/dt ∈ (0, 1] (linear between the grid nodes)."""
+        return self._sigma_and_slope(s)[0]
+
+    def _extend(self, n: int) -> None:
+        s_list, r_list, h = self._s, self._rate, self.step
+        while len(s_list) <= n:
+            s, k1 = s_list[-1], r_list[-1]
+            k2 = self.rate_at(s + 0.5 * h * k1)
+            k3 = self.rate_at(s + 0.5 * h * k2)
+            k4 = self.rate_at(s + h * k3)
+            s_next = s + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            s_list.append(s_next)
+            r_list.append(self.rate_at(s_next))
+
+    def progress(self, t: float) -> float:
+        """s(t) [s of the base reference]; s = σ(0) t before t = 0.
+
+        Raises ValueError for a time more than ``MAX_EXTENSION`` s beyond the times
+        sampled so far: s(t) is integrated from t = 0, so a jump far ahead (a clock
+        jump, not a run) would take minutes.
+        """
+        if not math.isfinite(t):
+            raise ValueError(f'TimeScaled: time must be finite, got {t!r}')
+        if t <= 0.0:
+            return self._rate[0] * t
+        n = int(t / self.step)
+        known = (len(self._s) - 1) * self.step
+        if t > known + self.MAX_EXTENSION:
+            raise ValueError(f'TimeScaled: t = {t:g} s is more than {self.MAX_EXTENSION:g} s '
+                             f'beyond the times sampled so far ({known:g} s); the '
+                             'time-scaled reference is integrated from t = 0')
+        self._extend(n + 1)
+        h = self.step
+        u = t / h - n
+        s0, s1, r0, r1 = self._s[n], self._s[n + 1], self._rate[n], self._rate[n + 1]
+        u2, u3 = u * u, u * u * u
+        return ((2 * u3 - 3 * u2 + 1) * s0 + (u3 - 2 * u2 + u) * h * r0
+                + (-2 * u3 + 3 * u2) * s1 + (u3 - u2) * h * r1)
+
+    def sample(self, t: float) -> ReferenceState:
+        s = self.progress(t)
+        ref = self.base.sample(s)
+        sigma, d_sigma = self._sigma_and_slope(s)
+        # Between grid nodes the linear σ may exceed σ0 by O(step²): never above it.
+        sigma = min(sigma, self._raw_rate(ref))
+        return ReferenceState(ref.x, ref.y, ref.phi, ref.v * sigma, ref.omega * sigma,
+                              sigma * (ref.omega_dot * sigma + ref.omega * d_sigma))
+
+
+def distance_to_path(reference: Reference, x: Sequence[float], y: Sequence[float],
+                     path_duration: float, resolution: float = 0.001):
+    """Distance [m] of each point (x, y) to the path of ``reference`` traced over
+    [0, ``path_duration``] of its own time (for a :class:`TimeScaled`, pass its base).
+
+    The path is sampled every ``resolution`` [m] of arc length at most (nearest sample
+    by a k-d tree), so the result exceeds the true distance by at most resolution/2.
+    """
+    import numpy as np
+    import scipy.spatial
+    v_peak = max(reference.sample(t).v for t in np.linspace(0.0, path_duration, 2001))
+    n = max(2, int(math.ceil(path_duration * max(v_peak, 1e-9) / resolution)) + 1)
+    times = np.linspace(0.0, path_duration, n)
+    points = np.array([(r.x, r.y) for r in map(reference.sample, times)])
+    tree = scipy.spatial.cKDTree(points)
+    distance, _ = tree.query(np.column_stack([np.asarray(x, float), np.asarray(y, float)]))
+    return distance
+
+
 @dataclasses.dataclass(frozen=True)
 class ReferenceConfig:
     """Which reference to follow and its parameters (prefixed by the kind).
@@ -438,6 +605,21 @@ class ReferenceConfig:
     waypoints_max_yaw_rate: float = param(0.25, 'rad/s', 'yaw-rate limit on the fillets '
                                           '(keep below the generator max_yaw_rate)',
                                           minimum=0.0, exclusive_minimum=True)
+    time_scaling: bool = param(
+        True, '1', 'run the reference along its path with a progress that slows where '
+        'its speed or yaw rate would exceed path_max_speed, path_max_yaw_rate (any kind; '
+        'paper: false)')
+    path_max_speed: float = param(
+        1.2, 'm/s', 'time_scaling: speed limit of the reference (keep below the '
+        'generator max_speed: the feedback of eq. (9) needs headroom)', minimum=0.0,
+        exclusive_minimum=True)
+    path_max_yaw_rate: float = param(
+        0.2, 'rad/s', 'time_scaling: yaw-rate limit of the reference (keep below the '
+        'generator max_yaw_rate)', minimum=0.0, exclusive_minimum=True)
+    path_progress_rate_limit: float = param(
+        0.5, '1/s', 'time_scaling: largest change of the progress rate ds/dt per second '
+        'of path (the speed changes by at most this fraction of the path speed per '
+        'second, and slows before a sharp bend)', minimum=0.01, maximum=100.0)
 
     def validate(self) -> None:
         if len(self.waypoints_x) != len(self.waypoints_y):
@@ -462,9 +644,18 @@ def _make_waypoints(config: ReferenceConfig) -> Waypoints:
 
 
 def make_reference(config: ReferenceConfig | None = None) -> Reference:
-    """Build the reference selected by ``config.kind`` (default: the paper's trifolium)."""
+    """Build the reference selected by ``config.kind`` (default: the paper's trifolium),
+    time-scaled (:class:`TimeScaled`) if ``config.time_scaling``."""
     config = config if config is not None else ReferenceConfig()
     config.validate()
+    base = _make_base_reference(config)
+    if config.time_scaling:
+        return TimeScaled(base, config.path_max_speed, config.path_max_yaw_rate,
+                          config.path_progress_rate_limit)
+    return base
+
+
+def _make_base_reference(config: ReferenceConfig) -> Reference:
     if config.kind == 'trifolium':
         return Trifolium(config.trifolium_size, config.trifolium_angular_frequency)
     if config.kind == 'circle':

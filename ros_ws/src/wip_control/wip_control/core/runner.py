@@ -100,7 +100,8 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
                       seed=scenario.seed)
     relative_to_body = scenario.sensors.encoders_relative_to_body
     eso = WipStateObserver(nominal, scenario.eso,
-                           initial_positions=(state[PHI], state[XV], state[THETA]))
+                           initial_positions=(state[PHI], state[XV], state[THETA]),
+                           encoders_relative_to_body=relative_to_body)
     position = PlanarPositionEstimator(scenario.position)
     position.reset(state[X], state[Y], state[XV], state[PHI])
     generator = TrajectoryGenerator(scenario.trajectory_generator)
@@ -142,9 +143,12 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
         if k == n_ticks:
             break
 
-        # 1-3: measurements -> estimates (positions only, as in the paper).
-        phi_left, phi_right = sensors.encoders(state)
-        pitch, yaw = sensors.imu(state)
+        # 1-3: measurements -> estimates. The gyro rates are always sampled (as the
+        # plant node publishes them); the 'paper' estimator ignores them.
+        sensed, gps_seen = sensors.delayed(state)
+        phi_left, phi_right = sensors.encoders(sensed)
+        pitch, yaw = sensors.imu(sensed)
+        rates = sensors.imu_rates(sensed)
         yaw_unwrapped = unwrap_next(yaw_unwrapped, yaw)
         # The controllers know only the nominal wheel radius and track width (as the
         # eso node and scripts/rerun): a mismatch shows up in x_v, as on a real robot.
@@ -154,10 +158,10 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
         tau_v_applied = tau_left + tau_right
         tau_omega_applied = tau_right - tau_left
         estimate = eso.update(t, yaw_unwrapped, x_v_meas, pitch, tau_v_applied,
-                              tau_omega_applied)
+                              tau_omega_applied, rates)
         x_hat, y_hat = position.update_odometry(x_v_meas, estimate.phi)
-        if k % gps_every == 0:
-            x_hat, y_hat = position.update_gps(*sensors.gps(state))
+        if k % gps_every == 0 and sensors.gps_fix_available():
+            x_hat, y_hat = position.update_gps(*sensors.gps(gps_seen))
 
         # 4-5: reference, saturated trajectory generator, yaw ARC.
         ref = reference.sample(t)

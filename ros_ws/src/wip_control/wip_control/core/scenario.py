@@ -17,6 +17,7 @@ unit, default and range)::
     seed: int                     # seeds sensor and disturbance noise
     rates: {plant_rate, control_rate}           [Hz]
     fall_threshold: float [rad]
+    design: robust|paper          # paper: the paper's estimator, ARC, generator, reference
     initial_state: {pose_relative_to_reference, pose, x_v, theta, omega, v, theta_dot}
     plant: {model: paper|full, parameters: {<WipParameters field>: value}}
     controller_model: {parameters: {...}}       # nominal model used by the controllers
@@ -43,7 +44,7 @@ from .config import ConfigError, _show, from_mapping, load_yaml_text, param, to_
 from .disturbances import DisturbanceConfig
 from .eso import EsoConfig
 from .mixer import MixerConfig
-from .mpc import MpcConfig
+from .mpc import MpcConfig, PAPER_MPC_SETTINGS
 from .params import WipParameters
 from .plant import PlantConfig
 from .position import PositionConfig
@@ -116,6 +117,7 @@ class Scenario:
     name: str = 'paper_section_v'
     description: str = ('Section V of Yue, An, Li (2016): trifolium, sine yaw disturbance, '
                         'collision pulse at 30 s, 90 s')
+    design: str = 'robust'
     duration: float = 90.0
     seed: int = 0
     fall_threshold: float = 0.5
@@ -163,6 +165,22 @@ _TOP_LEVEL_SCALARS = {
              'in [0, 2**63 - 1]'),
     'fall_threshold': (float, '|theta| [rad] beyond which the vehicle counts as fallen and '
                        'the run stops, in (0, 1.5]'),
+    'design': (str, "'robust' (default: what a real robot needs) or 'paper': the defaults "
+               "of PAPER_DESIGN (the paper's ESOs, adaptation law (13), lambda1, lambda2 "
+               'and a reference without time scaling); keys given explicitly still apply'),
+}
+
+#: Designs selectable with the top-level key ``design``.
+DESIGNS = ('robust', 'paper')
+#: What ``design: paper`` changes in the component defaults: the paper's Section V
+#: estimator, adaptation law, heading gains and reference timing (docs/estimation.md).
+PAPER_DESIGN: dict[str, dict[str, Any]] = {
+    'eso': {'estimator': 'paper'},
+    'arc': {'adaptation_dead_zone': 0.0, 'adaptation_normalisation': 0.0,
+            'adaptation_leakage': 0.0, 'adapt_while_saturated': True},
+    'trajectory_generator': {'heading_design': 'paper'},
+    'reference': {'time_scaling': False},
+    'mpc': dict(PAPER_MPC_SETTINGS),
 }
 
 
@@ -212,6 +230,16 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
                           f'{_show(kwargs["fall_threshold"])}')
     if 'seed' in kwargs and not 0 <= kwargs['seed'] <= MAX_SEED:
         raise ConfigError(f'seed: must be in [0, 2**63 - 1], got {_show(kwargs["seed"])}')
+    design = kwargs.get('design', 'robust')
+    if design not in DESIGNS:
+        raise ConfigError(f'design: {design!r} is not one of {list(DESIGNS)}')
+    if design == 'paper':
+        data = dict(data)
+        for section, defaults in PAPER_DESIGN.items():
+            given = _section(data, section)
+            if not isinstance(given, Mapping):
+                raise ConfigError(f'{section}: expected a mapping, got {given!r}')
+            data[section] = {**defaults, **given}
 
     plant = _section(data, 'plant')
     if not isinstance(plant, Mapping):
@@ -262,11 +290,26 @@ def _check_consistency(scenario: Scenario) -> None:
     if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
         raise ConfigError('mpc.sampling_period: must be an integer multiple of the control '
                           f'period 1/rates.control_rate = {scenario.control_period} s')
+    ref, generator = scenario.reference, scenario.trajectory_generator
+    if ref.time_scaling:
+        if ref.path_max_speed > generator.max_speed:
+            raise ConfigError(f'reference.path_max_speed: must not exceed '
+                              f'trajectory_generator.max_speed = {generator.max_speed} m/s '
+                              f'(the generator saturates there), got {ref.path_max_speed}')
+        if ref.path_max_yaw_rate > generator.max_yaw_rate:
+            raise ConfigError(f'reference.path_max_yaw_rate: must not exceed '
+                              f'trajectory_generator.max_yaw_rate = {generator.max_yaw_rate} '
+                              f'rad/s, got {ref.path_max_yaw_rate}')
     eso_period = scenario.eso.sample_period
     if abs(eso_period - scenario.control_period) > 1e-12:
         raise ConfigError(f'eso.sample_period: must equal 1/rates.control_rate = '
                           f'{scenario.control_period} s (the ESO runs at the sensor rate), '
                           f'got {eso_period}')
+
+
+def paper_scenario(overrides: Mapping[str, Any] | None = None) -> Scenario:
+    """Section V with the paper's design (``design: paper``), plus ``overrides``."""
+    return scenario_from_mapping({**(overrides or {}), 'design': 'paper'})
 
 
 def load_scenario(path: str | pathlib.Path | None = None) -> Scenario:

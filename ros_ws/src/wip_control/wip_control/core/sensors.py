@@ -35,6 +35,7 @@ References
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 from typing import Sequence
@@ -52,7 +53,8 @@ WGS84_E2 = WGS84_F * (2.0 - WGS84_F)      # first eccentricity squared
 
 _TWO_PI = 2.0 * math.pi
 # Independent random streams, one per sensor (spawn keys of the run seed).
-_STREAM_ENCODERS, _STREAM_IMU, _STREAM_GPS = 0, 1, 2
+# (Spawn keys are sequential: adding a stream leaves the first three unchanged.)
+_STREAM_ENCODERS, _STREAM_IMU, _STREAM_GPS, _STREAM_DROPOUT = 0, 1, 2, 3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,6 +79,21 @@ class SensorConfig:
                                   minimum=0.0)
     gps_noise_std: float = param(0.0, 'm', 'GPS position noise (std, per axis)',
                                  minimum=0.0)
+    gyro_pitch_bias: float = param(0.0, 'rad/s', 'constant bias of the pitch-rate gyro',
+                                   minimum=-0.5, maximum=0.5)
+    gyro_yaw_bias: float = param(0.0, 'rad/s', 'constant bias of the yaw-rate gyro',
+                                 minimum=-0.5, maximum=0.5)
+    gps_dropout_probability: float = param(
+        0.0, '1', 'probability that a GPS fix is missing (independent per fix; the '
+        'simulator then publishes a NavSatFix with status NO_FIX)', minimum=0.0,
+        maximum=1.0)
+    gps_latency: float = param(
+        0.0, 's', 'age of the position a GPS fix reports (rounded to IMU periods); the '
+        'fix is stamped when it arrives, as a receiver without time tagging',
+        minimum=0.0, maximum=2.0)
+    sensor_delay: float = param(
+        0.0, 's', 'transport delay of the encoders and the IMU (rounded to IMU periods)',
+        minimum=0.0, maximum=0.1)
     gps_datum_latitude: float = param(
         38.8816, 'deg', 'latitude of the map origin for NavSatFix messages (default: '
         'Dalian, the paper authors\' university; any datum works)', minimum=-89.0,
@@ -113,12 +130,40 @@ class Sensors:
         self.config.validate()
         self.initial_yaw = float(initial_yaw)
         self.seed = int(seed)
-        children = np.random.SeedSequence(self.seed).spawn(3)
+        children = np.random.SeedSequence(self.seed).spawn(4)
         self._rng_encoders = np.random.default_rng(children[_STREAM_ENCODERS])
         self._rng_imu = np.random.default_rng(children[_STREAM_IMU])
         self._rng_gps = np.random.default_rng(children[_STREAM_GPS])
+        self._rng_dropout = np.random.default_rng(children[_STREAM_DROPOUT])
         counts = self.config.encoder_counts_per_rev
         self.encoder_resolution = _TWO_PI / counts if counts > 0 else 0.0   # [rad]
+        c = self.config
+        self.sensor_delay_samples = int(round(c.sensor_delay * c.imu_rate))
+        self.gps_latency_samples = int(round(c.gps_latency * c.imu_rate))
+        depth = max(self.sensor_delay_samples, self.gps_latency_samples) + 1
+        self._history: collections.deque = collections.deque(maxlen=depth)
+
+    def delayed(self, state: Sequence[float]) -> tuple[Sequence[float], Sequence[float]]:
+        """(state seen by the encoders and IMU, state seen by the GPS) for this sample.
+
+        Call once per IMU sample with the true state, in order: with ``sensor_delay``
+        and ``gps_latency`` zero both are ``state``; otherwise the states of
+        round(delay · imu_rate) samples earlier (the first state until there is one).
+        """
+        if len(self._history) == 0 and self._history.maxlen == 1:
+            return state, state
+        self._history.append(state)
+        newest = len(self._history) - 1
+        return (self._history[max(0, newest - self.sensor_delay_samples)],
+                self._history[max(0, newest - self.gps_latency_samples)])
+
+    def gps_fix_available(self) -> bool:
+        """Whether this GPS tick delivers a fix (``gps_dropout_probability``); call once
+        per GPS tick, before :meth:`gps` (its own random stream)."""
+        p = self.config.gps_dropout_probability
+        if p <= 0.0:
+            return True
+        return bool(self._rng_dropout.random() >= p)
 
     def encoders(self, state: Sequence[float]) -> tuple[float, float]:
         """(φl, φr) [rad]: wheel joint angles (or rolling angles, see the config)."""
@@ -150,8 +195,13 @@ class Sensors:
         return pitch, _wrap_to_pi(yaw)
 
     def imu_rates(self, state: Sequence[float]) -> tuple[float, float]:
-        """(θ̇, ω) [rad/s], the rates of pitch and yaw, with the configured gyro noise."""
-        pitch_rate, yaw_rate = float(state[THETA_DOT]), float(state[OMEGA])
+        """(θ̇, ω) [rad/s], the rates of pitch and yaw, with the gyro bias and noise.
+
+        Drawn from the IMU's stream: the runner and the plant node call it right after
+        :meth:`imu` at every sample, so the angle noise sequence is the same in both.
+        """
+        pitch_rate = float(state[THETA_DOT]) + self.config.gyro_pitch_bias
+        yaw_rate = float(state[OMEGA]) + self.config.gyro_yaw_bias
         std = self.config.gyro_noise_std
         if std > 0.0:
             pitch_rate += std * self._rng_imu.standard_normal()

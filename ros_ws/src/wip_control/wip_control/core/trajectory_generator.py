@@ -49,6 +49,7 @@ from .config import param
 from .references import ReferenceState
 
 _TWO_PI = 2.0 * math.pi
+HEADING_DESIGNS = ('paper', 'poles')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,7 +60,8 @@ class TrajectoryGeneratorConfig:
                            minimum=0.0, exclusive_minimum=True)
     lambda2: float = param(0.1, 'rad/s', 'lambda2 of eq. (9): weight of tanh(phi_e)',
                            minimum=0.0, exclusive_minimum=True)
-    lambda3: float = param(1.0, 'm/s', 'lambda3 of eq. (9): weight of tanh(x_e)',
+    lambda3: float = param(1.0, 'm/s', 'lambda3 of eq. (9): weight of tanh(x_e); near the '
+                           'path x_e decays at lambda3 [1/s per m] (Section V: 1)',
                            minimum=0.0, exclusive_minimum=True)
     max_yaw_rate: float = param(0.3, 'rad/s', 'omega_max: |omega_d| saturation (Section V)',
                                 minimum=0.0, exclusive_minimum=True)
@@ -71,6 +73,20 @@ class TrajectoryGeneratorConfig:
     max_yaw_acceleration: float = param(
         2.0, 'rad/s^2', '|omega_d_dot| clip (about the yaw authority tau_omega_max * g1)',
         minimum=0.0, exclusive_minimum=True)
+    heading_design: str = param(
+        'poles', '1', "'paper': lambda1, lambda2 as given; 'poles': lambda1 = "
+        'w_n^2 / v_r^2 and lambda2 = 2 zeta w_n, which place the poles of the linearised '
+        'lateral/heading loop s^2 + lambda2 s + lambda1 v_r^2 at natural frequency w_n '
+        'and damping zeta at every reference speed', choices=HEADING_DESIGNS)
+    heading_bandwidth: float = param(
+        1.2, 'rad/s', "'poles': natural frequency w_n of the lateral/heading loop",
+        minimum=0.01, maximum=10.0)
+    heading_damping: float = param(
+        1.0, '1', "'poles': damping ratio zeta of the lateral/heading loop", minimum=0.1,
+        maximum=3.0)
+    min_design_speed: float = param(
+        0.1, 'm/s', "'poles': reference speed below which lambda1 stops growing (lambda1 "
+        'v_r stays bounded when the reference stops)', minimum=0.01, maximum=10.0)
 
 
 class VelocityCommand(NamedTuple):
@@ -93,13 +109,31 @@ def tracking_errors(ref: ReferenceState, x: float, y: float,
     return c * dx + s * dy, -s * dx + c * dy, phi_e
 
 
+def heading_gains(config: TrajectoryGeneratorConfig, v_r: float) -> tuple[float, float]:
+    """(λ1 [1], λ2 [rad/s]) of eq. (9) at the reference speed ``v_r`` [m/s].
+
+    'poles': near the path (x_e, y_e, ϕ_e small, υ ≈ υ_r) the body-frame errors obey
+    ẏ_e ≈ υ_r ϕ_e and ϕ̇_e = ω_r − ω_d ≈ −λ1 υ_r y_e − λ2 ϕ_e, so
+    ÿ_e + λ2 ẏ_e + λ1 υ_r² y_e = 0: λ1 = ω_n²/υ_r², λ2 = 2 ζ ω_n give the poles
+    ω_n (−ζ ± j√(1 − ζ²)) at every speed. (The paper's λ1 = 1, λ2 = 0.1 give ζ ≈ 0.1 on
+    the trifolium: ζ = λ2/(2 υ_r √λ1).) Both stay positive, so the Lyapunov argument of
+    the module docstring holds at each instant.
+    """
+    if config.heading_design == 'paper':
+        return config.lambda1, config.lambda2
+    speed = max(abs(v_r), config.min_design_speed)
+    w_n = config.heading_bandwidth
+    return w_n * w_n / (speed * speed), 2.0 * config.heading_damping * w_n
+
+
 def unsaturated_commands(config: TrajectoryGeneratorConfig, ref: ReferenceState,
                          x_e: float, y_e: float, phi_e: float) -> tuple[float, float]:
     """(υ_d [m/s], ω_d [rad/s]) of eq. (9) before saturation."""
     sinc = math.sin(phi_e) / phi_e if abs(phi_e) > 1e-6 else 1.0 - phi_e * phi_e / 6.0
+    lambda1, lambda2 = heading_gains(config, ref.v)
     omega_d = (ref.omega
-               + config.lambda1 * ref.v * y_e * sinc / (1.0 + x_e * x_e + y_e * y_e)
-               + config.lambda2 * math.tanh(phi_e))                      # Eq. (9) in [1]
+               + lambda1 * ref.v * y_e * sinc / (1.0 + x_e * x_e + y_e * y_e)
+               + lambda2 * math.tanh(phi_e))                             # Eq. (9) in [1]
     v_d = ref.v * math.cos(phi_e) + config.lambda3 * math.tanh(x_e)      # Eq. (9) in [1]
     return v_d, omega_d
 

@@ -104,6 +104,33 @@ def imu_pitch_yaw(msg: Imu) -> tuple[float, float]:
     return pitch_yaw_from_quaternion(q.x, q.y, q.z, q.w)
 
 
+def euler_rates_from_body(pitch: float, w_body: Sequence[float]) -> tuple[float, float]:
+    """(θ̇, ϕ̇) [rad/s] from the body angular velocity (base_link axes, roll 0) at pitch θ.
+
+    The body of R = Rz(ϕ) Ry(θ) turns at ω_body = (−ϕ̇ sin θ, θ̇, ϕ̇ cos θ) (a gyro's
+    reading), so θ̇ = ω_y and ϕ̇ = ω_z cos θ − ω_x sin θ.
+    """
+    wx, wy, wz = (float(v) for v in w_body)
+    _check_finite('angular_velocity', x=wx, y=wy, z=wz)
+    return wy, wz * math.cos(pitch) - wx * math.sin(pitch)
+
+
+def body_rates_from_euler(pitch: float, pitch_rate: float,
+                          yaw_rate: float) -> tuple[float, float, float]:
+    """Inverse of :func:`euler_rates_from_body`: (−ϕ̇ sin θ, θ̇, ϕ̇ cos θ) [rad/s]."""
+    return (-yaw_rate * math.sin(pitch), pitch_rate, yaw_rate * math.cos(pitch))
+
+
+def imu_has_rates(msg: Imu) -> bool:
+    """Whether the message carries an angular velocity (REP 145: covariance[0] ≠ −1)."""
+    return msg.angular_velocity_covariance[0] != -1.0
+
+
+def gps_has_fix(msg: NavSatFix) -> bool:
+    """Whether the NavSatFix holds a fix (status ≥ STATUS_FIX)."""
+    return msg.status.status >= NavSatStatus.STATUS_FIX
+
+
 def gps_local_position(msg: NavSatFix, datum_latitude: float, datum_longitude: float,
                        datum_altitude: float) -> tuple[float, float]:
     """(x east, y north) [m] of a fix in the map frame whose origin is the datum."""

@@ -5,7 +5,8 @@ Topics
 ------
 Subscribes ``/joint_states`` (sensor_msgs/JointState: wheel joint angles, by name, times
 their signs), ``/imu/data`` (sensor_msgs/Imu: orientation, corrected for the IMU's
-mounting -> pitch θ, yaw ϕ), ``/gps/fix`` (sensor_msgs/NavSatFix -> map-frame (x, y)
+mounting -> pitch θ, yaw ϕ; with ``eso.estimator: gyro`` also angular_velocity, the gyro,
+rotated into base_link -> θ̇, ϕ̇), ``/gps/fix`` (sensor_msgs/NavSatFix -> map-frame (x, y)
 about the datum) or, with ``position_source: odometry``, ``/odom`` (nav_msgs/Odometry ->
 (x, y) of its pose), ``/wip/wheel_torques`` (wip_msgs/WheelTorques: the torques applied,
 the ESO's input).
@@ -37,7 +38,9 @@ lockstep: the set for t_k is joint_states(t_k) + imu(t_k) [+ gps(t_k) at GPS tic
 every round(gps_period / eso.sample_period)-th sample from t = 0]; in addition the wheel
 torques stamped t_{k−1} (the previous sample processed) must have arrived, so the
 result never depends on which of the plant's and the mixer's messages DDS delivers
-first. A GPS fix off the GPS ticks is dropped (its use would depend on arrival order).
+first. A GPS fix off the GPS ticks is dropped (its use would depend on arrival order); a
+NavSatFix without a fix (status NO_FIX) at a GPS tick completes the set without a fix
+(a dropout).
 realtime: update when both an IMU and an encoder message newer than at the last update
 have arrived; the latest torques and the latest unused GPS fix are used. The base's
 sensor topics are subscribed best effort (sensor-data QoS, ``common.SENSOR_QOS``), which
@@ -89,9 +92,10 @@ from ..core.position import PlanarPositionEstimator, PositionConfig
 from ..core.sensors import SensorConfig, wheel_odometry
 from .common import (ControllerNode, finite, RELIABLE_QOS, run_node, SENSOR_QOS,
                      stamp_to_ns)
-from .conversions import estimate_to_msg, gps_local_position, wheel_torques_from_msg
+from .conversions import estimate_to_msg, gps_has_fix, gps_local_position, wheel_torques_from_msg
 from .diagnostics import OK, WARN
-from .hardware_inputs import (body_pitch_yaw, check_mounting_rpy, check_position_source,
+from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, check_mounting_rpy,
+                              check_position_source,
                               check_wheel_sign, mounting_inverse, odometry_position,
                               signed_wheel_angles)
 from .parameters import ConfigParameters, declare_plain
@@ -219,11 +223,20 @@ class EsoNode(ControllerNode):
     def _on_imu(self, msg: Imu) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input('imu', stamp)
-        self.feed('imu', stamp, body_pitch_yaw(msg, self.imu_inverse_mount))
+        pitch, yaw = body_pitch_yaw(msg, self.imu_inverse_mount)
+        # The gyro estimator needs the angular velocity (a message without it is dropped).
+        rates = (body_pitch_yaw_rates(msg, self.imu_inverse_mount, pitch)
+                 if self.eso_config.estimator == 'gyro' else None)
+        self.feed('imu', stamp, (pitch, yaw, rates))
 
     def _on_gps(self, msg: NavSatFix) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input('gps', stamp)
+        if self.lockstep and not gps_has_fix(msg) and self._is_gps_tick(stamp):
+            # A dropout at a GPS tick: the set for this sample completes without a fix
+            # (the runner skips the fix there too).
+            self.feed('gps', stamp, None)
+            return
         position = gps_local_position(msg, *self.datum)
         if self.lockstep and not self._is_gps_tick(stamp):
             self.diagnostics.drop('gps', 'off the GPS ticks',
@@ -252,7 +265,7 @@ class EsoNode(ControllerNode):
     def _update(self, stamp: int, values) -> None:
         start = time.perf_counter()
         left, right = values['joint_states']
-        pitch, yaw = values['imu']
+        pitch, yaw, rates = values['imu']
         gps = values.get('gps')
         if self.lockstep:
             torques = (self.torques_by_stamp.get(self.last_update_ns, (0.0, 0.0))
@@ -271,12 +284,12 @@ class EsoNode(ControllerNode):
             self.yaw_unwrapped, yaw)
         x_v, _ = wheel_odometry(left, right, pitch, self.model, 0.0, self.relative_to_body)
         if self.observer is None:
-            self.observer = WipStateObserver(self.model, self.eso_config,
-                                             initial_positions=(yaw_unwrapped, x_v, pitch),
-                                             initial_time=t)
+            self.observer = WipStateObserver(
+                self.model, self.eso_config, initial_positions=(yaw_unwrapped, x_v, pitch),
+                initial_time=t, encoders_relative_to_body=self.relative_to_body)
         tau_left, tau_right = torques
         estimate = self.observer.update(t, yaw_unwrapped, x_v, pitch, tau_left + tau_right,
-                                        tau_right - tau_left)
+                                        tau_right - tau_left, rates)
         self.yaw_unwrapped = yaw_unwrapped
         self.last_update_ns = stamp
         if gps is not None and not self.has_fix:
@@ -295,7 +308,7 @@ class EsoNode(ControllerNode):
             raise ValueError(f'non-finite estimate from finite inputs (overflow): '
                              f'{estimate}, x={x!r}, y={y!r}; not published, observer and '
                              'position restart at the next measurement set')
-        settled = not self.observer.yaw.in_ramp(t)
+        settled = not self.observer.in_ramp(t)
         self.publisher.publish(estimate_to_msg(estimate, x, y, settled, stamp, self.frame_id))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self._report(settled)

@@ -49,7 +49,8 @@ from typing import Sequence
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState
 
-from .conversions import (_check_finite, imu_pitch_yaw, InvalidMessage, pitch_yaw_from_quaternion,
+from .conversions import (_check_finite, euler_rates_from_body, imu_has_rates, imu_pitch_yaw,
+                          InvalidMessage, pitch_yaw_from_quaternion,
                           quaternion_from_euler, QUATERNION_NORM_TOLERANCE, wheel_angles)
 
 #: Values of the ``position_source`` parameter.
@@ -161,6 +162,23 @@ def body_pitch_yaw(msg: Imu, inverse_mount: Sequence[float] | None = None) -> tu
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise InvalidMessage(f'orientation: quaternion norm {norm!r} is not 1')
     return pitch_yaw_from_quaternion(*quaternion_multiply((x, y, z, w), inverse_mount))
+
+
+def body_pitch_yaw_rates(msg: Imu, inverse_mount: Sequence[float] | None,
+                         pitch: float) -> tuple[float, float]:
+    """(θ̇, ϕ̇) [rad/s] of the body from the IMU's angular velocity (gyro), whose axes
+    are the IMU frame: ω_body = R_mount ω_imu, then the Euler rates at the body pitch θ
+    [rad] (:func:`.conversions.euler_rates_from_body`).
+    """
+    if not imu_has_rates(msg):
+        raise InvalidMessage('imu: no angular velocity (angular_velocity_covariance[0] == '
+                             '-1), needed by the gyro estimator')
+    w = msg.angular_velocity
+    w_imu = (float(w.x), float(w.y), float(w.z))
+    _check_finite('angular_velocity', x=w_imu[0], y=w_imu[1], z=w_imu[2])
+    # R(q)ᵀ v with q = q_mount⁻¹ is R_mount v: the IMU-frame vector in base_link.
+    w_body = w_imu if inverse_mount is None else rotate_vector_into(inverse_mount, w_imu)
+    return euler_rates_from_body(pitch, w_body)
 
 
 def odometry_position(msg: Odometry) -> tuple[float, float]:
