@@ -15,7 +15,7 @@ f̂1 = f1, (10) and (12) give ω̇ = f1 + (ω̇_d − f1) − g1 kω e_ω, i.e. 
 
 Deviations from the paper:
 
-- α̂ is kept in [``alpha_min``, ``alpha_max``] by projection (the spec, section 4: the
+- α̂ is kept in [``alpha_min``, ``alpha_max``] by projection (docs/paper.md §4: the
   law (13) alone can drift, e.g. when f̂1 is biased). Defaults [0.05, 5] kg m²: α(θ)
   of the default robot is 0.39 at θ = 0 and 4.0 at θ = ±π/2, so the interval holds every
   tilt and an unknown yaw inertia down to 1/8 of the nominal;

@@ -61,7 +61,7 @@ from .model import input_gains
 from .params import WipParameters
 
 _TWO_PI = 2.0 * math.pi
-#: Longest RK4 sub-step while the ε ramp lasts [s] (the spec: at most 1 ms).
+#: Longest RK4 sub-step while the ε ramp lasts [s] (docs/paper.md §2: at most 1 ms).
 MAX_RAMP_SUBSTEP = 1e-3
 #: Relative mismatch of the period below which the precomputed matrices are used [1].
 _PERIOD_TOLERANCE = 1e-6

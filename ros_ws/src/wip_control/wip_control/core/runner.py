@@ -49,7 +49,7 @@ def initial_state(scenario: Scenario, reference_state) -> np.ndarray:
 
     With (x_e, y_e, ϕ_e) defined as in eq. (9) (body frame), the pose is
     ϕ = ϕr − ϕe and (x, y) = (xr, yr) − R(ϕ) (x_e, y_e). Section V's ϕ(0) = 0.5
-    contradicts ϕr(0) − ϕe(0); the spec adopts ϕ(0) = ϕr(0) − 0.1.
+    contradicts ϕr(0) − ϕe(0); docs/paper.md §6 adopts ϕ(0) = ϕr(0) − 0.1.
     """
     init = scenario.initial_state
     a, b, c = init.pose

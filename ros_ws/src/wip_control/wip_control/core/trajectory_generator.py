@@ -12,7 +12,7 @@
 
 then |ω_d| ≤ ω_max, |υ_d| ≤ υ_max by explicit saturation.
 
-Deviations from the paper, as adopted in the spec (section 3):
+Deviations from the paper, as adopted in docs/paper.md §3:
 
 - the errors are in the **body frame** (the paper's text says earth frame, but its
   Lyapunov function V2 = λ1 ln(1 + x_e² + y_e²)/2 + ϕ_e²/2 only decreases with
