@@ -454,13 +454,14 @@ def test_rate_and_torque_limits_hold_for_any_command_sequence(commands, rate, ta
     t = 0.0
     previous = (0.0, 0.0)
     for dt, tau_v, tau_omega in commands:
-        t += dt
+        t_before, t = t, t + dt
         monitor.yaw_torque(t, tau_omega)
         monitor.drive_torque(t, tau_v)
         d = monitor.update(t)
         assert d.state == ACTIVE
-        # Δt of the monitor: the nominal period at the first update, then the time step.
-        step = rate * (H if monitor.ticks == 1 else dt)
+        # Δt of the monitor: the nominal period at the first update, then the difference
+        # of the times it was given (not dt: t + 1e-38 rounds to t, a step of 0).
+        step = rate * (H if monitor.ticks == 1 else t - t_before)
         target = mix(tau_v, tau_omega, tau_max)
         for now, before, goal in zip((d.tau_left, d.tau_right), previous, target):
             # One rounding of previous +- step: 1e-12 relative.
