@@ -40,9 +40,10 @@ wall-clock time (the realtime graph, a robot) is shifted so that its first groun
 (else its first state estimate) is at t = 0, so that the metrics' windows (settling after
 10 s, pulse windows) apply. Samples before that origin get negative times.
 
-The scenario (limits, disturbance windows, parameters of the metrics) comes from
-``--scenario``, else from ``BAG/scenario.yaml`` (``scripts/run_graph --record`` copies
-the run's scenario there), else the paper's Section V with a warning.
+The scenario (limits, disturbance windows, parameters of the metrics) is the bag's own
+(its metadata's ``custom_data``, else ``BAG/scenario.yaml``, where ``scripts/run_graph
+--record`` copies the run's scenario), with ``--scenario FILE`` applied over it, else the
+paper's Section V with a warning: :mod:`wip_sim.bag_scenario`, the rule rerun uses too.
 
 Integrity: the bag is checked before it is read (every chunk's CRC, a proper end). A
 damaged or unfinished bag is refused with the time range and topics it lost (exit 2);
@@ -65,15 +66,15 @@ import numpy as np
 from wip_control.core.config import ConfigError
 from wip_control.core.metrics import compute_metrics
 from wip_control.core.record import GROUPS, RunRecord
-from wip_control.core.scenario import load_scenario, Scenario
+from wip_control.core.scenario import Scenario
 from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE,
                                    exit_with)
 
 from .bag_reader import bag_summary, BagReadError, read_bag
+from .bag_scenario import scenario_for_bag
 
 #: Stamps beyond this [s] are wall-clock (epoch) times, not simulation times (~3 years).
 WALL_CLOCK_THRESHOLD_S = 1e8
-SCENARIO_FILE_NAME = 'scenario.yaml'
 
 
 def _truth(m) -> tuple:
@@ -152,23 +153,12 @@ def record_from_bag(bag: str | pathlib.Path,
 
 def scenario_for(bag: str | pathlib.Path,
                  scenario_path: str | pathlib.Path | None) -> tuple[Scenario, str]:
-    """The scenario of a report and where it came from (see the module docstring)."""
-    candidates = []
-    if scenario_path is not None:
-        candidates.append(pathlib.Path(scenario_path))
-    else:
-        bag = pathlib.Path(bag)
-        if bag.is_dir():
-            candidates.append(bag / SCENARIO_FILE_NAME)
-    for path in candidates:
-        if scenario_path is None and not path.is_file():
-            continue
-        try:
-            return load_scenario(path), str(path)
-        except ConfigError as err:
-            raise ReportError(str(err)) from err
-    return Scenario(), "the paper's Section V (default: no --scenario and no " \
-                      f'{SCENARIO_FILE_NAME} in the bag)'
+    """The scenario of a report and where it came from: the bag's own, with
+    ``scenario_path`` over it (:mod:`wip_sim.bag_scenario`, the rule rerun uses too)."""
+    try:
+        return scenario_for_bag(bag, scenario_path)
+    except ConfigError as err:
+        raise ReportError(str(err)) from err
 
 
 def report(bag: str | pathlib.Path, out: str | pathlib.Path,

@@ -59,11 +59,9 @@ Outputs in ``--out DIR``:
   ``scenario.yaml``, ``figures/`` (unless ``--no-figures``; plus
   ``figures/rerun_comparison.png``).
 
-The scenario (controller parameters, rates, datum) is ``--scenario FILE``, else the one
-stored in the bag's metadata (``custom_data['wip.scenario']``, written by
-:func:`write_record_as_bag` and by the recorder's ``scenario_file`` parameter), else
-``scenario.yaml`` in the bag directory (where ``scripts/run_graph`` puts it) or beside it,
-else the paper's Section V (with a warning).
+The scenario (controller parameters, rates, datum) is the bag's own, with ``--scenario
+FILE`` applied over it (a partial file changes only its keys): the lookup rule of
+:mod:`wip_sim.bag_scenario`, shared with ``scripts/report``.
 """
 
 from __future__ import annotations
@@ -92,7 +90,7 @@ import yaml
 
 from wip_control.core.angles import unwrap_next
 from wip_control.core.arc import AdaptiveRobustYawController
-from wip_control.core.config import ConfigError, load_yaml_text
+from wip_control.core.config import ConfigError
 from wip_control.core.eso import StateEstimate, WipStateObserver
 from wip_control.core.metrics import compute_metrics
 from wip_control.core.mixer import drive_torque_limit, mix
@@ -101,8 +99,7 @@ from wip_control.core.position import PlanarPositionEstimator
 from wip_control.core.record import GROUPS, RunRecord
 from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_alpha
-from wip_control.core.scenario import (load_scenario, Scenario, scenario_from_mapping,
-                                       scenario_to_mapping)
+from wip_control.core.scenario import Scenario, scenario_to_mapping
 from wip_control.core.sensors import local_to_geodetic, Sensors, wheel_odometry
 from wip_control.core.trajectory_generator import TrajectoryGenerator
 from wip_control.nodes.conversions import (arc_to_msg, body_rates_from_euler,
@@ -115,11 +112,10 @@ from wip_control.nodes.conversions import (arc_to_msg, body_rates_from_euler,
 
 from wip_control.tools.cli import check_output_directory, EXIT_USAGE, exit_with, write_atomic
 
-from .bag_reader import (bag_summary, BagReadError, iter_raw_messages, read_metadata_file,
-                         read_topics)
+from .bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
+from .bag_scenario import SCENARIO_KEY, scenario_for_bag
 from .bag_writer import BagWriterError, Rosbag2McapWriter
 
-SCENARIO_KEY = 'wip.scenario'  # custom_data key of the scenario YAML in a bag
 DEFAULT_PREFIX = '/rerun'
 LEFT_JOINT, RIGHT_JOINT = 'left_wheel_joint', 'right_wheel_joint'
 MAP_FRAME = 'map'
@@ -574,31 +570,6 @@ def comparison_figure(run, outputs, path):
 
 
 # ============================================================== scenario
-
-def scenario_for_bag(bag, scenario_file=None):
-    """(Scenario, where it came from); see the module docstring for the order."""
-    if scenario_file:
-        return load_scenario(scenario_file), str(scenario_file)
-    path = pathlib.Path(bag)
-    metadata = path / 'metadata.yaml'
-    if metadata.is_file():
-        info = read_metadata_file(metadata)
-        custom = info.get('custom_data')
-        text = custom.get(SCENARIO_KEY) if isinstance(custom, dict) else None
-        if isinstance(text, str) and text:
-            where = f'{metadata} (custom_data)'
-            try:
-                return scenario_from_mapping(load_yaml_text(text, where)), where
-            except ConfigError as err:
-                raise ConfigError(f'{where}: {err}') from err
-    directory = path if path.is_dir() else path.parent
-    for candidate in (directory / 'scenario.yaml', directory.parent / 'scenario.yaml'):
-        if candidate.is_file():  # scripts/run_graph copies it into the bag directory
-            return load_scenario(candidate), str(candidate)
-    return load_scenario(None), 'default (paper Section V): no scenario found for the bag'
-
-
-# ============================================================== test bags from the runner
 
 def write_record_as_bag(result, scenario: Scenario, directory, clock=True,
                         compression='zstd', **writer_options):

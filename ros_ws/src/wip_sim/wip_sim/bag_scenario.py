@@ -1,0 +1,109 @@
+"""The scenario of a bag: one lookup rule for every tool that reads bags (report, rerun).
+
+A bag's own scenario is, in this order:
+
+1. the YAML in its ``metadata.yaml`` ``custom_data['wip.scenario']`` (written by the
+   recorder's ``scenario_file`` parameter and by ``scripts/rerun``'s bags);
+2. ``scenario.yaml`` in the bag directory (``scripts/run_graph --record`` copies the run's
+   scenario there).
+
+The bag is its directory or any file in it (``BAG/bag_0.mcap`` finds the same scenario as
+``BAG``). Nothing outside the bag directory is looked at: a file beside it may belong to
+another run.
+
+``--scenario FILE`` is applied **over** the bag's own scenario: a partial file (say, only
+``mpc: {input_weight: 0.5}``) changes those keys and keeps every other value of the run
+that was recorded (its reference, limits, rates, datum). Without a scenario of its own the
+bag is read with the defaults (the paper's Section V), and the source says so.
+"""
+
+from __future__ import annotations
+
+import pathlib
+from typing import Any, Mapping
+
+from wip_control.core.config import ConfigError, load_yaml_text
+from wip_control.core.scenario import (MAX_SCENARIO_FILE_BYTES, Scenario,
+                                       scenario_from_mapping)
+
+from .bag_reader import read_metadata_file
+
+SCENARIO_KEY = 'wip.scenario'          # custom_data key of the scenario YAML in a bag
+SCENARIO_FILE_NAME = 'scenario.yaml'   # beside the bag's files, in its directory
+
+
+def bag_directory(bag: str | pathlib.Path) -> pathlib.Path:
+    """The bag directory of a bag given as its directory or as a file in it."""
+    path = pathlib.Path(bag)
+    return path if path.is_dir() else path.parent
+
+
+def own_scenario(bag: str | pathlib.Path) -> tuple[dict[str, Any] | None, str]:
+    """(the bag's own scenario as a mapping, or None; where it came from)."""
+    directory = bag_directory(bag)
+    metadata = directory / 'metadata.yaml'
+    if metadata.is_file():
+        try:
+            info = read_metadata_file(metadata)
+        except Exception:  # noqa: B902 - a broken metadata.yaml: the next source
+            info = {}
+        custom = info.get('custom_data') if isinstance(info, dict) else None
+        text = custom.get(SCENARIO_KEY) if isinstance(custom, dict) else None
+        if isinstance(text, str) and text:
+            where = f'{metadata} (custom_data)'
+            return _mapping(load_yaml_text(text, where), where), where
+    candidate = directory / SCENARIO_FILE_NAME
+    if candidate.is_file():
+        return _mapping(_read_file(candidate), str(candidate)), str(candidate)
+    return None, 'none in the bag'
+
+
+def scenario_for_bag(bag: str | pathlib.Path,
+                     override: str | pathlib.Path | None = None) -> tuple[Scenario, str]:
+    """(Scenario, where it came from): the bag's own, with ``override`` applied over it.
+
+    Raises ConfigError (naming the file and the key) on an unreadable or invalid scenario.
+    """
+    base, where = own_scenario(bag)
+    if base is None:
+        where = "defaults (the paper's Section V): no scenario in the bag"
+        base = {}
+    if override is not None:
+        path = pathlib.Path(override)
+        base = merged(base, _mapping(_read_file(path), str(path)))
+        where = f'{path} over {where}'
+    try:
+        return scenario_from_mapping(base), where
+    except ConfigError as err:
+        raise ConfigError(f'{where}: {err}') from err
+
+
+def merged(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    """``override`` over ``base``, section by section (lists and values are replaced)."""
+    out = dict(base)
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merged(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _read_file(path: pathlib.Path) -> Any:
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise ConfigError(f'scenario file {str(path)!r}: {err.strerror}') from err
+    if len(raw) > MAX_SCENARIO_FILE_BYTES:
+        raise ConfigError(f'scenario file {str(path)!r}: {len(raw)} bytes, more than the '
+                          f'{MAX_SCENARIO_FILE_BYTES} a scenario file may have')
+    return load_yaml_text(raw, f'scenario file {str(path)!r}')
+
+
+def _mapping(data: Any, where: str) -> dict[str, Any]:
+    if data is None:
+        return {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(f'{where}: a scenario is a mapping of sections, got '
+                          f'{type(data).__name__}')
+    return dict(data)
