@@ -489,3 +489,19 @@ def test_shadow_mode_reports_the_torques_but_commands_zero():
     monitor, clock = active(dataclasses.replace(config, shadow_mode=False))
     d = clock.tick()
     assert d.command == (d.tau_left, d.tau_right) != (0.0, 0.0)
+
+
+def test_a_stall_of_the_layer_itself_past_the_bridge_is_a_fault_even_with_fresh_inputs():
+    """The whole controller process frozen: on waking up fresh inputs may be taken before
+    the layer's own tick; the gap since its previous tick still makes it a fault (the
+    base held the last command, blind, for that long)."""
+    config = SafetyConfig()
+    bound = config.max_estimate_age + config.bridge_time
+    monitor, clock = active(config)
+    clock.t += bound - H                    # within the bound: ridden through
+    clock.feed()
+    assert monitor.update(clock.t).state == ACTIVE
+    clock.t += bound + 0.01                 # past it: fresh inputs, yet a fault
+    clock.feed()
+    assert_zeroed(monitor.update(clock.t), FAULT, 'stalled', 'not scheduled')
+    assert clock.tick().state == STARTING   # then re-armed through STARTING

@@ -193,9 +193,11 @@ def test_freezes_of_the_composed_controllers_within_the_bound_are_ridden_through
     assert run.base_code == 0 and not stats['fell'], stats['end_reason']
     states = [e['state'] for e in result.safety_events]
     engaged = states.index('ACTIVE')
-    # Never zeroed once engaged (the end of the run, the base stopping, aside).
+    # Never zeroed once engaged, until the base stops at the end of its run_time after the
+    # release (which is the engagement, within the diagnostics' latency: 0.5 s margin).
+    end = result.safety_events[engaged]['t'] + run_time - 0.5
     faults = [e for e in result.safety_events[engaged:] if e['state'] == 'FAULT']
-    assert all(e['t'] >= result.safety_events[-1]['t'] for e in faults), result.safety_events
+    assert all(e['t'] >= end for e in faults), result.safety_events
     theta_max, y_max = _on_the_line(stats, after=10.0)
     print(f'freezes {log}: max |theta| {theta_max:.3f} rad, max |y| after 10 s '
           f'{y_max:.2f} m, safety events {states}')
@@ -224,9 +226,12 @@ def test_a_freeze_past_the_bound_zeroes_the_torque_and_names_the_cause(tmp_path)
     result = run.result
     assert log and log[0][1] >= 0.5
     assert all(c == 0 for c in result.node_exit_codes.values()), result.node_exit_codes
+    # The cause: the layer's own tick gap ('stalled', when it woke up to fresh inputs) or
+    # an input older than age limit + bridge ('stale'), whichever it saw first.
     after = [e for e in result.safety_events if e['state'] == 'FAULT']
-    assert any('stale' in e['reasons'] and 'bridge' in e['reasons'] for e in after), \
-        result.safety_events
+    assert any('bridge' in e['reasons'] and ('stale' in e['reasons']
+                                             or 'stalled' in e['reasons'])
+               for e in after), result.safety_events
 
 
 def test_sensor_samples_delivered_late_in_bunches_are_ridden_through(tmp_path):

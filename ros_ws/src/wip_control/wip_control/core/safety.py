@@ -75,7 +75,10 @@ nominal model (:func:`tilt_divergence_rate`, 4.6 rad/s for the default robot). B
 for ln 4 / λ (0.30 s) at most quadruples the tilt error the controller had when the input
 stopped, so an error of a quarter of the MPC's soft tilt limit (0.025 of 0.1 rad, more
 than the robot shows while balancing) stays within that limit; after that, zero torque is
-safer than guessing. (The MPC itself runs the tilt loop open for its 0.1 s period. Bridging
+safer than guessing. The same bound applies to the layer's own ticks: if it was not run for
+longer (its process frozen or starved), the base held the last command that long and the
+first tick after it is a fault, whatever inputs arrived first. (The MPC itself runs the
+tilt loop open for its 0.1 s period. Bridging
 only ln 2 / λ = 0.15 s was tried first: after a 60 ms freeze of the controllers' process on
 a loaded machine the chain took 215 ms to deliver a fresh yaw torque again, the layer cut
 the torque and the robot fell.) ``bridge_time: 0`` restores the strict behaviour (fault at the age
@@ -451,6 +454,13 @@ class SafetyMonitor:
         dt = self.period if self.last_update is None else max(0.0, now - self.last_update)
         self.last_update = now
         faults, waiting, late = self._conditions(now)
+        # The layer itself not run for longer than the bridge covers (its process frozen
+        # or starved): the base held the last command that long, blind. A fault even if
+        # fresh inputs arrived first on waking up.
+        stall_bound = self.config.max_estimate_age + self.config.bridge_time
+        if self.timing_checks and self.ticks > 1 and dt > stall_bound + TIME_TOLERANCE:
+            faults.append(f'stalled: no safety tick for {dt:.3f} s > {stall_bound:g} s '
+                          '(estimate age limit + bridge; this process was not scheduled)')
         if self.fault_latched and not faults:
             faults = [f'latched fault ({"; ".join(self.fault_latched)}): reset required']
         was_active = self.state in _TORQUE_STATES
