@@ -146,6 +146,24 @@ class CondensedPrediction:
         self.gain_matrix_v = self._toeplitz(step_v)
         self.gain_matrix_theta_dot = self._toeplitz(step_theta_dot)
 
+    def decaying_input_columns(self, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+        """(γ2ρ, γ3ρ) (3·Np each): the free response to an input on the υ̇ (θ̈) row that
+        decays geometrically, ρ^p at step p (ρ = 1: the constant-input columns γ2, γ3).
+
+        x(k+1) = Σ_{p≤k} A^{k−p} b ρ^p = D_k b with D_0 = I, D_k = A^k + ρ D_{k−1}.
+        """
+        n_p, a = self.prediction_horizon, self.state_matrix
+        power = np.eye(STATE_DIM)
+        total = np.eye(STATE_DIM)
+        out = np.empty((n_p, STATE_DIM, STATE_DIM))
+        out[0] = total
+        for k in range(1, n_p):
+            power = power @ a
+            total = power + ratio * total
+            out[k] = total
+        ts = self.sampling_period
+        return (ts * out[:, :, V_ROW].reshape(-1), ts * out[:, :, THETA_DOT_ROW].reshape(-1))
+
     def _toeplitz(self, steps: np.ndarray) -> np.ndarray:
         n_p, n_c = self.prediction_horizon, self.control_horizon
         out = np.zeros((n_p, STATE_DIM, n_c))
