@@ -19,11 +19,13 @@ What it does
    ``--duration`` overrides its duration), writes it to ``OUT/scenario.yaml`` and the ROS
    parameters of every node to ``OUT/params.yaml``
    (:func:`wip_control.tools.params_files.write_params_file`).
-2. Starts every node as its own process, running the very executable ``ros2 run`` would
-   run, ``<prefix>/lib/<package>/<executable>`` with the prefix from
+2. Starts the nodes, running the very executables ``ros2 run`` would run,
+   ``<prefix>/lib/<package>/<executable>`` with the prefix from
    ``ament_index_python.get_package_prefix``, with ``--ros-args --params-file
-   OUT/params.yaml -r __node:=<name>``: reference, eso, trajectory_generator, arc, mpc,
-   torque_mixer (wip_control), plant (wip_sim) and, with ``--record BAG``, the recorder
+   OUT/params.yaml`` (and ``-r __node:=<name>`` for a one-node process): the controllers
+   reference, eso, trajectory_generator, arc, mpc, torque_mixer (wip_control) in one
+   process (``--layout composed``, the default: ``controllers``) or one each
+   (``--layout separate``), the plant (wip_sim) and, with ``--record BAG``, the recorder
    (wip_sim) recording every topic of the graph into the rosbag2 directory BAG, the viewer
    (wip_sim; with ``--record`` or ``--foxglove``, or ``--viewer``: nav_msgs/Odometry,
    nav_msgs/Path and visualization_msgs/MarkerArray for 3-D viewers, recorded too, see
