@@ -23,7 +23,7 @@ import pathlib
 from typing import Any, Mapping
 
 from wip_control.core.config import ConfigError, load_yaml_text
-from wip_control.core.scenario import (MAX_SCENARIO_FILE_BYTES, Scenario,
+from wip_control.core.scenario import (read_scenario_file, Scenario,
                                        scenario_from_mapping)
 
 from .bag_reader import read_metadata_file
@@ -54,7 +54,7 @@ def own_scenario(bag: str | pathlib.Path) -> tuple[dict[str, Any] | None, str]:
             return _mapping(load_yaml_text(text, where), where), where
     candidate = directory / SCENARIO_FILE_NAME
     if candidate.is_file():
-        return _mapping(_read_file(candidate), str(candidate)), str(candidate)
+        return _mapping(read_scenario_file(candidate), str(candidate)), str(candidate)
     return None, 'none in the bag'
 
 
@@ -70,7 +70,7 @@ def scenario_for_bag(bag: str | pathlib.Path,
         base = {}
     if override is not None:
         path = pathlib.Path(override)
-        base = merged(base, _mapping(_read_file(path), str(path)))
+        base = merged(base, _mapping(read_scenario_file(path), str(path)))
         where = f'{path} over {where}'
     try:
         return scenario_from_mapping(base), where
@@ -87,17 +87,6 @@ def merged(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, An
         else:
             out[key] = value
     return out
-
-
-def _read_file(path: pathlib.Path) -> Any:
-    try:
-        raw = path.read_bytes()
-    except OSError as err:
-        raise ConfigError(f'scenario file {str(path)!r}: {err.strerror}') from err
-    if len(raw) > MAX_SCENARIO_FILE_BYTES:
-        raise ConfigError(f'scenario file {str(path)!r}: {len(raw)} bytes, more than the '
-                          f'{MAX_SCENARIO_FILE_BYTES} a scenario file may have')
-    return load_yaml_text(raw, f'scenario file {str(path)!r}')
 
 
 def _mapping(data: Any, where: str) -> dict[str, Any]:

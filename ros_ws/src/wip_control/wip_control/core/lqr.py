@@ -37,8 +37,8 @@ import numpy as np
 import scipy.linalg
 
 from .model import input_gains
-from .mpc import (INPUT_MAGNITUDE_LIMIT, LongitudinalMpc, MpcConfig, MpcInputError, MpcResult,
-                  OffsetFreeTarget, admissible_increment, invalid_input_result)
+from .mpc import (LongitudinalMpc, MpcConfig, MpcInputError, MpcResult, OffsetFreeTarget,
+                  admissible_increment, drive_limit, invalid_input_result)
 from .mpc_prediction import gravity_aware_state_matrix
 from .params import WipParameters
 from .qp import MpcStatus
@@ -129,13 +129,10 @@ class LongitudinalLqr:
         """One tick: Δτ = −K ξ, clipped to the hard limits (see the module docstring)."""
         cfg = self.config
         tau_prev = self._tau_previous
-        limit = cfg.max_drive_torque if tau_limit is None else float(tau_limit)
-        values = (v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit)
-        if not all(math.isfinite(v) and abs(v) <= INPUT_MAGNITUDE_LIMIT for v in values):
+        limit = drive_limit(cfg, tau_limit, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat,
+                            v_d)
+        if limit is None:
             return self._hold_invalid_input()
-        if limit < 0.0:
-            raise MpcInputError(f'tau_limit must be >= 0 N m, got {limit!r}')
-        limit = min(limit, cfg.max_drive_torque)
         t_start = time.perf_counter()
         _, g2, g3 = input_gains(self.params, theta_hat)
         scale2, scale3 = cfg.prediction_gain_scale

@@ -396,13 +396,10 @@ class LongitudinalMpc:
         """
         cfg = self.config
         tau_prev = self._tau_previous
-        limit = cfg.max_drive_torque if tau_limit is None else float(tau_limit)
-        values = (v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit)
-        if not all(math.isfinite(v) and abs(v) <= INPUT_MAGNITUDE_LIMIT for v in values):
+        limit = drive_limit(cfg, tau_limit, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat,
+                            v_d)
+        if limit is None:
             return self._hold_invalid_input()
-        if limit < 0.0:
-            raise MpcInputError(f'tau_limit must be >= 0 N m, got {limit!r}')
-        limit = min(limit, cfg.max_drive_torque)
 
         t_start = time.perf_counter()
         # g2, g3 of model (1) at θ̂ (what the ESO assumes, so f̂ + g τ(k−1) is its estimate
@@ -511,6 +508,20 @@ class LongitudinalMpc:
         result = invalid_input_result(self.config, self._tau_previous)
         self._tau_previous = result.tau_v
         return result
+
+
+def drive_limit(config: MpcConfig, tau_limit: float | None, *inputs: float) -> float | None:
+    """The |τυ| limit of a tick, capped to ``max_drive_torque`` (``tau_limit`` None: that
+    cap); None when an input or the limit is not finite or beyond
+    :data:`INPUT_MAGNITUDE_LIMIT` (the caller then holds, see ``invalid_input_result``).
+    MpcInputError on a negative limit (a caller's bug: 2τmax − |τω| ≥ 0)."""
+    limit = config.max_drive_torque if tau_limit is None else float(tau_limit)
+    if not all(math.isfinite(v) and abs(v) <= INPUT_MAGNITUDE_LIMIT
+               for v in (*inputs, limit)):
+        return None
+    if limit < 0.0:
+        raise MpcInputError(f'tau_limit must be >= 0 N m, got {limit!r}')
+    return min(limit, config.max_drive_torque)
 
 
 def admissible_increment(delta: float, tau_prev: float, limit: float, dmax: float) -> float:

@@ -37,7 +37,6 @@ import math
 import pathlib
 from typing import Any, Mapping
 
-import yaml
 
 from .arc import ArcConfig
 from .config import ConfigError, _show, from_mapping, load_yaml_text, param, to_mapping
@@ -317,6 +316,17 @@ def load_scenario(path: str | pathlib.Path | None = None) -> Scenario:
     if path is None:
         return Scenario()
     path = pathlib.Path(path)
+    data = read_scenario_file(path)
+    try:
+        return scenario_from_mapping(data)
+    except ConfigError as err:
+        raise ConfigError(f'{path}: {err}') from err
+
+
+def read_scenario_file(path: str | pathlib.Path) -> Any:
+    """The parsed content of a scenario file, not yet validated (strict YAML, size-checked);
+    ConfigError naming the file on any problem."""
+    path = pathlib.Path(path)
     try:
         raw = path.read_bytes()
     except OSError as err:
@@ -324,11 +334,7 @@ def load_scenario(path: str | pathlib.Path | None = None) -> Scenario:
     if len(raw) > MAX_SCENARIO_FILE_BYTES:
         raise ConfigError(f'scenario file {str(path)!r}: {len(raw)} bytes, more than the '
                           f'{MAX_SCENARIO_FILE_BYTES} a scenario file may have')
-    data = load_yaml_text(raw, f'scenario file {str(path)!r}')
-    try:
-        return scenario_from_mapping(data)
-    except ConfigError as err:
-        raise ConfigError(f'{path}: {err}') from err
+    return load_yaml_text(raw, f'scenario file {str(path)!r}')
 
 
 def scenario_to_mapping(scenario: Scenario) -> dict[str, Any]:
