@@ -76,6 +76,9 @@ class StandinRun:
     result: HardwareResult
     stats: dict[str, Any]
     base_code: int | None
+    #: SCHED_FIFO priorities the base and the controllers ran at (0: normal policy).
+    base_priority: int = 0
+    controller_priority: int = 0
 
     def summary(self) -> dict[str, Any]:
         """The measured numbers (also written to ``measured.json`` beside the run)."""
@@ -192,9 +195,10 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
             if injector is not None:
                 injector.join(timeout=30)
     stats = json.loads((directory / 'base_stats.json').read_text(encoding='utf-8'))
-    run = StandinRun(result, stats, base.returncode)
-    measured = dict(run.summary(), base_priority=base_scheduling.priority,
-                    controller_priority=controller_scheduling.priority, layout=layout)
+    run = StandinRun(result, stats, base.returncode, base_scheduling.priority,
+                     controller_scheduling.priority)
+    measured = dict(run.summary(), base_priority=run.base_priority,
+                    controller_priority=run.controller_priority, layout=layout)
     (directory / 'measured.json').write_text(json.dumps(measured, indent=2))
     return run
 
@@ -242,10 +246,10 @@ def realtime_benchmark(directory: pathlib.Path, seconds: float = 20.0,
         run = run_against_standin(directory / name, BASE, seconds, layout=layout,
                                   realtime_priority=priority)
         summary = run.summary()
-        rows.append({'layout': layout, 'rt_priority': priority and permitted(
-            Scheduling(BASE_PRIORITY)), 'fell': summary['fell'],
-            'controller_cpu_fraction': summary['controller_cpu_fraction'],
-            'latency_ms': summary['sensor_to_command_latency_ms'],
-            'command_gap_ms': summary['command_gap_ms'],
-            'deadline_misses': summary['deadline_misses']})
+        rows.append({'layout': layout, 'rt_priority': run.base_priority > 0,
+                     'fell': summary['fell'],
+                     'controller_cpu_fraction': summary['controller_cpu_fraction'],
+                     'latency_ms': summary['sensor_to_command_latency_ms'],
+                     'command_gap_ms': summary['command_gap_ms'],
+                     'deadline_misses': summary['deadline_misses']})
     return rows
