@@ -54,7 +54,7 @@ from wip_control.core.sensors import (geodetic_to_local, local_to_geodetic,  # n
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa: E402
                                                    TrajectoryGeneratorConfig)
 from wip_control.nodes.arc_node import ArcNode, default_alpha_initial  # noqa: E402
-from wip_control.nodes.common import CLOCK_QOS, make_header, ns_to_stamp  # noqa: E402
+from wip_control.nodes.common import CLOCK_QOS, make_header, ns_to_stamp, stamp_to_ns  # noqa: E402
 from wip_control.nodes.conversions import (body_rates_from_euler,  # noqa: E402
                                            euler_rates_from_body, mpc_status,
                                            pitch_yaw_from_quaternion,
@@ -1064,22 +1064,37 @@ def test_reference_node_process_runs_lockstep_on_the_events_executor_and_stops_o
         out = []
         io.create_subscription(ReferenceStateMsg, '/wip/reference', out.append, 10)
         pub = io.create_publisher(Clock, '/clock', CLOCK_QOS)
-        deadline = time.monotonic() + 30.0
+        deadline = time.monotonic() + 60.0   # process start-up and discovery on 2 cores
         while pub.get_subscription_count() < 2 or io.count_publishers('/wip/reference') < 1:
             assert process.poll() is None, process.communicate()
             assert time.monotonic() < deadline, 'reference node not discovered'
             executor.spin_once(timeout_sec=0.05)
-        for k in range(5):
-            # Best effort (like rclpy's own /clock subscription): a sample sent while the
-            # reader is not fully matched yet is lost, so repeat it until answered (the
-            # node ignores a repeated clock value).
-            while len(out) < k + 1:
+        # Discovery is not symmetric: our reader may know the node's writer before that
+        # writer knows our reader, and /clock is best effort (like rclpy's own /clock
+        # subscription). So the first ticks may be lost either way; the node ignores a
+        # repeated clock value, so advance the clock until the first reference arrives.
+        first = 0
+        while not out:
+            assert time.monotonic() < deadline, 'no reference for any tick'
+            first += 1
+            pub.publish(clock(first * H_NS))
+            for _ in range(10):
+                executor.spin_once(timeout_sec=0.01)
+        first = stamp_to_ns(out[0].header.stamp) // H_NS
+        del out[:]
+        # Matched both ways now: every tick is answered exactly once, in lockstep.
+        deadline = time.monotonic() + 30.0
+        ticks = range(first + 1, first + 6)
+        for k in ticks:
+            sent = -math.inf
+            while len(out) < k - first:
                 assert time.monotonic() < deadline, f'no reference for tick {k}'
-                pub.publish(clock(k * H_NS))
-                for _ in range(5):
-                    executor.spin_once(timeout_sec=0.01)
-        assert [m.header.stamp for m in out] == [ns_to_stamp(k * H_NS) for k in range(5)]
-        assert out[0].x == make_reference().sample(0.0).x
+                if time.monotonic() - sent > 1.0:   # best effort: resend; a repeat is ignored
+                    pub.publish(clock(k * H_NS))
+                    sent = time.monotonic()
+                executor.spin_once(timeout_sec=0.01)
+        assert [m.header.stamp for m in out] == [ns_to_stamp(k * H_NS) for k in ticks]
+        assert out[0].x == make_reference().sample((first + 1) * H_NS * 1e-9).x
         process.send_signal(signal.SIGINT)
         _, stderr = process.communicate(timeout=20)
         assert process.returncode == 0, stderr
