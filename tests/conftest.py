@@ -23,7 +23,7 @@ REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 settings.register_profile('ci', derandomize=True, database=None)
 if os.environ.get('CI'):
     settings.load_profile('ci')
-for package in ('wip_control', 'wip_sim'):
+for package in ('wip_control', 'wip_sim', 'wip_bag', 'wip_bringup', 'wip_tools', 'wip_viewer'):
     path = str(REPO_ROOT / 'ros_ws' / 'src' / package)
     if path not in sys.path:
         sys.path.insert(0, path)

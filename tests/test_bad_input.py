@@ -30,7 +30,7 @@ import yaml
 
 from wip_control.core.config import ConfigError, load_yaml_text
 from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
-from wip_control.tools import simulate
+from wip_tools import simulate
 
 pytestmark = pytest.mark.filterwarnings('ignore::DeprecationWarning')
 
@@ -196,11 +196,11 @@ def test_exponent_notation_is_a_number(value):
 
 # ----------------------------------------------------------------------------- bags
 
-bag_reader = pytest.importorskip('wip_sim.bag_reader')
-from wip_sim.bag_info import main as bag_info_main  # noqa: E402
-from wip_sim.bag_reader import BagReadError, iter_raw_messages  # noqa: E402
-from wip_sim.bag_repair import main as bag_repair_main  # noqa: E402
-from wip_sim.bag_writer import Rosbag2McapWriter  # noqa: E402
+bag_reader = pytest.importorskip('wip_bag.bag_reader')
+from wip_bag.bag_info import main as bag_info_main  # noqa: E402
+from wip_bag.bag_reader import BagReadError, iter_raw_messages  # noqa: E402
+from wip_bag.bag_repair import main as bag_repair_main  # noqa: E402
+from wip_bag.bag_writer import Rosbag2McapWriter  # noqa: E402
 
 START_NS = 1_700_000_000_000_000_000
 

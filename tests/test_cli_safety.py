@@ -120,7 +120,7 @@ def test_simulate_checks_out_before_the_run(tmp_path, monkeypatch, capsys):
 
 # ----------------------------------------------------------------- run_graph outputs
 
-graph = pytest.importorskip('wip_sim.graph')
+graph = pytest.importorskip('wip_bringup.graph')
 
 
 def test_run_graph_never_deletes_logs_it_did_not_write(tmp_path, capsys):
@@ -187,8 +187,8 @@ pytest.importorskip('wip_msgs.msg', reason='wip_msgs not built (scripts/setup bu
 from wip_control.core.runner import run_scenario  # noqa: E402
 from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_sim import bag_info, bag_repair, report, rerun  # noqa: E402
-from wip_sim.bag_integrity import scan_file  # noqa: E402
-from wip_sim.bag_reader import BagIntegrityError, iter_raw_messages, read_bag  # noqa: E402
+from wip_bag.bag_integrity import scan_file  # noqa: E402
+from wip_bag.bag_reader import BagIntegrityError, iter_raw_messages, read_bag  # noqa: E402
 
 
 @pytest.fixture(scope='module')
@@ -221,7 +221,7 @@ def _flip_in_chunk(bag, index):
 def _chunk_messages(bag, index):
     """The messages of the index-th chunk of an intact bag (as (topic, log time, data))."""
     from mcap.records import Message
-    from wip_sim.bag_integrity import iter_chunk_records
+    from wip_bag.bag_integrity import iter_chunk_records
     path = next(bag.glob('*.mcap'))
     file_scan = scan_file(path)
     _, records = list(iter_chunk_records(path, file_scan))[index]
@@ -285,7 +285,7 @@ def test_a_truncated_bag_is_refused_by_every_reader(run_bag, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count('unfinished file') >= 2 and 'Traceback' not in err
     assert not (tmp_path / 'r').exists() and not (tmp_path / 'rr' / 'bag').exists()
-    replay = subprocess.run([sys.executable, '-m', 'wip_sim.replayer_node', str(bag)],
+    replay = subprocess.run([sys.executable, '-m', 'wip_bag.replayer_node', str(bag)],
                             capture_output=True, text=True, timeout=60)
     assert replay.returncode == 2, replay.stderr
     assert 'unfinished file' in replay.stderr and 'Traceback' not in replay.stderr

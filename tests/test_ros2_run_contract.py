@@ -1,10 +1,12 @@
 """``ros2 run <package> <executable>`` works for every executable of the project.
 
 ros2cli is not on PyPI, so the contract is tested directly: ``ros2 run pkg exe`` runs
-``<prefix>/lib/<pkg>/<exe>`` with the prefix from the ament index. Each executable of
-wip_control and wip_sim is resolved that way and started as its own process in a DDS
-domain of its own; a probe node in that domain must see the node's name and its topics
-(publishers and subscriptions of the design); then SIGINT must end it cleanly.
+``<prefix>/lib/<pkg>/<exe>`` with the prefix from the ament index. Each node executable of
+every package is resolved that way and started as its own process in a DDS domain of its
+own; a probe node in that domain must see the node's name and its topics (publishers and
+subscriptions of the design); then SIGINT must end it cleanly. Each command-line tool
+(every ``scripts/`` command of the README but set-up, demo and test) is an executable too:
+its ``--help`` works, and its ``scripts/`` front door runs the same module.
 
 Clean exit = exit code 0 and no traceback. Every entry point catches KeyboardInterrupt
 and ExternalShutdownException (Jazzy raises either on SIGINT) and returns 0 after
@@ -19,6 +21,7 @@ start-up (imports and discovery, a few seconds on two cores), not one per execut
 import os
 import pathlib
 import random
+import re
 import signal
 import subprocess
 import time
@@ -30,7 +33,8 @@ from ament_index_python.packages import get_package_prefix  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
-PACKAGES = ('wip_control', 'wip_sim')
+PACKAGES = ('wip_control', 'wip_sim', 'wip_bag', 'wip_bringup', 'wip_tools', 'wip_viewer')
+REPO_ROOT = pathlib.Path(__file__).resolve().parent.parent
 START_TIMEOUT = 60.0  # [s] all processes start together on 2 cores; discovery up to ~3 s
 STOP_TIMEOUT = 10.0  # [s] from SIGINT to exit: the recorder closes its bag first
 
@@ -76,6 +80,28 @@ CONTRACT = {
 COMPOSED = {'controllers': ('reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
                             'torque_mixer')}
 
+#: Command-line tools: executable -> (package, its scripts/ front door). Those that are
+#: also nodes (check_base, replayer) are in CONTRACT too.
+TOOLS = {
+    'simulate': ('wip_tools', 'simulate'),
+    'report': ('wip_tools', 'report'),
+    'rerun': ('wip_tools', 'rerun'),
+    'bench': ('wip_tools', 'bench'),
+    'campaign': ('wip_tools', 'campaign'),
+    'bag_info': ('wip_bag', 'bag_info'),
+    'bag_repair': ('wip_bag', 'bag_repair'),
+    'replayer': ('wip_bag', 'replay'),
+    'run_graph': ('wip_bringup', 'run_graph'),
+    'estop': ('wip_bringup', 'estop'),
+    'check_base': ('wip_bringup', 'check_base'),
+    # Writes the Foxglove layout files (foxglove/); no scripts/ front door.
+    'foxglove_layout': ('wip_viewer', None),
+}
+#: scripts/ commands that are not a tool of a package: set-up, the demo (run_graph then
+#: report) and the test runner.
+NOT_TOOLS = {'setup', 'demo', 'test'}
+HELP_TIMEOUT = 120.0  # [s] all --help processes start together on a slow, busy machine
+
 #: Exit status on SIGINT where it is not 0: check_base is an interactive check, and an
 #: interrupted check has not passed (130 = 128 + SIGINT, the shell's convention).
 SIGINT_STATUS = {'check_base': 130}
@@ -96,7 +122,7 @@ def make_bag(directory):
     """A tiny bag for the replayer: 5 std_msgs/String on /contract/chatter."""
     from rclpy.serialization import serialize_message
     from std_msgs.msg import String
-    from wip_sim.bag_writer import Rosbag2McapWriter
+    from wip_bag.bag_writer import Rosbag2McapWriter
     with Rosbag2McapWriter(directory) as bag:
         bag.add_topic('/contract/chatter', 'std_msgs/msg/String')
         for i in range(5):
@@ -148,7 +174,8 @@ def started(tmp_path_factory):
         'check_base': ['-r', '/joint_states:=/contract/joints'],
         'foxglove_bridge': ['-p', 'port:=0'],
     }
-    found = executables()
+    nodes = set(CONTRACT) | set(COMPOSED)
+    found = [entry for entry in executables() if entry[1] in nodes]
     domains = random.sample(range(1, 102), len(found))
     processes = {}
     try:
@@ -163,10 +190,67 @@ def started(tmp_path_factory):
 
 def test_every_executable_has_a_contract_entry():
     names = {executable for _, executable, _ in executables()}
-    assert names == set(CONTRACT) | set(COMPOSED), \
-        'update CONTRACT or COMPOSED (and the README) for new executables'
+    assert names == set(CONTRACT) | set(COMPOSED) | set(TOOLS), \
+        'update CONTRACT, COMPOSED or TOOLS (and the README) for new executables'
     packages = {package for package, _, _ in executables()}
     assert packages == set(PACKAGES)
+    found = {executable: package for package, executable, _ in executables()}
+    assert {name: found[name] for name in TOOLS} == {
+        name: package for name, (package, _) in TOOLS.items()}
+
+
+def entry_point_module(package, executable):
+    """The module of a console script, from the package's setup.py."""
+    text = (REPO_ROOT / 'ros_ws' / 'src' / package / 'setup.py').read_text(encoding='utf-8')
+    match = re.search(rf"'{executable} = ([\w.]+):main'", text)
+    assert match, f'{package}/setup.py has no console script {executable}'
+    return match.group(1)
+
+
+def test_every_readme_command_is_an_executable_run_by_its_script():
+    readme = (REPO_ROOT / 'README.md').read_text(encoding='utf-8')
+    commands = set(re.findall(r'^\| `scripts/(\w+)', readme, re.MULTILINE)) - NOT_TOOLS
+    fronts = {script: (package, executable)
+              for executable, (package, script) in TOOLS.items() if script}
+    assert commands == set(fronts), 'the README lists a command that is no executable'
+    for script, (package, executable) in sorted(fronts.items()):
+        text = (REPO_ROOT / 'scripts' / script).read_text(encoding='utf-8')
+        # A thin front door: the set-up, then the executable's own module.
+        assert re.findall(r'exec python -m ([\w.]+) "\$@"', text) == [
+            entry_point_module(package, executable)], script
+
+
+@pytest.fixture(scope='module')
+def helped(tmp_path_factory):
+    """``<exe> --help`` of every tool, all started at once: executable -> (status, output)."""
+    work = tmp_path_factory.mktemp('help')
+    paths = {executable: path for package, executable, path in executables()}
+    processes = {executable: subprocess.Popen(
+        [str(paths[executable]), '--help'], cwd=work, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True)
+        for executable in TOOLS}
+    results = {}
+    try:
+        for executable, process in processes.items():
+            try:
+                output, _ = process.communicate(timeout=HELP_TIMEOUT)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                output, _ = process.communicate()
+            results[executable] = (process.returncode, output)
+    finally:
+        for process in processes.values():
+            if process.poll() is None:
+                process.kill()
+                process.communicate()
+    return results
+
+
+@pytest.mark.parametrize('executable', sorted(TOOLS))
+def test_every_tool_answers_help(executable, helped):
+    status, output = helped[executable]
+    assert status == 0, f'{executable} --help: exit {status}\n{output}'
+    assert 'usage:' in output and 'Traceback' not in output, output
 
 
 @pytest.mark.slow

@@ -47,12 +47,12 @@ EXECUTABLES = {
     },
     'wip_sim': {
         'plant': 'wip_sim.plant_node:main',
-        'recorder': 'wip_sim.recorder_node:main',
-        'replayer': 'wip_sim.replayer_node:main',
+        'recorder': 'wip_bag.recorder_node:main',
+        'replayer': 'wip_bag.replayer_node:main',
         'standin_base': 'wip_sim.standin_base:main',
-        'check_base': 'wip_sim.check_base:main',
-        'viewer': 'wip_sim.viewer_node:main',
-        'foxglove_bridge': 'wip_sim.foxglove_bridge:main',
+        'check_base': 'wip_bringup.check_base:main',
+        'viewer': 'wip_viewer.viewer_node:main',
+        'foxglove_bridge': 'wip_viewer.foxglove_bridge:main',
     },
 }
 PIN = re.compile(r'^([A-Za-z0-9][A-Za-z0-9._-]*)==([A-Za-z0-9.+!-]+)$')

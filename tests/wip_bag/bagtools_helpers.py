@@ -30,12 +30,12 @@ def child_environment():
 
 
 class Tool:
-    """A tool process (``python -m wip_sim.<module> ...``) and its /diagnostics status."""
+    """A tool process (``python -m wip_bag.<module> ...``) and its /diagnostics status."""
 
     def __init__(self, node, module, args, status_prefix, preexec_fn=None):
         self.node = node
         self.process = subprocess.Popen(
-            [sys.executable, '-m', f'wip_sim.{module}', *args], env=child_environment(),
+            [sys.executable, '-m', f'wip_bag.{module}', *args], env=child_environment(),
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
             preexec_fn=preexec_fn)
         self.status_prefix = status_prefix

@@ -14,12 +14,12 @@ from rosbags.rosbag2 import Reader
 from std_msgs.msg import String
 import yaml
 
-from wip_sim.bag_info import bag_information, format_bag_information
-from wip_sim.bag_info import main as bag_info_main
-from wip_sim.bag_reader import bag_summary, iter_raw_messages, read_bag, read_topics
-from wip_sim.bag_repair import main as bag_repair_main
-from wip_sim.bag_repair import mcap_files_by_index, repair_bag
-from wip_sim.bag_writer import BagWriterError, Rosbag2McapWriter
+from wip_bag.bag_info import bag_information, format_bag_information
+from wip_bag.bag_info import main as bag_info_main
+from wip_bag.bag_reader import bag_summary, iter_raw_messages, read_bag, read_topics
+from wip_bag.bag_repair import main as bag_repair_main
+from wip_bag.bag_repair import mcap_files_by_index, repair_bag
+from wip_bag.bag_writer import BagWriterError, Rosbag2McapWriter
 
 START_NS = 1_700_000_000_000_000_000
 PERIOD_NS = 1_000_000  # 1 kHz

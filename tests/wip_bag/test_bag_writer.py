@@ -25,10 +25,11 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray, Header, String
 import yaml
 
-from wip_sim.bag_reader import bag_summary, read_bag
-from wip_sim.bag_writer import (BagExistsError, message_definition, recover_bag,
-                                Rosbag2McapWriter, type_description_hash)
-from wip_sim.qos_yaml import dump_offered_qos, qos_profile_to_dict
+from wip_bag.bag_reader import bag_summary, read_bag
+from wip_bag.bag_repair import repair_bag
+from wip_bag.bag_writer import (BagExistsError, message_definition, Rosbag2McapWriter,
+                                type_description_hash)
+from wip_bag.qos_yaml import dump_offered_qos, qos_profile_to_dict
 
 START_NS = 1_700_000_000_000_000_000  # an epoch time [ns]
 PERIOD_NS = 5_000_000  # 200 Hz
@@ -246,7 +247,7 @@ def test_message_definition_is_rosbag2s_full_text():
     blocks = text.split('\n' + '=' * 80 + '\n')
     # The type's own .msg file first, verbatim, then each dependency once, depth first with
     # the dependencies of a type in sorted order (std::set in rosbag2).
-    from wip_sim.bag_writer import interface_file
+    from wip_bag.bag_writer import interface_file
     assert blocks[0] == interface_file('sensor_msgs/msg/Imu', '.msg').read_text()
     assert [b.split('\n', 1)[0] for b in blocks[1:]] == [
         'MSG: geometry_msgs/Quaternion', 'MSG: geometry_msgs/Vector3', 'MSG: std_msgs/Header',
@@ -308,7 +309,7 @@ def test_empty_bag_is_valid(tmp_path):
     assert bag_summary(tmp_path / 'empty_bag')['message_count'] == 0
 
 
-def test_recover_bag_keeps_everything_flushed_before_a_crash(tmp_path):
+def test_repair_bag_keeps_everything_flushed_before_a_crash(tmp_path):
     directory = tmp_path / 'crashed'
     bag = Rosbag2McapWriter(directory, compression='zstd', chunk_size=1 << 20)
     bag.add_topic('/chatter', 'std_msgs/msg/String', qos_profiles=[RELIABLE])
@@ -324,7 +325,7 @@ def test_recover_bag_keeps_everything_flushed_before_a_crash(tmp_path):
     assert [m.message.data for m in read_bag(directory, allow_partial=True)] == [
         str(k) for k in range(50)]
 
-    information = recover_bag(directory)
+    information = repair_bag(directory).metadata
     assert information['message_count'] == 50
     with Reader(directory.with_name('crashed_repaired')) as reader:
         assert [bytes(d) for _, _, d in reader.messages()] == [

@@ -13,8 +13,8 @@ import pytest
 import yaml
 
 from bagtools_helpers import child_environment, REPO_ROOT
-from wip_sim.bag_info import bag_information
-from wip_sim.bag_repair import repair_bag
+from wip_bag.bag_info import bag_information
+from wip_bag.bag_repair import repair_bag
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

@@ -1,6 +1,6 @@
 """The recorder node, run as its own process, records what is published, losslessly.
 
-Each test starts ``python -m wip_sim.recorder_node`` in a DDS domain of its own (random id,
+Each test starts ``python -m wip_bag.recorder_node`` in a DDS domain of its own (random id,
 localhost discovery only), talks to it from a node of the test process in a private rclpy
 context, and stops it with a signal, as a user would. Waits poll the graph or the
 recorder's /diagnostics with timeouts; no fixed sleeps (discovery takes 0.1 s to 3 s).
@@ -21,7 +21,7 @@ from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header, String
 
-from wip_sim.bag_reader import read_bag
+from wip_bag.bag_reader import read_bag
 
 pytestmark = pytest.mark.ros
 
@@ -47,7 +47,7 @@ class Recorder:
         env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
         self.node = node
         self.process = subprocess.Popen(
-            [sys.executable, '-m', 'wip_sim.recorder_node', '--ros-args',
+            [sys.executable, '-m', 'wip_bag.recorder_node', '--ros-args',
              '-p', 'discovery_period:=0.1', *ros_args],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         self.counts = {}

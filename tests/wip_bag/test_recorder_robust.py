@@ -1,6 +1,6 @@
 """The recorder never loses a recording: SIGKILL, a full disk, a bad path, split files.
 
-Each test runs ``python -m wip_sim.recorder_node`` as its own process (see
+Each test runs ``python -m wip_bag.recorder_node`` as its own process (see
 bagtools_helpers) and checks the bag with ``rosbags``, an independent rosbag2 reader, after
 ``scripts/bag_repair`` where the recorder could not close it. Messages are std_msgs/String
 carrying their index, so "every message, in order" is an exact comparison.
@@ -19,9 +19,9 @@ from std_msgs.msg import String
 import yaml
 
 from bagtools_helpers import DISCOVERY_TIMEOUT, spin_until, Tool, tools  # noqa: F401
-from wip_sim.bag_info import bag_information
-from wip_sim.bag_reader import bag_summary, read_bag
-from wip_sim.bag_repair import mcap_files_by_index, read_file_contents, repair_bag
+from wip_bag.bag_info import bag_information
+from wip_bag.bag_reader import bag_summary, read_bag
+from wip_bag.bag_repair import mcap_files_by_index, read_file_contents, repair_bag
 
 pytestmark = pytest.mark.ros
 

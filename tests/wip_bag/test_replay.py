@@ -24,8 +24,8 @@ from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
 from bagtools_helpers import DISCOVERY_TIMEOUT, spin_until, Tool, tools  # noqa: F401
-from wip_sim.bag_reader import iter_raw_messages
-from wip_sim.bag_writer import Rosbag2McapWriter
+from wip_bag.bag_reader import iter_raw_messages
+from wip_bag.bag_writer import Rosbag2McapWriter
 
 pytestmark = pytest.mark.ros
 
@@ -350,7 +350,7 @@ def test_start_offset_duration_loop_and_topic_selection(test_node, tools, tmp_pa
 
 def test_command_line_and_qos_rules():
     from rclpy.qos import QoSDurabilityPolicy
-    from wip_sim.replayer_node import parse_command_line, playback_qos
+    from wip_bag.replayer_node import parse_command_line, playback_qos
     overrides, ros_args = parse_command_line([
         'bag_dir', '--rate', '2', '--clock', '--topics', '/a', '/b', '--stay',
         '--ros-args', '-r', '/a:=/c'])

@@ -5,7 +5,7 @@ from a kinematic state (wheel rolling angles, body pitch and yaw) with the base'
 conventions (``wip_sim.standin_base.BaseConventions``, what the stand-in base publishes
 with: joints ``wheel_r``, ``wheel_l`` in that order, the left joint's sign −1, an IMU
 upside down and turned a quarter turn, encoders measuring against the body). The
-tool runs as its own process (``python -m wip_sim.check_base``); in ``--script`` mode the
+tool runs as its own process (``python -m wip_bringup.check_base``); in ``--script`` mode the
 helper answers each ``CHECK_BASE WAIT <step> <phase>`` prompt after performing the
 motion a person would, in ``--auto`` mode it plays the motions on a schedule.
 """
@@ -119,7 +119,7 @@ class PlayedBase:
 def start_tool(tmp_path, domain_id, params, mode):
     params_file = tmp_path / 'base.yaml'
     params_file.write_text(yaml.safe_dump({'/**': {'ros__parameters': params}}))
-    command = [sys.executable, '-m', 'wip_sim.check_base', f'--{mode}', '--params-file',
+    command = [sys.executable, '-m', 'wip_bringup.check_base', f'--{mode}', '--params-file',
                str(params_file), '--json', str(tmp_path / 'report.json'), '--timeout', '20']
     for remap in REMAPS:
         command += ['--remap', remap]
@@ -253,7 +253,7 @@ def test_auto_mode_detects_the_motions_without_confirmations(tmp_path):
 
 
 def test_ros_arguments_from_ros2_run_are_split_off_and_remaps_kept():
-    from wip_sim.check_base import split_ros_arguments
+    from wip_bringup.check_base import split_ros_arguments
     own, remaps = split_ros_arguments(
         ['--auto', '--ros-args', '-r', '/imu/data:=/base/imu', '-p', 'x:=1',
          '--remap', 'a:=b', '--', '--timeout', '5'])

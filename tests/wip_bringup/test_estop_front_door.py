@@ -25,7 +25,7 @@ def front_door(*args, domain=None, timeout=60):
         env['ROS_DOMAIN_ID'] = str(domain)
     else:
         env.pop('ROS_DOMAIN_ID', None)
-    return subprocess.run([sys.executable, '-m', 'wip_sim.estop', *args], env=env,
+    return subprocess.run([sys.executable, '-m', 'wip_bringup.estop', *args], env=env,
                           capture_output=True, text=True, timeout=timeout)
 
 

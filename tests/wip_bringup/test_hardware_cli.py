@@ -20,9 +20,9 @@ rclpy = pytest.importorskip('rclpy')
 
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
-from wip_sim.hardware import (load_params_file, node_parameters,  # noqa: E402
+from wip_bringup.hardware import (load_params_file, node_parameters,  # noqa: E402
                               parse_remap, remapped)
-from wip_sim.graph import GraphError  # noqa: E402
+from wip_bringup.graph import GraphError  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -81,7 +81,7 @@ def test_no_plant_without_a_base_never_commands_torque(tmp_path):
     out = tmp_path / 'run'
     try:
         result = subprocess.run(
-            [sys.executable, '-m', 'wip_sim.graph', '--no-plant', '--duration', '3',
+            [sys.executable, '-m', 'wip_bringup.graph', '--no-plant', '--duration', '3',
              '--out', str(out), '--params-file', str(params), '--remap',
              '/joint_states:=/base/joint_states', '--remap',
              f'/effort_controller/commands:={EFFORT}', '--foxglove', '0'],

@@ -39,9 +39,9 @@ import yaml  # noqa: E402
 from wip_control.core.metrics import compute_metrics  # noqa: E402
 from wip_control.core.runner import run_scenario  # noqa: E402
 from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
-from wip_sim.bag_reader import read_bag  # noqa: E402
-from wip_sim.graph import GraphOptions, run_graph  # noqa: E402
-from wip_sim.report import record_from_bag, report  # noqa: E402
+from wip_bag.bag_reader import read_bag  # noqa: E402
+from wip_bringup.graph import GraphOptions, run_graph  # noqa: E402
+from wip_tools.report import record_from_bag, report  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -211,7 +211,7 @@ def test_the_bag_decodes_with_rosbags_and_mcap_ros2_and_holds_every_message(grap
 
 def test_report_cli_writes_the_same_outputs_as_simulate(graph_runs, reported, tmp_path):
     import json
-    from wip_sim.report import main
+    from wip_tools.report import main
     out = tmp_path / 'cli'
     assert main([str(graph_runs[0].bag), '--out', str(out), '--quiet']) == 0
     written = json.loads((out / 'metrics.json').read_text())
@@ -226,7 +226,7 @@ def test_report_cli_writes_the_same_outputs_as_simulate(graph_runs, reported, tm
 def test_a_bag_without_ground_truth_gives_the_metrics_that_need_none(graph_runs, reported,
                                                                      tmp_path):
     from mcap.reader import make_reader
-    from wip_sim.bag_writer import Rosbag2McapWriter
+    from wip_bag.bag_writer import Rosbag2McapWriter
     robot_bag = tmp_path / 'robot_bag'
     source = graph_runs[0].bag
     with Rosbag2McapWriter(robot_bag) as writer:

@@ -33,7 +33,7 @@ from wip_control.core.runner import initial_alpha  # noqa: E402
 from wip_control.core.scenario import (RatesConfig, scenario_from_mapping,  # noqa: E402
                                        scenario_to_mapping)
 from wip_control.core.trajectory_generator import TrajectoryGeneratorConfig  # noqa: E402
-from wip_control.tools.params_files import (flatten, graph_parameters,  # noqa: E402
+from wip_bringup.params_files import (flatten, graph_parameters,  # noqa: E402
                                             write_params_file)
 
 pytestmark = pytest.mark.ros

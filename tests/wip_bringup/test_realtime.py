@@ -18,9 +18,9 @@ import pytest
 
 pytest.importorskip('rclpy')
 
-from wip_sim.bag_reader import bag_summary  # noqa: E402
-from wip_sim.graph import EXIT_FELL, GraphOptions, run_graph  # noqa: E402
-from wip_sim.report import record_from_bag  # noqa: E402
+from wip_bag.bag_reader import bag_summary  # noqa: E402
+from wip_bringup.graph import EXIT_FELL, GraphOptions, run_graph  # noqa: E402
+from wip_tools.report import record_from_bag  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

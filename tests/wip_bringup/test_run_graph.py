@@ -13,7 +13,7 @@ import pytest
 pytest.importorskip('rclpy')
 
 from wip_sim import graph  # noqa: E402
-from wip_sim.graph import GraphOptions, GraphRunner  # noqa: E402
+from wip_bringup.graph import GraphOptions, GraphRunner  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -71,6 +71,6 @@ def test_a_stall_on_the_first_ticks_starts_the_graph_again(tmp_path, monkeypatch
     assert (tmp_path / 'run' / 'logs_attempt_1' / 'plant.log').is_file()
     assert result.plant_stats['ticks'] == 200
     # The bag is the second attempt's alone (the first one's was removed).
-    from wip_sim.bag_reader import bag_summary
+    from wip_bag.bag_reader import bag_summary
     summary = bag_summary(result.bag)
     assert summary['topics']['/wip/ground_truth']['message_count'] == 201

@@ -7,10 +7,10 @@ its own: ``/base/joint_states``, ``/base/imu``, ``/base/fix`` out and
 differ from the simulator's on purpose: joints named ``wheel_l``/``wheel_r`` listed
 right first, the left joint's positive direction rolling backwards (sign −1), an IMU
 mounted upside down and turned a quarter turn. The controllers run as in
-``scripts/run_graph --mode hardware`` (:func:`wip_sim.hardware.run_hardware`), in the
+``scripts/run_graph --mode hardware`` (:func:`wip_bringup.hardware.run_hardware`), in the
 default (composed) layout unless a test says otherwise, with ``--remap`` for the topic
 names and a ``--params-file`` with the base's conventions (the harness is
-:mod:`wip_sim.standin_run`).
+:mod:`wip_bringup.standin_run`).
 
 1. Configured consistently, the controllers keep the robot up and on a straight line
    (0.5 m/s, the paper's initial errors: 0.5 m behind, 0.5 m aside, 0.1 rad, tilt
@@ -34,7 +34,7 @@ import pytest
 pytest.importorskip('rclpy')
 
 from wip_control.core.references import make_reference, ReferenceConfig  # noqa: E402
-from wip_sim.standin_run import (BASE, CONTROL_RATE, freeze_process,  # noqa: E402
+from wip_bringup.standin_run import (BASE, CONTROL_RATE, freeze_process,  # noqa: E402
                                  run_against_standin)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

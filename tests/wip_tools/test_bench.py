@@ -8,7 +8,7 @@ import yaml
 
 pytest.importorskip('rclpy')
 
-from wip_control.tools import bench  # noqa: E402
+from wip_tools import bench  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

@@ -13,7 +13,7 @@ import yaml
 from wip_control.core.criteria import Criteria, evaluate, path_errors, pulse_mask
 from wip_control.core.record import RunRecord
 from wip_control.core.scenario import scenario_from_mapping
-from wip_control.tools import campaign as cmp
+from wip_tools import campaign as cmp
 
 
 def _campaign(data, tmp_path=None):

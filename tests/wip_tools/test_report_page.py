@@ -26,12 +26,12 @@ import xml.etree.ElementTree as ElementTree
 import numpy as np
 import pytest
 
-from wip_control.analysis.figures import FIGURE_NAMES
-from wip_control.analysis.report_page import flatten_metrics, METRIC_DOCS
+from wip_tools.analysis.figures import FIGURE_NAMES
+from wip_tools.analysis.report_page import flatten_metrics, METRIC_DOCS
 from wip_control.core.metrics import compute_metrics
 from wip_control.core.runner import run_scenario
 from wip_control.core.scenario import Scenario
-from wip_control.tools.simulate import write_run_outputs
+from wip_tools.simulate import write_run_outputs
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[2]
 CHROMIUM_PACKAGES = ('chromium', 'fonts-dejavu-core')

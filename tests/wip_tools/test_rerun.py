@@ -1,7 +1,7 @@
 """Open-loop re-run of the controllers on a recorded bag (``scripts/rerun``).
 
 The bag is an in-process run of a short scenario written as the node graph records it
-(:func:`wip_sim.rerun.write_record_as_bag`: same topics, types and stamps; sensor samples
+(:func:`wip_tools.rerun.write_record_as_bag`: same topics, types and stamps; sensor samples
 drawn again from the true states with the scenario's seed). Re-running the unchanged
 controllers on it must reproduce what they computed; changing a gain must change it.
 """
@@ -16,8 +16,8 @@ from rosbags.rosbag2 import Reader  # noqa: E402
 
 from wip_control.core.runner import run_scenario  # noqa: E402
 from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
-from wip_sim.bag_reader import read_topics  # noqa: E402
-from wip_sim.rerun import main, rerun, write_record_as_bag  # noqa: E402
+from wip_bag.bag_reader import read_topics  # noqa: E402
+from wip_tools.rerun import main, rerun, write_record_as_bag  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -112,7 +112,7 @@ def test_changing_an_eso_gain_changes_estimates_and_torques(recorded_bag, tmp_pa
 def test_rerun_refuses_a_bag_without_sensor_topics(tmp_path, capsys):
     from rclpy.serialization import serialize_message
     from std_msgs.msg import String
-    from wip_sim.bag_writer import Rosbag2McapWriter
+    from wip_bag.bag_writer import Rosbag2McapWriter
     with Rosbag2McapWriter(tmp_path / 'chatter') as bag:
         bag.add_topic('/chatter', 'std_msgs/msg/String')
         bag.write('/chatter', serialize_message(String(data='hi')), 1)

@@ -27,7 +27,7 @@ DURATION = 2.0  # [s] simulated
 
 @pytest.fixture(scope='module')
 def demo(tmp_path_factory, module_domain):
-    from wip_sim.graph import GraphOptions, run_graph
+    from wip_bringup.graph import GraphOptions, run_graph
     out = tmp_path_factory.mktemp('viewer_demo')
     result = run_graph(GraphOptions(duration=DURATION, record=str(out / 'bag'),
                                     out=str(out / 'run'), quiet=True, foxglove_port=0))
@@ -37,7 +37,7 @@ def demo(tmp_path_factory, module_domain):
 
 @pytest.fixture(scope='module')
 def messages(demo):
-    from wip_sim.bag_reader import read_bag
+    from wip_bag.bag_reader import read_bag
     by_topic: dict[str, list] = {}
     types = {}
     for topic, type_name, _, message in read_bag(demo.bag):
@@ -59,7 +59,7 @@ def yaw_pitch(q) -> tuple[float, float]:
 
 
 def test_the_bag_holds_the_viewer_topics_with_standard_types(demo, messages):
-    from wip_sim.viewer_core import VIEWER_TOPICS, ViewerConfig
+    from wip_viewer.viewer_core import VIEWER_TOPICS, ViewerConfig
     by_topic, types = messages
     for topic, type_name in VIEWER_TOPICS.items():
         assert types.get(topic) == type_name, f'{topic}: {types.get(topic)}'
@@ -116,14 +116,14 @@ def test_paths_and_prediction_lie_where_their_sources_say(messages):
 
 
 def test_layout_files_are_generated_and_name_only_topics_the_bag_has(messages):
-    from wip_sim.foxglove_bridge import SERVICES
-    from wip_sim.foxglove_layout import layout_json, LAYOUT_FILES
+    from wip_viewer.foxglove_bridge import SERVICES
+    from wip_viewer.foxglove_layout import layout_json, LAYOUT_FILES
     by_topic, _ = messages
     for name, live in LAYOUT_FILES.items():
         path = REPO_ROOT / 'foxglove' / name
         text = path.read_text(encoding='utf-8')
         assert text == layout_json(live), f'{path} is stale: python -m ' \
-                                          'wip_sim.foxglove_layout foxglove/'
+                                          'wip_viewer.foxglove_layout foxglove/'
         layout = json.loads(text)
         topics, services = set(), set()
 

@@ -1,11 +1,11 @@
-"""Geometry of the viewer topics (wip_sim.viewer_core): closed forms, no ROS."""
+"""Geometry of the viewer topics (wip_viewer.viewer_core): closed forms, no ROS."""
 
 import math
 
 import numpy as np
 import pytest
 
-from wip_sim.viewer_core import (PathBuffer, planar_pose_covariance, predicted_track,
+from wip_viewer.viewer_core import (PathBuffer, planar_pose_covariance, predicted_track,
                                  quaternion_yaw_pitch, RateGate, vehicle_geometry,
                                  ViewerConfig)
 
@@ -104,7 +104,7 @@ def test_stamp_is_read_from_the_cdr_bytes_without_deserializing():
     rclpy = pytest.importorskip('rclpy')  # noqa: F841 - the message classes need it
     from rclpy.serialization import serialize_message
     from wip_msgs.msg import GroundTruth
-    from wip_sim.viewer_core import cdr_stamp_ns
+    from wip_viewer.viewer_core import cdr_stamp_ns
     message = GroundTruth(x=1.0)
     message.header.stamp.sec, message.header.stamp.nanosec = 1_700_000_123, 999_999_999
     message.header.frame_id = 'map'
@@ -114,7 +114,7 @@ def test_stamp_is_read_from_the_cdr_bytes_without_deserializing():
 
 
 def test_the_viewer_runs_when_someone_will_look():
-    from wip_sim.graph import GraphOptions, viewer_wanted
+    from wip_bringup.graph import GraphOptions, viewer_wanted
     assert not viewer_wanted(GraphOptions())
     assert viewer_wanted(GraphOptions(record='bag'))
     assert viewer_wanted(GraphOptions(foxglove_port=0))

@@ -3,9 +3,6 @@
 Console scripts go to ``lib/wip_sim`` (see setup.cfg), where ``ros2 run`` looks for them.
 """
 
-from glob import glob
-import os
-
 from setuptools import find_packages, setup
 
 package_name = 'wip_sim'
@@ -17,23 +14,17 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        (os.path.join('share', package_name, 'config'), sorted(glob('config/*.yaml'))),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
     maintainer='wip-ros maintainers',
     maintainer_email='wip-ros@example.com',
-    description='Wheeled inverted pendulum simulator node and bag recorder.',
+    description='Wheeled inverted pendulum simulator: plant node and stand-in base.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'plant = wip_sim.plant_node:main',
-            'recorder = wip_sim.recorder_node:main',
-            'replayer = wip_sim.replayer_node:main',
             'standin_base = wip_sim.standin_base:main',
-            'check_base = wip_sim.check_base:main',
-            'viewer = wip_sim.viewer_node:main',
-            'foxglove_bridge = wip_sim.foxglove_bridge:main',
         ],
     },
 )

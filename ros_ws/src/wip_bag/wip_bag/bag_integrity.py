@@ -1,9 +1,9 @@
 """Integrity of MCAP files: every chunk's CRC, the data-section and summary CRCs, the end.
 
-A bag is read only after this check (:mod:`wip_sim.bag_reader`), so a flipped bit or a
+A bag is read only after this check (:mod:`wip_bag.bag_reader`), so a flipped bit or a
 file cut short is never decoded into a silently wrong result (a speed of 3e273 m/s, a run
 that looks successful but ends at half its length). What is found damaged is reported
-with its time range and the topics it held; :mod:`wip_sim.bag_repair` recovers every
+with its time range and the topics it held; :mod:`wip_bag.bag_repair` recovers every
 intact chunk, before and after a damaged one.
 
 The scan walks the file's records by their framing (opcode, length). MCAP chunks are

@@ -5,7 +5,7 @@ schemas stored in the file, so neither rclpy nor the message packages are needed
 recorded on a robot can be read anywhere). Works on a bag directory (``metadata.yaml`` + one
 or more ``.mcap`` files) or on a single ``.mcap`` file.
 
-Every file is checked before it is read (:mod:`wip_sim.bag_integrity`: each chunk's CRC,
+Every file is checked before it is read (:mod:`wip_bag.bag_integrity`: each chunk's CRC,
 the summary's CRC, a proper end). A damaged or unfinished file raises
 :class:`BagIntegrityError`, which names the time range and the topics affected, unless the
 caller asks for ``allow_partial=True``: then the intact chunks are read and the damaged
@@ -50,7 +50,7 @@ _SCAN_CACHE: dict = {}
 
 
 def scan(file) -> FileScan:
-    """:func:`wip_sim.bag_integrity.scan_file`, cached while the file is unchanged."""
+    """:func:`wip_bag.bag_integrity.scan_file`, cached while the file is unchanged."""
     file = pathlib.Path(file)
     stat = file.stat()
     key = (str(file.resolve()), stat.st_size, stat.st_mtime_ns, stat.st_ino)
@@ -75,7 +75,7 @@ def integrity_problems(scans) -> list[str]:
 def check_bag(path, allow_partial=False):
     """Scan every file of a bag; raise :class:`BagIntegrityError` if one is damaged.
 
-    Returns the list of :class:`~wip_sim.bag_integrity.FileScan` (in file order). With
+    Returns the list of :class:`~wip_bag.bag_integrity.FileScan` (in file order). With
     ``allow_partial`` a damaged bag is returned too (its ``problems`` tell what is lost).
     """
     scans = [scan(f) for f in mcap_files(path)]

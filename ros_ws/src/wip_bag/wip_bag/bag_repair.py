@@ -9,7 +9,7 @@ recovered, before and after a damaged one. This tool:
 
 1. scans every ``*.mcap`` file of the bag directory, in the order of their index
    (``<name>_0.mcap``, ``<name>_1.mcap`` ...), checking every chunk's CRC
-   (:mod:`wip_sim.bag_integrity`);
+   (:mod:`wip_bag.bag_integrity`);
 2. copies each intact, finished file as it is into the new bag, and rewrites each other
    one from its intact chunks (skipping the damaged ones) into a finished MCAP file of the
    same name (summary, indexes, same chunk compression); a file without any intact chunk
@@ -54,8 +54,8 @@ from wip_control.tools.cli import exit_with
 
 from .bag_integrity import iter_chunk_records
 from .bag_reader import BagReadError, scan
-from .bag_writer import (_bag_metadata, _COMPRESSION, _library_identifier,
-                         BagWriterError, FileStatistics, MCAP_PROFILE, METADATA_FILE_NAME,
+from .bag_writer import (bag_metadata, BagWriterError, COMPRESSION, FileStatistics,
+                         library_identifier, MCAP_PROFILE, METADATA_FILE_NAME,
                          write_metadata_file)
 from .qos_yaml import normalize_offered_qos
 
@@ -213,8 +213,8 @@ def _rewrite(path, target, compression):
                     if target is not None and writer is None:
                         stream = open(target, 'xb')
                         chosen = compression or _compression_name(contents.compression)
-                        writer = Writer(stream, compression=_COMPRESSION[chosen])
-                        writer.start(profile=MCAP_PROFILE, library=_library_identifier())
+                        writer = Writer(stream, compression=COMPRESSION[chosen])
+                        writer.start(profile=MCAP_PROFILE, library=library_identifier())
                     if kind == 'schema':
                         schemas.setdefault(item.id, item)
                     elif kind == 'channel' and item.id not in channel_topics:
@@ -337,9 +337,9 @@ def repair_bag(directory, out=None, compression=None, dry_run=False):
         If the directory holds no ``.mcap`` file, or ``out`` exists or cannot be written.
     """
     directory = pathlib.Path(directory)
-    if compression is not None and compression not in _COMPRESSION:
+    if compression is not None and compression not in COMPRESSION:
         raise ValueError(f'compression {compression!r} not supported; expected one of '
-                         f'{sorted(_COMPRESSION)}')
+                         f'{sorted(COMPRESSION)}')
     if not directory.is_dir():
         raise BagWriterError(f'{directory} is not a bag directory')
     paths = mcap_files_by_index(directory)
@@ -416,7 +416,7 @@ def _metadata_of(directory, kept):
     if old is None:
         old = next((_usable_metadata(c.rosbag2_metadata) for c in kept
                     if _usable_metadata(c.rosbag2_metadata)), None) or {}
-    return _bag_metadata(
+    return bag_metadata(
         files=[c.stats for c in kept],
         topics=[(topic, info.type_name, info.qos, info.type_hash, counts[topic])
                 for topic, info in topics.items()],
@@ -433,7 +433,7 @@ def main(argv=None):
     parser.add_argument('bag', help='bag directory')
     parser.add_argument('--out', help='the new bag directory (must not exist; default '
                         '<BAG>_repaired)')
-    parser.add_argument('--compression', choices=sorted(_COMPRESSION),
+    parser.add_argument('--compression', choices=sorted(COMPRESSION),
                         help='chunk compression of rewritten files (default: as found)')
     parser.add_argument('--dry-run', action='store_true',
                         help='report what would be done, write nothing')

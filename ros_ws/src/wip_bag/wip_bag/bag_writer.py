@@ -16,7 +16,7 @@ tools read the bags:
   ``rosbag2_bagfile_information``.
 
 Robustness: MCAP chunks are self-contained (compressed, with their own CRC), so a file whose
-writer died keeps every chunk written before the crash; :mod:`wip_sim.bag_repair` rewrites
+writer died keeps every chunk written before the crash; :mod:`wip_bag.bag_repair` rewrites
 such files and rebuilds ``metadata.yaml`` from the files' contents.
 
 MCAP chunk compression (zstd, lz4) is a property of the storage, as with rosbag2's MCAP
@@ -55,7 +55,7 @@ DEFAULT_CHUNK_SIZE = 1024 * 1024  # [bytes] of uncompressed chunk data
 SERIALIZATION_FORMAT = 'cdr'
 DEFINITION_DELIMITER = '=' * 80 + '\n'
 
-_COMPRESSION = {
+COMPRESSION = {
     'none': CompressionType.NONE,
     'zstd': CompressionType.ZSTD,
     'lz4': CompressionType.LZ4,
@@ -313,15 +313,15 @@ class Rosbag2McapWriter:
     Not thread-safe: call it from one thread (the recorder queues messages to one writer
     thread). Use it as a context manager, or call :meth:`close`, which finishes the MCAP file
     (summary, indexes) and writes ``metadata.yaml``; without it the last file has no footer
-    (see :func:`wip_sim.bag_repair.repair_bag`).
+    (see :func:`wip_bag.bag_repair.repair_bag`).
     """
 
     def __init__(self, directory, compression='zstd', chunk_size=DEFAULT_CHUNK_SIZE,
                  ros_distro=None, custom_data=None, max_bag_size=0, max_bag_duration=0.0):
-        if compression not in _COMPRESSION:
+        if compression not in COMPRESSION:
             raise ValueError(
                 f'compression {compression!r} not supported; expected one of '
-                f'{sorted(_COMPRESSION)}')
+                f'{sorted(COMPRESSION)}')
         if int(chunk_size) <= 0:
             raise ValueError(f'chunk_size must be positive, got {chunk_size}')
         if int(max_bag_size) < 0:
@@ -356,8 +356,8 @@ class Rosbag2McapWriter:
         self.mcap_path = self.directory / self.file_name
         self._stream = open(self.mcap_path, 'xb')
         self._writer = Writer(self._stream, chunk_size=self.chunk_size,
-                              compression=_COMPRESSION[self.compression])
-        self._writer.start(profile=MCAP_PROFILE, library=_library_identifier())
+                              compression=COMPRESSION[self.compression])
+        self._writer.start(profile=MCAP_PROFILE, library=library_identifier())
         self._file = FileStatistics(self.file_name)
         self._schema_ids = {}  # type name -> schema id in the current file
         self._stream_position = self._stream.tell()
@@ -467,7 +467,7 @@ class Rosbag2McapWriter:
             from the installed interface files.
         qos_profiles : str or sequence, optional
             QoS profiles offered by the publishers (rclpy profiles, rosbag2 v9 mappings or a
-            YAML string, see :mod:`wip_sim.qos_yaml`).
+            YAML string, see :mod:`wip_bag.qos_yaml`).
         type_hash : str, optional
             RIHS01 type hash; default: :func:`type_description_hash` (may be '').
         definition_encoding : str
@@ -520,7 +520,7 @@ class Rosbag2McapWriter:
         ------
         OSError
             When the file cannot be written (disk full, file size limit ...). The bag is then
-            unusable: close it (which may fail too) and repair it (:mod:`wip_sim.bag_repair`).
+            unusable: close it (which may fail too) and repair it (:mod:`wip_bag.bag_repair`).
         """
         self._check_open()
         info = self._topics.get(topic)
@@ -550,7 +550,7 @@ class Rosbag2McapWriter:
         """Close the chunk in progress and push everything written so far to the OS.
 
         Bounds what a crash loses: the file stays readable up to the last flush (see
-        :mod:`wip_sim.bag_repair`). Each flush ends a chunk, so flushing very often costs
+        :mod:`wip_bag.bag_repair`). Each flush ends a chunk, so flushing very often costs
         compression ratio. With ``fsync`` the data also reaches the disk (survives a power
         loss), at the cost of a disk write.
         """
@@ -565,7 +565,7 @@ class Rosbag2McapWriter:
         files = list(self._files)
         if self._file is not None:
             files.append(self._file)
-        return _bag_metadata(
+        return bag_metadata(
             files=files,
             topics=[(name, info['type'], info['qos'], info['hash'], info['count'])
                     for name, info in self._topics.items()],
@@ -575,7 +575,7 @@ class Rosbag2McapWriter:
         """Finish the MCAP file and write ``metadata.yaml``; idempotent.
 
         If finishing the file fails (e.g. the disk is full), the exception propagates, no
-        ``metadata.yaml`` is written and the bag is left for :mod:`wip_sim.bag_repair`.
+        ``metadata.yaml`` is written and the bag is left for :mod:`wip_bag.bag_repair`.
         """
         if self._closed:
             return
@@ -597,12 +597,13 @@ class Rosbag2McapWriter:
             raise BagWriterError(f'bag {self.directory} is closed')
 
 
-def _library_identifier():
+def library_identifier():
+    """The ``library`` field of the MCAP header of the bags this package writes."""
     from mcap.writer import LIBRARY_IDENTIFIER
-    return f'wip_sim.bag_writer ({LIBRARY_IDENTIFIER})'
+    return f'wip_bag.bag_writer ({LIBRARY_IDENTIFIER})'
 
 
-def _bag_metadata(files, topics, custom_data, ros_distro):
+def bag_metadata(files, topics, custom_data, ros_distro):
     """Build rosbag2's BagMetadata mapping (version 9, key order of yaml.hpp in [1]).
 
     Parameters
@@ -656,19 +657,3 @@ def write_metadata_file(path, information):
     temporary.write_text(_dump_yaml({'rosbag2_bagfile_information': information}),
                          encoding='utf-8')
     os.replace(temporary, path)
-
-
-def recover_bag(directory, compression=None, out=None):
-    """Make a readable bag of a directory whose writer died before :meth:`close`.
-
-    See :func:`wip_sim.bag_repair.repair_bag` (this is its short form, kept for older
-    callers): the intact chunks of the bag go into a new bag ``out`` (default
-    ``<directory>_repaired``) with a rebuilt ``metadata.yaml``; ``directory`` is not touched.
-
-    Returns
-    -------
-    dict
-        The metadata written (``rosbag2_bagfile_information``).
-    """
-    from .bag_repair import repair_bag  # Imported here: bag_repair imports this module.
-    return repair_bag(directory, out=out, compression=compression).metadata

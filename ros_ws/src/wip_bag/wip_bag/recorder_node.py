@@ -1,6 +1,6 @@
 """Recorder node: record topics to a rosbag2 bag (MCAP storage), like ``ros2 bag record``.
 
-rosbag2 is not on PyPI, so this node records with :mod:`wip_sim.bag_writer`; its bags are
+rosbag2 is not on PyPI, so this node records with :mod:`wip_bag.bag_writer`; its bags are
 rosbag2 bags (``ros2 bag info/play`` on a full ROS 2 install, ``rosbags``, Foxglove, the
 project's report read them).
 
@@ -385,7 +385,7 @@ class RecorderNode(Node):
         # After a SIGINT the context is shut down: log without the /rosout publisher (a
         # logger of another name than the node's, which rcl would route to /rosout).
         logger = (self.get_logger() if self.context.ok()
-                  else rclpy.logging.get_logger(f'wip_sim.{self.get_name()}'))
+                  else rclpy.logging.get_logger(f'wip_bag.{self.get_name()}'))
         if self._writer.is_alive():
             logger.error(
                 f'the writer did not finish within close_timeout = {self.close_timeout:g} s '

@@ -69,8 +69,8 @@ from wip_control.nodes.hardware_inputs import (check_mounting_rpy, check_wheel_s
                                                mounting_inverse, quaternion_multiply,
                                                rotate_vector_into)
 
-from .graph import GraphError
 from .hardware import hardware_parameters, load_params_file, node_parameters, parse_remap
+from .launcher import GraphError
 
 # The exit-code table of every tool (wip_control.tools.cli); no data from the base is a
 # failed check (the connection check).

@@ -72,16 +72,16 @@ import yaml
 
 from wip_control.core.config import ConfigError, load_yaml_text
 from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
-from wip_control.tools.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
+from wip_bringup.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
                                             graph_parameters, _NoAliasDumper)
 
 from wip_control.tools.cli import write_atomic
 
-from .graph import (add_view_arguments, choose_domain_id, executable_path, EXECUTABLES,
-                    EXIT_FAILED, EXIT_OK, EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError,
-                    graph_environment, LAYOUTS, live_view_line, NodeProcess, parse_cpus,
-                    prepare_run_directory, Probe, RECORDER_GRACE_PERIOD, Scheduling,
-                    VIEWER_TOPICS, viewer_wanted)
+from .launcher import (add_view_arguments, choose_domain_id, executable_path,
+                       EXECUTABLES, EXIT_FAILED, EXIT_OK, EXIT_TIMEOUT, EXIT_USAGE,
+                       GRACE_PERIOD, graph_environment, GraphError, LAYOUTS, live_view_line,
+                       NodeProcess, parse_cpus, prepare_run_directory, Probe,
+                       RECORDER_GRACE_PERIOD, Scheduling, VIEWER_TOPICS, viewer_wanted)
 
 #: The nodes of hardware mode, in start order.
 HARDWARE_NODES = CONTROLLER_NODES
@@ -117,7 +117,7 @@ class HardwareOptions:
     quiet: bool = False
     arm_delay: float = 2.0  # [s] wall: every node up -> the e-stop heartbeat starts
     heartbeat: bool = True  # publish the /wip/estop heartbeat (see the module docstring)
-    layout: str = 'composed'  # controller processes: see wip_sim.graph.LAYOUTS
+    layout: str = 'composed'  # controller processes: see wip_bringup.graph.LAYOUTS
     scheduling: Scheduling = Scheduling()  # of the controller processes
     #: Programmatic stop (tests): polled while running; a non-empty string ends the run
     #: (exit 0) with that message.
@@ -126,7 +126,7 @@ class HardwareOptions:
     #: e.g. to reach its processes and safety events from another thread.
     on_start: Callable[[Any], None] | None = None
     #: The viewer node (Odometry, Path, markers of the estimate); None: with --record or
-    #: --foxglove (see wip_sim.graph.viewer_wanted).
+    #: --foxglove (see wip_bringup.graph.viewer_wanted).
     viewer: bool | None = None
     foxglove_port: int | None = None  # serve the topics to Foxglove on this port
     foxglove_host: str = '127.0.0.1'
@@ -230,7 +230,7 @@ def hardware_parameters(scenario: Scenario, recorder: Mapping[str, Any] | None =
                         joints: tuple[str, str] = DEFAULT_JOINTS,
                         heartbeat: bool = True) -> dict[str, dict]:
     """The generated params file of a hardware run: the controller nodes of
-    :func:`~wip_control.tools.params_files.graph_parameters` in real time, no plant; the
+    :func:`~wip_bringup.params_files.graph_parameters` in real time, no plant; the
     reference starts when the safety layer engages; with ``heartbeat``, /wip/estop is the
     mixer's heartbeat (``safety.max_estop_age``)."""
     data = graph_parameters(scenario, 'realtime', None, joints, recorder=recorder)
@@ -311,7 +311,7 @@ class HardwareRunner:
             self.remaps)
         path = self.out / 'params.yaml'
         header = ('# ROS parameters of a wip-ros hardware-mode run (controllers only, real '
-                  f'time), scenario {self.scenario.name!r};\n# written by wip_sim.hardware; '
+                  f'time), scenario {self.scenario.name!r};\n# written by wip_bringup.hardware; '
                   'the --params-file files given come after it on each command line.\n')
         view = {}
         if options.viewer:
@@ -708,7 +708,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run_from_args(args: argparse.Namespace) -> int:
-    """Run hardware mode from parsed arguments (also used by ``wip_sim.graph``)."""
+    """Run hardware mode from parsed arguments (also used by ``wip_bringup.graph``)."""
     options = HardwareOptions(scenario=args.scenario, params_files=list(args.params_files),
                               remaps=list(args.remaps), duration=args.duration,
                               out=args.out, record=args.record,

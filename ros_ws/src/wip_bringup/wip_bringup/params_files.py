@@ -56,9 +56,9 @@ from typing import Any, Mapping
 
 import yaml
 
-from ..core.config import to_mapping
-from ..core.runner import initial_alpha
-from ..core.scenario import Scenario
+from wip_control.core.config import to_mapping
+from wip_control.core.runner import initial_alpha
+from wip_control.core.scenario import Scenario
 
 CLOCK_MODES = ('lockstep', 'realtime')
 #: Node names of the graph, in start order (the plant last: it waits for the others).
@@ -208,7 +208,7 @@ def write_params_file(scenario: Scenario, path: str | pathlib.Path, clock_mode: 
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     header = (f'# ROS parameters of a wip-ros graph run (scenario {scenario.name!r}, '
-              f'clock {clock_mode}),\n# written by wip_control.tools.params_files from the '
+              f'clock {clock_mode}),\n# written by wip_bringup.params_files from the '
               'scenario; use with --ros-args --params-file.\n')
     text = yaml.dump(data, Dumper=_NoAliasDumper, sort_keys=False, default_flow_style=False,
                      width=99)

@@ -28,8 +28,8 @@ from typing import Any, Callable, Mapping
 
 import yaml
 
-from .graph import executable_path, GraphError, Scheduling
 from .hardware import HardwareOptions, HardwareResult, run_hardware
+from .launcher import executable_path, GraphError, Scheduling
 
 CONTROL_RATE = 200.0  # [Hz]
 #: SCHED_FIFO priorities where permitted: the base above the controllers, as a base's

@@ -35,9 +35,9 @@ import subprocess
 import sys
 import time
 
-from ..analysis.bench_mpc import _format, bench_mpc_against_daqp
-from ..core.runner import run_scenario
-from ..core.scenario import load_scenario
+from .analysis.bench_mpc import _format, bench_mpc_against_daqp
+from wip_control.core.runner import run_scenario
+from wip_control.core.scenario import load_scenario
 
 
 def _environment() -> dict:
@@ -77,17 +77,17 @@ def bench_in_process(scenario, repeats: int) -> dict:
 def bench_graph(scenario_path: str | None, layout: str = 'composed') -> dict | None:
     """Real-time factor of the lockstep node graph (None if the graph is not available)."""
     try:
-        from wip_sim.graph import run_graph_benchmark  # noqa: PLC0415 (optional, needs ROS)
+        from wip_bringup.graph import run_graph_benchmark  # noqa: PLC0415 (optional, needs ROS)
     except ImportError as err:
         return {'skipped': f'node graph not available: {err}'}
     return run_graph_benchmark(scenario_path, layout)
 
 
 def bench_realtime(seconds: float) -> list[dict]:
-    """Real-time runs against the stand-in base (see ``wip_sim.standin_run``)."""
+    """Real-time runs against the stand-in base (see ``wip_bringup.standin_run``)."""
     import tempfile  # noqa: PLC0415
     try:
-        from wip_sim.standin_run import realtime_benchmark  # noqa: PLC0415 (needs ROS)
+        from wip_bringup.standin_run import realtime_benchmark  # noqa: PLC0415 (needs ROS)
     except ImportError as err:
         return [{'skipped': f'node graph not available: {err}'}]
     with tempfile.TemporaryDirectory(prefix='wip_bench_rt_') as directory:
@@ -179,5 +179,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == '__main__':
-    from .cli import exit_with
+    from wip_control.tools.cli import exit_with
     exit_with(main, 'bench')

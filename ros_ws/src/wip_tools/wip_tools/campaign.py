@@ -55,10 +55,10 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import yaml
 
-from ..core.config import ConfigError
-from ..core.criteria import Criteria, criteria_from_mapping, criteria_to_mapping, evaluate, \
+from wip_control.core.config import ConfigError
+from wip_control.core.criteria import Criteria, criteria_from_mapping, criteria_to_mapping, evaluate, \
     measure
-from ..core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
+from wip_control.core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
 
 #: Keys of a campaign file.
 CAMPAIGN_KEYS = ('name', 'description', 'scenario', 'overrides', 'runs', 'seed', 'vary',
@@ -388,8 +388,8 @@ def run_one(spec: Mapping[str, Any], base: Mapping[str, Any],
     ``base`` is the campaign's base scenario mapping and ``criteria`` its criteria as a
     mapping (plain data: they travel to the workers once, see :func:`execute`).
     """
-    from ..core.metrics import compute_metrics  # noqa: PLC0415 (worker-side imports)
-    from ..core.runner import run_scenario      # noqa: PLC0415
+    from wip_control.core.metrics import compute_metrics  # noqa: PLC0415 (worker-side imports)
+    from wip_control.core.runner import run_scenario      # noqa: PLC0415
 
     row: dict[str, Any] = {'run': spec['run'], **spec['values'], 'seed': spec['seed']}
     start, cpu_start = time.perf_counter(), time.process_time()

@@ -5,8 +5,8 @@ from __future__ import annotations
 import dataclasses
 import typing
 
-from ..core.config import describe
-from ..core.scenario import Scenario
+from wip_control.core.config import describe
+from wip_control.core.scenario import Scenario
 
 
 def _rows(cls: type, prefix: str) -> list[tuple[str, str, str, str, str]]:

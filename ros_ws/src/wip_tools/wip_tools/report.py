@@ -8,7 +8,7 @@ Examples
 
 The bag's messages are turned into the same :class:`~wip_control.core.record.RunRecord`
 as the in-process runner builds, and the outputs are written by the same code as
-``scripts/simulate`` (:func:`wip_control.tools.simulate.write_run_outputs`,
+``scripts/simulate`` (:func:`wip_tools.simulate.write_run_outputs`,
 :func:`wip_control.core.metrics.compute_metrics`): ``metrics.json``, ``timeseries.npz``,
 ``scenario.yaml``, ``figures/*.png`` (and ``*.svg``) and ``report.html`` (one
 self-contained page: metrics against the paper's claims, every figure with a caption
@@ -43,7 +43,7 @@ wall-clock time (the realtime graph, a robot) is shifted so that its first groun
 The scenario (limits, disturbance windows, parameters of the metrics) is the bag's own
 (its metadata's ``custom_data``, else ``BAG/scenario.yaml``, where ``scripts/run_graph
 --record`` copies the run's scenario), with ``--scenario FILE`` applied over it, else the
-paper's Section V with a warning: :mod:`wip_sim.bag_scenario`, the rule rerun uses too.
+paper's Section V with a warning: :mod:`wip_bag.bag_scenario`, the rule rerun uses too.
 
 Integrity: the bag is checked before it is read (every chunk's CRC, a proper end). A
 damaged or unfinished bag is refused with the time range and topics it lost (exit 2);
@@ -70,8 +70,8 @@ from wip_control.core.scenario import Scenario
 from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE,
                                    exit_with)
 
-from .bag_reader import bag_summary, BagReadError, read_bag
-from .bag_scenario import scenario_for_bag
+from wip_bag.bag_reader import bag_summary, BagReadError, read_bag
+from wip_bag.bag_scenario import scenario_for_bag
 
 #: Stamps beyond this [s] are wall-clock (epoch) times, not simulation times (~3 years).
 WALL_CLOCK_THRESHOLD_S = 1e8
@@ -154,7 +154,7 @@ def record_from_bag(bag: str | pathlib.Path,
 def scenario_for(bag: str | pathlib.Path,
                  scenario_path: str | pathlib.Path | None) -> tuple[Scenario, str]:
     """The scenario of a report and where it came from: the bag's own, with
-    ``scenario_path`` over it (:mod:`wip_sim.bag_scenario`, the rule rerun uses too)."""
+    ``scenario_path`` over it (:mod:`wip_bag.bag_scenario`, the rule rerun uses too)."""
     try:
         return scenario_for_bag(bag, scenario_path)
     except ConfigError as err:
@@ -173,7 +173,7 @@ def report(bag: str | pathlib.Path, out: str | pathlib.Path,
     ReportError
         If the bag cannot be read, has no usable message, or the scenario is invalid.
     """
-    from wip_control.tools.simulate import step_printer, write_run_outputs  # matplotlib lazily
+    from wip_tools.simulate import step_printer, write_run_outputs  # matplotlib lazily
 
     try:
         check_output_directory(out, '--out')
@@ -233,7 +233,7 @@ def main(argv: Iterable[str] | None = None) -> int:
         print(f'ERROR: {err}', file=sys.stderr)
         return EXIT_USAGE
     if not args.quiet:
-        from wip_control.tools.simulate import summary
+        from wip_tools.simulate import summary
         print(summary(metrics))
         out = pathlib.Path(args.out)
         print(f'wrote {out / "metrics.json"}, {out / "report.html"}'

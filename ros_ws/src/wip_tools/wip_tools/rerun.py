@@ -54,14 +54,14 @@ Outputs in ``--out DIR``:
   (prefix ``--prefix``), stamped like the recorded ones;
 - ``comparison.json``: per compared field, the max and RMS difference recomputed - recorded
   on the common stamps, and the largest recorded magnitude for scale;
-- the report of :func:`wip_control.tools.simulate.write_run_outputs` on the recomputed
+- the report of :func:`wip_tools.simulate.write_run_outputs` on the recomputed
   run: ``metrics.json`` (with the comparison under ``rerun``), ``timeseries.npz``,
   ``scenario.yaml``, ``figures/`` (unless ``--no-figures``; plus
   ``figures/rerun_comparison.png``).
 
 The scenario (controller parameters, rates, datum) is the bag's own, with ``--scenario
 FILE`` applied over it (a partial file changes only its keys): the lookup rule of
-:mod:`wip_sim.bag_scenario`, shared with ``scripts/report``.
+:mod:`wip_bag.bag_scenario`, shared with ``scripts/report``.
 """
 
 from __future__ import annotations
@@ -112,9 +112,9 @@ from wip_control.nodes.conversions import (arc_to_msg, body_rates_from_euler,
 
 from wip_control.tools.cli import check_output_directory, EXIT_USAGE, exit_with, write_atomic
 
-from .bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
-from .bag_scenario import SCENARIO_KEY, scenario_for_bag
-from .bag_writer import BagWriterError, Rosbag2McapWriter
+from wip_bag.bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
+from wip_bag.bag_scenario import SCENARIO_KEY, scenario_for_bag
+from wip_bag.bag_writer import BagWriterError, Rosbag2McapWriter
 
 DEFAULT_PREFIX = '/rerun'
 LEFT_JOINT, RIGHT_JOINT = 'left_wheel_joint', 'right_wheel_joint'
@@ -182,7 +182,7 @@ def read_recorded_run(bag, left_joint=LEFT_JOINT, right_joint=RIGHT_JOINT,
                       allow_partial=False) -> RecordedRun:
     """Deserialize the re-run's input topics and the recorded controller outputs.
 
-    A damaged bag raises :class:`~wip_sim.bag_reader.BagIntegrityError` unless
+    A damaged bag raises :class:`~wip_bag.bag_reader.BagIntegrityError` unless
     ``allow_partial`` (then the intact chunks are used).
     """
     wanted = {TOPICS[key][0]: key for key in _CLASSES}
@@ -741,7 +741,7 @@ def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, qui
     computed. It is written into a temporary directory beside it and renamed when
     complete, so a failed re-run leaves no half bag that would block the next one.
     """
-    from wip_control.tools.simulate import step_printer
+    from wip_tools.simulate import step_printer
     progress = (lambda text: None) if quiet else step_printer('rerun')
     out = pathlib.Path(out)
     try:
@@ -792,7 +792,7 @@ def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, qui
     if lost:
         metrics['partial'] = True
         metrics['lost'] = lost
-    from wip_control.tools.simulate import write_run_outputs
+    from wip_tools.simulate import write_run_outputs
     write_run_outputs(out, record, scenario, metrics, figures=figures, progress=progress)
     write_atomic(out / 'comparison.json', json.dumps(comparison, indent=2) + '\n')
     if figures:

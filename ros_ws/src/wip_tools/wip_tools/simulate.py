@@ -19,11 +19,11 @@ import time
 
 import yaml
 
-from ..core.config import ConfigError
-from ..core.metrics import compute_metrics
-from ..core.runner import run_scenario
-from ..core.scenario import Scenario, load_scenario, scenario_to_mapping
-from .cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with,
+from wip_control.core.config import ConfigError
+from wip_control.core.metrics import compute_metrics
+from wip_control.core.runner import run_scenario
+from wip_control.core.scenario import Scenario, load_scenario, scenario_to_mapping
+from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with,
                   write_atomic)
 from .parameters import parameter_table
 
@@ -70,9 +70,9 @@ def write_run_outputs(out: pathlib.Path, record, scenario: Scenario, metrics: di
                                                        sort_keys=False))
     paths = []
     if figures:
-        from ..analysis.figures import write_figures  # matplotlib only when asked
+        from .analysis.figures import write_figures  # matplotlib only when asked
         paths = write_figures(record, scenario, out / 'figures', progress=progress)
-    from ..analysis.report_page import write_report_page
+    from .analysis.report_page import write_report_page
     write_report_page(out, metrics, scenario, paths, progress=progress)
     return paths
 

@@ -55,8 +55,8 @@ from wip_control.nodes.common import RELIABLE_QOS, run_node
 from wip_control.nodes.diagnostics import NodeDiagnostics
 from wip_control.nodes.parameters import declare_plain
 
-from .bag_writer import BagWriterError, message_definition
-from .recorder_node import import_message_class, is_hidden_topic
+from wip_bag.bag_writer import BagWriterError, message_definition
+from wip_bag.recorder_node import import_message_class, is_hidden_topic
 
 DEFAULT_PORT = 8765
 ESTOP_TOPIC = '/wip/estop'

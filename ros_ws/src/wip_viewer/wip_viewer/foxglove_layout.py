@@ -7,7 +7,7 @@ e-stop buttons (Service Call panels on the bridge's ``/wip/estop/*`` services) f
 
 Regenerate the files after a change here (a test checks that they match)::
 
-    python -m wip_sim.foxglove_layout foxglove/
+    python -m wip_viewer.foxglove_layout foxglove/
 
 Panels: a 3-D view in ``map`` (the vehicle tilted by θ, the MPC's prediction, the reference,
 travelled and estimated paths, both Odometry arrows); plots of θ (true, estimated, the
@@ -111,7 +111,7 @@ def layout_json(live: bool) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog='python -m wip_sim.foxglove_layout',
+    parser = argparse.ArgumentParser(prog='python -m wip_viewer.foxglove_layout',
                                      description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('out', help='directory of the layout files (foxglove/)')

@@ -1,4 +1,4 @@
-"""Geometry of the viewer topics, without ROS (see ``wip_sim.viewer_node``).
+"""Geometry of the viewer topics, without ROS (see ``wip_viewer.viewer_node``).
 
 Frames (REP 103/105): ``map`` is the world frame of the planar model, x east-ish / y left
 / z up; ``base_link`` sits on the ground under the wheel axle's centre, x forward (the

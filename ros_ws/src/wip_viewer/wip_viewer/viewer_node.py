@@ -6,7 +6,7 @@ control loop: it only subscribes to the controllers' topics (best effort, keep-l
 a slow viewer loses its own samples and never makes a publisher wait), and nothing in the
 graph subscribes to what it publishes. Its inputs at the control rate are subscribed raw:
 the stamp is read from the CDR bytes and a message is deserialized only when the node
-publishes from it (:func:`~wip_sim.viewer_core.cdr_stamp_ns`), which keeps its CPU per
+publishes from it (:func:`~wip_viewer.viewer_core.cdr_stamp_ns`), which keeps its CPU per
 control tick small.
 
 Published (frame ``viewer.frame_id``, default ``map``; child ``base_link``)
@@ -31,14 +31,14 @@ so every marker and path is drawn directly in ``map``; set the 3-D panel's displ
 
 Rates are of message stamps (simulated time in lockstep): a message goes out when an input
 arrives at least 1/rate after the previous one (the paths sample their source at the
-pose rate) (:class:`~wip_sim.viewer_core.RateGate`), so
+pose rate) (:class:`~wip_viewer.viewer_core.RateGate`), so
 a lockstep bag holds the same viewer messages on every run and a replay needs no timer.
 Odometry twist: υ along base_link x, ω about z (the child frame). Covariance: the truth's
 is zero (exact); the estimate's holds ``viewer.position_std``² on x and y when set (the GPS
 noise, written by ``scripts/run_graph``), very large on z, roll, pitch; else all zero
 (unknown, the ROS convention).
 
-Parameters: ``viewer.*`` (:class:`~wip_sim.viewer_core.ViewerConfig`), read-only.
+Parameters: ``viewer.*`` (:class:`~wip_viewer.viewer_core.ViewerConfig`), read-only.
 """
 
 from __future__ import annotations

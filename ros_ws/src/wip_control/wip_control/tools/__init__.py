@@ -1,0 +1,1 @@
+"""Command-line plumbing shared by the tools of every package (cli: exit codes, errors)."""

@@ -15,7 +15,7 @@ tests of the MPC.
 
 Usage::
 
-    python -m wip_control.analysis.bench_mpc [--duration 30] [--repeats 3] [--json out.json]
+    python -m wip_tools.analysis.bench_mpc [--duration 30] [--repeats 3] [--json out.json]
 """
 
 from __future__ import annotations
@@ -32,10 +32,10 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from ..core.model import nominal_terms
-from ..core.mpc import LongitudinalMpc, MpcConfig, MpcStatus
-from ..core.params import WipParameters
-from ..core.qp import DaqpSolver
+from wip_control.core.model import nominal_terms
+from wip_control.core.mpc import LongitudinalMpc, MpcConfig, MpcStatus
+from wip_control.core.params import WipParameters
+from wip_control.core.qp import DaqpSolver
 
 #: Keys of one recorded MPC call besides ``tau_previous``.
 STEP_KEYS = ('v_hat', 'theta_hat', 'theta_dot_hat', 'f2_hat', 'f3_hat', 'v_d', 'tau_limit')
@@ -273,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description='Time the MPC (build + ProxSuite) against DAQP on the same QPs, using '
                     'inputs from a closed loop of the MPC on the paper plant.',
-        epilog='example: python -m wip_control.analysis.bench_mpc --duration 30 --repeats 3')
+        epilog='example: python -m wip_tools.analysis.bench_mpc --duration 30 --repeats 3')
     parser.add_argument('--duration', type=float, default=30.0, help='closed loop [s]')
     parser.add_argument('--repeats', type=int, default=3, help='passes over the ticks')
     parser.add_argument('--json', help='also write the report to this JSON file')

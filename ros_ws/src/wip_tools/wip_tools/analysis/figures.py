@@ -10,7 +10,7 @@ Readability rules: legends sit outside the axes (never over the data); a limit l
 never on the frame (the axis range leaves room past it); where two curves overlap (ω_d and
 ω, the estimated and the true path) the one that would be hidden is drawn on top, dashed.
 What each figure shows and its known effects are explained by the report page's captions
-(:mod:`wip_control.analysis.report_page`).
+(:mod:`wip_tools.analysis.report_page`).
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ matplotlib.use('Agg')  # files only; never needs a display
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..core.angles import wrap_to_pi  # noqa: E402
-from ..core.metrics import _interp, true_lumped_disturbances  # noqa: E402
-from ..core.plant import Plant, plant_input_gains  # noqa: E402
-from ..core.record import RunRecord  # noqa: E402
+from wip_control.core.angles import wrap_to_pi  # noqa: E402
+from wip_control.core.metrics import _interp, true_lumped_disturbances  # noqa: E402
+from wip_control.core.plant import Plant, plant_input_gains  # noqa: E402
+from wip_control.core.record import RunRecord  # noqa: E402
 
 _TRUE = dict(color='black', linewidth=1.0, label='true')
 _EST = dict(color='tab:red', linewidth=1.0, linestyle='--', label='estimate')

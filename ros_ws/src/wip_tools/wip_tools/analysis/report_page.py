@@ -190,7 +190,7 @@ def claims(metrics: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]
 
 def captions(metrics: dict[str, Any], scenario) -> dict[str, str]:
     """Caption of each figure (file stem -> text), with the run's numbers."""
-    from ..core.metrics import pulse_windows
+    from wip_control.core.metrics import pulse_windows
     m = metrics
     tg = scenario.trajectory_generator
     windows = pulse_windows(scenario)
@@ -356,8 +356,8 @@ def write_report_page(out: pathlib.Path, metrics: dict[str, Any], scenario,
                       figure_paths: list[pathlib.Path],
                       progress: Callable[[str], None] | None = None) -> pathlib.Path:
     """Write ``out/report.html``; returns its path."""
-    from ..core.scenario import scenario_to_mapping
-    from ..tools.cli import write_atomic
+    from wip_control.core.scenario import scenario_to_mapping
+    from wip_control.tools.cli import write_atomic
     if progress is not None:
         progress('report.html')
     path = pathlib.Path(out) / 'report.html'

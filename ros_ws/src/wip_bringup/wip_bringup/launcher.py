@@ -1,0 +1,391 @@
+"""Process machinery shared by the bring-up modes: simulation (:mod:`wip_bringup.graph`) and
+hardware mode (:mod:`wip_bringup.hardware`) start the same executables the way ``ros2 run``
+does, in a DDS domain of their own, watch them through a probe node, and stop them the
+same way. Both modes import this module; neither imports the other's internals.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import pathlib
+import random
+import re
+import shutil
+import signal
+import subprocess
+import time
+from typing import Any
+
+from wip_control.tools.cli import check_output_directory
+from wip_viewer.viewer_core import VIEWER_TOPICS as VIEWER_TOPIC_TYPES
+
+
+# The exit-code table of every tool (wip_control.tools.cli): 0 ok, 1 the vehicle fell,
+# 2 usage or input error, 3 internal error (a node crashed, the graph stalled), 130 Ctrl-C.
+EXIT_OK, EXIT_FELL, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
+EXIT_TIMEOUT = EXIT_FAILED
+EXIT_INTERRUPTED = 130
+#: Published by the viewer node (standard messages for 3-D viewers; nothing in the
+#: control loop subscribes to them).
+VIEWER_TOPICS = tuple(VIEWER_TOPIC_TYPES)
+#: Marker of a log directory written by run_graph: only such a directory is replaced.
+LOGS_MARKER = '.written-by-run_graph'
+
+#: Process layouts of the controller nodes: 'separate' (one process per node, as six
+#: `ros2 run`) or 'composed' (the six nodes in one process, `ros2 run wip_control
+#: controllers`, one executor). Same nodes, names, parameters and topics either way.
+LAYOUTS = ('separate', 'composed')
+
+#: Executable of each node: (package, executable).
+EXECUTABLES = {
+    'reference': ('wip_control', 'reference'),
+    'eso': ('wip_control', 'eso'),
+    'trajectory_generator': ('wip_control', 'trajectory_generator'),
+    'arc': ('wip_control', 'arc'),
+    'mpc': ('wip_control', 'mpc'),
+    'torque_mixer': ('wip_control', 'torque_mixer'),
+    'controllers': ('wip_control', 'controllers'),
+    'plant': ('wip_sim', 'plant'),
+    'recorder': ('wip_sim', 'recorder'),
+    'viewer': ('wip_sim', 'viewer'),
+    'foxglove_bridge': ('wip_sim', 'foxglove_bridge'),
+}
+
+
+PROBE_PERIOD = 0.5  # [s] wall: process polling and probe spinning
+GRACE_PERIOD = 5.0  # [s] after SIGINT before SIGKILL (controllers)
+RECORDER_GRACE_PERIOD = 60.0  # [s] the recorder writes the rest of its queue first
+LOG_TAIL_LINES = 15
+
+
+class GraphError(Exception):
+    """The graph could not be started or did not run to its end; ``exit_code`` says how."""
+
+    def __init__(self, message: str, exit_code: int = EXIT_FAILED) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
+
+
+@dataclasses.dataclass(frozen=True)
+class Scheduling:
+    """Real-time scheduling of a process: SCHED_FIFO ``priority`` (1..99; 0: the normal
+    policy) and the CPUs it may run on (empty: all)."""
+
+    priority: int = 0
+    cpus: tuple[int, ...] = ()
+
+    def check(self) -> None:
+        """GraphError (usage) naming the option if the values are absurd or this user may
+        not apply them (tried on a throwaway child process)."""
+        if not 0 <= self.priority <= 99:
+            raise GraphError(f'--rt-priority: must be in 0..99, got {self.priority}',
+                             EXIT_USAGE)
+        available = os.sched_getaffinity(0)
+        if self.cpus and not set(self.cpus) <= available:
+            raise GraphError(f'--cpu-affinity: CPUs {sorted(set(self.cpus) - available)} are '
+                             f'not available (this process may use {sorted(available)})',
+                             EXIT_USAGE)
+        if self.priority or self.cpus:
+            try:
+                subprocess.run(['true'], preexec_fn=self.apply, check=True)
+            except (subprocess.SubprocessError, OSError) as err:
+                raise GraphError(
+                    f'--rt-priority {self.priority}: not permitted here ({err}); it needs '
+                    'root, CAP_SYS_NICE or an rtprio limit (/etc/security/limits.conf)',
+                    EXIT_USAGE) from err
+
+    def apply(self) -> None:
+        """In the child, before exec: inherited by the program and every thread it starts
+        (the DDS threads included)."""
+        if self.priority:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.priority))
+        if self.cpus:
+            os.sched_setaffinity(0, self.cpus)
+
+
+def parse_cpus(text: str) -> tuple[int, ...]:
+    """'0,1' or '1' -> (0, 1); ValueError with the reason otherwise."""
+    try:
+        cpus = tuple(sorted({int(part) for part in text.split(',') if part.strip()}))
+    except ValueError as err:
+        raise ValueError(f'expected CPU numbers separated by commas, got {text!r}') from err
+    if not cpus or min(cpus) < 0:
+        raise ValueError(f'expected CPU numbers >= 0, got {text!r}')
+    return cpus
+
+
+def executable_path(package: str, executable: str) -> pathlib.Path:
+    """``<prefix>/lib/<package>/<executable>``, what ``ros2 run package executable`` runs."""
+    from ament_index_python.packages import get_package_prefix, PackageNotFoundError
+    try:
+        prefix = get_package_prefix(package)
+    except PackageNotFoundError as err:
+        raise GraphError(f'package {package!r} not found in the ament index '
+                         '(AMENT_PREFIX_PATH): source ros_ws/install/setup.bash or use '
+                         'scripts/run_graph', EXIT_USAGE) from err
+    path = pathlib.Path(prefix) / 'lib' / package / executable
+    if not os.access(path, os.X_OK):
+        raise GraphError(f'{path} is not an executable: rebuild the workspace '
+                         '(scripts/setup)', EXIT_USAGE)
+    return path
+
+
+def graph_environment(domain_id: int) -> dict[str, str]:
+    """Environment of the node processes: our DDS domain, localhost only, plain logs."""
+    env = dict(os.environ)
+    env['ROS_DOMAIN_ID'] = str(domain_id)
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    env['PYTHONUNBUFFERED'] = '1'
+    env.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
+    return env
+
+
+def choose_domain_id() -> int:
+    """``$ROS_DOMAIN_ID`` if set, else random in 1..101 (higher ids of Fast DDS run into
+    Linux's ephemeral port range)."""
+    value = os.environ.get('ROS_DOMAIN_ID', '').strip()
+    if value:
+        try:
+            return int(value)
+        except ValueError as err:
+            raise GraphError(f'ROS_DOMAIN_ID={value!r} is not an integer', EXIT_USAGE) from err
+    return random.randint(1, 101)
+
+
+class NodeProcess:
+    """One node's process, its log file and how to stop it."""
+
+    def __init__(self, name: str, command: list[str], log_path: pathlib.Path,
+                 env: dict[str, str], scheduling: Scheduling | None = None) -> None:
+        self.name = name
+        self.command = command
+        self.log_path = log_path
+        self._log = open(log_path, 'w', encoding='utf-8')
+        apply = scheduling.apply if scheduling and (scheduling.priority or scheduling.cpus) \
+            else None
+        self.process = subprocess.Popen(command, stdout=self._log, stderr=subprocess.STDOUT,
+                                        stdin=subprocess.DEVNULL, env=env, preexec_fn=apply)
+        self.pid = self.process.pid
+        self._interrupted = False
+        self.killed = False
+
+    def poll(self) -> int | None:
+        return self.process.poll()
+
+    @property
+    def returncode(self) -> int | None:
+        return self.process.returncode
+
+    def interrupt(self) -> None:
+        """Send SIGINT (once) if the process is still running."""
+        if self.process.poll() is None and not self._interrupted:
+            self.process.send_signal(signal.SIGINT)
+            self._interrupted = True
+
+    def stop(self, grace: float) -> int | None:
+        """SIGINT (if not sent yet), then SIGKILL after ``grace`` [s]; the exit code."""
+        self.interrupt()
+        try:
+            self.process.wait(timeout=max(grace, 0.0))
+        except subprocess.TimeoutExpired:
+            self.killed = True
+            self.process.kill()
+            self.process.wait()
+        self._log.close()
+        return self.process.returncode
+
+    def cpu_seconds(self) -> float | None:
+        """CPU time [s] used so far (user + system, all threads), from /proc; None if
+        unavailable (not Linux, or the process has exited)."""
+        try:
+            with open(f'/proc/{self.pid}/stat', encoding='ascii') as stream:
+                fields = stream.read().rsplit(')', 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+        except (OSError, ValueError, IndexError):
+            return None
+
+    def log_tail(self, lines: int = LOG_TAIL_LINES) -> str:
+        self._log.flush()
+        try:
+            text = self.log_path.read_text(encoding='utf-8', errors='replace')
+        except OSError:
+            return ''
+        return '\n'.join(text.splitlines()[-lines:])
+
+
+class Probe:
+    """A node of this process that looks at the graph and reads /diagnostics."""
+
+    def __init__(self, domain_id: int) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile
+        self._rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id, args=[])
+        self.node = rclpy.create_node('run_graph', context=self.context,
+                                      start_parameter_services=False)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.diagnostics: dict[str, Any] = {}  # status name -> latest DiagnosticStatus
+        self.received_at: dict[str, float] = {}  # status name -> time.monotonic() [s]
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
+                                      QoSProfile(depth=100))
+        from std_srvs.srv import Trigger
+        self._trigger = Trigger
+        self.start_client = self.node.create_client(Trigger, '/plant/start')
+
+    def _on_diagnostics(self, msg) -> None:
+        now = time.monotonic()
+        for status in msg.status:
+            self.diagnostics[status.name] = status
+            self.received_at[status.name] = now
+
+    def reporting_since(self, since: float) -> set[str]:
+        """Names of the nodes with a /diagnostics status received after ``since``."""
+        return {name.split(':', 1)[0].lstrip('/') for name, at in self.received_at.items()
+                if at > since}
+
+    def spin(self, duration: float) -> None:
+        """Handle what arrived, for about ``duration`` [s]."""
+        deadline = time.monotonic() + duration
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            self.executor.spin_once(timeout_sec=left)
+
+    def node_names(self) -> set[str]:
+        return {name for name, namespace in self.node.get_node_names_and_namespaces()
+                if namespace == '/'}
+
+    def count(self, topic: str) -> tuple[int, int]:
+        return self.node.count_publishers(topic), self.node.count_subscribers(topic)
+
+    def status_values(self, text: str,
+                      prefix: bool = False) -> tuple[Any, dict[str, str]] | None:
+        """Latest status whose name ends (or starts) with ``text``, with its values."""
+        for name, status in self.diagnostics.items():
+            if name.startswith(text) if prefix else name.endswith(text):
+                return status, {kv.key: kv.value for kv in status.values}
+        return None
+
+    def call_start(self, timeout: float):
+        """Call /plant/start once; returns the response or None (no answer in time)."""
+        if not self.start_client.service_is_ready():
+            return None
+        future = self.start_client.call_async(self._trigger.Request())
+        deadline = time.monotonic() + timeout
+        while not future.done() and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+        return future.result() if future.done() else None
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self._rclpy.try_shutdown(context=self.context)
+
+
+def viewer_wanted(options) -> bool:
+    """``options.viewer`` if set, else whether anyone will see its topics (a bag is
+    recorded or the live view is served)."""
+    if options.viewer is not None:
+        return bool(options.viewer)
+    return options.record is not None or options.foxglove_port is not None
+
+
+def live_view_line(bridge: NodeProcess, host: str, port: int | None) -> str:
+    """Where the live view is: the URL the bridge printed (with port 0, the port it got)."""
+    match = re.search(r'foxglove_bridge: serving (ws://\S+)', bridge.log_tail(200))
+    url = match.group(1) if match else f'ws://{host}:{port}'
+    return (f'live view: open {url} in Foxglove (Open connection, Foxglove WebSocket; '
+            'layout foxglove/wip_live.json)')
+
+
+def prepare_run_directory(out: pathlib.Path, bag: pathlib.Path | None,
+                          extra_logs: tuple[str, ...] = ()) -> None:
+    """Check the outputs of a run (``--out`` directory, ``--record`` bag) before anything is
+    written, then create ``OUT/logs`` (with its marker), replacing only the logs of an
+    earlier run of ours (``OUT/logs`` and the ``extra_logs`` glob patterns in OUT).
+
+    GraphError (usage) naming the option when an output is unusable or would replace what
+    this tool did not write; nothing is written then.
+    """
+    try:
+        check_output_directory(out, '--out')
+        if bag is not None:
+            check_output_directory(bag, '--record')
+    except ValueError as err:
+        raise GraphError(str(err), EXIT_USAGE) from err
+    if bag is not None and bag.exists() and any(bag.iterdir()):
+        raise GraphError(f'--record: {bag} exists and is not empty; refusing to '
+                         'overwrite a bag (nothing was written)', EXIT_USAGE)
+    logs = out / 'logs'
+    if bag is not None and (bag == out or bag == logs or logs in bag.parents):
+        raise GraphError(f'--record {bag}: not the run directory or its logs', EXIT_USAGE)
+    old_logs = [old for old in [logs, *(p for pattern in extra_logs
+                                         for p in sorted(out.glob(pattern)))]
+                if old.exists() or old.is_symlink()]
+    for old in old_logs:
+        foreign = foreign_log_content(old)
+        if foreign:
+            raise GraphError(
+                f'--out {out}: {old} holds {foreign}, which run_graph did not write; '
+                'refusing to replace it (move it away or choose another --out)', EXIT_USAGE)
+    out.mkdir(parents=True, exist_ok=True)
+    for old in old_logs:  # Logs of an earlier run_graph run (checked above).
+        shutil.rmtree(old)
+    (logs / 'ros').mkdir(parents=True)
+    (logs / LOGS_MARKER).write_text('run_graph writes this directory and replaces it on the '
+                                    'next run into the same --out\n', encoding='utf-8')
+
+
+def foreign_log_content(directory: pathlib.Path) -> str:
+    """'' if ``directory`` is a log directory run_graph wrote, else what is foreign in it.
+
+    run_graph's own: a directory with its marker file whose entries are the marker, the
+    ``ros`` folder and ``<node>.log`` files.
+    """
+    if directory.is_symlink():
+        return 'a symbolic link'
+    if not directory.is_dir():
+        return 'a file'
+    if not any(directory.iterdir()):
+        return ''  # Empty: nothing to lose.
+    if not (directory / LOGS_MARKER).is_file():
+        return 'content without the run_graph marker'
+    ours = {LOGS_MARKER, 'ros'} | {f'{name}.log' for name in EXECUTABLES}
+    foreign = sorted(p.name for p in directory.iterdir() if p.name not in ours)
+    return ', '.join(foreign[:3])
+
+
+FOXGLOVE_PORT = 8765  # Foxglove's default WebSocket port
+
+
+def foxglove_port(text: str) -> int:
+    """argparse type of --foxglove: a TCP port, 0..65535."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a port number') from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f'{port} is not in 0..65535')
+    return port
+
+
+def add_view_arguments(parser: argparse.ArgumentParser) -> None:
+    """--foxglove [PORT], --foxglove-host, --viewer/--no-viewer (simulation and hardware mode)."""
+    parser.add_argument('--foxglove', nargs='?', type=foxglove_port, const=FOXGLOVE_PORT,
+                        default=None, metavar='PORT',
+                        help='serve the graph\'s topics live over the Foxglove WebSocket '
+                        f'protocol on PORT (default {FOXGLOVE_PORT}; 0 = any free port), '
+                        'with the e-stop services /wip/estop/{engage,release,reset}')
+    parser.add_argument('--foxglove-host', default='127.0.0.1', metavar='ADDRESS',
+                        help='address of the Foxglove server (default 127.0.0.1: this '
+                        'machine only; 0.0.0.0 serves the network)')
+    parser.add_argument('--viewer', action=argparse.BooleanOptionalAction, default=None,
+                        help='the viewer node (Odometry, Path, markers for 3-D viewers); '
+                        'default: on with --record or --foxglove, else off')

@@ -1,0 +1,31 @@
+"""Install the wip_viewer ament_python package.
+
+Console scripts go to ``lib/wip_viewer`` (see setup.cfg), where ``ros2 run`` looks for them.
+"""
+
+from setuptools import find_packages, setup
+
+package_name = 'wip_viewer'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='wip-ros maintainers',
+    maintainer_email='wip-ros@example.com',
+    description='Viewer node, Foxglove bridge and layouts of the wheeled inverted pendulum.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'viewer = wip_viewer.viewer_node:main',
+            'foxglove_bridge = wip_viewer.foxglove_bridge:main',
+            'foxglove_layout = wip_viewer.foxglove_layout:main',
+        ],
+    },
+)

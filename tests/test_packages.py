@@ -1,0 +1,208 @@
+"""The packages of ros_ws/src by role, and what they may import.
+
+The import graph of every Python module under ``ros_ws/src/<package>/<package>/`` is built
+from the source (ast, every ``import`` statement, also those inside functions: a lazy import
+is still a dependency) and checked:
+
+(a) no import cycle between modules;
+(b) every package imports only what its package.xml declares (``<depend>`` or
+    ``<exec_depend>``): ROS packages by name, Python libraries by their rosdep key
+    (python3-<name>), and libraries without a rosdep key from requirements.txt;
+(c) the dependency graph of the packages (from their package.xml) has no cycle;
+(d) wip_control, the controllers a robot installs, imports no other wip_* package but the
+    messages.
+"""
+
+import ast
+import pathlib
+import re
+import sys
+import xml.etree.ElementTree as ElementTree
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+SRC = ROOT / 'ros_ws' / 'src'
+
+#: The packages and their job (the README's layout table says the same).
+PACKAGES = ('wip_msgs', 'wip_control', 'wip_sim', 'wip_bag', 'wip_bringup', 'wip_tools',
+            'wip_viewer')
+#: Python libraries with a rosdep key: import name -> key.
+ROSDEP_KEYS = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml',
+               'matplotlib': 'python3-matplotlib', 'numba': 'python3-numba'}
+#: Python libraries without a rosdep key: import name -> its name in requirements.txt.
+PIP_ONLY = {'mcap': 'mcap', 'mcap_ros2': 'mcap-ros2-support', 'proxsuite': 'proxsuite',
+            'daqp': 'daqp', 'dask': 'dask', 'tqdm': 'tqdm', 'foxglove': 'foxglove-sdk',
+            # Optional (runs.parquet when installed): imported under try/except ImportError.
+            'pyarrow': None}
+#: Imports of the ROS client library and message packages: the name is the package.
+ROS_IMPORTS = {'rclpy', 'rcl_interfaces', 'builtin_interfaces', 'ament_index_python',
+               'std_msgs', 'std_srvs', 'sensor_msgs', 'nav_msgs', 'geometry_msgs',
+               'visualization_msgs', 'diagnostic_msgs', 'rosgraph_msgs', 'wip_msgs'}
+
+
+def python_packages():
+    """Names of the ament_python packages (those with Python modules)."""
+    return sorted(p.name for p in SRC.iterdir() if (p / p.name / '__init__.py').is_file())
+
+
+def modules():
+    """Dotted module name -> source path, for every module of every package."""
+    found = {}
+    for package in python_packages():
+        for path in sorted((SRC / package / package).rglob('*.py')):
+            parts = list(path.relative_to(SRC / package).with_suffix('').parts)
+            if parts[-1] == '__init__':
+                parts.pop()
+            found['.'.join(parts)] = path
+    return found
+
+
+def imports_of(name, path, known):
+    """Every module ``name`` imports: dotted names, relative imports resolved; ``from x
+    import y`` counts as an import of x.y when x.y is a module of ours."""
+    is_package = path.name == '__init__.py'
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding='utf-8'), str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = name.split('.') if is_package else name.split('.')[:-1]
+                base = base[:len(base) - (node.level - 1)]
+                target = '.'.join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module
+            found.add(target)
+            found.update(f'{target}.{alias.name}' for alias in node.names
+                         if f'{target}.{alias.name}' in known)
+    return found
+
+
+@pytest.fixture(scope='module')
+def graph():
+    """Module -> set of imported modules (ours and others)."""
+    known = modules()
+    return {name: imports_of(name, path, known) for name, path in known.items()}
+
+
+def declared(package):
+    """Names a package.xml declares as run-time dependencies."""
+    tree = ElementTree.parse(SRC / package / 'package.xml')
+    return {e.text.strip() for tag in ('depend', 'exec_depend') for e in tree.iter(tag)}
+
+
+def find_cycle(edges):
+    """One cycle of the directed graph ``edges`` (node -> successors) as a list, or None."""
+    state = {}  # node -> 1 on the current path, 2 done
+
+    def visit(node, path):
+        state[node] = 1
+        path.append(node)
+        for succ in sorted(edges.get(node, ())):
+            if state.get(succ) == 1:
+                return path[path.index(succ):] + [succ]
+            if succ not in state:
+                cycle = visit(succ, path)
+                if cycle:
+                    return cycle
+        state[node] = 2
+        path.pop()
+        return None
+
+    for node in sorted(edges):
+        if node not in state:
+            cycle = visit(node, [])
+            if cycle:
+                return cycle
+    return None
+
+
+def requirement_names():
+    text = (ROOT / 'requirements.txt').read_text(encoding='utf-8')
+    return {re.split(r'[=<>\[ ;]', line.strip(), maxsplit=1)[0].lower()
+            for line in text.splitlines() if line.strip() and not line.startswith('#')}
+
+
+def test_the_source_tree_holds_the_packages_of_the_layout():
+    on_disk = sorted(p.name for p in SRC.iterdir() if (p / 'package.xml').is_file())
+    assert on_disk == sorted(PACKAGES)
+    for package in python_packages():
+        for name in ('setup.py', 'setup.cfg', f'resource/{package}'):
+            assert (SRC / package / name).is_file(), f'{package}/{name}'
+        # ros2 run looks for the console scripts in lib/<package>.
+        assert f'$base/lib/{package}' in (SRC / package / 'setup.cfg').read_text()
+
+
+def test_the_graph_sees_every_module_and_its_imports(graph):
+    # The checks below are only as good as the graph: it must hold every package's modules
+    # and the imports known to exist.
+    assert {name.split('.')[0] for name in graph} == set(python_packages())
+    assert 'wip_bringup.launcher' in graph['wip_bringup.hardware']
+    assert 'wip_bag.bag_writer' in graph['wip_bag.bag_repair']
+    assert 'wip_control.core.mpc' in graph['wip_control.nodes.mpc_node']  # relative import
+
+
+def test_no_import_cycle_between_modules(graph):
+    ours = {name: {t for t in targets if t in graph} for name, targets in graph.items()}
+    cycle = find_cycle(ours)
+    assert cycle is None, ' -> '.join(cycle)
+    # The checker finds a cycle when there is one.
+    assert find_cycle({'a': {'b'}, 'b': {'c'}, 'c': {'a'}}) == ['a', 'b', 'c', 'a']
+
+
+def test_every_package_declares_what_it_imports(graph):
+    pip = requirement_names()
+    problems = []
+    for package in python_packages():
+        deps = declared(package)
+        roots = {target.split('.')[0] for name, targets in graph.items()
+                 if name.split('.')[0] == package for target in targets}
+        for root in sorted(roots - {package}):
+            if root in sys.stdlib_module_names or root == '__future__':
+                continue
+            if root in ROS_IMPORTS or root in PACKAGES:
+                if root not in deps:
+                    problems.append(f'{package} imports {root}: not in its package.xml')
+            elif root in ROSDEP_KEYS:
+                if ROSDEP_KEYS[root] not in deps:
+                    problems.append(f'{package} imports {root}: declare '
+                                    f'{ROSDEP_KEYS[root]} in its package.xml')
+            elif root in PIP_ONLY:
+                if PIP_ONLY[root] is not None and PIP_ONLY[root] not in pip:
+                    problems.append(f'{package} imports {root}: {PIP_ONLY[root]} is not in '
+                                    'requirements.txt')
+            else:
+                problems.append(f'{package} imports {root}: unknown to this test (add it to '
+                                'ROS_IMPORTS, ROSDEP_KEYS or PIP_ONLY)')
+    assert not problems, '\n'.join(problems)
+
+
+def test_the_package_dependency_graph_has_no_cycle():
+    edges = {package: declared(package) & set(PACKAGES) for package in PACKAGES}
+    cycle = find_cycle(edges)
+    assert cycle is None, ' -> '.join(cycle)
+
+
+def test_the_controllers_import_no_other_wip_package(graph):
+    # wip_control is the drop-in for a robot: it must install without the simulator, the
+    # bag tooling, the bring-up or the offline tools.
+    foreign = sorted(f'{name} imports {target}' for name, targets in graph.items()
+                     if name.startswith('wip_control') for target in targets
+                     if target.split('.')[0].startswith('wip_')
+                     and target.split('.')[0] not in ('wip_control', 'wip_msgs'))
+    assert not foreign, '\n'.join(foreign)
+    assert declared('wip_control') & set(PACKAGES) == {'wip_msgs'}
+
+
+def test_the_real_base_check_needs_no_simulator(graph):
+    # check_base runs on a robot: nothing it imports, directly or not, is in wip_sim.
+    reached, todo = set(), ['wip_bringup.check_base']
+    while todo:
+        name = todo.pop()
+        if name in reached:
+            continue
+        reached.add(name)
+        todo.extend(t for t in graph.get(name, ()) if t in graph)
+    assert not {name for name in reached if name.startswith('wip_sim')}
+    assert 'wip_sim' not in declared('wip_bringup')
