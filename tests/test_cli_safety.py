@@ -18,7 +18,8 @@ import yaml
 
 from wip_control.core.config import ConfigError
 from wip_control.core.scenario import load_scenario
-from wip_control.tools import cli, simulate
+from wip_control.tools import cli
+from wip_tools import simulate
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -186,7 +187,8 @@ def test_a_dead_recorder_points_to_scripts_bag_repair(tmp_path):
 pytest.importorskip('wip_msgs.msg', reason='wip_msgs not built (scripts/setup builds it)')
 from wip_control.core.runner import run_scenario  # noqa: E402
 from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
-from wip_sim import bag_info, bag_repair, report, rerun  # noqa: E402
+from wip_bag import bag_info, bag_repair  # noqa: E402
+from wip_tools import report, rerun  # noqa: E402
 from wip_bag.bag_integrity import scan_file  # noqa: E402
 from wip_bag.bag_reader import BagIntegrityError, iter_raw_messages, read_bag  # noqa: E402
 

@@ -200,11 +200,20 @@ def test_every_executable_has_a_contract_entry():
 
 
 def entry_point_module(package, executable):
-    """The module of a console script, from the package's setup.py."""
-    text = (REPO_ROOT / 'ros_ws' / 'src' / package / 'setup.py').read_text(encoding='utf-8')
-    match = re.search(rf"'{executable} = ([\w.]+):main'", text)
+    """The module whose ``main`` a console script runs, from the package's setup.py (and
+    its console.py for the tools, see wip_control.tools.cli.console_script)."""
+    source = REPO_ROOT / 'ros_ws' / 'src' / package
+    text = (source / 'setup.py').read_text(encoding='utf-8')
+    match = re.search(rf"'{executable} = ([\w.]+):(\w+)'", text)
     assert match, f'{package}/setup.py has no console script {executable}'
-    return match.group(1)
+    if match.group(2) == 'main':
+        return match.group(1)
+    assert match.group(1) == f'{package}.console', match.group(0)
+    console = (source / package / 'console.py').read_text(encoding='utf-8')
+    found = re.search(rf"^{match.group(2)} = console_script\('([\w.]+)', '{executable}'\)$",
+                      console, re.MULTILINE)
+    assert found, f'{package}/console.py: no console_script for {executable}'
+    return found.group(1)
 
 
 def test_every_readme_command_is_an_executable_run_by_its_script():
@@ -290,3 +299,23 @@ def test_executable_runs_as_ros2_run_would_and_stops_cleanly_on_sigint(executabl
     assert one.process.returncode == expected, f'{executable} exit code ' \
                                                f'{one.process.returncode}:\n{output}'
     assert 'Traceback' not in output, output
+
+
+def test_a_console_script_maps_failures_onto_the_exit_code_table(tmp_path, monkeypatch,
+                                                                 capsys):
+    # What `ros2 run <package> <tool>` runs: the tool's main through run_main. A module
+    # that fails at import or in main gives one line on stderr and exit 3, no traceback.
+    from wip_control.tools.cli import console_script
+    monkeypatch.setenv('WIP_TRACE_DIR', str(tmp_path / 'traces'))
+    (tmp_path / 'contract_tool_ok.py').write_text(
+        'def main(argv):\n    return 0 if argv is None else 9\n', encoding='utf-8')
+    (tmp_path / 'contract_tool_broken.py').write_text(
+        'def main(argv):\n    raise RuntimeError("broken on purpose")\n', encoding='utf-8')
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert console_script('contract_tool_ok', 'ok')() == 0
+    assert console_script('contract_tool_broken', 'broken')() == 3
+    assert console_script('contract_tool_missing', 'missing')() == 3
+    err = capsys.readouterr().err.splitlines()
+    assert [line.split(':', 2)[:2] for line in err] == [['broken', ' internal error'],
+                                                        ['missing', ' internal error']]
+    assert 'broken on purpose' in err[0] and 'Traceback' not in '\n'.join(err)

@@ -47,12 +47,30 @@ EXECUTABLES = {
     },
     'wip_sim': {
         'plant': 'wip_sim.plant_node:main',
+        'standin_base': 'wip_sim.standin_base:main',
+    },
+    'wip_bag': {
         'recorder': 'wip_bag.recorder_node:main',
         'replayer': 'wip_bag.replayer_node:main',
-        'standin_base': 'wip_sim.standin_base:main',
-        'check_base': 'wip_bringup.check_base:main',
+        'bag_info': 'wip_bag.console:bag_info',
+        'bag_repair': 'wip_bag.console:bag_repair',
+    },
+    'wip_bringup': {
+        'run_graph': 'wip_bringup.console:run_graph',
+        'check_base': 'wip_bringup.console:check_base',
+        'estop': 'wip_bringup.console:estop',
+    },
+    'wip_tools': {
+        'simulate': 'wip_tools.console:simulate',
+        'report': 'wip_tools.console:report',
+        'rerun': 'wip_tools.console:rerun',
+        'bench': 'wip_tools.console:bench',
+        'campaign': 'wip_tools.console:campaign',
+    },
+    'wip_viewer': {
         'viewer': 'wip_viewer.viewer_node:main',
         'foxglove_bridge': 'wip_viewer.foxglove_bridge:main',
+        'foxglove_layout': 'wip_viewer.console:foxglove_layout',
     },
 }
 PIN = re.compile(r'^([A-Za-z0-9][A-Za-z0-9._-]*)==([A-Za-z0-9.+!-]+)$')

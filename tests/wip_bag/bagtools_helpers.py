@@ -17,14 +17,14 @@ from diagnostic_msgs.msg import DiagnosticArray
 import pytest
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[2]
-WIP_SIM_SOURCE = REPO_ROOT / 'ros_ws' / 'src' / 'wip_sim'
+WIP_BAG_SOURCE = REPO_ROOT / 'ros_ws' / 'src' / 'wip_bag'
 DISCOVERY_TIMEOUT = 15.0  # [s]; first discovery takes up to ~3 s on this host
 
 
 def child_environment():
     env = dict(os.environ)
     env['PYTHONPATH'] = os.pathsep.join(
-        [str(WIP_SIM_SOURCE)] + [p for p in [env.get('PYTHONPATH')] if p])
+        [str(WIP_BAG_SOURCE)] + [p for p in [env.get('PYTHONPATH')] if p])
     env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
     return env
 

@@ -26,7 +26,7 @@ from wip_bag.bag_reader import read_bag
 pytestmark = pytest.mark.ros
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[2]
-WIP_SIM_SOURCE = REPO_ROOT / 'ros_ws' / 'src' / 'wip_sim'
+WIP_BAG_SOURCE = REPO_ROOT / 'ros_ws' / 'src' / 'wip_bag'
 DISCOVERY_TIMEOUT = 15.0  # [s]; first discovery takes up to ~3 s on this host
 N_MESSAGES = 200
 PUBLISH_PERIOD = 0.002  # [s]: 500 Hz, above every rate of the project's graph
@@ -43,7 +43,7 @@ class Recorder:
     def __init__(self, node, *ros_args):
         env = dict(os.environ)
         env['PYTHONPATH'] = os.pathsep.join(
-            [str(WIP_SIM_SOURCE)] + [p for p in [env.get('PYTHONPATH')] if p])
+            [str(WIP_BAG_SOURCE)] + [p for p in [env.get('PYTHONPATH')] if p])
         env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
         self.node = node
         self.process = subprocess.Popen(

@@ -12,7 +12,7 @@ import pytest
 
 pytest.importorskip('rclpy')
 
-from wip_sim import graph  # noqa: E402
+from wip_bringup import graph  # noqa: E402
 from wip_bringup.graph import GraphOptions, GraphRunner  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

@@ -40,7 +40,8 @@ class Bridge:
     """foxglove_bridge as a process; its URL from its first output line."""
 
     def __init__(self, domain: int, tmp_path: pathlib.Path) -> None:
-        path = pathlib.Path(get_package_prefix('wip_sim')) / 'lib' / 'wip_sim' / 'foxglove_bridge'
+        path = (pathlib.Path(get_package_prefix('wip_viewer')) / 'lib' / 'wip_viewer'
+                / 'foxglove_bridge')
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1',
                    ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_LOG_DIR=str(tmp_path))
         self.log_path = tmp_path / 'bridge.log'

@@ -3,6 +3,9 @@
 Console scripts go to ``lib/wip_bag`` (see setup.cfg), where ``ros2 run`` looks for them.
 """
 
+from glob import glob
+import os
+
 from setuptools import find_packages, setup
 
 package_name = 'wip_bag'
@@ -14,6 +17,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        (os.path.join('share', package_name, 'config'), sorted(glob('config/*.yaml'))),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -25,8 +29,8 @@ setup(
         'console_scripts': [
             'recorder = wip_bag.recorder_node:main',
             'replayer = wip_bag.replayer_node:main',
-            'bag_info = wip_bag.bag_info:main',
-            'bag_repair = wip_bag.bag_repair:main',
+            'bag_info = wip_bag.console:bag_info',
+            'bag_repair = wip_bag.console:bag_repair',
         ],
     },
 )

@@ -3,6 +3,9 @@
 Console scripts go to ``lib/wip_bringup`` (see setup.cfg), where ``ros2 run`` looks for them.
 """
 
+from glob import glob
+import os
+
 from setuptools import find_packages, setup
 
 package_name = 'wip_bringup'
@@ -14,6 +17,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        (os.path.join('share', package_name, 'config'), sorted(glob('config/*.yaml'))),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -23,9 +27,9 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'run_graph = wip_bringup.graph:main',
-            'check_base = wip_bringup.check_base:main',
-            'estop = wip_bringup.estop:main',
+            'run_graph = wip_bringup.console:run_graph',
+            'check_base = wip_bringup.console:check_base',
+            'estop = wip_bringup.console:estop',
         ],
     },
 )

@@ -3,6 +3,9 @@
 Console scripts go to ``lib/wip_sim`` (see setup.cfg), where ``ros2 run`` looks for them.
 """
 
+from glob import glob
+import os
+
 from setuptools import find_packages, setup
 
 package_name = 'wip_sim'
@@ -14,6 +17,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        (os.path.join('share', package_name, 'config'), sorted(glob('config/*.yaml'))),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

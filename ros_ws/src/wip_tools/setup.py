@@ -3,6 +3,9 @@
 Console scripts go to ``lib/wip_tools`` (see setup.cfg), where ``ros2 run`` looks for them.
 """
 
+from glob import glob
+import os
+
 from setuptools import find_packages, setup
 
 package_name = 'wip_tools'
@@ -14,6 +17,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        (os.path.join('share', package_name, 'config'), sorted(glob('config/*.yaml'))),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -23,11 +27,11 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'simulate = wip_tools.simulate:main',
-            'report = wip_tools.report:main',
-            'rerun = wip_tools.rerun:main',
-            'bench = wip_tools.bench:main',
-            'campaign = wip_tools.campaign:main',
+            'simulate = wip_tools.console:simulate',
+            'report = wip_tools.console:report',
+            'rerun = wip_tools.console:rerun',
+            'bench = wip_tools.console:bench',
+            'campaign = wip_tools.console:campaign',
         ],
     },
 )

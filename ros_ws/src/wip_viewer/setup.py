@@ -3,6 +3,9 @@
 Console scripts go to ``lib/wip_viewer`` (see setup.cfg), where ``ros2 run`` looks for them.
 """
 
+from glob import glob
+import os
+
 from setuptools import find_packages, setup
 
 package_name = 'wip_viewer'
@@ -14,6 +17,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        (os.path.join('share', package_name, 'config'), sorted(glob('config/*.yaml'))),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -25,7 +29,7 @@ setup(
         'console_scripts': [
             'viewer = wip_viewer.viewer_node:main',
             'foxglove_bridge = wip_viewer.foxglove_bridge:main',
-            'foxglove_layout = wip_viewer.foxglove_layout:main',
+            'foxglove_layout = wip_viewer.console:foxglove_layout',
         ],
     },
 )

@@ -873,7 +873,7 @@ def test_mixer_zeroes_both_wheels_on_non_finite_input_and_says_why(context, harn
 
 
 def test_mixer_run_time_limit_change_and_bad_joints(context, params_context, harnesses):
-    # Real time: the safety layer (tests/nodes/test_safety_node.py) sends torque only
+    # Real time: the safety layer (tests/wip_control/nodes/test_safety_node.py) sends torque only
     # once a settled estimate has arrived too; no settle time here. Each input is sent
     # once, so the age limits are long: a loaded machine may pause this process for more
     # than the default 50 ms between two of them (ages are tested in test_safety_node.py).
@@ -1173,7 +1173,7 @@ def test_diagnostics_report_the_dds_match_counts_of_both_sides(context, harnesse
 def test_the_readme_params_file_of_a_real_base_is_taken_by_the_eso_and_the_mixer(
         domain_id, tmp_path):
     """The README's "Running on a real base" example must stay loadable as written."""
-    readme = (pathlib.Path(__file__).resolve().parents[2] / 'README.md').read_text()
+    readme = (pathlib.Path(__file__).resolve().parents[3] / 'README.md').read_text()
     start = readme.index('```yaml\n/**:') + len('```yaml\n')
     path = tmp_path / 'my_base.yaml'
     path.write_text(readme[start:readme.index('```', start)])

@@ -434,7 +434,7 @@ def spin(node, executor):
 
 
 def main(args=None):
-    """Entry point ``recorder`` (``ros2 run wip_sim recorder --ros-args -p output:=...``)."""
+    """Entry point ``recorder`` (``ros2 run wip_bag recorder --ros-args -p output:=...``)."""
     rclpy.init(args=args)
     node = None
     status = 0

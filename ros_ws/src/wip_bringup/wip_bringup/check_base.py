@@ -719,7 +719,7 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
     parser.add_argument('--window', type=float, default=0.3, metavar='S',
                         help='averaging window of a reading [s]')
     parser.add_argument('--json', metavar='FILE', help='write the checks as JSON')
-    # ``ros2 run wip_sim check_base [options] --ros-args -r a:=b`` passes ROS arguments
+    # ``ros2 run wip_bringup check_base [options] --ros-args -r a:=b`` passes ROS arguments
     # after the tool's own: remappings among them are honoured like --remap, the rest
     # (log levels, parameters) do not concern a listener and are ignored.
     own, ros_remaps = split_ros_arguments(sys.argv[1:] if argv is None else list(argv))

@@ -26,8 +26,8 @@ What it does
    reference, eso, trajectory_generator, arc, mpc, torque_mixer (wip_control) in one
    process (``--layout composed``, the default: ``controllers``) or one each
    (``--layout separate``), the plant (wip_sim) and, with ``--record BAG``, the recorder
-   (wip_sim) recording every topic of the graph into the rosbag2 directory BAG, the viewer
-   (wip_sim; with ``--record`` or ``--foxglove``, or ``--viewer``: nav_msgs/Odometry,
+   (wip_bag) recording every topic of the graph into the rosbag2 directory BAG, the viewer
+   (wip_viewer; with ``--record`` or ``--foxglove``, or ``--viewer``: nav_msgs/Odometry,
    nav_msgs/Path and visualization_msgs/MarkerArray for 3-D viewers, recorded too, see
    ``wip_viewer.viewer_node``) and, with ``--foxglove [PORT]``, the Foxglove bridge
    (``wip_viewer.foxglove_bridge``: every topic live on ws://127.0.0.1:PORT). Each

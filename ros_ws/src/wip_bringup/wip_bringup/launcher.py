@@ -48,9 +48,9 @@ EXECUTABLES = {
     'torque_mixer': ('wip_control', 'torque_mixer'),
     'controllers': ('wip_control', 'controllers'),
     'plant': ('wip_sim', 'plant'),
-    'recorder': ('wip_sim', 'recorder'),
-    'viewer': ('wip_sim', 'viewer'),
-    'foxglove_bridge': ('wip_sim', 'foxglove_bridge'),
+    'recorder': ('wip_bag', 'recorder'),
+    'viewer': ('wip_viewer', 'viewer'),
+    'foxglove_bridge': ('wip_viewer', 'foxglove_bridge'),
 }
 
 

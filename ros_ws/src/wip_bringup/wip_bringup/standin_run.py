@@ -1,6 +1,6 @@
 """Hardware mode against the stand-in base, both in their own processes: one measured run.
 
-The harness of the real-time tests (tests/hardware/test_standin_base.py, the fault
+The harness of the real-time tests (tests/wip_sim/test_standin_base.py, the fault
 injection tests) and of ``scripts/bench``'s real-time part. The stand-in base
 (:mod:`wip_sim.standin_base`: full plant, RK4 at 1 kHz, real time) speaks only the topics
 of a ros2_control base under names of its own (``/base/...``) and conventions that differ

@@ -2,7 +2,7 @@
 
 ``scripts/run_graph --foxglove [PORT]`` starts it (simulation and hardware mode); open
 Foxglove (app or web), "Open connection", "Foxglove WebSocket", ``ws://localhost:8765``.
-``ros2 run wip_sim foxglove_bridge --ros-args -p port:=8765`` starts it alone.
+``ros2 run wip_viewer foxglove_bridge --ros-args -p port:=8765`` starts it alone.
 
 It uses the foxglove-sdk server (PyPI ``foxglove-sdk``) and no ROS bridge package (none is
 on PyPI). Every topic of the graph is advertised as a channel with message encoding

@@ -243,7 +243,7 @@ class ViewerNode(Node):
 
 
 def main(args=None) -> int:
-    """Entry point ``viewer`` (``ros2 run wip_sim viewer``)."""
+    """Entry point ``viewer`` (``ros2 run wip_viewer viewer``)."""
     return run_node(ViewerNode, 'viewer', args)
 
 

@@ -17,7 +17,7 @@ solve times), the ``PrimalDualLDLT`` dense backend, ``eps_abs`` = 1e-6 (toleranc
 at 9e-7 until MAX_ITER; the solution error is negligible either way). Three settings
 differ from those first planned. They were measured on 10 187 closed-loop QPs with pushes (made
 with ``analysis/bench_mpc.simulate_longitudinal``) and 6000 QPs at random states like
-those of ``tests/core/test_mpc.py``, and are fields of
+those of ``tests/wip_control/core/test_mpc.py``, and are fields of
 :class:`~wip_control.core.mpc.MpcConfig`:
 
 - infeasibility tolerances 0 instead of 1e-9: 1e-9 gave 8 false PRIMAL_INFEASIBLE in

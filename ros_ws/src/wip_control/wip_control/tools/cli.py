@@ -20,6 +20,7 @@ the tool exits 3, which a script can tell apart from "the vehicle fell" (1).
 from __future__ import annotations
 
 import datetime
+import importlib
 import os
 import pathlib
 import sys
@@ -101,6 +102,18 @@ def run_main(main: Callable[[Sequence[str] | None], int], prog: str,
 def exit_with(main: Callable[[Sequence[str] | None], int], prog: str) -> None:
     """``if __name__ == '__main__': exit_with(main, 'simulate')``."""
     sys.exit(run_main(main, prog))
+
+
+def console_script(module: str, prog: str) -> Callable[[], int]:
+    """The console script (setup.py entry point, what ``ros2 run`` starts) of the tool
+    ``module``: its ``main`` through :func:`run_main`, as ``python -m module`` runs it. The
+    module is imported when the script runs (so one tool does not import the others), and
+    inside run_main (so a failed import is a one-line error too)."""
+    def script() -> int:
+        return run_main(lambda argv: importlib.import_module(module).main(argv), prog)
+
+    script.__name__ = script.__qualname__ = prog
+    return script
 
 
 def check_output_directory(path: str | os.PathLike, option: str = '--out') -> pathlib.Path:

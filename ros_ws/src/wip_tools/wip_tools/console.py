@@ -1,0 +1,12 @@
+"""Console scripts of wip_tools, what ``ros2 run wip_tools <tool>`` starts: each
+tool's ``main`` through the exit-code table and last-resort error handler of
+wip_control.tools.cli, as ``python -m <module>`` (the scripts/ front doors) runs it.
+"""
+
+from wip_control.tools.cli import console_script
+
+simulate = console_script('wip_tools.simulate', 'simulate')
+report = console_script('wip_tools.report', 'report')
+rerun = console_script('wip_tools.rerun', 'rerun')
+bench = console_script('wip_tools.bench', 'bench')
+campaign = console_script('wip_tools.campaign', 'campaign')
