@@ -16,7 +16,7 @@ solve times), the ``PrimalDualLDLT`` dense backend, ``eps_abs`` = 1e-6 (toleranc
 1e-6 to 1e-8; at 1e-7 the primal residual of 1 to 2 in 3000 random-state QPs stagnated
 at 9e-7 until MAX_ITER; the solution error is negligible either way). Three settings
 differ from those first planned. They were measured on 10 187 closed-loop QPs with pushes (made
-with ``analysis/bench_mpc.simulate_longitudinal``) and 6000 QPs at random states like
+with ``wip_tools.analysis.bench_mpc.simulate_longitudinal``) and 6000 QPs at random states like
 those of ``tests/wip_control/core/test_mpc.py``, and are fields of
 :class:`~wip_control.core.mpc.MpcConfig`:
 
