@@ -88,6 +88,7 @@ TOOLS = {
     'rerun': ('wip_tools', 'rerun'),
     'bench': ('wip_tools', 'bench'),
     'campaign': ('wip_tools', 'campaign'),
+    'soak': ('wip_tools', 'soak'),
     'bag_info': ('wip_bag', 'bag_info'),
     'bag_repair': ('wip_bag', 'bag_repair'),
     'replayer': ('wip_bag', 'replay'),

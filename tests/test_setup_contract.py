@@ -66,6 +66,7 @@ EXECUTABLES = {
         'rerun': 'wip_tools.console:rerun',
         'bench': 'wip_tools.console:bench',
         'campaign': 'wip_tools.console:campaign',
+        'soak': 'wip_tools.console:soak',
     },
     'wip_viewer': {
         'viewer': 'wip_viewer.viewer_node:main',

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from wip_sim.soak import CIRCLE_RADIUS, distance_to_path, main, scenario_for
+from wip_tools.soak import CIRCLE_RADIUS, distance_to_path, main, scenario_for
 
 
 def test_distance_to_the_line_and_to_the_circle_are_the_closed_forms():

@@ -23,7 +23,7 @@ setup(
     zip_safe=True,
     maintainer='wip-ros maintainers',
     maintainer_email='wip-ros@example.com',
-    description='Offline tools: simulate, report, rerun, bench, campaign.',
+    description='Offline tools: simulate, report, rerun, bench, campaign, soak.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
@@ -32,6 +32,7 @@ setup(
             'rerun = wip_tools.console:rerun',
             'bench = wip_tools.console:bench',
             'campaign = wip_tools.console:campaign',
+            'soak = wip_tools.console:soak',
         ],
     },
 )
