@@ -816,7 +816,6 @@ def main(argv: list[str] | None = None) -> int:
                            stall_timeout=args.stall_timeout,
                            startup_retries=args.startup_retries, quiet=args.quiet,
                            layout=args.layout or GraphOptions.layout,
-                           # This module's class (python -m runs it as __main__).
                            scheduling=Scheduling(priority=args.rt_priority,
                                                  cpus=tuple(args.cpu_affinity)),
                            viewer=args.viewer, foxglove_port=args.foxglove,
