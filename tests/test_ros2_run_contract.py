@@ -256,6 +256,7 @@ def helped(tmp_path_factory):
     return results
 
 
+@pytest.mark.slow  # 13 processes importing numpy and rclpy at once: about 20 s on 2 cores
 @pytest.mark.parametrize('executable', sorted(TOOLS))
 def test_every_tool_answers_help(executable, helped):
     status, output = helped[executable]
