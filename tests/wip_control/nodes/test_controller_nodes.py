@@ -478,7 +478,7 @@ def test_eso_realtime_updates_once_per_imu_and_encoder_pair_with_the_latest_torq
                             use_gps=False, origin_ns=wall)
     for msg, exp, s in zip(out, expected, samples):
         assert_estimate_equal(msg, exp, s['stamp'])
-    assert not harness.node.has_fix          # no fix: dead reckoning from (0, 0)
+    assert not harness.node.estimator.has_fix          # no fix: dead reckoning from (0, 0)
     assert (out[0].x, out[0].y) == (0.0, 0.0) and out[-1].x != 0.0
 
 

@@ -290,9 +290,9 @@ def test_eso_in_real_time_advances_its_observer_by_whole_sample_periods(context,
     # Jitter of +-0.3 ms rounds to one period; a 10.4 ms gap (one sample lost) to two.
     stamps = [base, base + 5_300_000, base + 9_800_000, base + 20_200_000]
     times = [node._observer_time(stamps[0])]
-    node.observer = object()   # as after the first update
+    node.estimator.observer = object()   # as after the first update
     times += [node._observer_time(s) for s in stamps[1:]]
-    node.observer = None
+    node.estimator.observer = None
     assert times == pytest.approx([0.0, 0.005, 0.010, 0.020], abs=1e-15)
 
 

@@ -82,26 +82,22 @@ import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
-from std_msgs.msg import Header
 from wip_msgs.msg import (ArcState, GroundTruth, MpcOutput, ReferenceState as ReferenceMsg,
                           StateEstimate as StateEstimateMsg, VelocityCommand as CommandMsg,
                           WheelTorques)
 import yaml
 
-from wip_control.core.angles import unwrap_next
-from wip_control.core.arc import AdaptiveRobustYawController
 from wip_control.core.config import ConfigError
+from wip_control.core.control_step import ControlStep
 from wip_control.core.eso import StateEstimate, WipStateObserver
 from wip_control.core.metrics import compute_metrics
-from wip_control.core.mixer import drive_torque_limit, mix
-from wip_control.core.lqr import make_longitudinal_controller
-from wip_control.core.position import PlanarPositionEstimator
+from wip_control.core.mixer import mix
 from wip_control.core.record import GROUPS, RunRecord
 from wip_control.core.references import make_reference
-from wip_control.core.runner import initial_alpha
 from wip_control.core.scenario import Scenario, scenario_to_mapping
-from wip_control.core.sensors import local_to_geodetic, Sensors, wheel_odometry
-from wip_control.core.trajectory_generator import TrajectoryGenerator
+from wip_control.core.sensors import local_to_geodetic, Sensors
+from wip_control.core.state_estimation import StateEstimator
+from wip_control.nodes.common import make_header, ns_to_stamp, stamp_to_ns
 from wip_control.nodes.conversions import (arc_to_msg, body_rates_from_euler,
                                            command_to_msg, estimate_to_msg,
                                            euler_rates_from_body, gps_local_position,
@@ -154,10 +150,6 @@ class RerunError(Exception):
     """The bag cannot be re-run (missing topics, unreadable bag, bad scenario)."""
 
 
-def stamp_ns(header) -> int:
-    return header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
-
-
 # ============================================================== reading the recorded inputs
 
 @dataclasses.dataclass
@@ -193,7 +185,7 @@ def read_recorded_run(bag, left_joint=LEFT_JOINT, right_joint=RIGHT_JOINT,
     for raw in iter_raw_messages(bag, topics=list(wanted), allow_partial=allow_partial):
         key = wanted[raw.topic]
         msg = deserialize_message(raw.data, _CLASSES[key])
-        stamp = stamp_ns(msg.header)
+        stamp = stamp_to_ns(msg.header.stamp)
         if key in run.receive_times:
             run.receive_times[key].setdefault(stamp, raw.log_time_ns)
         try:
@@ -283,17 +275,15 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario,
                          'messages with equal stamps')
     if not run.reference:
         raise RerunError('the bag has no /wip/reference message')
-    nominal = scenario.controller_model.parameters
     sensors = scenario.sensors
     datum = (sensors.gps_datum_latitude, sensors.gps_datum_longitude,
              sensors.gps_datum_altitude)
-    position = PlanarPositionEstimator(scenario.position)
-    generator = TrajectoryGenerator(scenario.trajectory_generator)
-    arc = AdaptiveRobustYawController(scenario.arc, alpha_initial=initial_alpha(scenario))
-    mpc = make_longitudinal_controller(nominal, scenario.mpc)
-    max_wheel = scenario.mixer.max_wheel_torque
-    dt_control = scenario.control_period
-    mpc_every = scenario.mpc_decimation
+    # The loop's two core objects, as the runner and the nodes drive them.
+    estimator = StateEstimator(scenario.controller_model.parameters, scenario.eso,
+                               scenario.position,
+                               encoders_relative_to_body=sensors.encoders_relative_to_body)
+    control = ControlStep.from_scenario(scenario)
+    drive = control.drive
 
     torque_stamps = sorted(run.wheel_torques)
     reference_stamps = sorted(run.reference)
@@ -309,10 +299,6 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario,
     gps_by_receive = [receive['gps'][s] for s in gps_order]
     last_fix = None
     origin = ticks[0]
-    observer = None
-    yaw_unwrapped = None
-    position_started = has_fix = False
-    tau_v = 0.0
     previous = None
     outputs = []
     for k, stamp in enumerate(ticks):
@@ -331,15 +317,6 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario,
             index = _newest_at_or_before(torque_stamps, stamp - 1)
             if index is not None:
                 tau_left, tau_right = run.wheel_torques[torque_stamps[index]]
-        yaw_unwrapped = yaw if yaw_unwrapped is None else unwrap_next(yaw_unwrapped, yaw)
-        x_v, _ = wheel_odometry(left, right, pitch, nominal, 0.0,
-                                sensors.encoders_relative_to_body)
-        if observer is None:
-            observer = WipStateObserver(
-                nominal, scenario.eso, initial_positions=(yaw_unwrapped, x_v, pitch),
-                initial_time=t, encoders_relative_to_body=sensors.encoders_relative_to_body)
-        estimate = observer.update(t, yaw_unwrapped, x_v, pitch, tau_left + tau_right,
-                                   tau_right - tau_left, run.imu_rates.get(stamp))
         # 2: position, as the ESO node: start at the first fix. Lockstep: the fix of t_k;
         # real time: the newest fix received before the tick's samples and not used yet
         # (the ESO updates when the IMU and encoder samples are in; a fix published with
@@ -358,45 +335,40 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario,
                 gps = gps_local_position(fix, *datum)
             except InvalidMessage:
                 run.invalid['gps'] = run.invalid.get('gps', 0) + 1
-        if gps is not None and not has_fix:
-            position.reset(gps[0], gps[1], x_v, estimate.phi)
-            has_fix = position_started = True
-        elif not position_started:
-            position.reset(0.0, 0.0, x_v, estimate.phi)
-            position_started = True
-        x, y = position.update_odometry(x_v, estimate.phi)
-        if gps is not None:
-            x, y = position.update_gps(*gps)
+        pose = estimator.update(t, left, right, pitch, yaw, tau_left, tau_right,
+                                run.imu_rates.get(stamp), gps)
         # 3: generator with the recorded reference, ARC.
         if timing == 'receive' and mpc_runs:
             mpc_tick = stamp in mpc_runs
         else:
-            mpc_tick = k % mpc_every == 0
+            mpc_tick = drive.is_tick(k)
         index = _newest_at_or_before(reference_stamps, stamp)
         if index is None:
             previous = stamp
             continue  # No reference yet: the graph's generator would wait too.
         reference = run.reference[reference_stamps[index]]
-        command = generator.step(t, reference, x, y, estimate.phi)
-        arc_out = arc.step(dt_control, estimate.omega, estimate.f1, command.omega_d,
-                           command.omega_d_dot)
-        # 4: MPC every mpc_every ticks, held in between; mixer.
-        result = None
-        if mpc_tick:
-            result = mpc.step(v_hat=estimate.v, theta_hat=estimate.theta,
-                              theta_dot_hat=estimate.theta_dot, f2_hat=estimate.f2,
-                              f3_hat=estimate.f3, v_d=command.v_d,
-                              tau_limit=drive_torque_limit(arc_out.tau_omega, max_wheel))
-            if timing == 'receive' and mpc_runs:
+        if timing == 'receive' and mpc_runs:
+            # The recorded MPC output is mixed from the first command recorded after it
+            # arrived: solve without holding, hold when the mixer would have had it.
+            command = control.guidance.step(t, reference, pose.x, pose.y,
+                                            pose.estimate.phi)
+            arc_out = control.yaw.step(pose.estimate.omega, pose.estimate.f1, command)
+            result = None
+            if mpc_tick:
+                e = pose.estimate
+                result = drive.step(e.v, e.theta, e.theta_dot, e.f2, e.f3, command.v_d,
+                                    arc_out.tau_omega, hold=False)
                 pending.append((mpc_runs[stamp], result.tau_v))
-            else:
-                tau_v = result.tau_v
-        if pending:
             mixed_at = receive['wheel_torques'].get(stamp, tick_receive)
             while pending and pending[0][0] <= mixed_at:
-                tau_v = pending.pop(0)[1]
-        wheels = mix(tau_v, arc_out.tau_omega, max_wheel)
-        outputs.append(TickOutputs(stamp, t, estimate, x, y, not observer.in_ramp(t),
+                drive.tau_v = pending.pop(0)[1]
+            wheels = mix(drive.tau_v, arc_out.tau_omega, control.max_wheel_torque)
+        else:
+            # 3-4: generator, ARC, MPC every mpc_decimation ticks (held), mixer.
+            out = control.step(t, reference, pose, mpc_tick)
+            command, arc_out, result = out.command, out.arc, out.mpc
+            wheels = (out.tau_left, out.tau_right)
+        outputs.append(TickOutputs(stamp, t, pose.estimate, pose.x, pose.y, pose.settled,
                                    reference, command, arc_out, result, wheels))
         previous = stamp
     return outputs
@@ -623,7 +595,7 @@ def write_record_as_bag(result, scenario: Scenario, directory, clock=True,
             last = k >= n_ticks
             if clock and not last:
                 msg = Clock()
-                msg.clock.sec, msg.clock.nanosec = divmod(s, 1_000_000_000)
+                msg.clock = ns_to_stamp(s)
                 put('clock', msg, s)
             put('truth', _ground_truth(truth, k, s), s)
             if last:
@@ -640,7 +612,7 @@ def write_record_as_bag(result, scenario: Scenario, directory, clock=True,
                                           (state[6] + half_track * state[5]) / radius - body],
                                 effort=[float(truth['tau_left'][k]),
                                         float(truth['tau_right'][k])])
-            joints.header.stamp.sec, joints.header.stamp.nanosec = divmod(s, 1_000_000_000)
+            joints.header = make_header(s)
             put('joint_states', joints, s)
             put('imu', _imu(pitch, yaw, s, rates, c), s)
             if k % gps_every == 0:
@@ -660,10 +632,10 @@ def write_record_as_bag(result, scenario: Scenario, directory, clock=True,
                                             not observer.in_ramp(t), s, MAP_FRAME), s)
             cmd = record['command']
             put('command', CommandMsg(
-                header=_header(s), **{f: float(cmd[f][k]) for f in (
+                header=make_header(s), **{f: float(cmd[f][k]) for f in (
                     'v_d', 'omega_d', 'omega_d_dot', 'x_e', 'y_e', 'phi_e')}), s)
             arc = record['arc']
-            put('arc', ArcState(header=_header(s), **{f: float(arc[f][k]) for f in (
+            put('arc', ArcState(header=make_header(s), **{f: float(arc[f][k]) for f in (
                 'tau_omega', 'alpha_hat', 'e_omega')}), s)
             row = mpc_rows.get(k)
             if row is not None:
@@ -674,15 +646,9 @@ def write_record_as_bag(result, scenario: Scenario, directory, clock=True,
         return bag.message_counts()
 
 
-def _header(stamp):
-    header = Header()
-    header.stamp.sec, header.stamp.nanosec = divmod(int(stamp), 1_000_000_000)
-    return header
-
-
 def _ground_truth(truth, k, stamp):
     fields = ('x', 'y', 'phi', 'x_v', 'theta', 'omega', 'v', 'theta_dot')
-    msg = GroundTruth(header=_header(stamp), **{f: float(truth[f][k]) for f in fields})
+    msg = GroundTruth(header=make_header(stamp), **{f: float(truth[f][k]) for f in fields})
     msg.header.frame_id = MAP_FRAME
     msg.tau_d1, msg.tau_d2, msg.tau_d3 = (float(truth[d][k]) for d in ('d1', 'd2', 'd3'))
     msg.tau_left, msg.tau_right = float(truth['tau_left'][k]), float(truth['tau_right'][k])
@@ -690,7 +656,7 @@ def _ground_truth(truth, k, stamp):
 
 
 def _imu(pitch, yaw, stamp, rates, config):
-    msg = Imu(header=_header(stamp))
+    msg = Imu(header=make_header(stamp))
     msg.header.frame_id = 'imu_link'
     q = msg.orientation
     q.x, q.y, q.z, q.w = quaternion_from_euler(0.0, pitch, yaw)
@@ -706,7 +672,7 @@ def _imu(pitch, yaw, stamp, rates, config):
 
 
 def _fix(x, y, datum, stamp, config):
-    msg = NavSatFix(header=_header(stamp))
+    msg = NavSatFix(header=make_header(stamp))
     msg.header.frame_id = 'gps_link'
     msg.status.status = NavSatStatus.STATUS_FIX
     msg.status.service = NavSatStatus.SERVICE_GPS
@@ -721,7 +687,7 @@ def _mpc_output(mpc, row, stamp, scenario):
     used_fallback = bool(mpc['used_fallback'][row] > 0.5)
     slack_v, slack_theta = float(mpc['slack_v'][row]), float(mpc['slack_theta'][row])
     return MpcOutput(
-        header=_header(stamp), tau_v=float(mpc['tau_v'][row]),
+        header=make_header(stamp), tau_v=float(mpc['tau_v'][row]),
         delta_tau=float(mpc['delta_tau'][row]),
         status=MpcOutput.FALLBACK_SHIFTED_PLAN if used_fallback else MpcOutput.SOLVED,
         status_text='', iterations=int(mpc['iterations'][row]),

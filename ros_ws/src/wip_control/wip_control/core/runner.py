@@ -1,22 +1,11 @@
-"""In-process closed loop: the same core objects, rates and holds as the node graph.
+"""In-process closed loop: the plant, the sensors and the loop's two core objects.
 
-Timeline of one control period k (t_k = k / control_rate, default 5 ms):
-
-1. the sensors sample the true state at t_k (encoders, IMU; GPS every
-   control_rate / gps_rate periods);
-2. the ESO (eqs. (4), (8)) updates with those measurements and with the wheel
-   torques applied over [t_{k−1}, t_k);
-3. the planar position estimator fuses wheel odometry and GPS;
-4. the reference is sampled at t_k and the trajectory generator (eq. (9)) gives
-   (υd, ωd, ω̇d);
-5. the ARC (eqs. (12), (13)) gives τω;
-6. every ``mpc_decimation``-th period the MPC (eqs. (16)–(23)) gives τυ, held
-   until its next tick;
-7. the mixer (eq. (24)) gives (τl, τr), held over [t_k, t_{k+1});
-8. the plant integrates ``substeps`` RK4 steps (default 5 × 1 ms), the
-   disturbances sampled at each step.
-
-The node graph in lockstep reproduces this order, which is why its metrics match.
+Per control period k (t_k = k / control_rate, default 5 ms): the sensors sample the true
+state (GPS every control_rate / gps_rate periods); ``StateEstimator`` (steps 1-3:
+odometry, ESO with the torques applied over [t_{k−1}, t_k), position) gives the estimate;
+``ControlStep`` (steps 4-7: generator, ARC, MPC every ``mpc_decimation``-th period and
+held, mixer) gives (τl, τr), held while the plant integrates ``substeps`` RK4 steps. The
+node graph in lockstep drives the same objects in the same order (docs/control-loop.md).
 """
 
 from __future__ import annotations
@@ -28,20 +17,16 @@ from typing import Callable
 
 import numpy as np
 
-from .angles import unwrap_next
-from .arc import AdaptiveRobustYawController
+from . import control_step
+from .control_step import ControlStep
 from .disturbances import Disturbances
-from .eso import WipStateObserver
-from .mixer import drive_torque_limit, mix
-from .model import PHI, THETA, X, XV, Y, input_gains
-from .lqr import make_longitudinal_controller
+from .model import PHI, THETA
 from .plant import Plant
-from .position import PlanarPositionEstimator
 from .record import RecordBuffer, RunRecord
 from .references import make_reference
 from .scenario import Scenario
-from .sensors import Sensors, wheel_odometry
-from .trajectory_generator import TrajectoryGenerator
+from .sensors import Sensors
+from .state_estimation import StateEstimator
 
 
 def initial_state(scenario: Scenario, reference_state) -> np.ndarray:
@@ -98,23 +83,18 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
 
     sensors = Sensors(true_params, scenario.sensors, initial_yaw=float(state[PHI]),
                       seed=scenario.seed)
-    relative_to_body = scenario.sensors.encoders_relative_to_body
-    eso = WipStateObserver(nominal, scenario.eso,
-                           initial_positions=(state[PHI], state[XV], state[THETA]),
-                           encoders_relative_to_body=relative_to_body)
-    position = PlanarPositionEstimator(scenario.position)
-    position.reset(state[X], state[Y], state[XV], state[PHI])
-    generator = TrajectoryGenerator(scenario.trajectory_generator)
-    arc = AdaptiveRobustYawController(scenario.arc,
-                                      alpha_initial=initial_alpha(scenario))
-    mpc = make_longitudinal_controller(nominal, scenario.mpc)  # MPC or LQR baseline
-    max_wheel = scenario.mixer.max_wheel_torque
+    # The controllers know only the nominal model (wheel radius, track width...): a
+    # mismatch shows up in x_v, as on a real robot. The estimator starts from the first
+    # measurements and the first GPS fix, as the ESO node does (core/state_estimation.py).
+    estimator = StateEstimator(nominal, scenario.eso, scenario.position,
+                               encoders_relative_to_body=scenario.sensors.encoders_relative_to_body)
+    control = ControlStep.from_scenario(scenario)
+    drive = control.drive
 
     dt_control = scenario.control_period
     substeps = scenario.rates.substeps
     dt_plant = dt_control / substeps
     n_ticks = int(round(scenario.duration / dt_control))
-    mpc_every = scenario.mpc_decimation
     gps_every = max(1, int(round(scenario.rates.control_rate / scenario.sensors.gps_rate)))
 
     buffers = {g: RecordBuffer(g) for g in
@@ -122,8 +102,6 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
     mpc_inputs: list[dict] | None = [] if record_mpc_inputs else None
 
     tau_left = tau_right = 0.0          # applied over the previous control period
-    tau_v = 0.0                         # MPC output, held between MPC ticks
-    yaw_unwrapped = float(state[PHI])
     fell, fall_time = False, None
     next_progress = 1.0
 
@@ -146,51 +124,34 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
         # 1-3: measurements -> estimates. The gyro rates are always sampled (as the
         # plant node publishes them); the 'paper' estimator ignores them.
         sensed, gps_seen = sensors.delayed(state)
-        phi_left, phi_right = sensors.encoders(sensed)
-        pitch, yaw = sensors.imu(sensed)
-        rates = sensors.imu_rates(sensed)
-        yaw_unwrapped = unwrap_next(yaw_unwrapped, yaw)
-        # The controllers know only the nominal wheel radius and track width (as the
-        # eso node and scripts/rerun): a mismatch shows up in x_v, as on a real robot.
-        x_v_meas, _ = wheel_odometry(
-            phi_left, phi_right, pitch, nominal, state_initial_yaw(sensors),
-            relative_to_body)
-        tau_v_applied = tau_left + tau_right
-        tau_omega_applied = tau_right - tau_left
-        estimate = eso.update(t, yaw_unwrapped, x_v_meas, pitch, tau_v_applied,
-                              tau_omega_applied, rates)
-        x_hat, y_hat = position.update_odometry(x_v_meas, estimate.phi)
-        if k % gps_every == 0 and sensors.gps_fix_available():
-            x_hat, y_hat = position.update_gps(*sensors.gps(gps_seen))
+        fix = (sensors.gps(gps_seen) if k % gps_every == 0 and sensors.gps_fix_available()
+               else None)
+        pose = estimator.update(t, *sensors.encoders(sensed), *sensors.imu(sensed),
+                                tau_left, tau_right, sensors.imu_rates(sensed), fix)
 
-        # 4-5: reference, saturated trajectory generator, yaw ARC.
+        # 4-7: reference, generator, ARC, MPC at its own period (held), mixer.
         ref = reference.sample(t)
-        command = generator.step(t, ref, x_hat, y_hat, estimate.phi)
-        arc_out = arc.step(dt_control, estimate.omega, estimate.f1, command.omega_d,
-                           command.omega_d_dot)
-
-        # 6: MPC of the longitudinal/tilt subsystem at its own sampling period.
-        if k % mpc_every == 0:
-            limit = drive_torque_limit(arc_out.tau_omega, max_wheel)
-            mpc_args = dict(v_hat=estimate.v, theta_hat=estimate.theta,
-                            theta_dot_hat=estimate.theta_dot, f2_hat=estimate.f2,
-                            f3_hat=estimate.f3, v_d=command.v_d, tau_limit=limit)
+        tau_v_held = drive.tau_v
+        out = control.step(t, ref, pose, drive.is_tick(k))
+        tau_left, tau_right = out.tau_left, out.tau_right
+        if out.mpc is not None:
+            result, est = out.mpc, pose.estimate
             if mpc_inputs is not None:
-                mpc_inputs.append(dict(mpc_args, tau_previous=tau_v))
-            result = mpc.step(**mpc_args)
-            tau_v = result.tau_v
+                mpc_inputs.append(dict(
+                    v_hat=est.v, theta_hat=est.theta, theta_dot_hat=est.theta_dot,
+                    f2_hat=est.f2, f3_hat=est.f3, v_d=out.command.v_d,
+                    tau_limit=drive.limit(out.arc.tau_omega),
+                    tau_previous=tau_v_held))
             buffers['mpc'].append((t, result.tau_v, result.delta_tau, result.status,
                                    result.iterations, result.solve_time_s,
                                    float(result.used_fallback), result.slack_v,
                                    result.slack_theta))
 
-        # 7: mixer, eq. (24).
-        tau_left, tau_right = mix(tau_v, arc_out.tau_omega, max_wheel)
-
+        estimate, command, arc_out = pose.estimate, out.command, out.arc
         buffers['reference'].append((t, ref.x, ref.y, ref.phi, ref.v, ref.omega))
         buffers['estimate'].append((t, estimate.phi, estimate.omega, estimate.f1,
                                     estimate.x_v, estimate.v, estimate.f2, estimate.theta,
-                                    estimate.theta_dot, estimate.f3, x_hat, y_hat))
+                                    estimate.theta_dot, estimate.f3, pose.x, pose.y))
         buffers['command'].append((t, command.v_d, command.omega_d, command.omega_d_dot,
                                    command.x_e, command.y_e, command.phi_e))
         buffers['arc'].append((t, arc_out.tau_omega, arc_out.alpha_hat, arc_out.e_omega))
@@ -214,17 +175,9 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
 
 
 def initial_alpha(scenario: Scenario) -> float:
-    """α̂(0) = 1/ĝ1 of eq. (13), with ĝ1 the ESO's yaw input gain at θ = 0.
-
-    Evaluated upright rather than at θ(0) so that the ARC node can be given the same
-    value without knowing the initial tilt (g1 changes by 0.2 % at θ = 0.05).
-    """
-    g1 = input_gains(scenario.controller_model.parameters, 0.0)[0]
-    return 1.0 / (scenario.eso.yaw_input_gain_scale * g1)
-
-
-def state_initial_yaw(sensors: Sensors) -> float:
-    return sensors.initial_yaw
+    """α̂(0) of the scenario's yaw stage (``control_step.initial_alpha``)."""
+    return control_step.initial_alpha(scenario.controller_model.parameters,
+                                      scenario.eso.yaw_input_gain_scale)
 
 
 class _DisturbanceBlocks:

@@ -16,7 +16,7 @@ whose result overflows (never published; α̂ is kept).
 
 Parameters: section ``arc`` (changeable at run time; α̂ is kept, projected into the new
 bounds), section ``rates`` (read-only), ``alpha_initial`` [kg m^2] (α̂(0); default
-1/(1.2 g1(0)) of the default model, as ``core.runner.initial_alpha``), ``clock_mode``,
+1/(1.2 g1(0)) of the default model, as ``core.control_step.initial_alpha``), ``clock_mode``,
 ``diagnostics_period``.
 
 References
@@ -33,13 +33,13 @@ import time
 from wip_msgs.msg import (ArcState, StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg)
 
-from ..core.arc import AdaptiveRobustYawController, ArcConfig
+from ..core.arc import ArcConfig
 from ..core.config import ConfigError
+from ..core.control_step import initial_alpha, YawStage
 from ..core.eso import EsoConfig
-from ..core.model import input_gains
 from ..core.params import WipParameters
 from ..core.scenario import RatesConfig
-from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
+from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import arc_to_msg, command_from_msg, estimate_from_msg
 from .diagnostics import OK
 from .parameters import ConfigParameters, declare_plain
@@ -49,8 +49,8 @@ _INPUTS = ('velocity_command', 'state_estimate')
 
 
 def default_alpha_initial() -> float:
-    """α̂(0) = 1/ĝ1(θ = 0) of the default model and ESO (``core.runner.initial_alpha``)."""
-    return 1.0 / (EsoConfig().yaw_input_gain_scale * input_gains(WipParameters(), 0.0)[0])
+    """α̂(0) = 1/ĝ1(θ = 0) of the default model and ESO (``core.control_step.initial_alpha``)."""
+    return initial_alpha(WipParameters(), EsoConfig().yaw_input_gain_scale)
 
 
 class ArcNode(ControllerNode):
@@ -67,7 +67,9 @@ class ArcNode(ControllerNode):
         if not (isinstance(alpha_initial, float) and math.isfinite(alpha_initial)):
             raise ConfigError(f'alpha_initial: must be a finite number, got {alpha_initial!r}')
         self.dt = 1.0 / self.rates.control_rate
-        self.controller = AdaptiveRobustYawController(self.parameters.config, alpha_initial)
+        # The yaw stage of the loop (core/control_step.py).
+        self.stage = YawStage(self.parameters.config, alpha_initial, self.dt)
+        self.controller = self.stage.controller
         if self.lockstep:
             self.sync = ExactTimeSync(_INPUTS, self._compute)
         else:
@@ -97,15 +99,9 @@ class ArcNode(ControllerNode):
         start = time.perf_counter()
         estimate = values['state_estimate'].estimate
         command = values['velocity_command']
-        alpha = self.controller.alpha_hat
-        out = self.controller.step(self.dt, estimate.omega, estimate.f1, command.omega_d,
-                                   command.omega_d_dot)
-        if not finite(*out, self.controller.alpha_hat):
-            # Finite but huge inputs can overflow to NaN in (12)-(13); a NaN alpha_hat
-            # would then clip tau_omega to +max_yaw_torque forever. Keep alpha_hat, drop.
-            self.controller.alpha_hat = alpha
-            raise ValueError(f'non-finite yaw control {tuple(out)} from finite inputs '
-                             '(overflow); input dropped, alpha_hat kept')
+        # An overflow raises (ControlOverflow, a ValueError: the input is dropped and
+        # reported) with alpha_hat kept.
+        out = self.stage.step(estimate.omega, estimate.f1, command)
         self.publisher.publish(arc_to_msg(out, stamp))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         limit = self.controller.config.max_yaw_torque

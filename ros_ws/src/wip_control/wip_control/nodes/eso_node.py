@@ -84,13 +84,13 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState, NavSatFix
 from wip_msgs.msg import StateEstimate as StateEstimateMsg, WheelTorques
 
-from ..core.angles import unwrap_next
 from ..core.config import ConfigError
-from ..core.eso import EsoConfig, WipStateObserver
+from ..core.eso import EsoConfig
 from ..core.params import WipParameters
-from ..core.position import PlanarPositionEstimator, PositionConfig
-from ..core.sensors import SensorConfig, wheel_odometry
-from .common import (ControllerNode, finite, RELIABLE_QOS, run_node, SENSOR_QOS,
+from ..core.position import PositionConfig
+from ..core.sensors import SensorConfig
+from ..core.state_estimation import StateEstimator
+from .common import (ControllerNode, RELIABLE_QOS, run_node, SENSOR_QOS,
                      stamp_to_ns)
 from .conversions import estimate_to_msg, gps_has_fix, gps_local_position, wheel_torques_from_msg
 from .diagnostics import OK, WARN
@@ -165,11 +165,8 @@ class EsoNode(ControllerNode):
         self.sample_period = self.eso_config.sample_period
         self.gps_every = decimation(gps_period, self.sample_period)
 
-        self.observer: WipStateObserver | None = None
-        self.position = PlanarPositionEstimator(self.position_config)
-        self.has_fix = False
-        self.position_started = False
-        self.yaw_unwrapped: float | None = None
+        self.estimator = StateEstimator(self.model, self.eso_config, self.position_config,
+                                        encoders_relative_to_body=self.relative_to_body)
         self.last_update_ns: int | None = None
         # Real time: the observer's sample clock (see _observer_time).
         self.sample_index: int | None = None
@@ -280,46 +277,23 @@ class EsoNode(ControllerNode):
                 gps = None  # Each fix is used once.
             self.last_gps_ns = gps_stamp
         t = self._observer_time(stamp)
-        yaw_unwrapped = yaw if self.yaw_unwrapped is None else unwrap_next(
-            self.yaw_unwrapped, yaw)
-        x_v, _ = wheel_odometry(left, right, pitch, self.model, 0.0, self.relative_to_body)
-        if self.observer is None:
-            self.observer = WipStateObserver(
-                self.model, self.eso_config, initial_positions=(yaw_unwrapped, x_v, pitch),
-                initial_time=t, encoders_relative_to_body=self.relative_to_body)
         tau_left, tau_right = torques
-        estimate = self.observer.update(t, yaw_unwrapped, x_v, pitch, tau_left + tau_right,
-                                        tau_right - tau_left, rates)
-        self.yaw_unwrapped = yaw_unwrapped
+        # Steps 1-3 of the loop (core/state_estimation.py); on an overflow it raises and
+        # restarts from the next measurement set (the callback reports the drop).
+        pose = self.estimator.update(t, left, right, pitch, yaw, tau_left, tau_right, rates,
+                                     gps)
         self.last_update_ns = stamp
-        if gps is not None and not self.has_fix:
-            # The position starts at the first fix (then odometry adds nothing, and the
-            # fix itself is a zero innovation).
-            self.position.reset(gps[0], gps[1], x_v, estimate.phi)
-            self.has_fix = self.position_started = True
-        elif not self.position_started:
-            self.position.reset(0.0, 0.0, x_v, estimate.phi)
-            self.position_started = True
-        x, y = self.position.update_odometry(x_v, estimate.phi)
-        if gps is not None:
-            x, y = self.position.update_gps(*gps)
-        if not finite(*estimate[:-1], x, y):   # ε (last) is inf at the paper ramp's start
-            self._restart()
-            raise ValueError(f'non-finite estimate from finite inputs (overflow): '
-                             f'{estimate}, x={x!r}, y={y!r}; not published, observer and '
-                             'position restart at the next measurement set')
-        settled = not self.observer.in_ramp(t)
-        self.publisher.publish(estimate_to_msg(estimate, x, y, settled, stamp, self.frame_id))
+        self.publisher.publish(estimate_to_msg(pose.estimate, pose.x, pose.y, pose.settled,
+                                               stamp, self.frame_id))
         self.diagnostics.output(stamp, time.perf_counter() - start)
-        self._report(settled)
-
+        self._report(pose.settled)
     def _observer_time(self, stamp: int) -> float:
         """Time [s] of the sample for the observer: the stamp's in lockstep; in real time
         the previous sample's plus a whole number of periods (see the module docstring)."""
         t = self.time_base.seconds(stamp)
         if self.lockstep:
             return t
-        if self.observer is None or self.sample_index is None:
+        if not self.estimator.started or self.sample_index is None:
             self.sample_index, self.sample_origin = 0, t
         else:
             periods = round((t - self.last_sample_time) / self.sample_period)
@@ -327,25 +301,18 @@ class EsoNode(ControllerNode):
         self.last_sample_time = t
         return self.sample_origin + self.sample_index * self.sample_period
 
-    def _restart(self) -> None:
-        """Forget the observer and the position: re-initialised by the next set."""
-        self.observer = None
-        self.sample_index = None
-        self.yaw_unwrapped = None
-        self.has_fix = self.position_started = False
-        self.position = PlanarPositionEstimator(self.position_config)
-
     def _report(self, settled: bool) -> None:
         diag = self.diagnostics
         source = 'GPS' if self.position_source == 'gps' else 'odometry'
-        if not self.has_fix:
+        if not self.estimator.has_fix:
             diag.state(WARN, f'no {source} position yet: x, y are wheel odometry from (0, 0)')
         elif not settled:
             diag.state(OK, 'estimating; epsilon ramp still running (not settled)')
         else:
             diag.state(OK, 'estimating')
-        diag.values[f'{source} fixes accepted'] = str(self.position.accepted_fixes)
-        diag.values[f'{source} fixes rejected'] = str(self.position.rejected_fixes)
+        position = self.estimator.position
+        diag.values[f'{source} fixes accepted'] = str(position.accepted_fixes)
+        diag.values[f'{source} fixes rejected'] = str(position.rejected_fixes)
         if self.lockstep:
             diag.values['pending sets'] = str(self.sync.pending)
             diag.values['sets superseded/evicted'] = (

@@ -53,12 +53,12 @@ from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
 
 from ..core.config import ConfigError
-from ..core.mixer import drive_torque_limit, MixerConfig
-from ..core.lqr import make_longitudinal_controller
+from ..core.mixer import MixerConfig
+from ..core.control_step import DriveStage
 from ..core.mpc import MpcConfig
 from ..core.params import WipParameters
 from ..core.scenario import RatesConfig
-from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
+from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc_idle_msg,
                           mpc_to_msg, wheel_torques_from_msg)
 from .diagnostics import OK, WARN
@@ -86,7 +86,9 @@ class MpcNode(ControllerNode):
         self.sampling_period = self.config.sampling_period
         self.control_period = 1.0 / self.rates.control_rate
         self.every = decimation(self.sampling_period, self.control_period)
-        self.mpc = make_longitudinal_controller(self.model, self.config)  # MPC or LQR
+        # The drive stage of the loop (core/control_step.py): the MPC or the LQR.
+        self.stage = DriveStage(self.model, self.config, self.max_wheel_torque, self.every)
+        self.mpc = self.stage.controller
         self.latest: dict[str, tuple[int, object]] = {}
         self.publisher = self.create_publisher(MpcOutput, '/wip/drive_torque', RELIABLE_QOS)
         if self.lockstep:
@@ -157,21 +159,18 @@ class MpcNode(ControllerNode):
         start = time.perf_counter()
         estimate = values['state_estimate'].estimate
         tau_omega = values['yaw_torque'].tau_omega
-        # A NaN limit makes the core answer INPUT_INVALID (max(0, NaN) would give 0).
-        limit = (drive_torque_limit(tau_omega, self.max_wheel_torque)
-                 if finite(tau_omega) else float('nan'))
-        result = self.mpc.step(v_hat=estimate.v, theta_hat=estimate.theta,
-                               theta_dot_hat=estimate.theta_dot, f2_hat=estimate.f2,
-                               f3_hat=estimate.f3, v_d=values['velocity_command'].v_d,
-                               tau_limit=limit)
+        result = self.stage.step(estimate.v, estimate.theta, estimate.theta_dot, estimate.f2,
+                                 estimate.f3, values['velocity_command'].v_d, tau_omega)
         self.publisher.publish(mpc_to_msg(result, stamp, self.sampling_period))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self.diagnostics.state(OK if not result.used_fallback else WARN,
                                f'{result.status.name}: tau_v {result.tau_v:.4g} N m, '
-                               f'|tau_v| limit {min(limit, self.config.max_drive_torque):.4g}'
-                               ' N m')
+                               f'|tau_v| limit {self._limit(tau_omega):.4g} N m')
         self.diagnostics.values['last solve [us]'] = (
             f'{1e6 * (result.solve_time_s + result.build_time_s):.1f}')
+
+    def _limit(self, tau_omega: float) -> float:
+        return min(self.stage.limit(tau_omega), self.config.max_drive_torque)
 
 
 def main(args=None) -> int:

@@ -31,8 +31,9 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg,
                           StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg)
 
-from ..core.trajectory_generator import TrajectoryGenerator, TrajectoryGeneratorConfig
-from .common import ControllerNode, finite, RELIABLE_QOS, run_node, stamp_to_ns
+from ..core.control_step import GuidanceStage
+from ..core.trajectory_generator import TrajectoryGeneratorConfig
+from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import command_to_msg, estimate_from_msg, reference_from_msg
 from .diagnostics import OK
 from .parameters import ConfigParameters
@@ -49,7 +50,9 @@ class TrajectoryGeneratorNode(ControllerNode):
                          _INPUTS, **kwargs)
         self.parameters = ConfigParameters(self, 'trajectory_generator',
                                            TrajectoryGeneratorConfig, self._on_config)
-        self.generator = TrajectoryGenerator(self.parameters.config)
+        # The guidance stage of the loop (core/control_step.py).
+        self.stage = GuidanceStage(self.parameters.config)
+        self.generator = self.stage.generator
         if self.lockstep:
             self.sync = ExactTimeSync(_INPUTS, self._compute)
         else:
@@ -77,15 +80,10 @@ class TrajectoryGeneratorNode(ControllerNode):
     def _compute(self, stamp: int, values) -> None:
         start = time.perf_counter()
         pose = values['state_estimate']
-        saved = dict(vars(self.generator))
-        command = self.generator.step(self.time_base.seconds(stamp), values['reference'],
-                                      pose.x, pose.y, pose.estimate.phi)
-        if not finite(*command):
-            # Finite but huge inputs can overflow (e.g. a heading of 1e308 rad): never
-            # publish it, and keep the derivative filter's state unpoisoned.
-            vars(self.generator).update(saved)
-            raise ValueError(f'non-finite command {tuple(command)} from finite inputs '
-                             '(overflow); input dropped, generator state kept')
+        # An overflow raises (ControlOverflow, a ValueError: the input is dropped and
+        # reported) with the generator's state kept.
+        command = self.stage.step(self.time_base.seconds(stamp), values['reference'],
+                                  pose.x, pose.y, pose.estimate.phi)
         self.publisher.publish(command_to_msg(command, stamp))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         limits = [name for name, on in (('v_d', self.generator.saturated_speed),

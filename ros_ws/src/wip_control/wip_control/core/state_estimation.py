@@ -1,0 +1,131 @@
+"""The estimation half of the control loop: sensor samples and applied torques in, one
+estimate out.
+
+One object, used by the in-process runner, the re-run of a bag and the ESO node, so that
+the three compute the same thing: yaw unwrapping, wheel odometry, the ESOs (eqs. (4),
+(8)) fed with the applied τυ = τl + τr and τω = τr − τl, the planar position, and the
+rules for starting and restarting them (docs/control-loop.md).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple, Sequence
+
+from .angles import unwrap_next
+from .eso import EsoConfig, StateEstimate, WipStateObserver
+from .params import WipParameters
+from .position import PlanarPositionEstimator, PositionConfig
+from .sensors import wheel_odometry
+
+
+class EstimatorOverflow(ValueError):
+    """Finite inputs gave a non-finite estimate; the estimator restarted (nothing kept)."""
+
+
+class PoseEstimate(NamedTuple):
+    """What the controllers get from the estimator at one sample."""
+
+    estimate: StateEstimate
+    x: float               #: planar position x̂ in the map frame [m]
+    y: float               #: ŷ [m]
+    settled: bool = True   #: False while the paper's ε ramp runs
+
+
+class StateEstimator:
+    """ESOs and planar position from one sensor sample at a time.
+
+    Starting rule (a real robot does not know its true state): the observer starts at the
+    first sample, from the measured positions (ϕ, x_v, θ) with zero rates and
+    disturbances (Section V), and that sample's time as the origin of the ε schedule. The
+    position starts at the first GPS fix; until one arrives it dead-reckons from (0, 0)
+    (``has_fix`` says so). The wheel odometry's yaw output is not used (the yaw comes from
+    the IMU), so the odometry's initial yaw is 0.
+
+    Overflow rule: finite but absurd input (a wheel angle of 1e307 rad) can overflow the
+    observer to inf/NaN. Then nothing of that sample is kept, the estimator restarts (the
+    next sample starts it afresh, like the first) and :class:`EstimatorOverflow` is
+    raised. Restarting rather than restoring the previous state also recovers from a
+    persistent jump of a sensor (an encoder re-zeroed far away), which would otherwise
+    overflow at every later sample. Non-finite input raises ValueError and changes nothing.
+    """
+
+    def __init__(self, model: WipParameters, eso_config: EsoConfig | None = None,
+                 position_config: PositionConfig | None = None, *,
+                 encoders_relative_to_body: bool = True) -> None:
+        self.model = model
+        self.eso_config = eso_config if eso_config is not None else EsoConfig()
+        self.position_config = (position_config if position_config is not None
+                                else PositionConfig())
+        self.relative_to_body = encoders_relative_to_body
+        self.restarts = 0   #: restarts after an overflow
+        self.restart()
+        self.restarts = 0
+
+    def restart(self) -> None:
+        """Forget everything: the next sample starts the observer and the position."""
+        self.observer: WipStateObserver | None = None
+        self.position = PlanarPositionEstimator(self.position_config)
+        self.yaw_unwrapped: float | None = None
+        self.has_fix = False
+        self.position_started = False
+        self.restarts += 1
+
+    @property
+    def started(self) -> bool:
+        return self.observer is not None
+
+    def update(self, t: float, phi_left: float, phi_right: float, pitch: float, yaw: float,
+               tau_left: float, tau_right: float, rates: Sequence[float] | None = None,
+               fix: Sequence[float] | None = None) -> PoseEstimate:
+        """The estimate at sample time ``t`` [s].
+
+        Parameters
+        ----------
+        phi_left, phi_right : wheel encoder angles [rad] (forward positive).
+        pitch, yaw : IMU pitch θ and yaw ϕ [rad]; the yaw may be wrapped.
+        tau_left, tau_right : wheel torques [N m] applied since the previous sample.
+        rates : IMU (θ̇, ϕ̇) [rad/s], needed by the 'gyro' estimator.
+        fix : GPS (x, y) [m] in the map frame taken at this sample, or None.
+
+        Raises
+        ------
+        ValueError
+            on non-finite input (state unchanged); :class:`EstimatorOverflow` when the
+            result overflows (the estimator restarted).
+        """
+        yaw_unwrapped = yaw if self.yaw_unwrapped is None else unwrap_next(
+            self.yaw_unwrapped, yaw)
+        x_v, _ = wheel_odometry(phi_left, phi_right, pitch, self.model, 0.0,
+                                self.relative_to_body)
+        observer = self.observer
+        if observer is None:
+            observer = WipStateObserver(
+                self.model, self.eso_config, initial_positions=(yaw_unwrapped, x_v, pitch),
+                initial_time=t, encoders_relative_to_body=self.relative_to_body)
+        # Raises ValueError before touching the observer on non-finite input.
+        estimate = observer.update(t, yaw_unwrapped, x_v, pitch, tau_left + tau_right,
+                                   tau_right - tau_left, rates)
+        self.observer, self.yaw_unwrapped = observer, yaw_unwrapped
+        position = self.position
+        try:
+            if fix is not None and not self.has_fix:
+                # The position starts at the first fix (odometry then adds nothing, and
+                # the fix itself is a zero innovation).
+                position.reset(fix[0], fix[1], x_v, estimate.phi)
+                self.has_fix = True
+            elif not self.position_started:
+                position.reset(0.0, 0.0, x_v, estimate.phi)
+            self.position_started = True
+            x, y = position.update_odometry(x_v, estimate.phi)
+            if fix is not None:
+                x, y = position.update_gps(fix[0], fix[1])
+        except ValueError:
+            x = y = math.nan
+        # ε (the last field) is inf at the start of the paper's ramp: not checked.
+        if not all(map(math.isfinite, (*estimate[:-1], x, y))):
+            self.restart()
+            raise EstimatorOverflow(
+                f'non-finite estimate from finite inputs (overflow): {estimate}, x={x!r}, '
+                f'y={y!r}; the estimator restarts at the next sample')
+        return PoseEstimate(estimate, x, y, not observer.in_ramp(t))
