@@ -71,9 +71,7 @@ def runner_objects(scenario, run):
     sensors = scenario.sensors
     datum = (sensors.gps_datum_latitude, sensors.gps_datum_longitude,
              sensors.gps_datum_altitude)
-    estimator = StateEstimator(scenario.controller_model.parameters, scenario.eso,
-                               scenario.position,
-                               encoders_relative_to_body=sensors.encoders_relative_to_body)
+    estimator = StateEstimator.from_scenario(scenario)
     control = ControlStep.from_scenario(scenario)
     rows, applied = {}, (0.0, 0.0)
     for k, stamp in enumerate(sorted(run.joint_states)):

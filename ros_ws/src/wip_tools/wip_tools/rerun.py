@@ -279,9 +279,7 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario,
     datum = (sensors.gps_datum_latitude, sensors.gps_datum_longitude,
              sensors.gps_datum_altitude)
     # The loop's two core objects, as the runner and the nodes drive them.
-    estimator = StateEstimator(scenario.controller_model.parameters, scenario.eso,
-                               scenario.position,
-                               encoders_relative_to_body=sensors.encoders_relative_to_body)
+    estimator = StateEstimator.from_scenario(scenario)
     control = ControlStep.from_scenario(scenario)
     drive = control.drive
 

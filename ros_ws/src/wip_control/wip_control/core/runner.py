@@ -74,7 +74,6 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
     """
     wall_start = time.perf_counter()
     true_params = scenario.plant.parameters
-    nominal = scenario.controller_model.parameters
     plant = Plant(true_params, scenario.plant.model.model)
     disturbances = Disturbances(scenario.disturbances, seed=scenario.seed)
     reference = make_reference(scenario.reference)
@@ -83,11 +82,9 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
 
     sensors = Sensors(true_params, scenario.sensors, initial_yaw=float(state[PHI]),
                       seed=scenario.seed)
-    # The controllers know only the nominal model (wheel radius, track width...): a
-    # mismatch shows up in x_v, as on a real robot. The estimator starts from the first
-    # measurements and the first GPS fix, as the ESO node does (core/state_estimation.py).
-    estimator = StateEstimator(nominal, scenario.eso, scenario.position,
-                               encoders_relative_to_body=scenario.sensors.encoders_relative_to_body)
+    # The estimator starts from the first measurements and the first GPS fix, as the ESO
+    # node does (core/state_estimation.py).
+    estimator = StateEstimator.from_scenario(scenario)
     control = ControlStep.from_scenario(scenario)
     drive = control.drive
 
