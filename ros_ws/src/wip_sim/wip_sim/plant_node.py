@@ -81,7 +81,7 @@ from wip_msgs.msg import GroundTruth, WheelTorques
 
 from wip_control.core.config import ConfigError
 from wip_control.core.disturbances import Disturbances
-from wip_control.core.model import OMEGA, PHI, THETA, THETA_DOT, V
+from wip_control.core.model import PHI, THETA, V
 from wip_control.core.plant import Plant
 from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_state
@@ -204,9 +204,6 @@ class PlantNode(Node):
         self.gps_every = max(1, int(round(scenario.rates.control_rate
                                           / scenario.sensors.gps_rate)))
         self.fall_threshold = scenario.fall_threshold
-        self.wheel_radius = true_params.wheel_radius
-        self.half_track = 0.5 * true_params.track_width
-        self.relative_to_body = scenario.sensors.encoders_relative_to_body
         # The gyro rates are drawn right after the IMU angles, as in the runner (same
         # random stream, same order): the Imu message always carries the angular velocity.
         self.k = 0
@@ -392,12 +389,7 @@ class PlantNode(Node):
         joint = self._joint_msg
         set_stamp(joint.header.stamp, stamp_ns)
         joint.position = [left, right]
-        # Joint rates of the true motion, noise-free: rolling rate (υ ∓ (d/2) ω) / r, minus
-        # the tilt rate when the encoders measure against the body.
-        v, omega = state[V], state[OMEGA]
-        body = state[THETA_DOT] if self.relative_to_body else 0.0
-        joint.velocity = [(v - self.half_track * omega) / self.wheel_radius - body,
-                          (v + self.half_track * omega) / self.wheel_radius - body]
+        joint.velocity = list(sensors.wheel_rates(state))
         joint.effort = list(self.tau)
         self.joint_pub.publish(joint)
 

@@ -87,7 +87,7 @@ from std_msgs.msg import Float64MultiArray
 
 from wip_control.core.config import ConfigError
 from wip_control.core.disturbances import Disturbances
-from wip_control.core.model import OMEGA, PHI, THETA, THETA_DOT, V, X, Y
+from wip_control.core.model import PHI, THETA, V, X, Y
 from wip_control.core.plant import Plant
 from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_state
@@ -265,9 +265,6 @@ class StandinBase(Node):
         self.dt_plant = self.dt / self.substeps
         self.gps_every = max(1, int(round(scenario.rates.control_rate / c.gps_rate)))
         self.fall_threshold = scenario.fall_threshold
-        self.wheel_radius = params.wheel_radius
-        self.half_track = 0.5 * params.track_width
-        self.relative_to_body = c.encoders_relative_to_body
         self.gravity = params.gravity
         self.index = {name: i for i, name in enumerate(self.joints)}
         self.sign = {self.left_joint: self.left_sign, self.right_joint: self.right_sign}
@@ -441,10 +438,7 @@ class StandinBase(Node):
         left, right = sensors.encoders(state)
         pitch, yaw = sensors.imu(state)
         pitch_rate, yaw_rate = sensors.imu_rates(state)
-        v, omega = state[V], state[OMEGA]
-        body_rate = state[THETA_DOT] if self.relative_to_body else 0.0
-        rates = ((v - self.half_track * omega) / self.wheel_radius - body_rate,
-                 (v + self.half_track * omega) / self.wheel_radius - body_rate)
+        rates = sensors.wheel_rates(state)
         joint, imu = self._joint_msg, self._imu_msg
         self.conventions.fill(joint, imu, (left, right), rates, self.tau, pitch, yaw,
                               pitch_rate, yaw_rate, self.gravity)

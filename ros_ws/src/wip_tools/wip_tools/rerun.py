@@ -1,10 +1,10 @@
 """Open-loop re-run of the controllers on a recorded bag: ``scripts/rerun BAG --out DIR``.
 
 How a user checks a tuning change against a recorded run (or a recorded fall): the
-recorded sensor and command inputs of a bag are fed into freshly built controller objects
-of the core, in this process, with the same order and holds as the in-process runner
-(``wip_control.core.runner``) and the controller nodes, and what they compute now is
-written next to what was recorded.
+recorded sensor and command inputs of a bag are fed into the loop's two core objects,
+freshly built (``core.state_estimation.StateEstimator``, ``core.control_step.ControlStep``:
+the ones the in-process runner and the controller nodes drive), in this process, and what
+they compute now is written next to what was recorded.
 
 Inputs read from the bag (sensor_msgs / wip_msgs, as the node graph publishes them):
 ``/joint_states`` (wheel joint angles), ``/imu/data`` (orientation -> pitch, yaw),
@@ -573,7 +573,6 @@ def write_record_as_bag(result, scenario: Scenario, directory, clock=True,
     mpc_rows = {round(t * scenario.rates.control_rate): i
                 for i, t in enumerate(record['mpc']['t'])}
     state_keys = ('x', 'y', 'phi', 'x_v', 'theta', 'omega', 'v', 'theta_dot')
-    half_track, radius = 0.5 * params.track_width, params.wheel_radius
     custom = {SCENARIO_KEY: yaml.safe_dump(scenario_to_mapping(scenario), sort_keys=False)}
     with Rosbag2McapWriter(directory, compression=compression, custom_data=custom,
                            **writer_options) as bag:
@@ -604,10 +603,8 @@ def write_record_as_bag(result, scenario: Scenario, directory, clock=True,
             left, right = sensors.encoders(state)
             pitch, yaw = sensors.imu(state)
             rates = sensors.imu_rates(state)
-            body = state[7] if c.encoders_relative_to_body else 0.0
             joints = JointState(name=[LEFT_JOINT, RIGHT_JOINT], position=[left, right],
-                                velocity=[(state[6] - half_track * state[5]) / radius - body,
-                                          (state[6] + half_track * state[5]) / radius - body],
+                                velocity=list(sensors.wheel_rates(state)),
                                 effort=[float(truth['tau_left'][k]),
                                         float(truth['tau_right'][k])])
             joints.header = make_header(s)

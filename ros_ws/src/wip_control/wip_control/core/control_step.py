@@ -31,7 +31,8 @@ class ControlOverflow(ValueError):
 
 
 def _finite(*values: float) -> bool:
-    return all(map(math.isfinite, values))
+    # One sum first (NaN and inf propagate); each value only if the sum is not finite.
+    return math.isfinite(sum(values)) or all(map(math.isfinite, values))
 
 
 def initial_alpha(model: WipParameters, yaw_input_gain_scale: float) -> float:

@@ -4,8 +4,9 @@ Per control period k (t_k = k / control_rate, default 5 ms): the sensors sample 
 state (GPS every control_rate / gps_rate periods); ``StateEstimator`` (steps 1-3:
 odometry, ESO with the torques applied over [t_{k−1}, t_k), position) gives the estimate;
 ``ControlStep`` (steps 4-7: generator, ARC, MPC every ``mpc_decimation``-th period and
-held, mixer) gives (τl, τr), held while the plant integrates ``substeps`` RK4 steps. The
-node graph in lockstep drives the same objects in the same order (docs/control-loop.md).
+held, mixer) gives (τl, τr), held while the plant integrates ``substeps`` RK4 steps
+(step 8). The node graph in lockstep drives the same objects in the same order
+(docs/control-loop.md).
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ from typing import Sequence
 import numpy as np
 
 from .config import ConfigError, param
-from .model import OMEGA, PHI, THETA, THETA_DOT, X, XV, Y
+from .model import OMEGA, PHI, THETA, THETA_DOT, V, X, XV, Y
 from .params import WipParameters
 
 #: WGS84 semi-major axis [m] and flattening [2]_.
@@ -164,6 +164,16 @@ class Sensors:
         if p <= 0.0:
             return True
         return bool(self._rng_dropout.random() >= p)
+
+    def wheel_rates(self, state: Sequence[float]) -> tuple[float, float]:
+        """(φ̇l, φ̇r) [rad/s]: joint rates of the true motion, noise-free (the rate of
+        :meth:`encoders`): rolling rate (υ ∓ (d/2) ω) / r, minus the tilt rate when the
+        encoders measure against the body."""
+        p = self.params
+        v, omega, half_track = float(state[V]), float(state[OMEGA]), 0.5 * p.track_width
+        body = float(state[THETA_DOT]) if self.config.encoders_relative_to_body else 0.0
+        return ((v - half_track * omega) / p.wheel_radius - body,
+                (v + half_track * omega) / p.wheel_radius - body)
 
     def encoders(self, state: Sequence[float]) -> tuple[float, float]:
         """(φl, φr) [rad]: wheel joint angles (or rolling angles, see the config)."""

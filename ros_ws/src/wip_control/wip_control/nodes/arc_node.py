@@ -6,8 +6,9 @@ Subscribes ``/wip/velocity_command`` (ωd, ω̇d) and ``/wip/state_estimate`` (�
 Publishes ``/wip/yaw_torque`` (wip_msgs/ArcState: τω, α̂, eω) stamped like the estimate,
 and ``/diagnostics``.
 
-Per sample: ``core.arc.AdaptiveRobustYawController.step(dt, ω̂, f̂1, ωd, ω̇d)`` with dt the
-control period 1/``rates.control_rate`` (the runner's step 5; the same nominal dt is
+Per sample: the yaw stage of the loop, ``core.control_step.YawStage`` (the ARC
+``core.arc.AdaptiveRobustYawController``, as the runner's ``ControlStep``), with dt the
+control period 1/``rates.control_rate`` (the same nominal dt is
 used in real time: the controller runs at the sensor rate).
 
 Synchronisation: lockstep: command(t_k) + estimate(t_k); realtime: on each estimate, with

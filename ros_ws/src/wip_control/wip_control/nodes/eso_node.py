@@ -13,24 +13,15 @@ the ESO's input).
 Publishes ``/wip/state_estimate`` (wip_msgs/StateEstimate) stamped with the sensor sample
 time, and ``/diagnostics``.
 
-What it does per sample (exactly the in-process runner's steps 1–3, ``core/runner.py``)
-----------------------------------------------------------------------------------------
-1. yaw: the IMU yaw (wrapped) is unwrapped onto the branch of the previous sample
-   (``core.angles.unwrap_next``); x_v: ``core.sensors.wheel_odometry`` of the two wheel
-   angles and the IMU pitch; θ: the IMU pitch;
-2. the observer (``core.eso.WipStateObserver``) updates with these and the applied
-   torques τυ = τl + τr, τω = τr − τl of the previous period (zero before any arrived);
-3. the planar position (``core.position.PlanarPositionEstimator``) dead-reckons with
-   x_v and ϕ̂, then takes the GPS fix if there is one for this sample.
-
-Initialisation: the observer is built at the FIRST complete measurement set, with the
-measured positions (ϕ, x_v, θ) as its initial state and zero rates and disturbances
-(Section V: "ESO initial state = the true positions"), and that sample's time as the
-origin of the ε schedule. The position estimator starts at the first GPS fix (position
-= the fix); until a fix arrives it dead-reckons from (0, 0) and /diagnostics says so
-(decision: a robot without GPS still gets a usable relative position; in the simulator
-the first set contains the fix at t = 0, so this never shows). Later fixes go through
-the estimator's blend and outlier gate.
+What it does per sample
+-----------------------
+It drives ``core.state_estimation.StateEstimator`` (the in-process runner and
+``scripts/rerun`` drive the same object): yaw unwrapping, wheel odometry, the observer
+(``core.eso.WipStateObserver``) with the torques τυ = τl + τr, τω = τr − τl applied over
+the previous period (zero before any arrived), and the planar position, which dead-reckons
+and takes the sample's GPS fix. The observer starts at the first complete measurement set
+from the measured positions; the position at the first fix, dead-reckoning from (0, 0)
+until then, which /diagnostics says (docs/control-loop.md).
 
 Synchronisation
 ---------------
@@ -56,8 +47,8 @@ is not worth it.
 Bad input: a malformed or non-finite message (missing joint, wrong sizes, NaN, no fix,
 no orientation, non-unit quaternion) is dropped, counted and reported on /diagnostics;
 callbacks never raise. Finite but huge input that overflows the observer (e.g. a wheel
-angle of 1e300 rad) gives no estimate: it is dropped and the observer and the position
-restart from the next measurement set, so one bad sample cannot poison them for good.
+angle of 1e300 rad) gives no estimate: it is dropped and the estimator restarts from the
+next measurement set, so one bad sample cannot poison it for good.
 
 Real base (see ``hardware_inputs.py`` for the conventions)
 -----------------------------------------------------------

@@ -8,9 +8,10 @@ Subscribes ``/wip/state_estimate`` (υ̂, θ̂, θ̂̇, f̂2, f̂3), ``/wip/velo
 Publishes ``/wip/drive_torque`` (wip_msgs/MpcOutput: τυ, Δτ, status, iterations, build +
 solve time, slacks, predicted υ/θ/θ̇) every ``mpc.sampling_period``, and ``/diagnostics``.
 
-Per tick: ``core.mpc.LongitudinalMpc.step(...)`` (the runner's step 6), or the LQR
-baseline ``core.lqr.LongitudinalLqr.step(...)`` when ``mpc.controller`` is ``lqr``
-(same interface and message; ``core.lqr.make_longitudinal_controller``). The core keeps
+Per tick: the drive stage of the loop, ``core.control_step.DriveStage.step`` (as the
+runner's ``ControlStep``): ``core.mpc.LongitudinalMpc``, or the LQR baseline
+``core.lqr.LongitudinalLqr`` when ``mpc.controller`` is ``lqr`` (same interface and
+message). The core keeps
 τυ(k−1). Status: SOLVED; FALLBACK_SHIFTED_PLAN on any solver failure (``status_text`` is
 the core's status name); INPUT_INVALID when an input is not finite (the core then ramps
 τυ toward 0) or, in real time, stale; NOT_READY (τυ = 0) in real time before every input
@@ -53,8 +54,8 @@ from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
 
 from ..core.config import ConfigError
-from ..core.mixer import MixerConfig
 from ..core.control_step import DriveStage
+from ..core.mixer import MixerConfig
 from ..core.mpc import MpcConfig
 from ..core.params import WipParameters
 from ..core.scenario import RatesConfig

@@ -6,8 +6,9 @@ Subscribes ``/wip/reference`` (wip_msgs/ReferenceState) and ``/wip/state_estimat
 (wip_msgs/StateEstimate: x̂, ŷ, ϕ̂). Publishes ``/wip/velocity_command``
 (wip_msgs/VelocityCommand) stamped like the estimate, and ``/diagnostics``.
 
-Per sample: ``core.trajectory_generator.TrajectoryGenerator.step(t, reference, x̂, ŷ, ϕ̂)``
-(body-frame errors, saturated (9), filtered ω̇d), as the runner's step 4.
+Per sample: the guidance stage of the loop, ``core.control_step.GuidanceStage`` (the
+generator ``core.trajectory_generator.TrajectoryGenerator``: body-frame errors, saturated
+(9), filtered ω̇d), as the runner's ``ControlStep``.
 
 Synchronisation: lockstep: estimate(t_k) + reference(t_k); realtime: on each estimate,
 with the latest reference. Malformed or non-finite input is dropped and reported; so is
