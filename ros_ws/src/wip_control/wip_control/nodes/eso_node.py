@@ -80,7 +80,7 @@ from ..core.eso import EsoConfig
 from ..core.params import WipParameters
 from ..core.position import PositionConfig
 from ..core.sensors import SensorConfig
-from ..core.state_estimation import StateEstimator
+from ..core.state_estimation import EstimatorOverflow, StateEstimator
 from .common import (ControllerNode, RELIABLE_QOS, run_node, SENSOR_QOS,
                      stamp_to_ns)
 from .conversions import estimate_to_msg, gps_has_fix, gps_local_position, wheel_torques_from_msg
@@ -270,14 +270,20 @@ class EsoNode(ControllerNode):
         t = self._observer_time(stamp)
         tau_left, tau_right = torques
         # Steps 1-3 of the loop (core/state_estimation.py); on an overflow it raises and
-        # restarts from the next measurement set (the callback reports the drop).
-        pose = self.estimator.update(t, left, right, pitch, yaw, tau_left, tau_right, rates,
-                                     gps)
+        # restarts from the next measurement set (the callback reports the drop), the
+        # sample counting as processed.
+        try:
+            pose = self.estimator.update(t, left, right, pitch, yaw, tau_left, tau_right,
+                                         rates, gps)
+        except EstimatorOverflow:
+            self.last_update_ns = stamp
+            raise
         self.last_update_ns = stamp
         self.publisher.publish(estimate_to_msg(pose.estimate, pose.x, pose.y, pose.settled,
                                                stamp, self.frame_id))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self._report(pose.settled)
+
     def _observer_time(self, stamp: int) -> float:
         """Time [s] of the sample for the observer: the stamp's in lockstep; in real time
         the previous sample's plus a whole number of periods (see the module docstring)."""

@@ -1,0 +1,112 @@
+"""The loop's two core objects: StateEstimator's start and restart rules, the stages'
+overflow handling and the drive stage's hold (core/state_estimation.py,
+core/control_step.py; the three drivers are cross-checked in tests/nodes/test_single_loop.py)."""
+
+import math
+
+import pytest
+
+from wip_control.core.control_step import (ControlOverflow, ControlStep, DriveStage,
+                                           GuidanceStage, YawStage)
+from wip_control.core.eso import EsoConfig
+from wip_control.core.mpc import MpcConfig
+from wip_control.core.params import WipParameters
+from wip_control.core.position import PositionConfig
+from wip_control.core.references import ReferenceState
+from wip_control.core.scenario import Scenario
+from wip_control.core.sensors import wheel_odometry
+from wip_control.core.state_estimation import EstimatorOverflow, StateEstimator
+from wip_control.core.trajectory_generator import VelocityCommand
+
+MODEL = WipParameters()
+H = 0.005
+
+
+def estimator(**eso):
+    return StateEstimator(MODEL, EsoConfig(**eso), encoders_relative_to_body=True)
+
+
+def test_the_estimator_starts_at_the_first_measurements_and_the_position_at_the_first_fix():
+    est = estimator(estimator='paper')
+    pose = est.update(0.0, 0.4, 0.6, 0.02, 3.0, 0.0, 0.0)
+    x_v, _ = wheel_odometry(0.4, 0.6, 0.02, MODEL, 0.0, True)
+    assert (pose.estimate.phi, pose.estimate.x_v, pose.estimate.theta) == (3.0, x_v, 0.02)
+    assert (pose.estimate.omega, pose.estimate.v, pose.estimate.f2) == (0.0, 0.0, 0.0)
+    assert (pose.x, pose.y) == (0.0, 0.0) and not est.has_fix    # dead reckoning from (0, 0)
+    # The IMU yaw wraps from +pi to -pi: the estimate stays on the continuous branch.
+    pose = est.update(H, 0.4, 0.6, 0.02, 3.0 - 2.0 * math.pi + 0.01, 0.0, 0.0)
+    assert pose.estimate.phi == pytest.approx(3.0, abs=0.02)
+    # The first fix moves the position to it exactly; later fixes are blended.
+    pose = est.update(2 * H, 0.4, 0.6, 0.02, 3.0, 0.0, 0.0, fix=(5.0, -2.0))
+    assert (pose.x, pose.y) == (5.0, -2.0) and est.has_fix
+    pose = est.update(3 * H, 0.4, 0.6, 0.02, 3.0, 0.0, 0.0, fix=(5.2, -2.0))
+    gain = PositionConfig().gps_blend_gain    # no odometry motion: the blend alone
+    assert pose.x == pytest.approx(5.0 + gain * 0.2, abs=1e-12)
+
+
+def test_non_finite_input_raises_and_leaves_the_estimator_as_it_was():
+    a, b = estimator(), estimator()
+    for est in (a, b):
+        est.update(0.0, 0.0, 0.0, 0.01, 0.1, 0.0, 0.0, (0.0, 0.0), (1.0, 1.0))
+    with pytest.raises(ValueError) as info:
+        a.update(H, math.nan, 0.0, 0.01, 0.1, 0.0, 0.0, (0.0, 0.0))
+    assert not isinstance(info.value, EstimatorOverflow)
+    with pytest.raises(ValueError):
+        a.update(H, 0.0, 0.0, 0.01, 0.1, math.inf, 0.0, (0.0, 0.0))
+    assert a.update(H, 0.1, 0.1, 0.01, 0.1, 1.0, 0.5, (0.1, 0.0)) == \
+        b.update(H, 0.1, 0.1, 0.01, 0.1, 1.0, 0.5, (0.1, 0.0))
+
+
+def test_an_overflow_raises_and_restarts_the_estimator_from_the_next_sample():
+    est = estimator(estimator='paper')
+    est.update(0.0, 0.0, 0.0, 0.01, 0.1, 0.0, 0.0, fix=(1.0, 1.0))
+    with pytest.raises(EstimatorOverflow, match='overflow'):
+        est.update(H, 5e307, 5e307, 0.01, 0.1, 0.0, 0.0)
+    assert not est.started and not est.has_fix and est.restarts == 1
+    # Restarted as at the first sample: from the measured positions, at this time.
+    pose = est.update(2 * H, 0.001, 0.001, 0.01, 0.2, 0.0, 0.0)
+    assert pose.estimate.x_v == wheel_odometry(0.001, 0.001, 0.01, MODEL, 0.0, True)[0]
+    assert (pose.estimate.phi, pose.x, pose.y) == (0.2, 0.0, 0.0)
+
+
+def test_the_guidance_and_yaw_stages_keep_their_state_on_overflow():
+    guidance = GuidanceStage()
+    guidance.step(0.0, ReferenceState(0.0, 0.0, 0.0, 0.5, 0.0, 0.0), 0.0, 0.0, 0.0)
+    saved = dict(vars(guidance.generator))
+    with pytest.raises(ControlOverflow):
+        guidance.step(H, ReferenceState(1e308, 0.0, 0.0, 0.5, 0.0, 0.0), -1e308, 0.0, 0.0)
+    assert dict(vars(guidance.generator)) == saved
+    yaw = YawStage(None, 0.4, H)
+    alpha = yaw.controller.alpha_hat
+    # eω = ω̂ − ωd overflows to inf and (13) would give α̂ = inf·0 = NaN.
+    with pytest.raises(ControlOverflow):
+        yaw.step(1.7e308, 0.0, VelocityCommand(0.0, -1.7e308, 0.0, 0.0, 0.0, 0.0))
+    assert yaw.controller.alpha_hat == alpha
+    assert yaw.step(0.0, 0.0, VelocityCommand(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)).tau_omega == 0.0
+
+
+def test_the_drive_stage_solves_at_its_ticks_and_holds_its_torque():
+    drive = DriveStage(MODEL, MpcConfig(backend='daqp'), 15.0, decimation=4)
+    assert [k for k in range(9) if drive.is_tick(k)] == [0, 4, 8]
+    # Standing, asked for 0.5 m/s: a torque, held.
+    result = drive.step(0.0, 0.0, 0.0, 0.0, 0.0, 0.5, 0.0)
+    assert abs(result.tau_v) > 1e-3 and drive.tau_v == result.tau_v
+    again = drive.step(0.0, 0.0, 0.0, 0.0, 0.0, -0.5, 0.0, hold=False)
+    assert drive.tau_v == result.tau_v and math.isfinite(again.tau_v)
+    # The bound 2 τmax − |τω|; a NaN τω gives a NaN bound (the controller's INPUT_INVALID).
+    assert drive.limit(10.0) == 20.0 and math.isnan(drive.limit(math.nan))
+
+
+def test_the_control_step_mixes_the_held_drive_torque_between_mpc_ticks():
+    scenario = Scenario()
+    control = ControlStep.from_scenario(scenario)
+    est = estimator()
+    pose = est.update(0.0, 0.0, 0.0, 0.03, 0.0, 0.0, 0.0, (0.0, 0.0), (0.0, 0.0))
+    ref = ReferenceState(0.0, 0.0, 0.0, 0.5, 0.0, 0.0)
+    first = control.step(0.0, ref, pose, True)
+    between = control.step(H, ref, pose, False)
+    assert first.mpc is not None and between.mpc is None
+    # Eq. (24): τυ = τl + τr is the held MPC torque (no clipping at these magnitudes).
+    for out in (first, between):
+        assert out.tau_left + out.tau_right == pytest.approx(first.mpc.tau_v, abs=1e-12)
+        assert out.tau_right - out.tau_left == pytest.approx(out.arc.tau_omega, abs=1e-12)
