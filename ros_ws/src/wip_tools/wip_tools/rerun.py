@@ -91,7 +91,6 @@ from wip_control.core.config import ConfigError
 from wip_control.core.control_step import ControlStep
 from wip_control.core.eso import StateEstimate, WipStateObserver
 from wip_control.core.metrics import compute_metrics
-from wip_control.core.mixer import mix
 from wip_control.core.record import GROUPS, RunRecord
 from wip_control.core.references import make_reference
 from wip_control.core.scenario import Scenario, scenario_to_mapping
@@ -335,37 +334,26 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario,
                 run.invalid['gps'] = run.invalid.get('gps', 0) + 1
         pose = estimator.update(t, left, right, pitch, yaw, tau_left, tau_right,
                                 run.imu_rates.get(stamp), gps)
-        # 3: generator with the recorded reference, ARC.
-        if timing == 'receive' and mpc_runs:
-            mpc_tick = stamp in mpc_runs
-        else:
-            mpc_tick = drive.is_tick(k)
+        # 3-4: generator with the recorded reference, ARC, MPC (held), mixer. Real time:
+        # the MPC ran at the ticks of its recorded outputs, and its output was mixed from
+        # the first command recorded after it arrived, so it is held then.
+        receive_mode = timing == 'receive' and bool(mpc_runs)
+        mpc_tick = stamp in mpc_runs if receive_mode else drive.is_tick(k)
         index = _newest_at_or_before(reference_stamps, stamp)
         if index is None:
             previous = stamp
             continue  # No reference yet: the graph's generator would wait too.
         reference = run.reference[reference_stamps[index]]
-        if timing == 'receive' and mpc_runs:
-            # The recorded MPC output is mixed from the first command recorded after it
-            # arrived: solve without holding, hold when the mixer would have had it.
-            command = control.guidance.step(t, reference, pose.x, pose.y,
-                                            pose.estimate.phi)
-            arc_out = control.yaw.step(pose.estimate.omega, pose.estimate.f1, command)
-            result = None
-            if mpc_tick:
-                e = pose.estimate
-                result = drive.step(e.v, e.theta, e.theta_dot, e.f2, e.f3, command.v_d,
-                                    arc_out.tau_omega, hold=False)
+        out = control.step(t, reference, pose, mpc_tick, hold=not receive_mode)
+        command, arc_out, result = out.command, out.arc, out.mpc
+        wheels = (out.tau_left, out.tau_right)
+        if receive_mode:
+            if result is not None:
                 pending.append((mpc_runs[stamp], result.tau_v))
             mixed_at = receive['wheel_torques'].get(stamp, tick_receive)
             while pending and pending[0][0] <= mixed_at:
                 drive.tau_v = pending.pop(0)[1]
-            wheels = mix(drive.tau_v, arc_out.tau_omega, control.max_wheel_torque)
-        else:
-            # 3-4: generator, ARC, MPC every mpc_decimation ticks (held), mixer.
-            out = control.step(t, reference, pose, mpc_tick)
-            command, arc_out, result = out.command, out.arc, out.mpc
-            wheels = (out.tau_left, out.tau_right)
+            wheels = control.mix(arc_out.tau_omega)
         outputs.append(TickOutputs(stamp, t, pose.estimate, pose.x, pose.y, pose.settled,
                                    reference, command, arc_out, result, wheels))
         previous = stamp

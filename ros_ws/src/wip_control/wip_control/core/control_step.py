@@ -155,14 +155,19 @@ class ControlStep:
                    max_wheel)
 
     def step(self, t: float, reference: ReferenceState, pose: PoseEstimate,
-             mpc_tick: bool) -> ControlOutputs:
-        """Torques of the tick at ``t`` [s]; the MPC solves when ``mpc_tick``."""
+             mpc_tick: bool, hold: bool = True) -> ControlOutputs:
+        """Torques of the tick at ``t`` [s]; the MPC solves when ``mpc_tick``, and its τυ
+        is held from this tick on (``hold``, as the graph in lockstep) or when the caller
+        sets ``drive.tau_v`` (a re-run that knows when a real-time mixer got it)."""
         est = pose.estimate
         command = self.guidance.step(t, reference, pose.x, pose.y, est.phi)
         arc = self.yaw.step(est.omega, est.f1, command)
         result = None
         if mpc_tick:
             result = self.drive.step(est.v, est.theta, est.theta_dot, est.f2, est.f3,
-                                     command.v_d, arc.tau_omega)
-        return ControlOutputs(command, arc, result,
-                              *mix(self.drive.tau_v, arc.tau_omega, self.max_wheel_torque))
+                                     command.v_d, arc.tau_omega, hold)
+        return ControlOutputs(command, arc, result, *self.mix(arc.tau_omega))
+
+    def mix(self, tau_omega: float) -> tuple[float, float]:
+        """(τl, τr) [N m] of eq. (24) from the held τυ and ``tau_omega``."""
+        return mix(self.drive.tau_v, tau_omega, self.max_wheel_torque)
