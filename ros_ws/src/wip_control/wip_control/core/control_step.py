@@ -30,9 +30,10 @@ class ControlOverflow(ValueError):
     """Finite inputs gave a non-finite output; the stage kept its previous state."""
 
 
-def _finite(*values: float) -> bool:
-    # One sum first (NaN and inf propagate); each value only if the sum is not finite.
-    return math.isfinite(sum(values)) or all(map(math.isfinite, values))
+def _all_finite(total: float, values: tuple) -> bool:
+    """Whether every value is finite, given their sum ``total`` (NaN and inf propagate
+    into it, so the values are looked at one by one only when it is not finite)."""
+    return math.isfinite(total) or all(map(math.isfinite, values))
 
 
 def initial_alpha(model: WipParameters, yaw_input_gain_scale: float) -> float:
@@ -54,7 +55,8 @@ class GuidanceStage:
              phi: float) -> VelocityCommand:
         saved = dict(vars(self.generator))
         command = self.generator.step(t, reference, x, y, phi)
-        if not _finite(*command):
+        v_d, omega_d, omega_d_dot, x_e, y_e, phi_e = command
+        if not _all_finite(v_d + omega_d + omega_d_dot + x_e + y_e + phi_e, command):
             # Finite but huge inputs (a heading of 1e308 rad) can overflow: keep the
             # derivative filter's state unpoisoned.
             vars(self.generator).update(saved)
@@ -75,7 +77,9 @@ class YawStage:
         alpha = controller.alpha_hat
         out = controller.step(self.dt, omega_hat, f1_hat, command.omega_d,
                               command.omega_d_dot)
-        if not _finite(*out, controller.alpha_hat):
+        tau_omega, alpha_used, e_omega = out
+        if not _all_finite(tau_omega + alpha_used + e_omega + controller.alpha_hat,
+                           (*out, controller.alpha_hat)):
             # eω = ω̂ − ωd can overflow to inf and (13) give α̂ = NaN, which would clip
             # τω to +max_yaw_torque forever: keep α̂.
             controller.alpha_hat = alpha

@@ -131,9 +131,8 @@ class StateEstimator:
             x = y = math.nan
         # ε (the last field) is inf at the start of the paper's ramp: not checked. One sum
         # first (NaN and inf propagate), each value only if it is not finite.
-        e = estimate
-        if not (math.isfinite(e.phi + e.omega + e.f1 + e.x_v + e.v + e.f2 + e.theta
-                              + e.theta_dot + e.f3 + x + y)
+        a, b, c, d, e, f, g, h, i, _ = estimate
+        if not (math.isfinite(a + b + c + d + e + f + g + h + i + x + y)
                 or all(map(math.isfinite, (*estimate[:-1], x, y)))):
             self.restart()
             raise EstimatorOverflow(
