@@ -34,23 +34,22 @@ from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus  # noqa: E4
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 import yaml  # noqa: E402
 
-from wip_control.core.angles import unwrap_next  # noqa: E402
 from wip_control.core.arc import AdaptiveRobustYawController, ArcConfig  # noqa: E402
 from wip_control.core.config import ConfigError  # noqa: E402
 from wip_control.core.disturbances import Disturbances  # noqa: E402
-from wip_control.core.eso import EsoConfig, WipStateObserver  # noqa: E402
+from wip_control.core.eso import EsoConfig  # noqa: E402
 from wip_control.core.mixer import drive_torque_limit, mix  # noqa: E402
 from wip_control.core.model import PHI  # noqa: E402
 from wip_control.core.lqr import LongitudinalLqr  # noqa: E402
 from wip_control.core.mpc import LongitudinalMpc, MpcConfig  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
 from wip_control.core.plant import Plant  # noqa: E402
-from wip_control.core.position import PlanarPositionEstimator  # noqa: E402
 from wip_control.core.references import make_reference, ReferenceState  # noqa: E402
 from wip_control.core.runner import initial_state, run_scenario  # noqa: E402
 from wip_control.core.scenario import Scenario  # noqa: E402
 from wip_control.core.sensors import (geodetic_to_local, local_to_geodetic,  # noqa: E402
-                                      SensorConfig, Sensors, wheel_odometry)
+                                      SensorConfig, Sensors)
+from wip_control.core.state_estimation import StateEstimator  # noqa: E402
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa: E402
                                                    TrajectoryGeneratorConfig)
 from wip_control.nodes.arc_node import ArcNode, default_alpha_initial  # noqa: E402
@@ -304,29 +303,19 @@ def eso_expected(samples, config=EsoConfig(), applied_before=None, use_gps=True,
     if applied_before is None:
         def applied_before(k):
             return samples[k - 1]['applied'] if k else (0.0, 0.0)
-    params = WipParameters()
-    observer, position, yaw_u, out = None, PlanarPositionEstimator(), None, []
+    estimator = StateEstimator(WipParameters(), config, encoders_relative_to_body=True)
+    out = []
     for k, s in enumerate(samples):
         t = (s['stamp'] - origin_ns) / 1e9
         pitch, yaw = pitch_yaw_from_quaternion(*quaternion_from_euler(0.0, s['pitch'],
                                                                       s['yaw']))
-        yaw_u = yaw if yaw_u is None else unwrap_next(yaw_u, yaw)
-        x_v = wheel_odometry(s['left'], s['right'], pitch, params, 0.0, True)[0]
-        if observer is None:
-            observer = WipStateObserver(params, config, (yaw_u, x_v, pitch), initial_time=t,
-                                        encoders_relative_to_body=True)
-        tl, tr = applied_before(k)
-        est = observer.update(t, yaw_u, x_v, pitch, tl + tr, tr - tl, decoded_rates(s))
         gps = None
         if use_gps and s['gps'] is not None:
             lat, lon, alt = local_to_geodetic(*s['gps'], *DATUM)
             gps = geodetic_to_local(lat, lon, alt, *DATUM)[:2]
-        if k == 0:
-            position.reset(*(gps if use_gps else (0.0, 0.0)), x_v, est.phi)
-        x, y = position.update_odometry(x_v, est.phi)
-        if gps is not None:
-            x, y = position.update_gps(*gps)
-        out.append((est, x, y))
+        pose = estimator.update(t, s['left'], s['right'], pitch, yaw, *applied_before(k),
+                                decoded_rates(s), gps)
+        out.append((pose.estimate, pose.x, pose.y))
     return out
 
 
