@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import array
 import math
-from typing import NamedTuple, Sequence
+from typing import Sequence
 
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
 from std_msgs.msg import Float64MultiArray
@@ -28,6 +28,7 @@ from ..core.eso import StateEstimate
 from ..core.mpc import MpcResult, MpcStatus
 from ..core.references import ReferenceState
 from ..core.sensors import geodetic_to_local
+from ..core.state_estimation import PoseEstimate
 from ..core.trajectory_generator import VelocityCommand
 from .common import make_header
 
@@ -165,14 +166,6 @@ def reference_from_msg(msg: ReferenceStateMsg) -> ReferenceState:
     return ref
 
 
-class PoseEstimate(NamedTuple):
-    """A StateEstimate message as core values."""
-
-    estimate: StateEstimate
-    x: float   #: planar position [m]
-    y: float
-
-
 def estimate_to_msg(est: StateEstimate, x: float, y: float, settled: bool, stamp_ns: int,
                     frame_id: str) -> StateEstimateMsg:
     return StateEstimateMsg(
@@ -184,7 +177,7 @@ def estimate_to_msg(est: StateEstimate, x: float, y: float, settled: bool, stamp
 def estimate_from_msg(msg: StateEstimateMsg, check: bool = True) -> PoseEstimate:
     est = StateEstimate(msg.phi, msg.omega, msg.f1, msg.x_v, msg.v, msg.f2, msg.theta,
                         msg.theta_dot, msg.f3, msg.epsilon)
-    out = PoseEstimate(est, msg.x, msg.y)
+    out = PoseEstimate(est, msg.x, msg.y, bool(msg.settled))
     if check:
         # ε is inf at the very start of the paper's ramp: not an input of any controller.
         values = est._asdict()
