@@ -10,16 +10,17 @@ measured with the in-process runner alone: run it in two processes and compare),
 would hide whether the graph itself is deterministic. DAQP gives bit-identical runs, and
 so must the graph.
 
-Why the graph is not bit-identical to the runner, but equal to ~1e-9: three differences
-of one ulp at the inputs, all inherent to passing ROS messages, then amplified by the
+Why the graph is not bit-identical to the runner, but equal to ~1e-9: two differences
+of one ulp at the inputs, both inherent to passing ROS messages, then amplified by the
 closed loop (measured: at most 4e-9 absolute on any recorded value over 10 s):
 
 - the GPS fix travels as latitude/longitude (WGS84 through Earth-centred coordinates of
   ~6.4e6 m): the round trip local -> geodetic -> local changes x, y by up to 2e-9 m;
-- the ESO node starts from its first *measured* positions (x_v from wheel odometry is
-  r((phi_l + phi_r)/2 + theta), one ulp from the true x_v the runner uses);
 - the nodes take t = stamp_ns / 1e9, which differs from the runner's k * dt by one ulp
   at 13 % of the ticks (5 ms is not a binary fraction).
+
+(Both drive the same estimator and control step, docs/control-loop.md; on the same
+decoded inputs and times they are bit-identical: tests/nodes/test_single_loop.py.)
 
 The default (robust) design amplifies these more than the paper's: the pole-placed
 heading gain λ1 υ_r = ω_n²/υ_r (up to 14 1/s), the filtered derivative giving ω̇_d
