@@ -76,6 +76,7 @@ class StateEstimator:
         self.yaw_unwrapped: float | None = None
         self.has_fix = False
         self.position_started = False
+        self.settled = False   # the ε ramp is over (it does not start again until a restart)
         self.restarts += 1
 
     @property
@@ -138,4 +139,6 @@ class StateEstimator:
             raise EstimatorOverflow(
                 f'non-finite estimate from finite inputs (overflow): {estimate}, x={x!r}, '
                 f'y={y!r}; the estimator restarts at the next sample')
-        return PoseEstimate(estimate, x, y, not observer.in_ramp(t))
+        if not self.settled:
+            self.settled = not observer.in_ramp(t)
+        return PoseEstimate(estimate, x, y, self.settled)
