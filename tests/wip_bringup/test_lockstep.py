@@ -20,7 +20,7 @@ closed loop (measured: at most 4e-9 absolute on any recorded value over 10 s):
   at 13 % of the ticks (5 ms is not a binary fraction).
 
 (Both drive the same estimator and control step, docs/control-loop.md; on the same
-decoded inputs and times they are bit-identical: tests/nodes/test_single_loop.py.)
+decoded inputs and times they are bit-identical: tests/wip_tools/test_single_loop.py.)
 
 The default (robust) design amplifies these more than the paper's: the pole-placed
 heading gain λ1 υ_r = ω_n²/υ_r (up to 14 1/s), the filtered derivative giving ω̇_d

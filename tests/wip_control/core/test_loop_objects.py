@@ -1,6 +1,7 @@
 """The loop's two core objects: StateEstimator's start and restart rules, the stages'
 overflow handling and the drive stage's hold (core/state_estimation.py,
-core/control_step.py; the three drivers are cross-checked in tests/nodes/test_single_loop.py)."""
+core/control_step.py; the three drivers are cross-checked in
+tests/wip_tools/test_single_loop.py)."""
 
 import math
 
