@@ -45,7 +45,7 @@ Behaviour
   subscription (serialized CDR, no deserialization). Its QoS follows rosbag2's
   ``adapt_request_to_offers``: reliable if every publisher offers reliable, else best effort;
   transient local if every publisher offers it, else volatile; history keep-last with depth
-  1000 (a deep queue: the recorder must not drop a burst). The offered profiles and the
+  SUBSCRIPTION_DEPTH (a deep queue: the recorder must not drop a burst). The offered profiles and the
   publishers' RIHS01 type hash are stored in the bag.
 - Each message is stamped with its receive time on the node's clock: simulation time when
   ``use_sim_time`` is true (lockstep runs then give bags in simulation time), else system
@@ -94,7 +94,12 @@ from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
 from .bag_writer import (BagExistsError, BagWriterError, DEFAULT_CHUNK_SIZE,
                          message_definition, Rosbag2McapWriter, type_description_hash)
 
-SUBSCRIPTION_DEPTH = 1000  # keep-last depth of the recording subscriptions [messages]
+#: Keep-last depth of the recording subscriptions [messages]. A lockstep graph publishes
+#: each topic at 200 Hz times its real-time factor (1000-3000 messages/s of wall time): with
+#: 1000 a recorder descheduled for about a second on a loaded machine lost the oldest
+#: messages of its reader caches (seen: 1985 of 2000 per topic at load 11 on 2 cores).
+#: The DDS layer fills the cache lazily, so the depth costs memory only when it is used.
+SUBSCRIPTION_DEPTH = 20000
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
 SPIN_TIMEOUT = 0.1  # [s] of one spin_once; bounds the reaction time to a shutdown
 _STOP = object()  # Sentinel that ends the writer thread.
