@@ -152,7 +152,11 @@ MATCHED_PUBLISHERS_KEY = 'matched publishers'
 #: stalled at start-up (the first ticks normally take milliseconds; 10 s covers the
 #: slowest first MPC solve on a loaded machine many times over).
 STARTUP_STALL_TIMEOUT = 10.0
-DRAIN_TIMEOUT = 10.0  # [s] for the recorder to receive the last messages
+#: [s] for the recorder to receive the last messages: the wait ends early when the counts
+#: are complete, or when they have not changed for DRAIN_STALL (the recorder has nothing
+#: left); it goes on while they grow (a recorder behind on a loaded machine catches up).
+DRAIN_TIMEOUT = 120.0
+DRAIN_STALL = 2.5
 
 
 class StartupStall(GraphError):
@@ -575,7 +579,7 @@ class GraphRunner:
                 return
             if counts != previous:
                 previous, stable_since = counts, time.monotonic()
-            elif time.monotonic() - stable_since >= 2.5:
+            elif time.monotonic() - stable_since >= DRAIN_STALL:
                 if expected:
                     short = {t: f'{counts.get(t, 0)}/{n}' for t, n in expected.items()
                              if counts.get(t, 0) < n}
