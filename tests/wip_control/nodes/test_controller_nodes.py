@@ -53,7 +53,9 @@ from wip_control.core.state_estimation import StateEstimator  # noqa: E402
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa: E402
                                                    TrajectoryGeneratorConfig)
 from wip_control.nodes.arc_node import ArcNode, default_alpha_initial  # noqa: E402
-from wip_control.nodes.common import CLOCK_QOS, make_header, ns_to_stamp, stamp_to_ns  # noqa: E402
+from wip_control.nodes.common import (CLOCK_QOS, connect_intra_process,  # noqa: E402
+                                      make_header, ns_to_stamp, share_sim_clock,
+                                      stamp_to_ns)
 from wip_control.nodes.conversions import (body_rates_from_euler,  # noqa: E402
                                            euler_rates_from_body, mpc_status,
                                            pitch_yaw_from_quaternion,
@@ -157,9 +159,12 @@ class Harness:
 
     def spin_until(self, condition, what=''):
         deadline = time.monotonic() + TIMEOUT
+        bus = getattr(self, 'bus', None)   # the composed process's intra-process delivery
         while not condition():
             assert time.monotonic() < deadline, f'timeout waiting for {what}'
             self.executor.spin_once(timeout_sec=0.01)
+            if bus is not None:
+                bus.drain()
 
     def spin_for(self, seconds):
         deadline = time.monotonic() + seconds
@@ -535,6 +540,9 @@ def test_reference_lockstep_publishes_one_sample_per_clock_tick_from_zero(contex
                                f'the reference at {stamp} ns')
     harness.spin_for(0.05)
     assert [m.header.stamp for m in out] == [ns_to_stamp(s) for s in expected]
+    # One /clock subscription, which also drives the node's sim-time clock.
+    assert [s.topic_name for s in harness.node.subscriptions].count('/clock') == 1
+    assert harness.node.get_clock().now().nanoseconds == 4 * H_NS
     for msg, stamp in zip(out, expected):
         ref = reference.sample(stamp / 1e9)
         assert (msg.x, msg.y, msg.phi, msg.v, msg.omega, msg.omega_dot) == tuple(ref)
@@ -905,9 +913,12 @@ def test_topics_are_remappable(context, harnesses):
 
 # ----------------------------------------------------------------------------- all six
 
-def test_six_nodes_in_lockstep_reproduce_the_in_process_runner(context, harnesses):
+@pytest.mark.parametrize('composed', [False, True], ids=['dds', 'composed'])
+def test_six_nodes_in_lockstep_reproduce_the_in_process_runner(context, harnesses, composed):
     """A minimal plant (the runner's plant, sensors and disturbances) drives the six nodes
-    in lockstep: the wheel torques equal the runner's from t = 0 on.
+    in lockstep: the wheel torques equal the runner's from t = 0 on. ``composed``: as in
+    ``ros2 run wip_control controllers``, one /clock subscription for all six and the
+    messages between them delivered in-process (common.connect_intra_process).
 
     Not bit-exact: GPS goes through a geodetic round trip (1e-9 m), the IMU through a
     quaternion (1e-16 rad), t = ns/1e9 instead of k h, and ProxSuite's last bits depend
@@ -921,6 +932,11 @@ def test_six_nodes_in_lockstep_reproduce_the_in_process_runner(context, harnesse
     for node in nodes:
         harness.executor.add_node(node)
     harness.extra_nodes = nodes
+    if composed:
+        assert share_sim_clock([*nodes, harness.node]) is nodes[0]
+        harness.bus = connect_intra_process([*nodes, harness.node])
+        assert sum(1 for node in (*nodes, harness.node) for sub in node.subscriptions
+                   if sub.topic_name == '/clock') == 1
     harness.publisher(Clock, '/clock', CLOCK_QOS)
     harness.publisher(JointState, '/joint_states')
     harness.publisher(Imu, '/imu/data')
@@ -951,6 +967,14 @@ def test_six_nodes_in_lockstep_reproduce_the_in_process_runner(context, harnesse
     # 1e-7 N m: 100x the measured difference (see the docstring), 1e-8 of the torques.
     assert graph == pytest.approx(runner, rel=0.0, abs=1e-7)
     assert max(abs(v) for v in graph) > 0.1     # the loop really acts
+    if composed:
+        # Estimate, command, yaw torque, reference and drive torque went in-process (the
+        # harness subscribes none of them); the wheel torques, which the harness (the
+        # plant) subscribes, went to DDS for everyone, the eso node included; every
+        # node's clock followed /clock.
+        assert harness.bus.delivered >= 4 * n and harness.bus.published_dds == n
+        assert all(node.get_clock().now().nanoseconds == (n - 1) * H_NS
+                   for node in (*nodes, harness.node))
 
 
 # ----------------------------------------------------------------------------- bad input
@@ -1054,7 +1078,8 @@ def test_reference_node_process_runs_lockstep_on_the_events_executor_and_stops_o
         io.create_subscription(ReferenceStateMsg, '/wip/reference', out.append, 10)
         pub = io.create_publisher(Clock, '/clock', CLOCK_QOS)
         deadline = time.monotonic() + 60.0   # process start-up and discovery on 2 cores
-        while pub.get_subscription_count() < 2 or io.count_publishers('/wip/reference') < 1:
+        # One /clock subscription: the node's ticker also drives its clock (ClockTicker).
+        while pub.get_subscription_count() < 1 or io.count_publishers('/wip/reference') < 1:
             assert process.poll() is None, process.communicate()
             assert time.monotonic() < deadline, 'reference node not discovered'
             executor.spin_once(timeout_sec=0.05)

@@ -133,9 +133,10 @@ SUBSCRIBERS = {
     '/effort_controller/commands': (),
 }
 #: Lockstep: /clock is published by the plant; every controller node's time source
-#: subscribes to it, and the reference node ticks on it. Composed, the nodes share the
-#: reference node's time source (wip_control.nodes.common.share_sim_clock).
-CLOCK_SUBSCRIPTIONS = {'separate': len(CONTROLLER_NODES) + 1, 'composed': 2}
+#: subscribes to it, except the reference node's, which its /clock ticker drives
+#: (wip_control.nodes.common.ClockTicker). Composed, the nodes share the reference node's
+#: time source (wip_control.nodes.common.share_sim_clock): one subscription.
+CLOCK_SUBSCRIPTIONS = {'separate': len(CONTROLLER_NODES), 'composed': 1}
 #: Nodes with a /clock subscription of their own in lockstep, per layout.
 CLOCK_NODES = {'separate': CONTROLLER_NODES, 'composed': ('reference',)}
 #: Topics recorded with --record (with /clock in lockstep; with the viewer's topics,

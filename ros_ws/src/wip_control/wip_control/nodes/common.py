@@ -44,6 +44,7 @@ from std_msgs.msg import Header
 
 from ..core.config import ConfigError
 from .diagnostics import NodeDiagnostics
+from .intra_process import IntraProcessBus, IntraProcessPublisher
 from .parameters import declare_plain
 from .sync import on_grid
 
@@ -134,16 +135,36 @@ class ClockTicker:
 
     The lockstep replacement of a sim-time timer (see the module docstring): one call per
     grid sample including t = 0, strictly increasing, never aliased.
+
+    On sim time the ticker's subscription also drives the node's clock (rclpy's
+    ``TimeSource.clock_callback``, before the tick) and the time source's own /clock
+    subscription is removed: one delivery per sample instead of two of the same message.
+    Every clock attached to that time source (:func:`share_sim_clock`) still reads sim time.
     """
 
     def __init__(self, node: Node, period: float, callback: Callable[[int], None],
                  topic: str = '/clock') -> None:
         self.period = float(period)
         self._callback = callback
+        self._node = node
         self.last_ns: int | None = None
         self.subscription = node.create_subscription(Clock, topic, self._on_clock, CLOCK_QOS)
+        self._time_source = None
+        source = getattr(node, '_time_source', None)   # rclpy has no public accessor
+        if (source is not None and getattr(source, '_clock_sub', None) is not None
+                and source._clock_sub.topic_name == self.subscription.topic_name):
+            source.detach_node()      # its subscription goes; its clocks stay attached
+            self._time_source = source
+            node.clock_ticker_drives_time = True     # see share_sim_clock
 
     def _on_clock(self, msg: Clock) -> None:
+        if self._time_source is not None:
+            try:
+                self._time_source.clock_callback(msg)
+            except ValueError as err:   # rclpy refuses a negative time; the clock keeps its
+                diagnostics = getattr(self._node, 'diagnostics', None)     # last value
+                if diagnostics is not None:
+                    diagnostics.drop('clock', 'invalid', f'node clock not set: {err}')
         stamp_ns = stamp_to_ns(msg.clock)
         if self.last_ns is not None and stamp_ns <= self.last_ns:
             return
@@ -289,6 +310,10 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
     raising from the handler would land inside a callback, which rclpy's executor
     logs as FATAL with a stack).
 
+    Several nodes: messages between them skip DDS while no one outside the process
+    subscribes (:func:`connect_intra_process`, :mod:`.intra_process`); the spin loop
+    delivers them after each ``spin_once``.
+
     Real-time hygiene: once every node is built, the objects of the start-up are moved out
     of the garbage collector's reach (``gc.freeze``), so that the collections that still
     run during control (young objects only) do not walk them.
@@ -314,10 +339,17 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
         warn_undeclared_overrides([node for node, _ in built])
         first.get_logger().debug(f'executor: {type(executor).__name__}')
         share_sim_clock([node for node, _ in built])
+        bus = connect_intra_process([node for node, _ in built])
         gc.collect()
         gc.freeze()
-        while rclpy.ok() and not _stop_signal:
-            spin_once_guarded(executor, first)
+        if bus is None:
+            while rclpy.ok() and not _stop_signal:
+                spin_once_guarded(executor, first)
+        else:
+            drain = bus.drain
+            while rclpy.ok() and not _stop_signal:
+                spin_once_guarded(executor, first)
+                drain()
         stopping = bool(_stop_signal)
     except (KeyboardInterrupt, ExternalShutdownException):
         stopping = True
@@ -343,6 +375,34 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
     return status
 
 
+def connect_intra_process(nodes: Sequence[Node]) -> IntraProcessBus | None:
+    """Connect the publishers of ``nodes`` to the same process's subscriptions
+    (:mod:`.intra_process`); the bus that the spin loop must drain, None if there is
+    nothing to connect (fewer than two nodes with ``use_intra_process_comms``)."""
+    members = [n for n in nodes if isinstance(n, ControllerNode) and n.use_intra_process_comms]
+    if len(members) < 2:
+        return None
+    logger = members[0].get_logger()
+
+    def on_error(kind: str, err: BaseException) -> None:
+        if bus.errors <= 5 or bus.errors % 1000 == 0:
+            logger.error(f'an intra-process callback failed on a {kind} (#{bus.errors}), '
+                         f'node goes on: {type(err).__name__}: {err}')
+
+    bus = IntraProcessBus(on_error)
+    for node in members:
+        for msg_type, topic, callback in node.intra_subscriptions:
+            bus.add_subscription(topic, msg_type, callback)
+    connected = []
+    for node in members:
+        for publisher in node.intra_publishers:
+            local = bus.attach(publisher)
+            if local:
+                connected.append(f'{publisher.topic_name} -> {local}')
+    logger.debug(f'intra-process: {", ".join(connected) or "no topic"}')
+    return bus
+
+
 def share_sim_clock(nodes: Sequence[Node]) -> Node | None:
     """Drive the clocks of every node on sim time from the first one's /clock subscription.
 
@@ -357,6 +417,9 @@ def share_sim_clock(nodes: Sequence[Node]) -> Node | None:
     on_sim_time = [n for n in nodes if n.get_parameter('use_sim_time').value]
     if len(on_sim_time) < 2:
         return None
+    # A node whose ClockTicker drives its time source (the reference node) keeps it: then
+    # the process has one /clock subscription.
+    on_sim_time.sort(key=lambda n: not getattr(n, 'clock_ticker_drives_time', False))
     source = on_sim_time[0]._time_source    # rclpy has no public accessor
     for node in on_sim_time[1:]:
         node._time_source.detach_node()
@@ -413,6 +476,18 @@ class ControllerNode(Node):
 
     def __init__(self, node_name: str, role: str, inputs: Sequence[str], **kwargs) -> None:
         super().__init__(node_name, **kwargs)
+        # Publishers and subscriptions that a composed process may connect directly
+        # (connect_intra_process); rclpy's own (parameter events, rosout) are not here.
+        self.intra_publishers: list[IntraProcessPublisher] = []
+        self.intra_subscriptions: list[tuple[type, str, Callable]] = []
+        self.use_intra_process_comms = declare_plain(
+            self, 'use_intra_process_comms', True, '',
+            'composed process: messages to another node of the same process skip DDS '
+            'unless someone outside the process subscribes the topic (as rclcpp\'s '
+            'intra-process communication); no effect on a node alone in its process')
+        if not isinstance(self.use_intra_process_comms, bool):
+            raise ConfigError('use_intra_process_comms: must be true or false, got '
+                              f'{self.use_intra_process_comms!r}')
         self.clock_mode = declare_clock_mode(self)
         self.lockstep = self.clock_mode == 'lockstep'
         self.time_base = TimeBase(self.lockstep)
@@ -442,7 +517,21 @@ class ControllerNode(Node):
                 self.diagnostics.drop(name, 'invalid', str(err))
             except Exception as err:  # noqa: B902 - a callback must not stop the executor
                 self.diagnostics.drop(name, 'error', f'{type(err).__name__}: {err}')
-        self.create_subscription(msg_type, topic, callback, qos)
+        subscription = self.create_subscription(msg_type, topic, callback, qos)
+        self.intra_subscriptions.append((msg_type, subscription.topic_name, callback))
+
+    def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
+        """rclpy's publisher wrapped in an :class:`IntraProcessPublisher`: it publishes
+        nothing while no subscription is matched (volatile topics), and in a composed
+        process hands messages to the process's own subscriptions directly."""
+        publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
+        if not hasattr(self, 'intra_publishers'):   # rclpy's own, from Node.__init__
+            return publisher
+        volatile = (not isinstance(qos_profile, QoSProfile)
+                    or qos_profile.durability != QoSDurabilityPolicy.TRANSIENT_LOCAL)
+        wrapped = IntraProcessPublisher(publisher, msg_type, skip_unmatched=volatile)
+        self.intra_publishers.append(wrapped)
+        return wrapped
 
     def now_ns(self) -> int:
         return self.get_clock().now().nanoseconds

@@ -1,0 +1,146 @@
+"""Intra-process delivery between the controller nodes of one process (composed layout).
+
+rclcpp's intra-process communication, done for rclpy (which has none): a message that a
+node of a composed process (``ros2 run wip_control controllers``) publishes on a topic
+that another node of the same process subscribes is handed to that subscription's
+callback directly, without serialisation, DDS and the executor's take. In the composed
+controllers a control tick publishes about 11 messages and delivers about 19; rclpy
+spends tens of microseconds on each in native code (taking, deserialising, dispatching,
+measured with py-spy: half the process's samples), against a few for a Python call
+(docs/realtime.md has the numbers).
+
+Rules (what stays observable):
+
+- **Outside subscribers see every message.** A publisher asks DDS how many subscriptions
+  it matches (``get_subscription_count``, ~2 us). If that is more than the subscriptions
+  of this process on the topic, someone outside listens (the plant, a recorder, a viewer,
+  a user's ``ros2 topic echo``): the message is published to DDS exactly as without this
+  module, and the local subscriptions receive it from DDS too (one path per message, so
+  nothing is delivered twice). Otherwise it goes to the local subscriptions alone. In a
+  composed process a volatile publisher whose topic no one subscribes publishes nothing
+  (DDS would deliver it to no one either: the effort command in simulation).
+- **Order.** Local deliveries go through one FIFO queue that the process's spin loop
+  drains after every ``spin_once`` (:meth:`IntraProcessBus.drain`), so a callback never
+  runs inside another (no re-entrance into a node's input synchronisation) and messages
+  are delivered in the order they were published. A message published by a callback of
+  the drain is queued behind the others, as DDS would deliver it after the callback.
+- **The same entities.** Every DDS publisher and subscription still exists, so the graph
+  (``ros2 topic info``, the match counts on /diagnostics, ``run_graph``'s endpoint check)
+  is unchanged; only the bytes stop flowing where no one outside needs them.
+- **Shared, not copied.** Local subscribers receive the publisher's message object, as
+  rclcpp's intra-process subscribers get a shared const pointer: the nodes build a new
+  message per publication and never modify one they received.
+
+When an outside subscriber leaves, messages that DDS still holds for a local subscription
+may be taken after later local ones: the nodes' input synchronisation (:mod:`.sync`) drops
+an input older than one it has. This happens once, when the subscriber leaves.
+
+Pure Python (no rclpy import): tested without ROS, and with rclpy in
+``tests/nodes/test_intra_process.py``.
+"""
+
+from __future__ import annotations
+
+import collections
+from typing import Any, Callable, Iterable
+
+Callback = Callable[[Any], None]
+
+
+class IntraProcessPublisher:
+    """Wraps an rclpy publisher; ``publish`` chooses DDS, the local queue, or nothing.
+
+    Unattached (a node alone in its process, or ``use_intra_process_comms`` false) it is
+    the plain rclpy publisher. Every other attribute is the wrapped publisher's
+    (``topic_name``, ``get_subscription_count``, ``handle``...).
+    """
+
+    __slots__ = ('publisher', 'msg_type', 'topic_name', 'skip_unmatched', '_bus', '_local')
+
+    def __init__(self, publisher, msg_type, skip_unmatched: bool = True) -> None:
+        self.publisher = publisher
+        self.msg_type = msg_type
+        self.topic_name = publisher.topic_name
+        #: False for a transient-local publisher: a late subscriber gets its history.
+        self.skip_unmatched = skip_unmatched
+        self._bus: IntraProcessBus | None = None
+        self._local: tuple[Callback, ...] = ()
+
+    def __getattr__(self, name: str):
+        return getattr(self.publisher, name)
+
+    @property
+    def local_subscriptions(self) -> int:
+        """Subscriptions of this process that receive this publisher's messages locally."""
+        return len(self._local)
+
+    def attach(self, bus: 'IntraProcessBus', callbacks: Iterable[Callback]) -> None:
+        """Deliver to ``callbacks`` through ``bus`` while no one outside subscribes."""
+        self._bus = bus
+        self._local = tuple(callbacks)
+
+    def publish(self, msg) -> None:
+        bus = self._bus
+        if bus is None:                      # a node alone in its process: plain rclpy
+            self.publisher.publish(msg)
+            return
+        matched = self.publisher.get_subscription_count()
+        local = self._local
+        if matched > len(local):             # someone outside: DDS, for everyone
+            self.publisher.publish(msg)
+            bus.published_dds += 1
+        elif local:
+            bus.post(local, msg)
+        elif not self.skip_unmatched:        # transient local: kept for late joiners
+            self.publisher.publish(msg)
+
+
+class IntraProcessBus:
+    """The local subscriptions of one process by topic, and the queue of deliveries."""
+
+    def __init__(self, on_error: Callable[[str, BaseException], None] | None = None) -> None:
+        #: topic -> [(message type, callback)]
+        self.subscriptions: dict[str, list[tuple[type, Callback]]] = (
+            collections.defaultdict(list))
+        self._queue: collections.deque = collections.deque()
+        self._on_error = on_error
+        #: Messages delivered locally (one per message, whatever the number of callbacks),
+        #: and published to DDS by an attached publisher because someone outside listens.
+        self.delivered = 0
+        self.published_dds = 0
+        self.errors = 0
+
+    def add_subscription(self, topic: str, msg_type: type, callback: Callback) -> None:
+        self.subscriptions[topic].append((msg_type, callback))
+
+    def attach(self, publisher: IntraProcessPublisher) -> int:
+        """Attach ``publisher`` to the local subscriptions of its topic and type (possibly
+        none: it then publishes only while a subscription is matched); their count."""
+        local = [cb for msg_type, cb in self.subscriptions.get(publisher.topic_name, ())
+                 if msg_type is publisher.msg_type]
+        publisher.attach(self, local)
+        return len(local)
+
+    def post(self, callbacks: tuple[Callback, ...], msg) -> None:
+        self._queue.append((callbacks, msg))
+
+    @property
+    def pending(self) -> int:
+        return len(self._queue)
+
+    def drain(self) -> int:
+        """Deliver every queued message (and those the callbacks publish); how many."""
+        queue = self._queue
+        count = 0
+        while queue:
+            callbacks, msg = queue.popleft()
+            count += 1
+            for callback in callbacks:
+                try:
+                    callback(msg)
+                except Exception as err:  # noqa: B902 - the other callbacks still get it
+                    self.errors += 1
+                    if self._on_error is not None:
+                        self._on_error(getattr(msg, '__class__', type(msg)).__name__, err)
+        self.delivered += count
+        return count
