@@ -232,3 +232,22 @@ def test_use_intra_process_comms_false_keeps_every_message_on_dds(context):
     finally:
         sender.destroy_node()
         receiver.destroy_node()
+
+
+@pytest.mark.ros
+def test_now_ns_is_the_node_clock_on_system_time_and_on_sim_time(context):
+    node = Receiver(context=context, parameter_overrides=_params())
+    try:
+        before = node.get_clock().now().nanoseconds
+        now = node.now_ns()
+        after = node.get_clock().now().nanoseconds
+        assert before <= now <= after          # the system clock, read directly
+        node.set_parameters([Parameter('use_sim_time', value=True)])
+        from rosgraph_msgs.msg import Clock
+        from rclpy.time import Time
+        node._time_source.clock_callback(Clock(clock=Time(seconds=3).to_msg()))
+        assert node.now_ns() == 3_000_000_000 == node.get_clock().now().nanoseconds
+        node.set_parameters([Parameter('use_sim_time', value=False)])
+        assert abs(node.now_ns() - time.time_ns()) < 60e9   # system time again
+    finally:
+        node.destroy_node()

@@ -29,6 +29,7 @@ import gc
 import math
 import signal
 import sys
+import time
 from typing import Callable, Sequence
 
 from builtin_interfaces.msg import Time
@@ -489,6 +490,8 @@ class ControllerNode(Node):
             raise ConfigError('use_intra_process_comms: must be true or false, got '
                               f'{self.use_intra_process_comms!r}')
         self.clock_mode = declare_clock_mode(self)
+        self._system_clock = not self.get_parameter('use_sim_time').value
+        self.add_post_set_parameters_callback(self._on_use_sim_time)
         self.lockstep = self.clock_mode == 'lockstep'
         self.time_base = TimeBase(self.lockstep)
         period = declare_plain(self, 'diagnostics_period', 1.0, 's',
@@ -534,7 +537,18 @@ class ControllerNode(Node):
         return wrapped
 
     def now_ns(self) -> int:
+        """The node clock [ns]. Without ``use_sim_time`` that is ROS time = the system
+        clock (CLOCK_REALTIME), read directly: rclpy's ``now()`` builds a Time object per
+        call (measured 15 us against 0.15 us on a loaded machine), and real time reads the
+        clock for every input."""
+        if self._system_clock:
+            return time.time_ns()
         return self.get_clock().now().nanoseconds
+
+    def _on_use_sim_time(self, parameters) -> None:
+        for parameter in parameters:
+            if parameter.name == 'use_sim_time':
+                self._system_clock = not parameter.value
 
     def feed(self, name: str, stamp_ns: int, value) -> None:
         """Give one converted input to ``self.sync``; report it if it came too late.

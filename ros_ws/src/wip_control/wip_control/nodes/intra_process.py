@@ -55,7 +55,8 @@ class IntraProcessPublisher:
     (``topic_name``, ``get_subscription_count``, ``handle``...).
     """
 
-    __slots__ = ('publisher', 'msg_type', 'topic_name', 'skip_unmatched', '_bus', '_local')
+    # No __slots__: like an rclpy Publisher, an instance's ``publish`` can be replaced
+    # (tests record what a node sends that way).
 
     def __init__(self, publisher, msg_type, skip_unmatched: bool = True) -> None:
         self.publisher = publisher
