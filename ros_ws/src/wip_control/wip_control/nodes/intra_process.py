@@ -36,7 +36,7 @@ may be taken after later local ones: the nodes' input synchronisation (:mod:`.sy
 an input older than one it has. This happens once, when the subscriber leaves.
 
 Pure Python (no rclpy import): tested without ROS, and with rclpy in
-``tests/nodes/test_intra_process.py``.
+``tests/wip_control/nodes/test_intra_process.py``.
 """
 
 from __future__ import annotations
