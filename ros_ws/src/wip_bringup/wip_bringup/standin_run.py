@@ -131,6 +131,7 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                         base_extra: Mapping[str, Any] | None = None,
                         layout: str = HardwareOptions.layout,
                         realtime_priority: bool = True,
+                        record: bool = False,
                         during: Callable[[HardwareResult | None, dict], None] | None = None
                         ) -> StandinRun:
     """Start the stand-in base, run hardware mode until the base exits; both results.
@@ -140,7 +141,8 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
     by the runner), with the controller processes by name (to freeze one, say).
     ``realtime_priority``: run the base and the controllers at SCHED_FIFO priorities
     (:data:`BASE_PRIORITY`, :data:`CONTROLLER_PRIORITY`) if this user may; the run's
-    ``measured.json`` says whether they were.
+    ``measured.json`` says whether they were. ``record``: the controllers' topics go to
+    the bag ``directory/bag`` (costs CPU: for diagnosis, not for measuring).
     """
     base_scheduling = controller_scheduling = Scheduling()
     if realtime_priority and permitted(Scheduling(BASE_PRIORITY)):
@@ -173,6 +175,7 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                 scenario=str(scenario_path), params_files=[str(controller_params)],
                 remaps=REMAPS, duration=run_time + 40.0, out=str(directory / 'run'),
                 quiet=True, layout=layout, scheduling=controller_scheduling,
+                record=str(directory / 'bag') if record else None,
                 stop_when=lambda: base.poll() is not None and f'base exited ({base.returncode})')
             if during is not None:
                 options.on_start = lambda runner: runner_holder.setdefault('runner', runner)

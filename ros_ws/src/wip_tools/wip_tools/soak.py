@@ -75,7 +75,8 @@ class SoakRow:
 
 
 def one_run(directory: pathlib.Path, path: str, load: str, index: int, seconds: float,
-            layout: str, freezes_ms: Sequence[float], max_path_error: float) -> SoakRow:
+            layout: str, freezes_ms: Sequence[float], max_path_error: float,
+            record: bool = False) -> SoakRow:
     busy = subprocess.Popen(BUSY_LOOP) if load == 'busy' else None
     done: list[float] = []
 
@@ -95,7 +96,8 @@ def one_run(directory: pathlib.Path, path: str, load: str, index: int, seconds: 
 
     try:
         run = run_against_standin(directory, BASE, seconds, scenario=scenario_for(path),
-                                  layout=layout, during=inject if freezes_ms else None)
+                                  layout=layout, record=record,
+                                  during=inject if freezes_ms else None)
     finally:
         if busy is not None:
             busy.kill()
@@ -144,6 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
                         metavar='MS', help='freeze the controller process for each of these '
                         'durations [ms] during every run (default: 20 60 150; none: '
                         '--freeze with no value)')
+    parser.add_argument('--record', action='store_true',
+                        help='record each run to OUT/<case>/bag (for diagnosis; costs CPU)')
     parser.add_argument('--max-path-error', type=float, default=0.6,
                         help='largest distance to the path after 15 s [m] (default: 0.6)')
     return parser
@@ -175,7 +179,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         writer.writeheader()
         for path, load, k in tqdm(cases, unit='run', file=sys.stderr):
             row = one_run(out / f'{path}_{load}_{k}', path, load, k, args.seconds,
-                          args.layout, args.freeze, args.max_path_error)
+                          args.layout, args.freeze, args.max_path_error, args.record)
             rows.append(row)
             writer.writerow(dataclasses.asdict(row))
             stream.flush()
