@@ -154,12 +154,18 @@ class MpcConfig:
         0.5, 's', 'low-pass time constant of the constant-disturbance estimate behind the '
         'offset-free target', minimum=0.0)
     disturbance_decay_time_constant: float = param(
-        0.0, 's', 'the part of the disturbance estimate not (yet) in the slow estimate of '
+        0.1, 's', 'the part of the disturbance estimate not (yet) in the slow estimate of '
         'the offset-free target is predicted to decay with this time constant instead of '
         'staying constant over the horizon (a push is not a slope); 0: held constant (the '
         'paper\'s prediction, the default: 0.1 s saved 5 of 6 campaign falls under hard '
         'pushes but not the campaign as a whole, docs/mpc.md)',
         minimum=0.0, maximum=10.0)
+    disturbance_decay_dead_zone: tuple[float, float] = param(
+        (2.0, 2.0), 'm/s², rad/s²', '(d2, d3): only the part of the transient disturbance '
+        'estimate beyond this band decays (disturbance_decay_time_constant); the part within '
+        'it is held constant over the horizon as in the paper. A push of several m/s² is '
+        'not extrapolated, while the small transients of model error are held as before',
+        minimum=0.0)
     max_target_tilt: float = param(
         0.08, 'rad', '|theta| bound of the offset-free steady-state target (a larger '
         'disturbance is not held: the target saturates)', minimum=0.0)
@@ -455,6 +461,10 @@ class LongitudinalMpc:
         free += pred.free_v_column * (f2_hat + g2 * tau_prev)
         free += pred.free_theta_dot_column * (f3_hat + g3 * tau_prev)
         transient_v, transient_theta_dot = self._target.transient
+        # Only the excess over the dead zone decays; the rest is held like f̂ itself.
+        zone_v, zone_theta_dot = self.config.disturbance_decay_dead_zone
+        transient_v = _excess(transient_v, zone_v)
+        transient_theta_dot = _excess(transient_theta_dot, zone_theta_dot)
         if transient_v or transient_theta_dot:
             free += self._transient_v * transient_v
             free += self._transient_theta_dot * transient_theta_dot
@@ -508,6 +518,15 @@ class LongitudinalMpc:
         result = invalid_input_result(self.config, self._tau_previous)
         self._tau_previous = result.tau_v
         return result
+
+
+def _excess(value: float, band: float) -> float:
+    """The part of ``value`` beyond ±``band`` (0 inside it)."""
+    if value > band:
+        return value - band
+    if value < -band:
+        return value + band
+    return 0.0
 
 
 def drive_limit(config: MpcConfig, tau_limit: float | None, *inputs: float) -> float | None:
