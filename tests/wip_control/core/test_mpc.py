@@ -812,5 +812,39 @@ def test_a_transient_within_the_dead_zone_is_held_as_in_the_paper_prediction():
     # Held, the push is extrapolated for 2 s: a predicted speed change of ~16 m/s.
     # Decaying beyond the zone, only the 2 m/s² within it is held (about 4 m/s).
     drift = [abs(p[1][1][-1, 0]) for p in (ref, got, free)]
-    # (measured: 9.1, 4.0, 1.6 m/s at the horizon's end)
     assert drift[0] > 1.5 * drift[1] and drift[1] > 1.5 * drift[2]
+
+
+def _speed_ticks(config, v_d_values, v=1.0):
+    """Results of an MPC at speed ``v``, upright, fed the commands ``v_d_values``."""
+    mpc = LongitudinalMpc(PARAMS, config)
+    return [mpc.step(v, 0.0, 0.0, 0.0, 0.0, v_d) for v_d in v_d_values]
+
+
+def test_speed_preview_is_the_paper_reference_for_a_constant_command():
+    """With υd constant the trend is 0 and the reference over the horizon is the held υd
+    of (20): the same torques and plans as with the preview off."""
+    off = MpcConfig(speed_preview_time=0.0)
+    on = MpcConfig()
+    assert on.speed_preview_time > 0.0
+    for a, b in zip(_speed_ticks(off, [0.8] * 4), _speed_ticks(on, [0.8] * 4)):
+        assert b.tau_v == pytest.approx(a.tau_v, abs=1e-9)
+        np.testing.assert_allclose(b.predicted, a.predicted, rtol=0, atol=1e-9)
+
+
+def test_speed_preview_brakes_earlier_for_a_falling_command_and_bounds_the_trend():
+    """υd falling at 0.5 m/s² (a reference slowing for a corner): the previewed plan
+    predicts a lower speed over the horizon than the held reference; a jump of υd (a
+    push moves x_e) is extrapolated at most at ``max_speed_trend``."""
+    falling = [1.0 - 0.05 * k for k in range(6)]
+    off = _speed_ticks(MpcConfig(speed_preview_time=0.0), falling)[-1]
+    on = _speed_ticks(MpcConfig(), falling)[-1]
+    assert on.predicted[-1, 0] < off.predicted[-1, 0] - 0.05
+    # The trend of a jump is clipped: a 1 m/s step of υd looks like max_speed_trend.
+    config = MpcConfig()
+    mpc = LongitudinalMpc(PARAMS, config)
+    mpc.step(1.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+    mpc.step(1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    gain = config.sampling_period / (config.speed_trend_filter_time_constant
+                                     + config.sampling_period)
+    assert mpc._v_d_trend == pytest.approx(-gain * config.max_speed_trend, rel=1e-12)

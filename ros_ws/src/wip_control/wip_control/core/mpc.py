@@ -92,7 +92,8 @@ __all__ = ['LongitudinalMpc', 'MpcConfig', 'MpcInputError', 'MpcResult', 'MpcSta
 #: paper's weights): ``mpc: {**PAPER_MPC_SETTINGS}`` in a scenario.
 PAPER_MPC_SETTINGS = {'soft_limits': 'worst_case', 'speed_limit_first_step': 1,
                       'speed_slack_linear_penalty': 1e4, 'offset_free': False,
-                      'output_weights': (1.0, 50.0, 1.0), 'input_weight': 1.0}
+                      'output_weights': (1.0, 50.0, 1.0), 'input_weight': 1.0,
+                      'speed_preview_time': 0.0}
 
 
 class MpcInputError(ValueError):
@@ -161,11 +162,24 @@ class MpcConfig:
         'pushes but not the campaign as a whole, docs/mpc.md)',
         minimum=0.0, maximum=10.0)
     disturbance_decay_dead_zone: tuple[float, float] = param(
-        (2.0, 2.0), 'm/s², rad/s²', '(d2, d3): only the part of the transient disturbance '
+        (1.0, 1.0), 'm/s², rad/s²', '(d2, d3): only the part of the transient disturbance '
         'estimate beyond this band decays (disturbance_decay_time_constant); the part within '
         'it is held constant over the horizon as in the paper. A push of several m/s² is '
         'not extrapolated, while the small transients of model error are held as before',
         minimum=0.0)
+    speed_preview_time: float = param(
+        1.0, 's', 'the speed reference over the horizon continues the trend of υd (its '
+        'change since the last tick, low-passed) for this long, then holds: the MPC '
+        'starts braking before the command has dropped (it lags a constant-υd reference '
+        'by about a second). 0: υd held over the horizon, as in (20)', minimum=0.0,
+        maximum=10.0)
+    speed_trend_filter_time_constant: float = param(
+        0.3, 's', 'low-pass time constant of the υd trend of speed_preview_time',
+        minimum=0.0, maximum=10.0)
+    max_speed_trend: float = param(
+        1.0, 'm/s²', '|dυd/dt| bound of the trend of speed_preview_time (a push moves υd '
+        'faster than any planned speed change; that jump is not extrapolated)',
+        minimum=0.0, exclusive_minimum=True)
     max_target_tilt: float = param(
         0.08, 'rad', '|theta| bound of the offset-free steady-state target (a larger '
         'disturbance is not held: the target saturates)', minimum=0.0)
@@ -364,6 +378,11 @@ class LongitudinalMpc:
         self._solver = (make_solver(config.backend, n, m, config.qp_settings())
                         if solver is None else solver)
         self._tau_previous = 0.0
+        # υd trend preview: the reference of step i is υd + min(i Ts, T) · dυd/dt.
+        steps = np.arange(1, n_p + 1) * config.sampling_period
+        self._preview_ramp = np.minimum(steps, config.speed_preview_time)
+        self._v_d_last: float | None = None
+        self._v_d_trend = 0.0
         self._plan: np.ndarray | None = None
 
     # ------------------------------------------------------------------ state
@@ -377,6 +396,8 @@ class LongitudinalMpc:
         self.set_previous_torque(tau_previous)
         self._plan = None
         self._target.reset()
+        self._v_d_last = None
+        self._v_d_trend = 0.0
         self._solver.reset()
 
     def set_previous_torque(self, tau_previous: float) -> None:
@@ -476,7 +497,7 @@ class LongitudinalMpc:
         self._h[:n_c, :n_c] = (coef @ self._hessian_blocks).reshape(n_c, n_c)
         # ȳr = 1 ⊗ (υd, θs, 0); θs = 0 in the paper's (20).
         error = self._reference
-        error[0::3] = v_d
+        error[0::3] = self._speed_reference(v_d)
         error[1::3] = self._target.theta
         error[2::3] = 0.0
         error -= free
@@ -498,6 +519,21 @@ class LongitudinalMpc:
         np.subtract(np.maximum(limit, tau_prev - self._reach), tau_prev, out=self._u[:n_c])
         np.subtract(np.minimum(-limit, tau_prev + self._reach), tau_prev, out=self._l[:n_c])
         return free
+
+    def _speed_reference(self, v_d: float):
+        """υd over the horizon: held (the paper's (20)) or continuing its trend."""
+        cfg = self.config
+        if cfg.speed_preview_time <= 0.0:
+            return v_d
+        if self._v_d_last is not None:
+            ts = cfg.sampling_period
+            rate = (v_d - self._v_d_last) / ts
+            gain = ts / (cfg.speed_trend_filter_time_constant + ts)  # backward Euler
+            rate = min(max(rate, -cfg.max_speed_trend), cfg.max_speed_trend)
+            self._v_d_trend += gain * (rate - self._v_d_trend)
+        self._v_d_last = v_d
+        limit = cfg.max_speed
+        return np.clip(v_d + self._preview_ramp * self._v_d_trend, -limit, limit)
 
     # ------------------------------------------------------------------ fallbacks
     def _shifted_plan(self) -> np.ndarray:
