@@ -17,7 +17,12 @@ Cost (20), with ȳ = G̃ Δτ̄ + ȳ_free from :mod:`.mpc_prediction`:
         + \\rho_2 (s_{\\upsilon,i}^2 + s_{\\theta,i}^2)\\right)
 
 with ȳr = 1_Np ⊗ (υd, θs, 0), Q = I_Np ⊗ diag(q), R = r I_Nc. θs is the offset-free
-target of :class:`OffsetFreeTarget` (0 in the paper's (20), ``offset_free: false``). As a
+target of :class:`OffsetFreeTarget` (0 in the paper's (20), ``offset_free: false``). With
+``speed_preview_time`` > 0 the speed entry of step i continues υd's trend (bounded,
+low-passed) for that long instead of holding υd; the free response ȳ_free holds the
+ESO's f̂ as (17) does, except the part of its fast transient beyond
+``disturbance_decay_dead_zone``, which decays (a push is not a slope). Why, with
+measured effects: ``docs/mpc.md`` §5, §6. As a
 QP in z = (Δτ̄, sυ, sθ): ½ zᵀ H z + gᵀ z with H = 2(G̃ᵀQG̃ + R) and
 g = −2 G̃ᵀQ(ȳr − ȳ_free) on the Δτ̄ block (eq. (22)), 2ρ2 and ρ1 (ρ1υ for the speed
 slacks, ``speed_slack_linear_penalty``) on the slack entries. ``soft_limits: per_step``
@@ -157,9 +162,9 @@ class MpcConfig:
     disturbance_decay_time_constant: float = param(
         0.1, 's', 'the part of the disturbance estimate not (yet) in the slow estimate of '
         'the offset-free target is predicted to decay with this time constant instead of '
-        'staying constant over the horizon (a push is not a slope); 0: held constant (the '
-        'paper\'s prediction, the default: 0.1 s saved 5 of 6 campaign falls under hard '
-        'pushes but not the campaign as a whole, docs/mpc.md)',
+        'staying constant over the horizon (a push is not a slope), beyond '
+        'disturbance_decay_dead_zone; 0: held constant (the paper\'s prediction). With '
+        'the dead zone it saved the 6 hard-push falls of the acceptance campaign, docs/mpc.md',
         minimum=0.0, maximum=10.0)
     disturbance_decay_dead_zone: tuple[float, float] = param(
         (1.0, 1.0), 'm/s², rad/s²', '(d2, d3): only the part of the transient disturbance '
