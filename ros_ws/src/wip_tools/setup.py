@@ -33,6 +33,7 @@ setup(
             'bench = wip_tools.console:bench',
             'campaign = wip_tools.console:campaign',
             'soak = wip_tools.console:soak',
+            'parameters = wip_tools.console:parameters',
         ],
     },
 )

@@ -80,19 +80,19 @@ import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
 import rclpy.logging
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import ParameterUninitializedException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
                        QoSReliabilityPolicy)
 
-from .bag_writer import (BagExistsError, BagWriterError, DEFAULT_CHUNK_SIZE,
-                         message_definition, Rosbag2McapWriter, type_description_hash)
+from wip_control.nodes.parameters import ConfigParameters
+
+from .bag_writer import (BagExistsError, BagWriterError, message_definition,
+                         Rosbag2McapWriter, type_description_hash)
+from .settings import RecorderSettings
 
 #: Keep-last depth of the recording subscriptions [messages]. A lockstep graph publishes
 #: each topic at 200 Hz times its real-time factor (1000-3000 messages/s of wall time): with
@@ -149,40 +149,17 @@ class RecorderNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__('recorder', **kwargs)
-        self._declare('output', '', 'Bag directory to create (must not exist or be empty); '
-                      'default rosbag2_YYYY_MM_DD-HH_MM_SS in the working directory')
-        self._declare('topics', Parameter.Type.STRING_ARRAY,
-                      'Topics to record; empty: all topics of the graph, also later ones')
-        self._declare('exclude', Parameter.Type.STRING_ARRAY, 'Topics never recorded')
-        self._declare('compression', 'zstd', "MCAP chunk compression: 'zstd', 'lz4' or 'none'")
-        self._declare('discovery_period', 1.0, 'Period of the graph polling for new topics '
-                      '[s] (wall time)')
-        self._declare('flush_period', 1.0, 'Maximum time between two flushes of the bag '
-                      'file [s] (wall time); 0: flush only at close')
-        self._declare('chunk_size', DEFAULT_CHUNK_SIZE, 'Uncompressed MCAP chunk size [bytes]')
-        self._declare('max_bag_size', 0, 'Split into files of at most this many bytes; 0: '
-                      'no limit')
-        self._declare('max_bag_duration', 0.0, 'Split into files of at most this long [s]; '
-                      '0: no limit')
-        self._declare('close_timeout', 30.0, 'Longest wait at shutdown for the writer to '
-                      'close the bag [s]')
-        self._declare('scenario_file', '', 'Scenario YAML stored in the bag metadata '
-                      '(custom_data wip.scenario) for scripts/rerun')
-
-        output = self.get_parameter('output').value or default_output_name()
+        settings = ConfigParameters(self, '', RecorderSettings).config
+        output = settings.output or default_output_name()
         self.output = os.path.abspath(os.path.expanduser(output))
-        self.requested = [self.resolve_topic_name(t) for t in self._string_array('topics')]
-        self.excluded = {self.resolve_topic_name(t) for t in self._string_array('exclude')}
-        compression = self.get_parameter('compression').value
-        discovery_period = self.get_parameter('discovery_period').value
-        self.flush_period = self.get_parameter('flush_period').value
-        if discovery_period <= 0.0:
-            raise ValueError(f'discovery_period must be positive, got {discovery_period}')
-        if self.flush_period < 0.0:
-            raise ValueError(f'flush_period must be >= 0, got {self.flush_period}')
-        self.close_timeout = self.get_parameter('close_timeout').value
+        self.requested = [self.resolve_topic_name(t) for t in settings.topics]
+        self.excluded = {self.resolve_topic_name(t) for t in settings.exclude}
+        compression = settings.compression
+        discovery_period = settings.discovery_period
+        self.flush_period = settings.flush_period
+        self.close_timeout = settings.close_timeout
         custom_data = {'recorder': self.get_fully_qualified_name()}
-        scenario_file = self.get_parameter('scenario_file').value
+        scenario_file = settings.scenario_file
         if scenario_file:
             try:
                 with open(scenario_file, encoding='utf-8') as stream:
@@ -192,9 +169,8 @@ class RecorderNode(Node):
         try:
             self.bag = Rosbag2McapWriter(
                 self.output, compression=compression, custom_data=custom_data,
-                chunk_size=self.get_parameter('chunk_size').value,
-                max_bag_size=self.get_parameter('max_bag_size').value,
-                max_bag_duration=self.get_parameter('max_bag_duration').value)
+                chunk_size=settings.chunk_size, max_bag_size=settings.max_bag_size,
+                max_bag_duration=settings.max_bag_duration)
         except BagExistsError:
             raise
         except OSError as err:
@@ -228,17 +204,6 @@ class RecorderNode(Node):
             raise
 
     # -- parameters ------------------------------------------------------------------------
-    def _declare(self, name, default, description):
-        self.declare_parameter(name, default, ParameterDescriptor(
-            description=description, read_only=True))
-
-    def _string_array(self, name):
-        # Declared by type (an empty list default would make it a byte array): unset = [].
-        try:
-            return list(self.get_parameter(name).value or [])
-        except ParameterUninitializedException:
-            return []
-
     # -- topics ----------------------------------------------------------------------------
     def _wanted(self, topic):
         if topic in self.excluded or topic in self._recorded or topic in self._failed:

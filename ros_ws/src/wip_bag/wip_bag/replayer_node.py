@@ -95,11 +95,9 @@ import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration, Infinite
-from rclpy.exceptions import ParameterUninitializedException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -108,10 +106,12 @@ from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSLivelinessPolic
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_srvs.srv import SetBool, Trigger
 
+from wip_control.nodes.parameters import ConfigParameters
 from wip_control.tools.cli import EXIT_INTERNAL, EXIT_USAGE, log_trace, one_line
 
 from .bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
 from .qos_yaml import INFINITE_DURATION_NS, normalize_offered_qos
+from .settings import ReplayerSettings
 
 # The exit-code table of every tool (wip_control.tools.cli).
 EXIT_OK = 0
@@ -247,56 +247,23 @@ class ReplayerNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__('replayer', **kwargs)
-        self._declare('bag', '', 'bag directory or .mcap file to play')
-        self._declare('rate', 1.0, 'playback speed factor')
-        self._declare('start_offset', 0.0, 'start this long after the first message [s]')
-        self._declare('duration', 0.0, 'play this long from the start point [s]; 0: all')
-        self._declare('loop', False, 'play again from the start point at the end')
-        self._declare('topics', Parameter.Type.STRING_ARRAY, 'topics to play; empty: all')
-        self._declare('exclude', Parameter.Type.STRING_ARRAY, 'topics never played')
-        self._declare('remap', Parameter.Type.STRING_ARRAY, "'from:=to' topic renames")
-        self._declare('clock', False, 'publish /clock with the recorded time')
-        self._declare('clock_rate', 100.0, 'rate of /clock between messages [Hz]; 0: only '
-                      'with the messages')
-        self._declare('start_paused', False, 'start paused (see ~/pause)')
-        self._declare('wait_for_subscribers', 0, 'matched subscriptions each topic of '
-                      'wait_topics needs before playing')
-        self._declare('wait_topics', Parameter.Type.STRING_ARRAY, 'topics whose '
-                      'subscriptions are awaited; empty: all played topics')
-        self._declare('wait_timeout', 10.0, 'longest wait for the subscribers [s]')
-        self._declare('delay', 0.0, 'wall-clock delay before playing [s]')
-        self._declare('qos_depth', 1000, 'keep-last depth of the publishers')
-        self._declare('exit_when_done', True, 'exit at the end of the bag')
-        self._declare('partial', False, 'play the intact part of a damaged bag')
-
-        get = self._value
-        self.bag = get('bag')
-        self.rate = get('rate')
-        self.start_offset = get('start_offset')
-        self.duration = get('duration')
-        self.loop = get('loop')
-        self.allow_partial = get('partial')
-        self.clock_enabled = get('clock')
-        self.clock_rate = get('clock_rate')
-        self.wait_for = get('wait_for_subscribers')
-        self.wait_timeout = get('wait_timeout')
-        self.delay = get('delay')
-        self.qos_depth = get('qos_depth')
-        self.exit_when_done = get('exit_when_done')
+        settings = ConfigParameters(self, '', ReplayerSettings).config
+        self.bag = settings.bag
+        self.rate = settings.rate
+        self.start_offset = settings.start_offset
+        self.duration = settings.duration
+        self.loop = settings.loop
+        self.allow_partial = settings.partial
+        self.clock_enabled = settings.clock
+        self.clock_rate = settings.clock_rate
+        self.wait_for = settings.wait_for_subscribers
+        self.wait_timeout = settings.wait_timeout
+        self.delay = settings.delay
+        self.qos_depth = settings.qos_depth
+        self.exit_when_done = settings.exit_when_done
         if not self.bag:
             raise ValueError('parameter bag: no bag given')
-        for name, value, ok in (
-                ('rate', self.rate, self.rate > 0.0),
-                ('start_offset', self.start_offset, self.start_offset >= 0.0),
-                ('duration', self.duration, self.duration >= 0.0),
-                ('clock_rate', self.clock_rate, self.clock_rate >= 0.0),
-                ('wait_for_subscribers', self.wait_for, self.wait_for >= 0),
-                ('wait_timeout', self.wait_timeout, self.wait_timeout >= 0.0),
-                ('delay', self.delay, self.delay >= 0.0),
-                ('qos_depth', self.qos_depth, self.qos_depth >= 1)):
-            if not ok:
-                raise ValueError(f'parameter {name}: invalid value {value!r}')
-        remaps = parse_remaps(self._string_array('remap'))
+        remaps = parse_remaps(list(settings.remap))
 
         # -- the bag's topics and their publishers ---------------------------------------
         try:
@@ -306,8 +273,8 @@ class ReplayerNode(Node):
             raise ReplayError(f'cannot read bag {self.bag}: {err}') from err
         for line in lost:
             self.get_logger().warning(f'playing a partial bag: {line}')
-        wanted = self._string_array('topics')
-        excluded = set(self._string_array('exclude'))
+        wanted = list(settings.topics)
+        excluded = set(settings.exclude)
         missing = [t for t in wanted if t not in recorded]
         if missing:
             self.get_logger().warning(f'topics not in the bag: {missing}')
@@ -337,7 +304,7 @@ class ReplayerNode(Node):
             raise ReplayError(f'{self.bag}: no topic to play')
         self.clock_pub = (self.create_publisher(ClockMsg, CLOCK_TOPIC, QoSProfile(depth=10))
                           if self.clock_enabled else None)
-        wait_topics = self._string_array('wait_topics')
+        wait_topics = list(settings.wait_topics)
         self.wait_publishers = [p for p in self.publishers_by_topic.values()
                                 if not wait_topics or p.topic_name in wait_topics]
 
@@ -354,7 +321,7 @@ class ReplayerNode(Node):
 
         # -- state, services, diagnostics -------------------------------------------------
         self.clock = PlaybackClock(self.rate, self.start_ns, time.monotonic())
-        self.clock.paused = get('start_paused')
+        self.clock.paused = settings.start_paused
         self.published = 0
         self.loops = 0
         self.last_clock_ns = None
@@ -373,19 +340,6 @@ class ReplayerNode(Node):
             + (', looping' if self.loop else ''))
 
     # -- parameters ------------------------------------------------------------------------
-    def _declare(self, name, default, description):
-        self.declare_parameter(name, default, ParameterDescriptor(
-            description=description, read_only=True))
-
-    def _value(self, name):
-        return self.get_parameter(name).value
-
-    def _string_array(self, name):
-        try:
-            return list(self.get_parameter(name).value or [])
-        except ParameterUninitializedException:
-            return []
-
     def _first_times(self):
         for message in iter_raw_messages(self.bag, topics=list(self.publishers_by_topic),
                                          allow_partial=self.allow_partial):

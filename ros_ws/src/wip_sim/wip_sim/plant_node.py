@@ -79,7 +79,6 @@ from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
 from std_srvs.srv import Trigger
 from wip_msgs.msg import GroundTruth, WheelTorques
 
-from wip_control.core.config import ConfigError
 from wip_control.core.disturbances import Disturbances
 from wip_control.core.model import PHI, THETA, V
 from wip_control.core.plant import Plant
@@ -90,14 +89,16 @@ from wip_control.core.sensors import local_to_geodetic, Sensors
 from wip_control.nodes.common import run_simulator_node, stamp_to_ns
 from wip_control.nodes.conversions import (body_rates_from_euler, quaternion_from_euler,
                                            wheel_torques_from_msg)
-from wip_control.nodes.parameters import declare_plain
+from wip_control.nodes.parameters import ConfigParameters
+from wip_control.nodes.settings import DatumConfig, WheelJoints
+
+from .settings import PlantSettings, StartHandshake
 
 EXIT_OK = 0
 EXIT_ERROR = 1
 EXIT_CONFIG = 2
 EXIT_FELL = 3
 
-CLOCK_MODES = ('lockstep', 'realtime')
 SENSOR_DEPTH = 10  # keep-last depth of every publisher/subscription [messages]
 SPIN_TIMEOUT = 0.1  # [s] of one spin_once: bounds the reaction time to a shutdown
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
@@ -140,54 +141,25 @@ class PlantNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('plant', **kwargs)
         self.exit_code: int | None = None  # set when the run is over
-        scenario_file = declare_plain(
-            self, 'scenario_file', '', '', 'scenario YAML file (core.scenario); empty: '
-            "the paper's Section V")
-        self.clock_mode = declare_plain(
-            self, 'clock_mode', 'lockstep', '', "'lockstep': publish /clock and step when "
-            "the wheel torques of the current tick arrived; 'realtime': step on a wall "
-            'timer with the latest torques')
-        if self.clock_mode not in CLOCK_MODES:
-            raise ConfigError(f'clock_mode: {self.clock_mode!r} is not one of '
-                              f'{list(CLOCK_MODES)}')
-        self.scenario = scenario = load_scenario(scenario_file or None)
-        self.left_joint = declare_plain(self, 'left_joint', 'left_wheel_joint', '',
-                                        'name of the left wheel joint in /joint_states')
-        self.right_joint = declare_plain(self, 'right_joint', 'right_wheel_joint', '',
-                                         'name of the right wheel joint in /joint_states')
-        map_frame = declare_plain(self, 'map_frame', 'map', '',
-                                  'frame of the ground truth position')
-        imu_frame = declare_plain(self, 'imu_frame', 'imu_link', '', 'frame_id of /imu/data')
-        gps_frame = declare_plain(self, 'gps_frame', 'gps_link', '', 'frame_id of /gps/fix')
+        settings = ConfigParameters(self, '', PlantSettings).config
+        self.clock_mode = settings.clock_mode
+        self.scenario = scenario = load_scenario(settings.scenario_file or None)
+        joints = ConfigParameters(self, '', WheelJoints).config
+        self.left_joint, self.right_joint = joints.left_joint, joints.right_joint
+        map_frame, imu_frame, gps_frame = (settings.map_frame, settings.imu_frame,
+                                           settings.gps_frame)
         sensors_config = scenario.sensors
-        self.datum = (
-            declare_plain(self, 'datum.latitude', sensors_config.gps_datum_latitude, 'deg',
-                          'latitude of the map origin (default: the scenario\'s '
-                          'sensors.gps_datum_latitude)'),
-            declare_plain(self, 'datum.longitude', sensors_config.gps_datum_longitude, 'deg',
-                          'longitude of the map origin'),
-            declare_plain(self, 'datum.altitude', sensors_config.gps_datum_altitude, 'm',
-                          'ellipsoidal height of the map origin'))
-        autostart = declare_plain(
-            self, 'autostart', True, '', 'start by itself once the endpoints are matched; '
-            'false: wait for the ~/start service')
-        self.expected = {
-            'sensors': declare_plain(self, 'start.expected_sensor_subscribers', 1, '1',
-                                     'matched subscriptions each sensor topic needs '
-                                     'before the start'),
-            'ground_truth': declare_plain(self, 'start.expected_ground_truth_subscribers',
-                                          0, '1', 'matched subscriptions /wip/ground_truth '
-                                          'needs before the start'),
-            'clock': declare_plain(self, 'start.expected_clock_subscribers', 0, '1',
-                                   'matched subscriptions /clock needs before the start '
-                                   '(lockstep)'),
-        }
-        self.max_torque_age = declare_plain(
-            self, 'max_torque_age', 0.05, 's', 'realtime: wheel torques older than this '
-            '(stamp against the wall clock) are replaced by zero')
-        self.stats_file = declare_plain(self, 'stats_file', '', '',
-                                        'JSON file of per-tick timings written at exit; '
-                                        'empty: none')
+        # The datum defaults to the scenario's (sensors.gps_datum_*).
+        datum = ConfigParameters(self, 'datum', DatumConfig,
+                                 defaults=DatumConfig.of(scenario.sensors)).config
+        self.datum = (datum.latitude, datum.longitude, datum.altitude)
+        autostart = settings.autostart
+        start = ConfigParameters(self, 'start', StartHandshake).config
+        self.expected = {'sensors': start.expected_sensor_subscribers,
+                         'ground_truth': start.expected_ground_truth_subscribers,
+                         'clock': start.expected_clock_subscribers}
+        self.max_torque_age = settings.max_torque_age
+        self.stats_file = settings.stats_file
 
         # -- the simulation, built exactly as core.runner.run_scenario does --------------
         true_params = scenario.plant.parameters

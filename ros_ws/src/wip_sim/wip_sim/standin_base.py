@@ -95,9 +95,12 @@ from wip_control.core.scenario import load_scenario
 from wip_control.core.sensors import local_to_geodetic, Sensors
 from wip_control.nodes.common import run_simulator_node
 from wip_control.nodes.conversions import quaternion_from_euler
-from wip_control.nodes.hardware_inputs import (check_mounting_rpy, check_wheel_sign,
-                                               imu_orientation_of_body, rotate_vector_into)
-from wip_control.nodes.parameters import declare_plain
+from wip_control.nodes.hardware_inputs import (imu_orientation_of_body, rotate_vector_into)
+from wip_control.nodes.parameters import ConfigParameters
+from wip_control.nodes.settings import (DatumConfig, EffortCommand, ImuMounting, WheelJoints,
+                                        WheelSigns)
+
+from .settings import CommandTiming, StandinSettings
 
 EXIT_OK, EXIT_ERROR, EXIT_CONFIG, EXIT_FELL = 0, 1, 2, 3
 SPIN_TIMEOUT = 0.1  # [s]
@@ -180,80 +183,39 @@ class StandinBase(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('standin_base', **kwargs)
         self.exit_code: int | None = None
-        scenario_file = declare_plain(self, 'scenario_file', '', '',
-                                      "scenario YAML (plant, initial state, sensors, rates); "
-                                      "'': the paper's Section V")
-        self.scenario = scenario = load_scenario(scenario_file or None)
-        self.left_joint = declare_plain(self, 'left_joint', 'left_wheel_joint', '',
-                                        'name of the left wheel joint')
-        self.right_joint = declare_plain(self, 'right_joint', 'right_wheel_joint', '',
-                                         'name of the right wheel joint')
-        self.joints = list(declare_plain(self, 'joints', [self.left_joint, self.right_joint],
-                                         '', 'joints of /joint_states and of the command, '
-                                         'in order'))
+        settings = ConfigParameters(self, '', StandinSettings).config
+        self.scenario = scenario = load_scenario(settings.scenario_file or None)
+        joints = ConfigParameters(self, '', WheelJoints).config
+        self.left_joint, self.right_joint = joints.left_joint, joints.right_joint
+        # joints defaults to (left_joint, right_joint) as set, so renaming both is enough.
+        self.joints = list(ConfigParameters(
+            self, '', EffortCommand,
+            defaults=EffortCommand((self.left_joint, self.right_joint))).config.joints)
         if sorted(self.joints) != sorted([self.left_joint, self.right_joint]):
             raise ConfigError(f'joints: must list left_joint {self.left_joint!r} and '
                               f'right_joint {self.right_joint!r} once each, got {self.joints}')
-        try:
-            self.left_sign = check_wheel_sign(
-                'left_wheel_sign', declare_plain(self, 'left_wheel_sign', 1, '1',
-                                                 '+1: the joint angle grows when the wheel '
-                                                 'rolls the robot forward; -1: the opposite'))
-            self.right_sign = check_wheel_sign(
-                'right_wheel_sign', declare_plain(self, 'right_wheel_sign', 1, '1',
-                                                  'as left_wheel_sign, right wheel'))
-            self.mounting = check_mounting_rpy(
-                'imu_mounting_rpy', declare_plain(self, 'imu_mounting_rpy', [0.0, 0.0, 0.0],
-                                                  'rad', 'rotation base_link -> IMU frame '
-                                                  '(roll, pitch, yaw about fixed x, y, z)'))
-        except ValueError as err:
-            raise ConfigError(str(err)) from err
-        imu_frame = declare_plain(self, 'imu_frame', 'imu_link', '', 'frame_id of /imu/data')
-        gps_frame = declare_plain(self, 'gps_frame', 'gps_link', '', 'frame_id of /gps/fix')
-        odom_frame = declare_plain(self, 'odom_frame', 'odom', '', 'frame_id of /odom')
-        self.publish_odometry = declare_plain(self, 'publish_odometry', False, '',
-                                              'also publish nav_msgs/Odometry on /odom')
-        c = scenario.sensors
-        self.datum = (
-            declare_plain(self, 'datum.latitude', c.gps_datum_latitude, 'deg',
-                          'latitude of the map origin'),
-            declare_plain(self, 'datum.longitude', c.gps_datum_longitude, 'deg',
-                          'longitude of the map origin'),
-            declare_plain(self, 'datum.altitude', c.gps_datum_altitude, 'm',
-                          'ellipsoidal height of the map origin'))
-        self.hold = declare_plain(self, 'hold_until_engaged', True, '',
-                                  'frozen at the initial state until the first non-zero '
-                                  'command (someone holds the robot)')
-        self.exit_after_fall = declare_plain(self, 'exit_after_fall', 1.0, 's',
-                                             'keep publishing this long after a fall, '
-                                             'then exit with code 3')
-        self.duration = declare_plain(self, 'duration', 0.0, 's',
-                                      'exit with code 0 after this long from the release; '
-                                      '0: until SIGINT')
-        self.command_period = declare_plain(self, 'expected_command_period',
-                                            scenario.control_period, 's',
-                                            'period of the controllers\' commands (deadline '
-                                            'statistics)')
-        self.truth_period = declare_plain(self, 'truth_period', 0.02, 's',
-                                          'sampling of the ground truth in the stats file')
-        self.stats_file = declare_plain(self, 'stats_file', '', '',
-                                        'JSON statistics written at exit; empty: none')
-        self.sensor_bunch = declare_plain(
-            self, 'sensor_bunch', 1, '1', 'deliver the encoder and IMU samples in bunches of '
-            'this many (1..10, each with its own sample stamp), as a USB or CAN bridge that '
-            'buffers them: every N-th period the last N at once; 1: each when taken')
-        if not (isinstance(self.sensor_bunch, int) and 1 <= self.sensor_bunch <= 10):
-            raise ConfigError(f'sensor_bunch: must be an integer in 1..10, got '
-                              f'{self.sensor_bunch!r}')
+        signs = ConfigParameters(self, '', WheelSigns).config
+        self.left_sign = float(signs.left_wheel_sign)
+        self.right_sign = float(signs.right_wheel_sign)
+        self.mounting = ConfigParameters(self, '', ImuMounting).config.imu_mounting_rpy
+        imu_frame, gps_frame, odom_frame = (settings.imu_frame, settings.gps_frame,
+                                            settings.odom_frame)
+        self.publish_odometry = settings.publish_odometry
+        # The datum defaults to the scenario's (sensors.gps_datum_*).
+        datum = ConfigParameters(self, 'datum', DatumConfig,
+                                 defaults=DatumConfig.of(scenario.sensors)).config
+        self.datum = (datum.latitude, datum.longitude, datum.altitude)
+        self.hold = settings.hold_until_engaged
+        self.exit_after_fall = settings.exit_after_fall
+        self.duration = settings.duration
+        self.command_period = ConfigParameters(
+            self, '', CommandTiming,
+            defaults=CommandTiming(scenario.control_period)).config.expected_command_period
+        self.truth_period = settings.truth_period
+        self.stats_file = settings.stats_file
+        self.sensor_bunch = settings.sensor_bunch
         self._bunch: list[tuple[bytes, bytes]] = []
-        for name, value in (('exit_after_fall', self.exit_after_fall),
-                            ('duration', self.duration)):
-            if not (isinstance(value, float) and value >= 0.0):
-                raise ConfigError(f'{name}: must be a number >= 0, got {value!r}')
-        for name, value in (('expected_command_period', self.command_period),
-                            ('truth_period', self.truth_period)):
-            if not (isinstance(value, float) and value > 0.0):
-                raise ConfigError(f'{name}: must be a number > 0, got {value!r}')
+        c = scenario.sensors
 
         # -- the simulation (built like core.runner.run_scenario) ----------------------------
         params = scenario.plant.parameters

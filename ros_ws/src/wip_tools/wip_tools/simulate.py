@@ -139,7 +139,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--dump-scenario', action='store_true',
                         help='print the scenario (default or --scenario) as YAML and exit')
     parser.add_argument('--list-parameters', action='store_true',
-                        help='print every scenario key with unit, default, range; exit')
+                        help='print every node parameter and scenario key with unit, '
+                        'default, range; exit')
     args = parser.parse_args(argv)
     if args.list_parameters:
         print(parameter_table())

@@ -53,12 +53,13 @@ from std_srvs.srv import Trigger
 from wip_control.core.config import ConfigError
 from wip_control.nodes.common import RELIABLE_QOS, run_node
 from wip_control.nodes.diagnostics import NodeDiagnostics
-from wip_control.nodes.parameters import declare_plain
+from wip_control.nodes.parameters import ConfigParameters
 
 from wip_bag.bag_writer import BagWriterError, message_definition
 from wip_bag.recorder_node import import_message_class, is_hidden_topic
 
-DEFAULT_PORT = 8765
+from .settings import FoxgloveSettings
+
 ESTOP_TOPIC = '/wip/estop'
 ESTOP_RESET_TOPIC = '/wip/estop_reset'
 #: Topics a client may publish, with their types.
@@ -151,24 +152,16 @@ class _Listener:
 class FoxgloveBridge(Node):
     """See the module docstring."""
 
-    def __init__(self) -> None:
-        super().__init__('foxglove_bridge')
+    def __init__(self, **kwargs) -> None:
+        super().__init__('foxglove_bridge', **kwargs)
         import foxglove
         from foxglove import Service
         from foxglove.websocket import Capability
-        self.host = declare_plain(self, 'host', '127.0.0.1', '',
-                                  'address to serve on (127.0.0.1: this machine only)')
-        self.port = declare_plain(self, 'port', DEFAULT_PORT, '',
-                                  'TCP port of the WebSocket server; 0 = any free port')
-        self.requested = set(declare_plain(self, 'topics', [''], '',
-                                           'topics to offer; empty = every topic') or [])
+        settings = ConfigParameters(self, '', FoxgloveSettings).config
+        self.host, self.port = settings.host, settings.port
+        self.requested = set(settings.topics)
         self.requested.discard('')
-        period = declare_plain(self, 'discovery_period', 0.5, 's',
-                               'wall period of the graph polling for new topics')
-        if not isinstance(self.port, int) or not 0 <= self.port <= 65535:
-            raise ConfigError(f'port: must be an integer in [0, 65535], got {self.port!r}')
-        if not isinstance(period, float) or not 0.01 <= period <= 60.0:
-            raise ConfigError(f'discovery_period: must be in [0.01, 60] s, got {period!r}')
+        period = settings.discovery_period
         self.diagnostics = NodeDiagnostics(self, 'foxglove bridge', ())
         self.channels: dict[str, object] = {}  # topic -> foxglove.Channel
         self.types: dict[str, str] = {}

@@ -88,8 +88,8 @@ def _pose(position, orientation) -> Pose:
 class ViewerNode(Node):
     """See the module docstring."""
 
-    def __init__(self) -> None:
-        super().__init__('viewer')
+    def __init__(self, **kwargs) -> None:
+        super().__init__('viewer', **kwargs)
         self.config: ViewerConfig = ConfigParameters(self, 'viewer', ViewerConfig).config
         c = self.config
         # No input ages: the node runs on the wall clock also in lockstep (no /clock

@@ -70,12 +70,12 @@ def param(default: Any, unit: str, description: str, *, minimum: float | None = 
         (:data:`UNIT_LIMITS`) is used, so every number has an upper bound.
     exclusive_minimum : if true the minimum itself is not admissible (``> minimum``); a
         value must then also be at least the unit's smallest positive value (``floor``).
-    choices : admissible values for strings.
+    choices : admissible values (strings, or numbers such as a wheel sign ±1).
     max_length : most elements of a variable-length tuple (default ``MAX_LIST_LENGTH``).
     """
     if isinstance(default, (list, dict)):
         raise TypeError('use a tuple for vector defaults (dataclass fields are shared)')
-    numeric = _is_number(default) or (
+    numeric = (_is_number(default) and not choices) or (
         isinstance(default, tuple) and all(_is_number(v) for v in default)
         and not (default == () and maximum is None and minimum is None))
     floor = None
@@ -140,10 +140,12 @@ def _check_number(path: str, value: Any, meta: Mapping[str, Any], want_int: bool
 def check_value(path: str, value: Any, field_type: Any, meta: Mapping[str, Any]) -> Any:
     """Validate and normalise one value against its declared type and metadata."""
     origin = typing.get_origin(field_type)
-    if field_type is float:
-        return _check_number(path, value, meta, want_int=False)
-    if field_type is int:
-        return _check_number(path, value, meta, want_int=True)
+    if field_type is float or field_type is int:
+        number = _check_number(path, value, meta, want_int=field_type is int)
+        choices = meta.get('choices')
+        if choices and number not in choices:
+            raise ConfigError(f"{path}: must be {' or '.join(map(str, choices))}, got {_show(value)}")
+        return number
     if field_type is bool:
         if not isinstance(value, bool):
             raise ConfigError(f'{path}: expected true or false, got {_show(value)}')

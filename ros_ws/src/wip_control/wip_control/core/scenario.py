@@ -169,6 +169,16 @@ _TOP_LEVEL_SCALARS = {
                'and a reference without time scaling); keys given explicitly still apply'),
 }
 
+#: Unit and admissible values of the top-level scalars, as checked in
+#: :func:`scenario_from_mapping` (for the parameter reference).
+TOP_LEVEL_RANGES = {
+    'name': ('-', 'any'), 'description': ('-', 'any'),
+    'design': ('-', "one of: robust, paper"),
+    'duration': ('s', f'(0, {MAX_DURATION_S:g}]'),
+    'seed': ('1', '[0, 2**63 - 1]'),
+    'fall_threshold': ('rad', '(0, 1.5]'),
+}
+
 #: Designs selectable with the top-level key ``design``.
 DESIGNS = ('robust', 'paper')
 #: What ``design: paper`` changes in the component defaults: the paper's Section V

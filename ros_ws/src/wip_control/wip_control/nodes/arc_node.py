@@ -35,23 +35,21 @@ from wip_msgs.msg import (ArcState, StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg)
 
 from ..core.arc import ArcConfig
-from ..core.config import ConfigError
-from ..core.control_step import initial_alpha, YawStage
-from ..core.eso import EsoConfig
-from ..core.params import WipParameters
+from ..core.control_step import YawStage
 from ..core.scenario import RatesConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import arc_to_msg, command_from_msg, estimate_from_msg
 from .diagnostics import OK
-from .parameters import ConfigParameters, declare_plain
+from .parameters import ConfigParameters
+from .settings import ArcNodeSettings
 from .sync import ExactTimeSync, LatestSync
 
 _INPUTS = ('velocity_command', 'state_estimate')
 
 
 def default_alpha_initial() -> float:
-    """α̂(0) = 1/ĝ1(θ = 0) of the default model and ESO (``core.control_step.initial_alpha``)."""
-    return initial_alpha(WipParameters(), EsoConfig().yaw_input_gain_scale)
+    """α̂(0) = 1/ĝ1(θ = 0) of the default model and ESO (the default of ``alpha_initial``)."""
+    return ArcNodeSettings().alpha_initial
 
 
 class ArcNode(ControllerNode):
@@ -61,12 +59,7 @@ class ArcNode(ControllerNode):
         super().__init__('arc', 'adaptive robust yaw control (12)-(13)', _INPUTS, **kwargs)
         self.parameters = ConfigParameters(self, 'arc', ArcConfig, self._on_config)
         self.rates = ConfigParameters(self, 'rates', RatesConfig).config
-        alpha_initial = declare_plain(self, 'alpha_initial', default_alpha_initial(),
-                                      'kg m^2', 'initial adaptive estimate of alpha = 1/g1 '
-                                      '(paper: 1/g1_hat); projected into [alpha_min, '
-                                      'alpha_max]')
-        if not (isinstance(alpha_initial, float) and math.isfinite(alpha_initial)):
-            raise ConfigError(f'alpha_initial: must be a finite number, got {alpha_initial!r}')
+        alpha_initial = ConfigParameters(self, '', ArcNodeSettings).config.alpha_initial
         self.dt = 1.0 / self.rates.control_rate
         # The yaw stage of the loop (core/control_step.py).
         self.stage = YawStage(self.parameters.config, alpha_initial, self.dt)

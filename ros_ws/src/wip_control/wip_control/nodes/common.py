@@ -46,13 +46,10 @@ from std_msgs.msg import Header
 from ..core.config import ConfigError
 from .diagnostics import NodeDiagnostics
 from .intra_process import IntraProcessBus, IntraProcessPublisher
-from .parameters import declare_plain
+from .parameters import ConfigParameters
+from .settings import ControllerNodeSettings
 from .sync import on_grid
 
-CLOCK_MODES = ('lockstep', 'realtime')
-#: Default of ``clock_mode``: the nodes are drop-in controllers for a real base; the graph
-#: runner sets 'lockstep' for simulations.
-DEFAULT_CLOCK_MODE = 'realtime'
 #: One spin_once of the EventsExecutor [s]: bounds the reaction time to a shutdown.
 SPIN_TIMEOUT = 0.1
 
@@ -113,13 +110,8 @@ class TimeBase:
         return (int(stamp_ns) - self.origin_ns) / 1e9
 
 
-def declare_clock_mode(node: Node) -> str:
-    """Declare ``clock_mode`` and return it; ConfigError on a value not in CLOCK_MODES."""
-    mode = declare_plain(node, 'clock_mode', DEFAULT_CLOCK_MODE, '',
-                         "'lockstep' (deterministic simulation on /clock, exact-time input "
-                         "sets) or 'realtime' (latest inputs, timers)")
-    if mode not in CLOCK_MODES:
-        raise ConfigError(f'clock_mode: {mode!r} is not one of {list(CLOCK_MODES)}')
+def warn_lockstep_without_sim_time(node: Node, mode: str) -> str:
+    """``mode``, after a warning if it is lockstep on the wall clock."""
     if mode == 'lockstep' and not node.get_parameter('use_sim_time').value:
         node.get_logger().warning('clock_mode lockstep without use_sim_time: input ages '
                                   'and diagnostics use the wall clock')
@@ -472,7 +464,9 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
 class ControllerNode(Node):
     """Base of the controller nodes: clock mode, time base, diagnostics, guarded callbacks.
 
-    Parameters declared here: ``clock_mode``, ``diagnostics_period`` [s].
+    Parameters declared here: :class:`~wip_control.nodes.settings.ControllerNodeSettings`
+    (``use_intra_process_comms``, ``clock_mode``, ``diagnostics_period`` [s],
+    ``max_stamp_lead`` [s]).
     """
 
     def __init__(self, node_name: str, role: str, inputs: Sequence[str], **kwargs) -> None:
@@ -481,32 +475,15 @@ class ControllerNode(Node):
         # (connect_intra_process); rclpy's own (parameter events, rosout) are not here.
         self.intra_publishers: list[IntraProcessPublisher] = []
         self.intra_subscriptions: list[tuple[type, str, Callable]] = []
-        self.use_intra_process_comms = declare_plain(
-            self, 'use_intra_process_comms', True, '',
-            'composed process: messages to another node of the same process skip DDS '
-            'unless someone outside the process subscribes the topic (as rclcpp\'s '
-            'intra-process communication); no effect on a node alone in its process')
-        if not isinstance(self.use_intra_process_comms, bool):
-            raise ConfigError('use_intra_process_comms: must be true or false, got '
-                              f'{self.use_intra_process_comms!r}')
-        self.clock_mode = declare_clock_mode(self)
+        settings = ConfigParameters(self, '', ControllerNodeSettings).config
+        self.use_intra_process_comms = settings.use_intra_process_comms
+        self.clock_mode = warn_lockstep_without_sim_time(self, settings.clock_mode)
         self._system_clock = not self.get_parameter('use_sim_time').value
         self.add_post_set_parameters_callback(self._on_use_sim_time)
         self.lockstep = self.clock_mode == 'lockstep'
         self.time_base = TimeBase(self.lockstep)
-        period = declare_plain(self, 'diagnostics_period', 1.0, 's',
-                               'period of the /diagnostics messages (wall time); 0: none')
-        if not (isinstance(period, float) and period >= 0.0):
-            raise ConfigError(f'diagnostics_period: must be >= 0, got {period!r}')
-        self.diagnostics = NodeDiagnostics(self, role, inputs, period)
-        lead = declare_plain(
-            self, 'max_stamp_lead', 0.5, 's',
-            'real time: an input stamped more than this ahead of the node clock is refused '
-            '(inputs are taken newest stamp first, so one far-future stamp would block the '
-            'stream until the clock caught up)')
-        if not (isinstance(lead, float) and lead > 0.0):
-            raise ConfigError(f'max_stamp_lead: must be > 0, got {lead!r}')
-        self.max_stamp_lead_ns = round(lead * 1e9)
+        self.diagnostics = NodeDiagnostics(self, role, inputs, settings.diagnostics_period)
+        self.max_stamp_lead_ns = round(settings.max_stamp_lead * 1e9)
 
     def subscribe(self, msg_type, topic: str, name: str, handler: Callable,
                   qos: QoSProfile = RELIABLE_QOS) -> None:

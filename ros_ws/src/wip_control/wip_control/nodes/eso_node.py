@@ -79,17 +79,15 @@ from ..core.config import ConfigError
 from ..core.eso import EsoConfig
 from ..core.params import WipParameters
 from ..core.position import PositionConfig
-from ..core.sensors import SensorConfig
 from ..core.state_estimation import EstimatorOverflow, StateEstimator
 from .common import (ControllerNode, RELIABLE_QOS, run_node, SENSOR_QOS,
                      stamp_to_ns)
 from .conversions import estimate_to_msg, gps_has_fix, gps_local_position, wheel_torques_from_msg
 from .diagnostics import OK, WARN
-from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, check_mounting_rpy,
-                              check_position_source,
-                              check_wheel_sign, mounting_inverse, odometry_position,
-                              signed_wheel_angles)
-from .parameters import ConfigParameters, declare_plain
+from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
+                              odometry_position, signed_wheel_angles)
+from .parameters import ConfigParameters
+from .settings import DatumConfig, EsoNodeSettings, ImuMounting, WheelJoints, WheelSigns
 from .sync import decimation, ExactTimeSync, is_decimated_tick, LatestSync
 
 _SENSORS = ('joint_states', 'imu', 'gps')
@@ -98,11 +96,7 @@ _MAX_TORQUE_STAMPS = 64
 
 
 class EsoNode(ControllerNode):
-    """See the module docstring. Parameters: sections ``eso``, ``position``, ``model``;
-    plain ``encoders_relative_to_body``, ``gps_period``, ``left_joint``, ``right_joint``,
-    ``left_wheel_sign``, ``right_wheel_sign``, ``imu_mounting_rpy``, ``position_source``,
-    ``datum.latitude``, ``datum.longitude``, ``datum.altitude``, ``frame_id``,
-    ``clock_mode``, ``diagnostics_period`` (all read-only)."""
+    """See the module docstring. Parameters: ``NODES['eso']`` of nodes/settings.py."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__('eso', 'extended state observer', (*_SENSORS, 'wheel_torques'),
@@ -110,49 +104,23 @@ class EsoNode(ControllerNode):
         self.eso_config = ConfigParameters(self, 'eso', EsoConfig).config
         self.position_config = ConfigParameters(self, 'position', PositionConfig).config
         self.model = ConfigParameters(self, 'model', WipParameters).config
-        sensors = SensorConfig()
-        self.relative_to_body = declare_plain(
-            self, 'encoders_relative_to_body', sensors.encoders_relative_to_body, '',
-            'encoders measure the wheel relative to the tilting body (x_v adds the pitch)')
-        gps_period = declare_plain(self, 'gps_period', 1.0 / sensors.gps_rate, 's',
-                                   'period of the GPS fixes (lockstep: a fix is expected '
-                                   'every round(gps_period / eso.sample_period) samples)')
-        if not gps_period > 0.0:
-            raise ConfigError(f'gps_period: must be > 0, got {gps_period!r}')
-        self.left_joint = declare_plain(self, 'left_joint', 'left_wheel_joint', '',
-                                        'name of the left wheel joint in /joint_states')
-        self.right_joint = declare_plain(self, 'right_joint', 'right_wheel_joint', '',
-                                         'name of the right wheel joint in /joint_states')
-        try:
-            self.left_sign = check_wheel_sign('left_wheel_sign', declare_plain(
-                self, 'left_wheel_sign', 1, '1', '+1: the left joint angle grows when the '
-                'wheel rolls the robot forward; -1: the joint turns the other way'))
-            self.right_sign = check_wheel_sign('right_wheel_sign', declare_plain(
-                self, 'right_wheel_sign', 1, '1', 'as left_wheel_sign, for the right wheel'))
-            self.imu_inverse_mount = mounting_inverse(check_mounting_rpy(
-                'imu_mounting_rpy', declare_plain(
-                    self, 'imu_mounting_rpy', [0.0, 0.0, 0.0], 'rad', 'rotation from '
-                    'base_link to the IMU frame: roll, pitch, yaw about the fixed x, y, z '
-                    'axes of base_link (a URDF joint rpy)')))
-            self.position_source = check_position_source('position_source', declare_plain(
-                self, 'position_source', 'gps', '', "'gps': NavSatFix on /gps/fix about the "
-                "datum; 'odometry': nav_msgs/Odometry on /odom (real time only)"))
-        except ValueError as err:
-            raise ConfigError(str(err)) from err
+        settings = ConfigParameters(self, '', EsoNodeSettings).config
+        joints = ConfigParameters(self, '', WheelJoints).config
+        signs = ConfigParameters(self, '', WheelSigns).config
+        mounting = ConfigParameters(self, '', ImuMounting).config
+        self.relative_to_body = settings.encoders_relative_to_body
+        gps_period = settings.gps_period
+        self.left_joint, self.right_joint = joints.left_joint, joints.right_joint
+        self.left_sign = float(signs.left_wheel_sign)
+        self.right_sign = float(signs.right_wheel_sign)
+        self.imu_inverse_mount = mounting_inverse(mounting.imu_mounting_rpy)
+        self.position_source = settings.position_source
         if self.position_source == 'odometry' and self.lockstep:
             raise ConfigError("position_source: 'odometry' needs clock_mode realtime (the "
                               'lockstep sets wait for GPS fixes)')
-        self.datum = (
-            declare_plain(self, 'datum.latitude', sensors.gps_datum_latitude, 'deg',
-                          'latitude of the map origin'),
-            declare_plain(self, 'datum.longitude', sensors.gps_datum_longitude, 'deg',
-                          'longitude of the map origin'),
-            declare_plain(self, 'datum.altitude', sensors.gps_datum_altitude, 'm',
-                          'ellipsoidal height of the map origin'))
-        if not -90.0 <= self.datum[0] <= 90.0:
-            raise ConfigError(f'datum.latitude: must be in [-90, 90] deg, got {self.datum[0]}')
-        self.frame_id = declare_plain(self, 'frame_id', 'map', '',
-                                      'frame of the planar position x, y')
+        datum = ConfigParameters(self, 'datum', DatumConfig).config
+        self.datum = (datum.latitude, datum.longitude, datum.altitude)
+        self.frame_id = settings.frame_id
         self.sample_period = self.eso_config.sample_period
         self.gps_every = decimation(gps_period, self.sample_period)
 

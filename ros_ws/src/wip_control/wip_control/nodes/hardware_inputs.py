@@ -52,9 +52,8 @@ from sensor_msgs.msg import Imu, JointState
 from .conversions import (_check_finite, euler_rates_from_body, imu_has_rates, imu_pitch_yaw,
                           InvalidMessage, pitch_yaw_from_quaternion,
                           quaternion_from_euler, QUATERNION_NORM_TOLERANCE, wheel_angles)
+from .settings import POSITION_SOURCES  # noqa: F401 (values of position_source)
 
-#: Values of the ``position_source`` parameter.
-POSITION_SOURCES = ('gps', 'odometry')
 #: The identity rotation (x, y, z, w).
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 

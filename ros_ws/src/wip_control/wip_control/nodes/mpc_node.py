@@ -53,7 +53,6 @@ import time
 from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
 
-from ..core.config import ConfigError
 from ..core.control_step import DriveStage
 from ..core.mixer import MixerConfig
 from ..core.mpc import MpcConfig
@@ -63,7 +62,8 @@ from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc_idle_msg,
                           mpc_to_msg, wheel_torques_from_msg)
 from .diagnostics import OK, WARN
-from .parameters import ConfigParameters, declare_plain
+from .parameters import ConfigParameters
+from .settings import MpcNodeSettings
 from .sync import decimation, ExactTimeSync, is_decimated_tick
 
 _INPUTS = ('state_estimate', 'velocity_command', 'yaw_torque')
@@ -79,11 +79,7 @@ class MpcNode(ControllerNode):
         self.max_wheel_torque = ConfigParameters(self, 'mixer',
                                                  MixerConfig).config.max_wheel_torque
         self.rates = ConfigParameters(self, 'rates', RatesConfig).config
-        self.max_input_age = declare_plain(
-            self, 'max_input_age', 0.25, 's', 'realtime: inputs older than this make the '
-            'MPC publish tau_v = 0 with status INPUT_INVALID')
-        if not (isinstance(self.max_input_age, float) and self.max_input_age > 0.0):
-            raise ConfigError(f'max_input_age: must be > 0, got {self.max_input_age!r}')
+        self.max_input_age = ConfigParameters(self, '', MpcNodeSettings).config.max_input_age
         self.sampling_period = self.config.sampling_period
         self.control_period = 1.0 / self.rates.control_rate
         self.every = decimation(self.sampling_period, self.control_period)

@@ -1,9 +1,11 @@
-"""ROS parameters declared from the core's config dataclasses (one source of truth).
+"""ROS parameters declared from config dataclasses: the one way a node declares one.
 
 Every field of a config dataclass (see :mod:`wip_control.core.config`) becomes one ROS
-parameter named ``<section>.<field>`` with a descriptor carrying its unit, description
-and range. Values are validated by the same :func:`~wip_control.core.config.from_mapping`
-as a scenario file, so a params file with a typo'd value fails with the same message,
+parameter named ``<section>.<field>`` (or ``<field>`` when the section is ``''``, for
+the node-level settings) with a descriptor carrying its unit, description and range.
+Which node declares which dataclasses is listed in :mod:`wip_control.nodes.settings`
+(importable without rclpy, so the parameter reference is generated from it). Values are
+validated by the same :func:`~wip_control.core.config.from_mapping` as a scenario file, so a params file with a typo'd value fails with the same message,
 and a parameter set at run time to a bad value is rejected with the reason.
 """
 
@@ -27,6 +29,12 @@ def _ros_default(value: Any, field_type: Any) -> Any:
     # descriptor's type), so a float field with an integer default must become 0.0.
     if field_type is float:
         return float(value)
+    if isinstance(value, tuple) and not value:
+        # An empty list has no element type (rclpy would make it a byte array): declare
+        # by type; an unset parameter then reads as () (see _from_ros).
+        element = typing.get_args(field_type)[0]
+        return {str: Parameter.Type.STRING_ARRAY, float: Parameter.Type.DOUBLE_ARRAY,
+                int: Parameter.Type.INTEGER_ARRAY, bool: Parameter.Type.BOOL_ARRAY}[element]
     if isinstance(value, tuple):
         if all(isinstance(v, bool) for v in value):
             return list(value)
@@ -50,7 +58,7 @@ def _descriptor(name: str, field: dataclasses.Field, field_type: Any,
     low, high = meta.get('minimum'), meta.get('maximum')
     constraints = []
     if meta.get('choices'):
-        constraints.append('one of: ' + ', '.join(meta['choices']))
+        constraints.append('one of: ' + ', '.join(map(str, meta['choices'])))
     if low is not None or high is not None:
         constraints.append(f'range [{low}, {high}]' + (' (minimum excluded)'
                                                        if meta.get('exclusive_minimum') else ''))
@@ -72,25 +80,32 @@ class ConfigParameters:
     Parameters
     ----------
     node : the node to declare on.
-    section : prefix of the parameter names (``'mpc'`` gives ``mpc.max_tilt``).
+    section : prefix of the parameter names (``'mpc'`` gives ``mpc.max_tilt``); ``''``:
+        no prefix (``left_joint``).
     config_cls : the frozen config dataclass.
     on_change : called with the new config instance after a valid run-time change; if
         ``None`` the parameters are read-only.
+    defaults : an instance whose values replace the class defaults (a default that
+        depends on the node's scenario, e.g. the plant's datum); ``None``: the class's.
     """
 
     def __init__(self, node: Node, section: str, config_cls: type,
-                 on_change: Callable[[Any], None] | None = None) -> None:
+                 on_change: Callable[[Any], None] | None = None,
+                 defaults: Any | None = None) -> None:
         self._node = node
         self._section = section
+        self._prefix = f'{section}.' if section else ''
         self._cls = config_cls
         self._on_change = on_change
         self._types = typing.get_type_hints(config_cls)
         self._fields = {f.name: f for f in dataclasses.fields(config_cls)}
         values = {}
         for name, field in self._fields.items():
-            full = f'{section}.{name}'
+            full = self._prefix + name
+            default = field.default if defaults is None else getattr(defaults, name)
             descriptor = _descriptor(full, field, self._types[name], on_change is None)
-            param = node.declare_parameter(full, _ros_default(field.default, self._types[name]), descriptor)
+            param = node.declare_parameter(full, _ros_default(default, self._types[name]),
+                                           descriptor)
             values[name] = _from_ros(param.value)
         self.config = self._build(values)
         node.add_on_set_parameters_callback(self._validate_change)
@@ -98,11 +113,17 @@ class ConfigParameters:
     def _build(self, values: dict[str, Any]) -> Any:
         # Raises ConfigError naming the parameter: the node refuses to start on a bad
         # params file rather than running with a silently different value.
-        return from_mapping(self._cls, values, self._section)
+        try:
+            return from_mapping(self._cls, values, self._section or '@')
+        except ConfigError as err:
+            if self._section:
+                raise
+            # Top-level names: the message starts with the bare name (`left_wheel_sign: ...`).
+            raise ConfigError(str(err).removeprefix('@.')) from None
 
     def _validate_change(self, parameters: list[Parameter]) -> SetParametersResult:
-        mine = [p for p in parameters if p.name.startswith(self._section + '.')
-                and p.name[len(self._section) + 1:] in self._fields]
+        mine = [p for p in parameters if p.name.startswith(self._prefix)
+                and p.name[len(self._prefix):] in self._fields]
         if not mine:
             return SetParametersResult(successful=True)
         if self._on_change is None:
@@ -110,7 +131,7 @@ class ConfigParameters:
                                        reason=f'{mine[0].name} is read-only at run time')
         values = {n: getattr(self.config, n) for n in self._fields}
         for p in mine:
-            values[p.name[len(self._section) + 1:]] = _from_ros(p.value)
+            values[p.name[len(self._prefix):]] = _from_ros(p.value)
         try:
             new_config = self._build(values)
         except ConfigError as err:
@@ -121,15 +142,8 @@ class ConfigParameters:
 
 
 def _from_ros(value: Any) -> Any:
+    if value is None:
+        return ()  # an array parameter declared by type and never set
     if isinstance(value, (list, tuple)) or type(value).__name__ == 'array':
         return tuple(value)
     return value
-
-
-def declare_plain(node: Node, name: str, default: Any, unit: str, description: str,
-                  read_only: bool = True) -> Any:
-    """One parameter that is not part of a core config (topic names, joint names, ...)."""
-    descriptor = ParameterDescriptor(name=name, read_only=read_only,
-                                     description=f'{description} [{unit}]' if unit
-                                     else description)
-    return node.declare_parameter(name, default, descriptor).value

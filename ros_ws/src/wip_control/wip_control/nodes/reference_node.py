@@ -32,15 +32,11 @@ from wip_msgs.msg import ReferenceState as ReferenceStateMsg, WheelTorques
 
 from ..core.references import make_reference, ReferenceConfig
 from ..core.scenario import RatesConfig
-from ..core.config import ConfigError
 from .common import ClockTicker, ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import reference_to_msg
 from .diagnostics import OK, WARN
-from .parameters import ConfigParameters, declare_plain
-
-
-#: Values of ``realtime_start``.
-REALTIME_STARTS = ('first_tick', 'engaged')
+from .parameters import ConfigParameters
+from .settings import ReferenceNodeSettings
 
 
 class ReferenceNode(ControllerNode):
@@ -50,15 +46,9 @@ class ReferenceNode(ControllerNode):
         super().__init__('reference', 'reference trajectory', ('clock',), **kwargs)
         self.config = ConfigParameters(self, 'reference', ReferenceConfig).config
         self.rates = ConfigParameters(self, 'rates', RatesConfig).config
-        self.frame_id = declare_plain(self, 'frame_id', 'map', '',
-                                      'frame of the reference position')
-        self.realtime_start = declare_plain(
-            self, 'realtime_start', 'first_tick', '', "realtime: the path starts at the "
-            "node's first tick ('first_tick') or when the safety layer first sends torque "
-            "('engaged': the first /wip/wheel_torques not zeroed)")
-        if self.realtime_start not in REALTIME_STARTS:
-            raise ConfigError(f'realtime_start: {self.realtime_start!r} is not one of '
-                              f'{list(REALTIME_STARTS)}')
+        settings = ConfigParameters(self, '', ReferenceNodeSettings).config
+        self.frame_id = settings.frame_id
+        self.realtime_start = settings.realtime_start
         self.waiting = not self.lockstep and self.realtime_start == 'engaged'
         self.reference = make_reference(self.config)
         self.period = 1.0 / self.rates.control_rate

@@ -72,7 +72,6 @@ References
 from __future__ import annotations
 
 import collections
-import dataclasses
 import sys
 import time
 
@@ -83,17 +82,17 @@ from std_msgs.msg import Bool, Empty, Float64MultiArray
 from std_srvs.srv import Trigger
 from wip_msgs.msg import ArcState, MpcOutput, StateEstimate as StateEstimateMsg, WheelTorques
 
-from ..core.config import check_value, ConfigError
+from ..core.config import ConfigError
 from ..core.mixer import MixerConfig
-from ..core.mpc import MpcConfig
 from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyConfig, SafetyDecision,
                            SafetyMonitor, SHADOW, STARTING)
 from ..core.scenario import RatesConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import effort_command, estimate_from_msg, wheel_torques_to_msg
 from .diagnostics import ERROR, OK, WARN
-from .hardware_inputs import check_wheel_sign, signed_efforts
-from .parameters import ConfigParameters, declare_plain
+from .hardware_inputs import signed_efforts
+from .parameters import ConfigParameters
+from .settings import EffortCommand, MixerNodeSettings, WheelJoints, WheelSigns
 from .sync import decimation, ExactTimeSync, is_decimated_tick
 
 _INPUTS = ('yaw_torque', 'drive_torque')
@@ -119,38 +118,22 @@ class TorqueMixerNode(ControllerNode):
         self.mixer = self.parameters.config
         self.rates = ConfigParameters(self, 'rates', RatesConfig).config
         self.safety = ConfigParameters(self, 'safety', SafetyConfig).config
-        self.mpc_period = declare_plain(self, 'mpc_period', MpcConfig().sampling_period, 's',
-                                        'MPC sampling period: in lockstep a drive torque '
-                                        'is awaited at every MPC tick')
-        # The same range as the scenario's mpc.sampling_period (one declaration: MpcConfig).
-        try:
-            self.mpc_period = check_value(
-                'mpc_period', self.mpc_period, float,
-                {f.name: f for f in dataclasses.fields(MpcConfig)}['sampling_period'].metadata)
-        except ConfigError as err:
-            raise ConfigError(str(err)) from None
-        self.left_joint = declare_plain(self, 'left_joint', 'left_wheel_joint', '',
-                                        'name of the left wheel joint')
-        self.right_joint = declare_plain(self, 'right_joint', 'right_wheel_joint', '',
-                                         'name of the right wheel joint')
-        self.joints = list(declare_plain(
-            self, 'joints', [self.left_joint, self.right_joint], '',
-            'joints of the effort command, in the order of its data'))
+        settings = ConfigParameters(self, '', MixerNodeSettings).config
+        self.mpc_period = settings.mpc_period
+        joints = ConfigParameters(self, '', WheelJoints).config
+        self.left_joint, self.right_joint = joints.left_joint, joints.right_joint
+        # joints defaults to (left_joint, right_joint) as set, so renaming both is enough.
+        self.joints = list(ConfigParameters(
+            self, '', EffortCommand,
+            defaults=EffortCommand((self.left_joint, self.right_joint))).config.joints)
         if sorted(self.joints) != sorted([self.left_joint, self.right_joint]):
             raise ConfigError(f'joints: must list left_joint {self.left_joint!r} and '
                               f'right_joint {self.right_joint!r} once each, got {self.joints}')
-        try:
-            self.left_sign = check_wheel_sign('left_wheel_sign', declare_plain(
-                self, 'left_wheel_sign', 1, '1', '+1: a positive effort on the left joint '
-                'drives the robot forward; -1: backwards (the effort is the torque negated)'))
-            self.right_sign = check_wheel_sign('right_wheel_sign', declare_plain(
-                self, 'right_wheel_sign', 1, '1', 'as left_wheel_sign, for the right wheel'))
-        except ValueError as err:
-            raise ConfigError(str(err)) from err
-        effort_topic = declare_plain(self, 'effort_topic', '/effort_controller/commands', '',
-                                     'topic of the ros2_control JointGroupEffortController '
-                                     'command (std_msgs/Float64MultiArray)')
-        if not (isinstance(effort_topic, str) and effort_topic):
+        signs = ConfigParameters(self, '', WheelSigns).config
+        self.left_sign = float(signs.left_wheel_sign)
+        self.right_sign = float(signs.right_wheel_sign)
+        effort_topic = settings.effort_topic
+        if not effort_topic:
             raise ConfigError(f'effort_topic: must be a topic name, got {effort_topic!r}')
         self.control_period = 1.0 / self.rates.control_rate
         self.every = decimation(self.mpc_period, self.control_period)

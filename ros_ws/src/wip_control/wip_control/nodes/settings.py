@@ -1,0 +1,199 @@
+"""Node-level parameters of the control nodes, and which node declares which groups.
+
+The core's config dataclasses hold the control parameters; the small frozen dataclasses
+here hold what only a node has (clock mode, joint names, wheel signs, IMU mounting, the
+GPS datum, ...), declared with the same :func:`~wip_control.core.config.param` so the
+range checks come from the declaration. :data:`NODES` is the registry: executable ->
+``(prefix, dataclass)`` groups it declares (prefix ``''``: names without a section).
+No rclpy import here: the parameter reference (``ros2 run wip_tools parameters``,
+docs/parameters.md) is generated from this module.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from ..core.arc import ArcConfig
+from ..core.config import param
+from ..core.control_step import initial_alpha
+from ..core.eso import EsoConfig
+from ..core.mixer import MixerConfig
+from ..core.mpc import MpcConfig
+from ..core.params import WipParameters
+from ..core.position import PositionConfig
+from ..core.references import ReferenceConfig
+from ..core.safety import SafetyConfig
+from ..core.scenario import RatesConfig
+from ..core.sensors import SensorConfig
+from ..core.trajectory_generator import TrajectoryGeneratorConfig
+
+CLOCK_MODES = ('lockstep', 'realtime')
+#: The nodes are drop-in controllers for a real base; the graph runner sets 'lockstep'.
+DEFAULT_CLOCK_MODE = 'realtime'
+POSITION_SOURCES = ('gps', 'odometry')
+REALTIME_STARTS = ('first_tick', 'engaged')
+#: Unit of a string parameter (a name, a path): its range is 'any' unless it has choices.
+TEXT = '-'
+
+
+def like(cls: type, name: str, default: Any = None, description: str | None = None) -> Any:
+    """A field with the unit and range of ``cls.name`` (one declaration of a range)."""
+    field = {f.name: f for f in dataclasses.fields(cls)}[name]
+    metadata = dict(field.metadata)
+    if description is not None:
+        metadata['description'] = description
+    return dataclasses.field(default=field.default if default is None else default,
+                             metadata=metadata)
+
+
+@dataclasses.dataclass(frozen=True)
+class ControllerNodeSettings:
+    """Declared by every controller node (nodes/common.py ControllerNode)."""
+
+    use_intra_process_comms: bool = param(
+        True, '1', "composed process: messages to another node of the same process skip "
+        "DDS unless someone outside the process subscribes the topic (as rclcpp's "
+        'intra-process communication); no effect on a node alone in its process')
+    clock_mode: str = param(DEFAULT_CLOCK_MODE, TEXT, "'lockstep' (deterministic simulation "
+                            "on /clock, exact-time input sets) or 'realtime' (latest inputs, "
+                            'timers)', choices=CLOCK_MODES)
+    diagnostics_period: float = param(1.0, 's', 'period of the /diagnostics messages (wall '
+                                      'time); 0: none', minimum=0.0, maximum=3600.0)
+    max_stamp_lead: float = param(
+        0.5, 's', 'real time: an input stamped more than this ahead of the node clock is '
+        'refused (inputs are taken newest stamp first, so one far-future stamp would block '
+        'the stream until the clock caught up)', minimum=0.0, exclusive_minimum=True,
+        maximum=3600.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class WheelJoints:
+    """Names of the wheel joints in /joint_states and in the effort command."""
+
+    left_joint: str = param('left_wheel_joint', TEXT, 'name of the left wheel joint')
+    right_joint: str = param('right_wheel_joint', TEXT, 'name of the right wheel joint')
+
+
+@dataclasses.dataclass(frozen=True)
+class WheelSigns:
+    """Direction conventions of the wheel joints of a real base."""
+
+    left_wheel_sign: int = param(1, '1', '+1: the left joint angle (and a positive effort) '
+                                 'turns the wheel so that the robot rolls forward; -1: the '
+                                 'joint turns the other way', choices=(1, -1))
+    right_wheel_sign: int = param(1, '1', 'as left_wheel_sign, for the right wheel',
+                                  choices=(1, -1))
+
+
+@dataclasses.dataclass(frozen=True)
+class ImuMounting:
+    """How the IMU is mounted on base_link."""
+
+    imu_mounting_rpy: tuple[float, float, float] = param(
+        (0.0, 0.0, 0.0), 'rad', 'rotation from base_link to the IMU frame: roll, pitch, yaw '
+        'about the fixed x, y, z axes of base_link (a URDF joint rpy)', minimum=-10.0,
+        maximum=10.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class EffortCommand:
+    """Joint order of the ros2_control effort command."""
+
+    joints: tuple[str, ...] = param(
+        ('left_wheel_joint', 'right_wheel_joint'), TEXT, 'joints of the effort command (and '
+        'of /joint_states for the stand-in base), in the order of its data; must list '
+        'left_joint and right_joint once each', max_length=2)
+
+
+@dataclasses.dataclass(frozen=True)
+class DatumConfig:
+    """Map origin of the NavSatFix messages (``datum.*``)."""
+
+    latitude: float = like(SensorConfig, 'gps_datum_latitude',
+                           description='latitude of the map origin')
+    longitude: float = like(SensorConfig, 'gps_datum_longitude')
+    altitude: float = like(SensorConfig, 'gps_datum_altitude')
+
+    @classmethod
+    def of(cls, sensors: SensorConfig) -> 'DatumConfig':
+        """The datum of a scenario's sensors section."""
+        return cls(sensors.gps_datum_latitude, sensors.gps_datum_longitude,
+                   sensors.gps_datum_altitude)
+
+
+@dataclasses.dataclass(frozen=True)
+class EsoNodeSettings:
+    """Node-level settings of the ESO node."""
+
+    encoders_relative_to_body: bool = like(SensorConfig, 'encoders_relative_to_body')
+    gps_period: float = param(1.0 / SensorConfig().gps_rate, 's', 'period of the GPS fixes '
+                              '(lockstep: a fix is expected every round(gps_period / '
+                              'eso.sample_period) samples)', minimum=0.0,
+                              exclusive_minimum=True, maximum=3600.0)
+    position_source: str = param('gps', TEXT, "'gps': NavSatFix on /gps/fix about the datum; "
+                                 "'odometry': nav_msgs/Odometry on /odom (real time only)",
+                                 choices=POSITION_SOURCES)
+    frame_id: str = param('map', TEXT, 'frame of the planar position x, y')
+
+
+@dataclasses.dataclass(frozen=True)
+class ArcNodeSettings:
+    """Node-level settings of the ARC node."""
+
+    alpha_initial: float = param(
+        initial_alpha(WipParameters(), EsoConfig().yaw_input_gain_scale), 'kg m^2',
+        'initial adaptive estimate of alpha = 1/g1 (paper: 1/g1_hat, eq. (13)); projected '
+        'into [alpha_min, alpha_max]; default: that of the default model and ESO',
+        minimum=0.0, exclusive_minimum=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class MpcNodeSettings:
+    """Node-level settings of the MPC node."""
+
+    max_input_age: float = param(0.25, 's', 'realtime: inputs older than this make the MPC '
+                                 'publish tau_v = 0 with status INPUT_INVALID', minimum=0.0,
+                                 exclusive_minimum=True, maximum=3600.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class MixerNodeSettings:
+    """Node-level settings of the torque mixer node."""
+
+    mpc_period: float = like(MpcConfig, 'sampling_period', description='MPC sampling period '
+                             '(= mpc.sampling_period): in lockstep a drive torque is awaited '
+                             'at every MPC tick')
+    effort_topic: str = param('/effort_controller/commands', TEXT, 'topic of the '
+                              'ros2_control JointGroupEffortController command '
+                              '(std_msgs/Float64MultiArray)')
+
+
+@dataclasses.dataclass(frozen=True)
+class ReferenceNodeSettings:
+    """Node-level settings of the reference node."""
+
+    frame_id: str = param('map', TEXT, 'frame of the reference position')
+    realtime_start: str = param('first_tick', TEXT, "realtime: the path starts at the node's "
+                                "first tick ('first_tick') or when the safety layer first "
+                                "sends torque ('engaged': the first /wip/wheel_torques not "
+                                'zeroed)', choices=REALTIME_STARTS)
+
+
+_BASE = (('', ControllerNodeSettings),)
+
+#: executable -> the (prefix, dataclass) groups it declares, in declaration order.
+NODES: dict[str, tuple[tuple[str, type], ...]] = {
+    'reference': (*_BASE, ('reference', ReferenceConfig), ('rates', RatesConfig),
+                  ('', ReferenceNodeSettings)),
+    'eso': (*_BASE, ('eso', EsoConfig), ('position', PositionConfig),
+            ('model', WipParameters), ('', EsoNodeSettings), ('', WheelJoints),
+            ('', WheelSigns), ('', ImuMounting), ('datum', DatumConfig)),
+    'trajectory_generator': (*_BASE, ('trajectory_generator', TrajectoryGeneratorConfig)),
+    'arc': (*_BASE, ('arc', ArcConfig), ('rates', RatesConfig), ('', ArcNodeSettings)),
+    'mpc': (*_BASE, ('mpc', MpcConfig), ('model', WipParameters), ('mixer', MixerConfig),
+            ('rates', RatesConfig), ('', MpcNodeSettings)),
+    'torque_mixer': (*_BASE, ('mixer', MixerConfig), ('rates', RatesConfig),
+                     ('safety', SafetyConfig), ('', MixerNodeSettings), ('', WheelJoints),
+                     ('', EffortCommand), ('', WheelSigns)),
+}

@@ -1,0 +1,100 @@
+"""Parameters of the simulator nodes (plant, stand-in base) and the registry of both.
+
+Declared like every node parameter (:mod:`wip_control.nodes.settings`); no rclpy import,
+so the parameter reference is generated from :data:`NODES`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from wip_control.core.config import param
+from wip_control.nodes.settings import (CLOCK_MODES, DatumConfig, EffortCommand, ImuMounting,
+                                        TEXT, WheelJoints, WheelSigns)
+from wip_control.core.scenario import Scenario
+
+
+
+def _scenario_file():
+    return param('', TEXT, "scenario YAML file (core.scenario: plant, initial state, sensors, "
+                 "rates); '': the paper's Section V")
+
+
+@dataclasses.dataclass(frozen=True)
+class PlantSettings:
+    """Node-level settings of the plant (the scenario file holds the simulation)."""
+
+    scenario_file: str = _scenario_file()
+    clock_mode: str = param('lockstep', TEXT, "'lockstep': publish /clock and step when the "
+                            "wheel torques of the current tick arrived; 'realtime': step on "
+                            'a wall timer with the latest torques', choices=CLOCK_MODES)
+    map_frame: str = param('map', TEXT, 'frame of the ground truth position')
+    imu_frame: str = param('imu_link', TEXT, 'frame_id of /imu/data')
+    gps_frame: str = param('gps_link', TEXT, 'frame_id of /gps/fix')
+    autostart: bool = param(True, '1', 'start by itself once the endpoints are matched; '
+                            'false: wait for the ~/start service')
+    max_torque_age: float = param(0.05, 's', 'realtime: wheel torques older than this (stamp '
+                                  'against the wall clock) are replaced by zero', minimum=0.0,
+                                  exclusive_minimum=True, maximum=3600.0)
+    stats_file: str = param('', TEXT, 'JSON file of per-tick timings written at exit; '
+                            'empty: none')
+
+
+@dataclasses.dataclass(frozen=True)
+class StartHandshake:
+    """Matched subscriptions the plant waits for before its first step (``start.*``)."""
+
+    expected_sensor_subscribers: int = param(1, '1', 'matched subscriptions each sensor '
+                                             'topic needs before the start', minimum=0,
+                                             maximum=100)
+    expected_ground_truth_subscribers: int = param(0, '1', 'matched subscriptions '
+                                                   '/wip/ground_truth needs before the start',
+                                                   minimum=0, maximum=100)
+    expected_clock_subscribers: int = param(0, '1', 'matched subscriptions /clock needs '
+                                            'before the start (lockstep)', minimum=0,
+                                            maximum=100)
+
+
+@dataclasses.dataclass(frozen=True)
+class StandinSettings:
+    """Node-level settings of the stand-in base."""
+
+    scenario_file: str = _scenario_file()
+    imu_frame: str = param('imu_link', TEXT, 'frame_id of /imu/data')
+    gps_frame: str = param('gps_link', TEXT, 'frame_id of /gps/fix')
+    odom_frame: str = param('odom', TEXT, 'frame_id of /odom')
+    publish_odometry: bool = param(False, '1', 'also publish nav_msgs/Odometry on /odom')
+    hold_until_engaged: bool = param(True, '1', 'frozen at the initial state until the first '
+                                     'non-zero command (someone holds the robot)')
+    exit_after_fall: float = param(1.0, 's', 'keep publishing this long after a fall, then '
+                                   'exit with code 3', minimum=0.0, maximum=3600.0)
+    duration: float = param(0.0, 's', 'exit with code 0 after this long from the release; 0: '
+                            'until SIGINT', minimum=0.0, maximum=1e6)
+    truth_period: float = param(0.02, 's', 'sampling of the ground truth in the stats file',
+                                minimum=0.0, exclusive_minimum=True, maximum=60.0)
+    stats_file: str = param('', TEXT, 'JSON statistics written at exit; empty: none')
+    sensor_bunch: int = param(1, '1', 'deliver the encoder and IMU samples in bunches of '
+                              'this many (each with its own sample stamp), as a USB or CAN '
+                              'bridge that buffers them: every N-th period the last N at '
+                              'once; 1: each when taken', minimum=1, maximum=10)
+
+
+@dataclasses.dataclass(frozen=True)
+class CommandTiming:
+    """The stand-in's expected command period (its default is the scenario's)."""
+
+    expected_command_period: float = param(
+        Scenario().control_period, 's', "period of the controllers' commands (deadline "
+        "statistics); default: the scenario file's control period", minimum=0.0,
+        exclusive_minimum=True, maximum=60.0)
+
+
+#: executable -> the (prefix, dataclass) groups it declares. The datum (and the stand-in's
+#: expected_command_period) default to the scenario file's values at run time.
+NODES: dict[str, tuple[tuple[str, type], ...]] = {
+    'plant': (('', PlantSettings), ('', WheelJoints), ('datum', DatumConfig),
+              ('start', StartHandshake)),
+    'standin_base': (('', StandinSettings), ('', WheelJoints), ('', EffortCommand),
+                     ('', WheelSigns), ('', ImuMounting), ('', CommandTiming),
+                     ('datum', DatumConfig)),
+}
