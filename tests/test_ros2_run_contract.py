@@ -97,6 +97,8 @@ TOOLS = {
     'check_base': ('wip_bringup', 'check_base'),
     # Writes the Foxglove layout files (foxglove/); no scripts/ front door.
     'foxglove_layout': ('wip_viewer', None),
+    # The parameter reference; its front door is scripts/simulate --list-parameters.
+    'parameters': ('wip_tools', None),
 }
 #: scripts/ commands that are not a tool of a package: set-up, the demo (run_graph then
 #: report) and the test runner.

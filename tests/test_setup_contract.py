@@ -67,6 +67,7 @@ EXECUTABLES = {
         'bench': 'wip_tools.console:bench',
         'campaign': 'wip_tools.console:campaign',
         'soak': 'wip_tools.console:soak',
+        'parameters': 'wip_tools.console:parameters',
     },
     'wip_viewer': {
         'viewer': 'wip_viewer.viewer_node:main',

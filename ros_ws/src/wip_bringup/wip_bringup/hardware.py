@@ -233,8 +233,8 @@ def hardware_parameters(scenario: Scenario, recorder: Mapping[str, Any] | None =
     :func:`~wip_bringup.params_files.graph_parameters` in real time, no plant; the
     reference starts when the safety layer engages; with ``heartbeat``, /wip/estop is the
     mixer's heartbeat (``safety.max_estop_age``)."""
-    data = graph_parameters(scenario, 'realtime', None, joints, recorder=recorder)
-    del data['plant']
+    data = graph_parameters(scenario, 'realtime', None, joints, recorder=recorder,
+                            plant=False)
     data['reference']['ros__parameters']['realtime_start'] = 'engaged'
     if heartbeat:
         mixer = data['torque_mixer']['ros__parameters']

@@ -26,8 +26,8 @@ tuples as lists of their element type.
 Node to sections (ROS prefix <- scenario key)
 --------------------------------------------
 ========================  =================================================================
-``plant``                 scenario_file, clock_mode, datum.* <- sensors.gps_datum_*,
-                          left_joint, right_joint
+``plant``                 scenario_file, clock_mode, left_joint, right_joint (the datum
+                          and all the simulation come from the scenario file)
 ``reference``             reference <- reference, rates <- rates
 ``eso``                   eso <- eso, position <- position, model <-
                           controller_model.parameters; encoders_relative_to_body <-
@@ -36,8 +36,8 @@ Node to sections (ROS prefix <- scenario key)
 ``trajectory_generator``  trajectory_generator <- trajectory_generator
 ``arc``                   arc <- arc, rates <- rates, alpha_initial =
                           core.runner.initial_alpha(scenario)
-``mpc``                   mpc <- mpc, model <- controller_model.parameters, mixer <- mixer,
-                          rates <- rates
+``mpc``                   mpc <- mpc, model <- controller_model.parameters,
+                          mixer.max_wheel_torque <- mixer.max_wheel_torque, rates <- rates
 ``torque_mixer``          mixer <- mixer, rates <- rates, mpc_period = mpc.sampling_period,
                           left_joint, right_joint, joints
 ``recorder`` (optional)   output, topics, compression, discovery_period
@@ -112,7 +112,8 @@ def graph_parameters(scenario: Scenario, clock_mode: str = 'lockstep',
                      scenario_path: str | pathlib.Path | None = None,
                      joints: tuple[str, str] = DEFAULT_JOINTS,
                      plant_extra: Mapping[str, Any] | None = None,
-                     recorder: Mapping[str, Any] | None = None) -> dict[str, dict]:
+                     recorder: Mapping[str, Any] | None = None,
+                     plant: bool = True) -> dict[str, dict]:
     """``{node_name: {'ros__parameters': {...}}}`` of every node of a graph run.
 
     Parameters
@@ -124,6 +125,7 @@ def graph_parameters(scenario: Scenario, clock_mode: str = 'lockstep',
     joints : (left, right) wheel joint names.
     plant_extra : more plant parameters (start handshake, stats file, ...).
     recorder : parameters of a ``recorder`` node; ``None``: no recorder section.
+    plant : include the plant's section (false: a real base, hardware mode).
     """
     if clock_mode not in CLOCK_MODES:
         raise ValueError(f'clock_mode: {clock_mode!r} is not one of {list(CLOCK_MODES)}')
@@ -151,8 +153,8 @@ def graph_parameters(scenario: Scenario, clock_mode: str = 'lockstep',
             'trajectory_generator': config_section(scenario.trajectory_generator)},
         'arc': {'arc': config_section(scenario.arc), 'rates': rates,
                 'alpha_initial': float(initial_alpha(scenario))},
-        'mpc': {'mpc': config_section(scenario.mpc), 'model': model, 'mixer': mixer,
-                'rates': rates},
+        'mpc': {'mpc': config_section(scenario.mpc), 'model': model,
+                'mixer': {'max_wheel_torque': mixer['max_wheel_torque']}, 'rates': rates},
         'torque_mixer': {'mixer': mixer, 'rates': rates,
                          'mpc_period': float(scenario.mpc.sampling_period),
                          'left_joint': left, 'right_joint': right,
@@ -164,11 +166,11 @@ def graph_parameters(scenario: Scenario, clock_mode: str = 'lockstep',
         if lockstep:
             parameters['use_sim_time'] = True
         out[name] = {'ros__parameters': parameters}
-    plant = {'scenario_file': '' if scenario_path is None else str(scenario_path),
-             'clock_mode': clock_mode, 'left_joint': left, 'right_joint': right,
-             'datum': dict(datum)}
-    plant.update(plant_extra or {})
-    out['plant'] = {'ros__parameters': plant}
+    if plant:
+        parameters = {'scenario_file': '' if scenario_path is None else str(scenario_path),
+                      'clock_mode': clock_mode, 'left_joint': left, 'right_joint': right,
+                      **(plant_extra or {})}
+        out['plant'] = {'ros__parameters': parameters}
     if recorder is not None:
         parameters = dict(recorder)
         if lockstep:

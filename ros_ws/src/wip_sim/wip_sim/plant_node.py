@@ -90,7 +90,7 @@ from wip_control.nodes.common import run_simulator_node, stamp_to_ns
 from wip_control.nodes.conversions import (body_rates_from_euler, quaternion_from_euler,
                                            wheel_torques_from_msg)
 from wip_control.nodes.parameters import ConfigParameters
-from wip_control.nodes.settings import DatumConfig, WheelJoints
+from wip_control.nodes.settings import WheelJoints
 
 from .settings import PlantSettings, StartHandshake
 
@@ -149,10 +149,9 @@ class PlantNode(Node):
         map_frame, imu_frame, gps_frame = (settings.map_frame, settings.imu_frame,
                                            settings.gps_frame)
         sensors_config = scenario.sensors
-        # The datum defaults to the scenario's (sensors.gps_datum_*).
-        datum = ConfigParameters(self, 'datum', DatumConfig,
-                                 defaults=DatumConfig.of(scenario.sensors)).config
-        self.datum = (datum.latitude, datum.longitude, datum.altitude)
+        # The datum is the scenario's (sensors.gps_datum_*): one source, no datum.* here.
+        self.datum = (sensors_config.gps_datum_latitude, sensors_config.gps_datum_longitude,
+                      sensors_config.gps_datum_altitude)
         autostart = settings.autostart
         start = ConfigParameters(self, 'start', StartHandshake).config
         self.expected = {'sensors': start.expected_sensor_subscribers,

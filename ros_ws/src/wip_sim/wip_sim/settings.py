@@ -89,11 +89,11 @@ class CommandTiming:
         exclusive_minimum=True, maximum=60.0)
 
 
-#: executable -> the (prefix, dataclass) groups it declares. The datum (and the stand-in's
-#: expected_command_period) default to the scenario file's values at run time.
+#: executable -> the (prefix, dataclass) groups it declares. The stand-in's datum and
+#: expected_command_period default to the scenario file's values at run time; the plant
+#: takes its datum from the scenario file only.
 NODES: dict[str, tuple[tuple[str, type], ...]] = {
-    'plant': (('', PlantSettings), ('', WheelJoints), ('datum', DatumConfig),
-              ('start', StartHandshake)),
+    'plant': (('', PlantSettings), ('', WheelJoints), ('start', StartHandshake)),
     'standin_base': (('', StandinSettings), ('', WheelJoints), ('', EffortCommand),
                      ('', WheelSigns), ('', ImuMounting), ('', CommandTiming),
                      ('datum', DatumConfig)),

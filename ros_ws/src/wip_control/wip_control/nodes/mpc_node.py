@@ -54,7 +54,6 @@ from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
 
 from ..core.control_step import DriveStage
-from ..core.mixer import MixerConfig
 from ..core.mpc import MpcConfig
 from ..core.params import WipParameters
 from ..core.scenario import RatesConfig
@@ -63,7 +62,7 @@ from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc
                           mpc_to_msg, wheel_torques_from_msg)
 from .diagnostics import OK, WARN
 from .parameters import ConfigParameters
-from .settings import MpcNodeSettings
+from .settings import MpcNodeSettings, WheelTorqueLimit
 from .sync import decimation, ExactTimeSync, is_decimated_tick
 
 _INPUTS = ('state_estimate', 'velocity_command', 'yaw_torque')
@@ -77,7 +76,7 @@ class MpcNode(ControllerNode):
         self.config = ConfigParameters(self, 'mpc', MpcConfig).config
         self.model = ConfigParameters(self, 'model', WipParameters).config
         self.max_wheel_torque = ConfigParameters(self, 'mixer',
-                                                 MixerConfig).config.max_wheel_torque
+                                                 WheelTorqueLimit).config.max_wheel_torque
         self.rates = ConfigParameters(self, 'rates', RatesConfig).config
         self.max_input_age = ConfigParameters(self, '', MpcNodeSettings).config.max_input_age
         self.sampling_period = self.config.sampling_period

@@ -158,6 +158,14 @@ class MpcNodeSettings:
 
 
 @dataclasses.dataclass(frozen=True)
+class WheelTorqueLimit:
+    """The one mixer value the MPC needs: τmax, which bounds its drive torque
+    (2 τmax − |τω|, core.mixer.drive_torque_limit)."""
+
+    max_wheel_torque: float = like(MixerConfig, 'max_wheel_torque')
+
+
+@dataclasses.dataclass(frozen=True)
 class MixerNodeSettings:
     """Node-level settings of the torque mixer node."""
 
@@ -191,7 +199,7 @@ NODES: dict[str, tuple[tuple[str, type], ...]] = {
             ('', WheelSigns), ('', ImuMounting), ('datum', DatumConfig)),
     'trajectory_generator': (*_BASE, ('trajectory_generator', TrajectoryGeneratorConfig)),
     'arc': (*_BASE, ('arc', ArcConfig), ('rates', RatesConfig), ('', ArcNodeSettings)),
-    'mpc': (*_BASE, ('mpc', MpcConfig), ('model', WipParameters), ('mixer', MixerConfig),
+    'mpc': (*_BASE, ('mpc', MpcConfig), ('model', WipParameters), ('mixer', WheelTorqueLimit),
             ('rates', RatesConfig), ('', MpcNodeSettings)),
     'torque_mixer': (*_BASE, ('mixer', MixerConfig), ('rates', RatesConfig),
                      ('safety', SafetyConfig), ('', MixerNodeSettings), ('', WheelJoints),
