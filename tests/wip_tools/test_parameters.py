@@ -134,3 +134,30 @@ def test_every_declared_parameter_is_registered_and_vice_versa(tmp_path):
                 'registered, not declared:', sorted(registered - declared))
     finally:
         rclpy.shutdown(context=context)
+
+
+@pytest.mark.parametrize('executable, overrides, message', [
+    ('standin_base', {'sensor_bunch': 11}, 'sensor_bunch: must be <= 10, got 11'),
+    ('replayer', {'bag': 'x', 'rate': -1.0}, 'rate: must be > 0.0, got -1.0'),
+    ('eso', {'left_wheel_sign': 2}, 'left_wheel_sign: must be 1 or -1, got 2'),
+    ('reference', {'realtime_start': 'later'},
+     "realtime_start: 'later' is not one of ['first_tick', 'engaged']"),
+    ('recorder', {'compression': 'gzip'}, "compression: 'gzip' is not one of"),
+])
+def test_a_value_out_of_its_declared_range_is_refused_naming_the_parameter(
+        executable, overrides, message, tmp_path):
+    # The range checks come from the declarations, also where rclpy's descriptor range
+    # would have refused the value first (integers: sensor_bunch).
+    from rclpy.parameter import Parameter
+    from wip_control.core.config import ConfigError
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    cls = _node_classes()[executable]
+    values = {'output': str(tmp_path / 'bag')} if executable == 'recorder' else {}
+    try:
+        with pytest.raises(ConfigError) as caught:
+            cls(context=context, parameter_overrides=[
+                Parameter(k, value=v) for k, v in {**values, **overrides}.items()])
+        assert str(caught.value).startswith(message), str(caught.value)
+    finally:
+        rclpy.shutdown(context=context)

@@ -18,10 +18,11 @@ from typing import Any, Callable
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ..core.config import ConfigError, from_mapping
+from ..core.config import check_value, ConfigError, from_mapping
 
 
 def _ros_default(value: Any, field_type: Any) -> Any:
@@ -104,8 +105,16 @@ class ConfigParameters:
             full = self._prefix + name
             default = field.default if defaults is None else getattr(defaults, name)
             descriptor = _descriptor(full, field, self._types[name], on_change is None)
-            param = node.declare_parameter(full, _ros_default(default, self._types[name]),
-                                           descriptor)
+            try:
+                param = node.declare_parameter(full, _ros_default(default, self._types[name]),
+                                               descriptor)
+            except InvalidParameterValueException:
+                # rclpy refused an override outside the descriptor's range: say it in the
+                # words of from_mapping (`port: must be <= 65535, got 70000`).
+                override = getattr(node, '_parameter_overrides', {}).get(full)
+                check_value(full, _from_ros(getattr(override, 'value', None)),
+                            self._types[name], field.metadata)
+                raise
             values[name] = _from_ros(param.value)
         self.config = self._build(values)
         node.add_on_set_parameters_callback(self._validate_change)
