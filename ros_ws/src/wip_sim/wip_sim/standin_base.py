@@ -87,7 +87,7 @@ from std_msgs.msg import Float64MultiArray
 
 from wip_control.core.config import ConfigError
 from wip_control.core.disturbances import Disturbances
-from wip_control.core.model import PHI, THETA, V, X, Y
+from wip_control.core.model import OMEGA, PHI, THETA, V, X, Y
 from wip_control.core.plant import Plant
 from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_state
@@ -462,7 +462,7 @@ class StandinBase(Node):
             q = quaternion_from_euler(0.0, 0.0, state[PHI])
             o = odom.pose.pose.orientation
             o.x, o.y, o.z, o.w = q
-            odom.twist.twist.linear.x, odom.twist.twist.angular.z = v, omega
+            odom.twist.twist.linear.x, odom.twist.twist.angular.z = state[V], state[OMEGA]
             self.odom_pub.publish(odom)
 
     # -- reporting ------------------------------------------------------------------------
