@@ -25,6 +25,14 @@ from rclpy.parameter import Parameter
 from ..core.config import check_value, ConfigError, from_mapping
 
 
+class OutOfRangeError(ConfigError, InvalidParameterValueException):
+    """An override outside the declared range: a ConfigError (one line naming the
+    parameter) that is also the exception rclpy raises for it."""
+
+    def __init__(self, message: str) -> None:
+        ConfigError.__init__(self, message)
+
+
 def _ros_default(value: Any, field_type: Any) -> Any:
     # The default's Python type fixes the ROS parameter type (rclpy ignores the
     # descriptor's type), so a float field with an integer default must become 0.0.
@@ -112,8 +120,11 @@ class ConfigParameters:
                 # rclpy refused an override outside the descriptor's range: say it in the
                 # words of from_mapping (`port: must be <= 65535, got 70000`).
                 override = getattr(node, '_parameter_overrides', {}).get(full)
-                check_value(full, _from_ros(getattr(override, 'value', None)),
-                            self._types[name], field.metadata)
+                try:
+                    check_value(full, _from_ros(getattr(override, 'value', None)),
+                                self._types[name], field.metadata)
+                except ConfigError as err:
+                    raise OutOfRangeError(str(err)) from None
                 raise
             values[name] = _from_ros(param.value)
         self.config = self._build(values)
