@@ -217,7 +217,8 @@ def markdown() -> str:
              'wip_sim.settings, wip_bag.settings, wip_viewer.settings and the scenario '
              'dataclasses); a test checks that this file equals the generated text. Unit `-`: '
              'a string; `1`: dimensionless. A node refuses to start on a value outside the '
-             'range, naming the parameter.', '',
+             'range, naming the parameter. `ros2 run wip_control controllers` runs the six '
+             'controller nodes in one process, each with its own parameters below.', '',
              '## Nodes', '']
     for executable in sorted(registry):
         lines += [f'### {executable}', '', f'`ros2 run {node_package(executable)} {executable}`',
