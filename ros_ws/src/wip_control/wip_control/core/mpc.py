@@ -173,7 +173,7 @@ class MpcConfig:
         'not extrapolated, while the small transients of model error are held as before',
         minimum=0.0)
     speed_preview_time: float = param(
-        1.0, 's', 'the speed reference over the horizon continues the trend of υd (its '
+        0.5, 's', 'the speed reference over the horizon continues the trend of υd (its '
         'change since the last tick, low-passed) for this long, then holds: the MPC '
         'starts braking before the command has dropped (it lags a constant-υd reference '
         'by about a second). 0: υd held over the horizon, as in (20)', minimum=0.0,
