@@ -172,3 +172,41 @@ def test_exact_sync_handles_every_order_of_two_interleaved_stamps():
         stamps = [s for s, _ in out]
         assert 2 in stamps and stamps == sorted(stamps)
         assert all(set(v.values()) == {s} for s, v in out)
+
+
+def test_latest_sync_never_pairs_an_old_encoder_sample_with_a_new_imu_sample():
+    """After a stall the queued messages come one stream first: the oldest queued encoder
+    sample must wait for its newer ones instead of pairing with the newest IMU sample."""
+    sets = []
+    sync = LatestSync(('joint_states', 'imu'), lambda s, v: sets.append((s, dict(v))),
+                      triggers=('joint_states', 'imu'), required=('joint_states', 'imu'),
+                      max_skew_ns=5_000_000)
+    ms = 1_000_000
+    sync.add('joint_states', 0, 'j0')
+    sync.add('imu', 0, 'i0')
+    assert sets == [(0, {'joint_states': 'j0', 'imu': 'i0'})]
+    # A 100 ms stall; then the IMU's queue is taken first, then the encoders'.
+    for k in range(80, 101, 5):
+        sync.add('imu', k * ms, f'i{k}')
+    for k in range(80, 101, 5):
+        sync.add('joint_states', k * ms, f'j{k}')
+    # Every emitted set has stamps at most one period apart: (95, 100) then (100, 100)
+    # are allowed; (80 encoder, 100 IMU) never.
+    for stamp, values in sets[1:]:
+        j, i = int(values['joint_states'][1:]), int(values['imu'][1:])
+        assert abs(j - i) <= 5 and stamp == max(j, i) * ms
+    assert sets[1:] == [(100 * ms, {'joint_states': 'j95', 'imu': 'i100'})]
+    assert sync.dropped['skewed'] == 3    # j80, j85, j90 waited for a newer sample
+    sync.add('imu', 105 * ms, 'i105')     # the streams interleave again
+    assert sets[-1] == (105 * ms, {'joint_states': 'j100', 'imu': 'i105'})
+    # Without the bound (the old behaviour) the first set after the stall paired the
+    # oldest encoder sample with the newest IMU sample.
+    old = []
+    plain = LatestSync(('joint_states', 'imu'), lambda s, v: old.append(dict(v)),
+                       triggers=('joint_states', 'imu'), required=('joint_states', 'imu'))
+    plain.add('joint_states', 0, 'j0')
+    plain.add('imu', 0, 'i0')
+    for k in range(80, 101, 5):
+        plain.add('imu', k * ms, f'i{k}')
+    plain.add('joint_states', 80 * ms, 'j80')
+    assert old[-1] == {'joint_states': 'j80', 'imu': 'i100'}

@@ -137,8 +137,11 @@ class EsoNode(ControllerNode):
             self.sync = ExactTimeSync(_SENSORS, self._update, required=self._required,
                                       gate=self._torques_ready)
         else:
+            # Encoder and IMU samples of one set at most one sample period apart (see
+            # LatestSync.max_skew_ns: a burst after a stall must not pair old with new).
             self.sync = LatestSync(_SENSORS, self._update, triggers=('joint_states', 'imu'),
-                                   required=('joint_states', 'imu'))
+                                   required=('joint_states', 'imu'),
+                                   max_skew_ns=round(self.sample_period * 1e9))
 
         self.publisher = self.create_publisher(StateEstimateMsg, '/wip/state_estimate',
                                                RELIABLE_QOS)

@@ -173,10 +173,17 @@ class LatestSync:
         each arrival of that input; the ESO uses two, so it updates once per sensor period
         whichever of the IMU and encoder messages comes last).
     required : inputs that must have arrived at least once before any call.
+    max_skew_ns : largest difference [ns] between the trigger inputs' stamps in one call
+        (None: any). A trigger older than the newest by more waits for its next message
+        (counted ``skewed``): after a stall the queued messages of two streams are taken
+        one stream first, and pairing the oldest queued encoder sample with the newest IMU
+        sample gave the observer a position 100 ms old at a new time (the speed estimate
+        fell to 0, then peaked at 5× the speed; the MPC stepped by its whole Δτ).
     """
 
     def __init__(self, names: Iterable[str], callback: SetCallback, *,
-                 triggers: Iterable[str], required: Iterable[str] = ()) -> None:
+                 triggers: Iterable[str], required: Iterable[str] = (),
+                 max_skew_ns: int | None = None) -> None:
         self.names = tuple(names)
         self.triggers = tuple(triggers)
         self.required = tuple(required)
@@ -185,6 +192,7 @@ class LatestSync:
             raise ValueError(f'LatestSync: triggers {self.triggers} and required '
                              f'{self.required} must be non-empty/among {self.names}')
         self._callback = callback
+        self.max_skew_ns = max_skew_ns
         self._values: dict[str, Any] = {}
         #: Stamp [ns] of the latest value of each input.
         self.stamps: dict[str, int] = {}
@@ -209,6 +217,13 @@ class LatestSync:
         if len(self._fresh) < len(self.triggers) or not all(
                 n in self._values for n in self.required):
             return False
+        if self.max_skew_ns is not None and len(self.triggers) > 1:
+            newest = max(self.stamps[n] for n in self.triggers)
+            behind = [n for n in self.triggers if newest - self.stamps[n] > self.max_skew_ns]
+            if behind:
+                self._fresh.difference_update(behind)
+                self.dropped['skewed'] += 1
+                return False
         self._fresh.clear()
         self.emitted += 1
         self._callback(max(self.stamps[n] for n in self.triggers), dict(self._values))
