@@ -108,7 +108,8 @@ def one_run(directory: pathlib.Path, path: str, load: str, index: int, seconds: 
     error = distance_to_path(path, truth['x'][late], truth['y'][late])
     max_error = float(error.max()) if error.size else math.inf
     rms_error = float(np.sqrt(np.mean(error ** 2))) if error.size else math.inf
-    latency = run.summary()['sensor_to_command_latency_ms'] or {}
+    summary = run.summary()
+    latency = summary['sensor_to_command_latency_ms'] or {}
     faults = sum(1 for e in run.result.safety_events if e['state'] == 'FAULT'
                  and e['t'] < (run.result.wall_time_s or math.inf) - 2.0)
     simulated = float(stats.get('sim_time_s', 0.0))
@@ -124,7 +125,7 @@ def one_run(directory: pathlib.Path, path: str, load: str, index: int, seconds: 
                    latency_p99_ms=float(latency.get('p99', math.nan)),
                    latency_max_ms=float(latency.get('max', math.nan)),
                    controller_cpu_fraction=float(
-                       run.summary()['controller_cpu_fraction'] or math.nan),
+                       summary['controller_cpu_fraction'] or math.nan),
                    rt_priority=run.base_priority > 0)
 
 
