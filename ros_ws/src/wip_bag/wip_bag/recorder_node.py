@@ -88,6 +88,7 @@ from rclpy.node import Node
 from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
                        QoSReliabilityPolicy)
 
+from wip_control.nodes.launched import end_with_launcher
 from wip_control.nodes.parameters import ConfigParameters
 
 from .bag_writer import (BagExistsError, BagWriterError, message_definition,
@@ -405,6 +406,7 @@ def spin(node, executor):
 
 def main(args=None):
     """Entry point ``recorder`` (``ros2 run wip_bag recorder --ros-args -p output:=...``)."""
+    end_with_launcher()
     rclpy.init(args=args)
     node = None
     status = 0

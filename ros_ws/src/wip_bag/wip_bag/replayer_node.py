@@ -106,6 +106,7 @@ from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSLivelinessPolic
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_srvs.srv import SetBool, Trigger
 
+from wip_control.nodes.launched import end_with_launcher
 from wip_control.nodes.parameters import ConfigParameters
 from wip_control.tools.cli import EXIT_INTERNAL, EXIT_USAGE, log_trace, one_line
 
@@ -557,6 +558,7 @@ def main(args=None):
     """Entry point ``replayer`` and ``scripts/replay``; returns the exit code."""
     argv = sys.argv[1:] if args is None else list(args)
     overrides, ros_args = parse_command_line(argv)
+    end_with_launcher()
     rclpy.init(args=[sys.argv[0]] + ros_args)
     node = None
     status = EXIT_OK

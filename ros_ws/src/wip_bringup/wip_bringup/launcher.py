@@ -18,6 +18,7 @@ import subprocess
 import time
 from typing import Any
 
+from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
 from wip_control.tools.cli import check_output_directory
 from wip_viewer.viewer_core import VIEWER_TOPICS as VIEWER_TOPIC_TYPES
 
@@ -71,14 +72,20 @@ class GraphError(Exception):
 @dataclasses.dataclass(frozen=True)
 class Scheduling:
     """Real-time scheduling of a process: SCHED_FIFO ``priority`` (1..99; 0: the normal
-    policy) and the CPUs it may run on (empty: all)."""
+    policy) and the CPUs it may run on (empty: all).
+
+    Applied by starting the program through util-linux's ``chrt`` and ``taskset``
+    (:meth:`command_prefix`), not by Python code between fork and exec (``preexec_fn``):
+    the launching process has DDS threads, and a child forked from a threaded process
+    may deadlock before exec (the subprocess documentation warns of it; a run here hung
+    in such a child). The policy is inherited by every thread the program starts."""
 
     priority: int = 0
     cpus: tuple[int, ...] = ()
 
     def check(self) -> None:
         """GraphError (usage) naming the option if the values are absurd or this user may
-        not apply them (tried on a throwaway child process)."""
+        not apply them (tried on a throwaway ``true``)."""
         if not 0 <= self.priority <= 99:
             raise GraphError(f'--rt-priority: must be in 0..99, got {self.priority}',
                              EXIT_USAGE)
@@ -87,22 +94,34 @@ class Scheduling:
             raise GraphError(f'--cpu-affinity: CPUs {sorted(set(self.cpus) - available)} are '
                              f'not available (this process may use {sorted(available)})',
                              EXIT_USAGE)
-        if self.priority or self.cpus:
-            try:
-                subprocess.run(['true'], preexec_fn=self.apply, check=True)
-            except (subprocess.SubprocessError, OSError) as err:
-                raise GraphError(
-                    f'--rt-priority {self.priority}: not permitted here ({err}); it needs '
-                    'root, CAP_SYS_NICE or an rtprio limit (/etc/security/limits.conf)',
-                    EXIT_USAGE) from err
+        if not (self.priority or self.cpus):
+            return
+        try:
+            done = subprocess.run(self.command_prefix() + ['true'], capture_output=True,
+                                  text=True, timeout=60, check=False)
+        except (subprocess.SubprocessError, OSError) as err:
+            done, reason = None, str(err)
+        else:
+            reason = (done.stderr.strip().splitlines() or [f'exit code {done.returncode}'])[-1]
+        if done is None or done.returncode != 0:
+            raise GraphError(
+                f'--rt-priority {self.priority}: not permitted here ({reason}); it needs '
+                'root, CAP_SYS_NICE or an rtprio limit (/etc/security/limits.conf)',
+                EXIT_USAGE)
 
-    def apply(self) -> None:
-        """In the child, before exec: inherited by the program and every thread it starts
-        (the DDS threads included)."""
+    def command_prefix(self) -> list[str]:
+        """``chrt``/``taskset`` words to put before a program's command line ([] if
+        neither is asked for)."""
+        words: list[str] = []
+        for tool, wanted in (('chrt', self.priority), ('taskset', self.cpus)):
+            if wanted and shutil.which(tool) is None:
+                raise GraphError(f'{tool} not found: --rt-priority and --cpu-affinity need '
+                                 'util-linux (apt-get install util-linux)', EXIT_USAGE)
         if self.priority:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.priority))
+            words += ['chrt', '--fifo', str(self.priority)]
         if self.cpus:
-            os.sched_setaffinity(0, self.cpus)
+            words += ['taskset', '--cpu-list', ','.join(map(str, self.cpus))]
+        return words
 
 
 def parse_cpus(text: str) -> tuple[int, ...]:
@@ -139,6 +158,8 @@ def graph_environment(domain_id: int) -> dict[str, str]:
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     env['PYTHONUNBUFFERED'] = '1'
     env.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
+    # The nodes stop when this process ends, even if it is killed (nodes/launched.py).
+    env[LAUNCHER_PID_VARIABLE] = str(os.getpid())
     return env
 
 
@@ -163,10 +184,10 @@ class NodeProcess:
         self.command = command
         self.log_path = log_path
         self._log = open(log_path, 'w', encoding='utf-8')
-        apply = scheduling.apply if scheduling and (scheduling.priority or scheduling.cpus) \
-            else None
-        self.process = subprocess.Popen(command, stdout=self._log, stderr=subprocess.STDOUT,
-                                        stdin=subprocess.DEVNULL, env=env, preexec_fn=apply)
+        prefix = scheduling.command_prefix() if scheduling else []
+        self.process = subprocess.Popen(prefix + command, stdout=self._log,
+                                        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                        env=env)
         self.pid = self.process.pid
         self._interrupted = False
         self.killed = False

@@ -28,13 +28,17 @@ from typing import Any, Callable, Mapping
 
 import yaml
 
+from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
+
 from .hardware import HardwareOptions, HardwareResult, run_hardware
 from .launcher import executable_path, GraphError, Scheduling
 
 CONTROL_RATE = 200.0  # [Hz]
-#: SCHED_FIFO priorities where permitted: the base above the controllers, as a base's
-#: firmware would be, both above everything else on the machine (a robot's computer runs
-#: its control at real-time priority; the tests then hold with other jobs running).
+#: SCHED_FIFO priorities of ``realtime_priority=True`` (scripts/bench's real-time case):
+#: the base above the controllers, as a base's firmware would be. Off by default, as in
+#: hardware mode (--rt-priority 0): the tests run at the normal policy, where a process
+#: that spins (seen: a controller process exiting at SCHED_FIFO took a core for minutes)
+#: cannot starve the rest of a shared CI machine, and they hold there with a busy process.
 BASE_PRIORITY = 30
 CONTROLLER_PRIORITY = 20
 #: The base's conventions (see the module docstring).
@@ -130,7 +134,7 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                         exit_after_fall: float = 1.0,
                         base_extra: Mapping[str, Any] | None = None,
                         layout: str = HardwareOptions.layout,
-                        realtime_priority: bool = True,
+                        realtime_priority: bool = False,
                         record: bool = False,
                         during: Callable[[HardwareResult | None, dict], None] | None = None
                         ) -> StandinRun:
@@ -140,8 +144,8 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
     robot (its stats file is not needed: it waits for the first ACTIVE safety state seen
     by the runner), with the controller processes by name (to freeze one, say).
     ``realtime_priority``: run the base and the controllers at SCHED_FIFO priorities
-    (:data:`BASE_PRIORITY`, :data:`CONTROLLER_PRIORITY`) if this user may; the run's
-    ``measured.json`` says whether they were. ``record``: the controllers' topics go to
+    (:data:`BASE_PRIORITY`, :data:`CONTROLLER_PRIORITY`) if this user may (off by
+    default); the run's ``measured.json`` says whether they were. ``record``: the controllers' topics go to
     the bag ``directory/bag`` (costs CPU: for diagnosis, not for measuring).
     """
     base_scheduling = controller_scheduling = Scheduling()
@@ -158,6 +162,7 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
     controller_params = write_params(directory / 'controllers.yaml', controller_conventions)
     domain = os.environ.get('ROS_DOMAIN_ID') or str(random.randint(1, 101))
     env = dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    env[LAUNCHER_PID_VARIABLE] = str(os.getpid())   # the base ends with this process
     command = [str(executable_path('wip_sim', 'standin_base')), '--ros-args',
                '--params-file', str(base_params)]
     for remap in REMAPS:
@@ -167,9 +172,8 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
     runner_holder: dict[str, Any] = {}
     injector = None
     with open(directory / 'base.log', 'w', encoding='utf-8') as log:
-        base = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env,
-                                preexec_fn=base_scheduling.apply
-                                if base_scheduling.priority else None)
+        base = subprocess.Popen(base_scheduling.command_prefix() + command, stdout=log,
+                                stderr=subprocess.STDOUT, env=env)
         try:
             options = HardwareOptions(
                 scenario=str(scenario_path), params_files=[str(controller_params)],

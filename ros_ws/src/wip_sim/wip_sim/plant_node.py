@@ -250,6 +250,7 @@ class PlantNode(Node):
         self._tick_started_at = 0.0
         self.stale_torques = 0  # lockstep: torque messages with an unexpected stamp
         self.zeroed_torques = 0  # realtime: ticks run with zero torques (none or stale)
+        self.zeroed_torques_before_first = 0  # ... of them before the first torques arrived
         self.end_reason = ''
         self.get_logger().info(
             f'scenario {scenario.name!r}: {scenario.duration:g} s, {self.n_ticks} ticks of '
@@ -440,6 +441,8 @@ class PlantNode(Node):
             left, right = latest[0], latest[1]
         else:
             self.zeroed_torques += 1
+            if latest is None:
+                self.zeroed_torques_before_first += 1
         try:
             self._step(left, right)
             self._publish_tick()
@@ -492,6 +495,7 @@ class PlantNode(Node):
             'clock_to_torques_s': self.loop_time.summary(),
             'stale_torque_messages': self.stale_torques,
             'zeroed_torque_ticks': self.zeroed_torques,
+            'zeroed_torque_ticks_before_first': self.zeroed_torques_before_first,
         }
 
     def write_stats(self) -> None:

@@ -46,6 +46,7 @@ from std_msgs.msg import Header
 from ..core.config import ConfigError
 from .diagnostics import NodeDiagnostics
 from .intra_process import IntraProcessBus, IntraProcessPublisher
+from .launched import end_with_launcher
 from .parameters import ConfigParameters
 from .settings import ControllerNodeSettings
 from .sync import on_grid
@@ -311,6 +312,7 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
     of the garbage collector's reach (``gc.freeze``), so that the collections that still
     run during control (young objects only) do not walk them.
     """
+    end_with_launcher()
     handles_signals = any(on_stop is not None for _, on_stop in nodes)
     if not handles_signals:
         rclpy.init(args=args)
@@ -430,6 +432,7 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
     clean-up. A configuration error prints its message and returns ``config_status``.
     The node's ``write_stats()`` always runs (an OSError is reported, not raised).
     """
+    end_with_launcher()
     rclpy.init(args=args)
     node = None
     status = 0

@@ -1,0 +1,160 @@
+"""How the launcher starts and ends node processes.
+
+1. Real-time scheduling is applied by ``chrt``/``taskset`` in front of the program (no
+   Python between fork and exec, which can deadlock in a child of a threaded process):
+   the program and the threads it starts run at the requested SCHED_FIFO priority.
+2. A node started by a launcher ends when the launcher dies without stopping it (SIGKILL):
+   an orphaned controller would go on commanding the robot, and at real-time priority
+   take the CPUs from everything else.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+from wip_bringup.launcher import (executable_path, graph_environment, GraphError,
+                                  NodeProcess, Scheduling)
+from wip_control.nodes.launched import end_with_launcher, LAUNCHER_PID_VARIABLE
+
+START_UP = 60.0   # [s] generous: a loaded CI machine starts a Python process slowly
+
+
+def _wait_for(predicate, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    pytest.fail(f'{what}: not within {timeout:g} s')
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f'/proc/{pid}/stat', encoding='ascii') as stream:
+            return stream.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except OSError:
+        return False
+
+
+def test_scheduling_is_a_command_prefix_and_absurd_values_are_refused():
+    assert Scheduling().command_prefix() == []
+    assert Scheduling(20, (0,)).command_prefix() == ['chrt', '--fifo', '20',
+                                                     'taskset', '--cpu-list', '0']
+    with pytest.raises(GraphError, match='--rt-priority: must be in 0..99'):
+        Scheduling(100).check()
+    with pytest.raises(GraphError, match='--cpu-affinity: CPUs \\[4096\\]'):
+        Scheduling(0, (4096,)).check()
+
+
+def test_a_process_and_its_threads_run_at_the_requested_fifo_priority(tmp_path):
+    scheduling = Scheduling(5)
+    try:
+        scheduling.check()
+    except GraphError as err:
+        pytest.skip(f'SCHED_FIFO not permitted here: {err}')
+    program = textwrap.dedent('''
+        import os, sys, threading, time
+        policies = []
+        thread = threading.Thread(target=lambda: policies.append(
+            (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)))
+        thread.start(); thread.join()
+        print(policies[0], flush=True)
+        time.sleep(60)
+    ''')
+    process = NodeProcess('probe', [sys.executable, '-c', program], tmp_path / 'probe.log',
+                          dict(os.environ), scheduling)
+    try:
+        # A thread the program started ...
+        text = _wait_for(lambda: (tmp_path / 'probe.log').read_text().strip(), START_UP,
+                         'the probe program prints its thread policy')
+        assert text == f'({os.SCHED_FIFO}, 5)'
+        # ... and the program itself (chrt execs it: the pid the launcher knows).
+        assert os.sched_getscheduler(process.pid) == os.SCHED_FIFO
+        assert os.sched_getparam(process.pid).sched_priority == 5
+    finally:
+        assert process.stop(5.0) is not None
+
+
+LAUNCHER = textwrap.dedent('''
+    import pathlib, sys, time
+    from wip_bringup.launcher import graph_environment, NodeProcess
+    out = pathlib.Path(sys.argv[1])
+    node = NodeProcess('child', sys.argv[2:], out / 'child.log', graph_environment(7))
+    (out / 'child.pid').write_text(str(node.pid))
+    time.sleep(600)
+''')
+
+
+def _start_launcher(tmp_path, child_command):
+    return subprocess.Popen([sys.executable, '-c', LAUNCHER, str(tmp_path), *child_command],
+                            stdin=subprocess.DEVNULL)
+
+
+def test_a_child_ends_with_its_launcher_killed_by_sigkill(tmp_path):
+    program = textwrap.dedent(f'''
+        import signal, sys, time
+        from wip_control.nodes.launched import end_with_launcher
+        def stop(signum, frame):
+            open({str(tmp_path / 'stopped')!r}, 'w').write(str(signum)); sys.exit(0)
+        signal.signal(signal.SIGINT, stop)
+        assert end_with_launcher()
+        open({str(tmp_path / 'armed')!r}, 'w').write('1')
+        time.sleep(600)
+    ''')
+    launcher = _start_launcher(tmp_path, [sys.executable, '-c', program])
+    try:
+        _wait_for(lambda: (tmp_path / 'armed').exists(), START_UP, 'the child arms')
+        child = int((tmp_path / 'child.pid').read_text())
+        launcher.kill()
+        launcher.wait(timeout=30)
+        _wait_for(lambda: not _alive(child), 30.0, 'the child ends after its launcher')
+        assert (tmp_path / 'stopped').read_text() == str(int(signal.SIGINT))
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+
+
+@pytest.mark.ros
+def test_a_controller_node_ends_with_its_launcher_killed_by_sigkill(tmp_path):
+    pytest.importorskip('rclpy')
+    launcher = _start_launcher(tmp_path, [str(executable_path('wip_control', 'reference'))])
+    try:
+        pid_file = tmp_path / 'child.pid'
+        _wait_for(pid_file.exists, START_UP, 'the launcher starts the node')
+        child = int(pid_file.read_text())
+        _wait_for(lambda: _alive(child) and (tmp_path / 'child.log').exists(), START_UP,
+                  'the node runs')
+        time.sleep(2.0)   # into rclpy's spin loop, or still starting: either must end
+        assert _alive(child), (tmp_path / 'child.log').read_text()
+        launcher.kill()
+        launcher.wait(timeout=30)
+        _wait_for(lambda: not _alive(child), 60.0, 'the reference node ends after its '
+                  'launcher was killed')
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+        try:
+            os.kill(int((tmp_path / 'child.pid').read_text()), signal.SIGKILL)
+        except (OSError, ValueError):
+            pass
+
+
+def test_without_the_variable_nothing_is_arranged_and_a_dead_launcher_stops_the_start():
+    assert end_with_launcher({}) is False
+    assert end_with_launcher({LAUNCHER_PID_VARIABLE: 'not a pid'}) is False
+    # Alive but not this process's parent: an inherited variable, nothing to do.
+    assert end_with_launcher({LAUNCHER_PID_VARIABLE: str(os.getpid())}) is False
+    dead = subprocess.Popen([sys.executable, '-c', 'pass'])
+    dead.wait()
+    with pytest.raises(SystemExit, match=f'launcher \\(pid {dead.pid}\\) is gone'):
+        end_with_launcher({LAUNCHER_PID_VARIABLE: str(dead.pid)})
+
+
+def test_graph_environment_names_this_process_as_the_launcher():
+    assert graph_environment(3)[LAUNCHER_PID_VARIABLE] == str(os.getpid())
