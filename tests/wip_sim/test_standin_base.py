@@ -164,11 +164,17 @@ FREEZES = (0.02, 0.06, 0.15)   # [s] within the bound
 FREEZE_SPACING = 3.0           # [s] between two freezes: the robot settles again
 
 
-def _freezes(names, seconds, log):
+def _freezes(names, seconds, log, starts=None):
+    """The injector: each named process frozen for each duration, FREEZE_SPACING apart;
+    ``log`` gets (name, measured freeze [s]), ``starts`` the time.monotonic() of each."""
     def inject(runner, processes):
         for name in names:
             for duration in seconds:
                 time.sleep(FREEZE_SPACING)
+                if processes[name].poll() is not None:   # the run has ended
+                    return
+                if starts is not None:
+                    starts.append(time.monotonic())
                 try:
                     log.append((name, freeze_process(processes[name].pid, duration)))
                 except ProcessLookupError:      # the run has ended (the test says why)
@@ -207,11 +213,20 @@ def test_freezes_of_the_composed_controllers_within_the_bound_are_ridden_through
 
 def test_each_separate_controller_process_frozen_for_150_ms_is_ridden_through(tmp_path):
     names = ['reference', 'eso', 'trajectory_generator', 'arc', 'mpc', 'torque_mixer']
-    log = []
+    log, starts = [], []
     run_time = 2.0 + FREEZE_SPACING * (len(names) + 1)
     run = run_against_standin(tmp_path / 'freeze_each', BASE, run_time, layout='separate',
-                              during=_freezes(names, (0.15,), log))
+                              during=_freezes(names, (0.15,), log, starts))
     stats = run.stats
+    # The separate layout costs about three times the composed one (six processes, ~65 %
+    # of a core here): a machine that cannot run it in real time drops the robot before
+    # any freeze. That is a measured capacity, not the ride-through under test.
+    if stats['fell'] and (not starts or stats['release_monotonic_s'] + stats['fall_time_s']
+                          < starts[0]):
+        pytest.skip(f'this machine cannot run the separate layout in real time: the robot '
+                    f'fell {stats["fall_time_s"]:.2f} s after the release, before any '
+                    f'freeze (command gaps p99 {stats["command_gap"]["p99_ms"]:.0f} ms, '
+                    f'max {stats["command_gap"]["max_ms"]:.0f} ms)')
     assert [name for name, _ in log] == names
     assert run.base_code == 0 and not stats['fell'], stats['end_reason']
     theta_max, _ = _on_the_line(stats, after=0.0)

@@ -240,6 +240,8 @@ class StandinBase(Node):
         self.t = 0.0                    # simulated time since the release [s]
         self.released = not self.hold
         self.release_wall: float | None = None if self.hold else 0.0
+        #: time.monotonic() of the release (CLOCK_MONOTONIC: comparable across processes)
+        self.release_monotonic: float | None = None if self.hold else time.monotonic()
         #: perf_counter time of the plant's t = 0 (set at the first step after the release).
         self._physics_origin: float | None = None
         self.fell = False
@@ -333,6 +335,7 @@ class StandinBase(Node):
         if not self.released and any(v != 0.0 for v in data):
             self.released = True
             self.release_wall = now - self.start_wall
+            self.release_monotonic = time.monotonic()
             self.get_logger().info(f'first non-zero command {data}: released at '
                                    f'{self.release_wall:.3f} s')
 
@@ -483,6 +486,7 @@ class StandinBase(Node):
             'publish_time': percentiles(self.publish_times),
             'released': self.released,
             'release_wall_s': released_at,
+            'release_monotonic_s': self.release_monotonic,
             'sim_time_s': self.t,
             'fell': self.fell,
             'fall_time_s': self.fall_time,
