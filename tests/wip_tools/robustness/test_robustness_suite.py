@@ -32,12 +32,9 @@ SUITE = {
     'full_plant_mismatch': None,
     'pushes': None,
     'stop_and_hold': None,
-    'speed_limit': 'max speed 1.63 m/s outside the 2 s after the push (limit 1.55): at '
-                   '0.4 s, the start-up transient (1.65 m/s at 0.3 s while the observer '
-                   'started at 0 m/s; it now starts at the measured speed, and the rest '
-                   'is its disturbance estimate settling); max 2.53 m/s (limit 2.5) 0.2 s '
-                   'after the push, which adds 1.0 m/s in 0.1 s to 1.21 m/s, and a WIP '
-                   'must speed up to tilt back before it brakes',
+    'speed_limit': 'max speed 1.65 m/s outside the 2 s after the push (limit 1.55): at '
+                   '0.3 s, the cold start (the ESO starts at 0 m/s and the MPC reacts to '
+                   'its transient); max 2.55 m/s (limit 2.5) just after the push',
     'sharp_corners': 'path error up to 0.52 m after 3 s (limit 0.15; 1.0 m without the '
                      'speed preview, 0.29 m with a 1 s one, docs/mpc.md §6): the speed still lags the time-scaled reference '
                      'slowing for the 0.2 m fillets; the reference reaches the end point '

@@ -265,16 +265,13 @@ class ExtendedStateObserver:
         ad, g_prev, g_new, g_u = matrices
         return tuple(float(v) for v in (*ad.ravel(), *g_prev, *g_new, *g_u))
 
-    def reset(self, initial_output: float, initial_time: float = 0.0,
-              initial_rate: float = 0.0) -> None:
-        """State (y0, ẏ0, 0) at ``initial_time`` [s], the origin of the ε ramp (the paper
-        starts at rest: ẏ0 = 0)."""
-        if not (math.isfinite(initial_output) and math.isfinite(initial_time)
-                and math.isfinite(initial_rate)):
+    def reset(self, initial_output: float, initial_time: float = 0.0) -> None:
+        """State (y0, 0, 0) at ``initial_time`` [s], the origin of the ε ramp."""
+        if not (math.isfinite(initial_output) and math.isfinite(initial_time)):
             raise ValueError(f'{self.name}: non-finite reset ({initial_output!r}, '
-                             f'{initial_time!r}, {initial_rate!r})')
+                             f'{initial_time!r})')
         self.x1 = float(initial_output)
-        self.x2 = float(initial_rate)
+        self.x2 = 0.0
         self.f = 0.0
         self._y_prev = float(initial_output)
         self._t_prev = float(initial_time)
@@ -599,10 +596,8 @@ class WipStateObserver:
         self._yaw_scale = config.yaw_input_gain_scale
         self.reset(initial_positions, initial_time)
 
-    def reset(self, initial_positions: Sequence[float], initial_time: float = 0.0,
-              initial_speed: float = 0.0) -> None:
-        """Restart from positions (ϕ, x_v, θ) with zero disturbances, zero angular rates
-        and the speed ``initial_speed`` = ẋ_v [m/s] (0 in the paper)."""
+    def reset(self, initial_positions: Sequence[float], initial_time: float = 0.0) -> None:
+        """Restart from positions (ϕ, x_v, θ) with zero rates and disturbances."""
         if len(initial_positions) != 3:
             raise ValueError('initial_positions: expected (phi, x_v, theta), got '
                              f'{initial_positions!r}')
@@ -612,7 +607,7 @@ class WipStateObserver:
             if not math.isfinite(value):
                 raise ValueError(f'initial {label} must be finite, got {value!r}')
         self.yaw.reset(phi, initial_time)
-        self.longitudinal.reset(x_v, initial_time, initial_speed)
+        self.longitudinal.reset(x_v, initial_time)
         self.tilt.reset(theta, initial_time)
         self._phi_meas = phi
         self._estimate = self._make_estimate(initial_time)

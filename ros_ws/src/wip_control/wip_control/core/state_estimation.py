@@ -37,13 +37,7 @@ class StateEstimator:
 
     Starting rule (a real robot does not know its true state): the observer starts at the
     first sample, from the measured positions (ϕ, x_v, θ) with zero rates and
-    disturbances (Section V), and that sample's time as the origin of the ε schedule. At
-    the second sample it restarts from the first with the speed the two encoder readings
-    give, (x_v,2 − x_v,1)/Δt: a controller started (or restarted after a fault) on a
-    moving robot otherwise reads it as standing, and the MPC accelerates it past its speed
-    limit while the observer catches up (1.65 m/s on a 1.5 m/s line, docs/estimation.md).
-    Only the speed: the angular rates from differenced IMU angles would carry their noise
-    divided by one sample period. The
+    disturbances (Section V), and that sample's time as the origin of the ε schedule. The
     position starts at the first GPS fix; until one arrives it dead-reckons from (0, 0)
     (``has_fix`` says so). The wheel odometry's yaw output is not used (the yaw comes from
     the IMU), so the odometry's initial yaw is 0.
@@ -78,8 +72,6 @@ class StateEstimator:
     def restart(self) -> None:
         """Forget everything: the next sample starts the observer and the position."""
         self.observer: WipStateObserver | None = None
-        #: (t, ϕ, x_v, θ) of the first sample until the second one has been taken
-        self._first: tuple[float, float, float, float] | None = None
         self.position = PlanarPositionEstimator(self.position_config)
         self.yaw_unwrapped: float | None = None
         self.has_fix = False
@@ -119,20 +111,10 @@ class StateEstimator:
             observer = WipStateObserver(
                 self.model, self.eso_config, initial_positions=(yaw_unwrapped, x_v, pitch),
                 initial_time=t, encoders_relative_to_body=self.relative_to_body)
-            first = (t, yaw_unwrapped, x_v, pitch)
-        elif self._first is not None:
-            # The second sample: restart from the first with the measured speed.
-            t1, yaw1, x_v1, pitch1 = self._first
-            speed = (x_v - x_v1) / (t - t1) if t > t1 else math.nan
-            if math.isfinite(speed):   # else the update below says what is wrong
-                observer.reset((yaw1, x_v1, pitch1), t1, speed)
-            first = None
-        else:
-            first = None
         # Raises ValueError before touching the observer on non-finite input.
         estimate = observer.update(t, yaw_unwrapped, x_v, pitch, tau_left + tau_right,
                                    tau_right - tau_left, rates)
-        self.observer, self.yaw_unwrapped, self._first = observer, yaw_unwrapped, first
+        self.observer, self.yaw_unwrapped = observer, yaw_unwrapped
         position = self.position
         try:
             if fix is not None and not self.has_fix:
