@@ -92,12 +92,12 @@ import yaml
 
 from wip_control.core.scenario import Scenario
 from wip_control.tools.cli import exit_with, write_atomic
-from .hardware import add_arguments, run_from_args, scheduling_from_args
+from .hardware import add_arguments, run_from_args
 # LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
 from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_FELL, EXIT_INTERRUPTED, EXIT_OK,
                        EXIT_TIMEOUT, EXIT_USAGE, GraphError, LAYOUTS, Probe, PROBE_PERIOD,
                        Scheduling, VIEWER_TOPICS, viewer_wanted)
-from .runner_base import print_result, RunnerBase, RunResult
+from .runner_base import options_from_args, print_result, RunnerBase, RunResult
 from .params_files import CONTROLLER_NODES, write_params_file
 
 
@@ -628,16 +628,10 @@ def main(argv: list[str] | None = None) -> int:
         return run_from_args(args)
     if args.params_files or args.remaps:
         parser.error('--params-file and --remap are options of --mode hardware')
-    options = GraphOptions(scenario=args.scenario, clock=args.clock or 'lockstep',
-                           record=args.record, duration=args.duration,
-                           out=args.out or 'out/graph',
-                           discovery_timeout=args.discovery_timeout,
-                           stall_timeout=args.stall_timeout,
-                           startup_retries=args.startup_retries, quiet=args.quiet,
-                           layout=args.layout or GraphOptions.layout,
-                           scheduling=scheduling_from_args(args),
-                           viewer=args.viewer, foxglove_port=args.foxglove,
-                           foxglove_host=args.foxglove_host)
+    options = GraphOptions(**options_from_args(
+        args, clock=args.clock or 'lockstep', out=args.out or 'out/graph',
+        stall_timeout=args.stall_timeout, startup_retries=args.startup_retries,
+        layout=args.layout or GraphOptions.layout))
     return print_result(run_graph(options), format_result)
 
 

@@ -74,7 +74,7 @@ from wip_bringup.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
 
 from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_OK, EXIT_USAGE, GraphError,
                        LAYOUTS, parse_cpus, Probe, Scheduling)
-from .runner_base import print_result, RunnerBase, RunResult
+from .runner_base import options_from_args, print_result, RunnerBase, RunResult
 
 #: The nodes of hardware mode, in start order.
 HARDWARE_NODES = CONTROLLER_NODES
@@ -522,11 +522,6 @@ def _cpus_argument(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(str(err)) from err
 
 
-def scheduling_from_args(args: argparse.Namespace) -> Scheduling:
-    """The --rt-priority / --cpu-affinity options."""
-    return Scheduling(priority=args.rt_priority, cpus=tuple(args.cpu_affinity))
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog='scripts/run_graph --mode hardware', description=__doc__,
@@ -547,15 +542,10 @@ def main(argv: list[str] | None = None) -> int:
 
 def run_from_args(args: argparse.Namespace) -> int:
     """Run hardware mode from parsed arguments (also used by ``wip_bringup.graph``)."""
-    options = HardwareOptions(scenario=args.scenario, params_files=list(args.params_files),
-                              remaps=list(args.remaps), duration=args.duration,
-                              out=args.out, record=args.record,
-                              discovery_timeout=args.discovery_timeout, quiet=args.quiet,
-                              arm_delay=args.arm_delay, heartbeat=not args.no_heartbeat,
-                              layout=args.layout or HardwareOptions.layout,
-                              scheduling=scheduling_from_args(args),
-                              viewer=args.viewer, foxglove_port=args.foxglove,
-                              foxglove_host=args.foxglove_host)
+    options = HardwareOptions(**options_from_args(
+        args, params_files=list(args.params_files), remaps=list(args.remaps), out=args.out,
+        arm_delay=args.arm_delay, heartbeat=not args.no_heartbeat,
+        layout=args.layout or HardwareOptions.layout))
     return print_result(run_hardware(options), format_result)
 
 

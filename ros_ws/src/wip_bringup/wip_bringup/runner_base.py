@@ -32,7 +32,8 @@ from wip_control.tools.cli import write_atomic
 from .launcher import (choose_domain_id, executable_path, EXECUTABLES, EXIT_USAGE,
                        EXIT_TIMEOUT, GRACE_PERIOD, graph_environment, GraphError, LAYOUTS,
                        live_view_line, NodeProcess, prepare_run_directory, Probe,
-                       RECORDER_GRACE_PERIOD, VIEWER_TOPICS, viewer_wanted)
+                       RECORDER_GRACE_PERIOD, Scheduling, VIEWER_TOPICS,
+                       viewer_wanted)
 from .params_files import CONTROLLER_NODES
 
 
@@ -362,3 +363,13 @@ def print_result(result: RunResult, formatted: Callable[[RunResult], str]) -> in
         return EXIT_USAGE
     print(formatted(result))
     return result.exit_code
+
+
+def options_from_args(args, **own) -> dict[str, Any]:
+    """Keyword arguments of either mode's options from ``scripts/run_graph``'s parsed
+    arguments: those both modes have, then the mode's ``own``."""
+    return dict(scenario=args.scenario, record=args.record, duration=args.duration,
+                discovery_timeout=args.discovery_timeout, quiet=args.quiet,
+                scheduling=Scheduling(priority=args.rt_priority, cpus=tuple(args.cpu_affinity)),
+                viewer=args.viewer, foxglove_port=args.foxglove,
+                foxglove_host=args.foxglove_host, **own)
