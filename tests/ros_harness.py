@@ -13,6 +13,7 @@ import contextlib
 import itertools
 import os
 import subprocess
+import threading
 import time
 from typing import Callable, Iterator
 
@@ -49,6 +50,24 @@ def spin_for(executor, seconds: float, step: float = 0.01) -> None:
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline:
         executor.spin_once(timeout_sec=step)
+
+
+@contextlib.contextmanager
+def spinning_in_background(executor, step: float = 0.05) -> Iterator[None]:
+    """``executor`` spun in a daemon thread for the duration of the block (for a test that
+    blocks on something else meanwhile: a subprocess, a WebSocket); stopped at its end."""
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=step)
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(timeout=5)
 
 
 class NodeHarness:
