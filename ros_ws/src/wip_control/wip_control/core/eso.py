@@ -216,6 +216,7 @@ class _ChannelEstimate:
     """The read-out of a second-order channel observer (x̂1, x̂2, f̂ at ``_t_prev``),
     the same for the ESO (25) and the rate-aided channel."""
 
+    name: str
     x1: float
     x2: float
     f: float
@@ -230,6 +231,17 @@ class _ChannelEstimate:
     def time(self) -> float:
         """Time [s] of the current estimate."""
         return self._t_prev
+
+    def _reset_estimate(self, initial_output: float, initial_time: float,
+                        initial_rate: float = 0.0) -> None:
+        """(x̂1, x̂2, f̂) = (y0, ẏ0, 0); ValueError naming the channel if not finite."""
+        if not (math.isfinite(initial_output) and math.isfinite(initial_time)
+                and math.isfinite(initial_rate)):
+            raise ValueError(f'{self.name}: non-finite reset ({initial_output!r}, '
+                             f'{initial_time!r}, {initial_rate!r})')
+        self.x1 = float(initial_output)
+        self.x2 = float(initial_rate)
+        self.f = 0.0
 
 
 class ExtendedStateObserver(_ChannelEstimate):
@@ -289,13 +301,7 @@ class ExtendedStateObserver(_ChannelEstimate):
               initial_rate: float = 0.0) -> None:
         """State (y0, ẏ0, 0) at ``initial_time`` [s], the origin of the ε ramp (the paper
         starts at rest: ẏ0 = 0)."""
-        if not (math.isfinite(initial_output) and math.isfinite(initial_time)
-                and math.isfinite(initial_rate)):
-            raise ValueError(f'{self.name}: non-finite reset ({initial_output!r}, '
-                             f'{initial_time!r}, {initial_rate!r})')
-        self.x1 = float(initial_output)
-        self.x2 = float(initial_rate)
-        self.f = 0.0
+        self._reset_estimate(initial_output, initial_time, initial_rate)
         self._y_prev = float(initial_output)
         self._t_prev = float(initial_time)
         self._t0 = float(initial_time)
@@ -465,12 +471,7 @@ class RateAidedChannel(_ChannelEstimate):
     def reset(self, initial_output: float, initial_time: float = 0.0) -> None:
         """Angle y0 at ``initial_time`` [s]; rate, bias, disturbance zero. The first
         update at the same time takes the measured rate as the rate estimate."""
-        if not (math.isfinite(initial_output) and math.isfinite(initial_time)):
-            raise ValueError(f'{self.name}: non-finite reset ({initial_output!r}, '
-                             f'{initial_time!r})')
-        self.x1 = float(initial_output)
-        self.x2 = 0.0
-        self.f = 0.0
+        self._reset_estimate(initial_output, initial_time)
         self.bias = 0.0
         self._t_prev = float(initial_time)
         self._rate_started = False
