@@ -20,6 +20,7 @@ from typing import Callable, Iterator
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
+from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
 
 TIMEOUT = 10.0  # [s] default of any single wait; normally milliseconds
 #: [s] start-up of a node process and its DDS discovery on a slow, shared 2-core machine.
@@ -147,9 +148,12 @@ def installed_executable(package: str, name: str) -> str:
 
 def ros_child_environment(**extra: str) -> dict[str, str]:
     """The environment of a node process started by a test: this one's (its DDS domain),
-    without the marker of the ROS wheels bootstrap (the child bootstraps itself)."""
+    without the marker of the ROS wheels bootstrap (the child bootstraps itself), and with
+    this process as its launcher: a node this test starts ends with it, even when the test
+    run is killed (wip_control.nodes.launched)."""
     env = dict(os.environ, **extra)
     env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
+    env[LAUNCHER_PID_VARIABLE] = str(os.getpid())
     return env
 
 
