@@ -93,3 +93,13 @@ def context(module_domain):
     rclpy.init(context=ctx, domain_id=module_domain)
     yield ctx
     rclpy.try_shutdown(context=ctx)
+
+
+@pytest.fixture
+def harnesses():
+    """What a test made that must be closed (``close()``: node harnesses, see
+    ``tests/ros_harness.py``), closed at its end, failed or not."""
+    made = []
+    yield made
+    for harness in made:
+        harness.close()

@@ -30,6 +30,7 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 from ament_index_python.packages import get_package_prefix  # noqa: E402
+from ros_harness import communicate  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -293,12 +294,7 @@ def test_executable_runs_as_ros2_run_would_and_stops_cleanly_on_sigint(executabl
         time.sleep(0.1)  # graph polling (discovery is asynchronous, no event to wait on)
 
     one.process.send_signal(signal.SIGINT)
-    try:
-        output, _ = one.process.communicate(timeout=STOP_TIMEOUT)
-    except subprocess.TimeoutExpired:
-        one.process.kill()
-        output, _ = one.process.communicate()
-        pytest.fail(f'{executable} did not stop within {STOP_TIMEOUT} s of SIGINT:\n{output}')
+    output, _ = communicate(one.process, STOP_TIMEOUT, 'stop on SIGINT')
     expected = SIGINT_STATUS.get(executable, 0)
     assert one.process.returncode == expected, f'{executable} exit code ' \
                                                f'{one.process.returncode}:\n{output}'

@@ -11,10 +11,16 @@ import pathlib
 import signal
 import subprocess
 import sys
-import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import pytest
+from rosbags.rosbag2 import Reader
+import yaml
+
+import ros_harness
+from ros_harness import communicate, ros_child_environment
+from wip_bag.bag_reader import bag_summary, iter_raw_messages
+from wip_bag.bag_repair import mcap_files_by_index
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[2]
 WIP_BAG_SOURCE = REPO_ROOT / 'ros_ws' / 'src' / 'wip_bag'
@@ -22,10 +28,10 @@ DISCOVERY_TIMEOUT = 15.0  # [s]; first discovery takes up to ~3 s on this host
 
 
 def child_environment():
-    env = dict(os.environ)
+    """The tools' environment: this one's, with wip_bag from the source tree first."""
+    env = ros_child_environment()
     env['PYTHONPATH'] = os.pathsep.join(
         [str(WIP_BAG_SOURCE)] + [p for p in [env.get('PYTHONPATH')] if p])
-    env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
     return env
 
 
@@ -41,6 +47,7 @@ class Tool:
         self.status_prefix = status_prefix
         self.status = None  # latest DiagnosticStatus of this tool
         self.values = {}
+        self.reports = 0  # statuses of this tool received
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
 
     def _on_diagnostics(self, msg):
@@ -48,44 +55,75 @@ class Tool:
             if status.name.startswith(self.status_prefix):
                 self.status = status
                 self.values = {v.key: v.value for v in status.values}
+                self.reports += 1
+
+    @property
+    def counts(self):
+        """Messages received per topic, from the latest status (``received <topic>``)."""
+        return {k[len('received '):]: int(v) for k, v in self.values.items()
+                if k.startswith('received ')}
 
     def spin_until(self, condition, timeout, what, allow_exit=False):
-        spin_until(self.node, condition, timeout, what,
-                   None if allow_exit else self.process)
+        spin_until(self.node, condition, timeout, what, None if allow_exit else self.process)
 
     def stop(self, sig=signal.SIGINT, expected_code=0, timeout=20.0):
         if self.process.poll() is None:
             self.process.send_signal(sig)
-        try:
-            output, _ = self.process.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            output, _ = self.process.communicate()
-            pytest.fail(f'{self.process.args} did not stop on {sig!r}:\n{output}')
+        output, _ = communicate(self.process, timeout, f'stop on {sig!r}')
         if expected_code is not None:
             assert self.process.returncode == expected_code, output
         return output
 
     def wait(self, timeout, expected_code=0):
-        try:
-            output, _ = self.process.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            output, _ = self.process.communicate()
-            pytest.fail(f'{self.process.args} did not exit within {timeout} s:\n{output}')
+        output, _ = communicate(self.process, timeout)
         assert self.process.returncode == expected_code, output
         return output
 
 
 def spin_until(node, condition, timeout, what, process=None):
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if process is not None and process.poll() is not None:
-            pytest.fail(f'{process.args[2]} exited ({process.returncode}) while waiting for '
-                        f'{what}:\n{process.stdout.read()}')
-        if time.monotonic() > deadline:
-            pytest.fail(f'timeout ({timeout} s) waiting for {what}')
-        node.executor_for_test.spin_once(timeout_sec=0.01)
+    """Spin the test node (conftest's ``test_node``) until ``condition()``; fails at the
+    timeout [s] or when ``process`` exits (see ros_harness.spin_until)."""
+    ros_harness.spin_until(node.executor_for_test, condition, what, timeout, process=process)
+
+
+def start_recorder(node, bag, topics=None, *params, preexec_fn=None):
+    """The recorder process recording ``topics`` (None: every topic) into ``bag``, with
+    the parameters ``params`` ('name:=value')."""
+    args = ['--ros-args', '-p', f'output:={bag}', '-p', 'discovery_period:=0.1']
+    if topics is not None:
+        args += ['-p', f'topics:=[{", ".join(topics)}]']
+    for param in params:
+        args += ['-p', param]
+    return Tool(node, 'recorder_node', args, '/recorder', preexec_fn)
+
+
+def assert_metadata_matches_content(directory):
+    """metadata.yaml agrees with what the files hold (counted by reading every message,
+    and by rosbags, an independent reader); returns its rosbag2_bagfile_information."""
+    info = yaml.safe_load((directory / 'metadata.yaml').read_text())[
+        'rosbag2_bagfile_information']
+    assert info['relative_file_paths'] == [p.name for p in mcap_files_by_index(directory)]
+    assert [f['path'] for f in info['files']] == info['relative_file_paths']
+    summary = bag_summary(directory)
+    assert summary['finished']
+    assert info['message_count'] == summary['message_count']
+    assert {t['topic_metadata']['name']: t['message_count']
+            for t in info['topics_with_message_count']} == {
+        topic: v['message_count'] for topic, v in summary['topics'].items()}
+    assert info['starting_time']['nanoseconds_since_epoch'] == summary['start_ns']
+    assert info['duration']['nanoseconds'] == summary['duration_ns']
+    assert sum(f['message_count'] for f in info['files']) == info['message_count']
+    for entry in info['files']:
+        times = [m.log_time_ns for m in iter_raw_messages(directory / entry['path'])]
+        assert entry['message_count'] == len(times)
+        assert entry['starting_time']['nanoseconds_since_epoch'] == min(times)
+        assert entry['duration']['nanoseconds'] == max(times) - min(times)
+    with Reader(directory) as reader:
+        assert reader.message_count == info['message_count']
+        assert {c.topic: c.msgcount for c in reader.connections} == {
+            t['topic_metadata']['name']: t['message_count']
+            for t in info['topics_with_message_count']}
+    return info
 
 
 @pytest.fixture

@@ -14,9 +14,10 @@ from rosbags.rosbag2 import Reader
 from std_msgs.msg import String
 import yaml
 
+from bagtools_helpers import assert_metadata_matches_content
 from wip_bag.bag_info import bag_information, format_bag_information
 from wip_bag.bag_info import main as bag_info_main
-from wip_bag.bag_reader import bag_summary, iter_raw_messages, read_bag, read_topics
+from wip_bag.bag_reader import iter_raw_messages, read_bag, read_topics
 from wip_bag.bag_repair import main as bag_repair_main
 from wip_bag.bag_repair import mcap_files_by_index, repair_bag
 from wip_bag.bag_writer import BagWriterError, Rosbag2McapWriter
@@ -48,31 +49,6 @@ def _write(directory, payloads, **options):
 def _metadata(directory):
     return yaml.safe_load((directory / 'metadata.yaml').read_text())[
         'rosbag2_bagfile_information']
-
-
-def _assert_metadata_matches_content(directory):
-    """metadata.yaml agrees with what the files hold (counted by reading every message)."""
-    info = _metadata(directory)
-    assert info['relative_file_paths'] == [p.name for p in mcap_files_by_index(directory)]
-    assert [f['path'] for f in info['files']] == info['relative_file_paths']
-    summary = bag_summary(directory)
-    assert summary['finished']
-    assert info['message_count'] == summary['message_count']
-    assert {t['topic_metadata']['name']: t['message_count']
-            for t in info['topics_with_message_count']} == {
-        topic: v['message_count'] for topic, v in summary['topics'].items()}
-    assert info['starting_time']['nanoseconds_since_epoch'] == summary['start_ns']
-    assert info['duration']['nanoseconds'] == summary['duration_ns']
-    for entry in info['files']:
-        times = [m.log_time_ns for m in iter_raw_messages(directory / entry['path'])]
-        assert entry['message_count'] == len(times)
-        assert entry['starting_time']['nanoseconds_since_epoch'] == min(times)
-        assert entry['duration']['nanoseconds'] == max(times) - min(times)
-    with Reader(directory) as reader:
-        assert reader.message_count == info['message_count']
-        assert {c.topic: c.msgcount for c in reader.connections} == {
-            t['topic_metadata']['name']: t['message_count']
-            for t in info['topics_with_message_count']}
 
 
 def _rosbags_messages(directory):
@@ -111,7 +87,7 @@ def test_split_by_size_gives_several_listed_files_read_back_completely(tmp_path,
     # (the per-file summary is counted in the allowance above, so use the data bound).
     for f in files[:-1]:
         assert os.path.getsize(f) >= max_size * 15 // 16 - 4096
-    _assert_metadata_matches_content(directory)
+    assert_metadata_matches_content(directory)
     assert _rosbags_messages(directory) == _expected(payloads)
     assert [(m.topic, m.log_time_ns, m.data) for m in iter_raw_messages(directory)] == \
         _expected(payloads)
@@ -148,7 +124,7 @@ def test_split_by_duration_keeps_each_file_shorter_than_the_limit(tmp_path):
         assert entry['message_count'] == 500
         assert entry['starting_time']['nanoseconds_since_epoch'] == START_NS + i * 500 * PERIOD_NS
         assert entry['duration']['nanoseconds'] < 0.5e9
-    _assert_metadata_matches_content(directory)
+    assert_metadata_matches_content(directory)
     assert _rosbags_messages(directory) == _expected(payloads)
 
 
@@ -174,7 +150,7 @@ def test_repair_recovers_every_complete_chunk_of_a_killed_split_bag(tmp_path):
     assert result.files[2].messages == 1500 - 1200
     assert _snapshot(directory) == original  # The original is never touched ...
     repaired = result.out
-    _assert_metadata_matches_content(repaired)  # ... and all of the repaired bag.
+    assert_metadata_matches_content(repaired)  # ... and all of the repaired bag.
     assert _rosbags_messages(repaired) == _expected(payloads, 1500)
     assert bag_information(repaired)['problems'] == []
     # Idempotent: repairing the repaired bag copies every file and gives the same metadata.
@@ -208,7 +184,7 @@ def test_repair_drops_a_partial_chunk_and_keeps_custom_data(tmp_path):
     assert result.files[0].messages == 300
     assert _rosbags_messages(result.out) == _expected(payloads, 300)
     assert _metadata(result.out)['custom_data'] == {'scenario': 'test'}
-    _assert_metadata_matches_content(result.out)
+    assert_metadata_matches_content(result.out)
 
 
 def test_a_file_without_complete_chunk_is_set_aside(tmp_path):
@@ -221,7 +197,7 @@ def test_a_file_without_complete_chunk_is_set_aside(tmp_path):
     assert result.files[-1].action == 'dropped (no intact chunk)'
     assert (directory / result.files[-1].name).exists()  # the original: untouched
     assert not (result.out / result.files[-1].name).exists()
-    _assert_metadata_matches_content(result.out)
+    assert_metadata_matches_content(result.out)
     assert _rosbags_messages(result.out) == _expected(payloads)
 
 

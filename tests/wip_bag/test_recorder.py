@@ -7,13 +7,9 @@ recorder's /diagnostics with timeouts; no fixed sleeps (discovery takes 0.1 s to
 """
 
 import os
-import pathlib
 import signal
-import subprocess
-import sys
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
 import pytest
 from rclpy.qos import QoSProfile
 from rosbags.highlevel import AnyReader
@@ -21,13 +17,12 @@ from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header, String
 
+from bagtools_helpers import DISCOVERY_TIMEOUT, start_recorder, tools  # noqa: F401
+from ros_harness import communicate
 from wip_bag.bag_reader import read_bag
 
 pytestmark = pytest.mark.ros
 
-REPO_ROOT = pathlib.Path(__file__).resolve().parents[2]
-WIP_BAG_SOURCE = REPO_ROOT / 'ros_ws' / 'src' / 'wip_bag'
-DISCOVERY_TIMEOUT = 15.0  # [s]; first discovery takes up to ~3 s on this host
 N_MESSAGES = 200
 PUBLISH_PERIOD = 0.002  # [s]: 500 Hz, above every rate of the project's graph
 
@@ -35,62 +30,6 @@ try:
     from wip_msgs.msg import StateEstimate
 except ImportError:  # Workspace not built or not sourced (scripts/test does both).
     StateEstimate = None
-
-
-class Recorder:
-    """The recorder process and what the test node sees of it."""
-
-    def __init__(self, node, *ros_args):
-        env = dict(os.environ)
-        env['PYTHONPATH'] = os.pathsep.join(
-            [str(WIP_BAG_SOURCE)] + [p for p in [env.get('PYTHONPATH')] if p])
-        env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
-        self.node = node
-        self.process = subprocess.Popen(
-            [sys.executable, '-m', 'wip_bag.recorder_node', '--ros-args',
-             '-p', 'discovery_period:=0.1', *ros_args],
-            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        self.counts = {}
-        self.diagnostics = 0
-        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
-
-    def _on_diagnostics(self, msg):
-        for status in msg.status:
-            if status.name.startswith('/recorder'):
-                self.diagnostics += 1
-                self.counts = {v.key[len('received '):]: int(v.value) for v in status.values
-                               if v.key.startswith('received ')}
-
-    def spin_until(self, condition, timeout, what):
-        deadline = time.monotonic() + timeout
-        while not condition():
-            if self.process.poll() is not None:
-                pytest.fail(f'recorder exited ({self.process.returncode}) while waiting for '
-                            f'{what}:\n{self.process.stdout.read()}')
-            if time.monotonic() > deadline:
-                pytest.fail(f'timeout ({timeout} s) waiting for {what}')
-            self.node.executor_for_test.spin_once(timeout_sec=0.02)
-
-    def stop(self, sig=signal.SIGINT):
-        self.process.send_signal(sig)
-        try:
-            output, _ = self.process.communicate(timeout=15.0)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            output, _ = self.process.communicate()
-            pytest.fail(f'recorder did not stop on {sig!r}:\n{output}')
-        assert self.process.returncode == 0, output
-        return output
-
-
-@pytest.fixture
-def recorders():
-    started = []
-    yield started
-    for recorder in started:  # Never leave a recorder behind, even when a test fails.
-        if recorder.process.poll() is None:
-            recorder.process.kill()
-            recorder.process.wait()
 
 
 def _publish_all(recorder, publisher, messages, clock_publisher=None, clock_start_ns=0):
@@ -111,15 +50,14 @@ def _time_msg(ns):
     return Time(sec=ns // 10**9, nanosec=ns % 10**9)
 
 
-def test_records_every_message_in_order_and_closes_on_sigint(test_node, recorders, tmp_path):
+def test_records_every_message_in_order_and_closes_on_sigint(test_node, tools, tmp_path):
     bag = tmp_path / 'run'
     topic = f'/test_{os.getpid()}/chatter'
     topics = [topic]
     if StateEstimate is not None:
         topics.append(f'/test_{os.getpid()}/state_estimate')
-    recorder = Recorder(test_node, '-p', f'output:={bag}', '-p',
-                        f'topics:=[{", ".join(topics)}]')
-    recorders.append(recorder)
+    recorder = start_recorder(test_node, bag, topics)
+    tools.append(recorder)
     reliable = QoSProfile(depth=N_MESSAGES)
     chatter = test_node.create_publisher(String, topic, reliable)
     _publish_all(recorder, chatter, [String(data=f'message {k}') for k in range(N_MESSAGES)])
@@ -161,14 +99,14 @@ def test_records_every_message_in_order_and_closes_on_sigint(test_node, recorder
 
 
 def test_records_topics_appearing_later_in_sim_time_and_closes_on_sigterm(
-        test_node, recorders, tmp_path):
+        test_node, tools, tmp_path):
     bag = tmp_path / 'all'
     prefix = f'/test_{os.getpid()}'
-    recorder = Recorder(test_node, '-p', f'output:={bag}', '-p', 'use_sim_time:=true',
-                        '-p', f'exclude:=[{prefix}/excluded]', '-p', 'compression:=lz4')
-    recorders.append(recorder)
+    recorder = start_recorder(test_node, bag, None, 'use_sim_time:=true',
+                              f'exclude:=[{prefix}/excluded]', 'compression:=lz4')
+    tools.append(recorder)
     # The recorder is up (its diagnostics arrive) before the topics exist.
-    recorder.spin_until(lambda: recorder.diagnostics > 0, DISCOVERY_TIMEOUT,
+    recorder.spin_until(lambda: recorder.reports > 0, DISCOVERY_TIMEOUT,
                         'the recorder diagnostics')
     clock = test_node.create_publisher(Clock, '/clock', 10)
     recorder.spin_until(lambda: clock.get_subscription_count() >= 1, DISCOVERY_TIMEOUT,
@@ -198,13 +136,13 @@ def test_records_topics_appearing_later_in_sim_time_and_closes_on_sigterm(
         assert f'{prefix}/late' in {c.topic for c in reader.connections}
 
 
-def test_refuses_to_overwrite_an_existing_bag(test_node, recorders, tmp_path):
+def test_refuses_to_overwrite_an_existing_bag(test_node, tools, tmp_path):
     bag = tmp_path / 'existing'
     bag.mkdir()
     (bag / 'metadata.yaml').write_text('precious')
-    recorder = Recorder(test_node, '-p', f'output:={bag}')
-    recorders.append(recorder)
-    output, _ = recorder.process.communicate(timeout=30.0)
+    recorder = start_recorder(test_node, bag)
+    tools.append(recorder)
+    output, _ = communicate(recorder.process, 30.0)
     assert recorder.process.returncode == 1
     assert 'refusing to overwrite' in output
     assert (bag / 'metadata.yaml').read_text() == 'precious'

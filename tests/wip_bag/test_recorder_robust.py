@@ -16,28 +16,16 @@ import pytest
 from rclpy.qos import QoSProfile
 from rosbags.rosbag2 import Reader
 from std_msgs.msg import String
-import yaml
 
-from bagtools_helpers import DISCOVERY_TIMEOUT, spin_until, Tool, tools  # noqa: F401
+from bagtools_helpers import (assert_metadata_matches_content,  # noqa: F401
+                             DISCOVERY_TIMEOUT, spin_until, start_recorder, tools)
 from wip_bag.bag_info import bag_information
-from wip_bag.bag_reader import bag_summary, read_bag
+from wip_bag.bag_reader import read_bag
 from wip_bag.bag_repair import mcap_files_by_index, read_file_contents, repair_bag
 
 pytestmark = pytest.mark.ros
 
 PUBLISH_PERIOD = 0.002  # [s]: 500 Hz, above every rate of the project's graph
-
-
-def _recorder(node, bag, topic, *params):
-    args = ['--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topic}]',
-            '-p', 'discovery_period:=0.1']
-    for param in params:
-        args += ['-p', param]
-    return Tool(node, 'recorder_node', args, '/recorder')
-
-
-def _received(recorder, topic):
-    return int(recorder.values.get(f'received {topic}', 0))
 
 
 def _publish_for(node, publisher, seconds, start, make=str, stop=None):
@@ -54,26 +42,10 @@ def _publish_for(node, publisher, seconds, start, make=str, stop=None):
     return k
 
 
-def _assert_metadata_matches_content(directory):
-    info = yaml.safe_load((directory / 'metadata.yaml').read_text())[
-        'rosbag2_bagfile_information']
-    assert info['relative_file_paths'] == [p.name for p in mcap_files_by_index(directory)]
-    summary = bag_summary(directory)
-    assert summary['finished']
-    assert info['message_count'] == summary['message_count']
-    assert {t['topic_metadata']['name']: t['message_count']
-            for t in info['topics_with_message_count']} == {
-        topic: v['message_count'] for topic, v in summary['topics'].items()}
-    assert info['starting_time']['nanoseconds_since_epoch'] == summary['start_ns']
-    assert info['duration']['nanoseconds'] == summary['duration_ns']
-    assert sum(f['message_count'] for f in info['files']) == info['message_count']
-    return info
-
-
 def test_sigkill_mid_run_then_repair_keeps_every_complete_chunk(test_node, tools, tmp_path):
     bag = tmp_path / 'killed'
     topic = f'/robust_{os.getpid()}/kill'
-    recorder = _recorder(test_node, bag, topic, 'flush_period:=0.2', 'max_bag_duration:=1.0')
+    recorder = start_recorder(test_node, bag, [topic], 'flush_period:=0.2', 'max_bag_duration:=1.0')
     tools.append(recorder)
     publisher = test_node.create_publisher(String, topic, QoSProfile(depth=1000))
     recorder.spin_until(lambda: publisher.get_subscription_count() >= 1, DISCOVERY_TIMEOUT,
@@ -82,7 +54,7 @@ def test_sigkill_mid_run_then_repair_keeps_every_complete_chunk(test_node, tools
     # What the recorder reported received (diagnostics of <= 1 s ago) must survive the kill:
     # the writer flushes (and fsyncs) a chunk every 0.2 s; 1 s more of publishing leaves 5
     # flush periods of margin for the queue and the scheduler.
-    reported = _received(recorder, topic)
+    reported = recorder.counts.get(topic, 0)
     assert reported > 100
     k = _publish_for(test_node, publisher, 1.0, k)
     recorder.process.send_signal(signal.SIGKILL)  # mid-run: messages still arriving
@@ -97,7 +69,7 @@ def test_sigkill_mid_run_then_repair_keeps_every_complete_chunk(test_node, tools
     result = repair_bag(bag)  # into a new bag: killed_repaired
     repaired = result.out
     assert result.files[-1].action == 'rewritten'
-    info = _assert_metadata_matches_content(repaired)
+    info = assert_metadata_matches_content(repaired)
     # Every message of every complete chunk, nothing else, in publication order.
     assert info['message_count'] == in_complete_chunks
     with Reader(repaired) as reader:
@@ -116,10 +88,8 @@ def test_a_full_disk_is_reported_and_harms_nobody(test_node, tools, tmp_path):
     def small_disk():  # in the child: writes past `limit` fail with EFBIG (SIGXFSZ ignored)
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
-    recorder = Tool(test_node, 'recorder_node', [
-        '--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topic}]',
-        '-p', 'discovery_period:=0.1', '-p', 'flush_period:=0.1', '-p', 'chunk_size:=16384',
-        '-p', 'compression:=none'], '/recorder', preexec_fn=small_disk)
+    recorder = start_recorder(test_node, bag, [topic], 'flush_period:=0.1',
+                              'chunk_size:=16384', 'compression:=none', preexec_fn=small_disk)
     tools.append(recorder)
     publisher = test_node.create_publisher(String, topic, QoSProfile(depth=1000))
     # An unaffected consumer of the same topic: it must get every message throughout.
@@ -152,7 +122,7 @@ def test_a_full_disk_is_reported_and_harms_nobody(test_node, tools, tmp_path):
 
     result = repair_bag(bag)
     repaired = result.out
-    _assert_metadata_matches_content(repaired)
+    assert_metadata_matches_content(repaired)
     indices = [int(m.message.data.split(':')[0]) for m in read_bag(repaired)]
     assert indices == list(range(len(indices)))
     assert 0 < len(indices) == result.metadata['message_count']
@@ -164,7 +134,7 @@ def test_a_full_disk_is_reported_and_harms_nobody(test_node, tools, tmp_path):
 def test_an_unwritable_path_fails_clearly_at_start(test_node, tools, tmp_path):
     blocker = tmp_path / 'a_file'
     blocker.write_text('not a directory')  # fails for root too, unlike permissions
-    recorder = _recorder(test_node, blocker / 'bag', '/x')
+    recorder = start_recorder(test_node, blocker / 'bag', ['/x'])
     tools.append(recorder)
     output = recorder.wait(30.0, expected_code=1)
     assert '[ERROR]' in output
@@ -174,7 +144,7 @@ def test_an_unwritable_path_fails_clearly_at_start(test_node, tools, tmp_path):
 def test_split_by_size_while_recording_then_sigterm(test_node, tools, tmp_path):
     bag = tmp_path / 'split'
     topic = f'/robust_{os.getpid()}/split'
-    recorder = _recorder(test_node, bag, topic, 'max_bag_size:=60000',
+    recorder = start_recorder(test_node, bag, [topic], 'max_bag_size:=60000',
                          'chunk_size:=16384', 'compression:=zstd')
     tools.append(recorder)
     publisher = test_node.create_publisher(String, topic, QoSProfile(depth=1000))
@@ -190,11 +160,11 @@ def test_split_by_size_while_recording_then_sigterm(test_node, tools, tmp_path):
         next_time += PUBLISH_PERIOD
         test_node.executor_for_test.spin_once(
             timeout_sec=max(0.0, next_time - time.monotonic()))
-    recorder.spin_until(lambda: _received(recorder, topic) == n, 10.0,
+    recorder.spin_until(lambda: recorder.counts.get(topic, 0) == n, 10.0,
                         'the recorder to receive everything')
     output = recorder.stop(signal.SIGTERM)
     assert 'closed' in output
-    info = _assert_metadata_matches_content(bag)
+    info = assert_metadata_matches_content(bag)
     assert len(info['relative_file_paths']) >= 3
     assert [int(m.message.data.split(':')[0]) for m in read_bag(bag)] == list(range(n))
     with Reader(bag) as reader:

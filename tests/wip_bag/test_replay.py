@@ -23,7 +23,8 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
-from bagtools_helpers import DISCOVERY_TIMEOUT, spin_until, Tool, tools  # noqa: F401
+from bagtools_helpers import (DISCOVERY_TIMEOUT, spin_until, start_recorder,  # noqa: F401
+                             Tool, tools)
 from wip_bag.bag_reader import iter_raw_messages
 from wip_bag.bag_writer import Rosbag2McapWriter
 
@@ -40,19 +41,6 @@ def _replayer(node, bag, *options):
     return Tool(node, 'replayer_node', [str(bag), *options], '/replayer')
 
 
-def _recorder(node, bag, topics, *params):
-    args = ['--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{", ".join(topics)}]',
-            '-p', 'discovery_period:=0.1']
-    for param in params:
-        args += ['-p', param]
-    return Tool(node, 'recorder_node', args, '/recorder')
-
-
-def _counts(recorder):
-    return {k[len('received '):]: int(v) for k, v in recorder.values.items()
-            if k.startswith('received ')}
-
-
 def test_record_replay_record_gives_identical_bytes_in_order_with_recorded_timing(
         test_node, tools, tmp_path):
     prefix = f'/rrr_{os.getpid()}'
@@ -60,7 +48,7 @@ def test_record_replay_record_gives_identical_bytes_in_order_with_recorded_timin
     topics = [chatter, imu_topic]
     # 1. Record what the test publishes: two topics of two types, alternating, 50 Hz each.
     first = tmp_path / 'first'
-    recorder = _recorder(test_node, first, topics)
+    recorder = start_recorder(test_node, first, topics)
     tools.append(recorder)
     reliable = QoSProfile(depth=100)
     chatter_pub = test_node.create_publisher(String, chatter, reliable)
@@ -80,7 +68,7 @@ def test_record_replay_record_gives_identical_bytes_in_order_with_recorded_timin
         next_time += SPACING
         test_node.executor_for_test.spin_once(
             timeout_sec=max(0.0, next_time - time.monotonic()))
-    recorder.spin_until(lambda: _counts(recorder) == {chatter: n, imu_topic: n}, 10.0,
+    recorder.spin_until(lambda: recorder.counts == {chatter: n, imu_topic: n}, 10.0,
                         'the first recording')
     recorder.stop()
 
@@ -92,13 +80,13 @@ def test_record_replay_record_gives_identical_bytes_in_order_with_recorded_timin
     # rosbag2's `ros2 bag play --delay`, leaves discovery time to finish before the timing
     # that is tested here starts.
     second = tmp_path / 'second'
-    recorder2 = _recorder(test_node, second, topics)
+    recorder2 = start_recorder(test_node, second, topics)
     tools.append(recorder2)
     replayer = _replayer(test_node, first, '--wait-for-subscribers', '1',
                          '--wait-timeout', '20', '--delay', '1.0')
     tools.append(replayer)
     replayer.wait(40.0)
-    recorder2.spin_until(lambda: _counts(recorder2) == {chatter: n, imu_topic: n}, 10.0,
+    recorder2.spin_until(lambda: recorder2.counts == {chatter: n, imu_topic: n}, 10.0,
                          'the second recording')
     recorder2.stop()
 

@@ -10,11 +10,11 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import threading
 
 import pytest
 
 pytest.importorskip('rclpy')
+from ros_harness import spinning_in_background  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -42,16 +42,8 @@ def mixer(test_node):
         response.message = 'refused: /wip/estop still says true' if state['refuse'] else 'ok'
         return response
     test_node.create_service(Trigger, '/torque_mixer/reset_estop', reset)
-    stop = threading.Event()
-
-    def spin():
-        while not stop.is_set():
-            test_node.executor_for_test.spin_once(timeout_sec=0.05)
-    thread = threading.Thread(target=spin, daemon=True)
-    thread.start()
-    yield received, state
-    stop.set()
-    thread.join(timeout=5)
+    with spinning_in_background(test_node.executor_for_test):
+        yield received, state
 
 
 def test_engage_release_and_reset_reach_the_mixer(domain, mixer):

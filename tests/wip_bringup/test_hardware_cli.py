@@ -6,11 +6,8 @@ is zero, and the runner sends zeros again when it stops the nodes.
 """
 
 import json
-import os
-import random
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
@@ -19,6 +16,8 @@ import yaml
 rclpy = pytest.importorskip('rclpy')
 
 from std_msgs.msg import Float64MultiArray  # noqa: E402
+
+from ros_harness import spinning_in_background  # noqa: E402
 
 from wip_bringup.hardware import (load_params_file, node_parameters,  # noqa: E402
                               parse_remap, remapped)
@@ -53,45 +52,24 @@ def test_a_malformed_params_file_is_refused(tmp_path):
         load_params_file(path)
 
 
-def test_no_plant_without_a_base_never_commands_torque(tmp_path):
-    domain_id = random.randint(1, 101)
+def test_no_plant_without_a_base_never_commands_torque(tmp_path, test_node):
     params = tmp_path / 'base.yaml'
     params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {
         'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'joints': ['wheel_r', 'wheel_l'],
         'left_wheel_sign': -1}}}))
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain_id, args=[])
-    node = rclpy.create_node('effort_listener', context=context)
     received = []
-    node.create_subscription(Float64MultiArray, EFFORT, lambda m: received.append(list(m.data)),
-                             100)
-    stop = threading.Event()
-
-    def spin():
-        from rclpy.executors import SingleThreadedExecutor
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        while not stop.is_set():
-            executor.spin_once(timeout_sec=0.05)
-        executor.shutdown()
-    thread = threading.Thread(target=spin, daemon=True)
-    thread.start()
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    test_node.create_subscription(Float64MultiArray, EFFORT,
+                                  lambda m: received.append(list(m.data)), 100)
     out = tmp_path / 'run'
-    try:
+    # The run inherits the test's DDS domain (conftest's private_dds_domain).
+    with spinning_in_background(test_node.executor_for_test):
         result = subprocess.run(
             [sys.executable, '-m', 'wip_bringup.graph', '--no-plant', '--duration', '3',
              '--out', str(out), '--params-file', str(params), '--remap',
              '/joint_states:=/base/joint_states', '--remap',
              f'/effort_controller/commands:={EFFORT}', '--foxglove', '0'],
-            env=env, capture_output=True, text=True, timeout=120)
+            capture_output=True, text=True, timeout=120)
         time.sleep(0.5)
-    finally:
-        stop.set()
-        thread.join(timeout=5)
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
     assert result.returncode == 0, result.stdout + result.stderr
     run = json.loads((out / 'run.json').read_text())
     assert run['mode'] == 'hardware'

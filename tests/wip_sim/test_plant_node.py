@@ -10,7 +10,6 @@ message encoding.
 
 import os
 import random
-import signal
 import subprocess
 import sys
 import time
@@ -18,7 +17,8 @@ import time
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from ros_harness import (communicate, installed_executable, node_process,  # noqa: E402
+                         NodeHarness, PROCESS_START_TIMEOUT, spin_for, spin_until)
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
@@ -73,13 +73,13 @@ def write_scenario(tmp_path, mapping, name='scenario.yaml'):
     return path
 
 
-class Harness:
+class Harness(NodeHarness):
     """The plant node and a test node in one private context, spun by one executor."""
 
     def __init__(self, scenario_path, clock_mode='lockstep', **extra):
         from wip_sim.plant_node import PlantNode
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=random.randint(1, 101))
+        context = rclpy.Context()
+        rclpy.init(context=context, domain_id=random.randint(1, 101))
         overrides = [Parameter('scenario_file', value=str(scenario_path)),
                      Parameter('clock_mode', value=clock_mode),
                      Parameter('start.expected_sensor_subscribers', value=1),
@@ -87,31 +87,15 @@ class Harness:
         if clock_mode == 'lockstep':
             overrides.append(Parameter('start.expected_clock_subscribers', value=1))
         overrides += [Parameter(k, value=v) for k, v in extra.items()]
-        self.plant = PlantNode(context=self.context, parameter_overrides=overrides)
-        self.node = rclpy.create_node('plant_test', context=self.context)
-        self.received = {name: [] for name in ('clock', 'joint', 'imu', 'gps', 'truth')}
+        super().__init__(context, PlantNode(context=context, parameter_overrides=overrides),
+                         name='plant_test', timeout=TIMEOUT)
+        self.plant = self.node
         qos = QoSProfile(depth=1000)
-        for name, msg_type, topic in (('clock', Clock, '/clock'),
-                                      ('joint', JointState, '/joint_states'),
-                                      ('imu', Imu, '/imu/data'), ('gps', NavSatFix, '/gps/fix'),
-                                      ('truth', GroundTruth, '/wip/ground_truth')):
-            self.node.create_subscription(msg_type, topic, self.received[name].append, qos)
-        self.torques = self.node.create_publisher(WheelTorques, '/wip/wheel_torques', qos)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.plant)
-        self.executor.add_node(self.node)
-
-    def spin_until(self, condition, what, timeout=TIMEOUT):
-        deadline = time.monotonic() + timeout
-        while not condition():
-            if time.monotonic() > deadline:
-                pytest.fail(f'timeout ({timeout} s) waiting for {what}')
-            self.executor.spin_once(timeout_sec=0.01)
-
-    def spin_for(self, seconds):
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.01)
+        self.received = {name: self.listen(msg_type, topic, qos) for name, msg_type, topic in (
+            ('clock', Clock, '/clock'), ('joint', JointState, '/joint_states'),
+            ('imu', Imu, '/imu/data'), ('gps', NavSatFix, '/gps/fix'),
+            ('truth', GroundTruth, '/wip/ground_truth'))}
+        self.torques = self.publisher(WheelTorques, '/wip/wheel_torques', qos)
 
     def publish_torques(self, left, right, stamp):
         msg = WheelTorques(left=left, right=right, tau_v=left + right, tau_omega=right - left)
@@ -119,18 +103,8 @@ class Harness:
         self.torques.publish(msg)
 
     def close(self):
-        self.executor.shutdown()
-        self.plant.destroy_node()
-        self.node.destroy_node()
+        super().close()
         rclpy.try_shutdown(context=self.context)
-
-
-@pytest.fixture
-def harnesses():
-    made = []
-    yield made
-    for harness in made:
-        harness.close()
 
 
 def truth_state(msg):
@@ -272,50 +246,33 @@ def test_realtime_steps_on_the_wall_clock_with_zero_torques_until_fresh_ones_arr
 
 @pytest.mark.slow
 def test_the_executable_ends_the_scenario_with_exit_code_0_and_the_documented_counts(
-        tmp_path):
+        tmp_path, test_node):
     """The plant as its own process (what run_graph starts): 4 ticks, then exit code 0."""
-    from ament_index_python.packages import get_package_prefix
     scenario_path = write_scenario(tmp_path, {'duration': 0.02})
-    executable = os.path.join(get_package_prefix('wip_sim'), 'lib', 'wip_sim', 'plant')
-    domain = random.randint(1, 101)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    process = subprocess.Popen(
-        [executable, '--ros-args', '-p', f'scenario_file:={scenario_path}',
-         '-p', 'start.expected_ground_truth_subscribers:=1',
-         '-p', f'stats_file:={tmp_path / "stats.json"}'],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain)
-    try:
-        node = rclpy.create_node('plant_test', context=context)
-        received = {'truth': [], 'joint': [], 'gps': [], 'clock': []}
-        qos = QoSProfile(depth=100)
-        node.create_subscription(GroundTruth, '/wip/ground_truth', received['truth'].append,
-                                 qos)
-        node.create_subscription(Imu, '/imu/data', lambda msg: None, qos)
-        node.create_subscription(NavSatFix, '/gps/fix', received['gps'].append, qos)
-        node.create_subscription(Clock, '/clock', received['clock'].append, qos)
-        publisher = node.create_publisher(WheelTorques, '/wip/wheel_torques', qos)
+    node = test_node  # in the test's DDS domain, which the process inherits
+    received = {'truth': [], 'joint': [], 'gps': [], 'clock': []}
+    qos = QoSProfile(depth=100)
+    node.create_subscription(GroundTruth, '/wip/ground_truth', received['truth'].append, qos)
+    node.create_subscription(Imu, '/imu/data', lambda msg: None, qos)
+    node.create_subscription(NavSatFix, '/gps/fix', received['gps'].append, qos)
+    node.create_subscription(Clock, '/clock', received['clock'].append, qos)
+    publisher = node.create_publisher(WheelTorques, '/wip/wheel_torques', qos)
 
-        def echo(msg):  # a controller answering each sample at once
-            out = WheelTorques(left=0.1, right=0.1)
-            out.header.stamp = msg.header.stamp
-            publisher.publish(out)
-            received['joint'].append(msg)
-        node.create_subscription(JointState, '/joint_states', echo, qos)
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        deadline = time.monotonic() + 30.0
-        while process.poll() is None and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-        for _ in range(20):  # what is still queued
-            executor.spin_once(timeout_sec=0.01)
-    finally:
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-        output, _ = process.communicate(timeout=10.0)
-        executor.shutdown()
-        rclpy.try_shutdown(context=context)
+    def echo(msg):  # a controller answering each sample at once
+        out = WheelTorques(left=0.1, right=0.1)
+        out.header.stamp = msg.header.stamp
+        publisher.publish(out)
+        received['joint'].append(msg)
+    node.create_subscription(JointState, '/joint_states', echo, qos)
+    with node_process([installed_executable('wip_sim', 'plant'), '--ros-args',
+                       '-p', f'scenario_file:={scenario_path}',
+                       '-p', 'start.expected_ground_truth_subscribers:=1',
+                       '-p', f'stats_file:={tmp_path / "stats.json"}'],
+                      stderr=subprocess.STDOUT) as process:
+        spin_until(node.executor_for_test, lambda: process.poll() is not None,
+                   'the end of the scenario', PROCESS_START_TIMEOUT)
+        spin_for(node.executor_for_test, 0.2)  # what is still queued
+        output, _ = communicate(process, 10.0)
     assert process.returncode == 0, output
     assert 'end of the scenario at t = 0.02 s' in output
     # N = 4 ticks: N + 1 ground truths (the last at t = 0.02 s), N sensor samples and

@@ -27,6 +27,7 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 websockets_sync = pytest.importorskip('websockets.sync.client')
 from ament_index_python.packages import get_package_prefix  # noqa: E402
+from ros_harness import spinning_in_background  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -76,16 +77,8 @@ class Bridge:
 @pytest.fixture
 def spinning(test_node):
     """The test node spun in a background thread (publishers, the e-stop subscription)."""
-    stop = threading.Event()
-
-    def spin():
-        while not stop.is_set():
-            test_node.executor_for_test.spin_once(timeout_sec=0.05)
-    thread = threading.Thread(target=spin, daemon=True)
-    thread.start()
-    yield test_node
-    stop.set()
-    thread.join(timeout=5)
+    with spinning_in_background(test_node.executor_for_test):
+        yield test_node
 
 
 class Client:

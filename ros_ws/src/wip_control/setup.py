@@ -1,6 +1,8 @@
 """Install the wip_control ament_python package.
 
 Console scripts go to ``lib/wip_control`` (see setup.cfg), where ``ros2 run`` looks for them.
+Self-contained on purpose, like every package's setup.py: colcon builds each package on
+its own, so there is no shared helper to import and the files are alike.
 """
 
 from glob import glob

@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from reference_rk4 import rk4_step
 
 from wip_control.core.config import ConfigError, from_mapping
 from wip_control.core.eso import (EsoConfig, ExtendedStateObserver, StateEstimate,
@@ -311,11 +312,7 @@ def simulate_wip(config, duration, params=WipParameters()):
         t = k * H
         for j in range(5):
             ts, dt = t + j * 1e-3, 1e-3
-            k1 = derivative(state, tau_v, tau_w, ts)
-            k2 = derivative(state + dt / 2 * k1, tau_v, tau_w, ts + dt / 2)
-            k3 = derivative(state + dt / 2 * k2, tau_v, tau_w, ts + dt / 2)
-            k4 = derivative(state + dt * k3, tau_v, tau_w, ts + dt)
-            state = state + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            state = rk4_step(lambda t_, x: derivative(x, tau_v, tau_w, t_), ts, state, dt)
         t1 = t + H
         # The gyro rates (θ̇, ϕ̇) are passed too: the paper's ESOs ignore them.
         est = observer.update(t1, state[0], state[1], state[2], tau_v, tau_w,

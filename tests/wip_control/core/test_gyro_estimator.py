@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from reference_rk4 import rk4_step
 
 from wip_control.core.config import ConfigError, from_mapping
 from wip_control.core.eso import (EsoConfig, RateAidedChannel, WipStateObserver,
@@ -134,11 +135,7 @@ def _simulate(config, duration, params=WipParameters(), pitch_noise=0.0, seed=0)
         t = k * H
         for i in range(5):
             ti, dt = t + i * 1e-3, 1e-3
-            k1 = derivative(state, tau_v, tau_w, ti)
-            k2 = derivative(state + dt / 2 * k1, tau_v, tau_w, ti + dt / 2)
-            k3 = derivative(state + dt / 2 * k2, tau_v, tau_w, ti + dt / 2)
-            k4 = derivative(state + dt * k3, tau_v, tau_w, ti + dt)
-            state = state + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            state = rk4_step(lambda t_, x: derivative(x, tau_v, tau_w, t_), ti, state, dt)
         t1 = t + H
         theta_meas = state[2] + pitch_noise * rng.standard_normal()
         est = observer.update(t1, state[0], state[1], theta_meas, tau_v, tau_w,

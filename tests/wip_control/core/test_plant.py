@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from reference_rk4 import rk4_step
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.integrate import simpson
@@ -33,11 +34,7 @@ SWINGING = (0.0, 0.0, 0.0, 0.0, math.pi - 0.8, 0.5, 0.4, 1.0)
 
 def rk4_reference(f, x, h):
     """Textbook RK4 on numpy arrays (the plant's stepper is hand-inlined on floats)."""
-    k1 = f(x)
-    k2 = f(x + 0.5 * h * k1)
-    k3 = f(x + 0.5 * h * k2)
-    k4 = f(x + h * k3)
-    return x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return rk4_step(lambda _, y: f(y), 0.0, x, h)
 
 
 def full_model_reference(params, state, tau_left, tau_right, disturbance):

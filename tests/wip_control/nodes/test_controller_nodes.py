@@ -11,13 +11,10 @@ refusal to start on a bad parameter.
 """
 
 import dataclasses
-import itertools
 import math
-import os
 import pathlib
 import random
 import signal
-import subprocess
 import sys
 import time
 
@@ -27,7 +24,8 @@ rclpy = pytest.importorskip('rclpy')
 wip_msgs = pytest.importorskip('wip_msgs.msg')
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from ros_harness import (communicate, node_process, NodeHarness,  # noqa: E402
+                         PROCESS_START_TIMEOUT)
 from rclpy.parameter import Parameter  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus  # noqa: E402
@@ -79,7 +77,6 @@ H_NS = 5_000_000          # control period 1/200 Hz [ns] (the default rates)
 TIMEOUT = 10.0            # [s] for any single wait; normally milliseconds
 SENSORS = SensorConfig()
 DATUM = (SENSORS.gps_datum_latitude, SENSORS.gps_datum_longitude, SENSORS.gps_datum_altitude)
-_ids = itertools.count()
 
 
 # ----------------------------------------------------------------------------- fixtures
@@ -126,70 +123,48 @@ def overrides(mode='lockstep', **params):
     return [Parameter(name, value=value) for name, value in values.items()]
 
 
-class Harness:
-    """The node under test, a harness node for its inputs/outputs, one executor."""
-
-    def __init__(self, context, node):
-        self.node = node
-        self.io = rclpy.create_node(f'harness_{next(_ids)}', context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(node)
-        self.executor.add_node(self.io)
-        self.publishers = {}
-        self.outputs = {}
-
-    def listen(self, msg_type, topic):
-        received = []
-        self.io.create_subscription(msg_type, topic, received.append, 100)
-        self.outputs[topic] = received
-        return received
-
-    def publisher(self, msg_type, topic, qos=100):
-        self.publishers[topic] = self.io.create_publisher(msg_type, topic, qos)
-
-    def publish(self, topic, msg):
-        self.publishers[topic].publish(msg)
-
-    def wait_matched(self):
-        for topic, pub in self.publishers.items():
-            self.spin_until(lambda: pub.get_subscription_count() > 0, f'a reader of {topic}')
-        for topic in self.outputs:
-            self.spin_until(lambda: self.io.count_publishers(topic) > 0,
-                            f'a writer of {topic}')
-
-    def spin_until(self, condition, what=''):
-        deadline = time.monotonic() + TIMEOUT
-        bus = getattr(self, 'bus', None)   # the composed process's intra-process delivery
-        while not condition():
-            assert time.monotonic() < deadline, f'timeout waiting for {what}'
-            self.executor.spin_once(timeout_sec=0.01)
-            if bus is not None:
-                bus.drain()
-
-    def spin_for(self, seconds):
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.005)
-
-    def close(self):
-        self.executor.shutdown()
-        for node in (self.node, self.io, *getattr(self, 'extra_nodes', ())):
-            node.destroy_node()
+#: Message type of every topic a controller node reads or writes.
+TOPIC_TYPES = {'/clock': Clock, '/joint_states': JointState, '/imu/data': Imu,
+               '/gps/fix': NavSatFix, '/wip/wheel_torques': WheelTorques,
+               '/wip/reference': ReferenceStateMsg, '/wip/state_estimate': StateEstimateMsg,
+               '/wip/velocity_command': VelocityCommandMsg, '/wip/yaw_torque': ArcState,
+               '/wip/drive_torque': MpcOutput,
+               '/effort_controller/commands': Float64MultiArray}
 
 
-@pytest.fixture
-def harnesses():
-    made = []
-    yield made
-    for harness in made:
-        harness.close()
+def wire(harness, inputs=(), outputs=()):
+    """Publishers of the topics ``inputs`` and listeners of ``outputs`` on the harness node
+    (types from :data:`TOPIC_TYPES`), matched with the node under test."""
+    for topic in inputs:
+        harness.publisher(TOPIC_TYPES[topic], topic, CLOCK_QOS if topic == '/clock' else 100)
+    for topic in outputs:
+        harness.listen(TOPIC_TYPES[topic], topic)
+    harness.wait_matched()
+    return harness
 
 
-def start(harnesses, context, node_cls, mode='lockstep', **params):
-    harness = Harness(context, node_cls(context=context, parameter_overrides=overrides(
-        mode, **params)))
+def harness_of(harnesses, node):
+    """``node`` under test in a harness (closed at the end of the test)."""
+    harness = NodeHarness(node.context, node, timeout=TIMEOUT)
     harnesses.append(harness)
     return harness
+
+
+def start(harnesses, context, node_cls, mode='lockstep', inputs=(), outputs=(), **params):
+    """A node of ``node_cls`` with the test's parameter overrides, in a harness; wired to
+    ``inputs`` and ``outputs`` (see :func:`wire`) if given."""
+    harness = harness_of(harnesses, node_cls(context=context, parameter_overrides=overrides(
+        mode, **params)))
+    if inputs or outputs:
+        wire(harness, inputs, outputs)
+    return harness
+
+
+def publish_shuffled(harness, msgs, rng):
+    """Publish the (topic, message) pairs in a random order (the nodes must not care)."""
+    rng.shuffle(msgs)
+    for topic, msg in msgs:
+        harness.publish(topic, msg)
 
 
 def assert_finite(msg):
@@ -340,22 +315,17 @@ def run_eso_lockstep(harness, samples, seed=0):
         if k:  # The torques applied since the previous sample, stamped with it.
             msgs.append(('/wip/wheel_torques', torques(samples[k - 1]['stamp'],
                                                        *samples[k - 1]['applied'])))
-        rng.shuffle(msgs)
-        for topic, msg in msgs:
-            harness.publish(topic, msg)
+        publish_shuffled(harness, msgs, rng)
         harness.spin_until(lambda: len(out) == k + 1, f'estimate {k}')
     return out
 
 
+ESO_INPUTS = ('/joint_states', '/imu/data', '/gps/fix', '/wip/wheel_torques')
+
+
 def eso_harness(harnesses, context, mode='lockstep', **params):
-    harness = start(harnesses, context, EsoNode, mode, **params)
-    harness.publisher(JointState, '/joint_states')
-    harness.publisher(Imu, '/imu/data')
-    harness.publisher(NavSatFix, '/gps/fix')
-    harness.publisher(WheelTorques, '/wip/wheel_torques')
-    harness.listen(StateEstimateMsg, '/wip/state_estimate')
-    harness.wait_matched()
-    return harness
+    return start(harnesses, context, EsoNode, mode, ESO_INPUTS, ['/wip/state_estimate'],
+                 **params)
 
 
 def assert_estimate_equal(msg, expected, stamp):
@@ -526,10 +496,9 @@ def test_eso_reports_drops_on_diagnostics(context, harnesses):
 # ----------------------------------------------------------------------------- reference
 
 def test_reference_lockstep_publishes_one_sample_per_clock_tick_from_zero(context, harnesses):
-    harness = start(harnesses, context, ReferenceNode)
-    harness.publisher(Clock, '/clock', CLOCK_QOS)
-    out = harness.listen(ReferenceStateMsg, '/wip/reference')
-    harness.wait_matched()
+    harness = start(harnesses, context, ReferenceNode, inputs=['/clock'],
+                    outputs=['/wip/reference'])
+    out = harness.outputs['/wip/reference']
     reference = make_reference()
     stamps = [0, H_NS, 2 * H_NS, 2 * H_NS + H_NS // 2, 3 * H_NS, 3 * H_NS, 4 * H_NS]
     expected = [0, H_NS, 2 * H_NS, 3 * H_NS, 4 * H_NS]   # off-grid and repeated: skipped
@@ -551,9 +520,9 @@ def test_reference_lockstep_publishes_one_sample_per_clock_tick_from_zero(contex
 
 def test_reference_realtime_runs_on_a_timer_from_its_first_tick(context, harnesses):
     harness = start(harnesses, context, ReferenceNode, 'realtime',
+                    outputs=['/wip/reference'],
                     **{'rates.control_rate': 100.0, 'rates.plant_rate': 1000.0})
-    out = harness.listen(ReferenceStateMsg, '/wip/reference')
-    harness.wait_matched()
+    out = harness.outputs['/wip/reference']
     harness.spin_until(lambda: len(out) >= 5, 'five references')
     stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in out]
     reference = make_reference()
@@ -565,11 +534,10 @@ def test_reference_realtime_runs_on_a_timer_from_its_first_tick(context, harness
 
 
 def test_reference_kind_from_parameters(context, harnesses):
-    harness = start(harnesses, context, ReferenceNode, **{
-        'reference.kind': 'circle', 'reference.circle_radius': 3.0})
-    harness.publisher(Clock, '/clock', CLOCK_QOS)
-    out = harness.listen(ReferenceStateMsg, '/wip/reference')
-    harness.wait_matched()
+    harness = start(harnesses, context, ReferenceNode, inputs=['/clock'],
+                    outputs=['/wip/reference'],
+                    **{'reference.kind': 'circle', 'reference.circle_radius': 3.0})
+    out = harness.outputs['/wip/reference']
     harness.publish('/clock', clock(0))
     harness.spin_until(lambda: out, 'a reference')
     assert out[0].x == 3.0 and out[0].omega == pytest.approx(0.5 / 3.0, rel=1e-15)
@@ -585,11 +553,10 @@ def pose_stream(n):
 
 def test_trajectory_generator_lockstep_equals_the_core(context, harnesses):
     harness = start(harnesses, context, TrajectoryGeneratorNode,
+                    inputs=['/wip/reference', '/wip/state_estimate'],
+                    outputs=['/wip/velocity_command'],
                     **{'trajectory_generator.max_yaw_rate': 0.2})
-    harness.publisher(ReferenceStateMsg, '/wip/reference')
-    harness.publisher(StateEstimateMsg, '/wip/state_estimate')
-    out = harness.listen(VelocityCommandMsg, '/wip/velocity_command')
-    harness.wait_matched()
+    out = harness.outputs['/wip/velocity_command']
     reference = make_reference()
     generator = TrajectoryGenerator(TrajectoryGeneratorConfig(max_yaw_rate=0.2))
     rng = random.Random(2)
@@ -597,9 +564,7 @@ def test_trajectory_generator_lockstep_equals_the_core(context, harnesses):
         ref = reference.sample(stamp / 1e9)
         msgs = [('/wip/reference', ReferenceStateMsg(header=make_header(stamp), **ref._asdict())),
                 ('/wip/state_estimate', estimate_msg(stamp, **pose))]
-        rng.shuffle(msgs)
-        for topic, msg in msgs:
-            harness.publish(topic, msg)
+        publish_shuffled(harness, msgs, rng)
         harness.spin_until(lambda: len(out) == k + 1, f'command {k}')
         expected = generator.step(stamp / 1e9, ref, pose['x'], pose['y'], pose['phi'])
         msg = out[-1]
@@ -624,20 +589,17 @@ def run_arc(harness, n, seed=3):
     for k, (stamp, est, cmd) in enumerate(arc_inputs(n)):
         msgs = [('/wip/state_estimate', estimate_msg(stamp, **est)),
                 ('/wip/velocity_command', VelocityCommandMsg(header=make_header(stamp), **cmd))]
-        rng.shuffle(msgs)
-        for topic, msg in msgs:
-            harness.publish(topic, msg)
+        publish_shuffled(harness, msgs, rng)
         harness.spin_until(lambda: len(out) == k + 1, f'yaw torque {k}')
     return out
 
 
+ARC_INPUTS = ('/wip/state_estimate', '/wip/velocity_command')
+
+
 def arc_harness(harnesses, context, mode='lockstep', **params):
-    harness = start(harnesses, context, ArcNode, mode, **params)
-    harness.publisher(StateEstimateMsg, '/wip/state_estimate')
-    harness.publisher(VelocityCommandMsg, '/wip/velocity_command')
-    harness.listen(ArcState, '/wip/yaw_torque')
-    harness.wait_matched()
-    return harness
+    return start(harnesses, context, ArcNode, mode, ARC_INPUTS, ['/wip/yaw_torque'],
+                 **params)
 
 
 def arc_expected(config, n):
@@ -648,12 +610,8 @@ def arc_expected(config, n):
 
 def test_arc_yaw_rate_gain_from_a_params_file_equals_the_core(params_context, harnesses):
     ctx = params_context('arc', {'arc': {'yaw_rate_gain': 5.0}, 'clock_mode': 'lockstep'})
-    harness = Harness(ctx, ArcNode(context=ctx))
-    harnesses.append(harness)
-    harness.publisher(StateEstimateMsg, '/wip/state_estimate')
-    harness.publisher(VelocityCommandMsg, '/wip/velocity_command')
-    harness.listen(ArcState, '/wip/yaw_torque')
-    harness.wait_matched()
+    harness = wire(harness_of(harnesses, ArcNode(context=ctx)), ARC_INPUTS,
+                   ['/wip/yaw_torque'])
     assert harness.node.lockstep
     out = run_arc(harness, 30)
     expected = arc_expected(ArcConfig(yaw_rate_gain=5.0), 30)
@@ -689,13 +647,9 @@ def mpc_inputs(n):
 
 
 def mpc_harness(harnesses, context, mode='lockstep', **params):
-    harness = start(harnesses, context, MpcNode, mode, **params)
-    harness.publisher(StateEstimateMsg, '/wip/state_estimate')
-    harness.publisher(VelocityCommandMsg, '/wip/velocity_command')
-    harness.publisher(ArcState, '/wip/yaw_torque')
-    harness.listen(MpcOutput, '/wip/drive_torque')
-    harness.wait_matched()
-    return harness
+    return start(harnesses, context, MpcNode, mode,
+                 ('/wip/state_estimate', '/wip/velocity_command', '/wip/yaw_torque'),
+                 ['/wip/drive_torque'], **params)
 
 
 # DAQP is bit-reproducible: exact equality. ProxSuite's result depends in the last bits on
@@ -715,9 +669,7 @@ def test_mpc_lockstep_solves_at_each_tick_from_t0_and_equals_the_core(
                 ('/wip/velocity_command', VelocityCommandMsg(header=make_header(stamp),
                                                              v_d=v_d)),
                 ('/wip/yaw_torque', ArcState(header=make_header(stamp), tau_omega=tau_omega))]
-        rng.shuffle(msgs)
-        for topic, msg in msgs:
-            harness.publish(topic, msg)
+        publish_shuffled(harness, msgs, rng)
         if stamp % (20 * H_NS) != 0:
             continue  # not a tick: no output (checked below: outputs only at ticks)
         ticks += 1
@@ -813,13 +765,9 @@ def test_mpc_refuses_to_start_on_a_value_outside_its_declared_range(params_conte
 # ----------------------------------------------------------------------------- mixer
 
 def mixer_harness(harnesses, context, mode='lockstep', **params):
-    harness = start(harnesses, context, TorqueMixerNode, mode, **params)
-    harness.publisher(ArcState, '/wip/yaw_torque')
-    harness.publisher(MpcOutput, '/wip/drive_torque')
-    harness.listen(WheelTorques, '/wip/wheel_torques')
-    harness.listen(Float64MultiArray, '/effort_controller/commands')
-    harness.wait_matched()
-    return harness
+    return start(harnesses, context, TorqueMixerNode, mode,
+                 ('/wip/yaw_torque', '/wip/drive_torque'),
+                 ['/wip/wheel_torques', '/effort_controller/commands'], **params)
 
 
 def test_mixer_lockstep_waits_for_the_drive_torque_at_ticks_and_holds_it_between(
@@ -877,12 +825,10 @@ def test_mixer_run_time_limit_change_and_bad_joints(context, params_context, har
     harness = start(harnesses, context, TorqueMixerNode, 'realtime',
                     **{'safety.settle_time': 0.0, 'safety.max_estimate_age': 30.0,
                        'safety.max_yaw_torque_age': 30.0,
-                       'safety.max_drive_torque_age': 30.0})
-    harness.publisher(ArcState, '/wip/yaw_torque')
-    harness.publisher(MpcOutput, '/wip/drive_torque')
-    harness.publisher(StateEstimateMsg, '/wip/state_estimate')
-    wheels = harness.listen(WheelTorques, '/wip/wheel_torques')
-    harness.wait_matched()
+                       'safety.max_drive_torque_age': 30.0},
+                    inputs=['/wip/yaw_torque', '/wip/drive_torque', '/wip/state_estimate'],
+                    outputs=['/wip/wheel_torques'])
+    wheels = harness.outputs['/wip/wheel_torques']
     node = harness.node
     assert not node.set_parameters([Parameter('mixer.max_wheel_torque', value=-2.0)])[0] \
         .successful
@@ -902,8 +848,7 @@ def test_mixer_run_time_limit_change_and_bad_joints(context, params_context, har
 def test_topics_are_remappable(context, harnesses):
     node = TorqueMixerNode(context=context, parameter_overrides=overrides('realtime'),
                            cli_args=['--ros-args', '-r', '/wip/wheel_torques:=/robot/torques'])
-    harness = Harness(context, node)
-    harnesses.append(harness)
+    harness = harness_of(harnesses, node)
     harness.publisher(ArcState, '/wip/yaw_torque')
     out = harness.listen(WheelTorques, '/robot/torques')
     harness.wait_matched()
@@ -929,20 +874,16 @@ def test_six_nodes_in_lockstep_reproduce_the_in_process_runner(context, harnesse
     nodes = [cls(context=context, parameter_overrides=overrides()) for cls in
              (ReferenceNode, EsoNode, TrajectoryGeneratorNode, ArcNode, MpcNode)]
     harness = start(harnesses, context, TorqueMixerNode)
-    for node in nodes:
-        harness.executor.add_node(node)
-    harness.extra_nodes = nodes
+    harness.add(*nodes)
     if composed:
         assert share_sim_clock([*nodes, harness.node]) is nodes[0]
         harness.bus = connect_intra_process([*nodes, harness.node])
+        harness.after_spin = harness.bus.drain   # the in-process delivery
         assert sum(1 for node in (*nodes, harness.node) for sub in node.subscriptions
                    if sub.topic_name == '/clock') == 1
-    harness.publisher(Clock, '/clock', CLOCK_QOS)
-    harness.publisher(JointState, '/joint_states')
-    harness.publisher(Imu, '/imu/data')
-    harness.publisher(NavSatFix, '/gps/fix')
-    out = harness.listen(WheelTorques, '/wip/wheel_torques')
-    harness.wait_matched()
+    wire(harness, ('/clock', '/joint_states', '/imu/data', '/gps/fix'),
+         ['/wip/wheel_torques'])
+    out = harness.outputs['/wip/wheel_torques']
     plant = Plant(scenario.plant.parameters, scenario.plant.model.model)
     disturbances = Disturbances(scenario.disturbances, seed=scenario.seed)
     state = initial_state(scenario, make_reference(scenario.reference).sample(0.0))
@@ -1049,35 +990,32 @@ def test_bad_input_into_every_subscription_never_raises_or_outputs_non_finite(
 # ----------------------------------------------------------------------------- processes
 
 def _node_process(module, *ros_args):
-    env = dict(os.environ)
-    env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
-    return subprocess.Popen([sys.executable, '-m', f'wip_control.nodes.{module}', '--ros-args',
-                             *ros_args], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    """``python -m wip_control.nodes.<module> --ros-args ...``, killed at the block's end."""
+    return node_process([sys.executable, '-m', f'wip_control.nodes.{module}', '--ros-args',
+                         *ros_args])
 
 
 def test_node_process_refuses_to_start_on_a_bad_params_file(domain_id, tmp_path):
     path = tmp_path / 'bad.yaml'
     path.write_text(yaml.safe_dump({'arc': {'ros__parameters': {
         'arc': {'yaw_rate_gain': -3.0}}}}))
-    process = _node_process('arc_node', '--params-file', str(path))
-    _, stderr = process.communicate(timeout=60)
+    with _node_process('arc_node', '--params-file', str(path)) as process:
+        _, stderr = communicate(process, PROCESS_START_TIMEOUT)
     assert process.returncode == 1
     assert 'arc: error: arc.yaw_rate_gain: must be > 0.0, got -3.0' in stderr
 
 
 def test_reference_node_process_runs_lockstep_on_the_events_executor_and_stops_on_sigint(
         context, harnesses):
-    process = _node_process('reference_node', '-p', 'clock_mode:=lockstep',
-                            '-p', 'use_sim_time:=true')
-    try:
-        io = rclpy.create_node(f'harness_{next(_ids)}', context=context)
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(io)
+    with _node_process('reference_node', '-p', 'clock_mode:=lockstep',
+                       '-p', 'use_sim_time:=true') as process:
+        harness = NodeHarness(context)   # no node under test here: it is the process
+        harnesses.append(harness)
+        io, executor = harness.io, harness.executor
         out = []
         io.create_subscription(ReferenceStateMsg, '/wip/reference', out.append, 10)
         pub = io.create_publisher(Clock, '/clock', CLOCK_QOS)
-        deadline = time.monotonic() + 60.0   # process start-up and discovery on 2 cores
+        deadline = time.monotonic() + PROCESS_START_TIMEOUT
         # One /clock subscription: the node's ticker also drives its clock (ClockTicker).
         while pub.get_subscription_count() < 1 or io.count_publishers('/wip/reference') < 1:
             assert process.poll() is None, process.communicate()
@@ -1119,14 +1057,8 @@ def test_reference_node_process_runs_lockstep_on_the_events_executor_and_stops_o
         assert [m.header.stamp for m in out] == [ns_to_stamp(k * H_NS) for k in ticks]
         assert out[0].x == make_reference().sample((first + 1) * H_NS * 1e-9).x
         process.send_signal(signal.SIGINT)
-        _, stderr = process.communicate(timeout=20)
+        _, stderr = communicate(process, 20, 'stop on SIGINT')
         assert process.returncode == 0, stderr
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-        executor.shutdown()
-        io.destroy_node()
 
 
 def test_reference_message_and_core_tuple_have_the_same_fields():

@@ -21,7 +21,6 @@ last ticks logged (each tick publishes exactly one).
 
 import itertools
 import math
-import os
 import signal
 import subprocess
 import time
@@ -32,7 +31,8 @@ rclpy = pytest.importorskip('rclpy')
 pytest.importorskip('wip_msgs.msg')
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from ros_harness import (installed_executable, node_process, NodeHarness,  # noqa: E402
+                         PROCESS_START_TIMEOUT)
 from rclpy.parameter import Parameter  # noqa: E402
 from std_msgs.msg import Bool, Float64MultiArray  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
@@ -56,7 +56,6 @@ AGES = {'state_estimate': 0.2, 'yaw_torque': 0.2, 'drive_torque': 0.5}
 BRIDGE = 0.1
 SETTLE = 0.05           # [s]
 TAU_V, TAU_OMEGA = 4.0, 0.6
-_ids = itertools.count()
 
 
 class Log:
@@ -96,7 +95,7 @@ class Log:
         raise AssertionError('no zeroed tick after the fault')
 
 
-class Graph:
+class Graph(NodeHarness):
     """The mixer node, a harness node with the upstream stand-in, one executor."""
 
     def __init__(self, context, upstream=True, **params):
@@ -106,26 +105,16 @@ class Graph:
                   'safety.max_yaw_torque_age': AGES['yaw_torque'],
                   'safety.max_drive_torque_age': AGES['drive_torque'],
                   'safety.bridge_time': BRIDGE, **params}
-        self.io = rclpy.create_node(f'safety_harness_{next(_ids)}', context=context)
-        self.efforts = []
-        self.wheels = []
-        self.diagnostics = []
-        self.io.create_subscription(Float64MultiArray, '/effort_controller/commands',
-                                    self.efforts.append, 1000)
-        self.io.create_subscription(WheelTorques, '/wip/wheel_torques', self.wheels.append,
-                                    1000)
-        self.io.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append,
-                                    100)
-        self.pubs = {topic: self.io.create_publisher(kind, topic, 100) for topic, kind in (
+        super().__init__(context, TorqueMixerNode(context=context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in values.items()]), timeout=TIMEOUT, step=0.002)
+        self.efforts = self.listen(Float64MultiArray, '/effort_controller/commands', 1000)
+        self.wheels = self.listen(WheelTorques, '/wip/wheel_torques', 1000)
+        self.diagnostics = self.listen(DiagnosticArray, '/diagnostics')
+        self.pubs = {topic: self.publisher(kind, topic) for topic, kind in (
             ('/wip/state_estimate', StateEstimateMsg), ('/wip/yaw_torque', ArcState),
             ('/wip/drive_torque', MpcOutput), ('/wip/estop', Bool),
             ('/wip/velocity_command', VelocityCommand))}
-        self.node = TorqueMixerNode(context=context, parameter_overrides=[
-            Parameter(k, value=v) for k, v in values.items()])
         self.log = Log(self.node.monitor)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
-        self.executor.add_node(self.io)
         # Upstream stand-in: what the ESO, ARC and MPC would publish.
         self.estimate = dict(theta=0.02, v=0.1, settled=True)
         self.status = MpcOutput.SOLVED
@@ -152,17 +141,6 @@ class Graph:
             self.pubs['/wip/drive_torque'].publish(MpcOutput(header=stamp, tau_v=TAU_V,
                                                              status=self.status))
         self.k += 1
-
-    def spin_until(self, condition, what):
-        deadline = time.monotonic() + TIMEOUT
-        while not condition():
-            assert time.monotonic() < deadline, f'timeout waiting for {what}'
-            self.executor.spin_once(timeout_sec=0.002)
-
-    def spin_for(self, seconds):
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.002)
 
     @property
     def state(self):
@@ -206,23 +184,10 @@ class Graph:
         assert received == commands[offset:], 'the topic carries one command per tick'
         return offset
 
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.io.destroy_node()
 
-
-@pytest.fixture
-def graphs():
-    made = []
-    yield made
-    for graph in made:
-        graph.close()
-
-
-def graph(graphs, context, **params):
+def graph(harnesses, context, **params):
     g = Graph(context, **params)
-    graphs.append(g)
+    harnesses.append(g)
     return g
 
 
@@ -244,8 +209,8 @@ def assert_first_zero_within_one_tick(g, fault_time, *reason_words):
 
 # ----------------------------------------------------------------------------- tests
 
-def test_start_up_sends_zero_until_every_input_arrived_and_settled(context, graphs):
-    g = graph(graphs, context, upstream=False)
+def test_start_up_sends_zero_until_every_input_arrived_and_settled(context, harnesses):
+    g = graph(harnesses, context, upstream=False)
     g.spin_for(0.1)
     assert g.state == STARTING and g.efforts and all(
         m.data.tolist() == [0.0, 0.0] for m in g.efforts)
@@ -268,9 +233,9 @@ def test_start_up_sends_zero_until_every_input_arrived_and_settled(context, grap
 
 @pytest.mark.parametrize('name, topic', [('state_estimate', '/wip/state_estimate'),
                                          ('yaw_torque', '/wip/yaw_torque')])
-def test_a_stopped_input_stream_zeroes_at_the_first_tick_past_its_age(context, graphs,
+def test_a_stopped_input_stream_zeroes_at_the_first_tick_past_its_age(context, harnesses,
                                                                       name, topic):
-    g = graph(graphs, context)
+    g = graph(harnesses, context)
     g.wait_active()
     stop = time.monotonic()
     g.sending.discard(topic)
@@ -295,9 +260,9 @@ def test_a_stopped_input_stream_zeroes_at_the_first_tick_past_its_age(context, g
     (dict(f3=1e3), ('ESO diverged', 'f3_hat')),
     (dict(omega=-50.0), ('ESO diverged', 'omega_hat')),
 ])
-def test_a_bad_estimate_zeroes_at_the_next_tick_and_diagnostics_say_why(context, graphs,
+def test_a_bad_estimate_zeroes_at_the_next_tick_and_diagnostics_say_why(context, harnesses,
                                                                         change, words):
-    g = graph(graphs, context)
+    g = graph(harnesses, context)
     g.wait_active()
     start = time.monotonic()
     g.estimate.update(change)
@@ -320,8 +285,8 @@ def test_a_bad_estimate_zeroes_at_the_next_tick_and_diagnostics_say_why(context,
 @pytest.mark.parametrize('status, words', [
     (MpcOutput.FAILED_ZERO, ('MPC failed', 'FAILED_ZERO')),
     (MpcOutput.INPUT_INVALID, ('MPC failed', 'INPUT_INVALID'))])
-def test_an_mpc_failure_status_zeroes_at_the_next_tick(context, graphs, status, words):
-    g = graph(graphs, context)
+def test_an_mpc_failure_status_zeroes_at_the_next_tick(context, harnesses, status, words):
+    g = graph(harnesses, context)
     g.wait_active()
     start = time.monotonic()
     g.status = status
@@ -332,8 +297,8 @@ def test_an_mpc_failure_status_zeroes_at_the_next_tick(context, graphs, status, 
     g.diagnosed('FAULT', *words)
 
 
-def test_estop_zeroes_at_the_next_tick_and_latches_until_reset(context, graphs):
-    g = graph(graphs, context)
+def test_estop_zeroes_at_the_next_tick_and_latches_until_reset(context, harnesses):
+    g = graph(harnesses, context)
     client = g.io.create_client(Trigger, '/torque_mixer/reset_estop')
     g.wait_active()
     start = time.monotonic()
@@ -364,9 +329,9 @@ def test_estop_zeroes_at_the_next_tick_and_latches_until_reset(context, graphs):
     assert g.efforts[index - offset].data.tolist() == [0.0, 0.0]
 
 
-def test_estop_reset_topic_works_like_the_service(context, graphs):
+def test_estop_reset_topic_works_like_the_service(context, harnesses):
     from std_msgs.msg import Empty
-    g = graph(graphs, context)
+    g = graph(harnesses, context)
     reset = g.io.create_publisher(Empty, '/wip/estop_reset', 10)
     g.wait_active()
     g.pubs['/wip/estop'].publish(Bool(data=True))
@@ -378,8 +343,8 @@ def test_estop_reset_topic_works_like_the_service(context, graphs):
     g.wait_active()
 
 
-def test_shadow_mode_publishes_the_torques_but_commands_zero(context, graphs):
-    g = graph(graphs, context, **{'safety.shadow_mode': True})
+def test_shadow_mode_publishes_the_torques_but_commands_zero(context, harnesses):
+    g = graph(harnesses, context, **{'safety.shadow_mode': True})
     g.wait_active(SHADOW)
     left, right = mix(TAU_V, TAU_OMEGA, 15.0)
     assert (g.wheels[-1].left, g.wheels[-1].right, g.wheels[-1].zeroed) == (left, right, False)
@@ -387,8 +352,8 @@ def test_shadow_mode_publishes_the_torques_but_commands_zero(context, graphs):
     g.diagnosed('SHADOW')
 
 
-def test_safety_parameters_are_read_only_and_mixer_limits_are_validated(context, graphs):
-    g = graph(graphs, context)
+def test_safety_parameters_are_read_only_and_mixer_limits_are_validated(context, harnesses):
+    g = graph(harnesses, context)
     node = g.node
     for name, value in (('safety.fall_threshold', 1.0), ('safety.shadow_mode', False),
                         ('safety.max_estimate_age', 10.0)):
@@ -410,22 +375,17 @@ def test_safety_parameters_are_read_only_and_mixer_limits_are_validated(context,
 
 
 def test_mpc_process_killed_mid_run_zeroes_at_the_first_tick_past_the_drive_age(
-        context, graphs):
-    from ament_index_python.packages import get_package_prefix
-    executable = os.path.join(get_package_prefix('wip_control'), 'lib', 'wip_control', 'mpc')
-    assert os.access(executable, os.X_OK), executable
-    env = dict(os.environ)
-    env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
-    g = graph(graphs, context)
+        context, harnesses):
+    executable = installed_executable('wip_control', 'mpc')
+    g = graph(harnesses, context)
     g.sending.discard('/wip/drive_torque')              # the real MPC publishes it
     g.sending.add('/wip/velocity_command')
-    process = subprocess.Popen([executable, '--ros-args', '-p', 'clock_mode:=realtime',
-                                '-p', 'diagnostics_period:=0.0'], env=env,
-                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    try:
-        g.spin_until(lambda: process.poll() is None and g.log.inputs and any(
+    with node_process([executable, '--ros-args', '-p', 'clock_mode:=realtime',
+                       '-p', 'diagnostics_period:=0.0'], stdout=subprocess.DEVNULL) as process:
+        g.spin_until(lambda: g.log.inputs and any(
             n == 'drive_torque' and a[1] == DriveStatus.SOLVED for _, n, a in g.log.inputs),
-            'SOLVED drive torques from the MPC process')
+            'SOLVED drive torques from the MPC process', timeout=PROCESS_START_TIMEOUT,
+            process=process)
         g.wait_active()
         kill_time = time.monotonic()
         process.send_signal(signal.SIGKILL)
@@ -438,10 +398,6 @@ def test_mpc_process_killed_mid_run_zeroes_at_the_first_tick_past_the_drive_age(
                                           'publisher stopped')
         status = g.diagnosed('FAULT', 'drive_torque stale')
         assert status.level == DiagnosticStatus.ERROR
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
 
 
 def test_drive_status_values_are_the_mpc_output_constants():
@@ -451,59 +407,41 @@ def test_drive_status_values_are_the_mpc_output_constants():
 
 
 @pytest.mark.parametrize('stop_signal', [signal.SIGINT, signal.SIGTERM])
-def test_mixer_process_stopped_sends_a_last_zero_command_to_the_base(context, stop_signal):
+def test_mixer_process_stopped_sends_a_last_zero_command_to_the_base(context, harnesses,
+                                                                    stop_signal):
     """A JointGroupEffortController holds the last command forever: the mixer process,
     stopped while it commands torque, must leave zero behind (its last message)."""
-    from ament_index_python.packages import get_package_prefix
-    executable = os.path.join(get_package_prefix('wip_control'), 'lib', 'wip_control',
-                              'torque_mixer')
-    env = dict(os.environ)
-    env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
-    process = subprocess.Popen(
-        [executable, '--ros-args', '-p', 'clock_mode:=realtime', '-p', 'use_sim_time:=false',
-         '-p', f'safety.settle_time:={SETTLE}', '-p', 'diagnostics_period:=0.0',
-         *itertools.chain.from_iterable(('-p', f'safety.max_{name}_age:={age}')
-                                        for name, age in AGES.items())],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    io = rclpy.create_node(f'stop_harness_{next(_ids)}', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(io)
-    efforts = []
-    io.create_subscription(Float64MultiArray, '/effort_controller/commands', efforts.append,
-                           1000)
-    pubs = {topic: io.create_publisher(kind, topic, 100) for topic, kind in (
+    executable = installed_executable('wip_control', 'torque_mixer')
+    harness = NodeHarness(context, timeout=TIMEOUT)   # the node under test is the process
+    harnesses.append(harness)
+    efforts = harness.listen(Float64MultiArray, '/effort_controller/commands', 1000)
+    pubs = {topic: harness.publisher(kind, topic) for topic, kind in (
         ('/wip/state_estimate', StateEstimateMsg), ('/wip/yaw_torque', ArcState),
         ('/wip/drive_torque', MpcOutput))}
 
     def upstream():
-        stamp = make_header(io.get_clock().now().nanoseconds)
+        stamp = make_header(harness.io.get_clock().now().nanoseconds)
         pubs['/wip/state_estimate'].publish(StateEstimateMsg(header=stamp, theta=0.02,
                                                              settled=True))
         pubs['/wip/yaw_torque'].publish(ArcState(header=stamp, tau_omega=TAU_OMEGA))
         pubs['/wip/drive_torque'].publish(MpcOutput(header=stamp, tau_v=TAU_V))
-    io.create_timer(PERIOD, upstream)
+    harness.io.create_timer(PERIOD, upstream)
     torque = mix(TAU_V, TAU_OMEGA, 15.0)
-    try:
-        deadline = time.monotonic() + 60.0   # process start-up and discovery on 2 cores
-        while not any(list(m.data) == list(torque) for m in efforts):
-            assert process.poll() is None, process.communicate()[0]
-            assert time.monotonic() < deadline, 'no torque from the mixer process'
-            executor.spin_once(timeout_sec=0.01)
+    with node_process(
+            [executable, '--ros-args', '-p', 'clock_mode:=realtime', '-p', 'use_sim_time:=false',
+             '-p', f'safety.settle_time:={SETTLE}', '-p', 'diagnostics_period:=0.0',
+             *itertools.chain.from_iterable(('-p', f'safety.max_{name}_age:={age}')
+                                            for name, age in AGES.items())],
+            stderr=subprocess.STDOUT) as process:
+        harness.spin_until(lambda: any(list(m.data) == list(torque) for m in efforts),
+                           'torque from the mixer process', timeout=PROCESS_START_TIMEOUT,
+                           process=process)
         process.send_signal(stop_signal)
-        deadline = time.monotonic() + 10.0
-        while process.poll() is None:
-            assert time.monotonic() < deadline, 'the mixer did not stop'
-            executor.spin_once(timeout_sec=0.01)
-        executor.spin_once(timeout_sec=0.2)   # drain what is still on the way
+        harness.spin_until(lambda: process.poll() is not None, 'the mixer to stop', 10.0)
+        harness.executor.spin_once(timeout_sec=0.2)   # drain what is still on the way
         output = process.communicate()[0]
         assert process.returncode == 0, output
         assert 'zero effort command sent' in output, output
         assert list(efforts[-1].data) == [0.0, 0.0]
         assert any(max(abs(v) for v in m.data) > 0.0 for m in efforts[-10:-1]), \
             'the mixer was not commanding torque when it was stopped'
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.communicate()
-        executor.shutdown()
-        io.destroy_node()

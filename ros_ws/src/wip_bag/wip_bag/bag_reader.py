@@ -20,7 +20,7 @@ from typing import Any, NamedTuple
 
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Message, Schema
+from mcap.records import Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 import yaml
@@ -155,6 +155,19 @@ def read_metadata_file(metadata_path):
     return info
 
 
+#: The MCAP records the bag tools read, by the name they go by.
+_RECORD_KINDS = ((Schema, 'schema'), (Channel, 'channel'), (Message, 'message'),
+                 (Metadata, 'metadata'))
+
+
+def record_kind(record) -> str | None:
+    """'schema', 'channel', 'message' or 'metadata' for those MCAP records, else None."""
+    for cls, kind in _RECORD_KINDS:
+        if isinstance(record, cls):
+            return kind
+    return None
+
+
 def scan_mcap_records(path):
     """Yield ``(kind, record)`` for the schemas, channels and messages of an MCAP file.
 
@@ -171,12 +184,9 @@ def scan_mcap_records(path):
                 return
             except _TRUNCATION_ERRORS:
                 return
-            if isinstance(record, Schema):
-                yield 'schema', record
-            elif isinstance(record, Channel):
-                yield 'channel', record
-            elif isinstance(record, Message):
-                yield 'message', record
+            kind = record_kind(record)
+            if kind in ('schema', 'channel', 'message'):
+                yield kind, record
 
 
 def _has_summary(stream):
@@ -224,11 +234,12 @@ def _intact_messages(path, file_scan, topics=None, start_ns=None, end_ns=None):
             continue
         batch = []
         for record in records:
-            if isinstance(record, Schema):
+            kind = record_kind(record)
+            if kind == 'schema':
                 schemas.setdefault(record.id, record)
-            elif isinstance(record, Channel):
+            elif kind == 'channel':
                 channels.setdefault(record.id, record)
-            elif isinstance(record, Message):
+            elif kind == 'message':
                 channel = channels.get(record.channel_id)
                 if channel is None or (topics is not None and channel.topic not in topics):
                     continue

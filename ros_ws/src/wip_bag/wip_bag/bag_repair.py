@@ -45,7 +45,6 @@ from typing import NamedTuple
 
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Message, Metadata, Schema
 from mcap.writer import Writer
 import yaml
 
@@ -53,7 +52,7 @@ from wip_control.tools.cli import check_output_directory, EXIT_FAILED, EXIT_OK, 
 from wip_control.tools.cli import exit_with
 
 from .bag_integrity import iter_chunk_records
-from .bag_reader import BagReadError, scan
+from .bag_reader import BagReadError, record_kind, scan
 from .bag_writer import (bag_metadata, BagWriterError, COMPRESSION, FileStatistics,
                          library_identifier, MCAP_PROFILE, METADATA_FILE_NAME,
                          write_metadata_file)
@@ -182,17 +181,6 @@ def _parse_serialized(metadata):
     return data if isinstance(data, dict) else None
 
 
-def _classify(record):
-    if isinstance(record, Schema):
-        yield 'schema', record
-    elif isinstance(record, Channel):
-        yield 'channel', record
-    elif isinstance(record, Message):
-        yield 'message', record
-    elif isinstance(record, Metadata):
-        yield 'metadata', record
-
-
 def _rewrite(path, target, compression):
     """The intact chunks of ``path`` into a finished MCAP file ``target`` (None: only
     count); returns its FileContents."""
@@ -208,8 +196,9 @@ def _rewrite(path, target, compression):
     try:
         for _, records in iter_chunk_records(path, file_scan):
             contents.chunks += 1
-            for record in records:
-                for kind, item in _classify(record):
+            for item in records:
+                kind = record_kind(item)
+                if kind is not None:
                     if target is not None and writer is None:
                         stream = open(target, 'xb')
                         chosen = compression or _compression_name(contents.compression)

@@ -72,7 +72,6 @@ Behaviour
 """
 
 import datetime
-import importlib
 import os
 import queue
 import sys
@@ -93,6 +92,7 @@ from wip_control.nodes.parameters import ConfigParameters
 
 from .bag_writer import (BagExistsError, BagWriterError, message_definition,
                          Rosbag2McapWriter, type_description_hash)
+from .message_types import message_class
 from .settings import RecorderSettings
 
 #: Keep-last depth of the recording subscriptions [messages]. A lockstep graph publishes
@@ -123,12 +123,8 @@ def is_hidden_topic(name):
 
 
 def import_message_class(type_name):
-    """Return the Python class of a ROS message type 'pkg/msg/Type'."""
-    try:
-        package, namespace, name = type_name.split('/')
-        return getattr(importlib.import_module(f'{package}.{namespace}'), name)
-    except (ValueError, ImportError, AttributeError) as err:
-        raise BagWriterError(f'cannot import message type {type_name!r}: {err}') from err
+    """The Python class of a ROS message type 'pkg/msg/Type'; BagWriterError if unknown."""
+    return message_class(type_name, BagWriterError)
 
 
 def request_qos(offered_profiles):

@@ -90,7 +90,6 @@ parameters.
 """
 
 import argparse
-import importlib
 import sys
 import time
 
@@ -111,6 +110,7 @@ from wip_control.nodes.parameters import ConfigParameters
 from wip_control.tools.cli import EXIT_INTERNAL, EXIT_USAGE, log_trace, one_line
 
 from .bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
+from .message_types import message_class
 from .qos_yaml import INFINITE_DURATION_NS, normalize_offered_qos
 from .settings import ReplayerSettings
 
@@ -141,16 +141,6 @@ _LIVELINESS = {'system_default': QoSLivelinessPolicy.SYSTEM_DEFAULT,
 
 class ReplayError(Exception):
     """The bag cannot be played as asked."""
-
-
-def import_message_class(type_name):
-    """The Python class of a ROS message type 'pkg/msg/Type' (rosidl_runtime_py's
-    ``get_message``, which is not in the PyPI wheels)."""
-    try:
-        package, namespace, name = type_name.split('/')
-        return getattr(importlib.import_module(f'{package}.{namespace}'), name)
-    except (ValueError, ImportError, AttributeError) as err:
-        raise ReplayError(f'cannot import message type {type_name!r}: {err}') from err
 
 
 def _duration(mapping):
@@ -292,13 +282,13 @@ class ReplayerNode(Node):
                 self.skipped[topic] = f'serialization {meta.serialization_format!r}'
                 continue
             try:
-                message_class = import_message_class(meta.type_name)
+                msg_class = message_class(meta.type_name, ReplayError)
                 qos = playback_qos(meta.offered_qos_profiles, self.qos_depth)
             except (ReplayError, ValueError) as err:
                 self.skipped[topic] = str(err)
                 continue
             self.publishers_by_topic[topic] = self.create_publisher(
-                message_class, remaps.get(topic, topic), qos)
+                msg_class, remaps.get(topic, topic), qos)
         for topic, reason in self.skipped.items():
             self.get_logger().error(f'not playing {topic}: {reason}')
         if not self.publishers_by_topic:

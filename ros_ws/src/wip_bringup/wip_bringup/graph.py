@@ -90,16 +90,14 @@ from typing import Any
 
 import yaml
 
-from wip_control.core.config import ConfigError
-from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
+from wip_control.core.scenario import Scenario
 from wip_control.tools.cli import exit_with, write_atomic
 from .hardware import add_arguments, run_from_args
-from .launcher import (add_view_arguments, choose_domain_id, executable_path, EXECUTABLES,
-                       EXIT_FAILED, EXIT_FELL, EXIT_INTERRUPTED, EXIT_OK, EXIT_TIMEOUT,
-                       EXIT_USAGE, foxglove_port, GRACE_PERIOD, graph_environment, GraphError,
-                       LAYOUTS, live_view_line, NodeProcess, prepare_run_directory, Probe,
-                       PROBE_PERIOD, RECORDER_GRACE_PERIOD, Scheduling, VIEWER_TOPICS,
-                       viewer_wanted)
+# LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
+from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_FELL, EXIT_INTERRUPTED, EXIT_OK,
+                       EXIT_TIMEOUT, EXIT_USAGE, GraphError, LAYOUTS, Probe, PROBE_PERIOD,
+                       Scheduling, VIEWER_TOPICS, viewer_wanted)
+from .runner_base import options_from_args, print_result, RunnerBase, RunResult
 from .params_files import CONTROLLER_NODES, write_params_file
 
 
@@ -192,37 +190,20 @@ class GraphOptions:
 
 
 @dataclasses.dataclass
-class GraphResult:
-    """What :func:`run_graph` returns (also written to ``OUT/run.json``)."""
+class GraphResult(RunResult):
+    """What :func:`run_graph` returns (also written to ``OUT/run.json``); ``cpu_s`` of the
+    plant from its own stats, ``timeline`` with the plant's refusals to start."""
 
-    exit_code: int
-    message: str
-    out: pathlib.Path
-    bag: pathlib.Path | None
-    domain_id: int
     scenario: Scenario | None = None
-    node_exit_codes: dict[str, int | None] = dataclasses.field(default_factory=dict)
     plant_stats: dict | None = None
-    startup_s: float | None = None
-    wall_time_s: float | None = None
-    #: CPU time [s] of each node process during the run (plant: from its own stats).
-    cpu_s: dict[str, float] = dataclasses.field(default_factory=dict)
-    #: Wall times [s] of the start-up steps and the plant's refusals to start.
-    timeline: dict[str, Any] = dataclasses.field(default_factory=dict)
-    #: Latest /diagnostics status of every node: name -> {'message': ..., key: value}.
-    node_diagnostics: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         stats = self.plant_stats or {}
-        return {'exit_code': self.exit_code, 'message': self.message,
+        return {**super().summary(),
                 'scenario': self.scenario.name if self.scenario else None,
-                'out': str(self.out), 'bag': str(self.bag) if self.bag else None,
-                'domain_id': self.domain_id, 'startup_s': self.startup_s,
-                'wall_time_s': self.wall_time_s, 'sim_time_s': stats.get('sim_time_s'),
+                'sim_time_s': stats.get('sim_time_s'),
                 'real_time_factor': stats.get('real_time_factor'),
-                'node_exit_codes': self.node_exit_codes, 'plant_stats': self.plant_stats,
-                'cpu_s': self.cpu_s, 'timeline': self.timeline,
-                'node_diagnostics': self.node_diagnostics}
+                'plant_stats': self.plant_stats}
 
 
 def expected_endpoints(clock_mode: str, recording: bool, layout: str = 'separate',
@@ -257,45 +238,16 @@ def missing_endpoints(probe: Probe, expected: dict[str, tuple[int, int]],
     return missing
 
 
-class GraphRunner:
+class GraphRunner(RunnerBase):
     """One run: start, watch and stop the processes; see the module docstring."""
 
+    EXTRA_PROCESSES = ('plant',)
+    UP_EVENT = 'graph complete'
+    NOT_UP = 'the graph was not complete after {timeout:g} s'
+
     def __init__(self, options: GraphOptions) -> None:
-        self.options = dataclasses.replace(options, viewer=viewer_wanted(options))
-        self.out = pathlib.Path(options.out).resolve()
-        self.bag = pathlib.Path(options.record).resolve() if options.record else None
-        self.prepared = False  # True once prepare() set up the run directory
-        self.bag_created = False  # True once this run's recorder may have written the bag
-        self.processes: dict[str, NodeProcess] = {}
-        self.probe: Probe | None = None
-        self.domain_id = choose_domain_id()
-        self.scenario: Scenario | None = None
-        self._interactive = sys.stderr.isatty()
-        self.t0 = time.monotonic()
-        #: Wall times [s] of the start-up steps, from the start of the run.
-        self.timeline: dict[str, float] = {}
+        super().__init__(options)
         self.start_refusals: list[str] = []  # why /plant/start said no, with times
-
-    # -- output -------------------------------------------------------------------------
-    def say(self, text: str) -> None:
-        if not self.options.quiet:
-            if self._interactive:
-                sys.stderr.write('\r\033[K')
-            print(f'run_graph: {text}', file=sys.stderr, flush=True)
-
-    def progress(self, text: str) -> None:
-        if self.options.quiet:
-            return
-        if self._interactive:
-            sys.stderr.write('\r\033[K  ' + text)
-            sys.stderr.flush()
-        else:
-            print('  ' + text, file=sys.stderr, flush=True)
-
-    def say_foxglove_url(self) -> None:
-        if 'foxglove_bridge' in self.processes:
-            self.say(live_view_line(self.processes['foxglove_bridge'],
-                                    self.options.foxglove_host, self.options.foxglove_port))
 
     # -- set-up ---------------------------------------------------------------------------
     def prepare(self) -> pathlib.Path:
@@ -304,14 +256,8 @@ class GraphRunner:
         if options.clock not in ('lockstep', 'realtime'):
             raise GraphError(f'--clock: {options.clock!r} is not lockstep or realtime',
                              EXIT_USAGE)
-        if options.layout not in LAYOUTS:
-            raise GraphError(f'--layout: {options.layout!r} is not one of {list(LAYOUTS)}',
-                             EXIT_USAGE)
-        options.scheduling.check()
-        try:
-            scenario = load_scenario(options.scenario)
-        except ConfigError as err:
-            raise GraphError(str(err), EXIT_USAGE) from err
+        self.check_layout_and_scheduling()
+        scenario = self.load_scenario(options.scenario)
         if options.duration is not None:
             if not 0.0 < options.duration <= 36000.0:
                 raise GraphError(f'--duration: must be in (0, 36000] s, got '
@@ -319,20 +265,11 @@ class GraphRunner:
             scenario = dataclasses.replace(scenario, duration=float(options.duration))
         self.scenario = scenario
         # Every output is checked before anything is written or started.
-        prepare_run_directory(self.out, self.bag, extra_logs=('logs_attempt_*',))
-        self.prepared = True
-        for stale in ('plant_stats.json', 'run.json'):
-            (self.out / stale).unlink(missing_ok=True)
-        scenario_path = self.out / 'scenario.yaml'
-        write_atomic(scenario_path, yaml.safe_dump(scenario_to_mapping(scenario),
-                                                   sort_keys=False))
-        recorder = None
-        if self.bag is not None:
-            topics = list(RECORDED_TOPICS) + (list(VIEWER_TOPICS) if options.viewer else [])
-            if options.clock == 'lockstep':
-                topics.insert(0, '/clock')
-            recorder = {'output': str(self.bag), 'topics': topics,
-                        'discovery_period': 0.2}
+        scenario_path = self.prepare_outputs(stale=('plant_stats.json', 'run.json'),
+                                             extra_logs=('logs_attempt_*',))
+        recorder = self.recorder_parameters(
+            (['/clock'] if options.clock == 'lockstep' else []) + list(RECORDED_TOPICS),
+            discovery_period=0.2)
         plant_extra = {
             'autostart': False,
             'start.expected_sensor_subscribers': 1 + (recorder is not None),
@@ -345,99 +282,19 @@ class GraphRunner:
         params_file = write_params_file(scenario, self.out / 'params.yaml', options.clock,
                                         scenario_path, plant_extra=plant_extra,
                                         recorder=recorder)
-        self.add_view_parameters(params_file)
+        # The vehicle drawn with the plant's true dimensions, the estimate's position
+        # covariance from the GPS noise.
+        view = self.view_parameters(scenario.plant.parameters, scenario.sensors.gps_noise_std)
+        if view:  # The whole file again, atomically, like every output of a run.
+            write_atomic(params_file, params_file.read_text(encoding='utf-8')
+                         + yaml.safe_dump(view, sort_keys=False))
         return params_file
 
-    def add_view_parameters(self, params_file: pathlib.Path) -> None:
-        """Parameters of the viewer and the Foxglove bridge, appended to the params file
-        (the vehicle drawn with the plant's true dimensions, the estimate's position
-        covariance from the GPS noise)."""
-        options, scenario = self.options, self.scenario
-        extra = {}
-        if options.viewer:
-            plant = scenario.plant.parameters
-            extra['viewer'] = {'ros__parameters': {
-                'viewer': {'wheel_radius': float(plant.wheel_radius),
-                           'track_width': float(plant.track_width),
-                           'com_height': float(plant.com_height),
-                           'position_std': float(scenario.sensors.gps_noise_std)}}}
-        if options.foxglove_port is not None:
-            extra['foxglove_bridge'] = {'ros__parameters': {
-                'host': options.foxglove_host, 'port': int(options.foxglove_port)}}
-        if extra:  # The whole file again, atomically, like every output of a run.
-            write_atomic(params_file, params_file.read_text(encoding='utf-8')
-                         + yaml.safe_dump(extra, sort_keys=False))
-
-    def node_names(self) -> list[str]:
-        """The ROS nodes of the run (whatever the processes that hold them)."""
-        return (list(CONTROLLER_NODES) + ['plant'] + (['recorder'] if self.bag else [])
-                + (['viewer'] if self.options.viewer else [])
-                + (['foxglove_bridge'] if self.options.foxglove_port is not None else []))
-
-    def start_processes(self, params_file: pathlib.Path) -> None:
-        env = graph_environment(self.domain_id)
-        env['ROS_LOG_DIR'] = str(self.out / 'logs' / 'ros')
-        controllers = (['controllers'] if self.options.layout == 'composed'
-                       else list(CONTROLLER_NODES))
-        names = controllers + ['plant']
-        if self.options.viewer:
-            names.append('viewer')
-        if self.options.foxglove_port is not None:
-            names.append('foxglove_bridge')
-        if self.bag is not None:
-            names.insert(0, 'recorder')
-        commands = {}
-        for name in names:
-            package, executable = EXECUTABLES[name]
-            commands[name] = [str(executable_path(package, executable)), '--ros-args',
-                              '--params-file', str(params_file)]
-            if name != 'controllers':   # composed: each node keeps its own name
-                commands[name] += ['-r', f'__node:={name}']
-        for name in names:
-            scheduling = self.options.scheduling if name in controllers else None
-            self.processes[name] = NodeProcess(name, commands[name],
-                                               self.out / 'logs' / f'{name}.log', env,
-                                               scheduling)
-
     # -- watching ---------------------------------------------------------------------------
-    def check_alive(self, allow_plant_exit: bool = False) -> None:
-        """Raise GraphError naming a node that exited when it should not have."""
-        for name, process in self.processes.items():
-            code = process.poll()
-            if code is None or (allow_plant_exit and name == 'plant'):
-                continue
-            raise GraphError(f'node {name!r} (pid {process.pid}) exited with code {code}; '
-                             f'last lines of {process.log_path}:\n{process.log_tail()}')
-
-    def wait_for_graph(self) -> None:
+    def missing_from_view(self, nodes: list[str]) -> list[str]:
         expected = expected_endpoints(self.options.clock, self.bag is not None,
                                       self.options.layout, self.options.viewer)
-        nodes = self.node_names()
-        deadline = time.monotonic() + self.options.discovery_timeout
-        missing = ['(not checked yet)']
-        complete_since = None
-        while time.monotonic() < deadline:
-            self.check_alive()
-            missing = missing_endpoints(self.probe, expected, nodes)
-            if missing:
-                complete_since = None
-            else:
-                if complete_since is None:
-                    complete_since = time.monotonic()
-                # The probe's view is complete, but two other nodes may not have matched
-                # each other yet (their DDS endpoint discovery is separate): also wait for
-                # a /diagnostics message of every node sent after that moment (<= 1 s).
-                silent = set(nodes) - self.probe.reporting_since(complete_since)
-                unmatched = self.unmatched_endpoints()
-                if not silent and not unmatched:
-                    self.timeline['graph complete'] = complete_since - self.t0
-                    self.timeline['diagnostics from every node'] = time.monotonic() - self.t0
-                    return
-                missing = (['/diagnostics from ' + ', '.join(sorted(silent))] if silent
-                           else []) + unmatched
-            self.probe.spin(0.1)
-        raise GraphError(f'the graph was not complete after {self.options.discovery_timeout:g} '
-                         f's; missing: {"; ".join(missing)}', EXIT_TIMEOUT)
+        return missing_endpoints(self.probe, expected, nodes)
 
     def unmatched_endpoints(self) -> list[str]:
         """Designed pairs whose DDS match is not yet seen by BOTH sides, from the match
@@ -588,38 +445,12 @@ class GraphRunner:
                 return
         self.say(f'warning: the recorder was still receiving after {DRAIN_TIMEOUT:g} s')
 
-    def stop_all(self) -> None:
-        """SIGINT every process (recorder last), SIGKILL after the grace period."""
-        others = [p for n, p in self.processes.items() if n != 'recorder']
-        for process in others:  # All at once: they shut down in parallel.
-            process.interrupt()
-        deadline = time.monotonic() + GRACE_PERIOD
-        for process in others:
-            process.stop(deadline - time.monotonic())
-            if process.killed:
-                self.say(f'warning: {process.name} (pid {process.pid}) ignored SIGINT for '
-                         f'{GRACE_PERIOD:g} s: killed')
-        self.timeline['nodes stopped'] = time.monotonic() - self.t0
-        if 'recorder' in self.processes:
-            recorder = self.processes['recorder']
-            code = recorder.stop(RECORDER_GRACE_PERIOD)
-            self.timeline['recorder stopped'] = time.monotonic() - self.t0
-            if code not in (0, None):
-                self.say(f'warning: the recorder exited with code {code}; see '
-                         f'{recorder.log_path}; if the bag was not closed, '
-                         f'scripts/bag_repair {self.bag} recovers every complete chunk')
-
     # -- the run ----------------------------------------------------------------------------
     def start_graph(self, params_file: pathlib.Path) -> None:
         """Start the processes, wait for the graph, start the plant."""
         if self.probe is None:
             self.probe = Probe(self.domain_id)
-        self.start_processes(params_file)
-        self.bag_created = self.bag is not None  # prepare() checked it was absent or empty
-        self.timeline['processes started'] = time.monotonic() - self.t0
-        self.say(f'started {len(self.processes)} processes in ROS_DOMAIN_ID='
-                 f'{self.domain_id}; waiting for the graph')
-        self.wait_for_graph()
+        self.launch(params_file)
         self.start_plant()
 
     def retry(self, attempt: int) -> None:
@@ -656,7 +487,7 @@ class GraphRunner:
                     self.say(f'graph connected in {result.startup_s:.1f} s; plant started')
                     self.say_foxglove_url()
                     run_start = time.monotonic()
-                    cpu_start = {n: p.cpu_seconds() for n, p in self.processes.items()}
+                    cpu_start = self.cpu_snapshot()
                     code = self.watch()
                     break
                 except StartupStall as err:
@@ -667,14 +498,11 @@ class GraphRunner:
                              f'starting the graph again (attempt {attempt + 2})')
                     self.retry(attempt + 1)
             result.wall_time_s = time.monotonic() - run_start
-            for name, process in self.processes.items():
-                now = process.cpu_seconds()
-                if now is not None and cpu_start[name] is not None:
-                    result.cpu_s[name] = now - cpu_start[name]
+            result.cpu_s.update(self.cpu_since(cpu_start))
             if not self.options.quiet and self._interactive:
                 sys.stderr.write('\n')
             self.timeline['plant ended'] = time.monotonic() - self.t0
-            self.check_alive(allow_plant_exit=True)
+            self.check_alive(exempt=('plant',))
             self.drain_recorder()
             self.timeline['recorder drained'] = time.monotonic() - self.t0
             if code == 0:
@@ -690,28 +518,14 @@ class GraphRunner:
         except KeyboardInterrupt:
             result.exit_code, result.message = EXIT_INTERRUPTED, 'interrupted'
         finally:
-            if self.probe is not None:
-                result.node_diagnostics = {
-                    name: {'message': status.message,
-                           **{kv.key: kv.value for kv in status.values}}
-                    for name, status in sorted(self.probe.diagnostics.items())}
-            self.stop_all()
-            if self.probe is not None:
-                self.probe.close()
-        result.domain_id = self.domain_id
-        result.node_exit_codes = {n: p.returncode for n, p in self.processes.items()}
+            self.shut_down(result)
         result.timeline = dict(self.timeline, start_refusals=self.start_refusals)
         stats_path = self.out / 'plant_stats.json'
         if stats_path.is_file():
             result.plant_stats = json.loads(stats_path.read_text(encoding='utf-8'))
             if result.plant_stats.get('cpu_s') is not None:
                 result.cpu_s['plant'] = result.plant_stats['cpu_s']
-        if self.bag_created and self.bag.is_dir() and (self.out / 'scenario.yaml').is_file():
-            # Only into a bag this run recorded (never into one it refused).
-            shutil.copyfile(self.out / 'scenario.yaml', self.bag / 'scenario.yaml')
-        if self.prepared and self.out.is_dir():  # A refused run leaves --out untouched.
-            (self.out / 'run.json').write_text(json.dumps(result.summary(), indent=2) + '\n',
-                                               encoding='utf-8')
+        self.finish(result)
         return result
 
 
@@ -814,23 +628,11 @@ def main(argv: list[str] | None = None) -> int:
         return run_from_args(args)
     if args.params_files or args.remaps:
         parser.error('--params-file and --remap are options of --mode hardware')
-    options = GraphOptions(scenario=args.scenario, clock=args.clock or 'lockstep',
-                           record=args.record, duration=args.duration,
-                           out=args.out or 'out/graph',
-                           discovery_timeout=args.discovery_timeout,
-                           stall_timeout=args.stall_timeout,
-                           startup_retries=args.startup_retries, quiet=args.quiet,
-                           layout=args.layout or GraphOptions.layout,
-                           scheduling=Scheduling(priority=args.rt_priority,
-                                                 cpus=tuple(args.cpu_affinity)),
-                           viewer=args.viewer, foxglove_port=args.foxglove,
-                           foxglove_host=args.foxglove_host)
-    result = run_graph(options)
-    if result.exit_code == EXIT_USAGE:  # Refused before anything ran: nothing to show.
-        print(f'run_graph: error: {result.message}', file=sys.stderr)
-        return EXIT_USAGE
-    print(format_result(result))
-    return result.exit_code
+    options = GraphOptions(**options_from_args(
+        args, clock=args.clock or 'lockstep', out=args.out or 'out/graph',
+        stall_timeout=args.stall_timeout, startup_retries=args.startup_retries,
+        layout=args.layout or GraphOptions.layout))
+    return print_result(run_graph(options), format_result)
 
 
 if __name__ == '__main__':

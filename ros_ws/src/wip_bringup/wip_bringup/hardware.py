@@ -59,11 +59,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import fnmatch
-import json
 import pathlib
 import re
-import shutil
-import signal
 import sys
 import time
 from typing import Any, Callable, Iterable, Mapping
@@ -71,17 +68,13 @@ from typing import Any, Callable, Iterable, Mapping
 import yaml
 
 from wip_control.core.config import ConfigError, load_yaml_text
-from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
+from wip_control.core.scenario import Scenario
 from wip_bringup.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
-                                            graph_parameters, _NoAliasDumper)
+                                      graph_parameters, _NoAliasDumper)
 
-from wip_control.tools.cli import write_atomic
-
-from .launcher import (add_view_arguments, choose_domain_id, executable_path,
-                       EXECUTABLES, EXIT_FAILED, EXIT_OK, EXIT_TIMEOUT, EXIT_USAGE,
-                       GRACE_PERIOD, graph_environment, GraphError, LAYOUTS, live_view_line,
-                       NodeProcess, parse_cpus, prepare_run_directory, Probe,
-                       RECORDER_GRACE_PERIOD, Scheduling, VIEWER_TOPICS, viewer_wanted)
+from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_OK, EXIT_USAGE, GraphError,
+                       LAYOUTS, parse_cpus, Probe, Scheduling)
+from .runner_base import options_from_args, print_result, RunnerBase, RunResult
 
 #: The nodes of hardware mode, in start order.
 HARDWARE_NODES = CONTROLLER_NODES
@@ -117,7 +110,7 @@ class HardwareOptions:
     quiet: bool = False
     arm_delay: float = 2.0  # [s] wall: every node up -> the e-stop heartbeat starts
     heartbeat: bool = True  # publish the /wip/estop heartbeat (see the module docstring)
-    layout: str = 'composed'  # controller processes: see wip_bringup.graph.LAYOUTS
+    layout: str = 'composed'  # controller processes: see wip_bringup.launcher.LAYOUTS
     scheduling: Scheduling = Scheduling()  # of the controller processes
     #: Programmatic stop (tests): polled while running; a non-empty string ends the run
     #: (exit 0) with that message.
@@ -126,26 +119,16 @@ class HardwareOptions:
     #: e.g. to reach its processes and safety events from another thread.
     on_start: Callable[[Any], None] | None = None
     #: The viewer node (Odometry, Path, markers of the estimate); None: with --record or
-    #: --foxglove (see wip_bringup.graph.viewer_wanted).
+    #: --foxglove (see wip_bringup.launcher.viewer_wanted).
     viewer: bool | None = None
     foxglove_port: int | None = None  # serve the topics to Foxglove on this port
     foxglove_host: str = '127.0.0.1'
 
 
 @dataclasses.dataclass
-class HardwareResult:
+class HardwareResult(RunResult):
     """What :func:`run_hardware` returns (also written to ``OUT/run.json``)."""
 
-    exit_code: int
-    message: str
-    out: pathlib.Path
-    bag: pathlib.Path | None
-    domain_id: int
-    node_exit_codes: dict[str, int | None] = dataclasses.field(default_factory=dict)
-    startup_s: float | None = None
-    wall_time_s: float | None = None
-    cpu_s: dict[str, float] = dataclasses.field(default_factory=dict)
-    timeline: dict[str, Any] = dataclasses.field(default_factory=dict)
     #: Each change of the mixer's safety state: {'t': [s] since the run start, 'state',
     #: 'reasons'}.
     safety_events: list[dict[str, Any]] = dataclasses.field(default_factory=list)
@@ -153,18 +136,12 @@ class HardwareResult:
     rates: dict[str, float] = dataclasses.field(default_factory=dict)
     #: Base topics (remapped) -> publisher / subscription counts seen at the start.
     base_topics: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
-    node_diagnostics: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
     zero_commands_sent: int = 0
 
     def summary(self) -> dict[str, Any]:
-        return {'mode': 'hardware', 'exit_code': self.exit_code, 'message': self.message,
-                'out': str(self.out), 'bag': str(self.bag) if self.bag else None,
-                'domain_id': self.domain_id, 'startup_s': self.startup_s,
-                'wall_time_s': self.wall_time_s, 'node_exit_codes': self.node_exit_codes,
-                'cpu_s': self.cpu_s, 'timeline': self.timeline,
+        return {'mode': 'hardware', **super().summary(),
                 'safety_events': self.safety_events, 'rates': self.rates,
-                'base_topics': self.base_topics, 'zero_commands_sent': self.zero_commands_sent,
-                'node_diagnostics': self.node_diagnostics}
+                'base_topics': self.base_topics, 'zero_commands_sent': self.zero_commands_sent}
 
 
 # ----------------------------------------------------------------------------- parameters
@@ -244,24 +221,16 @@ def hardware_parameters(scenario: Scenario, recorder: Mapping[str, Any] | None =
 
 # ----------------------------------------------------------------------------- the runner
 
-class HardwareRunner:
+class HardwareRunner(RunnerBase):
     """One hardware-mode run: start, watch and stop the controller processes."""
 
+    NOT_UP = 'the controller nodes did not come up in {timeout:g} s'
+
     def __init__(self, options: HardwareOptions) -> None:
-        self.options = dataclasses.replace(options, viewer=viewer_wanted(options))
-        self.out = pathlib.Path(options.out).resolve()
-        self.bag = pathlib.Path(options.record).resolve() if options.record else None
-        self.prepared = False  # True once prepare() set up the run directory
-        self.bag_created = False  # True once this run's recorder may have written the bag
-        self.processes: dict[str, NodeProcess] = {}
-        self.probe: Probe | None = None
-        self.domain_id = choose_domain_id()
-        self.scenario: Scenario | None = None
+        super().__init__(options)
         self.remaps: list[tuple[str, str]] = []
         self.extra: list[dict[str, Any]] = []
         self.generated: dict[str, dict] = {}
-        self.t0 = time.monotonic()
-        self.timeline: dict[str, float] = {}
         self.safety_events: list[dict[str, Any]] = []
         self._safety: tuple[str, str] | None = None
         self._counts: dict[str, list[tuple[float, int]]] = {}
@@ -270,38 +239,22 @@ class HardwareRunner:
         self.zero_commands_sent = 0
         self.armed = False
 
-    def say(self, text: str) -> None:
-        if not self.options.quiet:
-            print(f'run_graph: {text}', file=sys.stderr, flush=True)
-
     # -- set-up ---------------------------------------------------------------------------
     def prepare(self) -> pathlib.Path:
         options = self.options
-        try:
-            self.scenario = load_scenario(options.scenario)
-        except ConfigError as err:
-            raise GraphError(str(err), EXIT_USAGE) from err
+        self.scenario = self.load_scenario(options.scenario)
         if options.duration is not None and not 0.0 < options.duration <= 1e6:
             raise GraphError(f'--duration: must be > 0 s, got {options.duration}', EXIT_USAGE)
-        if options.layout not in LAYOUTS:
-            raise GraphError(f'--layout: {options.layout!r} is not one of {list(LAYOUTS)}',
-                             EXIT_USAGE)
-        options.scheduling.check()
-        self.remaps = [parse_remap(text) for text in options.remaps]
-        self.extra = [load_params_file(path) for path in options.params_files]
-        prepare_run_directory(self.out, self.bag)
-        self.prepared = True
-        (self.out / 'run.json').unlink(missing_ok=True)
-        write_atomic(self.out / 'scenario.yaml',
-                     yaml.safe_dump(scenario_to_mapping(self.scenario), sort_keys=False))
-        recorder = None
-        if self.bag is not None:
-            topics = list(CONTROLLER_TOPICS) + list(BASE_SENSOR_TOPICS) + [
-                DEFAULT_EFFORT_TOPIC] + (list(VIEWER_TOPICS) if options.viewer else [])
-            recorder = {'output': str(self.bag), 'topics': topics, 'discovery_period': 0.5}
+        self.check_layout_and_scheduling()
         if not options.arm_delay >= 0.0:
             raise GraphError(f'--arm-delay: must be >= 0 s, got {options.arm_delay}',
                              EXIT_USAGE)
+        self.remaps = [parse_remap(text) for text in options.remaps]
+        self.extra = [load_params_file(path) for path in options.params_files]
+        self.prepare_outputs()
+        recorder = self.recorder_parameters(
+            list(CONTROLLER_TOPICS) + list(BASE_SENSOR_TOPICS) + [DEFAULT_EFFORT_TOPIC],
+            discovery_period=0.5)
         self.generated = hardware_parameters(self.scenario, recorder,
                                              heartbeat=options.heartbeat)
         mixer = node_parameters('torque_mixer', self.generated, self.extra)
@@ -313,63 +266,19 @@ class HardwareRunner:
         header = ('# ROS parameters of a wip-ros hardware-mode run (controllers only, real '
                   f'time), scenario {self.scenario.name!r};\n# written by wip_bringup.hardware; '
                   'the --params-file files given come after it on each command line.\n')
-        view = {}
-        if options.viewer:
-            # The vehicle drawn with the controllers' nominal dimensions (no plant here).
-            model = self.scenario.controller_model.parameters
-            view['viewer'] = {'ros__parameters': {'viewer': {
-                'wheel_radius': float(model.wheel_radius),
-                'track_width': float(model.track_width),
-                'com_height': float(model.com_height)}}}
-        if options.foxglove_port is not None:
-            view['foxglove_bridge'] = {'ros__parameters': {
-                'host': options.foxglove_host, 'port': int(options.foxglove_port)}}
+        # The vehicle drawn with the controllers' nominal dimensions (no plant here).
+        view = self.view_parameters(self.scenario.controller_model.parameters)
         path.write_text(header + yaml.dump({**self.generated, **view}, Dumper=_NoAliasDumper,
                                            sort_keys=False, width=99), encoding='utf-8')
         return path
 
-    def node_names(self) -> list[str]:
-        """The ROS nodes of the run (whatever the processes that hold them)."""
-        return (list(HARDWARE_NODES) + (['recorder'] if self.bag is not None else [])
-                + (['viewer'] if self.options.viewer else [])
-                + (['foxglove_bridge'] if self.options.foxglove_port is not None else []))
-
-    def commands(self, params_file: pathlib.Path) -> dict[str, list[str]]:
-        """The command line of every process."""
-        controllers = (['controllers'] if self.options.layout == 'composed'
-                       else list(HARDWARE_NODES))
-        names = controllers + (['recorder'] if self.bag is not None else [])
-        names += ['viewer'] if self.options.viewer else []
-        names += ['foxglove_bridge'] if self.options.foxglove_port is not None else []
-        extra_files = [str(pathlib.Path(p).resolve()) for p in self.options.params_files]
-        out = {}
-        for name in names:
-            package, executable = EXECUTABLES[name]
-            command = [str(executable_path(package, executable)), '--ros-args',
-                       '--params-file', str(params_file)]
-            for extra in extra_files:
-                command += ['--params-file', extra]
-            if name != 'controllers':   # composed: each node keeps its own name
-                command += ['-r', f'__node:={name}']
-            for source, target in self.remaps:
-                command += ['-r', f'{source}:={target}']
-            out[name] = command
-        return out
-
-    def start_processes(self, params_file: pathlib.Path) -> None:
-        env = graph_environment(self.domain_id)
-        env['ROS_LOG_DIR'] = str(self.out / 'logs' / 'ros')
-        commands = self.commands(params_file)
-        if 'recorder' in commands:  # First: it must not miss the start.
-            commands = {'recorder': commands.pop('recorder'), **commands}
-        for name, command in commands.items():
-            # Real-time scheduling for the controllers only: the recorder, the viewer and the
-            # bridge must never take the CPU from them.
-            scheduling = (self.options.scheduling
-                          if name not in ('recorder', 'viewer', 'foxglove_bridge') else None)
-            self.processes[name] = NodeProcess(name, command,
-                                               self.out / 'logs' / f'{name}.log', env,
-                                               scheduling)
+    def extra_arguments(self, name: str) -> tuple[list[str], list[str]]:
+        """Every --params-file after the generated one, every --remap, for every node."""
+        files = [str(pathlib.Path(p).resolve()) for p in self.options.params_files]
+        remaps = []
+        for source, target in self.remaps:
+            remaps += ['-r', f'{source}:={target}']
+        return files, remaps
 
     # -- probe ------------------------------------------------------------------------------
     def open_probe(self) -> None:
@@ -442,39 +351,9 @@ class HardwareRunner:
             self.probe.spin(0.01)
 
     # -- watching ---------------------------------------------------------------------------
-    def check_alive(self) -> None:
-        for name, process in self.processes.items():
-            code = process.poll()
-            if code is None:
-                continue
-            if name in ('torque_mixer', 'controllers'):
-                self.send_zero_commands()
-            raise GraphError(f'node {name!r} (pid {process.pid}) exited with code {code}; '
-                             f'last lines of {process.log_path}:\n{process.log_tail()}')
-
-    def wait_for_nodes(self) -> None:
-        nodes = self.node_names()
-        deadline = time.monotonic() + self.options.discovery_timeout
-        since = None
-        missing: list[str] = ['(not checked yet)']
-        while time.monotonic() < deadline:
-            self.check_alive()
-            absent = [n for n in nodes if n not in self.probe.node_names()]
-            if absent:
-                since = None
-                missing = ['nodes ' + ', '.join(absent)]
-            else:
-                since = time.monotonic() if since is None else since
-                silent = sorted(set(nodes) - self.probe.reporting_since(since))
-                if not silent:
-                    self.timeline['nodes up'] = since - self.t0
-                    self.timeline['diagnostics from every node'] = time.monotonic() - self.t0
-                    return
-                missing = ['/diagnostics from ' + ', '.join(silent)]
-            self.probe.spin(0.1)
-        raise GraphError(f'the controller nodes did not come up in '
-                         f'{self.options.discovery_timeout:g} s; missing: '
-                         f'{"; ".join(missing)}', EXIT_TIMEOUT)
+    def node_died(self, name: str) -> None:
+        if name in ('torque_mixer', 'controllers'):
+            self.send_zero_commands()
 
     def base_topics(self) -> dict[str, dict[str, int]]:
         """Publishers/subscriptions of the base's topics (remapped names)."""
@@ -541,22 +420,8 @@ class HardwareRunner:
                              / (samples[-1][0] - samples[0][0]))
         return out
 
-    def stop_all(self) -> None:
-        others = [p for n, p in self.processes.items() if n != 'recorder']
-        for process in others:
-            process.interrupt()
-        deadline = time.monotonic() + GRACE_PERIOD
-        for process in others:
-            process.stop(deadline - time.monotonic())
-            if process.killed:
-                self.say(f'warning: {process.name} (pid {process.pid}) ignored SIGINT: killed')
-        self.timeline['nodes stopped'] = time.monotonic() - self.t0
+    def nodes_stopped(self) -> None:
         self.send_zero_commands()
-        if 'recorder' in self.processes:
-            code = self.processes['recorder'].stop(RECORDER_GRACE_PERIOD)
-            self.timeline['recorder stopped'] = time.monotonic() - self.t0
-            if code not in (0, None):
-                self.say(f'warning: the recorder exited with code {code}')
 
     # -- the run ----------------------------------------------------------------------------
     def run(self) -> HardwareResult:
@@ -570,13 +435,8 @@ class HardwareRunner:
             self.say(f'hardware mode: controllers of scenario {self.scenario.name!r} in real '
                      f'time, ROS_DOMAIN_ID={self.domain_id}, outputs in {self.out}')
             self.open_probe()
-            self.start_processes(params_file)
-            self.bag_created = self.bag is not None  # prepare() checked it was absent/empty
-            self.timeline['processes started'] = time.monotonic() - self.t0
-            self.wait_for_nodes()
-            if 'foxglove_bridge' in self.processes:
-                self.say(live_view_line(self.processes['foxglove_bridge'],
-                                        self.options.foxglove_host, self.options.foxglove_port))
+            self.launch(params_file)
+            self.say_foxglove_url()
             result.base_topics = self.base_topics()
             self.arm()
             result.startup_s = time.monotonic() - self.t0
@@ -584,7 +444,7 @@ class HardwareRunner:
                      + (f'for {self.options.duration:g} s' if self.options.duration
                         else 'until Ctrl-C'))
             run_start = time.monotonic()
-            cpu_start = {n: p.cpu_seconds() for n, p in self.processes.items()}
+            cpu_start = self.cpu_snapshot()
             reason = self.watch()
             result.exit_code, result.message = EXIT_OK, reason
         except GraphError as err:
@@ -594,35 +454,13 @@ class HardwareRunner:
         finally:
             if run_start is not None:
                 result.wall_time_s = time.monotonic() - run_start
-                for name, process in self.processes.items():
-                    now = process.cpu_seconds()
-                    if now is not None and cpu_start.get(name) is not None:
-                        result.cpu_s[name] = now - cpu_start[name]
-            if self.probe is not None:
-                self.probe.spin(0.05)
-                result.node_diagnostics = {
-                    name: {'message': status.message,
-                           **{kv.key: kv.value for kv in status.values}}
-                    for name, status in sorted(self.probe.diagnostics.items())}
-            # A second Ctrl-C must not leave the nodes running.
-            previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-            try:
-                self.stop_all()
-            finally:
-                signal.signal(signal.SIGINT, previous)
-            if self.probe is not None:
-                self.probe.close()
+                result.cpu_s.update(self.cpu_since(cpu_start))
+            self.shut_down(result)
         result.rates = self.rates()
         result.safety_events = list(self.safety_events)
         result.zero_commands_sent = self.zero_commands_sent
-        result.node_exit_codes = {n: p.returncode for n, p in self.processes.items()}
         result.timeline = dict(self.timeline)
-        if self.bag_created and self.bag.is_dir() and (self.out / 'scenario.yaml').is_file():
-            # Only into a bag this run recorded (never into one it refused).
-            shutil.copyfile(self.out / 'scenario.yaml', self.bag / 'scenario.yaml')
-        if self.prepared and self.out.is_dir():  # A refused run leaves --out untouched.
-            (self.out / 'run.json').write_text(json.dumps(result.summary(), indent=2) + '\n',
-                                               encoding='utf-8')
+        self.finish(result)
         return result
 
 
@@ -684,11 +522,6 @@ def _cpus_argument(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(str(err)) from err
 
 
-def scheduling_from_args(args: argparse.Namespace) -> Scheduling:
-    """The --rt-priority / --cpu-affinity options."""
-    return Scheduling(priority=args.rt_priority, cpus=tuple(args.cpu_affinity))
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog='scripts/run_graph --mode hardware', description=__doc__,
@@ -709,21 +542,11 @@ def main(argv: list[str] | None = None) -> int:
 
 def run_from_args(args: argparse.Namespace) -> int:
     """Run hardware mode from parsed arguments (also used by ``wip_bringup.graph``)."""
-    options = HardwareOptions(scenario=args.scenario, params_files=list(args.params_files),
-                              remaps=list(args.remaps), duration=args.duration,
-                              out=args.out, record=args.record,
-                              discovery_timeout=args.discovery_timeout, quiet=args.quiet,
-                              arm_delay=args.arm_delay, heartbeat=not args.no_heartbeat,
-                              layout=args.layout or HardwareOptions.layout,
-                              scheduling=scheduling_from_args(args),
-                              viewer=args.viewer, foxglove_port=args.foxglove,
-                              foxglove_host=args.foxglove_host)
-    result = run_hardware(options)
-    if result.exit_code == EXIT_USAGE:  # Refused before anything ran: nothing to show.
-        print(f'run_graph: error: {result.message}', file=sys.stderr)
-        return EXIT_USAGE
-    print(format_result(result))
-    return result.exit_code
+    options = HardwareOptions(**options_from_args(
+        args, params_files=list(args.params_files), remaps=list(args.remaps), out=args.out,
+        arm_delay=args.arm_delay, heartbeat=not args.no_heartbeat,
+        layout=args.layout or HardwareOptions.layout))
+    return print_result(run_hardware(options), format_result)
 
 
 if __name__ == '__main__':

@@ -85,7 +85,6 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
 from std_msgs.msg import Float64MultiArray
 
-from wip_control.core.config import ConfigError
 from wip_control.core.disturbances import Disturbances
 from wip_control.core.model import OMEGA, PHI, THETA, V, X, Y
 from wip_control.core.plant import Plant
@@ -96,9 +95,8 @@ from wip_control.core.sensors import local_to_geodetic, Sensors
 from wip_control.nodes.common import run_simulator_node
 from wip_control.nodes.conversions import quaternion_from_euler
 from wip_control.nodes.hardware_inputs import (imu_orientation_of_body, rotate_vector_into)
-from wip_control.nodes.parameters import ConfigParameters
-from wip_control.nodes.settings import (DatumConfig, EffortCommand, ImuMounting, WheelJoints,
-                                        WheelSigns)
+from wip_control.nodes.parameters import ConfigParameters, declare_effort_interface
+from wip_control.nodes.settings import DatumConfig, ImuMounting
 
 from .settings import CommandTiming, StandinSettings
 
@@ -185,18 +183,10 @@ class StandinBase(Node):
         self.exit_code: int | None = None
         settings = ConfigParameters(self, '', StandinSettings).config
         self.scenario = scenario = load_scenario(settings.scenario_file or None)
-        joints = ConfigParameters(self, '', WheelJoints).config
-        self.left_joint, self.right_joint = joints.left_joint, joints.right_joint
-        # joints defaults to (left_joint, right_joint) as set, so renaming both is enough.
-        self.joints = list(ConfigParameters(
-            self, '', EffortCommand,
-            defaults=EffortCommand((self.left_joint, self.right_joint))).config.joints)
-        if sorted(self.joints) != sorted([self.left_joint, self.right_joint]):
-            raise ConfigError(f'joints: must list left_joint {self.left_joint!r} and '
-                              f'right_joint {self.right_joint!r} once each, got {self.joints}')
-        signs = ConfigParameters(self, '', WheelSigns).config
-        self.left_sign = float(signs.left_wheel_sign)
-        self.right_sign = float(signs.right_wheel_sign)
+        wheels = declare_effort_interface(self)
+        self.left_joint, self.right_joint = wheels.left_joint, wheels.right_joint
+        self.joints = list(wheels.joints)
+        self.left_sign, self.right_sign = wheels.left_sign, wheels.right_sign
         self.mounting = ConfigParameters(self, '', ImuMounting).config.imu_mounting_rpy
         imu_frame, gps_frame, odom_frame = (settings.imu_frame, settings.gps_frame,
                                             settings.odom_frame)

@@ -212,7 +212,37 @@ class EsoConfig:
                                       f'{getattr(self, name)} rad/s')
 
 
-class ExtendedStateObserver:
+class _ChannelEstimate:
+    """The read-out of a second-order channel observer (x̂1, x̂2, f̂ at ``_t_prev``),
+    the same for the ESO (25) and the rate-aided channel."""
+
+    name: str
+    x1: float
+    x2: float
+    f: float
+    _t_prev: float
+
+    @property
+    def state(self) -> tuple[float, float, float]:
+        """(x̂1, x̂2, f̂): output, rate and lumped-disturbance estimates."""
+        return self.x1, self.x2, self.f
+
+    @property
+    def time(self) -> float:
+        """Time [s] of the current estimate."""
+        return self._t_prev
+
+    def _reset_estimate(self, initial_output: float, initial_time: float) -> None:
+        """(x̂1, x̂2, f̂) = (y0, 0, 0); ValueError naming the channel if not finite."""
+        if not (math.isfinite(initial_output) and math.isfinite(initial_time)):
+            raise ValueError(f'{self.name}: non-finite reset ({initial_output!r}, '
+                             f'{initial_time!r})')
+        self.x1 = float(initial_output)
+        self.x2 = 0.0
+        self.f = 0.0
+
+
+class ExtendedStateObserver(_ChannelEstimate):
     """One third-order ESO channel, eq. (4) in [1]_, exactly discretised.
 
     Parameters
@@ -267,25 +297,10 @@ class ExtendedStateObserver:
 
     def reset(self, initial_output: float, initial_time: float = 0.0) -> None:
         """State (y0, 0, 0) at ``initial_time`` [s], the origin of the ε ramp."""
-        if not (math.isfinite(initial_output) and math.isfinite(initial_time)):
-            raise ValueError(f'{self.name}: non-finite reset ({initial_output!r}, '
-                             f'{initial_time!r})')
-        self.x1 = float(initial_output)
-        self.x2 = 0.0
-        self.f = 0.0
+        self._reset_estimate(initial_output, initial_time)
         self._y_prev = float(initial_output)
         self._t_prev = float(initial_time)
         self._t0 = float(initial_time)
-
-    @property
-    def state(self) -> tuple[float, float, float]:
-        """(x̂1, x̂2, f̂): position, rate, lumped disturbance estimates."""
-        return self.x1, self.x2, self.f
-
-    @property
-    def time(self) -> float:
-        """Time [s] of the current estimate."""
-        return self._t_prev
 
     def epsilon_at(self, t: float) -> float:
         """ε(t) [s]; ``inf`` at the very start of the ramp (zero gains)."""
@@ -400,7 +415,7 @@ def discrete_pole_gains(pole_a: float, pole_b: float, period: float) -> tuple[fl
     return 1.0 - p * q, (1.0 - p) * (1.0 - q) / period
 
 
-class RateAidedChannel:
+class RateAidedChannel(_ChannelEstimate):
     """One angle channel (tilt or yaw) of a WIP whose IMU measures the angle AND its rate.
 
     Two discrete loops per sample of period h (the gyro reading r = ẏ + b + noise, b a
@@ -452,25 +467,11 @@ class RateAidedChannel:
     def reset(self, initial_output: float, initial_time: float = 0.0) -> None:
         """Angle y0 at ``initial_time`` [s]; rate, bias, disturbance zero. The first
         update at the same time takes the measured rate as the rate estimate."""
-        if not (math.isfinite(initial_output) and math.isfinite(initial_time)):
-            raise ValueError(f'{self.name}: non-finite reset ({initial_output!r}, '
-                             f'{initial_time!r})')
-        self.x1 = float(initial_output)
-        self.x2 = 0.0
-        self.f = 0.0
+        self._reset_estimate(initial_output, initial_time)
         self.bias = 0.0
         self._t_prev = float(initial_time)
         self._rate_started = False
         self._rate_prev = 0.0
-
-    @property
-    def state(self) -> tuple[float, float, float]:
-        """(â, ẑ1, f̂): angle, rate, lumped disturbance estimates."""
-        return self.x1, self.x2, self.f
-
-    @property
-    def time(self) -> float:
-        return self._t_prev
 
     def update(self, t: float, y: float, rate: float, b_u: float) -> tuple[float, float, float]:
         """Advance to ``t`` [s] with the angle ``y`` [rad], the gyro ``rate`` [rad/s] at t

@@ -30,15 +30,14 @@ and the metrics use either controller unchanged.
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 import scipy.linalg
 
 from .model import input_gains
-from .mpc import (LongitudinalMpc, MpcConfig, MpcInputError, MpcResult, OffsetFreeTarget,
-                  admissible_increment, drive_limit, invalid_input_result)
+from .mpc import (admissible_increment, drive_limit, LongitudinalMpc, MpcConfig, MpcResult,
+                  OffsetFreeTarget, PreviousTorque, tick_gains)
 from .mpc_prediction import gravity_aware_state_matrix
 from .params import WipParameters
 from .qp import MpcStatus
@@ -62,7 +61,7 @@ def dlqr(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray
     return k, p
 
 
-class LongitudinalLqr:
+class LongitudinalLqr(PreviousTorque):
     """Saturated discrete LQR with the interface of :class:`~.mpc.LongitudinalMpc`.
 
     Parameters
@@ -103,11 +102,6 @@ class LongitudinalLqr:
         self.last_qp = None
 
     @property
-    def tau_previous(self) -> float:
-        """τυ(k−1) [N m], the torque applied since the last tick."""
-        return self._tau_previous
-
-    @property
     def target_theta(self) -> float:
         """θs [rad] of the last tick (0 unless ``offset_free``)."""
         return self._target.theta
@@ -116,13 +110,6 @@ class LongitudinalLqr:
         """Forget the disturbance filter; τυ(k−1) = ``tau_previous`` [N m]."""
         self.set_previous_torque(tau_previous)
         self._target.reset()
-
-    def set_previous_torque(self, tau_previous: float) -> None:
-        """Overwrite τυ(k−1) [N m] with the torque really applied."""
-        tau_previous = float(tau_previous)
-        if not math.isfinite(tau_previous):
-            raise MpcInputError(f'tau_previous must be finite, got {tau_previous!r}')
-        self._tau_previous = tau_previous
 
     def step(self, v_hat: float, theta_hat: float, theta_dot_hat: float, f2_hat: float,
              f3_hat: float, v_d: float, tau_limit: float | None = None) -> MpcResult:
@@ -134,9 +121,7 @@ class LongitudinalLqr:
         if limit is None:
             return self._hold_invalid_input()
         t_start = time.perf_counter()
-        _, g2, g3 = input_gains(self.params, theta_hat)
-        scale2, scale3 = cfg.prediction_gain_scale
-        g2p, g3p = scale2 * g2, scale3 * g3
+        g2, g3, g2p, g3p = tick_gains(self.params, cfg, theta_hat)
         theta_s = self._target.update(theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev)
         tau_s = self._target.tau
         xi = np.array([v_hat - v_d, theta_hat - theta_s, theta_dot_hat, tau_prev - tau_s])
@@ -157,12 +142,6 @@ class LongitudinalLqr:
         elapsed = time.perf_counter() - t_start
         return MpcResult(self._tau_previous, delta, MpcStatus.SOLVED, 0, 0.0, elapsed, 0.0,
                          0.0, False, predicted, plan, theta_s)
-
-    def _hold_invalid_input(self) -> MpcResult:
-        """NaN/inf input: ramp τ toward 0 within Δτmax, as the MPC does."""
-        result = invalid_input_result(self.config, self._tau_previous)
-        self._tau_previous = result.tau_v
-        return result
 
 
 def make_longitudinal_controller(params: WipParameters, config: MpcConfig

@@ -267,7 +267,44 @@ class QpData(NamedTuple):
     ub: np.ndarray
 
 
-class LongitudinalMpc:
+def tick_gains(params: WipParameters, config: MpcConfig,
+               theta_hat: float) -> tuple[float, float, float, float]:
+    """(g2, g3, g2p, g3p): the input gains of model (1) at θ̂ (what the ESO assumes, so
+    f̂ + g τ(k−1) is its estimate of the present accelerations) and the scaled gains the
+    increments are predicted with (``prediction_gain_scale``)."""
+    _, g2, g3 = input_gains(params, theta_hat)
+    scale2, scale3 = config.prediction_gain_scale
+    return g2, g3, scale2 * g2, scale3 * g3
+
+
+class PreviousTorque:
+    """τυ(k−1), the drive torque applied since the last tick, of a longitudinal controller
+    (the MPC and the LQR baseline; both set ``config`` and ``_tau_previous``)."""
+
+    config: MpcConfig
+    _tau_previous: float = 0.0
+
+    @property
+    def tau_previous(self) -> float:
+        """τυ(k−1) [N m], the torque applied since the last tick."""
+        return self._tau_previous
+
+    def set_previous_torque(self, tau_previous: float) -> None:
+        """Overwrite τυ(k−1) [N m] with the torque really applied (e.g. after the safety
+        layer cut it, or to replay a recorded tick)."""
+        tau_previous = float(tau_previous)
+        if not math.isfinite(tau_previous):
+            raise MpcInputError(f'tau_previous must be finite, got {tau_previous!r}')
+        self._tau_previous = tau_previous
+
+    def _hold_invalid_input(self) -> MpcResult:
+        """No solve on NaN/inf input: ramp τ toward 0 within Δτmax (see the module doc)."""
+        result = invalid_input_result(self.config, self._tau_previous)
+        self._tau_previous = result.tau_v
+        return result
+
+
+class LongitudinalMpc(PreviousTorque):
     """Condensed MPC of (υ, θ, θ̇) with the drive torque τυ as input.
 
     Parameters
@@ -391,11 +428,6 @@ class LongitudinalMpc:
         self._plan: np.ndarray | None = None
 
     # ------------------------------------------------------------------ state
-    @property
-    def tau_previous(self) -> float:
-        """τυ(k−1) [N m], the torque applied since the last tick."""
-        return self._tau_previous
-
     def reset(self, tau_previous: float = 0.0) -> None:
         """Forget the plan and the solver's workspace; τυ(k−1) = ``tau_previous`` [N m]."""
         self.set_previous_torque(tau_previous)
@@ -408,10 +440,7 @@ class LongitudinalMpc:
     def set_previous_torque(self, tau_previous: float) -> None:
         """Overwrite τυ(k−1) [N m] with the torque really applied (e.g. after the safety
         layer cut it, or to replay a recorded tick). The plan and workspace are kept."""
-        tau_previous = float(tau_previous)
-        if not math.isfinite(tau_previous):
-            raise MpcInputError(f'tau_previous must be finite, got {tau_previous!r}')
-        self._tau_previous = tau_previous
+        super().set_previous_torque(tau_previous)
 
     # ------------------------------------------------------------------ tick
     def step(self, v_hat: float, theta_hat: float, theta_dot_hat: float, f2_hat: float,
@@ -434,11 +463,7 @@ class LongitudinalMpc:
             return self._hold_invalid_input()
 
         t_start = time.perf_counter()
-        # g2, g3 of model (1) at θ̂ (what the ESO assumes, so f̂ + g τ(k−1) is its estimate
-        # of the present accelerations); the increments are predicted with the scaled gains.
-        _, g2, g3 = input_gains(self.params, theta_hat)
-        scale2, scale3 = cfg.prediction_gain_scale
-        g2p, g3p = scale2 * g2, scale3 * g3
+        g2, g3, g2p, g3p = tick_gains(self.params, cfg, theta_hat)
         self._target.update(theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev)
         free = self._build(v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit, g2,
                            g3, g2p, g3p, tau_prev)
@@ -554,11 +579,8 @@ class LongitudinalMpc:
         return admissible_increment(delta, tau_prev, limit, self.config.max_delta_torque)
 
     def _hold_invalid_input(self) -> MpcResult:
-        """No solve on NaN/inf input: ramp τ toward 0 within Δτmax (see the module doc)."""
         self._plan = None
-        result = invalid_input_result(self.config, self._tau_previous)
-        self._tau_previous = result.tau_v
-        return result
+        return super()._hold_invalid_input()
 
 
 def _excess(value: float, band: float) -> float:

@@ -427,6 +427,8 @@ def _rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance
     hh = 0.5 * h
     h6 = h / 6.0
 
+    # Deliberately unrolled (see the docstring): each stage repeats the model's equations
+    # rather than calling a shared function, to keep the reference step's bit-exact results.
     for i in range(disturbance.shape[0]):
         d1 = disturbance[i, 0]
         d2 = disturbance[i, 1]

@@ -37,7 +37,7 @@ from wip_msgs.msg import (ArcState, StateEstimate as StateEstimateMsg,
 from ..core.arc import ArcConfig
 from ..core.control_step import YawStage
 from ..core.scenario import RatesConfig
-from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
+from .common import ControllerNode, RELIABLE_QOS, run_node
 from .conversions import arc_to_msg, command_from_msg, estimate_from_msg
 from .diagnostics import OK
 from .parameters import ConfigParameters
@@ -70,24 +70,14 @@ class ArcNode(ControllerNode):
             self.sync = LatestSync(_INPUTS, self._compute, triggers=('state_estimate',),
                                    required=('velocity_command',))
         self.publisher = self.create_publisher(ArcState, '/wip/yaw_torque', RELIABLE_QOS)
-        self.subscribe(VelocityCommandMsg, '/wip/velocity_command', 'velocity_command',
-                       self._on_command)
-        self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
-                       self._on_estimate)
+        self.subscribe_input(VelocityCommandMsg, '/wip/velocity_command', 'velocity_command',
+                             command_from_msg)
+        self.subscribe_input(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
+                             estimate_from_msg)
 
     def _on_config(self, config: ArcConfig) -> None:
         self.controller.config = config
         self.controller.reset(self.controller.alpha_hat)  # Project into the new bounds.
-
-    def _on_command(self, msg: VelocityCommandMsg) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
-        self.diagnostics.input('velocity_command', stamp)
-        self.feed('velocity_command', stamp, command_from_msg(msg))
-
-    def _on_estimate(self, msg: StateEstimateMsg) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
-        self.diagnostics.input('state_estimate', stamp)
-        self.feed('state_estimate', stamp, estimate_from_msg(msg))
 
     def _compute(self, stamp: int, values) -> None:
         start = time.perf_counter()

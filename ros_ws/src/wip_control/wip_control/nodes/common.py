@@ -503,6 +503,17 @@ class ControllerNode(Node):
         subscription = self.create_subscription(msg_type, topic, callback, qos)
         self.intra_subscriptions.append((msg_type, subscription.topic_name, callback))
 
+    def subscribe_input(self, msg_type, topic: str, name: str, convert: Callable,
+                        qos: QoSProfile = RELIABLE_QOS) -> None:
+        """:meth:`subscribe` to a stamped input of the node's LatestSync: each message's
+        stamp counted on /diagnostics, then ``convert(msg)`` fed as ``name`` (a ValueError
+        of the conversion drops the message)."""
+        def handler(msg) -> None:
+            stamp = stamp_to_ns(msg.header.stamp)
+            self.diagnostics.input(name, stamp)
+            self.feed(name, stamp, convert(msg))
+        self.subscribe(msg_type, topic, name, handler, qos)
+
     def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
         """rclpy's publisher wrapped in an :class:`IntraProcessPublisher`: it publishes
         nothing while no subscription is matched (volatile topics), and in a composed

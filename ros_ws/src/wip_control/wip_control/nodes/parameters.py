@@ -167,3 +167,32 @@ def _from_ros(value: Any) -> Any:
     if isinstance(value, (list, tuple)) or type(value).__name__ == 'array':
         return tuple(value)
     return value
+
+
+@dataclasses.dataclass(frozen=True)
+class EffortInterface:
+    """The wheels of a base as a node that commands efforts sees them."""
+
+    left_joint: str
+    right_joint: str
+    joints: tuple[str, ...]  # order of the effort command's data
+    left_sign: float  # +1 or -1: see settings.WheelSigns
+    right_sign: float
+
+
+def declare_effort_interface(node: Node) -> EffortInterface:
+    """Declare and read the parameters of settings.WheelJoints, EffortCommand and
+    WheelSigns (the mixer and the stand-in base read the same ones); ConfigError if
+    ``joints`` does not list ``left_joint`` and ``right_joint`` once each."""
+    from .settings import EffortCommand, WheelJoints, WheelSigns
+    wheels = ConfigParameters(node, '', WheelJoints).config
+    left, right = wheels.left_joint, wheels.right_joint
+    # joints defaults to (left_joint, right_joint) as set, so renaming both is enough.
+    joints = tuple(ConfigParameters(node, '', EffortCommand,
+                                    defaults=EffortCommand((left, right))).config.joints)
+    if sorted(joints) != sorted([left, right]):
+        raise ConfigError(f'joints: must list left_joint {left!r} and right_joint {right!r} '
+                          f'once each, got {list(joints)}')
+    signs = ConfigParameters(node, '', WheelSigns).config
+    return EffortInterface(left, right, joints, float(signs.left_wheel_sign),
+                           float(signs.right_wheel_sign))

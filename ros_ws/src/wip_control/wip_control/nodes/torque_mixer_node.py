@@ -91,8 +91,8 @@ from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import effort_command, estimate_from_msg, wheel_torques_to_msg
 from .diagnostics import ERROR, OK, WARN
 from .hardware_inputs import signed_efforts
-from .parameters import ConfigParameters
-from .settings import EffortCommand, MixerNodeSettings, WheelJoints, WheelSigns
+from .parameters import ConfigParameters, declare_effort_interface
+from .settings import MixerNodeSettings
 from .sync import decimation, ExactTimeSync, is_decimated_tick
 
 _INPUTS = ('yaw_torque', 'drive_torque')
@@ -120,18 +120,10 @@ class TorqueMixerNode(ControllerNode):
         self.safety = ConfigParameters(self, 'safety', SafetyConfig).config
         settings = ConfigParameters(self, '', MixerNodeSettings).config
         self.mpc_period = settings.mpc_period
-        joints = ConfigParameters(self, '', WheelJoints).config
-        self.left_joint, self.right_joint = joints.left_joint, joints.right_joint
-        # joints defaults to (left_joint, right_joint) as set, so renaming both is enough.
-        self.joints = list(ConfigParameters(
-            self, '', EffortCommand,
-            defaults=EffortCommand((self.left_joint, self.right_joint))).config.joints)
-        if sorted(self.joints) != sorted([self.left_joint, self.right_joint]):
-            raise ConfigError(f'joints: must list left_joint {self.left_joint!r} and '
-                              f'right_joint {self.right_joint!r} once each, got {self.joints}')
-        signs = ConfigParameters(self, '', WheelSigns).config
-        self.left_sign = float(signs.left_wheel_sign)
-        self.right_sign = float(signs.right_wheel_sign)
+        wheels = declare_effort_interface(self)
+        self.left_joint, self.right_joint = wheels.left_joint, wheels.right_joint
+        self.joints = list(wheels.joints)
+        self.left_sign, self.right_sign = wheels.left_sign, wheels.right_sign
         effort_topic = settings.effort_topic
         if not effort_topic:
             raise ConfigError(f'effort_topic: must be a topic name, got {effort_topic!r}')

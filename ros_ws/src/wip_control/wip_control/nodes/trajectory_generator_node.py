@@ -34,7 +34,7 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg,
 
 from ..core.control_step import GuidanceStage
 from ..core.trajectory_generator import TrajectoryGeneratorConfig
-from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
+from .common import ControllerNode, RELIABLE_QOS, run_node
 from .conversions import command_to_msg, estimate_from_msg, reference_from_msg
 from .diagnostics import OK
 from .parameters import ConfigParameters
@@ -61,22 +61,13 @@ class TrajectoryGeneratorNode(ControllerNode):
                                    required=('reference',))
         self.publisher = self.create_publisher(VelocityCommandMsg, '/wip/velocity_command',
                                                RELIABLE_QOS)
-        self.subscribe(ReferenceStateMsg, '/wip/reference', 'reference', self._on_reference)
-        self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
-                       self._on_estimate)
+        self.subscribe_input(ReferenceStateMsg, '/wip/reference', 'reference',
+                             reference_from_msg)
+        self.subscribe_input(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
+                             estimate_from_msg)
 
     def _on_config(self, config: TrajectoryGeneratorConfig) -> None:
         self.generator.config = config
-
-    def _on_reference(self, msg: ReferenceStateMsg) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
-        self.diagnostics.input('reference', stamp)
-        self.feed('reference', stamp, reference_from_msg(msg))
-
-    def _on_estimate(self, msg: StateEstimateMsg) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
-        self.diagnostics.input('state_estimate', stamp)
-        self.feed('state_estimate', stamp, estimate_from_msg(msg))
 
     def _compute(self, stamp: int, values) -> None:
         start = time.perf_counter()

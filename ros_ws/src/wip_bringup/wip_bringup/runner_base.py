@@ -1,0 +1,375 @@
+"""What the two runners of ``scripts/run_graph`` share: :class:`RunnerBase`, the life of one
+run (output directory, node processes, probe, waiting for the nodes, watching them, stopping
+them, ``OUT/run.json``), and :class:`RunResult`, the part of its result both write.
+
+The simulation runner (:class:`wip_bringup.graph.GraphRunner`: the plant, a /clock in
+lockstep, the ``/plant/start`` service) and the hardware runner
+(:class:`wip_bringup.hardware.HardwareRunner`: the e-stop heartbeat, the base's topics, zero
+commands at the stop) subclass it and add only their own behaviour through the hooks named
+below (``EXTRA_PROCESSES``, :meth:`RunnerBase.missing_from_view`,
+:meth:`RunnerBase.unmatched_endpoints`, :meth:`RunnerBase.node_died`,
+:meth:`RunnerBase.nodes_stopped`, :meth:`RunnerBase.extra_arguments`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import shutil
+import signal
+import sys
+import threading
+import time
+from typing import Any, Callable, Iterable
+
+import yaml
+
+from wip_control.core.config import ConfigError
+from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
+from wip_control.tools.cli import write_atomic
+
+from .launcher import (choose_domain_id, executable_path, EXECUTABLES, EXIT_USAGE,
+                       EXIT_TIMEOUT, GRACE_PERIOD, graph_environment, GraphError, LAYOUTS,
+                       live_view_line, NodeProcess, prepare_run_directory, Probe,
+                       RECORDER_GRACE_PERIOD, Scheduling, VIEWER_TOPICS,
+                       viewer_wanted)
+from .params_files import CONTROLLER_NODES
+
+
+@dataclasses.dataclass
+class RunResult:
+    """What both runners return and write to ``OUT/run.json`` (each adds its own fields)."""
+
+    exit_code: int
+    message: str
+    out: pathlib.Path
+    bag: pathlib.Path | None
+    domain_id: int
+    node_exit_codes: dict[str, int | None] = dataclasses.field(default_factory=dict)
+    startup_s: float | None = None
+    wall_time_s: float | None = None
+    #: CPU time [s] of each node process during the run.
+    cpu_s: dict[str, float] = dataclasses.field(default_factory=dict)
+    #: Wall times [s] of the start-up steps, from the start of the run.
+    timeline: dict[str, Any] = dataclasses.field(default_factory=dict)
+    #: Latest /diagnostics status of every node: name -> {'message': ..., key: value}.
+    node_diagnostics: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        return {'exit_code': self.exit_code, 'message': self.message,
+                'out': str(self.out), 'bag': str(self.bag) if self.bag else None,
+                'domain_id': self.domain_id, 'startup_s': self.startup_s,
+                'wall_time_s': self.wall_time_s, 'node_exit_codes': self.node_exit_codes,
+                'cpu_s': self.cpu_s, 'timeline': self.timeline,
+                'node_diagnostics': self.node_diagnostics}
+
+
+class RunnerBase:
+    """One run of controller processes (and what a subclass adds): see the module docstring.
+
+    ``options`` is the runner's options dataclass; the fields read here are ``out``,
+    ``record``, ``quiet``, ``layout``, ``scheduling``, ``viewer``, ``foxglove_port``,
+    ``foxglove_host`` and ``discovery_timeout``.
+    """
+
+    #: Processes (each one node of the same name) besides the controllers, the recorder,
+    #: the viewer and the Foxglove bridge.
+    EXTRA_PROCESSES: tuple[str, ...] = ()
+    #: Timeline entry of the moment the probe saw every node (and what the subclass needs).
+    UP_EVENT = 'nodes up'
+    #: GraphError text when the nodes did not come up in time ({timeout} [s]).
+    NOT_UP = 'the nodes did not come up in {timeout:g} s'
+
+    def __init__(self, options) -> None:
+        self.options = dataclasses.replace(options, viewer=viewer_wanted(options))
+        self.out = pathlib.Path(options.out).resolve()
+        self.bag = pathlib.Path(options.record).resolve() if options.record else None
+        self.prepared = False  # True once prepare() set up the run directory
+        self.bag_created = False  # True once this run's recorder may have written the bag
+        self.processes: dict[str, NodeProcess] = {}
+        self.probe: Probe | None = None
+        self.domain_id = choose_domain_id()
+        self.scenario: Scenario | None = None
+        self._interactive = sys.stderr.isatty()
+        self.t0 = time.monotonic()
+        #: Wall times [s] of the start-up steps, from the start of the run.
+        self.timeline: dict[str, float] = {}
+
+    # -- output -------------------------------------------------------------------------
+    def say(self, text: str) -> None:
+        if not self.options.quiet:
+            if self._interactive:  # Clear a progress line first.
+                sys.stderr.write('\r\033[K')
+            print(f'run_graph: {text}', file=sys.stderr, flush=True)
+
+    def progress(self, text: str) -> None:
+        """A line that the next one replaces on a terminal."""
+        if self.options.quiet:
+            return
+        if self._interactive:
+            sys.stderr.write('\r\033[K  ' + text)
+            sys.stderr.flush()
+        else:
+            print('  ' + text, file=sys.stderr, flush=True)
+
+    def say_foxglove_url(self) -> None:
+        if 'foxglove_bridge' in self.processes:
+            self.say(live_view_line(self.processes['foxglove_bridge'],
+                                    self.options.foxglove_host, self.options.foxglove_port))
+
+    # -- set-up ---------------------------------------------------------------------------
+    def check_layout_and_scheduling(self) -> None:
+        if self.options.layout not in LAYOUTS:
+            raise GraphError(f'--layout: {self.options.layout!r} is not one of '
+                             f'{list(LAYOUTS)}', EXIT_USAGE)
+        self.options.scheduling.check()
+
+    @staticmethod
+    def load_scenario(path: str | None) -> Scenario:
+        """The scenario file (None: the paper's); GraphError (usage) if it is invalid."""
+        try:
+            return load_scenario(path)
+        except ConfigError as err:
+            raise GraphError(str(err), EXIT_USAGE) from err
+
+    def prepare_outputs(self, stale: Iterable[str] = ('run.json',),
+                        extra_logs: tuple[str, ...] = ()) -> pathlib.Path:
+        """Check and create the run directory (nothing written before: see
+        :func:`~wip_bringup.launcher.prepare_run_directory`), remove the ``stale`` outputs
+        of an earlier run, write ``OUT/scenario.yaml``; returns its path."""
+        prepare_run_directory(self.out, self.bag, extra_logs=extra_logs)
+        self.prepared = True
+        for name in stale:
+            (self.out / name).unlink(missing_ok=True)
+        path = self.out / 'scenario.yaml'
+        write_atomic(path, yaml.safe_dump(scenario_to_mapping(self.scenario), sort_keys=False))
+        return path
+
+    def recorder_parameters(self, topics: list[str],
+                            discovery_period: float) -> dict[str, Any] | None:
+        """The recorder's parameters (None without --record): ``topics`` and, when the
+        viewer runs, its topics."""
+        if self.bag is None:
+            return None
+        topics = list(topics) + (list(VIEWER_TOPICS) if self.options.viewer else [])
+        return {'output': str(self.bag), 'topics': topics,
+                'discovery_period': discovery_period}
+
+    def view_parameters(self, model, position_std: float | None = None) -> dict[str, dict]:
+        """Params-file sections of the viewer (the vehicle drawn with ``model``'s
+        dimensions) and of the Foxglove bridge, for those that run."""
+        options = self.options
+        view: dict[str, dict] = {}
+        if options.viewer:
+            viewer = {'wheel_radius': float(model.wheel_radius),
+                      'track_width': float(model.track_width),
+                      'com_height': float(model.com_height)}
+            if position_std is not None:
+                viewer['position_std'] = float(position_std)
+            view['viewer'] = {'ros__parameters': {'viewer': viewer}}
+        if options.foxglove_port is not None:
+            view['foxglove_bridge'] = {'ros__parameters': {
+                'host': options.foxglove_host, 'port': int(options.foxglove_port)}}
+        return view
+
+    def controller_processes(self) -> list[str]:
+        """'controllers' (composed: the six nodes in one process) or one per node."""
+        return ['controllers'] if self.options.layout == 'composed' else list(CONTROLLER_NODES)
+
+    def view_nodes(self) -> list[str]:
+        return ((['viewer'] if self.options.viewer else [])
+                + (['foxglove_bridge'] if self.options.foxglove_port is not None else []))
+
+    def node_names(self) -> list[str]:
+        """The ROS nodes of the run (whatever the processes that hold them)."""
+        return (list(CONTROLLER_NODES) + list(self.EXTRA_PROCESSES)
+                + (['recorder'] if self.bag is not None else []) + self.view_nodes())
+
+    def extra_arguments(self, name: str) -> tuple[list[str], list[str]]:
+        """Hook: (params files after the generated one, ROS arguments after the node name)
+        of the process ``name``."""
+        return [], []
+
+    def commands(self, params_file: pathlib.Path) -> dict[str, list[str]]:
+        """The command line of every process, in start order (the recorder first: it must
+        not miss the start)."""
+        names = ((['recorder'] if self.bag is not None else []) + self.controller_processes()
+                 + list(self.EXTRA_PROCESSES) + self.view_nodes())
+        out = {}
+        for name in names:
+            package, executable = EXECUTABLES[name]
+            files, arguments = self.extra_arguments(name)
+            command = [str(executable_path(package, executable)), '--ros-args',
+                       '--params-file', str(params_file)]
+            for extra in files:
+                command += ['--params-file', extra]
+            if name != 'controllers':   # composed: each node keeps its own name
+                command += ['-r', f'__node:={name}']
+            out[name] = command + arguments
+        return out
+
+    def start_processes(self, params_file: pathlib.Path) -> None:
+        env = graph_environment(self.domain_id)
+        env['ROS_LOG_DIR'] = str(self.out / 'logs' / 'ros')
+        controllers = self.controller_processes()
+        for name, command in self.commands(params_file).items():
+            # Real-time scheduling for the controllers only: nothing else (the plant, the
+            # recorder, the viewer, the bridge) may take the CPU from them.
+            scheduling = self.options.scheduling if name in controllers else None
+            self.processes[name] = NodeProcess(name, command,
+                                               self.out / 'logs' / f'{name}.log', env,
+                                               scheduling)
+
+    def launch(self, params_file: pathlib.Path) -> None:
+        """Start the processes and wait until every node is up (:meth:`wait_for_nodes`)."""
+        self.start_processes(params_file)
+        self.bag_created = self.bag is not None  # prepare() checked it was absent or empty
+        self.timeline['processes started'] = time.monotonic() - self.t0
+        self.say(f'started {len(self.processes)} processes in ROS_DOMAIN_ID='
+                 f'{self.domain_id}; waiting for the graph')
+        self.wait_for_nodes()
+
+    # -- watching ---------------------------------------------------------------------------
+    def node_died(self, name: str) -> None:
+        """Hook: called when the process ``name`` is found dead, before the error."""
+
+    def check_alive(self, exempt: Iterable[str] = ()) -> None:
+        """Raise GraphError naming a node that exited (other than the ``exempt`` ones)."""
+        for name, process in self.processes.items():
+            code = process.poll()
+            if code is None or name in exempt:
+                continue
+            self.node_died(name)
+            raise GraphError(f'node {name!r} (pid {process.pid}) exited with code {code}; '
+                             f'last lines of {process.log_path}:\n{process.log_tail()}')
+
+    def missing_from_view(self, nodes: list[str]) -> list[str]:
+        """Hook: what the probe's graph view still lacks (default: absent nodes)."""
+        present = self.probe.node_names()
+        absent = [n for n in nodes if n not in present]
+        return ['nodes ' + ', '.join(absent)] if absent else []
+
+    def unmatched_endpoints(self) -> list[str]:
+        """Hook: endpoints not yet matched although the graph view is complete."""
+        return []
+
+    def wait_for_nodes(self) -> None:
+        """Until the probe sees every node (:meth:`missing_from_view`), then a /diagnostics
+        message of every node sent after that moment (the probe's view can be complete
+        before two *other* nodes have matched each other; their exchange takes
+        milliseconds, the wait up to 1 s) and no :meth:`unmatched_endpoints`."""
+        nodes = self.node_names()
+        deadline = time.monotonic() + self.options.discovery_timeout
+        missing = ['(not checked yet)']
+        complete_since = None
+        while time.monotonic() < deadline:
+            self.check_alive()
+            missing = self.missing_from_view(nodes)
+            if missing:
+                complete_since = None
+            else:
+                if complete_since is None:
+                    complete_since = time.monotonic()
+                silent = set(nodes) - self.probe.reporting_since(complete_since)
+                unmatched = self.unmatched_endpoints()
+                if not silent and not unmatched:
+                    self.timeline[self.UP_EVENT] = complete_since - self.t0
+                    self.timeline['diagnostics from every node'] = time.monotonic() - self.t0
+                    return
+                missing = (['/diagnostics from ' + ', '.join(sorted(silent))] if silent
+                           else []) + unmatched
+            self.probe.spin(0.1)
+        raise GraphError(self.NOT_UP.format(timeout=self.options.discovery_timeout)
+                         + f'; missing: {"; ".join(missing)}', EXIT_TIMEOUT)
+
+    # -- stopping -------------------------------------------------------------------------
+    def nodes_stopped(self) -> None:
+        """Hook: every process but the recorder has stopped."""
+
+    def stop_all(self) -> None:
+        """SIGINT every process (recorder last), SIGKILL after the grace period."""
+        others = [p for n, p in self.processes.items() if n != 'recorder']
+        for process in others:  # All at once: they shut down in parallel.
+            process.interrupt()
+        deadline = time.monotonic() + GRACE_PERIOD
+        for process in others:
+            process.stop(deadline - time.monotonic())
+            if process.killed:
+                self.say(f'warning: {process.name} (pid {process.pid}) ignored SIGINT for '
+                         f'{GRACE_PERIOD:g} s: killed')
+        self.timeline['nodes stopped'] = time.monotonic() - self.t0
+        self.nodes_stopped()
+        if 'recorder' in self.processes:
+            recorder = self.processes['recorder']
+            code = recorder.stop(RECORDER_GRACE_PERIOD)
+            self.timeline['recorder stopped'] = time.monotonic() - self.t0
+            if code not in (0, None):
+                self.say(f'warning: the recorder exited with code {code}; see '
+                         f'{recorder.log_path}; if the bag was not closed, '
+                         f'scripts/bag_repair {self.bag} recovers every complete chunk')
+
+    # -- the result -----------------------------------------------------------------------
+    def cpu_snapshot(self) -> dict[str, float | None]:
+        """CPU time [s] used so far by each process."""
+        return {name: process.cpu_seconds() for name, process in self.processes.items()}
+
+    def cpu_since(self, start: dict[str, float | None]) -> dict[str, float]:
+        """CPU time [s] of each process since the :meth:`cpu_snapshot` ``start``."""
+        used = {}
+        for name, now in self.cpu_snapshot().items():
+            if now is not None and start.get(name) is not None:
+                used[name] = now - start[name]
+        return used
+
+    def shut_down(self, result: RunResult) -> None:
+        """The end of every run, whatever happened: the nodes' last /diagnostics into
+        ``result``, every process stopped, the probe closed."""
+        if self.probe is not None:
+            self.probe.spin(0.05)
+            result.node_diagnostics = {
+                name: {'message': status.message,
+                       **{kv.key: kv.value for kv in status.values}}
+                for name, status in sorted(self.probe.diagnostics.items())}
+        # A second Ctrl-C must not leave the nodes running (signal handlers can only be
+        # set from the main thread; a runner in another thread is stopped by its caller).
+        shield = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if shield else None
+        try:
+            self.stop_all()
+        finally:
+            if shield:
+                signal.signal(signal.SIGINT, previous)
+        if self.probe is not None:
+            self.probe.close()
+
+    def finish(self, result: RunResult) -> None:
+        """Exit codes into ``result``, the scenario into the bag, ``OUT/run.json``."""
+        result.domain_id = self.domain_id
+        result.node_exit_codes = {n: p.returncode for n, p in self.processes.items()}
+        if self.bag_created and self.bag.is_dir() and (self.out / 'scenario.yaml').is_file():
+            # Only into a bag this run recorded (never into one it refused).
+            shutil.copyfile(self.out / 'scenario.yaml', self.bag / 'scenario.yaml')
+        if self.prepared and self.out.is_dir():  # A refused run leaves --out untouched.
+            (self.out / 'run.json').write_text(json.dumps(result.summary(), indent=2) + '\n',
+                                               encoding='utf-8')
+
+
+def print_result(result: RunResult, formatted: Callable[[RunResult], str]) -> int:
+    """The end of ``scripts/run_graph`` in either mode: the result on stdout (a run refused
+    before anything ran: only its error, on stderr); the exit status."""
+    if result.exit_code == EXIT_USAGE:  # Refused before anything ran: nothing to show.
+        print(f'run_graph: error: {result.message}', file=sys.stderr)
+        return EXIT_USAGE
+    print(formatted(result))
+    return result.exit_code
+
+
+def options_from_args(args, **own) -> dict[str, Any]:
+    """Keyword arguments of either mode's options from ``scripts/run_graph``'s parsed
+    arguments: those both modes have, then the mode's ``own``."""
+    return dict(scenario=args.scenario, record=args.record, duration=args.duration,
+                discovery_timeout=args.discovery_timeout, quiet=args.quiet,
+                scheduling=Scheduling(priority=args.rt_priority, cpus=tuple(args.cpu_affinity)),
+                viewer=args.viewer, foxglove_port=args.foxglove,
+                foxglove_host=args.foxglove_host, **own)
