@@ -46,6 +46,9 @@ def test_scheduling_is_a_command_prefix_and_absurd_values_are_refused():
     assert Scheduling().command_prefix() == []
     assert Scheduling(20, (0,)).command_prefix() == ['chrt', '--fifo', '20',
                                                      'taskset', '--cpu-list', '0']
+    assert Scheduling(20, rt_cpu_limit=1.5).command_prefix() == [
+        'prlimit', '--rttime=1500000', 'chrt', '--fifo', '20']
+    assert Scheduling(0, rt_cpu_limit=1.5).command_prefix() == []   # only with a priority
     with pytest.raises(GraphError, match='--rt-priority: must be in 0..99'):
         Scheduling(100).check()
     with pytest.raises(GraphError, match='--cpu-affinity: CPUs \\[4096\\]'):
@@ -79,6 +82,23 @@ def test_a_process_and_its_threads_run_at_the_requested_fifo_priority(tmp_path):
         assert os.sched_getparam(process.pid).sched_priority == 5
     finally:
         assert process.stop(5.0) is not None
+
+
+def test_a_runaway_at_fifo_priority_is_killed_by_its_rt_cpu_limit(tmp_path):
+    """A thread that spins at SCHED_FIFO without sleeping for longer than the limit is
+    killed by the kernel (RLIMIT_RTTIME) instead of starving the machine below it."""
+    scheduling = Scheduling(5, rt_cpu_limit=0.3)
+    try:
+        scheduling.check()
+    except GraphError as err:
+        pytest.skip(f'SCHED_FIFO not permitted here: {err}')
+    process = NodeProcess('spinner', [sys.executable, '-c', 'while True: pass'],
+                          tmp_path / 'spinner.log', dict(os.environ), scheduling)
+    try:
+        _wait_for(lambda: process.poll() is not None, START_UP, 'the spinner is killed')
+        assert process.returncode in (-signal.SIGKILL, -signal.SIGXCPU)
+    finally:
+        process.stop(1.0)
 
 
 LAUNCHER = textwrap.dedent('''

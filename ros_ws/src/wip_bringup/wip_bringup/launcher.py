@@ -82,6 +82,9 @@ class Scheduling:
 
     priority: int = 0
     cpus: tuple[int, ...] = ()
+    #: RLIMIT_RTTIME [s] (0: none): a thread at SCHED_FIFO that runs this long without
+    #: sleeping is killed by the kernel, instead of starving everything below its priority.
+    rt_cpu_limit: float = 0.0
 
     def check(self) -> None:
         """GraphError (usage) naming the option if the values are absurd or this user may
@@ -113,10 +116,14 @@ class Scheduling:
         """``chrt``/``taskset`` words to put before a program's command line ([] if
         neither is asked for)."""
         words: list[str] = []
-        for tool, wanted in (('chrt', self.priority), ('taskset', self.cpus)):
+        limit = self.priority and self.rt_cpu_limit > 0.0
+        for tool, wanted in (('prlimit', limit), ('chrt', self.priority),
+                             ('taskset', self.cpus)):
             if wanted and shutil.which(tool) is None:
                 raise GraphError(f'{tool} not found: --rt-priority and --cpu-affinity need '
                                  'util-linux (apt-get install util-linux)', EXIT_USAGE)
+        if limit:
+            words += ['prlimit', f'--rttime={round(self.rt_cpu_limit * 1e6)}']
         if self.priority:
             words += ['chrt', '--fifo', str(self.priority)]
         if self.cpus:

@@ -34,13 +34,18 @@ from .hardware import HardwareOptions, HardwareResult, run_hardware
 from .launcher import executable_path, GraphError, Scheduling
 
 CONTROL_RATE = 200.0  # [Hz]
-#: SCHED_FIFO priorities of ``realtime_priority=True`` (scripts/bench's real-time case):
-#: the base above the controllers, as a base's firmware would be. Off by default, as in
-#: hardware mode (--rt-priority 0): the tests run at the normal policy, where a process
-#: that spins (seen: a controller process exiting at SCHED_FIFO took a core for minutes)
-#: cannot starve the rest of a shared CI machine, and they hold there with a busy process.
+#: SCHED_FIFO priorities where permitted: the base above the controllers, as a base's
+#: firmware would be, both above everything else on the machine (a robot's computer runs
+#: its control at real-time priority; the tests then hold with other jobs running: at the
+#: normal policy one busy process made 1 of 8 stand-in tests fall, bunched samples).
 BASE_PRIORITY = 30
 CONTROLLER_PRIORITY = 20
+#: RLIMIT_RTTIME of those processes [s]: one that runs this long at SCHED_FIFO without
+#: sleeping (a runaway, or a machine too slow for the layout) is killed by the kernel and
+#: the run fails, rather than starve the test runner and everything else (seen: two
+#: controller processes spinning at SCHED_FIFO 20 kept a 2-core machine unusable for
+#: minutes). Start-up (imports) runs well under it on a slow machine.
+RT_CPU_LIMIT = 30.0
 #: The base's conventions (see the module docstring).
 BASE = {
     'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'joints': ['wheel_r', 'wheel_l'],
@@ -134,7 +139,7 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                         exit_after_fall: float = 1.0,
                         base_extra: Mapping[str, Any] | None = None,
                         layout: str = HardwareOptions.layout,
-                        realtime_priority: bool = False,
+                        realtime_priority: bool = True,
                         record: bool = False,
                         during: Callable[[HardwareResult | None, dict], None] | None = None
                         ) -> StandinRun:
@@ -144,14 +149,15 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
     robot (its stats file is not needed: it waits for the first ACTIVE safety state seen
     by the runner), with the controller processes by name (to freeze one, say).
     ``realtime_priority``: run the base and the controllers at SCHED_FIFO priorities
-    (:data:`BASE_PRIORITY`, :data:`CONTROLLER_PRIORITY`) if this user may (off by
-    default); the run's ``measured.json`` says whether they were. ``record``: the controllers' topics go to
+    (:data:`BASE_PRIORITY`, :data:`CONTROLLER_PRIORITY`, limited to :data:`RT_CPU_LIMIT`
+    without sleeping) if this user may; the run's ``measured.json`` says whether they
+    were. ``record``: the controllers' topics go to
     the bag ``directory/bag`` (costs CPU: for diagnosis, not for measuring).
     """
     base_scheduling = controller_scheduling = Scheduling()
-    if realtime_priority and permitted(Scheduling(BASE_PRIORITY)):
-        base_scheduling = Scheduling(BASE_PRIORITY)
-        controller_scheduling = Scheduling(CONTROLLER_PRIORITY)
+    if realtime_priority and permitted(Scheduling(BASE_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)):
+        base_scheduling = Scheduling(BASE_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)
+        controller_scheduling = Scheduling(CONTROLLER_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)
     directory.mkdir(parents=True, exist_ok=True)
     scenario_path = directory / 'scenario.yaml'
     scenario_path.write_text(yaml.safe_dump(dict(scenario or line_scenario())))

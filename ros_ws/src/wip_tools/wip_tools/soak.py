@@ -96,7 +96,7 @@ def one_run(directory: pathlib.Path, path: str, load: str, index: int, seconds: 
 
     try:
         run = run_against_standin(directory, BASE, seconds, scenario=scenario_for(path),
-                                  layout=layout, record=record, realtime_priority=True,
+                                  layout=layout, record=record,
                                   during=inject if freezes_ms else None)
     finally:
         if busy is not None:
