@@ -2,6 +2,7 @@
 Dask LocalCluster end to end (outputs, summary, figures, resume, no overwrite)."""
 
 import csv
+import gc
 import json
 import math
 import pathlib
@@ -170,6 +171,7 @@ def test_pulse_windows_cover_the_pulse_and_its_recovery_only():
 @pytest.fixture(scope='module')
 def dask_cluster():
     distributed = pytest.importorskip('dask.distributed')
+    gc.collect()   # no earlier test's Client left to be closed inside LoopRunner.start
     cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                        dashboard_address=None, silence_logs=40)
     yield cluster

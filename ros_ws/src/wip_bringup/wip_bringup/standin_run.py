@@ -31,7 +31,8 @@ import yaml
 from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
 
 from .hardware import HardwareOptions, HardwareResult, run_hardware
-from .launcher import executable_path, GraphError, Scheduling
+from .launcher import (DEFAULT_TRANSPORT, executable_path, GraphError, Scheduling,
+                       TRANSPORT_VARIABLE)
 
 CONTROL_RATE = 200.0  # [Hz]
 #: SCHED_FIFO priorities where permitted: the base above the controllers, as a base's
@@ -169,6 +170,7 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
     domain = os.environ.get('ROS_DOMAIN_ID') or str(random.randint(1, 101))
     env = dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     env[LAUNCHER_PID_VARIABLE] = str(os.getpid())   # the base ends with this process
+    env.setdefault(TRANSPORT_VARIABLE, DEFAULT_TRANSPORT)
     command = [str(executable_path('wip_sim', 'standin_base')), '--ros-args',
                '--params-file', str(base_params)]
     for remap in REMAPS:

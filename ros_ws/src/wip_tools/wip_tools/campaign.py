@@ -41,6 +41,7 @@ import copy
 import csv
 import dataclasses
 import itertools
+import gc
 import json
 import math
 import os
@@ -443,10 +444,18 @@ def execute(campaign: Campaign, specs: list[dict], jsonl: pathlib.Path,
     todo = [s for s in specs if s['run'] not in done]
     if todo:
         if scheduler:
+            failure = None
             try:
                 client = Client(scheduler, timeout='20s')
             except (OSError, ValueError, TypeError) as err:   # no answer, a bad address
-                raise CampaignError(f'--scheduler {scheduler}: {err}') from err
+                failure = f'--scheduler {scheduler}: {err}'
+            if failure is not None:
+                # The half-built Client is garbage now (the exception is gone); collect it
+                # here. Left to a later collection, its __del__ can run inside dask's
+                # LoopRunner.start, which holds the lock that __del__'s close() then waits
+                # for: a deadlock (seen: a test's LocalCluster hung in its constructor).
+                gc.collect()
+                raise CampaignError(failure)
             cluster = None
         else:
             n = workers or os.cpu_count() or 1
