@@ -124,8 +124,8 @@ class Scheduling:
                 EXIT_USAGE)
 
     def command_prefix(self) -> list[str]:
-        """``chrt``/``taskset`` words to put before a program's command line ([] if
-        neither is asked for)."""
+        """``prlimit``/``chrt``/``taskset`` words to put before a program's command line
+        ([] if nothing is asked for); each execs the next, so the pid is the program's."""
         words: list[str] = []
         limit = self.priority and self.rt_cpu_limit > 0.0
         for tool, wanted in (('prlimit', limit), ('chrt', self.priority),

@@ -19,7 +19,6 @@ import json
 import math
 import os
 import pathlib
-import random
 import signal
 import subprocess
 import threading
@@ -28,11 +27,9 @@ from typing import Any, Callable, Mapping
 
 import yaml
 
-from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
-
 from .hardware import HardwareOptions, HardwareResult, run_hardware
-from .launcher import (DEFAULT_TRANSPORT, executable_path, GraphError, Scheduling,
-                       TRANSPORT_VARIABLE)
+from .launcher import (choose_domain_id, executable_path, graph_environment, GraphError,
+                       Scheduling)
 
 CONTROL_RATE = 200.0  # [Hz]
 #: SCHED_FIFO priorities where permitted: the base above the controllers, as a base's
@@ -167,10 +164,10 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
         exit_after_fall=float(exit_after_fall),
         stats_file=str(directory / 'base_stats.json'), scenario_file=str(scenario_path)))
     controller_params = write_params(directory / 'controllers.yaml', controller_conventions)
-    domain = os.environ.get('ROS_DOMAIN_ID') or str(random.randint(1, 101))
-    env = dict(os.environ, ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    env[LAUNCHER_PID_VARIABLE] = str(os.getpid())   # the base ends with this process
-    env.setdefault(TRANSPORT_VARIABLE, DEFAULT_TRANSPORT)
+    domain = str(choose_domain_id())
+    # The controllers' environment (the base too ends with this process, same transport),
+    # on localhost whatever the user's discovery range.
+    env = dict(graph_environment(int(domain)), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     command = [str(executable_path('wip_sim', 'standin_base')), '--ros-args',
                '--params-file', str(base_params)]
     for remap in REMAPS:
