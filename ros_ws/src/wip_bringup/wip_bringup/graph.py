@@ -1,4 +1,5 @@
-"""``scripts/run_graph``: run a scenario through the ROS 2 node graph, one process per node.
+"""``scripts/run_graph``: run a scenario through the ROS 2 node graph (controllers composed in
+one process by default, or one process per node with ``--layout separate``).
 
 Examples
 --------
