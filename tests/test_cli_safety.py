@@ -346,13 +346,15 @@ def test_mixer_refuses_inf_warns_about_unknown_overrides_and_stops_quietly(tmp_p
     env = dict(os.environ, ROS_DOMAIN_ID=str(100 + os.getpid() % 50),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     module = [sys.executable, '-m', 'wip_control.nodes.torque_mixer_node', '--ros-args']
-    bad = subprocess.run(module + ['-p', 'mpc_period:=inf'], capture_output=True,
+    bad = subprocess.run(module + ['-p', 'mpc.sampling_period:=inf'], capture_output=True,
                          text=True, timeout=60, env=env)
     assert bad.returncode == 1
-    assert bad.stderr.strip() == 'torque_mixer: error: mpc_period: must be finite, got inf'
+    assert bad.stderr.strip() == \
+        'torque_mixer: error: mpc.sampling_period: must be finite, got inf'
     log = tmp_path / 'mixer.log'
     with open(log, 'w') as stream:
-        mixer = subprocess.Popen(module + ['-p', 'max_wheel_torque:=3.0'], stdout=stream,
+        mixer = subprocess.Popen(module + ['-p', 'max_wheel_torque:=3.0',
+                                           '-p', 'mpc_period:=0.1'], stdout=stream,
                                  stderr=subprocess.STDOUT, env=env)
         deadline = time.monotonic() + 30
         while 'safety state' not in log.read_text() and time.monotonic() < deadline:
@@ -362,5 +364,8 @@ def test_mixer_refuses_inf_warns_about_unknown_overrides_and_stops_quietly(tmp_p
     text = log.read_text()
     assert "parameter 'max_wheel_torque' is not a parameter of this node" in text
     assert "did you mean 'mixer.max_wheel_torque'" in text
+    # A parameter of an older version names what replaced it.
+    assert ("parameter 'mpc_period' is not a parameter of this node and is ignored (the "
+            "mixer reads the MPC's period from 'mpc.sampling_period')") in text
     assert 'stopping: zero effort command sent' in text
     assert 'FATAL' not in text and 'Traceback' not in text and 'Error occurred' not in text

@@ -29,7 +29,6 @@ from wip_control.core.mpc import MpcConfig  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
 from wip_control.core.position import PositionConfig  # noqa: E402
 from wip_control.core.references import ReferenceConfig  # noqa: E402
-from wip_control.core.runner import initial_alpha  # noqa: E402
 from wip_control.core.scenario import (RatesConfig, scenario_from_mapping,  # noqa: E402
                                        scenario_to_mapping)
 from wip_control.core.trajectory_generator import TrajectoryGeneratorConfig  # noqa: E402
@@ -170,8 +169,13 @@ def test_plain_parameters_follow_the_scenario(scenario, params_file):
     plant = flatten(data['plant']['ros__parameters'])
     # The plant takes the datum from its scenario file only (one source).
     assert not any(key.startswith('datum.') for key in plant)
-    assert data['arc']['ros__parameters']['alpha_initial'] == initial_alpha(scenario)
-    assert data['torque_mixer']['ros__parameters']['mpc_period'] == 0.2
+    # Derived values are computed in the node from the values they derive from: the ARC
+    # gets the model and the ESO's yaw gain scale (not α̂(0)), the mixer the MPC's period.
+    arc = data['arc']['ros__parameters']
+    assert 'alpha_initial' not in arc
+    assert arc['model'] == data['eso']['ros__parameters']['model']
+    assert arc['eso'] == {'yaw_input_gain_scale': scenario.eso.yaw_input_gain_scale}
+    assert data['torque_mixer']['ros__parameters']['mpc'] == {'sampling_period': 0.2}
 
 
 def test_the_file_has_no_yaml_aliases_and_ints_stay_ints(scenario, params_file):

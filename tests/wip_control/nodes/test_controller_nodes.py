@@ -50,7 +50,9 @@ from wip_control.core.sensors import (geodetic_to_local, local_to_geodetic,  # n
 from wip_control.core.state_estimation import StateEstimator  # noqa: E402
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa: E402
                                                    TrajectoryGeneratorConfig)
-from wip_control.nodes.arc_node import ArcNode, default_alpha_initial  # noqa: E402
+from wip_control.core.control_step import initial_alpha  # noqa: E402
+from wip_control.core.eso import EsoConfig  # noqa: E402
+from wip_control.nodes.arc_node import ArcNode  # noqa: E402
 from wip_control.nodes.common import (CLOCK_QOS, connect_intra_process,  # noqa: E402
                                       make_header, ns_to_stamp, share_sim_clock,
                                       stamp_to_ns)
@@ -602,8 +604,10 @@ def arc_harness(harnesses, context, mode='lockstep', **params):
                  **params)
 
 
-def arc_expected(config, n):
-    arc = AdaptiveRobustYawController(config, default_alpha_initial())
+def arc_expected(config, n, alpha_initial=None):
+    if alpha_initial is None:
+        alpha_initial = initial_alpha(WipParameters(), EsoConfig().yaw_input_gain_scale)
+    arc = AdaptiveRobustYawController(config, alpha_initial)
     return [arc.step(1.0 / 200.0, est['omega'], est['f1'], cmd['omega_d'], cmd['omega_d_dot'])
             for _, est, cmd in arc_inputs(n)]
 
@@ -619,6 +623,24 @@ def test_arc_yaw_rate_gain_from_a_params_file_equals_the_core(params_context, ha
     for msg, exp in zip(out, expected):
         assert (msg.tau_omega, msg.alpha_hat, msg.e_omega) == tuple(exp)
     assert out[-1].tau_omega != default[-1].tau_omega
+
+
+def test_arc_computes_its_initial_alpha_from_the_model_and_the_eso_gain_scale_it_is_given(
+        params_context, harnesses):
+    # α̂(0) = 1/ĝ1 is derived in the node from model.* and eso.yaw_input_gain_scale (one
+    # source each, as the runner's ControlStep), not passed in as a number of its own.
+    model = WipParameters(body_mass=30.0, yaw_inertia=1.5)
+    ctx = params_context('arc', {'clock_mode': 'lockstep', 'eso': {'yaw_input_gain_scale': 1.5},
+                                 'model': {'body_mass': 30.0, 'yaw_inertia': 1.5}})
+    harness = wire(harness_of(harnesses, ArcNode(context=ctx)), ARC_INPUTS,
+                   ['/wip/yaw_torque'])
+    alpha0 = initial_alpha(model, 1.5)
+    assert alpha0 != pytest.approx(initial_alpha(WipParameters(), EsoConfig().yaw_input_gain_scale))
+    assert harness.node.controller.alpha_hat == alpha0
+    out = run_arc(harness, 20)
+    expected = arc_expected(ArcConfig(), 20, alpha0)
+    assert [(m.tau_omega, m.alpha_hat) for m in out] == \
+        [(e.tau_omega, e.alpha_hat) for e in expected]
 
 
 def test_arc_rejects_a_bad_run_time_parameter_with_the_reason_and_applies_a_good_one(

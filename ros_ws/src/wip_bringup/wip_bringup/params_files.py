@@ -34,11 +34,11 @@ Node to sections (ROS prefix <- scenario key)
                           sensors.encoders_relative_to_body, gps_period = 1/sensors.gps_rate,
                           left_joint, right_joint, datum.* <- sensors.gps_datum_*
 ``trajectory_generator``  trajectory_generator <- trajectory_generator
-``arc``                   arc <- arc, rates <- rates, alpha_initial =
-                          core.runner.initial_alpha(scenario)
+``arc``                   arc <- arc, rates <- rates, model <-
+                          controller_model.parameters, eso.yaw_input_gain_scale <- same
 ``mpc``                   mpc <- mpc, model <- controller_model.parameters,
                           mixer.max_wheel_torque <- mixer.max_wheel_torque, rates <- rates
-``torque_mixer``          mixer <- mixer, rates <- rates, mpc_period = mpc.sampling_period,
+``torque_mixer``          mixer <- mixer, rates <- rates, mpc.sampling_period <- same,
                           left_joint, right_joint, joints
 ``recorder`` (optional)   output, topics, compression, discovery_period
 ========================  =================================================================
@@ -57,7 +57,6 @@ from typing import Any, Mapping
 import yaml
 
 from wip_control.core.config import to_mapping
-from wip_control.core.runner import initial_alpha
 from wip_control.core.scenario import Scenario
 
 CLOCK_MODES = ('lockstep', 'realtime')
@@ -152,11 +151,12 @@ def graph_parameters(scenario: Scenario, clock_mode: str = 'lockstep',
         'trajectory_generator': {
             'trajectory_generator': config_section(scenario.trajectory_generator)},
         'arc': {'arc': config_section(scenario.arc), 'rates': rates,
-                'alpha_initial': float(initial_alpha(scenario))},
+                'model': model,
+                'eso': {'yaw_input_gain_scale': float(scenario.eso.yaw_input_gain_scale)}},
         'mpc': {'mpc': config_section(scenario.mpc), 'model': model,
                 'mixer': {'max_wheel_torque': mixer['max_wheel_torque']}, 'rates': rates},
         'torque_mixer': {'mixer': mixer, 'rates': rates,
-                         'mpc_period': float(scenario.mpc.sampling_period),
+                         'mpc': {'sampling_period': float(scenario.mpc.sampling_period)},
                          'left_joint': left, 'right_joint': right,
                          'joints': [left, right]},
     }

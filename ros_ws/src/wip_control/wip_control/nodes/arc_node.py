@@ -16,9 +16,9 @@ the latest command. Malformed or non-finite input is dropped and reported; so is
 whose result overflows (never published; α̂ is kept).
 
 Parameters: section ``arc`` (changeable at run time; α̂ is kept, projected into the new
-bounds), section ``rates`` (read-only), ``alpha_initial`` [kg m^2] (α̂(0); default
-1/(1.2 g1(0)) of the default model, as ``core.control_step.initial_alpha``), ``clock_mode``,
-``diagnostics_period``.
+bounds), section ``rates`` (read-only), section ``model`` and ``eso.yaw_input_gain_scale``
+(read-only: α̂(0) = 1/ĝ1 computed from them, ``core.control_step.initial_alpha``, as the
+runner does), ``clock_mode``, ``diagnostics_period``.
 
 References
 ----------
@@ -35,21 +35,17 @@ from wip_msgs.msg import (ArcState, StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg)
 
 from ..core.arc import ArcConfig
-from ..core.control_step import YawStage
+from ..core.control_step import YawStage, initial_alpha
+from ..core.params import WipParameters
 from ..core.scenario import RatesConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node
 from .conversions import arc_to_msg, command_from_msg, estimate_from_msg
 from .diagnostics import OK
 from .parameters import ConfigParameters
-from .settings import ArcNodeSettings
+from .settings import YawInputGainScale
 from .sync import ExactTimeSync, LatestSync
 
 _INPUTS = ('velocity_command', 'state_estimate')
-
-
-def default_alpha_initial() -> float:
-    """α̂(0) = 1/ĝ1(θ = 0) of the default model and ESO (the default of ``alpha_initial``)."""
-    return ArcNodeSettings().alpha_initial
 
 
 class ArcNode(ControllerNode):
@@ -59,7 +55,9 @@ class ArcNode(ControllerNode):
         super().__init__('arc', 'adaptive robust yaw control (12)-(13)', _INPUTS, **kwargs)
         self.parameters = ConfigParameters(self, 'arc', ArcConfig, self._on_config)
         self.rates = ConfigParameters(self, 'rates', RatesConfig).config
-        alpha_initial = ConfigParameters(self, '', ArcNodeSettings).config.alpha_initial
+        model = ConfigParameters(self, 'model', WipParameters).config
+        scale = ConfigParameters(self, 'eso', YawInputGainScale).config.yaw_input_gain_scale
+        alpha_initial = initial_alpha(model, scale)
         self.dt = 1.0 / self.rates.control_rate
         # The yaw stage of the loop (core/control_step.py).
         self.stage = YawStage(self.parameters.config, alpha_initial, self.dt)

@@ -48,7 +48,7 @@ from .diagnostics import NodeDiagnostics
 from .intra_process import IntraProcessBus, IntraProcessPublisher
 from .launched import end_with_launcher
 from .parameters import ConfigParameters
-from .settings import ControllerNodeSettings
+from .settings import ControllerNodeSettings, RETIRED
 from .sync import on_grid
 
 #: One spin_once of the EventsExecutor [s]: bounds the reaction time to a shutdown.
@@ -255,9 +255,10 @@ def undeclared_overrides(node: Node, declared_elsewhere=()) -> list[str]:
             continue
         meant = [d for d in declared if d.endswith('.' + name)] or \
             difflib.get_close_matches(name, declared, n=2, cutoff=0.8)
+        hint = (f' ({RETIRED[name]})' if name in RETIRED else
+                f' (did you mean {" or ".join(repr(m) for m in meant)}?)' if meant else '')
         lines.append(f'parameter {name!r} is not a parameter of this node and is ignored'
-                     + (f' (did you mean {" or ".join(repr(m) for m in meant)}?)'
-                        if meant else ''))
+                     + hint)
     return lines
 
 

@@ -16,7 +16,6 @@ from typing import Any
 
 from ..core.arc import ArcConfig
 from ..core.config import param
-from ..core.control_step import initial_alpha
 from ..core.eso import EsoConfig
 from ..core.mixer import MixerConfig
 from ..core.mpc import MpcConfig
@@ -138,14 +137,11 @@ class EsoNodeSettings:
 
 
 @dataclasses.dataclass(frozen=True)
-class ArcNodeSettings:
-    """Node-level settings of the ARC node."""
+class YawInputGainScale:
+    """The one ESO value the ARC needs: the scale of the yaw input gain, from which it
+    computes α̂(0) = 1/ĝ1 with the model (``core.control_step.initial_alpha``)."""
 
-    alpha_initial: float = param(
-        initial_alpha(WipParameters(), EsoConfig().yaw_input_gain_scale), 'kg m^2',
-        'initial adaptive estimate of alpha = 1/g1 (paper: 1/g1_hat, eq. (13)); projected '
-        'into [alpha_min, alpha_max]; default: that of the default model and ESO',
-        minimum=0.0, exclusive_minimum=True)
+    yaw_input_gain_scale: float = like(EsoConfig, 'yaw_input_gain_scale')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -166,12 +162,17 @@ class WheelTorqueLimit:
 
 
 @dataclasses.dataclass(frozen=True)
+class MpcPeriod:
+    """The one MPC value the mixer needs: its sampling period, from which the mixer
+    computes the ticks at which (in lockstep) it awaits a drive torque."""
+
+    sampling_period: float = like(MpcConfig, 'sampling_period')
+
+
+@dataclasses.dataclass(frozen=True)
 class MixerNodeSettings:
     """Node-level settings of the torque mixer node."""
 
-    mpc_period: float = like(MpcConfig, 'sampling_period', description='MPC sampling period '
-                             '(= mpc.sampling_period): in lockstep a drive torque is awaited '
-                             'at every MPC tick')
     effort_topic: str = param('/effort_controller/commands', TEXT, 'topic of the '
                               'ros2_control JointGroupEffortController command '
                               '(std_msgs/Float64MultiArray)')
@@ -188,6 +189,14 @@ class ReferenceNodeSettings:
                                 'zeroed)', choices=REALTIME_STARTS)
 
 
+#: Parameters that existed before and what replaces them, for the warning a params file
+#: that still sets one gets (``common.undeclared_overrides``).
+RETIRED = {
+    'mpc_period': "the mixer reads the MPC's period from 'mpc.sampling_period'",
+    'alpha_initial': "the ARC computes alpha_hat(0) = 1/g1 from 'model.*' and "
+                     "'eso.yaw_input_gain_scale'",
+}
+
 _BASE = (('', ControllerNodeSettings),)
 
 #: executable -> the (prefix, dataclass) groups it declares, in declaration order.
@@ -198,10 +207,11 @@ NODES: dict[str, tuple[tuple[str, type], ...]] = {
             ('model', WipParameters), ('', EsoNodeSettings), ('', WheelJoints),
             ('', WheelSigns), ('', ImuMounting), ('datum', DatumConfig)),
     'trajectory_generator': (*_BASE, ('trajectory_generator', TrajectoryGeneratorConfig)),
-    'arc': (*_BASE, ('arc', ArcConfig), ('rates', RatesConfig), ('', ArcNodeSettings)),
+    'arc': (*_BASE, ('arc', ArcConfig), ('rates', RatesConfig), ('model', WipParameters),
+            ('eso', YawInputGainScale)),
     'mpc': (*_BASE, ('mpc', MpcConfig), ('model', WipParameters), ('mixer', WheelTorqueLimit),
             ('rates', RatesConfig), ('', MpcNodeSettings)),
     'torque_mixer': (*_BASE, ('mixer', MixerConfig), ('rates', RatesConfig),
-                     ('safety', SafetyConfig), ('', MixerNodeSettings), ('', WheelJoints),
+                     ('mpc', MpcPeriod), ('safety', SafetyConfig), ('', MixerNodeSettings), ('', WheelJoints),
                      ('', EffortCommand), ('', WheelSigns)),
 }

@@ -50,7 +50,7 @@ the base's clock is this computer's): p50, p99 and max over the last
 with the latest inputs: up to one period more latency, 2.5 ms on average at 200 Hz.)
 lockstep: one command per stamp t_k, computed when yaw_torque(t_k) has arrived, plus
 drive_torque(t_k) when t_k is an MPC tick (k = round(t_k / h) a multiple of
-round(``mpc_period`` / h), h = 1/``rates.control_rate``, from t = 0, as in the runner),
+round(``mpc.sampling_period`` / h), h = 1/``rates.control_rate``, from t = 0, as in the runner),
 else the drive torque of the last tick; once a state estimate has been received, also
 estimate(t_k), so that the checks use the estimate of the same sample whatever the
 arrival order. The safety layer runs without ages and start-up wait (see
@@ -60,7 +60,7 @@ is answered even when zeroed, so a lockstep plant never waits forever.
 
 Parameters: section ``mixer`` (changeable at run time, validated), sections ``rates`` and
 ``safety`` (read-only: a safety setting does not change under a running robot),
-``mpc_period`` [s], ``joints``, ``left_joint``, ``right_joint``, ``left_wheel_sign``,
+``mpc.sampling_period`` [s], ``joints``, ``left_joint``, ``right_joint``, ``left_wheel_sign``,
 ``right_wheel_sign`` (1 or −1), ``effort_topic``, ``clock_mode``, ``diagnostics_period``
 (all read-only).
 
@@ -92,7 +92,7 @@ from .conversions import effort_command, estimate_from_msg, wheel_torques_to_msg
 from .diagnostics import ERROR, OK, WARN
 from .hardware_inputs import signed_efforts
 from .parameters import ConfigParameters, declare_effort_interface
-from .settings import MixerNodeSettings
+from .settings import MixerNodeSettings, MpcPeriod
 from .sync import decimation, ExactTimeSync, is_decimated_tick
 
 _INPUTS = ('yaw_torque', 'drive_torque')
@@ -117,9 +117,9 @@ class TorqueMixerNode(ControllerNode):
         self.parameters = ConfigParameters(self, 'mixer', MixerConfig, self._on_config)
         self.mixer = self.parameters.config
         self.rates = ConfigParameters(self, 'rates', RatesConfig).config
+        self.mpc_period = ConfigParameters(self, 'mpc', MpcPeriod).config.sampling_period
         self.safety = ConfigParameters(self, 'safety', SafetyConfig).config
         settings = ConfigParameters(self, '', MixerNodeSettings).config
-        self.mpc_period = settings.mpc_period
         wheels = declare_effort_interface(self)
         self.left_joint, self.right_joint = wheels.left_joint, wheels.right_joint
         self.joints = list(wheels.joints)
@@ -204,7 +204,7 @@ class TorqueMixerNode(ControllerNode):
                                       plan_period=msg.sampling_period)
         elif not self.is_tick(stamp):
             # Not awaited at this stamp: hold it from now on (the MPC's period differs
-            # from mpc_period, which /diagnostics reports).
+            # from mpc.sampling_period, which /diagnostics reports).
             self.diagnostics.drop('drive_torque', 'off the MPC ticks',
                                   f'stamp {stamp} ns; held without synchronisation')
             self.monitor.drive_torque(self.time_base.seconds(stamp), *value)
