@@ -36,8 +36,8 @@ import numpy as np
 import scipy.linalg
 
 from .model import input_gains
-from .mpc import (admissible_increment, drive_limit, LongitudinalMpc, MpcConfig, MpcResult,
-                  OffsetFreeTarget, PreviousTorque, tick_gains)
+from .mpc import (admissible_increment, LongitudinalMpc, MpcConfig, MpcResult,
+                  OffsetFreeTarget, PreviousTorque)
 from .mpc_prediction import gravity_aware_state_matrix
 from .params import WipParameters
 from .qp import MpcStatus
@@ -116,13 +116,13 @@ class LongitudinalLqr(PreviousTorque):
         """One tick: Δτ = −K ξ, clipped to the hard limits (see the module docstring)."""
         cfg = self.config
         tau_prev = self._tau_previous
-        limit = drive_limit(cfg, tau_limit, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat,
-                            v_d)
-        if limit is None:
-            return self._hold_invalid_input()
         t_start = time.perf_counter()
-        g2, g3, g2p, g3p = tick_gains(self.params, cfg, theta_hat)
-        theta_s = self._target.update(theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev)
+        tick = self._begin_tick(tau_limit, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat,
+                                v_d)
+        if tick is None:
+            return self._hold_invalid_input()
+        limit = tick[0]
+        theta_s = self._target.theta
         tau_s = self._target.tau
         xi = np.array([v_hat - v_d, theta_hat - theta_s, theta_dot_hat, tau_prev - tau_s])
         delta = float(-self.gain @ xi)

@@ -278,11 +278,27 @@ def tick_gains(params: WipParameters, config: MpcConfig,
 
 
 class PreviousTorque:
-    """τυ(k−1), the drive torque applied since the last tick, of a longitudinal controller
-    (the MPC and the LQR baseline; both set ``config`` and ``_tau_previous``)."""
+    """τυ(k−1), the drive torque applied since the last tick, and the start of a tick, of a
+    longitudinal controller (the MPC and the LQR baseline; both set ``config``,
+    ``params``, ``_target`` and ``_tau_previous``)."""
 
     config: MpcConfig
+    params: WipParameters
+    _target: OffsetFreeTarget
     _tau_previous: float = 0.0
+
+    def _begin_tick(self, tau_limit: float | None, v_hat: float, theta_hat: float,
+                    theta_dot_hat: float, f2_hat: float, f3_hat: float, v_d: float):
+        """What every tick starts with: the tick's |τυ| limit, the input gains at θ̂
+        (``tick_gains``) and the offset-free target updated with them. None when an input
+        is invalid (the caller then returns ``_hold_invalid_input()``)."""
+        limit = drive_limit(self.config, tau_limit, v_hat, theta_hat, theta_dot_hat, f2_hat,
+                            f3_hat, v_d)
+        if limit is None:
+            return None
+        gains = tick_gains(self.params, self.config, theta_hat)
+        self._target.update(theta_hat, f2_hat, f3_hat, *gains, self._tau_previous)
+        return limit, gains
 
     @property
     def tau_previous(self) -> float:
@@ -457,14 +473,12 @@ class LongitudinalMpc(PreviousTorque):
         """
         cfg = self.config
         tau_prev = self._tau_previous
-        limit = drive_limit(cfg, tau_limit, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat,
-                            v_d)
-        if limit is None:
-            return self._hold_invalid_input()
-
         t_start = time.perf_counter()
-        g2, g3, g2p, g3p = tick_gains(self.params, cfg, theta_hat)
-        self._target.update(theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev)
+        tick = self._begin_tick(tau_limit, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat,
+                                v_d)
+        if tick is None:
+            return self._hold_invalid_input()
+        limit, (g2, g3, g2p, g3p) = tick
         free = self._build(v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit, g2,
                            g3, g2p, g3p, tau_prev)
         t_built = time.perf_counter()
