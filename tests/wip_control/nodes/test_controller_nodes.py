@@ -522,7 +522,7 @@ def test_reference_lockstep_publishes_one_sample_per_clock_tick_from_zero(contex
 
 def test_reference_realtime_runs_on_a_timer_from_its_first_tick(context, harnesses):
     harness = start(harnesses, context, ReferenceNode, 'realtime',
-                    outputs=['/wip/reference'],
+                    outputs=['/wip/reference'], realtime_trigger='timer',
                     **{'rates.control_rate': 100.0, 'rates.plant_rate': 1000.0})
     out = harness.outputs['/wip/reference']
     harness.spin_until(lambda: len(out) >= 5, 'five references')
@@ -533,6 +533,31 @@ def test_reference_realtime_runs_on_a_timer_from_its_first_tick(context, harness
         assert msg.phi == reference.sample((stamp - stamps[0]) / 1e9).phi
     # Wall-clock timer at 100 Hz: 10 ms apart on average (loose: a shared 2-core machine).
     assert 5e6 < (stamps[-1] - stamps[0]) / (len(stamps) - 1) < 30e6
+
+
+def test_reference_realtime_publishes_one_sample_per_state_estimate_at_its_stamp(
+        context, harnesses):
+    # The default real-time trigger: no timer of its own; the reference of the estimate's
+    # time (from the first estimate), nothing without estimates, a stale estimate dropped.
+    harness = start(harnesses, context, ReferenceNode, 'realtime',
+                    inputs=['/wip/state_estimate'], outputs=['/wip/reference'])
+    assert not [t for t in harness.node.timers if t.timer_period_ns < 10**9]
+    out = harness.outputs['/wip/reference']
+    harness.spin_for(0.2)
+    assert out == []
+    t0 = time.time_ns()
+    stamps = [t0, t0 + 5_000_000, t0 + 12_000_000, t0 + 5_000_000, t0 + 20_000_000]
+    for stamp in stamps:
+        harness.publish('/wip/state_estimate', StateEstimateMsg(header=make_header(stamp)))
+    harness.spin_until(lambda: len(out) >= 4, 'four references')
+    harness.spin_for(0.2)
+    reference = make_reference()
+    assert [stamp_to_ns(m.header.stamp) for m in out] == [stamps[i] for i in (0, 1, 2, 4)]
+    for msg in out:
+        expected = reference.sample((stamp_to_ns(msg.header.stamp) - t0) / 1e9)
+        assert (msg.x, msg.y, msg.phi, msg.v) == (expected.x, expected.y, expected.phi,
+                                                  expected.v)
+    assert harness.node.diagnostics.dropped[('tick', 'stale')] == 1
 
 
 def test_reference_kind_from_parameters(context, harnesses):

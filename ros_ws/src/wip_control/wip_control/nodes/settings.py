@@ -32,6 +32,7 @@ CLOCK_MODES = ('lockstep', 'realtime')
 DEFAULT_CLOCK_MODE = 'realtime'
 POSITION_SOURCES = ('gps', 'odometry')
 REALTIME_STARTS = ('first_tick', 'engaged')
+REALTIME_TRIGGERS = ('state_estimate', 'timer')
 #: Unit of a string parameter (a name, a path): its range is 'any' unless it has choices.
 TEXT = '-'
 
@@ -187,6 +188,12 @@ class ReferenceNodeSettings:
                                 "first tick ('first_tick') or when the safety layer first "
                                 "sends torque ('engaged': the first /wip/wheel_torques not "
                                 'zeroed)', choices=REALTIME_STARTS)
+    realtime_trigger: str = param('state_estimate', TEXT, "realtime: what makes the node "
+                                  "publish a sample: 'state_estimate' (one per "
+                                  '/wip/state_estimate, at its stamp: no wake-up of its own, '
+                                  "docs/realtime.md) or 'timer' (a wall-clock timer at "
+                                  'rates.control_rate, stamped with the node clock)',
+                                  choices=REALTIME_TRIGGERS)
 
 
 #: Parameters that existed before and what replaces them, for the warning a params file
