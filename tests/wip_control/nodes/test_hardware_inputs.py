@@ -347,3 +347,24 @@ def test_mpc_in_real_time_plans_from_the_torque_the_mixer_applied(context, nodes
     node._on_applied(WheelTorques(header=make_header(stamp), left=1.25, right=2.0))
     node._realtime_tick()
     assert out[-1].tau_v - out[-1].delta_tau == pytest.approx(3.25, abs=1e-12)
+
+
+def test_subscribers_of_one_message_object_share_one_checked_conversion():
+    # Composed, the subscribers of a topic get the same message object: it is converted
+    # once. A fresh object is converted anew; an unchecked conversion is not taken as a
+    # checked one (a non-finite estimate still raises for a subscriber that checks).
+    msg = StateEstimate(header=make_header(5), v=0.5, theta=0.01, x=1.0, y=2.0)
+    first = estimate_from_msg(msg)
+    assert estimate_from_msg(msg) is first and estimate_from_msg(msg, check=False) is first
+    copy = StateEstimate(header=make_header(5), v=0.5, theta=0.01, x=1.0, y=2.0)
+    assert estimate_from_msg(copy) is not first and estimate_from_msg(copy) == first
+    bad = StateEstimate(header=make_header(10), v=math.nan)
+    assert math.isnan(estimate_from_msg(bad, check=False).estimate.v)
+    with pytest.raises(InvalidMessage, match='state_estimate'):
+        estimate_from_msg(bad)
+    command = VelocityCommand(header=make_header(5), v_d=0.3, omega_d=0.1)
+    assert command_from_msg(command) is command_from_msg(command)
+    bad_command = VelocityCommand(header=make_header(10), omega_d=math.inf)
+    command_from_msg(bad_command, check=False)
+    with pytest.raises(InvalidMessage, match='velocity_command'):
+        command_from_msg(bad_command)
