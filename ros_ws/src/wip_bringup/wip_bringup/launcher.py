@@ -61,15 +61,6 @@ RECORDER_GRACE_PERIOD = 60.0  # [s] the recorder writes the rest of its queue fi
 LOG_TAIL_LINES = 15
 
 
-#: Fast DDS transports of the graph's processes (a user's own setting wins). UDPv4 on the
-#: loopback, not the default shared memory: Fast DDS 2.14's shared-memory ports take
-#: interprocess locks that a stopped or killed process can leave held, and at SCHED_FIFO
-#: the waiters spin (seen here: controller processes at ~90 % of a core for minutes after
-#: their launcher was killed, a machine unusable; upstream Fast-DDS #6485, #6535). The
-#: composed layout's own messages do not use DDS at all, and UDPv4 measured no dearer:
-#: composed controllers 19.7 % of a core against 23.4 % with shared memory (20 s runs).
-TRANSPORT_VARIABLE = 'FASTDDS_BUILTIN_TRANSPORTS'
-DEFAULT_TRANSPORT = 'UDPv4'
 
 
 class GraphError(Exception):
@@ -178,7 +169,6 @@ def graph_environment(domain_id: int) -> dict[str, str]:
     env.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
     # The nodes stop when this process ends, even if it is killed (nodes/launched.py).
     env[LAUNCHER_PID_VARIABLE] = str(os.getpid())
-    env.setdefault(TRANSPORT_VARIABLE, DEFAULT_TRANSPORT)
     return env
 
 
