@@ -15,7 +15,9 @@ made within one invocation, interleaved where possible:
 4. **Real time**: the controllers at 200 Hz against the stand-in base (its own process),
    per layout (separate, composed, composed at SCHED_FIFO priority): their CPU share of
    one core and the sensor -> command latency (p50, p99, max), beside the in-process cost
-   of the same loop (``--no-realtime`` skips it; about 90 s).
+   of the same loop (``--no-realtime`` skips it; about 90 s), and the floor of rclpy: the
+   CPU share of a process that only receives the base's two sensor streams with empty
+   callbacks (:mod:`wip_tools.rclpy_floor`).
 
 Examples
 --------
@@ -95,6 +97,15 @@ def bench_realtime(seconds: float) -> list[dict]:
         return realtime_benchmark(pathlib.Path(directory), seconds)
 
 
+def bench_rclpy_floor(seconds: float) -> dict:
+    """CPU of receiving the sensor streams alone (:mod:`wip_tools.rclpy_floor`)."""
+    try:
+        from wip_tools.rclpy_floor import measure_floor  # noqa: PLC0415 (needs ROS)
+    except ImportError as err:
+        return {'skipped': f'rclpy not available: {err}'}
+    return measure_floor(seconds)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='scripts/bench', description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -172,6 +183,16 @@ def main(argv: list[str] | None = None) -> int:
                   f' ms; base command gap max {row["command_gap_ms"]["max_ms"]:.1f} ms'
                   f'{"; FELL" if row["fell"] else ""}')
         print('   (goals: <= 15 % of a core; latency p99 <= 2 ms, max <= 10 ms)')
+        floor = bench_rclpy_floor(min(10.0, max(3.0, args.realtime_seconds / 2.0)))
+        report['rclpy_floor'] = floor
+        if 'cpu_fraction' in floor:
+            print(f'rclpy floor: a process that only receives the base\'s two sensor streams '
+                  f'({floor["messages_per_s"]:.0f} msg/s, empty callbacks, '
+                  f'{floor["executor"]}): {100 * floor["cpu_fraction"]:.1f} % of a core, '
+                  f'{floor["cpu_per_message_us"]:.0f} us per message, '
+                  f'{floor["context_switches_per_s"]:.0f} context switches/s')
+        else:
+            print(f'-> rclpy floor: {floor}')
     if args.json:
         with open(args.json, 'w', encoding='utf-8') as stream:
             json.dump(report, stream, indent=2, default=str)
