@@ -79,7 +79,9 @@ CONTRACT = {
 #: Executables that hold several nodes (composition): executable -> its nodes, each with
 #: the contract of its own executable.
 COMPOSED = {'controllers': ('reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
-                            'torque_mixer')}
+                            'torque_mixer'),
+            'simulation': ('plant', 'reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
+                           'torque_mixer')}
 
 #: Command-line tools: executable -> (package, its scripts/ front door). Those that are
 #: also nodes (check_base, replayer) are in CONTRACT too.
@@ -175,6 +177,7 @@ def started(tmp_path_factory):
         'recorder': ['-p', f'output:={work / "recorded"}'],
         'replayer': ['-p', f'bag:={bag}', '-p', 'exit_when_done:=false', '-p', 'loop:=true'],
         'plant': ['-p', 'autostart:=false'],
+        'simulation': ['-p', 'autostart:=false'],
         'check_base': ['-r', '/joint_states:=/contract/joints'],
         'foxglove_bridge': ['-p', 'port:=0'],
     }

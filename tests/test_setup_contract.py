@@ -48,6 +48,7 @@ EXECUTABLES = {
     'wip_sim': {
         'plant': 'wip_sim.plant_node:main',
         'standin_base': 'wip_sim.standin_base:main',
+        'simulation': 'wip_sim.simulation:main',
     },
     'wip_bag': {
         'recorder': 'wip_bag.recorder_node:main',

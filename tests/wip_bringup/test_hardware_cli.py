@@ -52,6 +52,18 @@ def test_a_malformed_params_file_is_refused(tmp_path):
         load_params_file(path)
 
 
+def test_the_single_process_layout_is_refused_in_hardware_mode(tmp_path):
+    # 'single' puts the plant in the controllers' process: there is no plant on a robot.
+    done = subprocess.run([sys.executable, '-m', 'wip_bringup.graph', '--mode', 'hardware',
+                           '--layout', 'single', '--out', str(tmp_path / 'out')],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines()[-1] == (
+        "run_graph: error: --layout: 'single' is not one of ['separate', 'composed'] "
+        '(single holds the plant: simulation only)')
+    assert not (tmp_path / 'out').exists()
+
+
 def test_no_plant_without_a_base_never_commands_torque(tmp_path, test_node):
     params = tmp_path / 'base.yaml'
     params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {

@@ -91,12 +91,13 @@ def in_process(scenario):
     return result, metrics
 
 
-def _graph_run(scenario_file, directory, name):
+def _graph_run(scenario_file, directory, name, layout=GraphOptions.layout):
     monkeypatch = pytest.MonkeyPatch()
     _domain(monkeypatch)
     try:
         result = run_graph(GraphOptions(scenario=str(scenario_file), out=str(directory / name),
-                                        record=str(directory / f'{name}_bag'), quiet=True))
+                                        record=str(directory / f'{name}_bag'), quiet=True,
+                                        layout=layout))
     finally:
         monkeypatch.undo()
     assert result.exit_code == 0, result.message
@@ -174,6 +175,23 @@ def test_two_lockstep_runs_are_bit_identical(graph_runs, tmp_path):
     metrics = [report(run.bag, tmp_path / f'r{i}', figures=False)
                for i, run in enumerate(graph_runs)]
     assert _results(metrics[0]) == _results(metrics[1])
+
+
+def test_the_single_process_layout_gives_the_same_run_bit_for_bit(graph_runs, scenario_file,
+                                                                   tmp_path):
+    # The plant in the controllers' process (ros2 run wip_sim simulation): the same nodes,
+    # topics and messages, so the same bag as the composed layout's, bit for bit.
+    single = _graph_run(scenario_file, tmp_path, 'single', layout='single')
+    assert set(single.node_exit_codes) >= {'simulation', 'recorder'}
+    assert 'plant' not in single.node_exit_codes and 'controllers' not in single.node_exit_codes
+    assert single.plant_stats['ticks'] == N_TICKS
+    expected, actual = (record_from_bag(run.bag) for run in (graph_runs[0], single))
+    for group, columns in expected.groups.items():
+        for name, values in columns.items():
+            if name == 'solve_time':
+                continue
+            assert np.array_equal(actual[group][name], values, equal_nan=True), \
+                f'{group}.{name}'
 
 
 def expected_counts(scenario):

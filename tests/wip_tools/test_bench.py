@@ -28,6 +28,8 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
     assert graph['ticks'] == 400                          # 2 s at 200 Hz
     assert graph['real_time_factor'] > 0.0
     assert set(graph['cpu_per_tick_us']) == {'plant', 'controllers'}     # composed
+    single = report['graph_single']                  # plant and controllers, one process
+    assert single['ticks'] == 400 and set(single['cpu_per_tick_us']) == {'simulation'}
     separate = report['graph_separate']
     assert separate['ticks'] == 400
     assert set(separate['cpu_per_tick_us']) >= {'plant', 'eso', 'mpc', 'torque_mixer'}

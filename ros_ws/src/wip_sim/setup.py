@@ -31,6 +31,7 @@ setup(
         'console_scripts': [
             'plant = wip_sim.plant_node:main',
             'standin_base = wip_sim.standin_base:main',
+            'simulation = wip_sim.simulation:main',
         ],
     },
 )

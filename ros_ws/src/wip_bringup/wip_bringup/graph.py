@@ -135,9 +135,10 @@ SUBSCRIBERS = {
 #: subscribes to it, except the reference node's, which its /clock ticker drives
 #: (wip_control.nodes.common.ClockTicker). Composed, the nodes share the reference node's
 #: time source (wip_control.nodes.common.share_sim_clock): one subscription.
-CLOCK_SUBSCRIPTIONS = {'separate': len(CONTROLLER_NODES), 'composed': 1}
+CLOCK_SUBSCRIPTIONS = {'separate': len(CONTROLLER_NODES), 'composed': 1, 'single': 1}
 #: Nodes with a /clock subscription of their own in lockstep, per layout.
-CLOCK_NODES = {'separate': CONTROLLER_NODES, 'composed': ('reference',)}
+CLOCK_NODES = {'separate': CONTROLLER_NODES, 'composed': ('reference',),
+               'single': ('reference',)}
 #: Topics recorded with --record (with /clock in lockstep; with the viewer's topics,
 #: :data:`VIEWER_TOPICS`, when the viewer runs).
 RECORDED_TOPICS = tuple(PUBLISHERS) + ('/diagnostics',)
@@ -243,12 +244,19 @@ class GraphRunner(RunnerBase):
     """One run: start, watch and stop the processes; see the module docstring."""
 
     EXTRA_PROCESSES = ('plant',)
+    LAYOUTS = LAYOUTS
     UP_EVENT = 'graph complete'
     NOT_UP = 'the graph was not complete after {timeout:g} s'
 
     def __init__(self, options: GraphOptions) -> None:
         super().__init__(options)
         self.start_refusals: list[str] = []  # why /plant/start said no, with times
+        #: The process that holds the plant (and, single, the controllers): the run ends
+        #: with it.
+        self.plant_process = 'simulation' if options.layout == 'single' else 'plant'
+
+    def extra_processes(self) -> list[str]:
+        return [self.plant_process]
 
     # -- set-up ---------------------------------------------------------------------------
     def prepare(self) -> pathlib.Path:
@@ -343,7 +351,7 @@ class GraphRunner(RunnerBase):
 
     def watch(self) -> int:
         """Until the plant exits: progress, node health, stall detection; its exit code."""
-        plant = self.processes['plant']
+        plant = self.processes[self.plant_process]
         duration = self.scenario.duration
         started = time.monotonic()
         last_sim, last_progress = -1.0, started
@@ -503,7 +511,7 @@ class GraphRunner(RunnerBase):
             if not self.options.quiet and self._interactive:
                 sys.stderr.write('\n')
             self.timeline['plant ended'] = time.monotonic() - self.t0
-            self.check_alive(exempt=('plant',))
+            self.check_alive(exempt=(self.plant_process,))
             self.drain_recorder()
             self.timeline['recorder drained'] = time.monotonic() - self.t0
             if code == 0:
@@ -511,7 +519,7 @@ class GraphRunner(RunnerBase):
             elif code == 3:
                 result.exit_code, result.message = EXIT_FELL, 'the vehicle fell'
             else:
-                plant = self.processes['plant']
+                plant = self.processes[self.plant_process]
                 raise GraphError(f'node \'plant\' (pid {plant.pid}) exited with code {code}; '
                                  f'last lines of {plant.log_path}:\n{plant.log_tail()}')
         except GraphError as err:
@@ -524,7 +532,9 @@ class GraphRunner(RunnerBase):
         stats_path = self.out / 'plant_stats.json'
         if stats_path.is_file():
             result.plant_stats = json.loads(stats_path.read_text(encoding='utf-8'))
-            if result.plant_stats.get('cpu_s') is not None:
+            # The plant's own CPU from its stats (its process, counted from its start);
+            # single, that process holds the controllers too: counted as a whole above.
+            if result.plant_stats.get('cpu_s') is not None and self.plant_process == 'plant':
                 result.cpu_s['plant'] = result.plant_stats['cpu_s']
         self.finish(result)
         return result

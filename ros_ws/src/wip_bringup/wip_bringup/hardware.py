@@ -502,8 +502,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              '/wip/estop heartbeat starts and the controllers may engage')
     parser.add_argument('--layout', choices=LAYOUTS, default=None,
                         help='controller processes: separate (one per node, as six ros2 '
-                        'run) or composed (the six nodes in one process, one executor: '
-                        'ros2 run wip_control controllers); default: '
+                        'run), composed (the six nodes in one process, one executor: '
+                        'ros2 run wip_control controllers) or, simulation only, single '
+                        '(the plant too: ros2 run wip_sim simulation); default: '
                         f'{HardwareOptions.layout} (docs/realtime.md)')
     parser.add_argument('--rt-priority', type=int, default=0, metavar='N',
                         help='run the controller processes with SCHED_FIFO priority N '

@@ -35,9 +35,14 @@ VIEWER_TOPICS = tuple(VIEWER_TOPIC_TYPES)
 LOGS_MARKER = '.written-by-run_graph'
 
 #: Process layouts of the controller nodes: 'separate' (one process per node, as six
-#: `ros2 run`) or 'composed' (the six nodes in one process, `ros2 run wip_control
-#: controllers`, one executor). Same nodes, names, parameters and topics either way.
-LAYOUTS = ('separate', 'composed')
+#: `ros2 run`), 'composed' (the six nodes in one process, `ros2 run wip_control
+#: controllers`, one executor) or, in simulation only, 'single' (the plant too: `ros2 run
+#: wip_sim simulation`). Same nodes, names, parameters and topics in every layout.
+LAYOUTS = ('separate', 'composed', 'single')
+#: The layouts with a process of their own for the plant, and so those of hardware mode.
+CONTROLLER_LAYOUTS = ('separate', 'composed')
+#: Processes that hold several nodes, each keeping its own name.
+MULTI_NODE_PROCESSES = ('controllers', 'simulation')
 
 #: Executable of each node: (package, executable).
 EXECUTABLES = {
@@ -48,6 +53,7 @@ EXECUTABLES = {
     'mpc': ('wip_control', 'mpc'),
     'torque_mixer': ('wip_control', 'torque_mixer'),
     'controllers': ('wip_control', 'controllers'),
+    'simulation': ('wip_sim', 'simulation'),
     'plant': ('wip_sim', 'plant'),
     'recorder': ('wip_bag', 'recorder'),
     'viewer': ('wip_viewer', 'viewer'),

@@ -29,9 +29,10 @@ from wip_control.core.config import ConfigError
 from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
 from wip_control.tools.cli import write_atomic
 
-from .launcher import (choose_domain_id, executable_path, EXECUTABLES, EXIT_USAGE,
-                       EXIT_TIMEOUT, GRACE_PERIOD, graph_environment, GraphError, LAYOUTS,
-                       live_view_line, NodeProcess, prepare_run_directory, Probe,
+from .launcher import (choose_domain_id, CONTROLLER_LAYOUTS, executable_path, EXECUTABLES,
+                       EXIT_USAGE, EXIT_TIMEOUT, GRACE_PERIOD, graph_environment, GraphError,
+                       LAYOUTS, live_view_line, MULTI_NODE_PROCESSES, NodeProcess,
+                       prepare_run_directory, Probe,
                        RECORDER_GRACE_PERIOD, Scheduling, VIEWER_TOPICS,
                        viewer_wanted)
 from .params_files import CONTROLLER_NODES
@@ -76,6 +77,8 @@ class RunnerBase:
     #: Processes (each one node of the same name) besides the controllers, the recorder,
     #: the viewer and the Foxglove bridge.
     EXTRA_PROCESSES: tuple[str, ...] = ()
+    #: The layouts this runner can start (``launcher.LAYOUTS``).
+    LAYOUTS: tuple[str, ...] = CONTROLLER_LAYOUTS
     #: Timeline entry of the moment the probe saw every node (and what the subclass needs).
     UP_EVENT = 'nodes up'
     #: GraphError text when the nodes did not come up in time ({timeout} [s]).
@@ -120,9 +123,11 @@ class RunnerBase:
 
     # -- set-up ---------------------------------------------------------------------------
     def check_layout_and_scheduling(self) -> None:
-        if self.options.layout not in LAYOUTS:
+        if self.options.layout not in self.LAYOUTS:
             raise GraphError(f'--layout: {self.options.layout!r} is not one of '
-                             f'{list(LAYOUTS)}', EXIT_USAGE)
+                             f'{list(self.LAYOUTS)}'
+                             + (' (single holds the plant: simulation only)'
+                                if self.options.layout in LAYOUTS else ''), EXIT_USAGE)
         self.options.scheduling.check()
 
     @staticmethod
@@ -174,8 +179,16 @@ class RunnerBase:
         return view
 
     def controller_processes(self) -> list[str]:
-        """'controllers' (composed: the six nodes in one process) or one per node."""
-        return ['controllers'] if self.options.layout == 'composed' else list(CONTROLLER_NODES)
+        """'controllers' (composed: the six nodes in one process), one per node (separate),
+        or none of their own (single: they are in the simulation process)."""
+        layout = self.options.layout
+        if layout == 'single':
+            return []
+        return ['controllers'] if layout == 'composed' else list(CONTROLLER_NODES)
+
+    def extra_processes(self) -> list[str]:
+        """The processes of :attr:`EXTRA_PROCESSES` (a runner may hold them otherwise)."""
+        return list(self.EXTRA_PROCESSES)
 
     def view_nodes(self) -> list[str]:
         return ((['viewer'] if self.options.viewer else [])
@@ -195,7 +208,7 @@ class RunnerBase:
         """The command line of every process, in start order (the recorder first: it must
         not miss the start)."""
         names = ((['recorder'] if self.bag is not None else []) + self.controller_processes()
-                 + list(self.EXTRA_PROCESSES) + self.view_nodes())
+                 + self.extra_processes() + self.view_nodes())
         out = {}
         for name in names:
             package, executable = EXECUTABLES[name]
@@ -204,7 +217,7 @@ class RunnerBase:
                        '--params-file', str(params_file)]
             for extra in files:
                 command += ['--params-file', extra]
-            if name != 'controllers':   # composed: each node keeps its own name
+            if name not in MULTI_NODE_PROCESSES:   # there each node keeps its own name
                 command += ['-r', f'__node:={name}']
             out[name] = command + arguments
         return out
@@ -216,7 +229,9 @@ class RunnerBase:
         for name, command in self.commands(params_file).items():
             # Real-time scheduling for the controllers only: nothing else (the plant, the
             # recorder, the viewer, the bridge) may take the CPU from them.
-            scheduling = self.options.scheduling if name in controllers else None
+            # (single: the simulation process holds them, and the plant with them).
+            scheduling = (self.options.scheduling
+                          if name in controllers or name == 'simulation' else None)
             self.processes[name] = NodeProcess(name, command,
                                                self.out / 'logs' / f'{name}.log', env,
                                                scheduling)

@@ -11,7 +11,8 @@ made within one invocation, interleaved where possible:
    side by side, with the load average (goal: ≥ 100×, which makes a campaign of 500
    runs of 90 s take minutes).
 3. **Graph real-time factor** in lockstep (if the node graph is available; ``--no-graph``
-   skips it), next to the in-process one (goal: ≥ 5×, and within 10× of in-process).
+   skips it), per layout (separate, composed, single: the plant in the controllers'
+   process), next to the in-process one (goal: ≥ 5×, and within 10× of in-process).
 4. **Real time**: the controllers at 200 Hz against the stand-in base (its own process),
    per layout (separate, composed, composed at SCHED_FIFO priority): their CPU share of
    one core and the sensor -> command latency (p50, p99, max), beside the in-process cost
@@ -144,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if not args.no_graph:
         print('\n== 3. Node graph in lockstep, same scenario, per layout')
-        for layout in ('separate', 'composed'):
+        for layout in ('separate', 'composed', 'single'):
             graph = bench_graph(args.scenario, layout)
             key = 'graph' if layout == 'composed' else f'graph_{layout}'
             report[key] = graph

@@ -424,27 +424,48 @@ def share_sim_clock(nodes: Sequence[Node]) -> Node | None:
 
 
 def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None, *,
-                       config_status: int, on_end: Callable[[Node], None] | None = None
-                       ) -> int:
+                       config_status: int, on_end: Callable[[Node], None] | None = None,
+                       companions: Sequence[Callable[[], Node]] = ()) -> int:
     """``main`` of a simulator node (plant, stand-in base) that ends by itself.
 
     Spins until SIGINT or until the node sets ``exit_code`` (the end of its scenario, a
     fall...), which is then the status; ``on_end(node)`` runs in that case, before the
     clean-up. A configuration error prints its message and returns ``config_status``.
     The node's ``write_stats()`` always runs (an OSError is reported, not raised).
+
+    ``companions``: more nodes in the same process and executor (the controllers, for
+    ``ros2 run wip_sim simulation``), composed as :func:`run_nodes` composes them (one
+    sim clock, intra-process delivery among themselves, ``gc.freeze``). The simulator
+    node's own topics go through DDS, which delivers within the process without a
+    transport or a thread switch.
     """
     end_with_launcher()
     rclpy.init(args=args)
     node = None
+    others: list[Node] = []
     status = 0
     try:
         node = node_factory()
-        warn_undeclared_overrides(node)
         executor = make_executor()
         executor.add_node(node)
+        for factory in companions:
+            others.append(factory())
+            executor.add_node(others[-1])
+        warn_undeclared_overrides([node, *others])
+        bus = None
+        if others:
+            share_sim_clock(others)
+            bus = connect_intra_process(others)
+            gc.collect()
+            gc.freeze()
         # spin_once with a timeout: the EventsExecutor's spin() ignores SIGINT.
         while rclpy.ok() and node.exit_code is None:
-            spin_once_or_stop(executor, SPIN_TIMEOUT)
+            if others:
+                spin_once_guarded(executor, others[0], SPIN_TIMEOUT)
+            else:
+                spin_once_or_stop(executor, SPIN_TIMEOUT)
+            if bus is not None:
+                bus.drain()
         if node.exit_code is not None:
             status = node.exit_code
             if on_end is not None:
@@ -461,6 +482,8 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
             except OSError as err:
                 print(f'{program}: cannot write stats: {err}', file=sys.stderr)
             node.destroy_node()
+        for other in others:
+            other.destroy_node()
         rclpy.try_shutdown()
     return status
 
