@@ -532,10 +532,11 @@ class GraphRunner(RunnerBase):
         stats_path = self.out / 'plant_stats.json'
         if stats_path.is_file():
             result.plant_stats = json.loads(stats_path.read_text(encoding='utf-8'))
-            # The plant's own CPU from its stats (its process, counted from its start);
-            # single, that process holds the controllers too: counted as a whole above.
-            if result.plant_stats.get('cpu_s') is not None and self.plant_process == 'plant':
-                result.cpu_s['plant'] = result.plant_stats['cpu_s']
+            # The plant's process CPU from its stats (process_time from the plant's start:
+            # the process has ended, so it cannot be read now). Single, that process holds
+            # the controllers too.
+            if result.plant_stats.get('cpu_s') is not None:
+                result.cpu_s[self.plant_process] = result.plant_stats['cpu_s']
         self.finish(result)
         return result
 
