@@ -194,6 +194,28 @@ def test_the_single_process_layout_gives_the_same_run_bit_for_bit(graph_runs, sc
                 f'{group}.{name}'
 
 
+def test_the_single_layout_unrecorded_ends_in_the_same_state_bit_for_bit(graph_runs,
+                                                                         scenario_file,
+                                                                         tmp_path):
+    # Not recorded, the plant's sensors and the wheel torques skip DDS in the single layout
+    # (the intra-process queue): the run must still end where the recorded composed run
+    # (all over DDS) ends, to the bit.
+    monkeypatch = pytest.MonkeyPatch()
+    _domain(monkeypatch)
+    try:
+        single = run_graph(GraphOptions(scenario=str(scenario_file), out=str(tmp_path / 's'),
+                                        quiet=True, layout='single'))
+    finally:
+        monkeypatch.undo()
+    assert single.exit_code == 0, single.message
+    assert single.plant_stats['ticks'] == N_TICKS
+    truth = record_from_bag(graph_runs[0].bag)['truth']
+    final = single.plant_stats['final_state']
+    assert truth['t'][-1] == pytest.approx(N_TICKS * 0.005, abs=1e-12)
+    for name, value in final.items():
+        assert value == truth[name][-1], name
+
+
 def expected_counts(scenario):
     n = N_TICKS
     gps_every = round(scenario.rates.control_rate / scenario.sensors.gps_rate)

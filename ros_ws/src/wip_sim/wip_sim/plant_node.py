@@ -72,7 +72,6 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
@@ -80,13 +79,13 @@ from std_srvs.srv import Trigger
 from wip_msgs.msg import GroundTruth, WheelTorques
 
 from wip_control.core.disturbances import Disturbances
-from wip_control.core.model import PHI, THETA, V
+from wip_control.core.model import PHI, STATE_NAMES, THETA, V
 from wip_control.core.plant import Plant
 from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_state
 from wip_control.core.scenario import load_scenario
 from wip_control.core.sensors import local_to_geodetic, Sensors
-from wip_control.nodes.common import run_simulator_node, stamp_to_ns
+from wip_control.nodes.common import IntraProcessNode, run_simulator_node, stamp_to_ns
 from wip_control.nodes.conversions import (body_rates_from_euler, quaternion_from_euler,
                                            wheel_torques_from_msg)
 from wip_control.nodes.parameters import ConfigParameters
@@ -135,11 +134,14 @@ class TickTimer:
                 'max_us': 1e6 * values[-1]}
 
 
-class PlantNode(Node):
+class PlantNode(IntraProcessNode):
     """The simulator; see the module docstring."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__('plant', **kwargs)
+        # Composed with the controllers (ros2 run wip_sim simulation), the sensors and the
+        # wheel torques skip DDS while no one outside subscribes; alone, plain rclpy.
+        self.init_intra_process(True)
         self.exit_code: int | None = None  # set when the run is over
         settings = ConfigParameters(self, '', PlantSettings).config
         self.clock_mode = settings.clock_mode
@@ -207,6 +209,7 @@ class PlantNode(Node):
                     else self._on_torques_realtime)
         self.torque_sub = self.create_subscription(WheelTorques, '/wip/wheel_torques',
                                                    callback, torque_qos)
+        self.add_intra_subscription(WheelTorques, self.torque_sub, callback)
         self.start_srv = self.create_service(Trigger, '~/start', self._on_start)
         wall = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(DIAGNOSTICS_PERIOD, self.publish_diagnostics, clock=wall)
@@ -216,6 +219,9 @@ class PlantNode(Node):
         self.latest_torques: tuple[float, float, int] | None = None  # left, right, stamp
 
         # -- preallocated messages (fields are overwritten each tick) -----------------------
+        # Also safe when composed, where the controllers receive these very objects: the
+        # eso converts each at once, and the next tick's overwrite comes only after the
+        # torques of this one, which the intra-process queue (FIFO) delivers after them.
         self._clock_msg = ClockMsg()
         self._truth_msg = GroundTruth()
         self._truth_msg.header.frame_id = map_frame
@@ -496,6 +502,8 @@ class PlantNode(Node):
             'stale_torque_messages': self.stale_torques,
             'zeroed_torque_ticks': self.zeroed_torques,
             'zeroed_torque_ticks_before_first': self.zeroed_torques_before_first,
+            # The true state at the last tick [SI, rad].
+            'final_state': dict(zip(STATE_NAMES, self.state)),
         }
 
     def write_stats(self) -> None:

@@ -375,7 +375,8 @@ def connect_intra_process(nodes: Sequence[Node]) -> IntraProcessBus | None:
     """Connect the publishers of ``nodes`` to the same process's subscriptions
     (:mod:`.intra_process`); the bus that the spin loop must drain, None if there is
     nothing to connect (fewer than two nodes with ``use_intra_process_comms``)."""
-    members = [n for n in nodes if isinstance(n, ControllerNode) and n.use_intra_process_comms]
+    members = [n for n in nodes
+               if isinstance(n, IntraProcessNode) and n.use_intra_process_comms]
     if len(members) < 2:
         return None
     logger = members[0].get_logger()
@@ -435,9 +436,8 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
 
     ``companions``: more nodes in the same process and executor (the controllers, for
     ``ros2 run wip_sim simulation``), composed as :func:`run_nodes` composes them (one
-    sim clock, intra-process delivery among themselves, ``gc.freeze``). The simulator
-    node's own topics go through DDS, which delivers within the process without a
-    transport or a thread switch.
+    sim clock, intra-process delivery, ``gc.freeze``); the simulator node takes part in
+    the intra-process delivery if it is an :class:`IntraProcessNode`.
     """
     end_with_launcher()
     rclpy.init(args=args)
@@ -455,7 +455,7 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
         bus = None
         if others:
             share_sim_clock(others)
-            bus = connect_intra_process(others)
+            bus = connect_intra_process([node, *others])
             gc.collect()
             gc.freeze()
         # spin_once with a timeout: the EventsExecutor's spin() ignores SIGINT.
@@ -488,7 +488,37 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
     return status
 
 
-class ControllerNode(Node):
+class IntraProcessNode(Node):
+    """A node whose publishers and subscriptions a composed process may connect directly
+    (:func:`connect_intra_process`, :mod:`.intra_process`): the controller nodes and the
+    plant. Call :meth:`init_intra_process` before creating them; rclpy's own (parameter
+    events, rosout) are not connected."""
+
+    def init_intra_process(self, enabled: bool) -> None:
+        self.use_intra_process_comms = enabled
+        self.intra_publishers: list[IntraProcessPublisher] = []
+        self.intra_subscriptions: list[tuple[type, str, Callable]] = []
+
+    def add_intra_subscription(self, msg_type, subscription, callback: Callable) -> None:
+        """Also deliver the process's own messages of ``subscription``'s topic to
+        ``callback`` (which must be the subscription's)."""
+        self.intra_subscriptions.append((msg_type, subscription.topic_name, callback))
+
+    def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
+        """rclpy's publisher wrapped in an :class:`IntraProcessPublisher`: it publishes
+        nothing while no subscription is matched (volatile topics), and in a composed
+        process hands messages to the process's own subscriptions directly."""
+        publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
+        if not hasattr(self, 'intra_publishers'):   # rclpy's own, from Node.__init__
+            return publisher
+        volatile = (not isinstance(qos_profile, QoSProfile)
+                    or qos_profile.durability != QoSDurabilityPolicy.TRANSIENT_LOCAL)
+        wrapped = IntraProcessPublisher(publisher, msg_type, skip_unmatched=volatile)
+        self.intra_publishers.append(wrapped)
+        return wrapped
+
+
+class ControllerNode(IntraProcessNode):
     """Base of the controller nodes: clock mode, time base, diagnostics, guarded callbacks.
 
     Parameters declared here: :class:`~wip_control.nodes.settings.ControllerNodeSettings`
@@ -498,10 +528,7 @@ class ControllerNode(Node):
 
     def __init__(self, node_name: str, role: str, inputs: Sequence[str], **kwargs) -> None:
         super().__init__(node_name, **kwargs)
-        # Publishers and subscriptions that a composed process may connect directly
-        # (connect_intra_process); rclpy's own (parameter events, rosout) are not here.
-        self.intra_publishers: list[IntraProcessPublisher] = []
-        self.intra_subscriptions: list[tuple[type, str, Callable]] = []
+        self.init_intra_process(False)
         settings = ConfigParameters(self, '', ControllerNodeSettings).config
         self.use_intra_process_comms = settings.use_intra_process_comms
         self.clock_mode = warn_lockstep_without_sim_time(self, settings.clock_mode)
@@ -525,7 +552,7 @@ class ControllerNode(Node):
             except Exception as err:  # noqa: B902 - a callback must not stop the executor
                 self.diagnostics.drop(name, 'error', f'{type(err).__name__}: {err}')
         subscription = self.create_subscription(msg_type, topic, callback, qos)
-        self.intra_subscriptions.append((msg_type, subscription.topic_name, callback))
+        self.add_intra_subscription(msg_type, subscription, callback)
 
     def subscribe_input(self, msg_type, topic: str, name: str, convert: Callable,
                         qos: QoSProfile = RELIABLE_QOS) -> None:
@@ -537,19 +564,6 @@ class ControllerNode(Node):
             self.diagnostics.input(name, stamp)
             self.feed(name, stamp, convert(msg))
         self.subscribe(msg_type, topic, name, handler, qos)
-
-    def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
-        """rclpy's publisher wrapped in an :class:`IntraProcessPublisher`: it publishes
-        nothing while no subscription is matched (volatile topics), and in a composed
-        process hands messages to the process's own subscriptions directly."""
-        publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
-        if not hasattr(self, 'intra_publishers'):   # rclpy's own, from Node.__init__
-            return publisher
-        volatile = (not isinstance(qos_profile, QoSProfile)
-                    or qos_profile.durability != QoSDurabilityPolicy.TRANSIENT_LOCAL)
-        wrapped = IntraProcessPublisher(publisher, msg_type, skip_unmatched=volatile)
-        self.intra_publishers.append(wrapped)
-        return wrapped
 
     def now_ns(self) -> int:
         """The node clock [ns]. Without ``use_sim_time`` that is ROS time = the system
