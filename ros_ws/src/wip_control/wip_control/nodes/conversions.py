@@ -30,7 +30,7 @@ from ..core.references import ReferenceState
 from ..core.sensors import geodetic_to_local
 from ..core.state_estimation import PoseEstimate
 from ..core.trajectory_generator import VelocityCommand
-from .common import make_header
+from .common import stamped
 
 #: Quaternions whose norm is further than this from 1 are rejected as malformed [1]
 #: (a normalised float quaternion is within 1e-15; 1e-3 tolerates single-precision drivers).
@@ -42,9 +42,10 @@ class InvalidMessage(ValueError):
 
 
 def _check_finite(what: str, **values: float) -> None:
+    if all(map(math.isfinite, values.values())):  # the common case, at C speed
+        return
     bad = [f'{k}={v!r}' for k, v in values.items() if not math.isfinite(v)]
-    if bad:
-        raise InvalidMessage(f'{what}: non-finite {", ".join(bad)}')
+    raise InvalidMessage(f'{what}: non-finite {", ".join(bad)}')
 
 
 # --------------------------------------------------------------------- orientation
@@ -156,8 +157,8 @@ def wheel_torques_from_msg(msg: WheelTorques) -> tuple[float, float]:
 # --------------------------------------------------------------------- project messages
 
 def reference_to_msg(ref: ReferenceState, stamp_ns: int, frame_id: str) -> ReferenceStateMsg:
-    return ReferenceStateMsg(header=make_header(stamp_ns, frame_id), x=ref.x, y=ref.y,
-                             phi=ref.phi, v=ref.v, omega=ref.omega, omega_dot=ref.omega_dot)
+    return stamped(ReferenceStateMsg(x=ref.x, y=ref.y, phi=ref.phi, v=ref.v, omega=ref.omega,
+                                     omega_dot=ref.omega_dot), stamp_ns, frame_id)
 
 
 def reference_from_msg(msg: ReferenceStateMsg) -> ReferenceState:
@@ -168,10 +169,10 @@ def reference_from_msg(msg: ReferenceStateMsg) -> ReferenceState:
 
 def estimate_to_msg(est: StateEstimate, x: float, y: float, settled: bool, stamp_ns: int,
                     frame_id: str) -> StateEstimateMsg:
-    return StateEstimateMsg(
-        header=make_header(stamp_ns, frame_id), phi=est.phi, omega=est.omega, f1=est.f1,
-        x_v=est.x_v, v=est.v, f2=est.f2, theta=est.theta, theta_dot=est.theta_dot, f3=est.f3,
-        epsilon=est.epsilon, x=x, y=y, settled=settled)
+    return stamped(StateEstimateMsg(
+        phi=est.phi, omega=est.omega, f1=est.f1, x_v=est.x_v, v=est.v, f2=est.f2,
+        theta=est.theta, theta_dot=est.theta_dot, f3=est.f3, epsilon=est.epsilon, x=x, y=y,
+        settled=settled), stamp_ns, frame_id)
 
 
 class _LastConversion:
@@ -217,9 +218,9 @@ def estimate_from_msg(msg: StateEstimateMsg, check: bool = True) -> PoseEstimate
 
 
 def command_to_msg(cmd: VelocityCommand, stamp_ns: int) -> VelocityCommandMsg:
-    return VelocityCommandMsg(header=make_header(stamp_ns), v_d=cmd.v_d, omega_d=cmd.omega_d,
-                              omega_d_dot=cmd.omega_d_dot, x_e=cmd.x_e, y_e=cmd.y_e,
-                              phi_e=cmd.phi_e)
+    return stamped(VelocityCommandMsg(v_d=cmd.v_d, omega_d=cmd.omega_d,
+                                      omega_d_dot=cmd.omega_d_dot, x_e=cmd.x_e, y_e=cmd.y_e,
+                                      phi_e=cmd.phi_e), stamp_ns)
 
 
 def command_from_msg(msg: VelocityCommandMsg, check: bool = True) -> VelocityCommand:
@@ -233,8 +234,8 @@ def command_from_msg(msg: VelocityCommandMsg, check: bool = True) -> VelocityCom
 
 
 def arc_to_msg(out: ArcOutput, stamp_ns: int) -> ArcState:
-    return ArcState(header=make_header(stamp_ns), tau_omega=out.tau_omega,
-                    alpha_hat=out.alpha_hat, e_omega=out.e_omega)
+    return stamped(ArcState(tau_omega=out.tau_omega, alpha_hat=out.alpha_hat,
+                            e_omega=out.e_omega), stamp_ns)
 
 
 def arc_from_msg(msg: ArcState, check: bool = True) -> ArcOutput:
@@ -271,8 +272,8 @@ def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> MpcO
     have_prediction = bool(predicted.size) and bool(math.isfinite(float(predicted.sum())))
     slack_v = result.slack_v if math.isfinite(result.slack_v) else 0.0
     slack_theta = result.slack_theta if math.isfinite(result.slack_theta) else 0.0
-    return MpcOutput(
-        header=make_header(stamp_ns), tau_v=float(result.tau_v),
+    return stamped(MpcOutput(
+        tau_v=float(result.tau_v),
         delta_tau=float(result.delta_tau), status=mpc_status(result.status),
         status_text=result.status.name, iterations=int(result.iterations),
         solve_time=float(result.solve_time_s + result.build_time_s),
@@ -282,7 +283,7 @@ def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> MpcO
         predicted_theta=_column(predicted[:, 1].tolist() if have_prediction else ()),
         predicted_theta_dot=_column(predicted[:, 2].tolist() if have_prediction else ()),
         planned_tau_v=_column(planned_drive_torque(result)),
-        used_fallback=bool(result.used_fallback))
+        used_fallback=bool(result.used_fallback)), stamp_ns)
 
 
 def planned_drive_torque(result: MpcResult) -> list[float]:
@@ -299,18 +300,17 @@ def planned_drive_torque(result: MpcResult) -> list[float]:
 
 def mpc_idle_msg(stamp_ns: int, status: int, text: str, sampling_period: float) -> MpcOutput:
     """MpcOutput with τυ = 0 when the MPC did not run (NOT_READY, INPUT_INVALID)."""
-    return MpcOutput(header=make_header(stamp_ns), tau_v=0.0, delta_tau=0.0, status=status,
-                     status_text=text, sampling_period=float(sampling_period),
-                     used_fallback=True)
+    return stamped(MpcOutput(tau_v=0.0, delta_tau=0.0, status=status, status_text=text,
+                             sampling_period=float(sampling_period), used_fallback=True),
+                   stamp_ns)
 
 
 # --------------------------------------------------------------------- wheel torques
 
 def wheel_torques_to_msg(left: float, right: float, stamp_ns: int, zeroed: bool = False,
                          reason: str = '') -> WheelTorques:
-    return WheelTorques(header=make_header(stamp_ns), left=left, right=right,
-                        tau_v=left + right, tau_omega=right - left, zeroed=zeroed,
-                        reason=reason)
+    return stamped(WheelTorques(left=left, right=right, tau_v=left + right,
+                                tau_omega=right - left, zeroed=zeroed, reason=reason), stamp_ns)
 
 
 def effort_command(left: float, right: float, joints: Sequence[str], left_joint: str,
