@@ -31,7 +31,9 @@ from wip_control.core.params import WipParameters
 from wip_control.core.qp import QpSolution, make_solver
 
 PARAMS = WipParameters()
-CONFIG = MpcConfig()
+# Single ticks of the formulation: without the start-up rule (disturbance_startup_time),
+# which replaces the first ticks' estimates; it has tests of its own below.
+CONFIG = MpcConfig(disturbance_startup_time=0.0)
 TS = CONFIG.sampling_period
 NP, NC = CONFIG.prediction_horizon, CONFIG.control_horizon
 DMAX = CONFIG.max_delta_torque
@@ -768,7 +770,10 @@ def test_a_hard_push_predicted_to_pass_no_longer_drops_the_robot():
             'sensors': {'imu_pitch_noise_std': 0.002, 'gyro_noise_std': 0.01},
             'disturbances': {'longitudinal': [{'kind': 'pulse', 'amplitude': -8.77,
                                                'start_time': 20.68, 'width': 0.1}]},
-            'duration': 24.0, 'mpc': {'disturbance_decay_time_constant': decay}}))
+            'duration': 24.0, 'mpc': {'disturbance_decay_time_constant': decay,
+                                      'speed_slack_quadratic_penalty': 1e4}}))
+    # The speed slacks' penalty as when this draw was traced (1e4; docs/mpc.md §5): with
+    # the default of §7 (100) the held prediction survives this draw too.
     held = run(0.0)
     assert held.fell and 20.68 < held.fall_time < 22.0
     decaying = run(0.1)
@@ -777,8 +782,9 @@ def test_a_hard_push_predicted_to_pass_no_longer_drops_the_robot():
 
 
 def _transient_ticks(config, f2_values, f3_values):
-    """τ and predicted outputs of an MPC fed a standing state whose f̂ jumps."""
-    mpc = LongitudinalMpc(PARAMS, config)
+    """τ and predicted outputs of an MPC fed a standing state whose f̂ jumps (from its
+    first tick: without the start-up rule, which would replace f̂ there)."""
+    mpc = LongitudinalMpc(PARAMS, dataclasses.replace(config, disturbance_startup_time=0.0))
     out = []
     for f2, f3 in zip(f2_values, f3_values):
         result = mpc.step(0.0, 0.0, 0.0, f2, f3, 0.0)
@@ -848,3 +854,108 @@ def test_speed_preview_brakes_earlier_for_a_falling_command_and_bounds_the_trend
     gain = config.sampling_period / (config.speed_trend_filter_time_constant
                                      + config.sampling_period)
     assert mpc._v_d_trend == pytest.approx(-gain * config.max_speed_trend, rel=1e-12)
+
+
+def test_start_up_rule_ignores_the_estimators_zero_start_and_its_transient():
+    """disturbance_startup_time: on the first tick the speed estimate is the estimator's
+    zero start, so no speed error is acted on (as if υ̂ = υd); until the start-up time has
+    passed, f̂2, f̂3 are replaced by model (1)'s own drift at the estimate (the ESO's
+    start-up transient is not a disturbance). After it, the estimates count again."""
+    config = MpcConfig()
+    ticks = math.ceil(config.disturbance_startup_time / config.sampling_period - 1e-9)
+    assert ticks >= 2
+    state = dict(theta_hat=0.01, theta_dot_hat=0.02)
+
+    def run(v_first, f2_values):
+        mpc = LongitudinalMpc(PARAMS, config)
+        out = [mpc.step(v_hat=v_first, f2_hat=f2_values[0], f3_hat=0.0, v_d=1.2, **state)]
+        for f2 in f2_values[1:]:
+            out.append(mpc.step(v_hat=1.2, f2_hat=f2, f3_hat=0.0, v_d=1.2, **state))
+        return [r.tau_v for r in out]
+
+    quiet = [0.0] * (ticks + 1)
+    transient = [0.0] + [4.0] * ticks
+    # First tick: υ̂ = 0 (zero start) acts as υ̂ = υd.
+    assert run(0.0, quiet)[0] == pytest.approx(run(1.2, quiet)[0], abs=1e-9)
+    # Start-up ticks: f̂2 = 4 m/s² (the transient of a start at speed) changes nothing...
+    a, b = run(1.2, quiet), run(1.2, transient)
+    np.testing.assert_allclose(b[:ticks], a[:ticks], rtol=0, atol=1e-9)
+    # ...and afterwards it does (the rule is not a blanket filter).
+    assert abs(b[ticks] - a[ticks]) > 0.1
+    # Off (the paper): the first tick acts on υ̂ = 0, i.e. it accelerates.
+    off = LongitudinalMpc(PARAMS, CONFIG)
+    first = off.step(v_hat=0.0, f2_hat=0.0, f3_hat=0.0, v_d=1.2, **state)
+    assert abs(first.tau_v - run(1.2, quiet)[0]) > 0.5
+
+
+def _min_peak_speed_after_push(v0, push=10.0, width=0.1, first_tick=0.1, back_by=2.1,
+                               back_to=1.55, max_tilt=0.1, horizon=5.0, dt=0.005):
+    """Lower bound on the peak speed of any causal controller after a forward push
+    (docs/mpc.md §7): an LP on the linearisation of the paper plant at rest (υ, θ, θ̇),
+    exact zero-order-hold discretisation at ``dt``; the push d2 = ``push`` m/s² over
+    [0, width); τυ held over 0.1 s ticks from ``first_tick`` (0 before: the controller
+    has not seen the push), |τυ| ≤ 30 N·m, |Δτυ| ≤ 10 N·m per tick, |θ| ≤ max_tilt, υ ≤
+    back_to from back_by on, θ = θ̇ = 0 at the end (caught). Minimises max υ."""
+    import scipy.linalg
+    import scipy.optimize
+
+    from wip_control.core.model import THETA, THETA_DOT, V
+    from wip_control.core.plant import Plant
+
+    x_eq = np.zeros(8)
+    x_eq[V] = v0
+    a_full, b_full = Plant(PARAMS, 'paper').linearize(x_eq)
+    idx = [V, THETA, THETA_DOT]
+    a, b = a_full[np.ix_(idx, idx)], b_full[idx, 0]   # τl = τr = τυ/2: B[:, l] per τυ
+    big = np.zeros((5, 5))
+    big[:3, :3], big[:3, 3], big[0, 4] = a, b, 1.0
+    m = scipy.linalg.expm(big * dt)
+    ad, bd, ed = m[:3, :3], m[:3, 3], m[:3, 4]
+    n = int(round(horizon / dt))
+    ticks = np.arange(first_tick, horizon - 1e-9, 0.1)
+    k = len(ticks)
+    owner = np.searchsorted(ticks, dt * np.arange(n) + 1e-9, side='right') - 1
+    x_c, x_u = np.array([v0, 0.0, 0.0]), np.zeros((3, k))
+    rows, rhs = [], []
+    for j in range(n):
+        x_c = ad @ x_c + ed * (push if j * dt < width - 1e-9 else 0.0)
+        x_u = ad @ x_u
+        if owner[j] >= 0:
+            x_u[:, owner[j]] += bd
+        rows.append(np.append(x_u[0], -1.0))      # υ ≤ peak
+        rhs.append(-x_c[0])
+        for sign in (1.0, -1.0):                  # |θ| ≤ max_tilt
+            rows.append(np.append(sign * x_u[1], 0.0))
+            rhs.append(max_tilt - sign * x_c[1])
+        if (j + 1) * dt >= back_by:               # back under the limit
+            rows.append(np.append(x_u[0], 0.0))
+            rhs.append(back_to - x_c[0])
+    for i in range(k):                            # |Δτ| ≤ 10 per tick, from τ = 0
+        for sign in (1.0, -1.0):
+            row = np.zeros(k + 1)
+            row[i] = sign
+            if i:
+                row[i - 1] = -sign
+            rows.append(row)
+            rhs.append(10.0)
+    equal = [np.append(x_u[i], 0.0) for i in (1, 2)]
+    result = scipy.optimize.linprog(
+        np.append(np.zeros(k), 1.0), A_ub=np.array(rows), b_ub=np.array(rhs),
+        A_eq=np.array(equal), b_eq=[-x_c[1], -x_c[2]],
+        bounds=[(-30.0, 30.0)] * k + [(None, None)], method='highs')
+    assert result.status == 0, result.message
+    return result.x[-1]
+
+
+def test_the_speed_limit_push_needs_no_run_away_physically():
+    """The speed_limit class: cruising at 1.21 m/s, a 10 m/s² push for 0.1 s adds
+    1.0 m/s. A WIP must speed up to brake (non-minimum phase), but gently enough it need
+    not: the best causal plan within the torque, Δτ and tilt limits (first tick 0.1 s
+    after the push starts) peaks at the push's own 2.21 m/s and is back under 1.55 m/s
+    within 2 s. The criterion max_speed 2.5 m/s is attainable (the MPC: 2.49 m/s)."""
+    v0 = 1.21
+    peak = _min_peak_speed_after_push(v0)
+    assert v0 + 0.99 <= peak < v0 + 1.0 + 0.05
+    # Made to be back within 0.9 s instead (as the MPC is), a rise is forced (2.28 m/s):
+    # the bound is not vacuous.
+    assert _min_peak_speed_after_push(v0, back_by=1.0) > peak + 0.05

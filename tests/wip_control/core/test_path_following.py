@@ -23,8 +23,11 @@ KIND_OPTIONS = {
 
 @pytest.mark.parametrize('kind', sorted(KIND_OPTIONS))
 def test_every_kind_respects_the_limits_on_the_same_path(kind):
+    # The re-timing itself: without the speed lead (which makes υ the speed ahead, so
+    # ẋ = υ cos ϕ holds only where the speed is constant; tested below).
     config = ReferenceConfig(kind=kind, time_scaling=True, path_max_speed=0.8,
-                             path_max_yaw_rate=0.2, **KIND_OPTIONS[kind])
+                             path_max_yaw_rate=0.2, path_speed_lead_time=0.0,
+                             path_speed_lead_time_accelerating=0.0, **KIND_OPTIONS[kind])
     timed = make_reference(config)
     assert isinstance(timed, TimeScaled)
     times = np.arange(0.0, 60.0, 0.05)
@@ -47,6 +50,33 @@ def test_every_kind_respects_the_limits_on_the_same_path(kind):
     inner = slice(2, -2)
     err = np.hypot(dx - speeds * np.cos(phi), dy - speeds * np.sin(phi))[inner]
     assert np.quantile(err, 0.99) < 0.01 and err.max() < 0.1
+
+
+@pytest.mark.parametrize('kind', sorted(KIND_OPTIONS))
+def test_the_speed_lead_is_the_speed_ahead_and_changes_nothing_else(kind):
+    """path_speed_lead_time: υ(t) is the lead-free reference's υ at t + T where that is
+    not faster (braking, cruising), at t + T_a where it is (speeding up); pose, ω and ω̇
+    are those at t. Every kind (docs/mpc.md §8)."""
+    common = dict(kind=kind, time_scaling=True, path_max_speed=0.8, path_max_yaw_rate=0.2,
+                  **KIND_OPTIONS[kind])
+    plain = make_reference(ReferenceConfig(**common, path_speed_lead_time=0.0,
+                                           path_speed_lead_time_accelerating=0.0))
+    lead, lead_up = 0.75, 0.6
+    led = make_reference(ReferenceConfig(**common, path_speed_lead_time=lead,
+                                         path_speed_lead_time_accelerating=lead_up))
+    changed = 0
+    for t in np.arange(0.0, 40.0, 0.37):
+        a, b = plain.sample(t), led.sample(t)
+        assert (b.x, b.y, b.phi, b.omega, b.omega_dot) == (a.x, a.y, a.phi, a.omega,
+                                                            a.omega_dot)
+        ahead = plain.sample(t + lead).v
+        expected = plain.sample(t + lead_up).v if abs(ahead) > abs(a.v) else ahead
+        assert b.v == pytest.approx(expected, abs=1e-12)
+        changed += abs(b.v - a.v) > 1e-6
+    # Where the path speed changes, the lead changes υ (the check above is not vacuous);
+    # the line and the circle run at one speed.
+    if kind not in ('line', 'circle'):
+        assert changed > 5
 
 
 def test_unconstrained_reference_is_unchanged():
