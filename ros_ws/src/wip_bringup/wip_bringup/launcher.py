@@ -175,6 +175,9 @@ def graph_environment(domain_id: int) -> dict[str, str]:
     env.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
     # The nodes stop when this process ends, even if it is killed (nodes/launched.py).
     env[LAUNCHER_PID_VARIABLE] = str(os.getpid())
+    # One BLAS thread per node process: small matrices, where a thread pool only adds
+    # wake-ups (docs/realtime.md).
+    env.setdefault('OPENBLAS_NUM_THREADS', '1')
     return env
 
 
