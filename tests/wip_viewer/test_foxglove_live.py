@@ -164,7 +164,14 @@ def test_client_subscribes_receives_and_decodes_graph_messages_and_reaches_the_e
             assert 'MSG: std_msgs/Header' in channel['schema']
             ws.send(json.dumps({'op': 'subscribe',
                                 'subscriptions': [{'id': 7, 'channelId': channel['id']}]}))
-            frame = client.receive_binary(0x01)
+            try:
+                frame = client.receive_binary(0x01)
+            except pytest.fail.Exception:
+                # Seen once in four full runs under a busy loop (session 4), not understood:
+                # fail with what the bridge said, for the next one to look at.
+                _, log = bridge.stop()
+                pytest.fail(f'no message frame within {TIMEOUT} s of subscribing '
+                            f'(the topic was advertised); bridge log:\n{log[-3000:]}')
             subscription_id, = struct.unpack_from('<I', frame, 1)
             assert subscription_id == 7
             payload = frame[1 + 4 + 8:]
