@@ -77,6 +77,8 @@ MEASUREMENT_HOLDS = ('linear', 'zero_order')
 #: 'paper': three third-order ESOs on the measured positions, eqs. (4), (8);
 #: 'gyro': the IMU's angular rate measured, see :class:`RateAidedChannel`.
 ESTIMATORS = ('paper', 'gyro')
+#: How the x_v ESO's speed estimate starts (:class:`EsoConfig` ``speed_start``).
+SPEED_STARTS = ('zero', 'first_difference')
 
 
 def check_hurwitz(gains: Sequence[float], name: str = 'gains') -> None:
@@ -199,6 +201,13 @@ class EsoConfig:
     longitudinal_bandwidth: float = param(
         60.0, 'rad/s', "'gyro': triple pole of the x_v ESO (eq. (8), gains (3w, 3w^2, "
         'w^3)); it differentiates encoder and pitch noise', minimum=0.1, maximum=300.0)
+    speed_start: str = param(
+        'first_difference', '1', "start of the x_v ESO's speed estimate: 'zero' (Section "
+        "V: the ESOs start at rest, and one at speed first reads 0 m/s, then overshoots the "
+        "true speed by 0.1 m/s at 0.1 s); 'first_difference': at the second sample, the "
+        'distance difference over the period (a vehicle started at speed brakes from its '
+        'true speed: 1.555 -> ... m/s peak at the speed limit, docs/estimation.md)',
+        choices=SPEED_STARTS)
 
     def validate(self) -> None:
         for name in ('yaw_gains', 'longitudinal_gains', 'tilt_gains'):
@@ -268,7 +277,7 @@ class ExtendedStateObserver(_ChannelEstimate):
                  sample_period: float = 0.005, *, schedule: str = 'constant',
                  ramp_duration: float = 1.0, measurement_hold: str = 'linear',
                  name: str = 'eso', initial_output: float = 0.0,
-                 initial_time: float = 0.0) -> None:
+                 initial_time: float = 0.0, rate_start: str = 'zero') -> None:
         check_hurwitz(gains, name)
         for label, value in (('epsilon', epsilon), ('sample_period', sample_period),
                              ('ramp_duration', ramp_duration)):
@@ -276,6 +285,10 @@ class ExtendedStateObserver(_ChannelEstimate):
                 raise ConfigError(f'{name}.{label}: must be finite and > 0, got {value!r}')
         if schedule not in SCHEDULES:
             raise ConfigError(f'{name}.schedule: {schedule!r} is not one of {list(SCHEDULES)}')
+        if rate_start not in SPEED_STARTS:
+            raise ConfigError(f'{name}.rate_start: {rate_start!r} is not one of '
+                              f'{list(SPEED_STARTS)}')
+        self.rate_start = rate_start
         if measurement_hold not in MEASUREMENT_HOLDS:
             raise ConfigError(f'{name}.measurement_hold: {measurement_hold!r} is not one of '
                               f'{list(MEASUREMENT_HOLDS)}')
@@ -306,6 +319,7 @@ class ExtendedStateObserver(_ChannelEstimate):
         self._y_prev = float(initial_output)
         self._t_prev = float(initial_time)
         self._t0 = float(initial_time)
+        self._rate_unseeded = self.rate_start == 'first_difference'
 
     def epsilon_at(self, t: float) -> float:
         """ε(t) [s]; ``inf`` at the very start of the ramp (zero gains)."""
@@ -338,7 +352,13 @@ class ExtendedStateObserver(_ChannelEstimate):
                 raise ValueError(f'{self.name}: time went backwards from {self._t_prev} '
                                  f'to {t}')
             return self.x1, self.x2, self.f
-        if self.schedule == 'paper_ramp' and self._t_prev - self._t0 < self.ramp_duration:
+        if self._rate_unseeded:
+            # The first period after a reset: the rate is the difference of the first two
+            # samples rather than 0, so a channel started in motion does not first read
+            # rest and then overshoot (the disturbance starts at 0 as in Section V).
+            self._rate_unseeded = False
+            self.x1, self.x2, self.f = y, (y - self._y_prev) / dt, 0.0
+        elif self.schedule == 'paper_ramp' and self._t_prev - self._t0 < self.ramp_duration:
             self._integrate_ramp(dt, y, b_u)
         else:
             if abs(dt - self.sample_period) <= _PERIOD_TOLERANCE * self.sample_period:
@@ -603,11 +623,13 @@ class WipStateObserver:
                                          config.tilt_rate_bandwidth, h, name='tilt')
             self.longitudinal = ExtendedStateObserver(
                 (3.0, 3.0, 1.0), 1.0 / config.longitudinal_bandwidth, h,
-                measurement_hold=config.measurement_hold, name='longitudinal')
+                measurement_hold=config.measurement_hold, name='longitudinal',
+                rate_start=config.speed_start)
         else:
             self.yaw = ExtendedStateObserver(config.yaw_gains, name='yaw_gains', **common)
             self.longitudinal = ExtendedStateObserver(config.longitudinal_gains,
-                                                      name='longitudinal_gains', **common)
+                                                      name='longitudinal_gains',
+                                                      rate_start=config.speed_start, **common)
             self.tilt = ExtendedStateObserver(config.tilt_gains, name='tilt_gains',
                                               **common)
         self._yaw_scale = config.yaw_input_gain_scale

@@ -184,7 +184,7 @@ DESIGNS = ('robust', 'paper')
 #: What ``design: paper`` changes in the component defaults: the paper's Section V
 #: estimator, adaptation law, heading gains and reference timing (docs/estimation.md).
 PAPER_DESIGN: dict[str, dict[str, Any]] = {
-    'eso': {'estimator': 'paper'},
+    'eso': {'estimator': 'paper', 'speed_start': 'zero'},
     'arc': {'adaptation_dead_zone': 0.0, 'adaptation_normalisation': 0.0,
             'adaptation_leakage': 0.0, 'adapt_while_saturated': True},
     'trajectory_generator': {'heading_design': 'paper'},
