@@ -257,6 +257,52 @@ def test_eso_with_signs_and_mounting_estimates_what_the_default_does_on_plain_in
     assert reference[-1].x_v > 0.0 and reference[-1].theta < 0.05
 
 
+def test_eso_fed_serialized_sensors_estimates_bit_for_bit_what_message_objects_give(
+        context, nodes):
+    """The ESO takes /joint_states and /imu/data serialized (raw=True, decoded by
+    conversions.decode_serialized): the same estimates as from rclpy's message objects."""
+    from rclpy.serialization import serialize_message
+
+    def plain(pitch, yaw, left, right):
+        imu = imu_with(quaternion_from_euler(0.0, pitch, yaw))
+        imu.angular_velocity.y, imu.angular_velocity.z = 0.1 * pitch, -0.2 * yaw
+        return joint_states(left, right), imu
+
+    class Serialized:
+        """feed_eso sets the header, then the node gets the bytes."""
+        def __init__(self, node):
+            self.node, self._on_joint_states, self._on_imu = node, self.joint, self.imu
+            self.publisher = node.publisher
+
+        def joint(self, msg):
+            self.node._on_joint_states(serialize_message(msg))
+
+        def imu(self, msg):
+            self.node._on_imu(serialize_message(msg))
+
+    objects = feed_eso(make(nodes, context, EsoNode), plain)
+    serialized = feed_eso(Serialized(make(nodes, context, EsoNode)), plain)
+    assert len(objects) == len(serialized) == 40
+    fields = ('phi', 'omega', 'x_v', 'v', 'theta', 'theta_dot', 'f1', 'f2', 'f3')
+    for a, b in zip(objects, serialized):
+        assert [getattr(b, f) for f in fields] == [getattr(a, f) for f in fields]
+        assert (b.header.stamp.sec, b.header.stamp.nanosec) == (a.header.stamp.sec,
+                                                                a.header.stamp.nanosec)
+    assert objects[-1].theta_dot != 0.0   # the gyro rates went through too
+
+
+def test_undecodable_serialized_sensor_messages_are_dropped_with_one_line(context, nodes):
+    from rclpy.serialization import serialize_message
+    node = make(nodes, context, EsoNode)
+    good = serialize_message(imu_with(quaternion_from_euler(0.0, 0.1, 0.2)))
+    for raw in (b'', good[:30], b'\x00\x01\x00\x00' + b'\xff' * 7):
+        with pytest.raises(InvalidMessage, match='undecodable CDR') as err:
+            node._on_imu(raw)
+        assert '\n' not in str(err.value)
+        with pytest.raises(InvalidMessage, match='undecodable CDR'):
+            node._on_joint_states(raw)
+
+
 def test_eso_takes_its_position_from_odometry_when_asked(context, nodes):
     node = make(nodes, context, EsoNode, position_source='odometry')
     out = capture(node.publisher)

@@ -553,10 +553,13 @@ class ControllerNode(IntraProcessNode):
         self.max_stamp_lead_ns = round(settings.max_stamp_lead * 1e9)
 
     def subscribe(self, msg_type, topic: str, name: str, handler: Callable,
-                  qos: QoSProfile = RELIABLE_QOS) -> None:
+                  qos: QoSProfile = RELIABLE_QOS, raw: bool = False) -> None:
         """Subscription whose callback never raises: a ValueError (malformed or non-finite
         input, rejected by a conversion or the core) drops the message as 'invalid', any
-        other error as 'error'; both are counted and reported on /diagnostics."""
+        other error as 'error'; both are counted and reported on /diagnostics.
+
+        ``raw``: DDS delivers the serialized bytes (decoded by the handler, see
+        ``conversions.decode_serialized``); the intra-process bus still delivers objects."""
         def callback(msg) -> None:
             try:
                 handler(msg)
@@ -564,7 +567,7 @@ class ControllerNode(IntraProcessNode):
                 self.diagnostics.drop(name, 'invalid', str(err))
             except Exception as err:  # noqa: B902 - a callback must not stop the executor
                 self.diagnostics.drop(name, 'error', f'{type(err).__name__}: {err}')
-        subscription = self.create_subscription(msg_type, topic, callback, qos)
+        subscription = self.create_subscription(msg_type, topic, callback, qos, raw=raw)
         self.add_intra_subscription(msg_type, subscription, callback)
 
     def subscribe_input(self, msg_type, topic: str, name: str, convert: Callable,
