@@ -43,10 +43,14 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
         assert 0.0 < row['controller_cpu_fraction'] < 2.0          # 2 cores at most
         assert 0.0 < row['latency_ms']['p50'] <= row['latency_ms']['p99'] \
             <= row['latency_ms']['max']
-    # The floor: the receiver got the two 200 Hz streams and spent CPU on them.
-    floor = report['rclpy_floor']
-    assert floor['messages_per_s'] > 100.0 and floor['cpu_fraction'] > 0.0, floor
+    # The floor: the receiver got the two 200 Hz streams and spent CPU on them, taken
+    # as message objects and serialized.
+    for kind, raw in (('messages', False), ('serialized', True)):
+        floor = report['rclpy_floor'][kind]
+        assert floor['raw'] is raw
+        assert floor['messages_per_s'] > 100.0 and floor['cpu_fraction'] > 0.0, floor
     printed = capsys.readouterr().out
-    assert 'rclpy floor' in printed
+    assert 'rclpy floor, taken as messages' in printed
+    assert 'rclpy floor, taken as serialized' in printed
     assert 'in-process / graph' in printed and 'CPU' in printed
     assert 'sensor->command latency' in printed

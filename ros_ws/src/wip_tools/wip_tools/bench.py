@@ -99,12 +99,14 @@ def bench_realtime(seconds: float) -> list[dict]:
 
 
 def bench_rclpy_floor(seconds: float) -> dict:
-    """CPU of receiving the sensor streams alone (:mod:`wip_tools.rclpy_floor`)."""
+    """CPU of receiving the sensor streams alone (:mod:`wip_tools.rclpy_floor`), taken as
+    message objects and serialized (as the eso node takes them), alternately."""
     try:
         from wip_tools.rclpy_floor import measure_floor  # noqa: PLC0415 (needs ROS)
     except ImportError as err:
         return {'skipped': f'rclpy not available: {err}'}
-    return measure_floor(seconds)
+    return {'messages': measure_floor(seconds, raw=False),
+            'serialized': measure_floor(seconds, raw=True)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -186,14 +188,16 @@ def main(argv: list[str] | None = None) -> int:
         print('   (goals: <= 15 % of a core; latency p99 <= 2 ms, max <= 10 ms)')
         floor = bench_rclpy_floor(min(10.0, max(3.0, args.realtime_seconds / 2.0)))
         report['rclpy_floor'] = floor
-        if 'cpu_fraction' in floor:
-            print(f'rclpy floor: a process that only receives the base\'s two sensor streams '
-                  f'({floor["messages_per_s"]:.0f} msg/s, empty callbacks, '
-                  f'{floor["executor"]}): {100 * floor["cpu_fraction"]:.1f} % of a core, '
-                  f'{floor["cpu_per_message_us"]:.0f} us per message, '
-                  f'{floor["context_switches_per_s"]:.0f} context switches/s')
-        else:
-            print(f'-> rclpy floor: {floor}')
+        for kind, measured in floor.items():
+            if 'cpu_fraction' in measured:
+                print(f'rclpy floor, taken as {kind}: a process that only receives the base\'s '
+                      f'two sensor streams ({measured["messages_per_s"]:.0f} msg/s, empty '
+                      f'callbacks, {measured["executor"]}): '
+                      f'{100 * measured["cpu_fraction"]:.1f} % of a core, '
+                      f'{measured["cpu_per_message_us"]:.0f} us per message, '
+                      f'{measured["context_switches_per_s"]:.0f} context switches/s')
+            else:
+                print(f'-> rclpy floor ({kind}): {measured}')
     if args.json:
         with open(args.json, 'w', encoding='utf-8') as stream:
             json.dump(report, stream, indent=2, default=str)

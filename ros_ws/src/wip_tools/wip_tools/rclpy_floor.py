@@ -1,11 +1,13 @@
 """What rclpy costs before any control math: a process that only receives a base's sensor
 stream (``sensor_msgs/JointState`` and ``Imu`` at 200 Hz each, as the stand-in base sends
-them) with empty callbacks, on the EventsExecutor the controllers use.
+them) with empty callbacks, on the EventsExecutor the controllers use: taken as message objects
+(rclpy builds each), or serialized (``raw=True``, as the eso node takes them and decodes
+only then).
 
 ``scripts/bench`` prints its CPU share beside the controllers': the part of the
 controllers' cost that no change to the nodes can remove, short of not receiving the
-sensors. Run as ``python -m wip_tools.rclpy_floor publish|receive SECONDS``; measured by
-:func:`measure_floor`, which starts both in a fresh DDS domain and ends them.
+sensors. Run as ``python -m wip_tools.rclpy_floor publish|receive|receive-raw SECONDS``;
+measured by :func:`measure_floor`, which starts both in a fresh DDS domain and ends them.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ def _publish(seconds: float) -> None:
         rclpy.spin_once(node, timeout_sec=0.1)
 
 
-def _receive(seconds: float) -> dict:
+def _receive(seconds: float, raw: bool) -> dict:
     import rclpy  # noqa: PLC0415
     from rclpy.qos import qos_profile_sensor_data  # noqa: PLC0415
     from sensor_msgs.msg import Imu, JointState  # noqa: PLC0415
@@ -53,8 +55,9 @@ def _receive(seconds: float) -> dict:
 
     def received(_msg) -> None:
         count[0] += 1
-    node.create_subscription(JointState, '/joint_states', received, qos_profile_sensor_data)
-    node.create_subscription(Imu, '/imu/data', received, qos_profile_sensor_data)
+    node.create_subscription(JointState, '/joint_states', received, qos_profile_sensor_data,
+                             raw=raw)
+    node.create_subscription(Imu, '/imu/data', received, qos_profile_sensor_data, raw=raw)
     executor = make_executor()
     executor.add_node(node)
     end = time.monotonic() + WARM_UP
@@ -66,21 +69,23 @@ def _receive(seconds: float) -> dict:
     after, wall = resource.getrusage(resource.RUSAGE_SELF), time.monotonic() - start
     cpu = (after.ru_utime - usage.ru_utime) + (after.ru_stime - usage.ru_stime)
     messages = count[0] - first
-    return {'executor': type(executor).__name__, 'messages_per_s': messages / wall,
+    return {'executor': type(executor).__name__, 'raw': raw, 'messages_per_s': messages / wall,
             'cpu_fraction': cpu / wall,
             'cpu_per_message_us': 1e6 * cpu / messages if messages else None,
             'context_switches_per_s': (after.ru_nvcsw - usage.ru_nvcsw) / wall}
 
 
-def measure_floor(seconds: float = 10.0) -> dict:
-    """Both processes in a DDS domain of their own; the receiver's measurement."""
+def measure_floor(seconds: float = 10.0, raw: bool = False) -> dict:
+    """Both processes in a DDS domain of their own; the receiver's measurement
+    (``raw``: the messages are taken serialized)."""
     from wip_bringup.launcher import choose_domain_id, graph_environment  # noqa: PLC0415
     env = graph_environment(choose_domain_id())
     module = [sys.executable, '-m', 'wip_tools.rclpy_floor']
     base = subprocess.Popen(module + ['publish', str(seconds + WARM_UP + 8.0)], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        receiver = subprocess.run(module + ['receive', str(seconds)], env=env,
+        receiver = subprocess.run(module + ['receive-raw' if raw else 'receive', str(seconds)],
+                                  env=env,
                                   capture_output=True, text=True,
                                   timeout=seconds + WARM_UP + 60.0)
     finally:
@@ -93,15 +98,16 @@ def measure_floor(seconds: float = 10.0) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if len(argv) != 2 or argv[0] not in ('publish', 'receive'):
-        print('usage: python -m wip_tools.rclpy_floor publish|receive SECONDS', file=sys.stderr)
+    if len(argv) != 2 or argv[0] not in ('publish', 'receive', 'receive-raw'):
+        print('usage: python -m wip_tools.rclpy_floor publish|receive|receive-raw SECONDS',
+              file=sys.stderr)
         return 2
     from wip_control.nodes.launched import end_with_launcher  # noqa: PLC0415
     end_with_launcher()
     if argv[0] == 'publish':
         _publish(float(argv[1]))
     else:
-        print(json.dumps(_receive(float(argv[1]))))
+        print(json.dumps(_receive(float(argv[1]), raw=argv[0] == 'receive-raw')))
     return 0
 
 
