@@ -190,3 +190,30 @@ def test_pitch_noise_is_filtered_before_it_reaches_the_mpc():
     (rate_gyro, angle_gyro), (rate_paper, _) = errors(gyro), errors(paper)
     assert rate_gyro < 0.01 < 0.2 < rate_paper
     assert angle_gyro < 0.002 / 3
+
+
+@pytest.mark.parametrize('estimator', ['gyro', 'paper'])
+def test_a_vehicle_engaged_at_speed_reads_its_speed_from_the_second_sample(estimator):
+    """eso.speed_start 'first_difference': on a distance ramp at 1.5 m/s (no torque, no
+    disturbance) the speed estimate is exactly the ramp's slope from the second sample on,
+    and f2 stays 0; 'zero' (Section V) reads rest first and then a disturbance transient."""
+    params = WipParameters()
+    h, speed = 0.005, 1.5
+
+    def run(speed_start):
+        config = from_mapping(EsoConfig, {'estimator': estimator, 'speed_start': speed_start,
+                                          'epsilon_schedule': 'constant'}, 'eso')
+        observer = WipStateObserver(params, config, initial_positions=(0.0, 0.0, 0.0))
+        out = []
+        for k in range(1, 41):
+            out.append(observer.update(k * h, 0.0, speed * k * h, 0.0, 0.0, 0.0, (0.0, 0.0)))
+        return out
+
+    started = run('first_difference')
+    # The constant-velocity ramp is a fixed point of the observer once (x, v, f) match it.
+    for estimate in started:
+        assert estimate.v == pytest.approx(speed, rel=1e-12)
+        assert abs(estimate.f2) < 1e-9
+    at_rest = run('zero')
+    assert abs(at_rest[0].v - speed) > 0.3             # far from the truth at first
+    assert max(abs(e.f2) for e in at_rest) > 1.0       # and a disturbance transient

@@ -206,7 +206,7 @@ class EsoConfig:
         "V: the ESOs start at rest, and one at speed first reads 0 m/s, then overshoots the "
         "true speed by 0.1 m/s at 0.1 s); 'first_difference': at the second sample, the "
         'distance difference over the period (a vehicle started at speed brakes from its '
-        'true speed: 1.555 -> ... m/s peak at the speed limit, docs/estimation.md)',
+        'true speed: f2 transient 23.5 m/s2 -> 0, docs/estimation.md)',
         choices=SPEED_STARTS)
 
     def validate(self) -> None:
