@@ -318,13 +318,9 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
     raising from the handler would land inside a callback, which rclpy's executor
     logs as FATAL with a stack).
 
-    Several nodes: messages between them skip DDS while no one outside the process
-    subscribes (:func:`connect_intra_process`, :mod:`.intra_process`); the spin loop
-    delivers them after each ``spin_once``.
-
-    Real-time hygiene: once every node is built, the objects of the start-up are moved out
-    of the garbage collector's reach (``gc.freeze``), so that the collections that still
-    run during control (young objects only) do not walk them.
+    The nodes are composed by :func:`compose` (one sim clock; messages between them skip
+    DDS while no one outside the process subscribes; ``gc.freeze`` after start-up) and
+    spun by :func:`spin_composed`, as :func:`run_simulator_node` does.
     """
     end_with_launcher()
     handles_signals = any(on_stop is not None for _, on_stop in nodes)
@@ -335,30 +331,15 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
         _stop_signal.clear()
         signal.signal(signal.SIGINT, _request_stop)
         signal.signal(signal.SIGTERM, _request_stop)
-    built: list[tuple[Node, Callable[[Node], None] | None]] = []
+    built_nodes: list[Node] = []
     status = 0
     stopping = False
     try:
         executor = make_executor()
-        for factory, on_stop in nodes:
-            node = factory()
-            built.append((node, on_stop))
-            executor.add_node(node)
-        first = built[0][0]
-        warn_undeclared_overrides([node for node, _ in built])
+        bus = compose(executor, [factory for factory, _ in nodes], built_nodes)
+        first = built_nodes[0]
         first.get_logger().debug(f'executor: {type(executor).__name__}')
-        share_sim_clock([node for node, _ in built])
-        bus = connect_intra_process([node for node, _ in built])
-        gc.collect()
-        gc.freeze()
-        if bus is None:
-            while rclpy.ok() and not _stop_signal:
-                spin_once_guarded(executor, first)
-        else:
-            drain = bus.drain
-            while rclpy.ok() and not _stop_signal:
-                spin_once_guarded(executor, first)
-                drain()
+        spin_composed(executor, first, bus, lambda: not _stop_signal)
         stopping = bool(_stop_signal)
     except (KeyboardInterrupt, ExternalShutdownException):
         stopping = True
@@ -366,6 +347,7 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
         print(f'{program}: error: {err}', file=sys.stderr)
         status = 1
     finally:
+        built = list(zip(built_nodes, [on_stop for _, on_stop in nodes]))
         if handles_signals and stopping and rclpy.ok():
             # A second signal while stopping must not skip the destruction below.
             signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -382,6 +364,36 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
             node.destroy_node()
         rclpy.try_shutdown()
     return status
+
+
+def compose(executor, factories: Sequence[Callable[[], Node]],
+            built: list[Node]) -> IntraProcessBus | None:
+    """ROS 2 composition by hand, for :func:`run_nodes` and :func:`run_simulator_node`:
+    build each node into ``built`` (as it is made, so that the caller destroys what was
+    built if a later factory fails) and add it to ``executor``; warn of overrides no node
+    declares; one sim clock (:func:`share_sim_clock`); intra-process delivery
+    (:func:`connect_intra_process`, the bus to drain, or None); then move the start-up's
+    objects out of the garbage collector's reach (``gc.freeze``), so that the collections
+    that still run during control (young objects only) do not walk them."""
+    for factory in factories:
+        built.append(factory())
+        executor.add_node(built[-1])
+    warn_undeclared_overrides(built)
+    share_sim_clock(built)
+    bus = connect_intra_process(built)
+    gc.collect()
+    gc.freeze()
+    return bus
+
+
+def spin_composed(executor, node: Node, bus: IntraProcessBus | None,
+                  running: Callable[[], bool]) -> None:
+    """Spin (:func:`spin_once_guarded`, errors reported by ``node``) while the context is
+    up and ``running()``; after each spin_once, deliver the intra-process messages."""
+    drain = bus.drain if bus is not None else (lambda: 0)
+    while rclpy.ok() and running():
+        spin_once_guarded(executor, node)
+        drain()
 
 
 def connect_intra_process(nodes: Sequence[Node]) -> IntraProcessBus | None:
@@ -448,37 +460,27 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
     The node's ``write_stats()`` always runs (an OSError is reported, not raised).
 
     ``companions``: more nodes in the same process and executor (the controllers, for
-    ``ros2 run wip_sim simulation``), composed as :func:`run_nodes` composes them (one
-    sim clock, intra-process delivery, ``gc.freeze``); the simulator node takes part in
-    the intra-process delivery if it is an :class:`IntraProcessNode`.
+    ``ros2 run wip_sim simulation``), composed by :func:`compose` as in :func:`run_nodes`;
+    the simulator node takes part in the intra-process delivery if it is an
+    :class:`IntraProcessNode`.
     """
     end_with_launcher()
     rclpy.init(args=args)
-    node = None
-    others: list[Node] = []
+    built: list[Node] = []
     status = 0
     try:
-        node = node_factory()
         executor = make_executor()
-        executor.add_node(node)
-        for factory in companions:
-            others.append(factory())
-            executor.add_node(others[-1])
-        warn_undeclared_overrides([node, *others])
-        bus = None
-        if others:
-            share_sim_clock(others)
-            bus = connect_intra_process([node, *others])
-            gc.collect()
-            gc.freeze()
-        # spin_once with a timeout: the EventsExecutor's spin() ignores SIGINT.
-        while rclpy.ok() and node.exit_code is None:
-            if others:
-                spin_once_guarded(executor, others[0], SPIN_TIMEOUT)
-            else:
+        bus = compose(executor, [node_factory, *companions], built)
+        node = built[0]
+        if companions:
+            # A controller's callback error is reported and the run goes on, as in
+            # run_nodes (the safety layer judges what follows).
+            spin_composed(executor, built[1], bus, lambda: node.exit_code is None)
+        else:
+            # The simulator alone: an error of its own callbacks ends the run. spin_once
+            # with a timeout: the EventsExecutor's spin() ignores SIGINT.
+            while rclpy.ok() and node.exit_code is None:
                 spin_once_or_stop(executor, SPIN_TIMEOUT)
-            if bus is not None:
-                bus.drain()
         if node.exit_code is not None:
             status = node.exit_code
             if on_end is not None:
@@ -489,14 +491,13 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
         print(f'{program}: error: {err}', file=sys.stderr)
         status = config_status
     finally:
-        if node is not None:
+        if built:   # the simulator node was built (a companion may have failed)
             try:
-                node.write_stats()
+                built[0].write_stats()
             except OSError as err:
                 print(f'{program}: cannot write stats: {err}', file=sys.stderr)
-            node.destroy_node()
-        for other in others:
-            other.destroy_node()
+        for built_node in built:
+            built_node.destroy_node()
         rclpy.try_shutdown()
     return status
 
