@@ -106,7 +106,9 @@ LAUNCHER = textwrap.dedent('''
     from wip_bringup.launcher import graph_environment, NodeProcess
     out = pathlib.Path(sys.argv[1])
     node = NodeProcess('child', sys.argv[2:], out / 'child.log', graph_environment(7))
-    (out / 'child.pid').write_text(str(node.pid))
+    # Written whole, then renamed: the test polls for the file and reads it at once.
+    (out / 'child.pid.tmp').write_text(str(node.pid))
+    (out / 'child.pid.tmp').rename(out / 'child.pid')
     time.sleep(600)
 ''')
 
@@ -163,6 +165,21 @@ def test_a_controller_node_ends_with_its_launcher_killed_by_sigkill(tmp_path):
             os.kill(int((tmp_path / 'child.pid').read_text()), signal.SIGKILL)
         except (OSError, ValueError):
             pass
+
+
+def test_a_zombie_launcher_is_gone_and_stops_the_start():
+    """A launcher killed while its node starts is a zombie until reaped: signal 0 still
+    reaches it, but the node must not take it for a live launcher (it would run on,
+    orphaned, believing itself a grandchild)."""
+    zombie = subprocess.Popen([sys.executable, '-c', 'pass'])
+    _wait_for(lambda: open(f'/proc/{zombie.pid}/stat').read().rsplit(')', 1)[1].split()[0]
+              == 'Z', START_UP, 'the child becomes a zombie')
+    try:
+        os.kill(zombie.pid, 0)            # signal 0 reaches a zombie
+        with pytest.raises(SystemExit, match=f'launcher \\(pid {zombie.pid}\\) is gone'):
+            end_with_launcher({LAUNCHER_PID_VARIABLE: str(zombie.pid)})
+    finally:
+        zombie.wait()
 
 
 def test_without_the_variable_nothing_is_arranged_and_a_dead_launcher_stops_the_start():
