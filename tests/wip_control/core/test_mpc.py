@@ -534,8 +534,12 @@ def test_per_step_slacks_bound_every_predicted_step():
     result = mpc.step(**realistic_state(2.2, 0.12, 0.5, 10.0, 0.0), v_d=0.5, tau_limit=30.0)
     assert result.status == MpcStatus.SOLVED and not result.used_fallback
     z = mpc.last_solution.z
-    s_v, s_theta = z[NC:NC + NP], z[NC + NP:]
+    s_v, s_theta, rise = z[NC:NC + NP], z[NC + NP:NC + 2 * NP], z[NC + 2 * NP:]
     assert np.all(s_v >= -CONSTRAINT_TOL) and np.all(s_theta >= -CONSTRAINT_TOL)
+    # The rise slack (speed_rise_penalty): the first speeds above max(υmax, υ̂) = υ̂.
+    assert rise.shape == (1,) and rise[0] >= -CONSTRAINT_TOL
+    v_first = result.predicted[:CONFIG.speed_rise_steps, 0]
+    assert np.all(v_first <= 2.2 + CONFIG.max_speed * rise[0] + CONSTRAINT_TOL)
     v, theta = result.predicted[:, 0], result.predicted[:, 1]
     first = CONFIG.speed_limit_first_step - 1
     assert np.all(np.abs(v[first:]) <= CONFIG.max_speed * (1 + s_v[first:]) + CONSTRAINT_TOL)
@@ -544,6 +548,48 @@ def test_per_step_slacks_bound_every_predicted_step():
     need_v = np.maximum(np.abs(v) / CONFIG.max_speed - 1.0, 0.0)
     assert np.all(s_v[first:] <= need_v[first:] + 1e-4)
     assert result.slack_v == pytest.approx(s_v.max())
+
+
+def _rise(predicted_v, v_hat, steps):
+    """Largest planned speed over the first ``steps`` above max(υmax, υ̂) [m/s]."""
+    return max(0.0, float(np.max(predicted_v[:steps])) - max(CONFIG.max_speed, v_hat))
+
+
+@pytest.mark.parametrize('v_hat, v_d', [(1.5, 1.0), (1.6, 1.0), (2.2, 0.5)])
+def test_the_speed_rise_slack_makes_the_rise_before_braking_smaller_and_still_brakes(
+        v_hat, v_d):
+    """At or above the speed limit a WIP must speed up to brake. With the rise slack
+    (speed_rise_penalty, default) the planned rise is smaller than without it, and the
+    plan still brakes: its speed at the end of the 2 s horizon is below the start."""
+    state = realistic_state(v_hat, 0.0, 0.0, 0.0, 0.0)
+    results = {}
+    for penalty in (0.0, CONFIG.speed_rise_penalty):
+        mpc = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, speed_rise_penalty=penalty))
+        mpc.reset(0.0)
+        results[penalty] = mpc.step(**state, v_d=v_d, tau_limit=30.0)
+        assert results[penalty].status == MpcStatus.SOLVED
+    off, on = results[0.0], results[CONFIG.speed_rise_penalty]
+    steps = CONFIG.speed_rise_steps
+    assert _rise(on.predicted[:, 0], v_hat, steps) < _rise(off.predicted[:, 0], v_hat, steps)
+    # Upright at θ = 0 with no disturbance, coasting holds υ̂: the plan brakes instead.
+    assert on.predicted[-1, 0] < v_hat - 0.1
+
+
+def test_the_speed_rise_slack_changes_nothing_below_the_speed_limit():
+    # Accelerating from 1.0 toward 1.2 m/s (under the 1.5 limit): the rise rows are
+    # inactive and the plan is the one without them (to the solver's tolerance).
+    plans = []
+    for penalty in (0.0, CONFIG.speed_rise_penalty):
+        mpc = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, speed_rise_penalty=penalty))
+        mpc.reset(0.0)
+        plans.append(mpc.step(**realistic_state(1.0, 0.0, 0.0, 0.0, 0.0), v_d=1.2,
+                              tau_limit=30.0).plan)
+    assert plans[1] == pytest.approx(plans[0], abs=1e-5)
+
+
+def test_speed_rise_steps_beyond_the_horizon_is_refused():
+    with pytest.raises(ConfigError, match='speed_rise_steps: must be <= prediction_horizon'):
+        LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, speed_rise_steps=NP + 1))
 
 
 @pytest.mark.parametrize('d2, d3', [(0.3, 0.0), (0.0, 0.5), (-0.4, 0.3)])

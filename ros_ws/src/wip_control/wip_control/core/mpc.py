@@ -28,7 +28,9 @@ g = −2 G̃ᵀQ(ȳr − ȳ_free) on the Δτ̄ block (eq. (22)), 2ρ2 and ρ1 (
 slacks, ``speed_slack_linear_penalty``) on the slack entries. ``soft_limits: per_step``
 (default): one slack per predicted step and limit (Np each); ``worst_case`` (the
 paper's): one per limit for the whole horizon. Why the default differs, with measured
-effects: ``docs/mpc.md``.
+effects: ``docs/mpc.md``. With ``speed_rise_penalty`` > 0 a last entry r of z bounds the
+rise of the first ``speed_rise_steps`` planned speeds above max(υmax, |υ̂|), weighted
+ρr r² (docs/mpc.md §9).
 
 Constraints (19), (21), as adopted in docs/paper.md §5:
 
@@ -99,7 +101,7 @@ PAPER_MPC_SETTINGS = {'soft_limits': 'worst_case', 'speed_limit_first_step': 1,
                       'speed_slack_linear_penalty': 1e4, 'offset_free': False,
                       'output_weights': (1.0, 50.0, 1.0), 'input_weight': 1.0,
                       'speed_preview_time': 0.0, 'speed_slack_quadratic_penalty': 1e4,
-                      'disturbance_startup_time': 0.0}
+                      'disturbance_startup_time': 0.0, 'speed_rise_penalty': 0.0}
 
 
 class MpcInputError(ValueError):
@@ -212,6 +214,18 @@ class MpcConfig:
         'from 2.2 m/s after a push with a +10 N m step that took it to 2.53 m/s; with 100 '
         'the speed weight q_v still brings it under the limit within 2 s, more gently',
         minimum=0.0, exclusive_minimum=True)
+    speed_rise_penalty: float = param(
+        1e5, '1', 'weight of the squared rise of the planned speed above max(υmax, |υ̂|) '
+        'over the first speed_rise_steps (one slack, relative to υmax). At or above the '
+        'limit a WIP must first speed up to brake: this term makes that rise small (the '
+        'plan brakes more gently), while it costs nothing to brake or to stay below the '
+        'limit. Relative to the current speed, so braking is never costlier than coasting '
+        '(a cap at υmax alone made the vehicle run away at 5e3). Line entered at the 1.5 '
+        'm/s limit: peak 1.554 m/s without it, 1.527 with it (docs/mpc.md §9). 0: off',
+        minimum=0.0)
+    speed_rise_steps: int = param(
+        5, '1', 'predicted steps covered by speed_rise_penalty (the rise before a braking '
+        'WIP leans back lasts about 0.3-0.4 s)', minimum=1, maximum=60)
     prediction: str = param(
         'gravity_aware', '-', "'gravity_aware' (adopted) or 'paper' (literal G̃ of (18), "
         'falls; for the ablation)', choices=PREDICTION_MODELS)
@@ -239,6 +253,9 @@ class MpcConfig:
         'worst-case solve time', minimum=1, maximum=10000)
 
     def validate(self) -> None:
+        if self.speed_rise_steps > self.prediction_horizon:
+            raise ConfigError(f'speed_rise_steps: must be <= prediction_horizon '
+                              f'({self.prediction_horizon}), got {self.speed_rise_steps}')
         if self.speed_limit_first_step > self.prediction_horizon:
             raise ConfigError(f'speed_limit_first_step: must be <= prediction_horizon '
                               f'({self.prediction_horizon}), got {self.speed_limit_first_step}')
@@ -412,8 +429,12 @@ class LongitudinalMpc(PreviousTorque):
         # slacks are unbounded above).
         n_s = n_p if config.soft_limits == 'per_step' else 1
         self.n_slacks = n_s
-        n = n_c + 2 * n_s
-        m = n_c + 4 * n_p
+        # The rise slack r (last variable) and its rows: ±υ(k+i) ≤ max(υmax, ±υ̂) + υmax r
+        # for i = 1..speed_rise_steps, the sign that of υ̂ (the direction of travel).
+        n_rise = config.speed_rise_steps if config.speed_rise_penalty > 0.0 else 0
+        self._n_rise = n_rise
+        n = n_c + 2 * n_s + (1 if n_rise else 0)
+        m = n_c + 4 * n_p + n_rise
         self.n_variables, self.n_constraints = n, m
         self._slice_upper = slice(n_c, n_c + 2 * n_p)
         self._slice_lower = slice(n_c + 2 * n_p, n_c + 4 * n_p)
@@ -423,14 +444,18 @@ class LongitudinalMpc(PreviousTorque):
         self._h[slack_index[:n_s], slack_index[:n_s]] = 2.0 * config.speed_slack_quadratic_penalty
         self._g = np.zeros(n)
         self._g[n_c:n_c + n_s] = config.speed_slack_linear_penalty
-        self._g[n_c + n_s:] = config.slack_linear_penalty
+        self._g[n_c + n_s:n_c + 2 * n_s] = config.slack_linear_penalty
         self._c = np.zeros((m, n))
         self._c[:n_c, :n_c] = np.tril(np.ones((n_c, n_c)))
         limits = np.repeat([config.max_speed, config.max_tilt], n_p)
         self._limits = limits
         # Row i of the υ (θ) block uses slack column i (per step) or the single column.
         slack_map = np.eye(n_p) if n_s == n_p else np.ones((n_p, 1))
-        v_cols, theta_cols = slice(n_c, n_c + n_s), slice(n_c + n_s, n)
+        v_cols, theta_cols = slice(n_c, n_c + n_s), slice(n_c + n_s, n_c + 2 * n_s)
+        self._rise_rows = slice(n_c + 4 * n_p, m)
+        if n_rise:
+            self._h[n - 1, n - 1] = 2.0 * config.speed_rise_penalty
+            self._c[self._rise_rows, n - 1] = -config.max_speed
         for rows, sign in ((self._slice_upper, -1.0), (self._slice_lower, 1.0)):
             block = self._c[rows]
             block[:n_p, v_cols] = sign * config.max_speed * slack_map
@@ -522,7 +547,7 @@ class LongitudinalMpc(PreviousTorque):
         if solution.status == MpcStatus.SOLVED:
             plan = solution.z[:n_c].copy()
             slack_v = float(np.max(solution.z[n_c:n_c + n_s]))
-            slack_theta = float(np.max(solution.z[n_c + n_s:]))
+            slack_theta = float(np.max(solution.z[n_c + n_s:n_c + 2 * n_s]))
             used_fallback = False
         else:
             plan = self._shifted_plan()
@@ -589,6 +614,11 @@ class LongitudinalMpc(PreviousTorque):
         # Speed rows of the first steps are free (see ``speed_limit_first_step``).
         self._u[self._free_speed_upper] = np.inf
         self._l[self._free_speed_lower] = -np.inf
+        if self._n_rise:
+            sign = 1.0 if v_hat >= 0.0 else -1.0
+            self._c[self._rise_rows, :n_c] = sign * rows[:self._n_rise]
+            cap = max(self.config.max_speed, sign * v_hat)
+            np.subtract(cap, sign * free_outputs[:self._n_rise], out=self._u[self._rise_rows])
         # τ rows, relaxed to the reachable set if |τ(k−1)| is beyond the limit (see module).
         np.subtract(np.maximum(limit, tau_prev - self._reach), tau_prev, out=self._u[:n_c])
         np.subtract(np.minimum(-limit, tau_prev + self._reach), tau_prev, out=self._l[:n_c])
