@@ -18,6 +18,8 @@ from wip_control.core.criteria import Criteria, criteria_to_mapping
 from wip_tools.campaign import load_campaign, run_one, run_specs
 
 SCENARIOS = pathlib.Path(__file__).parent / 'scenarios'
+ACCEPTANCE = (pathlib.Path(__file__).parents[3] / 'campaigns'
+              / 'issue9_acceptance_mpc.yaml')
 
 #: Classes run by this suite -> measured failure on main (None: it passes). Pushes,
 #: stop-and-hold, slope and the full plant standing pass since the per-step-slack,
@@ -33,7 +35,7 @@ SUITE = {
     'pushes': None,
     'stop_and_hold': None,
     # Passes since the MPC's speed-rise slack (docs/mpc.md §9): max speed 1.554 m/s at the
-    # cold start before (limit 1.55), 1.527 after; 2.49 after the push (limit 2.5).
+    # cold start before (limit 1.55), 1.542 after; 2.49 after the push (limit 2.5).
     'speed_limit': None,
     # Passes since the reference's speed lead (docs/mpc.md §8): 0.52 m off the path
     # before, 0.08 m after.
@@ -90,3 +92,18 @@ def test_robustness_class_meets_its_criterion(name):
     row = run_one(run_specs(campaign)[0], campaign.base, criteria_to_mapping(campaign.criteria))
     assert not row['error'], row['error']
     assert row['success'], f'{name}: {row["reasons"]}'
+
+
+@pytest.mark.slow
+def test_a_push_above_the_speed_limit_on_a_heavy_tall_body_is_caught():
+    """Acceptance run 84 (26.8 kg body, CoM 0.54 m, +8 m/s² push at 29.2 s on the
+    trifolium under noise, full plant): the push takes the vehicle above the speed limit,
+    where the MPC's rise slack also weighs the acceleration that catches the forward tilt.
+    At speed_rise_penalty 1e5 it fell at 30.3 s (docs/mpc.md §9); the default must keep it
+    up and within the hard limits."""
+    campaign = load_campaign(ACCEPTANCE)
+    spec = run_specs(campaign)[84]
+    assert spec['values']['plant.parameters.body_mass'] == pytest.approx(26.84, abs=0.01)
+    row = run_one(spec, campaign.base, criteria_to_mapping(campaign.criteria))
+    assert not row['error'], row['error']
+    assert row['success'], row['reasons']

@@ -215,13 +215,15 @@ class MpcConfig:
         'the speed weight q_v still brings it under the limit within 2 s, more gently',
         minimum=0.0, exclusive_minimum=True)
     speed_rise_penalty: float = param(
-        1e5, '1', 'weight of the squared rise of the planned speed above max(υmax, |υ̂|) '
+        1e4, '1', 'weight of the squared rise of the planned speed above max(υmax, |υ̂|) '
         'over the first speed_rise_steps (one slack, relative to υmax). At or above the '
         'limit a WIP must first speed up to brake: this term makes that rise small (the '
         'plan brakes more gently), while it costs nothing to brake or to stay below the '
         'limit. Relative to the current speed, so braking is never costlier than coasting '
-        '(a cap at υmax alone made the vehicle run away at 5e3). Line entered at the 1.5 '
-        'm/s limit: peak 1.554 m/s without it, 1.527 with it (docs/mpc.md §9). 0: off',
+        '(a cap at υmax alone made the vehicle run away at 5e3). It also weighs the '
+        'acceleration that catches a forward tilt: 1e5 let a heavy, tall body fall after a '
+        'push above the limit. Line entered at the 1.5 m/s limit: peak 1.554 m/s without '
+        'it, 1.542 with it (docs/mpc.md §9). 0: off',
         minimum=0.0)
     speed_rise_steps: int = param(
         5, '1', 'predicted steps covered by speed_rise_penalty (the rise before a braking '
