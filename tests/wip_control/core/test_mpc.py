@@ -587,6 +587,28 @@ def test_the_speed_rise_slack_changes_nothing_below_the_speed_limit():
     assert plans[1] == pytest.approx(plans[0], abs=1e-5)
 
 
+@pytest.mark.parametrize('theta, theta_dot', [(0.03, 0.0), (-0.005, 0.2)])
+def test_the_speed_rise_slack_is_off_while_the_body_leans_the_way_it_travels(theta,
+                                                                           theta_dot):
+    # Above the limit and leaning forward now, or one MPC period ahead (θ̂ + Ts θ̂̇ > 0):
+    # the wheels must speed up to catch the body. The plan is the one without the slack.
+    plans = []
+    for penalty in (0.0, CONFIG.speed_rise_penalty):
+        mpc = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, speed_rise_penalty=penalty))
+        mpc.reset(0.0)
+        plans.append(mpc.step(**realistic_state(2.0, theta, theta_dot, 0.0, 0.0), v_d=1.2,
+                              tau_limit=30.0).plan)
+    assert plans[1] == pytest.approx(plans[0], abs=1e-5)
+    # Leaning back at the same speed, the slack acts (the plans differ).
+    mpc = LongitudinalMpc(PARAMS, CONFIG)
+    mpc.reset(0.0)
+    gated = mpc.step(**realistic_state(2.0, -0.03, 0.0, 0.0, 0.0), v_d=1.2, tau_limit=30.0)
+    free = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, speed_rise_penalty=0.0))
+    free.reset(0.0)
+    ungated = free.step(**realistic_state(2.0, -0.03, 0.0, 0.0, 0.0), v_d=1.2, tau_limit=30.0)
+    assert np.max(np.abs(gated.plan - ungated.plan)) > 1e-3
+
+
 def test_speed_rise_steps_beyond_the_horizon_is_refused():
     with pytest.raises(ConfigError, match='speed_rise_steps: must be <= prediction_horizon'):
         LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, speed_rise_steps=NP + 1))

@@ -220,10 +220,11 @@ class MpcConfig:
         'limit a WIP must first speed up to brake: this term makes that rise small (the '
         'plan brakes more gently), while it costs nothing to brake or to stay below the '
         'limit. Relative to the current speed, so braking is never costlier than coasting '
-        '(a cap at υmax alone made the vehicle run away at 5e3). It also weighs the '
-        'acceleration that catches a forward tilt: 1e5 let a heavy, tall body fall after a '
-        'push above the limit. Line entered at the 1.5 m/s limit: peak 1.554 m/s without '
-        'it, 1.542 with it (docs/mpc.md §9). 0: off',
+        '(a cap at υmax alone made the vehicle run away at 5e3). Off while the body leans '
+        'the way it travels (θ̂ + Ts θ̂̇, signed by υ̂, > 0): then the wheels must speed up '
+        'to catch it (without that gate, heavy tall bodies pushed above the limit fell). '
+        'Line entered at the 1.5 m/s limit: peak 1.554 m/s without it, 1.542 with it '
+        '(docs/mpc.md §9). 0: off',
         minimum=0.0)
     speed_rise_steps: int = param(
         5, '1', 'predicted steps covered by speed_rise_penalty (the rise before a braking '
@@ -619,8 +620,14 @@ class LongitudinalMpc(PreviousTorque):
         if self._n_rise:
             sign = 1.0 if v_hat >= 0.0 else -1.0
             self._c[self._rise_rows, :n_c] = sign * rows[:self._n_rise]
-            cap = max(self.config.max_speed, sign * v_hat)
-            np.subtract(cap, sign * free_outputs[:self._n_rise], out=self._u[self._rise_rows])
+            if sign * (theta_hat + self.config.sampling_period * theta_dot_hat) > 0.0:
+                # Leaning (one MPC period ahead) the way it travels: the wheels must speed
+                # up to catch the body, and that is balance, not the rise before braking.
+                self._u[self._rise_rows] = np.inf
+            else:
+                cap = max(self.config.max_speed, sign * v_hat)
+                np.subtract(cap, sign * free_outputs[:self._n_rise],
+                            out=self._u[self._rise_rows])
         # τ rows, relaxed to the reachable set if |τ(k−1)| is beyond the limit (see module).
         np.subtract(np.maximum(limit, tau_prev - self._reach), tau_prev, out=self._u[:n_c])
         np.subtract(np.minimum(-limit, tau_prev + self._reach), tau_prev, out=self._l[:n_c])
