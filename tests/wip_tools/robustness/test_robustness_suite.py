@@ -95,14 +95,14 @@ def test_robustness_class_meets_its_criterion(name):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize('run, body_mass', [(78, 28.60), (84, 26.84)])
+@pytest.mark.parametrize('run, body_mass', [(78, 28.60), (84, 26.84), (255, 29.72)])
 def test_a_push_above_the_speed_limit_on_a_heavy_tall_body_is_caught(run, body_mass):
-    """Acceptance runs 78 (28.6 kg, CoM 0.69 m, +7.6 m/s² at 46.4 s) and 84 (26.8 kg, CoM
-    0.54 m, +8 m/s² at 29.2 s), trifolium under noise, full plant: the push takes the
-    vehicle above the speed limit, and the body leans forward. The MPC's rise slack would
-    weigh the acceleration that catches it: without its lean gate run 78 fell at 48.8 s
-    (and run 84 at 30.3 s with speed_rise_penalty 1e5; docs/mpc.md §9). They must stay up
-    and within the hard limits."""
+    """Acceptance runs 78 (28.6 kg, CoM 0.69 m, +7.6 m/s² at 46.4 s), 84 (26.8 kg, CoM
+    0.54 m, +8 m/s² at 29.2 s) and 255 (29.7 kg, CoM 0.63 m, -8.8 m/s² at 20.7 s),
+    trifolium under noise, full plant. The MPC's rise slack would weigh the acceleration
+    of the recovery: without its gates (docs/mpc.md §9) run 78 fell at 48.8 s, run 84 at
+    30.3 s (speed_rise_penalty 1e5), run 255 at 22.5 s. They must stay up and within the
+    hard limits."""
     campaign = load_campaign(ACCEPTANCE)
     spec = run_specs(campaign)[run]
     assert spec['values']['plant.parameters.body_mass'] == pytest.approx(body_mass, abs=0.01)

@@ -29,8 +29,8 @@ slacks, ``speed_slack_linear_penalty``) on the slack entries. ``soft_limits: per
 (default): one slack per predicted step and limit (Np each); ``worst_case`` (the
 paper's): one per limit for the whole horizon. Why the default differs, with measured
 effects: ``docs/mpc.md``. With ``speed_rise_penalty`` > 0 a last entry r of z bounds the
-rise of the first ``speed_rise_steps`` planned speeds above max(υmax, |υ̂|), weighted
-ρr r² (docs/mpc.md §9).
+rise of the first ``speed_rise_steps`` planned speeds above |υ̂| when |υ̂| ≥ υmax,
+weighted ρr r² (docs/mpc.md §9).
 
 Constraints (19), (21), as adopted in docs/paper.md §5:
 
@@ -215,14 +215,15 @@ class MpcConfig:
         'the speed weight q_v still brings it under the limit within 2 s, more gently',
         minimum=0.0, exclusive_minimum=True)
     speed_rise_penalty: float = param(
-        1e4, '1', 'weight of the squared rise of the planned speed above max(υmax, |υ̂|) '
+        1e4, '1', 'weight of the squared rise of the planned speed above |υ̂| ≥ υmax '
         'over the first speed_rise_steps (one slack, relative to υmax). At or above the '
         'limit a WIP must first speed up to brake: this term makes that rise small (the '
         'plan brakes more gently), while it costs nothing to brake or to stay below the '
         'limit. Relative to the current speed, so braking is never costlier than coasting '
-        '(a cap at υmax alone made the vehicle run away at 5e3). Off while the body leans '
-        'the way it travels (θ̂ + Ts θ̂̇, signed by υ̂, > 0): then the wheels must speed up '
-        'to catch it (without that gate, heavy tall bodies pushed above the limit fell). '
+        '(a cap at υmax alone made the vehicle run away at 5e3). Only at or above the '
+        'limit, and not while the body leans the way it travels (θ̂ + Ts θ̂̇, signed by υ̂, '
+        '> 0): then the wheels must speed up to catch it (without these gates, heavy tall '
+        'bodies hard pushed fell). '
         'Line entered at the 1.5 m/s limit: peak 1.554 m/s without it, 1.542 with it '
         '(docs/mpc.md §9). 0: off',
         minimum=0.0)
@@ -432,8 +433,9 @@ class LongitudinalMpc(PreviousTorque):
         # slacks are unbounded above).
         n_s = n_p if config.soft_limits == 'per_step' else 1
         self.n_slacks = n_s
-        # The rise slack r (last variable) and its rows: ±υ(k+i) ≤ max(υmax, ±υ̂) + υmax r
-        # for i = 1..speed_rise_steps, the sign that of υ̂ (the direction of travel).
+        # The rise slack r (last variable) and its rows: ±υ(k+i) ≤ ±υ̂ + υmax r for
+        # i = 1..speed_rise_steps, the sign that of υ̂ (the direction of travel), while
+        # ±υ̂ ≥ υmax (else the rows are free, see _build).
         n_rise = config.speed_rise_steps if config.speed_rise_penalty > 0.0 else 0
         self._n_rise = n_rise
         n = n_c + 2 * n_s + (1 if n_rise else 0)
@@ -620,13 +622,15 @@ class LongitudinalMpc(PreviousTorque):
         if self._n_rise:
             sign = 1.0 if v_hat >= 0.0 else -1.0
             self._c[self._rise_rows, :n_c] = sign * rows[:self._n_rise]
-            if sign * (theta_hat + self.config.sampling_period * theta_dot_hat) > 0.0:
-                # Leaning (one MPC period ahead) the way it travels: the wheels must speed
-                # up to catch the body, and that is balance, not the rise before braking.
+            # Only braking from at or above the limit: below it, going beyond the limit is
+            # the speed slacks' business (a recovery from a hard push may need it), and
+            # leaning (one MPC period ahead) the way it travels, the wheels must speed up
+            # to catch the body: that is balance, not the rise before braking.
+            if (sign * v_hat < self.config.max_speed or
+                    sign * (theta_hat + self.config.sampling_period * theta_dot_hat) > 0.0):
                 self._u[self._rise_rows] = np.inf
             else:
-                cap = max(self.config.max_speed, sign * v_hat)
-                np.subtract(cap, sign * free_outputs[:self._n_rise],
+                np.subtract(sign * v_hat, sign * free_outputs[:self._n_rise],
                             out=self._u[self._rise_rows])
         # τ rows, relaxed to the reachable set if |τ(k−1)| is beyond the limit (see module).
         np.subtract(np.maximum(limit, tau_prev - self._reach), tau_prev, out=self._u[:n_c])
