@@ -62,6 +62,14 @@ def _from_derivatives(x: float, y: float, phi: float, xd: float, yd: float, xdd:
     return ReferenceState(x, y, phi, math.sqrt(v2), omega, omega_dot)
 
 
+def _speed_and_yaw_rate(xd: float, yd: float, xdd: float, ydd: float,
+                        *_third: float) -> tuple[float, float]:
+    """(υ_r, ω_r) from the derivatives: the expressions of :func:`_from_derivatives`,
+    so the same floats."""
+    v2 = xd * xd + yd * yd
+    return math.sqrt(v2), (xd * ydd - yd * xdd) / v2
+
+
 class Reference:
     """A reference trajectory: :meth:`sample` gives the state at time t [s]."""
 
@@ -71,6 +79,16 @@ class Reference:
     def derivatives(self, t: float) -> tuple[float, ...]:  # pragma: no cover - interface
         """(ẋ, ẏ, ẍ, ÿ, x⃛, y⃛) at t, where defined analytically."""
         raise NotImplementedError
+
+    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
+        """(υ_r, ω_r) at t, the same floats as :meth:`sample`'s ``v`` and ``omega``.
+
+        :class:`TimeScaled` needs only these at its lead times; curves defined by their
+        derivatives override this to skip the pose (its trigonometry is most of a
+        sample's cost).
+        """
+        ref = self.sample(t)
+        return ref.v, ref.omega
 
 
 class Trifolium(Reference):
@@ -95,8 +113,9 @@ class Trifolium(Reference):
 
     def derivatives(self, t: float) -> tuple[float, ...]:
         a_half, w = 0.5 * self.size, self.angular_frequency
-        ca, sa = math.cos(4.0 * w * t), math.sin(4.0 * w * t)
-        cb, sb = math.cos(2.0 * w * t), math.sin(2.0 * w * t)
+        angle_a, angle_b = 4.0 * w * t, 2.0 * w * t
+        ca, sa = math.cos(angle_a), math.sin(angle_a)
+        cb, sb = math.cos(angle_b), math.sin(angle_b)
         w2, w3 = w * w, w * w * w
         return (a_half * w * (-4.0 * sa - 2.0 * sb), a_half * w * (4.0 * ca - 2.0 * cb),
                 -a_half * w2 * (16.0 * ca + 4.0 * cb), -a_half * w2 * (16.0 * sa - 4.0 * sb),
@@ -104,11 +123,16 @@ class Trifolium(Reference):
 
     def sample(self, t: float) -> ReferenceState:
         w = self.angular_frequency
-        r = self.size * math.cos(3.0 * w * t)
-        su = math.sin(3.0 * w * t)
+        u = 3.0 * w * t
+        r = self.size * math.cos(u)
+        su = math.sin(u)
+        wt = w * t
         phi = 4.0 * w * t + _HALF_PI + math.atan2(math.sin(6.0 * w * t), 1.0 + 2.0 * su * su)
-        return _from_derivatives(r * math.cos(w * t), r * math.sin(w * t), phi,
+        return _from_derivatives(r * math.cos(wt), r * math.sin(wt), phi,
                                  *self.derivatives(t))
+
+    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
+        return _speed_and_yaw_rate(*self.derivatives(t))
 
 
 class Circle(Reference):
@@ -147,6 +171,9 @@ class Circle(Reference):
                               self.cy + self.radius * math.sin(beta),
                               beta + self.sign * _HALF_PI, self.speed, self.rate, 0.0)
 
+    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
+        return self.speed, self.rate
+
 
 class StraightLine(Reference):
     """Uniform motion on a straight line from ``start`` [m] along ``heading`` [rad] at
@@ -167,6 +194,9 @@ class StraightLine(Reference):
         d = self.speed * t
         return ReferenceState(self.x0 + d * self._c, self.y0 + d * self._s, self.heading,
                               self.speed, 0.0, 0.0)
+
+    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
+        return self.speed, 0.0
 
 
 class FigureEight(Reference):
@@ -207,6 +237,9 @@ class FigureEight(Reference):
         return _from_derivatives(self.cx + self.size * math.sin(tau),
                                  self.cy + 0.5 * self.size * math.sin(2.0 * tau), phi,
                                  *self.derivatives(t))
+
+    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
+        return _speed_and_yaw_rate(*self.derivatives(t))
 
 
 class _Piece(NamedTuple):
@@ -460,12 +493,13 @@ class TimeScaled(Reference):
         self._s = [0.0]                   # s at t = n·step
         self._rate = [self.rate_at(0.0)]  # σ(s) at those nodes
 
-    def _raw_rate(self, ref: ReferenceState) -> float:
+    def _raw_rate(self, v: float, omega: float) -> float:
+        """σ0 for the base's speed ``v`` and yaw rate ``omega``."""
         sigma = 1.0
-        if ref.v > self.max_speed:
-            sigma = self.max_speed / ref.v
-        if abs(ref.omega) * sigma > self.max_yaw_rate:
-            sigma = self.max_yaw_rate / abs(ref.omega)
+        if v > self.max_speed:
+            sigma = self.max_speed / v
+        if abs(omega) * sigma > self.max_yaw_rate:
+            sigma = self.max_yaw_rate / abs(omega)
         return sigma
 
     def _extend_sigma(self, index: int) -> None:
@@ -478,7 +512,8 @@ class TimeScaled(Reference):
             start = len(self._sigma)
             stop = start + 2048
             while len(self._raw) < stop + w + 1:
-                self._raw.append(self._raw_rate(self.base.sample(len(self._raw) * h)))
+                self._raw.append(self._raw_rate(
+                    *self.base.speed_and_yaw_rate(len(self._raw) * h)))
             raw = np.asarray(self._raw)
             env = raw[start:stop].copy()
             for d in range(1, w + 1):
@@ -499,8 +534,10 @@ class TimeScaled(Reference):
             return self._sigma[0], 0.0
         u = s / self.step
         i = int(u)
-        self._extend_sigma(i + 1)
-        a, b = self._sigma[i], self._sigma[i + 1]
+        sigma = self._sigma
+        if i + 1 >= len(sigma):   # (tested here: a call per sample costs more than the test)
+            self._extend_sigma(i + 1)
+        a, b = sigma[i], sigma[i + 1]
         return a + (b - a) * (u - i), (b - a) / self.step
 
     def rate_at(self, s: float) -> float:
@@ -530,12 +567,14 @@ class TimeScaled(Reference):
         if t <= 0.0:
             return self._rate[0] * t
         n = int(t / self.step)
-        known = (len(self._s) - 1) * self.step
-        if t > known + self.MAX_EXTENSION:
-            raise ValueError(f'TimeScaled: t = {t:g} s is more than {self.MAX_EXTENSION:g} s '
-                             f'beyond the times sampled so far ({known:g} s); the '
-                             'time-scaled reference is integrated from t = 0')
-        self._extend(n + 1)
+        if n + 1 >= len(self._s):   # beyond the table (else t < the last node)
+            known = (len(self._s) - 1) * self.step
+            if t > known + self.MAX_EXTENSION:
+                raise ValueError(f'TimeScaled: t = {t:g} s is more than '
+                                 f'{self.MAX_EXTENSION:g} s beyond the times sampled so far '
+                                 f'({known:g} s); the time-scaled reference is integrated '
+                                 'from t = 0')
+            self._extend(n + 1)
         h = self.step
         u = t / h - n
         s0, s1, r0, r1 = self._s[n], self._s[n + 1], self._rate[n], self._rate[n + 1]
@@ -543,24 +582,28 @@ class TimeScaled(Reference):
         return ((2 * u3 - 3 * u2 + 1) * s0 + (u3 - 2 * u2 + u) * h * r0
                 + (-2 * u3 + 3 * u2) * s1 + (u3 - u2) * h * r1)
 
-    def _at(self, s: float) -> tuple[ReferenceState, float, float]:
-        ref = self.base.sample(s)
-        sigma, d_sigma = self._sigma_and_slope(s)
+    def _speed_at(self, t: float) -> float:
+        """Re-timed speed υ_r(s) σ(s) at s = s(t): ``sample(t).v`` without the lead."""
+        s = self.progress(t)
+        v, omega = self.base.speed_and_yaw_rate(s)
         # Between grid nodes the linear σ may exceed σ0 by O(step²): never above it.
-        return ref, min(sigma, self._raw_rate(ref)), d_sigma
+        return v * min(self._sigma_and_slope(s)[0], self._raw_rate(v, omega))
 
     def sample(self, t: float) -> ReferenceState:
-        ref, sigma, d_sigma = self._at(self.progress(t))
-        v = ref.v * sigma
+        s = self.progress(t)
+        ref = self.base.sample(s)
+        sigma, d_sigma = self._sigma_and_slope(s)
+        sigma = min(sigma, self._raw_rate(ref.v, ref.omega))   # as in _speed_at
         if self.speed_lead_time > 0.0:
-            ahead, sigma_ahead, _ = self._at(self.progress(t + self.speed_lead_time))
-            v_ahead = ahead.v * sigma_ahead
+            # The lead samples need the speed only (not the pose): _speed_at.
+            v_ahead = self._speed_at(t + self.speed_lead_time)
             lead_up = self.speed_lead_time_accelerating
-            if abs(v_ahead) > abs(v) and lead_up != self.speed_lead_time:
+            if abs(v_ahead) > abs(ref.v * sigma) and lead_up != self.speed_lead_time:
                 # Speeding up: the (shorter) lead of the accelerations.
-                ahead, sigma_ahead, _ = self._at(self.progress(t + lead_up))
-                v_ahead = ahead.v * sigma_ahead
+                v_ahead = self._speed_at(t + lead_up)
             v = v_ahead
+        else:
+            v = ref.v * sigma
         return ReferenceState(ref.x, ref.y, ref.phi, v, ref.omega * sigma,
                               sigma * (ref.omega_dot * sigma + ref.omega * d_sigma))
 
