@@ -16,6 +16,7 @@ References
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 from .config import param
@@ -63,20 +64,21 @@ class WipParameters:
                 raise ValueError(f'WipParameters.{field.name} must be > 0, got {value!r}')
 
     # Derived quantities (docs/paper.md §1: the only reading under which (1) is
-    # the Euler-Lagrange system of a consistent Lagrangian).
+    # the Euler-Lagrange system of a consistent Lagrangian). Computed once per instance
+    # (the instance is frozen): the estimator evaluates eq. (1)'s input gains every period.
 
-    @property
+    @functools.cached_property
     def effective_mass(self) -> float:
         """m_v = m_p + m_c + 2 (m_w + J_ω / r²), total translational mass [kg]."""
         return (self.body_mass + self.chassis_mass
                 + 2.0 * (self.wheel_mass + self.wheel_inertia / self.wheel_radius ** 2))
 
-    @property
+    @functools.cached_property
     def pitch_inertia(self) -> float:
         """J_θ = I_c + m_p l², body pitch inertia about the axle [kg m²]."""
         return self.body_pitch_inertia_com + self.body_mass * self.com_height ** 2
 
-    @property
+    @functools.cached_property
     def yaw_inertia_total(self) -> float:
         """J_ϕ = J_υ + d² (m_w + J_ω / r²) / 2, yaw inertia at θ = 0 [kg m²]."""
         return (self.yaw_inertia
