@@ -1,6 +1,7 @@
 """Path following by time scaling (references.TimeScaled, the default): the reference
 slows where the path would exceed υmax or ωmax, every kind, and the trifolium goal."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -104,6 +105,53 @@ def test_trifolium_slows_at_its_petal_tips_only():
     omega = np.abs([timed.sample(ti).omega for ti in t])
     assert omega.max() == pytest.approx(0.2, abs=1e-9)
     assert timed.progress(90.0) < 90.0
+
+
+def test_references_of_one_configuration_share_their_tables_and_values():
+    # make_reference shares the re-timing tables among the TimeScaled of one path and
+    # limits (every run of a campaign re-times the same path once): the samples are those
+    # of a TimeScaled with tables of its own, whatever the order of the queries.
+    config = ReferenceConfig(kind='figure_eight', figure_eight_period=20.0,
+                             path_max_speed=0.8, path_max_yaw_rate=0.2)
+    own = make_reference(dataclasses.replace(config, path_max_speed=0.7))
+    first, second = make_reference(config), make_reference(config)
+    assert second._s is first._s and second._sigma is first._sigma
+    other_lead = make_reference(dataclasses.replace(config, path_speed_lead_time=0.3))
+    assert other_lead._s is first._s            # the tables do not depend on the lead
+    assert own._s is not first._s               # other limits: other tables
+    alone = TimeScaled(first.base, 0.8, 0.2, config.path_progress_rate_limit,
+                       speed_lead_time=config.path_speed_lead_time,
+                       speed_lead_time_accelerating=config.path_speed_lead_time_accelerating)
+    assert alone._s is not first._s
+    times = np.arange(0.0, 60.0, 0.37)
+    late = [second.sample(t) for t in times[::-1]]       # far ahead first
+    assert [first.sample(t) for t in times] == late[::-1] == [alone.sample(t) for t in times]
+
+
+def test_shared_tables_are_bounded_per_thread(monkeypatch):
+    import threading
+    from wip_control.core import references
+    config = ReferenceConfig(kind='circle')
+    tables = references.shared_tables(('test', config))
+    assert references.shared_tables(('test', config)) is tables
+    # Only the last MAX_SHARED_CONFIGURATIONS configurations are kept.
+    for i in range(references.MAX_SHARED_CONFIGURATIONS):
+        references.shared_tables(('test', i))
+    assert references.shared_tables(('test', config)) is not tables
+    # Another thread has tables of its own.
+    seen = []
+    thread = threading.Thread(target=lambda: seen.append(
+        references.shared_tables(('test', config))))
+    thread.start()
+    thread.join(timeout=10.0)
+    assert seen and seen[0] is not references.shared_tables(('test', config))
+    # Tables grown beyond MAX_SHARED_NODES are no longer offered (nor kept for sharing).
+    monkeypatch.setattr(references.RetimingTables, 'MAX_SHARED_NODES', 500)
+    long_run = make_reference(config)
+    long_run.sample(4.0)                                  # 400 nodes: still shared
+    assert make_reference(config)._s is long_run._s
+    long_run.sample(6.0)                                  # 600 nodes
+    assert make_reference(config)._s is not long_run._s
 
 
 def test_omega_dot_is_the_derivative_of_omega():

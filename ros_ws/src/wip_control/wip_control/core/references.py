@@ -30,9 +30,11 @@ References
 from __future__ import annotations
 
 import bisect
+import collections
 import dataclasses
 import math
-from typing import NamedTuple, Sequence
+import threading
+from typing import Hashable, NamedTuple, Sequence
 
 from .config import ConfigError, param
 
@@ -446,7 +448,9 @@ class TimeScaled(Reference):
     (σ linear between nodes, and never above σ0 at the sampled s); s(t) is integrated by
     RK4 on a grid of ``step`` in t and interpolated by cubic Hermite (s and ṡ known at
     the nodes). Both tables are extended on demand, always from the start, so the
-    values do not depend on the order of the queries.
+    values do not depend on the order of the queries; :func:`make_reference` therefore
+    lets the time-scaled references of one configuration share them within a thread
+    (every run of a campaign in one process re-times the same path once).
 
     Parameters
     ----------
@@ -460,6 +464,8 @@ class TimeScaled(Reference):
         it reaches the bend instead of T later (docs/mpc.md §8). 0: υ at t.
     speed_lead_time_accelerating : T_a [s], 0 ≤ T_a; used instead of T where the speed
         at t + T is larger than at t (None: T).
+    tables : tables to use and extend, shared with the other TimeScaled of the same
+        base, limits and step (:func:`make_reference`); None: its own.
     """
 
     #: Largest step ahead of the sampled times that one call may integrate [s].
@@ -468,7 +474,8 @@ class TimeScaled(Reference):
     def __init__(self, base: Reference, max_speed: float, max_yaw_rate: float,
                  rate_limit: float = 0.5, step: float = 0.01,
                  speed_lead_time: float = 0.0,
-                 speed_lead_time_accelerating: float | None = None) -> None:
+                 speed_lead_time_accelerating: float | None = None,
+                 tables: 'RetimingTables | None' = None) -> None:
         if not (max_speed > 0.0 and max_yaw_rate > 0.0 and rate_limit > 0.0
                 and step > 0.0):
             raise ValueError('TimeScaled: max_speed, max_yaw_rate, rate_limit and step '
@@ -488,10 +495,15 @@ class TimeScaled(Reference):
         self.step = float(step)
         # Envelope half-width in grid nodes: beyond 1/k the cone exceeds σ0 ≤ 1.
         self._window = int(math.ceil(1.0 / (self.rate_limit * self.step)))
-        self._raw: list[float] = []       # σ0 at s = i·step
-        self._sigma: list[float] = []     # σ at s = i·step
-        self._s = [0.0]                   # s at t = n·step
-        self._rate = [self.rate_at(0.0)]  # σ(s) at those nodes
+        self._tables = tables = tables if tables is not None else RetimingTables()
+        self._raw = tables.raw            # σ0 at s = i·step
+        self._sigma = tables.sigma        # σ at s = i·step
+        self._s = tables.s                # s at t = n·step
+        self._rate = tables.rate          # σ(s) at those nodes
+        with tables.lock:
+            if not self._s:
+                self._rate.append(self.rate_at(0.0))
+                self._s.append(0.0)
 
     def _raw_rate(self, v: float, omega: float) -> float:
         """σ0 for the base's speed ``v`` and yaw rate ``omega``."""
@@ -508,24 +520,25 @@ class TimeScaled(Reference):
             return
         import numpy as np
         w, h = self._window, self.step
-        while len(self._sigma) <= index:
-            start = len(self._sigma)
-            stop = start + 2048
-            while len(self._raw) < stop + w + 1:
-                self._raw.append(self._raw_rate(
-                    *self.base.speed_and_yaw_rate(len(self._raw) * h)))
-            raw = np.asarray(self._raw)
-            env = raw[start:stop].copy()
-            for d in range(1, w + 1):
-                cone = self.rate_limit * d * h
-                env = np.minimum(env, raw[start + d:stop + d] + cone)
-                lo = max(0, start - d)
-                shifted = raw[lo:stop - d]
-                if len(shifted) < stop - start:   # before s = 0: no constraint
-                    shifted = np.concatenate([np.full(stop - start - len(shifted), np.inf),
-                                              shifted])
-                env = np.minimum(env, shifted + cone)
-            self._sigma.extend(float(v) for v in env)
+        with self._tables.lock:
+            while len(self._sigma) <= index:
+                start = len(self._sigma)
+                stop = start + 2048
+                while len(self._raw) < stop + w + 1:
+                    self._raw.append(self._raw_rate(
+                        *self.base.speed_and_yaw_rate(len(self._raw) * h)))
+                raw = np.asarray(self._raw)
+                env = raw[start:stop].copy()
+                for d in range(1, w + 1):
+                    cone = self.rate_limit * d * h
+                    env = np.minimum(env, raw[start + d:stop + d] + cone)
+                    lo = max(0, start - d)
+                    shifted = raw[lo:stop - d]
+                    if len(shifted) < stop - start:   # before s = 0: no constraint
+                        shifted = np.concatenate([np.full(stop - start - len(shifted),
+                                                          np.inf), shifted])
+                    env = np.minimum(env, shifted + cone)
+                self._sigma.extend(float(v) for v in env)
 
     def _sigma_and_slope(self, s: float) -> tuple[float, float]:
         """σ(s) (linear between grid nodes) and dσ/ds; s < 0 takes σ(0)."""
@@ -546,14 +559,18 @@ class TimeScaled(Reference):
 
     def _extend(self, n: int) -> None:
         s_list, r_list, h = self._s, self._rate, self.step
-        while len(s_list) <= n:
-            s, k1 = s_list[-1], r_list[-1]
-            k2 = self.rate_at(s + 0.5 * h * k1)
-            k3 = self.rate_at(s + 0.5 * h * k2)
-            k4 = self.rate_at(s + h * k3)
-            s_next = s + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-            s_list.append(s_next)
-            r_list.append(self.rate_at(s_next))
+        with self._tables.lock:
+            while len(s_list) <= n:
+                s, k1 = s_list[-1], r_list[-1]
+                k2 = self.rate_at(s + 0.5 * h * k1)
+                k3 = self.rate_at(s + 0.5 * h * k2)
+                k4 = self.rate_at(s + h * k3)
+                s_next = s + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+                # σ(s) first: readers check the length of s (lock-free).
+                r_list.append(self.rate_at(s_next))
+                s_list.append(s_next)
+        if len(s_list) > RetimingTables.MAX_SHARED_NODES:
+            _unshare(self._tables)
 
     def progress(self, t: float) -> float:
         """s(t) [s of the base reference]; s = σ(0) t before t = 0.
@@ -606,6 +623,59 @@ class TimeScaled(Reference):
             v = ref.v * sigma
         return ReferenceState(ref.x, ref.y, ref.phi, v, ref.omega * sigma,
                               sigma * (ref.omega_dot * sigma + ref.omega * d_sigma))
+
+
+class RetimingTables:
+    """The tables of a :class:`TimeScaled`: σ0 and σ every ``step`` of s, s and σ(s)
+    every ``step`` of t. They are a function of the base path, the limits and the step
+    only (extended on demand, always from the start), so TimeScaled objects of the same
+    configuration can share them (:func:`make_reference`). They are only appended to,
+    under ``lock``, and every value is final once written, so readers need no lock.
+    """
+
+    #: Tables longer than this many nodes (1000 s of a 10 ms step; about 13 MB for the
+    #: four) are no longer offered for sharing, so that a process does not keep the
+    #: tables of a long run after it.
+    MAX_SHARED_NODES = 100_000
+
+    __slots__ = ('raw', 'sigma', 's', 'rate', 'lock')
+
+    def __init__(self) -> None:
+        self.raw: list[float] = []
+        self.sigma: list[float] = []
+        self.s: list[float] = []
+        self.rate: list[float] = []
+        self.lock = threading.RLock()   # reentrant: extending s extends σ
+
+
+#: Per thread: configuration key -> RetimingTables, the most recently used last.
+_shared = threading.local()
+#: Configurations whose tables a thread keeps for sharing.
+MAX_SHARED_CONFIGURATIONS = 4
+
+
+def shared_tables(key: Hashable) -> RetimingTables:
+    """The tables this thread shares among the TimeScaled of configuration ``key`` (new
+    ones the first time)."""
+    cache = getattr(_shared, 'tables', None)
+    if cache is None:
+        cache = _shared.tables = collections.OrderedDict()
+    tables = cache.pop(key, None)
+    if tables is None:
+        tables = RetimingTables()
+    cache[key] = tables
+    while len(cache) > MAX_SHARED_CONFIGURATIONS:
+        cache.popitem(last=False)
+    return tables
+
+
+def _unshare(tables: RetimingTables) -> None:
+    """Stop offering ``tables`` for sharing (its users keep it)."""
+    cache = getattr(_shared, 'tables', None)
+    if cache:
+        for key, value in list(cache.items()):
+            if value is tables:
+                del cache[key]
 
 
 def distance_to_path(reference: Reference, x: Sequence[float], y: Sequence[float],
@@ -734,10 +804,14 @@ def make_reference(config: ReferenceConfig | None = None) -> Reference:
     config.validate()
     base = _make_base_reference(config)
     if config.time_scaling:
+        # The tables depend on neither lead time: one key for every lead.
+        key = dataclasses.replace(config, path_speed_lead_time=0.0,
+                                  path_speed_lead_time_accelerating=0.0)
         return TimeScaled(base, config.path_max_speed, config.path_max_yaw_rate,
                           config.path_progress_rate_limit,
                           speed_lead_time=config.path_speed_lead_time,
-                          speed_lead_time_accelerating=config.path_speed_lead_time_accelerating)
+                          speed_lead_time_accelerating=config.path_speed_lead_time_accelerating,
+                          tables=shared_tables(key))
     return base
 
 
