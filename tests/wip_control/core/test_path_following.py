@@ -128,6 +128,14 @@ def test_references_of_one_configuration_share_their_tables_and_values():
     assert [first.sample(t) for t in times] == late[::-1] == [alone.sample(t) for t in times]
 
 
+def test_rate_at_is_the_interpolated_sigma_to_the_bit():
+    # rate_at (the RK4 of s(t) and the lead speeds) and _sigma_and_slope (the sample's
+    # ω̇) interpolate σ separately: the same floats, on and between the grid nodes.
+    timed = TimeScaled(Trifolium(), 1.2, 0.2)
+    for s in [-0.5, 0.0, 1e-9, 0.01, 0.015, 7.3, 15.0] + list(np.arange(0.0, 50.0, 0.0037)):
+        assert timed.rate_at(s) == timed._sigma_and_slope(s)[0]
+
+
 def test_shared_tables_are_bounded_per_thread(monkeypatch):
     import threading
     from wip_control.core import references

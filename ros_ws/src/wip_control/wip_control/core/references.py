@@ -134,7 +134,15 @@ class Trifolium(Reference):
                                  *self.derivatives(t))
 
     def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
-        return _speed_and_yaw_rate(*self.derivatives(t))
+        # The first two derivatives of :meth:`derivatives`, the same expressions.
+        a_half, w = 0.5 * self.size, self.angular_frequency
+        angle_a, angle_b = 4.0 * w * t, 2.0 * w * t
+        ca, sa = math.cos(angle_a), math.sin(angle_a)
+        cb, sb = math.cos(angle_b), math.sin(angle_b)
+        w2 = w * w
+        return _speed_and_yaw_rate(
+            a_half * w * (-4.0 * sa - 2.0 * sb), a_half * w * (4.0 * ca - 2.0 * cb),
+            -a_half * w2 * (16.0 * ca + 4.0 * cb), -a_half * w2 * (16.0 * sa - 4.0 * sb))
 
 
 class Circle(Reference):
@@ -554,8 +562,17 @@ class TimeScaled(Reference):
         return a + (b - a) * (u - i), (b - a) / self.step
 
     def rate_at(self, s: float) -> float:
-        """σ(s) = ds/dt ∈ (0, 1] (linear between the grid nodes)."""
-        return self._sigma_and_slope(s)[0]
+        """σ(s) = ds/dt ∈ (0, 1] (linear between the grid nodes): the σ of
+        :meth:`_sigma_and_slope`, without the slope."""
+        if s <= 0.0:
+            return self._sigma_and_slope(s)[0]
+        u = s / self.step
+        i = int(u)
+        sigma = self._sigma
+        if i + 1 >= len(sigma):
+            self._extend_sigma(i + 1)
+        a = sigma[i]
+        return a + (sigma[i + 1] - a) * (u - i)
 
     def _extend(self, n: int) -> None:
         s_list, r_list, h = self._s, self._rate, self.step
@@ -604,7 +621,7 @@ class TimeScaled(Reference):
         s = self.progress(t)
         v, omega = self.base.speed_and_yaw_rate(s)
         # Between grid nodes the linear σ may exceed σ0 by O(step²): never above it.
-        return v * min(self._sigma_and_slope(s)[0], self._raw_rate(v, omega))
+        return v * min(self.rate_at(s), self._raw_rate(v, omega))
 
     def sample(self, t: float) -> ReferenceState:
         s = self.progress(t)
