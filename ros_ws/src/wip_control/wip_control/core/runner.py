@@ -163,7 +163,8 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
 
         # 8: the plant, RK4 at plant_rate with the torques held.
         state = hold(state, tau_left, tau_right, d_tick, dt_plant)
-        if not math.isfinite(math.fsum(state)):
+        # One sum (a NaN or inf propagates), each value only if that is not finite.
+        if not (math.isfinite(sum(state)) or all(map(math.isfinite, state))):
             raise ValueError(f'plant state became non-finite at t = {t + dt_control:.3f} s: '
                              f'{state} (check the disturbances)')
         if progress is not None and t >= next_progress:
