@@ -128,6 +128,36 @@ def test_references_of_one_configuration_share_their_tables_and_values():
     assert [first.sample(t) for t in times] == late[::-1] == [alone.sample(t) for t in times]
 
 
+def test_remembered_states_give_the_same_samples_in_any_order():
+    # With a speed lead, sample(t) remembers the re-timed states by their time (the lead
+    # asks for times sampled again later): the samples are those computed afresh, for a
+    # loop running forward at 200 Hz (where most are remembered), backwards, at random
+    # times and repeated times; and what is remembered stays bounded.
+    config = ReferenceConfig(path_speed_lead_time=0.75, path_speed_lead_time_accelerating=0.6)
+    lead, lead_up = config.path_speed_lead_time, config.path_speed_lead_time_accelerating
+
+    def fresh(t):
+        # The definition, on a reference that has sampled nothing.
+        timed = TimeScaled(Trifolium(), config.path_max_speed, config.path_max_yaw_rate,
+                           config.path_progress_rate_limit)
+        state = timed.sample(t)
+        ahead = timed.sample(t + lead).v
+        if abs(ahead) > abs(state.v):
+            ahead = timed.sample(t + lead_up).v
+        return state._replace(v=ahead)
+
+    timed = make_reference(config)
+    forward = [k * 0.005 for k in range(6001)]
+    samples = [timed.sample(t) for t in forward]
+    assert len(timed._memo) <= 2 * max(TimeScaled.MEMO_MIN_SIZE, 400)
+    rng = np.random.default_rng(3)
+    checked = list(rng.choice(6001, 40, replace=False))
+    assert [samples[k] for k in checked] == [fresh(forward[k]) for k in checked]
+    others = [29.999, 0.0, 12.345, 12.345, 3.0, -0.2] + list(rng.uniform(0.0, 40.0, 20))
+    assert [timed.sample(t) for t in others] == [fresh(t) for t in others]
+    assert [timed.sample(t) for t in forward[::-97]] == [samples[k] for k in range(6000, -1, -97)]
+
+
 def test_rate_at_is_the_interpolated_sigma_to_the_bit():
     # rate_at (the RK4 of s(t) and the lead speeds) and _sigma_and_slope (the sample's
     # ω̇) interpolate σ separately: the same floats, on and between the grid nodes.

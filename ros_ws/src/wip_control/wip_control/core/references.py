@@ -478,6 +478,8 @@ class TimeScaled(Reference):
 
     #: Largest step ahead of the sampled times that one call may integrate [s].
     MAX_EXTENSION = 3600.0
+    #: Remembered re-timed states kept before the older ones are dropped (see sample).
+    MEMO_MIN_SIZE = 512
 
     def __init__(self, base: Reference, max_speed: float, max_yaw_rate: float,
                  rate_limit: float = 0.5, step: float = 0.01,
@@ -512,6 +514,8 @@ class TimeScaled(Reference):
             if not self._s:
                 self._rate.append(self.rate_at(0.0))
                 self._s.append(0.0)
+        self._memo: dict[float, ReferenceState] = {}   # t -> _timed(t), see sample
+        self._memo_limit = self.MEMO_MIN_SIZE
 
     def _raw_rate(self, v: float, omega: float) -> float:
         """σ0 for the base's speed ``v`` and yaw rate ``omega``."""
@@ -623,23 +627,44 @@ class TimeScaled(Reference):
         # Between grid nodes the linear σ may exceed σ0 by O(step²): never above it.
         return v * min(self.rate_at(s), self._raw_rate(v, omega))
 
-    def sample(self, t: float) -> ReferenceState:
+    def _timed(self, t: float) -> ReferenceState:
+        """The re-timed state at t, without the speed lead: the base's pose at s(t), υ_r σ,
+        ω_r σ and σ (ω̇_r σ + ω_r dσ/ds)."""
         s = self.progress(t)
         ref = self.base.sample(s)
         sigma, d_sigma = self._sigma_and_slope(s)
         sigma = min(sigma, self._raw_rate(ref.v, ref.omega))   # as in _speed_at
-        if self.speed_lead_time > 0.0:
-            # The lead samples need the speed only (not the pose): _speed_at.
-            v_ahead = self._speed_at(t + self.speed_lead_time)
-            lead_up = self.speed_lead_time_accelerating
-            if abs(v_ahead) > abs(ref.v * sigma) and lead_up != self.speed_lead_time:
-                # Speeding up: the (shorter) lead of the accelerations.
-                v_ahead = self._speed_at(t + lead_up)
-            v = v_ahead
-        else:
-            v = ref.v * sigma
-        return ReferenceState(ref.x, ref.y, ref.phi, v, ref.omega * sigma,
+        return ReferenceState(ref.x, ref.y, ref.phi, ref.v * sigma, ref.omega * sigma,
                               sigma * (ref.omega_dot * sigma + ref.omega * d_sigma))
+
+    def sample(self, t: float) -> ReferenceState:
+        if self.speed_lead_time <= 0.0:
+            return self._timed(t)
+        # With a speed lead, the re-timed states are remembered by their time (the float):
+        # a loop sampling every h asks at t + T for a time it samples again later (the
+        # runner's t_k + 0.75 is t_{k+150} to the bit at 98 % of the ticks, t_k + 0.6 is
+        # the t_j + 0.75 of a tick 30 earlier at 70 %), so most states are computed once.
+        memo = self._memo
+        state = memo.get(t)
+        if state is None:
+            state = memo[t] = self._timed(t)
+        t_lead = t + self.speed_lead_time
+        ahead = memo.get(t_lead)
+        if ahead is None:
+            ahead = memo[t_lead] = self._timed(t_lead)
+        v_ahead = ahead.v
+        lead_up = self.speed_lead_time_accelerating
+        if abs(v_ahead) > abs(state.v) and lead_up != self.speed_lead_time:
+            # Speeding up: the (shorter) lead of the accelerations, the speed only if it
+            # is not remembered.
+            ahead = memo.get(t + lead_up)
+            v_ahead = ahead.v if ahead is not None else self._speed_at(t + lead_up)
+        if len(memo) > self._memo_limit:
+            # Forget the states before t (a loop runs forward), amortised O(1).
+            self._memo = {time: kept for time, kept in memo.items() if time >= t}
+            self._memo_limit = max(self.MEMO_MIN_SIZE, 2 * len(self._memo))
+        return ReferenceState(state.x, state.y, state.phi, v_ahead, state.omega,
+                              state.omega_dot)
 
 
 class RetimingTables:
