@@ -156,6 +156,10 @@ def test_remembered_states_give_the_same_samples_in_any_order():
     others = [29.999, 0.0, 12.345, 12.345, 3.0, -0.2] + list(rng.uniform(0.0, 40.0, 20))
     assert [timed.sample(t) for t in others] == [fresh(t) for t in others]
     assert [timed.sample(t) for t in forward[::-97]] == [samples[k] for k in range(6000, -1, -97)]
+    # Running backwards nothing is behind t to forget: bounded all the same.
+    for t in forward[::-1]:
+        timed.sample(t)
+        assert len(timed._memo) <= 2 * TimeScaled.MEMO_MAX_SIZE + 3
 
 
 def test_rate_at_is_the_interpolated_sigma_to_the_bit():

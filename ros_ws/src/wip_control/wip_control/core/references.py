@@ -478,8 +478,10 @@ class TimeScaled(Reference):
 
     #: Largest step ahead of the sampled times that one call may integrate [s].
     MAX_EXTENSION = 3600.0
-    #: Remembered re-timed states kept before the older ones are dropped (see sample).
+    #: Remembered re-timed states kept before the older ones are dropped (see sample),
+    #: and at most kept after that (a 5 s lead at 1 kHz remembers 5000 states ahead).
     MEMO_MIN_SIZE = 512
+    MEMO_MAX_SIZE = 8192
 
     def __init__(self, base: Reference, max_speed: float, max_yaw_rate: float,
                  rate_limit: float = 0.5, step: float = 0.01,
@@ -660,8 +662,10 @@ class TimeScaled(Reference):
             ahead = memo.get(t + lead_up)
             v_ahead = ahead.v if ahead is not None else self._speed_at(t + lead_up)
         if len(memo) > self._memo_limit:
-            # Forget the states before t (a loop runs forward), amortised O(1).
-            self._memo = {time: kept for time, kept in memo.items() if time >= t}
+            # Forget the states before t (a loop runs forward), amortised O(1); all of
+            # them if that leaves too many (queries running backwards, say).
+            memo = {time: kept for time, kept in memo.items() if time >= t}
+            self._memo = memo if len(memo) <= self.MEMO_MAX_SIZE else {}
             self._memo_limit = max(self.MEMO_MIN_SIZE, 2 * len(self._memo))
         return ReferenceState(state.x, state.y, state.phi, v_ahead, state.omega,
                               state.omega_dot)
