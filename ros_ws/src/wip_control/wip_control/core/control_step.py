@@ -53,13 +53,16 @@ class GuidanceStage:
 
     def step(self, t: float, reference: ReferenceState, x: float, y: float,
              phi: float) -> VelocityCommand:
-        saved = dict(vars(self.generator))
-        command = self.generator.step(t, reference, x, y, phi)
+        # (Not a copy of vars(generator): that gives the object a dict of its own, which
+        # slows every attribute access to it afterwards, 4 % of a run of the runner.)
+        generator = self.generator
+        saved = generator.state()
+        command = generator.step(t, reference, x, y, phi)
         v_d, omega_d, omega_d_dot, x_e, y_e, phi_e = command
         if not _all_finite(v_d + omega_d + omega_d_dot + x_e + y_e + phi_e, command):
             # Finite but huge inputs (a heading of 1e308 rad) can overflow: keep the
             # derivative filter's state unpoisoned.
-            vars(self.generator).update(saved)
+            generator.restore(saved)
             raise ControlOverflow(f'non-finite command {tuple(command)} from finite inputs '
                                   '(overflow); generator state kept')
         return command
