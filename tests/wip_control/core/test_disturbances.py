@@ -177,6 +177,20 @@ def test_sample_many_equals_sample_at_every_time():
         'longitudinal': [{'kind': 'pulse', 'amplitude': 10.0, 'start_time': 0.3, 'width': 0.1},
                          {'kind': 'noise', 'std': 0.2, 'noise_period': 0.01}],
         'tilt': []}, 'disturbances')
+    # Every kind, and a channel of three components (summed in the same order).
+    config_every_kind = DisturbanceConfig.from_mapping({
+        'yaw': [{'kind': 'step', 'amplitude': -0.7, 'start_time': 0.5}],
+        'longitudinal': [{'kind': 'sine', 'amplitude': 0.3, 'frequency': 7.0, 'phase': 0.2,
+                          'start_time': 0.25},
+                         {'kind': 'step', 'amplitude': 0.1, 'start_time': 0.1},
+                         {'kind': 'pulse', 'amplitude': 2.0, 'start_time': 0.6, 'width': 0.2}],
+        'tilt': [{'kind': 'noise', 'std': 0.5, 'noise_period': 0.002, 'start_time': 0.05}]},
+        'disturbances')
+    disturbances = Disturbances(config_every_kind, seed=9)
+    times = [k * 0.005 + j * 0.001 for k in range(200) for j in range(5)]
+    table = disturbances.sample_many(times)
+    assert [tuple(row) for row in table] == [disturbances.sample(t) for t in times]
+    assert np.count_nonzero(table, axis=0).min() >= 500   # every channel is exercised
     disturbances = Disturbances(config, seed=4)
     times = [k * 0.005 + j * 0.001 for k in range(200) for j in range(5)]
     table = disturbances.sample_many(times)

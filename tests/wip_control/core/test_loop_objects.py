@@ -86,6 +86,25 @@ def test_the_guidance_and_yaw_stages_keep_their_state_on_overflow():
     assert yaw.step(0.0, 0.0, VelocityCommand(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)).tau_omega == 0.0
 
 
+def test_the_generators_state_is_everything_its_step_changes():
+    # The guidance stage restores generator.state() after an overflow: every attribute
+    # that step() changes (filter, saturation flags) must be in it.
+    guidance = GuidanceStage()
+    generator = guidance.generator
+    reference = ReferenceState(0.0, 0.0, 0.0, 0.5, 0.0, 0.0)
+    flags = set()
+    for t, ref_y in ((0.0, 0.0), (H, 40.0), (2 * H, -40.0), (3 * H, 0.1)):
+        ref = reference._replace(y=ref_y, phi=ref_y / 16.0, v=0.5 + 3.0 * abs(ref_y))
+        before, state = dict(vars(generator)), generator.state()
+        generator.step(t, ref, 0.0, 0.0, 0.0)
+        assert dict(vars(generator)) != before     # the step changed something
+        generator.restore(state)
+        assert dict(vars(generator)) == before
+        generator.step(t, ref, 0.0, 0.0, 0.0)
+        flags.add((generator.saturated_speed, generator.saturated_yaw_rate))
+    assert {(False, False), (True, True)} <= flags  # the flags were exercised both ways
+
+
 def test_the_drive_stage_solves_at_its_ticks_and_holds_its_torque():
     # Without the MPC's start-up rule (its first tick acts on no speed error; tested in
     # test_mpc.py): this test asks the first tick for a torque.

@@ -1,6 +1,7 @@
 """Path following by time scaling (references.TimeScaled, the default): the reference
 slows where the path would exceed υmax or ωmax, every kind, and the trifolium goal."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -71,7 +72,7 @@ def test_the_speed_lead_is_the_speed_ahead_and_changes_nothing_else(kind):
                                                             a.omega_dot)
         ahead = plain.sample(t + lead).v
         expected = plain.sample(t + lead_up).v if abs(ahead) > abs(a.v) else ahead
-        assert b.v == pytest.approx(expected, abs=1e-12)
+        assert b.v == expected   # the same floats (TimeScaled._speed_at)
         changed += abs(b.v - a.v) > 1e-6
     # Where the path speed changes, the lead changes υ (the check above is not vacuous);
     # the line and the circle run at one speed.
@@ -104,6 +105,95 @@ def test_trifolium_slows_at_its_petal_tips_only():
     omega = np.abs([timed.sample(ti).omega for ti in t])
     assert omega.max() == pytest.approx(0.2, abs=1e-9)
     assert timed.progress(90.0) < 90.0
+
+
+def test_references_of_one_configuration_share_their_tables_and_values():
+    # make_reference shares the re-timing tables among the TimeScaled of one path and
+    # limits (every run of a campaign re-times the same path once): the samples are those
+    # of a TimeScaled with tables of its own, whatever the order of the queries.
+    config = ReferenceConfig(kind='figure_eight', figure_eight_period=20.0,
+                             path_max_speed=0.8, path_max_yaw_rate=0.2)
+    own = make_reference(dataclasses.replace(config, path_max_speed=0.7))
+    first, second = make_reference(config), make_reference(config)
+    assert second._s is first._s and second._sigma is first._sigma
+    other_lead = make_reference(dataclasses.replace(config, path_speed_lead_time=0.3))
+    assert other_lead._s is first._s            # the tables do not depend on the lead
+    assert own._s is not first._s               # other limits: other tables
+    alone = TimeScaled(first.base, 0.8, 0.2, config.path_progress_rate_limit,
+                       speed_lead_time=config.path_speed_lead_time,
+                       speed_lead_time_accelerating=config.path_speed_lead_time_accelerating)
+    assert alone._s is not first._s
+    times = np.arange(0.0, 60.0, 0.37)
+    late = [second.sample(t) for t in times[::-1]]       # far ahead first
+    assert [first.sample(t) for t in times] == late[::-1] == [alone.sample(t) for t in times]
+
+
+def test_remembered_states_give_the_same_samples_in_any_order():
+    # With a speed lead, sample(t) remembers the re-timed states by their time (the lead
+    # asks for times sampled again later): the samples are those computed afresh, for a
+    # loop running forward at 200 Hz (where most are remembered), backwards, at random
+    # times and repeated times; and what is remembered stays bounded.
+    config = ReferenceConfig(path_speed_lead_time=0.75, path_speed_lead_time_accelerating=0.6)
+    lead, lead_up = config.path_speed_lead_time, config.path_speed_lead_time_accelerating
+
+    def fresh(t):
+        # The definition, on a reference that has sampled nothing.
+        timed = TimeScaled(Trifolium(), config.path_max_speed, config.path_max_yaw_rate,
+                           config.path_progress_rate_limit)
+        state = timed.sample(t)
+        ahead = timed.sample(t + lead).v
+        if abs(ahead) > abs(state.v):
+            ahead = timed.sample(t + lead_up).v
+        return state._replace(v=ahead)
+
+    timed = make_reference(config)
+    forward = [k * 0.005 for k in range(6001)]
+    samples = [timed.sample(t) for t in forward]
+    assert len(timed._memo) <= 2 * max(TimeScaled.MEMO_MIN_SIZE, 400)
+    rng = np.random.default_rng(3)
+    checked = list(rng.choice(6001, 40, replace=False))
+    assert [samples[k] for k in checked] == [fresh(forward[k]) for k in checked]
+    others = [29.999, 0.0, 12.345, 12.345, 3.0, -0.2] + list(rng.uniform(0.0, 40.0, 20))
+    assert [timed.sample(t) for t in others] == [fresh(t) for t in others]
+    assert [timed.sample(t) for t in forward[::-97]] == [samples[k] for k in range(6000, -1, -97)]
+    # Running backwards nothing is behind t to forget: bounded all the same.
+    for t in forward[::-1]:
+        timed.sample(t)
+        assert len(timed._memo) <= 2 * TimeScaled.MEMO_MAX_SIZE + 3
+
+
+def test_rate_at_is_the_interpolated_sigma_to_the_bit():
+    # rate_at (the RK4 of s(t) and the lead speeds) and _sigma_and_slope (the sample's
+    # ω̇) interpolate σ separately: the same floats, on and between the grid nodes.
+    timed = TimeScaled(Trifolium(), 1.2, 0.2)
+    for s in [-0.5, 0.0, 1e-9, 0.01, 0.015, 7.3, 15.0] + list(np.arange(0.0, 50.0, 0.0037)):
+        assert timed.rate_at(s) == timed._sigma_and_slope(s)[0]
+
+
+def test_shared_tables_are_bounded_per_thread(monkeypatch):
+    import threading
+    from wip_control.core import references
+    config = ReferenceConfig(kind='circle')
+    tables = references.shared_tables(('test', config))
+    assert references.shared_tables(('test', config)) is tables
+    # Only the last MAX_SHARED_CONFIGURATIONS configurations are kept.
+    for i in range(references.MAX_SHARED_CONFIGURATIONS):
+        references.shared_tables(('test', i))
+    assert references.shared_tables(('test', config)) is not tables
+    # Another thread has tables of its own.
+    seen = []
+    thread = threading.Thread(target=lambda: seen.append(
+        references.shared_tables(('test', config))))
+    thread.start()
+    thread.join(timeout=10.0)
+    assert seen and seen[0] is not references.shared_tables(('test', config))
+    # Tables grown beyond MAX_SHARED_NODES are no longer offered (nor kept for sharing).
+    monkeypatch.setattr(references.RetimingTables, 'MAX_SHARED_NODES', 500)
+    long_run = make_reference(config)
+    long_run.sample(4.0)                                  # 400 nodes: still shared
+    assert make_reference(config)._s is long_run._s
+    long_run.sample(6.0)                                  # 600 nodes
+    assert make_reference(config)._s is not long_run._s
 
 
 def test_omega_dot_is_the_derivative_of_omega():

@@ -161,6 +161,17 @@ def test_bad_waypoint_lists_are_rejected(points, message):
         Waypoints(points)
 
 
+@pytest.mark.parametrize('ref', SMOOTH + [Waypoints([(0.0, 0.0), (4.0, 0.0), (4.0, 4.0)])],
+                         ids=IDS + ['waypoints'])
+def test_speed_and_yaw_rate_are_the_samples_to_the_bit(ref):
+    # TimeScaled takes its lead speeds and its σ0 table from speed_and_yaw_rate: it must
+    # give the very floats of sample(t).v and .omega, or the re-timed reference (and every
+    # run) would change in its last bits.
+    for t in np.linspace(-1.0, 50.0, 1001):
+        s = ref.sample(t)
+        assert ref.speed_and_yaw_rate(t) == (s.v, s.omega)
+
+
 # --- Config ----------------------------------------------------------------------------
 
 def test_make_reference_defaults_to_the_papers_trifolium():

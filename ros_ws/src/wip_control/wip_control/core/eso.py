@@ -487,7 +487,7 @@ class RateAidedChannel(_ChannelEstimate):
         self.rate_bandwidth = float(rate_bandwidth)
         self.sample_period = float(sample_period)
         self._gains_cache: dict[float, tuple[float, float, float, float]] = {}
-        self._gains(self.sample_period)
+        self._nominal_gains = self._gains(self.sample_period)
         self.reset(initial_output, initial_time)
 
     def _gains(self, h: float) -> tuple[float, float, float, float]:
@@ -526,7 +526,9 @@ class RateAidedChannel(_ChannelEstimate):
             return self.x1, self.x2, self.f
         if abs(h - self.sample_period) <= _PERIOD_TOLERANCE * self.sample_period:
             h = self.sample_period
-        l1, l2, m1, m2 = self._gains(h)
+            l1, l2, m1, m2 = self._nominal_gains
+        else:
+            l1, l2, m1, m2 = self._gains(h)
         # 1: complementary filter with bias (predict with the corrected gyro, correct
         # with the angle).
         # Trapezoidal integration of the gyro: exact for a constant acceleration (the

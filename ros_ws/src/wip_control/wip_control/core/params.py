@@ -28,7 +28,9 @@ STANDARD_GRAVITY = 9.81
 class WipParameters:
     """Masses, lengths and inertias of a WIP, in SI units.
 
-    Attribute names are descriptive; the paper's symbol is given for each.
+    Attribute names are descriptive; the paper's symbol is given for each. Derived, set
+    at construction (not fields): ``effective_mass`` m_v [kg], ``pitch_inertia`` J_θ
+    [kg m²], ``yaw_inertia_total`` J_ϕ [kg m²] (see ``__post_init__``).
     """
 
     body_mass: float = param(25.0, 'kg', 'm_p, mass of the pendulum body',
@@ -61,27 +63,27 @@ class WipParameters:
                                  f'got {value!r}')
             if value <= 0.0:
                 raise ValueError(f'WipParameters.{field.name} must be > 0, got {value!r}')
-
-    # Derived quantities (docs/paper.md §1: the only reading under which (1) is
-    # the Euler-Lagrange system of a consistent Lagrangian).
-
-    @property
-    def effective_mass(self) -> float:
-        """m_v = m_p + m_c + 2 (m_w + J_ω / r²), total translational mass [kg]."""
-        return (self.body_mass + self.chassis_mass
-                + 2.0 * (self.wheel_mass + self.wheel_inertia / self.wheel_radius ** 2))
-
-    @property
-    def pitch_inertia(self) -> float:
-        """J_θ = I_c + m_p l², body pitch inertia about the axle [kg m²]."""
-        return self.body_pitch_inertia_com + self.body_mass * self.com_height ** 2
-
-    @property
-    def yaw_inertia_total(self) -> float:
-        """J_ϕ = J_υ + d² (m_w + J_ω / r²) / 2, yaw inertia at θ = 0 [kg m²]."""
-        return (self.yaw_inertia
-                + self.track_width ** 2
-                * (self.wheel_mass + self.wheel_inertia / self.wheel_radius ** 2) / 2.0)
+        # Derived quantities (docs/paper.md §1: the only reading under which (1) is the
+        # Euler-Lagrange system of a consistent Lagrangian), computed once (the instance
+        # is frozen; the estimator evaluates eq. (1)'s input gains every period). Plain
+        # attributes set here, not cached properties: a cached property's cache is an
+        # instance dict, which slows every attribute read of the instance (1.5 % of a run).
+        # They are not fields: equality, hashing, repr and replace() ignore them.
+        derived = {
+            # m_v = m_p + m_c + 2 (m_w + J_ω / r²), total translational mass [kg].
+            'effective_mass': (self.body_mass + self.chassis_mass
+                               + 2.0 * (self.wheel_mass
+                                        + self.wheel_inertia / self.wheel_radius ** 2)),
+            # J_θ = I_c + m_p l², body pitch inertia about the axle [kg m²].
+            'pitch_inertia': self.body_pitch_inertia_com + self.body_mass * self.com_height ** 2,
+            # J_ϕ = J_υ + d² (m_w + J_ω / r²) / 2, yaw inertia at θ = 0 [kg m²].
+            'yaw_inertia_total': (self.yaw_inertia
+                                  + self.track_width ** 2
+                                  * (self.wheel_mass + self.wheel_inertia
+                                     / self.wheel_radius ** 2) / 2.0),
+        }
+        for name, value in derived.items():
+            object.__setattr__(self, name, value)
 
     def omega_denominator(self, theta: float) -> float:
         """Ω(θ) = m_v J_θ − m_p² l² cos²θ, the determinant of the pitch/forward mass matrix."""

@@ -45,7 +45,6 @@ per-step slacks on extreme states).
 from __future__ import annotations
 
 import enum
-import math
 from typing import NamedTuple
 
 import daqp
@@ -108,7 +107,7 @@ class QpSettings(NamedTuple):
 
 
 def _finite_or_error(z: np.ndarray, status: MpcStatus) -> MpcStatus:
-    if status == MpcStatus.SOLVED and not all(math.isfinite(v) for v in z):
+    if status == MpcStatus.SOLVED and not np.isfinite(z).all():
         return MpcStatus.NON_FINITE_SOLUTION
     return status
 

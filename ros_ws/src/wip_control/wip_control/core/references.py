@@ -30,9 +30,11 @@ References
 from __future__ import annotations
 
 import bisect
+import collections
 import dataclasses
 import math
-from typing import NamedTuple, Sequence
+import threading
+from typing import Hashable, NamedTuple, Sequence
 
 from .config import ConfigError, param
 
@@ -62,6 +64,14 @@ def _from_derivatives(x: float, y: float, phi: float, xd: float, yd: float, xdd:
     return ReferenceState(x, y, phi, math.sqrt(v2), omega, omega_dot)
 
 
+def _speed_and_yaw_rate(xd: float, yd: float, xdd: float, ydd: float,
+                        *_third: float) -> tuple[float, float]:
+    """(υ_r, ω_r) from the derivatives: the expressions of :func:`_from_derivatives`,
+    so the same floats."""
+    v2 = xd * xd + yd * yd
+    return math.sqrt(v2), (xd * ydd - yd * xdd) / v2
+
+
 class Reference:
     """A reference trajectory: :meth:`sample` gives the state at time t [s]."""
 
@@ -71,6 +81,16 @@ class Reference:
     def derivatives(self, t: float) -> tuple[float, ...]:  # pragma: no cover - interface
         """(ẋ, ẏ, ẍ, ÿ, x⃛, y⃛) at t, where defined analytically."""
         raise NotImplementedError
+
+    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
+        """(υ_r, ω_r) at t, the same floats as :meth:`sample`'s ``v`` and ``omega``.
+
+        :class:`TimeScaled` needs only these at its lead times; curves defined by their
+        derivatives override this to skip the pose (its trigonometry is most of a
+        sample's cost).
+        """
+        ref = self.sample(t)
+        return ref.v, ref.omega
 
 
 class Trifolium(Reference):
@@ -95,8 +115,9 @@ class Trifolium(Reference):
 
     def derivatives(self, t: float) -> tuple[float, ...]:
         a_half, w = 0.5 * self.size, self.angular_frequency
-        ca, sa = math.cos(4.0 * w * t), math.sin(4.0 * w * t)
-        cb, sb = math.cos(2.0 * w * t), math.sin(2.0 * w * t)
+        angle_a, angle_b = 4.0 * w * t, 2.0 * w * t
+        ca, sa = math.cos(angle_a), math.sin(angle_a)
+        cb, sb = math.cos(angle_b), math.sin(angle_b)
         w2, w3 = w * w, w * w * w
         return (a_half * w * (-4.0 * sa - 2.0 * sb), a_half * w * (4.0 * ca - 2.0 * cb),
                 -a_half * w2 * (16.0 * ca + 4.0 * cb), -a_half * w2 * (16.0 * sa - 4.0 * sb),
@@ -104,11 +125,24 @@ class Trifolium(Reference):
 
     def sample(self, t: float) -> ReferenceState:
         w = self.angular_frequency
-        r = self.size * math.cos(3.0 * w * t)
-        su = math.sin(3.0 * w * t)
+        u = 3.0 * w * t
+        r = self.size * math.cos(u)
+        su = math.sin(u)
+        wt = w * t
         phi = 4.0 * w * t + _HALF_PI + math.atan2(math.sin(6.0 * w * t), 1.0 + 2.0 * su * su)
-        return _from_derivatives(r * math.cos(w * t), r * math.sin(w * t), phi,
+        return _from_derivatives(r * math.cos(wt), r * math.sin(wt), phi,
                                  *self.derivatives(t))
+
+    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
+        # The first two derivatives of :meth:`derivatives`, the same expressions.
+        a_half, w = 0.5 * self.size, self.angular_frequency
+        angle_a, angle_b = 4.0 * w * t, 2.0 * w * t
+        ca, sa = math.cos(angle_a), math.sin(angle_a)
+        cb, sb = math.cos(angle_b), math.sin(angle_b)
+        w2 = w * w
+        return _speed_and_yaw_rate(
+            a_half * w * (-4.0 * sa - 2.0 * sb), a_half * w * (4.0 * ca - 2.0 * cb),
+            -a_half * w2 * (16.0 * ca + 4.0 * cb), -a_half * w2 * (16.0 * sa - 4.0 * sb))
 
 
 class Circle(Reference):
@@ -147,6 +181,9 @@ class Circle(Reference):
                               self.cy + self.radius * math.sin(beta),
                               beta + self.sign * _HALF_PI, self.speed, self.rate, 0.0)
 
+    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
+        return self.speed, self.rate
+
 
 class StraightLine(Reference):
     """Uniform motion on a straight line from ``start`` [m] along ``heading`` [rad] at
@@ -167,6 +204,9 @@ class StraightLine(Reference):
         d = self.speed * t
         return ReferenceState(self.x0 + d * self._c, self.y0 + d * self._s, self.heading,
                               self.speed, 0.0, 0.0)
+
+    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
+        return self.speed, 0.0
 
 
 class FigureEight(Reference):
@@ -207,6 +247,9 @@ class FigureEight(Reference):
         return _from_derivatives(self.cx + self.size * math.sin(tau),
                                  self.cy + 0.5 * self.size * math.sin(2.0 * tau), phi,
                                  *self.derivatives(t))
+
+    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
+        return _speed_and_yaw_rate(*self.derivatives(t))
 
 
 class _Piece(NamedTuple):
@@ -413,7 +456,9 @@ class TimeScaled(Reference):
     (σ linear between nodes, and never above σ0 at the sampled s); s(t) is integrated by
     RK4 on a grid of ``step`` in t and interpolated by cubic Hermite (s and ṡ known at
     the nodes). Both tables are extended on demand, always from the start, so the
-    values do not depend on the order of the queries.
+    values do not depend on the order of the queries; :func:`make_reference` therefore
+    lets the time-scaled references of one configuration share them within a thread
+    (every run of a campaign in one process re-times the same path once).
 
     Parameters
     ----------
@@ -427,15 +472,22 @@ class TimeScaled(Reference):
         it reaches the bend instead of T later (docs/mpc.md §8). 0: υ at t.
     speed_lead_time_accelerating : T_a [s], 0 ≤ T_a; used instead of T where the speed
         at t + T is larger than at t (None: T).
+    tables : tables to use and extend, shared with the other TimeScaled of the same
+        base, limits and step (:func:`make_reference`); None: its own.
     """
 
     #: Largest step ahead of the sampled times that one call may integrate [s].
     MAX_EXTENSION = 3600.0
+    #: Remembered re-timed states kept before the older ones are dropped (see sample),
+    #: and at most kept after that (a 5 s lead at 1 kHz remembers 5000 states ahead).
+    MEMO_MIN_SIZE = 512
+    MEMO_MAX_SIZE = 8192
 
     def __init__(self, base: Reference, max_speed: float, max_yaw_rate: float,
                  rate_limit: float = 0.5, step: float = 0.01,
                  speed_lead_time: float = 0.0,
-                 speed_lead_time_accelerating: float | None = None) -> None:
+                 speed_lead_time_accelerating: float | None = None,
+                 tables: 'RetimingTables | None' = None) -> None:
         if not (max_speed > 0.0 and max_yaw_rate > 0.0 and rate_limit > 0.0
                 and step > 0.0):
             raise ValueError('TimeScaled: max_speed, max_yaw_rate, rate_limit and step '
@@ -455,17 +507,25 @@ class TimeScaled(Reference):
         self.step = float(step)
         # Envelope half-width in grid nodes: beyond 1/k the cone exceeds σ0 ≤ 1.
         self._window = int(math.ceil(1.0 / (self.rate_limit * self.step)))
-        self._raw: list[float] = []       # σ0 at s = i·step
-        self._sigma: list[float] = []     # σ at s = i·step
-        self._s = [0.0]                   # s at t = n·step
-        self._rate = [self.rate_at(0.0)]  # σ(s) at those nodes
+        self._tables = tables = tables if tables is not None else RetimingTables()
+        self._raw = tables.raw            # σ0 at s = i·step
+        self._sigma = tables.sigma        # σ at s = i·step
+        self._s = tables.s                # s at t = n·step
+        self._rate = tables.rate          # σ(s) at those nodes
+        with tables.lock:
+            if not self._s:
+                self._rate.append(self.rate_at(0.0))
+                self._s.append(0.0)
+        self._memo: dict[float, ReferenceState] = {}   # t -> _timed(t), see sample
+        self._memo_limit = self.MEMO_MIN_SIZE
 
-    def _raw_rate(self, ref: ReferenceState) -> float:
+    def _raw_rate(self, v: float, omega: float) -> float:
+        """σ0 for the base's speed ``v`` and yaw rate ``omega``."""
         sigma = 1.0
-        if ref.v > self.max_speed:
-            sigma = self.max_speed / ref.v
-        if abs(ref.omega) * sigma > self.max_yaw_rate:
-            sigma = self.max_yaw_rate / abs(ref.omega)
+        if v > self.max_speed:
+            sigma = self.max_speed / v
+        if abs(omega) * sigma > self.max_yaw_rate:
+            sigma = self.max_yaw_rate / abs(omega)
         return sigma
 
     def _extend_sigma(self, index: int) -> None:
@@ -474,23 +534,25 @@ class TimeScaled(Reference):
             return
         import numpy as np
         w, h = self._window, self.step
-        while len(self._sigma) <= index:
-            start = len(self._sigma)
-            stop = start + 2048
-            while len(self._raw) < stop + w + 1:
-                self._raw.append(self._raw_rate(self.base.sample(len(self._raw) * h)))
-            raw = np.asarray(self._raw)
-            env = raw[start:stop].copy()
-            for d in range(1, w + 1):
-                cone = self.rate_limit * d * h
-                env = np.minimum(env, raw[start + d:stop + d] + cone)
-                lo = max(0, start - d)
-                shifted = raw[lo:stop - d]
-                if len(shifted) < stop - start:   # before s = 0: no constraint
-                    shifted = np.concatenate([np.full(stop - start - len(shifted), np.inf),
-                                              shifted])
-                env = np.minimum(env, shifted + cone)
-            self._sigma.extend(float(v) for v in env)
+        with self._tables.lock:
+            while len(self._sigma) <= index:
+                start = len(self._sigma)
+                stop = start + 2048
+                while len(self._raw) < stop + w + 1:
+                    self._raw.append(self._raw_rate(
+                        *self.base.speed_and_yaw_rate(len(self._raw) * h)))
+                raw = np.asarray(self._raw)
+                env = raw[start:stop].copy()
+                for d in range(1, w + 1):
+                    cone = self.rate_limit * d * h
+                    env = np.minimum(env, raw[start + d:stop + d] + cone)
+                    lo = max(0, start - d)
+                    shifted = raw[lo:stop - d]
+                    if len(shifted) < stop - start:   # before s = 0: no constraint
+                        shifted = np.concatenate([np.full(stop - start - len(shifted),
+                                                          np.inf), shifted])
+                    env = np.minimum(env, shifted + cone)
+                self._sigma.extend(float(v) for v in env)
 
     def _sigma_and_slope(self, s: float) -> tuple[float, float]:
         """σ(s) (linear between grid nodes) and dσ/ds; s < 0 takes σ(0)."""
@@ -499,24 +561,39 @@ class TimeScaled(Reference):
             return self._sigma[0], 0.0
         u = s / self.step
         i = int(u)
-        self._extend_sigma(i + 1)
-        a, b = self._sigma[i], self._sigma[i + 1]
+        sigma = self._sigma
+        if i + 1 >= len(sigma):   # (tested here: a call per sample costs more than the test)
+            self._extend_sigma(i + 1)
+        a, b = sigma[i], sigma[i + 1]
         return a + (b - a) * (u - i), (b - a) / self.step
 
     def rate_at(self, s: float) -> float:
-        """σ(s) = ds/dt ∈ (0, 1] (linear between the grid nodes)."""
-        return self._sigma_and_slope(s)[0]
+        """σ(s) = ds/dt ∈ (0, 1] (linear between the grid nodes): the σ of
+        :meth:`_sigma_and_slope`, without the slope."""
+        if s <= 0.0:
+            return self._sigma_and_slope(s)[0]
+        u = s / self.step
+        i = int(u)
+        sigma = self._sigma
+        if i + 1 >= len(sigma):
+            self._extend_sigma(i + 1)
+        a = sigma[i]
+        return a + (sigma[i + 1] - a) * (u - i)
 
     def _extend(self, n: int) -> None:
         s_list, r_list, h = self._s, self._rate, self.step
-        while len(s_list) <= n:
-            s, k1 = s_list[-1], r_list[-1]
-            k2 = self.rate_at(s + 0.5 * h * k1)
-            k3 = self.rate_at(s + 0.5 * h * k2)
-            k4 = self.rate_at(s + h * k3)
-            s_next = s + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-            s_list.append(s_next)
-            r_list.append(self.rate_at(s_next))
+        with self._tables.lock:
+            while len(s_list) <= n:
+                s, k1 = s_list[-1], r_list[-1]
+                k2 = self.rate_at(s + 0.5 * h * k1)
+                k3 = self.rate_at(s + 0.5 * h * k2)
+                k4 = self.rate_at(s + h * k3)
+                s_next = s + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+                # σ(s) first: readers check the length of s (lock-free).
+                r_list.append(self.rate_at(s_next))
+                s_list.append(s_next)
+        if len(s_list) > RetimingTables.MAX_SHARED_NODES:
+            _unshare(self._tables)
 
     def progress(self, t: float) -> float:
         """s(t) [s of the base reference]; s = σ(0) t before t = 0.
@@ -530,12 +607,14 @@ class TimeScaled(Reference):
         if t <= 0.0:
             return self._rate[0] * t
         n = int(t / self.step)
-        known = (len(self._s) - 1) * self.step
-        if t > known + self.MAX_EXTENSION:
-            raise ValueError(f'TimeScaled: t = {t:g} s is more than {self.MAX_EXTENSION:g} s '
-                             f'beyond the times sampled so far ({known:g} s); the '
-                             'time-scaled reference is integrated from t = 0')
-        self._extend(n + 1)
+        if n + 1 >= len(self._s):   # beyond the table (else t < the last node)
+            known = (len(self._s) - 1) * self.step
+            if t > known + self.MAX_EXTENSION:
+                raise ValueError(f'TimeScaled: t = {t:g} s is more than '
+                                 f'{self.MAX_EXTENSION:g} s beyond the times sampled so far '
+                                 f'({known:g} s); the time-scaled reference is integrated '
+                                 'from t = 0')
+            self._extend(n + 1)
         h = self.step
         u = t / h - n
         s0, s1, r0, r1 = self._s[n], self._s[n + 1], self._rate[n], self._rate[n + 1]
@@ -543,26 +622,106 @@ class TimeScaled(Reference):
         return ((2 * u3 - 3 * u2 + 1) * s0 + (u3 - 2 * u2 + u) * h * r0
                 + (-2 * u3 + 3 * u2) * s1 + (u3 - u2) * h * r1)
 
-    def _at(self, s: float) -> tuple[ReferenceState, float, float]:
+    def _speed_at(self, t: float) -> float:
+        """Re-timed speed υ_r(s) σ(s) at s = s(t): ``sample(t).v`` without the lead."""
+        s = self.progress(t)
+        v, omega = self.base.speed_and_yaw_rate(s)
+        # Between grid nodes the linear σ may exceed σ0 by O(step²): never above it.
+        return v * min(self.rate_at(s), self._raw_rate(v, omega))
+
+    def _timed(self, t: float) -> ReferenceState:
+        """The re-timed state at t, without the speed lead: the base's pose at s(t), υ_r σ,
+        ω_r σ and σ (ω̇_r σ + ω_r dσ/ds)."""
+        s = self.progress(t)
         ref = self.base.sample(s)
         sigma, d_sigma = self._sigma_and_slope(s)
-        # Between grid nodes the linear σ may exceed σ0 by O(step²): never above it.
-        return ref, min(sigma, self._raw_rate(ref)), d_sigma
+        sigma = min(sigma, self._raw_rate(ref.v, ref.omega))   # as in _speed_at
+        return ReferenceState(ref.x, ref.y, ref.phi, ref.v * sigma, ref.omega * sigma,
+                              sigma * (ref.omega_dot * sigma + ref.omega * d_sigma))
 
     def sample(self, t: float) -> ReferenceState:
-        ref, sigma, d_sigma = self._at(self.progress(t))
-        v = ref.v * sigma
-        if self.speed_lead_time > 0.0:
-            ahead, sigma_ahead, _ = self._at(self.progress(t + self.speed_lead_time))
-            v_ahead = ahead.v * sigma_ahead
-            lead_up = self.speed_lead_time_accelerating
-            if abs(v_ahead) > abs(v) and lead_up != self.speed_lead_time:
-                # Speeding up: the (shorter) lead of the accelerations.
-                ahead, sigma_ahead, _ = self._at(self.progress(t + lead_up))
-                v_ahead = ahead.v * sigma_ahead
-            v = v_ahead
-        return ReferenceState(ref.x, ref.y, ref.phi, v, ref.omega * sigma,
-                              sigma * (ref.omega_dot * sigma + ref.omega * d_sigma))
+        if self.speed_lead_time <= 0.0:
+            return self._timed(t)
+        # With a speed lead, the re-timed states are remembered by their time (the float):
+        # a loop sampling every h asks at t + T for a time it samples again later (the
+        # runner's t_k + 0.75 is t_{k+150} to the bit at 98 % of the ticks, t_k + 0.6 is
+        # the t_j + 0.75 of a tick 30 earlier at 70 %), so most states are computed once.
+        memo = self._memo
+        state = memo.get(t)
+        if state is None:
+            state = memo[t] = self._timed(t)
+        t_lead = t + self.speed_lead_time
+        ahead = memo.get(t_lead)
+        if ahead is None:
+            ahead = memo[t_lead] = self._timed(t_lead)
+        v_ahead = ahead.v
+        lead_up = self.speed_lead_time_accelerating
+        if abs(v_ahead) > abs(state.v) and lead_up != self.speed_lead_time:
+            # Speeding up: the (shorter) lead of the accelerations, the speed only if it
+            # is not remembered.
+            ahead = memo.get(t + lead_up)
+            v_ahead = ahead.v if ahead is not None else self._speed_at(t + lead_up)
+        if len(memo) > self._memo_limit:
+            # Forget the states before t (a loop runs forward), amortised O(1); all of
+            # them if that leaves too many (queries running backwards, say).
+            memo = {time: kept for time, kept in memo.items() if time >= t}
+            self._memo = memo if len(memo) <= self.MEMO_MAX_SIZE else {}
+            self._memo_limit = max(self.MEMO_MIN_SIZE, 2 * len(self._memo))
+        return ReferenceState(state.x, state.y, state.phi, v_ahead, state.omega,
+                              state.omega_dot)
+
+
+class RetimingTables:
+    """The tables of a :class:`TimeScaled`: σ0 and σ every ``step`` of s, s and σ(s)
+    every ``step`` of t. They are a function of the base path, the limits and the step
+    only (extended on demand, always from the start), so TimeScaled objects of the same
+    configuration can share them (:func:`make_reference`). They are only appended to,
+    under ``lock``, and every value is final once written, so readers need no lock.
+    """
+
+    #: Tables longer than this many nodes (1000 s of a 10 ms step; about 13 MB for the
+    #: four) are no longer offered for sharing, so that a process does not keep the
+    #: tables of a long run after it.
+    MAX_SHARED_NODES = 100_000
+
+    __slots__ = ('raw', 'sigma', 's', 'rate', 'lock')
+
+    def __init__(self) -> None:
+        self.raw: list[float] = []
+        self.sigma: list[float] = []
+        self.s: list[float] = []
+        self.rate: list[float] = []
+        self.lock = threading.RLock()   # reentrant: extending s extends σ
+
+
+#: Per thread: configuration key -> RetimingTables, the most recently used last.
+_shared = threading.local()
+#: Configurations whose tables a thread keeps for sharing.
+MAX_SHARED_CONFIGURATIONS = 4
+
+
+def shared_tables(key: Hashable) -> RetimingTables:
+    """The tables this thread shares among the TimeScaled of configuration ``key`` (new
+    ones the first time)."""
+    cache = getattr(_shared, 'tables', None)
+    if cache is None:
+        cache = _shared.tables = collections.OrderedDict()
+    tables = cache.pop(key, None)
+    if tables is None:
+        tables = RetimingTables()
+    cache[key] = tables
+    while len(cache) > MAX_SHARED_CONFIGURATIONS:
+        cache.popitem(last=False)
+    return tables
+
+
+def _unshare(tables: RetimingTables) -> None:
+    """Stop offering ``tables`` for sharing (its users keep it)."""
+    cache = getattr(_shared, 'tables', None)
+    if cache:
+        for key, value in list(cache.items()):
+            if value is tables:
+                del cache[key]
 
 
 def distance_to_path(reference: Reference, x: Sequence[float], y: Sequence[float],
@@ -691,10 +850,14 @@ def make_reference(config: ReferenceConfig | None = None) -> Reference:
     config.validate()
     base = _make_base_reference(config)
     if config.time_scaling:
+        # The tables depend on neither lead time: one key for every lead.
+        key = dataclasses.replace(config, path_speed_lead_time=0.0,
+                                  path_speed_lead_time_accelerating=0.0)
         return TimeScaled(base, config.path_max_speed, config.path_max_yaw_rate,
                           config.path_progress_rate_limit,
                           speed_lead_time=config.path_speed_lead_time,
-                          speed_lead_time_accelerating=config.path_speed_lead_time_accelerating)
+                          speed_lead_time_accelerating=config.path_speed_lead_time_accelerating,
+                          tables=shared_tables(key))
     return base
 
 

@@ -97,6 +97,11 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
 
     buffers = {g: RecordBuffer(g) for g in
                ('truth', 'reference', 'estimate', 'command', 'arc', 'wheels', 'mpc')}
+    # The rows go straight into the buffers' lists; every BLOCK_ROWS ticks (at most one
+    # row per group and tick) they become numpy blocks.
+    record_truth, record_reference, record_estimate, record_command, record_arc, \
+        record_wheels, record_mpc = (b.appender() for b in buffers.values())
+    flush_every = RecordBuffer.BLOCK_ROWS
     mpc_inputs: list[dict] | None = [] if record_mpc_inputs else None
 
     tau_left = tau_right = 0.0          # applied over the previous control period
@@ -108,12 +113,12 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
     block = _DisturbanceBlocks(disturbances, dt_control, dt_plant, substeps)
     hold = plant.hold_floats
 
+    fall_threshold = scenario.fall_threshold
     for k in range(n_ticks + 1):
         t = k * dt_control
-        d_tick = block.rows(k)
-        d1, d2, d3 = d_tick[0]
-        buffers['truth'].append((t, *state, d1, d2, d3, tau_left, tau_right))
-        if abs(state[THETA]) >= scenario.fall_threshold:
+        d_tick, d_now = block.rows(k)
+        record_truth((t, *state, *d_now, tau_left, tau_right))
+        if abs(state[THETA]) >= fall_threshold:
             fell, fall_time = True, t
             break
         if k == n_ticks:
@@ -140,24 +145,26 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
                     f2_hat=est.f2, f3_hat=est.f3, v_d=out.command.v_d,
                     tau_limit=drive.limit(out.arc.tau_omega),
                     tau_previous=tau_v_held))
-            buffers['mpc'].append((t, result.tau_v, result.delta_tau, result.status,
-                                   result.iterations, result.solve_time_s,
-                                   float(result.used_fallback), result.slack_v,
-                                   result.slack_theta))
+            record_mpc((t, result.tau_v, result.delta_tau, result.status,
+                        result.iterations, result.solve_time_s, float(result.used_fallback),
+                        result.slack_v, result.slack_theta))
 
-        estimate, command, arc_out = pose.estimate, out.command, out.arc
-        buffers['reference'].append((t, ref.x, ref.y, ref.phi, ref.v, ref.omega))
-        buffers['estimate'].append((t, estimate.phi, estimate.omega, estimate.f1,
-                                    estimate.x_v, estimate.v, estimate.f2, estimate.theta,
-                                    estimate.theta_dot, estimate.f3, pose.x, pose.y))
-        buffers['command'].append((t, command.v_d, command.omega_d, command.omega_d_dot,
-                                   command.x_e, command.y_e, command.phi_e))
-        buffers['arc'].append((t, arc_out.tau_omega, arc_out.alpha_hat, arc_out.e_omega))
-        buffers['wheels'].append((t, tau_left, tau_right))
+        # The named tuples' fields are in the record's column order (record.GROUPS; a
+        # test checks it): (x, y, phi, v, omega) of the reference, the estimate but ε,
+        # every field of the command and of the ARC's output.
+        record_reference((t, *ref[:5]))
+        record_estimate((t, *pose.estimate[:9], pose.x, pose.y))
+        record_command((t, *out.command))
+        record_arc((t, *out.arc))
+        record_wheels((t, tau_left, tau_right))
+        if k % flush_every == flush_every - 1:
+            for buffer in buffers.values():
+                buffer.flush()
 
         # 8: the plant, RK4 at plant_rate with the torques held.
         state = hold(state, tau_left, tau_right, d_tick, dt_plant)
-        if not math.isfinite(math.fsum(state)):
+        # One sum (a NaN or inf propagates), each value only if that is not finite.
+        if not (math.isfinite(sum(state)) or all(map(math.isfinite, state))):
             raise ValueError(f'plant state became non-finite at t = {t + dt_control:.3f} s: '
                              f'{state} (check the disturbances)')
         if progress is not None and t >= next_progress:
@@ -183,7 +190,8 @@ class _DisturbanceBlocks:
 
     The same scalar functions at the same float times as ``Plant.simulate_hold``
     (t0 + j dt with t0 = k dt_control), so the values are identical; batching only
-    saves building a small array per tick.
+    saves building a small array per tick (and the recorded row j = 0 is kept as Python
+    floats, cheaper to record than numpy scalars).
     """
 
     def __init__(self, disturbances: Disturbances, dt_control: float, dt_plant: float,
@@ -193,14 +201,16 @@ class _DisturbanceBlocks:
         self._substeps, self._ticks = substeps, ticks
         self._first = -1
         self._table = np.empty((0, substeps, 3))
+        self._now: list[list[float]] = []
 
-    def rows(self, k: int) -> np.ndarray:
-        """The (substeps, 3) rows of tick ``k`` (a view)."""
+    def rows(self, k: int) -> tuple[np.ndarray, list[float]]:
+        """The (substeps, 3) rows of tick ``k`` (a view) and its row 0, (d1, d2, d3) at
+        t_k, as floats."""
         i = k - self._first
         if self._first < 0 or i >= self._ticks:
             self._fill(k)
             i = 0
-        return self._table[i]
+        return self._table[i], self._now[i]
 
     def _fill(self, first: int) -> None:
         dt_control, dt_plant = self._dt_control, self._dt_plant
@@ -211,4 +221,5 @@ class _DisturbanceBlocks:
             self._ticks, self._substeps, 3)
         if not np.all(np.isfinite(self._table)):
             raise ValueError(f'disturbances must be finite (ticks from t = {first * dt_control} s)')
+        self._now = self._table[:, 0, :].tolist()
         self._first = first

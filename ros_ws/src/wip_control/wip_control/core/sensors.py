@@ -190,7 +190,8 @@ class Sensors:
         if q > 0.0:
             left = q * round(left / q)
             right = q * round(right / q)
-        _check_finite('encoder angles', left, right)
+        if not math.isfinite(left + right):   # (a NaN or inf term propagates into the sum)
+            _check_finite('encoder angles', left, right)
         return left, right
 
     def imu(self, state: Sequence[float]) -> tuple[float, float]:
@@ -201,7 +202,8 @@ class Sensors:
             pitch += c.imu_pitch_noise_std * self._rng_imu.standard_normal()
         if c.imu_yaw_noise_std > 0.0:
             yaw += c.imu_yaw_noise_std * self._rng_imu.standard_normal()
-        _check_finite('IMU angles', pitch, yaw)
+        if not math.isfinite(pitch + yaw):
+            _check_finite('IMU angles', pitch, yaw)
         return pitch, _wrap_to_pi(yaw)
 
     def imu_rates(self, state: Sequence[float]) -> tuple[float, float]:
@@ -216,7 +218,8 @@ class Sensors:
         if std > 0.0:
             pitch_rate += std * self._rng_imu.standard_normal()
             yaw_rate += std * self._rng_imu.standard_normal()
-        _check_finite('IMU rates', pitch_rate, yaw_rate)
+        if not math.isfinite(pitch_rate + yaw_rate):
+            _check_finite('IMU rates', pitch_rate, yaw_rate)
         return pitch_rate, yaw_rate
 
     def gps(self, state: Sequence[float]) -> tuple[float, float]:
@@ -226,7 +229,8 @@ class Sensors:
         if std > 0.0:
             x += std * self._rng_gps.standard_normal()
             y += std * self._rng_gps.standard_normal()
-        _check_finite('GPS position', x, y)
+        if not math.isfinite(x + y):
+            _check_finite('GPS position', x, y)
         return x, y
 
     def gps_fix(self, state: Sequence[float]) -> tuple[float, float, float]:
@@ -246,7 +250,8 @@ def wheel_odometry(phi_left: float, phi_right: float, pitch: float, params: WipP
     ``pitch`` [rad]), else r (φl + φr)/2; ϕ = ϕ0 + r (φr − φl)/d, continuous (not
     wrapped), since the encoder angles are.
     """
-    _check_finite('wheel_odometry inputs', phi_left, phi_right, pitch, initial_yaw)
+    if not math.isfinite(phi_left + phi_right + pitch + initial_yaw):
+        _check_finite('wheel_odometry inputs', phi_left, phi_right, pitch, initial_yaw)
     r = params.wheel_radius
     mean = 0.5 * (phi_left + phi_right)
     if relative_to_body:
@@ -346,6 +351,10 @@ def _check_latitude(latitude: float) -> None:
 
 
 def _check_finite(what: str, *values: float) -> None:
+    """ValueError naming ``what`` if a value is NaN or infinite. The per-sample callers
+    call it only when the values' sum is not finite: a NaN or inf among them makes the
+    sum so, and a finite sum proves them all finite (a sum that overflows is checked
+    here, value by value)."""
     for v in values:
         if not math.isfinite(v):
             raise ValueError(f'{what} must be finite, got {values!r}')

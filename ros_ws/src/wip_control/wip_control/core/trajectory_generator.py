@@ -159,6 +159,17 @@ class TrajectoryGenerator:
         self.saturated_speed = False     #: whether |υ_d| was clipped at the last step
         self.saturated_yaw_rate = False  #: whether |ω_d| was clipped at the last step
 
+    def state(self) -> tuple:
+        """Everything :meth:`step` changes (the derivative filter and the saturation
+        flags), for :meth:`restore`."""
+        return (self._t_prev, self._omega_prev, self._omega_dot, self._sat_sign_prev,
+                self.saturated_speed, self.saturated_yaw_rate)
+
+    def restore(self, state: tuple) -> None:
+        """Go back to a :meth:`state` (the guidance stage does after an overflow)."""
+        (self._t_prev, self._omega_prev, self._omega_dot, self._sat_sign_prev,
+         self.saturated_speed, self.saturated_yaw_rate) = state
+
     def step(self, t: float, ref: ReferenceState, x: float, y: float,
              phi: float) -> VelocityCommand:
         """Commands at time ``t`` [s] for the pose (x [m], y [m], ϕ [rad]) and ``ref``.
