@@ -33,6 +33,7 @@ ROSDEP_KEYS = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'pyth
 #: Python libraries without a rosdep key: import name -> its name in requirements.txt.
 PIP_ONLY = {'mcap': 'mcap', 'mcap_ros2': 'mcap-ros2-support', 'proxsuite': 'proxsuite',
             'daqp': 'daqp', 'dask': 'dask', 'tqdm': 'tqdm', 'foxglove': 'foxglove-sdk',
+            'rosbags': 'rosbags',
             # Optional (runs.parquet when installed): imported under try/except ImportError.
             'pyarrow': None}
 #: Imports of the ROS client library and message packages: the name is the package.
