@@ -554,20 +554,28 @@ def _rise(predicted_v, v_hat, steps):
     return max(0.0, float(np.max(predicted_v[:steps])) - max(CONFIG.max_speed, v_hat))
 
 
+def _first_tick(state, v_d, **config):
+    """(mpc, result) of the first tick of a fresh MPC (CONFIG with ``config`` replaced)
+    from the ideal-ESO estimates ``state`` (:func:`realistic_state`'s arguments)."""
+    mpc = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, **config))
+    mpc.reset(0.0)
+    return mpc, mpc.step(**realistic_state(*state), v_d=v_d, tau_limit=30.0)
+
+
+def _without_and_with_rise_slack(state, v_d):
+    """The first tick's results with speed_rise_penalty 0 and at its default."""
+    return (_first_tick(state, v_d, speed_rise_penalty=0.0)[1],
+            _first_tick(state, v_d)[1])
+
+
 @pytest.mark.parametrize('v_hat, v_d', [(1.5, 1.0), (1.6, 1.0), (2.2, 0.5)])
 def test_the_speed_rise_slack_makes_the_rise_before_braking_smaller_and_still_brakes(
         v_hat, v_d):
     """At or above the speed limit a WIP must speed up to brake. With the rise slack
     (speed_rise_penalty, default) the planned rise is smaller than without it, and the
     plan still brakes: its speed at the end of the 2 s horizon is below the start."""
-    state = realistic_state(v_hat, 0.0, 0.0, 0.0, 0.0)
-    results = {}
-    for penalty in (0.0, CONFIG.speed_rise_penalty):
-        mpc = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, speed_rise_penalty=penalty))
-        mpc.reset(0.0)
-        results[penalty] = mpc.step(**state, v_d=v_d, tau_limit=30.0)
-        assert results[penalty].status == MpcStatus.SOLVED
-    off, on = results[0.0], results[CONFIG.speed_rise_penalty]
+    off, on = _without_and_with_rise_slack((v_hat, 0.0, 0.0, 0.0, 0.0), v_d)
+    assert off.status == on.status == MpcStatus.SOLVED
     steps = CONFIG.speed_rise_steps
     assert _rise(on.predicted[:, 0], v_hat, steps) < _rise(off.predicted[:, 0], v_hat, steps)
     # Upright at θ = 0 with no disturbance, coasting holds υ̂: the plan brakes instead.
@@ -577,13 +585,8 @@ def test_the_speed_rise_slack_makes_the_rise_before_braking_smaller_and_still_br
 def test_the_speed_rise_slack_changes_nothing_below_the_speed_limit():
     # Accelerating from 1.0 toward 1.2 m/s (under the 1.5 limit): the rise rows are
     # inactive and the plan is the one without them (to the solver's tolerance).
-    plans = []
-    for penalty in (0.0, CONFIG.speed_rise_penalty):
-        mpc = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, speed_rise_penalty=penalty))
-        mpc.reset(0.0)
-        plans.append(mpc.step(**realistic_state(1.0, 0.0, 0.0, 0.0, 0.0), v_d=1.2,
-                              tau_limit=30.0).plan)
-    assert plans[1] == pytest.approx(plans[0], abs=1e-5)
+    off, on = _without_and_with_rise_slack((1.0, 0.0, 0.0, 0.0, 0.0), 1.2)
+    assert on.plan == pytest.approx(off.plan, abs=1e-5)
 
 
 @pytest.mark.parametrize('theta, theta_dot', [(0.03, 0.0), (-0.005, 0.2)])
@@ -591,28 +594,16 @@ def test_the_speed_rise_slack_is_off_while_the_body_leans_the_way_it_travels(the
                                                                            theta_dot):
     # Above the limit and leaning forward now, or one MPC period ahead (θ̂ + Ts θ̂̇ > 0):
     # the wheels must speed up to catch the body. The plan is the one without the slack.
-    plans = []
-    for penalty in (0.0, CONFIG.speed_rise_penalty):
-        mpc = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, speed_rise_penalty=penalty))
-        mpc.reset(0.0)
-        plans.append(mpc.step(**realistic_state(2.0, theta, theta_dot, 0.0, 0.0), v_d=1.2,
-                              tau_limit=30.0).plan)
-    assert plans[1] == pytest.approx(plans[0], abs=1e-5)
+    off, on = _without_and_with_rise_slack((2.0, theta, theta_dot, 0.0, 0.0), 1.2)
+    assert on.plan == pytest.approx(off.plan, abs=1e-5)
     # Leaning back at the same speed, the slack acts (the plans differ).
-    mpc = LongitudinalMpc(PARAMS, CONFIG)
-    mpc.reset(0.0)
-    gated = mpc.step(**realistic_state(2.0, -0.03, 0.0, 0.0, 0.0), v_d=1.2, tau_limit=30.0)
-    free = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, speed_rise_penalty=0.0))
-    free.reset(0.0)
-    ungated = free.step(**realistic_state(2.0, -0.03, 0.0, 0.0, 0.0), v_d=1.2, tau_limit=30.0)
+    ungated, gated = _without_and_with_rise_slack((2.0, -0.03, 0.0, 0.0, 0.0), 1.2)
     assert np.max(np.abs(gated.plan - ungated.plan)) > 1e-3
 
 
 def test_the_speed_rise_slack_bounds_the_first_planned_speeds_above_the_current_one():
     # 2 m/s, upright: ±υ(k+i) ≤ υ̂ + υmax r over the first speed_rise_steps.
-    mpc = LongitudinalMpc(PARAMS, CONFIG)
-    mpc.reset(0.0)
-    result = mpc.step(**realistic_state(2.0, 0.0, 0.0, 0.0, 0.0), v_d=1.0, tau_limit=30.0)
+    mpc, result = _first_tick((2.0, 0.0, 0.0, 0.0, 0.0), 1.0)
     r = mpc.last_solution.z[NC + 2 * NP]
     assert r >= -CONSTRAINT_TOL
     v_first = result.predicted[:CONFIG.speed_rise_steps, 0]
@@ -622,16 +613,11 @@ def test_the_speed_rise_slack_bounds_the_first_planned_speeds_above_the_current_
 
 def test_the_speed_rise_slack_is_off_below_the_speed_limit_even_when_the_plan_exceeds_it():
     # At 1.45 m/s (below the 1.5 limit), pushed forward (1 m/s²), the plan goes beyond the
-    # limit within the first steps:
-    # the speed slacks' business alone, the same plan as without the rise slack.
-    results = []
-    for penalty in (0.0, CONFIG.speed_rise_penalty):
-        mpc = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, speed_rise_penalty=penalty))
-        mpc.reset(0.0)
-        results.append(mpc.step(**realistic_state(1.45, 0.0, 0.0, 1.0, 0.0), v_d=1.5,
-                                tau_limit=30.0))
-    assert np.max(results[0].predicted[:CONFIG.speed_rise_steps, 0]) > CONFIG.max_speed
-    assert results[1].plan == pytest.approx(results[0].plan, abs=1e-5)
+    # limit within the first steps: the speed slacks' business alone, the same plan as
+    # without the rise slack.
+    off, on = _without_and_with_rise_slack((1.45, 0.0, 0.0, 1.0, 0.0), 1.5)
+    assert np.max(off.predicted[:CONFIG.speed_rise_steps, 0]) > CONFIG.max_speed
+    assert on.plan == pytest.approx(off.plan, abs=1e-5)
 
 
 def test_speed_rise_steps_beyond_the_horizon_is_refused():
