@@ -319,7 +319,9 @@ class BaseListener:
     def close(self) -> None:
         self._stop.set()
         self.thread.join(timeout=2.0)
-        self.executor.shutdown()
+        # Bounded: rclpy's default waits without limit for a spin_once still running in
+        # the listener thread (the context shut down by SIGINT under it).
+        self.executor.shutdown(timeout_sec=2.0)
         self.node.destroy_node()
         self._rclpy.try_shutdown(context=self.context)
 
