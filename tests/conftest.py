@@ -23,6 +23,9 @@ REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 settings.register_profile('ci', derandomize=True, database=None)
 if os.environ.get('CI'):
     settings.load_profile('ci')
+# A child process that hangs is ended with SIGABRT first (ros_harness.stop_with_stacks):
+# with faulthandler on, its output then holds every thread's Python stack.
+os.environ.setdefault('PYTHONFAULTHANDLER', '1')
 for package in ('wip_control', 'wip_sim', 'wip_bag', 'wip_bringup', 'wip_tools', 'wip_viewer'):
     path = str(REPO_ROOT / 'ros_ws' / 'src' / package)
     if path not in sys.path:

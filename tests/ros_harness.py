@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import os
+import signal
 import subprocess
 import threading
 import time
@@ -181,7 +182,20 @@ def communicate(process: subprocess.Popen, timeout: float,
     try:
         return process.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
-        process.kill()
-        output, errors = process.communicate()
+        output, errors = stop_with_stacks(process)
         pytest.fail(f'{process.args} did not {what} within {timeout:g} s:\n{output}\n'
                     f'{errors or ""}')
+
+
+def stop_with_stacks(process: subprocess.Popen,
+                     grace: float = 5.0) -> tuple[str | None, str | None]:
+    """End a process that hangs so that its output says where: SIGABRT first, on which a
+    Python child with faulthandler enabled (tests/conftest.py sets PYTHONFAULTHANDLER for
+    every child) prints every thread's stack, then SIGKILL after ``grace`` [s]."""
+    with contextlib.suppress(ProcessLookupError):
+        process.send_signal(signal.SIGABRT)
+    try:
+        return process.communicate(timeout=grace)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        return process.communicate()

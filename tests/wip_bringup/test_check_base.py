@@ -260,3 +260,34 @@ def test_ros_arguments_from_ros2_run_are_split_off_and_remaps_kept():
     assert own == ['--auto', '--timeout', '5']
     assert remaps == ['/imu/data:=/base/imu', 'a:=b']
     assert split_ros_arguments(['--script']) == (['--script'], [])
+
+
+#: Runs check_base with an interrupt (what SIGINT raises) at the worst moment of its
+#: start: the listener thread is spinning, the constructor has not returned.
+INTERRUPTED_START = '''
+import sys, threading
+from wip_bringup import check_base
+real_start = threading.Thread.start
+def start_then_interrupt(thread):
+    real_start(thread)
+    if thread._target.__name__ == '_spin':
+        raise KeyboardInterrupt
+threading.Thread.start = start_then_interrupt
+sys.exit(check_base.main(['--script', '--timeout', '5', '--json', sys.argv[1]]))
+'''
+
+
+def test_an_interrupt_while_the_listener_starts_exits_cleanly(tmp_path):
+    # The ros2 run contract test sends SIGINT as soon as the node's subscriptions are
+    # visible, which is before BaseListener's constructor returns. The thread then kept
+    # spinning into interpreter shutdown, where rclpy's C++ aborted the process
+    # ('terminate called without an active exception', exit -6) under load.
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 101)),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    for _ in range(2):
+        done = subprocess.run([sys.executable, '-c', INTERRUPTED_START,
+                               str(tmp_path / 'report.json')], env=env, timeout=60,
+                              capture_output=True, text=True, stdin=subprocess.DEVNULL)
+        assert done.returncode == 130, done.stdout + done.stderr
+        assert 'terminate' not in done.stderr and 'Traceback' not in done.stderr, done.stderr
+        assert json.loads((tmp_path / 'report.json').read_text())['status'] == 130

@@ -193,9 +193,6 @@ class BaseListener:
     def __init__(self, conventions: Conventions, remaps: list[tuple[str, str]],
                  domain_id: int | None = None) -> None:
         import rclpy
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.qos import qos_profile_sensor_data
-        from sensor_msgs.msg import Imu, JointState
         self.conventions = conventions
         self.inverse_mount = mounting_inverse(conventions.mounting)
         self._rclpy = rclpy
@@ -203,10 +200,27 @@ class BaseListener:
         for source, target in remaps:
             args += ['-r', f'{source}:={target}']
         self.context = rclpy.Context()
+        self.node = self.executor = self.thread = None
+        self._stop = threading.Event()
         rclpy.init(args=args, context=self.context,
                    **({'domain_id': domain_id} if domain_id is not None else {}))
-        self.node = rclpy.create_node('check_base', context=self.context,
-                                      start_parameter_services=False)
+        try:
+            self._start()
+        except BaseException:
+            # A SIGINT here (the subscriptions are visible before the thread runs) must
+            # not leave the thread spinning into interpreter shutdown: a daemon thread
+            # inside rclpy's C++ then aborts the process ('terminate called without an
+            # active exception'), seen under load in the ros2 run contract test.
+            self.close()
+            raise
+
+    def _start(self) -> None:
+        """The node, its subscriptions and the thread that spins it."""
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import qos_profile_sensor_data
+        from sensor_msgs.msg import Imu, JointState
+        self.node = self._rclpy.create_node('check_base', context=self.context,
+                                            start_parameter_services=False)
         self.lock = threading.Lock()
         self.joints: collections.deque = collections.deque()   # (t, names, positions)
         self.imu: collections.deque = collections.deque()      # (t, q, gravity or None)
@@ -218,7 +232,6 @@ class BaseListener:
                        self.node.resolve_topic_name('/imu/data'))
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self._stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
 
@@ -318,11 +331,22 @@ class BaseListener:
 
     def close(self) -> None:
         self._stop.set()
-        self.thread.join(timeout=2.0)
-        # Bounded: rclpy's default waits without limit for a spin_once still running in
-        # the listener thread (the context shut down by SIGINT under it).
-        self.executor.shutdown(timeout_sec=2.0)
-        self.node.destroy_node()
+        if self.thread is not None:
+            deadline = time.monotonic() + 2.0
+            while True:
+                try:
+                    self.thread.join(timeout=max(0.0, deadline - time.monotonic()))
+                    break
+                except RuntimeError:  # start() interrupted before the thread said it runs
+                    if time.monotonic() > deadline:
+                        break
+                    time.sleep(0.01)
+        if self.executor is not None:
+            # Bounded: rclpy's default waits without limit for a spin_once still running
+            # in the listener thread.
+            self.executor.shutdown(timeout_sec=2.0)
+        if self.node is not None:
+            self.node.destroy_node()
         self._rclpy.try_shutdown(context=self.context)
 
 
@@ -738,11 +762,14 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
     except GraphError as err:
         print(f'check_base: error: {err}', file=sys.stderr)
         return err.exit_code
-    listener = BaseListener(conventions, remaps)
     mode_name = 'auto' if args.auto else 'script' if args.script else 'interactive'
-    session = Session(listener, conventions, mode_name, args.window, args.timeout, stdin,
-                      stdout)
+    listener = session = None
     try:
+        # Inside the try: an interrupt while the listener starts (its subscriptions are
+        # visible before its thread runs) still closes it before the interpreter exits.
+        listener = BaseListener(conventions, remaps)
+        session = Session(listener, conventions, mode_name, args.window, args.timeout,
+                          stdin, stdout)
         status = session.run()
     except Aborted as err:
         print(f'check_base: stopped ({err})', file=stdout, flush=True)
@@ -750,11 +777,13 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
     except KeyboardInterrupt:
         status = EXIT_INTERRUPTED
     finally:
-        listener.close()
+        if listener is not None:
+            listener.close()
     if args.json:
         report = {'status': status, 'conventions': dataclasses.asdict(conventions),
                   'domain_id': os.environ.get('ROS_DOMAIN_ID'),
-                  'checks': [dataclasses.asdict(k) for k in session.checks]}
+                  'checks': [dataclasses.asdict(k) for k in session.checks] if session
+                  else []}
         with open(args.json, 'w', encoding='utf-8') as stream:
             json.dump(report, stream, indent=2, default=str)
             stream.write('\n')
