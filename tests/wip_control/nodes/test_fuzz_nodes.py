@@ -33,6 +33,7 @@ rclpy = pytest.importorskip('rclpy')
 pytest.importorskip('wip_msgs.msg')
 
 from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
@@ -229,8 +230,11 @@ class Outputs:
         for publisher in node.publishers:
             publish = publisher.publish
 
-            def recorded(msg, _publish=publish):
-                self.messages.append(msg)
+            def recorded(msg, _publish=publish, _type=publisher.msg_type):
+                # A message published serialized (the mixer's effort command) is checked
+                # as the message a subscriber receives.
+                self.messages.append(deserialize_message(msg, _type)
+                                     if isinstance(msg, bytes) else msg)
                 _publish(msg)
             publisher.publish = recorded
 

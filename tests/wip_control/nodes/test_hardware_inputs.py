@@ -348,7 +348,10 @@ def test_mixer_sends_each_effort_with_its_joint_sign(context, nodes):
     efforts = capture(node.effort_publisher)
     torques = capture(node.torques_publisher)
     node._publish(5, SafetyDecision(2.0, 3.0, False, (), 'ACTIVE'))
-    assert list(efforts[-1].data) == [3.0, -2.0]       # joint order, left negated
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import Float64MultiArray
+    sent = deserialize_message(efforts[-1], Float64MultiArray)   # sent serialized
+    assert list(sent.data) == [3.0, -2.0]              # joint order, left negated
     assert (torques[-1].left, torques[-1].right) == (2.0, 3.0)   # REP 103, unchanged
 
 
@@ -414,3 +417,21 @@ def test_subscribers_of_one_message_object_share_one_checked_conversion():
     command_from_msg(bad_command, check=False)
     with pytest.raises(InvalidMessage, match='velocity_command'):
         command_from_msg(bad_command)
+
+
+@settings(max_examples=60, deadline=None)
+@given(left=st.floats(allow_nan=False, allow_infinity=True, width=64),
+       right=st.floats(allow_nan=False, allow_infinity=True, width=64),
+       joints=st.permutations(['wheel_l', 'wheel_r']).map(tuple))
+def test_the_serialized_effort_command_is_the_message_rclpy_would_send(left, right, joints):
+    # The real-time mixer publishes the effort command as CDR bytes it builds itself: the
+    # base must receive exactly the message (values, order of the joints, empty layout).
+    from rclpy.serialization import deserialize_message, serialize_message
+    from std_msgs.msg import Float64MultiArray
+    from wip_control.nodes.conversions import effort_command, effort_command_cdr
+    by_hand = effort_command_cdr(left, right, joints, 'wheel_l', 'wheel_r')
+    expected = effort_command(left, right, joints, 'wheel_l', 'wheel_r')
+    got = deserialize_message(by_hand, Float64MultiArray)
+    assert list(got.data) == list(expected.data)
+    assert list(got.layout.dim) == [] and got.layout.data_offset == 0
+    assert len(by_hand) == len(serialize_message(expected))

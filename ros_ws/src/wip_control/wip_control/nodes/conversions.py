@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import array
 import math
+import struct
 from typing import Sequence
 
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
@@ -352,3 +353,19 @@ def effort_command(left: float, right: float, joints: Sequence[str], left_joint:
     """ros2_control JointGroupEffortController command: one effort per joint of ``joints``."""
     by_name = {left_joint: left, right_joint: right}
     return Float64MultiArray(data=_column([by_name[j] for j in joints]))
+
+
+def effort_command_cdr(left: float, right: float, joints: Sequence[str], left_joint: str,
+                       right_joint: str) -> bytes:
+    """:func:`effort_command` already serialized (CDR, little endian), for
+    ``Publisher.publish(bytes)``: the real-time mixer sends one per tick, and building the
+    message object for rclpy to convert and serialize cost about 30 µs of the ~140 µs of
+    the publication here (docs/realtime.md). The layout is empty (no dimensions, offset 0),
+    as :func:`effort_command` leaves it; the bytes differ from rclpy's only in the
+    alignment padding, which Fast CDR leaves uninitialised."""
+    by_name = {left_joint: left, right_joint: right}
+    values = [float(by_name[j]) for j in joints]
+    # encapsulation CDR_LE | layout.dim length 0 | layout.data_offset 0 | data length |
+    # padding to the doubles' 8-byte alignment (counted from after the encapsulation)
+    return struct.pack(f'<4sIII4x{len(values)}d', b'\x00\x01\x00\x00', 0, 0, len(values),
+                       *values)

@@ -88,7 +88,8 @@ from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyConfig, SafetyD
                            SafetyMonitor, SHADOW, STARTING)
 from ..core.scenario import RatesConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
-from .conversions import effort_command, estimate_from_msg, wheel_torques_to_msg
+from .conversions import (effort_command, effort_command_cdr, estimate_from_msg,
+                          wheel_torques_to_msg)
 from .diagnostics import ERROR, OK, WARN
 from .hardware_inputs import signed_efforts
 from .parameters import ConfigParameters, declare_effort_interface
@@ -285,8 +286,10 @@ class TorqueMixerNode(ControllerNode):
         self.torques_publisher.publish(wheel_torques_to_msg(
             left, right, stamp, decision.zeroed, decision.reason))
         efforts = signed_efforts(*decision.command, self.left_sign, self.right_sign)
-        self.effort_publisher.publish(effort_command(*efforts, self.joints, self.left_joint,
-                                                     self.right_joint))
+        # Serialized: no node of ours subscribes the effort topic, so the intra-process bus
+        # never hands these bytes to a callback; DDS sends them as rclpy would the message.
+        self.effort_publisher.publish(effort_command_cdr(*efforts, self.joints,
+                                                         self.left_joint, self.right_joint))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self.zeroed_ticks += decision.zeroed
         previous = self.last_decision
