@@ -14,6 +14,7 @@ import json
 import math
 import os
 import random
+import signal
 import subprocess
 import sys
 import threading
@@ -291,3 +292,27 @@ def test_an_interrupt_while_the_listener_starts_exits_cleanly(tmp_path):
         assert done.returncode == 130, done.stdout + done.stderr
         assert 'terminate' not in done.stderr and 'Traceback' not in done.stderr, done.stderr
         assert json.loads((tmp_path / 'report.json').read_text())['status'] == 130
+
+
+def test_sigint_stops_the_check_even_when_it_was_started_with_sigint_ignored(tmp_path):
+    # A background job of a non-interactive shell (`scripts/test ... &`, a CI step) starts
+    # with SIGINT ignored, and so does every process it starts: the check then waited for
+    # data until its timeout instead of stopping (the ros2 run contract test's failure).
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 101)),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+    ignoring = ('import os, signal, sys\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\n'
+                'os.execv(sys.executable, [sys.executable, "-m", "wip_bringup.check_base", '
+                '"--script", "--timeout", "60"])\n')
+    tool = subprocess.Popen([sys.executable, '-c', ignoring], env=env, text=True,
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT)
+    try:
+        first = tool.stdout.readline()            # the conventions line: it is running
+        assert first.startswith('check_base:'), first
+        tool.send_signal(signal.SIGINT)
+        output, _ = tool.communicate(timeout=20)
+    finally:
+        if tool.poll() is None:
+            tool.kill()
+            tool.communicate()
+    assert tool.returncode == 130, output

@@ -57,6 +57,7 @@ import dataclasses
 import json
 import math
 import os
+import signal
 import sys
 import threading
 import time
@@ -763,6 +764,12 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
         print(f'check_base: error: {err}', file=sys.stderr)
         return err.exit_code
     mode_name = 'auto' if args.auto else 'script' if args.script else 'interactive'
+    if threading.current_thread() is threading.main_thread():
+        # Ctrl-C / SIGINT stops the check (exit 130) however the process was started: a
+        # program started in the background by a non-interactive shell inherits SIGINT
+        # ignored, and Python then never raises KeyboardInterrupt (the check waited for
+        # data forever). rclpy's nodes install their own handler for the same reason.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     listener = session = None
     try:
         # Inside the try: an interrupt while the listener starts (its subscriptions are
