@@ -219,7 +219,7 @@ def test_the_single_layout_unrecorded_ends_in_the_same_state_bit_for_bit(graph_r
 def expected_counts(scenario):
     n = N_TICKS
     gps_every = round(scenario.rates.control_rate / scenario.sensors.gps_rate)
-    mpc_every = scenario.mpc_decimation
+    mpc_every = scenario.drive_decimation   # the MPC node answers every tick of its grid
     counts = {topic: n for topic in (
         '/clock', '/joint_states', '/imu/data', '/wip/reference', '/wip/state_estimate',
         '/wip/velocity_command', '/wip/yaw_torque', '/wip/wheel_torques',

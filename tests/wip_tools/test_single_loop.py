@@ -81,7 +81,7 @@ def runner_objects(scenario, run):
                if fix is not None and fix.status.status >= NavSatStatus.STATUS_FIX else None)
         pose = estimator.update(t, *run.joint_states[stamp], *run.imu[stamp], *applied,
                                 run.imu_rates.get(stamp), fix)
-        out = control.step(t, run.reference[stamp], pose, control.drive.is_tick(k))
+        out = control.step(t, run.reference[stamp], pose, control.drive.is_tick(k), k=k)
         rows[stamp] = _row(pose.estimate, pose.x, pose.y, out.command, out.arc,
                            None if out.mpc is None else out.mpc.tau_v,
                            (out.tau_left, out.tau_right))
@@ -156,8 +156,11 @@ def node_callbacks(context, bag):
             cb[TorqueMixerNode]['/wip/yaw_torque'](arc)
             (wheels,) = out[TorqueMixerNode].take(WheelTorques)
             assert not wheels.zeroed, wheels.reason
+            # (A HELD answer at a tick of the re-solve grid is not a solve: the runner
+            # records none there.)
+            solved = [msg for msg in drive if msg.status_text != 'HELD']
             rows[stamp] = _row(estimate, estimate.x, estimate.y, command, arc,
-                               drive[0].tau_v if drive else None, (wheels.left, wheels.right))
+                               solved[0].tau_v if solved else None, (wheels.left, wheels.right))
             previous_torques = messages['/wip/wheel_torques']
         return rows
     finally:

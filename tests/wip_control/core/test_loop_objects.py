@@ -3,6 +3,7 @@ overflow handling and the drive stage's hold (core/state_estimation.py,
 core/control_step.py; the three drivers are cross-checked in
 tests/wip_tools/test_single_loop.py)."""
 
+import dataclasses
 import math
 
 import pytest
@@ -118,6 +119,83 @@ def test_the_drive_stage_solves_at_its_ticks_and_holds_its_torque():
     assert drive.tau_v == result.tau_v and math.isfinite(again.tau_v)
     # The bound 2 τmax − |τω|; a NaN τω gives a NaN bound (the controller's INPUT_INVALID).
     assert drive.limit(10.0) == 20.0 and math.isnan(drive.limit(math.nan))
+
+
+def _drive_ticks(drive, f2_of_k, ticks, v_d=0.0):
+    """(k, result) of the ticks at which ``drive`` solves, standing, f̂2 = f2_of_k(k)."""
+    out = []
+    for k in range(ticks):
+        f2 = f2_of_k(k)
+        if drive.is_tick(k) and drive.solves(k, 0.0, f2, 0.0):
+            out.append((k, drive.step(0.0, 0.0, 0.0, f2, 0.0, v_d, 0.0, k=k)))
+    return out
+
+
+def test_without_a_push_re_solving_changes_nothing():
+    """fast_resolve_period on: the stage takes inputs at the finer grid but, without a
+    push, solves at the MPC's ticks only, with the same floats as with it off."""
+    config = MpcConfig(backend='daqp')
+    fast = DriveStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
+    off = DriveStage(MODEL, dataclasses.replace(config, fast_resolve_period=0.0), 15.0,
+                     decimation=20, fast_decimation=None)
+    assert [k for k in range(41) if fast.is_tick(k)] == [0, 10, 20, 30, 40]
+    assert [k for k in range(41) if off.is_tick(k)] == [0, 20, 40]
+
+    def f2(k):   # a slow drift, within the dead zone
+        return 0.3 * math.sin(0.01 * k)
+    a = _drive_ticks(fast, f2, 400, v_d=0.5)
+    b = _drive_ticks(off, f2, 400, v_d=0.5)
+    assert [k for k, _ in a] == [k for k, _ in b] == list(range(0, 400, 20))
+    assert [r.tau_v for _, r in a] == [r.tau_v for _, r in b]
+
+
+def test_after_a_push_the_stage_re_solves_within_the_torque_rate_limit():
+    """A 10 m/s² push seen by the ESO: the stage solves at every tick of the finer grid
+    for fast_resolve_time after it, each increment at most Δτmax/2, and the increments
+    within any MPC period sum to at most Δτmax; then back to the MPC's ticks."""
+    config = MpcConfig(backend='daqp')
+    drive = DriveStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
+    dmax = config.max_delta_torque
+
+    def f2(k):   # the push from tick 410 (2.05 s) to 430
+        return 10.0 if 410 <= k < 430 else 0.0
+    ticks = _drive_ticks(drive, f2, 2000)
+    solved = [k for k, _ in ticks]
+    assert 410 in solved                       # seen at the finer grid's tick
+    fast = [k for k in solved if k % 20]
+    assert fast and min(fast) == 410
+    # Re-solving lasts fast_resolve_time (4 s = 800 ticks) after the last push seen (the
+    # estimate's drop back below the slow estimate, after the push, is seen too), and
+    # ends: the MPC's ticks only in the last second.
+    hold = round(config.fast_resolve_time / H)
+    assert set(range(410, 410 + hold, 10)) <= set(solved)
+    assert all(k % 20 == 0 for k in solved if k >= 1800)
+    moves = {k: abs(r.delta_tau) for k, r in ticks}
+    assert max(moves[k] for k in solved if 410 <= k <= max(fast)) <= dmax / 2 + 1e-9
+    assert max(moves.values()) > 1.0           # it did act
+    for k in solved:
+        window = sum(m for j, m in moves.items() if k - 20 < j <= k)
+        assert window <= dmax + 1e-9, k
+
+
+def test_fast_resolve_period_must_divide_the_sampling_period():
+    from wip_control.core.config import ConfigError
+    MpcConfig(fast_resolve_period=0.025).validate()
+    MpcConfig(fast_resolve_period=0.1).validate()      # not shorter: off
+    MpcConfig(sampling_period=0.01).validate()         # (the default 0.05 then off)
+    for bad in (0.03, 0.07):
+        with pytest.raises(ConfigError, match='fast_resolve_period'):
+            MpcConfig(fast_resolve_period=bad).validate()
+
+
+def test_the_paper_design_holds_the_torque_for_the_mpc_period():
+    from wip_control.core.scenario import scenario_from_mapping
+    paper = scenario_from_mapping({'design': 'paper'})
+    assert paper.mpc.fast_resolve_period == 0.0 and paper.mpc_fast_decimation is None
+    assert paper.drive_decimation == paper.mpc_decimation == 20
+    robust = scenario_from_mapping({})
+    assert robust.mpc_fast_decimation == 10 and robust.drive_decimation == 10
+    assert ControlStep.from_scenario(paper).drive.every == 20
 
 
 def test_the_control_step_mixes_the_held_drive_torque_between_mpc_ticks():

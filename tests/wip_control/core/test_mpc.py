@@ -850,9 +850,11 @@ def test_a_hard_push_predicted_to_pass_no_longer_drops_the_robot():
             'disturbances': {'longitudinal': [{'kind': 'pulse', 'amplitude': -8.77,
                                                'start_time': 20.68, 'width': 0.1}]},
             'duration': 24.0, 'mpc': {'disturbance_decay_time_constant': decay,
-                                      'speed_slack_quadratic_penalty': 1e4}}))
+                                      'speed_slack_quadratic_penalty': 1e4,
+                                      'fast_resolve_period': 0.0}}))
     # The speed slacks' penalty as when this draw was traced (1e4; docs/mpc.md §5): with
-    # the default of §7 (100) the held prediction survives this draw too.
+    # the default of §7 (100) the held prediction survives this draw too; and the torque
+    # held for the MPC period, as then: re-solving after the push (§10) saves it too.
     held = run(0.0)
     assert held.fell and 20.68 < held.fall_time < 22.0
     decaying = run(0.1)

@@ -823,7 +823,9 @@ def test_mixer_lockstep_waits_for_the_drive_torque_at_ticks_and_holds_it_between
                             joints=['right_wheel_joint', 'left_wheel_joint'])
     wheels = harness.outputs['/wip/wheel_torques']
     efforts = harness.outputs['/effort_controller/commands']
-    drives = {0: 12.0, 20: -29.0}                      # -29: the limit 30 - |tau_w| acts
+    # A drive torque every 10 ticks: the grid of mpc.fast_resolve_period (50 ms), where
+    # the MPC node answers every tick (at 10 its HELD answer, the same torque).
+    drives = {0: 12.0, 10: 12.0, 20: -29.0}           # -29: the limit 30 - |tau_w| acts
     for k in range(25):
         stamp, tau_omega = k * H_NS, 1.5 * math.sin(k)
         harness.publish('/wip/yaw_torque', ArcState(header=make_header(stamp),

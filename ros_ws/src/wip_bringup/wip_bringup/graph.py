@@ -398,7 +398,7 @@ class GraphRunner(RunnerBase):
         """Messages a lockstep run published per topic, from the plant's tick count.
 
         Every control tick t_0 .. t_{k-1} produces one message of each topic (the MPC one
-        every ``mpc_decimation`` ticks, GPS every control_rate / gps_rate ticks), and the
+        every ``drive_decimation`` ticks, GPS every control_rate / gps_rate ticks), and the
         final ground truth at t_k has no tick after it.
         """
         stats_path = self.out / 'plant_stats.json'
@@ -413,7 +413,7 @@ class GraphRunner(RunnerBase):
         expected['/clock'] = ticks
         expected['/wip/ground_truth'] = ticks + 1
         expected['/gps/fix'] = -(-ticks // gps_every)
-        expected['/wip/drive_torque'] = -(-ticks // scenario.mpc_decimation)
+        expected['/wip/drive_torque'] = -(-ticks // scenario.drive_decimation)
         return expected
 
     def drain_recorder(self) -> None:

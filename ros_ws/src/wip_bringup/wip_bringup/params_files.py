@@ -156,7 +156,9 @@ def graph_parameters(scenario: Scenario, clock_mode: str = 'lockstep',
         'mpc': {'mpc': config_section(scenario.mpc), 'model': model,
                 'mixer': {'max_wheel_torque': mixer['max_wheel_torque']}, 'rates': rates},
         'torque_mixer': {'mixer': mixer, 'rates': rates,
-                         'mpc': {'sampling_period': float(scenario.mpc.sampling_period)},
+                         'mpc': {'sampling_period': float(scenario.mpc.sampling_period),
+                                 'fast_resolve_period':
+                                     float(scenario.mpc.fast_resolve_period)},
                          'left_joint': left, 'right_joint': right,
                          'joints': [left, right]},
     }

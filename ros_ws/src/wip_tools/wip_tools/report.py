@@ -32,7 +32,10 @@ mpc        /wip/drive_torque          tau_v, delta_tau, status, iterations, solv
 ========== ========================== ==============================================
 
 ``mpc.status`` holds the MpcOutput status constant (SOLVED = 0, ...), and
-``mpc.solve_time`` the message's build + solve time. A bag without ground truth (recorded
+``mpc.solve_time`` the message's build + solve time. A drive torque whose ``status_text``
+is HELD (the lockstep MPC node's answer at a tick of its re-solve grid where it did not
+solve, ``mpc.fast_resolve_period``) is not a row: the record has the solves, as the
+runner's. A bag without ground truth (recorded
 on a robot) gives every metric that needs no truth; the others are null.
 
 Time origin: a bag in simulation time (stamps from t = 0) keeps its times; a bag in
@@ -82,7 +85,11 @@ def _truth(m) -> tuple:
             m.tau_d3, m.tau_left, m.tau_right)
 
 
-def _mpc(m) -> tuple:
+def _mpc(m) -> tuple | None:
+    if m.status_text == 'HELD':
+        # A tick of the re-solve grid without a solve (lockstep, docs/mpc.md §10): not an
+        # MPC tick of the record (the runner records its solves only).
+        return None
     return (m.tau_v, m.delta_tau, float(m.status), float(m.iterations), m.solve_time,
             float(bool(m.used_fallback)), m.slack_v, m.slack_theta)
 
@@ -124,7 +131,9 @@ def record_from_bag(bag: str | pathlib.Path,
         for topic, _, _, message in read_bag(bag, topics=list(topics),
                                              allow_partial=allow_partial):
             group, convert = topics[topic]
-            rows[group].append((_stamp_ns(message), convert(message)))
+            row = convert(message)
+            if row is not None:
+                rows[group].append((_stamp_ns(message), row))
     except BagReadError as err:
         raise ReportError(str(err)) from err
     if not any(rows.values()):

@@ -344,7 +344,8 @@ def rerun_controllers(run: RecordedRun, scenario: Scenario,
             previous = stamp
             continue  # No reference yet: the graph's generator would wait too.
         reference = run.reference[reference_stamps[index]]
-        out = control.step(t, reference, pose, mpc_tick, hold=not receive_mode)
+        out = control.step(t, reference, pose, mpc_tick, hold=not receive_mode, k=k,
+                           decide=not receive_mode)
         command, arc_out, result = out.command, out.arc, out.mpc
         wheels = (out.tau_left, out.tau_right)
         if receive_mode:

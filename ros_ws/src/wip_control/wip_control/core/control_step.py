@@ -94,14 +94,36 @@ class YawStage:
 
 class DriveStage:
     """Estimate, υd and τω -> τυ: the MPC (or LQR) every ``decimation``-th control tick,
-    its torque held in between (:attr:`tau_v`)."""
+    its torque held in between (:attr:`tau_v`).
+
+    With ``fast_decimation`` (control ticks per ``mpc.fast_resolve_period``, < decimation)
+    the MPC also solves at the ticks of that finer grid for ``mpc.fast_resolve_time``
+    after a push (``LongitudinalMpc.push_detected``, checked at every tick of the grid;
+    docs/mpc.md §10). Then every increment is bounded so that the increments within any
+    ``decimation`` ticks sum to at most ``max_delta_torque``, and to its share
+    ``max_delta_torque · fast_decimation / decimation`` while re-solving. The ticks of
+    the fine grid are :meth:`is_tick` (where the loop hands the stage its inputs);
+    :meth:`solves` says whether it solves there.
+    """
 
     def __init__(self, model: WipParameters, config: MpcConfig, max_wheel_torque: float,
-                 decimation: int = 1) -> None:
+                 decimation: int = 1, fast_decimation: int | None = None) -> None:
         self.controller = make_longitudinal_controller(model, config)
         self.max_wheel_torque = max_wheel_torque
         self.decimation = decimation
         self.tau_v = 0.0   #: the held drive torque [N m]
+        fast = (fast_decimation is not None
+                and 0.0 < config.fast_resolve_period < config.sampling_period
+                and 1 <= fast_decimation < decimation)
+        #: Control ticks between the ticks at which the stage takes inputs.
+        self.every = fast_decimation if fast else decimation
+        # Re-solving applies to the MPC; the LQR (a fixed gain for Ts) solves at Ts only.
+        self._fast = fast and config.controller == 'mpc'
+        self._fast_ticks = (int(round(config.fast_resolve_time / config.fast_resolve_period))
+                            * fast_decimation if self._fast else 0)
+        self._fast_until = -1      # re-solve at the fine grid's ticks before this tick
+        self._moves: list[tuple[int, float]] = []   # (tick, |Δτ|) of the last decimation ticks
+        self._last_solve: int | None = None
 
     def limit(self, tau_omega: float) -> float:
         """Bound on |τυ| [N m]: 2 τmax − |τω| (``core.mixer.drive_torque_limit``). A NaN τω
@@ -112,24 +134,65 @@ class DriveStage:
         return drive_torque_limit(tau_omega, self.max_wheel_torque)
 
     def is_tick(self, k: int) -> bool:
-        """Whether control tick ``k`` (from 0) is an MPC tick."""
-        return k % self.decimation == 0
+        """Whether control tick ``k`` (from 0) is a tick of the stage (the MPC's, or with
+        re-solving after a push that of its finer grid): the stage takes its inputs, and
+        in lockstep the drive torque is published, at these ticks."""
+        return k % self.every == 0
+
+    def solves(self, k: int, theta_hat: float, f2_hat: float, f3_hat: float) -> bool:
+        """Whether the controller solves at tick ``k`` of :meth:`is_tick`: at every
+        ``decimation``-th tick, and at the finer grid's while re-solving after a push (or
+        when the estimate shows one now)."""
+        if k % self.decimation == 0:
+            return True
+        if not self._fast:
+            return False
+        return k < self._fast_until or self.controller.push_detected(theta_hat, f2_hat,
+                                                                     f3_hat)
 
     def step(self, v_hat: float, theta_hat: float, theta_dot_hat: float, f2_hat: float,
-             f3_hat: float, v_d: float, tau_omega: float, hold: bool = True) -> MpcResult:
+             f3_hat: float, v_d: float, tau_omega: float, hold: bool = True,
+             k: int | None = None) -> MpcResult:
         """Solve once with the bound :meth:`limit`; ``hold``: the result's τυ becomes the
-        held torque."""
+        held torque. ``k``: the control tick (needed with re-solving after a push, for
+        the increment bound and the push's time)."""
         limit = self.limit(tau_omega)
         previous = self.controller.tau_previous
-        result = self.controller.step(v_hat=v_hat, theta_hat=theta_hat,
-                                      theta_dot_hat=theta_dot_hat, f2_hat=f2_hat,
-                                      f3_hat=f3_hat, v_d=v_d, tau_limit=limit)
+        if self._fast and k is not None:
+            result = self._step_fast(k, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d,
+                                     limit)
+        else:
+            result = self.controller.step(v_hat=v_hat, theta_hat=theta_hat,
+                                          theta_dot_hat=theta_dot_hat, f2_hat=f2_hat,
+                                          f3_hat=f3_hat, v_d=v_d, tau_limit=limit)
         if not math.isfinite(result.tau_v):
             self.controller.set_previous_torque(previous)
             raise ControlOverflow(f'non-finite drive torque {result.tau_v!r} (overflow); '
                                   'previous torque kept')
         if hold:
             self.tau_v = result.tau_v
+        return result
+
+    def _step_fast(self, k, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit):
+        """A solve with re-solving after a push: the increment bound of the window and
+        the time since the last solve; a push seen now (re)starts the re-solving."""
+        mpc = self.controller
+        dmax = mpc.config.max_delta_torque
+        window = k - self.decimation
+        self._moves = [(tick, move) for tick, move in self._moves if tick > window]
+        bound = dmax - sum(move for _, move in self._moves)
+        pushed = mpc.push_detected(theta_hat, f2_hat, f3_hat)
+        if pushed or k < self._fast_until:
+            bound = min(bound, dmax * self.every / self.decimation)
+        elapsed = (None if self._last_solve is None
+                   else (k - self._last_solve) * mpc.config.sampling_period / self.decimation)
+        result = mpc.step(v_hat=v_hat, theta_hat=theta_hat, theta_dot_hat=theta_dot_hat,
+                          f2_hat=f2_hat, f3_hat=f3_hat, v_d=v_d, tau_limit=limit,
+                          max_first_delta=bound, elapsed=elapsed)
+        self._last_solve = k
+        self._moves.append((k, abs(result.delta_tau)))
+        if pushed or mpc.push_detected(theta_hat, f2_hat, f3_hat):   # (after its update)
+            self._fast_until = k + self._fast_ticks
         return result
 
 
@@ -159,21 +222,26 @@ class ControlStep:
         return cls(GuidanceStage(scenario.trajectory_generator),
                    YawStage(scenario.arc, initial_alpha(
                        nominal, scenario.eso.yaw_input_gain_scale), scenario.control_period),
-                   DriveStage(nominal, scenario.mpc, max_wheel, scenario.mpc_decimation),
+                   DriveStage(nominal, scenario.mpc, max_wheel, scenario.mpc_decimation,
+                              scenario.mpc_fast_decimation),
                    max_wheel)
 
     def step(self, t: float, reference: ReferenceState, pose: PoseEstimate,
-             mpc_tick: bool, hold: bool = True) -> ControlOutputs:
-        """Torques of the tick at ``t`` [s]; the MPC solves when ``mpc_tick``, and its τυ
-        is held from this tick on (``hold``, as the graph in lockstep) or when the caller
+             mpc_tick: bool, hold: bool = True, k: int | None = None,
+             decide: bool = True) -> ControlOutputs:
+        """Torques of control tick ``k`` at ``t`` [s]; the MPC solves when ``mpc_tick``
+        (``drive.is_tick(k)``) and, with ``decide``, ``drive.solves(k, …)``; its τυ is
+        held from this tick on (``hold``, as the graph in lockstep) or when the caller
         sets ``drive.tau_v`` (a re-run that knows when a real-time mixer got it)."""
         est = pose.estimate
         command = self.guidance.step(t, reference, pose.x, pose.y, est.phi)
         arc = self.yaw.step(est.omega, est.f1, command)
         result = None
-        if mpc_tick:
-            result = self.drive.step(est.v, est.theta, est.theta_dot, est.f2, est.f3,
-                                     command.v_d, arc.tau_omega, hold)
+        drive = self.drive
+        if mpc_tick and (not decide or k is None
+                         or drive.solves(k, est.theta, est.f2, est.f3)):
+            result = drive.step(est.v, est.theta, est.theta_dot, est.f2, est.f3,
+                                command.v_d, arc.tau_omega, hold, k)
         return ControlOutputs(command, arc, result,
                               *mix(self.drive.tau_v, arc.tau_omega, self.max_wheel_torque))
 

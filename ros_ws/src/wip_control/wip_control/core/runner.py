@@ -135,7 +135,7 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
         # 4-7: reference, generator, ARC, MPC at its own period (held), mixer.
         ref = reference.sample(t)
         tau_v_held = drive.tau_v
-        out = control.step(t, ref, pose, drive.is_tick(k))
+        out = control.step(t, ref, pose, drive.is_tick(k), k=k)
         tau_left, tau_right = out.tau_left, out.tau_right
         if out.mpc is not None:
             result, est = out.mpc, pose.estimate

@@ -146,6 +146,22 @@ class Scenario:
         """Control periods per MPC sampling period."""
         return int(round(self.mpc.sampling_period * self.rates.control_rate))
 
+    @property
+    def drive_decimation(self) -> int:
+        """Control periods between the drive stage's ticks, where it takes its inputs and
+        (lockstep) publishes a drive torque: ``mpc.fast_resolve_period`` when set, else
+        ``mpc.sampling_period`` (``DriveStage.is_tick``)."""
+        fast = self.mpc_fast_decimation
+        return fast if fast is not None and fast < self.mpc_decimation else self.mpc_decimation
+
+    @property
+    def mpc_fast_decimation(self) -> int | None:
+        """Control periods per ``mpc.fast_resolve_period`` (None: off, 0 or not shorter
+        than ``mpc.sampling_period``)."""
+        if not 0.0 < self.mpc.fast_resolve_period < self.mpc.sampling_period:
+            return None
+        return int(round(self.mpc.fast_resolve_period * self.rates.control_rate))
+
 
 MAX_DURATION_S = 36000.0
 MAX_SEED = 2 ** 63 - 1
@@ -299,6 +315,12 @@ def _check_consistency(scenario: Scenario) -> None:
     if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
         raise ConfigError('mpc.sampling_period: must be an integer multiple of the control '
                           f'period 1/rates.control_rate = {scenario.control_period} s')
+    ratio = scenario.mpc.fast_resolve_period * scenario.rates.control_rate
+    if (0.0 < scenario.mpc.fast_resolve_period < scenario.mpc.sampling_period
+            and (abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1)):
+        raise ConfigError('mpc.fast_resolve_period: must be 0 or an integer multiple of '
+                          f'the control period 1/rates.control_rate = '
+                          f'{scenario.control_period} s')
     ref, generator = scenario.reference, scenario.trajectory_generator
     if ref.time_scaling:
         if ref.path_max_speed > generator.max_speed:

@@ -333,6 +333,15 @@ def planned_drive_torque(result: MpcResult) -> list[float]:
     return planned
 
 
+def mpc_hold_msg(stamp_ns: int, tau_v: float, sampling_period: float) -> MpcOutput:
+    """MpcOutput of a tick of the re-solve grid at which the MPC did not solve
+    (``mpc.fast_resolve_period``, lockstep): the held τυ, status SOLVED (of the last solve),
+    ``status_text`` HELD, Δτ 0, no plan or prediction."""
+    return stamped(MpcOutput(tau_v=float(tau_v), delta_tau=0.0, status=MpcOutput.SOLVED,
+                             status_text='HELD', sampling_period=float(sampling_period),
+                             used_fallback=False), stamp_ns)
+
+
 def mpc_idle_msg(stamp_ns: int, status: int, text: str, sampling_period: float) -> MpcOutput:
     """MpcOutput with τυ = 0 when the MPC did not run (NOT_READY, INPUT_INVALID)."""
     return stamped(MpcOutput(tau_v=0.0, delta_tau=0.0, status=status, status_text=text,

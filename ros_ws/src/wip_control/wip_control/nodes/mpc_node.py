@@ -21,11 +21,15 @@ never NaN.
 Ticks
 -----
 lockstep: t_k is a tick when k = round(t_k / h) is a multiple of
-round(``mpc.sampling_period`` / h), h = 1/``rates.control_rate`` (the runner's
-``k % mpc_decimation == 0``, t = 0 included); the tick is computed as soon as
-estimate(t_k), command(t_k) and yaw_torque(t_k) have all arrived, in any order. Inputs
-at other stamps are not needed. (Not a sim-time timer: see ``common.py`` for why.)
-realtime: a timer of period ``mpc.sampling_period`` on the node clock computes with the
+round(``mpc.sampling_period`` / h), or of round(``mpc.fast_resolve_period`` / h) when that
+is set, h = 1/``rates.control_rate`` (the runner's ``DriveStage.is_tick(k)``, t = 0
+included); the tick is computed as soon as estimate(t_k), command(t_k) and yaw_torque(t_k)
+have all arrived, in any order. Inputs at other stamps are not needed. (Not a sim-time
+timer: see ``common.py`` for why.) At a tick of the re-solve grid where the stage does not
+solve (``DriveStage.solves``: no push), the held τυ is published (status SOLVED,
+``status_text`` HELD, no plan), so the mixer gets an answer at every tick of the grid.
+realtime: a timer of period ``mpc.sampling_period`` (``mpc.fast_resolve_period`` when set;
+then only the ticks at which the stage solves publish) on the node clock computes with the
 latest inputs; if one is missing (NOT_READY) or older than ``max_input_age``
 (INPUT_INVALID) it publishes τυ = 0 and tells the core that 0 was applied. The node also
 subscribes ``/wip/wheel_torques`` and, before each tick, gives the core the drive torque
@@ -58,12 +62,12 @@ from ..core.mpc import MpcConfig
 from ..core.params import WipParameters
 from ..core.scenario import RatesConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
-from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc_idle_msg,
-                          mpc_to_msg, wheel_torques_from_msg)
+from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc_hold_msg,
+                          mpc_idle_msg, mpc_to_msg, wheel_torques_from_msg)
 from .diagnostics import OK, WARN
 from .parameters import ConfigParameters
 from .settings import MpcNodeSettings, WheelTorqueLimit
-from .sync import decimation, ExactTimeSync, is_decimated_tick
+from .sync import decimation, ExactTimeSync, tick_index
 
 _INPUTS = ('state_estimate', 'velocity_command', 'yaw_torque')
 
@@ -81,16 +85,23 @@ class MpcNode(ControllerNode):
         self.max_input_age = ConfigParameters(self, '', MpcNodeSettings).config.max_input_age
         self.sampling_period = self.config.sampling_period
         self.control_period = 1.0 / self.rates.control_rate
-        self.every = decimation(self.sampling_period, self.control_period)
-        # The drive stage of the loop (core/control_step.py): the MPC or the LQR.
-        self.stage = DriveStage(self.model, self.config, self.max_wheel_torque, self.every)
+        fast = self.config.fast_resolve_period
+        # The drive stage of the loop (core/control_step.py): the MPC or the LQR, and its
+        # grid (every sampling_period, or every fast_resolve_period when that is set).
+        self.stage = DriveStage(self.model, self.config, self.max_wheel_torque,
+                                decimation(self.sampling_period, self.control_period),
+                                decimation(fast, self.control_period)
+                                if 0.0 < fast < self.sampling_period else None)
+        self.every = self.stage.every
+        self.tick_period = self.every * self.control_period
+        self.realtime_k = 0   # realtime: the control tick of the next timer tick
         self.mpc = self.stage.controller
         self.latest: dict[str, tuple[int, object]] = {}
         self.publisher = self.create_publisher(MpcOutput, '/wip/drive_torque', RELIABLE_QOS)
         if self.lockstep:
             self.sync = ExactTimeSync(_INPUTS, self._tick)
         else:
-            self.create_timer(self.sampling_period, self._realtime_tick)
+            self.create_timer(self.tick_period, self._realtime_tick)
             self.subscribe(WheelTorques, '/wip/wheel_torques', 'wheel_torques',
                            self._on_applied)
         self.applied_drive_torque: float | None = None
@@ -107,7 +118,7 @@ class MpcNode(ControllerNode):
 
     def is_tick(self, stamp_ns: int) -> bool:
         """Whether ``stamp_ns`` is an MPC tick of the lockstep grid (from t = 0)."""
-        return is_decimated_tick(stamp_ns, self.control_period, self.every)
+        return self.stage.is_tick(tick_index(stamp_ns, self.control_period))
 
     def _on_input(self, name: str, msg, value) -> None:
         # Non-finite values are passed on: the core answers INPUT_INVALID with a finite
@@ -126,6 +137,8 @@ class MpcNode(ControllerNode):
         self.applied_drive_torque = left + right
 
     def _realtime_tick(self) -> None:
+        k = self.realtime_k
+        self.realtime_k += self.every
         try:
             if self.applied_drive_torque is not None:
                 self.mpc.set_previous_torque(self.applied_drive_torque)
@@ -140,7 +153,7 @@ class MpcNode(ControllerNode):
                 self._idle(now, MpcOutput.INPUT_INVALID, f'INPUT_INVALID: stale {stale}')
                 return
             self._tick(self.latest['state_estimate'][0],
-                       {n: v for n, (_, v) in self.latest.items()})
+                       {n: v for n, (_, v) in self.latest.items()}, k)
         except Exception as err:  # noqa: B902 - a timer callback must not stop the node
             self.diagnostics.drop('tick', 'error', f'{type(err).__name__}: {err}')
 
@@ -151,12 +164,22 @@ class MpcNode(ControllerNode):
         self.diagnostics.output(stamp, 0.0)
         self.diagnostics.state(WARN, text)
 
-    def _tick(self, stamp: int, values) -> None:
+    def _tick(self, stamp: int, values, k: int | None = None) -> None:
         start = time.perf_counter()
         estimate = values['state_estimate'].estimate
         tau_omega = values['yaw_torque'].tau_omega
+        if k is None:   # lockstep: the stamp's control tick
+            k = tick_index(stamp, self.control_period)
+        if not self.stage.solves(k, estimate.theta, estimate.f2, estimate.f3):
+            # A tick of the re-solve grid without a push: the torque stays held (lockstep
+            # answers it, as the mixer awaits a drive torque at each tick of the grid).
+            if self.lockstep:
+                self.publisher.publish(mpc_hold_msg(stamp, self.stage.tau_v,
+                                                    self.sampling_period))
+            return
         result = self.stage.step(estimate.v, estimate.theta, estimate.theta_dot, estimate.f2,
-                                 estimate.f3, values['velocity_command'].v_d, tau_omega)
+                                 estimate.f3, values['velocity_command'].v_d, tau_omega,
+                                 k=k)
         self.publisher.publish(mpc_to_msg(result, stamp, self.sampling_period))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self.diagnostics.state(OK if not result.used_fallback else WARN,

@@ -164,10 +164,11 @@ class WheelTorqueLimit:
 
 @dataclasses.dataclass(frozen=True)
 class MpcPeriod:
-    """The one MPC value the mixer needs: its sampling period, from which the mixer
-    computes the ticks at which (in lockstep) it awaits a drive torque."""
+    """The MPC values the mixer needs: its sampling period and re-solve period, from
+    which the mixer computes the ticks at which (in lockstep) it awaits a drive torque."""
 
     sampling_period: float = like(MpcConfig, 'sampling_period')
+    fast_resolve_period: float = like(MpcConfig, 'fast_resolve_period')
 
 
 @dataclasses.dataclass(frozen=True)

@@ -50,7 +50,8 @@ the base's clock is this computer's): p50, p99 and max over the last
 with the latest inputs: up to one period more latency, 2.5 ms on average at 200 Hz.)
 lockstep: one command per stamp t_k, computed when yaw_torque(t_k) has arrived, plus
 drive_torque(t_k) when t_k is an MPC tick (k = round(t_k / h) a multiple of
-round(``mpc.sampling_period`` / h), h = 1/``rates.control_rate``, from t = 0, as in the runner),
+round(``mpc.sampling_period`` / h), or of round(``mpc.fast_resolve_period`` / h) when that is
+set, h = 1/``rates.control_rate``, from t = 0, as in the runner),
 else the drive torque of the last tick; once a state estimate has been received, also
 estimate(t_k), so that the checks use the estimate of the same sample whatever the
 arrival order. The safety layer runs without ages and start-up wait (see
@@ -60,9 +61,9 @@ is answered even when zeroed, so a lockstep plant never waits forever.
 
 Parameters: section ``mixer`` (changeable at run time, validated), sections ``rates`` and
 ``safety`` (read-only: a safety setting does not change under a running robot),
-``mpc.sampling_period`` [s], ``joints``, ``left_joint``, ``right_joint``, ``left_wheel_sign``,
-``right_wheel_sign`` (1 or −1), ``effort_topic``, ``clock_mode``, ``diagnostics_period``
-(all read-only).
+``mpc.sampling_period``, ``mpc.fast_resolve_period`` [s], ``joints``, ``left_joint``,
+``right_joint``, ``left_wheel_sign``, ``right_wheel_sign`` (1 or −1), ``effort_topic``,
+``clock_mode``, ``diagnostics_period`` (all read-only).
 
 References
 ----------
@@ -118,7 +119,12 @@ class TorqueMixerNode(ControllerNode):
         self.parameters = ConfigParameters(self, 'mixer', MixerConfig, self._on_config)
         self.mixer = self.parameters.config
         self.rates = ConfigParameters(self, 'rates', RatesConfig).config
-        self.mpc_period = ConfigParameters(self, 'mpc', MpcPeriod).config.sampling_period
+        mpc_periods = ConfigParameters(self, 'mpc', MpcPeriod).config
+        # The drive stage's grid (core.control_step.DriveStage.is_tick): its re-solve period
+        # when set (in lockstep the MPC node answers each of its ticks, held or solved).
+        self.mpc_period = mpc_periods.sampling_period
+        if 0.0 < mpc_periods.fast_resolve_period < mpc_periods.sampling_period:
+            self.mpc_period = mpc_periods.fast_resolve_period
         self.safety = ConfigParameters(self, 'safety', SafetyConfig).config
         settings = ConfigParameters(self, '', MixerNodeSettings).config
         wheels = declare_effort_interface(self)
