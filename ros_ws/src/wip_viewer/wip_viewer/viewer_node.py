@@ -215,6 +215,10 @@ class ViewerNode(Node):
     def _on_mpc(self, msg: MpcOutput) -> None:
         stamp_ns = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input('drive_torque', stamp_ns)
+        if not len(msg.predicted_v):
+            # No plan (a tick of the MPC's re-solve grid at which it held its torque, or an
+            # idle answer): the last prediction drawn stays.
+            return
         # The prediction starts at the latest decoded estimate (at most 1/pose_rate old).
         estimate = self.last_estimate
         if estimate is None or not self.prediction_gate.ready(stamp_ns):
