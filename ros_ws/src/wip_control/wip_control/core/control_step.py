@@ -18,7 +18,7 @@ from .arc import AdaptiveRobustYawController, ArcConfig, ArcOutput
 from .lqr import make_longitudinal_controller
 from .mixer import drive_torque_limit, mix
 from .model import input_gains
-from .mpc import MpcConfig, MpcResult
+from .mpc import MpcConfig, MpcResult, resolves_faster
 from .params import WipParameters
 from .references import ReferenceState
 from .state_estimation import PoseEstimate
@@ -113,7 +113,7 @@ class DriveStage:
         self.decimation = decimation
         self.tau_v = 0.0   #: the held drive torque [N m]
         fast = (fast_decimation is not None
-                and 0.0 < config.fast_resolve_period < config.sampling_period
+                and resolves_faster(config.sampling_period, config.fast_resolve_period)
                 and 1 <= fast_decimation < decimation)
         #: Control ticks between the ticks at which the stage takes inputs.
         self.every = fast_decimation if fast else decimation

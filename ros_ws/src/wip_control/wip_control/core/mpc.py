@@ -105,6 +105,12 @@ PAPER_MPC_SETTINGS = {'soft_limits': 'worst_case', 'speed_limit_first_step': 1,
                       'fast_resolve_period': 0.0}
 
 
+def resolves_faster(sampling_period: float, fast_resolve_period: float) -> bool:
+    """Whether the MPC re-solves every ``fast_resolve_period`` after a push (docs/mpc.md
+    §10): on when it is above 0 and shorter than ``sampling_period``, else off."""
+    return 0.0 < fast_resolve_period < sampling_period
+
+
 class MpcInputError(ValueError):
     """An argument of :meth:`LongitudinalMpc.step` or ``reset`` is not admissible."""
 
@@ -277,7 +283,7 @@ class MpcConfig:
         'worst-case solve time', minimum=1, maximum=10000)
 
     def validate(self) -> None:
-        if 0.0 < self.fast_resolve_period < self.sampling_period:
+        if resolves_faster(self.sampling_period, self.fast_resolve_period):
             ratio = self.sampling_period / self.fast_resolve_period
             if abs(ratio - round(ratio)) > 1e-6:
                 raise ConfigError(f'fast_resolve_period: must divide sampling_period '
@@ -350,6 +356,9 @@ class PreviousTorque:
     params: WipParameters
     _target: OffsetFreeTarget
     _tau_previous: float = 0.0
+    #: Time since the previous tick [s] for the offset-free target's filter (None: the
+    #: sampling period; the MPC sets it per tick when it re-solves after a push).
+    _period: float | None = None
 
     def _begin_tick(self, tau_limit: float | None, v_hat: float, theta_hat: float,
                     theta_dot_hat: float, f2_hat: float, f3_hat: float, v_d: float):
@@ -362,7 +371,7 @@ class PreviousTorque:
             return None
         gains = tick_gains(self.params, self.config, theta_hat)
         self._target.update(theta_hat, f2_hat, f3_hat, *gains, self._tau_previous,
-                            getattr(self, '_period', None))
+                            self._period)
         return limit, gains
 
     @property

@@ -43,7 +43,7 @@ from .config import ConfigError, _show, from_mapping, load_yaml_text, param, to_
 from .disturbances import DisturbanceConfig
 from .eso import EsoConfig
 from .mixer import MixerConfig
-from .mpc import MpcConfig, PAPER_MPC_SETTINGS
+from .mpc import MpcConfig, PAPER_MPC_SETTINGS, resolves_faster
 from .params import WipParameters
 from .plant import PlantConfig
 from .position import PositionConfig
@@ -158,7 +158,7 @@ class Scenario:
     def mpc_fast_decimation(self) -> int | None:
         """Control periods per ``mpc.fast_resolve_period`` (None: off, 0 or not shorter
         than ``mpc.sampling_period``)."""
-        if not 0.0 < self.mpc.fast_resolve_period < self.mpc.sampling_period:
+        if not resolves_faster(self.mpc.sampling_period, self.mpc.fast_resolve_period):
             return None
         return int(round(self.mpc.fast_resolve_period * self.rates.control_rate))
 
@@ -316,7 +316,7 @@ def _check_consistency(scenario: Scenario) -> None:
         raise ConfigError('mpc.sampling_period: must be an integer multiple of the control '
                           f'period 1/rates.control_rate = {scenario.control_period} s')
     ratio = scenario.mpc.fast_resolve_period * scenario.rates.control_rate
-    if (0.0 < scenario.mpc.fast_resolve_period < scenario.mpc.sampling_period
+    if (resolves_faster(scenario.mpc.sampling_period, scenario.mpc.fast_resolve_period)
             and (abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1)):
         raise ConfigError('mpc.fast_resolve_period: must be 0 or an integer multiple of '
                           f'the control period 1/rates.control_rate = '

@@ -360,8 +360,15 @@ def wheel_torques_to_msg(left: float, right: float, stamp_ns: int, zeroed: bool 
 def effort_command(left: float, right: float, joints: Sequence[str], left_joint: str,
                    right_joint: str) -> Float64MultiArray:
     """ros2_control JointGroupEffortController command: one effort per joint of ``joints``."""
+    return Float64MultiArray(data=_column(_in_joint_order(left, right, joints, left_joint,
+                                                          right_joint)))
+
+
+def _in_joint_order(left: float, right: float, joints: Sequence[str], left_joint: str,
+                    right_joint: str) -> list[float]:
+    """The efforts in the order of ``joints`` (the base's command layout)."""
     by_name = {left_joint: left, right_joint: right}
-    return Float64MultiArray(data=_column([by_name[j] for j in joints]))
+    return [by_name[j] for j in joints]
 
 
 def effort_command_cdr(left: float, right: float, joints: Sequence[str], left_joint: str,
@@ -372,8 +379,7 @@ def effort_command_cdr(left: float, right: float, joints: Sequence[str], left_jo
     the publication here (docs/realtime.md). The layout is empty (no dimensions, offset 0),
     as :func:`effort_command` leaves it; the bytes differ from rclpy's only in the
     alignment padding, which Fast CDR leaves uninitialised."""
-    by_name = {left_joint: left, right_joint: right}
-    values = [float(by_name[j]) for j in joints]
+    values = [float(v) for v in _in_joint_order(left, right, joints, left_joint, right_joint)]
     # encapsulation CDR_LE | layout.dim length 0 | layout.data_offset 0 | data length |
     # padding to the doubles' 8-byte alignment (counted from after the encapsulation)
     return struct.pack(f'<4sIII4x{len(values)}d', b'\x00\x01\x00\x00', 0, 0, len(values),

@@ -58,7 +58,7 @@ from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
 
 from ..core.control_step import DriveStage
-from ..core.mpc import MpcConfig
+from ..core.mpc import MpcConfig, resolves_faster
 from ..core.params import WipParameters
 from ..core.scenario import RatesConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
@@ -91,7 +91,7 @@ class MpcNode(ControllerNode):
         self.stage = DriveStage(self.model, self.config, self.max_wheel_torque,
                                 decimation(self.sampling_period, self.control_period),
                                 decimation(fast, self.control_period)
-                                if 0.0 < fast < self.sampling_period else None)
+                                if resolves_faster(self.sampling_period, fast) else None)
         self.every = self.stage.every
         self.tick_period = self.every * self.control_period
         self.realtime_k = 0   # realtime: the control tick of the next timer tick

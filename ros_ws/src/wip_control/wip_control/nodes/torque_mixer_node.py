@@ -85,6 +85,7 @@ from wip_msgs.msg import ArcState, MpcOutput, StateEstimate as StateEstimateMsg,
 
 from ..core.config import ConfigError
 from ..core.mixer import MixerConfig
+from ..core.mpc import resolves_faster
 from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyConfig, SafetyDecision,
                            SafetyMonitor, SHADOW, STARTING)
 from ..core.scenario import RatesConfig
@@ -123,7 +124,7 @@ class TorqueMixerNode(ControllerNode):
         # The drive stage's grid (core.control_step.DriveStage.is_tick): its re-solve period
         # when set (in lockstep the MPC node answers each of its ticks, held or solved).
         self.mpc_period = mpc_periods.sampling_period
-        if 0.0 < mpc_periods.fast_resolve_period < mpc_periods.sampling_period:
+        if resolves_faster(mpc_periods.sampling_period, mpc_periods.fast_resolve_period):
             self.mpc_period = mpc_periods.fast_resolve_period
         self.safety = ConfigParameters(self, 'safety', SafetyConfig).config
         settings = ConfigParameters(self, '', MixerNodeSettings).config
