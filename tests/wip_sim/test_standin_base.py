@@ -216,9 +216,13 @@ def test_freezes_of_the_composed_controllers_within_the_bound_are_ridden_through
 def test_each_separate_controller_process_frozen_for_150_ms_is_ridden_through(tmp_path):
     names = ['reference', 'eso', 'trajectory_generator', 'arc', 'mpc', 'torque_mixer']
     log, starts = [], []
-    run_time = 2.0 + FREEZE_SPACING * (len(names) + 1)
+    # The run ends FREEZE_SPACING after the last freeze (the base's clock would not wait
+    # for an injector that a loaded machine starts late: once no freeze happened at all);
+    # run_time only caps it.
+    run_time = 60.0 + FREEZE_SPACING * (len(names) + 1)
     run = run_against_standin(tmp_path / 'freeze_each', BASE, run_time, layout='separate',
-                              during=_freezes(names, (0.15,), log, starts))
+                              during=_freezes(names, (0.15,), log, starts),
+                              end_after_during=FREEZE_SPACING)
     stats = run.stats
     # The separate layout costs about three times the composed one (six processes, ~65 %
     # of a core here): a machine that cannot run it in real time drops the robot before

@@ -8,6 +8,7 @@ import yaml
 
 pytest.importorskip('rclpy')
 
+from wip_bringup.standin_run import pinned_cpus  # noqa: E402
 from wip_tools import bench  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -38,7 +39,9 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
     # Real time: one row per (layout, priority), each with a CPU share and latencies
     # measured by the mixer (the robot may fall in 3 s on a loaded machine: not checked).
     rows = report['realtime']
-    assert [(r['layout']) for r in rows] == ['separate', 'composed', 'composed']
+    assert [(r['layout'], r['pinned']) for r in rows] == [
+        ('separate', False), ('composed', False), ('composed', False),
+        ('composed', pinned_cpus() is not None)]     # pinned where there are two CPUs
     for row in rows:
         assert 0.0 < row['controller_cpu_fraction'] < 2.0          # 2 cores at most
         assert 0.0 < row['latency_ms']['p50'] <= row['latency_ms']['p99'] \

@@ -27,6 +27,7 @@ from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState,  # noqa: E402
                           StateEstimate as StateEstimateMsg, VelocityCommand, WheelTorques)
 
 from wip_control.core.control_step import ControlStep  # noqa: E402
+from wip_control.core.mpc import HELD_STATUS_TEXT  # noqa: E402
 from wip_control.core.runner import run_scenario  # noqa: E402
 from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_control.core.state_estimation import StateEstimator  # noqa: E402
@@ -158,7 +159,7 @@ def node_callbacks(context, bag):
             assert not wheels.zeroed, wheels.reason
             # (A HELD answer at a tick of the re-solve grid is not a solve: the runner
             # records none there.)
-            solved = [msg for msg in drive if msg.status_text != 'HELD']
+            solved = [msg for msg in drive if msg.status_text != HELD_STATUS_TEXT]
             rows[stamp] = _row(estimate, estimate.x, estimate.y, command, arc,
                                solved[0].tau_v if solved else None, (wheels.left, wheels.right))
             previous_torques = messages['/wip/wheel_torques']

@@ -86,6 +86,9 @@ class StandinRun:
     #: SCHED_FIFO priorities the base and the controllers ran at (0: normal policy).
     base_priority: int = 0
     controller_priority: int = 0
+    #: CPUs the base and the controllers were pinned to (empty: any).
+    base_cpus: tuple[int, ...] = ()
+    controller_cpus: tuple[int, ...] = ()
 
     def summary(self) -> dict[str, Any]:
         """The measured numbers (also written to ``measured.json`` beside the run)."""
@@ -138,24 +141,35 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                         base_extra: Mapping[str, Any] | None = None,
                         layout: str = HardwareOptions.layout,
                         realtime_priority: bool = True,
+                        pin_cpus: bool = False,
                         record: bool = False,
-                        during: Callable[[HardwareResult | None, dict], None] | None = None
-                        ) -> StandinRun:
+                        during: Callable[[HardwareResult | None, dict], None] | None = None,
+                        end_after_during: float | None = None) -> StandinRun:
     """Start the stand-in base, run hardware mode until the base exits; both results.
 
     ``during(None, processes)``, if given, runs in a thread once the base has released the
     robot (its stats file is not needed: it waits for the first ACTIVE safety state seen
     by the runner), with the controller processes by name (to freeze one, say).
+    ``end_after_during`` [s]: the run ends that long after ``during`` returns (the base is
+    stopped with SIGINT, exit 0); ``run_time`` is then only a cap. A test whose injections
+    must all happen within the run uses it: how soon the runner sees the engagement
+    depends on the machine's load, the base's clock does not.
     ``realtime_priority``: run the base and the controllers at SCHED_FIFO priorities
     (:data:`BASE_PRIORITY`, :data:`CONTROLLER_PRIORITY`, limited to :data:`RT_CPU_LIMIT`
     without sleeping) if this user may; the run's ``measured.json`` says whether they
-    were. ``record``: the controllers' topics go to
+    were. ``pin_cpus``: the base on the first CPU this process may use, the controllers on
+    the last (:func:`pinned_cpus`; nothing on a one-CPU machine), as a robot's computer
+    would keep its control on a core of its own. ``record``: the controllers' topics go to
     the bag ``directory/bag`` (costs CPU: for diagnosis, not for measuring).
     """
     base_scheduling = controller_scheduling = Scheduling()
     if realtime_priority and permitted(Scheduling(BASE_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)):
         base_scheduling = Scheduling(BASE_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)
         controller_scheduling = Scheduling(CONTROLLER_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)
+    cpus = pinned_cpus() if pin_cpus else None
+    if cpus is not None:
+        base_scheduling = dataclasses.replace(base_scheduling, cpus=(cpus[0],))
+        controller_scheduling = dataclasses.replace(controller_scheduling, cpus=(cpus[1],))
     directory.mkdir(parents=True, exist_ok=True)
     scenario_path = directory / 'scenario.yaml'
     scenario_path.write_text(yaml.safe_dump(dict(scenario or line_scenario())))
@@ -188,8 +202,9 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                 stop_when=lambda: base.poll() is not None and f'base exited ({base.returncode})')
             if during is not None:
                 options.on_start = lambda runner: runner_holder.setdefault('runner', runner)
-                injector = threading.Thread(target=_when_engaged,
-                                            args=(runner_holder, during), daemon=True)
+                injector = threading.Thread(
+                    target=_when_engaged, daemon=True,
+                    args=(runner_holder, during, base, end_after_during))
                 injector.start()
             result = run_hardware(options)
         finally:
@@ -208,11 +223,21 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                 injector.join(timeout=30)
     stats = json.loads((directory / 'base_stats.json').read_text(encoding='utf-8'))
     run = StandinRun(result, stats, base.returncode, base_scheduling.priority,
-                     controller_scheduling.priority)
+                     controller_scheduling.priority, base_scheduling.cpus,
+                     controller_scheduling.cpus)
     measured = dict(run.summary(), base_priority=run.base_priority,
-                    controller_priority=run.controller_priority, layout=layout)
+                    controller_priority=run.controller_priority,
+                    base_cpus=list(run.base_cpus), controller_cpus=list(run.controller_cpus),
+                    layout=layout)
     (directory / 'measured.json').write_text(json.dumps(measured, indent=2))
     return run
+
+
+def pinned_cpus() -> tuple[int, int] | None:
+    """(base CPU, controllers' CPU): the first and the last CPU this process may use, or
+    None with fewer than two."""
+    available = sorted(os.sched_getaffinity(0))
+    return (available[0], available[-1]) if len(available) >= 2 else None
 
 
 def permitted(scheduling: Scheduling) -> bool:
@@ -224,12 +249,19 @@ def permitted(scheduling: Scheduling) -> bool:
         return False
 
 
-def _when_engaged(holder: dict, during: Callable) -> None:
+def _when_engaged(holder: dict, during: Callable, base: subprocess.Popen,
+                  end_after: float | None) -> None:
     deadline = time.monotonic() + 120.0
     while time.monotonic() < deadline:
         runner = holder.get('runner')
         if runner is not None and any(e['state'] == 'ACTIVE' for e in runner.safety_events):
-            during(runner, runner.processes)
+            try:
+                during(runner, runner.processes)
+            finally:
+                if end_after is not None:
+                    time.sleep(end_after)
+                    if base.poll() is None:
+                        base.send_signal(signal.SIGINT)
             return
         time.sleep(0.01)
 
@@ -246,19 +278,22 @@ def freeze_process(pid: int, seconds: float) -> float:
 
 
 def realtime_benchmark(directory: pathlib.Path, seconds: float = 20.0,
-                       cases: tuple[tuple[str, bool], ...] = (
-                           ('separate', False), ('composed', False), ('composed', True))
+                       cases: tuple[tuple[str, bool, bool], ...] = (
+                           ('separate', False, False), ('composed', False, False),
+                           ('composed', True, False), ('composed', True, True))
                        ) -> list[dict[str, Any]]:
     """The controllers at 200 Hz against the stand-in base, one run per (layout, real-time
-    priority) case, side by side: CPU share of one core, sensor -> command latency, command
-    gaps seen by the base. ``scripts/bench`` prints it."""
+    priority, pinned CPUs) case, side by side: CPU share of one core, sensor -> command
+    latency, the command age and gaps seen by the base. ``scripts/bench`` prints it."""
     rows = []
-    for layout, priority in cases:
-        name = f'{layout}{"_rt" if priority else ""}'
+    for layout, priority, pin in cases:
+        name = f'{layout}{"_rt" if priority else ""}{"_pinned" if pin else ""}'
         run = run_against_standin(directory / name, BASE, seconds, layout=layout,
-                                  realtime_priority=priority)
+                                  realtime_priority=priority, pin_cpus=pin)
         summary = run.summary()
         rows.append({'layout': layout, 'rt_priority': run.base_priority > 0,
+                     'pinned': bool(run.controller_cpus),
+                     'command_age_ms': summary['command_age_ms'],
                      'fell': summary['fell'],
                      'controller_cpu_fraction': summary['controller_cpu_fraction'],
                      'latency_ms': summary['sensor_to_command_latency_ms'],

@@ -14,9 +14,11 @@ made within one invocation, interleaved where possible:
    skips it), per layout (separate, composed, single: the plant in the controllers'
    process), next to the in-process one (goal: ≥ 5×, and within 10× of in-process).
 4. **Real time**: the controllers at 200 Hz against the stand-in base (its own process),
-   per layout (separate, composed, composed at SCHED_FIFO priority): their CPU share of
-   one core and the sensor -> command latency (p50, p99, max), beside the in-process cost
-   of the same loop (``--no-realtime`` skips it; about 90 s), and the floor of rclpy: the
+   per layout (separate, composed, composed at SCHED_FIFO priority, the same with the base
+   and the controllers each pinned to a CPU of its own): their CPU share of one core, the
+   sensor -> command latency (p50, p99, max) and the oldest command the base held while
+   balancing, beside the in-process cost of the same loop (``--no-realtime`` skips it;
+   about 2 min), and the floor of rclpy: the
    CPU share of a process that only receives the base's two sensor streams with empty
    callbacks (:mod:`wip_tools.rclpy_floor`).
 
@@ -179,11 +181,14 @@ def main(argv: list[str] | None = None) -> int:
                 print(f'-> {row}')
                 continue
             lat = row['latency_ms'] or {}
-            print(f'{row["layout"]:9s} rt-priority {"yes" if row["rt_priority"] else "no ":3s}: '
+            age = row['command_age_ms'] or {}
+            print(f'{row["layout"]:9s} rt-priority {"yes" if row["rt_priority"] else "no ":3s}'
+                  f'{", pinned" if row["pinned"] else "":8s}: '
                   f'controllers {100 * (row["controller_cpu_fraction"] or 0):.1f} % of a core; '
                   f'sensor->command latency p50 {lat.get("p50", float("nan")):.2f} ms, p99 '
                   f'{lat.get("p99", float("nan")):.2f} ms, max {lat.get("max", float("nan")):.2f}'
-                  f' ms; base command gap max {row["command_gap_ms"]["max_ms"]:.1f} ms'
+                  f' ms; base: oldest command held {age.get("max_ms", float("nan")):.1f} ms, '
+                  f'{row["deadline_misses"]} deadline misses'
                   f'{"; FELL" if row["fell"] else ""}')
         print('   (goals: <= 15 % of a core; latency p99 <= 2 ms, max <= 10 ms)')
         floor = bench_rclpy_floor(min(10.0, max(3.0, args.realtime_seconds / 2.0)))

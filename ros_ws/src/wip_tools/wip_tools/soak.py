@@ -114,8 +114,9 @@ def one_run(directory: pathlib.Path, path: str, load: str, index: int, seconds: 
                  and e['t'] < (run.result.wall_time_s or math.inf) - 2.0)
     simulated = float(stats.get('sim_time_s', 0.0))
     fell = bool(stats['fell'])
+    # A run whose freezes did not all happen (the run ended first) did not test them.
     passed = (not fell and run.base_code == 0 and simulated >= seconds - 0.01
-              and max_error <= max_path_error)
+              and max_error <= max_path_error and len(done) == len(freezes_ms))
     return SoakRow(path=path, load=load, run=index, layout=layout, seconds=seconds,
                    passed=passed, fell=fell, base_code=run.base_code,
                    simulated_s=simulated,

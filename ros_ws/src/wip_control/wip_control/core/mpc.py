@@ -90,8 +90,13 @@ INPUT_MAGNITUDE_LIMIT = 1e9
 #: Soft-limit formulations understood by :class:`MpcConfig`.
 SOFT_LIMITS = ('per_step', 'worst_case')
 
-__all__ = ['LongitudinalMpc', 'MpcConfig', 'MpcInputError', 'MpcResult', 'MpcStatus',
-           'PAPER_MPC_SETTINGS', 'QpData']
+#: Status text of a drive torque published at a tick of the re-solve grid without a solve
+#: (``mpc.fast_resolve_period``, lockstep; docs/mpc.md §10): the held τυ, no plan. Readers of
+#: a record (the report, the viewer, tests) tell it from a solve by this text.
+HELD_STATUS_TEXT = 'HELD'
+
+__all__ = ['HELD_STATUS_TEXT', 'LongitudinalMpc', 'MpcConfig', 'MpcInputError', 'MpcResult',
+           'MpcStatus', 'PAPER_MPC_SETTINGS', 'QpData']
 
 
 #: The settings that reproduce the paper's formulation of (19)–(21) as first implemented

@@ -26,7 +26,7 @@ from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateM
 
 from ..core.arc import ArcOutput
 from ..core.eso import StateEstimate
-from ..core.mpc import MpcResult, MpcStatus
+from ..core.mpc import HELD_STATUS_TEXT, MpcResult, MpcStatus
 from ..core.references import ReferenceState
 from ..core.sensors import geodetic_to_local
 from ..core.state_estimation import PoseEstimate
@@ -338,7 +338,7 @@ def mpc_hold_msg(stamp_ns: int, tau_v: float, sampling_period: float) -> MpcOutp
     (``mpc.fast_resolve_period``, lockstep): the held τυ, status SOLVED (of the last solve),
     ``status_text`` HELD, Δτ 0, no plan or prediction."""
     return stamped(MpcOutput(tau_v=float(tau_v), delta_tau=0.0, status=MpcOutput.SOLVED,
-                             status_text='HELD', sampling_period=float(sampling_period),
+                             status_text=HELD_STATUS_TEXT, sampling_period=float(sampling_period),
                              used_fallback=False), stamp_ns)
 
 
