@@ -215,14 +215,25 @@ def test_freezes_of_the_composed_controllers_within_the_bound_are_ridden_through
 
 def test_each_separate_controller_process_frozen_for_150_ms_is_ridden_through(tmp_path):
     names = ['reference', 'eso', 'trajectory_generator', 'arc', 'mpc', 'torque_mixer']
-    log, starts = [], []
     # The run ends FREEZE_SPACING after the last freeze (the base's clock would not wait
     # for an injector that a loaded machine starts late: once no freeze happened at all);
     # run_time only caps it.
     run_time = 60.0 + FREEZE_SPACING * (len(names) + 1)
-    run = run_against_standin(tmp_path / 'freeze_each', BASE, run_time, layout='separate',
-                              during=_freezes(names, (0.15,), log, starts),
-                              end_after_during=FREEZE_SPACING)
+    for attempt in (1, 2):
+        log, starts = [], []
+        run = run_against_standin(tmp_path / f'freeze_each_{attempt}', BASE, run_time,
+                                  layout='separate',
+                                  during=_freezes(names, (0.15,), log, starts),
+                                  end_after_during=FREEZE_SPACING)
+        # Six processes starting at once at SCHED_FIFO on a busy 2-core machine: once a
+        # node never came up (Fast DDS's shared-memory port lock timed out in one, another
+        # ran 30 s without sleeping and RLIMIT_RTTIME killed it; docs/realtime.md). That is
+        # the start-up, not the ride-through under test: one more attempt, said so.
+        if attempt == 2 or any(e['state'] == 'ACTIVE' for e in run.result.safety_events):
+            break
+        reason = (run.result.message or '-').splitlines()[0]
+        print(f'attempt 1 never engaged: {reason}; node exits {run.result.node_exit_codes}; '
+              'trying once more')
     stats = run.stats
     # The separate layout costs about three times the composed one (six processes, ~65 %
     # of a core here): a machine that cannot run it in real time drops the robot before
@@ -235,7 +246,8 @@ def test_each_separate_controller_process_frozen_for_150_ms_is_ridden_through(tm
                     f'max {stats["command_gap"]["max_ms"]:.0f} ms)')
     assert [name for name, _ in log] == names, (
         f'frozen: {log}; base: {stats["end_reason"]}, exit {run.base_code}; safety events '
-        f'{[e["state"] for e in run.result.safety_events][:10]}')
+        f'{[e["state"] for e in run.result.safety_events][:10]}; controllers: '
+        f'{run.result.message}; node exits {run.result.node_exit_codes}')
     assert run.base_code == 0 and not stats['fell'], stats['end_reason']
     theta_max, _ = _on_the_line(stats, after=0.0)
     print(f'freezes {log}: max |theta| {theta_max:.3f} rad')
