@@ -78,13 +78,29 @@ def test_realtime_plant_applies_the_latest_fresh_torques(realtime_run):
     # time (not its simulated time). Not the gaps one by one: on a loaded machine the
     # recorder misses samples (median gap of two periods seen) and a late timer tick is
     # followed by one on time (two stamps < 1 ms apart).
+    # The span also holds the time the vehicle was held before the controllers engaged.
     assert truth['t'][0] == 0.0
     assert np.all(np.diff(truth['t']) > 0.0)
-    assert truth['t'][-1] == pytest.approx(stats['wall_time_s'], abs=4 * CONTROL_PERIOD,
-                                           rel=0.05)
+    assert truth['t'][-1] == pytest.approx(stats['wall_time_s'] + stats['held_s'],
+                                           abs=4 * CONTROL_PERIOD, rel=0.05)
     # What the plant applied is what the mixer sent last (zero when its safety layer
     # zeroes it): every applied pair is one of the commanded pairs.
     wheels = record['wheels']
     commanded = set(zip(wheels['tau_left'], wheels['tau_right'])) | {(0.0, 0.0)}
     assert set(zip(truth['tau_left'], truth['tau_right'])) <= commanded
     assert '/clock' not in bag_summary(realtime_run.bag)['topics']
+
+
+def test_realtime_plant_holds_the_vehicle_until_the_controllers_engage(realtime_run):
+    # hold_until_engaged: while the safety layer settles (its wheel torques are zeroed)
+    # the plant publishes its initial state and its time stays at 0; the first torques
+    # not zeroed release it, and its ticks count from there. Before this, the vehicle fell
+    # freely for the 0.3-0.5 s the layer needs and the composed graph fell within 2 s.
+    stats = realtime_run.plant_stats
+    assert 0.0 < stats['held_s'] < DURATION
+    truth = record_from_bag(realtime_run.bag)['truth']
+    held = truth['t'] < stats['held_s'] - 2 * CONTROL_PERIOD
+    assert held.sum() >= 2
+    for name in ('theta', 'x_v', 'v'):
+        assert np.all(truth[name][held] == truth[name][0]), name
+    assert np.all(truth['tau_left'][held] == 0.0)

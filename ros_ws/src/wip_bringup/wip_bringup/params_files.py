@@ -138,7 +138,10 @@ def graph_parameters(scenario: Scenario, clock_mode: str = 'lockstep',
     model = config_section(scenario.controller_model.parameters)
     mixer = config_section(scenario.mixer)
     nodes: dict[str, dict[str, Any]] = {
-        'reference': {'reference': config_section(scenario.reference), 'rates': rates},
+        # In real time the path starts when the safety layer engages, which is when the
+        # plant (hold_until_engaged) or a base's holder lets the vehicle go.
+        'reference': {'reference': config_section(scenario.reference), 'rates': rates,
+                      **({} if lockstep else {'realtime_start': 'engaged'})},
         'eso': {
             'eso': config_section(scenario.eso),
             'position': config_section(scenario.position),

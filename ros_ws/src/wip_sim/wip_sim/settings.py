@@ -33,6 +33,10 @@ class PlantSettings:
     gps_frame: str = param('gps_link', TEXT, 'frame_id of /gps/fix')
     autostart: bool = param(True, '1', 'start by itself once the endpoints are matched; '
                             'false: wait for the ~/start service')
+    hold_until_engaged: bool = param(
+        True, '1', 'realtime: the vehicle is held at its initial state (sensors published, '
+        'time not advancing) until the first wheel torques the safety layer did not zero, '
+        'as someone holds a robot until its controller runs; false: free from the start')
     max_torque_age: float = param(0.05, 's', 'realtime: wheel torques older than this (stamp '
                                   'against the wall clock) are replaced by zero', minimum=0.0,
                                   exclusive_minimum=True, maximum=3600.0)
