@@ -10,6 +10,7 @@
 
 import os
 import signal
+import struct
 import subprocess
 import sys
 import textwrap
@@ -17,8 +18,8 @@ import time
 
 import pytest
 
-from wip_bringup.launcher import (executable_path, graph_environment, GraphError,
-                                  NodeProcess, Scheduling)
+from wip_bringup.launcher import (CpuLatencyRequest, executable_path, EXIT_USAGE,
+                                  graph_environment, GraphError, NodeProcess, Scheduling)
 from wip_control.nodes.launched import end_with_launcher, LAUNCHER_PID_VARIABLE
 
 START_UP = 60.0   # [s] generous: a loaded CI machine starts a Python process slowly
@@ -53,6 +54,23 @@ def test_scheduling_is_a_command_prefix_and_absurd_values_are_refused():
         Scheduling(100).check()
     with pytest.raises(GraphError, match='--cpu-affinity: CPUs \\[4096\\]'):
         Scheduling(0, (4096,)).check()
+    with pytest.raises(GraphError, match='--cpu-latency: must be in 0..1000000 us, got -1'):
+        Scheduling(cpu_latency=-1).check()
+    assert Scheduling(cpu_latency=0).command_prefix() == []    # held by the launcher
+
+
+def test_a_cpu_latency_request_holds_while_open_and_is_refused_with_the_reason(tmp_path):
+    # The kernel's PM QoS file takes a 32-bit int and keeps it while open; a file that
+    # cannot be opened is a usage error naming the option and the device.
+    with pytest.raises(GraphError, match='--cpu-latency 0: not possible here') as refused:
+        CpuLatencyRequest(0, device=str(tmp_path / 'missing' / 'cpu_dma_latency'))
+    assert refused.value.exit_code == EXIT_USAGE
+    stand_in = tmp_path / 'cpu_dma_latency'
+    stand_in.write_bytes(b'')
+    request = CpuLatencyRequest(25, device=str(stand_in))
+    assert struct.unpack('i', stand_in.read_bytes()) == (25,)
+    request.close()
+    request.close()    # idempotent
 
 
 def test_a_process_and_its_threads_run_at_the_requested_fifo_priority(tmp_path):

@@ -511,6 +511,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         '(1..99; default 0: the normal policy); needs root or CAP_SYS_NICE')
     parser.add_argument('--cpu-affinity', type=_cpus_argument, default=(), metavar='LIST',
                         help='pin the controller processes to these CPUs, e.g. 1 or 0,1')
+    parser.add_argument('--cpu-latency', type=int, default=None, metavar='US',
+                        help='while the controllers run, ask the kernel (PM QoS, '
+                        '/dev/cpu_dma_latency, machine-wide) that idle CPUs wake within US '
+                        'microseconds; 0 keeps them polling instead of sleeping: less CPU '
+                        'and latency for the controllers, more power (docs/realtime.md); '
+                        'needs root')
     parser.add_argument('--no-heartbeat', action='store_true',
                         help='hardware mode: no /wip/estop heartbeat (and no arm delay): '
                              'the mixer engages as soon as its inputs are ready')

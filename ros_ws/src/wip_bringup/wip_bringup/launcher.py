@@ -14,6 +14,7 @@ import random
 import re
 import shutil
 import signal
+import struct
 import subprocess
 import time
 from typing import Any
@@ -77,10 +78,52 @@ class GraphError(Exception):
         self.exit_code = exit_code
 
 
+#: The kernel's PM QoS interface for the CPU wake-up latency (Documentation/power/pm_qos_interface
+#: in the kernel sources): a request holds while the file stays open.
+CPU_LATENCY_DEVICE = '/dev/cpu_dma_latency'
+#: Largest --cpu-latency accepted [us]; larger is no request at all in practice.
+MAX_CPU_LATENCY_US = 1_000_000
+
+
+class CpuLatencyRequest:
+    """A PM QoS request that idle CPUs wake up within ``microseconds`` [us], held until
+    :meth:`close` (or until this process ends: the kernel drops it with the file).
+
+    0 keeps idle CPUs out of their sleep states: they poll. Why it matters here: on a
+    machine whose idle CPUs halt (a VM's haltpoll, a deep C-state on bare metal), the
+    controllers' Python runs 2-4x slower right after the CPU slept (cold caches), so their
+    CPU share at 200 Hz is several times the cost of the same work back to back
+    (docs/realtime.md §2). The price: an idle CPU stays busy polling (power, and the host's
+    CPU in a VM); it runs any other task at once, so it takes nothing from them.
+    GraphError (usage) with the reason when the device is missing or not writable."""
+
+    def __init__(self, microseconds: int, device: str = CPU_LATENCY_DEVICE) -> None:
+        self.microseconds = int(microseconds)
+        try:
+            self._fd: int | None = os.open(device, os.O_WRONLY)
+        except OSError as err:
+            raise GraphError(f'--cpu-latency {microseconds}: not possible here ({device}: '
+                             f'{err.strerror}); it needs root or write access to {device}',
+                             EXIT_USAGE) from None
+        try:
+            os.write(self._fd, struct.pack('i', self.microseconds))
+        except OSError as err:
+            self.close()
+            raise GraphError(f'--cpu-latency {microseconds}: {device} refused it '
+                             f'({err.strerror})', EXIT_USAGE) from None
+
+    def close(self) -> None:
+        """Drop the request (idempotent)."""
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
 @dataclasses.dataclass(frozen=True)
 class Scheduling:
     """Real-time scheduling of a process: SCHED_FIFO ``priority`` (1..99; 0: the normal
-    policy) and the CPUs it may run on (empty: all).
+    policy), the CPUs it may run on (empty: all) and, while it runs, a CPU wake-up latency
+    request (``cpu_latency``, held by the launcher).
 
     Applied by starting the program through util-linux's ``chrt`` and ``taskset``
     (:meth:`command_prefix`), not by Python code between fork and exec (``preexec_fn``):
@@ -93,6 +136,9 @@ class Scheduling:
     #: RLIMIT_RTTIME [s] (0: none): a thread at SCHED_FIFO that runs this long without
     #: sleeping is killed by the kernel, instead of starving everything below its priority.
     rt_cpu_limit: float = 0.0
+    #: A CPU wake-up latency request [us] held while the controllers run
+    #: (:class:`CpuLatencyRequest`, machine-wide); None: none.
+    cpu_latency: int | None = None
 
     def check(self) -> None:
         """GraphError (usage) naming the option if the values are absurd or this user may
@@ -105,6 +151,11 @@ class Scheduling:
             raise GraphError(f'--cpu-affinity: CPUs {sorted(set(self.cpus) - available)} are '
                              f'not available (this process may use {sorted(available)})',
                              EXIT_USAGE)
+        if self.cpu_latency is not None:
+            if not 0 <= self.cpu_latency <= MAX_CPU_LATENCY_US:
+                raise GraphError(f'--cpu-latency: must be in 0..{MAX_CPU_LATENCY_US} us, got '
+                                 f'{self.cpu_latency}', EXIT_USAGE)
+            CpuLatencyRequest(self.cpu_latency).close()   # GraphError if not permitted
         if not (self.priority or self.cpus):
             return
         try:

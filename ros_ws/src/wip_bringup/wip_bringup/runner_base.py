@@ -29,7 +29,8 @@ from wip_control.core.config import ConfigError
 from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
 from wip_control.tools.cli import write_atomic
 
-from .launcher import (choose_domain_id, CONTROLLER_LAYOUTS, executable_path, EXECUTABLES,
+from .launcher import (choose_domain_id, CONTROLLER_LAYOUTS, CpuLatencyRequest,
+                       executable_path, EXECUTABLES,
                        EXIT_USAGE, EXIT_TIMEOUT, GRACE_PERIOD, graph_environment, GraphError,
                        LAYOUTS, live_view_line, MULTI_NODE_PROCESSES, NodeProcess,
                        prepare_run_directory, Probe,
@@ -92,6 +93,8 @@ class RunnerBase:
         self.bag_created = False  # True once this run's recorder may have written the bag
         self.processes: dict[str, NodeProcess] = {}
         self.probe: Probe | None = None
+        #: The --cpu-latency request, held from the launch to the shut-down.
+        self.cpu_latency_request: CpuLatencyRequest | None = None
         self.domain_id = choose_domain_id()
         self.scenario: Scenario | None = None
         self._interactive = sys.stderr.isatty()
@@ -238,6 +241,8 @@ class RunnerBase:
 
     def launch(self, params_file: pathlib.Path) -> None:
         """Start the processes and wait until every node is up (:meth:`wait_for_nodes`)."""
+        if self.options.scheduling.cpu_latency is not None:
+            self.cpu_latency_request = CpuLatencyRequest(self.options.scheduling.cpu_latency)
         self.start_processes(params_file)
         self.bag_created = self.bag is not None  # prepare() checked it was absent or empty
         self.timeline['processes started'] = time.monotonic() - self.t0
@@ -355,6 +360,8 @@ class RunnerBase:
         finally:
             if shield:
                 signal.signal(signal.SIGINT, previous)
+            if self.cpu_latency_request is not None:
+                self.cpu_latency_request.close()
         if self.probe is not None:
             self.probe.close()
 
@@ -385,6 +392,7 @@ def options_from_args(args, **own) -> dict[str, Any]:
     arguments: those both modes have, then the mode's ``own``."""
     return dict(scenario=args.scenario, record=args.record, duration=args.duration,
                 discovery_timeout=args.discovery_timeout, quiet=args.quiet,
-                scheduling=Scheduling(priority=args.rt_priority, cpus=tuple(args.cpu_affinity)),
+                scheduling=Scheduling(priority=args.rt_priority, cpus=tuple(args.cpu_affinity),
+                                      cpu_latency=args.cpu_latency),
                 viewer=args.viewer, foxglove_port=args.foxglove,
                 foxglove_host=args.foxglove_host, **own)

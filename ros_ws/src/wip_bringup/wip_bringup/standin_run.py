@@ -142,6 +142,7 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                         layout: str = HardwareOptions.layout,
                         realtime_priority: bool = True,
                         pin_cpus: bool = False,
+                        cpu_latency: int | None = None,
                         record: bool = False,
                         during: Callable[[HardwareResult | None, dict], None] | None = None,
                         end_after_during: float | None = None) -> StandinRun:
@@ -159,7 +160,9 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
     without sleeping) if this user may; the run's ``measured.json`` says whether they
     were. ``pin_cpus``: the base on the first CPU this process may use, the controllers on
     the last (:func:`pinned_cpus`; nothing on a one-CPU machine), as a robot's computer
-    would keep its control on a core of its own. ``record``: the controllers' topics go to
+    would keep its control on a core of its own. ``cpu_latency`` [us]: the controllers'
+    ``--cpu-latency`` (a PM QoS request held while they run; GraphError where not permitted).
+    ``record``: the controllers' topics go to
     the bag ``directory/bag`` (costs CPU: for diagnosis, not for measuring).
     """
     base_scheduling = controller_scheduling = Scheduling()
@@ -170,6 +173,9 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
     if cpus is not None:
         base_scheduling = dataclasses.replace(base_scheduling, cpus=(cpus[0],))
         controller_scheduling = dataclasses.replace(controller_scheduling, cpus=(cpus[1],))
+    if cpu_latency is not None:
+        controller_scheduling = dataclasses.replace(controller_scheduling,
+                                                    cpu_latency=cpu_latency)
     directory.mkdir(parents=True, exist_ok=True)
     scenario_path = directory / 'scenario.yaml'
     scenario_path.write_text(yaml.safe_dump(dict(scenario or line_scenario())))
@@ -278,21 +284,32 @@ def freeze_process(pid: int, seconds: float) -> float:
 
 
 def realtime_benchmark(directory: pathlib.Path, seconds: float = 20.0,
-                       cases: tuple[tuple[str, bool, bool], ...] = (
-                           ('separate', False, False), ('composed', False, False),
-                           ('composed', True, False), ('composed', True, True))
+                       cases: tuple[tuple[str, bool, bool, int | None], ...] = (
+                           ('separate', False, False, None), ('composed', False, False, None),
+                           ('composed', True, False, None), ('composed', True, True, None),
+                           ('composed', True, False, 0))
                        ) -> list[dict[str, Any]]:
     """The controllers at 200 Hz against the stand-in base, one run per (layout, real-time
-    priority, pinned CPUs) case, side by side: CPU share of one core, sensor -> command
-    latency, the command age and gaps seen by the base. ``scripts/bench`` prints it."""
-    rows = []
-    for layout, priority, pin in cases:
-        name = f'{layout}{"_rt" if priority else ""}{"_pinned" if pin else ""}'
+    priority, pinned CPUs, CPU wake-up latency request [us]) case, side by side: CPU share
+    of one core, sensor -> command latency, the command age and gaps seen by the base.
+    A case this user may not run (the latency request needs root) is a row with
+    ``skipped`` and the reason. ``scripts/bench`` prints it."""
+    rows: list[dict[str, Any]] = []
+    for layout, priority, pin, cpu_latency in cases:
+        name = (f'{layout}{"_rt" if priority else ""}{"_pinned" if pin else ""}'
+                f'{"" if cpu_latency is None else f"_latency{cpu_latency}"}')
+        try:
+            if cpu_latency is not None:
+                Scheduling(cpu_latency=cpu_latency).check()
+        except GraphError as err:
+            rows.append({'layout': layout, 'cpu_latency': cpu_latency, 'skipped': str(err)})
+            continue
         run = run_against_standin(directory / name, BASE, seconds, layout=layout,
-                                  realtime_priority=priority, pin_cpus=pin)
+                                  realtime_priority=priority, pin_cpus=pin,
+                                  cpu_latency=cpu_latency)
         summary = run.summary()
         rows.append({'layout': layout, 'rt_priority': run.base_priority > 0,
-                     'pinned': bool(run.controller_cpus),
+                     'pinned': bool(run.controller_cpus), 'cpu_latency': cpu_latency,
                      'command_age_ms': summary['command_age_ms'],
                      'fell': summary['fell'],
                      'controller_cpu_fraction': summary['controller_cpu_fraction'],

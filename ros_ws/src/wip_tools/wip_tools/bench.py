@@ -15,10 +15,12 @@ made within one invocation, interleaved where possible:
    process), next to the in-process one (goal: ≥ 5×, and within 10× of in-process).
 4. **Real time**: the controllers at 200 Hz against the stand-in base (its own process),
    per layout (separate, composed, composed at SCHED_FIFO priority, the same with the base
-   and the controllers each pinned to a CPU of its own): their CPU share of one core, the
+   and the controllers each pinned to a CPU of its own, and composed at SCHED_FIFO with idle
+   CPUs kept awake by a PM QoS request, ``--cpu-latency 0``, where permitted): their CPU
+   share of one core, the
    sensor -> command latency (p50, p99, max) and the oldest command the base held while
    balancing, beside the in-process cost of the same loop (``--no-realtime`` skips it;
-   about 2 min), and the floor of rclpy: the
+   about 2.5 min), and the floor of rclpy: the
    CPU share of a process that only receives the base's two sensor streams with empty
    callbacks (:mod:`wip_tools.rclpy_floor`).
 
@@ -182,8 +184,10 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             lat = row['latency_ms'] or {}
             age = row['command_age_ms'] or {}
+            latency_request = ('' if row.get('cpu_latency') is None
+                               else f', cpu-latency {row["cpu_latency"]} us')
             print(f'{row["layout"]:9s} rt-priority {"yes" if row["rt_priority"] else "no ":3s}'
-                  f'{", pinned" if row["pinned"] else "":8s}: '
+                  f'{", pinned" if row["pinned"] else "":8s}{latency_request}: '
                   f'controllers {100 * (row["controller_cpu_fraction"] or 0):.1f} % of a core; '
                   f'sensor->command latency p50 {lat.get("p50", float("nan")):.2f} ms, p99 '
                   f'{lat.get("p99", float("nan")):.2f} ms, max {lat.get("max", float("nan")):.2f}'
