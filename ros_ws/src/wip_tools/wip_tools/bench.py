@@ -184,10 +184,12 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             lat = row['latency_ms'] or {}
             age = row['command_age_ms'] or {}
-            latency_request = ('' if row.get('cpu_latency') is None
-                               else f', cpu-latency {row["cpu_latency"]} us')
-            print(f'{row["layout"]:9s} rt-priority {"yes" if row["rt_priority"] else "no ":3s}'
-                  f'{", pinned" if row["pinned"] else "":8s}{latency_request}: '
+            latency_request = row.get('cpu_latency')
+            case = (f'rt-priority {"yes" if row["rt_priority"] else "no"}'
+                    f'{", pinned" if row["pinned"] else ""}'
+                    + ('' if latency_request is None
+                       else f', cpu-latency {latency_request} us'))
+            print(f'{row["layout"]:9s} {case:34s}: '
                   f'controllers {100 * (row["controller_cpu_fraction"] or 0):.1f} % of a core; '
                   f'sensor->command latency p50 {lat.get("p50", float("nan")):.2f} ms, p99 '
                   f'{lat.get("p99", float("nan")):.2f} ms, max {lat.get("max", float("nan")):.2f}'
