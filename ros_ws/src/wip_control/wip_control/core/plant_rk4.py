@@ -1,0 +1,129 @@
+"""The plant's compiled RK4 integrator (numba), apart from :mod:`.plant` so that a process
+that never steps a plant (the controllers) does not import numba and llvmlite: about 0.2 s
+of import and 50 MB of memory per process, which a robot's small computer pays once per
+controller process. :class:`~.plant.Plant` imports this module at its construction.
+The dynamics are those of :func:`.plant._make_accelerations`, inlined.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+@numba.njit(cache=True, nogil=True)
+def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance, h):
+    """``len(disturbance)`` classic RK4 steps of ``h`` [s], wheel torques held.
+
+    ``k``: the constants of :data:`.plant._CONSTANT_NAMES`; ``disturbance``: (n, 3) array of
+    (d1, d2, d3) per step, held over it. Returns the new state as an 8-tuple. The four
+    stages are inlined, the same operations in the same order as the interpreted
+    step this replaced, hence the same results bit for bit.
+    """
+    (mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_gain, k_centrifugal,
+     k_coriolis, k_reaction) = k
+    sin = math.sin
+    cos = math.cos
+    tw = tau_right - tau_left
+    tvr = (tau_left + tau_right) * inv_r
+    tvk = k_reaction * (tau_left + tau_right)
+    ytw = yaw_gain * tw
+    hh = 0.5 * h
+    h6 = h / 6.0
+
+    # Deliberately unrolled (see the docstring): each stage repeats the model's equations
+    # rather than calling a shared function, to keep the reference step's bit-exact results.
+    for i in range(disturbance.shape[0]):
+        d1 = disturbance[i, 0]
+        d2 = disturbance[i, 1]
+        d3 = disturbance[i, 2]
+        # Stage 1 at (th, om, v, thd, phi).
+        s = sin(th)
+        c = cos(th)
+        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
+        a1o = ((ytw - (2.0 * mpl2 * c * thd + k_coriolis * v) * s * om)
+               / (jphi + mpl2 * s * s) + d1)
+        rv = mpl * s * (thd * thd + k_centrifugal * om * om) + tvr
+        rt = mpgl * s + mpl2 * s * c * om * om - tvk
+        mplc = mpl * c
+        a1v = (jt * rv - mplc * rt) * inv_omega + d2
+        a1t = (mv * rt - mplc * rv) * inv_omega + d3
+        cp1 = cos(phi)
+        sp1 = sin(phi)
+
+        # Stage 2 at t + h/2 along stage 1's slope.
+        th2 = th + hh * thd
+        om2 = om + hh * a1o
+        v2 = v + hh * a1v
+        thd2 = thd + hh * a1t
+        phi2 = phi + hh * om
+        s = sin(th2)
+        c = cos(th2)
+        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
+        a2o = ((ytw - (2.0 * mpl2 * c * thd2 + k_coriolis * v2) * s * om2)
+               / (jphi + mpl2 * s * s) + d1)
+        rv = mpl * s * (thd2 * thd2 + k_centrifugal * om2 * om2) + tvr
+        rt = mpgl * s + mpl2 * s * c * om2 * om2 - tvk
+        mplc = mpl * c
+        a2v = (jt * rv - mplc * rt) * inv_omega + d2
+        a2t = (mv * rt - mplc * rv) * inv_omega + d3
+        cp2 = cos(phi2)
+        sp2 = sin(phi2)
+
+        # Stage 3 at t + h/2 along stage 2's slope.
+        th3 = th + hh * thd2
+        om3 = om + hh * a2o
+        v3 = v + hh * a2v
+        thd3 = thd + hh * a2t
+        phi3 = phi + hh * om2
+        s = sin(th3)
+        c = cos(th3)
+        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
+        a3o = ((ytw - (2.0 * mpl2 * c * thd3 + k_coriolis * v3) * s * om3)
+               / (jphi + mpl2 * s * s) + d1)
+        rv = mpl * s * (thd3 * thd3 + k_centrifugal * om3 * om3) + tvr
+        rt = mpgl * s + mpl2 * s * c * om3 * om3 - tvk
+        mplc = mpl * c
+        a3v = (jt * rv - mplc * rt) * inv_omega + d2
+        a3t = (mv * rt - mplc * rv) * inv_omega + d3
+        cp3 = cos(phi3)
+        sp3 = sin(phi3)
+
+        # Stage 4 at t + h along stage 3's slope.
+        th4 = th + h * thd3
+        om4 = om + h * a3o
+        v4 = v + h * a3v
+        thd4 = thd + h * a3t
+        phi4 = phi + h * om3
+        s = sin(th4)
+        c = cos(th4)
+        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
+        a4o = ((ytw - (2.0 * mpl2 * c * thd4 + k_coriolis * v4) * s * om4)
+               / (jphi + mpl2 * s * s) + d1)
+        rv = mpl * s * (thd4 * thd4 + k_centrifugal * om4 * om4) + tvr
+        rt = mpgl * s + mpl2 * s * c * om4 * om4 - tvk
+        mplc = mpl * c
+        a4v = (jt * rv - mplc * rt) * inv_omega + d2
+        a4t = (mv * rt - mplc * rv) * inv_omega + d3
+        cp4 = cos(phi4)
+        sp4 = sin(phi4)
+
+        x, y, phi, xv, th, om, v, thd = (
+            x + h6 * (v * cp1 + 2.0 * (v2 * cp2 + v3 * cp3) + v4 * cp4),
+            y + h6 * (v * sp1 + 2.0 * (v2 * sp2 + v3 * sp3) + v4 * sp4),
+            phi + h6 * (om + 2.0 * (om2 + om3) + om4),
+            xv + h6 * (v + 2.0 * (v2 + v3) + v4),
+            th + h6 * (thd + 2.0 * (thd2 + thd3) + thd4),
+            om + h6 * (a1o + 2.0 * (a2o + a3o) + a4o),
+            v + h6 * (a1v + 2.0 * (a2v + a3v) + a4v),
+            thd + h6 * (a1t + 2.0 * (a2t + a3t) + a4t))
+    return x, y, phi, xv, th, om, v, thd
+
+
+def warm_up(constant_count: int) -> None:
+    """Load or compile :func:`rk4_hold` (about 1 s when compiling; once per process).
+
+    Zero steps: compiles (types only) without evaluating the dynamics."""
+    rk4_hold((1.0,) * constant_count, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+             0.0, 0.0, np.zeros((0, 3)), 1e-3)
