@@ -119,6 +119,63 @@ def test_a_runaway_at_fifo_priority_is_killed_by_its_rt_cpu_limit(tmp_path):
         process.stop(1.0)
 
 
+
+def _task_policies(pid: int) -> list[tuple[int, int]]:
+    """(policy, rt priority) of every thread of ``pid`` (proc(5) stat fields 41 and 40)."""
+    policies = []
+    for tid in os.listdir(f'/proc/{pid}/task'):
+        with open(f'/proc/{pid}/task/{tid}/stat', encoding='ascii') as stream:
+            fields = stream.read().rsplit(')', 1)[1].split()
+        policies.append((int(fields[38]), int(fields[37])))
+    return policies
+
+
+def test_the_priority_is_raised_on_the_running_process_its_threads_and_their_children(
+        tmp_path):
+    """The launcher starts the controllers at the normal policy (their imports and DDS
+    start-up must not starve the other processes) and raises them once every node is up:
+    every thread then, and a thread started afterwards, runs at SCHED_FIFO with the
+    RLIMIT_RTTIME; a process that refuses is a GraphError naming it."""
+    scheduling = Scheduling(5, rt_cpu_limit=2.0)
+    try:
+        scheduling.check()
+    except GraphError as err:
+        pytest.skip(f'SCHED_FIFO not permitted here: {err}')
+    assert scheduling.at_start() == Scheduling()     # the CPUs only (none here)
+    program = textwrap.dedent('''
+        import os, sys, threading, time
+        threading.Thread(target=time.sleep, args=(60,), daemon=True).start()
+        print('up', flush=True)
+        sys.stdin.readline()   # the launcher raised the priority: start one more thread
+        policies = []
+        thread = threading.Thread(target=lambda: policies.append(
+            (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)))
+        thread.start(); thread.join()
+        print(policies[0], flush=True)
+        time.sleep(60)
+    ''')
+    process = subprocess.Popen([sys.executable, '-c', program], stdin=subprocess.PIPE,
+                               stdout=subprocess.PIPE, text=True)
+    node = NodeProcess.__new__(NodeProcess)      # the launcher's view of a running node
+    node.name, node.pid, node.process = 'probe', process.pid, process
+    try:
+        assert process.stdout.readline().strip() == 'up'
+        assert {policy for policy, _ in _task_policies(process.pid)} == {os.SCHED_OTHER}
+        node.raise_priority(scheduling)
+        assert set(_task_policies(process.pid)) == {(os.SCHED_FIFO, 5)}
+        with open(f'/proc/{process.pid}/limits', encoding='ascii') as stream:
+            assert any(line.startswith('Max realtime timeout') and '2000000' in line
+                       for line in stream)
+        process.stdin.write('\n')
+        process.stdin.flush()
+        assert process.stdout.readline().strip() == f'({os.SCHED_FIFO}, 5)'
+    finally:
+        process.kill()
+        process.wait()
+    with pytest.raises(GraphError, match='probe: could not set --rt-priority 5'):
+        node.raise_priority(scheduling)          # the process is gone
+
+
 LAUNCHER = textwrap.dedent('''
     import pathlib, sys, time
     from wip_bringup.launcher import graph_environment, NodeProcess

@@ -508,7 +508,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         f'{HardwareOptions.layout} (docs/realtime.md)')
     parser.add_argument('--rt-priority', type=int, default=0, metavar='N',
                         help='run the controller processes with SCHED_FIFO priority N '
-                        '(1..99; default 0: the normal policy); needs root or CAP_SYS_NICE')
+                        '(1..99; default 0: the normal policy), set once every node is up; '
+                        'needs root or CAP_SYS_NICE')
     parser.add_argument('--cpu-affinity', type=_cpus_argument, default=(), metavar='LIST',
                         help='pin the controller processes to these CPUs, e.g. 1 or 0,1')
     parser.add_argument('--cpu-latency', type=int, default=None, metavar='US',

@@ -92,6 +92,8 @@ class RunnerBase:
         self.prepared = False  # True once prepare() set up the run directory
         self.bag_created = False  # True once this run's recorder may have written the bag
         self.processes: dict[str, NodeProcess] = {}
+        #: Processes whose real-time priority is set once every node is up.
+        self.raise_when_up: dict[str, Scheduling] = {}
         self.probe: Probe | None = None
         #: The --cpu-latency request, held from the launch to the shut-down.
         self.cpu_latency_request: CpuLatencyRequest | None = None
@@ -233,11 +235,15 @@ class RunnerBase:
             # Real-time scheduling for the controllers only: nothing else (the plant, the
             # recorder, the viewer, the bridge) may take the CPU from them.
             # (single: the simulation process holds them, and the plant with them).
+            # Their CPUs at once, their priority once every node is up (see
+            # NodeProcess.raise_priority: start-up at SCHED_FIFO can starve the others).
             scheduling = (self.options.scheduling
                           if name in controllers or name == 'simulation' else None)
             self.processes[name] = NodeProcess(name, command,
                                                self.out / 'logs' / f'{name}.log', env,
-                                               scheduling)
+                                               scheduling.at_start() if scheduling else None)
+            if scheduling is not None and scheduling.priority:
+                self.raise_when_up[name] = scheduling
 
     def launch(self, params_file: pathlib.Path) -> None:
         """Start the processes and wait until every node is up (:meth:`wait_for_nodes`)."""
@@ -249,6 +255,10 @@ class RunnerBase:
         self.say(f'started {len(self.processes)} processes in ROS_DOMAIN_ID='
                  f'{self.domain_id}; waiting for the graph')
         self.wait_for_nodes()
+        if self.raise_when_up:
+            for name, scheduling in self.raise_when_up.items():
+                self.processes[name].raise_priority(scheduling)
+            self.timeline['real-time priority set'] = time.monotonic() - self.t0
 
     # -- watching ---------------------------------------------------------------------------
     def node_died(self, name: str) -> None:
