@@ -56,8 +56,28 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
         floor = report['rclpy_floor'][kind]
         assert floor['raw'] is raw
         assert floor['messages_per_s'] > 100.0 and floor['cpu_fraction'] > 0.0, floor
+    # The nodes fed directly: every run engaged, wrote each effort command to DDS but the
+    # first, and reported a cost; both ways measured.
+    cost = report['node_cost']
+    assert 'failed' not in cost, cost
+    for key in ('back_to_back', 'paced'):
+        assert len(cost[key]) == 2
+        for run in cost[key]:
+            assert run['safety_state'].endswith('ACTIVE'), run
+            assert run['effort_commands_to_dds'] >= run['ticks'] // 2, run
+            assert 0.0 < run['median_us'] <= run['p90_us'], run
+    assert cost['paced_over_back_to_back'] > 0.0
     printed = capsys.readouterr().out
     assert 'rclpy floor, taken as messages' in printed
     assert 'rclpy floor, taken as serialized' in printed
     assert 'in-process / graph' in printed and 'CPU' in printed
     assert 'sensor->command latency' in printed
+    assert 'fed directly' in printed
+
+
+def test_node_cost_refuses_absurd_durations_in_one_line(capsys):
+    from wip_tools import node_cost
+    with pytest.raises(SystemExit) as refused:
+        node_cost.main(['--seconds', 'nan'])
+    assert refused.value.code == 2
+    assert '--seconds: must be in (0, 3600]' in capsys.readouterr().err

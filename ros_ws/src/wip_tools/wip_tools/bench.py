@@ -22,7 +22,8 @@ made within one invocation, interleaved where possible:
    balancing, beside the in-process cost of the same loop (``--no-realtime`` skips it;
    about 2.5 min), and the floor of rclpy: the
    CPU share of a process that only receives the base's two sensor streams with empty
-   callbacks (:mod:`wip_tools.rclpy_floor`).
+   callbacks (:mod:`wip_tools.rclpy_floor`), and the nodes' own code fed directly, back to
+   back against paced at 200 Hz (:mod:`wip_tools.node_cost`).
 
 Examples
 --------
@@ -113,6 +114,26 @@ def bench_rclpy_floor(seconds: float) -> dict:
             'serialized': measure_floor(seconds, raw=True)}
 
 
+def bench_node_cost(seconds: float, pairs: int = 2) -> dict:
+    """The controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`),
+    back to back and paced at 200 Hz, alternately, each in a process of its own."""
+    runs: dict[str, list[dict]] = {'back_to_back': [], 'paced': []}
+    for _ in range(pairs):
+        for key, pace in (('back_to_back', 0), ('paced', 1)):
+            done = subprocess.run([sys.executable, '-m', 'wip_tools.node_cost', '--seconds',
+                                   f'{seconds:g}', '--pace', str(pace)], capture_output=True,
+                                  text=True, timeout=600, check=False)
+            lines = done.stdout.strip().splitlines()
+            if done.returncode != 0 or not lines:
+                tail = (done.stderr.strip().splitlines() or ['no output'])[-1]
+                return {'failed': f'node_cost --pace {pace}: exit {done.returncode}: {tail}'}
+            runs[key].append(json.loads(lines[-1]))
+    medians = {key: statistics.median(r['median_us'] for r in rows)
+               for key, rows in runs.items()}
+    return {**runs, 'median_us': medians,
+            'paced_over_back_to_back': medians['paced'] / medians['back_to_back']}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='scripts/bench', description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -197,6 +218,18 @@ def main(argv: list[str] | None = None) -> int:
                   f'{row["deadline_misses"]} deadline misses'
                   f'{"; FELL" if row["fell"] else ""}')
         print('   (goals: <= 15 % of a core; latency p99 <= 2 ms, max <= 10 ms)')
+        cost = bench_node_cost(min(10.0, max(3.0, args.realtime_seconds / 3.0)))
+        report['node_cost'] = cost
+        if 'failed' in cost:
+            print(f'-> node cost: {cost}')
+        else:
+            print('the six nodes\' own code, fed directly (no DDS take, no wake-up by a '
+                  'message), thread CPU per tick, medians: back to back '
+                  + ' / '.join(f'{r["median_us"]:.0f}' for r in cost['back_to_back'])
+                  + ' us; paced at 200 Hz '
+                  + ' / '.join(f'{r["median_us"]:.0f}' for r in cost['paced'])
+                  + f' us: {cost["paced_over_back_to_back"]:.1f}x (what running after an '
+                  'idle period costs on this machine)')
         floor = bench_rclpy_floor(min(10.0, max(3.0, args.realtime_seconds / 2.0)))
         report['rclpy_floor'] = floor
         for kind, measured in floor.items():

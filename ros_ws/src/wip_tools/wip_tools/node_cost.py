@@ -1,0 +1,138 @@
+"""The six controller nodes' own cost per control tick, fed directly: no DDS take, no
+wake-up by a message (``python -m wip_tools.node_cost``; ``scripts/bench`` runs it).
+
+The nodes are built as ``ros2 run wip_control controllers`` builds them (hardware-mode
+parameters, the stand-in base's conventions, one executor, the intra-process bus). Each
+tick calls the ESO's two sensor callbacks with serialized JointState and Imu stamped
+now, drains the bus (estimate → reference → generator → ARC → mixer → effort command),
+and spins the executor once for its due timers (the MPC at 10 Hz, diagnostics, the
+mixer's watchdog); an outside subscription of the effort command makes the mixer write it
+to DDS, as against a base. The /wip/estop heartbeat is fed every 0.2 s. The vehicle stands
+still, upright (the cost of a tick hardly depends on the state). Paced ticks first, until
+the safety layer has engaged (its settle time is wall time); then the measured ticks.
+
+The thread CPU time of each tick is measured, ``--pace 1`` with the ticks at 200 Hz
+(sleeping between them, as in real time) or ``--pace 0`` back to back. Their ratio is what
+the machine charges for running after an idle period (cold caches, a halted vCPU):
+docs/realtime.md §2, session 8.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import pathlib
+import statistics
+import sys
+import tempfile
+import time
+
+CONTROL_PERIOD = 0.005  # [s], 200 Hz
+HEARTBEAT_EVERY = 40    # ticks between two /wip/estop heartbeats (0.2 s)
+ENGAGE_TIMEOUT = 10.0   # [s] of paced ticks at most for the safety layer to engage
+
+
+def measure(seconds: float, paced: bool) -> dict:
+    """In a process of its own (it initialises rclpy's default context): thread CPU per tick [us] (median, mean, p90) over ``seconds`` of 200 Hz ticks (the
+    first fifth, start-up and warm-up, left out), and how many ticks ran."""
+    import rclpy  # noqa: PLC0415 - ROS only where measured
+    from rclpy.serialization import serialize_message  # noqa: PLC0415
+    from sensor_msgs.msg import Imu, JointState  # noqa: PLC0415
+    from std_msgs.msg import Bool, Float64MultiArray  # noqa: PLC0415
+    import yaml  # noqa: PLC0415
+
+    from wip_bringup.hardware import hardware_parameters  # noqa: PLC0415
+    from wip_bringup.params_files import _NoAliasDumper  # noqa: PLC0415
+    from wip_bringup.standin_run import BASE  # noqa: PLC0415
+    from wip_control.core.scenario import load_scenario  # noqa: PLC0415
+    from wip_control.nodes.common import compose, make_executor, RELIABLE_QOS  # noqa: PLC0415
+    from wip_control.nodes.controllers import NODE_CLASSES  # noqa: PLC0415
+    from wip_sim.standin_base import BaseConventions  # noqa: PLC0415
+
+    with tempfile.TemporaryDirectory(prefix='wip_node_cost_') as directory:
+        params = pathlib.Path(directory) / 'params.yaml'
+        params.write_text(yaml.dump(hardware_parameters(load_scenario(None)),
+                                    Dumper=_NoAliasDumper), encoding='utf-8')
+        base = pathlib.Path(directory) / 'base.yaml'
+        base.write_text(yaml.safe_dump({'/**': {'ros__parameters': dict(BASE)}}),
+                        encoding='utf-8')
+        rclpy.init(args=['--ros-args', '--params-file', str(params), '--params-file',
+                         str(base)])
+    built: list = []
+    try:
+        executor = make_executor()
+        bus = compose(executor, list(NODE_CLASSES), built)
+        nodes = {node.get_name(): node for node in built}
+        eso = {s.topic_name: s.callback for s in nodes['eso'].subscriptions}
+        on_joint_states, on_imu = eso['/joint_states'], eso['/imu/data']
+        on_estop = {s.topic_name: s.callback
+                    for s in nodes['torque_mixer'].subscriptions}['/wip/estop']
+        listener = rclpy.create_node('node_cost_listener')
+        listener.create_subscription(Float64MultiArray, '/effort_controller/commands',
+                                     lambda _msg: None, RELIABLE_QOS)
+        conventions = BaseConventions(BASE['joints'], BASE['left_joint'], BASE['right_joint'],
+                                      BASE['left_wheel_sign'], BASE['right_wheel_sign'],
+                                      BASE['imu_mounting_rpy'])
+        joint, imu = JointState(), Imu()
+        conventions.fill(joint, imu, (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), 0.0, 0.0, 0.0, 0.0,
+                         9.81)
+        time.sleep(1.0)    # DDS matching of the effort command
+        mixer = nodes['torque_mixer']
+        engage_ticks = int(ENGAGE_TIMEOUT / CONTROL_PERIOD)
+        ticks = max(50, int(seconds / CONTROL_PERIOD))
+        costs = []
+        due = time.monotonic()
+        for k in range(-engage_ticks, ticks):
+            if k < 0 and str(mixer.monitor.state).endswith('ACTIVE'):
+                continue        # engaged: on to the measured ticks
+            if paced or k < 0:  # the safety layer engages after settle_time of wall time
+                due += CONTROL_PERIOD
+                delay = due - time.monotonic()
+                if delay > 0.0:
+                    time.sleep(delay)
+            if k % HEARTBEAT_EVERY == 0:
+                on_estop(Bool(data=False))
+                bus.drain()
+            sec, nanosec = divmod(time.time_ns(), 10 ** 9)
+            for msg in (joint, imu):
+                msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+            joint_bytes, imu_bytes = serialize_message(joint), serialize_message(imu)
+            start = time.thread_time()
+            on_joint_states(joint_bytes)
+            bus.drain()
+            on_imu(imu_bytes)
+            bus.drain()
+            executor.spin_once(timeout_sec=0.0)
+            bus.drain()
+            if k >= 0:
+                costs.append(time.thread_time() - start)
+        engaged = str(mixer.monitor.state)
+        kept = sorted(costs[len(costs) // 5:])
+        return {'paced': paced, 'ticks': ticks, 'safety_state': engaged,
+                'median_us': 1e6 * statistics.median(kept),
+                'mean_us': 1e6 * statistics.fmean(kept),
+                'p90_us': 1e6 * kept[int(0.9 * (len(kept) - 1))],
+                'effort_commands_to_dds': bus.published_dds}
+    finally:
+        for node in built:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog='python -m wip_tools.node_cost',
+                                     description=__doc__.split('\n\n')[0])
+    parser.add_argument('--seconds', type=float, default=10.0,
+                        help='ticks of 5 ms to run (default 10 s of them)')
+    parser.add_argument('--pace', type=int, choices=(0, 1), default=1,
+                        help='1: at 200 Hz, sleeping between ticks; 0: back to back')
+    args = parser.parse_args(argv)
+    if not (math.isfinite(args.seconds) and 0.0 < args.seconds <= 3600.0):
+        parser.error(f'--seconds: must be in (0, 3600], got {args.seconds}')
+    print(json.dumps(measure(args.seconds, bool(args.pace))))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
