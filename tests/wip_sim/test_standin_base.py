@@ -34,7 +34,7 @@ import pytest
 pytest.importorskip('rclpy')
 
 from wip_control.core.references import make_reference, ReferenceConfig  # noqa: E402
-from wip_bringup.standin_run import (BASE, CONTROL_RATE, freeze_process,  # noqa: E402
+from wip_bringup.standin_run import (BASE, CONTROL_RATE, engaged, freeze_process,  # noqa: E402
                                  run_against_standin)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -229,7 +229,8 @@ def test_each_separate_controller_process_frozen_for_150_ms_is_ridden_through(tm
         # node never came up (Fast DDS's shared-memory port lock timed out in one, another
         # ran 30 s without sleeping and RLIMIT_RTTIME killed it; docs/realtime.md). That is
         # the start-up, not the ride-through under test: one more attempt, said so.
-        if attempt == 2 or any(e['state'] == 'ACTIVE' for e in run.result.safety_events):
+        # (Since session 8 the launcher raises the priority only once the nodes are up.)
+        if attempt == 2 or engaged(run.result):
             break
         reason = (run.result.message or '-').splitlines()[0]
         print(f'attempt 1 never engaged: {reason}; node exits {run.result.node_exit_codes}; '

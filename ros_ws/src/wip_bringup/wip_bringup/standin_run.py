@@ -255,12 +255,18 @@ def permitted(scheduling: Scheduling) -> bool:
         return False
 
 
+def engaged(result: HardwareResult | Any) -> bool:
+    """Whether the controllers' safety layer reached ACTIVE in a run (a
+    :class:`HardwareResult` or a running runner: both keep ``safety_events``)."""
+    return any(event['state'] == 'ACTIVE' for event in result.safety_events)
+
+
 def _when_engaged(holder: dict, during: Callable, base: subprocess.Popen,
                   end_after: float | None) -> None:
     deadline = time.monotonic() + 120.0
     while time.monotonic() < deadline:
         runner = holder.get('runner')
-        if runner is not None and any(e['state'] == 'ACTIVE' for e in runner.safety_events):
+        if runner is not None and engaged(runner):
             try:
                 during(runner, runner.processes)
             finally:
