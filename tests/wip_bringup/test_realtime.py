@@ -104,3 +104,19 @@ def test_realtime_plant_holds_the_vehicle_until_the_controllers_engage(realtime_
     for name in ('theta', 'x_v', 'v'):
         assert np.all(truth[name][held] == truth[name][0]), name
     assert np.all(truth['tau_left'][held] == 0.0)
+
+
+def test_realtime_run_whose_controllers_never_engage_ends_with_the_reason(tmp_path,
+                                                                          monkeypatch):
+    # Held until the controllers engage: a vehicle that starts beyond the safety layer's
+    # fall threshold (0.4 > 0.35 rad) is never released. The run ends (no retry: starting
+    # again would not help) and says why, with the mixer's own reason.
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 101)))
+    scenario = tmp_path / 'tilted.yaml'
+    scenario.write_text('name: tilted\nduration: 2.0\ninitial_state:\n  theta: 0.4\n')
+    result = run_graph(GraphOptions(clock='realtime', scenario=str(scenario),
+                                    out=str(tmp_path / 'run'), quiet=True))
+    assert result.exit_code not in (0, EXIT_FELL)
+    assert 'the controllers did not engage' in result.message
+    assert 'held at the initial state' in result.message
+    assert 'fallen' in result.message        # the mixer's FAULT, from its /diagnostics

@@ -554,6 +554,11 @@ class PlantNode(IntraProcessNode):
             missing = self.unmatched()
             status.message = ('waiting for the start' if not missing
                               else 'waiting for the graph: ' + '; '.join(missing))
+        elif self.held:
+            status.level = DiagnosticStatus.WARN
+            status.message = (f'held at the initial state for '
+                              f'{self.held_ticks * self.dt_control:.1f} s: the controllers '
+                              'have not engaged (no wheel torques that are not zeroed)')
         else:
             waiting = time.perf_counter() - self._published_at
             if self.clock_mode == 'lockstep' and waiting > 1.0:
