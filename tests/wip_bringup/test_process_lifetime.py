@@ -73,21 +73,28 @@ def test_a_cpu_latency_request_holds_while_open_and_is_refused_with_the_reason(t
     request.close()    # idempotent
 
 
-def test_a_process_and_its_threads_run_at_the_requested_fifo_priority(tmp_path):
-    scheduling = Scheduling(5)
+def _skip_unless_permitted(scheduling: Scheduling) -> None:
     try:
         scheduling.check()
     except GraphError as err:
         pytest.skip(f'SCHED_FIFO not permitted here: {err}')
-    program = textwrap.dedent('''
-        import os, sys, threading, time
-        policies = []
-        thread = threading.Thread(target=lambda: policies.append(
-            (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)))
-        thread.start(); thread.join()
-        print(policies[0], flush=True)
-        time.sleep(60)
-    ''')
+
+
+#: Python lines that start a thread and print its (policy, priority).
+_PRINT_NEW_THREAD_POLICY = """
+policies = []
+thread = threading.Thread(target=lambda: policies.append(
+    (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)))
+thread.start(); thread.join()
+print(policies[0], flush=True)
+"""
+
+
+def test_a_process_and_its_threads_run_at_the_requested_fifo_priority(tmp_path):
+    scheduling = Scheduling(5)
+    _skip_unless_permitted(scheduling)
+    program = ('import os, sys, threading, time\n' + _PRINT_NEW_THREAD_POLICY
+               + 'time.sleep(60)\n')
     process = NodeProcess('probe', [sys.executable, '-c', program], tmp_path / 'probe.log',
                           dict(os.environ), scheduling)
     try:
@@ -106,10 +113,7 @@ def test_a_runaway_at_fifo_priority_is_killed_by_its_rt_cpu_limit(tmp_path):
     """A thread that spins at SCHED_FIFO without sleeping for longer than the limit is
     killed by the kernel (RLIMIT_RTTIME) instead of starving the machine below it."""
     scheduling = Scheduling(5, rt_cpu_limit=0.3)
-    try:
-        scheduling.check()
-    except GraphError as err:
-        pytest.skip(f'SCHED_FIFO not permitted here: {err}')
+    _skip_unless_permitted(scheduling)
     process = NodeProcess('spinner', [sys.executable, '-c', 'while True: pass'],
                           tmp_path / 'spinner.log', dict(os.environ), scheduling)
     try:
@@ -137,41 +141,33 @@ def test_the_priority_is_raised_on_the_running_process_its_threads_and_their_chi
     every thread then, and a thread started afterwards, runs at SCHED_FIFO with the
     RLIMIT_RTTIME; a process that refuses is a GraphError naming it."""
     scheduling = Scheduling(5, rt_cpu_limit=2.0)
-    try:
-        scheduling.check()
-    except GraphError as err:
-        pytest.skip(f'SCHED_FIFO not permitted here: {err}')
+    _skip_unless_permitted(scheduling)
     assert scheduling.at_start() == Scheduling()     # the CPUs only (none here)
-    program = textwrap.dedent('''
-        import os, sys, threading, time
+    go = tmp_path / 'go'
+    log = tmp_path / 'probe.log'
+    program = (textwrap.dedent(f'''
+        import os, pathlib, sys, threading, time
         threading.Thread(target=time.sleep, args=(60,), daemon=True).start()
         print('up', flush=True)
-        sys.stdin.readline()   # the launcher raised the priority: start one more thread
-        policies = []
-        thread = threading.Thread(target=lambda: policies.append(
-            (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)))
-        thread.start(); thread.join()
-        print(policies[0], flush=True)
-        time.sleep(60)
-    ''')
-    process = subprocess.Popen([sys.executable, '-c', program], stdin=subprocess.PIPE,
-                               stdout=subprocess.PIPE, text=True)
-    node = NodeProcess.__new__(NodeProcess)      # the launcher's view of a running node
-    node.name, node.pid, node.process = 'probe', process.pid, process
+        while not pathlib.Path({str(go)!r}).exists():   # the launcher raises the priority
+            time.sleep(0.01)
+    ''') + _PRINT_NEW_THREAD_POLICY + 'time.sleep(60)\n')
+    node = NodeProcess('probe', [sys.executable, '-c', program], log, dict(os.environ),
+                       scheduling.at_start())
     try:
-        assert process.stdout.readline().strip() == 'up'
-        assert {policy for policy, _ in _task_policies(process.pid)} == {os.SCHED_OTHER}
+        _wait_for(lambda: log.read_text().strip() == 'up', START_UP, 'the probe is up')
+        assert {policy for policy, _ in _task_policies(node.pid)} == {os.SCHED_OTHER}
         node.raise_priority(scheduling)
-        assert set(_task_policies(process.pid)) == {(os.SCHED_FIFO, 5)}
-        with open(f'/proc/{process.pid}/limits', encoding='ascii') as stream:
+        assert set(_task_policies(node.pid)) == {(os.SCHED_FIFO, 5)}
+        with open(f'/proc/{node.pid}/limits', encoding='ascii') as stream:
             assert any(line.startswith('Max realtime timeout') and '2000000' in line
                        for line in stream)
-        process.stdin.write('\n')
-        process.stdin.flush()
-        assert process.stdout.readline().strip() == f'({os.SCHED_FIFO}, 5)'
+        go.touch()      # one more thread, started after the raise
+        text = _wait_for(lambda: log.read_text().split()[1:], START_UP,
+                         'the probe prints its new thread\'s policy')
+        assert ' '.join(text) == f'({os.SCHED_FIFO}, 5)'
     finally:
-        process.kill()
-        process.wait()
+        node.stop(1.0)
     with pytest.raises(GraphError, match='probe: could not set --rt-priority 5'):
         node.raise_priority(scheduling)          # the process is gone
 

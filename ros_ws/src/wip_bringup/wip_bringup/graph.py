@@ -375,14 +375,13 @@ class GraphRunner(RunnerBase):
                 last_sim, last_progress = sim, now
                 self.progress(f'sim {sim:7.2f} / {duration:g} s   '
                               f'{values.get("real-time factor", "n/a")}x real time')
-            elif (last_sim < first_ticks and now - started > STARTUP_STALL_TIMEOUT
-                  and self.options.clock == 'realtime'):
-                # The plant holds the vehicle until the controllers engage
-                # (hold_until_engaged): starting again would not help; say why.
-                raise GraphError(
-                    f'the controllers did not engage in {now - started:.0f} s: '
-                    f'{status.message}\n{self.describe_nodes()}', EXIT_TIMEOUT)
             elif last_sim < first_ticks and now - started > STARTUP_STALL_TIMEOUT:
+                if self.options.clock == 'realtime':
+                    # The plant holds the vehicle until the controllers engage
+                    # (hold_until_engaged): starting again would not help; say why.
+                    raise GraphError(
+                        f'the controllers did not engage in {now - started:.0f} s: '
+                        f'{status.message}\n{self.describe_nodes()}', EXIT_TIMEOUT)
                 raise StartupStall(
                     f'no progress for {now - started:.0f} s at t = {last_sim:g} s, the first '
                     f'ticks: {status.message}\n{self.describe_nodes()}')

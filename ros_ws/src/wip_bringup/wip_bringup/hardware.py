@@ -207,12 +207,11 @@ def hardware_parameters(scenario: Scenario, recorder: Mapping[str, Any] | None =
                         joints: tuple[str, str] = DEFAULT_JOINTS,
                         heartbeat: bool = True) -> dict[str, dict]:
     """The generated params file of a hardware run: the controller nodes of
-    :func:`~wip_bringup.params_files.graph_parameters` in real time, no plant; the
-    reference starts when the safety layer engages; with ``heartbeat``, /wip/estop is the
+    :func:`~wip_bringup.params_files.graph_parameters` in real time, no plant (there the
+    reference starts when the safety layer engages); with ``heartbeat``, /wip/estop is the
     mixer's heartbeat (``safety.max_estop_age``)."""
     data = graph_parameters(scenario, 'realtime', None, joints, recorder=recorder,
                             plant=False)
-    data['reference']['ros__parameters']['realtime_start'] = 'engaged'
     if heartbeat:
         mixer = data['torque_mixer']['ros__parameters']
         mixer.setdefault('safety', {})['max_estop_age'] = HEARTBEAT_MAX_AGE

@@ -92,8 +92,6 @@ class RunnerBase:
         self.prepared = False  # True once prepare() set up the run directory
         self.bag_created = False  # True once this run's recorder may have written the bag
         self.processes: dict[str, NodeProcess] = {}
-        #: Processes whose real-time priority is set once every node is up.
-        self.raise_when_up: dict[str, Scheduling] = {}
         self.probe: Probe | None = None
         #: The --cpu-latency request, held from the launch to the shut-down.
         self.cpu_latency_request: CpuLatencyRequest | None = None
@@ -227,23 +225,22 @@ class RunnerBase:
             out[name] = command + arguments
         return out
 
+    def scheduled(self, name: str) -> bool:
+        """Whether the process ``name`` gets ``options.scheduling``: the controllers only
+        (single: the simulation process holds them, and the plant with them). Nothing else
+        (the plant, the recorder, the viewer, the bridge) may take the CPU from them."""
+        return name in self.controller_processes() or name == 'simulation'
+
     def start_processes(self, params_file: pathlib.Path) -> None:
         env = graph_environment(self.domain_id)
         env['ROS_LOG_DIR'] = str(self.out / 'logs' / 'ros')
-        controllers = self.controller_processes()
         for name, command in self.commands(params_file).items():
-            # Real-time scheduling for the controllers only: nothing else (the plant, the
-            # recorder, the viewer, the bridge) may take the CPU from them.
-            # (single: the simulation process holds them, and the plant with them).
-            # Their CPUs at once, their priority once every node is up (see
+            # Their CPUs at once, their priority once every node is up (launch; see
             # NodeProcess.raise_priority: start-up at SCHED_FIFO can starve the others).
-            scheduling = (self.options.scheduling
-                          if name in controllers or name == 'simulation' else None)
+            scheduling = self.options.scheduling.at_start() if self.scheduled(name) else None
             self.processes[name] = NodeProcess(name, command,
                                                self.out / 'logs' / f'{name}.log', env,
-                                               scheduling.at_start() if scheduling else None)
-            if scheduling is not None and scheduling.priority:
-                self.raise_when_up[name] = scheduling
+                                               scheduling)
 
     def launch(self, params_file: pathlib.Path) -> None:
         """Start the processes and wait until every node is up (:meth:`wait_for_nodes`)."""
@@ -255,9 +252,10 @@ class RunnerBase:
         self.say(f'started {len(self.processes)} processes in ROS_DOMAIN_ID='
                  f'{self.domain_id}; waiting for the graph')
         self.wait_for_nodes()
-        if self.raise_when_up:
-            for name, scheduling in self.raise_when_up.items():
-                self.processes[name].raise_priority(scheduling)
+        if self.options.scheduling.priority:
+            for name, process in self.processes.items():
+                if self.scheduled(name):
+                    process.raise_priority(self.options.scheduling)
             self.timeline['real-time priority set'] = time.monotonic() - self.t0
 
     # -- watching ---------------------------------------------------------------------------
