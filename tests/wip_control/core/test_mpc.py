@@ -1040,3 +1040,29 @@ def test_the_speed_limit_push_needs_no_run_away_physically():
     # Made to be back within 0.9 s instead (as the MPC is), a rise is forced (2.28 m/s):
     # the bound is not vacuous.
     assert _min_peak_speed_after_push(v0, back_by=1.0) > peak + 0.05
+
+
+def test_a_process_that_exits_holding_an_mpc_prints_no_binding_leak_report():
+    """A controller process holds its MPC until the interpreter exits, in a reference
+    cycle (node <-> callbacks) that gc.freeze() (real-time hygiene) keeps from being
+    collected; ProxSuite's binding layer (nanobind) reports every QP object still alive at
+    its teardown as a 'leaked instance' (about 30 lines at the end of every controller
+    log), which ``core.qp`` prevents by freeing the workspaces at exit."""
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+    program = ('from wip_control.core.mpc import LongitudinalMpc, MpcConfig\n'
+               'from wip_control.core.params import WipParameters\n'
+               'HELD = LongitudinalMpc(WipParameters(), MpcConfig())\n'
+               'result = HELD.step(v_hat=0.0, theta_hat=0.05, theta_dot_hat=0.0, f2_hat=0.0,'
+               ' f3_hat=0.0, v_d=0.3, tau_limit=20.0)\n'
+               'print(result.status.name)\n'
+               'cycle = {"mpc": HELD}\n'
+               'cycle["self"] = cycle\n'
+               'del HELD, cycle\n'
+               'import gc\n'
+               'gc.freeze()\n')
+    done = subprocess.run([sys.executable, '-c', program], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == 'SOLVED'
+    assert 'leaked' not in done.stderr, done.stderr
