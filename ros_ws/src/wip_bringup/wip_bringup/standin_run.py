@@ -293,7 +293,7 @@ def realtime_benchmark(directory: pathlib.Path, seconds: float = 20.0,
                        cases: tuple[tuple[str, bool, bool, int | None], ...] = (
                            ('separate', False, False, None), ('composed', False, False, None),
                            ('composed', True, False, None), ('composed', True, True, None),
-                           ('composed', True, False, 0))
+                           ('composed', True, False, 0), ('composed', True, True, 0))
                        ) -> list[dict[str, Any]]:
     """The controllers at 200 Hz against the stand-in base, one run per (layout, real-time
     priority, pinned CPUs, CPU wake-up latency request [us]) case, side by side: CPU share

@@ -16,8 +16,8 @@ made within one invocation, interleaved where possible:
 4. **Real time**: the controllers at 200 Hz against the stand-in base (its own process),
    per layout (separate, composed, composed at SCHED_FIFO priority, the same with the base
    and the controllers each pinned to a CPU of its own, and composed at SCHED_FIFO with idle
-   CPUs kept awake by a PM QoS request, ``--cpu-latency 0``, where permitted): their CPU
-   share of one core, the
+   CPUs kept awake by a PM QoS request, ``--cpu-latency 0``, where permitted, unpinned and
+   pinned): their CPU share of one core, the
    sensor -> command latency (p50, p99, max) and the oldest command the base held while
    balancing, beside the in-process cost of the same loop (``--no-realtime`` skips it;
    about 2.5 min), and the floor of rclpy: the
