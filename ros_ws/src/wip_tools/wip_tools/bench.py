@@ -210,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
                     f'{", pinned" if row["pinned"] else ""}'
                     + ('' if latency_request is None
                        else f', cpu-latency {latency_request} us'))
-            print(f'{row["layout"]:9s} {case:34s}: '
+            print(f'{row["layout"]:9s} {case:48s}: '
                   f'controllers {100 * (row["controller_cpu_fraction"] or 0):.1f} % of a core; '
                   f'sensor->command latency p50 {lat.get("p50", float("nan")):.2f} ms, p99 '
                   f'{lat.get("p99", float("nan")):.2f} ms, max {lat.get("max", float("nan")):.2f}'
