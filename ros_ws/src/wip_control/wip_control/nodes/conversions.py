@@ -86,6 +86,18 @@ def pitch_yaw_from_quaternion(x: float, y: float, z: float, w: float) -> tuple[f
 _typestore = None
 
 
+def prepare_decoder(*typenames: str) -> None:
+    """Build the type store and the decoders of ``typenames`` now (about 0.16 s of CPU
+    here, more on a slow machine), at a node's start, rather than in the callback of its
+    first sensor sample."""
+    global _typestore  # noqa: PLW0603 - one store per process
+    if _typestore is None:
+        from rosbags.typesys import get_typestore, Stores  # noqa: PLC0415
+        _typestore = get_typestore(Stores.ROS2_JAZZY)
+    for typename in typenames:
+        _typestore.get_msgdef(typename)
+
+
 def decode_serialized(msg, typename: str):
     """A sensor message taken serialized (``create_subscription(..., raw=True)``) as an
     object with the message's fields (rosbags' CDR decoder, pinned version); a message
@@ -97,10 +109,8 @@ def decode_serialized(msg, typename: str):
     """
     if msg.__class__ is not bytes:
         return msg
-    global _typestore  # noqa: PLW0603 - one store per process, built lazily
     if _typestore is None:
-        from rosbags.typesys import get_typestore, Stores  # noqa: PLC0415
-        _typestore = get_typestore(Stores.ROS2_JAZZY)
+        prepare_decoder()
     try:
         if len(msg) < 4 or msg[0] != 0 or msg[1] not in (0, 1) or msg[2:4] != b'\x00\x00':
             raise ValueError('not a plain CDR encapsulation header')

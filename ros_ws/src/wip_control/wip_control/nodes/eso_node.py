@@ -83,7 +83,7 @@ from ..core.state_estimation import EstimatorOverflow, StateEstimator
 from .common import (ControllerNode, RELIABLE_QOS, run_node, SENSOR_QOS,
                      stamp_to_ns)
 from .conversions import (decode_serialized, estimate_to_msg, gps_has_fix, gps_local_position,
-                          wheel_torques_from_msg)
+                          prepare_decoder, wheel_torques_from_msg)
 from .diagnostics import OK, WARN
 from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
                               odometry_position, signed_wheel_angles)
@@ -150,6 +150,7 @@ class EsoNode(ControllerNode):
         # in real time (see common.SENSOR_QOS).
         sensor_qos = RELIABLE_QOS if self.lockstep else SENSOR_QOS
         # Taken serialized and decoded here: half the cost of receiving them as messages.
+        prepare_decoder('sensor_msgs/msg/JointState', 'sensor_msgs/msg/Imu')
         self.subscribe(JointState, '/joint_states', 'joint_states', self._on_joint_states,
                        sensor_qos, raw=True)
         self.subscribe(Imu, '/imu/data', 'imu', self._on_imu, sensor_qos, raw=True)
