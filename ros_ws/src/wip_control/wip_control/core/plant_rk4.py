@@ -12,17 +12,37 @@ import math
 import numba
 import numpy as np
 
+@numba.njit(cache=True, nogil=True, inline='always')
+def _slopes(k, ytw, tvr, tvk, th, om, v, thd, d1, d2, d3):
+    """(ω̇, υ̇, θ̈) at one RK4 stage: :func:`.plant._make_accelerations` with the torque
+    terms ``ytw``, ``tvr``, ``tvk`` precomputed for the step. Inlined into the caller, so
+    the operations and their order are those of the reference step (bit for bit)."""
+    (mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, _inv_r, _yaw_gain, k_centrifugal,
+     k_coriolis, _k_reaction) = k
+    s = math.sin(th)
+    c = math.cos(th)
+    inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
+    omega_dot = ((ytw - (2.0 * mpl2 * c * thd + k_coriolis * v) * s * om)
+                 / (jphi + mpl2 * s * s) + d1)
+    rv = mpl * s * (thd * thd + k_centrifugal * om * om) + tvr
+    rt = mpgl * s + mpl2 * s * c * om * om - tvk
+    mplc = mpl * c
+    v_dot = (jt * rv - mplc * rt) * inv_omega + d2
+    theta_ddot = (mv * rt - mplc * rv) * inv_omega + d3
+    return omega_dot, v_dot, theta_ddot
+
+
 @numba.njit(cache=True, nogil=True)
 def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance, h):
     """``len(disturbance)`` classic RK4 steps of ``h`` [s], wheel torques held.
 
     ``k``: the constants of :data:`.plant._CONSTANT_NAMES`; ``disturbance``: (n, 3) array of
-    (d1, d2, d3) per step, held over it. Returns the new state as an 8-tuple. The four
-    stages are inlined, the same operations in the same order as the interpreted
+    (d1, d2, d3) per step, held over it. Returns the new state as an 8-tuple. The stages
+    (:func:`_slopes`, inlined) do the same operations in the same order as the interpreted
     step this replaced, hence the same results bit for bit.
     """
-    (mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_gain, k_centrifugal,
-     k_coriolis, k_reaction) = k
+    (_mv, _jt, _jphi, _mpl, _mpl2, _mpgl, _mvjt, _mpl_sq, inv_r, yaw_gain, _k_centrifugal,
+     _k_coriolis, k_reaction) = k
     sin = math.sin
     cos = math.cos
     tw = tau_right - tau_left
@@ -32,23 +52,12 @@ def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance,
     hh = 0.5 * h
     h6 = h / 6.0
 
-    # Deliberately unrolled (see the docstring): each stage repeats the model's equations
-    # rather than calling a shared function, to keep the reference step's bit-exact results.
     for i in range(disturbance.shape[0]):
         d1 = disturbance[i, 0]
         d2 = disturbance[i, 1]
         d3 = disturbance[i, 2]
         # Stage 1 at (th, om, v, thd, phi).
-        s = sin(th)
-        c = cos(th)
-        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
-        a1o = ((ytw - (2.0 * mpl2 * c * thd + k_coriolis * v) * s * om)
-               / (jphi + mpl2 * s * s) + d1)
-        rv = mpl * s * (thd * thd + k_centrifugal * om * om) + tvr
-        rt = mpgl * s + mpl2 * s * c * om * om - tvk
-        mplc = mpl * c
-        a1v = (jt * rv - mplc * rt) * inv_omega + d2
-        a1t = (mv * rt - mplc * rv) * inv_omega + d3
+        a1o, a1v, a1t = _slopes(k, ytw, tvr, tvk, th, om, v, thd, d1, d2, d3)
         cp1 = cos(phi)
         sp1 = sin(phi)
 
@@ -58,16 +67,7 @@ def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance,
         v2 = v + hh * a1v
         thd2 = thd + hh * a1t
         phi2 = phi + hh * om
-        s = sin(th2)
-        c = cos(th2)
-        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
-        a2o = ((ytw - (2.0 * mpl2 * c * thd2 + k_coriolis * v2) * s * om2)
-               / (jphi + mpl2 * s * s) + d1)
-        rv = mpl * s * (thd2 * thd2 + k_centrifugal * om2 * om2) + tvr
-        rt = mpgl * s + mpl2 * s * c * om2 * om2 - tvk
-        mplc = mpl * c
-        a2v = (jt * rv - mplc * rt) * inv_omega + d2
-        a2t = (mv * rt - mplc * rv) * inv_omega + d3
+        a2o, a2v, a2t = _slopes(k, ytw, tvr, tvk, th2, om2, v2, thd2, d1, d2, d3)
         cp2 = cos(phi2)
         sp2 = sin(phi2)
 
@@ -77,16 +77,7 @@ def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance,
         v3 = v + hh * a2v
         thd3 = thd + hh * a2t
         phi3 = phi + hh * om2
-        s = sin(th3)
-        c = cos(th3)
-        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
-        a3o = ((ytw - (2.0 * mpl2 * c * thd3 + k_coriolis * v3) * s * om3)
-               / (jphi + mpl2 * s * s) + d1)
-        rv = mpl * s * (thd3 * thd3 + k_centrifugal * om3 * om3) + tvr
-        rt = mpgl * s + mpl2 * s * c * om3 * om3 - tvk
-        mplc = mpl * c
-        a3v = (jt * rv - mplc * rt) * inv_omega + d2
-        a3t = (mv * rt - mplc * rv) * inv_omega + d3
+        a3o, a3v, a3t = _slopes(k, ytw, tvr, tvk, th3, om3, v3, thd3, d1, d2, d3)
         cp3 = cos(phi3)
         sp3 = sin(phi3)
 
@@ -96,16 +87,7 @@ def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance,
         v4 = v + h * a3v
         thd4 = thd + h * a3t
         phi4 = phi + h * om3
-        s = sin(th4)
-        c = cos(th4)
-        inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
-        a4o = ((ytw - (2.0 * mpl2 * c * thd4 + k_coriolis * v4) * s * om4)
-               / (jphi + mpl2 * s * s) + d1)
-        rv = mpl * s * (thd4 * thd4 + k_centrifugal * om4 * om4) + tvr
-        rt = mpgl * s + mpl2 * s * c * om4 * om4 - tvk
-        mplc = mpl * c
-        a4v = (jt * rv - mplc * rt) * inv_omega + d2
-        a4t = (mv * rt - mplc * rv) * inv_omega + d3
+        a4o, a4v, a4t = _slopes(k, ytw, tvr, tvk, th4, om4, v4, thd4, d1, d2, d3)
         cp4 = cos(phi4)
         sp4 = sin(phi4)
 
