@@ -123,7 +123,6 @@ def test_a_runaway_at_fifo_priority_is_killed_by_its_rt_cpu_limit(tmp_path):
         process.stop(1.0)
 
 
-
 def _task_policies(pid: int) -> list[tuple[int, int]]:
     """(policy, rt priority) of every thread of ``pid`` (proc(5) stat fields 41 and 40)."""
     policies = []

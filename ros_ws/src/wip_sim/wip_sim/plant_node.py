@@ -440,6 +440,11 @@ class PlantNode(IntraProcessNode):
             self.end_reason = str(err)
             self.exit_code = EXIT_ERROR
 
+    @property
+    def held_s(self) -> float:
+        """Wall time [s] the vehicle was held at its initial state (hold_until_engaged)."""
+        return self.held_ticks * self.dt_control
+
     def _on_torques_realtime(self, msg: WheelTorques) -> None:
         self.latest_torques = (float(msg.left), float(msg.right),
                                stamp_to_ns(msg.header.stamp))
@@ -447,7 +452,7 @@ class PlantNode(IntraProcessNode):
             self.held = False
             self.wall_start = time.perf_counter()  # the real-time factor counts from here
             self.get_logger().info(f'the controllers engaged: released after '
-                                   f'{self.held_ticks * self.dt_control:.2f} s held')
+                                   f'{self.held_s:.2f} s held')
 
     def _realtime_tick(self) -> None:
         if self.exit_code is not None:
@@ -524,7 +529,7 @@ class PlantNode(IntraProcessNode):
             'zeroed_torque_ticks_before_first': self.zeroed_torques_before_first,
             # realtime: wall time [s] held at the initial state before the controllers
             # engaged (hold_until_engaged; not in wall_time_s).
-            'held_s': self.held_ticks * self.dt_control,
+            'held_s': self.held_s,
             # The true state at the last tick [SI, rad].
             'final_state': dict(zip(STATE_NAMES, self.state)),
         }
@@ -557,7 +562,7 @@ class PlantNode(IntraProcessNode):
         elif self.held:
             status.level = DiagnosticStatus.WARN
             status.message = (f'held at the initial state for '
-                              f'{self.held_ticks * self.dt_control:.1f} s: the controllers '
+                              f'{self.held_s:.1f} s: the controllers '
                               'have not engaged (no wheel torques that are not zeroed)')
         else:
             waiting = time.perf_counter() - self._published_at
