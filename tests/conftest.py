@@ -106,3 +106,31 @@ def harnesses():
     yield made
     for harness in made:
         harness.close()
+
+
+# ----------------------------------------------------------------- a slow day on purpose
+
+def pytest_addoption(parser):
+    parser.addoption(
+        '--busy-cores', type=int, default=0, metavar='N',
+        help='run N busy processes (one spinning Python loop each, at the normal '
+             'scheduling policy) for the whole session: the shared, slow machine CI may '
+             'get, made on purpose (e.g. scripts/test --busy-cores 2 -m realtime)')
+
+
+@pytest.fixture(scope='session', autouse=True)
+def busy_cores(request):
+    """The ``--busy-cores N`` processes, started before the first test and ended after the
+    last (killed with their process group, so an interrupted session leaves none)."""
+    import signal
+    import subprocess
+    count = request.config.getoption('--busy-cores')
+    if count < 0:
+        raise pytest.UsageError(f'--busy-cores: must be >= 0, got {count}')
+    loops = [subprocess.Popen([sys.executable, '-c', 'while True: pass'],
+                              start_new_session=True) for _ in range(count)]
+    yield len(loops)
+    for loop in loops:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(loop.pid, signal.SIGKILL)
+        loop.wait()

@@ -30,7 +30,7 @@ from sensor_msgs.msg import Imu, JointState  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
 from wip_sim.standin_base import BaseConventions  # noqa: E402
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.wallclock]
 
 BASE = {
     'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'joints': ['wheel_r', 'wheel_l'],

@@ -23,7 +23,7 @@ from wip_bringup.hardware import (load_params_file, node_parameters,  # noqa: E4
                               parse_remap, remapped)
 from wip_bringup.graph import GraphError  # noqa: E402
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 
 EFFORT = '/base/effort_controller/commands'
 

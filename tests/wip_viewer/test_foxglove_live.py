@@ -29,7 +29,7 @@ websockets_sync = pytest.importorskip('websockets.sync.client')
 from ament_index_python.packages import get_package_prefix  # noqa: E402
 from ros_harness import spinning_in_background  # noqa: E402
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.wallclock]
 
 #: foxglove-sdk servers accept only this name of the protocol; its messages are those of
 #: the older ``foxglove.websocket.v1`` (which recent Foxglove apps also offer).

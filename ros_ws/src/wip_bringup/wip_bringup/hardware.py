@@ -414,6 +414,12 @@ class HardwareRunner(RunnerBase):
             if window is not None:
                 last = samples[-1][0]
                 samples = [s for s in samples if s[0] >= last - window - 1.0]
+            # Over the span in which the node produced: before its inputs came and after
+            # they stopped (the base's end, before the nodes are stopped) it outputs
+            # nothing, and counting that time would report a slower node.
+            grew = [i for i in range(1, len(samples)) if samples[i][1] > samples[i - 1][1]]
+            if grew:
+                samples = samples[grew[0] - 1:grew[-1] + 1]
             if len(samples) >= 2 and samples[-1][0] > samples[0][0]:
                 out[name] = ((samples[-1][1] - samples[0][1])
                              / (samples[-1][0] - samples[0][0]))

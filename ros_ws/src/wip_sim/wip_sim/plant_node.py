@@ -90,7 +90,8 @@ from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_state
 from wip_control.core.scenario import load_scenario
 from wip_control.core.sensors import local_to_geodetic, Sensors
-from wip_control.nodes.common import IntraProcessNode, run_simulator_node, stamp_to_ns
+from wip_control.nodes.common import (IntraProcessNode, LOCKSTEP_WRITER_DEPTH,
+                                      run_simulator_node, stamp_to_ns)
 from wip_control.nodes.conversions import (body_rates_from_euler, quaternion_from_euler,
                                            wheel_torques_from_msg)
 from wip_control.nodes.parameters import ConfigParameters
@@ -188,6 +189,7 @@ class PlantNode(IntraProcessNode):
         # The gyro rates are drawn right after the IMU angles, as in the runner (same
         # random stream, same order): the Imu message always carries the angular velocity.
         self.k = 0
+        self.unacknowledged_topics: list[str] = []
         self.tau = (0.0, 0.0)  # applied over the previous control period [N m]
         self.started = False
         self.wall_start: float | None = None  # perf_counter at the start [s]
@@ -199,7 +201,11 @@ class PlantNode(IntraProcessNode):
         # Reliable, keep last 10 (the graph design). Publishers offer transient-local
         # durability: compatible with volatile subscriptions, and a subscription that asks
         # for transient-local gets the samples published before it matched.
-        qos = QoSProfile(depth=SENSOR_DEPTH, reliability=ReliabilityPolicy.RELIABLE,
+        # Lockstep: a deep writer history, so that a reader that lags loses nothing
+        # (common.LOCKSTEP_WRITER_DEPTH).
+        qos = QoSProfile(depth=(LOCKSTEP_WRITER_DEPTH if self.clock_mode == 'lockstep'
+                                else SENSOR_DEPTH),
+                         reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
         # Volatile: matches any publisher (a transient-local request would not match a
         # volatile publisher).
@@ -525,6 +531,9 @@ class PlantNode(IntraProcessNode):
             'wait_for_torques_s': self.wait_time.summary(),
             'clock_to_torques_s': self.loop_time.summary(),
             'stale_torque_messages': self.stale_torques,
+            # Topics whose readers had not acknowledged every sample when the process
+            # ended (common.wait_for_acknowledgements).
+            'unacknowledged_topics': self.unacknowledged_topics,
             'zeroed_torque_ticks': self.zeroed_torques,
             'zeroed_torque_ticks_before_first': self.zeroed_torques_before_first,
             # realtime: wall time [s] held at the initial state before the controllers

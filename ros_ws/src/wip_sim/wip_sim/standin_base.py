@@ -232,6 +232,7 @@ class StandinBase(Node):
         self.release_wall: float | None = None if self.hold else 0.0
         #: time.monotonic() of the release (CLOCK_MONOTONIC: comparable across processes)
         self.release_monotonic: float | None = None if self.hold else time.monotonic()
+        self.ticks_at_release = 0       # ticks published before the release
         #: perf_counter time of the plant's t = 0 (set at the first step after the release).
         self._physics_origin: float | None = None
         self.fell = False
@@ -326,6 +327,7 @@ class StandinBase(Node):
             self.released = True
             self.release_wall = now - self.start_wall
             self.release_monotonic = time.monotonic()
+            self.ticks_at_release = self.k
             self.get_logger().info(f'first non-zero command {data}: released at '
                                    f'{self.release_wall:.3f} s')
 
@@ -470,6 +472,8 @@ class StandinBase(Node):
             'plant_model': self.scenario.plant.model.model,
             'rate_hz': 1.0 / self.dt,
             'ticks': self.k,
+            # Sensor samples published after the release (one of each sensor a tick).
+            'ticks_after_release': self.k - self.ticks_at_release if self.released else 0,
             'wall_time_s': wall,
             'tick_period': percentiles(periods),
             'stalls': self.stalls,

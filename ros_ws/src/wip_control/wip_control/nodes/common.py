@@ -34,6 +34,7 @@ from typing import Callable, Sequence
 
 from builtin_interfaces.msg import Time
 import rclpy
+from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -67,6 +68,28 @@ RELIABLE_QOS = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=10,
 SENSOR_QOS = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=10,
                         reliability=QoSReliabilityPolicy.BEST_EFFORT,
                         durability=QoSDurabilityPolicy.VOLATILE)
+#: Writer history of the reliable publishers of a lockstep run [messages]. A reliable
+#: keep-last writer drops the oldest sample once its history is full, acknowledged by every
+#: reader or not: with the graph design's 10, a recorder whose process was descheduled for a
+#: few milliseconds on a loaded machine lost ground-truth samples (1998 of 2001 in a 10 s
+#: run). A lockstep run waits for the controllers, not for a recorder or a viewer, so its
+#: writers keep 50 s of simulated time of every topic: a reader would have to stall that
+#: long (seconds of wall time) to lose a sample. The DDS layer allocates history entries as
+#: they are used. (The plant waiting for acknowledgements every few ticks instead costs a
+#: DDS heartbeat period each time: docs/decisions/lockstep-recording.md.)
+LOCKSTEP_WRITER_DEPTH = 10000
+
+
+def lockstep_writer_qos(qos: QoSProfile) -> QoSProfile:
+    """``qos`` with the history of a lockstep writer when it is reliable keep-last."""
+    if (not isinstance(qos, QoSProfile) or qos.history != QoSHistoryPolicy.KEEP_LAST
+            or qos.reliability != QoSReliabilityPolicy.RELIABLE
+            or qos.depth >= LOCKSTEP_WRITER_DEPTH):
+        return qos
+    return QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=LOCKSTEP_WRITER_DEPTH,
+                      reliability=qos.reliability, durability=qos.durability)
+
+
 #: /clock: best effort like rclpy's own time source subscription (which uses depth 1), so it
 #: matches both best-effort and reliable publishers; depth 10 so that no sample is lost
 #: when two arrive between two spins.
@@ -449,6 +472,32 @@ def share_sim_clock(nodes: Sequence[Node]) -> Node | None:
     return on_sim_time[0]
 
 
+#: [s] a simulator that ends by itself waits this long at most for its readers'
+#: acknowledgements (:func:`wait_for_acknowledgements`).
+ACK_TIMEOUT = 10.0
+
+
+def wait_for_acknowledgements(nodes: Sequence[Node], timeout: float = ACK_TIMEOUT
+                              ) -> list[str]:
+    """Wait until every reliable reader of the nodes' publishers has acknowledged every
+    sample (at most ``timeout`` in all); the topics of those that had not, said in the log.
+
+    A reliable writer's unacknowledged samples die with its process: a simulator that
+    exits right after its last sample can leave a recorder without it.
+    """
+    deadline = time.monotonic() + timeout
+    late = []
+    for node in nodes:
+        for publisher in node.publishers:
+            left = max(0.0, deadline - time.monotonic())
+            if not publisher.wait_for_all_acked(Duration(seconds=left)):
+                late.append(publisher.topic_name)
+                node.get_logger().warning(
+                    f'{publisher.topic_name}: a reader had not acknowledged every sample '
+                    f'{timeout:g} s after the end (frozen or dead): it may lack the last ones')
+    return late
+
+
 def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None, *,
                        config_status: int, on_end: Callable[[Node], None] | None = None,
                        companions: Sequence[Callable[[], Node]] = ()) -> int:
@@ -485,6 +534,7 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
             status = node.exit_code
             if on_end is not None:
                 on_end(node)
+            node.unacknowledged_topics = wait_for_acknowledgements(built)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ConfigError, ParameterException) as err:
@@ -552,6 +602,13 @@ class ControllerNode(IntraProcessNode):
         self.time_base = TimeBase(self.lockstep)
         self.diagnostics = NodeDiagnostics(self, role, inputs, settings.diagnostics_period)
         self.max_stamp_lead_ns = round(settings.max_stamp_lead * 1e9)
+
+    def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
+        """In lockstep, every reliable publisher keeps what its readers have not
+        acknowledged (:data:`LOCKSTEP_WRITER_DEPTH`)."""
+        if getattr(self, 'lockstep', False):
+            qos_profile = lockstep_writer_qos(qos_profile)
+        return super().create_publisher(msg_type, topic, qos_profile, **kwargs)
 
     def subscribe(self, msg_type, topic: str, name: str, handler: Callable,
                   qos: QoSProfile = RELIABLE_QOS, raw: bool = False) -> None:
