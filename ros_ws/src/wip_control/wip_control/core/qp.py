@@ -44,7 +44,8 @@ per-step slacks on extreme states).
 Every point ProxSuite reports as solved is then *polished*: the equality-constrained
 problem on the active set it found (the constraints with a multiplier larger than
 ``eps_abs``) is solved with numpy, and the result replaces ProxSuite's when it is primal
-feasible and its multipliers have the right signs. Why: the PyPI build of ProxSuite
+feasible and its multipliers have the right signs (else DAQP solves the same data, and
+the polished point is ProxSuite's next start). Why: the PyPI build of ProxSuite
 (AVX2 module) returns last-bit differences for the same QP depending on the heap
 addresses of its workspace, so runs of the same scenario in two processes differed; the
 polished point depends only on the data and the active set (docs/decisions/determinism.md).
@@ -175,17 +176,16 @@ def polish(h: np.ndarray, g: np.ndarray, c: np.ndarray, lower: np.ndarray,
         [H  Aᵀ] [z]   [−g]
         [A  0 ] [λ] = [ b]
 
-    with LU (numpy/LAPACK). The point is accepted if every constraint holds within
-    ``tolerance``, the stationarity residual is below it, and each λ has the sign of its
-    bound (within ``tolerance``): it then satisfies the QP's KKT conditions, so it is its
-    unique optimum. Otherwise the violated constraints join the active set and those with
-    a wrong-signed λ leave it, up to :data:`POLISH_ROUNDS` times (ProxSuite's multipliers
-    of nearly active constraints are only accurate to about its tolerance: seen, +2e-5 on
-    a slack at its lower bound 0). The result depends on the data and the starting active
-    set only, not on the solver's round-off.
+    with LU (numpy/LAPACK; the fixed variables are eliminated, :func:`_kkt_solve`). The
+    point is accepted if every constraint holds within ``tolerance``, the stationarity
+    residual is below it, and each λ has the sign of its bound (within ``tolerance``): it
+    then satisfies the QP's KKT conditions, so it is its unique optimum. Otherwise the
+    violated constraints join the active set and those with a wrong-signed λ leave it, up
+    to :data:`POLISH_ROUNDS` times (ProxSuite's multipliers of nearly active constraints
+    are only accurate to about its tolerance). An accepted set is then reduced to its
+    constraints with |λ| > ``tolerance``, so the result depends on the data and the
+    optimum only, not on the solver's round-off.
     """
-    n = h.shape[0]
-    rows = np.vstack((c, np.eye(n)))
     lo = np.concatenate((lower, lower_box))
     hi = np.concatenate((upper, upper_box))
     # A multiplier pointing to an infinite bound is round-off: that constraint is left out.
@@ -193,7 +193,7 @@ def polish(h: np.ndarray, g: np.ndarray, c: np.ndarray, lower: np.ndarray,
     at_lower = (multipliers < -tolerance) & (lo > -np.inf)
     reason = 'ok'
     for _ in range(POLISH_ROUNDS):
-        z, y, reason, over, under, wrong = _kkt_solve(h, g, rows, lo, hi, at_upper,
+        z, y, reason, over, under, wrong = _kkt_solve(h, g, c, lo, hi, at_upper,
                                                       at_lower, tolerance)
         if reason == 'ok':
             # The set found may hold constraints with λ ≈ 0 that another start (ProxSuite's
@@ -202,7 +202,7 @@ def polish(h: np.ndarray, g: np.ndarray, c: np.ndarray, lower: np.ndarray,
             strong = np.abs(y) > tolerance
             if np.array_equal(strong, at_upper | at_lower):
                 return PolishResult(z, y, 'ok')
-            z2, y2, reason2, *_ = _kkt_solve(h, g, rows, lo, hi, at_upper & strong,
+            z2, y2, reason2, *_ = _kkt_solve(h, g, c, lo, hi, at_upper & strong,
                                               at_lower & strong, tolerance)
             if reason2 == 'ok':
                 return PolishResult(z2, y2, 'ok')
@@ -214,32 +214,51 @@ def polish(h: np.ndarray, g: np.ndarray, c: np.ndarray, lower: np.ndarray,
     return PolishResult(None, None, reason)
 
 
-def _kkt_solve(h, g, rows, lo, hi, at_upper, at_lower, tolerance):
-    """One equality-constrained solve of :func:`polish` and its checks."""
+def _kkt_solve(h, g, c, lo, hi, at_upper, at_lower, tolerance):
+    """One equality-constrained solve of :func:`polish` and its checks.
+
+    The variables at an active bound are fixed there and eliminated (a smaller LU:
+    the MPC's slacks at 0 are about half the variables); the free ones z_f and the
+    multipliers λ of the active rows A of C solve
+
+        [H_ff  A_fᵀ] [z_f]   [−(g + H z_b)_f]
+        [A_f   0   ] [ λ ] = [ b − A z_b    ]
+
+    with z_b the fixed values (zero elsewhere); the box multipliers then close the
+    stationarity of the fixed variables.
+    """
     n = h.shape[0]
-    active = at_upper | at_lower
-    a = rows[active]
+    m = c.shape[0]
+    bounds = np.where(at_upper, hi, lo)
+    active_rows = (at_upper | at_lower)[:m]
+    fixed = (at_upper | at_lower)[m:]
+    free = ~fixed
+    z = np.where(fixed, bounds[m:], 0.0)
+    a = c[active_rows]
+    a_free = a[:, free]
+    n_free = a_free.shape[1]
     k = a.shape[0]
-    kkt = np.zeros((n + k, n + k))
-    kkt[:n, :n] = h
-    kkt[n:, :n] = a
-    kkt[:n, n:] = a.T
-    rhs = np.concatenate((-g, np.where(at_upper, hi, lo)[active]))
+    kkt = np.zeros((n_free + k, n_free + k))
+    kkt[:n_free, :n_free] = h[free][:, free]
+    kkt[n_free:, :n_free] = a_free
+    kkt[:n_free, n_free:] = a_free.T
+    rhs = np.concatenate((-(g + h @ z)[free], bounds[:m][active_rows] - a @ z))
     try:
         solution = np.linalg.solve(kkt, rhs)
     except np.linalg.LinAlgError:
         return None, None, 'singular KKT matrix', None, None, None
     if not np.isfinite(solution).all():
         return None, None, 'singular KKT matrix', None, None, None
-    z = solution[:n]
-    lam = solution[n:]
-    if not np.max(np.abs(h @ z + g + a.T @ lam)) <= tolerance:
+    z[free] = solution[:n_free]
+    y = np.zeros(m + n)
+    y[:m][active_rows] = solution[n_free:]
+    gradient = h @ z + g + c.T @ y[:m]
+    if not np.max(np.abs(gradient[free]), initial=0.0) <= tolerance:
         return None, None, 'stationarity', None, None, None
-    rz = rows @ z
+    y[m:][fixed] = -gradient[fixed]
+    rz = np.concatenate((c @ z, z))
     over = rz > hi + tolerance
     under = rz < lo - tolerance
-    y = np.zeros(len(hi))
-    y[active] = lam
     wrong = (at_upper & (y < -tolerance)) | (at_lower & (y > tolerance))
     if over.any() or under.any():
         return z, y, 'primal infeasible', over, under, wrong
