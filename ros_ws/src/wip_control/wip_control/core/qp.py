@@ -40,6 +40,15 @@ equality-constrained initial guess (about 1 QP in 20 000 random states ran to ma
 from the default start and solves from that one). If that stalls too, DAQP solves the
 same data before the caller falls back to its previous plan (seen with the MPC's
 per-step slacks on extreme states).
+
+Every point ProxSuite reports as solved is then *polished*: the equality-constrained
+problem on the active set it found (the constraints with a multiplier larger than
+``eps_abs``) is solved with numpy, and the result replaces ProxSuite's when it is primal
+feasible and its multipliers have the right signs (else DAQP solves the same data, and
+the polished point is ProxSuite's next start). Why: the PyPI build of ProxSuite
+(AVX2 module) returns last-bit differences for the same QP depending on the heap
+addresses of its workspace, so runs of the same scenario in two processes differed; the
+polished point depends only on the data and the active set (docs/decisions/determinism.md).
 """
 
 from __future__ import annotations
@@ -98,7 +107,11 @@ class QpSolution(NamedTuple):
 
 
 class QpSettings(NamedTuple):
-    """Solver tolerances (ProxSuite names; DAQP uses ``max_iter`` only, it is exact)."""
+    """Solver tolerances (ProxSuite names; DAQP uses ``max_iter`` only, it is exact).
+
+    ``polish``: replace ProxSuite's solved point by the exact solution on its active set
+    (:func:`polish`); off only to compare with the raw answer.
+    """
 
     eps_abs: float = 1e-6
     eps_rel: float = 1e-11
@@ -106,6 +119,152 @@ class QpSettings(NamedTuple):
     eps_dual_inf: float = 0.0
     max_iter: int = 1000
     max_inner_iter: int = 30
+    polish: bool = True
+
+
+class PolishStats:
+    """Counts of the polish step of one :class:`ProxsuiteSolver` since it was made.
+
+    ``rejected``: solves whose polish failed (``rejected_reasons`` says why, with
+    :func:`polish`'s reasons); of those, ``exact`` were replaced by DAQP's solution of
+    the same data and the others kept ProxSuite's raw point (not reproducible to the
+    last bit across processes).
+    """
+
+    def __init__(self) -> None:
+        self.polished = 0
+        self.rejected = 0
+        self.exact = 0
+        self.rejected_reasons: dict[str, int] = {}
+
+    @property
+    def raw(self) -> int:
+        """Solved ticks that kept ProxSuite's raw point."""
+        return self.rejected - self.exact
+
+    def __repr__(self) -> str:
+        return (f'PolishStats(polished={self.polished}, rejected={self.rejected}, '
+                f'exact={self.exact}, rejected_reasons={self.rejected_reasons})')
+
+
+class PolishResult(NamedTuple):
+    """Outcome of :func:`polish`: the point and multipliers, or ``None`` and the reason."""
+
+    z: np.ndarray | None
+    multipliers: np.ndarray | None  # ProxSuite's layout: rows of C, then the boxes
+    reason: str                     # 'ok' or why the point was rejected
+
+
+#: Corrections of the active set :func:`polish` makes before it gives up.
+POLISH_ROUNDS = 4
+
+
+def polish(h: np.ndarray, g: np.ndarray, c: np.ndarray, lower: np.ndarray,
+           upper: np.ndarray, lower_box: np.ndarray, upper_box: np.ndarray,
+           multipliers: np.ndarray, tolerance: float) -> PolishResult:
+    """Exact minimiser on the active set given by ``multipliers``, if it is the optimum.
+
+    ``multipliers`` is ProxSuite's ``results.z``: one per row of C, then one per variable
+    (box); positive at an upper bound, negative at a lower one, so that
+    H z + g + Cᵀ y_C + y_box = 0. A constraint is taken as active when its multiplier
+    exceeds ``tolerance`` in magnitude (a smaller one changes stationarity by less than
+    the solver's own tolerance; a constraint at its bound with a zero multiplier need not
+    be imposed, the optimum of the strictly convex QP satisfies it anyway). With A the
+    active rows of [C; I] and b their bounds, the point z and multipliers λ solve the
+    KKT system of the equality-constrained QP
+
+        [H  Aᵀ] [z]   [−g]
+        [A  0 ] [λ] = [ b]
+
+    with LU (numpy/LAPACK; the fixed variables are eliminated, :func:`_kkt_solve`). The
+    point is accepted if every constraint holds within ``tolerance``, the stationarity
+    residual is below it, and each λ has the sign of its bound (within ``tolerance``): it
+    then satisfies the QP's KKT conditions, so it is its unique optimum. Otherwise the
+    violated constraints join the active set and those with a wrong-signed λ leave it, up
+    to :data:`POLISH_ROUNDS` times (ProxSuite's multipliers of nearly active constraints
+    are only accurate to about its tolerance). An accepted set is then reduced to its
+    constraints with |λ| > ``tolerance``, so the result depends on the data and the
+    optimum only, not on the solver's round-off.
+    """
+    lo = np.concatenate((lower, lower_box))
+    hi = np.concatenate((upper, upper_box))
+    # A multiplier pointing to an infinite bound is round-off: that constraint is left out.
+    at_upper = (multipliers > tolerance) & (hi < np.inf)
+    at_lower = (multipliers < -tolerance) & (lo > -np.inf)
+    reason = 'ok'
+    for _ in range(POLISH_ROUNDS):
+        z, y, reason, over, under, wrong = _kkt_solve(h, g, c, lo, hi, at_upper,
+                                                      at_lower, tolerance)
+        if reason == 'ok':
+            # The set found may hold constraints with λ ≈ 0 that another start (ProxSuite's
+            # last bits) would have left out: the same point, other round-off. Solving
+            # again with only |λ| > tolerance makes the bits a function of the optimum.
+            strong = np.abs(y) > tolerance
+            if np.array_equal(strong, at_upper | at_lower):
+                return PolishResult(z, y, 'ok')
+            z2, y2, reason2, *_ = _kkt_solve(h, g, c, lo, hi, at_upper & strong,
+                                              at_lower & strong, tolerance)
+            if reason2 == 'ok':
+                return PolishResult(z2, y2, 'ok')
+            return PolishResult(z, y, 'ok')
+        if reason in ('singular KKT matrix', 'stationarity'):
+            return PolishResult(None, None, reason)
+        at_upper = (at_upper & ~wrong) | over
+        at_lower = (at_lower & ~wrong) | under
+    return PolishResult(None, None, reason)
+
+
+def _kkt_solve(h, g, c, lo, hi, at_upper, at_lower, tolerance):
+    """One equality-constrained solve of :func:`polish` and its checks.
+
+    The variables at an active bound are fixed there and eliminated (a smaller LU:
+    the MPC's slacks at 0 are about half the variables); the free ones z_f and the
+    multipliers λ of the active rows A of C solve
+
+        [H_ff  A_fᵀ] [z_f]   [−(g + H z_b)_f]
+        [A_f   0   ] [ λ ] = [ b − A z_b    ]
+
+    with z_b the fixed values (zero elsewhere); the box multipliers then close the
+    stationarity of the fixed variables.
+    """
+    n = h.shape[0]
+    m = c.shape[0]
+    bounds = np.where(at_upper, hi, lo)
+    active_rows = (at_upper | at_lower)[:m]
+    fixed = (at_upper | at_lower)[m:]
+    free = ~fixed
+    z = np.where(fixed, bounds[m:], 0.0)
+    a = c[active_rows]
+    a_free = a[:, free]
+    n_free = a_free.shape[1]
+    k = a.shape[0]
+    kkt = np.zeros((n_free + k, n_free + k))
+    kkt[:n_free, :n_free] = h[free][:, free]
+    kkt[n_free:, :n_free] = a_free
+    kkt[:n_free, n_free:] = a_free.T
+    rhs = np.concatenate((-(g + h @ z)[free], bounds[:m][active_rows] - a @ z))
+    try:
+        solution = np.linalg.solve(kkt, rhs)
+    except np.linalg.LinAlgError:
+        return None, None, 'singular KKT matrix', None, None, None
+    if not np.isfinite(solution).all():
+        return None, None, 'singular KKT matrix', None, None, None
+    z[free] = solution[:n_free]
+    y = np.zeros(m + n)
+    y[:m][active_rows] = solution[n_free:]
+    gradient = h @ z + g + c.T @ y[:m]
+    if not np.max(np.abs(gradient[free]), initial=0.0) <= tolerance:
+        return None, None, 'stationarity', None, None, None
+    y[m:][fixed] = -gradient[fixed]
+    rz = np.concatenate((c @ z, z))
+    over = rz > hi + tolerance
+    under = rz < lo - tolerance
+    wrong = (at_upper & (y < -tolerance)) | (at_lower & (y > tolerance))
+    if over.any() or under.any():
+        return z, y, 'primal infeasible', over, under, wrong
+    if wrong.any():
+        return z, y, 'dual sign', over, under, wrong
+    return z, y, 'ok', over, under, wrong
 
 
 def _finite_or_error(z: np.ndarray, status: MpcStatus) -> MpcStatus:
@@ -130,6 +289,7 @@ class ProxsuiteSolver:
         self._settings = settings
         self._qp = None
         self._exact = None  # DaqpSolver, made on the first double failure
+        self.stats = PolishStats()
         _LIVE_SOLVERS.add(self)
 
     def _new_workspace(self, initial_guess=None):
@@ -193,8 +353,42 @@ class ProxsuiteSolver:
                 exact = self._exact.solve(h, g, c, lower, upper, lower_box, upper_box)
                 iterations += exact.iterations
                 if exact.status == MpcStatus.SOLVED:
-                    z, status = exact.z, exact.status
+                    return QpSolution(exact.z, exact.status, iterations)
+                return QpSolution(z, status, iterations)
+            qp = retry
+        if status == MpcStatus.SOLVED and self._settings.polish:
+            z = self._polish(qp, z, h, g, c, lower, upper, lower_box, upper_box)
         return QpSolution(z, status, iterations)
+
+    def _polish(self, qp, z, h, g, c, lower, upper, lower_box, upper_box) -> np.ndarray:
+        """ProxSuite's point polished on its active set, or as it is (and counted)."""
+        result = polish(h, g, c, lower, upper, lower_box, upper_box,
+                        np.array(qp.results.z), self._settings.eps_abs)
+        if result.z is None:
+            stats = self.stats
+            stats.rejected += 1
+            stats.rejected_reasons[result.reason] = (
+                stats.rejected_reasons.get(result.reason, 0) + 1)
+            # The next solve starts from a fresh workspace, not from this raw point.
+            self._qp = None
+            # DAQP from a fresh workspace: exact and reproducible, and independent of
+            # which earlier ticks were rejected. If it fails too, ProxSuite's raw point
+            # is kept (solved within its tolerance, but not reproducible to the bit).
+            if self._exact is None:
+                self._exact = DaqpSolver(*self._sizes, self._settings)
+            self._exact.reset()
+            exact = self._exact.solve(h, g, c, lower, upper, lower_box, upper_box)
+            if exact.status == MpcStatus.SOLVED:
+                stats.exact = stats.exact + 1
+                return exact.z
+            return z
+        self.stats.polished += 1
+        # The next solve starts from this result (COLD_START_WITH_PREVIOUS_RESULT): from
+        # the polished point and multipliers its start is the same in every process, so
+        # are its iteration counts.
+        qp.results.x = result.z
+        qp.results.z = result.multipliers
+        return result.z
 
     @staticmethod
     def _result(qp) -> tuple[np.ndarray, MpcStatus, int]:
