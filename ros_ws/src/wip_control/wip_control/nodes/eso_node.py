@@ -44,6 +44,14 @@ channel (measured: about 1.5 ms per update on the project's machine, which satur
 core at 200 Hz); the stamps' jitter, typically tens of microseconds of the base's timer,
 is not worth it.
 
+Odometry out: nav_msgs/Odometry of the estimate on ``/odom`` (frame ``odometry_frame_id``
+'odom', child ``odometry_child_frame_id`` 'base_link', REP 105: pose x̂, ŷ, ϕ̂; twist in
+base_link: linear.x = υ̂, angular.z = ω̂; diagonal covariance from ``odometry_*_std``,
+1e6 on the axes a planar estimate does not observe), every ``odometry_decimation``-th
+estimate, with ``odometry_output`` 'realtime' (the default: real time and hardware mode,
+not lockstep), 'always' or 'off'; never with ``position_source`` 'odometry', where
+``/odom`` is the input (docs/driving.md).
+
 Bad input: a malformed or non-finite message (missing joint, wrong sizes, NaN, no fix,
 no orientation, non-unit quaternion) is dropped, counted and reported on /diagnostics;
 callbacks never raise. Finite but huge input that overflows the observer (e.g. a wheel
