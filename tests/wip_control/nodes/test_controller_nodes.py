@@ -1300,3 +1300,29 @@ def test_eso_publishes_odometry_of_the_estimate_in_real_time(context, harnesses)
     # Off in lockstep by default (the viewer's /wip/odom/estimate serves the simulation).
     lockstep = start(harnesses, context, EsoNode, 'lockstep')
     assert lockstep.node.odometry_publisher is None
+
+
+def test_reference_cmd_vel_in_real_time_starts_at_the_estimated_pose(context, harnesses):
+    from geometry_msgs.msg import TwistStamped
+    harness = start(harnesses, context, ReferenceNode, 'realtime',
+                    inputs=['/wip/state_estimate'], outputs=['/wip/reference'],
+                    **{'reference.kind': 'cmd_vel'})
+    harness.publisher(TwistStamped, '/cmd_vel')
+    harness.wait_matched()
+    out, node = harness.outputs['/wip/reference'], harness.node
+    t0 = time.time_ns()
+    harness.publish('/wip/state_estimate',
+                    StateEstimateMsg(header=make_header(t0), x=2.0, y=-3.0, phi=1.0))
+    harness.spin_until(lambda: out, 'the first reference')
+    assert (out[0].x, out[0].y, out[0].phi, out[0].v) == (2.0, -3.0, 1.0, 0.0)
+    command = TwistStamped(header=make_header(time.time_ns()))
+    command.twist.linear.x = 0.3
+    harness.publish('/cmd_vel', command)
+    harness.spin_until(lambda: node.diagnostics.received['cmd_vel'] == 1, 'the command')
+    assert not node.diagnostics.dropped and node.reference.v_command == 0.3
+    # Later estimates (elsewhere) do not move the start again; the command drives it.
+    harness.publish('/wip/state_estimate', StateEstimateMsg(
+        header=make_header(t0 + 400_000_000), x=9.0, y=9.0, phi=0.0))
+    harness.spin_until(lambda: len(out) == 2, 'the second reference')
+    assert out[1].v > 0.0 and out[1].phi == 1.0
+    assert out[1].x > 2.0 and out[1].y < -3.0 + 0.2 and out[1].y > -3.0
