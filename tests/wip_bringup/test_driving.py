@@ -184,53 +184,40 @@ def test_a_path_is_followed_to_its_end(tmp_path, test_node):
     assert abs(final['theta']) < 0.02 and abs(final['v']) < 0.02, final
 
 
-def test_teleop_drives_the_standin_base_in_real_time_and_odom_comes_out(tmp_path):
+def test_teleop_drives_the_standin_base_in_real_time_and_odom_comes_out(tmp_path, test_node):
     # Hardware mode against the stand-in base (full plant, its own process, wall clock):
     # 5 s of 0.3 m/s forward on cmd_vel at 10 Hz, then silence. The reference starts at
     # the estimated pose, so the robot's initial offset (0.5 m, 0.5 m, 0.1 rad from the
     # scenario's start) is not driven out; it rolls forward about 1.5 m (1 s ramp up,
     # 4 s at 0.3 m/s, the 1 s brake after the timeout) and stays up at rest.
-    import os
-    import rclpy
+    # The teleop's node exists before the graph starts (test_node: the run uses its
+    # $ROS_DOMAIN_ID): a participant that joins once the robot is released makes DDS
+    # discovery stall the controllers' publications for ~0.33 s (README, "Running on a
+    # real base"), which was seen to topple the robot; the arming delay covers start-up.
     from geometry_msgs.msg import TwistStamped
-    from rclpy.executors import SingleThreadedExecutor
     from nav_msgs.msg import Odometry
     from wip_bringup.standin_run import BASE, line_scenario, run_against_standin
     sent, odom = [], []
+    test_node.create_subscription(Odometry, '/odom', odom.append, 10)
+    publisher = test_node.create_publisher(TwistStamped, 'cmd_vel', 10)
 
     def during(_runner, _processes) -> None:
-        context = rclpy.Context()
-        rclpy.init(context=context, domain_id=int(os.environ['ROS_DOMAIN_ID']))
-        node = rclpy.create_node('scripted_teleop', context=context)
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        try:
-            node.create_subscription(Odometry, '/odom', odom.append, 10)
-            publisher = node.create_publisher(TwistStamped, 'cmd_vel', 10)
-            deadline = time.monotonic() + 10.0
-            while publisher.get_subscription_count() < 1 and time.monotonic() < deadline:
-                time.sleep(0.05)
-            start = time.monotonic()
-            while time.monotonic() < start + 5.0:       # a teleop repeating at 10 Hz
-                cmd = TwistStamped()
-                cmd.header.stamp = node.get_clock().now().to_msg()
-                cmd.twist.linear.x = SPEED
-                publisher.publish(cmd)
-                sent.append(time.monotonic())
-                next_command = start + 0.1 * len(sent)
-                while time.monotonic() < next_command:
-                    executor.spin_once(timeout_sec=max(0.0, next_command - time.monotonic()))
-        finally:
-            executor.shutdown()
-            node.destroy_node()
-            rclpy.try_shutdown(context=context)
+        start = time.monotonic()
+        while time.monotonic() < start + 5.0:       # a teleop repeating at 10 Hz
+            cmd = TwistStamped()
+            cmd.header.stamp = test_node.get_clock().now().to_msg()
+            cmd.twist.linear.x = SPEED
+            publisher.publish(cmd)
+            sent.append(time.monotonic())
+            time.sleep(max(0.0, start + 0.1 * len(sent) - time.monotonic()))
 
     # The paper's plant model: with the full one the controllers' speed loop oscillates
     # (about +-0.2 m/s with a 6 s period, tests/wip_sim/test_standin_base.py), which is not
     # what this test is about.
     scenario = dict(line_scenario(kind='cmd_vel'), plant={'model': 'paper'})
-    run = run_against_standin(tmp_path / 'standin', BASE, 40.0, scenario=scenario,
-                              during=during, end_after_during=8.0)
+    with spinning_in_background(test_node.executor_for_test):
+        run = run_against_standin(tmp_path / 'standin', BASE, 40.0, scenario=scenario,
+                                  during=during, end_after_during=8.0)
     result, stats = run.result, run.stats
     assert result.exit_code == 0, result.message
     assert stats['released'] and not stats['fell'], stats.get('end_reason')
