@@ -81,6 +81,9 @@ class ReferenceNode(ControllerNode):
         self.waiting = not self.lockstep and self.realtime_start == 'engaged'
         self.reference = make_reference(self.config)
         self.commanded = self.config.kind in COMMANDED_KINDS
+        if self.config.kind == 'cmd_vel':
+            # A teleop on another computer: its clock may lead ours a little (chrony).
+            self.reference.max_lead = self.max_stamp_lead_ns / 1e9
         # Real time, estimate-triggered: the commanded reference starts at the estimate.
         self.start_at_estimate = (self.commanded and not self.lockstep
                                   and settings.realtime_trigger == 'state_estimate')
