@@ -23,7 +23,7 @@ import bisect
 import math
 from typing import NamedTuple, Sequence
 
-from .references import Reference, ReferenceState
+from .reference_state import Reference, ReferenceState
 
 #: Longest step of the integration [s]: a late tick is integrated in steps of this size.
 MAX_STEP = 0.01

@@ -37,7 +37,9 @@ import math
 import threading
 from typing import Hashable, NamedTuple, Sequence
 
+from .commanded import CmdVelReference, PathReference, UnicycleLimits
 from .config import ConfigError, param
+from .reference_state import Reference, ReferenceState
 
 _HALF_PI = 0.5 * math.pi
 KINDS = ('trifolium', 'circle', 'line', 'figure_eight', 'waypoints', 'hold', 'cmd_vel',
@@ -46,17 +48,6 @@ KINDS = ('trifolium', 'circle', 'line', 'figure_eight', 'waypoints', 'hold', 'cm
 COMMANDED_KINDS = ('cmd_vel', 'path')
 #: Sharpest corner a waypoint list may have [rad] (a U-turn has no fillet).
 MAX_CORNER_ANGLE = math.radians(179.0)
-
-
-class ReferenceState(NamedTuple):
-    """Reference pose and velocities at one time."""
-
-    x: float          #: x_r in the map frame [m]
-    y: float          #: y_r in the map frame [m]
-    phi: float        #: ϕ_r, heading, continuous (not wrapped) [rad]
-    v: float          #: υ_r, speed [m/s]
-    omega: float      #: ω_r, yaw rate [rad/s]
-    omega_dot: float  #: ω̇_r, yaw acceleration [rad/s²]
 
 
 def _from_derivatives(x: float, y: float, phi: float, xd: float, yd: float, xdd: float,
@@ -74,27 +65,6 @@ def _speed_and_yaw_rate(xd: float, yd: float, xdd: float, ydd: float,
     so the same floats."""
     v2 = xd * xd + yd * yd
     return math.sqrt(v2), (xd * ydd - yd * xdd) / v2
-
-
-class Reference:
-    """A reference trajectory: :meth:`sample` gives the state at time t [s]."""
-
-    def sample(self, t: float) -> ReferenceState:  # pragma: no cover - interface
-        raise NotImplementedError
-
-    def derivatives(self, t: float) -> tuple[float, ...]:  # pragma: no cover - interface
-        """(ẋ, ẏ, ẍ, ÿ, x⃛, y⃛) at t, where defined analytically."""
-        raise NotImplementedError
-
-    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
-        """(υ_r, ω_r) at t, the same floats as :meth:`sample`'s ``v`` and ``omega``.
-
-        :class:`TimeScaled` needs only these at its lead times; curves defined by their
-        derivatives override this to skip the pose (its trigonometry is most of a
-        sample's cost).
-        """
-        ref = self.sample(t)
-        return ref.v, ref.omega
 
 
 class Trifolium(Reference):
@@ -913,10 +883,10 @@ def _make_base_reference(config: ReferenceConfig) -> Reference:
     raise ConfigError(f'kind: {config.kind!r} is not one of {list(KINDS)}')
 
 
-def make_commanded(config: ReferenceConfig, t0: float = 0.0):
+def make_commanded(config: ReferenceConfig,
+                   t0: float = 0.0) -> CmdVelReference | PathReference:
     """The reference of a commanded kind (``cmd_vel``, ``path``), at rest at the start
     pose (``line_start``, ``line_heading``) at time t0 [s] until commanded."""
-    from .commanded import CmdVelReference, PathReference, UnicycleLimits
     limits = UnicycleLimits(config.commanded_max_speed, config.commanded_max_acceleration,
                             config.commanded_max_yaw_rate,
                             config.commanded_max_yaw_acceleration)
