@@ -1240,6 +1240,7 @@ def test_reference_cmd_vel_follows_stamped_commands_and_refuses_bad_ones(context
     assert max(speeds) == pytest.approx(0.15, abs=1e-9)
     assert speeds[10] == pytest.approx(0.15) and speeds[-1] < speeds[10]
     assert all(abs(m.omega) <= 0.25 for m in out) and out[-1].phi > 0.0
+    assert node.diagnostics.values['command'] == 'no command in force: braking'
 
 
 def test_reference_path_in_another_frame_is_refused_and_a_map_path_followed(
@@ -1272,6 +1273,7 @@ def test_reference_path_in_another_frame_is_refused_and_a_map_path_followed(
     out = harness.outputs['/wip/reference']
     tick_every(harness, out, 10 * H_NS, 4.0)
     assert out[-1].x > 0.5 and 0.0 < out[-1].v <= 0.3
+    assert node.diagnostics.values['command'] == 'following the path'
 
 
 def test_eso_publishes_odometry_of_the_estimate_in_real_time(context, harnesses):
@@ -1326,3 +1328,4 @@ def test_reference_cmd_vel_in_real_time_starts_at_the_estimated_pose(context, ha
     harness.spin_until(lambda: len(out) == 2, 'the second reference')
     assert out[1].v > 0.0 and out[1].phi == 1.0
     assert out[1].x > 2.0 and out[1].y < -3.0 + 0.2 and out[1].y > -3.0
+    assert node.diagnostics.values['command'] == 'following the command'

@@ -209,7 +209,24 @@ class ReferenceNode(ControllerNode):
         t = 0.0 if self.waiting else max(0.0, self.time_base.seconds(stamp_ns))
         ref = self.reference.update(t) if self.commanded else self.reference.sample(t)
         self.publisher.publish(reference_to_msg(ref, stamp_ns, self.frame_id))
+        if self.commanded:
+            self._report_command(ref)
         self.diagnostics.output(stamp_ns, time.perf_counter() - start)
+
+    def _report_command(self, ref) -> None:
+        """What the commanded reference does, on /diagnostics (value 'command')."""
+        moving = ref.v != 0.0 or ref.omega != 0.0
+        if self.config.kind == 'cmd_vel':
+            status = ('following the command' if not self.reference.timed_out
+                      else 'no command in force: braking' if moving
+                      else 'no command in force: at rest')
+        else:
+            status = ('no path: at rest' if not self.reference.points
+                      else 'following the path' if not self.reference.done
+                      else 'at the end of the path' if not moving
+                      else 'end of the path reached: braking')
+        if self.diagnostics.values.get('command') != status:
+            self.diagnostics.values['command'] = status
 
 
 def main(args=None) -> int:
