@@ -1199,3 +1199,133 @@ def test_the_readme_params_file_of_a_real_base_is_taken_by_the_eso_and_the_mixer
         mixer.destroy_node()
     finally:
         rclpy.try_shutdown(context=ctx)
+
+
+# ----------------------------------------------------------- commanded references, /odom
+
+def tick_every(harness, out, step_ns, duration):
+    """Publish /clock every step_ns up to duration [s], each time waiting for the
+    reference (a burst of clock messages would overrun the clock's queue)."""
+    for k in range(1, round(duration * 1e9 / step_ns) + 1):
+        count = len(out)
+        harness.publish('/clock', clock(k * step_ns))
+        harness.spin_until(lambda: len(out) == count + 1, f'the reference at tick {k}')
+
+
+def test_reference_cmd_vel_follows_stamped_commands_and_refuses_bad_ones(context, harnesses):
+    from geometry_msgs.msg import TwistStamped
+    harness = start(harnesses, context, ReferenceNode, inputs=['/clock'],
+                    outputs=['/wip/reference'], **{'reference.kind': 'cmd_vel'})
+    harness.publisher(TwistStamped, '/cmd_vel')
+    harness.wait_matched()
+    out, node = harness.outputs['/wip/reference'], harness.node
+    harness.publish('/clock', clock(0))
+    harness.spin_until(lambda: out, 'the first reference')
+
+    def command(stamp_ns, v, w):
+        msg = TwistStamped(header=make_header(stamp_ns))
+        msg.twist.linear.x, msg.twist.angular.z = v, w
+        count = node.diagnostics.received['cmd_vel']
+        harness.publish('/cmd_vel', msg)
+        harness.spin_until(lambda: node.diagnostics.received['cmd_vel'] == count + 1,
+                           'the command')
+    command(0, math.nan, 0.0)
+    command(10 * 10**9, 0.3, 0.0)                     # 10 s in the future
+    command(0, 9.0, 0.1)                              # clipped to 0.5 m/s, 0.25 rad/s
+    dropped = node.diagnostics.dropped
+    assert dropped[('cmd_vel', 'invalid')] == 1 and dropped[('cmd_vel', 'future')] == 1
+    tick_every(harness, out, 10 * H_NS, 1.0)
+    speeds = [m.v for m in out]
+    # Accelerates at 0.3 m/s^2 until the command times out at 0.5 s, then brakes.
+    assert max(speeds) == pytest.approx(0.15, abs=1e-9)
+    assert speeds[10] == pytest.approx(0.15) and speeds[-1] < speeds[10]
+    assert all(abs(m.omega) <= 0.25 for m in out) and out[-1].phi > 0.0
+    assert node.diagnostics.values['command'] == 'no command in force: braking'
+
+
+def test_reference_path_in_another_frame_is_refused_and_a_map_path_followed(
+        context, harnesses):
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Path
+    harness = start(harnesses, context, ReferenceNode, inputs=['/clock'],
+                    outputs=['/wip/reference'], **{'reference.kind': 'path'})
+    harness.publisher(Path, '/plan')
+    harness.wait_matched()
+    node = harness.node
+
+    def path(frame_id, points):
+        msg = Path(header=make_header(0, frame_id))
+        for x, y in points:
+            pose = PoseStamped()
+            pose.pose.position.x, pose.pose.position.y = x, y
+            msg.poses.append(pose)
+        count = node.diagnostics.received['plan']
+        harness.publish('/plan', msg)
+        harness.spin_until(lambda: node.diagnostics.received['plan'] == count + 1,
+                           'the path')
+    path('odom', [(1.0, 0.0)])
+    path('map', [(1.0, math.inf)])
+    assert node.diagnostics.dropped[('plan', 'frame')] == 1
+    assert node.diagnostics.dropped[('plan', 'invalid')] == 1
+    assert node.reference.done
+    path('map', [(1.0, 0.0), (1.0, 1.0)])
+    assert node.reference.points == [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)]
+    out = harness.outputs['/wip/reference']
+    tick_every(harness, out, 10 * H_NS, 4.0)
+    assert out[-1].x > 0.5 and 0.0 < out[-1].v <= 0.3
+    assert node.diagnostics.values['command'] == 'following the path'
+
+
+def test_eso_publishes_odometry_of_the_estimate_in_real_time(context, harnesses):
+    from nav_msgs.msg import Odometry
+    harness = start(harnesses, context, EsoNode, 'realtime', ESO_INPUTS,
+                    ['/wip/state_estimate'], odometry_decimation=2)
+    odom = harness.listen(Odometry, '/odom')
+    harness.wait_matched()
+    estimates = harness.outputs['/wip/state_estimate']
+    wall = time.time_ns()
+    for k, s in enumerate(eso_measurements(10)):
+        harness.publish('/imu/data', imu(wall + s['stamp'], s['pitch'], s['yaw'], s['rates']))
+        harness.publish('/joint_states', joint_states(wall + s['stamp'], s['left'], s['right']))
+        harness.spin_until(lambda: len(estimates) == k + 1, f'estimate {k}')
+    harness.spin_until(lambda: len(odom) == 5, 'every second estimate on /odom')
+    for msg, est in zip(odom, estimates[::2]):
+        assert msg.header.stamp == est.header.stamp
+        assert (msg.header.frame_id, msg.child_frame_id) == ('odom', 'base_link')
+        assert (msg.pose.pose.position.x, msg.pose.pose.position.y) == (est.x, est.y)
+        q = msg.pose.pose.orientation
+        assert 2.0 * math.atan2(q.z, q.w) == pytest.approx(math.remainder(est.phi, 2 * math.pi))
+        assert (msg.twist.twist.linear.x, msg.twist.twist.angular.z) == (est.v, est.omega)
+        assert msg.pose.covariance[0] == msg.pose.covariance[7] == 0.25
+        assert msg.pose.covariance[35] == pytest.approx(0.05 ** 2)
+        assert msg.twist.covariance[0] == pytest.approx(0.05 ** 2)
+    # Off in lockstep by default (the viewer's /wip/odom/estimate serves the simulation).
+    lockstep = start(harnesses, context, EsoNode, 'lockstep')
+    assert lockstep.node.odometry_publisher is None
+
+
+def test_reference_cmd_vel_in_real_time_starts_at_the_estimated_pose(context, harnesses):
+    from geometry_msgs.msg import TwistStamped
+    harness = start(harnesses, context, ReferenceNode, 'realtime',
+                    inputs=['/wip/state_estimate'], outputs=['/wip/reference'],
+                    **{'reference.kind': 'cmd_vel'})
+    harness.publisher(TwistStamped, '/cmd_vel')
+    harness.wait_matched()
+    out, node = harness.outputs['/wip/reference'], harness.node
+    t0 = time.time_ns()
+    harness.publish('/wip/state_estimate',
+                    StateEstimateMsg(header=make_header(t0), x=2.0, y=-3.0, phi=1.0))
+    harness.spin_until(lambda: out, 'the first reference')
+    assert (out[0].x, out[0].y, out[0].phi, out[0].v) == (2.0, -3.0, 1.0, 0.0)
+    command = TwistStamped(header=make_header(time.time_ns()))
+    command.twist.linear.x = 0.3
+    harness.publish('/cmd_vel', command)
+    harness.spin_until(lambda: node.diagnostics.received['cmd_vel'] == 1, 'the command')
+    assert not node.diagnostics.dropped and node.reference.v_command == 0.3
+    # Later estimates (elsewhere) do not move the start again; the command drives it.
+    harness.publish('/wip/state_estimate', StateEstimateMsg(
+        header=make_header(t0 + 400_000_000), x=9.0, y=9.0, phi=0.0))
+    harness.spin_until(lambda: len(out) == 2, 'the second reference')
+    assert out[1].v > 0.0 and out[1].phi == 1.0
+    assert out[1].x > 2.0 and out[1].y < -3.0 + 0.2 and out[1].y > -3.0
+    assert node.diagnostics.values['command'] == 'following the command'

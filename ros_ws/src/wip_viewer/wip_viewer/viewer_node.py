@@ -55,6 +55,7 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from wip_control.nodes.common import make_header, run_node, stamp_to_ns
+from wip_control.nodes.conversions import odometry_to_msg
 from wip_control.nodes.diagnostics import NodeDiagnostics
 from wip_control.nodes.parameters import ConfigParameters
 from wip_msgs.msg import GroundTruth, MpcOutput, ReferenceState, StateEstimate
@@ -131,14 +132,8 @@ class ViewerNode(Node):
             f'{name} {len(buffer.points)}' for name, buffer in self.paths.items())
 
     def _odometry(self, stamp_ns, x, y, phi, v, omega, covariance) -> Odometry:
-        msg = Odometry()
-        msg.header = make_header(stamp_ns, self.config.frame_id)
-        msg.child_frame_id = self.config.child_frame_id
-        msg.pose.pose = _pose((x, y, 0.0), quaternion_yaw_pitch(phi, 0.0))
-        msg.pose.covariance = covariance
-        msg.twist.twist.linear.x = float(v)
-        msg.twist.twist.angular.z = float(omega)
-        return msg
+        return odometry_to_msg(stamp_ns, self.config.frame_id, self.config.child_frame_id,
+                               x, y, phi, v, omega, covariance)
 
     def _publish_paths(self, stamp_ns: int) -> None:
         if not self.path_gate.ready(stamp_ns):

@@ -20,7 +20,8 @@ Kinds
 [0.21, 0.63] m/s, never zero, and |ω_r| peaks at 0.70 rad/s at the petal tips.
 ``circle``, ``line``, ``figure_eight`` (lemniscate of Gerono x = a sin τ,
 y = (a/2) sin 2τ, τ = 2π t/P), and ``waypoints``: a polyline with circular fillets at
-the corners and a trapezoidal speed profile (see :class:`Waypoints`).
+the corners and a trapezoidal speed profile (see :class:`Waypoints`). ``cmd_vel`` and
+``path`` follow velocity commands and paths received at run time (``commanded.py``).
 
 References
 ----------
@@ -36,23 +37,17 @@ import math
 import threading
 from typing import Hashable, NamedTuple, Sequence
 
+from .commanded import CmdVelReference, PathReference, UnicycleLimits
 from .config import ConfigError, param
+from .reference_state import Reference, ReferenceState
 
 _HALF_PI = 0.5 * math.pi
-KINDS = ('trifolium', 'circle', 'line', 'figure_eight', 'waypoints', 'hold')
+KINDS = ('trifolium', 'circle', 'line', 'figure_eight', 'waypoints', 'hold', 'cmd_vel',
+         'path')
+#: Kinds commanded at run time (``core.commanded``): stateful, never time-scaled.
+COMMANDED_KINDS = ('cmd_vel', 'path')
 #: Sharpest corner a waypoint list may have [rad] (a U-turn has no fillet).
 MAX_CORNER_ANGLE = math.radians(179.0)
-
-
-class ReferenceState(NamedTuple):
-    """Reference pose and velocities at one time."""
-
-    x: float          #: x_r in the map frame [m]
-    y: float          #: y_r in the map frame [m]
-    phi: float        #: ϕ_r, heading, continuous (not wrapped) [rad]
-    v: float          #: υ_r, speed [m/s]
-    omega: float      #: ω_r, yaw rate [rad/s]
-    omega_dot: float  #: ω̇_r, yaw acceleration [rad/s²]
 
 
 def _from_derivatives(x: float, y: float, phi: float, xd: float, yd: float, xdd: float,
@@ -70,27 +65,6 @@ def _speed_and_yaw_rate(xd: float, yd: float, xdd: float, ydd: float,
     so the same floats."""
     v2 = xd * xd + yd * yd
     return math.sqrt(v2), (xd * ydd - yd * xdd) / v2
-
-
-class Reference:
-    """A reference trajectory: :meth:`sample` gives the state at time t [s]."""
-
-    def sample(self, t: float) -> ReferenceState:  # pragma: no cover - interface
-        raise NotImplementedError
-
-    def derivatives(self, t: float) -> tuple[float, ...]:  # pragma: no cover - interface
-        """(ẋ, ẏ, ẍ, ÿ, x⃛, y⃛) at t, where defined analytically."""
-        raise NotImplementedError
-
-    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
-        """(υ_r, ω_r) at t, the same floats as :meth:`sample`'s ``v`` and ``omega``.
-
-        :class:`TimeScaled` needs only these at its lead times; curves defined by their
-        derivatives override this to skip the pose (its trigonometry is most of a
-        sample's cost).
-        """
-        ref = self.sample(t)
-        return ref.v, ref.omega
 
 
 class Trifolium(Reference):
@@ -766,9 +740,9 @@ class ReferenceConfig:
     circle_start_angle: float = param(0.0, 'rad', 'polar angle of the start point about '
                                       'the centre')
     line_start: tuple[float, float] = param((0.0, 0.0), 'm', 'start point of the line '
-                                            '(kind hold: the point to stand at)')
-    line_heading: float = param(0.0, 'rad', 'direction of the line (REP 103: 0 = +x; kind '
-                                'hold: the heading to stand at)')
+                                            '(kinds hold, cmd_vel, path: the start pose)')
+    line_heading: float = param(0.0, 'rad', 'direction of the line (REP 103: 0 = +x; kinds '
+                                'hold, cmd_vel, path: the start heading)')
     line_speed: float = param(0.5, 'm/s', 'speed along the line', minimum=0.0,
                               exclusive_minimum=True)
     figure_eight_center: tuple[float, float] = param((0.0, 0.0), 'm',
@@ -792,6 +766,34 @@ class ReferenceConfig:
     waypoints_max_yaw_rate: float = param(0.25, 'rad/s', 'yaw-rate limit on the fillets '
                                           '(keep below the generator max_yaw_rate)',
                                           minimum=0.0, exclusive_minimum=True)
+    cmd_vel_timeout: float = param(
+        0.5, 's', 'cmd_vel: a command older than this (by its stamp) is refused; this long '
+        'after the last accepted one the reference brakes to rest', minimum=0.05,
+        maximum=10.0)
+    cmd_vel_stamped: bool = param(
+        True, '1', 'cmd_vel: true: geometry_msgs/TwistStamped (stamp checked); false: '
+        'geometry_msgs/Twist (stamped on receipt)')
+    commanded_max_speed: float = param(
+        0.5, 'm/s', 'cmd_vel, path: |speed| limit of the reference (keep below the generator '
+        'max_speed: the feedback of eq. (9) needs headroom)', minimum=0.0,
+        exclusive_minimum=True, maximum=1.5)
+    commanded_max_acceleration: float = param(
+        0.3, 'm/s^2', 'cmd_vel, path: |acceleration| limit of the reference speed',
+        minimum=0.0, exclusive_minimum=True, maximum=2.0)
+    commanded_max_yaw_rate: float = param(
+        0.25, 'rad/s', 'cmd_vel, path: |yaw rate| limit of the reference (keep below the '
+        'generator max_yaw_rate)', minimum=0.0, exclusive_minimum=True, maximum=0.3)
+    commanded_max_yaw_acceleration: float = param(
+        0.5, 'rad/s^2', 'cmd_vel, path: |yaw acceleration| limit of the reference (keep '
+        'below the generator max_yaw_acceleration)', minimum=0.0, exclusive_minimum=True,
+        maximum=2.0)
+    path_speed: float = param(
+        0.3, 'm/s', 'path: cruise speed along the received path (at most '
+        'commanded_max_speed)', minimum=0.0, exclusive_minimum=True, maximum=1.5)
+    path_lookahead: float = param(
+        0.5, 'm', 'path: the reference steers towards the point this far ahead on the path '
+        '(pure pursuit; shorter: closer to the corners, sharper turns)', minimum=0.05,
+        maximum=10.0)
     time_scaling: bool = param(
         True, '1', 'run the reference along its path with a progress that slows where '
         'its speed or yaw rate would exceed path_max_speed, path_max_yaw_rate (any kind; '
@@ -848,6 +850,8 @@ def make_reference(config: ReferenceConfig | None = None) -> Reference:
     time-scaled (:class:`TimeScaled`) if ``config.time_scaling``."""
     config = config if config is not None else ReferenceConfig()
     config.validate()
+    if config.kind in COMMANDED_KINDS:
+        return make_commanded(config)
     base = _make_base_reference(config)
     if config.time_scaling:
         # The tables depend on neither lead time: one key for every lead.
@@ -877,3 +881,19 @@ def _make_base_reference(config: ReferenceConfig) -> Reference:
     if config.kind == 'waypoints':
         return _make_waypoints(config)
     raise ConfigError(f'kind: {config.kind!r} is not one of {list(KINDS)}')
+
+
+def make_commanded(config: ReferenceConfig,
+                   t0: float = 0.0) -> CmdVelReference | PathReference:
+    """The reference of a commanded kind (``cmd_vel``, ``path``), at rest at the start
+    pose (``line_start``, ``line_heading``) at time t0 [s] until commanded."""
+    limits = UnicycleLimits(config.commanded_max_speed, config.commanded_max_acceleration,
+                            config.commanded_max_yaw_rate,
+                            config.commanded_max_yaw_acceleration)
+    start = (*config.line_start, config.line_heading)
+    if config.kind == 'cmd_vel':
+        return CmdVelReference(limits, config.cmd_vel_timeout, start=start, t0=t0)
+    if config.kind == 'path':
+        return PathReference(limits, config.path_speed, config.path_lookahead, start=start,
+                             t0=t0)
+    raise ConfigError(f'kind: {config.kind!r} is not one of {list(COMMANDED_KINDS)}')

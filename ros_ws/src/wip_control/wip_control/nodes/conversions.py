@@ -18,6 +18,7 @@ import math
 import struct
 from typing import Sequence
 
+from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
 from std_msgs.msg import Float64MultiArray
 from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateMsg,
@@ -200,6 +201,26 @@ def wheel_torques_from_msg(msg: WheelTorques) -> tuple[float, float]:
 
 
 # --------------------------------------------------------------------- project messages
+
+def odometry_to_msg(stamp_ns: int, frame_id: str, child_frame_id: str, x: float, y: float,
+                    phi: float, v: float, omega: float,
+                    pose_covariance: Sequence[float] = (0.0,) * 36,
+                    twist_covariance: Sequence[float] = (0.0,) * 36) -> Odometry:
+    """nav_msgs/Odometry of a planar pose (x, y [m], heading phi [rad]) in ``frame_id``
+    and its twist in ``child_frame_id`` (REP 105: υ along x, ω about z); covariances
+    row-major 6x6 (all zero: unknown, the ROS convention). The ESO's /odom and the
+    viewer's Odometry topics are built here."""
+    msg = stamped(Odometry(), stamp_ns, frame_id)
+    msg.child_frame_id = child_frame_id
+    position, orientation = msg.pose.pose.position, msg.pose.pose.orientation
+    position.x, position.y = float(x), float(y)
+    _, _, orientation.z, orientation.w = quaternion_from_euler(0.0, 0.0, float(phi))
+    msg.pose.covariance = [float(c) for c in pose_covariance]
+    msg.twist.twist.linear.x = float(v)
+    msg.twist.twist.angular.z = float(omega)
+    msg.twist.covariance = [float(c) for c in twist_covariance]
+    return msg
+
 
 def reference_to_msg(ref: ReferenceState, stamp_ns: int, frame_id: str) -> ReferenceStateMsg:
     return stamped(ReferenceStateMsg(x=ref.x, y=ref.y, phi=ref.phi, v=ref.v, omega=ref.omega,

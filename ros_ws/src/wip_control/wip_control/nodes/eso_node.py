@@ -44,6 +44,14 @@ channel (measured: about 1.5 ms per update on the project's machine, which satur
 core at 200 Hz); the stamps' jitter, typically tens of microseconds of the base's timer,
 is not worth it.
 
+Odometry out: nav_msgs/Odometry of the estimate on ``/odom`` (frame ``odometry_frame_id``
+'odom', child ``odometry_child_frame_id`` 'base_link', REP 105: pose x̂, ŷ, ϕ̂; twist in
+base_link: linear.x = υ̂, angular.z = ω̂; diagonal covariance from ``odometry_*_std``,
+1e6 on the axes a planar estimate does not observe), every ``odometry_decimation``-th
+estimate, with ``odometry_output`` 'realtime' (the default: real time and hardware mode,
+not lockstep), 'always' or 'off'; never with ``position_source`` 'odometry', where
+``/odom`` is the input (docs/driving.md).
+
 Bad input: a malformed or non-finite message (missing joint, wrong sizes, NaN, no fix,
 no orientation, non-unit quaternion) is dropped, counted and reported on /diagnostics;
 callbacks never raise. Finite but huge input that overflows the observer (e.g. a wheel
@@ -83,7 +91,7 @@ from ..core.state_estimation import EstimatorOverflow, StateEstimator
 from .common import (ControllerNode, RELIABLE_QOS, run_node, SENSOR_QOS,
                      stamp_to_ns)
 from .conversions import (decode_serialized, estimate_to_msg, gps_has_fix, gps_local_position,
-                          prepare_decoder, wheel_torques_from_msg)
+                          odometry_to_msg, prepare_decoder, wheel_torques_from_msg)
 from .diagnostics import OK, WARN
 from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
                               odometry_position, signed_wheel_angles)
@@ -94,6 +102,20 @@ from .sync import decimation, ExactTimeSync, is_decimated_tick, LatestSync
 _SENSORS = ('joint_states', 'imu', 'gps')
 #: Torque messages kept by stamp in lockstep (only the previous period's is needed).
 _MAX_TORQUE_STAMPS = 64
+
+
+#: Variance [m², rad², ...] of the axes a planar estimate does not observe (z, roll,
+#: pitch; lateral and vertical speed, roll and pitch rates): very large, as REP 105 asks
+#: of an unknown axis that a consumer (robot_localization) must not fuse.
+_UNOBSERVED = 1e6
+
+
+def _diagonal(values) -> list[float]:
+    """Row-major 6x6 matrix with ``values`` on the diagonal."""
+    matrix = [0.0] * 36
+    for i, value in enumerate(values):
+        matrix[7 * i] = float(value)
+    return matrix
 
 
 class EsoNode(ControllerNode):
@@ -162,7 +184,44 @@ class EsoNode(ControllerNode):
         else:
             self.subscribe(NavSatFix, '/gps/fix', 'gps', self._on_gps, sensor_qos)
         self.subscribe(WheelTorques, '/wip/wheel_torques', 'wheel_torques', self._on_torques)
+        self._init_odometry(settings)
         self.diagnostics.state(OK, 'waiting for the first measurement set')
+
+    def _init_odometry(self, settings: EsoNodeSettings) -> None:
+        """The /odom output (nav_msgs/Odometry of the estimate, REP 105)."""
+        wanted = (settings.odometry_output == 'always'
+                  or (settings.odometry_output == 'realtime' and not self.lockstep))
+        self.odometry_publisher = None
+        self.odometry_count = 0
+        if wanted and self.position_source == 'odometry':
+            # /odom is this node's position input then; publishing it would feed it back.
+            self.get_logger().warning("odometry_output: no /odom output with "
+                                      "position_source 'odometry' (it is the input)")
+            wanted = False
+        self.diagnostics.values['/odom output'] = (
+            f'every {settings.odometry_decimation} estimate(s)' if wanted else 'off')
+        if not wanted:
+            return
+        self.odometry_settings = settings
+        self.odometry_every = settings.odometry_decimation
+        pos, yaw = settings.odometry_position_std ** 2, settings.odometry_heading_std ** 2
+        # x, y, yaw as stated; z, roll, pitch are not estimated (a planar base): very large.
+        self.odometry_pose_covariance = _diagonal((pos, pos, _UNOBSERVED, _UNOBSERVED,
+                                                   _UNOBSERVED, yaw))
+        self.odometry_twist_covariance = _diagonal((
+            settings.odometry_speed_std ** 2, _UNOBSERVED, _UNOBSERVED, _UNOBSERVED,
+            _UNOBSERVED, settings.odometry_yaw_rate_std ** 2))
+        self.odometry_publisher = self.create_publisher(Odometry, '/odom', RELIABLE_QOS)
+
+    def _publish_odometry(self, stamp: int, pose) -> None:
+        self.odometry_count += 1
+        if (self.odometry_count - 1) % self.odometry_every:
+            return
+        settings, est = self.odometry_settings, pose.estimate
+        self.odometry_publisher.publish(odometry_to_msg(
+            stamp, settings.odometry_frame_id, settings.odometry_child_frame_id, pose.x,
+            pose.y, est.phi, est.v, est.omega, self.odometry_pose_covariance,
+            self.odometry_twist_covariance))
 
     # -- lockstep set definition ------------------------------------------------------------
     def _is_gps_tick(self, stamp_ns: int) -> bool:
@@ -257,6 +316,8 @@ class EsoNode(ControllerNode):
         self.last_update_ns = stamp
         self.publisher.publish(estimate_to_msg(pose.estimate, pose.x, pose.y, pose.settled,
                                                stamp, self.frame_id))
+        if self.odometry_publisher is not None:
+            self._publish_odometry(stamp, pose)
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self._report(pose.settled)
 

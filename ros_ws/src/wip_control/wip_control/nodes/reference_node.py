@@ -27,19 +27,38 @@ The reference time is, with ``realtime_start``:
   for its sensors and the ESO to settle, does not fall behind a path that already runs.
   Later safety stops do not pause the path.
 
+Commanded kinds (``reference.kind``, docs/driving.md):
+
+- ``'cmd_vel'``: subscribes ``cmd_vel`` (geometry_msgs/TwistStamped, or Twist with
+  ``reference.cmd_vel_stamped: false``; a relative name, so a namespace or a remap
+  applies). A command stamped ahead of the node clock by more than ``max_stamp_lead``,
+  older than ``reference.cmd_vel_timeout``, out of order or not finite is refused and
+  counted on /diagnostics (input ``cmd_vel``).
+- ``'path'``: subscribes ``plan`` (nav_msgs/Path, Nav2's planner output name), in
+  ``frame_id`` (a path in another frame is refused, counted as ``plan`` 'frame').
+
+Both start at rest at ``line_start``, ``line_heading``; in real time with the
+``state_estimate`` trigger at the estimated pose instead (the first estimate, or with
+``realtime_start: 'engaged'`` the last one before the safety layer engaged), so that a
+robot put down anywhere is not driven back to the map origin. Commands and paths before
+the reference time starts (``'engaged'``) are refused as 'waiting'.
+
 Parameters (read-only): sections ``reference`` and ``rates``; ``frame_id``,
 ``realtime_start``, ``realtime_trigger``, ``clock_mode``, ``diagnostics_period``.
 """
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
+from geometry_msgs.msg import Twist, TwistStamped
+from nav_msgs.msg import Path
 from wip_msgs.msg import (ReferenceState as ReferenceStateMsg, StateEstimate as StateEstimateMsg,
                           WheelTorques)
 
-from ..core.references import make_reference, ReferenceConfig
+from ..core.references import COMMANDED_KINDS, make_reference, ReferenceConfig
 from ..core.scenario import RatesConfig
 from .common import ClockTicker, ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import reference_to_msg
@@ -61,6 +80,14 @@ class ReferenceNode(ControllerNode):
         self.realtime_start = settings.realtime_start
         self.waiting = not self.lockstep and self.realtime_start == 'engaged'
         self.reference = make_reference(self.config)
+        self.commanded = self.config.kind in COMMANDED_KINDS
+        if self.config.kind == 'cmd_vel':
+            # A teleop on another computer: its clock may lead ours a little (chrony).
+            self.reference.max_lead = self.max_stamp_lead_ns / 1e9
+        # Real time, estimate-triggered: the commanded reference starts at the estimate.
+        self.start_at_estimate = (self.commanded and not self.lockstep
+                                  and settings.realtime_trigger == 'state_estimate')
+        self.started_at_estimate = False
         self.period = 1.0 / self.rates.control_rate
         self.publisher = self.create_publisher(ReferenceStateMsg, '/wip/reference',
                                                RELIABLE_QOS)
@@ -71,6 +98,15 @@ class ReferenceNode(ControllerNode):
             self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'tick', self._on_estimate)
         else:
             self.create_timer(self.period, lambda: self._guarded(self.now_ns()))
+        if self.config.kind == 'cmd_vel':
+            self._add_input('cmd_vel')
+            if self.config.cmd_vel_stamped:
+                self.subscribe(TwistStamped, 'cmd_vel', 'cmd_vel', self._on_twist_stamped)
+            else:
+                self.subscribe(Twist, 'cmd_vel', 'cmd_vel', self._on_twist)
+        elif self.config.kind == 'path':
+            self._add_input('plan')
+            self.subscribe(Path, 'plan', 'plan', self._on_path)
         if self.waiting:
             self.subscribe(WheelTorques, '/wip/wheel_torques', 'wheel_torques',
                            self._on_torques)
@@ -81,6 +117,11 @@ class ReferenceNode(ControllerNode):
             self.diagnostics.state(OK, f'{self.config.kind} reference at '
                                    f'{self.rates.control_rate:g} Hz')
 
+    def _add_input(self, name: str) -> None:
+        """Report the age of the command input on /diagnostics too."""
+        self.diagnostics.inputs = (*self.diagnostics.inputs, name)
+        self.diagnostics.last_stamp[name] = None
+
     def _on_estimate(self, msg: StateEstimateMsg) -> None:
         """realtime_trigger 'state_estimate': the reference at the estimate's time."""
         stamp = stamp_to_ns(msg.header.stamp)
@@ -89,7 +130,57 @@ class ReferenceNode(ControllerNode):
             self.diagnostics.drop('tick', 'stale', f'stamp {stamp} ns not after the last '
                                   f'published {self.last_stamp_ns} ns')
             return
+        if self.start_at_estimate and (self.waiting or not self.started_at_estimate):
+            pose = (msg.x, msg.y, msg.phi)
+            if all(math.isfinite(value) for value in pose):
+                # Until the path's time starts, t stays 0 (see publish_at).
+                self.reference.reset(0.0, *pose)
+                self.started_at_estimate = True
         self._guarded(stamp)
+
+    def _command_times(self, stamp_ns: int) -> tuple[float, float] | None:
+        """(stamp, now) [s] of the reference's time base; None before it starts."""
+        if self.waiting or self.time_base.origin_ns is None:
+            return None
+        return self.time_base.seconds(stamp_ns), self.time_base.seconds(self.now_ns())
+
+    def _on_twist_stamped(self, msg: TwistStamped) -> None:
+        self._offer_twist(stamp_to_ns(msg.header.stamp), msg.twist)
+
+    def _on_twist(self, msg: Twist) -> None:
+        self._offer_twist(self.now_ns(), msg)  # no stamp: as of its arrival
+
+    def _offer_twist(self, stamp_ns: int, twist: Twist) -> None:
+        self.diagnostics.input('cmd_vel', stamp_ns)
+        times = self._command_times(stamp_ns)
+        if times is None:
+            self.diagnostics.drop('cmd_vel', 'waiting', 'the reference has not started')
+            return
+        reason = self.reference.command(*times, twist.linear.x, twist.angular.z)
+        if reason is not None:
+            stamp, now = times
+            self.diagnostics.drop('cmd_vel', reason, f'linear.x {twist.linear.x!r}, '
+                                  f'angular.z {twist.angular.z!r}, stamp {stamp:.3f} s, '
+                                  f'now {now:.3f} s')
+
+    def _on_path(self, msg: Path) -> None:
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        self.diagnostics.input('plan', stamp_ns)
+        if msg.header.frame_id != self.frame_id:
+            self.diagnostics.drop('plan', 'frame', f'frame_id {msg.header.frame_id!r}, '
+                                  f'expected {self.frame_id!r}')
+            return
+        if self._command_times(stamp_ns) is None:
+            # A path before the start would be anchored at a pose that is still moving.
+            self.diagnostics.drop('plan', 'waiting', 'the reference has not started')
+            return
+        points = [(pose.pose.position.x, pose.pose.position.y) for pose in msg.poses]
+        reason = self.reference.set_path(points)
+        if reason is not None:
+            self.diagnostics.drop('plan', reason, f'{len(points)} poses')
+            return
+        self.get_logger().info(f'new path: {len(points)} poses, '
+                               f'{self.reference.length:.2f} m from the reference')
 
     def _on_torques(self, msg: WheelTorques) -> None:
         """realtime_start 'engaged': the path's time starts at the first torque sent."""
@@ -116,9 +207,26 @@ class ReferenceNode(ControllerNode):
         # Before the start (realtime_start 'engaged'), and for a stamp older than it, the
         # path's start point.
         t = 0.0 if self.waiting else max(0.0, self.time_base.seconds(stamp_ns))
-        ref = self.reference.sample(t)
+        ref = self.reference.update(t) if self.commanded else self.reference.sample(t)
         self.publisher.publish(reference_to_msg(ref, stamp_ns, self.frame_id))
+        if self.commanded:
+            self._report_command(ref)
         self.diagnostics.output(stamp_ns, time.perf_counter() - start)
+
+    def _report_command(self, ref) -> None:
+        """What the commanded reference does, on /diagnostics (value 'command')."""
+        moving = ref.v != 0.0 or ref.omega != 0.0
+        if self.config.kind == 'cmd_vel':
+            status = ('following the command' if not self.reference.timed_out
+                      else 'no command in force: braking' if moving
+                      else 'no command in force: at rest')
+        else:
+            status = ('no path: at rest' if not self.reference.points
+                      else 'following the path' if not self.reference.done
+                      else 'at the end of the path' if not moving
+                      else 'end of the path reached: braking')
+        if self.diagnostics.values.get('command') != status:
+            self.diagnostics.values['command'] = status
 
 
 def main(args=None) -> int:

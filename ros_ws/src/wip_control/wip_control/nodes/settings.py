@@ -33,6 +33,7 @@ DEFAULT_CLOCK_MODE = 'realtime'
 POSITION_SOURCES = ('gps', 'odometry')
 REALTIME_STARTS = ('first_tick', 'engaged')
 REALTIME_TRIGGERS = ('state_estimate', 'timer')
+ODOMETRY_OUTPUTS = ('realtime', 'always', 'off')
 #: Unit of a string parameter (a name, a path): its range is 'any' unless it has choices.
 TEXT = '-'
 
@@ -135,6 +136,30 @@ class EsoNodeSettings:
                                  "'odometry': nav_msgs/Odometry on /odom (real time only)",
                                  choices=POSITION_SOURCES)
     frame_id: str = param('map', TEXT, 'frame of the planar position x, y')
+    odometry_output: str = param(
+        'realtime', TEXT, "nav_msgs/Odometry of the estimate on /odom: 'realtime' (real "
+        "time and hardware mode; not in lockstep, where the viewer's /wip/odom/estimate "
+        "and the ground truth serve), 'always' or 'off'; never with position_source "
+        "'odometry' (the ESO reads /odom then)", choices=ODOMETRY_OUTPUTS)
+    odometry_decimation: int = param(
+        4, '1', '/odom carries every n-th estimate (4: 50 Hz at the 200 Hz control rate)',
+        minimum=1, maximum=1000)
+    odometry_frame_id: str = param('odom', TEXT, '/odom header.frame_id (REP 105; the same '
+                                   'plane as frame_id: the estimate has no map/odom offset)')
+    odometry_child_frame_id: str = param('base_link', TEXT, '/odom child_frame_id (frame '
+                                         'of the twist)')
+    odometry_position_std: float = param(
+        0.5, 'm', '/odom: standard deviation put on x and y in the pose covariance (the '
+        'position follows GPS fixes of about this noise)', minimum=0.0, maximum=1000.0)
+    odometry_heading_std: float = param(
+        0.05, 'rad', '/odom: standard deviation put on the heading (yaw)', minimum=0.0,
+        maximum=100.0)
+    odometry_speed_std: float = param(
+        0.05, 'm/s', '/odom: standard deviation put on the twist linear.x', minimum=0.0,
+        maximum=100.0)
+    odometry_yaw_rate_std: float = param(
+        0.02, 'rad/s', '/odom: standard deviation put on the twist angular.z',
+        minimum=0.0, maximum=100.0)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,41 @@
+"""The reference's sample (:class:`ReferenceState`) and the interface of every reference
+(:class:`Reference`): a module of their own so that both the fixed curves
+(``references.py``) and the commanded references (``commanded.py``) build on them, and
+``references.make_reference`` builds either without an import cycle.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+
+class ReferenceState(NamedTuple):
+    """Reference pose and velocities at one time."""
+
+    x: float          #: x_r in the map frame [m]
+    y: float          #: y_r in the map frame [m]
+    phi: float        #: ϕ_r, heading, continuous (not wrapped) [rad]
+    v: float          #: υ_r, speed [m/s]
+    omega: float      #: ω_r, yaw rate [rad/s]
+    omega_dot: float  #: ω̇_r, yaw acceleration [rad/s²]
+
+
+class Reference:
+    """A reference trajectory: :meth:`sample` gives the state at time t [s]."""
+
+    def sample(self, t: float) -> ReferenceState:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def derivatives(self, t: float) -> tuple[float, ...]:  # pragma: no cover - interface
+        """(ẋ, ẏ, ẍ, ÿ, x⃛, y⃛) at t, where defined analytically."""
+        raise NotImplementedError
+
+    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
+        """(υ_r, ω_r) at t, the same floats as :meth:`sample`'s ``v`` and ``omega``.
+
+        :class:`TimeScaled` needs only these at its lead times; curves defined by their
+        derivatives override this to skip the pose (its trigonometry is most of a
+        sample's cost).
+        """
+        ref = self.sample(t)
+        return ref.v, ref.omega
