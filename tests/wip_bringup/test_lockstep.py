@@ -4,11 +4,10 @@ Two 10 s runs of the whole graph (eight processes, recorded) on a short version 
 paper scenario, with the collision pulse moved to 5 s, are shared by the tests of this
 module, next to ``core.runner.run_scenario`` on the same scenario.
 
-The scenario uses the MPC's DAQP backend: ProxSuite's solution of the same QP differs
-from one *process* to the next in its last bits (about 1e-10 on tau_v after 10 s,
-measured with the in-process runner alone: run it in two processes and compare), which
-would hide whether the graph itself is deterministic. DAQP gives bit-identical runs, and
-so must the graph.
+The scenario uses the default MPC solver, ProxSuite, whose last bits are a function of
+its heap layout; its solutions are polished deterministically (core/qp.py,
+docs/decisions/determinism.md), so two runs, each in its own processes, must be
+bit-identical.
 
 Why the graph is not bit-identical to the runner, but equal to ~1e-9: two differences
 of one ulp at the inputs, both inherent to passing ROS messages, then amplified by the
@@ -58,7 +57,6 @@ SCENARIO = {
         'longitudinal': [{'kind': 'pulse', 'amplitude': 10.0, 'start_time': 5.0,
                           'width': 0.1}],
     },
-    'mpc': {'backend': 'daqp'},
 }
 N_TICKS = 2000  # 10 s at 200 Hz
 # Graph vs runner: measured max 4e-9 with the paper's design, 1.2e-7 (τω) with the
