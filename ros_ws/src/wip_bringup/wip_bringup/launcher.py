@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import fcntl
 import os
 import pathlib
 import random
@@ -29,6 +30,8 @@ from wip_viewer.viewer_core import VIEWER_TOPICS as VIEWER_TOPIC_TYPES
 EXIT_OK, EXIT_FELL, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
 EXIT_TIMEOUT = EXIT_FAILED
 EXIT_INTERRUPTED = 130
+#: The disk (or a quota) filled up: recording stopped and what fit was finalised.
+EXIT_DISK_FULL = 4
 #: Published by the viewer node (standard messages for 3-D viewers; nothing in the
 #: control loop subscribes to them).
 VIEWER_TOPICS = tuple(VIEWER_TOPIC_TYPES)
@@ -253,7 +256,12 @@ class NodeProcess:
     """One node's process, its log file and how to stop it."""
 
     def __init__(self, name: str, command: list[str], log_path: pathlib.Path,
-                 env: dict[str, str], scheduling: Scheduling | None = None) -> None:
+                 env: dict[str, str], scheduling: Scheduling | None = None,
+                 pass_fds: tuple[int, ...] = (), own_session: bool = False) -> None:
+        """``pass_fds``: descriptors the process inherits (the run's output locks: it holds
+        them until it exits, also when the launcher dies first); ``own_session``: a
+        session of its own, out of the terminal's reach (a Ctrl-C reaches the process only
+        through the launcher, when the launcher chooses)."""
         self.name = name
         self.command = command
         self.log_path = log_path
@@ -261,7 +269,8 @@ class NodeProcess:
         prefix = scheduling.command_prefix() if scheduling else []
         self.process = subprocess.Popen(prefix + command, stdout=self._log,
                                         stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                        env=env)
+                                        env=env, pass_fds=pass_fds,
+                                        start_new_session=own_session)
         self.pid = self.process.pid
         self._interrupted = False
         self.killed = False
@@ -331,7 +340,8 @@ class NodeProcess:
             return None
 
     def log_tail(self, lines: int = LOG_TAIL_LINES) -> str:
-        self._log.flush()
+        if not self._log.closed:   # closed once the process was stopped
+            self._log.flush()
         try:
             text = self.log_path.read_text(encoding='utf-8', errors='replace')
         except OSError:
@@ -348,8 +358,13 @@ class Probe:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile
         self._rclpy = rclpy
+        from rclpy.signals import SignalHandlerOptions
         self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id, args=[])
+        # No rclpy signal handlers: they would shut this context down at a SIGINT or
+        # SIGTERM, and the launcher still needs the probe to drain the recorder while it
+        # stops the run (runner_base.stop_signals raises in the main thread instead).
+        rclpy.init(context=self.context, domain_id=domain_id, args=[],
+                   signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('run_graph', context=self.context,
                                       start_parameter_services=False)
         self.executor = SingleThreadedExecutor(context=self.context)
@@ -429,14 +444,65 @@ def live_view_line(bridge: NodeProcess, host: str, port: int | None) -> str:
             'layout foxglove/wip_live.json)')
 
 
-def prepare_run_directory(out: pathlib.Path, bag: pathlib.Path | None,
-                          extra_logs: tuple[str, ...] = ()) -> None:
-    """Check the outputs of a run (``--out`` directory, ``--record`` bag) before anything is
-    written, then create ``OUT/logs`` (with its marker), replacing only the logs of an
-    earlier run of ours (``OUT/logs`` and the ``extra_logs`` glob patterns in OUT).
+#: Lock file of a run directory (fcntl.flock; it holds the pid of the run that took it).
+LOCK_FILE = '.run_graph.lock'
 
-    GraphError (usage) naming the option when an output is unusable or would replace what
-    this tool did not write; nothing is written then.
+
+def _lock_holder(path: pathlib.Path) -> str:
+    """The pid holding a flock on ``path``, from /proc/locks (Linux), else 'unknown'."""
+    try:
+        info = path.stat()
+        with open('/proc/locks', encoding='ascii') as stream:
+            lines = stream.read().splitlines()
+    except OSError:
+        return 'unknown'
+    wanted = f'{os.major(info.st_dev):02x}:{os.minor(info.st_dev):02x}:{info.st_ino}'
+    for line in lines:
+        fields = line.split()
+        if 'FLOCK' in fields and wanted in fields:
+            return fields[fields.index(wanted) - 1]
+    return 'unknown'
+
+
+def lock_output(path: pathlib.Path, option: str, directory: bool = False) -> int:
+    """Take the exclusive lock of one output (a run directory: its :data:`LOCK_FILE`; a bag
+    directory, ``directory``: the directory itself, which must stay empty for the
+    recorder); the descriptor, held until the run and every process it started have
+    ended (the kernel drops the lock then, whatever killed them).
+
+    GraphError (usage) naming the holder's pid if another run holds it: two runs into one
+    folder would mix their files.
+    """
+    if directory:
+        target = path
+        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    else:
+        target = path / LOCK_FILE
+        fd = os.open(target, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = (os.pread(fd, 32, 0).decode('ascii', 'replace').strip() if not directory
+                  else '') or _lock_holder(target)
+        os.close(fd)
+        raise GraphError(f'{option} {path}: another run (pid {holder}) is writing there; '
+                         'refusing to mix two runs in one folder', EXIT_USAGE) from None
+    if not directory:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f'{os.getpid()}\n'.encode('ascii'), 0)
+    return fd
+
+
+def prepare_run_directory(out: pathlib.Path, bag: pathlib.Path | None,
+                          extra_logs: tuple[str, ...] = ()) -> list[int]:
+    """Check the outputs of a run (``--out`` directory, ``--record`` bag) before anything is
+    written, lock them (:func:`lock_output`: one run per folder), then create ``OUT/logs``
+    (with its marker), replacing only the logs of an earlier run of ours (``OUT/logs`` and
+    the ``extra_logs`` glob patterns in OUT). Returns the lock descriptors.
+
+    GraphError (usage) naming the option when an output is unusable, would replace what
+    this tool did not write, or is another run's; nothing is written then (but the folders
+    and the lock file, when another run holds them).
     """
     try:
         check_output_directory(out, '--out')
@@ -460,11 +526,24 @@ def prepare_run_directory(out: pathlib.Path, bag: pathlib.Path | None,
                 f'--out {out}: {old} holds {foreign}, which run_graph did not write; '
                 'refusing to replace it (move it away or choose another --out)', EXIT_USAGE)
     out.mkdir(parents=True, exist_ok=True)
+    locks = [lock_output(out, '--out')]
+    try:
+        if bag is not None:
+            bag.mkdir(parents=True, exist_ok=True)   # empty: the recorder takes it
+            locks.append(lock_output(bag, '--record', directory=True))
+            if any(bag.iterdir()):  # written by the run that held it a moment ago
+                raise GraphError(f'--record: {bag} exists and is not empty; refusing to '
+                                 'overwrite a bag (nothing was written)', EXIT_USAGE)
+    except BaseException:
+        for fd in locks:
+            os.close(fd)
+        raise
     for old in old_logs:  # Logs of an earlier run_graph run (checked above).
         shutil.rmtree(old)
     (logs / 'ros').mkdir(parents=True)
     (logs / LOGS_MARKER).write_text('run_graph writes this directory and replaces it on the '
                                     'next run into the same --out\n', encoding='utf-8')
+    return locks
 
 
 def foreign_log_content(directory: pathlib.Path) -> str:
