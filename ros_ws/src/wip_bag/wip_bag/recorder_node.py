@@ -70,7 +70,12 @@ Behaviour
   ``/diagnostics`` (level ERROR, with the count of messages dropped since), stops writing
   (the file is closed as it is, without a summary: ``scripts/bag_repair`` recovers every
   complete chunk) and drops what it receives from then on, without buffering it; it stays
-  up until it is stopped (exit code 1) so that nothing else of the graph is disturbed. The
+  up until it is stopped (exit code 1) so that nothing else of the graph is disturbed.
+  A full disk is seen coming: while the bag's file system has less free space than a
+  margin (twice the largest chunk written so far, or a quarter of ``chunk_size`` before
+  the first, plus :data:`SUMMARY_MARGIN` for the summary and ``metadata.yaml``), the
+  recorder stops writing and finishes the bag with what it holds (a valid bag, no repair
+  needed), reports ``disk full`` on ``/diagnostics`` (level ERROR) and drops the rest. The
   nodes being recorded never wait for the recorder: it is a separate process and its
   subscriptions are keep-last, so a stalled recorder only loses its own messages.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once per second (wall time): the bag
@@ -119,6 +124,9 @@ _STOP = object()  # Sentinel that ends the writer thread.
 #: launcher drains it before it stops it, and a recorder run by hand stops at once.
 STOP_QUIET = 0.5
 STOP_DRAIN = 30.0
+#: Free space [bytes] kept for the MCAP summary, metadata.yaml and the run's last files.
+SUMMARY_MARGIN = 128 * 1024
+SPACE_CHECK_PERIOD = 0.25  # [s] between two looks at the free space (statvfs)
 #: The signals that stop the recorder: Ctrl-C, a service manager's stop, a closed terminal.
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 SCENARIO_KEY = 'wip.scenario'  # custom_data key read by scripts/rerun
@@ -191,6 +199,9 @@ class RecorderNode(Node):
             raise RecorderStartError(f'cannot create the bag {self.output}: '
                                      f'{err.strerror or err}') from err
         self._dropped = 0  # messages received after a write failure
+        self._disk_full = False  # recording stopped for want of space, the bag finished
+        self._file_size = 0  # [bytes] of the bag file at the last look
+        self._largest_write = 0  # [bytes] largest growth of the file between two looks
         self.last_received = time.monotonic()  # [s] of the last message (the stop's drain)
         self._closed = False
         self._closed_ok = False
@@ -279,8 +290,36 @@ class RecorderNode(Node):
         self._queue.put(('message', topic, data, self.get_clock().now().nanoseconds))
 
     # -- writer thread ---------------------------------------------------------------------
+    def _space_left(self):
+        """(free bytes on the bag's file system, the margin needed to finish the bag)."""
+        try:
+            size = os.path.getsize(self.bag.mcap_path)
+            info = os.statvfs(self.output)
+        except OSError:
+            return None, 0
+        grown = size - self._file_size
+        if grown > self._largest_write:
+            self._largest_write = grown
+        self._file_size = size
+        largest = self._largest_write or self.bag.chunk_size // 4
+        return info.f_bavail * info.f_frsize, 2 * largest + SUMMARY_MARGIN
+
+    def _check_space(self):
+        """Finish the bag while it still fits (writer thread); True if recording stopped."""
+        free, needed = self._space_left()
+        if free is None or free >= needed:
+            return False
+        self._writer_error = (f'disk full: {free} bytes left on the disk of {self.output} '
+                              f'(at least {needed} needed to go on); recording stopped, the '
+                              'bag was finished with what fit')
+        self._disk_full = True
+        self.bag.close()   # Summary and metadata.yaml: the margin was kept for them.
+        rclpy.logging.get_logger(self.get_name()).error(self._writer_error)
+        return True
+
     def _write_loop(self):
         last_flush = time.monotonic()
+        last_space_check = 0.0
         while True:
             try:
                 item = self._queue.get(timeout=0.2)
@@ -302,6 +341,9 @@ class RecorderNode(Node):
                 if self.flush_period > 0.0 and now - last_flush >= self.flush_period:
                     self.bag.flush(fsync=True)
                     last_flush = now
+                if now - last_space_check >= SPACE_CHECK_PERIOD:
+                    last_space_check = now
+                    self._check_space()
             except Exception as err:  # noqa: B902 - reported, never silent
                 self._on_write_failure(err)
 
@@ -325,7 +367,10 @@ class RecorderNode(Node):
         backlog = self._queue.qsize()
         status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: recorder',
                                   hardware_id='')
-        if self._writer_error is not None:
+        if self._disk_full:
+            status.level = DiagnosticStatus.ERROR
+            status.message = f'{self._writer_error}; {self._dropped} message(s) dropped since'
+        elif self._writer_error is not None:
             status.level = DiagnosticStatus.ERROR
             status.message = (f'bag write failed, recording stopped: {self._writer_error}; '
                               f'{self._dropped} message(s) dropped since; run '
@@ -372,7 +417,10 @@ class RecorderNode(Node):
         # logger of another name than the node's, which rcl would route to /rosout).
         logger = (self.get_logger() if self.context.ok()
                   else rclpy.logging.get_logger(f'wip_bag.{self.get_name()}'))
-        if self._writer.is_alive():
+        if self._disk_full and not self._writer.is_alive():
+            self._closed_ok = True   # Finished when the space ran low (_check_space).
+            logger.error(f'{self._writer_error}: {self.bag.message_count} messages')
+        elif self._writer.is_alive():
             logger.error(
                 f'the writer did not finish within close_timeout = {self.close_timeout:g} s '
                 f'({self._queue.qsize()} item(s) left): bag {self.output} left unfinished; '

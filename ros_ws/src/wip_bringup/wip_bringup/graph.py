@@ -442,13 +442,18 @@ class GraphRunner(RunnerBase):
                     f'no progress for {self.options.stall_timeout:g} s at t = {last_sim:g} s: '
                     f'{status.message}\n{self.describe_nodes()}', EXIT_TIMEOUT)
 
+    def plant_stats(self) -> dict | None:
+        """``OUT/plant_stats.json``, or None when absent or unreadable (the plant could not
+        write it whole: a full disk)."""
+        try:
+            stats = json.loads((self.out / 'plant_stats.json').read_text(encoding='utf-8'))
+        except (OSError, ValueError):
+            return None
+        return stats if isinstance(stats, dict) else None
+
     def where_stopped(self) -> str:
         """' at t = ... s' of simulated time, when the plant has reported progress."""
-        stats = self.out / 'plant_stats.json'
-        try:
-            t = json.loads(stats.read_text(encoding='utf-8')).get('sim_time_s')
-        except (OSError, ValueError):
-            t = None
+        t = (self.plant_stats() or {}).get('sim_time_s')
         t = t if isinstance(t, (int, float)) else self.last_sim_time
         return f' at t = {t:.3f} s' if t is not None else ''
 
@@ -459,10 +464,14 @@ class GraphRunner(RunnerBase):
         if found is None:
             return
         message = found[0].message
+        if message.startswith('disk full'):   # the recorder finished the bag in time
+            raise DiskFull(f'disk full{self.where_stopped()}: the recorder stopped and '
+                           f'finished {self.bag} with what fit; the run was stopped there')
         if message.startswith('bag write failed') and ('No space left' in message
                                                        or 'quota' in message):
             raise DiskFull(f'disk full{self.where_stopped()}: the recorder could not write '
-                           f'{self.bag} any more; the run was stopped there')
+                           f'{self.bag} any more (scripts/bag_repair {self.bag} recovers '
+                           'every complete chunk); the run was stopped there')
 
     def recorder_disk_full(self) -> bool:
         """Whether the recorder's log says a write failed for want of space."""
@@ -489,10 +498,9 @@ class GraphRunner(RunnerBase):
         every ``drive_decimation`` ticks, GPS every control_rate / gps_rate ticks), and the
         final ground truth at t_k has no tick after it.
         """
-        stats_path = self.out / 'plant_stats.json'
-        if self.options.clock != 'lockstep' or not stats_path.is_file():
+        if self.options.clock != 'lockstep':
             return {}
-        ticks = json.loads(stats_path.read_text(encoding='utf-8')).get('ticks')
+        ticks = (self.plant_stats() or {}).get('ticks')
         if not isinstance(ticks, int):
             return {}
         scenario = self.scenario
@@ -626,8 +634,7 @@ class GraphRunner(RunnerBase):
             result.exit_code = 128 + number
             # The time is the plant's own once it has stopped (below).
             result.message = stopped_by = f'stopped by {signal.Signals(number).name}'
-        except DiskFull as err:
-            self.drain_at_stop = True
+        except DiskFull as err:   # the recorder drops everything from then on: no drain
             result.exit_code, result.message = EXIT_DISK_FULL, str(err)
         except OSError as err:
             if not (self.prepared and is_disk_full(err)):
@@ -647,8 +654,12 @@ class GraphRunner(RunnerBase):
                               + result.message)
         result.timeline = dict(self.timeline, start_refusals=self.start_refusals)
         stats_path = self.out / 'plant_stats.json'
-        if stats_path.is_file():
-            result.plant_stats = json.loads(stats_path.read_text(encoding='utf-8'))
+        result.plant_stats = self.plant_stats()
+        if result.plant_stats is None and stats_path.is_file():
+            # Cut short by a full disk (the plant writes it in place): no empty side file.
+            self.say(f'warning: {stats_path} was not written whole (full disk?): removed')
+            stats_path.unlink(missing_ok=True)
+        if result.plant_stats is not None:
             # The plant's process CPU from its stats (process_time from the plant's start:
             # the process has ended, so it cannot be read now). Single, that process holds
             # the controllers too.

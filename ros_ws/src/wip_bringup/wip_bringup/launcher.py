@@ -22,16 +22,18 @@ from typing import Any
 
 from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
 from wip_control.tools.cli import check_output_directory
+from wip_control.tools.cli import EXIT_DISK_FULL as CLI_EXIT_DISK_FULL
 from wip_viewer.viewer_core import VIEWER_TOPICS as VIEWER_TOPIC_TYPES
 
 
 # The exit-code table of every tool (wip_control.tools.cli): 0 ok, 1 the vehicle fell,
-# 2 usage or input error, 3 internal error (a node crashed, the graph stalled), 130 Ctrl-C.
+# 2 usage or input error, 3 internal error (a node crashed, the graph stalled), 4 disk full,
+# 130 Ctrl-C (143 SIGTERM, 129 SIGHUP: 128 + the signal, runner_base.STOP_SIGNALS).
 EXIT_OK, EXIT_FELL, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
 EXIT_TIMEOUT = EXIT_FAILED
 EXIT_INTERRUPTED = 130
 #: The disk (or a quota) filled up: recording stopped and what fit was finalised.
-EXIT_DISK_FULL = 4
+EXIT_DISK_FULL = CLI_EXIT_DISK_FULL
 #: Published by the viewer node (standard messages for 3-D viewers; nothing in the
 #: control loop subscribes to them).
 VIEWER_TOPICS = tuple(VIEWER_TOPIC_TYPES)
