@@ -17,9 +17,7 @@ import contextlib
 import dataclasses
 import errno
 import json
-import os
 import pathlib
-import shutil
 import signal
 import sys
 import threading
