@@ -87,7 +87,8 @@ def _last_ground_truth_stamp(bag: pathlib.Path) -> float:
     (signal.SIGHUP, 'mid-run'),
     (signal.SIGKILL, 'mid-run'),
     (signal.SIGTERM, 'at the start'),
-], ids=['SIGINT', 'SIGTERM', 'SIGHUP', 'SIGKILL', 'SIGTERM-at-start'])
+    (signal.SIGINT, 'to the group'),
+], ids=['SIGINT', 'SIGTERM', 'SIGHUP', 'SIGKILL', 'SIGTERM-at-start', 'Ctrl-C'])
 def test_a_stopped_run_finishes_its_bag(tmp_path, capsys, number, when):
     run, bag = tmp_path / 'run', tmp_path / 'bag'
     err_path = tmp_path / 'stderr.txt'
@@ -96,13 +97,17 @@ def test_a_stopped_run_finishes_its_bag(tmp_path, capsys, number, when):
         process = subprocess.Popen(
             [sys.executable, '-m', 'wip_bringup.graph', '--duration', str(DURATION),
              '--record', str(bag), '--out', str(run), '--no-viewer'],
-            stdout=subprocess.PIPE, stderr=err, stdin=subprocess.DEVNULL, env=env, text=True)
+            stdout=subprocess.PIPE, stderr=err, stdin=subprocess.DEVNULL, env=env, text=True,
+            start_new_session=True)   # a group of its own, as a terminal's foreground job
         try:
-            at_least = 0.5 if when == 'mid-run' else 0.0
+            at_least = 0.0 if when == 'at the start' else 0.5
             _wait_for(lambda: _sim_progress(err_path) >= at_least or process.poll() is not None,
                       f'simulated time {at_least} s')
             assert process.poll() is None, err_path.read_text()
-            process.send_signal(number)
+            if when == 'to the group':   # a Ctrl-C in a terminal: run_graph and its nodes
+                os.killpg(process.pid, number)
+            else:
+                process.send_signal(number)
             out, _ = process.communicate(timeout=TIMEOUT)
         finally:
             if process.poll() is None:

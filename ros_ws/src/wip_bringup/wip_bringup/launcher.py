@@ -259,11 +259,13 @@ class NodeProcess:
 
     def __init__(self, name: str, command: list[str], log_path: pathlib.Path,
                  env: dict[str, str], scheduling: Scheduling | None = None,
-                 pass_fds: tuple[int, ...] = (), own_session: bool = False) -> None:
+                 pass_fds: tuple[int, ...] = (), own_group: bool = False) -> None:
         """``pass_fds``: descriptors the process inherits (the run's output locks: it holds
-        them until it exits, also when the launcher dies first); ``own_session``: a
-        session of its own, out of the terminal's reach (a Ctrl-C reaches the process only
-        through the launcher, when the launcher chooses)."""
+        them until it exits, also when the launcher dies first); ``own_group``: a process
+        group of its own, out of the reach of the terminal's Ctrl-C (sent to the
+        foreground group): the process gets SIGINT only from the launcher, when the
+        launcher chooses. Not a session of its own: with autogroup scheduling (Linux) that
+        would also change how the CPU is shared between it and the other nodes."""
         self.name = name
         self.command = command
         self.log_path = log_path
@@ -272,7 +274,7 @@ class NodeProcess:
         self.process = subprocess.Popen(prefix + command, stdout=self._log,
                                         stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                         env=env, pass_fds=pass_fds,
-                                        start_new_session=own_session)
+                                        process_group=0 if own_group else None)
         self.pid = self.process.pid
         self._interrupted = False
         self.killed = False

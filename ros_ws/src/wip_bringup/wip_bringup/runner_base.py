@@ -292,12 +292,12 @@ class RunnerBase:
             # Their CPUs at once, their priority once every node is up (launch; see
             # NodeProcess.raise_priority: start-up at SCHED_FIFO can starve the others).
             scheduling = self.options.scheduling.at_start() if self.scheduled(name) else None
-            # The recorder in a session of its own: a Ctrl-C in the terminal reaches it
-            # only through this launcher, after the other nodes stopped and it drained.
+            # The recorder in a process group of its own: a Ctrl-C in the terminal reaches
+            # it only through this launcher, after the other nodes stopped and it drained.
             self.processes[name] = NodeProcess(name, command,
                                                self.out / 'logs' / f'{name}.log', env,
                                                scheduling, pass_fds=tuple(self.locks),
-                                               own_session=name == 'recorder')
+                                               own_group=name == 'recorder')
 
     def launch(self, params_file: pathlib.Path) -> None:
         """Start the processes and wait until every node is up (:meth:`wait_for_nodes`)."""
