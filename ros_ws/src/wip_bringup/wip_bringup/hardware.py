@@ -50,8 +50,11 @@ Outputs in OUT: ``params.yaml``, ``scenario.yaml``, ``logs/``, ``run.json`` (exi
 start-up timeline, safety events, node rates, CPU time and last /diagnostics of every
 node).
 
-Exit status: 0 stopped by SIGINT or at the end of ``--duration``; 1 a node failed; 2 bad
-arguments; 4 the nodes did not come up in time.
+Exit status (``wip_control.tools.cli``): 0 stopped by SIGINT, SIGTERM or SIGHUP (the end
+of a run without ``--duration``; the nodes stopped, zero commands sent, the bag closed,
+run.json written) or at the end of ``--duration``; 2 bad arguments or outputs (also:
+another run holds --out or the bag); 3 a node failed or the nodes did not come up in time;
+4 the disk filled up (an output could not be written).
 """
 
 from __future__ import annotations
