@@ -129,8 +129,19 @@ def test_a_stopped_run_finishes_its_bag(tmp_path, capsys, number, when):
         assert (bag / 'scenario.yaml').read_text(encoding='utf-8').strip()
         assert 'Traceback' not in stderr
     assert bag_info_main([str(bag)]) == 0, capsys.readouterr().out
-    stats = json.loads((run / 'plant_stats.json').read_text(encoding='utf-8'))
+    last = _last_ground_truth_stamp(bag)
+    try:
+        stats = json.loads((run / 'plant_stats.json').read_text(encoding='utf-8'))
+    except (OSError, ValueError):
+        # Only when the plant got a SIGINT of its own (the kernel's after SIGKILL, the
+        # terminal's at Ctrl-C): rclpy's late KeyboardInterrupt can cut its write of the
+        # stats (wip_control.nodes.common's run_simulator_node; run_graph itself stops the
+        # plant with SIGTERM, and removes a stats file left empty). The bag's own /clock
+        # then says where the plant was: the ground truth must reach its last tick.
+        assert number == signal.SIGKILL or when == 'to the group'
+        clocks = [m.message.clock.sec + 1e-9 * m.message.clock.nanosec
+                  for m in read_bag(str(bag), topics=['/clock'])]
+        stats = {'ticks': round(max(clocks) / CONTROL_PERIOD), 'sim_time_s': max(clocks)}
     last_tick = stats['ticks'] * CONTROL_PERIOD
     assert stats['sim_time_s'] < DURATION, 'the run ended before the signal'
-    last = _last_ground_truth_stamp(bag)
     assert last_tick - CONTROL_PERIOD - 1e-9 <= last <= last_tick + 1e-9, (last, stats)

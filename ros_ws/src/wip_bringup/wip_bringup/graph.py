@@ -298,6 +298,13 @@ class GraphRunner(RunnerBase):
                 time.monotonic() - self.t0)
         super().stop_all()
 
+    def stop_signal(self, name: str) -> int:
+        """SIGTERM for the plant's process: rclpy's handler then only shuts its context
+        down. At a SIGINT it also raises a KeyboardInterrupt, which can land in the plant's
+        write of plant_stats.json after its spin loop ended, leaving the file empty (seen
+        after a stop mid-run)."""
+        return signal.SIGTERM if name == self.plant_process else signal.SIGINT
+
     def nodes_stopped(self) -> None:
         if self.drain_at_stop and self.probe is not None:
             self.drain_recorder()

@@ -259,13 +259,15 @@ class NodeProcess:
 
     def __init__(self, name: str, command: list[str], log_path: pathlib.Path,
                  env: dict[str, str], scheduling: Scheduling | None = None,
-                 pass_fds: tuple[int, ...] = (), own_group: bool = False) -> None:
+                 pass_fds: tuple[int, ...] = (), own_group: bool = False,
+                 stop_signal: int = signal.SIGINT) -> None:
         """``pass_fds``: descriptors the process inherits (the run's output locks: it holds
         them until it exits, also when the launcher dies first); ``own_group``: a process
         group of its own, out of the reach of the terminal's Ctrl-C (sent to the
         foreground group): the process gets SIGINT only from the launcher, when the
         launcher chooses. Not a session of its own: with autogroup scheduling (Linux) that
-        would also change how the CPU is shared between it and the other nodes."""
+        would also change how the CPU is shared between it and the other nodes.
+        ``stop_signal``: what :meth:`interrupt` sends (SIGINT, as Ctrl-C)."""
         self.name = name
         self.command = command
         self.log_path = log_path
@@ -276,6 +278,7 @@ class NodeProcess:
                                         env=env, pass_fds=pass_fds,
                                         process_group=0 if own_group else None)
         self.pid = self.process.pid
+        self.stop_signal = stop_signal
         self._interrupted = False
         self.killed = False
 
@@ -316,9 +319,9 @@ class NodeProcess:
         return self.process.returncode
 
     def interrupt(self) -> None:
-        """Send SIGINT (once) if the process is still running."""
+        """Send the stop signal (once) if the process is still running."""
         if self.process.poll() is None and not self._interrupted:
-            self.process.send_signal(signal.SIGINT)
+            self.process.send_signal(self.stop_signal)
             self._interrupted = True
 
     def stop(self, grace: float) -> int | None:

@@ -285,6 +285,10 @@ class RunnerBase:
         (the plant, the recorder, the viewer, the bridge) may take the CPU from them."""
         return name in self.controller_processes() or name == 'simulation'
 
+    def stop_signal(self, name: str) -> int:
+        """Hook: the signal that stops the process ``name`` (SIGINT, as Ctrl-C)."""
+        return signal.SIGINT
+
     def start_processes(self, params_file: pathlib.Path) -> None:
         env = graph_environment(self.domain_id)
         env['ROS_LOG_DIR'] = str(self.out / 'logs' / 'ros')
@@ -297,7 +301,8 @@ class RunnerBase:
             self.processes[name] = NodeProcess(name, command,
                                                self.out / 'logs' / f'{name}.log', env,
                                                scheduling, pass_fds=tuple(self.locks),
-                                               own_group=name == 'recorder')
+                                               own_group=name == 'recorder',
+                                               stop_signal=self.stop_signal(name))
 
     def launch(self, params_file: pathlib.Path) -> None:
         """Start the processes and wait until every node is up (:meth:`wait_for_nodes`)."""
