@@ -78,3 +78,29 @@ def test_merge_is_by_section_and_replaces_lists_and_values():
     assert merged(base, {'a': {'y': [3]}, 'c': 4}) == {'a': {'x': 1, 'y': [3]}, 'b': 2,
                                                         'c': 4}
     assert base == {'a': {'x': 1, 'y': [1, 2]}, 'b': 2}           # not modified
+
+
+@pytest.mark.parametrize('content', ['', '\n  \n', '# only a comment\n'])
+def test_an_empty_scenario_file_in_the_bag_is_refused_not_taken_for_the_defaults(tmp_path,
+                                                                                  content):
+    """A run cut short by a full disk left an empty BAG/scenario.yaml; it was read as the
+    paper's default scenario and gave metrics of another run."""
+    bag = bag_with(tmp_path)
+    (bag / 'scenario.yaml').write_text(content)
+    with pytest.raises(ConfigError, match='empty scenario file'):
+        scenario_for_bag(bag)
+    with pytest.raises(ConfigError, match='empty scenario file'):
+        scenario_for_bag(bag, bag / 'scenario.yaml')
+
+
+@pytest.mark.parametrize('content', [b'', b'reference: {kind: [circle\n', b'\xff\xfe'],
+                         ids=['empty', 'broken YAML', 'not UTF-8'])
+def test_report_refuses_an_empty_or_unreadable_bag_scenario_in_one_line(tmp_path, capsys,
+                                                                         content):
+    from wip_tools.report import main as report_main
+    bag = bag_with(tmp_path)
+    (bag / 'scenario.yaml').write_bytes(content)
+    assert report_main([str(bag), '--out', str(tmp_path / 'report'), '--partial']) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith('ERROR: ') and 'scenario.yaml' in err[0], err
+    assert not (tmp_path / 'report').exists()

@@ -34,6 +34,7 @@ damaged parts are listed); 2 a usage or input error (nothing written).
 """
 
 import argparse
+import errno
 import os
 import pathlib
 import re
@@ -48,7 +49,8 @@ from mcap.reader import SeekingReader
 from mcap.writer import Writer
 import yaml
 
-from wip_control.tools.cli import check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE
+from wip_control.tools.cli import (check_output_directory, EXIT_DISK_FULL, EXIT_FAILED,
+                                   EXIT_OK, EXIT_USAGE)
 from wip_control.tools.cli import exit_with
 
 from .bag_integrity import iter_chunk_records
@@ -433,7 +435,16 @@ def main(argv=None):
     except NothingRecoverable as err:
         print(f'bag_repair: {err}; nothing written', file=sys.stderr)
         return EXIT_FAILED
-    except (BagWriterError, BagReadError, ValueError, OSError) as err:
+    except OSError as err:
+        if err.errno not in (errno.ENOSPC, errno.EDQUOT):
+            print(f'bag_repair: error: {err}', file=sys.stderr)
+            return EXIT_USAGE
+        target = args.out or f'{str(args.bag).rstrip("/")}_repaired'
+        print(f'bag_repair: error: disk full while writing the repaired bag {target} '
+              f'({err.strerror}); nothing was kept there: free space or give --out on '
+              f'another disk; {args.bag} was left untouched', file=sys.stderr)
+        return EXIT_DISK_FULL
+    except (BagWriterError, BagReadError, ValueError) as err:
         print(f'bag_repair: error: {err}', file=sys.stderr)
         return EXIT_USAGE
     for report in result.files:

@@ -54,7 +54,13 @@ def own_scenario(bag: str | pathlib.Path) -> tuple[dict[str, Any] | None, str]:
             return _mapping(load_yaml_text(text, where), where), where
     candidate = directory / SCENARIO_FILE_NAME
     if candidate.is_file():
-        return _mapping(read_scenario_file(candidate), str(candidate)), str(candidate)
+        data = read_scenario_file(candidate)
+        if data is None:
+            # Never the default scenario in its place: an empty file is a run cut short
+            # (a full disk), and the defaults would give metrics of another scenario.
+            raise ConfigError(f'{candidate}: empty scenario file (cut short when it was '
+                              'written?); remove it and give the scenario with --scenario')
+        return _mapping(data, str(candidate)), str(candidate)
     return None, 'none in the bag'
 
 

@@ -54,16 +54,28 @@ Behaviour
   time is used for both.
 - Callbacks only queue ``(topic, bytes, time)``; a writer thread writes the bag, so a
   compressing chunk write never delays the executor. Nothing received is dropped.
-- SIGINT/SIGTERM: the subscriptions stop, the queue is drained, the bag is closed
-  (MCAP summary and ``metadata.yaml`` written). The main thread never blocks (it spins
-  with a timeout), so a signal is served within 0.1 s even while the writer is busy.
+- SIGINT, SIGTERM, SIGHUP (and the launcher's death, which the kernel turns into SIGINT:
+  ``wip_control.nodes.launched``): after the launcher's death the recorder first takes
+  what the graph already sent (it spins on until nothing has arrived for
+  :data:`STOP_QUIET` s, at most :data:`STOP_DRAIN` s; a second signal cuts this short; a
+  live launcher drains it itself before it stops it), then the subscriptions stop,
+  the queue is drained and the bag is closed (MCAP summary and ``metadata.yaml``
+  written). The signals only set a flag (rclpy's own handler is off): no
+  KeyboardInterrupt can land inside the close and leave the bag unfinished, whatever
+  arrives meanwhile. The main thread never blocks (it spins with a timeout), so a signal
+  is served within 0.1 s even while the writer is busy.
 - Failures. A bag that exists (never overwritten) or cannot be created (unwritable path):
   ERROR log and exit code 1 at once. A write that fails during the run (disk full, file
   size limit, I/O error): the recorder logs it at ERROR level, reports it on
   ``/diagnostics`` (level ERROR, with the count of messages dropped since), stops writing
   (the file is closed as it is, without a summary: ``scripts/bag_repair`` recovers every
   complete chunk) and drops what it receives from then on, without buffering it; it stays
-  up until it is stopped (exit code 1) so that nothing else of the graph is disturbed. The
+  up until it is stopped (exit code 1) so that nothing else of the graph is disturbed.
+  A full disk is seen coming: while the bag's file system has less free space than a
+  margin (twice the largest chunk written so far, or a quarter of ``chunk_size`` before
+  the first, plus :data:`SUMMARY_MARGIN` for the summary and ``metadata.yaml``), the
+  recorder stops writing and finishes the bag with what it holds (a valid bag, no repair
+  needed), reports ``disk full`` on ``/diagnostics`` (level ERROR) and drops the rest. The
   nodes being recorded never wait for the recorder: it is a separate process and its
   subscriptions are keep-last, so a stalled recorder only loses its own messages.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once per second (wall time): the bag
@@ -74,6 +86,7 @@ Behaviour
 import datetime
 import os
 import queue
+import signal
 import sys
 import threading
 import time
@@ -86,8 +99,9 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
                        QoSReliabilityPolicy)
+from rclpy.signals import SignalHandlerOptions
 
-from wip_control.nodes.launched import end_with_launcher
+from wip_control.nodes.launched import end_with_launcher, LAUNCHER_PID_VARIABLE
 from wip_control.nodes.parameters import ConfigParameters
 
 from .bag_writer import (BagExistsError, BagWriterError, message_definition,
@@ -104,6 +118,17 @@ SUBSCRIPTION_DEPTH = 20000
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
 SPIN_TIMEOUT = 0.1  # [s] of one spin_once; bounds the reaction time to a shutdown
 _STOP = object()  # Sentinel that ends the writer thread.
+#: After the launcher's death [s, wall]: the recorder keeps receiving until nothing has
+#: arrived for STOP_QUIET, at most STOP_DRAIN. Every node gets its signal at once then, and
+#: the recorder may still be behind the publishers (seconds on a loaded machine); a live
+#: launcher drains it before it stops it, and a recorder run by hand stops at once.
+STOP_QUIET = 0.5
+STOP_DRAIN = 30.0
+#: Free space [bytes] kept for the MCAP summary, metadata.yaml and the run's last files.
+SUMMARY_MARGIN = 128 * 1024
+SPACE_CHECK_PERIOD = 0.25  # [s] between two looks at the free space (statvfs)
+#: The signals that stop the recorder: Ctrl-C, a service manager's stop, a closed terminal.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 SCENARIO_KEY = 'wip.scenario'  # custom_data key read by scripts/rerun
 
 
@@ -174,6 +199,10 @@ class RecorderNode(Node):
             raise RecorderStartError(f'cannot create the bag {self.output}: '
                                      f'{err.strerror or err}') from err
         self._dropped = 0  # messages received after a write failure
+        self._disk_full = False  # recording stopped for want of space, the bag finished
+        self._file_size = 0  # [bytes] of the bag file at the last look
+        self._largest_write = 0  # [bytes] largest growth of the file between two looks
+        self.last_received = time.monotonic()  # [s] of the last message (the stop's drain)
         self._closed = False
         self._closed_ok = False
         self._queue = queue.SimpleQueue()
@@ -253,6 +282,7 @@ class RecorderNode(Node):
         # One-argument callback (the EventsExecutor does not support MessageInfo).
         if self._closed:
             return
+        self.last_received = time.monotonic()
         self._received[topic] += 1
         if self._writer_error is not None:
             self._dropped += 1  # Recording stopped: nothing is buffered.
@@ -260,8 +290,36 @@ class RecorderNode(Node):
         self._queue.put(('message', topic, data, self.get_clock().now().nanoseconds))
 
     # -- writer thread ---------------------------------------------------------------------
+    def _space_left(self):
+        """(free bytes on the bag's file system, the margin needed to finish the bag)."""
+        try:
+            size = os.path.getsize(self.bag.mcap_path)
+            info = os.statvfs(self.output)
+        except OSError:
+            return None, 0
+        grown = size - self._file_size
+        if grown > self._largest_write:
+            self._largest_write = grown
+        self._file_size = size
+        largest = self._largest_write or self.bag.chunk_size // 4
+        return info.f_bavail * info.f_frsize, 2 * largest + SUMMARY_MARGIN
+
+    def _check_space(self):
+        """Finish the bag while it still fits (writer thread); True if recording stopped."""
+        free, needed = self._space_left()
+        if free is None or free >= needed:
+            return False
+        self._writer_error = (f'disk full: {free} bytes left on the disk of {self.output} '
+                              f'(at least {needed} needed to go on); recording stopped, the '
+                              'bag was finished with what fit')
+        self._disk_full = True
+        self.bag.close()   # Summary and metadata.yaml: the margin was kept for them.
+        rclpy.logging.get_logger(self.get_name()).error(self._writer_error)
+        return True
+
     def _write_loop(self):
         last_flush = time.monotonic()
+        last_space_check = 0.0
         while True:
             try:
                 item = self._queue.get(timeout=0.2)
@@ -283,6 +341,9 @@ class RecorderNode(Node):
                 if self.flush_period > 0.0 and now - last_flush >= self.flush_period:
                     self.bag.flush(fsync=True)
                     last_flush = now
+                if now - last_space_check >= SPACE_CHECK_PERIOD:
+                    last_space_check = now
+                    self._check_space()
             except Exception as err:  # noqa: B902 - reported, never silent
                 self._on_write_failure(err)
 
@@ -306,7 +367,10 @@ class RecorderNode(Node):
         backlog = self._queue.qsize()
         status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: recorder',
                                   hardware_id='')
-        if self._writer_error is not None:
+        if self._disk_full:
+            status.level = DiagnosticStatus.ERROR
+            status.message = f'{self._writer_error}; {self._dropped} message(s) dropped since'
+        elif self._writer_error is not None:
             status.level = DiagnosticStatus.ERROR
             status.message = (f'bag write failed, recording stopped: {self._writer_error}; '
                               f'{self._dropped} message(s) dropped since; run '
@@ -353,7 +417,10 @@ class RecorderNode(Node):
         # logger of another name than the node's, which rcl would route to /rosout).
         logger = (self.get_logger() if self.context.ok()
                   else rclpy.logging.get_logger(f'wip_bag.{self.get_name()}'))
-        if self._writer.is_alive():
+        if self._disk_full and not self._writer.is_alive():
+            self._closed_ok = True   # Finished when the space ran low (_check_space).
+            logger.error(f'{self._writer_error}: {self.bag.message_count} messages')
+        elif self._writer.is_alive():
             logger.error(
                 f'the writer did not finish within close_timeout = {self.close_timeout:g} s '
                 f'({self._queue.qsize()} item(s) left): bag {self.output} left unfinished; '
@@ -393,24 +460,60 @@ def make_executor(context=None):
         return SingleThreadedExecutor(context=context)
 
 
-def spin(node, executor):
-    """Spin with a timeout: the EventsExecutor's spin() ignores SIGINT (ros-from-pip.md)."""
+class StopSignals:
+    """SIGINT, SIGTERM and SIGHUP set a flag (counted) instead of raising: the spin loop
+    and the stop's drain look at it, and the close that follows cannot be cut by one."""
+
+    def __init__(self):
+        self.count = 0
+        for number in STOP_SIGNALS:
+            signal.signal(number, self._on_signal)
+
+    def _on_signal(self, number, frame):
+        self.count += 1
+
+
+def spin(node, executor, stop=None):
+    """Spin with a timeout (the EventsExecutor's spin() ignores SIGINT, ros-from-pip.md)
+    until a stop signal, then :func:`drain`."""
     executor.add_node(node)
-    while rclpy.ok(context=node.context):
+    while rclpy.ok(context=node.context) and not (stop and stop.count):
         executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+    if stop is not None and launcher_gone():
+        drain(node, executor, stop)
+
+
+def launcher_gone():
+    """True if this process was started by a wip launcher that has died since."""
+    value = os.environ.get(LAUNCHER_PID_VARIABLE, '')
+    return value.isdigit() and int(value) > 1 and os.getppid() != int(value)
+
+
+def drain(node, executor, stop, quiet=STOP_QUIET, longest=STOP_DRAIN):
+    """After the first stop signal: receive until nothing arrived for ``quiet`` [s], at
+    most ``longest`` [s], or until a second signal."""
+    started = time.monotonic()
+    node.last_received = max(node.last_received, started)
+    while (rclpy.ok(context=node.context) and stop.count < 2
+           and time.monotonic() - node.last_received < quiet
+           and time.monotonic() - started < longest):
+        executor.spin_once(timeout_sec=min(SPIN_TIMEOUT, quiet))
 
 
 def main(args=None):
     """Entry point ``recorder`` (``ros2 run wip_bag recorder --ros-args -p output:=...``)."""
     end_with_launcher()
-    rclpy.init(args=args)
+    # Our own handlers (stop_signals): rclpy's would shut the context down and raise
+    # KeyboardInterrupt wherever the main thread is, also inside the bag's close.
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopSignals()
     node = None
     status = 0
     try:
         node = RecorderNode()
         executor = make_executor()
         node.get_logger().debug(f'executor: {type(executor).__name__}')
-        spin(node, executor)
+        spin(node, executor, stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (BagExistsError, RecorderStartError, ValueError) as err:
@@ -420,9 +523,11 @@ def main(args=None):
     except Exception:  # noqa: B902
         # A signal shuts the context down at any point, also inside a ROS call (e.g. "failed
         # to initialize wait set: the given context is not valid"): that is a normal stop.
-        if rclpy.ok():
+        if rclpy.ok() and not stop.count:
             raise
     finally:
+        for number in STOP_SIGNALS:  # Nothing may cut the close short from here on.
+            signal.signal(number, signal.SIG_IGN)
         if node is not None:
             if not node.close():
                 status = 1

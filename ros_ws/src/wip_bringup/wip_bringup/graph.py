@@ -71,8 +71,24 @@ Outputs in OUT: ``params.yaml``, ``scenario.yaml``, ``logs/``, ``plant_stats.jso
 (per-tick timings of the plant) and ``run.json`` (exit status, real-time factor, start-up
 timeline, exit code, CPU time and last /diagnostics of every node).
 
-Exit status: 0 the scenario ran to its end; 1 a node failed; 2 bad arguments or
-scenario; 3 the vehicle fell; 4 timeout (discovery, start or stall); 130 interrupted.
+Stopping and data safety
+------------------------
+SIGINT (Ctrl-C), SIGTERM (systemd, docker stop) and SIGHUP (a closed terminal) stop a run
+the same way: the nodes are stopped (SIGINT), the recorder receives what was published up
+to then and closes the bag, the scenario goes into the bag, ``run.json`` is written and
+the result line printed; the exit status is then 130, 143 or 129 (128 + the signal).
+Further signals during that stop are ignored. If run_graph itself is killed (SIGKILL),
+its nodes get SIGINT from the kernel and the recorder still drains and closes the bag on
+its own (``wip_bag.recorder_node``). One run per output folder: ``--out`` (its
+``.run_graph.lock``) and the bag directory are locked (fcntl.flock) before anything is
+written there; a second run into either is refused at once (exit 2, naming the holder's
+pid). A full disk stops the run: what fit is finalised and the run says where it
+happened, exit 4.
+
+Exit status (``wip_control.tools.cli``): 0 the scenario ran to its end; 1 the vehicle
+fell; 2 bad arguments, scenario or outputs (also: another run holds --out or the bag);
+3 a node failed, or a timeout (discovery, start or stall); 4 the disk filled up;
+130/143/129 stopped by SIGINT/SIGTERM/SIGHUP.
 """
 
 from __future__ import annotations
@@ -84,6 +100,7 @@ import os
 import pathlib
 import random
 import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -95,10 +112,12 @@ from wip_control.core.scenario import Scenario
 from wip_control.tools.cli import exit_with, write_atomic
 from .hardware import add_arguments, run_from_args
 # LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
-from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_FELL, EXIT_INTERRUPTED, EXIT_OK,
-                       EXIT_TIMEOUT, EXIT_USAGE, GraphError, LAYOUTS, Probe, PROBE_PERIOD,
-                       Scheduling, VIEWER_TOPICS, viewer_wanted)
-from .runner_base import options_from_args, print_result, RunnerBase, RunResult
+from .launcher import (add_view_arguments, EXIT_DISK_FULL, EXIT_FAILED, EXIT_FELL, EXIT_OK,
+                       EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError, LAYOUTS, Probe,
+                       PROBE_PERIOD, Scheduling, VIEWER_TOPICS, viewer_wanted)
+from .runner_base import (DiskFull, is_disk_full, options_from_args, print_result,
+                          RunnerBase, RunResult, STOP_EXIT_CODES, stop_signal_number,
+                          stop_signals)
 from .params_files import CONTROLLER_NODES, write_params_file
 
 
@@ -254,6 +273,42 @@ class GraphRunner(RunnerBase):
         #: The process that holds the plant (and, single, the controllers): the run ends
         #: with it.
         self.plant_process = 'simulation' if options.layout == 'single' else 'plant'
+        #: The run ends before the plant did (a stop signal, a failure): the recorder is
+        #: drained once the nodes have stopped (nodes_stopped).
+        self.drain_at_stop = False
+        self.last_sim_time: float | None = None  # [s] the plant's latest progress report
+
+    def stop_all(self) -> None:
+        """A run cut short in lockstep stops the controllers (and the viewer, the bridge)
+        first: the plant then waits for torques and publishes nothing more, and stays up
+        while the recorder takes what it published (a publisher that exits takes with it
+        the samples a lagging reader has not received yet: about 90 ticks were lost so on
+        a loaded machine); then the plant, then the recorder (the base class)."""
+        if (self.drain_at_stop and self.options.clock == 'lockstep'
+                and 'recorder' in self.processes and self.plant_process == 'plant'
+                and self.probe is not None):
+            first = [p for n, p in self.processes.items() if n not in ('recorder', 'plant')]
+            for process in first:
+                process.interrupt()
+            deadline = time.monotonic() + GRACE_PERIOD
+            for process in first:
+                process.stop(deadline - time.monotonic())
+            self.drain_recorder(quiet=True)
+            self.timeline['controllers stopped, recorder drained'] = (
+                time.monotonic() - self.t0)
+        super().stop_all()
+
+    def stop_signal(self, name: str) -> int:
+        """SIGTERM for the plant's process: rclpy's handler then only shuts its context
+        down. At a SIGINT it also raises a KeyboardInterrupt, which can land in the plant's
+        write of plant_stats.json after its spin loop ended, leaving the file empty (seen
+        after a stop mid-run)."""
+        return signal.SIGTERM if name == self.plant_process else signal.SIGINT
+
+    def nodes_stopped(self) -> None:
+        if self.drain_at_stop and self.probe is not None:
+            self.drain_recorder()
+            self.timeline['recorder drained'] = time.monotonic() - self.t0
 
     def extra_processes(self) -> list[str]:
         return [self.plant_process]
@@ -370,6 +425,9 @@ class GraphRunner(RunnerBase):
                 sim = float(values.get('sim time [s]', 'nan'))
             except ValueError:
                 sim = float('nan')
+            if sim == sim:
+                self.last_sim_time = sim
+            self.check_recorder_space()
             now = time.monotonic()
             if sim > last_sim:
                 last_sim, last_progress = sim, now
@@ -390,6 +448,45 @@ class GraphRunner(RunnerBase):
                     f'no progress for {self.options.stall_timeout:g} s at t = {last_sim:g} s: '
                     f'{status.message}\n{self.describe_nodes()}', EXIT_TIMEOUT)
 
+    def plant_stats(self) -> dict | None:
+        """``OUT/plant_stats.json``, or None when absent or unreadable (the plant could not
+        write it whole: a full disk)."""
+        try:
+            stats = json.loads((self.out / 'plant_stats.json').read_text(encoding='utf-8'))
+        except (OSError, ValueError):
+            return None
+        return stats if isinstance(stats, dict) else None
+
+    def where_stopped(self) -> str:
+        """' at t = ... s' of simulated time, when the plant has reported progress."""
+        t = (self.plant_stats() or {}).get('sim_time_s')
+        t = t if isinstance(t, (int, float)) else self.last_sim_time
+        return f' at t = {t:.3f} s' if t is not None else ''
+
+    def check_recorder_space(self) -> None:
+        """DiskFull if the recorder reports that the disk filled up: the run stops there
+        (going on would record nothing more)."""
+        found = self.probe.status_values(': recorder') if self.bag is not None else None
+        if found is None:
+            return
+        message = found[0].message
+        if message.startswith('disk full'):   # the recorder finished the bag in time
+            raise DiskFull(f'disk full{self.where_stopped()}: the recorder stopped and '
+                           f'finished {self.bag} with what fit; the run was stopped there')
+        if message.startswith('bag write failed') and ('No space left' in message
+                                                       or 'quota' in message):
+            raise DiskFull(f'disk full{self.where_stopped()}: the recorder could not write '
+                           f'{self.bag} any more (scripts/bag_repair {self.bag} recovers '
+                           'every complete chunk); the run was stopped there')
+
+    def recorder_disk_full(self) -> bool:
+        """Whether the recorder's log says a write failed for want of space."""
+        recorder = self.processes.get('recorder')
+        if recorder is None:
+            return False
+        tail = recorder.log_tail(400)
+        return 'No space left on device' in tail or 'Disk quota exceeded' in tail
+
     def describe_nodes(self) -> str:
         """Latest /diagnostics message of every node (to explain a stall)."""
         lines = []
@@ -407,10 +504,9 @@ class GraphRunner(RunnerBase):
         every ``drive_decimation`` ticks, GPS every control_rate / gps_rate ticks), and the
         final ground truth at t_k has no tick after it.
         """
-        stats_path = self.out / 'plant_stats.json'
-        if self.options.clock != 'lockstep' or not stats_path.is_file():
+        if self.options.clock != 'lockstep':
             return {}
-        ticks = json.loads(stats_path.read_text(encoding='utf-8')).get('ticks')
+        ticks = (self.plant_stats() or {}).get('ticks')
         if not isinstance(ticks, int):
             return {}
         scenario = self.scenario
@@ -422,7 +518,7 @@ class GraphRunner(RunnerBase):
         expected['/wip/drive_torque'] = -(-ticks // scenario.drive_decimation)
         return expected
 
-    def drain_recorder(self) -> None:
+    def drain_recorder(self, quiet: bool = False) -> None:
         """Wait until the recorder received everything the graph published.
 
         Lockstep: until its /diagnostics counts reach :meth:`expected_recorded`; otherwise
@@ -453,7 +549,7 @@ class GraphRunner(RunnerBase):
             if counts != previous:
                 previous, stable_since = counts, time.monotonic()
             elif time.monotonic() - stable_since >= DRAIN_STALL:
-                if expected:
+                if expected and not quiet:
                     short = {t: f'{counts.get(t, 0)}/{n}' for t, n in expected.items()
                              if counts.get(t, 0) < n}
                     self.say(f'warning: the recorder missed messages: {short}')
@@ -478,7 +574,13 @@ class GraphRunner(RunnerBase):
         logs.rename(self.out / f'logs_attempt_{attempt}')
         (logs / 'ros').mkdir(parents=True)
         if self.bag is not None and self.bag.exists():
-            shutil.rmtree(self.bag)  # ours: prepare() checked it was absent or empty
+            # Ours (prepare() checked it was absent or empty): emptied, not removed, so
+            # that the lock on the directory stays this run's.
+            for entry in self.bag.iterdir():
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry)
+                else:
+                    entry.unlink()
         (self.out / 'plant_stats.json').unlink(missing_ok=True)
         self.processes = {}
         self.timeline = {f'attempt {attempt} stalled': time.monotonic() - self.t0}
@@ -489,6 +591,7 @@ class GraphRunner(RunnerBase):
     def run(self) -> GraphResult:
         result = GraphResult(EXIT_FAILED, '', self.out, self.bag, self.domain_id)
         started = time.monotonic()
+        stopped_by = ''
         try:
             params_file = self.prepare()
             result.scenario = self.scenario
@@ -529,15 +632,40 @@ class GraphRunner(RunnerBase):
                 raise GraphError(f'node \'plant\' (pid {plant.pid}) exited with code {code}; '
                                  f'last lines of {plant.log_path}:\n{plant.log_tail()}')
         except GraphError as err:
+            self.drain_at_stop = True
             result.exit_code, result.message = err.exit_code, str(err)
-        except KeyboardInterrupt:
-            result.exit_code, result.message = EXIT_INTERRUPTED, 'interrupted'
+        except KeyboardInterrupt as err:
+            self.drain_at_stop = True
+            number = stop_signal_number(err)
+            result.exit_code = 128 + number
+            # The time is the plant's own once it has stopped (below).
+            result.message = stopped_by = f'stopped by {signal.Signals(number).name}'
+        except DiskFull as err:   # the recorder drops everything from then on: no drain
+            result.exit_code, result.message = EXIT_DISK_FULL, str(err)
+        except OSError as err:
+            if not (self.prepared and is_disk_full(err)):
+                raise
+            self.drain_at_stop = True
+            result.exit_code = EXIT_DISK_FULL
+            result.message = (f'disk full{self.where_stopped()}: '
+                              f'{err.filename or "an output"} not written ({err.strerror})')
         finally:
             self.shut_down(result)
+        if stopped_by:
+            result.message = stopped_by + self.where_stopped()
+        if result.exit_code != EXIT_DISK_FULL and self.recorder_disk_full():
+            result.exit_code = EXIT_DISK_FULL
+            result.message = (f'disk full: the recorder stopped writing '
+                              f'{self.bag}{self.where_stopped()}; the bag holds what fit. '
+                              + result.message)
         result.timeline = dict(self.timeline, start_refusals=self.start_refusals)
         stats_path = self.out / 'plant_stats.json'
-        if stats_path.is_file():
-            result.plant_stats = json.loads(stats_path.read_text(encoding='utf-8'))
+        result.plant_stats = self.plant_stats()
+        if result.plant_stats is None and stats_path.is_file():
+            # Cut short by a full disk (the plant writes it in place): no empty side file.
+            self.say(f'warning: {stats_path} was not written whole (full disk?): removed')
+            stats_path.unlink(missing_ok=True)
+        if result.plant_stats is not None:
             # The plant's process CPU from its stats (process_time from the plant's start:
             # the process has ended, so it cannot be read now). Single, that process holds
             # the controllers too.
@@ -575,9 +703,16 @@ def run_graph_benchmark(scenario_path: str | None, layout: str = GraphOptions.la
             'cpu_per_tick_us': {name: 1e6 * cpu / ticks for name, cpu in result.cpu_s.items()}}
 
 
+def outcome_word(exit_code: int) -> str:
+    """OK, STOPPED (by a signal: what ran is saved) or FAILED."""
+    if exit_code == EXIT_OK:
+        return 'OK'
+    return 'STOPPED' if exit_code in STOP_EXIT_CODES else 'FAILED'
+
+
 def format_result(result: GraphResult) -> str:
     """Human-readable summary of a run: outcome, timings, where the outputs are."""
-    lines = [f'{"OK" if result.exit_code == 0 else "FAILED"}: {result.message}']
+    lines = [f'{outcome_word(result.exit_code)}: {result.message}']
     stats = result.plant_stats or {}
     if stats.get('real_time_factor'):
         lines.append(f'simulated {stats["sim_time_s"]:.2f} s in {stats["wall_time_s"]:.2f} s '
@@ -650,7 +785,9 @@ def main(argv: list[str] | None = None) -> int:
         args, clock=args.clock or 'lockstep', out=args.out or 'out/graph',
         stall_timeout=args.stall_timeout, startup_retries=args.startup_retries,
         layout=args.layout or GraphOptions.layout))
-    return print_result(run_graph(options), format_result)
+    with stop_signals():   # SIGTERM, SIGHUP stop the run as Ctrl-C does
+        result = run_graph(options)
+    return print_result(result, format_result)
 
 
 if __name__ == '__main__':

@@ -50,8 +50,11 @@ Outputs in OUT: ``params.yaml``, ``scenario.yaml``, ``logs/``, ``run.json`` (exi
 start-up timeline, safety events, node rates, CPU time and last /diagnostics of every
 node).
 
-Exit status: 0 stopped by SIGINT or at the end of ``--duration``; 1 a node failed; 2 bad
-arguments; 4 the nodes did not come up in time.
+Exit status (``wip_control.tools.cli``): 0 stopped by SIGINT, SIGTERM or SIGHUP (the end
+of a run without ``--duration``; the nodes stopped, zero commands sent, the bag closed,
+run.json written) or at the end of ``--duration``; 2 bad arguments or outputs (also:
+another run holds --out or the bag); 3 a node failed or the nodes did not come up in time;
+4 the disk filled up (an output could not be written).
 """
 
 from __future__ import annotations
@@ -61,6 +64,7 @@ import dataclasses
 import fnmatch
 import pathlib
 import re
+import signal
 import sys
 import time
 from typing import Any, Callable, Iterable, Mapping
@@ -74,7 +78,8 @@ from wip_bringup.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
 
 from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_OK, EXIT_USAGE, GraphError,
                        LAYOUTS, parse_cpus, Probe, Scheduling)
-from .runner_base import options_from_args, print_result, RunnerBase, RunResult
+from .runner_base import (options_from_args, print_result, RunnerBase, RunResult,
+                          stop_signal_number, stop_signals)
 
 #: The nodes of hardware mode, in start order.
 HARDWARE_NODES = CONTROLLER_NODES
@@ -454,8 +459,10 @@ class HardwareRunner(RunnerBase):
             result.exit_code, result.message = EXIT_OK, reason
         except GraphError as err:
             result.exit_code, result.message = err.exit_code, str(err)
-        except KeyboardInterrupt:
-            result.exit_code, result.message = EXIT_OK, 'stopped by SIGINT'
+        except KeyboardInterrupt as err:
+            # The normal end of a run without --duration: a stop, whatever sent it.
+            result.exit_code = EXIT_OK
+            result.message = f'stopped by {signal.Signals(stop_signal_number(err)).name}'
         finally:
             if run_start is not None:
                 result.wall_time_s = time.monotonic() - run_start
@@ -559,7 +566,9 @@ def run_from_args(args: argparse.Namespace) -> int:
         args, params_files=list(args.params_files), remaps=list(args.remaps), out=args.out,
         arm_delay=args.arm_delay, heartbeat=not args.no_heartbeat,
         layout=args.layout or HardwareOptions.layout))
-    return print_result(run_hardware(options), format_result)
+    with stop_signals():   # SIGTERM, SIGHUP stop the run as Ctrl-C does
+        result = run_hardware(options)
+    return print_result(result, format_result)
 
 
 if __name__ == '__main__':

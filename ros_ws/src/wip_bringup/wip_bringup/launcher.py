@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import fcntl
 import os
 import pathlib
 import random
@@ -21,14 +22,18 @@ from typing import Any
 
 from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
 from wip_control.tools.cli import check_output_directory
+from wip_control.tools.cli import EXIT_DISK_FULL as CLI_EXIT_DISK_FULL
 from wip_viewer.viewer_core import VIEWER_TOPICS as VIEWER_TOPIC_TYPES
 
 
 # The exit-code table of every tool (wip_control.tools.cli): 0 ok, 1 the vehicle fell,
-# 2 usage or input error, 3 internal error (a node crashed, the graph stalled), 130 Ctrl-C.
+# 2 usage or input error, 3 internal error (a node crashed, the graph stalled), 4 disk full,
+# 130 Ctrl-C (143 SIGTERM, 129 SIGHUP: 128 + the signal, runner_base.STOP_SIGNALS).
 EXIT_OK, EXIT_FELL, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
 EXIT_TIMEOUT = EXIT_FAILED
 EXIT_INTERRUPTED = 130
+#: The disk (or a quota) filled up: recording stopped and what fit was finalised.
+EXIT_DISK_FULL = CLI_EXIT_DISK_FULL
 #: Published by the viewer node (standard messages for 3-D viewers; nothing in the
 #: control loop subscribes to them).
 VIEWER_TOPICS = tuple(VIEWER_TOPIC_TYPES)
@@ -262,7 +267,16 @@ class NodeProcess:
     """One node's process, its log file and how to stop it."""
 
     def __init__(self, name: str, command: list[str], log_path: pathlib.Path,
-                 env: dict[str, str], scheduling: Scheduling | None = None) -> None:
+                 env: dict[str, str], scheduling: Scheduling | None = None,
+                 pass_fds: tuple[int, ...] = (), own_group: bool = False,
+                 stop_signal: int = signal.SIGINT) -> None:
+        """``pass_fds``: descriptors the process inherits (the run's output locks: it holds
+        them until it exits, also when the launcher dies first); ``own_group``: a process
+        group of its own, out of the reach of the terminal's Ctrl-C (sent to the
+        foreground group): the process gets SIGINT only from the launcher, when the
+        launcher chooses. Not a session of its own: with autogroup scheduling (Linux) that
+        would also change how the CPU is shared between it and the other nodes.
+        ``stop_signal``: what :meth:`interrupt` sends (SIGINT, as Ctrl-C)."""
         self.name = name
         self.command = command
         self.log_path = log_path
@@ -270,8 +284,10 @@ class NodeProcess:
         prefix = scheduling.command_prefix() if scheduling else []
         self.process = subprocess.Popen(prefix + command, stdout=self._log,
                                         stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                        env=env)
+                                        env=env, pass_fds=pass_fds,
+                                        process_group=0 if own_group else None)
         self.pid = self.process.pid
+        self.stop_signal = stop_signal
         self._interrupted = False
         self.killed = False
 
@@ -312,9 +328,9 @@ class NodeProcess:
         return self.process.returncode
 
     def interrupt(self) -> None:
-        """Send SIGINT (once) if the process is still running."""
+        """Send the stop signal (once) if the process is still running."""
         if self.process.poll() is None and not self._interrupted:
-            self.process.send_signal(signal.SIGINT)
+            self.process.send_signal(self.stop_signal)
             self._interrupted = True
 
     def stop(self, grace: float) -> int | None:
@@ -340,7 +356,8 @@ class NodeProcess:
             return None
 
     def log_tail(self, lines: int = LOG_TAIL_LINES) -> str:
-        self._log.flush()
+        if not self._log.closed:   # closed once the process was stopped
+            self._log.flush()
         try:
             text = self.log_path.read_text(encoding='utf-8', errors='replace')
         except OSError:
@@ -357,8 +374,13 @@ class Probe:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile
         self._rclpy = rclpy
+        from rclpy.signals import SignalHandlerOptions
         self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain_id, args=[])
+        # No rclpy signal handlers: they would shut this context down at a SIGINT or
+        # SIGTERM, and the launcher still needs the probe to drain the recorder while it
+        # stops the run (runner_base.stop_signals raises in the main thread instead).
+        rclpy.init(context=self.context, domain_id=domain_id, args=[],
+                   signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node('run_graph', context=self.context,
                                       start_parameter_services=False)
         self.executor = SingleThreadedExecutor(context=self.context)
@@ -438,14 +460,65 @@ def live_view_line(bridge: NodeProcess, host: str, port: int | None) -> str:
             'layout foxglove/wip_live.json)')
 
 
-def prepare_run_directory(out: pathlib.Path, bag: pathlib.Path | None,
-                          extra_logs: tuple[str, ...] = ()) -> None:
-    """Check the outputs of a run (``--out`` directory, ``--record`` bag) before anything is
-    written, then create ``OUT/logs`` (with its marker), replacing only the logs of an
-    earlier run of ours (``OUT/logs`` and the ``extra_logs`` glob patterns in OUT).
+#: Lock file of a run directory (fcntl.flock; it holds the pid of the run that took it).
+LOCK_FILE = '.run_graph.lock'
 
-    GraphError (usage) naming the option when an output is unusable or would replace what
-    this tool did not write; nothing is written then.
+
+def _lock_holder(path: pathlib.Path) -> str:
+    """The pid holding a flock on ``path``, from /proc/locks (Linux), else 'unknown'."""
+    try:
+        info = path.stat()
+        with open('/proc/locks', encoding='ascii') as stream:
+            lines = stream.read().splitlines()
+    except OSError:
+        return 'unknown'
+    wanted = f'{os.major(info.st_dev):02x}:{os.minor(info.st_dev):02x}:{info.st_ino}'
+    for line in lines:
+        fields = line.split()
+        if 'FLOCK' in fields and wanted in fields:
+            return fields[fields.index(wanted) - 1]
+    return 'unknown'
+
+
+def lock_output(path: pathlib.Path, option: str, directory: bool = False) -> int:
+    """Take the exclusive lock of one output (a run directory: its :data:`LOCK_FILE`; a bag
+    directory, ``directory``: the directory itself, which must stay empty for the
+    recorder); the descriptor, held until the run and every process it started have
+    ended (the kernel drops the lock then, whatever killed them).
+
+    GraphError (usage) naming the holder's pid if another run holds it: two runs into one
+    folder would mix their files.
+    """
+    if directory:
+        target = path
+        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    else:
+        target = path / LOCK_FILE
+        fd = os.open(target, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = (os.pread(fd, 32, 0).decode('ascii', 'replace').strip() if not directory
+                  else '') or _lock_holder(target)
+        os.close(fd)
+        raise GraphError(f'{option} {path}: another run (pid {holder}) is writing there; '
+                         'refusing to mix two runs in one folder', EXIT_USAGE) from None
+    if not directory:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f'{os.getpid()}\n'.encode('ascii'), 0)
+    return fd
+
+
+def prepare_run_directory(out: pathlib.Path, bag: pathlib.Path | None,
+                          extra_logs: tuple[str, ...] = ()) -> list[int]:
+    """Check the outputs of a run (``--out`` directory, ``--record`` bag) before anything is
+    written, lock them (:func:`lock_output`: one run per folder), then create ``OUT/logs``
+    (with its marker), replacing only the logs of an earlier run of ours (``OUT/logs`` and
+    the ``extra_logs`` glob patterns in OUT). Returns the lock descriptors.
+
+    GraphError (usage) naming the option when an output is unusable, would replace what
+    this tool did not write, or is another run's; nothing is written then (but the folders
+    and the lock file, when another run holds them).
     """
     try:
         check_output_directory(out, '--out')
@@ -469,11 +542,24 @@ def prepare_run_directory(out: pathlib.Path, bag: pathlib.Path | None,
                 f'--out {out}: {old} holds {foreign}, which run_graph did not write; '
                 'refusing to replace it (move it away or choose another --out)', EXIT_USAGE)
     out.mkdir(parents=True, exist_ok=True)
+    locks = [lock_output(out, '--out')]
+    try:
+        if bag is not None:
+            bag.mkdir(parents=True, exist_ok=True)   # empty: the recorder takes it
+            locks.append(lock_output(bag, '--record', directory=True))
+            if any(bag.iterdir()):  # written by the run that held it a moment ago
+                raise GraphError(f'--record: {bag} exists and is not empty; refusing to '
+                                 'overwrite a bag (nothing was written)', EXIT_USAGE)
+    except BaseException:
+        for fd in locks:
+            os.close(fd)
+        raise
     for old in old_logs:  # Logs of an earlier run_graph run (checked above).
         shutil.rmtree(old)
     (logs / 'ros').mkdir(parents=True)
     (logs / LOGS_MARKER).write_text('run_graph writes this directory and replaces it on the '
                                     'next run into the same --out\n', encoding='utf-8')
+    return locks
 
 
 def foreign_log_content(directory: pathlib.Path) -> str:

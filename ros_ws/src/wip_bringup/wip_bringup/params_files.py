@@ -58,6 +58,7 @@ import yaml
 
 from wip_control.core.config import to_mapping
 from wip_control.core.scenario import Scenario
+from wip_control.tools.cli import write_atomic
 
 CLOCK_MODES = ('lockstep', 'realtime')
 #: Node names of the graph, in start order (the plant last: it waits for the others).
@@ -219,6 +220,6 @@ def write_params_file(scenario: Scenario, path: str | pathlib.Path, clock_mode: 
               'scenario; use with --ros-args --params-file.\n')
     text = yaml.dump(data, Dumper=_NoAliasDumper, sort_keys=False, default_flow_style=False,
                      width=99)
-    path.write_text(header + text, encoding='utf-8')
+    write_atomic(path, header + text)  # whole or not at all (a full disk)
     return path
 

@@ -13,10 +13,11 @@ below (``EXTRA_PROCESSES``, :meth:`RunnerBase.missing_from_view`,
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import errno
 import json
 import pathlib
-import shutil
 import signal
 import sys
 import threading
@@ -30,13 +31,63 @@ from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mappi
 from wip_control.tools.cli import write_atomic
 
 from .launcher import (choose_domain_id, CONTROLLER_LAYOUTS, CpuLatencyRequest,
-                       executable_path, EXECUTABLES,
+                       executable_path, EXECUTABLES, EXIT_DISK_FULL,
                        EXIT_USAGE, EXIT_TIMEOUT, GRACE_PERIOD, graph_environment, GraphError,
                        LAYOUTS, live_view_line, MULTI_NODE_PROCESSES, NodeProcess,
                        prepare_run_directory, Probe,
                        RECORDER_GRACE_PERIOD, Scheduling, VIEWER_TOPICS,
                        viewer_wanted)
 from .params_files import CONTROLLER_NODES
+
+
+#: Signals that stop a run as Ctrl-C does: a service manager's stop (systemd, docker
+#: stop) and a closed terminal. The exit status of such a stop is 128 + the signal's number,
+#: what a shell reports for a process that a signal ended (130 SIGINT, 143 SIGTERM, 129
+#: SIGHUP), but after the whole stop: nodes stopped, recorder drained, bag closed,
+#: run.json written.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+STOP_EXIT_CODES = tuple(128 + int(number) for number in STOP_SIGNALS)
+
+
+class StopRequested(KeyboardInterrupt):
+    """SIGTERM or SIGHUP: a KeyboardInterrupt, so that every place that stops cleanly on
+    Ctrl-C does on these too; ``signum`` says which."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _raise_stop(signum, frame) -> None:
+    raise StopRequested(signum)
+
+
+@contextlib.contextmanager
+def stop_signals():
+    """SIGTERM and SIGHUP raise :class:`StopRequested` in the main thread while a run is
+    in this block (Python's default handler already does so for SIGINT)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield   # handlers can only be set from the main thread; the caller stops it
+        return
+    previous = {n: signal.signal(n, _raise_stop) for n in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
+def stop_signal_number(error: KeyboardInterrupt) -> int:
+    """The signal behind a KeyboardInterrupt (SIGINT unless it is a StopRequested)."""
+    return error.signum if isinstance(error, StopRequested) else int(signal.SIGINT)
+
+
+class DiskFull(Exception):
+    """An output could not be written: no space left (or a quota); ``where`` names it."""
+
+
+def is_disk_full(error: BaseException) -> bool:
+    return isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT)
 
 
 @dataclasses.dataclass
@@ -92,6 +143,9 @@ class RunnerBase:
         self.prepared = False  # True once prepare() set up the run directory
         self.bag_created = False  # True once this run's recorder may have written the bag
         self.processes: dict[str, NodeProcess] = {}
+        #: Lock descriptors of --out and the bag (one run per folder), inherited by every
+        #: node process: the folder stays locked until the last writer of this run ends.
+        self.locks: list[int] = []
         self.probe: Probe | None = None
         #: The --cpu-latency request, held from the launch to the shut-down.
         self.cpu_latency_request: CpuLatencyRequest | None = None
@@ -146,7 +200,7 @@ class RunnerBase:
         """Check and create the run directory (nothing written before: see
         :func:`~wip_bringup.launcher.prepare_run_directory`), remove the ``stale`` outputs
         of an earlier run, write ``OUT/scenario.yaml``; returns its path."""
-        prepare_run_directory(self.out, self.bag, extra_logs=extra_logs)
+        self.locks = prepare_run_directory(self.out, self.bag, extra_logs=extra_logs)
         self.prepared = True
         for name in stale:
             (self.out / name).unlink(missing_ok=True)
@@ -231,6 +285,10 @@ class RunnerBase:
         (the plant, the recorder, the viewer, the bridge) may take the CPU from them."""
         return name in self.controller_processes() or name == 'simulation'
 
+    def stop_signal(self, name: str) -> int:
+        """Hook: the signal that stops the process ``name`` (SIGINT, as Ctrl-C)."""
+        return signal.SIGINT
+
     def start_processes(self, params_file: pathlib.Path) -> None:
         env = graph_environment(self.domain_id)
         env['ROS_LOG_DIR'] = str(self.out / 'logs' / 'ros')
@@ -238,9 +296,13 @@ class RunnerBase:
             # Their CPUs at once, their priority once every node is up (launch; see
             # NodeProcess.raise_priority: start-up at SCHED_FIFO can starve the others).
             scheduling = self.options.scheduling.at_start() if self.scheduled(name) else None
+            # The recorder in a process group of its own: a Ctrl-C in the terminal reaches
+            # it only through this launcher, after the other nodes stopped and it drained.
             self.processes[name] = NodeProcess(name, command,
                                                self.out / 'logs' / f'{name}.log', env,
-                                               scheduling)
+                                               scheduling, pass_fds=tuple(self.locks),
+                                               own_group=name == 'recorder',
+                                               stop_signal=self.stop_signal(name))
 
     def launch(self, params_file: pathlib.Path) -> None:
         """Start the processes and wait until every node is up (:meth:`wait_for_nodes`)."""
@@ -359,15 +421,17 @@ class RunnerBase:
                 name: {'message': status.message,
                        **{kv.key: kv.value for kv in status.values}}
                 for name, status in sorted(self.probe.diagnostics.items())}
-        # A second Ctrl-C must not leave the nodes running (signal handlers can only be
-        # set from the main thread; a runner in another thread is stopped by its caller).
+        # A second Ctrl-C (or SIGTERM, SIGHUP) must not leave the nodes running nor the bag
+        # unfinished (signal handlers can only be set from the main thread; a runner in
+        # another thread is stopped by its caller).
         shield = threading.current_thread() is threading.main_thread()
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if shield else None
+        previous = ({n: signal.signal(n, signal.SIG_IGN) for n in STOP_SIGNALS}
+                    if shield else {})
         try:
             self.stop_all()
         finally:
-            if shield:
-                signal.signal(signal.SIGINT, previous)
+            for number, handler in previous.items():
+                signal.signal(number, handler)
             if self.cpu_latency_request is not None:
                 self.cpu_latency_request.close()
         if self.probe is not None:
@@ -377,12 +441,29 @@ class RunnerBase:
         """Exit codes into ``result``, the scenario into the bag, ``OUT/run.json``."""
         result.domain_id = self.domain_id
         result.node_exit_codes = {n: p.returncode for n, p in self.processes.items()}
-        if self.bag_created and self.bag.is_dir() and (self.out / 'scenario.yaml').is_file():
-            # Only into a bag this run recorded (never into one it refused).
-            shutil.copyfile(self.out / 'scenario.yaml', self.bag / 'scenario.yaml')
+        scenario = self.out / 'scenario.yaml'
+        if self.bag_created and self.bag.is_dir() and scenario.is_file():
+            # Only into a bag this run recorded (never into one it refused); whole or not
+            # at all (a full disk must not leave an empty scenario.yaml that a reader would
+            # take for the default scenario).
+            self.write_output(result, self.bag / 'scenario.yaml', scenario.read_bytes())
         if self.prepared and self.out.is_dir():  # A refused run leaves --out untouched.
-            (self.out / 'run.json').write_text(json.dumps(result.summary(), indent=2) + '\n',
-                                               encoding='utf-8')
+            self.write_output(result, self.out / 'run.json',
+                              json.dumps(result.summary(), indent=2) + '\n')
+
+    def write_output(self, result: RunResult, path: pathlib.Path, data: bytes | str) -> None:
+        """Write one output atomically; a full disk is said in ``result`` (and on stderr),
+        not raised: the run's other outputs are still written where they fit."""
+        try:
+            write_atomic(path, data)
+        except OSError as err:
+            if not is_disk_full(err):
+                raise
+            self.say(f'disk full: {path} not written ({err.strerror})')
+            if result.exit_code != EXIT_DISK_FULL:
+                result.exit_code = EXIT_DISK_FULL
+                result.message = (f'disk full: {path} not written; '
+                                  + (result.message or ''))
 
 
 def print_result(result: RunResult, formatted: Callable[[RunResult], str]) -> int:

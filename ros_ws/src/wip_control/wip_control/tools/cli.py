@@ -9,7 +9,11 @@ code   meaning
        nothing was run and nothing was written
 3      internal error (a bug, a node that crashed, a graph that stalled): one line on
        stderr says what and where the full trace was written
+4      the disk (or a quota) filled up: the tool stopped there, what fit is finished
+       (run_graph: the bag, run.json), the message says where
+129    stopped by SIGHUP (a closed terminal): run_graph finishes the run first
 130    interrupted (Ctrl-C)
+143    stopped by SIGTERM (systemd, docker stop): run_graph finishes the run first
 =====  ==================================================================================
 
 Every tool's ``__main__`` goes through :func:`run_main`, so an exception that escaped a
@@ -32,6 +36,7 @@ EXIT_OK = 0
 EXIT_FAILED = 1  # the vehicle fell or a check failed
 EXIT_USAGE = 2  # usage or input error
 EXIT_INTERNAL = 3  # internal error
+EXIT_DISK_FULL = 4  # no space left (or a quota) where an output is written
 EXIT_INTERRUPTED = 130
 
 #: Where full traces of internal errors go (the directory is created when needed).
