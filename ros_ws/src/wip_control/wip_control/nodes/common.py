@@ -503,7 +503,7 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
                        companions: Sequence[Callable[[], Node]] = ()) -> int:
     """``main`` of a simulator node (plant, stand-in base) that ends by itself.
 
-    Spins until SIGINT or until the node sets ``exit_code`` (the end of its scenario, a
+    Spins until SIGINT or SIGTERM or until the node sets ``exit_code`` (the end of its scenario, a
     fall...), which is then the status; ``on_end(node)`` runs in that case, before the
     clean-up. A configuration error prints its message and returns ``config_status``.
     The node's ``write_stats()`` always runs (an OSError is reported, not raised).
@@ -514,7 +514,13 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
     :class:`IntraProcessNode`.
     """
     end_with_launcher()
-    rclpy.init(args=args)
+    # SIGINT and SIGTERM only set a flag that the spin loop checks (as in run_nodes): with
+    # rclpy's handlers a KeyboardInterrupt raised late could cut write_stats() short and
+    # leave an empty stats file.
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    _stop_signal.clear()
+    signal.signal(signal.SIGINT, _request_stop)
+    signal.signal(signal.SIGTERM, _request_stop)
     built: list[Node] = []
     status = 0
     try:
@@ -524,11 +530,12 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
         if companions:
             # A controller's callback error is reported and the run goes on, as in
             # run_nodes (the safety layer judges what follows).
-            spin_composed(executor, built[1], bus, lambda: node.exit_code is None)
+            spin_composed(executor, built[1], bus,
+                          lambda: node.exit_code is None and not _stop_signal)
         else:
             # The simulator alone: an error of its own callbacks ends the run. spin_once
             # with a timeout: the EventsExecutor's spin() ignores SIGINT.
-            while rclpy.ok() and node.exit_code is None:
+            while rclpy.ok() and node.exit_code is None and not _stop_signal:
                 spin_once_or_stop(executor, SPIN_TIMEOUT)
         if node.exit_code is not None:
             status = node.exit_code
@@ -541,6 +548,9 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
         print(f'{program}: error: {err}', file=sys.stderr)
         status = config_status
     finally:
+        # A second signal while finishing must not cut the stats or the clean-up short.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         if built:   # the simulator node was built (a companion may have failed)
             try:
                 built[0].write_stats()
