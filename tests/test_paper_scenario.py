@@ -30,7 +30,7 @@ HARD_LIMIT_TOL = 1e-6
 #: one (per-step soft limits, offset-free target, re-tuned weights), checked below too.
 PAPER_MAPPING = {'mpc': dict(PAPER_MPC_SETTINGS)}
 
-#: The paper scenario's metrics on main ced33b1, before the robust MPC (issue 9): the
+#: The paper scenario's metrics on main ced33b1, before the robust MPC (the paper design): the
 #: paper settings must keep reproducing them within 5 %.
 METRICS_BEFORE_ISSUE_9 = {'convergence_time_s': 14.36, 'rms_position_error_m': 0.5894,
                           'max_position_error_m': 1.6929, 'rms_heading_error_rad': 0.3641,
