@@ -1,4 +1,4 @@
-"""Every reproduction of issue 10, each with its new behaviour: no data lost, no silent
+"""Every reproduction of a data-safety bug, each with its new behaviour: no data lost, no silent
 wrong result, no traceback, one exit-code table.
 
 Exit codes (every tool): 0 ok, 1 the vehicle fell or a check failed, 2 usage or input

@@ -30,7 +30,7 @@ HARD_LIMIT_TOL = 1e-6
 #: one (per-step soft limits, offset-free target, re-tuned weights), checked below too.
 PAPER_MAPPING = {'mpc': dict(PAPER_MPC_SETTINGS)}
 
-#: The paper scenario's metrics on main ced33b1, before the robust MPC (issue 9): the
+#: The paper scenario's metrics on main ced33b1, before the robust MPC (the paper design): the
 #: paper settings must keep reproducing them within 5 %.
 METRICS_BEFORE_ISSUE_9 = {'convergence_time_s': 14.36, 'rms_position_error_m': 0.5894,
                           'max_position_error_m': 1.6929, 'rms_heading_error_rad': 0.3641,
@@ -120,7 +120,7 @@ def test_path_tracking_converges_and_stays_bounded(paper_run):
     # 0.3 rad/s while the trifolium needs up to 0.70 rad/s at its petal tips, an independent
     # prototype of this design first reached 0.1 m at 14.4 s with an RMS error of 0.58 m after 10 s;
     # the bounds below hold this implementation to that floor, not to the paper's claim
-    # (see the README's comparison with the paper).
+    # (see the comparison with the paper in docs/paper.md).
     _, _, metrics = paper_run
     assert metrics['convergence_time_s'] is not None
     assert metrics['convergence_time_s'] <= 20.0

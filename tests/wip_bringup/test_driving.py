@@ -159,7 +159,7 @@ def test_a_path_is_followed_to_its_end(tmp_path, test_node):
     def on_estimate(msg) -> None:
         # The plan goes out on the first estimate after the reference node listens, and
         # again three times 0.25 s apart: DDS matches the two sides of a topic each on its
-        # own, and a reader that has not yet matched loses a message (README, "The node
+        # own, and a reader that has not yet matched loses a message (docs/node-graph.md, "The node
         # graph"). Each copy replaces the last from the reference's pose, still on the
         # first leg then, so the path is the same.
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
@@ -198,7 +198,7 @@ def test_teleop_drives_the_standin_base_in_real_time_and_odom_comes_out(tmp_path
     # 4 s at 0.3 m/s, the 1 s brake after the timeout) and stays up at rest.
     # The teleop's node exists before the graph starts (test_node: the run uses its
     # $ROS_DOMAIN_ID): a participant that joins once the robot is released makes DDS
-    # discovery stall the controllers' publications for ~0.33 s (README, "Running on a
+    # discovery stall the controllers' publications for ~0.33 s (docs/real-base.md, "Running on a
     # real base"), which was seen to topple the robot; the arming delay covers start-up.
     from geometry_msgs.msg import TwistStamped
     from nav_msgs.msg import Odometry

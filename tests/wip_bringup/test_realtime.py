@@ -37,7 +37,7 @@ def realtime_run(tmp_path_factory):
     monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 101)))
     try:
         # The single layout (plant and controllers in one process, the cheapest per tick):
-        # on session 6's machine (a third of its CPU taken by the hypervisor) with one
+        # on a 2-core machine (a third of its CPU taken by the hypervisor) with one
         # busy process, the composed layout's controllers needed 2.1-2.8 ms of CPU per
         # 5 ms tick in real time, the ESO ran at 90-130 Hz and every run fell within 1.5 s
         # with 15-20 % of the plant's ticks lacking a fresh torque; single: 1.8 ms per

@@ -245,7 +245,7 @@ def test_each_separate_controller_process_frozen_for_150_ms_is_ridden_through(tm
         # node never came up (Fast DDS's shared-memory port lock timed out in one, another
         # ran 30 s without sleeping and RLIMIT_RTTIME killed it; docs/realtime.md). That is
         # the start-up, not the ride-through under test: one more attempt, said so.
-        # (Since session 8 the launcher raises the priority only once the nodes are up.)
+        # (Nowadays the launcher raises the priority only once the nodes are up.)
         if attempt == 2 or engaged(run.result):
             break
         reason = (run.result.message or '-').splitlines()[0]

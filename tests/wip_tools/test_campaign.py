@@ -204,7 +204,7 @@ def test_campaign_on_a_dask_cluster_end_to_end(tmp_path, capsys, dask_cluster):
     noisy = [r for r in rows if float(r['sensors.imu_pitch_noise_std']) == 0.01]
     # Noise-free and upright from θ(0) = 0.05: no fall in 1.5 s; 0.01 rad of pitch noise
     # (5x a good AHRS) through the paper's 100 rad/s observer (`design: paper`; the
-    # default gyro-aided estimator stays up): falls (issue 9 measured 0.5 s at 0.003).
+    # default gyro-aided estimator stays up): falls (measured: 0.5 s at 0.003).
     assert all(r['fell'] == 'False' for r in quiet)
     assert all(r['fell'] == 'True' and r['success'] == 'False' for r in noisy)
     for r in rows:

@@ -503,7 +503,7 @@ def test_when_both_proxsuite_starts_run_out_daqp_solves_the_same_qp(monkeypatch)
     np.testing.assert_allclose(mpc.last_solution.z, z_ref, rtol=0, atol=1e-9)
 
 
-# ---------------------------------------------------------------- brake and hold (issue 9)
+# ---------------------------------------------------------------- brake and hold (robust MPC)
 
 PAPER_CONFIG = dataclasses.replace(CONFIG, **PAPER_MPC_SETTINGS)
 
@@ -725,7 +725,7 @@ def slope_disturbance(alpha):
 
 @pytest.mark.slow
 def test_at_the_speed_limit_a_push_is_braked_back_under_the_limit_within_2_s():
-    # Issue 9: the paper's formulation held 2.35-2.46 m/s for 30 s after the pulse.
+    # Measured: the paper's formulation held 2.35-2.46 m/s for 30 s after the pulse.
     limit = CONFIG.max_speed
     result, truth = _run(line_at_the_speed_limit({}))
     t, v = truth['t'], truth['v']
@@ -766,7 +766,7 @@ def test_paper_formulation_leaves_the_push_offset_that_the_target_removes():
 @pytest.mark.slow
 def test_full_plant_standing_still_decays():
     # Full plant: its tilt input gain is 50 % above model (1)'s (motor reaction torque).
-    # Issue 9: the paper's formulation turned a 0.01 rad tilt into a growing 9.4 s
+    # Measured: the paper's formulation turned a 0.01 rad tilt into a growing 9.4 s
     # oscillation. Default: the tilt envelope shrinks by ~3x every 20 s (measured
     # 0.0118, 0.0031, 0.0010 rad over 0-20, 20-40, 40-60 s).
     mapping = {'duration': 60.0, 'plant': {'model': 'full'},

@@ -1,4 +1,4 @@
-"""The robustness suite: one scenario file per class of issue 9, each with its physical
+"""The robustness suite: one scenario file per robustness class, each with its physical
 pass criterion beside it (``criteria:`` in the file, the why in its header comment).
 
 Each file is a campaign file of one run (docs/campaign.md), so that ``scripts/campaign
@@ -6,7 +6,7 @@ FILE`` runs it too, and a campaign over seeds or parameters starts from it. Here
 class runs once, in-process, and must meet its criterion.
 
 Classes that fail on this branch are marked ``xfail(strict=True)`` with the failure
-measured (the controller changes of issue 9 items 1–4 are made elsewhere): when a class
+measured (a controller change it needs is made elsewhere): when a class
 starts to pass, its strict xfail fails, and the mark is to be removed.
 """
 

@@ -204,7 +204,7 @@ class GraphOptions:
     scheduling: Scheduling = Scheduling()  # of the controller processes
     #: The viewer node (Odometry, Path, markers; recorded). None: when someone will look,
     #: i.e. with --record or --foxglove (it costs the lockstep run about a quarter of its
-    #: speed on 2 cores: README, "Seeing the robot").
+    #: speed on 2 cores: docs/viewing.md).
     viewer: bool | None = None
     foxglove_port: int | None = None  # serve the topics to Foxglove on this port
     foxglove_host: str = '127.0.0.1'

@@ -14,7 +14,7 @@ the safety layer has engaged (its settle time is wall time); then the measured t
 The thread CPU time of each tick is measured, ``--pace 1`` with the ticks at 200 Hz
 (sleeping between them, as in real time) or ``--pace 0`` back to back. Their ratio is what
 the machine charges for running after an idle period (cold caches, a halted vCPU):
-docs/realtime.md §2, session 8.
+docs/realtime.md §2 (measured on the 2-core development machine).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Soak test: hardware mode against the stand-in base, many long real-time runs.
 
-Issue 12's acceptance matrix: the stand-in base in its own process (full plant, 1 kHz)
+The hardware-mode acceptance matrix: the stand-in base in its own process (full plant, 1 kHz)
 and the controllers (the default composed layout unless ``--layout``) run for
 ``--seconds`` on a line and on a circle, ``--runs`` times each, with and without one busy
 competing process (``python3 -c 'while True: pass'``), optionally freezing the controller

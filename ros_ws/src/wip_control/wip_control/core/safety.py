@@ -3,7 +3,7 @@
 Pure Python (no rclpy): the torque_mixer node feeds a :class:`SafetyMonitor` with its
 inputs as they arrive and asks it, once per control tick, for the wheel torques to send.
 Not part of the paper [1]_; written for the drop-in use on a real two-wheeled base
-(README, "Running on a real base"), whose ros2_control
+(docs/real-base.md), whose ros2_control
 ``JointGroupEffortController`` holds the last command forever and has no timeout.
 
 The fail-safe state is zero torque

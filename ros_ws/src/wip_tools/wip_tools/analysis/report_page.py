@@ -28,7 +28,7 @@ from typing import Any, Callable
 
 import yaml
 
-#: Every metrics.json key (flattened with '.'), its unit and meaning. The README's table
+#: Every metrics.json key (flattened with '.'), its unit and meaning. docs/scenarios.md's table
 #: is the same text; a test checks that every key a run writes is here.
 METRIC_DOCS: dict[str, tuple[str, str]] = {
     'scenario': ('', 'scenario name'),
