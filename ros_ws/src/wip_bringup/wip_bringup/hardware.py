@@ -113,8 +113,8 @@ PROBE_PERIOD = 0.2  # [s] wall
 ENGAGED_STATES = ('ACTIVE', 'DEGRADED', 'SHADOW')
 #: Latency [s] of the mixer's safety state through its /diagnostics (period 1 s), as a margin.
 DIAGNOSTICS_LATENCY = 0.5
-#: Topics of the graph that are not the base's, left out of the "the graph shows" list.
-_OWN_TOPICS = ('/rosout', '/parameter_events', '/diagnostics', '/tf', '/tf_static')
+#: Topics of every node, left out of the "the graph shows" list of the base's absence.
+_OWN_TOPICS = ('/rosout', '/parameter_events')
 #: Zero commands sent at the stop (a few, in case one is lost before the match settles).
 ZERO_COMMANDS = 3
 
@@ -452,16 +452,21 @@ class HardwareRunner(RunnerBase):
     def no_base_message(self, names: list[str]) -> str:
         """None of the base's topics: what was expected, what the graph shows, and the
         likely cause (the base on another domain or discovery range)."""
-        ours = set(CONTROLLER_TOPICS) | {remapped(t, self.remaps) for t in CONTROLLER_TOPICS}
-        shown = sorted(name for name, _ in self.probe.node.get_topic_names_and_types()
-                       if name not in ours and name not in _OWN_TOPICS
-                       and not name.startswith('/wip/'))
+        node = self.probe.node
+        # Every topic of the controllers' own nodes (they subscribe to the base's topics
+        # too) is left out: what is left is what other nodes, a base among them, offer.
+        ours = set(HARDWARE_NODES) | set(self.processes) | {node.get_name()}
+        shown = []
+        for name, _ in sorted(node.get_topic_names_and_types()):
+            endpoints = (node.get_publishers_info_by_topic(name)
+                         + node.get_subscriptions_info_by_topic(name))
+            if name not in _OWN_TOPICS and any(e.node_name not in ours for e in endpoints):
+                shown.append(name)
         return (f'warning: no base topic after {BASE_DISCOVERY_WAIT:g} s: expected '
                 f'publishers on {", ".join(names)} and a subscription on {self.effort_topic}'
-                f'; the graph shows {", ".join(shown) if shown else "no other topic"} '
-                f'(besides the controllers\' own); the base may be on another ROS_DOMAIN_ID '
-                f'or discovery range than this run\'s ({self.network.describe()}), or its '
-                'topics need --remap')
+                f'; the graph shows {", ".join(shown) if shown else "no topic"} of other '
+                f'nodes; the base may be on another ROS_DOMAIN_ID or discovery range than '
+                f'this run\'s ({self.network.describe()}), or its topics need --remap')
 
     def watch(self) -> str:
         """Until SIGINT or the duration: progress, node health. Returns why it ended."""
