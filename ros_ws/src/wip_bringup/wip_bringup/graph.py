@@ -89,7 +89,13 @@ Exit status (``wip_control.tools.cli``): 0 the scenario ran to its end; 1 the ve
 fell; 2 bad arguments, scenario or outputs (also: another run holds --out or the bag);
 3 a node failed, or a timeout (discovery, start or stall); 4 the disk filled up; 5 (with
 --clock realtime) the controllers never engaged; 130/143/129 stopped by
-SIGINT/SIGTERM/SIGHUP. Hardware mode: see ``scripts/run_graph --mode hardware --help``.
+SIGINT/SIGTERM/SIGHUP. Hardware mode: 0 the controllers engaged and the run ended without a
+safety fault (at the end of --duration, by Ctrl-C, SIGTERM, SIGHUP or your e-stop); 1 the
+vehicle fell or the safety layer went to FAULT after engaging (the message gives the mixer's
+reason); 5 the controllers never engaged (no inputs from the base, or the estimate never
+settled: the message says which); 2, 3, 4 as above. It uses your ROS network settings
+(ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE, ROS_STATIC_PEERS; ROS's defaults, domain 0
+and SUBNET, where unset), while a simulation runs in a private domain on this host only.
 """
 
 from __future__ import annotations

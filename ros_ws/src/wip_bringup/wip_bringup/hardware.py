@@ -39,7 +39,7 @@ What it does
 4. Runs until SIGINT (Ctrl-C) or ``--duration`` [s of wall time], printing the safety
    state and the node rates every few seconds and recording every change of the safety
    state (with its reasons, from the mixer's /diagnostics) in ``OUT/run.json``. A node
-   that dies ends the run (exit 1).
+   that dies ends the run (exit 3).
 5. Stops every node by its pid (SIGINT, SIGKILL after a grace period; the recorder last)
    and then publishes a zero effort command on the base's command topic: a
    ``JointGroupEffortController`` holds the last command forever, and the mixer does not
