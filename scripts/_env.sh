@@ -14,7 +14,8 @@
 #   - ros_ws/install/setup.bash (sourced with `set +u`: colcon's scripts read unset variables),
 #   - ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, ROS_DOMAIN_ID (1..101, from the shell's pid) and
 #     RMW_IMPLEMENTATION=rmw_fastrtps_cpp and OPENBLAS_NUM_THREADS=1, each only when not
-#     set already.
+#     set already; the two ROS_ defaults set are listed in WIP_ROS_DEFAULTS (NAME=VALUE),
+#     which hardware mode and check_base use to go back to the user's ROS environment.
 # It also unsets _ROS_WHEELS_BOOTSTRAP_COMPLETE: the ros-wheels-bootstrapper .pth of a venv
 # re-executes Python once with LD_LIBRARY_PATH set for *that* venv and marks the environment
 # with this variable; a value inherited from a process of another venv would skip our venv's
@@ -168,10 +169,23 @@ wip_activate() {
         *":${WIP_VENV}:"*) ;;
         *) export AMENT_PREFIX_PATH="${AMENT_PREFIX_PATH}:${WIP_VENV}" ;;
     esac
-    export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
-    # A domain of our own per run, so that parallel runs on this host do not see each other.
-    # 1..101: Fast DDS ports of higher domain ids run into Linux's ephemeral port range.
-    export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(($$ % 101 + 1))}"
+    # Defaults for simulations: localhost only, and a domain of our own per run, so that
+    # parallel runs on this host do not see each other. 1..101: Fast DDS ports of higher
+    # domain ids run into Linux's ephemeral port range. Each default set is recorded in
+    # WIP_ROS_DEFAULTS: hardware mode and check_base drop it again, because a robot's base
+    # is on the user's domain and network (ROS's defaults: domain 0, SUBNET).
+    local defaulted=''
+    if [ -z "${ROS_AUTOMATIC_DISCOVERY_RANGE:-}" ]; then
+        export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+        defaulted="${defaulted} ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST"
+    fi
+    if [ -z "${ROS_DOMAIN_ID:-}" ]; then
+        export ROS_DOMAIN_ID="$(($$ % 101 + 1))"
+        defaulted="${defaulted} ROS_DOMAIN_ID=${ROS_DOMAIN_ID}"
+    fi
+    if [ -n "${defaulted}" ]; then
+        export WIP_ROS_DEFAULTS="${WIP_ROS_DEFAULTS:+${WIP_ROS_DEFAULTS} }${defaulted# }"
+    fi
     export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
     # One BLAS thread: the control math uses small matrices, for which OpenBLAS's thread
     # pool only adds wake-ups (measured: the in-process runner 10-20 % less CPU).

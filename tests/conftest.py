@@ -26,6 +26,10 @@ if os.environ.get('CI'):
 # A child process that hangs is ended with SIGABRT first (ros_harness.stop_with_stacks):
 # with faulthandler on, its output then holds every thread's Python stack.
 os.environ.setdefault('PYTHONFAULTHANDLER', '1')
+# The tests choose their DDS domains and discovery themselves (private_dds_domain, explicit
+# environments): hardware mode and check_base must take those as the user's settings, not
+# drop them as scripts/_env.sh's defaults (wip_bringup.launcher.use_user_ros_environment).
+os.environ.pop('WIP_ROS_DEFAULTS', None)
 for package in ('wip_control', 'wip_sim', 'wip_bag', 'wip_bringup', 'wip_tools', 'wip_viewer'):
     path = str(REPO_ROOT / 'ros_ws' / 'src' / package)
     if path not in sys.path:

@@ -278,13 +278,16 @@ def test_bootstrap_exports_the_ros_environment():
     result = _bash('set -euo pipefail; source scripts/_env.sh; wip_bootstrap; '
                    'echo "guard=${_ROS_WHEELS_BOOTSTRAP_COMPLETE:-unset}"; '
                    'echo "domain=$ROS_DOMAIN_ID"; echo "range=$ROS_AUTOMATIC_DISCOVERY_RANGE"; '
-                   'echo "ament=$AMENT_PREFIX_PATH"; echo "python=$(command -v python)"; '
+                   'echo "defaults=$WIP_ROS_DEFAULTS"; echo "ament=$AMENT_PREFIX_PATH"; echo "python=$(command -v python)"; '
                    'python -c "import rclpy, wip_msgs.msg; print(\'imports=ok\')"', env=env)
     assert result.returncode == 0, result.stderr
     values = dict(line.split('=', 1) for line in result.stdout.splitlines() if '=' in line)
     assert values['guard'] == 'unset'
     assert 1 <= int(values['domain']) <= 101
     assert values['range'] == 'LOCALHOST'
+    # Recorded, for hardware mode and check_base to go back to the user's environment.
+    assert values['defaults'] == (f'ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST '
+                                  f'ROS_DOMAIN_ID={values["domain"]}')
     ament = values['ament'].split(':')
     assert str(VENV) in ament and str(INSTALL / 'wip_msgs') in ament
     assert values['python'] == str(VENV / 'bin' / 'python')
@@ -295,9 +298,10 @@ def test_bootstrap_exports_the_ros_environment():
 def test_bootstrap_keeps_a_domain_id_given_by_the_caller():
     env = dict(os.environ, ROS_DOMAIN_ID='42')
     result = _bash('set -euo pipefail; source scripts/_env.sh; wip_bootstrap; '
-                   'echo "$ROS_DOMAIN_ID"', env=env)
+                   'echo "$ROS_DOMAIN_ID"; echo "${WIP_ROS_DEFAULTS:-}"', env=env)
     assert result.returncode == 0, result.stderr
-    assert result.stdout.strip() == '42'
+    domain, defaults = result.stdout.splitlines()
+    assert domain == '42' and 'ROS_DOMAIN_ID' not in defaults   # the caller's: kept
 
 
 @pytest.mark.ros

@@ -6,6 +6,7 @@ is zero, and the runner sends zeros again when it stops the nodes.
 """
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -82,7 +83,21 @@ def test_no_plant_without_a_base_never_commands_torque(tmp_path, test_node):
              f'/effort_controller/commands:={EFFORT}', '--foxglove', '0'],
             capture_output=True, text=True, timeout=120)
         time.sleep(0.5)
-    assert result.returncode == 0, result.stdout + result.stderr
+    # The controllers never engaged: exit 5, with the reason (no inputs from the base).
+    assert result.returncode == 5, result.stdout + result.stderr
+    assert result.stdout.startswith('NEVER ENGAGED: the controllers never engaged (the '
+                                    'duration of 3 s was reached)'), result.stdout
+    assert 'no inputs from the base: nothing on /base/joint_states' in result.stdout
+    # The network in use, and what the graph shows when no base topic appears.
+    domain = os.environ['ROS_DOMAIN_ID']
+    assert (f'ROS network: ROS_DOMAIN_ID={domain}, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST'
+            in result.stderr)
+    (missing,) = [line for line in result.stderr.splitlines() if 'no base topic' in line]
+    assert ('expected publishers on /base/joint_states, /imu/data, /gps/fix and a '
+            f'subscription on {EFFORT}; the graph shows ') in missing
+    assert 'may be on another ROS_DOMAIN_ID or discovery range' in missing
+    # The test's own listener is the one node besides the run's own.
+    assert f'the graph shows {EFFORT} of other nodes' in missing
     run = json.loads((out / 'run.json').read_text())
     assert run['mode'] == 'hardware'
     # The base's topics under their remapped names, none present.

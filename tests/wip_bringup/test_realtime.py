@@ -19,7 +19,7 @@ import pytest
 pytest.importorskip('rclpy')
 
 from wip_bag.bag_reader import bag_summary  # noqa: E402
-from wip_bringup.graph import EXIT_FELL, GraphOptions, run_graph  # noqa: E402
+from wip_bringup.graph import EXIT_FELL, EXIT_NOT_ENGAGED, GraphOptions, run_graph  # noqa: E402
 from wip_sim.settings import PlantSettings  # noqa: E402
 from wip_tools.report import record_from_bag  # noqa: E402
 
@@ -130,7 +130,7 @@ def test_realtime_run_whose_controllers_never_engage_ends_with_the_reason(tmp_pa
     scenario.write_text('name: tilted\nduration: 2.0\ninitial_state:\n  theta: 0.4\n')
     result = run_graph(GraphOptions(clock='realtime', scenario=str(scenario),
                                     out=str(tmp_path / 'run'), quiet=True))
-    assert result.exit_code not in (0, EXIT_FELL)
+    assert result.exit_code == EXIT_NOT_ENGAGED == 5, result.message
     assert 'the controllers did not engage' in result.message
     assert 'held at the initial state' in result.message
     assert 'fallen' in result.message        # the mixer's FAULT, from its /diagnostics

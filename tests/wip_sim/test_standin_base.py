@@ -124,7 +124,10 @@ def test_a_wrong_wheel_sign_makes_the_safety_layer_zero_the_torque(tmp_path):
     wrong = dict(BASE, left_wheel_sign=1)
     run = run_against_standin(tmp_path / 'wrong_sign', wrong, 10.0, exit_after_fall=1.0)
     result, stats, code = run.result, run.stats, run.base_code
-    assert result.exit_code == 0, result.message
+    # A fall while engaged: exit 1, and the message names the mixer's reason.
+    assert result.exit_code == 1, result.message
+    assert result.message.startswith('safety FAULT '), result.message
+    assert 'fallen' in result.message or 'ESO diverged' in result.message, result.message
     # No node crashed: each was stopped by SIGINT at the end.
     assert all(c == 0 for c in result.node_exit_codes.values()), result.node_exit_codes
     assert stats['released']                         # the controllers did engage ...

@@ -71,7 +71,7 @@ from wip_control.nodes.hardware_inputs import (check_mounting_rpy, check_wheel_s
                                                rotate_vector_into)
 
 from .hardware import hardware_parameters, load_params_file, node_parameters, parse_remap
-from .launcher import GraphError
+from .launcher import GraphError, use_user_ros_environment
 
 # The exit-code table of every tool (wip_control.tools.cli); no data from the base is a
 # failed check (the connection check).
@@ -760,9 +760,13 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
         remaps = [parse_remap(text) for text in args.remaps]
         if not (args.timeout > 0.0 and args.window > 0.0):
             raise GraphError('--timeout and --window must be > 0', EXIT_USAGE)
+        # The base is on the user's domain and network: not on scripts/_env.sh's private
+        # defaults for simulations (ROS's defaults where the user set nothing).
+        network = use_user_ros_environment()
     except GraphError as err:
         print(f'check_base: error: {err}', file=sys.stderr)
         return err.exit_code
+    print(f'check_base: ROS network: {network.describe()}', file=sys.stderr, flush=True)
     mode_name = 'auto' if args.auto else 'script' if args.script else 'interactive'
     if threading.current_thread() is threading.main_thread():
         # Ctrl-C / SIGINT stops the check (exit 130) however the process was started: a
@@ -788,7 +792,7 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
             listener.close()
     if args.json:
         report = {'status': status, 'conventions': dataclasses.asdict(conventions),
-                  'domain_id': os.environ.get('ROS_DOMAIN_ID'),
+                  'domain_id': network.domain_id,
                   'checks': [dataclasses.asdict(k) for k in session.checks] if session
                   else []}
         with open(args.json, 'w', encoding='utf-8') as stream:

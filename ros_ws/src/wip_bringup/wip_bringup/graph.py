@@ -87,8 +87,15 @@ happened, exit 4.
 
 Exit status (``wip_control.tools.cli``): 0 the scenario ran to its end; 1 the vehicle
 fell; 2 bad arguments, scenario or outputs (also: another run holds --out or the bag);
-3 a node failed, or a timeout (discovery, start or stall); 4 the disk filled up;
-130/143/129 stopped by SIGINT/SIGTERM/SIGHUP.
+3 a node failed, or a timeout (discovery, start or stall); 4 the disk filled up; 5 (with
+--clock realtime) the controllers never engaged; 130/143/129 stopped by
+SIGINT/SIGTERM/SIGHUP. Hardware mode: 0 the controllers engaged and the run ended without a
+safety fault (at the end of --duration, by Ctrl-C, SIGTERM, SIGHUP or your e-stop); 1 the
+vehicle fell or the safety layer went to FAULT after engaging (the message gives the mixer's
+reason); 5 the controllers never engaged (no inputs from the base, or the estimate never
+settled: the message says which); 2, 3, 4 as above. It uses your ROS network settings
+(ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE, ROS_STATIC_PEERS; ROS's defaults, domain 0
+and SUBNET, where unset), while a simulation runs in a private domain on this host only.
 """
 
 from __future__ import annotations
@@ -113,8 +120,8 @@ from wip_control.tools.cli import exit_with, write_atomic
 from .hardware import add_arguments, run_from_args
 # LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
 from .launcher import (add_view_arguments, EXIT_DISK_FULL, EXIT_FAILED, EXIT_FELL, EXIT_OK,
-                       EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError, LAYOUTS, Probe,
-                       PROBE_PERIOD, Scheduling, VIEWER_TOPICS, viewer_wanted)
+                       EXIT_NOT_ENGAGED, EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError,
+                       LAYOUTS, Probe, PROBE_PERIOD, Scheduling, VIEWER_TOPICS, viewer_wanted)
 from .runner_base import (DiskFull, is_disk_full, options_from_args, print_result,
                           RunnerBase, RunResult, STOP_EXIT_CODES, stop_signal_number,
                           stop_signals)
@@ -439,7 +446,7 @@ class GraphRunner(RunnerBase):
                     # (hold_until_engaged): starting again would not help; say why.
                     raise GraphError(
                         f'the controllers did not engage in {now - started:.0f} s: '
-                        f'{status.message}\n{self.describe_nodes()}', EXIT_TIMEOUT)
+                        f'{status.message}\n{self.describe_nodes()}', EXIT_NOT_ENGAGED)
                 raise StartupStall(
                     f'no progress for {now - started:.0f} s at t = {last_sim:g} s, the first '
                     f'ticks: {status.message}\n{self.describe_nodes()}')

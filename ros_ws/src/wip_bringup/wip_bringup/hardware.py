@@ -39,22 +39,33 @@ What it does
 4. Runs until SIGINT (Ctrl-C) or ``--duration`` [s of wall time], printing the safety
    state and the node rates every few seconds and recording every change of the safety
    state (with its reasons, from the mixer's /diagnostics) in ``OUT/run.json``. A node
-   that dies ends the run (exit 1).
+   that dies ends the run (exit 3).
 5. Stops every node by its pid (SIGINT, SIGKILL after a grace period; the recorder last)
    and then publishes a zero effort command on the base's command topic: a
    ``JointGroupEffortController`` holds the last command forever, and the mixer does not
    send one when it is killed. The same zero command is sent at once if the mixer dies
    during the run. (Nothing can be sent if this process itself is killed with SIGKILL.)
 
+Network: hardware mode uses the ROS environment as you have it (``ROS_DOMAIN_ID``,
+``ROS_AUTOMATIC_DISCOVERY_RANGE``, ``ROS_STATIC_PEERS``), with ROS's defaults where unset
+(domain 0, discovery range SUBNET), and prints them at the start: the private domain and
+localhost-only discovery that scripts/_env.sh gives simulations are dropped. When the base's
+topics do not appear within a few seconds, it says which topics it expected and which the
+graph shows (a base on another domain or discovery range shows none of them).
+
 Outputs in OUT: ``params.yaml``, ``scenario.yaml``, ``logs/``, ``run.json`` (exit status,
 start-up timeline, safety events, node rates, CPU time and last /diagnostics of every
 node).
 
-Exit status (``wip_control.tools.cli``): 0 stopped by SIGINT, SIGTERM or SIGHUP (the end
-of a run without ``--duration``; the nodes stopped, zero commands sent, the bag closed,
-run.json written) or at the end of ``--duration``; 2 bad arguments or outputs (also:
-another run holds --out or the bag); 3 a node failed or the nodes did not come up in time;
-4 the disk filled up (an output could not be written).
+Exit status (``wip_control.tools.cli``): 0 the controllers engaged and the run ended without
+a safety fault, stopped by SIGINT, SIGTERM or SIGHUP (the end of a run without
+``--duration``; the nodes stopped, zero commands sent, the bag closed, run.json written), by
+an e-stop of yours, or at the end of ``--duration``; 1 the vehicle fell or the safety layer
+went to FAULT after engaging (the message gives the mixer's reason, e.g. "fallen:
+|theta_hat| ... rad"); 5 the controllers never engaged (no inputs from the base, or the
+estimate never settled: the message gives the mixer's last reason); 2 bad arguments or
+outputs (also: another run holds --out or the bag); 3 a node failed or the nodes did not
+come up in time; 4 the disk filled up (an output could not be written).
 """
 
 from __future__ import annotations
@@ -76,8 +87,9 @@ from wip_control.core.scenario import Scenario
 from wip_bringup.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
                                       graph_parameters, _NoAliasDumper)
 
-from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_OK, EXIT_USAGE, GraphError,
-                       LAYOUTS, parse_cpus, Probe, Scheduling)
+from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_FELL, EXIT_NOT_ENGAGED, EXIT_OK,
+                       EXIT_USAGE, GraphError, LAYOUTS, parse_cpus, Probe, Scheduling,
+                       use_user_ros_environment)
 from .runner_base import (options_from_args, print_result, RunnerBase, RunResult,
                           stop_signal_number, stop_signals)
 
@@ -97,6 +109,12 @@ HEARTBEAT_MAX_AGE = 1.0
 HEARTBEAT_PERIOD = 0.1
 STATUS_PERIOD = 5.0  # [s] wall, progress lines
 PROBE_PERIOD = 0.2  # [s] wall
+#: Safety states in which the mixer commands torque: the controllers have engaged.
+ENGAGED_STATES = ('ACTIVE', 'DEGRADED', 'SHADOW')
+#: Latency [s] of the mixer's safety state through its /diagnostics (period 1 s), as a margin.
+DIAGNOSTICS_LATENCY = 0.5
+#: Topics of every node, left out of the "the graph shows" list of the base's absence.
+_OWN_TOPICS = ('/rosout', '/parameter_events')
 #: Zero commands sent at the stop (a few, in case one is lost before the match settles).
 ZERO_COMMANDS = 3
 
@@ -128,6 +146,9 @@ class HardwareOptions:
     viewer: bool | None = None
     foxglove_port: int | None = None  # serve the topics to Foxglove on this port
     foxglove_host: str = '127.0.0.1'
+    #: A stand-in base that ends this long [s] after the controllers engage (its duration):
+    #: a FAULT from then on is its end (its inputs stop), not a failure of the run.
+    base_end_after: float | None = None
 
 
 @dataclasses.dataclass
@@ -223,15 +244,53 @@ def hardware_parameters(scenario: Scenario, recorder: Mapping[str, Any] | None =
     return data
 
 
+# ---------------------------------------------------------------------------- the outcome
+
+def hardware_outcome(events: list[dict[str, Any]], ended: str,
+                     base_end_after: float | None = None,
+                     missing: Iterable[str] = ()) -> tuple[int, str]:
+    """Exit code and message of a run that ended normally (``ended``: why), from the safety
+    events seen until then: 0 if the controllers engaged and no FAULT followed (an e-stop is
+    the user's stop), 1 (EXIT_FELL) if one did, 5 (EXIT_NOT_ENGAGED) if they never engaged.
+    ``missing``: base topics without a publisher/subscription, named when never engaged."""
+    engaged = next((i for i, e in enumerate(events) if e['state'] in ENGAGED_STATES), None)
+    if engaged is None:
+        why = ''
+        if events:
+            last = events[-1]
+            why = f'; the safety layer stayed {last["state"]}: {last["reasons"]}'
+        else:
+            why = '; no safety state came from the mixer'
+        if missing:
+            why += '; no inputs from the base: nothing on ' + ', '.join(missing)
+        return EXIT_NOT_ENGAGED, f'the controllers never engaged ({ended}){why}'
+    start = events[engaged]['t']
+    for event in events[engaged + 1:]:
+        if event['state'] != 'FAULT':
+            continue
+        if base_end_after is not None and (
+                event['t'] >= start + base_end_after - DIAGNOSTICS_LATENCY):
+            break
+        return EXIT_FELL, (f'safety FAULT {event["t"] - start:.1f} s after the controllers '
+                           f'engaged: {event["reasons"]} (then {ended})')
+    return EXIT_OK, ended
+
+
 # ----------------------------------------------------------------------------- the runner
 
 class HardwareRunner(RunnerBase):
     """One hardware-mode run: start, watch and stop the controller processes."""
 
     NOT_UP = 'the controller nodes did not come up in {timeout:g} s'
+    PRIVATE_NETWORK = False
 
     def __init__(self, options: HardwareOptions) -> None:
+        # Before the base class picks the domain: the base is on the user's domain and
+        # network, not on a private default of scripts/_env.sh.
+        self.network = use_user_ros_environment()
         super().__init__(options)
+        self.domain_id = self.network.domain_id
+        self.missing: list[str] = []
         self.remaps: list[tuple[str, str]] = []
         self.extra: list[dict[str, Any]] = []
         self.generated: dict[str, dict] = {}
@@ -377,14 +436,37 @@ class HardwareRunner(RunnerBase):
             publishers, _ = self.probe.count(name)
             out[name] = {'publishers': publishers}
             if not publishers:
+                self.missing.append(name)
                 self.say(f'warning: no publisher on {name} (the base\'s {topic}) yet: the '
                          'safety layer commands zero torque until every input arrives')
         _, subscribers = self.probe.count(self.effort_topic)
         out[self.effort_topic] = {'subscriptions': subscribers}
         if not subscribers:
+            self.missing.append(self.effort_topic)
             self.say(f'warning: nothing subscribes to {self.effort_topic}: is the base\'s '
                      'effort controller running (and the topic remapped)?')
+        if all(name in self.missing for name in names):   # no sensor of the base at all
+            self.say(self.no_base_message(names))
         return out
+
+    def no_base_message(self, names: list[str]) -> str:
+        """None of the base's topics: what was expected, what the graph shows, and the
+        likely cause (the base on another domain or discovery range)."""
+        node = self.probe.node
+        # Every topic of the controllers' own nodes (they subscribe to the base's topics
+        # too) is left out: what is left is what other nodes, a base among them, offer.
+        ours = set(HARDWARE_NODES) | set(self.processes) | {node.get_name()}
+        shown = []
+        for name, _ in sorted(node.get_topic_names_and_types()):
+            endpoints = (node.get_publishers_info_by_topic(name)
+                         + node.get_subscriptions_info_by_topic(name))
+            if name not in _OWN_TOPICS and any(e.node_name not in ours for e in endpoints):
+                shown.append(name)
+        return (f'warning: no base topic after {BASE_DISCOVERY_WAIT:g} s: expected '
+                f'publishers on {", ".join(names)} and a subscription on {self.effort_topic}'
+                f'; the graph shows {", ".join(shown) if shown else "no topic"} of other '
+                f'nodes; the base may be on another ROS_DOMAIN_ID or discovery range than '
+                f'this run\'s ({self.network.describe()}), or its topics need --remap')
 
     def watch(self) -> str:
         """Until SIGINT or the duration: progress, node health. Returns why it ended."""
@@ -433,6 +515,12 @@ class HardwareRunner(RunnerBase):
     def nodes_stopped(self) -> None:
         self.send_zero_commands()
 
+    def outcome(self, ended: str) -> tuple[int, str]:
+        """The run's exit code and message from the safety events seen until now (the
+        states the stop itself causes come later and are not judged)."""
+        return hardware_outcome(list(self.safety_events), ended,
+                                self.options.base_end_after, self.missing)
+
     # -- the run ----------------------------------------------------------------------------
     def run(self) -> HardwareResult:
         result = HardwareResult(EXIT_FAILED, '', self.out, self.bag, self.domain_id)
@@ -443,7 +531,9 @@ class HardwareRunner(RunnerBase):
         try:
             params_file = self.prepare()
             self.say(f'hardware mode: controllers of scenario {self.scenario.name!r} in real '
-                     f'time, ROS_DOMAIN_ID={self.domain_id}, outputs in {self.out}')
+                     f'time, outputs in {self.out}')
+            self.say(f'ROS network: {self.network.describe()} (from the environment; ROS\'s '
+                     'defaults where unset)')
             self.open_probe()
             self.launch(params_file)
             self.say_foxglove_url()
@@ -456,13 +546,14 @@ class HardwareRunner(RunnerBase):
             run_start = time.monotonic()
             cpu_start = self.cpu_snapshot()
             reason = self.watch()
-            result.exit_code, result.message = EXIT_OK, reason
+            result.exit_code, result.message = self.outcome(reason)
         except GraphError as err:
             result.exit_code, result.message = err.exit_code, str(err)
         except KeyboardInterrupt as err:
-            # The normal end of a run without --duration: a stop, whatever sent it.
-            result.exit_code = EXIT_OK
-            result.message = f'stopped by {signal.Signals(stop_signal_number(err)).name}'
+            # The normal end of a run without --duration: a stop, whatever sent it; judged
+            # by what the safety layer did before it (a fall, then Ctrl-C, is a fall).
+            result.exit_code, result.message = self.outcome(
+                f'stopped by {signal.Signals(stop_signal_number(err)).name}')
         finally:
             if run_start is not None:
                 result.wall_time_s = time.monotonic() - run_start
@@ -482,7 +573,8 @@ def run_hardware(options: HardwareOptions) -> HardwareResult:
 
 
 def format_result(result: HardwareResult) -> str:
-    lines = [f'{"OK" if result.exit_code == 0 else "FAILED"}: {result.message}']
+    word = {EXIT_OK: 'OK', EXIT_FELL: 'FELL OR FAULT', EXIT_NOT_ENGAGED: 'NEVER ENGAGED'}
+    lines = [f'{word.get(result.exit_code, "FAILED")}: {result.message}']
     if result.rates:
         lines.append('mean output rates [1/s]: ' + ', '.join(
             f'{n} {r:.1f}' for n, r in sorted(result.rates.items())))

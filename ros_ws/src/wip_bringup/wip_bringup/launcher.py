@@ -18,22 +18,26 @@ import signal
 import struct
 import subprocess
 import time
-from typing import Any
+from typing import Any, Mapping, MutableMapping
 
 from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
 from wip_control.tools.cli import check_output_directory
 from wip_control.tools.cli import EXIT_DISK_FULL as CLI_EXIT_DISK_FULL
+from wip_control.tools.cli import EXIT_NOT_ENGAGED as CLI_EXIT_NOT_ENGAGED
 from wip_viewer.viewer_core import VIEWER_TOPICS as VIEWER_TOPIC_TYPES
 
 
-# The exit-code table of every tool (wip_control.tools.cli): 0 ok, 1 the vehicle fell,
-# 2 usage or input error, 3 internal error (a node crashed, the graph stalled), 4 disk full,
-# 130 Ctrl-C (143 SIGTERM, 129 SIGHUP: 128 + the signal, runner_base.STOP_SIGNALS).
+# The exit-code table of every tool (wip_control.tools.cli): 0 ok, 1 the vehicle fell (or a
+# safety fault while engaged), 2 usage or input error, 3 internal error (a node crashed, the
+# graph stalled), 4 disk full, 5 the controllers never engaged, 130 Ctrl-C (143 SIGTERM,
+# 129 SIGHUP: 128 + the signal, runner_base.STOP_SIGNALS).
 EXIT_OK, EXIT_FELL, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
 EXIT_TIMEOUT = EXIT_FAILED
 EXIT_INTERRUPTED = 130
 #: The disk (or a quota) filled up: recording stopped and what fit was finalised.
 EXIT_DISK_FULL = CLI_EXIT_DISK_FULL
+#: The controllers never engaged (hardware mode, a real-time simulation).
+EXIT_NOT_ENGAGED = CLI_EXIT_NOT_ENGAGED
 #: Published by the viewer node (standard messages for 3-D viewers; nothing in the
 #: control loop subscribes to them).
 VIEWER_TOPICS = tuple(VIEWER_TOPIC_TYPES)
@@ -234,11 +238,14 @@ FASTDDS_PROFILE = pathlib.Path(__file__).with_name('fastdds_profile.xml')
 FASTDDS_PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
 
 
-def graph_environment(domain_id: int) -> dict[str, str]:
-    """Environment of the node processes: our DDS domain, localhost only, plain logs."""
+def graph_environment(domain_id: int, private: bool = True) -> dict[str, str]:
+    """Environment of the node processes: our DDS domain, plain logs; with ``private`` (a
+    simulation) localhost-only discovery unless the user chose a range, else (hardware mode)
+    the user's discovery settings as they are."""
     env = dict(os.environ)
     env['ROS_DOMAIN_ID'] = str(domain_id)
-    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    if private:
+        env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     env['PYTHONUNBUFFERED'] = '1'
     env.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
     # The nodes stop when this process ends, even if it is killed (nodes/launched.py).
@@ -261,6 +268,54 @@ def choose_domain_id() -> int:
         except ValueError as err:
             raise GraphError(f'ROS_DOMAIN_ID={value!r} is not an integer', EXIT_USAGE) from err
     return random.randint(1, 101)
+
+
+#: Set by scripts/_env.sh: the ROS variables it gave a private default ("NAME=VALUE ..."), so
+#: that the tools that talk to a real robot can tell them from the user's own settings.
+ROS_DEFAULTS_VARIABLE = 'WIP_ROS_DEFAULTS'
+_PRIVATE_DEFAULTS = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')
+
+
+@dataclasses.dataclass(frozen=True)
+class RosNetwork:
+    """The DDS domain and discovery settings a process uses (ROS's defaults where unset)."""
+
+    domain_id: int
+    discovery_range: str
+    static_peers: str
+
+    def describe(self) -> str:
+        peers = f', ROS_STATIC_PEERS={self.static_peers}' if self.static_peers else ''
+        return (f'ROS_DOMAIN_ID={self.domain_id}, ROS_AUTOMATIC_DISCOVERY_RANGE='
+                f'{self.discovery_range}{peers}')
+
+
+def ros_network(environ: Mapping[str, str] | None = None) -> RosNetwork:
+    """The ROS network settings of ``environ`` (default ``os.environ``), with ROS's own
+    defaults where unset: domain 0, discovery range SUBNET."""
+    environ = os.environ if environ is None else environ
+    value = environ.get('ROS_DOMAIN_ID', '').strip()
+    try:
+        domain_id = int(value) if value else 0
+    except ValueError as err:
+        raise GraphError(f'ROS_DOMAIN_ID={value!r} is not an integer', EXIT_USAGE) from err
+    return RosNetwork(domain_id,
+                      environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '').strip() or 'SUBNET',
+                      environ.get('ROS_STATIC_PEERS', '').strip())
+
+
+def use_user_ros_environment(environ: MutableMapping[str, str] | None = None) -> RosNetwork:
+    """Drop from ``environ`` (default ``os.environ``) the private domain and localhost-only
+    discovery that scripts/_env.sh set where the user had none (a robot's base is on the
+    user's domain, on the network), keeping every value the user set; return the settings
+    then in force. For hardware mode and check_base; simulations keep their private ones."""
+    environ = os.environ if environ is None else environ
+    for item in environ.pop(ROS_DEFAULTS_VARIABLE, '').split():
+        name, _, value = item.partition('=')
+        # A value changed since (by the user, a test harness) is not ours to drop.
+        if name in _PRIVATE_DEFAULTS and environ.get(name) == value:
+            del environ[name]
+    return ros_network(environ)
 
 
 class NodeProcess:

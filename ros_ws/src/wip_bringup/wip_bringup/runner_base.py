@@ -133,6 +133,9 @@ class RunnerBase:
     LAYOUTS: tuple[str, ...] = CONTROLLER_LAYOUTS
     #: Timeline entry of the moment the probe saw every node (and what the subclass needs).
     UP_EVENT = 'nodes up'
+    #: A simulation's nodes discover each other on this host only (unless the user chose a
+    #: discovery range); hardware mode uses the user's network settings as they are.
+    PRIVATE_NETWORK = True
     #: GraphError text when the nodes did not come up in time ({timeout} [s]).
     NOT_UP = 'the nodes did not come up in {timeout:g} s'
 
@@ -290,7 +293,7 @@ class RunnerBase:
         return signal.SIGINT
 
     def start_processes(self, params_file: pathlib.Path) -> None:
-        env = graph_environment(self.domain_id)
+        env = graph_environment(self.domain_id, private=self.PRIVATE_NETWORK)
         env['ROS_LOG_DIR'] = str(self.out / 'logs' / 'ros')
         for name, command in self.commands(params_file).items():
             # Their CPUs at once, their priority once every node is up (launch; see

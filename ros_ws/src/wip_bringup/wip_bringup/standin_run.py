@@ -29,7 +29,7 @@ import yaml
 
 from .hardware import HardwareOptions, HardwareResult, run_hardware
 from .launcher import (choose_domain_id, executable_path, graph_environment, GraphError,
-                       Scheduling)
+                       ROS_DEFAULTS_VARIABLE, Scheduling)
 
 CONTROL_RATE = 200.0  # [Hz]
 #: SCHED_FIFO priorities where permitted: the base above the controllers, as a base's
@@ -192,8 +192,17 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                '--params-file', str(base_params)]
     for remap in REMAPS:
         command += ['-r', remap]
-    previous_domain = os.environ.get('ROS_DOMAIN_ID')
-    os.environ['ROS_DOMAIN_ID'] = domain
+    # Hardware mode (in this process) uses the environment's ROS settings as the user's:
+    # give it this run's private domain and localhost-only discovery, with no record of
+    # scripts/_env.sh's defaults that would make it drop them.
+    private = {'ROS_DOMAIN_ID': domain, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+               ROS_DEFAULTS_VARIABLE: None}
+    previous = {name: os.environ.get(name) for name in private}
+    for name, value in private.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
     runner_holder: dict[str, Any] = {}
     injector = None
     with open(directory / 'base.log', 'w', encoding='utf-8') as log:
@@ -205,6 +214,9 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                 remaps=REMAPS, duration=run_time + 40.0, out=str(directory / 'run'),
                 quiet=True, layout=layout, scheduling=controller_scheduling,
                 record=str(directory / 'bag') if record else None,
+                # The base ends run_time after its release (the engagement): a FAULT then
+                # (its inputs stop) is the end of the run, not a failure.
+                base_end_after=float(run_time),
                 stop_when=lambda: base.poll() is not None and f'base exited ({base.returncode})')
             if during is not None:
                 options.on_start = lambda runner: runner_holder.setdefault('runner', runner)
@@ -214,10 +226,11 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                 injector.start()
             result = run_hardware(options)
         finally:
-            if previous_domain is None:
-                os.environ.pop('ROS_DOMAIN_ID', None)
-            else:
-                os.environ['ROS_DOMAIN_ID'] = previous_domain
+            for name, value in previous.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
             if base.poll() is None:
                 base.send_signal(signal.SIGINT)
             try:

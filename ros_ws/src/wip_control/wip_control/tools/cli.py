@@ -4,13 +4,17 @@
 code   meaning
 =====  ==================================================================================
 0      success
-1      the vehicle fell, or a check failed (a damaged bag, a run that did not pass)
+1      the vehicle fell, or a check failed (a damaged bag, a run that did not pass);
+       run_graph hardware mode: a fall or a safety FAULT after the controllers engaged
+       (the message gives the mixer's reason, e.g. "fallen: |theta_hat| ... rad")
 2      usage or input error: a bad option, scenario, params file, bag or output path;
        nothing was run and nothing was written
 3      internal error (a bug, a node that crashed, a graph that stalled): one line on
        stderr says what and where the full trace was written
 4      the disk (or a quota) filled up: the tool stopped there, what fit is finished
        (run_graph: the bag, run.json), the message says where
+5      the controllers never engaged (run_graph hardware mode, a real-time simulation):
+       no inputs from the base, or the estimate never settled; the message says which
 129    stopped by SIGHUP (a closed terminal): run_graph finishes the run first
 130    interrupted (Ctrl-C)
 143    stopped by SIGTERM (systemd, docker stop): run_graph finishes the run first
@@ -37,6 +41,7 @@ EXIT_FAILED = 1  # the vehicle fell or a check failed
 EXIT_USAGE = 2  # usage or input error
 EXIT_INTERNAL = 3  # internal error
 EXIT_DISK_FULL = 4  # no space left (or a quota) where an output is written
+EXIT_NOT_ENGAGED = 5  # the controllers never engaged
 EXIT_INTERRUPTED = 130
 
 #: Where full traces of internal errors go (the directory is created when needed).
