@@ -92,6 +92,7 @@ TOOLS = {
     'bench': ('wip_tools', 'bench'),
     'campaign': ('wip_tools', 'campaign'),
     'soak': ('wip_tools', 'soak'),
+    'identify': ('wip_tools', 'identify'),
     'bag_info': ('wip_bag', 'bag_info'),
     'bag_repair': ('wip_bag', 'bag_repair'),
     'replayer': ('wip_bag', 'replay'),
