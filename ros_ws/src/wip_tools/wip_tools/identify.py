@@ -122,8 +122,13 @@ def _signals(record: Mapping, source: str) -> dict[str, np.ndarray]:
 
 
 def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
-               cutoff_hz: float = CUTOFF_HZ) -> tuple[np.ndarray, np.ndarray, dict]:
+               cutoff_hz: float = CUTOFF_HZ,
+               model: str = 'paper') -> tuple[np.ndarray, np.ndarray, dict]:
     """Rows (A, y) of the three equations, each of n rows, stacked (3n × 6, 3n).
+
+    ``model='full'``: the rows of the full plant (core/plant.py) instead of (1): the
+    centrifugal −m_p l sinθ ω² in the forward row, the motor reaction −τυ on the right of
+    the pitch row, the Coriolis m_p l sinθ υ ω in the yaw row and the yaw gain d/(2r).
 
     Derivatives are forward differences over one sample interval (the torque held over it
     is the one paired), the other signals are the interval's midpoints. Each column of
@@ -141,10 +146,12 @@ def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
     g, r, d = params.gravity, params.wheel_radius, params.track_width
     z = np.zeros_like(th)
     # Columns: m_v, m_p l, J_θ, m_p l², J_ϕ, b.
-    lon = np.stack([vd, c * thdd - s * thd ** 2, z, z, z, v], axis=1)
+    full = 1.0 if model == 'full' else 0.0
+    lon = np.stack([vd, c * thdd - s * (thd ** 2 + full * om ** 2), z, z, z, v], axis=1)
     pitch = np.stack([z, c * vd - g * s, thdd, -s * c * om ** 2, z, z], axis=1)
-    yaw = np.stack([z, z, z, s * s * omd + 2.0 * s * c * thd * om, omd, z], axis=1)
-    ys = (tau_v / r, z, d * tau_w / r)
+    yaw = np.stack([z, full * s * v * om, z, s * s * omd + 2.0 * s * c * thd * om, omd, z],
+                   axis=1)
+    ys = (tau_v / r, -full * tau_v, d * tau_w / (r * (2.0 if full else 1.0)))
     blocks, outs = [], []
     for a, y in zip((lon, pitch, yaw), ys):
         af = np.stack([gaussian_lowpass(a[:, j], dt, cutoff_hz) for j in range(a.shape[1])],
@@ -166,17 +173,21 @@ def _rms(x: np.ndarray) -> float:
 
 
 def identify(record: Mapping, params: WipParameters | None = None, source: str = 'auto',
-             friction: bool = False, cutoff_hz: float = CUTOFF_HZ) -> Identification:
+             friction: bool = False, cutoff_hz: float = CUTOFF_HZ,
+             model: str = 'paper') -> Identification:
     """Fit p = (m_v, m_p l, J_θ, m_p l², J_ϕ[, b]) of eq. (1) to ``record``.
 
     ``params`` supplies the known r, d, g (default: the nominal ones). ``source``:
-    'truth', 'estimate' or 'auto' (truth where the record has it).
+    'truth', 'estimate' or 'auto' (truth where the record has it). ``model``: fit the
+    rows of eq. (1) ('paper') or of the full plant ('full', see :func:`regressors`).
     """
+    if model not in ('paper', 'full'):
+        raise IdentifyError(f"model {model!r}: expected 'paper' or 'full'")
     params = WipParameters() if params is None else params
     if source == 'auto':
         source = 'truth' if 'truth' in record and len(record['truth']['t']) else 'estimate'
     sig = _signals(record, source)
-    a, y, excitation = regressors(sig, params, cutoff_hz)
+    a, y, excitation = regressors(sig, params, cutoff_hz, model)
     n = len(y) // 3
     if n < 10:
         raise IdentifyError(f'too little data after filtering: {n} samples')
@@ -382,6 +393,10 @@ def main(argv: Iterable[str] | None = None) -> int:
     parser.add_argument('--source', choices=('auto', 'truth', 'estimate'), default='auto',
                         help='state signals: ground truth (simulation) or the state '
                         'estimate (a robot); default: truth where recorded')
+    parser.add_argument('--model', choices=('paper', 'full'), default='paper',
+                        help="rows to fit: eq. (1) ('paper', what the controllers use) or "
+                        "the full plant's (motor reaction torque, centrifugal and Coriolis "
+                        'terms, yaw gain d/(2r); a real robot)')
     parser.add_argument('--friction', action='store_true',
                         help='also fit a wheel viscous friction b (not in eq. (1))')
     parser.add_argument('--scenario', help='scenario YAML whose controller_model gives '
@@ -397,7 +412,7 @@ def main(argv: Iterable[str] | None = None) -> int:
             except (ConfigError, OSError) as err:
                 raise IdentifyError(f'--scenario {args.scenario}: {err}') from err
         record = load_record(args.run)
-        result = identify(record, nominal, args.source, args.friction)
+        result = identify(record, nominal, args.source, args.friction, model=args.model)
     except IdentifyError as err:
         print(f'ERROR: {" ".join(str(err).split())}', file=sys.stderr)
         return EXIT_USAGE
