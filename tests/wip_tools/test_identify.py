@@ -178,3 +178,52 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
     assert identify.main([str(path)]) == EXIT_USAGE
     err = capsys.readouterr().err.strip()
     assert err.startswith('ERROR: ') and '\n' not in err, err
+
+
+def _write_bag(directory, record, groups=('truth',)):
+    """The record's truth as /wip/ground_truth messages in a rosbag2 MCAP bag (what the
+    plant node publishes; stamps are the simulated times)."""
+    serialization = pytest.importorskip('rclpy.serialization')
+    from wip_bag.bag_writer import Rosbag2McapWriter
+    from wip_msgs.msg import GroundTruth
+    truth = record['truth']
+    with Rosbag2McapWriter(directory) as bag:
+        if 'truth' in groups:
+            bag.add_topic('/wip/ground_truth', 'wip_msgs/msg/GroundTruth')
+        for k, t in enumerate(truth['t'].tolist()):
+            stamp = int(round(t * 1e9))
+            if 'truth' in groups:
+                m = GroundTruth()
+                m.header.stamp.sec, m.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+                for name in ('x', 'y', 'phi', 'x_v', 'theta', 'omega', 'v', 'theta_dot',
+                             'tau_left', 'tau_right'):
+                    setattr(m, name, float(truth[name][k]))
+                bag.write('/wip/ground_truth', serialization.serialize_message(m), stamp)
+
+
+@pytest.mark.ros  # wip_msgs and rclpy: the colcon-built workspace
+def test_cli_on_a_bag(tmp_path, capsys):
+    scenario, result = _run('heavy_high', PLANTS['heavy_high'])
+    _write_bag(tmp_path / 'bag', result.record)
+    assert identify.main([str(tmp_path / 'bag')]) == EXIT_OK
+    printed = capsys.readouterr().out
+    assert 'J_theta' in printed and 'model.' not in printed and 'controller_model:' in printed
+    # The bag's record gives the same fit as the in-process one.
+    fit = identify.identify(identify.load_record(tmp_path / 'bag'),
+                            scenario.controller_model.parameters)
+    true = identify.true_values(scenario.plant.parameters)
+    for key in DETERMINED:
+        assert fit.value(key) == pytest.approx(true[key], rel=0.05), key
+
+
+@pytest.mark.ros  # wip_msgs and rclpy: the colcon-built workspace
+def test_cli_on_a_bag_without_the_needed_topics(tmp_path, capsys):
+    serialization = pytest.importorskip('rclpy.serialization')
+    from std_msgs.msg import String
+    from wip_bag.bag_writer import Rosbag2McapWriter
+    with Rosbag2McapWriter(tmp_path / 'bag') as bag:
+        bag.add_topic('/chatter', 'std_msgs/msg/String')
+        bag.write('/chatter', serialization.serialize_message(String(data='hi')), 1)
+    assert identify.main([str(tmp_path / 'bag')]) == EXIT_USAGE
+    err = capsys.readouterr().err.strip()
+    assert err.startswith('ERROR: ') and '\n' not in err, err
