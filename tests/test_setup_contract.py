@@ -69,6 +69,7 @@ EXECUTABLES = {
         'campaign': 'wip_tools.console:campaign',
         'soak': 'wip_tools.console:soak',
         'parameters': 'wip_tools.console:parameters',
+        'identify': 'wip_tools.console:identify',
     },
     'wip_viewer': {
         'viewer': 'wip_viewer.viewer_node:main',

@@ -36,6 +36,7 @@ setup(
             'campaign = wip_tools.console:campaign',
             'soak = wip_tools.console:soak',
             'parameters = wip_tools.console:parameters',
+            'identify = wip_tools.console:identify',
         ],
     },
 )

@@ -1,0 +1,435 @@
+"""Fit the identifiable parameters of the paper's model (1) to a recorded run.
+
+    scripts/identify BAG_OR_RECORD [--out FILE] [--model-out FILE] [--source truth|estimate]
+
+Model (1) of Yue, An, Li (2016), written in its Euler-Lagrange form (the paper plant of
+core/plant.py, multiplied out; τυ = τl + τr, τω = τr − τl, REP 103)::
+
+    m_v υ̇ + m_p l (cosθ θ̈ − sinθ θ̇²)                       [+ b υ] = τυ / r
+    m_p l (cosθ υ̇ − g sinθ) + J_θ θ̈ − m_p l² sinθ cosθ ω²           = 0
+    J_ϕ ω̇ + m_p l² (sin²θ ω̇ + sin2θ θ̇ ω)                             = (d / r) τω
+
+linear in p = (m_v, m_p l, J_θ, m_p l², J_ϕ [, b]) with r, d and g known. The three rows
+are stacked and solved by weighted linear least squares on low-pass-filtered signals; see
+docs/identification.md for the regressors, the method, the assumptions and the limits.
+Reads a rosbag2 directory (or .mcap) through wip_tools.report.record_from_bag, or a
+record saved as timeseries.npz (scripts/simulate --out). Exit codes: wip_control.tools.cli.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import pathlib
+import sys
+from typing import Iterable, Mapping
+
+import numpy as np
+
+from wip_control.core.params import WipParameters
+from wip_control.tools.cli import EXIT_OK, EXIT_USAGE, exit_with
+
+#: The fitted parameters, in the column order of the regressor matrix.
+NAMES = ('effective_mass', 'mpl', 'pitch_inertia', 'mpl2', 'yaw_inertia_total', 'friction')
+SYMBOLS = {'effective_mass': 'm_v [kg]', 'mpl': 'm_p l [kg m]',
+           'pitch_inertia': 'J_theta [kg m^2]', 'mpl2': 'm_p l^2 [kg m^2]',
+           'yaw_inertia_total': 'J_phi [kg m^2]', 'friction': 'b [N s/m]',
+           'com_height': 'l = m_p l^2 / m_p l [m]'}
+#: Smallest RMS excitation [SI] of a regressor signal that counts (about what an IMU and
+#: the wheel encoders resolve after the filter): below it the column is noise.
+MIN_EXCITATION = {'v_dot': 0.02, 'theta_ddot': 0.02, 'omega_dot': 0.02, 'omega_sq': 0.005}
+CUTOFF_HZ = 4.0             #: low-pass cut-off (Gaussian, zero phase)
+MAX_CONDITION = 1e4         #: of the column-scaled, weighted regressor matrix
+MAX_RELATIVE_CI = 0.05      #: 95 % half-width / |value| above which a value is not given
+MIN_DURATION_S = 5.0
+Z95 = 1.96
+
+
+class IdentifyError(ValueError):
+    """Bad input: the message is one line."""
+
+
+@dataclasses.dataclass
+class Estimate:
+    name: str
+    value: float | None          # None: not determined
+    half_width: float | None     # 95 % confidence half-width
+    reason: str = ''             # why not determined
+
+
+@dataclasses.dataclass
+class Identification:
+    estimates: dict[str, Estimate]
+    condition: float
+    residual_rms: dict[str, float]   # per equation, in its own units (N, N m, N m)
+    samples: int
+    source: str
+
+    def value(self, name: str) -> float | None:
+        return self.estimates[name].value
+
+
+def gaussian_lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:
+    """Zero-phase low-pass: convolution with a Gaussian whose −3 dB point is ``cutoff_hz``
+    (pure numpy, symmetric kernel so no phase lag between regressors and torques)."""
+    sigma_t = math.sqrt(math.log(2.0)) / (2.0 * math.pi * cutoff_hz)   # |H| = 1/√2 at fc
+    half = max(1, int(math.ceil(4.0 * sigma_t / dt)))
+    k = np.exp(-0.5 * (np.arange(-half, half + 1) * dt / sigma_t) ** 2)
+    k /= k.sum()
+    return np.convolve(x, k, mode='same')
+
+
+def _signals(record: Mapping, source: str) -> dict[str, np.ndarray]:
+    """Uniformly sampled (t, θ, θ̇, υ, ω, τl, τr) from the record's ``source`` group.
+
+    truth: the torques of row k were applied over [t_{k−1}, t_k) (core/runner.py), so they
+    are shifted back one row to pair with the interval they acted over. estimate: the
+    torques come from the wheels group (applied from its stamp on), interpolated."""
+    group = record[source] if source in record else None
+    if group is None or len(group['t']) == 0:
+        raise IdentifyError(f'no {source} samples (topic /wip/ground_truth or '
+                            '/wip/state_estimate missing)')
+    t = np.asarray(group['t'], dtype=float)
+    if source == 'truth':
+        tl, tr = np.asarray(group['tau_left'])[1:], np.asarray(group['tau_right'])[1:]
+        tl, tr = np.append(tl, tl[-1:]), np.append(tr, tr[-1:])
+    else:
+        wheels = record['wheels'] if 'wheels' in record else None
+        if wheels is None or len(wheels['t']) < 2:
+            raise IdentifyError('no wheel torques (topic /wip/wheel_torques missing)')
+        idx = np.clip(np.searchsorted(wheels['t'], t, side='right') - 1, 0,
+                      len(wheels['t']) - 1)
+        tl, tr = np.asarray(wheels['tau_left'])[idx], np.asarray(wheels['tau_right'])[idx]
+    cols = {'theta': group['theta'], 'theta_dot': group['theta_dot'], 'v': group['v'],
+            'omega': group['omega'], 'tau_left': tl, 'tau_right': tr}
+    if len(t) < 3 or t[-1] - t[0] < MIN_DURATION_S:
+        raise IdentifyError(f'too little data: {len(t)} samples over '
+                            f'{max(0.0, t[-1] - t[0]) if len(t) else 0.0:.2f} s '
+                            f'(at least {MIN_DURATION_S:g} s needed)')
+    dt = float(np.median(np.diff(t)))
+    if not dt > 0.0:
+        raise IdentifyError(f'{source} time stamps do not increase')
+    grid = np.arange(t[0], t[-1] + 0.5 * dt, dt)
+    out = {'t': grid, 'dt': np.array(dt)}
+    for name, values in cols.items():
+        values = np.asarray(values, dtype=float)
+        if not np.all(np.isfinite(values)):
+            raise IdentifyError(f'{source}.{name} has non-finite values')
+        out[name] = np.interp(grid, t, values) if len(grid) != len(t) or \
+            not np.allclose(grid, t) else values
+    return out
+
+
+def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
+               cutoff_hz: float = CUTOFF_HZ,
+               model: str = 'paper') -> tuple[np.ndarray, np.ndarray, dict]:
+    """Rows (A, y) of the three equations, each of n rows, stacked (3n × 6, 3n).
+
+    ``model='full'``: the rows of the full plant (core/plant.py) instead of (1): the
+    centrifugal −m_p l sinθ ω² in the forward row, the motor reaction −τυ on the right of
+    the pitch row, the Coriolis m_p l sinθ υ ω in the yaw row and the yaw gain d/(2r).
+
+    Derivatives are forward differences over one sample interval (the torque held over it
+    is the one paired), the other signals are the interval's midpoints. Each column of
+    A and y is then low-pass filtered with the same zero-phase filter: the equations are
+    linear in p, so F(A) p = F(y) holds exactly where A p = y did; only noise is removed.
+    """
+    dt = float(sig['dt'])
+    th, thd, v, om = (np.asarray(sig[k]) for k in ('theta', 'theta_dot', 'v', 'omega'))
+    mid = lambda x: 0.5 * (x[1:] + x[:-1])  # noqa: E731
+    vd, thdd, omd = np.diff(v) / dt, np.diff(thd) / dt, np.diff(om) / dt
+    th, thd, v, om = mid(th), mid(thd), mid(v), mid(om)
+    tau_v = (sig['tau_left'] + sig['tau_right'])[:-1]
+    tau_w = (sig['tau_right'] - sig['tau_left'])[:-1]
+    s, c = np.sin(th), np.cos(th)
+    g, r, d = params.gravity, params.wheel_radius, params.track_width
+    z = np.zeros_like(th)
+    # Columns: m_v, m_p l, J_θ, m_p l², J_ϕ, b.
+    full = 1.0 if model == 'full' else 0.0
+    lon = np.stack([vd, c * thdd - s * (thd ** 2 + full * om ** 2), z, z, z, v], axis=1)
+    pitch = np.stack([z, c * vd - g * s, thdd, -s * c * om ** 2, z, z], axis=1)
+    yaw = np.stack([z, full * s * v * om, z, s * s * omd + 2.0 * s * c * thd * om, omd, z],
+                   axis=1)
+    ys = (tau_v / r, -full * tau_v, d * tau_w / (r * (2.0 if full else 1.0)))
+    blocks, outs = [], []
+    for a, y in zip((lon, pitch, yaw), ys):
+        af = np.stack([gaussian_lowpass(a[:, j], dt, cutoff_hz) for j in range(a.shape[1])],
+                      axis=1)
+        yf = gaussian_lowpass(y, dt, cutoff_hz)
+        # Drop the filter's edges (the kernel runs off the record there).
+        edge = min(len(yf) // 4, int(math.ceil(1.0 / (cutoff_hz * dt))))
+        blocks.append(af[edge:len(af) - edge])
+        outs.append(yf[edge:len(yf) - edge])
+    excitation = {'v_dot': _rms(gaussian_lowpass(vd, dt, cutoff_hz)),
+                  'theta_ddot': _rms(gaussian_lowpass(thdd, dt, cutoff_hz)),
+                  'omega_dot': _rms(gaussian_lowpass(omd, dt, cutoff_hz)),
+                  'omega_sq': _rms(s * c * om ** 2)}
+    return np.vstack(blocks), np.concatenate(outs), excitation
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else 0.0
+
+
+def identify(record: Mapping, params: WipParameters | None = None, source: str = 'auto',
+             friction: bool = False, cutoff_hz: float = CUTOFF_HZ,
+             model: str = 'paper') -> Identification:
+    """Fit p = (m_v, m_p l, J_θ, m_p l², J_ϕ[, b]) of eq. (1) to ``record``.
+
+    ``params`` supplies the known r, d, g (default: the nominal ones). ``source``:
+    'truth', 'estimate' or 'auto' (truth where the record has it). ``model``: fit the
+    rows of eq. (1) ('paper') or of the full plant ('full', see :func:`regressors`).
+    """
+    if model not in ('paper', 'full'):
+        raise IdentifyError(f"model {model!r}: expected 'paper' or 'full'")
+    params = WipParameters() if params is None else params
+    if source == 'auto':
+        source = 'truth' if 'truth' in record and len(record['truth']['t']) else 'estimate'
+    sig = _signals(record, source)
+    a, y, excitation = regressors(sig, params, cutoff_hz, model)
+    n = len(y) // 3
+    if n < 10:
+        raise IdentifyError(f'too little data after filtering: {n} samples')
+    used = list(range(6 if friction else 5))
+    a = a[:, used]
+    names = [NAMES[j] for j in used]
+    # Which columns carry enough excitation (physical floors, MIN_EXCITATION).
+    why: dict[str, str] = {}
+    if excitation['v_dot'] < MIN_EXCITATION['v_dot']:
+        why['effective_mass'] = (f'forward acceleration RMS {excitation["v_dot"]:.3g} m/s^2 '
+                                 f'< {MIN_EXCITATION["v_dot"]}')
+    if excitation['theta_ddot'] < MIN_EXCITATION['theta_ddot']:
+        why['pitch_inertia'] = why['mpl'] = (
+            f'tilt acceleration RMS {excitation["theta_ddot"]:.3g} rad/s^2 '
+            f'< {MIN_EXCITATION["theta_ddot"]}')
+    if excitation['omega_dot'] < MIN_EXCITATION['omega_dot']:
+        why['yaw_inertia_total'] = (f'yaw acceleration RMS {excitation["omega_dot"]:.3g} '
+                                    f'rad/s^2 < {MIN_EXCITATION["omega_dot"]}')
+    if excitation['omega_sq'] < MIN_EXCITATION['omega_sq']:
+        why['mpl2'] = (f'turning at a tilt too small (RMS sinθcosθω² '
+                       f'{excitation["omega_sq"]:.3g} < {MIN_EXCITATION["omega_sq"]})')
+    if 'effective_mass' in why:
+        why.setdefault('friction', why['effective_mass'])
+    keep = [j for j, name in enumerate(names)
+            if name not in why and np.any(a[:, j] != 0.0)]
+    estimates = {name: Estimate(name, None, None, why.get(name, 'no excitation'))
+                 for name in names}
+    residual_rms = {'forward': math.nan, 'pitch': math.nan, 'yaw': math.nan}
+    condition = math.inf
+    # A column left out is not dropped (that would bias the others by its term) but fixed
+    # at its nominal value and moved to the right-hand side; m_p l² at (m_p l)·l_nominal
+    # once m_p l is fitted (its term is small: sin²θ, sinθ cosθ).
+    nominal = true_values(params)
+    fixed = [j for j in range(len(names)) if j not in keep]
+    y = y - a[:, fixed] @ np.array([nominal[names[j]] for j in fixed]) if fixed else y
+    if keep and 3 in fixed and 1 in keep:
+        sol, *_ = np.linalg.lstsq(a[:, keep], y, rcond=None)
+        mpl2_fixed = float(sol[keep.index(1)]) * params.com_height
+        y = y - a[:, 3] * (mpl2_fixed - nominal['mpl2'])
+    if keep:
+        # Two passes: ordinary LS, then each equation weighted by 1/its residual RMS (the
+        # rows are in different units: N, N·m, N·m).
+        w = np.ones(3)
+        for _ in range(2):
+            aw = a[:, keep] * np.repeat(w, n)[:, None]
+            yw = y * np.repeat(w, n)
+            scale = np.linalg.norm(aw, axis=0)
+            scale[scale == 0.0] = 1.0
+            sol, *_ = np.linalg.lstsq(aw / scale, yw, rcond=None)
+            p = sol / scale
+            res = y - a[:, keep] @ p
+            rms = np.array([_rms(res[i * n:(i + 1) * n]) for i in range(3)])
+            floor = max(1e-12, 1e-9 * _rms(y))
+            w = 1.0 / np.maximum(rms, floor)
+        condition = float(np.linalg.cond(aw / scale))
+        residual_rms = dict(zip(('forward', 'pitch', 'yaw'), map(float, rms)))
+        # Covariance from the weighted residual variance and (AᵀA)⁻¹. The filtered
+        # residuals are correlated over about 1/(2 fc): count independent samples only.
+        rw = yw - aw @ p
+        dt = float(sig['dt'])
+        independent = max(len(keep) + 1.0, len(yw) * 2.0 * cutoff_hz * dt)
+        sigma2 = float(rw @ rw) / len(yw) * independent / (independent - len(keep))
+        an = aw / scale
+        try:
+            cov = np.linalg.inv(an.T @ an) * sigma2 * (len(yw) / independent)
+            cov = cov / np.outer(scale, scale)
+        except np.linalg.LinAlgError:
+            cov = np.full((len(keep), len(keep)), math.inf)
+        for i, j in enumerate(keep):
+            name, value = names[j], float(p[i])
+            hw = Z95 * math.sqrt(max(cov[i, i], 0.0))
+            if condition > MAX_CONDITION:
+                estimates[name] = Estimate(name, None, None,
+                                           f'condition number {condition:.3g} > '
+                                           f'{MAX_CONDITION:g}')
+            elif name == 'friction':
+                # Its true value may be 0: judged against m_v per second instead.
+                mv = float(p[keep.index(0)]) if 0 in keep else params.effective_mass
+                ok = hw <= MAX_RELATIVE_CI * abs(mv)
+                estimates[name] = (Estimate(name, value, hw) if ok else Estimate(
+                    name, None, None, f'95 % CI ±{hw:.3g} N s/m > {MAX_RELATIVE_CI:.0%} '
+                    'of m_v per second'))
+            elif value <= 0.0 or hw > MAX_RELATIVE_CI * abs(value):
+                estimates[name] = Estimate(name, None, None,
+                                           f'relative 95 % CI {hw / max(abs(value), 1e-300):.1%}'
+                                           f' > {MAX_RELATIVE_CI:.0%}')
+            else:
+                estimates[name] = Estimate(name, value, hw)
+    # l = m_p l² / m_p l (delta method on the two relative CIs, assumed independent).
+    e1, e2 = estimates.get('mpl'), estimates.get('mpl2')
+    if e1 and e2 and e1.value and e2.value:
+        val = e2.value / e1.value
+        rel = math.hypot(e1.half_width / e1.value, e2.half_width / e2.value)
+        estimates['com_height'] = Estimate('com_height', val, rel * val)
+    else:
+        estimates['com_height'] = Estimate('com_height', None, None,
+                                           'needs m_p l and m_p l^2')
+    return Identification(estimates, condition, residual_rms, n, source)
+
+
+def to_parameters(result: Identification, nominal: WipParameters) -> tuple[dict, list[str]]:
+    """Overrides of :class:`WipParameters` for the controllers' model and notes on them.
+
+    r, d, g, m_w, J_w are kept (assumed known); what was not determined keeps its
+    nominal value. m_p = (m_p l)/l, I_c = J_θ − m_p l², m_c = m_v − m_p − 2(m_w + J_w/r²),
+    J_υ = J_ϕ − d²(m_w + J_w/r²)/2 (the inverse of WipParameters' derived values).
+    """
+    notes = []
+    l = result.value('com_height') or nominal.com_height
+    if not result.value('com_height'):
+        notes.append(f'com_height kept at the nominal {nominal.com_height:g} m')
+    mpl = result.value('mpl')
+    mp = mpl / l if mpl else nominal.body_mass
+    jt = result.value('pitch_inertia') or nominal.pitch_inertia
+    mv = result.value('effective_mass') or nominal.effective_mass
+    jphi = result.value('yaw_inertia_total') or nominal.yaw_inertia_total
+    wheel = nominal.wheel_mass + nominal.wheel_inertia / nominal.wheel_radius ** 2
+    out = {'body_mass': mp, 'com_height': l, 'body_pitch_inertia_com': jt - mp * l * l,
+           'chassis_mass': mv - mp - 2.0 * wheel,
+           'yaw_inertia': jphi - nominal.track_width ** 2 * wheel / 2.0}
+    for name in list(out):
+        if not out[name] > 0.0:
+            notes.append(f'{name} would be {out[name]:.4g} <= 0: kept at the nominal '
+                         f'{getattr(nominal, name):g}')
+            out[name] = getattr(nominal, name)
+    for name, value in zip(('effective_mass', 'mpl', 'pitch_inertia', 'yaw_inertia_total'),
+                           (mv, mpl, jt, jphi)):
+        if value is None or result.value(name) is None:
+            notes.append(f'{name} not determined: nominal kept')
+    return {k: float(v) for k, v in out.items()}, notes
+
+
+def true_values(params: WipParameters) -> dict[str, float]:
+    """The combinations of ``params`` that :func:`identify` estimates."""
+    mp, l = params.body_mass, params.com_height
+    return {'effective_mass': params.effective_mass, 'mpl': mp * l,
+            'pitch_inertia': params.pitch_inertia, 'mpl2': mp * l * l,
+            'yaw_inertia_total': params.yaw_inertia_total, 'friction': 0.0,
+            'com_height': l}
+
+
+def table(result: Identification, truth: Mapping[str, float] | None = None) -> str:
+    lines = [f'identify: {result.samples} samples per equation from {result.source}; '
+             f'condition number {result.condition:.3g}; residual RMS forward '
+             f'{result.residual_rms["forward"]:.3g} N, pitch {result.residual_rms["pitch"]:.3g}'
+             f' N m, yaw {result.residual_rms["yaw"]:.3g} N m']
+    head = f'{"parameter":<26} {"value":>10} {"95% CI ±":>10}'
+    lines.append(head + (f' {"true":>10} {"error":>8}' if truth else ''))
+    for name, e in result.estimates.items():
+        label = SYMBOLS[name]
+        if e.value is None:
+            lines.append(f'{label:<26} {"not determined":>21}  ({e.reason})')
+            continue
+        row = f'{label:<26} {e.value:>10.4g} {e.half_width:>10.2g}'
+        if truth and name in truth:
+            err = ((e.value - truth[name]) / truth[name]) if truth[name] else math.nan
+            row += f' {truth[name]:>10.4g} {err:>+8.1%}'
+        lines.append(row)
+    return '\n'.join(lines)
+
+
+def model_yaml(overrides: Mapping[str, float], notes: Iterable[str], params_file: bool) -> str:
+    """A scenario's ``controller_model`` section, or a ROS params file (``model.*``)."""
+    head = ''.join(f'# {n}\n' for n in notes)
+    if params_file:
+        body = ''.join(f'    model.{k}: {v:.6g}\n' for k, v in overrides.items())
+        return f'{head}/**:\n  ros__parameters:\n{body}'
+    body = ''.join(f'    {k}: {v:.6g}\n' for k, v in overrides.items())
+    return f'{head}controller_model:\n  parameters:\n{body}'
+
+
+def load_record(path: str | pathlib.Path) -> dict:
+    """A record from a bag (directory or .mcap) or a timeseries.npz of scripts/simulate."""
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise IdentifyError(f'{path}: no such file or directory')
+    if path.is_dir() and (path / 'timeseries.npz').exists() and not any(path.glob('*.mcap')):
+        path = path / 'timeseries.npz'
+    if path.suffix == '.npz':
+        from wip_control.core.record import RunRecord  # noqa: PLC0415
+        try:
+            return RunRecord.load_npz(path)
+        except (OSError, ValueError, KeyError) as err:
+            raise IdentifyError(f'{path}: not a readable timeseries.npz ({err})') from err
+    from wip_tools.report import ReportError, record_from_bag  # noqa: PLC0415 (rosbag2)
+    try:
+        record = record_from_bag(path)
+    except ReportError as err:
+        raise IdentifyError(str(err)) from err
+    return {g: record[g] for g in ('truth', 'estimate', 'wheels') if g in record}
+
+
+def main(argv: Iterable[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog='scripts/identify', description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('run', help='rosbag2 directory, .mcap file, or timeseries.npz '
+                        '(or a scripts/simulate output directory)')
+    parser.add_argument('--out', help='write the identified model here: a scenario '
+                        'controller_model section (.yaml), see --params-file')
+    parser.add_argument('--params-file', action='store_true',
+                        help='write --out as a ROS params file (/**: model.*) instead')
+    parser.add_argument('--source', choices=('auto', 'truth', 'estimate'), default='auto',
+                        help='state signals: ground truth (simulation) or the state '
+                        'estimate (a robot); default: truth where recorded')
+    parser.add_argument('--model', choices=('paper', 'full'), default='paper',
+                        help="rows to fit: eq. (1) ('paper', what the controllers use) or "
+                        "the full plant's (motor reaction torque, centrifugal and Coriolis "
+                        'terms, yaw gain d/(2r); a real robot)')
+    parser.add_argument('--friction', action='store_true',
+                        help='also fit a wheel viscous friction b (not in eq. (1))')
+    parser.add_argument('--scenario', help='scenario YAML whose controller_model gives '
+                        'the known r, d, g, m_w, J_w (default: the nominal parameters)')
+    args = parser.parse_args(None if argv is None else list(argv))
+    try:
+        nominal = WipParameters()
+        if args.scenario:
+            from wip_control.core.config import ConfigError  # noqa: PLC0415
+            from wip_control.core.scenario import load_scenario  # noqa: PLC0415
+            try:
+                nominal = load_scenario(args.scenario).controller_model.parameters
+            except (ConfigError, OSError) as err:
+                raise IdentifyError(f'--scenario {args.scenario}: {err}') from err
+        record = load_record(args.run)
+        result = identify(record, nominal, args.source, args.friction, model=args.model)
+    except IdentifyError as err:
+        print(f'ERROR: {" ".join(str(err).split())}', file=sys.stderr)
+        return EXIT_USAGE
+    print(table(result))
+    overrides, notes = to_parameters(result, nominal)
+    if args.out:
+        text = model_yaml(overrides, notes, args.params_file)
+        try:
+            pathlib.Path(args.out).write_text(text, encoding='utf-8')
+        except OSError as err:
+            print(f'ERROR: --out {args.out}: {err.strerror}', file=sys.stderr)
+            return EXIT_USAGE
+        print(f'wrote {args.out}')
+    else:
+        print(model_yaml(overrides, notes, args.params_file), end='')
+    return EXIT_OK
+
+
+if __name__ == '__main__':
+    exit_with(main, 'identify')
