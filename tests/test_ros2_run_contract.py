@@ -92,9 +92,7 @@ TOOLS = {
     'bench': ('wip_tools', 'bench'),
     'campaign': ('wip_tools', 'campaign'),
     'soak': ('wip_tools', 'soak'),
-    # Front door scripts/identify; None until the README's command table lists it (the
-    # README test below pairs the two): then ('wip_tools', 'identify').
-    'identify': ('wip_tools', None),
+    'identify': ('wip_tools', 'identify'),
     'bag_info': ('wip_bag', 'bag_info'),
     'bag_repair': ('wip_bag', 'bag_repair'),
     'replayer': ('wip_bag', 'replay'),
