@@ -766,7 +766,6 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
     except GraphError as err:
         print(f'check_base: error: {err}', file=sys.stderr)
         return err.exit_code
-    print(f'check_base: ROS network: {network.describe()}', file=sys.stderr, flush=True)
     mode_name = 'auto' if args.auto else 'script' if args.script else 'interactive'
     if threading.current_thread() is threading.main_thread():
         # Ctrl-C / SIGINT stops the check (exit 130) however the process was started: a
@@ -774,6 +773,8 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
         # ignored, and Python then never raises KeyboardInterrupt (the check waited for
         # data forever). rclpy's nodes install their own handler for the same reason.
         signal.signal(signal.SIGINT, signal.default_int_handler)
+    # Once Ctrl-C is handled: whoever reads this line may interrupt the check.
+    print(f'check_base: ROS network: {network.describe()}', file=sys.stderr, flush=True)
     listener = session = None
     try:
         # Inside the try: an interrupt while the listener starts (its subscriptions are

@@ -65,11 +65,14 @@ def _raise_stop(signum, frame) -> None:
 @contextlib.contextmanager
 def stop_signals():
     """SIGTERM and SIGHUP raise :class:`StopRequested` in the main thread while a run is
-    in this block (Python's default handler already does so for SIGINT)."""
+    in this block, and SIGINT KeyboardInterrupt: set here too, because a program started in
+    the background by a non-interactive shell (a CI step, ``cmd &``) inherits SIGINT
+    ignored, and Python then installs no handler of its own."""
     if threading.current_thread() is not threading.main_thread():
         yield   # handlers can only be set from the main thread; the caller stops it
         return
     previous = {n: signal.signal(n, _raise_stop) for n in (signal.SIGTERM, signal.SIGHUP)}
+    previous[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         yield
     finally:
