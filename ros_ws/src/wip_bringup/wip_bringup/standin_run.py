@@ -286,9 +286,21 @@ def _when_engaged(holder: dict, during: Callable, base: subprocess.Popen,
                 if end_after is not None:
                     time.sleep(end_after)
                     if base.poll() is None:
+                        _base_ends_now(runner)
                         base.send_signal(signal.SIGINT)
             return
         time.sleep(0.01)
+
+
+def _base_ends_now(runner) -> None:
+    """The base is stopped now, before its run time: from here its inputs stop, and a FAULT
+    is the end of the run, not a failure (``HardwareOptions.base_end_after``, counted from
+    the engagement, which the outcome reads when the run is over)."""
+    start = next(e['t'] for e in runner.safety_events if e['state'] == 'ACTIVE')
+    now = time.monotonic() - runner.t0
+    current = runner.options.base_end_after
+    runner.options.base_end_after = min(now - start, current if current is not None
+                                        else float('inf'))
 
 
 def freeze_process(pid: int, seconds: float) -> float:
