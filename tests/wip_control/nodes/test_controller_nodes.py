@@ -1071,8 +1071,8 @@ def test_reference_node_process_runs_lockstep_on_the_events_executor_and_stops_o
             assert time.monotonic() < deadline, 'reference node not discovered'
             executor.spin_once(timeout_sec=0.05)
         # Discovery is not symmetric: our reader may know the node's writer before that
-        # writer knows our reader, and /clock is best effort (like rclpy's own /clock
-        # subscription). So the first ticks may be lost either way; the node ignores a
+        # writer knows our reader: a /clock published before the match is lost either way
+        # (volatile). So the first ticks may be lost; the node ignores a
         # repeated clock value, so advance the clock until the first reference arrives.
         first = 0
         while not out:
@@ -1081,8 +1081,8 @@ def test_reference_node_process_runs_lockstep_on_the_events_executor_and_stops_o
             pub.publish(clock(first * H_NS))
             for _ in range(10):
                 executor.spin_once(timeout_sec=0.01)
-        # Several clocks may have been sent before the first answer, and a best-effort
-        # one among them lost: take every answer still in flight (none for 1 s), then go
+        # Several clocks may have been sent before the first answer, and one among them
+        # lost: take every answer still in flight (none for 1 s), then go
         # on after the newest tick the node answered (it ignores older clocks).
         quiet_since, seen = time.monotonic(), len(out)
         while time.monotonic() - quiet_since < 1.0:

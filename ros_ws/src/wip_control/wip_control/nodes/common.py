@@ -90,11 +90,13 @@ def lockstep_writer_qos(qos: QoSProfile) -> QoSProfile:
                       reliability=qos.reliability, durability=qos.durability)
 
 
-#: /clock: best effort like rclpy's own time source subscription (which uses depth 1), so it
-#: matches both best-effort and reliable publishers; depth 10 so that no sample is lost
-#: when two arrive between two spins.
+#: /clock of a lockstep run (ClockTicker): reliable. Each sample is a tick the graph waits
+#: for; a best-effort subscription lost one under load (the reference node missed t = 1.985 s
+#: after a recorder's stall while every other node had it) and the run stopped there. The
+#: plant's and the replayer's /clock publishers are reliable; depth 10 so that no sample is
+#: lost when two arrive between two spins.
 CLOCK_QOS = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=10,
-                       reliability=QoSReliabilityPolicy.BEST_EFFORT,
+                       reliability=QoSReliabilityPolicy.RELIABLE,
                        durability=QoSDurabilityPolicy.VOLATILE)
 
 _NS_PER_S = 1_000_000_000
