@@ -39,17 +39,23 @@ def test_a_second_run_into_a_locked_run_directory_is_refused_naming_the_pid(tmp_
     _release(prepare_run_directory(tmp_path / 'run', tmp_path / 'bag'))
 
 
-def test_the_lock_is_dropped_when_its_holder_dies(tmp_path):
+def _lock_holder(folder):
+    """Another process holding ``folder``'s output lock (it has it once this returns)."""
     holder = subprocess.Popen(
         [sys.executable, '-c', textwrap.dedent(f'''
-            import pathlib, sys, time
+            import pathlib, time
             from wip_bringup.launcher import lock_output
-            lock_output(pathlib.Path({str(tmp_path)!r}), '--out')
+            lock_output(pathlib.Path({str(folder)!r}), '--out')
             print('locked', flush=True)
             time.sleep(600)
         ''')], stdout=subprocess.PIPE, text=True)
+    assert holder.stdout.readline().strip() == 'locked'
+    return holder
+
+
+def test_the_lock_is_dropped_when_its_holder_dies(tmp_path):
+    holder = _lock_holder(tmp_path)
     try:
-        assert holder.stdout.readline().strip() == 'locked'
         with pytest.raises(GraphError, match=f'pid {holder.pid}'):
             lock_output(tmp_path, '--out')
     finally:
@@ -64,16 +70,8 @@ def test_run_graph_into_a_folder_another_run_holds_exits_2_at_once(tmp_path):
     pytest.importorskip('rclpy')
     out = tmp_path / 'run'
     out.mkdir()
-    holder = subprocess.Popen(
-        [sys.executable, '-c', textwrap.dedent(f'''
-            import pathlib, time
-            from wip_bringup.launcher import lock_output
-            lock_output(pathlib.Path({str(out)!r}), '--out')
-            print('locked', flush=True)
-            time.sleep(600)
-        ''')], stdout=subprocess.PIPE, text=True)
+    holder = _lock_holder(out)
     try:
-        assert holder.stdout.readline().strip() == 'locked'
         done = subprocess.run([sys.executable, '-m', 'wip_bringup.graph', '--out', str(out),
                                '--duration', '1'],
                               capture_output=True, text=True, timeout=300, check=False)
