@@ -170,7 +170,8 @@ wip_activate() {
         *) export AMENT_PREFIX_PATH="${AMENT_PREFIX_PATH}:${WIP_VENV}" ;;
     esac
     # Defaults for simulations: localhost only, and a domain of our own per run, so that
-    # parallel runs on this host do not see each other. 1..101: Fast DDS ports of higher
+    # parallel runs on this host do not see each other (the launcher replaces this pid-derived
+    # id by one reserved on the host: wip_bringup.private_domain). 1..101: Fast DDS ports of higher
     # domain ids run into Linux's ephemeral port range. Each default set is recorded in
     # WIP_ROS_DEFAULTS: hardware mode and check_base drop it again, because a robot's base
     # is on the user's domain and network (ROS's defaults: domain 0, SUBNET).

@@ -8,7 +8,6 @@ rebuild; tests of nodes and of the graph use the colcon-built install tree, whic
 import contextlib
 import os
 import pathlib
-import random
 import sys
 
 import pytest
@@ -35,6 +34,8 @@ for package in ('wip_control', 'wip_sim', 'wip_bag', 'wip_bringup', 'wip_tools',
     if path not in sys.path:
         sys.path.insert(0, path)
 
+from wip_bringup.private_domain import release_private_domain, reserve_private_domain  # noqa: E402
+
 
 # ----------------------------------------------------------------- ROS test isolation
 
@@ -47,12 +48,14 @@ def private_dds_domain():
     """
     keys = ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE')
     saved = {key: os.environ.get(key) for key in keys}
-    domain_id = random.randint(1, 101)
+    # Reserved on this host: two test sessions (or a session and a simulation) never meet.
+    domain_id, reservation = reserve_private_domain()
     os.environ['ROS_DOMAIN_ID'] = str(domain_id)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     try:
         yield domain_id
     finally:
+        release_private_domain(reservation)
         for key, value in saved.items():
             if value is None:
                 os.environ.pop(key, None)

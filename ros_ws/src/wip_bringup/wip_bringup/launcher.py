@@ -11,7 +11,6 @@ import dataclasses
 import fcntl
 import os
 import pathlib
-import random
 import re
 import shutil
 import signal
@@ -25,6 +24,8 @@ from wip_control.tools.cli import check_output_directory
 from wip_control.tools.cli import EXIT_DISK_FULL as CLI_EXIT_DISK_FULL
 from wip_control.tools.cli import EXIT_NOT_ENGAGED as CLI_EXIT_NOT_ENGAGED
 from wip_viewer.viewer_core import VIEWER_TOPICS as VIEWER_TOPIC_TYPES
+
+from .private_domain import reserve_private_domain
 
 
 # The exit-code table of every tool (wip_control.tools.cli): 0 ok, 1 the vehicle fell (or a
@@ -259,15 +260,24 @@ def graph_environment(domain_id: int, private: bool = True) -> dict[str, str]:
 
 
 def choose_domain_id() -> int:
-    """``$ROS_DOMAIN_ID`` if set, else random in 1..101 (higher ids of Fast DDS run into
-    Linux's ephemeral port range)."""
+    """``$ROS_DOMAIN_ID`` if the user (or a test harness) set it, else a private domain
+    reserved on this host for the life of this process (wip_bringup.private_domain); the
+    pid-derived default of scripts/_env.sh counts as unset, since two runs' pids can map to
+    one domain."""
     value = os.environ.get('ROS_DOMAIN_ID', '').strip()
-    if value:
+    defaulted = f'ROS_DOMAIN_ID={value}' in os.environ.get(ROS_DEFAULTS_VARIABLE, '').split()
+    if value and not defaulted:
         try:
             return int(value)
         except ValueError as err:
             raise GraphError(f'ROS_DOMAIN_ID={value!r} is not an integer', EXIT_USAGE) from err
-    return random.randint(1, 101)
+    domain_id, descriptor = reserve_private_domain()
+    _RESERVED_DOMAINS.append(descriptor)
+    return domain_id
+
+
+#: Descriptors holding this process's domain reservations (released when it exits).
+_RESERVED_DOMAINS: list[int] = []
 
 
 #: Set by scripts/_env.sh: the ROS variables it gave a private default ("NAME=VALUE ..."), so
