@@ -45,7 +45,8 @@ def _run(key, plant, **changes):
 
 @pytest.mark.parametrize('name', sorted(PLANTS))
 def test_excitation_run_recovers_every_combination_within_5_percent(name):
-    # The default sensor noise is on (the controllers see it); the fit uses the truth.
+    # Noise-free sensors (the scenario's defaults); the fit uses the truth. What a robot
+    # gives, noisy sensors, is the next test.
     scenario, result = _run(name, PLANTS[name])
     assert not result.fell
     fit = identify.identify(result.record, scenario.controller_model.parameters)
@@ -59,6 +60,30 @@ def test_excitation_run_recovers_every_combination_within_5_percent(name):
         assert fit.estimates[key].value is None
         assert fit.estimates[key].reason
     assert fit.condition < identify.MAX_CONDITION
+
+
+#: An IMU's noise (pitch 0.002 rad, gyro 0.01 rad/s: the robustness campaigns' values) and
+#: a GPS's; the controllers run on these sensors, and the fit uses what they said.
+IMU_NOISE = {'imu_pitch_noise_std': 0.002, 'imu_yaw_noise_std': 0.002,
+             'gyro_noise_std': 0.01, 'gps_noise_std': 0.02}
+
+
+@pytest.mark.parametrize('model', ['paper', 'full'])
+@pytest.mark.parametrize('seed', [1, 2, 3])
+def test_the_sensors_of_a_noisy_run_recover_every_combination_within_5_percent(model, seed):
+    # A robot's bag has no ground truth: the fit takes the IMU's pitch and rates and the
+    # wheel joint angles (auto picks them without truth). Measured worst: 3.0 % (J_θ, 20 kg,
+    # seed 3); at the former 4 Hz cut-off m_v came out 10 % low (errors in variables).
+    plant = PLANTS['heavy_high'] if seed != 2 else PLANTS['light_low']
+    scenario, result = _run(f'noisy_{model}_{seed}', plant, model=model, seed=seed,
+                            sensors=IMU_NOISE)
+    assert not result.fell
+    record = {g: result.record[g] for g in ('wheels', 'encoders', 'imu')}
+    fit = identify.identify(record, scenario.controller_model.parameters, model=model)
+    assert fit.source == 'sensors'
+    true = identify.true_values(scenario.plant.parameters)
+    for key in DETERMINED:
+        assert fit.value(key) == pytest.approx(true[key], rel=0.05), key
 
 
 def test_state_estimate_alone_also_recovers_them_within_5_percent():

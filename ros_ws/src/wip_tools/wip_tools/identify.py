@@ -1,6 +1,6 @@
 """Fit the identifiable parameters of the paper's model (1) to a recorded run.
 
-    scripts/identify BAG_OR_RECORD [--out FILE] [--model-out FILE] [--source truth|estimate]
+    scripts/identify BAG_OR_RECORD [--out FILE] [--params-file] [--source SOURCE]
 
 Model (1) of Yue, An, Li (2016), written in its Euler-Lagrange form (the paper plant of
 core/plant.py, multiplied out; τυ = τl + τr, τω = τr − τl, REP 103)::
@@ -39,7 +39,13 @@ SYMBOLS = {'effective_mass': 'm_v [kg]', 'mpl': 'm_p l [kg m]',
 #: Smallest RMS excitation [SI] of a regressor signal that counts (about what an IMU and
 #: the wheel encoders resolve after the filter): below it the column is noise.
 MIN_EXCITATION = {'v_dot': 0.02, 'theta_ddot': 0.02, 'omega_dot': 0.02, 'omega_sq': 0.005}
-CUTOFF_HZ = 4.0             #: low-pass cut-off (Gaussian, zero phase)
+#: Low-pass cut-off [Hz] (Gaussian, zero phase). The regressors hold differentiated
+#: measurements, whose noise power grows as fc³ while the excitation run's content is below
+#: about 0.5 Hz (a 20 s lap, the speed varying twice a lap); noise in a regressor biases
+#: least squares towards zero (errors in variables). With an IMU's noise (0.002 rad,
+#: 0.01 rad/s) 4 Hz gave m_v 10 % low from the sensors, 1 Hz within 1.5 %
+#: (docs/identification.md §5).
+CUTOFF_HZ = 1.0
 MAX_CONDITION = 1e4         #: of the column-scaled, weighted regressor matrix
 MAX_RELATIVE_CI = 0.05      #: 95 % half-width / |value| above which a value is not given
 MIN_DURATION_S = 5.0
@@ -80,13 +86,44 @@ def gaussian_lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> 
     return np.convolve(x, k, mode='same')
 
 
-def _signals(record: Mapping, source: str) -> dict[str, np.ndarray]:
+def _sensor_group(record: Mapping, wheel_radius: float,
+                  encoders_relative_to_body: bool) -> dict[str, np.ndarray]:
+    """(t, θ, θ̇, υ, ω) from what the sensors said: the IMU's pitch, its pitch and yaw rates
+    (gyro), and υ = r (φ̇ + θ̇) from the mean wheel joint angle φ (a joint angle is measured
+    against the body, so the body's tilt rate is added back; without it when the encoders
+    measure rolling angles). φ̇ by central differences: the regressors' low-pass removes
+    what that amplifies."""
+    encoders = record['encoders'] if 'encoders' in record else None
+    imu = record['imu'] if 'imu' in record else None
+    if encoders is None or imu is None or len(encoders['t']) < 3 or len(imu['t']) < 3:
+        raise IdentifyError('no sensor samples (topics /joint_states with the joints '
+                            'left_wheel_joint and right_wheel_joint, and /imu/data with '
+                            'orientation and angular velocity)')
+    t = np.asarray(imu['t'], dtype=float)
+    mean_angle = np.interp(t, encoders['t'], 0.5 * (np.asarray(encoders['left'])
+                                                   + np.asarray(encoders['right'])))
+    if len(t) < 3 or not np.all(np.diff(t) > 0.0):
+        raise IdentifyError('imu time stamps do not increase')
+    pitch_rate = np.asarray(imu['pitch_rate'], dtype=float)
+    rolling_rate = np.gradient(mean_angle, t)
+    if encoders_relative_to_body:
+        rolling_rate = rolling_rate + pitch_rate
+    return {'t': t, 'theta': imu['pitch'], 'theta_dot': pitch_rate,
+            'v': wheel_radius * rolling_rate, 'omega': imu['yaw_rate']}
+
+
+def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters().wheel_radius,
+             encoders_relative_to_body: bool = True) -> dict[str, np.ndarray]:
     """Uniformly sampled (t, θ, θ̇, υ, ω, τl, τr) from the record's ``source`` group.
 
     truth: the torques of row k were applied over [t_{k−1}, t_k) (core/runner.py), so they
-    are shifted back one row to pair with the interval they acted over. estimate: the
-    torques come from the wheels group (applied from its stamp on), interpolated."""
-    group = record[source] if source in record else None
+    are shifted back one row to pair with the interval they acted over. estimate and
+    sensors: the torques come from the wheels group (applied from its stamp on),
+    interpolated."""
+    if source == 'sensors':
+        group = _sensor_group(record, wheel_radius, encoders_relative_to_body)
+    else:
+        group = record[source] if source in record else None
     if group is None or len(group['t']) == 0:
         raise IdentifyError(f'no {source} samples (topic /wip/ground_truth or '
                             '/wip/state_estimate missing)')
@@ -172,21 +209,37 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else 0.0
 
 
+def _has(record: Mapping, group: str) -> bool:
+    return group in record and len(record[group]['t']) > 0
+
+
+def _best_source(record: Mapping) -> str:
+    """truth (a simulation's), else the sensors, else the state estimate (which the ESOs'
+    lag and filtering bias: docs/identification.md)."""
+    if _has(record, 'truth'):
+        return 'truth'
+    if _has(record, 'encoders') and _has(record, 'imu'):
+        return 'sensors'
+    return 'estimate'
+
+
 def identify(record: Mapping, params: WipParameters | None = None, source: str = 'auto',
              friction: bool = False, cutoff_hz: float = CUTOFF_HZ,
-             model: str = 'paper') -> Identification:
+             model: str = 'paper', encoders_relative_to_body: bool = True) -> Identification:
     """Fit p = (m_v, m_p l, J_θ, m_p l², J_ϕ[, b]) of eq. (1) to ``record``.
 
     ``params`` supplies the known r, d, g (default: the nominal ones). ``source``:
-    'truth', 'estimate' or 'auto' (truth where the record has it). ``model``: fit the
-    rows of eq. (1) ('paper') or of the full plant ('full', see :func:`regressors`).
+    'truth', 'sensors', 'estimate' or 'auto' (the first the record has, in that order).
+    ``model``: fit the rows of eq. (1) ('paper') or of the full plant ('full', see
+    :func:`regressors`). ``encoders_relative_to_body``: the wheel joint angles are measured
+    against the body (a robot's joints), not against the ground.
     """
     if model not in ('paper', 'full'):
         raise IdentifyError(f"model {model!r}: expected 'paper' or 'full'")
     params = WipParameters() if params is None else params
     if source == 'auto':
-        source = 'truth' if 'truth' in record and len(record['truth']['t']) else 'estimate'
-    sig = _signals(record, source)
+        source = _best_source(record)
+    sig = _signals(record, source, params.wheel_radius, encoders_relative_to_body)
     a, y, excitation = regressors(sig, params, cutoff_hz, model)
     n = len(y) // 3
     if n < 10:
@@ -377,7 +430,8 @@ def load_record(path: str | pathlib.Path) -> dict:
         record = record_from_bag(path)
     except ReportError as err:
         raise IdentifyError(str(err)) from err
-    return {g: record[g] for g in ('truth', 'estimate', 'wheels') if g in record}
+    return {g: record[g] for g in ('truth', 'estimate', 'wheels', 'encoders', 'imu')
+            if g in record}
 
 
 def main(argv: Iterable[str] | None = None) -> int:
@@ -390,9 +444,14 @@ def main(argv: Iterable[str] | None = None) -> int:
                         'controller_model section (.yaml), see --params-file')
     parser.add_argument('--params-file', action='store_true',
                         help='write --out as a ROS params file (/**: model.*) instead')
-    parser.add_argument('--source', choices=('auto', 'truth', 'estimate'), default='auto',
-                        help='state signals: ground truth (simulation) or the state '
-                        'estimate (a robot); default: truth where recorded')
+    parser.add_argument('--source', choices=('auto', 'truth', 'sensors', 'estimate'),
+                        default='auto',
+                        help='state signals: ground truth (a simulation), the sensors '
+                        '(/joint_states and /imu/data: a robot) or the state estimate; '
+                        'default: the first of these the run has')
+    parser.add_argument('--rolling-encoders', action='store_true',
+                        help='the wheel angles are rolling angles (against the ground), not '
+                        'joint angles against the body')
     parser.add_argument('--model', choices=('paper', 'full'), default='paper',
                         help="rows to fit: eq. (1) ('paper', what the controllers use) or "
                         "the full plant's (motor reaction torque, centrifugal and Coriolis "
@@ -412,7 +471,8 @@ def main(argv: Iterable[str] | None = None) -> int:
             except (ConfigError, OSError) as err:
                 raise IdentifyError(f'--scenario {args.scenario}: {err}') from err
         record = load_record(args.run)
-        result = identify(record, nominal, args.source, args.friction, model=args.model)
+        result = identify(record, nominal, args.source, args.friction, model=args.model,
+                          encoders_relative_to_body=not args.rolling_encoders)
     except IdentifyError as err:
         print(f'ERROR: {" ".join(str(err).split())}', file=sys.stderr)
         return EXIT_USAGE

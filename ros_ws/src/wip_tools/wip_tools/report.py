@@ -95,8 +95,34 @@ def _mpc(m) -> tuple | None:
             float(bool(m.used_fallback)), m.slack_v, m.slack_theta)
 
 
+#: The wheel joints of /joint_states (the plant's and the controllers' default names).
+WHEEL_JOINTS = ('left_wheel_joint', 'right_wheel_joint')
+
+
+def _encoders(m) -> tuple | None:
+    names = list(m.name)
+    if not all(joint in names for joint in WHEEL_JOINTS) or len(m.position) != len(names):
+        return None    # other joints (a robot's own names): not the record's encoders
+    return tuple(float(m.position[names.index(joint)]) for joint in WHEEL_JOINTS)
+
+
+def _imu(m) -> tuple | None:
+    from wip_control.nodes.conversions import (  # noqa: PLC0415 - rclpy only when needed
+        euler_rates_from_body, imu_has_rates, InvalidMessage, pitch_yaw_from_quaternion)
+    q, w = m.orientation, m.angular_velocity
+    if m.orientation_covariance[0] == -1.0 or not imu_has_rates(m):
+        return None
+    try:
+        pitch, yaw = pitch_yaw_from_quaternion(q.x, q.y, q.z, q.w)
+        return (pitch, yaw, *euler_rates_from_body(pitch, (w.x, w.y, w.z)))
+    except InvalidMessage:
+        return None
+
+
 #: topic -> (group, row of the columns after 't').
 TOPICS = {
+    '/joint_states': ('encoders', _encoders),
+    '/imu/data': ('imu', _imu),
     '/wip/ground_truth': ('truth', _truth),
     '/wip/reference': ('reference', lambda m: (m.x, m.y, m.phi, m.v, m.omega)),
     '/wip/state_estimate': ('estimate', lambda m: (

@@ -37,6 +37,11 @@ GROUPS: dict[str, tuple[str, ...]] = {
     'wheels': ('t', 'tau_left', 'tau_right'),
     'mpc': ('t', 'tau_v', 'delta_tau', 'status', 'iterations', 'solve_time',
             'used_fallback', 'slack_v', 'slack_theta'),
+    # What the sensors said (the plant's /joint_states and /imu/data): wheel joint angles
+    # [rad], IMU pitch and yaw [rad] and their rates [rad/s]. Model identification fits to
+    # these on a robot, where there is no ground truth.
+    'encoders': ('t', 'left', 'right'),
+    'imu': ('t', 'pitch', 'yaw', 'pitch_rate', 'yaw_rate'),
 }
 
 

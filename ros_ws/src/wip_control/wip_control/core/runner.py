@@ -96,11 +96,13 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
     gps_every = max(1, int(round(scenario.rates.control_rate / scenario.sensors.gps_rate)))
 
     buffers = {g: RecordBuffer(g) for g in
-               ('truth', 'reference', 'estimate', 'command', 'arc', 'wheels', 'mpc')}
+               ('truth', 'reference', 'estimate', 'command', 'arc', 'wheels', 'mpc',
+                'encoders', 'imu')}
     # The rows go straight into the buffers' lists; every BLOCK_ROWS ticks (at most one
     # row per group and tick) they become numpy blocks.
     record_truth, record_reference, record_estimate, record_command, record_arc, \
-        record_wheels, record_mpc = (b.appender() for b in buffers.values())
+        record_wheels, record_mpc, record_encoders, record_imu = (
+            b.appender() for b in buffers.values())
     flush_every = RecordBuffer.BLOCK_ROWS
     mpc_inputs: list[dict] | None = [] if record_mpc_inputs else None
 
@@ -129,8 +131,11 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
         sensed, gps_seen = sensors.delayed(state)
         fix = (sensors.gps(gps_seen) if k % gps_every == 0 and sensors.gps_fix_available()
                else None)
-        pose = estimator.update(t, *sensors.encoders(sensed), *sensors.imu(sensed),
-                                tau_left, tau_right, sensors.imu_rates(sensed), fix)
+        encoders, imu = sensors.encoders(sensed), sensors.imu(sensed)
+        imu_rates = sensors.imu_rates(sensed)
+        pose = estimator.update(t, *encoders, *imu, tau_left, tau_right, imu_rates, fix)
+        record_encoders((t, *encoders))
+        record_imu((t, *imu, *imu_rates))
 
         # 4-7: reference, generator, ARC, MPC at its own period (held), mixer.
         ref = reference.sample(t)
