@@ -1,0 +1,32 @@
+"""Wheel-ground contact of the plants that model it (``plant: {model: mujoco}``).
+
+The equation plants ('paper', 'full') assume rolling without slip on flat ground and take
+no contact parameters; a scenario that sets ``plant.contact`` with them is rejected.
+Declared here, not beside the MuJoCo plant (wip_sim), because the scenario file is
+validated in wip_control, which imports no simulator package.
+
+Defaults: a rubber wheel on dry concrete. Sliding friction of rubber on dry concrete is
+0.6-0.85 (engineering handbooks), 0.8 is taken; the rolling resistance coefficient of a
+pneumatic or solid rubber tyre on concrete is 0.010-0.015, 0.01 is taken.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from .config import param
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactConfig:
+    """Friction of the wheel-ground contact (Coulomb cone and rolling resistance)."""
+
+    friction: float = param(
+        0.8, '1', 'sliding friction coefficient mu of the wheel-ground contact (Coulomb '
+        'cone: the ground force along it is at most mu times the normal force; rubber on '
+        'dry concrete 0.6-0.85, wet 0.45-0.75, ice about 0.1)', minimum=0.0,
+        maximum=2.0, exclusive_minimum=True)
+    rolling_resistance: float = param(
+        0.01, '1', 'rolling resistance coefficient c_rr: a torque c_rr r N opposes each '
+        "wheel's rolling (N its normal force, r its radius); rubber tyre on concrete "
+        '0.010-0.015, 0 = lossless rolling', minimum=0.0, maximum=0.2)
