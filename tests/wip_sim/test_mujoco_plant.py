@@ -5,10 +5,11 @@
 - the wheels slip where the friction cone says, and only there;
 - at rest it stays at rest; a free fall keeps the full model's energy;
 - the robust default controller balances it and follows the path for the whole paper
-  scenario.
+  scenario, up a 5 % slope and over a 2 cm bump.
 """
 
 import math
+import pathlib
 
 import numpy as np
 import pytest
@@ -21,7 +22,8 @@ from wip_control.core.metrics import compute_metrics  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
 from wip_control.core.plant import Plant, full_input_gains, scenario_plant  # noqa: E402
 from wip_control.core.runner import run_scenario  # noqa: E402
-from wip_control.core.scenario import scenario_from_mapping, scenario_to_mapping  # noqa: E402
+from wip_control.core.scenario import (load_scenario, scenario_from_mapping,  # noqa: E402
+                                       scenario_to_mapping)
 from wip_sim.mujoco_plant import MujocoPlant, body_inertias  # noqa: E402
 
 PARAMS = WipParameters()
@@ -200,3 +202,47 @@ def test_disturbances_add_their_accelerations():
     mujoco = MujocoPlant(PARAMS, LOSSLESS).hold_floats(start, 0.0, 0.0, d, DT)
     for i in (5, 6, 7):            # ω, υ, θ̇
         assert mujoco[i] == pytest.approx(full[i], rel=0.02, abs=1e-4)
+
+
+# ----------------------------------------------------------------------------- terrain
+
+SCENARIOS = pathlib.Path(__file__).resolve().parents[2] / 'scenarios'
+
+
+@pytest.mark.parametrize('name', ['mujoco_slope', 'mujoco_bump'])
+def test_robust_default_stays_up_and_on_the_line_over_the_terrain(name):
+    # A 5 % slope from x = 2 m, or a 2 cm bump at x = 5 m reached at the line's 0.5 m/s:
+    # no fall, the tilt stays in the range of ordinary driving (the start-up from rest
+    # takes 0.1 rad), and the vehicle ends within 5 cm of the reference's end point
+    # (10 m / 12.5 m: it climbed, or crossed, and caught up).
+    scenario = load_scenario(SCENARIOS / f'{name}.yaml')
+    terrain = scenario.plant.terrain
+    result = run_scenario(scenario)
+    truth = result.record['truth']
+    assert not result.fell
+    assert float(np.max(np.abs(truth['theta']))) < 0.15
+    end = scenario.reference.line_speed * scenario.duration
+    assert abs(truth['x'][-1] - end) < 0.05
+    assert float(np.max(np.abs(truth['y']))) < 0.01
+    if terrain.slope_grade > 0.0:
+        assert terrain.slope_grade == 0.05 and truth['x'][-1] > terrain.slope_start + 5.0
+    else:
+        assert terrain.bump_height == 0.02 and truth['x'][-1] > terrain.bump_position + 1.0
+
+
+def test_the_slope_lifts_the_vehicle_by_its_grade():
+    # Rolled 4 m up a 10 % slope, the axle is 0.4 m higher: the terrain is where the
+    # scenario puts it (the height is read from the engine, not from the 8-state).
+    from wip_control.core.ground import TerrainConfig  # noqa: PLC0415
+    plant = MujocoPlant(PARAMS, LOSSLESS, terrain=TerrainConfig(slope_start=1.0,
+                                                                slope_grade=0.1))
+    state = (5.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0, 0.0)
+    moved = _hold(plant, state, 0.0, 0.0, 50)     # 50 ms on the wheels (it rolls back)
+    flat = MujocoPlant(PARAMS, LOSSLESS)
+    _hold(flat, state, 0.0, 0.0, 50)
+    # A wheel tangent to the slope has its centre r / cos(a) above the surface, which is
+    # grade (x − start) above the plane.
+    rise = plant._data.qpos[2] - flat._data.qpos[2]
+    expected = 0.1 * (moved[0] - 1.0) + PARAMS.wheel_radius * (1 / math.cos(math.atan(0.1)) - 1)
+    assert rise == pytest.approx(expected, abs=5e-4)
+    assert expected > 0.39

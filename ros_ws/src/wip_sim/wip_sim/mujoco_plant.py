@@ -56,7 +56,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from wip_control.core.ground import ContactConfig
+from wip_control.core.ground import ContactConfig, TerrainConfig
 from wip_control.core.model import STATE_SIZE, THETA
 from wip_control.core.params import WipParameters
 from wip_control.core.plant import DEFAULT_FALL_LIMIT
@@ -107,8 +107,42 @@ def body_inertias(params: WipParameters) -> dict[str, float]:
             'wheel_diametral': wheel_diametral}
 
 
-def mjcf(params: WipParameters, contact: ContactConfig, timestep: float) -> str:
-    """The MJCF model of the WIP on flat ground (see the module docstring)."""
+#: Half-extent [m] of the terrain's solids across and along the ground: "everywhere" for a
+#: run (a run at the speed limit covers a few km at most).
+TERRAIN_EXTENT = 1e4
+
+
+def terrain_geoms(terrain: TerrainConfig) -> str:
+    """MJCF geoms of the terrain above the ground plane (they collide like the plane).
+
+    Slope: a box whose top face starts on the plane at x = slope_start and rises at the
+    grade, pitched by atan(grade) (MuJoCo's rotation about y by −a lifts +x). Bump: a
+    capsule across the ground (axis y) whose arc rises ``bump_height`` above the plane and
+    meets it ``bump_length`` apart: radius R = (L²/4 + h²) / (2h), centre at h − R.
+    """
+    out = []
+    ground = 'contype="1" conaffinity="2"'
+    if terrain.slope_grade > 0.0:
+        a = math.atan(terrain.slope_grade)
+        half_length, half_thickness = TERRAIN_EXTENT, 1.0
+        # Centre: the top face's centre, half a length up the slope, less half a
+        # thickness along the face's normal (−sin a, 0, cos a).
+        cx = terrain.slope_start + half_length * math.cos(a) + half_thickness * math.sin(a)
+        cz = half_length * math.sin(a) - half_thickness * math.cos(a)
+        out.append(f'<geom name="slope" type="box" size="{half_length!r} {TERRAIN_EXTENT!r} '
+                   f'{half_thickness!r}" pos="{cx!r} 0 {cz!r}" euler="0 {-a!r} 0" {ground}/>')
+    if terrain.bump_height > 0.0:
+        h, length = terrain.bump_height, terrain.bump_length
+        radius = (0.25 * length * length + h * h) / (2.0 * h)
+        out.append(f'<geom name="bump" type="capsule" size="{radius!r} {TERRAIN_EXTENT!r}" '
+                   f'pos="{terrain.bump_position!r} 0 {h - radius!r}" euler="{math.pi / 2!r} 0 0" '
+                   f'{ground}/>')
+    return '\n    '.join(out)
+
+
+def mjcf(params: WipParameters, contact: ContactConfig, timestep: float,
+         terrain: TerrainConfig | None = None) -> str:
+    """The MJCF model of the WIP on the ground (see the module docstring)."""
     p = params
     b = body_inertias(p)
     r, half = p.wheel_radius, 0.5 * p.track_width
@@ -130,6 +164,7 @@ def mjcf(params: WipParameters, contact: ContactConfig, timestep: float) -> str:
           cone="elliptic" impratio="{IMPEDANCE_RATIO!r}"/>
   <worldbody>
     <geom name="ground" type="plane" size="0 0 1" contype="1" conaffinity="2"/>
+    {terrain_geoms(terrain or TerrainConfig())}
     <body name="base" pos="0 0 {r!r}">
       <freejoint name="base"/>
       <inertial pos="0 0 {b['base_com']!r}" mass="{b['base_mass']!r}"
@@ -167,7 +202,7 @@ class MujocoPlant:
     model = 'mujoco'
 
     def __init__(self, params: WipParameters, contact: ContactConfig | None = None,
-                 timestep: float = 1e-3) -> None:
+                 timestep: float = 1e-3, terrain: TerrainConfig | None = None) -> None:
         if not (math.isfinite(timestep) and timestep > 0.0):
             raise ValueError(f'timestep must be a positive finite time [s], got {timestep!r}')
         mj = _import_mujoco()
@@ -175,7 +210,8 @@ class MujocoPlant:
         self.params = params
         self.contact = ContactConfig() if contact is None else contact
         self.timestep = float(timestep)
-        self.xml = mjcf(params, self.contact, self.timestep)
+        self.terrain = TerrainConfig() if terrain is None else terrain
+        self.xml = mjcf(params, self.contact, self.timestep, self.terrain)
         self._model = mj.MjModel.from_xml_string(self.xml)
         self._data = mj.MjData(self._model)
         p = params
@@ -307,9 +343,13 @@ class MujocoPlant:
 
     def _settle(self) -> float:
         """Height [m] of the axle resting on the compliant contacts, found by letting the
-        upright vehicle settle (zero torque; upright is an equilibrium)."""
+        upright vehicle settle (zero torque; upright is an equilibrium), on flat ground
+        before any terrain."""
         data = self._data
         data.qpos[:] = 0.0
+        terrain = self.terrain
+        data.qpos[0] = min(0.0, terrain.slope_start,
+                           terrain.bump_position - terrain.bump_length) - 10.0 * self._r
         data.qpos[2] = self._r
         data.qpos[3] = 1.0
         data.qvel[:] = 0.0
@@ -327,7 +367,7 @@ class MujocoPlant:
         quat = (math.cos(half_phi) * math.cos(half_th), -math.sin(half_phi) * math.sin(half_th),
                 math.cos(half_phi) * math.sin(half_th), math.sin(half_phi) * math.cos(half_th))
         joint = xv / self._r - th                 # mean joint angle (x_v = r (φ + θ))
-        data.qpos[:] = (x, y, self._height, *quat, joint, joint)
+        data.qpos[:] = (x, y, self._height + self._terrain_clearance(x), *quat, joint, joint)
         # Free joint: linear velocity in the world frame, angular velocity in the body
         # frame; the world rate ω e_z + θ̇ e_lat is ω (−sinθ, 0, cosθ) + θ̇ (0, 1, 0) there.
         s, c = math.sin(th), math.cos(th)
@@ -336,6 +376,20 @@ class MujocoPlant:
                         (v + self._half * om) / self._r - thd)
         data.qacc_warmstart[:] = 0.0
         self._phi = phi
+
+    def _terrain_clearance(self, x: float) -> float:
+        """Height [m] to lift a state reset at ``x`` so that no wheel starts inside the
+        terrain: on the slope, the wheel centre r / cos(a) above its surface (tangent to
+        it); over a bump, its full height (the wheel then drops onto it)."""
+        terrain, r = self.terrain, self._r
+        lift = 0.0
+        if terrain.slope_grade > 0.0 and x > terrain.slope_start:
+            a = math.atan(terrain.slope_grade)
+            lift = terrain.slope_grade * (x - terrain.slope_start) + r / math.cos(a) - r
+        if (terrain.bump_height > 0.0
+                and abs(x - terrain.bump_position) < 0.5 * terrain.bump_length + r):
+            lift = max(lift, terrain.bump_height)
+        return lift
 
     def _read(self) -> tuple:
         """The 8-state of MuJoCo's state (module docstring)."""
@@ -363,8 +417,8 @@ def _euler_zyx(quat) -> tuple[float, float, float]:
     return yaw, math.asin(sin_pitch), roll
 
 
-def make_plant(params: WipParameters, contact: ContactConfig,
-               timestep: float) -> MujocoPlant:
+def make_plant(params: WipParameters, contact: ContactConfig, timestep: float,
+               terrain: TerrainConfig | None = None) -> MujocoPlant:
     """The plant of ``plant: {model: mujoco}`` (called by
     :func:`wip_control.core.plant.scenario_plant`)."""
-    return MujocoPlant(params, contact, timestep)
+    return MujocoPlant(params, contact, timestep, terrain)

@@ -30,3 +30,24 @@ class ContactConfig:
         0.01, '1', 'rolling resistance coefficient c_rr: a torque c_rr r N opposes each '
         "wheel's rolling (N its normal force, r its radius); rubber tyre on concrete "
         '0.010-0.015, 0 = lossless rolling', minimum=0.0, maximum=0.2)
+
+
+@dataclasses.dataclass(frozen=True)
+class TerrainConfig:
+    """Ground shape along the map's x axis (east), across the whole width: a slope that
+    starts at ``slope_start`` and a bump whose crest is at ``bump_position``. Defaults: flat."""
+
+    slope_start: float = param(0.0, 'm', 'x where an uphill slope starts (map frame; the '
+                               'ground rises for x > slope_start)', minimum=-1e4, maximum=1e4)
+    slope_grade: float = param(0.0, '1', 'rise over run of the slope (0.05 = 5 %); 0 = flat',
+                               minimum=0.0, maximum=0.3)
+    bump_position: float = param(0.0, 'm', 'x of the crest of a bump across the ground',
+                                 minimum=-1e4, maximum=1e4)
+    bump_height: float = param(0.0, 'm', 'height of the bump (a circular arc across x); '
+                               '0 = no bump', minimum=0.0, maximum=0.2)
+    bump_length: float = param(0.2, 'm', 'length of the bump along x where it meets the '
+                               'ground', minimum=0.0, maximum=5.0, exclusive_minimum=True)
+
+    @property
+    def flat(self) -> bool:
+        return self.slope_grade == 0.0 and self.bump_height == 0.0

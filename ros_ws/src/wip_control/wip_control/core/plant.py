@@ -152,9 +152,10 @@ def equation_model(model: str) -> str:
 
 
 def scenario_plant(scenario):
-    """The true plant of ``scenario`` (a :class:`.scenario.Scenario`): model, parameters and (engine models) contact,
-    stepped at the scenario's plant rate. Equation models give a :class:`Plant`; an engine
-    model an object with the same ``hold_floats`` and ``simulate_hold``."""
+    """The true plant of ``scenario`` (a :class:`.scenario.Scenario`): model, parameters
+    and, for an engine model, contact and terrain, stepped at the scenario's plant rate.
+    Equation models give a :class:`Plant`; an engine model an object with the same
+    ``hold_floats`` and ``simulate_hold``."""
     section = scenario.plant
     model = section.model.model
     if model not in ENGINE_MODELS:
@@ -164,7 +165,8 @@ def scenario_plant(scenario):
     except ImportError as err:
         raise ImportError(f'plant model {model!r}: {err}') from err
     return module.make_plant(section.parameters, section.contact,
-                             scenario.control_period / scenario.rates.substeps)
+                             scenario.control_period / scenario.rates.substeps,
+                             section.terrain)
 
 
 def tilt_pole(params: WipParameters, model: str = 'paper') -> float:
