@@ -246,3 +246,23 @@ def test_the_slope_lifts_the_vehicle_by_its_grade():
     expected = 0.1 * (moved[0] - 1.0) + PARAMS.wheel_radius * (1 / math.cos(math.atan(0.1)) - 1)
     assert rise == pytest.approx(expected, abs=5e-4)
     assert expected > 0.39
+
+
+def test_a_low_friction_patch_slips_where_the_ground_around_it_does_not():
+    # μ = 0.3 on the patch (x in [−1, 1]), 0.8 around: a torque step between the two
+    # thresholds (12.2 and 32.4 N m per wheel) slips on the patch only.
+    from wip_control.core.ground import TerrainConfig  # noqa: PLC0415
+    terrain = TerrainConfig(patch_start=-1.0, patch_end=1.0, patch_friction=0.3)
+    tau = 1.2 * _slip_threshold(PARAMS, 0.3)
+    assert tau < 0.9 * _slip_threshold(PARAMS, 0.8)
+    peaks = {}
+    for x in (0.0, 3.0):          # on the patch, beside it
+        plant = MujocoPlant(PARAMS, LOSSLESS, terrain=terrain)
+        state = (x, 0.0, 0.0, x, 0.0, 0.0, 0.0, 0.0)
+        peak = 0.0
+        for _ in range(30):
+            state = _hold(plant, state, tau, tau, 1)
+            peak = max(peak, *plant.wheel_slip())
+        peaks[x] = peak
+    assert peaks[0.0] > 0.05
+    assert peaks[3.0] < 1e-3

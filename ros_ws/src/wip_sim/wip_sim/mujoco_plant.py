@@ -107,18 +107,25 @@ def body_inertias(params: WipParameters) -> dict[str, float]:
             'wheel_diametral': wheel_diametral}
 
 
+#: Height [m] of the low-friction patch's top above the plane: the wheel must touch only
+#: the patch there (two coincident surfaces would share the load and average their
+#: friction). 1 mm, above the contact's compression (0.04 mm), a step a wheel of 0.1 m or
+#: more rolls over without notice.
+PATCH_RISE = 1e-3
 #: Half-extent [m] of the terrain's solids across and along the ground: "everywhere" for a
 #: run (a run at the speed limit covers a few km at most).
 TERRAIN_EXTENT = 1e4
 
 
-def terrain_geoms(terrain: TerrainConfig) -> str:
+def terrain_geoms(terrain: TerrainConfig, patch_contact: str = '') -> str:
     """MJCF geoms of the terrain above the ground plane (they collide like the plane).
 
     Slope: a box whose top face starts on the plane at x = slope_start and rises at the
     grade, pitched by atan(grade) (MuJoCo's rotation about y by −a lifts +x). Bump: a
     capsule across the ground (axis y) whose arc rises ``bump_height`` above the plane and
     meets it ``bump_length`` apart: radius R = (L²/4 + h²) / (2h), centre at h − R.
+    Patch: a box whose top is ``PATCH_RISE`` above the plane, with ``patch_contact`` (its
+    friction, at a priority above the wheels', so that its friction applies).
     """
     out = []
     ground = 'contype="1" conaffinity="2"'
@@ -137,6 +144,12 @@ def terrain_geoms(terrain: TerrainConfig) -> str:
         out.append(f'<geom name="bump" type="capsule" size="{radius!r} {TERRAIN_EXTENT!r}" '
                    f'pos="{terrain.bump_position!r} 0 {h - radius!r}" euler="{math.pi / 2!r} 0 0" '
                    f'{ground}/>')
+    if terrain.has_patch:
+        half_length = 0.5 * (terrain.patch_end - terrain.patch_start)
+        centre = 0.5 * (terrain.patch_start + terrain.patch_end)
+        out.append(f'<geom name="patch" type="box" size="{half_length!r} {TERRAIN_EXTENT!r} '
+                   f'0.5" pos="{centre!r} 0 {PATCH_RISE - 0.5!r}" {ground} priority="2" '
+                   f'{patch_contact}/>')
     return '\n    '.join(out)
 
 
@@ -153,6 +166,9 @@ def mjcf(params: WipParameters, contact: ContactConfig, timestep: float,
     # parameter: MuJoCo's minimum (1e-5 m) makes it negligible.
     condim = 6 if rolling > 0.0 else 3
     friction = f'{contact.friction!r} 1e-5 {max(rolling, 1e-5)!r}'
+    terrain = terrain or TerrainConfig()
+    patch = (f'condim="{condim}" friction="{terrain.patch_friction!r} 1e-5 '
+             f'{max(rolling, 1e-5)!r}" solref="{tc!r} 1"')
     wheel = ('<inertial pos="0 0 0" mass="{m}" diaginertia="{i} {j} {i}"/>'
              '<geom type="sphere" size="{r}" contype="2" conaffinity="1" priority="1" '
              'condim="{c}" friction="{f}" solref="{tc} 1"/>').format(
@@ -164,7 +180,7 @@ def mjcf(params: WipParameters, contact: ContactConfig, timestep: float,
           cone="elliptic" impratio="{IMPEDANCE_RATIO!r}"/>
   <worldbody>
     <geom name="ground" type="plane" size="0 0 1" contype="1" conaffinity="2"/>
-    {terrain_geoms(terrain or TerrainConfig())}
+    {terrain_geoms(terrain, patch)}
     <body name="base" pos="0 0 {r!r}">
       <freejoint name="base"/>
       <inertial pos="0 0 {b['base_com']!r}" mass="{b['base_mass']!r}"
@@ -349,7 +365,8 @@ class MujocoPlant:
         data.qpos[:] = 0.0
         terrain = self.terrain
         data.qpos[0] = min(0.0, terrain.slope_start,
-                           terrain.bump_position - terrain.bump_length) - 10.0 * self._r
+                           terrain.bump_position - terrain.bump_length,
+                           terrain.patch_start if terrain.has_patch else 0.0) - 10.0 * self._r
         data.qpos[2] = self._r
         data.qpos[3] = 1.0
         data.qvel[:] = 0.0
@@ -389,6 +406,8 @@ class MujocoPlant:
         if (terrain.bump_height > 0.0
                 and abs(x - terrain.bump_position) < 0.5 * terrain.bump_length + r):
             lift = max(lift, terrain.bump_height)
+        if terrain.has_patch and terrain.patch_start - r < x < terrain.patch_end + r:
+            lift = max(lift, PATCH_RISE)
         return lift
 
     def _read(self) -> tuple:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .config import param
+from .config import ConfigError, param
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,8 +34,9 @@ class ContactConfig:
 
 @dataclasses.dataclass(frozen=True)
 class TerrainConfig:
-    """Ground shape along the map's x axis (east), across the whole width: a slope that
-    starts at ``slope_start`` and a bump whose crest is at ``bump_position``. Defaults: flat."""
+    """Ground along the map's x axis (east), across the whole width: a slope that starts
+    at ``slope_start``, a bump whose crest is at ``bump_position`` and a patch of other
+    friction between ``patch_start`` and ``patch_end``. Defaults: flat, one friction."""
 
     slope_start: float = param(0.0, 'm', 'x where an uphill slope starts (map frame; the '
                                'ground rises for x > slope_start)', minimum=-1e4, maximum=1e4)
@@ -47,7 +48,20 @@ class TerrainConfig:
                                '0 = no bump', minimum=0.0, maximum=0.2)
     bump_length: float = param(0.2, 'm', 'length of the bump along x where it meets the '
                                'ground', minimum=0.0, maximum=5.0, exclusive_minimum=True)
+    patch_start: float = param(0.0, 'm', 'x where a patch of other friction starts (on the '
+                               'flat ground, across the whole width)', minimum=-1e4,
+                               maximum=1e4)
+    patch_end: float = param(0.0, 'm', 'x where the patch ends; equal to patch_start = no '
+                             'patch', minimum=-1e4, maximum=1e4)
+    patch_friction: float = param(0.3, '1', 'sliding friction coefficient on the patch '
+                                  '(wet polished concrete or packed snow about 0.3, ice '
+                                  '0.1)', minimum=0.0, maximum=2.0, exclusive_minimum=True)
+
+    def validate(self) -> None:
+        if self.patch_end < self.patch_start:
+            raise ConfigError(f'patch_end: must be >= patch_start = {self.patch_start}, '
+                              f'got {self.patch_end}')
 
     @property
-    def flat(self) -> bool:
-        return self.slope_grade == 0.0 and self.bump_height == 0.0
+    def has_patch(self) -> bool:
+        return self.patch_end > self.patch_start

@@ -21,7 +21,8 @@ unit, default and range)::
     initial_state: {pose_relative_to_reference, pose, x_v, theta, omega, v, theta_dot}
     plant: {model: paper|full|mujoco, parameters: {<WipParameters field>: value},
             contact: {friction, rolling_resistance},    # contact, terrain: mujoco only
-            terrain: {slope_start, slope_grade, bump_position, bump_height, bump_length}}
+            terrain: {slope_start, slope_grade, bump_position, bump_height, bump_length,
+                      patch_start, patch_end, patch_friction}}
     controller_model: {parameters: {...}}       # nominal model used by the controllers
     reference: {kind: trifolium|circle|line|figure_eight|waypoints, ...}
     disturbances: {yaw: [..], longitudinal: [..], tilt: [..]}
