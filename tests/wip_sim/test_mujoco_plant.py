@@ -266,3 +266,28 @@ def test_a_low_friction_patch_slips_where_the_ground_around_it_does_not():
         peaks[x] = peak
     assert peaks[0.0] > 0.05
     assert peaks[3.0] < 1e-3
+
+
+def test_the_plant_nodes_stepping_gives_the_runners_floats():
+    # The plant node and the stand-in base step with simulate_hold (disturbance function,
+    # a fresh tuple each tick), the in-process runner with hold_floats (disturbance rows,
+    # its own tuple back): on the same torques and disturbances the two give the same
+    # floats, so a lockstep graph run reproduces the in-process one on this plant too.
+    from wip_control.core.disturbances import Disturbances  # noqa: PLC0415
+    scenario = scenario_from_mapping({'plant': {'model': 'mujoco'}})
+    disturbances = Disturbances(scenario.disturbances, seed=0)
+    substeps, period = scenario.rates.substeps, scenario.control_period
+    dt = period / substeps
+    node, runner = scenario_plant(scenario), scenario_plant(scenario)
+    start = (0.0, 0.0, 0.0, 0.0, 0.05, 0.0, 0.0, 0.0)
+    node_state = runner_state = start
+    for k in range(400):                  # 2 s
+        t = k * period
+        # Each wheel: a tilt PD (drive under the lean) and a varying turn.
+        tau = 60.0 * node_state[4] + 10.0 * node_state[7] + math.sin(0.7 * t)
+        node_state = tuple(node.simulate_hold(node_state, tau, tau + 0.5,
+                                              disturbances.sample, t, dt, substeps).tolist())
+        rows = disturbances.sample_many([t + j * dt for j in range(substeps)])
+        runner_state = runner.hold_floats(runner_state, tau, tau + 0.5, rows, dt)
+        assert node_state == runner_state
+    assert abs(node_state[4]) < 0.3 and abs(node_state[2]) > 1e-3   # it moved and turned
