@@ -290,4 +290,5 @@ def test_the_plant_nodes_stepping_gives_the_runners_floats():
         rows = disturbances.sample_many([t + j * dt for j in range(substeps)])
         runner_state = runner.hold_floats(runner_state, tau, tau + 0.5, rows, dt)
         assert node_state == runner_state
-    assert abs(node_state[4]) < 0.3 and abs(node_state[2]) > 1e-3   # it moved and turned
+    # Not a trivial path: it stayed up, and turned by about 1 rad.
+    assert abs(node_state[4]) < 0.1 and abs(node_state[2]) > 0.5
