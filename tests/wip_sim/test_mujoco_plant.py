@@ -10,6 +10,7 @@
 
 import math
 import pathlib
+import sys
 
 import numpy as np
 import pytest
@@ -292,3 +293,15 @@ def test_the_plant_nodes_stepping_gives_the_runners_floats():
         assert node_state == runner_state
     # Not a trivial path: it stayed up, and turned by about 1 rad.
     assert abs(node_state[4]) < 0.1 and abs(node_state[2]) > 0.5
+
+
+def test_without_mujoco_the_plant_says_what_to_install_in_one_line(monkeypatch):
+    monkeypatch.setitem(sys.modules, 'mujoco', None)      # import mujoco fails
+    scenario = scenario_from_mapping({'plant': {'model': 'mujoco'}})
+    with pytest.raises(ImportError) as error:
+        scenario_plant(scenario)
+    message = str(error.value)
+    assert "plant model 'mujoco' needs the mujoco package" in message
+    assert 'pip install mujoco==' in message and '\n' not in message
+    # The equation plants do not need it.
+    assert scenario_plant(scenario_from_mapping({'plant': {'model': 'full'}})).model == 'full'

@@ -162,8 +162,9 @@ def scenario_plant(scenario):
         return Plant(section.parameters, model)
     try:
         module = importlib.import_module(ENGINE_MODELS[model])
-    except ImportError as err:
-        raise ImportError(f'plant model {model!r}: {err}') from err
+    except ImportError as err:      # the simulator package is not installed
+        raise ImportError(f'plant model {model!r} needs {ENGINE_MODELS[model]} (the '
+                          f'wip_sim package): {err}') from err
     return module.make_plant(section.parameters, section.contact,
                              scenario.control_period / scenario.rates.substeps,
                              section.terrain)
