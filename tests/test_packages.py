@@ -32,6 +32,7 @@ ROSDEP_KEYS = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'pyth
                'matplotlib': 'python3-matplotlib', 'numba': 'python3-numba'}
 #: Python libraries without a rosdep key: import name -> its name in requirements.txt.
 PIP_ONLY = {'mcap': 'mcap', 'mcap_ros2': 'mcap-ros2-support', 'proxsuite': 'proxsuite',
+            'mujoco': 'mujoco',
             'daqp': 'daqp', 'dask': 'dask', 'tqdm': 'tqdm', 'foxglove': 'foxglove-sdk',
             'rosbags': 'rosbags',
             # Optional (runs.parquet when installed): imported under try/except ImportError.

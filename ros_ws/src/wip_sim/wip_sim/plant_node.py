@@ -85,7 +85,7 @@ from wip_msgs.msg import GroundTruth, WheelTorques
 
 from wip_control.core.disturbances import Disturbances
 from wip_control.core.model import PHI, STATE_NAMES, THETA, V
-from wip_control.core.plant import Plant
+from wip_control.core.plant import scenario_plant
 from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_state
 from wip_control.core.scenario import load_scenario
@@ -173,7 +173,7 @@ class PlantNode(IntraProcessNode):
 
         # -- the simulation, built exactly as core.runner.run_scenario does --------------
         true_params = scenario.plant.parameters
-        self.plant = Plant(true_params, scenario.plant.model.model)
+        self.plant = scenario_plant(scenario)
         self.disturbances = Disturbances(scenario.disturbances, seed=scenario.seed)
         reference = make_reference(scenario.reference)
         self.state = tuple(float(v) for v in initial_state(scenario, reference.sample(0.0)))

@@ -87,7 +87,7 @@ from std_msgs.msg import Float64MultiArray
 
 from wip_control.core.disturbances import Disturbances
 from wip_control.core.model import OMEGA, PHI, THETA, V, X, Y
-from wip_control.core.plant import Plant
+from wip_control.core.plant import scenario_plant
 from wip_control.core.references import make_reference
 from wip_control.core.runner import initial_state
 from wip_control.core.scenario import load_scenario
@@ -209,7 +209,7 @@ class StandinBase(Node):
 
         # -- the simulation (built like core.runner.run_scenario) ----------------------------
         params = scenario.plant.parameters
-        self.plant = Plant(params, scenario.plant.model.model)
+        self.plant = scenario_plant(scenario)
         self.disturbances = Disturbances(scenario.disturbances, seed=scenario.seed)
         reference = make_reference(scenario.reference)
         self.state = tuple(float(v) for v in initial_state(scenario, reference.sample(0.0)))

@@ -9,7 +9,8 @@ made within one invocation, interleaved where possible:
    same QP matrices, interleaved tick by tick (goal: tick / DAQP ≤ 4).
 2. **In-process real-time factor** of the 90 s scenario, by wall clock and by CPU time
    side by side, with the load average (goal: ≥ 100×, which makes a campaign of 500
-   runs of 90 s take minutes).
+   runs of 90 s take minutes); then the same scenario on each plant model (paper, full,
+   mujoco), interleaved run by run (goal for mujoco: ≥ 20×).
 3. **Graph real-time factor** in lockstep (if the node graph is available; ``--no-graph``
    skips it), per layout (separate, composed, single: the plant in the controllers'
    process), next to the in-process one (goal: ≥ 5×, and within 10× of in-process).
@@ -34,6 +35,7 @@ Examples
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.metadata
 import json
 import os
@@ -44,6 +46,7 @@ import sys
 import time
 
 from .analysis.bench_mpc import _format, bench_mpc_against_daqp
+from wip_control.core.plant import MODELS, PlantConfig
 from wip_control.core.runner import run_scenario
 from wip_control.core.scenario import load_scenario
 
@@ -80,6 +83,39 @@ def bench_in_process(scenario, repeats: int) -> dict:
             'cpu_real_time_factor_median': statistics.median(cpu_factors),
             'cpu_real_time_factors': cpu_factors,
             'load_average_1min': os.getloadavg()[0] if hasattr(os, 'getloadavg') else None}
+
+
+def bench_plant_models(scenario, repeats: int) -> dict:
+    """The in-process real-time factor of ``scenario`` on each plant model, the models
+    interleaved run by run (the machine's load drifts alike for all): medians by wall and
+    by CPU time, per model. A model that cannot be built (mujoco not installed) is
+    reported as skipped."""
+    per_model = {model: dataclasses.replace(scenario, plant=dataclasses.replace(
+        scenario.plant, model=PlantConfig(model))) for model in MODELS}
+    factors: dict[str, dict[str, list[float]]] = {m: {'wall': [], 'cpu': []} for m in MODELS}
+    skipped: dict[str, str] = {}
+    for _ in range(repeats):
+        for model, variant in per_model.items():
+            if model in skipped:
+                continue
+            start, cpu_start = time.perf_counter(), time.process_time()
+            try:
+                result = run_scenario(variant)
+            except ImportError as err:
+                skipped[model] = str(err)
+                continue
+            wall = time.perf_counter() - start
+            cpu = time.process_time() - cpu_start
+            factors[model]['wall'].append(result.simulated_time_s / wall)
+            factors[model]['cpu'].append(result.simulated_time_s / cpu if cpu > 0
+                                         else float('inf'))
+    out: dict = {model: {'skipped': reason} for model, reason in skipped.items()}
+    for model, measured in factors.items():
+        if model not in skipped:
+            out[model] = {'real_time_factor_median': statistics.median(measured['wall']),
+                          'cpu_real_time_factor_median': statistics.median(measured['cpu']),
+                          'runs': len(measured['wall'])}
+    return out
 
 
 def bench_graph(scenario_path: str | None, layout: str = 'composed') -> dict | None:
@@ -169,6 +205,13 @@ def main(argv: list[str] | None = None) -> int:
           f'{args.repeats}; goal >= 100x'
           + (f'; load average {load:.1f} on {os.cpu_count()} CPUs' if load is not None else '')
           + ')')
+    models = bench_plant_models(scenario, args.repeats)
+    report['in_process_per_plant_model'] = models
+    print('-> per plant model, interleaved: ' + '; '.join(
+        f'{model} {row["real_time_factor_median"]:.1f}x wall, '
+        f'{row["cpu_real_time_factor_median"]:.1f}x CPU' if 'skipped' not in row
+        else f'{model} skipped ({row["skipped"]})' for model, row in models.items())
+        + ' (goal for mujoco >= 20x)')
 
     if not args.no_graph:
         print('\n== 3. Node graph in lockstep, same scenario, per layout')

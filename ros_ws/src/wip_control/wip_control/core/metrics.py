@@ -28,7 +28,7 @@ import numpy as np
 
 from .angles import wrap_to_pi
 from .model import input_gains
-from .plant import Plant, plant_input_gains
+from .plant import Plant, equation_model, plant_input_gains
 from .record import RunRecord
 
 SETTLE_TIME_S = 10.0
@@ -167,7 +167,7 @@ def compute_metrics(record: RunRecord, scenario, fell: bool | None = None,
 
 def _eso_errors(record: RunRecord, scenario) -> dict[str, float | None]:
     truth, estimate = record['truth'], record['estimate']
-    plant = Plant(scenario.plant.parameters, scenario.plant.model.model)
+    plant = Plant(scenario.plant.parameters, equation_model(scenario.plant.model.model))
     lumped = true_lumped_disturbances(record, plant, scenario.controller_model.parameters)
     t = estimate['t']
     errors = {}

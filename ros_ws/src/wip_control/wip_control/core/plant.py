@@ -107,6 +107,7 @@ References
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import math
 from typing import Callable, Sequence
 
@@ -116,8 +117,14 @@ from .config import param
 from .model import STATE_SIZE, THETA, input_gains
 from .params import WipParameters
 
-#: Plant models: the paper's eq. (1) and the full Lagrange–d'Alembert model.
-MODELS = ('paper', 'full')
+#: Plant models integrated here: the paper's eq. (1) and the full Lagrange–d'Alembert model.
+EQUATION_MODELS = ('paper', 'full')
+#: Plant models of a physics engine, by the module that builds them. The module is imported
+#: only when a scenario chooses the model (:func:`scenario_plant`): the controllers a robot
+#: installs (wip_control alone) need neither the simulator package nor the engine.
+ENGINE_MODELS = {'mujoco': 'wip_sim.mujoco_plant'}
+#: Every plant model a scenario may choose.
+MODELS = EQUATION_MODELS + tuple(ENGINE_MODELS)
 
 #: Default tilt [rad] past which :meth:`Plant.has_fallen` reports a fall (0.9 · π/2).
 DEFAULT_FALL_LIMIT = 0.45 * math.pi
@@ -132,8 +139,35 @@ class PlantConfig:
 
     model: str = param('paper', '1', "plant dynamics: 'paper' = eq. (1) of the paper, "
                        "'full' = Lagrange-d'Alembert model with the motor reaction torque, "
-                       'centrifugal and Coriolis terms and the physical yaw gain d/(2 r J)',
+                       'centrifugal and Coriolis terms and the physical yaw gain d/(2 r J), '
+                       "'mujoco' = the full model's bodies in the MuJoCo physics engine, "
+                       'with wheel-ground contact and friction (plant.contact)',
                        choices=MODELS)
+
+
+def equation_model(model: str) -> str:
+    """The equation model whose equations describe ``model``: itself, or 'full' for an
+    engine model (the same bodies; used for the metrics' lumped disturbances and gains)."""
+    return 'full' if model in ENGINE_MODELS else model
+
+
+def scenario_plant(scenario):
+    """The true plant of ``scenario`` (a :class:`.scenario.Scenario`): model, parameters
+    and, for an engine model, contact and terrain, stepped at the scenario's plant rate.
+    Equation models give a :class:`Plant`; an engine model an object with the same
+    ``hold_floats`` and ``simulate_hold``."""
+    section = scenario.plant
+    model = section.model.model
+    if model not in ENGINE_MODELS:
+        return Plant(section.parameters, model)
+    try:
+        module = importlib.import_module(ENGINE_MODELS[model])
+    except ImportError as err:      # the simulator package is not installed
+        raise ImportError(f'plant model {model!r} needs {ENGINE_MODELS[model]} (the '
+                          f'wip_sim package): {err}') from err
+    return module.make_plant(section.parameters, section.contact,
+                             scenario.control_period / scenario.rates.substeps,
+                             section.terrain)
 
 
 def tilt_pole(params: WipParameters, model: str = 'paper') -> float:
@@ -146,7 +180,7 @@ def tilt_pole(params: WipParameters, model: str = 'paper') -> float:
     (ω², υω) or act through the input, so they vanish from the linearisation at rest
     with zero input. About 4.58 rad/s with the default parameters.
     """
-    _check_model(model)
+    _check_model(equation_model(model))
     p = params
     return math.sqrt(p.effective_mass * p.body_mass * p.gravity * p.com_height
                      / p.omega_denominator(0.0))
@@ -155,7 +189,7 @@ def tilt_pole(params: WipParameters, model: str = 'paper') -> float:
 def plant_input_gains(params: WipParameters, model: str,
                       theta: float) -> tuple[float, float, float]:
     """(g1, g2, g3) of the plant ``model`` ('paper' or 'full') at tilt θ [rad]."""
-    if model == 'full':
+    if equation_model(model) == 'full':
         return full_input_gains(params, theta)
     return input_gains(params, theta)
 
@@ -176,8 +210,9 @@ def full_input_gains(params: WipParameters, theta: float) -> tuple[float, float,
 
 
 def _check_model(model: str) -> None:
-    if model not in MODELS:
-        raise ValueError(f'unknown plant model {model!r}; expected one of {list(MODELS)}')
+    if model not in EQUATION_MODELS:
+        raise ValueError(f'unknown plant model {model!r}; expected one of '
+                         f'{list(EQUATION_MODELS)} (engine models: scenario_plant)')
 
 
 def _state_floats(state: Sequence[float]) -> list[float]:

@@ -22,7 +22,7 @@ from . import control_step
 from .control_step import ControlStep
 from .disturbances import Disturbances
 from .model import PHI, THETA
-from .plant import Plant
+from .plant import scenario_plant
 from .record import RecordBuffer, RunRecord
 from .references import make_reference
 from .scenario import Scenario
@@ -75,7 +75,7 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
     """
     wall_start = time.perf_counter()
     true_params = scenario.plant.parameters
-    plant = Plant(true_params, scenario.plant.model.model)
+    plant = scenario_plant(scenario)
     disturbances = Disturbances(scenario.disturbances, seed=scenario.seed)
     reference = make_reference(scenario.reference)
     # The state is a float tuple in the loop (indexing a tuple is cheaper than an array).

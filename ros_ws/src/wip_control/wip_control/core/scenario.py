@@ -19,7 +19,10 @@ unit, default and range)::
     fall_threshold: float [rad]
     design: robust|paper          # paper: the paper's estimator, ARC, generator, reference
     initial_state: {pose_relative_to_reference, pose, x_v, theta, omega, v, theta_dot}
-    plant: {model: paper|full, parameters: {<WipParameters field>: value}}
+    plant: {model: paper|full|mujoco, parameters: {<WipParameters field>: value},
+            contact: {friction, rolling_resistance},    # contact, terrain: mujoco only
+            terrain: {slope_start, slope_grade, bump_position, bump_height, bump_length,
+                      patch_start, patch_end, patch_friction}}
     controller_model: {parameters: {...}}       # nominal model used by the controllers
     reference: {kind: trifolium|circle|line|figure_eight|waypoints, ...}
     disturbances: {yaw: [..], longitudinal: [..], tilt: [..]}
@@ -42,10 +45,11 @@ from .arc import ArcConfig
 from .config import ConfigError, _show, from_mapping, load_yaml_text, param, to_mapping
 from .disturbances import DisturbanceConfig
 from .eso import EsoConfig
+from .ground import ContactConfig, TerrainConfig
 from .mixer import MixerConfig
 from .mpc import MpcConfig, PAPER_MPC_SETTINGS, resolves_faster
 from .params import WipParameters
-from .plant import PlantConfig
+from .plant import ENGINE_MODELS, PlantConfig
 from .position import PositionConfig
 from .references import ReferenceConfig
 from .sensors import SensorConfig
@@ -96,10 +100,13 @@ class InitialStateConfig:
 
 @dataclasses.dataclass(frozen=True)
 class PlantSection:
-    """The true plant: model and parameter overrides of :class:`WipParameters`."""
+    """The true plant: model, parameter overrides of :class:`WipParameters` and, for an
+    engine model, the wheel-ground contact."""
 
     model: PlantConfig = dataclasses.field(default_factory=PlantConfig)
     parameters: WipParameters = dataclasses.field(default_factory=WipParameters)
+    contact: ContactConfig = dataclasses.field(default_factory=ContactConfig)
+    terrain: TerrainConfig = dataclasses.field(default_factory=TerrainConfig)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -270,13 +277,22 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
     if not isinstance(plant, Mapping):
         raise ConfigError(f'plant: expected a mapping, got {plant!r}')
     for key in plant:
-        if key not in ('model', 'parameters'):
-            raise ConfigError(f'plant.{key}: unknown key; expected one of [\'model\', '
-                              '\'parameters\']')
+        if key not in ('model', 'parameters', 'contact', 'terrain'):
+            raise ConfigError(f'plant.{key}: unknown key; expected one of [\'contact\', '
+                              '\'model\', \'parameters\', \'terrain\']')
+    model = from_mapping(PlantConfig, {'model': plant['model']} if 'model' in plant else {},
+                         'plant')
+    for key in ('contact', 'terrain'):
+        if key in plant and model.model not in ENGINE_MODELS:
+            # The equation plants roll without slip on flat ground: a friction or a
+            # terrain would silently do nothing.
+            raise ConfigError(f'plant.{key}: only used by the plant models '
+                              f'{sorted(ENGINE_MODELS)}, not by {model.model!r}')
     kwargs['plant'] = PlantSection(
-        model=from_mapping(PlantConfig, {'model': plant['model']} if 'model' in plant else {},
-                           'plant'),
-        parameters=_parameters_from_mapping(plant.get('parameters'), 'plant.parameters'))
+        model=model,
+        parameters=_parameters_from_mapping(plant.get('parameters'), 'plant.parameters'),
+        contact=from_mapping(ContactConfig, plant.get('contact'), 'plant.contact'),
+        terrain=from_mapping(TerrainConfig, plant.get('terrain'), 'plant.terrain'))
     nominal = _section(data, 'controller_model')
     if not isinstance(nominal, Mapping):
         raise ConfigError(f'controller_model: expected a mapping, got {nominal!r}')
@@ -374,6 +390,9 @@ def scenario_to_mapping(scenario: Scenario) -> dict[str, Any]:
     out = to_mapping(scenario)
     out['plant'] = {'model': scenario.plant.model.model,
                     'parameters': dataclasses.asdict(scenario.plant.parameters)}
+    if scenario.plant.model.model in ENGINE_MODELS:
+        out['plant']['contact'] = dataclasses.asdict(scenario.plant.contact)
+        out['plant']['terrain'] = dataclasses.asdict(scenario.plant.terrain)
     out['controller_model'] = {
         'parameters': dataclasses.asdict(scenario.controller_model.parameters)}
     out['disturbances'] = scenario.disturbances.to_mapping()

@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 
 from wip_control.core.angles import wrap_to_pi  # noqa: E402
 from wip_control.core.metrics import _interp, true_lumped_disturbances  # noqa: E402
-from wip_control.core.plant import Plant, plant_input_gains  # noqa: E402
+from wip_control.core.plant import Plant, equation_model, plant_input_gains  # noqa: E402
 from wip_control.core.record import RunRecord  # noqa: E402
 
 _TRUE = dict(color='black', linewidth=1.0, label='true')
@@ -211,7 +211,8 @@ def figure_eso(record: RunRecord, out: pathlib.Path, scenario) -> list[pathlib.P
     """Figs. 8–9: ESO estimates against the truth, rotational and longitudinal."""
     lumped = {}
     if 'truth' in record:
-        plant = Plant(scenario.plant.parameters, scenario.plant.model.model)
+        plant = Plant(scenario.plant.parameters,
+                      equation_model(scenario.plant.model.model))
         lumped = true_lumped_disturbances(record, plant, scenario.controller_model.parameters)
     paths = []
     fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
