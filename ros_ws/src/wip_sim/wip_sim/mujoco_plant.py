@@ -156,8 +156,10 @@ def terrain_geoms(terrain: TerrainConfig, patch_contact: str = '') -> str:
 
 
 def mjcf(params: WipParameters, contact: ContactConfig, timestep: float,
-         terrain: TerrainConfig | None = None) -> str:
-    """The MJCF model of the WIP on the ground (see the module docstring)."""
+         terrain: TerrainConfig | None = None, wheel_friction: float = 0.0) -> str:
+    """The MJCF model of the WIP on the ground (see the module docstring); the wheels'
+    viscous axle friction is their hinges' damping (a torque against the joint's rate,
+    which is the wheel's rate against the body, as in the equation plants)."""
     p = params
     b = body_inertias(p)
     r, half = p.wheel_radius, 0.5 * p.track_width
@@ -190,11 +192,11 @@ def mjcf(params: WipParameters, contact: ContactConfig, timestep: float,
       <geom type="capsule" fromto="0 0 0 0 0 {2 * p.com_height!r}" size="0.05"
             contype="0" conaffinity="0" mass="0"/>
       <body name="wheel_left" pos="0 {half!r} 0">
-        <joint name="wheel_left" type="hinge" axis="0 1 0"/>
+        <joint name="wheel_left" type="hinge" axis="0 1 0" damping="{wheel_friction!r}"/>
         {wheel}
       </body>
       <body name="wheel_right" pos="0 {-half!r} 0">
-        <joint name="wheel_right" type="hinge" axis="0 1 0"/>
+        <joint name="wheel_right" type="hinge" axis="0 1 0" damping="{wheel_friction!r}"/>
         {wheel}
       </body>
     </body>
@@ -220,7 +222,8 @@ class MujocoPlant:
     model = 'mujoco'
 
     def __init__(self, params: WipParameters, contact: ContactConfig | None = None,
-                 timestep: float = 1e-3, terrain: TerrainConfig | None = None) -> None:
+                 timestep: float = 1e-3, terrain: TerrainConfig | None = None,
+                 wheel_friction: float = 0.0) -> None:
         if not (math.isfinite(timestep) and timestep > 0.0):
             raise ValueError(f'timestep must be a positive finite time [s], got {timestep!r}')
         mj = _import_mujoco()
@@ -229,7 +232,8 @@ class MujocoPlant:
         self.contact = ContactConfig() if contact is None else contact
         self.timestep = float(timestep)
         self.terrain = TerrainConfig() if terrain is None else terrain
-        self.xml = mjcf(params, self.contact, self.timestep, self.terrain)
+        self.wheel_friction = float(wheel_friction)
+        self.xml = mjcf(params, self.contact, self.timestep, self.terrain, self.wheel_friction)
         self._model = mj.MjModel.from_xml_string(self.xml)
         self._data = mj.MjData(self._model)
         p = params
@@ -439,7 +443,8 @@ def _euler_zyx(quat) -> tuple[float, float, float]:
 
 
 def make_plant(params: WipParameters, contact: ContactConfig, timestep: float,
-               terrain: TerrainConfig | None = None) -> MujocoPlant:
+               terrain: TerrainConfig | None = None,
+               wheel_friction: float = 0.0) -> MujocoPlant:
     """The plant of ``plant: {model: mujoco}`` (called by
     :func:`wip_control.core.plant.scenario_plant`)."""
-    return MujocoPlant(params, contact, timestep, terrain)
+    return MujocoPlant(params, contact, timestep, terrain, wheel_friction)

@@ -5,9 +5,12 @@
 Model (1) of Yue, An, Li (2016), written in its Euler-Lagrange form (the paper plant of
 core/plant.py, multiplied out; τυ = τl + τr, τω = τr − τl, REP 103)::
 
-    m_v υ̇ + m_p l (cosθ θ̈ − sinθ θ̇²)                       [+ b υ] = τυ / r
+    m_v υ̇ + m_p l (cosθ θ̈ − sinθ θ̇²)         [+ 2 b (υ/r − θ̇) / r] = τυ / r
     m_p l (cosθ υ̇ − g sinθ) + J_θ θ̈ − m_p l² sinθ cosθ ω²           = 0
-    J_ϕ ω̇ + m_p l² (sin²θ ω̇ + sin2θ θ̇ ω)                             = (d / r) τω
+    J_ϕ ω̇ + m_p l² (sin²θ ω̇ + sin2θ θ̇ ω)           [+ (d/r) b d ω / r] = (d / r) τω
+
+with b the wheels' viscous axle friction (``--friction``; a torque −b × the wheel's rate
+against the body, as core/plant.py's ``wheel_friction``),
 
 linear in p = (m_v, m_p l, J_θ, m_p l², J_ϕ [, b]) with r, d and g known. The three rows
 are stacked and solved by weighted linear least squares on low-pass-filtered signals; see
@@ -34,7 +37,7 @@ from wip_control.tools.cli import EXIT_OK, EXIT_USAGE, exit_with
 NAMES = ('effective_mass', 'mpl', 'pitch_inertia', 'mpl2', 'yaw_inertia_total', 'friction')
 SYMBOLS = {'effective_mass': 'm_v [kg]', 'mpl': 'm_p l [kg m]',
            'pitch_inertia': 'J_theta [kg m^2]', 'mpl2': 'm_p l^2 [kg m^2]',
-           'yaw_inertia_total': 'J_phi [kg m^2]', 'friction': 'b [N s/m]',
+           'yaw_inertia_total': 'J_phi [kg m^2]', 'friction': 'b [N m s/rad]',
            'com_height': 'l = m_p l^2 / m_p l [m]'}
 #: Smallest RMS excitation [SI] of a regressor signal that counts (about what an IMU and
 #: the wheel encoders resolve after the filter): below it the column is noise.
@@ -184,11 +187,16 @@ def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
     z = np.zeros_like(th)
     # Columns: m_v, m_p l, J_θ, m_p l², J_ϕ, b.
     full = 1.0 if model == 'full' else 0.0
-    lon = np.stack([vd, c * thdd - s * (thd ** 2 + full * om ** 2), z, z, z, v], axis=1)
-    pitch = np.stack([z, c * vd - g * s, thdd, -s * c * om ** 2, z, z], axis=1)
-    yaw = np.stack([z, full * s * v * om, z, s * s * omd + 2.0 * s * c * thd * om, omd, z],
+    yaw_gain = d / (r * (2.0 if full else 1.0))
+    # Axle friction b acts as the motors do: τυ loses 2b (υ/r − θ̇) and τω loses b d ω / r
+    # (core/plant.py); moved to the left, those are b's columns in each row.
+    slip_v = 2.0 * (v / r - thd)
+    lon = np.stack([vd, c * thdd - s * (thd ** 2 + full * om ** 2), z, z, z, slip_v / r],
                    axis=1)
-    ys = (tau_v / r, -full * tau_v, d * tau_w / (r * (2.0 if full else 1.0)))
+    pitch = np.stack([z, c * vd - g * s, thdd, -s * c * om ** 2, z, -full * slip_v], axis=1)
+    yaw = np.stack([z, full * s * v * om, z, s * s * omd + 2.0 * s * c * thd * om, omd,
+                    yaw_gain * d * om / r], axis=1)
+    ys = (tau_v / r, -full * tau_v, yaw_gain * tau_w)
     blocks, outs = [], []
     for a, y in zip((lon, pitch, yaw), ys):
         af = np.stack([gaussian_lowpass(a[:, j], dt, cutoff_hz) for j in range(a.shape[1])],
@@ -317,12 +325,14 @@ def identify(record: Mapping, params: WipParameters | None = None, source: str =
                                            f'condition number {condition:.3g} > '
                                            f'{MAX_CONDITION:g}')
             elif name == 'friction':
-                # Its true value may be 0: judged against m_v per second instead.
+                # Its true value may be 0: judged by its forward-row coefficient 2b/r²
+                # [N s/m] against m_v per second instead.
                 mv = float(p[keep.index(0)]) if 0 in keep else params.effective_mass
-                ok = hw <= MAX_RELATIVE_CI * abs(mv)
+                radius = params.wheel_radius
+                ok = 2.0 * hw / radius ** 2 <= MAX_RELATIVE_CI * abs(mv)
                 estimates[name] = (Estimate(name, value, hw) if ok else Estimate(
-                    name, None, None, f'95 % CI ±{hw:.3g} N s/m > {MAX_RELATIVE_CI:.0%} '
-                    'of m_v per second'))
+                    name, None, None, f'95 % CI ±{hw:.3g} N m s/rad: 2b/r² uncertain by more '
+                    f'than {MAX_RELATIVE_CI:.0%} of m_v per second'))
             elif value <= 0.0 or hw > MAX_RELATIVE_CI * abs(value):
                 estimates[name] = Estimate(name, None, None,
                                            f'relative 95 % CI {hw / max(abs(value), 1e-300):.1%}'
@@ -457,7 +467,7 @@ def main(argv: Iterable[str] | None = None) -> int:
                         "the full plant's (motor reaction torque, centrifugal and Coriolis "
                         'terms, yaw gain d/(2r); a real robot)')
     parser.add_argument('--friction', action='store_true',
-                        help='also fit a wheel viscous friction b (not in eq. (1))')
+                        help="also fit the wheels' viscous axle friction b (not in eq. (1))")
     parser.add_argument('--scenario', help='scenario YAML whose controller_model gives '
                         'the known r, d, g, m_w, J_w (default: the nominal parameters)')
     args = parser.parse_args(None if argv is None else list(argv))

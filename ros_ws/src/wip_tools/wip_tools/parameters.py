@@ -113,8 +113,9 @@ def _range(field_type: Any, meta: dict) -> str:
 def config_rows(cls: type, prefix: str) -> list[Row]:
     """Rows of the fields of config dataclass ``cls``, named ``prefix + field``.
 
-    A nested dataclass section is listed field by field; one whose only field has the
-    section's own name (``plant.model`` holding PlantConfig.model) is that one key.
+    A nested dataclass section is listed field by field; one with a field of the section's
+    own name is read flat from its parent's mapping (PlantConfig: ``plant.model``,
+    ``plant.wheel_friction``), so its keys are listed there.
     A tuple of small dataclasses (disturbance components) is listed once with its
     default, then the keys of one element as ``name[i].key``.
     """
@@ -125,8 +126,8 @@ def config_rows(cls: type, prefix: str) -> list[Row]:
         name = f'{prefix}{field.name}'
         if dataclasses.is_dataclass(field_type):
             inner = dataclasses.fields(field_type)
-            if len(inner) == 1 and inner[0].name == field.name:
-                rows += [r._replace(name=name) for r in config_rows(field_type, '')]
+            if any(f.name == field.name for f in inner):
+                rows += config_rows(field_type, prefix)
             else:
                 rows += config_rows(field_type, name + '.')
             continue

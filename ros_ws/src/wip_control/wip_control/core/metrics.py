@@ -167,7 +167,8 @@ def compute_metrics(record: RunRecord, scenario, fell: bool | None = None,
 
 def _eso_errors(record: RunRecord, scenario) -> dict[str, float | None]:
     truth, estimate = record['truth'], record['estimate']
-    plant = Plant(scenario.plant.parameters, equation_model(scenario.plant.model.model))
+    plant = Plant(scenario.plant.parameters, equation_model(scenario.plant.model.model),
+                  scenario.plant.model.wheel_friction)
     lumped = true_lumped_disturbances(record, plant, scenario.controller_model.parameters)
     t = estimate['t']
     errors = {}

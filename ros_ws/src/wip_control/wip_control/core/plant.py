@@ -143,6 +143,10 @@ class PlantConfig:
                        "'mujoco' = the full model's bodies in the MuJoCo physics engine, "
                        'with wheel-ground contact and friction (plant.contact)',
                        choices=MODELS)
+    wheel_friction: float = param(0.0, 'N m s/rad', 'viscous friction of each wheel on its '
+                                  'axle: a torque -b (wheel rate - body tilt rate) between '
+                                  'wheel and body, acting as the motor torque does',
+                                  minimum=0.0, maximum=10.0)
 
 
 def equation_model(model: str) -> str:
@@ -159,7 +163,7 @@ def scenario_plant(scenario):
     section = scenario.plant
     model = section.model.model
     if model not in ENGINE_MODELS:
-        return Plant(section.parameters, model)
+        return Plant(section.parameters, model, section.model.wheel_friction)
     try:
         module = importlib.import_module(ENGINE_MODELS[model])
     except ImportError as err:      # the simulator package is not installed
@@ -167,7 +171,7 @@ def scenario_plant(scenario):
                           f'wip_sim package): {err}') from err
     return module.make_plant(section.parameters, section.contact,
                              scenario.control_period / scenario.rates.substeps,
-                             section.terrain)
+                             section.terrain, section.model.wheel_friction)
 
 
 def tilt_pole(params: WipParameters, model: str = 'paper') -> float:
@@ -252,10 +256,14 @@ class Plant:
     inputs and run the same compiled code.
     """
 
-    def __init__(self, params: WipParameters, model: str = 'paper') -> None:
+    def __init__(self, params: WipParameters, model: str = 'paper',
+                 wheel_friction: float = 0.0) -> None:
         _check_model(model)
+        if not (math.isfinite(wheel_friction) and wheel_friction >= 0.0):
+            raise ValueError(f'wheel_friction must be finite and >= 0, got {wheel_friction!r}')
         self.params = params
         self.model = model
+        self.wheel_friction = float(wheel_friction)
         p = params
         mp, l, g, r = p.body_mass, p.com_height, p.gravity, p.wheel_radius
         full = model == 'full'
@@ -269,7 +277,10 @@ class Plant:
             # Full-model extra terms: coefficients are 0 for the paper model.
             k_centrifugal=1.0 if full else 0.0,     # m_p l sinθ ω² in the forward eq.
             k_coriolis=mp * l if full else 0.0,     # m_p l sinθ υ ω in the yaw eq.
-            k_reaction=1.0 if full else 0.0)        # −τυ on the body pitch
+            k_reaction=1.0 if full else 0.0,        # −τυ on the body pitch
+            # Axle friction b: the wheels' rates relative to the body are
+            # (υ ∓ (d/2) ω)/r − θ̇, so τυ loses 2b (υ/r − θ̇) and τω loses b d ω / r.
+            friction_v=2.0 * wheel_friction, friction_w=wheel_friction * p.track_width / r)
         self._accelerations = _make_accelerations(**self._consts)
         self._accelerations_array = _make_accelerations(**self._consts, sin=np.sin,
                                                         cos=np.cos)
@@ -279,7 +290,7 @@ class Plant:
 
     @classmethod
     def from_config(cls, params: WipParameters, config: PlantConfig) -> 'Plant':
-        return cls(params, config.model)
+        return cls(params, config.model, config.wheel_friction)
 
     # ------------------------------------------------------------------ dynamics
 
@@ -413,7 +424,8 @@ def _check_dt(dt: float) -> None:
 
 
 def _make_accelerations(mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_gain,
-                        k_centrifugal, k_coriolis, k_reaction, sin=math.sin, cos=math.cos):
+                        k_centrifugal, k_coriolis, k_reaction, friction_v, friction_w,
+                        sin=math.sin, cos=math.cos):
     """The dynamics (ω̇, υ̇, θ̈), constants bound as closure variables.
 
     On plain floats with ``math``'s sin and cos (:meth:`Plant.derivative`); on arrays
@@ -423,6 +435,9 @@ def _make_accelerations(mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_
 
     def accelerations(th, om, v, thd, tv, tw):
         """(ω̇, υ̇, θ̈) without disturbances, for τυ = tv, τω = tw [N·m]."""
+        # The axle friction acts as the motors do (with b = 0 the same bits as without).
+        tv = tv - friction_v * (v * inv_r - thd)
+        tw = tw - friction_w * om
         s = sin(th)
         c = cos(th)
         inv_omega = 1.0 / (mvjt - mpl_sq * c * c)                       # 1/Ω(θ)
@@ -438,7 +453,8 @@ def _make_accelerations(mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_
 
 #: Order of the constants in the first argument of :func:`_rk4_hold`.
 _CONSTANT_NAMES = ('mv', 'jt', 'jphi', 'mpl', 'mpl2', 'mpgl', 'mvjt', 'mpl_sq', 'inv_r',
-                   'yaw_gain', 'k_centrifugal', 'k_coriolis', 'k_reaction')
+                   'yaw_gain', 'k_centrifugal', 'k_coriolis', 'k_reaction', 'friction_v',
+                   'friction_w')
 
 
 #: The compiled integrator (:func:`.plant_rk4.rk4_hold`), imported by the first Plant.

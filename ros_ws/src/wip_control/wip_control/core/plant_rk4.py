@@ -13,12 +13,18 @@ import numba
 import numpy as np
 
 @numba.njit(cache=True, nogil=True, inline='always')
-def _slopes(k, ytw, tvr, tvk, th, om, v, thd, d1, d2, d3):
-    """(ω̇, υ̇, θ̈) at one RK4 stage: :func:`.plant._make_accelerations` with the torque
-    terms ``ytw``, ``tvr``, ``tvk`` precomputed for the step. Inlined into the caller, so
-    the operations and their order are those of the reference step (bit for bit)."""
-    (mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, _inv_r, _yaw_gain, k_centrifugal,
-     k_coriolis, _k_reaction) = k
+def _slopes(k, tv, tw, th, om, v, thd, d1, d2, d3):
+    """(ω̇, υ̇, θ̈) at one RK4 stage: :func:`.plant._make_accelerations` for the held wheel
+    torques τυ = ``tv``, τω = ``tw``. Inlined into the caller, so the operations and their
+    order are those of the reference step (bit for bit)."""
+    (mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_gain, k_centrifugal,
+     k_coriolis, k_reaction, friction_v, friction_w) = k
+    # Axle friction, state dependent (with b = 0 these leave tv and tw as they are).
+    tv = tv - friction_v * (v * inv_r - thd)
+    tw = tw - friction_w * om
+    ytw = yaw_gain * tw
+    tvr = tv * inv_r
+    tvk = k_reaction * tv
     s = math.sin(th)
     c = math.cos(th)
     inv_omega = 1.0 / (mvjt - mpl_sq * c * c)
@@ -41,14 +47,10 @@ def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance,
     (:func:`_slopes`, inlined) do the same operations in the same order as the interpreted
     step this replaced, hence the same results bit for bit.
     """
-    (_mv, _jt, _jphi, _mpl, _mpl2, _mpgl, _mvjt, _mpl_sq, inv_r, yaw_gain, _k_centrifugal,
-     _k_coriolis, k_reaction) = k
     sin = math.sin
     cos = math.cos
     tw = tau_right - tau_left
-    tvr = (tau_left + tau_right) * inv_r
-    tvk = k_reaction * (tau_left + tau_right)
-    ytw = yaw_gain * tw
+    tv = tau_left + tau_right
     hh = 0.5 * h
     h6 = h / 6.0
 
@@ -57,7 +59,7 @@ def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance,
         d2 = disturbance[i, 1]
         d3 = disturbance[i, 2]
         # Stage 1 at (th, om, v, thd, phi).
-        a1o, a1v, a1t = _slopes(k, ytw, tvr, tvk, th, om, v, thd, d1, d2, d3)
+        a1o, a1v, a1t = _slopes(k, tv, tw, th, om, v, thd, d1, d2, d3)
         cp1 = cos(phi)
         sp1 = sin(phi)
 
@@ -67,7 +69,7 @@ def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance,
         v2 = v + hh * a1v
         thd2 = thd + hh * a1t
         phi2 = phi + hh * om
-        a2o, a2v, a2t = _slopes(k, ytw, tvr, tvk, th2, om2, v2, thd2, d1, d2, d3)
+        a2o, a2v, a2t = _slopes(k, tv, tw, th2, om2, v2, thd2, d1, d2, d3)
         cp2 = cos(phi2)
         sp2 = sin(phi2)
 
@@ -77,7 +79,7 @@ def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance,
         v3 = v + hh * a2v
         thd3 = thd + hh * a2t
         phi3 = phi + hh * om2
-        a3o, a3v, a3t = _slopes(k, ytw, tvr, tvk, th3, om3, v3, thd3, d1, d2, d3)
+        a3o, a3v, a3t = _slopes(k, tv, tw, th3, om3, v3, thd3, d1, d2, d3)
         cp3 = cos(phi3)
         sp3 = sin(phi3)
 
@@ -87,7 +89,7 @@ def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance,
         v4 = v + h * a3v
         thd4 = thd + h * a3t
         phi4 = phi + h * om3
-        a4o, a4v, a4t = _slopes(k, ytw, tvr, tvk, th4, om4, v4, thd4, d1, d2, d3)
+        a4o, a4v, a4t = _slopes(k, tv, tw, th4, om4, v4, thd4, d1, d2, d3)
         cp4 = cos(phi4)
         sp4 = sin(phi4)
 

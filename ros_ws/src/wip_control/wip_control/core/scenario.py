@@ -19,8 +19,8 @@ unit, default and range)::
     fall_threshold: float [rad]
     design: robust|paper          # paper: the paper's estimator, ARC, generator, reference
     initial_state: {pose_relative_to_reference, pose, x_v, theta, omega, v, theta_dot}
-    plant: {model: paper|full|mujoco, parameters: {<WipParameters field>: value},
-            contact: {friction, rolling_resistance},    # contact, terrain: mujoco only
+    plant: {model: paper|full|mujoco, wheel_friction: b, parameters: {<WipParameters field>:
+            value}, contact: {friction, rolling_resistance},    # contact, terrain: mujoco only
             terrain: {slope_start, slope_grade, bump_position, bump_height, bump_length,
                       patch_start, patch_end, patch_friction}}
     controller_model: {parameters: {...}}       # nominal model used by the controllers
@@ -276,11 +276,12 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
     plant = _section(data, 'plant')
     if not isinstance(plant, Mapping):
         raise ConfigError(f'plant: expected a mapping, got {plant!r}')
+    config_keys = tuple(field.name for field in dataclasses.fields(PlantConfig))
     for key in plant:
-        if key not in ('model', 'parameters', 'contact', 'terrain'):
-            raise ConfigError(f'plant.{key}: unknown key; expected one of [\'contact\', '
-                              '\'model\', \'parameters\', \'terrain\']')
-    model = from_mapping(PlantConfig, {'model': plant['model']} if 'model' in plant else {},
+        if key not in (*config_keys, 'parameters', 'contact', 'terrain'):
+            raise ConfigError(f'plant.{key}: unknown key; expected one of '
+                              f'{sorted([*config_keys, "parameters", "contact", "terrain"])}')
+    model = from_mapping(PlantConfig, {key: plant[key] for key in config_keys if key in plant},
                          'plant')
     for key in ('contact', 'terrain'):
         if key in plant and model.model not in ENGINE_MODELS:
@@ -388,7 +389,7 @@ def read_scenario_file(path: str | pathlib.Path) -> Any:
 def scenario_to_mapping(scenario: Scenario) -> dict[str, Any]:
     """Plain-data form of a scenario (round-trips through :func:`scenario_from_mapping`)."""
     out = to_mapping(scenario)
-    out['plant'] = {'model': scenario.plant.model.model,
+    out['plant'] = {**dataclasses.asdict(scenario.plant.model),
                     'parameters': dataclasses.asdict(scenario.plant.parameters)}
     if scenario.plant.model.model in ENGINE_MODELS:
         out['plant']['contact'] = dataclasses.asdict(scenario.plant.contact)

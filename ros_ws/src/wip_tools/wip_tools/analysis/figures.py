@@ -212,7 +212,8 @@ def figure_eso(record: RunRecord, out: pathlib.Path, scenario) -> list[pathlib.P
     lumped = {}
     if 'truth' in record:
         plant = Plant(scenario.plant.parameters,
-                      equation_model(scenario.plant.model.model))
+                      equation_model(scenario.plant.model.model),
+                      scenario.plant.model.wheel_friction)
         lumped = true_lumped_disturbances(record, plant, scenario.controller_model.parameters)
     paths = []
     fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
