@@ -71,6 +71,8 @@ from wip_control.nodes.hardware_inputs import (check_mounting_rpy, check_wheel_s
                                                rotate_vector_into)
 
 from .hardware import hardware_parameters, load_params_file, node_parameters, parse_remap
+from .params_check import check_run_inputs
+from .params_files import CONTROLLER_NODES
 from .launcher import GraphError, use_user_ros_environment
 
 # The exit-code table of every tool (wip_control.tools.cli); no data from the base is a
@@ -138,7 +140,11 @@ def eso_parameters(scenario_path: str | None, params_files: list[str]) -> dict[s
     except ConfigError as err:
         raise GraphError(str(err), EXIT_USAGE) from err
     extra = [load_params_file(path) for path in params_files]
-    return node_parameters('eso', hardware_parameters(scenario), extra)
+    generated = hardware_parameters(scenario)
+    # The same files run_graph --mode hardware takes: checked against every controller.
+    for line in check_run_inputs(params_files, extra, CONTROLLER_NODES, generated, []):
+        print(f'check_base: warning: {line}', file=sys.stderr)
+    return node_parameters('eso', generated, extra)
 
 
 # ----------------------------------------------------------------------------- readings
