@@ -34,6 +34,7 @@ from wip_control.tools.cli import EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with
 from .bag_reader import BagReadError, integrity_problems, read_metadata_file, scan
 from .bag_repair import mcap_files_by_index, read_file_contents
 from .bag_writer import METADATA_FILE_NAME
+from wip_control.tools.cli import add_exit_codes
 
 INDENT = 19  # width of the field names of ros2 bag info ('Topic information: ')
 _UNITS = ('B', 'KiB', 'MiB', 'GiB', 'TiB')
@@ -245,6 +246,7 @@ def main(argv=None):
     parser.add_argument('--from-content', action='store_true',
                         help='figures from the files\' contents, not from metadata.yaml')
     parser.add_argument('--json', action='store_true', help='print JSON instead')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     try:
         info = bag_information(args.bag, from_content=args.from_content)

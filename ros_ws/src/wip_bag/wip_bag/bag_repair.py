@@ -59,6 +59,7 @@ from .bag_writer import (bag_metadata, BagWriterError, COMPRESSION, FileStatisti
                          library_identifier, MCAP_PROFILE, METADATA_FILE_NAME,
                          write_metadata_file)
 from .qos_yaml import normalize_offered_qos
+from wip_control.tools.cli import add_exit_codes
 
 UNFINISHED_SUFFIX = '.unfinished'
 # What reading a truncated or corrupt tail raises (CRC errors are ValueErrors).
@@ -428,6 +429,7 @@ def main(argv=None):
                         help='chunk compression of rewritten files (default: as found)')
     parser.add_argument('--dry-run', action='store_true',
                         help='report what would be done, write nothing')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     try:
         result = repair_bag(args.bag, out=args.out, compression=args.compression,

@@ -103,6 +103,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from wip_control.nodes.launched import end_with_launcher, LAUNCHER_PID_VARIABLE
 from wip_control.nodes.parameters import ConfigParameters
+from wip_control.tools.cli import answer_node_help
 
 from .bag_writer import (BagExistsError, BagWriterError, message_definition,
                          Rosbag2McapWriter, type_description_hash)
@@ -502,6 +503,8 @@ def drain(node, executor, stop, quiet=STOP_QUIET, longest=STOP_DRAIN):
 
 def main(args=None):
     """Entry point ``recorder`` (``ros2 run wip_bag recorder --ros-args -p output:=...``)."""
+    if answer_node_help('recorder', 'wip_bag', args):
+        return 0
     end_with_launcher()
     # Our own handlers (stop_signals): rclpy's would shut the context down and raise
     # KeyboardInterrupt wherever the main thread is, also inside the bag's close.

@@ -113,6 +113,7 @@ from .bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topic
 from .message_types import message_class
 from .qos_yaml import INFINITE_DURATION_NS, normalize_offered_qos
 from .settings import ReplayerSettings
+from wip_control.tools.cli import add_exit_codes
 
 # The exit-code table of every tool (wip_control.tools.cli).
 EXIT_OK = 0
@@ -526,6 +527,7 @@ def parse_command_line(argv):
     for option, _, text in _LISTS:
         parser.add_argument(option, nargs='+', help=text,
                             metavar='FROM:=TO' if option == '--remap' else 'TOPIC')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     overrides = []
     if args.bag:

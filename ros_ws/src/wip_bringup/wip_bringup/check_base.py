@@ -74,6 +74,7 @@ from .hardware import hardware_parameters, load_params_file, node_parameters, pa
 from .params_check import check_run_inputs
 from .params_files import CONTROLLER_NODES
 from .launcher import GraphError, use_user_ros_environment
+from wip_control.tools.cli import add_exit_codes
 
 # The exit-code table of every tool (wip_control.tools.cli); no data from the base is a
 # failed check (the connection check).
@@ -756,6 +757,7 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
     # after the tool's own: remappings among them are honoured like --remap, the rest
     # (log levels, parameters) do not concern a listener and are ignored.
     own, ros_remaps = split_ros_arguments(sys.argv[1:] if argv is None else list(argv))
+    add_exit_codes(parser)
     args = parser.parse_args(own)
     args.remaps = [*args.remaps, *ros_remaps]
     stdin = stdin or sys.stdin

@@ -94,6 +94,7 @@ from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_FELL, EXIT_NOT_ENGA
                        use_user_ros_environment)
 from .runner_base import (options_from_args, print_result, RunnerBase, RunResult,
                           stop_signal_number, stop_signals)
+from wip_control.tools.cli import add_exit_codes
 
 #: The nodes of hardware mode, in start order.
 HARDWARE_NODES = CONTROLLER_NODES
@@ -654,6 +655,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--quiet', action='store_true')
     add_view_arguments(parser)
     add_arguments(parser)
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     return run_from_args(args)
 

@@ -29,6 +29,7 @@ import numpy as np
 
 from wip_control.core.params import WipParameters
 from wip_control.tools.cli import EXIT_OK, EXIT_USAGE, exit_with
+from wip_control.tools.cli import add_exit_codes
 
 #: The fitted parameters, in the column order of the regressor matrix.
 NAMES = ('effective_mass', 'mpl', 'pitch_inertia', 'mpl2', 'yaw_inertia_total', 'friction')
@@ -401,6 +402,7 @@ def main(argv: Iterable[str] | None = None) -> int:
                         help='also fit a wheel viscous friction b (not in eq. (1))')
     parser.add_argument('--scenario', help='scenario YAML whose controller_model gives '
                         'the known r, d, g, m_w, J_w (default: the nominal parameters)')
+    add_exit_codes(parser)
     args = parser.parse_args(None if argv is None else list(argv))
     try:
         nominal = WipParameters()

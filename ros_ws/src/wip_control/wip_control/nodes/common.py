@@ -51,6 +51,7 @@ from .launched import end_with_launcher
 from .parameters import ConfigParameters
 from .settings import ControllerNodeSettings, RETIRED
 from .sync import on_grid
+from ..tools.cli import answer_node_help
 
 #: One spin_once of the EventsExecutor [s]: bounds the reaction time to a shutdown.
 SPIN_TIMEOUT = 0.1
@@ -314,6 +315,11 @@ def warn_undeclared_overrides(nodes, warned=None) -> None:
                 node.get_logger().warning(line)
 
 
+def _package_of(factory) -> str:
+    """The ROS package of a node class (its top-level Python package)."""
+    return str(getattr(factory, '__module__', 'wip_control')).split('.')[0]
+
+
 def run_node(node_factory: Callable[[], Node], program: str, args=None,
              on_stop: Callable[[Node], None] | None = None) -> int:
     """Jazzy ``main`` of one node: :func:`run_nodes` with a single node."""
@@ -347,6 +353,8 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
     DDS while no one outside the process subscribes; ``gc.freeze`` after start-up) and
     spun by :func:`spin_composed`, as :func:`run_simulator_node` does.
     """
+    if answer_node_help(program, _package_of(nodes[0][0]), args):
+        return 0
     end_with_launcher()
     handles_signals = any(on_stop is not None for _, on_stop in nodes)
     if not handles_signals:
@@ -515,6 +523,8 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
     the simulator node takes part in the intra-process delivery if it is an
     :class:`IntraProcessNode`.
     """
+    if answer_node_help(program, _package_of(node_factory), args):
+        return 0
     end_with_launcher()
     # SIGINT and SIGTERM only set a flag that the spin loop checks (as in run_nodes): with
     # rclpy's handlers a KeyboardInterrupt raised late could cut write_stats() short and

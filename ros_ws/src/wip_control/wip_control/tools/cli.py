@@ -247,3 +247,35 @@ def bounded(kind: type, minimum: float | None = None, maximum: float | None = No
 
     convert.__name__ = kind.__name__   # argparse names the type in some messages
     return convert
+
+
+#: What each process that holds several nodes holds (for its ``--help``).
+_NODE_HELP_EXTRA = {
+    'controllers': 'the six controller nodes reference, eso, trajectory_generator, arc, '
+                   'mpc and torque_mixer in one process (each keeps its name, parameters '
+                   'and topics)',
+    'simulation': 'the plant and the six controller nodes in one process',
+}
+
+
+def answer_node_help(program: str, package: str, args: Sequence[str] | None = None) -> bool:
+    """If the command line of a node executable asks for ``-h``/``--help`` (before
+    ``--ros-args``), print its usage on stdout and return True: the caller then exits 0
+    without starting anything. ``args`` as given to ``rclpy.init`` (``sys.argv`` if
+    None)."""
+    words = list(sys.argv if args is None else args)[1:]
+    if '--ros-args' in words:
+        words = words[:words.index('--ros-args')]
+    if not ({'-h', '--help'} & set(words)):
+        return False
+    holds = _NODE_HELP_EXTRA.get(program, f'the ROS 2 node {program}')
+    print(f'usage: ros2 run {package} {program} [--ros-args [-p NAME:=VALUE] '
+          '[--params-file FILE] [-r FROM:=TO] ...]\n\n'
+          f'Starts {holds} until SIGINT or SIGTERM.\n'
+          f'Parameters (name, unit, default, range): ros2 run wip_tools parameters --node '
+          f'{program if program not in _NODE_HELP_EXTRA else "NAME"}, or '
+          'docs/parameters.md.\n'
+          'Exit status: 0 stopped by SIGINT or SIGTERM; 1 a parameter error (one line '
+          'naming the parameter); a simulator ends with its own status (the plant: 3 when '
+          'the vehicle fell); scripts/run_graph maps these onto the exit-code table.')
+    return True
