@@ -31,7 +31,8 @@ import time
 
 from wip_control.tools.cli import EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with
 
-from .bag_reader import BagReadError, integrity_problems, read_metadata_file, scan
+from .bag_reader import (BagReadError, integrity_problems, missing_metadata,
+                         read_metadata_file, scan)
 from .bag_repair import mcap_files_by_index, read_file_contents
 from .bag_writer import METADATA_FILE_NAME
 from wip_control.tools.cli import add_exit_codes
@@ -150,7 +151,7 @@ def bag_information(path, from_content=False):
             info.update(content)
             info['source'] = 'content'
     elif pathlib.Path(path).is_dir() and not metadata_path.is_file():
-        problems.append('no metadata.yaml')
+        problems.append(missing_metadata(path))
     info['bag_size'] = sum(f.stat().st_size for f in files)
     chunks = {}
     for c in contents:
@@ -213,7 +214,9 @@ def format_bag_information(info):
     if info['rosbag2_compression']:
         compression += f'; rosbag2 {info["rosbag2_compression"]}'
     if info['problems']:
-        check = 'NOT OK: ' + '; '.join(info['problems']) + ' -> run scripts/bag_repair'
+        check = 'NOT OK: ' + '; '.join(info['problems']) + (
+            '' if info['problems'][-1].endswith('writes a new bag with one')
+            else ' -> run scripts/bag_repair')
     else:
         check = 'OK (every chunk CRC-checked, every file finished, metadata.yaml matches ' \
                 'the files)' if info['source'] == METADATA_FILE_NAME else \

@@ -352,6 +352,8 @@ def repair_bag(directory, out=None, compression=None, dry_run=False):
     if not dry_run:
         out.parent.mkdir(parents=True, exist_ok=True)
         work = pathlib.Path(tempfile.mkdtemp(prefix=f'.{out.name}.partial-', dir=out.parent))
+        # mkdtemp makes it 0700: the bag gets the mode a mkdir would give it (as rosbag2's).
+        os.chmod(work, 0o777 & ~current_umask())
     try:
         reports, kept = _repair_files(paths, work, compression, dry_run)
         if not kept:
@@ -367,6 +369,13 @@ def repair_bag(directory, out=None, compression=None, dry_run=False):
         if work is not None:
             shutil.rmtree(work, ignore_errors=True)  # Ours: created above.
     return RepairResult(information, reports, out)
+
+
+def current_umask() -> int:
+    """This process's umask (read by setting it and setting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _repair_files(paths, work, compression, dry_run):

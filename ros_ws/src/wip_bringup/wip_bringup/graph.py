@@ -106,6 +106,7 @@ import json
 import os
 import pathlib
 import random
+import shlex
 import shutil
 import signal
 import sys
@@ -748,7 +749,8 @@ def format_result(result: GraphResult) -> str:
         lines.append('node exit codes: ' + ', '.join(f'{n}={c}' for n, c in failed.items()))
     lines.append(f'outputs: {result.out} (run.json, params.yaml, scenario.yaml, logs/)')
     if result.bag is not None:
-        lines.append(f'bag: {result.bag}   report: scripts/report {result.bag} --out DIR')
+        lines.append(f'bag: {result.bag}   report: scripts/report '
+                     f'{shlex.quote(str(result.bag))} --out DIR')
     return '\n'.join(lines)
 
 

@@ -247,6 +247,10 @@ def main(argv: Iterable[str] | None = None) -> int:
     if not args.quiet:
         from wip_tools.simulate import summary
         print(summary(metrics))
+        from wip_tools.analysis.report_page import claims
+        scenario, _ = scenario_for(args.bag, args.scenario)
+        print("the paper's claims: " + '; '.join(
+            f'{quantity}: {verdict}' for quantity, _, _, verdict in claims(metrics, scenario)))
         out = pathlib.Path(args.out)
         print(f'wrote {out / "metrics.json"}, {out / "report.html"}'
               + ('' if args.no_figures else f' and figures (PNG, SVG) in {out / "figures"}'))
