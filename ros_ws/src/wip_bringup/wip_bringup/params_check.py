@@ -26,6 +26,7 @@ import typing
 from typing import Any, Iterable, Mapping, Sequence
 
 from wip_control.core.config import check_value, ConfigError, from_mapping
+from wip_control.nodes.settings import check_effort_joints, EffortCommand, WheelJoints
 
 from .params_files import flatten
 
@@ -190,6 +191,16 @@ def _check_groups(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequenc
             if entry is not None:
                 groups.setdefault((entry.prefix, entry.cls), {})[entry.field] = (
                     tuple(value) if isinstance(value, list) else value)
+        if 'joints' in given or 'left_joint' in given or 'right_joint' in given:
+            names = {d.cls for d in declared.values()}
+            if EffortCommand in names and WheelJoints in names:
+                left = merged.get('left_joint', WheelJoints.left_joint)
+                right = merged.get('right_joint', WheelJoints.right_joint)
+                try:
+                    check_effort_joints(left, right, tuple(merged.get('joints',
+                                                                      (left, right))))
+                except ConfigError as err:
+                    raise ParamsError(f'--params-file: node {node}: {err}') from None
         for (prefix, cls), values in groups.items():
             if not any((f'{prefix}.{f}' if prefix else f) in given for f in values):
                 continue   # the generated values alone: checked where they come from
