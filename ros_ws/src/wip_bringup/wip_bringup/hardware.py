@@ -317,7 +317,9 @@ class HardwareRunner(RunnerBase):
         self.extra = [load_params_file(path) for path in options.params_files]
         # Before anything is written or started: the files against the nodes' declarations.
         for line in check_run_inputs(options.params_files, self.extra, self.node_names(),
-                                     hardware_parameters(self.scenario), self.remaps):
+                                     hardware_parameters(self.scenario), self.remaps,
+                                     (*BASE_SENSOR_TOPICS, DEFAULT_EFFORT_TOPIC,
+                                      *CONTROLLER_TOPICS)):
             self.say(f'warning: {line}')
         self.prepare_outputs()
         recorder = self.recorder_parameters(

@@ -238,23 +238,21 @@ def unmatched_remaps(remaps: Iterable[tuple[str, str]], topics: Iterable[str]) -
             for source, target in remaps if source not in topics]
 
 
-def graph_topics() -> set[str]:
-    """Every topic a run's nodes (and a real base) publish or subscribe, by default name."""
-    from wip_viewer.viewer_core import VIEWER_TOPICS
-    from .graph import PUBLISHERS, SUBSCRIBERS
-    from .hardware import BASE_SENSOR_TOPICS, CONTROLLER_TOPICS, DEFAULT_EFFORT_TOPIC
-    return (set(PUBLISHERS) | set(SUBSCRIBERS) | set(BASE_SENSOR_TOPICS)
-            | set(CONTROLLER_TOPICS) | set(VIEWER_TOPICS)
-            | {DEFAULT_EFFORT_TOPIC, '/clock', '/cmd_vel', '/plan', '/wip/estop_reset',
-               '/rosout', '/parameter_events'})
+#: Topics of the nodes of a run besides those its caller names (the base's, the
+#: controllers'): their other inputs and the viewer's outputs.
+OTHER_TOPICS = ('/clock', '/cmd_vel', '/plan', '/odom', '/wip/estop_reset',
+                '/wip/ground_truth', '/rosout', '/parameter_events')
 
 
 def check_run_inputs(paths: Sequence[str], files: Sequence[Mapping[str, Any]],
                      nodes: Sequence[str], generated: Mapping[str, Any],
-                     remaps: Sequence[tuple[str, str]]) -> list[str]:
+                     remaps: Sequence[tuple[str, str]], topics: Iterable[str] = ()
+                     ) -> list[str]:
     """:func:`check_params_files` of the parsed ``files`` (given as ``paths``) and the
-    :func:`unmatched_remaps` warnings, for run_graph's hardware mode; GraphError (exit 2)
-    with the one-line problem. Returns the warnings to print."""
+    :func:`unmatched_remaps` warnings against ``topics`` (with :data:`OTHER_TOPICS`, the
+    viewer's and the effort topics the files set), for run_graph's hardware mode and
+    check_base; GraphError (exit 2) with the one-line problem. Returns the warnings."""
+    from wip_viewer.viewer_core import VIEWER_TOPICS
     from .launcher import EXIT_USAGE, GraphError
     try:
         warnings = check_params_files(list(zip(paths, files)), nodes, generated)
@@ -262,5 +260,6 @@ def check_run_inputs(paths: Sequence[str], files: Sequence[Mapping[str, Any]],
         raise GraphError(str(err), EXIT_USAGE) from None
     effort = {str(flatten(section.get('ros__parameters') or {}).get('effort_topic', ''))
               for data in files for section in data.values()} - {''}
-    topics = graph_topics() | {'/' + topic.lstrip('/') for topic in effort}
+    topics = (set(topics) | set(OTHER_TOPICS) | set(VIEWER_TOPICS)
+              | {'/' + topic.lstrip('/') for topic in effort})
     return warnings + unmatched_remaps(remaps, topics)
