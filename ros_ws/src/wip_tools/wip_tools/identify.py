@@ -350,11 +350,21 @@ def table(result: Identification, truth: Mapping[str, float] | None = None) -> s
     return '\n'.join(lines)
 
 
+def _ros_double(value: float) -> str:
+    """``value`` to 6 significant digits, always as a floating-point literal."""
+    text = f'{value:.6g}'
+    if 'n' in text or '.' in text:   # inf, nan, or a dot already
+        return text
+    mantissa, e, exponent = text.partition('e')
+    return f'{mantissa}.0{e}{exponent}'   # '25.0', '1.0e-05' (YAML 1.1 needs the dot)
+
+
 def model_yaml(overrides: Mapping[str, float], notes: Iterable[str], params_file: bool) -> str:
     """A scenario's ``controller_model`` section, or a ROS params file (``model.*``)."""
     head = ''.join(f'# {n}\n' for n in notes)
     if params_file:
-        body = ''.join(f'    model.{k}: {v:.6g}\n' for k, v in overrides.items())
+        # A ROS double must be written as one: '25.0', not '25' (an integer to ROS).
+        body = ''.join(f'    model.{k}: {_ros_double(v)}\n' for k, v in overrides.items())
         return f'{head}/**:\n  ros__parameters:\n{body}'
     body = ''.join(f'    {k}: {v:.6g}\n' for k, v in overrides.items())
     return f'{head}controller_model:\n  parameters:\n{body}'
