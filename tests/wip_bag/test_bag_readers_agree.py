@@ -68,3 +68,12 @@ def test_a_repaired_bag_gets_the_umask_mode(bag_without_metadata, tmp_path):
     assert code == 0, err
     assert stat.S_IMODE((tmp_path / 'repaired').stat().st_mode) == 0o750
     assert (tmp_path / 'repaired' / 'metadata.yaml').is_file()
+
+
+def test_replay_refuses_a_remap_to_an_invalid_name_before_it_starts(capsys):
+    from wip_bag.replayer_node import parse_command_line
+    with pytest.raises(SystemExit) as refused:
+        parse_command_line(['BAG', '--remap', '/a:=/my b'])
+    assert refused.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and "'/my b' is not a valid ROS topic name" in err

@@ -95,6 +95,8 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import rclpy
+from rclpy.exceptions import InvalidTopicNameException
+from rclpy.validate_full_topic_name import validate_full_topic_name
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration, Infinite
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -192,6 +194,13 @@ def parse_remaps(pairs):
         source, sep, target = pair.partition(':=')
         if not sep or not source or not target:
             raise ValueError(f'remap {pair!r} is not of the form from:=to')
+        for name in (source, target):
+            try:
+                validate_full_topic_name('/' + name.lstrip('/'))
+            except InvalidTopicNameException:
+                raise ValueError(f'remap {pair!r}: {name!r} is not a valid ROS topic name '
+                                 '(letters, digits and underscores in /-separated tokens, '
+                                 'none starting with a digit)') from None
         out[source] = target
     return out
 
@@ -529,6 +538,10 @@ def parse_command_line(argv):
                             metavar='FROM:=TO' if option == '--remap' else 'TOPIC')
     add_exit_codes(parser)
     args = parser.parse_args(argv)
+    try:   # before anything starts
+        parse_remaps(args.remap or [])
+    except ValueError as err:
+        parser.error(str(err))
     overrides = []
     if args.bag:
         overrides.append(Parameter('bag', value=args.bag))
