@@ -249,8 +249,9 @@ def main(argv: Iterable[str] | None = None) -> int:
         print(summary(metrics))
         from wip_tools.analysis.report_page import claims
         scenario, _ = scenario_for(args.bag, args.scenario)
-        print("the paper's claims: " + '; '.join(
-            f'{quantity}: {verdict}' for quantity, _, _, verdict in claims(metrics, scenario)))
+        print("the paper's claims [claim]: met?  " + '; '.join(
+            f'{quantity} [{claim}]: {verdict}'
+            for quantity, claim, _, verdict in claims(metrics, scenario)))
         out = pathlib.Path(args.out)
         print(f'wrote {out / "metrics.json"}, {out / "report.html"}'
               + ('' if args.no_figures else f' and figures (PNG, SVG) in {out / "figures"}'))
