@@ -14,7 +14,7 @@ def verdicts(metrics, scenario):
     return {quantity: verdict for quantity, _, _, verdict in claims(metrics, scenario)}
 
 
-def test_a_window_longer_than_the_run_is_not_tested(tmp_path):
+def test_a_window_longer_than_the_run_is_not_tested(tmp_path, monkeypatch, capsys):
     path = tmp_path / 'short.yaml'
     path.write_text('duration: 5\n', encoding='utf-8')
     out = tmp_path / 'out'
@@ -27,6 +27,14 @@ def test_a_window_longer_than_the_run_is_not_tested(tmp_path):
     converged = metrics['convergence_time_s']
     assert short['initial errors rejected (position error ≤ 0.1 m)'] == (
         'yes' if converged is not None and converged <= 8.0 else NOT_TESTED)
+    # scripts/report prints the same verdicts after its summary.
+    from wip_tools import report
+    monkeypatch.setattr(report, 'report', lambda *args, **kwargs: metrics)
+    monkeypatch.setattr(report, 'scenario_for', lambda bag, path: (scenario, 'test'))
+    assert report.main(['BAG', '--out', str(tmp_path / 'r')]) == 0
+    printed = capsys.readouterr().out
+    assert 'tracking error afterwards (t ≥ 10 s) [fluctuates in a small range]: ' \
+           f'{NOT_TESTED}' in printed
     # The same numbers from a run that reached the windows are judged.
     long = verdicts(dict(metrics, duration_s=90.0, convergence_time_s=None), scenario)
     assert long['initial errors rejected (position error ≤ 0.1 m)'].startswith('no')
