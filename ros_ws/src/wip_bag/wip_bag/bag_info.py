@@ -29,13 +29,12 @@ import pathlib
 import sys
 import time
 
-from wip_control.tools.cli import EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with
+from wip_control.tools.cli import add_exit_codes, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with
 
 from .bag_reader import (BagReadError, integrity_problems, missing_metadata,
                          read_metadata_file, scan)
 from .bag_repair import mcap_files_by_index, read_file_contents
 from .bag_writer import METADATA_FILE_NAME
-from wip_control.tools.cli import add_exit_codes
 
 INDENT = 19  # width of the field names of ros2 bag info ('Topic information: ')
 _UNITS = ('B', 'KiB', 'MiB', 'GiB', 'TiB')

@@ -51,7 +51,7 @@ import yaml
 
 from wip_control.tools.cli import (check_output_directory, EXIT_DISK_FULL, EXIT_FAILED,
                                    EXIT_OK, EXIT_USAGE)
-from wip_control.tools.cli import exit_with
+from wip_control.tools.cli import add_exit_codes, exit_with
 
 from .bag_integrity import iter_chunk_records
 from .bag_reader import BagReadError, record_kind, scan
@@ -59,7 +59,6 @@ from .bag_writer import (bag_metadata, BagWriterError, COMPRESSION, FileStatisti
                          library_identifier, MCAP_PROFILE, METADATA_FILE_NAME,
                          write_metadata_file)
 from .qos_yaml import normalize_offered_qos
-from wip_control.tools.cli import add_exit_codes
 
 UNFINISHED_SUFFIX = '.unfinished'
 # What reading a truncated or corrupt tail raises (CRC errors are ValueErrors).

@@ -109,13 +109,12 @@ from std_srvs.srv import SetBool, Trigger
 
 from wip_control.nodes.launched import end_with_launcher
 from wip_control.nodes.parameters import ConfigParameters
-from wip_control.tools.cli import EXIT_INTERNAL, EXIT_USAGE, log_trace, one_line
+from wip_control.tools.cli import add_exit_codes, EXIT_INTERNAL, EXIT_USAGE, log_trace, one_line
 
 from .bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
 from .message_types import message_class
 from .qos_yaml import INFINITE_DURATION_NS, normalize_offered_qos
 from .settings import ReplayerSettings
-from wip_control.tools.cli import add_exit_codes
 
 # The exit-code table of every tool (wip_control.tools.cli).
 EXIT_OK = 0

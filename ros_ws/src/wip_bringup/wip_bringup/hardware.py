@@ -84,7 +84,7 @@ import yaml
 
 from wip_control.core.config import ConfigError, load_yaml_text
 from wip_control.core.scenario import Scenario
-from wip_control.tools.cli import bounded
+from wip_control.tools.cli import add_exit_codes, bounded
 from wip_bringup.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
                                       graph_parameters, _NoAliasDumper)
 
@@ -94,7 +94,6 @@ from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_FELL, EXIT_NOT_ENGA
                        use_user_ros_environment)
 from .runner_base import (options_from_args, print_result, RunnerBase, RunResult,
                           stop_signal_number, stop_signals)
-from wip_control.tools.cli import add_exit_codes
 
 #: The nodes of hardware mode, in start order.
 HARDWARE_NODES = CONTROLLER_NODES

@@ -28,8 +28,7 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from wip_control.core.params import WipParameters
-from wip_control.tools.cli import EXIT_OK, EXIT_USAGE, exit_with
-from wip_control.tools.cli import add_exit_codes
+from wip_control.tools.cli import add_exit_codes, EXIT_OK, EXIT_USAGE, exit_with
 
 #: The fitted parameters, in the column order of the regressor matrix.
 NAMES = ('effective_mass', 'mpl', 'pitch_inertia', 'mpl2', 'yaw_inertia_total', 'friction')
