@@ -168,3 +168,22 @@ def test_a_typo_in_an_option_is_exit_2_in_one_line_and_writes_nothing(tmp_path, 
         ('wip:', 'setup:'))]   # a set-up the bootstrap may run first
     assert len(lines) == 1 and 'unrecognized arguments' in lines[0], done.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize('package, executable, status', [
+    ('wip_control', 'eso', 1), ('wip_control', 'controllers', 1), ('wip_sim', 'plant', 2),
+    ('wip_bag', 'recorder', 1), ('wip_viewer', 'viewer', 1)])
+def test_a_node_given_a_bad_ros_argument_says_so_in_one_line(tmp_path, package, executable,
+                                                             status):
+    pytest.importorskip('rclpy')
+    from ament_index_python.packages import get_package_prefix
+    path = pathlib.Path(get_package_prefix(package)) / 'lib' / package / executable
+    done = subprocess.run([str(path), '--ros-args', '-r', '/imu/data:=/my imu'], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=HELP_TIMEOUT,
+                          stdin=subprocess.DEVNULL)
+    assert done.returncode == status, done.stderr   # the node's parameter-error status
+    assert 'Traceback' not in done.stderr + done.stdout
+    (line,) = [line for line in done.stderr.splitlines() if 'error: ' in line
+               and not line.startswith('[ERROR]')]   # rcl logs its own line first
+    assert line.startswith(f"{executable}: error: bad ROS arguments: ") and '/my imu' in line
+    assert list(tmp_path.iterdir()) == []

@@ -102,6 +102,7 @@ from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
 from rclpy.signals import SignalHandlerOptions
 
 from wip_control.nodes.launched import end_with_launcher, LAUNCHER_PID_VARIABLE
+from wip_control.nodes.common import init_rclpy
 from wip_control.nodes.parameters import ConfigParameters
 from wip_control.tools.cli import answer_node_help
 
@@ -508,7 +509,8 @@ def main(args=None):
     end_with_launcher()
     # Our own handlers (stop_signals): rclpy's would shut the context down and raise
     # KeyboardInterrupt wherever the main thread is, also inside the bag's close.
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    if not init_rclpy('recorder', args, SignalHandlerOptions.NO):
+        return 1
     stop = StopSignals()
     node = None
     status = 0

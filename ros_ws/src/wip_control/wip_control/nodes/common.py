@@ -39,6 +39,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
                        QoSReliabilityPolicy)
 from rosgraph_msgs.msg import Clock
@@ -315,6 +316,18 @@ def warn_undeclared_overrides(nodes, warned=None) -> None:
                 node.get_logger().warning(line)
 
 
+def init_rclpy(program: str, args, signal_handler_options) -> bool:
+    """``rclpy.init``; False after one line on stderr when rcl refuses the command line's
+    ROS arguments (a remap rule to an invalid name, a malformed ``-p``): no traceback."""
+    try:
+        rclpy.init(args=args, signal_handler_options=signal_handler_options)
+    except _rclpy_impl.RCLError as err:
+        reason = str(err).split(', at /', 1)[0]   # rcl's source location is no help here
+        print(f'{program}: error: bad ROS arguments: {reason}', file=sys.stderr)
+        return False
+    return True
+
+
 def _package_of(factory) -> str:
     """The ROS package of a node class (its top-level Python package)."""
     return str(getattr(factory, '__module__', 'wip_control')).split('.')[0]
@@ -357,10 +370,10 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
         return 0
     end_with_launcher()
     handles_signals = any(on_stop is not None for _, on_stop in nodes)
-    if not handles_signals:
-        rclpy.init(args=args)
-    else:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    if not init_rclpy(program, args, SignalHandlerOptions.NO if handles_signals
+                      else SignalHandlerOptions.ALL):
+        return 1
+    if handles_signals:
         _stop_signal.clear()
         signal.signal(signal.SIGINT, _request_stop)
         signal.signal(signal.SIGTERM, _request_stop)
@@ -529,7 +542,8 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
     # SIGINT and SIGTERM only set a flag that the spin loop checks (as in run_nodes): with
     # rclpy's handlers a KeyboardInterrupt raised late could cut write_stats() short and
     # leave an empty stats file.
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    if not init_rclpy(program, args, SignalHandlerOptions.NO):
+        return config_status
     _stop_signal.clear()
     signal.signal(signal.SIGINT, _request_stop)
     signal.signal(signal.SIGTERM, _request_stop)
