@@ -336,7 +336,8 @@ class GraphRunner(RunnerBase):
             try:   # the scenario's checks of a duration (range, control ticks, memory)
                 scenario = with_duration(scenario, options.duration)
             except ConfigError as err:
-                raise GraphError(f'--duration: {err}', EXIT_USAGE) from None
+                raise GraphError(f'--duration: {str(err).removeprefix("duration: ")}',
+                                 EXIT_USAGE) from None
         self.scenario = scenario
         # Every output is checked before anything is written or started.
         scenario_path = self.prepare_outputs(stale=('plant_stats.json', 'run.json'),
