@@ -93,8 +93,12 @@ def test_a_bad_scenario_is_refused_before_anything_runs_in_one_line(tmp_path, mo
 
 def test_exponent_notation_and_short_runs(tmp_path):
     assert load_scenario(_scenario(tmp_path, 'duration: 1e2\n')).duration == 100.0
-    # Shorter than one control period, or a fall on the first tick: metrics, no IndexError.
-    for text in ('duration: 0.001\n', 'initial_state: {theta: 0.49, theta_dot: 10}\n'
+    # Less than half a control period is no control tick at all: refused in one line.
+    for text in ('duration: 0.001\n', 'duration: 1e-9\n'):
+        with pytest.raises(ConfigError, match='the run would have no control tick'):
+            load_scenario(_scenario(tmp_path, text))
+    # One control period, or a fall on the first tick: metrics, no IndexError.
+    for text in ('duration: 0.005\n', 'initial_state: {theta: 0.49, theta_dot: 10}\n'
                  'duration: 1\n'):
         out = tmp_path / f'out{len(text)}'
         code = simulate.main(['--scenario', str(_scenario(tmp_path, text)), '--out',

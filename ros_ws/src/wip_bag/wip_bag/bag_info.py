@@ -29,9 +29,10 @@ import pathlib
 import sys
 import time
 
-from wip_control.tools.cli import EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with
+from wip_control.tools.cli import add_exit_codes, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with
 
-from .bag_reader import BagReadError, integrity_problems, read_metadata_file, scan
+from .bag_reader import (BagReadError, integrity_problems, missing_metadata,
+                         read_metadata_file, scan)
 from .bag_repair import mcap_files_by_index, read_file_contents
 from .bag_writer import METADATA_FILE_NAME
 
@@ -149,7 +150,7 @@ def bag_information(path, from_content=False):
             info.update(content)
             info['source'] = 'content'
     elif pathlib.Path(path).is_dir() and not metadata_path.is_file():
-        problems.append('no metadata.yaml')
+        problems.append(missing_metadata(path))
     info['bag_size'] = sum(f.stat().st_size for f in files)
     chunks = {}
     for c in contents:
@@ -212,7 +213,9 @@ def format_bag_information(info):
     if info['rosbag2_compression']:
         compression += f'; rosbag2 {info["rosbag2_compression"]}'
     if info['problems']:
-        check = 'NOT OK: ' + '; '.join(info['problems']) + ' -> run scripts/bag_repair'
+        check = 'NOT OK: ' + '; '.join(info['problems']) + (
+            '' if info['problems'][-1].endswith('writes a new bag with one')
+            else ' -> run scripts/bag_repair')
     else:
         check = 'OK (every chunk CRC-checked, every file finished, metadata.yaml matches ' \
                 'the files)' if info['source'] == METADATA_FILE_NAME else \
@@ -245,6 +248,7 @@ def main(argv=None):
     parser.add_argument('--from-content', action='store_true',
                         help='figures from the files\' contents, not from metadata.yaml')
     parser.add_argument('--json', action='store_true', help='print JSON instead')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     try:
         info = bag_information(args.bag, from_content=args.from_content)

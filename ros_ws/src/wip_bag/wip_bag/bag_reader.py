@@ -13,7 +13,9 @@ ones skipped (the tools say so, and mark their results ``partial``).
 """
 
 import heapq
+import shlex
 import os
+import sys
 import pathlib
 import struct
 from typing import Any, NamedTuple
@@ -72,12 +74,34 @@ def integrity_problems(scans) -> list[str]:
     return [line for s in scans for line in s.problems(origin)]
 
 
+#: What a bag directory without metadata.yaml means, for the readers' warning and
+#: bag_info's verdict (one wording).
+NO_METADATA = ('no metadata.yaml (an unfinished recording, or a file lost): ros2 bag and '
+               'rosbags cannot open it; the wip-ros tools read the .mcap files\' contents; '
+               'scripts/bag_repair {bag} writes a new bag with one')
+_warned_no_metadata: set[str] = set()
+
+
+def missing_metadata(path) -> str | None:
+    """:data:`NO_METADATA` for a bag directory without metadata.yaml, else None."""
+    path = pathlib.Path(path)
+    if path.is_dir() and not (path / METADATA_FILE_NAME).is_file():
+        return NO_METADATA.format(bag=shlex.quote(str(path)))
+    return None
+
+
 def check_bag(path, allow_partial=False):
     """Scan every file of a bag; raise :class:`BagIntegrityError` if one is damaged.
 
     Returns the list of :class:`~wip_bag.bag_integrity.FileScan` (in file order). With
     ``allow_partial`` a damaged bag is returned too (its ``problems`` tell what is lost).
+    A bag directory without metadata.yaml is read from its files, with a warning on
+    stderr (once per bag and process), as bag_info reports it NOT OK.
     """
+    missing = missing_metadata(path)
+    if missing and str(path) not in _warned_no_metadata:
+        _warned_no_metadata.add(str(path))
+        print(f'warning: {path}: {missing}', file=sys.stderr)
     scans = [scan(f) for f in mcap_files(path)]
     problems = integrity_problems(scans)
     if problems and not allow_partial:

@@ -51,7 +51,7 @@ import yaml
 
 from wip_control.tools.cli import (check_output_directory, EXIT_DISK_FULL, EXIT_FAILED,
                                    EXIT_OK, EXIT_USAGE)
-from wip_control.tools.cli import exit_with
+from wip_control.tools.cli import add_exit_codes, exit_with
 
 from .bag_integrity import iter_chunk_records
 from .bag_reader import BagReadError, record_kind, scan
@@ -351,6 +351,8 @@ def repair_bag(directory, out=None, compression=None, dry_run=False):
     if not dry_run:
         out.parent.mkdir(parents=True, exist_ok=True)
         work = pathlib.Path(tempfile.mkdtemp(prefix=f'.{out.name}.partial-', dir=out.parent))
+        # mkdtemp makes it 0700: the bag gets the mode a mkdir would give it (as rosbag2's).
+        os.chmod(work, 0o777 & ~current_umask())
     try:
         reports, kept = _repair_files(paths, work, compression, dry_run)
         if not kept:
@@ -366,6 +368,13 @@ def repair_bag(directory, out=None, compression=None, dry_run=False):
         if work is not None:
             shutil.rmtree(work, ignore_errors=True)  # Ours: created above.
     return RepairResult(information, reports, out)
+
+
+def current_umask() -> int:
+    """This process's umask (read by setting it and setting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def _repair_files(paths, work, compression, dry_run):
@@ -428,6 +437,7 @@ def main(argv=None):
                         help='chunk compression of rewritten files (default: as found)')
     parser.add_argument('--dry-run', action='store_true',
                         help='report what would be done, write nothing')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     try:
         result = repair_bag(args.bag, out=args.out, compression=args.compression,

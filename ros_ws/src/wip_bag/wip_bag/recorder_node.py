@@ -102,7 +102,9 @@ from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
 from rclpy.signals import SignalHandlerOptions
 
 from wip_control.nodes.launched import end_with_launcher, LAUNCHER_PID_VARIABLE
+from wip_control.nodes.common import init_rclpy
 from wip_control.nodes.parameters import ConfigParameters
+from wip_control.tools.cli import answer_node_help
 
 from .bag_writer import (BagExistsError, BagWriterError, message_definition,
                          Rosbag2McapWriter, type_description_hash)
@@ -502,10 +504,13 @@ def drain(node, executor, stop, quiet=STOP_QUIET, longest=STOP_DRAIN):
 
 def main(args=None):
     """Entry point ``recorder`` (``ros2 run wip_bag recorder --ros-args -p output:=...``)."""
+    if answer_node_help('recorder', 'wip_bag', args):
+        return 0
     end_with_launcher()
     # Our own handlers (stop_signals): rclpy's would shut the context down and raise
     # KeyboardInterrupt wherever the main thread is, also inside the bag's close.
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    if not init_rclpy('recorder', args, SignalHandlerOptions.NO):
+        return 1
     stop = StopSignals()
     node = None
     status = 0

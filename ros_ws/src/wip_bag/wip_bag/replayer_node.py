@@ -95,6 +95,8 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import rclpy
+from rclpy.exceptions import InvalidTopicNameException
+from rclpy.validate_full_topic_name import validate_full_topic_name
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration, Infinite
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -107,7 +109,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from wip_control.nodes.launched import end_with_launcher
 from wip_control.nodes.parameters import ConfigParameters
-from wip_control.tools.cli import EXIT_INTERNAL, EXIT_USAGE, log_trace, one_line
+from wip_control.tools.cli import add_exit_codes, EXIT_INTERNAL, EXIT_USAGE, log_trace, one_line
 
 from .bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
 from .message_types import message_class
@@ -191,6 +193,13 @@ def parse_remaps(pairs):
         source, sep, target = pair.partition(':=')
         if not sep or not source or not target:
             raise ValueError(f'remap {pair!r} is not of the form from:=to')
+        for name in (source, target):
+            try:
+                validate_full_topic_name('/' + name.lstrip('/'))
+            except InvalidTopicNameException:
+                raise ValueError(f'remap {pair!r}: {name!r} is not a valid ROS topic name '
+                                 '(letters, digits and underscores in /-separated tokens, '
+                                 'none starting with a digit)') from None
         out[source] = target
     return out
 
@@ -526,7 +535,12 @@ def parse_command_line(argv):
     for option, _, text in _LISTS:
         parser.add_argument(option, nargs='+', help=text,
                             metavar='FROM:=TO' if option == '--remap' else 'TOPIC')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
+    try:   # before anything starts
+        parse_remaps(args.remap or [])
+    except ValueError as err:
+        parser.error(str(err))
     overrides = []
     if args.bag:
         overrides.append(Parameter('bag', value=args.bag))

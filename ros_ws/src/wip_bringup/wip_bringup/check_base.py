@@ -71,7 +71,10 @@ from wip_control.nodes.hardware_inputs import (check_mounting_rpy, check_wheel_s
                                                rotate_vector_into)
 
 from .hardware import hardware_parameters, load_params_file, node_parameters, parse_remap
+from .params_check import check_run_inputs, unmatched_remaps
+from .params_files import CONTROLLER_NODES
 from .launcher import GraphError, use_user_ros_environment
+from wip_control.tools.cli import add_exit_codes
 
 # The exit-code table of every tool (wip_control.tools.cli); no data from the base is a
 # failed check (the connection check).
@@ -138,7 +141,11 @@ def eso_parameters(scenario_path: str | None, params_files: list[str]) -> dict[s
     except ConfigError as err:
         raise GraphError(str(err), EXIT_USAGE) from err
     extra = [load_params_file(path) for path in params_files]
-    return node_parameters('eso', hardware_parameters(scenario), extra)
+    generated = hardware_parameters(scenario)
+    # The same files run_graph --mode hardware takes: checked against every controller.
+    for line in check_run_inputs(params_files, extra, CONTROLLER_NODES, generated, []):
+        print(f'check_base: warning: {line}', file=sys.stderr)
+    return node_parameters('eso', generated, extra)
 
 
 # ----------------------------------------------------------------------------- readings
@@ -226,11 +233,11 @@ class BaseListener:
         self.joints: collections.deque = collections.deque()   # (t, names, positions)
         self.imu: collections.deque = collections.deque()      # (t, q, gravity or None)
         # Sensor-data QoS (best effort) matches reliable and best-effort publishers.
-        self.node.create_subscription(JointState, '/joint_states', self._on_joints,
+        self.node.create_subscription(JointState, LISTENED_TOPICS[0], self._on_joints,
                                       qos_profile_sensor_data)
-        self.node.create_subscription(Imu, '/imu/data', self._on_imu, qos_profile_sensor_data)
-        self.topics = (self.node.resolve_topic_name('/joint_states'),
-                       self.node.resolve_topic_name('/imu/data'))
+        self.node.create_subscription(Imu, LISTENED_TOPICS[1], self._on_imu,
+                                      qos_profile_sensor_data)
+        self.topics = tuple(self.node.resolve_topic_name(t) for t in LISTENED_TOPICS)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -706,6 +713,10 @@ class Session:
             self.say(check.line())
 
 
+#: The base's topics check_base listens to (before remapping).
+LISTENED_TOPICS = ('/joint_states', '/imu/data')
+
+
 def split_ros_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
     """(the tool's own arguments, 'FROM:=TO' remappings) of a command line that may hold
     ``--ros-args ... [--]`` blocks, as ``ros2 run`` passes them."""
@@ -750,6 +761,7 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
     # after the tool's own: remappings among them are honoured like --remap, the rest
     # (log levels, parameters) do not concern a listener and are ignored.
     own, ros_remaps = split_ros_arguments(sys.argv[1:] if argv is None else list(argv))
+    add_exit_codes(parser)
     args = parser.parse_args(own)
     args.remaps = [*args.remaps, *ros_remaps]
     stdin = stdin or sys.stdin
@@ -758,6 +770,8 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
         conventions = Conventions.from_parameters(eso_parameters(args.scenario,
                                                                  args.params_files))
         remaps = [parse_remap(text) for text in args.remaps]
+        for line in unmatched_remaps(remaps, LISTENED_TOPICS):
+            print(f'check_base: warning: {line}', file=sys.stderr)
         if not (args.timeout > 0.0 and args.window > 0.0):
             raise GraphError('--timeout and --window must be > 0', EXIT_USAGE)
         # The base is on the user's domain and network: not on scripts/_env.sh's private

@@ -23,6 +23,7 @@ import argparse
 import os
 import sys
 import time
+from wip_control.tools.cli import add_exit_codes
 
 ACTIONS = ('engage', 'release', 'reset')
 
@@ -37,6 +38,7 @@ def main(argv: list[str] | None = None) -> int:
                         help='the mixer node (reset calls NODE/reset_estop)')
     parser.add_argument('--timeout', type=float, default=10.0, metavar='S',
                         help='longest wait for the mixer [s] (default 10)')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     domain = args.domain
     if domain is None:

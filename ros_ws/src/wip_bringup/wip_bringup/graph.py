@@ -106,6 +106,7 @@ import json
 import os
 import pathlib
 import random
+import shlex
 import shutil
 import signal
 import sys
@@ -116,7 +117,9 @@ from typing import Any
 import yaml
 
 from wip_control.core.scenario import Scenario
-from wip_control.tools.cli import exit_with, write_atomic
+from wip_control.core.config import ConfigError
+from wip_control.core.scenario import with_duration
+from wip_control.tools.cli import add_exit_codes, bounded, exit_with, write_atomic
 from .hardware import add_arguments, run_from_args
 # LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
 from .launcher import (add_view_arguments, EXIT_DISK_FULL, EXIT_FAILED, EXIT_FELL, EXIT_OK,
@@ -330,10 +333,11 @@ class GraphRunner(RunnerBase):
         self.check_layout_and_scheduling()
         scenario = self.load_scenario(options.scenario)
         if options.duration is not None:
-            if not 0.0 < options.duration <= 36000.0:
-                raise GraphError(f'--duration: must be in (0, 36000] s, got '
-                                 f'{options.duration}', EXIT_USAGE)
-            scenario = dataclasses.replace(scenario, duration=float(options.duration))
+            try:   # the scenario's checks of a duration (range, control ticks, memory)
+                scenario = with_duration(scenario, options.duration)
+            except ConfigError as err:
+                raise GraphError(f'--duration: {str(err).removeprefix("duration: ")}',
+                                 EXIT_USAGE) from None
         self.scenario = scenario
         # Every output is checked before anything is written or started.
         scenario_path = self.prepare_outputs(stale=('plant_stats.json', 'run.json'),
@@ -746,7 +750,8 @@ def format_result(result: GraphResult) -> str:
         lines.append('node exit codes: ' + ', '.join(f'{n}={c}' for n, c in failed.items()))
     lines.append(f'outputs: {result.out} (run.json, params.yaml, scenario.yaml, logs/)')
     if result.bag is not None:
-        lines.append(f'bag: {result.bag}   report: scripts/report {result.bag} --out DIR')
+        lines.append(f'bag: {result.bag}   report: scripts/report '
+                     f'{shlex.quote(str(result.bag))} --out DIR')
     return '\n'.join(lines)
 
 
@@ -764,22 +769,26 @@ def main(argv: list[str] | None = None) -> int:
                         'realtime; hardware mode is always realtime')
     parser.add_argument('--record', metavar='DIR',
                         help='record every graph topic into this rosbag2 directory')
-    parser.add_argument('--duration', type=float, metavar='S',
+    parser.add_argument('--duration', type=bounded(float, 0.0, 1e6, True), metavar='S',
                         help='override the scenario duration [s]; hardware mode: stop after '
                         'this long [s of wall time] (default: at Ctrl-C)')
     parser.add_argument('--out', default=None, metavar='DIR',
                         help='run directory: params, logs, timings (default out/graph, '
                         'hardware mode out/hardware)')
-    parser.add_argument('--discovery-timeout', type=float, default=60.0, metavar='S',
+    parser.add_argument('--discovery-timeout', type=bounded(float, 0.0, 3600.0, True),
+                        default=60.0, metavar='S',
                         help='wall time allowed for the graph to connect [s]')
-    parser.add_argument('--stall-timeout', type=float, default=30.0, metavar='S',
+    parser.add_argument('--stall-timeout', type=bounded(float, 0.0, 3600.0, True),
+                        default=30.0, metavar='S',
                         help='wall time without simulated progress before giving up [s]')
-    parser.add_argument('--startup-retries', type=int, default=1, metavar='N',
+    parser.add_argument('--startup-retries', type=bounded(int, 0, 10), default=1,
+                        metavar='N',
                         help='start the graph again after a stall on the first ticks '
                         '(a start-up message lost to DDS discovery), at most N times')
     parser.add_argument('--quiet', action='store_true', help='no progress output')
     add_view_arguments(parser)
     add_arguments(parser)
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     if args.no_plant or args.mode == 'hardware':
         if args.clock == 'lockstep':

@@ -84,9 +84,11 @@ import yaml
 
 from wip_control.core.config import ConfigError, load_yaml_text
 from wip_control.core.scenario import Scenario
+from wip_control.tools.cli import add_exit_codes, bounded
 from wip_bringup.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
                                       graph_parameters, _NoAliasDumper)
 
+from .params_check import check_remap, check_run_inputs, ParamsError
 from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_FELL, EXIT_NOT_ENGAGED, EXIT_OK,
                        EXIT_USAGE, GraphError, LAYOUTS, parse_cpus, Probe, Scheduling,
                        use_user_ros_environment)
@@ -174,12 +176,10 @@ class HardwareResult(RunResult):
 
 def parse_remap(text: str) -> tuple[str, str]:
     """``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; GraphError on bad syntax."""
-    source, sep, target = text.partition(':=')
-    source, target = source.strip(), target.strip()
-    if not sep or not source or not target or ':=' in target:
-        raise GraphError(f'--remap: expected FROM:=TO (e.g. /joint_states:=/base/joint_states'
-                         f'), got {text!r}', EXIT_USAGE)
-    return ('/' + source.lstrip('/'), '/' + target.lstrip('/'))
+    try:
+        return check_remap(text)   # also: both sides valid ROS topic names
+    except ParamsError as err:
+        raise GraphError(str(err), EXIT_USAGE) from None
 
 
 def remapped(topic: str, remaps: Iterable[tuple[str, str]]) -> str:
@@ -314,6 +314,12 @@ class HardwareRunner(RunnerBase):
                              EXIT_USAGE)
         self.remaps = [parse_remap(text) for text in options.remaps]
         self.extra = [load_params_file(path) for path in options.params_files]
+        # Before anything is written or started: the files against the nodes' declarations.
+        for line in check_run_inputs(options.params_files, self.extra, self.node_names(),
+                                     hardware_parameters(self.scenario), self.remaps,
+                                     (*BASE_SENSOR_TOPICS, DEFAULT_EFFORT_TOPIC,
+                                      *CONTROLLER_TOPICS)):
+            self.say(f'warning: {line}')
         self.prepare_outputs()
         recorder = self.recorder_parameters(
             list(CONTROLLER_TOPICS) + list(BASE_SENSOR_TOPICS) + [DEFAULT_EFFORT_TOPIC],
@@ -601,7 +607,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         dest='remaps',
                         help='hardware mode: topic remapping applied to every node '
                              '(repeatable), e.g. /imu/data:=/base/imu')
-    parser.add_argument('--arm-delay', type=float, default=2.0, metavar='S',
+    parser.add_argument('--arm-delay', type=bounded(float, 0.0, 3600.0), default=2.0,
+                        metavar='S',
                         help='hardware mode: seconds after every node is up before the '
                              '/wip/estop heartbeat starts and the controllers may engage')
     parser.add_argument('--layout', choices=LAYOUTS, default=None,
@@ -610,13 +617,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'ros2 run wip_control controllers) or, simulation only, single '
                         '(the plant too: ros2 run wip_sim simulation); default: '
                         f'{HardwareOptions.layout} (docs/realtime.md)')
-    parser.add_argument('--rt-priority', type=int, default=0, metavar='N',
+    parser.add_argument('--rt-priority', type=bounded(int, 0, 99), default=0, metavar='N',
                         help='run the controller processes with SCHED_FIFO priority N '
                         '(1..99; default 0: the normal policy), set once every node is up; '
                         'needs root or CAP_SYS_NICE')
     parser.add_argument('--cpu-affinity', type=_cpus_argument, default=(), metavar='LIST',
                         help='pin the controller processes to these CPUs, e.g. 1 or 0,1')
-    parser.add_argument('--cpu-latency', type=int, default=None, metavar='US',
+    parser.add_argument('--cpu-latency', type=bounded(int, 0, 1_000_000), default=None,
+                        metavar='US',
                         help='while the controllers run, ask the kernel (PM QoS, '
                         '/dev/cpu_dma_latency, machine-wide) that idle CPUs wake within US '
                         'microseconds; 0 keeps them polling instead of sleeping: less CPU '
@@ -648,6 +656,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--quiet', action='store_true')
     add_view_arguments(parser)
     add_arguments(parser)
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     return run_from_args(args)
 

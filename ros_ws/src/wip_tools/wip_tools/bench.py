@@ -49,6 +49,7 @@ from .analysis.bench_mpc import _format, bench_mpc_against_daqp
 from wip_control.core.plant import MODELS, PlantConfig
 from wip_control.core.runner import run_scenario
 from wip_control.core.scenario import load_scenario
+from wip_control.tools.cli import add_exit_codes
 
 
 def _environment() -> dict:
@@ -181,6 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--realtime-seconds', type=float, default=20.0, metavar='S',
                         help='length of each real-time run [s] (default 20)')
     parser.add_argument('--json', help='also write the results to this JSON file')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     if args.repeats < 1:
         print('ERROR: --repeats must be >= 1', file=sys.stderr)

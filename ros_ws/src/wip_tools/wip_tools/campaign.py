@@ -60,6 +60,7 @@ from wip_control.core.config import ConfigError
 from wip_control.core.criteria import Criteria, criteria_from_mapping, criteria_to_mapping, evaluate, \
     measure
 from wip_control.core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
+from wip_control.tools.cli import add_exit_codes
 
 #: Keys of a campaign file.
 CAMPAIGN_KEYS = ('name', 'description', 'scenario', 'overrides', 'runs', 'seed', 'vary',
@@ -735,6 +736,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     parser.add_argument('--dry-run', action='store_true',
                         help='validate, print the runs\' values, run nothing')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     if args.workers is not None and args.workers < 1:
         return _fail('--workers: must be >= 1')

@@ -31,7 +31,7 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from wip_control.core.params import WipParameters
-from wip_control.tools.cli import EXIT_OK, EXIT_USAGE, exit_with
+from wip_control.tools.cli import add_exit_codes, EXIT_OK, EXIT_USAGE, exit_with
 
 #: The fitted parameters, in the column order of the regressor matrix.
 NAMES = ('effective_mass', 'mpl', 'pitch_inertia', 'mpl2', 'yaw_inertia_total', 'friction')
@@ -412,11 +412,21 @@ def table(result: Identification, truth: Mapping[str, float] | None = None) -> s
     return '\n'.join(lines)
 
 
+def _ros_double(value: float) -> str:
+    """``value`` to 6 significant digits, always as a floating-point literal."""
+    text = f'{value:.6g}'
+    if 'n' in text or '.' in text:   # inf, nan, or a dot already
+        return text
+    mantissa, e, exponent = text.partition('e')
+    return f'{mantissa}.0{e}{exponent}'   # '25.0', '1.0e-05' (YAML 1.1 needs the dot)
+
+
 def model_yaml(overrides: Mapping[str, float], notes: Iterable[str], params_file: bool) -> str:
     """A scenario's ``controller_model`` section, or a ROS params file (``model.*``)."""
     head = ''.join(f'# {n}\n' for n in notes)
     if params_file:
-        body = ''.join(f'    model.{k}: {v:.6g}\n' for k, v in overrides.items())
+        # A ROS double must be written as one: '25.0', not '25' (an integer to ROS).
+        body = ''.join(f'    model.{k}: {_ros_double(v)}\n' for k, v in overrides.items())
         return f'{head}/**:\n  ros__parameters:\n{body}'
     body = ''.join(f'    {k}: {v:.6g}\n' for k, v in overrides.items())
     return f'{head}controller_model:\n  parameters:\n{body}'
@@ -470,6 +480,7 @@ def main(argv: Iterable[str] | None = None) -> int:
                         help="also fit the wheels' viscous axle friction b (not in eq. (1))")
     parser.add_argument('--scenario', help='scenario YAML whose controller_model gives '
                         'the known r, d, g, m_w, J_w (default: the nominal parameters)')
+    add_exit_codes(parser)
     args = parser.parse_args(None if argv is None else list(argv))
     try:
         nominal = WipParameters()

@@ -21,7 +21,7 @@ import typing
 from typing import Any, NamedTuple
 
 from wip_control.core.scenario import _TOP_LEVEL_SCALARS, Scenario, TOP_LEVEL_RANGES
-from wip_control.tools.cli import exit_with, EXIT_USAGE
+from wip_control.tools.cli import add_exit_codes, EXIT_USAGE, exit_with
 
 #: Modules holding a ``NODES`` registry, one per package with nodes.
 REGISTRY_MODULES = ('wip_control.nodes.settings', 'wip_sim.settings', 'wip_bag.settings',
@@ -244,6 +244,7 @@ def main(argv: list[str] | None = None) -> int:
                         help='print docs/parameters.md (Markdown tables)')
     parser.add_argument('--node', action='append', metavar='NAME',
                         help='only this node (executable name; repeatable); no scenario keys')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     if args.markdown:
         sys.stdout.write(markdown())

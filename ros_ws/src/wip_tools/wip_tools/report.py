@@ -76,6 +76,7 @@ from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK,
 
 from wip_bag.bag_reader import bag_summary, BagReadError, read_bag
 from wip_bag.bag_scenario import scenario_for_bag
+from wip_control.tools.cli import add_exit_codes
 
 #: Stamps beyond this [s] are wall-clock (epoch) times, not simulation times (~3 years).
 WALL_CLOCK_THRESHOLD_S = 1e8
@@ -261,6 +262,7 @@ def main(argv: Iterable[str] | None = None) -> int:
     parser.add_argument('--partial', action='store_true',
                         help='report the intact part of a damaged or unfinished bag '
                         '(metrics.json then has partial: true and lists what was lost)')
+    add_exit_codes(parser)
     args = parser.parse_args(None if argv is None else list(argv))
     try:
         metrics = report(args.bag, args.out, args.scenario, figures=not args.no_figures,
@@ -271,6 +273,11 @@ def main(argv: Iterable[str] | None = None) -> int:
     if not args.quiet:
         from wip_tools.simulate import summary
         print(summary(metrics))
+        from wip_tools.analysis.report_page import claims
+        scenario, _ = scenario_for(args.bag, args.scenario)
+        print("the paper's claims [claim]: met?  " + '; '.join(
+            f'{quantity} [{claim}]: {verdict}'
+            for quantity, claim, _, verdict in claims(metrics, scenario)))
         out = pathlib.Path(args.out)
         print(f'wrote {out / "metrics.json"}, {out / "report.html"}'
               + ('' if args.no_figures else f' and figures (PNG, SVG) in {out / "figures"}'))

@@ -110,6 +110,7 @@ from wip_control.tools.cli import check_output_directory, EXIT_USAGE, exit_with,
 from wip_bag.bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
 from wip_bag.bag_scenario import SCENARIO_KEY, scenario_for_bag
 from wip_bag.bag_writer import BagWriterError, Rosbag2McapWriter
+from wip_control.tools.cli import add_exit_codes
 
 DEFAULT_PREFIX = '/rerun'
 LEFT_JOINT, RIGHT_JOINT = 'left_wheel_joint', 'right_wheel_joint'
@@ -794,6 +795,7 @@ def main(argv=None):
     parser.add_argument('--partial', action='store_true',
                         help='re-run the intact part of a damaged or unfinished bag '
                         '(metrics.json then has partial: true and lists what was lost)')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     try:
         _, comparison = rerun(args.bag, args.out, args.scenario, figures=not args.no_figures,

@@ -26,6 +26,7 @@ from wip_control.core.scenario import Scenario, load_scenario, scenario_to_mappi
 from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with,
                   write_atomic)
 from .parameters import parameter_table
+from wip_control.tools.cli import add_exit_codes
 
 
 def progress_printer(stream=sys.stderr):
@@ -141,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--list-parameters', action='store_true',
                         help='print every node parameter and scenario key with unit, '
                         'default, range; exit')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     if args.list_parameters:
         print(parameter_table())

@@ -28,6 +28,7 @@ from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK,
                                    EXIT_USAGE, exit_with)
 
 from wip_bringup.standin_run import BASE, freeze_process, line_scenario, run_against_standin
+from wip_control.tools.cli import add_exit_codes
 
 #: Path speed [m/s] of both references; the circle's radius [m].
 SPEED = 0.5
@@ -157,6 +158,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     if args.runs < 1 or not math.isfinite(args.seconds) or args.seconds <= SETTLING_TIME:
         print(f'soak: error: need --runs >= 1 and --seconds > {SETTLING_TIME:g}',

@@ -21,6 +21,7 @@ import argparse
 import pathlib
 
 from wip_control.core.scenario import Scenario
+from wip_control.tools.cli import add_exit_codes
 
 #: Written by :func:`main`: file name -> whether it carries the live-only e-stop panels.
 LAYOUT_FILES = {'wip_bag.json': False, 'wip_live.json': True}
@@ -115,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
                                      description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('out', help='directory of the layout files (foxglove/)')
+    add_exit_codes(parser)
     args = parser.parse_args(argv)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

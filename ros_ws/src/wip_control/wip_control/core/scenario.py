@@ -316,9 +316,26 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
     return scenario
 
 
+def with_duration(scenario: Scenario, duration: float) -> Scenario:
+    """``scenario`` with another duration [s], checked as a scenario file's would be
+    (range, at least one control tick, the most control periods a run may have);
+    ConfigError otherwise."""
+    if not 0.0 < duration <= MAX_DURATION_S:
+        raise ConfigError(f'duration: must be in (0, {MAX_DURATION_S:g}] s, got '
+                          f'{_show(duration)}')
+    scenario = dataclasses.replace(scenario, duration=float(duration))
+    _check_consistency(scenario)
+    return scenario
+
+
 def _check_consistency(scenario: Scenario) -> None:
     """Cross-section checks: rates that must divide each other, run size, initial tilt."""
     samples = scenario.duration * scenario.rates.control_rate
+    if round(samples) < 1:
+        raise ConfigError(f'duration: {scenario.duration:g} s is less than one control '
+                          f'period ({scenario.control_period:g} s at rates.control_rate '
+                          f'{scenario.rates.control_rate:g} Hz): the run would have no '
+                          'control tick')
     if samples > MAX_CONTROL_SAMPLES:
         raise ConfigError(f'duration: {scenario.duration:g} s at rates.control_rate '
                           f'{scenario.rates.control_rate:g} Hz is {samples:.3g} control '

@@ -39,6 +39,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
                        QoSReliabilityPolicy)
 from rosgraph_msgs.msg import Clock
@@ -51,6 +52,7 @@ from .launched import end_with_launcher
 from .parameters import ConfigParameters
 from .settings import ControllerNodeSettings, RETIRED
 from .sync import on_grid
+from ..tools.cli import answer_node_help
 
 #: One spin_once of the EventsExecutor [s]: bounds the reaction time to a shutdown.
 SPIN_TIMEOUT = 0.1
@@ -314,6 +316,23 @@ def warn_undeclared_overrides(nodes, warned=None) -> None:
                 node.get_logger().warning(line)
 
 
+def init_rclpy(program: str, args, signal_handler_options) -> bool:
+    """``rclpy.init``; False after one line on stderr when rcl refuses the command line's
+    ROS arguments (a remap rule to an invalid name, a malformed ``-p``): no traceback."""
+    try:
+        rclpy.init(args=args, signal_handler_options=signal_handler_options)
+    except _rclpy_impl.RCLError as err:
+        reason = str(err).split(', at /', 1)[0]   # rcl's source location is no help here
+        print(f'{program}: error: bad ROS arguments: {reason}', file=sys.stderr)
+        return False
+    return True
+
+
+def _package_of(factory) -> str:
+    """The ROS package of a node class (its top-level Python package)."""
+    return str(getattr(factory, '__module__', 'wip_control')).split('.')[0]
+
+
 def run_node(node_factory: Callable[[], Node], program: str, args=None,
              on_stop: Callable[[Node], None] | None = None) -> int:
     """Jazzy ``main`` of one node: :func:`run_nodes` with a single node."""
@@ -347,12 +366,14 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
     DDS while no one outside the process subscribes; ``gc.freeze`` after start-up) and
     spun by :func:`spin_composed`, as :func:`run_simulator_node` does.
     """
+    if answer_node_help(program, _package_of(nodes[0][0]), args):
+        return 0
     end_with_launcher()
     handles_signals = any(on_stop is not None for _, on_stop in nodes)
-    if not handles_signals:
-        rclpy.init(args=args)
-    else:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    if not init_rclpy(program, args, SignalHandlerOptions.NO if handles_signals
+                      else SignalHandlerOptions.ALL):
+        return 1
+    if handles_signals:
         _stop_signal.clear()
         signal.signal(signal.SIGINT, _request_stop)
         signal.signal(signal.SIGTERM, _request_stop)
@@ -515,11 +536,14 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
     the simulator node takes part in the intra-process delivery if it is an
     :class:`IntraProcessNode`.
     """
+    if answer_node_help(program, _package_of(node_factory), args):
+        return 0
     end_with_launcher()
     # SIGINT and SIGTERM only set a flag that the spin loop checks (as in run_nodes): with
     # rclpy's handlers a KeyboardInterrupt raised late could cut write_stats() short and
     # leave an empty stats file.
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    if not init_rclpy(program, args, SignalHandlerOptions.NO):
+        return config_status
     _stop_signal.clear()
     signal.signal(signal.SIGINT, _request_stop)
     signal.signal(signal.SIGTERM, _request_stop)

@@ -184,15 +184,13 @@ def declare_effort_interface(node: Node) -> EffortInterface:
     """Declare and read the parameters of settings.WheelJoints, EffortCommand and
     WheelSigns (the mixer and the stand-in base read the same ones); ConfigError if
     ``joints`` does not list ``left_joint`` and ``right_joint`` once each."""
-    from .settings import EffortCommand, WheelJoints, WheelSigns
+    from .settings import check_effort_joints, EffortCommand, WheelJoints, WheelSigns
     wheels = ConfigParameters(node, '', WheelJoints).config
     left, right = wheels.left_joint, wheels.right_joint
     # joints defaults to (left_joint, right_joint) as set, so renaming both is enough.
     joints = tuple(ConfigParameters(node, '', EffortCommand,
                                     defaults=EffortCommand((left, right))).config.joints)
-    if sorted(joints) != sorted([left, right]):
-        raise ConfigError(f'joints: must list left_joint {left!r} and right_joint {right!r} '
-                          f'once each, got {list(joints)}')
+    check_effort_joints(left, right, joints)
     signs = ConfigParameters(node, '', WheelSigns).config
     return EffortInterface(left, right, joints, float(signs.left_wheel_sign),
                            float(signs.right_wheel_sign))

@@ -15,7 +15,7 @@ import dataclasses
 from typing import Any
 
 from ..core.arc import ArcConfig
-from ..core.config import param
+from ..core.config import ConfigError, param
 from ..core.eso import EsoConfig
 from ..core.mixer import MixerConfig
 from ..core.mpc import MpcConfig
@@ -105,6 +105,14 @@ class EffortCommand:
         ('left_wheel_joint', 'right_wheel_joint'), TEXT, 'joints of the effort command (and '
         'of /joint_states for the stand-in base), in the order of its data; must list '
         'left_joint and right_joint once each', max_length=2)
+
+
+def check_effort_joints(left_joint: str, right_joint: str, joints: tuple[str, ...]) -> None:
+    """ConfigError unless ``joints`` lists ``left_joint`` and ``right_joint`` once each
+    (the check of the nodes that command efforts, and of a params file before a run)."""
+    if sorted(joints) != sorted([left_joint, right_joint]):
+        raise ConfigError(f'joints: must list left_joint {left_joint!r} and right_joint '
+                          f'{right_joint!r} once each, got {list(joints)}')
 
 
 @dataclasses.dataclass(frozen=True)

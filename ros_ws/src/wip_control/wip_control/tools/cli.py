@@ -27,14 +27,16 @@ the tool exits 3, which a script can tell apart from "the vehicle fell" (1).
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import importlib
+import math
 import os
 import pathlib
 import sys
 import tempfile
 import traceback
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 EXIT_OK = 0
 EXIT_FAILED = 1  # the vehicle fell or a check failed
@@ -42,7 +44,30 @@ EXIT_USAGE = 2  # usage or input error
 EXIT_INTERNAL = 3  # internal error
 EXIT_DISK_FULL = 4  # no space left (or a quota) where an output is written
 EXIT_NOT_ENGAGED = 5  # the controllers never engaged
-EXIT_INTERRUPTED = 130
+EXIT_HANGUP = 129  # stopped by SIGHUP (128 + 1)
+EXIT_INTERRUPTED = 130  # Ctrl-C, SIGINT (128 + 2)
+EXIT_TERMINATED = 143  # stopped by SIGTERM (128 + 15)
+
+#: The exit-code table of every tool (the module docstring, the README's "Exit codes" and
+#: every tool's ``--help``, :func:`add_exit_codes`, say the same; a test compares them).
+EXIT_CODES: dict[int, str] = {
+    EXIT_OK: 'success (run_graph hardware mode: the controllers engaged and no fault '
+             'followed, or you stopped it)',
+    EXIT_FAILED: 'the vehicle fell, or a check failed (a damaged bag, a check of '
+                 'check_base); hardware mode: a fall or safety FAULT after engaging',
+    EXIT_USAGE: 'usage or input error (option, scenario, params file, bag, output path): '
+                'nothing was run or written',
+    EXIT_INTERNAL: 'internal error (a bug, a node that crashed, a graph that stalled): '
+                   'one line, the full trace in $WIP_TRACE_DIR',
+    EXIT_DISK_FULL: 'the disk (or a quota) filled up: what fit is finished',
+    EXIT_NOT_ENGAGED: 'the controllers never engaged (hardware mode, a real-time '
+                      'simulation): no inputs, or the estimate never settled',
+    EXIT_HANGUP: 'stopped by SIGHUP (a closed terminal): the run is finished first',
+    EXIT_INTERRUPTED: 'interrupted (Ctrl-C): the run is finished first',
+    EXIT_TERMINATED: 'stopped by SIGTERM (systemd, docker stop): the run is finished first',
+}
+#: First line of the exit-code epilog of every tool's ``--help``.
+EXIT_CODES_HEADING = 'Exit codes (one table for every tool):'
 
 #: Where full traces of internal errors go (the directory is created when needed).
 TRACE_DIR_ENV = 'WIP_TRACE_DIR'
@@ -162,3 +187,95 @@ def write_atomic(path: str | os.PathLike, data: bytes | str) -> None:
     except BaseException:
         pathlib.Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def exit_codes_text() -> str:
+    """The exit-code table as the epilog of a tool's ``--help``: one line per code."""
+    return EXIT_CODES_HEADING + '\n' + '\n'.join(
+        f'  {code:>3}  {meaning}' for code, meaning in EXIT_CODES.items())
+
+
+def add_exit_codes(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Put the exit-code table at the end of ``parser``'s ``--help``, line by line (the
+    parser's formatter keeps wrapping the rest of its text as before), and make its usage
+    errors one line (exit 2)."""
+    parser.epilog = (parser.epilog + '\n\n' if parser.epilog else '') + exit_codes_text()
+    base = parser.formatter_class
+
+    class Formatter(base):  # type: ignore[misc, valid-type]
+        def _fill_text(self, text, width, indent):
+            head, found, table = text.partition(EXIT_CODES_HEADING)
+            if not found:
+                return super()._fill_text(text, width, indent)
+            lead = super()._fill_text(head, width, indent) + '\n\n' if head.strip() else ''
+            return lead + ''.join(indent + line for line in
+                                  (found + table).splitlines(keepends=True))
+
+    parser.formatter_class = Formatter
+
+    def error(message: str) -> None:
+        # One line, not argparse's usage block before it: the usage is in --help.
+        parser.exit(EXIT_USAGE, f'{parser.prog}: error: {message} (--help: usage)\n')
+
+    parser.error = error  # type: ignore[method-assign]
+    return parser
+
+
+def bounded(kind: type, minimum: float | None = None, maximum: float | None = None,
+            exclusive_minimum: bool = False) -> Callable[[str], Any]:
+    """An argparse ``type=``: a finite ``kind`` (int or float) in [minimum, maximum]
+    ((minimum, maximum] with ``exclusive_minimum``); argparse's usage error (exit 2)
+    naming the range otherwise."""
+    def convert(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f'{text!r} is not {"an integer" if kind is int else "a number"}') from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f'{text!r} is not a finite number')
+        low = '' if minimum is None else (f'> {minimum:g}' if exclusive_minimum
+                                          else f'>= {minimum:g}')
+        high = '' if maximum is None else f'<= {maximum:g}'
+        too_low = minimum is not None and (value <= minimum if exclusive_minimum
+                                           else value < minimum)
+        too_high = maximum is not None and value > maximum
+        if too_low or too_high:
+            raise argparse.ArgumentTypeError(
+                f'must be {" and ".join(p for p in (low, high) if p)}, got {text}')
+        return value
+
+    convert.__name__ = kind.__name__   # argparse names the type in some messages
+    return convert
+
+
+#: What each process that holds several nodes holds (for its ``--help``).
+_NODE_HELP_EXTRA = {
+    'controllers': 'the six controller nodes reference, eso, trajectory_generator, arc, '
+                   'mpc and torque_mixer in one process (each keeps its name, parameters '
+                   'and topics)',
+    'simulation': 'the plant and the six controller nodes in one process',
+}
+
+
+def answer_node_help(program: str, package: str, args: Sequence[str] | None = None) -> bool:
+    """If the command line of a node executable asks for ``-h``/``--help`` (before
+    ``--ros-args``), print its usage on stdout and return True: the caller then exits 0
+    without starting anything. ``args`` as given to ``rclpy.init`` (``sys.argv`` if
+    None)."""
+    words = list(sys.argv if args is None else args)[1:]
+    if '--ros-args' in words:
+        words = words[:words.index('--ros-args')]
+    if not ({'-h', '--help'} & set(words)):
+        return False
+    holds = _NODE_HELP_EXTRA.get(program, f'the ROS 2 node {program}')
+    print(f'usage: ros2 run {package} {program} [--ros-args [-p NAME:=VALUE] '
+          '[--params-file FILE] [-r FROM:=TO] ...]\n\n'
+          f'Starts {holds} until SIGINT or SIGTERM.\n'
+          f'Parameters (name, unit, default, range): ros2 run wip_tools parameters --node '
+          f'{program if program not in _NODE_HELP_EXTRA else "NAME"}, or '
+          'docs/parameters.md.\n'
+          'Exit status: 0 stopped by SIGINT or SIGTERM; 1 a parameter error (one line '
+          'naming the parameter); a simulator ends with its own status (the plant: 3 when '
+          'the vehicle fell); scripts/run_graph maps these onto the exit-code table.')
+    return True

@@ -28,6 +28,8 @@ from typing import Any, Callable
 
 import yaml
 
+from wip_control.core.metrics import SETTLE_TIME_S
+
 #: Every metrics.json key (flattened with '.'), its unit and meaning. docs/scenarios.md's table
 #: is the same text; a test checks that every key a run writes is here.
 METRIC_DOCS: dict[str, tuple[str, str]] = {
@@ -117,6 +119,11 @@ def _fmt(value: Any) -> str:
 
 # -- the claims -----------------------------------------------------------------------------
 
+#: The paper's convergence claim: initial errors rejected within this time [s].
+CONVERGENCE_CLAIM_S = 8.0
+#: The verdict of a claim whose time window is longer than the run.
+NOT_TESTED = 'not tested (run too short)'
+
 def claims(metrics: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]:
     """(quantity, the paper's claim, this run, verdict) rows. Verdict: 'yes', 'no' (with
     the known reason) or 'n/a' (the run lacks the data)."""
@@ -141,13 +148,22 @@ def claims(metrics: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]
                '(0.70 rad/s at the trifolium\'s petal tips)')
     else:
         why = 'see Figs. 4, 5'
-    rows.append(('initial errors rejected (position error ≤ 0.1 m)', 'within 8 s',
+    # A claim about a window the run does not reach is not tested: neither passed nor
+    # failed (a 5 s run says nothing of "within 8 s" unless it converged within 5 s).
+    duration = m.get('duration_s')
+    short = NOT_TESTED if duration is not None else 'n/a'
+    rows.append(('initial errors rejected (position error ≤ 0.1 m)',
+                 f'within {CONVERGENCE_CLAIM_S:g} s',
                  _fmt(conv) + (' s' if conv is not None else ''),
                  'n/a' if not has_truth else
-                 ('yes' if conv is not None and conv <= 8.0 else f'no: {why}')))
+                 'yes' if conv is not None and conv <= CONVERGENCE_CLAIM_S else
+                 short if duration is None or duration < CONVERGENCE_CLAIM_S else
+                 f'no: {why}'))
     rms, worst = m.get('rms_position_error_m'), m.get('max_position_error_m')
-    rows.append(('tracking error afterwards (t ≥ 10 s)', 'fluctuates in a small range',
+    rows.append((f'tracking error afterwards (t ≥ {SETTLE_TIME_S:g} s)',
+                 'fluctuates in a small range',
                  f'RMS {_fmt(rms)} m, max {_fmt(worst)} m',
+                 NOT_TESTED if duration is not None and duration <= SETTLE_TIME_S else
                  'n/a' if worst is None else
                  ('yes' if worst <= 0.1 else f'partly: bounded, not small ({why})')))
     tilt = m.get('max_abs_theta_outside_pulse_windows_rad')

@@ -1,0 +1,189 @@
+"""One exit-code table: the constants of wip_control.tools.cli, its docstring, the README's
+table and every tool's ``--help`` say the same. Every script of scripts/ and every node
+executable answers ``--help`` (exit 0, usage, nothing started or written), and a typo in an
+option is exit 2 in one line before anything is written.
+"""
+
+import os
+import pathlib
+import re
+import subprocess
+
+import pytest
+
+from wip_control.tools import cli
+
+REPO_ROOT = pathlib.Path(__file__).resolve().parent.parent
+SCRIPTS = REPO_ROOT / 'scripts'
+#: scripts/ files that are not commands.
+NOT_COMMANDS = {'_env.sh'}
+#: Commands that are not a tool with the table (set-up, the demo, the test runner).
+NOT_TOOLS = {'setup', 'demo', 'test'}
+HELP_TIMEOUT = 300.0  # [s] every --help at once on a slow, shared 2-core machine
+
+
+def table_codes(rows):
+    """{code: meaning} of '| code | meaning |' rows ('129 / 143' is two codes)."""
+    codes = {}
+    for first, meaning in rows:
+        for code in first.split('/'):
+            codes[int(code)] = meaning.strip()
+    return codes
+
+
+def readme_table():
+    text = (REPO_ROOT / 'README.md').read_text(encoding='utf-8')
+    section = text.split('## Exit codes', 1)[1].split('\n## ', 1)[0]
+    return table_codes(re.findall(r'^\| ([0-9][0-9 /]*) \| (.*) \|$', section, re.M))
+
+
+def epilog_table(output):
+    """{code: meaning} of the exit-code epilog of a --help output."""
+    assert cli.EXIT_CODES_HEADING in output, output
+    table = output.split(cli.EXIT_CODES_HEADING, 1)[1]
+    codes = {}
+    for line in table.splitlines():
+        match = re.match(r'^\s+(\d+)  (.*)$', line)
+        if match:
+            codes[int(match.group(1))] = match.group(2).strip()
+        elif line.strip():
+            break
+    return codes
+
+
+def test_the_constants_the_docstring_and_the_readme_agree():
+    constants = {cli.EXIT_OK, cli.EXIT_FAILED, cli.EXIT_USAGE, cli.EXIT_INTERNAL,
+                 cli.EXIT_DISK_FULL, cli.EXIT_NOT_ENGAGED, cli.EXIT_HANGUP,
+                 cli.EXIT_INTERRUPTED, cli.EXIT_TERMINATED}
+    assert set(cli.EXIT_CODES) == constants == {0, 1, 2, 3, 4, 5, 129, 130, 143}
+    doc = set(int(c) for c in re.findall(r'^(\d+)\s{2,}', cli.__doc__, re.M))
+    assert doc == constants
+    assert set(readme_table()) == constants
+
+
+def test_the_runners_use_the_table():
+    from wip_bringup import launcher, runner_base
+    from wip_bringup.hardware import hardware_outcome
+    assert (launcher.EXIT_OK, launcher.EXIT_FELL, launcher.EXIT_USAGE, launcher.EXIT_FAILED,
+            launcher.EXIT_DISK_FULL, launcher.EXIT_NOT_ENGAGED, launcher.EXIT_INTERRUPTED) == (
+        cli.EXIT_OK, cli.EXIT_FAILED, cli.EXIT_USAGE, cli.EXIT_INTERNAL, cli.EXIT_DISK_FULL,
+        cli.EXIT_NOT_ENGAGED, cli.EXIT_INTERRUPTED)
+    assert set(runner_base.STOP_EXIT_CODES) == {cli.EXIT_INTERRUPTED, cli.EXIT_TERMINATED,
+                                                cli.EXIT_HANGUP}
+    # Hardware mode: 0 engaged and no fault (also at the user's stop), 1 a fault while
+    # engaged, 5 never engaged; the README says the same.
+    engaged = [{'t': 0.0, 'state': 'STARTING', 'reasons': ''},
+               {'t': 1.0, 'state': 'ACTIVE', 'reasons': ''}]
+    fault = engaged + [{'t': 2.0, 'state': 'FAULT', 'reasons': 'fallen'}]
+    assert hardware_outcome(engaged, 'stopped by SIGINT')[0] == cli.EXIT_OK
+    assert hardware_outcome(fault, 'stopped by SIGINT')[0] == cli.EXIT_FAILED
+    assert hardware_outcome(engaged[:1], 'end')[0] == cli.EXIT_NOT_ENGAGED
+    readme = ' '.join((REPO_ROOT / 'README.md').read_text(encoding='utf-8').split())
+    assert ('Exit: 0 engaged and no fault, 1 a fall or safety fault while engaged (with the '
+            'cause), 5 never engaged') in readme
+    assert 'hardware mode: a fall or a safety FAULT after the controllers engaged' in readme
+
+
+def commands():
+    return sorted(p.name for p in SCRIPTS.iterdir()
+                  if p.is_file() and os.access(p, os.X_OK) and p.name not in NOT_COMMANDS)
+
+
+def node_executables():
+    """(package, executable, path) of every node that ``ros2 run`` starts (not the tools,
+    which are scripts/ commands or have argparse)."""
+    from ament_index_python.packages import get_package_prefix
+    nodes = {'wip_control': ('reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
+                             'torque_mixer', 'controllers'),
+             'wip_sim': ('plant', 'standin_base', 'simulation'),
+             'wip_bag': ('recorder', 'replayer'),
+             'wip_viewer': ('viewer', 'foxglove_bridge')}
+    return [(package, name, pathlib.Path(get_package_prefix(package)) / 'lib' / package / name)
+            for package, names in nodes.items() for name in names]
+
+
+@pytest.fixture(scope='module')
+def helped(tmp_path_factory):
+    """``--help`` of every scripts/ command and node executable, all at once, each in an
+    empty folder of its own: name -> (status, output, files the folder holds after)."""
+    pytest.importorskip('rclpy')
+    runs = {f'scripts/{name}': [str(SCRIPTS / name), '--help'] for name in commands()}
+    runs.update({f'{package}/{name}': [str(path), '--help']
+                 for package, name, path in node_executables()})
+    folders, processes, results = {}, {}, {}
+    try:
+        for key, command in runs.items():
+            folders[key] = tmp_path_factory.mktemp(key.replace('/', '_'))
+            processes[key] = subprocess.Popen(command, cwd=folders[key], text=True,
+                                              stdout=subprocess.PIPE,
+                                              stderr=subprocess.STDOUT,
+                                              stdin=subprocess.DEVNULL)
+        for key, process in processes.items():
+            try:
+                output, _ = process.communicate(timeout=HELP_TIMEOUT)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                output, _ = process.communicate()
+            results[key] = (process.returncode, output,
+                            sorted(p.name for p in folders[key].iterdir()))
+    finally:
+        for process in processes.values():
+            if process.poll() is None:
+                process.kill()
+                process.communicate()
+    return results
+
+
+def test_every_script_and_node_answers_help_without_starting_anything(helped):
+    assert len([k for k in helped if k.startswith('scripts/')]) == len(commands())
+    for key, (status, output, files) in helped.items():
+        assert status == 0, f'{key} --help: exit {status}\n{output}'
+        assert 'usage' in output.lower(), f'{key}\n{output}'
+        assert 'Traceback (most recent call last)' not in output, f'{key}\n{output}'
+        assert files == [], f'{key} --help wrote {files}'
+
+
+def test_every_tool_help_ends_with_the_one_table(helped):
+    for name in commands():
+        if name in NOT_TOOLS:
+            continue
+        _, output, _ = helped[f'scripts/{name}']
+        assert epilog_table(output) == cli.EXIT_CODES, name
+
+
+@pytest.mark.parametrize('script, args', [
+    ('report', ['BAG', '--out', 'out', '--no-such-option']),
+    ('replay', ['BAG', '--ratee', '2']),
+    ('rerun', ['BAG', '--out', 'out', '--scenaro', 'x.yaml']),
+    ('bag_repair', ['BAG', '--outt', 'new']),
+    ('simulate', ['--out', 'out', '--quite']),
+    ('run_graph', ['--out', 'out', '--duraton', '3']),
+])
+def test_a_typo_in_an_option_is_exit_2_in_one_line_and_writes_nothing(tmp_path, script,
+                                                                       args):
+    done = subprocess.run([str(SCRIPTS / script), *args], cwd=tmp_path, text=True,
+                          capture_output=True, timeout=HELP_TIMEOUT, stdin=subprocess.DEVNULL)
+    assert done.returncode == 2, done.stderr
+    lines = [line for line in done.stderr.splitlines() if not line.startswith(
+        ('wip:', 'setup:'))]   # a set-up the bootstrap may run first
+    assert len(lines) == 1 and 'unrecognized arguments' in lines[0], done.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize('package, executable, status', [
+    ('wip_control', 'eso', 1), ('wip_control', 'controllers', 1), ('wip_sim', 'plant', 2),
+    ('wip_bag', 'recorder', 1), ('wip_viewer', 'viewer', 1)])
+def test_a_node_given_a_bad_ros_argument_says_so_in_one_line(tmp_path, package, executable,
+                                                             status):
+    pytest.importorskip('rclpy')
+    from ament_index_python.packages import get_package_prefix
+    path = pathlib.Path(get_package_prefix(package)) / 'lib' / package / executable
+    done = subprocess.run([str(path), '--ros-args', '-r', '/imu/data:=/my imu'], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=HELP_TIMEOUT,
+                          stdin=subprocess.DEVNULL)
+    assert done.returncode == status, done.stderr   # the node's parameter-error status
+    assert 'Traceback' not in done.stderr + done.stdout
+    (line,) = [line for line in done.stderr.splitlines() if 'error: ' in line
+               and not line.startswith('[ERROR]')]   # rcl logs its own line first
+    assert line.startswith(f"{executable}: error: bad ROS arguments: ") and '/my imu' in line
+    assert list(tmp_path.iterdir()) == []
