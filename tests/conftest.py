@@ -34,7 +34,8 @@ for package in ('wip_control', 'wip_sim', 'wip_bag', 'wip_bringup', 'wip_tools',
     if path not in sys.path:
         sys.path.insert(0, path)
 
-from wip_bringup.private_domain import release_private_domain, reserve_private_domain  # noqa: E402
+from wip_bringup.private_domain import (release_private_domain, release_taken_domains,  # noqa: E402
+                                        reserve_private_domain)
 
 
 # ----------------------------------------------------------------- ROS test isolation
@@ -61,6 +62,14 @@ def private_dds_domain():
                 os.environ.pop(key, None)
             else:
                 os.environ[key] = value
+
+
+@pytest.fixture(autouse=True)
+def _release_taken_domains():
+    """The domains a test took with wip_bringup.private_domain.take_private_domain are
+    free again once it has ended."""
+    yield
+    release_taken_domains()
 
 
 @pytest.fixture

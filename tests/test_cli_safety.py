@@ -195,6 +195,7 @@ from wip_bag import bag_info, bag_repair  # noqa: E402
 from wip_tools import report, rerun  # noqa: E402
 from wip_bag.bag_integrity import scan_file  # noqa: E402
 from wip_bag.bag_reader import BagIntegrityError, iter_raw_messages, read_bag  # noqa: E402
+from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 
 @pytest.fixture(scope='module')
@@ -347,7 +348,7 @@ def test_a_broken_metadata_yaml_is_reported_and_rebuilt(run_bag, tmp_path, capsy
 # -------------------------------------------------------------------------------- nodes
 
 def test_mixer_refuses_inf_warns_about_unknown_overrides_and_stops_quietly(tmp_path):
-    env = dict(os.environ, ROS_DOMAIN_ID=str(100 + os.getpid() % 50),
+    env = dict(os.environ, ROS_DOMAIN_ID=str(take_private_domain()),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     module = [sys.executable, '-m', 'wip_control.nodes.torque_mixer_node', '--ros-args']
     bad = subprocess.run(module + ['-p', 'mpc.sampling_period:=inf'], capture_output=True,

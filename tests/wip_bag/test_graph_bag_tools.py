@@ -5,7 +5,6 @@ A short lockstep run of the paper scenario through the whole graph; then ``bag_i
 """
 
 import json
-import os
 import pathlib
 import subprocess
 
@@ -15,6 +14,7 @@ import yaml
 from bagtools_helpers import child_environment, REPO_ROOT
 from wip_bag.bag_info import bag_information
 from wip_bag.bag_repair import repair_bag
+from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -36,7 +36,7 @@ def graph_bag(tmp_path_factory):
         pytest.skip('scripts/run_graph does not exist yet')
     out = tmp_path_factory.mktemp('graph')
     env = child_environment()
-    env['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 101)
+    env['ROS_DOMAIN_ID'] = str(take_private_domain())
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     result = subprocess.run(
         [str(RUN_GRAPH), '--duration', str(DURATION), '--record', str(out / 'bag'),

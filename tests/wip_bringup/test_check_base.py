@@ -13,7 +13,6 @@ motion a person would, in ``--auto`` mode it plays the motions on a schedule.
 import json
 import math
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -28,6 +27,7 @@ rclpy = pytest.importorskip('rclpy')
 from sensor_msgs.msg import Imu, JointState  # noqa: E402
 
 from wip_control.core.params import WipParameters  # noqa: E402
+from wip_bringup.private_domain import take_private_domain  # noqa: E402
 from wip_sim.standin_base import BaseConventions  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.wallclock]
@@ -131,7 +131,7 @@ def start_tool(tmp_path, domain_id, params, mode):
 
 
 def run_script_mode(tmp_path, params):
-    domain_id = random.randint(1, 101)
+    domain_id = take_private_domain()
     base = PlayedBase(domain_id)
     tool = start_tool(tmp_path, domain_id, params, 'script')
     output = []
@@ -217,7 +217,7 @@ def test_a_wrong_mounting_and_swapped_joints_are_named(tmp_path):
 
 
 def test_auto_mode_detects_the_motions_without_confirmations(tmp_path):
-    domain_id = random.randint(1, 101)
+    domain_id = take_private_domain()
     base = PlayedBase(domain_id)
     tool = start_tool(tmp_path, domain_id, BASE, 'auto')
     lines = []
@@ -283,7 +283,7 @@ def test_an_interrupt_while_the_listener_starts_exits_cleanly(tmp_path):
     # visible, which is before BaseListener's constructor returns. The thread then kept
     # spinning into interpreter shutdown, where rclpy's C++ aborted the process
     # ('terminate called without an active exception', exit -6) under load.
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 101)),
+    env = dict(os.environ, ROS_DOMAIN_ID=str(take_private_domain()),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     for _ in range(2):
         done = subprocess.run([sys.executable, '-c', INTERRUPTED_START,
@@ -298,7 +298,7 @@ def test_sigint_stops_the_check_even_when_it_was_started_with_sigint_ignored(tmp
     # A background job of a non-interactive shell (`scripts/test ... &`, a CI step) starts
     # with SIGINT ignored, and so does every process it starts: the check then waited for
     # data until its timeout instead of stopping (the ros2 run contract test's failure).
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 101)),
+    env = dict(os.environ, ROS_DOMAIN_ID=str(take_private_domain()),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
     ignoring = ('import os, signal, sys\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\n'
                 'os.execv(sys.executable, [sys.executable, "-m", "wip_bringup.check_base", '

@@ -7,7 +7,6 @@ Needs root (mount); skipped with the reason otherwise.
 
 import json
 import os
-import random
 import subprocess
 import sys
 
@@ -17,6 +16,7 @@ pytest.importorskip('rclpy')
 
 from wip_bag.bag_info import main as bag_info_main  # noqa: E402
 from wip_bringup.launcher import EXIT_DISK_FULL  # noqa: E402
+from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -37,7 +37,7 @@ def small_disk(tmp_path):
 
 def test_a_full_disk_stops_the_run_with_the_bag_finished_and_says_so(small_disk, capsys):
     run, bag = small_disk / 'run', small_disk / 'bag'
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 101)))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(take_private_domain()))
     # 60 s of the paper scenario record far more than 1 MiB: the disk fills up mid-run.
     done = subprocess.run([sys.executable, '-m', 'wip_bringup.graph', '--duration', '60',
                            '--record', str(bag), '--out', str(run), '--quiet'],

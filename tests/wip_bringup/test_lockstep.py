@@ -29,7 +29,6 @@ heading gain λ1 υ_r = ω_n²/υ_r (up to 14 1/s), the filtered derivative givi
 
 import math
 import os
-import random
 import signal
 import time
 
@@ -46,6 +45,7 @@ from wip_bag.bag_reader import read_bag  # noqa: E402
 from wip_bag.bag_reader import bag_summary  # noqa: E402
 from wip_bringup.graph import GraphOptions, GraphRunner, run_graph  # noqa: E402
 from wip_tools.report import record_from_bag, report  # noqa: E402
+from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 
@@ -70,7 +70,7 @@ TIMING_KEYS = ('mpc_solve_time_s',)
 
 
 def _domain(monkeypatch):
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 101)))
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(take_private_domain()))
 
 
 @pytest.fixture(scope='module')

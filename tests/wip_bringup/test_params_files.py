@@ -13,7 +13,6 @@ Each node of the graph is built in this process with the generated file as its
 """
 
 import dataclasses
-import random
 
 import pytest
 
@@ -35,6 +34,7 @@ from wip_control.core.trajectory_generator import TrajectoryGeneratorConfig  # n
 from wip_control.nodes.settings import WheelTorqueLimit  # noqa: E402
 from wip_bringup.params_files import (flatten, graph_parameters,  # noqa: E402
                                             write_params_file)
+from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -107,7 +107,7 @@ def build_node(params_file):
     def build(name):
         _, path = params_file
         context = rclpy.Context()
-        rclpy.init(context=context, domain_id=random.randint(1, 101),
+        rclpy.init(context=context, domain_id=take_private_domain(),
                    args=['--ros-args', '--params-file', str(path)])
         node = node_class(name)(context=context)
         built.append((node, context))

@@ -11,7 +11,6 @@ tests check what the graph runner and the plant promise: wall-clock pacing, wall
 stamps, torques that arrive in time.
 """
 
-import random
 
 import numpy as np
 import pytest
@@ -22,6 +21,7 @@ from wip_bag.bag_reader import bag_summary  # noqa: E402
 from wip_bringup.graph import EXIT_FELL, EXIT_NOT_ENGAGED, GraphOptions, run_graph  # noqa: E402
 from wip_sim.settings import PlantSettings  # noqa: E402
 from wip_tools.report import record_from_bag  # noqa: E402
+from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 
@@ -34,7 +34,7 @@ MAX_TORQUE_AGE = PlantSettings().max_torque_age  # [s], 0.05
 def realtime_run(tmp_path_factory):
     directory = tmp_path_factory.mktemp('realtime')
     monkeypatch = pytest.MonkeyPatch()
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 101)))
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(take_private_domain()))
     try:
         # The single layout (plant and controllers in one process, the cheapest per tick):
         # on a 2-core machine (a third of its CPU taken by the hypervisor) with one
@@ -125,7 +125,7 @@ def test_realtime_run_whose_controllers_never_engage_ends_with_the_reason(tmp_pa
     # Held until the controllers engage: a vehicle that starts beyond the safety layer's
     # fall threshold (0.4 > 0.35 rad) is never released. The run ends (no retry: starting
     # again would not help) and says why, with the mixer's own reason.
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(random.randint(1, 101)))
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(take_private_domain()))
     scenario = tmp_path / 'tilted.yaml'
     scenario.write_text('name: tilted\nduration: 2.0\ninitial_state:\n  theta: 0.4\n')
     result = run_graph(GraphOptions(clock='realtime', scenario=str(scenario),

@@ -14,7 +14,6 @@ timeout.
 import json
 import os
 import pathlib
-import random
 import signal
 import subprocess
 import sys
@@ -26,6 +25,7 @@ pytest.importorskip('rclpy')
 
 from wip_bag.bag_info import main as bag_info_main  # noqa: E402
 from wip_bag.bag_reader import read_bag  # noqa: E402
+from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -92,7 +92,7 @@ def _last_ground_truth_stamp(bag: pathlib.Path) -> float:
 def test_a_stopped_run_finishes_its_bag(tmp_path, capsys, number, when):
     run, bag = tmp_path / 'run', tmp_path / 'bag'
     err_path = tmp_path / 'stderr.txt'
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 101)))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(take_private_domain()))
     with open(err_path, 'w', encoding='utf-8') as err:
         process = subprocess.Popen(
             [sys.executable, '-m', 'wip_bringup.graph', '--duration', str(DURATION),

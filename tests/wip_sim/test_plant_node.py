@@ -9,7 +9,6 @@ message encoding.
 """
 
 import os
-import random
 import subprocess
 import sys
 import time
@@ -34,6 +33,7 @@ from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_control.core.sensors import geodetic_to_local, Sensors  # noqa: E402
 from wip_control.nodes.conversions import (  # noqa: E402
     euler_rates_from_body, pitch_yaw_from_quaternion, quaternion_from_euler)
+from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -79,7 +79,7 @@ class Harness(NodeHarness):
     def __init__(self, scenario_path, clock_mode='lockstep', **extra):
         from wip_sim.plant_node import PlantNode
         context = rclpy.Context()
-        rclpy.init(context=context, domain_id=random.randint(1, 101))
+        rclpy.init(context=context, domain_id=take_private_domain())
         overrides = [Parameter('scenario_file', value=str(scenario_path)),
                      Parameter('clock_mode', value=clock_mode),
                      Parameter('start.expected_sensor_subscribers', value=1),
@@ -288,7 +288,7 @@ def test_the_executable_ends_the_scenario_with_exit_code_0_and_the_documented_co
 
 def test_an_invalid_scenario_is_refused_with_exit_code_2(tmp_path):
     bad = write_scenario(tmp_path, {'duration': -1.0})
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 101)))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(take_private_domain()))
     result = subprocess.run(
         [sys.executable, '-m', 'wip_sim.plant_node', '--ros-args', '-p',
          f'scenario_file:={bad}'], env=env, capture_output=True, text=True, timeout=60)

@@ -7,7 +7,6 @@ directly, capturing what it publishes: no DDS traffic, no timing.
 """
 
 import math
-import random
 
 from hypothesis import given, settings, strategies as st
 import pytest
@@ -38,6 +37,7 @@ from wip_control.nodes.hardware_inputs import (body_pitch_yaw,  # noqa: E402
 from wip_control.nodes.mpc_node import MpcNode  # noqa: E402
 from wip_control.nodes.reference_node import ReferenceNode  # noqa: E402
 from wip_control.nodes.torque_mixer_node import TorqueMixerNode  # noqa: E402
+from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -188,7 +188,7 @@ def test_odometry_position_is_the_pose_position_and_rejects_non_finite():
 @pytest.fixture(scope='module')
 def context():
     ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=random.randint(1, 101), args=[])
+    rclpy.init(context=ctx, domain_id=take_private_domain(), args=[])
     yield ctx
     rclpy.try_shutdown(context=ctx)
 

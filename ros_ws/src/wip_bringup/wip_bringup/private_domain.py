@@ -53,3 +53,21 @@ def release_private_domain(descriptor: int) -> None:
     """Give a reserved domain back (a no-op for an unreserved one)."""
     if descriptor >= 0:
         os.close(descriptor)
+
+
+#: Descriptors of :func:`take_private_domain`, released together.
+_TAKEN: list[int] = []
+
+
+def take_private_domain() -> int:
+    """A reserved domain id held until :func:`release_taken_domains` (for a test harness:
+    its fixture releases them after each test)."""
+    domain_id, descriptor = reserve_private_domain()
+    _TAKEN.append(descriptor)
+    return domain_id
+
+
+def release_taken_domains() -> None:
+    """Release every domain of :func:`take_private_domain`."""
+    while _TAKEN:
+        release_private_domain(_TAKEN.pop())
