@@ -24,7 +24,7 @@ CONFIGURED = {'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'left_wheel_sig
 
 
 def run(mistake=None, *, seconds=1.5, rest=0.5, noise=0.01, gyro_bias=0.05, push=0.0,
-        yaw_rate_ref=0.5, config=WiringCheckConfig(), seed=1):
+        push_at=0.3, yaw_rate_ref=0.5, config=WiringCheckConfig(), seed=1):
     """Feed a check ``rest`` s at rest (held, not engaged), then ``seconds`` engaged;
     the verdict and the time after engaging it came (None, None without one)."""
     rng = np.random.default_rng(seed)
@@ -76,7 +76,7 @@ def run(mistake=None, *, seconds=1.5, rest=0.5, noise=0.01, gyro_bias=0.05, push
             phys_l, phys_r = phys_r, phys_l
         if engaged:
             terms = nominal_terms(p, theta, yaw_rate, theta_dot)
-            disturbance = push if 0.3 <= t - rest < 0.5 else 0.0
+            disturbance = push if push_at <= t - rest < push_at + 0.2 else 0.0
             theta_ddot = terms.f3 + terms.g3 * (phys_l + phys_r) + disturbance
             v += (terms.f2 + terms.g2 * (phys_l + phys_r)) * PERIOD
             yaw_rate += (terms.f1 + terms.g1 * (phys_r - phys_l)) * PERIOD
@@ -114,11 +114,12 @@ def test_an_upside_down_imu_is_named_before_engaging():
 
 
 @pytest.mark.parametrize('seed', [1, 2, 3])
-@pytest.mark.parametrize('push', [0.0, 8.0, -8.0])
-def test_correct_wiring_with_noise_bias_and_a_push_gives_no_verdict(seed, push):
-    # Push: 8 rad/s^2 on the tilt for 0.2 s during the tilt check (a hard shove: the
-    # controller's torque answers it late, the tilt moves against the torque).
-    verdict, _ = run(None, seconds=3.0, push=push, seed=seed)
+@pytest.mark.parametrize('push, push_at', [(0.0, 0.0), (3.0, 0.05), (-3.0, 0.05),
+                                           (8.0, 0.4), (-8.0, 0.4)])
+def test_correct_wiring_with_noise_bias_and_a_push_gives_no_verdict(seed, push, push_at):
+    # Pushes on the tilt for 0.2 s: 3 rad/s^2 during the tilt check (a jolt as the hand
+    # lets go), 8 rad/s^2 after it (a hard shove); yaw motion throughout.
+    verdict, _ = run(None, seconds=3.0, push=push, push_at=push_at, seed=seed)
     assert verdict is None, verdict.reason
 
 
