@@ -136,8 +136,10 @@ def test_a_wrong_wheel_sign_makes_the_safety_layer_zero_the_torque(tmp_path):
     assert code == 3 and stats['fell']               # ... and could not balance it
     faults = [e for e in result.safety_events if e['state'] == 'FAULT']
     assert faults, result.safety_events
-    # The first reason is the wiring verdict, before the fall it causes.
-    assert faults[0]['reasons'].startswith('wiring: left_wheel_sign: '), faults[0]
+    # After engaging, the first reason is the wiring verdict, before the fall it causes.
+    engaged_at = next(i for i, e in enumerate(result.safety_events) if e['state'] == 'ACTIVE')
+    first = next(e for e in result.safety_events[engaged_at:] if e['state'] == 'FAULT')
+    assert first['reasons'].startswith('wiring: left_wheel_sign: '), first
     # The base received only zero commands once it lay on the ground.
     assert stats['commands_after_fall'] > 0
     assert stats['nonzero_commands_after_fall'] == 0
