@@ -22,7 +22,7 @@ import pytest
 
 pytest.importorskip('rclpy')
 
-from wip_bringup.standin_run import BASE, run_against_standin  # noqa: E402
+from wip_bringup.standin_run import BASE, line_scenario, run_against_standin  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 
@@ -76,3 +76,29 @@ def test_a_wiring_mistake_zeroes_the_torque_within_half_a_second_and_names_it(
     first = next(e for e in result.safety_events[engaged_at:] if e['state'] == 'FAULT')
     assert first['reasons'].startswith(f'wiring: {parameter}: '), first
     assert all(c == 0 for c in result.node_exit_codes.values()), result.node_exit_codes
+
+
+def test_correct_wiring_with_sensor_noise_gyro_bias_and_pushes_gives_no_wiring_fault(tmp_path):
+    """No false alarm: the base's own conventions (BASE), noisy sensors with gyro biases
+    (a consumer IMU's: noise 0.01 rad/s, biases 0.01 and 0.02 rad/s; 4096-count encoders)
+    and pushes on the tilt, one while the tilt check runs (2 rad/s^2 for 0.2 s from 0.1 s)
+    and one later (a longitudinal 3 m/s^2 for 0.2 s at 3 s): the base stays up, no verdict."""
+    scenario = line_scenario()
+    scenario['sensors'] = {'imu_pitch_noise_std': 0.002, 'imu_yaw_noise_std': 0.002,
+                           'gyro_noise_std': 0.01, 'gyro_pitch_bias': 0.01,
+                           'gyro_yaw_bias': 0.02, 'encoder_counts_per_rev': 4096}
+    scenario['disturbances'] = {
+        'yaw': [], 'tilt': [{'kind': 'pulse', 'amplitude': 2.0, 'start_time': 0.1,
+                             'width': 0.2}],
+        'longitudinal': [{'kind': 'pulse', 'amplitude': 3.0, 'start_time': 3.0,
+                          'width': 0.2}]}
+    run = run_against_standin(tmp_path / 'noisy', BASE, 8.0, scenario=scenario)
+    result, stats = run.result, run.stats
+    assert not any('wiring' in e['reasons'] for e in result.safety_events), \
+        result.safety_events
+    assert stats['released'] and not stats['fell'], result.message
+    assert result.exit_code == 0, result.message
+    mixer = next(v for k, v in result.node_diagnostics.items()
+                 if k.startswith('/torque_mixer'))
+    print('wiring check:', mixer['wiring check'])
+    assert mixer['wiring check'].startswith('no contradiction: tilt Y/X ')

@@ -160,6 +160,17 @@ class WiringCheck:
         self.yaw = collections.deque(maxlen=self.window)     # (y, dw, sw) [rad/s]
         self.tilt: tuple | None = None   # (t, pitch_rate0, Y, X, last t)
         self.since: dict[str, float] = {}   # check -> time its contradiction began
+        # The margins seen (for /diagnostics): the last tilt ratio Y/X with enough
+        # impulse, the largest relative yaw miss of the configured wheels with excitation.
+        self.tilt_ratio: float | None = None
+        self.yaw_worst_miss: float | None = None
+
+    def summary(self) -> str:
+        """The margins seen so far, one line (correct wiring: Y/X near 1, misses near 0)."""
+        tilt = 'n/a' if self.tilt_ratio is None else f'{self.tilt_ratio:.2f}'
+        yaw = 'n/a' if self.yaw_worst_miss is None else f'{self.yaw_worst_miss:.2f}'
+        return (f'tilt Y/X {tilt} (fault in [{_TILT_BAND[0]:g}, {_TILT_BAND[1]:g}]); '
+                f'largest yaw miss {yaw} of the gyro rate (fault >= {_YAW_MISS:g})')
 
     # -- inputs -------------------------------------------------------------------------------
     def wheels(self, t: float, left_rate: float, right_rate: float) -> None:
@@ -221,6 +232,9 @@ class WiringCheck:
             LEFT_SIGN: sum(abs(a - b) for a, b in zip(sw, y)) / n,
             RIGHT_SIGN: sum(abs(a + b) for a, b in zip(sw, y)) / n,
         }
+        relative = miss['configured'] / excitation
+        if self.yaw_worst_miss is None or relative > self.yaw_worst_miss:
+            self.yaw_worst_miss = relative
         if miss['configured'] < _YAW_MISS * excitation:
             return None
         suspect = min((h for h in miss if h != 'configured'), key=miss.get)
@@ -279,6 +293,7 @@ class WiringCheck:
             return None
         response = (pitch_rate - rate0) - drift
         ratio = response / impulse
+        self.tilt_ratio = ratio
         if not _TILT_BAND[0] <= ratio <= _TILT_BAND[1] or self._yaw_contradicted():
             # (A wheel sign wrong also leaks the yaw torque into the drive: the tilt then
             # contradicts too, but the yaw check names the wheel; wait for it.)

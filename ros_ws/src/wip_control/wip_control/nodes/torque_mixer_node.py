@@ -417,6 +417,9 @@ class TorqueMixerNode(ControllerNode):
         for name, age in self.monitor.ages(self.monitor_time()).items():
             values[f'received {name} ago [s]'] = 'never' if age is None else f'{age:.4f}'
         values['ticks'] = str(self.monitor.ticks)
+        if self.wiring_check is not None:
+            values['wiring check'] = (self.monitor.wiring or
+                                      'no contradiction: ' + self.wiring_check.summary())
         values['zeroed ticks'] = str(self.zeroed_ticks)
         if self.latencies:
             p50, p99, p100 = np.percentile(np.fromiter(self.latencies, float), (50, 99, 100))
