@@ -137,3 +137,28 @@ def test_non_finite_samples_are_skipped():
     assert check.imu(0.0, math.nan, 0.0, 0.0, (0.0, 0.0, 9.8)) is None
     with pytest.raises(ValueError):
         WiringCheck(WiringCheckConfig(), PARAMS, 0.0)
+
+
+def test_a_wiring_fault_zeroes_the_torque_at_once_is_latched_and_listed_first():
+    from wip_control.core.eso import StateEstimate
+    from wip_control.core.safety import ACTIVE, FAULT, SafetyConfig, SafetyMonitor, STARTING
+    monitor = SafetyMonitor(SafetyConfig(), 10.0, 1e6, PERIOD, timing_checks=False)
+    estimate = [0.0] * len(StateEstimate._fields)
+
+    def tick(t):
+        monitor.estimate(t, estimate, True)
+        monitor.yaw_torque(t, 1.0)
+        monitor.drive_torque(t, 4.0)
+        return monitor.update(t)
+
+    assert tick(0.0).state == ACTIVE
+    verdict, _ = run('right_sign')
+    monitor.wiring_fault(verdict.reason)
+    for k in range(1, 4):      # the next tick and every one after: zero, latched
+        decision = tick(k * PERIOD)
+        assert decision.state == FAULT and decision.zeroed
+        assert decision.command == (0.0, 0.0)
+        assert decision.reasons[0].startswith('wiring: right_wheel_sign: ')
+    ok, message = monitor.reset()
+    assert ok and 'wiring: right_wheel_sign' in message
+    assert monitor.update(4 * PERIOD).state in (STARTING, ACTIVE)
