@@ -34,8 +34,9 @@ after engaging
     ``tilt_check_time`` 0.3 s: a wrong tilt sign is named 0.15 s after engaging on the
     stand-in base (the torques of engaging are large); a shove whose impulse on the tilt
     exceeds the torque's own (8 rad/s² for 0.2 s against 0.8 rad/s) can land in the band,
-    so the check is not run longer than the wiring needs. Only at first: a hard push later (Y dominated by τd3 against
-    the torque) must not look like a wiring fault, and a wiring fault shows at once.
+    so the check is not run longer than the wiring needs: a hard push later (Y dominated
+    by τd3 against the torque) must not look like a wiring fault, and a wiring fault
+    shows at once.
 
 Gravity (accelerometer against the mounting), before engaging
     At rest the specific force is +g along the body's up axis, within the tilt (a robot
