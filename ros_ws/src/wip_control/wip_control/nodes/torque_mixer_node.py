@@ -12,7 +12,11 @@ Subscribes
     (wip_msgs/StateEstimate: θ̂ for the fall threshold, rates and disturbances for the ESO
     divergence check, ``settled`` for the start-up), ``/wip/estop`` (std_msgs/Bool: true
     engages the e-stop, latched; false releases the button, which allows a reset),
-    ``/wip/estop_reset`` (std_msgs/Empty: the reset, as the service below).
+    ``/wip/estop_reset`` (std_msgs/Empty: the reset, as the service below); in real
+    time with ``wiring_check.enabled``, the base's ``/joint_states`` and ``/imu/data``
+    (sensor-data QoS) for the wiring checks at engage (``core/wiring_check.py``: wheel
+    signs, joint names and IMU mounting judged from the sensors against each other; a
+    verdict is a latched fault naming the parameter).
 Publishes
     ``/wip/wheel_torques`` (wip_msgs/WheelTorques: the torques of the tick, ``zeroed`` and
     the ``reason`` when the safety layer forced zero; in shadow mode the torques that would
@@ -63,7 +67,8 @@ Parameters: section ``mixer`` (changeable at run time, validated), sections ``ra
 ``safety`` (read-only: a safety setting does not change under a running robot),
 ``mpc.sampling_period``, ``mpc.fast_resolve_period`` [s], ``joints``, ``left_joint``,
 ``right_joint``, ``left_wheel_sign``, ``right_wheel_sign`` (1 or −1), ``effort_topic``,
-``clock_mode``, ``diagnostics_period`` (all read-only).
+``clock_mode``, ``diagnostics_period``, section ``wiring_check``, ``model.*`` and
+``imu_mounting_rpy`` (the wiring checks; all read-only).
 
 References
 ----------
