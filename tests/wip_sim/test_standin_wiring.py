@@ -7,7 +7,11 @@ need. Each test gives them one mistake:
 
 - ``right_wheel_sign`` −1 instead of 1 (a mirrored motor the params do not know of);
 - ``left_joint``/``right_joint`` swapped (with their signs: the sides exchanged);
-- ``imu_mounting_rpy`` off by pi about z (the tilt read with the wrong sign).
+- ``imu_mounting_rpy`` off by pi about z (the tilt read with the wrong sign);
+- ``left_joint``/``right_joint`` swapped with the signs left as they were: to every
+  sensor this looks like the IMU turned by pi (the wheels and the IMU disagree on which
+  way is forward, nothing else knows): the verdict names ``imu_mounting_rpy`` and the
+  swapped joints as the alternative.
 
 Each must end with zero torque applied by the base within 0.5 s of engaging (measured
 from the torques the base applied, its ground truth every 5 ms; the bound is the control's
@@ -39,6 +43,15 @@ MISTAKES = {
     'imu_mounting_rpy': dict(BASE, imu_mounting_rpy=[
         BASE['imu_mounting_rpy'][0], BASE['imu_mounting_rpy'][1],
         BASE['imu_mounting_rpy'][2] - 3.141592653589793]),
+    'joint names only': dict(BASE, left_joint=BASE['right_joint'],
+                             right_joint=BASE['left_joint']),
+}
+#: case -> (the parameter the verdict names, a text the message must hold too).
+EXPECTED = {
+    'right_wheel_sign': ('right_wheel_sign', 'set right_wheel_sign to 1'),
+    'left_joint/right_joint': ('left_joint/right_joint', "left_joint: 'wheel_l'"),
+    'imu_mounting_rpy': ('imu_mounting_rpy', 'imu_mounting_rpy: [3.142, 0, 1.571]'),
+    'joint names only': ('imu_mounting_rpy', 'left_joint/right_joint swapped'),
 }
 
 
@@ -54,17 +67,19 @@ def zero_torque_from(stats) -> float | None:
     return samples[last_nonzero + 1][0]
 
 
-@pytest.mark.parametrize('parameter', list(MISTAKES))
+@pytest.mark.parametrize('case', list(MISTAKES))
 def test_a_wiring_mistake_zeroes_the_torque_within_half_a_second_and_names_it(
-        tmp_path, parameter):
-    run = run_against_standin(tmp_path / parameter.replace('/', '_'), MISTAKES[parameter],
+        tmp_path, case):
+    parameter, advice = EXPECTED[case]
+    run = run_against_standin(tmp_path / case.replace('/', '_').replace(' ', '_'),
+                              MISTAKES[case],
                               RUN_TIME, exit_after_fall=1.0,
                               base_extra={'truth_period': TRUTH_PERIOD})
     result, stats = run.result, run.stats
     assert stats['released'], result.message          # the controllers engaged
     zero_at = zero_torque_from(stats)
     assert zero_at is not None and zero_at <= ZERO_WITHIN, (zero_at, result.message)
-    print(f'{parameter}: zero torque {zero_at:.3f} s after engaging')
+    print(f'{case}: zero torque {zero_at:.3f} s after engaging')
     # Nothing but zero afterwards, to the end (the fault is latched).
     assert stats['nonzero_commands_after_fall'] == 0
     assert stats['last_command'] == [0.0, 0.0]          # (-0.0 == 0.0)
@@ -72,6 +87,7 @@ def test_a_wiring_mistake_zeroes_the_torque_within_half_a_second_and_names_it(
     assert result.exit_code == 1, result.message
     assert result.message.startswith('safety FAULT '), result.message
     assert f'wiring: {parameter}: ' in result.message, result.message
+    assert advice in result.message, result.message
     engaged_at = next(i for i, e in enumerate(result.safety_events) if e['state'] == 'ACTIVE')
     first = next(e for e in result.safety_events[engaged_at:] if e['state'] == 'FAULT')
     assert first['reasons'].startswith(f'wiring: {parameter}: '), first
