@@ -71,7 +71,8 @@ SECTIONS = {
             'mixer': (WheelTorqueLimit, lambda s: WheelTorqueLimit(s.mixer.max_wheel_torque)),
             'rates': (RatesConfig, lambda s: s.rates)},
     'torque_mixer': {'mixer': (MixerConfig, lambda s: s.mixer),
-                     'rates': (RatesConfig, lambda s: s.rates)},
+                     'rates': (RatesConfig, lambda s: s.rates),
+                     'model': (WipParameters, lambda s: s.controller_model.parameters)},
 }
 
 

@@ -159,7 +159,7 @@ def graph_parameters(scenario: Scenario, clock_mode: str = 'lockstep',
                 'eso': {'yaw_input_gain_scale': float(scenario.eso.yaw_input_gain_scale)}},
         'mpc': {'mpc': config_section(scenario.mpc), 'model': model,
                 'mixer': {'max_wheel_torque': mixer['max_wheel_torque']}, 'rates': rates},
-        'torque_mixer': {'mixer': mixer, 'rates': rates,
+        'torque_mixer': {'mixer': mixer, 'rates': rates, 'model': model,
                          'mpc': {'sampling_period': float(scenario.mpc.sampling_period),
                                  'fast_resolve_period':
                                      float(scenario.mpc.fast_resolve_period)},

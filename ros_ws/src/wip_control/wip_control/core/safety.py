@@ -270,6 +270,7 @@ class SafetyMonitor:
         self.estop_engaged = False      # the e-stop input says engaged now
         self.estop_latched = False
         self.fault_latched: tuple[str, ...] = ()
+        self.wiring = ''   # a wiring verdict (core.wiring_check): latched until reset()
         self.state = STARTING
         self.ready_since: float | None = None
         self.last_update: float | None = None
@@ -356,6 +357,12 @@ class SafetyMonitor:
         if engaged:
             self.estop_latched = True
 
+    def wiring_fault(self, reason: str) -> None:
+        """A wiring contradiction (``core.wiring_check.Verdict.reason``): a fault from the
+        next tick, latched whatever ``latch_faults`` says (a wrong parameter does not go
+        away by itself) until :meth:`reset`."""
+        self.wiring = str(reason) or 'wiring: contradiction'
+
     def reset(self) -> tuple[bool, str]:
         """Explicit reset of a latched e-stop (and latched faults): (success, message).
 
@@ -368,8 +375,11 @@ class SafetyMonitor:
             was.append('e-stop')
         if self.fault_latched:
             was.append('latched fault (' + '; '.join(self.fault_latched) + ')')
+        if self.wiring:
+            was.append(self.wiring)
         self.estop_latched = False
         self.fault_latched = ()
+        self.wiring = ''
         if self.state in (ESTOP, FAULT):
             self.state = STARTING
             self.ready_since = None
@@ -385,7 +395,8 @@ class SafetyMonitor:
     def _conditions(self, now: float) -> tuple[list[str], list[str], list[str]]:
         """(faults, not-yet conditions, late inputs within the bridge) at ``now``."""
         cfg = self.config
-        faults: list[str] = []
+        # A wiring verdict first: it is the cause, a fall that follows is its effect.
+        faults: list[str] = [self.wiring] if self.wiring else []
         waiting: list[str] = []
         late: list[str] = []
         max_age = {ESTIMATE: cfg.max_estimate_age, YAW_TORQUE: cfg.max_yaw_torque_age,

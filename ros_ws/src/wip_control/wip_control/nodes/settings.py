@@ -26,6 +26,7 @@ from ..core.safety import SafetyConfig
 from ..core.scenario import RatesConfig
 from ..core.sensors import SensorConfig
 from ..core.trajectory_generator import TrajectoryGeneratorConfig
+from ..core.wiring_check import WiringCheckConfig
 
 CLOCK_MODES = ('lockstep', 'realtime')
 #: The nodes are drop-in controllers for a real base; the graph runner sets 'lockstep'.
@@ -254,5 +255,6 @@ NODES: dict[str, tuple[tuple[str, type], ...]] = {
             ('rates', RatesConfig), ('', MpcNodeSettings)),
     'torque_mixer': (*_BASE, ('mixer', MixerConfig), ('rates', RatesConfig),
                      ('mpc', MpcPeriod), ('safety', SafetyConfig), ('', MixerNodeSettings), ('', WheelJoints),
-                     ('', EffortCommand), ('', WheelSigns)),
+                     ('', EffortCommand), ('', WheelSigns), ('wiring_check', WiringCheckConfig),
+                     ('model', WipParameters), ('', ImuMounting)),
 }

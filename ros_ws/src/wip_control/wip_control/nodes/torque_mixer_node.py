@@ -12,7 +12,11 @@ Subscribes
     (wip_msgs/StateEstimate: θ̂ for the fall threshold, rates and disturbances for the ESO
     divergence check, ``settled`` for the start-up), ``/wip/estop`` (std_msgs/Bool: true
     engages the e-stop, latched; false releases the button, which allows a reset),
-    ``/wip/estop_reset`` (std_msgs/Empty: the reset, as the service below).
+    ``/wip/estop_reset`` (std_msgs/Empty: the reset, as the service below); in real
+    time with ``wiring_check.enabled``, the base's ``/joint_states`` and ``/imu/data``
+    (sensor-data QoS) for the wiring checks at engage (``core/wiring_check.py``: wheel
+    signs, joint names and IMU mounting judged from the sensors against each other; a
+    verdict is a latched fault naming the parameter).
 Publishes
     ``/wip/wheel_torques`` (wip_msgs/WheelTorques: the torques of the tick, ``zeroed`` and
     the ``reason`` when the safety layer forced zero; in shadow mode the torques that would
@@ -63,7 +67,8 @@ Parameters: section ``mixer`` (changeable at run time, validated), sections ``ra
 ``safety`` (read-only: a safety setting does not change under a running robot),
 ``mpc.sampling_period``, ``mpc.fast_resolve_period`` [s], ``joints``, ``left_joint``,
 ``right_joint``, ``left_wheel_sign``, ``right_wheel_sign`` (1 or −1), ``effort_topic``,
-``clock_mode``, ``diagnostics_period`` (all read-only).
+``clock_mode``, ``diagnostics_period``, section ``wiring_check``, ``model.*`` and
+``imu_mounting_rpy`` (the wiring checks; all read-only).
 
 References
 ----------
@@ -79,6 +84,7 @@ import time
 import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
+from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, Empty, Float64MultiArray
 from std_srvs.srv import Trigger
 from wip_msgs.msg import ArcState, MpcOutput, StateEstimate as StateEstimateMsg, WheelTorques
@@ -86,16 +92,19 @@ from wip_msgs.msg import ArcState, MpcOutput, StateEstimate as StateEstimateMsg,
 from ..core.config import ConfigError
 from ..core.mixer import MixerConfig
 from ..core.mpc import resolves_faster
+from ..core.params import WipParameters
 from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyConfig, SafetyDecision,
                            SafetyMonitor, SHADOW, STARTING)
 from ..core.scenario import RatesConfig
-from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
+from ..core.wiring_check import WiringCheck, WiringCheckConfig
+from .common import ControllerNode, RELIABLE_QOS, run_node, SENSOR_QOS, stamp_to_ns
 from .conversions import (effort_command, effort_command_cdr, estimate_from_msg,
-                          wheel_torques_to_msg)
+                          InvalidMessage, wheel_torques_to_msg)
 from .diagnostics import ERROR, OK, WARN
-from .hardware_inputs import signed_efforts
+from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
+                              rotate_vector_into, signed_efforts, signed_wheel_angles)
 from .parameters import ConfigParameters, declare_effort_interface
-from .settings import MixerNodeSettings, MpcPeriod
+from .settings import ImuMounting, MixerNodeSettings, MpcPeriod
 from .sync import decimation, ExactTimeSync, is_decimated_tick
 
 _INPUTS = ('yaw_torque', 'drive_torque')
@@ -157,6 +166,7 @@ class TorqueMixerNode(ControllerNode):
             self.timer = self.create_timer(self.control_period, self._tick,
                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.latencies = collections.deque(maxlen=LATENCY_WINDOW)   # [s]
+        self._init_wiring_check()
         self.subscribe(ArcState, '/wip/yaw_torque', 'yaw_torque', self._on_yaw)
         self.subscribe(MpcOutput, '/wip/drive_torque', 'drive_torque', self._on_drive)
         self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
@@ -169,6 +179,70 @@ class TorqueMixerNode(ControllerNode):
         # Ages and counters are filled in when a status is made, not at every tick.
         self._base_status = self.diagnostics.status
         self.diagnostics.status = self._status
+
+    def _init_wiring_check(self) -> None:
+        """Real time: the wiring checks (core/wiring_check.py) on the base's own sensors.
+
+        The mixer reads /joint_states and /imu/data itself (not the ESO's estimates): the
+        check compares raw sensors with each other and with the torque this node sends,
+        and its verdict must reach the safety layer in the same process without a hop."""
+        config = ConfigParameters(self, 'wiring_check', WiringCheckConfig).config
+        model = ConfigParameters(self, 'model', WipParameters).config
+        mounting = ConfigParameters(self, '', ImuMounting).config.imu_mounting_rpy
+        self.wiring_check = None
+        if self.lockstep or not config.enabled:
+            return
+        self.inverse_mount = mounting_inverse(mounting)
+        self.wiring_check = WiringCheck(config, model, self.control_period, configured={
+            'left_joint': self.left_joint, 'right_joint': self.right_joint,
+            'left_wheel_sign': int(self.left_sign), 'right_wheel_sign': int(self.right_sign),
+            'imu_mounting_rpy': tuple(mounting)})
+        self._last_wheels: tuple[float, float, float] | None = None   # (t, φl, φr)
+        self.create_subscription(JointState, '/joint_states', self._on_joint_states,
+                                 SENSOR_QOS)
+        self.create_subscription(Imu, '/imu/data', self._on_imu, SENSOR_QOS)
+
+    def _on_joint_states(self, msg: JointState) -> None:
+        """Wheel rates as configured: the joint velocities (else the positions' difference)
+        by name, times the signs. A bad message is the ESO's to report: skipped here."""
+        t = self.monitor_time()
+        try:
+            left, right = signed_wheel_angles(msg, self.left_joint, self.right_joint,
+                                              self.left_sign, self.right_sign)
+            names = list(msg.name)
+            if len(msg.velocity) == len(names):
+                rates = (self.left_sign * float(msg.velocity[names.index(self.left_joint)]),
+                         self.right_sign * float(msg.velocity[names.index(self.right_joint)]))
+            elif self._last_wheels is not None and t > self._last_wheels[0]:
+                dt = t - self._last_wheels[0]
+                rates = ((left - self._last_wheels[1]) / dt, (right - self._last_wheels[2]) / dt)
+            else:
+                rates = None
+            self._last_wheels = (t, left, right)
+            if rates is not None:
+                self.wiring_check.wheels(t, *rates)
+        except (InvalidMessage, ValueError, TypeError):
+            return
+
+    def _on_imu(self, msg: Imu) -> None:
+        t = self.monitor_time()
+        try:
+            pitch, _yaw = body_pitch_yaw(msg, self.inverse_mount)
+            pitch_rate, yaw_rate = body_pitch_yaw_rates(msg, self.inverse_mount, pitch)
+            accel = None
+            if msg.linear_acceleration_covariance[0] != -1.0:
+                a = msg.linear_acceleration
+                accel = (float(a.x), float(a.y), float(a.z))
+                if self.inverse_mount is not None:
+                    accel = rotate_vector_into(self.inverse_mount, accel)
+        except (InvalidMessage, ValueError, TypeError):
+            return
+        verdict = self.wiring_check.imu(t, pitch, pitch_rate, yaw_rate, accel)
+        if verdict is not None and not self.monitor.wiring:
+            self.monitor.wiring_fault(verdict.reason)
+            self.get_logger().error(f'{verdict.reason}: zero torque (latched; fix the '
+                                    'parameter, then restart or reset)')
+            self._tick()    # zero torque now, not at the next yaw torque
 
     # -- parameters and time -------------------------------------------------------------------
     def _on_config(self, config: MixerConfig) -> None:
@@ -253,6 +327,8 @@ class TorqueMixerNode(ControllerNode):
     def reset_estop(self, source: str) -> tuple[bool, str]:
         """Reset a latched e-stop (and latched faults); (success, message), logged."""
         ok, message = self.monitor.reset()
+        if ok and self.wiring_check is not None:
+            self.wiring_check.reset()
         if ok:
             self.get_logger().warning(f'reset via {source}: {message}')
         else:
@@ -299,6 +375,10 @@ class TorqueMixerNode(ControllerNode):
                                                          self.left_joint, self.right_joint))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self.zeroed_ticks += decision.zeroed
+        if self.wiring_check is not None:
+            tau_l, tau_r = decision.command
+            self.wiring_check.torque(self.monitor_time(), tau_l + tau_r,
+                                     decision.state in (ACTIVE, DEGRADED))
         previous = self.last_decision
         self.last_decision = decision
         self._report(decision)
@@ -342,6 +422,9 @@ class TorqueMixerNode(ControllerNode):
         for name, age in self.monitor.ages(self.monitor_time()).items():
             values[f'received {name} ago [s]'] = 'never' if age is None else f'{age:.4f}'
         values['ticks'] = str(self.monitor.ticks)
+        if self.wiring_check is not None:
+            values['wiring check'] = (self.monitor.wiring or
+                                      'no contradiction: ' + self.wiring_check.summary())
         values['zeroed ticks'] = str(self.zeroed_ticks)
         if self.latencies:
             p50, p99, p100 = np.percentile(np.fromiter(self.latencies, float), (50, 99, 100))

@@ -1,0 +1,164 @@
+"""Wiring checks (core/wiring_check.py) on synthetic signals: a small balancing loop of
+model (1) closed through a base whose wiring differs from what the check is told.
+
+The loop: a PD tilt controller on the MEASURED tilt (gains stabilise the nominal
+linearised tilt dynamics: 150 N m/rad > a/|g3| = 74), a yaw-rate loop toward
+0.5 rad/s on the gyro; the base applies the torques through its real wiring and reports
+its wheels through it. Sensor noise and gyro biases as a consumer IMU's.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from wip_control.core.model import nominal_terms
+from wip_control.core.params import WipParameters
+from wip_control.core.wiring_check import (JOINTS, LEFT_SIGN, MOUNTING, RIGHT_SIGN,
+                                           WiringCheck, WiringCheckConfig)
+
+PERIOD = 0.005
+PARAMS = WipParameters()
+CONFIGURED = {'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'left_wheel_sign': 1,
+              'right_wheel_sign': 1, 'imu_mounting_rpy': (0.0, 0.0, 0.0)}
+
+
+def run(mistake=None, *, seconds=1.5, rest=0.5, noise=0.01, gyro_bias=0.05, push=0.0,
+        push_at=0.3, yaw_rate_ref=0.5, config=WiringCheckConfig(), seed=1):
+    """Feed a check ``rest`` s at rest (held, not engaged), then ``seconds`` engaged;
+    the verdict and the time after engaging it came (None, None without one)."""
+    rng = np.random.default_rng(seed)
+    check = WiringCheck(config, PARAMS, PERIOD, configured=CONFIGURED)
+    p = PARAMS
+    r, d = p.wheel_radius, p.track_width
+    theta, theta_dot, v, yaw_rate = 0.05, 0.0, 0.0, 0.0
+    tau_l = tau_r = 0.0
+    n_rest = int(round(rest / PERIOD))
+    for k in range(n_rest + int(round(seconds / PERIOD))):
+        t = k * PERIOD
+        engaged = k >= n_rest
+        # The base's sensors, through its real wiring.
+        wl, wr = (v - 0.5 * d * yaw_rate) / r, (v + 0.5 * d * yaw_rate) / r
+        if mistake == 'right_sign':
+            wr = -wr
+        elif mistake == 'left_sign':
+            wl = -wl
+        elif mistake == 'swap':
+            wl, wr = wr, wl
+        wl += noise * rng.standard_normal()
+        wr += noise * rng.standard_normal()
+        pitch, pitch_rate = theta, theta_dot + gyro_bias
+        if mistake == 'imu_yaw_pi':
+            pitch, pitch_rate = -pitch, -pitch_rate
+        pitch_rate += noise * rng.standard_normal()
+        gyro_yaw = yaw_rate + gyro_bias + noise * rng.standard_normal()
+        g = p.gravity
+        accel = (g * math.sin(theta), 0.0, g * math.cos(theta))
+        if mistake == 'upside_down':
+            accel = (accel[0], 0.0, -accel[2])
+        check.wheels(t, wl, wr)
+        verdict = check.imu(t, pitch, pitch_rate, gyro_yaw, accel)
+        if verdict is not None:
+            return verdict, t - rest
+        # The controller (measured values as configured) and the torque sent.
+        if engaged:
+            tau_v = 150.0 * pitch + 40.0 * pitch_rate
+            tau_w = 20.0 * (yaw_rate_ref - gyro_yaw)
+            tau_l, tau_r = 0.5 * (tau_v - tau_w), 0.5 * (tau_v + tau_w)
+        check.torque(t, tau_l + tau_r, engaged)
+        # The real plant: what the wheels really get.
+        phys_l, phys_r = tau_l, tau_r
+        if mistake == 'right_sign':
+            phys_r = -phys_r
+        elif mistake == 'left_sign':
+            phys_l = -phys_l
+        elif mistake == 'swap':
+            phys_l, phys_r = phys_r, phys_l
+        if engaged:
+            terms = nominal_terms(p, theta, yaw_rate, theta_dot)
+            disturbance = push if push_at <= t - rest < push_at + 0.2 else 0.0
+            theta_ddot = terms.f3 + terms.g3 * (phys_l + phys_r) + disturbance
+            v += (terms.f2 + terms.g2 * (phys_l + phys_r)) * PERIOD
+            yaw_rate += (terms.f1 + terms.g1 * (phys_r - phys_l)) * PERIOD
+            theta_dot += theta_ddot * PERIOD
+            theta += theta_dot * PERIOD
+    return None, None
+
+
+@pytest.mark.parametrize('mistake, parameter', [
+    ('right_sign', RIGHT_SIGN), ('left_sign', LEFT_SIGN), ('swap', JOINTS),
+    ('imu_yaw_pi', MOUNTING)])
+def test_a_wiring_mistake_is_named_within_half_a_second_of_engaging(mistake, parameter):
+    verdict, after = run(mistake)
+    assert verdict is not None, mistake
+    assert verdict.parameter == parameter, verdict.reason
+    assert 0.0 <= after <= 0.5, (after, verdict.reason)
+    assert verdict.reason.startswith(f'wiring: {parameter}: ')
+    assert verdict.evidence
+
+
+def test_the_advice_names_the_value_to_set():
+    verdict, _ = run('right_sign')
+    assert 'set right_wheel_sign to -1' in verdict.message
+    verdict, _ = run('swap')
+    assert "left_joint: 'wheel_r', right_joint: 'wheel_l'" in verdict.message
+    verdict, _ = run('imu_yaw_pi')
+    assert 'imu_mounting_rpy: [0, 0, 3.142]' in verdict.message
+
+
+def test_an_upside_down_imu_is_named_before_engaging():
+    verdict, after = run('upside_down')
+    assert verdict is not None and verdict.parameter == MOUNTING
+    assert after < 0.0                 # at rest, before any torque
+    assert 'along base_link -z' in verdict.message and 'upside down' in verdict.message
+
+
+@pytest.mark.parametrize('seed', [1, 2, 3])
+@pytest.mark.parametrize('push, push_at', [(0.0, 0.0), (3.0, 0.05), (-3.0, 0.05),
+                                           (8.0, 0.4), (-8.0, 0.4)])
+def test_correct_wiring_with_noise_bias_and_a_push_gives_no_verdict(seed, push, push_at):
+    # Pushes on the tilt for 0.2 s: 3 rad/s^2 during the tilt check (a jolt as the hand
+    # lets go), 8 rad/s^2 after it (a hard shove); yaw motion throughout.
+    verdict, _ = run(None, seconds=3.0, push=push, push_at=push_at, seed=seed)
+    assert verdict is None, verdict.reason
+
+
+def test_no_verdict_without_excitation_and_when_disabled():
+    # Held at rest, never engaged: no motion, nothing to compare.
+    verdict, _ = run('swap', rest=1.0, seconds=0.0)
+    assert verdict is None
+    verdict, _ = run('right_sign', seconds=0.5, config=WiringCheckConfig(enabled=False))
+    assert verdict is None
+
+
+def test_non_finite_samples_are_skipped():
+    check = WiringCheck(WiringCheckConfig(), PARAMS, PERIOD)
+    check.wheels(0.0, math.nan, 1.0)
+    assert check.imu(0.0, math.nan, 0.0, 0.0, (0.0, 0.0, 9.8)) is None
+    with pytest.raises(ValueError):
+        WiringCheck(WiringCheckConfig(), PARAMS, 0.0)
+
+
+def test_a_wiring_fault_zeroes_the_torque_at_once_is_latched_and_listed_first():
+    from wip_control.core.eso import StateEstimate
+    from wip_control.core.safety import ACTIVE, FAULT, SafetyConfig, SafetyMonitor, STARTING
+    monitor = SafetyMonitor(SafetyConfig(), 10.0, 1e6, PERIOD, timing_checks=False)
+    estimate = [0.0] * len(StateEstimate._fields)
+
+    def tick(t):
+        monitor.estimate(t, estimate, True)
+        monitor.yaw_torque(t, 1.0)
+        monitor.drive_torque(t, 4.0)
+        return monitor.update(t)
+
+    assert tick(0.0).state == ACTIVE
+    verdict, _ = run('right_sign')
+    monitor.wiring_fault(verdict.reason)
+    for k in range(1, 4):      # the next tick and every one after: zero, latched
+        decision = tick(k * PERIOD)
+        assert decision.state == FAULT and decision.zeroed
+        assert decision.command == (0.0, 0.0)
+        assert decision.reasons[0].startswith('wiring: right_wheel_sign: ')
+    ok, message = monitor.reset()
+    assert ok and 'wiring: right_wheel_sign' in message
+    assert monitor.update(4 * PERIOD).state in (STARTING, ACTIVE)
