@@ -88,8 +88,8 @@ from wip_bringup.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
                                       graph_parameters, _NoAliasDumper)
 
 from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_FELL, EXIT_NOT_ENGAGED, EXIT_OK,
-                       EXIT_USAGE, GraphError, LAYOUTS, parse_cpus, Probe, Scheduling,
-                       use_user_ros_environment)
+                       EXIT_USAGE, GraphError, in_namespace, LAYOUTS, parse_cpus, Probe,
+                       Scheduling, use_user_ros_environment)
 from .runner_base import (options_from_args, print_result, RunnerBase, RunResult,
                           stop_signal_number, stop_signals)
 
@@ -149,6 +149,9 @@ class HardwareOptions:
     #: A stand-in base that ends this long [s] after the controllers engage (its duration):
     #: a FAULT from then on is its end (its inputs stop), not a failure of the run.
     base_end_after: float | None = None
+    #: ROS namespace of every node and topic of the run ('' none; e.g. 'robot1'): two
+    #: vehicles in one domain (--namespace).
+    namespace: str = ''
 
 
 @dataclasses.dataclass
@@ -172,14 +175,18 @@ class HardwareResult(RunResult):
 
 # ----------------------------------------------------------------------------- parameters
 
-def parse_remap(text: str) -> tuple[str, str]:
-    """``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; GraphError on bad syntax."""
+def parse_remap(text: str, namespace: str = '') -> tuple[str, str]:
+    """``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; GraphError on bad syntax.
+    A relative name is the nodes' one under ``namespace`` (rcl resolves both sides of a
+    rule in the node's namespace): 'imu/data:=base/imu' follows a vehicle's namespace,
+    '/imu/data:=...' matches only a node of the root namespace."""
     source, sep, target = text.partition(':=')
     source, target = source.strip(), target.strip()
     if not sep or not source or not target or ':=' in target:
         raise GraphError(f'--remap: expected FROM:=TO (e.g. /joint_states:=/base/joint_states'
                          f'), got {text!r}', EXIT_USAGE)
-    return ('/' + source.lstrip('/'), '/' + target.lstrip('/'))
+    return tuple(name if name.startswith('/') else f'{namespace}/{name}'
+                 for name in (source, target))
 
 
 def remapped(topic: str, remaps: Iterable[tuple[str, str]]) -> str:
@@ -308,11 +315,17 @@ class HardwareRunner(RunnerBase):
         self.scenario = self.load_scenario(options.scenario)
         if options.duration is not None and not 0.0 < options.duration <= 1e6:
             raise GraphError(f'--duration: must be > 0 s, got {options.duration}', EXIT_USAGE)
+        self.check_namespace()
         self.check_layout_and_scheduling()
         if not options.arm_delay >= 0.0:
             raise GraphError(f'--arm-delay: must be >= 0 s, got {options.arm_delay}',
                              EXIT_USAGE)
-        self.remaps = [parse_remap(text) for text in options.remaps]
+        self.remaps = [parse_remap(text, self.namespace) for text in options.remaps]
+        for source, _ in self.remaps:
+            if self.namespace and not source.startswith(self.namespace + '/'):
+                self.say(f'warning: --remap {source}: an absolute name matches no topic of '
+                         f'the nodes under {self.namespace}; write it relative (e.g. '
+                         f'{source.lstrip("/")}:=...)')
         self.extra = [load_params_file(path) for path in options.params_files]
         self.prepare_outputs()
         recorder = self.recorder_parameters(
@@ -322,8 +335,9 @@ class HardwareRunner(RunnerBase):
                                              heartbeat=options.heartbeat)
         mixer = node_parameters('torque_mixer', self.generated, self.extra)
         self.zero_command = [0.0] * len(mixer.get('joints', DEFAULT_JOINTS))
+        effort = str(mixer.get('effort_topic', DEFAULT_EFFORT_TOPIC))
         self.effort_topic = remapped(
-            '/' + str(mixer.get('effort_topic', DEFAULT_EFFORT_TOPIC)).lstrip('/'),
+            effort if effort.startswith('/') else in_namespace('/' + effort, self.namespace),
             self.remaps)
         path = self.out / 'params.yaml'
         header = ('# ROS parameters of a wip-ros hardware-mode run (controllers only, real '
@@ -348,7 +362,7 @@ class HardwareRunner(RunnerBase):
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from std_msgs.msg import Float64MultiArray
-        self.probe = Probe(self.domain_id)
+        self.probe = Probe(self.domain_id, self.namespace)
         node = self.probe.node
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
                                  QoSProfile(depth=100))
@@ -362,7 +376,7 @@ class HardwareRunner(RunnerBase):
             from std_msgs.msg import Bool
             self._bool = Bool
             self.estop_publisher = node.create_publisher(
-                Bool, remapped('/wip/estop', self.remaps),
+                Bool, remapped(in_namespace('/wip/estop', self.namespace), self.remaps),
                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
             node.create_timer(HEARTBEAT_PERIOD, self._heartbeat)
 
@@ -386,7 +400,10 @@ class HardwareRunner(RunnerBase):
     def _on_diagnostics(self, msg) -> None:
         now = time.monotonic() - self.t0
         for status in msg.status:
-            name = status.name.split(':', 1)[0].lstrip('/')
+            own = self.probe.own_status_name(status.name)   # None: another vehicle's
+            if own is None:
+                continue
+            name = own.split(':', 1)[0].lstrip('/')
             values = {kv.key: kv.value for kv in status.values}
             if 'outputs' in values:
                 try:
@@ -423,7 +440,8 @@ class HardwareRunner(RunnerBase):
         eso = node_parameters('eso', self.generated, self.extra)
         sensors = ['/joint_states', '/imu/data']
         sensors.append('/odom' if eso.get('position_source') == 'odometry' else '/gps/fix')
-        names = [remapped(topic, self.remaps) for topic in sensors]
+        names = [remapped(in_namespace(topic, self.namespace), self.remaps)
+                 for topic in sensors]
         # The probe is new: DDS discovery of the base's endpoints can take it a moment
         # more than the controllers' own (seen: the base's subscription missing once).
         deadline = time.monotonic() + BASE_DISCOVERY_WAIT
@@ -622,6 +640,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'microseconds; 0 keeps them polling instead of sleeping: less CPU '
                         'and latency for the controllers, more power (docs/realtime.md); '
                         'needs root')
+    parser.add_argument('--namespace', default='', metavar='NS',
+                        help='run every node and topic under this ROS namespace (e.g. '
+                        'robot1: /robot1/cmd_vel, frames robot1/odom, robot1/base_link); '
+                        'two vehicles in one domain (docs/driving.md)')
     parser.add_argument('--no-heartbeat', action='store_true',
                         help='hardware mode: no /wip/estop heartbeat (and no arm delay): '
                              'the mixer engages as soon as its inputs are ready')

@@ -145,7 +145,7 @@ class TorqueMixerNode(ControllerNode):
         self._diagnostics_sent_at = 0.0
         self.estimates: dict[int, tuple] = {}        # lockstep: stamp -> (estimate, settled)
         self.latest_estimate_stamp: int | None = None
-        self.torques_publisher = self.create_publisher(WheelTorques, '/wip/wheel_torques',
+        self.torques_publisher = self.create_publisher(WheelTorques, 'wip/wheel_torques',
                                                        RELIABLE_QOS)
         self.effort_publisher = self.create_publisher(Float64MultiArray, effort_topic,
                                                       RELIABLE_QOS)
@@ -157,12 +157,12 @@ class TorqueMixerNode(ControllerNode):
             self.timer = self.create_timer(self.control_period, self._tick,
                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.latencies = collections.deque(maxlen=LATENCY_WINDOW)   # [s]
-        self.subscribe(ArcState, '/wip/yaw_torque', 'yaw_torque', self._on_yaw)
-        self.subscribe(MpcOutput, '/wip/drive_torque', 'drive_torque', self._on_drive)
-        self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
+        self.subscribe(ArcState, 'wip/yaw_torque', 'yaw_torque', self._on_yaw)
+        self.subscribe(MpcOutput, 'wip/drive_torque', 'drive_torque', self._on_drive)
+        self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                        self._on_estimate)
-        self.subscribe(Bool, '/wip/estop', 'estop', self._on_estop)
-        self.subscribe(Empty, '/wip/estop_reset', 'estop_reset',
+        self.subscribe(Bool, 'wip/estop', 'estop', self._on_estop)
+        self.subscribe(Empty, 'wip/estop_reset', 'estop_reset',
                        lambda _msg: self.reset_estop('/wip/estop_reset'))
         self.create_service(Trigger, '~/reset_estop', self._on_reset_service)
         self.diagnostics.state(WARN, 'STARTING: waiting for the first inputs')
