@@ -107,6 +107,7 @@ def finish(runners, timeout: float) -> dict:
 @pytest.mark.wallclock
 def test_two_vehicles_in_one_domain_each_follow_their_own_reference(tmp_path, test_node):
     from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
     from ros_harness import spinning_in_background
     from wip_bringup.graph import EXIT_OK, GraphOptions
     from wip_bringup.launcher import Scheduling
@@ -116,6 +117,9 @@ def test_two_vehicles_in_one_domain_each_follow_their_own_reference(tmp_path, te
     test_node.create_subscription(
         DiagnosticArray, '/diagnostics',
         lambda msg: statuses.update(status.name for status in msg.status), 100)
+    odom = {robot: [] for robot in ROBOTS}
+    for robot in ROBOTS:
+        test_node.create_subscription(Odometry, f'/{robot}/odom', odom[robot].append, 10)
     # Endpoints seen during the run: topic -> {'publishers'/'subscriptions': {node}}.
     seen: dict[str, dict[str, set[str]]] = {}
     topics = ([f'/{robot}/{topic}' for robot in ROBOTS for topic in VEHICLE_TOPICS]
@@ -180,6 +184,14 @@ def test_two_vehicles_in_one_domain_each_follow_their_own_reference(tmp_path, te
             assert any(name.startswith(f'/{robot}/{node}:') for name in statuses), \
                 (robot, node, sorted(statuses))
     assert not any(name.startswith(('/plant:', '/torque_mixer:')) for name in statuses)
+    # Each robot's odometry in frames of its own (the frame_prefix practice), on its own
+    # topic: robot2 stands at its start, robot1 is on its line.
+    for robot in ROBOTS:
+        assert odom[robot], robot
+        assert {(m.header.frame_id, m.child_frame_id) for m in odom[robot]} == {
+            (f'{robot}/odom', f'{robot}/base_link')}
+    assert max(abs(m.pose.pose.position.x) for m in odom['robot2']) < 0.1
+    assert odom['robot1'][-1].pose.pose.position.x > 0.5 * LINE_SPEED * DURATION
 
 
 @pytest.mark.ros
@@ -204,3 +216,32 @@ def test_a_namespaced_lockstep_run_records_a_bag_the_tools_read(tmp_path, domain
     for group in ('truth', 'estimate', 'wheels', 'mpc'):
         assert group in record, group
     assert len(record['estimate']['t']) == 200
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.wallclock
+def test_hardware_mode_under_a_namespace_drives_the_standin_base_in_it(tmp_path):
+    # The stand-in base and the controllers (run_graph --mode hardware, composed) both
+    # under robot1, the base's names remapped with relative rules: the controllers find
+    # the base, engage, and the base receives their commands and stays up.
+    from wip_bringup.standin_run import BASE, line_scenario, run_against_standin
+    run_time = 8.0  # [s] after the release
+    # The paper's plant model: with the full one the speed loop oscillates
+    # (tests/wip_sim/test_standin_base.py), which is not what this test is about.
+    scenario = dict(line_scenario(), plant={'model': 'paper'})
+    run = run_against_standin(tmp_path / 'standin', BASE, run_time, scenario=scenario,
+                              namespace='robot1')
+    result, stats = run.result, run.stats
+    assert result.exit_code == 0, result.message
+    assert run.base_code == 0, stats.get('end_reason')
+    assert stats['released'] and not stats['fell']
+    assert any(event['state'] == 'ACTIVE' for event in result.safety_events)
+    # The base got the controllers' commands at the control rate: more than half of it
+    # on average is far from a chain that does not reach the base (none).
+    assert stats['command_rate_hz'] > 100.0, stats['command_rate_hz']
+    # The runner looked for the base's topics under the namespace, remapped.
+    assert set(result.base_topics) == {'/robot1/base/joint_states', '/robot1/base/imu',
+                                       '/robot1/base/fix',
+                                       '/robot1/base/effort_controller/commands'}
+    assert all(any(counts.values()) for counts in result.base_topics.values())

@@ -121,7 +121,8 @@ from .hardware import add_arguments, run_from_args
 # LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
 from .launcher import (add_view_arguments, EXIT_DISK_FULL, EXIT_FAILED, EXIT_FELL, EXIT_OK,
                        EXIT_NOT_ENGAGED, EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError,
-                       in_namespace, LAYOUTS, Probe, PROBE_PERIOD, Scheduling, VIEWER_TOPICS, viewer_wanted)
+                       in_namespace, LAYOUTS, Probe, PROBE_PERIOD, Scheduling, VIEWER_TOPICS,
+                       viewer_wanted)
 from .runner_base import (DiskFull, is_disk_full, options_from_args, print_result,
                           RunnerBase, RunResult, STOP_EXIT_CODES, stop_signal_number,
                           stop_signals)

@@ -219,19 +219,22 @@ def load_params_file(path: str | pathlib.Path) -> dict[str, Any]:
 
 def _matches(pattern: str, node: str) -> bool:
     """Whether a params-file key (``/**``, ``eso``, ``/eso``, ``/**/eso``...) applies to the
-    node ``node`` of the root namespace."""
+    node ``node`` (its full name without the leading slash: ``eso``, ``robot1/eso``)."""
     pattern = str(pattern).lstrip('/')
     return pattern == node or fnmatch.fnmatchcase(node, pattern.replace('**', '*'))
 
 
 def node_parameters(node: str, generated: Mapping[str, Any],
-                    params_files: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
-    """The parameters ``node`` gets, flattened (``'model.wheel_radius'``): the generated
-    params file's, then each extra file's matching sections in order (later wins)."""
+                    params_files: Iterable[Mapping[str, Any]],
+                    namespace: str = '') -> dict[str, Any]:
+    """The parameters ``node`` (under ``namespace``) gets, flattened
+    (``'model.wheel_radius'``): the generated params file's, then each extra file's
+    matching sections in order (later wins)."""
     flat = flatten(generated.get(node, {}).get('ros__parameters', {}))
+    full_name = f'{namespace.strip("/")}/{node}'.lstrip('/')
     for data in params_files:
         for key, section in data.items():
-            if _matches(key, node):
+            if _matches(key, full_name):
                 flat.update(flatten(section['ros__parameters']))
     return flat
 
@@ -333,7 +336,7 @@ class HardwareRunner(RunnerBase):
             discovery_period=0.5)
         self.generated = hardware_parameters(self.scenario, recorder,
                                              heartbeat=options.heartbeat)
-        mixer = node_parameters('torque_mixer', self.generated, self.extra)
+        mixer = node_parameters('torque_mixer', self.generated, self.extra, self.namespace)
         self.zero_command = [0.0] * len(mixer.get('joints', DEFAULT_JOINTS))
         effort = str(mixer.get('effort_topic', DEFAULT_EFFORT_TOPIC))
         self.effort_topic = remapped(
@@ -437,7 +440,7 @@ class HardwareRunner(RunnerBase):
 
     def base_topics(self) -> dict[str, dict[str, int]]:
         """Publishers/subscriptions of the base's topics (remapped names)."""
-        eso = node_parameters('eso', self.generated, self.extra)
+        eso = node_parameters('eso', self.generated, self.extra, self.namespace)
         sensors = ['/joint_states', '/imu/data']
         sensors.append('/odom' if eso.get('position_source') == 'odometry' else '/gps/fix')
         names = [remapped(in_namespace(topic, self.namespace), self.remaps)

@@ -198,7 +198,10 @@ class RunnerBase:
         several; 'map' stays shared). A --params-file of the user comes after it."""
         if not self.namespace:
             return
-        data = yaml.safe_load(params_file.read_text(encoding='utf-8')) or {}
+        text = params_file.read_text(encoding='utf-8')
+        header = ''.join(line for line in text.splitlines(keepends=True)
+                         if line.startswith('#'))
+        data = yaml.safe_load(text) or {}
         prefix = self.namespace.lstrip('/') + '/'
         out = {}
         for key, section in data.items():
@@ -215,7 +218,7 @@ class RunnerBase:
                 viewer['child_frame_id'] = prefix + str(
                     viewer.get('child_frame_id', 'base_link')).lstrip('/')
             out[key] = section
-        write_atomic(params_file, yaml.safe_dump(out, sort_keys=False))
+        write_atomic(params_file, header + yaml.safe_dump(out, sort_keys=False))
 
     def check_layout_and_scheduling(self) -> None:
         if self.options.layout not in self.LAYOUTS:
