@@ -338,7 +338,9 @@ class HardwareRunner(RunnerBase):
                                              heartbeat=options.heartbeat)
         mixer = node_parameters('torque_mixer', self.generated, self.extra, self.namespace)
         self.zero_command = [0.0] * len(mixer.get('joints', DEFAULT_JOINTS))
-        effort = str(mixer.get('effort_topic', DEFAULT_EFFORT_TOPIC))
+        # The mixer's name for it: relative (the default) resolves in the namespace. The
+        # zero commands of the last resort go there, so it must be the mixer's topic.
+        effort = str(mixer.get('effort_topic', DEFAULT_EFFORT_TOPIC.lstrip('/')))
         self.effort_topic = remapped(
             effort if effort.startswith('/') else in_namespace('/' + effort, self.namespace),
             self.remaps)
