@@ -69,6 +69,30 @@ def test_topics_resolve_under_the_namespace_except_the_global_ones():
     assert parse_remap('imu/data:=base/imu') == ('/imu/data', '/base/imu')
 
 
+def test_the_generated_params_file_names_the_nodes_in_the_namespace(tmp_path):
+    # A key without a leading slash names a node of the root namespace only; the frames
+    # get the robot's prefix, once (a retried start reads the rewritten file again).
+    import types
+    import yaml
+    from wip_bringup.runner_base import RunnerBase
+    path = tmp_path / 'params.yaml'
+    path.write_text('# header\neso:\n  ros__parameters: {epsilon: 0.02}\n'
+                    'viewer:\n  ros__parameters: {viewer: {track_width: 0.5}}\n'
+                    '/**:\n  ros__parameters: {use_sim_time: true}\n')
+    runner = types.SimpleNamespace(namespace='/robot1')
+    for _ in range(2):
+        RunnerBase.namespaced_params_file(runner, path)
+    text = path.read_text()
+    data = yaml.safe_load(text)
+    assert text.startswith('# header\n')
+    assert set(data) == {'/robot1/eso', '/robot1/viewer', '/**'}
+    eso = data['/robot1/eso']['ros__parameters']
+    assert (eso['odometry_frame_id'], eso['odometry_child_frame_id'], eso['epsilon']) == (
+        'robot1/odom', 'robot1/base_link', 0.02)
+    assert data['/robot1/viewer']['ros__parameters']['viewer'] == {
+        'track_width': 0.5, 'child_frame_id': 'robot1/base_link'}
+
+
 def test_run_graph_refuses_a_bad_namespace_in_one_line(tmp_path, capsys):
     from wip_bringup.graph import main
     for argv in (['--namespace', 'robot-1'], ['--mode', 'hardware', '--namespace', '1x']):

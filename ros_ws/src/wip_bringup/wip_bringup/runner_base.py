@@ -203,6 +203,10 @@ class RunnerBase:
                          if line.startswith('#'))
         data = yaml.safe_load(text) or {}
         prefix = self.namespace.lstrip('/') + '/'
+
+        def prefixed(frame: str) -> str:   # once: a retried start reads its own output
+            frame = str(frame).lstrip('/')
+            return frame if frame.startswith(prefix) else prefix + frame
         out = {}
         for key, section in data.items():
             if not str(key).startswith('/'):
@@ -212,11 +216,10 @@ class RunnerBase:
                 params.setdefault('odometry_frame_id', 'odom')
                 params.setdefault('odometry_child_frame_id', 'base_link')
                 for name in ('odometry_frame_id', 'odometry_child_frame_id'):
-                    params[name] = prefix + str(params[name]).lstrip('/')
+                    params[name] = prefixed(params[name])
             if key == f'{self.namespace}/viewer' and isinstance(params, dict):
                 viewer = params.setdefault('viewer', {})
-                viewer['child_frame_id'] = prefix + str(
-                    viewer.get('child_frame_id', 'base_link')).lstrip('/')
+                viewer['child_frame_id'] = prefixed(viewer.get('child_frame_id', 'base_link'))
             out[key] = section
         write_atomic(params_file, header + yaml.safe_dump(out, sort_keys=False))
 
