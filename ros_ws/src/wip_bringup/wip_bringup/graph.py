@@ -332,6 +332,13 @@ class GraphRunner(RunnerBase):
             raise GraphError(f'--clock: {options.clock!r} is not lockstep or realtime',
                              EXIT_USAGE)
         self.check_namespace()
+        if (self.namespace and options.clock == 'lockstep'
+                and os.environ.get('ROS_DOMAIN_ID', '').strip()):
+            # /clock is global: a second lockstep simulation in this domain would step
+            # this one's nodes (docs/driving.md, two robots in one domain).
+            self.say('warning: lockstep in the shared ROS_DOMAIN_ID: /clock is global, so '
+                     'no other simulation may run in this domain (two vehicles in one '
+                     'domain: --clock realtime)')
         self.check_layout_and_scheduling()
         scenario = self.load_scenario(options.scenario)
         if options.duration is not None:
