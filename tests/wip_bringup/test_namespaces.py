@@ -209,12 +209,13 @@ def test_two_vehicles_in_one_domain_each_follow_their_own_reference(tmp_path, te
                 (robot, node, sorted(statuses))
     assert not any(name.startswith(('/plant:', '/torque_mixer:')) for name in statuses)
     # Each robot's odometry in frames of its own (the frame_prefix practice), on its own
-    # topic: robot2 stands at its start, robot1 is on its line.
+    # topic: robot2 stands at its start (the GPS-aided estimate within its noise:
+    # centimetres; bound 0.25 m, robot1 goes 5 m), robot1 is on its line.
     for robot in ROBOTS:
         assert odom[robot], robot
         assert {(m.header.frame_id, m.child_frame_id) for m in odom[robot]} == {
             (f'{robot}/odom', f'{robot}/base_link')}
-    assert max(abs(m.pose.pose.position.x) for m in odom['robot2']) < 0.1
+    assert max(abs(m.pose.pose.position.x) for m in odom['robot2']) < 0.25
     assert odom['robot1'][-1].pose.pose.position.x > 0.5 * LINE_SPEED * DURATION
 
 
