@@ -357,3 +357,27 @@ def test_command_line_and_qos_rules():
     assert (qos.reliability, qos.durability) == (QoSReliabilityPolicy.RELIABLE,
                                                  QoSDurabilityPolicy.VOLATILE)
     assert playback_qos('', depth=10).reliability == QoSReliabilityPolicy.RELIABLE
+
+
+def test_a_replayer_under_a_namespace_plays_the_bag_into_it(test_node, tools, tmp_path):
+    # A vehicle's bag (the recorder stores it without the vehicle's namespace) played to
+    # one vehicle of several: its topics under the replayer's namespace.
+    bag = tmp_path / 'vehicle'
+    topic = f'/nsplay_{os.getpid()}/data'
+    with Rosbag2McapWriter(bag) as writer:
+        writer.add_topic(topic, 'std_msgs/msg/String')
+        for k in range(20):
+            writer.write(topic, serialize_message(String(data=str(k))),
+                         2000 * 10**9 + k * 10_000_000)
+    received, unwanted = [], []
+    test_node.create_subscription(String, f'/robot7{topic}',
+                                  lambda m: received.append(int(m.data)), QoSProfile(depth=100))
+    test_node.create_subscription(String, topic, lambda m: unwanted.append(m.data),
+                                  QoSProfile(depth=100))
+    replayer = Tool(test_node, 'replayer_node',
+                    [str(bag), '--wait-for-subscribers', '1', '--ros-args', '-r',
+                     '__ns:=/robot7'], '/robot7/replayer')
+    tools.append(replayer)
+    spin_until(test_node, lambda: len(received) >= 20, 20.0, 'the played messages',
+               None)
+    assert received == list(range(20)) and unwanted == []

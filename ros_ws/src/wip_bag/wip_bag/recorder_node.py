@@ -183,6 +183,13 @@ class RecorderNode(Node):
         self.flush_period = settings.flush_period
         self.close_timeout = settings.close_timeout
         custom_data = {'recorder': self.get_fully_qualified_name()}
+        # Under a namespace (one vehicle of several in a domain) the topics of that
+        # namespace are stored without it: a vehicle's bag then reads the same whatever
+        # namespace it ran under, and the bag tools, which know the graph's names
+        # (/wip/state_estimate, ...), read it as it is. The namespace is kept here.
+        self.namespace = self.get_namespace().rstrip('/')
+        if self.namespace:
+            custom_data['namespace'] = self.namespace
         scenario_file = settings.scenario_file
         if scenario_file:
             try:
@@ -271,14 +278,22 @@ class RecorderNode(Node):
         hashes = {h for h in hashes if h.startswith('RIHS01_')}
         type_hash = hashes.pop() if len(hashes) == 1 else type_description_hash(type_name)
         encoding, definition = message_definition(type_name)
+        stored = self.stored_name(topic)
         # Declared to the writer through the queue so that the writer thread alone touches
         # the bag; messages of this topic are queued after it.
-        self._queue.put(('topic', topic, type_name, definition, offered, type_hash, encoding))
-        self._received[topic] = 0
+        self._queue.put(('topic', stored, type_name, definition, offered, type_hash, encoding))
+        self._received[stored] = 0
         self._recorded[topic] = self.create_subscription(
-            message_class, topic, lambda data, topic=topic: self._on_message(topic, data),
+            message_class, topic, lambda data, stored=stored: self._on_message(stored, data),
             request_qos(offered), raw=True)
-        self.get_logger().info(f'recording {topic} [{type_name}]')
+        self.get_logger().info(f'recording {topic} [{type_name}]'
+                               + (f' as {stored}' if stored != topic else ''))
+
+    def stored_name(self, topic):
+        """The name ``topic`` has in the bag: without the recorder's namespace."""
+        if self.namespace and topic.startswith(self.namespace + '/'):
+            return topic[len(self.namespace):]
+        return topic
 
     def _on_message(self, topic, data):
         # One-argument callback (the EventsExecutor does not support MessageInfo).

@@ -122,6 +122,9 @@ EXIT_BAG_ERROR = EXIT_USAGE  # the bag cannot be played: an input error
 EXIT_BAD_PARAMETERS = EXIT_USAGE
 
 CLOCK_TOPIC = '/clock'
+#: Topics played under their own name whatever the replayer's namespace (the recorder
+#: stores them so: one /clock and one /diagnostics per domain).
+GLOBAL_TOPICS = (CLOCK_TOPIC, '/diagnostics', '/rosout', '/parameter_events')
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
 SPIN_SLICE = 0.05  # [s]: longest spin_once while waiting; bounds the reaction time
 FINE_WAIT = 0.002  # [s]: the last part of a wait is a plain sleep, more precise than spinning
@@ -296,8 +299,12 @@ class ReplayerNode(Node):
             except (ReplayError, ValueError) as err:
                 self.skipped[topic] = str(err)
                 continue
-            self.publishers_by_topic[topic] = self.create_publisher(
-                msg_class, remaps.get(topic, topic), qos)
+            name = remaps.get(topic, topic)
+            if name == topic and self.get_namespace() != '/' and topic not in GLOBAL_TOPICS:
+                # Played into the node's namespace: a vehicle's bag (stored without its
+                # namespace by the recorder) replayed to one vehicle of several.
+                name = topic.lstrip('/')
+            self.publishers_by_topic[topic] = self.create_publisher(msg_class, name, qos)
         for topic, reason in self.skipped.items():
             self.get_logger().error(f'not playing {topic}: {reason}')
         if not self.publishers_by_topic:

@@ -34,8 +34,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('action', choices=ACTIONS)
     parser.add_argument('--domain', type=int, default=None, metavar='ID',
                         help='ROS_DOMAIN_ID of the graph (default: $ROS_DOMAIN_ID)')
-    parser.add_argument('--mixer', default='/torque_mixer', metavar='NODE',
-                        help='the mixer node (reset calls NODE/reset_estop)')
+    parser.add_argument('--namespace', default='', metavar='NS',
+                        help="the vehicle's namespace (run_graph --namespace NS): NS/wip/estop"
+                        ' and NS/torque_mixer')
+    parser.add_argument('--mixer', default=None, metavar='NODE',
+                        help='the mixer node (reset calls NODE/reset_estop; default '
+                        'NS/torque_mixer)')
     parser.add_argument('--timeout', type=float, default=10.0, metavar='S',
                         help='longest wait for the mixer [s] (default 10)')
     add_exit_codes(parser)
@@ -54,6 +58,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f'--domain: {domain} is not in 0..232')
     if not args.timeout > 0:
         parser.error('--timeout: must be > 0')
+    from .launcher import GraphError, parse_namespace
+    try:
+        namespace = parse_namespace(args.namespace)
+    except GraphError as err:
+        parser.error(str(err))
+    mixer = args.mixer or f'{namespace}/torque_mixer'
+    topic = f'{namespace}/wip/estop'
 
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -71,20 +82,20 @@ def main(argv: list[str] | None = None) -> int:
     deadline = time.monotonic() + args.timeout
     try:
         if args.action in ('engage', 'release'):
-            publisher = node.create_publisher(Bool, '/wip/estop', RELIABLE_QOS)
+            publisher = node.create_publisher(Bool, topic, RELIABLE_QOS)
             while publisher.get_subscription_count() == 0:
                 if time.monotonic() > deadline:
-                    print(f'estop: nothing subscribes to /wip/estop in domain {domain} after '
+                    print(f'estop: nothing subscribes to {topic} in domain {domain} after '
                           f'{args.timeout:g} s: is the graph running there?', file=sys.stderr)
                     return 1
                 executor.spin_once(timeout_sec=0.05)
             publisher.publish(Bool(data=args.action == 'engage'))
             publisher.wait_for_all_acked(rclpy.duration.Duration(
                 seconds=max(0.1, deadline - time.monotonic())))
-            print(f'estop: /wip/estop = {str(args.action == "engage").lower()} published '
+            print(f'estop: {topic} = {str(args.action == "engage").lower()} published '
                   f'(domain {domain})')
             return 0
-        client = node.create_client(Trigger, f'{args.mixer.rstrip("/")}/reset_estop')
+        client = node.create_client(Trigger, f'{mixer.rstrip("/")}/reset_estop')
         while not client.service_is_ready():
             if time.monotonic() > deadline:
                 print(f'estop: {client.srv_name} is not available in domain {domain} after '

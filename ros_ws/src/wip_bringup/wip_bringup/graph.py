@@ -33,7 +33,8 @@ What it does
    ``wip_viewer.viewer_node``) and, with ``--foxglove [PORT]``, the Foxglove bridge
    (``wip_viewer.foxglove_bridge``: every topic live on ws://127.0.0.1:PORT). Each
    process logs to ``OUT/logs/<name>.log`` (ROS log files in ``OUT/logs/ros``).
-   The DDS domain is ``$ROS_DOMAIN_ID`` if set, else a random one in 1..101; discovery
+   The DDS domain is ``$ROS_DOMAIN_ID`` if set, else a free one in 1..101 reserved on this
+   host (``wip_bringup.private_domain``: two runs never share one); discovery
    stays on this host (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
 3. Waits, with a timeout and without fixed sleeps, until a probe node of this process sees
    every node and, on every topic, at least the publishers and subscriptions of the
@@ -124,7 +125,8 @@ from .hardware import add_arguments, run_from_args
 # LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
 from .launcher import (add_view_arguments, EXIT_DISK_FULL, EXIT_FAILED, EXIT_FELL, EXIT_OK,
                        EXIT_NOT_ENGAGED, EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError,
-                       LAYOUTS, Probe, PROBE_PERIOD, Scheduling, VIEWER_TOPICS, viewer_wanted)
+                       in_namespace, LAYOUTS, Probe, PROBE_PERIOD, Scheduling, VIEWER_TOPICS,
+                       viewer_wanted)
 from .runner_base import (DiskFull, is_disk_full, options_from_args, print_result,
                           RunnerBase, RunResult, STOP_EXIT_CODES, stop_signal_number,
                           stop_signals)
@@ -218,6 +220,9 @@ class GraphOptions:
     viewer: bool | None = None
     foxglove_port: int | None = None  # serve the topics to Foxglove on this port
     foxglove_host: str = '127.0.0.1'
+    #: ROS namespace of every node and topic of the run ('' none; e.g. 'robot1'): two
+    #: vehicles in one domain (--namespace).
+    namespace: str = ''
 
 
 @dataclasses.dataclass
@@ -330,6 +335,14 @@ class GraphRunner(RunnerBase):
         if options.clock not in ('lockstep', 'realtime'):
             raise GraphError(f'--clock: {options.clock!r} is not lockstep or realtime',
                              EXIT_USAGE)
+        self.check_namespace()
+        if (self.namespace and options.clock == 'lockstep'
+                and os.environ.get('ROS_DOMAIN_ID', '').strip()):
+            # /clock is global: a second lockstep simulation in this domain would step
+            # this one's nodes (docs/driving.md, two robots in one domain).
+            self.say('warning: lockstep in the shared ROS_DOMAIN_ID: /clock is global, so '
+                     'no other simulation may run in this domain (two vehicles in one '
+                     'domain: --clock realtime)')
         self.check_layout_and_scheduling()
         scenario = self.load_scenario(options.scenario)
         if options.duration is not None:
@@ -369,6 +382,8 @@ class GraphRunner(RunnerBase):
     def missing_from_view(self, nodes: list[str]) -> list[str]:
         expected = expected_endpoints(self.options.clock, self.bag is not None,
                                       self.options.layout, self.options.viewer)
+        expected = {in_namespace(topic, self.namespace): counts
+                    for topic, counts in expected.items()}
         return missing_endpoints(self.probe, expected, nodes)
 
     def unmatched_endpoints(self) -> list[str]:
@@ -380,13 +395,15 @@ class GraphRunner(RunnerBase):
         lockstep one lost message of the first tick stalls the run. In lockstep every
         controller must also have matched the plant's /clock."""
         extra = 1 if self.bag is not None else 0
+        # The nodes report their topics' full names (under the run's namespace).
+        ns = self.namespace
         checks = []   # (node, key, wanted)
         for topic, publishers in PUBLISHERS.items():
-            checks += [(name, f'{MATCHED_KEY} {topic}', len(SUBSCRIBERS[topic]) + extra)
-                       for name in publishers]
+            checks += [(name, f'{MATCHED_KEY} {in_namespace(topic, ns)}',
+                        len(SUBSCRIBERS[topic]) + extra) for name in publishers]
         for topic, subscribers in SUBSCRIBERS.items():
-            checks += [(name, f'{MATCHED_PUBLISHERS_KEY} {topic}', len(PUBLISHERS[topic]))
-                       for name in subscribers]
+            checks += [(name, f'{MATCHED_PUBLISHERS_KEY} {in_namespace(topic, ns)}',
+                        len(PUBLISHERS[topic])) for name in subscribers]
         if self.options.clock == 'lockstep':
             checks += [(name, f'{MATCHED_PUBLISHERS_KEY} /clock', 1)
                        for name in CLOCK_NODES[self.options.layout]]
@@ -402,7 +419,7 @@ class GraphRunner(RunnerBase):
 
     def start_plant(self) -> None:
         deadline = time.monotonic() + self.options.discovery_timeout
-        last = 'the service /plant/start did not answer'
+        last = f'the service {self.namespace}/plant/start did not answer'
         while time.monotonic() < deadline:
             self.check_alive()
             response = self.probe.call_start(timeout=2.0)
@@ -571,7 +588,7 @@ class GraphRunner(RunnerBase):
     def start_graph(self, params_file: pathlib.Path) -> None:
         """Start the processes, wait for the graph, start the plant."""
         if self.probe is None:
-            self.probe = Probe(self.domain_id)
+            self.probe = Probe(self.domain_id, self.namespace)
         self.launch(params_file)
         self.start_plant()
 

@@ -90,8 +90,8 @@ from wip_bringup.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
 
 from .params_check import check_remap, check_run_inputs, ParamsError
 from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_FELL, EXIT_NOT_ENGAGED, EXIT_OK,
-                       EXIT_USAGE, GraphError, LAYOUTS, parse_cpus, Probe, Scheduling,
-                       use_user_ros_environment)
+                       EXIT_USAGE, GraphError, in_namespace, LAYOUTS, parse_cpus, Probe,
+                       Scheduling, use_user_ros_environment)
 from .runner_base import (options_from_args, print_result, RunnerBase, RunResult,
                           stop_signal_number, stop_signals)
 
@@ -151,6 +151,9 @@ class HardwareOptions:
     #: A stand-in base that ends this long [s] after the controllers engage (its duration):
     #: a FAULT from then on is its end (its inputs stop), not a failure of the run.
     base_end_after: float | None = None
+    #: ROS namespace of every node and topic of the run ('' none; e.g. 'robot1'): two
+    #: vehicles in one domain (--namespace).
+    namespace: str = ''
 
 
 @dataclasses.dataclass
@@ -174,12 +177,19 @@ class HardwareResult(RunResult):
 
 # ----------------------------------------------------------------------------- parameters
 
-def parse_remap(text: str) -> tuple[str, str]:
-    """``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; GraphError on bad syntax."""
+def parse_remap(text: str, namespace: str = '') -> tuple[str, str]:
+    """``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; GraphError on bad syntax or a
+    side that is not a valid ROS topic name. A relative name is the nodes' one under
+    ``namespace`` (rcl resolves both sides of a rule in the node's namespace):
+    'imu/data:=base/imu' follows a vehicle's namespace, '/imu/data:=...' matches only a
+    node of the root namespace."""
     try:
-        return check_remap(text)   # also: both sides valid ROS topic names
+        check_remap(text)   # FROM:=TO, both sides valid ROS topic names
     except ParamsError as err:
         raise GraphError(str(err), EXIT_USAGE) from None
+    source, _, target = text.partition(':=')
+    return tuple(name if name.startswith('/') else f'{namespace}/{name}'
+                 for name in (source.strip(), target.strip()))
 
 
 def remapped(topic: str, remaps: Iterable[tuple[str, str]]) -> str:
@@ -212,19 +222,22 @@ def load_params_file(path: str | pathlib.Path) -> dict[str, Any]:
 
 def _matches(pattern: str, node: str) -> bool:
     """Whether a params-file key (``/**``, ``eso``, ``/eso``, ``/**/eso``...) applies to the
-    node ``node`` of the root namespace."""
+    node ``node`` (its full name without the leading slash: ``eso``, ``robot1/eso``)."""
     pattern = str(pattern).lstrip('/')
     return pattern == node or fnmatch.fnmatchcase(node, pattern.replace('**', '*'))
 
 
 def node_parameters(node: str, generated: Mapping[str, Any],
-                    params_files: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
-    """The parameters ``node`` gets, flattened (``'model.wheel_radius'``): the generated
-    params file's, then each extra file's matching sections in order (later wins)."""
+                    params_files: Iterable[Mapping[str, Any]],
+                    namespace: str = '') -> dict[str, Any]:
+    """The parameters ``node`` (under ``namespace``) gets, flattened
+    (``'model.wheel_radius'``): the generated params file's, then each extra file's
+    matching sections in order (later wins)."""
     flat = flatten(generated.get(node, {}).get('ros__parameters', {}))
+    full_name = f'{namespace.strip("/")}/{node}'.lstrip('/')
     for data in params_files:
         for key, section in data.items():
-            if _matches(key, node):
+            if _matches(key, full_name):
                 flat.update(flatten(section['ros__parameters']))
     return flat
 
@@ -308,17 +321,24 @@ class HardwareRunner(RunnerBase):
         self.scenario = self.load_scenario(options.scenario)
         if options.duration is not None and not 0.0 < options.duration <= 1e6:
             raise GraphError(f'--duration: must be > 0 s, got {options.duration}', EXIT_USAGE)
+        self.check_namespace()
         self.check_layout_and_scheduling()
         if not options.arm_delay >= 0.0:
             raise GraphError(f'--arm-delay: must be >= 0 s, got {options.arm_delay}',
                              EXIT_USAGE)
-        self.remaps = [parse_remap(text) for text in options.remaps]
+        self.remaps = [parse_remap(text, self.namespace) for text in options.remaps]
+        for source, _ in self.remaps:
+            if self.namespace and not source.startswith(self.namespace + '/'):
+                self.say(f'warning: --remap {source}: an absolute name matches no topic of '
+                         f'the nodes under {self.namespace}; write it relative (e.g. '
+                         f'{source.lstrip("/")}:=...)')
         self.extra = [load_params_file(path) for path in options.params_files]
         # Before anything is written or started: the files against the nodes' declarations.
+        run_topics = [in_namespace(topic, self.namespace) for topic in
+                      (*BASE_SENSOR_TOPICS, DEFAULT_EFFORT_TOPIC, *CONTROLLER_TOPICS)]
         for line in check_run_inputs(options.params_files, self.extra, self.node_names(),
                                      hardware_parameters(self.scenario), self.remaps,
-                                     (*BASE_SENSOR_TOPICS, DEFAULT_EFFORT_TOPIC,
-                                      *CONTROLLER_TOPICS)):
+                                     run_topics):
             self.say(f'warning: {line}')
         self.prepare_outputs()
         recorder = self.recorder_parameters(
@@ -326,10 +346,13 @@ class HardwareRunner(RunnerBase):
             discovery_period=0.5)
         self.generated = hardware_parameters(self.scenario, recorder,
                                              heartbeat=options.heartbeat)
-        mixer = node_parameters('torque_mixer', self.generated, self.extra)
+        mixer = node_parameters('torque_mixer', self.generated, self.extra, self.namespace)
         self.zero_command = [0.0] * len(mixer.get('joints', DEFAULT_JOINTS))
+        # The mixer's name for it: relative (the default) resolves in the namespace. The
+        # zero commands of the last resort go there, so it must be the mixer's topic.
+        effort = str(mixer.get('effort_topic', DEFAULT_EFFORT_TOPIC.lstrip('/')))
         self.effort_topic = remapped(
-            '/' + str(mixer.get('effort_topic', DEFAULT_EFFORT_TOPIC)).lstrip('/'),
+            effort if effort.startswith('/') else in_namespace('/' + effort, self.namespace),
             self.remaps)
         path = self.out / 'params.yaml'
         header = ('# ROS parameters of a wip-ros hardware-mode run (controllers only, real '
@@ -354,7 +377,7 @@ class HardwareRunner(RunnerBase):
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from std_msgs.msg import Float64MultiArray
-        self.probe = Probe(self.domain_id)
+        self.probe = Probe(self.domain_id, self.namespace)
         node = self.probe.node
         node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
                                  QoSProfile(depth=100))
@@ -368,7 +391,7 @@ class HardwareRunner(RunnerBase):
             from std_msgs.msg import Bool
             self._bool = Bool
             self.estop_publisher = node.create_publisher(
-                Bool, remapped('/wip/estop', self.remaps),
+                Bool, remapped(in_namespace('/wip/estop', self.namespace), self.remaps),
                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
             node.create_timer(HEARTBEAT_PERIOD, self._heartbeat)
 
@@ -392,7 +415,10 @@ class HardwareRunner(RunnerBase):
     def _on_diagnostics(self, msg) -> None:
         now = time.monotonic() - self.t0
         for status in msg.status:
-            name = status.name.split(':', 1)[0].lstrip('/')
+            own = self.probe.own_status_name(status.name)   # None: another vehicle's
+            if own is None:
+                continue
+            name = own.split(':', 1)[0].lstrip('/')
             values = {kv.key: kv.value for kv in status.values}
             if 'outputs' in values:
                 try:
@@ -426,10 +452,11 @@ class HardwareRunner(RunnerBase):
 
     def base_topics(self) -> dict[str, dict[str, int]]:
         """Publishers/subscriptions of the base's topics (remapped names)."""
-        eso = node_parameters('eso', self.generated, self.extra)
+        eso = node_parameters('eso', self.generated, self.extra, self.namespace)
         sensors = ['/joint_states', '/imu/data']
         sensors.append('/odom' if eso.get('position_source') == 'odometry' else '/gps/fix')
-        names = [remapped(topic, self.remaps) for topic in sensors]
+        names = [remapped(in_namespace(topic, self.namespace), self.remaps)
+                 for topic in sensors]
         # The probe is new: DDS discovery of the base's endpoints can take it a moment
         # more than the controllers' own (seen: the base's subscription missing once).
         deadline = time.monotonic() + BASE_DISCOVERY_WAIT
@@ -630,6 +657,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'microseconds; 0 keeps them polling instead of sleeping: less CPU '
                         'and latency for the controllers, more power (docs/realtime.md); '
                         'needs root')
+    parser.add_argument('--namespace', default='', metavar='NS',
+                        help='run every node and topic under this ROS namespace (e.g. '
+                        'robot1: /robot1/cmd_vel, frames robot1/odom, robot1/base_link); '
+                        'two vehicles in one domain (docs/driving.md)')
     parser.add_argument('--no-heartbeat', action='store_true',
                         help='hardware mode: no /wip/estop heartbeat (and no arm delay): '
                              'the mixer engages as soon as its inputs are ready')

@@ -72,6 +72,36 @@ EXECUTABLES = {
 }
 
 
+#: Topics that stay global under a namespace: the diagnostic aggregator listens on
+#: /diagnostics (statuses carry the node's full name, namespace included), and a
+#: simulation's /clock is the time of every node of its ROS domain.
+GLOBAL_TOPICS = ('/diagnostics', '/clock', '/rosout', '/parameter_events')
+#: A ROS namespace: tokens of letters, digits and underscores, none starting with a digit
+#: (rcl's rules; '~' and substitutions have no meaning for a namespace given here).
+_NAMESPACE = re.compile(r'/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*')
+
+
+def parse_namespace(text: str | None) -> str:
+    """``--namespace``: '' (none) or an absolute namespace ('robot1' -> '/robot1');
+    GraphError (usage) if it is not a valid ROS namespace."""
+    if text is None or text in ('', '/'):
+        return ''
+    if not _NAMESPACE.fullmatch(text):
+        raise GraphError(f'--namespace: {text!r} is not a valid ROS namespace (letters, '
+                         'digits and _ separated by /, no token starting with a digit)',
+                         EXIT_USAGE)
+    return '/' + text.lstrip('/')
+
+
+def in_namespace(topic: str, namespace: str) -> str:
+    """The name a node of ``namespace`` gives its topic ``topic`` (written absolute, as
+    in the graph's tables): the nodes use relative names, so it resolves under their
+    namespace; :data:`GLOBAL_TOPICS` stay as they are."""
+    if not namespace or topic in GLOBAL_TOPICS:
+        return topic
+    return namespace + '/' + topic.lstrip('/')
+
+
 PROBE_PERIOD = 0.5  # [s] wall: process polling and probe spinning
 GRACE_PERIOD = 5.0  # [s] after SIGINT before SIGKILL (controllers)
 RECORDER_GRACE_PERIOD = 60.0  # [s] the recorder writes the rest of its queue first
@@ -433,7 +463,7 @@ class NodeProcess:
 class Probe:
     """A node of this process that looks at the graph and reads /diagnostics."""
 
-    def __init__(self, domain_id: int) -> None:
+    def __init__(self, domain_id: int, namespace: str = '') -> None:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.executors import SingleThreadedExecutor
@@ -446,7 +476,11 @@ class Probe:
         # stops the run (runner_base.stop_signals raises in the main thread instead).
         rclpy.init(context=self.context, domain_id=domain_id, args=[],
                    signal_handler_options=SignalHandlerOptions.NO)
+        #: The run's namespace ('' or '/robot1'): the probe sits in it, so relative
+        #: names (the plant's start service) resolve as the nodes' do.
+        self.namespace = namespace
         self.node = rclpy.create_node('run_graph', context=self.context,
+                                      namespace=namespace or '/',
                                       start_parameter_services=False)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -456,13 +490,26 @@ class Probe:
                                       QoSProfile(depth=100))
         from std_srvs.srv import Trigger
         self._trigger = Trigger
-        self.start_client = self.node.create_client(Trigger, '/plant/start')
+        self.start_client = self.node.create_client(Trigger, 'plant/start')
+
+    def own_status_name(self, name: str) -> str | None:
+        """A /diagnostics status name ('/robot1/eso: role') without the run's namespace
+        ('/eso: role'), or None for a node of another namespace (/diagnostics is global:
+        another vehicle of the domain reports there too)."""
+        node, sep, rest = name.partition(':')
+        parent = node.rpartition('/')[0]
+        if parent != self.namespace:
+            return None
+        return node[len(self.namespace):] + sep + rest
 
     def _on_diagnostics(self, msg) -> None:
         now = time.monotonic()
         for status in msg.status:
-            self.diagnostics[status.name] = status
-            self.received_at[status.name] = now
+            name = self.own_status_name(status.name)
+            if name is None:
+                continue
+            self.diagnostics[name] = status
+            self.received_at[name] = now
 
     def reporting_since(self, since: float) -> set[str]:
         """Names of the nodes with a /diagnostics status received after ``since``."""
@@ -480,7 +527,7 @@ class Probe:
 
     def node_names(self) -> set[str]:
         return {name for name, namespace in self.node.get_node_names_and_namespaces()
-                if namespace == '/'}
+                if namespace == (self.namespace or '/')}
 
     def count(self, topic: str) -> tuple[int, int]:
         return self.node.count_publishers(topic), self.node.count_subscribers(topic)

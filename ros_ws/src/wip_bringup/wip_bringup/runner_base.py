@@ -31,10 +31,10 @@ from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mappi
 from wip_control.tools.cli import write_atomic
 
 from .launcher import (choose_domain_id, CONTROLLER_LAYOUTS, CpuLatencyRequest,
-                       executable_path, EXECUTABLES, EXIT_DISK_FULL,
+                       executable_path, EXECUTABLES, EXIT_DISK_FULL, in_namespace,
                        EXIT_USAGE, EXIT_TIMEOUT, GRACE_PERIOD, graph_environment, GraphError,
                        LAYOUTS, live_view_line, MULTI_NODE_PROCESSES, NodeProcess,
-                       prepare_run_directory, Probe,
+                       parse_namespace, prepare_run_directory, Probe,
                        RECORDER_GRACE_PERIOD, Scheduling, VIEWER_TOPICS,
                        viewer_wanted)
 from .params_files import CONTROLLER_NODES
@@ -156,6 +156,8 @@ class RunnerBase:
         #: The --cpu-latency request, held from the launch to the shut-down.
         self.cpu_latency_request: CpuLatencyRequest | None = None
         self.domain_id = choose_domain_id()
+        #: The run's namespace ('' or '/robot1'), checked by :meth:`check_namespace`.
+        self.namespace = ''
         self.scenario: Scenario | None = None
         self._interactive = sys.stderr.isatty()
         self.t0 = time.monotonic()
@@ -185,6 +187,42 @@ class RunnerBase:
                                     self.options.foxglove_host, self.options.foxglove_port))
 
     # -- set-up ---------------------------------------------------------------------------
+    def check_namespace(self) -> None:
+        self.namespace = parse_namespace(self.options.namespace)
+
+    def namespaced_params_file(self, params_file: pathlib.Path) -> None:
+        """Under a namespace, the generated params file's node keys ('eso') become the
+        nodes' full names ('/robot1/eso': a key without a leading slash names a node of
+        the root namespace only), and the odometry frames get the namespace as a prefix
+        ('robot1/odom', 'robot1/base_link': the usual frame_prefix of a robot among
+        several; 'map' stays shared). A --params-file of the user comes after it."""
+        if not self.namespace:
+            return
+        text = params_file.read_text(encoding='utf-8')
+        header = ''.join(line for line in text.splitlines(keepends=True)
+                         if line.startswith('#'))
+        data = yaml.safe_load(text) or {}
+        prefix = self.namespace.lstrip('/') + '/'
+
+        def prefixed(frame: str) -> str:   # once: a retried start reads its own output
+            frame = str(frame).lstrip('/')
+            return frame if frame.startswith(prefix) else prefix + frame
+        out = {}
+        for key, section in data.items():
+            if not str(key).startswith('/'):
+                key = f'{self.namespace}/{key}'
+            params = (section or {}).get('ros__parameters') if isinstance(section, dict) else None
+            if key == f'{self.namespace}/eso' and isinstance(params, dict):
+                params.setdefault('odometry_frame_id', 'odom')
+                params.setdefault('odometry_child_frame_id', 'base_link')
+                for name in ('odometry_frame_id', 'odometry_child_frame_id'):
+                    params[name] = prefixed(params[name])
+            if key == f'{self.namespace}/viewer' and isinstance(params, dict):
+                viewer = params.setdefault('viewer', {})
+                viewer['child_frame_id'] = prefixed(viewer.get('child_frame_id', 'base_link'))
+            out[key] = section
+        write_atomic(params_file, header + yaml.safe_dump(out, sort_keys=False))
+
     def check_layout_and_scheduling(self) -> None:
         if self.options.layout not in self.LAYOUTS:
             raise GraphError(f'--layout: {self.options.layout!r} is not one of '
@@ -221,6 +259,8 @@ class RunnerBase:
         if self.bag is None:
             return None
         topics = list(topics) + (list(VIEWER_TOPICS) if self.options.viewer else [])
+        # The nodes' names under the run's namespace (the recorder stores them without).
+        topics = [in_namespace(topic, self.namespace) for topic in topics]
         return {'output': str(self.bag), 'topics': topics,
                 'discovery_period': discovery_period}
 
@@ -282,6 +322,8 @@ class RunnerBase:
                 command += ['--params-file', extra]
             if name not in MULTI_NODE_PROCESSES:   # there each node keeps its own name
                 command += ['-r', f'__node:={name}']
+            if self.namespace:   # every node of the process (a global rule)
+                command += ['-r', f'__ns:={self.namespace}']
             out[name] = command + arguments
         return out
 
@@ -314,6 +356,7 @@ class RunnerBase:
         """Start the processes and wait until every node is up (:meth:`wait_for_nodes`)."""
         if self.options.scheduling.cpu_latency is not None:
             self.cpu_latency_request = CpuLatencyRequest(self.options.scheduling.cpu_latency)
+        self.namespaced_params_file(params_file)
         self.start_processes(params_file)
         self.bag_created = self.bag is not None  # prepare() checked it was absent or empty
         self.timeline['processes started'] = time.monotonic() - self.t0
@@ -490,4 +533,4 @@ def options_from_args(args, **own) -> dict[str, Any]:
                 scheduling=Scheduling(priority=args.rt_priority, cpus=tuple(args.cpu_affinity),
                                       cpu_latency=args.cpu_latency),
                 viewer=args.viewer, foxglove_port=args.foxglove,
-                foxglove_host=args.foxglove_host, **own)
+                foxglove_host=args.foxglove_host, namespace=args.namespace, **own)

@@ -50,9 +50,10 @@ BASE = {
     'left_wheel_sign': -1, 'right_wheel_sign': 1,
     'imu_mounting_rpy': [math.pi, 0.0, math.pi / 2],
 }
-REMAPS = ['/joint_states:=/base/joint_states', '/imu/data:=/base/imu',
-          '/gps/fix:=/base/fix',
-          '/effort_controller/commands:=/base/effort_controller/commands']
+#: Relative rules: under a namespace (--namespace) they apply in it, to the base and the
+#: controllers alike.
+REMAPS = ['joint_states:=base/joint_states', 'imu/data:=base/imu', 'gps/fix:=base/fix',
+          'effort_controller/commands:=base/effort_controller/commands']
 
 
 def line_scenario(speed: float = 0.5, kind: str = 'line', **reference) -> dict[str, Any]:
@@ -145,7 +146,8 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                         cpu_latency: int | None = None,
                         record: bool = False,
                         during: Callable[[HardwareResult | None, dict], None] | None = None,
-                        end_after_during: float | None = None) -> StandinRun:
+                        end_after_during: float | None = None,
+                        namespace: str = '') -> StandinRun:
     """Start the stand-in base, run hardware mode until the base exits; both results.
 
     ``during(None, processes)``, if given, runs in a thread once the base has released the
@@ -164,6 +166,8 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
     ``--cpu-latency`` (a PM QoS request held while they run; GraphError where not permitted).
     ``record``: the controllers' topics go to
     the bag ``directory/bag`` (costs CPU: for diagnosis, not for measuring).
+    ``namespace``: the base and the controllers under this ROS namespace (one vehicle of
+    several in a domain).
     """
     base_scheduling = controller_scheduling = Scheduling()
     if realtime_priority and permitted(Scheduling(BASE_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)):
@@ -192,6 +196,8 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                '--params-file', str(base_params)]
     for remap in REMAPS:
         command += ['-r', remap]
+    if namespace:
+        command += ['-r', f'__ns:=/{namespace.lstrip("/")}']
     # Hardware mode (in this process) uses the environment's ROS settings as the user's:
     # give it this run's private domain and localhost-only discovery, with no record of
     # scripts/_env.sh's defaults that would make it drop them.
@@ -213,6 +219,7 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                 scenario=str(scenario_path), params_files=[str(controller_params)],
                 remaps=REMAPS, duration=run_time + 40.0, out=str(directory / 'run'),
                 quiet=True, layout=layout, scheduling=controller_scheduling,
+                namespace=namespace,
                 record=str(directory / 'bag') if record else None,
                 # The base ends run_time after its release (the engagement): a FAULT then
                 # (its inputs stop) is the end of the run, not a failure.

@@ -214,14 +214,14 @@ class PlantNode(IntraProcessNode):
         # with a reliable recorder).
         self.clock_pub = (self.create_publisher(ClockMsg, '/clock', qos)
                           if self.clock_mode == 'lockstep' else None)
-        self.joint_pub = self.create_publisher(JointState, '/joint_states', qos)
-        self.imu_pub = self.create_publisher(Imu, '/imu/data', qos)
-        self.gps_pub = self.create_publisher(NavSatFix, '/gps/fix', qos)
-        self.truth_pub = self.create_publisher(GroundTruth, '/wip/ground_truth', qos)
+        self.joint_pub = self.create_publisher(JointState, 'joint_states', qos)
+        self.imu_pub = self.create_publisher(Imu, 'imu/data', qos)
+        self.gps_pub = self.create_publisher(NavSatFix, 'gps/fix', qos)
+        self.truth_pub = self.create_publisher(GroundTruth, 'wip/ground_truth', qos)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         callback = (self._on_torques_lockstep if self.clock_mode == 'lockstep'
                     else self._on_torques_realtime)
-        self.torque_sub = self.create_subscription(WheelTorques, '/wip/wheel_torques',
+        self.torque_sub = self.create_subscription(WheelTorques, 'wip/wheel_torques',
                                                    callback, torque_qos)
         self.add_intra_subscription(WheelTorques, self.torque_sub, callback)
         self.start_srv = self.create_service(Trigger, '~/start', self._on_start)
@@ -283,7 +283,7 @@ class PlantNode(IntraProcessNode):
         """What the start still waits for (empty when every endpoint is matched)."""
         missing = []
         if self.torque_sub.get_publisher_count() < 1:
-            missing.append('/wip/wheel_torques has no publisher')
+            missing.append(f'{self.torque_sub.topic_name} has no publisher')
         checks = [(self.joint_pub, self.expected['sensors']),
                   (self.imu_pub, self.expected['sensors']),
                   (self.gps_pub, self.expected['sensors']),

@@ -262,13 +262,13 @@ class StandinBase(Node):
         # the command: reliable, like JointGroupEffortController's subscription.
         sensor_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.joint_pub = self.create_publisher(JointState, '/joint_states', sensor_qos)
-        self.imu_pub = self.create_publisher(Imu, '/imu/data', sensor_qos)
-        self.gps_pub = self.create_publisher(NavSatFix, '/gps/fix', sensor_qos)
-        self.odom_pub = (self.create_publisher(Odometry, '/odom', sensor_qos)
+        self.joint_pub = self.create_publisher(JointState, 'joint_states', sensor_qos)
+        self.imu_pub = self.create_publisher(Imu, 'imu/data', sensor_qos)
+        self.gps_pub = self.create_publisher(NavSatFix, 'gps/fix', sensor_qos)
+        self.odom_pub = (self.create_publisher(Odometry, 'odom', sensor_qos)
                          if self.publish_odometry else None)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.create_subscription(Float64MultiArray, '/effort_controller/commands',
+        self.create_subscription(Float64MultiArray, 'effort_controller/commands',
                                  self._on_command, qos)
         self.create_timer(self.dt, self._tick)
         self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics,

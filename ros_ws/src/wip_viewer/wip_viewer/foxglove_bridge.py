@@ -170,8 +170,12 @@ class FoxgloveBridge(Node):
         self.forwarded = 0
         self.work: queue.SimpleQueue = queue.SimpleQueue()
         self.listener = _Listener(self.work)
-        self.estop_publisher = self.create_publisher(Bool, ESTOP_TOPIC, RELIABLE_QOS)
-        self.reset_publisher = self.create_publisher(Empty, ESTOP_RESET_TOPIC, RELIABLE_QOS)
+        # Relative: under a vehicle's namespace the e-stop reaches that vehicle's mixer
+        # (the client still names them by the table's names).
+        self.estop_publisher = self.create_publisher(Bool, ESTOP_TOPIC.lstrip('/'),
+                                                     RELIABLE_QOS)
+        self.reset_publisher = self.create_publisher(Empty, ESTOP_RESET_TOPIC.lstrip('/'),
+                                                     RELIABLE_QOS)
         schema = trigger_service_schema()
         services = [Service(name, schema=schema, handler=self._on_service)
                     for name in SERVICES]

@@ -100,8 +100,8 @@ class ViewerNode(Node):
         self.publishers_ = {topic: self.create_publisher(
             {'nav_msgs/msg/Odometry': Odometry,
              'visualization_msgs/msg/MarkerArray': MarkerArray,
-             'nav_msgs/msg/Path': Path}[kind], topic, 10)
-            for topic, kind in VIEWER_TOPICS.items()}
+             'nav_msgs/msg/Path': Path}[kind], topic.lstrip('/'), 10)
+            for topic, kind in VIEWER_TOPICS.items()}  # relative: under the vehicle's namespace
         self.estimate_gate, self.truth_gate = RateGate(c.pose_rate), RateGate(c.pose_rate)
         self.reference_gate = RateGate(c.pose_rate)
         self.path_gate, self.prediction_gate = RateGate(c.path_rate), RateGate(c.pose_rate)
@@ -112,16 +112,16 @@ class ViewerNode(Node):
         self.last_estimate: StateEstimate | None = None
         self.have_truth = False
         for msg_type, topic, name, gate, handler in (
-                (StateEstimate, '/wip/state_estimate', 'state_estimate', self.estimate_gate,
+                (StateEstimate, 'wip/state_estimate', 'state_estimate', self.estimate_gate,
                  self._on_estimate),
-                (GroundTruth, '/wip/ground_truth', 'ground_truth', self.truth_gate,
+                (GroundTruth, 'wip/ground_truth', 'ground_truth', self.truth_gate,
                  self._on_truth),
-                (ReferenceState, '/wip/reference', 'reference', self.reference_gate,
+                (ReferenceState, 'wip/reference', 'reference', self.reference_gate,
                  self._on_reference)):
             self.create_subscription(
                 msg_type, topic, self._gated(msg_type, name, gate, handler), _INPUT_QOS,
                 raw=True)
-        self.create_subscription(MpcOutput, '/wip/drive_torque', self._on_mpc, _INPUT_QOS)
+        self.create_subscription(MpcOutput, 'wip/drive_torque', self._on_mpc, _INPUT_QOS)
         self.diagnostics.state(DiagnosticStatus.OK, 'waiting for inputs')
 
     # -- helpers ------------------------------------------------------------------------------

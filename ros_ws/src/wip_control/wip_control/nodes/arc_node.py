@@ -67,10 +67,10 @@ class ArcNode(ControllerNode):
         else:
             self.sync = LatestSync(_INPUTS, self._compute, triggers=('state_estimate',),
                                    required=('velocity_command',))
-        self.publisher = self.create_publisher(ArcState, '/wip/yaw_torque', RELIABLE_QOS)
-        self.subscribe_input(VelocityCommandMsg, '/wip/velocity_command', 'velocity_command',
+        self.publisher = self.create_publisher(ArcState, 'wip/yaw_torque', RELIABLE_QOS)
+        self.subscribe_input(VelocityCommandMsg, 'wip/velocity_command', 'velocity_command',
                              command_from_msg)
-        self.subscribe_input(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
+        self.subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                              estimate_from_msg)
 
     def _on_config(self, config: ArcConfig) -> None:

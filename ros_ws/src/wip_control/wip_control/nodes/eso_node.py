@@ -166,24 +166,24 @@ class EsoNode(ControllerNode):
                                    required=('joint_states', 'imu'),
                                    max_skew_ns=round(self.sample_period * 1e9))
 
-        self.publisher = self.create_publisher(StateEstimateMsg, '/wip/state_estimate',
+        self.publisher = self.create_publisher(StateEstimateMsg, 'wip/state_estimate',
                                                RELIABLE_QOS)
         # The base's sensors: reliable in lockstep (every sample counts), sensor-data QoS
         # in real time (see common.SENSOR_QOS).
         sensor_qos = RELIABLE_QOS if self.lockstep else SENSOR_QOS
         # Taken serialized and decoded here: half the cost of receiving them as messages.
         prepare_decoder('sensor_msgs/msg/JointState', 'sensor_msgs/msg/Imu')
-        self.subscribe(JointState, '/joint_states', 'joint_states', self._on_joint_states,
+        self.subscribe(JointState, 'joint_states', 'joint_states', self._on_joint_states,
                        sensor_qos, raw=True)
-        self.subscribe(Imu, '/imu/data', 'imu', self._on_imu, sensor_qos, raw=True)
+        self.subscribe(Imu, 'imu/data', 'imu', self._on_imu, sensor_qos, raw=True)
         if self.position_source == 'odometry':
             # The position input keeps its slot name 'gps' in the sync; diagnostics say odom.
             self.diagnostics.inputs = ('joint_states', 'imu', 'odom', 'wheel_torques')
             self.diagnostics.last_stamp = {n: None for n in self.diagnostics.inputs}
-            self.subscribe(Odometry, '/odom', 'odom', self._on_odometry, sensor_qos)
+            self.subscribe(Odometry, 'odom', 'odom', self._on_odometry, sensor_qos)
         else:
-            self.subscribe(NavSatFix, '/gps/fix', 'gps', self._on_gps, sensor_qos)
-        self.subscribe(WheelTorques, '/wip/wheel_torques', 'wheel_torques', self._on_torques)
+            self.subscribe(NavSatFix, 'gps/fix', 'gps', self._on_gps, sensor_qos)
+        self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques', self._on_torques)
         self._init_odometry(settings)
         self.diagnostics.state(OK, 'waiting for the first measurement set')
 
@@ -211,7 +211,7 @@ class EsoNode(ControllerNode):
         self.odometry_twist_covariance = _diagonal((
             settings.odometry_speed_std ** 2, _UNOBSERVED, _UNOBSERVED, _UNOBSERVED,
             _UNOBSERVED, settings.odometry_yaw_rate_std ** 2))
-        self.odometry_publisher = self.create_publisher(Odometry, '/odom', RELIABLE_QOS)
+        self.odometry_publisher = self.create_publisher(Odometry, 'odom', RELIABLE_QOS)
 
     def _publish_odometry(self, stamp: int, pose) -> None:
         self.odometry_count += 1

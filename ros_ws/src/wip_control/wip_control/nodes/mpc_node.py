@@ -97,21 +97,21 @@ class MpcNode(ControllerNode):
         self.realtime_k = 0   # realtime: the control tick of the next timer tick
         self.mpc = self.stage.controller
         self.latest: dict[str, tuple[int, object]] = {}
-        self.publisher = self.create_publisher(MpcOutput, '/wip/drive_torque', RELIABLE_QOS)
+        self.publisher = self.create_publisher(MpcOutput, 'wip/drive_torque', RELIABLE_QOS)
         if self.lockstep:
             self.sync = ExactTimeSync(_INPUTS, self._tick)
         else:
             self.create_timer(self.tick_period, self._realtime_tick)
-            self.subscribe(WheelTorques, '/wip/wheel_torques', 'wheel_torques',
+            self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
                            self._on_applied)
         self.applied_drive_torque: float | None = None
-        self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
+        self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                        lambda msg: self._on_input('state_estimate', msg,
                                                   estimate_from_msg(msg, check=False)))
-        self.subscribe(VelocityCommandMsg, '/wip/velocity_command', 'velocity_command',
+        self.subscribe(VelocityCommandMsg, 'wip/velocity_command', 'velocity_command',
                        lambda msg: self._on_input('velocity_command', msg,
                                                   command_from_msg(msg, check=False)))
-        self.subscribe(ArcState, '/wip/yaw_torque', 'yaw_torque',
+        self.subscribe(ArcState, 'wip/yaw_torque', 'yaw_torque',
                        lambda msg: self._on_input('yaw_torque', msg,
                                                   arc_from_msg(msg, check=False)))
         self.diagnostics.state(OK, 'waiting for the first tick')

@@ -89,13 +89,13 @@ class ReferenceNode(ControllerNode):
                                   and settings.realtime_trigger == 'state_estimate')
         self.started_at_estimate = False
         self.period = 1.0 / self.rates.control_rate
-        self.publisher = self.create_publisher(ReferenceStateMsg, '/wip/reference',
+        self.publisher = self.create_publisher(ReferenceStateMsg, 'wip/reference',
                                                RELIABLE_QOS)
         self.last_stamp_ns: int | None = None
         if self.lockstep:
             self.ticker = ClockTicker(self, self.period, self._guarded)
         elif settings.realtime_trigger == 'state_estimate':
-            self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'tick', self._on_estimate)
+            self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'tick', self._on_estimate)
         else:
             self.create_timer(self.period, lambda: self._guarded(self.now_ns()))
         if self.config.kind == 'cmd_vel':
@@ -108,7 +108,7 @@ class ReferenceNode(ControllerNode):
             self._add_input('plan')
             self.subscribe(Path, 'plan', 'plan', self._on_path)
         if self.waiting:
-            self.subscribe(WheelTorques, '/wip/wheel_torques', 'wheel_torques',
+            self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
                            self._on_torques)
             self.diagnostics.state(WARN, f'{self.config.kind} reference at '
                                    f'{self.rates.control_rate:g} Hz: holding its start '

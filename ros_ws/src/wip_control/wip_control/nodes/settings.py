@@ -209,7 +209,7 @@ class MpcPeriod:
 class MixerNodeSettings:
     """Node-level settings of the torque mixer node."""
 
-    effort_topic: str = param('/effort_controller/commands', TEXT, 'topic of the '
+    effort_topic: str = param('effort_controller/commands', TEXT, 'topic of the '
                               'ros2_control JointGroupEffortController command '
                               '(std_msgs/Float64MultiArray)')
 

@@ -154,7 +154,7 @@ class TorqueMixerNode(ControllerNode):
         self._diagnostics_sent_at = 0.0
         self.estimates: dict[int, tuple] = {}        # lockstep: stamp -> (estimate, settled)
         self.latest_estimate_stamp: int | None = None
-        self.torques_publisher = self.create_publisher(WheelTorques, '/wip/wheel_torques',
+        self.torques_publisher = self.create_publisher(WheelTorques, 'wip/wheel_torques',
                                                        RELIABLE_QOS)
         self.effort_publisher = self.create_publisher(Float64MultiArray, effort_topic,
                                                       RELIABLE_QOS)
@@ -167,12 +167,12 @@ class TorqueMixerNode(ControllerNode):
                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.latencies = collections.deque(maxlen=LATENCY_WINDOW)   # [s]
         self._init_wiring_check()
-        self.subscribe(ArcState, '/wip/yaw_torque', 'yaw_torque', self._on_yaw)
-        self.subscribe(MpcOutput, '/wip/drive_torque', 'drive_torque', self._on_drive)
-        self.subscribe(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
+        self.subscribe(ArcState, 'wip/yaw_torque', 'yaw_torque', self._on_yaw)
+        self.subscribe(MpcOutput, 'wip/drive_torque', 'drive_torque', self._on_drive)
+        self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                        self._on_estimate)
-        self.subscribe(Bool, '/wip/estop', 'estop', self._on_estop)
-        self.subscribe(Empty, '/wip/estop_reset', 'estop_reset',
+        self.subscribe(Bool, 'wip/estop', 'estop', self._on_estop)
+        self.subscribe(Empty, 'wip/estop_reset', 'estop_reset',
                        lambda _msg: self.reset_estop('/wip/estop_reset'))
         self.create_service(Trigger, '~/reset_estop', self._on_reset_service)
         self.diagnostics.state(WARN, 'STARTING: waiting for the first inputs')
@@ -198,9 +198,9 @@ class TorqueMixerNode(ControllerNode):
             'left_wheel_sign': int(self.left_sign), 'right_wheel_sign': int(self.right_sign),
             'imu_mounting_rpy': tuple(mounting)})
         self._last_wheels: tuple[float, float, float] | None = None   # (t, φl, φr)
-        self.create_subscription(JointState, '/joint_states', self._on_joint_states,
+        self.create_subscription(JointState, 'joint_states', self._on_joint_states,
                                  SENSOR_QOS)
-        self.create_subscription(Imu, '/imu/data', self._on_imu, SENSOR_QOS)
+        self.create_subscription(Imu, 'imu/data', self._on_imu, SENSOR_QOS)
 
     def _on_joint_states(self, msg: JointState) -> None:
         """Wheel rates as configured: the joint velocities (else the positions' difference)

@@ -59,11 +59,11 @@ class TrajectoryGeneratorNode(ControllerNode):
         else:
             self.sync = LatestSync(_INPUTS, self._compute, triggers=('state_estimate',),
                                    required=('reference',))
-        self.publisher = self.create_publisher(VelocityCommandMsg, '/wip/velocity_command',
+        self.publisher = self.create_publisher(VelocityCommandMsg, 'wip/velocity_command',
                                                RELIABLE_QOS)
-        self.subscribe_input(ReferenceStateMsg, '/wip/reference', 'reference',
+        self.subscribe_input(ReferenceStateMsg, 'wip/reference', 'reference',
                              reference_from_msg)
-        self.subscribe_input(StateEstimateMsg, '/wip/state_estimate', 'state_estimate',
+        self.subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                              estimate_from_msg)
 
     def _on_config(self, config: TrajectoryGeneratorConfig) -> None:
