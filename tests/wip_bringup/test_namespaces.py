@@ -29,6 +29,8 @@ LINE_SPEED = 0.5  # [m/s] robot1's reference
 #: Topics of each vehicle whose endpoints are checked (relative: under its namespace).
 VEHICLE_TOPICS = ('wip/wheel_torques', 'joint_states', 'wip/state_estimate')
 START_TIMEOUT = 120.0  # [s] wall, for a graph to start on a loaded 2-core machine
+#: The node name rmw gives an endpoint whose node it does not know (yet).
+UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 
 
 def write_scenario(path, reference: str, duration: float) -> str:
@@ -154,8 +156,13 @@ def test_two_vehicles_in_one_domain_each_follow_their_own_reference(tmp_path, te
             entry = seen.setdefault(topic, {'publishers': set(), 'subscriptions': set()})
             for kind, infos in (('publishers', test_node.get_publishers_info_by_topic),
                                 ('subscriptions', test_node.get_subscriptions_info_by_topic)):
+                # An endpoint whose participant's node names have not arrived yet (or
+                # have gone with it at the end) is listed as _NODE_NAME_UNKNOWN_: it
+                # belongs to no node we can name, so it is left out (seen on a loaded
+                # machine: the mixer's own publisher, once before its name was known).
                 entry[kind].update(f'{i.node_namespace.rstrip("/")}/{i.node_name}'
-                                   for i in infos(topic) if i.node_name != test_node.get_name())
+                                   for i in infos(topic)
+                                   if i.node_name not in (test_node.get_name(), UNKNOWN_NODE))
     test_node.create_timer(0.5, sample)
 
     # Both in this test's domain ($ROS_DOMAIN_ID, which run_graph then uses as it is).
