@@ -16,6 +16,8 @@ import shutil
 import signal
 import struct
 import subprocess
+import sys
+import threading
 import time
 from typing import Any, Mapping, MutableMapping
 
@@ -103,6 +105,7 @@ def in_namespace(topic: str, namespace: str) -> str:
 
 
 PROBE_PERIOD = 0.5  # [s] wall: process polling and probe spinning
+PROBE_CLOSE_TIMEOUT = 10.0  # [s] wall: the probe node's destruction (Probe.close)
 GRACE_PERIOD = 5.0  # [s] after SIGINT before SIGKILL (controllers)
 RECORDER_GRACE_PERIOD = 60.0  # [s] the recorder writes the rest of its queue first
 LOG_TAIL_LINES = 15
@@ -552,7 +555,19 @@ class Probe:
 
     def close(self) -> None:
         self.executor.shutdown()
-        self.node.destroy_node()
+        # rclpy's destroy waits until no one uses an entity's handle, without a timeout;
+        # once, after a stand-in run whose controllers had been frozen, on a loaded
+        # machine, it waited forever (no other thread left; cause not found). The probe
+        # is this process's last use of ROS: past PROBE_CLOSE_TIMEOUT it is left to the
+        # process's exit rather than hang the run's end.
+        closer = threading.Thread(target=self.node.destroy_node, name='probe_close',
+                                  daemon=True)
+        closer.start()
+        closer.join(PROBE_CLOSE_TIMEOUT)
+        if closer.is_alive():
+            print(f'warning: the probe node did not close within {PROBE_CLOSE_TIMEOUT:g} s '
+                  '(rclpy); going on', file=sys.stderr)
+            return
         self._rclpy.try_shutdown(context=self.context)
 
 
