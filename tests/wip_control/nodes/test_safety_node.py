@@ -49,11 +49,13 @@ pytestmark = pytest.mark.ros
 
 TIMEOUT = 20.0          # [s] for any wait (normally a fraction of a second)
 PERIOD = 0.005          # mixer and upstream period [s] (200 Hz)
-#: Generous ages: a loaded 2-core machine must not trip them by accident; the count of
-#: ticks after the age is what is tested, not the age itself.
-AGES = {'state_estimate': 0.2, 'yaw_torque': 0.2, 'drive_torque': 0.5}
+#: Generous ages and bridge: a loaded 2-core machine must not trip them by accident (CI
+#: once saw this process unscheduled for 0.2 s: no mixer tick between 0.204 and 0.405 s
+#: of age), and a stall must not jump over the whole bridge; the count of ticks after the
+#: age is what is tested, not the age itself.
+AGES = {'state_estimate': 0.5, 'yaw_torque': 0.5, 'drive_torque': 1.0}
 #: safety.bridge_time [s]: a stopped input is DEGRADED (bridged) for this long past its age.
-BRIDGE = 0.1
+BRIDGE = 0.5
 SETTLE = 0.05           # [s]
 TAU_V, TAU_OMEGA = 4.0, 0.6
 
@@ -246,8 +248,8 @@ def test_a_stopped_input_stream_zeroes_at_the_first_tick_past_its_age(context, h
     assert fault_time > stop
     assert_first_zero_within_one_tick(g, fault_time, f'{name} stale')
     # Between the age limit and the end of the bridge the torque kept flowing (DEGRADED).
-    bridged = [d for t, d in g.log.ticks if last + AGES[name] + 2 * PERIOD < t
-               < fault_time - 2 * PERIOD]
+    bridged = [d for t, d in g.log.ticks if last + AGES[name] + PERIOD < t
+               < fault_time - PERIOD]
     assert bridged and all(d.state == DEGRADED and not d.zeroed for d in bridged)
     g.diagnosed('FAULT', f'{name} stale')
 
