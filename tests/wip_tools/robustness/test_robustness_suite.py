@@ -19,8 +19,8 @@ from wip_tools.campaign import load_campaign, run_one, run_specs
 
 SCENARIOS = pathlib.Path(__file__).parent / 'scenarios'
 ACCEPTANCE = (pathlib.Path(__file__).parents[3] / 'campaigns'
-              / 'issue9_acceptance_mpc.yaml')
-NOISE_100 = pathlib.Path(__file__).parents[3] / 'campaigns' / 'issue9_noise_100_seeds.yaml'
+              / 'robustness_acceptance_mpc.yaml')
+NOISE_100 = pathlib.Path(__file__).parents[3] / 'campaigns' / 'noise_100_seeds.yaml'
 
 #: Classes run by this suite -> measured failure on main (None: it passes). Pushes,
 #: stop-and-hold, slope and the full plant standing pass since the per-step-slack,
@@ -126,7 +126,7 @@ def test_a_push_above_the_speed_limit_on_a_heavy_tall_body_is_caught(run, body_m
 @pytest.mark.slow
 @pytest.mark.parametrize('run', [25, 59, 76])
 def test_the_pulse_on_the_paper_plant_under_noise_is_caught(run):
-    """Runs 25, 59 and 76 of campaigns/issue9_noise_100_seeds.yaml: the paper's Section V
+    """Runs 25, 59 and 76 of campaigns/noise_100_seeds.yaml: the paper's Section V
     (its 10 m/s² pulse at 30 s) on the paper plant under IMU 0.002 rad and gyro 0.01 rad/s
     noise. With the drive torque held for the 0.1 s MPC period they fell 2.5 s after the
     pulse, the tilt swinging from -0.17 to +0.31 rad with the torque at its limits; the

@@ -59,9 +59,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 from wip_control.core.ground import ContactConfig, TerrainConfig
-from wip_control.core.model import STATE_SIZE, THETA
+from wip_control.core.model import THETA
 from wip_control.core.params import WipParameters
-from wip_control.core.plant import DEFAULT_FALL_LIMIT
+from wip_control.core.plant import checked_state, DEFAULT_FALL_LIMIT, hold_inputs
 
 #: The pinned version (requirements.txt), for the error when mujoco is missing.
 MUJOCO_REQUIREMENT = 'mujoco==4.0.0'
@@ -288,25 +288,12 @@ class MujocoPlant:
                       dt: float, n_steps: int) -> np.ndarray:
         """``n_steps`` steps of ``dt`` [s] from ``t0`` [s], torques held, the disturbance
         sampled at each step's start (as :meth:`Plant.simulate_hold`)."""
-        values = tuple(float(v) for v in state)
-        if len(values) != STATE_SIZE or not math.isfinite(math.fsum(values)):
-            raise ValueError(f'plant state must be {STATE_SIZE} finite numbers, got {values}')
-        if not math.isfinite(tau_left + tau_right):
-            raise ValueError(f'wheel torques must be finite, got {tau_left!r}, {tau_right!r}')
-        if n_steps < 0 or int(n_steps) != n_steps:
-            raise ValueError(f'n_steps must be a non-negative integer, got {n_steps!r}')
-        rows = np.zeros((int(n_steps), 3))
-        if disturbance_fn is not None:
-            for k in range(int(n_steps)):
-                rows[k] = disturbance_fn(t0 + k * dt)
-            if not np.all(np.isfinite(rows)):
-                raise ValueError('disturbances must be finite')
+        values, tl, tr, rows = hold_inputs(state, tau_left, tau_right, disturbance_fn, t0,
+                                           dt, n_steps)
+        values = tuple(values)
         if self._last is not None and values == self._last:
             values = self._last
-        x = self.hold_floats(values, float(tau_left), float(tau_right), rows, dt)
-        if not math.isfinite(math.fsum(x)):
-            raise ValueError(f'plant state became non-finite: {x}')
-        return np.array(x)
+        return checked_state(self.hold_floats(values, tl, tr, rows, dt))
 
     def step(self, state: Sequence[float], tau_left: float, tau_right: float,
              disturbance: Sequence[float], dt: float) -> np.ndarray:

@@ -60,6 +60,7 @@ Exit status: 0 done, 1 the run fell, 2 the bag, the scenario or --out cannot be 
 from __future__ import annotations
 
 import argparse
+import functools
 import pathlib
 import sys
 from typing import Any, Iterable
@@ -107,16 +108,23 @@ def _encoders(m) -> tuple | None:
     return tuple(float(m.position[names.index(joint)]) for joint in WHEEL_JOINTS)
 
 
+@functools.cache
+def _conversions():
+    """wip_control's message conversions, imported once (they import the ROS message
+    packages: only when a bag has IMU messages)."""
+    from wip_control.nodes import conversions  # noqa: PLC0415
+    return conversions
+
+
 def _imu(m) -> tuple | None:
-    from wip_control.nodes.conversions import (  # noqa: PLC0415 - rclpy only when needed
-        euler_rates_from_body, imu_has_rates, InvalidMessage, pitch_yaw_from_quaternion)
+    conversions = _conversions()
     q, w = m.orientation, m.angular_velocity
-    if m.orientation_covariance[0] == -1.0 or not imu_has_rates(m):
+    if m.orientation_covariance[0] == -1.0 or not conversions.imu_has_rates(m):
         return None
     try:
-        pitch, yaw = pitch_yaw_from_quaternion(q.x, q.y, q.z, q.w)
-        return (pitch, yaw, *euler_rates_from_body(pitch, (w.x, w.y, w.z)))
-    except InvalidMessage:
+        pitch, yaw = conversions.pitch_yaw_from_quaternion(q.x, q.y, q.z, q.w)
+        return (pitch, yaw, *conversions.euler_rates_from_body(pitch, (w.x, w.y, w.z)))
+    except conversions.InvalidMessage:
         return None
 
 

@@ -420,10 +420,7 @@ class LongitudinalMpc(PreviousTorque):
     Decision vector z = (Δτ̄ (Nc), sυ, sθ); Δτ̄ and the slacks' signs are box constraints.
     Rows of C: τ(k..k+Nc−1) (Nc), υ ≤ (Np), θ ≤ (Np), υ ≥ (Np), θ ≥ (Np).
 
-    Not done: a whitening of the Hessian (computed once at θ = 0). Tried: it cut
-    the closed-loop p99 iterations from 40 to 27, but the whitened Δτ limits become
-    general rows and ProxSuite then reached MAX_ITER on about half of the QPs at random
-    states and on 19 of 10 187 closed-loop QPs (0 without it).
+    Why the Hessian is not whitened: docs/decisions/proxsuite-settings.md.
     """
 
     def __init__(self, params: WipParameters, config: MpcConfig | None = None,

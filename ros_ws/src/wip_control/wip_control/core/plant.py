@@ -332,22 +332,9 @@ class Plant:
         The disturbance is sampled at each step's start, ``disturbance_fn(t0 + k dt)``,
         and held over that step (``None``: no disturbance). Returns the final state.
         """
-        values = _state_floats(state)
-        tl, tr, _, _, _ = _check_inputs(tau_left, tau_right, (0.0, 0.0, 0.0))
-        _check_dt(dt)
-        if n_steps < 0 or int(n_steps) != n_steps:
-            raise ValueError(f'n_steps must be a non-negative integer, got {n_steps!r}')
-        disturbance = np.zeros((int(n_steps), 3))
-        if disturbance_fn is not None:
-            for k in range(int(n_steps)):
-                disturbance[k] = disturbance_fn(t0 + k * dt)
-            if not np.all(np.isfinite(disturbance)):
-                raise ValueError('disturbances must be finite, got '
-                                 f'{disturbance[~np.all(np.isfinite(disturbance), axis=1)][0]}')
-        x = _rk4_hold(self._k, *values, tl, tr, disturbance, dt)
-        if not math.isfinite(math.fsum(x)):
-            raise ValueError(f'plant state became non-finite: {x} (check the disturbances)')
-        return np.array(x)
+        values, tl, tr, disturbance = hold_inputs(state, tau_left, tau_right, disturbance_fn,
+                                                  t0, dt, n_steps)
+        return checked_state(_rk4_hold(self._k, *values, tl, tr, disturbance, dt))
 
     def step_floats(self, x: float, y: float, phi: float, xv: float, th: float, om: float,
                     v: float, thd: float, tau_left: float, tau_right: float, d1: float,
@@ -416,6 +403,34 @@ class Plant:
             minus = self.derivative(x0, tau_left - dl, tau_right - dr, disturbance)
             b[:, j] = (plus - minus) / (2 * step)
         return a, b
+
+
+def hold_inputs(state: Sequence[float], tau_left: float, tau_right: float,
+                disturbance_fn: DisturbanceFunction | None, t0: float, dt: float,
+                n_steps: int) -> tuple[list[float], float, float, np.ndarray]:
+    """The checked arguments of a plant's ``simulate_hold``: (state floats, τl, τr, the
+    disturbance rows (n_steps, 3) sampled at each step's start); ValueError on a wrong
+    size, NaN/inf, a non-positive ``dt`` or a negative or fractional ``n_steps``."""
+    values = _state_floats(state)
+    tl, tr, _, _, _ = _check_inputs(tau_left, tau_right, (0.0, 0.0, 0.0))
+    _check_dt(dt)
+    if n_steps < 0 or int(n_steps) != n_steps:
+        raise ValueError(f'n_steps must be a non-negative integer, got {n_steps!r}')
+    disturbance = np.zeros((int(n_steps), 3))
+    if disturbance_fn is not None:
+        for k in range(int(n_steps)):
+            disturbance[k] = disturbance_fn(t0 + k * dt)
+        if not np.all(np.isfinite(disturbance)):
+            raise ValueError('disturbances must be finite, got '
+                             f'{disturbance[~np.all(np.isfinite(disturbance), axis=1)][0]}')
+    return values, tl, tr, disturbance
+
+
+def checked_state(x: Sequence[float]) -> np.ndarray:
+    """A plant's new state as an array; ValueError if it is not finite."""
+    if not math.isfinite(math.fsum(x)):
+        raise ValueError(f'plant state became non-finite: {x} (check the disturbances)')
+    return np.array(x)
 
 
 def _check_dt(dt: float) -> None:

@@ -10,45 +10,23 @@ Both solve
 keeping one workspace alive between calls: the first call sets the problem up, later
 calls only update the data (docs/paper.md §7, measured facts of ProxSuite on this QP).
 
-ProxSuite settings follow those measurements: ``COLD_START_WITH_PREVIOUS_RESULT`` (the
-warm-start mode produced MAX_ITER and false PRIMAL_INFEASIBLE results and unbounded
-solve times), the ``PrimalDualLDLT`` dense backend, ``eps_abs`` = 1e-6 (tolerances from
-1e-6 to 1e-8; at 1e-7 the primal residual of 1 to 2 in 3000 random-state QPs stagnated
-at 9e-7 until MAX_ITER; the solution error is negligible either way). Three settings
-differ from those first planned. They were measured on 10 187 closed-loop QPs with pushes (made
-with ``wip_tools.analysis.bench_mpc.simulate_longitudinal``) and 6000 QPs at random states like
-those of ``tests/wip_control/core/test_mpc.py``, and are fields of
-:class:`~wip_control.core.mpc.MpcConfig`:
+ProxSuite's tolerances and iteration limits (``eps_abs``, ``eps_rel``, the infeasibility
+tolerances, ``max_iter``, ``max_inner_iter``) are fields of
+:class:`~wip_control.core.mpc.MpcConfig`; its initial guess (cold start with the previous
+result) and dense backend (``PrimalDualLDLT``) are set here. Why each, with the measured
+failures of the alternatives: docs/decisions/proxsuite-settings.md.
 
-- infeasibility tolerances 0 instead of 1e-9: 1e-9 gave 8 false PRIMAL_INFEASIBLE in
-  the closed-loop set (1e-14 still 1). The MPC's QP is feasible and strictly convex by
-  construction, so any infeasibility certificate is false; with 0 ProxSuite's test
-  ‖Cᵀdz‖ ≤ ε‖dz‖ cannot pass for dz ≠ 0.
-- ``eps_rel`` 1e-11 instead of 0: with a purely absolute tolerance the QPs of a falling
-  vehicle (slacks ~1e3, gradients ~1e7) ran into MAX_ITER after up to 1e6 inner
-  iterations, 5–8 s per solve. With 1e-11 they converge in ≤ 30 iterations and the
-  ordinary ticks are unchanged.
-- ``max_iter_in`` 30 instead of 1500: ``max_iter`` (1000) bounds only the outer loop,
-  so a stagnating solve could run max_iter × max_iter_in = 1.5e6 iterations (seen:
-  6e5, 4.5 s). With 30 the worst case seen was 9615 iterations (70 ms) and no tick of
-  either set failed.
+After a failed solve the workspace is set up afresh, so that a bad iterate never seeds the
+next solve; a failed solve is retried once from the equality-constrained initial guess,
+and if that stalls too, DAQP solves the same data before the caller falls back to its
+previous plan.
 
-On those sets the solutions agree with DAQP (exact active set) to 7e-4 N m at worst.
-After any failure the workspace is set up afresh on the next call, so that a bad
-iterate never seeds the next solve. A failed solve is retried once, at once, from the
-equality-constrained initial guess (about 1 QP in 20 000 random states ran to max_iter
-from the default start and solves from that one). If that stalls too, DAQP solves the
-same data before the caller falls back to its previous plan (seen with the MPC's
-per-step slacks on extreme states).
-
-Every point ProxSuite reports as solved is then *polished*: the equality-constrained
-problem on the active set it found (the constraints with a multiplier larger than
-``eps_abs``) is solved with numpy, and the result replaces ProxSuite's when it is primal
-feasible and its multipliers have the right signs (else DAQP solves the same data, and
-the polished point is ProxSuite's next start). Why: the PyPI build of ProxSuite
-(AVX2 module) returns last-bit differences for the same QP depending on the heap
-addresses of its workspace, so runs of the same scenario in two processes differed; the
-polished point depends only on the data and the active set (docs/decisions/determinism.md).
+Every point ProxSuite reports as solved is *polished*: the equality-constrained problem on
+the active set it found (multipliers larger than ``eps_abs``) is solved with numpy, and the
+result replaces ProxSuite's when it is primal feasible and its multipliers have the right
+signs (else DAQP solves the same data). The polished point depends only on the data and
+the active set, so the same scenario gives the same bits in every process
+(docs/decisions/determinism.md).
 """
 
 from __future__ import annotations

@@ -64,26 +64,17 @@ divergence, MPC failure, e-stop) and the limits still apply.
 Ride-through
 ------------
 A control input that is older than its age limit while the layer is ACTIVE is first
-*bridged* for ``bridge_time`` (state DEGRADED), and only then a fault: on a loaded
-computer one message 57 ms late (an age limit of 50 ms) used to zero the torque of a
-balancing robot, which then fell. While bridged the layer sends the mix of the last yaw
-torque and of the drive torque that the MPC's last plan (``MpcOutput.planned_tau_v``)
-gives for the time elapsed since it arrived, so a late MPC output is followed along its
-own prediction rather than held. The bound: with the torque not corrected, a tilt error
-grows at most like exp(λ t), λ = the unstable pole of the linearised tilt dynamics of the
-nominal model (:func:`tilt_divergence_rate`, 4.6 rad/s for the default robot). Bridging
-for ln 4 / λ (0.30 s) at most quadruples the tilt error the controller had when the input
-stopped, so an error of a quarter of the MPC's soft tilt limit (0.025 of 0.1 rad, more
-than the robot shows while balancing) stays within that limit; after that, zero torque is
-safer than guessing. The same bound applies to the layer's own ticks: if it was not run for
-longer (its process frozen or starved), the base held the last command that long and the
-first tick after it is a fault, whatever inputs arrived first. (The MPC itself runs the
-tilt loop open for its 0.1 s period. Bridging
-only ln 2 / λ = 0.15 s was tried first: after a 60 ms freeze of the controllers' process on
-a loaded machine the chain took 215 ms to deliver a fresh yaw torque again, the layer cut
-the torque and the robot fell.) ``bridge_time: 0`` restores the strict behaviour (fault at the age
-limit). Invalid values (NaN, wrong size), a fall, a diverged ESO and the e-stop are never
-bridged. docs/realtime.md has the measurements.
+*bridged* for ``bridge_time`` (state DEGRADED), and only then a fault. While bridged the
+layer sends the mix of the last yaw torque and of the drive torque that the MPC's last
+plan (``MpcOutput.planned_tau_v``) gives for the time elapsed since it arrived, so a late
+MPC output is followed along its own prediction rather than held. The bound: with the
+torque not corrected a tilt error grows at most like exp(λ t), λ the unstable pole of the
+linearised tilt dynamics of the nominal model (:func:`tilt_divergence_rate`); the default
+``bridge_time`` ln 4 / λ at most quadruples it. The same bound applies to the layer's own
+ticks: if it was not run for longer (its process frozen or starved), the first tick after
+it is a fault. ``bridge_time: 0`` restores the strict behaviour (fault at the age limit).
+Invalid values (NaN, wrong size), a fall, a diverged ESO and the e-stop are never
+bridged. Why, with the measurements: docs/realtime.md §1.
 
 Limits: the mix (``core.mixer.mix``) keeps each wheel within ±τmax; the rate limit moves
 each wheel by at most ``max_wheel_torque_rate`` · Δt per tick toward the mixed value

@@ -31,12 +31,9 @@ after engaging
     within [−1.5, −0.5] (−1 within 50 % model error) for ``hold`` seconds, and the yaw
     check does not already see a wheel wrong (a wrong wheel sign also puts the yaw torque
     into the drive, so the tilt contradicts too; the yaw check names the wheel).
-    ``tilt_check_time`` 0.3 s: a wrong tilt sign is named 0.15 s after engaging on the
-    stand-in base (the torques of engaging are large); a shove whose impulse on the tilt
-    exceeds the torque's own (8 rad/s² for 0.2 s against 0.8 rad/s) can land in the band,
-    so the check is not run longer than the wiring needs: a hard push later (Y dominated
-    by τd3 against the torque) must not look like a wiring fault, and a wiring fault
-    shows at once.
+    The check runs only the first ``tilt_check_time`` after engaging: a hard push later
+    (Y dominated by τd3) must not look like a wiring fault (thresholds and measurements:
+    docs/decisions/wiring-checks.md).
 
 Gravity (accelerometer against the mounting), before engaging
     At rest the specific force is +g along the body's up axis, within the tilt (a robot
