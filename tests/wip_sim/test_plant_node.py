@@ -28,7 +28,7 @@ from wip_control.core.disturbances import Disturbances  # noqa: E402
 from wip_control.core.model import PHI  # noqa: E402
 from wip_control.core.plant import Plant  # noqa: E402
 from wip_control.core.references import make_reference  # noqa: E402
-from wip_control.core.runner import initial_state  # noqa: E402
+from wip_control.core.simulation import initial_state  # noqa: E402
 from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_control.core.sensors import geodetic_to_local, Sensors  # noqa: E402
 from wip_control.nodes.conversions import (  # noqa: E402

@@ -7,7 +7,7 @@ import yaml
 
 from wip_control.core.config import ConfigError
 from wip_control.core.references import make_reference
-from wip_control.core.runner import initial_state
+from wip_control.core.simulation import initial_state
 from wip_control.core.scenario import (Scenario, load_scenario, scenario_from_mapping,
                                        scenario_to_mapping)
 

@@ -43,7 +43,8 @@ from wip_control.core.mpc import LongitudinalMpc, MpcConfig  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
 from wip_control.core.plant import Plant  # noqa: E402
 from wip_control.core.references import make_reference, ReferenceState  # noqa: E402
-from wip_control.core.runner import initial_state, run_scenario  # noqa: E402
+from wip_control.core.runner import run_scenario  # noqa: E402
+from wip_control.core.simulation import initial_state  # noqa: E402
 from wip_control.core.scenario import Scenario  # noqa: E402
 from wip_control.core.sensors import (geodetic_to_local, local_to_geodetic,  # noqa: E402
                                       SensorConfig, Sensors)

@@ -1,10 +1,7 @@
 """Plant node: the simulated WIP as sensor topics, ground truth and (in lockstep) the clock.
 
-The node runs the same core objects as the in-process runner (``core.runner``): the true
-:class:`~wip_control.core.plant.Plant`, the
-:class:`~wip_control.core.disturbances.Disturbances`, the
-:class:`~wip_control.core.sensors.Sensors` and the initial state of
-:func:`~wip_control.core.runner.initial_state`, all built from one scenario file.
+The node runs the in-process runner's simulation (``core.simulation.Simulation``: the true
+plant, the disturbances, the sensors and the initial state), built from one scenario file.
 
 Clock modes (parameter ``clock_mode``)
 --------------------------------------
@@ -16,7 +13,7 @@ Clock modes (parameter ``clock_mode``)
        ``/wip/ground_truth`` (state at t_k, disturbances at t_k, wheel torques applied over
        [t_{k-1}, t_k)); all stamped t_k;
     2. wait for ``/wip/wheel_torques`` stamped t_k (older stamps are ignored);
-    3. integrate to t_{k+1}: ``rates.substeps`` RK4 steps (``Plant.simulate_hold``) with
+    3. integrate to t_{k+1}: ``rates.substeps`` RK4 steps (``Simulation.step``) with
        the torques held and the disturbances sampled at each step.
 
     The run ends like the runner's loop: at t_N = duration, or at the first t_k with
@@ -79,17 +76,13 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
+from sensor_msgs.msg import Imu, JointState, NavSatFix
 from std_srvs.srv import Trigger
 from wip_msgs.msg import GroundTruth, WheelTorques
 
-from wip_control.core.disturbances import Disturbances
-from wip_control.core.model import PHI, STATE_NAMES, THETA, V
-from wip_control.core.plant import scenario_plant
-from wip_control.core.references import make_reference
-from wip_control.core.runner import initial_state
+from wip_control.core.model import STATE_NAMES, THETA, V
 from wip_control.core.scenario import load_scenario
-from wip_control.core.sensors import local_to_geodetic, Sensors
+from wip_control.core.simulation import Simulation
 from wip_control.nodes.common import (IntraProcessNode, LOCKSTEP_WRITER_DEPTH,
                                       run_simulator_node, stamp_to_ns)
 from wip_control.nodes.conversions import (body_rates_from_euler, quaternion_from_euler,
@@ -97,6 +90,7 @@ from wip_control.nodes.conversions import (body_rates_from_euler, quaternion_fro
 from wip_control.nodes.parameters import ConfigParameters
 from wip_control.nodes.settings import WheelJoints
 
+from .sensor_messages import gps_message, imu_message, write_fix
 from .settings import PlantSettings, StartHandshake
 
 EXIT_OK = 0
@@ -108,9 +102,6 @@ SENSOR_DEPTH = 10  # keep-last depth of every publisher/subscription [messages]
 SPIN_TIMEOUT = 0.1  # [s] of one spin_once: bounds the reaction time to a shutdown
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
 AUTOSTART_PERIOD = 0.05  # [s], wall time: how often autostart checks the matches
-# Variance reported when a quantity is exact (noise-free simulation): REP 145 reserves
-# -1 for "not provided", 0 is a legitimate "known exactly".
-EXACT = 0.0
 
 
 def set_stamp(stamp, nanoseconds: int) -> None:
@@ -154,13 +145,10 @@ class PlantNode(IntraProcessNode):
         self.scenario = scenario = load_scenario(settings.scenario_file or None)
         joints = ConfigParameters(self, '', WheelJoints).config
         self.left_joint, self.right_joint = joints.left_joint, joints.right_joint
-        map_frame, imu_frame, gps_frame = (settings.map_frame, settings.imu_frame,
-                                           settings.gps_frame)
-        sensors_config = scenario.sensors
+        sensors = scenario.sensors
         # The datum is the scenario's (sensors.gps_datum_*): one source, no datum.* here.
-        self.datum = (sensors_config.gps_datum_latitude, sensors_config.gps_datum_longitude,
-                      sensors_config.gps_datum_altitude)
-        autostart = settings.autostart
+        self.datum = (sensors.gps_datum_latitude, sensors.gps_datum_longitude,
+                      sensors.gps_datum_altitude)
         start = ConfigParameters(self, 'start', StartHandshake).config
         self.expected = {'sensors': start.expected_sensor_subscribers,
                          'ground_truth': start.expected_ground_truth_subscribers,
@@ -170,34 +158,27 @@ class PlantNode(IntraProcessNode):
         self.held = self.clock_mode != 'lockstep' and settings.hold_until_engaged
         self.held_ticks = 0
         self.stats_file = settings.stats_file
-
-        # -- the simulation, built exactly as core.runner.run_scenario does --------------
-        true_params = scenario.plant.parameters
-        self.plant = scenario_plant(scenario)
-        self.disturbances = Disturbances(scenario.disturbances, seed=scenario.seed)
-        reference = make_reference(scenario.reference)
-        self.state = tuple(float(v) for v in initial_state(scenario, reference.sample(0.0)))
-        self.sensors = Sensors(true_params, scenario.sensors,
-                               initial_yaw=self.state[PHI], seed=scenario.seed)
-        self.dt_control = scenario.control_period
-        self.substeps = scenario.rates.substeps
-        self.dt_plant = self.dt_control / self.substeps
-        self.n_ticks = int(round(scenario.duration / self.dt_control))
-        self.gps_every = max(1, int(round(scenario.rates.control_rate
-                                          / scenario.sensors.gps_rate)))
-        self.fall_threshold = scenario.fall_threshold
-        # The gyro rates are drawn right after the IMU angles, as in the runner (same
-        # random stream, same order): the Imu message always carries the angular velocity.
+        self.sim = Simulation(scenario)
+        self.dt_control, self.n_ticks = self.sim.dt_control, self.sim.n_ticks
         self.k = 0
         self.unacknowledged_topics: list[str] = []
         self.tau = (0.0, 0.0)  # applied over the previous control period [N m]
         self.started = False
-        self.wall_start: float | None = None  # perf_counter at the start [s]
-        self.wall_end: float | None = None  # perf_counter at the end [s]
-        self.cpu_start: float | None = None  # process_time at the start [s]
-        self.cpu_end: float | None = None  # process_time at the end [s]
+        self._create_interfaces(settings)
+        self._init_statistics()
+        self.get_logger().info(
+            f'scenario {scenario.name!r}: {scenario.duration:g} s, {self.n_ticks} ticks of '
+            f'{self.dt_control * 1e3:g} ms, plant model {scenario.plant.model.model!r}, '
+            f'clock {self.clock_mode}; waiting for '
+            f'{"the start conditions" if settings.autostart else "~/start"}')
 
-        # -- ROS interfaces -----------------------------------------------------------------
+    @property
+    def state(self) -> tuple:
+        """The true state now (layout of ``core.model``)."""
+        return self.sim.state
+
+    def _create_interfaces(self, settings: PlantSettings) -> None:
+        """Publishers, the torque subscription, the start service, timers, messages."""
         # Reliable, keep last 10 (the graph design). Publishers offer transient-local
         # durability: compatible with volatile subscriptions, and a subscription that asks
         # for transient-local gets the samples published before it matched.
@@ -228,43 +209,31 @@ class PlantNode(IntraProcessNode):
         wall = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(DIAGNOSTICS_PERIOD, self.publish_diagnostics, clock=wall)
         self.autostart_timer = (self.create_timer(AUTOSTART_PERIOD, self._autostart,
-                                                  clock=wall) if autostart else None)
+                                                  clock=wall) if settings.autostart else None)
         self.realtime_timer = None
         self.latest_torques: tuple[float, float, int] | None = None  # left, right, stamp
-
-        # -- preallocated messages (fields are overwritten each tick) -----------------------
-        # Also safe when composed, where the controllers receive these very objects: the
-        # eso converts each at once, and the next tick's overwrite comes only after the
-        # torques of this one, which the intra-process queue (FIFO) delivers after them.
+        # Preallocated messages (fields are overwritten each tick). Also safe when
+        # composed, where the controllers receive these very objects: the eso converts
+        # each at once, and the next tick's overwrite comes only after the torques of this
+        # one, which the intra-process queue (FIFO) delivers after them.
         self._clock_msg = ClockMsg()
         self._truth_msg = GroundTruth()
-        self._truth_msg.header.frame_id = map_frame
+        self._truth_msg.header.frame_id = settings.map_frame
         self._joint_msg = JointState()
         self._joint_msg.name = [self.left_joint, self.right_joint]
-        self._imu_msg = Imu()
-        self._imu_msg.header.frame_id = imu_frame
-        c = sensors_config
-        self._imu_msg.orientation_covariance = [
-            EXACT, 0.0, 0.0,
-            0.0, c.imu_pitch_noise_std ** 2, 0.0,
-            0.0, 0.0, c.imu_yaw_noise_std ** 2]
-        self._imu_msg.angular_velocity_covariance = [
-            EXACT, 0.0, 0.0, 0.0, c.gyro_noise_std ** 2, 0.0, 0.0, 0.0,
-            c.gyro_noise_std ** 2]
-        self._imu_msg.linear_acceleration_covariance[0] = -1.0  # not provided
-        self._gps_msg = NavSatFix()
-        self._gps_msg.header.frame_id = gps_frame
-        self._gps_msg.status.status = NavSatStatus.STATUS_FIX
-        self._gps_msg.status.service = NavSatStatus.SERVICE_GPS
-        gps_variance = c.gps_noise_std ** 2
-        self._gps_msg.position_covariance = [gps_variance, 0.0, 0.0, 0.0, gps_variance, 0.0,
-                                             0.0, 0.0, EXACT]
-        self._gps_msg.position_covariance_type = NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN
+        self._imu_msg = imu_message(self.scenario.sensors, settings.imu_frame,
+                                    acceleration=False)
+        self._gps_msg = gps_message(self.scenario.sensors, settings.gps_frame)
 
-        # -- timing statistics --------------------------------------------------------------
+    def _init_statistics(self) -> None:
+        """Per-tick timings and counters (``stats``)."""
+        self.wall_start: float | None = None  # perf_counter at the start [s]
+        self.wall_end: float | None = None  # perf_counter at the end [s]
+        self.cpu_start: float | None = None  # process_time at the start [s]
+        self.cpu_end: float | None = None  # process_time at the end [s]
         self.publish_time = TickTimer()  # publishing one sample [s]
         self.wait_time = TickTimer()  # sample published -> torques of that tick received
-        self.step_time = TickTimer()  # simulate_hold [s]
+        self.step_time = TickTimer()  # the plant's step [s]
         self.loop_time = TickTimer()  # /clock published -> torques of that tick received
         self._published_at = 0.0
         self._tick_started_at = 0.0
@@ -272,11 +241,6 @@ class PlantNode(IntraProcessNode):
         self.zeroed_torques = 0  # realtime: ticks run with zero torques (none or stale)
         self.zeroed_torques_before_first = 0  # ... of them before the first torques arrived
         self.end_reason = ''
-        self.get_logger().info(
-            f'scenario {scenario.name!r}: {scenario.duration:g} s, {self.n_ticks} ticks of '
-            f'{self.dt_control * 1e3:g} ms, plant model {scenario.plant.model.model!r}, '
-            f'clock {self.clock_mode}; waiting for '
-            f'{"the start conditions" if autostart else "~/start"}')
 
     # -- start --------------------------------------------------------------------------------
     def unmatched(self) -> list[str]:
@@ -342,8 +306,8 @@ class PlantNode(IntraProcessNode):
         else:
             stamp_ns = self.get_clock().now().nanoseconds
         state = self.state
-        d1, d2, d3 = self.disturbances.sample(t)
-        fell = abs(state[THETA]) >= self.fall_threshold
+        d1, d2, d3 = self.sim.disturbance(k)
+        fell = self.sim.fallen()
         last = fell or k >= self.n_ticks
         if last:
             # No control step follows the last sample: no /clock, no sensors.
@@ -370,53 +334,38 @@ class PlantNode(IntraProcessNode):
         self.truth_pub.publish(msg)
 
     def _publish_sensors(self, stamp_ns, k, state) -> None:
-        sensors = self.sensors
-        # The runner's order: encoders, IMU, then GPS on GPS ticks (separate noise streams).
-        # Delays (sensors.sensor_delay, gps_latency): the states the sensors see.
-        state, gps_seen = sensors.delayed(state)
-        left, right = sensors.encoders(state)
-        pitch, yaw = sensors.imu(state)
-        pitch_rate, yaw_rate = sensors.imu_rates(state)
-
+        # Delays (sensors.sensor_delay, gps_latency), noise: the runner's readings.
+        reading = self.sim.read_sensors(k, state)
         joint = self._joint_msg
         set_stamp(joint.header.stamp, stamp_ns)
-        joint.position = [left, right]
-        joint.velocity = list(sensors.wheel_rates(state))
+        joint.position = list(reading.encoders)
+        joint.velocity = list(reading.wheel_rates)
         joint.effort = list(self.tau)
         self.joint_pub.publish(joint)
 
         imu = self._imu_msg
         set_stamp(imu.header.stamp, stamp_ns)
+        pitch, yaw = reading.imu
         q = imu.orientation
         q.x, q.y, q.z, q.w = quaternion_from_euler(0.0, pitch, yaw)
         # A gyro measures the body's angular velocity, (−ϕ̇ sin θ, θ̇, ϕ̇ cos θ) in
         # base_link; it is written at the published pitch so that the eso node's inverse
         # (conversions.euler_rates_from_body) returns the runner's (θ̇, ϕ̇) to rounding.
         (imu.angular_velocity.x, imu.angular_velocity.y,
-         imu.angular_velocity.z) = body_rates_from_euler(pitch, pitch_rate, yaw_rate)
+         imu.angular_velocity.z) = body_rates_from_euler(pitch, *reading.imu_rates)
         self.imu_pub.publish(imu)
 
-        if k % self.gps_every == 0:
+        if reading.gps_due:
             fix = self._gps_msg
             set_stamp(fix.header.stamp, stamp_ns)
-            if sensors.gps_fix_available():
-                x, y = sensors.gps(gps_seen)
-                fix.status.status = NavSatStatus.STATUS_FIX
-                fix.latitude, fix.longitude, fix.altitude = local_to_geodetic(
-                    x, y, *self.datum)
-            else:  # a dropout: the receiver reports no fix (the eso node skips it)
-                fix.status.status = NavSatStatus.STATUS_NO_FIX
-                fix.latitude = fix.longitude = fix.altitude = math.nan
+            write_fix(fix, reading.gps, self.datum)
             self.gps_pub.publish(fix)
 
     def _step(self, tau_left: float, tau_right: float) -> None:
         """Integrate [t_k, t_{k+1}] with the torques held (the runner's step 8)."""
         started_at = time.perf_counter()
-        t = self.k * self.dt_control
         self.tau = (tau_left, tau_right)
-        self.state = tuple(self.plant.simulate_hold(
-            self.state, tau_left, tau_right, self.disturbances.sample, t, self.dt_plant,
-            self.substeps).tolist())
+        self.sim.step(self.k, tau_left, tau_right)
         self.k += 1
         self.step_time.add(time.perf_counter() - started_at)
 
@@ -468,7 +417,7 @@ class PlantNode(IntraProcessNode):
             self.held_ticks += 1
             stamp_ns = self.get_clock().now().nanoseconds
             self._publish_sensors(stamp_ns, self.held_ticks, self.state)
-            self._publish_truth(stamp_ns, self.state, *self.disturbances.sample(0.0))
+            self._publish_truth(stamp_ns, self.state, *self.sim.disturbance(0))
             return
         left = right = 0.0
         latest = self.latest_torques
@@ -497,7 +446,7 @@ class PlantNode(IntraProcessNode):
         factor = t / wall if wall > 0 else float('inf')
         if fell:
             self.end_reason = (f'fell at t = {t:.3f} s: |theta| = {abs(self.state[THETA]):.3f} '
-                               f'rad >= fall_threshold {self.fall_threshold:g} rad')
+                               f'rad >= fall_threshold {self.sim.fall_threshold:g} rad')
             self.get_logger().error(self.end_reason)
             self.exit_code = EXIT_FELL
         else:

@@ -82,22 +82,19 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
-from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
+from sensor_msgs.msg import Imu, JointState, NavSatFix
 from std_msgs.msg import Float64MultiArray
 
-from wip_control.core.disturbances import Disturbances
 from wip_control.core.model import OMEGA, PHI, THETA, V, X, Y
-from wip_control.core.plant import scenario_plant
-from wip_control.core.references import make_reference
-from wip_control.core.runner import initial_state
 from wip_control.core.scenario import load_scenario
-from wip_control.core.sensors import local_to_geodetic, Sensors
+from wip_control.core.simulation import Simulation
 from wip_control.nodes.common import run_simulator_node
 from wip_control.nodes.conversions import quaternion_from_euler
 from wip_control.nodes.hardware_inputs import (imu_orientation_of_body, rotate_vector_into)
 from wip_control.nodes.parameters import ConfigParameters, declare_effort_interface
 from wip_control.nodes.settings import DatumConfig, ImuMounting
 
+from .sensor_messages import gps_message, imu_message, write_fix
 from .settings import CommandTiming, StandinSettings
 
 EXIT_OK, EXIT_ERROR, EXIT_CONFIG, EXIT_FELL = 0, 1, 2, 3
@@ -188,8 +185,6 @@ class StandinBase(Node):
         self.joints = list(wheels.joints)
         self.left_sign, self.right_sign = wheels.left_sign, wheels.right_sign
         self.mounting = ConfigParameters(self, '', ImuMounting).config.imu_mounting_rpy
-        imu_frame, gps_frame, odom_frame = (settings.imu_frame, settings.gps_frame,
-                                            settings.odom_frame)
         self.publish_odometry = settings.publish_odometry
         # The datum defaults to the scenario's (sensors.gps_datum_*).
         datum = ConfigParameters(self, 'datum', DatumConfig,
@@ -205,28 +200,30 @@ class StandinBase(Node):
         self.stats_file = settings.stats_file
         self.sensor_bunch = settings.sensor_bunch
         self._bunch: list[tuple[bytes, bytes]] = []
-        c = scenario.sensors
-
-        # -- the simulation (built like core.runner.run_scenario) ----------------------------
-        params = scenario.plant.parameters
-        self.plant = scenario_plant(scenario)
-        self.disturbances = Disturbances(scenario.disturbances, seed=scenario.seed)
-        reference = make_reference(scenario.reference)
-        self.state = tuple(float(v) for v in initial_state(scenario, reference.sample(0.0)))
-        self.sensors = Sensors(params, c, initial_yaw=self.state[PHI], seed=scenario.seed)
-        self.dt = scenario.control_period
-        self.substeps = scenario.rates.substeps
-        self.dt_plant = self.dt / self.substeps
-        self.gps_every = max(1, int(round(scenario.rates.control_rate / c.gps_rate)))
-        self.fall_threshold = scenario.fall_threshold
-        self.gravity = params.gravity
+        self.sim = Simulation(scenario)
+        self.dt = self.sim.dt_control
+        self.gravity = scenario.plant.parameters.gravity
         self.index = {name: i for i, name in enumerate(self.joints)}
         self.sign = {self.left_joint: self.left_sign, self.right_joint: self.right_sign}
         self.conventions = BaseConventions(self.joints, self.left_joint, self.right_joint,
                                            self.left_sign, self.right_sign, self.mounting)
+        self._init_run_state()
+        self._create_interfaces(settings)
+        self.get_logger().info(
+            f'stand-in base: scenario {scenario.name!r}, plant model '
+            f'{scenario.plant.model.model!r}, {1.0 / self.dt:g} Hz, joints {self.joints}, '
+            f'signs (left {self.left_sign:+g}, right {self.right_sign:+g}), IMU mounting '
+            f'{list(self.mounting)} rad; '
+            + ('held until the first non-zero command' if self.hold else 'free from t = 0'))
 
-        # -- run state ------------------------------------------------------------------------
+    @property
+    def state(self) -> tuple:
+        """The true state now (layout of ``core.model``)."""
+        return self.sim.state
+
+    def _init_run_state(self) -> None:
         self.k = 0                      # ticks published
+        self.steps = 0                  # plant steps (control periods) since the release
         self.t = 0.0                    # simulated time since the release [s]
         self.released = not self.hold
         self.release_wall: float | None = None if self.hold else 0.0
@@ -257,6 +254,7 @@ class StandinBase(Node):
         self._next_truth = 0.0
         self.end_reason = ''
 
+    def _create_interfaces(self, settings: StandinSettings) -> None:
         # Sensors: best effort, like drivers with sensor-data QoS (a reliable publisher can
         # block in publish() for 0.33 s while a new subscriber matches: measured here);
         # the command: reliable, like JointGroupEffortController's subscription.
@@ -273,31 +271,13 @@ class StandinBase(Node):
         self.create_timer(self.dt, self._tick)
         self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
-
         self._joint_msg = JointState()
-        self._imu_msg = Imu()
-        self._imu_msg.header.frame_id = imu_frame
-        self._imu_msg.orientation_covariance = [0.0, 0.0, 0.0, 0.0, c.imu_pitch_noise_std ** 2,
-                                                0.0, 0.0, 0.0, c.imu_yaw_noise_std ** 2]
-        self._imu_msg.angular_velocity_covariance = [0.0, 0.0, 0.0, 0.0, c.gyro_noise_std ** 2,
-                                                     0.0, 0.0, 0.0, c.gyro_noise_std ** 2]
-        self._gps_msg = NavSatFix()
-        self._gps_msg.header.frame_id = gps_frame
-        self._gps_msg.status.status = NavSatStatus.STATUS_FIX
-        self._gps_msg.status.service = NavSatStatus.SERVICE_GPS
-        variance = c.gps_noise_std ** 2
-        self._gps_msg.position_covariance = [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0,
-                                             0.0]
-        self._gps_msg.position_covariance_type = NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN
+        self._imu_msg = imu_message(self.scenario.sensors, settings.imu_frame,
+                                    acceleration=True)
+        self._gps_msg = gps_message(self.scenario.sensors, settings.gps_frame)
         self._odom_msg = Odometry()
-        self._odom_msg.header.frame_id = odom_frame
+        self._odom_msg.header.frame_id = settings.odom_frame
         self._odom_msg.child_frame_id = 'base_link'
-        self.get_logger().info(
-            f'stand-in base: scenario {scenario.name!r}, plant model '
-            f'{scenario.plant.model.model!r}, {1.0 / self.dt:g} Hz, joints {self.joints}, '
-            f'signs (left {self.left_sign:+g}, right {self.right_sign:+g}), IMU mounting '
-            f'{list(self.mounting)} rad; '
-            + ('held until the first non-zero command' if self.hold else 'free from t = 0'))
 
     # -- commands -------------------------------------------------------------------------
     def _reject(self, reason: str) -> None:
@@ -352,17 +332,16 @@ class StandinBase(Node):
             if self.released and not self.fell:
                 self.tau = self.wheel_torques()
                 for _ in range(self._steps_due(now)):
-                    self.state = tuple(self.plant.simulate_hold(
-                        self.state, self.tau[0], self.tau[1], self.disturbances.sample,
-                        self.t, self.dt_plant, self.substeps).tolist())
-                    self.t += self.dt
+                    self.sim.step(self.steps, *self.tau)
+                    self.steps += 1
+                    self.t = self.steps * self.dt
                     self._log_truth()
-                    if abs(self.state[THETA]) >= self.fall_threshold:
+                    if self.sim.fallen():
                         self.fell = True
                         self.fall_time, self.fall_wall = self.t, now
                         self.end_reason = (f'fell at t = {self.t:.3f} s after the release: '
                                            f'|theta| {abs(self.state[THETA]):.3f} rad >= '
-                                           f'{self.fall_threshold:g} rad')
+                                           f'{self.sim.fall_threshold:g} rad')
                         self.get_logger().error(self.end_reason)
                         break
             publish_start = time.perf_counter()
@@ -412,17 +391,11 @@ class StandinBase(Node):
     def _publish(self, stamp_ns: int) -> None:
         state = self.state
         sec, nanosec = divmod(stamp_ns, 1_000_000_000)
-        sensors = self.sensors
-        # The runner's order: delays, encoders, IMU angles, gyro (noise and bias), GPS.
-        true_state = state
-        state, gps_state = sensors.delayed(true_state)
-        left, right = sensors.encoders(state)
-        pitch, yaw = sensors.imu(state)
-        pitch_rate, yaw_rate = sensors.imu_rates(state)
-        rates = sensors.wheel_rates(state)
+        # Delays, noise and bias: the runner's readings of this tick.
+        reading = self.sim.read_sensors(self.k)
         joint, imu = self._joint_msg, self._imu_msg
-        self.conventions.fill(joint, imu, (left, right), rates, self.tau, pitch, yaw,
-                              pitch_rate, yaw_rate, self.gravity)
+        self.conventions.fill(joint, imu, reading.encoders, reading.wheel_rates, self.tau,
+                              *reading.imu, *reading.imu_rates, self.gravity)
         joint.header.stamp.sec, joint.header.stamp.nanosec = sec, nanosec
         imu.header.stamp.sec, imu.header.stamp.nanosec = sec, nanosec
         if self.sensor_bunch == 1:
@@ -437,19 +410,11 @@ class StandinBase(Node):
                     self.imu_pub.publish(imu_bytes)
                 self._bunch.clear()
 
-        if self.k % self.gps_every == 0:
+        if reading.gps_due:
             fix = self._gps_msg
             fix.header.stamp.sec, fix.header.stamp.nanosec = sec, nanosec
-            if sensors.gps_fix_available():
-                x, y = sensors.gps(gps_state)
-                fix.status.status = NavSatStatus.STATUS_FIX
-                fix.latitude, fix.longitude, fix.altitude = local_to_geodetic(
-                    x, y, *self.datum)
-            else:  # a dropout: no fix (NaN position, REP 145 / NavSatFix convention)
-                fix.status.status = NavSatStatus.STATUS_NO_FIX
-                fix.latitude = fix.longitude = fix.altitude = math.nan
+            write_fix(fix, reading.gps, self.datum)
             self.gps_pub.publish(fix)
-        state = true_state
         if self.odom_pub is not None:
             odom = self._odom_msg
             odom.header.stamp.sec, odom.header.stamp.nanosec = sec, nanosec
