@@ -151,6 +151,30 @@ def test_every_tool_help_ends_with_the_one_table(helped):
         assert epilog_table(output) == cli.EXIT_CODES, name
 
 
+#: reST markup that must not reach a terminal: roles, literals, citations, directives.
+REST_MARKUP = re.compile(r':[a-z]+:`|``|\]_|^\s*\.\. [a-z\[]|::\s*$', re.MULTILINE)
+
+
+def test_every_command_help_is_plain_text_with_examples(helped):
+    for name in commands():
+        if name in ('setup', 'test'):   # set-up has no use cases; test is pytest's help
+            continue
+        _, output, _ = helped[f'scripts/{name}']
+        assert not REST_MARKUP.findall(output), (name, REST_MARKUP.findall(output))
+        head, found, examples = output.partition('Examples')
+        assert found, f'scripts/{name} --help has no examples'
+        assert re.search(rf'^\s+scripts/{name}\b', examples, re.MULTILINE), name
+
+
+def test_plain_text_renders_the_docstrings_markup():
+    text = ('Runs :class:`~wip_control.core.plant.Plant` and :func:`wip_bringup.graph.main` '
+            'with ``--record`` as in [1]_::\n\n    x = 1\n\n.. math::\n\n    a = b\n\n'
+            '.. [1] Yue, An, Li.')
+    assert cli.plain_text(text) == ('Runs Plant and wip_bringup.graph.main with --record as '
+                                    'in [1]:\n\n    x = 1\n\n\n    a = b\n\n[1] Yue, An, Li.')
+    assert cli.plain_text(None) is None
+
+
 @pytest.mark.parametrize('script, args', [
     ('report', ['BAG', '--out', 'out', '--no-such-option']),
     ('replay', ['BAG', '--ratee', '2']),

@@ -736,10 +736,19 @@ def split_ros_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
     return own, remaps
 
 
+EXAMPLES = '''\
+Examples
+--------
+    scripts/check_base --params-file my_base.yaml              # guided, by hand
+    scripts/check_base --params-file my_base.yaml --remap /imu/data:=/imu/filtered
+    scripts/check_base --params-file my_base.yaml --json checks.json'''
+
+
 def main(argv: list[str] | None = None, stdin: TextIO | None = None,
          stdout: TextIO | None = None) -> int:
     parser = argparse.ArgumentParser(prog='scripts/check_base', description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog=EXAMPLES)
     parser.add_argument('--scenario', help='scenario YAML whose controller_model gives '
                         'wheel_radius and track_width (default: paper Section V)')
     parser.add_argument('--params-file', action='append', default=[], dest='params_files',

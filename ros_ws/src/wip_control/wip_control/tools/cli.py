@@ -33,6 +33,7 @@ import importlib
 import math
 import os
 import pathlib
+import re
 import sys
 import tempfile
 import traceback
@@ -195,15 +196,54 @@ def exit_codes_text() -> str:
         f'  {code:>3}  {meaning}' for code, meaning in EXIT_CODES.items())
 
 
+#: reST markup of the docstrings that --help texts reuse: a role with a target
+#: (``:class:`~a.b.Name``` -> Name, ``:func:`a.b``` -> a.b), literals, citations.
+_ROLE = re.compile(r':[a-z]+:`(~?)([^`<]*?)(?:\s*<[^>]*>)?`')
+_LITERAL = re.compile(r'``([^`]+)``')
+_CITATION = re.compile(r'(\[\d+\])_')
+
+
+def plain_text(text: str | None) -> str | None:
+    """``text`` with the reST markup of the project's docstrings rendered as plain text:
+    roles as their (short) target, ``literals`` without quotes, ``[1]_`` as [1],
+    ``.. math::`` and ``.. [1]`` directives without their dots, ``::`` as ``:``."""
+    if not text:
+        return text
+
+    def role(match: re.Match) -> str:
+        target = match.group(2).strip()
+        return target.rsplit('.', 1)[-1] if match.group(1) else target
+    text = _LITERAL.sub(r'\1', _ROLE.sub(role, text))
+    text = _CITATION.sub(r'\1', text)
+    lines = []
+    for line in text.splitlines():
+        stripped = line.strip()
+        if stripped == '.. math::':
+            continue
+        if stripped.startswith('.. ['):
+            line = line.replace('.. [', '[', 1)
+        if line.endswith('::') and not stripped == '::':
+            line = line[:-1]
+        elif stripped == '::':
+            continue
+        lines.append(line)
+    return '\n'.join(lines)
+
+
 def add_exit_codes(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Put the exit-code table at the end of ``parser``'s ``--help``, line by line (the
-    parser's formatter keeps wrapping the rest of its text as before), and make its usage
-    errors one line (exit 2)."""
+    parser's formatter keeps wrapping the rest of its text as before), render the
+    docstrings' reST markup in the description, epilog and option help as plain text
+    (:func:`plain_text`), and make its usage errors one line (exit 2)."""
     parser.epilog = (parser.epilog + '\n\n' if parser.epilog else '') + exit_codes_text()
     base = parser.formatter_class
 
     class Formatter(base):  # type: ignore[misc, valid-type]
+        def _split_lines(self, text, width):
+            return super()._split_lines(plain_text(text), width)
+
         def _fill_text(self, text, width, indent):
+            text = plain_text(text)
             head, found, table = text.partition(EXIT_CODES_HEADING)
             if not found:
                 return super()._fill_text(text, width, indent)
