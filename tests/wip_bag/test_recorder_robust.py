@@ -26,6 +26,7 @@ from wip_bag.bag_repair import mcap_files_by_index, read_file_contents, repair_b
 pytestmark = pytest.mark.ros
 
 PUBLISH_PERIOD = 0.002  # [s]: 500 Hz, above every rate of the project's graph
+SPLIT_TIMEOUT = 30.0  # [s]: a split normally comes within 1 s of publishing
 
 
 def _publish_for(node, publisher, seconds, start, make=str, stop=None):
@@ -51,6 +52,13 @@ def test_sigkill_mid_run_then_repair_keeps_every_complete_chunk(test_node, tools
     recorder.spin_until(lambda: publisher.get_subscription_count() >= 1, DISCOVERY_TIMEOUT,
                         'the recorder to subscribe')
     k = _publish_for(test_node, publisher, 2.0, 0)
+    # The recorder splits by the receive times it logs (max_bag_duration 1 s). A starved
+    # recorder (a fresh-clone run with two busy processes) received these 2 s of messages
+    # within less than 1 s of its own time and was killed in its first file: publish on
+    # until it has opened its second one.
+    k = _publish_for(test_node, publisher, SPLIT_TIMEOUT, k,
+                     stop=lambda: len(mcap_files_by_index(bag)) >= 2)
+    assert len(mcap_files_by_index(bag)) >= 2, f'no split within {SPLIT_TIMEOUT} s more'
     # What the recorder reported received (diagnostics of <= 1 s ago) must survive the kill:
     # the writer flushes (and fsyncs) a chunk every 0.2 s; 1 s more of publishing leaves 5
     # flush periods of margin for the queue and the scheduler.

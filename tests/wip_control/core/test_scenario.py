@@ -69,3 +69,15 @@ def test_missing_file_and_invalid_yaml_are_clear_errors(tmp_path):
     bad.write_text('mpc: [unclosed\n')
     with pytest.raises(ConfigError, match='not valid YAML'):
         load_scenario(bad)
+
+
+def test_a_scenario_file_without_a_name_is_named_after_the_file(tmp_path):
+    path = tmp_path / 'my_slope.yaml'
+    path.write_text('duration: 5.0\n', encoding='utf-8')
+    assert load_scenario(path).name == 'my_slope'
+    named = tmp_path / 'other.yaml'
+    named.write_text('name: hill climb\nduration: 5.0\n', encoding='utf-8')
+    assert load_scenario(named).name == 'hill climb'
+    empty = tmp_path / 'empty.yaml'
+    empty.write_text('', encoding='utf-8')
+    assert load_scenario(empty).name == 'empty'

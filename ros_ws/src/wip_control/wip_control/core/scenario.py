@@ -378,11 +378,18 @@ def paper_scenario(overrides: Mapping[str, Any] | None = None) -> Scenario:
 
 
 def load_scenario(path: str | pathlib.Path | None = None) -> Scenario:
-    """Load and validate a scenario file; ``None`` gives the paper's Section V."""
+    """Load and validate a scenario file; ``None`` gives the paper's Section V.
+
+    A file without a ``name`` is named after itself (its stem), not after the default.
+    """
     if path is None:
         return Scenario()
     path = pathlib.Path(path)
     data = read_scenario_file(path)
+    if isinstance(data, Mapping) and 'name' not in data:
+        data = {**data, 'name': path.stem}
+    elif data is None:
+        data = {'name': path.stem}
     try:
         return scenario_from_mapping(data)
     except ConfigError as err:
