@@ -34,6 +34,16 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
     separate = report['graph_separate']
     assert separate['ticks'] == 400
     assert set(separate['cpu_per_tick_us']) >= {'plant', 'eso', 'mpc', 'torque_mixer'}
+    # Recorded runs: every layout, its bag checked; lockstep ends where in-process does.
+    for key in ('graph', 'graph_single', 'graph_separate'):
+        recorded = report[f'{key}_recorded']
+        assert recorded['recorded'] and recorded['ticks'] == 400, recorded
+        assert recorded['bag_problems'] == [] and recorded['bag_messages'] > 400 * 5
+        assert recorded['final_state'] == report['in_process']['final_state']
+        assert report[key]['final_state'] == report['in_process']['final_state']
+    repro = report['reproducibility']
+    assert repro['processes'] == 3 and repro['identical'], repro
+    assert repro['samples'] == 401 and repro['channels'] > 50
     assert report['in_process_over_graph'] == pytest.approx(
         report['in_process']['real_time_factor_median'] / graph['real_time_factor'])
     # Real time: one row per (layout, priority), each with a CPU share and latencies
@@ -74,6 +84,7 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
     assert 'rclpy floor, taken as messages' in printed
     assert 'rclpy floor, taken as serialized' in printed
     assert 'in-process / graph' in printed and 'CPU' in printed
+    assert 'composed, recorded' in printed and 'bit-identical' in printed
     assert 'sensor->command latency' in printed
     assert 'fed directly' in printed
 

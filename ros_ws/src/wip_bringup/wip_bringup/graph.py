@@ -708,27 +708,40 @@ def run_graph(options: GraphOptions) -> GraphResult:
     return GraphRunner(options).run()
 
 
-def run_graph_benchmark(scenario_path: str | None, layout: str = GraphOptions.layout
-                        ) -> dict[str, Any]:
-    """``scripts/bench``: one lockstep run of the whole scenario through the graph, not
-    recorded, in a temporary directory; its real-time factor, per-tick loop time and CPU.
+def run_graph_benchmark(scenario_path: str | None, layout: str = GraphOptions.layout,
+                        record: bool = False) -> dict[str, Any]:
+    """``scripts/bench``: one lockstep run of the whole scenario through the graph in a
+    temporary directory, recorded (every topic, as ``--record``) or not; its real-time
+    factor, per-tick loop time and CPU, the final true state, and with ``record`` the
+    bag's message count and check (``bag_info``).
 
     Returns ``{'failed': message, 'exit_code': code}`` if the run did not complete.
     """
     with tempfile.TemporaryDirectory(prefix='wip_bench_graph_') as out:
-        result = run_graph(GraphOptions(scenario=scenario_path, clock='lockstep', out=out,
-                                        quiet=True, layout=layout))
+        bag = os.path.join(out, 'bag') if record else None
+        result = run_graph(GraphOptions(scenario=scenario_path, clock='lockstep',
+                                        out=os.path.join(out, 'run'), quiet=True,
+                                        layout=layout, record=bag))
+        checked = _bag_check(bag) if bag and result.exit_code == EXIT_OK else {}
     stats = result.plant_stats or {}
     if result.exit_code != EXIT_OK or not stats.get('real_time_factor'):
         return {'failed': result.message, 'exit_code': result.exit_code}
     ticks = stats['ticks']
     loop = stats.get('clock_to_torques_s') or {}
-    return {'layout': layout,
+    return {'layout': layout, 'recorded': record, **checked,
+            'final_state': stats.get('final_state'),
             'real_time_factor': stats['real_time_factor'], 'sim_time_s': stats['sim_time_s'],
             'wall_time_s': stats['wall_time_s'], 'ticks': ticks,
             'startup_s': result.startup_s,
             'clock_to_torques_us': {'mean': loop.get('mean_us'), 'p99': loop.get('p99_us')},
             'cpu_per_tick_us': {name: 1e6 * cpu / ticks for name, cpu in result.cpu_s.items()}}
+
+
+def _bag_check(bag: str) -> dict[str, Any]:
+    """The recorded bag's message count and whether ``bag_info``'s check passed."""
+    from wip_bag.bag_info import bag_information  # noqa: PLC0415 (only when recording)
+    info = bag_information(bag)
+    return {'bag_messages': info['message_count'], 'bag_problems': info['problems']}
 
 
 def outcome_word(exit_code: int) -> str:

@@ -10,10 +10,13 @@ made within one invocation, interleaved where possible:
 2. **In-process real-time factor** of the 90 s scenario, by wall clock and by CPU time
    side by side, with the load average (goal: ≥ 100×, which makes a campaign of 500
    runs of 90 s take minutes); then the same scenario on each plant model (paper, full,
-   mujoco), interleaved run by run (goal for mujoco: ≥ 20×).
+   mujoco), interleaved run by run (goal for mujoco: ≥ 20×); and the reproducibility
+   check: the scenario in three processes at once, their records compared bit for bit.
 3. **Graph real-time factor** in lockstep (if the node graph is available; ``--no-graph``
    skips it), per layout (separate, composed, single: the plant in the controllers'
-   process), next to the in-process one (goal: ≥ 5×, and within 10× of in-process).
+   process), unrecorded and recorded (``--record``: every topic, the bag checked), next
+   to the in-process one (goals: ≥ 5× recorded or not, within 10× of in-process) and
+   with its final state compared with the in-process run's.
 4. **Real time**: the controllers at 200 Hz against the stand-in base (its own process),
    per layout (separate, composed, composed at SCHED_FIFO priority, the same with the base
    and the controllers each pinned to a CPU of its own, and composed at SCHED_FIFO with idle
@@ -43,9 +46,14 @@ import platform
 import statistics
 import subprocess
 import sys
+import tempfile
+import textwrap
 import time
 
+import numpy as np
+
 from .analysis.bench_mpc import _format, bench_mpc_against_daqp
+from wip_control.core.model import STATE_NAMES
 from wip_control.core.plant import MODELS, PlantConfig
 from wip_control.core.runner import run_scenario
 from wip_control.core.scenario import load_scenario
@@ -83,6 +91,9 @@ def bench_in_process(scenario, repeats: int) -> dict:
             'real_time_factors': wall_factors,
             'cpu_real_time_factor_median': statistics.median(cpu_factors),
             'cpu_real_time_factors': cpu_factors,
+            # The state at the end, to compare with the lockstep graph's (bit for bit).
+            'final_state': {name: float(result.record.groups['truth'][name][-1])
+                            for name in STATE_NAMES},
             'load_average_1min': os.getloadavg()[0] if hasattr(os, 'getloadavg') else None}
 
 
@@ -119,13 +130,50 @@ def bench_plant_models(scenario, repeats: int) -> dict:
     return out
 
 
-def bench_graph(scenario_path: str | None, layout: str = 'composed') -> dict | None:
-    """Real-time factor of the lockstep node graph (None if the graph is not available)."""
+def bench_graph(scenario_path: str | None, layout: str = 'composed',
+                record: bool = False) -> dict | None:
+    """Real-time factor of the lockstep node graph, recorded or not."""
     try:
         from wip_bringup.graph import run_graph_benchmark  # noqa: PLC0415 (optional, needs ROS)
     except ImportError as err:
         return {'skipped': f'node graph not available: {err}'}
-    return run_graph_benchmark(scenario_path, layout)
+    return run_graph_benchmark(scenario_path, layout, record=record)
+
+
+#: A child of :func:`bench_reproducibility`: the scenario in-process, its record saved.
+_REPRODUCE = textwrap.dedent('''
+    import sys
+    import numpy as np
+    from wip_control.core.runner import run_scenario
+    from wip_control.core.scenario import load_scenario
+    result = run_scenario(load_scenario(sys.argv[1] or None))
+    np.savez(sys.argv[2], **{f'{g}.{c}': v for g, cols in result.record.groups.items()
+                             for c, v in cols.items()})
+''')
+#: Channels that are measured timings, not results.
+TIMING_CHANNELS = ('mpc.solve_time_s',)
+
+
+def bench_reproducibility(scenario_path: str | None, processes: int = 3) -> dict:
+    """The scenario run in-process in ``processes`` fresh interpreters at once: are their
+    records the same bit for bit (every channel but measured timings)?"""
+    with tempfile.TemporaryDirectory(prefix='wip_bench_repro_') as directory:
+        outputs = [os.path.join(directory, f'run{i}.npz') for i in range(processes)]
+        children = [subprocess.Popen([sys.executable, '-c', _REPRODUCE, scenario_path or '',
+                                      out], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                     text=True) for out in outputs]
+        for child in children:
+            output, _ = child.communicate()
+            if child.returncode != 0:
+                return {'failed': f'a run exited {child.returncode}: {output[-300:]}'}
+        first, *others = [np.load(out) for out in outputs]
+        channels = [c for c in first.files if c not in TIMING_CHANNELS]
+        differing = sorted({c for other in others for c in channels
+                            if other.files != first.files
+                            or not np.array_equal(first[c], other[c], equal_nan=True)})
+        return {'processes': processes, 'channels': len(channels),
+                'samples': int(first['truth.t'].size), 'differing_channels': differing,
+                'identical': not differing}
 
 
 def bench_realtime(seconds: float) -> list[dict]:
@@ -169,6 +217,33 @@ def bench_node_cost(seconds: float, pairs: int = 2) -> dict:
                for key, rows in runs.items()}
     return {**runs, 'median_us': medians,
             'paced_over_back_to_back': medians['paced'] / medians['back_to_back']}
+
+
+def _print_graph_row(graph: dict | None, layout: str, record: bool, in_process: dict,
+                     final: dict | None, report: dict, key: str) -> None:
+    """Print one lockstep row of section 3 and store its ratio to in-process in report."""
+    label = f'{layout}{", recorded" if record else ""}'
+    if not graph or 'real_time_factor' not in graph:
+        print(f'-> {label}: {graph}')
+        return
+    ratio = in_process['real_time_factor_median'] / graph['real_time_factor']
+    report[f'in_process_over_{key}'] = ratio
+    cpu = graph['cpu_per_tick_us']
+    print(f'{label}: per tick: /clock -> wheel torques mean '
+          f'{graph["clock_to_torques_us"]["mean"]:.0f} us, p99 '
+          f'{graph["clock_to_torques_us"]["p99"]:.0f} us; CPU '
+          f'{sum(cpu.values()):.0f} us in all (' + ', '.join(
+              f'{n} {v:.0f}' for n, v in sorted(cpu.items(), key=lambda item: -item[1]))
+          + ')')
+    same = ('' if final is None or graph.get('final_state') is None else
+            '; final state ' + ('= in-process bit for bit' if graph['final_state'] == final
+                                else '!= in-process'))
+    bag = ('' if not record else f'; bag {graph.get("bag_messages")} messages, '
+           + ('checked OK' if not graph.get('bag_problems') else
+              f'PROBLEMS: {graph["bag_problems"]}'))
+    goal = 'recorded >= 5x' if record else 'graph >= 5x, ratio <= 10'
+    print(f'-> {label}: graph {graph["real_time_factor"]:.1f}x real time; in-process / '
+          f'graph = {ratio:.1f}{same}{bag} (goals: {goal})')
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -215,26 +290,25 @@ def main(argv: list[str] | None = None) -> int:
         else f'{model} skipped ({row["skipped"]})' for model, row in models.items())
         + ' (goal for mujoco >= 20x)')
 
+    repro = bench_reproducibility(args.scenario)
+    report['reproducibility'] = repro
+    print('-> reproducibility: ' + (
+        f'{repro["processes"]} processes at once, {repro["channels"]} channels of '
+        f'{repro["samples"]} samples: '
+        + ('bit-identical' if repro['identical']
+           else f'DIFFER in {", ".join(repro["differing_channels"])}')
+        if 'failed' not in repro else repro['failed']) + ' (goal: bit-identical)')
+
     if not args.no_graph:
-        print('\n== 3. Node graph in lockstep, same scenario, per layout')
+        print('\n== 3. Node graph in lockstep, same scenario, per layout, unrecorded and '
+              'recorded (--record: every topic)')
+        final = in_process.get('final_state')
         for layout in ('separate', 'composed', 'single'):
-            graph = bench_graph(args.scenario, layout)
-            key = 'graph' if layout == 'composed' else f'graph_{layout}'
-            report[key] = graph
-            if graph and 'real_time_factor' in graph:
-                ratio = in_process['real_time_factor_median'] / graph['real_time_factor']
-                report[f'in_process_over_{key}'] = ratio
-                cpu = graph['cpu_per_tick_us']
-                print(f'{layout}: per tick: /clock -> wheel torques mean '
-                      f'{graph["clock_to_torques_us"]["mean"]:.0f} us, p99 '
-                      f'{graph["clock_to_torques_us"]["p99"]:.0f} us; CPU '
-                      f'{sum(cpu.values()):.0f} us in all (' + ', '.join(
-                          f'{n} {v:.0f}' for n, v in sorted(
-                              cpu.items(), key=lambda item: -item[1])) + ')')
-                print(f'-> {layout}: graph {graph["real_time_factor"]:.1f}x real time; '
-                      f'in-process / graph = {ratio:.1f} (goals: graph >= 5x, ratio <= 10)')
-            else:
-                print(f'-> {layout}: {graph}')
+            for record in (False, True):
+                key = ('graph' if layout == 'composed' else f'graph_{layout}') + (
+                    '_recorded' if record else '')
+                report[key] = graph = bench_graph(args.scenario, layout, record)
+                _print_graph_row(graph, layout, record, in_process, final, report, key)
     if not args.no_graph and not args.no_realtime:
         print(f'\n== 4. Real time: controllers at 200 Hz against the stand-in base, '
               f'{args.realtime_seconds:g} s per layout')
