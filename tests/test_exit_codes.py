@@ -96,7 +96,7 @@ def node_executables():
     nodes = {'wip_control': ('reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
                              'torque_mixer', 'controllers'),
              'wip_sim': ('plant', 'standin_base', 'simulation'),
-             'wip_bag': ('recorder', 'replayer'),
+             'wip_bag': ('recorder', 'replay'),
              'wip_viewer': ('viewer', 'foxglove_bridge')}
     return [(package, name, pathlib.Path(get_package_prefix(package)) / 'lib' / package / name)
             for package, names in nodes.items() for name in names]

@@ -20,7 +20,6 @@ start-up (imports and discovery, a few seconds on two cores), not one per execut
 
 import os
 import pathlib
-import random
 import re
 import signal
 import subprocess
@@ -31,6 +30,8 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 from ament_index_python.packages import get_package_prefix  # noqa: E402
 from ros_harness import communicate  # noqa: E402
+from wip_bringup.private_domain import (release_private_domain,  # noqa: E402
+                                        reserve_private_domain)
 
 pytestmark = pytest.mark.ros
 
@@ -58,7 +59,7 @@ CONTRACT = {
     'plant': ('plant', {'/clock', '/joint_states', '/imu/data', '/gps/fix',
                         '/wip/ground_truth', '/diagnostics'}, {'/wip/wheel_torques'}),
     'recorder': ('recorder', {'/diagnostics'}, set()),
-    'replayer': ('replayer', {'/contract/chatter', '/diagnostics'}, set()),
+    'replay': ('replayer', {'/contract/chatter', '/diagnostics'}, set()),
     # Hardware mode's stand-in for a real base: ros2_control-style topics only.
     'standin_base': ('standin_base', {'/joint_states', '/imu/data', '/gps/fix',
                                       '/diagnostics'}, {'/effort_controller/commands'}),
@@ -84,7 +85,7 @@ COMPOSED = {'controllers': ('reference', 'eso', 'trajectory_generator', 'arc', '
                            'torque_mixer')}
 
 #: Command-line tools: executable -> (package, its scripts/ front door). Those that are
-#: also nodes (check_base, replayer) are in CONTRACT too.
+#: also nodes (check_base, replay) are in CONTRACT too; each is named as its front door.
 TOOLS = {
     'simulate': ('wip_tools', 'simulate'),
     'report': ('wip_tools', 'report'),
@@ -95,7 +96,7 @@ TOOLS = {
     'identify': ('wip_tools', 'identify'),
     'bag_info': ('wip_bag', 'bag_info'),
     'bag_repair': ('wip_bag', 'bag_repair'),
-    'replayer': ('wip_bag', 'replay'),
+    'replay': ('wip_bag', 'replay'),
     'run_graph': ('wip_bringup', 'run_graph'),
     'estop': ('wip_bringup', 'estop'),
     'check_base': ('wip_bringup', 'check_base'),
@@ -176,7 +177,7 @@ def started(tmp_path_factory):
     bag = make_bag(work / 'replay_bag')
     extra = {
         'recorder': ['-p', f'output:={work / "recorded"}'],
-        'replayer': ['-p', f'bag:={bag}', '-p', 'exit_when_done:=false', '-p', 'loop:=true'],
+        'replay': ['-p', f'bag:={bag}', '-p', 'exit_when_done:=false', '-p', 'loop:=true'],
         'plant': ['-p', 'autostart:=false'],
         'simulation': ['-p', 'autostart:=false'],
         'check_base': ['-r', '/joint_states:=/contract/joints'],
@@ -184,16 +185,20 @@ def started(tmp_path_factory):
     }
     nodes = set(CONTRACT) | set(COMPOSED)
     found = [entry for entry in executables() if entry[1] in nodes]
-    domains = random.sample(range(1, 102), len(found))
+    # Domains reserved on the host for the module's life (a test session side by side
+    # with another must not share one), released after the processes stopped.
+    reserved = [reserve_private_domain() for _ in found]
     processes = {}
     try:
-        for (package, executable, path), domain in zip(found, domains):
+        for (package, executable, path), (domain, _) in zip(found, reserved):
             processes[executable] = Started(executable, path, domain,
                                             extra.get(executable, []), work)
         yield processes
     finally:
         for process in processes.values():
             process.close()
+        for _, descriptor in reserved:
+            release_private_domain(descriptor)
 
 
 def test_every_executable_has_a_contract_entry():
@@ -205,6 +210,8 @@ def test_every_executable_has_a_contract_entry():
     found = {executable: package for package, executable, _ in executables()}
     assert {name: found[name] for name in TOOLS} == {
         name: package for name, (package, _) in TOOLS.items()}
+    # One name: a tool's executable is called as its scripts/ front door.
+    assert all(script in (None, executable) for executable, (_, script) in TOOLS.items())
 
 
 def entry_point_module(package, executable):

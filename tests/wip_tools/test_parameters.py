@@ -51,7 +51,7 @@ def test_list_parameters_shows_nodes_and_real_scenario_keys(capsys):
     for node, name in (('torque_mixer', 'safety.bridge_time'), ('eso', 'left_wheel_sign'),
                        ('eso', 'imu_mounting_rpy'), ('eso', 'datum.latitude'),
                        ('eso', 'position_source'), ('plant', 'start.expected_clock_subscribers'),
-                       ('recorder', 'compression'), ('replayer', 'rate')):
+                       ('recorder', 'compression'), ('replay', 'rate')):
         section = text.split(f'node {node} (')[1].split('\n\n')[0]
         assert f'  {name} ' in section, (node, name)
     scenario = text.split('scenario file keys')[1]
@@ -91,7 +91,7 @@ def _node_classes():
                'trajectory_generator': TrajectoryGeneratorNode, 'arc': ArcNode,
                'mpc': MpcNode, 'torque_mixer': TorqueMixerNode, 'plant': PlantNode,
                'standin_base': StandinBase, 'recorder': RecorderNode,
-               'replayer': ReplayerNode, 'viewer': ViewerNode}
+               'replay': ReplayerNode, 'viewer': ViewerNode}
     try:
         from wip_viewer.foxglove_bridge import FoxgloveBridge
         classes['foxglove_bridge'] = FoxgloveBridge
@@ -138,7 +138,7 @@ def test_every_declared_parameter_is_registered_and_vice_versa(tmp_path):
 
 @pytest.mark.parametrize('executable, overrides, message', [
     ('standin_base', {'sensor_bunch': 11}, 'sensor_bunch: must be <= 10, got 11'),
-    ('replayer', {'bag': 'x', 'rate': -1.0}, 'rate: must be > 0.0, got -1.0'),
+    ('replay', {'bag': 'x', 'rate': -1.0}, 'rate: must be > 0.0, got -1.0'),
     ('eso', {'left_wheel_sign': 2}, 'left_wheel_sign: must be 1 or -1, got 2'),
     ('reference', {'realtime_start': 'later'},
      "realtime_start: 'later' is not one of ['first_tick', 'engaged']"),

@@ -30,7 +30,7 @@ setup(
     entry_points={
         'console_scripts': [
             'recorder = wip_bag.recorder_node:main',
-            'replayer = wip_bag.replayer_node:main',
+            'replay = wip_bag.replayer_node:main',
             'bag_info = wip_bag.console:bag_info',
             'bag_repair = wip_bag.console:bag_repair',
         ],

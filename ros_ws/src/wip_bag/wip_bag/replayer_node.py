@@ -9,7 +9,7 @@ republished as recorded (``publisher.publish(bytes)``: no decoding, no re-encodi
 subscribers receive the recorded bytes exactly.
 
 Run it as ``scripts/replay BAG [options]`` (``--help`` lists them; each sets the parameter
-of the same name) or ``ros2 run wip_bag replayer --ros-args -p bag:=BAG ...``.
+of the same name) or ``ros2 run wip_bag replay --ros-args -p bag:=BAG ...``.
 
 Parameters (read-only, read at start-up)
 ----------------------------------------

@@ -83,5 +83,5 @@ class ReplayerSettings:
 #: executable -> the (prefix, dataclass) groups it declares.
 NODES: dict[str, tuple[tuple[str, type], ...]] = {
     'recorder': (('', RecorderSettings),),
-    'replayer': (('', ReplayerSettings),),
+    'replay': (('', ReplayerSettings),),
 }

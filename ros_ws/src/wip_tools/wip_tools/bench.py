@@ -246,33 +246,19 @@ def _print_graph_row(graph: dict | None, layout: str, record: bool, in_process: 
           f'graph = {ratio:.1f}{same}{bag} (goals: {goal})')
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog='scripts/bench', description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--scenario', help='scenario file (default: the paper Section V)')
-    parser.add_argument('--repeats', type=int, default=5, help='passes / runs per benchmark')
-    parser.add_argument('--no-graph', action='store_true', help='skip the node-graph run')
-    parser.add_argument('--no-realtime', action='store_true',
-                        help='skip the real-time runs against the stand-in base')
-    parser.add_argument('--realtime-seconds', type=float, default=20.0, metavar='S',
-                        help='length of each real-time run [s] (default 20)')
-    parser.add_argument('--json', help='also write the results to this JSON file')
-    add_exit_codes(parser)
-    args = parser.parse_args(argv)
-    if args.repeats < 1:
-        print('ERROR: --repeats must be >= 1', file=sys.stderr)
-        return 2
-    scenario = load_scenario(args.scenario)
-    report: dict = {'environment': _environment(), 'scenario': scenario.name}
-
+def _section_mpc(scenario, repeats: int, report: dict) -> None:
+    """1. The MPC tick against a bare DAQP solve of the same QPs."""
     print(f'== 1. MPC tick (build + ProxSuite) vs bare DAQP on the QPs of {scenario.name!r}')
     recorded = run_scenario(scenario, record_mpc_inputs=True)
     mpc = bench_mpc_against_daqp(recorded.mpc_inputs, scenario.controller_model.parameters,
-                                 scenario.mpc, repeats=args.repeats)
+                                 scenario.mpc, repeats=repeats)
     report['mpc'] = mpc
     print(_format(mpc))
     print(f'-> MPC tick / bare DAQP solve = {mpc["ratio_tick"]:.1f}x (goal <= 4x)')
 
+
+def _section_in_process(scenario, args, report: dict) -> dict:
+    """2. The in-process real-time factor, per plant model, and the reproducibility."""
     print(f'\n== 2. In-process real-time factor, {scenario.duration:.0f} s scenario')
     in_process = bench_in_process(scenario, args.repeats)
     report['in_process'] = in_process
@@ -298,69 +284,102 @@ def main(argv: list[str] | None = None) -> int:
         + ('bit-identical' if repro['identical']
            else f'DIFFER in {", ".join(repro["differing_channels"])}')
         if 'failed' not in repro else repro['failed']) + ' (goal: bit-identical)')
+    return in_process
 
-    if not args.no_graph:
-        print('\n== 3. Node graph in lockstep, same scenario, per layout, unrecorded and '
-              'recorded (--record: every topic)')
-        final = in_process.get('final_state')
-        for layout in ('separate', 'composed', 'single'):
-            for record in (False, True):
-                key = ('graph' if layout == 'composed' else f'graph_{layout}') + (
-                    '_recorded' if record else '')
-                report[key] = graph = bench_graph(args.scenario, layout, record)
-                _print_graph_row(graph, layout, record, in_process, final, report, key)
-    if not args.no_graph and not args.no_realtime:
-        print(f'\n== 4. Real time: controllers at 200 Hz against the stand-in base, '
-              f'{args.realtime_seconds:g} s per layout')
-        per_tick_s = 1.0 / (in_process['real_time_factor_median'] * 200.0)
-        report['in_process_core_share_at_200hz'] = 200.0 * per_tick_s
-        print(f'in-process, the same loop (plant included): {1e6 * per_tick_s:.0f} us per '
-              f'tick = {100 * 200.0 * per_tick_s:.1f} % of a core at 200 Hz')
-        rows = bench_realtime(args.realtime_seconds)
-        report['realtime'] = rows
-        for row in rows:
-            if 'skipped' in row:
-                print(f'-> {row}')
-                continue
-            lat = row['latency_ms'] or {}
-            age = row['command_age_ms'] or {}
-            latency_request = row.get('cpu_latency')
-            case = (f'rt-priority {"yes" if row["rt_priority"] else "no"}'
-                    f'{", pinned" if row["pinned"] else ""}'
-                    + ('' if latency_request is None
-                       else f', cpu-latency {latency_request} us'))
-            print(f'{row["layout"]:9s} {case:48s}: '
-                  f'controllers {100 * (row["controller_cpu_fraction"] or 0):.1f} % of a core; '
-                  f'sensor->command latency p50 {lat.get("p50", float("nan")):.2f} ms, p99 '
-                  f'{lat.get("p99", float("nan")):.2f} ms, max {lat.get("max", float("nan")):.2f}'
-                  f' ms; base: oldest command held {age.get("max_ms", float("nan")):.1f} ms, '
-                  f'{row["deadline_misses"]} deadline misses'
-                  f'{"; FELL" if row["fell"] else ""}')
-        print('   (goals: <= 15 % of a core; latency p99 <= 2 ms, max <= 10 ms)')
-        cost = bench_node_cost(min(10.0, max(3.0, args.realtime_seconds / 3.0)))
-        report['node_cost'] = cost
-        if 'failed' in cost:
-            print(f'-> node cost: {cost}')
+
+def _section_graph(scenario_path: str | None, in_process: dict, report: dict) -> None:
+    """3. The lockstep graph per layout, unrecorded and recorded."""
+    print('\n== 3. Node graph in lockstep, same scenario, per layout, unrecorded and '
+          'recorded (--record: every topic)')
+    final = in_process.get('final_state')
+    for layout in ('separate', 'composed', 'single'):
+        for record in (False, True):
+            key = ('graph' if layout == 'composed' else f'graph_{layout}') + (
+                '_recorded' if record else '')
+            report[key] = graph = bench_graph(scenario_path, layout, record)
+            _print_graph_row(graph, layout, record, in_process, final, report, key)
+
+
+def _section_realtime(seconds: float, in_process: dict, report: dict) -> None:
+    """4. Real time against the stand-in base, the nodes' own cost, rclpy's floor."""
+    print(f'\n== 4. Real time: controllers at 200 Hz against the stand-in base, '
+          f'{seconds:g} s per layout')
+    per_tick_s = 1.0 / (in_process['real_time_factor_median'] * 200.0)
+    report['in_process_core_share_at_200hz'] = 200.0 * per_tick_s
+    print(f'in-process, the same loop (plant included): {1e6 * per_tick_s:.0f} us per '
+          f'tick = {100 * 200.0 * per_tick_s:.1f} % of a core at 200 Hz')
+    rows = bench_realtime(seconds)
+    report['realtime'] = rows
+    for row in rows:
+        if 'skipped' in row:
+            print(f'-> {row}')
+            continue
+        lat = row['latency_ms'] or {}
+        age = row['command_age_ms'] or {}
+        latency_request = row.get('cpu_latency')
+        case = (f'rt-priority {"yes" if row["rt_priority"] else "no"}'
+                f'{", pinned" if row["pinned"] else ""}'
+                + ('' if latency_request is None
+                   else f', cpu-latency {latency_request} us'))
+        print(f'{row["layout"]:9s} {case:48s}: '
+              f'controllers {100 * (row["controller_cpu_fraction"] or 0):.1f} % of a core; '
+              f'sensor->command latency p50 {lat.get("p50", float("nan")):.2f} ms, p99 '
+              f'{lat.get("p99", float("nan")):.2f} ms, max {lat.get("max", float("nan")):.2f}'
+              f' ms; base: oldest command held {age.get("max_ms", float("nan")):.1f} ms, '
+              f'{row["deadline_misses"]} deadline misses'
+              f'{"; FELL" if row["fell"] else ""}')
+    print('   (goals: <= 15 % of a core; latency p99 <= 2 ms, max <= 10 ms)')
+    cost = bench_node_cost(min(10.0, max(3.0, seconds / 3.0)))
+    report['node_cost'] = cost
+    if 'failed' in cost:
+        print(f'-> node cost: {cost}')
+    else:
+        print('the six nodes\' own code, fed directly (no DDS take, no wake-up by a '
+              'message), thread CPU per tick, medians: back to back '
+              + ' / '.join(f'{r["median_us"]:.0f}' for r in cost['back_to_back'])
+              + ' us; paced at 200 Hz '
+              + ' / '.join(f'{r["median_us"]:.0f}' for r in cost['paced'])
+              + f' us: {cost["paced_over_back_to_back"]:.1f}x (what running after an '
+              'idle period costs on this machine)')
+    floor = bench_rclpy_floor(min(10.0, max(3.0, seconds / 2.0)))
+    report['rclpy_floor'] = floor
+    for kind, measured in floor.items():
+        if 'cpu_fraction' in measured:
+            print(f'rclpy floor, taken as {kind}: a process that only receives the base\'s '
+                  f'two sensor streams ({measured["messages_per_s"]:.0f} msg/s, empty '
+                  f'callbacks, {measured["executor"]}): '
+                  f'{100 * measured["cpu_fraction"]:.1f} % of a core, '
+                  f'{measured["cpu_per_message_us"]:.0f} us per message, '
+                  f'{measured["context_switches_per_s"]:.0f} context switches/s')
         else:
-            print('the six nodes\' own code, fed directly (no DDS take, no wake-up by a '
-                  'message), thread CPU per tick, medians: back to back '
-                  + ' / '.join(f'{r["median_us"]:.0f}' for r in cost['back_to_back'])
-                  + ' us; paced at 200 Hz '
-                  + ' / '.join(f'{r["median_us"]:.0f}' for r in cost['paced'])
-                  + f' us: {cost["paced_over_back_to_back"]:.1f}x (what running after an '
-                  'idle period costs on this machine)')
-        floor = bench_rclpy_floor(min(10.0, max(3.0, args.realtime_seconds / 2.0)))
-        report['rclpy_floor'] = floor
-        for kind, measured in floor.items():
-            if 'cpu_fraction' in measured:
-                print(f'rclpy floor, taken as {kind}: a process that only receives the base\'s '
-                      f'two sensor streams ({measured["messages_per_s"]:.0f} msg/s, empty '
-                      f'callbacks, {measured["executor"]}): '
-                      f'{100 * measured["cpu_fraction"]:.1f} % of a core, '
-                      f'{measured["cpu_per_message_us"]:.0f} us per message, '
-                      f'{measured["context_switches_per_s"]:.0f} context switches/s')
-            else:
-                print(f'-> rclpy floor ({kind}): {measured}')
+            print(f'-> rclpy floor ({kind}): {measured}')
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog='scripts/bench', description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--scenario', help='scenario file (default: the paper Section V)')
+    parser.add_argument('--repeats', type=int, default=5, help='passes / runs per benchmark')
+    parser.add_argument('--no-graph', action='store_true', help='skip the node-graph run')
+    parser.add_argument('--no-realtime', action='store_true',
+                        help='skip the real-time runs against the stand-in base')
+    parser.add_argument('--realtime-seconds', type=float, default=20.0, metavar='S',
+                        help='length of each real-time run [s] (default 20)')
+    parser.add_argument('--json', help='also write the results to this JSON file')
+    add_exit_codes(parser)
+    args = parser.parse_args(argv)
+    if args.repeats < 1:
+        print('ERROR: --repeats must be >= 1', file=sys.stderr)
+        return 2
+    scenario = load_scenario(args.scenario)
+    report: dict = {'environment': _environment(), 'scenario': scenario.name}
+
+    _section_mpc(scenario, args.repeats, report)
+    in_process = _section_in_process(scenario, args, report)
+    if not args.no_graph:
+        _section_graph(args.scenario, in_process, report)
+    if not args.no_graph and not args.no_realtime:
+        _section_realtime(args.realtime_seconds, in_process, report)
     if args.json:
         with open(args.json, 'w', encoding='utf-8') as stream:
             json.dump(report, stream, indent=2, default=str)
