@@ -158,7 +158,7 @@ class Started:
         try:
             return ({name for name, _ in get_pubs(node_name, '/')},
                     {name for name, _ in get_subs(node_name, '/')})
-        except Exception:  # noqa: B902 - the node is not known yet (NodeNameNonExistentError)
+        except Exception:  # noqa: BLE001 - the node is not known yet (NodeNameNonExistentError)
             return set(), set()
 
     def close(self):

@@ -1048,8 +1048,8 @@ def test_a_process_that_exits_holding_an_mpc_prints_no_binding_leak_report():
     collected; ProxSuite's binding layer (nanobind) reports every QP object still alive at
     its teardown as a 'leaked instance' (about 30 lines at the end of every controller
     log), which ``core.qp`` prevents by freeing the workspaces at exit."""
-    import subprocess  # noqa: PLC0415
-    import sys  # noqa: PLC0415
+    import subprocess
+    import sys
     program = ('from wip_control.core.mpc import LongitudinalMpc, MpcConfig\n'
                'from wip_control.core.params import WipParameters\n'
                'HELD = LongitudinalMpc(WipParameters(), MpcConfig())\n'

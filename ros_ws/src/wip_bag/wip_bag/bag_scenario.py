@@ -45,7 +45,7 @@ def own_scenario(bag: str | pathlib.Path) -> tuple[dict[str, Any] | None, str]:
     if metadata.is_file():
         try:
             info = read_metadata_file(metadata)
-        except Exception:  # noqa: B902 - a broken metadata.yaml: the next source
+        except Exception:  # noqa: BLE001 - a broken metadata.yaml: the next source
             info = {}
         custom = info.get('custom_data') if isinstance(info, dict) else None
         text = custom.get(SCENARIO_KEY) if isinstance(custom, dict) else None

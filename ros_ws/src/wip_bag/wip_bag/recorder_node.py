@@ -361,7 +361,7 @@ class RecorderNode(Node):
                 if now - last_space_check >= SPACE_CHECK_PERIOD:
                     last_space_check = now
                     self._check_space()
-            except Exception as err:  # noqa: B902 - reported, never silent
+            except Exception as err:  # noqa: BLE001 - reported, never silent
                 self._on_write_failure(err)
 
     def _on_write_failure(self, err):
@@ -540,7 +540,7 @@ def main(args=None):
         rclpy.logging.get_logger('recorder').error(str(err))
         print(f'recorder: error: {err}', file=sys.stderr)
         status = 1
-    except Exception:  # noqa: B902
+    except Exception:  # noqa: BLE001
         # A signal shuts the context down at any point, also inside a ROS call (e.g. "failed
         # to initialize wait set: the given context is not valid"): that is a normal stop.
         if rclpy.ok() and not stop.count:

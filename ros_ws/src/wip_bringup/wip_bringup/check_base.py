@@ -247,7 +247,7 @@ class BaseListener:
         while not self._stop.is_set() and self._rclpy.ok(context=self.context):
             try:
                 self.executor.spin_once(timeout_sec=0.05)
-            except Exception:  # noqa: B902 - shutting down
+            except Exception:  # noqa: BLE001 - shutting down
                 if self._stop.is_set():
                     return
                 raise

@@ -82,7 +82,7 @@ SETTLE_TIME_S = 0.05
 
 def _import_mujoco():
     try:
-        import mujoco  # noqa: PLC0415 - only a process that builds this plant needs it
+        import mujoco  # only a process that builds this plant needs it
     except ImportError as err:
         raise ImportError(f"plant model 'mujoco' needs the mujoco package ({err}): "
                           f'pip install {MUJOCO_REQUIREMENT} (scripts/setup does)') from err

@@ -122,7 +122,7 @@ def bench_plant_models(scenario, repeats: int) -> dict:
 def bench_graph(scenario_path: str | None, layout: str = 'composed') -> dict | None:
     """Real-time factor of the lockstep node graph (None if the graph is not available)."""
     try:
-        from wip_bringup.graph import run_graph_benchmark  # noqa: PLC0415 (optional, needs ROS)
+        from wip_bringup.graph import run_graph_benchmark  # optional, needs ROS
     except ImportError as err:
         return {'skipped': f'node graph not available: {err}'}
     return run_graph_benchmark(scenario_path, layout)
@@ -130,13 +130,13 @@ def bench_graph(scenario_path: str | None, layout: str = 'composed') -> dict | N
 
 def bench_realtime(seconds: float) -> list[dict]:
     """Real-time runs against the stand-in base (see ``wip_bringup.standin_run``)."""
-    import tempfile  # noqa: PLC0415
+    import tempfile
     try:
-        from wip_bringup.standin_run import realtime_benchmark  # noqa: PLC0415 (needs ROS)
+        from wip_bringup.standin_run import realtime_benchmark  # needs ROS
     except ImportError as err:
         return [{'skipped': f'node graph not available: {err}'}]
     with tempfile.TemporaryDirectory(prefix='wip_bench_rt_') as directory:
-        import pathlib  # noqa: PLC0415
+        import pathlib
         return realtime_benchmark(pathlib.Path(directory), seconds)
 
 
@@ -144,7 +144,7 @@ def bench_rclpy_floor(seconds: float) -> dict:
     """CPU of receiving the sensor streams alone (:mod:`wip_tools.rclpy_floor`), taken as
     message objects and serialized (as the eso node takes them), alternately."""
     try:
-        from wip_tools.rclpy_floor import measure_floor  # noqa: PLC0415 (needs ROS)
+        from wip_tools.rclpy_floor import measure_floor  # needs ROS
     except ImportError as err:
         return {'skipped': f'rclpy not available: {err}'}
     return {'messages': measure_floor(seconds, raw=False),

@@ -390,8 +390,8 @@ def run_one(spec: Mapping[str, Any], base: Mapping[str, Any],
     ``base`` is the campaign's base scenario mapping and ``criteria`` its criteria as a
     mapping (plain data: they travel to the workers once, see :func:`execute`).
     """
-    from wip_control.core.metrics import compute_metrics  # noqa: PLC0415 (worker-side imports)
-    from wip_control.core.runner import run_scenario      # noqa: PLC0415
+    from wip_control.core.metrics import compute_metrics  # worker-side imports
+    from wip_control.core.runner import run_scenario
 
     row: dict[str, Any] = {'run': spec['run'], **spec['values'], 'seed': spec['seed']}
     start, cpu_start = time.perf_counter(), time.process_time()
@@ -438,8 +438,8 @@ def execute(campaign: Campaign, specs: list[dict], jsonl: pathlib.Path,
             progress: bool = True) -> list[dict]:
     """Run the specs on Dask (a LocalCluster of ``workers`` processes, or the cluster at
     ``scheduler``), appending each finished row to ``jsonl``; returns all rows by run."""
-    from dask.distributed import Client, LocalCluster, as_completed  # noqa: PLC0415
-    from tqdm import tqdm  # noqa: PLC0415
+    from dask.distributed import Client, LocalCluster, as_completed
+    from tqdm import tqdm
 
     done = _read_done(jsonl)
     todo = [s for s in specs if s['run'] not in done]
@@ -505,8 +505,8 @@ def write_table(rows: list[dict], out: pathlib.Path) -> list[pathlib.Path]:
         for row in rows:
             writer.writerow({k: ('' if row.get(k) is None else row.get(k)) for k in columns})
     try:
-        import pyarrow  # noqa: PLC0415,F401 (optional)
-        import pyarrow.parquet as pq  # noqa: PLC0415
+        import pyarrow  # noqa: F401 (optional)
+        import pyarrow.parquet as pq
     except ImportError:
         return written
     table = pyarrow.Table.from_pylist([{k: row.get(k) for k in columns} for row in rows])
@@ -596,9 +596,9 @@ def summary_text(summary: dict) -> str:
 def write_figures(campaign: Campaign, rows: list[dict], summary: dict,
                   out: pathlib.Path) -> list[pathlib.Path]:
     """Success rate, error distributions, and a heatmap over a 2-D grid."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
     matplotlib.use('Agg')
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     out.mkdir(parents=True, exist_ok=True)
     paths = []

@@ -440,12 +440,12 @@ def load_record(path: str | pathlib.Path) -> dict:
     if path.is_dir() and (path / 'timeseries.npz').exists() and not any(path.glob('*.mcap')):
         path = path / 'timeseries.npz'
     if path.suffix == '.npz':
-        from wip_control.core.record import RunRecord  # noqa: PLC0415
+        from wip_control.core.record import RunRecord
         try:
             return RunRecord.load_npz(path)
         except (OSError, ValueError, KeyError) as err:
             raise IdentifyError(f'{path}: not a readable timeseries.npz ({err})') from err
-    from wip_tools.report import ReportError, record_from_bag  # noqa: PLC0415 (rosbag2)
+    from wip_tools.report import ReportError, record_from_bag  # rosbag2
     try:
         record = record_from_bag(path)
     except ReportError as err:
@@ -485,8 +485,8 @@ def main(argv: Iterable[str] | None = None) -> int:
     try:
         nominal = WipParameters()
         if args.scenario:
-            from wip_control.core.config import ConfigError  # noqa: PLC0415
-            from wip_control.core.scenario import load_scenario  # noqa: PLC0415
+            from wip_control.core.config import ConfigError
+            from wip_control.core.scenario import load_scenario
             try:
                 nominal = load_scenario(args.scenario).controller_model.parameters
             except (ConfigError, OSError) as err:

@@ -108,7 +108,7 @@ def _encoders(m) -> tuple | None:
 
 
 def _imu(m) -> tuple | None:
-    from wip_control.nodes.conversions import (  # noqa: PLC0415 - rclpy only when needed
+    from wip_control.nodes.conversions import (  # rclpy only when needed
         euler_rates_from_body, imu_has_rates, InvalidMessage, pitch_yaw_from_quaternion)
     q, w = m.orientation, m.angular_velocity
     if m.orientation_covariance[0] == -1.0 or not imu_has_rates(m):

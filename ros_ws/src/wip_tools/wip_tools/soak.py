@@ -173,7 +173,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'soak: error: {error}', file=sys.stderr)
         return EXIT_USAGE
     out.mkdir(parents=True, exist_ok=True)
-    from tqdm import tqdm  # noqa: PLC0415 (only the tool needs it)
+    from tqdm import tqdm  # only the tool needs it
     cases = [(p, load, k) for p in args.paths for load in args.loads
              for k in range(args.runs)]
     rows: list[SoakRow] = []

@@ -114,7 +114,7 @@ def decode_client_message(topic: str, encoding: str, data: bytes):
     if encoding == 'cdr':
         try:
             return deserialize_message(bytes(data), Bool if topic == ESTOP_TOPIC else Empty)
-        except Exception as err:  # noqa: B902 - rclpy raises several types on bad CDR
+        except Exception as err:  # noqa: BLE001 - rclpy raises several types on bad CDR
             raise ValueError(f'{topic}: bad CDR: {err}') from err
     raise ValueError(f'{topic}: encoding {encoding!r} is not json or cdr')
 
@@ -185,7 +185,7 @@ class FoxgloveBridge(Node):
                 capabilities=[Capability.ClientPublish, Capability.Services],
                 supported_encodings=['json', 'cdr'], server_listener=self.listener,
                 services=services)
-        except Exception as err:  # noqa: B902 - the SDK raises its own types (port in use)
+        except Exception as err:  # noqa: BLE001 - the SDK raises its own types (port in use)
             raise ConfigError(f'cannot serve on {self.host}:{self.port}: {err}') from err
         self.url = f'ws://{self.host}:{self.server.port}'
         print(f'foxglove_bridge: serving {self.url}', flush=True)
@@ -290,7 +290,7 @@ class FoxgloveBridge(Node):
     def destroy_node(self) -> None:
         try:
             self.server.stop()
-        except Exception:  # noqa: B902 - stopping anyway
+        except Exception:  # noqa: BLE001 - stopping anyway
             pass
         super().destroy_node()
 

@@ -466,6 +466,6 @@ def _load_integrator() -> None:
     by a process that builds a plant: see :mod:`.plant_rk4`)."""
     global _rk4_hold  # noqa: PLW0603 - one compiled function per process
     if _rk4_hold is None:
-        from . import plant_rk4  # noqa: PLC0415
+        from . import plant_rk4
         plant_rk4.warm_up(len(_CONSTANT_NAMES))
         _rk4_hold = plant_rk4.rk4_hold

@@ -234,7 +234,7 @@ def spin_once_or_stop(executor, timeout_sec: float = SPIN_TIMEOUT, context=None)
         executor.spin_once(timeout_sec=timeout_sec)
     except (KeyboardInterrupt, ExternalShutdownException):
         raise
-    except Exception as err:  # noqa: B902 - re-raised unless the context is shut down
+    except Exception as err:  # noqa: BLE001 - re-raised unless the context is shut down
         if rclpy.ok(context=context):
             raise
         raise ExternalShutdownException(f'{type(err).__name__}: {err}') from err
@@ -257,7 +257,7 @@ def spin_once_guarded(executor, node: Node, timeout_sec: float = SPIN_TIMEOUT) -
         return True
     except (KeyboardInterrupt, ExternalShutdownException):
         raise
-    except Exception as err:  # noqa: B902 - any callback error, see the docstring
+    except Exception as err:  # noqa: BLE001 - any callback error, see the docstring
         if not rclpy.ok(context=node.context):
             # The context was shut down (SIGINT) while the executor was busy: rclpy's
             # EventsExecutor then sometimes fails inside pybind11 ("Unable to convert
@@ -403,7 +403,7 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
                     continue
                 try:
                     on_stop(node)
-                except Exception as err:  # noqa: B902 - report, then clean up anyway
+                except Exception as err:  # noqa: BLE001 - report, then clean up anyway
                     print(f'{program}: stopping: {type(err).__name__}: {err}',
                           file=sys.stderr)
         for node, _ in built:
@@ -659,7 +659,7 @@ class ControllerNode(IntraProcessNode):
                 handler(msg)
             except ValueError as err:
                 self.diagnostics.drop(name, 'invalid', str(err))
-            except Exception as err:  # noqa: B902 - a callback must not stop the executor
+            except Exception as err:  # noqa: BLE001 - a callback must not stop the executor
                 self.diagnostics.drop(name, 'error', f'{type(err).__name__}: {err}')
         subscription = self.create_subscription(msg_type, topic, callback, qos, raw=raw)
         self.add_intra_subscription(msg_type, subscription, callback)

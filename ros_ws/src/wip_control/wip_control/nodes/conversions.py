@@ -93,7 +93,7 @@ def prepare_decoder(*typenames: str) -> None:
     first sensor sample."""
     global _typestore  # noqa: PLW0603 - one store per process
     if _typestore is None:
-        from rosbags.typesys import get_typestore, Stores  # noqa: PLC0415
+        from rosbags.typesys import get_typestore, Stores
         _typestore = get_typestore(Stores.ROS2_JAZZY)
     for typename in typenames:
         _typestore.get_msgdef(typename)
@@ -122,7 +122,7 @@ def decode_serialized(msg, typename: str):
         # float64[] with its 8-byte alignment, so a JointState without efforts ends 8 bytes
         # early (rosbags' public deserialize_cdr allows 3 and rejects it).
         return decode(msg[4:], 0, msgdef.cls, _typestore)[0]
-    except Exception as err:  # noqa: B902 - any decoding failure is a malformed message
+    except Exception as err:  # noqa: BLE001 - any decoding failure is a malformed message
         raise InvalidMessage(f'{typename}: undecodable CDR message of {len(msg)} bytes '
                              f'({type(err).__name__}: {err})') from None
 

@@ -160,5 +160,5 @@ class NodeDiagnostics:
             array = DiagnosticArray(status=[self.status()])
             array.header.stamp = self._node.get_clock().now().to_msg()
             self.publisher.publish(array)
-        except Exception as err:  # noqa: B902 - diagnostics must not stop the node
+        except Exception as err:  # noqa: BLE001 - diagnostics must not stop the node
             self._node.get_logger().error(f'diagnostics failed: {err!r}')

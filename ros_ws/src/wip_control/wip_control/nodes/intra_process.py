@@ -139,7 +139,7 @@ class IntraProcessBus:
             for callback in callbacks:
                 try:
                     callback(msg)
-                except Exception as err:  # noqa: B902 - the other callbacks still get it
+                except Exception as err:  # noqa: BLE001 - the other callbacks still get it
                     self.errors += 1
                     if self._on_error is not None:
                         self._on_error(getattr(msg, '__class__', type(msg)).__name__, err)

@@ -196,7 +196,7 @@ class ReferenceNode(ControllerNode):
     def _guarded(self, stamp_ns: int) -> None:
         try:
             self.publish_at(stamp_ns)
-        except Exception as err:  # noqa: B902 - a callback must not stop the node
+        except Exception as err:  # noqa: BLE001 - a callback must not stop the node
             self.diagnostics.drop('tick', 'error', f'{type(err).__name__}: {err}')
 
     def publish_at(self, stamp_ns: int) -> None:

@@ -345,7 +345,7 @@ class TorqueMixerNode(ControllerNode):
             self._publish(now, decision)
             if sensor_stamp is not None and not decision.zeroed:
                 self.latencies.append((self.now_ns() - sensor_stamp) * 1e-9)
-        except Exception as err:  # noqa: B902 - a timer callback must not stop the node
+        except Exception as err:  # noqa: BLE001 - a timer callback must not stop the node
             self.diagnostics.drop('tick', 'error', f'{type(err).__name__}: {err}')
 
     def _mix_set(self, stamp: int, values) -> None:
