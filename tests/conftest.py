@@ -67,7 +67,8 @@ def private_dds_domain():
 @pytest.fixture(autouse=True)
 def _release_taken_domains():
     """The domains a test took with wip_bringup.private_domain.take_private_domain are
-    free again once it has ended."""
+    free again once it has ended.
+    """
     yield
     release_taken_domains()
 
@@ -82,7 +83,8 @@ def domain():
 @pytest.fixture
 def test_node(domain):
     """A node in a private rclpy context in the test's domain, with its own executor
-    (``node.executor_for_test``)."""
+    (``node.executor_for_test``).
+    """
     rclpy = pytest.importorskip('rclpy')
     from rclpy.executors import SingleThreadedExecutor
     context = rclpy.Context()
@@ -117,7 +119,8 @@ def context(module_domain):
 @pytest.fixture
 def harnesses():
     """What a test made that must be closed (``close()``: node harnesses, see
-    ``tests/ros_harness.py``), closed at its end, failed or not."""
+    ``tests/ros_harness.py``), closed at its end, failed or not.
+    """
     made = []
     yield made
     for harness in made:
@@ -137,7 +140,8 @@ def pytest_addoption(parser):
 @pytest.fixture(scope='session', autouse=True)
 def busy_cores(request):
     """The ``--busy-cores N`` processes, started before the first test and ended after the
-    last (killed with their process group, so an interrupted session leaves none)."""
+    last (killed with their process group, so an interrupted session leaves none).
+    """
     import signal
     import subprocess
     count = request.config.getoption('--busy-cores')

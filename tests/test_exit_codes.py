@@ -91,7 +91,8 @@ def commands():
 
 def node_executables():
     """(package, executable, path) of every node that ``ros2 run`` starts (not the tools,
-    which are scripts/ commands or have argparse)."""
+    which are scripts/ commands or have argparse).
+    """
     from ament_index_python.packages import get_package_prefix
     nodes = {'wip_control': ('reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
                              'torque_mixer', 'controllers'),
@@ -105,7 +106,8 @@ def node_executables():
 @pytest.fixture(scope='module')
 def helped(tmp_path_factory):
     """``--help`` of every scripts/ command and node executable, all at once, each in an
-    empty folder of its own: name -> (status, output, files the folder holds after)."""
+    empty folder of its own: name -> (status, output, files the folder holds after).
+    """
     pytest.importorskip('rclpy')
     runs = {f'scripts/{name}': [str(SCRIPTS / name), '--help'] for name in commands()}
     runs.update({f'{package}/{name}': [str(path), '--help']
@@ -185,5 +187,5 @@ def test_a_node_given_a_bad_ros_argument_says_so_in_one_line(tmp_path, package, 
     assert 'Traceback' not in done.stderr + done.stdout
     (line,) = [line for line in done.stderr.splitlines() if 'error: ' in line
                and not line.startswith('[ERROR]')]   # rcl logs its own line first
-    assert line.startswith(f"{executable}: error: bad ROS arguments: ") and '/my imu' in line
+    assert line.startswith(f'{executable}: error: bad ROS arguments: ') and '/my imu' in line
     assert list(tmp_path.iterdir()) == []

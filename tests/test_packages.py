@@ -62,7 +62,8 @@ def modules():
 
 def imports_of(name, path, known):
     """Every module ``name`` imports: dotted names, relative imports resolved; ``from x
-    import y`` counts as an import of x.y when x.y is a module of ours."""
+    import y`` counts as an import of x.y when x.y is a module of ours.
+    """
     is_package = path.name == '__init__.py'
     found = set()
     for node in ast.walk(ast.parse(path.read_text(encoding='utf-8'), str(path))):

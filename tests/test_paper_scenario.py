@@ -76,7 +76,7 @@ def test_torque_and_torque_rate_limits_hold(paper_run):
 @pytest.mark.slow
 def test_no_qp_failure_in_900_ticks(paper_run):
     _, _, metrics = paper_run
-    assert metrics["mpc_ticks"] == 900  # t = 0, 0.1, ..., 89.9
+    assert metrics['mpc_ticks'] == 900  # t = 0, 0.1, ..., 89.9
     assert metrics['qp_failures'] == 0
 
 

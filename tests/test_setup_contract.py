@@ -358,7 +358,7 @@ def test_dockerfile_pip_installs_exactly_the_versions_tested_in_the_venv():
     assert docker, 'requirements-docker.txt pins nothing'
     different = {name: (version, lock.get(name)) for name, version in docker.items()
                  if lock.get(name) != version}
-    assert not different, f'docker pin vs the venv\'s lock: {different}'
+    assert not different, f"docker pin vs the venv's lock: {different}"
     runs = ' '.join(rest for keyword, rest in _dockerfile_instructions() if keyword == 'RUN')
     assert '-r /tmp/requirements-docker.txt' in runs
 

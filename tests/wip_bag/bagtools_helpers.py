@@ -82,13 +82,15 @@ class Tool:
 
 def spin_until(node, condition, timeout, what, process=None):
     """Spin the test node (conftest's ``test_node``) until ``condition()``; fails at the
-    timeout [s] or when ``process`` exits (see ros_harness.spin_until)."""
+    timeout [s] or when ``process`` exits (see ros_harness.spin_until).
+    """
     ros_harness.spin_until(node.executor_for_test, condition, what, timeout, process=process)
 
 
 def start_recorder(node, bag, topics=None, *params, preexec_fn=None):
     """The recorder process recording ``topics`` (None: every topic) into ``bag``, with
-    the parameters ``params`` ('name:=value')."""
+    the parameters ``params`` ('name:=value').
+    """
     args = ['--ros-args', '-p', f'output:={bag}', '-p', 'discovery_period:=0.1']
     if topics is not None:
         args += ['-p', f'topics:=[{", ".join(topics)}]']
@@ -99,7 +101,8 @@ def start_recorder(node, bag, topics=None, *params, preexec_fn=None):
 
 def assert_metadata_matches_content(directory):
     """metadata.yaml agrees with what the files hold (counted by reading every message,
-    and by rosbags, an independent reader); returns its rosbag2_bagfile_information."""
+    and by rosbags, an independent reader); returns its rosbag2_bagfile_information.
+    """
     info = yaml.safe_load((directory / 'metadata.yaml').read_text())[
         'rosbag2_bagfile_information']
     assert info['relative_file_paths'] == [p.name for p in mcap_files_by_index(directory)]

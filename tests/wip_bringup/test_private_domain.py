@@ -1,5 +1,6 @@
 """Private DDS domains are reserved on the host: no two holders share one, a released or
-dead holder's domain is free again, and an exhausted range still gives a usable id."""
+dead holder's domain is free again, and an exhausted range still gives a usable id.
+"""
 
 import subprocess
 import sys

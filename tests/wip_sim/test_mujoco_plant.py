@@ -111,7 +111,8 @@ def _slip_threshold(params, friction):
     the rolling υ̇ = g2 (2τ) of the full model: F = τ (1 − 2 J_w g2 / r)/r. It reaches
     the cone's μN, N = (m_p + m_c + 2 m_w) g / 2 (the centre of mass does not yet move
     vertically), at τ* = μ N r / (1 − 2 J_w g2 / r): above μ N r, because the motor also
-    spins the wheel up."""
+    spins the wheel up.
+    """
     p = params
     normal = (p.body_mass + p.chassis_mass + 2 * p.wheel_mass) * p.gravity / 2
     g2 = full_input_gains(p, 0.0)[1]

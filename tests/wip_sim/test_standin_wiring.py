@@ -57,7 +57,8 @@ EXPECTED = {
 
 def zero_torque_from(stats) -> float | None:
     """Time after the release [s] from which every torque the base applied was zero (None:
-    torque to the end of its log)."""
+    torque to the end of its log).
+    """
     truth = stats['truth']
     samples = list(zip(truth['t'], truth['tau_left'], truth['tau_right']))
     last_nonzero = max((i for i, (_, left, right) in enumerate(samples)
@@ -98,7 +99,8 @@ def test_correct_wiring_with_sensor_noise_gyro_bias_and_pushes_gives_no_wiring_f
     """No false alarm: the base's own conventions (BASE), noisy sensors with gyro biases
     (a consumer IMU's: noise 0.01 rad/s, biases 0.01 and 0.02 rad/s; 4096-count encoders)
     and pushes on the tilt, one while the tilt check runs (2 rad/s^2 for 0.2 s from 0.1 s)
-    and one later (a longitudinal 3 m/s^2 for 0.2 s at 3 s): the base stays up, no verdict."""
+    and one later (a longitudinal 3 m/s^2 for 0.2 s at 3 s): the base stays up, no verdict.
+    """
     scenario = line_scenario()
     scenario['sensors'] = {'imu_pitch_noise_std': 0.002, 'imu_yaw_noise_std': 0.002,
                            'gyro_noise_std': 0.01, 'gyro_pitch_bias': 0.01,

@@ -102,7 +102,8 @@ def _node_classes():
 
 def _declared(cls, context, overrides):
     """Names the node declares; a node that refuses its (absent) input after declaring,
-    such as the replayer without a bag, still shows what it declared."""
+    such as the replayer without a bag, still shows what it declared.
+    """
     from rclpy.parameter import Parameter
     node = cls.__new__(cls)
     try:

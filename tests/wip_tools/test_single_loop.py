@@ -187,7 +187,8 @@ def test_runner_rerun_and_nodes_compute_bit_identical_outputs(recorded, context)
 
 def test_the_runner_itself_computes_what_its_objects_give_on_its_own_samples(recorded):
     """The stream is the runner's: its own run recorded the same wheel torques, to the
-    rounding of the GPS fix's geodetic round trip and of t = k h vs stamp / 1e9."""
+    rounding of the GPS fix's geodetic round trip and of t = k h vs stamp / 1e9.
+    """
     scenario, _, run = recorded
     rows = runner_objects(scenario, run)
     for stamp, row in rows.items():

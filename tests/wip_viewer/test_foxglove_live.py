@@ -83,7 +83,8 @@ def spinning(test_node):
 
 class Client:
     """A WebSocket connection that keeps every JSON message it has read (the server sends
-    serverInfo, advertise, advertiseServices in an order of its own)."""
+    serverInfo, advertise, advertiseServices in an order of its own).
+    """
 
     def __init__(self, ws) -> None:
         self.ws = ws
@@ -102,7 +103,8 @@ class Client:
 
     def current_channel(self, topic: str) -> dict | None:
         """The channel of ``topic`` as the advertise and unadvertise messages read so far
-        leave it (None if none is advertised now), as a Foxglove app tracks them."""
+        leave it (None if none is advertised now), as a Foxglove app tracks them.
+        """
         current = None
         for message in self.seen:
             if message.get('op') == 'advertise':
@@ -125,7 +127,8 @@ class Client:
         anew or the server refused the subscription as an unknown channel: seen twice in
         full runs under a busy loop (sessions 4 and 9), the server answering a channel it
         had just advertised with 'Unknown channel ID'; a Foxglove app resubscribes on a new
-        advertisement. Fails with every JSON message read if no frame comes."""
+        advertisement. Fails with every JSON message read if no frame comes.
+        """
         deadline = time.monotonic() + timeout
         subscribed, refusals, subscription_id = None, self.refusals(), first_id - 1
         while time.monotonic() < deadline:
@@ -149,7 +152,8 @@ class Client:
     def receive_binary(self, opcode: int | None, timeout: float = TIMEOUT,
                        required: bool = True) -> bytes | None:
         """The next binary frame with this opcode (None: read one frame, return None);
-        ``required``: fail if none comes within ``timeout`` (else return None)."""
+        ``required``: fail if none comes within ``timeout`` (else return None).
+        """
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             try:

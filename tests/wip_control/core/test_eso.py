@@ -438,7 +438,8 @@ def test_jittered_periods_are_discretised_once_per_microsecond_within_a_bounded_
     """Real-time stamps jitter: an off-nominal period is discretised for the period rounded
     to 1 µs and cached. Against the exact discretisation of every period, the estimates of
     a ramp (1.5 m/s) with ±0.5 ms jitter differ by less than 1e-5 (m, m/s), and the cache
-    holds one entry per distinct microsecond."""
+    holds one entry per distinct microsecond.
+    """
     from wip_control.core.eso import discretise, PERIOD_RESOLUTION
 
     class Exact(ExtendedStateObserver):

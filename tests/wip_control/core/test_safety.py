@@ -161,7 +161,8 @@ def test_an_input_older_than_its_age_is_bridged_then_zeroes_at_the_first_tick_pa
         name, age_field, bridge):
     """ACTIVE up to the age limit, DEGRADED (torque flowing, the late input named) for
     bridge_time more, zero torque at the first tick past age + bridge (bridge 0: at the
-    first tick past the age, the strict behaviour)."""
+    first tick past the age, the strict behaviour).
+    """
     monitor, clock = active(SafetyConfig(bridge_time=bridge))
     max_age = getattr(SafetyConfig(), age_field)
     last = clock.t
@@ -257,7 +258,8 @@ def test_late_inputs_before_engaging_are_never_bridged():
 def test_the_default_bridge_is_ln4_over_the_unstable_tilt_pole_of_the_nominal_model():
     """The stated bound: with the torque held the tilt error grows like exp(λ t); bridging
     ln 4 / λ at most quadruples it. λ from the linearised model (1), checked here against the
-    eigenvalues of the tilt dynamics integrated numerically from the model's own terms."""
+    eigenvalues of the tilt dynamics integrated numerically from the model's own terms.
+    """
     from wip_control.core.model import nominal_terms
     params = WipParameters()
     lam = tilt_divergence_rate(params)
@@ -494,7 +496,8 @@ def test_shadow_mode_reports_the_torques_but_commands_zero():
 def test_a_stall_of_the_layer_itself_past_the_bridge_is_a_fault_even_with_fresh_inputs():
     """The whole controller process frozen: on waking up fresh inputs may be taken before
     the layer's own tick; the gap since its previous tick still makes it a fault (the
-    base held the last command, blind, for that long)."""
+    base held the last command, blind, for that long).
+    """
     config = SafetyConfig()
     bound = config.max_estimate_age + config.bridge_time
     monitor, clock = active(config)

@@ -26,7 +26,8 @@ CONFIGURED = {'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'left_wheel_sig
 def run(mistake=None, *, seconds=1.5, rest=0.5, noise=0.01, gyro_bias=0.05, push=0.0,
         push_at=0.3, yaw_rate_ref=0.5, config=WiringCheckConfig(), seed=1):
     """Feed a check ``rest`` s at rest (held, not engaged), then ``seconds`` engaged;
-    the verdict and the time after engaging it came (None, None without one)."""
+    the verdict and the time after engaging it came (None, None without one).
+    """
     rng = np.random.default_rng(seed)
     check = WiringCheck(config, PARAMS, PERIOD, configured=CONFIGURED)
     p = PARAMS

@@ -136,7 +136,8 @@ TOPIC_TYPES = {'/clock': Clock, '/joint_states': JointState, '/imu/data': Imu,
 
 def wire(harness, inputs=(), outputs=()):
     """Publishers of the topics ``inputs`` and listeners of ``outputs`` on the harness node
-    (types from :data:`TOPIC_TYPES`), matched with the node under test."""
+    (types from :data:`TOPIC_TYPES`), matched with the node under test.
+    """
     for topic in inputs:
         harness.publisher(TOPIC_TYPES[topic], topic, CLOCK_QOS if topic == '/clock' else 100)
     for topic in outputs:
@@ -154,7 +155,8 @@ def harness_of(harnesses, node):
 
 def start(harnesses, context, node_cls, mode='lockstep', inputs=(), outputs=(), **params):
     """A node of ``node_cls`` with the test's parameter overrides, in a harness; wired to
-    ``inputs`` and ``outputs`` (see :func:`wire`) if given."""
+    ``inputs`` and ``outputs`` (see :func:`wire`) if given.
+    """
     harness = harness_of(harnesses, node_cls(context=context, parameter_overrides=overrides(
         mode, **params)))
     if inputs or outputs:
@@ -1137,7 +1139,8 @@ def test_realtime_input_stamped_far_ahead_is_refused_and_does_not_block_the_stre
         context, harnesses):
     """Real time takes inputs newest stamp first: one message from a sender whose clock
     jumped a day ahead must be refused (with the reason), not kept as the newest, which
-    would drop every correct message after it."""
+    would drop every correct message after it.
+    """
     harness = arc_harness(harnesses, context, 'realtime')
     out = harness.outputs['/wip/yaw_torque']
     dropped = harness.node.diagnostics.dropped
@@ -1164,7 +1167,8 @@ def test_realtime_input_stamped_far_ahead_is_refused_and_does_not_block_the_stre
 
 def test_diagnostics_report_the_dds_match_counts_of_both_sides(context, harnesses):
     """The graph runner starts a lockstep run only when both sides of every pair count
-    each other: the node must report them (and not ROS infrastructure topics)."""
+    each other: the node must report them (and not ROS infrastructure topics).
+    """
     harness = arc_harness(harnesses, context)
     values = {kv.key: kv.value for kv in harness.node.diagnostics.status().values}
     assert values['matched publishers /wip/state_estimate'] == '1'
@@ -1205,7 +1209,8 @@ def test_the_readme_params_file_of_a_real_base_is_taken_by_the_eso_and_the_mixer
 
 def tick_every(harness, out, step_ns, duration):
     """Publish /clock every step_ns up to duration [s], each time waiting for the
-    reference (a burst of clock messages would overrun the clock's queue)."""
+    reference (a burst of clock messages would overrun the clock's queue).
+    """
     for k in range(1, round(duration * 1e9 / step_ns) + 1):
         count = len(out)
         harness.publish('/clock', clock(k * step_ns))

@@ -173,7 +173,8 @@ class Graph(NodeHarness):
     def commands_on_the_topic(self):
         """Stop the mixer's watchdog timer and the upstream (whose yaw torques trigger
         commands too), drain the topic; check it against the logged ticks and return the
-        offset of the received messages in the log."""
+        offset of the received messages in the log.
+        """
         self.sending.clear()
         self.spin_for(0.05)             # yaw torques in flight still make commands
         self.node.timer.cancel()
@@ -412,7 +413,8 @@ def test_drive_status_values_are_the_mpc_output_constants():
 def test_mixer_process_stopped_sends_a_last_zero_command_to_the_base(context, harnesses,
                                                                     stop_signal):
     """A JointGroupEffortController holds the last command forever: the mixer process,
-    stopped while it commands torque, must leave zero behind (its last message)."""
+    stopped while it commands torque, must leave zero behind (its last message).
+    """
     executable = installed_executable('wip_control', 'torque_mixer')
     harness = NodeHarness(context, timeout=TIMEOUT)   # the node under test is the process
     harnesses.append(harness)

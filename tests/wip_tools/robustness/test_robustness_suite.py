@@ -114,7 +114,8 @@ def test_a_push_above_the_speed_limit_on_a_heavy_tall_body_is_caught(run, body_m
     trifolium under noise, full plant. The MPC's rise slack would weigh the acceleration
     of the recovery: without its gates (docs/mpc.md §9) run 78 fell at 48.8 s, run 84 at
     30.3 s (speed_rise_penalty 1e5), run 255 at 22.5 s. They must stay up and within the
-    hard limits."""
+    hard limits.
+    """
     campaign = load_campaign(ACCEPTANCE)
     spec = run_specs(campaign)[run]
     assert spec['values']['plant.parameters.body_mass'] == pytest.approx(body_mass, abs=0.01)
@@ -131,7 +132,8 @@ def test_the_pulse_on_the_paper_plant_under_noise_is_caught(run):
     noise. With the drive torque held for the 0.1 s MPC period they fell 2.5 s after the
     pulse, the tilt swinging from -0.17 to +0.31 rad with the torque at its limits; the
     MPC re-solving every 50 ms after a push (mpc.fast_resolve_period, docs/mpc.md §10)
-    keeps them within 0.1 rad outside the pulse."""
+    keeps them within 0.1 rad outside the pulse.
+    """
     campaign = load_campaign(NOISE_100)
     spec = run_specs(campaign)[run]
     assert spec['values']['plant.model'] == 'paper'
@@ -143,7 +145,8 @@ def test_the_pulse_on_the_paper_plant_under_noise_is_caught(run):
 @pytest.mark.slow
 def test_without_re_solving_after_a_push_noise_run_25_falls():
     """The run above with the torque held for the whole MPC period (fast_resolve_period
-    0, as before): it falls (so the test above tests the re-solving)."""
+    0, as before): it falls (so the test above tests the re-solving).
+    """
     campaign = load_campaign(NOISE_100)
     spec = run_specs(campaign)[25]
     base = {**campaign.base, 'mpc': {**campaign.base.get('mpc', {}),

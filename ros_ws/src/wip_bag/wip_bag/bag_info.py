@@ -146,7 +146,7 @@ def bag_information(path, from_content=False):
             _compare_metadata(metadata, content, info, problems, from_content)
         except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as err:
             problems.append(f'metadata.yaml is incomplete or malformed ({type(err).__name__}: '
-                            f'{err}); figures from the files\' contents')
+                            f"{err}); figures from the files' contents")
             info.update(content)
             info['source'] = 'content'
     elif pathlib.Path(path).is_dir() and not metadata_path.is_file():
@@ -242,11 +242,11 @@ def main(argv=None):
     parser = argparse.ArgumentParser(
         prog='bag_info', description='Print what `ros2 bag info` prints for a rosbag2 MCAP '
         'bag (directory or single .mcap file), plus its chunk compression and a check of '
-        'every chunk\'s CRC and of metadata.yaml against the files. Exit code: 0 OK, '
+        "every chunk's CRC and of metadata.yaml against the files. Exit code: 0 OK, "
         '1 NOT OK, 2 no bag there.')
     parser.add_argument('bag', help='bag directory or .mcap file')
     parser.add_argument('--from-content', action='store_true',
-                        help='figures from the files\' contents, not from metadata.yaml')
+                        help="figures from the files' contents, not from metadata.yaml")
     parser.add_argument('--json', action='store_true', help='print JSON instead')
     add_exit_codes(parser)
     args = parser.parse_args(argv)

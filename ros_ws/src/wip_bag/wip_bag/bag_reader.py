@@ -77,7 +77,7 @@ def integrity_problems(scans) -> list[str]:
 #: What a bag directory without metadata.yaml means, for the readers' warning and
 #: bag_info's verdict (one wording).
 NO_METADATA = ('no metadata.yaml (an unfinished recording, or a file lost): ros2 bag and '
-               'rosbags cannot open it; the wip-ros tools read the .mcap files\' contents; '
+               "rosbags cannot open it; the wip-ros tools read the .mcap files' contents; "
                'scripts/bag_repair {bag} writes a new bag with one')
 _warned_no_metadata: set[str] = set()
 

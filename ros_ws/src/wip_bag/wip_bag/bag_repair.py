@@ -185,7 +185,8 @@ def _parse_serialized(metadata):
 
 def _rewrite(path, target, compression):
     """The intact chunks of ``path`` into a finished MCAP file ``target`` (None: only
-    count); returns its FileContents."""
+    count); returns its FileContents.
+    """
     file_scan = scan(path)
     contents = FileContents(path.name, False)
     contents.compression = file_scan.chunks[0].compression if file_scan.chunks else None

@@ -479,7 +479,8 @@ def make_executor(context=None):
 
 class StopSignals:
     """SIGINT, SIGTERM and SIGHUP set a flag (counted) instead of raising: the spin loop
-    and the stop's drain look at it, and the close that follows cannot be cut by one."""
+    and the stop's drain look at it, and the close that follows cannot be cut by one.
+    """
 
     def __init__(self):
         self.count = 0
@@ -492,7 +493,8 @@ class StopSignals:
 
 def spin(node, executor, stop=None):
     """Spin with a timeout (the EventsExecutor's spin() ignores SIGINT, ros-from-pip.md)
-    until a stop signal, then :func:`drain`."""
+    until a stop signal, then :func:`drain`.
+    """
     executor.add_node(node)
     while rclpy.ok(context=node.context) and not (stop and stop.count):
         executor.spin_once(timeout_sec=SPIN_TIMEOUT)
@@ -508,7 +510,8 @@ def launcher_gone():
 
 def drain(node, executor, stop, quiet=STOP_QUIET, longest=STOP_DRAIN):
     """After the first stop signal: receive until nothing arrived for ``quiet`` [s], at
-    most ``longest`` [s], or until a second signal."""
+    most ``longest`` [s], or until a second signal.
+    """
     started = time.monotonic()
     node.last_received = max(node.last_received, started)
     while (rclpy.ok(context=node.context) and stop.count < 2

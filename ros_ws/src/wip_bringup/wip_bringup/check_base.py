@@ -194,7 +194,8 @@ def unwrap_mean(angles: list[float]) -> float:
 
 class BaseListener:
     """Subscribes to the base's JointState and Imu in a background thread and keeps the
-    samples of the last few seconds."""
+    samples of the last few seconds.
+    """
 
     HISTORY = 5.0  # [s]
 
@@ -440,7 +441,7 @@ def check_tilt(before: Reading, after: Reading, c: Conventions) -> list[Check]:
         status, advice = FAIL, ('sign wrong: the pitch decreased; the IMU mounting '
                                 '(imu_mounting_rpy) is turned half a turn about z')
     elif abs(d_roll) >= low:
-        status, advice = FAIL, ('the tilt shows as roll: the mounting\'s yaw is off by a '
+        status, advice = FAIL, ("the tilt shows as roll: the mounting's yaw is off by a "
                                 'quarter turn')
     else:
         status, advice = FAIL, f'no forward tilt of {low}-{high} rad seen'
@@ -719,7 +720,8 @@ LISTENED_TOPICS = ('/joint_states', '/imu/data')
 
 def split_ros_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
     """(the tool's own arguments, 'FROM:=TO' remappings) of a command line that may hold
-    ``--ros-args ... [--]`` blocks, as ``ros2 run`` passes them."""
+    ``--ros-args ... [--]`` blocks, as ``ros2 run`` passes them.
+    """
     own: list[str] = []
     remaps: list[str] = []
     in_ros = False

@@ -193,7 +193,8 @@ DRAIN_STALL = 2.5
 
 class StartupStall(GraphError):
     """The run stalled on its first ticks: a message published before its subscription
-    was matched is lost (see :meth:`GraphRunner.run`)."""
+    was matched is lost (see :meth:`GraphRunner.run`).
+    """
 
     def __init__(self, message: str) -> None:
         super().__init__(message, EXIT_TIMEOUT)
@@ -228,7 +229,8 @@ class GraphOptions:
 @dataclasses.dataclass
 class GraphResult(RunResult):
     """What :func:`run_graph` returns (also written to ``OUT/run.json``); ``cpu_s`` of the
-    plant from its own stats, ``timeline`` with the plant's refusals to start."""
+    plant from its own stats, ``timeline`` with the plant's refusals to start.
+    """
 
     scenario: Scenario | None = None
     plant_stats: dict | None = None
@@ -298,7 +300,8 @@ class GraphRunner(RunnerBase):
         first: the plant then waits for torques and publishes nothing more, and stays up
         while the recorder takes what it published (a publisher that exits takes with it
         the samples a lagging reader has not received yet: about 90 ticks were lost so on
-        a loaded machine); then the plant, then the recorder (the base class)."""
+        a loaded machine); then the plant, then the recorder (the base class).
+        """
         if (self.drain_at_stop and self.options.clock == 'lockstep'
                 and 'recorder' in self.processes and self.plant_process == 'plant'
                 and self.probe is not None):
@@ -317,7 +320,8 @@ class GraphRunner(RunnerBase):
         """SIGTERM for the plant's process: rclpy's handler then only shuts its context
         down. At a SIGINT it also raises a KeyboardInterrupt, which can land in the plant's
         write of plant_stats.json after its spin loop ended, leaving the file empty (seen
-        after a stop mid-run)."""
+        after a stop mid-run).
+        """
         return signal.SIGTERM if name == self.plant_process else signal.SIGINT
 
     def nodes_stopped(self) -> None:
@@ -393,7 +397,8 @@ class GraphRunner(RunnerBase):
         own endpoints before it starts). DDS matches each side on its own: a reliable
         volatile reader that has not matched the writer yet loses what it sends, and in
         lockstep one lost message of the first tick stalls the run. In lockstep every
-        controller must also have matched the plant's /clock."""
+        controller must also have matched the plant's /clock.
+        """
         extra = 1 if self.bag is not None else 0
         # The nodes report their topics' full names (under the run's namespace).
         ns = self.namespace
@@ -478,7 +483,8 @@ class GraphRunner(RunnerBase):
 
     def plant_stats(self) -> dict | None:
         """``OUT/plant_stats.json``, or None when absent or unreadable (the plant could not
-        write it whole: a full disk)."""
+        write it whole: a full disk).
+        """
         try:
             stats = json.loads((self.out / 'plant_stats.json').read_text(encoding='utf-8'))
         except (OSError, ValueError):
@@ -493,7 +499,8 @@ class GraphRunner(RunnerBase):
 
     def check_recorder_space(self) -> None:
         """DiskFull if the recorder reports that the disk filled up: the run stops there
-        (going on would record nothing more)."""
+        (going on would record nothing more).
+        """
         found = self.probe.status_values(': recorder') if self.bag is not None else None
         if found is None:
             return
@@ -594,7 +601,8 @@ class GraphRunner(RunnerBase):
 
     def retry(self, attempt: int) -> None:
         """Stop the stalled attempt and clean up for a new one (a new domain when it is
-        ours, so that nothing of the old processes can be discovered again)."""
+        ours, so that nothing of the old processes can be discovered again).
+        """
         self.stop_all()
         self.probe.close()
         self.probe = None
@@ -657,7 +665,7 @@ class GraphRunner(RunnerBase):
                 result.exit_code, result.message = EXIT_FELL, 'the vehicle fell'
             else:
                 plant = self.processes[self.plant_process]
-                raise GraphError(f'node \'plant\' (pid {plant.pid}) exited with code {code}; '
+                raise GraphError(f"node 'plant' (pid {plant.pid}) exited with code {code}; "
                                  f'last lines of {plant.log_path}:\n{plant.log_tail()}')
         except GraphError as err:
             self.drain_at_stop = True

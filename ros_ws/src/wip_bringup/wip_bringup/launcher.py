@@ -85,7 +85,8 @@ _NAMESPACE = re.compile(r'/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*')
 
 def parse_namespace(text: str | None) -> str:
     """``--namespace``: '' (none) or an absolute namespace ('robot1' -> '/robot1');
-    GraphError (usage) if it is not a valid ROS namespace."""
+    GraphError (usage) if it is not a valid ROS namespace.
+    """
     if text is None or text in ('', '/'):
         return ''
     if not _NAMESPACE.fullmatch(text):
@@ -98,7 +99,8 @@ def parse_namespace(text: str | None) -> str:
 def in_namespace(topic: str, namespace: str) -> str:
     """The name a node of ``namespace`` gives its topic ``topic`` (written absolute, as
     in the graph's tables): the nodes use relative names, so it resolves under their
-    namespace; :data:`GLOBAL_TOPICS` stay as they are."""
+    namespace; :data:`GLOBAL_TOPICS` stay as they are.
+    """
     if not namespace or topic in GLOBAL_TOPICS:
         return topic
     return namespace + '/' + topic.lstrip('/')
@@ -138,7 +140,8 @@ class CpuLatencyRequest:
     CPU share at 200 Hz is several times the cost of the same work back to back
     (docs/realtime.md §2). The price: an idle CPU stays busy polling (power, and the host's
     CPU in a VM); it runs any other task at once, so it takes nothing from them.
-    GraphError (usage) with the reason when the device is missing or not writable."""
+    GraphError (usage) with the reason when the device is missing or not writable.
+    """
 
     def __init__(self, microseconds: int, device: str = CPU_LATENCY_DEVICE) -> None:
         self.microseconds = int(microseconds)
@@ -172,7 +175,8 @@ class Scheduling:
     (:meth:`command_prefix`), not by Python code between fork and exec (``preexec_fn``):
     the launching process has DDS threads, and a child forked from a threaded process
     may deadlock before exec (the subprocess documentation warns of it; a run here hung
-    in such a child). The policy is inherited by every thread the program starts."""
+    in such a child). The policy is inherited by every thread the program starts.
+    """
 
     priority: int = 0
     cpus: tuple[int, ...] = ()
@@ -185,7 +189,8 @@ class Scheduling:
 
     def check(self) -> None:
         """GraphError (usage) naming the option if the values are absurd or this user may
-        not apply them (tried on a throwaway ``true``)."""
+        not apply them (tried on a throwaway ``true``).
+        """
         if not 0 <= self.priority <= 99:
             raise GraphError(f'--rt-priority: must be in 0..99, got {self.priority}',
                              EXIT_USAGE)
@@ -216,12 +221,14 @@ class Scheduling:
 
     def at_start(self) -> 'Scheduling':
         """What a process gets at its start when its priority is raised only once it is up
-        (:meth:`NodeProcess.raise_priority`): its CPUs, the normal policy."""
+        (:meth:`NodeProcess.raise_priority`): its CPUs, the normal policy.
+        """
         return dataclasses.replace(self, priority=0, rt_cpu_limit=0.0)
 
     def command_prefix(self) -> list[str]:
         """``prlimit``/``chrt``/``taskset`` words to put before a program's command line
-        ([] if nothing is asked for); each execs the next, so the pid is the program's."""
+        ([] if nothing is asked for); each execs the next, so the pid is the program's.
+        """
         words: list[str] = []
         limit = self.priority and self.rt_cpu_limit > 0.0
         for tool, wanted in (('prlimit', limit), ('chrt', self.priority),
@@ -275,7 +282,8 @@ FASTDDS_PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_
 def graph_environment(domain_id: int, private: bool = True) -> dict[str, str]:
     """Environment of the node processes: our DDS domain, plain logs; with ``private`` (a
     simulation) localhost-only discovery unless the user chose a range, else (hardware mode)
-    the user's discovery settings as they are."""
+    the user's discovery settings as they are.
+    """
     env = dict(os.environ)
     env['ROS_DOMAIN_ID'] = str(domain_id)
     if private:
@@ -296,7 +304,8 @@ def choose_domain_id() -> int:
     """``$ROS_DOMAIN_ID`` if the user (or a test harness) set it, else a private domain
     reserved on this host for the life of this process (wip_bringup.private_domain); the
     pid-derived default of scripts/_env.sh counts as unset, since two runs' pids can map to
-    one domain."""
+    one domain.
+    """
     value = os.environ.get('ROS_DOMAIN_ID', '').strip()
     defaulted = f'ROS_DOMAIN_ID={value}' in os.environ.get(ROS_DEFAULTS_VARIABLE, '').split()
     if value and not defaulted:
@@ -335,7 +344,8 @@ class RosNetwork:
 
 def ros_network(environ: Mapping[str, str] | None = None) -> RosNetwork:
     """The ROS network settings of ``environ`` (default ``os.environ``), with ROS's own
-    defaults where unset: domain 0, discovery range SUBNET."""
+    defaults where unset: domain 0, discovery range SUBNET.
+    """
     environ = os.environ if environ is None else environ
     value = environ.get('ROS_DOMAIN_ID', '').strip()
     try:
@@ -351,7 +361,8 @@ def use_user_ros_environment(environ: MutableMapping[str, str] | None = None) ->
     """Drop from ``environ`` (default ``os.environ``) the private domain and localhost-only
     discovery that scripts/_env.sh set where the user had none (a robot's base is on the
     user's domain, on the network), keeping every value the user set; return the settings
-    then in force. For hardware mode and check_base; simulations keep their private ones."""
+    then in force. For hardware mode and check_base; simulations keep their private ones.
+    """
     environ = os.environ if environ is None else environ
     for item in environ.pop(ROS_DEFAULTS_VARIABLE, '').split():
         name, _, value = item.partition('=')
@@ -374,7 +385,8 @@ class NodeProcess:
         foreground group): the process gets SIGINT only from the launcher, when the
         launcher chooses. Not a session of its own: with autogroup scheduling (Linux) that
         would also change how the CPU is shared between it and the other nodes.
-        ``stop_signal``: what :meth:`interrupt` sends (SIGINT, as Ctrl-C)."""
+        ``stop_signal``: what :meth:`interrupt` sends (SIGINT, as Ctrl-C).
+        """
         self.name = name
         self.command = command
         self.log_path = log_path
@@ -398,7 +410,8 @@ class NodeProcess:
         SCHED_FIFO on a busy 2-core machine ran their imports at real-time priority; one
         node came up 38 s late (Fast DDS's port lock timed out while a FIFO process held
         the CPU) and one was killed by RLIMIT_RTTIME (docs/realtime.md §3). Start-up needs
-        no real-time priority; the control loop does."""
+        no real-time priority; the control loop does.
+        """
         if not scheduling.priority:
             return
         commands = [['chrt', '--fifo', '--all-tasks', '--pid', str(scheduling.priority),
@@ -445,7 +458,8 @@ class NodeProcess:
 
     def cpu_seconds(self) -> float | None:
         """CPU time [s] used so far (user + system, all threads), from /proc; None if
-        unavailable (not Linux, or the process has exited)."""
+        unavailable (not Linux, or the process has exited).
+        """
         try:
             with open(f'/proc/{self.pid}/stat', encoding='ascii') as stream:
                 fields = stream.read().rsplit(')', 1)[1].split()
@@ -498,7 +512,8 @@ class Probe:
     def own_status_name(self, name: str) -> str | None:
         """A /diagnostics status name ('/robot1/eso: role') without the run's namespace
         ('/eso: role'), or None for a node of another namespace (/diagnostics is global:
-        another vehicle of the domain reports there too)."""
+        another vehicle of the domain reports there too).
+        """
         node, sep, rest = name.partition(':')
         parent = node.rpartition('/')[0]
         if parent != self.namespace:
@@ -573,7 +588,8 @@ class Probe:
 
 def viewer_wanted(options) -> bool:
     """``options.viewer`` if set, else whether anyone will see its topics (a bag is
-    recorded or the live view is served)."""
+    recorded or the live view is served).
+    """
     if options.viewer is not None:
         return bool(options.viewer)
     return options.record is not None or options.foxglove_port is not None
@@ -726,7 +742,7 @@ def add_view_arguments(parser: argparse.ArgumentParser) -> None:
     """--foxglove [PORT], --foxglove-host, --viewer/--no-viewer (simulation and hardware mode)."""
     parser.add_argument('--foxglove', nargs='?', type=foxglove_port, const=FOXGLOVE_PORT,
                         default=None, metavar='PORT',
-                        help='serve the graph\'s topics live over the Foxglove WebSocket '
+                        help="serve the graph's topics live over the Foxglove WebSocket "
                         f'protocol on PORT (default {FOXGLOVE_PORT}; 0 = any free port), '
                         'with the e-stop services /wip/estop/{engage,release,reset}')
     parser.add_argument('--foxglove-host', default='127.0.0.1', metavar='ADDRESS',

@@ -79,7 +79,8 @@ def declarations(node: str) -> dict[str, Declared]:
 def section_matches(key: str, node: str) -> bool:
     """Whether the params-file section ``key`` (``/**``, ``eso``, ``/eso``, ``/**/eso``,
     ``/robot/eso``...) applies to the node ``node``: its last name component as a glob
-    (``**`` and ``*`` match every node), whatever the namespace."""
+    (``**`` and ``*`` match every node), whatever the namespace.
+    """
     pattern = str(key).strip().rstrip('/')
     last = pattern.rsplit('/', 1)[-1] if pattern else ''
     if last in ('', '*', '**'):
@@ -96,7 +97,8 @@ def _nearest(name: str, candidates: Iterable[str]) -> str:
 
 def _ros_typed(name: str, value: Any, field_type: Any) -> None:
     """ConfigError if ROS would refuse ``value`` for a parameter declared with the type of
-    ``field_type`` (rclpy: 'Wrong parameter type'): ROS reads ``1`` as an integer."""
+    ``field_type`` (rclpy: 'Wrong parameter type'): ROS reads ``1`` as an integer.
+    """
     origin = typing.get_origin(field_type)
     if origin is tuple:
         element = typing.get_args(field_type)[0]
@@ -128,7 +130,8 @@ def check_params_files(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Se
     for a run of the nodes ``nodes``; ``generated`` is the run's own params file, which
     comes first on each command line (the sections a node builds from its parameters are
     checked with it). Raises :class:`ParamsError` (one line) on the first problem; returns
-    warnings (a section for a known node that this run does not start)."""
+    warnings (a section for a known node that this run does not start).
+    """
     registry = node_registry()
     warnings: list[str] = []
     running = [n for n in nodes if n in registry]
@@ -174,7 +177,8 @@ def _check_groups(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequenc
                   generated: Mapping[str, Any]) -> None:
     """Each node's groups built from its merged parameters (generated file, then each
     file's matching sections in order) as the node builds them: the checks across fields
-    of a group (a dataclass's ``validate``)."""
+    of a group (a dataclass's ``validate``).
+    """
     for node in nodes:
         merged = flatten(generated.get(node, {}).get('ros__parameters', {}))
         given = set()
@@ -213,7 +217,8 @@ def _check_groups(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequenc
 
 def check_remap(text: str) -> tuple[str, str]:
     """``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; :class:`ParamsError` on a bad
-    rule (not FROM:=TO, or a side that is not a valid ROS topic name)."""
+    rule (not FROM:=TO, or a side that is not a valid ROS topic name).
+    """
     source, sep, target = text.partition(':=')
     source, target = source.strip(), target.strip()
     if not sep or not source or not target or ':=' in target:
@@ -233,7 +238,7 @@ def check_remap(text: str) -> tuple[str, str]:
 def unmatched_remaps(remaps: Iterable[tuple[str, str]], topics: Iterable[str]) -> list[str]:
     """A warning for each rule whose FROM is none of ``topics`` (it would change nothing)."""
     topics = set(topics)
-    return [f'--remap {source}:={target}: no topic {source} in this run\'s graph (the rule '
+    return [f"--remap {source}:={target}: no topic {source} in this run's graph (the rule "
             f'changes nothing){_nearest(source, topics)}'
             for source, target in remaps if source not in topics]
 
@@ -251,7 +256,8 @@ def check_run_inputs(paths: Sequence[str], files: Sequence[Mapping[str, Any]],
     """:func:`check_params_files` of the parsed ``files`` (given as ``paths``) and the
     :func:`unmatched_remaps` warnings against ``topics`` (with :data:`OTHER_TOPICS`, the
     viewer's and the effort topics the files set), for run_graph's hardware mode and
-    check_base; GraphError (exit 2) with the one-line problem. Returns the warnings."""
+    check_base; GraphError (exit 2) with the one-line problem. Returns the warnings.
+    """
     from wip_viewer.viewer_core import VIEWER_TOPICS
     from .launcher import EXIT_USAGE, GraphError
     try:

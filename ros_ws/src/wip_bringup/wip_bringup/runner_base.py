@@ -51,7 +51,8 @@ STOP_EXIT_CODES = tuple(128 + int(number) for number in STOP_SIGNALS)
 
 class StopRequested(KeyboardInterrupt):
     """SIGTERM or SIGHUP: a KeyboardInterrupt, so that every place that stops cleanly on
-    Ctrl-C does on these too; ``signum`` says which."""
+    Ctrl-C does on these too; ``signum`` says which.
+    """
 
     def __init__(self, signum: int) -> None:
         super().__init__(signal.Signals(signum).name)
@@ -67,7 +68,8 @@ def stop_signals():
     """SIGTERM and SIGHUP raise :class:`StopRequested` in the main thread while a run is
     in this block, and SIGINT KeyboardInterrupt: set here too, because a program started in
     the background by a non-interactive shell (a CI step, ``cmd &``) inherits SIGINT
-    ignored, and Python then installs no handler of its own."""
+    ignored, and Python then installs no handler of its own.
+    """
     if threading.current_thread() is not threading.main_thread():
         yield   # handlers can only be set from the main thread; the caller stops it
         return
@@ -195,7 +197,8 @@ class RunnerBase:
         nodes' full names ('/robot1/eso': a key without a leading slash names a node of
         the root namespace only), and the odometry frames get the namespace as a prefix
         ('robot1/odom', 'robot1/base_link': the usual frame_prefix of a robot among
-        several; 'map' stays shared). A --params-file of the user comes after it."""
+        several; 'map' stays shared). A --params-file of the user comes after it.
+        """
         if not self.namespace:
             return
         text = params_file.read_text(encoding='utf-8')
@@ -243,7 +246,8 @@ class RunnerBase:
                         extra_logs: tuple[str, ...] = ()) -> pathlib.Path:
         """Check and create the run directory (nothing written before: see
         :func:`~wip_bringup.launcher.prepare_run_directory`), remove the ``stale`` outputs
-        of an earlier run, write ``OUT/scenario.yaml``; returns its path."""
+        of an earlier run, write ``OUT/scenario.yaml``; returns its path.
+        """
         self.locks = prepare_run_directory(self.out, self.bag, extra_logs=extra_logs)
         self.prepared = True
         for name in stale:
@@ -255,7 +259,8 @@ class RunnerBase:
     def recorder_parameters(self, topics: list[str],
                             discovery_period: float) -> dict[str, Any] | None:
         """The recorder's parameters (None without --record): ``topics`` and, when the
-        viewer runs, its topics."""
+        viewer runs, its topics.
+        """
         if self.bag is None:
             return None
         topics = list(topics) + (list(VIEWER_TOPICS) if self.options.viewer else [])
@@ -266,7 +271,8 @@ class RunnerBase:
 
     def view_parameters(self, model, position_std: float | None = None) -> dict[str, dict]:
         """Params-file sections of the viewer (the vehicle drawn with ``model``'s
-        dimensions) and of the Foxglove bridge, for those that run."""
+        dimensions) and of the Foxglove bridge, for those that run.
+        """
         options = self.options
         view: dict[str, dict] = {}
         if options.viewer:
@@ -283,7 +289,8 @@ class RunnerBase:
 
     def controller_processes(self) -> list[str]:
         """'controllers' (composed: the six nodes in one process), one per node (separate),
-        or none of their own (single: they are in the simulation process)."""
+        or none of their own (single: they are in the simulation process).
+        """
         layout = self.options.layout
         if layout == 'single':
             return []
@@ -304,12 +311,14 @@ class RunnerBase:
 
     def extra_arguments(self, name: str) -> tuple[list[str], list[str]]:
         """Hook: (params files after the generated one, ROS arguments after the node name)
-        of the process ``name``."""
+        of the process ``name``.
+        """
         return [], []
 
     def commands(self, params_file: pathlib.Path) -> dict[str, list[str]]:
         """The command line of every process, in start order (the recorder first: it must
-        not miss the start)."""
+        not miss the start).
+        """
         names = ((['recorder'] if self.bag is not None else []) + self.controller_processes()
                  + self.extra_processes() + self.view_nodes())
         out = {}
@@ -330,7 +339,8 @@ class RunnerBase:
     def scheduled(self, name: str) -> bool:
         """Whether the process ``name`` gets ``options.scheduling``: the controllers only
         (single: the simulation process holds them, and the plant with them). Nothing else
-        (the plant, the recorder, the viewer, the bridge) may take the CPU from them."""
+        (the plant, the recorder, the viewer, the bridge) may take the CPU from them.
+        """
         return name in self.controller_processes() or name == 'simulation'
 
     def stop_signal(self, name: str) -> int:
@@ -397,7 +407,8 @@ class RunnerBase:
         """Until the probe sees every node (:meth:`missing_from_view`), then a /diagnostics
         message of every node sent after that moment (the probe's view can be complete
         before two *other* nodes have matched each other; their exchange takes
-        milliseconds, the wait up to 1 s) and no :meth:`unmatched_endpoints`."""
+        milliseconds, the wait up to 1 s) and no :meth:`unmatched_endpoints`.
+        """
         nodes = self.node_names()
         deadline = time.monotonic() + self.options.discovery_timeout
         missing = ['(not checked yet)']
@@ -463,7 +474,8 @@ class RunnerBase:
 
     def shut_down(self, result: RunResult) -> None:
         """The end of every run, whatever happened: the nodes' last /diagnostics into
-        ``result``, every process stopped, the probe closed."""
+        ``result``, every process stopped, the probe closed.
+        """
         if self.probe is not None:
             self.probe.spin(0.05)
             result.node_diagnostics = {
@@ -502,7 +514,8 @@ class RunnerBase:
 
     def write_output(self, result: RunResult, path: pathlib.Path, data: bytes | str) -> None:
         """Write one output atomically; a full disk is said in ``result`` (and on stderr),
-        not raised: the run's other outputs are still written where they fit."""
+        not raised: the run's other outputs are still written where they fit.
+        """
         try:
             write_atomic(path, data)
         except OSError as err:
@@ -517,7 +530,8 @@ class RunnerBase:
 
 def print_result(result: RunResult, formatted: Callable[[RunResult], str]) -> int:
     """The end of ``scripts/run_graph`` in either mode: the result on stdout (a run refused
-    before anything ran: only its error, on stderr); the exit status."""
+    before anything ran: only its error, on stderr); the exit status.
+    """
     if result.exit_code == EXIT_USAGE:  # Refused before anything ran: nothing to show.
         print(f'run_graph: error: {result.message}', file=sys.stderr)
         return EXIT_USAGE
@@ -527,7 +541,8 @@ def print_result(result: RunResult, formatted: Callable[[RunResult], str]) -> in
 
 def options_from_args(args, **own) -> dict[str, Any]:
     """Keyword arguments of either mode's options from ``scripts/run_graph``'s parsed
-    arguments: those both modes have, then the mode's ``own``."""
+    arguments: those both modes have, then the mode's ``own``.
+    """
     return dict(scenario=args.scenario, record=args.record, duration=args.duration,
                 discovery_timeout=args.discovery_timeout, quiet=args.quiet,
                 scheduling=Scheduling(priority=args.rt_priority, cpus=tuple(args.cpu_affinity),

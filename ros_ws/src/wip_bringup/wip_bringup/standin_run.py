@@ -119,7 +119,8 @@ class StandinRun:
 
 def controller_cpu_fraction(result: HardwareResult) -> float | None:
     """CPU time of the controller processes (not the recorder) / wall time: the share of
-    one core the controllers used."""
+    one core the controllers used.
+    """
     if not result.wall_time_s:
         return None
     return sum(c for n, c in result.cpu_s.items() if n != 'recorder') / result.wall_time_s
@@ -261,7 +262,8 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
 
 def pinned_cpus() -> tuple[int, int] | None:
     """(base CPU, controllers' CPU): the first and the last CPU this process may use, or
-    None with fewer than two."""
+    None with fewer than two.
+    """
     available = sorted(os.sched_getaffinity(0))
     return (available[0], available[-1]) if len(available) >= 2 else None
 
@@ -277,7 +279,8 @@ def permitted(scheduling: Scheduling) -> bool:
 
 def engaged(result: HardwareResult | Any) -> bool:
     """Whether the controllers' safety layer reached ACTIVE in a run (a
-    :class:`HardwareResult` or a running runner: both keep ``safety_events``)."""
+    :class:`HardwareResult` or a running runner: both keep ``safety_events``).
+    """
     return any(event['state'] == 'ACTIVE' for event in result.safety_events)
 
 
@@ -302,7 +305,8 @@ def _when_engaged(holder: dict, during: Callable, base: subprocess.Popen,
 def _base_ends_now(runner) -> None:
     """The base is stopped now, before its run time: from here its inputs stop, and a FAULT
     is the end of the run, not a failure (``HardwareOptions.base_end_after``, counted from
-    the engagement, which the outcome reads when the run is over)."""
+    the engagement, which the outcome reads when the run is over).
+    """
     start = next(e['t'] for e in runner.safety_events if e['state'] == 'ACTIVE')
     now = time.monotonic() - runner.t0
     current = runner.options.base_end_after
@@ -331,7 +335,8 @@ def realtime_benchmark(directory: pathlib.Path, seconds: float = 20.0,
     priority, pinned CPUs, CPU wake-up latency request [us]) case, side by side: CPU share
     of one core, sensor -> command latency, the command age and gaps seen by the base.
     A case this user may not run (the latency request needs root) is a row with
-    ``skipped`` and the reason. ``scripts/bench`` prints it."""
+    ``skipped`` and the reason. ``scripts/bench`` prints it.
+    """
     rows: list[dict[str, Any]] = []
     for layout, priority, pin, cpu_latency in cases:
         name = (f'{layout}{"_rt" if priority else ""}{"_pinned" if pin else ""}'

@@ -99,7 +99,7 @@ def body_inertias(params: WipParameters) -> dict[str, float]:
     own_yaw = p.yaw_inertia - 2.0 * wheel_diametral                   # Ĩ_z
     if own_yaw <= 0.0:
         raise ValueError(f"plant model 'mujoco': yaw_inertia {p.yaw_inertia} kg m^2 must "
-                         f'exceed the two wheels\' diametral inertias 2 J_w / 2 = '
+                         f"exceed the two wheels' diametral inertias 2 J_w / 2 = "
                          f'{2 * wheel_diametral} kg m^2 (they are part of it)')
     own_roll = max(own_yaw, p.body_pitch_inertia_com - own_yaw)         # Ĩ_x
     return {'base_mass': base_mass, 'base_com': com,
@@ -159,7 +159,8 @@ def mjcf(params: WipParameters, contact: ContactConfig, timestep: float,
          terrain: TerrainConfig | None = None, wheel_friction: float = 0.0) -> str:
     """The MJCF model of the WIP on the ground (see the module docstring); the wheels'
     viscous axle friction is their hinges' damping (a torque against the joint's rate,
-    which is the wheel's rate against the body, as in the equation plants)."""
+    which is the wheel's rate against the body, as in the equation plants).
+    """
     p = params
     b = body_inertias(p)
     r, half = p.wheel_radius, 0.5 * p.track_width
@@ -258,7 +259,8 @@ class MujocoPlant:
     def hold_floats(self, state: tuple, tau_left: float, tau_right: float,
                     disturbance: np.ndarray, dt: float) -> tuple:
         """``len(disturbance)`` steps of ``dt`` [s] with the torques held; returns the
-        new 8-tuple. ``disturbance``: (n, 3) rows of (d1, d2, d3), one per step."""
+        new 8-tuple. ``disturbance``: (n, 3) rows of (d1, d2, d3), one per step.
+        """
         if dt != self.timestep:
             raise ValueError(f'the MuJoCo plant was built for steps of {self.timestep} s, '
                              f'got {dt} s')
@@ -287,7 +289,8 @@ class MujocoPlant:
                       disturbance_fn: Callable[[float], Sequence[float]] | None, t0: float,
                       dt: float, n_steps: int) -> np.ndarray:
         """``n_steps`` steps of ``dt`` [s] from ``t0`` [s], torques held, the disturbance
-        sampled at each step's start (as :meth:`Plant.simulate_hold`)."""
+        sampled at each step's start (as :meth:`Plant.simulate_hold`).
+        """
         values = tuple(float(v) for v in state)
         if len(values) != STATE_SIZE or not math.isfinite(math.fsum(values)):
             raise ValueError(f'plant state must be {STATE_SIZE} finite numbers, got {values}')
@@ -324,7 +327,8 @@ class MujocoPlant:
     def wheel_slip(self) -> tuple[float, float]:
         """(left, right) slip speed [m/s] now: r times the wheel's absolute spin rate
         minus its centre's forward ground speed (0 when rolling without slip; > 0 when
-        the wheel spins faster than the ground moves under it)."""
+        the wheel spins faster than the ground moves under it).
+        """
         mj = _import_mujoco()
         model, data = self._model, self._data
         out = []
@@ -351,7 +355,8 @@ class MujocoPlant:
 
     def _disturbance_load(self, quat, d1, d2, d3) -> tuple:
         """xfrc_applied (force, torque at the base's centre of mass, world frame) that
-        adds (d1, d2, d3) to (ω̇, υ̇, θ̈): the generalised forces M(θ) d (module docstring)."""
+        adds (d1, d2, d3) to (ω̇, υ̇, θ̈): the generalised forces M(θ) d (module docstring).
+        """
         phi, theta, _ = _euler_zyx(quat)
         s, c = math.sin(theta), math.cos(theta)
         cp, sp = math.cos(phi), math.sin(phi)
@@ -366,7 +371,8 @@ class MujocoPlant:
     def _settle(self) -> float:
         """Height [m] of the axle resting on the compliant contacts, found by letting the
         upright vehicle settle (zero torque; upright is an equilibrium), on flat ground
-        before any terrain."""
+        before any terrain.
+        """
         data = self._data
         data.qpos[:] = 0.0
         terrain = self.terrain
@@ -403,7 +409,8 @@ class MujocoPlant:
     def _terrain_clearance(self, x: float) -> float:
         """Height [m] to lift a state reset at ``x`` so that no wheel starts inside the
         terrain: on the slope, the wheel centre r / cos(a) above its surface (tangent to
-        it); over a bump, its full height (the wheel then drops onto it)."""
+        it); over a bump, its full height (the wheel then drops onto it).
+        """
         terrain, r = self.terrain, self._r
         lift = 0.0
         if terrain.slope_grade > 0.0 and x > terrain.slope_start:
@@ -446,5 +453,6 @@ def make_plant(params: WipParameters, contact: ContactConfig, timestep: float,
                terrain: TerrainConfig | None = None,
                wheel_friction: float = 0.0) -> MujocoPlant:
     """The plant of ``plant: {model: mujoco}`` (called by
-    :func:`wip_control.core.plant.scenario_plant`)."""
+    :func:`wip_control.core.plant.scenario_plant`).
+    """
     return MujocoPlant(params, contact, timestep, terrain, wheel_friction)

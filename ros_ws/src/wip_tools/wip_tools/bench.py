@@ -90,7 +90,8 @@ def bench_plant_models(scenario, repeats: int) -> dict:
     """The in-process real-time factor of ``scenario`` on each plant model, the models
     interleaved run by run (the machine's load drifts alike for all): medians by wall and
     by CPU time, per model. A model that cannot be built (mujoco not installed) is
-    reported as skipped."""
+    reported as skipped.
+    """
     per_model = {model: dataclasses.replace(scenario, plant=dataclasses.replace(
         scenario.plant, model=PlantConfig(model))) for model in MODELS}
     factors: dict[str, dict[str, list[float]]] = {m: {'wall': [], 'cpu': []} for m in MODELS}
@@ -142,7 +143,8 @@ def bench_realtime(seconds: float) -> list[dict]:
 
 def bench_rclpy_floor(seconds: float) -> dict:
     """CPU of receiving the sensor streams alone (:mod:`wip_tools.rclpy_floor`), taken as
-    message objects and serialized (as the eso node takes them), alternately."""
+    message objects and serialized (as the eso node takes them), alternately.
+    """
     try:
         from wip_tools.rclpy_floor import measure_floor  # needs ROS
     except ImportError as err:
@@ -153,7 +155,8 @@ def bench_rclpy_floor(seconds: float) -> dict:
 
 def bench_node_cost(seconds: float, pairs: int = 2) -> dict:
     """The controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`),
-    back to back and paced at 200 Hz, alternately, each in a process of its own."""
+    back to back and paced at 200 Hz, alternately, each in a process of its own.
+    """
     runs: dict[str, list[dict]] = {'back_to_back': [], 'paced': []}
     for _ in range(pairs):
         for key, pace in (('back_to_back', 0), ('paced', 1)):
@@ -268,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         if 'failed' in cost:
             print(f'-> node cost: {cost}')
         else:
-            print('the six nodes\' own code, fed directly (no DDS take, no wake-up by a '
+            print("the six nodes' own code, fed directly (no DDS take, no wake-up by a "
                   'message), thread CPU per tick, medians: back to back '
                   + ' / '.join(f'{r["median_us"]:.0f}' for r in cost['back_to_back'])
                   + ' us; paced at 200 Hz '
@@ -279,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
         report['rclpy_floor'] = floor
         for kind, measured in floor.items():
             if 'cpu_fraction' in measured:
-                print(f'rclpy floor, taken as {kind}: a process that only receives the base\'s '
+                print(f"rclpy floor, taken as {kind}: a process that only receives the base's "
                       f'two sensor streams ({measured["messages_per_s"]:.0f} msg/s, empty '
                       f'callbacks, {measured["executor"]}): '
                       f'{100 * measured["cpu_fraction"]:.1f} % of a core, '

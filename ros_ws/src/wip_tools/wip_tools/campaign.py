@@ -125,7 +125,8 @@ _INDEX = re.compile(r'^([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)$')
 
 def _split_key(key: str, where: str) -> list:
     """'disturbances.longitudinal[0].amplitude' -> ['disturbances', 'longitudinal', 0,
-    'amplitude']."""
+    'amplitude'].
+    """
     if not isinstance(key, str) or not key:
         raise CampaignError(f'{where}: a key must be a dotted scenario key, got {key!r}')
     parts: list = []
@@ -437,7 +438,8 @@ def execute(campaign: Campaign, specs: list[dict], jsonl: pathlib.Path,
             scheduler: str | None = None, workers: int | None = None,
             progress: bool = True) -> list[dict]:
     """Run the specs on Dask (a LocalCluster of ``workers`` processes, or the cluster at
-    ``scheduler``), appending each finished row to ``jsonl``; returns all rows by run."""
+    ``scheduler``), appending each finished row to ``jsonl``; returns all rows by run.
+    """
     from dask.distributed import Client, LocalCluster, as_completed
     from tqdm import tqdm
 
@@ -735,7 +737,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--no-figures', action='store_true', help='skip the PNG figures')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     parser.add_argument('--dry-run', action='store_true',
-                        help='validate, print the runs\' values, run nothing')
+                        help="validate, print the runs' values, run nothing")
     add_exit_codes(parser)
     args = parser.parse_args(argv)
     if args.workers is not None and args.workers < 1:

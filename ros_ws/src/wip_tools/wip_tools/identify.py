@@ -81,7 +81,8 @@ class Identification:
 
 def gaussian_lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:
     """Zero-phase low-pass: convolution with a Gaussian whose −3 dB point is ``cutoff_hz``
-    (pure numpy, symmetric kernel so no phase lag between regressors and torques)."""
+    (pure numpy, symmetric kernel so no phase lag between regressors and torques).
+    """
     sigma_t = math.sqrt(math.log(2.0)) / (2.0 * math.pi * cutoff_hz)   # |H| = 1/√2 at fc
     half = max(1, int(math.ceil(4.0 * sigma_t / dt)))
     k = np.exp(-0.5 * (np.arange(-half, half + 1) * dt / sigma_t) ** 2)
@@ -95,7 +96,8 @@ def _sensor_group(record: Mapping, wheel_radius: float,
     (gyro), and υ = r (φ̇ + θ̇) from the mean wheel joint angle φ (a joint angle is measured
     against the body, so the body's tilt rate is added back; without it when the encoders
     measure rolling angles). φ̇ by central differences: the regressors' low-pass removes
-    what that amplifies."""
+    what that amplifies.
+    """
     encoders = record['encoders'] if 'encoders' in record else None
     imu = record['imu'] if 'imu' in record else None
     if encoders is None or imu is None or len(encoders['t']) < 3 or len(imu['t']) < 3:
@@ -122,7 +124,8 @@ def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters()
     truth: the torques of row k were applied over [t_{k−1}, t_k) (core/runner.py), so they
     are shifted back one row to pair with the interval they acted over. estimate and
     sensors: the torques come from the wheels group (applied from its stamp on),
-    interpolated."""
+    interpolated.
+    """
     if source == 'sensors':
         group = _sensor_group(record, wheel_radius, encoders_relative_to_body)
     else:
@@ -223,7 +226,8 @@ def _has(record: Mapping, group: str) -> bool:
 
 def _best_source(record: Mapping) -> str:
     """truth (a simulation's), else the sensors, else the state estimate (which the ESOs'
-    lag and filtering bias: docs/identification.md)."""
+    lag and filtering bias: docs/identification.md).
+    """
     if _has(record, 'truth'):
         return 'truth'
     if _has(record, 'encoders') and _has(record, 'imu'):

@@ -35,7 +35,8 @@ ENGAGE_TIMEOUT = 10.0   # [s] of paced ticks at most for the safety layer to eng
 
 def measure(seconds: float, paced: bool) -> dict:
     """In a process of its own (it initialises rclpy's default context): thread CPU per tick [us] (median, mean, p90) over ``seconds`` of 200 Hz ticks (the
-    first fifth, start-up and warm-up, left out), and how many ticks ran."""
+    first fifth, start-up and warm-up, left out), and how many ticks ran.
+    """
     import rclpy  # ROS only where measured
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import Imu, JointState

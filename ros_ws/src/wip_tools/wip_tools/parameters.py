@@ -72,7 +72,8 @@ def _number(value: Any) -> str:
 
 def _component(value: Any) -> str:
     """A disturbance component (a small dataclass) as ``kind(field=value, ...)``: only the
-    fields that differ from their defaults, as one would write them in the YAML file."""
+    fields that differ from their defaults, as one would write them in the YAML file.
+    """
     fields = [f for f in dataclasses.fields(value)
               if f.name != 'kind' and getattr(value, f.name) != f.default]
     inner = ', '.join(f'{f.name}={_value(getattr(value, f.name))}' for f in fields)

@@ -77,7 +77,8 @@ def _receive(seconds: float, raw: bool) -> dict:
 
 def measure_floor(seconds: float = 10.0, raw: bool = False) -> dict:
     """Both processes in a DDS domain of their own; the receiver's measurement
-    (``raw``: the messages are taken serialized)."""
+    (``raw``: the messages are taken serialized).
+    """
     from wip_bringup.launcher import choose_domain_id, graph_environment
     env = graph_environment(choose_domain_id())
     module = [sys.executable, '-m', 'wip_tools.rclpy_floor']

@@ -237,7 +237,8 @@ TIMINGS = ('auto', 'stamps', 'receive')
 
 def resolve_timing(run: RecordedRun, timing: str = 'auto') -> str:
     """'stamps' for a bag recorded in lockstep simulation time (it holds /clock), else
-    'receive'; an explicit 'stamps' or 'receive' is returned as is."""
+    'receive'; an explicit 'stamps' or 'receive' is returned as is.
+    """
     if timing not in TIMINGS:
         raise ValueError(f'timing {timing!r} is not one of {TIMINGS}')
     if timing == 'auto':
@@ -756,7 +757,8 @@ def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, qui
 
 def _rename_bag(source, target):
     """Move the finished bag into place (written in a directory also named ``bag``, so its
-    files already have the names rosbag2 gives them: ``bag_<i>.mcap``)."""
+    files already have the names rosbag2 gives them: ``bag_<i>.mcap``).
+    """
     source.rename(target)
 
 
@@ -781,7 +783,7 @@ def main(argv=None):
         'what was recorded.')
     parser.add_argument('bag', help='bag directory or .mcap file')
     parser.add_argument('--scenario', help='scenario YAML with the controller parameters '
-                        '(default: the bag\'s, else the paper\'s)')
+                        "(default: the bag's, else the paper's)")
     parser.add_argument('--out', required=True, help='output directory')
     parser.add_argument('--prefix', default=DEFAULT_PREFIX,
                         help='namespace of the recomputed topics (default /rerun)')

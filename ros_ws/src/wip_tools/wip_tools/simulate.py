@@ -48,7 +48,8 @@ def progress_printer(stream=sys.stderr):
 
 def step_printer(program: str, stream=sys.stderr):
     """A progress callback for the long steps of a command (reading a bag, each figure):
-    prints ``program: [elapsed] step`` on ``stream`` (stderr: stdout stays the result)."""
+    prints ``program: [elapsed] step`` on ``stream`` (stderr: stdout stays the result).
+    """
     start = time.perf_counter()
 
     def show(text: str) -> None:
@@ -60,7 +61,8 @@ def step_printer(program: str, stream=sys.stderr):
 def write_run_outputs(out: pathlib.Path, record, scenario: Scenario, metrics: dict,
                       figures: bool = True, progress=None) -> list[pathlib.Path]:
     """metrics.json, timeseries.npz, scenario.yaml, figures/ (PNG and SVG) and report.html
-    into ``out``; ``progress(text)`` is told each step."""
+    into ``out``; ``progress(text)`` is told each step.
+    """
     out.mkdir(parents=True, exist_ok=True)
     # Each file whole or not at all (a crash or Ctrl-C never leaves half a file).
     write_atomic(out / 'metrics.json', json.dumps(metrics, indent=2) + '\n')

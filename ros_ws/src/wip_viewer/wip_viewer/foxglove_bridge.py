@@ -121,7 +121,8 @@ def decode_client_message(topic: str, encoding: str, data: bytes):
 
 class _Listener:
     """foxglove ServerListener: runs on the server's threads, so it only queues work for
-    the node's executor thread (rclpy entities are created there)."""
+    the node's executor thread (rclpy entities are created there).
+    """
 
     def __init__(self, work: queue.SimpleQueue) -> None:
         self.work = work

@@ -74,7 +74,8 @@ def planar_pose_covariance(position_std: float) -> list[float]:
     """Row-major 6x6 covariance of (x, y, z, roll, pitch, yaw) of a 2-D estimate.
 
     All zero (ROS: unknown) when ``position_std`` is 0; else σ² on x and y, the very large
-    :data:`UNOBSERVED_VARIANCE` on z, roll and pitch, and yaw left unknown (0)."""
+    :data:`UNOBSERVED_VARIANCE` on z, roll and pitch, and yaw left unknown (0).
+    """
     cov = np.zeros((6, 6))
     if position_std > 0.0:
         cov[0, 0] = cov[1, 1] = position_std ** 2
@@ -196,7 +197,8 @@ def cdr_stamp_ns(data: bytes) -> int:
 
 class RateGate:
     """True at most once per ``1/rate`` of message stamps (publishes on input, no timer:
-    deterministic in lockstep, where the viewer sees exactly the simulated stamps)."""
+    deterministic in lockstep, where the viewer sees exactly the simulated stamps).
+    """
 
     def __init__(self, rate: float) -> None:
         self.period_ns = int(round(1e9 / float(rate)))

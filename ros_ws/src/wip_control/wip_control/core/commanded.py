@@ -248,7 +248,8 @@ class PathReference(Reference):
 
     def _project(self, x: float, y: float) -> float:
         """Arc length of the point of the path nearest (x, y), not behind the progress
-        (a path that crosses itself is followed in order) and at most one lookahead on."""
+        (a path that crosses itself is followed in order) and at most one lookahead on.
+        """
         best, best_d2 = self.progress, math.inf
         horizon = self.progress + self.lookahead
         for i in range(len(self.points) - 1):

@@ -32,7 +32,8 @@ class ControlOverflow(ValueError):
 
 def _all_finite(total: float, values: tuple) -> bool:
     """Whether every value is finite, given their sum ``total`` (NaN and inf propagate
-    into it, so the values are looked at one by one only when it is not finite)."""
+    into it, so the values are looked at one by one only when it is not finite).
+    """
     return math.isfinite(total) or all(map(math.isfinite, values))
 
 
@@ -128,7 +129,8 @@ class DriveStage:
     def limit(self, tau_omega: float) -> float:
         """Bound on |τυ| [N m]: 2 τmax − |τω| (``core.mixer.drive_torque_limit``). A NaN τω
         gives a NaN bound, which the controller answers with INPUT_INVALID and a finite
-        torque (max(0, NaN) would give 0)."""
+        torque (max(0, NaN) would give 0).
+        """
         if not math.isfinite(tau_omega):
             return math.nan
         return drive_torque_limit(tau_omega, self.max_wheel_torque)
@@ -136,13 +138,15 @@ class DriveStage:
     def is_tick(self, k: int) -> bool:
         """Whether control tick ``k`` (from 0) is a tick of the stage (the MPC's, or with
         re-solving after a push that of its finer grid): the stage takes its inputs, and
-        in lockstep the drive torque is published, at these ticks."""
+        in lockstep the drive torque is published, at these ticks.
+        """
         return k % self.every == 0
 
     def solves(self, k: int, theta_hat: float, f2_hat: float, f3_hat: float) -> bool:
         """Whether the controller solves at tick ``k`` of :meth:`is_tick`: at every
         ``decimation``-th tick, and at the finer grid's while re-solving after a push (or
-        when the estimate shows one now)."""
+        when the estimate shows one now).
+        """
         if k % self.decimation == 0:
             return True
         if not self._fast:
@@ -155,7 +159,8 @@ class DriveStage:
              k: int | None = None) -> MpcResult:
         """Solve once with the bound :meth:`limit`; ``hold``: the result's τυ becomes the
         held torque. ``k``: the control tick (needed with re-solving after a push, for
-        the increment bound and the push's time)."""
+        the increment bound and the push's time).
+        """
         limit = self.limit(tau_omega)
         previous = self.controller.tau_previous
         if self._fast and k is not None:
@@ -175,7 +180,8 @@ class DriveStage:
 
     def _step_fast(self, k, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit):
         """A solve with re-solving after a push: the increment bound of the window and
-        the time since the last solve; a push seen now (re)starts the re-solving."""
+        the time since the last solve; a push seen now (re)starts the re-solving.
+        """
         mpc = self.controller
         dmax = mpc.config.max_delta_torque
         window = k - self.decimation
@@ -232,7 +238,8 @@ class ControlStep:
         """Torques of control tick ``k`` at ``t`` [s]; the MPC solves when ``mpc_tick``
         (``drive.is_tick(k)``) and, with ``decide``, ``drive.solves(k, …)``; its τυ is
         held from this tick on (``hold``, as the graph in lockstep) or when the caller
-        sets ``drive.tau_v`` (a re-run that knows when a real-time mixer got it)."""
+        sets ``drive.tau_v`` (a re-run that knows when a real-time mixer got it).
+        """
         est = pose.estimate
         command = self.guidance.step(t, reference, pose.x, pose.y, est.phi)
         arc = self.yaw.step(est.omega, est.f1, command)

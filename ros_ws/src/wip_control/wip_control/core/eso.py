@@ -144,7 +144,8 @@ def discretise(gains: Sequence[float], epsilon: float, period: float,
 @dataclasses.dataclass(frozen=True)
 class EsoConfig:
     """Tunables of the observers: the paper's three ESOs, eqs. (4) and (8) in [1]_ (gains and
-    ε: Section V), or the gyro-aided design (default; docs/estimation.md)."""
+    ε: Section V), or the gyro-aided design (default; docs/estimation.md).
+    """
 
     yaw_gains: tuple[float, float, float] = param(
         (6.0, 11.0, 6.0), '1', '(alpha1, alpha2, alpha3) of the yaw ESO, eq. (4); '
@@ -196,7 +197,7 @@ class EsoConfig:
         minimum=0.1, maximum=150.0)
     yaw_rate_bandwidth: float = param(
         20.0, 'rad/s', "'gyro': double pole of the reduced-order ESO of the yaw rate "
-        '(gives f1 to the ARC; the yaw disturbances are slower than the tilt\'s and f1 '
+        "(gives f1 to the ARC; the yaw disturbances are slower than the tilt's and f1 "
         'noise drives the adaptation)', minimum=0.1, maximum=150.0)
     longitudinal_bandwidth: float = param(
         60.0, 'rad/s', "'gyro': triple pole of the x_v ESO (eq. (8), gains (3w, 3w^2, "
@@ -229,7 +230,8 @@ class EsoConfig:
 
 class _ChannelEstimate:
     """The read-out of a second-order channel observer (x̂1, x̂2, f̂ at ``_t_prev``),
-    the same for the ESO (25) and the rate-aided channel."""
+    the same for the ESO (25) and the rate-aided channel.
+    """
 
     name: str
     x1: float
@@ -376,7 +378,8 @@ class ExtendedStateObserver(_ChannelEstimate):
 
     def _off_nominal(self, dt: float) -> tuple[float, ...]:
         """Discretisation for an off-nominal period (real-time jitter), cached by the
-        period rounded to :data:`PERIOD_RESOLUTION`."""
+        period rounded to :data:`PERIOD_RESOLUTION`.
+        """
         key = round(dt / PERIOD_RESOLUTION)
         m = self._cached.get(key)
         if m is None:
@@ -502,7 +505,8 @@ class RateAidedChannel(_ChannelEstimate):
 
     def reset(self, initial_output: float, initial_time: float = 0.0) -> None:
         """Angle y0 at ``initial_time`` [s]; rate, bias, disturbance zero. The first
-        update at the same time takes the measured rate as the rate estimate."""
+        update at the same time takes the measured rate as the rate estimate.
+        """
         self._reset_estimate(initial_output, initial_time)
         self.bias = 0.0
         self._t_prev = float(initial_time)
@@ -511,7 +515,8 @@ class RateAidedChannel(_ChannelEstimate):
 
     def update(self, t: float, y: float, rate: float, b_u: float) -> tuple[float, float, float]:
         """Advance to ``t`` [s] with the angle ``y`` [rad], the gyro ``rate`` [rad/s] at t
-        and ``b_u`` [rad/s²] held since the previous update; returns (â, ẑ1, f̂)."""
+        and ``b_u`` [rad/s²] held since the previous update; returns (â, ẑ1, f̂).
+        """
         if not math.isfinite(t + y + rate + b_u):
             raise ValueError(f'{self.name}: non-finite input t={t!r}, y={y!r}, '
                              f'rate={rate!r}, b_u={b_u!r}')

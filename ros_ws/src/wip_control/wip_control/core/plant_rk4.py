@@ -16,7 +16,8 @@ import numpy as np
 def _slopes(k, tv, tw, th, om, v, thd, d1, d2, d3):
     """(ω̇, υ̇, θ̈) at one RK4 stage: :func:`.plant._make_accelerations` for the held wheel
     torques τυ = ``tv``, τω = ``tw``. Inlined into the caller, so the operations and their
-    order are those of the reference step (bit for bit)."""
+    order are those of the reference step (bit for bit).
+    """
     (mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_gain, k_centrifugal,
      k_coriolis, k_reaction, friction_v, friction_w) = k
     # Axle friction, state dependent (with b = 0 these leave tv and tw as they are).
@@ -108,6 +109,7 @@ def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance,
 def warm_up(constant_count: int) -> None:
     """Load or compile :func:`rk4_hold` (about 1 s when compiling; once per process).
 
-    Zero steps: compiles (types only) without evaluating the dynamics."""
+    Zero steps: compiles (types only) without evaluating the dynamics.
+    """
     rk4_hold((1.0,) * constant_count, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
              0.0, 0.0, np.zeros((0, 3)), 1e-3)

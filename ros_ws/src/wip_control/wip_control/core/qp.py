@@ -410,7 +410,8 @@ def _release_workspaces() -> None:
     nanobind, ProxSuite's binding layer, reports every object of its types alive at its
     module's teardown as a leak: about 30 lines of 'leaked instance … proxqp.dense.QP …
     likely a reference counting issue' ended every controller log. atexit handlers run
-    before that teardown."""
+    before that teardown.
+    """
     for solver in list(_LIVE_SOLVERS):
         solver.reset()
 

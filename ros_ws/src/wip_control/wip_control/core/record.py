@@ -75,7 +75,8 @@ class RecordBuffer:
 
     def appender(self) -> Callable[[tuple], None]:
         """``append`` without the block check (the caller calls :meth:`flush`); valid for
-        the buffer's lifetime (the pending list is emptied in place, never replaced)."""
+        the buffer's lifetime (the pending list is emptied in place, never replaced).
+        """
         return self._rows.append
 
     def flush(self) -> None:

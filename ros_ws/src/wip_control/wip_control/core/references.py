@@ -62,7 +62,8 @@ def _from_derivatives(x: float, y: float, phi: float, xd: float, yd: float, xdd:
 def _speed_and_yaw_rate(xd: float, yd: float, xdd: float, ydd: float,
                         *_third: float) -> tuple[float, float]:
     """(υ_r, ω_r) from the derivatives: the expressions of :func:`_from_derivatives`,
-    so the same floats."""
+    so the same floats.
+    """
     v2 = xd * xd + yd * yd
     return math.sqrt(v2), (xd * ydd - yd * xdd) / v2
 
@@ -161,7 +162,8 @@ class Circle(Reference):
 
 class StraightLine(Reference):
     """Uniform motion on a straight line from ``start`` [m] along ``heading`` [rad] at
-    ``speed`` [m/s] (≥ 0)."""
+    ``speed`` [m/s] (≥ 0).
+    """
 
     def __init__(self, start: Sequence[float] = (0.0, 0.0), heading: float = 0.0,
                  speed: float = 0.5) -> None:
@@ -543,7 +545,8 @@ class TimeScaled(Reference):
 
     def rate_at(self, s: float) -> float:
         """σ(s) = ds/dt ∈ (0, 1] (linear between the grid nodes): the σ of
-        :meth:`_sigma_and_slope`, without the slope."""
+        :meth:`_sigma_and_slope`, without the slope.
+        """
         if s <= 0.0:
             return self._sigma_and_slope(s)[0]
         u = s / self.step
@@ -605,7 +608,8 @@ class TimeScaled(Reference):
 
     def _timed(self, t: float) -> ReferenceState:
         """The re-timed state at t, without the speed lead: the base's pose at s(t), υ_r σ,
-        ω_r σ and σ (ω̇_r σ + ω_r dσ/ds)."""
+        ω_r σ and σ (ω̇_r σ + ω_r dσ/ds).
+        """
         s = self.progress(t)
         ref = self.base.sample(s)
         sigma, d_sigma = self._sigma_and_slope(s)
@@ -676,7 +680,8 @@ MAX_SHARED_CONFIGURATIONS = 4
 
 def shared_tables(key: Hashable) -> RetimingTables:
     """The tables this thread shares among the TimeScaled of configuration ``key`` (new
-    ones the first time)."""
+    ones the first time).
+    """
     cache = getattr(_shared, 'tables', None)
     if cache is None:
         cache = _shared.tables = collections.OrderedDict()
@@ -847,7 +852,8 @@ def _make_waypoints(config: ReferenceConfig) -> Waypoints:
 
 def make_reference(config: ReferenceConfig | None = None) -> Reference:
     """Build the reference selected by ``config.kind`` (default: the paper's trifolium),
-    time-scaled (:class:`TimeScaled`) if ``config.time_scaling``."""
+    time-scaled (:class:`TimeScaled`) if ``config.time_scaling``.
+    """
     config = config if config is not None else ReferenceConfig()
     config.validate()
     if config.kind in COMMANDED_KINDS:
@@ -886,7 +892,8 @@ def _make_base_reference(config: ReferenceConfig) -> Reference:
 def make_commanded(config: ReferenceConfig,
                    t0: float = 0.0) -> CmdVelReference | PathReference:
     """The reference of a commanded kind (``cmd_vel``, ``path``), at rest at the start
-    pose (``line_start``, ``line_heading``) at time t0 [s] until commanded."""
+    pose (``line_start``, ``line_heading``) at time t0 [s] until commanded.
+    """
     limits = UnicycleLimits(config.commanded_max_speed, config.commanded_max_acceleration,
                             config.commanded_max_yaw_rate,
                             config.commanded_max_yaw_acceleration)

@@ -101,7 +101,8 @@ class InitialStateConfig:
 @dataclasses.dataclass(frozen=True)
 class PlantSection:
     """The true plant: model, parameter overrides of :class:`WipParameters` and, for an
-    engine model, the wheel-ground contact."""
+    engine model, the wheel-ground contact.
+    """
 
     model: PlantConfig = dataclasses.field(default_factory=PlantConfig)
     parameters: WipParameters = dataclasses.field(default_factory=WipParameters)
@@ -157,14 +158,16 @@ class Scenario:
     def drive_decimation(self) -> int:
         """Control periods between the drive stage's ticks, where it takes its inputs and
         (lockstep) publishes a drive torque: ``mpc.fast_resolve_period`` when set, else
-        ``mpc.sampling_period`` (``DriveStage.is_tick``)."""
+        ``mpc.sampling_period`` (``DriveStage.is_tick``).
+        """
         fast = self.mpc_fast_decimation
         return fast if fast is not None and fast < self.mpc_decimation else self.mpc_decimation
 
     @property
     def mpc_fast_decimation(self) -> int | None:
         """Control periods per ``mpc.fast_resolve_period`` (None: off, 0 or not shorter
-        than ``mpc.sampling_period``)."""
+        than ``mpc.sampling_period``).
+        """
         if not resolves_faster(self.mpc.sampling_period, self.mpc.fast_resolve_period):
             return None
         return int(round(self.mpc.fast_resolve_period * self.rates.control_rate))
@@ -196,7 +199,7 @@ _TOP_LEVEL_SCALARS = {
 #: :func:`scenario_from_mapping` (for the parameter reference).
 TOP_LEVEL_RANGES = {
     'name': ('-', 'any'), 'description': ('-', 'any'),
-    'design': ('-', "one of: robust, paper"),
+    'design': ('-', 'one of: robust, paper'),
     'duration': ('s', f'(0, {MAX_DURATION_S:g}]'),
     'seed': ('1', '[0, 2**63 - 1]'),
     'fall_threshold': ('rad', '(0, 1.5]'),
@@ -299,7 +302,7 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
         raise ConfigError(f'controller_model: expected a mapping, got {nominal!r}')
     for key in nominal:
         if key != 'parameters':
-            raise ConfigError(f'controller_model.{key}: unknown key; expected [\'parameters\']')
+            raise ConfigError(f"controller_model.{key}: unknown key; expected ['parameters']")
     kwargs['controller_model'] = ControllerModelSection(
         parameters=_parameters_from_mapping(nominal.get('parameters'),
                                             'controller_model.parameters'))
@@ -319,7 +322,8 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
 def with_duration(scenario: Scenario, duration: float) -> Scenario:
     """``scenario`` with another duration [s], checked as a scenario file's would be
     (range, at least one control tick, the most control periods a run may have);
-    ConfigError otherwise."""
+    ConfigError otherwise.
+    """
     if not 0.0 < duration <= MAX_DURATION_S:
         raise ConfigError(f'duration: must be in (0, {MAX_DURATION_S:g}] s, got '
                           f'{_show(duration)}')
@@ -391,7 +395,8 @@ def load_scenario(path: str | pathlib.Path | None = None) -> Scenario:
 
 def read_scenario_file(path: str | pathlib.Path) -> Any:
     """The parsed content of a scenario file, not yet validated (strict YAML, size-checked);
-    ConfigError naming the file on any problem."""
+    ConfigError naming the file on any problem.
+    """
     path = pathlib.Path(path)
     try:
         raw = path.read_bytes()

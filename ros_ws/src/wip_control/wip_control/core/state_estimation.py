@@ -65,7 +65,8 @@ class StateEstimator:
     @classmethod
     def from_scenario(cls, scenario) -> 'StateEstimator':
         """The estimator of ``scenario`` (a ``core.scenario.Scenario``): the nominal model,
-        as the controllers know it (a mismatch with the plant shows up in x_v)."""
+        as the controllers know it (a mismatch with the plant shows up in x_v).
+        """
         return cls(scenario.controller_model.parameters, scenario.eso, scenario.position,
                    encoders_relative_to_body=scenario.sensors.encoders_relative_to_body)
 

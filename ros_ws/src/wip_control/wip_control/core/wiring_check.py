@@ -182,7 +182,8 @@ class WiringCheck:
 
     def torque(self, t: float, tau_v: float, engaged: bool) -> None:
         """The drive torque τυ = τl + τr [N m] sent to the base now; ``engaged``: torque is
-        being sent (the safety layer ACTIVE or DEGRADED, not shadow mode)."""
+        being sent (the safety layer ACTIVE or DEGRADED, not shadow mode).
+        """
         self.tau_v = float(tau_v) if (engaged and math.isfinite(tau_v)) else 0.0
         if engaged and self.engaged_at is None:
             self.engaged_at = float(t)
@@ -194,7 +195,8 @@ class WiringCheck:
             accel: Sequence[float] | None = None) -> Verdict | None:
         """One IMU sample of the body (after the mounting): pitch θ [rad], Euler rates θ̇,
         ϕ̇ [rad/s], specific force (x, y, z) [m/s²] in base_link or None. Runs the checks;
-        the verdict (once found it stays until :meth:`reset`)."""
+        the verdict (once found it stays until :meth:`reset`).
+        """
         if self.verdict is not None or not self.config.enabled:
             return self.verdict
         values = (pitch, pitch_rate, yaw_rate, *(accel or ()))
@@ -248,7 +250,8 @@ class WiringCheck:
 
     def _yaw_contradicted(self) -> bool:
         """The recent samples (even fewer than a window) show the gyro turning and the
-        configured wheels missing it: the yaw check, not the tilt, has the cause."""
+        configured wheels missing it: the yaw check, not the tilt, has the cause.
+        """
         if not self.yaw:
             return False
         n = len(self.yaw)

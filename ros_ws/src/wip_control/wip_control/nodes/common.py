@@ -125,7 +125,8 @@ def stamped(msg, stamp_ns: int, frame_id: str = ''):
 
     On the hot path instead of ``Msg(header=make_header(...))``: the generated constructors
     evaluate their defaults eagerly, so that also builds a Header and a Time to drop
-    (1.8 us of 5.5 per message measured, six messages per control tick)."""
+    (1.8 us of 5.5 per message measured, six messages per control tick).
+    """
     header = msg.header
     header.stamp.sec, header.stamp.nanosec = divmod(int(stamp_ns), _NS_PER_S)
     if frame_id:
@@ -318,7 +319,8 @@ def warn_undeclared_overrides(nodes, warned=None) -> None:
 
 def init_rclpy(program: str, args, signal_handler_options) -> bool:
     """``rclpy.init``; False after one line on stderr when rcl refuses the command line's
-    ROS arguments (a remap rule to an invalid name, a malformed ``-p``): no traceback."""
+    ROS arguments (a remap rule to an invalid name, a malformed ``-p``): no traceback.
+    """
     try:
         rclpy.init(args=args, signal_handler_options=signal_handler_options)
     except _rclpy_impl.RCLError as err:
@@ -420,7 +422,8 @@ def compose(executor, factories: Sequence[Callable[[], Node]],
     declares; one sim clock (:func:`share_sim_clock`); intra-process delivery
     (:func:`connect_intra_process`, the bus to drain, or None); then move the start-up's
     objects out of the garbage collector's reach (``gc.freeze``), so that the collections
-    that still run during control (young objects only) do not walk them."""
+    that still run during control (young objects only) do not walk them.
+    """
     for factory in factories:
         built.append(factory())
         executor.add_node(built[-1])
@@ -435,7 +438,8 @@ def compose(executor, factories: Sequence[Callable[[], Node]],
 def spin_composed(executor, node: Node, bus: IntraProcessBus | None,
                   running: Callable[[], bool]) -> None:
     """Spin (:func:`spin_once_guarded`, errors reported by ``node``) while the context is
-    up and ``running()``; after each spin_once, deliver the intra-process messages."""
+    up and ``running()``; after each spin_once, deliver the intra-process messages.
+    """
     drain = bus.drain if bus is not None else (lambda: 0)
     while rclpy.ok() and running():
         spin_once_guarded(executor, node)
@@ -445,7 +449,8 @@ def spin_composed(executor, node: Node, bus: IntraProcessBus | None,
 def connect_intra_process(nodes: Sequence[Node]) -> IntraProcessBus | None:
     """Connect the publishers of ``nodes`` to the same process's subscriptions
     (:mod:`.intra_process`); the bus that the spin loop must drain, None if there is
-    nothing to connect (fewer than two nodes with ``use_intra_process_comms``)."""
+    nothing to connect (fewer than two nodes with ``use_intra_process_comms``).
+    """
     members = [n for n in nodes
                if isinstance(n, IntraProcessNode) and n.use_intra_process_comms]
     if len(members) < 2:
@@ -592,7 +597,8 @@ class IntraProcessNode(Node):
     """A node whose publishers and subscriptions a composed process may connect directly
     (:func:`connect_intra_process`, :mod:`.intra_process`): the controller nodes and the
     plant. Call :meth:`init_intra_process` before creating them; rclpy's own (parameter
-    events, rosout) are not connected."""
+    events, rosout) are not connected.
+    """
 
     def init_intra_process(self, enabled: bool) -> None:
         self.use_intra_process_comms = enabled
@@ -601,13 +607,15 @@ class IntraProcessNode(Node):
 
     def add_intra_subscription(self, msg_type, subscription, callback: Callable) -> None:
         """Also deliver the process's own messages of ``subscription``'s topic to
-        ``callback`` (which must be the subscription's)."""
+        ``callback`` (which must be the subscription's).
+        """
         self.intra_subscriptions.append((msg_type, subscription.topic_name, callback))
 
     def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
         """rclpy's publisher wrapped in an :class:`IntraProcessPublisher`: it publishes
         nothing while no subscription is matched (volatile topics), and in a composed
-        process hands messages to the process's own subscriptions directly."""
+        process hands messages to the process's own subscriptions directly.
+        """
         publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
         if not hasattr(self, 'intra_publishers'):   # rclpy's own, from Node.__init__
             return publisher
@@ -641,7 +649,8 @@ class ControllerNode(IntraProcessNode):
 
     def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
         """In lockstep, every reliable publisher keeps what its readers have not
-        acknowledged (:data:`LOCKSTEP_WRITER_DEPTH`)."""
+        acknowledged (:data:`LOCKSTEP_WRITER_DEPTH`).
+        """
         if getattr(self, 'lockstep', False):
             qos_profile = lockstep_writer_qos(qos_profile)
         return super().create_publisher(msg_type, topic, qos_profile, **kwargs)
@@ -653,7 +662,8 @@ class ControllerNode(IntraProcessNode):
         other error as 'error'; both are counted and reported on /diagnostics.
 
         ``raw``: DDS delivers the serialized bytes (decoded by the handler, see
-        ``conversions.decode_serialized``); the intra-process bus still delivers objects."""
+        ``conversions.decode_serialized``); the intra-process bus still delivers objects.
+        """
         def callback(msg) -> None:
             try:
                 handler(msg)
@@ -668,7 +678,8 @@ class ControllerNode(IntraProcessNode):
                         qos: QoSProfile = RELIABLE_QOS) -> None:
         """:meth:`subscribe` to a stamped input of the node's LatestSync: each message's
         stamp counted on /diagnostics, then ``convert(msg)`` fed as ``name`` (a ValueError
-        of the conversion drops the message)."""
+        of the conversion drops the message).
+        """
         def handler(msg) -> None:
             stamp = stamp_to_ns(msg.header.stamp)
             self.diagnostics.input(name, stamp)
@@ -679,7 +690,8 @@ class ControllerNode(IntraProcessNode):
         """The node clock [ns]. Without ``use_sim_time`` that is ROS time = the system
         clock (CLOCK_REALTIME), read directly: rclpy's ``now()`` builds a Time object per
         call (measured 15 us against 0.15 us on a loaded machine), and real time reads the
-        clock for every input."""
+        clock for every input.
+        """
         if self._system_clock:
             return time.time_ns()
         return self.get_clock().now().nanoseconds
@@ -699,9 +711,9 @@ class ControllerNode(IntraProcessNode):
         if not self.lockstep:
             lead_ns = stamp_ns - self.now_ns()
             if lead_ns > self.max_stamp_lead_ns:
-                raise ValueError(f'stamp {lead_ns / 1e9:.3f} s ahead of this node\'s clock '
+                raise ValueError(f"stamp {lead_ns / 1e9:.3f} s ahead of this node's clock "
                                  f'(max_stamp_lead {self.max_stamp_lead_ns / 1e9:g} s): is '
-                                 f'the sender\'s clock synchronised?')
+                                 f"the sender's clock synchronised?")
         stale = self.sync.dropped['stale']
         self.sync.add(name, stamp_ns, value)
         if self.sync.dropped['stale'] > stale:

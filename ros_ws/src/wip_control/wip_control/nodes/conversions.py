@@ -90,7 +90,8 @@ _typestore = None
 def prepare_decoder(*typenames: str) -> None:
     """Build the type store and the decoders of ``typenames`` now (about 0.16 s of CPU
     here, more on a slow machine), at a node's start, rather than in the callback of its
-    first sensor sample."""
+    first sensor sample.
+    """
     global _typestore  # noqa: PLW0603 - one store per process
     if _typestore is None:
         from rosbags.typesys import get_typestore, Stores
@@ -209,7 +210,8 @@ def odometry_to_msg(stamp_ns: int, frame_id: str, child_frame_id: str, x: float,
     """nav_msgs/Odometry of a planar pose (x, y [m], heading phi [rad]) in ``frame_id``
     and its twist in ``child_frame_id`` (REP 105: υ along x, ω about z); covariances
     row-major 6x6 (all zero: unknown, the ROS convention). The ESO's /odom and the
-    viewer's Odometry topics are built here."""
+    viewer's Odometry topics are built here.
+    """
     msg = stamped(Odometry(), stamp_ns, frame_id)
     msg.child_frame_id = child_frame_id
     position, orientation = msg.pose.pose.position, msg.pose.pose.orientation
@@ -246,7 +248,8 @@ class _LastConversion:
     same object. In a composed process every local subscriber of a topic receives the same
     message object (intra_process.py), and no node modifies a message it receives: the
     four subscribers of a state estimate then convert it once (about 13 us each, at
-    200 Hz). Holding the message keeps its identity from being reused."""
+    200 Hz). Holding the message keeps its identity from being reused.
+    """
 
     __slots__ = ('msg', 'value', 'checked')
 
@@ -333,7 +336,8 @@ def _column(values: Sequence[float]) -> array.array:
 
 def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> MpcOutput:
     """MpcOutput of a core tick. Unknown quantities are not sent as NaN: slacks are 0 and
-    the predictions empty when the QP was not solved (``status`` says so)."""
+    the predictions empty when the QP was not solved (``status`` says so).
+    """
     predicted = result.predicted
     have_prediction = bool(predicted.size) and bool(math.isfinite(float(predicted.sum())))
     slack_v = result.slack_v if math.isfinite(result.slack_v) else 0.0
@@ -354,7 +358,8 @@ def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> MpcO
 
 def planned_drive_torque(result: MpcResult) -> list[float]:
     """τυ(k), τυ(k+1), … of the plan (eq. (23) applied to each planned increment); empty
-    when the plan is not finite."""
+    when the plan is not finite.
+    """
     plan = [float(v) for v in result.plan]
     if not (plan and all(math.isfinite(v) for v in plan) and math.isfinite(result.tau_v)):
         return []
@@ -367,7 +372,8 @@ def planned_drive_torque(result: MpcResult) -> list[float]:
 def mpc_hold_msg(stamp_ns: int, tau_v: float, sampling_period: float) -> MpcOutput:
     """MpcOutput of a tick of the re-solve grid at which the MPC did not solve
     (``mpc.fast_resolve_period``, lockstep): the held τυ, status SOLVED (of the last solve),
-    ``status_text`` HELD, Δτ 0, no plan or prediction."""
+    ``status_text`` HELD, Δτ 0, no plan or prediction.
+    """
     return stamped(MpcOutput(tau_v=float(tau_v), delta_tau=0.0, status=MpcOutput.SOLVED,
                              status_text=HELD_STATUS_TEXT, sampling_period=float(sampling_period),
                              used_fallback=False), stamp_ns)
@@ -409,7 +415,8 @@ def effort_command_cdr(left: float, right: float, joints: Sequence[str], left_jo
     message object for rclpy to convert and serialize cost about 30 µs of the ~140 µs of
     the publication here (docs/realtime.md). The layout is empty (no dimensions, offset 0),
     as :func:`effort_command` leaves it; the bytes differ from rclpy's only in the
-    alignment padding, which Fast CDR leaves uninitialised."""
+    alignment padding, which Fast CDR leaves uninitialised.
+    """
     values = [float(v) for v in _in_joint_order(left, right, joints, left_joint, right_joint)]
     # encapsulation CDR_LE | layout.dim length 0 | layout.data_offset 0 | data length |
     # padding to the doubles' 8-byte alignment (counted from after the encapsulation)

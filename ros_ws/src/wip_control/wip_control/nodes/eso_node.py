@@ -323,7 +323,8 @@ class EsoNode(ControllerNode):
 
     def _observer_time(self, stamp: int) -> float:
         """Time [s] of the sample for the observer: the stamp's in lockstep; in real time
-        the previous sample's plus a whole number of periods (see the module docstring)."""
+        the previous sample's plus a whole number of periods (see the module docstring).
+        """
         t = self.time_base.seconds(stamp)
         if self.lockstep:
             return t

@@ -116,7 +116,8 @@ class IntraProcessBus:
 
     def attach(self, publisher: IntraProcessPublisher) -> int:
         """Attach ``publisher`` to the local subscriptions of its topic and type (possibly
-        none: it then publishes only while a subscription is matched); their count."""
+        none: it then publishes only while a subscription is matched); their count.
+        """
         local = [cb for msg_type, cb in self.subscriptions.get(publisher.topic_name, ())
                  if msg_type is publisher.msg_type]
         publisher.attach(self, local)

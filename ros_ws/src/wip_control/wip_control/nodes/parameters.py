@@ -27,7 +27,8 @@ from ..core.config import check_value, ConfigError, from_mapping
 
 class OutOfRangeError(ConfigError, InvalidParameterValueException):
     """An override outside the declared range: a ConfigError (one line naming the
-    parameter) that is also the exception rclpy raises for it."""
+    parameter) that is also the exception rclpy raises for it.
+    """
 
     def __init__(self, message: str) -> None:
         ConfigError.__init__(self, message)
@@ -183,7 +184,8 @@ class EffortInterface:
 def declare_effort_interface(node: Node) -> EffortInterface:
     """Declare and read the parameters of settings.WheelJoints, EffortCommand and
     WheelSigns (the mixer and the stand-in base read the same ones); ConfigError if
-    ``joints`` does not list ``left_joint`` and ``right_joint`` once each."""
+    ``joints`` does not list ``left_joint`` and ``right_joint`` once each.
+    """
     from .settings import check_effort_joints, EffortCommand, WheelJoints, WheelSigns
     wheels = ConfigParameters(node, '', WheelJoints).config
     left, right = wheels.left_joint, wheels.right_joint

@@ -185,7 +185,8 @@ class TorqueMixerNode(ControllerNode):
 
         The mixer reads /joint_states and /imu/data itself (not the ESO's estimates): the
         check compares raw sensors with each other and with the torque this node sends,
-        and its verdict must reach the safety layer in the same process without a hop."""
+        and its verdict must reach the safety layer in the same process without a hop.
+        """
         config = ConfigParameters(self, 'wiring_check', WiringCheckConfig).config
         model = ConfigParameters(self, 'model', WipParameters).config
         mounting = ConfigParameters(self, '', ImuMounting).config.imu_mounting_rpy
@@ -204,7 +205,8 @@ class TorqueMixerNode(ControllerNode):
 
     def _on_joint_states(self, msg: JointState) -> None:
         """Wheel rates as configured: the joint velocities (else the positions' difference)
-        by name, times the signs. A bad message is the ESO's to report: skipped here."""
+        by name, times the signs. A bad message is the ESO's to report: skipped here.
+        """
         t = self.monitor_time()
         try:
             left, right = signed_wheel_angles(msg, self.left_joint, self.right_joint,
@@ -338,7 +340,8 @@ class TorqueMixerNode(ControllerNode):
     # -- ticks ---------------------------------------------------------------------------------
     def _tick(self, sensor_stamp: int | None = None) -> None:
         """Realtime: one command with the latest inputs, on a yaw torque (stamped with its
-        sensor sample: the latency is recorded) or from the watchdog."""
+        sensor sample: the latency is recorded) or from the watchdog.
+        """
         try:
             now = self.now_ns()
             decision = self.monitor.update(self.monitor_time())

@@ -143,7 +143,8 @@ def console_script(module: str, prog: str) -> Callable[[], int]:
     """The console script (setup.py entry point, what ``ros2 run`` starts) of the tool
     ``module``: its ``main`` through :func:`run_main`, as ``python -m module`` runs it. The
     module is imported when the script runs (so one tool does not import the others), and
-    inside run_main (so a failed import is a one-line error too)."""
+    inside run_main (so a failed import is a one-line error too).
+    """
     def script() -> int:
         return run_main(lambda argv: importlib.import_module(module).main(argv), prog)
 
@@ -198,7 +199,8 @@ def exit_codes_text() -> str:
 def add_exit_codes(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Put the exit-code table at the end of ``parser``'s ``--help``, line by line (the
     parser's formatter keeps wrapping the rest of its text as before), and make its usage
-    errors one line (exit 2)."""
+    errors one line (exit 2).
+    """
     parser.epilog = (parser.epilog + '\n\n' if parser.epilog else '') + exit_codes_text()
     base = parser.formatter_class
 
@@ -225,7 +227,8 @@ def bounded(kind: type, minimum: float | None = None, maximum: float | None = No
             exclusive_minimum: bool = False) -> Callable[[str], Any]:
     """An argparse ``type=``: a finite ``kind`` (int or float) in [minimum, maximum]
     ((minimum, maximum] with ``exclusive_minimum``); argparse's usage error (exit 2)
-    naming the range otherwise."""
+    naming the range otherwise.
+    """
     def convert(text: str):
         try:
             value = kind(text)
@@ -262,7 +265,8 @@ def answer_node_help(program: str, package: str, args: Sequence[str] | None = No
     """If the command line of a node executable asks for ``-h``/``--help`` (before
     ``--ros-args``), print its usage on stdout and return True: the caller then exits 0
     without starting anything. ``args`` as given to ``rclpy.init`` (``sys.argv`` if
-    None)."""
+    None).
+    """
     words = list(sys.argv if args is None else args)[1:]
     if '--ros-args' in words:
         words = words[:words.index('--ros-args')]
