@@ -75,7 +75,7 @@ def _release_taken_domains():
 
 @pytest.fixture
 def domain():
-    """A DDS domain of the test's own (see :func:`private_dds_domain`)."""
+    """Yield a DDS domain of the test's own (see :func:`private_dds_domain`)."""
     with private_dds_domain() as domain_id:
         yield domain_id
 
@@ -101,7 +101,7 @@ def test_node(domain):
 
 @pytest.fixture(scope='module')
 def module_domain():
-    """A DDS domain for a whole test module (see :func:`private_dds_domain`)."""
+    """Yield a DDS domain for a whole test module (see :func:`private_dds_domain`)."""
     with private_dds_domain() as domain_id:
         yield domain_id
 

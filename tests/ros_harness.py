@@ -137,7 +137,7 @@ class NodeHarness:
 
 
 def process_name(process: subprocess.Popen) -> str:
-    """The module of ``python -m MODULE ...``, else the executable."""
+    """Return the module of ``python -m MODULE ...``, else the executable."""
     args = [str(a) for a in process.args]
     return args[2] if len(args) > 2 and args[1] == '-m' else os.path.basename(args[0])
 

@@ -213,7 +213,7 @@ def _cdr_string(text):
 
 @pytest.fixture(scope='module')
 def pristine(tmp_path_factory):
-    """A finished bag of 2 topics, 600 messages in about 20 zstd chunks, and its content."""
+    """Return a finished bag of 2 topics, 600 messages in about 20 zstd chunks, and its content."""
     directory = tmp_path_factory.mktemp('pristine') / 'bag'
     with Rosbag2McapWriter(directory, chunk_size=2048,
                            custom_data={'wip.note': 'pristine'}) as bag:

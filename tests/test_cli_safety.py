@@ -200,7 +200,7 @@ from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 @pytest.fixture(scope='module')
 def run_bag(tmp_path_factory):
-    """A 4 s in-process run written as the graph records it (small chunks: many)."""
+    """Return a 4 s in-process run written as the graph records it (small chunks: many)."""
     scenario = scenario_from_mapping({'duration': 4.0})
     result = run_scenario(scenario)
     directory = tmp_path_factory.mktemp('run') / 'bag'
@@ -226,7 +226,7 @@ def _flip_in_chunk(bag, index):
 
 
 def _chunk_messages(bag, index):
-    """The messages of the index-th chunk of an intact bag (as (topic, log time, data))."""
+    """Return the messages of the index-th chunk of an intact bag (as (topic, log time, data))."""
     from mcap.records import Message
     from wip_bag.bag_integrity import iter_chunk_records
     path = next(bag.glob('*.mcap'))

@@ -126,7 +126,7 @@ def executables():
 
 
 def make_bag(directory):
-    """A tiny bag for the replayer: 5 std_msgs/String on /contract/chatter."""
+    """Return a tiny bag for the replayer: 5 std_msgs/String on /contract/chatter."""
     from rclpy.serialization import serialize_message
     from std_msgs.msg import String
     from wip_bag.bag_writer import Rosbag2McapWriter

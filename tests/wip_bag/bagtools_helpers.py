@@ -28,7 +28,7 @@ DISCOVERY_TIMEOUT = 15.0  # [s]; first discovery takes up to ~3 s on this host
 
 
 def child_environment():
-    """The tools' environment: this one's, with wip_bag from the source tree first."""
+    """Return the tools' environment: this one's, with wip_bag from the source tree first."""
     env = ros_child_environment()
     env['PYTHONPATH'] = os.pathsep.join(
         [str(WIP_BAG_SOURCE)] + [p for p in [env.get('PYTHONPATH')] if p])

@@ -205,7 +205,7 @@ def test_clock_drives_sim_time_timers_and_rate_two_halves_the_wall_time(
 
 
 def _rosbags_bag(path):
-    """A bag written by rosbags (independent writer): MCAP storage, zstd chunks."""
+    """Return a bag written by rosbags (independent writer): MCAP storage, zstd chunks."""
     typestore = get_typestore(Stores.ROS2_JAZZY)
     string_type = typestore.types['std_msgs/msg/String']
     imu_type = typestore.types['sensor_msgs/msg/Imu']

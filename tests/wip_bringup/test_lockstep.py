@@ -119,7 +119,7 @@ def reported(graph_runs, tmp_path_factory):
 
 
 def _results(metrics):
-    """The metrics without wall-clock timings and provenance."""
+    """Return the metrics without wall-clock timings and provenance."""
     return {k: v for k, v in metrics.items() if k not in TIMING_KEYS + ('source',)}
 
 

@@ -23,7 +23,7 @@ GENERATED = hardware_parameters(Scenario())
 
 
 def readme_params_file():
-    """The base's params file the README shows (its yaml block with ros__parameters)."""
+    """Return the base's params file the README shows (its yaml block with ros__parameters)."""
     text = (REPO_ROOT / 'README.md').read_text(encoding='utf-8')
     (block,) = [b for b in re.findall(r'```yaml\n(.*?)```', text, re.S)
                 if 'ros__parameters' in b]

@@ -45,7 +45,7 @@ def _wait_for(predicate, what: str, timeout: float = TIMEOUT):
 
 
 def _sim_progress(err_path: pathlib.Path) -> float:
-    """The latest simulated time run_graph's progress lines show (-1 before the start)."""
+    """Return the latest simulated time run_graph's progress lines show (-1 before the start)."""
     latest = -1.0
     text = err_path.read_text(encoding='utf-8', errors='replace')
     if 'plant started' in text:

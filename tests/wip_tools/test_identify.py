@@ -176,11 +176,12 @@ def _eso_error_and_tracking(scenario, record):
 
 
 def test_identified_model_as_the_controllers_model_is_no_worse():
-    """The issue asked for a lower RMS tracking error with the identified model. Measured
-    (docs/identification.md §6), it is not: the ESOs absorb the model error, and the path
+    """The issue asked for a lower RMS tracking error with the identified model.
+
+    Measured (docs/identification.md §6), it is not: the ESOs absorb the model error, and the path
     error and the ESO errors f̂ − f change by about ±1 % either way (here 0.0283 m nominal,
-    0.0285 m identified). What is checked is what holds: the identified model balances and
-    tracks as well as the nominal one, within 5 %.
+    0.0285 m identified). What is checked is what holds: the identified model balances and tracks
+    as well as the nominal one, within 5 %.
     """
     scenario, result = _run('heavy_high', PLANTS['heavy_high'])
     nominal = scenario.controller_model.parameters

@@ -76,7 +76,7 @@ class Bridge:
 
 @pytest.fixture
 def spinning(test_node):
-    """The test node spun in a background thread (publishers, the e-stop subscription)."""
+    """Yield the test node spun in a background thread (publishers, the e-stop subscription)."""
     with spinning_in_background(test_node.executor_for_test):
         yield test_node
 
@@ -91,7 +91,7 @@ class Client:
         self.seen: list[dict] = []
 
     def receive_json(self, op: str, predicate=lambda m: True, timeout: float = TIMEOUT):
-        """The first message with this ``op`` (and predicate), read before or now."""
+        """Return the first message with this ``op`` (and predicate), read before or now."""
         deadline = time.monotonic() + timeout
         while True:
             for message in self.seen:

@@ -67,7 +67,7 @@ def run_in_processes(code: str, tmp_path: pathlib.Path, *extra: str) -> list[pat
 
 
 def random_qp(seed: int):
-    """A feasible, strictly convex QP of the MPC's shape with some active constraints."""
+    """Return a feasible, strictly convex QP of the MPC's shape with some active constraints."""
     rng = np.random.default_rng(seed)
     n, m = N_VARIABLES, N_ROWS
     root = rng.standard_normal((n, n))

@@ -53,7 +53,7 @@ CONSTRAINT_TOL = 1e-5
 
 
 def state_matrix_from_spec(prediction):
-    """A of docs/paper.md §5, written out independently of mpc_prediction.py."""
+    """Return a of docs/paper.md §5, written out independently of mpc_prediction.py."""
     p = PARAMS
     a = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, TS], [0.0, 0.0, 1.0]])
     if prediction == 'gravity_aware':
@@ -568,7 +568,7 @@ def _first_tick(state, v_d, **config):
 
 
 def _without_and_with_rise_slack(state, v_d):
-    """The first tick's results with speed_rise_penalty 0 and at its default."""
+    """Return the first tick's results with speed_rise_penalty 0 and at its default."""
     return (_first_tick(state, v_d, speed_rise_penalty=0.0)[1],
             _first_tick(state, v_d)[1])
 
@@ -576,9 +576,10 @@ def _without_and_with_rise_slack(state, v_d):
 @pytest.mark.parametrize('v_hat, v_d', [(1.5, 1.0), (1.6, 1.0), (2.2, 0.5)])
 def test_the_speed_rise_slack_makes_the_rise_before_braking_smaller_and_still_brakes(
         v_hat, v_d):
-    """At or above the speed limit a WIP must speed up to brake. With the rise slack
-    (speed_rise_penalty, default) the planned rise is smaller than without it, and the
-    plan still brakes: its speed at the end of the 2 s horizon is below the start.
+    """At or above the speed limit a WIP must speed up to brake.
+
+    With the rise slack (speed_rise_penalty, default) the planned rise is smaller than without it,
+    and the plan still brakes: its speed at the end of the 2 s horizon is below the start.
     """
     off, on = _without_and_with_rise_slack((v_hat, 0.0, 0.0, 0.0, 0.0), v_d)
     assert off.status == on.status == MpcStatus.SOLVED
@@ -1045,11 +1046,12 @@ def _min_peak_speed_after_push(v0, push=10.0, width=0.1, first_tick=0.1, back_by
 
 
 def test_the_speed_limit_push_needs_no_run_away_physically():
-    """The speed_limit class: cruising at 1.21 m/s, a 10 m/s² push for 0.1 s adds
-    1.0 m/s. A WIP must speed up to brake (non-minimum phase), but gently enough it need
-    not: the best causal plan within the torque, Δτ and tilt limits (first tick 0.1 s
-    after the push starts) peaks at the push's own 2.21 m/s and is back under 1.55 m/s
-    within 2 s. The criterion max_speed 2.5 m/s is attainable (the MPC: 2.49 m/s).
+    """The speed_limit class: cruising at 1.21 m/s, a 10 m/s² push for 0.1 s adds 1.0 m/s.
+
+    A WIP must speed up to brake (non-minimum phase), but gently enough it need not: the best
+    causal plan within the torque, Δτ and tilt limits (first tick 0.1 s after the push starts)
+    peaks at the push's own 2.21 m/s and is back under 1.55 m/s within 2 s. The criterion max_speed
+    2.5 m/s is attainable (the MPC: 2.49 m/s).
     """
     v0 = 1.21
     peak = _min_peak_speed_after_push(v0)

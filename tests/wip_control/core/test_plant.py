@@ -38,7 +38,7 @@ def rk4_reference(f, x, h):
 
 
 def full_model_reference(params, state, tau_left, tau_right, disturbance):
-    """The full model's equations in mass-matrix form, M(θ) ν̇ = F, solved by numpy.
+    """Return the full model's equations in mass-matrix form, M(θ) ν̇ = F, solved by numpy.
 
     Written from the module docstring independently of the plant's closed-form solve.
     """

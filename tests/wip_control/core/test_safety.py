@@ -48,7 +48,7 @@ class Clock:
 
 
 def active(config=SafetyConfig(), rate=RATE, **kwargs):
-    """A monitor driven to ACTIVE, with its clock."""
+    """Return a monitor driven to ACTIVE, with its clock."""
     monitor = SafetyMonitor(config, TAU_MAX, rate, H, **kwargs)
     clock = Clock(monitor)
     for _ in range(int(config.settle_time / H) + 3):

@@ -85,7 +85,7 @@ DATUM = (SENSORS.gps_datum_latitude, SENSORS.gps_datum_longitude, SENSORS.gps_da
 
 @pytest.fixture(scope='module')
 def domain_id(module_domain):
-    """The module's DDS domain (conftest), set before any rclpy.init of this module."""
+    """Return the module's DDS domain (conftest), set before any rclpy.init of this module."""
     return module_domain
 
 
@@ -278,7 +278,7 @@ def eso_measurements(n=60):
 
 def eso_expected(samples, config=EsoConfig(), applied_before=None, use_gps=True,
                  origin_ns=0):
-    """The runner's steps 1-3 on the values the node decodes from the messages.
+    """Return the runner's steps 1-3 on the values the node decodes from the messages.
 
     ``applied_before(k)``: the torques the ESO input uses at sample k (lockstep: those of
     sample k - 1, zero at k = 0). Without GPS the position starts at (0, 0). ``origin_ns``:

@@ -200,7 +200,7 @@ def _indented(lines):
 
 
 def format_bag_information(info):
-    """The text of ``ros2 bag info`` (plus Compression and Check lines) for ``info``."""
+    """Return the text of ``ros2 bag info`` (plus Compression and Check lines) for ``info``."""
     end_ns = info['start_ns'] + info['duration_ns']
     topics = [f'Topic: {t["name"]} | Type: {t["type"]} | Count: {t["count"]} | '
               f'Serialization Format: {t["serialization_format"]}' for t in info['topics']]

@@ -153,7 +153,7 @@ def mcap_files(path):
 
 
 def read_metadata_file(metadata_path):
-    """The ``rosbag2_bagfile_information`` mapping of a metadata.yaml, or BagReadError."""
+    """Return the ``rosbag2_bagfile_information`` mapping of a metadata.yaml, or BagReadError."""
     metadata_path = pathlib.Path(metadata_path)
     hint = ' (scripts/bag_repair rebuilds metadata.yaml from the files)'
     try:

@@ -104,7 +104,7 @@ class RepairResult(NamedTuple):
 
 
 def mcap_files_by_index(directory):
-    """The ``*.mcap`` files of a bag directory ordered by their ``_<index>`` suffix."""
+    """Return the ``*.mcap`` files of a bag directory ordered by their ``_<index>`` suffix."""
     def key(path):
         match = _INDEX_RE.search(path.name)
         return (0, int(match.group(1)), path.name) if match else (1, 0, path.name)
@@ -112,7 +112,7 @@ def mcap_files_by_index(directory):
 
 
 def is_finished(path):
-    """True if an MCAP file has its summary section (was closed properly)."""
+    """Return True if an MCAP file has its summary section (was closed properly)."""
     try:
         with open(path, 'rb') as stream:
             return SeekingReader(stream).get_summary() is not None
@@ -372,7 +372,7 @@ def repair_bag(directory, out=None, compression=None, dry_run=False):
 
 
 def current_umask() -> int:
-    """This process's umask (read by setting it and setting it back)."""
+    """Return this process's umask (read by setting it and setting it back)."""
     mask = os.umask(0o022)
     os.umask(mask)
     return mask

@@ -33,7 +33,7 @@ SCENARIO_FILE_NAME = 'scenario.yaml'   # beside the bag's files, in its director
 
 
 def bag_directory(bag: str | pathlib.Path) -> pathlib.Path:
-    """The bag directory of a bag given as its directory or as a file in it."""
+    """Return the bag directory of a bag given as its directory or as a file in it."""
     path = pathlib.Path(bag)
     return path if path.is_dir() else path.parent
 

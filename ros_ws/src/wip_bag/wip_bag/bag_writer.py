@@ -598,7 +598,7 @@ class Rosbag2McapWriter:
 
 
 def library_identifier():
-    """The ``library`` field of the MCAP header of the bags this package writes."""
+    """Return the ``library`` field of the MCAP header of the bags this package writes."""
     from mcap.writer import LIBRARY_IDENTIFIER
     return f'wip_bag.bag_writer ({LIBRARY_IDENTIFIER})'
 

@@ -145,12 +145,12 @@ def default_output_name(now=None):
 
 
 def is_hidden_topic(name):
-    """True for topics with a path segment starting with '_' (rcl's hidden topics)."""
+    """Return True for topics with a path segment starting with '_' (rcl's hidden topics)."""
     return any(part.startswith('_') for part in name.split('/') if part)
 
 
 def import_message_class(type_name):
-    """The Python class of a ROS message type 'pkg/msg/Type'; BagWriterError if unknown."""
+    """Return the Python class of a ROS message type 'pkg/msg/Type'; BagWriterError if unknown."""
     return message_class(type_name, BagWriterError)
 
 
@@ -290,7 +290,7 @@ class RecorderNode(Node):
                                + (f' as {stored}' if stored != topic else ''))
 
     def stored_name(self, topic):
-        """The name ``topic`` has in the bag: without the recorder's namespace."""
+        """Return the name ``topic`` has in the bag: without the recorder's namespace."""
         if self.namespace and topic.startswith(self.namespace + '/'):
             return topic[len(self.namespace):]
         return topic
@@ -503,7 +503,7 @@ def spin(node, executor, stop=None):
 
 
 def launcher_gone():
-    """True if this process was started by a wip launcher that has died since."""
+    """Return True if this process was started by a wip launcher that has died since."""
     value = os.environ.get(LAUNCHER_PID_VARIABLE, '')
     return value.isdigit() and int(value) > 1 and os.getppid() != int(value)
 

@@ -135,7 +135,7 @@ class Conventions:
 
 
 def eso_parameters(scenario_path: str | None, params_files: list[str]) -> dict[str, Any]:
-    """The eso node's parameters in hardware mode: the scenario's, then the files'."""
+    """Return the eso node's parameters in hardware mode: the scenario's, then the files'."""
     try:
         scenario = load_scenario(scenario_path)
     except ConfigError as err:

@@ -262,7 +262,7 @@ def expected_endpoints(clock_mode: str, recording: bool, layout: str = 'separate
 
 def missing_endpoints(probe: Probe, expected: dict[str, tuple[int, int]],
                       nodes: list[str]) -> list[str]:
-    """What the graph still lacks (empty when complete)."""
+    """Return what the graph still lacks (empty when complete)."""
     missing = []
     present = probe.node_names()
     absent = [n for n in nodes if n not in present]
@@ -317,10 +317,11 @@ class GraphRunner(RunnerBase):
         super().stop_all()
 
     def stop_signal(self, name: str) -> int:
-        """SIGTERM for the plant's process: rclpy's handler then only shuts its context
-        down. At a SIGINT it also raises a KeyboardInterrupt, which can land in the plant's
-        write of plant_stats.json after its spin loop ended, leaving the file empty (seen
-        after a stop mid-run).
+        """SIGTERM for the plant's process: rclpy's handler then only shuts its context down.
+
+        At a SIGINT it also raises a KeyboardInterrupt, which can land in the plant's write of
+        plant_stats.json after its spin loop ended, leaving the file empty (seen after a stop
+        mid-run).
         """
         return signal.SIGTERM if name == self.plant_process else signal.SIGINT
 

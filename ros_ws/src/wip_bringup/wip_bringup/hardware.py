@@ -194,7 +194,7 @@ def parse_remap(text: str, namespace: str = '') -> tuple[str, str]:
 
 
 def remapped(topic: str, remaps: Iterable[tuple[str, str]]) -> str:
-    """The name ``topic`` has after the remaps (the first rule that matches, as in ROS)."""
+    """Return the name ``topic`` has after the remaps (the first rule that matches, as in ROS)."""
     for source, target in remaps:
         if source == topic:
             return target
@@ -202,7 +202,7 @@ def remapped(topic: str, remaps: Iterable[tuple[str, str]]) -> str:
 
 
 def load_params_file(path: str | pathlib.Path) -> dict[str, Any]:
-    """A ROS params YAML ``{node: {ros__parameters: {...}}}``; GraphError if malformed."""
+    """Return a ROS params YAML ``{node: {ros__parameters: {...}}}``; GraphError if malformed."""
     path = pathlib.Path(path)
     try:
         data = load_yaml_text(path.read_bytes(), f'--params-file {path}')

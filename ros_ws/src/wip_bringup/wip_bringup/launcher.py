@@ -608,7 +608,7 @@ LOCK_FILE = '.run_graph.lock'
 
 
 def _lock_holder(path: pathlib.Path) -> str:
-    """The pid holding a flock on ``path``, from /proc/locks (Linux), else 'unknown'."""
+    """Return the pid holding a flock on ``path``, from /proc/locks (Linux), else 'unknown'."""
     try:
         info = path.stat()
         with open('/proc/locks', encoding='ascii') as stream:

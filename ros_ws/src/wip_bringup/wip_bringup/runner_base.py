@@ -83,7 +83,7 @@ def stop_signals():
 
 
 def stop_signal_number(error: KeyboardInterrupt) -> int:
-    """The signal behind a KeyboardInterrupt (SIGINT unless it is a StopRequested)."""
+    """Return the signal behind a KeyboardInterrupt (SIGINT unless it is a StopRequested)."""
     return error.signum if isinstance(error, StopRequested) else int(signal.SIGINT)
 
 
@@ -236,7 +236,7 @@ class RunnerBase:
 
     @staticmethod
     def load_scenario(path: str | None) -> Scenario:
-        """The scenario file (None: the paper's); GraphError (usage) if it is invalid."""
+        """Return the scenario file (None: the paper's); GraphError (usage) if it is invalid."""
         try:
             return load_scenario(path)
         except ConfigError as err:
@@ -297,7 +297,7 @@ class RunnerBase:
         return ['controllers'] if layout == 'composed' else list(CONTROLLER_NODES)
 
     def extra_processes(self) -> list[str]:
-        """The processes of :attr:`EXTRA_PROCESSES` (a runner may hold them otherwise)."""
+        """Return the processes of :attr:`EXTRA_PROCESSES` (a runner may hold them otherwise)."""
         return list(self.EXTRA_PROCESSES)
 
     def view_nodes(self) -> list[str]:
@@ -305,7 +305,7 @@ class RunnerBase:
                 + (['foxglove_bridge'] if self.options.foxglove_port is not None else []))
 
     def node_names(self) -> list[str]:
-        """The ROS nodes of the run (whatever the processes that hold them)."""
+        """Return the ROS nodes of the run (whatever the processes that hold them)."""
         return (list(CONTROLLER_NODES) + list(self.EXTRA_PROCESSES)
                 + (['recorder'] if self.bag is not None else []) + self.view_nodes())
 

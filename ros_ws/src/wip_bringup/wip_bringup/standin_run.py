@@ -57,7 +57,7 @@ REMAPS = ['joint_states:=base/joint_states', 'imu/data:=base/imu', 'gps/fix:=bas
 
 
 def line_scenario(speed: float = 0.5, kind: str = 'line', **reference) -> dict[str, Any]:
-    """A full-plant scenario on a line (or another reference kind), no disturbance."""
+    """Return a full-plant scenario on a line (or another reference kind), no disturbance."""
     return {
         'name': f'standin_{kind}',
         'description': f'hardware-mode run: {kind} at {speed} m/s, full plant model',
@@ -72,7 +72,7 @@ def line_scenario(speed: float = 0.5, kind: str = 'line', **reference) -> dict[s
 
 
 def write_params(path: pathlib.Path, parameters: Mapping[str, Any]) -> pathlib.Path:
-    """A params file applying ``parameters`` to every node."""
+    """Return a params file applying ``parameters`` to every node."""
     path.write_text(yaml.safe_dump({'/**': {'ros__parameters': dict(parameters)}}))
     return path
 
@@ -92,7 +92,7 @@ class StandinRun:
     controller_cpus: tuple[int, ...] = ()
 
     def summary(self) -> dict[str, Any]:
-        """The measured numbers (also written to ``measured.json`` beside the run)."""
+        """Return the measured numbers (also written to ``measured.json`` beside the run)."""
         stats, result = self.stats, self.result
         ticks = stats['ticks_checked']
         wall = result.wall_time_s or 0.0

@@ -90,7 +90,7 @@ def _import_mujoco():
 
 
 def body_inertias(params: WipParameters) -> dict[str, float]:
-    """The rigid-body values of the MJCF (see the module docstring), SI units."""
+    """Return the rigid-body values of the MJCF (see the module docstring), SI units."""
     p = params
     base_mass = p.body_mass + p.chassis_mass
     com = p.body_mass * p.com_height / base_mass                      # l_c
@@ -258,8 +258,9 @@ class MujocoPlant:
 
     def hold_floats(self, state: tuple, tau_left: float, tau_right: float,
                     disturbance: np.ndarray, dt: float) -> tuple:
-        """``len(disturbance)`` steps of ``dt`` [s] with the torques held; returns the
-        new 8-tuple. ``disturbance``: (n, 3) rows of (d1, d2, d3), one per step.
+        """``len(disturbance)`` steps of ``dt`` [s] with the torques held; returns the new 8-tuple.
+
+        ``disturbance``: (n, 3) rows of (d1, d2, d3), one per step.
         """
         if dt != self.timestep:
             raise ValueError(f'the MuJoCo plant was built for steps of {self.timestep} s, '
@@ -319,7 +320,7 @@ class MujocoPlant:
 
     @staticmethod
     def has_fallen(state: Sequence[float], limit: float = DEFAULT_FALL_LIMIT) -> bool:
-        """True if |θ| ≥ ``limit`` [rad]."""
+        """Return True if |θ| ≥ ``limit`` [rad]."""
         return abs(float(state[THETA])) >= limit
 
     # ------------------------------------------------------------------ diagnostics
@@ -424,7 +425,7 @@ class MujocoPlant:
         return lift
 
     def _read(self) -> tuple:
-        """The 8-state of MuJoCo's state (module docstring)."""
+        """Return the 8-state of MuJoCo's state (module docstring)."""
         q = self._data.qpos.tolist()
         w = self._data.qvel.tolist()
         yaw, theta, roll = _euler_zyx(q[3:7])

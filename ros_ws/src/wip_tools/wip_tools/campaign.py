@@ -375,7 +375,7 @@ def run_specs(campaign: Campaign) -> list[dict]:
 
 
 def scenario_mapping(base: Mapping[str, Any], spec: Mapping[str, Any]) -> dict:
-    """The full scenario mapping of one run: ``base`` with the run's values and seed."""
+    """Return the full scenario mapping of one run: ``base`` with the run's values and seed."""
     scenario = copy.deepcopy(dict(base))
     for key, value in spec['values'].items():
         _set(scenario, _split_key(key, 'campaign'), copy.deepcopy(value))
@@ -385,8 +385,9 @@ def scenario_mapping(base: Mapping[str, Any], spec: Mapping[str, Any]) -> dict:
 
 def run_one(spec: Mapping[str, Any], base: Mapping[str, Any],
             criteria: Mapping[str, Any]) -> dict[str, Any]:
-    """Simulate one run (on a worker) and return its row. Never raises: an exception
-    of the run is reported in the row's ``error`` (the run then fails).
+    """Simulate one run (on a worker) and return its row.
+
+    Never raises: an exception of the run is reported in the row's ``error`` (the run then fails).
 
     ``base`` is the campaign's base scenario mapping and ``criteria`` its criteria as a
     mapping (plain data: they travel to the workers once, see :func:`execute`).

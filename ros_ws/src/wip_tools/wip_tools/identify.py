@@ -388,7 +388,7 @@ def to_parameters(result: Identification, nominal: WipParameters) -> tuple[dict,
 
 
 def true_values(params: WipParameters) -> dict[str, float]:
-    """The combinations of ``params`` that :func:`identify` estimates."""
+    """Return the combinations of ``params`` that :func:`identify` estimates."""
     mp, l = params.body_mass, params.com_height
     return {'effective_mass': params.effective_mass, 'mpl': mp * l,
             'pitch_inertia': params.pitch_inertia, 'mpl2': mp * l * l,
@@ -426,7 +426,7 @@ def _ros_double(value: float) -> str:
 
 
 def model_yaml(overrides: Mapping[str, float], notes: Iterable[str], params_file: bool) -> str:
-    """A scenario's ``controller_model`` section, or a ROS params file (``model.*``)."""
+    """Return a scenario's ``controller_model`` section, or a ROS params file (``model.*``)."""
     head = ''.join(f'# {n}\n' for n in notes)
     if params_file:
         # A ROS double must be written as one: '25.0', not '25' (an integer to ROS).
@@ -437,7 +437,7 @@ def model_yaml(overrides: Mapping[str, float], notes: Iterable[str], params_file
 
 
 def load_record(path: str | pathlib.Path) -> dict:
-    """A record from a bag (directory or .mcap) or a timeseries.npz of scripts/simulate."""
+    """Return a record from a bag (directory or .mcap) or a timeseries.npz of scripts/simulate."""
     path = pathlib.Path(path)
     if not path.exists():
         raise IdentifyError(f'{path}: no such file or directory')

@@ -46,7 +46,7 @@ def node_registry() -> dict[str, tuple[tuple[str, type], ...]]:
 
 
 def node_package(executable: str) -> str:
-    """The ROS package whose executable ``executable`` is."""
+    """Return the ROS package whose executable ``executable`` is."""
     return _registry()[executable][0]
 
 

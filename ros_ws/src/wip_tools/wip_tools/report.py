@@ -148,7 +148,7 @@ def _stamp_ns(message) -> int:
 def record_from_bag(bag: str | pathlib.Path,
                     topics: dict[str, tuple] | None = None,
                     allow_partial: bool = False) -> RunRecord:
-    """The :class:`RunRecord` of a bag (see the module docstring for the mapping).
+    """Return the :class:`RunRecord` of a bag (see the module docstring for the mapping).
 
     Rows are sorted by stamp (a stable sort: messages with equal stamps keep the bag's
     order). Groups whose topic is absent are empty.

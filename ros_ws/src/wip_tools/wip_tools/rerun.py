@@ -417,7 +417,7 @@ def compare(run: RecordedRun, outputs: list[TickOutputs]) -> dict:
 
 
 def run_record(run: RecordedRun, outputs: list[TickOutputs], scenario: Scenario) -> RunRecord:
-    """A RunRecord of the recomputed run (truth: the recorded ground truth, if any)."""
+    """Return a RunRecord of the recomputed run (truth: the recorded ground truth, if any)."""
     rows = {group: [] for group in GROUPS}
     for tick in outputs:
         e, c, a = tick.estimate, tick.command, tick.arc

@@ -30,7 +30,7 @@ from wip_control.tools.cli import add_exit_codes
 
 
 def progress_printer(stream=sys.stderr):
-    """A progress callback printing sim time and real-time factor about once a second."""
+    """Return a progress callback printing sim time and real-time factor about once a second."""
     start = time.perf_counter()
     interactive = stream.isatty()
 
@@ -110,7 +110,7 @@ def simulate(scenario_path: str | None, out_dir: str, figures: bool = True,
 
 
 def summary(metrics: dict) -> str:
-    """A few human-readable lines of the key metrics."""
+    """Return a few human-readable lines of the key metrics."""
     def fmt(value, unit=''):
         return 'n/a' if value is None else f'{value:.3g}{unit}'
     lines = [

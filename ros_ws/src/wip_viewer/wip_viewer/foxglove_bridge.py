@@ -72,7 +72,7 @@ _TRIGGER_RESPONSE_DEFINITION = b'bool success\nstring message\n'
 
 
 def schema_of(type_name: str):
-    """The foxglove Schema of a ROS type: ``ros2msg`` text with its dependencies."""
+    """Return the foxglove Schema of a ROS type: ``ros2msg`` text with its dependencies."""
     import foxglove
     encoding, text = message_definition(type_name)
     return foxglove.Schema(name=type_name, encoding=encoding, data=text.encode('utf-8'))
@@ -91,14 +91,14 @@ def trigger_service_schema():
 
 
 def encode_trigger_response(success: bool, message: str, encoding: str) -> bytes:
-    """A Trigger response in the request's encoding (json or cdr)."""
+    """Return a Trigger response in the request's encoding (json or cdr)."""
     if encoding == 'json':
         return json.dumps({'success': success, 'message': message}).encode('utf-8')
     return serialize_message(Trigger.Response(success=success, message=message))
 
 
 def decode_client_message(topic: str, encoding: str, data: bytes):
-    """The ROS message a client sent on one of :data:`CLIENT_TOPICS`; ValueError if bad."""
+    """Return the ROS message a client sent on one of :data:`CLIENT_TOPICS`; ValueError if bad."""
     if encoding == 'json':
         try:
             fields = json.loads(bytes(data).decode('utf-8') or '{}')

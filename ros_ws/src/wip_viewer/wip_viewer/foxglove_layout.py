@@ -105,7 +105,7 @@ def build_layout(scenario: Scenario | None = None, live: bool = False):
 
 
 def layout_json(live: bool) -> str:
-    """The layout file's text (indented JSON, a final newline)."""
+    """Return the layout file's text (indented JSON, a final newline)."""
     import json
     return json.dumps(json.loads(build_layout(live=live).to_json()), indent=2,
                       ensure_ascii=False) + '\n'

@@ -98,7 +98,7 @@ class BodyGeometry:
 
 def vehicle_geometry(x: float, y: float, phi: float, theta: float,
                      config: ViewerConfig) -> BodyGeometry:
-    """The vehicle at axle centre (x, y) on the ground, heading ϕ, tilt θ.
+    """Return the vehicle at axle centre (x, y) on the ground, heading ϕ, tilt θ.
 
     The axle is at height r; the body is a box of length 2 l whose bottom is on the axle,
     pitched by θ about the axle (its centre at l from the axle along the tilted z axis);

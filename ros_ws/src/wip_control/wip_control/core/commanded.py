@@ -146,7 +146,7 @@ class CmdVelReference(Reference):
         return None
 
     def update(self, t: float) -> ReferenceState:
-        """The reference at time t [s] (t earlier than the last update: the last state)."""
+        """Return the reference at time t [s] (t earlier than the last update: the last state)."""
         if t <= self.unicycle.t:
             return self.unicycle.state()
         if self.command_t is None or t - self.command_t > self.timeout:
@@ -162,7 +162,7 @@ class CmdVelReference(Reference):
 
 
 def _polyline(points: Sequence[Sequence[float]]) -> list[tuple[float, float]]:
-    """The points as floats, consecutive duplicates removed; ValueError if not finite."""
+    """Return the points as floats, consecutive duplicates removed; ValueError if not finite."""
     out: list[tuple[float, float]] = []
     for point in points:
         x, y = float(point[0]), float(point[1])
@@ -288,7 +288,7 @@ class PathReference(Reference):
         return v, omega
 
     def update(self, t: float) -> ReferenceState:
-        """The reference at time t [s] (t earlier than the last update: the last state)."""
+        """Return the reference at time t [s] (t earlier than the last update: the last state)."""
         u = self.unicycle
         while t > u.t:
             step_end = min(t, u.t + MAX_STEP)

@@ -58,7 +58,7 @@ MAX_LIST_LENGTH = 10000
 def param(default: Any, unit: str, description: str, *, minimum: float | None = None,
           maximum: float | None = None, choices: tuple | None = None,
           exclusive_minimum: bool = False, max_length: int | None = None) -> Any:
-    """A dataclass field with its unit, description and admissible range.
+    """Return a dataclass field with its unit, description and admissible range.
 
     Parameters
     ----------

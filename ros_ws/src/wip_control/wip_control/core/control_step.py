@@ -127,8 +127,9 @@ class DriveStage:
         self._last_solve: int | None = None
 
     def limit(self, tau_omega: float) -> float:
-        """Bound on |τυ| [N m]: 2 τmax − |τω| (``core.mixer.drive_torque_limit``). A NaN τω
-        gives a NaN bound, which the controller answers with INPUT_INVALID and a finite
+        """Bound on |τυ| [N m]: 2 τmax − |τω| (``core.mixer.drive_torque_limit``).
+
+        A NaN τω gives a NaN bound, which the controller answers with INPUT_INVALID and a finite
         torque (max(0, NaN) would give 0).
         """
         if not math.isfinite(tau_omega):

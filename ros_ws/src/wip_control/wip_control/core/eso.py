@@ -335,7 +335,7 @@ class ExtendedStateObserver(_ChannelEstimate):
         return self.epsilon / (s * s * s)
 
     def in_ramp(self, t: float) -> bool:
-        """True while the ε ramp is still running at time ``t`` [s]."""
+        """Return True while the ε ramp is still running at time ``t`` [s]."""
         return self.schedule == 'paper_ramp' and t - self._t0 < self.ramp_duration
 
     def update(self, t: float, y: float, b_u: float) -> tuple[float, float, float]:
@@ -504,8 +504,9 @@ class RateAidedChannel(_ChannelEstimate):
         return gains
 
     def reset(self, initial_output: float, initial_time: float = 0.0) -> None:
-        """Angle y0 at ``initial_time`` [s]; rate, bias, disturbance zero. The first
-        update at the same time takes the measured rate as the rate estimate.
+        """Angle y0 at ``initial_time`` [s]; rate, bias, disturbance zero.
+
+        The first update at the same time takes the measured rate as the rate estimate.
         """
         self._reset_estimate(initial_output, initial_time)
         self.bias = 0.0
@@ -673,7 +674,7 @@ class WipStateObserver:
         return self.longitudinal.epsilon_at(t) if self.gyro else self.yaw.epsilon_at(t)
 
     def in_ramp(self, t: float) -> bool:
-        """True while the paper's ε ramp runs (never with the gyro estimator)."""
+        """Return True while the paper's ε ramp runs (never with the gyro estimator)."""
         return False if self.gyro else self.yaw.in_ramp(t)
 
     @property

@@ -146,7 +146,7 @@ class LongitudinalLqr(PreviousTorque):
 
 def make_longitudinal_controller(params: WipParameters, config: MpcConfig
                                  ) -> LongitudinalMpc | LongitudinalLqr:
-    """The controller named by ``config.controller``: the MPC (default) or the LQR."""
+    """Return the controller named by ``config.controller``: the MPC (default) or the LQR."""
     if config.controller == 'lqr':
         return LongitudinalLqr(params, config)
     return LongitudinalMpc(params, config)

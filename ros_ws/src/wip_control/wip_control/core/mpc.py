@@ -765,7 +765,7 @@ def _beyond(transient: tuple[float, float], zone: tuple[float, float]) -> bool:
 
 
 def _excess(value: float, band: float) -> float:
-    """The part of ``value`` beyond ±``band`` (0 inside it)."""
+    """Return the part of ``value`` beyond ±``band`` (0 inside it)."""
     if value > band:
         return value - band
     if value < -band:
@@ -800,7 +800,7 @@ def admissible_increment(delta: float, tau_prev: float, limit: float, dmax: floa
 
 
 def invalid_input_result(config: MpcConfig, tau_prev: float) -> MpcResult:
-    """The tick's result on NaN/inf input: τ ramps toward 0 by at most Δτmax."""
+    """Return the tick's result on NaN/inf input: τ ramps toward 0 by at most Δτmax."""
     delta = min(max(-tau_prev, -config.max_delta_torque), config.max_delta_torque)
     plan = np.zeros(config.control_horizon)
     plan[0] = delta

@@ -222,7 +222,7 @@ def _check_model(model: str) -> None:
 
 
 def _state_floats(state: Sequence[float]) -> list[float]:
-    """The 8 state entries as Python floats; ValueError on a wrong size or NaN/inf."""
+    """Return the 8 state entries as Python floats; ValueError on a wrong size or NaN/inf."""
     if isinstance(state, np.ndarray):
         if state.shape != (STATE_SIZE,):
             raise ValueError(f'plant state must have shape ({STATE_SIZE},), got {state.shape}')
@@ -394,7 +394,7 @@ class Plant:
 
     @staticmethod
     def has_fallen(state: Sequence[float], limit: float = DEFAULT_FALL_LIMIT) -> bool:
-        """True if |θ| ≥ ``limit`` [rad]."""
+        """Return True if |θ| ≥ ``limit`` [rad]."""
         return abs(float(state[THETA])) >= limit
 
     def linearize(self, state_eq: Sequence[float], tau_left: float = 0.0,
@@ -428,7 +428,7 @@ def _check_dt(dt: float) -> None:
 def _make_accelerations(mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_gain,
                         k_centrifugal, k_coriolis, k_reaction, friction_v, friction_w,
                         sin=math.sin, cos=math.cos):
-    """The dynamics (ω̇, υ̇, θ̈), constants bound as closure variables.
+    """Return the dynamics (ω̇, υ̇, θ̈), constants bound as closure variables.
 
     On plain floats with ``math``'s sin and cos (:meth:`Plant.derivative`); on arrays
     with numpy's (:meth:`Plant.accelerations_array`, for the metrics of a whole run).

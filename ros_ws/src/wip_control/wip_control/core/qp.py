@@ -463,7 +463,7 @@ class DaqpSolver:
 
 def make_solver(backend: str, n_variables: int, n_constraints: int,
                 settings: QpSettings) -> ProxsuiteSolver | DaqpSolver:
-    """The persistent solver named ``backend`` (``'proxsuite'`` or ``'daqp'``)."""
+    """Return the persistent solver named ``backend`` (``'proxsuite'`` or ``'daqp'``)."""
     if backend == 'proxsuite':
         return ProxsuiteSolver(n_variables, n_constraints, settings)
     if backend == 'daqp':

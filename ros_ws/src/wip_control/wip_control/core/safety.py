@@ -466,7 +466,7 @@ class SafetyMonitor:
         return faults
 
     def update(self, now: float) -> SafetyDecision:
-        """The torques of the tick at ``now`` [s] (one call per control tick)."""
+        """Return the torques of the tick at ``now`` [s] (one call per control tick)."""
         self.ticks += 1
         dt = self.period if self.last_update is None else max(0.0, now - self.last_update)
         self.last_update = now

@@ -353,9 +353,10 @@ def _check_latitude(latitude: float) -> None:
 
 
 def _check_finite(what: str, *values: float) -> None:
-    """ValueError naming ``what`` if a value is NaN or infinite. The per-sample callers
-    call it only when the values' sum is not finite: a NaN or inf among them makes the
-    sum so, and a finite sum proves them all finite (a sum that overflows is checked
+    """ValueError naming ``what`` if a value is NaN or infinite.
+
+    The per-sample callers call it only when the values' sum is not finite: a NaN or inf among them
+    makes the sum so, and a finite sum proves them all finite (a sum that overflows is checked
     here, value by value).
     """
     for v in values:

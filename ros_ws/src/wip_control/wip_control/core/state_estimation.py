@@ -87,7 +87,7 @@ class StateEstimator:
     def update(self, t: float, phi_left: float, phi_right: float, pitch: float, yaw: float,
                tau_left: float, tau_right: float, rates: Sequence[float] | None = None,
                fix: Sequence[float] | None = None) -> PoseEstimate:
-        """The estimate at sample time ``t`` [s].
+        """Return the estimate at sample time ``t`` [s].
 
         Parameters
         ----------

@@ -167,7 +167,7 @@ class WiringCheck:
         self.yaw_worst_miss: float | None = None
 
     def summary(self) -> str:
-        """The margins seen so far, one line (correct wiring: Y/X near 1, misses near 0)."""
+        """Return the margins seen so far, one line (correct wiring: Y/X near 1, misses near 0)."""
         tilt = 'n/a' if self.tilt_ratio is None else f'{self.tilt_ratio:.2f}'
         yaw = 'n/a' if self.yaw_worst_miss is None else f'{self.yaw_worst_miss:.2f}'
         return (f'tilt Y/X {tilt} (fault in [{_TILT_BAND[0]:g}, {_TILT_BAND[1]:g}]); '

@@ -161,7 +161,7 @@ def warn_lockstep_without_sim_time(node: Node, mode: str) -> str:
 
 
 def finite(*values: float) -> bool:
-    """True if every value is a finite number."""
+    """Return True if every value is a finite number."""
     return all(math.isfinite(v) for v in values)
 
 
@@ -331,7 +331,7 @@ def init_rclpy(program: str, args, signal_handler_options) -> bool:
 
 
 def _package_of(factory) -> str:
-    """The ROS package of a node class (its top-level Python package)."""
+    """Return the ROS package of a node class (its top-level Python package)."""
     return str(getattr(factory, '__module__', 'wip_control')).split('.')[0]
 
 
@@ -687,10 +687,11 @@ class ControllerNode(IntraProcessNode):
         self.subscribe(msg_type, topic, name, handler, qos)
 
     def now_ns(self) -> int:
-        """The node clock [ns]. Without ``use_sim_time`` that is ROS time = the system
-        clock (CLOCK_REALTIME), read directly: rclpy's ``now()`` builds a Time object per
-        call (measured 15 us against 0.15 us on a loaded machine), and real time reads the
-        clock for every input.
+        """Return the node clock [ns].
+
+        Without ``use_sim_time`` that is ROS time = the system clock (CLOCK_REALTIME), read
+        directly: rclpy's ``now()`` builds a Time object per call (measured 15 us against 0.15 us
+        on a loaded machine), and real time reads the clock for every input.
         """
         if self._system_clock:
             return time.time_ns()

@@ -335,8 +335,10 @@ def _column(values: Sequence[float]) -> array.array:
 
 
 def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> MpcOutput:
-    """MpcOutput of a core tick. Unknown quantities are not sent as NaN: slacks are 0 and
-    the predictions empty when the QP was not solved (``status`` says so).
+    """MpcOutput of a core tick.
+
+    Unknown quantities are not sent as NaN: slacks are 0 and the predictions empty when the QP was
+    not solved (``status`` says so).
     """
     predicted = result.predicted
     have_prediction = bool(predicted.size) and bool(math.isfinite(float(predicted.sum())))
@@ -403,7 +405,7 @@ def effort_command(left: float, right: float, joints: Sequence[str], left_joint:
 
 def _in_joint_order(left: float, right: float, joints: Sequence[str], left_joint: str,
                     right_joint: str) -> list[float]:
-    """The efforts in the order of ``joints`` (the base's command layout)."""
+    """Return the efforts in the order of ``joints`` (the base's command layout)."""
     by_name = {left_joint: left, right_joint: right}
     return [by_name[j] for j in joints]
 

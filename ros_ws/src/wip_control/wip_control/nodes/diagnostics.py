@@ -96,7 +96,7 @@ class NodeDiagnostics:
 
     # -- publishing ------------------------------------------------------------------------
     def status(self) -> DiagnosticStatus:
-        """The DiagnosticStatus of now (also resets the per-period rates)."""
+        """Return the DiagnosticStatus of now (also resets the per-period rates)."""
         wall, outputs, stamp = time.monotonic(), self.outputs, self.last_output_ns
         wall0, outputs0, stamp0 = self._previous
         self._previous = (wall, outputs, stamp)

@@ -40,7 +40,7 @@ TEXT = '-'
 
 
 def like(cls: type, name: str, default: Any = None, description: str | None = None) -> Any:
-    """A field with the unit and range of ``cls.name`` (one declaration of a range)."""
+    """Return a field with the unit and range of ``cls.name`` (one declaration of a range)."""
     field = {f.name: f for f in dataclasses.fields(cls)}[name]
     metadata = dict(field.metadata)
     if description is not None:
@@ -128,7 +128,7 @@ class DatumConfig:
 
     @classmethod
     def of(cls, sensors: SensorConfig) -> 'DatumConfig':
-        """The datum of a scenario's sensors section."""
+        """Return the datum of a scenario's sensors section."""
         return cls(sensors.gps_datum_latitude, sensors.gps_datum_longitude,
                    sensors.gps_datum_altitude)
 

@@ -59,7 +59,7 @@ def decimation(period: float, base_period: float) -> int:
 
 
 def is_decimated_tick(stamp_ns: int, base_period: float, every: int) -> bool:
-    """True if ``stamp_ns`` is every ``every``-th sample of the ``base_period`` [s] grid."""
+    """Return True if ``stamp_ns`` is every ``every``-th sample of the ``base_period`` [s] grid."""
     return tick_index(stamp_ns, base_period) % every == 0
 
 

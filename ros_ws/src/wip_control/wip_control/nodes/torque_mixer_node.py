@@ -420,7 +420,7 @@ class TorqueMixerNode(ControllerNode):
         diag.values['safety reasons'] = decision.reason or 'none'
 
     def _status(self):
-        """The node's DiagnosticStatus with the safety counters and input ages of now."""
+        """Return the node's DiagnosticStatus with the safety counters and input ages of now."""
         values = self.diagnostics.values
         for name, age in self.monitor.ages(self.monitor_time()).items():
             values[f'received {name} ago [s]'] = 'never' if age is None else f'{age:.4f}'

@@ -191,7 +191,7 @@ def write_atomic(path: str | os.PathLike, data: bytes | str) -> None:
 
 
 def exit_codes_text() -> str:
-    """The exit-code table as the epilog of a tool's ``--help``: one line per code."""
+    """Return the exit-code table as the epilog of a tool's ``--help``: one line per code."""
     return EXIT_CODES_HEADING + '\n' + '\n'.join(
         f'  {code:>3}  {meaning}' for code, meaning in EXIT_CODES.items())
 

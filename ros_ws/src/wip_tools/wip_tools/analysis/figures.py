@@ -284,9 +284,9 @@ FIGURE_NAMES = ('fig04_path', 'fig05_posture_errors', 'fig06_tilt', 'fig07_veloc
 
 def write_figures(record: RunRecord, scenario, out_dir: str | pathlib.Path,
                   progress=None) -> list[pathlib.Path]:
-    """All figures of one run into ``out_dir`` (PNG, with SVG beside); returns the PNG
-    paths. ``progress(text)``, if given, is called before each figure (a few seconds
-    each on a full run).
+    """All figures of one run into ``out_dir`` (PNG, with SVG beside); returns the PNG paths.
+
+    ``progress(text)``, if given, is called before each figure (a few seconds each on a full run).
     """
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

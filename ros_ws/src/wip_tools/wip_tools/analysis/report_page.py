@@ -125,8 +125,9 @@ CONVERGENCE_CLAIM_S = 8.0
 NOT_TESTED = 'not tested (run too short)'
 
 def claims(metrics: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]:
-    """(quantity, the paper's claim, this run, verdict) rows. Verdict: 'yes', 'no' (with
-    the known reason) or 'n/a' (the run lacks the data).
+    """(quantity, the paper's claim, this run, verdict) rows.
+
+    Verdict: 'yes', 'no' (with the known reason) or 'n/a' (the run lacks the data).
     """
     m = metrics
     tg, mpc = scenario.trajectory_generator, scenario.mpc
@@ -315,7 +316,7 @@ def _verdict_class(text: str) -> str:
 
 def render_page(metrics: dict[str, Any], scenario, figure_paths: list[pathlib.Path],
                 scenario_mapping: dict[str, Any], title: str | None = None) -> str:
-    """The HTML text of the page (figures embedded from ``figure_paths``)."""
+    """Return the HTML text of the page (figures embedded from ``figure_paths``)."""
     e = html.escape
     title = title or f'wip-ros run report: {scenario.name}'
     parts = [f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
