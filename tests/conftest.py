@@ -42,7 +42,9 @@ from wip_bringup.private_domain import (release_private_domain, release_taken_do
 
 @contextlib.contextmanager
 def private_dds_domain():
-    """A random DDS domain with localhost-only discovery for this process and the
+    """Give this process and its children a random DDS domain, localhost only.
+
+    A random DDS domain with localhost-only discovery for this process and the
     processes it starts (ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE), restored after.
 
     1..101: Fast DDS ports of higher domain ids fall into Linux's ephemeral port range.
@@ -66,7 +68,9 @@ def private_dds_domain():
 
 @pytest.fixture(autouse=True)
 def _release_taken_domains():
-    """The domains a test took with wip_bringup.private_domain.take_private_domain are
+    """Free the domains a test took with take_private_domain once it has ended.
+
+    The domains a test took with wip_bringup.private_domain.take_private_domain are
     free again once it has ended.
     """
     yield
@@ -82,8 +86,9 @@ def domain():
 
 @pytest.fixture
 def test_node(domain):
-    """A node in a private rclpy context in the test's domain, with its own executor
-    (``node.executor_for_test``).
+    """A node in a private rclpy context in the test's domain, with its own executor.
+
+    ``node.executor_for_test``.
     """
     rclpy = pytest.importorskip('rclpy')
     from rclpy.executors import SingleThreadedExecutor
@@ -118,7 +123,9 @@ def context(module_domain):
 
 @pytest.fixture
 def harnesses():
-    """What a test made that must be closed (``close()``: node harnesses, see
+    """Close what a test made that must be closed, at its end, failed or not.
+
+    What a test made that must be closed (``close()``: node harnesses, see
     ``tests/ros_harness.py``), closed at its end, failed or not.
     """
     made = []
@@ -139,7 +146,9 @@ def pytest_addoption(parser):
 
 @pytest.fixture(scope='session', autouse=True)
 def busy_cores(request):
-    """The ``--busy-cores N`` processes, started before the first test and ended after the
+    """Run the ``--busy-cores N`` processes for the whole session.
+
+    The ``--busy-cores N`` processes, started before the first test and ended after the
     last (killed with their process group, so an interrupted session leaves none).
     """
     import signal

@@ -1,5 +1,6 @@
-"""Generated bad input: a clear error or a correct result, never a traceback, never a
-changed original.
+"""Generated bad input.
+
+A clear error or a correct result, never a traceback, never a changed original.
 
 Property-based (hypothesis): scenario files (valid, absurd values, broken YAML, duplicate
 keys, bytes that are not UTF-8) and bags (valid, truncated, bit-flipped, garbage

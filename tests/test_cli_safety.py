@@ -1,5 +1,6 @@
-"""Every reproduction of a data-safety bug, each with its new behaviour: no data lost, no silent
-wrong result, no traceback, one exit-code table.
+"""Every reproduction of a data-safety bug, each with its new behaviour.
+
+No data lost, no silent wrong result, no traceback, one exit-code table.
 
 Exit codes (every tool): 0 ok, 1 the vehicle fell or a check failed, 2 usage or input
 error (nothing written), 3 internal error (one line, the trace in a file).

@@ -1,7 +1,9 @@
-"""One exit-code table: the constants of wip_control.tools.cli, its docstring, the README's
-table and every tool's ``--help`` say the same. Every script of scripts/ and every node
-executable answers ``--help`` (exit 0, usage, nothing started or written), and a typo in an
-option is exit 2 in one line before anything is written.
+"""One exit-code table.
+
+The constants of wip_control.tools.cli, its docstring, the README's table and every tool's
+``--help`` say the same. Every script of scripts/ and every node executable answers ``--help``
+(exit 0, usage, nothing started or written), and a typo in an option is exit 2 in one line before
+anything is written.
 """
 
 import os
@@ -90,8 +92,9 @@ def commands():
 
 
 def node_executables():
-    """(package, executable, path) of every node that ``ros2 run`` starts (not the tools,
-    which are scripts/ commands or have argparse).
+    """(package, executable, path) of every node that ``ros2 run`` starts.
+
+    Not the tools, which are scripts/ commands or have argparse.
     """
     from ament_index_python.packages import get_package_prefix
     nodes = {'wip_control': ('reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
@@ -105,8 +108,9 @@ def node_executables():
 
 @pytest.fixture(scope='module')
 def helped(tmp_path_factory):
-    """``--help`` of every scripts/ command and node executable, all at once, each in an
-    empty folder of its own: name -> (status, output, files the folder holds after).
+    """``--help`` of every scripts/ command and node executable, all at once.
+
+    Each in an empty folder of its own: name -> (status, output, files the folder holds after).
     """
     pytest.importorskip('rclpy')
     runs = {f'scripts/{name}': [str(SCRIPTS / name), '--help'] for name in commands()}

@@ -208,7 +208,9 @@ def test_every_executable_has_a_contract_entry():
 
 
 def entry_point_module(package, executable):
-    """The module whose ``main`` a console script runs, from the package's setup.py (and
+    """Return the module whose ``main`` a console script runs.
+
+    The module whose ``main`` a console script runs, from the package's setup.py (and
     its console.py for the tools, see wip_control.tools.cli.console_script).
     """
     source = REPO_ROOT / 'ros_ws' / 'src' / package

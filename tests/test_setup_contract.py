@@ -172,7 +172,7 @@ def test_message_has_a_header_and_a_unit_for_every_numeric_field(name):
 
 
 def _sample_value(field_type, index):
-    """A value of a rosidl field type that differs from the default and from other fields."""
+    """Return a value of a rosidl field type that differs from the default and other fields."""
     from builtin_interfaces.msg import Time
     from std_msgs.msg import Header
 

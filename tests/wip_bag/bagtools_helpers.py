@@ -81,14 +81,17 @@ class Tool:
 
 
 def spin_until(node, condition, timeout, what, process=None):
-    """Spin the test node (conftest's ``test_node``) until ``condition()``; fails at the
-    timeout [s] or when ``process`` exits (see ros_harness.spin_until).
+    """Spin the test node (conftest's ``test_node``) until ``condition()``.
+
+    Fails at the timeout [s] or when ``process`` exits (see ros_harness.spin_until).
     """
     ros_harness.spin_until(node.executor_for_test, condition, what, timeout, process=process)
 
 
 def start_recorder(node, bag, topics=None, *params, preexec_fn=None):
-    """The recorder process recording ``topics`` (None: every topic) into ``bag``, with
+    """Start the recorder process recording ``topics`` into ``bag``.
+
+    The recorder process recording ``topics`` (None: every topic) into ``bag``, with
     the parameters ``params`` ('name:=value').
     """
     args = ['--ros-args', '-p', f'output:={bag}', '-p', 'discovery_period:=0.1']
@@ -100,7 +103,9 @@ def start_recorder(node, bag, topics=None, *params, preexec_fn=None):
 
 
 def assert_metadata_matches_content(directory):
-    """metadata.yaml agrees with what the files hold (counted by reading every message,
+    """metadata.yaml agrees with what the files hold.
+
+    metadata.yaml agrees with what the files hold (counted by reading every message,
     and by rosbags, an independent reader); returns its rosbag2_bagfile_information.
     """
     info = yaml.safe_load((directory / 'metadata.yaml').read_text())[
@@ -131,7 +136,7 @@ def assert_metadata_matches_content(directory):
 
 @pytest.fixture
 def tools():
-    """Started tools; killed at the end even when a test fails."""
+    """Yield started tools; killed at the end even when a test fails."""
     started = []
     yield started
     for tool in started:

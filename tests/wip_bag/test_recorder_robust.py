@@ -29,8 +29,9 @@ PUBLISH_PERIOD = 0.002  # [s]: 500 Hz, above every rate of the project's graph
 
 
 def _publish_for(node, publisher, seconds, start, make=str, stop=None):
-    """Publish make(k) for k = start, start+1 ... at PUBLISH_PERIOD for ``seconds``,
-    spinning the test node in between; returns the next k.
+    """Publish make(k) for k = start, start+1 ... at PUBLISH_PERIOD for ``seconds``.
+
+    Spinning the test node in between; returns the next k.
     """
     k = start
     next_time = time.monotonic()

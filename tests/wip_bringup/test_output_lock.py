@@ -1,6 +1,8 @@
-"""One run per output folder: run_graph locks ``--out`` (its lock file) and the bag directory
-before it writes there; a second run into either is refused at once (exit 2), with one line
-naming the holder's pid, and writes nothing.
+"""One run per output folder.
+
+run_graph locks ``--out`` (its lock file) and the bag directory before it writes there; a second
+run into either is refused at once (exit 2), with one line naming the holder's pid, and writes
+nothing.
 """
 
 import os

@@ -110,7 +110,9 @@ def test_a_process_and_its_threads_run_at_the_requested_fifo_priority(tmp_path):
 
 
 def test_a_runaway_at_fifo_priority_is_killed_by_its_rt_cpu_limit(tmp_path):
-    """A thread that spins at SCHED_FIFO without sleeping for longer than the limit is
+    """A runaway thread at SCHED_FIFO is killed by its real-time CPU limit.
+
+    A thread that spins at SCHED_FIFO without sleeping for longer than the limit is
     killed by the kernel (RLIMIT_RTTIME) instead of starving the machine below it.
     """
     scheduling = Scheduling(5, rt_cpu_limit=0.3)
@@ -136,7 +138,9 @@ def _task_policies(pid: int) -> list[tuple[int, int]]:
 
 def test_the_priority_is_raised_on_the_running_process_its_threads_and_their_children(
         tmp_path):
-    """The launcher starts the controllers at the normal policy (their imports and DDS
+    """The priority is raised on the running process, its threads and their children.
+
+    The launcher starts the controllers at the normal policy (their imports and DDS
     start-up must not starve the other processes) and raises them once every node is up:
     every thread then, and a thread started afterwards, runs at SCHED_FIFO with the
     RLIMIT_RTTIME; a process that refuses is a GraphError naming it.
@@ -240,7 +244,9 @@ def test_a_controller_node_ends_with_its_launcher_killed_by_sigkill(tmp_path):
 
 
 def test_a_zombie_launcher_is_gone_and_stops_the_start():
-    """A launcher killed while its node starts is a zombie until reaped: signal 0 still
+    """A zombie launcher counts as gone and stops the node's start.
+
+    A launcher killed while its node starts is a zombie until reaped: signal 0 still
     reaches it, but the node must not take it for a live launcher (it would run on,
     orphaned, believing itself a grandchild).
     """

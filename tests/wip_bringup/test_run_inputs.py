@@ -1,7 +1,8 @@
-"""What a user gives run_graph and check_base is checked before anything starts: params
-files against the one declaration of each node parameter, --remap rules, every numeric
-option, the scenario's duration. Each refusal is one line on stderr, exit 2, and the run's
-output folder holds no logs (no node process was started).
+"""What a user gives run_graph and check_base is checked before anything starts.
+
+Params files against the one declaration of each node parameter, --remap rules, every numeric
+option, the scenario's duration. Each refusal is one line on stderr, exit 2, and the run's output
+folder holds no logs (no node process was started).
 """
 
 import pathlib

@@ -1,6 +1,7 @@
-"""Every way a run_graph run ends finalises its bag: SIGINT, SIGTERM and SIGHUP to run_graph,
-and SIGKILL of run_graph (its nodes then get SIGINT from the kernel and the recorder
-finishes on its own).
+"""Every way a run_graph run ends finalises its bag.
+
+SIGINT, SIGTERM and SIGHUP to run_graph, and SIGKILL of run_graph (its nodes then get SIGINT from
+the kernel and the recorder finishes on its own).
 
 Each test runs ``python -m wip_bringup.graph`` (what ``scripts/run_graph`` execs) on a few
 seconds of the paper scenario in lockstep with ``--record``, sends the signal mid-run (or

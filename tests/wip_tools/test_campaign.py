@@ -1,4 +1,6 @@
-"""scripts/campaign: the file format, the draws, the criteria, and a small campaign on a
+"""scripts/campaign: the file format, the draws, the criteria, and a small campaign.
+
+scripts/campaign: the file format, the draws, the criteria, and a small campaign on a
 Dask LocalCluster end to end (outputs, summary, figures, resume, no overwrite).
 """
 

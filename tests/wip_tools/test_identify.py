@@ -1,4 +1,6 @@
-"""Model identification (wip_tools.identify, docs/identification.md) on in-process runs of
+"""Model identification (wip_tools.identify, docs/identification.md).
+
+Model identification (wip_tools.identify, docs/identification.md) on in-process runs of
 the excitation scenario: off-nominal paper plants are recovered, a standing-still run
 determines nothing, the identified model as the controllers' one, and the CLI.
 """
@@ -121,7 +123,9 @@ def test_state_estimate_alone_also_recovers_them_within_5_percent():
 
 @pytest.mark.parametrize('source', ['truth', 'estimate'])
 def test_full_plant_is_recovered_with_the_full_rows_and_not_with_eq_1(source):
-    """A real robot has the motor reaction torque: (1) does not fit it (values not
+    """The full plant is recovered with the full rows and not with eq. (1).
+
+    A real robot has the motor reaction torque: (1) does not fit it (values not
     determined or off), the full plant's rows do (docs/identification.md §7).
     """
     scenario, result = _run('full_heavy_high', PLANTS['heavy_high'], model='full')
@@ -233,7 +237,9 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
 
 
 def _write_bag(directory, record, groups=('truth',)):
-    """The record's truth as /wip/ground_truth messages in a rosbag2 MCAP bag (what the
+    """Write the record's truth as /wip/ground_truth messages in a rosbag2 MCAP bag.
+
+    The record's truth as /wip/ground_truth messages in a rosbag2 MCAP bag (what the
     plant node publishes; stamps are the simulated times).
     """
     serialization = pytest.importorskip('rclpy.serialization')

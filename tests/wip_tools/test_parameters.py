@@ -101,8 +101,10 @@ def _node_classes():
 
 
 def _declared(cls, context, overrides):
-    """Names the node declares; a node that refuses its (absent) input after declaring,
-    such as the replayer without a bag, still shows what it declared.
+    """Names the node declares.
+
+    A node that refuses its (absent) input after declaring, such as the replayer without a bag,
+    still shows what it declared.
     """
     from rclpy.parameter import Parameter
     node = cls.__new__(cls)

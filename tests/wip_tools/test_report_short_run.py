@@ -1,4 +1,6 @@
-"""A claim whose time window is longer than the run is "not tested (run too short)" in the
+"""A claim whose time window is longer than the run is "not tested (run too short)".
+
+A claim whose time window is longer than the run is "not tested (run too short)" in the
 report, neither passed nor failed; run_graph's hint to make the report is shell-quoted.
 """
 

@@ -104,7 +104,7 @@ def context(domain_id):
 
 @pytest.fixture
 def params_context(domain_id, tmp_path):
-    """Factory of contexts whose nodes read a params file (``--ros-args --params-file``)."""
+    """Return a factory of contexts whose nodes read a params file (``--params-file``)."""
     made = []
 
     def factory(node_name, parameters):
@@ -135,7 +135,9 @@ TOPIC_TYPES = {'/clock': Clock, '/joint_states': JointState, '/imu/data': Imu,
 
 
 def wire(harness, inputs=(), outputs=()):
-    """Publishers of the topics ``inputs`` and listeners of ``outputs`` on the harness node
+    """Wire publishers of ``inputs`` and listeners of ``outputs`` on the harness node.
+
+    Publishers of the topics ``inputs`` and listeners of ``outputs`` on the harness node
     (types from :data:`TOPIC_TYPES`), matched with the node under test.
     """
     for topic in inputs:
@@ -154,7 +156,9 @@ def harness_of(harnesses, node):
 
 
 def start(harnesses, context, node_cls, mode='lockstep', inputs=(), outputs=(), **params):
-    """A node of ``node_cls`` with the test's parameter overrides, in a harness; wired to
+    """Start a node of ``node_cls`` with the test's parameter overrides, in a harness.
+
+    A node of ``node_cls`` with the test's parameter overrides, in a harness; wired to
     ``inputs`` and ``outputs`` (see :func:`wire`) if given.
     """
     harness = harness_of(harnesses, node_cls(context=context, parameter_overrides=overrides(
@@ -911,7 +915,9 @@ def test_topics_are_remappable(context, harnesses):
 
 @pytest.mark.parametrize('composed', [False, True], ids=['dds', 'composed'])
 def test_six_nodes_in_lockstep_reproduce_the_in_process_runner(context, harnesses, composed):
-    """A minimal plant (the runner's plant, sensors and disturbances) drives the six nodes
+    """Six nodes in lockstep reproduce the in-process runner.
+
+    A minimal plant (the runner's plant, sensors and disturbances) drives the six nodes
     in lockstep: the wheel torques equal the runner's from t = 0 on. ``composed``: as in
     ``ros2 run wip_control controllers``, one /clock subscription for all six and the
     messages between them delivered in-process (common.connect_intra_process).
@@ -1137,7 +1143,9 @@ def test_an_executor_error_after_shutdown_is_a_stop_and_before_it_an_error():
 
 def test_realtime_input_stamped_far_ahead_is_refused_and_does_not_block_the_stream(
         context, harnesses):
-    """Real time takes inputs newest stamp first: one message from a sender whose clock
+    """A real-time input stamped far ahead is refused and does not block the stream.
+
+    Real time takes inputs newest stamp first: one message from a sender whose clock
     jumped a day ahead must be refused (with the reason), not kept as the newest, which
     would drop every correct message after it.
     """
@@ -1166,7 +1174,9 @@ def test_realtime_input_stamped_far_ahead_is_refused_and_does_not_block_the_stre
 
 
 def test_diagnostics_report_the_dds_match_counts_of_both_sides(context, harnesses):
-    """The graph runner starts a lockstep run only when both sides of every pair count
+    """The diagnostics report the DDS match counts of both sides.
+
+    The graph runner starts a lockstep run only when both sides of every pair count
     each other: the node must report them (and not ROS infrastructure topics).
     """
     harness = arc_harness(harnesses, context)
@@ -1208,7 +1218,9 @@ def test_the_readme_params_file_of_a_real_base_is_taken_by_the_eso_and_the_mixer
 # ----------------------------------------------------------- commanded references, /odom
 
 def tick_every(harness, out, step_ns, duration):
-    """Publish /clock every step_ns up to duration [s], each time waiting for the
+    """Publish /clock every step_ns up to duration [s], waiting for the reference each time.
+
+    Publish /clock every step_ns up to duration [s], each time waiting for the
     reference (a burst of clock messages would overrun the clock's queue).
     """
     for k in range(1, round(duration * 1e9 / step_ns) + 1):

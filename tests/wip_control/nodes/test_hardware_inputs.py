@@ -1,4 +1,6 @@
-"""Input adapters of a real base (wheel signs, IMU mounting, odometry) and the node
+"""Input adapters of a real base and the node parameters that use them.
+
+Input adapters of a real base (wheel signs, IMU mounting, odometry) and the node
 parameters that use them: eso, torque_mixer, reference (``realtime_start``), mpc (applied
 torque in real time).
 
@@ -216,8 +218,9 @@ def capture(publisher):
 
 
 def feed_eso(node, encode, n=40):
-    """Feed ``n`` samples of a robot rolling forward and turning; ``encode(pitch, yaw,
-    left, right)`` makes the base's (JointState, Imu).
+    """Feed ``n`` samples of a robot rolling forward and turning.
+
+    ``encode(pitch, yaw, left, right)`` makes the base's (JointState, Imu).
     """
     out = capture(node.publisher)
     for k in range(n):
@@ -260,7 +263,9 @@ def test_eso_with_signs_and_mounting_estimates_what_the_default_does_on_plain_in
 
 def test_eso_fed_serialized_sensors_estimates_bit_for_bit_what_message_objects_give(
         context, nodes):
-    """The ESO takes /joint_states and /imu/data serialized (raw=True, decoded by
+    """The ESO fed serialized sensors estimates bit for bit what message objects give.
+
+    The ESO takes /joint_states and /imu/data serialized (raw=True, decoded by
     conversions.decode_serialized): the same estimates as from rclpy's message objects.
     """
     from rclpy.serialization import serialize_message

@@ -185,7 +185,7 @@ _RECORD_KINDS = ((Schema, 'schema'), (Channel, 'channel'), (Message, 'message'),
 
 
 def record_kind(record) -> str | None:
-    """'schema', 'channel', 'message' or 'metadata' for those MCAP records, else None."""
+    """Return the kind of an MCAP record: 'schema', 'channel', 'message', 'metadata' or None."""
     for cls, kind in _RECORD_KINDS:
         if isinstance(record, cls):
             return kind

@@ -184,7 +184,9 @@ def _parse_serialized(metadata):
 
 
 def _rewrite(path, target, compression):
-    """The intact chunks of ``path`` into a finished MCAP file ``target`` (None: only
+    """Write the intact chunks of ``path`` into a finished MCAP file.
+
+    The intact chunks of ``path`` into a finished MCAP file ``target`` (None: only
     count); returns its FileContents.
     """
     file_scan = scan(path)

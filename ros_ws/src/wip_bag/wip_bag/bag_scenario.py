@@ -39,7 +39,7 @@ def bag_directory(bag: str | pathlib.Path) -> pathlib.Path:
 
 
 def own_scenario(bag: str | pathlib.Path) -> tuple[dict[str, Any] | None, str]:
-    """(the bag's own scenario as a mapping, or None; where it came from)."""
+    """Return (the bag's own scenario as a mapping, or None; where it came from)."""
     directory = bag_directory(bag)
     metadata = directory / 'metadata.yaml'
     if metadata.is_file():

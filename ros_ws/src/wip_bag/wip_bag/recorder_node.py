@@ -478,7 +478,9 @@ def make_executor(context=None):
 
 
 class StopSignals:
-    """SIGINT, SIGTERM and SIGHUP set a flag (counted) instead of raising: the spin loop
+    """Stop signals as a flag instead of an exception.
+
+    SIGINT, SIGTERM and SIGHUP set a flag (counted) instead of raising: the spin loop
     and the stop's drain look at it, and the close that follows cannot be cut by one.
     """
 
@@ -492,7 +494,9 @@ class StopSignals:
 
 
 def spin(node, executor, stop=None):
-    """Spin with a timeout (the EventsExecutor's spin() ignores SIGINT, ros-from-pip.md)
+    """Spin until a stop signal, then drain.
+
+    Spin with a timeout (the EventsExecutor's spin() ignores SIGINT, ros-from-pip.md)
     until a stop signal, then :func:`drain`.
     """
     executor.add_node(node)
@@ -509,7 +513,9 @@ def launcher_gone():
 
 
 def drain(node, executor, stop, quiet=STOP_QUIET, longest=STOP_DRAIN):
-    """After the first stop signal: receive until nothing arrived for ``quiet`` [s], at
+    """Receive what is still coming after the first stop signal.
+
+    After the first stop signal: receive until nothing arrived for ``quiet`` [s], at
     most ``longest`` [s], or until a second signal.
     """
     started = time.monotonic()

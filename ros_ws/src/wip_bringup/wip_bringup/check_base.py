@@ -193,7 +193,9 @@ def unwrap_mean(angles: list[float]) -> float:
 
 
 class BaseListener:
-    """Subscribes to the base's JointState and Imu in a background thread and keeps the
+    """Listener of the base's JointState and Imu.
+
+    Subscribes to the base's JointState and Imu in a background thread and keeps the
     samples of the last few seconds.
     """
 
@@ -224,7 +226,7 @@ class BaseListener:
             raise
 
     def _start(self) -> None:
-        """The node, its subscriptions and the thread that spins it."""
+        """Start the node, its subscriptions and the thread that spins it."""
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import qos_profile_sensor_data
         from sensor_msgs.msg import Imu, JointState
@@ -719,7 +721,9 @@ LISTENED_TOPICS = ('/joint_states', '/imu/data')
 
 
 def split_ros_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
-    """(the tool's own arguments, 'FROM:=TO' remappings) of a command line that may hold
+    """Split a command line into the tool's own arguments and remappings.
+
+    (the tool's own arguments, 'FROM:=TO' remappings) of a command line that may hold
     ``--ros-args ... [--]`` blocks, as ``ros2 run`` passes them.
     """
     own: list[str] = []

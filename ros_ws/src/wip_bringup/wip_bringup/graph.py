@@ -1,5 +1,6 @@
-"""``scripts/run_graph``: run a scenario through the ROS 2 node graph (controllers composed in
-one process by default, or one process per node with ``--layout separate``).
+"""``scripts/run_graph``: run a scenario through the ROS 2 node graph.
+
+Controllers composed in one process by default, or one process per node with ``--layout separate``.
 
 Examples
 --------
@@ -192,8 +193,9 @@ DRAIN_STALL = 2.5
 
 
 class StartupStall(GraphError):
-    """The run stalled on its first ticks: a message published before its subscription
-    was matched is lost (see :meth:`GraphRunner.run`).
+    """The run stalled on its first ticks.
+
+    A message published before its subscription was matched is lost (see :meth:`GraphRunner.run`).
     """
 
     def __init__(self, message: str) -> None:
@@ -228,8 +230,9 @@ class GraphOptions:
 
 @dataclasses.dataclass
 class GraphResult(RunResult):
-    """What :func:`run_graph` returns (also written to ``OUT/run.json``); ``cpu_s`` of the
-    plant from its own stats, ``timeline`` with the plant's refusals to start.
+    """What :func:`run_graph` returns (also written to ``OUT/run.json``).
+
+    ``cpu_s`` of the plant from its own stats, ``timeline`` with the plant's refusals to start.
     """
 
     scenario: Scenario | None = None
@@ -296,7 +299,9 @@ class GraphRunner(RunnerBase):
         self.last_sim_time: float | None = None  # [s] the plant's latest progress report
 
     def stop_all(self) -> None:
-        """A run cut short in lockstep stops the controllers (and the viewer, the bridge)
+        """Stop every process, in the order a run cut short needs.
+
+        A run cut short in lockstep stops the controllers (and the viewer, the bridge)
         first: the plant then waits for torques and publishes nothing more, and stays up
         while the recorder takes what it published (a publisher that exits takes with it
         the samples a lagging reader has not received yet: about 90 ticks were lost so on
@@ -392,7 +397,9 @@ class GraphRunner(RunnerBase):
         return missing_endpoints(self.probe, expected, nodes)
 
     def unmatched_endpoints(self) -> list[str]:
-        """Designed pairs whose DDS match is not yet seen by BOTH sides, from the match
+        """Designed pairs whose DDS match is not yet seen by both sides.
+
+        Designed pairs whose DDS match is not yet seen by BOTH sides, from the match
         counts in the controllers' /diagnostics (``matched subscriptions <topic>`` of a
         publisher, ``matched publishers <topic>`` of a subscription; the plant checks its
         own endpoints before it starts). DDS matches each side on its own: a reliable
@@ -483,8 +490,9 @@ class GraphRunner(RunnerBase):
                     f'{status.message}\n{self.describe_nodes()}', EXIT_TIMEOUT)
 
     def plant_stats(self) -> dict | None:
-        """``OUT/plant_stats.json``, or None when absent or unreadable (the plant could not
-        write it whole: a full disk).
+        """``OUT/plant_stats.json``, or None when absent or unreadable.
+
+        The plant could not write it whole: a full disk.
         """
         try:
             stats = json.loads((self.out / 'plant_stats.json').read_text(encoding='utf-8'))
@@ -499,8 +507,9 @@ class GraphRunner(RunnerBase):
         return f' at t = {t:.3f} s' if t is not None else ''
 
     def check_recorder_space(self) -> None:
-        """DiskFull if the recorder reports that the disk filled up: the run stops there
-        (going on would record nothing more).
+        """DiskFull if the recorder reports that the disk filled up.
+
+        The run stops there (going on would record nothing more).
         """
         found = self.probe.status_values(': recorder') if self.bag is not None else None
         if found is None:
@@ -601,8 +610,9 @@ class GraphRunner(RunnerBase):
         self.start_plant()
 
     def retry(self, attempt: int) -> None:
-        """Stop the stalled attempt and clean up for a new one (a new domain when it is
-        ours, so that nothing of the old processes can be discovered again).
+        """Stop the stalled attempt and clean up for a new one.
+
+        A new domain when it is ours, so that nothing of the old processes can be discovered again.
         """
         self.stop_all()
         self.probe.close()
@@ -719,8 +729,9 @@ def run_graph(options: GraphOptions) -> GraphResult:
 
 def run_graph_benchmark(scenario_path: str | None, layout: str = GraphOptions.layout
                         ) -> dict[str, Any]:
-    """``scripts/bench``: one lockstep run of the whole scenario through the graph, not
-    recorded, in a temporary directory; its real-time factor, per-tick loop time and CPU.
+    """``scripts/bench``: one lockstep run of the whole scenario through the graph.
+
+    Not recorded, in a temporary directory; its real-time factor, per-tick loop time and CPU.
 
     Returns ``{'failed': message, 'exit_code': code}`` if the run did not complete.
     """

@@ -178,7 +178,9 @@ class HardwareResult(RunResult):
 # ----------------------------------------------------------------------------- parameters
 
 def parse_remap(text: str, namespace: str = '') -> tuple[str, str]:
-    """``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; GraphError on bad syntax or a
+    """Parse a ``--remap`` rule ``'FROM:=TO'`` into absolute topic names.
+
+    ``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; GraphError on bad syntax or a
     side that is not a valid ROS topic name. A relative name is the nodes' one under
     ``namespace`` (rcl resolves both sides of a rule in the node's namespace):
     'imu/data:=base/imu' follows a vehicle's namespace, '/imu/data:=...' matches only a
@@ -222,7 +224,9 @@ def load_params_file(path: str | pathlib.Path) -> dict[str, Any]:
 
 
 def _matches(pattern: str, node: str) -> bool:
-    """Whether a params-file key (``/**``, ``eso``, ``/eso``, ``/**/eso``...) applies to the
+    """Whether a params-file key applies to the node ``node``.
+
+    Whether a params-file key (``/**``, ``eso``, ``/eso``, ``/**/eso``...) applies to the
     node ``node`` (its full name without the leading slash: ``eso``, ``robot1/eso``).
     """
     pattern = str(pattern).lstrip('/')
@@ -232,7 +236,9 @@ def _matches(pattern: str, node: str) -> bool:
 def node_parameters(node: str, generated: Mapping[str, Any],
                     params_files: Iterable[Mapping[str, Any]],
                     namespace: str = '') -> dict[str, Any]:
-    """The parameters ``node`` (under ``namespace``) gets, flattened
+    """Return the parameters ``node`` gets from the params files, flattened.
+
+    The parameters ``node`` (under ``namespace``) gets, flattened
     (``'model.wheel_radius'``): the generated params file's, then each extra file's
     matching sections in order (later wins).
     """
@@ -248,7 +254,9 @@ def node_parameters(node: str, generated: Mapping[str, Any],
 def hardware_parameters(scenario: Scenario, recorder: Mapping[str, Any] | None = None,
                         joints: tuple[str, str] = DEFAULT_JOINTS,
                         heartbeat: bool = True) -> dict[str, dict]:
-    """The generated params file of a hardware run: the controller nodes of
+    """Return the generated params file of a hardware run.
+
+    The generated params file of a hardware run: the controller nodes of
     :func:`~wip_bringup.params_files.graph_parameters` in real time, no plant (there the
     reference starts when the safety layer engages); with ``heartbeat``, /wip/estop is the
     mixer's heartbeat (``safety.max_estop_age``).
@@ -266,7 +274,9 @@ def hardware_parameters(scenario: Scenario, recorder: Mapping[str, Any] | None =
 def hardware_outcome(events: list[dict[str, Any]], ended: str,
                      base_end_after: float | None = None,
                      missing: Iterable[str] = ()) -> tuple[int, str]:
-    """Exit code and message of a run that ended normally (``ended``: why), from the safety
+    """Exit code and message of a run that ended normally.
+
+    Exit code and message of a run that ended normally (``ended``: why), from the safety
     events seen until then: 0 if the controllers engaged and no FAULT followed (an e-stop is
     the user's stop), 1 (EXIT_FELL) if one did, 5 (EXIT_NOT_ENGAGED) if they never engaged.
     ``missing``: base topics without a publisher/subscription, named when never engaged.
@@ -488,7 +498,9 @@ class HardwareRunner(RunnerBase):
         return out
 
     def no_base_message(self, names: list[str]) -> str:
-        """None of the base's topics: what was expected, what the graph shows, and the
+        """Message for none of the base's topics in the graph.
+
+        None of the base's topics: what was expected, what the graph shows, and the
         likely cause (the base on another domain or discovery range).
         """
         node = self.probe.node
@@ -533,8 +545,9 @@ class HardwareRunner(RunnerBase):
                 + ', '.join(f'{n} {rates[n]:.0f}' for n in HARDWARE_NODES if n in rates))
 
     def rates(self, window: float | None = None) -> dict[str, float]:
-        """Mean outputs per second of each node, from its /diagnostics output counts (over
-        the last ``window`` seconds, or the whole run).
+        """Mean outputs per second of each node.
+
+        From its /diagnostics output counts (over the last ``window`` seconds, or the whole run).
         """
         out = {}
         for name, samples in self._counts.items():
@@ -556,7 +569,9 @@ class HardwareRunner(RunnerBase):
         self.send_zero_commands()
 
     def outcome(self, ended: str) -> tuple[int, str]:
-        """The run's exit code and message from the safety events seen until now (the
+        """Return the run's exit code and message from the safety events seen until now.
+
+        The run's exit code and message from the safety events seen until now (the
         states the stop itself causes come later and are not judged).
         """
         return hardware_outcome(list(self.safety_events), ended,
@@ -632,7 +647,7 @@ def format_result(result: HardwareResult) -> str:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The hardware-mode options of ``scripts/run_graph``."""
+    """Add the hardware-mode options of ``scripts/run_graph``."""
     parser.add_argument('--params-file', action='append', default=[], metavar='FILE',
                         dest='params_files',
                         help='hardware mode: extra ROS params file for every node, after the '

@@ -1,7 +1,9 @@
-"""Process machinery shared by the bring-up modes: simulation (:mod:`wip_bringup.graph`) and
-hardware mode (:mod:`wip_bringup.hardware`) start the same executables the way ``ros2 run``
-does, in a DDS domain of their own, watch them through a probe node, and stop them the
-same way. Both modes import this module; neither imports the other's internals.
+"""Process machinery shared by the bring-up modes.
+
+Simulation (:mod:`wip_bringup.graph`) and hardware mode (:mod:`wip_bringup.hardware`) start the
+same executables the way ``ros2 run`` does, in a DDS domain of their own, watch them through a
+probe node, and stop them the same way. Both modes import this module; neither imports the other's
+internals.
 """
 
 from __future__ import annotations
@@ -84,7 +86,9 @@ _NAMESPACE = re.compile(r'/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*')
 
 
 def parse_namespace(text: str | None) -> str:
-    """``--namespace``: '' (none) or an absolute namespace ('robot1' -> '/robot1');
+    """Parse ``--namespace``.
+
+    ``--namespace``: '' (none) or an absolute namespace ('robot1' -> '/robot1');
     GraphError (usage) if it is not a valid ROS namespace.
     """
     if text is None or text in ('', '/'):
@@ -97,7 +101,9 @@ def parse_namespace(text: str | None) -> str:
 
 
 def in_namespace(topic: str, namespace: str) -> str:
-    """The name a node of ``namespace`` gives its topic ``topic`` (written absolute, as
+    """Return the name a node of ``namespace`` gives its topic ``topic``.
+
+    The name a node of ``namespace`` gives its topic ``topic`` (written absolute, as
     in the graph's tables): the nodes use relative names, so it resolves under their
     namespace; :data:`GLOBAL_TOPICS` stay as they are.
     """
@@ -131,8 +137,9 @@ MAX_CPU_LATENCY_US = 1_000_000
 
 
 class CpuLatencyRequest:
-    """A PM QoS request that idle CPUs wake up within ``microseconds`` [us], held until
-    :meth:`close` (or until this process ends: the kernel drops it with the file).
+    """A PM QoS request that idle CPUs wake up within ``microseconds`` [us].
+
+    Held until :meth:`close` (or until this process ends: the kernel drops it with the file).
 
     0 keeps idle CPUs out of their sleep states: they poll. Why it matters here: on a
     machine whose idle CPUs halt (a VM's haltpoll, a deep C-state on bare metal), the
@@ -167,9 +174,10 @@ class CpuLatencyRequest:
 
 @dataclasses.dataclass(frozen=True)
 class Scheduling:
-    """Real-time scheduling of a process: SCHED_FIFO ``priority`` (1..99; 0: the normal
-    policy), the CPUs it may run on (empty: all) and, while it runs, a CPU wake-up latency
-    request (``cpu_latency``, held by the launcher).
+    """Real-time scheduling of a process.
+
+    SCHED_FIFO ``priority`` (1..99; 0: the normal policy), the CPUs it may run on (empty: all) and,
+    while it runs, a CPU wake-up latency request (``cpu_latency``, held by the launcher).
 
     Applied by starting the program through util-linux's ``chrt`` and ``taskset``
     (:meth:`command_prefix`), not by Python code between fork and exec (``preexec_fn``):
@@ -188,7 +196,9 @@ class Scheduling:
     cpu_latency: int | None = None
 
     def check(self) -> None:
-        """GraphError (usage) naming the option if the values are absurd or this user may
+        """Check that the scheduling can be applied.
+
+        GraphError (usage) naming the option if the values are absurd or this user may
         not apply them (tried on a throwaway ``true``).
         """
         if not 0 <= self.priority <= 99:
@@ -220,13 +230,17 @@ class Scheduling:
                 EXIT_USAGE)
 
     def at_start(self) -> 'Scheduling':
-        """What a process gets at its start when its priority is raised only once it is up
+        """Return what a process gets at its start when its priority is raised later.
+
+        What a process gets at its start when its priority is raised only once it is up
         (:meth:`NodeProcess.raise_priority`): its CPUs, the normal policy.
         """
         return dataclasses.replace(self, priority=0, rt_cpu_limit=0.0)
 
     def command_prefix(self) -> list[str]:
-        """``prlimit``/``chrt``/``taskset`` words to put before a program's command line
+        """``prlimit``/``chrt``/``taskset`` words to put before a program's command line.
+
+        ``prlimit``/``chrt``/``taskset`` words to put before a program's command line
         ([] if nothing is asked for); each execs the next, so the pid is the program's.
         """
         words: list[str] = []
@@ -280,9 +294,10 @@ FASTDDS_PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_
 
 
 def graph_environment(domain_id: int, private: bool = True) -> dict[str, str]:
-    """Environment of the node processes: our DDS domain, plain logs; with ``private`` (a
-    simulation) localhost-only discovery unless the user chose a range, else (hardware mode)
-    the user's discovery settings as they are.
+    """Environment of the node processes.
+
+    Our DDS domain, plain logs; with ``private`` (a simulation) localhost-only discovery unless the
+    user chose a range, else (hardware mode) the user's discovery settings as they are.
     """
     env = dict(os.environ)
     env['ROS_DOMAIN_ID'] = str(domain_id)
@@ -301,7 +316,9 @@ def graph_environment(domain_id: int, private: bool = True) -> dict[str, str]:
 
 
 def choose_domain_id() -> int:
-    """``$ROS_DOMAIN_ID`` if the user (or a test harness) set it, else a private domain
+    """Return the DDS domain of a run.
+
+    ``$ROS_DOMAIN_ID`` if the user (or a test harness) set it, else a private domain
     reserved on this host for the life of this process (wip_bringup.private_domain); the
     pid-derived default of scripts/_env.sh counts as unset, since two runs' pids can map to
     one domain.
@@ -343,7 +360,9 @@ class RosNetwork:
 
 
 def ros_network(environ: Mapping[str, str] | None = None) -> RosNetwork:
-    """The ROS network settings of ``environ`` (default ``os.environ``), with ROS's own
+    """Return the ROS network settings of ``environ``.
+
+    The ROS network settings of ``environ`` (default ``os.environ``), with ROS's own
     defaults where unset: domain 0, discovery range SUBNET.
     """
     environ = os.environ if environ is None else environ
@@ -358,7 +377,9 @@ def ros_network(environ: Mapping[str, str] | None = None) -> RosNetwork:
 
 
 def use_user_ros_environment(environ: MutableMapping[str, str] | None = None) -> RosNetwork:
-    """Drop from ``environ`` (default ``os.environ``) the private domain and localhost-only
+    """Drop the private domain and localhost-only discovery of scripts/_env.sh.
+
+    Drop from ``environ`` (default ``os.environ``) the private domain and localhost-only
     discovery that scripts/_env.sh set where the user had none (a robot's base is on the
     user's domain, on the network), keeping every value the user set; return the settings
     then in force. For hardware mode and check_base; simulations keep their private ones.
@@ -379,7 +400,9 @@ class NodeProcess:
                  env: dict[str, str], scheduling: Scheduling | None = None,
                  pass_fds: tuple[int, ...] = (), own_group: bool = False,
                  stop_signal: int = signal.SIGINT) -> None:
-        """``pass_fds``: descriptors the process inherits (the run's output locks: it holds
+        """Options of the node process.
+
+        ``pass_fds``: descriptors the process inherits (the run's output locks: it holds
         them until it exits, also when the launcher dies first); ``own_group``: a process
         group of its own, out of the reach of the terminal's Ctrl-C (sent to the
         foreground group): the process gets SIGINT only from the launcher, when the
@@ -402,7 +425,9 @@ class NodeProcess:
         self.killed = False
 
     def raise_priority(self, scheduling: Scheduling) -> None:
-        """Put the running process and every thread it has at ``scheduling.priority``
+        """Put the running process and its threads at ``scheduling.priority``.
+
+        Put the running process and every thread it has at ``scheduling.priority``
         (SCHED_FIFO; its threads started later inherit it), with ``rt_cpu_limit``;
         GraphError with the tool's message if that fails.
 
@@ -457,8 +482,9 @@ class NodeProcess:
         return self.process.returncode
 
     def cpu_seconds(self) -> float | None:
-        """CPU time [s] used so far (user + system, all threads), from /proc; None if
-        unavailable (not Linux, or the process has exited).
+        """CPU time [s] used so far (user + system, all threads).
+
+        From /proc; None if unavailable (not Linux, or the process has exited).
         """
         try:
             with open(f'/proc/{self.pid}/stat', encoding='ascii') as stream:
@@ -510,7 +536,9 @@ class Probe:
         self.start_client = self.node.create_client(Trigger, 'plant/start')
 
     def own_status_name(self, name: str) -> str | None:
-        """A /diagnostics status name ('/robot1/eso: role') without the run's namespace
+        """Return a /diagnostics status name without the run's namespace.
+
+        A /diagnostics status name ('/robot1/eso: role') without the run's namespace
         ('/eso: role'), or None for a node of another namespace (/diagnostics is global:
         another vehicle of the domain reports there too).
         """
@@ -587,7 +615,9 @@ class Probe:
 
 
 def viewer_wanted(options) -> bool:
-    """``options.viewer`` if set, else whether anyone will see its topics (a bag is
+    """Whether the viewer runs.
+
+    ``options.viewer`` if set, else whether anyone will see its topics (a bag is
     recorded or the live view is served).
     """
     if options.viewer is not None:
@@ -624,7 +654,9 @@ def _lock_holder(path: pathlib.Path) -> str:
 
 
 def lock_output(path: pathlib.Path, option: str, directory: bool = False) -> int:
-    """Take the exclusive lock of one output (a run directory: its :data:`LOCK_FILE`; a bag
+    """Take the exclusive lock of one output.
+
+    Take the exclusive lock of one output (a run directory: its :data:`LOCK_FILE`; a bag
     directory, ``directory``: the directory itself, which must stay empty for the
     recorder); the descriptor, held until the run and every process it started have
     ended (the kernel drops the lock then, whatever killed them).
@@ -654,7 +686,9 @@ def lock_output(path: pathlib.Path, option: str, directory: bool = False) -> int
 
 def prepare_run_directory(out: pathlib.Path, bag: pathlib.Path | None,
                           extra_logs: tuple[str, ...] = ()) -> list[int]:
-    """Check the outputs of a run (``--out`` directory, ``--record`` bag) before anything is
+    """Check, lock and create the outputs of a run.
+
+    Check the outputs of a run (``--out`` directory, ``--record`` bag) before anything is
     written, lock them (:func:`lock_output`: one run per folder), then create ``OUT/logs``
     (with its marker), replacing only the logs of an earlier run of ours (``OUT/logs`` and
     the ``extra_logs`` glob patterns in OUT). Returns the lock descriptors.

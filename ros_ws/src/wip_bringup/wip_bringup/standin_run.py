@@ -118,7 +118,9 @@ class StandinRun:
 
 
 def controller_cpu_fraction(result: HardwareResult) -> float | None:
-    """CPU time of the controller processes (not the recorder) / wall time: the share of
+    """CPU share of one core the controller processes used.
+
+    CPU time of the controller processes (not the recorder) / wall time: the share of
     one core the controllers used.
     """
     if not result.wall_time_s:
@@ -261,7 +263,9 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
 
 
 def pinned_cpus() -> tuple[int, int] | None:
-    """(base CPU, controllers' CPU): the first and the last CPU this process may use, or
+    """Return (base CPU, controllers' CPU), or None with fewer than two CPUs.
+
+    (base CPU, controllers' CPU): the first and the last CPU this process may use, or
     None with fewer than two.
     """
     available = sorted(os.sched_getaffinity(0))
@@ -278,8 +282,9 @@ def permitted(scheduling: Scheduling) -> bool:
 
 
 def engaged(result: HardwareResult | Any) -> bool:
-    """Whether the controllers' safety layer reached ACTIVE in a run (a
-    :class:`HardwareResult` or a running runner: both keep ``safety_events``).
+    """Whether the controllers' safety layer reached ACTIVE in a run.
+
+    A :class:`HardwareResult` or a running runner: both keep ``safety_events``.
     """
     return any(event['state'] == 'ACTIVE' for event in result.safety_events)
 
@@ -303,7 +308,9 @@ def _when_engaged(holder: dict, during: Callable, base: subprocess.Popen,
 
 
 def _base_ends_now(runner) -> None:
-    """The base is stopped now, before its run time: from here its inputs stop, and a FAULT
+    """Whether the base is stopped now, before its run time.
+
+    The base is stopped now, before its run time: from here its inputs stop, and a FAULT
     is the end of the run, not a failure (``HardwareOptions.base_end_after``, counted from
     the engagement, which the outcome reads when the run is over).
     """
@@ -331,7 +338,9 @@ def realtime_benchmark(directory: pathlib.Path, seconds: float = 20.0,
                            ('composed', True, False, None), ('composed', True, True, None),
                            ('composed', True, False, 0), ('composed', True, True, 0))
                        ) -> list[dict[str, Any]]:
-    """The controllers at 200 Hz against the stand-in base, one run per (layout, real-time
+    """Measure the controllers at 200 Hz against the stand-in base, case by case.
+
+    The controllers at 200 Hz against the stand-in base, one run per (layout, real-time
     priority, pinned CPUs, CPU wake-up latency request [us]) case, side by side: CPU share
     of one core, sensor -> command latency, the command age and gaps seen by the base.
     A case this user may not run (the latency request needs root) is a row with

@@ -157,7 +157,9 @@ def terrain_geoms(terrain: TerrainConfig, patch_contact: str = '') -> str:
 
 def mjcf(params: WipParameters, contact: ContactConfig, timestep: float,
          terrain: TerrainConfig | None = None, wheel_friction: float = 0.0) -> str:
-    """The MJCF model of the WIP on the ground (see the module docstring); the wheels'
+    """Return the MJCF model of the WIP on the ground (see the module docstring).
+
+    The MJCF model of the WIP on the ground (see the module docstring); the wheels'
     viscous axle friction is their hinges' damping (a torque against the joint's rate,
     which is the wheel's rate against the body, as in the equation plants).
     """
@@ -289,8 +291,9 @@ class MujocoPlant:
     def simulate_hold(self, state: Sequence[float], tau_left: float, tau_right: float,
                       disturbance_fn: Callable[[float], Sequence[float]] | None, t0: float,
                       dt: float, n_steps: int) -> np.ndarray:
-        """``n_steps`` steps of ``dt`` [s] from ``t0`` [s], torques held, the disturbance
-        sampled at each step's start (as :meth:`Plant.simulate_hold`).
+        """``n_steps`` steps of ``dt`` [s] from ``t0`` [s], torques held.
+
+        The disturbance sampled at each step's start (as :meth:`Plant.simulate_hold`).
         """
         values = tuple(float(v) for v in state)
         if len(values) != STATE_SIZE or not math.isfinite(math.fsum(values)):
@@ -326,9 +329,10 @@ class MujocoPlant:
     # ------------------------------------------------------------------ diagnostics
 
     def wheel_slip(self) -> tuple[float, float]:
-        """(left, right) slip speed [m/s] now: r times the wheel's absolute spin rate
-        minus its centre's forward ground speed (0 when rolling without slip; > 0 when
-        the wheel spins faster than the ground moves under it).
+        """(left, right) slip speed [m/s] now.
+
+        r times the wheel's absolute spin rate minus its centre's forward ground speed (0 when
+        rolling without slip; > 0 when the wheel spins faster than the ground moves under it).
         """
         mj = _import_mujoco()
         model, data = self._model, self._data
@@ -355,7 +359,9 @@ class MujocoPlant:
     # ------------------------------------------------------------------ internals
 
     def _disturbance_load(self, quat, d1, d2, d3) -> tuple:
-        """xfrc_applied (force, torque at the base's centre of mass, world frame) that
+        """xfrc_applied that adds (d1, d2, d3) to (ω̇, υ̇, θ̈).
+
+        xfrc_applied (force, torque at the base's centre of mass, world frame) that
         adds (d1, d2, d3) to (ω̇, υ̇, θ̈): the generalised forces M(θ) d (module docstring).
         """
         phi, theta, _ = _euler_zyx(quat)
@@ -370,9 +376,10 @@ class MujocoPlant:
         return (force * cp, force * sp, 0.0, -pitch * sp, pitch * cp, yaw)
 
     def _settle(self) -> float:
-        """Height [m] of the axle resting on the compliant contacts, found by letting the
-        upright vehicle settle (zero torque; upright is an equilibrium), on flat ground
-        before any terrain.
+        """Height [m] of the axle resting on the compliant contacts.
+
+        Found by letting the upright vehicle settle (zero torque; upright is an equilibrium), on
+        flat ground before any terrain.
         """
         data = self._data
         data.qpos[:] = 0.0
@@ -408,9 +415,10 @@ class MujocoPlant:
         self._phi = phi
 
     def _terrain_clearance(self, x: float) -> float:
-        """Height [m] to lift a state reset at ``x`` so that no wheel starts inside the
-        terrain: on the slope, the wheel centre r / cos(a) above its surface (tangent to
-        it); over a bump, its full height (the wheel then drops onto it).
+        """Height [m] to lift a state reset at ``x`` so that no wheel starts inside the terrain.
+
+        On the slope, the wheel centre r / cos(a) above its surface (tangent to it); over a bump,
+        its full height (the wheel then drops onto it).
         """
         terrain, r = self.terrain, self._r
         lift = 0.0
@@ -453,7 +461,9 @@ def _euler_zyx(quat) -> tuple[float, float, float]:
 def make_plant(params: WipParameters, contact: ContactConfig, timestep: float,
                terrain: TerrainConfig | None = None,
                wheel_friction: float = 0.0) -> MujocoPlant:
-    """The plant of ``plant: {model: mujoco}`` (called by
+    """Return the plant of ``plant: {model: mujoco}``.
+
+    The plant of ``plant: {model: mujoco}`` (called by
     :func:`wip_control.core.plant.scenario_plant`).
     """
     return MujocoPlant(params, contact, timestep, terrain, wheel_friction)

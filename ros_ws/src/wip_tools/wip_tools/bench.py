@@ -87,7 +87,9 @@ def bench_in_process(scenario, repeats: int) -> dict:
 
 
 def bench_plant_models(scenario, repeats: int) -> dict:
-    """The in-process real-time factor of ``scenario`` on each plant model, the models
+    """Return the in-process real-time factor of ``scenario`` on each plant model.
+
+    The in-process real-time factor of ``scenario`` on each plant model, the models
     interleaved run by run (the machine's load drifts alike for all): medians by wall and
     by CPU time, per model. A model that cannot be built (mujoco not installed) is
     reported as skipped.
@@ -142,8 +144,9 @@ def bench_realtime(seconds: float) -> list[dict]:
 
 
 def bench_rclpy_floor(seconds: float) -> dict:
-    """CPU of receiving the sensor streams alone (:mod:`wip_tools.rclpy_floor`), taken as
-    message objects and serialized (as the eso node takes them), alternately.
+    """CPU of receiving the sensor streams alone (:mod:`wip_tools.rclpy_floor`).
+
+    Taken as message objects and serialized (as the eso node takes them), alternately.
     """
     try:
         from wip_tools.rclpy_floor import measure_floor  # needs ROS
@@ -154,7 +157,9 @@ def bench_rclpy_floor(seconds: float) -> dict:
 
 
 def bench_node_cost(seconds: float, pairs: int = 2) -> dict:
-    """The controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`),
+    """Return the controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`).
+
+    The controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`),
     back to back and paced at 200 Hz, alternately, each in a process of its own.
     """
     runs: dict[str, list[dict]] = {'back_to_back': [], 'paced': []}

@@ -124,7 +124,9 @@ _INDEX = re.compile(r'^([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)$')
 
 
 def _split_key(key: str, where: str) -> list:
-    """'disturbances.longitudinal[0].amplitude' -> ['disturbances', 'longitudinal', 0,
+    """Split a parameter key into its parts.
+
+    'disturbances.longitudinal[0].amplitude' -> ['disturbances', 'longitudinal', 0,
     'amplitude'].
     """
     if not isinstance(key, str) or not key:
@@ -438,7 +440,9 @@ def _read_done(jsonl: pathlib.Path) -> dict[int, dict]:
 def execute(campaign: Campaign, specs: list[dict], jsonl: pathlib.Path,
             scheduler: str | None = None, workers: int | None = None,
             progress: bool = True) -> list[dict]:
-    """Run the specs on Dask (a LocalCluster of ``workers`` processes, or the cluster at
+    """Run the specs on Dask.
+
+    Run the specs on Dask (a LocalCluster of ``workers`` processes, or the cluster at
     ``scheduler``), appending each finished row to ``jsonl``; returns all rows by run.
     """
     from dask.distributed import Client, LocalCluster, as_completed
@@ -524,7 +528,7 @@ def _values(rows: Iterable[dict], key: str) -> np.ndarray:
 
 
 def summarise(campaign: Campaign, rows: list[dict]) -> dict[str, Any]:
-    """Counts and rates against the criteria, percentiles of the main errors."""
+    """Return counts and rates against the criteria, percentiles of the main errors."""
     n = len(rows)
     failures: dict[str, int] = {}
     for row in rows:

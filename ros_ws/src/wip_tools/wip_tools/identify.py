@@ -80,7 +80,9 @@ class Identification:
 
 
 def gaussian_lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:
-    """Zero-phase low-pass: convolution with a Gaussian whose −3 dB point is ``cutoff_hz``
+    """Zero-phase low-pass: convolution with a Gaussian.
+
+    Zero-phase low-pass: convolution with a Gaussian whose −3 dB point is ``cutoff_hz``
     (pure numpy, symmetric kernel so no phase lag between regressors and torques).
     """
     sigma_t = math.sqrt(math.log(2.0)) / (2.0 * math.pi * cutoff_hz)   # |H| = 1/√2 at fc
@@ -92,11 +94,12 @@ def gaussian_lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> 
 
 def _sensor_group(record: Mapping, wheel_radius: float,
                   encoders_relative_to_body: bool) -> dict[str, np.ndarray]:
-    """(t, θ, θ̇, υ, ω) from what the sensors said: the IMU's pitch, its pitch and yaw rates
-    (gyro), and υ = r (φ̇ + θ̇) from the mean wheel joint angle φ (a joint angle is measured
-    against the body, so the body's tilt rate is added back; without it when the encoders
-    measure rolling angles). φ̇ by central differences: the regressors' low-pass removes
-    what that amplifies.
+    """(t, θ, θ̇, υ, ω) from what the sensors said.
+
+    The IMU's pitch, its pitch and yaw rates (gyro), and υ = r (φ̇ + θ̇) from the mean wheel joint
+    angle φ (a joint angle is measured against the body, so the body's tilt rate is added back;
+    without it when the encoders measure rolling angles). φ̇ by central differences: the
+    regressors' low-pass removes what that amplifies.
     """
     encoders = record['encoders'] if 'encoders' in record else None
     imu = record['imu'] if 'imu' in record else None
@@ -225,7 +228,9 @@ def _has(record: Mapping, group: str) -> bool:
 
 
 def _best_source(record: Mapping) -> str:
-    """truth (a simulation's), else the sensors, else the state estimate (which the ESOs'
+    """Return the best source of the signals.
+
+    truth (a simulation's), else the sensors, else the state estimate (which the ESOs'
     lag and filtering bias: docs/identification.md).
     """
     if _has(record, 'truth'):
@@ -356,7 +361,7 @@ def identify(record: Mapping, params: WipParameters | None = None, source: str =
 
 
 def to_parameters(result: Identification, nominal: WipParameters) -> tuple[dict, list[str]]:
-    """Overrides of :class:`WipParameters` for the controllers' model and notes on them.
+    """Return overrides of :class:`WipParameters` for the controllers' model and notes on them.
 
     r, d, g, m_w, J_w are kept (assumed known); what was not determined keeps its
     nominal value. m_p = (m_p l)/l, I_c = J_θ − m_p l², m_c = m_v − m_p − 2(m_w + J_w/r²),

@@ -1,5 +1,7 @@
-"""The six controller nodes' own cost per control tick, fed directly: no DDS take, no
-wake-up by a message (``python -m wip_tools.node_cost``; ``scripts/bench`` runs it).
+"""The six controller nodes' own cost per control tick, fed directly.
+
+No DDS take, no wake-up by a message (``python -m wip_tools.node_cost``; ``scripts/bench`` runs
+it).
 
 The nodes are built as ``ros2 run wip_control controllers`` builds them (hardware-mode
 parameters, the stand-in base's conventions, one executor, the intra-process bus). Each
@@ -34,7 +36,9 @@ ENGAGE_TIMEOUT = 10.0   # [s] of paced ticks at most for the safety layer to eng
 
 
 def measure(seconds: float, paced: bool) -> dict:
-    """In a process of its own (it initialises rclpy's default context): thread CPU per tick [us] (median, mean, p90) over ``seconds`` of 200 Hz ticks (the
+    """Measure the thread CPU per tick of a controller node.
+
+    In a process of its own (it initialises rclpy's default context): thread CPU per tick [us] (median, mean, p90) over ``seconds`` of 200 Hz ticks (the
     first fifth, start-up and warm-up, left out), and how many ticks ran.
     """
     import rclpy  # ROS only where measured

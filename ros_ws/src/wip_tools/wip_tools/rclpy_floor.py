@@ -1,8 +1,9 @@
-"""What rclpy costs before any control math: a process that only receives a base's sensor
-stream (``sensor_msgs/JointState`` and ``Imu`` at 200 Hz each, as the stand-in base sends
-them) with empty callbacks, on the EventsExecutor the controllers use: taken as message objects
-(rclpy builds each), or serialized (``raw=True``, as the eso node takes them and decodes
-only then).
+"""What rclpy costs before any control math.
+
+A process that only receives a base's sensor stream (``sensor_msgs/JointState`` and ``Imu`` at 200
+Hz each, as the stand-in base sends them) with empty callbacks, on the EventsExecutor the
+controllers use: taken as message objects (rclpy builds each), or serialized (``raw=True``, as the
+eso node takes them and decodes only then).
 
 ``scripts/bench`` prints its CPU share beside the controllers': the part of the
 controllers' cost that no change to the nodes can remove, short of not receiving the
@@ -76,8 +77,9 @@ def _receive(seconds: float, raw: bool) -> dict:
 
 
 def measure_floor(seconds: float = 10.0, raw: bool = False) -> dict:
-    """Both processes in a DDS domain of their own; the receiver's measurement
-    (``raw``: the messages are taken serialized).
+    """Both processes in a DDS domain of their own; the receiver's measurement.
+
+    ``raw``: the messages are taken serialized.
     """
     from wip_bringup.launcher import choose_domain_id, graph_environment
     env = graph_environment(choose_domain_id())

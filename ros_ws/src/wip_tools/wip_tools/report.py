@@ -190,7 +190,9 @@ def record_from_bag(bag: str | pathlib.Path,
 
 def scenario_for(bag: str | pathlib.Path,
                  scenario_path: str | pathlib.Path | None) -> tuple[Scenario, str]:
-    """The scenario of a report and where it came from: the bag's own, with
+    """Return the scenario of a report and where it came from.
+
+    The scenario of a report and where it came from: the bag's own, with
     ``scenario_path`` over it (:mod:`wip_bag.bag_scenario`, the rule rerun uses too).
     """
     try:

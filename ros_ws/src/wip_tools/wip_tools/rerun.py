@@ -236,7 +236,9 @@ TIMINGS = ('auto', 'stamps', 'receive')
 
 
 def resolve_timing(run: RecordedRun, timing: str = 'auto') -> str:
-    """'stamps' for a bag recorded in lockstep simulation time (it holds /clock), else
+    """Return the timing of a bag: 'stamps' or 'receive'.
+
+    'stamps' for a bag recorded in lockstep simulation time (it holds /clock), else
     'receive'; an explicit 'stamps' or 'receive' is returned as is.
     """
     if timing not in TIMINGS:
@@ -495,7 +497,7 @@ def write_rerun_bag(bag, out_bag, outputs, run, scenario, prefix=DEFAULT_PREFIX,
 
 
 def comparison_figure(run, outputs, path):
-    """Recorded vs recomputed wheel torques, drive/yaw torques and tilt/yaw-rate estimates."""
+    """Plot recorded vs recomputed wheel torques, drive/yaw torques and tilt/yaw-rate estimates."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -756,8 +758,10 @@ def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, qui
 
 
 def _rename_bag(source, target):
-    """Move the finished bag into place (written in a directory also named ``bag``, so its
-    files already have the names rosbag2 gives them: ``bag_<i>.mcap``).
+    """Move the finished bag into place.
+
+    Written in a directory also named ``bag``, so its files already have the names rosbag2 gives
+    them: ``bag_<i>.mcap``.
     """
     source.rename(target)
 

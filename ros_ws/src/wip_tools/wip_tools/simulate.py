@@ -47,7 +47,9 @@ def progress_printer(stream=sys.stderr):
 
 
 def step_printer(program: str, stream=sys.stderr):
-    """A progress callback for the long steps of a command (reading a bag, each figure):
+    """Return a progress callback for the long steps of a command.
+
+    A progress callback for the long steps of a command (reading a bag, each figure):
     prints ``program: [elapsed] step`` on ``stream`` (stderr: stdout stays the result).
     """
     start = time.perf_counter()
@@ -60,7 +62,9 @@ def step_printer(program: str, stream=sys.stderr):
 
 def write_run_outputs(out: pathlib.Path, record, scenario: Scenario, metrics: dict,
                       figures: bool = True, progress=None) -> list[pathlib.Path]:
-    """metrics.json, timeseries.npz, scenario.yaml, figures/ (PNG and SVG) and report.html
+    """Write the outputs of a run into ``out``.
+
+    metrics.json, timeseries.npz, scenario.yaml, figures/ (PNG and SVG) and report.html
     into ``out``; ``progress(text)`` is told each step.
     """
     out.mkdir(parents=True, exist_ok=True)

@@ -46,8 +46,9 @@ def scenario_for(path: str) -> dict[str, Any]:
 
 
 def distance_to_path(path: str, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Geometric distance to the reference path (line along +x through the origin; circle
-    of CIRCLE_RADIUS about the origin).
+    """Geometric distance to the reference path.
+
+    Line along +x through the origin; circle of CIRCLE_RADIUS about the origin.
     """
     if path == 'line':
         return np.abs(y)

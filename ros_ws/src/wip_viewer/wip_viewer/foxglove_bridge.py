@@ -120,7 +120,9 @@ def decode_client_message(topic: str, encoding: str, data: bytes):
 
 
 class _Listener:
-    """foxglove ServerListener: runs on the server's threads, so it only queues work for
+    """foxglove ServerListener that only queues work for the node's executor thread.
+
+    foxglove ServerListener: runs on the server's threads, so it only queues work for
     the node's executor thread (rclpy entities are created there).
     """
 
@@ -224,7 +226,7 @@ class FoxgloveBridge(Node):
             'messages forwarded': str(self.forwarded)})
 
     def handle_work(self) -> None:
-        """What the server's listener queued (timer callback on the executor's thread)."""
+        """Handle what the server's listener queued (timer callback on the executor's thread)."""
         while True:
             try:
                 item = self.work.get_nowait()

@@ -35,7 +35,7 @@ def _series(value: str, label: str, color: str | None = None, dashed: bool = Fal
 
 
 def build_layout(scenario: Scenario | None = None, live: bool = False):
-    """The layout; limits (labels and axis ranges) from ``scenario`` (default: the paper's)."""
+    """Return the layout; limits (labels, axis ranges) from ``scenario`` (default: the paper's)."""
     import foxglove.layouts as fl
     scenario = scenario or Scenario()
     max_tilt = scenario.mpc.max_tilt

@@ -181,7 +181,9 @@ class PathBuffer:
 
 
 def cdr_stamp_ns(data: bytes) -> int:
-    """The ``header.stamp`` [ns] of a serialized message whose first field is a
+    """Return the ``header.stamp`` [ns] of a serialized message, read from its CDR bytes.
+
+    The ``header.stamp`` [ns] of a serialized message whose first field is a
     std_msgs/Header, read from its CDR bytes without deserializing the message.
 
     CDR: a 4-byte encapsulation header (byte 1: 0x01 little-endian, 0x00 big-endian), then
@@ -196,8 +198,10 @@ def cdr_stamp_ns(data: bytes) -> int:
 
 
 class RateGate:
-    """True at most once per ``1/rate`` of message stamps (publishes on input, no timer:
-    deterministic in lockstep, where the viewer sees exactly the simulated stamps).
+    """True at most once per ``1/rate`` of message stamps.
+
+    Publishes on input, no timer: deterministic in lockstep, where the viewer sees exactly the
+    simulated stamps.
     """
 
     def __init__(self, rate: float) -> None:

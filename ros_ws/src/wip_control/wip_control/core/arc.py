@@ -44,8 +44,10 @@ from .config import ConfigError, param
 
 @dataclasses.dataclass(frozen=True)
 class ArcConfig:
-    """Gains and limits of the yaw ARC, eqs. (12), (13) in [1]_ (gains: Section V; the
-    robust adaptation terms default on, the scenario key ``design: paper`` turns them off).
+    """Gains and limits of the yaw ARC, eqs. (12), (13) in [1]_.
+
+    Gains: Section V; the robust adaptation terms default on, the scenario key ``design: paper``
+    turns them off.
     """
 
     yaw_rate_gain: float = param(20.0, 'N m s/rad', 'k_omega of eq. (12)', minimum=0.0,

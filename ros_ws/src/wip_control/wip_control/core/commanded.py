@@ -247,8 +247,10 @@ class PathReference(Reference):
         return x0 + f * (x1 - x0), y0 + f * (y1 - y0)
 
     def _project(self, x: float, y: float) -> float:
-        """Arc length of the point of the path nearest (x, y), not behind the progress
-        (a path that crosses itself is followed in order) and at most one lookahead on.
+        """Arc length of the point of the path nearest (x, y).
+
+        Not behind the progress (a path that crosses itself is followed in order) and at most one
+        lookahead on.
         """
         best, best_d2 = self.progress, math.inf
         horizon = self.progress + self.lookahead

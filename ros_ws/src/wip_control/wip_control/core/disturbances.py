@@ -202,7 +202,7 @@ def _zero(t: float) -> float:
 
 def _with_many(function: Callable[[float], float],
                many: Callable[[list[float]], list[float]] | None = None):
-    """``function`` with its ``many`` attribute (default: one call per time)."""
+    """Return ``function`` with its ``many`` attribute (default: one call per time)."""
     function.many = many if many is not None else (lambda times: [function(t) for t in times])
     return function
 

@@ -143,8 +143,10 @@ def discretise(gains: Sequence[float], epsilon: float, period: float,
 
 @dataclasses.dataclass(frozen=True)
 class EsoConfig:
-    """Tunables of the observers: the paper's three ESOs, eqs. (4) and (8) in [1]_ (gains and
-    ε: Section V), or the gyro-aided design (default; docs/estimation.md).
+    """Tunables of the observers.
+
+    The paper's three ESOs, eqs. (4) and (8) in [1]_ (gains and ε: Section V), or the gyro-aided
+    design (default; docs/estimation.md).
     """
 
     yaw_gains: tuple[float, float, float] = param(
@@ -229,7 +231,9 @@ class EsoConfig:
 
 
 class _ChannelEstimate:
-    """The read-out of a second-order channel observer (x̂1, x̂2, f̂ at ``_t_prev``),
+    """The read-out of a second-order channel observer.
+
+    The read-out of a second-order channel observer (x̂1, x̂2, f̂ at ``_t_prev``),
     the same for the ESO (25) and the rate-aided channel.
     """
 
@@ -339,7 +343,9 @@ class ExtendedStateObserver(_ChannelEstimate):
         return self.schedule == 'paper_ramp' and t - self._t0 < self.ramp_duration
 
     def update(self, t: float, y: float, b_u: float) -> tuple[float, float, float]:
-        """Advance to time ``t`` [s] with measurement ``y`` at t and ``b_u`` held since
+        """Advance to time ``t`` [s] with measurement ``y`` at t.
+
+        Advance to time ``t`` [s] with measurement ``y`` at t and ``b_u`` held since
         the previous update; returns (x̂1, x̂2, f̂).
 
         ``t`` equal to the previous time leaves the estimate unchanged (e.g. a first call
@@ -377,8 +383,9 @@ class ExtendedStateObserver(_ChannelEstimate):
         return self.x1, self.x2, self.f
 
     def _off_nominal(self, dt: float) -> tuple[float, ...]:
-        """Discretisation for an off-nominal period (real-time jitter), cached by the
-        period rounded to :data:`PERIOD_RESOLUTION`.
+        """Discretisation for an off-nominal period (real-time jitter).
+
+        Cached by the period rounded to :data:`PERIOD_RESOLUTION`.
         """
         key = round(dt / PERIOD_RESOLUTION)
         m = self._cached.get(key)
@@ -428,7 +435,9 @@ class ExtendedStateObserver(_ChannelEstimate):
 
 
 def complementary_bandwidth(angle_noise_std: float, rate_noise_std: float) -> float:
-    """Crossover ω_c [rad/s] of the angle/gyro complementary filter that minimises the
+    """Crossover ω_c [rad/s] of the angle/gyro complementary filter.
+
+    Crossover ω_c [rad/s] of the angle/gyro complementary filter that minimises the
     angle error variance for white angle noise σ_a [rad] and white rate noise σ_g
     [rad/s] sampled at the same period: ω_c = σ_g / σ_a.
 
@@ -443,7 +452,9 @@ def complementary_bandwidth(angle_noise_std: float, rate_noise_std: float) -> fl
 
 
 def discrete_pole_gains(pole_a: float, pole_b: float, period: float) -> tuple[float, float]:
-    """Gains (L1, L2) of the two-state predictor-corrector used twice in
+    """Gains (L1, L2) of the two-state predictor-corrector of :class:`RateAidedChannel`.
+
+    Gains (L1, L2) of the two-state predictor-corrector used twice in
     :class:`RateAidedChannel` that put its error poles at e^{−a h}, e^{−b h}.
 
     Both loops have the error matrix [[1 − L1, ∓(1 − L1) h], [±L2, 1 − L2 h]], whose
@@ -515,7 +526,9 @@ class RateAidedChannel(_ChannelEstimate):
         self._rate_prev = 0.0
 
     def update(self, t: float, y: float, rate: float, b_u: float) -> tuple[float, float, float]:
-        """Advance to ``t`` [s] with the angle ``y`` [rad], the gyro ``rate`` [rad/s] at t
+        """Advance to ``t`` [s] with the angle ``y`` [rad] and the gyro ``rate`` [rad/s].
+
+        Advance to ``t`` [s] with the angle ``y`` [rad], the gyro ``rate`` [rad/s] at t
         and ``b_u`` [rad/s²] held since the previous update; returns (â, ẑ1, f̂).
         """
         if not math.isfinite(t + y + rate + b_u):
@@ -555,7 +568,9 @@ class RateAidedChannel(_ChannelEstimate):
 
 def rate_eso_noise_variance(rate_noise_std: float, bandwidth: float, period: float,
                             exact: bool = True) -> float:
-    """Stationary variance of f̂ [(rad/s²)²] of the reduced-order rate ESO of
+    """Stationary variance of f̂ [(rad/s²)²] of the reduced-order rate ESO.
+
+    Stationary variance of f̂ [(rad/s²)²] of the reduced-order rate ESO of
     :class:`RateAidedChannel` for white rate noise of std σ [rad/s] per sample.
 
     ``exact``: the discrete Lyapunov equation of the error loop; else the continuous

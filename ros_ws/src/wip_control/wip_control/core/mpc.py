@@ -111,8 +111,9 @@ PAPER_MPC_SETTINGS = {'soft_limits': 'worst_case', 'speed_limit_first_step': 1,
 
 
 def resolves_faster(sampling_period: float, fast_resolve_period: float) -> bool:
-    """Whether the MPC re-solves every ``fast_resolve_period`` after a push (docs/mpc.md
-    §10): on when it is above 0 and shorter than ``sampling_period``, else off.
+    """Whether the MPC re-solves every ``fast_resolve_period`` after a push (docs/mpc.md §10).
+
+    On when it is above 0 and shorter than ``sampling_period``, else off.
     """
     return 0.0 < fast_resolve_period < sampling_period
 
@@ -345,7 +346,9 @@ class QpData(NamedTuple):
 
 def tick_gains(params: WipParameters, config: MpcConfig,
                theta_hat: float) -> tuple[float, float, float, float]:
-    """(g2, g3, g2p, g3p): the input gains of model (1) at θ̂ (what the ESO assumes, so
+    """Input gains of model (1) at θ̂ and the scaled gains of the increments.
+
+    (g2, g3, g2p, g3p): the input gains of model (1) at θ̂ (what the ESO assumes, so
     f̂ + g τ(k−1) is its estimate of the present accelerations) and the scaled gains the
     increments are predicted with (``prediction_gain_scale``).
     """
@@ -355,7 +358,9 @@ def tick_gains(params: WipParameters, config: MpcConfig,
 
 
 class PreviousTorque:
-    """τυ(k−1), the drive torque applied since the last tick, and the start of a tick, of a
+    """τυ(k−1) and the start of a tick, of a longitudinal controller.
+
+    τυ(k−1), the drive torque applied since the last tick, and the start of a tick, of a
     longitudinal controller (the MPC and the LQR baseline; both set ``config``,
     ``params``, ``_target`` and ``_tau_previous``).
     """
@@ -370,7 +375,9 @@ class PreviousTorque:
 
     def _begin_tick(self, tau_limit: float | None, v_hat: float, theta_hat: float,
                     theta_dot_hat: float, f2_hat: float, f3_hat: float, v_d: float):
-        """What every tick starts with: the tick's |τυ| limit, the input gains at θ̂
+        """Start a tick: its |τυ| limit, the input gains at θ̂ and the offset-free target.
+
+        What every tick starts with: the tick's |τυ| limit, the input gains at θ̂
         (``tick_gains``) and the offset-free target updated with them. None when an input
         is invalid (the caller then returns ``_hold_invalid_input()``).
         """
@@ -389,8 +396,9 @@ class PreviousTorque:
         return self._tau_previous
 
     def set_previous_torque(self, tau_previous: float) -> None:
-        """Overwrite τυ(k−1) [N m] with the torque really applied (e.g. after the safety
-        layer cut it, or to replay a recorded tick).
+        """Overwrite τυ(k−1) [N m] with the torque really applied.
+
+        E.g. after the safety layer cut it, or to replay a recorded tick.
         """
         tau_previous = float(tau_previous)
         if not math.isfinite(tau_previous):
@@ -554,7 +562,9 @@ class LongitudinalMpc(PreviousTorque):
         self._solver.reset()
 
     def set_previous_torque(self, tau_previous: float) -> None:
-        """Overwrite τυ(k−1) [N m] with the torque really applied (e.g. after the safety
+        """Overwrite τυ(k−1) [N m] with the torque really applied.
+
+        Overwrite τυ(k−1) [N m] with the torque really applied (e.g. after the safety
         layer cut it, or to replay a recorded tick). The plan and workspace are kept.
         """
         super().set_previous_torque(tau_previous)
@@ -729,7 +739,9 @@ class LongitudinalMpc(PreviousTorque):
         return admissible_increment(delta, tau_prev, limit, self._first_bound)
 
     def _set_first_bound(self, bound: float) -> None:
-        """|Δτ(k|k)| ≤ ``bound``: its box and the reachable |τ(k+j) − τ(k−1)| of the τ
+        """Bound |Δτ(k|k)| by ``bound``.
+
+        |Δτ(k|k)| ≤ ``bound``: its box and the reachable |τ(k+j) − τ(k−1)| of the τ
         rows, bound + j Δτmax (the later increments keep Δτmax).
         """
         if bound == self._first_bound:
@@ -740,7 +752,9 @@ class LongitudinalMpc(PreviousTorque):
         self._reach = bound + dmax * np.arange(self.config.control_horizon)
 
     def push_detected(self, theta_hat: float, f2_hat: float, f3_hat: float) -> bool:
-        """Whether the disturbance estimate (f̂2, f̂3) at θ̂, against the offset-free
+        """Whether the disturbance estimate shows a push.
+
+        Whether the disturbance estimate (f̂2, f̂3) at θ̂, against the offset-free
         target's slow estimate, has a transient beyond ``disturbance_decay_dead_zone`` (what
         the prediction lets decay: a push). Reads the filter without updating it; False
         before its first tick, within ``disturbance_startup_time`` of a reset (the MPC
@@ -774,7 +788,9 @@ def _excess(value: float, band: float) -> float:
 
 
 def drive_limit(config: MpcConfig, tau_limit: float | None, *inputs: float) -> float | None:
-    """The |τυ| limit of a tick, capped to ``max_drive_torque`` (``tau_limit`` None: that
+    """Return the |τυ| limit of a tick, capped to ``max_drive_torque``.
+
+    The |τυ| limit of a tick, capped to ``max_drive_torque`` (``tau_limit`` None: that
     cap); None when an input or the limit is not finite or beyond
     :data:`INPUT_MAGNITUDE_LIMIT` (the caller then holds, see ``invalid_input_result``).
     MpcInputError on a negative limit (a caller's bug: 2τmax − |τω| ≥ 0).
@@ -845,8 +861,9 @@ class OffsetFreeTarget:
         self.transient = (0.0, 0.0)
 
     def transient_of(self, theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev):
-        """(d2, d3) minus the filtered estimate, without updating the filter; None before
-        its first update or with ``offset_free`` off.
+        """(d2, d3) minus the filtered estimate, without updating the filter.
+
+        None before its first update or with ``offset_free`` off.
         """
         if self.disturbance is None or not self.config.offset_free:
             return None
@@ -856,7 +873,8 @@ class OffsetFreeTarget:
 
     def update(self, theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev,
                period: float | None = None) -> float:
-        """Filter the disturbance estimate and return θs [rad] (τs in ``self.tau``);
+        """Filter the disturbance estimate and return θs [rad] (τs in ``self.tau``).
+
         ``period``: time since the last update [s] (None: ``sampling_period``).
         """
         cfg = self.config

@@ -147,7 +147,9 @@ class CondensedPrediction:
         self.gain_matrix_theta_dot = self._toeplitz(step_theta_dot)
 
     def decaying_input_columns(self, ratio: float) -> tuple[np.ndarray, np.ndarray]:
-        """(γ2ρ, γ3ρ) (3·Np each): the free response to an input on the υ̇ (θ̈) row that
+        """Free response to a geometrically decaying input: (γ2ρ, γ3ρ), 3·Np each.
+
+        (γ2ρ, γ3ρ) (3·Np each): the free response to an input on the υ̇ (θ̈) row that
         decays geometrically, ρ^p at step p (ρ = 1: the constant-input columns γ2, γ3).
 
         x(k+1) = Σ_{p≤k} A^{k−p} b ρ^p = D_k b with D_0 = I, D_k = A^k + ρ D_{k−1}.

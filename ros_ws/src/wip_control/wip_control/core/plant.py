@@ -150,14 +150,18 @@ class PlantConfig:
 
 
 def equation_model(model: str) -> str:
-    """The equation model whose equations describe ``model``: itself, or 'full' for an
+    """Return the equation model whose equations describe ``model``.
+
+    The equation model whose equations describe ``model``: itself, or 'full' for an
     engine model (the same bodies; used for the metrics' lumped disturbances and gains).
     """
     return 'full' if model in ENGINE_MODELS else model
 
 
 def scenario_plant(scenario):
-    """The true plant of ``scenario`` (a :class:`.scenario.Scenario`): model, parameters
+    """Return the true plant of ``scenario`` (a :class:`.scenario.Scenario`).
+
+    The true plant of ``scenario`` (a :class:`.scenario.Scenario`): model, parameters
     and, for an engine model, contact and terrain, stepped at the scenario's plant rate.
     Equation models give a :class:`Plant`; an engine model an object with the same
     ``hold_floats`` and ``simulate_hold``.
@@ -464,8 +468,9 @@ _rk4_hold = None
 
 
 def _load_integrator() -> None:
-    """Import and warm up the compiled integrator once per process (numba is imported only
-    by a process that builds a plant: see :mod:`.plant_rk4`).
+    """Import and warm up the compiled integrator once per process.
+
+    Numba is imported only by a process that builds a plant: see :mod:`.plant_rk4`.
     """
     global _rk4_hold  # noqa: PLW0603 - one compiled function per process
     if _rk4_hold is None:

@@ -1,4 +1,6 @@
-"""The plant's compiled RK4 integrator (numba), apart from :mod:`.plant` so that a process
+"""The plant's compiled RK4 integrator (numba), apart from :mod:`.plant`.
+
+The plant's compiled RK4 integrator (numba), apart from :mod:`.plant` so that a process
 that never steps a plant (the controllers) does not import numba and llvmlite: about 0.2 s
 of import and 50 MB of memory per process, which a robot's small computer pays once per
 controller process. :class:`~.plant.Plant` imports this module at its construction.
@@ -14,9 +16,11 @@ import numpy as np
 
 @numba.njit(cache=True, nogil=True, inline='always')
 def _slopes(k, tv, tw, th, om, v, thd, d1, d2, d3):
-    """(ω̇, υ̇, θ̈) at one RK4 stage: :func:`.plant._make_accelerations` for the held wheel
-    torques τυ = ``tv``, τω = ``tw``. Inlined into the caller, so the operations and their
-    order are those of the reference step (bit for bit).
+    """(ω̇, υ̇, θ̈) at one RK4 stage.
+
+    :func:`.plant._make_accelerations` for the held wheel torques τυ = ``tv``, τω = ``tw``. Inlined
+    into the caller, so the operations and their order are those of the reference step (bit for
+    bit).
     """
     (mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_gain, k_centrifugal,
      k_coriolis, k_reaction, friction_v, friction_w) = k

@@ -61,8 +61,9 @@ def _from_derivatives(x: float, y: float, phi: float, xd: float, yd: float, xdd:
 
 def _speed_and_yaw_rate(xd: float, yd: float, xdd: float, ydd: float,
                         *_third: float) -> tuple[float, float]:
-    """(υ_r, ω_r) from the derivatives: the expressions of :func:`_from_derivatives`,
-    so the same floats.
+    """(υ_r, ω_r) from the derivatives.
+
+    The expressions of :func:`_from_derivatives`, so the same floats.
     """
     v2 = xd * xd + yd * yd
     return math.sqrt(v2), (xd * ydd - yd * xdd) / v2
@@ -161,7 +162,9 @@ class Circle(Reference):
 
 
 class StraightLine(Reference):
-    """Uniform motion on a straight line from ``start`` [m] along ``heading`` [rad] at
+    """Uniform motion on a straight line.
+
+    Uniform motion on a straight line from ``start`` [m] along ``heading`` [rad] at
     ``speed`` [m/s] (≥ 0).
     """
 
@@ -409,7 +412,9 @@ class Waypoints(Reference):
 
 
 class TimeScaled(Reference):
-    """A reference run along the same path with a progress s(t) that slows where the
+    """A reference run along the same path with a progress s(t) within the limits.
+
+    A reference run along the same path with a progress s(t) that slows where the
     path's speed or yaw rate would exceed the limits (time scaling, Hollerbach 1984).
 
     The base reference p(s) is re-timed by ṡ = σ(s), with
@@ -544,8 +549,9 @@ class TimeScaled(Reference):
         return a + (b - a) * (u - i), (b - a) / self.step
 
     def rate_at(self, s: float) -> float:
-        """σ(s) = ds/dt ∈ (0, 1] (linear between the grid nodes): the σ of
-        :meth:`_sigma_and_slope`, without the slope.
+        """σ(s) = ds/dt ∈ (0, 1] (linear between the grid nodes).
+
+        The σ of :meth:`_sigma_and_slope`, without the slope.
         """
         if s <= 0.0:
             return self._sigma_and_slope(s)[0]
@@ -607,7 +613,9 @@ class TimeScaled(Reference):
         return v * min(self.rate_at(s), self._raw_rate(v, omega))
 
     def _timed(self, t: float) -> ReferenceState:
-        """The re-timed state at t, without the speed lead: the base's pose at s(t), υ_r σ,
+        """Return the re-timed state at t, without the speed lead.
+
+        The re-timed state at t, without the speed lead: the base's pose at s(t), υ_r σ,
         ω_r σ and σ (ω̇_r σ + ω_r dσ/ds).
         """
         s = self.progress(t)
@@ -650,11 +658,12 @@ class TimeScaled(Reference):
 
 
 class RetimingTables:
-    """The tables of a :class:`TimeScaled`: σ0 and σ every ``step`` of s, s and σ(s)
-    every ``step`` of t. They are a function of the base path, the limits and the step
-    only (extended on demand, always from the start), so TimeScaled objects of the same
-    configuration can share them (:func:`make_reference`). They are only appended to,
-    under ``lock``, and every value is final once written, so readers need no lock.
+    """The tables of a :class:`TimeScaled`.
+
+    σ0 and σ every ``step`` of s, s and σ(s) every ``step`` of t. They are a function of the base
+    path, the limits and the step only (extended on demand, always from the start), so TimeScaled
+    objects of the same configuration can share them (:func:`make_reference`). They are only
+    appended to, under ``lock``, and every value is final once written, so readers need no lock.
     """
 
     #: Tables longer than this many nodes (1000 s of a 10 ms step; about 13 MB for the
@@ -679,7 +688,9 @@ MAX_SHARED_CONFIGURATIONS = 4
 
 
 def shared_tables(key: Hashable) -> RetimingTables:
-    """The tables this thread shares among the TimeScaled of configuration ``key`` (new
+    """Return the tables this thread shares among the TimeScaled of configuration ``key``.
+
+    The tables this thread shares among the TimeScaled of configuration ``key`` (new
     ones the first time).
     """
     cache = getattr(_shared, 'tables', None)
@@ -705,7 +716,9 @@ def _unshare(tables: RetimingTables) -> None:
 
 def distance_to_path(reference: Reference, x: Sequence[float], y: Sequence[float],
                      path_duration: float, resolution: float = 0.001):
-    """Distance [m] of each point (x, y) to the path of ``reference`` traced over
+    """Distance [m] of each point (x, y) to the path of ``reference``.
+
+    Distance [m] of each point (x, y) to the path of ``reference`` traced over
     [0, ``path_duration``] of its own time (for a :class:`TimeScaled`, pass its base).
 
     The path is sampled every ``resolution`` [m] of arc length at most (nearest sample
@@ -851,8 +864,9 @@ def _make_waypoints(config: ReferenceConfig) -> Waypoints:
 
 
 def make_reference(config: ReferenceConfig | None = None) -> Reference:
-    """Build the reference selected by ``config.kind`` (default: the paper's trifolium),
-    time-scaled (:class:`TimeScaled`) if ``config.time_scaling``.
+    """Build the reference selected by ``config.kind`` (default: the paper's trifolium).
+
+    Time-scaled (:class:`TimeScaled`) if ``config.time_scaling``.
     """
     config = config if config is not None else ReferenceConfig()
     config.validate()
@@ -891,7 +905,9 @@ def _make_base_reference(config: ReferenceConfig) -> Reference:
 
 def make_commanded(config: ReferenceConfig,
                    t0: float = 0.0) -> CmdVelReference | PathReference:
-    """The reference of a commanded kind (``cmd_vel``, ``path``), at rest at the start
+    """Return the reference of a commanded kind (``cmd_vel``, ``path``).
+
+    The reference of a commanded kind (``cmd_vel``, ``path``), at rest at the start
     pose (``line_start``, ``line_heading``) at time t0 [s] until commanded.
     """
     limits = UnicycleLimits(config.commanded_max_speed, config.commanded_max_acceleration,

@@ -293,13 +293,17 @@ class SafetyMonitor:
         slot.value, slot.arrival, slot.invalid = value, float(t), ''
 
     def invalid_input(self, name: str, t: float, reason: str) -> None:
-        """A message of input ``name`` was unusable (e.g. failed to convert): a fault
+        """Take an unusable message of input ``name`` (e.g. failed to convert).
+
+        A message of input ``name`` was unusable (e.g. failed to convert): a fault
         until the next valid one. The last valid value is kept but not used.
         """
         self.inputs[name].invalid = reason or 'invalid'
 
     def estimate(self, t: float, estimate: Sequence[float], settled: bool) -> None:
-        """A state estimate (a ``core.eso.StateEstimate`` or a sequence in its field
+        """Take a state estimate received at ``t`` [s].
+
+        A state estimate (a ``core.eso.StateEstimate`` or a sequence in its field
         order) received at ``t`` [s]; ``settled``: the ESO's start-up flag.
         """
         n = len(StateEstimate._fields)
@@ -353,7 +357,9 @@ class SafetyMonitor:
         self._accept(DRIVE_TORQUE, t, (float(tau_v), int(status)))
 
     def estop(self, t: float, engaged: bool) -> None:
-        """An e-stop message received at ``t`` [s]: engaged latches the e-stop; not engaged
+        """Take an e-stop message received at ``t`` [s].
+
+        An e-stop message received at ``t`` [s]: engaged latches the e-stop; not engaged
         only allows a later :meth:`reset` (and is the heartbeat if ``max_estop_age`` > 0).
         """
         self._accept(ESTOP_INPUT, t, bool(engaged))
@@ -362,7 +368,9 @@ class SafetyMonitor:
             self.estop_latched = True
 
     def wiring_fault(self, reason: str) -> None:
-        """A wiring contradiction (``core.wiring_check.Verdict.reason``): a fault from the
+        """Take a wiring contradiction (``core.wiring_check.Verdict.reason``).
+
+        A wiring contradiction (``core.wiring_check.Verdict.reason``): a fault from the
         next tick, latched whatever ``latch_faults`` says (a wrong parameter does not go
         away by itself) until :meth:`reset`.
         """
@@ -523,8 +531,10 @@ class SafetyMonitor:
                               self.config.shadow_mode)
 
     def _drive_torque_now(self, now: float) -> float:
-        """τυ of the MPC's last output at ``now``: its plan's entry for the periods elapsed
-        since it arrived (the last entry after the plan), or τυ itself without a plan.
+        """τυ of the MPC's last output at ``now``.
+
+        Its plan's entry for the periods elapsed since it arrived (the last entry after the plan),
+        or τυ itself without a plan.
         """
         slot = self.inputs[DRIVE_TORQUE]
         planned, period = self.drive_plan

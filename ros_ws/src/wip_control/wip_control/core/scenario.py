@@ -100,8 +100,10 @@ class InitialStateConfig:
 
 @dataclasses.dataclass(frozen=True)
 class PlantSection:
-    """The true plant: model, parameter overrides of :class:`WipParameters` and, for an
-    engine model, the wheel-ground contact.
+    """The true plant.
+
+    Model, parameter overrides of :class:`WipParameters` and, for an engine model, the wheel-ground
+    contact.
     """
 
     model: PlantConfig = dataclasses.field(default_factory=PlantConfig)
@@ -156,17 +158,20 @@ class Scenario:
 
     @property
     def drive_decimation(self) -> int:
-        """Control periods between the drive stage's ticks, where it takes its inputs and
-        (lockstep) publishes a drive torque: ``mpc.fast_resolve_period`` when set, else
-        ``mpc.sampling_period`` (``DriveStage.is_tick``).
+        """Control periods between the drive stage's ticks.
+
+        Where it takes its inputs and (lockstep) publishes a drive torque:
+        ``mpc.fast_resolve_period`` when set, else ``mpc.sampling_period``
+        (``DriveStage.is_tick``).
         """
         fast = self.mpc_fast_decimation
         return fast if fast is not None and fast < self.mpc_decimation else self.mpc_decimation
 
     @property
     def mpc_fast_decimation(self) -> int | None:
-        """Control periods per ``mpc.fast_resolve_period`` (None: off, 0 or not shorter
-        than ``mpc.sampling_period``).
+        """Control periods per ``mpc.fast_resolve_period``.
+
+        None: off, 0 or not shorter than ``mpc.sampling_period``.
         """
         if not resolves_faster(self.mpc.sampling_period, self.mpc.fast_resolve_period):
             return None
@@ -320,7 +325,9 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
 
 
 def with_duration(scenario: Scenario, duration: float) -> Scenario:
-    """``scenario`` with another duration [s], checked as a scenario file's would be
+    """``scenario`` with another duration [s], checked as a scenario file's would be.
+
+    ``scenario`` with another duration [s], checked as a scenario file's would be
     (range, at least one control tick, the most control periods a run may have);
     ConfigError otherwise.
     """
@@ -394,7 +401,9 @@ def load_scenario(path: str | pathlib.Path | None = None) -> Scenario:
 
 
 def read_scenario_file(path: str | pathlib.Path) -> Any:
-    """The parsed content of a scenario file, not yet validated (strict YAML, size-checked);
+    """Return the parsed content of a scenario file, not yet validated.
+
+    The parsed content of a scenario file, not yet validated (strict YAML, size-checked);
     ConfigError naming the file on any problem.
     """
     path = pathlib.Path(path)

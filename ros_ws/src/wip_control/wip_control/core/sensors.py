@@ -158,8 +158,9 @@ class Sensors:
                 self._history[max(0, newest - self.gps_latency_samples)])
 
     def gps_fix_available(self) -> bool:
-        """Whether this GPS tick delivers a fix (``gps_dropout_probability``); call once
-        per GPS tick, before :meth:`gps` (its own random stream).
+        """Whether this GPS tick delivers a fix (``gps_dropout_probability``).
+
+        Call once per GPS tick, before :meth:`gps` (its own random stream).
         """
         p = self.config.gps_dropout_probability
         if p <= 0.0:
@@ -167,7 +168,9 @@ class Sensors:
         return bool(self._rng_dropout.random() >= p)
 
     def wheel_rates(self, state: Sequence[float]) -> tuple[float, float]:
-        """(φ̇l, φ̇r) [rad/s]: joint rates of the true motion, noise-free (the rate of
+        """(φ̇l, φ̇r) [rad/s]: joint rates of the true motion, noise-free.
+
+        (φ̇l, φ̇r) [rad/s]: joint rates of the true motion, noise-free (the rate of
         :meth:`encoders`): rolling rate (υ ∓ (d/2) ω) / r, minus the tilt rate when the
         encoders measure against the body.
         """

@@ -160,7 +160,9 @@ class TrajectoryGenerator:
         self.saturated_yaw_rate = False  #: whether |ω_d| was clipped at the last step
 
     def state(self) -> tuple:
-        """Everything :meth:`step` changes (the derivative filter and the saturation
+        """Everything :meth:`step` changes, for :meth:`restore`.
+
+        Everything :meth:`step` changes (the derivative filter and the saturation
         flags), for :meth:`restore`.
         """
         return (self._t_prev, self._omega_prev, self._omega_dot, self._sat_sign_prev,

@@ -318,7 +318,9 @@ def warn_undeclared_overrides(nodes, warned=None) -> None:
 
 
 def init_rclpy(program: str, args, signal_handler_options) -> bool:
-    """``rclpy.init``; False after one line on stderr when rcl refuses the command line's
+    """``rclpy.init``; False after one line on stderr when rcl refuses the ROS arguments.
+
+    ``rclpy.init``; False after one line on stderr when rcl refuses the command line's
     ROS arguments (a remap rule to an invalid name, a malformed ``-p``): no traceback.
     """
     try:
@@ -343,7 +345,9 @@ def run_node(node_factory: Callable[[], Node], program: str, args=None,
 
 def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] | None]],
               program: str, args=None) -> int:
-    """Jazzy ``main``: init, build the nodes, spin them in one executor until shutdown,
+    """Jazzy ``main``: init, build the nodes, spin them until shutdown, clean up.
+
+    Jazzy ``main``: init, build the nodes, spin them in one executor until shutdown,
     clean up; exit status.
 
     ``nodes``: (factory, on_stop) pairs. Several nodes in one process is ROS 2
@@ -416,13 +420,14 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
 
 def compose(executor, factories: Sequence[Callable[[], Node]],
             built: list[Node]) -> IntraProcessBus | None:
-    """ROS 2 composition by hand, for :func:`run_nodes` and :func:`run_simulator_node`:
-    build each node into ``built`` (as it is made, so that the caller destroys what was
-    built if a later factory fails) and add it to ``executor``; warn of overrides no node
-    declares; one sim clock (:func:`share_sim_clock`); intra-process delivery
-    (:func:`connect_intra_process`, the bus to drain, or None); then move the start-up's
-    objects out of the garbage collector's reach (``gc.freeze``), so that the collections
-    that still run during control (young objects only) do not walk them.
+    """ROS 2 composition by hand.
+
+    For :func:`run_nodes` and :func:`run_simulator_node`: build each node into ``built`` (as it is
+    made, so that the caller destroys what was built if a later factory fails) and add it to
+    ``executor``; warn of overrides no node declares; one sim clock (:func:`share_sim_clock`);
+    intra-process delivery (:func:`connect_intra_process`, the bus to drain, or None); then move
+    the start-up's objects out of the garbage collector's reach (``gc.freeze``), so that the
+    collections that still run during control (young objects only) do not walk them.
     """
     for factory in factories:
         built.append(factory())
@@ -437,7 +442,9 @@ def compose(executor, factories: Sequence[Callable[[], Node]],
 
 def spin_composed(executor, node: Node, bus: IntraProcessBus | None,
                   running: Callable[[], bool]) -> None:
-    """Spin (:func:`spin_once_guarded`, errors reported by ``node``) while the context is
+    """Spin while the context is up and ``running()``.
+
+    Spin (:func:`spin_once_guarded`, errors reported by ``node``) while the context is
     up and ``running()``; after each spin_once, deliver the intra-process messages.
     """
     drain = bus.drain if bus is not None else (lambda: 0)
@@ -447,7 +454,9 @@ def spin_composed(executor, node: Node, bus: IntraProcessBus | None,
 
 
 def connect_intra_process(nodes: Sequence[Node]) -> IntraProcessBus | None:
-    """Connect the publishers of ``nodes`` to the same process's subscriptions
+    """Connect the publishers of ``nodes`` to the same process's subscriptions.
+
+    Connect the publishers of ``nodes`` to the same process's subscriptions
     (:mod:`.intra_process`); the bus that the spin loop must drain, None if there is
     nothing to connect (fewer than two nodes with ``use_intra_process_comms``).
     """
@@ -507,7 +516,9 @@ ACK_TIMEOUT = 10.0
 
 def wait_for_acknowledgements(nodes: Sequence[Node], timeout: float = ACK_TIMEOUT
                               ) -> list[str]:
-    """Wait until every reliable reader of the nodes' publishers has acknowledged every
+    """Wait until every reliable reader has acknowledged every sample.
+
+    Wait until every reliable reader of the nodes' publishers has acknowledged every
     sample (at most ``timeout`` in all); the topics of those that had not, said in the log.
 
     A reliable writer's unacknowledged samples die with its process: a simulator that
@@ -529,7 +540,7 @@ def wait_for_acknowledgements(nodes: Sequence[Node], timeout: float = ACK_TIMEOU
 def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None, *,
                        config_status: int, on_end: Callable[[Node], None] | None = None,
                        companions: Sequence[Callable[[], Node]] = ()) -> int:
-    """``main`` of a simulator node (plant, stand-in base) that ends by itself.
+    """Run the ``main`` of a simulator node (plant, stand-in base) that ends by itself.
 
     Spins until SIGINT or SIGTERM or until the node sets ``exit_code`` (the end of its scenario, a
     fall...), which is then the status; ``on_end(node)`` runs in that case, before the
@@ -594,7 +605,9 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
 
 
 class IntraProcessNode(Node):
-    """A node whose publishers and subscriptions a composed process may connect directly
+    """A node whose publishers and subscriptions a composed process may connect directly.
+
+    A node whose publishers and subscriptions a composed process may connect directly
     (:func:`connect_intra_process`, :mod:`.intra_process`): the controller nodes and the
     plant. Call :meth:`init_intra_process` before creating them; rclpy's own (parameter
     events, rosout) are not connected.
@@ -606,13 +619,16 @@ class IntraProcessNode(Node):
         self.intra_subscriptions: list[tuple[type, str, Callable]] = []
 
     def add_intra_subscription(self, msg_type, subscription, callback: Callable) -> None:
-        """Also deliver the process's own messages of ``subscription``'s topic to
-        ``callback`` (which must be the subscription's).
+        """Also deliver the process's own messages of ``subscription``'s topic to ``callback``.
+
+        Which must be the subscription's.
         """
         self.intra_subscriptions.append((msg_type, subscription.topic_name, callback))
 
     def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
-        """rclpy's publisher wrapped in an :class:`IntraProcessPublisher`: it publishes
+        """Create rclpy's publisher wrapped in an :class:`IntraProcessPublisher`.
+
+        rclpy's publisher wrapped in an :class:`IntraProcessPublisher`: it publishes
         nothing while no subscription is matched (volatile topics), and in a composed
         process hands messages to the process's own subscriptions directly.
         """
@@ -648,7 +664,9 @@ class ControllerNode(IntraProcessNode):
         self.max_stamp_lead_ns = round(settings.max_stamp_lead * 1e9)
 
     def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
-        """In lockstep, every reliable publisher keeps what its readers have not
+        """Create a publisher; in lockstep, a reliable one keeps what is not acknowledged.
+
+        In lockstep, every reliable publisher keeps what its readers have not
         acknowledged (:data:`LOCKSTEP_WRITER_DEPTH`).
         """
         if getattr(self, 'lockstep', False):
@@ -657,9 +675,11 @@ class ControllerNode(IntraProcessNode):
 
     def subscribe(self, msg_type, topic: str, name: str, handler: Callable,
                   qos: QoSProfile = RELIABLE_QOS, raw: bool = False) -> None:
-        """Subscription whose callback never raises: a ValueError (malformed or non-finite
-        input, rejected by a conversion or the core) drops the message as 'invalid', any
-        other error as 'error'; both are counted and reported on /diagnostics.
+        """Subscription whose callback never raises.
+
+        A ValueError (malformed or non-finite input, rejected by a conversion or the core) drops
+        the message as 'invalid', any other error as 'error'; both are counted and reported on
+        /diagnostics.
 
         ``raw``: DDS delivers the serialized bytes (decoded by the handler, see
         ``conversions.decode_serialized``); the intra-process bus still delivers objects.
@@ -676,9 +696,10 @@ class ControllerNode(IntraProcessNode):
 
     def subscribe_input(self, msg_type, topic: str, name: str, convert: Callable,
                         qos: QoSProfile = RELIABLE_QOS) -> None:
-        """:meth:`subscribe` to a stamped input of the node's LatestSync: each message's
-        stamp counted on /diagnostics, then ``convert(msg)`` fed as ``name`` (a ValueError
-        of the conversion drops the message).
+        """:meth:`subscribe` to a stamped input of the node's LatestSync.
+
+        Each message's stamp counted on /diagnostics, then ``convert(msg)`` fed as ``name`` (a
+        ValueError of the conversion drops the message).
         """
         def handler(msg) -> None:
             stamp = stamp_to_ns(msg.header.stamp)

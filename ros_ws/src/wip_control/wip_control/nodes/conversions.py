@@ -88,7 +88,9 @@ _typestore = None
 
 
 def prepare_decoder(*typenames: str) -> None:
-    """Build the type store and the decoders of ``typenames`` now (about 0.16 s of CPU
+    """Build the type store and the decoders of ``typenames`` now.
+
+    Build the type store and the decoders of ``typenames`` now (about 0.16 s of CPU
     here, more on a slow machine), at a node's start, rather than in the callback of its
     first sensor sample.
     """
@@ -101,7 +103,9 @@ def prepare_decoder(*typenames: str) -> None:
 
 
 def decode_serialized(msg, typename: str):
-    """A sensor message taken serialized (``create_subscription(..., raw=True)``) as an
+    """Decode a sensor message taken serialized (``create_subscription(..., raw=True)``).
+
+    A sensor message taken serialized (``create_subscription(..., raw=True)``) as an
     object with the message's fields (rosbags' CDR decoder, pinned version); a message
     object is returned as is (the intra-process bus and tests deliver objects).
 
@@ -207,7 +211,9 @@ def odometry_to_msg(stamp_ns: int, frame_id: str, child_frame_id: str, x: float,
                     phi: float, v: float, omega: float,
                     pose_covariance: Sequence[float] = (0.0,) * 36,
                     twist_covariance: Sequence[float] = (0.0,) * 36) -> Odometry:
-    """nav_msgs/Odometry of a planar pose (x, y [m], heading phi [rad]) in ``frame_id``
+    """nav_msgs/Odometry of a planar pose and its twist.
+
+    nav_msgs/Odometry of a planar pose (x, y [m], heading phi [rad]) in ``frame_id``
     and its twist in ``child_frame_id`` (REP 105: υ along x, ω about z); covariances
     row-major 6x6 (all zero: unknown, the ROS convention). The ESO's /odom and the
     viewer's Odometry topics are built here.
@@ -244,7 +250,9 @@ def estimate_to_msg(est: StateEstimate, x: float, y: float, settled: bool, stamp
 
 
 class _LastConversion:
-    """The result of converting the last message object, for the next subscriber of the
+    """The result of converting the last message object, for the next subscriber of it.
+
+    The result of converting the last message object, for the next subscriber of the
     same object. In a composed process every local subscriber of a topic receives the same
     message object (intra_process.py), and no node modifies a message it receives: the
     four subscribers of a state estimate then convert it once (about 13 us each, at
@@ -257,7 +265,7 @@ class _LastConversion:
         self.msg, self.value, self.checked = None, None, False
 
     def get(self, msg, check: bool):
-        """The cached conversion of ``msg`` if it is the last one and was checked as asked."""
+        """Return the cached conversion of ``msg`` if it is the last and was checked as asked."""
         if msg is self.msg and (self.checked or not check):
             return self.value
         return None
@@ -359,8 +367,9 @@ def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> MpcO
 
 
 def planned_drive_torque(result: MpcResult) -> list[float]:
-    """τυ(k), τυ(k+1), … of the plan (eq. (23) applied to each planned increment); empty
-    when the plan is not finite.
+    """τυ(k), τυ(k+1), … of the plan (eq. (23) applied to each planned increment).
+
+    Empty when the plan is not finite.
     """
     plan = [float(v) for v in result.plan]
     if not (plan and all(math.isfinite(v) for v in plan) and math.isfinite(result.tau_v)):
@@ -372,7 +381,9 @@ def planned_drive_torque(result: MpcResult) -> list[float]:
 
 
 def mpc_hold_msg(stamp_ns: int, tau_v: float, sampling_period: float) -> MpcOutput:
-    """MpcOutput of a tick of the re-solve grid at which the MPC did not solve
+    """MpcOutput of a tick of the re-solve grid at which the MPC did not solve.
+
+    MpcOutput of a tick of the re-solve grid at which the MPC did not solve
     (``mpc.fast_resolve_period``, lockstep): the held τυ, status SOLVED (of the last solve),
     ``status_text`` HELD, Δτ 0, no plan or prediction.
     """
@@ -412,12 +423,13 @@ def _in_joint_order(left: float, right: float, joints: Sequence[str], left_joint
 
 def effort_command_cdr(left: float, right: float, joints: Sequence[str], left_joint: str,
                        right_joint: str) -> bytes:
-    """:func:`effort_command` already serialized (CDR, little endian), for
-    ``Publisher.publish(bytes)``: the real-time mixer sends one per tick, and building the
-    message object for rclpy to convert and serialize cost about 30 µs of the ~140 µs of
-    the publication here (docs/realtime.md). The layout is empty (no dimensions, offset 0),
-    as :func:`effort_command` leaves it; the bytes differ from rclpy's only in the
-    alignment padding, which Fast CDR leaves uninitialised.
+    """:func:`effort_command` already serialized (CDR, little endian).
+
+    For ``Publisher.publish(bytes)``: the real-time mixer sends one per tick, and building the
+    message object for rclpy to convert and serialize cost about 30 µs of the ~140 µs of the
+    publication here (docs/realtime.md). The layout is empty (no dimensions, offset 0), as
+    :func:`effort_command` leaves it; the bytes differ from rclpy's only in the alignment padding,
+    which Fast CDR leaves uninitialised.
     """
     values = [float(v) for v in _in_joint_order(left, right, joints, left_joint, right_joint)]
     # encapsulation CDR_LE | layout.dim length 0 | layout.data_offset 0 | data length |

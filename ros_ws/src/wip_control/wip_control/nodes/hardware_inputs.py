@@ -114,7 +114,9 @@ def mounting_inverse(rpy: Sequence[float]) -> Quaternion | None:
 
 
 def imu_orientation_of_body(body: Sequence[float], rpy: Sequence[float]) -> Quaternion:
-    """What an IMU mounted with ``rpy`` reports when the body has orientation ``body``:
+    """Return what an IMU mounted with ``rpy`` reports for the body orientation ``body``.
+
+    What an IMU mounted with ``rpy`` reports when the body has orientation ``body``:
     q_imu = q_body ⊗ q_mount (the inverse of :func:`body_pitch_yaw`; for simulators and
     tests).
     """
@@ -166,8 +168,9 @@ def body_pitch_yaw(msg: Imu, inverse_mount: Sequence[float] | None = None) -> tu
 
 def body_pitch_yaw_rates(msg: Imu, inverse_mount: Sequence[float] | None,
                          pitch: float) -> tuple[float, float]:
-    """(θ̇, ϕ̇) [rad/s] of the body from the IMU's angular velocity (gyro), whose axes
-    are the IMU frame: ω_body = R_mount ω_imu, then the Euler rates at the body pitch θ
+    """(θ̇, ϕ̇) [rad/s] of the body from the IMU's angular velocity (gyro).
+
+    The gyro's axes are the IMU frame: ω_body = R_mount ω_imu, then the Euler rates at the body pitch θ
     [rad] (:func:`.conversions.euler_rates_from_body`).
     """
     if not imu_has_rates(msg):

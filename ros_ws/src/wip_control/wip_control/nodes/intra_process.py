@@ -115,7 +115,9 @@ class IntraProcessBus:
         self.subscriptions[topic].append((msg_type, callback))
 
     def attach(self, publisher: IntraProcessPublisher) -> int:
-        """Attach ``publisher`` to the local subscriptions of its topic and type (possibly
+        """Attach ``publisher`` to the local subscriptions of its topic and type.
+
+        Attach ``publisher`` to the local subscriptions of its topic and type (possibly
         none: it then publishes only while a subscription is matched); their count.
         """
         local = [cb for msg_type, cb in self.subscriptions.get(publisher.topic_name, ())

@@ -26,8 +26,9 @@ from ..core.config import check_value, ConfigError, from_mapping
 
 
 class OutOfRangeError(ConfigError, InvalidParameterValueException):
-    """An override outside the declared range: a ConfigError (one line naming the
-    parameter) that is also the exception rclpy raises for it.
+    """An override outside the declared range.
+
+    A ConfigError (one line naming the parameter) that is also the exception rclpy raises for it.
     """
 
     def __init__(self, message: str) -> None:
@@ -182,7 +183,9 @@ class EffortInterface:
 
 
 def declare_effort_interface(node: Node) -> EffortInterface:
-    """Declare and read the parameters of settings.WheelJoints, EffortCommand and
+    """Declare and read the parameters of the effort interface.
+
+    Declare and read the parameters of settings.WheelJoints, EffortCommand and
     WheelSigns (the mixer and the stand-in base read the same ones); ConfigError if
     ``joints`` does not list ``left_joint`` and ``right_joint`` once each.
     """

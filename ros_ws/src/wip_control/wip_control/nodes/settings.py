@@ -109,8 +109,9 @@ class EffortCommand:
 
 
 def check_effort_joints(left_joint: str, right_joint: str, joints: tuple[str, ...]) -> None:
-    """ConfigError unless ``joints`` lists ``left_joint`` and ``right_joint`` once each
-    (the check of the nodes that command efforts, and of a params file before a run).
+    """ConfigError unless ``joints`` lists ``left_joint`` and ``right_joint`` once each.
+
+    The check of the nodes that command efforts, and of a params file before a run.
     """
     if sorted(joints) != sorted([left_joint, right_joint]):
         raise ConfigError(f'joints: must list left_joint {left_joint!r} and right_joint '
@@ -174,8 +175,9 @@ class EsoNodeSettings:
 
 @dataclasses.dataclass(frozen=True)
 class YawInputGainScale:
-    """The one ESO value the ARC needs: the scale of the yaw input gain, from which it
-    computes α̂(0) = 1/ĝ1 with the model (``core.control_step.initial_alpha``).
+    """The one ESO value the ARC needs: the scale of the yaw input gain.
+
+    From which it computes α̂(0) = 1/ĝ1 with the model (``core.control_step.initial_alpha``).
     """
 
     yaw_input_gain_scale: float = like(EsoConfig, 'yaw_input_gain_scale')
@@ -192,8 +194,9 @@ class MpcNodeSettings:
 
 @dataclasses.dataclass(frozen=True)
 class WheelTorqueLimit:
-    """The one mixer value the MPC needs: τmax, which bounds its drive torque
-    (2 τmax − |τω|, core.mixer.drive_torque_limit).
+    """The one mixer value the MPC needs: τmax, which bounds its drive torque.
+
+    2 τmax − |τω|, core.mixer.drive_torque_limit.
     """
 
     max_wheel_torque: float = like(MixerConfig, 'max_wheel_torque')
@@ -201,8 +204,9 @@ class WheelTorqueLimit:
 
 @dataclasses.dataclass(frozen=True)
 class MpcPeriod:
-    """The MPC values the mixer needs: its sampling period and re-solve period, from
-    which the mixer computes the ticks at which (in lockstep) it awaits a drive torque.
+    """The MPC values the mixer needs: its sampling period and re-solve period.
+
+    From which the mixer computes the ticks at which (in lockstep) it awaits a drive torque.
     """
 
     sampling_period: float = like(MpcConfig, 'sampling_period')

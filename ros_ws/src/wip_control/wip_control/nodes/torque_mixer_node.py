@@ -204,8 +204,10 @@ class TorqueMixerNode(ControllerNode):
         self.create_subscription(Imu, 'imu/data', self._on_imu, SENSOR_QOS)
 
     def _on_joint_states(self, msg: JointState) -> None:
-        """Wheel rates as configured: the joint velocities (else the positions' difference)
-        by name, times the signs. A bad message is the ESO's to report: skipped here.
+        """Wheel rates as configured.
+
+        The joint velocities (else the positions' difference) by name, times the signs. A bad
+        message is the ESO's to report: skipped here.
         """
         t = self.monitor_time()
         try:
@@ -339,8 +341,10 @@ class TorqueMixerNode(ControllerNode):
 
     # -- ticks ---------------------------------------------------------------------------------
     def _tick(self, sensor_stamp: int | None = None) -> None:
-        """Realtime: one command with the latest inputs, on a yaw torque (stamped with its
-        sensor sample: the latency is recorded) or from the watchdog.
+        """Realtime: one command with the latest inputs.
+
+        On a yaw torque (stamped with its sensor sample: the latency is recorded) or from the
+        watchdog.
         """
         try:
             now = self.now_ns()

@@ -140,7 +140,9 @@ def exit_with(main: Callable[[Sequence[str] | None], int], prog: str) -> None:
 
 
 def console_script(module: str, prog: str) -> Callable[[], int]:
-    """The console script (setup.py entry point, what ``ros2 run`` starts) of the tool
+    """Return the console script of the tool ``module``.
+
+    The console script (setup.py entry point, what ``ros2 run`` starts) of the tool
     ``module``: its ``main`` through :func:`run_main`, as ``python -m module`` runs it. The
     module is imported when the script runs (so one tool does not import the others), and
     inside run_main (so a failed import is a one-line error too).
@@ -197,7 +199,9 @@ def exit_codes_text() -> str:
 
 
 def add_exit_codes(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Put the exit-code table at the end of ``parser``'s ``--help``, line by line (the
+    """Put the exit-code table at the end of ``parser``'s ``--help``, line by line.
+
+    Put the exit-code table at the end of ``parser``'s ``--help``, line by line (the
     parser's formatter keeps wrapping the rest of its text as before), and make its usage
     errors one line (exit 2).
     """
@@ -225,7 +229,9 @@ def add_exit_codes(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 def bounded(kind: type, minimum: float | None = None, maximum: float | None = None,
             exclusive_minimum: bool = False) -> Callable[[str], Any]:
-    """An argparse ``type=``: a finite ``kind`` (int or float) in [minimum, maximum]
+    """Return an argparse ``type=`` for a finite number in a range.
+
+    An argparse ``type=``: a finite ``kind`` (int or float) in [minimum, maximum]
     ((minimum, maximum] with ``exclusive_minimum``); argparse's usage error (exit 2)
     naming the range otherwise.
     """
@@ -262,7 +268,9 @@ _NODE_HELP_EXTRA = {
 
 
 def answer_node_help(program: str, package: str, args: Sequence[str] | None = None) -> bool:
-    """If the command line of a node executable asks for ``-h``/``--help`` (before
+    """Answer ``-h``/``--help`` on the command line of a node executable.
+
+    If the command line of a node executable asks for ``-h``/``--help`` (before
     ``--ros-args``), print its usage on stdout and return True: the caller then exits 0
     without starting anything. ``args`` as given to ``rclpy.init`` (``sys.argv`` if
     None).

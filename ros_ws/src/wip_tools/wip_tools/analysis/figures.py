@@ -52,8 +52,9 @@ def _legend(ax, **kwargs) -> None:
 
 
 def _limit_lines(ax, value: float, label: str, data=None) -> None:
-    """±value lines, with the y range opened past them and past the data, so that a
-    limit line never coincides with the frame.
+    """±value lines, with the y range opened past them and past the data.
+
+    So that a limit line never coincides with the frame.
     """
     for sign in (1, -1):
         ax.axhline(sign * value, color='tab:gray', linestyle=':', linewidth=1.0,
@@ -97,7 +98,9 @@ def figure_path(record: RunRecord, out: pathlib.Path) -> pathlib.Path:
 
 
 def _time_marks(ax, path, ref) -> None:
-    """Every :data:`TIME_MARK_PERIOD` s: the vehicle (dot) and the reference (ring) at the
+    """Time marks of the vehicle and the reference every :data:`TIME_MARK_PERIOD` s.
+
+    Every :data:`TIME_MARK_PERIOD` s: the vehicle (dot) and the reference (ring) at the
     same time, joined, and labelled with the time: the tracking error made visible.
     """
     t = np.asarray(path['t'])

@@ -91,7 +91,10 @@ _WHOLE = ('source.messages', 'rerun')
 
 
 def flatten_metrics(metrics: dict[str, Any], prefix: str = '') -> dict[str, Any]:
-    """``{'a': {'b': 1}}`` -> ``{'a.b': 1}``; ``source.messages`` stays one entry."""
+    """Flatten nested metrics: ``{'a': {'b': 1}}`` -> ``{'a.b': 1}``.
+
+    ``source.messages`` stays one entry.
+    """
     flat = {}
     for key, value in metrics.items():
         name = f'{prefix}{key}'
