@@ -279,7 +279,8 @@ def test_bootstrap_exports_the_ros_environment():
     result = _bash('set -euo pipefail; source scripts/_env.sh; wip_bootstrap; '
                    'echo "guard=${_ROS_WHEELS_BOOTSTRAP_COMPLETE:-unset}"; '
                    'echo "domain=$ROS_DOMAIN_ID"; echo "range=$ROS_AUTOMATIC_DISCOVERY_RANGE"; '
-                   'echo "defaults=$WIP_ROS_DEFAULTS"; echo "ament=$AMENT_PREFIX_PATH"; echo "python=$(command -v python)"; '
+                   'echo "defaults=$WIP_ROS_DEFAULTS"; echo "ament=$AMENT_PREFIX_PATH"; '
+                   'echo "python=$(command -v python)"; '
                    'python -c "import rclpy, wip_msgs.msg; print(\'imports=ok\')"', env=env)
     assert result.returncode == 0, result.stderr
     values = dict(line.split('=', 1) for line in result.stdout.splitlines() if '=' in line)

@@ -47,7 +47,8 @@ def _publish_for(node, publisher, seconds, start, make=str, stop=None):
 def test_sigkill_mid_run_then_repair_keeps_every_complete_chunk(test_node, tools, tmp_path):
     bag = tmp_path / 'killed'
     topic = f'/robust_{os.getpid()}/kill'
-    recorder = start_recorder(test_node, bag, [topic], 'flush_period:=0.2', 'max_bag_duration:=1.0')
+    recorder = start_recorder(test_node, bag, [topic], 'flush_period:=0.2',
+                              'max_bag_duration:=1.0')
     tools.append(recorder)
     publisher = test_node.create_publisher(String, topic, QoSProfile(depth=1000))
     recorder.spin_until(lambda: publisher.get_subscription_count() >= 1, DISCOVERY_TIMEOUT,

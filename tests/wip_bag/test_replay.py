@@ -285,9 +285,10 @@ def test_replays_a_bag_written_by_rosbags_with_pause_remap_and_recorded_qos(
     spin_until(test_node, lambda: len(received) == len(written), 10.0, 'every message',
                replayer.process)
     # The bytes rosbags wrote, sent in the recorded order (per topic; across topics too
-    # since they are 10 ms apart: ordered by the replayer's send stamps). Fast DDS sends a serialized payload as a whole number of 4-byte
-    # words: a message whose CDR is not (rosbags does not pad, rclpy does) arrives with up
-    # to 3 zero bytes appended, which CDR readers ignore.
+    # since they are 10 ms apart: ordered by the replayer's send stamps). Fast DDS sends a
+    # serialized payload as a whole number of 4-byte words: a message whose CDR is not
+    # (rosbags does not pad, rclpy does) arrives with up to 3 zero bytes appended, which CDR
+    # readers ignore.
     def padded(data):
         return data + b'\x00' * (-len(data) % 4)
 

@@ -666,7 +666,8 @@ def test_arc_computes_its_initial_alpha_from_the_model_and_the_eso_gain_scale_it
     harness = wire(harness_of(harnesses, ArcNode(context=ctx)), ARC_INPUTS,
                    ['/wip/yaw_torque'])
     alpha0 = initial_alpha(model, 1.5)
-    assert alpha0 != pytest.approx(initial_alpha(WipParameters(), EsoConfig().yaw_input_gain_scale))
+    default_alpha = initial_alpha(WipParameters(), EsoConfig().yaw_input_gain_scale)
+    assert alpha0 != pytest.approx(default_alpha)
     assert harness.node.controller.alpha_hat == alpha0
     out = run_arc(harness, 20)
     expected = arc_expected(ArcConfig(), 20, alpha0)

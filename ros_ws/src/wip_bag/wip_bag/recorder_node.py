@@ -45,8 +45,8 @@ Behaviour
   subscription (serialized CDR, no deserialization). Its QoS follows rosbag2's
   ``adapt_request_to_offers``: reliable if every publisher offers reliable, else best effort;
   transient local if every publisher offers it, else volatile; history keep-last with depth
-  SUBSCRIPTION_DEPTH (a deep queue: the recorder must not drop a burst). The offered profiles and the
-  publishers' RIHS01 type hash are stored in the bag.
+  SUBSCRIPTION_DEPTH (a deep queue: the recorder must not drop a burst). The offered profiles and
+  the publishers' RIHS01 type hash are stored in the bag.
 - Each message is stamped with its receive time on the node's clock: simulation time when
   ``use_sim_time`` is true (lockstep runs then give bags in simulation time), else system
   time. rosbag2 also stores a send time from the middleware's message info, which this

@@ -1,11 +1,11 @@
-"""Hardware mode of ``scripts/run_graph``: the controller nodes alone, against a real base.
+r"""Hardware mode of ``scripts/run_graph``: the controller nodes alone, against a real base.
 
 Examples
 --------
     scripts/run_graph --mode hardware --params-file my_base.yaml
-    scripts/run_graph --no-plant --scenario line.yaml --params-file my_base.yaml \\
-        --remap /joint_states:=/base/joint_states --remap /imu/data:=/base/imu \\
-        --remap /effort_controller/commands:=/base/wheel_effort_controller/commands \\
+    scripts/run_graph --no-plant --scenario line.yaml --params-file my_base.yaml \
+        --remap /joint_states:=/base/joint_states --remap /imu/data:=/base/imu \
+        --remap /effort_controller/commands:=/base/wheel_effort_controller/commands \
         --record out/robot/bag --duration 60
 
 What it does

@@ -21,8 +21,8 @@ made within one invocation, interleaved where possible:
    pinned): their CPU share of one core, the
    sensor -> command latency (p50, p99, max) and the oldest command the base held while
    balancing, beside the in-process cost of the same loop (``--no-realtime`` skips it;
-   six runs of S s each plus their start-up: about 4-5 min at the default S), and the floor of rclpy: the
-   CPU share of a process that only receives the base's two sensor streams with empty
+   six runs of S s each plus their start-up: about 4-5 min at the default S), and the floor of
+   rclpy: the CPU share of a process that only receives the base's two sensor streams with empty
    callbacks (:mod:`wip_tools.rclpy_floor`), and the nodes' own code fed directly, back to
    back against paced at 200 Hz (:mod:`wip_tools.node_cost`).
 

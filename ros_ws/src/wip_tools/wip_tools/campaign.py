@@ -57,8 +57,8 @@ import numpy as np
 import yaml
 
 from wip_control.core.config import ConfigError
-from wip_control.core.criteria import Criteria, criteria_from_mapping, criteria_to_mapping, evaluate, \
-    measure
+from wip_control.core.criteria import (Criteria, criteria_from_mapping, criteria_to_mapping,
+                                       evaluate, measure)
 from wip_control.core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
 from wip_control.tools.cli import add_exit_codes
 

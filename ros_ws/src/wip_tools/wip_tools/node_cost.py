@@ -38,8 +38,9 @@ ENGAGE_TIMEOUT = 10.0   # [s] of paced ticks at most for the safety layer to eng
 def measure(seconds: float, paced: bool) -> dict:
     """Measure the thread CPU per tick of a controller node.
 
-    In a process of its own (it initialises rclpy's default context): thread CPU per tick [us] (median, mean, p90) over ``seconds`` of 200 Hz ticks (the
-    first fifth, start-up and warm-up, left out), and how many ticks ran.
+    In a process of its own (it initialises rclpy's default context): thread CPU per tick [us]
+    (median, mean, p90) over ``seconds`` of 200 Hz ticks (the first fifth, start-up and
+    warm-up, left out), and how many ticks ran.
     """
     import rclpy  # ROS only where measured
     from rclpy.serialization import serialize_message
@@ -127,7 +128,7 @@ def measure(seconds: float, paced: bool) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='python -m wip_tools.node_cost',
-                                     description=__doc__.split('\n\n')[0])
+                                     description=' '.join(__doc__.split('\n\n')[:2]))
     parser.add_argument('--seconds', type=float, default=10.0,
                         help='ticks of 5 ms to run (default 10 s of them)')
     parser.add_argument('--pace', type=int, choices=(0, 1), default=1,

@@ -23,8 +23,8 @@ from wip_control.core.config import ConfigError
 from wip_control.core.metrics import compute_metrics
 from wip_control.core.runner import run_scenario
 from wip_control.core.scenario import Scenario, load_scenario, scenario_to_mapping
-from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with,
-                  write_atomic)
+from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE,
+                                   exit_with, write_atomic)
 from .parameters import parameter_table
 from wip_control.tools.cli import add_exit_codes
 
@@ -117,6 +117,10 @@ def summary(metrics: dict) -> str:
     """Return a few human-readable lines of the key metrics."""
     def fmt(value, unit=''):
         return 'n/a' if value is None else f'{value:.3g}{unit}'
+
+    def solve_us(quantile):
+        seconds = metrics['mpc_solve_time_s'][quantile]
+        return seconds * 1e6 if seconds else None
     lines = [
         f'fell: {metrics["fell"]}   simulated {metrics["duration_s"]:.1f} s',
         f'max |theta| {fmt(metrics["max_abs_theta_rad"], " rad")}  (outside pulse windows '
@@ -127,8 +131,7 @@ def summary(metrics: dict) -> str:
         f'convergence {fmt(metrics["convergence_time_s"], " s")}   '
         f'RMS position error (t >= 10 s) {fmt(metrics["rms_position_error_m"], " m")}   '
         f'max {fmt(metrics["max_position_error_m"], " m")}',
-        f'MPC solve p50 {fmt(metrics["mpc_solve_time_s"]["p50"] * 1e6 if metrics["mpc_solve_time_s"]["p50"] else None, " us")}'
-        f'   p99 {fmt(metrics["mpc_solve_time_s"]["p99"] * 1e6 if metrics["mpc_solve_time_s"]["p99"] else None, " us")}',
+        f'MPC solve p50 {fmt(solve_us("p50"), " us")}   p99 {fmt(solve_us("p99"), " us")}',
     ]
     if 'real_time_factor' in metrics:
         lines.append(f'real-time factor {metrics["real_time_factor"]:.1f}x')

@@ -137,7 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='soak', description=__doc__.split('\n\n')[0],
         epilog='Exit codes: 0 all runs passed, 1 a run failed, 2 usage error.')
-    parser.add_argument('--out', default='soak_out', help='output directory (default: %(default)s)')
+    parser.add_argument('--out', default='soak_out',
+                        help='output directory (default: %(default)s)')
     parser.add_argument('--runs', type=int, default=5, help='runs per case (default: 5)')
     parser.add_argument('--seconds', type=float, default=60.0,
                         help='run time after the release [s] (default: 60)')

@@ -1,12 +1,12 @@
-"""Extended state observers (ESO) of eqs. (4) and (8) in [1]_, one per measured position.
+r"""Extended state observers (ESO) of eqs. (4) and (8) in [1]_, one per measured position.
 
 Each channel is the third-order observer
 
 .. math::
 
-    \\dot{\\hat x}_1 = \\hat x_2 + \\frac{\\alpha_1}{\\varepsilon}(y - \\hat x_1), \\quad
-    \\dot{\\hat x}_2 = b u + \\hat f + \\frac{\\alpha_2}{\\varepsilon^2}(y - \\hat x_1), \\quad
-    \\dot{\\hat f} = \\frac{\\alpha_3}{\\varepsilon^3}(y - \\hat x_1)
+    \dot{\hat x}_1 = \hat x_2 + \frac{\alpha_1}{\varepsilon}(y - \hat x_1), \quad
+    \dot{\hat x}_2 = b u + \hat f + \frac{\alpha_2}{\varepsilon^2}(y - \hat x_1), \quad
+    \dot{\hat f} = \frac{\alpha_3}{\varepsilon^3}(y - \hat x_1)
 
 of a double integrator ``ÿ = b u + f`` with the lumped disturbance ``f`` as an extra state.
 :class:`WipStateObserver` runs three of them: yaw (y = ϕ, b u = ĝ1(θ̂) τω), distance

@@ -1,10 +1,10 @@
-"""The paper's WIP model, eq. (1) in [1]_, and the state layout shared by the project.
+r"""The paper's WIP model, eq. (1) in [1]_, and the state layout shared by the project.
 
 .. math::
 
-    \\dot\\omega = f_{\\omega 1} + g_1 \\tau_\\omega + \\tau_{d1}, \\quad
-    \\dot\\upsilon = f_{\\upsilon 2} + g_2 \\tau_\\upsilon + \\tau_{d2}, \\quad
-    \\ddot\\theta = f_{\\theta 3} + g_3 \\tau_\\upsilon + \\tau_{d3}
+    \dot\omega = f_{\omega 1} + g_1 \tau_\omega + \tau_{d1}, \quad
+    \dot\upsilon = f_{\upsilon 2} + g_2 \tau_\upsilon + \tau_{d2}, \quad
+    \ddot\theta = f_{\theta 3} + g_3 \tau_\upsilon + \tau_{d3}
 
 with τυ = τl + τr and, following REP 103 (yaw counter-clockwise positive),
 τω = τr − τl. The paper writes τω = τl − τr (clockwise yaw); see docs/paper.md §1.

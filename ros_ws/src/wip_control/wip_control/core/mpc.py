@@ -1,4 +1,4 @@
-"""MPC of the longitudinal/tilt subsystem, eqs. (16)–(23) in [1]_.
+r"""MPC of the longitudinal/tilt subsystem, eqs. (16)–(23) in [1]_.
 
 Every ``sampling_period`` Ts the controller takes the ESO's estimates (υ̂, θ̂, θ̂̇, f̂2, f̂3)
 and the desired speed υd, solves the condensed QP (22) over the increments
@@ -6,15 +6,15 @@ and the desired speed υd, solves the condensed QP (22) over the increments
 
 .. math::
 
-    \\tau_\\upsilon(k) = \\tau_\\upsilon(k-1) + \\Delta\\tau(k|k).
+    \tau_\upsilon(k) = \tau_\upsilon(k-1) + \Delta\tau(k|k).
 
 Cost (20), with ȳ = G̃ Δτ̄ + ȳ_free from :mod:`.mpc_prediction`:
 
 .. math::
 
-    J = \\|\\bar y_r - \\bar y\\|^2_Q + \\|\\Delta\\bar\\tau\\|^2_R
-        + \\sum_i \\left(\\rho_{1\\upsilon} s_{\\upsilon,i} + \\rho_1 s_{\\theta,i}
-        + \\rho_2 (s_{\\upsilon,i}^2 + s_{\\theta,i}^2)\\right)
+    J = \|\bar y_r - \bar y\|^2_Q + \|\Delta\bar\tau\|^2_R
+        + \sum_i \left(\rho_{1\upsilon} s_{\upsilon,i} + \rho_1 s_{\theta,i}
+        + \rho_2 (s_{\upsilon,i}^2 + s_{\theta,i}^2)\right)
 
 with ȳr = 1_Np ⊗ (υd, θs, 0), Q = I_Np ⊗ diag(q), R = r I_Nc. θs is the offset-free
 target of :class:`OffsetFreeTarget` (0 in the paper's (20), ``offset_free: false``). With

@@ -1,12 +1,12 @@
-"""The simulated WIP: the paper model (1) of [1]_ or a full Lagrange–d'Alembert model.
+r"""The simulated WIP: the paper model (1) of [1]_ or a full Lagrange–d'Alembert model.
 
 State layout (:mod:`.model`): ``(x, y, ϕ, x_v, θ, ω, υ, θ̇)``. Both models share the
 kinematics
 
 .. math::
 
-    \\dot x = \\upsilon \\cos\\phi, \\quad \\dot y = \\upsilon \\sin\\phi, \\quad
-    \\dot\\phi = \\omega, \\quad \\dot x_v = \\upsilon, \\quad \\dot\\theta = \\dot\\theta
+    \dot x = \upsilon \cos\phi, \quad \dot y = \upsilon \sin\phi, \quad
+    \dot\phi = \omega, \quad \dot x_v = \upsilon, \quad \dot\theta = \dot\theta
 
 and differ in the dynamics of (ω, υ, θ̇). Disturbances enter both models as in eq. (1):
 d1 [rad/s²] adds to ω̇, d2 [m/s²] to υ̇, d3 [rad/s²] to θ̈ (τd1..τd3 of [1]_).
@@ -38,11 +38,11 @@ Model ``'full'``: derivation
 
     .. math::
 
-        T = \\tfrac12 m_p |\\dot p_{cm}|^2 + \\tfrac12 I_c \\dot\\theta^2
-          + \\tfrac12 m_c |\\dot p|^2
-          + \\sum_{i=l,r} \\big(\\tfrac12 m_w |\\dot p_i|^2
-                                 + \\tfrac12 J_\\omega \\dot\\varphi_i^2\\big)
-          + \\tfrac12 J_\\upsilon \\dot\\phi^2 .
+        T = \tfrac12 m_p |\dot p_{cm}|^2 + \tfrac12 I_c \dot\theta^2
+          + \tfrac12 m_c |\dot p|^2
+          + \sum_{i=l,r} \big(\tfrac12 m_w |\dot p_i|^2
+                                 + \tfrac12 J_\omega \dot\varphi_i^2\big)
+          + \tfrac12 J_\upsilon \dot\phi^2 .
 
     Nonholonomic constraints (no lateral slip, rolling without slip of each wheel):
     ẋ sinϕ − ẏ cosϕ = 0, r φ̇_l = υ − (d/2) ω, r φ̇_r = υ + (d/2) ω with υ = ẋ cosϕ + ẏ sinϕ.
@@ -55,14 +55,14 @@ Model ``'full'``: derivation
 
     .. math::
 
-        J(\\theta)\\dot\\omega + m_p l^2 \\sin 2\\theta\\, \\omega\\dot\\theta
-            + m_p l \\sin\\theta\\, \\upsilon\\omega = \\frac{d}{2r}\\tau_\\omega
+        J(\theta)\dot\omega + m_p l^2 \sin 2\theta\, \omega\dot\theta
+            + m_p l \sin\theta\, \upsilon\omega = \frac{d}{2r}\tau_\omega
 
-        m_v \\dot\\upsilon + m_p l \\cos\\theta\\, \\ddot\\theta
-            - m_p l \\sin\\theta\\,(\\dot\\theta^2 + \\omega^2) = \\tau_\\upsilon / r
+        m_v \dot\upsilon + m_p l \cos\theta\, \ddot\theta
+            - m_p l \sin\theta\,(\dot\theta^2 + \omega^2) = \tau_\upsilon / r
 
-        m_p l \\cos\\theta\\, \\dot\\upsilon + J_\\theta \\ddot\\theta - m_p g l \\sin\\theta
-            - m_p l^2 \\sin\\theta\\cos\\theta\\, \\omega^2 = -\\tau_\\upsilon
+        m_p l \cos\theta\, \dot\upsilon + J_\theta \ddot\theta - m_p g l \sin\theta
+            - m_p l^2 \sin\theta\cos\theta\, \omega^2 = -\tau_\upsilon
 
     with J(θ) = J_ϕ + m_p l² sin²θ, m_v, J_θ, J_ϕ as in ``WipParameters``. Solving the
     2×2 block (determinant Ω) gives g2 = (J_θ + m_p l r cosθ)/(Ω r),
@@ -181,10 +181,10 @@ def scenario_plant(scenario):
 
 
 def tilt_pole(params: WipParameters, model: str = 'paper') -> float:
-    """Unstable pitch pole [rad/s] of the linearisation at rest (θ = 0, all rates 0).
+    r"""Unstable pitch pole [rad/s] of the linearisation at rest (θ = 0, all rates 0).
 
-    .. math:: \\lambda = \\sqrt{m_v m_p g l / \\Omega_0}, \\quad
-              \\Omega_0 = m_v J_\\theta - m_p^2 l^2
+    .. math:: \lambda = \sqrt{m_v m_p g l / \Omega_0}, \quad
+              \Omega_0 = m_v J_\theta - m_p^2 l^2
 
     Identical for both models: their extra terms are quadratic in the velocities
     (ω², υω) or act through the input, so they vanish from the linearisation at rest

@@ -1,11 +1,11 @@
-"""Persistent dense QP solvers for the MPC: ProxSuite (default) and DAQP.
+r"""Persistent dense QP solvers for the MPC: ProxSuite (default) and DAQP.
 
 Both solve
 
 .. math::
 
-    \\min_z \\tfrac12 z^T H z + g^T z \\quad \\text{s.t.} \\quad
-    l \\le C z \\le u, \\quad lb \\le z \\le ub
+    \min_z \tfrac12 z^T H z + g^T z \quad \text{s.t.} \quad
+    l \le C z \le u, \quad lb \le z \le ub
 
 keeping one workspace alive between calls: the first call sets the problem up, later
 calls only update the data (docs/paper.md §7, measured facts of ProxSuite on this QP).

@@ -1,14 +1,14 @@
-"""Reference trajectories (x_r, y_r, ϕ_r, υ_r, ω_r, ω̇_r) for the generator of eq. (9) in [1]_.
+r"""Reference trajectories (x_r, y_r, ϕ_r, υ_r, ω_r, ω̇_r) for the generator of eq. (9) in [1]_.
 
 Every reference is a planar curve p(t) = (x_r(t), y_r(t)) with analytic derivatives up to
 the third order, from which
 
 .. math::
 
-    \\upsilon_r = |\\dot p|, \\quad
-    \\omega_r = \\frac{\\dot x \\ddot y - \\dot y \\ddot x}{\\dot x^2 + \\dot y^2}, \\quad
-    \\dot\\omega_r = \\frac{\\dot x \\dddot y - \\dot y \\dddot x}{\\upsilon_r^2}
-        - 2 \\omega_r \\frac{\\dot x \\ddot x + \\dot y \\ddot y}{\\upsilon_r^2}
+    \upsilon_r = |\dot p|, \quad
+    \omega_r = \frac{\dot x \ddot y - \dot y \ddot x}{\dot x^2 + \dot y^2}, \quad
+    \dot\omega_r = \frac{\dot x \dddot y - \dot y \dddot x}{\upsilon_r^2}
+        - 2 \omega_r \frac{\dot x \ddot x + \dot y \ddot y}{\upsilon_r^2}
 
 and ϕ_r = atan2(ẏ_r, ẋ_r) given by a closed form on a continuous branch (never
 jumping by 2π). ``sample`` uses floats and ``math`` only.
@@ -412,16 +412,16 @@ class Waypoints(Reference):
 
 
 class TimeScaled(Reference):
-    """A reference run along the same path with a progress s(t) within the limits.
+    r"""A reference run along the same path with a progress s(t) within the limits.
 
     A reference run along the same path with a progress s(t) that slows where the
     path's speed or yaw rate would exceed the limits (time scaling, Hollerbach 1984).
 
     The base reference p(s) is re-timed by ṡ = σ(s), with
 
-    .. math:: \\sigma_0(s) = \\min\\Big(1, \\frac{\\upsilon_{max}}{\\upsilon_r(s)},
-        \\frac{\\omega_{max}}{|\\omega_r(s)|}\\Big), \\qquad
-        \\sigma(s) = \\min_u \\big(\\sigma_0(u) + k |u - s|\\big)
+    .. math:: \sigma_0(s) = \min\Big(1, \frac{\upsilon_{max}}{\upsilon_r(s)},
+        \frac{\omega_{max}}{|\omega_r(s)|}\Big), \qquad
+        \sigma(s) = \min_u \big(\sigma_0(u) + k |u - s|\big)
 
     so that υ(t) = υ_r(s) σ(s) ≤ υmax and |ω(t)| = |ω_r(s)| σ(s) ≤ ωmax: the vehicle is
     asked to stay on the same curve, more slowly where it bends hard, instead of

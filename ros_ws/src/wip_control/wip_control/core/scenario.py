@@ -121,7 +121,10 @@ class ControllerModelSection:
 
 @dataclasses.dataclass(frozen=True)
 class Scenario:
-    """Everything one run needs. Build with :func:`load_scenario` or :func:`scenario_from_mapping`."""
+    """Everything one run needs.
+
+    Build with :func:`load_scenario` or :func:`scenario_from_mapping`.
+    """
 
     name: str = 'paper_section_v'
     description: str = ('Section V of Yue, An, Li (2016): trifolium, sine yaw disturbance, '
@@ -237,7 +240,8 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
     """Validate a parsed YAML mapping and build a :class:`Scenario`."""
     data = {} if data is None else data
     if not isinstance(data, Mapping):
-        raise ConfigError(f'scenario: expected a mapping at the top level, got {type(data).__name__}')
+        raise ConfigError('scenario: expected a mapping at the top level, '
+                          f'got {type(data).__name__}')
     sections = {'rates', 'initial_state', 'plant', 'controller_model', 'reference',
                 'disturbances', 'sensors', 'eso', 'position', 'trajectory_generator', 'arc',
                 'mpc', 'mixer'}

@@ -5,8 +5,9 @@ parameter named ``<section>.<field>`` (or ``<field>`` when the section is ``''``
 the node-level settings) with a descriptor carrying its unit, description and range.
 Which node declares which dataclasses is listed in :mod:`wip_control.nodes.settings`
 (importable without rclpy, so the parameter reference is generated from it). Values are
-validated by the same :func:`~wip_control.core.config.from_mapping` as a scenario file, so a params file with a typo'd value fails with the same message,
-and a parameter set at run time to a bad value is rejected with the reason.
+validated by the same :func:`~wip_control.core.config.from_mapping` as a scenario file, so a
+params file with a typo'd value fails with the same message, and a parameter set at run time
+to a bad value is rejected with the reason.
 """
 
 from __future__ import annotations

@@ -262,7 +262,8 @@ NODES: dict[str, tuple[tuple[str, type], ...]] = {
     'mpc': (*_BASE, ('mpc', MpcConfig), ('model', WipParameters), ('mixer', WheelTorqueLimit),
             ('rates', RatesConfig), ('', MpcNodeSettings)),
     'torque_mixer': (*_BASE, ('mixer', MixerConfig), ('rates', RatesConfig),
-                     ('mpc', MpcPeriod), ('safety', SafetyConfig), ('', MixerNodeSettings), ('', WheelJoints),
-                     ('', EffortCommand), ('', WheelSigns), ('wiring_check', WiringCheckConfig),
-                     ('model', WipParameters), ('', ImuMounting)),
+                     ('mpc', MpcPeriod), ('safety', SafetyConfig), ('', MixerNodeSettings),
+                     ('', WheelJoints), ('', EffortCommand), ('', WheelSigns),
+                     ('wiring_check', WiringCheckConfig), ('model', WipParameters),
+                     ('', ImuMounting)),
 }

@@ -270,7 +270,8 @@ def captions(metrics: dict[str, Any], scenario) -> dict[str, str]:
             'jump with the pulse disturbance and are tracked within the observer bandwidth '
             + ('(gyro-aided estimator: rate ESOs of 20–60 rad/s, chosen from the sensor '
                'noise, docs/estimation.md).' if getattr(scenario.eso, 'estimator', 'paper')
-               == 'gyro' else f'(ε = {scenario.eso.epsilon:g}: about {1 / scenario.eso.epsilon:.0f} rad/s).')),
+               == 'gyro' else f'(ε = {scenario.eso.epsilon:g}: about '
+                              f'{1 / scenario.eso.epsilon:.0f} rad/s).')),
         'fig10_alpha': (
             'Adaptive parameter α̂ of the yaw control law against the true 1/g1(θ). The '
             'adaptive robust law only needs α̂ bounded (projection onto its interval); '
