@@ -301,7 +301,7 @@ def test_a_truncated_bag_is_refused_by_every_reader(run_bag, tmp_path, capsys):
 
 def test_repair_recovers_every_intact_chunk_after_a_damaged_one(run_bag, tmp_path, capsys):
     bag = _copy(run_bag, tmp_path)
-    chunk = _flip_in_chunk(bag, 1)
+    _flip_in_chunk(bag, 1)
     before = _snapshot(bag)
     assert bag_repair.main([str(bag), '--dry-run']) == 1
     out = capsys.readouterr().out

@@ -13,7 +13,6 @@ import subprocess
 import sys
 
 from diagnostic_msgs.msg import DiagnosticArray
-import pytest
 from rosbags.rosbag2 import Reader
 import yaml
 
@@ -133,13 +132,3 @@ def assert_metadata_matches_content(directory):
             for t in info['topics_with_message_count']}
     return info
 
-
-@pytest.fixture
-def tools():
-    """Yield started tools; killed at the end even when a test fails."""
-    started = []
-    yield started
-    for tool in started:
-        if tool.process.poll() is None:
-            tool.process.kill()
-            tool.process.communicate()

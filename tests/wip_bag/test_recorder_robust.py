@@ -17,8 +17,8 @@ from rclpy.qos import QoSProfile
 from rosbags.rosbag2 import Reader
 from std_msgs.msg import String
 
-from bagtools_helpers import (assert_metadata_matches_content,  # noqa: F401
-                             DISCOVERY_TIMEOUT, spin_until, start_recorder, tools)
+from bagtools_helpers import (assert_metadata_matches_content, DISCOVERY_TIMEOUT, spin_until,
+                             start_recorder)
 from wip_bag.bag_info import bag_information
 from wip_bag.bag_reader import read_bag
 from wip_bag.bag_repair import mcap_files_by_index, read_file_contents, repair_bag

@@ -23,8 +23,7 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
-from bagtools_helpers import (DISCOVERY_TIMEOUT, spin_until, start_recorder,  # noqa: F401
-                             Tool, tools)
+from bagtools_helpers import DISCOVERY_TIMEOUT, spin_until, start_recorder, Tool
 from wip_bag.bag_reader import iter_raw_messages
 from wip_bag.bag_writer import Rosbag2McapWriter
 

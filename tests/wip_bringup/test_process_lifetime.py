@@ -9,6 +9,7 @@
 """
 
 import os
+import pathlib
 import signal
 import struct
 import subprocess
@@ -251,8 +252,9 @@ def test_a_zombie_launcher_is_gone_and_stops_the_start():
     orphaned, believing itself a grandchild).
     """
     zombie = subprocess.Popen([sys.executable, '-c', 'pass'])
-    _wait_for(lambda: open(f'/proc/{zombie.pid}/stat').read().rsplit(')', 1)[1].split()[0]
-              == 'Z', START_UP, 'the child becomes a zombie')
+    stat = pathlib.Path(f'/proc/{zombie.pid}/stat')
+    _wait_for(lambda: stat.read_text().rsplit(')', 1)[1].split()[0] == 'Z', START_UP,
+              'the child becomes a zombie')
     try:
         os.kill(zombie.pid, 0)            # signal 0 reaches a zombie
         with pytest.raises(SystemExit, match=f'launcher \\(pid {zombie.pid}\\) is gone'):

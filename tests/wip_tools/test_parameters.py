@@ -60,7 +60,7 @@ def test_list_parameters_shows_nodes_and_real_scenario_keys(capsys):
     assert 'DisturbanceComponent(' not in scenario  # no Python reprs
     assert 'sine(amplitude=1, frequency=0.5)' in scenario
     for key, unit in (('duration', 's'), ('seed', '1'), ('fall_threshold', 'rad')):
-        line = next(l for l in scenario.splitlines() if l.split()[:1] == [key])
+        line = next(row for row in scenario.splitlines() if row.split()[:1] == [key])
         assert line.split()[1] == unit, line
 
 

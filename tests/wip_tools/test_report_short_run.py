@@ -5,7 +5,6 @@ report, neither passed nor failed; run_graph's hint to make the report is shell-
 """
 
 import json
-import pathlib
 import shlex
 
 from wip_control.core.scenario import load_scenario

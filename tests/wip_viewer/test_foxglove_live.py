@@ -47,7 +47,7 @@ class Bridge:
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1',
                    ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_LOG_DIR=str(tmp_path))
         self.log_path = tmp_path / 'bridge.log'
-        self.log = open(self.log_path, 'w+', encoding='utf-8')
+        self.log = open(self.log_path, 'w+', encoding='utf-8')  # noqa: SIM115 - see close()
         self.process = subprocess.Popen(
             [str(path), '--ros-args', '-p', 'port:=0', '-p', 'discovery_period:=0.2'],
             env=env, stdout=self.log, stderr=subprocess.STDOUT)

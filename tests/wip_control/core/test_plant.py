@@ -44,7 +44,7 @@ def full_model_reference(params, state, tau_left, tau_right, disturbance):
     """
     p = params
     _, _, phi, _, th, om, v, thd = state
-    mp, l, r, g, d = p.body_mass, p.com_height, p.wheel_radius, p.gravity, p.track_width
+    mp, l, r, g, d = p.body_mass, p.com_height, p.wheel_radius, p.gravity, p.track_width  # noqa: E741 - the paper's symbol
     s, c = math.sin(th), math.cos(th)
     tv, tw = tau_left + tau_right, tau_right - tau_left
     mass = np.array([[p.yaw_inertia_total + mp * l * l * s * s, 0.0, 0.0],

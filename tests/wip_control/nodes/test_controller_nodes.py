@@ -51,7 +51,6 @@ from wip_control.core.state_estimation import StateEstimator  # noqa: E402
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa: E402
                                                    TrajectoryGeneratorConfig)
 from wip_control.core.control_step import initial_alpha  # noqa: E402
-from wip_control.core.eso import EsoConfig  # noqa: E402
 from wip_control.nodes.arc_node import ArcNode  # noqa: E402
 from wip_control.nodes.common import (CLOCK_QOS, connect_intra_process,  # noqa: E402
                                       make_header, ns_to_stamp, share_sim_clock,

@@ -205,7 +205,7 @@ def _rewrite(path, target, compression):
                 kind = record_kind(item)
                 if kind is not None:
                     if target is not None and writer is None:
-                        stream = open(target, 'xb')
+                        stream = open(target, 'xb')  # noqa: SIM115 - closed in the finally
                         chosen = compression or _compression_name(contents.compression)
                         writer = Writer(stream, compression=COMPRESSION[chosen])
                         writer.start(profile=MCAP_PROFILE, library=library_identifier())

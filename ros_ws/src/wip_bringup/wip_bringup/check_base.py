@@ -56,7 +56,6 @@ import collections
 import dataclasses
 import json
 import math
-import os
 import signal
 import sys
 import threading

@@ -127,7 +127,7 @@ from .hardware import add_arguments, run_from_args
 from .launcher import (add_view_arguments, EXIT_DISK_FULL, EXIT_FAILED, EXIT_FELL, EXIT_OK,
                        EXIT_NOT_ENGAGED, EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError,
                        in_namespace, LAYOUTS, Probe, PROBE_PERIOD, Scheduling, VIEWER_TOPICS,
-                       viewer_wanted)
+                       viewer_wanted)  # noqa: F401 - imported from here (the comment above)
 from .runner_base import (DiskFull, is_disk_full, options_from_args, print_result,
                           RunnerBase, RunResult, STOP_EXIT_CODES, stop_signal_number,
                           stop_signals)

@@ -413,7 +413,7 @@ class NodeProcess:
         self.name = name
         self.command = command
         self.log_path = log_path
-        self._log = open(log_path, 'w', encoding='utf-8')
+        self._log = open(log_path, 'w', encoding='utf-8')  # noqa: SIM115 - closed at the stop
         prefix = scheduling.command_prefix() if scheduling else []
         self.process = subprocess.Popen(prefix + command, stdout=self._log,
                                         stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
@@ -762,7 +762,7 @@ FOXGLOVE_PORT = 8765  # Foxglove's default WebSocket port
 
 
 def foxglove_port(text: str) -> int:
-    """argparse type of --foxglove: a TCP port, 0..65535."""
+    """Parse --foxglove (an argparse type): a TCP port, 0..65535."""
     try:
         port = int(text)
     except ValueError:

@@ -440,7 +440,7 @@ class MujocoPlant:
         # ϕ continuous: the wrapped yaw's change since the last read, added.
         phi = self._phi + math.remainder(yaw - self._phi, 2.0 * math.pi)
         self._phi = phi
-        p, qr, rr = w[3], w[4], w[5]               # body rates (roll, pitch, yaw axes)
+        qr, rr = w[4], w[5]               # body rates about the pitch, yaw axes (w[3]: roll)
         sr, cr = math.sin(roll), math.cos(roll)
         theta_dot = qr * cr - rr * sr
         omega = (qr * sr + rr * cr) / math.cos(theta)

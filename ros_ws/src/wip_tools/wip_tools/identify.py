@@ -368,7 +368,7 @@ def to_parameters(result: Identification, nominal: WipParameters) -> tuple[dict,
     J_υ = J_ϕ − d²(m_w + J_w/r²)/2 (the inverse of WipParameters' derived values).
     """
     notes = []
-    l = result.value('com_height') or nominal.com_height
+    l = result.value('com_height') or nominal.com_height  # noqa: E741 - the paper's symbol
     if not result.value('com_height'):
         notes.append(f'com_height kept at the nominal {nominal.com_height:g} m')
     mpl = result.value('mpl')
@@ -394,7 +394,7 @@ def to_parameters(result: Identification, nominal: WipParameters) -> tuple[dict,
 
 def true_values(params: WipParameters) -> dict[str, float]:
     """Return the combinations of ``params`` that :func:`identify` estimates."""
-    mp, l = params.body_mass, params.com_height
+    mp, l = params.body_mass, params.com_height  # noqa: E741 - the paper's symbol
     return {'effective_mass': params.effective_mass, 'mpl': mp * l,
             'pitch_inertia': params.pitch_inertia, 'mpl2': mp * l * l,
             'yaw_inertia_total': params.yaw_inertia_total, 'friction': 0.0,

@@ -14,7 +14,6 @@ measured by :func:`measure_floor`, which starts both in a fresh DDS domain and e
 from __future__ import annotations
 
 import json
-import os
 import resource
 import subprocess
 import sys

@@ -210,7 +210,7 @@ def full_input_gains(params: WipParameters, theta: float) -> tuple[float, float,
     g1 = d / (2 r J(θ)), g2 = (J_θ + m_p l r cosθ)/(Ω r), g3 = −(m_v r + m_p l cosθ)/(Ω r).
     """
     p = params
-    mp, l, r = p.body_mass, p.com_height, p.wheel_radius
+    mp, l, r = p.body_mass, p.com_height, p.wheel_radius  # noqa: E741 - the paper's symbol
     s, c = math.sin(theta), math.cos(theta)
     big_omega = p.omega_denominator(theta)
     g1 = p.track_width / (2.0 * r * (p.yaw_inertia_total + mp * l * l * s * s))
@@ -271,7 +271,7 @@ class Plant:
         self.model = model
         self.wheel_friction = float(wheel_friction)
         p = params
-        mp, l, g, r = p.body_mass, p.com_height, p.gravity, p.wheel_radius
+        mp, l, g, r = p.body_mass, p.com_height, p.gravity, p.wheel_radius  # noqa: E741 - the paper's symbol
         full = model == 'full'
         # Constants of the right-hand side, bound as closure variables of the stepper.
         self._consts = dict(

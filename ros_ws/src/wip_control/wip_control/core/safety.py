@@ -551,7 +551,7 @@ def tilt_divergence_rate(params) -> float:
     mp² l², so λ = sqrt(mv mp g l / Ω0). A held torque lets a tilt error grow like exp(λ t):
     ``bridge_time`` defaults to ln 4 / λ of the default robot.
     """
-    mv, mp, l = params.effective_mass, params.body_mass, params.com_height
+    mv, mp, l = params.effective_mass, params.body_mass, params.com_height  # noqa: E741 - the paper's symbol
     omega0 = mv * params.pitch_inertia - (mp * l) ** 2
     return math.sqrt(mv * mp * params.gravity * l / omega0)
 

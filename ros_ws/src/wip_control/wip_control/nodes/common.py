@@ -252,7 +252,7 @@ def spin_once_guarded(executor, node: Node, timeout_sec: float = SPIN_TIMEOUT) -
     ValueError on a message with a negative time, which would end the node. A controller
     keeps running (its safety layer judges its inputs); the log says what happened.
     """
-    global _callback_failures
+    global _callback_failures  # noqa: PLW0603 - one count per process
     try:
         executor.spin_once(timeout_sec=timeout_sec)
         return True

@@ -135,7 +135,10 @@ def run_main(main: Callable[[Sequence[str] | None], int], prog: str,
 
 
 def exit_with(main: Callable[[Sequence[str] | None], int], prog: str) -> None:
-    """``if __name__ == '__main__': exit_with(main, 'simulate')``."""
+    """Exit with what :func:`run_main` returns.
+
+    Usage: ``if __name__ == '__main__': exit_with(main, 'simulate')``.
+    """
     sys.exit(run_main(main, prog))
 
 
