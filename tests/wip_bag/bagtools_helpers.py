@@ -131,4 +131,3 @@ def assert_metadata_matches_content(directory):
             t['topic_metadata']['name']: t['message_count']
             for t in info['topics_with_message_count']}
     return info
-

@@ -288,6 +288,7 @@ def test_replays_a_bag_written_by_rosbags_with_pause_remap_and_recorded_qos(
     # serialized payload as a whole number of 4-byte words: a message whose CDR is not
     # (rosbags does not pad, rclpy does) arrives with up to 3 zero bytes appended, which CDR
     # readers ignore.
+
     def padded(data):
         return data + b'\x00' * (-len(data) % 4)
 
@@ -305,7 +306,6 @@ def test_replays_a_bag_written_by_rosbags_with_pause_remap_and_recorded_qos(
     spin_until(test_node, future.done, 10.0, 'the pause service answer', replayer.process)
     assert 'paused' in future.result().message
     replayer.stop(signal.SIGTERM, expected_code=0, timeout=5.0)
-
 
 
 def test_start_offset_duration_loop_and_topic_selection(test_node, tools, tmp_path):

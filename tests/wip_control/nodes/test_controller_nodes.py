@@ -1124,7 +1124,6 @@ def test_reference_message_and_core_tuple_have_the_same_fields():
     assert list(ReferenceState._fields) == [f for f in fields if f != 'header']
 
 
-
 def test_an_executor_error_after_shutdown_is_a_stop_and_before_it_an_error():
     from rclpy.executors import ExternalShutdownException
     from wip_control.nodes.common import spin_once_or_stop

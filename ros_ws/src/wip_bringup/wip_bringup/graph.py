@@ -134,7 +134,6 @@ from .runner_base import (DiskFull, is_disk_full, options_from_args, print_resul
 from .params_files import CONTROLLER_NODES, write_params_file
 
 
-
 #: Publishers of each topic in the graph design.
 PUBLISHERS = {
     '/joint_states': ('plant',),

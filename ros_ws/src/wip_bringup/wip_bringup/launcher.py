@@ -119,8 +119,6 @@ RECORDER_GRACE_PERIOD = 60.0  # [s] the recorder writes the rest of its queue fi
 LOG_TAIL_LINES = 15
 
 
-
-
 class GraphError(Exception):
     """The graph could not be started or did not run to its end; ``exit_code`` says how."""
 

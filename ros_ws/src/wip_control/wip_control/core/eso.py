@@ -143,7 +143,7 @@ def discretise(gains: Sequence[float], epsilon: float, period: float,
 
 @dataclasses.dataclass(frozen=True)
 class EsoConfig:
-    """Tunables of the observers.
+    """Tunables of the observers: the paper's three ESOs or the gyro-aided design.
 
     The paper's three ESOs, eqs. (4) and (8) in [1]_ (gains and ε: Section V), or the gyro-aided
     design (default; docs/estimation.md).

@@ -14,6 +14,7 @@ import math
 import numba
 import numpy as np
 
+
 @numba.njit(cache=True, nogil=True, inline='always')
 def _slopes(k, tv, tw, th, om, v, thd, d1, d2, d3):
     """(ω̇, υ̇, θ̈) at one RK4 stage.

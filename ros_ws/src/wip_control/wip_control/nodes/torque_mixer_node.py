@@ -440,7 +440,6 @@ class TorqueMixerNode(ControllerNode):
                 f'{len(self.latencies)} commands')
         return self._base_status()
 
-
     def send_stop_command(self) -> bool:
         """Real time: one zero effort command to the base, acknowledged; True if it was.
 

@@ -127,6 +127,7 @@ CONVERGENCE_CLAIM_S = 8.0
 #: The verdict of a claim whose time window is longer than the run.
 NOT_TESTED = 'not tested (run too short)'
 
+
 def claims(metrics: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]:
     """(quantity, the paper's claim, this run, verdict) rows.
 
