@@ -53,7 +53,7 @@ CONSTRAINT_TOL = 1e-5
 
 
 def state_matrix_from_spec(prediction):
-    """Return a of docs/paper.md §5, written out independently of mpc_prediction.py."""
+    """Return A of docs/paper.md §5, written out independently of mpc_prediction.py."""
     p = PARAMS
     a = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, TS], [0.0, 0.0, 1.0]])
     if prediction == 'gravity_aware':

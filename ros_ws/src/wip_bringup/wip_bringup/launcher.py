@@ -398,7 +398,7 @@ class NodeProcess:
                  env: dict[str, str], scheduling: Scheduling | None = None,
                  pass_fds: tuple[int, ...] = (), own_group: bool = False,
                  stop_signal: int = signal.SIGINT) -> None:
-        """Options of the node process.
+        """Start ``command`` as the node process ``name``; its options below.
 
         ``pass_fds``: descriptors the process inherits (the run's output locks: it holds
         them until it exits, also when the launcher dies first); ``own_group``: a process
