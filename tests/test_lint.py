@@ -38,7 +38,7 @@ def ruff(*args):
 
 
 def test_ruff_check_is_clean():
-    result = ruff('check', '--no-cache', str(REPO_ROOT))
+    result = ruff('check', '--no-cache', '--output-format', 'concise', str(REPO_ROOT))
     assert result.returncode == 0, (
         f'ruff check found problems (fix them, or see ruff.toml):\n{result.stdout}'
         f'{result.stderr}')
