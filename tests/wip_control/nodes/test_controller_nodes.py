@@ -103,7 +103,10 @@ def context(domain_id):
 
 @pytest.fixture
 def params_context(domain_id, tmp_path):
-    """Return a factory of contexts whose nodes read a params file (``--params-file``)."""
+    """Return a factory of contexts whose nodes read a params file.
+
+    The file is given as ``--ros-args --params-file``.
+    """
     made = []
 
     def factory(node_name, parameters):
