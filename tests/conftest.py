@@ -42,7 +42,9 @@ from wip_bringup.private_domain import (release_private_domain, release_taken_do
 
 @contextlib.contextmanager
 def private_dds_domain():
-    """A random DDS domain with localhost-only discovery for this process and the
+    """Give this process and its children a random DDS domain, localhost only.
+
+    A random DDS domain with localhost-only discovery for this process and the
     processes it starts (ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE), restored after.
 
     1..101: Fast DDS ports of higher domain ids fall into Linux's ephemeral port range.
@@ -66,23 +68,28 @@ def private_dds_domain():
 
 @pytest.fixture(autouse=True)
 def _release_taken_domains():
-    """The domains a test took with wip_bringup.private_domain.take_private_domain are
-    free again once it has ended."""
+    """Free the domains a test took with take_private_domain once it has ended.
+
+    The domains a test took with wip_bringup.private_domain.take_private_domain are
+    free again once it has ended.
+    """
     yield
     release_taken_domains()
 
 
 @pytest.fixture
 def domain():
-    """A DDS domain of the test's own (see :func:`private_dds_domain`)."""
+    """Yield a DDS domain of the test's own (see :func:`private_dds_domain`)."""
     with private_dds_domain() as domain_id:
         yield domain_id
 
 
 @pytest.fixture
 def test_node(domain):
-    """A node in a private rclpy context in the test's domain, with its own executor
-    (``node.executor_for_test``)."""
+    """A node in a private rclpy context in the test's domain, with its own executor.
+
+    ``node.executor_for_test``.
+    """
     rclpy = pytest.importorskip('rclpy')
     from rclpy.executors import SingleThreadedExecutor
     context = rclpy.Context()
@@ -99,7 +106,7 @@ def test_node(domain):
 
 @pytest.fixture(scope='module')
 def module_domain():
-    """A DDS domain for a whole test module (see :func:`private_dds_domain`)."""
+    """Yield a DDS domain for a whole test module (see :func:`private_dds_domain`)."""
     with private_dds_domain() as domain_id:
         yield domain_id
 
@@ -116,8 +123,11 @@ def context(module_domain):
 
 @pytest.fixture
 def harnesses():
-    """What a test made that must be closed (``close()``: node harnesses, see
-    ``tests/ros_harness.py``), closed at its end, failed or not."""
+    """Close what a test made that must be closed, at its end, failed or not.
+
+    What a test made that must be closed (``close()``: node harnesses, see
+    ``tests/ros_harness.py``), closed at its end, failed or not.
+    """
     made = []
     yield made
     for harness in made:
@@ -136,8 +146,11 @@ def pytest_addoption(parser):
 
 @pytest.fixture(scope='session', autouse=True)
 def busy_cores(request):
-    """The ``--busy-cores N`` processes, started before the first test and ended after the
-    last (killed with their process group, so an interrupted session leaves none)."""
+    """Run the ``--busy-cores N`` processes for the whole session.
+
+    The ``--busy-cores N`` processes, started before the first test and ended after the
+    last (killed with their process group, so an interrupted session leaves none).
+    """
     import signal
     import subprocess
     count = request.config.getoption('--busy-cores')

@@ -1,6 +1,8 @@
-"""The tests' reference integrator, written once: the classic fourth-order Runge–Kutta
-step, on numpy arrays (the plant's own stepper is hand-inlined on floats, see
-``core/plant.py``; the tests integrate with this textbook form to check against it)."""
+"""The tests' reference integrator, written once.
+
+The classic fourth-order Runge–Kutta step, on numpy arrays (the plant's own stepper is hand-inlined
+on floats, see ``core/plant.py``; the tests integrate with this textbook form to check against it).
+"""
 
 
 def rk4_step(f, t, x, h):

@@ -1,6 +1,7 @@
-"""The harness of the node tests, written once: nodes spun by one executor in this process
-(callbacks run here, so an exception in one fails the test), waits with deadlines instead
-of sleeps, node processes that are always stopped.
+"""The harness of the node tests, written once.
+
+Nodes spun by one executor in this process (callbacks run here, so an exception in one fails the
+test), waits with deadlines instead of sleeps, node processes that are always stopped.
 
 Import it as ``from ros_harness import ...`` (``tests/`` is on ``sys.path`` through
 ``tests/conftest.py``); the fixture ``harnesses`` of ``conftest.py`` closes what a test made.
@@ -32,8 +33,11 @@ _ids = itertools.count()
 def spin_until(executor, condition: Callable[[], object], what: str, timeout: float = TIMEOUT,
                step: float = 0.01, process: subprocess.Popen | None = None,
                after_spin: Callable[[], None] | None = None) -> None:
-    """Spin ``executor`` until ``condition()`` is true; the test fails, naming ``what``, at
-    ``timeout`` [s], or as soon as ``process`` (if given) has exited."""
+    """Spin ``executor`` until ``condition()`` is true.
+
+    The test fails, naming ``what``, at ``timeout`` [s], or as soon as ``process`` (if given) has
+    exited.
+    """
     deadline = time.monotonic() + timeout
     while not condition():
         if process is not None and process.poll() is not None:
@@ -56,8 +60,11 @@ def spin_for(executor, seconds: float, step: float = 0.01) -> None:
 
 @contextlib.contextmanager
 def spinning_in_background(executor, step: float = 0.05) -> Iterator[None]:
-    """``executor`` spun in a daemon thread for the duration of the block (for a test that
-    blocks on something else meanwhile: a subprocess, a WebSocket); stopped at its end."""
+    """``executor`` spun in a daemon thread for the duration of the block.
+
+    ``executor`` spun in a daemon thread for the duration of the block (for a test that
+    blocks on something else meanwhile: a subprocess, a WebSocket); stopped at its end.
+    """
     stop = threading.Event()
 
     def spin() -> None:
@@ -73,8 +80,11 @@ def spinning_in_background(executor, step: float = 0.05) -> Iterator[None]:
 
 
 class NodeHarness:
-    """The nodes under test and a harness node ``io`` (their inputs and outputs) in one
-    context, spun by one SingleThreadedExecutor."""
+    """The nodes under test and a harness node ``io`` in one context.
+
+    The nodes under test and a harness node ``io`` (their inputs and outputs) in one
+    context, spun by one SingleThreadedExecutor.
+    """
 
     def __init__(self, context, *nodes, name: str | None = None, timeout: float = TIMEOUT,
                  step: float = 0.01) -> None:
@@ -134,7 +144,7 @@ class NodeHarness:
 
 
 def process_name(process: subprocess.Popen) -> str:
-    """The module of ``python -m MODULE ...``, else the executable."""
+    """Return the module of ``python -m MODULE ...``, else the executable."""
     args = [str(a) for a in process.args]
     return args[2] if len(args) > 2 and args[1] == '-m' else os.path.basename(args[0])
 
@@ -148,10 +158,13 @@ def installed_executable(package: str, name: str) -> str:
 
 
 def ros_child_environment(**extra: str) -> dict[str, str]:
-    """The environment of a node process started by a test: this one's (its DDS domain),
+    """Return the environment of a node process started by a test.
+
+    The environment of a node process started by a test: this one's (its DDS domain),
     without the marker of the ROS wheels bootstrap (the child bootstraps itself), and with
     this process as its launcher: a node this test starts ends with it, even when the test
-    run is killed (wip_control.nodes.launched)."""
+    run is killed (wip_control.nodes.launched).
+    """
     env = dict(os.environ, **extra)
     env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
     env[LAUNCHER_PID_VARIABLE] = str(os.getpid())
@@ -160,8 +173,11 @@ def ros_child_environment(**extra: str) -> dict[str, str]:
 
 @contextlib.contextmanager
 def node_process(command: list[str], **popen) -> Iterator[subprocess.Popen]:
-    """A node process (text output on a pipe unless ``popen`` says otherwise); killed at
-    the end of the block if it still runs, whatever happened in the block."""
+    """Run a node process; killed at the end of the block if it still runs.
+
+    A node process (text output on a pipe unless ``popen`` says otherwise); killed at
+    the end of the block if it still runs, whatever happened in the block.
+    """
     popen.setdefault('env', ros_child_environment())
     popen.setdefault('stdout', subprocess.PIPE)
     popen.setdefault('stderr', subprocess.PIPE)
@@ -177,8 +193,10 @@ def node_process(command: list[str], **popen) -> Iterator[subprocess.Popen]:
 
 def communicate(process: subprocess.Popen, timeout: float,
                 what: str = 'exit') -> tuple[str | None, str | None]:
-    """(stdout, stderr) of ``process`` once it has exited; the test fails (the process
-    killed) if it did not within ``timeout`` [s]."""
+    """(stdout, stderr) of ``process`` once it has exited.
+
+    The test fails (the process killed) if it did not within ``timeout`` [s].
+    """
     try:
         return process.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -189,9 +207,12 @@ def communicate(process: subprocess.Popen, timeout: float,
 
 def stop_with_stacks(process: subprocess.Popen,
                      grace: float = 5.0) -> tuple[str | None, str | None]:
-    """End a process that hangs so that its output says where: SIGABRT first, on which a
-    Python child with faulthandler enabled (tests/conftest.py sets PYTHONFAULTHANDLER for
-    every child) prints every thread's stack, then SIGKILL after ``grace`` [s]."""
+    """End a process that hangs so that its output says where.
+
+    SIGABRT first, on which a Python child with faulthandler enabled (tests/conftest.py sets
+    PYTHONFAULTHANDLER for every child) prints every thread's stack, then SIGKILL after ``grace``
+    [s].
+    """
     with contextlib.suppress(ProcessLookupError):
         process.send_signal(signal.SIGABRT)
     try:

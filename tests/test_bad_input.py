@@ -1,5 +1,6 @@
-"""Generated bad input: a clear error or a correct result, never a traceback, never a
-changed original.
+"""Generated bad input.
+
+A clear error or a correct result, never a traceback, never a changed original.
 
 Property-based (hypothesis): scenario files (valid, absurd values, broken YAML, duplicate
 keys, bytes that are not UTF-8) and bags (valid, truncated, bit-flipped, garbage
@@ -213,7 +214,7 @@ def _cdr_string(text):
 
 @pytest.fixture(scope='module')
 def pristine(tmp_path_factory):
-    """A finished bag of 2 topics, 600 messages in about 20 zstd chunks, and its content."""
+    """Return a finished bag of 2 topics, 600 messages in about 20 zstd chunks, and its content."""
     directory = tmp_path_factory.mktemp('pristine') / 'bag'
     with Rosbag2McapWriter(directory, chunk_size=2048,
                            custom_data={'wip.note': 'pristine'}) as bag:

@@ -1,5 +1,6 @@
-"""Every reproduction of a data-safety bug, each with its new behaviour: no data lost, no silent
-wrong result, no traceback, one exit-code table.
+"""Every reproduction of a data-safety bug, each with its new behaviour.
+
+No data lost, no silent wrong result, no traceback, one exit-code table.
 
 Exit codes (every tool): 0 ok, 1 the vehicle fell or a check failed, 2 usage or input
 error (nothing written), 3 internal error (one line, the trace in a file).
@@ -200,7 +201,7 @@ from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 @pytest.fixture(scope='module')
 def run_bag(tmp_path_factory):
-    """A 4 s in-process run written as the graph records it (small chunks: many)."""
+    """Return a 4 s in-process run written as the graph records it (small chunks: many)."""
     scenario = scenario_from_mapping({'duration': 4.0})
     result = run_scenario(scenario)
     directory = tmp_path_factory.mktemp('run') / 'bag'
@@ -226,7 +227,7 @@ def _flip_in_chunk(bag, index):
 
 
 def _chunk_messages(bag, index):
-    """The messages of the index-th chunk of an intact bag (as (topic, log time, data))."""
+    """Return the messages of the index-th chunk of an intact bag (as (topic, log time, data))."""
     from mcap.records import Message
     from wip_bag.bag_integrity import iter_chunk_records
     path = next(bag.glob('*.mcap'))
@@ -300,7 +301,7 @@ def test_a_truncated_bag_is_refused_by_every_reader(run_bag, tmp_path, capsys):
 
 def test_repair_recovers_every_intact_chunk_after_a_damaged_one(run_bag, tmp_path, capsys):
     bag = _copy(run_bag, tmp_path)
-    chunk = _flip_in_chunk(bag, 1)
+    _flip_in_chunk(bag, 1)
     before = _snapshot(bag)
     assert bag_repair.main([str(bag), '--dry-run']) == 1
     out = capsys.readouterr().out

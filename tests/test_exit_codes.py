@@ -1,7 +1,9 @@
-"""One exit-code table: the constants of wip_control.tools.cli, its docstring, the README's
-table and every tool's ``--help`` say the same. Every script of scripts/ and every node
-executable answers ``--help`` (exit 0, usage, nothing started or written), and a typo in an
-option is exit 2 in one line before anything is written.
+"""One exit-code table.
+
+The constants of wip_control.tools.cli, its docstring, the README's table and every tool's
+``--help`` say the same. Every script of scripts/ and every node executable answers ``--help``
+(exit 0, usage, nothing started or written), and a typo in an option is exit 2 in one line before
+anything is written.
 """
 
 import os
@@ -90,8 +92,10 @@ def commands():
 
 
 def node_executables():
-    """(package, executable, path) of every node that ``ros2 run`` starts (not the tools,
-    which are scripts/ commands or have argparse)."""
+    """(package, executable, path) of every node that ``ros2 run`` starts.
+
+    Not the tools, which are scripts/ commands or have argparse.
+    """
     from ament_index_python.packages import get_package_prefix
     nodes = {'wip_control': ('reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
                              'torque_mixer', 'controllers'),
@@ -104,8 +108,10 @@ def node_executables():
 
 @pytest.fixture(scope='module')
 def helped(tmp_path_factory):
-    """``--help`` of every scripts/ command and node executable, all at once, each in an
-    empty folder of its own: name -> (status, output, files the folder holds after)."""
+    """``--help`` of every scripts/ command and node executable, all at once.
+
+    Each in an empty folder of its own: name -> (status, output, files the folder holds after).
+    """
     pytest.importorskip('rclpy')
     runs = {f'scripts/{name}': [str(SCRIPTS / name), '--help'] for name in commands()}
     runs.update({f'{package}/{name}': [str(path), '--help']
@@ -209,5 +215,5 @@ def test_a_node_given_a_bad_ros_argument_says_so_in_one_line(tmp_path, package, 
     assert 'Traceback' not in done.stderr + done.stdout
     (line,) = [line for line in done.stderr.splitlines() if 'error: ' in line
                and not line.startswith('[ERROR]')]   # rcl logs its own line first
-    assert line.startswith(f"{executable}: error: bad ROS arguments: ") and '/my imu' in line
+    assert line.startswith(f'{executable}: error: bad ROS arguments: ') and '/my imu' in line
     assert list(tmp_path.iterdir()) == []

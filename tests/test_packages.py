@@ -61,8 +61,11 @@ def modules():
 
 
 def imports_of(name, path, known):
-    """Every module ``name`` imports: dotted names, relative imports resolved; ``from x
-    import y`` counts as an import of x.y when x.y is a module of ours."""
+    """Every module ``name`` imports.
+
+    Dotted names, relative imports resolved; ``from x import y`` counts as an import of x.y when
+    x.y is a module of ours.
+    """
     is_package = path.name == '__init__.py'
     found = set()
     for node in ast.walk(ast.parse(path.read_text(encoding='utf-8'), str(path))):
@@ -83,7 +86,7 @@ def imports_of(name, path, known):
 
 @pytest.fixture(scope='module')
 def graph():
-    """Module -> set of imported modules (ours and others)."""
+    """Return module -> set of imported modules (ours and others)."""
     known = modules()
     return {name: imports_of(name, path, known) for name, path in known.items()}
 

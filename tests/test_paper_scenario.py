@@ -76,7 +76,7 @@ def test_torque_and_torque_rate_limits_hold(paper_run):
 @pytest.mark.slow
 def test_no_qp_failure_in_900_ticks(paper_run):
     _, _, metrics = paper_run
-    assert metrics["mpc_ticks"] == 900  # t = 0, 0.1, ..., 89.9
+    assert metrics['mpc_ticks'] == 900  # t = 0, 0.1, ..., 89.9
     assert metrics['qp_failures'] == 0
 
 
@@ -118,8 +118,8 @@ def test_adaptive_estimate_stays_bounded_and_positive(paper_run):
 def test_path_tracking_converges_and_stays_bounded(paper_run):
     # The paper claims the initial errors are rejected within 8 s. With ωd limited to
     # 0.3 rad/s while the trifolium needs up to 0.70 rad/s at its petal tips, an independent
-    # prototype of this design first reached 0.1 m at 14.4 s with an RMS error of 0.58 m after 10 s;
-    # the bounds below hold this implementation to that floor, not to the paper's claim
+    # prototype of this design first reached 0.1 m at 14.4 s with an RMS error of 0.58 m after
+    # 10 s; the bounds below hold this implementation to that floor, not to the paper's claim
     # (see the comparison with the paper in docs/paper.md).
     _, _, metrics = paper_run
     assert metrics['convergence_time_s'] is not None

@@ -127,7 +127,7 @@ def executables():
 
 
 def make_bag(directory):
-    """A tiny bag for the replayer: 5 std_msgs/String on /contract/chatter."""
+    """Return a tiny bag for the replayer: 5 std_msgs/String on /contract/chatter."""
     from rclpy.serialization import serialize_message
     from std_msgs.msg import String
     from wip_bag.bag_writer import Rosbag2McapWriter
@@ -159,7 +159,7 @@ class Started:
         try:
             return ({name for name, _ in get_pubs(node_name, '/')},
                     {name for name, _ in get_subs(node_name, '/')})
-        except Exception:  # noqa: B902 - the node is not known yet (NodeNameNonExistentError)
+        except Exception:  # noqa: BLE001 - the node is not known yet (NodeNameNonExistentError)
             return set(), set()
 
     def close(self):
@@ -215,8 +215,11 @@ def test_every_executable_has_a_contract_entry():
 
 
 def entry_point_module(package, executable):
-    """The module whose ``main`` a console script runs, from the package's setup.py (and
-    its console.py for the tools, see wip_control.tools.cli.console_script)."""
+    """Return the module whose ``main`` a console script runs.
+
+    The module whose ``main`` a console script runs, from the package's setup.py (and
+    its console.py for the tools, see wip_control.tools.cli.console_script).
+    """
     source = REPO_ROOT / 'ros_ws' / 'src' / package
     text = (source / 'setup.py').read_text(encoding='utf-8')
     match = re.search(rf"'{executable} = ([\w.]+):(\w+)'", text)

@@ -172,7 +172,7 @@ def test_message_has_a_header_and_a_unit_for_every_numeric_field(name):
 
 
 def _sample_value(field_type, index):
-    """A value of a rosidl field type that differs from the default and from other fields."""
+    """Return a value of a rosidl field type that differs from the default and other fields."""
     from builtin_interfaces.msg import Time
     from std_msgs.msg import Header
 
@@ -279,7 +279,8 @@ def test_bootstrap_exports_the_ros_environment():
     result = _bash('set -euo pipefail; source scripts/_env.sh; wip_bootstrap; '
                    'echo "guard=${_ROS_WHEELS_BOOTSTRAP_COMPLETE:-unset}"; '
                    'echo "domain=$ROS_DOMAIN_ID"; echo "range=$ROS_AUTOMATIC_DISCOVERY_RANGE"; '
-                   'echo "defaults=$WIP_ROS_DEFAULTS"; echo "ament=$AMENT_PREFIX_PATH"; echo "python=$(command -v python)"; '
+                   'echo "defaults=$WIP_ROS_DEFAULTS"; echo "ament=$AMENT_PREFIX_PATH"; '
+                   'echo "python=$(command -v python)"; '
                    'python -c "import rclpy, wip_msgs.msg; print(\'imports=ok\')"', env=env)
     assert result.returncode == 0, result.stderr
     values = dict(line.split('=', 1) for line in result.stdout.splitlines() if '=' in line)
@@ -358,7 +359,7 @@ def test_dockerfile_pip_installs_exactly_the_versions_tested_in_the_venv():
     assert docker, 'requirements-docker.txt pins nothing'
     different = {name: (version, lock.get(name)) for name, version in docker.items()
                  if lock.get(name) != version}
-    assert not different, f'docker pin vs the venv\'s lock: {different}'
+    assert not different, f"docker pin vs the venv's lock: {different}"
     runs = ' '.join(rest for keyword, rest in _dockerfile_instructions() if keyword == 'RUN')
     assert '-r /tmp/requirements-docker.txt' in runs
 

@@ -13,7 +13,6 @@ import subprocess
 import sys
 
 from diagnostic_msgs.msg import DiagnosticArray
-import pytest
 from rosbags.rosbag2 import Reader
 import yaml
 
@@ -28,7 +27,7 @@ DISCOVERY_TIMEOUT = 15.0  # [s]; first discovery takes up to ~3 s on this host
 
 
 def child_environment():
-    """The tools' environment: this one's, with wip_bag from the source tree first."""
+    """Return the tools' environment: this one's, with wip_bag from the source tree first."""
     env = ros_child_environment()
     env['PYTHONPATH'] = os.pathsep.join(
         [str(WIP_BAG_SOURCE)] + [p for p in [env.get('PYTHONPATH')] if p])
@@ -81,14 +80,19 @@ class Tool:
 
 
 def spin_until(node, condition, timeout, what, process=None):
-    """Spin the test node (conftest's ``test_node``) until ``condition()``; fails at the
-    timeout [s] or when ``process`` exits (see ros_harness.spin_until)."""
+    """Spin the test node (conftest's ``test_node``) until ``condition()``.
+
+    Fails at the timeout [s] or when ``process`` exits (see ros_harness.spin_until).
+    """
     ros_harness.spin_until(node.executor_for_test, condition, what, timeout, process=process)
 
 
 def start_recorder(node, bag, topics=None, *params, preexec_fn=None):
-    """The recorder process recording ``topics`` (None: every topic) into ``bag``, with
-    the parameters ``params`` ('name:=value')."""
+    """Start the recorder process recording ``topics`` into ``bag``.
+
+    The recorder process recording ``topics`` (None: every topic) into ``bag``, with
+    the parameters ``params`` ('name:=value').
+    """
     args = ['--ros-args', '-p', f'output:={bag}', '-p', 'discovery_period:=0.1']
     if topics is not None:
         args += ['-p', f'topics:=[{", ".join(topics)}]']
@@ -98,8 +102,11 @@ def start_recorder(node, bag, topics=None, *params, preexec_fn=None):
 
 
 def assert_metadata_matches_content(directory):
-    """metadata.yaml agrees with what the files hold (counted by reading every message,
-    and by rosbags, an independent reader); returns its rosbag2_bagfile_information."""
+    """metadata.yaml agrees with what the files hold.
+
+    metadata.yaml agrees with what the files hold (counted by reading every message,
+    and by rosbags, an independent reader); returns its rosbag2_bagfile_information.
+    """
     info = yaml.safe_load((directory / 'metadata.yaml').read_text())[
         'rosbag2_bagfile_information']
     assert info['relative_file_paths'] == [p.name for p in mcap_files_by_index(directory)]
@@ -124,14 +131,3 @@ def assert_metadata_matches_content(directory):
             t['topic_metadata']['name']: t['message_count']
             for t in info['topics_with_message_count']}
     return info
-
-
-@pytest.fixture
-def tools():
-    """Started tools; killed at the end even when a test fails."""
-    started = []
-    yield started
-    for tool in started:
-        if tool.process.poll() is None:
-            tool.process.kill()
-            tool.process.communicate()

@@ -1,7 +1,9 @@
-"""A bag directory without metadata.yaml: bag_info says NOT OK and why, and the readers
-(report, replay, rerun: every one goes through ``bag_reader.check_bag``) read it with a
-warning on stderr that says the same and names scripts/bag_repair. bag_repair's new bag
-gets the mode a mkdir gives (the umask's), as rosbag2's bags do.
+"""A bag directory without metadata.yaml.
+
+bag_info says NOT OK and why, and the readers (report, replay, rerun: every one goes through
+``bag_reader.check_bag``) read it with a warning on stderr that says the same and names
+scripts/bag_repair. bag_repair's new bag gets the mode a mkdir gives (the umask's), as rosbag2's
+bags do.
 """
 
 import contextlib

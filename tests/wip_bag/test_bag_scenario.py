@@ -1,6 +1,8 @@
-"""One scenario-lookup rule for the tools that read bags (wip_bag.bag_scenario): the bag's
-own scenario, found from the bag directory or any file in it, with ``--scenario`` applied
-over it key by key."""
+"""One scenario-lookup rule for the tools that read bags (wip_bag.bag_scenario).
+
+The bag's own scenario, found from the bag directory or any file in it, with ``--scenario`` applied
+over it key by key.
+"""
 
 import pytest
 import yaml
@@ -29,8 +31,11 @@ def bag_with(tmp_path, scenario=None, custom=None):
 
 
 def test_a_partial_scenario_changes_only_its_keys_of_the_bags_own(tmp_path):
-    """The defect: a partial --scenario was filled from the paper's defaults, so a re-run
-    of a circle bag followed a trifolium at 0.3 rad/s and blamed the tuned weight."""
+    """A partial --scenario changes only its keys of the bag's own.
+
+    The defect: a partial --scenario was filled from the paper's defaults, so a re-run
+    of a circle bag followed a trifolium at 0.3 rad/s and blamed the tuned weight.
+    """
     bag = bag_with(tmp_path, CIRCLE)
     tuned = tmp_path / 'tuned.yaml'
     tuned.write_text('mpc: {input_weight: 0.25}\n')
@@ -83,8 +88,11 @@ def test_merge_is_by_section_and_replaces_lists_and_values():
 @pytest.mark.parametrize('content', ['', '\n  \n', '# only a comment\n'])
 def test_an_empty_scenario_file_in_the_bag_is_refused_not_taken_for_the_defaults(tmp_path,
                                                                                   content):
-    """A run cut short by a full disk left an empty BAG/scenario.yaml; it was read as the
-    paper's default scenario and gave metrics of another run."""
+    """An empty scenario file in the bag is refused, not taken for the defaults.
+
+    A run cut short by a full disk left an empty BAG/scenario.yaml; it was read as the
+    paper's default scenario and gave metrics of another run.
+    """
     bag = bag_with(tmp_path)
     (bag / 'scenario.yaml').write_text(content)
     with pytest.raises(ConfigError, match='empty scenario file'):

@@ -17,7 +17,7 @@ from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header, String
 
-from bagtools_helpers import DISCOVERY_TIMEOUT, start_recorder, tools  # noqa: F401
+from bagtools_helpers import DISCOVERY_TIMEOUT, start_recorder
 from ros_harness import communicate
 from wip_bag.bag_reader import read_bag
 

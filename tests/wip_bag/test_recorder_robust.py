@@ -17,8 +17,8 @@ from rclpy.qos import QoSProfile
 from rosbags.rosbag2 import Reader
 from std_msgs.msg import String
 
-from bagtools_helpers import (assert_metadata_matches_content,  # noqa: F401
-                             DISCOVERY_TIMEOUT, spin_until, start_recorder, tools)
+from bagtools_helpers import (assert_metadata_matches_content, DISCOVERY_TIMEOUT, spin_until,
+                             start_recorder)
 from wip_bag.bag_info import bag_information
 from wip_bag.bag_reader import read_bag
 from wip_bag.bag_repair import mcap_files_by_index, read_file_contents, repair_bag
@@ -30,8 +30,10 @@ SPLIT_TIMEOUT = 30.0  # [s]: a split normally comes within 1 s of publishing
 
 
 def _publish_for(node, publisher, seconds, start, make=str, stop=None):
-    """Publish make(k) for k = start, start+1 ... at PUBLISH_PERIOD for ``seconds``,
-    spinning the test node in between; returns the next k."""
+    """Publish make(k) for k = start, start+1 ... at PUBLISH_PERIOD for ``seconds``.
+
+    Spinning the test node in between; returns the next k.
+    """
     k = start
     next_time = time.monotonic()
     end = next_time + seconds
@@ -46,7 +48,8 @@ def _publish_for(node, publisher, seconds, start, make=str, stop=None):
 def test_sigkill_mid_run_then_repair_keeps_every_complete_chunk(test_node, tools, tmp_path):
     bag = tmp_path / 'killed'
     topic = f'/robust_{os.getpid()}/kill'
-    recorder = start_recorder(test_node, bag, [topic], 'flush_period:=0.2', 'max_bag_duration:=1.0')
+    recorder = start_recorder(test_node, bag, [topic], 'flush_period:=0.2',
+                              'max_bag_duration:=1.0')
     tools.append(recorder)
     publisher = test_node.create_publisher(String, topic, QoSProfile(depth=1000))
     recorder.spin_until(lambda: publisher.get_subscription_count() >= 1, DISCOVERY_TIMEOUT,

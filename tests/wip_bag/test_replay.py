@@ -23,8 +23,7 @@ from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import SetBool
 
-from bagtools_helpers import (DISCOVERY_TIMEOUT, spin_until, start_recorder,  # noqa: F401
-                             Tool, tools)
+from bagtools_helpers import DISCOVERY_TIMEOUT, spin_until, start_recorder, Tool
 from wip_bag.bag_reader import iter_raw_messages
 from wip_bag.bag_writer import Rosbag2McapWriter
 
@@ -205,7 +204,7 @@ def test_clock_drives_sim_time_timers_and_rate_two_halves_the_wall_time(
 
 
 def _rosbags_bag(path):
-    """A bag written by rosbags (independent writer): MCAP storage, zstd chunks."""
+    """Return a bag written by rosbags (independent writer): MCAP storage, zstd chunks."""
     typestore = get_typestore(Stores.ROS2_JAZZY)
     string_type = typestore.types['std_msgs/msg/String']
     imu_type = typestore.types['sensor_msgs/msg/Imu']
@@ -285,9 +284,11 @@ def test_replays_a_bag_written_by_rosbags_with_pause_remap_and_recorded_qos(
     spin_until(test_node, lambda: len(received) == len(written), 10.0, 'every message',
                replayer.process)
     # The bytes rosbags wrote, sent in the recorded order (per topic; across topics too
-    # since they are 10 ms apart: ordered by the replayer's send stamps). Fast DDS sends a serialized payload as a whole number of 4-byte
-    # words: a message whose CDR is not (rosbags does not pad, rclpy does) arrives with up
-    # to 3 zero bytes appended, which CDR readers ignore.
+    # since they are 10 ms apart: ordered by the replayer's send stamps). Fast DDS sends a
+    # serialized payload as a whole number of 4-byte words: a message whose CDR is not
+    # (rosbags does not pad, rclpy does) arrives with up to 3 zero bytes appended, which CDR
+    # readers ignore.
+
     def padded(data):
         return data + b'\x00' * (-len(data) % 4)
 
@@ -305,7 +306,6 @@ def test_replays_a_bag_written_by_rosbags_with_pause_remap_and_recorded_qos(
     spin_until(test_node, future.done, 10.0, 'the pause service answer', replayer.process)
     assert 'paused' in future.result().message
     replayer.stop(signal.SIGTERM, expected_code=0, timeout=5.0)
-
 
 
 def test_start_offset_duration_loop_and_topic_selection(test_node, tools, tmp_path):

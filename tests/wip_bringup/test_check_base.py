@@ -265,7 +265,7 @@ def test_ros_arguments_from_ros2_run_are_split_off_and_remaps_kept():
 
 #: Runs check_base with an interrupt (what SIGINT raises) at the worst moment of its
 #: start: the listener thread is spinning, the constructor has not returned.
-INTERRUPTED_START = '''
+INTERRUPTED_START = """
 import sys, threading
 from wip_bringup import check_base
 real_start = threading.Thread.start
@@ -275,7 +275,7 @@ def start_then_interrupt(thread):
         raise KeyboardInterrupt
 threading.Thread.start = start_then_interrupt
 sys.exit(check_base.main(['--script', '--timeout', '5', '--json', sys.argv[1]]))
-'''
+"""
 
 
 def test_an_interrupt_while_the_listener_starts_exits_cleanly(tmp_path):

@@ -1,6 +1,7 @@
-"""A full disk is a stated outcome of run_graph: on a 1 MiB tmpfs as --out and --record the
-recorder stops in time and finishes the bag with what fit (bag_info OK), the run says
-"disk full at t = ..." and exits 4, and no side file is left empty.
+"""A full disk is a stated outcome of run_graph.
+
+On a 1 MiB tmpfs as --out and --record the recorder stops in time and finishes the bag with what
+fit (bag_info OK), the run says "disk full at t = ..." and exits 4, and no side file is left empty.
 
 Needs root (mount); skipped with the reason otherwise.
 """

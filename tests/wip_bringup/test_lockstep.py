@@ -119,7 +119,7 @@ def reported(graph_runs, tmp_path_factory):
 
 
 def _results(metrics):
-    """The metrics without wall-clock timings and provenance."""
+    """Return the metrics without wall-clock timings and provenance."""
     return {k: v for k, v in metrics.items() if k not in TIMING_KEYS + ('source',)}
 
 
@@ -167,8 +167,11 @@ def test_lockstep_graph_reproduces_the_in_process_runner(graph_runs, in_process,
 
 
 def _assert_same_bits(expected_bag, actual_bag):
-    """Every recorded value of the two bags is the same, bit for bit (NaN included), but the
-    solve times (wall-clock timings)."""
+    """Every recorded value of the two bags is the same, bit for bit.
+
+    Every recorded value of the two bags is the same, bit for bit (NaN included), but the
+    solve times (wall-clock timings).
+    """
     expected, actual = record_from_bag(expected_bag), record_from_bag(actual_bag)
     for group, columns in expected.groups.items():
         for name, values in columns.items():
@@ -253,8 +256,11 @@ def test_the_bag_decodes_with_rosbags_and_mcap_ros2_and_holds_every_message(grap
 
 
 class _FrozenRecorderRunner(GraphRunner):
-    """The recorder's process frozen (SIGSTOP) for RECORDER_FREEZE of wall time from the
-    plant's start: what a loaded machine does to it for a few milliseconds, made long."""
+    """The recorder's process frozen (SIGSTOP) for RECORDER_FREEZE of wall time.
+
+    The recorder's process frozen (SIGSTOP) for RECORDER_FREEZE of wall time from the
+    plant's start: what a loaded machine does to it for a few milliseconds, made long.
+    """
 
     def watch(self) -> int:
         recorder = self.processes['recorder'].pid

@@ -1,6 +1,8 @@
-"""The MuJoCo plant (plant: {model: mujoco}) behind the ROS graph: the plant node in
-lockstep ends where the in-process runner ends, in real time it keeps the vehicle up, and
-the stand-in base simulates a robot with it against the controllers in hardware mode."""
+"""The MuJoCo plant (plant: {model: mujoco}) behind the ROS graph.
+
+The plant node in lockstep ends where the in-process runner ends, in real time it keeps the vehicle
+up, and the stand-in base simulates a robot with it against the controllers in hardware mode.
+"""
 
 import pathlib
 

@@ -1,6 +1,9 @@
-"""One run per output folder: run_graph locks ``--out`` (its lock file) and the bag directory
-before it writes there; a second run into either is refused at once (exit 2), with one line
-naming the holder's pid, and writes nothing."""
+"""One run per output folder.
+
+run_graph locks ``--out`` (its lock file) and the bag directory before it writes there; a second
+run into either is refused at once (exit 2), with one line naming the holder's pid, and writes
+nothing.
+"""
 
 import os
 import subprocess
@@ -42,13 +45,13 @@ def test_a_second_run_into_a_locked_run_directory_is_refused_naming_the_pid(tmp_
 def _lock_holder(folder):
     """Another process holding ``folder``'s output lock (it has it once this returns)."""
     holder = subprocess.Popen(
-        [sys.executable, '-c', textwrap.dedent(f'''
+        [sys.executable, '-c', textwrap.dedent(f"""
             import pathlib, time
             from wip_bringup.launcher import lock_output
             lock_output(pathlib.Path({str(folder)!r}), '--out')
             print('locked', flush=True)
             time.sleep(600)
-        ''')], stdout=subprocess.PIPE, text=True)
+        """)], stdout=subprocess.PIPE, text=True)
     assert holder.stdout.readline().strip() == 'locked'
     return holder
 

@@ -1,5 +1,8 @@
-"""Private DDS domains are reserved on the host: no two holders share one, a released or
-dead holder's domain is free again, and an exhausted range still gives a usable id."""
+"""Private DDS domains are reserved on the host.
+
+No two holders share one, a released or dead holder's domain is free again, and an exhausted range
+still gives a usable id.
+"""
 
 import subprocess
 import sys

@@ -9,6 +9,7 @@
 """
 
 import os
+import pathlib
 import signal
 import struct
 import subprocess
@@ -110,8 +111,11 @@ def test_a_process_and_its_threads_run_at_the_requested_fifo_priority(tmp_path):
 
 
 def test_a_runaway_at_fifo_priority_is_killed_by_its_rt_cpu_limit(tmp_path):
-    """A thread that spins at SCHED_FIFO without sleeping for longer than the limit is
-    killed by the kernel (RLIMIT_RTTIME) instead of starving the machine below it."""
+    """A runaway thread at SCHED_FIFO is killed by its real-time CPU limit.
+
+    A thread that spins at SCHED_FIFO without sleeping for longer than the limit is
+    killed by the kernel (RLIMIT_RTTIME) instead of starving the machine below it.
+    """
     scheduling = Scheduling(5, rt_cpu_limit=0.3)
     _skip_unless_permitted(scheduling)
     process = NodeProcess('spinner', [sys.executable, '-c', 'while True: pass'],
@@ -135,22 +139,25 @@ def _task_policies(pid: int) -> list[tuple[int, int]]:
 
 def test_the_priority_is_raised_on_the_running_process_its_threads_and_their_children(
         tmp_path):
-    """The launcher starts the controllers at the normal policy (their imports and DDS
+    """The priority is raised on the running process, its threads and their children.
+
+    The launcher starts the controllers at the normal policy (their imports and DDS
     start-up must not starve the other processes) and raises them once every node is up:
     every thread then, and a thread started afterwards, runs at SCHED_FIFO with the
-    RLIMIT_RTTIME; a process that refuses is a GraphError naming it."""
+    RLIMIT_RTTIME; a process that refuses is a GraphError naming it.
+    """
     scheduling = Scheduling(5, rt_cpu_limit=2.0)
     _skip_unless_permitted(scheduling)
     assert scheduling.at_start() == Scheduling()     # the CPUs only (none here)
     go = tmp_path / 'go'
     log = tmp_path / 'probe.log'
-    program = (textwrap.dedent(f'''
+    program = (textwrap.dedent(f"""
         import os, pathlib, sys, threading, time
         threading.Thread(target=time.sleep, args=(60,), daemon=True).start()
         print('up', flush=True)
         while not pathlib.Path({str(go)!r}).exists():   # the launcher raises the priority
             time.sleep(0.01)
-    ''') + _PRINT_NEW_THREAD_POLICY + 'time.sleep(60)\n')
+    """) + _PRINT_NEW_THREAD_POLICY + 'time.sleep(60)\n')
     node = NodeProcess('probe', [sys.executable, '-c', program], log, dict(os.environ),
                        scheduling.at_start())
     try:
@@ -163,7 +170,7 @@ def test_the_priority_is_raised_on_the_running_process_its_threads_and_their_chi
                        for line in stream)
         go.touch()      # one more thread, started after the raise
         text = _wait_for(lambda: log.read_text().split()[1:], START_UP,
-                         'the probe prints its new thread\'s policy')
+                         "the probe prints its new thread's policy")
         assert ' '.join(text) == f'({os.SCHED_FIFO}, 5)'
     finally:
         node.stop(1.0)
@@ -171,7 +178,7 @@ def test_the_priority_is_raised_on_the_running_process_its_threads_and_their_chi
         node.raise_priority(scheduling)          # the process is gone
 
 
-LAUNCHER = textwrap.dedent('''
+LAUNCHER = textwrap.dedent("""
     import pathlib, sys, time
     from wip_bringup.launcher import graph_environment, NodeProcess
     out = pathlib.Path(sys.argv[1])
@@ -180,7 +187,7 @@ LAUNCHER = textwrap.dedent('''
     (out / 'child.pid.tmp').write_text(str(node.pid))
     (out / 'child.pid.tmp').rename(out / 'child.pid')
     time.sleep(600)
-''')
+""")
 
 
 def _start_launcher(tmp_path, child_command):
@@ -189,7 +196,7 @@ def _start_launcher(tmp_path, child_command):
 
 
 def test_a_child_ends_with_its_launcher_killed_by_sigkill(tmp_path):
-    program = textwrap.dedent(f'''
+    program = textwrap.dedent(f"""
         import signal, sys, time
         from wip_control.nodes.launched import end_with_launcher
         def stop(signum, frame):
@@ -198,7 +205,7 @@ def test_a_child_ends_with_its_launcher_killed_by_sigkill(tmp_path):
         assert end_with_launcher()
         open({str(tmp_path / 'armed')!r}, 'w').write('1')
         time.sleep(600)
-    ''')
+    """)
     launcher = _start_launcher(tmp_path, [sys.executable, '-c', program])
     try:
         _wait_for(lambda: (tmp_path / 'armed').exists(), START_UP, 'the child arms')
@@ -238,12 +245,16 @@ def test_a_controller_node_ends_with_its_launcher_killed_by_sigkill(tmp_path):
 
 
 def test_a_zombie_launcher_is_gone_and_stops_the_start():
-    """A launcher killed while its node starts is a zombie until reaped: signal 0 still
+    """A zombie launcher counts as gone and stops the node's start.
+
+    A launcher killed while its node starts is a zombie until reaped: signal 0 still
     reaches it, but the node must not take it for a live launcher (it would run on,
-    orphaned, believing itself a grandchild)."""
+    orphaned, believing itself a grandchild).
+    """
     zombie = subprocess.Popen([sys.executable, '-c', 'pass'])
-    _wait_for(lambda: open(f'/proc/{zombie.pid}/stat').read().rsplit(')', 1)[1].split()[0]
-              == 'Z', START_UP, 'the child becomes a zombie')
+    stat = pathlib.Path(f'/proc/{zombie.pid}/stat')
+    _wait_for(lambda: stat.read_text().rsplit(')', 1)[1].split()[0] == 'Z', START_UP,
+              'the child becomes a zombie')
     try:
         os.kill(zombie.pid, 0)            # signal 0 reaches a zombie
         with pytest.raises(SystemExit, match=f'launcher \\(pid {zombie.pid}\\) is gone'):

@@ -1,7 +1,8 @@
-"""What a user gives run_graph and check_base is checked before anything starts: params
-files against the one declaration of each node parameter, --remap rules, every numeric
-option, the scenario's duration. Each refusal is one line on stderr, exit 2, and the run's
-output folder holds no logs (no node process was started).
+"""What a user gives run_graph and check_base is checked before anything starts.
+
+Params files against the one declaration of each node parameter, --remap rules, every numeric
+option, the scenario's duration. Each refusal is one line on stderr, exit 2, and the run's output
+folder holds no logs (no node process was started).
 """
 
 import pathlib
@@ -23,7 +24,7 @@ GENERATED = hardware_parameters(Scenario())
 
 
 def readme_params_file():
-    """The base's params file the README shows (its yaml block with ros__parameters)."""
+    """Return the base's params file the README shows (its yaml block with ros__parameters)."""
     text = (REPO_ROOT / 'README.md').read_text(encoding='utf-8')
     (block,) = [b for b in re.findall(r'```yaml\n(.*?)```', text, re.S)
                 if 'ros__parameters' in b]

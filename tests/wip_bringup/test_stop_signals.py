@@ -1,6 +1,7 @@
-"""Every way a run_graph run ends finalises its bag: SIGINT, SIGTERM and SIGHUP to run_graph,
-and SIGKILL of run_graph (its nodes then get SIGINT from the kernel and the recorder
-finishes on its own).
+"""Every way a run_graph run ends finalises its bag.
+
+SIGINT, SIGTERM and SIGHUP to run_graph, and SIGKILL of run_graph (its nodes then get SIGINT from
+the kernel and the recorder finishes on its own).
 
 Each test runs ``python -m wip_bringup.graph`` (what ``scripts/run_graph`` execs) on a few
 seconds of the paper scenario in lockstep with ``--record``, sends the signal mid-run (or
@@ -45,7 +46,7 @@ def _wait_for(predicate, what: str, timeout: float = TIMEOUT):
 
 
 def _sim_progress(err_path: pathlib.Path) -> float:
-    """The latest simulated time run_graph's progress lines show (-1 before the start)."""
+    """Return the latest simulated time run_graph's progress lines show (-1 before the start)."""
     latest = -1.0
     text = err_path.read_text(encoding='utf-8', errors='replace')
     if 'plant started' in text:

@@ -106,12 +106,15 @@ def test_closed_loop_motion_agrees_with_the_full_plant_over_10_s(wheel_friction)
 
 
 def _slip_threshold(params, friction):
-    """Wheel torque [N m] (each wheel, both equal) at which the wheels start to slip from
+    """Wheel torque [N m] (each wheel, both equal) at which the wheels start to slip.
+
+    Wheel torque [N m] (each wheel, both equal) at which the wheels start to slip from
     rest upright. The ground force of a wheel is F = (τ − J_w φ̈)/r, its spin following
     the rolling υ̇ = g2 (2τ) of the full model: F = τ (1 − 2 J_w g2 / r)/r. It reaches
     the cone's μN, N = (m_p + m_c + 2 m_w) g / 2 (the centre of mass does not yet move
     vertically), at τ* = μ N r / (1 − 2 J_w g2 / r): above μ N r, because the motor also
-    spins the wheel up."""
+    spins the wheel up.
+    """
     p = params
     normal = (p.body_mass + p.chassis_mass + 2 * p.wheel_mass) * p.gravity / 2
     g2 = full_input_gains(p, 0.0)[1]
@@ -238,7 +241,7 @@ def test_robust_default_stays_up_and_on_the_line_over_the_terrain(name):
 def test_the_slope_lifts_the_vehicle_by_its_grade():
     # Rolled 4 m up a 10 % slope, the axle is 0.4 m higher: the terrain is where the
     # scenario puts it (the height is read from the engine, not from the 8-state).
-    from wip_control.core.ground import TerrainConfig  # noqa: PLC0415
+    from wip_control.core.ground import TerrainConfig
     plant = MujocoPlant(PARAMS, LOSSLESS, terrain=TerrainConfig(slope_start=1.0,
                                                                 slope_grade=0.1))
     state = (5.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0, 0.0)
@@ -256,7 +259,7 @@ def test_the_slope_lifts_the_vehicle_by_its_grade():
 def test_a_low_friction_patch_slips_where_the_ground_around_it_does_not():
     # μ = 0.3 on the patch (x in [−1, 1]), 0.8 around: a torque step between the two
     # thresholds (12.2 and 32.4 N m per wheel) slips on the patch only.
-    from wip_control.core.ground import TerrainConfig  # noqa: PLC0415
+    from wip_control.core.ground import TerrainConfig
     terrain = TerrainConfig(patch_start=-1.0, patch_end=1.0, patch_friction=0.3)
     tau = 1.2 * _slip_threshold(PARAMS, 0.3)
     assert tau < 0.9 * _slip_threshold(PARAMS, 0.8)
@@ -278,7 +281,7 @@ def test_the_plant_nodes_stepping_gives_the_runners_floats():
     # a fresh tuple each tick), the in-process runner with hold_floats (disturbance rows,
     # its own tuple back): on the same torques and disturbances the two give the same
     # floats, so a lockstep graph run reproduces the in-process one on this plant too.
-    from wip_control.core.disturbances import Disturbances  # noqa: PLC0415
+    from wip_control.core.disturbances import Disturbances
     scenario = scenario_from_mapping({'plant': {'model': 'mujoco'}})
     disturbances = Disturbances(scenario.disturbances, seed=0)
     substeps, period = scenario.rates.substeps, scenario.control_period

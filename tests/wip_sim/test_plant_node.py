@@ -112,7 +112,7 @@ def truth_state(msg):
 
 
 def check_sensors(harness, sensors, state, index, gps_expected):
-    """The sample ``index`` of each sensor topic decodes to the core sensor values."""
+    """Check that the sample ``index`` of each sensor topic decodes to the core sensor values."""
     joint = harness.received['joint'][index]
     assert list(joint.name) == ['left_wheel_joint', 'right_wheel_joint']
     left, right = sensors.encoders(state)

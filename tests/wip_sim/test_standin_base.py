@@ -150,10 +150,13 @@ def test_a_wrong_wheel_sign_makes_the_safety_layer_zero_the_torque(tmp_path):
 
 
 def test_position_from_odometry_instead_of_gps_keeps_the_base_up_and_on_the_line(tmp_path):
-    """``position_source: odometry``: the ESO takes x, y from nav_msgs/Odometry on /odom
+    """Position from odometry instead of GPS keeps the base up and on the line.
+
+    ``position_source: odometry``: the ESO takes x, y from nav_msgs/Odometry on /odom
     (here the base's true pose, as a localisation filter would give it) and ignores the
     GPS; the loop closes as with GPS (the bounds and windows of the GPS run above: with
-    the full plant model the lateral error still swings to ~0.6 m before 10 s)."""
+    the full plant model the lateral error still swings to ~0.6 m before 10 s).
+    """
     run_time = RUN_TIME
     run = run_against_standin(
         tmp_path / 'odometry', dict(BASE, position_source='odometry'), run_time,
@@ -189,8 +192,11 @@ FREEZE_SPACING = 3.0           # [s] between two freezes: the robot settles agai
 
 
 def _freezes(names, seconds, log, starts=None):
-    """The injector: each named process frozen for each duration, FREEZE_SPACING apart;
-    ``log`` gets (name, measured freeze [s]), ``starts`` the time.monotonic() of each."""
+    """Freeze each named process for each duration, FREEZE_SPACING apart.
+
+    The injector: each named process frozen for each duration, FREEZE_SPACING apart;
+    ``log`` gets (name, measured freeze [s]), ``starts`` the time.monotonic() of each.
+    """
     def inject(runner, processes):
         for name in names:
             for duration in seconds:
@@ -293,10 +299,13 @@ def test_a_freeze_past_the_bound_zeroes_the_torque_and_names_the_cause(tmp_path)
 
 
 def test_sensor_samples_delivered_late_in_bunches_are_ridden_through(tmp_path):
-    """The base sends its encoder and IMU samples four at a time (every 20 ms the last 20 ms
+    """Sensor samples delivered late in bunches are ridden through.
+
+    The base sends its encoder and IMU samples four at a time (every 20 ms the last 20 ms
     of samples, each with its own stamp), as a buffering USB/CAN bridge does: the ESO
     integrates each at its own sample time, so a bunch is neither a velocity spike nor a
-    lost sample, and the robot balances as with a steady stream."""
+    lost sample, and the robot balances as with a steady stream.
+    """
     run = run_against_standin(tmp_path / 'bunched', BASE, RUN_TIME,
                               base_extra={'sensor_bunch': 4})
     stats = run.stats

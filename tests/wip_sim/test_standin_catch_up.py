@@ -18,7 +18,7 @@ DT = 0.005
 
 
 def _drive(wall_times):
-    """t after each tick, ticking at ``wall_times`` (one step per call as _tick does)."""
+    """Return t after each tick, ticking at ``wall_times`` (one step per call as _tick does)."""
     base = types.SimpleNamespace(_physics_origin=None, t=0.0, dt=DT)
     out = []
     for now in wall_times:

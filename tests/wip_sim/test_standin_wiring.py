@@ -56,8 +56,10 @@ EXPECTED = {
 
 
 def zero_torque_from(stats) -> float | None:
-    """Time after the release [s] from which every torque the base applied was zero (None:
-    torque to the end of its log)."""
+    """Time after the release [s] from which every torque the base applied was zero.
+
+    None: torque to the end of its log.
+    """
     truth = stats['truth']
     samples = list(zip(truth['t'], truth['tau_left'], truth['tau_right']))
     last_nonzero = max((i for i, (_, left, right) in enumerate(samples)
@@ -95,10 +97,13 @@ def test_a_wiring_mistake_zeroes_the_torque_within_half_a_second_and_names_it(
 
 
 def test_correct_wiring_with_sensor_noise_gyro_bias_and_pushes_gives_no_wiring_fault(tmp_path):
-    """No false alarm: the base's own conventions (BASE), noisy sensors with gyro biases
+    """Correct wiring with sensor noise, gyro bias and pushes gives no wiring fault.
+
+    No false alarm: the base's own conventions (BASE), noisy sensors with gyro biases
     (a consumer IMU's: noise 0.01 rad/s, biases 0.01 and 0.02 rad/s; 4096-count encoders)
     and pushes on the tilt, one while the tilt check runs (2 rad/s^2 for 0.2 s from 0.1 s)
-    and one later (a longitudinal 3 m/s^2 for 0.2 s at 3 s): the base stays up, no verdict."""
+    and one later (a longitudinal 3 m/s^2 for 0.2 s at 3 s): the base stays up, no verdict.
+    """
     scenario = line_scenario()
     scenario['sensors'] = {'imu_pitch_noise_std': 0.002, 'imu_yaw_noise_std': 0.002,
                            'gyro_noise_std': 0.01, 'gyro_pitch_bias': 0.01,

@@ -1,5 +1,8 @@
-"""``scripts/bench`` end to end on a short scenario: every part runs and reports (the
-numbers are benchmarks, not pass/fail; only their presence and sanity are checked)."""
+"""``scripts/bench`` end to end on a short scenario.
+
+Every part runs and reports (the numbers are benchmarks, not pass/fail; only their presence and
+sanity are checked).
+"""
 
 import json
 

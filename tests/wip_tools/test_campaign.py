@@ -1,5 +1,8 @@
-"""scripts/campaign: the file format, the draws, the criteria, and a small campaign on a
-Dask LocalCluster end to end (outputs, summary, figures, resume, no overwrite)."""
+"""scripts/campaign: the file format, the draws, the criteria, and a small campaign.
+
+scripts/campaign: the file format, the draws, the criteria, and a small campaign on a
+Dask LocalCluster end to end (outputs, summary, figures, resume, no overwrite).
+"""
 
 import csv
 import gc

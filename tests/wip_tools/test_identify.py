@@ -1,6 +1,9 @@
-"""Model identification (wip_tools.identify, docs/identification.md) on in-process runs of
+"""Model identification (wip_tools.identify, docs/identification.md).
+
+Model identification (wip_tools.identify, docs/identification.md) on in-process runs of
 the excitation scenario: off-nominal paper plants are recovered, a standing-still run
-determines nothing, the identified model as the controllers' one, and the CLI."""
+determines nothing, the identified model as the controllers' one, and the CLI.
+"""
 
 import pathlib
 
@@ -120,8 +123,11 @@ def test_state_estimate_alone_also_recovers_them_within_5_percent():
 
 @pytest.mark.parametrize('source', ['truth', 'estimate'])
 def test_full_plant_is_recovered_with_the_full_rows_and_not_with_eq_1(source):
-    """A real robot has the motor reaction torque: (1) does not fit it (values not
-    determined or off), the full plant's rows do (docs/identification.md §7)."""
+    """The full plant is recovered with the full rows and not with eq. (1).
+
+    A real robot has the motor reaction torque: (1) does not fit it (values not
+    determined or off), the full plant's rows do (docs/identification.md §7).
+    """
     scenario, result = _run('full_heavy_high', PLANTS['heavy_high'], model='full')
     nominal = scenario.controller_model.parameters
     true = identify.true_values(scenario.plant.parameters)
@@ -174,11 +180,13 @@ def _eso_error_and_tracking(scenario, record):
 
 
 def test_identified_model_as_the_controllers_model_is_no_worse():
-    """The issue asked for a lower RMS tracking error with the identified model. Measured
-    (docs/identification.md §6), it is not: the ESOs absorb the model error, and the path
+    """The issue asked for a lower RMS tracking error with the identified model.
+
+    Measured (docs/identification.md §6), it is not: the ESOs absorb the model error, and the path
     error and the ESO errors f̂ − f change by about ±1 % either way (here 0.0283 m nominal,
-    0.0285 m identified). What is checked is what holds: the identified model balances and
-    tracks as well as the nominal one, within 5 %."""
+    0.0285 m identified). What is checked is what holds: the identified model balances and tracks
+    as well as the nominal one, within 5 %.
+    """
     scenario, result = _run('heavy_high', PLANTS['heavy_high'])
     nominal = scenario.controller_model.parameters
     overrides, _ = identify.to_parameters(identify.identify(result.record, nominal), nominal)
@@ -229,8 +237,11 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
 
 
 def _write_bag(directory, record, groups=('truth',)):
-    """The record's truth as /wip/ground_truth messages in a rosbag2 MCAP bag (what the
-    plant node publishes; stamps are the simulated times)."""
+    """Write the record's truth as /wip/ground_truth messages in a rosbag2 MCAP bag.
+
+    The record's truth as /wip/ground_truth messages in a rosbag2 MCAP bag (what the
+    plant node publishes; stamps are the simulated times).
+    """
     serialization = pytest.importorskip('rclpy.serialization')
     from wip_bag.bag_writer import Rosbag2McapWriter
     from wip_msgs.msg import GroundTruth

@@ -60,7 +60,7 @@ def test_list_parameters_shows_nodes_and_real_scenario_keys(capsys):
     assert 'DisturbanceComponent(' not in scenario  # no Python reprs
     assert 'sine(amplitude=1, frequency=0.5)' in scenario
     for key, unit in (('duration', 's'), ('seed', '1'), ('fall_threshold', 'rad')):
-        line = next(l for l in scenario.splitlines() if l.split()[:1] == [key])
+        line = next(row for row in scenario.splitlines() if row.split()[:1] == [key])
         assert line.split()[1] == unit, line
 
 
@@ -101,8 +101,11 @@ def _node_classes():
 
 
 def _declared(cls, context, overrides):
-    """Names the node declares; a node that refuses its (absent) input after declaring,
-    such as the replayer without a bag, still shows what it declared."""
+    """Names the node declares.
+
+    A node that refuses its (absent) input after declaring, such as the replayer without a bag,
+    still shows what it declared.
+    """
     from rclpy.parameter import Parameter
     node = cls.__new__(cls)
     try:

@@ -1,8 +1,10 @@
-"""A claim whose time window is longer than the run is "not tested (run too short)" in the
-report, neither passed nor failed; run_graph's hint to make the report is shell-quoted."""
+"""A claim whose time window is longer than the run is "not tested (run too short)".
+
+A claim whose time window is longer than the run is "not tested (run too short)" in the
+report, neither passed nor failed; run_graph's hint to make the report is shell-quoted.
+"""
 
 import json
-import pathlib
 import shlex
 
 from wip_control.core.scenario import load_scenario

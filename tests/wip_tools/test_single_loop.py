@@ -68,7 +68,7 @@ def _row(estimate, x, y, command, arc, tau_v, wheels):
 
 
 def runner_objects(scenario, run):
-    """(a): the runner's two objects on the recorded inputs, called as the runner does."""
+    """Compute (a): the runner's two objects on the recorded inputs, called as the runner does."""
     sensors = scenario.sensors
     datum = (sensors.gps_datum_latitude, sensors.gps_datum_longitude,
              sensors.gps_datum_altitude)
@@ -186,8 +186,11 @@ def test_runner_rerun_and_nodes_compute_bit_identical_outputs(recorded, context)
 
 
 def test_the_runner_itself_computes_what_its_objects_give_on_its_own_samples(recorded):
-    """The stream is the runner's: its own run recorded the same wheel torques, to the
-    rounding of the GPS fix's geodetic round trip and of t = k h vs stamp / 1e9."""
+    """The runner itself computes what its objects give on its own samples.
+
+    The stream is the runner's: its own run recorded the same wheel torques, to the
+    rounding of the GPS fix's geodetic round trip and of t = k h vs stamp / 1e9.
+    """
     scenario, _, run = recorded
     rows = runner_objects(scenario, run)
     for stamp, row in rows.items():

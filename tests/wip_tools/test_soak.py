@@ -1,5 +1,7 @@
-"""scripts/soak: the path-distance closed forms and the one-line usage errors (the long
-real-time runs themselves are measured by the tool, not in the suite)."""
+"""scripts/soak: the path-distance closed forms and the one-line usage errors.
+
+The long real-time runs themselves are measured by the tool, not in the suite.
+"""
 
 import math
 

@@ -1,6 +1,7 @@
-"""The Foxglove bridge, from the client side: a WebSocket client (``websockets``) speaks the
-Foxglove WebSocket protocol to ``foxglove_bridge`` started as
-``ros2 run`` would, in a DDS domain of the test's own.
+"""The Foxglove bridge, from the client side.
+
+A WebSocket client (``websockets``) speaks the Foxglove WebSocket protocol to ``foxglove_bridge``
+started as ``ros2 run`` would, in a DDS domain of the test's own.
 
 What a Foxglove app does, checked step by step: the server advertises every graph topic
 with message encoding ``cdr`` and a ``ros2msg`` schema; the client subscribes; binary
@@ -46,7 +47,7 @@ class Bridge:
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1',
                    ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_LOG_DIR=str(tmp_path))
         self.log_path = tmp_path / 'bridge.log'
-        self.log = open(self.log_path, 'w+', encoding='utf-8')
+        self.log = open(self.log_path, 'w+', encoding='utf-8')  # noqa: SIM115 - see close()
         self.process = subprocess.Popen(
             [str(path), '--ros-args', '-p', 'port:=0', '-p', 'discovery_period:=0.2'],
             env=env, stdout=self.log, stderr=subprocess.STDOUT)
@@ -76,21 +77,23 @@ class Bridge:
 
 @pytest.fixture
 def spinning(test_node):
-    """The test node spun in a background thread (publishers, the e-stop subscription)."""
+    """Yield the test node spun in a background thread (publishers, the e-stop subscription)."""
     with spinning_in_background(test_node.executor_for_test):
         yield test_node
 
 
 class Client:
-    """A WebSocket connection that keeps every JSON message it has read (the server sends
-    serverInfo, advertise, advertiseServices in an order of its own)."""
+    """A WebSocket connection that keeps every JSON message it has read.
+
+    The server sends serverInfo, advertise, advertiseServices in an order of its own.
+    """
 
     def __init__(self, ws) -> None:
         self.ws = ws
         self.seen: list[dict] = []
 
     def receive_json(self, op: str, predicate=lambda m: True, timeout: float = TIMEOUT):
-        """The first message with this ``op`` (and predicate), read before or now."""
+        """Return the first message with this ``op`` (and predicate), read before or now."""
         deadline = time.monotonic() + timeout
         while True:
             for message in self.seen:
@@ -101,8 +104,11 @@ class Client:
             self.receive_binary(opcode=None, timeout=max(0.1, deadline - time.monotonic()))
 
     def current_channel(self, topic: str) -> dict | None:
-        """The channel of ``topic`` as the advertise and unadvertise messages read so far
-        leave it (None if none is advertised now), as a Foxglove app tracks them."""
+        """Return the channel of ``topic`` as the advertise and unadvertise messages leave it.
+
+        The channel of ``topic`` as the advertise and unadvertise messages read so far
+        leave it (None if none is advertised now), as a Foxglove app tracks them.
+        """
         current = None
         for message in self.seen:
             if message.get('op') == 'advertise':
@@ -120,12 +126,14 @@ class Client:
 
     def subscribe_and_receive(self, topic: str, first_id: int,
                               timeout: float = TIMEOUT) -> tuple[bytes, dict, int]:
-        """Subscribe to ``topic``'s channel; (the first message frame, the channel, the
-        subscription id). Subscribes again, with a new id, when the channel is advertised
-        anew or the server refused the subscription as an unknown channel: seen twice in
-        full runs under a busy loop (sessions 4 and 9), the server answering a channel it
-        had just advertised with 'Unknown channel ID'; a Foxglove app resubscribes on a new
-        advertisement. Fails with every JSON message read if no frame comes."""
+        """Subscribe to ``topic``'s channel.
+
+        (the first message frame, the channel, the subscription id). Subscribes again, with a new
+        id, when the channel is advertised anew or the server refused the subscription as an
+        unknown channel: seen twice in full runs under a busy loop (sessions 4 and 9), the server
+        answering a channel it had just advertised with 'Unknown channel ID'; a Foxglove app
+        resubscribes on a new advertisement. Fails with every JSON message read if no frame comes.
+        """
         deadline = time.monotonic() + timeout
         subscribed, refusals, subscription_id = None, self.refusals(), first_id - 1
         while time.monotonic() < deadline:
@@ -148,8 +156,11 @@ class Client:
 
     def receive_binary(self, opcode: int | None, timeout: float = TIMEOUT,
                        required: bool = True) -> bytes | None:
-        """The next binary frame with this opcode (None: read one frame, return None);
-        ``required``: fail if none comes within ``timeout`` (else return None)."""
+        """Return the next binary frame with this opcode.
+
+        The next binary frame with this opcode (None: read one frame, return None);
+        ``required``: fail if none comes within ``timeout`` (else return None).
+        """
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             try:

@@ -26,7 +26,8 @@ setup(
     zip_safe=True,
     maintainer='wip-ros maintainers',
     maintainer_email='wip-ros@example.com',
-    description='Bring-up: run_graph (simulation or hardware mode), parameter files, estop, check_base.',
+    description=('Bring-up: run_graph (simulation or hardware mode), parameter files, estop, '
+                 'check_base.'),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

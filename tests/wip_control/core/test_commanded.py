@@ -14,7 +14,7 @@ DT = 0.005
 
 
 def run(reference, t0, t1, on_tick=None):
-    """Samples of reference.update on the control grid from t0 to t1."""
+    """Return samples of reference.update on the control grid from t0 to t1."""
     out, t = [], t0
     while t < t1 - 1e-12:
         t = round(t + DT, 9)

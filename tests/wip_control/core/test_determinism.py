@@ -21,7 +21,7 @@ _PROXQP = proxsuite.proxqp
 N_VARIABLES, N_ROWS = 47, 91  # the default MPC's QP: z = (plan, slacks), rows of C
 PROCESSES = 5
 
-_PRELUDE = textwrap.dedent('''
+_PRELUDE = textwrap.dedent("""
     import ctypes, sys
     import numpy as np
     libc = ctypes.CDLL(None)
@@ -30,9 +30,9 @@ _PRELUDE = textwrap.dedent('''
     for _ in range(int(sys.argv[1])):
         libc.malloc(24)  # leaked on purpose: moves every later heap block
     out = sys.argv[2]
-''')
+""")
 
-_SCENARIO = _PRELUDE + textwrap.dedent('''
+_SCENARIO = _PRELUDE + textwrap.dedent("""
     from wip_control.core.runner import run_scenario
     from wip_control.core.scenario import scenario_from_mapping
     scenario = scenario_from_mapping({
@@ -42,16 +42,16 @@ _SCENARIO = _PRELUDE + textwrap.dedent('''
     result = run_scenario(scenario)
     np.savez(out, **{f'{g}.{c}': v for g, cols in result.record.groups.items()
                      for c, v in cols.items()})
-''')
+""")
 
-_FIXED_QP = _PRELUDE + textwrap.dedent('''
+_FIXED_QP = _PRELUDE + textwrap.dedent("""
     sys.path.insert(0, sys.argv[3])
     from test_determinism import random_qp
     from wip_control.core.qp import ProxsuiteSolver, QpSettings
     solver = ProxsuiteSolver(47, 91, QpSettings(eps_abs=1e-7))
     zs = [solver.solve(*random_qp(seed)).z for seed in range(20)]
     np.savez(out, z=np.array(zs))
-''')
+""")
 
 
 def run_in_processes(code: str, tmp_path: pathlib.Path, *extra: str) -> list[pathlib.Path]:
@@ -67,7 +67,7 @@ def run_in_processes(code: str, tmp_path: pathlib.Path, *extra: str) -> list[pat
 
 
 def random_qp(seed: int):
-    """A feasible, strictly convex QP of the MPC's shape with some active constraints."""
+    """Return a feasible, strictly convex QP of the MPC's shape with some active constraints."""
     rng = np.random.default_rng(seed)
     n, m = N_VARIABLES, N_ROWS
     root = rng.standard_normal((n, n))

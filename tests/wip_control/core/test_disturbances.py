@@ -90,6 +90,7 @@ def _noise(seed=0, component_seed=0, std=0.2, period=0.01, start=0.0):
 
 def test_noise_is_reproducible_from_the_seed_and_independent_of_query_order():
     times_forward = np.arange(0.0, 100.0, 0.013)
+
     def series(noise, t):
         return [noise.sample(ti)[2] for ti in t]
 

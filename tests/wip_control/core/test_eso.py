@@ -435,10 +435,13 @@ def test_input_gains_use_the_tilt_estimate():
 
 
 def test_jittered_periods_are_discretised_once_per_microsecond_within_a_bounded_error():
-    """Real-time stamps jitter: an off-nominal period is discretised for the period rounded
+    """Jittered periods are discretised once per microsecond, within a bounded error.
+
+    Real-time stamps jitter: an off-nominal period is discretised for the period rounded
     to 1 µs and cached. Against the exact discretisation of every period, the estimates of
     a ramp (1.5 m/s) with ±0.5 ms jitter differ by less than 1e-5 (m, m/s), and the cache
-    holds one entry per distinct microsecond."""
+    holds one entry per distinct microsecond.
+    """
     from wip_control.core.eso import discretise, PERIOD_RESOLUTION
 
     class Exact(ExtendedStateObserver):

@@ -1,5 +1,7 @@
-"""The gyro-aided estimator ('gyro', the default): closed forms of its two loops, noise
-gains against bandwidth, bias and disturbance convergence, the WIP observer with it.
+"""The gyro-aided estimator ('gyro', the default).
+
+Closed forms of its two loops, noise gains against bandwidth, bias and disturbance convergence, the
+WIP observer with it.
 
 See core/eso.py (RateAidedChannel) and docs/estimation.md.
 """
@@ -194,9 +196,12 @@ def test_pitch_noise_is_filtered_before_it_reaches_the_mpc():
 
 @pytest.mark.parametrize('estimator', ['gyro', 'paper'])
 def test_a_vehicle_engaged_at_speed_reads_its_speed_from_the_second_sample(estimator):
-    """eso.speed_start 'first_difference': on a distance ramp at 1.5 m/s (no torque, no
+    """A vehicle engaged at speed reads its speed from the second sample.
+
+    eso.speed_start 'first_difference': on a distance ramp at 1.5 m/s (no torque, no
     disturbance) the speed estimate is exactly the ramp's slope from the second sample on,
-    and f2 stays 0; 'zero' (Section V) reads rest first and then a disturbance transient."""
+    and f2 stays 0; 'zero' (Section V) reads rest first and then a disturbance transient.
+    """
     params = WipParameters()
     h, speed = 0.005, 1.5
 

@@ -1,5 +1,7 @@
-"""Heading loop damping by design ('poles', the default): λ1 = ω_n²/υ_r², λ2 = 2ζω_n place
-the poles of the linearised kinematic loop of eq. (9)."""
+"""Heading loop damping by design ('poles', the default).
+
+λ1 = ω_n²/υ_r², λ2 = 2ζω_n place the poles of the linearised kinematic loop of eq. (9).
+"""
 
 import math
 
@@ -14,9 +16,11 @@ from wip_control.core.trajectory_generator import (TrajectoryGeneratorConfig, he
 
 
 def error_dynamics(config, v_r, errors):
-    """Body-frame error rates of a unicycle that follows (υ_d, ω_d) exactly, on a straight
-    reference at speed υ_r: ẋ_e = ω y_e − υ + υ_r cos ϕ_e, ẏ_e = −ω x_e + υ_r sin ϕ_e,
-    ϕ̇_e = ω_r − ω."""
+    """Body-frame error rates of a unicycle that follows (υ_d, ω_d) exactly.
+
+    On a straight reference at speed υ_r: ẋ_e = ω y_e − υ + υ_r cos ϕ_e, ẏ_e = −ω x_e + υ_r sin
+    ϕ_e, ϕ̇_e = ω_r − ω.
+    """
     x_e, y_e, phi_e = errors
     ref = ReferenceState(0.0, 0.0, 0.0, v_r, 0.0, 0.0)
     v, w = unsaturated_commands(config, ref, x_e, y_e, phi_e)

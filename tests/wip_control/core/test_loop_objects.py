@@ -1,7 +1,9 @@
-"""The loop's two core objects: StateEstimator's start and restart rules, the stages'
-overflow handling and the drive stage's hold (core/state_estimation.py,
-core/control_step.py; the three drivers are cross-checked in
-tests/wip_tools/test_single_loop.py)."""
+"""The loop's two core objects.
+
+StateEstimator's start and restart rules, the stages' overflow handling and the drive stage's hold
+(core/state_estimation.py, core/control_step.py; the three drivers are cross-checked in
+tests/wip_tools/test_single_loop.py).
+"""
 
 import dataclasses
 import math
@@ -132,8 +134,11 @@ def _drive_ticks(drive, f2_of_k, ticks, v_d=0.0):
 
 
 def test_without_a_push_re_solving_changes_nothing():
-    """fast_resolve_period on: the stage takes inputs at the finer grid but, without a
-    push, solves at the MPC's ticks only, with the same floats as with it off."""
+    """Without a push, re-solving changes nothing.
+
+    fast_resolve_period on: the stage takes inputs at the finer grid but, without a
+    push, solves at the MPC's ticks only, with the same floats as with it off.
+    """
     config = MpcConfig(backend='daqp')
     fast = DriveStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
     off = DriveStage(MODEL, dataclasses.replace(config, fast_resolve_period=0.0), 15.0,
@@ -150,9 +155,12 @@ def test_without_a_push_re_solving_changes_nothing():
 
 
 def test_after_a_push_the_stage_re_solves_within_the_torque_rate_limit():
-    """A 10 m/s² push seen by the ESO: the stage solves at every tick of the finer grid
+    """After a push the stage re-solves within the torque rate limit.
+
+    A 10 m/s² push seen by the ESO: the stage solves at every tick of the finer grid
     for fast_resolve_time after it, each increment at most Δτmax/2, and the increments
-    within any MPC period sum to at most Δτmax; then back to the MPC's ticks."""
+    within any MPC period sum to at most Δτmax; then back to the MPC's ticks.
+    """
     config = MpcConfig(backend='daqp')
     drive = DriveStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
     dmax = config.max_delta_torque

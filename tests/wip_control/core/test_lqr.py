@@ -29,8 +29,11 @@ CONFIG = MpcConfig(controller='lqr')
 
 
 def scalar_riccati(a, b, q, r):
-    """Positive root of b²p² + (r − a²r − qb²) p − qr = 0, the scalar DARE
-    p = a²p − a²b²p²/(r + b²p) + q, and k = abp/(r + b²p)."""
+    """Scalar DARE: its positive root p and the gain k.
+
+    Positive root of b²p² + (r − a²r − qb²) p − qr = 0, the scalar DARE
+    p = a²p − a²b²p²/(r + b²p) + q, and k = abp/(r + b²p).
+    """
     c1 = r - a * a * r - q * b * b
     p = (-c1 + math.sqrt(c1 * c1 + 4.0 * b * b * q * r)) / (2.0 * b * b)
     return a * b * p / (r + b * b * p), p

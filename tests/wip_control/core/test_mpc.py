@@ -53,7 +53,7 @@ CONSTRAINT_TOL = 1e-5
 
 
 def state_matrix_from_spec(prediction):
-    """A of docs/paper.md §5, written out independently of mpc_prediction.py."""
+    """Return A of docs/paper.md §5, written out independently of mpc_prediction.py."""
     p = PARAMS
     a = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, TS], [0.0, 0.0, 1.0]])
     if prediction == 'gravity_aware':
@@ -317,8 +317,11 @@ def test_paper_literal_prediction_falls_and_gravity_aware_balances():
 # ---------------------------------------------------------------- fallbacks
 
 class FailingSolver:
-    """Stands in for ProxSuite: after ``successes`` real solves, every solve reports
-    MAX_ITER with a garbage iterate."""
+    """Stands in for ProxSuite, failing after ``successes`` real solves.
+
+    Stands in for ProxSuite: after ``successes`` real solves, every solve reports
+    MAX_ITER with a garbage iterate.
+    """
 
     def __init__(self, successes=0):
         sizes = LongitudinalMpc(PARAMS, CONFIG)
@@ -435,8 +438,11 @@ def test_bench_times_both_solvers_on_the_same_qps():
 
 @pytest.mark.parametrize('field', ['v_hat', 'theta_hat', 'theta_dot_hat', 'f2_hat', 'f3_hat'])
 def test_absurdly_large_finite_input_is_invalid_not_an_overflowing_qp(field):
-    """1e300 is finite but overflows the QP's gradient to inf (found by the node fuzzing);
-    it must be refused like NaN, silently, not solved."""
+    """An absurdly large finite input is invalid, not an overflowing QP.
+
+    1e300 is finite but overflows the QP's gradient to inf (found by the node fuzzing);
+    it must be refused like NaN, silently, not solved.
+    """
     mpc = LongitudinalMpc(PARAMS, CONFIG)
     state = realistic_state(0.5, 0.02, 0.0, 0.0, 0.0)
     assert mpc.step(**state, v_d=0.5, tau_limit=30.0).status == MpcStatus.SOLVED
@@ -456,7 +462,8 @@ def test_a_first_solve_that_runs_out_of_iterations_is_solved_by_the_retry(monkey
     default start on one machine solved in 41 iterations on another): the first workspace
     is given an iteration limit of 1, so its solve must stop at MAX_ITER; the retry gets
     the configured settings. The MPC must then report SOLVED without a fallback, with the
-    iterations of both attempts, at DAQP's optimum."""
+    iterations of both attempts, at DAQP's optimum.
+    """
     from wip_control.core import qp as qp_module
     original = qp_module.ProxsuiteSolver._new_workspace
     starts = []
@@ -481,10 +488,13 @@ def test_a_first_solve_that_runs_out_of_iterations_is_solved_by_the_retry(monkey
 
 
 def test_when_both_proxsuite_starts_run_out_daqp_solves_the_same_qp(monkeypatch):
-    """The last resort of qp.ProxsuiteSolver.solve: every ProxSuite workspace is given an
+    """When both ProxSuite starts run out, DAQP solves the same QP.
+
+    The last resort of qp.ProxsuiteSolver.solve: every ProxSuite workspace is given an
     iteration limit of 1, so both starts stop at MAX_ITER (as a few badly scaled per-step
     slack QPs did from both starts, e.g. τ(k−1) = 26 N m above a 4 N m limit); DAQP then
-    solves the same data: SOLVED, no fallback, DAQP's optimum."""
+    solves the same data: SOLVED, no fallback, DAQP's optimum.
+    """
     from wip_control.core import qp as qp_module
     original = qp_module.ProxsuiteSolver._new_workspace
 
@@ -555,15 +565,18 @@ def _rise(predicted_v, v_hat, steps):
 
 
 def _first_tick(state, v_d, **config):
-    """(mpc, result) of the first tick of a fresh MPC (CONFIG with ``config`` replaced)
-    from the ideal-ESO estimates ``state`` (:func:`realistic_state`'s arguments)."""
+    """(mpc, result) of the first tick of a fresh MPC.
+
+    (mpc, result) of the first tick of a fresh MPC (CONFIG with ``config`` replaced)
+    from the ideal-ESO estimates ``state`` (:func:`realistic_state`'s arguments).
+    """
     mpc = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, **config))
     mpc.reset(0.0)
     return mpc, mpc.step(**realistic_state(*state), v_d=v_d, tau_limit=30.0)
 
 
 def _without_and_with_rise_slack(state, v_d):
-    """The first tick's results with speed_rise_penalty 0 and at its default."""
+    """Return the first tick's results with speed_rise_penalty 0 and at its default."""
     return (_first_tick(state, v_d, speed_rise_penalty=0.0)[1],
             _first_tick(state, v_d)[1])
 
@@ -571,9 +584,11 @@ def _without_and_with_rise_slack(state, v_d):
 @pytest.mark.parametrize('v_hat, v_d', [(1.5, 1.0), (1.6, 1.0), (2.2, 0.5)])
 def test_the_speed_rise_slack_makes_the_rise_before_braking_smaller_and_still_brakes(
         v_hat, v_d):
-    """At or above the speed limit a WIP must speed up to brake. With the rise slack
-    (speed_rise_penalty, default) the planned rise is smaller than without it, and the
-    plan still brakes: its speed at the end of the 2 s horizon is below the start."""
+    """At or above the speed limit a WIP must speed up to brake.
+
+    With the rise slack (speed_rise_penalty, default) the planned rise is smaller than without it,
+    and the plan still brakes: its speed at the end of the 2 s horizon is below the start.
+    """
     off, on = _without_and_with_rise_slack((v_hat, 0.0, 0.0, 0.0, 0.0), v_d)
     assert off.status == on.status == MpcStatus.SOLVED
     steps = CONFIG.speed_rise_steps
@@ -692,8 +707,11 @@ def _run(mapping):
 
 
 def line_at_the_speed_limit(mpc, duration=20.0):
-    """A line at υmax = 1.5 m/s entered at that speed, the paper's yaw sine, and the
-    paper's collision pulse (10 m/s² on υ̇ for 0.1 s) at 10 s."""
+    """Return a line at υmax = 1.5 m/s entered at that speed, with the paper's pulse.
+
+    A line at υmax = 1.5 m/s entered at that speed, the paper's yaw sine, and the
+    paper's collision pulse (10 m/s² on υ̇ for 0.1 s) at 10 s.
+    """
     return {'duration': duration, 'reference': {'kind': 'line', 'line_speed': 1.5},
             'initial_state': {'v': 1.5, 'theta': 0.0, 'pose': [0.0, 0.0, 0.0]},
             'mpc': mpc,
@@ -713,10 +731,12 @@ def stop_and_hold(mpc, d2, d3, plant='paper', duration=30.0):
 
 
 def slope_disturbance(alpha):
-    """(d2, d3) of a slope α [rad] (uphill = +x) in model (1), θ measured from vertical:
-    the along-slope weight F = −(mp + mc + 2 mw) g sin α is a generalised force on the
-    rolled distance, mapped through the inverse mass matrix at θ = 0,
-    (d2, d3) = (Jθ, −mp l) F / Ω0 (the g2, g3 pattern of a wheel force τ/r)."""
+    """(d2, d3) of a slope α [rad] (uphill = +x) in model (1), θ measured from vertical.
+
+    The along-slope weight F = −(mp + mc + 2 mw) g sin α is a generalised force on the rolled
+    distance, mapped through the inverse mass matrix at θ = 0, (d2, d3) = (Jθ, −mp l) F / Ω0 (the
+    g2, g3 pattern of a wheel force τ/r).
+    """
     p = PARAMS
     force = -(p.body_mass + p.chassis_mass + 2 * p.wheel_mass) * p.gravity * math.sin(alpha)
     omega0 = p.omega_denominator(0.0)
@@ -814,8 +834,11 @@ def test_prediction_gain_scale_applies_to_the_increments_only():
 
 @pytest.mark.parametrize('ratio', [0.0, 0.37, 1.0])
 def test_decaying_input_columns_are_the_euler_response_to_a_geometric_input(ratio):
-    """γρ of an input ρ^p at step p, against the explicit recursion x(k+1) = A x(k) + b ρ^k
-    (ρ = 1: the constant-input columns of the free response; ρ = 0: an impulse)."""
+    """The decaying-input columns are the Euler response to a geometric input.
+
+    γρ of an input ρ^p at step p, against the explicit recursion x(k+1) = A x(k) + b ρ^k
+    (ρ = 1: the constant-input columns of the free response; ρ = 0: an impulse).
+    """
     prediction = CondensedPrediction(PARAMS, TS, NP, NC)
     decay_v, decay_theta_dot = prediction.decaying_input_columns(ratio)
     a = prediction.state_matrix
@@ -834,12 +857,15 @@ def test_decaying_input_columns_are_the_euler_response_to_a_geometric_input(rati
 
 
 def test_a_hard_push_predicted_to_pass_no_longer_drops_the_robot():
-    """A 0.1 s push of 8.8 m/s² on a 20 % heavier body (full plant, sensor noise), one of
+    """A hard push predicted to pass no longer drops the robot.
+
+    A 0.1 s push of 8.8 m/s² on a 20 % heavier body (full plant, sensor noise), one of
     the campaign's falls: with the whole ESO disturbance held constant over the 2 s
     horizon (decay 0, the paper's prediction), the MPC plans against a push that lasts
     (it drove the wheels the wrong way for a step and could not return within the Δτ
     limit); with the transient part beyond the default dead zone decaying
-    (disturbance_decay_time_constant 0.1 s, the default) the robot stays up."""
+    (disturbance_decay_time_constant 0.1 s, the default) the robot stays up.
+    """
     from wip_control.core.runner import run_scenario
     from wip_control.core.scenario import scenario_from_mapping
 
@@ -863,8 +889,10 @@ def test_a_hard_push_predicted_to_pass_no_longer_drops_the_robot():
 
 
 def _transient_ticks(config, f2_values, f3_values):
-    """τ and predicted outputs of an MPC fed a standing state whose f̂ jumps (from its
-    first tick: without the start-up rule, which would replace f̂ there)."""
+    """τ and predicted outputs of an MPC fed a standing state whose f̂ jumps.
+
+    From its first tick: without the start-up rule, which would replace f̂ there.
+    """
     mpc = LongitudinalMpc(PARAMS, dataclasses.replace(config, disturbance_startup_time=0.0))
     out = []
     for f2, f3 in zip(f2_values, f3_values):
@@ -874,10 +902,13 @@ def _transient_ticks(config, f2_values, f3_values):
 
 
 def test_a_transient_within_the_dead_zone_is_held_as_in_the_paper_prediction():
-    """The dead zone of the transient decay: a transient disturbance estimate within
+    """A transient within the dead zone is held, as in the paper's prediction.
+
+    The dead zone of the transient decay: a transient disturbance estimate within
     ±(2 m/s², 2 rad/s²) (model error, noise) is held over the horizon exactly as with the
     decay off; beyond it (a push) the prediction and the torque change. Without the dead
-    zone even the small transient decays (so the first assertion is not vacuous)."""
+    zone even the small transient decays (so the first assertion is not vacuous).
+    """
     held = MpcConfig(disturbance_decay_time_constant=0.0)
     default = MpcConfig()
     assert default.disturbance_decay_time_constant > 0.0
@@ -909,8 +940,11 @@ def _speed_ticks(config, v_d_values, v=1.0):
 
 
 def test_speed_preview_is_the_paper_reference_for_a_constant_command():
-    """With υd constant the trend is 0 and the reference over the horizon is the held υd
-    of (20): the same torques and plans as with the preview off."""
+    """The speed preview is the paper's reference for a constant command.
+
+    With υd constant the trend is 0 and the reference over the horizon is the held υd
+    of (20): the same torques and plans as with the preview off.
+    """
     off = MpcConfig(speed_preview_time=0.0)
     on = MpcConfig()
     assert on.speed_preview_time > 0.0
@@ -920,9 +954,12 @@ def test_speed_preview_is_the_paper_reference_for_a_constant_command():
 
 
 def test_speed_preview_brakes_earlier_for_a_falling_command_and_bounds_the_trend():
-    """υd falling at 0.5 m/s² (a reference slowing for a corner): the previewed plan
+    """The speed preview brakes earlier for a falling command and bounds the trend.
+
+    υd falling at 0.5 m/s² (a reference slowing for a corner): the previewed plan
     predicts a lower speed over the horizon than the held reference; a jump of υd (a
-    push moves x_e) is extrapolated at most at ``max_speed_trend``."""
+    push moves x_e) is extrapolated at most at ``max_speed_trend``.
+    """
     falling = [1.0 - 0.05 * k for k in range(6)]
     off = _speed_ticks(MpcConfig(speed_preview_time=0.0), falling)[-1]
     on = _speed_ticks(MpcConfig(), falling)[-1]
@@ -938,10 +975,13 @@ def test_speed_preview_brakes_earlier_for_a_falling_command_and_bounds_the_trend
 
 
 def test_start_up_rule_ignores_the_estimators_zero_start_and_its_transient():
-    """disturbance_startup_time: on the first tick the speed estimate is the estimator's
+    """The start-up rule ignores the estimators' zero start and its transient.
+
+    disturbance_startup_time: on the first tick the speed estimate is the estimator's
     zero start, so no speed error is acted on (as if υ̂ = υd); until the start-up time has
     passed, f̂2, f̂3 are replaced by model (1)'s own drift at the estimate (the ESO's
-    start-up transient is not a disturbance). After it, the estimates count again."""
+    start-up transient is not a disturbance). After it, the estimates count again.
+    """
     config = MpcConfig()
     ticks = math.ceil(config.disturbance_startup_time / config.sampling_period - 1e-9)
     assert ticks >= 2
@@ -971,12 +1011,15 @@ def test_start_up_rule_ignores_the_estimators_zero_start_and_its_transient():
 
 def _min_peak_speed_after_push(v0, push=10.0, width=0.1, first_tick=0.1, back_by=2.1,
                                back_to=1.55, max_tilt=0.1, horizon=5.0, dt=0.005):
-    """Lower bound on the peak speed of any causal controller after a forward push
+    """Lower bound on the peak speed of any causal controller after a forward push.
+
+    Lower bound on the peak speed of any causal controller after a forward push
     (docs/mpc.md §7): an LP on the linearisation of the paper plant at rest (υ, θ, θ̇),
     exact zero-order-hold discretisation at ``dt``; the push d2 = ``push`` m/s² over
     [0, width); τυ held over 0.1 s ticks from ``first_tick`` (0 before: the controller
     has not seen the push), |τυ| ≤ 30 N·m, |Δτυ| ≤ 10 N·m per tick, |θ| ≤ max_tilt, υ ≤
-    back_to from back_by on, θ = θ̇ = 0 at the end (caught). Minimises max υ."""
+    back_to from back_by on, θ = θ̇ = 0 at the end (caught). Minimises max υ.
+    """
     import scipy.linalg
     import scipy.optimize
 
@@ -1029,11 +1072,13 @@ def _min_peak_speed_after_push(v0, push=10.0, width=0.1, first_tick=0.1, back_by
 
 
 def test_the_speed_limit_push_needs_no_run_away_physically():
-    """The speed_limit class: cruising at 1.21 m/s, a 10 m/s² push for 0.1 s adds
-    1.0 m/s. A WIP must speed up to brake (non-minimum phase), but gently enough it need
-    not: the best causal plan within the torque, Δτ and tilt limits (first tick 0.1 s
-    after the push starts) peaks at the push's own 2.21 m/s and is back under 1.55 m/s
-    within 2 s. The criterion max_speed 2.5 m/s is attainable (the MPC: 2.49 m/s)."""
+    """The speed_limit class: cruising at 1.21 m/s, a 10 m/s² push for 0.1 s adds 1.0 m/s.
+
+    A WIP must speed up to brake (non-minimum phase), but gently enough it need not: the best
+    causal plan within the torque, Δτ and tilt limits (first tick 0.1 s after the push starts)
+    peaks at the push's own 2.21 m/s and is back under 1.55 m/s within 2 s. The criterion max_speed
+    2.5 m/s is attainable (the MPC: 2.49 m/s).
+    """
     v0 = 1.21
     peak = _min_peak_speed_after_push(v0)
     assert v0 + 0.99 <= peak < v0 + 1.0 + 0.05
@@ -1043,13 +1088,16 @@ def test_the_speed_limit_push_needs_no_run_away_physically():
 
 
 def test_a_process_that_exits_holding_an_mpc_prints_no_binding_leak_report():
-    """A controller process holds its MPC until the interpreter exits, in a reference
+    """A process that exits holding an MPC prints no binding leak report.
+
+    A controller process holds its MPC until the interpreter exits, in a reference
     cycle (node <-> callbacks) that gc.freeze() (real-time hygiene) keeps from being
     collected; ProxSuite's binding layer (nanobind) reports every QP object still alive at
     its teardown as a 'leaked instance' (about 30 lines at the end of every controller
-    log), which ``core.qp`` prevents by freeing the workspaces at exit."""
-    import subprocess  # noqa: PLC0415
-    import sys  # noqa: PLC0415
+    log), which ``core.qp`` prevents by freeing the workspaces at exit.
+    """
+    import subprocess
+    import sys
     program = ('from wip_control.core.mpc import LongitudinalMpc, MpcConfig\n'
                'from wip_control.core.params import WipParameters\n'
                'HELD = LongitudinalMpc(WipParameters(), MpcConfig())\n'

@@ -1,5 +1,7 @@
-"""Sensor noise does not drop the robot (the default design): IMU pitch noise 0.002 rad and
-gyro noise 0.01 rad/s, on the paper plant and on the full plant, 10 seeds each.
+"""Sensor noise does not drop the robot (the default design).
+
+IMU pitch noise 0.002 rad and gyro noise 0.01 rad/s, on the paper plant and on the full plant, 10
+seeds each.
 
 The paper scenario up to 33 s (start-up with θ(0) = 0.05 rad and the pose error, the yaw
 sine, the collision pulse at 30 s and 3 s after it). The 100-seed check of the issue is a

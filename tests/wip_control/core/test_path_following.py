@@ -1,5 +1,7 @@
-"""Path following by time scaling (references.TimeScaled, the default): the reference
-slows where the path would exceed υmax or ωmax, every kind, and the trifolium goal."""
+"""Path following by time scaling (references.TimeScaled, the default).
+
+The reference slows where the path would exceed υmax or ωmax, every kind, and the trifolium goal.
+"""
 
 import dataclasses
 import math
@@ -55,9 +57,12 @@ def test_every_kind_respects_the_limits_on_the_same_path(kind):
 
 @pytest.mark.parametrize('kind', sorted(KIND_OPTIONS))
 def test_the_speed_lead_is_the_speed_ahead_and_changes_nothing_else(kind):
-    """path_speed_lead_time: υ(t) is the lead-free reference's υ at t + T where that is
+    """The speed lead is the speed ahead and changes nothing else.
+
+    path_speed_lead_time: υ(t) is the lead-free reference's υ at t + T where that is
     not faster (braking, cruising), at t + T_a where it is (speeding up); pose, ω and ω̇
-    are those at t. Every kind (docs/mpc.md §8)."""
+    are those at t. Every kind (docs/mpc.md §8).
+    """
     common = dict(kind=kind, time_scaling=True, path_max_speed=0.8, path_max_yaw_rate=0.2,
                   **KIND_OPTIONS[kind])
     plain = make_reference(ReferenceConfig(**common, path_speed_lead_time=0.0,

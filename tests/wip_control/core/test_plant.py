@@ -38,13 +38,13 @@ def rk4_reference(f, x, h):
 
 
 def full_model_reference(params, state, tau_left, tau_right, disturbance):
-    """The full model's equations in mass-matrix form, M(θ) ν̇ = F, solved by numpy.
+    """Return the full model's equations in mass-matrix form, M(θ) ν̇ = F, solved by numpy.
 
     Written from the module docstring independently of the plant's closed-form solve.
     """
     p = params
     _, _, phi, _, th, om, v, thd = state
-    mp, l, r, g, d = p.body_mass, p.com_height, p.wheel_radius, p.gravity, p.track_width
+    mp, l, r, g, d = p.body_mass, p.com_height, p.wheel_radius, p.gravity, p.track_width  # noqa: E741 - the paper's symbol
     s, c = math.sin(th), math.cos(th)
     tv, tw = tau_left + tau_right, tau_right - tau_left
     mass = np.array([[p.yaw_inertia_total + mp * l * l * s * s, 0.0, 0.0],

@@ -1,5 +1,7 @@
-"""Robust modifications of the adaptation law (13) (the default ArcConfig): dead zone,
-normalisation, leakage, no adaptation while saturated (Ioannou & Sun, ch. 8)."""
+"""Robust modifications of the adaptation law (13) (the default ArcConfig).
+
+Dead zone, normalisation, leakage, no adaptation while saturated (Ioannou & Sun, ch. 8).
+"""
 
 import dataclasses
 import math

@@ -48,7 +48,7 @@ class Clock:
 
 
 def active(config=SafetyConfig(), rate=RATE, **kwargs):
-    """A monitor driven to ACTIVE, with its clock."""
+    """Return a monitor driven to ACTIVE, with its clock."""
     monitor = SafetyMonitor(config, TAU_MAX, rate, H, **kwargs)
     clock = Clock(monitor)
     for _ in range(int(config.settle_time / H) + 3):
@@ -159,9 +159,12 @@ def test_without_timing_checks_torque_flows_from_the_first_tick_as_in_lockstep()
     ('drive_torque', 'max_drive_torque_age')])
 def test_an_input_older_than_its_age_is_bridged_then_zeroes_at_the_first_tick_past_it(
         name, age_field, bridge):
-    """ACTIVE up to the age limit, DEGRADED (torque flowing, the late input named) for
+    """An input older than its age is bridged, then zeroes at the first tick past it.
+
+    ACTIVE up to the age limit, DEGRADED (torque flowing, the late input named) for
     bridge_time more, zero torque at the first tick past age + bridge (bridge 0: at the
-    first tick past the age, the strict behaviour)."""
+    first tick past the age, the strict behaviour).
+    """
     monitor, clock = active(SafetyConfig(bridge_time=bridge))
     max_age = getattr(SafetyConfig(), age_field)
     last = clock.t
@@ -255,9 +258,12 @@ def test_late_inputs_before_engaging_are_never_bridged():
 
 
 def test_the_default_bridge_is_ln4_over_the_unstable_tilt_pole_of_the_nominal_model():
-    """The stated bound: with the torque held the tilt error grows like exp(λ t); bridging
+    """The default bridge is ln 4 over the unstable tilt pole of the nominal model.
+
+    The stated bound: with the torque held the tilt error grows like exp(λ t); bridging
     ln 4 / λ at most quadruples it. λ from the linearised model (1), checked here against the
-    eigenvalues of the tilt dynamics integrated numerically from the model's own terms."""
+    eigenvalues of the tilt dynamics integrated numerically from the model's own terms.
+    """
     from wip_control.core.model import nominal_terms
     params = WipParameters()
     lam = tilt_divergence_rate(params)
@@ -492,9 +498,12 @@ def test_shadow_mode_reports_the_torques_but_commands_zero():
 
 
 def test_a_stall_of_the_layer_itself_past_the_bridge_is_a_fault_even_with_fresh_inputs():
-    """The whole controller process frozen: on waking up fresh inputs may be taken before
+    """A stall of the layer itself past the bridge is a fault, even with fresh inputs.
+
+    The whole controller process frozen: on waking up fresh inputs may be taken before
     the layer's own tick; the gap since its previous tick still makes it a fault (the
-    base held the last command, blind, for that long)."""
+    base held the last command, blind, for that long).
+    """
     config = SafetyConfig()
     bound = config.max_estimate_age + config.bridge_time
     monitor, clock = active(config)

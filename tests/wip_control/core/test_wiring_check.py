@@ -1,5 +1,7 @@
-"""Wiring checks (core/wiring_check.py) on synthetic signals: a small balancing loop of
-model (1) closed through a base whose wiring differs from what the check is told.
+"""Wiring checks (core/wiring_check.py) on synthetic signals.
+
+A small balancing loop of model (1) closed through a base whose wiring differs from what the check
+is told.
 
 The loop: a PD tilt controller on the MEASURED tilt (gains stabilise the nominal
 linearised tilt dynamics: 150 N m/rad > a/|g3| = 74), a yaw-rate loop toward
@@ -25,8 +27,11 @@ CONFIGURED = {'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'left_wheel_sig
 
 def run(mistake=None, *, seconds=1.5, rest=0.5, noise=0.01, gyro_bias=0.05, push=0.0,
         push_at=0.3, yaw_rate_ref=0.5, config=WiringCheckConfig(), seed=1):
-    """Feed a check ``rest`` s at rest (held, not engaged), then ``seconds`` engaged;
-    the verdict and the time after engaging it came (None, None without one)."""
+    """Feed a check ``rest`` s at rest, then ``seconds`` engaged.
+
+    Feed a check ``rest`` s at rest (held, not engaged), then ``seconds`` engaged;
+    the verdict and the time after engaging it came (None, None without one).
+    """
     rng = np.random.default_rng(seed)
     check = WiringCheck(config, PARAMS, PERIOD, configured=CONFIGURED)
     p = PARAMS

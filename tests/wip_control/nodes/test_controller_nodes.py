@@ -52,7 +52,6 @@ from wip_control.core.state_estimation import StateEstimator  # noqa: E402
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa: E402
                                                    TrajectoryGeneratorConfig)
 from wip_control.core.control_step import initial_alpha  # noqa: E402
-from wip_control.core.eso import EsoConfig  # noqa: E402
 from wip_control.nodes.arc_node import ArcNode  # noqa: E402
 from wip_control.nodes.common import (CLOCK_QOS, connect_intra_process,  # noqa: E402
                                       make_header, ns_to_stamp, share_sim_clock,
@@ -86,7 +85,7 @@ DATUM = (SENSORS.gps_datum_latitude, SENSORS.gps_datum_longitude, SENSORS.gps_da
 
 @pytest.fixture(scope='module')
 def domain_id(module_domain):
-    """The module's DDS domain (conftest), set before any rclpy.init of this module."""
+    """Return the module's DDS domain (conftest), set before any rclpy.init of this module."""
     return module_domain
 
 
@@ -105,7 +104,10 @@ def context(domain_id):
 
 @pytest.fixture
 def params_context(domain_id, tmp_path):
-    """Factory of contexts whose nodes read a params file (``--ros-args --params-file``)."""
+    """Return a factory of contexts whose nodes read a params file.
+
+    The file is given as ``--ros-args --params-file``.
+    """
     made = []
 
     def factory(node_name, parameters):
@@ -136,8 +138,11 @@ TOPIC_TYPES = {'/clock': Clock, '/joint_states': JointState, '/imu/data': Imu,
 
 
 def wire(harness, inputs=(), outputs=()):
-    """Publishers of the topics ``inputs`` and listeners of ``outputs`` on the harness node
-    (types from :data:`TOPIC_TYPES`), matched with the node under test."""
+    """Wire publishers of ``inputs`` and listeners of ``outputs`` on the harness node.
+
+    Publishers of the topics ``inputs`` and listeners of ``outputs`` on the harness node
+    (types from :data:`TOPIC_TYPES`), matched with the node under test.
+    """
     for topic in inputs:
         harness.publisher(TOPIC_TYPES[topic], topic, CLOCK_QOS if topic == '/clock' else 100)
     for topic in outputs:
@@ -154,8 +159,11 @@ def harness_of(harnesses, node):
 
 
 def start(harnesses, context, node_cls, mode='lockstep', inputs=(), outputs=(), **params):
-    """A node of ``node_cls`` with the test's parameter overrides, in a harness; wired to
-    ``inputs`` and ``outputs`` (see :func:`wire`) if given."""
+    """Start a node of ``node_cls`` with the test's parameter overrides, in a harness.
+
+    A node of ``node_cls`` with the test's parameter overrides, in a harness; wired to
+    ``inputs`` and ``outputs`` (see :func:`wire`) if given.
+    """
     harness = harness_of(harnesses, node_cls(context=context, parameter_overrides=overrides(
         mode, **params)))
     if inputs or outputs:
@@ -277,7 +285,7 @@ def eso_measurements(n=60):
 
 def eso_expected(samples, config=EsoConfig(), applied_before=None, use_gps=True,
                  origin_ns=0):
-    """The runner's steps 1-3 on the values the node decodes from the messages.
+    """Return the runner's steps 1-3 on the values the node decodes from the messages.
 
     ``applied_before(k)``: the torques the ESO input uses at sample k (lockstep: those of
     sample k - 1, zero at k = 0). Without GPS the position starts at (0, 0). ``origin_ns``:
@@ -661,7 +669,8 @@ def test_arc_computes_its_initial_alpha_from_the_model_and_the_eso_gain_scale_it
     harness = wire(harness_of(harnesses, ArcNode(context=ctx)), ARC_INPUTS,
                    ['/wip/yaw_torque'])
     alpha0 = initial_alpha(model, 1.5)
-    assert alpha0 != pytest.approx(initial_alpha(WipParameters(), EsoConfig().yaw_input_gain_scale))
+    default_alpha = initial_alpha(WipParameters(), EsoConfig().yaw_input_gain_scale)
+    assert alpha0 != pytest.approx(default_alpha)
     assert harness.node.controller.alpha_hat == alpha0
     out = run_arc(harness, 20)
     expected = arc_expected(ArcConfig(), 20, alpha0)
@@ -910,7 +919,9 @@ def test_topics_are_remappable(context, harnesses):
 
 @pytest.mark.parametrize('composed', [False, True], ids=['dds', 'composed'])
 def test_six_nodes_in_lockstep_reproduce_the_in_process_runner(context, harnesses, composed):
-    """A minimal plant (the runner's plant, sensors and disturbances) drives the six nodes
+    """Six nodes in lockstep reproduce the in-process runner.
+
+    A minimal plant (the runner's plant, sensors and disturbances) drives the six nodes
     in lockstep: the wheel torques equal the runner's from t = 0 on. ``composed``: as in
     ``ros2 run wip_control controllers``, one /clock subscription for all six and the
     messages between them delivered in-process (common.connect_intra_process).
@@ -1117,7 +1128,6 @@ def test_reference_message_and_core_tuple_have_the_same_fields():
     assert list(ReferenceState._fields) == [f for f in fields if f != 'header']
 
 
-
 def test_an_executor_error_after_shutdown_is_a_stop_and_before_it_an_error():
     from rclpy.executors import ExternalShutdownException
     from wip_control.nodes.common import spin_once_or_stop
@@ -1136,9 +1146,12 @@ def test_an_executor_error_after_shutdown_is_a_stop_and_before_it_an_error():
 
 def test_realtime_input_stamped_far_ahead_is_refused_and_does_not_block_the_stream(
         context, harnesses):
-    """Real time takes inputs newest stamp first: one message from a sender whose clock
+    """A real-time input stamped far ahead is refused and does not block the stream.
+
+    Real time takes inputs newest stamp first: one message from a sender whose clock
     jumped a day ahead must be refused (with the reason), not kept as the newest, which
-    would drop every correct message after it."""
+    would drop every correct message after it.
+    """
     harness = arc_harness(harnesses, context, 'realtime')
     out = harness.outputs['/wip/yaw_torque']
     dropped = harness.node.diagnostics.dropped
@@ -1164,8 +1177,11 @@ def test_realtime_input_stamped_far_ahead_is_refused_and_does_not_block_the_stre
 
 
 def test_diagnostics_report_the_dds_match_counts_of_both_sides(context, harnesses):
-    """The graph runner starts a lockstep run only when both sides of every pair count
-    each other: the node must report them (and not ROS infrastructure topics)."""
+    """The diagnostics report the DDS match counts of both sides.
+
+    The graph runner starts a lockstep run only when both sides of every pair count
+    each other: the node must report them (and not ROS infrastructure topics).
+    """
     harness = arc_harness(harnesses, context)
     values = {kv.key: kv.value for kv in harness.node.diagnostics.status().values}
     assert values['matched publishers /wip/state_estimate'] == '1'
@@ -1205,8 +1221,11 @@ def test_the_readme_params_file_of_a_real_base_is_taken_by_the_eso_and_the_mixer
 # ----------------------------------------------------------- commanded references, /odom
 
 def tick_every(harness, out, step_ns, duration):
-    """Publish /clock every step_ns up to duration [s], each time waiting for the
-    reference (a burst of clock messages would overrun the clock's queue)."""
+    """Publish /clock every step_ns up to duration [s], waiting for the reference each time.
+
+    Publish /clock every step_ns up to duration [s], each time waiting for the
+    reference (a burst of clock messages would overrun the clock's queue).
+    """
     for k in range(1, round(duration * 1e9 / step_ns) + 1):
         count = len(out)
         harness.publish('/clock', clock(k * step_ns))

@@ -378,11 +378,14 @@ def test_a_bad_parameter_value_at_run_time_is_rejected_with_a_reason(context, no
 # ----------------------------------------------------------------------------- spin loop
 
 def test_a_callback_error_does_not_end_the_spin_loop(context):
-    """rclpy's time source raises on a /clock with a negative time (not the node's code):
+    """A callback error does not end the spin loop.
+
+    rclpy's time source raises on a /clock with a negative time (not the node's code):
     the nodes' spin loop (``run_node``) logs it and goes on with the next messages. The
     reference node's own clock is driven by its /clock ticker, which reports that sample
     as invalid instead; the raising subscription here is what rclpy's time source does in
-    the other nodes (``rclpy.time.Time.from_msg``)."""
+    the other nodes (``rclpy.time.Time.from_msg``).
+    """
     import time
     from builtin_interfaces.msg import Time
     from rclpy.time import Time as RosTime
@@ -425,9 +428,12 @@ def _by_topic(node):
 
 
 def test_overflowing_finite_input_does_not_poison_the_arc(context):
-    """ω̂ = 1.7e308 and ωd = −1.7e308 are finite, but eω = ω̂ − ωd overflows to inf and,
+    """An overflowing finite input does not poison the ARC.
+
+    ω̂ = 1.7e308 and ωd = −1.7e308 are finite, but eω = ω̂ − ωd overflows to inf and,
     with ω̇d = f̂1 (regressor 0), (13) gives α̂ = inf·0 = NaN; a NaN α̂ would then clip
-    τω to +max_yaw_torque at every later step. The node drops that input and keeps α̂."""
+    τω to +max_yaw_torque at every later step. The node drops that input and keeps α̂.
+    """
     from wip_msgs.msg import VelocityCommand
     node = make_node(context, ArcNode, 'lockstep')
     try:
@@ -449,9 +455,12 @@ def test_overflowing_finite_input_does_not_poison_the_arc(context):
 
 
 def test_overflowing_finite_input_does_not_poison_the_trajectory_generator(context):
-    """Positions of 1e308 m and −1e308 m are finite, but the error between them is inf
+    """An overflowing finite input does not poison the trajectory generator.
+
+    Positions of 1e308 m and −1e308 m are finite, but the error between them is inf
     and ωd NaN: the node drops the input, keeps the derivative filter's state, and the
-    next sample is normal."""
+    next sample is normal.
+    """
     from wip_msgs.msg import ReferenceState
     node = make_node(context, TrajectoryGeneratorNode, 'lockstep')
     try:
@@ -470,9 +479,12 @@ def test_overflowing_finite_input_does_not_poison_the_trajectory_generator(conte
 
 
 def test_overflowing_finite_input_restarts_the_eso_instead_of_poisoning_it(context):
-    """A wheel angle of 5e307 rad (x_v ~ 1e307 m) is finite but overflows the observer
+    """An overflowing finite input restarts the ESO instead of poisoning it.
+
+    A wheel angle of 5e307 rad (x_v ~ 1e307 m) is finite but overflows the observer
     (f̂2 = inf, then NaN): no estimate is published, and the observer restarts from the
-    next measurement instead of staying NaN for good."""
+    next measurement instead of staying NaN for good.
+    """
     node = make_node(context, EsoNode, 'realtime')
     try:
         outputs = Outputs(node)

@@ -1,4 +1,6 @@
-"""Input adapters of a real base (wheel signs, IMU mounting, odometry) and the node
+"""Input adapters of a real base and the node parameters that use them.
+
+Input adapters of a real base (wheel signs, IMU mounting, odometry) and the node
 parameters that use them: eso, torque_mixer, reference (``realtime_start``), mpc (applied
 torque in real time).
 
@@ -216,8 +218,10 @@ def capture(publisher):
 
 
 def feed_eso(node, encode, n=40):
-    """Feed ``n`` samples of a robot rolling forward and turning; ``encode(pitch, yaw,
-    left, right)`` makes the base's (JointState, Imu)."""
+    """Feed ``n`` samples of a robot rolling forward and turning.
+
+    ``encode(pitch, yaw, left, right)`` makes the base's (JointState, Imu).
+    """
     out = capture(node.publisher)
     for k in range(n):
         stamp = 1_000_000_000 + k * 5_000_000
@@ -259,8 +263,11 @@ def test_eso_with_signs_and_mounting_estimates_what_the_default_does_on_plain_in
 
 def test_eso_fed_serialized_sensors_estimates_bit_for_bit_what_message_objects_give(
         context, nodes):
-    """The ESO takes /joint_states and /imu/data serialized (raw=True, decoded by
-    conversions.decode_serialized): the same estimates as from rclpy's message objects."""
+    """The ESO fed serialized sensors estimates bit for bit what message objects give.
+
+    The ESO takes /joint_states and /imu/data serialized (raw=True, decoded by
+    conversions.decode_serialized): the same estimates as from rclpy's message objects.
+    """
     from rclpy.serialization import serialize_message
 
     def plain(pitch, yaw, left, right):
@@ -270,6 +277,7 @@ def test_eso_fed_serialized_sensors_estimates_bit_for_bit_what_message_objects_g
 
     class Serialized:
         """feed_eso sets the header, then the node gets the bytes."""
+
         def __init__(self, node):
             self.node, self._on_joint_states, self._on_imu = node, self.joint, self.imu
             self.publisher = node.publisher

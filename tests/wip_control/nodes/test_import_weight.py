@@ -3,7 +3,8 @@
 numba and llvmlite (the plant's RK4, ``core.plant_rk4``) cost about 0.2 s of import and
 60 MB of memory per process (measured: the six composed nodes built, 102 MB against 162 MB
 resident); the controllers never step a plant, and on a robot's small computer the
-separate layout starts six such processes. A plant built in a process loads it."""
+separate layout starts six such processes. A plant built in a process loads it.
+"""
 
 import subprocess
 import sys
@@ -14,11 +15,11 @@ pytest.importorskip('rclpy')
 
 pytestmark = pytest.mark.ros
 
-_PROGRAM = '''
+_PROGRAM = """
 import sys
 import {module}
 print('numba' in sys.modules, 'llvmlite' in sys.modules)
-'''
+"""
 
 
 @pytest.mark.parametrize('module', [
@@ -32,11 +33,11 @@ def test_the_controller_nodes_do_not_import_numba(module):
 
 
 def test_a_plant_loads_its_compiled_integrator():
-    program = _PROGRAM.format(module='wip_control.core.plant') + '''
+    program = _PROGRAM.format(module='wip_control.core.plant') + """
 from wip_control.core.params import WipParameters
 plant = wip_control.core.plant.Plant(WipParameters())
 print('numba' in sys.modules)
-'''
+"""
     done = subprocess.run([sys.executable, '-c', program], capture_output=True, text=True,
                           timeout=300, check=False)
     assert done.returncode == 0, done.stderr[-2000:]

@@ -1,5 +1,7 @@
-"""The torque_mixer node as the safety layer, in real time: faults injected into a running
-graph, and the number of mixer ticks until /effort_controller/commands says zero.
+"""The torque_mixer node as the safety layer, in real time.
+
+Faults injected into a running graph, and the number of mixer ticks until
+/effort_controller/commands says zero.
 
 The mixer runs in this process (private rclpy context and DDS domain) on its own 200 Hz
 steady-clock timer, as on a robot. A stand-in for the upstream controllers publishes the
@@ -171,9 +173,12 @@ class Graph(NodeHarness):
         return found()
 
     def commands_on_the_topic(self):
-        """Stop the mixer's watchdog timer and the upstream (whose yaw torques trigger
+        """Check the commands on the topic against the logged ticks.
+
+        Stop the mixer's watchdog timer and the upstream (whose yaw torques trigger
         commands too), drain the topic; check it against the logged ticks and return the
-        offset of the received messages in the log."""
+        offset of the received messages in the log.
+        """
         self.sending.clear()
         self.spin_for(0.05)             # yaw torques in flight still make commands
         self.node.timer.cancel()
@@ -411,8 +416,11 @@ def test_drive_status_values_are_the_mpc_output_constants():
 @pytest.mark.parametrize('stop_signal', [signal.SIGINT, signal.SIGTERM])
 def test_mixer_process_stopped_sends_a_last_zero_command_to_the_base(context, harnesses,
                                                                     stop_signal):
-    """A JointGroupEffortController holds the last command forever: the mixer process,
-    stopped while it commands torque, must leave zero behind (its last message)."""
+    """A stopped mixer process sends a last zero command to the base.
+
+    A JointGroupEffortController holds the last command forever: the mixer process,
+    stopped while it commands torque, must leave zero behind (its last message).
+    """
     executable = installed_executable('wip_control', 'torque_mixer')
     harness = NodeHarness(context, timeout=TIMEOUT)   # the node under test is the process
     harnesses.append(harness)

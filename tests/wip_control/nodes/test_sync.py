@@ -175,8 +175,11 @@ def test_exact_sync_handles_every_order_of_two_interleaved_stamps():
 
 
 def test_latest_sync_never_pairs_an_old_encoder_sample_with_a_new_imu_sample():
-    """After a stall the queued messages come one stream first: the oldest queued encoder
-    sample must wait for its newer ones instead of pairing with the newest IMU sample."""
+    """LatestSync never pairs an old encoder sample with a new IMU sample.
+
+    After a stall the queued messages come one stream first: the oldest queued encoder
+    sample must wait for its newer ones instead of pairing with the newest IMU sample.
+    """
     sets = []
     sync = LatestSync(('joint_states', 'imu'), lambda s, v: sets.append((s, dict(v))),
                       triggers=('joint_states', 'imu'), required=('joint_states', 'imu'),

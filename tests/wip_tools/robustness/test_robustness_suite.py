@@ -1,5 +1,7 @@
-"""The robustness suite: one scenario file per robustness class, each with its physical
-pass criterion beside it (``criteria:`` in the file, the why in its header comment).
+"""The robustness suite: one scenario file per robustness class.
+
+Each with its physical pass criterion beside it (``criteria:`` in the file, the why in its header
+comment).
 
 Each file is a campaign file of one run (docs/campaign.md), so that ``scripts/campaign
 FILE`` runs it too, and a campaign over seeds or parameters starts from it. Here every
@@ -109,12 +111,15 @@ def test_robustness_class_meets_its_criterion(name):
 @pytest.mark.slow
 @pytest.mark.parametrize('run, body_mass', [(78, 28.60), (84, 26.84), (255, 29.72)])
 def test_a_push_above_the_speed_limit_on_a_heavy_tall_body_is_caught(run, body_mass):
-    """Acceptance runs 78 (28.6 kg, CoM 0.69 m, +7.6 m/s² at 46.4 s), 84 (26.8 kg, CoM
+    """A push above the speed limit on a heavy tall body is caught.
+
+    Acceptance runs 78 (28.6 kg, CoM 0.69 m, +7.6 m/s² at 46.4 s), 84 (26.8 kg, CoM
     0.54 m, +8 m/s² at 29.2 s) and 255 (29.7 kg, CoM 0.63 m, -8.8 m/s² at 20.7 s),
     trifolium under noise, full plant. The MPC's rise slack would weigh the acceleration
     of the recovery: without its gates (docs/mpc.md §9) run 78 fell at 48.8 s, run 84 at
     30.3 s (speed_rise_penalty 1e5), run 255 at 22.5 s. They must stay up and within the
-    hard limits."""
+    hard limits.
+    """
     campaign = load_campaign(ACCEPTANCE)
     spec = run_specs(campaign)[run]
     assert spec['values']['plant.parameters.body_mass'] == pytest.approx(body_mass, abs=0.01)
@@ -126,12 +131,15 @@ def test_a_push_above_the_speed_limit_on_a_heavy_tall_body_is_caught(run, body_m
 @pytest.mark.slow
 @pytest.mark.parametrize('run', [25, 59, 76])
 def test_the_pulse_on_the_paper_plant_under_noise_is_caught(run):
-    """Runs 25, 59 and 76 of campaigns/noise_100_seeds.yaml: the paper's Section V
+    """The pulse on the paper plant under noise is caught.
+
+    Runs 25, 59 and 76 of campaigns/noise_100_seeds.yaml: the paper's Section V
     (its 10 m/s² pulse at 30 s) on the paper plant under IMU 0.002 rad and gyro 0.01 rad/s
     noise. With the drive torque held for the 0.1 s MPC period they fell 2.5 s after the
     pulse, the tilt swinging from -0.17 to +0.31 rad with the torque at its limits; the
     MPC re-solving every 50 ms after a push (mpc.fast_resolve_period, docs/mpc.md §10)
-    keeps them within 0.1 rad outside the pulse."""
+    keeps them within 0.1 rad outside the pulse.
+    """
     campaign = load_campaign(NOISE_100)
     spec = run_specs(campaign)[run]
     assert spec['values']['plant.model'] == 'paper'
@@ -142,8 +150,11 @@ def test_the_pulse_on_the_paper_plant_under_noise_is_caught(run):
 
 @pytest.mark.slow
 def test_without_re_solving_after_a_push_noise_run_25_falls():
-    """The run above with the torque held for the whole MPC period (fast_resolve_period
-    0, as before): it falls (so the test above tests the re-solving)."""
+    """Without re-solving after a push, noise run 25 falls.
+
+    The run above with the torque held for the whole MPC period (fast_resolve_period
+    0, as before): it falls (so the test above tests the re-solving).
+    """
     campaign = load_campaign(NOISE_100)
     spec = run_specs(campaign)[25]
     base = {**campaign.base, 'mpc': {**campaign.base.get('mpc', {}),

@@ -146,7 +146,7 @@ def bag_information(path, from_content=False):
             _compare_metadata(metadata, content, info, problems, from_content)
         except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as err:
             problems.append(f'metadata.yaml is incomplete or malformed ({type(err).__name__}: '
-                            f'{err}); figures from the files\' contents')
+                            f"{err}); figures from the files' contents")
             info.update(content)
             info['source'] = 'content'
     elif pathlib.Path(path).is_dir() and not metadata_path.is_file():
@@ -200,7 +200,7 @@ def _indented(lines):
 
 
 def format_bag_information(info):
-    """The text of ``ros2 bag info`` (plus Compression and Check lines) for ``info``."""
+    """Return the text of ``ros2 bag info`` (plus Compression and Check lines) for ``info``."""
     end_ns = info['start_ns'] + info['duration_ns']
     topics = [f'Topic: {t["name"]} | Type: {t["type"]} | Count: {t["count"]} | '
               f'Serialization Format: {t["serialization_format"]}' for t in info['topics']]
@@ -254,7 +254,7 @@ Examples
     scripts/bag_info --json out/demo/bag > info.json''')
     parser.add_argument('bag', help='bag directory or .mcap file')
     parser.add_argument('--from-content', action='store_true',
-                        help='figures from the files\' contents, not from metadata.yaml')
+                        help="figures from the files' contents, not from metadata.yaml")
     parser.add_argument('--json', action='store_true', help='print JSON instead')
     add_exit_codes(parser)
     args = parser.parse_args(argv)

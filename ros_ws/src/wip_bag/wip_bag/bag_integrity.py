@@ -126,7 +126,7 @@ def _u32(data, pos: int) -> int:
 
 
 def _parse_chunk(data, pos: int, limit: int) -> tuple[Chunk, int] | None:
-    """The chunk record at ``pos`` if its framing is consistent (not its CRC); its end."""
+    """Return the chunk record at ``pos`` if its framing is consistent (not its CRC); its end."""
     if pos + 9 > limit or data[pos] != OP_CHUNK:
         return None
     length = _u64(data, pos + 1)
@@ -154,7 +154,7 @@ def _parse_chunk(data, pos: int, limit: int) -> tuple[Chunk, int] | None:
 
 
 def chunk_records(chunk: Chunk) -> list | None:
-    """The records of a chunk if its CRC (and decompression) is intact, else None."""
+    """Return the records of a chunk if its CRC (and decompression) is intact, else None."""
     try:
         return breakup_chunk(chunk, validate_crc=True)
     except Exception:  # noqa: BLE001 (zstd and lz4 raise types of their own on bad data)
@@ -347,7 +347,7 @@ def _read_summary(data, start: int, footer_pos: int, scan: FileScan) -> None:
 
 
 def iter_chunk_records(path: str | pathlib.Path, scan: FileScan) -> Iterator[list]:
-    """The records of each intact chunk of ``scan``, in file order (re-read from disk)."""
+    """Yield the records of each intact chunk of ``scan``, in file order (re-read from disk)."""
     if not scan.chunks:
         return
     with open(path, 'rb') as stream, mmap.mmap(stream.fileno(), 0,

@@ -77,7 +77,7 @@ def integrity_problems(scans) -> list[str]:
 #: What a bag directory without metadata.yaml means, for the readers' warning and
 #: bag_info's verdict (one wording).
 NO_METADATA = ('no metadata.yaml (an unfinished recording, or a file lost): ros2 bag and '
-               'rosbags cannot open it; the wip-ros tools read the .mcap files\' contents; '
+               "rosbags cannot open it; the wip-ros tools read the .mcap files' contents; "
                'scripts/bag_repair {bag} writes a new bag with one')
 _warned_no_metadata: set[str] = set()
 
@@ -153,7 +153,7 @@ def mcap_files(path):
 
 
 def read_metadata_file(metadata_path):
-    """The ``rosbag2_bagfile_information`` mapping of a metadata.yaml, or BagReadError."""
+    """Return the ``rosbag2_bagfile_information`` mapping of a metadata.yaml, or BagReadError."""
     metadata_path = pathlib.Path(metadata_path)
     hint = ' (scripts/bag_repair rebuilds metadata.yaml from the files)'
     try:
@@ -185,7 +185,7 @@ _RECORD_KINDS = ((Schema, 'schema'), (Channel, 'channel'), (Message, 'message'),
 
 
 def record_kind(record) -> str | None:
-    """'schema', 'channel', 'message' or 'metadata' for those MCAP records, else None."""
+    """Return the kind of an MCAP record: 'schema', 'channel', 'message', 'metadata' or None."""
     for cls, kind in _RECORD_KINDS:
         if isinstance(record, cls):
             return kind

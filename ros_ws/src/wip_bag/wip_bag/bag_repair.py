@@ -104,7 +104,7 @@ class RepairResult(NamedTuple):
 
 
 def mcap_files_by_index(directory):
-    """The ``*.mcap`` files of a bag directory ordered by their ``_<index>`` suffix."""
+    """Return the ``*.mcap`` files of a bag directory ordered by their ``_<index>`` suffix."""
     def key(path):
         match = _INDEX_RE.search(path.name)
         return (0, int(match.group(1)), path.name) if match else (1, 0, path.name)
@@ -112,7 +112,7 @@ def mcap_files_by_index(directory):
 
 
 def is_finished(path):
-    """True if an MCAP file has its summary section (was closed properly)."""
+    """Return True if an MCAP file has its summary section (was closed properly)."""
     try:
         with open(path, 'rb') as stream:
             return SeekingReader(stream).get_summary() is not None
@@ -184,8 +184,11 @@ def _parse_serialized(metadata):
 
 
 def _rewrite(path, target, compression):
-    """The intact chunks of ``path`` into a finished MCAP file ``target`` (None: only
-    count); returns its FileContents."""
+    """Write the intact chunks of ``path`` into a finished MCAP file.
+
+    The intact chunks of ``path`` into a finished MCAP file ``target`` (None: only
+    count); returns its FileContents.
+    """
     file_scan = scan(path)
     contents = FileContents(path.name, False)
     contents.compression = file_scan.chunks[0].compression if file_scan.chunks else None
@@ -202,7 +205,7 @@ def _rewrite(path, target, compression):
                 kind = record_kind(item)
                 if kind is not None:
                     if target is not None and writer is None:
-                        stream = open(target, 'xb')
+                        stream = open(target, 'xb')  # noqa: SIM115 - closed in the finally
                         chosen = compression or _compression_name(contents.compression)
                         writer = Writer(stream, compression=COMPRESSION[chosen])
                         writer.start(profile=MCAP_PROFILE, library=library_identifier())
@@ -371,7 +374,7 @@ def repair_bag(directory, out=None, compression=None, dry_run=False):
 
 
 def current_umask() -> int:
-    """This process's umask (read by setting it and setting it back)."""
+    """Return this process's umask (read by setting it and setting it back)."""
     mask = os.umask(0o022)
     os.umask(mask)
     return mask

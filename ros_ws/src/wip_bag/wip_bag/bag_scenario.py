@@ -33,19 +33,19 @@ SCENARIO_FILE_NAME = 'scenario.yaml'   # beside the bag's files, in its director
 
 
 def bag_directory(bag: str | pathlib.Path) -> pathlib.Path:
-    """The bag directory of a bag given as its directory or as a file in it."""
+    """Return the bag directory of a bag given as its directory or as a file in it."""
     path = pathlib.Path(bag)
     return path if path.is_dir() else path.parent
 
 
 def own_scenario(bag: str | pathlib.Path) -> tuple[dict[str, Any] | None, str]:
-    """(the bag's own scenario as a mapping, or None; where it came from)."""
+    """Return (the bag's own scenario as a mapping, or None; where it came from)."""
     directory = bag_directory(bag)
     metadata = directory / 'metadata.yaml'
     if metadata.is_file():
         try:
             info = read_metadata_file(metadata)
-        except Exception:  # noqa: B902 - a broken metadata.yaml: the next source
+        except Exception:  # noqa: BLE001 - a broken metadata.yaml: the next source
             info = {}
         custom = info.get('custom_data') if isinstance(info, dict) else None
         text = custom.get(SCENARIO_KEY) if isinstance(custom, dict) else None

@@ -354,7 +354,7 @@ class Rosbag2McapWriter:
     def _open_file(self, index):
         self.file_name = f'{self.directory.name}_{index}.mcap'
         self.mcap_path = self.directory / self.file_name
-        self._stream = open(self.mcap_path, 'xb')
+        self._stream = open(self.mcap_path, 'xb')  # noqa: SIM115 - closed with the file
         self._writer = Writer(self._stream, chunk_size=self.chunk_size,
                               compression=COMPRESSION[self.compression])
         self._writer.start(profile=MCAP_PROFILE, library=library_identifier())
@@ -598,7 +598,7 @@ class Rosbag2McapWriter:
 
 
 def library_identifier():
-    """The ``library`` field of the MCAP header of the bags this package writes."""
+    """Return the ``library`` field of the MCAP header of the bags this package writes."""
     from mcap.writer import LIBRARY_IDENTIFIER
     return f'wip_bag.bag_writer ({LIBRARY_IDENTIFIER})'
 

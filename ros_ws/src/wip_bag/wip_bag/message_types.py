@@ -1,6 +1,8 @@
-"""The Python class of a ROS message type by its name, for the bag tools that create
-subscriptions and publishers of types known only at run time (recorder, replayer, the
-Foxglove bridge)."""
+"""The Python class of a ROS message type by its name.
+
+For the bag tools that create subscriptions and publishers of types known only at run time
+(recorder, replayer, the Foxglove bridge).
+"""
 
 from __future__ import annotations
 
@@ -8,9 +10,12 @@ import importlib
 
 
 def message_class(type_name: str, error: type[Exception] = LookupError):
-    """The class of the ROS message type ``'pkg/msg/Type'`` (rosidl_runtime_py's
+    """Return the class of the ROS message type ``'pkg/msg/Type'``.
+
+    The class of the ROS message type ``'pkg/msg/Type'`` (rosidl_runtime_py's
     ``get_message``, which is not in the PyPI wheels); ``error`` (the caller's exception
-    class) with the reason when the name is malformed or the type is not installed."""
+    class) with the reason when the name is malformed or the type is not installed.
+    """
     try:
         package, namespace, name = type_name.split('/')
         return getattr(importlib.import_module(f'{package}.{namespace}'), name)

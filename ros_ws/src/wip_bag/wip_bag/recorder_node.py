@@ -45,8 +45,8 @@ Behaviour
   subscription (serialized CDR, no deserialization). Its QoS follows rosbag2's
   ``adapt_request_to_offers``: reliable if every publisher offers reliable, else best effort;
   transient local if every publisher offers it, else volatile; history keep-last with depth
-  SUBSCRIPTION_DEPTH (a deep queue: the recorder must not drop a burst). The offered profiles and the
-  publishers' RIHS01 type hash are stored in the bag.
+  SUBSCRIPTION_DEPTH (a deep queue: the recorder must not drop a burst). The offered profiles and
+  the publishers' RIHS01 type hash are stored in the bag.
 - Each message is stamped with its receive time on the node's clock: simulation time when
   ``use_sim_time`` is true (lockstep runs then give bags in simulation time), else system
   time. rosbag2 also stores a send time from the middleware's message info, which this
@@ -145,12 +145,12 @@ def default_output_name(now=None):
 
 
 def is_hidden_topic(name):
-    """True for topics with a path segment starting with '_' (rcl's hidden topics)."""
+    """Return True for topics with a path segment starting with '_' (rcl's hidden topics)."""
     return any(part.startswith('_') for part in name.split('/') if part)
 
 
 def import_message_class(type_name):
-    """The Python class of a ROS message type 'pkg/msg/Type'; BagWriterError if unknown."""
+    """Return the Python class of a ROS message type 'pkg/msg/Type'; BagWriterError if unknown."""
     return message_class(type_name, BagWriterError)
 
 
@@ -290,7 +290,7 @@ class RecorderNode(Node):
                                + (f' as {stored}' if stored != topic else ''))
 
     def stored_name(self, topic):
-        """The name ``topic`` has in the bag: without the recorder's namespace."""
+        """Return the name ``topic`` has in the bag: without the recorder's namespace."""
         if self.namespace and topic.startswith(self.namespace + '/'):
             return topic[len(self.namespace):]
         return topic
@@ -361,7 +361,7 @@ class RecorderNode(Node):
                 if now - last_space_check >= SPACE_CHECK_PERIOD:
                     last_space_check = now
                     self._check_space()
-            except Exception as err:  # noqa: B902 - reported, never silent
+            except Exception as err:  # noqa: BLE001 - reported, never silent
                 self._on_write_failure(err)
 
     def _on_write_failure(self, err):
@@ -478,8 +478,11 @@ def make_executor(context=None):
 
 
 class StopSignals:
-    """SIGINT, SIGTERM and SIGHUP set a flag (counted) instead of raising: the spin loop
-    and the stop's drain look at it, and the close that follows cannot be cut by one."""
+    """Stop signals as a flag instead of an exception.
+
+    SIGINT, SIGTERM and SIGHUP set a flag (counted) instead of raising: the spin loop
+    and the stop's drain look at it, and the close that follows cannot be cut by one.
+    """
 
     def __init__(self):
         self.count = 0
@@ -491,8 +494,11 @@ class StopSignals:
 
 
 def spin(node, executor, stop=None):
-    """Spin with a timeout (the EventsExecutor's spin() ignores SIGINT, ros-from-pip.md)
-    until a stop signal, then :func:`drain`."""
+    """Spin until a stop signal, then drain.
+
+    Spin with a timeout (the EventsExecutor's spin() ignores SIGINT, ros-from-pip.md)
+    until a stop signal, then :func:`drain`.
+    """
     executor.add_node(node)
     while rclpy.ok(context=node.context) and not (stop and stop.count):
         executor.spin_once(timeout_sec=SPIN_TIMEOUT)
@@ -501,14 +507,17 @@ def spin(node, executor, stop=None):
 
 
 def launcher_gone():
-    """True if this process was started by a wip launcher that has died since."""
+    """Return True if this process was started by a wip launcher that has died since."""
     value = os.environ.get(LAUNCHER_PID_VARIABLE, '')
     return value.isdigit() and int(value) > 1 and os.getppid() != int(value)
 
 
 def drain(node, executor, stop, quiet=STOP_QUIET, longest=STOP_DRAIN):
-    """After the first stop signal: receive until nothing arrived for ``quiet`` [s], at
-    most ``longest`` [s], or until a second signal."""
+    """Receive what is still coming after the first stop signal.
+
+    After the first stop signal: receive until nothing arrived for ``quiet`` [s], at
+    most ``longest`` [s], or until a second signal.
+    """
     started = time.monotonic()
     node.last_received = max(node.last_received, started)
     while (rclpy.ok(context=node.context) and stop.count < 2
@@ -540,7 +549,7 @@ def main(args=None):
         rclpy.logging.get_logger('recorder').error(str(err))
         print(f'recorder: error: {err}', file=sys.stderr)
         status = 1
-    except Exception:  # noqa: B902
+    except Exception:  # noqa: BLE001
         # A signal shuts the context down at any point, also inside a ROS call (e.g. "failed
         # to initialize wait set: the given context is not valid"): that is a normal stop.
         if rclpy.ok() and not stop.count:

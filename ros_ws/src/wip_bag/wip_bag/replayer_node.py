@@ -599,7 +599,7 @@ def main(args=None):
     except ValueError as err:
         print(f'replayer: error: {err}', file=sys.stderr)
         status = EXIT_BAD_PARAMETERS
-    except Exception as err:  # noqa: B902
+    except Exception as err:  # noqa: BLE001
         # A signal shuts the context down at any point, also inside a ROS call (e.g. "failed
         # to initialize wait set: the given context is not valid"): that is a normal stop.
         if rclpy.ok():

@@ -56,7 +56,6 @@ import collections
 import dataclasses
 import json
 import math
-import os
 import signal
 import sys
 import threading
@@ -135,7 +134,7 @@ class Conventions:
 
 
 def eso_parameters(scenario_path: str | None, params_files: list[str]) -> dict[str, Any]:
-    """The eso node's parameters in hardware mode: the scenario's, then the files'."""
+    """Return the eso node's parameters in hardware mode: the scenario's, then the files'."""
     try:
         scenario = load_scenario(scenario_path)
     except ConfigError as err:
@@ -193,8 +192,11 @@ def unwrap_mean(angles: list[float]) -> float:
 
 
 class BaseListener:
-    """Subscribes to the base's JointState and Imu in a background thread and keeps the
-    samples of the last few seconds."""
+    """Listener of the base's JointState and Imu.
+
+    Subscribes to the base's JointState and Imu in a background thread and keeps the
+    samples of the last few seconds.
+    """
 
     HISTORY = 5.0  # [s]
 
@@ -223,7 +225,7 @@ class BaseListener:
             raise
 
     def _start(self) -> None:
-        """The node, its subscriptions and the thread that spins it."""
+        """Start the node, its subscriptions and the thread that spins it."""
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import qos_profile_sensor_data
         from sensor_msgs.msg import Imu, JointState
@@ -247,7 +249,7 @@ class BaseListener:
         while not self._stop.is_set() and self._rclpy.ok(context=self.context):
             try:
                 self.executor.spin_once(timeout_sec=0.05)
-            except Exception:  # noqa: B902 - shutting down
+            except Exception:  # noqa: BLE001 - shutting down
                 if self._stop.is_set():
                     return
                 raise
@@ -440,7 +442,7 @@ def check_tilt(before: Reading, after: Reading, c: Conventions) -> list[Check]:
         status, advice = FAIL, ('sign wrong: the pitch decreased; the IMU mounting '
                                 '(imu_mounting_rpy) is turned half a turn about z')
     elif abs(d_roll) >= low:
-        status, advice = FAIL, ('the tilt shows as roll: the mounting\'s yaw is off by a '
+        status, advice = FAIL, ("the tilt shows as roll: the mounting's yaw is off by a "
                                 'quarter turn')
     else:
         status, advice = FAIL, f'no forward tilt of {low}-{high} rad seen'
@@ -718,8 +720,11 @@ LISTENED_TOPICS = ('/joint_states', '/imu/data')
 
 
 def split_ros_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
-    """(the tool's own arguments, 'FROM:=TO' remappings) of a command line that may hold
-    ``--ros-args ... [--]`` blocks, as ``ros2 run`` passes them."""
+    """Split a command line into the tool's own arguments and remappings.
+
+    (the tool's own arguments, 'FROM:=TO' remappings) of a command line that may hold
+    ``--ros-args ... [--]`` blocks, as ``ros2 run`` passes them.
+    """
     own: list[str] = []
     remaps: list[str] = []
     in_ros = False

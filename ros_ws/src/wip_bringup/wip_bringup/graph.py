@@ -1,5 +1,6 @@
-"""``scripts/run_graph``: run a scenario through the ROS 2 node graph (controllers composed in
-one process by default, or one process per node with ``--layout separate``).
+"""``scripts/run_graph``: run a scenario through the ROS 2 node graph.
+
+Controllers composed in one process by default, or one process per node with ``--layout separate``.
 
 Examples
 --------
@@ -126,12 +127,11 @@ from .hardware import add_arguments, run_from_args
 from .launcher import (add_view_arguments, EXIT_DISK_FULL, EXIT_FAILED, EXIT_FELL, EXIT_OK,
                        EXIT_NOT_ENGAGED, EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError,
                        in_namespace, LAYOUTS, Probe, PROBE_PERIOD, Scheduling, VIEWER_TOPICS,
-                       viewer_wanted)
+                       viewer_wanted)  # noqa: F401 - imported from here (the comment above)
 from .runner_base import (DiskFull, is_disk_full, options_from_args, print_result,
                           RunnerBase, RunResult, STOP_EXIT_CODES, stop_signal_number,
                           stop_signals)
 from .params_files import CONTROLLER_NODES, write_params_file
-
 
 
 #: Publishers of each topic in the graph design.
@@ -192,8 +192,10 @@ DRAIN_STALL = 2.5
 
 
 class StartupStall(GraphError):
-    """The run stalled on its first ticks: a message published before its subscription
-    was matched is lost (see :meth:`GraphRunner.run`)."""
+    """The run stalled on its first ticks.
+
+    A message published before its subscription was matched is lost (see :meth:`GraphRunner.run`).
+    """
 
     def __init__(self, message: str) -> None:
         super().__init__(message, EXIT_TIMEOUT)
@@ -227,8 +229,10 @@ class GraphOptions:
 
 @dataclasses.dataclass
 class GraphResult(RunResult):
-    """What :func:`run_graph` returns (also written to ``OUT/run.json``); ``cpu_s`` of the
-    plant from its own stats, ``timeline`` with the plant's refusals to start."""
+    """What :func:`run_graph` returns (also written to ``OUT/run.json``).
+
+    ``cpu_s`` of the plant from its own stats, ``timeline`` with the plant's refusals to start.
+    """
 
     scenario: Scenario | None = None
     plant_stats: dict | None = None
@@ -260,7 +264,7 @@ def expected_endpoints(clock_mode: str, recording: bool, layout: str = 'separate
 
 def missing_endpoints(probe: Probe, expected: dict[str, tuple[int, int]],
                       nodes: list[str]) -> list[str]:
-    """What the graph still lacks (empty when complete)."""
+    """Return what the graph still lacks (empty when complete)."""
     missing = []
     present = probe.node_names()
     absent = [n for n in nodes if n not in present]
@@ -294,11 +298,14 @@ class GraphRunner(RunnerBase):
         self.last_sim_time: float | None = None  # [s] the plant's latest progress report
 
     def stop_all(self) -> None:
-        """A run cut short in lockstep stops the controllers (and the viewer, the bridge)
+        """Stop every process, in the order a run cut short needs.
+
+        A run cut short in lockstep stops the controllers (and the viewer, the bridge)
         first: the plant then waits for torques and publishes nothing more, and stays up
         while the recorder takes what it published (a publisher that exits takes with it
         the samples a lagging reader has not received yet: about 90 ticks were lost so on
-        a loaded machine); then the plant, then the recorder (the base class)."""
+        a loaded machine); then the plant, then the recorder (the base class).
+        """
         if (self.drain_at_stop and self.options.clock == 'lockstep'
                 and 'recorder' in self.processes and self.plant_process == 'plant'
                 and self.probe is not None):
@@ -314,10 +321,12 @@ class GraphRunner(RunnerBase):
         super().stop_all()
 
     def stop_signal(self, name: str) -> int:
-        """SIGTERM for the plant's process: rclpy's handler then only shuts its context
-        down. At a SIGINT it also raises a KeyboardInterrupt, which can land in the plant's
-        write of plant_stats.json after its spin loop ended, leaving the file empty (seen
-        after a stop mid-run)."""
+        """SIGTERM for the plant's process: rclpy's handler then only shuts its context down.
+
+        At a SIGINT it also raises a KeyboardInterrupt, which can land in the plant's write of
+        plant_stats.json after its spin loop ended, leaving the file empty (seen after a stop
+        mid-run).
+        """
         return signal.SIGTERM if name == self.plant_process else signal.SIGINT
 
     def nodes_stopped(self) -> None:
@@ -387,13 +396,16 @@ class GraphRunner(RunnerBase):
         return missing_endpoints(self.probe, expected, nodes)
 
     def unmatched_endpoints(self) -> list[str]:
-        """Designed pairs whose DDS match is not yet seen by BOTH sides, from the match
+        """Designed pairs whose DDS match is not yet seen by both sides.
+
+        Designed pairs whose DDS match is not yet seen by BOTH sides, from the match
         counts in the controllers' /diagnostics (``matched subscriptions <topic>`` of a
         publisher, ``matched publishers <topic>`` of a subscription; the plant checks its
         own endpoints before it starts). DDS matches each side on its own: a reliable
         volatile reader that has not matched the writer yet loses what it sends, and in
         lockstep one lost message of the first tick stalls the run. In lockstep every
-        controller must also have matched the plant's /clock."""
+        controller must also have matched the plant's /clock.
+        """
         extra = 1 if self.bag is not None else 0
         # The nodes report their topics' full names (under the run's namespace).
         ns = self.namespace
@@ -477,8 +489,10 @@ class GraphRunner(RunnerBase):
                     f'{status.message}\n{self.describe_nodes()}', EXIT_TIMEOUT)
 
     def plant_stats(self) -> dict | None:
-        """``OUT/plant_stats.json``, or None when absent or unreadable (the plant could not
-        write it whole: a full disk)."""
+        """``OUT/plant_stats.json``, or None when absent or unreadable.
+
+        The plant could not write it whole: a full disk.
+        """
         try:
             stats = json.loads((self.out / 'plant_stats.json').read_text(encoding='utf-8'))
         except (OSError, ValueError):
@@ -492,8 +506,10 @@ class GraphRunner(RunnerBase):
         return f' at t = {t:.3f} s' if t is not None else ''
 
     def check_recorder_space(self) -> None:
-        """DiskFull if the recorder reports that the disk filled up: the run stops there
-        (going on would record nothing more)."""
+        """DiskFull if the recorder reports that the disk filled up.
+
+        The run stops there (going on would record nothing more).
+        """
         found = self.probe.status_values(': recorder') if self.bag is not None else None
         if found is None:
             return
@@ -593,8 +609,10 @@ class GraphRunner(RunnerBase):
         self.start_plant()
 
     def retry(self, attempt: int) -> None:
-        """Stop the stalled attempt and clean up for a new one (a new domain when it is
-        ours, so that nothing of the old processes can be discovered again)."""
+        """Stop the stalled attempt and clean up for a new one.
+
+        A new domain when it is ours, so that nothing of the old processes can be discovered again.
+        """
         self.stop_all()
         self.probe.close()
         self.probe = None
@@ -657,7 +675,7 @@ class GraphRunner(RunnerBase):
                 result.exit_code, result.message = EXIT_FELL, 'the vehicle fell'
             else:
                 plant = self.processes[self.plant_process]
-                raise GraphError(f'node \'plant\' (pid {plant.pid}) exited with code {code}; '
+                raise GraphError(f"node 'plant' (pid {plant.pid}) exited with code {code}; "
                                  f'last lines of {plant.log_path}:\n{plant.log_tail()}')
         except GraphError as err:
             self.drain_at_stop = True

@@ -1,11 +1,11 @@
-"""Hardware mode of ``scripts/run_graph``: the controller nodes alone, against a real base.
+r"""Hardware mode of ``scripts/run_graph``: the controller nodes alone, against a real base.
 
 Examples
 --------
     scripts/run_graph --mode hardware --params-file my_base.yaml
-    scripts/run_graph --no-plant --scenario line.yaml --params-file my_base.yaml \\
-        --remap /joint_states:=/base/joint_states --remap /imu/data:=/base/imu \\
-        --remap /effort_controller/commands:=/base/wheel_effort_controller/commands \\
+    scripts/run_graph --no-plant --scenario line.yaml --params-file my_base.yaml \
+        --remap /joint_states:=/base/joint_states --remap /imu/data:=/base/imu \
+        --remap /effort_controller/commands:=/base/wheel_effort_controller/commands \
         --record out/robot/bag --duration 60
 
 What it does
@@ -178,11 +178,14 @@ class HardwareResult(RunResult):
 # ----------------------------------------------------------------------------- parameters
 
 def parse_remap(text: str, namespace: str = '') -> tuple[str, str]:
-    """``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; GraphError on bad syntax or a
+    """Parse a ``--remap`` rule ``'FROM:=TO'`` into absolute topic names.
+
+    ``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; GraphError on bad syntax or a
     side that is not a valid ROS topic name. A relative name is the nodes' one under
     ``namespace`` (rcl resolves both sides of a rule in the node's namespace):
     'imu/data:=base/imu' follows a vehicle's namespace, '/imu/data:=...' matches only a
-    node of the root namespace."""
+    node of the root namespace.
+    """
     try:
         check_remap(text)   # FROM:=TO, both sides valid ROS topic names
     except ParamsError as err:
@@ -193,7 +196,7 @@ def parse_remap(text: str, namespace: str = '') -> tuple[str, str]:
 
 
 def remapped(topic: str, remaps: Iterable[tuple[str, str]]) -> str:
-    """The name ``topic`` has after the remaps (the first rule that matches, as in ROS)."""
+    """Return the name ``topic`` has after the remaps (the first rule that matches, as in ROS)."""
     for source, target in remaps:
         if source == topic:
             return target
@@ -201,7 +204,7 @@ def remapped(topic: str, remaps: Iterable[tuple[str, str]]) -> str:
 
 
 def load_params_file(path: str | pathlib.Path) -> dict[str, Any]:
-    """A ROS params YAML ``{node: {ros__parameters: {...}}}``; GraphError if malformed."""
+    """Return a ROS params YAML ``{node: {ros__parameters: {...}}}``; GraphError if malformed."""
     path = pathlib.Path(path)
     try:
         data = load_yaml_text(path.read_bytes(), f'--params-file {path}')
@@ -221,8 +224,11 @@ def load_params_file(path: str | pathlib.Path) -> dict[str, Any]:
 
 
 def _matches(pattern: str, node: str) -> bool:
-    """Whether a params-file key (``/**``, ``eso``, ``/eso``, ``/**/eso``...) applies to the
-    node ``node`` (its full name without the leading slash: ``eso``, ``robot1/eso``)."""
+    """Whether a params-file key applies to the node ``node``.
+
+    Whether a params-file key (``/**``, ``eso``, ``/eso``, ``/**/eso``...) applies to the
+    node ``node`` (its full name without the leading slash: ``eso``, ``robot1/eso``).
+    """
     pattern = str(pattern).lstrip('/')
     return pattern == node or fnmatch.fnmatchcase(node, pattern.replace('**', '*'))
 
@@ -230,9 +236,12 @@ def _matches(pattern: str, node: str) -> bool:
 def node_parameters(node: str, generated: Mapping[str, Any],
                     params_files: Iterable[Mapping[str, Any]],
                     namespace: str = '') -> dict[str, Any]:
-    """The parameters ``node`` (under ``namespace``) gets, flattened
+    """Return the parameters ``node`` gets from the params files, flattened.
+
+    The parameters ``node`` (under ``namespace``) gets, flattened
     (``'model.wheel_radius'``): the generated params file's, then each extra file's
-    matching sections in order (later wins)."""
+    matching sections in order (later wins).
+    """
     flat = flatten(generated.get(node, {}).get('ros__parameters', {}))
     full_name = f'{namespace.strip("/")}/{node}'.lstrip('/')
     for data in params_files:
@@ -245,10 +254,13 @@ def node_parameters(node: str, generated: Mapping[str, Any],
 def hardware_parameters(scenario: Scenario, recorder: Mapping[str, Any] | None = None,
                         joints: tuple[str, str] = DEFAULT_JOINTS,
                         heartbeat: bool = True) -> dict[str, dict]:
-    """The generated params file of a hardware run: the controller nodes of
+    """Return the generated params file of a hardware run.
+
+    The generated params file of a hardware run: the controller nodes of
     :func:`~wip_bringup.params_files.graph_parameters` in real time, no plant (there the
     reference starts when the safety layer engages); with ``heartbeat``, /wip/estop is the
-    mixer's heartbeat (``safety.max_estop_age``)."""
+    mixer's heartbeat (``safety.max_estop_age``).
+    """
     data = graph_parameters(scenario, 'realtime', None, joints, recorder=recorder,
                             plant=False)
     if heartbeat:
@@ -262,10 +274,13 @@ def hardware_parameters(scenario: Scenario, recorder: Mapping[str, Any] | None =
 def hardware_outcome(events: list[dict[str, Any]], ended: str,
                      base_end_after: float | None = None,
                      missing: Iterable[str] = ()) -> tuple[int, str]:
-    """Exit code and message of a run that ended normally (``ended``: why), from the safety
+    """Exit code and message of a run that ended normally.
+
+    Exit code and message of a run that ended normally (``ended``: why), from the safety
     events seen until then: 0 if the controllers engaged and no FAULT followed (an e-stop is
     the user's stop), 1 (EXIT_FELL) if one did, 5 (EXIT_NOT_ENGAGED) if they never engaged.
-    ``missing``: base topics without a publisher/subscription, named when never engaged."""
+    ``missing``: base topics without a publisher/subscription, named when never engaged.
+    """
     engaged = next((i for i, e in enumerate(events) if e['state'] in ENGAGED_STATES), None)
     if engaged is None:
         why = ''
@@ -470,21 +485,24 @@ class HardwareRunner(RunnerBase):
             out[name] = {'publishers': publishers}
             if not publishers:
                 self.missing.append(name)
-                self.say(f'warning: no publisher on {name} (the base\'s {topic}) yet: the '
+                self.say(f"warning: no publisher on {name} (the base's {topic}) yet: the "
                          'safety layer commands zero torque until every input arrives')
         _, subscribers = self.probe.count(self.effort_topic)
         out[self.effort_topic] = {'subscriptions': subscribers}
         if not subscribers:
             self.missing.append(self.effort_topic)
-            self.say(f'warning: nothing subscribes to {self.effort_topic}: is the base\'s '
+            self.say(f"warning: nothing subscribes to {self.effort_topic}: is the base's "
                      'effort controller running (and the topic remapped)?')
         if all(name in self.missing for name in names):   # no sensor of the base at all
             self.say(self.no_base_message(names))
         return out
 
     def no_base_message(self, names: list[str]) -> str:
-        """None of the base's topics: what was expected, what the graph shows, and the
-        likely cause (the base on another domain or discovery range)."""
+        """Message for none of the base's topics in the graph.
+
+        None of the base's topics: what was expected, what the graph shows, and the
+        likely cause (the base on another domain or discovery range).
+        """
         node = self.probe.node
         # Every topic of the controllers' own nodes (they subscribe to the base's topics
         # too) is left out: what is left is what other nodes, a base among them, offer.
@@ -499,7 +517,7 @@ class HardwareRunner(RunnerBase):
                 f'publishers on {", ".join(names)} and a subscription on {self.effort_topic}'
                 f'; the graph shows {", ".join(shown) if shown else "no topic"} of other '
                 f'nodes; the base may be on another ROS_DOMAIN_ID or discovery range than '
-                f'this run\'s ({self.network.describe()}), or its topics need --remap')
+                f"this run's ({self.network.describe()}), or its topics need --remap")
 
     def watch(self) -> str:
         """Until SIGINT or the duration: progress, node health. Returns why it ended."""
@@ -527,8 +545,10 @@ class HardwareRunner(RunnerBase):
                 + ', '.join(f'{n} {rates[n]:.0f}' for n in HARDWARE_NODES if n in rates))
 
     def rates(self, window: float | None = None) -> dict[str, float]:
-        """Mean outputs per second of each node, from its /diagnostics output counts (over
-        the last ``window`` seconds, or the whole run)."""
+        """Mean outputs per second of each node.
+
+        From its /diagnostics output counts (over the last ``window`` seconds, or the whole run).
+        """
         out = {}
         for name, samples in self._counts.items():
             if window is not None:
@@ -549,8 +569,11 @@ class HardwareRunner(RunnerBase):
         self.send_zero_commands()
 
     def outcome(self, ended: str) -> tuple[int, str]:
-        """The run's exit code and message from the safety events seen until now (the
-        states the stop itself causes come later and are not judged)."""
+        """Return the run's exit code and message from the safety events seen until now.
+
+        The run's exit code and message from the safety events seen until now (the
+        states the stop itself causes come later and are not judged).
+        """
         return hardware_outcome(list(self.safety_events), ended,
                                 self.options.base_end_after, self.missing)
 
@@ -565,7 +588,7 @@ class HardwareRunner(RunnerBase):
             params_file = self.prepare()
             self.say(f'hardware mode: controllers of scenario {self.scenario.name!r} in real '
                      f'time, outputs in {self.out}')
-            self.say(f'ROS network: {self.network.describe()} (from the environment; ROS\'s '
+            self.say(f"ROS network: {self.network.describe()} (from the environment; ROS's "
                      'defaults where unset)')
             self.open_probe()
             self.launch(params_file)
@@ -624,7 +647,7 @@ def format_result(result: HardwareResult) -> str:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The hardware-mode options of ``scripts/run_graph``."""
+    """Add the hardware-mode options of ``scripts/run_graph``."""
     parser.add_argument('--params-file', action='append', default=[], metavar='FILE',
                         dest='params_files',
                         help='hardware mode: extra ROS params file for every node, after the '

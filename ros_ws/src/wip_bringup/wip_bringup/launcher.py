@@ -1,7 +1,9 @@
-"""Process machinery shared by the bring-up modes: simulation (:mod:`wip_bringup.graph`) and
-hardware mode (:mod:`wip_bringup.hardware`) start the same executables the way ``ros2 run``
-does, in a DDS domain of their own, watch them through a probe node, and stop them the
-same way. Both modes import this module; neither imports the other's internals.
+"""Process machinery shared by the bring-up modes.
+
+Simulation (:mod:`wip_bringup.graph`) and hardware mode (:mod:`wip_bringup.hardware`) start the
+same executables the way ``ros2 run`` does, in a DDS domain of their own, watch them through a
+probe node, and stop them the same way. Both modes import this module; neither imports the other's
+internals.
 """
 
 from __future__ import annotations
@@ -84,8 +86,11 @@ _NAMESPACE = re.compile(r'/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*')
 
 
 def parse_namespace(text: str | None) -> str:
-    """``--namespace``: '' (none) or an absolute namespace ('robot1' -> '/robot1');
-    GraphError (usage) if it is not a valid ROS namespace."""
+    """Parse ``--namespace``.
+
+    ``--namespace``: '' (none) or an absolute namespace ('robot1' -> '/robot1');
+    GraphError (usage) if it is not a valid ROS namespace.
+    """
     if text is None or text in ('', '/'):
         return ''
     if not _NAMESPACE.fullmatch(text):
@@ -96,9 +101,12 @@ def parse_namespace(text: str | None) -> str:
 
 
 def in_namespace(topic: str, namespace: str) -> str:
-    """The name a node of ``namespace`` gives its topic ``topic`` (written absolute, as
+    """Return the name a node of ``namespace`` gives its topic ``topic``.
+
+    The name a node of ``namespace`` gives its topic ``topic`` (written absolute, as
     in the graph's tables): the nodes use relative names, so it resolves under their
-    namespace; :data:`GLOBAL_TOPICS` stay as they are."""
+    namespace; :data:`GLOBAL_TOPICS` stay as they are.
+    """
     if not namespace or topic in GLOBAL_TOPICS:
         return topic
     return namespace + '/' + topic.lstrip('/')
@@ -109,8 +117,6 @@ PROBE_CLOSE_TIMEOUT = 10.0  # [s] wall: the probe node's destruction (Probe.clos
 GRACE_PERIOD = 5.0  # [s] after SIGINT before SIGKILL (controllers)
 RECORDER_GRACE_PERIOD = 60.0  # [s] the recorder writes the rest of its queue first
 LOG_TAIL_LINES = 15
-
-
 
 
 class GraphError(Exception):
@@ -129,8 +135,9 @@ MAX_CPU_LATENCY_US = 1_000_000
 
 
 class CpuLatencyRequest:
-    """A PM QoS request that idle CPUs wake up within ``microseconds`` [us], held until
-    :meth:`close` (or until this process ends: the kernel drops it with the file).
+    """A PM QoS request that idle CPUs wake up within ``microseconds`` [us].
+
+    Held until :meth:`close` (or until this process ends: the kernel drops it with the file).
 
     0 keeps idle CPUs out of their sleep states: they poll. Why it matters here: on a
     machine whose idle CPUs halt (a VM's haltpoll, a deep C-state on bare metal), the
@@ -138,7 +145,8 @@ class CpuLatencyRequest:
     CPU share at 200 Hz is several times the cost of the same work back to back
     (docs/realtime.md §2). The price: an idle CPU stays busy polling (power, and the host's
     CPU in a VM); it runs any other task at once, so it takes nothing from them.
-    GraphError (usage) with the reason when the device is missing or not writable."""
+    GraphError (usage) with the reason when the device is missing or not writable.
+    """
 
     def __init__(self, microseconds: int, device: str = CPU_LATENCY_DEVICE) -> None:
         self.microseconds = int(microseconds)
@@ -164,15 +172,17 @@ class CpuLatencyRequest:
 
 @dataclasses.dataclass(frozen=True)
 class Scheduling:
-    """Real-time scheduling of a process: SCHED_FIFO ``priority`` (1..99; 0: the normal
-    policy), the CPUs it may run on (empty: all) and, while it runs, a CPU wake-up latency
-    request (``cpu_latency``, held by the launcher).
+    """Real-time scheduling of a process.
+
+    SCHED_FIFO ``priority`` (1..99; 0: the normal policy), the CPUs it may run on (empty: all) and,
+    while it runs, a CPU wake-up latency request (``cpu_latency``, held by the launcher).
 
     Applied by starting the program through util-linux's ``chrt`` and ``taskset``
     (:meth:`command_prefix`), not by Python code between fork and exec (``preexec_fn``):
     the launching process has DDS threads, and a child forked from a threaded process
     may deadlock before exec (the subprocess documentation warns of it; a run here hung
-    in such a child). The policy is inherited by every thread the program starts."""
+    in such a child). The policy is inherited by every thread the program starts.
+    """
 
     priority: int = 0
     cpus: tuple[int, ...] = ()
@@ -184,8 +194,11 @@ class Scheduling:
     cpu_latency: int | None = None
 
     def check(self) -> None:
-        """GraphError (usage) naming the option if the values are absurd or this user may
-        not apply them (tried on a throwaway ``true``)."""
+        """Check that the scheduling can be applied.
+
+        GraphError (usage) naming the option if the values are absurd or this user may
+        not apply them (tried on a throwaway ``true``).
+        """
         if not 0 <= self.priority <= 99:
             raise GraphError(f'--rt-priority: must be in 0..99, got {self.priority}',
                              EXIT_USAGE)
@@ -215,13 +228,19 @@ class Scheduling:
                 EXIT_USAGE)
 
     def at_start(self) -> 'Scheduling':
-        """What a process gets at its start when its priority is raised only once it is up
-        (:meth:`NodeProcess.raise_priority`): its CPUs, the normal policy."""
+        """Return what a process gets at its start when its priority is raised later.
+
+        What a process gets at its start when its priority is raised only once it is up
+        (:meth:`NodeProcess.raise_priority`): its CPUs, the normal policy.
+        """
         return dataclasses.replace(self, priority=0, rt_cpu_limit=0.0)
 
     def command_prefix(self) -> list[str]:
-        """``prlimit``/``chrt``/``taskset`` words to put before a program's command line
-        ([] if nothing is asked for); each execs the next, so the pid is the program's."""
+        """``prlimit``/``chrt``/``taskset`` words to put before a program's command line.
+
+        ``prlimit``/``chrt``/``taskset`` words to put before a program's command line
+        ([] if nothing is asked for); each execs the next, so the pid is the program's.
+        """
         words: list[str] = []
         limit = self.priority and self.rt_cpu_limit > 0.0
         for tool, wanted in (('prlimit', limit), ('chrt', self.priority),
@@ -273,9 +292,11 @@ FASTDDS_PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_
 
 
 def graph_environment(domain_id: int, private: bool = True) -> dict[str, str]:
-    """Environment of the node processes: our DDS domain, plain logs; with ``private`` (a
-    simulation) localhost-only discovery unless the user chose a range, else (hardware mode)
-    the user's discovery settings as they are."""
+    """Environment of the node processes.
+
+    Our DDS domain, plain logs; with ``private`` (a simulation) localhost-only discovery unless the
+    user chose a range, else (hardware mode) the user's discovery settings as they are.
+    """
     env = dict(os.environ)
     env['ROS_DOMAIN_ID'] = str(domain_id)
     if private:
@@ -293,10 +314,13 @@ def graph_environment(domain_id: int, private: bool = True) -> dict[str, str]:
 
 
 def choose_domain_id() -> int:
-    """``$ROS_DOMAIN_ID`` if the user (or a test harness) set it, else a private domain
+    """Return the DDS domain of a run.
+
+    ``$ROS_DOMAIN_ID`` if the user (or a test harness) set it, else a private domain
     reserved on this host for the life of this process (wip_bringup.private_domain); the
     pid-derived default of scripts/_env.sh counts as unset, since two runs' pids can map to
-    one domain."""
+    one domain.
+    """
     value = os.environ.get('ROS_DOMAIN_ID', '').strip()
     defaulted = f'ROS_DOMAIN_ID={value}' in os.environ.get(ROS_DEFAULTS_VARIABLE, '').split()
     if value and not defaulted:
@@ -334,8 +358,11 @@ class RosNetwork:
 
 
 def ros_network(environ: Mapping[str, str] | None = None) -> RosNetwork:
-    """The ROS network settings of ``environ`` (default ``os.environ``), with ROS's own
-    defaults where unset: domain 0, discovery range SUBNET."""
+    """Return the ROS network settings of ``environ``.
+
+    The ROS network settings of ``environ`` (default ``os.environ``), with ROS's own
+    defaults where unset: domain 0, discovery range SUBNET.
+    """
     environ = os.environ if environ is None else environ
     value = environ.get('ROS_DOMAIN_ID', '').strip()
     try:
@@ -348,10 +375,13 @@ def ros_network(environ: Mapping[str, str] | None = None) -> RosNetwork:
 
 
 def use_user_ros_environment(environ: MutableMapping[str, str] | None = None) -> RosNetwork:
-    """Drop from ``environ`` (default ``os.environ``) the private domain and localhost-only
+    """Drop the private domain and localhost-only discovery of scripts/_env.sh.
+
+    Drop from ``environ`` (default ``os.environ``) the private domain and localhost-only
     discovery that scripts/_env.sh set where the user had none (a robot's base is on the
     user's domain, on the network), keeping every value the user set; return the settings
-    then in force. For hardware mode and check_base; simulations keep their private ones."""
+    then in force. For hardware mode and check_base; simulations keep their private ones.
+    """
     environ = os.environ if environ is None else environ
     for item in environ.pop(ROS_DEFAULTS_VARIABLE, '').split():
         name, _, value = item.partition('=')
@@ -368,17 +398,20 @@ class NodeProcess:
                  env: dict[str, str], scheduling: Scheduling | None = None,
                  pass_fds: tuple[int, ...] = (), own_group: bool = False,
                  stop_signal: int = signal.SIGINT) -> None:
-        """``pass_fds``: descriptors the process inherits (the run's output locks: it holds
+        """Start ``command`` as the node process ``name``; its options below.
+
+        ``pass_fds``: descriptors the process inherits (the run's output locks: it holds
         them until it exits, also when the launcher dies first); ``own_group``: a process
         group of its own, out of the reach of the terminal's Ctrl-C (sent to the
         foreground group): the process gets SIGINT only from the launcher, when the
         launcher chooses. Not a session of its own: with autogroup scheduling (Linux) that
         would also change how the CPU is shared between it and the other nodes.
-        ``stop_signal``: what :meth:`interrupt` sends (SIGINT, as Ctrl-C)."""
+        ``stop_signal``: what :meth:`interrupt` sends (SIGINT, as Ctrl-C).
+        """
         self.name = name
         self.command = command
         self.log_path = log_path
-        self._log = open(log_path, 'w', encoding='utf-8')
+        self._log = open(log_path, 'w', encoding='utf-8')  # noqa: SIM115 - closed at the stop
         prefix = scheduling.command_prefix() if scheduling else []
         self.process = subprocess.Popen(prefix + command, stdout=self._log,
                                         stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
@@ -390,7 +423,9 @@ class NodeProcess:
         self.killed = False
 
     def raise_priority(self, scheduling: Scheduling) -> None:
-        """Put the running process and every thread it has at ``scheduling.priority``
+        """Put the running process and its threads at ``scheduling.priority``.
+
+        Put the running process and every thread it has at ``scheduling.priority``
         (SCHED_FIFO; its threads started later inherit it), with ``rt_cpu_limit``;
         GraphError with the tool's message if that fails.
 
@@ -398,7 +433,8 @@ class NodeProcess:
         SCHED_FIFO on a busy 2-core machine ran their imports at real-time priority; one
         node came up 38 s late (Fast DDS's port lock timed out while a FIFO process held
         the CPU) and one was killed by RLIMIT_RTTIME (docs/realtime.md §3). Start-up needs
-        no real-time priority; the control loop does."""
+        no real-time priority; the control loop does.
+        """
         if not scheduling.priority:
             return
         commands = [['chrt', '--fifo', '--all-tasks', '--pid', str(scheduling.priority),
@@ -444,8 +480,10 @@ class NodeProcess:
         return self.process.returncode
 
     def cpu_seconds(self) -> float | None:
-        """CPU time [s] used so far (user + system, all threads), from /proc; None if
-        unavailable (not Linux, or the process has exited)."""
+        """CPU time [s] used so far (user + system, all threads).
+
+        From /proc; None if unavailable (not Linux, or the process has exited).
+        """
         try:
             with open(f'/proc/{self.pid}/stat', encoding='ascii') as stream:
                 fields = stream.read().rsplit(')', 1)[1].split()
@@ -496,9 +534,12 @@ class Probe:
         self.start_client = self.node.create_client(Trigger, 'plant/start')
 
     def own_status_name(self, name: str) -> str | None:
-        """A /diagnostics status name ('/robot1/eso: role') without the run's namespace
+        """Return a /diagnostics status name without the run's namespace.
+
+        A /diagnostics status name ('/robot1/eso: role') without the run's namespace
         ('/eso: role'), or None for a node of another namespace (/diagnostics is global:
-        another vehicle of the domain reports there too)."""
+        another vehicle of the domain reports there too).
+        """
         node, sep, rest = name.partition(':')
         parent = node.rpartition('/')[0]
         if parent != self.namespace:
@@ -572,8 +613,11 @@ class Probe:
 
 
 def viewer_wanted(options) -> bool:
-    """``options.viewer`` if set, else whether anyone will see its topics (a bag is
-    recorded or the live view is served)."""
+    """Whether the viewer runs.
+
+    ``options.viewer`` if set, else whether anyone will see its topics (a bag is
+    recorded or the live view is served).
+    """
     if options.viewer is not None:
         return bool(options.viewer)
     return options.record is not None or options.foxglove_port is not None
@@ -592,7 +636,7 @@ LOCK_FILE = '.run_graph.lock'
 
 
 def _lock_holder(path: pathlib.Path) -> str:
-    """The pid holding a flock on ``path``, from /proc/locks (Linux), else 'unknown'."""
+    """Return the pid holding a flock on ``path``, from /proc/locks (Linux), else 'unknown'."""
     try:
         info = path.stat()
         with open('/proc/locks', encoding='ascii') as stream:
@@ -608,7 +652,9 @@ def _lock_holder(path: pathlib.Path) -> str:
 
 
 def lock_output(path: pathlib.Path, option: str, directory: bool = False) -> int:
-    """Take the exclusive lock of one output (a run directory: its :data:`LOCK_FILE`; a bag
+    """Take the exclusive lock of one output.
+
+    Take the exclusive lock of one output (a run directory: its :data:`LOCK_FILE`; a bag
     directory, ``directory``: the directory itself, which must stay empty for the
     recorder); the descriptor, held until the run and every process it started have
     ended (the kernel drops the lock then, whatever killed them).
@@ -638,7 +684,9 @@ def lock_output(path: pathlib.Path, option: str, directory: bool = False) -> int
 
 def prepare_run_directory(out: pathlib.Path, bag: pathlib.Path | None,
                           extra_logs: tuple[str, ...] = ()) -> list[int]:
-    """Check the outputs of a run (``--out`` directory, ``--record`` bag) before anything is
+    """Check, lock and create the outputs of a run.
+
+    Check the outputs of a run (``--out`` directory, ``--record`` bag) before anything is
     written, lock them (:func:`lock_output`: one run per folder), then create ``OUT/logs``
     (with its marker), replacing only the logs of an earlier run of ours (``OUT/logs`` and
     the ``extra_logs`` glob patterns in OUT). Returns the lock descriptors.
@@ -712,7 +760,7 @@ FOXGLOVE_PORT = 8765  # Foxglove's default WebSocket port
 
 
 def foxglove_port(text: str) -> int:
-    """argparse type of --foxglove: a TCP port, 0..65535."""
+    """Parse --foxglove (an argparse type): a TCP port, 0..65535."""
     try:
         port = int(text)
     except ValueError:
@@ -726,7 +774,7 @@ def add_view_arguments(parser: argparse.ArgumentParser) -> None:
     """--foxglove [PORT], --foxglove-host, --viewer/--no-viewer (simulation and hardware mode)."""
     parser.add_argument('--foxglove', nargs='?', type=foxglove_port, const=FOXGLOVE_PORT,
                         default=None, metavar='PORT',
-                        help='serve the graph\'s topics live over the Foxglove WebSocket '
+                        help="serve the graph's topics live over the Foxglove WebSocket "
                         f'protocol on PORT (default {FOXGLOVE_PORT}; 0 = any free port), '
                         'with the e-stop services /wip/estop/{engage,release,reset}')
     parser.add_argument('--foxglove-host', default='127.0.0.1', metavar='ADDRESS',

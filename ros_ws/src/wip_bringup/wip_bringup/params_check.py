@@ -1,5 +1,6 @@
-"""Checks of what a user gives the nodes of a run, before any process starts: params files
-(``--params-file``) and topic remappings (``--remap``).
+"""Checks of what a user gives the nodes of a run, before any process starts.
+
+Params files (``--params-file``) and topic remappings (``--remap``).
 
 A params file is checked against the one declaration of every node parameter (the ``NODES``
 registries of :mod:`wip_control.nodes.settings`, :mod:`wip_bag.settings` and
@@ -47,7 +48,7 @@ class ParamsError(ValueError):
 
 
 def node_registry() -> dict[str, tuple[tuple[str, type], ...]]:
-    """executable (node name) -> the (prefix, dataclass) groups it declares."""
+    """Return, per executable (node name), the (prefix, dataclass) groups it declares."""
     merged: dict[str, tuple[tuple[str, type], ...]] = {}
     for module in REGISTRY_MODULES:
         merged.update(importlib.import_module(module).NODES)
@@ -77,9 +78,12 @@ def declarations(node: str) -> dict[str, Declared]:
 
 
 def section_matches(key: str, node: str) -> bool:
-    """Whether the params-file section ``key`` (``/**``, ``eso``, ``/eso``, ``/**/eso``,
+    """Whether the params-file section ``key`` applies to the node ``node``.
+
+    Whether the params-file section ``key`` (``/**``, ``eso``, ``/eso``, ``/**/eso``,
     ``/robot/eso``...) applies to the node ``node``: its last name component as a glob
-    (``**`` and ``*`` match every node), whatever the namespace."""
+    (``**`` and ``*`` match every node), whatever the namespace.
+    """
     pattern = str(key).strip().rstrip('/')
     last = pattern.rsplit('/', 1)[-1] if pattern else ''
     if last in ('', '*', '**'):
@@ -95,8 +99,11 @@ def _nearest(name: str, candidates: Iterable[str]) -> str:
 
 
 def _ros_typed(name: str, value: Any, field_type: Any) -> None:
-    """ConfigError if ROS would refuse ``value`` for a parameter declared with the type of
-    ``field_type`` (rclpy: 'Wrong parameter type'): ROS reads ``1`` as an integer."""
+    """Check that ROS takes ``value`` for a parameter of the type of ``field_type``.
+
+    ConfigError if ROS would refuse ``value`` for a parameter declared with the type of
+    ``field_type`` (rclpy: 'Wrong parameter type'): ROS reads ``1`` as an integer.
+    """
     origin = typing.get_origin(field_type)
     if origin is tuple:
         element = typing.get_args(field_type)[0]
@@ -124,11 +131,14 @@ def _check_value(name: str, value: Any, declared: Declared) -> None:
 
 def check_params_files(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequence[str],
                        generated: Mapping[str, Any] | None = None) -> list[str]:
-    """Check parsed params files (``(path, {section: {'ros__parameters': {...}}})`` each)
+    """Check parsed params files for a run of the nodes ``nodes``.
+
+    Check parsed params files (``(path, {section: {'ros__parameters': {...}}})`` each)
     for a run of the nodes ``nodes``; ``generated`` is the run's own params file, which
     comes first on each command line (the sections a node builds from its parameters are
     checked with it). Raises :class:`ParamsError` (one line) on the first problem; returns
-    warnings (a section for a known node that this run does not start)."""
+    warnings (a section for a known node that this run does not start).
+    """
     registry = node_registry()
     warnings: list[str] = []
     running = [n for n in nodes if n in registry]
@@ -172,9 +182,12 @@ def check_params_files(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Se
 
 def _check_groups(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequence[str],
                   generated: Mapping[str, Any]) -> None:
-    """Each node's groups built from its merged parameters (generated file, then each
+    """Check each node's groups as the node builds them.
+
+    Each node's groups built from its merged parameters (generated file, then each
     file's matching sections in order) as the node builds them: the checks across fields
-    of a group (a dataclass's ``validate``)."""
+    of a group (a dataclass's ``validate``).
+    """
     for node in nodes:
         merged = flatten(generated.get(node, {}).get('ros__parameters', {}))
         given = set()
@@ -212,8 +225,11 @@ def _check_groups(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequenc
 
 
 def check_remap(text: str) -> tuple[str, str]:
-    """``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; :class:`ParamsError` on a bad
-    rule (not FROM:=TO, or a side that is not a valid ROS topic name)."""
+    """Parse a ``--remap`` rule ``'FROM:=TO'`` into absolute topic names.
+
+    ``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; :class:`ParamsError` on a bad
+    rule (not FROM:=TO, or a side that is not a valid ROS topic name).
+    """
     source, sep, target = text.partition(':=')
     source, target = source.strip(), target.strip()
     if not sep or not source or not target or ':=' in target:
@@ -231,9 +247,12 @@ def check_remap(text: str) -> tuple[str, str]:
 
 
 def unmatched_remaps(remaps: Iterable[tuple[str, str]], topics: Iterable[str]) -> list[str]:
-    """A warning for each rule whose FROM is none of ``topics`` (it would change nothing)."""
+    """Return a warning for each rule whose FROM is none of ``topics``.
+
+    It would change nothing.
+    """
     topics = set(topics)
-    return [f'--remap {source}:={target}: no topic {source} in this run\'s graph (the rule '
+    return [f"--remap {source}:={target}: no topic {source} in this run's graph (the rule "
             f'changes nothing){_nearest(source, topics)}'
             for source, target in remaps if source not in topics]
 
@@ -248,10 +267,13 @@ def check_run_inputs(paths: Sequence[str], files: Sequence[Mapping[str, Any]],
                      nodes: Sequence[str], generated: Mapping[str, Any],
                      remaps: Sequence[tuple[str, str]], topics: Iterable[str] = ()
                      ) -> list[str]:
-    """:func:`check_params_files` of the parsed ``files`` (given as ``paths``) and the
+    """Check the params files and remappings of a run.
+
+    :func:`check_params_files` of the parsed ``files`` (given as ``paths``) and the
     :func:`unmatched_remaps` warnings against ``topics`` (with :data:`OTHER_TOPICS`, the
     viewer's and the effort topics the files set), for run_graph's hardware mode and
-    check_base; GraphError (exit 2) with the one-line problem. Returns the warnings."""
+    check_base; GraphError (exit 2) with the one-line problem. Returns the warnings.
+    """
     from wip_viewer.viewer_core import VIEWER_TOPICS
     from .launcher import EXIT_USAGE, GraphError
     try:

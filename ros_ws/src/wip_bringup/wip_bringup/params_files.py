@@ -222,4 +222,3 @@ def write_params_file(scenario: Scenario, path: str | pathlib.Path, clock_mode: 
                      width=99)
     write_atomic(path, header + text)  # whole or not at all (a full disk)
     return path
-

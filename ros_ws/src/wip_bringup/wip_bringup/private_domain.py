@@ -1,5 +1,6 @@
-"""A private DDS domain per run or test, reserved on this host so that two runs (or two test
-sessions) started side by side never share one.
+"""A private DDS domain per run or test.
+
+Reserved on this host so that two runs (or two test sessions) started side by side never share one.
 
 Simulations and tests run in a random domain of their own with localhost-only discovery.
 Picking at random alone collides: with a few sessions running at once, two processes of
@@ -24,9 +25,12 @@ LOCK_DIRECTORY = pathlib.Path(tempfile.gettempdir()) / 'wip-ros-domains'
 
 
 def reserve_private_domain(rng: random.Random | None = None) -> tuple[int, int]:
-    """A domain id no other process of this host holds, and the descriptor that holds it
+    """Reserve a domain id no other process of this host holds.
+
+    A domain id no other process of this host holds, and the descriptor that holds it
     (close it to release the domain). Falls back to a random id, unreserved (-1), when all
-    are taken or the lock directory cannot be used."""
+    are taken or the lock directory cannot be used.
+    """
     rng = rng or random.Random()
     candidates = list(range(FIRST_DOMAIN_ID, LAST_DOMAIN_ID + 1))
     rng.shuffle(candidates)
@@ -60,8 +64,11 @@ _TAKEN: list[int] = []
 
 
 def take_private_domain() -> int:
-    """A reserved domain id held until :func:`release_taken_domains` (for a test harness:
-    its fixture releases them after each test)."""
+    """Return a reserved domain id held until :func:`release_taken_domains`.
+
+    A reserved domain id held until :func:`release_taken_domains` (for a test harness:
+    its fixture releases them after each test).
+    """
     domain_id, descriptor = reserve_private_domain()
     _TAKEN.append(descriptor)
     return domain_id

@@ -1,6 +1,8 @@
-"""What the two runners of ``scripts/run_graph`` share: :class:`RunnerBase`, the life of one
-run (output directory, node processes, probe, waiting for the nodes, watching them, stopping
-them, ``OUT/run.json``), and :class:`RunResult`, the part of its result both write.
+"""What the two runners of ``scripts/run_graph`` share.
+
+:class:`RunnerBase`, the life of one run (output directory, node processes, probe, waiting for the
+nodes, watching them, stopping them, ``OUT/run.json``), and :class:`RunResult`, the part of its
+result both write.
 
 The simulation runner (:class:`wip_bringup.graph.GraphRunner`: the plant, a /clock in
 lockstep, the ``/plant/start`` service) and the hardware runner
@@ -50,8 +52,11 @@ STOP_EXIT_CODES = tuple(128 + int(number) for number in STOP_SIGNALS)
 
 
 class StopRequested(KeyboardInterrupt):
-    """SIGTERM or SIGHUP: a KeyboardInterrupt, so that every place that stops cleanly on
-    Ctrl-C does on these too; ``signum`` says which."""
+    """SIGTERM or SIGHUP as a KeyboardInterrupt.
+
+    SIGTERM or SIGHUP: a KeyboardInterrupt, so that every place that stops cleanly on
+    Ctrl-C does on these too; ``signum`` says which.
+    """
 
     def __init__(self, signum: int) -> None:
         super().__init__(signal.Signals(signum).name)
@@ -64,10 +69,13 @@ def _raise_stop(signum, frame) -> None:
 
 @contextlib.contextmanager
 def stop_signals():
-    """SIGTERM and SIGHUP raise :class:`StopRequested` in the main thread while a run is
+    """Turn SIGTERM, SIGHUP and SIGINT into exceptions in the main thread.
+
+    SIGTERM and SIGHUP raise :class:`StopRequested` in the main thread while a run is
     in this block, and SIGINT KeyboardInterrupt: set here too, because a program started in
     the background by a non-interactive shell (a CI step, ``cmd &``) inherits SIGINT
-    ignored, and Python then installs no handler of its own."""
+    ignored, and Python then installs no handler of its own.
+    """
     if threading.current_thread() is not threading.main_thread():
         yield   # handlers can only be set from the main thread; the caller stops it
         return
@@ -81,7 +89,7 @@ def stop_signals():
 
 
 def stop_signal_number(error: KeyboardInterrupt) -> int:
-    """The signal behind a KeyboardInterrupt (SIGINT unless it is a StopRequested)."""
+    """Return the signal behind a KeyboardInterrupt (SIGINT unless it is a StopRequested)."""
     return error.signum if isinstance(error, StopRequested) else int(signal.SIGINT)
 
 
@@ -172,7 +180,7 @@ class RunnerBase:
             print(f'run_graph: {text}', file=sys.stderr, flush=True)
 
     def progress(self, text: str) -> None:
-        """A line that the next one replaces on a terminal."""
+        """Print a line that the next one replaces on a terminal."""
         if self.options.quiet:
             return
         if self._interactive:
@@ -191,11 +199,14 @@ class RunnerBase:
         self.namespace = parse_namespace(self.options.namespace)
 
     def namespaced_params_file(self, params_file: pathlib.Path) -> None:
-        """Under a namespace, the generated params file's node keys ('eso') become the
+        """Put the generated params file under the run's namespace.
+
+        Under a namespace, the generated params file's node keys ('eso') become the
         nodes' full names ('/robot1/eso': a key without a leading slash names a node of
         the root namespace only), and the odometry frames get the namespace as a prefix
         ('robot1/odom', 'robot1/base_link': the usual frame_prefix of a robot among
-        several; 'map' stays shared). A --params-file of the user comes after it."""
+        several; 'map' stays shared). A --params-file of the user comes after it.
+        """
         if not self.namespace:
             return
         text = params_file.read_text(encoding='utf-8')
@@ -233,7 +244,7 @@ class RunnerBase:
 
     @staticmethod
     def load_scenario(path: str | None) -> Scenario:
-        """The scenario file (None: the paper's); GraphError (usage) if it is invalid."""
+        """Return the scenario file (None: the paper's); GraphError (usage) if it is invalid."""
         try:
             return load_scenario(path)
         except ConfigError as err:
@@ -241,9 +252,12 @@ class RunnerBase:
 
     def prepare_outputs(self, stale: Iterable[str] = ('run.json',),
                         extra_logs: tuple[str, ...] = ()) -> pathlib.Path:
-        """Check and create the run directory (nothing written before: see
+        """Prepare the run directory.
+
+        Check and create the run directory (nothing written before: see
         :func:`~wip_bringup.launcher.prepare_run_directory`), remove the ``stale`` outputs
-        of an earlier run, write ``OUT/scenario.yaml``; returns its path."""
+        of an earlier run, write ``OUT/scenario.yaml``; returns its path.
+        """
         self.locks = prepare_run_directory(self.out, self.bag, extra_logs=extra_logs)
         self.prepared = True
         for name in stale:
@@ -254,8 +268,11 @@ class RunnerBase:
 
     def recorder_parameters(self, topics: list[str],
                             discovery_period: float) -> dict[str, Any] | None:
-        """The recorder's parameters (None without --record): ``topics`` and, when the
-        viewer runs, its topics."""
+        """Return the recorder's parameters.
+
+        The recorder's parameters (None without --record): ``topics`` and, when the
+        viewer runs, its topics.
+        """
         if self.bag is None:
             return None
         topics = list(topics) + (list(VIEWER_TOPICS) if self.options.viewer else [])
@@ -265,8 +282,11 @@ class RunnerBase:
                 'discovery_period': discovery_period}
 
     def view_parameters(self, model, position_std: float | None = None) -> dict[str, dict]:
-        """Params-file sections of the viewer (the vehicle drawn with ``model``'s
-        dimensions) and of the Foxglove bridge, for those that run."""
+        """Params-file sections of the viewer and of the Foxglove bridge.
+
+        Params-file sections of the viewer (the vehicle drawn with ``model``'s
+        dimensions) and of the Foxglove bridge, for those that run.
+        """
         options = self.options
         view: dict[str, dict] = {}
         if options.viewer:
@@ -282,15 +302,18 @@ class RunnerBase:
         return view
 
     def controller_processes(self) -> list[str]:
-        """'controllers' (composed: the six nodes in one process), one per node (separate),
-        or none of their own (single: they are in the simulation process)."""
+        """Return the processes of the controllers.
+
+        'controllers' (composed: the six nodes in one process), one per node (separate),
+        or none of their own (single: they are in the simulation process).
+        """
         layout = self.options.layout
         if layout == 'single':
             return []
         return ['controllers'] if layout == 'composed' else list(CONTROLLER_NODES)
 
     def extra_processes(self) -> list[str]:
-        """The processes of :attr:`EXTRA_PROCESSES` (a runner may hold them otherwise)."""
+        """Return the processes of :attr:`EXTRA_PROCESSES` (a runner may hold them otherwise)."""
         return list(self.EXTRA_PROCESSES)
 
     def view_nodes(self) -> list[str]:
@@ -298,18 +321,24 @@ class RunnerBase:
                 + (['foxglove_bridge'] if self.options.foxglove_port is not None else []))
 
     def node_names(self) -> list[str]:
-        """The ROS nodes of the run (whatever the processes that hold them)."""
+        """Return the ROS nodes of the run (whatever the processes that hold them)."""
         return (list(CONTROLLER_NODES) + list(self.EXTRA_PROCESSES)
                 + (['recorder'] if self.bag is not None else []) + self.view_nodes())
 
     def extra_arguments(self, name: str) -> tuple[list[str], list[str]]:
-        """Hook: (params files after the generated one, ROS arguments after the node name)
-        of the process ``name``."""
+        """Return extra arguments of the process ``name`` (hook).
+
+        Hook: (params files after the generated one, ROS arguments after the node name)
+        of the process ``name``.
+        """
         return [], []
 
     def commands(self, params_file: pathlib.Path) -> dict[str, list[str]]:
-        """The command line of every process, in start order (the recorder first: it must
-        not miss the start)."""
+        """Return the command line of every process, in start order.
+
+        The command line of every process, in start order (the recorder first: it must
+        not miss the start).
+        """
         names = ((['recorder'] if self.bag is not None else []) + self.controller_processes()
                  + self.extra_processes() + self.view_nodes())
         out = {}
@@ -328,13 +357,15 @@ class RunnerBase:
         return out
 
     def scheduled(self, name: str) -> bool:
-        """Whether the process ``name`` gets ``options.scheduling``: the controllers only
-        (single: the simulation process holds them, and the plant with them). Nothing else
-        (the plant, the recorder, the viewer, the bridge) may take the CPU from them."""
+        """Whether the process ``name`` gets ``options.scheduling``.
+
+        The controllers only (single: the simulation process holds them, and the plant with them).
+        Nothing else (the plant, the recorder, the viewer, the bridge) may take the CPU from them.
+        """
         return name in self.controller_processes() or name == 'simulation'
 
     def stop_signal(self, name: str) -> int:
-        """Hook: the signal that stops the process ``name`` (SIGINT, as Ctrl-C)."""
+        """Return the signal that stops the process ``name`` (hook; SIGINT, as Ctrl-C)."""
         return signal.SIGINT
 
     def start_processes(self, params_file: pathlib.Path) -> None:
@@ -371,7 +402,7 @@ class RunnerBase:
 
     # -- watching ---------------------------------------------------------------------------
     def node_died(self, name: str) -> None:
-        """Hook: called when the process ``name`` is found dead, before the error."""
+        """Handle the process ``name`` found dead, before the error (hook)."""
 
     def check_alive(self, exempt: Iterable[str] = ()) -> None:
         """Raise GraphError naming a node that exited (other than the ``exempt`` ones)."""
@@ -384,20 +415,23 @@ class RunnerBase:
                              f'last lines of {process.log_path}:\n{process.log_tail()}')
 
     def missing_from_view(self, nodes: list[str]) -> list[str]:
-        """Hook: what the probe's graph view still lacks (default: absent nodes)."""
+        """Return what the probe's graph view still lacks (hook; default: absent nodes)."""
         present = self.probe.node_names()
         absent = [n for n in nodes if n not in present]
         return ['nodes ' + ', '.join(absent)] if absent else []
 
     def unmatched_endpoints(self) -> list[str]:
-        """Hook: endpoints not yet matched although the graph view is complete."""
+        """Return endpoints not yet matched although the graph view is complete (hook)."""
         return []
 
     def wait_for_nodes(self) -> None:
-        """Until the probe sees every node (:meth:`missing_from_view`), then a /diagnostics
+        """Wait until every node is seen and has matched its peers.
+
+        Until the probe sees every node (:meth:`missing_from_view`), then a /diagnostics
         message of every node sent after that moment (the probe's view can be complete
         before two *other* nodes have matched each other; their exchange takes
-        milliseconds, the wait up to 1 s) and no :meth:`unmatched_endpoints`."""
+        milliseconds, the wait up to 1 s) and no :meth:`unmatched_endpoints`.
+        """
         nodes = self.node_names()
         deadline = time.monotonic() + self.options.discovery_timeout
         missing = ['(not checked yet)']
@@ -424,7 +458,7 @@ class RunnerBase:
 
     # -- stopping -------------------------------------------------------------------------
     def nodes_stopped(self) -> None:
-        """Hook: every process but the recorder has stopped."""
+        """Handle the stop of every process but the recorder (hook)."""
 
     def stop_all(self) -> None:
         """SIGINT every process (recorder last), SIGKILL after the grace period."""
@@ -462,8 +496,11 @@ class RunnerBase:
         return used
 
     def shut_down(self, result: RunResult) -> None:
-        """The end of every run, whatever happened: the nodes' last /diagnostics into
-        ``result``, every process stopped, the probe closed."""
+        """End the run, whatever happened.
+
+        The end of every run, whatever happened: the nodes' last /diagnostics into
+        ``result``, every process stopped, the probe closed.
+        """
         if self.probe is not None:
             self.probe.spin(0.05)
             result.node_diagnostics = {
@@ -501,8 +538,11 @@ class RunnerBase:
                               json.dumps(result.summary(), indent=2) + '\n')
 
     def write_output(self, result: RunResult, path: pathlib.Path, data: bytes | str) -> None:
-        """Write one output atomically; a full disk is said in ``result`` (and on stderr),
-        not raised: the run's other outputs are still written where they fit."""
+        """Write one output atomically.
+
+        A full disk is said in ``result`` (and on stderr), not raised: the run's other outputs are
+        still written where they fit.
+        """
         try:
             write_atomic(path, data)
         except OSError as err:
@@ -516,8 +556,11 @@ class RunnerBase:
 
 
 def print_result(result: RunResult, formatted: Callable[[RunResult], str]) -> int:
-    """The end of ``scripts/run_graph`` in either mode: the result on stdout (a run refused
-    before anything ran: only its error, on stderr); the exit status."""
+    """Print the result of ``scripts/run_graph`` and return its exit status.
+
+    The end of ``scripts/run_graph`` in either mode: the result on stdout (a run refused
+    before anything ran: only its error, on stderr); the exit status.
+    """
     if result.exit_code == EXIT_USAGE:  # Refused before anything ran: nothing to show.
         print(f'run_graph: error: {result.message}', file=sys.stderr)
         return EXIT_USAGE
@@ -526,8 +569,11 @@ def print_result(result: RunResult, formatted: Callable[[RunResult], str]) -> in
 
 
 def options_from_args(args, **own) -> dict[str, Any]:
-    """Keyword arguments of either mode's options from ``scripts/run_graph``'s parsed
-    arguments: those both modes have, then the mode's ``own``."""
+    """Keyword arguments of either mode's options.
+
+    Keyword arguments of either mode's options from ``scripts/run_graph``'s parsed
+    arguments: those both modes have, then the mode's ``own``.
+    """
     return dict(scenario=args.scenario, record=args.record, duration=args.duration,
                 discovery_timeout=args.discovery_timeout, quiet=args.quiet,
                 scheduling=Scheduling(priority=args.rt_priority, cpus=tuple(args.cpu_affinity),

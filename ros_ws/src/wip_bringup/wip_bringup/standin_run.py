@@ -57,7 +57,7 @@ REMAPS = ['joint_states:=base/joint_states', 'imu/data:=base/imu', 'gps/fix:=bas
 
 
 def line_scenario(speed: float = 0.5, kind: str = 'line', **reference) -> dict[str, Any]:
-    """A full-plant scenario on a line (or another reference kind), no disturbance."""
+    """Return a full-plant scenario on a line (or another reference kind), no disturbance."""
     return {
         'name': f'standin_{kind}',
         'description': f'hardware-mode run: {kind} at {speed} m/s, full plant model',
@@ -72,7 +72,7 @@ def line_scenario(speed: float = 0.5, kind: str = 'line', **reference) -> dict[s
 
 
 def write_params(path: pathlib.Path, parameters: Mapping[str, Any]) -> pathlib.Path:
-    """A params file applying ``parameters`` to every node."""
+    """Return a params file applying ``parameters`` to every node."""
     path.write_text(yaml.safe_dump({'/**': {'ros__parameters': dict(parameters)}}))
     return path
 
@@ -92,7 +92,7 @@ class StandinRun:
     controller_cpus: tuple[int, ...] = ()
 
     def summary(self) -> dict[str, Any]:
-        """The measured numbers (also written to ``measured.json`` beside the run)."""
+        """Return the measured numbers (also written to ``measured.json`` beside the run)."""
         stats, result = self.stats, self.result
         ticks = stats['ticks_checked']
         wall = result.wall_time_s or 0.0
@@ -118,8 +118,11 @@ class StandinRun:
 
 
 def controller_cpu_fraction(result: HardwareResult) -> float | None:
-    """CPU time of the controller processes (not the recorder) / wall time: the share of
-    one core the controllers used."""
+    """CPU share of one core the controller processes used.
+
+    CPU time of the controller processes (not the recorder) / wall time: the share of
+    one core the controllers used.
+    """
     if not result.wall_time_s:
         return None
     return sum(c for n, c in result.cpu_s.items() if n != 'recorder') / result.wall_time_s
@@ -260,8 +263,11 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
 
 
 def pinned_cpus() -> tuple[int, int] | None:
-    """(base CPU, controllers' CPU): the first and the last CPU this process may use, or
-    None with fewer than two."""
+    """Return (base CPU, controllers' CPU), or None with fewer than two CPUs.
+
+    (base CPU, controllers' CPU): the first and the last CPU this process may use, or
+    None with fewer than two.
+    """
     available = sorted(os.sched_getaffinity(0))
     return (available[0], available[-1]) if len(available) >= 2 else None
 
@@ -276,8 +282,10 @@ def permitted(scheduling: Scheduling) -> bool:
 
 
 def engaged(result: HardwareResult | Any) -> bool:
-    """Whether the controllers' safety layer reached ACTIVE in a run (a
-    :class:`HardwareResult` or a running runner: both keep ``safety_events``)."""
+    """Whether the controllers' safety layer reached ACTIVE in a run.
+
+    A :class:`HardwareResult` or a running runner: both keep ``safety_events``.
+    """
     return any(event['state'] == 'ACTIVE' for event in result.safety_events)
 
 
@@ -300,9 +308,12 @@ def _when_engaged(holder: dict, during: Callable, base: subprocess.Popen,
 
 
 def _base_ends_now(runner) -> None:
-    """The base is stopped now, before its run time: from here its inputs stop, and a FAULT
+    """Whether the base is stopped now, before its run time.
+
+    The base is stopped now, before its run time: from here its inputs stop, and a FAULT
     is the end of the run, not a failure (``HardwareOptions.base_end_after``, counted from
-    the engagement, which the outcome reads when the run is over)."""
+    the engagement, which the outcome reads when the run is over).
+    """
     start = next(e['t'] for e in runner.safety_events if e['state'] == 'ACTIVE')
     now = time.monotonic() - runner.t0
     current = runner.options.base_end_after
@@ -327,11 +338,14 @@ def realtime_benchmark(directory: pathlib.Path, seconds: float = 20.0,
                            ('composed', True, False, None), ('composed', True, True, None),
                            ('composed', True, False, 0), ('composed', True, True, 0))
                        ) -> list[dict[str, Any]]:
-    """The controllers at 200 Hz against the stand-in base, one run per (layout, real-time
+    """Measure the controllers at 200 Hz against the stand-in base, case by case.
+
+    The controllers at 200 Hz against the stand-in base, one run per (layout, real-time
     priority, pinned CPUs, CPU wake-up latency request [us]) case, side by side: CPU share
     of one core, sensor -> command latency, the command age and gaps seen by the base.
     A case this user may not run (the latency request needs root) is a row with
-    ``skipped`` and the reason. ``scripts/bench`` prints it."""
+    ``skipped`` and the reason. ``scripts/bench`` prints it.
+    """
     rows: list[dict[str, Any]] = []
     for layout, priority, pin, cpu_latency in cases:
         name = (f'{layout}{"_rt" if priority else ""}{"_pinned" if pin else ""}'

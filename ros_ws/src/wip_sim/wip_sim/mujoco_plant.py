@@ -82,7 +82,7 @@ SETTLE_TIME_S = 0.05
 
 def _import_mujoco():
     try:
-        import mujoco  # noqa: PLC0415 - only a process that builds this plant needs it
+        import mujoco  # only a process that builds this plant needs it
     except ImportError as err:
         raise ImportError(f"plant model 'mujoco' needs the mujoco package ({err}): "
                           f'pip install {MUJOCO_REQUIREMENT} (scripts/setup does)') from err
@@ -90,7 +90,7 @@ def _import_mujoco():
 
 
 def body_inertias(params: WipParameters) -> dict[str, float]:
-    """The rigid-body values of the MJCF (see the module docstring), SI units."""
+    """Return the rigid-body values of the MJCF (see the module docstring), SI units."""
     p = params
     base_mass = p.body_mass + p.chassis_mass
     com = p.body_mass * p.com_height / base_mass                      # l_c
@@ -99,7 +99,7 @@ def body_inertias(params: WipParameters) -> dict[str, float]:
     own_yaw = p.yaw_inertia - 2.0 * wheel_diametral                   # Ĩ_z
     if own_yaw <= 0.0:
         raise ValueError(f"plant model 'mujoco': yaw_inertia {p.yaw_inertia} kg m^2 must "
-                         f'exceed the two wheels\' diametral inertias 2 J_w / 2 = '
+                         f"exceed the two wheels' diametral inertias 2 J_w / 2 = "
                          f'{2 * wheel_diametral} kg m^2 (they are part of it)')
     own_roll = max(own_yaw, p.body_pitch_inertia_com - own_yaw)         # Ĩ_x
     return {'base_mass': base_mass, 'base_com': com,
@@ -157,9 +157,12 @@ def terrain_geoms(terrain: TerrainConfig, patch_contact: str = '') -> str:
 
 def mjcf(params: WipParameters, contact: ContactConfig, timestep: float,
          terrain: TerrainConfig | None = None, wheel_friction: float = 0.0) -> str:
-    """The MJCF model of the WIP on the ground (see the module docstring); the wheels'
+    """Return the MJCF model of the WIP on the ground (see the module docstring).
+
+    The MJCF model of the WIP on the ground (see the module docstring); the wheels'
     viscous axle friction is their hinges' damping (a torque against the joint's rate,
-    which is the wheel's rate against the body, as in the equation plants)."""
+    which is the wheel's rate against the body, as in the equation plants).
+    """
     p = params
     b = body_inertias(p)
     r, half = p.wheel_radius, 0.5 * p.track_width
@@ -257,8 +260,10 @@ class MujocoPlant:
 
     def hold_floats(self, state: tuple, tau_left: float, tau_right: float,
                     disturbance: np.ndarray, dt: float) -> tuple:
-        """``len(disturbance)`` steps of ``dt`` [s] with the torques held; returns the
-        new 8-tuple. ``disturbance``: (n, 3) rows of (d1, d2, d3), one per step."""
+        """``len(disturbance)`` steps of ``dt`` [s] with the torques held; returns the new 8-tuple.
+
+        ``disturbance``: (n, 3) rows of (d1, d2, d3), one per step.
+        """
         if dt != self.timestep:
             raise ValueError(f'the MuJoCo plant was built for steps of {self.timestep} s, '
                              f'got {dt} s')
@@ -303,15 +308,17 @@ class MujocoPlant:
 
     @staticmethod
     def has_fallen(state: Sequence[float], limit: float = DEFAULT_FALL_LIMIT) -> bool:
-        """True if |θ| ≥ ``limit`` [rad]."""
+        """Return True if |θ| ≥ ``limit`` [rad]."""
         return abs(float(state[THETA])) >= limit
 
     # ------------------------------------------------------------------ diagnostics
 
     def wheel_slip(self) -> tuple[float, float]:
-        """(left, right) slip speed [m/s] now: r times the wheel's absolute spin rate
-        minus its centre's forward ground speed (0 when rolling without slip; > 0 when
-        the wheel spins faster than the ground moves under it)."""
+        """(left, right) slip speed [m/s] now.
+
+        r times the wheel's absolute spin rate minus its centre's forward ground speed (0 when
+        rolling without slip; > 0 when the wheel spins faster than the ground moves under it).
+        """
         mj = _import_mujoco()
         model, data = self._model, self._data
         out = []
@@ -337,8 +344,11 @@ class MujocoPlant:
     # ------------------------------------------------------------------ internals
 
     def _disturbance_load(self, quat, d1, d2, d3) -> tuple:
-        """xfrc_applied (force, torque at the base's centre of mass, world frame) that
-        adds (d1, d2, d3) to (ω̇, υ̇, θ̈): the generalised forces M(θ) d (module docstring)."""
+        """xfrc_applied that adds (d1, d2, d3) to (ω̇, υ̇, θ̈).
+
+        xfrc_applied (force, torque at the base's centre of mass, world frame) that
+        adds (d1, d2, d3) to (ω̇, υ̇, θ̈): the generalised forces M(θ) d (module docstring).
+        """
         phi, theta, _ = _euler_zyx(quat)
         s, c = math.sin(theta), math.cos(theta)
         cp, sp = math.cos(phi), math.sin(phi)
@@ -351,9 +361,11 @@ class MujocoPlant:
         return (force * cp, force * sp, 0.0, -pitch * sp, pitch * cp, yaw)
 
     def _settle(self) -> float:
-        """Height [m] of the axle resting on the compliant contacts, found by letting the
-        upright vehicle settle (zero torque; upright is an equilibrium), on flat ground
-        before any terrain."""
+        """Height [m] of the axle resting on the compliant contacts.
+
+        Found by letting the upright vehicle settle (zero torque; upright is an equilibrium), on
+        flat ground before any terrain.
+        """
         data = self._data
         data.qpos[:] = 0.0
         terrain = self.terrain
@@ -388,9 +400,11 @@ class MujocoPlant:
         self._phi = phi
 
     def _terrain_clearance(self, x: float) -> float:
-        """Height [m] to lift a state reset at ``x`` so that no wheel starts inside the
-        terrain: on the slope, the wheel centre r / cos(a) above its surface (tangent to
-        it); over a bump, its full height (the wheel then drops onto it)."""
+        """Height [m] to lift a state reset at ``x`` so that no wheel starts inside the terrain.
+
+        On the slope, the wheel centre r / cos(a) above its surface (tangent to it); over a bump,
+        its full height (the wheel then drops onto it).
+        """
         terrain, r = self.terrain, self._r
         lift = 0.0
         if terrain.slope_grade > 0.0 and x > terrain.slope_start:
@@ -404,14 +418,14 @@ class MujocoPlant:
         return lift
 
     def _read(self) -> tuple:
-        """The 8-state of MuJoCo's state (module docstring)."""
+        """Return the 8-state of MuJoCo's state (module docstring)."""
         q = self._data.qpos.tolist()
         w = self._data.qvel.tolist()
         yaw, theta, roll = _euler_zyx(q[3:7])
         # ϕ continuous: the wrapped yaw's change since the last read, added.
         phi = self._phi + math.remainder(yaw - self._phi, 2.0 * math.pi)
         self._phi = phi
-        p, qr, rr = w[3], w[4], w[5]               # body rates (roll, pitch, yaw axes)
+        qr, rr = w[4], w[5]               # body rates about the pitch, yaw axes (w[3]: roll)
         sr, cr = math.sin(roll), math.cos(roll)
         theta_dot = qr * cr - rr * sr
         omega = (qr * sr + rr * cr) / math.cos(theta)
@@ -432,6 +446,9 @@ def _euler_zyx(quat) -> tuple[float, float, float]:
 def make_plant(params: WipParameters, contact: ContactConfig, timestep: float,
                terrain: TerrainConfig | None = None,
                wheel_friction: float = 0.0) -> MujocoPlant:
-    """The plant of ``plant: {model: mujoco}`` (called by
-    :func:`wip_control.core.plant.scenario_plant`)."""
+    """Return the plant of ``plant: {model: mujoco}``.
+
+    The plant of ``plant: {model: mujoco}`` (called by
+    :func:`wip_control.core.plant.scenario_plant`).
+    """
     return MujocoPlant(params, contact, timestep, terrain, wheel_friction)

@@ -14,7 +14,6 @@ from wip_control.nodes.settings import (CLOCK_MODES, DatumConfig, EffortCommand,
 from wip_control.core.scenario import Scenario
 
 
-
 def _scenario_file():
     return param('', TEXT, "scenario YAML file (core.scenario: plant, initial state, sensors, "
                  "rates); '': the paper's Section V")

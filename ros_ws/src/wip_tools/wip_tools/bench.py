@@ -24,8 +24,8 @@ made within one invocation, interleaved where possible:
    pinned): their CPU share of one core, the
    sensor -> command latency (p50, p99, max) and the oldest command the base held while
    balancing, beside the in-process cost of the same loop (``--no-realtime`` skips it;
-   six runs of S s each plus their start-up: about 4-5 min at the default S), and the floor of rclpy: the
-   CPU share of a process that only receives the base's two sensor streams with empty
+   six runs of S s each plus their start-up: about 4-5 min at the default S), and the floor of
+   rclpy: the CPU share of a process that only receives the base's two sensor streams with empty
    callbacks (:mod:`wip_tools.rclpy_floor`), and the nodes' own code fed directly, back to
    back against paced at 200 Hz (:mod:`wip_tools.node_cost`).
 
@@ -98,10 +98,13 @@ def bench_in_process(scenario, repeats: int) -> dict:
 
 
 def bench_plant_models(scenario, repeats: int) -> dict:
-    """The in-process real-time factor of ``scenario`` on each plant model, the models
+    """Return the in-process real-time factor of ``scenario`` on each plant model.
+
+    The in-process real-time factor of ``scenario`` on each plant model, the models
     interleaved run by run (the machine's load drifts alike for all): medians by wall and
     by CPU time, per model. A model that cannot be built (mujoco not installed) is
-    reported as skipped."""
+    reported as skipped.
+    """
     per_model = {model: dataclasses.replace(scenario, plant=dataclasses.replace(
         scenario.plant, model=PlantConfig(model))) for model in MODELS}
     factors: dict[str, dict[str, list[float]]] = {m: {'wall': [], 'cpu': []} for m in MODELS}
@@ -134,7 +137,7 @@ def bench_graph(scenario_path: str | None, layout: str = 'composed',
                 record: bool = False) -> dict | None:
     """Real-time factor of the lockstep node graph, recorded or not."""
     try:
-        from wip_bringup.graph import run_graph_benchmark  # noqa: PLC0415 (optional, needs ROS)
+        from wip_bringup.graph import run_graph_benchmark  # optional, needs ROS
     except ImportError as err:
         return {'skipped': f'node graph not available: {err}'}
     return run_graph_benchmark(scenario_path, layout, record=record)
@@ -178,21 +181,23 @@ def bench_reproducibility(scenario_path: str | None, processes: int = 3) -> dict
 
 def bench_realtime(seconds: float) -> list[dict]:
     """Real-time runs against the stand-in base (see ``wip_bringup.standin_run``)."""
-    import tempfile  # noqa: PLC0415
+    import tempfile
     try:
-        from wip_bringup.standin_run import realtime_benchmark  # noqa: PLC0415 (needs ROS)
+        from wip_bringup.standin_run import realtime_benchmark  # needs ROS
     except ImportError as err:
         return [{'skipped': f'node graph not available: {err}'}]
     with tempfile.TemporaryDirectory(prefix='wip_bench_rt_') as directory:
-        import pathlib  # noqa: PLC0415
+        import pathlib
         return realtime_benchmark(pathlib.Path(directory), seconds)
 
 
 def bench_rclpy_floor(seconds: float) -> dict:
-    """CPU of receiving the sensor streams alone (:mod:`wip_tools.rclpy_floor`), taken as
-    message objects and serialized (as the eso node takes them), alternately."""
+    """CPU of receiving the sensor streams alone (:mod:`wip_tools.rclpy_floor`).
+
+    Taken as message objects and serialized (as the eso node takes them), alternately.
+    """
     try:
-        from wip_tools.rclpy_floor import measure_floor  # noqa: PLC0415 (needs ROS)
+        from wip_tools.rclpy_floor import measure_floor  # needs ROS
     except ImportError as err:
         return {'skipped': f'rclpy not available: {err}'}
     return {'messages': measure_floor(seconds, raw=False),
@@ -200,8 +205,11 @@ def bench_rclpy_floor(seconds: float) -> dict:
 
 
 def bench_node_cost(seconds: float, pairs: int = 2) -> dict:
-    """The controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`),
-    back to back and paced at 200 Hz, alternately, each in a process of its own."""
+    """Return the controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`).
+
+    The controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`),
+    back to back and paced at 200 Hz, alternately, each in a process of its own.
+    """
     runs: dict[str, list[dict]] = {'back_to_back': [], 'paced': []}
     for _ in range(pairs):
         for key, pace in (('back_to_back', 0), ('paced', 1)):

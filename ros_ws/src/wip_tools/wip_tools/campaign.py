@@ -57,8 +57,8 @@ import numpy as np
 import yaml
 
 from wip_control.core.config import ConfigError
-from wip_control.core.criteria import Criteria, criteria_from_mapping, criteria_to_mapping, evaluate, \
-    measure
+from wip_control.core.criteria import (Criteria, criteria_from_mapping, criteria_to_mapping,
+                                       evaluate, measure)
 from wip_control.core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
 from wip_control.tools.cli import add_exit_codes
 
@@ -124,8 +124,11 @@ _INDEX = re.compile(r'^([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)$')
 
 
 def _split_key(key: str, where: str) -> list:
-    """'disturbances.longitudinal[0].amplitude' -> ['disturbances', 'longitudinal', 0,
-    'amplitude']."""
+    """Split a parameter key into its parts.
+
+    'disturbances.longitudinal[0].amplitude' -> ['disturbances', 'longitudinal', 0,
+    'amplitude'].
+    """
     if not isinstance(key, str) or not key:
         raise CampaignError(f'{where}: a key must be a dotted scenario key, got {key!r}')
     parts: list = []
@@ -374,7 +377,7 @@ def run_specs(campaign: Campaign) -> list[dict]:
 
 
 def scenario_mapping(base: Mapping[str, Any], spec: Mapping[str, Any]) -> dict:
-    """The full scenario mapping of one run: ``base`` with the run's values and seed."""
+    """Return the full scenario mapping of one run: ``base`` with the run's values and seed."""
     scenario = copy.deepcopy(dict(base))
     for key, value in spec['values'].items():
         _set(scenario, _split_key(key, 'campaign'), copy.deepcopy(value))
@@ -384,14 +387,15 @@ def scenario_mapping(base: Mapping[str, Any], spec: Mapping[str, Any]) -> dict:
 
 def run_one(spec: Mapping[str, Any], base: Mapping[str, Any],
             criteria: Mapping[str, Any]) -> dict[str, Any]:
-    """Simulate one run (on a worker) and return its row. Never raises: an exception
-    of the run is reported in the row's ``error`` (the run then fails).
+    """Simulate one run (on a worker) and return its row.
+
+    Never raises: an exception of the run is reported in the row's ``error`` (the run then fails).
 
     ``base`` is the campaign's base scenario mapping and ``criteria`` its criteria as a
     mapping (plain data: they travel to the workers once, see :func:`execute`).
     """
-    from wip_control.core.metrics import compute_metrics  # noqa: PLC0415 (worker-side imports)
-    from wip_control.core.runner import run_scenario      # noqa: PLC0415
+    from wip_control.core.metrics import compute_metrics  # worker-side imports
+    from wip_control.core.runner import run_scenario
 
     row: dict[str, Any] = {'run': spec['run'], **spec['values'], 'seed': spec['seed']}
     start, cpu_start = time.perf_counter(), time.process_time()
@@ -436,10 +440,13 @@ def _read_done(jsonl: pathlib.Path) -> dict[int, dict]:
 def execute(campaign: Campaign, specs: list[dict], jsonl: pathlib.Path,
             scheduler: str | None = None, workers: int | None = None,
             progress: bool = True) -> list[dict]:
-    """Run the specs on Dask (a LocalCluster of ``workers`` processes, or the cluster at
-    ``scheduler``), appending each finished row to ``jsonl``; returns all rows by run."""
-    from dask.distributed import Client, LocalCluster, as_completed  # noqa: PLC0415
-    from tqdm import tqdm  # noqa: PLC0415
+    """Run the specs on Dask.
+
+    Run the specs on Dask (a LocalCluster of ``workers`` processes, or the cluster at
+    ``scheduler``), appending each finished row to ``jsonl``; returns all rows by run.
+    """
+    from dask.distributed import Client, LocalCluster, as_completed
+    from tqdm import tqdm
 
     done = _read_done(jsonl)
     todo = [s for s in specs if s['run'] not in done]
@@ -505,8 +512,8 @@ def write_table(rows: list[dict], out: pathlib.Path) -> list[pathlib.Path]:
         for row in rows:
             writer.writerow({k: ('' if row.get(k) is None else row.get(k)) for k in columns})
     try:
-        import pyarrow  # noqa: PLC0415,F401 (optional)
-        import pyarrow.parquet as pq  # noqa: PLC0415
+        import pyarrow  # noqa: F401 (optional)
+        import pyarrow.parquet as pq
     except ImportError:
         return written
     table = pyarrow.Table.from_pylist([{k: row.get(k) for k in columns} for row in rows])
@@ -521,7 +528,7 @@ def _values(rows: Iterable[dict], key: str) -> np.ndarray:
 
 
 def summarise(campaign: Campaign, rows: list[dict]) -> dict[str, Any]:
-    """Counts and rates against the criteria, percentiles of the main errors."""
+    """Return counts and rates against the criteria, percentiles of the main errors."""
     n = len(rows)
     failures: dict[str, int] = {}
     for row in rows:
@@ -596,9 +603,9 @@ def summary_text(summary: dict) -> str:
 def write_figures(campaign: Campaign, rows: list[dict], summary: dict,
                   out: pathlib.Path) -> list[pathlib.Path]:
     """Success rate, error distributions, and a heatmap over a 2-D grid."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
     matplotlib.use('Agg')
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     out.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -735,7 +742,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--no-figures', action='store_true', help='skip the PNG figures')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
     parser.add_argument('--dry-run', action='store_true',
-                        help='validate, print the runs\' values, run nothing')
+                        help="validate, print the runs' values, run nothing")
     add_exit_codes(parser)
     args = parser.parse_args(argv)
     if args.workers is not None and args.workers < 1:

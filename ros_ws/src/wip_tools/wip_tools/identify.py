@@ -80,8 +80,11 @@ class Identification:
 
 
 def gaussian_lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:
-    """Zero-phase low-pass: convolution with a Gaussian whose −3 dB point is ``cutoff_hz``
-    (pure numpy, symmetric kernel so no phase lag between regressors and torques)."""
+    """Zero-phase low-pass: convolution with a Gaussian.
+
+    Zero-phase low-pass: convolution with a Gaussian whose −3 dB point is ``cutoff_hz``
+    (pure numpy, symmetric kernel so no phase lag between regressors and torques).
+    """
     sigma_t = math.sqrt(math.log(2.0)) / (2.0 * math.pi * cutoff_hz)   # |H| = 1/√2 at fc
     half = max(1, int(math.ceil(4.0 * sigma_t / dt)))
     k = np.exp(-0.5 * (np.arange(-half, half + 1) * dt / sigma_t) ** 2)
@@ -91,11 +94,13 @@ def gaussian_lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> 
 
 def _sensor_group(record: Mapping, wheel_radius: float,
                   encoders_relative_to_body: bool) -> dict[str, np.ndarray]:
-    """(t, θ, θ̇, υ, ω) from what the sensors said: the IMU's pitch, its pitch and yaw rates
-    (gyro), and υ = r (φ̇ + θ̇) from the mean wheel joint angle φ (a joint angle is measured
-    against the body, so the body's tilt rate is added back; without it when the encoders
-    measure rolling angles). φ̇ by central differences: the regressors' low-pass removes
-    what that amplifies."""
+    """(t, θ, θ̇, υ, ω) from what the sensors said.
+
+    The IMU's pitch, its pitch and yaw rates (gyro), and υ = r (φ̇ + θ̇) from the mean wheel joint
+    angle φ (a joint angle is measured against the body, so the body's tilt rate is added back;
+    without it when the encoders measure rolling angles). φ̇ by central differences: the
+    regressors' low-pass removes what that amplifies.
+    """
     encoders = record['encoders'] if 'encoders' in record else None
     imu = record['imu'] if 'imu' in record else None
     if encoders is None or imu is None or len(encoders['t']) < 3 or len(imu['t']) < 3:
@@ -122,7 +127,8 @@ def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters()
     truth: the torques of row k were applied over [t_{k−1}, t_k) (core/runner.py), so they
     are shifted back one row to pair with the interval they acted over. estimate and
     sensors: the torques come from the wheels group (applied from its stamp on),
-    interpolated."""
+    interpolated.
+    """
     if source == 'sensors':
         group = _sensor_group(record, wheel_radius, encoders_relative_to_body)
     else:
@@ -222,8 +228,11 @@ def _has(record: Mapping, group: str) -> bool:
 
 
 def _best_source(record: Mapping) -> str:
-    """truth (a simulation's), else the sensors, else the state estimate (which the ESOs'
-    lag and filtering bias: docs/identification.md)."""
+    """Return the best source of the signals.
+
+    truth (a simulation's), else the sensors, else the state estimate (which the ESOs'
+    lag and filtering bias: docs/identification.md).
+    """
     if _has(record, 'truth'):
         return 'truth'
     if _has(record, 'encoders') and _has(record, 'imu'):
@@ -352,14 +361,14 @@ def identify(record: Mapping, params: WipParameters | None = None, source: str =
 
 
 def to_parameters(result: Identification, nominal: WipParameters) -> tuple[dict, list[str]]:
-    """Overrides of :class:`WipParameters` for the controllers' model and notes on them.
+    """Return overrides of :class:`WipParameters` for the controllers' model and notes on them.
 
     r, d, g, m_w, J_w are kept (assumed known); what was not determined keeps its
     nominal value. m_p = (m_p l)/l, I_c = J_θ − m_p l², m_c = m_v − m_p − 2(m_w + J_w/r²),
     J_υ = J_ϕ − d²(m_w + J_w/r²)/2 (the inverse of WipParameters' derived values).
     """
     notes = []
-    l = result.value('com_height') or nominal.com_height
+    l = result.value('com_height') or nominal.com_height  # noqa: E741 - the paper's symbol
     if not result.value('com_height'):
         notes.append(f'com_height kept at the nominal {nominal.com_height:g} m')
     mpl = result.value('mpl')
@@ -384,8 +393,8 @@ def to_parameters(result: Identification, nominal: WipParameters) -> tuple[dict,
 
 
 def true_values(params: WipParameters) -> dict[str, float]:
-    """The combinations of ``params`` that :func:`identify` estimates."""
-    mp, l = params.body_mass, params.com_height
+    """Return the combinations of ``params`` that :func:`identify` estimates."""
+    mp, l = params.body_mass, params.com_height  # noqa: E741 - the paper's symbol
     return {'effective_mass': params.effective_mass, 'mpl': mp * l,
             'pitch_inertia': params.pitch_inertia, 'mpl2': mp * l * l,
             'yaw_inertia_total': params.yaw_inertia_total, 'friction': 0.0,
@@ -422,7 +431,7 @@ def _ros_double(value: float) -> str:
 
 
 def model_yaml(overrides: Mapping[str, float], notes: Iterable[str], params_file: bool) -> str:
-    """A scenario's ``controller_model`` section, or a ROS params file (``model.*``)."""
+    """Return a scenario's ``controller_model`` section, or a ROS params file (``model.*``)."""
     head = ''.join(f'# {n}\n' for n in notes)
     if params_file:
         # A ROS double must be written as one: '25.0', not '25' (an integer to ROS).
@@ -433,19 +442,19 @@ def model_yaml(overrides: Mapping[str, float], notes: Iterable[str], params_file
 
 
 def load_record(path: str | pathlib.Path) -> dict:
-    """A record from a bag (directory or .mcap) or a timeseries.npz of scripts/simulate."""
+    """Return a record from a bag (directory or .mcap) or a timeseries.npz of scripts/simulate."""
     path = pathlib.Path(path)
     if not path.exists():
         raise IdentifyError(f'{path}: no such file or directory')
     if path.is_dir() and (path / 'timeseries.npz').exists() and not any(path.glob('*.mcap')):
         path = path / 'timeseries.npz'
     if path.suffix == '.npz':
-        from wip_control.core.record import RunRecord  # noqa: PLC0415
+        from wip_control.core.record import RunRecord
         try:
             return RunRecord.load_npz(path)
         except (OSError, ValueError, KeyError) as err:
             raise IdentifyError(f'{path}: not a readable timeseries.npz ({err})') from err
-    from wip_tools.report import ReportError, record_from_bag  # noqa: PLC0415 (rosbag2)
+    from wip_tools.report import ReportError, record_from_bag  # rosbag2
     try:
         record = record_from_bag(path)
     except ReportError as err:
@@ -491,8 +500,8 @@ Examples
     try:
         nominal = WipParameters()
         if args.scenario:
-            from wip_control.core.config import ConfigError  # noqa: PLC0415
-            from wip_control.core.scenario import load_scenario  # noqa: PLC0415
+            from wip_control.core.config import ConfigError
+            from wip_control.core.scenario import load_scenario
             try:
                 nominal = load_scenario(args.scenario).controller_model.parameters
             except (ConfigError, OSError) as err:

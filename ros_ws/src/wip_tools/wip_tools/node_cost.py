@@ -1,5 +1,7 @@
-"""The six controller nodes' own cost per control tick, fed directly: no DDS take, no
-wake-up by a message (``python -m wip_tools.node_cost``; ``scripts/bench`` runs it).
+"""The six controller nodes' own cost per control tick, fed directly.
+
+No DDS take, no wake-up by a message (``python -m wip_tools.node_cost``; ``scripts/bench`` runs
+it).
 
 The nodes are built as ``ros2 run wip_control controllers`` builds them (hardware-mode
 parameters, the stand-in base's conventions, one executor, the intra-process bus). Each
@@ -34,21 +36,25 @@ ENGAGE_TIMEOUT = 10.0   # [s] of paced ticks at most for the safety layer to eng
 
 
 def measure(seconds: float, paced: bool) -> dict:
-    """In a process of its own (it initialises rclpy's default context): thread CPU per tick [us] (median, mean, p90) over ``seconds`` of 200 Hz ticks (the
-    first fifth, start-up and warm-up, left out), and how many ticks ran."""
-    import rclpy  # noqa: PLC0415 - ROS only where measured
-    from rclpy.serialization import serialize_message  # noqa: PLC0415
-    from sensor_msgs.msg import Imu, JointState  # noqa: PLC0415
-    from std_msgs.msg import Bool, Float64MultiArray  # noqa: PLC0415
-    import yaml  # noqa: PLC0415
+    """Measure the thread CPU per tick of a controller node.
 
-    from wip_bringup.hardware import hardware_parameters  # noqa: PLC0415
-    from wip_bringup.params_files import _NoAliasDumper  # noqa: PLC0415
-    from wip_bringup.standin_run import BASE  # noqa: PLC0415
-    from wip_control.core.scenario import load_scenario  # noqa: PLC0415
-    from wip_control.nodes.common import compose, make_executor, RELIABLE_QOS  # noqa: PLC0415
-    from wip_control.nodes.controllers import NODE_CLASSES  # noqa: PLC0415
-    from wip_sim.standin_base import BaseConventions  # noqa: PLC0415
+    In a process of its own (it initialises rclpy's default context): thread CPU per tick [us]
+    (median, mean, p90) over ``seconds`` of 200 Hz ticks (the first fifth, start-up and
+    warm-up, left out), and how many ticks ran.
+    """
+    import rclpy  # ROS only where measured
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import Imu, JointState
+    from std_msgs.msg import Bool, Float64MultiArray
+    import yaml
+
+    from wip_bringup.hardware import hardware_parameters
+    from wip_bringup.params_files import _NoAliasDumper
+    from wip_bringup.standin_run import BASE
+    from wip_control.core.scenario import load_scenario
+    from wip_control.nodes.common import compose, make_executor, RELIABLE_QOS
+    from wip_control.nodes.controllers import NODE_CLASSES
+    from wip_sim.standin_base import BaseConventions
 
     with tempfile.TemporaryDirectory(prefix='wip_node_cost_') as directory:
         params = pathlib.Path(directory) / 'params.yaml'
@@ -122,7 +128,7 @@ def measure(seconds: float, paced: bool) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='python -m wip_tools.node_cost',
-                                     description=__doc__.split('\n\n')[0])
+                                     description=' '.join(__doc__.split('\n\n')[:2]))
     parser.add_argument('--seconds', type=float, default=10.0,
                         help='ticks of 5 ms to run (default 10 s of them)')
     parser.add_argument('--pace', type=int, choices=(0, 1), default=1,

@@ -1,5 +1,7 @@
-"""The parameter reference: every node parameter and every scenario key, with unit, range,
-default and description, generated from the declarations (nothing is written twice).
+"""The parameter reference: every node parameter and every scenario key.
+
+With unit, range, default and description, generated from the declarations (nothing is written
+twice).
 
 Node parameters come from the registries ``NODES`` of :mod:`wip_control.nodes.settings`,
 :mod:`wip_sim.settings`, :mod:`wip_bag.settings` and :mod:`wip_viewer.settings`
@@ -41,12 +43,12 @@ class Row(NamedTuple):
 
 
 def node_registry() -> dict[str, tuple[tuple[str, type], ...]]:
-    """executable -> ``(prefix, dataclass)`` groups, over every package's registry."""
+    """Return executable -> ``(prefix, dataclass)`` groups, over every package's registry."""
     return {executable: groups for executable, (_, groups) in _registry().items()}
 
 
 def node_package(executable: str) -> str:
-    """The ROS package whose executable ``executable`` is."""
+    """Return the ROS package whose executable ``executable`` is."""
     return _registry()[executable][0]
 
 
@@ -71,8 +73,11 @@ def _number(value: Any) -> str:
 
 
 def _component(value: Any) -> str:
-    """A disturbance component (a small dataclass) as ``kind(field=value, ...)``: only the
-    fields that differ from their defaults, as one would write them in the YAML file."""
+    """Return a disturbance component (a small dataclass) as ``kind(field=value, ...)``.
+
+    A disturbance component (a small dataclass) as ``kind(field=value, ...)``: only the
+    fields that differ from their defaults, as one would write them in the YAML file.
+    """
     fields = [f for f in dataclasses.fields(value)
               if f.name != 'kind' and getattr(value, f.name) != f.default]
     inner = ', '.join(f'{f.name}={_value(getattr(value, f.name))}' for f in fields)

@@ -1,8 +1,9 @@
-"""What rclpy costs before any control math: a process that only receives a base's sensor
-stream (``sensor_msgs/JointState`` and ``Imu`` at 200 Hz each, as the stand-in base sends
-them) with empty callbacks, on the EventsExecutor the controllers use: taken as message objects
-(rclpy builds each), or serialized (``raw=True``, as the eso node takes them and decodes
-only then).
+"""What rclpy costs before any control math.
+
+A process that only receives a base's sensor stream (``sensor_msgs/JointState`` and ``Imu`` at 200
+Hz each, as the stand-in base sends them) with empty callbacks, on the EventsExecutor the
+controllers use: taken as message objects (rclpy builds each), or serialized (``raw=True``, as the
+eso node takes them and decodes only then).
 
 ``scripts/bench`` prints its CPU share beside the controllers': the part of the
 controllers' cost that no change to the nodes can remove, short of not receiving the
@@ -13,7 +14,6 @@ measured by :func:`measure_floor`, which starts both in a fresh DDS domain and e
 from __future__ import annotations
 
 import json
-import os
 import resource
 import subprocess
 import sys
@@ -24,9 +24,9 @@ WARM_UP = 2.0  # [s] before measuring: discovery and the first messages
 
 
 def _publish(seconds: float) -> None:
-    import rclpy  # noqa: PLC0415
-    from rclpy.qos import qos_profile_sensor_data  # noqa: PLC0415
-    from sensor_msgs.msg import Imu, JointState  # noqa: PLC0415
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Imu, JointState
     rclpy.init()
     node = rclpy.create_node('floor_base')
     joints = node.create_publisher(JointState, '/joint_states', qos_profile_sensor_data)
@@ -45,10 +45,10 @@ def _publish(seconds: float) -> None:
 
 
 def _receive(seconds: float, raw: bool) -> dict:
-    import rclpy  # noqa: PLC0415
-    from rclpy.qos import qos_profile_sensor_data  # noqa: PLC0415
-    from sensor_msgs.msg import Imu, JointState  # noqa: PLC0415
-    from wip_control.nodes.common import make_executor  # noqa: PLC0415
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Imu, JointState
+    from wip_control.nodes.common import make_executor
     rclpy.init()
     node = rclpy.create_node('floor_receiver')
     count = [0]
@@ -76,9 +76,11 @@ def _receive(seconds: float, raw: bool) -> dict:
 
 
 def measure_floor(seconds: float = 10.0, raw: bool = False) -> dict:
-    """Both processes in a DDS domain of their own; the receiver's measurement
-    (``raw``: the messages are taken serialized)."""
-    from wip_bringup.launcher import choose_domain_id, graph_environment  # noqa: PLC0415
+    """Both processes in a DDS domain of their own; the receiver's measurement.
+
+    ``raw``: the messages are taken serialized.
+    """
+    from wip_bringup.launcher import choose_domain_id, graph_environment
     env = graph_environment(choose_domain_id())
     module = [sys.executable, '-m', 'wip_tools.rclpy_floor']
     base = subprocess.Popen(module + ['publish', str(seconds + WARM_UP + 8.0)], env=env,
@@ -102,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         print('usage: python -m wip_tools.rclpy_floor publish|receive|receive-raw SECONDS',
               file=sys.stderr)
         return 2
-    from wip_control.nodes.launched import end_with_launcher  # noqa: PLC0415
+    from wip_control.nodes.launched import end_with_launcher
     end_with_launcher()
     if argv[0] == 'publish':
         _publish(float(argv[1]))

@@ -156,7 +156,7 @@ def _stamp_ns(message) -> int:
 def record_from_bag(bag: str | pathlib.Path,
                     topics: dict[str, tuple] | None = None,
                     allow_partial: bool = False) -> RunRecord:
-    """The :class:`RunRecord` of a bag (see the module docstring for the mapping).
+    """Return the :class:`RunRecord` of a bag (see the module docstring for the mapping).
 
     Rows are sorted by stamp (a stable sort: messages with equal stamps keep the bag's
     order). Groups whose topic is absent are empty.
@@ -198,8 +198,11 @@ def record_from_bag(bag: str | pathlib.Path,
 
 def scenario_for(bag: str | pathlib.Path,
                  scenario_path: str | pathlib.Path | None) -> tuple[Scenario, str]:
-    """The scenario of a report and where it came from: the bag's own, with
-    ``scenario_path`` over it (:mod:`wip_bag.bag_scenario`, the rule rerun uses too)."""
+    """Return the scenario of a report and where it came from.
+
+    The scenario of a report and where it came from: the bag's own, with
+    ``scenario_path`` over it (:mod:`wip_bag.bag_scenario`, the rule rerun uses too).
+    """
     try:
         return scenario_for_bag(bag, scenario_path)
     except ConfigError as err:

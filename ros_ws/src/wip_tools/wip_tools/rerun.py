@@ -236,8 +236,11 @@ TIMINGS = ('auto', 'stamps', 'receive')
 
 
 def resolve_timing(run: RecordedRun, timing: str = 'auto') -> str:
-    """'stamps' for a bag recorded in lockstep simulation time (it holds /clock), else
-    'receive'; an explicit 'stamps' or 'receive' is returned as is."""
+    """Return the timing of a bag: 'stamps' or 'receive'.
+
+    'stamps' for a bag recorded in lockstep simulation time (it holds /clock), else
+    'receive'; an explicit 'stamps' or 'receive' is returned as is.
+    """
     if timing not in TIMINGS:
         raise ValueError(f'timing {timing!r} is not one of {TIMINGS}')
     if timing == 'auto':
@@ -416,7 +419,7 @@ def compare(run: RecordedRun, outputs: list[TickOutputs]) -> dict:
 
 
 def run_record(run: RecordedRun, outputs: list[TickOutputs], scenario: Scenario) -> RunRecord:
-    """A RunRecord of the recomputed run (truth: the recorded ground truth, if any)."""
+    """Return a RunRecord of the recomputed run (truth: the recorded ground truth, if any)."""
     rows = {group: [] for group in GROUPS}
     for tick in outputs:
         e, c, a = tick.estimate, tick.command, tick.arc
@@ -494,7 +497,7 @@ def write_rerun_bag(bag, out_bag, outputs, run, scenario, prefix=DEFAULT_PREFIX,
 
 
 def comparison_figure(run, outputs, path):
-    """Recorded vs recomputed wheel torques, drive/yaw torques and tilt/yaw-rate estimates."""
+    """Plot recorded vs recomputed wheel torques, drive/yaw torques and tilt/yaw-rate estimates."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -755,8 +758,11 @@ def rerun(bag, out, scenario_file=None, figures=True, prefix=DEFAULT_PREFIX, qui
 
 
 def _rename_bag(source, target):
-    """Move the finished bag into place (written in a directory also named ``bag``, so its
-    files already have the names rosbag2 gives them: ``bag_<i>.mcap``)."""
+    """Move the finished bag into place.
+
+    Written in a directory also named ``bag``, so its files already have the names rosbag2 gives
+    them: ``bag_<i>.mcap``.
+    """
     source.rename(target)
 
 
@@ -788,7 +794,7 @@ Examples
     scripts/rerun robot_run/bag --timing receive --out out/robot''')
     parser.add_argument('bag', help='bag directory or .mcap file')
     parser.add_argument('--scenario', help='scenario YAML with the controller parameters '
-                        '(default: the bag\'s, else the paper\'s)')
+                        "(default: the bag's, else the paper's)")
     parser.add_argument('--out', required=True, help='output directory')
     parser.add_argument('--prefix', default=DEFAULT_PREFIX,
                         help='namespace of the recomputed topics (default /rerun)')

@@ -23,14 +23,14 @@ from wip_control.core.config import ConfigError
 from wip_control.core.metrics import compute_metrics
 from wip_control.core.runner import run_scenario
 from wip_control.core.scenario import Scenario, load_scenario, scenario_to_mapping
-from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with,
-                  write_atomic)
+from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE,
+                                   exit_with, write_atomic)
 from .parameters import parameter_table
 from wip_control.tools.cli import add_exit_codes
 
 
 def progress_printer(stream=sys.stderr):
-    """A progress callback printing sim time and real-time factor about once a second."""
+    """Return a progress callback printing sim time and real-time factor about once a second."""
     start = time.perf_counter()
     interactive = stream.isatty()
 
@@ -47,8 +47,11 @@ def progress_printer(stream=sys.stderr):
 
 
 def step_printer(program: str, stream=sys.stderr):
-    """A progress callback for the long steps of a command (reading a bag, each figure):
-    prints ``program: [elapsed] step`` on ``stream`` (stderr: stdout stays the result)."""
+    """Return a progress callback for the long steps of a command.
+
+    A progress callback for the long steps of a command (reading a bag, each figure):
+    prints ``program: [elapsed] step`` on ``stream`` (stderr: stdout stays the result).
+    """
     start = time.perf_counter()
 
     def show(text: str) -> None:
@@ -59,8 +62,11 @@ def step_printer(program: str, stream=sys.stderr):
 
 def write_run_outputs(out: pathlib.Path, record, scenario: Scenario, metrics: dict,
                       figures: bool = True, progress=None) -> list[pathlib.Path]:
-    """metrics.json, timeseries.npz, scenario.yaml, figures/ (PNG and SVG) and report.html
-    into ``out``; ``progress(text)`` is told each step."""
+    """Write the outputs of a run into ``out``.
+
+    metrics.json, timeseries.npz, scenario.yaml, figures/ (PNG and SVG) and report.html
+    into ``out``; ``progress(text)`` is told each step.
+    """
     out.mkdir(parents=True, exist_ok=True)
     # Each file whole or not at all (a crash or Ctrl-C never leaves half a file).
     write_atomic(out / 'metrics.json', json.dumps(metrics, indent=2) + '\n')
@@ -108,9 +114,13 @@ def simulate(scenario_path: str | None, out_dir: str, figures: bool = True,
 
 
 def summary(metrics: dict) -> str:
-    """A few human-readable lines of the key metrics."""
+    """Return a few human-readable lines of the key metrics."""
     def fmt(value, unit=''):
         return 'n/a' if value is None else f'{value:.3g}{unit}'
+
+    def solve_us(quantile):
+        seconds = metrics['mpc_solve_time_s'][quantile]
+        return seconds * 1e6 if seconds else None
     lines = [
         f'fell: {metrics["fell"]}   simulated {metrics["duration_s"]:.1f} s',
         f'max |theta| {fmt(metrics["max_abs_theta_rad"], " rad")}  (outside pulse windows '
@@ -121,8 +131,7 @@ def summary(metrics: dict) -> str:
         f'convergence {fmt(metrics["convergence_time_s"], " s")}   '
         f'RMS position error (t >= 10 s) {fmt(metrics["rms_position_error_m"], " m")}   '
         f'max {fmt(metrics["max_position_error_m"], " m")}',
-        f'MPC solve p50 {fmt(metrics["mpc_solve_time_s"]["p50"] * 1e6 if metrics["mpc_solve_time_s"]["p50"] else None, " us")}'
-        f'   p99 {fmt(metrics["mpc_solve_time_s"]["p99"] * 1e6 if metrics["mpc_solve_time_s"]["p99"] else None, " us")}',
+        f'MPC solve p50 {fmt(solve_us("p50"), " us")}   p99 {fmt(solve_us("p99"), " us")}',
     ]
     if 'real_time_factor' in metrics:
         lines.append(f'real-time factor {metrics["real_time_factor"]:.1f}x')

@@ -46,8 +46,10 @@ def scenario_for(path: str) -> dict[str, Any]:
 
 
 def distance_to_path(path: str, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Geometric distance to the reference path (line along +x through the origin; circle
-    of CIRCLE_RADIUS about the origin)."""
+    """Geometric distance to the reference path.
+
+    Line along +x through the origin; circle of CIRCLE_RADIUS about the origin.
+    """
     if path == 'line':
         return np.abs(y)
     return np.abs(np.hypot(x, y) - CIRCLE_RADIUS)
@@ -144,7 +146,8 @@ Examples
 
 A run fails (exit 1 at the end) when the base fell or stopped early, the path error
 after 15 s exceeded --max-path-error, or a freeze did not happen before the run ended.''')
-    parser.add_argument('--out', default='soak_out', help='output directory (default: %(default)s)')
+    parser.add_argument('--out', default='soak_out',
+                        help='output directory (default: %(default)s)')
     parser.add_argument('--runs', type=int, default=5, help='runs per case (default: 5)')
     parser.add_argument('--seconds', type=float, default=60.0,
                         help='run time after the release [s] (default: 60)')
@@ -182,7 +185,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'soak: error: {error}', file=sys.stderr)
         return EXIT_USAGE
     out.mkdir(parents=True, exist_ok=True)
-    from tqdm import tqdm  # noqa: PLC0415 (only the tool needs it)
+    from tqdm import tqdm  # only the tool needs it
     cases = [(p, load, k) for p in args.paths for load in args.loads
              for k in range(args.runs)]
     rows: list[SoakRow] = []

@@ -1,6 +1,8 @@
-"""Console scripts of wip_viewer's tools, what ``ros2 run wip_viewer <tool>`` starts: each
-tool's ``main`` through the exit-code table and last-resort error handler of
-wip_control.tools.cli, as ``python -m <module>`` (the scripts/ front doors) runs it.
+"""Console scripts of wip_viewer's tools.
+
+What ``ros2 run wip_viewer <tool>`` starts: each tool's ``main`` through the exit-code table and
+last-resort error handler of wip_control.tools.cli, as ``python -m <module>`` (the scripts/ front
+doors) runs it.
 """
 
 from wip_control.tools.cli import console_script

@@ -72,7 +72,7 @@ _TRIGGER_RESPONSE_DEFINITION = b'bool success\nstring message\n'
 
 
 def schema_of(type_name: str):
-    """The foxglove Schema of a ROS type: ``ros2msg`` text with its dependencies."""
+    """Return the foxglove Schema of a ROS type: ``ros2msg`` text with its dependencies."""
     import foxglove
     encoding, text = message_definition(type_name)
     return foxglove.Schema(name=type_name, encoding=encoding, data=text.encode('utf-8'))
@@ -91,14 +91,14 @@ def trigger_service_schema():
 
 
 def encode_trigger_response(success: bool, message: str, encoding: str) -> bytes:
-    """A Trigger response in the request's encoding (json or cdr)."""
+    """Return a Trigger response in the request's encoding (json or cdr)."""
     if encoding == 'json':
         return json.dumps({'success': success, 'message': message}).encode('utf-8')
     return serialize_message(Trigger.Response(success=success, message=message))
 
 
 def decode_client_message(topic: str, encoding: str, data: bytes):
-    """The ROS message a client sent on one of :data:`CLIENT_TOPICS`; ValueError if bad."""
+    """Return the ROS message a client sent on one of :data:`CLIENT_TOPICS`; ValueError if bad."""
     if encoding == 'json':
         try:
             fields = json.loads(bytes(data).decode('utf-8') or '{}')
@@ -114,14 +114,17 @@ def decode_client_message(topic: str, encoding: str, data: bytes):
     if encoding == 'cdr':
         try:
             return deserialize_message(bytes(data), Bool if topic == ESTOP_TOPIC else Empty)
-        except Exception as err:  # noqa: B902 - rclpy raises several types on bad CDR
+        except Exception as err:  # noqa: BLE001 - rclpy raises several types on bad CDR
             raise ValueError(f'{topic}: bad CDR: {err}') from err
     raise ValueError(f'{topic}: encoding {encoding!r} is not json or cdr')
 
 
 class _Listener:
-    """foxglove ServerListener: runs on the server's threads, so it only queues work for
-    the node's executor thread (rclpy entities are created there)."""
+    """foxglove ServerListener that only queues work for the node's executor thread.
+
+    foxglove ServerListener: runs on the server's threads, so it only queues work for
+    the node's executor thread (rclpy entities are created there).
+    """
 
     def __init__(self, work: queue.SimpleQueue) -> None:
         self.work = work
@@ -185,7 +188,7 @@ class FoxgloveBridge(Node):
                 capabilities=[Capability.ClientPublish, Capability.Services],
                 supported_encodings=['json', 'cdr'], server_listener=self.listener,
                 services=services)
-        except Exception as err:  # noqa: B902 - the SDK raises its own types (port in use)
+        except Exception as err:  # noqa: BLE001 - the SDK raises its own types (port in use)
             raise ConfigError(f'cannot serve on {self.host}:{self.port}: {err}') from err
         self.url = f'ws://{self.host}:{self.server.port}'
         print(f'foxglove_bridge: serving {self.url}', flush=True)
@@ -223,7 +226,7 @@ class FoxgloveBridge(Node):
             'messages forwarded': str(self.forwarded)})
 
     def handle_work(self) -> None:
-        """What the server's listener queued (timer callback on the executor's thread)."""
+        """Handle what the server's listener queued (timer callback on the executor's thread)."""
         while True:
             try:
                 item = self.work.get_nowait()
@@ -290,7 +293,7 @@ class FoxgloveBridge(Node):
     def destroy_node(self) -> None:
         try:
             self.server.stop()
-        except Exception:  # noqa: B902 - stopping anyway
+        except Exception:  # noqa: BLE001 - stopping anyway
             pass
         super().destroy_node()
 

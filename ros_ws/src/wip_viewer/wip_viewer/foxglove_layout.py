@@ -35,7 +35,7 @@ def _series(value: str, label: str, color: str | None = None, dashed: bool = Fal
 
 
 def build_layout(scenario: Scenario | None = None, live: bool = False):
-    """The layout; limits (labels and axis ranges) from ``scenario`` (default: the paper's)."""
+    """Return the layout; limits (labels, axis ranges) from ``scenario`` (default: the paper's)."""
     import foxglove.layouts as fl
     scenario = scenario or Scenario()
     max_tilt = scenario.mpc.max_tilt
@@ -105,7 +105,7 @@ def build_layout(scenario: Scenario | None = None, live: bool = False):
 
 
 def layout_json(live: bool) -> str:
-    """The layout file's text (indented JSON, a final newline)."""
+    """Return the layout file's text (indented JSON, a final newline)."""
     import json
     return json.dumps(json.loads(build_layout(live=live).to_json()), indent=2,
                       ensure_ascii=False) + '\n'

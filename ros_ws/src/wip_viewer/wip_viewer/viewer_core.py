@@ -74,7 +74,8 @@ def planar_pose_covariance(position_std: float) -> list[float]:
     """Row-major 6x6 covariance of (x, y, z, roll, pitch, yaw) of a 2-D estimate.
 
     All zero (ROS: unknown) when ``position_std`` is 0; else σ² on x and y, the very large
-    :data:`UNOBSERVED_VARIANCE` on z, roll and pitch, and yaw left unknown (0)."""
+    :data:`UNOBSERVED_VARIANCE` on z, roll and pitch, and yaw left unknown (0).
+    """
     cov = np.zeros((6, 6))
     if position_std > 0.0:
         cov[0, 0] = cov[1, 1] = position_std ** 2
@@ -97,7 +98,7 @@ class BodyGeometry:
 
 def vehicle_geometry(x: float, y: float, phi: float, theta: float,
                      config: ViewerConfig) -> BodyGeometry:
-    """The vehicle at axle centre (x, y) on the ground, heading ϕ, tilt θ.
+    """Return the vehicle at axle centre (x, y) on the ground, heading ϕ, tilt θ.
 
     The axle is at height r; the body is a box of length 2 l whose bottom is on the axle,
     pitched by θ about the axle (its centre at l from the axle along the tilted z axis);
@@ -180,7 +181,9 @@ class PathBuffer:
 
 
 def cdr_stamp_ns(data: bytes) -> int:
-    """The ``header.stamp`` [ns] of a serialized message whose first field is a
+    """Return the ``header.stamp`` [ns] of a serialized message, read from its CDR bytes.
+
+    The ``header.stamp`` [ns] of a serialized message whose first field is a
     std_msgs/Header, read from its CDR bytes without deserializing the message.
 
     CDR: a 4-byte encapsulation header (byte 1: 0x01 little-endian, 0x00 big-endian), then
@@ -195,8 +198,11 @@ def cdr_stamp_ns(data: bytes) -> int:
 
 
 class RateGate:
-    """True at most once per ``1/rate`` of message stamps (publishes on input, no timer:
-    deterministic in lockstep, where the viewer sees exactly the simulated stamps)."""
+    """True at most once per ``1/rate`` of message stamps.
+
+    Publishes on input, no timer: deterministic in lockstep, where the viewer sees exactly the
+    simulated stamps.
+    """
 
     def __init__(self, rate: float) -> None:
         self.period_ns = int(round(1e9 / float(rate)))

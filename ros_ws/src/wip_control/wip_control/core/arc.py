@@ -1,14 +1,14 @@
-"""Adaptive robust control (ARC) of the yaw rate, eqs. (10)–(15) in [1]_.
+r"""Adaptive robust control (ARC) of the yaw rate, eqs. (10)–(15) in [1]_.
 
 The yaw subsystem ω̇ = f1 + g1 τω (10) is written α ω̇ = α f1 + τω (11), α = 1/g1 [kg m²],
 and controlled with
 
 .. math::
 
-    e_\\omega = \\hat\\omega - \\omega_d, \\quad
-    \\tau_\\omega = \\mathrm{sat}\\big(\\hat\\alpha \\dot\\omega_d - \\hat\\alpha \\hat f_1
-        - k_\\omega e_\\omega, \\pm\\tau_{\\omega,max}\\big) \\quad (12), \\qquad
-    \\dot{\\hat\\alpha} = -\\gamma e_\\omega (\\dot\\omega_d - \\hat f_1) \\quad (13)
+    e_\omega = \hat\omega - \omega_d, \quad
+    \tau_\omega = \mathrm{sat}\big(\hat\alpha \dot\omega_d - \hat\alpha \hat f_1
+        - k_\omega e_\omega, \pm\tau_{\omega,max}\big) \quad (12), \qquad
+    \dot{\hat\alpha} = -\gamma e_\omega (\dot\omega_d - \hat f_1) \quad (13)
 
 Sign check (REP 103, τω = τr − τl turns counter-clockwise, g1 > 0): with α̂ = α and
 f̂1 = f1, (10) and (12) give ω̇ = f1 + (ω̇_d − f1) − g1 kω e_ω, i.e. ė_ω = −g1 kω e_ω.
@@ -44,8 +44,11 @@ from .config import ConfigError, param
 
 @dataclasses.dataclass(frozen=True)
 class ArcConfig:
-    """Gains and limits of the yaw ARC, eqs. (12), (13) in [1]_ (gains: Section V; the
-    robust adaptation terms default on, the scenario key ``design: paper`` turns them off)."""
+    """Gains and limits of the yaw ARC, eqs. (12), (13) in [1]_.
+
+    Gains: Section V; the robust adaptation terms default on, the scenario key ``design: paper``
+    turns them off.
+    """
 
     yaw_rate_gain: float = param(20.0, 'N m s/rad', 'k_omega of eq. (12)', minimum=0.0,
                                  exclusive_minimum=True)

@@ -146,7 +146,7 @@ class CmdVelReference(Reference):
         return None
 
     def update(self, t: float) -> ReferenceState:
-        """The reference at time t [s] (t earlier than the last update: the last state)."""
+        """Return the reference at time t [s] (t earlier than the last update: the last state)."""
         if t <= self.unicycle.t:
             return self.unicycle.state()
         if self.command_t is None or t - self.command_t > self.timeout:
@@ -162,7 +162,7 @@ class CmdVelReference(Reference):
 
 
 def _polyline(points: Sequence[Sequence[float]]) -> list[tuple[float, float]]:
-    """The points as floats, consecutive duplicates removed; ValueError if not finite."""
+    """Return the points as floats, consecutive duplicates removed; ValueError if not finite."""
     out: list[tuple[float, float]] = []
     for point in points:
         x, y = float(point[0]), float(point[1])
@@ -247,8 +247,11 @@ class PathReference(Reference):
         return x0 + f * (x1 - x0), y0 + f * (y1 - y0)
 
     def _project(self, x: float, y: float) -> float:
-        """Arc length of the point of the path nearest (x, y), not behind the progress
-        (a path that crosses itself is followed in order) and at most one lookahead on."""
+        """Arc length of the point of the path nearest (x, y).
+
+        Not behind the progress (a path that crosses itself is followed in order) and at most one
+        lookahead on.
+        """
         best, best_d2 = self.progress, math.inf
         horizon = self.progress + self.lookahead
         for i in range(len(self.points) - 1):
@@ -287,7 +290,7 @@ class PathReference(Reference):
         return v, omega
 
     def update(self, t: float) -> ReferenceState:
-        """The reference at time t [s] (t earlier than the last update: the last state)."""
+        """Return the reference at time t [s] (t earlier than the last update: the last state)."""
         u = self.unicycle
         while t > u.t:
             step_end = min(t, u.t + MAX_STEP)

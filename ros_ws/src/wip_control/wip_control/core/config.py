@@ -58,7 +58,7 @@ MAX_LIST_LENGTH = 10000
 def param(default: Any, unit: str, description: str, *, minimum: float | None = None,
           maximum: float | None = None, choices: tuple | None = None,
           exclusive_minimum: bool = False, max_length: int | None = None) -> Any:
-    """A dataclass field with its unit, description and admissible range.
+    """Return a dataclass field with its unit, description and admissible range.
 
     Parameters
     ----------
@@ -144,7 +144,8 @@ def check_value(path: str, value: Any, field_type: Any, meta: Mapping[str, Any])
         number = _check_number(path, value, meta, want_int=field_type is int)
         choices = meta.get('choices')
         if choices and number not in choices:
-            raise ConfigError(f"{path}: must be {' or '.join(map(str, choices))}, got {_show(value)}")
+            raise ConfigError(f"{path}: must be {' or '.join(map(str, choices))}, "
+                              f'got {_show(value)}')
         return number
     if field_type is bool:
         if not isinstance(value, bool):

@@ -31,8 +31,11 @@ class ControlOverflow(ValueError):
 
 
 def _all_finite(total: float, values: tuple) -> bool:
-    """Whether every value is finite, given their sum ``total`` (NaN and inf propagate
-    into it, so the values are looked at one by one only when it is not finite)."""
+    """Whether every value is finite, given their sum ``total``.
+
+    NaN and inf propagate into it, so the values are looked at one by one only when it is not
+    finite.
+    """
     return math.isfinite(total) or all(map(math.isfinite, values))
 
 
@@ -93,8 +96,9 @@ class YawStage:
 
 
 class DriveStage:
-    """Estimate, υd and τω -> τυ: the MPC (or LQR) every ``decimation``-th control tick,
-    its torque held in between (:attr:`tau_v`).
+    """Estimate, υd and τω -> τυ: the MPC (or LQR) every ``decimation``-th control tick.
+
+    Its torque held in between (:attr:`tau_v`).
 
     With ``fast_decimation`` (control ticks per ``mpc.fast_resolve_period``, < decimation)
     the MPC also solves at the ticks of that finer grid for ``mpc.fast_resolve_time``
@@ -126,23 +130,30 @@ class DriveStage:
         self._last_solve: int | None = None
 
     def limit(self, tau_omega: float) -> float:
-        """Bound on |τυ| [N m]: 2 τmax − |τω| (``core.mixer.drive_torque_limit``). A NaN τω
-        gives a NaN bound, which the controller answers with INPUT_INVALID and a finite
-        torque (max(0, NaN) would give 0)."""
+        """Bound on |τυ| [N m]: 2 τmax − |τω| (``core.mixer.drive_torque_limit``).
+
+        A NaN τω gives a NaN bound, which the controller answers with INPUT_INVALID and a finite
+        torque (max(0, NaN) would give 0).
+        """
         if not math.isfinite(tau_omega):
             return math.nan
         return drive_torque_limit(tau_omega, self.max_wheel_torque)
 
     def is_tick(self, k: int) -> bool:
-        """Whether control tick ``k`` (from 0) is a tick of the stage (the MPC's, or with
+        """Whether control tick ``k`` (from 0) is a tick of the stage.
+
+        Whether control tick ``k`` (from 0) is a tick of the stage (the MPC's, or with
         re-solving after a push that of its finer grid): the stage takes its inputs, and
-        in lockstep the drive torque is published, at these ticks."""
+        in lockstep the drive torque is published, at these ticks.
+        """
         return k % self.every == 0
 
     def solves(self, k: int, theta_hat: float, f2_hat: float, f3_hat: float) -> bool:
-        """Whether the controller solves at tick ``k`` of :meth:`is_tick`: at every
-        ``decimation``-th tick, and at the finer grid's while re-solving after a push (or
-        when the estimate shows one now)."""
+        """Whether the controller solves at tick ``k`` of :meth:`is_tick`.
+
+        At every ``decimation``-th tick, and at the finer grid's while re-solving after a push (or
+        when the estimate shows one now).
+        """
         if k % self.decimation == 0:
             return True
         if not self._fast:
@@ -153,9 +164,11 @@ class DriveStage:
     def step(self, v_hat: float, theta_hat: float, theta_dot_hat: float, f2_hat: float,
              f3_hat: float, v_d: float, tau_omega: float, hold: bool = True,
              k: int | None = None) -> MpcResult:
-        """Solve once with the bound :meth:`limit`; ``hold``: the result's τυ becomes the
-        held torque. ``k``: the control tick (needed with re-solving after a push, for
-        the increment bound and the push's time)."""
+        """Solve once with the bound :meth:`limit`.
+
+        ``hold``: the result's τυ becomes the held torque. ``k``: the control tick (needed with
+        re-solving after a push, for the increment bound and the push's time).
+        """
         limit = self.limit(tau_omega)
         previous = self.controller.tau_previous
         if self._fast and k is not None:
@@ -174,8 +187,11 @@ class DriveStage:
         return result
 
     def _step_fast(self, k, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit):
-        """A solve with re-solving after a push: the increment bound of the window and
-        the time since the last solve; a push seen now (re)starts the re-solving."""
+        """Solve with re-solving after a push.
+
+        A solve with re-solving after a push: the increment bound of the window and
+        the time since the last solve; a push seen now (re)starts the re-solving.
+        """
         mpc = self.controller
         dmax = mpc.config.max_delta_torque
         window = k - self.decimation
@@ -216,7 +232,7 @@ class ControlStep:
 
     @classmethod
     def from_scenario(cls, scenario) -> 'ControlStep':
-        """The stages of ``scenario`` (a ``core.scenario.Scenario``) with the nominal model."""
+        """Return the stages of ``scenario`` (a ``core.scenario.Scenario``), nominal model."""
         nominal = scenario.controller_model.parameters
         max_wheel = scenario.mixer.max_wheel_torque
         return cls(GuidanceStage(scenario.trajectory_generator),
@@ -229,10 +245,13 @@ class ControlStep:
     def step(self, t: float, reference: ReferenceState, pose: PoseEstimate,
              mpc_tick: bool, hold: bool = True, k: int | None = None,
              decide: bool = True) -> ControlOutputs:
-        """Torques of control tick ``k`` at ``t`` [s]; the MPC solves when ``mpc_tick``
-        (``drive.is_tick(k)``) and, with ``decide``, ``drive.solves(k, …)``; its τυ is
-        held from this tick on (``hold``, as the graph in lockstep) or when the caller
-        sets ``drive.tau_v`` (a re-run that knows when a real-time mixer got it)."""
+        """Torques of control tick ``k`` at ``t`` [s].
+
+        The MPC solves when ``mpc_tick`` (``drive.is_tick(k)``) and, with ``decide``,
+        ``drive.solves(k, …)``; its τυ is held from this tick on (``hold``, as the graph in
+        lockstep) or when the caller sets ``drive.tau_v`` (a re-run that knows when a real-time
+        mixer got it).
+        """
         est = pose.estimate
         command = self.guidance.step(t, reference, pose.x, pose.y, est.phi)
         arc = self.yaw.step(est.omega, est.f1, command)

@@ -109,7 +109,7 @@ def _zoh(t_to: np.ndarray, t_from: np.ndarray, values: np.ndarray) -> np.ndarray
 
 
 def pulse_mask(t: np.ndarray, scenario, recovery: float) -> np.ndarray:
-    """True where ``t`` is outside every [t0, t0 + width + recovery] of a pulse."""
+    """Return True where ``t`` is outside every [t0, t0 + width + recovery] of a pulse."""
     outside = np.ones_like(t, dtype=bool)
     for channel in scenario.disturbances.channels():
         for c in channel:
@@ -134,7 +134,7 @@ def _max(values: np.ndarray) -> float | None:
 
 
 def measure(record: RunRecord, scenario, metrics: dict, criteria: Criteria) -> dict[str, Any]:
-    """The quantities the criteria compare, measured on the run (None if not defined)."""
+    """Return the quantities the criteria compare, measured on the run (None if not defined)."""
     truth = record['truth']
     t = truth['t']
     end = float(t[-1]) if len(t) else 0.0

@@ -126,7 +126,7 @@ class DisturbanceConfig:
                     raise ConfigError(f'{name}[{i}].{err}') from err
 
     def channels(self) -> tuple[tuple[DisturbanceComponent, ...], ...]:
-        """The component tuples in the order (yaw, longitudinal, tilt) = (d1, d2, d3)."""
+        """Return the component tuples in the order (yaw, longitudinal, tilt) = (d1, d2, d3)."""
         return self.yaw, self.longitudinal, self.tilt
 
     @classmethod
@@ -202,7 +202,7 @@ def _zero(t: float) -> float:
 
 def _with_many(function: Callable[[float], float],
                many: Callable[[list[float]], list[float]] | None = None):
-    """``function`` with its ``many`` attribute (default: one call per time)."""
+    """Return ``function`` with its ``many`` attribute (default: one call per time)."""
     function.many = many if many is not None else (lambda times: [function(t) for t in times])
     return function
 
@@ -229,7 +229,7 @@ def _channel_function(functions: list[Callable[[float], float]]) -> Callable[[fl
 
 def _component_function(c: DisturbanceComponent, seed: int, channel: int,
                         index: int) -> Callable[[float], float]:
-    """A fast float -> float closure for one component."""
+    """Return a fast float -> float closure for one component."""
     amplitude = c.amplitude
     start = c.start_time - EDGE_TOLERANCE
     if c.kind == 'sine':

@@ -1,12 +1,12 @@
-"""Extended state observers (ESO) of eqs. (4) and (8) in [1]_, one per measured position.
+r"""Extended state observers (ESO) of eqs. (4) and (8) in [1]_, one per measured position.
 
 Each channel is the third-order observer
 
 .. math::
 
-    \\dot{\\hat x}_1 = \\hat x_2 + \\frac{\\alpha_1}{\\varepsilon}(y - \\hat x_1), \\quad
-    \\dot{\\hat x}_2 = b u + \\hat f + \\frac{\\alpha_2}{\\varepsilon^2}(y - \\hat x_1), \\quad
-    \\dot{\\hat f} = \\frac{\\alpha_3}{\\varepsilon^3}(y - \\hat x_1)
+    \dot{\hat x}_1 = \hat x_2 + \frac{\alpha_1}{\varepsilon}(y - \hat x_1), \quad
+    \dot{\hat x}_2 = b u + \hat f + \frac{\alpha_2}{\varepsilon^2}(y - \hat x_1), \quad
+    \dot{\hat f} = \frac{\alpha_3}{\varepsilon^3}(y - \hat x_1)
 
 of a double integrator ``ÿ = b u + f`` with the lumped disturbance ``f`` as an extra state.
 :class:`WipStateObserver` runs three of them: yaw (y = ϕ, b u = ĝ1(θ̂) τω), distance
@@ -143,8 +143,11 @@ def discretise(gains: Sequence[float], epsilon: float, period: float,
 
 @dataclasses.dataclass(frozen=True)
 class EsoConfig:
-    """Tunables of the observers: the paper's three ESOs, eqs. (4) and (8) in [1]_ (gains and
-    ε: Section V), or the gyro-aided design (default; docs/estimation.md)."""
+    """Tunables of the observers: the paper's three ESOs or the gyro-aided design.
+
+    The paper's three ESOs, eqs. (4) and (8) in [1]_ (gains and ε: Section V), or the gyro-aided
+    design (default; docs/estimation.md).
+    """
 
     yaw_gains: tuple[float, float, float] = param(
         (6.0, 11.0, 6.0), '1', '(alpha1, alpha2, alpha3) of the yaw ESO, eq. (4); '
@@ -196,7 +199,7 @@ class EsoConfig:
         minimum=0.1, maximum=150.0)
     yaw_rate_bandwidth: float = param(
         20.0, 'rad/s', "'gyro': double pole of the reduced-order ESO of the yaw rate "
-        '(gives f1 to the ARC; the yaw disturbances are slower than the tilt\'s and f1 '
+        "(gives f1 to the ARC; the yaw disturbances are slower than the tilt's and f1 "
         'noise drives the adaptation)', minimum=0.1, maximum=150.0)
     longitudinal_bandwidth: float = param(
         60.0, 'rad/s', "'gyro': triple pole of the x_v ESO (eq. (8), gains (3w, 3w^2, "
@@ -228,8 +231,11 @@ class EsoConfig:
 
 
 class _ChannelEstimate:
-    """The read-out of a second-order channel observer (x̂1, x̂2, f̂ at ``_t_prev``),
-    the same for the ESO (25) and the rate-aided channel."""
+    """The read-out of a second-order channel observer.
+
+    The read-out of a second-order channel observer (x̂1, x̂2, f̂ at ``_t_prev``),
+    the same for the ESO (25) and the rate-aided channel.
+    """
 
     name: str
     x1: float
@@ -333,11 +339,13 @@ class ExtendedStateObserver(_ChannelEstimate):
         return self.epsilon / (s * s * s)
 
     def in_ramp(self, t: float) -> bool:
-        """True while the ε ramp is still running at time ``t`` [s]."""
+        """Return True while the ε ramp is still running at time ``t`` [s]."""
         return self.schedule == 'paper_ramp' and t - self._t0 < self.ramp_duration
 
     def update(self, t: float, y: float, b_u: float) -> tuple[float, float, float]:
-        """Advance to time ``t`` [s] with measurement ``y`` at t and ``b_u`` held since
+        """Advance to time ``t`` [s] with measurement ``y`` at t.
+
+        Advance to time ``t`` [s] with measurement ``y`` at t and ``b_u`` held since
         the previous update; returns (x̂1, x̂2, f̂).
 
         ``t`` equal to the previous time leaves the estimate unchanged (e.g. a first call
@@ -375,8 +383,10 @@ class ExtendedStateObserver(_ChannelEstimate):
         return self.x1, self.x2, self.f
 
     def _off_nominal(self, dt: float) -> tuple[float, ...]:
-        """Discretisation for an off-nominal period (real-time jitter), cached by the
-        period rounded to :data:`PERIOD_RESOLUTION`."""
+        """Discretisation for an off-nominal period (real-time jitter).
+
+        Cached by the period rounded to :data:`PERIOD_RESOLUTION`.
+        """
         key = round(dt / PERIOD_RESOLUTION)
         m = self._cached.get(key)
         if m is None:
@@ -425,7 +435,9 @@ class ExtendedStateObserver(_ChannelEstimate):
 
 
 def complementary_bandwidth(angle_noise_std: float, rate_noise_std: float) -> float:
-    """Crossover ω_c [rad/s] of the angle/gyro complementary filter that minimises the
+    """Crossover ω_c [rad/s] of the angle/gyro complementary filter.
+
+    Crossover ω_c [rad/s] of the angle/gyro complementary filter that minimises the
     angle error variance for white angle noise σ_a [rad] and white rate noise σ_g
     [rad/s] sampled at the same period: ω_c = σ_g / σ_a.
 
@@ -440,7 +452,9 @@ def complementary_bandwidth(angle_noise_std: float, rate_noise_std: float) -> fl
 
 
 def discrete_pole_gains(pole_a: float, pole_b: float, period: float) -> tuple[float, float]:
-    """Gains (L1, L2) of the two-state predictor-corrector used twice in
+    """Gains (L1, L2) of the two-state predictor-corrector of :class:`RateAidedChannel`.
+
+    Gains (L1, L2) of the two-state predictor-corrector used twice in
     :class:`RateAidedChannel` that put its error poles at e^{−a h}, e^{−b h}.
 
     Both loops have the error matrix [[1 − L1, ∓(1 − L1) h], [±L2, 1 − L2 h]], whose
@@ -501,8 +515,10 @@ class RateAidedChannel(_ChannelEstimate):
         return gains
 
     def reset(self, initial_output: float, initial_time: float = 0.0) -> None:
-        """Angle y0 at ``initial_time`` [s]; rate, bias, disturbance zero. The first
-        update at the same time takes the measured rate as the rate estimate."""
+        """Angle y0 at ``initial_time`` [s]; rate, bias, disturbance zero.
+
+        The first update at the same time takes the measured rate as the rate estimate.
+        """
         self._reset_estimate(initial_output, initial_time)
         self.bias = 0.0
         self._t_prev = float(initial_time)
@@ -510,8 +526,11 @@ class RateAidedChannel(_ChannelEstimate):
         self._rate_prev = 0.0
 
     def update(self, t: float, y: float, rate: float, b_u: float) -> tuple[float, float, float]:
-        """Advance to ``t`` [s] with the angle ``y`` [rad], the gyro ``rate`` [rad/s] at t
-        and ``b_u`` [rad/s²] held since the previous update; returns (â, ẑ1, f̂)."""
+        """Advance to ``t`` [s] with the angle ``y`` [rad] and the gyro ``rate`` [rad/s].
+
+        Advance to ``t`` [s] with the angle ``y`` [rad], the gyro ``rate`` [rad/s] at t
+        and ``b_u`` [rad/s²] held since the previous update; returns (â, ẑ1, f̂).
+        """
         if not math.isfinite(t + y + rate + b_u):
             raise ValueError(f'{self.name}: non-finite input t={t!r}, y={y!r}, '
                              f'rate={rate!r}, b_u={b_u!r}')
@@ -549,7 +568,9 @@ class RateAidedChannel(_ChannelEstimate):
 
 def rate_eso_noise_variance(rate_noise_std: float, bandwidth: float, period: float,
                             exact: bool = True) -> float:
-    """Stationary variance of f̂ [(rad/s²)²] of the reduced-order rate ESO of
+    """Stationary variance of f̂ [(rad/s²)²] of the reduced-order rate ESO.
+
+    Stationary variance of f̂ [(rad/s²)²] of the reduced-order rate ESO of
     :class:`RateAidedChannel` for white rate noise of std σ [rad/s] per sample.
 
     ``exact``: the discrete Lyapunov equation of the error loop; else the continuous
@@ -668,7 +689,7 @@ class WipStateObserver:
         return self.longitudinal.epsilon_at(t) if self.gyro else self.yaw.epsilon_at(t)
 
     def in_ramp(self, t: float) -> bool:
-        """True while the paper's ε ramp runs (never with the gyro estimator)."""
+        """Return True while the paper's ε ramp runs (never with the gyro estimator)."""
         return False if self.gyro else self.yaw.in_ramp(t)
 
     @property

@@ -34,9 +34,11 @@ class ContactConfig:
 
 @dataclasses.dataclass(frozen=True)
 class TerrainConfig:
-    """Ground along the map's x axis (east), across the whole width: a slope that starts
-    at ``slope_start``, a bump whose crest is at ``bump_position`` and a patch of other
-    friction between ``patch_start`` and ``patch_end``. Defaults: flat, one friction."""
+    """Ground along the map's x axis (east), across the whole width.
+
+    A slope that starts at ``slope_start``, a bump whose crest is at ``bump_position`` and a patch
+    of other friction between ``patch_start`` and ``patch_end``. Defaults: flat, one friction.
+    """
 
     slope_start: float = param(0.0, 'm', 'x where an uphill slope starts (map frame; the '
                                'ground rises for x > slope_start)', minimum=-1e4, maximum=1e4)

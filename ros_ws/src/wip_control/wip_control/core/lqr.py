@@ -1,4 +1,4 @@
-"""Discrete LQR baseline of the longitudinal/tilt subsystem, on the MPC's own model.
+r"""Discrete LQR baseline of the longitudinal/tilt subsystem, on the MPC's own model.
 
 A controller a user would pick instead of the MPC of eqs. (16)–(23): same model, same
 rate, same weights, same hard limits, no QP.
@@ -11,8 +11,8 @@ increment form of (23), τ(k) = τ(k−1) + Δτ(k). Augmented with τ(k−1), t
 
 .. math::
 
-    \\xi(k+1) = \\begin{bmatrix} A & B \\\\ 0 & 1 \\end{bmatrix} \\xi(k)
-              + \\begin{bmatrix} B \\\\ 1 \\end{bmatrix} \\Delta\\tau(k),
+    \xi(k+1) = \begin{bmatrix} A & B \\ 0 & 1 \end{bmatrix} \xi(k)
+              + \begin{bmatrix} B \\ 1 \end{bmatrix} \Delta\tau(k),
 
 and the stage cost is the MPC's (20) with an infinite horizon:
 ξᵀ diag(q, 0) ξ + r Δτ². The gain K of Δτ = −K ξ solves the discrete algebraic Riccati
@@ -146,7 +146,7 @@ class LongitudinalLqr(PreviousTorque):
 
 def make_longitudinal_controller(params: WipParameters, config: MpcConfig
                                  ) -> LongitudinalMpc | LongitudinalLqr:
-    """The controller named by ``config.controller``: the MPC (default) or the LQR."""
+    """Return the controller named by ``config.controller``: the MPC (default) or the LQR."""
     if config.controller == 'lqr':
         return LongitudinalLqr(params, config)
     return LongitudinalMpc(params, config)

@@ -91,7 +91,7 @@ def pulse_windows(scenario) -> list[tuple[float, float]]:
 
 def compute_metrics(record: RunRecord, scenario, fell: bool | None = None,
                     duration_s: float | None = None) -> dict[str, Any]:
-    """The metrics dictionary written to ``metrics.json`` (keys documented in README)."""
+    """Return the metrics dictionary written to ``metrics.json`` (keys documented in README)."""
     metrics: dict[str, Any] = {'scenario': scenario.name}
     has_truth = 'truth' in record
     tilt_source = record['truth'] if has_truth else record['estimate']

@@ -1,9 +1,9 @@
-"""Wheel-torque mixer, eq. (24) in [1]_, with REP 103 signs and per-wheel limits.
+r"""Wheel-torque mixer, eq. (24) in [1]_, with REP 103 signs and per-wheel limits.
 
 .. math::
 
-    \\tau_l = (\\tau_\\upsilon - \\tau_\\omega)/2, \\quad
-    \\tau_r = (\\tau_\\upsilon + \\tau_\\omega)/2
+    \tau_l = (\tau_\upsilon - \tau_\omega)/2, \quad
+    \tau_r = (\tau_\upsilon + \tau_\omega)/2
 
 the inverse of τυ = τl + τr, τω = τr − τl (``model.wheel_to_body_torques``). The paper
 writes τω = τl − τr (clockwise yaw); with REP 103 (yaw counter-clockwise positive) and

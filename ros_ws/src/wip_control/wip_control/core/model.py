@@ -1,10 +1,10 @@
-"""The paper's WIP model, eq. (1) in [1]_, and the state layout shared by the project.
+r"""The paper's WIP model, eq. (1) in [1]_, and the state layout shared by the project.
 
 .. math::
 
-    \\dot\\omega = f_{\\omega 1} + g_1 \\tau_\\omega + \\tau_{d1}, \\quad
-    \\dot\\upsilon = f_{\\upsilon 2} + g_2 \\tau_\\upsilon + \\tau_{d2}, \\quad
-    \\ddot\\theta = f_{\\theta 3} + g_3 \\tau_\\upsilon + \\tau_{d3}
+    \dot\omega = f_{\omega 1} + g_1 \tau_\omega + \tau_{d1}, \quad
+    \dot\upsilon = f_{\upsilon 2} + g_2 \tau_\upsilon + \tau_{d2}, \quad
+    \ddot\theta = f_{\theta 3} + g_3 \tau_\upsilon + \tau_{d3}
 
 with τυ = τl + τr and, following REP 103 (yaw counter-clockwise positive),
 τω = τr − τl. The paper writes τω = τl − τr (clockwise yaw); see docs/paper.md §1.
@@ -49,7 +49,7 @@ class ModelTerms(NamedTuple):
 def input_gains(params: WipParameters, theta: float) -> tuple[float, float, float]:
     """(g1, g2, g3) of eq. (1) at tilt ``theta`` [rad]."""
     p = params
-    mp, l, r, d = p.body_mass, p.com_height, p.wheel_radius, p.track_width
+    mp, l, r, d = p.body_mass, p.com_height, p.wheel_radius, p.track_width  # noqa: E741 - the paper's symbol
     s, c = math.sin(theta), math.cos(theta)
     big_omega = p.effective_mass * p.pitch_inertia - (mp * l * c) ** 2
     g1 = d / (r * (p.yaw_inertia_total + mp * l * l * s * s))
@@ -62,7 +62,7 @@ def nominal_terms(params: WipParameters, theta: float, omega: float,
                   theta_dot: float) -> ModelTerms:
     """All terms of eq. (1) at (θ [rad], ω [rad/s], θ̇ [rad/s])."""
     p = params
-    mp, l, g = p.body_mass, p.com_height, p.gravity
+    mp, l, g = p.body_mass, p.com_height, p.gravity  # noqa: E741 - the paper's symbol
     mv, jt = p.effective_mass, p.pitch_inertia
     s, c = math.sin(theta), math.cos(theta)
     s2 = 2.0 * s * c  # sin 2θ

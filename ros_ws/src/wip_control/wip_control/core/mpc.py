@@ -1,4 +1,4 @@
-"""MPC of the longitudinal/tilt subsystem, eqs. (16)–(23) in [1]_.
+r"""MPC of the longitudinal/tilt subsystem, eqs. (16)–(23) in [1]_.
 
 Every ``sampling_period`` Ts the controller takes the ESO's estimates (υ̂, θ̂, θ̂̇, f̂2, f̂3)
 and the desired speed υd, solves the condensed QP (22) over the increments
@@ -6,15 +6,15 @@ and the desired speed υd, solves the condensed QP (22) over the increments
 
 .. math::
 
-    \\tau_\\upsilon(k) = \\tau_\\upsilon(k-1) + \\Delta\\tau(k|k).
+    \tau_\upsilon(k) = \tau_\upsilon(k-1) + \Delta\tau(k|k).
 
 Cost (20), with ȳ = G̃ Δτ̄ + ȳ_free from :mod:`.mpc_prediction`:
 
 .. math::
 
-    J = \\|\\bar y_r - \\bar y\\|^2_Q + \\|\\Delta\\bar\\tau\\|^2_R
-        + \\sum_i \\left(\\rho_{1\\upsilon} s_{\\upsilon,i} + \\rho_1 s_{\\theta,i}
-        + \\rho_2 (s_{\\upsilon,i}^2 + s_{\\theta,i}^2)\\right)
+    J = \|\bar y_r - \bar y\|^2_Q + \|\Delta\bar\tau\|^2_R
+        + \sum_i \left(\rho_{1\upsilon} s_{\upsilon,i} + \rho_1 s_{\theta,i}
+        + \rho_2 (s_{\upsilon,i}^2 + s_{\theta,i}^2)\right)
 
 with ȳr = 1_Np ⊗ (υd, θs, 0), Q = I_Np ⊗ diag(q), R = r I_Nc. θs is the offset-free
 target of :class:`OffsetFreeTarget` (0 in the paper's (20), ``offset_free: false``). With
@@ -111,8 +111,10 @@ PAPER_MPC_SETTINGS = {'soft_limits': 'worst_case', 'speed_limit_first_step': 1,
 
 
 def resolves_faster(sampling_period: float, fast_resolve_period: float) -> bool:
-    """Whether the MPC re-solves every ``fast_resolve_period`` after a push (docs/mpc.md
-    §10): on when it is above 0 and shorter than ``sampling_period``, else off."""
+    """Whether the MPC re-solves every ``fast_resolve_period`` after a push (docs/mpc.md §10).
+
+    On when it is above 0 and shorter than ``sampling_period``, else off.
+    """
     return 0.0 < fast_resolve_period < sampling_period
 
 
@@ -189,7 +191,7 @@ class MpcConfig:
         'than riding the limit (1 = every step, as in the paper)', minimum=1)
     offset_free: bool = param(
         True, '-', 'track the steady-state target (tilt that balances the estimated '
-        'constant disturbance) instead of theta = 0 (false: the paper\'s reference (20))')
+        "constant disturbance) instead of theta = 0 (false: the paper's reference (20))")
     disturbance_filter_time_constant: float = param(
         0.5, 's', 'low-pass time constant of the constant-disturbance estimate behind the '
         'offset-free target', minimum=0.0)
@@ -197,7 +199,7 @@ class MpcConfig:
         0.1, 's', 'the part of the disturbance estimate not (yet) in the slow estimate of '
         'the offset-free target is predicted to decay with this time constant instead of '
         'staying constant over the horizon (a push is not a slope), beyond '
-        'disturbance_decay_dead_zone; 0: held constant (the paper\'s prediction). With '
+        "disturbance_decay_dead_zone; 0: held constant (the paper's prediction). With "
         'the dead zone it saved the 6 hard-push falls of the acceptance campaign, docs/mpc.md',
         minimum=0.0, maximum=10.0)
     disturbance_decay_dead_zone: tuple[float, float] = param(
@@ -235,13 +237,13 @@ class MpcConfig:
     disturbance_startup_time: float = param(
         0.25, 's', 'start-up of the estimator (it starts with zero rates and disturbances): '
         'for this long after a reset the MPC uses the nominal drift of model (1) at the '
-        'estimate instead of the ESO\'s f2, f3, and on the first tick no speed error '
+        "estimate instead of the ESO's f2, f3, and on the first tick no speed error "
         '(its speed estimate is the zero start, not a measurement). At speed, the start-up '
         'transient of f2 (+4 m/s2 at 0.1 s) made it brake hard and overshoot to 1.65 m/s. '
         '0: off (the paper)', minimum=0.0, maximum=10.0)
     speed_slack_quadratic_penalty: float = param(
         100.0, '1', 'rho2 of the speed slacks (the tilt slacks use slack_quadratic_penalty). '
-        'A WIP must speed up to brake: 1e4 (the paper\'s, for both limits) made it brake '
+        "A WIP must speed up to brake: 1e4 (the paper's, for both limits) made it brake "
         'from 2.2 m/s after a push with a +10 N m step that took it to 2.53 m/s; with 100 '
         'the speed weight q_v still brings it under the limit within 2 s, more gently',
         minimum=0.0, exclusive_minimum=True)
@@ -344,18 +346,24 @@ class QpData(NamedTuple):
 
 def tick_gains(params: WipParameters, config: MpcConfig,
                theta_hat: float) -> tuple[float, float, float, float]:
-    """(g2, g3, g2p, g3p): the input gains of model (1) at θ̂ (what the ESO assumes, so
+    """Input gains of model (1) at θ̂ and the scaled gains of the increments.
+
+    (g2, g3, g2p, g3p): the input gains of model (1) at θ̂ (what the ESO assumes, so
     f̂ + g τ(k−1) is its estimate of the present accelerations) and the scaled gains the
-    increments are predicted with (``prediction_gain_scale``)."""
+    increments are predicted with (``prediction_gain_scale``).
+    """
     _, g2, g3 = input_gains(params, theta_hat)
     scale2, scale3 = config.prediction_gain_scale
     return g2, g3, scale2 * g2, scale3 * g3
 
 
 class PreviousTorque:
-    """τυ(k−1), the drive torque applied since the last tick, and the start of a tick, of a
+    """τυ(k−1) and the start of a tick, of a longitudinal controller.
+
+    τυ(k−1), the drive torque applied since the last tick, and the start of a tick, of a
     longitudinal controller (the MPC and the LQR baseline; both set ``config``,
-    ``params``, ``_target`` and ``_tau_previous``)."""
+    ``params``, ``_target`` and ``_tau_previous``).
+    """
 
     config: MpcConfig
     params: WipParameters
@@ -367,9 +375,12 @@ class PreviousTorque:
 
     def _begin_tick(self, tau_limit: float | None, v_hat: float, theta_hat: float,
                     theta_dot_hat: float, f2_hat: float, f3_hat: float, v_d: float):
-        """What every tick starts with: the tick's |τυ| limit, the input gains at θ̂
+        """Start a tick: its |τυ| limit, the input gains at θ̂ and the offset-free target.
+
+        What every tick starts with: the tick's |τυ| limit, the input gains at θ̂
         (``tick_gains``) and the offset-free target updated with them. None when an input
-        is invalid (the caller then returns ``_hold_invalid_input()``)."""
+        is invalid (the caller then returns ``_hold_invalid_input()``).
+        """
         limit = drive_limit(self.config, tau_limit, v_hat, theta_hat, theta_dot_hat, f2_hat,
                             f3_hat, v_d)
         if limit is None:
@@ -385,8 +396,10 @@ class PreviousTorque:
         return self._tau_previous
 
     def set_previous_torque(self, tau_previous: float) -> None:
-        """Overwrite τυ(k−1) [N m] with the torque really applied (e.g. after the safety
-        layer cut it, or to replay a recorded tick)."""
+        """Overwrite τυ(k−1) [N m] with the torque really applied.
+
+        E.g. after the safety layer cut it, or to replay a recorded tick.
+        """
         tau_previous = float(tau_previous)
         if not math.isfinite(tau_previous):
             raise MpcInputError(f'tau_previous must be finite, got {tau_previous!r}')
@@ -546,8 +559,11 @@ class LongitudinalMpc(PreviousTorque):
         self._solver.reset()
 
     def set_previous_torque(self, tau_previous: float) -> None:
-        """Overwrite τυ(k−1) [N m] with the torque really applied (e.g. after the safety
-        layer cut it, or to replay a recorded tick). The plan and workspace are kept."""
+        """Overwrite τυ(k−1) [N m] with the torque really applied.
+
+        Overwrite τυ(k−1) [N m] with the torque really applied (e.g. after the safety
+        layer cut it, or to replay a recorded tick). The plan and workspace are kept.
+        """
         super().set_previous_torque(tau_previous)
 
     # ------------------------------------------------------------------ tick
@@ -720,8 +736,11 @@ class LongitudinalMpc(PreviousTorque):
         return admissible_increment(delta, tau_prev, limit, self._first_bound)
 
     def _set_first_bound(self, bound: float) -> None:
-        """|Δτ(k|k)| ≤ ``bound``: its box and the reachable |τ(k+j) − τ(k−1)| of the τ
-        rows, bound + j Δτmax (the later increments keep Δτmax)."""
+        """Bound |Δτ(k|k)| by ``bound``.
+
+        |Δτ(k|k)| ≤ ``bound``: its box and the reachable |τ(k+j) − τ(k−1)| of the τ
+        rows, bound + j Δτmax (the later increments keep Δτmax).
+        """
         if bound == self._first_bound:
             return
         self._first_bound = bound
@@ -730,11 +749,14 @@ class LongitudinalMpc(PreviousTorque):
         self._reach = bound + dmax * np.arange(self.config.control_horizon)
 
     def push_detected(self, theta_hat: float, f2_hat: float, f3_hat: float) -> bool:
-        """Whether the disturbance estimate (f̂2, f̂3) at θ̂, against the offset-free
+        """Whether the disturbance estimate shows a push.
+
+        Whether the disturbance estimate (f̂2, f̂3) at θ̂, against the offset-free
         target's slow estimate, has a transient beyond ``disturbance_decay_dead_zone`` (what
         the prediction lets decay: a push). Reads the filter without updating it; False
         before its first tick, within ``disturbance_startup_time`` of a reset (the MPC
-        does not use the estimator's start-up f̂ then) or with ``offset_free`` off."""
+        does not use the estimator's start-up f̂ then) or with ``offset_free`` off.
+        """
         if self._elapsed < self.config.disturbance_startup_time - 1e-9:
             return False
         transient = self._target.transient_of(theta_hat, f2_hat, f3_hat,
@@ -754,7 +776,7 @@ def _beyond(transient: tuple[float, float], zone: tuple[float, float]) -> bool:
 
 
 def _excess(value: float, band: float) -> float:
-    """The part of ``value`` beyond ±``band`` (0 inside it)."""
+    """Return the part of ``value`` beyond ±``band`` (0 inside it)."""
     if value > band:
         return value - band
     if value < -band:
@@ -763,10 +785,13 @@ def _excess(value: float, band: float) -> float:
 
 
 def drive_limit(config: MpcConfig, tau_limit: float | None, *inputs: float) -> float | None:
-    """The |τυ| limit of a tick, capped to ``max_drive_torque`` (``tau_limit`` None: that
+    """Return the |τυ| limit of a tick, capped to ``max_drive_torque``.
+
+    The |τυ| limit of a tick, capped to ``max_drive_torque`` (``tau_limit`` None: that
     cap); None when an input or the limit is not finite or beyond
     :data:`INPUT_MAGNITUDE_LIMIT` (the caller then holds, see ``invalid_input_result``).
-    MpcInputError on a negative limit (a caller's bug: 2τmax − |τω| ≥ 0)."""
+    MpcInputError on a negative limit (a caller's bug: 2τmax − |τω| ≥ 0).
+    """
     limit = config.max_drive_torque if tau_limit is None else float(tau_limit)
     if not all(math.isfinite(v) and abs(v) <= INPUT_MAGNITUDE_LIMIT
                for v in (*inputs, limit)):
@@ -788,7 +813,7 @@ def admissible_increment(delta: float, tau_prev: float, limit: float, dmax: floa
 
 
 def invalid_input_result(config: MpcConfig, tau_prev: float) -> MpcResult:
-    """The tick's result on NaN/inf input: τ ramps toward 0 by at most Δτmax."""
+    """Return the tick's result on NaN/inf input: τ ramps toward 0 by at most Δτmax."""
     delta = min(max(-tau_prev, -config.max_delta_torque), config.max_delta_torque)
     plan = np.zeros(config.control_horizon)
     plan[0] = delta
@@ -833,8 +858,10 @@ class OffsetFreeTarget:
         self.transient = (0.0, 0.0)
 
     def transient_of(self, theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev):
-        """(d2, d3) minus the filtered estimate, without updating the filter; None before
-        its first update or with ``offset_free`` off."""
+        """(d2, d3) minus the filtered estimate, without updating the filter.
+
+        None before its first update or with ``offset_free`` off.
+        """
         if self.disturbance is None or not self.config.offset_free:
             return None
         d2 = f2_hat + (g2 - g2p) * tau_prev - self.a_v_theta * theta_hat
@@ -843,8 +870,10 @@ class OffsetFreeTarget:
 
     def update(self, theta_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev,
                period: float | None = None) -> float:
-        """Filter the disturbance estimate and return θs [rad] (τs in ``self.tau``);
-        ``period``: time since the last update [s] (None: ``sampling_period``)."""
+        """Filter the disturbance estimate and return θs [rad] (τs in ``self.tau``).
+
+        ``period``: time since the last update [s] (None: ``sampling_period``).
+        """
         cfg = self.config
         if not cfg.offset_free:
             return self.theta

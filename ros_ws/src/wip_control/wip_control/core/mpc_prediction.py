@@ -1,11 +1,11 @@
-"""Condensed prediction of the longitudinal/tilt subsystem, eqs. (16)–(18) in [1]_.
+r"""Condensed prediction of the longitudinal/tilt subsystem, eqs. (16)–(18) in [1]_.
 
 The MPC predicts x = (υ, θ, θ̇) with the Euler model (17)
 
 .. math::
 
-    x(k+1) = A x(k) + B \\tau_\\upsilon(k) + c, \\qquad
-    B = T_s [g_2(\\hat\\theta);\\ 0;\\ g_3(\\hat\\theta)]
+    x(k+1) = A x(k) + B \tau_\upsilon(k) + c, \qquad
+    B = T_s [g_2(\hat\theta);\ 0;\ g_3(\hat\theta)]
 
 over ``Np`` steps, with the input increments Δτ(k) … Δτ(k+Nc−1) as decision variables
 and τ(k+i) = τ(k−1) + Σ_{j ≤ min(i, Nc−1)} Δτ(k+j). Stacking the outputs
@@ -13,7 +13,7 @@ and τ(k+i) = τ(k−1) + Σ_{j ≤ min(i, Nc−1)} Δτ(k+j). Stacking the outp
 
 .. math::
 
-    \\bar y = \\tilde G\\, \\Delta\\bar\\tau + \\bar y_{free}
+    \bar y = \tilde G\, \Delta\bar\tau + \bar y_{free}
 
 where ȳ_free is the trajectory with τ held at τ(k−1) (the paper's f̃ + g̃).
 
@@ -147,7 +147,9 @@ class CondensedPrediction:
         self.gain_matrix_theta_dot = self._toeplitz(step_theta_dot)
 
     def decaying_input_columns(self, ratio: float) -> tuple[np.ndarray, np.ndarray]:
-        """(γ2ρ, γ3ρ) (3·Np each): the free response to an input on the υ̇ (θ̈) row that
+        """Free response to a geometrically decaying input: (γ2ρ, γ3ρ), 3·Np each.
+
+        (γ2ρ, γ3ρ) (3·Np each): the free response to an input on the υ̇ (θ̈) row that
         decays geometrically, ρ^p at step p (ρ = 1: the constant-input columns γ2, γ3).
 
         x(k+1) = Σ_{p≤k} A^{k−p} b ρ^p = D_k b with D_0 = I, D_k = A^k + ρ D_{k−1}.

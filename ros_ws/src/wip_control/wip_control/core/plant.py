@@ -1,12 +1,12 @@
-"""The simulated WIP: the paper model (1) of [1]_ or a full Lagrange–d'Alembert model.
+r"""The simulated WIP: the paper model (1) of [1]_ or a full Lagrange–d'Alembert model.
 
 State layout (:mod:`.model`): ``(x, y, ϕ, x_v, θ, ω, υ, θ̇)``. Both models share the
 kinematics
 
 .. math::
 
-    \\dot x = \\upsilon \\cos\\phi, \\quad \\dot y = \\upsilon \\sin\\phi, \\quad
-    \\dot\\phi = \\omega, \\quad \\dot x_v = \\upsilon, \\quad \\dot\\theta = \\dot\\theta
+    \dot x = \upsilon \cos\phi, \quad \dot y = \upsilon \sin\phi, \quad
+    \dot\phi = \omega, \quad \dot x_v = \upsilon, \quad \dot\theta = \dot\theta
 
 and differ in the dynamics of (ω, υ, θ̇). Disturbances enter both models as in eq. (1):
 d1 [rad/s²] adds to ω̇, d2 [m/s²] to υ̇, d3 [rad/s²] to θ̈ (τd1..τd3 of [1]_).
@@ -38,11 +38,11 @@ Model ``'full'``: derivation
 
     .. math::
 
-        T = \\tfrac12 m_p |\\dot p_{cm}|^2 + \\tfrac12 I_c \\dot\\theta^2
-          + \\tfrac12 m_c |\\dot p|^2
-          + \\sum_{i=l,r} \\big(\\tfrac12 m_w |\\dot p_i|^2
-                                 + \\tfrac12 J_\\omega \\dot\\varphi_i^2\\big)
-          + \\tfrac12 J_\\upsilon \\dot\\phi^2 .
+        T = \tfrac12 m_p |\dot p_{cm}|^2 + \tfrac12 I_c \dot\theta^2
+          + \tfrac12 m_c |\dot p|^2
+          + \sum_{i=l,r} \big(\tfrac12 m_w |\dot p_i|^2
+                                 + \tfrac12 J_\omega \dot\varphi_i^2\big)
+          + \tfrac12 J_\upsilon \dot\phi^2 .
 
     Nonholonomic constraints (no lateral slip, rolling without slip of each wheel):
     ẋ sinϕ − ẏ cosϕ = 0, r φ̇_l = υ − (d/2) ω, r φ̇_r = υ + (d/2) ω with υ = ẋ cosϕ + ẏ sinϕ.
@@ -55,14 +55,14 @@ Model ``'full'``: derivation
 
     .. math::
 
-        J(\\theta)\\dot\\omega + m_p l^2 \\sin 2\\theta\\, \\omega\\dot\\theta
-            + m_p l \\sin\\theta\\, \\upsilon\\omega = \\frac{d}{2r}\\tau_\\omega
+        J(\theta)\dot\omega + m_p l^2 \sin 2\theta\, \omega\dot\theta
+            + m_p l \sin\theta\, \upsilon\omega = \frac{d}{2r}\tau_\omega
 
-        m_v \\dot\\upsilon + m_p l \\cos\\theta\\, \\ddot\\theta
-            - m_p l \\sin\\theta\\,(\\dot\\theta^2 + \\omega^2) = \\tau_\\upsilon / r
+        m_v \dot\upsilon + m_p l \cos\theta\, \ddot\theta
+            - m_p l \sin\theta\,(\dot\theta^2 + \omega^2) = \tau_\upsilon / r
 
-        m_p l \\cos\\theta\\, \\dot\\upsilon + J_\\theta \\ddot\\theta - m_p g l \\sin\\theta
-            - m_p l^2 \\sin\\theta\\cos\\theta\\, \\omega^2 = -\\tau_\\upsilon
+        m_p l \cos\theta\, \dot\upsilon + J_\theta \ddot\theta - m_p g l \sin\theta
+            - m_p l^2 \sin\theta\cos\theta\, \omega^2 = -\tau_\upsilon
 
     with J(θ) = J_ϕ + m_p l² sin²θ, m_v, J_θ, J_ϕ as in ``WipParameters``. Solving the
     2×2 block (determinant Ω) gives g2 = (J_θ + m_p l r cosθ)/(Ω r),
@@ -150,16 +150,22 @@ class PlantConfig:
 
 
 def equation_model(model: str) -> str:
-    """The equation model whose equations describe ``model``: itself, or 'full' for an
-    engine model (the same bodies; used for the metrics' lumped disturbances and gains)."""
+    """Return the equation model whose equations describe ``model``.
+
+    The equation model whose equations describe ``model``: itself, or 'full' for an
+    engine model (the same bodies; used for the metrics' lumped disturbances and gains).
+    """
     return 'full' if model in ENGINE_MODELS else model
 
 
 def scenario_plant(scenario):
-    """The true plant of ``scenario`` (a :class:`.scenario.Scenario`): model, parameters
+    """Return the true plant of ``scenario`` (a :class:`.scenario.Scenario`).
+
+    The true plant of ``scenario`` (a :class:`.scenario.Scenario`): model, parameters
     and, for an engine model, contact and terrain, stepped at the scenario's plant rate.
     Equation models give a :class:`Plant`; an engine model an object with the same
-    ``hold_floats`` and ``simulate_hold``."""
+    ``hold_floats`` and ``simulate_hold``.
+    """
     section = scenario.plant
     model = section.model.model
     if model not in ENGINE_MODELS:
@@ -175,10 +181,10 @@ def scenario_plant(scenario):
 
 
 def tilt_pole(params: WipParameters, model: str = 'paper') -> float:
-    """Unstable pitch pole [rad/s] of the linearisation at rest (θ = 0, all rates 0).
+    r"""Unstable pitch pole [rad/s] of the linearisation at rest (θ = 0, all rates 0).
 
-    .. math:: \\lambda = \\sqrt{m_v m_p g l / \\Omega_0}, \\quad
-              \\Omega_0 = m_v J_\\theta - m_p^2 l^2
+    .. math:: \lambda = \sqrt{m_v m_p g l / \Omega_0}, \quad
+              \Omega_0 = m_v J_\theta - m_p^2 l^2
 
     Identical for both models: their extra terms are quadratic in the velocities
     (ω², υω) or act through the input, so they vanish from the linearisation at rest
@@ -204,7 +210,7 @@ def full_input_gains(params: WipParameters, theta: float) -> tuple[float, float,
     g1 = d / (2 r J(θ)), g2 = (J_θ + m_p l r cosθ)/(Ω r), g3 = −(m_v r + m_p l cosθ)/(Ω r).
     """
     p = params
-    mp, l, r = p.body_mass, p.com_height, p.wheel_radius
+    mp, l, r = p.body_mass, p.com_height, p.wheel_radius  # noqa: E741 - the paper's symbol
     s, c = math.sin(theta), math.cos(theta)
     big_omega = p.omega_denominator(theta)
     g1 = p.track_width / (2.0 * r * (p.yaw_inertia_total + mp * l * l * s * s))
@@ -220,7 +226,7 @@ def _check_model(model: str) -> None:
 
 
 def _state_floats(state: Sequence[float]) -> list[float]:
-    """The 8 state entries as Python floats; ValueError on a wrong size or NaN/inf."""
+    """Return the 8 state entries as Python floats; ValueError on a wrong size or NaN/inf."""
     if isinstance(state, np.ndarray):
         if state.shape != (STATE_SIZE,):
             raise ValueError(f'plant state must have shape ({STATE_SIZE},), got {state.shape}')
@@ -265,7 +271,7 @@ class Plant:
         self.model = model
         self.wheel_friction = float(wheel_friction)
         p = params
-        mp, l, g, r = p.body_mass, p.com_height, p.gravity, p.wheel_radius
+        mp, l, g, r = p.body_mass, p.com_height, p.gravity, p.wheel_radius  # noqa: E741 - the paper's symbol
         full = model == 'full'
         # Constants of the right-hand side, bound as closure variables of the stepper.
         self._consts = dict(
@@ -379,7 +385,7 @@ class Plant:
 
     @staticmethod
     def has_fallen(state: Sequence[float], limit: float = DEFAULT_FALL_LIMIT) -> bool:
-        """True if |θ| ≥ ``limit`` [rad]."""
+        """Return True if |θ| ≥ ``limit`` [rad]."""
         return abs(float(state[THETA])) >= limit
 
     def linearize(self, state_eq: Sequence[float], tau_left: float = 0.0,
@@ -441,7 +447,7 @@ def _check_dt(dt: float) -> None:
 def _make_accelerations(mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_gain,
                         k_centrifugal, k_coriolis, k_reaction, friction_v, friction_w,
                         sin=math.sin, cos=math.cos):
-    """The dynamics (ω̇, υ̇, θ̈), constants bound as closure variables.
+    """Return the dynamics (ω̇, υ̇, θ̈), constants bound as closure variables.
 
     On plain floats with ``math``'s sin and cos (:meth:`Plant.derivative`); on arrays
     with numpy's (:meth:`Plant.accelerations_array`, for the metrics of a whole run).
@@ -477,10 +483,12 @@ _rk4_hold = None
 
 
 def _load_integrator() -> None:
-    """Import and warm up the compiled integrator once per process (numba is imported only
-    by a process that builds a plant: see :mod:`.plant_rk4`)."""
+    """Import and warm up the compiled integrator once per process.
+
+    Numba is imported only by a process that builds a plant: see :mod:`.plant_rk4`.
+    """
     global _rk4_hold  # noqa: PLW0603 - one compiled function per process
     if _rk4_hold is None:
-        from . import plant_rk4  # noqa: PLC0415
+        from . import plant_rk4
         plant_rk4.warm_up(len(_CONSTANT_NAMES))
         _rk4_hold = plant_rk4.rk4_hold

@@ -1,4 +1,6 @@
-"""The plant's compiled RK4 integrator (numba), apart from :mod:`.plant` so that a process
+"""The plant's compiled RK4 integrator (numba), apart from :mod:`.plant`.
+
+The plant's compiled RK4 integrator (numba), apart from :mod:`.plant` so that a process
 that never steps a plant (the controllers) does not import numba and llvmlite: about 0.2 s
 of import and 50 MB of memory per process, which a robot's small computer pays once per
 controller process. :class:`~.plant.Plant` imports this module at its construction.
@@ -12,11 +14,15 @@ import math
 import numba
 import numpy as np
 
+
 @numba.njit(cache=True, nogil=True, inline='always')
 def _slopes(k, tv, tw, th, om, v, thd, d1, d2, d3):
-    """(ω̇, υ̇, θ̈) at one RK4 stage: :func:`.plant._make_accelerations` for the held wheel
-    torques τυ = ``tv``, τω = ``tw``. Inlined into the caller, so the operations and their
-    order are those of the reference step (bit for bit)."""
+    """(ω̇, υ̇, θ̈) at one RK4 stage.
+
+    :func:`.plant._make_accelerations` for the held wheel torques τυ = ``tv``, τω = ``tw``. Inlined
+    into the caller, so the operations and their order are those of the reference step (bit for
+    bit).
+    """
     (mv, jt, jphi, mpl, mpl2, mpgl, mvjt, mpl_sq, inv_r, yaw_gain, k_centrifugal,
      k_coriolis, k_reaction, friction_v, friction_w) = k
     # Axle friction, state dependent (with b = 0 these leave tv and tw as they are).
@@ -108,6 +114,7 @@ def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance,
 def warm_up(constant_count: int) -> None:
     """Load or compile :func:`rk4_hold` (about 1 s when compiling; once per process).
 
-    Zero steps: compiles (types only) without evaluating the dynamics."""
+    Zero steps: compiles (types only) without evaluating the dynamics.
+    """
     rk4_hold((1.0,) * constant_count, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
              0.0, 0.0, np.zeros((0, 3)), 1e-3)

@@ -1,4 +1,4 @@
-"""Planar position (x̂, ŷ) in the map frame: wheel odometry between GPS fixes.
+r"""Planar position (x̂, ŷ) in the map frame: wheel odometry between GPS fixes.
 
 The trajectory generator, eq. (9) in [1]_, needs the planar position, which the paper
 takes as measured. Here it comes from two sources:
@@ -6,9 +6,9 @@ takes as measured. Here it comes from two sources:
 - **wheel odometry** at the encoder rate: the distance rolled Δx_v along the estimated
   heading. The step uses the midpoint heading and the chord of a circular arc,
 
-  .. math:: \\Delta x = \\Delta x_v \\,\\mathrm{sinc}(\\Delta\\phi/2) \\cos(\\phi_{k-1}
-     + \\Delta\\phi/2), \\quad \\Delta y = \\Delta x_v \\,\\mathrm{sinc}(\\Delta\\phi/2)
-     \\sin(\\phi_{k-1} + \\Delta\\phi/2)
+  .. math:: \Delta x = \Delta x_v \,\mathrm{sinc}(\Delta\phi/2) \cos(\phi_{k-1}
+     + \Delta\phi/2), \quad \Delta y = \Delta x_v \,\mathrm{sinc}(\Delta\phi/2)
+     \sin(\phi_{k-1} + \Delta\phi/2)
 
   which is exact when the vehicle moves at constant curvature between samples
   (sinc(Δϕ/2) ≈ 1 − 1e-7 at 200 Hz and 0.3 rad/s, but it costs nothing);

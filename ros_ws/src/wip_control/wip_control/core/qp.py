@@ -1,11 +1,11 @@
-"""Persistent dense QP solvers for the MPC: ProxSuite (default) and DAQP.
+r"""Persistent dense QP solvers for the MPC: ProxSuite (default) and DAQP.
 
 Both solve
 
 .. math::
 
-    \\min_z \\tfrac12 z^T H z + g^T z \\quad \\text{s.t.} \\quad
-    l \\le C z \\le u, \\quad lb \\le z \\le ub
+    \min_z \tfrac12 z^T H z + g^T z \quad \text{s.t.} \quad
+    l \le C z \le u, \quad lb \le z \le ub
 
 keeping one workspace alive between calls: the first call sets the problem up, later
 calls only update the data (docs/paper.md §7, measured facts of ProxSuite on this QP).
@@ -388,7 +388,8 @@ def _release_workspaces() -> None:
     nanobind, ProxSuite's binding layer, reports every object of its types alive at its
     module's teardown as a leak: about 30 lines of 'leaked instance … proxqp.dense.QP …
     likely a reference counting issue' ended every controller log. atexit handlers run
-    before that teardown."""
+    before that teardown.
+    """
     for solver in list(_LIVE_SOLVERS):
         solver.reset()
 
@@ -440,7 +441,7 @@ class DaqpSolver:
 
 def make_solver(backend: str, n_variables: int, n_constraints: int,
                 settings: QpSettings) -> ProxsuiteSolver | DaqpSolver:
-    """The persistent solver named ``backend`` (``'proxsuite'`` or ``'daqp'``)."""
+    """Return the persistent solver named ``backend`` (``'proxsuite'`` or ``'daqp'``)."""
     if backend == 'proxsuite':
         return ProxsuiteSolver(n_variables, n_constraints, settings)
     if backend == 'daqp':

@@ -46,10 +46,11 @@ GROUPS: dict[str, tuple[str, ...]] = {
 
 
 class RecordBuffer:
-    """Rows of one group: ``append`` adds a tuple to a list (about 0.1 µs, against about
-    1 µs for a numpy row copy: the runner appends 6 rows per control period), and full
-    blocks of :data:`BLOCK_ROWS` rows become one numpy array each, so that a long run
-    does not keep millions of Python floats.
+    """Rows of one group.
+
+    ``append`` adds a tuple to a list (about 0.1 µs, against about 1 µs for a numpy row copy: the
+    runner appends 6 rows per control period), and full blocks of :data:`BLOCK_ROWS` rows become
+    one numpy array each, so that a long run does not keep millions of Python floats.
 
     A caller that appends every control period can instead take :meth:`appender` (the
     pending list's own ``append``, without the block check) and call :meth:`flush` every
@@ -74,8 +75,10 @@ class RecordBuffer:
             self._flush()
 
     def appender(self) -> Callable[[tuple], None]:
-        """``append`` without the block check (the caller calls :meth:`flush`); valid for
-        the buffer's lifetime (the pending list is emptied in place, never replaced)."""
+        """``append`` without the block check (the caller calls :meth:`flush`).
+
+        Valid for the buffer's lifetime (the pending list is emptied in place, never replaced).
+        """
         return self._rows.append
 
     def flush(self) -> None:

@@ -1,4 +1,6 @@
-"""The reference's sample (:class:`ReferenceState`) and the interface of every reference
+"""The reference's sample and the interface of every reference.
+
+The reference's sample (:class:`ReferenceState`) and the interface of every reference
 (:class:`Reference`): a module of their own so that both the fixed curves
 (``references.py``) and the commanded references (``commanded.py``) build on them, and
 ``references.make_reference`` builds either without an import cycle.

@@ -1,14 +1,14 @@
-"""Reference trajectories (x_r, y_r, ϕ_r, υ_r, ω_r, ω̇_r) for the generator of eq. (9) in [1]_.
+r"""Reference trajectories (x_r, y_r, ϕ_r, υ_r, ω_r, ω̇_r) for the generator of eq. (9) in [1]_.
 
 Every reference is a planar curve p(t) = (x_r(t), y_r(t)) with analytic derivatives up to
 the third order, from which
 
 .. math::
 
-    \\upsilon_r = |\\dot p|, \\quad
-    \\omega_r = \\frac{\\dot x \\ddot y - \\dot y \\ddot x}{\\dot x^2 + \\dot y^2}, \\quad
-    \\dot\\omega_r = \\frac{\\dot x \\dddot y - \\dot y \\dddot x}{\\upsilon_r^2}
-        - 2 \\omega_r \\frac{\\dot x \\ddot x + \\dot y \\ddot y}{\\upsilon_r^2}
+    \upsilon_r = |\dot p|, \quad
+    \omega_r = \frac{\dot x \ddot y - \dot y \ddot x}{\dot x^2 + \dot y^2}, \quad
+    \dot\omega_r = \frac{\dot x \dddot y - \dot y \dddot x}{\upsilon_r^2}
+        - 2 \omega_r \frac{\dot x \ddot x + \dot y \ddot y}{\upsilon_r^2}
 
 and ϕ_r = atan2(ẏ_r, ẋ_r) given by a closed form on a continuous branch (never
 jumping by 2π). ``sample`` uses floats and ``math`` only.
@@ -61,8 +61,10 @@ def _from_derivatives(x: float, y: float, phi: float, xd: float, yd: float, xdd:
 
 def _speed_and_yaw_rate(xd: float, yd: float, xdd: float, ydd: float,
                         *_third: float) -> tuple[float, float]:
-    """(υ_r, ω_r) from the derivatives: the expressions of :func:`_from_derivatives`,
-    so the same floats."""
+    """(υ_r, ω_r) from the derivatives.
+
+    The expressions of :func:`_from_derivatives`, so the same floats.
+    """
     v2 = xd * xd + yd * yd
     return math.sqrt(v2), (xd * ydd - yd * xdd) / v2
 
@@ -160,8 +162,11 @@ class Circle(Reference):
 
 
 class StraightLine(Reference):
-    """Uniform motion on a straight line from ``start`` [m] along ``heading`` [rad] at
-    ``speed`` [m/s] (≥ 0)."""
+    """Uniform motion on a straight line.
+
+    Uniform motion on a straight line from ``start`` [m] along ``heading`` [rad] at
+    ``speed`` [m/s] (≥ 0).
+    """
 
     def __init__(self, start: Sequence[float] = (0.0, 0.0), heading: float = 0.0,
                  speed: float = 0.5) -> None:
@@ -407,14 +412,16 @@ class Waypoints(Reference):
 
 
 class TimeScaled(Reference):
-    """A reference run along the same path with a progress s(t) that slows where the
+    r"""A reference run along the same path with a progress s(t) within the limits.
+
+    A reference run along the same path with a progress s(t) that slows where the
     path's speed or yaw rate would exceed the limits (time scaling, Hollerbach 1984).
 
     The base reference p(s) is re-timed by ṡ = σ(s), with
 
-    .. math:: \\sigma_0(s) = \\min\\Big(1, \\frac{\\upsilon_{max}}{\\upsilon_r(s)},
-        \\frac{\\omega_{max}}{|\\omega_r(s)|}\\Big), \\qquad
-        \\sigma(s) = \\min_u \\big(\\sigma_0(u) + k |u - s|\\big)
+    .. math:: \sigma_0(s) = \min\Big(1, \frac{\upsilon_{max}}{\upsilon_r(s)},
+        \frac{\omega_{max}}{|\omega_r(s)|}\Big), \qquad
+        \sigma(s) = \min_u \big(\sigma_0(u) + k |u - s|\big)
 
     so that υ(t) = υ_r(s) σ(s) ≤ υmax and |ω(t)| = |ω_r(s)| σ(s) ≤ ωmax: the vehicle is
     asked to stay on the same curve, more slowly where it bends hard, instead of
@@ -542,8 +549,10 @@ class TimeScaled(Reference):
         return a + (b - a) * (u - i), (b - a) / self.step
 
     def rate_at(self, s: float) -> float:
-        """σ(s) = ds/dt ∈ (0, 1] (linear between the grid nodes): the σ of
-        :meth:`_sigma_and_slope`, without the slope."""
+        """σ(s) = ds/dt ∈ (0, 1] (linear between the grid nodes).
+
+        The σ of :meth:`_sigma_and_slope`, without the slope.
+        """
         if s <= 0.0:
             return self._sigma_and_slope(s)[0]
         u = s / self.step
@@ -604,8 +613,11 @@ class TimeScaled(Reference):
         return v * min(self.rate_at(s), self._raw_rate(v, omega))
 
     def _timed(self, t: float) -> ReferenceState:
-        """The re-timed state at t, without the speed lead: the base's pose at s(t), υ_r σ,
-        ω_r σ and σ (ω̇_r σ + ω_r dσ/ds)."""
+        """Return the re-timed state at t, without the speed lead.
+
+        The re-timed state at t, without the speed lead: the base's pose at s(t), υ_r σ,
+        ω_r σ and σ (ω̇_r σ + ω_r dσ/ds).
+        """
         s = self.progress(t)
         ref = self.base.sample(s)
         sigma, d_sigma = self._sigma_and_slope(s)
@@ -646,11 +658,12 @@ class TimeScaled(Reference):
 
 
 class RetimingTables:
-    """The tables of a :class:`TimeScaled`: σ0 and σ every ``step`` of s, s and σ(s)
-    every ``step`` of t. They are a function of the base path, the limits and the step
-    only (extended on demand, always from the start), so TimeScaled objects of the same
-    configuration can share them (:func:`make_reference`). They are only appended to,
-    under ``lock``, and every value is final once written, so readers need no lock.
+    """The tables of a :class:`TimeScaled`.
+
+    σ0 and σ every ``step`` of s, s and σ(s) every ``step`` of t. They are a function of the base
+    path, the limits and the step only (extended on demand, always from the start), so TimeScaled
+    objects of the same configuration can share them (:func:`make_reference`). They are only
+    appended to, under ``lock``, and every value is final once written, so readers need no lock.
     """
 
     #: Tables longer than this many nodes (1000 s of a 10 ms step; about 13 MB for the
@@ -675,8 +688,11 @@ MAX_SHARED_CONFIGURATIONS = 4
 
 
 def shared_tables(key: Hashable) -> RetimingTables:
-    """The tables this thread shares among the TimeScaled of configuration ``key`` (new
-    ones the first time)."""
+    """Return the tables this thread shares among the TimeScaled of configuration ``key``.
+
+    The tables this thread shares among the TimeScaled of configuration ``key`` (new
+    ones the first time).
+    """
     cache = getattr(_shared, 'tables', None)
     if cache is None:
         cache = _shared.tables = collections.OrderedDict()
@@ -700,7 +716,9 @@ def _unshare(tables: RetimingTables) -> None:
 
 def distance_to_path(reference: Reference, x: Sequence[float], y: Sequence[float],
                      path_duration: float, resolution: float = 0.001):
-    """Distance [m] of each point (x, y) to the path of ``reference`` traced over
+    """Distance [m] of each point (x, y) to the path of ``reference``.
+
+    Distance [m] of each point (x, y) to the path of ``reference`` traced over
     [0, ``path_duration``] of its own time (for a :class:`TimeScaled`, pass its base).
 
     The path is sampled every ``resolution`` [m] of arc length at most (nearest sample
@@ -846,8 +864,10 @@ def _make_waypoints(config: ReferenceConfig) -> Waypoints:
 
 
 def make_reference(config: ReferenceConfig | None = None) -> Reference:
-    """Build the reference selected by ``config.kind`` (default: the paper's trifolium),
-    time-scaled (:class:`TimeScaled`) if ``config.time_scaling``."""
+    """Build the reference selected by ``config.kind`` (default: the paper's trifolium).
+
+    Time-scaled (:class:`TimeScaled`) if ``config.time_scaling``.
+    """
     config = config if config is not None else ReferenceConfig()
     config.validate()
     if config.kind in COMMANDED_KINDS:
@@ -885,8 +905,11 @@ def _make_base_reference(config: ReferenceConfig) -> Reference:
 
 def make_commanded(config: ReferenceConfig,
                    t0: float = 0.0) -> CmdVelReference | PathReference:
-    """The reference of a commanded kind (``cmd_vel``, ``path``), at rest at the start
-    pose (``line_start``, ``line_heading``) at time t0 [s] until commanded."""
+    """Return the reference of a commanded kind (``cmd_vel``, ``path``).
+
+    The reference of a commanded kind (``cmd_vel``, ``path``), at rest at the start
+    pose (``line_start``, ``line_heading``) at time t0 [s] until commanded.
+    """
     limits = UnicycleLimits(config.commanded_max_speed, config.commanded_max_acceleration,
                             config.commanded_max_yaw_rate,
                             config.commanded_max_yaw_acceleration)

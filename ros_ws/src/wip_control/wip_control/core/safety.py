@@ -284,13 +284,19 @@ class SafetyMonitor:
         slot.value, slot.arrival, slot.invalid = value, float(t), ''
 
     def invalid_input(self, name: str, t: float, reason: str) -> None:
-        """A message of input ``name`` was unusable (e.g. failed to convert): a fault
-        until the next valid one. The last valid value is kept but not used."""
+        """Take an unusable message of input ``name`` (e.g. failed to convert).
+
+        A message of input ``name`` was unusable (e.g. failed to convert): a fault
+        until the next valid one. The last valid value is kept but not used.
+        """
         self.inputs[name].invalid = reason or 'invalid'
 
     def estimate(self, t: float, estimate: Sequence[float], settled: bool) -> None:
-        """A state estimate (a ``core.eso.StateEstimate`` or a sequence in its field
-        order) received at ``t`` [s]; ``settled``: the ESO's start-up flag."""
+        """Take a state estimate received at ``t`` [s].
+
+        A state estimate (a ``core.eso.StateEstimate`` or a sequence in its field
+        order) received at ``t`` [s]; ``settled``: the ESO's start-up flag.
+        """
         n = len(StateEstimate._fields)
         try:
             values = tuple(float(v) for v in estimate)
@@ -322,7 +328,8 @@ class SafetyMonitor:
         ``plan``: the MPC's planned τυ for its periods k, k+1, … (held after the last),
         ``plan_period`` [s] apart (``MpcOutput.planned_tau_v``, ``sampling_period``); the
         drive torque follows it when no newer output arrives. Empty: τυ is held. A plan
-        that is not finite or has no positive period is ignored (τυ is held)."""
+        that is not finite or has no positive period is ignored (τυ is held).
+        """
         if not _is_finite_number(tau_v):
             self.invalid_input(DRIVE_TORQUE, t, f'non-finite drive torque {tau_v!r}')
             return
@@ -341,24 +348,31 @@ class SafetyMonitor:
         self._accept(DRIVE_TORQUE, t, (float(tau_v), int(status)))
 
     def estop(self, t: float, engaged: bool) -> None:
-        """An e-stop message received at ``t`` [s]: engaged latches the e-stop; not engaged
-        only allows a later :meth:`reset` (and is the heartbeat if ``max_estop_age`` > 0)."""
+        """Take an e-stop message received at ``t`` [s].
+
+        An e-stop message received at ``t`` [s]: engaged latches the e-stop; not engaged
+        only allows a later :meth:`reset` (and is the heartbeat if ``max_estop_age`` > 0).
+        """
         self._accept(ESTOP_INPUT, t, bool(engaged))
         self.estop_engaged = bool(engaged)
         if engaged:
             self.estop_latched = True
 
     def wiring_fault(self, reason: str) -> None:
-        """A wiring contradiction (``core.wiring_check.Verdict.reason``): a fault from the
+        """Take a wiring contradiction (``core.wiring_check.Verdict.reason``).
+
+        A wiring contradiction (``core.wiring_check.Verdict.reason``): a fault from the
         next tick, latched whatever ``latch_faults`` says (a wrong parameter does not go
-        away by itself) until :meth:`reset`."""
+        away by itself) until :meth:`reset`.
+        """
         self.wiring = str(reason) or 'wiring: contradiction'
 
     def reset(self) -> tuple[bool, str]:
         """Explicit reset of a latched e-stop (and latched faults): (success, message).
 
         Refused while the e-stop input still says engaged. After a reset the monitor
-        re-arms through STARTING (``settle_time``)."""
+        re-arms through STARTING (``settle_time``).
+        """
         if self.estop_engaged:
             return False, 'e-stop still engaged: release it (publish false) before the reset'
         was = []
@@ -451,7 +465,7 @@ class SafetyMonitor:
         return faults
 
     def update(self, now: float) -> SafetyDecision:
-        """The torques of the tick at ``now`` [s] (one call per control tick)."""
+        """Return the torques of the tick at ``now`` [s] (one call per control tick)."""
         self.ticks += 1
         dt = self.period if self.last_update is None else max(0.0, now - self.last_update)
         self.last_update = now
@@ -508,8 +522,11 @@ class SafetyMonitor:
                               self.config.shadow_mode)
 
     def _drive_torque_now(self, now: float) -> float:
-        """τυ of the MPC's last output at ``now``: its plan's entry for the periods elapsed
-        since it arrived (the last entry after the plan), or τυ itself without a plan."""
+        """τυ of the MPC's last output at ``now``.
+
+        Its plan's entry for the periods elapsed since it arrived (the last entry after the plan),
+        or τυ itself without a plan.
+        """
         slot = self.inputs[DRIVE_TORQUE]
         planned, period = self.drive_plan
         if not planned:
@@ -523,8 +540,9 @@ def tilt_divergence_rate(params) -> float:
 
     From (1) at θ = θ̇ = ω = 0 with the torque held: θ̈ ≈ (mv mp g l / Ω0) θ, Ω0 = mv Jθ −
     mp² l², so λ = sqrt(mv mp g l / Ω0). A held torque lets a tilt error grow like exp(λ t):
-    ``bridge_time`` defaults to ln 4 / λ of the default robot."""
-    mv, mp, l = params.effective_mass, params.body_mass, params.com_height
+    ``bridge_time`` defaults to ln 4 / λ of the default robot.
+    """
+    mv, mp, l = params.effective_mass, params.body_mass, params.com_height  # noqa: E741 - the paper's symbol
     omega0 = mv * params.pitch_inertia - (mp * l) ** 2
     return math.sqrt(mv * mp * params.gravity * l / omega0)
 

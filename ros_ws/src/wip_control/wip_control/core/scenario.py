@@ -100,8 +100,11 @@ class InitialStateConfig:
 
 @dataclasses.dataclass(frozen=True)
 class PlantSection:
-    """The true plant: model, parameter overrides of :class:`WipParameters` and, for an
-    engine model, the wheel-ground contact."""
+    """The true plant.
+
+    Model, parameter overrides of :class:`WipParameters` and, for an engine model, the wheel-ground
+    contact.
+    """
 
     model: PlantConfig = dataclasses.field(default_factory=PlantConfig)
     parameters: WipParameters = dataclasses.field(default_factory=WipParameters)
@@ -118,7 +121,10 @@ class ControllerModelSection:
 
 @dataclasses.dataclass(frozen=True)
 class Scenario:
-    """Everything one run needs. Build with :func:`load_scenario` or :func:`scenario_from_mapping`."""
+    """Everything one run needs.
+
+    Build with :func:`load_scenario` or :func:`scenario_from_mapping`.
+    """
 
     name: str = 'paper_section_v'
     description: str = ('Section V of Yue, An, Li (2016): trifolium, sine yaw disturbance, '
@@ -155,16 +161,21 @@ class Scenario:
 
     @property
     def drive_decimation(self) -> int:
-        """Control periods between the drive stage's ticks, where it takes its inputs and
-        (lockstep) publishes a drive torque: ``mpc.fast_resolve_period`` when set, else
-        ``mpc.sampling_period`` (``DriveStage.is_tick``)."""
+        """Control periods between the drive stage's ticks.
+
+        Where it takes its inputs and (lockstep) publishes a drive torque:
+        ``mpc.fast_resolve_period`` when set, else ``mpc.sampling_period``
+        (``DriveStage.is_tick``).
+        """
         fast = self.mpc_fast_decimation
         return fast if fast is not None and fast < self.mpc_decimation else self.mpc_decimation
 
     @property
     def mpc_fast_decimation(self) -> int | None:
-        """Control periods per ``mpc.fast_resolve_period`` (None: off, 0 or not shorter
-        than ``mpc.sampling_period``)."""
+        """Control periods per ``mpc.fast_resolve_period``.
+
+        None: off, 0 or not shorter than ``mpc.sampling_period``.
+        """
         if not resolves_faster(self.mpc.sampling_period, self.mpc.fast_resolve_period):
             return None
         return int(round(self.mpc.fast_resolve_period * self.rates.control_rate))
@@ -196,7 +207,7 @@ _TOP_LEVEL_SCALARS = {
 #: :func:`scenario_from_mapping` (for the parameter reference).
 TOP_LEVEL_RANGES = {
     'name': ('-', 'any'), 'description': ('-', 'any'),
-    'design': ('-', "one of: robust, paper"),
+    'design': ('-', 'one of: robust, paper'),
     'duration': ('s', f'(0, {MAX_DURATION_S:g}]'),
     'seed': ('1', '[0, 2**63 - 1]'),
     'fall_threshold': ('rad', '(0, 1.5]'),
@@ -229,7 +240,8 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
     """Validate a parsed YAML mapping and build a :class:`Scenario`."""
     data = {} if data is None else data
     if not isinstance(data, Mapping):
-        raise ConfigError(f'scenario: expected a mapping at the top level, got {type(data).__name__}')
+        raise ConfigError('scenario: expected a mapping at the top level, '
+                          f'got {type(data).__name__}')
     sections = {'rates', 'initial_state', 'plant', 'controller_model', 'reference',
                 'disturbances', 'sensors', 'eso', 'position', 'trajectory_generator', 'arc',
                 'mpc', 'mixer'}
@@ -299,7 +311,7 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
         raise ConfigError(f'controller_model: expected a mapping, got {nominal!r}')
     for key in nominal:
         if key != 'parameters':
-            raise ConfigError(f'controller_model.{key}: unknown key; expected [\'parameters\']')
+            raise ConfigError(f"controller_model.{key}: unknown key; expected ['parameters']")
     kwargs['controller_model'] = ControllerModelSection(
         parameters=_parameters_from_mapping(nominal.get('parameters'),
                                             'controller_model.parameters'))
@@ -317,9 +329,12 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
 
 
 def with_duration(scenario: Scenario, duration: float) -> Scenario:
-    """``scenario`` with another duration [s], checked as a scenario file's would be
+    """``scenario`` with another duration [s], checked as a scenario file's would be.
+
+    ``scenario`` with another duration [s], checked as a scenario file's would be
     (range, at least one control tick, the most control periods a run may have);
-    ConfigError otherwise."""
+    ConfigError otherwise.
+    """
     if not 0.0 < duration <= MAX_DURATION_S:
         raise ConfigError(f'duration: must be in (0, {MAX_DURATION_S:g}] s, got '
                           f'{_show(duration)}')
@@ -397,8 +412,11 @@ def load_scenario(path: str | pathlib.Path | None = None) -> Scenario:
 
 
 def read_scenario_file(path: str | pathlib.Path) -> Any:
-    """The parsed content of a scenario file, not yet validated (strict YAML, size-checked);
-    ConfigError naming the file on any problem."""
+    """Return the parsed content of a scenario file, not yet validated.
+
+    The parsed content of a scenario file, not yet validated (strict YAML, size-checked);
+    ConfigError naming the file on any problem.
+    """
     path = pathlib.Path(path)
     try:
         raw = path.read_bytes()

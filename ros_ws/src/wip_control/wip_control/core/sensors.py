@@ -96,7 +96,7 @@ class SensorConfig:
         minimum=0.0, maximum=0.1)
     gps_datum_latitude: float = param(
         38.8816, 'deg', 'latitude of the map origin for NavSatFix messages (default: '
-        'Dalian, the paper authors\' university; any datum works)', minimum=-89.0,
+        "Dalian, the paper authors' university; any datum works)", minimum=-89.0,
         maximum=89.0)
     gps_datum_longitude: float = param(121.5290, 'deg', 'longitude of the map origin',
                                        minimum=-180.0, maximum=180.0)
@@ -158,17 +158,22 @@ class Sensors:
                 self._history[max(0, newest - self.gps_latency_samples)])
 
     def gps_fix_available(self) -> bool:
-        """Whether this GPS tick delivers a fix (``gps_dropout_probability``); call once
-        per GPS tick, before :meth:`gps` (its own random stream)."""
+        """Whether this GPS tick delivers a fix (``gps_dropout_probability``).
+
+        Call once per GPS tick, before :meth:`gps` (its own random stream).
+        """
         p = self.config.gps_dropout_probability
         if p <= 0.0:
             return True
         return bool(self._rng_dropout.random() >= p)
 
     def wheel_rates(self, state: Sequence[float]) -> tuple[float, float]:
-        """(φ̇l, φ̇r) [rad/s]: joint rates of the true motion, noise-free (the rate of
+        """(φ̇l, φ̇r) [rad/s]: joint rates of the true motion, noise-free.
+
+        (φ̇l, φ̇r) [rad/s]: joint rates of the true motion, noise-free (the rate of
         :meth:`encoders`): rolling rate (υ ∓ (d/2) ω) / r, minus the tilt rate when the
-        encoders measure against the body."""
+        encoders measure against the body.
+        """
         p = self.params
         v, omega, half_track = float(state[V]), float(state[OMEGA]), 0.5 * p.track_width
         body = float(state[THETA_DOT]) if self.config.encoders_relative_to_body else 0.0
@@ -351,10 +356,12 @@ def _check_latitude(latitude: float) -> None:
 
 
 def _check_finite(what: str, *values: float) -> None:
-    """ValueError naming ``what`` if a value is NaN or infinite. The per-sample callers
-    call it only when the values' sum is not finite: a NaN or inf among them makes the
-    sum so, and a finite sum proves them all finite (a sum that overflows is checked
-    here, value by value)."""
+    """ValueError naming ``what`` if a value is NaN or infinite.
+
+    The per-sample callers call it only when the values' sum is not finite: a NaN or inf among them
+    makes the sum so, and a finite sum proves them all finite (a sum that overflows is checked
+    here, value by value).
+    """
     for v in values:
         if not math.isfinite(v):
             raise ValueError(f'{what} must be finite, got {values!r}')

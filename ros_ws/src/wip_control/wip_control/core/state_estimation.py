@@ -1,5 +1,6 @@
-"""The estimation half of the control loop: sensor samples and applied torques in, one
-estimate out.
+"""The estimation half of the control loop.
+
+Sensor samples and applied torques in, one estimate out.
 
 One object, used by the in-process runner, the re-run of a bag and the ESO node, so that
 the three compute the same thing: yaw unwrapping, wheel odometry, the ESOs (eqs. (4),
@@ -64,8 +65,11 @@ class StateEstimator:
 
     @classmethod
     def from_scenario(cls, scenario) -> 'StateEstimator':
-        """The estimator of ``scenario`` (a ``core.scenario.Scenario``): the nominal model,
-        as the controllers know it (a mismatch with the plant shows up in x_v)."""
+        """Return the estimator of ``scenario`` (a ``core.scenario.Scenario``).
+
+        The estimator of ``scenario`` (a ``core.scenario.Scenario``): the nominal model,
+        as the controllers know it (a mismatch with the plant shows up in x_v).
+        """
         return cls(scenario.controller_model.parameters, scenario.eso, scenario.position,
                    encoders_relative_to_body=scenario.sensors.encoders_relative_to_body)
 
@@ -86,7 +90,7 @@ class StateEstimator:
     def update(self, t: float, phi_left: float, phi_right: float, pitch: float, yaw: float,
                tau_left: float, tau_right: float, rates: Sequence[float] | None = None,
                fix: Sequence[float] | None = None) -> PoseEstimate:
-        """The estimate at sample time ``t`` [s].
+        """Return the estimate at sample time ``t`` [s].
 
         Parameters
         ----------

@@ -1,14 +1,14 @@
-"""Saturated trajectory generator, eq. (9) in [1]_, with body-frame errors.
+r"""Saturated trajectory generator, eq. (9) in [1]_, with body-frame errors.
 
 .. math::
 
-    x_e = \\cos\\phi (x_r - x) + \\sin\\phi (y_r - y), \\quad
-    y_e = -\\sin\\phi (x_r - x) + \\cos\\phi (y_r - y), \\quad
-    \\phi_e = \\mathrm{wrap}(\\phi_r - \\phi)
+    x_e = \cos\phi (x_r - x) + \sin\phi (y_r - y), \quad
+    y_e = -\sin\phi (x_r - x) + \cos\phi (y_r - y), \quad
+    \phi_e = \mathrm{wrap}(\phi_r - \phi)
 
-    \\omega_d = \\omega_r + \\frac{\\lambda_1 \\upsilon_r y_e \\,\\mathrm{sinc}\\,\\phi_e}
-        {1 + x_e^2 + y_e^2} + \\lambda_2 \\tanh \\phi_e, \\quad
-    \\upsilon_d = \\upsilon_r \\cos \\phi_e + \\lambda_3 \\tanh x_e
+    \omega_d = \omega_r + \frac{\lambda_1 \upsilon_r y_e \,\mathrm{sinc}\,\phi_e}
+        {1 + x_e^2 + y_e^2} + \lambda_2 \tanh \phi_e, \quad
+    \upsilon_d = \upsilon_r \cos \phi_e + \lambda_3 \tanh x_e
 
 then |ω_d| ≤ ω_max, |υ_d| ≤ υ_max by explicit saturation.
 
@@ -30,9 +30,10 @@ Deviations from the paper, as adopted in docs/paper.md §3:
   saturation, and it would differentiate the position estimate, which jumps at each
   GPS fix. The filtered derivative is model-free, consistent with the saturation (zero
   when ω_d is held at ±ω_max), bounded by 2 ω_max/(τ + Δt) by construction (Abel
-  summation of bounded increments), and lags by τ (default 0.05 s, against the 0.02 s time constant 1/(g1 kω) of the yaw
-  loop, where it is only a feed-forward). The clip keeps a GPS jump from kicking the
-  feed-forward harder than the ARC could follow anyway (0.8 N·m · g1 ≈ 2 rad/s²).
+  summation of bounded increments), and lags by τ (default 0.05 s, against the 0.02 s time
+  constant 1/(g1 kω) of the yaw loop, where it is only a feed-forward). The clip keeps a GPS
+  jump from kicking the feed-forward harder than the ARC could follow anyway (0.8 N·m · g1 ≈
+  2 rad/s²).
 
 References
 ----------
@@ -160,8 +161,11 @@ class TrajectoryGenerator:
         self.saturated_yaw_rate = False  #: whether |ω_d| was clipped at the last step
 
     def state(self) -> tuple:
-        """Everything :meth:`step` changes (the derivative filter and the saturation
-        flags), for :meth:`restore`."""
+        """Everything :meth:`step` changes, for :meth:`restore`.
+
+        Everything :meth:`step` changes (the derivative filter and the saturation
+        flags), for :meth:`restore`.
+        """
         return (self._t_prev, self._omega_prev, self._omega_dot, self._sat_sign_prev,
                 self.saturated_speed, self.saturated_yaw_rate)
 

@@ -164,7 +164,7 @@ class WiringCheck:
         self.yaw_worst_miss: float | None = None
 
     def summary(self) -> str:
-        """The margins seen so far, one line (correct wiring: Y/X near 1, misses near 0)."""
+        """Return the margins seen so far, one line (correct wiring: Y/X near 1, misses near 0)."""
         tilt = 'n/a' if self.tilt_ratio is None else f'{self.tilt_ratio:.2f}'
         yaw = 'n/a' if self.yaw_worst_miss is None else f'{self.yaw_worst_miss:.2f}'
         return (f'tilt Y/X {tilt} (fault in [{_TILT_BAND[0]:g}, {_TILT_BAND[1]:g}]); '
@@ -178,8 +178,11 @@ class WiringCheck:
             self.wheel_time = float(t)
 
     def torque(self, t: float, tau_v: float, engaged: bool) -> None:
-        """The drive torque τυ = τl + τr [N m] sent to the base now; ``engaged``: torque is
-        being sent (the safety layer ACTIVE or DEGRADED, not shadow mode)."""
+        """Take the drive torque τυ = τl + τr [N m] sent to the base now.
+
+        The drive torque τυ = τl + τr [N m] sent to the base now; ``engaged``: torque is
+        being sent (the safety layer ACTIVE or DEGRADED, not shadow mode).
+        """
         self.tau_v = float(tau_v) if (engaged and math.isfinite(tau_v)) else 0.0
         if engaged and self.engaged_at is None:
             self.engaged_at = float(t)
@@ -189,9 +192,11 @@ class WiringCheck:
 
     def imu(self, t: float, pitch: float, pitch_rate: float, yaw_rate: float,
             accel: Sequence[float] | None = None) -> Verdict | None:
-        """One IMU sample of the body (after the mounting): pitch θ [rad], Euler rates θ̇,
-        ϕ̇ [rad/s], specific force (x, y, z) [m/s²] in base_link or None. Runs the checks;
-        the verdict (once found it stays until :meth:`reset`)."""
+        """One IMU sample of the body (after the mounting).
+
+        Pitch θ [rad], Euler rates θ̇, ϕ̇ [rad/s], specific force (x, y, z) [m/s²] in base_link or
+        None. Runs the checks; the verdict (once found it stays until :meth:`reset`).
+        """
         if self.verdict is not None or not self.config.enabled:
             return self.verdict
         values = (pitch, pitch_rate, yaw_rate, *(accel or ()))
@@ -244,8 +249,11 @@ class WiringCheck:
         return Verdict(suspect, self._yaw_advice(suspect), evidence)
 
     def _yaw_contradicted(self) -> bool:
-        """The recent samples (even fewer than a window) show the gyro turning and the
-        configured wheels missing it: the yaw check, not the tilt, has the cause."""
+        """Whether the recent samples show the gyro turning and the configured wheels missing it.
+
+        The recent samples (even fewer than a window) show the gyro turning and the
+        configured wheels missing it: the yaw check, not the tilt, has the cause.
+        """
         if not self.yaw:
             return False
         n = len(self.yaw)

@@ -125,7 +125,8 @@ def stamped(msg, stamp_ns: int, frame_id: str = ''):
 
     On the hot path instead of ``Msg(header=make_header(...))``: the generated constructors
     evaluate their defaults eagerly, so that also builds a Header and a Time to drop
-    (1.8 us of 5.5 per message measured, six messages per control tick)."""
+    (1.8 us of 5.5 per message measured, six messages per control tick).
+    """
     header = msg.header
     header.stamp.sec, header.stamp.nanosec = divmod(int(stamp_ns), _NS_PER_S)
     if frame_id:
@@ -160,7 +161,7 @@ def warn_lockstep_without_sim_time(node: Node, mode: str) -> str:
 
 
 def finite(*values: float) -> bool:
-    """True if every value is a finite number."""
+    """Return True if every value is a finite number."""
     return all(math.isfinite(v) for v in values)
 
 
@@ -234,7 +235,7 @@ def spin_once_or_stop(executor, timeout_sec: float = SPIN_TIMEOUT, context=None)
         executor.spin_once(timeout_sec=timeout_sec)
     except (KeyboardInterrupt, ExternalShutdownException):
         raise
-    except Exception as err:  # noqa: B902 - re-raised unless the context is shut down
+    except Exception as err:  # noqa: BLE001 - re-raised unless the context is shut down
         if rclpy.ok(context=context):
             raise
         raise ExternalShutdownException(f'{type(err).__name__}: {err}') from err
@@ -251,13 +252,13 @@ def spin_once_guarded(executor, node: Node, timeout_sec: float = SPIN_TIMEOUT) -
     ValueError on a message with a negative time, which would end the node. A controller
     keeps running (its safety layer judges its inputs); the log says what happened.
     """
-    global _callback_failures
+    global _callback_failures  # noqa: PLW0603 - one count per process
     try:
         executor.spin_once(timeout_sec=timeout_sec)
         return True
     except (KeyboardInterrupt, ExternalShutdownException):
         raise
-    except Exception as err:  # noqa: B902 - any callback error, see the docstring
+    except Exception as err:  # noqa: BLE001 - any callback error, see the docstring
         if not rclpy.ok(context=node.context):
             # The context was shut down (SIGINT) while the executor was busy: rclpy's
             # EventsExecutor then sometimes fails inside pybind11 ("Unable to convert
@@ -317,8 +318,11 @@ def warn_undeclared_overrides(nodes, warned=None) -> None:
 
 
 def init_rclpy(program: str, args, signal_handler_options) -> bool:
-    """``rclpy.init``; False after one line on stderr when rcl refuses the command line's
-    ROS arguments (a remap rule to an invalid name, a malformed ``-p``): no traceback."""
+    """``rclpy.init``; False after one line on stderr when rcl refuses the ROS arguments.
+
+    ``rclpy.init``; False after one line on stderr when rcl refuses the command line's
+    ROS arguments (a remap rule to an invalid name, a malformed ``-p``): no traceback.
+    """
     try:
         rclpy.init(args=args, signal_handler_options=signal_handler_options)
     except _rclpy_impl.RCLError as err:
@@ -329,7 +333,7 @@ def init_rclpy(program: str, args, signal_handler_options) -> bool:
 
 
 def _package_of(factory) -> str:
-    """The ROS package of a node class (its top-level Python package)."""
+    """Return the ROS package of a node class (its top-level Python package)."""
     return str(getattr(factory, '__module__', 'wip_control')).split('.')[0]
 
 
@@ -341,7 +345,9 @@ def run_node(node_factory: Callable[[], Node], program: str, args=None,
 
 def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] | None]],
               program: str, args=None) -> int:
-    """Jazzy ``main``: init, build the nodes, spin them in one executor until shutdown,
+    """Jazzy ``main``: init, build the nodes, spin them until shutdown, clean up.
+
+    Jazzy ``main``: init, build the nodes, spin them in one executor until shutdown,
     clean up; exit status.
 
     ``nodes``: (factory, on_stop) pairs. Several nodes in one process is ROS 2
@@ -403,7 +409,7 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
                     continue
                 try:
                     on_stop(node)
-                except Exception as err:  # noqa: B902 - report, then clean up anyway
+                except Exception as err:  # noqa: BLE001 - report, then clean up anyway
                     print(f'{program}: stopping: {type(err).__name__}: {err}',
                           file=sys.stderr)
         for node, _ in built:
@@ -414,13 +420,15 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
 
 def compose(executor, factories: Sequence[Callable[[], Node]],
             built: list[Node]) -> IntraProcessBus | None:
-    """ROS 2 composition by hand, for :func:`run_nodes` and :func:`run_simulator_node`:
-    build each node into ``built`` (as it is made, so that the caller destroys what was
-    built if a later factory fails) and add it to ``executor``; warn of overrides no node
-    declares; one sim clock (:func:`share_sim_clock`); intra-process delivery
-    (:func:`connect_intra_process`, the bus to drain, or None); then move the start-up's
-    objects out of the garbage collector's reach (``gc.freeze``), so that the collections
-    that still run during control (young objects only) do not walk them."""
+    """ROS 2 composition by hand.
+
+    For :func:`run_nodes` and :func:`run_simulator_node`: build each node into ``built`` (as it is
+    made, so that the caller destroys what was built if a later factory fails) and add it to
+    ``executor``; warn of overrides no node declares; one sim clock (:func:`share_sim_clock`);
+    intra-process delivery (:func:`connect_intra_process`, the bus to drain, or None); then move
+    the start-up's objects out of the garbage collector's reach (``gc.freeze``), so that the
+    collections that still run during control (young objects only) do not walk them.
+    """
     for factory in factories:
         built.append(factory())
         executor.add_node(built[-1])
@@ -434,8 +442,11 @@ def compose(executor, factories: Sequence[Callable[[], Node]],
 
 def spin_composed(executor, node: Node, bus: IntraProcessBus | None,
                   running: Callable[[], bool]) -> None:
-    """Spin (:func:`spin_once_guarded`, errors reported by ``node``) while the context is
-    up and ``running()``; after each spin_once, deliver the intra-process messages."""
+    """Spin while the context is up and ``running()``.
+
+    Spin (:func:`spin_once_guarded`, errors reported by ``node``) while the context is
+    up and ``running()``; after each spin_once, deliver the intra-process messages.
+    """
     drain = bus.drain if bus is not None else (lambda: 0)
     while rclpy.ok() and running():
         spin_once_guarded(executor, node)
@@ -443,9 +454,12 @@ def spin_composed(executor, node: Node, bus: IntraProcessBus | None,
 
 
 def connect_intra_process(nodes: Sequence[Node]) -> IntraProcessBus | None:
-    """Connect the publishers of ``nodes`` to the same process's subscriptions
+    """Connect the publishers of ``nodes`` to the same process's subscriptions.
+
+    Connect the publishers of ``nodes`` to the same process's subscriptions
     (:mod:`.intra_process`); the bus that the spin loop must drain, None if there is
-    nothing to connect (fewer than two nodes with ``use_intra_process_comms``)."""
+    nothing to connect (fewer than two nodes with ``use_intra_process_comms``).
+    """
     members = [n for n in nodes
                if isinstance(n, IntraProcessNode) and n.use_intra_process_comms]
     if len(members) < 2:
@@ -502,7 +516,9 @@ ACK_TIMEOUT = 10.0
 
 def wait_for_acknowledgements(nodes: Sequence[Node], timeout: float = ACK_TIMEOUT
                               ) -> list[str]:
-    """Wait until every reliable reader of the nodes' publishers has acknowledged every
+    """Wait until every reliable reader has acknowledged every sample.
+
+    Wait until every reliable reader of the nodes' publishers has acknowledged every
     sample (at most ``timeout`` in all); the topics of those that had not, said in the log.
 
     A reliable writer's unacknowledged samples die with its process: a simulator that
@@ -524,7 +540,7 @@ def wait_for_acknowledgements(nodes: Sequence[Node], timeout: float = ACK_TIMEOU
 def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None, *,
                        config_status: int, on_end: Callable[[Node], None] | None = None,
                        companions: Sequence[Callable[[], Node]] = ()) -> int:
-    """``main`` of a simulator node (plant, stand-in base) that ends by itself.
+    """Run the ``main`` of a simulator node (plant, stand-in base) that ends by itself.
 
     Spins until SIGINT or SIGTERM or until the node sets ``exit_code`` (the end of its scenario, a
     fall...), which is then the status; ``on_end(node)`` runs in that case, before the
@@ -589,10 +605,13 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
 
 
 class IntraProcessNode(Node):
-    """A node whose publishers and subscriptions a composed process may connect directly
+    """A node whose publishers and subscriptions a composed process may connect directly.
+
+    A node whose publishers and subscriptions a composed process may connect directly
     (:func:`connect_intra_process`, :mod:`.intra_process`): the controller nodes and the
     plant. Call :meth:`init_intra_process` before creating them; rclpy's own (parameter
-    events, rosout) are not connected."""
+    events, rosout) are not connected.
+    """
 
     def init_intra_process(self, enabled: bool) -> None:
         self.use_intra_process_comms = enabled
@@ -600,14 +619,19 @@ class IntraProcessNode(Node):
         self.intra_subscriptions: list[tuple[type, str, Callable]] = []
 
     def add_intra_subscription(self, msg_type, subscription, callback: Callable) -> None:
-        """Also deliver the process's own messages of ``subscription``'s topic to
-        ``callback`` (which must be the subscription's)."""
+        """Also deliver the process's own messages of ``subscription``'s topic to ``callback``.
+
+        Which must be the subscription's.
+        """
         self.intra_subscriptions.append((msg_type, subscription.topic_name, callback))
 
     def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
-        """rclpy's publisher wrapped in an :class:`IntraProcessPublisher`: it publishes
+        """Create rclpy's publisher wrapped in an :class:`IntraProcessPublisher`.
+
+        rclpy's publisher wrapped in an :class:`IntraProcessPublisher`: it publishes
         nothing while no subscription is matched (volatile topics), and in a composed
-        process hands messages to the process's own subscriptions directly."""
+        process hands messages to the process's own subscriptions directly.
+        """
         publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
         if not hasattr(self, 'intra_publishers'):   # rclpy's own, from Node.__init__
             return publisher
@@ -640,35 +664,43 @@ class ControllerNode(IntraProcessNode):
         self.max_stamp_lead_ns = round(settings.max_stamp_lead * 1e9)
 
     def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
-        """In lockstep, every reliable publisher keeps what its readers have not
-        acknowledged (:data:`LOCKSTEP_WRITER_DEPTH`)."""
+        """Create a publisher; in lockstep, a reliable one keeps what is not acknowledged.
+
+        In lockstep, every reliable publisher keeps what its readers have not
+        acknowledged (:data:`LOCKSTEP_WRITER_DEPTH`).
+        """
         if getattr(self, 'lockstep', False):
             qos_profile = lockstep_writer_qos(qos_profile)
         return super().create_publisher(msg_type, topic, qos_profile, **kwargs)
 
     def subscribe(self, msg_type, topic: str, name: str, handler: Callable,
                   qos: QoSProfile = RELIABLE_QOS, raw: bool = False) -> None:
-        """Subscription whose callback never raises: a ValueError (malformed or non-finite
-        input, rejected by a conversion or the core) drops the message as 'invalid', any
-        other error as 'error'; both are counted and reported on /diagnostics.
+        """Subscription whose callback never raises.
+
+        A ValueError (malformed or non-finite input, rejected by a conversion or the core) drops
+        the message as 'invalid', any other error as 'error'; both are counted and reported on
+        /diagnostics.
 
         ``raw``: DDS delivers the serialized bytes (decoded by the handler, see
-        ``conversions.decode_serialized``); the intra-process bus still delivers objects."""
+        ``conversions.decode_serialized``); the intra-process bus still delivers objects.
+        """
         def callback(msg) -> None:
             try:
                 handler(msg)
             except ValueError as err:
                 self.diagnostics.drop(name, 'invalid', str(err))
-            except Exception as err:  # noqa: B902 - a callback must not stop the executor
+            except Exception as err:  # noqa: BLE001 - a callback must not stop the executor
                 self.diagnostics.drop(name, 'error', f'{type(err).__name__}: {err}')
         subscription = self.create_subscription(msg_type, topic, callback, qos, raw=raw)
         self.add_intra_subscription(msg_type, subscription, callback)
 
     def subscribe_input(self, msg_type, topic: str, name: str, convert: Callable,
                         qos: QoSProfile = RELIABLE_QOS) -> None:
-        """:meth:`subscribe` to a stamped input of the node's LatestSync: each message's
-        stamp counted on /diagnostics, then ``convert(msg)`` fed as ``name`` (a ValueError
-        of the conversion drops the message)."""
+        """:meth:`subscribe` to a stamped input of the node's LatestSync.
+
+        Each message's stamp counted on /diagnostics, then ``convert(msg)`` fed as ``name`` (a
+        ValueError of the conversion drops the message).
+        """
         def handler(msg) -> None:
             stamp = stamp_to_ns(msg.header.stamp)
             self.diagnostics.input(name, stamp)
@@ -676,10 +708,12 @@ class ControllerNode(IntraProcessNode):
         self.subscribe(msg_type, topic, name, handler, qos)
 
     def now_ns(self) -> int:
-        """The node clock [ns]. Without ``use_sim_time`` that is ROS time = the system
-        clock (CLOCK_REALTIME), read directly: rclpy's ``now()`` builds a Time object per
-        call (measured 15 us against 0.15 us on a loaded machine), and real time reads the
-        clock for every input."""
+        """Return the node clock [ns].
+
+        Without ``use_sim_time`` that is ROS time = the system clock (CLOCK_REALTIME), read
+        directly: rclpy's ``now()`` builds a Time object per call (measured 15 us against 0.15 us
+        on a loaded machine), and real time reads the clock for every input.
+        """
         if self._system_clock:
             return time.time_ns()
         return self.get_clock().now().nanoseconds
@@ -699,9 +733,9 @@ class ControllerNode(IntraProcessNode):
         if not self.lockstep:
             lead_ns = stamp_ns - self.now_ns()
             if lead_ns > self.max_stamp_lead_ns:
-                raise ValueError(f'stamp {lead_ns / 1e9:.3f} s ahead of this node\'s clock '
+                raise ValueError(f"stamp {lead_ns / 1e9:.3f} s ahead of this node's clock "
                                  f'(max_stamp_lead {self.max_stamp_lead_ns / 1e9:g} s): is '
-                                 f'the sender\'s clock synchronised?')
+                                 f"the sender's clock synchronised?")
         stale = self.sync.dropped['stale']
         self.sync.add(name, stamp_ns, value)
         if self.sync.dropped['stale'] > stale:

@@ -88,19 +88,24 @@ _typestore = None
 
 
 def prepare_decoder(*typenames: str) -> None:
-    """Build the type store and the decoders of ``typenames`` now (about 0.16 s of CPU
+    """Build the type store and the decoders of ``typenames`` now.
+
+    Build the type store and the decoders of ``typenames`` now (about 0.16 s of CPU
     here, more on a slow machine), at a node's start, rather than in the callback of its
-    first sensor sample."""
+    first sensor sample.
+    """
     global _typestore  # noqa: PLW0603 - one store per process
     if _typestore is None:
-        from rosbags.typesys import get_typestore, Stores  # noqa: PLC0415
+        from rosbags.typesys import get_typestore, Stores
         _typestore = get_typestore(Stores.ROS2_JAZZY)
     for typename in typenames:
         _typestore.get_msgdef(typename)
 
 
 def decode_serialized(msg, typename: str):
-    """A sensor message taken serialized (``create_subscription(..., raw=True)``) as an
+    """Decode a sensor message taken serialized (``create_subscription(..., raw=True)``).
+
+    A sensor message taken serialized (``create_subscription(..., raw=True)``) as an
     object with the message's fields (rosbags' CDR decoder, pinned version); a message
     object is returned as is (the intra-process bus and tests deliver objects).
 
@@ -122,7 +127,7 @@ def decode_serialized(msg, typename: str):
         # float64[] with its 8-byte alignment, so a JointState without efforts ends 8 bytes
         # early (rosbags' public deserialize_cdr allows 3 and rejects it).
         return decode(msg[4:], 0, msgdef.cls, _typestore)[0]
-    except Exception as err:  # noqa: B902 - any decoding failure is a malformed message
+    except Exception as err:  # noqa: BLE001 - any decoding failure is a malformed message
         raise InvalidMessage(f'{typename}: undecodable CDR message of {len(msg)} bytes '
                              f'({type(err).__name__}: {err})') from None
 
@@ -206,10 +211,13 @@ def odometry_to_msg(stamp_ns: int, frame_id: str, child_frame_id: str, x: float,
                     phi: float, v: float, omega: float,
                     pose_covariance: Sequence[float] = (0.0,) * 36,
                     twist_covariance: Sequence[float] = (0.0,) * 36) -> Odometry:
-    """nav_msgs/Odometry of a planar pose (x, y [m], heading phi [rad]) in ``frame_id``
+    """nav_msgs/Odometry of a planar pose and its twist.
+
+    nav_msgs/Odometry of a planar pose (x, y [m], heading phi [rad]) in ``frame_id``
     and its twist in ``child_frame_id`` (REP 105: υ along x, ω about z); covariances
     row-major 6x6 (all zero: unknown, the ROS convention). The ESO's /odom and the
-    viewer's Odometry topics are built here."""
+    viewer's Odometry topics are built here.
+    """
     msg = stamped(Odometry(), stamp_ns, frame_id)
     msg.child_frame_id = child_frame_id
     position, orientation = msg.pose.pose.position, msg.pose.pose.orientation
@@ -242,11 +250,14 @@ def estimate_to_msg(est: StateEstimate, x: float, y: float, settled: bool, stamp
 
 
 class _LastConversion:
-    """The result of converting the last message object, for the next subscriber of the
+    """The result of converting the last message object, for the next subscriber of it.
+
+    The result of converting the last message object, for the next subscriber of the
     same object. In a composed process every local subscriber of a topic receives the same
     message object (intra_process.py), and no node modifies a message it receives: the
     four subscribers of a state estimate then convert it once (about 13 us each, at
-    200 Hz). Holding the message keeps its identity from being reused."""
+    200 Hz). Holding the message keeps its identity from being reused.
+    """
 
     __slots__ = ('msg', 'value', 'checked')
 
@@ -254,7 +265,7 @@ class _LastConversion:
         self.msg, self.value, self.checked = None, None, False
 
     def get(self, msg, check: bool):
-        """The cached conversion of ``msg`` if it is the last one and was checked as asked."""
+        """Return the cached conversion of ``msg`` if it is the last and was checked as asked."""
         if msg is self.msg and (self.checked or not check):
             return self.value
         return None
@@ -332,8 +343,11 @@ def _column(values: Sequence[float]) -> array.array:
 
 
 def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> MpcOutput:
-    """MpcOutput of a core tick. Unknown quantities are not sent as NaN: slacks are 0 and
-    the predictions empty when the QP was not solved (``status`` says so)."""
+    """MpcOutput of a core tick.
+
+    Unknown quantities are not sent as NaN: slacks are 0 and the predictions empty when the QP was
+    not solved (``status`` says so).
+    """
     predicted = result.predicted
     have_prediction = bool(predicted.size) and bool(math.isfinite(float(predicted.sum())))
     slack_v = result.slack_v if math.isfinite(result.slack_v) else 0.0
@@ -353,8 +367,10 @@ def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> MpcO
 
 
 def planned_drive_torque(result: MpcResult) -> list[float]:
-    """τυ(k), τυ(k+1), … of the plan (eq. (23) applied to each planned increment); empty
-    when the plan is not finite."""
+    """τυ(k), τυ(k+1), … of the plan (eq. (23) applied to each planned increment).
+
+    Empty when the plan is not finite.
+    """
     plan = [float(v) for v in result.plan]
     if not (plan and all(math.isfinite(v) for v in plan) and math.isfinite(result.tau_v)):
         return []
@@ -365,9 +381,12 @@ def planned_drive_torque(result: MpcResult) -> list[float]:
 
 
 def mpc_hold_msg(stamp_ns: int, tau_v: float, sampling_period: float) -> MpcOutput:
-    """MpcOutput of a tick of the re-solve grid at which the MPC did not solve
+    """MpcOutput of a tick of the re-solve grid at which the MPC did not solve.
+
+    MpcOutput of a tick of the re-solve grid at which the MPC did not solve
     (``mpc.fast_resolve_period``, lockstep): the held τυ, status SOLVED (of the last solve),
-    ``status_text`` HELD, Δτ 0, no plan or prediction."""
+    ``status_text`` HELD, Δτ 0, no plan or prediction.
+    """
     return stamped(MpcOutput(tau_v=float(tau_v), delta_tau=0.0, status=MpcOutput.SOLVED,
                              status_text=HELD_STATUS_TEXT, sampling_period=float(sampling_period),
                              used_fallback=False), stamp_ns)
@@ -397,19 +416,21 @@ def effort_command(left: float, right: float, joints: Sequence[str], left_joint:
 
 def _in_joint_order(left: float, right: float, joints: Sequence[str], left_joint: str,
                     right_joint: str) -> list[float]:
-    """The efforts in the order of ``joints`` (the base's command layout)."""
+    """Return the efforts in the order of ``joints`` (the base's command layout)."""
     by_name = {left_joint: left, right_joint: right}
     return [by_name[j] for j in joints]
 
 
 def effort_command_cdr(left: float, right: float, joints: Sequence[str], left_joint: str,
                        right_joint: str) -> bytes:
-    """:func:`effort_command` already serialized (CDR, little endian), for
-    ``Publisher.publish(bytes)``: the real-time mixer sends one per tick, and building the
-    message object for rclpy to convert and serialize cost about 30 µs of the ~140 µs of
-    the publication here (docs/realtime.md). The layout is empty (no dimensions, offset 0),
-    as :func:`effort_command` leaves it; the bytes differ from rclpy's only in the
-    alignment padding, which Fast CDR leaves uninitialised."""
+    """:func:`effort_command` already serialized (CDR, little endian).
+
+    For ``Publisher.publish(bytes)``: the real-time mixer sends one per tick, and building the
+    message object for rclpy to convert and serialize cost about 30 µs of the ~140 µs of the
+    publication here (docs/realtime.md). The layout is empty (no dimensions, offset 0), as
+    :func:`effort_command` leaves it; the bytes differ from rclpy's only in the alignment padding,
+    which Fast CDR leaves uninitialised.
+    """
     values = [float(v) for v in _in_joint_order(left, right, joints, left_joint, right_joint)]
     # encapsulation CDR_LE | layout.dim length 0 | layout.data_offset 0 | data length |
     # padding to the doubles' 8-byte alignment (counted from after the encapsulation)

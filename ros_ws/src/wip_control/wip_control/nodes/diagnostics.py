@@ -69,12 +69,12 @@ class NodeDiagnostics:
 
     # -- reports from the node -------------------------------------------------------------
     def input(self, name: str, stamp_ns: int) -> None:
-        """An input message arrived (valid or not)."""
+        """Count an input message that arrived (valid or not)."""
         self.received[name] += 1
         self.last_stamp[name] = stamp_ns
 
     def drop(self, name: str, kind: str, detail: str = '') -> None:
-        """An input was dropped: count it by ``kind`` ('invalid', 'stale', ...) and log it."""
+        """Count a dropped input by ``kind`` ('invalid', 'stale', ...) and log it."""
         key = (name, kind)
         self.dropped[key] += 1
         self.last_drop = f'dropped {name} ({kind}){": " + detail if detail else ""}'
@@ -83,7 +83,7 @@ class NodeDiagnostics:
             self._node.get_logger().warning(f'{self.last_drop} (#{count} of this kind)')
 
     def output(self, stamp_ns: int, compute_time: float) -> None:
-        """An output was published; ``compute_time`` [s] from inputs to message."""
+        """Count a published output; ``compute_time`` [s] from inputs to message."""
         self.outputs += 1
         self.last_output_ns = stamp_ns
         self.compute_count += 1
@@ -96,7 +96,7 @@ class NodeDiagnostics:
 
     # -- publishing ------------------------------------------------------------------------
     def status(self) -> DiagnosticStatus:
-        """The DiagnosticStatus of now (also resets the per-period rates)."""
+        """Return the DiagnosticStatus of now (also resets the per-period rates)."""
         wall, outputs, stamp = time.monotonic(), self.outputs, self.last_output_ns
         wall0, outputs0, stamp0 = self._previous
         self._previous = (wall, outputs, stamp)
@@ -160,5 +160,5 @@ class NodeDiagnostics:
             array = DiagnosticArray(status=[self.status()])
             array.header.stamp = self._node.get_clock().now().to_msg()
             self.publisher.publish(array)
-        except Exception as err:  # noqa: B902 - diagnostics must not stop the node
+        except Exception as err:  # noqa: BLE001 - diagnostics must not stop the node
             self._node.get_logger().error(f'diagnostics failed: {err!r}')

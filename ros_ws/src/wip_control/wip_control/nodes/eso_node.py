@@ -1,4 +1,6 @@
-"""ESO node: the three extended state observers (eqs. (4), (8) in [1]_) and the planar
+"""ESO node: the three extended state observers and the planar position.
+
+ESO node: the three extended state observers (eqs. (4), (8) in [1]_) and the planar
 position, from standard sensor topics.
 
 Topics
@@ -188,7 +190,7 @@ class EsoNode(ControllerNode):
         self.diagnostics.state(OK, 'waiting for the first measurement set')
 
     def _init_odometry(self, settings: EsoNodeSettings) -> None:
-        """The /odom output (nav_msgs/Odometry of the estimate, REP 105)."""
+        """Set up the /odom output (nav_msgs/Odometry of the estimate, REP 105)."""
         wanted = (settings.odometry_output == 'always'
                   or (settings.odometry_output == 'realtime' and not self.lockstep))
         self.odometry_publisher = None
@@ -322,8 +324,11 @@ class EsoNode(ControllerNode):
         self._report(pose.settled)
 
     def _observer_time(self, stamp: int) -> float:
-        """Time [s] of the sample for the observer: the stamp's in lockstep; in real time
-        the previous sample's plus a whole number of periods (see the module docstring)."""
+        """Time [s] of the sample for the observer.
+
+        The stamp's in lockstep; in real time the previous sample's plus a whole number of periods
+        (see the module docstring).
+        """
         t = self.time_base.seconds(stamp)
         if self.lockstep:
             return t

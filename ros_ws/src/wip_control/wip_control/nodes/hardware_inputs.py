@@ -1,4 +1,4 @@
-"""Input adapters for a real base: wheel signs, IMU mounting, position from odometry.
+r"""Input adapters for a real base: wheel signs, IMU mounting, position from odometry.
 
 Pure functions (no node state) between a base's standard messages and the values the
 ESO node feeds the core. With the default parameters every adapter returns exactly what
@@ -21,7 +21,7 @@ IMU mounting (parameter ``imu_mounting_rpy`` [rad], 3 values)
     its own frame in the world (REP 145, ENU): R_world_imu = R_world_base R_mount, so the
     body's orientation is
 
-    .. math:: q_{body} = q_{imu} \\otimes q_{mount}^{-1}
+    .. math:: q_{body} = q_{imu} \otimes q_{mount}^{-1}
 
     and pitch θ and yaw ϕ are read from q_body (ZYX decomposition, roll ignored).
 
@@ -114,9 +114,12 @@ def mounting_inverse(rpy: Sequence[float]) -> Quaternion | None:
 
 
 def imu_orientation_of_body(body: Sequence[float], rpy: Sequence[float]) -> Quaternion:
-    """What an IMU mounted with ``rpy`` reports when the body has orientation ``body``:
+    """Return what an IMU mounted with ``rpy`` reports for the body orientation ``body``.
+
+    What an IMU mounted with ``rpy`` reports when the body has orientation ``body``:
     q_imu = q_body ⊗ q_mount (the inverse of :func:`body_pitch_yaw`; for simulators and
-    tests)."""
+    tests).
+    """
     roll, pitch, yaw = check_mounting_rpy('imu_mounting_rpy', rpy)
     return quaternion_multiply(body, quaternion_from_euler(roll, pitch, yaw))
 
@@ -165,9 +168,10 @@ def body_pitch_yaw(msg: Imu, inverse_mount: Sequence[float] | None = None) -> tu
 
 def body_pitch_yaw_rates(msg: Imu, inverse_mount: Sequence[float] | None,
                          pitch: float) -> tuple[float, float]:
-    """(θ̇, ϕ̇) [rad/s] of the body from the IMU's angular velocity (gyro), whose axes
-    are the IMU frame: ω_body = R_mount ω_imu, then the Euler rates at the body pitch θ
-    [rad] (:func:`.conversions.euler_rates_from_body`).
+    """(θ̇, ϕ̇) [rad/s] of the body from the IMU's angular velocity (gyro).
+
+    The gyro's axes are the IMU frame: ω_body = R_mount ω_imu, then the Euler rates at the body
+    pitch θ [rad] (:func:`.conversions.euler_rates_from_body`).
     """
     if not imu_has_rates(msg):
         raise InvalidMessage('imu: no angular velocity (angular_velocity_covariance[0] == '

@@ -115,8 +115,11 @@ class IntraProcessBus:
         self.subscriptions[topic].append((msg_type, callback))
 
     def attach(self, publisher: IntraProcessPublisher) -> int:
-        """Attach ``publisher`` to the local subscriptions of its topic and type (possibly
-        none: it then publishes only while a subscription is matched); their count."""
+        """Attach ``publisher`` to the local subscriptions of its topic and type.
+
+        Attach ``publisher`` to the local subscriptions of its topic and type (possibly
+        none: it then publishes only while a subscription is matched); their count.
+        """
         local = [cb for msg_type, cb in self.subscriptions.get(publisher.topic_name, ())
                  if msg_type is publisher.msg_type]
         publisher.attach(self, local)
@@ -139,7 +142,7 @@ class IntraProcessBus:
             for callback in callbacks:
                 try:
                     callback(msg)
-                except Exception as err:  # noqa: B902 - the other callbacks still get it
+                except Exception as err:  # noqa: BLE001 - the other callbacks still get it
                     self.errors += 1
                     if self._on_error is not None:
                         self._on_error(getattr(msg, '__class__', type(msg)).__name__, err)

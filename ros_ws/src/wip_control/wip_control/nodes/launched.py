@@ -52,9 +52,12 @@ def end_with_launcher(environ=os.environ) -> bool:
 
 
 def _alive(pid: int) -> bool:
-    """Whether ``pid`` runs. A zombie does not: a launcher killed during this node's
-    start-up stays a zombie until its own parent reaps it, and signal 0 still reaches
-    it (a node that took it for alive would believe it was a grandchild and run on)."""
+    """Whether ``pid`` runs.
+
+    A zombie does not: a launcher killed during this node's start-up stays a zombie until its own
+    parent reaps it, and signal 0 still reaches it (a node that took it for alive would believe it
+    was a grandchild and run on).
+    """
     try:
         with open(f'/proc/{pid}/stat', encoding='ascii', errors='replace') as stream:
             return stream.read().rsplit(')', 1)[1].split()[0] not in ('Z', 'X')

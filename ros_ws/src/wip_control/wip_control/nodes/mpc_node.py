@@ -154,7 +154,7 @@ class MpcNode(ControllerNode):
                 return
             self._tick(self.latest['state_estimate'][0],
                        {n: v for n, (_, v) in self.latest.items()}, k)
-        except Exception as err:  # noqa: B902 - a timer callback must not stop the node
+        except Exception as err:  # noqa: BLE001 - a timer callback must not stop the node
             self.diagnostics.drop('tick', 'error', f'{type(err).__name__}: {err}')
 
     def _idle(self, stamp: int, status: int, text: str) -> None:

@@ -5,8 +5,9 @@ parameter named ``<section>.<field>`` (or ``<field>`` when the section is ``''``
 the node-level settings) with a descriptor carrying its unit, description and range.
 Which node declares which dataclasses is listed in :mod:`wip_control.nodes.settings`
 (importable without rclpy, so the parameter reference is generated from it). Values are
-validated by the same :func:`~wip_control.core.config.from_mapping` as a scenario file, so a params file with a typo'd value fails with the same message,
-and a parameter set at run time to a bad value is rejected with the reason.
+validated by the same :func:`~wip_control.core.config.from_mapping` as a scenario file, so a
+params file with a typo'd value fails with the same message, and a parameter set at run time
+to a bad value is rejected with the reason.
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ from ..core.config import check_value, ConfigError, from_mapping
 
 
 class OutOfRangeError(ConfigError, InvalidParameterValueException):
-    """An override outside the declared range: a ConfigError (one line naming the
-    parameter) that is also the exception rclpy raises for it."""
+    """An override outside the declared range.
+
+    A ConfigError (one line naming the parameter) that is also the exception rclpy raises for it.
+    """
 
     def __init__(self, message: str) -> None:
         ConfigError.__init__(self, message)
@@ -181,9 +184,12 @@ class EffortInterface:
 
 
 def declare_effort_interface(node: Node) -> EffortInterface:
-    """Declare and read the parameters of settings.WheelJoints, EffortCommand and
+    """Declare and read the parameters of the effort interface.
+
+    Declare and read the parameters of settings.WheelJoints, EffortCommand and
     WheelSigns (the mixer and the stand-in base read the same ones); ConfigError if
-    ``joints`` does not list ``left_joint`` and ``right_joint`` once each."""
+    ``joints`` does not list ``left_joint`` and ``right_joint`` once each.
+    """
     from .settings import check_effort_joints, EffortCommand, WheelJoints, WheelSigns
     wheels = ConfigParameters(node, '', WheelJoints).config
     left, right = wheels.left_joint, wheels.right_joint

@@ -196,7 +196,7 @@ class ReferenceNode(ControllerNode):
     def _guarded(self, stamp_ns: int) -> None:
         try:
             self.publish_at(stamp_ns)
-        except Exception as err:  # noqa: B902 - a callback must not stop the node
+        except Exception as err:  # noqa: BLE001 - a callback must not stop the node
             self.diagnostics.drop('tick', 'error', f'{type(err).__name__}: {err}')
 
     def publish_at(self, stamp_ns: int) -> None:
@@ -214,7 +214,7 @@ class ReferenceNode(ControllerNode):
         self.diagnostics.output(stamp_ns, time.perf_counter() - start)
 
     def _report_command(self, ref) -> None:
-        """What the commanded reference does, on /diagnostics (value 'command')."""
+        """Report what the commanded reference does, on /diagnostics (value 'command')."""
         moving = ref.v != 0.0 or ref.omega != 0.0
         if self.config.kind == 'cmd_vel':
             status = ('following the command' if not self.reference.timed_out

@@ -40,7 +40,7 @@ TEXT = '-'
 
 
 def like(cls: type, name: str, default: Any = None, description: str | None = None) -> Any:
-    """A field with the unit and range of ``cls.name`` (one declaration of a range)."""
+    """Return a field with the unit and range of ``cls.name`` (one declaration of a range)."""
     field = {f.name: f for f in dataclasses.fields(cls)}[name]
     metadata = dict(field.metadata)
     if description is not None:
@@ -109,8 +109,10 @@ class EffortCommand:
 
 
 def check_effort_joints(left_joint: str, right_joint: str, joints: tuple[str, ...]) -> None:
-    """ConfigError unless ``joints`` lists ``left_joint`` and ``right_joint`` once each
-    (the check of the nodes that command efforts, and of a params file before a run)."""
+    """ConfigError unless ``joints`` lists ``left_joint`` and ``right_joint`` once each.
+
+    The check of the nodes that command efforts, and of a params file before a run.
+    """
     if sorted(joints) != sorted([left_joint, right_joint]):
         raise ConfigError(f'joints: must list left_joint {left_joint!r} and right_joint '
                           f'{right_joint!r} once each, got {list(joints)}')
@@ -127,7 +129,7 @@ class DatumConfig:
 
     @classmethod
     def of(cls, sensors: SensorConfig) -> 'DatumConfig':
-        """The datum of a scenario's sensors section."""
+        """Return the datum of a scenario's sensors section."""
         return cls(sensors.gps_datum_latitude, sensors.gps_datum_longitude,
                    sensors.gps_datum_altitude)
 
@@ -173,8 +175,10 @@ class EsoNodeSettings:
 
 @dataclasses.dataclass(frozen=True)
 class YawInputGainScale:
-    """The one ESO value the ARC needs: the scale of the yaw input gain, from which it
-    computes α̂(0) = 1/ĝ1 with the model (``core.control_step.initial_alpha``)."""
+    """The one ESO value the ARC needs: the scale of the yaw input gain.
+
+    From which it computes α̂(0) = 1/ĝ1 with the model (``core.control_step.initial_alpha``).
+    """
 
     yaw_input_gain_scale: float = like(EsoConfig, 'yaw_input_gain_scale')
 
@@ -190,16 +194,20 @@ class MpcNodeSettings:
 
 @dataclasses.dataclass(frozen=True)
 class WheelTorqueLimit:
-    """The one mixer value the MPC needs: τmax, which bounds its drive torque
-    (2 τmax − |τω|, core.mixer.drive_torque_limit)."""
+    """The one mixer value the MPC needs: τmax, which bounds its drive torque.
+
+    2 τmax − |τω|, core.mixer.drive_torque_limit.
+    """
 
     max_wheel_torque: float = like(MixerConfig, 'max_wheel_torque')
 
 
 @dataclasses.dataclass(frozen=True)
 class MpcPeriod:
-    """The MPC values the mixer needs: its sampling period and re-solve period, from
-    which the mixer computes the ticks at which (in lockstep) it awaits a drive torque."""
+    """The MPC values the mixer needs: its sampling period and re-solve period.
+
+    From which the mixer computes the ticks at which (in lockstep) it awaits a drive torque.
+    """
 
     sampling_period: float = like(MpcConfig, 'sampling_period')
     fast_resolve_period: float = like(MpcConfig, 'fast_resolve_period')
@@ -254,7 +262,8 @@ NODES: dict[str, tuple[tuple[str, type], ...]] = {
     'mpc': (*_BASE, ('mpc', MpcConfig), ('model', WipParameters), ('mixer', WheelTorqueLimit),
             ('rates', RatesConfig), ('', MpcNodeSettings)),
     'torque_mixer': (*_BASE, ('mixer', MixerConfig), ('rates', RatesConfig),
-                     ('mpc', MpcPeriod), ('safety', SafetyConfig), ('', MixerNodeSettings), ('', WheelJoints),
-                     ('', EffortCommand), ('', WheelSigns), ('wiring_check', WiringCheckConfig),
-                     ('model', WipParameters), ('', ImuMounting)),
+                     ('mpc', MpcPeriod), ('safety', SafetyConfig), ('', MixerNodeSettings),
+                     ('', WheelJoints), ('', EffortCommand), ('', WheelSigns),
+                     ('wiring_check', WiringCheckConfig), ('model', WipParameters),
+                     ('', ImuMounting)),
 }

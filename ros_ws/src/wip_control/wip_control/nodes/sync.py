@@ -54,17 +54,20 @@ def tick_index(stamp_ns: int, period: float) -> int:
 
 
 def decimation(period: float, base_period: float) -> int:
-    """Base periods per ``period`` (>= 1), as the runner's ``round(T * control_rate)``."""
+    """Return the base periods per ``period``.
+
+    At least 1, as the runner's ``round(T * control_rate)``.
+    """
     return max(1, round(period / base_period))
 
 
 def is_decimated_tick(stamp_ns: int, base_period: float, every: int) -> bool:
-    """True if ``stamp_ns`` is every ``every``-th sample of the ``base_period`` [s] grid."""
+    """Return True if ``stamp_ns`` is every ``every``-th sample of the ``base_period`` [s] grid."""
     return tick_index(stamp_ns, base_period) % every == 0
 
 
 def on_grid(stamp_ns: int, period: float, tolerance: float = GRID_TOLERANCE) -> bool:
-    """True if ``stamp_ns`` [ns] lies within ``tolerance`` [s] of a multiple of ``period`` [s]."""
+    """Whether ``stamp_ns`` [ns] lies within ``tolerance`` [s] of a multiple of ``period`` [s]."""
     k = tick_index(stamp_ns, period)
     return abs(stamp_ns - k * period * 1e9) <= tolerance * 1e9
 
@@ -106,7 +109,7 @@ class ExactTimeSync:
         return {s: tuple(sorted(v)) for s, v in sorted(self._pending.items())}
 
     def missing(self, stamp_ns: int) -> tuple[str, ...]:
-        """Inputs that ``stamp_ns`` still waits for (all required ones if not buffered)."""
+        """Return the inputs ``stamp_ns`` still waits for (all required ones if not buffered)."""
         have = self._pending.get(stamp_ns, {})
         needed = set(self._required(stamp_ns))
         return tuple(n for n in self.names if n in needed and n not in have)

@@ -185,7 +185,8 @@ class TorqueMixerNode(ControllerNode):
 
         The mixer reads /joint_states and /imu/data itself (not the ESO's estimates): the
         check compares raw sensors with each other and with the torque this node sends,
-        and its verdict must reach the safety layer in the same process without a hop."""
+        and its verdict must reach the safety layer in the same process without a hop.
+        """
         config = ConfigParameters(self, 'wiring_check', WiringCheckConfig).config
         model = ConfigParameters(self, 'model', WipParameters).config
         mounting = ConfigParameters(self, '', ImuMounting).config.imu_mounting_rpy
@@ -203,8 +204,11 @@ class TorqueMixerNode(ControllerNode):
         self.create_subscription(Imu, 'imu/data', self._on_imu, SENSOR_QOS)
 
     def _on_joint_states(self, msg: JointState) -> None:
-        """Wheel rates as configured: the joint velocities (else the positions' difference)
-        by name, times the signs. A bad message is the ESO's to report: skipped here."""
+        """Wheel rates as configured.
+
+        The joint velocities (else the positions' difference) by name, times the signs. A bad
+        message is the ESO's to report: skipped here.
+        """
         t = self.monitor_time()
         try:
             left, right = signed_wheel_angles(msg, self.left_joint, self.right_joint,
@@ -337,15 +341,18 @@ class TorqueMixerNode(ControllerNode):
 
     # -- ticks ---------------------------------------------------------------------------------
     def _tick(self, sensor_stamp: int | None = None) -> None:
-        """Realtime: one command with the latest inputs, on a yaw torque (stamped with its
-        sensor sample: the latency is recorded) or from the watchdog."""
+        """Realtime: one command with the latest inputs.
+
+        On a yaw torque (stamped with its sensor sample: the latency is recorded) or from the
+        watchdog.
+        """
         try:
             now = self.now_ns()
             decision = self.monitor.update(self.monitor_time())
             self._publish(now, decision)
             if sensor_stamp is not None and not decision.zeroed:
                 self.latencies.append((self.now_ns() - sensor_stamp) * 1e-9)
-        except Exception as err:  # noqa: B902 - a timer callback must not stop the node
+        except Exception as err:  # noqa: BLE001 - a timer callback must not stop the node
             self.diagnostics.drop('tick', 'error', f'{type(err).__name__}: {err}')
 
     def _mix_set(self, stamp: int, values) -> None:
@@ -417,7 +424,7 @@ class TorqueMixerNode(ControllerNode):
         diag.values['safety reasons'] = decision.reason or 'none'
 
     def _status(self):
-        """The node's DiagnosticStatus with the safety counters and input ages of now."""
+        """Return the node's DiagnosticStatus with the safety counters and input ages of now."""
         values = self.diagnostics.values
         for name, age in self.monitor.ages(self.monitor_time()).items():
             values[f'received {name} ago [s]'] = 'never' if age is None else f'{age:.4f}'
@@ -432,7 +439,6 @@ class TorqueMixerNode(ControllerNode):
                 f'{1e3 * p50:.3f}/{1e3 * p99:.3f}/{1e3 * p100:.3f} over '
                 f'{len(self.latencies)} commands')
         return self._base_status()
-
 
     def send_stop_command(self) -> bool:
         """Real time: one zero effort command to the base, acknowledged; True if it was.

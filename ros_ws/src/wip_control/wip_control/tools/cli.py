@@ -136,15 +136,21 @@ def run_main(main: Callable[[Sequence[str] | None], int], prog: str,
 
 
 def exit_with(main: Callable[[Sequence[str] | None], int], prog: str) -> None:
-    """``if __name__ == '__main__': exit_with(main, 'simulate')``."""
+    """Exit with what :func:`run_main` returns.
+
+    Usage: ``if __name__ == '__main__': exit_with(main, 'simulate')``.
+    """
     sys.exit(run_main(main, prog))
 
 
 def console_script(module: str, prog: str) -> Callable[[], int]:
-    """The console script (setup.py entry point, what ``ros2 run`` starts) of the tool
+    """Return the console script of the tool ``module``.
+
+    The console script (setup.py entry point, what ``ros2 run`` starts) of the tool
     ``module``: its ``main`` through :func:`run_main`, as ``python -m module`` runs it. The
     module is imported when the script runs (so one tool does not import the others), and
-    inside run_main (so a failed import is a one-line error too)."""
+    inside run_main (so a failed import is a one-line error too).
+    """
     def script() -> int:
         return run_main(lambda argv: importlib.import_module(module).main(argv), prog)
 
@@ -191,7 +197,7 @@ def write_atomic(path: str | os.PathLike, data: bytes | str) -> None:
 
 
 def exit_codes_text() -> str:
-    """The exit-code table as the epilog of a tool's ``--help``: one line per code."""
+    """Return the exit-code table as the epilog of a tool's ``--help``: one line per code."""
     return EXIT_CODES_HEADING + '\n' + '\n'.join(
         f'  {code:>3}  {meaning}' for code, meaning in EXIT_CODES.items())
 
@@ -263,9 +269,12 @@ def add_exit_codes(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 def bounded(kind: type, minimum: float | None = None, maximum: float | None = None,
             exclusive_minimum: bool = False) -> Callable[[str], Any]:
-    """An argparse ``type=``: a finite ``kind`` (int or float) in [minimum, maximum]
+    """Return an argparse ``type=`` for a finite number in a range.
+
+    An argparse ``type=``: a finite ``kind`` (int or float) in [minimum, maximum]
     ((minimum, maximum] with ``exclusive_minimum``); argparse's usage error (exit 2)
-    naming the range otherwise."""
+    naming the range otherwise.
+    """
     def convert(text: str):
         try:
             value = kind(text)
@@ -299,10 +308,13 @@ _NODE_HELP_EXTRA = {
 
 
 def answer_node_help(program: str, package: str, args: Sequence[str] | None = None) -> bool:
-    """If the command line of a node executable asks for ``-h``/``--help`` (before
+    """Answer ``-h``/``--help`` on the command line of a node executable.
+
+    If the command line of a node executable asks for ``-h``/``--help`` (before
     ``--ros-args``), print its usage on stdout and return True: the caller then exits 0
     without starting anything. ``args`` as given to ``rclpy.init`` (``sys.argv`` if
-    None)."""
+    None).
+    """
     words = list(sys.argv if args is None else args)[1:]
     if '--ros-args' in words:
         words = words[:words.index('--ros-args')]

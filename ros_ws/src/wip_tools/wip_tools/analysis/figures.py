@@ -52,8 +52,10 @@ def _legend(ax, **kwargs) -> None:
 
 
 def _limit_lines(ax, value: float, label: str, data=None) -> None:
-    """±value lines, with the y range opened past them and past the data, so that a
-    limit line never coincides with the frame."""
+    """±value lines, with the y range opened past them and past the data.
+
+    So that a limit line never coincides with the frame.
+    """
     for sign in (1, -1):
         ax.axhline(sign * value, color='tab:gray', linestyle=':', linewidth=1.0,
                    label=label if sign > 0 else None)
@@ -96,8 +98,11 @@ def figure_path(record: RunRecord, out: pathlib.Path) -> pathlib.Path:
 
 
 def _time_marks(ax, path, ref) -> None:
-    """Every :data:`TIME_MARK_PERIOD` s: the vehicle (dot) and the reference (ring) at the
-    same time, joined, and labelled with the time: the tracking error made visible."""
+    """Time marks of the vehicle and the reference every :data:`TIME_MARK_PERIOD` s.
+
+    Every :data:`TIME_MARK_PERIOD` s: the vehicle (dot) and the reference (ring) at the
+    same time, joined, and labelled with the time: the tracking error made visible.
+    """
     t = np.asarray(path['t'])
     if len(t) < 2:
         return
@@ -282,9 +287,10 @@ FIGURE_NAMES = ('fig04_path', 'fig05_posture_errors', 'fig06_tilt', 'fig07_veloc
 
 def write_figures(record: RunRecord, scenario, out_dir: str | pathlib.Path,
                   progress=None) -> list[pathlib.Path]:
-    """All figures of one run into ``out_dir`` (PNG, with SVG beside); returns the PNG
-    paths. ``progress(text)``, if given, is called before each figure (a few seconds
-    each on a full run)."""
+    """All figures of one run into ``out_dir`` (PNG, with SVG beside); returns the PNG paths.
+
+    ``progress(text)``, if given, is called before each figure (a few seconds each on a full run).
+    """
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     steps = [

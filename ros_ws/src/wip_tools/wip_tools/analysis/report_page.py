@@ -34,7 +34,7 @@ from wip_control.core.metrics import SETTLE_TIME_S
 #: is the same text; a test checks that every key a run writes is here.
 METRIC_DOCS: dict[str, tuple[str, str]] = {
     'scenario': ('', 'scenario name'),
-    'fell': ('', '|θ| reached the scenario\'s fall_threshold (default 0.5 rad)'),
+    'fell': ('', "|θ| reached the scenario's fall_threshold (default 0.5 rad)"),
     'duration_s': ('s', 'simulated (or recorded) time'),
     'tilt_source': ('', "'truth' or, on a robot, 'estimate': where the tilt metrics come "
                     'from'),
@@ -65,9 +65,9 @@ METRIC_DOCS: dict[str, tuple[str, str]] = {
     'rms_position_error_m': ('m', 'RMS of the true position error over t ≥ 10 s'),
     'max_position_error_m': ('m', 'largest true position error over t ≥ 10 s'),
     'rms_heading_error_rad': ('rad', 'RMS of the heading error wrap(ϕr − ϕ) over t ≥ 10 s'),
-    'eso_rms_error.omega': ('rad/s', 'RMS error of the ESO\'s ω over t ≥ 1 s'),
-    'eso_rms_error.v': ('m/s', 'RMS error of the ESO\'s υ over t ≥ 1 s'),
-    'eso_rms_error.theta_dot': ('rad/s', 'RMS error of the ESO\'s θ̇ over t ≥ 1 s'),
+    'eso_rms_error.omega': ('rad/s', "RMS error of the ESO's ω over t ≥ 1 s"),
+    'eso_rms_error.v': ('m/s', "RMS error of the ESO's υ over t ≥ 1 s"),
+    'eso_rms_error.theta_dot': ('rad/s', "RMS error of the ESO's θ̇ over t ≥ 1 s"),
     'eso_rms_error.f1': ('rad/s²', 'RMS error of f1 against the true lumped disturbance '
                          '(ω̇ − g1 τω, nominal g1)'),
     'eso_rms_error.f2': ('m/s²', 'RMS error of f2 (υ̇ − g2 τυ)'),
@@ -91,7 +91,10 @@ _WHOLE = ('source.messages', 'rerun')
 
 
 def flatten_metrics(metrics: dict[str, Any], prefix: str = '') -> dict[str, Any]:
-    """``{'a': {'b': 1}}`` -> ``{'a.b': 1}``; ``source.messages`` stays one entry."""
+    """Flatten nested metrics: ``{'a': {'b': 1}}`` -> ``{'a.b': 1}``.
+
+    ``source.messages`` stays one entry.
+    """
     flat = {}
     for key, value in metrics.items():
         name = f'{prefix}{key}'
@@ -124,9 +127,12 @@ CONVERGENCE_CLAIM_S = 8.0
 #: The verdict of a claim whose time window is longer than the run.
 NOT_TESTED = 'not tested (run too short)'
 
+
 def claims(metrics: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]:
-    """(quantity, the paper's claim, this run, verdict) rows. Verdict: 'yes', 'no' (with
-    the known reason) or 'n/a' (the run lacks the data)."""
+    """(quantity, the paper's claim, this run, verdict) rows.
+
+    Verdict: 'yes', 'no' (with the known reason) or 'n/a' (the run lacks the data).
+    """
     m = metrics
     tg, mpc = scenario.trajectory_generator, scenario.mpc
     rows = []
@@ -145,7 +151,7 @@ def claims(metrics: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]
                'the feedback transient and the pulse: see Figs. 4, 5')
     elif saturated:
         why = (f'ω_d is limited to {tg.max_yaw_rate:g} rad/s where the path needs more '
-               '(0.70 rad/s at the trifolium\'s petal tips)')
+               "(0.70 rad/s at the trifolium's petal tips)")
     else:
         why = 'see Figs. 4, 5'
     # A claim about a window the run does not reach is not tested: neither passed nor
@@ -217,7 +223,7 @@ def captions(metrics: dict[str, Any], scenario) -> dict[str, str]:
     if getattr(ref, 'time_scaling', False):
         tips = (f'The reference is time-scaled (path following): its progress slows wherever '
                 f'the path would need more than {ref.path_max_speed:g} m/s or '
-                f'{ref.path_max_yaw_rate:g} rad/s (the trifolium with the paper\'s timing '
+                f"{ref.path_max_yaw_rate:g} rad/s (the trifolium with the paper's timing "
                 'needs 0.70 rad/s at its petal tips), so the vehicle can follow the path '
                 'itself; the errors are taken to where the time-scaled reference is.')
     elif scenario.reference.kind == 'trifolium':
@@ -255,7 +261,7 @@ def captions(metrics: dict[str, Any], scenario) -> dict[str, str]:
         'fig08_eso_rotational': (
             'Yaw ESO: ω and the lumped disturbance f1 against the truth (the true '
             'acceleration minus the nominal input term, ω̇ − g1 τω). The yaw ESO uses '
-            f'ĝ1 = {scale:g} g1, the paper\'s deliberate {abs(scale - 1) * 100:.0f} % error; '
+            f"ĝ1 = {scale:g} g1, the paper's deliberate {abs(scale - 1) * 100:.0f} % error; "
             'the difference (ĝ1 − g1) τω goes into its f1 estimate, hence the f1 offset '
             'wherever τω is large (RMS f1 error '
             f"{_fmt((m.get('eso_rms_error') or {}).get('f1'))} rad/s²), as in the paper's "
@@ -265,7 +271,8 @@ def captions(metrics: dict[str, Any], scenario) -> dict[str, str]:
             'jump with the pulse disturbance and are tracked within the observer bandwidth '
             + ('(gyro-aided estimator: rate ESOs of 20–60 rad/s, chosen from the sensor '
                'noise, docs/estimation.md).' if getattr(scenario.eso, 'estimator', 'paper')
-               == 'gyro' else f'(ε = {scenario.eso.epsilon:g}: about {1 / scenario.eso.epsilon:.0f} rad/s).')),
+               == 'gyro' else f'(ε = {scenario.eso.epsilon:g}: about '
+                              f'{1 / scenario.eso.epsilon:.0f} rad/s).')),
         'fig10_alpha': (
             'Adaptive parameter α̂ of the yaw control law against the true 1/g1(θ). The '
             'adaptive robust law only needs α̂ bounded (projection onto its interval); '
@@ -277,7 +284,7 @@ def captions(metrics: dict[str, Any], scenario) -> dict[str, str]:
             'the change of τυ per MPC step with its limit '
             f'±{scenario.mpc.max_delta_torque:g} N·m (eq. (23)): largest increment '
             f"{_fmt(m.get('max_abs_delta_tau_v_nm'))} N·m"
-            + (', on its limit: the MPC\'s increment constraint is active there (in the '
+            + (", on its limit: the MPC's increment constraint is active there (in the "
                'paper scenario while the pulse is rejected)'
                if (m.get('max_abs_delta_tau_v_nm') or 0.0)
                >= scenario.mpc.max_delta_torque - 1e-6 else '')
@@ -314,7 +321,7 @@ def _verdict_class(text: str) -> str:
 
 def render_page(metrics: dict[str, Any], scenario, figure_paths: list[pathlib.Path],
                 scenario_mapping: dict[str, Any], title: str | None = None) -> str:
-    """The HTML text of the page (figures embedded from ``figure_paths``)."""
+    """Return the HTML text of the page (figures embedded from ``figure_paths``)."""
     e = html.escape
     title = title or f'wip-ros run report: {scenario.name}'
     parts = [f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
