@@ -241,7 +241,7 @@ def main(argv=None):
     """``scripts/bag_info BAG``; exit code 0 (OK), 1 (NOT OK) or 2 (no bag there)."""
     parser = argparse.ArgumentParser(
         prog='scripts/bag_info', formatter_class=argparse.RawDescriptionHelpFormatter,
-        description='''\
+        description="""\
 Print what `ros2 bag info` prints for a rosbag2 MCAP bag (directory or single .mcap
 file), plus its chunk compression and a check of every chunk's CRC and of metadata.yaml
 against the files (OK: exit 0, NOT OK: exit 1).
@@ -251,7 +251,7 @@ Examples
     scripts/bag_info out/demo/bag                    # a bag directory
     scripts/bag_info out/demo/bag/bag_0.mcap         # one file
     scripts/bag_info --from-content out/demo/bag     # counts from the data itself
-    scripts/bag_info --json out/demo/bag > info.json''')
+    scripts/bag_info --json out/demo/bag > info.json""")
     parser.add_argument('bag', help='bag directory or .mcap file')
     parser.add_argument('--from-content', action='store_true',
                         help="figures from the files' contents, not from metadata.yaml")

@@ -431,7 +431,7 @@ def main(argv=None):
     """``scripts/bag_repair BAG``: see the module docstring."""
     parser = argparse.ArgumentParser(
         prog='scripts/bag_repair', formatter_class=argparse.RawDescriptionHelpFormatter,
-        description='''\
+        description="""\
 Copy the intact chunks of a damaged or unfinished rosbag2 MCAP bag into a new bag with a
 rebuilt metadata.yaml; the original is never touched.
 
@@ -439,7 +439,7 @@ Examples
 --------
     scripts/bag_repair --dry-run out/run/bag         # what would be kept and lost
     scripts/bag_repair out/run/bag                   # writes out/run/bag_repaired
-    scripts/bag_repair out/run/bag --out fixed_bag --compression zstd''')
+    scripts/bag_repair out/run/bag --out fixed_bag --compression zstd""")
     parser.add_argument('bag', help='bag directory')
     parser.add_argument('--out', help='the new bag directory (must not exist; default '
                         '<BAG>_repaired)')

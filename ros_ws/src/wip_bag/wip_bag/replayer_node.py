@@ -532,7 +532,7 @@ def parse_command_line(argv):
         argv, ros_args = argv[:index], argv[index:]
     parser = argparse.ArgumentParser(
         prog='scripts/replay', formatter_class=argparse.RawDescriptionHelpFormatter,
-        description='''\
+        description="""\
 Play a rosbag2 MCAP bag (directory or .mcap file) like `ros2 bag play`; options set the
 replayer node parameters of the same name.
 
@@ -541,7 +541,7 @@ Examples
     scripts/replay out/demo/bag                      # at recorded speed
     scripts/replay out/demo/bag --rate 10 --clock    # 10x, publishing /clock
     scripts/replay out/demo/bag --topics /imu/data /joint_states --loop
-    scripts/replay out/demo/bag --partial            # the intact part of a damaged bag''',
+    scripts/replay out/demo/bag --partial            # the intact part of a damaged bag""",
         epilog='Anything after --ros-args goes to ROS (e.g. -r /imu/data:=/replay/imu).')
     parser.add_argument('bag', nargs='?', help='bag directory or .mcap file')
     for option, _, kind, text in _OPTIONS:

@@ -741,12 +741,12 @@ def split_ros_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
     return own, remaps
 
 
-EXAMPLES = '''\
+EXAMPLES = """\
 Examples
 --------
     scripts/check_base --params-file my_base.yaml              # guided, by hand
     scripts/check_base --params-file my_base.yaml --remap /imu/data:=/imu/filtered
-    scripts/check_base --params-file my_base.yaml --json checks.json'''
+    scripts/check_base --params-file my_base.yaml --json checks.json"""
 
 
 def main(argv: list[str] | None = None, stdin: TextIO | None = None,

@@ -728,10 +728,11 @@ def run_graph(options: GraphOptions) -> GraphResult:
 
 def run_graph_benchmark(scenario_path: str | None, layout: str = GraphOptions.layout,
                         record: bool = False) -> dict[str, Any]:
-    """``scripts/bench``: one lockstep run of the whole scenario through the graph in a
-    temporary directory, recorded (every topic, as ``--record``) or not; its real-time
-    factor, per-tick loop time and CPU, the final true state, and with ``record`` the
-    bag's message count and check (``bag_info``).
+    """Run the whole scenario once through the lockstep graph, for ``scripts/bench``.
+
+    In a temporary directory, recorded (every topic, as ``--record``) or not; returns its
+    real-time factor, per-tick loop time and CPU, the final true state, and with
+    ``record`` the bag's message count and check (``bag_info``).
 
     Returns ``{'failed': message, 'exit_code': code}`` if the run did not complete.
     """
@@ -756,7 +757,7 @@ def run_graph_benchmark(scenario_path: str | None, layout: str = GraphOptions.la
 
 
 def _bag_check(bag: str) -> dict[str, Any]:
-    """The recorded bag's message count and whether ``bag_info``'s check passed."""
+    """Return the recorded bag's message count and ``bag_info``'s problems with it."""
     from wip_bag.bag_info import bag_information  # noqa: PLC0415 (only when recording)
     info = bag_information(bag)
     return {'bag_messages': info['message_count'], 'bag_problems': info['problems']}

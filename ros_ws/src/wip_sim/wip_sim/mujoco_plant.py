@@ -291,8 +291,10 @@ class MujocoPlant:
     def simulate_hold(self, state: Sequence[float], tau_left: float, tau_right: float,
                       disturbance_fn: Callable[[float], Sequence[float]] | None, t0: float,
                       dt: float, n_steps: int) -> np.ndarray:
-        """``n_steps`` steps of ``dt`` [s] from ``t0`` [s], torques held, the disturbance
-        sampled at each step's start (as :meth:`Plant.simulate_hold`)."""
+        """Integrate ``n_steps`` steps of ``dt`` [s] from ``t0`` [s], torques held.
+
+        The disturbance is sampled at each step's start (as :meth:`Plant.simulate_hold`).
+        """
         values, tl, tr, rows = hold_inputs(state, tau_left, tau_right, disturbance_fn, t0,
                                            dt, n_steps)
         values = tuple(values)

@@ -80,7 +80,7 @@ from sensor_msgs.msg import Imu, JointState, NavSatFix
 from std_srvs.srv import Trigger
 from wip_msgs.msg import GroundTruth, WheelTorques
 
-from wip_control.core.model import STATE_NAMES, THETA, V
+from wip_control.core.model import STATE_NAMES, THETA
 from wip_control.core.scenario import load_scenario
 from wip_control.core.simulation import Simulation
 from wip_control.nodes.common import (IntraProcessNode, LOCKSTEP_WRITER_DEPTH,
@@ -105,8 +105,11 @@ AUTOSTART_PERIOD = 0.05  # [s], wall time: how often autostart checks the matche
 
 
 def set_stamp(stamp, nanoseconds: int) -> None:
-    """Write integer nanoseconds into a builtin_interfaces/Time in place (the messages are
-    preallocated; ``common.ns_to_stamp`` would allocate a new Time per message)."""
+    """Write integer nanoseconds into a builtin_interfaces/Time in place.
+
+    The messages are preallocated; ``common.ns_to_stamp`` would allocate a new Time per
+    message.
+    """
     stamp.sec, stamp.nanosec = divmod(nanoseconds, 1_000_000_000)
 
 
@@ -178,7 +181,7 @@ class PlantNode(IntraProcessNode):
         return self.sim.state
 
     def _create_interfaces(self, settings: PlantSettings) -> None:
-        """Publishers, the torque subscription, the start service, timers, messages."""
+        """Create the publishers, the torque subscription, the start service, timers."""
         # Reliable, keep last 10 (the graph design). Publishers offer transient-local
         # durability: compatible with volatile subscriptions, and a subscription that asks
         # for transient-local gets the samples published before it matched.
@@ -244,7 +247,7 @@ class PlantNode(IntraProcessNode):
 
     # -- start --------------------------------------------------------------------------------
     def unmatched(self) -> list[str]:
-        """What the start still waits for (empty when every endpoint is matched)."""
+        """Return what the start still waits for (empty when every endpoint is matched)."""
         missing = []
         if self.torque_sub.get_publisher_count() < 1:
             missing.append(f'{self.torque_sub.topic_name} has no publisher')
@@ -460,7 +463,7 @@ class PlantNode(IntraProcessNode):
 
     # -- reporting ------------------------------------------------------------------------
     def stats(self) -> dict:
-        """Timings and counters of the run so far (also written to ``stats_file``)."""
+        """Return the timings and counters of the run so far (also in ``stats_file``)."""
         wall = self._wall_elapsed()
         t = self.k * self.dt_control
         return {

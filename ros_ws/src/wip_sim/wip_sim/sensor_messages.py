@@ -22,9 +22,11 @@ NOT_PROVIDED = -1.0
 
 
 def imu_message(config: SensorConfig, frame_id: str, acceleration: bool) -> Imu:
-    """An Imu in ``frame_id`` with the covariances of ``config``'s noise (pitch, yaw and
-    the gyro's; roll exact); ``acceleration``: whether linear_acceleration is filled
-    (else its covariance says "not provided")."""
+    """Make an Imu in ``frame_id`` with the covariances of ``config``'s noise.
+
+    Pitch, yaw and the gyro's noise; roll exact. ``acceleration``: whether
+    linear_acceleration is filled (else its covariance says "not provided").
+    """
     msg = Imu()
     msg.header.frame_id = frame_id
     msg.orientation_covariance = [EXACT, 0.0, 0.0,
@@ -39,8 +41,10 @@ def imu_message(config: SensorConfig, frame_id: str, acceleration: bool) -> Imu:
 
 
 def gps_message(config: SensorConfig, frame_id: str) -> NavSatFix:
-    """A NavSatFix in ``frame_id``: GPS service, the horizontal variance of ``config``'s
-    noise, altitude exact."""
+    """Make a NavSatFix in ``frame_id``: GPS service, ``config``'s horizontal noise.
+
+    The horizontal variance is that of ``config``'s noise; the altitude is exact.
+    """
     msg = NavSatFix()
     msg.header.frame_id = frame_id
     msg.status.status = NavSatStatus.STATUS_FIX
@@ -53,9 +57,12 @@ def gps_message(config: SensorConfig, frame_id: str) -> NavSatFix:
 
 def write_fix(msg: NavSatFix, position: tuple[float, float] | None,
               datum: tuple[float, float, float]) -> None:
-    """A GPS tick's report: ``position`` (x, y) [m] in the map frame as latitude,
-    longitude [deg] and altitude [m] about ``datum``; None, a dropout (the receiver
-    reports no fix, NaN position; the eso node skips it)."""
+    """Write a GPS tick's report into ``msg``.
+
+    ``position`` (x, y) [m] in the map frame becomes latitude, longitude [deg] and
+    altitude [m] about ``datum``; None is a dropout (the receiver reports no fix, NaN
+    position; the eso node skips it).
+    """
     if position is not None:
         msg.status.status = NavSatStatus.STATUS_FIX
         msg.latitude, msg.longitude, msg.altitude = local_to_geodetic(*position, *datum)

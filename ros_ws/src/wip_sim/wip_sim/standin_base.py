@@ -127,16 +127,21 @@ def body_quaternion(pitch: float, yaw: float) -> tuple[float, float, float, floa
 
 def body_angular_velocity(pitch: float, pitch_rate: float,
                           yaw_rate: float) -> tuple[float, float, float]:
-    """Angular velocity [rad/s] in base_link of R = Rz(ϕ) Ry(θ) (roll 0):
-    (−ϕ̇ sin θ, θ̇, ϕ̇ cos θ)."""
+    """Return the angular velocity [rad/s] in base_link of R = Rz(ϕ) Ry(θ) (roll 0).
+
+    It is (−ϕ̇ sin θ, θ̇, ϕ̇ cos θ).
+    """
     return (-yaw_rate * math.sin(pitch), pitch_rate, yaw_rate * math.cos(pitch))
 
 
 class BaseConventions:
-    """How a base reports its wheels and IMU: joint names and order, per-joint signs, IMU
-    mounting. :meth:`fill` writes a JointState and an Imu from the body's motion in the
-    project's conventions (REP 103 wheel angles, body pitch and yaw); the stand-in base
-    publishes with it, and tests that play a base's motions by hand use it too."""
+    """How a base reports its wheels and IMU.
+
+    Joint names and order, per-joint signs, IMU mounting. :meth:`fill` writes a
+    JointState and an Imu from the body's motion in the project's conventions (REP 103
+    wheel angles, body pitch and yaw); the stand-in base publishes with it, and tests that
+    play a base's motions by hand use it too.
+    """
 
     def __init__(self, joints, left_joint: str, right_joint: str, left_sign: float,
                  right_sign: float, mounting) -> None:

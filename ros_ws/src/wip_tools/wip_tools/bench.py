@@ -144,7 +144,7 @@ def bench_graph(scenario_path: str | None, layout: str = 'composed',
 
 
 #: A child of :func:`bench_reproducibility`: the scenario in-process, its record saved.
-_REPRODUCE = textwrap.dedent('''
+_REPRODUCE = textwrap.dedent("""
     import sys
     import numpy as np
     from wip_control.core.runner import run_scenario
@@ -152,14 +152,17 @@ _REPRODUCE = textwrap.dedent('''
     result = run_scenario(load_scenario(sys.argv[1] or None))
     np.savez(sys.argv[2], **{f'{g}.{c}': v for g, cols in result.record.groups.items()
                              for c, v in cols.items()})
-''')
+""")
 #: Channels that are measured timings, not results.
 TIMING_CHANNELS = ('mpc.solve_time_s',)
 
 
 def bench_reproducibility(scenario_path: str | None, processes: int = 3) -> dict:
-    """The scenario run in-process in ``processes`` fresh interpreters at once: are their
-    records the same bit for bit (every channel but measured timings)?"""
+    """Run the scenario in-process in ``processes`` fresh interpreters at once.
+
+    Reports whether their records are the same bit for bit (every channel but measured
+    timings).
+    """
     with tempfile.TemporaryDirectory(prefix='wip_bench_repro_') as directory:
         outputs = [os.path.join(directory, f'run{i}.npz') for i in range(processes)]
         children = [subprocess.Popen([sys.executable, '-c', _REPRODUCE, scenario_path or '',
@@ -342,7 +345,7 @@ def _section_realtime(seconds: float, in_process: dict, report: dict) -> None:
     if 'failed' in cost:
         print(f'-> node cost: {cost}')
     else:
-        print('the six nodes\' own code, fed directly (no DDS take, no wake-up by a '
+        print("the six nodes' own code, fed directly (no DDS take, no wake-up by a "
               'message), thread CPU per tick, medians: back to back '
               + ' / '.join(f'{r["median_us"]:.0f}' for r in cost['back_to_back'])
               + ' us; paced at 200 Hz '
@@ -353,7 +356,7 @@ def _section_realtime(seconds: float, in_process: dict, report: dict) -> None:
     report['rclpy_floor'] = floor
     for kind, measured in floor.items():
         if 'cpu_fraction' in measured:
-            print(f'rclpy floor, taken as {kind}: a process that only receives the base\'s '
+            print(f"rclpy floor, taken as {kind}: a process that only receives the base's "
                   f'two sensor streams ({measured["messages_per_s"]:.0f} msg/s, empty '
                   f'callbacks, {measured["executor"]}): '
                   f'{100 * measured["cpu_fraction"]:.1f} % of a core, '

@@ -466,13 +466,13 @@ def load_record(path: str | pathlib.Path) -> dict:
 def main(argv: Iterable[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog='scripts/identify', description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter, epilog='''\
+        formatter_class=argparse.RawDescriptionHelpFormatter, epilog="""\
 Examples
 --------
     scripts/identify robot_run/bag --out my_robot.yaml      # a scenario controller_model
     scripts/identify robot_run/bag --out my_robot_params.yaml --params-file
     scripts/identify robot_run/bag --model full --friction  # a real robot's rows
-    scripts/identify out/sim/timeseries.npz --source truth  # a simulated run''')
+    scripts/identify out/sim/timeseries.npz --source truth  # a simulated run""")
     parser.add_argument('run', help='rosbag2 directory, .mcap file, or timeseries.npz '
                         '(or a scripts/simulate output directory)')
     parser.add_argument('--out', help='write the identified model here: a scenario '

@@ -110,8 +110,10 @@ def _encoders(m) -> tuple | None:
 
 @functools.cache
 def _conversions():
-    """wip_control's message conversions, imported once (they import the ROS message
-    packages: only when a bag has IMU messages)."""
+    """Import wip_control's message conversions once.
+
+    They import the ROS message packages: only when a bag has IMU messages.
+    """
     from wip_control.nodes import conversions  # noqa: PLC0415
     return conversions
 

@@ -782,7 +782,7 @@ def summary_lines(comparison):
 def main(argv=None):
     parser = argparse.ArgumentParser(
         prog='scripts/rerun', formatter_class=argparse.RawDescriptionHelpFormatter,
-        description='''\
+        description="""\
 Open-loop re-run: feed the recorded sensors, reference and wheel torques of a bag to
 freshly built controllers (in-process core, same holds as the runner) and write a bag and
 report of what they compute now next to what was recorded.
@@ -791,7 +791,7 @@ Examples
 --------
     scripts/rerun out/demo/bag --out out/rerun       # the bag's own scenario
     scripts/rerun out/demo/bag --scenario tuned.yaml --out out/tuned
-    scripts/rerun robot_run/bag --timing receive --out out/robot''')
+    scripts/rerun robot_run/bag --timing receive --out out/robot""")
     parser.add_argument('bag', help='bag directory or .mcap file')
     parser.add_argument('--scenario', help='scenario YAML with the controller parameters '
                         "(default: the bag's, else the paper's)")

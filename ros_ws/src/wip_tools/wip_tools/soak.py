@@ -136,7 +136,7 @@ def one_run(directory: pathlib.Path, path: str, load: str, index: int, seconds: 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='scripts/soak', formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=__doc__.split('\n\n')[0] + '''
+        description=__doc__.split('\n\n')[0] + """
 
 Examples
 --------
@@ -145,7 +145,7 @@ Examples
     scripts/soak --record --out soak_out                   # keep a bag per run
 
 A run fails (exit 1 at the end) when the base fell or stopped early, the path error
-after 15 s exceeded --max-path-error, or a freeze did not happen before the run ended.''')
+after 15 s exceeded --max-path-error, or a freeze did not happen before the run ended.""")
     parser.add_argument('--out', default='soak_out',
                         help='output directory (default: %(default)s)')
     parser.add_argument('--runs', type=int, default=5, help='runs per case (default: 5)')

@@ -414,9 +414,12 @@ class Plant:
 def hold_inputs(state: Sequence[float], tau_left: float, tau_right: float,
                 disturbance_fn: DisturbanceFunction | None, t0: float, dt: float,
                 n_steps: int) -> tuple[list[float], float, float, np.ndarray]:
-    """The checked arguments of a plant's ``simulate_hold``: (state floats, τl, τr, the
-    disturbance rows (n_steps, 3) sampled at each step's start); ValueError on a wrong
-    size, NaN/inf, a non-positive ``dt`` or a negative or fractional ``n_steps``."""
+    """Check the arguments of a plant's ``simulate_hold``.
+
+    Returns (state floats, τl, τr, the disturbance rows (n_steps, 3) sampled at each
+    step's start); ValueError on a wrong size, NaN/inf, a non-positive ``dt`` or a
+    negative or fractional ``n_steps``.
+    """
     values = _state_floats(state)
     tl, tr, _, _, _ = _check_inputs(tau_left, tau_right, (0.0, 0.0, 0.0))
     _check_dt(dt)
@@ -433,7 +436,7 @@ def hold_inputs(state: Sequence[float], tau_left: float, tau_right: float,
 
 
 def checked_state(x: Sequence[float]) -> np.ndarray:
-    """A plant's new state as an array; ValueError if it is not finite."""
+    """Return a plant's new state as an array; ValueError if it is not finite."""
     if not math.isfinite(math.fsum(x)):
         raise ValueError(f'plant state became non-finite: {x} (check the disturbances)')
     return np.array(x)

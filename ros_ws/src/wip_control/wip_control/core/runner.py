@@ -44,8 +44,11 @@ RECORDED_GROUPS = ('truth', 'reference', 'estimate', 'command', 'arc', 'wheels',
 
 
 class _Recorder:
-    """The run's record buffers: one row appender per group (attributes named as the
-    groups), turned into numpy blocks every ``RecordBuffer.BLOCK_ROWS`` ticks."""
+    """The run's record buffers, one row appender per group.
+
+    The appenders are attributes named as the groups; the rows become numpy blocks every
+    ``RecordBuffer.BLOCK_ROWS`` ticks.
+    """
 
     def __init__(self) -> None:
         self.buffers = {group: RecordBuffer(group) for group in RECORDED_GROUPS}
@@ -122,9 +125,12 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
 
 
 def _record_tick(rec: _Recorder, t: float, reading, ref, pose, out) -> None:
-    """One control tick's rows. The named tuples' fields are in the record's column order
-    (record.GROUPS; a test checks it): (x, y, phi, v, omega) of the reference, the
-    estimate but ε, every field of the command and of the ARC's output."""
+    """Record one control tick's rows.
+
+    The named tuples' fields are in the record's column order (record.GROUPS; a test
+    checks it): (x, y, phi, v, omega) of the reference, the estimate but ε, every field
+    of the command and of the ARC's output.
+    """
     rec.encoders((t, *reading.encoders))
     rec.imu((t, *reading.imu, *reading.imu_rates))
     if out.mpc is not None:
@@ -140,7 +146,7 @@ def _record_tick(rec: _Recorder, t: float, reading, ref, pose, out) -> None:
 
 
 def _mpc_call(control: ControlStep, pose, out, tau_previous: float) -> dict:
-    """The arguments of this tick's MPC call (``record_mpc_inputs``)."""
+    """Return the arguments of this tick's MPC call (``record_mpc_inputs``)."""
     est = pose.estimate
     return dict(v_hat=est.v, theta_hat=est.theta, theta_dot_hat=est.theta_dot,
                 f2_hat=est.f2, f3_hat=est.f3, v_d=out.command.v_d,

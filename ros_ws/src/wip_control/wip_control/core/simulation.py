@@ -33,7 +33,7 @@ class SensorReading(NamedTuple):
 
 
 def initial_state(scenario, reference_state) -> np.ndarray:
-    """True initial state from the scenario; a relative pose is a body-frame error.
+    """Return the true initial state of the scenario; a relative pose is a body-frame error.
 
     With (x_e, y_e, ϕ_e) defined as in eq. (9) (body frame), the pose is
     ϕ = ϕr − ϕe and (x, y) = (xr, yr) − R(ϕ) (x_e, y_e). Section V's ϕ(0) = 0.5
@@ -91,7 +91,7 @@ class Simulation:
 
     def read_sensors(self, k: int, state: Sequence[float] | None = None,
                      wheel_rates: bool = True) -> SensorReading:
-        """The sensors' report of tick ``k`` from ``state`` (default the current one).
+        """Read the sensors of tick ``k`` from ``state`` (default the current one).
 
         Call once per tick, in order: the sensor delays and the noise streams advance.
         ``wheel_rates``: whether to compute the joint rates (the in-process estimator does
@@ -141,7 +141,7 @@ class DisturbanceBlocks:
         self._now: list[list[float]] = []
 
     def rows(self, k: int) -> tuple[np.ndarray, list[float]]:
-        """The (substeps, 3) rows of tick ``k`` (a view) and its row 0 as floats."""
+        """Return the (substeps, 3) rows of tick ``k`` (a view) and its row 0 as floats."""
         i = k - self._first
         if self._first < 0 or not 0 <= i < self._ticks:
             self._fill(k)
@@ -156,6 +156,7 @@ class DisturbanceBlocks:
         self._table = self._disturbances.sample_many(times).reshape(
             self._ticks, self._substeps, 3)
         if not np.all(np.isfinite(self._table)):
-            raise ValueError(f'disturbances must be finite (ticks from t = {first * dt_control} s)')
+            raise ValueError('disturbances must be finite (ticks from t = '
+                             f'{first * dt_control} s)')
         self._now = self._table[:, 0, :].tolist()
         self._first = first

@@ -210,9 +210,11 @@ _CITATION = re.compile(r'(\[\d+\])_')
 
 
 def plain_text(text: str | None) -> str | None:
-    """``text`` with the reST markup of the project's docstrings rendered as plain text:
-    roles as their (short) target, ``literals`` without quotes, ``[1]_`` as [1],
-    ``.. math::`` and ``.. [1]`` directives without their dots, ``::`` as ``:``."""
+    """Render the reST markup of the project's docstrings in ``text`` as plain text.
+
+    Roles become their (short) target, ``literals`` lose their quotes, ``[1]_`` becomes
+    [1], the ``.. math::`` and ``.. [1]`` directives lose their dots, ``::`` becomes ``:``.
+    """
     if not text:
         return text
 
@@ -237,10 +239,12 @@ def plain_text(text: str | None) -> str | None:
 
 
 def add_exit_codes(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Put the exit-code table at the end of ``parser``'s ``--help``, line by line (the
-    parser's formatter keeps wrapping the rest of its text as before), render the
-    docstrings' reST markup in the description, epilog and option help as plain text
-    (:func:`plain_text`), and make its usage errors one line (exit 2)."""
+    """Put the exit-code table at the end of ``parser``'s ``--help``, line by line.
+
+    The parser's formatter keeps wrapping the rest of its text as before; the docstrings'
+    reST markup in the description, epilog and option help is rendered as plain text
+    (:func:`plain_text`), and a usage error is one line (exit 2).
+    """
     parser.epilog = (parser.epilog + '\n\n' if parser.epilog else '') + exit_codes_text()
     base = parser.formatter_class
 
