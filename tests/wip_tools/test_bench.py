@@ -42,8 +42,10 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
         recorded = report[f'{key}_recorded']
         assert recorded['recorded'] and recorded['ticks'] == 400, recorded
         assert recorded['bag_problems'] == [] and recorded['bag_messages'] > 400 * 5
-        assert recorded['final_state'] == report['in_process']['final_state']
-        assert report[key]['final_state'] == report['in_process']['final_state']
+        # The graph carries the IMU rates through a quaternion and body rates, which round:
+        # within 2e-6 (test_lockstep's VALUE_ATOL) of in-process; recorded or not the same.
+        assert 0.0 <= report[f'{key}_recorded_final_state_difference'] < 2e-6
+        assert recorded['final_state'] == report[key]['final_state']
     repro = report['reproducibility']
     assert repro['processes'] == 3 and repro['identical'], repro
     assert repro['samples'] == 401 and repro['channels'] > 50

@@ -154,7 +154,7 @@ _REPRODUCE = textwrap.dedent("""
                              for c, v in cols.items()})
 """)
 #: Channels that are measured timings, not results.
-TIMING_CHANNELS = ('mpc.solve_time_s',)
+TIMING_CHANNELS = ('mpc.solve_time',)
 
 
 def bench_reproducibility(scenario_path: str | None, processes: int = 3) -> dict:
@@ -230,6 +230,17 @@ def bench_node_cost(seconds: float, pairs: int = 2) -> dict:
             'paced_over_back_to_back': medians['paced'] / medians['back_to_back']}
 
 
+def final_state_difference(graph: dict | None, in_process: dict | None) -> float | None:
+    """Return the largest difference between two final states (None if one is missing).
+
+    The graph's messages carry the IMU rates through a quaternion and body rates, which
+    round, so a lockstep run ends within rounding of the in-process one, not bit for bit.
+    """
+    if not graph or not in_process:
+        return None
+    return max(abs(graph[name] - in_process[name]) for name in in_process)
+
+
 def _print_graph_row(graph: dict | None, layout: str, record: bool, in_process: dict,
                      final: dict | None, report: dict, key: str) -> None:
     """Print one lockstep row of section 3 and store its ratio to in-process in report."""
@@ -246,9 +257,11 @@ def _print_graph_row(graph: dict | None, layout: str, record: bool, in_process: 
           f'{sum(cpu.values()):.0f} us in all (' + ', '.join(
               f'{n} {v:.0f}' for n, v in sorted(cpu.items(), key=lambda item: -item[1]))
           + ')')
-    same = ('' if final is None or graph.get('final_state') is None else
-            '; final state ' + ('= in-process bit for bit' if graph['final_state'] == final
-                                else '!= in-process'))
+    difference = final_state_difference(graph.get('final_state'), final)
+    report[f'{key}_final_state_difference'] = difference
+    same = ('' if difference is None else
+            '; final state = in-process bit for bit' if difference == 0.0 else
+            f'; final state within {difference:.1e} of in-process')
     bag = ('' if not record else f'; bag {graph.get("bag_messages")} messages, '
            + ('checked OK' if not graph.get('bag_problems') else
               f'PROBLEMS: {graph["bag_problems"]}'))
