@@ -28,7 +28,7 @@ os.environ.setdefault('PYTHONFAULTHANDLER', '1')
 # The tests choose their DDS domains and discovery themselves (private_dds_domain, explicit
 # environments): hardware mode and check_base must take those as the user's settings, not
 # drop them as scripts/_env.sh's defaults (wip_bringup.launcher.use_user_ros_environment).
-os.environ.pop('WIP_ROS_DEFAULTS', None)
+_ENV_DEFAULTS = os.environ.pop('WIP_ROS_DEFAULTS', '').split()
 for package in ('wip_control', 'wip_sim', 'wip_bag', 'wip_bringup', 'wip_tools', 'wip_viewer'):
     path = str(REPO_ROOT / 'ros_ws' / 'src' / package)
     if path not in sys.path:
@@ -36,6 +36,16 @@ for package in ('wip_control', 'wip_sim', 'wip_bag', 'wip_bringup', 'wip_tools',
 
 from wip_bringup.private_domain import (release_private_domain, release_taken_domains,  # noqa: E402
                                         reserve_private_domain)
+
+# The session's own domain, for the tests that start graphs without a domain fixture: not
+# scripts/_env.sh's pid-derived default, which is not reserved (a test session beside another
+# put its stand-in base and controllers into the other session's lockstep graph), but one
+# reserved on this host for the session's life (the kernel frees it when pytest exits). A
+# domain the user set themselves is kept.
+if ('ROS_DOMAIN_ID' not in os.environ
+        or f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}" in _ENV_DEFAULTS):
+    _SESSION_DOMAIN = reserve_private_domain()
+    os.environ['ROS_DOMAIN_ID'] = str(_SESSION_DOMAIN[0])
 
 
 # ----------------------------------------------------------------- ROS test isolation
