@@ -1,7 +1,8 @@
 """The tests' reference integrator, written once.
 
-The classic fourth-order Runge–Kutta step, on numpy arrays (the plant's own stepper is hand-inlined
-on floats, see ``core/plant.py``; the tests integrate with this textbook form to check against it).
+The classic fourth-order Runge–Kutta step, on numpy arrays (the plant's own stepper is
+hand-inlined on floats, see ``wip_sim/core/plant.py``; the tests integrate with this textbook
+form to check against it).
 """
 
 

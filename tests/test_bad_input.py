@@ -30,7 +30,7 @@ import pytest
 import yaml
 
 from wip_control.core.config import ConfigError, load_yaml_text
-from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
+from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping
 from wip_tools import simulate
 
 pytestmark = pytest.mark.filterwarnings('ignore::DeprecationWarning')

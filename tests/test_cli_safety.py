@@ -18,7 +18,7 @@ import pytest
 import yaml
 
 from wip_control.core.config import ConfigError
-from wip_control.core.scenario import load_scenario
+from wip_sim.core.scenario import load_scenario
 from wip_control.tools import cli
 from wip_tools import simulate
 
@@ -190,8 +190,8 @@ def test_a_dead_recorder_points_to_scripts_bag_repair(tmp_path):
 # --------------------------------------------------------------------------------- bags
 
 pytest.importorskip('wip_msgs.msg', reason='wip_msgs not built (scripts/setup builds it)')
-from wip_control.core.runner import run_scenario  # noqa: E402
-from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
+from wip_sim.core.runner import run_scenario  # noqa: E402
+from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_bag import bag_info, bag_repair  # noqa: E402
 from wip_tools import report, rerun  # noqa: E402
 from wip_bag.bag_integrity import scan_file  # noqa: E402

@@ -173,7 +173,7 @@ def test_every_command_help_is_plain_text_with_examples(helped):
 
 
 def test_plain_text_renders_the_docstrings_markup():
-    text = ('Runs :class:`~wip_control.core.plant.Plant` and :func:`wip_bringup.graph.main` '
+    text = ('Runs :class:`~wip_sim.core.plant.Plant` and :func:`wip_bringup.graph.main` '
             'with ``--record`` as in [1]_::\n\n    x = 1\n\n.. math::\n\n    a = b\n\n'
             '.. [1] Yue, An, Li.')
     assert cli.plain_text(text) == ('Runs Plant and wip_bringup.graph.main with --record as '

@@ -200,14 +200,40 @@ def test_the_controllers_import_no_other_wip_package(graph):
     assert declared('wip_control') & set(PACKAGES) == {'wip_msgs'}
 
 
-def test_the_real_base_check_needs_no_simulator(graph):
-    # check_base runs on a robot: nothing it imports, directly or not, is in wip_sim.
-    reached, todo = set(), ['wip_bringup.check_base']
+def reached_from(graph, start):
+    """Every module of ours that ``start`` imports, directly or not."""
+    reached, todo = set(), [start]
     while todo:
         name = todo.pop()
         if name in reached:
             continue
         reached.add(name)
         todo.extend(t for t in graph.get(name, ()) if t in graph)
-    assert not {name for name in reached if name.startswith('wip_sim')}
-    assert 'wip_sim' not in declared('wip_bringup')
+    return reached
+
+
+@pytest.mark.parametrize('tool', ['wip_bringup.check_base', 'wip_bringup.hardware'])
+def test_the_real_base_tools_need_no_simulator(graph, tool):
+    # check_base and hardware mode run on a robot: nothing they import, directly or not, is
+    # in wip_sim (run_graph's simulation mode, wip_bringup.graph, is the one that is).
+    sim = sorted(name for name in reached_from(graph, tool) if name.startswith('wip_sim'))
+    assert not sim, f'{tool} reaches {sim}'
+    assert any(name.startswith('wip_sim') for name in reached_from(graph, 'wip_bringup.graph'))
+
+
+def test_the_controllers_hold_no_plant_and_no_numba(graph):
+    # What runs on a robot: estimation, generator, ARC, MPC, LQR, safety and the control
+    # step. The plant, its compiled integrator, the forward sensor models, the disturbances
+    # and the in-process runner are the simulator's (wip_sim); analysis is wip_tools'.
+    control = {name: targets for name, targets in graph.items()
+               if name.startswith('wip_control')}
+    simulator = {'plant', 'plant_rk4', 'sensor_models', 'disturbances', 'ground', 'runner',
+                 'simulation', 'scenario', 'record', 'metrics', 'criteria'}
+    assert not sorted(name for name in control if name.rsplit('.', 1)[-1] in simulator)
+    assert not sorted(f'{name} imports numba' for name, targets in control.items()
+                      if any(t.split('.')[0] in ('numba', 'llvmlite') for t in targets))
+    assert 'python3-numba' not in declared('wip_control')
+    # The checks see the modules they look for where they are.
+    assert {'wip_sim.core.plant', 'wip_sim.core.plant_rk4', 'wip_sim.core.runner',
+            'wip_tools.analysis.metrics'} <= set(graph)
+    assert 'numba' in graph['wip_sim.core.plant_rk4']

@@ -16,10 +16,10 @@ import math
 import numpy as np
 import pytest
 
-from wip_control.core.metrics import compute_metrics
+from wip_tools.analysis.metrics import compute_metrics
 from wip_control.core.mpc import PAPER_MPC_SETTINGS
-from wip_control.core.runner import run_scenario
-from wip_control.core.scenario import paper_scenario, Scenario, scenario_from_mapping
+from wip_sim.core.runner import run_scenario
+from wip_sim.core.scenario import paper_scenario, Scenario, scenario_from_mapping
 
 # Numerical slack on hard limits: the QP is solved to eps_abs = 1e-6 and the mixer clips
 # in floating point, so a limit may be met to ~1e-9 but never exceeded by more.

@@ -38,9 +38,9 @@ import pytest
 pytest.importorskip('rclpy')
 import yaml  # noqa: E402
 
-from wip_control.core.metrics import compute_metrics  # noqa: E402
-from wip_control.core.runner import run_scenario  # noqa: E402
-from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
+from wip_tools.analysis.metrics import compute_metrics  # noqa: E402
+from wip_sim.core.runner import run_scenario  # noqa: E402
+from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_bag.bag_reader import read_bag  # noqa: E402
 from wip_bag.bag_reader import bag_summary  # noqa: E402
 from wip_bringup.graph import GraphOptions, GraphRunner, run_graph  # noqa: E402

@@ -13,8 +13,8 @@ import yaml
 pytest.importorskip('rclpy')
 pytest.importorskip('mujoco')
 
-from wip_control.core.runner import run_scenario  # noqa: E402
-from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
+from wip_sim.core.runner import run_scenario  # noqa: E402
+from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_bringup.graph import GraphOptions, run_graph  # noqa: E402
 from wip_bringup.private_domain import take_private_domain  # noqa: E402
 from wip_bringup.standin_run import BASE, line_scenario, run_against_standin  # noqa: E402

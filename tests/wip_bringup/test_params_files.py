@@ -28,8 +28,8 @@ from wip_control.core.mpc import MpcConfig  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
 from wip_control.core.position import PositionConfig  # noqa: E402
 from wip_control.core.references import ReferenceConfig  # noqa: E402
-from wip_control.core.scenario import (RatesConfig, scenario_from_mapping,  # noqa: E402
-                                       scenario_to_mapping)
+from wip_control.core.controller_settings import RatesConfig  # noqa: E402
+from wip_sim.core.scenario import scenario_from_mapping, scenario_to_mapping  # noqa: E402
 from wip_control.core.trajectory_generator import TrajectoryGeneratorConfig  # noqa: E402
 from wip_control.nodes.settings import WheelTorqueLimit  # noqa: E402
 from wip_bringup.params_files import (flatten, graph_parameters,  # noqa: E402

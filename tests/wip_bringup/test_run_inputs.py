@@ -17,7 +17,7 @@ from wip_bringup.hardware import hardware_parameters
 from wip_bringup.params_check import (check_params_files, check_remap, ParamsError,
                                       unmatched_remaps)
 from wip_bringup.params_files import CONTROLLER_NODES
-from wip_control.core.scenario import Scenario
+from wip_sim.core.scenario import Scenario
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[2]
 GENERATED = hardware_parameters(Scenario())

@@ -18,13 +18,12 @@ import pytest
 pytest.importorskip('mujoco')
 
 from wip_control.core.config import ConfigError  # noqa: E402
-from wip_control.core.ground import ContactConfig  # noqa: E402
-from wip_control.core.metrics import compute_metrics  # noqa: E402
+from wip_sim.core.ground import ContactConfig  # noqa: E402
+from wip_tools.analysis.metrics import compute_metrics  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
-from wip_control.core.plant import Plant, full_input_gains, scenario_plant  # noqa: E402
-from wip_control.core.runner import run_scenario  # noqa: E402
-from wip_control.core.scenario import (load_scenario, scenario_from_mapping,  # noqa: E402
-                                       scenario_to_mapping)
+from wip_sim.core.plant import Plant, full_input_gains, scenario_plant  # noqa: E402
+from wip_sim.core.runner import run_scenario  # noqa: E402
+from wip_sim.core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
 from wip_sim.mujoco_plant import MujocoPlant, body_inertias  # noqa: E402
 
 PARAMS = WipParameters()
@@ -241,7 +240,7 @@ def test_robust_default_stays_up_and_on_the_line_over_the_terrain(name):
 def test_the_slope_lifts_the_vehicle_by_its_grade():
     # Rolled 4 m up a 10 % slope, the axle is 0.4 m higher: the terrain is where the
     # scenario puts it (the height is read from the engine, not from the 8-state).
-    from wip_control.core.ground import TerrainConfig
+    from wip_sim.core.ground import TerrainConfig
     plant = MujocoPlant(PARAMS, LOSSLESS, terrain=TerrainConfig(slope_start=1.0,
                                                                 slope_grade=0.1))
     state = (5.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0, 0.0)
@@ -259,7 +258,7 @@ def test_the_slope_lifts_the_vehicle_by_its_grade():
 def test_a_low_friction_patch_slips_where_the_ground_around_it_does_not():
     # μ = 0.3 on the patch (x in [−1, 1]), 0.8 around: a torque step between the two
     # thresholds (12.2 and 32.4 N m per wheel) slips on the patch only.
-    from wip_control.core.ground import TerrainConfig
+    from wip_sim.core.ground import TerrainConfig
     terrain = TerrainConfig(patch_start=-1.0, patch_end=1.0, patch_friction=0.3)
     tau = 1.2 * _slip_threshold(PARAMS, 0.3)
     assert tau < 0.9 * _slip_threshold(PARAMS, 0.8)
@@ -281,7 +280,7 @@ def test_the_plant_nodes_stepping_gives_the_runners_floats():
     # a fresh tuple each tick), the in-process runner with hold_floats (disturbance rows,
     # its own tuple back): on the same torques and disturbances the two give the same
     # floats, so a lockstep graph run reproduces the in-process one on this plant too.
-    from wip_control.core.disturbances import Disturbances
+    from wip_sim.core.disturbances import Disturbances
     scenario = scenario_from_mapping({'plant': {'model': 'mujoco'}})
     disturbances = Disturbances(scenario.disturbances, seed=0)
     substeps, period = scenario.rates.substeps, scenario.control_period

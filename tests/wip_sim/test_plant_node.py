@@ -24,13 +24,14 @@ from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import Imu, JointState, NavSatFix  # noqa: E402
 import yaml  # noqa: E402
 
-from wip_control.core.disturbances import Disturbances  # noqa: E402
+from wip_sim.core.disturbances import Disturbances  # noqa: E402
 from wip_control.core.model import PHI  # noqa: E402
-from wip_control.core.plant import Plant  # noqa: E402
+from wip_sim.core.plant import Plant  # noqa: E402
 from wip_control.core.references import make_reference  # noqa: E402
-from wip_control.core.simulation import initial_state  # noqa: E402
-from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
-from wip_control.core.sensors import geodetic_to_local, Sensors  # noqa: E402
+from wip_sim.core.simulation import initial_state  # noqa: E402
+from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
+from wip_control.core.sensors import geodetic_to_local  # noqa: E402
+from wip_sim.core.sensor_models import Sensors  # noqa: E402
 from wip_control.nodes.conversions import (  # noqa: E402
     euler_rates_from_body, pitch_yaw_from_quaternion, quaternion_from_euler)
 from wip_bringup.private_domain import take_private_domain  # noqa: E402

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 import yaml
 
-from wip_control.core.criteria import Criteria, evaluate, path_errors, pulse_mask
-from wip_control.core.record import RunRecord
-from wip_control.core.scenario import scenario_from_mapping
+from wip_tools.analysis.criteria import Criteria, evaluate, path_errors, pulse_mask
+from wip_sim.core.record import RunRecord
+from wip_sim.core.scenario import scenario_from_mapping
 from wip_tools import campaign as cmp
 
 

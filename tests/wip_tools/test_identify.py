@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import yaml
 
-from wip_control.core.metrics import true_lumped_disturbances
-from wip_control.core.plant import Plant
-from wip_control.core.runner import run_scenario
-from wip_control.core.scenario import scenario_from_mapping
+from wip_tools.analysis.metrics import true_lumped_disturbances
+from wip_sim.core.plant import Plant
+from wip_sim.core.runner import run_scenario
+from wip_sim.core.scenario import scenario_from_mapping
 from wip_control.tools.cli import EXIT_OK, EXIT_USAGE
 from wip_tools import identify
 

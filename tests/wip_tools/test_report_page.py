@@ -28,9 +28,9 @@ import pytest
 
 from wip_tools.analysis.figures import FIGURE_NAMES
 from wip_tools.analysis.report_page import flatten_metrics, METRIC_DOCS
-from wip_control.core.metrics import compute_metrics
-from wip_control.core.runner import run_scenario
-from wip_control.core.scenario import Scenario
+from wip_tools.analysis.metrics import compute_metrics
+from wip_sim.core.runner import run_scenario
+from wip_sim.core.scenario import Scenario
 from wip_tools.simulate import write_run_outputs
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[2]

@@ -7,7 +7,7 @@ report, neither passed nor failed; run_graph's hint to make the report is shell-
 import json
 import shlex
 
-from wip_control.core.scenario import load_scenario
+from wip_sim.core.scenario import load_scenario
 from wip_tools import simulate
 from wip_tools.analysis.report_page import claims, NOT_TESTED
 

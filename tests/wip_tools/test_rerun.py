@@ -14,8 +14,8 @@ pytest.importorskip('wip_msgs.msg', reason='wip_msgs not built (scripts/setup bu
 
 from rosbags.rosbag2 import Reader  # noqa: E402
 
-from wip_control.core.runner import run_scenario  # noqa: E402
-from wip_control.core.scenario import scenario_from_mapping  # noqa: E402
+from wip_sim.core.runner import run_scenario  # noqa: E402
+from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_bag.bag_reader import read_topics  # noqa: E402
 from wip_tools.rerun import main, rerun, write_record_as_bag  # noqa: E402
 

@@ -7,9 +7,9 @@ torque and speed) and the tracking worse, as the document says with its measured
 
 import pytest
 
-from wip_control.core.metrics import compute_metrics
-from wip_control.core.runner import run_scenario
-from wip_control.core.scenario import scenario_from_mapping
+from wip_tools.analysis.metrics import compute_metrics
+from wip_sim.core.runner import run_scenario
+from wip_sim.core.scenario import scenario_from_mapping
 
 
 def _metrics(overrides):

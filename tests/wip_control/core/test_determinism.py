@@ -33,8 +33,8 @@ _PRELUDE = textwrap.dedent("""
 """)
 
 _SCENARIO = _PRELUDE + textwrap.dedent("""
-    from wip_control.core.runner import run_scenario
-    from wip_control.core.scenario import scenario_from_mapping
+    from wip_sim.core.runner import run_scenario
+    from wip_sim.core.scenario import scenario_from_mapping
     scenario = scenario_from_mapping({
         'duration': 8.0, 'seed': 7, 'design': 'robust', 'mpc': {'backend': 'proxsuite'},
         'sensors': {'imu_pitch_noise_std': 0.002, 'gyro_noise_std': 0.01,

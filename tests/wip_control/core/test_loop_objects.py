@@ -17,7 +17,7 @@ from wip_control.core.mpc import MpcConfig
 from wip_control.core.params import WipParameters
 from wip_control.core.position import PositionConfig
 from wip_control.core.references import ReferenceState
-from wip_control.core.scenario import Scenario
+from wip_sim.core.scenario import Scenario
 from wip_control.core.sensors import wheel_odometry
 from wip_control.core.state_estimation import EstimatorOverflow, StateEstimator
 from wip_control.core.trajectory_generator import VelocityCommand
@@ -197,7 +197,7 @@ def test_fast_resolve_period_must_divide_the_sampling_period():
 
 
 def test_the_paper_design_holds_the_torque_for_the_mpc_period():
-    from wip_control.core.scenario import scenario_from_mapping
+    from wip_sim.core.scenario import scenario_from_mapping
     paper = scenario_from_mapping({'design': 'paper'})
     assert paper.mpc.fast_resolve_period == 0.0 and paper.mpc_fast_decimation is None
     assert paper.drive_decimation == paper.mpc_decimation == 20

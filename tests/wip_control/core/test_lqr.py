@@ -21,8 +21,8 @@ from wip_control.core.model import nominal_terms
 from wip_control.core.mpc import LongitudinalMpc, MpcConfig, MpcStatus
 from wip_control.core.mpc_prediction import gravity_aware_state_matrix
 from wip_control.core.params import WipParameters
-from wip_control.core.runner import run_scenario
-from wip_control.core.scenario import scenario_from_mapping
+from wip_sim.core.runner import run_scenario
+from wip_sim.core.scenario import scenario_from_mapping
 
 PARAMS = WipParameters()
 CONFIG = MpcConfig(controller='lqr')

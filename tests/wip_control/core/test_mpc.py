@@ -700,8 +700,8 @@ def test_offset_free_push_at_stop_and_hold_leaves_no_speed_offset():
 # generator), which must still show it.
 
 def _run(mapping):
-    from wip_control.core.runner import run_scenario
-    from wip_control.core.scenario import scenario_from_mapping
+    from wip_sim.core.runner import run_scenario
+    from wip_sim.core.scenario import scenario_from_mapping
     result = run_scenario(scenario_from_mapping(mapping))
     return result, result.record['truth']
 
@@ -866,8 +866,8 @@ def test_a_hard_push_predicted_to_pass_no_longer_drops_the_robot():
     limit); with the transient part beyond the default dead zone decaying
     (disturbance_decay_time_constant 0.1 s, the default) the robot stays up.
     """
-    from wip_control.core.runner import run_scenario
-    from wip_control.core.scenario import scenario_from_mapping
+    from wip_sim.core.runner import run_scenario
+    from wip_sim.core.scenario import scenario_from_mapping
 
     def run(decay):
         return run_scenario(scenario_from_mapping({
@@ -1024,7 +1024,7 @@ def _min_peak_speed_after_push(v0, push=10.0, width=0.1, first_tick=0.1, back_by
     import scipy.optimize
 
     from wip_control.core.model import THETA, THETA_DOT, V
-    from wip_control.core.plant import Plant
+    from wip_sim.core.plant import Plant
 
     x_eq = np.zeros(8)
     x_eq[V] = v0

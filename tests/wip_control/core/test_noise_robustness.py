@@ -17,8 +17,8 @@ noise fall at 0.69 s (seed 0).
 import numpy as np
 import pytest
 
-from wip_control.core.runner import run_scenario
-from wip_control.core.scenario import scenario_from_mapping
+from wip_sim.core.runner import run_scenario
+from wip_sim.core.scenario import scenario_from_mapping
 
 NOISE = {'imu_pitch_noise_std': 0.002, 'gyro_noise_std': 0.01}
 PULSE_START, PULSE_WINDOW = 30.0, 3.0

@@ -12,8 +12,8 @@ import pytest
 from wip_control.core.config import ConfigError
 from wip_control.core.references import (ReferenceConfig, TimeScaled, Trifolium,
                                          distance_to_path, make_reference)
-from wip_control.core.runner import run_scenario
-from wip_control.core.scenario import scenario_from_mapping
+from wip_sim.core.runner import run_scenario
+from wip_sim.core.scenario import scenario_from_mapping
 
 KIND_OPTIONS = {
     'trifolium': {},

@@ -12,8 +12,8 @@ import pytest
 from wip_control.core.arc import AdaptiveRobustYawController, ArcConfig
 from wip_control.core.model import input_gains
 from wip_control.core.params import WipParameters
-from wip_control.core.runner import initial_alpha, run_scenario
-from wip_control.core.scenario import scenario_from_mapping
+from wip_sim.core.runner import initial_alpha, run_scenario
+from wip_sim.core.scenario import scenario_from_mapping
 
 G1 = input_gains(WipParameters(), 0.0)[0]
 H = 0.005

@@ -34,20 +34,20 @@ import yaml  # noqa: E402
 
 from wip_control.core.arc import AdaptiveRobustYawController, ArcConfig  # noqa: E402
 from wip_control.core.config import ConfigError  # noqa: E402
-from wip_control.core.disturbances import Disturbances  # noqa: E402
+from wip_sim.core.disturbances import Disturbances  # noqa: E402
 from wip_control.core.eso import EsoConfig  # noqa: E402
 from wip_control.core.mixer import drive_torque_limit, mix  # noqa: E402
 from wip_control.core.model import PHI  # noqa: E402
 from wip_control.core.lqr import LongitudinalLqr  # noqa: E402
 from wip_control.core.mpc import LongitudinalMpc, MpcConfig  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
-from wip_control.core.plant import Plant  # noqa: E402
+from wip_sim.core.plant import Plant  # noqa: E402
 from wip_control.core.references import make_reference, ReferenceState  # noqa: E402
-from wip_control.core.runner import run_scenario  # noqa: E402
-from wip_control.core.simulation import initial_state  # noqa: E402
-from wip_control.core.scenario import Scenario  # noqa: E402
-from wip_control.core.sensors import (geodetic_to_local, local_to_geodetic,  # noqa: E402
-                                      SensorConfig, Sensors)
+from wip_sim.core.runner import run_scenario  # noqa: E402
+from wip_sim.core.simulation import initial_state  # noqa: E402
+from wip_sim.core.scenario import Scenario  # noqa: E402
+from wip_control.core.sensors import geodetic_to_local, local_to_geodetic, SensorConfig  # noqa: E402
+from wip_sim.core.sensor_models import Sensors  # noqa: E402
 from wip_control.core.state_estimation import StateEstimator  # noqa: E402
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa: E402
                                                    TrajectoryGeneratorConfig)

@@ -16,7 +16,7 @@ import pathlib
 
 import pytest
 
-from wip_control.core.criteria import Criteria, criteria_to_mapping
+from wip_tools.analysis.criteria import Criteria, criteria_to_mapping
 from wip_tools.campaign import load_campaign, run_one, run_specs
 
 SCENARIOS = pathlib.Path(__file__).parent / 'scenarios'

@@ -63,7 +63,7 @@ import time
 from typing import Any, Callable, TextIO
 
 from wip_control.core.config import ConfigError
-from wip_control.core.scenario import load_scenario
+from wip_control.core.controller_settings import load_controller_settings
 from wip_control.nodes.conversions import quaternion_from_euler
 from wip_control.nodes.hardware_inputs import (check_mounting_rpy, check_wheel_sign,
                                                mounting_inverse, quaternion_multiply,
@@ -136,7 +136,7 @@ class Conventions:
 def eso_parameters(scenario_path: str | None, params_files: list[str]) -> dict[str, Any]:
     """Return the eso node's parameters in hardware mode: the scenario's, then the files'."""
     try:
-        scenario = load_scenario(scenario_path)
+        scenario = load_controller_settings(scenario_path)
     except ConfigError as err:
         raise GraphError(str(err), EXIT_USAGE) from err
     extra = [load_params_file(path) for path in params_files]

@@ -118,10 +118,10 @@ from typing import Any
 
 import yaml
 
-from wip_control.core.scenario import Scenario
 from wip_control.core.config import ConfigError
-from wip_control.core.scenario import with_duration
 from wip_control.tools.cli import add_exit_codes, bounded, exit_with, write_atomic
+from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping, with_duration
+
 from .hardware import add_arguments, run_from_args
 # LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
 from .launcher import (add_view_arguments, EXIT_DISK_FULL, EXIT_FAILED, EXIT_FELL, EXIT_OK,
@@ -283,6 +283,8 @@ class GraphRunner(RunnerBase):
 
     EXTRA_PROCESSES = ('plant',)
     LAYOUTS = LAYOUTS
+    read_settings = staticmethod(load_scenario)
+    settings_to_mapping = staticmethod(scenario_to_mapping)
     UP_EVENT = 'graph complete'
     NOT_UP = 'the graph was not complete after {timeout:g} s'
 

@@ -83,7 +83,7 @@ from typing import Any, Callable, Iterable, Mapping
 import yaml
 
 from wip_control.core.config import ConfigError, load_yaml_text
-from wip_control.core.scenario import Scenario
+from wip_control.core.controller_settings import ControllerSettings
 from wip_control.tools.cli import add_exit_codes, bounded
 from wip_bringup.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
                                       graph_parameters, _NoAliasDumper)
@@ -251,7 +251,7 @@ def node_parameters(node: str, generated: Mapping[str, Any],
     return flat
 
 
-def hardware_parameters(scenario: Scenario, recorder: Mapping[str, Any] | None = None,
+def hardware_parameters(scenario: ControllerSettings, recorder: Mapping[str, Any] | None = None,
                         joints: tuple[str, str] = DEFAULT_JOINTS,
                         heartbeat: bool = True) -> dict[str, dict]:
     """Return the generated params file of a hardware run.

@@ -1,6 +1,7 @@
 """The ROS params file of one graph run, made from a scenario (one source of truth).
 
-:func:`graph_parameters` maps a :class:`~wip_control.core.scenario.Scenario` to the
+:func:`graph_parameters` maps the controller settings of a scenario
+(:class:`~wip_control.core.controller_settings.ControllerSettings`) to the
 parameters of every node of the graph (the sections each node declares from the core's
 config dataclasses, ``wip_control.nodes.*_node``);
 :func:`write_params_file` writes them as one params YAML::
@@ -57,7 +58,7 @@ from typing import Any, Mapping
 import yaml
 
 from wip_control.core.config import to_mapping
-from wip_control.core.scenario import Scenario
+from wip_control.core.controller_settings import ControllerSettings
 from wip_control.tools.cli import write_atomic
 
 CLOCK_MODES = ('lockstep', 'realtime')
@@ -108,7 +109,7 @@ def config_section(instance: Any) -> dict[str, Any]:
     return out
 
 
-def graph_parameters(scenario: Scenario, clock_mode: str = 'lockstep',
+def graph_parameters(scenario: ControllerSettings, clock_mode: str = 'lockstep',
                      scenario_path: str | pathlib.Path | None = None,
                      joints: tuple[str, str] = DEFAULT_JOINTS,
                      plant_extra: Mapping[str, Any] | None = None,
@@ -205,7 +206,7 @@ class _NoAliasDumper(yaml.SafeDumper):
         return True
 
 
-def write_params_file(scenario: Scenario, path: str | pathlib.Path, clock_mode: str,
+def write_params_file(scenario: ControllerSettings, path: str | pathlib.Path, clock_mode: str,
                       scenario_path: str | pathlib.Path | None,
                       joints: tuple[str, str] = DEFAULT_JOINTS,
                       plant_extra: Mapping[str, Any] | None = None,

@@ -29,7 +29,8 @@ from typing import Any, Callable, Iterable
 import yaml
 
 from wip_control.core.config import ConfigError
-from wip_control.core.scenario import load_scenario, Scenario, scenario_to_mapping
+from wip_control.core.controller_settings import (controller_settings_to_mapping,
+                                                  ControllerSettings, load_controller_settings)
 from wip_control.tools.cli import write_atomic
 
 from .launcher import (choose_domain_id, CONTROLLER_LAYOUTS, CpuLatencyRequest,
@@ -166,7 +167,7 @@ class RunnerBase:
         self.domain_id = choose_domain_id()
         #: The run's namespace ('' or '/robot1'), checked by :meth:`check_namespace`.
         self.namespace = ''
-        self.scenario: Scenario | None = None
+        self.scenario: ControllerSettings | None = None
         self._interactive = sys.stderr.isatty()
         self.t0 = time.monotonic()
         #: Wall times [s] of the start-up steps, from the start of the run.
@@ -242,11 +243,15 @@ class RunnerBase:
                                 if self.options.layout in LAYOUTS else ''), EXIT_USAGE)
         self.options.scheduling.check()
 
-    @staticmethod
-    def load_scenario(path: str | None) -> Scenario:
+    #: How the run reads its scenario file and writes it back: the controllers' sections
+    #: here (hardware mode); the simulation reads the whole scenario (wip_sim).
+    read_settings = staticmethod(load_controller_settings)
+    settings_to_mapping = staticmethod(controller_settings_to_mapping)
+
+    def load_scenario(self, path: str | None) -> ControllerSettings:
         """Return the scenario file (None: the paper's); GraphError (usage) if it is invalid."""
         try:
-            return load_scenario(path)
+            return self.read_settings(path)
         except ConfigError as err:
             raise GraphError(str(err), EXIT_USAGE) from err
 
@@ -263,7 +268,8 @@ class RunnerBase:
         for name in stale:
             (self.out / name).unlink(missing_ok=True)
         path = self.out / 'scenario.yaml'
-        write_atomic(path, yaml.safe_dump(scenario_to_mapping(self.scenario), sort_keys=False))
+        write_atomic(path, yaml.safe_dump(self.settings_to_mapping(self.scenario),
+                                         sort_keys=False))
         return path
 
     def recorder_parameters(self, topics: list[str],

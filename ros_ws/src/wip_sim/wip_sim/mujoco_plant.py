@@ -1,10 +1,10 @@
 """The WIP in the MuJoCo physics engine: ``plant: {model: mujoco}`` (no ROS import).
 
-The same bodies as the 'full' plant (:mod:`wip_control.core.plant`), generated as MJCF
+The same bodies as the 'full' plant (:mod:`wip_sim.core.plant`), generated as MJCF
 from the scenario's :class:`WipParameters`, but with real wheel-ground contacts instead
 of the rolling constraints: the wheels can slip (Coulomb cone, ``plant.contact``), lose
 energy to rolling resistance, and the contact is compliant. Behind the interface of
-:class:`~wip_control.core.plant.Plant` that the runner, the plant node and the stand-in
+:class:`~wip_sim.core.plant.Plant` that the runner, the plant node and the stand-in
 base use: ``hold_floats`` and ``simulate_hold`` take and return the 8-state
 (x, y, ϕ, x_v, θ, ω, υ, θ̇), so sensors, disturbances, records and bags are unchanged.
 
@@ -35,7 +35,7 @@ State mapping (read after every hold)
     x, y: the axle centre; ϕ, θ: yaw and pitch of the base (Z-Y-X Euler angles, ϕ kept
     continuous); ω = ϕ̇, θ̇ from the body rates; υ: the axle centre's velocity along the
     horizontal heading; x_v = r ((φ_l + φ_r)/2 + θ) from the wheel joint angles φ_i, so
-    that the encoders (:class:`~wip_control.core.sensors.Sensors`, which give back
+    that the encoders (:class:`~wip_sim.core.sensor_models.Sensors`, which give back
     x_v / r − θ) read the wheels' mean joint angle, slip included. Without slip x_v is
     the distance rolled, as in the equation plants. The heading difference of the
     encoders is taken from ϕ (true heading): a differential slip is not seen there.
@@ -58,10 +58,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from wip_control.core.ground import ContactConfig, TerrainConfig
+from wip_sim.core.ground import ContactConfig, TerrainConfig
 from wip_control.core.model import THETA
 from wip_control.core.params import WipParameters
-from wip_control.core.plant import checked_state, DEFAULT_FALL_LIMIT, hold_inputs
+from wip_sim.core.plant import checked_state, DEFAULT_FALL_LIMIT, hold_inputs
 
 #: The pinned version (requirements.txt), for the error when mujoco is missing.
 MUJOCO_REQUIREMENT = 'mujoco==4.0.0'
@@ -451,6 +451,6 @@ def make_plant(params: WipParameters, contact: ContactConfig, timestep: float,
     """Return the plant of ``plant: {model: mujoco}``.
 
     The plant of ``plant: {model: mujoco}`` (called by
-    :func:`wip_control.core.plant.scenario_plant`).
+    :func:`wip_sim.core.plant.scenario_plant`).
     """
     return MujocoPlant(params, contact, timestep, terrain, wheel_friction)

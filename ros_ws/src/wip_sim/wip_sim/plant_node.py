@@ -6,7 +6,7 @@ plant, the disturbances, the sensors and the initial state), built from one scen
 Clock modes (parameter ``clock_mode``)
 --------------------------------------
 ``lockstep`` (default; every other node runs with ``use_sim_time``)
-    Control tick k, t_k = k / rates.control_rate, exactly as ``core/runner.py``:
+    Control tick k, t_k = k / rates.control_rate, exactly as ``wip_sim/core/runner.py``:
 
     1. publish ``/clock`` = t_k, then the sensors sampled at t_k: ``/joint_states``,
        ``/imu/data`` and, every control_rate / gps_rate ticks, ``/gps/fix``, then
@@ -81,8 +81,8 @@ from std_srvs.srv import Trigger
 from wip_msgs.msg import GroundTruth, WheelTorques
 
 from wip_control.core.model import STATE_NAMES, THETA
-from wip_control.core.scenario import load_scenario
-from wip_control.core.simulation import Simulation
+from wip_sim.core.scenario import load_scenario
+from wip_sim.core.simulation import Simulation
 from wip_control.nodes.common import (IntraProcessNode, LOCKSTEP_WRITER_DEPTH,
                                       run_simulator_node, stamp_to_ns)
 from wip_control.nodes.conversions import (body_rates_from_euler, quaternion_from_euler,

@@ -11,12 +11,12 @@ import dataclasses
 from wip_control.core.config import param
 from wip_control.nodes.settings import (CLOCK_MODES, DatumConfig, EffortCommand, ImuMounting,
                                         TEXT, WheelJoints, WheelSigns)
-from wip_control.core.scenario import Scenario
+from wip_sim.core.scenario import Scenario
 
 
 def _scenario_file():
-    return param('', TEXT, "scenario YAML file (core.scenario: plant, initial state, sensors, "
-                 "rates); '': the paper's Section V")
+    return param('', TEXT, "scenario YAML file (wip_sim.core.scenario: plant, initial state, "
+                 "sensors, rates); '': the paper's Section V")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -3,7 +3,7 @@
 A test fixture and a tool: the controllers in hardware mode (``scripts/run_graph --mode
 hardware``) run against it exactly as against a real base, and ``scripts/check_base`` can
 be tried on it. It is its own process with its own simulation: the core
-:class:`~wip_control.core.plant.Plant` of the scenario (model and true parameters, RK4 at
+:class:`~wip_sim.core.plant.Plant` of the scenario (model and true parameters, RK4 at
 ``rates.plant_rate``), its disturbances and sensor noise, stepped on a wall-clock timer at
 ``rates.control_rate`` (the sensor rate of the base). It knows nothing of the project's
 own topics.
@@ -86,8 +86,8 @@ from sensor_msgs.msg import Imu, JointState, NavSatFix
 from std_msgs.msg import Float64MultiArray
 
 from wip_control.core.model import OMEGA, PHI, THETA, V, X, Y
-from wip_control.core.scenario import load_scenario
-from wip_control.core.simulation import Simulation
+from wip_sim.core.scenario import load_scenario
+from wip_sim.core.simulation import Simulation
 from wip_control.nodes.common import run_simulator_node
 from wip_control.nodes.conversions import quaternion_from_euler
 from wip_control.nodes.hardware_inputs import (imu_orientation_of_body, rotate_vector_into)

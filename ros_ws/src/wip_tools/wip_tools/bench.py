@@ -54,9 +54,9 @@ import numpy as np
 
 from .analysis.bench_mpc import _format, bench_mpc_against_daqp
 from wip_control.core.model import STATE_NAMES
-from wip_control.core.plant import MODELS, PlantConfig
-from wip_control.core.runner import run_scenario
-from wip_control.core.scenario import load_scenario
+from wip_sim.core.plant import MODELS, PlantConfig
+from wip_sim.core.runner import run_scenario
+from wip_sim.core.scenario import load_scenario
 from wip_control.tools.cli import add_exit_codes
 
 
@@ -147,8 +147,8 @@ def bench_graph(scenario_path: str | None, layout: str = 'composed',
 _REPRODUCE = textwrap.dedent("""
     import sys
     import numpy as np
-    from wip_control.core.runner import run_scenario
-    from wip_control.core.scenario import load_scenario
+    from wip_sim.core.runner import run_scenario
+    from wip_sim.core.scenario import load_scenario
     result = run_scenario(load_scenario(sys.argv[1] or None))
     np.savez(sys.argv[2], **{f'{g}.{c}': v for g, cols in result.record.groups.items()
                              for c, v in cols.items()})

@@ -2,7 +2,7 @@
 
 A campaign file (YAML) names a base scenario, the scenario keys to vary (random draws
 and/or a grid), how many runs, and the pass criteria; every run is an in-process
-simulation (:func:`~wip_control.core.runner.run_scenario`) on a Dask worker. The format
+simulation (:func:`~wip_sim.core.runner.run_scenario`) on a Dask worker. The format
 is documented in ``docs/campaign.md``; in short::
 
     name: mass_height_noise
@@ -17,7 +17,7 @@ is documented in ``docs/campaign.md``; in short::
       disturbances.longitudinal[0].amplitude: {choice: [-10.0, 10.0]}
     grid:                                 # dotted scenario key -> values (1 or 2 keys)
       sensors.gps_rate: [1.0, 5.0, 10.0]
-    criteria: {max_abs_theta_outside_pulses: 0.1}   # see core/criteria.py
+    criteria: {max_abs_theta_outside_pulses: 0.1}   # see wip_tools/analysis/criteria.py
 
 Outputs in ``--out`` (default ``out/campaign/<name>``): ``runs.jsonl`` (one JSON row per
 finished run, appended as runs finish: the campaign can be resumed with ``--resume``),
@@ -57,9 +57,9 @@ import numpy as np
 import yaml
 
 from wip_control.core.config import ConfigError
-from wip_control.core.criteria import (Criteria, criteria_from_mapping, criteria_to_mapping,
+from wip_tools.analysis.criteria import (Criteria, criteria_from_mapping, criteria_to_mapping,
                                        evaluate, measure)
-from wip_control.core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
+from wip_sim.core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
 from wip_control.tools.cli import add_exit_codes
 
 #: Keys of a campaign file.
@@ -76,12 +76,12 @@ DISTRIBUTIONS = {
 }
 #: Upper bound on the runs of one campaign (a typo like 1e7 runs is a mistake).
 MAX_RUNS = 100_000
-#: Metrics of a run copied into its row (see core/metrics.py for their definitions).
+#: Metrics of a run copied into its row (see wip_tools/analysis/metrics.py for their definitions).
 METRIC_COLUMNS = ('max_abs_theta_rad', 'max_abs_theta_outside_pulse_windows_rad',
                   'max_abs_wheel_torque_nm', 'max_abs_delta_tau_v_nm', 'qp_failures',
                   'mpc_ticks', 'convergence_time_s', 'rms_position_error_m',
                   'max_position_error_m', 'rms_heading_error_rad', 'max_abs_v_mps')
-#: Measured quantities of the criteria copied into the row (see core/criteria.py).
+#: Measured quantities of the criteria copied into the row (see wip_tools/analysis/criteria.py).
 MEASURE_COLUMNS = ('max_speed_outside_pulses', 'convergence_time',
                    'rms_path_error_after_settle', 'max_path_error_after_settle',
                    'final_position_error', 'final_path_error', 'final_oscillation',
@@ -394,8 +394,8 @@ def run_one(spec: Mapping[str, Any], base: Mapping[str, Any],
     ``base`` is the campaign's base scenario mapping and ``criteria`` its criteria as a
     mapping (plain data: they travel to the workers once, see :func:`execute`).
     """
-    from wip_control.core.metrics import compute_metrics  # worker-side imports
-    from wip_control.core.runner import run_scenario
+    from wip_tools.analysis.metrics import compute_metrics  # worker-side imports
+    from wip_sim.core.runner import run_scenario
 
     row: dict[str, Any] = {'run': spec['run'], **spec['values'], 'seed': spec['seed']}
     start, cpu_start = time.perf_counter(), time.process_time()

@@ -3,14 +3,14 @@
     scripts/identify BAG_OR_RECORD [--out FILE] [--params-file] [--source SOURCE]
 
 Model (1) of Yue, An, Li (2016), written in its Euler-Lagrange form (the paper plant of
-core/plant.py, multiplied out; τυ = τl + τr, τω = τr − τl, REP 103)::
+wip_sim/core/plant.py, multiplied out; τυ = τl + τr, τω = τr − τl, REP 103)::
 
     m_v υ̇ + m_p l (cosθ θ̈ − sinθ θ̇²)         [+ 2 b (υ/r − θ̇) / r] = τυ / r
     m_p l (cosθ υ̇ − g sinθ) + J_θ θ̈ − m_p l² sinθ cosθ ω²           = 0
     J_ϕ ω̇ + m_p l² (sin²θ ω̇ + sin2θ θ̇ ω)           [+ (d/r) b d ω / r] = (d / r) τω
 
 with b the wheels' viscous axle friction (``--friction``; a torque −b × the wheel's rate
-against the body, as core/plant.py's ``wheel_friction``),
+against the body, as wip_sim/core/plant.py's ``wheel_friction``),
 
 linear in p = (m_v, m_p l, J_θ, m_p l², J_ϕ [, b]) with r, d and g known. The three rows
 are stacked and solved by weighted linear least squares on low-pass-filtered signals; see
@@ -124,7 +124,7 @@ def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters()
              encoders_relative_to_body: bool = True) -> dict[str, np.ndarray]:
     """Uniformly sampled (t, θ, θ̇, υ, ω, τl, τr) from the record's ``source`` group.
 
-    truth: the torques of row k were applied over [t_{k−1}, t_k) (core/runner.py), so they
+    truth: the torques of row k were applied over [t_{k−1}, t_k) (wip_sim/core/runner.py), so they
     are shifted back one row to pair with the interval they acted over. estimate and
     sensors: the torques come from the wheels group (applied from its stamp on),
     interpolated.
@@ -172,7 +172,7 @@ def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
                model: str = 'paper') -> tuple[np.ndarray, np.ndarray, dict]:
     """Rows (A, y) of the three equations, each of n rows, stacked (3n × 6, 3n).
 
-    ``model='full'``: the rows of the full plant (core/plant.py) instead of (1): the
+    ``model='full'``: the rows of the full plant (wip_sim/core/plant.py) instead of (1): the
     centrifugal −m_p l sinθ ω² in the forward row, the motor reaction −τυ on the right of
     the pitch row, the Coriolis m_p l sinθ υ ω in the yaw row and the yaw gain d/(2r).
 
@@ -195,7 +195,7 @@ def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
     full = 1.0 if model == 'full' else 0.0
     yaw_gain = d / (r * (2.0 if full else 1.0))
     # Axle friction b acts as the motors do: τυ loses 2b (υ/r − θ̇) and τω loses b d ω / r
-    # (core/plant.py); moved to the left, those are b's columns in each row.
+    # (wip_sim/core/plant.py); moved to the left, those are b's columns in each row.
     slip_v = 2.0 * (v / r - thd)
     lon = np.stack([vd, c * thdd - s * (thd ** 2 + full * om ** 2), z, z, z, slip_v / r],
                    axis=1)
@@ -449,7 +449,7 @@ def load_record(path: str | pathlib.Path) -> dict:
     if path.is_dir() and (path / 'timeseries.npz').exists() and not any(path.glob('*.mcap')):
         path = path / 'timeseries.npz'
     if path.suffix == '.npz':
-        from wip_control.core.record import RunRecord
+        from wip_sim.core.record import RunRecord
         try:
             return RunRecord.load_npz(path)
         except (OSError, ValueError, KeyError) as err:
@@ -501,7 +501,7 @@ Examples
         nominal = WipParameters()
         if args.scenario:
             from wip_control.core.config import ConfigError
-            from wip_control.core.scenario import load_scenario
+            from wip_sim.core.scenario import load_scenario
             try:
                 nominal = load_scenario(args.scenario).controller_model.parameters
             except (ConfigError, OSError) as err:

@@ -51,7 +51,7 @@ def measure(seconds: float, paced: bool) -> dict:
     from wip_bringup.hardware import hardware_parameters
     from wip_bringup.params_files import _NoAliasDumper
     from wip_bringup.standin_run import BASE
-    from wip_control.core.scenario import load_scenario
+    from wip_sim.core.scenario import load_scenario
     from wip_control.nodes.common import compose, make_executor, RELIABLE_QOS
     from wip_control.nodes.controllers import NODE_CLASSES
     from wip_sim.standin_base import BaseConventions

@@ -6,7 +6,7 @@ twice).
 Node parameters come from the registries ``NODES`` of :mod:`wip_control.nodes.settings`,
 :mod:`wip_sim.settings`, :mod:`wip_bag.settings` and :mod:`wip_viewer.settings`
 (executable -> the config dataclasses it declares, with their prefix); scenario keys from
-:class:`~wip_control.core.scenario.Scenario`. ``--markdown`` prints docs/parameters.md.
+:class:`~wip_sim.core.scenario.Scenario`. ``--markdown`` prints docs/parameters.md.
 
     ros2 run wip_tools parameters [--markdown] [--node NAME]
     scripts/simulate --list-parameters
@@ -22,7 +22,7 @@ import sys
 import typing
 from typing import Any, NamedTuple
 
-from wip_control.core.scenario import _TOP_LEVEL_SCALARS, Scenario, TOP_LEVEL_RANGES
+from wip_sim.core.scenario import Scenario, TOP_LEVEL_RANGES, TOP_LEVEL_SCALARS
 from wip_control.tools.cli import add_exit_codes, EXIT_USAGE, exit_with
 
 #: Modules holding a ``NODES`` registry, one per package with nodes.
@@ -168,7 +168,7 @@ def scenario_rows() -> list[Row]:
         field_type = hints[field.name]
         if dataclasses.is_dataclass(field_type):
             if field_type.__name__ == 'DisturbanceConfig':
-                from wip_control.core.disturbances import DisturbanceComponent
+                from wip_sim.core.disturbances import DisturbanceComponent
                 rows += config_rows(field_type, f'{field.name}.')
                 rows += config_rows(DisturbanceComponent, f'{field.name}.<channel>[i].')
             else:
@@ -176,7 +176,7 @@ def scenario_rows() -> list[Row]:
             continue
         unit, span = TOP_LEVEL_RANGES[field.name]
         rows.append(Row(field.name, unit, _value(field.default), span,
-                        _TOP_LEVEL_SCALARS[field.name][1]))
+                        TOP_LEVEL_SCALARS[field.name][1]))
     return rows
 
 

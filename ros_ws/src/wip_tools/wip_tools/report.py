@@ -6,10 +6,10 @@ Examples
     scripts/report robot_bag --out out/robot --scenario my_robot.yaml
     scripts/report BAG --out DIR --no-figures
 
-The bag's messages are turned into the same :class:`~wip_control.core.record.RunRecord`
+The bag's messages are turned into the same :class:`~wip_sim.core.record.RunRecord`
 as the in-process runner builds, and the outputs are written by the same code as
 ``scripts/simulate`` (:func:`wip_tools.simulate.write_run_outputs`,
-:func:`wip_control.core.metrics.compute_metrics`): ``metrics.json``, ``timeseries.npz``,
+:func:`wip_tools.analysis.metrics.compute_metrics`): ``metrics.json``, ``timeseries.npz``,
 ``scenario.yaml``, ``figures/*.png`` (and ``*.svg``) and ``report.html`` (one
 self-contained page: metrics against the paper's claims, every figure with a caption
 that explains its known effects, the scenario). Progress goes to stderr. A run of the
@@ -46,7 +46,7 @@ wall-clock time (the realtime graph, a robot) is shifted so that its first groun
 The scenario (limits, disturbance windows, parameters of the metrics) is the bag's own
 (its metadata's ``custom_data``, else ``BAG/scenario.yaml``, where ``scripts/run_graph
 --record`` copies the run's scenario), with ``--scenario FILE`` applied over it, else the
-paper's Section V with a warning: :mod:`wip_bag.bag_scenario`, the rule rerun uses too.
+paper's Section V with a warning: :mod:`wip_tools.bag_scenario`, the rule rerun uses too.
 
 Integrity: the bag is checked before it is read (every chunk's CRC, a proper end). A
 damaged or unfinished bag is refused with the time range and topics it lost (exit 2);
@@ -68,15 +68,15 @@ from typing import Any, Iterable
 import numpy as np
 
 from wip_control.core.config import ConfigError
-from wip_control.core.metrics import compute_metrics
+from wip_tools.analysis.metrics import compute_metrics
 from wip_control.core.mpc import HELD_STATUS_TEXT
-from wip_control.core.record import GROUPS, RunRecord
-from wip_control.core.scenario import Scenario
+from wip_sim.core.record import GROUPS, RunRecord
+from wip_sim.core.scenario import Scenario
 from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE,
                                    exit_with)
 
 from wip_bag.bag_reader import bag_summary, BagReadError, read_bag
-from wip_bag.bag_scenario import scenario_for_bag
+from wip_tools.bag_scenario import scenario_for_bag
 from wip_control.tools.cli import add_exit_codes
 
 #: Stamps beyond this [s] are wall-clock (epoch) times, not simulation times (~3 years).
@@ -203,7 +203,7 @@ def scenario_for(bag: str | pathlib.Path,
     """Return the scenario of a report and where it came from.
 
     The scenario of a report and where it came from: the bag's own, with
-    ``scenario_path`` over it (:mod:`wip_bag.bag_scenario`, the rule rerun uses too).
+    ``scenario_path`` over it (:mod:`wip_tools.bag_scenario`, the rule rerun uses too).
     """
     try:
         return scenario_for_bag(bag, scenario_path)

@@ -61,7 +61,7 @@ Outputs in ``--out DIR``:
 
 The scenario (controller parameters, rates, datum) is the bag's own, with ``--scenario
 FILE`` applied over it (a partial file changes only its keys): the lookup rule of
-:mod:`wip_bag.bag_scenario`, shared with ``scripts/report``.
+:mod:`wip_tools.bag_scenario`, shared with ``scripts/report``.
 """
 
 from __future__ import annotations
@@ -90,11 +90,12 @@ import yaml
 from wip_control.core.config import ConfigError
 from wip_control.core.control_step import ControlStep
 from wip_control.core.eso import StateEstimate, WipStateObserver
-from wip_control.core.metrics import compute_metrics
-from wip_control.core.record import GROUPS, RunRecord
+from wip_tools.analysis.metrics import compute_metrics
+from wip_sim.core.record import GROUPS, RunRecord
 from wip_control.core.references import make_reference
-from wip_control.core.scenario import Scenario, scenario_to_mapping
-from wip_control.core.sensors import local_to_geodetic, Sensors
+from wip_sim.core.scenario import Scenario, scenario_to_mapping
+from wip_control.core.sensors import local_to_geodetic
+from wip_sim.core.sensor_models import Sensors
 from wip_control.core.state_estimation import StateEstimator
 from wip_control.nodes.common import make_header, ns_to_stamp, stamp_to_ns
 from wip_control.nodes.conversions import (arc_to_msg, body_rates_from_euler,
@@ -108,7 +109,7 @@ from wip_control.nodes.conversions import (arc_to_msg, body_rates_from_euler,
 from wip_control.tools.cli import check_output_directory, EXIT_USAGE, exit_with, write_atomic
 
 from wip_bag.bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
-from wip_bag.bag_scenario import SCENARIO_KEY, scenario_for_bag
+from wip_tools.bag_scenario import SCENARIO_KEY, scenario_for_bag
 from wip_bag.bag_writer import BagWriterError, Rosbag2McapWriter
 from wip_control.tools.cli import add_exit_codes
 
@@ -536,7 +537,7 @@ def comparison_figure(run, outputs, path):
 
 def write_record_as_bag(result, scenario: Scenario, directory, clock=True,
                         compression='zstd', **writer_options):
-    """Write an in-process run (``core.runner.run_scenario``) as the node graph's bag.
+    """Write an in-process run (``wip_sim.core.runner.run_scenario``) as the node graph's bag.
 
     The topics, types, stamps and contents are those of a lockstep graph run recorded with
     ``use_sim_time`` (log time = stamp = t_k): ``/clock``, ``/wip/ground_truth``,

@@ -20,7 +20,7 @@ from __future__ import annotations
 import argparse
 import pathlib
 
-from wip_control.core.scenario import Scenario
+from wip_control.core.controller_settings import ControllerSettings
 from wip_control.tools.cli import add_exit_codes
 
 #: Written by :func:`main`: file name -> whether it carries the live-only e-stop panels.
@@ -34,10 +34,10 @@ def _series(value: str, label: str, color: str | None = None, dashed: bool = Fal
                          line_style='dashed' if dashed else None)
 
 
-def build_layout(scenario: Scenario | None = None, live: bool = False):
+def build_layout(scenario: ControllerSettings | None = None, live: bool = False):
     """Return the layout; limits (labels, axis ranges) from ``scenario`` (default: the paper's)."""
     import foxglove.layouts as fl
-    scenario = scenario or Scenario()
+    scenario = scenario or ControllerSettings()
     max_tilt = scenario.mpc.max_tilt
     max_speed = scenario.trajectory_generator.max_speed
     max_yaw_rate = scenario.trajectory_generator.max_yaw_rate

@@ -3,8 +3,9 @@
 Each component of the core declares a frozen dataclass whose fields are made with
 :func:`param`. The same declaration serves three readers:
 
-- the scenario loader (:mod:`wip_control.core.scenario`), which builds the dataclass
-  from a YAML mapping and names the offending key on a typo or an out-of-range value;
+- the scenario loaders (:mod:`wip_control.core.controller_settings`,
+  ``wip_sim.core.scenario``), which build the dataclass from a YAML mapping and name the
+  offending key on a typo or an out-of-range value;
 - the ROS node wrappers, which declare one ROS parameter per field with the unit and
   range in its descriptor;
 - the documentation (``scripts/simulate --list-parameters``).

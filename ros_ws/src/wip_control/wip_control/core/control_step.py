@@ -232,7 +232,7 @@ class ControlStep:
 
     @classmethod
     def from_scenario(cls, scenario) -> 'ControlStep':
-        """Return the stages of ``scenario`` (a ``core.scenario.Scenario``), nominal model."""
+        """Return the stages of a scenario's controller settings, with the nominal model."""
         nominal = scenario.controller_model.parameters
         max_wheel = scenario.mixer.max_wheel_torque
         return cls(GuidanceStage(scenario.trajectory_generator),

@@ -65,10 +65,11 @@ class StateEstimator:
 
     @classmethod
     def from_scenario(cls, scenario) -> 'StateEstimator':
-        """Return the estimator of ``scenario`` (a ``core.scenario.Scenario``).
+        """Return the estimator of a scenario's controller settings.
 
-        The estimator of ``scenario`` (a ``core.scenario.Scenario``): the nominal model,
-        as the controllers know it (a mismatch with the plant shows up in x_v).
+        ``scenario`` is a :class:`~.controller_settings.ControllerSettings` (a simulation's
+        scenario is one). The model is the nominal one, as the controllers know it (a
+        mismatch with the plant shows up in x_v).
         """
         return cls(scenario.controller_model.parameters, scenario.eso, scenario.position,
                    encoders_relative_to_body=scenario.sensors.encoders_relative_to_body)

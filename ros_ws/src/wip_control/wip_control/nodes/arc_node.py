@@ -37,7 +37,7 @@ from wip_msgs.msg import (ArcState, StateEstimate as StateEstimateMsg,
 from ..core.arc import ArcConfig
 from ..core.control_step import YawStage, initial_alpha
 from ..core.params import WipParameters
-from ..core.scenario import RatesConfig
+from ..core.controller_settings import RatesConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node
 from .conversions import arc_to_msg, command_from_msg, estimate_from_msg
 from .diagnostics import OK

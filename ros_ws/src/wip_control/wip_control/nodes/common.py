@@ -5,7 +5,7 @@ Clock modes (parameter ``clock_mode`` of every node)
 ``'lockstep'``: deterministic simulation. The plant owns ``/clock``, every controller node
 runs with ``use_sim_time`` and computes its output for stamp t_k only when all its inputs
 for t_k have arrived (:mod:`.sync`). Nothing depends on wall-clock timing, so a run
-reproduces the in-process runner (``core/runner.py``) step for step.
+reproduces the in-process runner (``wip_sim/core/runner.py``) step for step.
 
 ``'realtime'``: the plant (or a robot) runs on its own clock; the nodes compute on the
 arrival of their primary input with the latest other inputs, and the MPC and the

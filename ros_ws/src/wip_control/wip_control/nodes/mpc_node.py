@@ -60,7 +60,7 @@ from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg
 from ..core.control_step import DriveStage
 from ..core.mpc import MpcConfig, resolves_faster
 from ..core.params import WipParameters
-from ..core.scenario import RatesConfig
+from ..core.controller_settings import RatesConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc_hold_msg,
                           mpc_idle_msg, mpc_to_msg, wheel_torques_from_msg)

@@ -59,7 +59,7 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg, StateEstimate as 
                           WheelTorques)
 
 from ..core.references import COMMANDED_KINDS, make_reference, ReferenceConfig
-from ..core.scenario import RatesConfig
+from ..core.controller_settings import RatesConfig
 from .common import ClockTicker, ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
 from .conversions import reference_to_msg
 from .diagnostics import OK, WARN

@@ -95,7 +95,7 @@ from ..core.mpc import resolves_faster
 from ..core.params import WipParameters
 from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyConfig, SafetyDecision,
                            SafetyMonitor, SHADOW, STARTING)
-from ..core.scenario import RatesConfig
+from ..core.controller_settings import RatesConfig
 from ..core.wiring_check import WiringCheck, WiringCheckConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node, SENSOR_QOS, stamp_to_ns
 from .conversions import (effort_command, effort_command_cdr, estimate_from_msg,

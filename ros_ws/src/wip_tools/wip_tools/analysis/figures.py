@@ -1,6 +1,6 @@
 """Figures of one run in the style of the paper's Figs. 4–10, as PNG and SVG.
 
-Each function takes a :class:`~wip_control.core.record.RunRecord` (from the in-process
+Each function takes a :class:`~wip_sim.core.record.RunRecord` (from the in-process
 runner or from a bag) and writes one PNG and, beside it, the same figure as SVG (vector,
 for print and zoom); :func:`write_figures` writes them all and returns the PNG paths.
 Groups that a record lacks (``truth`` on a robot) are skipped in the plots rather than
@@ -24,9 +24,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from wip_control.core.angles import wrap_to_pi  # noqa: E402
-from wip_control.core.metrics import _interp, true_lumped_disturbances  # noqa: E402
-from wip_control.core.plant import Plant, equation_model, plant_input_gains  # noqa: E402
-from wip_control.core.record import RunRecord  # noqa: E402
+from wip_tools.analysis.metrics import _interp, true_lumped_disturbances  # noqa: E402
+from wip_sim.core.plant import Plant, equation_model, plant_input_gains  # noqa: E402
+from wip_sim.core.record import RunRecord  # noqa: E402
 
 _TRUE = dict(color='black', linewidth=1.0, label='true')
 _EST = dict(color='tab:red', linewidth=1.0, linestyle='--', label='estimate')

@@ -28,7 +28,7 @@ from typing import Any, Callable
 
 import yaml
 
-from wip_control.core.metrics import SETTLE_TIME_S
+from wip_tools.analysis.metrics import SETTLE_TIME_S
 
 #: Every metrics.json key (flattened with '.'), its unit and meaning. docs/scenarios.md's table
 #: is the same text; a test checks that every key a run writes is here.
@@ -212,7 +212,7 @@ def claims(metrics: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]
 
 def captions(metrics: dict[str, Any], scenario) -> dict[str, str]:
     """Caption of each figure (file stem -> text), with the run's numbers."""
-    from wip_control.core.metrics import pulse_windows
+    from wip_tools.analysis.metrics import pulse_windows
     m = metrics
     tg = scenario.trajectory_generator
     windows = pulse_windows(scenario)
@@ -379,7 +379,7 @@ def write_report_page(out: pathlib.Path, metrics: dict[str, Any], scenario,
                       figure_paths: list[pathlib.Path],
                       progress: Callable[[str], None] | None = None) -> pathlib.Path:
     """Write ``out/report.html``; returns its path."""
-    from wip_control.core.scenario import scenario_to_mapping
+    from wip_sim.core.scenario import scenario_to_mapping
     from wip_control.tools.cli import write_atomic
     if progress is not None:
         progress('report.html')

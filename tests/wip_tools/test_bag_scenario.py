@@ -1,4 +1,4 @@
-"""One scenario-lookup rule for the tools that read bags (wip_bag.bag_scenario).
+"""One scenario-lookup rule for the tools that read bags (wip_tools.bag_scenario).
 
 The bag's own scenario, found from the bag directory or any file in it, with ``--scenario`` applied
 over it key by key.
@@ -10,8 +10,8 @@ import yaml
 pytest.importorskip('rclpy')
 
 from wip_control.core.config import ConfigError  # noqa: E402
-from wip_control.core.scenario import Scenario  # noqa: E402
-from wip_bag.bag_scenario import merged, scenario_for_bag  # noqa: E402
+from wip_sim.core.scenario import Scenario  # noqa: E402
+from wip_tools.bag_scenario import merged, scenario_for_bag  # noqa: E402
 
 #: A run on a circle with a faster yaw-rate limit than the default trifolium's 0.3 rad/s.
 CIRCLE = {'name': 'circle_run', 'reference': {'kind': 'circle', 'circle_radius': 3.0},

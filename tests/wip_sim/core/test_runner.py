@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from wip_control.core.runner import run_scenario
-from wip_control.core.scenario import scenario_from_mapping
+from wip_sim.core.runner import run_scenario
+from wip_sim.core.scenario import scenario_from_mapping
 
 
 def test_wheel_odometry_uses_the_nominal_wheel_radius_not_the_true_one():
@@ -30,7 +30,7 @@ def test_the_recorded_columns_are_the_named_tuples_fields_in_order():
     # (t, *arc): that relies on the fields being in the record's column order.
     from wip_control.core.arc import ArcOutput
     from wip_control.core.eso import StateEstimate
-    from wip_control.core.record import GROUPS
+    from wip_sim.core.record import GROUPS
     from wip_control.core.references import ReferenceState
     from wip_control.core.trajectory_generator import VelocityCommand
     assert GROUPS['reference'] == ('t', *ReferenceState._fields[:5])
@@ -44,7 +44,7 @@ def test_the_record_does_not_depend_on_where_its_blocks_end(monkeypatch):
     # The runner turns its rows into numpy blocks every BLOCK_ROWS ticks: with blocks of
     # 7 rows (flushes at ticks that are not MPC ticks, and a partial last block) the
     # record is the same as with one block, value for value.
-    from wip_control.core.record import RecordBuffer
+    from wip_sim.core.record import RecordBuffer
     scenario = scenario_from_mapping({'duration': 0.6, 'mpc': {'backend': 'daqp'}})
     whole = run_scenario(scenario).record
     monkeypatch.setattr(RecordBuffer, 'BLOCK_ROWS', 7)

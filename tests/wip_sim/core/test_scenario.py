@@ -7,9 +7,9 @@ import yaml
 
 from wip_control.core.config import ConfigError
 from wip_control.core.references import make_reference
-from wip_control.core.simulation import initial_state
-from wip_control.core.scenario import (Scenario, load_scenario, scenario_from_mapping,
-                                       scenario_to_mapping)
+from wip_sim.core.simulation import initial_state
+from wip_sim.core.scenario import (load_scenario, Scenario, scenario_from_mapping,
+                                   scenario_to_mapping)
 
 
 def test_default_scenario_is_the_paper_section_v():

@@ -1,10 +1,9 @@
 """The plant's compiled RK4 integrator (numba), apart from :mod:`.plant`.
 
-The plant's compiled RK4 integrator (numba), apart from :mod:`.plant` so that a process
-that never steps a plant (the controllers) does not import numba and llvmlite: about 0.2 s
-of import and 50 MB of memory per process, which a robot's small computer pays once per
-controller process. :class:`~.plant.Plant` imports this module at its construction.
-The dynamics are those of :func:`.plant._make_accelerations`, inlined.
+A process that reads the plant's equations without stepping it (the metrics of a report,
+the identification) does not import numba and llvmlite: about 0.2 s of import and 50 MB of
+memory. :class:`~.plant.Plant` imports this module at its construction. The dynamics are
+those of :func:`.plant._make_accelerations`, inlined.
 """
 
 from __future__ import annotations

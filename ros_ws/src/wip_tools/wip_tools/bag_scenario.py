@@ -22,11 +22,10 @@ from __future__ import annotations
 import pathlib
 from typing import Any, Mapping
 
+from wip_bag.bag_reader import read_metadata_file
 from wip_control.core.config import ConfigError, load_yaml_text
-from wip_control.core.scenario import (read_scenario_file, Scenario,
-                                       scenario_from_mapping)
-
-from .bag_reader import read_metadata_file
+from wip_control.core.controller_settings import read_scenario_file
+from wip_sim.core.scenario import Scenario, scenario_from_mapping
 
 SCENARIO_KEY = 'wip.scenario'          # custom_data key of the scenario YAML in a bag
 SCENARIO_FILE_NAME = 'scenario.yaml'   # beside the bag's files, in its directory

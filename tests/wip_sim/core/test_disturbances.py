@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from wip_control.core.config import ConfigError
-from wip_control.core.disturbances import (EDGE_TOLERANCE, DisturbanceComponent,
+from wip_sim.core.disturbances import (EDGE_TOLERANCE, DisturbanceComponent,
                                            DisturbanceConfig, Disturbances)
 
 finite = dict(allow_nan=False, allow_infinity=False)

@@ -15,13 +15,14 @@ import dataclasses
 import time
 from typing import Callable
 
-from . import control_step
-from .control_step import ControlStep
+from wip_control.core import control_step
+from wip_control.core.control_step import ControlStep
+from wip_control.core.references import make_reference
+from wip_control.core.state_estimation import StateEstimator
+
 from .record import RecordBuffer, RunRecord
-from .references import make_reference
 from .scenario import Scenario
 from .simulation import Simulation
-from .state_estimation import StateEstimator
 
 
 @dataclasses.dataclass

@@ -12,7 +12,7 @@ from scipy.integrate import simpson
 from wip_control.core.config import ConfigError, from_mapping
 from wip_control.core.model import OMEGA, PHI, THETA, THETA_DOT, V, XV, nominal_terms
 from wip_control.core.params import WipParameters
-from wip_control.core.plant import Plant, PlantConfig, full_input_gains, tilt_pole
+from wip_sim.core.plant import Plant, PlantConfig, full_input_gains, tilt_pole
 
 PARAMS = WipParameters()
 MODELS = ('paper', 'full')

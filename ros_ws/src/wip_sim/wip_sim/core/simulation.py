@@ -14,11 +14,12 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from wip_control.core.model import PHI, THETA
+from wip_control.core.references import make_reference
+
 from .disturbances import Disturbances
-from .model import PHI, THETA
 from .plant import scenario_plant
-from .references import make_reference
-from .sensors import Sensors
+from .sensor_models import Sensors
 
 
 class SensorReading(NamedTuple):

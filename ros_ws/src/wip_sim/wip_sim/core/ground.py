@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .config import ConfigError, param
+from wip_control.core.config import ConfigError, param
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Metrics of one run, computed from a :class:`~wip_control.core.record.RunRecord`.
+"""Metrics of one run, computed from a :class:`~wip_sim.core.record.RunRecord`.
 
 The same function serves the in-process runner and ``scripts/report`` on a bag, so a
 graph run and an in-process run are compared with identical arithmetic.
@@ -26,10 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from .angles import wrap_to_pi
-from .model import input_gains
-from .plant import Plant, equation_model, plant_input_gains
-from .record import RunRecord
+from wip_control.core.angles import wrap_to_pi
+from wip_control.core.model import input_gains
+from wip_sim.core.plant import equation_model, Plant, plant_input_gains
+from wip_sim.core.record import RunRecord
 
 SETTLE_TIME_S = 10.0
 CONVERGENCE_RADIUS_M = 0.1

@@ -1,7 +1,7 @@
 """Time series of one run, with named channels, as plain numpy arrays.
 
 Both the in-process runner and the bag reader of ``scripts/report`` produce a
-:class:`RunRecord`; :mod:`~wip_control.core.metrics` and the figures consume it, so
+:class:`RunRecord`; :mod:`~wip_tools.analysis.metrics` and the figures consume it, so
 the two paths compute their metrics with the same code.
 
 Channels are grouped; each group has its own time base because the MPC runs at

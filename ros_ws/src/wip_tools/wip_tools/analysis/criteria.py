@@ -32,8 +32,8 @@ from typing import Any, Optional
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .config import describe, from_mapping, param, to_mapping
-from .record import RunRecord
+from wip_control.core.config import describe, from_mapping, param, to_mapping
+from wip_sim.core.record import RunRecord
 
 #: Numerical slack on hard limits: the QP is solved to 1e-6 and the mixer clips in
 #: floating point, so a limit may be met to ~1e-9 but never exceeded by more.
