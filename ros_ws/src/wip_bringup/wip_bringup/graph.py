@@ -400,10 +400,10 @@ class GraphRunner(RunnerBase):
     def unmatched_endpoints(self) -> list[str]:
         """Designed pairs whose DDS match is not yet seen by both sides.
 
-        Designed pairs whose DDS match is not yet seen by BOTH sides, from the match
-        counts in the controllers' /diagnostics (``matched subscriptions <topic>`` of a
-        publisher, ``matched publishers <topic>`` of a subscription; the plant checks its
-        own endpoints before it starts). DDS matches each side on its own: a reliable
+        A pair counts as matched only when BOTH sides have seen the match, as the match
+        counts in the controllers' /diagnostics report it (``matched subscriptions <topic>``
+        of a publisher, ``matched publishers <topic>`` of a subscription; the plant checks
+        its own endpoints before it starts). DDS matches each side on its own: a reliable
         volatile reader that has not matched the writer yet loses what it sends, and in
         lockstep one lost message of the first tick stalls the run. In lockstep every
         controller must also have matched the plant's /clock.

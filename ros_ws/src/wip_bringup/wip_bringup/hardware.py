@@ -226,8 +226,8 @@ def load_params_file(path: str | pathlib.Path) -> dict[str, Any]:
 def _matches(pattern: str, node: str) -> bool:
     """Whether a params-file key applies to the node ``node``.
 
-    Whether a params-file key (``/**``, ``eso``, ``/eso``, ``/**/eso``...) applies to the
-    node ``node`` (its full name without the leading slash: ``eso``, ``robot1/eso``).
+    The key is one such as ``/**``, ``eso``, ``/eso`` or ``/**/eso``. ``node`` is the node's
+    full name without the leading slash, such as ``eso`` or ``robot1/eso``.
     """
     pattern = str(pattern).lstrip('/')
     return pattern == node or fnmatch.fnmatchcase(node, pattern.replace('**', '*'))
@@ -276,10 +276,11 @@ def hardware_outcome(events: list[dict[str, Any]], ended: str,
                      missing: Iterable[str] = ()) -> tuple[int, str]:
     """Exit code and message of a run that ended normally.
 
-    Exit code and message of a run that ended normally (``ended``: why), from the safety
-    events seen until then: 0 if the controllers engaged and no FAULT followed (an e-stop is
-    the user's stop), 1 (EXIT_FELL) if one did, 5 (EXIT_NOT_ENGAGED) if they never engaged.
-    ``missing``: base topics without a publisher/subscription, named when never engaged.
+    Both follow from the safety events seen until then (``ended`` says why the run ended):
+    the code is 0 if the controllers engaged and no FAULT followed (an e-stop is the user's
+    stop), 1 (EXIT_FELL) if one did, 5 (EXIT_NOT_ENGAGED) if they never engaged.
+    ``missing`` lists the base topics without a publisher/subscription; the message names
+    them when the controllers never engaged.
     """
     engaged = next((i for i, e in enumerate(events) if e['state'] in ENGAGED_STATES), None)
     if engaged is None:

@@ -230,16 +230,17 @@ class Scheduling:
     def at_start(self) -> 'Scheduling':
         """Return what a process gets at its start when its priority is raised later.
 
-        What a process gets at its start when its priority is raised only once it is up
-        (:meth:`NodeProcess.raise_priority`): its CPUs, the normal policy.
+        The priority is raised only once the process is up
+        (:meth:`NodeProcess.raise_priority`); until then it gets its CPUs and the normal
+        policy.
         """
         return dataclasses.replace(self, priority=0, rt_cpu_limit=0.0)
 
     def command_prefix(self) -> list[str]:
         """``prlimit``/``chrt``/``taskset`` words to put before a program's command line.
 
-        ``prlimit``/``chrt``/``taskset`` words to put before a program's command line
-        ([] if nothing is asked for); each execs the next, so the pid is the program's.
+        The list is [] if nothing is asked for. Each tool execs the next, so the pid
+        is the program's.
         """
         words: list[str] = []
         limit = self.priority and self.rt_cpu_limit > 0.0
@@ -425,9 +426,9 @@ class NodeProcess:
     def raise_priority(self, scheduling: Scheduling) -> None:
         """Put the running process and its threads at ``scheduling.priority``.
 
-        Put the running process and every thread it has at ``scheduling.priority``
-        (SCHED_FIFO; its threads started later inherit it), with ``rt_cpu_limit``;
-        GraphError with the tool's message if that fails.
+        The policy is SCHED_FIFO, with ``rt_cpu_limit``; every thread the process has now is
+        moved, and threads it starts later inherit the priority. If that fails, raise
+        GraphError with the tool's message.
 
         Why after the start rather than at exec: six node processes starting at once at
         SCHED_FIFO on a busy 2-core machine ran their imports at real-time priority; one
@@ -654,10 +655,10 @@ def _lock_holder(path: pathlib.Path) -> str:
 def lock_output(path: pathlib.Path, option: str, directory: bool = False) -> int:
     """Take the exclusive lock of one output.
 
-    Take the exclusive lock of one output (a run directory: its :data:`LOCK_FILE`; a bag
-    directory, ``directory``: the directory itself, which must stay empty for the
-    recorder); the descriptor, held until the run and every process it started have
-    ended (the kernel drops the lock then, whatever killed them).
+    A run directory is locked through its :data:`LOCK_FILE`; a bag directory
+    (``directory``) is locked itself, since it must stay empty for the recorder. Return the
+    descriptor, to be held until the run and every process it started have ended (the
+    kernel drops the lock then, whatever killed them).
 
     GraphError (usage) naming the holder's pid if another run holds it: two runs into one
     folder would mix their files.

@@ -80,9 +80,9 @@ def declarations(node: str) -> dict[str, Declared]:
 def section_matches(key: str, node: str) -> bool:
     """Whether the params-file section ``key`` applies to the node ``node``.
 
-    Whether the params-file section ``key`` (``/**``, ``eso``, ``/eso``, ``/**/eso``,
-    ``/robot/eso``...) applies to the node ``node``: its last name component as a glob
-    (``**`` and ``*`` match every node), whatever the namespace.
+    ``key`` is one such as ``/**``, ``eso``, ``/eso``, ``/**/eso`` or ``/robot/eso``. Only its
+    last name component counts, as a glob (``**`` and ``*`` match every node), whatever the
+    namespace.
     """
     pattern = str(key).strip().rstrip('/')
     last = pattern.rsplit('/', 1)[-1] if pattern else ''

@@ -290,8 +290,8 @@ class RunnerBase:
     def view_parameters(self, model, position_std: float | None = None) -> dict[str, dict]:
         """Params-file sections of the viewer and of the Foxglove bridge.
 
-        Params-file sections of the viewer (the vehicle drawn with ``model``'s
-        dimensions) and of the Foxglove bridge, for those that run.
+        Only those that run get a section. The viewer draws the vehicle with ``model``'s
+        dimensions.
         """
         options = self.options
         view: dict[str, dict] = {}
@@ -577,8 +577,8 @@ def print_result(result: RunResult, formatted: Callable[[RunResult], str]) -> in
 def options_from_args(args, **own) -> dict[str, Any]:
     """Keyword arguments of either mode's options.
 
-    Keyword arguments of either mode's options from ``scripts/run_graph``'s parsed
-    arguments: those both modes have, then the mode's ``own``.
+    They are taken from ``scripts/run_graph``'s parsed arguments: first those both modes
+    have, then the mode's ``own``.
     """
     return dict(scenario=args.scenario, record=args.record, duration=args.duration,
                 discovery_timeout=args.discovery_timeout, quiet=args.quiet,

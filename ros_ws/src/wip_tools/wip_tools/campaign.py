@@ -442,8 +442,8 @@ def execute(campaign: Campaign, specs: list[dict], jsonl: pathlib.Path,
             progress: bool = True) -> list[dict]:
     """Run the specs on Dask.
 
-    Run the specs on Dask (a LocalCluster of ``workers`` processes, or the cluster at
-    ``scheduler``), appending each finished row to ``jsonl``; returns all rows by run.
+    The cluster is a LocalCluster of ``workers`` processes, or the one at ``scheduler``.
+    Each finished row is appended to ``jsonl``. Return all rows, by run.
     """
     from dask.distributed import Client, LocalCluster, as_completed
     from tqdm import tqdm

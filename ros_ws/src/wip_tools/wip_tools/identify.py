@@ -82,8 +82,8 @@ class Identification:
 def gaussian_lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:
     """Zero-phase low-pass: convolution with a Gaussian.
 
-    Zero-phase low-pass: convolution with a Gaussian whose −3 dB point is ``cutoff_hz``
-    (pure numpy, symmetric kernel so no phase lag between regressors and torques).
+    The Gaussian's −3 dB point is ``cutoff_hz``. It is pure numpy, with a symmetric kernel
+    so that there is no phase lag between regressors and torques.
     """
     sigma_t = math.sqrt(math.log(2.0)) / (2.0 * math.pi * cutoff_hz)   # |H| = 1/√2 at fc
     half = max(1, int(math.ceil(4.0 * sigma_t / dt)))

@@ -142,9 +142,9 @@ class DriveStage:
     def is_tick(self, k: int) -> bool:
         """Whether control tick ``k`` (from 0) is a tick of the stage.
 
-        Whether control tick ``k`` (from 0) is a tick of the stage (the MPC's, or with
-        re-solving after a push that of its finer grid): the stage takes its inputs, and
-        in lockstep the drive torque is published, at these ticks.
+        The stage's ticks are the MPC's or, with re-solving after a push, those of its
+        finer grid. At these ticks the stage takes its inputs and, in lockstep, the drive
+        torque is published.
         """
         return k % self.every == 0
 
@@ -189,8 +189,8 @@ class DriveStage:
     def _step_fast(self, k, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit):
         """Solve with re-solving after a push.
 
-        A solve with re-solving after a push: the increment bound of the window and
-        the time since the last solve; a push seen now (re)starts the re-solving.
+        The solve gets the increment bound of the window and the time since the last
+        solve. A push seen now (re)starts the re-solving.
         """
         mpc = self.controller
         dmax = mpc.config.max_delta_torque

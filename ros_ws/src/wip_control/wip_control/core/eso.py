@@ -233,8 +233,8 @@ class EsoConfig:
 class _ChannelEstimate:
     """The read-out of a second-order channel observer.
 
-    The read-out of a second-order channel observer (x̂1, x̂2, f̂ at ``_t_prev``),
-    the same for the ESO (25) and the rate-aided channel.
+    It holds x̂1, x̂2 and f̂ at ``_t_prev``, and is the same for the ESO (25) and the
+    rate-aided channel.
     """
 
     name: str
@@ -345,8 +345,7 @@ class ExtendedStateObserver(_ChannelEstimate):
     def update(self, t: float, y: float, b_u: float) -> tuple[float, float, float]:
         """Advance to time ``t`` [s] with measurement ``y`` at t.
 
-        Advance to time ``t`` [s] with measurement ``y`` at t and ``b_u`` held since
-        the previous update; returns (x̂1, x̂2, f̂).
+        ``b_u`` is the input held since the previous update. Return (x̂1, x̂2, f̂).
 
         ``t`` equal to the previous time leaves the estimate unchanged (e.g. a first call
         at the initial time). Non-finite inputs or a time going backwards raise
@@ -437,9 +436,8 @@ class ExtendedStateObserver(_ChannelEstimate):
 def complementary_bandwidth(angle_noise_std: float, rate_noise_std: float) -> float:
     """Crossover ω_c [rad/s] of the angle/gyro complementary filter.
 
-    Crossover ω_c [rad/s] of the angle/gyro complementary filter that minimises the
-    angle error variance for white angle noise σ_a [rad] and white rate noise σ_g
-    [rad/s] sampled at the same period: ω_c = σ_g / σ_a.
+    This crossover minimises the angle error variance for white angle noise σ_a [rad] and
+    white rate noise σ_g [rad/s] sampled at the same period: ω_c = σ_g / σ_a.
 
     Why: the filter θ̂̇ = r + ω_c (θ_m − θ̂) is the steady-state Kalman filter of θ̇ = r
     with process noise PSD q = σ_g² h and measurement noise PSD ρ = σ_a² h, whose gain
@@ -454,8 +452,8 @@ def complementary_bandwidth(angle_noise_std: float, rate_noise_std: float) -> fl
 def discrete_pole_gains(pole_a: float, pole_b: float, period: float) -> tuple[float, float]:
     """Gains (L1, L2) of the two-state predictor-corrector of :class:`RateAidedChannel`.
 
-    Gains (L1, L2) of the two-state predictor-corrector used twice in
-    :class:`RateAidedChannel` that put its error poles at e^{−a h}, e^{−b h}.
+    The channel uses the predictor-corrector twice. The gains put its error poles at
+    e^{−a h}, e^{−b h}.
 
     Both loops have the error matrix [[1 − L1, ∓(1 − L1) h], [±L2, 1 − L2 h]], whose
     characteristic polynomial is z² − (2 − L1 − L2 h) z + (1 − L1): with p, q the wanted
@@ -528,8 +526,8 @@ class RateAidedChannel(_ChannelEstimate):
     def update(self, t: float, y: float, rate: float, b_u: float) -> tuple[float, float, float]:
         """Advance to ``t`` [s] with the angle ``y`` [rad] and the gyro ``rate`` [rad/s].
 
-        Advance to ``t`` [s] with the angle ``y`` [rad], the gyro ``rate`` [rad/s] at t
-        and ``b_u`` [rad/s²] held since the previous update; returns (â, ẑ1, f̂).
+        Both are measured at t; ``b_u`` [rad/s²] is the input held since the previous
+        update. Return (â, ẑ1, f̂).
         """
         if not math.isfinite(t + y + rate + b_u):
             raise ValueError(f'{self.name}: non-finite input t={t!r}, y={y!r}, '
@@ -570,8 +568,8 @@ def rate_eso_noise_variance(rate_noise_std: float, bandwidth: float, period: flo
                             exact: bool = True) -> float:
     """Stationary variance of f̂ [(rad/s²)²] of the reduced-order rate ESO.
 
-    Stationary variance of f̂ [(rad/s²)²] of the reduced-order rate ESO of
-    :class:`RateAidedChannel` for white rate noise of std σ [rad/s] per sample.
+    The ESO is the one of :class:`RateAidedChannel`, and the rate noise is white with std
+    σ [rad/s] per sample.
 
     ``exact``: the discrete Lyapunov equation of the error loop; else the continuous
     approximation σ² h ω³/4 (valid for ω h ≪ 1).

@@ -561,8 +561,8 @@ class LongitudinalMpc(PreviousTorque):
     def set_previous_torque(self, tau_previous: float) -> None:
         """Overwrite τυ(k−1) [N m] with the torque really applied.
 
-        Overwrite τυ(k−1) [N m] with the torque really applied (e.g. after the safety
-        layer cut it, or to replay a recorded tick). The plan and workspace are kept.
+        Use it, for example, after the safety layer cut the torque, or to replay a recorded
+        tick. The plan and workspace are kept.
         """
         super().set_previous_torque(tau_previous)
 

@@ -164,8 +164,8 @@ class Circle(Reference):
 class StraightLine(Reference):
     """Uniform motion on a straight line.
 
-    Uniform motion on a straight line from ``start`` [m] along ``heading`` [rad] at
-    ``speed`` [m/s] (≥ 0).
+    The motion starts at ``start`` [m] and goes along ``heading`` [rad] at ``speed``
+    [m/s] (≥ 0).
     """
 
     def __init__(self, start: Sequence[float] = (0.0, 0.0), heading: float = 0.0,
@@ -414,8 +414,8 @@ class Waypoints(Reference):
 class TimeScaled(Reference):
     r"""A reference run along the same path with a progress s(t) within the limits.
 
-    A reference run along the same path with a progress s(t) that slows where the
-    path's speed or yaw rate would exceed the limits (time scaling, Hollerbach 1984).
+    The progress slows where the path's speed or yaw rate would exceed the limits (time
+    scaling, Hollerbach 1984).
 
     The base reference p(s) is re-timed by ṡ = σ(s), with
 
@@ -718,8 +718,8 @@ def distance_to_path(reference: Reference, x: Sequence[float], y: Sequence[float
                      path_duration: float, resolution: float = 0.001):
     """Distance [m] of each point (x, y) to the path of ``reference``.
 
-    Distance [m] of each point (x, y) to the path of ``reference`` traced over
-    [0, ``path_duration``] of its own time (for a :class:`TimeScaled`, pass its base).
+    The path is the one traced over [0, ``path_duration``] of the reference's own time (for
+    a :class:`TimeScaled`, pass its base).
 
     The path is sampled every ``resolution`` [m] of arc length at most (nearest sample
     by a k-d tree), so the result exceeds the true distance by at most resolution/2.

@@ -320,8 +320,8 @@ def warn_undeclared_overrides(nodes, warned=None) -> None:
 def init_rclpy(program: str, args, signal_handler_options) -> bool:
     """``rclpy.init``; False after one line on stderr when rcl refuses the ROS arguments.
 
-    ``rclpy.init``; False after one line on stderr when rcl refuses the command line's
-    ROS arguments (a remap rule to an invalid name, a malformed ``-p``): no traceback.
+    The ROS arguments are those of the command line; rcl refuses, for example, a remap rule
+    to an invalid name or a malformed ``-p``. No traceback is printed.
     """
     try:
         rclpy.init(args=args, signal_handler_options=signal_handler_options)
@@ -347,8 +347,7 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
               program: str, args=None) -> int:
     """Jazzy ``main``: init, build the nodes, spin them until shutdown, clean up.
 
-    Jazzy ``main``: init, build the nodes, spin them in one executor until shutdown,
-    clean up; exit status.
+    The nodes spin in one executor. Return the exit status.
 
     ``nodes``: (factory, on_stop) pairs. Several nodes in one process is ROS 2
     composition done by hand (rclpy has no component container): each node keeps its
@@ -456,9 +455,9 @@ def spin_composed(executor, node: Node, bus: IntraProcessBus | None,
 def connect_intra_process(nodes: Sequence[Node]) -> IntraProcessBus | None:
     """Connect the publishers of ``nodes`` to the same process's subscriptions.
 
-    Connect the publishers of ``nodes`` to the same process's subscriptions
-    (:mod:`.intra_process`); the bus that the spin loop must drain, None if there is
-    nothing to connect (fewer than two nodes with ``use_intra_process_comms``).
+    The connection is made by :mod:`.intra_process`. Return the bus that the spin loop must
+    drain, or None if there is nothing to connect (fewer than two nodes with
+    ``use_intra_process_comms``).
     """
     members = [n for n in nodes
                if isinstance(n, IntraProcessNode) and n.use_intra_process_comms]
@@ -518,8 +517,9 @@ def wait_for_acknowledgements(nodes: Sequence[Node], timeout: float = ACK_TIMEOU
                               ) -> list[str]:
     """Wait until every reliable reader has acknowledged every sample.
 
-    Wait until every reliable reader of the nodes' publishers has acknowledged every
-    sample (at most ``timeout`` in all); the topics of those that had not, said in the log.
+    The readers are those of the nodes' publishers, and the wait lasts at most ``timeout``
+    in all. Return the topics of the readers that had not acknowledged; the log names them
+    too.
 
     A reliable writer's unacknowledged samples die with its process: a simulator that
     exits right after its last sample can leave a recorder without it.
@@ -607,10 +607,10 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
 class IntraProcessNode(Node):
     """A node whose publishers and subscriptions a composed process may connect directly.
 
-    A node whose publishers and subscriptions a composed process may connect directly
-    (:func:`connect_intra_process`, :mod:`.intra_process`): the controller nodes and the
-    plant. Call :meth:`init_intra_process` before creating them; rclpy's own (parameter
-    events, rosout) are not connected.
+    The connection is made by :func:`connect_intra_process` (:mod:`.intra_process`). The
+    controller nodes and the plant are such nodes. Call :meth:`init_intra_process` before
+    creating the publishers and subscriptions; rclpy's own (parameter events, rosout) are
+    not connected.
     """
 
     def init_intra_process(self, enabled: bool) -> None:

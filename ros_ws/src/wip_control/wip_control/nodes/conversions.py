@@ -90,9 +90,8 @@ _typestore = None
 def prepare_decoder(*typenames: str) -> None:
     """Build the type store and the decoders of ``typenames`` now.
 
-    Build the type store and the decoders of ``typenames`` now (about 0.16 s of CPU
-    here, more on a slow machine), at a node's start, rather than in the callback of its
-    first sensor sample.
+    This takes about 0.16 s of CPU here, more on a slow machine, so it is done at a node's
+    start rather than in the callback of its first sensor sample.
     """
     global _typestore  # noqa: PLW0603 - one store per process
     if _typestore is None:
@@ -213,10 +212,10 @@ def odometry_to_msg(stamp_ns: int, frame_id: str, child_frame_id: str, x: float,
                     twist_covariance: Sequence[float] = (0.0,) * 36) -> Odometry:
     """nav_msgs/Odometry of a planar pose and its twist.
 
-    nav_msgs/Odometry of a planar pose (x, y [m], heading phi [rad]) in ``frame_id``
-    and its twist in ``child_frame_id`` (REP 105: υ along x, ω about z); covariances
-    row-major 6x6 (all zero: unknown, the ROS convention). The ESO's /odom and the
-    viewer's Odometry topics are built here.
+    The pose (x, y [m], heading phi [rad]) is in ``frame_id`` and the twist in
+    ``child_frame_id`` (REP 105: υ along x, ω about z). The covariances are row-major 6x6
+    (all zero: unknown, the ROS convention). The ESO's /odom and the viewer's Odometry
+    topics are built here.
     """
     msg = stamped(Odometry(), stamp_ns, frame_id)
     msg.child_frame_id = child_frame_id
@@ -252,11 +251,10 @@ def estimate_to_msg(est: StateEstimate, x: float, y: float, settled: bool, stamp
 class _LastConversion:
     """The result of converting the last message object, for the next subscriber of it.
 
-    The result of converting the last message object, for the next subscriber of the
-    same object. In a composed process every local subscriber of a topic receives the same
-    message object (intra_process.py), and no node modifies a message it receives: the
-    four subscribers of a state estimate then convert it once (about 13 us each, at
-    200 Hz). Holding the message keeps its identity from being reused.
+    In a composed process every local subscriber of a topic receives the same message
+    object (intra_process.py), and no node modifies a message it receives: the four
+    subscribers of a state estimate then convert it once (about 13 us each, at 200 Hz).
+    Holding the message keeps its identity from being reused.
     """
 
     __slots__ = ('msg', 'value', 'checked')
@@ -383,9 +381,9 @@ def planned_drive_torque(result: MpcResult) -> list[float]:
 def mpc_hold_msg(stamp_ns: int, tau_v: float, sampling_period: float) -> MpcOutput:
     """MpcOutput of a tick of the re-solve grid at which the MPC did not solve.
 
-    MpcOutput of a tick of the re-solve grid at which the MPC did not solve
-    (``mpc.fast_resolve_period``, lockstep): the held τυ, status SOLVED (of the last solve),
-    ``status_text`` HELD, Δτ 0, no plan or prediction.
+    The re-solve grid is that of ``mpc.fast_resolve_period`` in lockstep. The message has
+    the held τυ, status SOLVED (of the last solve), ``status_text`` HELD, Δτ 0, and no plan
+    or prediction.
     """
     return stamped(MpcOutput(tau_v=float(tau_v), delta_tau=0.0, status=MpcOutput.SOLVED,
                              status_text=HELD_STATUS_TEXT, sampling_period=float(sampling_period),

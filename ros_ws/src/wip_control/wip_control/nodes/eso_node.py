@@ -1,7 +1,7 @@
 """ESO node: the three extended state observers and the planar position.
 
-ESO node: the three extended state observers (eqs. (4), (8) in [1]_) and the planar
-position, from standard sensor topics.
+The observers are those of eqs. (4), (8) in [1]_. The node computes them and the position
+from standard sensor topics.
 
 Topics
 ------

@@ -116,9 +116,8 @@ def mounting_inverse(rpy: Sequence[float]) -> Quaternion | None:
 def imu_orientation_of_body(body: Sequence[float], rpy: Sequence[float]) -> Quaternion:
     """Return what an IMU mounted with ``rpy`` reports for the body orientation ``body``.
 
-    What an IMU mounted with ``rpy`` reports when the body has orientation ``body``:
-    q_imu = q_body ⊗ q_mount (the inverse of :func:`body_pitch_yaw`; for simulators and
-    tests).
+    It computes q_imu = q_body ⊗ q_mount, the inverse of :func:`body_pitch_yaw`; simulators
+    and tests use it.
     """
     roll, pitch, yaw = check_mounting_rpy('imu_mounting_rpy', rpy)
     return quaternion_multiply(body, quaternion_from_euler(roll, pitch, yaw))

@@ -117,8 +117,8 @@ class IntraProcessBus:
     def attach(self, publisher: IntraProcessPublisher) -> int:
         """Attach ``publisher`` to the local subscriptions of its topic and type.
 
-        Attach ``publisher`` to the local subscriptions of its topic and type (possibly
-        none: it then publishes only while a subscription is matched); their count.
+        Return their count. There may be none; the publisher then publishes only while a
+        subscription is matched.
         """
         local = [cb for msg_type, cb in self.subscriptions.get(publisher.topic_name, ())
                  if msg_type is publisher.msg_type]

@@ -186,9 +186,9 @@ class EffortInterface:
 def declare_effort_interface(node: Node) -> EffortInterface:
     """Declare and read the parameters of the effort interface.
 
-    Declare and read the parameters of settings.WheelJoints, EffortCommand and
-    WheelSigns (the mixer and the stand-in base read the same ones); ConfigError if
-    ``joints`` does not list ``left_joint`` and ``right_joint`` once each.
+    These are the parameters of settings.WheelJoints, EffortCommand and WheelSigns (the
+    mixer and the stand-in base read the same ones). Raise ConfigError if ``joints`` does
+    not list ``left_joint`` and ``right_joint`` once each.
     """
     from .settings import check_effort_joints, EffortCommand, WheelJoints, WheelSigns
     wheels = ConfigParameters(node, '', WheelJoints).config

@@ -89,9 +89,8 @@ class Sensors:
     def wheel_rates(self, state: Sequence[float]) -> tuple[float, float]:
         """(φ̇l, φ̇r) [rad/s]: joint rates of the true motion, noise-free.
 
-        (φ̇l, φ̇r) [rad/s]: joint rates of the true motion, noise-free (the rate of
-        :meth:`encoders`): rolling rate (υ ∓ (d/2) ω) / r, minus the tilt rate when the
-        encoders measure against the body.
+        They are the rates of :meth:`encoders`: the rolling rate (υ ∓ (d/2) ω) / r, minus
+        the tilt rate when the encoders measure against the body.
         """
         p = self.params
         v, omega, half_track = float(state[V]), float(state[OMEGA]), 0.5 * p.track_width
