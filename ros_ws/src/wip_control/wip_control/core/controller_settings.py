@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import pathlib
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 from .arc import ArcConfig
 from .config import ConfigError, _show, from_mapping, load_yaml_text, param, to_mapping
@@ -277,23 +277,28 @@ def read_scenario_file(path: str | pathlib.Path) -> Any:
     return load_yaml_text(raw, f'scenario file {str(path)!r}')
 
 
-def named_after_file(data: Any, path: pathlib.Path) -> Any:
-    """Name a scenario mapping without a ``name`` after its file (the stem)."""
+def load_scenario_file(path: str | pathlib.Path, from_mapping: Callable[[Any], Any]) -> Any:
+    """Read a scenario file and build it with ``from_mapping``; errors name the file.
+
+    A file without a ``name`` is named after itself (its stem), not after the default.
+    """
+    path = pathlib.Path(path)
+    data = read_scenario_file(path)
     if isinstance(data, Mapping) and 'name' not in data:
-        return {**data, 'name': path.stem}
-    return {'name': path.stem} if data is None else data
+        data = {**data, 'name': path.stem}
+    elif data is None:
+        data = {'name': path.stem}
+    try:
+        return from_mapping(data)
+    except ConfigError as err:
+        raise ConfigError(f'{path}: {err}') from err
 
 
 def load_controller_settings(path: str | pathlib.Path | None = None) -> ControllerSettings:
     """Load the controller settings of a scenario file; ``None``: the paper's Section V."""
     if path is None:
         return ControllerSettings()
-    path = pathlib.Path(path)
-    data = named_after_file(read_scenario_file(path), path)
-    try:
-        return controller_settings_from_mapping(data)
-    except ConfigError as err:
-        raise ConfigError(f'{path}: {err}') from err
+    return load_scenario_file(path, controller_settings_from_mapping)
 
 
 def controller_settings_to_mapping(settings: ControllerSettings) -> dict[str, Any]:

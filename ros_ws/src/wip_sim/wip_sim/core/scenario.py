@@ -45,8 +45,8 @@ from wip_control.core.controller_settings import (check_controller_consistency,
                                                   checked_scalar, controller_fields,
                                                   CONTROLLER_SCALAR_RANGES, CONTROLLER_SCALARS,
                                                   controller_settings_to_mapping,
-                                                  ControllerSettings, named_after_file,
-                                                  read_scenario_file, section)
+                                                  ControllerSettings, load_scenario_file,
+                                                  section)
 from wip_control.core.params import WipParameters
 
 from .disturbances import DisturbanceConfig
@@ -225,12 +225,7 @@ def load_scenario(path: str | pathlib.Path | None = None) -> Scenario:
     """
     if path is None:
         return Scenario()
-    path = pathlib.Path(path)
-    data = named_after_file(read_scenario_file(path), path)
-    try:
-        return scenario_from_mapping(data)
-    except ConfigError as err:
-        raise ConfigError(f'{path}: {err}') from err
+    return load_scenario_file(path, scenario_from_mapping)
 
 
 def scenario_to_mapping(scenario: Scenario) -> dict[str, Any]:
