@@ -6,6 +6,8 @@ import pytest
 
 from wip_bringup.launcher import (FASTDDS_PROFILE, FASTDDS_PROFILE_VARIABLES,
                                   graph_environment)
+from wip_control.nodes.dds_profile import (process_ignores_local_endpoints,
+                                           profile_ignores_local_endpoints)
 
 NS = {'dds': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
 
@@ -33,3 +35,38 @@ def test_the_launcher_uses_it_only_where_the_user_has_no_profile(monkeypatch, tm
         assert all(env.get(other) in (None, '') for other in FASTDDS_PROFILE_VARIABLES
                    if other != name)
         monkeypatch.delenv(name)
+
+
+def test_the_profile_keeps_a_process_from_matching_its_own_endpoints():
+    text = FASTDDS_PROFILE.read_text(encoding='utf-8')
+    assert profile_ignores_local_endpoints(text)
+    assert process_ignores_local_endpoints(
+        'rmw_fastrtps_cpp', {'FASTRTPS_DEFAULT_PROFILES_FILE': str(FASTDDS_PROFILE)})
+    assert process_ignores_local_endpoints(
+        'rmw_fastrtps_cpp', {'FASTDDS_DEFAULT_PROFILES_FILE': str(FASTDDS_PROFILE)})
+    # Another RMW does not read the property; without a profile Fast DDS matches them.
+    assert not process_ignores_local_endpoints(
+        'rmw_cyclonedds_cpp', {'FASTRTPS_DEFAULT_PROFILES_FILE': str(FASTDDS_PROFILE)})
+    assert not process_ignores_local_endpoints('rmw_fastrtps_cpp', {})
+    assert not process_ignores_local_endpoints(
+        'rmw_fastrtps_cpp', {'FASTRTPS_DEFAULT_PROFILES_FILE': '/nonexistent/profile.xml'})
+
+
+@pytest.mark.parametrize('text, expected', [
+    (FASTDDS_PROFILE.read_text(encoding='utf-8').replace(
+        '<value>true</value>', '<value>false</value>'), False),
+    (FASTDDS_PROFILE.read_text(encoding='utf-8').replace(
+        'is_default_profile="true">\n      <rtps>', 'is_default_profile="false">\n      <rtps>'),
+     False),                                  # not the default participant profile
+    ('<dds><profiles><participant profile_name="p" is_default_profile="true"><rtps>'
+     '<propertiesPolicy><properties><property><name>fastdds.ignore_local_endpoints</name>'
+     '<value>true</value></property></properties></propertiesPolicy></rtps></participant>'
+     '</profiles></dds>', True),              # without the namespace
+    ('<dds><profiles><participant profile_name="p" is_default_profile="true"><rtps>'
+     '<propertiesPolicy><properties><property><name>fastdds.ignore_local_endpoints</name>'
+     '<value>TRUE</value></property></properties></propertiesPolicy></rtps></participant>'
+     '</profiles></dds>', False),             # Fast DDS refuses the value: they match
+    ('<dds><profiles', False),                # not XML
+])
+def test_only_a_default_participant_profile_that_sets_the_property_counts(text, expected):
+    assert profile_ignores_local_endpoints(text) is expected

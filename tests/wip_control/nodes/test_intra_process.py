@@ -11,7 +11,8 @@ import time
 
 import pytest
 
-from wip_control.nodes.intra_process import IntraProcessBus, IntraProcessPublisher
+from wip_control.nodes.intra_process import (IntraProcessBus, IntraProcessPublisher,
+                                              local_match_count)
 
 
 class FakeDdsPublisher:
@@ -121,6 +122,44 @@ def test_a_failing_local_callback_is_reported_and_the_others_still_get_the_messa
     publisher.publish(Msg(7))
     assert bus.drain() == 1
     assert [m.value for m in got] == [7] and errors == [('Msg', 'boom')] and bus.errors == 1
+
+
+def test_where_dds_ignores_local_endpoints_local_ones_take_the_bus_and_outsiders_dds():
+    # DDS then counts and serves the subscriptions of other processes only (a recorder):
+    # every message goes to them through DDS and, always, to this process through the bus.
+    bus = IntraProcessBus(dds_ignores_local=True)
+    got = []
+    bus.add_subscription('/wip/t', Msg, got.append)
+    dds = FakeDdsPublisher(matched=0)        # no one outside
+    publisher = IntraProcessPublisher(dds, Msg)
+    assert bus.attach(publisher) == 1
+    assert publisher.get_subscription_count() == 1   # DDS's 0 and the bus's 1
+    publisher.publish(Msg(1))
+    assert dds.sent == [] and bus.drain() == 1
+    dds.matched = 1                          # a recorder subscribes
+    publisher.publish(Msg(2))
+    assert [m.value for m in dds.sent] == [2] and bus.drain() == 1
+    assert [m.value for m in got] == [1, 2] and bus.published_dds == 1
+    assert publisher.get_subscription_count() == 2
+    # Nothing local, nothing outside: a volatile message goes nowhere, a transient local one
+    # to DDS for a late joiner.
+    lonely = FakeDdsPublisher('/wip/lonely', matched=0)
+    volatile = IntraProcessPublisher(lonely, Msg)
+    bus.attach(volatile)
+    volatile.publish(Msg(3))
+    latched = IntraProcessPublisher(lonely, Msg, skip_unmatched=False)
+    bus.attach(latched)
+    latched.publish(Msg(4))
+    assert [m.value for m in lonely.sent] == [4] and bus.pending == 0
+
+
+def test_the_local_match_counts_are_read_from_the_node():
+    class Node:
+        local_matches = {('subscriptions', '/wip/t'): 2, ('publishers', '/clock'): 1}
+    assert local_match_count(Node(), 'subscriptions', '/wip/t') == 2
+    assert local_match_count(Node(), 'publishers', '/clock') == 1
+    assert local_match_count(Node(), 'publishers', '/wip/t') == 0
+    assert local_match_count(object(), 'subscriptions', '/wip/t') == 0   # DDS counts them
 
 
 # --------------------------------------------------------------------------- with rclpy

@@ -667,7 +667,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'run), composed (the six nodes in one process, one executor: '
                         'ros2 run wip_control controllers) or, simulation only, single '
                         '(the plant too: ros2 run wip_sim simulation); default: '
-                        f'{HardwareOptions.layout} (docs/realtime.md)')
+                        f'{HardwareOptions.layout}, and single for a recorded lockstep '
+                        'simulation (the fastest with every topic; docs/realtime.md)')
     parser.add_argument('--rt-priority', type=bounded(int, 0, 99), default=0, metavar='N',
                         help='run the controller processes with SCHED_FIFO priority N '
                         '(1..99; default 0: the normal policy), set once every node is up; '

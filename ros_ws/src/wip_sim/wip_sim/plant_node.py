@@ -87,6 +87,7 @@ from wip_control.nodes.common import (IntraProcessNode, LOCKSTEP_WRITER_DEPTH,
                                       run_simulator_node, stamp_to_ns)
 from wip_control.nodes.conversions import (body_rates_from_euler, quaternion_from_euler,
                                            wheel_torques_from_msg)
+from wip_control.nodes.intra_process import local_match_count
 from wip_control.nodes.parameters import ConfigParameters
 from wip_control.nodes.settings import WheelJoints
 
@@ -249,7 +250,8 @@ class PlantNode(IntraProcessNode):
     def unmatched(self) -> list[str]:
         """Return what the start still waits for (empty when every endpoint is matched)."""
         missing = []
-        if self.torque_sub.get_publisher_count() < 1:
+        if (self.torque_sub.get_publisher_count()
+                + local_match_count(self, 'publishers', self.torque_sub.topic_name)) < 1:
             missing.append(f'{self.torque_sub.topic_name} has no publisher')
         checks = [(self.joint_pub, self.expected['sensors']),
                   (self.imu_pub, self.expected['sensors']),

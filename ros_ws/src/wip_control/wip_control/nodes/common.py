@@ -46,6 +46,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 
 from ..core.config import ConfigError
+from .dds_profile import process_ignores_local_endpoints
 from .diagnostics import NodeDiagnostics
 from .intra_process import IntraProcessBus, IntraProcessPublisher
 from .launched import end_with_launcher
@@ -184,6 +185,8 @@ class ClockTicker:
         self._node = node
         self.last_ns: int | None = None
         self.subscription = node.create_subscription(Clock, topic, self._on_clock, CLOCK_QOS)
+        if isinstance(node, IntraProcessNode):   # the plant's /clock in a composed process
+            node.add_intra_subscription(Clock, self.subscription, self._on_clock)
         self._time_source = None
         source = getattr(node, '_time_source', None)   # rclpy has no public accessor
         if (source is not None and getattr(source, '_clock_sub', None) is not None
@@ -470,7 +473,8 @@ def connect_intra_process(nodes: Sequence[Node]) -> IntraProcessBus | None:
             logger.error(f'an intra-process callback failed on a {kind} (#{bus.errors}), '
                          f'node goes on: {type(err).__name__}: {err}')
 
-    bus = IntraProcessBus(on_error)
+    bus = IntraProcessBus(on_error, dds_ignores_local=process_ignores_local_endpoints(
+        rclpy.utilities.get_rmw_implementation_identifier()))
     for node in members:
         for msg_type, topic, callback in node.intra_subscriptions:
             bus.add_subscription(topic, msg_type, callback)
@@ -480,8 +484,31 @@ def connect_intra_process(nodes: Sequence[Node]) -> IntraProcessBus | None:
             local = bus.attach(publisher)
             if local:
                 connected.append(f'{publisher.topic_name} -> {local}')
-    logger.debug(f'intra-process: {", ".join(connected) or "no topic"}')
+    if bus.dds_ignores_local:
+        count_local_matches(members)
+    logger.debug(f'intra-process (DDS ignores local endpoints: {bus.dds_ignores_local}): '
+                 f'{", ".join(connected) or "no topic"}')
     return bus
+
+
+def count_local_matches(members: Sequence[IntraProcessNode]) -> None:
+    """Count, per node, the endpoints its endpoints reach through the bus (``local_matches``).
+
+    Where DDS ignores the process's own endpoints its match counts leave these out; the
+    /diagnostics match counts and the plant's start check add them back
+    (:func:`~.intra_process.local_match_count`).
+    """
+    publishers = [(p.topic_name, p.msg_type) for node in members
+                  for p in node.intra_publishers]
+    for node in members:
+        matches: dict[tuple[str, str], int] = {}
+        for publisher in node.intra_publishers:
+            key = ('subscriptions', publisher.topic_name)
+            matches[key] = matches.get(key, 0) + publisher.local_subscriptions
+        for msg_type, topic, _ in node.intra_subscriptions:
+            key = ('publishers', topic)
+            matches[key] = matches.get(key, 0) + publishers.count((topic, msg_type))
+        node.local_matches = matches
 
 
 def share_sim_clock(nodes: Sequence[Node]) -> Node | None:

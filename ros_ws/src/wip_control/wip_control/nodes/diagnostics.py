@@ -23,6 +23,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
+from .intra_process import local_match_count
+
 OK = DiagnosticStatus.OK
 WARN = DiagnosticStatus.WARN
 ERROR = DiagnosticStatus.ERROR
@@ -146,12 +148,16 @@ class NodeDiagnostics:
         values = []
         for publisher in self._node.publishers:
             if publisher.topic_name not in _NOT_COUNTED:
+                count = (publisher.get_subscription_count()
+                         + local_match_count(self._node, 'subscriptions', publisher.topic_name))
                 values.append(KeyValue(key=f'matched subscriptions {publisher.topic_name}',
-                                       value=str(publisher.get_subscription_count())))
+                                       value=str(count)))
         for subscription in self._node.subscriptions:
             if subscription.topic_name not in _NOT_COUNTED:
+                count = (subscription.get_publisher_count()
+                         + local_match_count(self._node, 'publishers', subscription.topic_name))
                 values.append(KeyValue(key=f'matched publishers {subscription.topic_name}',
-                                       value=str(subscription.get_publisher_count())))
+                                       value=str(count)))
         return values
 
     def publish(self) -> None:

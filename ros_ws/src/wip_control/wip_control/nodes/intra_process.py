@@ -12,13 +12,21 @@ measured with py-spy: half the process's samples), against a few for a Python ca
 Rules (what stays observable):
 
 - **Outside subscribers see every message.** A publisher asks DDS how many subscriptions
-  it matches (``get_subscription_count``, ~2 us). If that is more than the subscriptions
-  of this process on the topic, someone outside listens (the plant, a recorder, a viewer,
-  a user's ``ros2 topic echo``): the message is published to DDS exactly as without this
-  module, and the local subscriptions receive it from DDS too (one path per message, so
-  nothing is delivered twice). Otherwise it goes to the local subscriptions alone. In a
+  it matches (``get_subscription_count``, ~2 us). When the process's DDS participant
+  matches its own endpoints (Fast DDS's default), that count includes the subscriptions of
+  this process: if it is more than they, someone outside listens (the plant, a recorder, a
+  viewer, a user's ``ros2 topic echo``), the message is published to DDS exactly as without
+  this module, and the local subscriptions receive it from DDS too (one path per message,
+  so nothing is delivered twice). Otherwise it goes to the local subscriptions alone. In a
   composed process a volatile publisher whose topic no one subscribes publishes nothing
   (DDS would deliver it to no one either: the effort command in simulation).
+- **A participant that ignores its own endpoints** (Fast DDS's participant property
+  ``fastdds.ignore_local_endpoints``, which run_graph's DDS profile sets; the bus's
+  ``dds_ignores_local``) never delivers a message of this process to this process: the
+  count is then of outside subscriptions alone, and a message goes to DDS when someone
+  outside listens **and** to the local subscriptions through the bus, always. A recorder
+  or a viewer then costs the composed process one DDS write per message, not a DDS write
+  plus a take and a deserialisation per local subscription.
 - **Order.** Local deliveries go through one FIFO queue that the process's spin loop
   drains after every ``spin_once`` (:meth:`IntraProcessBus.drain`), so a callback never
   runs inside another (no re-entrance into a node's input synchronisation) and messages
@@ -70,6 +78,17 @@ class IntraProcessPublisher:
     def __getattr__(self, name: str):
         return getattr(self.publisher, name)
 
+    def get_subscription_count(self) -> int:
+        """Subscriptions this publisher reaches: DDS's matches, and the bus's.
+
+        Where DDS ignores the process's own endpoints, the local subscriptions are not among
+        its matches, yet they receive every message (through the bus).
+        """
+        count = self.publisher.get_subscription_count()
+        if self._bus is not None and self._bus.dds_ignores_local:
+            count += len(self._local)
+        return count
+
     @property
     def local_subscriptions(self) -> int:
         """Subscriptions of this process that receive this publisher's messages locally."""
@@ -87,7 +106,13 @@ class IntraProcessPublisher:
             return
         matched = self.publisher.get_subscription_count()
         local = self._local
-        if matched > len(local):             # someone outside: DDS, for everyone
+        if bus.dds_ignores_local:            # DDS: outside alone; the bus: this process
+            if matched or not (local or self.skip_unmatched):
+                self.publisher.publish(msg)
+                bus.published_dds += 1
+            if local:
+                bus.post(local, msg)
+        elif matched > len(local):           # someone outside: DDS, for everyone
             self.publisher.publish(msg)
             bus.published_dds += 1
         elif local:
@@ -96,10 +121,23 @@ class IntraProcessPublisher:
             self.publisher.publish(msg)
 
 
+def local_match_count(node: Any, kind: str, topic: str) -> int:
+    """Local endpoints a node's endpoint on ``topic`` reaches through the bus, not DDS.
+
+    ``kind`` is 'subscriptions' (of a publisher) or 'publishers' (of a subscription). They
+    are counted (``node.local_matches``) where DDS ignores the process's own endpoints; else
+    DDS matches them and this is 0.
+    """
+    return getattr(node, 'local_matches', {}).get((kind, topic), 0)
+
+
 class IntraProcessBus:
     """The local subscriptions of one process by topic, and the queue of deliveries."""
 
-    def __init__(self, on_error: Callable[[str, BaseException], None] | None = None) -> None:
+    def __init__(self, on_error: Callable[[str, BaseException], None] | None = None,
+                 dds_ignores_local: bool = False) -> None:
+        #: The process's DDS participant does not match its own endpoints (see the rules).
+        self.dds_ignores_local = dds_ignores_local
         #: topic -> [(message type, callback)]
         self.subscriptions: dict[str, list[tuple[type, Callback]]] = (
             collections.defaultdict(list))

@@ -199,9 +199,12 @@ class TorqueMixerNode(ControllerNode):
             'left_wheel_sign': int(self.left_sign), 'right_wheel_sign': int(self.right_sign),
             'imu_mounting_rpy': tuple(mounting)})
         self._last_wheels: tuple[float, float, float] | None = None   # (t, φl, φr)
-        self.create_subscription(JointState, 'joint_states', self._on_joint_states,
-                                 SENSOR_QOS)
-        self.create_subscription(Imu, 'imu/data', self._on_imu, SENSOR_QOS)
+        # Also taken from the plant of the same process (the single layout).
+        joints = self.create_subscription(JointState, 'joint_states', self._on_joint_states,
+                                          SENSOR_QOS)
+        self.add_intra_subscription(JointState, joints, self._on_joint_states)
+        imu = self.create_subscription(Imu, 'imu/data', self._on_imu, SENSOR_QOS)
+        self.add_intra_subscription(Imu, imu, self._on_imu)
 
     def _on_joint_states(self, msg: JointState) -> None:
         """Wheel rates as configured.

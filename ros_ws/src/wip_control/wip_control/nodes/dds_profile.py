@@ -1,0 +1,64 @@
+"""Whether this process's DDS participant matches its own endpoints (no rclpy import).
+
+Fast DDS matches the readers and writers of one participant (one per process and context
+under rmw_fastrtps) unless its participant property ``fastdds.ignore_local_endpoints`` is
+true. The intra-process bus must know which: with the property, DDS never delivers a
+message of this process to this process, so the bus delivers every local one
+(:mod:`.intra_process`). The property comes from the XML profiles file that Fast DDS reads
+at start-up (``FASTRTPS_DEFAULT_PROFILES_FILE``, else ``FASTDDS_DEFAULT_PROFILES_FILE``):
+its default participant profile.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Mapping
+import xml.etree.ElementTree as ElementTree
+
+IGNORE_LOCAL_PROPERTY = 'fastdds.ignore_local_endpoints'
+PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
+FAST_DDS_RMWS = ('rmw_fastrtps_cpp', 'rmw_fastrtps_dynamic_cpp')
+
+
+def _local_name(tag: str) -> str:
+    return tag.rsplit('}', 1)[-1]
+
+
+def profile_ignores_local_endpoints(text: str) -> bool:
+    """Return True if the default participant profile of ``text`` ignores local endpoints.
+
+    ``text`` is a Fast DDS XML profiles document; an unreadable one counts as not setting
+    the property (Fast DDS would not apply it either).
+    """
+    try:
+        root = ElementTree.fromstring(text)
+    except ElementTree.ParseError:
+        return False
+    for participant in root.iter():
+        if (_local_name(participant.tag) != 'participant'
+                or participant.get('is_default_profile', '').lower() != 'true'):
+            continue
+        for prop in participant.iter():
+            if _local_name(prop.tag) != 'property':
+                continue
+            fields = {_local_name(child.tag): (child.text or '').strip() for child in prop}
+            if fields.get('name') == IGNORE_LOCAL_PROPERTY:
+                # Fast DDS takes 'true' and 'false' only; another value is an error to it,
+                # and the endpoints match.
+                return fields.get('value') == 'true'
+    return False
+
+
+def process_ignores_local_endpoints(rmw_identifier: str,
+                                    environ: Mapping[str, str] = os.environ) -> bool:
+    """Return True if the participant of a process with ``environ`` ignores its endpoints."""
+    if rmw_identifier not in FAST_DDS_RMWS:
+        return False
+    path = next((environ[name] for name in PROFILE_VARIABLES if environ.get(name)), None)
+    if path is None:
+        return False
+    try:
+        with open(path, encoding='utf-8') as stream:
+            return profile_ignores_local_endpoints(stream.read())
+    except OSError:
+        return False
