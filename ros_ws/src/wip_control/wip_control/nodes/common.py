@@ -442,17 +442,29 @@ def compose(executor, factories: Sequence[Callable[[], Node]],
     return bus
 
 
+#: Intra-process deliveries between two turns of the executor: about one control tick of
+#: the single layout (some 20 deliveries), so a message from another process (cmd_vel, an
+#: e-stop, a service call) waits at most about a tick (docs/decisions/recording-speed.md).
+DRAIN_BATCH = 20
+
+
 def spin_composed(executor, node: Node, bus: IntraProcessBus | None,
                   running: Callable[[], bool]) -> None:
     """Spin while the context is up and ``running()``.
 
     Spin (:func:`spin_once_guarded`, errors reported by ``node``) while the context is
-    up and ``running()``; after each spin_once, deliver the intra-process messages.
+    up and ``running()``; after each spin_once, deliver up to :data:`DRAIN_BATCH`
+    intra-process messages (:meth:`~.intra_process.IntraProcessBus.drain`): a lockstep loop
+    closed within the process still lets the executor serve other processes' messages.
     """
-    drain = bus.drain if bus is not None else (lambda: 0)
+    if bus is None:
+        while rclpy.ok() and running():
+            spin_once_guarded(executor, node)
+        return
     while rclpy.ok() and running():
-        spin_once_guarded(executor, node)
-        drain()
+        # Messages waiting on the bus: take what the executor has ready, without waiting.
+        spin_once_guarded(executor, node, 0.0 if bus.pending else SPIN_TIMEOUT)
+        bus.drain(DRAIN_BATCH)
 
 
 def connect_intra_process(nodes: Sequence[Node]) -> IntraProcessBus | None:

@@ -170,11 +170,19 @@ class IntraProcessBus:
     def pending(self) -> int:
         return len(self._queue)
 
-    def drain(self) -> int:
-        """Deliver every queued message (and those the callbacks publish); how many."""
+    def drain(self, limit: int | None = None) -> int:
+        """Deliver the queued messages, and those the callbacks publish meanwhile; how many.
+
+        At most ``limit`` of them when given: a loop closed within the process (the plant
+        and the controllers of the single layout) would otherwise never return to the
+        executor, and messages from other processes, services and timers would wait for
+        the end of the run.
+        """
         queue = self._queue
         count = 0
-        while queue:
+        left = -1 if limit is None else limit
+        while queue and left != 0:
+            left -= 1
             callbacks, msg = queue.popleft()
             count += 1
             for callback in callbacks:
