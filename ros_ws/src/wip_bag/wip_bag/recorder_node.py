@@ -55,10 +55,10 @@ Behaviour
 - Callbacks only queue ``(topic, bytes, time)``; a writer thread writes the bag, so a
   compressing chunk write never delays the executor. Nothing received is dropped.
 - SIGINT, SIGTERM, SIGHUP (and the launcher's death, which the kernel turns into SIGINT:
-  ``wip_control.nodes.launched``): after the launcher's death the recorder first takes
-  what the graph already sent (it spins on until nothing has arrived for
-  :data:`STOP_QUIET` s, at most :data:`STOP_DRAIN` s; a second signal cuts this short; a
-  live launcher drains it itself before it stops it), then the subscriptions stop,
+  ``wip_control.nodes.launched``): a recorder that a launcher started first takes what
+  the graph already sent (it spins on until nothing has arrived for :data:`STOP_QUIET` s,
+  at most :data:`STOP_DRAIN` s; a second signal, such as the live launcher's own stop
+  after a Ctrl-C, cuts this short); one run by hand stops at once. Then the subscriptions stop,
   the queue is drained and the bag is closed (MCAP summary and ``metadata.yaml``
   written). The signals only set a flag (rclpy's own handler is off): no
   KeyboardInterrupt can land inside the close and leave the bag unfinished, whatever
@@ -101,7 +101,7 @@ from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
                        QoSReliabilityPolicy)
 from rclpy.signals import SignalHandlerOptions
 
-from wip_control.nodes.launched import end_with_launcher, LAUNCHER_PID_VARIABLE
+from wip_control.nodes.launched import end_with_launcher
 from wip_control.nodes.common import init_rclpy
 from wip_control.nodes.parameters import ConfigParameters
 from wip_control.tools.cli import answer_node_help
@@ -120,10 +120,12 @@ SUBSCRIPTION_DEPTH = 20000
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
 SPIN_TIMEOUT = 0.1  # [s] of one spin_once; bounds the reaction time to a shutdown
 _STOP = object()  # Sentinel that ends the writer thread.
-#: After the launcher's death [s, wall]: the recorder keeps receiving until nothing has
-#: arrived for STOP_QUIET, at most STOP_DRAIN. Every node gets its signal at once then, and
-#: the recorder may still be behind the publishers (seconds on a loaded machine); a live
-#: launcher drains it before it stops it, and a recorder run by hand stops at once.
+#: After a stop signal to a recorder that a launcher started [s, wall]: it keeps receiving
+#: until nothing has arrived for STOP_QUIET, at most STOP_DRAIN. At the launcher's death or a
+#: Ctrl-C every node gets its signal at once, and the recorder may still be behind the
+#: publishers (seconds on a loaded machine); a live launcher stops it last, when nothing is
+#: left to arrive (STOP_QUIET then costs the stop half a second). A recorder run by hand
+#: stops at once.
 STOP_QUIET = 0.5
 STOP_DRAIN = 30.0
 #: Free space [bytes] kept for the MCAP summary, metadata.yaml and the run's last files.
@@ -493,8 +495,8 @@ class StopSignals:
         self.count += 1
 
 
-def spin(node, executor, stop=None):
-    """Spin until a stop signal, then drain.
+def spin(node, executor, stop=None, launched=False):
+    """Spin until a stop signal, then, if ``launched`` (by a wip launcher), drain.
 
     Spin with a timeout (the EventsExecutor's spin() ignores SIGINT, ros-from-pip.md)
     until a stop signal, then :func:`drain`.
@@ -502,14 +504,12 @@ def spin(node, executor, stop=None):
     executor.add_node(node)
     while rclpy.ok(context=node.context) and not (stop and stop.count):
         executor.spin_once(timeout_sec=SPIN_TIMEOUT)
-    if stop is not None and launcher_gone():
+    # Not only after the launcher's death: whether it is gone cannot be told at once. The
+    # kernel sends the death signal when the thread that started this process exits, and
+    # hands the process to another thread of the dying launcher, so getppid() still names
+    # the launcher then (seen: the recorder stopped at once and lost the plant's last ticks).
+    if stop is not None and launched:
         drain(node, executor, stop)
-
-
-def launcher_gone():
-    """Return True if this process was started by a wip launcher that has died since."""
-    value = os.environ.get(LAUNCHER_PID_VARIABLE, '')
-    return value.isdigit() and int(value) > 1 and os.getppid() != int(value)
 
 
 def drain(node, executor, stop, quiet=STOP_QUIET, longest=STOP_DRAIN):
@@ -530,7 +530,7 @@ def main(args=None):
     """Entry point ``recorder`` (``ros2 run wip_bag recorder --ros-args -p output:=...``)."""
     if answer_node_help('recorder', 'wip_bag', args):
         return 0
-    end_with_launcher()
+    launched = end_with_launcher()
     # Our own handlers (stop_signals): rclpy's would shut the context down and raise
     # KeyboardInterrupt wherever the main thread is, also inside the bag's close.
     if not init_rclpy('recorder', args, SignalHandlerOptions.NO):
@@ -542,7 +542,7 @@ def main(args=None):
         node = RecorderNode()
         executor = make_executor()
         node.get_logger().debug(f'executor: {type(executor).__name__}')
-        spin(node, executor, stop)
+        spin(node, executor, stop, launched)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (BagExistsError, RecorderStartError, ValueError) as err:

@@ -550,6 +550,8 @@ def share_sim_clock(nodes: Sequence[Node]) -> Node | None:
 #: [s] a simulator that ends by itself waits this long at most for its readers'
 #: acknowledgements (:func:`wait_for_acknowledgements`).
 ACK_TIMEOUT = 10.0
+#: [s] the same wait after a stop signal: shorter, since whoever stops the run waits for it.
+STOP_ACK_TIMEOUT = 3.0
 
 
 def wait_for_acknowledgements(nodes: Sequence[Node], timeout: float = ACK_TIMEOUT
@@ -623,6 +625,10 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
             if on_end is not None:
                 on_end(node)
             node.unacknowledged_topics = wait_for_acknowledgements(built)
+        elif _stop_signal:
+            # Stopped by a signal (run_graph's stop, or the launcher's death): what a reader
+            # (the recorder, still draining) has not acknowledged would die with this process.
+            node.unacknowledged_topics = wait_for_acknowledgements(built, STOP_ACK_TIMEOUT)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ConfigError, ParameterException) as err:
