@@ -37,10 +37,11 @@ def child_environment():
 class Tool:
     """A tool process (``python -m wip_bag.<module> ...``) and its /diagnostics status."""
 
-    def __init__(self, node, module, args, status_prefix, preexec_fn=None):
+    def __init__(self, node, module, args, status_prefix, preexec_fn=None, env=None):
         self.node = node
         self.process = subprocess.Popen(
-            [sys.executable, '-m', f'wip_bag.{module}', *args], env=child_environment(),
+            [sys.executable, '-m', f'wip_bag.{module}', *args],
+            env={**child_environment(), **(env or {})},
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
             preexec_fn=preexec_fn)
         self.status_prefix = status_prefix
@@ -87,18 +88,18 @@ def spin_until(node, condition, timeout, what, process=None):
     ros_harness.spin_until(node.executor_for_test, condition, what, timeout, process=process)
 
 
-def start_recorder(node, bag, topics=None, *params, preexec_fn=None):
+def start_recorder(node, bag, topics=None, *params, preexec_fn=None, env=None):
     """Start the recorder process recording ``topics`` into ``bag``.
 
     The recorder process recording ``topics`` (None: every topic) into ``bag``, with
-    the parameters ``params`` ('name:=value').
+    the parameters ``params`` ('name:=value') and ``env`` added to its environment.
     """
     args = ['--ros-args', '-p', f'output:={bag}', '-p', 'discovery_period:=0.1']
     if topics is not None:
         args += ['-p', f'topics:=[{", ".join(topics)}]']
     for param in params:
         args += ['-p', param]
-    return Tool(node, 'recorder_node', args, '/recorder', preexec_fn)
+    return Tool(node, 'recorder_node', args, '/recorder', preexec_fn, env)
 
 
 def assert_metadata_matches_content(directory):

@@ -22,6 +22,8 @@ from bagtools_helpers import (assert_metadata_matches_content, DISCOVERY_TIMEOUT
 from wip_bag.bag_info import bag_information
 from wip_bag.bag_reader import read_bag
 from wip_bag.bag_repair import mcap_files_by_index, read_file_contents, repair_bag
+from wip_bag.recorder_node import STOP_DRAIN
+from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
 
 pytestmark = pytest.mark.ros
 
@@ -187,3 +189,28 @@ def test_split_by_size_while_recording_then_sigterm(test_node, tools, tmp_path):
     bag_info = bag_information(bag)
     assert bag_info['problems'] == []
     assert {t['name']: t['count'] for t in bag_info['topics']} == {topic: n}
+
+
+def test_launched_recorder_stopped_by_its_live_launcher_closes_while_messages_keep_coming(
+        test_node, tools, tmp_path):
+    # A launcher that is alive stops its recorder with SIGTERM once it has drained it; a
+    # base of a real robot goes on publishing. The recorder must close at once, not wait
+    # for the topics to fall quiet (they never do) until the drain's 30 s bound.
+    bag = tmp_path / 'launched'
+    topic = f'/robust_{os.getpid()}/launched'
+    recorder = start_recorder(test_node, bag, [topic],
+                              env={LAUNCHER_PID_VARIABLE: str(os.getpid())})
+    tools.append(recorder)
+    publisher = test_node.create_publisher(String, topic, QoSProfile(depth=1000))
+    recorder.spin_until(lambda: publisher.get_subscription_count() >= 1, DISCOVERY_TIMEOUT,
+                        'the recorder to subscribe')
+    k = _publish_for(test_node, publisher, SPLIT_TIMEOUT, 0,
+                     stop=lambda: recorder.counts.get(topic, 0) >= 100)
+    recorder.process.send_signal(signal.SIGTERM)
+    k = _publish_for(test_node, publisher, STOP_DRAIN - 10.0, k,
+                     stop=lambda: recorder.process.poll() is not None)
+    assert recorder.process.poll() is not None, (
+        f'still recording {STOP_DRAIN - 10.0:g} s after SIGTERM while messages kept coming')
+    assert 'closed' in recorder.wait(10.0)
+    received = [int(m.message.data) for m in read_bag(bag)]
+    assert received == list(range(len(received))) and 100 <= len(received) <= k

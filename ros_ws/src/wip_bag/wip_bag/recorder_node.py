@@ -55,10 +55,11 @@ Behaviour
 - Callbacks only queue ``(topic, bytes, time)``; a writer thread writes the bag, so a
   compressing chunk write never delays the executor. Nothing received is dropped.
 - SIGINT, SIGTERM, SIGHUP (and the launcher's death, which the kernel turns into SIGINT:
-  ``wip_control.nodes.launched``): a recorder that a launcher started first takes what
-  the graph already sent (it spins on until nothing has arrived for :data:`STOP_QUIET` s,
-  at most :data:`STOP_DRAIN` s; a second signal, such as the live launcher's own stop
-  after a Ctrl-C, cuts this short); one run by hand stops at once. Then the subscriptions stop,
+  ``wip_control.nodes.launched``): at a SIGINT a recorder that a launcher started first
+  takes what the graph already sent (it spins on until nothing has arrived for
+  :data:`STOP_QUIET` s, at most :data:`STOP_DRAIN` s; a second signal cuts this short); a
+  live launcher drains it itself and stops it with SIGTERM, and a recorder run by hand
+  stops at once. Then the subscriptions stop,
   the queue is drained and the bag is closed (MCAP summary and ``metadata.yaml``
   written). The signals only set a flag (rclpy's own handler is off): no
   KeyboardInterrupt can land inside the close and leave the bag unfinished, whatever
@@ -84,6 +85,7 @@ Behaviour
 """
 
 import datetime
+import math
 import os
 import queue
 import signal
@@ -120,12 +122,11 @@ SUBSCRIPTION_DEPTH = 20000
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
 SPIN_TIMEOUT = 0.1  # [s] of one spin_once; bounds the reaction time to a shutdown
 _STOP = object()  # Sentinel that ends the writer thread.
-#: After a stop signal to a recorder that a launcher started [s, wall]: it keeps receiving
-#: until nothing has arrived for STOP_QUIET, at most STOP_DRAIN. At the launcher's death or a
-#: Ctrl-C every node gets its signal at once, and the recorder may still be behind the
-#: publishers (seconds on a loaded machine); a live launcher stops it last, when nothing is
-#: left to arrive (STOP_QUIET then costs the stop half a second). A recorder run by hand
-#: stops at once.
+#: After a SIGINT to a recorder that a launcher started [s, wall]: it keeps receiving until
+#: nothing has arrived for STOP_QUIET, at most STOP_DRAIN. At the launcher's death every node
+#: gets its signal at once, and the recorder may still be behind the publishers (seconds on
+#: a loaded machine). A live launcher drains it before it stops it (SIGTERM: at once), and a
+#: recorder run by hand stops at once.
 STOP_QUIET = 0.5
 STOP_DRAIN = 30.0
 #: Free space [bytes] kept for the MCAP summary, metadata.yaml and the run's last files.
@@ -488,42 +489,52 @@ class StopSignals:
 
     def __init__(self):
         self.count = 0
+        self.first: int | None = None   # the first signal's number
         for number in STOP_SIGNALS:
             signal.signal(number, self._on_signal)
 
     def _on_signal(self, number, frame):
+        if not self.count:
+            self.first = number
         self.count += 1
 
 
 def spin(node, executor, stop=None, launched=False):
-    """Spin until a stop signal, then, if ``launched`` (by a wip launcher), drain.
+    """Spin until a stop signal; then :func:`drain` if it was a launched recorder's SIGINT.
 
-    Spin with a timeout (the EventsExecutor's spin() ignores SIGINT, ros-from-pip.md)
-    until a stop signal, then :func:`drain`.
+    Spin with a timeout (the EventsExecutor's spin() ignores SIGINT, ros-from-pip.md).
+    ``launched``: started by a wip launcher, which stops it with SIGTERM once it has drained
+    it; a SIGINT then means that the launcher died (the kernel's death signal) or someone
+    else stops the run, and what the graph already sent is still coming.
     """
     executor.add_node(node)
     while rclpy.ok(context=node.context) and not (stop and stop.count):
         executor.spin_once(timeout_sec=SPIN_TIMEOUT)
-    # Not only after the launcher's death: whether it is gone cannot be told at once. The
-    # kernel sends the death signal when the thread that started this process exits, and
-    # hands the process to another thread of the dying launcher, so getppid() still names
-    # the launcher then (seen: the recorder stopped at once and lost the plant's last ticks).
-    if stop is not None and launched:
+    # The signal, not getppid(), tells the launcher's death: the kernel sends the death
+    # signal when the thread that started this process exits, and first hands the process
+    # to another thread of the dying launcher, so getppid() still names the launcher then
+    # (seen: the recorder stopped at once and lost the plant's last ticks).
+    if stop is not None and launched and stop.first == signal.SIGINT:
         drain(node, executor, stop)
 
 
 def drain(node, executor, stop, quiet=STOP_QUIET, longest=STOP_DRAIN):
     """Receive what is still coming after the first stop signal.
 
-    After the first stop signal: receive until nothing arrived for ``quiet`` [s], at
-    most ``longest`` [s], or until a second signal.
+    Receive until nothing arrived for ``quiet`` [s], at most ``longest`` [s], or until a
+    second signal. Quiet means spins that waited without a message, not wall time since
+    the last one: a recorder descheduled for longer than ``quiet`` on a loaded machine
+    finds the messages that came meanwhile at its next spin.
     """
     started = time.monotonic()
-    node.last_received = max(node.last_received, started)
-    while (rclpy.ok(context=node.context) and stop.count < 2
-           and time.monotonic() - node.last_received < quiet
+    timeout = min(SPIN_TIMEOUT, quiet)
+    empty_needed = max(1, math.ceil(quiet / timeout - 1e-9))
+    empty = 0
+    while (rclpy.ok(context=node.context) and stop.count < 2 and empty < empty_needed
            and time.monotonic() - started < longest):
-        executor.spin_once(timeout_sec=min(SPIN_TIMEOUT, quiet))
+        before = node.last_received
+        executor.spin_once(timeout_sec=timeout)
+        empty = empty + 1 if node.last_received == before else 0
 
 
 def main(args=None):

@@ -332,7 +332,7 @@ class GraphRunner(RunnerBase):
         plant_stats.json after its spin loop ended, leaving the file empty (seen after a stop
         mid-run).
         """
-        return signal.SIGTERM if name == self.plant_process else signal.SIGINT
+        return signal.SIGTERM if name == self.plant_process else super().stop_signal(name)
 
     def nodes_stopped(self) -> None:
         if self.drain_at_stop and self.probe is not None:

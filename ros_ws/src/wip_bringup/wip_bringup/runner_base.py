@@ -371,8 +371,13 @@ class RunnerBase:
         return name in self.controller_processes() or name == 'simulation'
 
     def stop_signal(self, name: str) -> int:
-        """Return the signal that stops the process ``name`` (hook; SIGINT, as Ctrl-C)."""
-        return signal.SIGINT
+        """Return the signal that stops the process ``name`` (hook; SIGINT, as Ctrl-C).
+
+        SIGTERM for the recorder: it stops at once, since this launcher has drained it. At
+        a SIGINT, which is what the kernel sends at this launcher's death, a launched
+        recorder first takes what is still coming (``wip_bag.recorder_node``).
+        """
+        return signal.SIGTERM if name == 'recorder' else signal.SIGINT
 
     def start_processes(self, params_file: pathlib.Path) -> None:
         env = graph_environment(self.domain_id, private=self.PRIVATE_NETWORK)
@@ -467,7 +472,7 @@ class RunnerBase:
         """Handle the stop of every process but the recorder (hook)."""
 
     def stop_all(self) -> None:
-        """SIGINT every process (recorder last), SIGKILL after the grace period."""
+        """Stop every process (:meth:`stop_signal`; the recorder last), SIGKILL after a grace."""
         others = [p for n, p in self.processes.items() if n != 'recorder']
         for process in others:  # All at once: they shut down in parallel.
             process.interrupt()

@@ -1,0 +1,124 @@
+"""When the recorder drains after a stop signal, and when its drain ends (no processes, no DDS).
+
+``wip_bag.recorder_node.spin`` and ``drain`` with a scripted executor and a simulated
+clock: which signals start a drain, that a drain waits for spins without a message (not
+for wall time, which a descheduled recorder loses), and that it ends at its bound while
+messages keep coming. The same behaviour end to end: ``test_recorder_robust.py`` (a live
+launcher's SIGTERM) and ``tests/wip_bringup/test_stop_signals.py`` (the launcher's death).
+"""
+
+import signal
+
+import pytest
+
+from wip_bag import recorder_node
+
+pytestmark = pytest.mark.ros
+
+
+class FakeClock:
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+
+class ScriptedExecutor:
+    """spin_once: a message while ``messages`` lasts, then nothing; the clock moves on."""
+
+    def __init__(self, node, clock, messages, seconds_per_spin, on_spin=None):
+        self.node, self.clock = node, clock
+        self.messages = messages
+        self.seconds_per_spin = seconds_per_spin
+        self.on_spin = on_spin
+        self.spins = 0
+
+    def add_node(self, node):
+        pass
+
+    def spin_once(self, timeout_sec=None):
+        self.spins += 1
+        self.clock.now += self.seconds_per_spin
+        if self.on_spin is not None:
+            self.on_spin(self.spins)
+        if self.messages is None or self.messages > 0:   # None: they never stop
+            if self.messages is not None:
+                self.messages -= 1
+            self.node.last_received = self.clock.now
+
+
+class FakeNode:
+    context = None
+
+    def __init__(self):
+        self.last_received = 0.0
+
+
+class Signals:
+    """What :class:`recorder_node.StopSignals` records, without installing handlers."""
+
+    def __init__(self):
+        self.count = 0
+        self.first = None
+
+    def receive(self, number):
+        recorder_node.StopSignals._on_signal(self, number, None)
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    fake = FakeClock()
+    monkeypatch.setattr(recorder_node.time, 'monotonic', fake)
+    monkeypatch.setattr(recorder_node.rclpy, 'ok', lambda context=None: True)
+    return fake
+
+
+@pytest.mark.parametrize('launched, number, drains', [
+    (True, signal.SIGINT, True),     # the kernel's signal at the launcher's death
+    (True, signal.SIGTERM, False),   # the live launcher's stop, after its own drain
+    (True, signal.SIGHUP, False),
+    (False, signal.SIGINT, False),   # run by hand: Ctrl-C stops at once
+    (False, signal.SIGTERM, False),
+])
+def test_only_a_launched_recorders_sigint_starts_a_drain(clock, launched, number, drains):
+    node, stop = FakeNode(), Signals()
+    # Messages keep coming for 20 spins; the signal arrives at the 3rd.
+    executor = ScriptedExecutor(node, clock, messages=20, seconds_per_spin=0.01,
+                                on_spin=lambda k: stop.receive(number) if k == 3 else None)
+    recorder_node.spin(node, executor, stop, launched)
+    assert stop.first == number
+    if drains:   # every message, then the quiet spins
+        empty = round(recorder_node.STOP_QUIET / recorder_node.SPIN_TIMEOUT)
+        assert executor.spins == 20 + empty
+    else:
+        assert executor.spins == 3
+
+
+def test_a_starved_drain_still_takes_what_came_meanwhile(clock):
+    # Each spin comes a second after the previous one (the recorder descheduled on a
+    # loaded machine), yet a message is waiting at each of the first 10: wall time since
+    # the last message always exceeds the quiet time, and the drain must go on regardless.
+    node, stop = FakeNode(), Signals()
+    stop.receive(signal.SIGINT)
+    executor = ScriptedExecutor(node, clock, messages=10, seconds_per_spin=1.0)
+    recorder_node.drain(node, executor, stop, quiet=0.5, longest=60.0)
+    assert executor.messages == 0
+    assert executor.spins == 10 + 5   # then five empty spins of 0.1 s
+
+
+def test_a_drain_ends_at_its_bound_when_messages_never_stop(clock):
+    node, stop = FakeNode(), Signals()
+    stop.receive(signal.SIGINT)
+    executor = ScriptedExecutor(node, clock, messages=None, seconds_per_spin=0.1)
+    recorder_node.drain(node, executor, stop, quiet=0.5, longest=30.0)
+    assert executor.spins == pytest.approx(300, abs=1)
+
+
+def test_a_second_signal_ends_a_drain(clock):
+    node, stop = FakeNode(), Signals()
+    stop.receive(signal.SIGINT)
+    executor = ScriptedExecutor(node, clock, messages=None, seconds_per_spin=0.1,
+                                on_spin=lambda k: stop.receive(signal.SIGINT) if k == 7 else None)
+    recorder_node.drain(node, executor, stop, quiet=0.5, longest=30.0)
+    assert executor.spins == 7 and stop.count == 2 and stop.first == signal.SIGINT
