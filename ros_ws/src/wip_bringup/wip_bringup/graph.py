@@ -809,9 +809,10 @@ def format_result(result: GraphResult) -> str:
     return '\n'.join(lines)
 
 
-#: The layout of a recorded lockstep run: the plant, the controllers and the recorder's
-#: topics in one process, whose own messages take the intra-process bus (docs/realtime.md:
-#: 6.6x real time recorded against 2.5x composed, the same topics and counts in the bag).
+#: The layout of a recorded lockstep run: the plant and the controllers in one process,
+#: whose own messages take the intra-process bus while DDS carries the recorder's copies;
+#: the bag holds the same topics and counts as the composed layout's
+#: (docs/decisions/recording-speed.md has the measurements).
 RECORDED_LOCKSTEP_LAYOUT = 'single'
 
 
