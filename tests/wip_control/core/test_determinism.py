@@ -157,3 +157,27 @@ def test_polish_is_reported_in_the_solver_stats():
     assert stats.polished + stats.rejected == 5
     assert stats.raw == stats.rejected - stats.exact
     assert json.dumps(stats.rejected_reasons)  # plain counts, printable
+
+
+def test_the_polish_solve_gives_numpy_solves_bits_and_nan_when_singular(monkeypatch,
+                                                                         recwarn):
+    # polish calls numpy's LAPACK gufunc directly (numpy.linalg.solve without its Python
+    # checks): the same bits as the public function, and NaN (which polish reports as a
+    # singular KKT matrix) instead of LinAlgError, without a warning.
+    from wip_control.core import qp
+    rng = np.random.default_rng(3)
+    for n in (1, 6, 27, 40):
+        a = rng.normal(size=(n, n)) + n * np.eye(n)
+        b = rng.normal(size=n)
+        assert qp._solve(a, b).tobytes() == np.linalg.solve(a, b).tobytes()
+        # A column selection by a boolean mask, as the polish builds its matrix.
+        wide = np.zeros((n, n + 3))
+        wide[:, :n] = a
+        sliced = wide[:, np.arange(n + 3) < n]
+        assert qp._solve(sliced, b).tobytes() == np.linalg.solve(a, b).tobytes()
+    singular = np.array([[1.0, 2.0], [2.0, 4.0]])
+    for gesv in (qp._gesv, None):   # the direct call, and the public function's fallback
+        monkeypatch.setattr(qp, '_gesv', gesv)
+        assert np.isnan(qp._solve(singular, np.ones(2))).all()
+        assert np.isnan(qp._solve(np.zeros((3, 3)), np.ones(3))).all()
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]

@@ -56,3 +56,50 @@ def test_the_record_does_not_depend_on_where_its_blocks_end(monkeypatch):
                 assert np.array_equal(blocked.groups[group][name], values,
                                       equal_nan=True), (group, name)
     assert len(whole['truth']['t']) == 121 and len(whole['mpc']['t']) == 6
+
+
+def test_each_tick_row_lands_in_its_groups_columns():
+    # The loop appends one wide row per tick; the record splits it into the groups of
+    # TICK_GROUPS. Every field of the tick's named tuples, each a distinct value, must
+    # come back in its own group and column.
+    from itertools import count
+    from wip_control.core.arc import ArcOutput
+    from wip_control.core.control_step import ControlOutputs
+    from wip_control.core.eso import StateEstimate
+    from wip_control.core.references import ReferenceState
+    from wip_control.core.state_estimation import PoseEstimate
+    from wip_control.core.trajectory_generator import VelocityCommand
+    from wip_sim.core import runner
+    from wip_sim.core.record import GROUPS
+    from wip_sim.core.simulation import SensorReading
+
+    values = count(1.0)
+
+    def fill(cls, n):
+        return cls(*(next(values) for _ in range(n)))
+
+    rec = runner._Recorder()
+    rows = []
+    for k in range(3):
+        t = 0.005 * k
+        reading = SensorReading((next(values), next(values)), None,
+                                (next(values), next(values)), (next(values), next(values)),
+                                False, None)
+        ref = fill(ReferenceState, 6)
+        pose = PoseEstimate(fill(StateEstimate, 10), next(values), next(values))
+        out = ControlOutputs(fill(VelocityCommand, 6), fill(ArcOutput, 3), None,
+                             next(values), next(values))
+        runner._record_tick(rec, t, reading, ref, pose, out)
+        rows.append(dict(
+            encoders=(t, *reading.encoders), imu=(t, *reading.imu, *reading.imu_rates),
+            reference=(t, *ref[:5]), estimate=(t, *pose.estimate[:9], pose.x, pose.y),
+            command=(t, *out.command), arc=(t, *out.arc),
+            wheels=(t, out.tau_left, out.tau_right)))
+    groups = rec.arrays()
+    assert tuple(groups) == runner.RECORDED_GROUPS
+    assert set(runner.TICK_GROUPS) | {'truth', 'mpc'} == set(runner.RECORDED_GROUPS)
+    for group in runner.TICK_GROUPS:
+        assert tuple(groups[group]) == GROUPS[group]
+        for k, row in enumerate(rows):
+            assert tuple(groups[group][name][k] for name in GROUPS[group]) == row[group]
+    assert len(groups['truth']['t']) == 0 and len(groups['mpc']['t']) == 0

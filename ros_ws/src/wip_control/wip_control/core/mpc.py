@@ -621,8 +621,8 @@ class LongitudinalMpc(PreviousTorque):
         self.last_solution = solution
         if solution.status == MpcStatus.SOLVED:
             plan = solution.z[:n_c].copy()
-            slack_v = float(np.max(solution.z[n_c:n_c + n_s]))
-            slack_theta = float(np.max(solution.z[n_c + n_s:n_c + 2 * n_s]))
+            slack_v = float(solution.z[n_c:n_c + n_s].max())
+            slack_theta = float(solution.z[n_c + n_s:n_c + 2 * n_s].max())
             used_fallback = False
         else:
             plan = self._shifted_plan()
@@ -720,7 +720,9 @@ class LongitudinalMpc(PreviousTorque):
             self._v_d_trend += gain * (rate - self._v_d_trend)
         self._v_d_last = v_d
         limit = cfg.max_speed
-        return np.clip(v_d + self._preview_ramp * self._v_d_trend, -limit, limit)
+        # (np.clip's Python wrapper costs more than the two ufuncs, same values, NaN too)
+        return np.minimum(np.maximum(v_d + self._preview_ramp * self._v_d_trend, -limit),
+                          limit)
 
     # ------------------------------------------------------------------ fallbacks
     def _shifted_plan(self) -> np.ndarray:

@@ -63,8 +63,9 @@ class RecordBuffer:
     #: (the conversion itself costs about the same per row).
     BLOCK_ROWS = 128
 
-    def __init__(self, group: str) -> None:
-        self.columns = GROUPS[group]
+    def __init__(self, group: str, columns: tuple[str, ...] | None = None) -> None:
+        """Rows of ``group``'s columns (:data:`GROUPS`), or of ``columns`` if given."""
+        self.columns = GROUPS[group] if columns is None else columns
         self._blocks: list[np.ndarray] = []
         self._rows: list[tuple] = []
 
@@ -97,10 +98,14 @@ class RecordBuffer:
     def __len__(self) -> int:
         return sum(len(b) for b in self._blocks) + len(self._rows)
 
-    def to_arrays(self) -> dict[str, np.ndarray]:
+    def to_matrix(self) -> np.ndarray:
+        """All rows as one (rows, columns) array."""
         self._flush()
-        data = (np.concatenate(self._blocks) if self._blocks
+        return (np.concatenate(self._blocks) if self._blocks
                 else np.empty((0, len(self.columns))))
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        data = self.to_matrix()
         return {name: data[:, i].copy() for i, name in enumerate(self.columns)}
 
 
