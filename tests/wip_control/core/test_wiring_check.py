@@ -70,7 +70,7 @@ def run(mistake=None, *, seconds=1.5, rest=0.5, noise=0.01, gyro_bias=0.05, push
             tau_v = 150.0 * pitch + 40.0 * pitch_rate
             tau_w = 20.0 * (yaw_rate_ref - gyro_yaw)
             tau_l, tau_r = 0.5 * (tau_v - tau_w), 0.5 * (tau_v + tau_w)
-        check.torque(t, tau_l + tau_r, engaged)
+        check.torque(t, tau_l + tau_r, engaged, tau_r - tau_l)
         # The real plant: what the wheels really get.
         phys_l, phys_r = tau_l, tau_r
         if mistake == 'right_sign':
@@ -167,3 +167,41 @@ def test_a_wiring_fault_zeroes_the_torque_at_once_is_latched_and_listed_first():
     ok, message = monitor.reset()
     assert ok and 'wiring: right_wheel_sign' in message
     assert monitor.update(4 * PERIOD).state in (STARTING, ACTIVE)
+
+
+def _open_loop(mistake, tau_v, tau_omega, seconds=0.3):
+    """Feed a check ``seconds`` of constant commanded torques on a base that yaws slowly.
+
+    The base's tilt follows eq. (1) with the drive torque it really gets; its yaw rate stays
+    at 0.1 rad/s (below min_yaw_rate: the yaw check has no excitation). Returns the verdict.
+    """
+    check = WiringCheck(WiringCheckConfig(), PARAMS, PERIOD, configured=CONFIGURED)
+    theta, theta_dot, yaw_rate = 0.0, 0.0, 0.1
+    tau_l, tau_r = 0.5 * (tau_v - tau_omega), 0.5 * (tau_v + tau_omega)
+    physical = {'left_sign': -tau_l + tau_r, 'imu_yaw_pi': tau_l + tau_r}[mistake]
+    for k in range(int(round(seconds / PERIOD))):
+        t = k * PERIOD
+        pitch, pitch_rate = theta, theta_dot
+        if mistake == 'imu_yaw_pi':
+            pitch, pitch_rate = -pitch, -pitch_rate
+        wheel = yaw_rate * PARAMS.track_width / (2.0 * PARAMS.wheel_radius)
+        check.wheels(t, -wheel if mistake != 'left_sign' else wheel, wheel)
+        verdict = check.imu(t, pitch, pitch_rate, yaw_rate)
+        if verdict is not None:
+            return verdict
+        check.torque(t, tau_l + tau_r, True, tau_r - tau_l)
+        terms = nominal_terms(PARAMS, theta, yaw_rate, theta_dot)
+        theta_dot += (terms.f3 + terms.g3 * physical) * PERIOD
+        theta += theta_dot * PERIOD
+    return None
+
+
+def test_a_wrong_wheel_sign_is_not_named_as_the_imu_mounting_before_the_yaw_check():
+    # One wheel mirrored: the base's drive torque is the commanded yaw torque. With
+    # τω = −0.8 τυ the pitch responds like −0.8 X, inside the tilt check's band, long
+    # before the slow yaw gives the yaw check its excitation: the tilt check must leave
+    # the verdict to it (±X' = ±∫ g3 τω dt explains the response, −X does not as well).
+    assert _open_loop('left_sign', tau_v=5.0, tau_omega=-4.0) is None
+    # The IMU turned by π with the same torques: the response is −X, and it is named.
+    verdict = _open_loop('imu_yaw_pi', tau_v=5.0, tau_omega=-4.0)
+    assert verdict is not None and verdict.parameter == MOUNTING, verdict

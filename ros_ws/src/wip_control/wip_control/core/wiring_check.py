@@ -28,9 +28,11 @@ after engaging
     Correct wiring: Y ≈ X (up to model error and disturbance); tilt sign wrong (IMU
     turned by π about z) or the drive mirrored (both wheels): Y ≈ −X, the controller
     then pushes the robot over. Verdict when |X| >= ``min_tilt_impulse`` and Y/X is
-    within [−1.5, −0.5] (−1 within 50 % model error) for ``hold`` seconds, and the yaw
-    check does not already see a wheel wrong (a wrong wheel sign also puts the yaw torque
-    into the drive, so the tilt contradicts too; the yaw check names the wheel).
+    within [−1.5, −0.5] (−1 within 50 % model error) for ``hold`` seconds, unless a
+    single wheel explains Y better: one wheel mirrored makes the base's drive torque the
+    commanded yaw torque (±τω), so Y ≈ ±X' with X' = ∫ g3 τω dt and Y/X is arbitrary;
+    while |Y ∓ X'| < |Y + X|, or while the yaw check already sees a wheel wrong, the
+    verdict is left to the yaw check, which names the wheel.
     The check runs only the first ``tilt_check_time`` after engaging: a hard push later
     (Y dominated by τd3) must not look like a wiring fault (thresholds and measurements:
     docs/decisions/wiring-checks.md).
@@ -154,9 +156,10 @@ class WiringCheck:
         self.wheel_rates: tuple[float, float] | None = None
         self.wheel_time = -math.inf
         self.tau_v = 0.0
+        self.tau_omega = 0.0
         self.engaged_at: float | None = None
         self.yaw = collections.deque(maxlen=self.window)     # (y, dw, sw) [rad/s]
-        self.tilt: tuple | None = None   # (t, pitch_rate0, Y, X, last t)
+        self.tilt: tuple | None = None   # (t, pitch_rate0, ∫fθ3, X, X', last t)
         self.since: dict[str, float] = {}   # check -> time its contradiction began
         # The margins seen (for /diagnostics): the last tilt ratio Y/X with enough
         # impulse, the largest relative yaw miss of the configured wheels with excitation.
@@ -177,13 +180,16 @@ class WiringCheck:
             self.wheel_rates = (float(left_rate), float(right_rate))
             self.wheel_time = float(t)
 
-    def torque(self, t: float, tau_v: float, engaged: bool) -> None:
-        """Take the drive torque τυ = τl + τr [N m] sent to the base now.
+    def torque(self, t: float, tau_v: float, engaged: bool, tau_omega: float = 0.0) -> None:
+        """Take the torques sent to the base now.
 
-        The drive torque τυ = τl + τr [N m] sent to the base now; ``engaged``: torque is
-        being sent (the safety layer ACTIVE or DEGRADED, not shadow mode).
+        The drive torque τυ = τl + τr and the yaw torque τω = τr − τl [N m] sent to the
+        base now; ``engaged``: torque is being sent (the safety layer ACTIVE or DEGRADED,
+        not shadow mode).
         """
-        self.tau_v = float(tau_v) if (engaged and math.isfinite(tau_v)) else 0.0
+        sent = engaged and math.isfinite(tau_v + tau_omega)
+        self.tau_v = float(tau_v) if sent else 0.0
+        self.tau_omega = float(tau_omega) if sent else 0.0
         if engaged and self.engaged_at is None:
             self.engaged_at = float(t)
         elif not engaged:
@@ -287,22 +293,29 @@ class WiringCheck:
         except (OverflowError, ValueError, ZeroDivisionError):
             return None     # rates beyond any physical value: the ESO checks report them
         if self.tilt is None:
-            self.tilt = (t, pitch_rate, 0.0, 0.0, t)
+            self.tilt = (t, pitch_rate, 0.0, 0.0, 0.0, t)
             return None
-        t0, rate0, drift, impulse, last = self.tilt
+        t0, rate0, drift, impulse, yaw_impulse, last = self.tilt
         dt = min(max(0.0, t - last), _MAX_STEP)
         # Rectangle rule with the torque held since the last sample: what the base got.
         drift += terms.f3 * dt
         impulse += terms.g3 * self.tau_v * dt
-        self.tilt = (t0, rate0, drift, impulse, t)
+        yaw_impulse += terms.g3 * self.tau_omega * dt
+        self.tilt = (t0, rate0, drift, impulse, yaw_impulse, t)
         if abs(impulse) < cfg.min_tilt_impulse:
             return None
         response = (pitch_rate - rate0) - drift
         ratio = response / impulse
         self.tilt_ratio = ratio
-        if not _TILT_BAND[0] <= ratio <= _TILT_BAND[1] or self._yaw_contradicted():
-            # (A wheel sign wrong also leaks the yaw torque into the drive: the tilt then
-            # contradicts too, but the yaw check names the wheel; wait for it.)
+        if not _TILT_BAND[0] <= ratio <= _TILT_BAND[1]:
+            return None
+        # One wheel sign wrong turns the yaw torque into the base's drive torque: the tilt
+        # then contradicts too, with Y ≈ ±X' instead of −X. If that explains Y better, or
+        # the yaw check already sees the wheels miss the gyro, the yaw check names the
+        # wheel; wait for it (docs/decisions/wiring-checks.md).
+        mirrored_drive = abs(response + impulse)
+        one_wheel = min(abs(response - yaw_impulse), abs(response + yaw_impulse))
+        if one_wheel < mirrored_drive or self._yaw_contradicted():
             return None
         mount = self.configured.get('imu_mounting_rpy')
         change = ''

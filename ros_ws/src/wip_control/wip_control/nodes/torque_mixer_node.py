@@ -388,7 +388,7 @@ class TorqueMixerNode(ControllerNode):
         if self.wiring_check is not None:
             tau_l, tau_r = decision.command
             self.wiring_check.torque(self.monitor_time(), tau_l + tau_r,
-                                     decision.state in (ACTIVE, DEGRADED))
+                                     decision.state in (ACTIVE, DEGRADED), tau_r - tau_l)
         previous = self.last_decision
         self.last_decision = decision
         self._report(decision)
