@@ -342,6 +342,24 @@ class GraphRunner(RunnerBase):
     def extra_processes(self) -> list[str]:
         return [self.plant_process]
 
+    def view_processes(self) -> list[str]:
+        """Leave the viewer out in the single layout: the simulation process holds it.
+
+        (``--with-viewer``.) Its 200 Hz inputs then come from the intra-process bus
+        instead of a process of its own taking them from DDS, which held a recorded run's
+        second core (docs/decisions/recording-speed.md).
+        """
+        processes = super().view_processes()
+        if self.options.layout == 'single':
+            processes = [name for name in processes if name != 'viewer']
+        return processes
+
+    def program_arguments(self, name: str) -> list[str]:
+        if name == 'simulation' and self.options.viewer:
+            from wip_sim.simulation import WITH_VIEWER
+            return [WITH_VIEWER]
+        return []
+
     # -- set-up ---------------------------------------------------------------------------
     def prepare(self) -> pathlib.Path:
         """Scenario, run directory, params file; returns the params file."""

@@ -326,6 +326,14 @@ class RunnerBase:
         return ((['viewer'] if self.options.viewer else [])
                 + (['foxglove_bridge'] if self.options.foxglove_port is not None else []))
 
+    def view_processes(self) -> list[str]:
+        """Return the processes of :meth:`view_nodes` (hook: a runner may compose one)."""
+        return self.view_nodes()
+
+    def program_arguments(self, name: str) -> list[str]:
+        """Return arguments of the process ``name`` before ``--ros-args`` (hook)."""
+        return []
+
     def node_names(self) -> list[str]:
         """Return the ROS nodes of the run (whatever the processes that hold them)."""
         return (list(CONTROLLER_NODES) + list(self.EXTRA_PROCESSES)
@@ -346,12 +354,13 @@ class RunnerBase:
         not miss the start).
         """
         names = ((['recorder'] if self.bag is not None else []) + self.controller_processes()
-                 + self.extra_processes() + self.view_nodes())
+                 + self.extra_processes() + self.view_processes())
         out = {}
         for name in names:
             package, executable = EXECUTABLES[name]
             files, arguments = self.extra_arguments(name)
-            command = [str(executable_path(package, executable)), '--ros-args',
+            command = [str(executable_path(package, executable)),
+                       *self.program_arguments(name), '--ros-args',
                        '--params-file', str(params_file)]
             for extra in files:
                 command += ['--params-file', extra]

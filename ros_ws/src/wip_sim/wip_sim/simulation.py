@@ -8,6 +8,12 @@ process boundary: the controllers hand their messages to each other directly
 (``wip_control.nodes.intra_process``), and the plant's topics go through DDS within the
 process, without a transport or a thread switch. It ends when the plant does, with its
 exit status. Measured (docs/realtime.md): the fastest lockstep layout.
+
+``--with-viewer`` (before ``--ros-args``) adds the viewer node (``wip_viewer.viewer_node``,
+its name and ``viewer`` parameters as alone): its 200 Hz inputs then come from the
+intra-process bus, none lost and none taken from DDS, and only its few outputs go to DDS
+(run_graph does this for a recorded run in the single layout:
+docs/decisions/recording-speed.md).
 """
 
 from __future__ import annotations
@@ -19,11 +25,21 @@ from wip_control.nodes.controllers import NODE_CLASSES
 
 from .plant_node import EXIT_CONFIG, PlantNode
 
+#: Command-line flag (before ``--ros-args``) that composes the viewer node too.
+WITH_VIEWER = '--with-viewer'
+
 
 def main(args=None) -> int:
     """Entry point ``simulation``."""
-    return run_simulator_node(PlantNode, 'simulation', args, config_status=EXIT_CONFIG,
-                              on_end=PlantNode.publish_diagnostics, companions=NODE_CLASSES)
+    argv = list(sys.argv if args is None else args)
+    user = argv[1:argv.index('--ros-args')] if '--ros-args' in argv else argv[1:]
+    companions = tuple(NODE_CLASSES)
+    if WITH_VIEWER in user:
+        argv.remove(WITH_VIEWER)
+        from wip_viewer.viewer_node import ViewerNode   # only then: rendering imports
+        companions += (ViewerNode,)
+    return run_simulator_node(PlantNode, 'simulation', argv, config_status=EXIT_CONFIG,
+                              on_end=PlantNode.publish_diagnostics, companions=companions)
 
 
 if __name__ == '__main__':

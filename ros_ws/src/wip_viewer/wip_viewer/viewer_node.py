@@ -7,7 +7,11 @@ a slow viewer loses its own samples and never makes a publisher wait), and nothi
 graph subscribes to what it publishes. Its inputs at the control rate are subscribed raw:
 the stamp is read from the CDR bytes and a message is deserialized only when the node
 publishes from it (:func:`~wip_viewer.viewer_core.cdr_stamp_ns`), which keeps its CPU per
-control tick small.
+control tick small. Composed with the simulation (``ros2 run wip_sim simulation
+--with-viewer``, what run_graph starts for a recorded run in the single layout) it is an
+intra-process node like the controllers: its inputs arrive from the process's own nodes as
+message objects, every one of them (the bus ignores the best-effort depth), and nothing is
+decoded.
 
 Published (frame ``viewer.frame_id``, default ``map``; child ``base_link``)
 --------------------------------------------------------------------------
@@ -49,12 +53,11 @@ import time
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Point, Pose, PoseStamped
 from nav_msgs.msg import Odometry, Path
-from rclpy.node import Node
 from rclpy.qos import QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from wip_control.nodes.common import make_header, run_node, stamp_to_ns
+from wip_control.nodes.common import IntraProcessNode, make_header, run_node, stamp_to_ns
 from wip_control.nodes.conversions import odometry_to_msg
 from wip_control.nodes.diagnostics import NodeDiagnostics
 from wip_control.nodes.parameters import ConfigParameters
@@ -86,11 +89,14 @@ def _pose(position, orientation) -> Pose:
     return pose
 
 
-class ViewerNode(Node):
+class ViewerNode(IntraProcessNode):
     """See the module docstring."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__('viewer', **kwargs)
+        # Composed with the simulation (``ros2 run wip_sim simulation --with-viewer``), its
+        # inputs come from the intra-process bus as message objects; alone, raw from DDS.
+        self.init_intra_process(True)
         self.config: ViewerConfig = ConfigParameters(self, 'viewer', ViewerConfig).config
         c = self.config
         # No input ages: the node runs on the wall clock also in lockstep (no /clock
@@ -118,10 +124,14 @@ class ViewerNode(Node):
                  self._on_truth),
                 (ReferenceState, 'wip/reference', 'reference', self.reference_gate,
                  self._on_reference)):
-            self.create_subscription(
+            subscription = self.create_subscription(
                 msg_type, topic, self._gated(msg_type, name, gate, handler), _INPUT_QOS,
                 raw=True)
-        self.create_subscription(MpcOutput, 'wip/drive_torque', self._on_mpc, _INPUT_QOS)
+            self.add_intra_subscription(msg_type, subscription,
+                                        self._gated_local(name, gate, handler))
+        subscription = self.create_subscription(MpcOutput, 'wip/drive_torque', self._on_mpc,
+                                                 _INPUT_QOS)
+        self.add_intra_subscription(MpcOutput, subscription, self._on_mpc)
         self.diagnostics.state(DiagnosticStatus.OK, 'waiting for inputs')
 
     # -- helpers ------------------------------------------------------------------------------
@@ -183,6 +193,17 @@ class ViewerNode(Node):
             if gate.ready(stamp_ns):
                 started = time.perf_counter()
                 handler(deserialize_message(data, msg_type), stamp_ns)
+                self.diagnostics.output(stamp_ns, time.perf_counter() - started)
+        return callback
+
+    def _gated_local(self, name: str, gate: RateGate, handler):
+        """Intra-process callback: the message object itself, nothing to decode."""
+        def callback(msg) -> None:
+            stamp_ns = stamp_to_ns(msg.header.stamp)
+            self.diagnostics.input(name, stamp_ns)
+            if gate.ready(stamp_ns):
+                started = time.perf_counter()
+                handler(msg, stamp_ns)
                 self.diagnostics.output(stamp_ns, time.perf_counter() - started)
         return callback
 

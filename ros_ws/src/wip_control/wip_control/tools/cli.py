@@ -307,7 +307,8 @@ _NODE_HELP_EXTRA = {
     'controllers': 'the six controller nodes reference, eso, trajectory_generator, arc, '
                    'mpc and torque_mixer in one process (each keeps its name, parameters '
                    'and topics)',
-    'simulation': 'the plant and the six controller nodes in one process',
+    'simulation': 'the plant and the six controller nodes in one process (with '
+                  '--with-viewer before --ros-args, the viewer node too)',
 }
 
 
