@@ -115,6 +115,17 @@ def test_paths_and_prediction_lie_where_their_sources_say(messages):
     travelled = by_topic['/wip/path/travelled'][-1]
     truth = {(m.x, m.y) for m in by_topic['/wip/ground_truth']}
     assert all((p.pose.position.x, p.pose.position.y) in truth for p in travelled.poses)
+    # Each Path holds the whole path so far (under max_path_points): the previous
+    # message's poses, the same points, are the first ones of the next.
+    for name in ('reference', 'travelled', 'estimated'):
+        paths = by_topic[f'/wip/path/{name}']
+        assert len(paths) >= 2
+        for before, after in zip(paths, paths[1:]):
+            points = [(stamp_ns(p), p.pose.position.x, p.pose.position.y)
+                      for p in after.poses]
+            assert [(stamp_ns(p), p.pose.position.x, p.pose.position.y)
+                    for p in before.poses] == points[:len(before.poses)], name
+            assert len(after.poses) >= len(before.poses)
     mpc = {stamp_ns(m): m for m in by_topic['/wip/drive_torque']}
     prediction = by_topic['/wip/markers/prediction']
     assert prediction

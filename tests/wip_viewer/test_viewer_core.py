@@ -76,7 +76,7 @@ def test_path_buffer_thins_to_the_resolution_and_keeps_the_newest_points():
     path = PathBuffer(resolution=0.095, max_points=5)
     added = [path.add(i, 0.01 * i, 0.0, 0.0) for i in range(100)]  # 1 m in 1 cm steps
     assert sum(added) == 5 + 5  # every 10th point kept, then only the last 5 remain
-    assert len(path.points) == 5
+    assert len(path.points) == 5 and path.dropped == 5
     xs = [p[1] for p in path.points]
     assert all(b - a >= 0.095 for a, b in zip(xs, xs[1:]))
     assert xs[-1] == pytest.approx(0.9)

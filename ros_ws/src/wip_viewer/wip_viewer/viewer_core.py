@@ -164,6 +164,8 @@ class PathBuffer:
         self.max_points = int(max_points)
         self.points: list[tuple[int, float, float, float]] = []  # (stamp ns, x, y, yaw)
         self.changed = False
+        #: Points removed from the front so far (max_points), for a cache kept beside them.
+        self.dropped = 0
 
     def add(self, stamp_ns: int, x: float, y: float, yaw: float) -> bool:
         """Append the point if far enough from the last one; True if appended."""
@@ -175,7 +177,9 @@ class PathBuffer:
                 return False
         self.points.append((int(stamp_ns), float(x), float(y), float(yaw)))
         if len(self.points) > self.max_points:
-            del self.points[:len(self.points) - self.max_points]
+            excess = len(self.points) - self.max_points
+            del self.points[:excess]
+            self.dropped += excess
         self.changed = True
         return True
 

@@ -113,6 +113,11 @@ class ViewerNode(IntraProcessNode):
         self.path_gate, self.prediction_gate = RateGate(c.path_rate), RateGate(c.pose_rate)
         self.paths = {name: PathBuffer(c.path_resolution, c.max_path_points)
                       for name in ('reference', 'travelled', 'estimated')}
+        # Each point's PoseStamped, built once: a Path message holds the whole path, and
+        # building every pose again at each message cost the composed simulation process
+        # (its critical path in a recorded run) up to 0.25 ms per tick over 90 s.
+        self.path_poses: dict[str, list[PoseStamped]] = {name: [] for name in self.paths}
+        self.path_poses_dropped = dict.fromkeys(self.paths, 0)
         self.estimate_covariance = planar_pose_covariance(c.position_std)
         self.truth_covariance = [0.0] * 36
         self.last_estimate: StateEstimate | None = None
@@ -152,13 +157,21 @@ class ViewerNode(IntraProcessNode):
             if not buffer.changed:
                 continue
             buffer.changed = False
-            msg = Path()
-            msg.header = make_header(stamp_ns, self.config.frame_id)
-            for point_ns, x, y, yaw in buffer.points:
+            poses = self.path_poses[name]
+            gone = buffer.dropped - self.path_poses_dropped[name]
+            if gone:
+                del poses[:gone]
+                self.path_poses_dropped[name] = buffer.dropped
+            for point_ns, x, y, yaw in buffer.points[len(poses):]:
                 pose = PoseStamped()
                 pose.header = make_header(point_ns, self.config.frame_id)
                 pose.pose = _pose((x, y, 0.0), quaternion_yaw_pitch(yaw, 0.0))
-                msg.poses.append(pose)
+                poses.append(pose)
+            msg = Path()
+            msg.header = make_header(stamp_ns, self.config.frame_id)
+            # A copy of the list (the poses are shared, never changed): the message keeps
+            # the points of its time.
+            msg.poses = list(poses)
             self.publishers_[f'/wip/path/{name}'].publish(msg)
 
     def _publish_vehicle(self, stamp_ns: int, x: float, y: float, phi: float, theta: float,
