@@ -124,6 +124,7 @@ import yaml
 from wip_control.core.config import ConfigError
 from wip_control.tools.cli import add_exit_codes, bounded, exit_with, write_atomic
 from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping, with_duration
+from wip_sim.settings import WITH_VIEWER
 
 from .hardware import add_arguments, run_from_args
 # LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
@@ -356,7 +357,6 @@ class GraphRunner(RunnerBase):
 
     def program_arguments(self, name: str) -> list[str]:
         if name == 'simulation' and self.options.viewer:
-            from wip_sim.simulation import WITH_VIEWER
             return [WITH_VIEWER]
         return []
 

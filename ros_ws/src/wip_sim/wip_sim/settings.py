@@ -13,6 +13,11 @@ from wip_control.nodes.settings import (CLOCK_MODES, DatumConfig, EffortCommand,
                                         TEXT, WheelJoints, WheelSigns)
 from wip_sim.core.scenario import Scenario
 
+#: Command-line flag of ``ros2 run wip_sim simulation`` (before ``--ros-args``) that
+#: composes the viewer node too. Here, not in :mod:`wip_sim.simulation`, so that a launcher
+#: reads it without importing the nodes.
+WITH_VIEWER = '--with-viewer'
+
 
 def _scenario_file():
     return param('', TEXT, "scenario YAML file (wip_sim.core.scenario: plant, initial state, "

@@ -24,9 +24,7 @@ from wip_control.nodes.common import run_simulator_node
 from wip_control.nodes.controllers import NODE_CLASSES
 
 from .plant_node import EXIT_CONFIG, PlantNode
-
-#: Command-line flag (before ``--ros-args``) that composes the viewer node too.
-WITH_VIEWER = '--with-viewer'
+from .settings import WITH_VIEWER
 
 
 def main(args=None) -> int:

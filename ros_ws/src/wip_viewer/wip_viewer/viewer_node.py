@@ -202,23 +202,25 @@ class ViewerNode(IntraProcessNode):
             except ValueError as err:
                 self.diagnostics.drop(name, 'invalid', str(err))
                 return
-            self.diagnostics.input(name, stamp_ns)
-            if gate.ready(stamp_ns):
-                started = time.perf_counter()
-                handler(deserialize_message(data, msg_type), stamp_ns)
-                self.diagnostics.output(stamp_ns, time.perf_counter() - started)
+            self._through_gate(name, gate, handler, stamp_ns,
+                               lambda: deserialize_message(data, msg_type))
         return callback
 
     def _gated_local(self, name: str, gate: RateGate, handler):
         """Intra-process callback: the message object itself, nothing to decode."""
         def callback(msg) -> None:
-            stamp_ns = stamp_to_ns(msg.header.stamp)
-            self.diagnostics.input(name, stamp_ns)
-            if gate.ready(stamp_ns):
-                started = time.perf_counter()
-                handler(msg, stamp_ns)
-                self.diagnostics.output(stamp_ns, time.perf_counter() - started)
+            self._through_gate(name, gate, handler, stamp_to_ns(msg.header.stamp),
+                               lambda: msg)
         return callback
+
+    def _through_gate(self, name: str, gate: RateGate, handler, stamp_ns: int,
+                      message) -> None:
+        """Count an input; past the gate, hand ``message()`` to ``handler`` (timed)."""
+        self.diagnostics.input(name, stamp_ns)
+        if gate.ready(stamp_ns):
+            started = time.perf_counter()
+            handler(message(), stamp_ns)
+            self.diagnostics.output(stamp_ns, time.perf_counter() - started)
 
     def _on_estimate(self, msg: StateEstimate, stamp_ns: int) -> None:
         self.last_estimate = msg
