@@ -52,7 +52,7 @@ class _Recorder:
 
     Appenders: ``truth`` and ``mpc`` (a row of their group) and ``tick`` (one wide row of
     every group of :data:`TICK_GROUPS`: one tuple and one append per tick instead of
-    seven, about 3 % of a run). The rows become numpy blocks every
+    seven; docs/runner-speed.md). The rows become numpy blocks every
     ``RecordBuffer.BLOCK_ROWS`` ticks; :meth:`arrays` splits the wide rows into their
     groups.
     """
