@@ -37,9 +37,27 @@ def write_scenario(path, reference: str, duration: float) -> str:
     return str(path)
 
 
-def run_in_thread(options):
+def run_in_thread(options, listening=None):
+    """Run the graph in a thread; the plant starts once ``listening()`` (if given) is true.
+
+    ``listening`` says that this process's driver has matched the graph's endpoints, as a
+    real user's teleop or planner would before driving. Without it the run's first
+    seconds race DDS discovery: on a loaded machine a lost endpoint announcement is
+    repaired only seconds of wall time later, tens of seconds of lockstep time, and a path
+    then arrived 26.7 s into a 40 s run.
+    """
     from wip_bringup.graph import GraphRunner
-    runner = GraphRunner(options)
+
+    class DriverFirstRunner(GraphRunner):
+        def start_plant(self) -> None:
+            deadline = time.monotonic() + START_TIMEOUT
+            while listening is not None and not listening():
+                if time.monotonic() > deadline:
+                    raise AssertionError('the driver never matched the graph')
+                self.probe.spin(0.05)
+            super().start_plant()
+
+    runner = DriverFirstRunner(options)
     outcome = {}
     thread = threading.Thread(target=lambda: outcome.setdefault('result', runner.run()))
     thread.start()
@@ -76,14 +94,20 @@ class SquareDriver:
         self.node, self.TwistStamped = node, TwistStamped
         self.publisher = node.create_publisher(TwistStamped, 'cmd_vel', 10)
         # Best effort, depth 1: a late driver reads the newest estimate, not a queue.
-        node.create_subscription(StateEstimate, '/wip/state_estimate', self.on_estimate,
-                                 QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self.estimates = node.create_subscription(
+            StateEstimate, '/wip/state_estimate', self.on_estimate,
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.leg, self.phase = 0, 'forward'
         self.corner = (0.0, 0.0)
         self.last_command_t = -math.inf
         self.done_t = None
         self.max_theta = 0.0
         self.commands = 0
+
+    def listening(self) -> bool:
+        """Whether the estimates reach this driver and its commands the reference node."""
+        return (self.estimates.get_publisher_count() >= 1
+                and self.publisher.get_subscription_count() >= 1)
 
     def on_estimate(self, msg) -> None:
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
@@ -131,7 +155,8 @@ def test_teleop_drives_a_square_and_the_vehicle_ends_at_its_start(tmp_path, test
     driver = SquareDriver(test_node)
     with spinning_in_background(test_node.executor_for_test, step=0.005):
         runner, thread, outcome = run_in_thread(GraphOptions(
-            scenario=scenario, out=str(tmp_path / 'run'), quiet=True, layout='single'))
+            scenario=scenario, out=str(tmp_path / 'run'), quiet=True, layout='single'),
+            listening=driver.listening)
         result = wait_for(runner, thread, outcome, 300.0)
     assert result.exit_code == EXIT_OK, result.message
     assert driver.done_t is not None, f'the square was not finished: leg {driver.leg}'
@@ -175,13 +200,17 @@ def test_a_path_is_followed_to_its_end(tmp_path, test_node):
             path.poses.append(pose)
         publisher.publish(path)
         sent.append(t)
-    test_node.create_subscription(StateEstimate, '/wip/state_estimate', on_estimate, 1)
+    estimates = test_node.create_subscription(StateEstimate, '/wip/state_estimate',
+                                              on_estimate, 1)
     with spinning_in_background(test_node.executor_for_test, step=0.005):
         runner, thread, outcome = run_in_thread(GraphOptions(
-            scenario=scenario, out=str(tmp_path / 'run'), quiet=True, layout='single'))
+            scenario=scenario, out=str(tmp_path / 'run'), quiet=True, layout='single'),
+            listening=lambda: (estimates.get_publisher_count() >= 1
+                               and publisher.get_subscription_count() >= 1))
         result = wait_for(runner, thread, outcome, 200.0)
     assert result.exit_code == EXIT_OK, result.message
     assert sent, 'the path was never sent'
+    assert sent[0] < 1.0, f'the path went out late, at {sent[0]} s: the start did not wait'
     final = result.plant_stats['final_state']
     error = math.hypot(final['x'] - goal[-1][0], final['y'] - goal[-1][1])
     print(f'path sent at {sent} s; final position error {error:.3f} m, '
