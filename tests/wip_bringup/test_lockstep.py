@@ -272,7 +272,13 @@ class _FrozenRecorderRunner(GraphRunner):
         return super().watch()
 
 
-RECORDER_FREEZE = 1.5  # [s]: hundreds of ticks of a lockstep run, whatever the machine
+#: [s]: hundreds of ticks of a lockstep run, whatever the machine (the keep-last 10 writers
+#: of the graph design lose samples from 10 ticks on). Below Fast DDS's shared-memory
+#: liveness timeout (healthy_check_timeout_ms, 1 s), past which the transport may declare
+#: a listener that has not woken dead: with 1.5 s one CI run in about ten recorded only
+#: the first sample of each of the plant's topics (the controllers' topics whole), which
+#: 41 runs here, with and without load, never did (docs/decisions/lockstep-recording.md).
+RECORDER_FREEZE = 0.8
 
 
 def test_a_recorder_frozen_mid_run_still_records_every_message(scenario_file, scenario,
@@ -286,16 +292,24 @@ def test_a_recorder_frozen_mid_run_still_records_every_message(scenario_file, sc
     monkeypatch = pytest.MonkeyPatch()
     _domain(monkeypatch)
     try:
-        result = _FrozenRecorderRunner(GraphOptions(
+        runner = _FrozenRecorderRunner(GraphOptions(
             scenario=str(scenario_file), out=str(tmp_path / 'run'),
-            record=str(tmp_path / 'bag'), quiet=True)).run()
+            record=str(tmp_path / 'bag'), quiet=True))
+        result = runner.run()
     finally:
         monkeypatch.undo()
     assert result.exit_code == 0, result.message
     assert result.plant_stats['ticks'] == N_TICKS
     counts = bag_summary(result.bag)['topics']
     expected = expected_counts(scenario)
-    assert {t: counts.get(t, {}).get('message_count') for t in expected} == expected
+    recorded = {t: counts.get(t, {}).get('message_count') for t in expected}
+    # On a shortfall, what tells its cause: the run's own account, the plant's readers that
+    # never acknowledged, and the last lines of the plant's and the recorder's logs.
+    assert recorded == expected, (
+        f'{result.message}\nunacknowledged: {result.plant_stats["unacknowledged_topics"]}\n'
+        + '\n'.join(f'--- {name}:\n{runner.processes[name].log_tail()}'
+                    for name in ('plant', 'recorder')))
+    assert result.recorder_shortfall == {}
     assert result.plant_stats['unacknowledged_topics'] == []
 
 

@@ -240,6 +240,8 @@ class GraphResult(RunResult):
 
     scenario: Scenario | None = None
     plant_stats: dict | None = None
+    #: topic -> 'received/expected' when the recorder lacked messages at the end.
+    recorder_shortfall: dict[str, str] = dataclasses.field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         stats = self.plant_stats or {}
@@ -247,6 +249,7 @@ class GraphResult(RunResult):
                 'scenario': self.scenario.name if self.scenario else None,
                 'sim_time_s': stats.get('sim_time_s'),
                 'real_time_factor': stats.get('real_time_factor'),
+                'recorder_shortfall': self.recorder_shortfall,
                 'plant_stats': self.plant_stats}
 
 
@@ -301,6 +304,8 @@ class GraphRunner(RunnerBase):
         #: The run ends before the plant did (a stop signal, a failure): the recorder is
         #: drained once the nodes have stopped (nodes_stopped).
         self.drain_at_stop = False
+        #: topic -> 'received/expected' of what the recorder lacked at the end (lockstep).
+        self.recorder_shortfall: dict[str, str] = {}
         self.last_sim_time: float | None = None  # [s] the plant's latest progress report
 
     def stop_all(self) -> None:
@@ -617,9 +622,11 @@ class GraphRunner(RunnerBase):
                 previous, stable_since = counts, time.monotonic()
             elif time.monotonic() - stable_since >= DRAIN_STALL:
                 if expected and not quiet:
-                    short = {t: f'{counts.get(t, 0)}/{n}' for t, n in expected.items()
-                             if counts.get(t, 0) < n}
-                    self.say(f'warning: the recorder missed messages: {short}')
+                    self.recorder_shortfall = {
+                        t: f'{counts.get(t, 0)}/{n}' for t, n in expected.items()
+                        if counts.get(t, 0) < n}
+                    self.say(f'warning: the recorder missed messages: '
+                             f'{self.recorder_shortfall}')
                 return
         self.say(f'warning: the recorder was still receiving after {DRAIN_TIMEOUT:g} s')
 
@@ -730,6 +737,12 @@ class GraphRunner(RunnerBase):
         result.timeline = dict(self.timeline, start_refusals=self.start_refusals)
         stats_path = self.out / 'plant_stats.json'
         result.plant_stats = self.plant_stats()
+        if self.recorder_shortfall:
+            # The run itself is sound; the bag is not whole, and the user must hear it even
+            # with --quiet (received/expected per topic, as bag_info would count them).
+            result.recorder_shortfall = self.recorder_shortfall
+            result.message += (f'; but the bag lacks messages (received/expected): '
+                               f'{self.recorder_shortfall}')
         if result.plant_stats is None and stats_path.is_file():
             # Cut short by a full disk (the plant writes it in place): no empty side file.
             self.say(f'warning: {stats_path} was not written whole (full disk?): removed')
