@@ -47,13 +47,15 @@ def run_in_thread(options, listening=None):
     then arrived 26.7 s into a 40 s run.
     """
     from wip_bringup.graph import GraphRunner
+    from wip_bringup.launcher import EXIT_TIMEOUT, GraphError
 
     class DriverFirstRunner(GraphRunner):
         def start_plant(self) -> None:
             deadline = time.monotonic() + START_TIMEOUT
             while listening is not None and not listening():
                 if time.monotonic() > deadline:
-                    raise AssertionError('the driver never matched the graph')
+                    # The runner's own error: it stops every process and reports.
+                    raise GraphError('the test driver never matched the graph', EXIT_TIMEOUT)
                 self.probe.spin(0.05)
             super().start_plant()
 
