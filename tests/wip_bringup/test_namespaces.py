@@ -106,6 +106,10 @@ def test_run_graph_refuses_a_bad_namespace_in_one_line(tmp_path, capsys):
 
 # ----------------------------------------------------------------- the graph
 
+def stamp_seconds(message) -> float:
+    return message.header.stamp.sec + 1e-9 * message.header.stamp.nanosec
+
+
 def run_in_thread(options):
     from wip_bringup.graph import GraphRunner
     runner = GraphRunner(options)
@@ -194,7 +198,17 @@ def test_two_vehicles_in_one_domain_each_follow_their_own_reference(tmp_path, te
     # control periods: centimetres at 0.5 m/s). Bound 0.3 m: robot2's torques driving it
     # too (crosstalk: two controllers' sums, or a stand-still command) put it metres off.
     assert math.hypot(line['x'] - LINE_SPEED * DURATION, line['y']) < 0.3
-    assert abs(line['v'] - LINE_SPEED) < 0.1
+    # ... and at its speed over the last 2 s (robot1's odometry: the GPS-aided estimate,
+    # centimetres of noise over 1 m). Not the final instant's speed: in real time on a
+    # loaded machine a late sample swings it (0.615 m/s once, at 5.004 m on the line).
+    window = [m for m in odom['robot1']
+              if stamp_seconds(m) >= stamp_seconds(odom['robot1'][-1]) - 2.0]
+    assert len(window) >= 2, len(window)
+    mean_speed = ((window[-1].pose.pose.position.x - window[0].pose.pose.position.x)
+                  / (stamp_seconds(window[-1]) - stamp_seconds(window[0])))
+    print(f'robot1 over its last {stamp_seconds(window[-1]) - stamp_seconds(window[0]):.2f} s: '
+          f'{mean_speed:.3f} m/s')
+    assert abs(mean_speed - LINE_SPEED) < 0.1
     # robot2 held its start: robot1's forward torques reaching it would drive it away.
     assert math.hypot(hold['x'], hold['y']) < 0.1 and abs(hold['v']) < 0.05
 
