@@ -375,3 +375,11 @@ def test_mixer_refuses_inf_warns_about_unknown_overrides_and_stops_quietly(tmp_p
             "mixer reads the MPC's period from 'mpc.sampling_period')") in text
     assert 'stopping: zero effort command sent' in text
     assert 'FATAL' not in text and 'Traceback' not in text and 'Error occurred' not in text
+
+
+def test_a_command_line_splits_at_the_first_ros_args():
+    from wip_control.tools.cli import split_ros_args
+    assert split_ros_args(['--with-viewer', '--ros-args', '-p', 'a:=1', '--ros-args']) == (
+        ['--with-viewer'], ['--ros-args', '-p', 'a:=1', '--ros-args'])
+    assert split_ros_args(('--help',)) == (['--help'], [])
+    assert split_ros_args([]) == ([], [])

@@ -22,6 +22,7 @@ import pytest
 
 from wip_bringup.hardware import parse_remap
 from wip_bringup.launcher import EXIT_USAGE, GraphError, in_namespace, parse_namespace
+from wip_control.nodes.common import stamp_to_ns
 
 ROBOTS = ('robot1', 'robot2')
 DURATION = 10.0   # [s] of each real-time simulation
@@ -107,7 +108,7 @@ def test_run_graph_refuses_a_bad_namespace_in_one_line(tmp_path, capsys):
 # ----------------------------------------------------------------- the graph
 
 def stamp_seconds(message) -> float:
-    return message.header.stamp.sec + 1e-9 * message.header.stamp.nanosec
+    return 1e-9 * stamp_to_ns(message.header.stamp)
 
 
 def run_in_thread(options):

@@ -109,7 +109,8 @@ from std_srvs.srv import SetBool, Trigger
 
 from wip_control.nodes.launched import end_with_launcher
 from wip_control.nodes.parameters import ConfigParameters
-from wip_control.tools.cli import add_exit_codes, EXIT_INTERNAL, EXIT_USAGE, log_trace, one_line
+from wip_control.tools.cli import (add_exit_codes, EXIT_INTERNAL, EXIT_USAGE, log_trace,
+                                   one_line, split_ros_args)
 
 from .bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
 from .message_types import message_class
@@ -525,11 +526,7 @@ def parse_command_line(argv):
     Everything from ``--ros-args`` on is left to rclpy; the options before it are this
     tool's (see ``--help``).
     """
-    argv = list(argv)
-    ros_args = []
-    if '--ros-args' in argv:
-        index = argv.index('--ros-args')
-        argv, ros_args = argv[:index], argv[index:]
+    argv, ros_args = split_ros_args(argv)
     parser = argparse.ArgumentParser(
         prog='scripts/replay', formatter_class=argparse.RawDescriptionHelpFormatter,
         description="""\

@@ -22,6 +22,7 @@ import sys
 
 from wip_control.nodes.common import run_simulator_node
 from wip_control.nodes.controllers import NODE_CLASSES
+from wip_control.tools.cli import split_ros_args
 
 from .plant_node import EXIT_CONFIG, PlantNode
 from .settings import WITH_VIEWER
@@ -30,10 +31,11 @@ from .settings import WITH_VIEWER
 def main(args=None) -> int:
     """Entry point ``simulation``."""
     argv = list(sys.argv if args is None else args)
-    user = argv[1:argv.index('--ros-args')] if '--ros-args' in argv else argv[1:]
+    own, ros_args = split_ros_args(argv[1:])
     companions = tuple(NODE_CLASSES)
-    if WITH_VIEWER in user:
-        argv.remove(WITH_VIEWER)
+    if WITH_VIEWER in own:
+        own.remove(WITH_VIEWER)
+        argv = [*argv[:1], *own, *ros_args]
         from wip_viewer.viewer_node import ViewerNode   # only then: rendering imports
         companions += (ViewerNode,)
     return run_simulator_node(PlantNode, 'simulation', argv, config_status=EXIT_CONFIG,

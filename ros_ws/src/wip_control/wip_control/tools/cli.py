@@ -312,6 +312,15 @@ _NODE_HELP_EXTRA = {
 }
 
 
+def split_ros_args(words: Sequence[str]) -> tuple[list[str], list[str]]:
+    """Split a command line into the program's own words and rclpy's (``--ros-args`` on)."""
+    words = list(words)
+    if '--ros-args' in words:
+        index = words.index('--ros-args')
+        return words[:index], words[index:]
+    return words, []
+
+
 def answer_node_help(program: str, package: str, args: Sequence[str] | None = None) -> bool:
     """Answer ``-h``/``--help`` on the command line of a node executable.
 
@@ -320,9 +329,7 @@ def answer_node_help(program: str, package: str, args: Sequence[str] | None = No
     without starting anything. ``args`` as given to ``rclpy.init`` (``sys.argv`` if
     None).
     """
-    words = list(sys.argv if args is None else args)[1:]
-    if '--ros-args' in words:
-        words = words[:words.index('--ros-args')]
+    words, _ = split_ros_args(list(sys.argv if args is None else args)[1:])
     if not ({'-h', '--help'} & set(words)):
         return False
     holds = _NODE_HELP_EXTRA.get(program, f'the ROS 2 node {program}')
