@@ -42,9 +42,7 @@ def run_in_thread(options, listening=None):
 
     ``listening`` says that this process's driver has matched the graph's endpoints, as a
     real user's teleop or planner would before driving. Without it the run's first
-    seconds race DDS discovery: on a loaded machine a lost endpoint announcement is
-    repaired only seconds of wall time later, tens of seconds of lockstep time, and a path
-    then arrived 26.7 s into a 40 s run.
+    seconds race DDS discovery, whose delays lockstep multiplies (docs/testing.md).
     """
     from wip_bringup.graph import GraphRunner
     from wip_bringup.launcher import EXIT_TIMEOUT, GraphError

@@ -275,9 +275,8 @@ class _FrozenRecorderRunner(GraphRunner):
 #: [s]: hundreds of ticks of a lockstep run, whatever the machine (the keep-last 10 writers
 #: of the graph design lose samples from 10 ticks on). Below Fast DDS's shared-memory
 #: liveness timeout (healthy_check_timeout_ms, 1 s), past which the transport may declare
-#: a listener that has not woken dead: with 1.5 s one CI run in about ten recorded only
-#: the first sample of each of the plant's topics (the controllers' topics whole), which
-#: 41 runs here, with and without load, never did (docs/decisions/lockstep-recording.md).
+#: a listener that has not woken dead (what 1.5 s once did: docs/decisions/
+#: lockstep-recording.md, "A freeze longer than a second").
 RECORDER_FREEZE = 0.8
 
 

@@ -201,7 +201,7 @@ def test_two_vehicles_in_one_domain_each_follow_their_own_reference(tmp_path, te
     assert math.hypot(line['x'] - LINE_SPEED * DURATION, line['y']) < 0.3
     # ... and at its speed over the last 2 s (robot1's odometry: the GPS-aided estimate,
     # centimetres of noise over 1 m). Not the final instant's speed: in real time on a
-    # loaded machine a late sample swings it (0.615 m/s once, at 5.004 m on the line).
+    # loaded machine a late sample swings it (docs/testing.md).
     window = [m for m in odom['robot1']
               if stamp_seconds(m) >= stamp_seconds(odom['robot1'][-1]) - 2.0]
     assert len(window) >= 2, len(window)
