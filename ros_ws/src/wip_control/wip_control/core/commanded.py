@@ -104,6 +104,8 @@ class CmdVelReference(Reference):
     start : (x, y, phi) at rest at ``t0``.
     """
 
+    pure = False   # its sample depends on the commands received so far
+
     def __init__(self, limits: UnicycleLimits, timeout: float = 0.5, max_lead: float = 0.0,
                  start: Sequence[float] = (0.0, 0.0, 0.0), t0: float = 0.0) -> None:
         if not (math.isfinite(timeout) and timeout > 0.0):
@@ -191,6 +193,8 @@ class PathReference(Reference):
     heading_gain : yaw rate per heading error [1/s] when turning on the spot.
     start : (x, y, phi) at rest at ``t0``. Without a path it stays there.
     """
+
+    pure = False   # its sample depends on the commands received so far
 
     def __init__(self, limits: UnicycleLimits, speed: float = 0.3, lookahead: float = 0.5,
                  heading_gain: float = 1.0, start: Sequence[float] = (0.0, 0.0, 0.0),

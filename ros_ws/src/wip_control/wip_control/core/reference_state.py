@@ -25,6 +25,11 @@ class ReferenceState(NamedTuple):
 class Reference:
     """A reference trajectory: :meth:`sample` gives the state at time t [s]."""
 
+    #: Whether :meth:`sample` is a pure function of t (the same float for the same t,
+    #: whatever was sampled before), so that a loop may sample ahead of its ticks.
+    #: False for the references commanded at run time.
+    pure = True
+
     def sample(self, t: float) -> ReferenceState:  # pragma: no cover - interface
         raise NotImplementedError
 
