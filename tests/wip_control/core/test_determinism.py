@@ -159,25 +159,47 @@ def test_polish_is_reported_in_the_solver_stats():
     assert json.dumps(stats.rejected_reasons)  # plain counts, printable
 
 
-def test_the_polish_solve_gives_numpy_solves_bits_and_nan_when_singular(monkeypatch,
-                                                                         recwarn):
-    # polish calls numpy's LAPACK gufunc directly (numpy.linalg.solve without its Python
-    # checks): the same bits as the public function, and NaN (which polish reports as a
-    # singular KKT matrix) instead of LinAlgError, without a warning.
-    from wip_control.core import qp
+def test_the_polish_solve_agrees_with_lapack_and_refuses_singular_matrices():
+    # The polish solves its KKT systems by its own compiled elimination (a fixed order of
+    # IEEE operations): it must agree with LAPACK to round-off, pivot past the zero block
+    # of a KKT matrix, report a zero pivot, and propagate NaN (which the polish reports
+    # as a singular KKT matrix).
+    from wip_control.core import qp_polish
     rng = np.random.default_rng(3)
-    for n in (1, 6, 27, 40):
+    for n in (1, 6, 27, 40, 90):
         a = rng.normal(size=(n, n)) + n * np.eye(n)
         b = rng.normal(size=n)
-        assert qp._solve(a, b).tobytes() == np.linalg.solve(a, b).tobytes()
-        # A column selection by a boolean mask, as the polish builds its matrix.
-        wide = np.zeros((n, n + 3))
-        wide[:, :n] = a
-        sliced = wide[:, np.arange(n + 3) < n]
-        assert qp._solve(sliced, b).tobytes() == np.linalg.solve(a, b).tobytes()
-    singular = np.array([[1.0, 2.0], [2.0, 4.0]])
-    for gesv in (qp._gesv, None):   # the direct call, and the public function's fallback
-        monkeypatch.setattr(qp, '_gesv', gesv)
-        assert np.isnan(qp._solve(singular, np.ones(2))).all()
-        assert np.isnan(qp._solve(np.zeros((3, 3)), np.ones(3))).all()
-    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+        x = b.copy()
+        assert qp_polish.lu_solve(a.copy(), x)
+        expected = np.linalg.solve(a, b)
+        assert np.abs(x - expected).max() <= 1e-12 * (1.0 + np.abs(expected).max())
+    h = np.diag([4.0, 1e4, 2.0])
+    row = np.array([[1.0, -1.0, 0.5]])
+    kkt = np.block([[h, row.T], [row, np.zeros((1, 1))]])   # zero on the diagonal
+    b = np.array([1.0, -2.0, 0.5, 0.3])
+    x = b.copy()
+    assert qp_polish.lu_solve(kkt.copy(), x)
+    assert np.abs(x - np.linalg.solve(kkt, b)).max() <= 1e-12
+    assert not qp_polish.lu_solve(np.array([[1.0, 2.0], [2.0, 4.0]]), np.ones(2))
+    assert not qp_polish.lu_solve(np.zeros((3, 3)), np.ones(3))
+    x = np.ones(2)
+    qp_polish.lu_solve(np.array([[np.nan, 1.0], [1.0, 2.0]]), x)
+    assert np.isnan(x).any()
+
+
+def test_the_polish_names_why_it_rejects_a_point():
+    # A singular reduced Hessian and a wrong active set each come back with their reason
+    # (the solver then falls back to DAQP), never as a point.
+    n, m = 2, 1
+    c, lower, upper = np.array([[1.0, 1.0]]), np.array([-np.inf]), np.array([1.0])
+    lower_box, upper_box = np.full(n, -np.inf), np.full(n, np.inf)
+    singular = polish(np.zeros((n, n)), np.ones(n), c, lower, upper, lower_box, upper_box,
+                      np.zeros(m + n), 1e-9)
+    assert (singular.z, singular.reason) == (None, 'singular KKT matrix')
+    # min ½|z|² − (1, 1)·z s.t. z1 + z2 ≤ 1: the optimum (½, ½) has the row active. Told
+    # that it is inactive, the free minimiser (1, 1) violates it; the row joins and the
+    # polish finds the optimum.
+    found = polish(np.eye(n), -np.ones(n), c, lower, upper, lower_box, upper_box,
+                   np.zeros(m + n), 1e-9)
+    assert found.reason == 'ok'
+    assert np.allclose(found.z, [0.5, 0.5]) and found.multipliers[0] == pytest.approx(0.5)

@@ -22,9 +22,10 @@ and if that stalls too, DAQP solves the same data before the caller falls back t
 previous plan.
 
 Every point ProxSuite reports as solved is *polished*: the equality-constrained problem on
-the active set it found (multipliers larger than ``eps_abs``) is solved with numpy, and the
-result replaces ProxSuite's when it is primal feasible and its multipliers have the right
-signs (else DAQP solves the same data). The polished point depends only on the data and
+the active set it found (multipliers larger than ``eps_abs``) is solved (compiled, a fixed
+order of IEEE operations: :mod:`.qp_polish`), and the result replaces ProxSuite's when it
+is primal feasible and its multipliers have the right signs (else DAQP solves the same
+data). The polished point depends only on the data and
 the active set, so the same scenario gives the same bits in every process
 (docs/decisions/determinism.md).
 """
@@ -154,135 +155,40 @@ def polish(h: np.ndarray, g: np.ndarray, c: np.ndarray, lower: np.ndarray,
         [H  Aᵀ] [z]   [−g]
         [A  0 ] [λ] = [ b]
 
-    with LU (numpy/LAPACK; the fixed variables are eliminated, :func:`_kkt_solve`). The
-    point is accepted if every constraint holds within ``tolerance``, the stationarity
-    residual is below it, and each λ has the sign of its bound (within ``tolerance``): it
-    then satisfies the QP's KKT conditions, so it is its unique optimum. Otherwise the
-    violated constraints join the active set and those with a wrong-signed λ leave it, up
-    to :data:`POLISH_ROUNDS` times (ProxSuite's multipliers of nearly active constraints
-    are only accurate to about its tolerance). An accepted set is then reduced to its
-    constraints with |λ| > ``tolerance``, so the result depends on the data and the
-    optimum only, not on the solver's round-off.
+    by Gaussian elimination with partial pivoting (the fixed variables eliminated;
+    compiled, :mod:`.qp_polish`). The point is accepted if every constraint holds within
+    ``tolerance``, the stationarity residual is below it, and each λ has the sign of its
+    bound (within ``tolerance``): it then satisfies the QP's KKT conditions, so it is its
+    unique optimum. Otherwise the violated constraints join the active set and those with
+    a wrong-signed λ leave it, up to :data:`POLISH_ROUNDS` times (ProxSuite's multipliers
+    of nearly active constraints are only accurate to about its tolerance). An accepted
+    set is then reduced to its constraints with |λ| > ``tolerance``, so the result
+    depends on the data and the optimum only, not on the solver's round-off.
+
+    The arrays are float64 and C-contiguous (another layout or type compiles anew).
     """
-    lo = np.concatenate((lower, lower_box))
-    hi = np.concatenate((upper, upper_box))
-    # A multiplier pointing to an infinite bound is round-off: that constraint is left out.
-    at_upper = (multipliers > tolerance) & (hi < np.inf)
-    at_lower = (multipliers < -tolerance) & (lo > -np.inf)
-    bounds = _Bounds(lo, hi, hi + tolerance, lo - tolerance)
-    reason = 'ok'
-    for _ in range(POLISH_ROUNDS):
-        z, y, reason, over, under, wrong = _kkt_solve(h, g, c, bounds, at_upper, at_lower,
-                                                      tolerance)
-        if reason == 'ok':
-            # The set found may hold constraints with λ ≈ 0 that another start (ProxSuite's
-            # last bits) would have left out: the same point, other round-off. Solving
-            # again with only |λ| > tolerance makes the bits a function of the optimum.
-            strong = np.abs(y) > tolerance
-            if not (strong ^ (at_upper | at_lower)).any():
-                return PolishResult(z, y, 'ok')
-            z2, y2, reason2, *_ = _kkt_solve(h, g, c, bounds, at_upper & strong,
-                                              at_lower & strong, tolerance)
-            if reason2 == 'ok':
-                return PolishResult(z2, y2, 'ok')
-            return PolishResult(z, y, 'ok')
-        if reason in ('singular KKT matrix', 'stationarity'):
-            return PolishResult(None, None, reason)
-        at_upper = (at_upper & ~wrong) | over
-        at_lower = (at_lower & ~wrong) | under
-    return PolishResult(None, None, reason)
+    compiled = _compiled_polish()
+    n, m = h.shape[0], c.shape[0]
+    z, y = np.empty(n), np.empty(m + n)
+    outcome = compiled.polish(h, g, c, lower, upper, lower_box, upper_box, multipliers,
+                              float(tolerance), POLISH_ROUNDS, z, y)
+    if outcome == compiled.OK:
+        return PolishResult(z, y, 'ok')
+    return PolishResult(None, None, compiled.REASONS[outcome])
 
 
-class _Bounds(NamedTuple):
-    """The bounds of [C; I] z stacked, and widened by the tolerance, for :func:`_kkt_solve`."""
-
-    lower: np.ndarray
-    upper: np.ndarray
-    upper_tolerated: np.ndarray
-    lower_tolerated: np.ndarray
+#: The compiled polish (:mod:`.qp_polish`), imported by the first ProxSuite solver.
+_qp_polish = None
 
 
-try:
-    # numpy's own LAPACK gesv gufunc, which numpy.linalg.solve calls after its checks: the
-    # same bits. Called directly because polish runs once per MPC tick, with the CPU caches
-    # cold from the control ticks in between, where the Python of numpy.linalg.solve's
-    # checks cost about 18 µs of a 27-variable solve (37.6 against 19.0 µs measured cold,
-    # 10.0 against 5.5 warm; docs/runner-speed.md). A singular matrix gives NaN here, which
-    # the caller's finiteness test turns into 'singular KKT matrix'.
-    from numpy.linalg._umath_linalg import solve1 as _gesv
-except ImportError:  # a numpy without that module: the public function
-    _gesv = None
-
-
-def _solve(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """``numpy.linalg.solve(matrix, rhs)`` for a square float matrix and a vector."""
-    if _gesv is None:
-        try:
-            return np.linalg.solve(matrix, rhs)
-        except np.linalg.LinAlgError:
-            return np.full(rhs.shape, np.nan)
-    with np.errstate(invalid='ignore'):
-        return _gesv(matrix, rhs, signature='dd->d')
-
-
-def _kkt_solve(h, g, c, bounds, at_upper, at_lower, tolerance):
-    """One equality-constrained solve of :func:`polish` and its checks.
-
-    The variables at an active bound are fixed there and eliminated (a smaller LU:
-    the MPC's slacks at 0 are about half the variables); the free ones z_f and the
-    multipliers λ of the active rows A of C solve
-
-        [H_ff  A_fᵀ] [z_f]   [−(g + H z_b)_f]
-        [A_f   0   ] [ λ ] = [ b − A z_b    ]
-
-    with z_b the fixed values (zero elsewhere); the box multipliers then close the
-    stationarity of the fixed variables. Without active rows (most ticks) the matrix is
-    H_ff itself.
-    """
-    lo, hi = bounds.lower, bounds.upper
-    n = h.shape[0]
-    m = c.shape[0]
-    active = at_upper | at_lower
-    active_rows = active[:m]
-    fixed = active[m:]
-    free = ~fixed
-    z = np.where(fixed, np.where(at_upper[m:], hi[m:], lo[m:]), 0.0)
-    h_free = h[free]
-    if active_rows.any():
-        bounds_rows = np.where(at_upper[:m], hi[:m], lo[:m])[active_rows]
-        a = c[active_rows]
-        a_free = a[:, free]
-        n_free = a_free.shape[1]
-        k = a.shape[0]
-        kkt = np.zeros((n_free + k, n_free + k))
-        kkt[:n_free, :n_free] = h_free[:, free]
-        kkt[n_free:, :n_free] = a_free
-        kkt[:n_free, n_free:] = a_free.T
-        rhs = np.concatenate((-(g + h @ z)[free], bounds_rows - a @ z))
-    else:
-        n_free = h_free.shape[0]
-        kkt = h_free[:, free]
-        rhs = -(g + h @ z)[free]
-    solution = _solve(kkt, rhs)
-    if not np.isfinite(solution).all():
-        return None, None, 'singular KKT matrix', None, None, None
-    z[free] = solution[:n_free]
-    y = np.zeros(m + n)
-    y[:m][active_rows] = solution[n_free:]
-    gradient = h @ z + g + c.T @ y[:m]
-    residual = np.abs(gradient[free])
-    if residual.size and not residual.max() <= tolerance:
-        return None, None, 'stationarity', None, None, None
-    y[m:][fixed] = -gradient[fixed]
-    rz = np.concatenate((c @ z, z))
-    over = rz > bounds.upper_tolerated
-    under = rz < bounds.lower_tolerated
-    wrong = (at_upper & (y < -tolerance)) | (at_lower & (y > tolerance))
-    if (over | under).any():
-        return z, y, 'primal infeasible', over, under, wrong
-    if wrong.any():
-        return z, y, 'dual sign', over, under, wrong
-    return z, y, 'ok', over, under, wrong
+def _compiled_polish():
+    """Import and warm up :mod:`.qp_polish` once per process (numba only when needed)."""
+    global _qp_polish  # noqa: PLW0603 - one compiled module per process
+    if _qp_polish is None:
+        from . import qp_polish
+        qp_polish.warm_up()
+        _qp_polish = qp_polish
+    return _qp_polish
 
 
 def _finite_or_error(z: np.ndarray, status: MpcStatus) -> MpcStatus:
@@ -308,6 +214,8 @@ class ProxsuiteSolver:
         self._qp = None
         self._exact = None  # DaqpSolver, made on the first double failure
         self.stats = PolishStats()
+        if settings.polish:
+            _compiled_polish()   # at construction, not in the first control tick
         _LIVE_SOLVERS.add(self)
 
     def _new_workspace(self, initial_guess=None):
