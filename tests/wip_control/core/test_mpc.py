@@ -1114,3 +1114,91 @@ def test_a_process_that_exits_holding_an_mpc_prints_no_binding_leak_report():
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == 'SOLVED'
     assert 'leaked' not in done.stderr, done.stderr
+
+
+def numpy_qp(mpc, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit, g2, g3, g2p,
+             g3p, tau_prev, transient, speed_trend):
+    """H, g, C, l, u of eqs. (20)–(22) with numpy array operations, from mpc's data.
+
+    The formulation the compiled kernel (core/mpc_qp.py) replaced, written as array
+    expressions: the kernel must give the same QP to round-off.
+    """
+    cfg, pred = mpc.config, mpc.prediction
+    n_c, n_p = cfg.control_horizon, cfg.prediction_horizon
+    h, g, c = mpc.last_qp.H.copy(), mpc.last_qp.g.copy(), mpc.last_qp.C.copy()
+    lower, upper = mpc.last_qp.l.copy(), mpc.last_qp.u.copy()
+    free = (pred.free_state_matrix @ [v_hat, theta_hat, theta_dot_hat]
+            + pred.free_v_column * (f2_hat + g2 * tau_prev)
+            + pred.free_theta_dot_column * (f3_hat + g3 * tau_prev)
+            + mpc._transient_v * transient[0] + mpc._transient_theta_dot * transient[1])
+    coef = np.array([2 * g2p * g2p, 2 * g2p * g3p, 2 * g3p * g3p, 2.0])
+    h[:n_c, :n_c] = (coef @ mpc._hessian_blocks).reshape(n_c, n_c)
+    error = np.zeros(3 * n_p)
+    error[0::3] = (np.clip(v_d + mpc._preview_ramp * speed_trend, -cfg.max_speed,
+                           cfg.max_speed) if cfg.speed_preview_time > 0.0 else v_d)
+    error[1::3] = mpc.target_theta
+    error -= free
+    projected = mpc._weighted_gains @ error
+    g[:n_c] = -2.0 * (g2p * projected[:n_c] + g3p * projected[n_c:])
+    rows = (np.array([g2p, g3p]) @ mpc._row_blocks).reshape(2 * n_p, n_c)
+    c[n_c:n_c + 2 * n_p, :n_c] = rows
+    c[n_c + 2 * n_p:n_c + 4 * n_p, :n_c] = rows
+    outputs = np.concatenate((free[0::3], free[1::3]))
+    upper[n_c:n_c + 2 * n_p] = mpc._limits - outputs
+    lower[n_c + 2 * n_p:n_c + 4 * n_p] = -mpc._limits - outputs
+    n_free = min(cfg.speed_limit_first_step - 1, n_p)
+    upper[n_c:n_c + n_free] = np.inf
+    lower[n_c + 2 * n_p:n_c + 2 * n_p + n_free] = -np.inf
+    n_rise = mpc._n_rise
+    if n_rise:
+        sign = 1.0 if v_hat >= 0.0 else -1.0
+        c[n_c + 4 * n_p:, :n_c] = sign * rows[:n_rise]
+        braking = (sign * v_hat >= cfg.max_speed
+                   and sign * (theta_hat + cfg.sampling_period * theta_dot_hat) <= 0.0)
+        upper[n_c + 4 * n_p:] = (sign * v_hat - sign * outputs[:n_rise] if braking
+                                 else np.inf)
+    upper[:n_c] = np.maximum(limit, tau_prev - mpc._reach) - tau_prev
+    lower[:n_c] = np.minimum(-limit, tau_prev + mpc._reach) - tau_prev
+    return h, g, c, lower, upper, free
+
+
+@pytest.mark.parametrize('seed', range(12))
+def test_the_compiled_qp_is_the_numpy_formulation(seed):
+    # Random states, half of them above the speed limit (the rise rows), with and without
+    # the speed preview, a transient disturbance beyond its dead zone, a torque beyond
+    # the limit: the kernel fills the same QP as the array expressions, to round-off.
+    rng = np.random.default_rng(seed)
+    config = dataclasses.replace(CONFIG, speed_preview_time=0.5 if seed % 2 else 0.0)
+    mpc = LongitudinalMpc(PARAMS, config)
+    v_hat = rng.choice([-1.0, 1.0]) * (config.max_speed + rng.uniform(-0.3, 0.3))
+    theta_hat, theta_dot_hat = rng.uniform(-0.1, 0.1), rng.uniform(-0.5, 0.5)
+    f2_hat, f3_hat = rng.uniform(-3, 3), rng.uniform(-20, 20)
+    v_d, limit, tau_prev = rng.uniform(-1.5, 1.5), rng.uniform(5, 30), rng.uniform(-35, 35)
+    _, g2, g3 = input_gains(PARAMS, theta_hat)
+    g2p, g3p = g2 * rng.uniform(0.9, 1.1), g3 * rng.uniform(0.9, 1.1)
+    transient = (rng.uniform(-2, 2), rng.uniform(-10, 10))
+    mpc._target.transient = transient
+    mpc._target.theta = rng.uniform(-0.05, 0.05)
+    mpc._v_d_last, mpc._v_d_trend = v_d - 0.01, rng.uniform(-1, 1)
+    trend_before, last_before = mpc._v_d_trend, mpc._v_d_last
+    free = mpc._build(v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit, g2, g3,
+                      g2p, g3p, tau_prev)
+    # The trend filter's update of this tick, as _speed_trend does it.
+    trend = trend_before
+    if config.speed_preview_time > 0.0:
+        ts = config.sampling_period
+        rate = min(max((v_d - last_before) / ts, -config.max_speed_trend),
+                   config.max_speed_trend)
+        trend += ts / (config.speed_trend_filter_time_constant + ts) * (rate - trend)
+    zone = config.disturbance_decay_dead_zone
+    excess = [max(abs(t) - b, 0.0) * math.copysign(1.0, t) for t, b in zip(transient, zone)]
+    expected = numpy_qp(mpc, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit,
+                        g2, g3, g2p, g3p, tau_prev, excess, trend)
+    qp = mpc.last_qp
+    for name, got, want in zip(('H', 'g', 'C', 'l', 'u', 'free'),
+                               (qp.H, qp.g, qp.C, qp.l, qp.u, free), expected):
+        finite = np.isfinite(want)
+        assert np.array_equal(np.isfinite(got), finite), name
+        assert np.array_equal(got[~finite], want[~finite]), name
+        scale = 1.0 + np.abs(want[finite]).max()
+        assert np.abs(got[finite] - want[finite]).max() <= 1e-12 * scale, name

@@ -463,14 +463,12 @@ class LongitudinalMpc(PreviousTorque):
         self._hessian_blocks = np.stack([
             g2m.T @ qg2, g2m.T @ qg3 + g3m.T @ qg2, g3m.T @ qg3,
             r * np.eye(n_c)]).reshape(4, n_c * n_c)
-        self._hessian_coef = np.empty(4)
         # Gradient: g_Δ = −2 (g2 G2ᵀQ e + g3 G3ᵀQ e), e = ȳr − ȳ_free.
-        self._weighted_gains = np.vstack([qg2.T, qg3.T])  # (2Nc, 3Np)
+        self._weighted_gains = np.ascontiguousarray(np.vstack([qg2.T, qg3.T]))  # (2Nc, 3Np)
         # Constraint rows on υ and θ: [υ rows; θ rows] = g2 C2 + g3 C3, stacked (2, 2Np·Nc).
         self._row_blocks = np.stack([
             np.vstack([g2m[0::3], g2m[1::3]]).reshape(-1),
             np.vstack([g3m[0::3], g3m[1::3]]).reshape(-1)])
-        self._row_coef = np.empty(2)
         # Reachable |τ(k+j) − τ(k−1)| under the increment limit, for the τ rows.
         self._reach = config.max_delta_torque * np.arange(1, n_c + 1)
 
@@ -522,18 +520,20 @@ class LongitudinalMpc(PreviousTorque):
         self._ub = np.full(n, np.inf)
         self._lb[:n_c] = -config.max_delta_torque
         self._ub[:n_c] = config.max_delta_torque
-        n_free = min(config.speed_limit_first_step - 1, n_p)
-        self._free_speed_upper = slice(n_c, n_c + n_free)
-        self._free_speed_lower = slice(n_c + 2 * n_p, n_c + 2 * n_p + n_free)
+        self._n_free_speed = min(config.speed_limit_first_step - 1, n_p)
         self._target = OffsetFreeTarget(params, config)
-        self._reference = np.zeros(3 * n_p)
-        self._x_hat = np.empty(3)
         self.last_qp = QpData(self._h, self._g, self._c, self._l, self._u, self._lb,
                               self._ub)
 
         self.last_solution = None  # QpSolution of the last solve (z with every slack)
         self._solver = (make_solver(config.backend, n, m, config.qp_settings())
                         if solver is None else solver)
+        self._kernels = _compiled_kernels()   # at construction, not in the first tick
+        # The prediction's matrices as the kernels take them (C-contiguous).
+        self._free_response = tuple(np.ascontiguousarray(a) for a in (
+            pred.free_state_matrix, pred.free_v_column, pred.free_theta_dot_column))
+        self._gain_matrices = tuple(np.ascontiguousarray(a) for a in (
+            pred.gain_matrix_v, pred.gain_matrix_theta_dot))
         self._tau_previous = 0.0
         # υd trend preview: the reference of step i is υd + min(i Ts, T) · dυd/dt.
         steps = np.arange(1, n_p + 1) * config.sampling_period
@@ -632,11 +632,11 @@ class LongitudinalMpc(PreviousTorque):
         plan[0] = delta
         self._plan = plan
         self._tau_previous = tau_prev + delta
-        predicted = (free + g2p * (self.prediction.gain_matrix_v @ plan)
-                     + g3p * (self.prediction.gain_matrix_theta_dot @ plan))
+        predicted = self._kernels.predict(free, float(g2p), float(g3p),
+                                          *self._gain_matrices, plan)
         return MpcResult(self._tau_previous, delta, solution.status, solution.iterations,
                          t_solved - t_built, t_built - t_start, slack_v, slack_theta,
-                         used_fallback, predicted.reshape(-1, 3), plan.copy(),
+                         used_fallback, predicted, plan.copy(),
                          self._target.theta)
 
     @property
@@ -646,72 +646,39 @@ class LongitudinalMpc(PreviousTorque):
 
     def _build(self, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit, g2, g3,
                g2p, g3p, tau_prev) -> np.ndarray:
-        """Fill H, g, C, l, u in place; return the free response ȳ_free (3Np)."""
-        n_c = self.config.control_horizon
-        n_p = self.config.prediction_horizon
-        pred = self.prediction
-        x = self._x_hat
-        x[0], x[1], x[2] = v_hat, theta_hat, theta_dot_hat
-        free = pred.free_state_matrix @ x
-        free += pred.free_v_column * (f2_hat + g2 * tau_prev)
-        free += pred.free_theta_dot_column * (f3_hat + g3 * tau_prev)
+        """Fill H, g, C, l, u in place; return the free response ȳ_free (3Np).
+
+        The arithmetic is :func:`.mpc_qp.fill` (compiled); the data are this object's.
+        """
+        cfg = self.config
         transient_v, transient_theta_dot = self._target.transient
         # Only the excess over the dead zone decays; the rest is held like f̂ itself.
-        zone_v, zone_theta_dot = self.config.disturbance_decay_dead_zone
-        transient_v = _excess(transient_v, zone_v)
-        transient_theta_dot = _excess(transient_theta_dot, zone_theta_dot)
-        if transient_v or transient_theta_dot:
-            free += self._transient_v * transient_v
-            free += self._transient_theta_dot * transient_theta_dot
-
-        # Eq. (22): H_ΔΔ = 2(G̃ᵀQG̃ + R), g_Δ = −2 G̃ᵀQ(ȳr − ȳ_free).
-        coef = self._hessian_coef
-        coef[0], coef[1], coef[2] = 2.0 * g2p * g2p, 2.0 * g2p * g3p, 2.0 * g3p * g3p
-        coef[3] = 2.0
-        self._h[:n_c, :n_c] = (coef @ self._hessian_blocks).reshape(n_c, n_c)
-        # ȳr = 1 ⊗ (υd, θs, 0); θs = 0 in the paper's (20).
-        error = self._reference
-        error[0::3] = self._speed_reference(v_d)
-        error[1::3] = self._target.theta
-        error[2::3] = 0.0
-        error -= free
-        projected = self._weighted_gains @ error
-        self._g[:n_c] = -2.0 * (g2p * projected[:n_c] + g3p * projected[n_c:])
-
-        # Rows (21): υ and θ of the plan, identical for the ≤ and ≥ halves.
-        self._row_coef[0], self._row_coef[1] = g2p, g3p
-        rows = (self._row_coef @ self._row_blocks).reshape(2 * n_p, n_c)
-        self._c[self._slice_upper, :n_c] = rows
-        self._c[self._slice_lower, :n_c] = rows
-        free_outputs = np.concatenate((free[0::3], free[1::3]))
-        np.subtract(self._limits, free_outputs, out=self._u[self._slice_upper])
-        np.subtract(-self._limits, free_outputs, out=self._l[self._slice_lower])
-        # Speed rows of the first steps are free (see ``speed_limit_first_step``).
-        self._u[self._free_speed_upper] = np.inf
-        self._l[self._free_speed_lower] = -np.inf
-        if self._n_rise:
-            sign = 1.0 if v_hat >= 0.0 else -1.0
-            self._c[self._rise_rows, :n_c] = sign * rows[:self._n_rise]
-            # Only braking from at or above the limit: below it, going beyond the limit is
-            # the speed slacks' business (a recovery from a hard push may need it), and
-            # leaning (one MPC period ahead) the way it travels, the wheels must speed up
-            # to catch the body: that is balance, not the rise before braking.
-            if (sign * v_hat < self.config.max_speed or
-                    sign * (theta_hat + self.config.sampling_period * theta_dot_hat) > 0.0):
-                self._u[self._rise_rows] = np.inf
-            else:
-                np.subtract(sign * v_hat, sign * free_outputs[:self._n_rise],
-                            out=self._u[self._rise_rows])
-        # τ rows, relaxed to the reachable set if |τ(k−1)| is beyond the limit (see module).
-        np.subtract(np.maximum(limit, tau_prev - self._reach), tau_prev, out=self._u[:n_c])
-        np.subtract(np.minimum(-limit, tau_prev + self._reach), tau_prev, out=self._l[:n_c])
+        zone_v, zone_theta_dot = cfg.disturbance_decay_dead_zone
+        free = np.empty(3 * cfg.prediction_horizon)
+        # Floats and C-contiguous float arrays only: the kernel is compiled for those types
+        # (another type would compile anew, seconds, in a control tick).
+        self._kernels.fill(
+            float(v_hat), float(theta_hat), float(theta_dot_hat), float(f2_hat),
+            float(f3_hat), float(g2), float(g3), float(g2p), float(g3p), float(tau_prev),
+            float(limit), float(_excess(transient_v, zone_v)),
+            float(_excess(transient_theta_dot, zone_theta_dot)), float(v_d),
+            float(self._speed_trend(v_d)), cfg.speed_preview_time > 0.0,
+            float(self._target.theta),
+            float(cfg.max_speed), float(cfg.sampling_period), self._n_free_speed,
+            self._n_rise, *self._free_response, self._transient_v, self._transient_theta_dot,
+            self._hessian_blocks, self._weighted_gains, self._row_blocks, self._limits,
+            self._reach, self._preview_ramp, self._h, self._g, self._c, self._l, self._u, free)
         return free
 
-    def _speed_reference(self, v_d: float):
-        """υd over the horizon: held (the paper's (20)) or continuing its trend."""
+    def _speed_trend(self, v_d: float) -> float:
+        """dυd/dt, filtered, for the speed reference over the horizon (0 without a preview).
+
+        The reference of step i is υd + min(i Ts, T) · trend, clipped to ±υmax
+        (``speed_preview_time`` T > 0); else υd held, as in (20).
+        """
         cfg = self.config
         if cfg.speed_preview_time <= 0.0:
-            return v_d
+            return 0.0
         if self._v_d_last is not None:
             ts = self._period
             rate = (v_d - self._v_d_last) / ts
@@ -719,10 +686,7 @@ class LongitudinalMpc(PreviousTorque):
             rate = min(max(rate, -cfg.max_speed_trend), cfg.max_speed_trend)
             self._v_d_trend += gain * (rate - self._v_d_trend)
         self._v_d_last = v_d
-        limit = cfg.max_speed
-        # (np.clip's Python wrapper costs more than the two ufuncs, same values, NaN too)
-        return np.minimum(np.maximum(v_d + self._preview_ramp * self._v_d_trend, -limit),
-                          limit)
+        return self._v_d_trend
 
     # ------------------------------------------------------------------ fallbacks
     def _shifted_plan(self) -> np.ndarray:
@@ -775,6 +739,20 @@ class LongitudinalMpc(PreviousTorque):
 def _beyond(transient: tuple[float, float], zone: tuple[float, float]) -> bool:
     """Whether either transient (d2, d3) is beyond its band of the dead zone."""
     return abs(transient[0]) > zone[0] or abs(transient[1]) > zone[1]
+
+
+#: The compiled kernels (:mod:`.mpc_qp`), imported by the first MPC.
+_mpc_qp = None
+
+
+def _compiled_kernels():
+    """Import and warm up :mod:`.mpc_qp` once per process (numba only when an MPC is made)."""
+    global _mpc_qp  # noqa: PLW0603 - one compiled module per process
+    if _mpc_qp is None:
+        from . import mpc_qp
+        mpc_qp.warm_up()
+        _mpc_qp = mpc_qp
+    return _mpc_qp
 
 
 def _excess(value: float, band: float) -> float:
