@@ -26,7 +26,7 @@ import importlib
 import math
 import re
 
-from hypothesis import given, HealthCheck, settings, strategies as st
+from hypothesis import example, given, HealthCheck, settings, strategies as st
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
@@ -290,10 +290,15 @@ def test_arbitrary_messages_into_every_callback_never_raise_or_output_bad_torque
 
         # derandomize: the same examples on every run. With random ones, a run now and then
         # never formed a complete lockstep input set of the ESO (joint states, IMU and GPS
-        # of one stamp), and the check below that the computation was reached failed.
+        # of one stamp), and the check below that the computation was reached failed. That
+        # still happened once in a whole-suite run (Hypothesis generated other examples
+        # there than alone), so the ESO's complete set is also given as an explicit example.
+        explicit = complete_sensor_set(subscriptions)
+
         @settings(max_examples=EXAMPLES, deadline=None, database=None, derandomize=True,
                   suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
         @given(calls=calls)
+        @(example(calls=explicit) if explicit else lambda test: test)
         def fuzz(calls):
             first = len(outputs.messages)
             for index, msg in calls:
@@ -312,6 +317,23 @@ def test_arbitrary_messages_into_every_callback_never_raise_or_output_bad_torque
             assert_mixer_recovers(node, subscriptions, timers, outputs, mode)
     finally:
         node.destroy_node()
+
+
+def complete_sensor_set(subscriptions):
+    """(index, message) of one complete sensor set at stamp 0, if the node takes the sensors.
+
+    Joint states, IMU and a GPS fix of one stamp (a GPS tick): an estimate in either clock
+    mode. An empty list for a node without those three inputs.
+    """
+    index = {s.topic_name: i for i, s in enumerate(subscriptions)}
+    if not {'/joint_states', '/imu/data', '/gps/fix'} <= index.keys():
+        return []
+    header = make_header(0)
+    return [(index['/joint_states'], JointState(
+                header=header, name=['left_wheel_joint', 'right_wheel_joint'],
+                position=[0.0, 0.0])),
+            (index['/imu/data'], _imu(header, 0.01, 0.2)),
+            (index['/gps/fix'], _fix(header, 0.0, 0.0))]
 
 
 def assert_mixer_recovers(node, subscriptions, timers, outputs, mode):

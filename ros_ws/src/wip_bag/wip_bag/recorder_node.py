@@ -79,7 +79,8 @@ Behaviour
   needed), reports ``disk full`` on ``/diagnostics`` (level ERROR) and drops the rest. The
   nodes being recorded never wait for the recorder: it is a separate process and its
   subscriptions are keep-last, so a stalled recorder only loses its own messages.
-- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once per second (wall time): the bag
+- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once per second (wall time; every 0.1 s
+  for its first 10 s, while a launcher waits for every node to report): the bag
   path, the file being written, the messages recorded in total and per topic, the write
   backlog, and any topic that could not be recorded.
 """
@@ -105,6 +106,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from wip_control.nodes.launched import end_with_launcher
 from wip_control.nodes.common import init_rclpy
+from wip_control.nodes.diagnostics import create_diagnostics_timer
 from wip_control.nodes.parameters import ConfigParameters
 from wip_control.tools.cli import answer_node_help
 
@@ -231,7 +233,8 @@ class RecorderNode(Node):
             wall = Clock(clock_type=ClockType.STEADY_TIME)
             self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
             self.create_timer(discovery_period, self.discover, clock=wall)
-            self.create_timer(DIAGNOSTICS_PERIOD, self.publish_diagnostics, clock=wall)
+            # (It cannot tell when a run starts: every 0.1 s for the start-up time.)
+            create_diagnostics_timer(self, self.publish_diagnostics, DIAGNOSTICS_PERIOD)
             self._last_diagnostics = (time.monotonic(), 0)
             self.get_logger().info(
                 f'recording {"all topics" if not self.requested else self.requested} '

@@ -45,7 +45,8 @@ What it does
    design (:data:`PUBLISHERS`, :data:`SUBSCRIBERS`; the recorder adds one subscription
    per recorded topic), and then a /diagnostics message of every node sent after that
    moment (the probe's view of the graph can be complete before two *other* nodes have
-   matched each other; their discovery exchange takes milliseconds, the wait up to 1 s).
+   matched each other; their discovery exchange takes milliseconds; the nodes report every
+   0.1 s while they start, so the wait is about 0.1 s).
    The controllers report the DDS match counts of their endpoints in /diagnostics
    (``matched subscriptions <topic>``, ``matched publishers <topic>``): both sides of
    every designed pair, and each controller's /clock subscription in lockstep, must

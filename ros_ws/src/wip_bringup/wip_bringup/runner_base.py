@@ -450,7 +450,8 @@ class RunnerBase:
         Until the probe sees every node (:meth:`missing_from_view`), then a /diagnostics
         message of every node sent after that moment (the probe's view can be complete
         before two *other* nodes have matched each other; their exchange takes
-        milliseconds, the wait up to 1 s) and no :meth:`unmatched_endpoints`.
+        milliseconds; the nodes report every 0.1 s while they start, so the wait is short,
+        ``wip_control.nodes.diagnostics.STARTUP_PERIOD``) and no :meth:`unmatched_endpoints`.
         """
         nodes = self.node_names()
         deadline = time.monotonic() + self.options.discovery_timeout

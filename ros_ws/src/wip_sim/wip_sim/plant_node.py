@@ -88,6 +88,7 @@ from wip_control.nodes.common import (IntraProcessNode, LOCKSTEP_WRITER_DEPTH,
 from wip_control.nodes.conversions import (body_rates_from_euler, quaternion_from_euler,
                                            wheel_torques_from_msg)
 from wip_control.nodes.intra_process import local_match_count
+from wip_control.nodes.diagnostics import create_diagnostics_timer
 from wip_control.nodes.parameters import ConfigParameters
 from wip_control.nodes.settings import WheelJoints
 
@@ -211,7 +212,8 @@ class PlantNode(IntraProcessNode):
         self.add_intra_subscription(WheelTorques, self.torque_sub, callback)
         self.start_srv = self.create_service(Trigger, '~/start', self._on_start)
         wall = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_timer(DIAGNOSTICS_PERIOD, self.publish_diagnostics, clock=wall)
+        create_diagnostics_timer(self, self.publish_diagnostics, DIAGNOSTICS_PERIOD,
+                                 starting=lambda: not self.started)
         self.autostart_timer = (self.create_timer(AUTOSTART_PERIOD, self._autostart,
                                                   clock=wall) if settings.autostart else None)
         self.realtime_timer = None
@@ -509,7 +511,7 @@ class PlantNode(IntraProcessNode):
         return (self.wall_end or time.perf_counter()) - self.wall_start
 
     def publish_diagnostics(self) -> None:
-        """/diagnostics, once per second of wall time."""
+        """/diagnostics, once per second of wall time (every 0.1 s until the start)."""
         status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: plant',
                                   hardware_id='simulation')
         t = self.k * self.dt_control

@@ -27,7 +27,7 @@ Publishes
     about the datum ``datum.*``;
     ``/odom`` (nav_msgs/Odometry, frame ``odom_frame``) when ``publish_odometry`` is true:
     the true planar pose and speeds (the map frame of the simulation);
-    ``/diagnostics`` at 1 Hz.
+    ``/diagnostics`` at 1 Hz (10 Hz until the first command releases it).
 Subscribes
     ``/effort_controller/commands`` (std_msgs/Float64MultiArray): one effort [N m] per joint
     of ``joints``, in that order, like ``effort_controllers/JointGroupEffortController``.
@@ -78,7 +78,6 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
-from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
@@ -90,6 +89,7 @@ from wip_sim.core.scenario import load_scenario
 from wip_sim.core.simulation import Simulation
 from wip_control.nodes.common import run_simulator_node
 from wip_control.nodes.conversions import quaternion_from_euler
+from wip_control.nodes.diagnostics import create_diagnostics_timer
 from wip_control.nodes.hardware_inputs import (imu_orientation_of_body, rotate_vector_into)
 from wip_control.nodes.parameters import ConfigParameters, declare_effort_interface
 from wip_control.nodes.settings import DatumConfig, ImuMounting
@@ -274,8 +274,8 @@ class StandinBase(Node):
         self.create_subscription(Float64MultiArray, 'effort_controller/commands',
                                  self._on_command, qos)
         self.create_timer(self.dt, self._tick)
-        self.create_timer(DIAGNOSTICS_PERIOD, self._publish_diagnostics,
-                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        create_diagnostics_timer(self, self._publish_diagnostics, DIAGNOSTICS_PERIOD,
+                                 starting=lambda: not self.released)
         self._joint_msg = JointState()
         self._imu_msg = imu_message(self.scenario.sensors, settings.imu_frame,
                                     acceleration=True)
