@@ -75,6 +75,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .compiled import load_compiled
 from .config import ConfigError, param
 from .model import input_gains, nominal_terms
 from .mpc_prediction import (PREDICTION_MODELS, CondensedPrediction,
@@ -741,18 +742,9 @@ def _beyond(transient: tuple[float, float], zone: tuple[float, float]) -> bool:
     return abs(transient[0]) > zone[0] or abs(transient[1]) > zone[1]
 
 
-#: The compiled kernels (:mod:`.mpc_qp`), imported by the first MPC.
-_mpc_qp = None
-
-
 def _compiled_kernels():
-    """Import and warm up :mod:`.mpc_qp` once per process (numba only when an MPC is made)."""
-    global _mpc_qp  # noqa: PLW0603 - one compiled module per process
-    if _mpc_qp is None:
-        from . import mpc_qp
-        mpc_qp.warm_up()
-        _mpc_qp = mpc_qp
-    return _mpc_qp
+    """:mod:`.mpc_qp`, imported and warmed up by the first call in a process."""
+    return load_compiled(f'{__package__}.mpc_qp')
 
 
 def _excess(value: float, band: float) -> float:

@@ -41,6 +41,8 @@ import daqp
 import numpy as np
 import proxsuite
 
+from .compiled import load_compiled
+
 _PROXQP = proxsuite.proxqp
 _PROXQP_DENSE = _PROXQP.dense
 
@@ -177,18 +179,9 @@ def polish(h: np.ndarray, g: np.ndarray, c: np.ndarray, lower: np.ndarray,
     return PolishResult(None, None, compiled.REASONS[outcome])
 
 
-#: The compiled polish (:mod:`.qp_polish`), imported by the first ProxSuite solver.
-_qp_polish = None
-
-
 def _compiled_polish():
-    """Import and warm up :mod:`.qp_polish` once per process (numba only when needed)."""
-    global _qp_polish  # noqa: PLW0603 - one compiled module per process
-    if _qp_polish is None:
-        from . import qp_polish
-        qp_polish.warm_up()
-        _qp_polish = qp_polish
-    return _qp_polish
+    """:mod:`.qp_polish`, imported and warmed up by the first call in a process."""
+    return load_compiled(f'{__package__}.qp_polish')
 
 
 def _finite_or_error(z: np.ndarray, status: MpcStatus) -> MpcStatus:

@@ -1,0 +1,23 @@
+"""The numba-compiled kernels of the core, imported and warmed up once per process.
+
+Each kernel module (``mpc_qp``, ``qp_polish``) has a ``warm_up()`` that loads its code
+from numba's cache or compiles it. It is called where a controller is made, not in its
+first tick, and a process that makes no MPC does not import numba.
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+_loaded: dict[str, ModuleType] = {}
+
+
+def load_compiled(module_name: str) -> ModuleType:
+    """Return the kernel module ``module_name``, imported and warmed up on the first call."""
+    module = _loaded.get(module_name)
+    if module is None:
+        module = importlib.import_module(module_name)
+        module.warm_up()
+        _loaded[module_name] = module
+    return module
