@@ -3,12 +3,17 @@
 Each kernel module (``mpc_qp``, ``qp_polish``) has a ``warm_up()`` that loads its code
 from numba's cache or compiles it. It is called where a controller is made, not in its
 first tick, and a process that makes no MPC does not import numba.
+``python3 -m wip_control.core.compiled`` fills numba's cache of all of them (scripts/setup
+and the Docker image do, after building).
 """
 
 from __future__ import annotations
 
 import importlib
 from types import ModuleType
+
+#: The kernel modules of the controllers.
+KERNELS = ('wip_control.core.mpc_qp', 'wip_control.core.qp_polish')
 
 _loaded: dict[str, ModuleType] = {}
 
@@ -21,3 +26,8 @@ def load_compiled(module_name: str) -> ModuleType:
         module.warm_up()
         _loaded[module_name] = module
     return module
+
+
+if __name__ == '__main__':
+    for kernel in KERNELS:
+        load_compiled(kernel)

@@ -495,3 +495,7 @@ def _load_integrator() -> None:
         from . import plant_rk4
         plant_rk4.warm_up(len(_CONSTANT_NAMES))
         _rk4_hold = plant_rk4.rk4_hold
+
+
+if __name__ == '__main__':   # python3 -m wip_sim.core.plant: fill numba's cache
+    _load_integrator()
