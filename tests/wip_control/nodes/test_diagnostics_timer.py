@@ -1,7 +1,7 @@
 """/diagnostics every 0.1 s while a node starts, then at its period (nodes/diagnostics.py).
 
-A launcher waits for a status of every node sent after its view of the graph is complete;
-at 1 s that wait took about 1 s of every start. The timer's period is checked directly
+A launcher waits for a status of every node sent after its view of the graph is complete,
+up to a whole period at the steady 1 s. The timer's period is checked directly
 (timer callbacks called by hand: no dependence on the machine's speed), and once through
 an executor on the wall clock.
 """

@@ -3,9 +3,9 @@
 :class:`.mpc.LongitudinalMpc` holds the data (its constructor says what each block is);
 these kernels do the per-tick arithmetic of eqs. (20)–(22): the free response, the
 Hessian and gradient of the increments, the rows of the soft limits on υ and θ, the τ and
-rise rows. With numpy this was some 40 small-array calls, about 45 µs per MPC tick in the
-loop; compiled, a few µs (docs/runner-speed.md). No ``fastmath``: every sum runs in the
-order of the loops below, so the bits depend on the data only.
+rise rows, compiled because as numpy code their cost was the overhead of many
+small-array calls (measured: docs/runner-speed.md). No ``fastmath``: every sum runs in
+the order of the loops below, so the bits depend on the data only.
 """
 
 from __future__ import annotations

@@ -25,9 +25,8 @@ Every point ProxSuite reports as solved is *polished*: the equality-constrained 
 the active set it found (multipliers larger than ``eps_abs``) is solved (compiled, a fixed
 order of IEEE operations: :mod:`.qp_polish`), and the result replaces ProxSuite's when it
 is primal feasible and its multipliers have the right signs (else DAQP solves the same
-data). The polished point depends only on the data and
-the active set, so the same scenario gives the same bits in every process
-(docs/decisions/determinism.md).
+data). The polished point depends only on the data and the active set, so the same
+scenario gives the same bits in every process (docs/decisions/determinism.md).
 """
 
 from __future__ import annotations

@@ -1,12 +1,11 @@
 """The polish of :func:`.qp.polish`, compiled with numba (``cache=True``).
 
-One call per MPC solve; interpreted with numpy it cost about 100 µs, most of it the
-overhead of some 45 small-array calls with the CPU caches cold from the control ticks in
-between (docs/runner-speed.md). The linear solve is Gaussian elimination with partial
-pivoting written out here, not LAPACK: no ``fastmath``, so every operation is an IEEE
-operation in a fixed order and the bits depend on the data only, not on a BLAS kernel
-chosen for the CPU. :mod:`.qp` imports this module when the first ProxSuite solver is
-made, so a process that solves no QP does not import numba.
+One call per MPC solve, compiled because as numpy code its cost was the overhead of many
+small-array calls (measured: docs/runner-speed.md). The linear solve is Gaussian
+elimination with partial pivoting written out here, not LAPACK: no ``fastmath``, so every
+operation is an IEEE operation in a fixed order and the bits depend on the data only, not
+on a BLAS kernel chosen for the CPU. :mod:`.qp` imports this module when the first
+ProxSuite solver is made, so a process that solves no QP does not import numba.
 """
 
 from __future__ import annotations

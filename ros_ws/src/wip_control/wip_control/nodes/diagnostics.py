@@ -35,8 +35,8 @@ _LOGGED_DROPS = 5
 _NOT_COUNTED = ('/diagnostics', '/rosout', '/parameter_events')
 #: Period of /diagnostics while a node starts [s of wall time]. A launcher waits for a
 #: status of every node sent after its view of the graph is complete (the match counts in
-#: it; wip_bringup.runner_base): at the steady 1 s period that wait took about 1 s of
-#: every start (docs/node-graph.md).
+#: it; wip_bringup.runner_base): at the steady period that wait would last up to a whole
+#: period at every start (measured: docs/node-graph.md).
 STARTUP_PERIOD = 0.1
 #: The start lasts until the node says it has started, at most this long [s of wall time].
 STARTUP_TIME = 10.0
