@@ -70,3 +70,32 @@ def test_the_profile_keeps_a_process_from_matching_its_own_endpoints():
 ])
 def test_only_a_default_participant_profile_that_sets_the_property_counts(text, expected):
     assert profile_ignores_local_endpoints(text) is expected
+
+
+@pytest.mark.parametrize('layout', ['single', 'composed', 'separate'])
+@pytest.mark.parametrize('user_mode', [None, 'SYNCHRONOUS'])
+def test_only_the_single_layouts_simulation_publishes_asynchronously(monkeypatch, tmp_path,
+                                                                      layout, user_mode):
+    """Its writers feed observers only; where the loop crosses processes they stay as set."""
+    pytest.importorskip('ament_index_python')
+    from wip_bringup import graph, runner_base
+    if user_mode is None:
+        monkeypatch.delenv(graph.PUBLICATION_MODE_VARIABLE, raising=False)
+    else:
+        monkeypatch.setenv(graph.PUBLICATION_MODE_VARIABLE, user_mode)
+    started = {}
+
+    class Started:
+        def __init__(self, name, command, log_path, env, *args, **kwargs):
+            started[name] = env
+
+    monkeypatch.setattr(runner_base, 'NodeProcess', Started)
+    runner = graph.GraphRunner(graph.GraphOptions(out=str(tmp_path / 'o'), layout=layout,
+                                                  record=str(tmp_path / 'bag'), quiet=True))
+    runner.start_processes(tmp_path / 'params.yaml')
+    assert 'recorder' in started and len(started) > 1
+    for name, env in started.items():
+        expected = ('ASYNCHRONOUS' if name == 'simulation' and user_mode is None
+                    else user_mode)
+        assert env.get(graph.PUBLICATION_MODE_VARIABLE) == expected, name
+    assert ('simulation' in started) == (layout == 'single')

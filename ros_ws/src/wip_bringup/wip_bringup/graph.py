@@ -361,6 +361,19 @@ class GraphRunner(RunnerBase):
             processes = [name for name in processes if name != 'viewer']
         return processes
 
+    def process_environment(self, name: str, env: dict[str, str]) -> dict[str, str]:
+        """Fast DDS's asynchronous publication in the single layout's simulation process.
+
+        The lockstep loop closes inside that process, so its DDS writers feed observers only
+        (the recorder, a user's tools); a sample handed to Fast DDS's own thread is sent on
+        the other core while the loop goes on. Not where the loop itself crosses processes
+        (composed, separate): the extra hand-off slows it. A setting of the user's stays.
+        See docs/decisions/recording-speed.md.
+        """
+        if name == 'simulation' and PUBLICATION_MODE_VARIABLE not in env:
+            return {**env, PUBLICATION_MODE_VARIABLE: 'ASYNCHRONOUS'}
+        return env
+
     def program_arguments(self, name: str) -> list[str]:
         if name == 'simulation' and self.options.viewer:
             return [WITH_VIEWER]
@@ -846,6 +859,8 @@ def format_result(result: GraphResult) -> str:
 #: the bag holds the same topics and counts as the composed layout's
 #: (docs/decisions/recording-speed.md has the measurements).
 RECORDED_LOCKSTEP_LAYOUT = 'single'
+#: rmw_fastrtps's publication mode of every writer of a process (SYNCHRONOUS by default).
+PUBLICATION_MODE_VARIABLE = 'RMW_FASTRTPS_PUBLICATION_MODE'
 
 
 def default_layout(clock: str, record: str | None) -> str:

@@ -388,6 +388,10 @@ class RunnerBase:
         """
         return signal.SIGTERM if name == 'recorder' else signal.SIGINT
 
+    def process_environment(self, name: str, env: dict[str, str]) -> dict[str, str]:
+        """Return the environment of the process ``name`` (hook; the graph's, as is)."""
+        return env
+
     def start_processes(self, params_file: pathlib.Path) -> None:
         env = graph_environment(self.domain_id, private=self.PRIVATE_NETWORK)
         env['ROS_LOG_DIR'] = str(self.out / 'logs' / 'ros')
@@ -398,7 +402,8 @@ class RunnerBase:
             # The recorder in a process group of its own: a Ctrl-C in the terminal reaches
             # it only through this launcher, after the other nodes stopped and it drained.
             self.processes[name] = NodeProcess(name, command,
-                                               self.out / 'logs' / f'{name}.log', env,
+                                               self.out / 'logs' / f'{name}.log',
+                                               self.process_environment(name, env),
                                                scheduling, pass_fds=tuple(self.locks),
                                                own_group=name == 'recorder',
                                                stop_signal=self.stop_signal(name))

@@ -50,21 +50,21 @@ from __future__ import annotations
 import sys
 import time
 
+import numpy as np
+
 from diagnostic_msgs.msg import DiagnosticStatus
-from geometry_msgs.msg import Point, Pose, PoseStamped
 from nav_msgs.msg import Odometry, Path
 from rclpy.qos import QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
-from std_msgs.msg import ColorRGBA
+from rclpy.serialization import deserialize_message
 from visualization_msgs.msg import Marker, MarkerArray
 
-from wip_control.nodes.common import IntraProcessNode, make_header, run_node, stamp_to_ns
-from wip_control.nodes.conversions import odometry_to_msg
+from wip_control.nodes.common import IntraProcessNode, run_node, stamp_to_ns
+from wip_control.nodes.conversions import quaternion_from_euler
 from wip_control.nodes.diagnostics import NodeDiagnostics
 from wip_control.nodes.parameters import ConfigParameters
 from wip_msgs.msg import GroundTruth, MpcOutput, ReferenceState, StateEstimate
 
-from rclpy.serialization import deserialize_message
-
+from . import cdr
 from .viewer_core import (cdr_stamp_ns, PathBuffer, planar_pose_covariance, predicted_track,
                           quaternion_yaw_pitch, RateGate, vehicle_geometry, VIEWER_TOPICS,
                           ViewerConfig)
@@ -77,16 +77,12 @@ _INPUT_QOS = QoSProfile(depth=5, history=QoSHistoryPolicy.KEEP_LAST,
                         reliability=QoSReliabilityPolicy.BEST_EFFORT)
 
 
-def _color(r: float, g: float, b: float, a: float = 1.0) -> ColorRGBA:
-    return ColorRGBA(r=r, g=g, b=b, a=a)
-
-
-def _pose(position, orientation) -> Pose:
-    pose = Pose()
-    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in position)
-    (pose.orientation.x, pose.orientation.y, pose.orientation.z,
-     pose.orientation.w) = (float(v) for v in orientation)
-    return pose
+_ZERO_COVARIANCE = (0.0,) * 36
+_VEHICLE_COLOR = {'truth': (0.2, 0.45, 0.8, 0.9), 'estimate': (0.85, 0.35, 0.2, 0.9)}
+_WHEEL_COLOR = (0.15, 0.15, 0.15, 1.0)
+_TRACK_COLOR, _STICKS_COLOR = (0.1, 0.7, 0.3, 0.9), (0.1, 0.7, 0.3, 0.5)
+_NO_ROTATION = (0.0, 0.0, 0.0, 1.0)
+_ORIGIN = (0.0, 0.0, 0.0)
 
 
 class ViewerNode(IntraProcessNode):
@@ -113,10 +109,9 @@ class ViewerNode(IntraProcessNode):
         self.path_gate, self.prediction_gate = RateGate(c.path_rate), RateGate(c.pose_rate)
         self.paths = {name: PathBuffer(c.path_resolution, c.max_path_points)
                       for name in ('reference', 'travelled', 'estimated')}
-        # Each point's PoseStamped, built once: a Path message holds the whole path, and
-        # building every pose again at each message cost the composed simulation process
-        # (its critical path in a recorded run) up to 0.25 ms per tick over 90 s.
-        self.path_poses: dict[str, list[PoseStamped]] = {name: [] for name in self.paths}
+        # Each point's serialized PoseStamped, encoded once: a Path message holds the whole
+        # path, and serializing every pose again at each message grew with the run.
+        self.path_poses: dict[str, list[bytes]] = {name: [] for name in self.paths}
         self.path_poses_dropped = dict.fromkeys(self.paths, 0)
         self.estimate_covariance = planar_pose_covariance(c.position_std)
         self.truth_covariance = [0.0] * 36
@@ -146,13 +141,30 @@ class ViewerNode(IntraProcessNode):
         self.diagnostics.values['path points'] = ', '.join(
             f'{name} {len(buffer.points)}' for name, buffer in self.paths.items())
 
-    def _odometry(self, stamp_ns, x, y, phi, v, omega, covariance) -> Odometry:
-        return odometry_to_msg(stamp_ns, self.config.frame_id, self.config.child_frame_id,
-                               x, y, phi, v, omega, covariance)
+    def _send(self, topic: str, data: bytes) -> None:
+        """Publish a message serialized by :mod:`.cdr`.
+
+        The process's own subscribers (the bus hands them objects) get it decoded.
+        """
+        publisher = self.publishers_[topic]
+        if getattr(publisher, 'local_subscriptions', 0):
+            data = deserialize_message(data, publisher.msg_type)
+        publisher.publish(data)
+
+    def _publish_odometry(self, topic: str, stamp_ns: int, x: float, y: float, phi: float,
+                          v: float, omega: float, covariance) -> None:
+        # As conversions.odometry_to_msg: pose in frame_id, twist in the child frame.
+        _, _, qz, qw = quaternion_from_euler(0.0, 0.0, float(phi))
+        c = self.config
+        self._send(topic, cdr.odometry(
+            stamp_ns, c.frame_id, c.child_frame_id, (float(x), float(y), 0.0),
+            (0.0, 0.0, qz, qw), covariance, (float(v), 0.0, 0.0), (0.0, 0.0, float(omega)),
+            _ZERO_COVARIANCE))
 
     def _publish_paths(self, stamp_ns: int) -> None:
         if not self.path_gate.ready(stamp_ns):
             return
+        frame_id = self.config.frame_id
         for name, buffer in self.paths.items():
             if not buffer.changed:
                 continue
@@ -163,35 +175,27 @@ class ViewerNode(IntraProcessNode):
                 del poses[:gone]
                 self.path_poses_dropped[name] = buffer.dropped
             for point_ns, x, y, yaw in buffer.points[len(poses):]:
-                pose = PoseStamped()
-                pose.header = make_header(point_ns, self.config.frame_id)
-                pose.pose = _pose((x, y, 0.0), quaternion_yaw_pitch(yaw, 0.0))
-                poses.append(pose)
-            msg = Path()
-            msg.header = make_header(stamp_ns, self.config.frame_id)
-            # A copy of the list (the poses are shared, never changed): the message keeps
-            # the points of its time.
-            msg.poses = list(poses)
-            self.publishers_[f'/wip/path/{name}'].publish(msg)
+                poses.append(cdr.pose_stamped(point_ns, frame_id, (x, y, 0.0),
+                                              quaternion_yaw_pitch(yaw, 0.0)))
+            first = None
+            if buffer.points:
+                point_ns, x, y, yaw = buffer.points[0]
+                first = (point_ns, frame_id, (x, y, 0.0), quaternion_yaw_pitch(yaw, 0.0))
+            self._send(f'/wip/path/{name}',
+                       cdr.path(stamp_ns, frame_id, first, poses[1:]))
 
     def _publish_vehicle(self, stamp_ns: int, x: float, y: float, phi: float, theta: float,
                          source: str) -> None:
         g = vehicle_geometry(x, y, phi, theta, self.config)
-        header = make_header(stamp_ns, self.config.frame_id)
-        body = Marker(header=header, ns='vehicle', id=0, type=Marker.CUBE, action=Marker.ADD)
-        body.pose = _pose(g.body_center, g.body_orientation)
-        body.scale.x, body.scale.y, body.scale.z = g.body_size
-        body.color = _color(0.2, 0.45, 0.8, 0.9) if source == 'truth' \
-            else _color(0.85, 0.35, 0.2, 0.9)
-        markers = [body]
+        frame_id = self.config.frame_id
+        w = cdr.CdrWriter()
+        w.u32(3)
+        cdr.marker(w, stamp_ns, frame_id, 'vehicle', 0, Marker.CUBE, Marker.ADD,
+                   g.body_center, g.body_orientation, g.body_size, _VEHICLE_COLOR[source])
         for index, center in ((1, g.left_wheel), (2, g.right_wheel)):
-            wheel = Marker(header=header, ns='vehicle', id=index, type=Marker.CYLINDER,
-                           action=Marker.ADD)
-            wheel.pose = _pose(center, g.wheel_orientation)
-            wheel.scale.x, wheel.scale.y, wheel.scale.z = g.wheel_size
-            wheel.color = _color(0.15, 0.15, 0.15, 1.0)
-            markers.append(wheel)
-        self.publishers_['/wip/markers/vehicle'].publish(MarkerArray(markers=markers))
+            cdr.marker(w, stamp_ns, frame_id, 'vehicle', index, Marker.CYLINDER, Marker.ADD,
+                       center, g.wheel_orientation, g.wheel_size, _WHEEL_COLOR)
+        self._send('/wip/markers/vehicle', w.message())
 
     # -- callbacks ------------------------------------------------------------------------------
     def _gated(self, msg_type, name: str, gate: RateGate, handler):
@@ -225,8 +229,8 @@ class ViewerNode(IntraProcessNode):
     def _on_estimate(self, msg: StateEstimate, stamp_ns: int) -> None:
         self.last_estimate = msg
         self.paths['estimated'].add(stamp_ns, msg.x, msg.y, msg.phi)
-        self.publishers_['/wip/odom/estimate'].publish(self._odometry(
-            stamp_ns, msg.x, msg.y, msg.phi, msg.v, msg.omega, self.estimate_covariance))
+        self._publish_odometry('/wip/odom/estimate', stamp_ns, msg.x, msg.y, msg.phi, msg.v,
+                               msg.omega, self.estimate_covariance)
         if not self.have_truth:
             self._publish_vehicle(stamp_ns, msg.x, msg.y, msg.phi, msg.theta, 'estimate')
         self._publish_paths(stamp_ns)
@@ -234,8 +238,8 @@ class ViewerNode(IntraProcessNode):
     def _on_truth(self, msg: GroundTruth, stamp_ns: int) -> None:
         self.have_truth = True
         self.paths['travelled'].add(stamp_ns, msg.x, msg.y, msg.phi)
-        self.publishers_['/wip/odom/truth'].publish(self._odometry(
-            stamp_ns, msg.x, msg.y, msg.phi, msg.v, msg.omega, self.truth_covariance))
+        self._publish_odometry('/wip/odom/truth', stamp_ns, msg.x, msg.y, msg.phi, msg.v,
+                               msg.omega, self.truth_covariance)
         self._publish_vehicle(stamp_ns, msg.x, msg.y, msg.phi, msg.theta, 'truth')
         self._publish_paths(stamp_ns)
 
@@ -258,23 +262,16 @@ class ViewerNode(IntraProcessNode):
         axle, top = predicted_track(estimate.x, estimate.y, estimate.phi, estimate.omega,
                                     msg.predicted_v, msg.predicted_theta,
                                     msg.sampling_period, c.com_height, c.wheel_radius)
-        header = make_header(stamp_ns, c.frame_id)
-        track = Marker(header=header, ns='prediction', id=0, type=Marker.LINE_STRIP,
-                       action=Marker.ADD)
-        track.pose.orientation.w = 1.0
-        track.scale.x = 0.02
-        track.color = _color(0.1, 0.7, 0.3, 0.9)
-        track.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in axle]
-        sticks = Marker(header=header, ns='prediction', id=1, type=Marker.LINE_LIST,
-                        action=Marker.ADD)
-        sticks.pose.orientation.w = 1.0
-        sticks.scale.x = 0.01
-        sticks.color = _color(0.1, 0.7, 0.3, 0.5)
-        for a, b in zip(axle, top):
-            sticks.points.append(Point(x=float(a[0]), y=float(a[1]), z=float(a[2])))
-            sticks.points.append(Point(x=float(b[0]), y=float(b[1]), z=float(b[2])))
-        self.publishers_['/wip/markers/prediction'].publish(
-            MarkerArray(markers=[track, sticks]))
+        w = cdr.CdrWriter()
+        w.u32(2)
+        cdr.marker(w, stamp_ns, c.frame_id, 'prediction', 0, Marker.LINE_STRIP, Marker.ADD,
+                   _ORIGIN, _NO_ROTATION, (0.02, 0.0, 0.0), _TRACK_COLOR,
+                   axle.ravel().tolist())
+        # LINE_LIST: one segment per pair of points, axle k then body top k.
+        cdr.marker(w, stamp_ns, c.frame_id, 'prediction', 1, Marker.LINE_LIST, Marker.ADD,
+                   _ORIGIN, _NO_ROTATION, (0.01, 0.0, 0.0), _STICKS_COLOR,
+                   np.stack([axle, top], axis=1).ravel().tolist())
+        self._send('/wip/markers/prediction', w.message())
 
 
 def main(args=None) -> int:
