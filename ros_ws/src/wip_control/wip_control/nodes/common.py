@@ -24,6 +24,7 @@ sample of its grid (:class:`ClockTicker`) and the MPC ticks on the stamps of its
 
 from __future__ import annotations
 
+import ctypes
 import difflib
 import gc
 import math
@@ -212,13 +213,40 @@ class ClockTicker:
         self._callback(stamp_ns)
 
 
+#: [ns] Timer slack of a node process's threads (Linux's default: 50 000). The kernel may
+#: end a timed wait this late; the EventsExecutor's ``spin_once(timeout_sec=0)`` is such a
+#: wait (asio's ``run_one_for``), which the composed spin loop makes about once a tick.
+TIMER_SLACK_NS = 1000
+_PR_SET_TIMERSLACK, _PR_GET_TIMERSLACK = 29, 30
+
+
+def set_timer_slack(slack_ns: int = TIMER_SLACK_NS) -> bool:
+    """Set the calling thread's timer slack (Linux prctl); threads it starts later inherit it.
+
+    Returns False where it cannot (not Linux). Threads at a real-time priority have none.
+    """
+    if not sys.platform.startswith('linux'):
+        return False
+    return ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_TIMERSLACK, int(slack_ns),
+                                                    0, 0, 0) == 0
+
+
+def timer_slack() -> int | None:
+    """Return the calling thread's timer slack [ns] (None where unknown)."""
+    if not sys.platform.startswith('linux'):
+        return None
+    return ctypes.CDLL(None, use_errno=True).prctl(_PR_GET_TIMERSLACK, 0, 0, 0, 0)
+
+
 def make_executor(context=None):
     """EventsExecutor (10x lower latency) if this rclpy has it, else SingleThreadedExecutor.
 
     Verified with rclpy 7.1.6: the EventsExecutor fires sim-time timers driven by /clock and
     steady-clock timers, and runs one-argument subscription callbacks; it must be driven by
-    ``spin_once(timeout_sec=...)`` (its ``spin()`` ignores SIGINT).
+    ``spin_once(timeout_sec=...)`` (its ``spin()`` ignores SIGINT). The thread that will
+    spin it gets a short timer slack (:data:`TIMER_SLACK_NS`).
     """
+    set_timer_slack()
     try:
         from rclpy.experimental import EventsExecutor
         return EventsExecutor(context=context)
