@@ -53,7 +53,8 @@ Behaviour
   node cannot get with the EventsExecutor (its callbacks take one argument), so the receive
   time is used for both.
 - Callbacks only queue ``(topic, bytes, time)``; a writer thread writes the bag, so a
-  compressing chunk write never delays the executor. Nothing received is dropped.
+  compressing chunk write never delays the executor. It writes what is queued in batches,
+  resting :data:`WRITE_BATCH_PAUSE` between them. Nothing received is dropped.
 - SIGINT, SIGTERM, SIGHUP (and the launcher's death, which the kernel turns into SIGINT:
   ``wip_control.nodes.launched``): at a SIGINT a recorder that a launcher started first
   takes what the graph already sent (it spins on until nothing has arrived for
