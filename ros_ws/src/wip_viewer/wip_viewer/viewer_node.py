@@ -11,7 +11,9 @@ control tick small. Composed with the simulation (``ros2 run wip_sim simulation
 --with-viewer``, what run_graph starts for a recorded run in the single layout) it is an
 intra-process node like the controllers: its inputs arrive from the process's own nodes as
 message objects, every one of them (the bus ignores the best-effort depth), and nothing is
-decoded.
+decoded. Its own messages are published already serialized, written by :mod:`.cdr` (the
+same messages; rclpy's conversion of message objects was most of the node's cost), and a
+Path's poses are encoded once each.
 
 Published (frame ``viewer.frame_id``, default ``map``; child ``base_link``)
 --------------------------------------------------------------------------
