@@ -45,3 +45,16 @@ def test_make_executor_shortens_the_slack_of_its_thread_and_of_threads_started_l
 
     assert in_a_thread(scenario) == (TIMER_SLACK_NS, TIMER_SLACK_NS)
     assert TIMER_SLACK_NS < 50_000
+
+
+def test_without_prctl_the_executor_is_made_all_the_same(monkeypatch, context):
+    from wip_control.nodes import common
+
+    def no_libc(*args, **kwargs):
+        raise OSError('no libc here')
+
+    monkeypatch.setattr(common.ctypes, 'CDLL', no_libc)
+    assert common.set_timer_slack() is False
+    assert common.timer_slack() is None
+    executor = common.make_executor(context=context)
+    executor.shutdown()

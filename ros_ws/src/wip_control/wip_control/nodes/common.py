@@ -225,17 +225,24 @@ def set_timer_slack(slack_ns: int = TIMER_SLACK_NS) -> bool:
 
     Returns False where it cannot (not Linux). Threads at a real-time priority have none.
     """
-    if not sys.platform.startswith('linux'):
+    try:
+        return _prctl(_PR_SET_TIMERSLACK, int(slack_ns)) == 0
+    except (OSError, AttributeError):   # not Linux, or a libc without prctl
         return False
-    return ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_TIMERSLACK, int(slack_ns),
-                                                    0, 0, 0) == 0
 
 
 def timer_slack() -> int | None:
     """Return the calling thread's timer slack [ns] (None where unknown)."""
-    if not sys.platform.startswith('linux'):
+    try:
+        return _prctl(_PR_GET_TIMERSLACK, 0)
+    except (OSError, AttributeError):
         return None
-    return ctypes.CDLL(None, use_errno=True).prctl(_PR_GET_TIMERSLACK, 0, 0, 0, 0)
+
+
+def _prctl(option: int, value: int) -> int:
+    if not sys.platform.startswith('linux'):
+        raise OSError('prctl is a Linux call')
+    return ctypes.CDLL(None, use_errno=True).prctl(option, value, 0, 0, 0)
 
 
 def make_executor(context=None):
