@@ -31,6 +31,20 @@ PUBLISH_PERIOD = 0.002  # [s]: 500 Hz, above every rate of the project's graph
 SPLIT_TIMEOUT = 30.0  # [s]: a split normally comes within 1 s of publishing
 
 
+def _newest_file_is_flushed_and_young(bag, max_age: float = 0.6) -> bool:
+    """Whether the newest file of a bag being recorded is flushed and young.
+
+    It holds a complete chunk and began (by the recorder's receive times, system time) less
+    than ``max_age`` [s] ago, so that with max_bag_duration 1 s no split can come before a
+    kill that follows at once.
+    """
+    files = mcap_files_by_index(bag)
+    if not files:
+        return False
+    stats = read_file_contents(files[-1]).stats
+    return stats.count > 0 and time.time_ns() - stats.start_ns < max_age * 1e9
+
+
 def _publish_for(node, publisher, seconds, start, make=str, stop=None):
     """Publish make(k) for k = start, start+1 ... at PUBLISH_PERIOD for ``seconds``.
 
@@ -73,7 +87,15 @@ def test_sigkill_mid_run_then_repair_keeps_every_complete_chunk(test_node, tools
     k = _publish_for(test_node, publisher, SPLIT_TIMEOUT, k,
                      stop=lambda: int(recorder.values.get('messages written', 0)) >= reported)
     assert int(recorder.values.get('messages written', 0)) >= reported, recorder.values
-    k = _publish_for(test_node, publisher, 1.0, k)
+    # Then 1 s more (5 flush periods), and on until the file being written holds a flushed
+    # chunk and is young enough that no split comes before the kill: a file that a split
+    # opened holds no chunk for up to a flush period, and a kill at a fixed time after the
+    # start (about 3 s, a multiple of max_bag_duration) found the newest file still empty.
+    flushed_after = time.monotonic() + 1.0
+    k = _publish_for(test_node, publisher, SPLIT_TIMEOUT, k,
+                     stop=lambda: (time.monotonic() >= flushed_after
+                                   and _newest_file_is_flushed_and_young(bag)))
+    assert _newest_file_is_flushed_and_young(bag), 'no young file with a flushed chunk'
     recorder.process.send_signal(signal.SIGKILL)  # mid-run: messages still arriving
     recorder.wait(10.0, expected_code=-signal.SIGKILL)
 
