@@ -12,8 +12,10 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
-#: The kernel modules of the controllers.
-KERNELS = ('wip_control.core.mpc_qp', 'wip_control.core.qp_polish')
+#: The kernel modules of the controllers: the MPC's QP assembly, the QP's polish.
+MPC_QP = f'{__package__}.mpc_qp'
+QP_POLISH = f'{__package__}.qp_polish'
+KERNELS = (MPC_QP, QP_POLISH)
 
 _loaded: dict[str, ModuleType] = {}
 

@@ -75,7 +75,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .compiled import load_compiled
+from .compiled import load_compiled, MPC_QP
 from .config import ConfigError, param
 from .model import input_gains, nominal_terms
 from .mpc_prediction import (PREDICTION_MODELS, CondensedPrediction,
@@ -744,7 +744,7 @@ def _beyond(transient: tuple[float, float], zone: tuple[float, float]) -> bool:
 
 def _compiled_kernels():
     """:mod:`.mpc_qp`, imported and warmed up by the first call in a process."""
-    return load_compiled(f'{__package__}.mpc_qp')
+    return load_compiled(MPC_QP)
 
 
 def _excess(value: float, band: float) -> float:

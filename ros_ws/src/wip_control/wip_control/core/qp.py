@@ -40,7 +40,7 @@ import daqp
 import numpy as np
 import proxsuite
 
-from .compiled import load_compiled
+from .compiled import load_compiled, QP_POLISH
 
 _PROXQP = proxsuite.proxqp
 _PROXQP_DENSE = _PROXQP.dense
@@ -180,7 +180,7 @@ def polish(h: np.ndarray, g: np.ndarray, c: np.ndarray, lower: np.ndarray,
 
 def _compiled_polish():
     """:mod:`.qp_polish`, imported and warmed up by the first call in a process."""
-    return load_compiled(f'{__package__}.qp_polish')
+    return load_compiled(QP_POLISH)
 
 
 def _finite_or_error(z: np.ndarray, status: MpcStatus) -> MpcStatus:
