@@ -30,6 +30,7 @@ _U32 = struct.Struct('<I')
 _POSE_DOUBLES = struct.Struct('<7d')
 _COLOR = struct.Struct('<4f')
 _36_DOUBLES = struct.Struct('<36d')
+_3_INT32 = struct.Struct('<3i')
 
 
 class CdrWriter:
@@ -71,7 +72,8 @@ class CdrWriter:
     def doubles(self, values: Sequence[float]) -> None:
         """Append a fixed-size array (or the elements of a sequence) of float64."""
         if values:
-            self.pack(8, struct.Struct(f'<{len(values)}d'), *values)
+            self.align(8)
+            self.raw(struct.pack(f'<{len(values)}d', *values))   # struct caches the format
 
     def header(self, stamp_ns: int, frame_id: str) -> None:
         """std_msgs/Header: builtin_interfaces/Time (int32 sec, uint32 nanosec), frame_id."""
@@ -113,7 +115,7 @@ def marker(w: CdrWriter, stamp_ns: int, frame_id: str, ns: str, marker_id: int,
     """
     w.header(stamp_ns, frame_id)
     w.string(ns)
-    w.pack(4, struct.Struct('<3i'), marker_id, marker_type, action)
+    w.pack(4, _3_INT32, marker_id, marker_type, action)
     w.pose(position, orientation)
     w.doubles(scale)
     w.pack(4, _COLOR, *color)

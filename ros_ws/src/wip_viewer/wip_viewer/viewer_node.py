@@ -116,7 +116,7 @@ class ViewerNode(IntraProcessNode):
         self.path_poses: dict[str, list[bytes]] = {name: [] for name in self.paths}
         self.path_poses_dropped = dict.fromkeys(self.paths, 0)
         self.estimate_covariance = planar_pose_covariance(c.position_std)
-        self.truth_covariance = [0.0] * 36
+        self.truth_covariance = _ZERO_COVARIANCE
         self.last_estimate: StateEstimate | None = None
         self.have_truth = False
         for msg_type, topic, name, gate, handler in (
