@@ -1,11 +1,12 @@
 """The viewer's messages written directly as serialized ROS 2 messages (CDR), without rclpy.
 
 rclpy publishes a message object by converting it field by field into its C structure and
-serializing that (about 3 µs per pose of a nav_msgs/Path, 37 µs for a MarkerArray of three
-markers). The viewer publishes the bytes instead (``Publisher.publish`` takes serialized
-messages), written here with :mod:`struct`: the same bytes as
-``rclpy.serialization.serialize_message`` of the message object (the tests compare them byte
-for byte), for the four types the viewer sends. A Path's poses never change once added, so
+serializing that, which was most of the viewer's cost (measured:
+docs/decisions/recording-speed.md). The viewer publishes the bytes instead
+(``Publisher.publish`` takes serialized messages), written here with :mod:`struct`, for the
+four types the viewer sends: the layout of ``rclpy.serialization.serialize_message`` of the
+message object, with zeros where rclpy leaves its padding bytes as they were (the tests
+compare the lengths and the decoded messages). A Path's poses never change once added, so
 each pose is encoded once and a Path is the concatenation of its poses' bytes.
 
 Encoding: plain CDR (XCDR1, what rmw_fastrtps writes for ROS 2), little endian: a 4-byte
