@@ -41,7 +41,7 @@ def test_gps_fix_resets_the_estimate_with_unit_gain_and_blends_with_smaller_gain
     est.reset(0.0, 0.0, 0.0, 0.0)
     est.update_odometry(1.0, 0.0)
     assert est.update_gps(1.2, -0.1) == (1.2, -0.1)
-    half = PlanarPositionEstimator(PositionConfig(gps_blend_gain=0.25))
+    half = PlanarPositionEstimator(PositionConfig(gps_blend_gain=0.25, max_gps_innovation=10.0))
     half.reset(0.0, 0.0, 0.0, 0.0)
     assert half.update_gps(4.0, -8.0) == pytest.approx((1.0, -2.0), abs=1e-15)
 
@@ -50,7 +50,7 @@ def test_blend_gain_reduces_fix_noise_as_predicted():
     # e+ = (1 − k) e + k n: stationary std σ √(k/(2 − k)) (position.py docstring).
     k, sigma, n = 0.2, 0.5, 20000
     rng = np.random.default_rng(3)
-    est = PlanarPositionEstimator(PositionConfig(gps_blend_gain=k))
+    est = PlanarPositionEstimator(PositionConfig(gps_blend_gain=k, max_gps_innovation=100.0))
     est.reset(0.0, 0.0, 0.0, 0.0)
     xs = [est.update_gps(*rng.normal(0.0, sigma, 2))[0] for _ in range(n)]
     predicted = sigma * math.sqrt(k / (2 - k))
@@ -73,6 +73,45 @@ def test_outlier_fixes_beyond_the_gate_are_rejected():
     assert est.update_gps(3.0, 0.0) == (0.0, 0.0)
     assert est.update_gps(1.0, 1.0) == (1.0, 1.0)
     assert (est.rejected_fixes, est.accepted_fixes) == (1, 1)
+
+
+def test_the_gate_widens_with_the_distance_rolled_since_the_last_accepted_fix():
+    # r = r0 + d s: after rolling 20 m without a fix, 3 + 0.1 * 20 = 5 m.
+    est = PlanarPositionEstimator(PositionConfig(max_gps_innovation=3.0, odometry_drift=0.1))
+    est.reset(0.0, 0.0, 0.0, 0.0)
+    assert est.gate() == 3.0
+    est.update_odometry(20.0, 0.0)
+    assert est.gate() == pytest.approx(5.0, abs=1e-12)
+    assert est.update_gps(20.0, 4.9) == (20.0, 4.9)    # inside: accepted, the gate shrinks
+    assert est.gate() == 3.0
+    assert est.update_gps(20.0, 8.0) == (20.0, 4.9)    # 3.1 m off: rejected
+
+
+def test_a_jump_is_rejected_and_a_persistent_one_becomes_a_fault_after_the_time():
+    # 10 Hz fixes of a vehicle at rest; from t = 1 s the receiver reports 50 m east.
+    config = PositionConfig(max_rejection_time=1.0)
+    est = PlanarPositionEstimator(config)
+    est.reset(0.0, 0.0, 0.0, 0.0)
+    for k in range(10):
+        est.update_gps(0.0, 0.0, 0.1 * k)
+    # A brief jump (0.5 s): rejected, no fault, the estimate untouched.
+    for k in range(10, 15):
+        assert est.update_gps(50.0, 0.0, 0.1 * k) == (0.0, 0.0)
+    assert est.fault == '' and est.rejected_fixes == 5
+    est.update_gps(0.01, 0.0, 1.5)                     # back: accepted, the run ends
+    assert est.fault == '' and est.position == (0.01, 0.0)
+    # A persistent jump: a fault once rejected for max_rejection_time, not before.
+    times = [1.6 + 0.1 * k for k in range(12)]
+    faults = []
+    for t in times:
+        est.update_gps(50.0, 0.0, t)
+        faults.append(bool(est.fault))
+    first = times[faults.index(True)]
+    assert first - times[0] == pytest.approx(1.0, abs=1e-9)
+    assert '49.99 m from the odometry' in est.fault and est.position == (0.01, 0.0)
+    # A good fix again clears it (the source recovered).
+    est.update_gps(0.0, 0.0, 3.0)
+    assert est.fault == ''
 
 
 def test_non_finite_odometry_raises_and_keeps_the_state():

@@ -514,3 +514,59 @@ def test_a_stall_of_the_layer_itself_past_the_bridge_is_a_fault_even_with_fresh_
     clock.feed()
     assert_zeroed(monitor.update(clock.t), FAULT, 'stalled', 'not scheduled')
     assert clock.tick().state == STARTING   # then re-armed through STARTING
+
+
+# ------------------------------------------------------------ position source and runaway
+
+def test_no_position_fix_yet_holds_the_start_and_a_refused_source_is_a_fault():
+    from wip_control.core.position import FAULT as POSITION_FAULT, NO_FIX, TRACKING
+    monitor = SafetyMonitor(SafetyConfig(), TAU_MAX, RATE, H)
+    clock = Clock(monitor)
+    for _ in range(100):
+        monitor.estimate(clock.t, ESTIMATE, True, NO_FIX, 0.0, 0.0)
+        clock.t += H
+        monitor.yaw_torque(clock.t, 0.6)
+        monitor.drive_torque(clock.t, 4.0)
+        decision = monitor.update(clock.t)
+    assert_zeroed(decision, STARTING, 'no position fix yet', 'position_source: wheels')
+    # Engaged on a tracking source, then the ESO refuses it: zero torque at once.
+    monitor, clock = active()
+    monitor.estimate(clock.t + H, ESTIMATE, True, POSITION_FAULT, 0.0, 0.0)
+    clock.t += H
+    assert_zeroed(monitor.update(clock.t), FAULT, 'position source refused', 'datum')
+    # Lockstep (no timing checks) ignores the position status: the simulation's is right.
+    monitor, clock = active(timing_checks=False)
+    monitor.estimate(clock.t + H, ESTIMATE, True, NO_FIX, 0.0, 0.0)
+    clock.t += H
+    assert monitor.update(clock.t).state == ACTIVE
+    assert TRACKING != NO_FIX
+
+
+def test_a_runaway_is_a_latched_fault_until_reset():
+    # The estimate is frozen at the origin while the wheels (υ̂ = 1 m/s) roll and the
+    # reference moves 0.3 m/s: the guard's verdict zeroes the torque and stays.
+    from wip_control.core.position import TRACKING
+    monitor, clock = active()
+    moving = ESTIMATE._replace(v=1.0, phi=0.0)
+    verdict_at = None
+    for k in range(2000):
+        clock.t += H
+        monitor.reference(clock.t, 0.3 * k * H, 0.0)
+        monitor.estimate(clock.t, moving, True, TRACKING, 0.0, 0.0)
+        monitor.yaw_torque(clock.t, 0.6)
+        monitor.drive_torque(clock.t, 4.0)
+        decision = monitor.update(clock.t)
+        if decision.state == FAULT:
+            verdict_at = k * H
+            break
+    assert verdict_at is not None and verdict_at < 4.0
+    assert_zeroed(decision, FAULT, 'runaway', 'position estimate is likely wrong')
+    # Stays latched with everything healthy again, until an explicit reset.
+    for _ in range(100):
+        decision = clock.tick()
+    assert_zeroed(decision, FAULT, 'runaway', 'reset required')
+    ok, message = monitor.reset()
+    assert ok and 'runaway' in message
+    for _ in range(int(SafetyConfig().settle_time / H) + 3):
+        decision = clock.tick()
+    assert decision.state == ACTIVE

@@ -1304,12 +1304,22 @@ def test_eso_publishes_odometry_of_the_estimate_in_real_time(context, harnesses)
     harness.wait_matched()
     estimates = harness.outputs['/wip/state_estimate']
     wall = time.time_ns()
-    for k, s in enumerate(eso_measurements(10)):
+    for k, s in enumerate(eso_measurements(12)):
+        if k == 2:   # the first fix: no /odom before a valid position
+            harness.publish('/gps/fix', gps_fix(wall + s['stamp'], 0.0, 0.0))
         harness.publish('/imu/data', imu(wall + s['stamp'], s['pitch'], s['yaw'], s['rates']))
         harness.publish('/joint_states', joint_states(wall + s['stamp'], s['left'], s['right']))
         harness.spin_until(lambda: len(estimates) == k + 1, f'estimate {k}')
     harness.spin_until(lambda: len(odom) == 5, 'every second estimate on /odom')
-    for msg, est in zip(odom, estimates[::2]):
+    statuses = [e.position_status for e in estimates]
+    # The fix is used by the first update after it arrived (sample 2, or 3 if the sample's
+    # encoder and IMU messages came first).
+    tracking = statuses.index(StateEstimateMsg.POSITION_TRACKING)
+    assert tracking in (2, 3), statuses
+    assert set(statuses[:tracking]) == {StateEstimateMsg.POSITION_NO_FIX}
+    assert set(statuses[tracking:]) == {StateEstimateMsg.POSITION_TRACKING}
+    # The decimation counts the estimates /odom carries: those from the first fix on.
+    for msg, est in zip(odom, estimates[tracking::2]):
         assert msg.header.stamp == est.header.stamp
         assert (msg.header.frame_id, msg.child_frame_id) == ('odom', 'base_link')
         assert (msg.pose.pose.position.x, msg.pose.pose.position.y) == (est.x, est.y)

@@ -327,6 +327,7 @@ class HardwareRunner(RunnerBase):
         self._safety: tuple[str, str] | None = None
         self._counts: dict[str, list[tuple[float, int]]] = {}
         self.effort_publisher = None
+        self.position_error = ''   # the eso's "position source refused: ..." if any
         self.zero_command: list[float] = [0.0, 0.0]
         self.zero_commands_sent = 0
         self.armed = False
@@ -436,6 +437,12 @@ class HardwareRunner(RunnerBase):
                 continue
             name = own.split(':', 1)[0].lstrip('/')
             values = {kv.key: kv.value for kv in status.values}
+            if (name == 'eso' and status.message.startswith('position source refused')
+                    and status.message != self.position_error):
+                # The cause of the mixer's "position source refused": said once, kept for
+                # the outcome's message.
+                self.position_error = status.message
+                self.say(f'eso: {status.message}')
             if 'outputs' in values:
                 try:
                     self._counts.setdefault(name, []).append((now, int(values['outputs'])))
@@ -470,7 +477,9 @@ class HardwareRunner(RunnerBase):
         """Publishers/subscriptions of the base's topics (remapped names)."""
         eso = node_parameters('eso', self.generated, self.extra, self.namespace)
         sensors = ['/joint_states', '/imu/data']
-        sensors.append('/odom' if eso.get('position_source') == 'odometry' else '/gps/fix')
+        source = eso.get('position_source')
+        if source != 'wheels':   # dead reckoning needs no position topic
+            sensors.append('/odom' if source == 'odometry' else '/gps/fix')
         names = [remapped(in_namespace(topic, self.namespace), self.remaps)
                  for topic in sensors]
         # The probe is new: DDS discovery of the base's endpoints can take it a moment
@@ -575,8 +584,11 @@ class HardwareRunner(RunnerBase):
         The run's exit code and message from the safety events seen until now (the
         states the stop itself causes come later and are not judged).
         """
-        return hardware_outcome(list(self.safety_events), ended,
-                                self.options.base_end_after, self.missing)
+        code, message = hardware_outcome(list(self.safety_events), ended,
+                                         self.options.base_end_after, self.missing)
+        if self.position_error and code != EXIT_OK:
+            message += f'; eso: {self.position_error}'
+        return code, message
 
     # -- the run ----------------------------------------------------------------------------
     def run(self) -> HardwareResult:

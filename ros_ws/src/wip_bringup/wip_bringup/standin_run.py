@@ -150,7 +150,9 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                         record: bool = False,
                         during: Callable[[HardwareResult | None, dict], None] | None = None,
                         end_after_during: float | None = None,
-                        namespace: str = '') -> StandinRun:
+                        namespace: str = '',
+                        stop_when: Callable[[Any], str | None] | None = None,
+                        runner_duration: float | None = None) -> StandinRun:
     """Start the stand-in base, run hardware mode until the base exits; both results.
 
     ``during(None, processes)``, if given, runs in a thread once the base has released the
@@ -170,7 +172,9 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
     ``record``: the controllers' topics go to
     the bag ``directory/bag`` (costs CPU: for diagnosis, not for measuring).
     ``namespace``: the base and the controllers under this ROS namespace (one vehicle of
-    several in a domain).
+    several in a domain). ``stop_when(runner)``: also end the run when it returns a reason
+    (the runner, once it started, or None). ``runner_duration`` [s]: the hardware run's
+    own cap (default ``run_time`` + 40: a base that is never released runs until then).
     """
     base_scheduling = controller_scheduling = Scheduling()
     if realtime_priority and permitted(Scheduling(BASE_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)):
@@ -220,16 +224,19 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
         try:
             options = HardwareOptions(
                 scenario=str(scenario_path), params_files=[str(controller_params)],
-                remaps=REMAPS, duration=run_time + 40.0, out=str(directory / 'run'),
+                remaps=REMAPS, out=str(directory / 'run'),
+                duration=run_time + 40.0 if runner_duration is None else runner_duration,
                 quiet=True, layout=layout, scheduling=controller_scheduling,
                 namespace=namespace,
                 record=str(directory / 'bag') if record else None,
                 # The base ends run_time after its release (the engagement): a FAULT then
                 # (its inputs stop) is the end of the run, not a failure.
                 base_end_after=float(run_time),
-                stop_when=lambda: base.poll() is not None and f'base exited ({base.returncode})')
+                stop_when=lambda: (base.poll() is not None and f'base exited ({base.returncode})'
+                                   or stop_when is not None
+                                   and stop_when(runner_holder.get('runner'))))
+            options.on_start = lambda runner: runner_holder.setdefault('runner', runner)
             if during is not None:
-                options.on_start = lambda runner: runner_holder.setdefault('runner', runner)
                 injector = threading.Thread(
                     target=_when_engaged, daemon=True,
                     args=(runner_holder, during, base, end_after_during))

@@ -88,6 +88,25 @@ class StandinSettings:
 
 
 @dataclasses.dataclass(frozen=True)
+class PositionFault:
+    """A fault injected into the stand-in's position outputs (``position_fault.*``).
+
+    What the safety layer must catch: a receiver that jumps (``offset``) or a position
+    source that stops moving (``freeze``), on /gps/fix and /odom alike.
+    """
+
+    kind: str = param('none', TEXT, "'none', 'offset' (the fixes moved by offset) or "
+                      "'freeze' (the last fix before the start repeated)",
+                      choices=('none', 'offset', 'freeze'))
+    start: float = param(0.0, 's', 'the fault begins this long after the release',
+                         minimum=0.0, maximum=1e6)
+    duration: float = param(0.0, 's', 'the fault lasts this long; 0: for good', minimum=0.0,
+                            maximum=1e6)
+    offset: tuple[float, float] = param((0.0, 0.0), 'm', "east and north offset of 'offset'",
+                                        minimum=-1e7, maximum=1e7)
+
+
+@dataclasses.dataclass(frozen=True)
 class CommandTiming:
     """The stand-in's expected command period (its default is the scenario's)."""
 
@@ -104,5 +123,5 @@ NODES: dict[str, tuple[tuple[str, type], ...]] = {
     'plant': (('', PlantSettings), ('', WheelJoints), ('start', StartHandshake)),
     'standin_base': (('', StandinSettings), ('', WheelJoints), ('', EffortCommand),
                      ('', WheelSigns), ('', ImuMounting), ('', CommandTiming),
-                     ('datum', DatumConfig)),
+                     ('datum', DatumConfig), ('position_fault', PositionFault)),
 }

@@ -55,7 +55,9 @@ odom_frame, publish_odometry, datum.latitude/longitude/altitude (default the sce
 hold_until_engaged, exit_after_fall [s], duration [s] (0: until SIGINT; counted from the
 release), expected_command_period [s] (default 1/rates.control_rate: the period of the
 controllers' mixer, for the deadline statistics), truth_period [s] (sampling of the
-ground truth in the stats file), stats_file (JSON written at exit; '' = none).
+ground truth in the stats file), stats_file (JSON written at exit; '' = none),
+position_fault.kind/start/duration/offset (a jump or a freeze of /gps/fix and /odom, for
+the tests of the position checks).
 
 Statistics (``stats_file``): ticks and their wall-clock periods (``stalls``: the ticks
 that came more than 4 periods late, with the simulated time), commands received and
@@ -95,7 +97,7 @@ from wip_control.nodes.parameters import ConfigParameters, declare_effort_interf
 from wip_control.nodes.settings import DatumConfig, ImuMounting
 
 from .sensor_messages import gps_message, imu_message, write_fix
-from .settings import CommandTiming, StandinSettings
+from .settings import CommandTiming, PositionFault, StandinSettings
 
 EXIT_OK, EXIT_ERROR, EXIT_CONFIG, EXIT_FELL = 0, 1, 2, 3
 SPIN_TIMEOUT = 0.1  # [s]
@@ -195,6 +197,8 @@ class StandinBase(Node):
         datum = ConfigParameters(self, 'datum', DatumConfig,
                                  defaults=DatumConfig.of(scenario.sensors)).config
         self.datum = (datum.latitude, datum.longitude, datum.altitude)
+        self.position_fault = ConfigParameters(self, 'position_fault', PositionFault).config
+        self._frozen_position: tuple[float, float] | None = None
         self.hold = settings.hold_until_engaged
         self.exit_after_fall = settings.exit_after_fall
         self.duration = settings.duration
@@ -418,17 +422,34 @@ class StandinBase(Node):
         if reading.gps_due:
             fix = self._gps_msg
             fix.header.stamp.sec, fix.header.stamp.nanosec = sec, nanosec
-            write_fix(fix, reading.gps, self.datum)
+            write_fix(fix, self._faulty(reading.gps), self.datum)
             self.gps_pub.publish(fix)
         if self.odom_pub is not None:
             odom = self._odom_msg
             odom.header.stamp.sec, odom.header.stamp.nanosec = sec, nanosec
-            odom.pose.pose.position.x, odom.pose.pose.position.y = state[X], state[Y]
+            odom.pose.pose.position.x, odom.pose.pose.position.y = self._faulty(
+                (state[X], state[Y]))
             q = quaternion_from_euler(0.0, 0.0, state[PHI])
             o = odom.pose.pose.orientation
             o.x, o.y, o.z, o.w = q
             odom.twist.twist.linear.x, odom.twist.twist.angular.z = state[V], state[OMEGA]
             self.odom_pub.publish(odom)
+
+    def _faulty(self, position):
+        """Return the position as published: with the injected fault if due."""
+        fault = self.position_fault
+        if fault.kind == 'none' or position is None:
+            return position
+        active = self.released and self.t >= fault.start and (
+            fault.duration == 0.0 or self.t < fault.start + fault.duration)
+        if not active:
+            self._frozen_position = None if self.t >= fault.start else tuple(position)
+            return position
+        if fault.kind == 'offset':
+            return (position[0] + fault.offset[0], position[1] + fault.offset[1])
+        if self._frozen_position is None:
+            self._frozen_position = tuple(position)
+        return self._frozen_position
 
     # -- reporting ------------------------------------------------------------------------
     def stats(self) -> dict:

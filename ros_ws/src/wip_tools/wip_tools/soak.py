@@ -79,7 +79,7 @@ class SoakRow:
 
 def one_run(directory: pathlib.Path, path: str, load: str, index: int, seconds: float,
             layout: str, freezes_ms: Sequence[float], max_path_error: float,
-            record: bool = False) -> SoakRow:
+            record: bool = False, position_source: str = 'gps') -> SoakRow:
     busy = subprocess.Popen(BUSY_LOOP) if load == 'busy' else None
     done: list[float] = []
 
@@ -98,7 +98,8 @@ def one_run(directory: pathlib.Path, path: str, load: str, index: int, seconds: 
             done.append(1e3 * freeze_process(target.pid, ms / 1e3))
 
     try:
-        run = run_against_standin(directory, BASE, seconds, scenario=scenario_for(path),
+        conventions = dict(BASE, position_source=position_source)
+        run = run_against_standin(directory, conventions, seconds, scenario=scenario_for(path),
                                   layout=layout, record=record,
                                   during=inject if freezes_ms else None)
     finally:
@@ -108,6 +109,9 @@ def one_run(directory: pathlib.Path, path: str, load: str, index: int, seconds: 
     stats = run.stats
     truth = {k: np.asarray(v, dtype=float) for k, v in stats['truth'].items()}
     late = truth['t'] > SETTLING_TIME
+    if position_source == 'wheels':
+        # Dead reckoning's frame starts where the robot stood: the path is about that point.
+        truth['x'], truth['y'] = truth['x'] - truth['x'][0], truth['y'] - truth['y'][0]
     error = distance_to_path(path, truth['x'][late], truth['y'][late])
     max_error = float(error.max()) if error.size else math.inf
     rms_error = float(np.sqrt(np.mean(error ** 2))) if error.size else math.inf
@@ -163,6 +167,9 @@ after 15 s exceeded --max-path-error, or a freeze did not happen before the run 
                         '--freeze with no value)')
     parser.add_argument('--record', action='store_true',
                         help='record each run to OUT/<case>/bag (for diagnosis; costs CPU)')
+    parser.add_argument('--position-source', default='gps', choices=['gps', 'wheels'],
+                        help="the controllers' position_source (wheels: dead reckoning, "
+                        'no GPS; default: %(default)s)')
     parser.add_argument('--max-path-error', type=float, default=0.6,
                         help='largest distance to the path after 15 s [m] (default: 0.6)')
     return parser
@@ -195,7 +202,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         writer.writeheader()
         for path, load, k in tqdm(cases, unit='run', file=sys.stderr):
             row = one_run(out / f'{path}_{load}_{k}', path, load, k, args.seconds,
-                          args.layout, args.freeze, args.max_path_error, args.record)
+                          args.layout, args.freeze, args.max_path_error, args.record,
+                          args.position_source)
             rows.append(row)
             writer.writerow(dataclasses.asdict(row))
             stream.flush()

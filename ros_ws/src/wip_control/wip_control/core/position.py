@@ -21,9 +21,20 @@ error over 0.1 s, is then all that remains). With white fix noise of standard de
 σ and exact odometry, the position error after a fix follows e⁺ = (1 − k) e + k n, whose
 stationary standard deviation is σ √(k/(2 − k)): k = 0.2 cuts the noise by 3×, but
 odometry drift is then corrected only with a time constant of about T_gps/k (0.5 s at
-10 Hz), and a biased heading leaves a larger lag. Fixes that are not finite are rejected,
-and so are fixes farther than ``max_gps_innovation`` from the prediction (outliers).
+10 Hz), and a biased heading leaves a larger lag.
 
+The fix is checked before it is believed. Fixes that are not finite are rejected, and so
+are fixes farther from the odometry's prediction than the gate
+
+.. math:: r = r_0 + d \, s
+
+where r_0 is ``max_gps_innovation``, s the distance rolled since the last accepted fix and
+d ``odometry_drift`` (the odometry's error per metre rolled: slip, a wheel radius off by
+a few per cent, heading error). A wrong datum, a jump of the receiver or a frozen or
+mirrored position source gives innovations that grow past r; a rejected fix changes
+nothing, and fixes rejected without a break for ``max_rejection_time`` make the position a
+fault (:attr:`PlanarPositionEstimator.fault`), which the safety layer turns into zero
+torque with its cause (docs/safety.md).
 References
 ----------
 .. [1] M. Yue, C. An, Z. Li, IEEE T-SMC: Systems, 2016 (see ``eso.py``).
@@ -36,6 +47,11 @@ import math
 
 from .config import param
 
+#: Position status (the values of wip_msgs/StateEstimate's POSITION_* constants).
+TRACKING, NO_FIX, DEAD_RECKONING, FAULT = 0, 1, 2, 3
+POSITION_STATUS_NAMES = {NO_FIX: 'NO_FIX', TRACKING: 'TRACKING',
+                         DEAD_RECKONING: 'DEAD_RECKONING', FAULT: 'FAULT'}
+
 
 @dataclasses.dataclass(frozen=True)
 class PositionConfig:
@@ -46,9 +62,15 @@ class PositionConfig:
         'fix; smaller: less fix noise, slower drift correction)', minimum=0.0,
         exclusive_minimum=True, maximum=1.0)
     max_gps_innovation: float = param(
-        1000.0, 'm', 'fixes farther than this from the odometry prediction are rejected '
-        'as outliers (the default is effectively no gate)', minimum=0.0,
-        exclusive_minimum=True)
+        3.0, 'm', 'gate r0 of a fix against the odometry prediction (r = r0 + '
+        'odometry_drift * distance rolled since the last accepted fix); farther: rejected',
+        minimum=0.0, exclusive_minimum=True)
+    odometry_drift: float = param(
+        0.1, '1', 'odometry error per metre rolled that the gate allows for (slip, wheel '
+        'radius, heading error)', minimum=0.0, maximum=10.0)
+    max_rejection_time: float = param(
+        1.0, 's', 'fixes rejected without a break for this long make the position a fault '
+        '(zero torque, the cause on /diagnostics)', minimum=0.0, exclusive_minimum=True)
 
 
 class PlanarPositionEstimator:
@@ -72,6 +94,11 @@ class PlanarPositionEstimator:
         self._x_v, self._phi = float(x_v), float(phi)
         self.rejected_fixes = 0
         self.accepted_fixes = 0
+        self.rolled_since_fix = 0.0          #: distance rolled since the last accepted fix [m]
+        self.rejected_since: float | None = None   #: time of the first of a run of rejections
+        self.rejected_in_row = 0
+        self.last_innovation = 0.0           #: |innovation| of the last fix [m]
+        self.fault = ''                      #: why the position source is refused ('' if not)
 
     @property
     def position(self) -> tuple[float, float]:
@@ -86,6 +113,7 @@ class PlanarPositionEstimator:
         if not math.isfinite(x_v + phi):
             _check_finite('update_odometry', x_v=x_v, phi=phi)
         ds = x_v - self._x_v
+        self.rolled_since_fix += abs(ds)
         dphi = phi - self._phi
         if dphi > math.pi or dphi < -math.pi:
             dphi = math.remainder(dphi, 2.0 * math.pi)
@@ -98,20 +126,39 @@ class PlanarPositionEstimator:
         self._x_v, self._phi = x_v, phi
         return self.x, self.y
 
-    def update_gps(self, x: float, y: float) -> tuple[float, float]:
-        """Correct toward a GPS fix (x, y) [m]; returns (x̂, ŷ).
+    def gate(self) -> float:
+        """Radius [m] within which a fix is accepted now (see the module docstring)."""
+        return self.config.max_gps_innovation + self.config.odometry_drift * self.rolled_since_fix
 
-        Non-finite fixes and fixes farther than ``max_gps_innovation`` are rejected
-        (counted in :attr:`rejected_fixes`) and leave the estimate unchanged.
+    def update_gps(self, x: float, y: float, t: float | None = None) -> tuple[float, float]:
+        """Correct toward a fix (x, y) [m] taken at time ``t`` [s]; returns (x̂, ŷ).
+
+        Non-finite fixes and fixes outside :meth:`gate` are rejected (counted in
+        :attr:`rejected_fixes`) and leave the estimate unchanged; rejected without a break
+        for ``max_rejection_time`` (``t`` given), they set :attr:`fault`.
         """
         dx, dy = x - self.x, y - self.y
-        if not math.isfinite(dx + dy) or math.hypot(dx, dy) > self.config.max_gps_innovation:
+        distance = math.hypot(dx, dy)
+        self.last_innovation = distance
+        if not math.isfinite(distance) or distance > self.gate():
             self.rejected_fixes += 1
+            self.rejected_in_row += 1
+            if t is not None:
+                if self.rejected_since is None:
+                    self.rejected_since = t
+                elif (not self.fault and self.rejected_in_row >= 2
+                      and t - self.rejected_since >= self.config.max_rejection_time):
+                    self.fault = (f'{self.rejected_in_row} fixes in a row rejected for '
+                                  f'{t - self.rejected_since:.1f} s: the last is '
+                                  f'{distance:.4g} m from the odometry, gate {self.gate():.3g} m '
+                                  '(a jump or a frozen, offset or mirrored position source)')
             return self.x, self.y
         k = self.config.gps_blend_gain
         self.x += k * dx
         self.y += k * dy
         self.accepted_fixes += 1
+        self.rolled_since_fix = 0.0
+        self.rejected_since, self.rejected_in_row, self.fault = None, 0, ''
         return self.x, self.y
 
 

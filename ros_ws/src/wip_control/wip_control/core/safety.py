@@ -33,7 +33,9 @@ States
               (:attr:`SafetyDecision.tau_left` ...) and :attr:`SafetyDecision.command`,
               what goes to the base, is zero.
 ``FAULT``     zero torque: an input is stale, invalid (non-finite, wrong size), the tilt
-              is past ``fall_threshold``, the ESO diverged, or the MPC failed. A "not
+              is past ``fall_threshold``, the ESO diverged, the MPC failed, the ESO
+              refused the position source, or the runaway guard (``core/runaway.py``)
+              saw the vehicle driven away from its reference (latched until reset). A "not
               yet" condition (e.g. the ESO not settled) that appears while ACTIVE is a
               fault too. Returns to STARTING when every condition has cleared (with
               ``latch_faults``: only on :meth:`SafetyMonitor.reset`).
@@ -59,7 +61,10 @@ node's lockstep mode, a deterministic simulation) ages, the start-up wait and th
 ``settled`` flag are not checked: the exact-time synchronisation already guarantees that
 each tick's inputs are the ones of that tick, and lockstep must reproduce the in-process
 runner, which starts controlling at t = 0; the value checks (non-finite, tilt, ESO
-divergence, MPC failure, e-stop) and the limits still apply.
+divergence, MPC failure, e-stop) and the limits still apply. The position checks (no fix
+yet, a refused position source) and the runaway guard are timing checks too: the
+simulation's position is right by construction, and the in-process runner has no
+safety layer to agree with.
 
 Ride-through
 ------------
@@ -97,6 +102,8 @@ from typing import NamedTuple, Sequence
 from .config import param
 from .eso import StateEstimate
 from .mixer import mix
+from .position import FAULT as POSITION_FAULT, NO_FIX, TRACKING
+from .runaway import RunawayConfig, RunawayGuard
 
 STARTING, ACTIVE, DEGRADED, SHADOW, FAULT, ESTOP = (
     'STARTING', 'ACTIVE', 'DEGRADED', 'SHADOW', 'FAULT', 'ESTOP')
@@ -242,12 +249,14 @@ class SafetyMonitor:
     max_wheel_torque : τmax [N·m] of each wheel (``MixerConfig.max_wheel_torque``).
     max_wheel_torque_rate : [N·m/s] (``MixerConfig.max_wheel_torque_rate``).
     period : nominal tick period [s], the Δt of the rate limit at the first update.
-    timing_checks : False in lockstep: no ages, no start-up wait, ``settled`` not required.
+    timing_checks : False in lockstep: no ages, no start-up wait, ``settled`` not required,
+        no position checks, no runaway guard.
+    runaway : the runaway guard's tunables (``core.runaway.RunawayConfig``).
     """
 
     def __init__(self, config: SafetyConfig, max_wheel_torque: float,
                  max_wheel_torque_rate: float, period: float,
-                 timing_checks: bool = True) -> None:
+                 timing_checks: bool = True, runaway: RunawayConfig | None = None) -> None:
         if not (math.isfinite(period) and period > 0.0):
             raise ValueError(f'SafetyMonitor: period must be finite and > 0, got {period!r}')
         self.config = config
@@ -262,6 +271,13 @@ class SafetyMonitor:
         self.estop_latched = False
         self.fault_latched: tuple[str, ...] = ()
         self.wiring = ''   # a wiring verdict (core.wiring_check): latched until reset()
+        self.guard = RunawayGuard(runaway)
+        self.runaway = ''  # the guard's verdict: latched until reset()
+        self.position_status = TRACKING
+        self.pose = (math.nan, math.nan)        # (x̂, ŷ) of the last valid estimate [m]
+        self.reference_position: tuple[float, float] | None = None
+        self._reference_fresh = False            # a reference arrived since the guard's step
+        self._guard_estimate_time: float | None = None
         self.state = STARTING
         self.ready_since: float | None = None
         self.last_update: float | None = None
@@ -291,11 +307,15 @@ class SafetyMonitor:
         """
         self.inputs[name].invalid = reason or 'invalid'
 
-    def estimate(self, t: float, estimate: Sequence[float], settled: bool) -> None:
+    def estimate(self, t: float, estimate: Sequence[float], settled: bool,
+                 position_status: int = TRACKING, x: float = math.nan,
+                 y: float = math.nan) -> None:
         """Take a state estimate received at ``t`` [s].
 
         A state estimate (a ``core.eso.StateEstimate`` or a sequence in its field
-        order) received at ``t`` [s]; ``settled``: the ESO's start-up flag.
+        order) received at ``t`` [s]; ``settled``: the ESO's start-up flag;
+        ``position_status``: ``core.position`` NO_FIX ... FAULT; (x, y): the planar
+        position [m] (the runaway guard's input).
         """
         n = len(StateEstimate._fields)
         try:
@@ -313,6 +333,14 @@ class SafetyMonitor:
             return
         self._accept(ESTIMATE, t, StateEstimate(*values))
         self.settled = bool(settled)
+        self.position_status = int(position_status)
+        self.pose = (float(x), float(y))
+
+    def reference(self, t: float, x: float, y: float) -> None:
+        """Take the reference position (x_r, y_r) [m] received at ``t`` [s] (runaway guard)."""
+        if _is_finite_number(x) and _is_finite_number(y):
+            self.reference_position = (float(x), float(y))
+            self._reference_fresh = True
 
     def yaw_torque(self, t: float, tau_omega: float) -> None:
         """τω [N·m] of the ARC, received at ``t`` [s]."""
@@ -382,9 +410,13 @@ class SafetyMonitor:
             was.append('latched fault (' + '; '.join(self.fault_latched) + ')')
         if self.wiring:
             was.append(self.wiring)
+        if self.runaway:
+            was.append(self.runaway)
         self.estop_latched = False
         self.fault_latched = ()
         self.wiring = ''
+        self.runaway = ''
+        self.guard.reset()
         if self.state in (ESTOP, FAULT):
             self.state = STARTING
             self.ready_since = None
@@ -402,6 +434,8 @@ class SafetyMonitor:
         cfg = self.config
         # A wiring verdict first: it is the cause, a fall that follows is its effect.
         faults: list[str] = [self.wiring] if self.wiring else []
+        if self.runaway:
+            faults.append(self.runaway + ' (latched: reset required)')
         waiting: list[str] = []
         late: list[str] = []
         max_age = {ESTIMATE: cfg.max_estimate_age, YAW_TORQUE: cfg.max_yaw_torque_age,
@@ -432,6 +466,12 @@ class SafetyMonitor:
             faults += self._estimate_faults(estimate.value)
             if self.timing_checks and not self.settled:
                 waiting.append('ESO not settled')
+            if self.timing_checks and self.position_status == POSITION_FAULT:
+                faults.append('position source refused by the ESO (its /diagnostics says '
+                              'why): check datum.* and position_source')
+            elif self.timing_checks and self.position_status == NO_FIX:
+                waiting.append('no position fix yet (position_source gps or odometry; '
+                               'without GPS set position_source: wheels)')
         drive = self.inputs[DRIVE_TORQUE]
         if drive.value is not None and not drive.invalid:
             status = drive.value[1]
@@ -469,6 +509,8 @@ class SafetyMonitor:
         self.ticks += 1
         dt = self.period if self.last_update is None else max(0.0, now - self.last_update)
         self.last_update = now
+        if self.timing_checks and self.state in _TORQUE_STATES:
+            self._guard_step()
         faults, waiting, late = self._conditions(now)
         # The layer itself not run for longer than the bridge covers (its process frozen
         # or starved): the base held the last command that long, blind. A fault even if
@@ -509,6 +551,7 @@ class SafetyMonitor:
             state = SHADOW
         self.state = state
         if state not in _TORQUE_STATES:
+            self.guard.reset()   # re-anchored when torque is sent again
             self.tau_left = self.tau_right = 0.0   # Immediate, not rate limited.
             return SafetyDecision(0.0, 0.0, True, tuple(reasons), state,
                                   self.config.shadow_mode)
@@ -520,6 +563,22 @@ class SafetyMonitor:
         self.tau_right = _toward(self.tau_right, right, step)
         return SafetyDecision(self.tau_left, self.tau_right, False, tuple(late), state,
                               self.config.shadow_mode)
+
+    def _guard_step(self) -> None:
+        """Feed the runaway guard the newest estimate and reference (once each)."""
+        slot = self.inputs[ESTIMATE]
+        if (not self.guard.config.enabled or self.runaway or not self._reference_fresh
+                or slot.value is None or slot.invalid):
+            return
+        if slot.arrival == self._guard_estimate_time:
+            return   # the same estimate as at the last step (a watchdog tick)
+        self._reference_fresh = False
+        self._guard_estimate_time = slot.arrival
+        est = slot.value
+        verdict = self.guard.update(slot.arrival, *self.pose, est.phi, est.v,
+                                    *self.reference_position)
+        if verdict:
+            self.runaway = verdict
 
     def _drive_torque_now(self, now: float) -> float:
         """τυ of the MPC's last output at ``now``.

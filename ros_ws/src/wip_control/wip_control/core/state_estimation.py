@@ -16,7 +16,8 @@ from typing import NamedTuple, Sequence
 from .angles import unwrap_next
 from .eso import EsoConfig, StateEstimate, WipStateObserver
 from .params import WipParameters
-from .position import PlanarPositionEstimator, PositionConfig
+from .position import (DEAD_RECKONING, FAULT, NO_FIX, PlanarPositionEstimator,
+                       PositionConfig, TRACKING)
 from .sensors import wheel_odometry
 
 
@@ -31,6 +32,7 @@ class PoseEstimate(NamedTuple):
     x: float               #: planar position x̂ in the map frame [m]
     y: float               #: ŷ [m]
     settled: bool = True   #: False while the paper's ε ramp runs
+    position_status: int = TRACKING   #: core.position NO_FIX, TRACKING, DEAD_RECKONING or FAULT
 
 
 class StateEstimator:
@@ -40,8 +42,9 @@ class StateEstimator:
     first sample, from the measured positions (ϕ, x_v, θ) with zero rates and
     disturbances (Section V), and that sample's time as the origin of the ε schedule. The
     position starts at the first GPS fix; until one arrives it dead-reckons from (0, 0)
-    (``has_fix`` says so). The wheel odometry's yaw output is not used (the yaw comes from
-    the IMU), so the odometry's initial yaw is 0.
+    (``has_fix`` says so). With ``dead_reckoning`` no fix is expected: the position is
+    wheel odometry along the IMU's yaw from (0, 0) for good. The wheel odometry's yaw
+    output is not used (the yaw comes from the IMU), so the odometry's initial yaw is 0.
 
     Overflow rule: finite but absurd input (a wheel angle of 1e307 rad) can overflow the
     observer to inf/NaN. Then nothing of that sample is kept, the estimator restarts (the
@@ -53,12 +56,14 @@ class StateEstimator:
 
     def __init__(self, model: WipParameters, eso_config: EsoConfig | None = None,
                  position_config: PositionConfig | None = None, *,
-                 encoders_relative_to_body: bool = True) -> None:
+                 encoders_relative_to_body: bool = True, dead_reckoning: bool = False) -> None:
         self.model = model
         self.eso_config = eso_config if eso_config is not None else EsoConfig()
         self.position_config = (position_config if position_config is not None
                                 else PositionConfig())
         self.relative_to_body = encoders_relative_to_body
+        self.dead_reckoning = bool(dead_reckoning)
+        self.refused = ''   #: why the caller refused the position source ('' if not)
         self.restarts = 0   #: restarts after an overflow
         self.restart()
         self.restarts = 0
@@ -87,6 +92,20 @@ class StateEstimator:
     @property
     def started(self) -> bool:
         return self.observer is not None
+
+    @property
+    def position_fault(self) -> str:
+        """Why the position source is not to be trusted ('' if it is)."""
+        return self.refused or self.position.fault
+
+    @property
+    def position_status(self) -> int:
+        """NO_FIX, TRACKING, DEAD_RECKONING or FAULT (core.position)."""
+        if self.refused or self.position.fault:
+            return FAULT
+        if self.dead_reckoning:
+            return DEAD_RECKONING
+        return TRACKING if self.has_fix else NO_FIX
 
     def update(self, t: float, phi_left: float, phi_right: float, pitch: float, yaw: float,
                tau_left: float, tau_right: float, rates: Sequence[float] | None = None,
@@ -132,7 +151,7 @@ class StateEstimator:
             self.position_started = True
             x, y = position.update_odometry(x_v, estimate.phi)
             if fix is not None:
-                x, y = position.update_gps(fix[0], fix[1])
+                x, y = position.update_gps(fix[0], fix[1], t)
         except ValueError:
             x = y = math.nan
         # ε (the last field) is inf at the start of the paper's ramp: not checked. One sum
@@ -146,4 +165,4 @@ class StateEstimator:
                 f'y={y!r}; the estimator restarts at the next sample')
         if not self.settled:
             self.settled = not observer.in_ramp(t)
-        return PoseEstimate(estimate, x, y, self.settled)
+        return PoseEstimate(estimate, x, y, self.settled, self.position_status)

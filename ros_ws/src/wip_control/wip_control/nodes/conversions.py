@@ -241,11 +241,11 @@ def reference_from_msg(msg: ReferenceStateMsg) -> ReferenceState:
 
 
 def estimate_to_msg(est: StateEstimate, x: float, y: float, settled: bool, stamp_ns: int,
-                    frame_id: str) -> StateEstimateMsg:
+                    frame_id: str, position_status: int = 0) -> StateEstimateMsg:
     return stamped(StateEstimateMsg(
         phi=est.phi, omega=est.omega, f1=est.f1, x_v=est.x_v, v=est.v, f2=est.f2,
         theta=est.theta, theta_dot=est.theta_dot, f3=est.f3, epsilon=est.epsilon, x=x, y=y,
-        settled=settled), stamp_ns, frame_id)
+        settled=settled, position_status=position_status), stamp_ns, frame_id)
 
 
 class _LastConversion:
@@ -283,7 +283,7 @@ def estimate_from_msg(msg: StateEstimateMsg, check: bool = True) -> PoseEstimate
         return cached
     est = StateEstimate(msg.phi, msg.omega, msg.f1, msg.x_v, msg.v, msg.f2, msg.theta,
                         msg.theta_dot, msg.f3, msg.epsilon)
-    out = PoseEstimate(est, msg.x, msg.y, bool(msg.settled))
+    out = PoseEstimate(est, msg.x, msg.y, bool(msg.settled), int(msg.position_status))
     if check:
         # ε is inf at the very start of the paper's ramp: not an input of any controller.
         values = est._asdict()

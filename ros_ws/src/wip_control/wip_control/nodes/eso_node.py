@@ -46,13 +46,21 @@ channel (measured: about 1.5 ms per update on the project's machine, which satur
 core at 200 Hz); the stamps' jitter, typically tens of microseconds of the base's timer,
 is not worth it.
 
+Position checks (``core/position.py``): each fix is gated against the odometry's
+prediction, and a run of rejections longer than ``position.max_rejection_time`` is a
+position fault; a first GPS fix farther than ``max_datum_distance`` from the datum is
+refused for good (a datum copied from elsewhere). Either sets the estimate's
+``position_status`` to FAULT, which the safety layer turns into zero torque, and the
+cause goes to /diagnostics as an ERROR that names what to fix.
+
 Odometry out: nav_msgs/Odometry of the estimate on ``/odom`` (frame ``odometry_frame_id``
 'odom', child ``odometry_child_frame_id`` 'base_link', REP 105: pose x̂, ŷ, ϕ̂; twist in
 base_link: linear.x = υ̂, angular.z = ω̂; diagonal covariance from ``odometry_*_std``,
 1e6 on the axes a planar estimate does not observe), every ``odometry_decimation``-th
-estimate, with ``odometry_output`` 'realtime' (the default: real time and hardware mode,
-not lockstep), 'always' or 'off'; never with ``position_source`` 'odometry', where
-``/odom`` is the input (docs/driving.md).
+estimate once the position is valid (status TRACKING or DEAD_RECKONING: no /odom from
+a dead-reckoned start before the first fix), with ``odometry_output`` 'realtime' (the
+default: real time and hardware mode, not lockstep), 'always' or 'off'; never with
+``position_source`` 'odometry', where ``/odom`` is the input (docs/driving.md).
 
 Bad input: a malformed or non-finite message (missing joint, wrong sizes, NaN, no fix,
 no orientation, non-unit quaternion) is dropped, counted and reported on /diagnostics;
@@ -65,9 +73,10 @@ Real base (see ``hardware_inputs.py`` for the conventions)
 ``left_wheel_sign``, ``right_wheel_sign`` (1 or −1, integers): −1 for a joint whose
 positive direction rolls the robot backwards; ``imu_mounting_rpy`` [rad]: the rotation
 from base_link to the IMU frame (roll, pitch, yaw about base_link's fixed axes, as a URDF
-joint's rpy); ``position_source``: 'gps' (NavSatFix about ``datum.*``) or 'odometry'
+joint's rpy); ``position_source``: 'gps' (NavSatFix about ``datum.*``), 'odometry'
 (nav_msgs/Odometry on ``/odom``, real time only: its (x, y) is used like a fix, every
-message once); wheel radius and track width: ``model.wheel_radius``, ``model.track_width``.
+message once) or 'wheels' (no position input: dead reckoning from (0, 0)); wheel radius
+and track width: ``model.wheel_radius``, ``model.track_width``.
 The defaults (1, 1, [0, 0, 0], 'gps') are the simulator's conventions and change nothing
 (no arithmetic is done on the inputs with them).
 
@@ -94,7 +103,8 @@ from .common import (ControllerNode, RELIABLE_QOS, run_node, SENSOR_QOS,
                      stamp_to_ns)
 from .conversions import (decode_serialized, estimate_to_msg, gps_has_fix, gps_local_position,
                           odometry_to_msg, prepare_decoder, wheel_torques_from_msg)
-from .diagnostics import OK, WARN
+from ..core.position import DEAD_RECKONING, TRACKING
+from .diagnostics import ERROR, OK, WARN
 from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
                               odometry_position, signed_wheel_angles)
 from .parameters import ConfigParameters
@@ -145,12 +155,17 @@ class EsoNode(ControllerNode):
                               'lockstep sets wait for GPS fixes)')
         datum = ConfigParameters(self, 'datum', DatumConfig).config
         self.datum = (datum.latitude, datum.longitude, datum.altitude)
+        self.max_datum_distance = settings.max_datum_distance
         self.frame_id = settings.frame_id
         self.sample_period = self.eso_config.sample_period
         self.gps_every = decimation(gps_period, self.sample_period)
+        # 'wheels': no position input at all (the sets are encoders and IMU).
+        self.sensors = _SENSORS if self.position_source != 'wheels' else _SENSORS[:2]
 
         self.estimator = StateEstimator(self.model, self.eso_config, self.position_config,
-                                        encoders_relative_to_body=self.relative_to_body)
+                                        encoders_relative_to_body=self.relative_to_body,
+                                        dead_reckoning=self.position_source == 'wheels')
+        self.reported_fault = ''
         self.last_update_ns: int | None = None
         # Real time: the observer's sample clock (see _observer_time).
         self.sample_index: int | None = None
@@ -159,12 +174,12 @@ class EsoNode(ControllerNode):
         self.torques_by_stamp: dict[int, tuple[float, float]] = {}
         self.latest_torques = (0.0, 0.0)
         if self.lockstep:
-            self.sync = ExactTimeSync(_SENSORS, self._update, required=self._required,
+            self.sync = ExactTimeSync(self.sensors, self._update, required=self._required,
                                       gate=self._torques_ready)
         else:
             # Encoder and IMU samples of one set at most one sample period apart (see
             # LatestSync.max_skew_ns: a burst after a stall must not pair old with new).
-            self.sync = LatestSync(_SENSORS, self._update, triggers=('joint_states', 'imu'),
+            self.sync = LatestSync(self.sensors, self._update, triggers=('joint_states', 'imu'),
                                    required=('joint_states', 'imu'),
                                    max_skew_ns=round(self.sample_period * 1e9))
 
@@ -183,6 +198,9 @@ class EsoNode(ControllerNode):
             self.diagnostics.inputs = ('joint_states', 'imu', 'odom', 'wheel_torques')
             self.diagnostics.last_stamp = {n: None for n in self.diagnostics.inputs}
             self.subscribe(Odometry, 'odom', 'odom', self._on_odometry, sensor_qos)
+        elif self.position_source == 'wheels':
+            self.diagnostics.inputs = ('joint_states', 'imu', 'wheel_torques')
+            self.diagnostics.last_stamp = {n: None for n in self.diagnostics.inputs}
         else:
             self.subscribe(NavSatFix, 'gps/fix', 'gps', self._on_gps, sensor_qos)
         self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques', self._on_torques)
@@ -230,7 +248,7 @@ class EsoNode(ControllerNode):
         return is_decimated_tick(stamp_ns, self.sample_period, self.gps_every)
 
     def _required(self, stamp_ns: int) -> tuple[str, ...]:
-        return _SENSORS if self._is_gps_tick(stamp_ns) else ('joint_states', 'imu')
+        return self.sensors if self._is_gps_tick(stamp_ns) else ('joint_states', 'imu')
 
     def _torques_ready(self, _stamp_ns: int) -> bool:
         return self.last_update_ns is None or self.last_update_ns in self.torques_by_stamp
@@ -263,11 +281,33 @@ class EsoNode(ControllerNode):
             self.feed('gps', stamp, None)
             return
         position = gps_local_position(msg, *self.datum)
+        if not self.estimator.has_fix and not self._near_datum(msg, position):
+            if self.lockstep and self._is_gps_tick(stamp):
+                self.feed('gps', stamp, None)   # the set completes without the fix
+            return
         if self.lockstep and not self._is_gps_tick(stamp):
             self.diagnostics.drop('gps', 'off the GPS ticks',
                                   f'stamp {stamp} ns is not a multiple of gps_period')
             return
         self.feed('gps', stamp, position)
+
+    def _near_datum(self, msg: NavSatFix, position: tuple[float, float]) -> bool:
+        """Whether a fix is within ``max_datum_distance`` of the datum; else refuse the source.
+
+        Only the fixes before the first accepted one are checked: after it, each fix is
+        gated against the odometry (core/position.py).
+        """
+        distance = (position[0] ** 2 + position[1] ** 2) ** 0.5
+        if distance <= self.max_datum_distance:
+            return True
+        if not self.estimator.refused:
+            self.estimator.refused = (
+                f'GPS fix at latitude {msg.latitude:.7f}, longitude {msg.longitude:.7f} is '
+                f'{distance / 1e3:.4g} km from the datum ({self.datum[0]:.7f}, '
+                f'{self.datum[1]:.7f}) > max_datum_distance {self.max_datum_distance:g} m: '
+                'set datum.latitude/datum.longitude to your site (this fix is one) and restart')
+        self.diagnostics.drop('gps', 'far from the datum', f'{distance:.4g} m')
+        return False
 
     def _on_odometry(self, msg: Odometry) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
@@ -317,8 +357,9 @@ class EsoNode(ControllerNode):
             raise
         self.last_update_ns = stamp
         self.publisher.publish(estimate_to_msg(pose.estimate, pose.x, pose.y, pose.settled,
-                                               stamp, self.frame_id))
-        if self.odometry_publisher is not None:
+                                               stamp, self.frame_id, pose.position_status))
+        if self.odometry_publisher is not None and pose.position_status in (
+                TRACKING, DEAD_RECKONING):
             self._publish_odometry(stamp, pose)
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self._report(pose.settled)
@@ -342,16 +383,29 @@ class EsoNode(ControllerNode):
 
     def _report(self, settled: bool) -> None:
         diag = self.diagnostics
-        source = 'GPS' if self.position_source == 'gps' else 'odometry'
-        if not self.estimator.has_fix:
-            diag.state(WARN, f'no {source} position yet: x, y are wheel odometry from (0, 0)')
+        source = {'gps': 'GPS', 'odometry': 'odometry', 'wheels': 'wheels'}[self.position_source]
+        fault = self.estimator.position_fault
+        if fault:
+            diag.state(ERROR, f'position source refused: {fault}')
+            if fault != self.reported_fault:
+                self.reported_fault = fault
+                self.get_logger().error(f'position source refused: {fault}')
+        elif self.position_source == 'wheels':
+            diag.state(OK if settled else WARN, 'dead reckoning (position_source wheels): '
+                       'x, y are wheel odometry along the IMU yaw from (0, 0)'
+                       + ('' if settled else '; epsilon ramp still running'))
+        elif not self.estimator.has_fix:
+            diag.state(WARN, f'no {source} position yet: waiting for the first fix (no '
+                       'torque until then; indoors without GPS use position_source: wheels)')
         elif not settled:
             diag.state(OK, 'estimating; epsilon ramp still running (not settled)')
         else:
             diag.state(OK, 'estimating')
         position = self.estimator.position
-        diag.values[f'{source} fixes accepted'] = str(position.accepted_fixes)
-        diag.values[f'{source} fixes rejected'] = str(position.rejected_fixes)
+        if self.position_source != 'wheels':
+            diag.values[f'{source} fixes accepted'] = str(position.accepted_fixes)
+            diag.values[f'{source} fixes rejected'] = str(position.rejected_fixes)
+            diag.values['last fix innovation [m]'] = f'{position.last_innovation:.3f}'
         if self.lockstep:
             diag.values['pending sets'] = str(self.sync.pending)
             diag.values['sets superseded/evicted'] = (

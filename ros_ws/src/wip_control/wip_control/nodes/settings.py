@@ -22,6 +22,7 @@ from ..core.mpc import MpcConfig
 from ..core.params import WipParameters
 from ..core.position import PositionConfig
 from ..core.references import ReferenceConfig
+from ..core.runaway import RunawayConfig
 from ..core.safety import SafetyConfig
 from ..core.controller_settings import RatesConfig
 from ..core.sensors import SensorConfig
@@ -31,7 +32,7 @@ from ..core.wiring_check import WiringCheckConfig
 CLOCK_MODES = ('lockstep', 'realtime')
 #: The nodes are drop-in controllers for a real base; the graph runner sets 'lockstep'.
 DEFAULT_CLOCK_MODE = 'realtime'
-POSITION_SOURCES = ('gps', 'odometry')
+POSITION_SOURCES = ('gps', 'odometry', 'wheels')
 REALTIME_STARTS = ('first_tick', 'engaged')
 REALTIME_TRIGGERS = ('state_estimate', 'timer')
 ODOMETRY_OUTPUTS = ('realtime', 'always', 'off')
@@ -144,8 +145,13 @@ class EsoNodeSettings:
                               'eso.sample_period) samples)', minimum=0.0,
                               exclusive_minimum=True, maximum=3600.0)
     position_source: str = param('gps', TEXT, "'gps': NavSatFix on /gps/fix about the datum; "
-                                 "'odometry': nav_msgs/Odometry on /odom (real time only)",
+                                 "'odometry': nav_msgs/Odometry on /odom (real time only); "
+                                 "'wheels': dead reckoning (indoors, no GPS)",
                                  choices=POSITION_SOURCES)
+    max_datum_distance: float = param(
+        5000.0, 'm', 'a first GPS fix farther than this from datum.* is refused (a datum '
+        'copied from elsewhere): no torque until restarted with the right datum',
+        minimum=0.0, exclusive_minimum=True)
     frame_id: str = param('map', TEXT, 'frame of the planar position x, y')
     odometry_output: str = param(
         'realtime', TEXT, "nav_msgs/Odometry of the estimate on /odom: 'realtime' (real "
@@ -265,5 +271,5 @@ NODES: dict[str, tuple[tuple[str, type], ...]] = {
                      ('mpc', MpcPeriod), ('safety', SafetyConfig), ('', MixerNodeSettings),
                      ('', WheelJoints), ('', EffortCommand), ('', WheelSigns),
                      ('wiring_check', WiringCheckConfig), ('model', WipParameters),
-                     ('', ImuMounting)),
+                     ('', ImuMounting), ('runaway', RunawayConfig)),
 }

@@ -13,6 +13,8 @@ Subscribes
     divergence check, ``settled`` for the start-up), ``/wip/estop`` (std_msgs/Bool: true
     engages the e-stop, latched; false releases the button, which allows a reset),
     ``/wip/estop_reset`` (std_msgs/Empty: the reset, as the service below); in real
+    time with ``runaway.enabled``, ``/wip/reference`` (wip_msgs/ReferenceState: the
+    reference position, for the runaway guard of ``core/runaway.py``); in real
     time with ``wiring_check.enabled``, the base's ``/joint_states`` and ``/imu/data``
     (sensor-data QoS) for the wiring checks at engage (``core/wiring_check.py``: wheel
     signs, joint names and IMU mounting judged from the sensors against each other; a
@@ -87,7 +89,8 @@ from rclpy.duration import Duration
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, Empty, Float64MultiArray
 from std_srvs.srv import Trigger
-from wip_msgs.msg import ArcState, MpcOutput, StateEstimate as StateEstimateMsg, WheelTorques
+from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateMsg,
+                          StateEstimate as StateEstimateMsg, WheelTorques)
 
 from ..core.config import ConfigError
 from ..core.mixer import MixerConfig
@@ -96,6 +99,7 @@ from ..core.params import WipParameters
 from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyConfig, SafetyDecision,
                            SafetyMonitor, SHADOW, STARTING)
 from ..core.controller_settings import RatesConfig
+from ..core.runaway import RunawayConfig
 from ..core.wiring_check import WiringCheck, WiringCheckConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node, SENSOR_QOS, stamp_to_ns
 from .conversions import (effort_command, effort_command_cdr, estimate_from_msg,
@@ -136,6 +140,7 @@ class TorqueMixerNode(ControllerNode):
         if resolves_faster(mpc_periods.sampling_period, mpc_periods.fast_resolve_period):
             self.mpc_period = mpc_periods.fast_resolve_period
         self.safety = ConfigParameters(self, 'safety', SafetyConfig).config
+        runaway = ConfigParameters(self, 'runaway', RunawayConfig).config
         settings = ConfigParameters(self, '', MixerNodeSettings).config
         wheels = declare_effort_interface(self)
         self.left_joint, self.right_joint = wheels.left_joint, wheels.right_joint
@@ -148,7 +153,7 @@ class TorqueMixerNode(ControllerNode):
         self.every = decimation(self.mpc_period, self.control_period)
         self.monitor = SafetyMonitor(self.safety, self.mixer.max_wheel_torque,
                                      self.mixer.max_wheel_torque_rate, self.control_period,
-                                     timing_checks=not self.lockstep)
+                                     timing_checks=not self.lockstep, runaway=runaway)
         self.last_decision: SafetyDecision | None = None
         self.zeroed_ticks = 0
         self._diagnostics_sent_at = 0.0
@@ -171,6 +176,9 @@ class TorqueMixerNode(ControllerNode):
         self.subscribe(MpcOutput, 'wip/drive_torque', 'drive_torque', self._on_drive)
         self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                        self._on_estimate)
+        if not self.lockstep and runaway.enabled:
+            self.subscribe(ReferenceStateMsg, 'wip/reference', 'reference',
+                           self._on_reference)
         self.subscribe(Bool, 'wip/estop', 'estop', self._on_estop)
         self.subscribe(Empty, 'wip/estop_reset', 'estop_reset',
                        lambda _msg: self.reset_estop('/wip/estop_reset'))
@@ -303,7 +311,8 @@ class TorqueMixerNode(ControllerNode):
     def _on_estimate(self, msg: StateEstimateMsg) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input('state_estimate', stamp)
-        value = (estimate_from_msg(msg, check=False).estimate, bool(msg.settled))
+        value = (estimate_from_msg(msg, check=False).estimate, bool(msg.settled),
+                 int(msg.position_status), msg.x, msg.y)
         if not self.lockstep:
             self.monitor.estimate(self.monitor_time(), *value)
             return
@@ -318,6 +327,9 @@ class TorqueMixerNode(ControllerNode):
         if self.latest_estimate_stamp is None or stamp > self.latest_estimate_stamp:
             self.latest_estimate_stamp = stamp
         self.sync.drain()
+
+    def _on_reference(self, msg: ReferenceStateMsg) -> None:
+        self.monitor.reference(self.monitor_time(), msg.x, msg.y)
 
     def _on_estop(self, msg: Bool) -> None:
         engaged = bool(msg.data)
@@ -436,6 +448,11 @@ class TorqueMixerNode(ControllerNode):
             values['wiring check'] = (self.monitor.wiring or
                                       'no contradiction: ' + self.wiring_check.summary())
         values['zeroed ticks'] = str(self.zeroed_ticks)
+        if not self.lockstep and self.monitor.guard.config.enabled:
+            guard = self.monitor.guard
+            values['runaway guard'] = (
+                self.monitor.runaway or f'wheel-propagated tracking error '
+                f'{guard.wheel_error:.3f} m, largest growth {guard.largest_growth:.3f} m')
         if self.latencies:
             p50, p99, p100 = np.percentile(np.fromiter(self.latencies, float), (50, 99, 100))
             values['sensor to command latency [ms] p50/p99/max'] = (
