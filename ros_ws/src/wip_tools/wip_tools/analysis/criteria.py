@@ -33,6 +33,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wip_control.core.config import describe, from_mapping, param, to_mapping
+from wip_control.core.runaway import RunawayGuard
 from wip_sim.core.record import RunRecord
 
 #: Numerical slack on hard limits: the QP is solved to 1e-6 and the mixer clips in
@@ -45,6 +46,8 @@ class Criteria:
     """Thresholds a run must meet; ``null`` (None) switches a criterion off."""
 
     no_fall: bool = param(True, '1', '|theta| must stay below the scenario fall_threshold')
+    no_runaway_alarm: bool = param(True, '1', "the safety layer's runaway guard, fed the run's "
+                                   'estimate and reference, must never fault (docs/safety.md)')
     max_wheel_torque: Optional[float] = param(
         15.0, 'N m', 'limit of |tau_l|, |tau_r| (commanded)', minimum=0.0)
     max_delta_tau_v: Optional[float] = param(
@@ -173,7 +176,30 @@ def measure(record: RunRecord, scenario, metrics: dict, criteria: Criteria) -> d
         'final_oscillation': oscillation,
         'final_abs_theta': _max(np.abs(truth['theta'][final])),
         'end_time': end,
+        **runaway_replay(record),
     }
+
+
+def runaway_replay(record: RunRecord) -> dict[str, Any]:
+    """What the real-time safety layer's runaway guard would say of the run.
+
+    The guard (``core/runaway.py``, its defaults) fed each control tick's estimate and
+    reference, from t = 0 (a real-time run feeds it from the engagement on):
+    ``runaway_growth`` [m] its largest growth, ``runaway_alarm`` its first verdict ('' if
+    none), with the time.
+    """
+    estimate, reference = record['estimate'], record['reference']
+    guard = RunawayGuard()
+    alarm = ''
+    columns = (estimate['t'], estimate['x'], estimate['y'], estimate['phi'], estimate['v'],
+               reference['x'], reference['y'])
+    if len(reference['t']) == len(estimate['t']):
+        for t, x, y, phi, v, xr, yr in zip(*(c.tolist() for c in columns)):
+            verdict = guard.update(t, x, y, phi, v, xr, yr)
+            if verdict:
+                alarm = f't = {t:.2f} s: {verdict}'
+                break
+    return {'runaway_growth': guard.largest_growth, 'runaway_alarm': alarm}
 
 
 #: criterion field -> (measured key, kind); kind 'max': measured <= threshold.
@@ -205,6 +231,8 @@ def evaluate(measured: dict[str, Any], criteria: Criteria,
     failures: dict[str, str] = {}
     if criteria.no_fall and measured['fell']:
         failures['no_fall'] = f'fell at t = {measured["end_time"]:.2f} s'
+    if criteria.no_runaway_alarm and measured.get('runaway_alarm') and not measured['fell']:
+        failures['no_runaway_alarm'] = f'runaway guard at {measured["runaway_alarm"]}'
     for name, (key, kind) in _CHECKS.items():
         threshold = getattr(criteria, name)
         if threshold is None:
