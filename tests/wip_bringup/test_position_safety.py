@@ -5,7 +5,7 @@ robot's conventions), whose position outputs can be given a fault (``position_fa
 
 1. A datum copied from elsewhere (hundreds of km from the fixes): refused before engaging,
    the message names ``datum`` and the fix's latitude/longitude; the base is never
-   released.
+   released. A datum 2 km off (believed): the runaway guard stops it within 1 s.
 2. A receiver that jumps 50 m for half a second mid-run: the fixes are rejected (counted),
    the run goes on, and the base moves less than 1 m off its course because of it.
 3. A receiver that jumps 50 m for good: a position fault (zero torque, exit 1) within
@@ -25,7 +25,7 @@ import pytest
 
 pytest.importorskip('rclpy')
 
-from wip_bringup.standin_run import (BASE, run_against_standin)  # noqa: E402
+from wip_bringup.standin_run import BASE, line_scenario, run_against_standin  # noqa: E402
 from wip_control.core.sensors import SensorConfig  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
@@ -51,7 +51,9 @@ def fault_event(result):
     return next((e for e in result.safety_events if e['state'] == 'FAULT'), None)
 
 
-def test_a_datum_hundreds_of_km_off_is_refused_before_engaging(tmp_path):
+@pytest.mark.parametrize('kind', ['line', 'cmd_vel'])
+def test_a_datum_hundreds_of_km_off_is_refused_before_engaging(tmp_path, kind):
+    # A path and a teleop alike: the controllers never engage on a position 490 km away.
     wrong = dict(BASE, **{'datum.latitude': SensorConfig().gps_datum_latitude + 4.4})
 
     def refused(runner):
@@ -59,12 +61,27 @@ def test_a_datum_hundreds_of_km_off_is_refused_before_engaging(tmp_path):
                 and any(e['state'] == 'FAULT' for e in runner.safety_events)
                 and 'the datum was refused')
     run = run_against_standin(tmp_path / 'datum', wrong, 5.0, stop_when=refused,
-                              runner_duration=90.0)
+                              runner_duration=90.0, scenario=line_scenario(SPEED, kind=kind))
     result = run.result
     assert result.exit_code == 5, result.message          # never engaged
     assert not run.stats['released']                        # no torque ever reached it
     assert 'datum' in result.message and 'latitude 38.88' in result.message, result.message
     assert 'km from the datum' in result.message, result.message
+
+
+def test_a_datum_2_km_off_is_stopped_by_the_runaway_guard_before_the_base_runs_away(tmp_path):
+    # Under max_datum_distance, so the fixes are believed: the line's start is then 2 km
+    # from the estimate, and the generator drives at its limit toward it. The guard's
+    # absurd-error rule cuts the torque 1 s after the engagement.
+    wrong = dict(BASE, **{'datum.latitude': SensorConfig().gps_datum_latitude + 0.018})
+    run = run_against_standin(tmp_path / 'datum2km', wrong, 10.0)
+    result = run.result
+    assert result.exit_code == 1, result.message
+    assert 'max_tracking_error' in result.message and 'datum' in result.message
+    samples = truth(run.stats)
+    first = samples[0]
+    cut = at(samples, 1.0 + 0.2)        # the verdict, and a tick or so of transport
+    assert math.hypot(cut['x'] - first['x'], cut['y'] - first['y']) < 1.5
 
 
 def test_a_brief_50_m_jump_is_rejected_and_does_not_move_the_base(tmp_path):
@@ -141,3 +158,90 @@ def test_dead_reckoning_engages_without_gps_and_drives_the_line(tmp_path):
     first, last = samples[0], samples[-1]
     travelled = math.hypot(last['x'] - first['x'], last['y'] - first['y'])
     assert travelled > 0.8 * SPEED * 12.0 - 2.0, travelled
+
+
+class OpenLoopTeleop:
+    """A person with a joystick: a 5 m square, timed on the wall clock (real time).
+
+    Forward at SPEED for SIDE / SPEED s, a left turn at TURN rad/s for π/2 / TURN s (with a
+    pause between), four times, then zero; it keeps the newest state estimate.
+    """
+
+    SIDE, TURN, PAUSE = 5.0, 0.5, 1.5
+
+    def __init__(self) -> None:
+        import os
+
+        import rclpy
+        import rclpy.executors
+        from geometry_msgs.msg import TwistStamped
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from wip_msgs.msg import StateEstimate
+        self.rclpy, self.TwistStamped = rclpy, TwistStamped
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=int(os.environ['ROS_DOMAIN_ID']))
+        self.node = rclpy.create_node('teleop_square', context=self.context)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.publisher = self.node.create_publisher(TwistStamped, 'cmd_vel', 10)
+        self.estimate = None
+        self.node.create_subscription(
+            StateEstimate, '/wip/state_estimate', self._on_estimate,
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+
+    def _on_estimate(self, msg) -> None:
+        self.estimate = msg
+
+    def _hold(self, seconds: float, v: float, omega: float) -> None:
+        import time
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            msg = self.TwistStamped()
+            msg.header.stamp = self.node.get_clock().now().to_msg()
+            msg.twist.linear.x, msg.twist.angular.z = v, omega
+            self.publisher.publish(msg)
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def drive_square(self) -> None:
+        for _ in range(4):
+            self._hold(self.SIDE / SPEED, SPEED, 0.0)
+            self._hold(self.PAUSE, 0.0, 0.0)
+            self._hold(0.5 * math.pi / self.TURN, 0.0, self.TURN)
+            self._hold(self.PAUSE, 0.0, 0.0)
+        self._hold(3.0, 0.0, 0.0)   # at rest: the last estimate is where it stopped
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.rclpy.shutdown(context=self.context)
+
+
+def test_dead_reckoning_drives_a_20_m_teleop_square_with_its_drift_measured(tmp_path):
+    # No GPS at all: position_source wheels, a cmd_vel reference, a teleop square.
+    wheels = dict(BASE, position_source='wheels')
+    scenario = line_scenario(SPEED, kind='cmd_vel')
+    final = {}
+
+    def teleop(_runner, _processes):
+        driver = OpenLoopTeleop()
+        try:
+            driver.drive_square()
+            final['estimate'] = driver.estimate
+        finally:
+            driver.close()
+    run = run_against_standin(tmp_path / 'square', wheels, 200.0, scenario=scenario,
+                              during=teleop, end_after_during=0.5)
+    stats = run.stats
+    assert run.result.exit_code == 0, run.result.message
+    assert stats['released'] and not stats['fell']
+    samples = truth(stats)
+    first, last = samples[0], samples[-1]
+    perimeter = sum(math.hypot(b['x'] - a['x'], b['y'] - a['y'])
+                    for a, b in zip(samples, samples[1:]))
+    assert perimeter > 15.0, perimeter       # the square was driven (about 20 m)
+    est = final['estimate']
+    # Dead reckoning's frame starts where the robot stood, with the IMU's (absolute) yaw.
+    drift = math.hypot(est.x - (last['x'] - first['x']), est.y - (last['y'] - first['y']))
+    (tmp_path / 'drift.txt').write_text(f'{drift:.4f} m over {perimeter:.2f} m\n')
+    # docs/safety.md states the measured drift; the bound is 2 % of the distance driven.
+    assert drift < 0.02 * perimeter, (drift, perimeter)
