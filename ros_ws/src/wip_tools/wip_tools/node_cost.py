@@ -44,7 +44,7 @@ def measure(seconds: float, paced: bool) -> dict:
     """
     import rclpy  # ROS only where measured
     from rclpy.serialization import serialize_message
-    from sensor_msgs.msg import Imu, JointState
+    from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
     from std_msgs.msg import Bool, Float64MultiArray
     import yaml
 
@@ -72,6 +72,7 @@ def measure(seconds: float, paced: bool) -> dict:
         nodes = {node.get_name(): node for node in built}
         eso = {s.topic_name: s.callback for s in nodes['eso'].subscriptions}
         on_joint_states, on_imu = eso['/joint_states'], eso['/imu/data']
+        on_fix = eso['/gps/fix']
         on_estop = {s.topic_name: s.callback
                     for s in nodes['torque_mixer'].subscriptions}['/wip/estop']
         listener = rclpy.create_node('node_cost_listener')
@@ -83,6 +84,14 @@ def measure(seconds: float, paced: bool) -> dict:
         joint, imu = JointState(), Imu()
         conventions.fill(joint, imu, (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), 0.0, 0.0, 0.0, 0.0,
                          9.81)
+        # A fix at the datum every GPS period, as the base's receiver (the safety layer
+        # engages only once the position is known).
+        sensors = load_scenario(None).sensors
+        fix = NavSatFix(latitude=sensors.gps_datum_latitude,
+                        longitude=sensors.gps_datum_longitude,
+                        altitude=sensors.gps_datum_altitude)
+        fix.status.status = NavSatStatus.STATUS_FIX
+        gps_every = max(1, round(1.0 / (sensors.gps_rate * CONTROL_PERIOD)))
         time.sleep(1.0)    # DDS matching of the effort command
         mixer = nodes['torque_mixer']
         engage_ticks = int(ENGAGE_TIMEOUT / CONTROL_PERIOD)
@@ -105,6 +114,9 @@ def measure(seconds: float, paced: bool) -> dict:
                 msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
             joint_bytes, imu_bytes = serialize_message(joint), serialize_message(imu)
             start = time.thread_time()
+            if k % gps_every == 0:
+                fix.header.stamp.sec, fix.header.stamp.nanosec = sec, nanosec
+                on_fix(fix)
             on_joint_states(joint_bytes)
             bus.drain()
             on_imu(imu_bytes)
