@@ -41,3 +41,21 @@ def test_the_design_notes_cited_by_the_code_exist():
     assert cited, 'the code cites its design notes in docs/'
     missing = sorted(c for c in cited if not (ROOT / 'docs' / c).is_file())
     assert not missing, missing
+
+
+#: The last commit before the rule of docs/contributing.md (subjects of at most 72
+#: characters); every commit after it follows the rule.
+RULE_SINCE = 'b7cc102107b38ea9a2b535553a2b4ef2aee63f19'
+
+
+def test_commit_subjects_since_the_rule_are_at_most_72_characters():
+    try:
+        subprocess.run(['git', 'cat-file', '-e', f'{RULE_SINCE}^{{commit}}'], cwd=ROOT,
+                       capture_output=True, check=True, timeout=30)
+        log = subprocess.run(['git', 'log', '--format=%h %s', f'{RULE_SINCE}..HEAD'],
+                             cwd=ROOT, capture_output=True, text=True, check=True,
+                             timeout=30).stdout.splitlines()
+    except (OSError, subprocess.SubprocessError):
+        pytest.skip('not a git checkout with the history (a shallow clone?)')
+    long = [line for line in log if len(line.split(' ', 1)[1]) > 72]
+    assert not long, f'commit subjects over 72 characters: {long}'
