@@ -53,7 +53,7 @@ class TfBuffer:
                 self.dynamic.setdefault(t.child_frame_id, {})[stamp] = entry
 
     def lookup(self, target: str, source: str, stamp_ns: int):
-        """(translation, rotation) of ``source`` in ``target`` at exactly ``stamp_ns``.
+        """Return (translation, rotation) of ``source`` in ``target`` at exactly ``stamp_ns``.
 
         KeyError when a link of the chain is missing (or has no transform at that stamp).
         """

@@ -115,6 +115,29 @@ def test_path_from_poses_encoded_once(ros, frame_id, count):
     assert_same_message(ros, data, expected)
 
 
+@pytest.mark.parametrize('count', [0, 1, 3])
+def test_tf_message_of_transforms(ros, count):
+    from geometry_msgs.msg import TransformStamped
+    from tf2_msgs.msg import TFMessage
+
+    from wip_viewer import cdr
+    rng = random.Random(count)
+    transforms, expected = [], TFMessage()
+    for k in range(count):
+        stamp_ns = rng.randrange(0, 10 ** 12)
+        frame_id, child = FRAMES[(3 * k + count) % len(FRAMES)], FRAMES[(5 * k + 1) % 9]
+        translation = tuple(rng.uniform(-5.0, 5.0) for _ in range(3))
+        rotation = tuple(rng.uniform(-1.0, 1.0) for _ in range(4))
+        transforms.append((stamp_ns, frame_id, child, translation, rotation))
+        msg = TransformStamped(header=ros['make_header'](stamp_ns, frame_id),
+                               child_frame_id=child)
+        t, q = msg.transform.translation, msg.transform.rotation
+        t.x, t.y, t.z = translation
+        q.x, q.y, q.z, q.w = rotation
+        expected.transforms.append(msg)
+    assert_same_message(ros, cdr.tf_message(transforms), expected)
+
+
 def test_bad_arguments_are_refused():
     from wip_viewer import cdr
     with pytest.raises(ValueError, match='triples'):

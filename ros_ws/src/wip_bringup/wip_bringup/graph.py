@@ -418,12 +418,18 @@ class GraphRunner(RunnerBase):
                 if options.clock == 'lockstep' else 0),
             'stats_file': str(self.out / 'plant_stats.json'),
         }
+        # The robot model hangs from base_link: with the viewer, the ESO's /odom and
+        # odom -> base_link run in lockstep too (otherwise off there), so that a view or a
+        # bag holds the whole chain map -> odom -> base_link -> wheels.
         params_file = write_params_file(scenario, self.out / 'params.yaml', options.clock,
                                         scenario_path, plant_extra=plant_extra,
-                                        recorder=recorder)
+                                        recorder=recorder, eso_extra=(
+                                            {'odometry_output': 'always'} if options.viewer
+                                            else None))
         # The vehicle drawn with the plant's true dimensions, the estimate's position
         # covariance from the GPS noise.
-        view = self.view_parameters(scenario.plant.parameters, scenario.sensors.gps_noise_std)
+        view = self.view_parameters(scenario.plant.parameters, scenario.sensors.gps_noise_std,
+                                    scenario.sensors.encoders_relative_to_body)
         if view:  # The whole file again, atomically, like every output of a run.
             write_atomic(params_file, params_file.read_text(encoding='utf-8')
                          + yaml.safe_dump(view, sort_keys=False))

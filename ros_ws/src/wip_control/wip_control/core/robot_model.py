@@ -51,7 +51,7 @@ class Joint:
 
     def transform(self, position: float = 0.0
                   ) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
-        """(translation, quaternion x, y, z, w) of child in parent at joint ``position`` [rad].
+        """Return (translation, quaternion x, y, z, w) of child in parent at ``position`` [rad].
 
         The joints' origins have no rotation (rpy 0), so the rotation is the axis-angle
         of the position alone.
@@ -126,7 +126,7 @@ def _visual(geometry: str, xyz, rpy, material: str) -> str:
 
 
 def urdf(model: RobotModel) -> str:
-    """The URDF (XML text) of ``model``."""
+    """Return the URDF (XML text) of ``model``."""
     p = model.params
     r, l_com, d = p.wheel_radius, p.com_height, p.track_width
     box = f'<box size="{_v((BODY_DEPTH, 0.8 * d, 2.0 * l_com))}"/>'

@@ -231,7 +231,7 @@ def odometry_to_msg(stamp_ns: int, frame_id: str, child_frame_id: str, x: float,
 
 
 def transform_from_odometry(msg: Odometry) -> TransformStamped:
-    """The pose of an Odometry as the transform header.frame_id -> child_frame_id.
+    """Return the pose of an Odometry as the transform header.frame_id -> child_frame_id.
 
     The same stamp, translation and rotation, copied (what diff_drive_controller's
     ``enable_odom_tf`` publishes beside its odometry).
@@ -245,7 +245,7 @@ def transform_from_odometry(msg: Odometry) -> TransformStamped:
 
 
 def identity_transform(stamp_ns: int, parent: str, child: str) -> TransformStamped:
-    """The transform parent -> child that places child on parent (zero, unit rotation)."""
+    """Return the transform parent -> child that places child on parent (identity)."""
     return stamped(TransformStamped(child_frame_id=child), stamp_ns, parent)
 
 
