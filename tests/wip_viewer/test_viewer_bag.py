@@ -167,3 +167,88 @@ def test_layout_files_are_generated_and_name_only_topics_the_bag_has(messages):
         assert topics <= set(by_topic), f'{name}: not in the bag: {topics - set(by_topic)}'
         assert services <= set(SERVICES)
         assert bool(services) == live
+
+
+# --- the robot model and tf -----------------------------------------------------------------
+
+def _tf_buffer(by_topic):
+    from tf_reader import TfBuffer
+    buffer = TfBuffer()
+    for message in by_topic.get('/tf_static', []):
+        buffer.add(message.transforms, static=True)
+    for message in by_topic['/tf']:
+        buffer.add(message.transforms)
+    return buffer
+
+
+def test_tf_composes_map_to_base_link_as_the_odometry_says(messages):
+    # A tf consumer composes map -> odom (/tf_static, the ESO) -> base_link (/tf, the ESO,
+    # with /odom) and must find the pose of the estimate at its stamp; the truth's frame
+    # the ground truth's pose. Within rounding: the same numbers went into both.
+    from tf_reader import yaw
+    by_topic, types = messages
+    assert types['/tf'] == types['/tf_static'] == 'tf2_msgs/msg/TFMessage'
+    buffer = _tf_buffer(by_topic)
+    for topic, frame in (('/wip/odom/estimate', 'base_link'),
+                         ('/wip/odom/truth', 'truth/base_link')):
+        odometry = by_topic[topic]
+        assert len(odometry) >= 40
+        for msg in odometry:
+            translation, rotation = buffer.lookup('map', frame, stamp_ns(msg))
+            p, q = msg.pose.pose.position, msg.pose.pose.orientation
+            assert np.allclose(translation, (p.x, p.y, p.z), rtol=0.0, atol=1e-12)
+            assert np.allclose(rotation, (q.x, q.y, q.z, q.w), rtol=0.0, atol=1e-12)
+            assert yaw(rotation) == pytest.approx(yaw_pitch(q)[0], abs=1e-12)
+
+
+def test_transforms_come_at_their_stated_rates_in_simulated_time(messages):
+    # Per transform, stamps exactly one period apart: the model's joints and the truth at
+    # viewer.pose_rate (25 Hz: every 8th 200 Hz tick), odom -> base_link at /odom's rate
+    # (every eso.odometry_decimation = 4th estimate: 50 Hz); the fixed frames once.
+    by_topic, _ = messages
+    stamps: dict[tuple[str, str], list[int]] = {}
+    for message in by_topic['/tf']:
+        for t in message.transforms:
+            stamps.setdefault((t.header.frame_id, t.child_frame_id), []).append(stamp_ns(t))
+    period = {('odom', 'base_link'): 20_000_000}
+    for pair in (('chassis', 'body'), ('body', 'left_wheel'), ('body', 'right_wheel'),
+                 ('map', 'truth/base_link')):
+        period[pair] = 40_000_000
+    assert set(stamps) == set(period)
+    for pair, values in stamps.items():
+        assert np.all(np.diff(values) == period[pair]), pair
+        assert len(values) >= DURATION * 1e9 / period[pair] - 2, pair
+    static = sorted((t.header.frame_id, t.child_frame_id)
+                    for m in by_topic['/tf_static'] for t in m.transforms)
+    assert static == [('base_link', 'chassis'), ('map', 'odom')]
+
+
+def test_robot_description_and_wheel_transforms_are_the_plants_model(messages):
+    from urdf_parser_py.urdf import URDF
+
+    from wip_sim.core.scenario import Scenario
+    by_topic, types = messages
+    assert types['/robot_description'] == 'std_msgs/msg/String'
+    params = Scenario().plant.parameters
+    robot = URDF.from_xml_string(by_topic['/robot_description'][0].data)
+    links = {link.name: link for link in robot.links}
+    assert links['body'].inertial.mass == params.body_mass
+    assert links['left_wheel'].inertial.inertia.iyy == params.wheel_inertia
+    joints = {j.name: j for j in robot.joints}
+    assert joints['left_wheel_joint'].type == joints['right_wheel_joint'].type == 'continuous'
+    # Each wheel transform is its joint's rotation about y by the /joint_states angle of
+    # the same stamp (signs 1 in simulation).
+    angles = {stamp_ns(m): dict(zip(m.name, m.position)) for m in by_topic['/joint_states']}
+    checked = 0
+    for message in by_topic['/tf']:
+        for t in message.transforms:
+            if t.child_frame_id not in ('left_wheel', 'right_wheel'):
+                continue
+            angle = angles[stamp_ns(t)][f'{t.child_frame_id}_joint']
+            q = t.transform.rotation
+            assert (q.x, q.z) == (0.0, 0.0)
+            assert (q.y, q.w) == pytest.approx((math.sin(angle / 2), math.cos(angle / 2)),
+                                               abs=1e-15)
+            assert abs(t.transform.translation.y) == params.track_width / 2.0
+            checked += 1
+    assert checked >= 2 * DURATION * 25 - 2
