@@ -126,6 +126,7 @@ from wip_control.core.config import ConfigError
 from wip_control.tools.cli import add_exit_codes, bounded, exit_with, write_atomic
 from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping, with_duration
 from wip_sim.settings import WITH_VIEWER
+from wip_viewer.viewer_core import LATCHED_TOPICS
 
 from .hardware import add_arguments, run_from_args
 # LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
@@ -261,9 +262,11 @@ def expected_endpoints(clock_mode: str, recording: bool, layout: str = 'separate
     expected = {topic: (len(PUBLISHERS[topic]), len(SUBSCRIBERS[topic]) + extra)
                 for topic in PUBLISHERS}
     if viewer:
-        # Its outputs must reach the recorder from the first message; its own inputs are
-        # best effort and may miss the first ticks (nothing waits for it).
-        expected.update({topic: (1, extra) for topic in VIEWER_TOPICS})
+        # Its outputs must reach the recorder from the first message (the transient-local
+        # ones reach a late reader too, and exist only with viewer.robot_model); its own
+        # inputs are best effort and may miss the first ticks (nothing waits for it).
+        expected.update({topic: (1, extra) for topic in VIEWER_TOPICS
+                         if topic not in LATCHED_TOPICS})
     if clock_mode == 'lockstep':
         # The recorder runs on sim time too (its time source) and records /clock.
         expected['/clock'] = (1, CLOCK_SUBSCRIPTIONS[layout] + 2 * extra)

@@ -69,6 +69,8 @@ MODEL_TOPICS = {
     '/tf_static': 'tf2_msgs/msg/TFMessage',
     '/robot_description': 'std_msgs/msg/String',
 }
+#: Those of them that are transient local: a reader that comes late still gets them.
+LATCHED_TOPICS = ('/tf_static', '/robot_description')
 #: Covariance put on the planar pose's unobserved axes (z, roll, pitch) [m², rad²]: the
 #: usual "very large" of a 2-D pose (the variances are not estimated at all).
 UNOBSERVED_VARIANCE = 1e6
