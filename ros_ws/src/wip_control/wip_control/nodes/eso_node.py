@@ -52,7 +52,8 @@ base_link: linear.x = υ̂, angular.z = ω̂; diagonal covariance from ``odometr
 1e6 on the axes a planar estimate does not observe), every ``odometry_decimation``-th
 estimate, with ``odometry_output`` 'realtime' (the default: real time and hardware mode,
 not lockstep), 'always' or 'off'; never with ``position_source`` 'odometry', where
-``/odom`` is the input (docs/driving.md).
+``/odom`` is the input (docs/driving.md). With it, ``odometry_tf``: the same pose as
+odom -> base_link on ``/tf``; ``map_to_odom_tf``: the identity map -> odom on ``/tf_static``.
 
 Bad input: a malformed or non-finite message (missing joint, wrong sizes, NaN, no fix,
 no orientation, non-unit quaternion) is dropped, counted and reported on /diagnostics;
