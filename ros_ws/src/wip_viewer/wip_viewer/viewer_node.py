@@ -163,9 +163,8 @@ class ViewerNode(IntraProcessNode):
         description = self.create_publisher(String, 'robot_description', TF_STATIC_QOS)
         description.publish(String(data=urdf(self.robot)))
         stamp_ns = self.get_clock().now().nanoseconds
-        static.publish(deserialize_message(cdr.tf_message([
-            self._joint_transform(stamp_ns, joint)
-            for joint in self.robot.joints if joint.kind == 'fixed']), TFMessage))
+        static.publish(cdr.tf_message([self._joint_transform(stamp_ns, joint)
+                                       for joint in self.robot.joints if joint.kind == 'fixed']))
         self.wheel_joints = (self.robot.joint(joints.left_joint),
                              self.robot.joint(joints.right_joint))
         self.body_joint = self.robot.joint('body_pitch_joint')
