@@ -39,6 +39,10 @@ WIP_SETUP_VERSION=1
 # Arguments of `colcon build`; part of the build stamp. --symlink-install makes the ament_python
 # packages "develop" installs of ros_ws/src, so that editing node code needs no rebuild.
 WIP_COLCON_ARGS=(--symlink-install --cmake-args -DBUILD_TESTING=OFF)
+# Standard ROS interface packages that ros_ws/src carries for a ROS installation that lacks
+# them (the ROS 2 wheels on PyPI have no tf2_msgs); built only where the underlay has none
+# (wip_colcon_skip_args), so that a Jazzy install's own package is used there.
+WIP_STANDARD_INTERFACES=(tf2_msgs)
 WIP_REQUIREMENTS_STAMP="${WIP_VENV}/.wip-requirements.sha256"
 WIP_BUILD_STAMP="${WIP_WS}/install/.wip-build.sha256"
 
@@ -82,6 +86,22 @@ wip_build_hash() {
                     -print0 | LC_ALL=C sort -z | xargs -0 -r sha256sum
         )
     } | sha256sum | cut -d' ' -f1
+}
+
+wip_colcon_skip_args() {
+    # wip_colcon_skip_args PREFIX...: print `--packages-skip NAME...` (one word a line) for
+    # the packages of WIP_STANDARD_INTERFACES that the ament index of one of the underlay
+    # prefixes already holds; nothing when every one of them is to be built from ros_ws.
+    local name prefix skip=()
+    for name in "${WIP_STANDARD_INTERFACES[@]}"; do
+        for prefix in "$@"; do
+            if [ -e "${prefix}/share/ament_index/resource_index/packages/${name}" ]; then
+                skip+=("${name}")
+                break
+            fi
+        done
+    done
+    [ "${#skip[@]}" = 0 ] || printf '%s\n' --packages-skip "${skip[@]}"
 }
 
 wip_unfixed_cmake_exports() {

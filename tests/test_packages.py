@@ -27,6 +27,9 @@ SRC = ROOT / 'ros_ws' / 'src'
 #: The packages and their job (the README's layout table says the same).
 PACKAGES = ('wip_msgs', 'wip_control', 'wip_sim', 'wip_bag', 'wip_bringup', 'wip_tools',
             'wip_viewer')
+#: Standard ROS interface packages that ros_ws carries for a ROS installation without them
+#: (scripts/setup builds them only there; tests/test_setup_contract.py).
+STANDARD_INTERFACES = ('tf2_msgs',)
 #: Python libraries with a rosdep key: import name -> key.
 ROSDEP_KEYS = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml',
                'matplotlib': 'python3-matplotlib', 'numba': 'python3-numba'}
@@ -40,7 +43,8 @@ PIP_ONLY = {'mcap': 'mcap', 'mcap_ros2': 'mcap-ros2-support', 'proxsuite': 'prox
 #: Imports of the ROS client library and message packages: the name is the package.
 ROS_IMPORTS = {'rclpy', 'rcl_interfaces', 'builtin_interfaces', 'ament_index_python',
                'std_msgs', 'std_srvs', 'sensor_msgs', 'nav_msgs', 'geometry_msgs',
-               'visualization_msgs', 'diagnostic_msgs', 'rosgraph_msgs', 'wip_msgs'}
+               'visualization_msgs', 'diagnostic_msgs', 'rosgraph_msgs', 'wip_msgs',
+               'tf2_msgs'}
 
 
 def python_packages():
@@ -131,7 +135,7 @@ def requirement_names():
 
 def test_the_source_tree_holds_the_packages_of_the_layout():
     on_disk = sorted(p.name for p in SRC.iterdir() if (p / 'package.xml').is_file())
-    assert on_disk == sorted(PACKAGES)
+    assert on_disk == sorted(PACKAGES + STANDARD_INTERFACES)
     for package in python_packages():
         for name in ('setup.py', 'setup.cfg', f'resource/{package}'):
             assert (SRC / package / name).is_file(), f'{package}/{name}'

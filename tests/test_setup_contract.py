@@ -225,6 +225,73 @@ def test_mpc_output_status_constants_are_distinct():
     assert MpcOutput.SOLVED == 0
 
 
+# --- standard interfaces that ROS may lack (tf2_msgs) -----------------------------------------
+
+def _skip_args(*prefixes):
+    result = _bash('set -euo pipefail; source scripts/_env.sh; wip_colcon_skip_args '
+                   + ' '.join(f"'{p}'" for p in prefixes))
+    assert result.returncode == 0, result.stderr
+    return result.stdout.split()
+
+
+def _ament_prefix(root, *packages):
+    index = root / 'share' / 'ament_index' / 'resource_index' / 'packages'
+    index.mkdir(parents=True)
+    for package in packages:
+        (index / package).touch()
+    return root
+
+
+def test_setup_builds_tf2_msgs_only_where_the_ros_installation_lacks_it(tmp_path):
+    # The pip venv's ament index (the ROS wheels: geometry_msgs, no tf2_msgs) -> build ours;
+    # a Jazzy install's (/opt/ros/jazzy has tf2_msgs) -> skip it, in any prefix order.
+    wheels = _ament_prefix(tmp_path / 'venv', 'geometry_msgs', 'std_msgs', 'rclpy')
+    jazzy = _ament_prefix(tmp_path / 'opt_ros_jazzy', 'geometry_msgs', 'tf2_msgs', 'tf2_ros')
+    assert _skip_args(wheels) == []
+    assert _skip_args(jazzy) == ['--packages-skip', 'tf2_msgs']
+    assert _skip_args(wheels, jazzy) == ['--packages-skip', 'tf2_msgs']
+    assert _skip_args(tmp_path / 'missing', wheels) == []
+    # scripts/setup asks about its own underlay (the venv) and passes the answer to colcon.
+    setup = (REPO_ROOT / 'scripts' / 'setup').read_text()
+    assert 'skip_args < <(wip_colcon_skip_args "${WIP_VENV}")' in setup
+    assert 'colcon build "${skip_args[@]}"' in setup
+
+
+def test_standard_interfaces_of_ros_ws_are_jazzys_definitions():
+    env_sh = (REPO_ROOT / 'scripts' / '_env.sh').read_text()
+    names = re.search(r'^WIP_STANDARD_INTERFACES=\((.*)\)$', env_sh, re.MULTILINE).group(1)
+    assert names.split() == ['tf2_msgs']
+    package = REPO_ROOT / 'ros_ws' / 'src' / 'tf2_msgs'
+    # tf2_msgs/msg/TFMessage of ROS 2 Jazzy (geometry2 0.36): one field; the type name on
+    # the wire is the package's, so a system tf2_msgs and this one interoperate.
+    lines = [line for line in (package / 'msg' / 'TFMessage.msg').read_text().splitlines()
+             if line.strip() and not line.startswith('#')]
+    assert lines == ['geometry_msgs/TransformStamped[] transforms']
+    assert '<name>tf2_msgs</name>' in (package / 'package.xml').read_text()
+    # The image (ROS from apt, tf2_msgs included) ignores this copy when ROS has one.
+    runs = [rest for keyword, rest in _dockerfile_instructions() if keyword == 'RUN']
+    build = next(r for r in runs if 'colcon build' in r)
+    decision = ('if ros2 pkg prefix tf2_msgs >/dev/null 2>&1; then '
+                'touch src/tf2_msgs/COLCON_IGNORE; fi')
+    assert decision in build and build.index(decision) < build.index('colcon build')
+
+
+@pytest.mark.ros
+def test_tf2_msgs_of_the_pip_setup_is_built_from_ros_ws():
+    _require_workspace()
+    from ament_index_python.packages import get_package_prefix
+    from geometry_msgs.msg import TransformStamped
+    from rclpy.serialization import deserialize_message, serialize_message
+    from tf2_msgs.msg import TFMessage
+
+    assert pathlib.Path(get_package_prefix('tf2_msgs')) == INSTALL / 'tf2_msgs'
+    transform = TransformStamped()
+    transform.header.frame_id, transform.child_frame_id = 'odom', 'base_link'
+    transform.transform.translation.x, transform.transform.rotation.w = 1.5, 1.0
+    message = TFMessage(transforms=[transform, TransformStamped()])
+    assert deserialize_message(serialize_message(message), TFMessage) == message
+
+
 # --- ament_python packages -------------------------------------------------------------------
 
 @pytest.mark.ros

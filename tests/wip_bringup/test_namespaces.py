@@ -93,7 +93,7 @@ def test_the_generated_params_file_names_the_nodes_in_the_namespace(tmp_path):
     assert (eso['odometry_frame_id'], eso['odometry_child_frame_id'], eso['epsilon']) == (
         'robot1/odom', 'robot1/base_link', 0.02)
     assert data['/robot1/viewer']['ros__parameters']['viewer'] == {
-        'track_width': 0.5, 'child_frame_id': 'robot1/base_link'}
+        'track_width': 0.5, 'child_frame_id': 'robot1/base_link', 'frame_prefix': 'robot1/'}
 
 
 def test_run_graph_refuses_a_bad_namespace_in_one_line(tmp_path, capsys):

@@ -115,6 +115,29 @@ def test_path_from_poses_encoded_once(ros, frame_id, count):
     assert_same_message(ros, data, expected)
 
 
+@pytest.mark.parametrize('count', [0, 1, 3])
+def test_tf_message_of_transforms(ros, count):
+    from geometry_msgs.msg import TransformStamped
+    from tf2_msgs.msg import TFMessage
+
+    from wip_viewer import cdr
+    rng = random.Random(count)
+    transforms, expected = [], TFMessage()
+    for k in range(count):
+        stamp_ns = rng.randrange(0, 10 ** 12)
+        frame_id, child = FRAMES[(3 * k + count) % len(FRAMES)], FRAMES[(5 * k + 1) % 9]
+        translation = tuple(rng.uniform(-5.0, 5.0) for _ in range(3))
+        rotation = tuple(rng.uniform(-1.0, 1.0) for _ in range(4))
+        transforms.append((stamp_ns, frame_id, child, translation, rotation))
+        msg = TransformStamped(header=ros['make_header'](stamp_ns, frame_id),
+                               child_frame_id=child)
+        t, q = msg.transform.translation, msg.transform.rotation
+        t.x, t.y, t.z = translation
+        q.x, q.y, q.z, q.w = rotation
+        expected.transforms.append(msg)
+    assert_same_message(ros, cdr.tf_message(transforms), expected)
+
+
 def test_bad_arguments_are_refused():
     from wip_viewer import cdr
     with pytest.raises(ValueError, match='triples'):
@@ -152,3 +175,61 @@ def test_the_process_own_subscribers_get_message_objects(ros, context):
                 assert_same_message(ros, sent, expected)
     finally:
         node.destroy_node()
+
+
+def test_wheel_transforms_from_joint_states_and_bad_ones_dropped(ros, context):
+    # The viewer as robot_state_publisher: each wheel joint's position in /joint_states
+    # (any order, other joints ignored) becomes its joint's rotation about ±y, in prefixed
+    # frames; a message without a wheel joint or with a non-finite angle is dropped and
+    # counted, never a traceback.
+    import math
+
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import JointState
+    from tf2_msgs.msg import TFMessage
+
+    from wip_viewer.viewer_node import ViewerNode
+
+    class Recording:
+        msg_type, local_subscriptions = TFMessage, 0
+
+        def __init__(self) -> None:
+            self.sent = []
+
+        def publish(self, msg) -> None:
+            self.sent.append(ros['deserialize'](msg, TFMessage))
+
+    node = ViewerNode(context=context, parameter_overrides=[
+        Parameter('viewer.frame_prefix', value='robot1/'),
+        Parameter('right_wheel_sign', value=-1),
+        Parameter('encoders_relative_to_body', value=False)])
+    try:
+        recording = node.publishers_['/tf'] = Recording()
+        node._on_joint_states(JointState(name=['caster', 'right_wheel_joint',
+                                               'left_wheel_joint'],
+                                         position=[9.0, 0.4, -1.2]), 5)
+        (message,) = recording.sent
+        by_child = {t.child_frame_id: t for t in message.transforms}
+        assert set(by_child) == {'robot1/left_wheel', 'robot1/right_wheel'}
+        for child, angle, sign in (('robot1/left_wheel', -1.2, 1.0),
+                                   ('robot1/right_wheel', 0.4, -1.0)):
+            t = by_child[child]
+            assert t.header.frame_id == 'robot1/chassis'      # encoders not on the body
+            assert t.header.stamp.nanosec == 5
+            q = t.transform.rotation
+            assert (q.x, q.y, q.z, q.w) == pytest.approx(
+                (0.0, sign * math.sin(angle / 2), 0.0, math.cos(angle / 2)), abs=1e-15)
+        for bad in (JointState(name=['left_wheel_joint'], position=[0.1]),
+                    JointState(name=['left_wheel_joint', 'right_wheel_joint'],
+                               position=[0.1, math.nan])):
+            node._on_joint_states(bad, 6)
+        assert len(recording.sent) == 1
+        assert node.diagnostics.dropped[('joint_states', 'invalid')] == 2
+    finally:
+        node.destroy_node()
+    plain = ViewerNode(context=context, parameter_overrides=[
+        Parameter('viewer.robot_model', value=False)])
+    try:
+        assert plain.robot is None and '/tf' not in plain.publishers_
+    finally:
+        plain.destroy_node()

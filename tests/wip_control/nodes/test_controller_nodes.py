@@ -1334,6 +1334,54 @@ def test_eso_publishes_odometry_of_the_estimate_in_real_time(context, harnesses)
     assert lockstep.node.odometry_publisher is None
 
 
+def test_eso_odometry_transforms_compose_to_the_odometry_pose(context, harnesses):
+    # A tf consumer (tests/tf_reader.py) reads /tf_static (map -> odom) and /tf
+    # (odom -> base_link), composes map -> base_link at each /odom stamp and must find
+    # /odom's pose: the same numbers, not merely close.
+    from nav_msgs.msg import Odometry
+    from rclpy.qos import QoSDurabilityPolicy, QoSProfile
+    from tf2_msgs.msg import TFMessage
+    from tf_reader import TfBuffer, yaw
+
+    harness = start(harnesses, context, EsoNode, 'realtime', ESO_INPUTS,
+                    ['/wip/state_estimate'], odometry_decimation=2,
+                    odometry_frame_id='robot1/odom', odometry_child_frame_id='robot1/base_link')
+    odom = harness.listen(Odometry, '/odom')
+    tf = harness.listen(TFMessage, '/tf')
+    tf_static = harness.listen(TFMessage, '/tf_static', QoSProfile(
+        depth=1, durability=QoSDurabilityPolicy.TRANSIENT_LOCAL))
+    harness.wait_matched()
+    wall = time.time_ns()
+    estimates = harness.outputs['/wip/state_estimate']
+    for k, s in enumerate(eso_measurements(10)):
+        harness.publish('/imu/data', imu(wall + s['stamp'], s['pitch'], s['yaw'] + 0.7,
+                                         s['rates']))
+        harness.publish('/joint_states', joint_states(wall + s['stamp'], s['left'], s['right']))
+        harness.spin_until(lambda: len(estimates) == k + 1, f'estimate {k}')
+    harness.spin_until(lambda: len(odom) == 5 and len(tf) == 5 and tf_static, '/odom, /tf')
+    assert [len(m.transforms) for m in tf_static] == [1]
+    static = tf_static[0].transforms[0]
+    assert (static.header.frame_id, static.child_frame_id) == ('map', 'robot1/odom')
+    buffer = TfBuffer()
+    buffer.add(tf_static[0].transforms, static=True)
+    for message in tf:
+        buffer.add(message.transforms)
+    for msg in odom:
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        translation, rotation = buffer.lookup('map', 'robot1/base_link', stamp)
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        assert tuple(translation) == (p.x, p.y, p.z)
+        assert rotation == (q.x, q.y, q.z, q.w)
+        assert yaw(rotation) == pytest.approx(2.0 * math.atan2(q.z, q.w))
+    assert abs(yaw(rotation)) > 0.5          # a heading that a swapped axis would show
+    # Both switch off; /odom stays.
+    quiet = start(harnesses, context, EsoNode, 'realtime', odometry_tf=False,
+                  map_to_odom_tf=False)
+    assert quiet.node.odometry_tf_publisher is None
+    assert not hasattr(quiet.node, 'map_to_odom_publisher')
+    assert quiet.node.odometry_publisher is not None
+
+
 def test_reference_cmd_vel_in_real_time_starts_at_the_estimated_pose(context, harnesses):
     from geometry_msgs.msg import TwistStamped
     harness = start(harnesses, context, ReferenceNode, 'realtime',

@@ -125,7 +125,8 @@ EXIT_BAD_PARAMETERS = EXIT_USAGE
 CLOCK_TOPIC = '/clock'
 #: Topics played under their own name whatever the replayer's namespace (the recorder
 #: stores them so: one /clock and one /diagnostics per domain).
-GLOBAL_TOPICS = (CLOCK_TOPIC, '/diagnostics', '/rosout', '/parameter_events')
+GLOBAL_TOPICS = (CLOCK_TOPIC, '/diagnostics', '/rosout', '/parameter_events', '/tf',
+                 '/tf_static')
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
 SPIN_SLICE = 0.05  # [s]: longest spin_once while waiting; bounds the reaction time
 FINE_WAIT = 0.002  # [s]: the last part of a wait is a plain sleep, more precise than spinning

@@ -126,6 +126,7 @@ from wip_control.core.config import ConfigError
 from wip_control.tools.cli import add_exit_codes, bounded, exit_with, write_atomic
 from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping, with_duration
 from wip_sim.settings import WITH_VIEWER
+from wip_viewer.viewer_core import LATCHED_TOPICS
 
 from .hardware import add_arguments, run_from_args
 # LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
@@ -261,9 +262,11 @@ def expected_endpoints(clock_mode: str, recording: bool, layout: str = 'separate
     expected = {topic: (len(PUBLISHERS[topic]), len(SUBSCRIBERS[topic]) + extra)
                 for topic in PUBLISHERS}
     if viewer:
-        # Its outputs must reach the recorder from the first message; its own inputs are
-        # best effort and may miss the first ticks (nothing waits for it).
-        expected.update({topic: (1, extra) for topic in VIEWER_TOPICS})
+        # Its outputs must reach the recorder from the first message (the transient-local
+        # ones reach a late reader too, and exist only with viewer.robot_model); its own
+        # inputs are best effort and may miss the first ticks (nothing waits for it).
+        expected.update({topic: (1, extra) for topic in VIEWER_TOPICS
+                         if topic not in LATCHED_TOPICS})
     if clock_mode == 'lockstep':
         # The recorder runs on sim time too (its time source) and records /clock.
         expected['/clock'] = (1, CLOCK_SUBSCRIPTIONS[layout] + 2 * extra)
@@ -418,12 +421,18 @@ class GraphRunner(RunnerBase):
                 if options.clock == 'lockstep' else 0),
             'stats_file': str(self.out / 'plant_stats.json'),
         }
+        # The robot model hangs from base_link: with the viewer, the ESO's /odom and
+        # odom -> base_link run in lockstep too (otherwise off there), so that a view or a
+        # bag holds the whole chain map -> odom -> base_link -> wheels.
         params_file = write_params_file(scenario, self.out / 'params.yaml', options.clock,
                                         scenario_path, plant_extra=plant_extra,
-                                        recorder=recorder)
+                                        recorder=recorder, eso_extra=(
+                                            {'odometry_output': 'always'} if options.viewer
+                                            else None))
         # The vehicle drawn with the plant's true dimensions, the estimate's position
         # covariance from the GPS noise.
-        view = self.view_parameters(scenario.plant.parameters, scenario.sensors.gps_noise_std)
+        view = self.view_parameters(scenario.plant.parameters, scenario.sensors.gps_noise_std,
+                                    scenario.sensors.encoders_relative_to_body)
         if view:  # The whole file again, atomically, like every output of a run.
             write_atomic(params_file, params_file.read_text(encoding='utf-8')
                          + yaml.safe_dump(view, sort_keys=False))

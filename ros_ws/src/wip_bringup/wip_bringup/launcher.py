@@ -27,7 +27,7 @@ from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
 from wip_control.tools.cli import check_output_directory
 from wip_control.tools.cli import EXIT_DISK_FULL as CLI_EXIT_DISK_FULL
 from wip_control.tools.cli import EXIT_NOT_ENGAGED as CLI_EXIT_NOT_ENGAGED
-from wip_viewer.viewer_core import VIEWER_TOPICS as VIEWER_TOPIC_TYPES
+from wip_viewer.viewer_core import MODEL_TOPICS, VIEWER_TOPICS as VIEWER_TOPIC_TYPES
 
 from .private_domain import reserve_private_domain
 
@@ -45,7 +45,7 @@ EXIT_DISK_FULL = CLI_EXIT_DISK_FULL
 EXIT_NOT_ENGAGED = CLI_EXIT_NOT_ENGAGED
 #: Published by the viewer node (standard messages for 3-D viewers; nothing in the
 #: control loop subscribes to them).
-VIEWER_TOPICS = tuple(VIEWER_TOPIC_TYPES)
+VIEWER_TOPICS = tuple(VIEWER_TOPIC_TYPES) + tuple(MODEL_TOPICS)
 #: Marker of a log directory written by run_graph: only such a directory is replaced.
 LOGS_MARKER = '.written-by-run_graph'
 
@@ -78,8 +78,10 @@ EXECUTABLES = {
 
 #: Topics that stay global under a namespace: the diagnostic aggregator listens on
 #: /diagnostics (statuses carry the node's full name, namespace included), and a
-#: simulation's /clock is the time of every node of its ROS domain.
-GLOBAL_TOPICS = ('/diagnostics', '/clock', '/rosout', '/parameter_events')
+#: simulation's /clock is the time of every node of its ROS domain; /tf and /tf_static are
+#: every robot's (tf's convention: the frames carry the robot's prefix).
+GLOBAL_TOPICS = ('/diagnostics', '/clock', '/rosout', '/parameter_events', '/tf',
+                 '/tf_static')
 #: A ROS namespace: tokens of letters, digits and underscores, none starting with a digit
 #: (rcl's rules; '~' and substitutions have no meaning for a namespace given here).
 _NAMESPACE = re.compile(r'/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*')

@@ -114,7 +114,8 @@ def graph_parameters(scenario: ControllerSettings, clock_mode: str = 'lockstep',
                      joints: tuple[str, str] = DEFAULT_JOINTS,
                      plant_extra: Mapping[str, Any] | None = None,
                      recorder: Mapping[str, Any] | None = None,
-                     plant: bool = True) -> dict[str, dict]:
+                     plant: bool = True,
+                     eso_extra: Mapping[str, Any] | None = None) -> dict[str, dict]:
     """``{node_name: {'ros__parameters': {...}}}`` of every node of a graph run.
 
     Parameters
@@ -127,6 +128,7 @@ def graph_parameters(scenario: ControllerSettings, clock_mode: str = 'lockstep',
     plant_extra : more plant parameters (start handshake, stats file, ...).
     recorder : parameters of a ``recorder`` node; ``None``: no recorder section.
     plant : include the plant's section (false: a real base, hardware mode).
+    eso_extra : more ESO parameters (the odometry output when the viewer runs).
     """
     if clock_mode not in CLOCK_MODES:
         raise ValueError(f'clock_mode: {clock_mode!r} is not one of {list(CLOCK_MODES)}')
@@ -152,6 +154,7 @@ def graph_parameters(scenario: ControllerSettings, clock_mode: str = 'lockstep',
             'gps_period': 1.0 / float(sensors.gps_rate),
             'left_joint': left, 'right_joint': right,
             'datum': dict(datum),
+            **(eso_extra or {}),
         },
         'trajectory_generator': {
             'trajectory_generator': config_section(scenario.trajectory_generator)},
@@ -210,10 +213,11 @@ def write_params_file(scenario: ControllerSettings, path: str | pathlib.Path, cl
                       scenario_path: str | pathlib.Path | None,
                       joints: tuple[str, str] = DEFAULT_JOINTS,
                       plant_extra: Mapping[str, Any] | None = None,
-                      recorder: Mapping[str, Any] | None = None) -> pathlib.Path:
+                      recorder: Mapping[str, Any] | None = None,
+                      eso_extra: Mapping[str, Any] | None = None) -> pathlib.Path:
     """Write the params YAML of a graph run (see :func:`graph_parameters`); returns the path."""
     data = graph_parameters(scenario, clock_mode, scenario_path, joints, plant_extra,
-                            recorder)
+                            recorder, eso_extra=eso_extra)
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     header = (f'# ROS parameters of a wip-ros graph run (scenario {scenario.name!r}, '

@@ -40,7 +40,7 @@ from .launcher import (choose_domain_id, CONTROLLER_LAYOUTS, CpuLatencyRequest,
                        parse_namespace, prepare_run_directory, Probe,
                        RECORDER_GRACE_PERIOD, Scheduling, VIEWER_TOPICS,
                        viewer_wanted)
-from .params_files import CONTROLLER_NODES
+from .params_files import config_section, CONTROLLER_NODES
 
 
 #: Signals that stop a run as Ctrl-C does: a service manager's stop (systemd, docker
@@ -232,6 +232,7 @@ class RunnerBase:
             if key == f'{self.namespace}/viewer' and isinstance(params, dict):
                 viewer = params.setdefault('viewer', {})
                 viewer['child_frame_id'] = prefixed(viewer.get('child_frame_id', 'base_link'))
+                viewer['frame_prefix'] = prefix
             out[key] = section
         write_atomic(params_file, header + yaml.safe_dump(out, sort_keys=False))
 
@@ -287,11 +288,13 @@ class RunnerBase:
         return {'output': str(self.bag), 'topics': topics,
                 'discovery_period': discovery_period}
 
-    def view_parameters(self, model, position_std: float | None = None) -> dict[str, dict]:
+    def view_parameters(self, model, position_std: float | None = None,
+                        encoders_relative_to_body: bool | None = None) -> dict[str, dict]:
         """Params-file sections of the viewer and of the Foxglove bridge.
 
-        Only those that run get a section. The viewer draws the vehicle with ``model``'s
-        dimensions.
+        Only those that run get a section. The viewer draws the vehicle, and builds its
+        robot model, with ``model``'s dimensions (the wheel joints, signs and, unless given,
+        the encoders' mounting from the params files' ``/**`` section).
         """
         options = self.options
         view: dict[str, dict] = {}
@@ -301,7 +304,10 @@ class RunnerBase:
                       'com_height': float(model.com_height)}
             if position_std is not None:
                 viewer['position_std'] = float(position_std)
-            view['viewer'] = {'ros__parameters': {'viewer': viewer}}
+            parameters = {'viewer': viewer, 'model': config_section(model)}
+            if encoders_relative_to_body is not None:
+                parameters['encoders_relative_to_body'] = bool(encoders_relative_to_body)
+            view['viewer'] = {'ros__parameters': parameters}
         if options.foxglove_port is not None:
             view['foxglove_bridge'] = {'ros__parameters': {
                 'host': options.foxglove_host, 'port': int(options.foxglove_port)}}

@@ -4,7 +4,7 @@ rclpy publishes a message object by converting it field by field into its C stru
 serializing that, which was most of the viewer's cost (measured:
 docs/decisions/recording-speed.md). The viewer publishes the bytes instead
 (``Publisher.publish`` takes serialized messages), written here with :mod:`struct`, for the
-four types the viewer sends: the layout of ``rclpy.serialization.serialize_message`` of the
+types the viewer sends: the layout of ``rclpy.serialization.serialize_message`` of the
 message object, with zeros where rclpy leaves its padding bytes as they were (the tests
 compare the lengths and the decoded messages). A Path's poses never change once added, so
 each pose is encoded once and a Path is the concatenation of its poses' bytes.
@@ -165,4 +165,19 @@ def path(stamp_ns: int, frame_id: str, first_pose: tuple, aligned_poses: Sequenc
         w.raw(b''.join(aligned_poses))
     elif aligned_poses:
         raise ValueError('aligned poses without a first pose')
+    return w.message()
+
+
+def tf_message(transforms: Sequence[tuple]) -> bytes:
+    """tf2_msgs/TFMessage.
+
+    ``transforms``: (stamp_ns, frame_id, child_frame_id, translation, rotation) each, a
+    geometry_msgs/TransformStamped (a Transform is laid out as a Pose: 7 float64).
+    """
+    w = CdrWriter()
+    w.u32(len(transforms))
+    for stamp_ns, frame_id, child_frame_id, translation, rotation in transforms:
+        w.header(stamp_ns, frame_id)
+        w.string(child_frame_id)
+        w.pose(translation, rotation)
     return w.message()

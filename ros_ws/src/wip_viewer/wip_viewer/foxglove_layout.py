@@ -9,7 +9,8 @@ Regenerate the files after a change here (a test checks that they match)::
 
     python -m wip_viewer.foxglove_layout foxglove/
 
-Panels: a 3-D view in ``map`` (the vehicle tilted by θ, the MPC's prediction, the reference,
+Panels: a 3-D view in ``map`` (the robot model from ``/robot_description`` and /tf, or the
+boxes of the vehicle tilted by θ, hidden by default; the MPC's prediction, the reference,
 travelled and estimated paths, both Odometry arrows); plots of θ (true, estimated, the
 limit in the label and the axis range), wheel torques, speed against its limit, yaw rate;
 the /diagnostics summary.
@@ -46,7 +47,11 @@ def build_layout(scenario: ControllerSettings | None = None, live: bool = False)
     three_d = fl.ThreeDeePanel(title='Vehicle in map', config=fl.ThreeDeeConfig(
         follow_tf='map', fixed_frame='map', follow_mode='follow-none',
         topics={
-            '/wip/markers/vehicle': marker(visible=True),
+            # The robot model (URDF on /robot_description, placed by /tf); the boxes of
+            # /wip/markers/vehicle stay in the list, hidden: one click shows them instead.
+            '/robot_description': fl.BaseRendererUrdfTopicSettings(
+                visible=True, control_mode='transforms'),
+            '/wip/markers/vehicle': marker(visible=False),
             '/wip/markers/prediction': marker(visible=True),
             '/wip/path/reference': fl.BaseRendererPosesTopicSettings(
                 visible=True, type='line', line_width=0.03, gradient=('#1f77b4', '#1f77b4')),

@@ -9,7 +9,9 @@ from __future__ import annotations
 import dataclasses
 
 from wip_control.core.config import param
-from wip_control.nodes.settings import TEXT
+from wip_control.core.params import WipParameters
+from wip_control.core.sensors import SensorConfig
+from wip_control.nodes.settings import like, TEXT, WheelJoints, WheelSigns
 
 from .viewer_core import ViewerConfig
 
@@ -28,8 +30,20 @@ class FoxgloveSettings:
                                     'topics', minimum=0.01, maximum=60.0)
 
 
+@dataclasses.dataclass(frozen=True)
+class EncoderMounting:
+    """Where the wheel encoders sit: decides the wheels' parent link in the robot model."""
+
+    encoders_relative_to_body: bool = like(SensorConfig, 'encoders_relative_to_body')
+
+
+#: The robot model's parameters (``viewer.robot_model``), named as the controllers' are, so
+#: that a params file's ``/**:`` section describes the base to both.
+ROBOT_MODEL_GROUPS = (('model', WipParameters), ('', WheelJoints), ('', WheelSigns),
+                      ('', EncoderMounting))
+
 #: executable -> the (prefix, dataclass) groups it declares.
 NODES: dict[str, tuple[tuple[str, type], ...]] = {
-    'viewer': (('viewer', ViewerConfig),),
+    'viewer': (('viewer', ViewerConfig), *ROBOT_MODEL_GROUPS),
     'foxglove_bridge': (('', FoxgloveSettings),),
 }

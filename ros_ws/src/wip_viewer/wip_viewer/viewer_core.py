@@ -45,6 +45,11 @@ class ViewerConfig:
     frame_id: str = param('map', '', 'world frame of every viewer message')
     child_frame_id: str = param('base_link', '', 'frame of the vehicle (Odometry child '
                                 'frame)')
+    robot_model: bool = param(True, '1', 'publish robot_description (URDF of the model.* '
+                              'parameters) and its joints and the truth on /tf, /tf_static')
+    frame_prefix: str = param('', '', "prefix of the model's and the truth's frames "
+                              "('robot1/' under a namespace), as robot_state_publisher's "
+                              'frame_prefix')
 
 
 #: Topics the viewer node publishes (also recorded by ``scripts/run_graph --record``).
@@ -57,6 +62,15 @@ VIEWER_TOPICS = {
     '/wip/path/travelled': 'nav_msgs/msg/Path',
     '/wip/path/estimated': 'nav_msgs/msg/Path',
 }
+#: The robot model's topics (``viewer.robot_model``; recorded too): tf's two global ones and
+#: the URDF, under the vehicle's namespace like robot_state_publisher's.
+MODEL_TOPICS = {
+    '/tf': 'tf2_msgs/msg/TFMessage',
+    '/tf_static': 'tf2_msgs/msg/TFMessage',
+    '/robot_description': 'std_msgs/msg/String',
+}
+#: Those of them that are transient local: a reader that comes late still gets them.
+LATCHED_TOPICS = ('/tf_static', '/robot_description')
 #: Covariance put on the planar pose's unobserved axes (z, roll, pitch) [m², rad²]: the
 #: usual "very large" of a 2-D pose (the variances are not estimated at all).
 UNOBSERVED_VARIANCE = 1e6

@@ -31,9 +31,14 @@ topic                       type                           from / rate
 /wip/path/estimated         nav_msgs/Path                  /wip/state_estimate, path_rate
 =========================== ============================== ==============================
 
-No /tf: tf2_msgs is not among the ROS 2 wheels on PyPI (common_interfaces has no tf2_msgs),
-so every marker and path is drawn directly in ``map``; set the 3-D panel's display frame to
-``map``.
+Robot model (``viewer.robot_model``, default on): ``robot_description`` (std_msgs/String,
+transient local; relative, so under the vehicle's namespace) holds the URDF of the
+``model.*`` parameters (``wip_control.core.robot_model``); the viewer is its
+robot_state_publisher: ``/tf_static`` the fixed joint (base_link -> chassis), ``/tf`` the
+wheel joints from ``/joint_states`` and the body's tilt (chassis -> body) from the estimate
+at pose_rate, and in simulation ``map -> truth/base_link`` from the ground truth. Every
+frame carries ``viewer.frame_prefix``. odom -> base_link and map -> odom are the ESO
+node's (with /odom). The markers and paths are drawn directly in ``map``.
 
 Rates are of message stamps (simulated time in lockstep): a message goes out when an input
 arrives at least 1/rate after the previous one (the paths sample their source at the
@@ -49,6 +54,7 @@ Parameters: ``viewer.*`` (:class:`~wip_viewer.viewer_core.ViewerConfig`), read-o
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -58,15 +64,21 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.msg import Odometry, Path
 from rclpy.qos import QoSHistoryPolicy, QoSProfile, QoSReliabilityPolicy
 from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
-from wip_control.nodes.common import IntraProcessNode, run_node, stamp_to_ns
+from wip_control.core.robot_model import RobotModel, urdf
+from wip_control.nodes.common import (IntraProcessNode, run_node, stamp_to_ns, TF_QOS,
+                                      TF_STATIC_QOS)
 from wip_control.nodes.conversions import quaternion_from_euler
 from wip_control.nodes.diagnostics import NodeDiagnostics
 from wip_control.nodes.parameters import ConfigParameters
 from wip_msgs.msg import GroundTruth, MpcOutput, ReferenceState, StateEstimate
 
 from . import cdr
+from .settings import ROBOT_MODEL_GROUPS
 from .viewer_core import (cdr_stamp_ns, PathBuffer, planar_pose_covariance, predicted_track,
                           quaternion_yaw_pitch, RateGate, vehicle_geometry, VIEWER_TOPICS,
                           ViewerConfig)
@@ -134,7 +146,41 @@ class ViewerNode(IntraProcessNode):
         subscription = self.create_subscription(MpcOutput, 'wip/drive_torque', self._on_mpc,
                                                  _INPUT_QOS)
         self.add_intra_subscription(MpcOutput, subscription, self._on_mpc)
+        self.robot: RobotModel | None = None
+        if c.robot_model:
+            self._init_robot_model()
         self.diagnostics.state(DiagnosticStatus.OK, 'waiting for inputs')
+
+    def _init_robot_model(self) -> None:
+        """robot_description, the fixed joints on /tf_static, the joints' inputs."""
+        model, joints, signs, mounting = (ConfigParameters(self, prefix, cls).config
+                                          for prefix, cls in ROBOT_MODEL_GROUPS)
+        self.robot = RobotModel(model, joints.left_joint, joints.right_joint,
+                                signs.left_wheel_sign, signs.right_wheel_sign,
+                                mounting.encoders_relative_to_body)
+        self.publishers_['/tf'] = self.create_publisher(TFMessage, '/tf', TF_QOS)
+        static = self.create_publisher(TFMessage, '/tf_static', TF_STATIC_QOS)
+        description = self.create_publisher(String, 'robot_description', TF_STATIC_QOS)
+        description.publish(String(data=urdf(self.robot)))
+        stamp_ns = self.get_clock().now().nanoseconds
+        static.publish(cdr.tf_message([self._joint_transform(stamp_ns, joint)
+                                       for joint in self.robot.joints if joint.kind == 'fixed']))
+        self.wheel_joints = (self.robot.joint(joints.left_joint),
+                             self.robot.joint(joints.right_joint))
+        self.body_joint = self.robot.joint('body_pitch_joint')
+        self.truth_frame = self.config.frame_prefix + 'truth/base_link'
+        gate = RateGate(self.config.pose_rate)
+        subscription = self.create_subscription(
+            JointState, 'joint_states',
+            self._gated(JointState, 'joint_states', gate, self._on_joint_states),
+            _INPUT_QOS, raw=True)
+        self.add_intra_subscription(JointState, subscription, self._gated_local(
+            'joint_states', gate, self._on_joint_states))
+
+    def _joint_transform(self, stamp_ns: int, joint, position: float = 0.0) -> tuple:
+        prefix = self.config.frame_prefix
+        return (stamp_ns, prefix + joint.parent, prefix + joint.child,
+                *joint.transform(position))
 
     # -- helpers ------------------------------------------------------------------------------
     def _report_counts(self) -> None:
@@ -235,6 +281,9 @@ class ViewerNode(IntraProcessNode):
                                msg.omega, self.estimate_covariance)
         if not self.have_truth:
             self._publish_vehicle(stamp_ns, msg.x, msg.y, msg.phi, msg.theta, 'estimate')
+        if self.robot is not None:
+            self._send('/tf', cdr.tf_message([
+                self._joint_transform(stamp_ns, self.body_joint, float(msg.theta))]))
         self._publish_paths(stamp_ns)
 
     def _on_truth(self, msg: GroundTruth, stamp_ns: int) -> None:
@@ -243,7 +292,23 @@ class ViewerNode(IntraProcessNode):
         self._publish_odometry('/wip/odom/truth', stamp_ns, msg.x, msg.y, msg.phi, msg.v,
                                msg.omega, self.truth_covariance)
         self._publish_vehicle(stamp_ns, msg.x, msg.y, msg.phi, msg.theta, 'truth')
+        if self.robot is not None:
+            self._send('/tf', cdr.tf_message([(
+                stamp_ns, self.config.frame_id, self.truth_frame,
+                (float(msg.x), float(msg.y), 0.0), quaternion_yaw_pitch(float(msg.phi), 0.0))]))
         self._publish_paths(stamp_ns)
+
+    def _on_joint_states(self, msg: JointState, stamp_ns: int) -> None:
+        positions = dict(zip(msg.name, msg.position))
+        transforms = []
+        for joint in self.wheel_joints:
+            position = positions.get(joint.name)
+            if position is None or not math.isfinite(position):
+                self.diagnostics.drop('joint_states', 'invalid',
+                                      f'{joint.name!r}: no finite position')
+                return
+            transforms.append(self._joint_transform(stamp_ns, joint, float(position)))
+        self._send('/tf', cdr.tf_message(transforms))
 
     def _on_reference(self, msg: ReferenceState, stamp_ns: int) -> None:
         self.paths['reference'].add(stamp_ns, msg.x, msg.y, msg.phi)

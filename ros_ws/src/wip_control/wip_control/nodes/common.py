@@ -72,6 +72,14 @@ RELIABLE_QOS = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=10,
 SENSOR_QOS = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=10,
                         reliability=QoSReliabilityPolicy.BEST_EFFORT,
                         durability=QoSDurabilityPolicy.VOLATILE)
+#: /tf and /tf_static as tf2_ros's broadcasters offer them (reliable; keep last 100,
+#: volatile; keep last 1, transient local: a late listener still gets the fixed frames).
+TF_QOS = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=100,
+                    reliability=QoSReliabilityPolicy.RELIABLE,
+                    durability=QoSDurabilityPolicy.VOLATILE)
+TF_STATIC_QOS = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=1,
+                           reliability=QoSReliabilityPolicy.RELIABLE,
+                           durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
 #: Writer history of the reliable publishers of a lockstep run [messages]. A reliable
 #: keep-last writer drops the oldest sample once its history is full, acknowledged by every
 #: reader or not: with the graph design's 10, a recorder whose process was descheduled for a

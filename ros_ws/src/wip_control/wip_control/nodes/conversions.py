@@ -18,6 +18,7 @@ import math
 import struct
 from typing import Sequence
 
+from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
 from std_msgs.msg import Float64MultiArray
@@ -227,6 +228,25 @@ def odometry_to_msg(stamp_ns: int, frame_id: str, child_frame_id: str, x: float,
     msg.twist.twist.angular.z = float(omega)
     msg.twist.covariance = [float(c) for c in twist_covariance]
     return msg
+
+
+def transform_from_odometry(msg: Odometry) -> TransformStamped:
+    """Return the pose of an Odometry as the transform header.frame_id -> child_frame_id.
+
+    The same stamp, translation and rotation, copied (what diff_drive_controller's
+    ``enable_odom_tf`` publishes beside its odometry).
+    """
+    transform = TransformStamped(header=msg.header, child_frame_id=msg.child_frame_id)
+    position = msg.pose.pose.position
+    translation = transform.transform.translation
+    translation.x, translation.y, translation.z = position.x, position.y, position.z
+    transform.transform.rotation = msg.pose.pose.orientation
+    return transform
+
+
+def identity_transform(stamp_ns: int, parent: str, child: str) -> TransformStamped:
+    """Return the transform parent -> child that places child on parent (identity)."""
+    return stamped(TransformStamped(child_frame_id=child), stamp_ns, parent)
 
 
 def reference_to_msg(ref: ReferenceState, stamp_ns: int, frame_id: str) -> ReferenceStateMsg:

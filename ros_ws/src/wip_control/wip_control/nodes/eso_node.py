@@ -60,7 +60,9 @@ base_link: linear.x = υ̂, angular.z = ω̂; diagonal covariance from ``odometr
 estimate once the position is valid (status TRACKING or DEAD_RECKONING: no /odom from
 a dead-reckoned start before the first fix), with ``odometry_output`` 'realtime' (the
 default: real time and hardware mode, not lockstep), 'always' or 'off'; never with
-``position_source`` 'odometry', where ``/odom`` is the input (docs/driving.md).
+``position_source`` 'odometry', where ``/odom`` is the input (docs/driving.md). With it,
+``odometry_tf``: the same pose as odom -> base_link on ``/tf``; ``map_to_odom_tf``: the
+identity map -> odom on ``/tf_static``.
 
 Bad input: a malformed or non-finite message (missing joint, wrong sizes, NaN, no fix,
 no orientation, non-unit quaternion) is dropped, counted and reported on /diagnostics;
@@ -92,6 +94,7 @@ import time
 
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState, NavSatFix
+from tf2_msgs.msg import TFMessage
 from wip_msgs.msg import StateEstimate as StateEstimateMsg, WheelTorques
 
 from ..core.config import ConfigError
@@ -100,9 +103,10 @@ from ..core.params import WipParameters
 from ..core.position import PositionConfig
 from ..core.state_estimation import EstimatorOverflow, StateEstimator
 from .common import (ControllerNode, RELIABLE_QOS, run_node, SENSOR_QOS,
-                     stamp_to_ns)
+                     stamp_to_ns, TF_QOS, TF_STATIC_QOS)
 from .conversions import (decode_serialized, estimate_to_msg, gps_has_fix, gps_local_position,
-                          odometry_to_msg, prepare_decoder, wheel_torques_from_msg)
+                          identity_transform, odometry_to_msg, prepare_decoder,
+                          transform_from_odometry, wheel_torques_from_msg)
 from ..core.position import DEAD_RECKONING, TRACKING
 from .diagnostics import ERROR, OK, WARN
 from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
@@ -232,16 +236,30 @@ class EsoNode(ControllerNode):
             settings.odometry_speed_std ** 2, _UNOBSERVED, _UNOBSERVED, _UNOBSERVED,
             _UNOBSERVED, settings.odometry_yaw_rate_std ** 2))
         self.odometry_publisher = self.create_publisher(Odometry, 'odom', RELIABLE_QOS)
+        # /tf and /tf_static are global (frames carry the robot's prefix): REP 105's
+        # map -> odom -> base_link, as diff_drive_controller and a localisation node give it.
+        self.odometry_tf_publisher = (self.create_publisher(TFMessage, '/tf', TF_QOS)
+                                      if settings.odometry_tf else None)
+        if settings.map_to_odom_tf:
+            self.map_to_odom_publisher = self.create_publisher(TFMessage, '/tf_static',
+                                                               TF_STATIC_QOS)
+            self.map_to_odom_publisher.publish(TFMessage(transforms=[identity_transform(
+                self.get_clock().now().nanoseconds, settings.frame_id,
+                settings.odometry_frame_id)]))
 
     def _publish_odometry(self, stamp: int, pose) -> None:
         self.odometry_count += 1
         if (self.odometry_count - 1) % self.odometry_every:
             return
         settings, est = self.odometry_settings, pose.estimate
-        self.odometry_publisher.publish(odometry_to_msg(
+        msg = odometry_to_msg(
             stamp, settings.odometry_frame_id, settings.odometry_child_frame_id, pose.x,
             pose.y, est.phi, est.v, est.omega, self.odometry_pose_covariance,
-            self.odometry_twist_covariance))
+            self.odometry_twist_covariance)
+        self.odometry_publisher.publish(msg)
+        if self.odometry_tf_publisher is not None:
+            self.odometry_tf_publisher.publish(TFMessage(transforms=[
+                transform_from_odometry(msg)]))
 
     # -- lockstep set definition ------------------------------------------------------------
     def _is_gps_tick(self, stamp_ns: int) -> bool:

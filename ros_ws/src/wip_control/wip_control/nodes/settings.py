@@ -177,6 +177,12 @@ class EsoNodeSettings:
     odometry_yaw_rate_std: float = param(
         0.02, 'rad/s', '/odom: standard deviation put on the twist angular.z',
         minimum=0.0, maximum=100.0)
+    odometry_tf: bool = param(
+        True, '1', 'with every /odom message, its pose as the transform odometry_frame_id -> '
+        'odometry_child_frame_id on /tf (diff_drive_controller: enable_odom_tf)')
+    map_to_odom_tf: bool = param(
+        True, '1', 'while /odom is on, identity frame_id -> odometry_frame_id on /tf_static '
+        '(the estimate has no drift frame); false when a localisation node publishes it')
 
 
 @dataclasses.dataclass(frozen=True)
