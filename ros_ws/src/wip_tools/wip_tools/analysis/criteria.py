@@ -181,7 +181,7 @@ def measure(record: RunRecord, scenario, metrics: dict, criteria: Criteria) -> d
 
 
 def runaway_replay(record: RunRecord) -> dict[str, Any]:
-    """What the real-time safety layer's runaway guard would say of the run.
+    """Return what the real-time safety layer's runaway guard would say of the run.
 
     The guard (``core/runaway.py``, its defaults) fed each control tick's estimate and
     reference, from t = 0 (a real-time run feeds it from the engagement on):
