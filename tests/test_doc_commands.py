@@ -7,7 +7,8 @@ and is executable, or one of a few shell utilities; each ``--option`` it uses is
 ``--help`` lists (``scripts/demo`` passes its options to run_graph); a file of the
 repository it names (``scenarios/...``, ``tests/...``) exists. A command that needs a
 robot (hardware mode, ``check_base``) or a ROS 2 install (``ros2``) cannot run here: its
-block must carry the marker :data:`NEEDS_A_ROBOT` on the line before the fence.
+block must carry the marker :data:`NEEDS_A_ROBOT` on the line before the fence, or start
+the stand-in base in the same block.
 
 Also: the README's params file describes the shipped stand-in base (its defaults).
 """
@@ -26,7 +27,7 @@ NEEDS_A_ROBOT = '<!-- example: needs a robot -->'
 SEPARATORS = {'&&', '||', ';', '|', '&'}
 REDIRECTIONS = {'>', '>>', '<', '2>', '&>'}
 #: Programs that are not front doors: the shell's own, and the venv's Python.
-SHELL = {'printf', 'echo', 'export', 'source', 'cd', 'mkdir', 'cat', 'python'}
+SHELL = {'printf', 'echo', 'export', 'source', 'cd', 'mkdir', 'cat', 'python', 'kill'}
 #: The front doors whose options go on to another one.
 PASSES_ON = {'demo': 'run_graph'}
 HELP_TIMEOUT = 180.0  # [s] every --help at once, on a loaded 2-core machine
@@ -80,15 +81,24 @@ def commands(body):
 
 
 def documented_commands():
-    """[(doc, line, marked, tokens)] of every command of the documents' bash blocks."""
+    """[(doc, line, marked, tokens)] of every command of the documents' bash blocks.
+
+    ``marked``: the block carries :data:`NEEDS_A_ROBOT`, or starts the stand-in base
+    (``scripts/ros2_run wip_sim standin_base``), which is a robot for hardware mode.
+    """
     found = []
     for doc in DOCS:
         for before, body in blocks((REPO_ROOT / doc).read_text(encoding='utf-8')):
+            block = []
             for number, tokens in commands(body):
                 while tokens and re.fullmatch(r'\w+=.*', tokens[0]):
                     tokens = tokens[1:]     # VAR=value before the program
                 if tokens:
-                    found.append((doc, number, before == NEEDS_A_ROBOT, tokens))
+                    block.append((number, tokens))
+            standin = any(tokens[:3] == ['scripts/ros2_run', 'wip_sim', 'standin_base']
+                          for _, tokens in block)
+            found += [(doc, number, before == NEEDS_A_ROBOT or standin, tokens)
+                      for number, tokens in block]
     return found
 
 
