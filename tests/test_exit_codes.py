@@ -19,8 +19,9 @@ REPO_ROOT = pathlib.Path(__file__).resolve().parent.parent
 SCRIPTS = REPO_ROOT / 'scripts'
 #: scripts/ files that are not commands.
 NOT_COMMANDS = {'_env.sh'}
-#: Commands that are not a tool with the table (set-up, the demo, the test runner).
-NOT_TOOLS = {'setup', 'demo', 'test'}
+#: Commands that are not a tool with the table (set-up, the demo, the test runner, and
+#: ros2_run, whose exit status is the executable's own).
+NOT_TOOLS = {'setup', 'demo', 'test', 'ros2_run'}
 HELP_TIMEOUT = 300.0  # [s] every --help at once on a slow, shared 2-core machine
 
 
