@@ -38,3 +38,15 @@ def test_a_changed_figure_is_found(monkeypatch, tmp_path, capsys):
     missing = tmp_path / 'page.md'
     missing.write_text('no markers\n')
     assert results_table.main(['--check', str(missing)]) == 2
+
+
+def test_the_readme_paper_design_scenario_is_the_tables_paper_column():
+    # scripts/demo --scenario scenarios/paper_design.yaml runs what the table's
+    # `design: paper` column reports: the same scenario but for its name.
+    import dataclasses
+    from wip_sim.core.scenario import load_scenario, scenario_from_mapping
+    path = pathlib.Path(__file__).resolve().parents[2] / 'scenarios' / 'paper_design.yaml'
+    from_file = load_scenario(path)
+    assert from_file.design == 'paper'
+    assert dataclasses.replace(from_file, name='', description='') == dataclasses.replace(
+        scenario_from_mapping({'design': 'paper'}), name='', description='')
