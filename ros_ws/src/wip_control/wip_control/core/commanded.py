@@ -367,9 +367,14 @@ class PathReference(Reference):
         """
         best, best_d2 = self.progress, math.inf
         horizon = self.progress + self.lookahead
-        for i in range(len(self.points) - 1):
+        # Only the segments within [progress, horizon]: a planner's path has a pose every
+        # few centimetres, and this runs every integration step.
+        first = max(0, bisect.bisect_left(self._cumulative, self.progress) - 1)
+        for i in range(first, len(self.points) - 1):
             s0, s1 = self._cumulative[i], self._cumulative[i + 1]
-            if s1 < self.progress or s0 > horizon:
+            if s0 > horizon:
+                break
+            if s1 < self.progress:
                 continue
             (x0, y0), (x1, y1) = self.points[i], self.points[i + 1]
             dx, dy, seg = x1 - x0, y1 - y0, s1 - s0
