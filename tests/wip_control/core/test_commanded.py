@@ -3,9 +3,10 @@
 import math
 
 import pytest
+from hypothesis import given, settings, strategies as st
 
-from wip_control.core.commanded import (CmdVelReference, PATH_END_TOLERANCE, PathReference,
-                                        UnicycleLimits)
+from wip_control.core.commanded import (CmdVelReference, MAX_PATH_COORDINATE,
+                                        PATH_END_TOLERANCE, PathReference, UnicycleLimits)
 from wip_control.core.references import make_reference, ReferenceConfig
 
 LIMITS = UnicycleLimits(max_speed=0.5, max_acceleration=0.3, max_yaw_rate=0.25,
@@ -134,6 +135,7 @@ def test_path_refuses_bad_paths_and_stands_still_without_one():
     assert ref.set_path([(0.0, math.nan)]) == 'invalid'
     assert ref.set_path([]) == 'empty'
     assert ref.set_path([('a', 0.0)]) == 'invalid'
+    assert ref.set_path([(0.0, 2e6)]) == 'invalid'     # 2000 km from the map origin
     state = ref.update(10.0)
     assert (state.x, state.y, state.v) == (1.0, 1.0, 0.0)
 
@@ -242,3 +244,29 @@ def test_a_closed_route_from_the_robot_is_driven_from_its_start_not_its_end():
     assert ref.set_path(shifted) is None
     samples = drive_with(ref, 70.0, 80.0)
     assert max(math.hypot(r.x - samples[0][1].x, r.y - samples[0][1].y) for _, r in samples) < 0.02
+
+
+coordinates = st.floats(allow_nan=True, allow_infinity=True, min_value=None, max_value=None)
+paths = st.lists(st.tuples(st.one_of(coordinates, st.floats(-20.0, 20.0)),
+                           st.one_of(coordinates, st.floats(-20.0, 20.0))), max_size=12)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(paths, min_size=1, max_size=4))
+def test_any_sequence_of_paths_is_refused_or_followed_within_the_limits(sequence):
+    # Whatever a planner sends (huge, tiny, repeated, crossing, non-finite points), a path
+    # is refused with a reason or taken up; the reference stays finite, within its limits
+    # and never jumps (a step moves it at most max_speed * dt).
+    ref = PathReference(LIMITS, speed=0.3)
+    samples, t = [], 0.0
+    for points in sequence:
+        reason = ref.set_path(points)
+        finite = all(abs(c) <= MAX_PATH_COORDINATE for p in points for c in p)
+        assert reason in ((None,) if finite and points else ('invalid', 'empty')), reason
+        step = run(ref, t, t + 0.5)
+        samples += step
+        t = step[-1][0]
+    assert_within_limits(samples)
+    for (_, a), (_, b) in zip(samples, samples[1:]):
+        assert all(math.isfinite(v) for v in b)
+        assert math.hypot(b.x - a.x, b.y - a.y) <= LIMITS.max_speed * DT + 1e-9

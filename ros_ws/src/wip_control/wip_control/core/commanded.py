@@ -163,13 +163,22 @@ class CmdVelReference(Reference):
         return self.update(t)
 
 
+#: A path point farther than this [m] from the map origin is refused: no robot drives a
+#: route across a continent in one map frame, and arc lengths of such a path lose the
+#: precision that centimetre segments need (2^53 m: none).
+MAX_PATH_COORDINATE = 1e6
+
+
 def _polyline(points: Sequence[Sequence[float]]) -> list[tuple[float, float]]:
-    """Return the points as floats, consecutive duplicates removed; ValueError if not finite."""
+    """Return the points as floats, consecutive duplicates removed.
+
+    ValueError if a point is not finite or beyond MAX_PATH_COORDINATE.
+    """
     out: list[tuple[float, float]] = []
     for point in points:
         x, y = float(point[0]), float(point[1])
-        if not (math.isfinite(x) and math.isfinite(y)):
-            raise ValueError('a path point is not finite')
+        if not (abs(x) <= MAX_PATH_COORDINATE and abs(y) <= MAX_PATH_COORDINATE):
+            raise ValueError('a path point is not finite or too far from the map origin')
         if not out or math.hypot(x - out[-1][0], y - out[-1][1]) > 1e-6:
             out.append((x, y))
     return out
@@ -217,10 +226,14 @@ def _closest(polyline: Sequence[tuple[float, float]], cumulative: Sequence[float
             break
         (x0, y0), (x1, y1) = polyline[i], polyline[i + 1]
         seg = cumulative[i + 1] - cumulative[i]
+        if seg <= 0.0:
+            continue
         f = max(0.0, min(1.0, ((x - x0) * (x1 - x0) + (y - y0) * (y1 - y0)) / (seg * seg)))
         f = min(f, (window - cumulative[i]) / seg)
         candidates.append((math.hypot(x0 + f * (x1 - x0) - x, y0 + f * (y1 - y0) - y),
                            cumulative[i] + f * seg))
+    if not candidates:
+        return 0.0
     nearest = min(d for d, _ in candidates)
     return min(s for d, s in candidates if d <= nearest + JOIN_TIE)
 
@@ -342,12 +355,14 @@ class PathReference(Reference):
                        bisect.bisect_right(self._cumulative, self.progress) - 1))
         (x0, y0), (x1, y1) = self.points[i], self.points[i + 1]
         seg = math.hypot(x1 - x0, y1 - y0)
+        if seg <= 0.0:
+            return None
         tx, ty = (x1 - x0) / seg, (y1 - y0) / seg
         best, best_d = None, self.lookahead
         for j in range(len(polyline) - 1):
             (a0, b0), (a1, b1) = polyline[j], polyline[j + 1]
             length = cumulative[j + 1] - cumulative[j]
-            if (a1 - a0) * tx + (b1 - b0) * ty < 0.5 * length:
+            if length <= 0.0 or (a1 - a0) * tx + (b1 - b0) * ty < 0.5 * length:
                 continue    # heading more than 60° away from the current path
             f = max(0.0, min(1.0, ((px - a0) * (a1 - a0) + (py - b0) * (b1 - b0))
                              / (length * length)))
