@@ -104,6 +104,8 @@ TOOLS = {
     'foxglove_layout': ('wip_viewer', None),
     # The parameter reference; its front door is scripts/simulate --list-parameters.
     'parameters': ('wip_tools', None),
+    # docs/paper.md's results table from a run; scripts/ros2_run is its front door.
+    'results_table': ('wip_tools', None),
 }
 #: scripts/ commands that are not a tool of a package: set-up, the demo (run_graph then
 #: report), the test runner, and ros2_run (``ros2 run`` for any executable, in the venv).

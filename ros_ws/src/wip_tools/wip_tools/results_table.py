@@ -1,6 +1,7 @@
 """The results table of docs/paper.md, made from two in-process runs of the paper scenario.
 
-``python -m wip_tools.results_table`` runs Section V twice (``design: paper`` and the
+``scripts/ros2_run wip_tools results_table`` (or ``python -m wip_tools.results_table`` in
+the scripts' environment) runs Section V twice (``design: paper`` and the
 default design, which the demo runs) and prints the table in Markdown, the text that
 docs/paper.md holds between its ``results-table`` markers; ``--check FILE`` compares it
 with that text instead (exit 1 if they differ). Solve times are left out: they measure the
@@ -14,9 +15,9 @@ import pathlib
 import re
 import sys
 
-from wip_control.tools.cli import add_exit_codes, EXIT_FAILED, EXIT_OK, EXIT_USAGE
+from wip_control.tools.cli import add_exit_codes, exit_with, EXIT_FAILED, EXIT_OK, EXIT_USAGE
 
-BEGIN = '<!-- results-table:begin (generated: python -m wip_tools.results_table) -->'
+BEGIN = '<!-- results-table:begin (generated: scripts/ros2_run wip_tools results_table) -->'
 END = '<!-- results-table:end -->'
 DESIGNS = ('paper', 'robust')
 
@@ -97,9 +98,12 @@ def documented(text: str) -> str | None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog='python -m wip_tools.results_table',
-        description="Run the paper scenario in-process under the paper's design and the "
-                    'default one, and print the results table of docs/paper.md.')
+        prog='results_table',
+        description="Run the paper scenario in-process under the paper's design and the\n"
+                    'default one, and print the results table of docs/paper.md.',
+        epilog='Examples\n    scripts/ros2_run wip_tools results_table\n'
+               '    scripts/ros2_run wip_tools results_table --check docs/paper.md',
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--check', metavar='FILE',
                         help='compare with the table between the markers of FILE instead')
     add_exit_codes(parser)
@@ -127,4 +131,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    exit_with(main, 'results_table')
