@@ -1206,8 +1206,8 @@ def test_the_readme_params_file_of_a_real_base_is_taken_by_the_eso_and_the_mixer
         mixer = TorqueMixerNode(context=ctx, parameter_overrides=realtime)
         assert (eso.left_joint, eso.right_joint) == (example['left_joint'],
                                                      example['right_joint'])
-        assert (eso.left_sign, eso.right_sign) == (1.0, -1.0) == (mixer.left_sign,
-                                                                  mixer.right_sign)
+        signs = (example['left_wheel_sign'], example['right_wheel_sign'])
+        assert (eso.left_sign, eso.right_sign) == signs == (mixer.left_sign, mixer.right_sign)
         assert eso.model.wheel_radius == example['model.wheel_radius']
         assert eso.model.track_width == example['model.track_width']
         assert eso.datum[0] == example['datum.latitude']
