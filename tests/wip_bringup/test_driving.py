@@ -27,6 +27,10 @@ SPEED = 0.3           # [m/s] forward command
 TURN_RATE = 0.25      # [rad/s] largest turn command
 COMMAND_PERIOD = 0.05  # [s] of simulated time between two commands
 START_TIMEOUT = 120.0  # [s] wall, for the graph to start on a loaded 2-core machine
+#: The route of a route publisher: 1.5 m ahead (+x), then 1 m to the left, from the robot's
+#: start (on the stand-in base its first odometry pose: it is put down 0.5 m, 0.5 m,
+#: 0.1 rad off the datum).
+ROUTE = ((0.0, 0.0), (1.5, 0.0), (1.5, 1.0))
 
 
 def write_scenario(path, reference: str, duration: float) -> str:
@@ -219,6 +223,51 @@ def test_a_path_is_followed_to_its_end(tmp_path, test_node):
     assert abs(final['theta']) < 0.02 and abs(final['v']) < 0.02, final
 
 
+def test_a_route_published_every_second_is_driven_to_its_end_in_lockstep(tmp_path, test_node):
+    # A route publisher repeating its route once a second of simulated time (paced on the
+    # estimates' stamps, as the path test above): each copy is the same path, so the robot
+    # drives it once to its end (1.5 m ahead, then 1 m left of its start) and stands there.
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Path
+    from wip_msgs.msg import StateEstimate
+    from wip_bringup.graph import EXIT_OK, GraphOptions
+    scenario = write_scenario(tmp_path / 'route.yaml', '{kind: path}', 45.0)
+    publisher = test_node.create_publisher(Path, 'plan', 10)
+    sent = []
+
+    def on_estimate(msg) -> None:
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        if publisher.get_subscription_count() < 1 or (sent and t < sent[-1] + 1.0):
+            return
+        path = Path()
+        path.header.stamp, path.header.frame_id = msg.header.stamp, 'map'
+        for x, y in ROUTE:
+            pose = PoseStamped()
+            pose.header = path.header
+            pose.pose.position.x, pose.pose.position.y = x, y
+            path.poses.append(pose)
+        publisher.publish(path)
+        sent.append(t)
+    estimates = test_node.create_subscription(StateEstimate, '/wip/state_estimate',
+                                              on_estimate, 1)
+    with spinning_in_background(test_node.executor_for_test, step=0.005):
+        runner, thread, outcome = run_in_thread(GraphOptions(
+            scenario=scenario, out=str(tmp_path / 'run'), quiet=True, layout='single'),
+            listening=lambda: (estimates.get_publisher_count() >= 1
+                               and publisher.get_subscription_count() >= 1))
+        result = wait_for(runner, thread, outcome, 200.0)
+    assert result.exit_code == EXIT_OK, result.message
+    final = result.plant_stats['final_state']
+    error = math.hypot(final['x'] - ROUTE[-1][0], final['y'] - ROUTE[-1][1])
+    print(f'{len(sent)} copies of the route sent; final position error {error:.3f} m, '
+          f'theta {final["theta"]:+.4f} rad, v {final["v"]:+.4f} m/s')
+    # Sent every second of the 45 s; lockstep outruns this process, so some seconds are
+    # skipped on a loaded machine: at least one copy after the end is reached (~25 s).
+    assert len(sent) >= 10 and sent[-1] > 30.0, sent
+    assert error < 0.15
+    assert abs(final['theta']) < 0.02 and abs(final['v']) < 0.02, final
+
+
 def test_teleop_drives_the_standin_base_in_real_time_and_odom_comes_out(tmp_path, test_node):
     # Hardware mode against the stand-in base (full plant, its own process, wall clock):
     # 5 s of 0.3 m/s forward on cmd_vel at 10 Hz, then silence. The reference starts at
@@ -342,11 +391,6 @@ def drive_standin_on_plan(tmp_path, test_node, publisher):
           f'final position {error:.3f} m from the goal; max |v| over the last 2 s '
           f'{max(last):.3f} m/s; max |theta| {max(abs(v) for v in truth["theta"]):.3f} rad')
     return error, last
-
-
-# The route of a route publisher: 1.5 m ahead (+x), then 1 m to the left, from the robot's
-# first odometry pose (the stand-in puts it down 0.5 m, 0.5 m, 0.1 rad off the datum).
-ROUTE = ((0.0, 0.0), (1.5, 0.0), (1.5, 1.0))
 
 
 @pytest.mark.wallclock
