@@ -31,7 +31,7 @@ REDIRECTIONS = {'>', '>>', '<', '2>', '&>'}
 SHELL = {'printf', 'echo', 'export', 'source', 'cd', 'mkdir', 'cat', 'python', 'kill'}
 #: The front doors whose options go on to another one.
 PASSES_ON = {'demo': 'run_graph'}
-HELP_TIMEOUT = 180.0  # [s] every --help at once, on a loaded 2-core machine
+HELP_TIMEOUT = 300.0  # [s] every --help at once, on a loaded 2-core machine
 
 
 def blocks(text: str):
