@@ -19,8 +19,9 @@ REPO_ROOT = pathlib.Path(__file__).resolve().parent.parent
 SCRIPTS = REPO_ROOT / 'scripts'
 #: scripts/ files that are not commands.
 NOT_COMMANDS = {'_env.sh'}
-#: Commands that are not a tool with the table (set-up, the demo, the test runner).
-NOT_TOOLS = {'setup', 'demo', 'test'}
+#: Commands that are not a tool with the table (set-up, the demo, the test runner, and
+#: ros2_run, whose exit status is the executable's own).
+NOT_TOOLS = {'setup', 'demo', 'test', 'ros2_run'}
 HELP_TIMEOUT = 300.0  # [s] every --help at once on a slow, shared 2-core machine
 
 
@@ -155,6 +156,40 @@ def test_every_tool_help_ends_with_the_one_table(helped):
             continue
         _, output, _ = helped[f'scripts/{name}']
         assert epilog_table(output) == cli.EXIT_CODES, name
+
+
+#: Option names with two meanings, on purpose: replay's --clock is ros2 bag play's (publish
+#: /clock), run_graph's the clock mode; each is what its users already type.
+TWO_MEANINGS = {'--clock': {'replay'}}
+
+
+def option_kinds(help_text: str) -> dict[str, str]:
+    """Option -> 'switch' or 'value', from the options an argparse --help lists.
+
+    argparse indents each option of its list by two spaces; prose that mentions one does not
+    start so.
+    """
+    kinds = {}
+    for match in re.finditer(r'^  (?:-\w(?: \S+)?, )?(--[\w-]+)(?:[ =]([A-Z_\[{][^\s,]*))?',
+                             help_text, re.MULTILINE):
+        kinds.setdefault(match.group(1), 'value' if match.group(2) else 'switch')
+    return kinds
+
+
+def test_one_meaning_per_option_name_across_the_tools(helped):
+    # An option name is a switch in every tool or takes a value in every tool (e.g.
+    # --params-file always reads a file, --json always names the file it writes).
+    seen: dict[str, dict[str, str]] = {}
+    for name in commands():
+        if name in NOT_TOOLS:
+            continue
+        for option, kind in option_kinds(helped[f'scripts/{name}'][1]).items():
+            if name not in TWO_MEANINGS.get(option, ()):
+                seen.setdefault(option, {})[name] = kind
+    mixed = {option: tools for option, tools in seen.items() if len(set(tools.values())) > 1}
+    assert not mixed, mixed
+    assert seen['--params-file'] and set(seen['--params-file'].values()) == {'value'}
+    assert set(seen['--json'].values()) == {'value'} and len(seen['--json']) >= 3
 
 
 #: reST markup that must not reach a terminal: roles, literals, citations, directives.

@@ -104,10 +104,12 @@ TOOLS = {
     'foxglove_layout': ('wip_viewer', None),
     # The parameter reference; its front door is scripts/simulate --list-parameters.
     'parameters': ('wip_tools', None),
+    # docs/paper.md's results table from a run; scripts/ros2_run is its front door.
+    'results_table': ('wip_tools', None),
 }
 #: scripts/ commands that are not a tool of a package: set-up, the demo (run_graph then
-#: report) and the test runner.
-NOT_TOOLS = {'setup', 'demo', 'test'}
+#: report), the test runner, and ros2_run (``ros2 run`` for any executable, in the venv).
+NOT_TOOLS = {'setup', 'demo', 'test', 'ros2_run'}
 HELP_TIMEOUT = 120.0  # [s] all --help processes start together on a slow, busy machine
 
 #: Exit status on SIGINT where it is not 0: check_base is an interactive check, and an
@@ -245,6 +247,23 @@ def test_every_readme_command_is_an_executable_run_by_its_script():
         # A thin front door: the set-up, then the executable's own module.
         assert re.findall(r'exec python -m ([\w.]+) "\$@"', text) == [
             entry_point_module(package, executable)], script
+
+
+def test_scripts_ros2_run_lists_and_starts_every_executable_as_ros2_run():
+    # The venv's stand-in for ros2 run: the same executables, started from the same files.
+    script = REPO_ROOT / 'scripts' / 'ros2_run'
+    listed = subprocess.run([str(script), '--list'], capture_output=True, text=True,
+                            timeout=HELP_TIMEOUT, check=True).stdout.split('\n')
+    assert sorted(line for line in listed if line) == sorted(
+        f'{package} {name}' for package, name, _ in executables())
+    helped = subprocess.run([str(script), 'wip_viewer', 'foxglove_layout', '--help'],
+                            capture_output=True, text=True, timeout=HELP_TIMEOUT)
+    assert helped.returncode == 0 and 'usage: python -m wip_viewer.foxglove_layout' in \
+        helped.stdout
+    unknown = subprocess.run([str(script), 'wip_sim', 'no_such_node'], capture_output=True,
+                             text=True, timeout=HELP_TIMEOUT)
+    assert unknown.returncode == 2 and unknown.stderr.count('\n') == 1, unknown.stderr
+    assert "no executable 'no_such_node' in package 'wip_sim'" in unknown.stderr
 
 
 @pytest.fixture(scope='module')

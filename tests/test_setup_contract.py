@@ -70,6 +70,7 @@ EXECUTABLES = {
         'soak': 'wip_tools.console:soak',
         'parameters': 'wip_tools.console:parameters',
         'identify': 'wip_tools.console:identify',
+        'results_table': 'wip_tools.console:results_table',
     },
     'wip_viewer': {
         'viewer': 'wip_viewer.viewer_node:main',

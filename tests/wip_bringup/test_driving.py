@@ -27,6 +27,10 @@ SPEED = 0.3           # [m/s] forward command
 TURN_RATE = 0.25      # [rad/s] largest turn command
 COMMAND_PERIOD = 0.05  # [s] of simulated time between two commands
 START_TIMEOUT = 120.0  # [s] wall, for the graph to start on a loaded 2-core machine
+#: The route of a route publisher: 1.5 m ahead (+x), then 1 m to the left, from the robot's
+#: start (on the stand-in base its first odometry pose: it is put down 0.5 m, 0.5 m,
+#: 0.1 rad off the datum).
+ROUTE = ((0.0, 0.0), (1.5, 0.0), (1.5, 1.0))
 
 
 def write_scenario(path, reference: str, duration: float) -> str:
@@ -219,6 +223,51 @@ def test_a_path_is_followed_to_its_end(tmp_path, test_node):
     assert abs(final['theta']) < 0.02 and abs(final['v']) < 0.02, final
 
 
+def test_a_route_published_every_second_is_driven_to_its_end_in_lockstep(tmp_path, test_node):
+    # A route publisher repeating its route once a second of simulated time (paced on the
+    # estimates' stamps, as the path test above): each copy is the same path, so the robot
+    # drives it once to its end (1.5 m ahead, then 1 m left of its start) and stands there.
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Path
+    from wip_msgs.msg import StateEstimate
+    from wip_bringup.graph import EXIT_OK, GraphOptions
+    scenario = write_scenario(tmp_path / 'route.yaml', '{kind: path}', 45.0)
+    publisher = test_node.create_publisher(Path, 'plan', 10)
+    sent = []
+
+    def on_estimate(msg) -> None:
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        if publisher.get_subscription_count() < 1 or (sent and t < sent[-1] + 1.0):
+            return
+        path = Path()
+        path.header.stamp, path.header.frame_id = msg.header.stamp, 'map'
+        for x, y in ROUTE:
+            pose = PoseStamped()
+            pose.header = path.header
+            pose.pose.position.x, pose.pose.position.y = x, y
+            path.poses.append(pose)
+        publisher.publish(path)
+        sent.append(t)
+    estimates = test_node.create_subscription(StateEstimate, '/wip/state_estimate',
+                                              on_estimate, 1)
+    with spinning_in_background(test_node.executor_for_test, step=0.005):
+        runner, thread, outcome = run_in_thread(GraphOptions(
+            scenario=scenario, out=str(tmp_path / 'run'), quiet=True, layout='single'),
+            listening=lambda: (estimates.get_publisher_count() >= 1
+                               and publisher.get_subscription_count() >= 1))
+        result = wait_for(runner, thread, outcome, 200.0)
+    assert result.exit_code == EXIT_OK, result.message
+    final = result.plant_stats['final_state']
+    error = math.hypot(final['x'] - ROUTE[-1][0], final['y'] - ROUTE[-1][1])
+    print(f'{len(sent)} copies of the route sent; final position error {error:.3f} m, '
+          f'theta {final["theta"]:+.4f} rad, v {final["v"]:+.4f} m/s')
+    # Sent every second of the 45 s; lockstep outruns this process, so some seconds are
+    # skipped on a loaded machine: at least one copy after the end is reached (~25 s).
+    assert len(sent) >= 10 and sent[-1] > 30.0, sent
+    assert error < 0.15
+    assert abs(final['theta']) < 0.02 and abs(final['v']) < 0.02, final
+
+
 def test_teleop_drives_the_standin_base_in_real_time_and_odom_comes_out(tmp_path, test_node):
     # Hardware mode against the stand-in base (full plant, its own process, wall clock):
     # 5 s of 0.3 m/s forward on cmd_vel at 10 Hz, then silence. The reference starts at
@@ -270,3 +319,102 @@ def test_teleop_drives_the_standin_base_in_real_time_and_odom_comes_out(tmp_path
     assert 1.0 < travelled < 2.0
     assert max(last) < 0.05 and theta_max < 0.3
     assert odom and odom[-1].header.frame_id == 'odom' and odom[-1].child_frame_id == 'base_link'
+
+
+class RoutePublisher:
+    """A route publisher or a replanning planner on ``plan``, reading ``/odom`` as Nav2 does.
+
+    ``make(x, y, start)`` returns the path to send, from the robot's latest odometry pose
+    (x, y) and its first one ``start``. Once a second until the robot stands within
+    ``ARRIVED`` of ``goal(start)`` or ``deadline`` [s] passes.
+    """
+
+    ARRIVED = 0.08   # [m] from the goal, at under 0.02 m/s
+
+    def __init__(self, node, make, goal) -> None:
+        from nav_msgs.msg import Odometry, Path
+        self.node, self.make, self.goal, self.Path = node, make, goal, Path
+        self.publisher = node.create_publisher(Path, 'plan', 10)
+        self.odom = []
+        node.create_subscription(Odometry, '/odom', self.odom.append, 10)
+        self.sent, self.start, self.arrived_after = [], None, None
+
+    def message(self, points):
+        from geometry_msgs.msg import PoseStamped
+        path = self.Path()
+        path.header.stamp = self.node.get_clock().now().to_msg()
+        path.header.frame_id = 'map'
+        for x, y in points:
+            pose = PoseStamped()
+            pose.header = path.header
+            pose.pose.position.x, pose.pose.position.y = float(x), float(y)
+            path.poses.append(pose)
+        return path
+
+    def __call__(self, _runner, _processes, deadline: float = 120.0) -> None:
+        began = time.monotonic()
+        while not self.odom and time.monotonic() < began + 10.0:
+            time.sleep(0.05)
+        if not self.odom:
+            return
+        first = self.odom[-1].pose.pose.position
+        self.start = (first.x, first.y)
+        while time.monotonic() < began + deadline:
+            pose, twist = self.odom[-1].pose.pose.position, self.odom[-1].twist.twist
+            gx, gy = self.goal(self.start)
+            if (math.hypot(pose.x - gx, pose.y - gy) < self.ARRIVED
+                    and abs(twist.linear.x) < 0.02):
+                self.arrived_after = time.monotonic() - began
+                return
+            self.publisher.publish(self.message(self.make(pose.x, pose.y, self.start)))
+            self.sent.append(time.monotonic() - began)
+            time.sleep(max(0.0, began + len(self.sent) - time.monotonic()))
+
+
+def drive_standin_on_plan(tmp_path, test_node, publisher):
+    """Hardware mode against the stand-in base (paper plant model) on ``reference.kind: path``."""
+    from wip_bringup.standin_run import BASE, line_scenario, run_against_standin
+    scenario = dict(line_scenario(kind='path', path_speed=SPEED), plant={'model': 'paper'})
+    with spinning_in_background(test_node.executor_for_test):
+        run = run_against_standin(tmp_path / 'standin', BASE, 200.0, scenario=scenario,
+                                  during=publisher, end_after_during=3.0)
+    result, stats = run.result, run.stats
+    assert result.exit_code == 0, result.message
+    assert stats['released'] and not stats['fell'], stats.get('end_reason')
+    assert publisher.start is not None, 'no /odom reached the route publisher'
+    truth = stats['truth']
+    goal = publisher.goal(publisher.start)
+    # The stand-in's ground truth is in the map frame of the estimate (GPS about the datum).
+    error = math.hypot(truth['x'][-1] - goal[0], truth['y'][-1] - goal[1])
+    last = [abs(v) for t, v in zip(truth['t'], truth['v']) if t > truth['t'][-1] - 2.0]
+    print(f'{len(publisher.sent)} paths sent; arrived after {publisher.arrived_after} s; '
+          f'final position {error:.3f} m from the goal; max |v| over the last 2 s '
+          f'{max(last):.3f} m/s; max |theta| {max(abs(v) for v in truth["theta"]):.3f} rad')
+    return error, last
+
+
+@pytest.mark.wallclock
+def test_a_route_published_every_second_is_driven_to_its_end_on_the_standin(
+        tmp_path, test_node):
+    # Before, each copy restarted the reference at the route's first point: the robot
+    # turned on the spot near its start. Criteria on the end position only (the run's
+    # timing depends on the machine's load): within 0.25 m of the route's end, at rest.
+    publisher = RoutePublisher(
+        test_node, lambda _x, _y, s: [(s[0] + dx, s[1] + dy) for dx, dy in ROUTE],
+        lambda s: (s[0] + ROUTE[-1][0], s[1] + ROUTE[-1][1]))
+    error, last = drive_standin_on_plan(tmp_path, test_node, publisher)
+    assert len(publisher.sent) >= 10, 'the route was not published once a second'
+    assert publisher.arrived_after is not None, 'the robot never stood at the route end'
+    assert error < 0.25 and max(last) < 0.05
+
+
+@pytest.mark.wallclock
+def test_a_replanning_planner_drives_the_standin_to_its_goal(tmp_path, test_node):
+    # Each second a new straight path from the robot's odometry pose to a goal 2 m ahead
+    # and 1 m to the left; same criteria as the route's.
+    goal = lambda s: (s[0] + 2.0, s[1] + 1.0)  # noqa: E731
+    publisher = RoutePublisher(test_node, lambda x, y, s: [(x, y), goal(s)], goal)
+    error, last = drive_standin_on_plan(tmp_path, test_node, publisher)
+    assert len(publisher.sent) >= 5, 'the planner did not replan'
+    assert publisher.arrived_after is not None, 'the robot never stood at the goal'
+    assert error < 0.25 and max(last) < 0.05

@@ -162,3 +162,26 @@ def test_chromium_renders_the_page_with_all_figures(run_dir, chromium, tmp_path)
     grey = pixels[..., :3].mean(axis=2)
     # Text, table shading and plot lines: a good share of the pixels is not white.
     assert np.mean(grey < 0.9) > 0.02
+
+
+def test_every_limit_line_says_what_it_limits(tmp_path, monkeypatch):
+    # The speed figure draws the vehicle's speed beside the ±1.5 m/s line, and the speed
+    # goes past it (1.77 m/s after the push): the line limits the desired speed υ_d, and
+    # its label must say so; likewise for each other limit line.
+    from wip_tools.analysis import figures
+    labels = []
+    draw = figures._limit_lines
+
+    def recording(ax, value, label, data=None):
+        labels.append(label)
+        draw(ax, value, label, data)
+    monkeypatch.setattr(figures, '_limit_lines', recording)
+    scenario = dataclasses.replace(Scenario(), duration=1.0)
+    figures.write_figures(run_scenario(scenario).record, scenario, tmp_path)
+    tg, mpc = scenario.trajectory_generator, scenario.mpc
+    assert sorted(labels) == sorted([
+        f'υ_d limit ±{tg.max_speed:g} m/s', f'ω_d limit ±{tg.max_yaw_rate:g} rad/s',
+        f'MPC tilt limit ±{mpc.max_tilt:g} rad (soft)',
+        f'per-wheel limit ±{scenario.mixer.max_wheel_torque:g} N·m',
+        f'MPC limit on Δτ_υ ±{mpc.max_delta_torque:g} N·m'])
+    assert 'υ_d limit ±1.5 m/s' in labels

@@ -37,6 +37,7 @@ setup(
             'soak = wip_tools.console:soak',
             'parameters = wip_tools.console:parameters',
             'identify = wip_tools.console:identify',
+            'results_table = wip_tools.console:results_table',
         ],
     },
 )

@@ -3,9 +3,10 @@
 import math
 
 import pytest
+from hypothesis import given, settings, strategies as st
 
-from wip_control.core.commanded import (CmdVelReference, PATH_END_TOLERANCE, PathReference,
-                                        UnicycleLimits)
+from wip_control.core.commanded import (CmdVelReference, MAX_PATH_COORDINATE,
+                                        PATH_END_TOLERANCE, PathReference, UnicycleLimits)
 from wip_control.core.references import make_reference, ReferenceConfig
 
 LIMITS = UnicycleLimits(max_speed=0.5, max_acceleration=0.3, max_yaw_rate=0.25,
@@ -134,5 +135,138 @@ def test_path_refuses_bad_paths_and_stands_still_without_one():
     assert ref.set_path([(0.0, math.nan)]) == 'invalid'
     assert ref.set_path([]) == 'empty'
     assert ref.set_path([('a', 0.0)]) == 'invalid'
+    assert ref.set_path([(0.0, 2e6)]) == 'invalid'     # 2000 km from the map origin
     state = ref.update(10.0)
     assert (state.x, state.y, state.v) == (1.0, 1.0, 0.0)
+
+
+# A new path is taken up where the reference is (as Nav2's controllers prune a new plan
+# to the robot): the route below is the 3 m x 2 m rectangle of a route publisher.
+RECTANGLE = [(0.0, 0.0), (3.0, 0.0), (3.0, 2.0), (0.0, 2.0), (0.0, 0.0)]
+
+
+def drive_with(ref, t0, t1, every=None, path=None):
+    """Drive from t0 to t1; with ``every`` [s], call ``path(t)`` and send what it returns."""
+    def on_tick(t):
+        if every is not None and round(t / DT) % round(every / DT) == 0:
+            assert ref.set_path(path(t)) is None
+    samples = run(ref, t0, t1, on_tick)
+    assert_within_limits(samples)
+    return samples
+
+
+def test_a_route_published_again_changes_nothing_bit_for_bit():
+    once = PathReference(LIMITS, speed=0.3)
+    assert once.set_path(RECTANGLE) is None
+    expected = drive_with(once, 0.0, 70.0)
+    again = PathReference(LIMITS, speed=0.3)
+    assert again.set_path(RECTANGLE) is None
+    # Once a second, and as tuples of other types (a message's floats), mid-run.
+    got = drive_with(again, 0.0, 70.0, every=1.0, path=lambda t: [list(p) for p in RECTANGLE])
+    assert got == expected
+    assert again.joined == 'same' and again.done
+    final = got[-1][1]
+    assert math.hypot(final.x, final.y) < 2 * PATH_END_TOLERANCE and final.v == 0.0
+    # It went round the rectangle (each far corner passed within 0.35 m) in the time
+    # of one lap at 0.3 m/s plus the turns, not on the spot at its start.
+    for cx, cy in RECTANGLE[1:4]:
+        assert min(math.hypot(r.x - cx, r.y - cy) for _, r in got) < 0.35
+
+
+def test_a_path_overlapping_the_old_one_continues_it_within_1e_9():
+    # The same route with its driven part cut off (a replan from the robot's progress),
+    # sent when the reference is at about x = 1.3 on the first side.
+    route = [(0.0, 0.0), (4.0, 0.0), (4.0, 3.0)]
+    once = PathReference(LIMITS, speed=0.3)
+    once.set_path(route)
+    expected = drive_with(once, 0.0, 40.0)
+    ref = PathReference(LIMITS, speed=0.3)
+    ref.set_path(route)
+    before = drive_with(ref, 0.0, 6.0)
+    assert 1.0 < before[-1][1].x < 2.0
+    assert ref.set_path([(1.0, 0.0), (4.0, 0.0), (4.0, 3.0)]) is None
+    assert ref.joined == 'continued'
+    got = before + drive_with(ref, 6.0, 40.0)
+    assert len(got) == len(expected)
+    worst = max(max(abs(a - b) for a, b in zip(r1, r2)) for (_, r1), (_, r2) in zip(got, expected))
+    assert worst < 1e-9
+    assert ref.done and math.hypot(got[-1][1].x - 4.0, got[-1][1].y - 3.0) < 2 * PATH_END_TOLERANCE
+
+
+def test_a_replanned_path_from_the_robot_continues_smoothly_to_its_goal():
+    # Every second a planner sends a straight path from the robot to the goal; the robot
+    # lags the reference by 0.15 m and is 0.03 m to its left (a tracking error).
+    goal = (6.0, 1.0)
+    ref = PathReference(LIMITS, speed=0.3)
+
+    def replan(_t):
+        state = ref.update(ref.unicycle.t)
+        lag_x, lag_y = -0.15 * math.cos(state.phi), -0.15 * math.sin(state.phi)
+        side_x, side_y = -0.03 * math.sin(state.phi), 0.03 * math.cos(state.phi)
+        return [(state.x + lag_x + side_x, state.y + lag_y + side_y), goal]
+    ref.set_path([(0.0, 0.0), goal])
+    samples = drive_with(ref, 0.0, 40.0, every=1.0, path=replan)
+    assert ref.joined in ('continued', 'same')
+    final = samples[-1][1]
+    assert math.hypot(final.x - goal[0], final.y - goal[1]) < 2 * PATH_END_TOLERANCE
+    assert final.v == 0.0
+    # Smooth: once at speed, it never slows by more than 0.01 m/s before the final brake
+    # (a path restarted behind the reference would turn it round every second), and it
+    # stays within 0.1 m of the straight line (each replan starts 3 cm to its left).
+    cruise = [r for t, r in samples if 2.0 < t and r.x < goal[0] - 0.6]
+    assert cruise and min(r.v for r in cruise) > 0.29
+    norm = math.hypot(*goal)
+    assert max(abs(r.y * goal[0] - r.x * goal[1]) / norm for _, r in samples) < 0.1
+
+
+def test_a_far_path_is_joined_at_its_closest_point():
+    ref = PathReference(LIMITS, speed=0.3)
+    assert ref.set_path([(-3.0, 2.0), (5.0, 2.0)]) is None   # closest point: (0, 2)
+    assert ref.joined == 'joined'
+    assert ref.points[:2] == [(0.0, 0.0), (0.0, 2.0)]
+    samples = drive_with(ref, 0.0, 60.0)
+    assert min(math.hypot(r.x, r.y - 2.0) for _, r in samples) < 0.35
+    assert min(r.x for _, r in samples) > -0.05        # it never went to the path's start
+    final = samples[-1][1]
+    assert ref.done and math.hypot(final.x - 5.0, final.y - 2.0) < 2 * PATH_END_TOLERANCE
+
+
+def test_a_closed_route_from_the_robot_is_driven_from_its_start_not_its_end():
+    # The reference 5 cm nearer the route's end than its start: still driven round.
+    ref = PathReference(LIMITS, speed=0.3, start=(-0.03, 0.04, 0.0))
+    assert ref.set_path(RECTANGLE) is None
+    assert ref.joined == 'closest' and ref.length > 9.0
+    # A path behind the reference's progress is not driven back to: a copy of the
+    # rectangle sent again once its end is reached leaves it at rest there.
+    drive_with(ref, 0.0, 70.0)
+    assert ref.done
+    shifted = [(x + 1e-3, y) for x, y in RECTANGLE]      # not the same points
+    assert ref.set_path(shifted) is None
+    samples = drive_with(ref, 70.0, 80.0)
+    assert max(math.hypot(r.x - samples[0][1].x, r.y - samples[0][1].y) for _, r in samples) < 0.02
+
+
+coordinates = st.floats(allow_nan=True, allow_infinity=True, min_value=None, max_value=None)
+paths = st.lists(st.tuples(st.one_of(coordinates, st.floats(-20.0, 20.0)),
+                           st.one_of(coordinates, st.floats(-20.0, 20.0))), max_size=12)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(paths, min_size=1, max_size=4))
+def test_any_sequence_of_paths_is_refused_or_followed_within_the_limits(sequence):
+    # Whatever a planner sends (huge, tiny, repeated, crossing, non-finite points), a path
+    # is refused with a reason or taken up; the reference stays finite, within its limits
+    # and never jumps (a step moves it at most max_speed * dt).
+    ref = PathReference(LIMITS, speed=0.3)
+    samples, t = [], 0.0
+    for points in sequence:
+        reason = ref.set_path(points)
+        finite = all(abs(c) <= MAX_PATH_COORDINATE for p in points for c in p)
+        assert reason in ((None,) if finite and points else ('invalid', 'empty')), reason
+        step = run(ref, t, t + 0.5)
+        samples += step
+        t = step[-1][0]
+    assert_within_limits(samples)
+    for (_, a), (_, b) in zip(samples, samples[1:]):
+        assert all(math.isfinite(v) for v in b)
+        assert math.hypot(b.x - a.x, b.y - a.y) <= LIMITS.max_speed * DT + 1e-9

@@ -1206,8 +1206,8 @@ def test_the_readme_params_file_of_a_real_base_is_taken_by_the_eso_and_the_mixer
         mixer = TorqueMixerNode(context=ctx, parameter_overrides=realtime)
         assert (eso.left_joint, eso.right_joint) == (example['left_joint'],
                                                      example['right_joint'])
-        assert (eso.left_sign, eso.right_sign) == (1.0, -1.0) == (mixer.left_sign,
-                                                                  mixer.right_sign)
+        signs = (example['left_wheel_sign'], example['right_wheel_sign'])
+        assert (eso.left_sign, eso.right_sign) == signs == (mixer.left_sign, mixer.right_sign)
         assert eso.model.wheel_radius == example['model.wheel_radius']
         assert eso.model.track_width == example['model.track_width']
         assert eso.datum[0] == example['datum.latitude']
@@ -1294,6 +1294,11 @@ def test_reference_path_in_another_frame_is_refused_and_a_map_path_followed(
     tick_every(harness, out, 10 * H_NS, 4.0)
     assert out[-1].x > 0.5 and 0.0 < out[-1].v <= 0.3
     assert node.diagnostics.values['command'] == 'following the path'
+    # The same path again (a route publisher repeating it) changes nothing.
+    before = (list(node.reference.points), node.reference.progress)
+    path('map', [(1.0, 0.0), (1.0, 1.0)])
+    assert node.reference.joined == 'same'
+    assert (node.reference.points, node.reference.progress) == before
 
 
 def test_eso_publishes_odometry_of_the_estimate_in_real_time(context, harnesses):

@@ -20,7 +20,7 @@ use the files' contents (their summaries; a scan of unfinished files).
 
 Usage::
 
-    scripts/bag_info BAG [--from-content] [--json]
+    scripts/bag_info BAG [--from-content] [--json FILE]
 """
 
 import argparse
@@ -251,11 +251,14 @@ Examples
     scripts/bag_info out/demo/bag                    # a bag directory
     scripts/bag_info out/demo/bag/bag_0.mcap         # one file
     scripts/bag_info --from-content out/demo/bag     # counts from the data itself
-    scripts/bag_info --json out/demo/bag > info.json""")
+    scripts/bag_info out/demo/bag --json info.json   # also as JSON, to a file
+    scripts/bag_info out/demo/bag --json -           # JSON instead of the text""")
     parser.add_argument('bag', help='bag directory or .mcap file')
     parser.add_argument('--from-content', action='store_true',
                         help="figures from the files' contents, not from metadata.yaml")
-    parser.add_argument('--json', action='store_true', help='print JSON instead')
+    parser.add_argument('--json', metavar='FILE',
+                        help="also write the information as JSON to FILE ('-': print it "
+                        'instead of the text), as --json of bench and check_base')
     add_exit_codes(parser)
     args = parser.parse_args(argv)
     try:
@@ -263,10 +266,17 @@ Examples
     except (BagReadError, OSError) as err:
         print(f'bag_info: error: {err}', file=sys.stderr)
         return EXIT_USAGE
-    if args.json:
+    if args.json == '-':
         print(json.dumps(info, indent=2))
     else:
         sys.stdout.write(format_bag_information(info))
+    if args.json not in (None, '-'):
+        try:
+            pathlib.Path(args.json).write_text(json.dumps(info, indent=2) + '\n',
+                                               encoding='utf-8')
+        except OSError as err:
+            print(f'bag_info: error: {args.json}: {err.strerror}', file=sys.stderr)
+            return EXIT_USAGE
     return EXIT_FAILED if info['problems'] else EXIT_OK
 
 

@@ -1,6 +1,6 @@
 """Fit the identifiable parameters of the paper's model (1) to a recorded run.
 
-    scripts/identify BAG_OR_RECORD [--out FILE] [--params-file] [--source SOURCE]
+    scripts/identify BAG_OR_RECORD [--out FILE] [--write-params] [--source SOURCE]
 
 Model (1) of Yue, An, Li (2016), written in its Euler-Lagrange form (the paper plant of
 wip_sim/core/plant.py, multiplied out; τυ = τl + τr, τω = τr − τl, REP 103)::
@@ -470,15 +470,16 @@ def main(argv: Iterable[str] | None = None) -> int:
 Examples
 --------
     scripts/identify robot_run/bag --out my_robot.yaml      # a scenario controller_model
-    scripts/identify robot_run/bag --out my_robot_params.yaml --params-file
+    scripts/identify robot_run/bag --out my_robot_params.yaml --write-params
     scripts/identify robot_run/bag --model full --friction  # a real robot's rows
     scripts/identify out/sim/timeseries.npz --source truth  # a simulated run""")
     parser.add_argument('run', help='rosbag2 directory, .mcap file, or timeseries.npz '
                         '(or a scripts/simulate output directory)')
     parser.add_argument('--out', help='write the identified model here: a scenario '
-                        'controller_model section (.yaml), see --params-file')
-    parser.add_argument('--params-file', action='store_true',
-                        help='write --out as a ROS params file (/**: model.*) instead')
+                        'controller_model section (.yaml), see --write-params')
+    parser.add_argument('--write-params', action='store_true', dest='params_file',
+                        help='write --out as a ROS params file (/**: model.*) instead '
+                        '(a switch; elsewhere --params-file takes a file to read)')
     parser.add_argument('--source', choices=('auto', 'truth', 'sensors', 'estimate'),
                         default='auto',
                         help='state signals: ground truth (a simulation), the sensors '

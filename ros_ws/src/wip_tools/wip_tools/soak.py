@@ -146,7 +146,7 @@ Examples
 --------
     scripts/soak --runs 1 --seconds 20 --out /tmp/soak     # a quick look
     scripts/soak --paths line --loads busy --freeze 60     # one case, a 60 ms freeze
-    scripts/soak --record --out soak_out                   # keep a bag per run
+    scripts/soak --record-runs --out soak_out              # keep a bag per run
 
 A run fails (exit 1 at the end) when the base fell or stopped early, the path error
 after 15 s exceeded --max-path-error, or a freeze did not happen before the run ended.""")
@@ -165,7 +165,7 @@ after 15 s exceeded --max-path-error, or a freeze did not happen before the run 
                         metavar='MS', help='freeze the controller process for each of these '
                         'durations [ms] during every run (default: 20 60 150; none: '
                         '--freeze with no value)')
-    parser.add_argument('--record', action='store_true',
+    parser.add_argument('--record-runs', action='store_true',
                         help='record each run to OUT/<case>/bag (for diagnosis; costs CPU)')
     parser.add_argument('--position-source', default='gps', choices=['gps', 'wheels'],
                         help="the controllers' position_source (wheels: dead reckoning, "
@@ -202,7 +202,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         writer.writeheader()
         for path, load, k in tqdm(cases, unit='run', file=sys.stderr):
             row = one_run(out / f'{path}_{load}_{k}', path, load, k, args.seconds,
-                          args.layout, args.freeze, args.max_path_error, args.record,
+                          args.layout, args.freeze, args.max_path_error, args.record_runs,
                           args.position_source)
             rows.append(row)
             writer.writerow(dataclasses.asdict(row))

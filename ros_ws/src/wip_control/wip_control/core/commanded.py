@@ -163,27 +163,94 @@ class CmdVelReference(Reference):
         return self.update(t)
 
 
+#: A path point farther than this [m] from the map origin is refused: no robot drives a
+#: route across a continent in one map frame, and arc lengths of such a path lose the
+#: precision that centimetre segments need (2^53 m: none).
+MAX_PATH_COORDINATE = 1e6
+
+
 def _polyline(points: Sequence[Sequence[float]]) -> list[tuple[float, float]]:
-    """Return the points as floats, consecutive duplicates removed; ValueError if not finite."""
+    """Return the points as floats, consecutive duplicates removed.
+
+    ValueError if a point is not finite or beyond MAX_PATH_COORDINATE.
+    """
     out: list[tuple[float, float]] = []
     for point in points:
         x, y = float(point[0]), float(point[1])
-        if not (math.isfinite(x) and math.isfinite(y)):
-            raise ValueError('a path point is not finite')
+        if not (abs(x) <= MAX_PATH_COORDINATE and abs(y) <= MAX_PATH_COORDINATE):
+            raise ValueError('a path point is not finite or too far from the map origin')
         if not out or math.hypot(x - out[-1][0], y - out[-1][1]) > 1e-6:
             out.append((x, y))
     return out
 
 
+#: Points of a new path no more than this [m] farther from the reference than its closest
+#: point count as closest too, and the earliest is taken (the start of a closed route).
+JOIN_TIE = 0.1
+#: A new path is searched for its point closest to the reference over its first metres:
+#: the reference's distance from its first point plus this [m].
+JOIN_SEARCH = 2.0
+
+
+def _cumulative(polyline: Sequence[tuple[float, float]]) -> list[float]:
+    cumulative = [0.0]
+    for (x0, y0), (x1, y1) in zip(polyline, polyline[1:]):
+        cumulative.append(cumulative[-1] + math.hypot(x1 - x0, y1 - y0))
+    return cumulative
+
+
+def _point_on(polyline: Sequence[tuple[float, float]], cumulative: Sequence[float],
+              s: float) -> tuple[float, float]:
+    """Return the point at arc length s of a polyline (clamped to its ends)."""
+    if len(polyline) < 2:
+        return polyline[0]
+    s = max(0.0, min(cumulative[-1], s))
+    i = max(0, min(len(polyline) - 2, bisect.bisect_right(cumulative, s) - 1))
+    (x0, y0), (x1, y1) = polyline[i], polyline[i + 1]
+    seg = cumulative[i + 1] - cumulative[i]
+    f = (s - cumulative[i]) / seg if seg > 0.0 else 0.0
+    return x0 + f * (x1 - x0), y0 + f * (y1 - y0)
+
+
+def _closest(polyline: Sequence[tuple[float, float]], cumulative: Sequence[float],
+             x: float, y: float, window: float) -> float:
+    """Arc length of the point of a polyline's first ``window`` [m] closest to (x, y).
+
+    The earliest of those within JOIN_TIE of the closest.
+    """
+    if len(polyline) < 2:
+        return 0.0
+    candidates = []
+    for i in range(len(polyline) - 1):
+        if cumulative[i] > window:
+            break
+        (x0, y0), (x1, y1) = polyline[i], polyline[i + 1]
+        seg = cumulative[i + 1] - cumulative[i]
+        if seg <= 0.0:
+            continue
+        f = max(0.0, min(1.0, ((x - x0) * (x1 - x0) + (y - y0) * (y1 - y0)) / (seg * seg)))
+        f = min(f, (window - cumulative[i]) / seg)
+        candidates.append((math.hypot(x0 + f * (x1 - x0) - x, y0 + f * (y1 - y0) - y),
+                           cumulative[i] + f * seg))
+    if not candidates:
+        return 0.0
+    nearest = min(d for d, _ in candidates)
+    return min(s for d, s in candidates if d <= nearest + JOIN_TIE)
+
+
 class PathReference(Reference):
     """Drives along the latest polyline and stops at its end (kind ``path``).
 
-    The unicycle starts from its current pose (a new path replaces the old one without a
-    jump of the reference): it heads for the point ``lookahead`` [m] further along the
-    path than its own projection (pure pursuit: ω = 2 υ sin α / L), slows with
-    cos² α so that it turns on the spot where the path turns by more than about 90°,
-    and its speed never exceeds √(2 a d) (d: the distance left along the path, a: 80 %
-    of the acceleration limit) so that it comes to rest on the last point.
+    The unicycle is never reset by a path: it heads for the point ``lookahead`` [m]
+    further along the path than its own projection (pure pursuit: ω = 2 υ sin α / L),
+    slows with cos² α so that it turns on the spot where the path turns by more than
+    about 90°, and its speed never exceeds √(2 a d) (d: the distance left along the path,
+    a: 80 % of the acceleration limit) so that it comes to rest on the last point.
+
+    A new path is taken up where the reference is, as Nav2's controllers prune a new plan
+    to the robot (:meth:`set_path`): the same path again changes nothing; a path that
+    passes the point reached on the old one, heading the same way, is followed on from
+    there; any other path from its point closest to the reference.
 
     Parameters
     ----------
@@ -208,6 +275,8 @@ class PathReference(Reference):
         self.lookahead, self.heading_gain = lookahead, heading_gain
         self.points: list[tuple[float, float]] = []
         self._cumulative: list[float] = []
+        self.route: list[tuple[float, float]] = []   # the last accepted path, as received
+        self.joined = 'none'    # how the last path was taken up (see set_path)
         self.progress = 0.0     # arc length of the unicycle's projection [m]
         self.done = True        # no path, or its end reached
 
@@ -219,11 +288,24 @@ class PathReference(Reference):
         """At rest at (x, y, phi) at time t, without a path."""
         self.unicycle.reset(t, x, y, phi)
         self.points, self._cumulative, self.progress, self.done = [], [], 0.0, True
+        self.route, self.joined = [], 'none'
 
     def set_path(self, points: Sequence[Sequence[float]]) -> str | None:
-        """Replace the path by ``points`` [(x, y), ...]; the reference starts where it is.
+        """Replace the path by ``points`` [(x, y), ...], taken up where the reference is.
 
-        Returns None if accepted, else why it was refused ('invalid', 'empty').
+        - The same points as the last path: nothing changes (``joined`` 'same').
+        - A path that passes within ``lookahead`` of the point reached on the current
+          path, heading within 60° of the same way (a route published again from
+          another start, a replanned path from the robot): followed on from the nearest
+          such point (``joined`` 'continued'); the earliest of several.
+        - Otherwise from its point closest to the reference, the earliest of those no
+          more than ``JOIN_TIE`` farther than the closest, so that a closed route starting
+          at the robot is driven from its start, not its end (``joined`` 'closest').
+          Farther than ``lookahead``, a straight first leg leads there (``joined``
+          'joined').
+
+        The reference itself never jumps: only what it steers for changes. Returns None
+        if accepted, else why it was refused ('invalid', 'empty').
         """
         try:
             polyline = _polyline(points)
@@ -231,24 +313,66 @@ class PathReference(Reference):
             return 'invalid'
         if not polyline:
             return 'empty'
+        if self.points and polyline == self.route:
+            self.joined = 'same'
+            return None
         u = self.unicycle
-        # From the current reference point: the first leg joins it to the path.
-        if math.hypot(polyline[0][0] - u.x, polyline[0][1] - u.y) > 1e-6:
-            polyline.insert(0, (u.x, u.y))
-        cumulative = [0.0]
-        for (x0, y0), (x1, y1) in zip(polyline, polyline[1:]):
-            cumulative.append(cumulative[-1] + math.hypot(x1 - x0, y1 - y0))
-        self.points, self._cumulative, self.progress = polyline, cumulative, 0.0
-        self.done = len(polyline) < 2
+        cumulative = _cumulative(polyline)
+        start = self._continuation(polyline, cumulative)
+        if start is not None:
+            self.joined = 'continued'
+        else:
+            # Searched over the path's first metres only, as Nav2's RPP searches the first
+            # max_robot_pose_search_dist of a plan: a route that comes back past the
+            # reference later (a closed loop) is driven from its start.
+            window = math.hypot(polyline[0][0] - u.x, polyline[0][1] - u.y) + JOIN_SEARCH
+            start = _closest(polyline, cumulative, u.x, u.y, window)
+            self.joined = 'closest'
+        # The path from that point on; what lies before it is never driven (Nav2 prunes it).
+        i = max(0, min(len(polyline) - 1, bisect.bisect_right(cumulative, start) - 1))
+        head = _point_on(polyline, cumulative, start)
+        rest = polyline[i + 1:]
+        if rest and math.hypot(rest[0][0] - head[0], rest[0][1] - head[1]) <= 1e-6:
+            rest = rest[1:]
+        path = [head] + rest
+        gap = math.hypot(head[0] - u.x, head[1] - u.y)
+        if gap > 1e-6 and (gap > self.lookahead or len(path) < 2):
+            # Far from the path (or a single point): a first leg leads the reference there.
+            path.insert(0, (u.x, u.y))
+            self.joined = 'joined'
+        self.route = polyline
+        self.points, self._cumulative, self.progress = path, _cumulative(path), 0.0
+        self.done = len(path) < 2
         return None
 
-    def _point_at(self, s: float) -> tuple[float, float]:
-        s = max(0.0, min(self.length, s))
-        i = max(0, min(len(self.points) - 2, bisect.bisect_right(self._cumulative, s) - 1))
+    def _continuation(self, polyline: list[tuple[float, float]],
+                      cumulative: list[float]) -> float | None:
+        """Arc length on ``polyline`` where it continues the current path, or None."""
+        if len(self.points) < 2:
+            return None
+        px, py = self._point_at(self.progress)
+        i = max(0, min(len(self.points) - 2,
+                       bisect.bisect_right(self._cumulative, self.progress) - 1))
         (x0, y0), (x1, y1) = self.points[i], self.points[i + 1]
-        seg = self._cumulative[i + 1] - self._cumulative[i]
-        f = (s - self._cumulative[i]) / seg if seg > 0.0 else 0.0
-        return x0 + f * (x1 - x0), y0 + f * (y1 - y0)
+        seg = math.hypot(x1 - x0, y1 - y0)
+        if seg <= 0.0:
+            return None
+        tx, ty = (x1 - x0) / seg, (y1 - y0) / seg
+        best, best_d = None, self.lookahead
+        for j in range(len(polyline) - 1):
+            (a0, b0), (a1, b1) = polyline[j], polyline[j + 1]
+            length = cumulative[j + 1] - cumulative[j]
+            if length <= 0.0 or (a1 - a0) * tx + (b1 - b0) * ty < 0.5 * length:
+                continue    # heading more than 60° away from the current path
+            f = max(0.0, min(1.0, ((px - a0) * (a1 - a0) + (py - b0) * (b1 - b0))
+                             / (length * length)))
+            d = math.hypot(a0 + f * (a1 - a0) - px, b0 + f * (b1 - b0) - py)
+            if d < best_d - 1e-9:
+                best, best_d = cumulative[j] + f * length, d
+        return best
+
+    def _point_at(self, s: float) -> tuple[float, float]:
+        return _point_on(self.points, self._cumulative, s)
 
     def _project(self, x: float, y: float) -> float:
         """Arc length of the point of the path nearest (x, y).
@@ -258,9 +382,14 @@ class PathReference(Reference):
         """
         best, best_d2 = self.progress, math.inf
         horizon = self.progress + self.lookahead
-        for i in range(len(self.points) - 1):
+        # Only the segments within [progress, horizon]: a planner's path has a pose every
+        # few centimetres, and this runs every integration step.
+        first = max(0, bisect.bisect_left(self._cumulative, self.progress) - 1)
+        for i in range(first, len(self.points) - 1):
             s0, s1 = self._cumulative[i], self._cumulative[i + 1]
-            if s1 < self.progress or s0 > horizon:
+            if s0 > horizon:
+                break
+            if s1 < self.progress:
                 continue
             (x0, y0), (x1, y1) = self.points[i], self.points[i + 1]
             dx, dy, seg = x1 - x0, y1 - y0, s1 - s0

@@ -35,7 +35,9 @@ Commanded kinds (``reference.kind``, docs/driving.md):
   older than ``reference.cmd_vel_timeout``, out of order or not finite is refused and
   counted on /diagnostics (input ``cmd_vel``).
 - ``'path'``: subscribes ``plan`` (nav_msgs/Path, Nav2's planner output name), in
-  ``frame_id`` (a path in another frame is refused, counted as ``plan`` 'frame').
+  ``frame_id`` (a path in another frame is refused, counted as ``plan`` 'frame'). A new
+  path is taken up where the reference is (``PathReference.set_path``): the same path
+  again changes nothing.
 
 Both start at rest at ``line_start``, ``line_heading``; in real time with the
 ``state_estimate`` trigger at the estimated pose instead (the first estimate, or with
@@ -179,8 +181,13 @@ class ReferenceNode(ControllerNode):
         if reason is not None:
             self.diagnostics.drop('plan', reason, f'{len(points)} poses')
             return
+        if self.reference.joined == 'same':
+            return   # a route published again: nothing changes, nothing to say
+        how = {'continued': 'continues the current one', 'closest': 'from its closest point',
+               'joined': 'joined by a straight leg to its closest point'}
         self.get_logger().info(f'new path: {len(points)} poses, '
-                               f'{self.reference.length:.2f} m from the reference')
+                               f'{how.get(self.reference.joined, self.reference.joined)}, '
+                               f'{self.reference.length:.2f} m to go')
 
     def _on_torques(self, msg: WheelTorques) -> None:
         """realtime_start 'engaged': the path's time starts at the first torque sent."""

@@ -156,7 +156,7 @@ def figure_tilt(record: RunRecord, out: pathlib.Path, max_tilt: float) -> pathli
     fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
     source = record['truth'] if 'truth' in record else record['estimate']
     axes[0].plot(source['t'], source['theta'], **_TRUE)
-    _limit_lines(axes[0], max_tilt, f'limit ±{max_tilt:g} rad', [source['theta']])
+    _limit_lines(axes[0], max_tilt, f'MPC tilt limit ±{max_tilt:g} rad (soft)', [source['theta']])
     axes[0].set_ylabel('θ [rad]')
     axes[1].plot(source['t'], source['theta_dot'], **_TRUE)
     axes[1].set_ylabel('θ̇ [rad/s]')
@@ -181,7 +181,7 @@ def figure_velocities(record: RunRecord, out: pathlib.Path, max_speed: float,
                  label='υ (vehicle)')
     axes[0].plot(cmd['t'], cmd['v_d'], color='tab:green', linewidth=1.0, linestyle='--',
                  label='υ_d (desired)')
-    _limit_lines(axes[0], max_speed, f'limit ±{max_speed:g} m/s',
+    _limit_lines(axes[0], max_speed, f'υ_d limit ±{max_speed:g} m/s',
                  [ref['v'], cmd['v_d'], source['v']])
     axes[0].set_ylabel('υ [m/s]')
     axes[1].plot(ref['t'], ref['omega'], color='tab:blue', linewidth=0.8,
@@ -263,13 +263,14 @@ def figure_torques(record: RunRecord, out: pathlib.Path, max_wheel_torque: float
     wheels = record['wheels']
     axes[0].plot(wheels['t'], wheels['tau_left'], label='τ_l', linewidth=0.8)
     axes[0].plot(wheels['t'], wheels['tau_right'], label='τ_r', linewidth=0.8)
-    _limit_lines(axes[0], max_wheel_torque, f'limit ±{max_wheel_torque:g} N·m',
+    _limit_lines(axes[0], max_wheel_torque, f'per-wheel limit ±{max_wheel_torque:g} N·m',
                  [wheels['tau_left'], wheels['tau_right']])
     axes[0].set_ylabel('wheel torque [N·m]')
     mpc = record['mpc']
     delta = np.diff(np.concatenate([[0.0], mpc['tau_v']]))
     axes[1].step(mpc['t'], delta, where='post', label='Δτ_υ per MPC step')
-    _limit_lines(axes[1], max_delta_torque, f'limit ±{max_delta_torque:g} N·m', [delta])
+    _limit_lines(axes[1], max_delta_torque, f'MPC limit on Δτ_υ ±{max_delta_torque:g} N·m',
+                 [delta])
     axes[1].set_ylabel('Δτ_υ [N·m]')
     axes[1].set_xlabel('t [s]')
     for ax in axes:
