@@ -210,7 +210,7 @@ def test_cli_on_a_saved_record(tmp_path, capsys):
     section = yaml.safe_load(out.read_text())['controller_model']['parameters']
     assert scenario_from_mapping({'controller_model': {'parameters': section}})
     params = tmp_path / 'model_params.yaml'
-    assert identify.main([str(npz), '--out', str(params), '--params-file']) == EXIT_OK
+    assert identify.main([str(npz), '--out', str(params), '--write-params']) == EXIT_OK
     ros = yaml.safe_load(params.read_text())['/**']['ros__parameters']
     assert ros['model.body_mass'] == pytest.approx(section['body_mass'])
 

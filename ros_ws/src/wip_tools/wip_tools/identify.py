@@ -1,6 +1,7 @@
 """Fit the identifiable parameters of the paper's model (1) to a recorded run.
 
-    scripts/identify BAG_OR_RECORD [--out FILE] [--params-file] [--source SOURCE]
+    scripts/identify BAG_OR_RECORD [--out FILE] [--write-params] [--params-file FILE]
+                     [--source SOURCE] [--model auto|paper|full]
 
 Model (1) of Yue, An, Li (2016), written in its Euler-Lagrange form (the paper plant of
 wip_sim/core/plant.py, multiplied out; τυ = τl + τr, τω = τr − τl, REP 103)::
@@ -34,11 +35,20 @@ from wip_control.core.params import WipParameters
 from wip_control.tools.cli import add_exit_codes, EXIT_OK, EXIT_USAGE, exit_with
 
 #: The fitted parameters, in the column order of the regressor matrix.
-NAMES = ('effective_mass', 'mpl', 'pitch_inertia', 'mpl2', 'yaw_inertia_total', 'friction')
+NAMES = ('effective_mass', 'mpl', 'pitch_inertia', 'mpl2', 'yaw_inertia_total', 'friction',
+         'rolling_resistance')
 SYMBOLS = {'effective_mass': 'm_v [kg]', 'mpl': 'm_p l [kg m]',
            'pitch_inertia': 'J_theta [kg m^2]', 'mpl2': 'm_p l^2 [kg m^2]',
            'yaw_inertia_total': 'J_phi [kg m^2]', 'friction': 'b [N m s/rad]',
-           'com_height': 'l = m_p l^2 / m_p l [m]'}
+           'rolling_resistance': 'F_rr [N]', 'com_height': 'l = m_p l^2 / m_p l [m]'}
+#: The friction columns (``friction=True``): viscous axle friction b, rolling resistance.
+FRICTION = ('friction', 'rolling_resistance')
+#: Wheel ground speed [m/s] at which the rolling resistance's sign is tanh(1) = 0.76 of its
+#: full value: a smooth sign, so that encoder noise about a standstill does not toggle it.
+SIGN_SPEED = 0.02
+#: Low-pass [Hz] of the wheel speeds whose sign the rolling resistance takes (the raw speed
+#: from quantised encoders is noisy to about 0.05 m/s at 200 Hz).
+SIGN_CUTOFF_HZ = 5.0
 #: Smallest RMS excitation [SI] of a regressor signal that counts (about what an IMU and
 #: the wheel encoders resolve after the filter): below it the column is noise.
 MIN_EXCITATION = {'v_dot': 0.02, 'theta_ddot': 0.02, 'omega_dot': 0.02, 'omega_sq': 0.005}
@@ -104,9 +114,9 @@ def _sensor_group(record: Mapping, wheel_radius: float,
     encoders = record['encoders'] if 'encoders' in record else None
     imu = record['imu'] if 'imu' in record else None
     if encoders is None or imu is None or len(encoders['t']) < 3 or len(imu['t']) < 3:
-        raise IdentifyError('no sensor samples (topics /joint_states with the joints '
-                            'left_wheel_joint and right_wheel_joint, and /imu/data with '
-                            'orientation and angular velocity)')
+        raise IdentifyError('no sensor samples (a JointState topic naming both wheel '
+                            'joints, and an Imu topic with orientation and angular '
+                            'velocity)')
     t = np.asarray(imu['t'], dtype=float)
     mean_angle = np.interp(t, encoders['t'], 0.5 * (np.asarray(encoders['left'])
                                                    + np.asarray(encoders['right'])))
@@ -120,8 +130,28 @@ def _sensor_group(record: Mapping, wheel_radius: float,
             'v': wheel_radius * rolling_rate, 'omega': imu['yaw_rate']}
 
 
+def motor_lagged(torque: np.ndarray, dt: float, time_constant: float) -> np.ndarray:
+    """Mean torque over each interval of a first-order motor lag behind ``torque``.
+
+    ``torque[k]`` is the command held over [t_k, t_k + dt); the motor's torque a relaxes
+    towards it as c + (a₀ − c) e^(−t/T). Returns each interval's mean, the torque the
+    plant felt (the same form as wip_sim's ``plant.motor_time_constant``).
+    """
+    if time_constant <= 0.0:
+        return torque
+    decay = math.exp(-dt / time_constant)
+    mean = time_constant / dt * (1.0 - decay)
+    out = np.empty_like(torque)
+    applied = 0.0
+    for k, command in enumerate(torque.tolist()):
+        out[k] = command + (applied - command) * mean
+        applied = command + (applied - command) * decay
+    return out
+
+
 def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters().wheel_radius,
-             encoders_relative_to_body: bool = True) -> dict[str, np.ndarray]:
+             encoders_relative_to_body: bool = True,
+             motor_lag: float = 0.0) -> dict[str, np.ndarray]:
     """Uniformly sampled (t, θ, θ̇, υ, ω, τl, τr) from the record's ``source`` group.
 
     truth: the torques of row k were applied over [t_{k−1}, t_k) (wip_sim/core/runner.py), so they
@@ -164,13 +194,15 @@ def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters()
             raise IdentifyError(f'{source}.{name} has non-finite values')
         out[name] = np.interp(grid, t, values) if len(grid) != len(t) or \
             not np.allclose(grid, t) else values
+    for name in ('tau_left', 'tau_right'):
+        out[name] = motor_lagged(out[name], dt, motor_lag)
     return out
 
 
 def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
                cutoff_hz: float = CUTOFF_HZ,
                model: str = 'paper') -> tuple[np.ndarray, np.ndarray, dict]:
-    """Rows (A, y) of the three equations, each of n rows, stacked (3n × 6, 3n).
+    """Rows (A, y) of the three equations, each of n rows, stacked (3n × 7, 3n).
 
     ``model='full'``: the rows of the full plant (wip_sim/core/plant.py) instead of (1): the
     centrifugal −m_p l sinθ ω² in the forward row, the motor reaction −τυ on the right of
@@ -191,17 +223,26 @@ def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
     s, c = np.sin(th), np.cos(th)
     g, r, d = params.gravity, params.wheel_radius, params.track_width
     z = np.zeros_like(th)
-    # Columns: m_v, m_p l, J_θ, m_p l², J_ϕ, b.
+    # Rolling resistance F_rr [N] (both wheels, equal loads): a ground torque on each wheel
+    # against its rolling, F_rr r/2 · sgn(wheel ground speed). It acts on the wheels from
+    # the ground, so unlike the motors and the axle friction it has no reaction on the body:
+    # no pitch-row term.
+    v_smooth = gaussian_lowpass(v, dt, SIGN_CUTOFF_HZ)
+    om_smooth = gaussian_lowpass(om, dt, SIGN_CUTOFF_HZ)
+    sign_l = np.tanh((v_smooth - 0.5 * d * om_smooth) / SIGN_SPEED)
+    sign_r = np.tanh((v_smooth + 0.5 * d * om_smooth) / SIGN_SPEED)
+    # Columns: m_v, m_p l, J_θ, m_p l², J_ϕ, b, F_rr.
     full = 1.0 if model == 'full' else 0.0
     yaw_gain = d / (r * (2.0 if full else 1.0))
     # Axle friction b acts as the motors do: τυ loses 2b (υ/r − θ̇) and τω loses b d ω / r
     # (wip_sim/core/plant.py); moved to the left, those are b's columns in each row.
     slip_v = 2.0 * (v / r - thd)
-    lon = np.stack([vd, c * thdd - s * (thd ** 2 + full * om ** 2), z, z, z, slip_v / r],
-                   axis=1)
-    pitch = np.stack([z, c * vd - g * s, thdd, -s * c * om ** 2, z, -full * slip_v], axis=1)
+    lon = np.stack([vd, c * thdd - s * (thd ** 2 + full * om ** 2), z, z, z, slip_v / r,
+                    0.5 * (sign_l + sign_r)], axis=1)
+    pitch = np.stack([z, c * vd - g * s, thdd, -s * c * om ** 2, z, -full * slip_v, z],
+                     axis=1)
     yaw = np.stack([z, full * s * v * om, z, s * s * omd + 2.0 * s * c * thd * om, omd,
-                    yaw_gain * d * om / r], axis=1)
+                    yaw_gain * d * om / r, 0.5 * yaw_gain * r * (sign_r - sign_l)], axis=1)
     ys = (tau_v / r, -full * tau_v, yaw_gain * tau_w)
     blocks, outs = [], []
     for a, y in zip((lon, pitch, yaw), ys):
@@ -242,26 +283,30 @@ def _best_source(record: Mapping) -> str:
 
 def identify(record: Mapping, params: WipParameters | None = None, source: str = 'auto',
              friction: bool = False, cutoff_hz: float = CUTOFF_HZ,
-             model: str = 'paper', encoders_relative_to_body: bool = True) -> Identification:
+             model: str = 'paper', encoders_relative_to_body: bool = True,
+             motor_lag: float = 0.0) -> Identification:
     """Fit p = (m_v, m_p l, J_θ, m_p l², J_ϕ[, b]) of eq. (1) to ``record``.
 
     ``params`` supplies the known r, d, g (default: the nominal ones). ``source``:
     'truth', 'sensors', 'estimate' or 'auto' (the first the record has, in that order).
     ``model``: fit the rows of eq. (1) ('paper') or of the full plant ('full', see
     :func:`regressors`). ``encoders_relative_to_body``: the wheel joint angles are measured
-    against the body (a robot's joints), not against the ground.
+    against the body (a robot's joints), not against the ground. ``motor_lag`` [s]: the
+    torques recorded are commands that the motors follow with this first-order lag.
     """
     if model not in ('paper', 'full'):
         raise IdentifyError(f"model {model!r}: expected 'paper' or 'full'")
     params = WipParameters() if params is None else params
     if source == 'auto':
         source = _best_source(record)
-    sig = _signals(record, source, params.wheel_radius, encoders_relative_to_body)
+    if not (math.isfinite(motor_lag) and 0.0 <= motor_lag <= 1.0):
+        raise IdentifyError(f'motor lag {motor_lag!r} s: expected 0 to 1 s')
+    sig = _signals(record, source, params.wheel_radius, encoders_relative_to_body, motor_lag)
     a, y, excitation = regressors(sig, params, cutoff_hz, model)
     n = len(y) // 3
     if n < 10:
         raise IdentifyError(f'too little data after filtering: {n} samples')
-    used = list(range(6 if friction else 5))
+    used = list(range(7 if friction else 5))
     a = a[:, used]
     names = [NAMES[j] for j in used]
     # Which columns carry enough excitation (physical floors, MIN_EXCITATION).
@@ -280,7 +325,8 @@ def identify(record: Mapping, params: WipParameters | None = None, source: str =
         why['mpl2'] = (f'turning at a tilt too small (RMS sinθcosθω² '
                        f'{excitation["omega_sq"]:.3g} < {MIN_EXCITATION["omega_sq"]})')
     if 'effective_mass' in why:
-        why.setdefault('friction', why['effective_mass'])
+        for name in FRICTION:
+            why.setdefault(name, why['effective_mass'])
     keep = [j for j, name in enumerate(names)
             if name not in why and np.any(a[:, j] != 0.0)]
     estimates = {name: Estimate(name, None, None, why.get(name, 'no excitation'))
@@ -333,15 +379,17 @@ def identify(record: Mapping, params: WipParameters | None = None, source: str =
                 estimates[name] = Estimate(name, None, None,
                                            f'condition number {condition:.3g} > '
                                            f'{MAX_CONDITION:g}')
-            elif name == 'friction':
-                # Its true value may be 0: judged by its forward-row coefficient 2b/r²
-                # [N s/m] against m_v per second instead.
+            elif name in FRICTION:
+                # Their true value may be 0: judged by their forward-row force at 1 m/s
+                # (2b/r² × 1 m/s for b, F_rr itself) against m_v × 1 m/s² instead.
                 mv = float(p[keep.index(0)]) if 0 in keep else params.effective_mass
                 radius = params.wheel_radius
-                ok = 2.0 * hw / radius ** 2 <= MAX_RELATIVE_CI * abs(mv)
+                force = 2.0 * hw / radius ** 2 if name == 'friction' else hw
+                ok = force <= MAX_RELATIVE_CI * abs(mv)
+                unit = 'N m s/rad: 2b/r² × 1 m/s' if name == 'friction' else 'N:'
                 estimates[name] = (Estimate(name, value, hw) if ok else Estimate(
-                    name, None, None, f'95 % CI ±{hw:.3g} N m s/rad: 2b/r² uncertain by more '
-                    f'than {MAX_RELATIVE_CI:.0%} of m_v per second'))
+                    name, None, None, f'95 % CI ±{hw:.3g} {unit} uncertain by more than '
+                    f'{MAX_RELATIVE_CI:.0%} of m_v × 1 m/s^2'))
             elif value <= 0.0 or hw > MAX_RELATIVE_CI * abs(value):
                 estimates[name] = Estimate(name, None, None,
                                            f'relative 95 % CI {hw / max(abs(value), 1e-300):.1%}'
@@ -398,7 +446,7 @@ def true_values(params: WipParameters) -> dict[str, float]:
     return {'effective_mass': params.effective_mass, 'mpl': mp * l,
             'pitch_inertia': params.pitch_inertia, 'mpl2': mp * l * l,
             'yaw_inertia_total': params.yaw_inertia_total, 'friction': 0.0,
-            'com_height': l}
+            'rolling_resistance': 0.0, 'com_height': l}
 
 
 def table(result: Identification, truth: Mapping[str, float] | None = None) -> str:
@@ -441,8 +489,49 @@ def model_yaml(overrides: Mapping[str, float], notes: Iterable[str], params_file
     return f'{head}controller_model:\n  parameters:\n{body}'
 
 
-def load_record(path: str | pathlib.Path) -> dict:
-    """Return a record from a bag (directory or .mcap) or a timeseries.npz of scripts/simulate."""
+#: The bag topics a fit reads: default name -> (group, message type).
+BAG_TOPICS = {'/wip/ground_truth': ('truth', 'wip_msgs/msg/GroundTruth'),
+              '/wip/state_estimate': ('estimate', 'wip_msgs/msg/StateEstimate'),
+              '/wip/wheel_torques': ('wheels', 'wip_msgs/msg/WheelTorques'),
+              '/joint_states': ('encoders', 'sensor_msgs/msg/JointState'),
+              '/imu/data': ('imu', 'sensor_msgs/msg/Imu')}
+
+
+def _sensor_converters(wiring):
+    """(encoders, imu) row functions of the ESO node's own conversions for ``wiring``.
+
+    A message they cannot read (the joints absent, no orientation...) gives None: the row
+    is skipped, as the ESO node drops it.
+    """
+    from wip_control.nodes.conversions import InvalidMessage
+    from wip_control.nodes.hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates,
+                                                   mounting_inverse, signed_wheel_angles)
+    inverse = mounting_inverse(wiring.imu_mounting_rpy)
+
+    def encoders(m):
+        try:
+            return signed_wheel_angles(m, wiring.left_joint, wiring.right_joint,
+                                       wiring.left_wheel_sign, wiring.right_wheel_sign)
+        except (InvalidMessage, ValueError, IndexError):
+            return None
+
+    def imu(m):
+        try:
+            pitch, yaw = body_pitch_yaw(m, inverse)
+            return (pitch, yaw, *body_pitch_yaw_rates(m, inverse, pitch))
+        except (InvalidMessage, ValueError):
+            return None
+    return encoders, imu
+
+
+def load_record(path: str | pathlib.Path, wiring=None,
+                remaps: Iterable[tuple[str, str]] = ()) -> dict:
+    """Return a record from a bag (directory or .mcap) or a timeseries.npz of scripts/simulate.
+
+    A bag's /joint_states and /imu/data are read with ``wiring`` (a
+    :class:`wip_tools.run_wiring.Wiring`, default the project's conventions) by the ESO
+    node's own conversions; its topics are found as :func:`run_wiring.sensor_topic` says.
+    """
     path = pathlib.Path(path)
     if not path.exists():
         raise IdentifyError(f'{path}: no such file or directory')
@@ -454,13 +543,61 @@ def load_record(path: str | pathlib.Path) -> dict:
             return RunRecord.load_npz(path)
         except (OSError, ValueError, KeyError) as err:
             raise IdentifyError(f'{path}: not a readable timeseries.npz ({err})') from err
-    from wip_tools.report import ReportError, record_from_bag  # rosbag2
+    from wip_bag.bag_reader import BagReadError, read_topics
+    from wip_tools import report  # rosbag2
+    from wip_tools.run_wiring import sensor_topic, Wiring, WiringError
+    wiring = Wiring() if wiring is None else wiring
     try:
-        record = record_from_bag(path)
-    except ReportError as err:
+        kinds = {name: meta.type_name for name, meta in read_topics(path).items()}
+    except BagReadError as err:
         raise IdentifyError(str(err)) from err
-    return {g: record[g] for g in ('truth', 'estimate', 'wheels', 'encoders', 'imu')
-            if g in record}
+    encoders, imu = _sensor_converters(wiring)
+    convert = dict(report.TOPICS, **{'/joint_states': ('encoders', encoders),
+                                     '/imu/data': ('imu', imu)})
+    topics = {}
+    for default, (group, type_name) in BAG_TOPICS.items():
+        try:
+            name = sensor_topic(default, type_name, kinds, list(remaps))
+        except WiringError as err:
+            raise IdentifyError(str(err)) from err
+        if name is not None:
+            topics[name] = (group, convert[default][1])
+    if not topics:
+        raise IdentifyError(f'{path}: none of the topics {sorted(BAG_TOPICS)} (or of their '
+                            'types) is in the bag')
+    try:
+        record = report.record_from_bag(path, topics)
+    except report.ReportError as err:
+        raise IdentifyError(str(err)) from err
+    out = {g: record[g] for g in ('truth', 'estimate', 'wheels', 'encoders', 'imu')
+           if g in record}
+    return out
+
+
+def run_plant_model(run: str | pathlib.Path) -> str | None:
+    """The plant model of a simulated run's scenario.yaml (in the bag or the run's directory)."""
+    run = pathlib.Path(run)
+    directory = run if run.is_dir() else run.parent
+    for candidate in (directory / 'scenario.yaml', directory.parent / 'scenario.yaml'):
+        if candidate.is_file():
+            try:
+                from wip_sim.core.scenario import load_scenario
+                return load_scenario(candidate).plant.model.model
+            except (ValueError, OSError):
+                return None
+    return None
+
+
+def choose_model(record: Mapping, run: str | pathlib.Path, source: str) -> str:
+    """'paper' or 'full' for ``--model auto``.
+
+    Without ground truth the record is a robot's (or a base's): the full plant's rows. A
+    simulation's rows are those of its plant, from its scenario.yaml ('paper' if none).
+    """
+    if source != 'truth' and not _has(record, 'truth'):
+        return 'full'
+    model = run_plant_model(run)
+    return 'paper' if model in (None, 'paper') else 'full'
 
 
 def main(argv: Iterable[str] | None = None) -> int:
@@ -470,15 +607,25 @@ def main(argv: Iterable[str] | None = None) -> int:
 Examples
 --------
     scripts/identify robot_run/bag --out my_robot.yaml      # a scenario controller_model
-    scripts/identify robot_run/bag --out my_robot_params.yaml --params-file
-    scripts/identify robot_run/bag --model full --friction  # a real robot's rows
+    scripts/identify robot_run/bag --out my_robot_params.yaml --write-params
+    scripts/identify robot_run/bag --params-file my_base.yaml   # the robot's wiring
     scripts/identify out/sim/timeseries.npz --source truth  # a simulated run""")
     parser.add_argument('run', help='rosbag2 directory, .mcap file, or timeseries.npz '
                         '(or a scripts/simulate output directory)')
     parser.add_argument('--out', help='write the identified model here: a scenario '
-                        'controller_model section (.yaml), see --params-file')
-    parser.add_argument('--params-file', action='store_true',
+                        'controller_model section (.yaml), see --write-params')
+    parser.add_argument('--write-params', action='store_true',
                         help='write --out as a ROS params file (/**: model.*) instead')
+    parser.add_argument('--params-file', action='append', default=[], metavar='FILE',
+                        dest='params_files',
+                        help="the robot's ROS params file (joint names, wheel signs, "
+                        'imu_mounting_rpy, encoders_relative_to_body), as given to '
+                        'run_graph; repeatable, later wins; default: the params.yaml the '
+                        'run left in the bag (or beside it)')
+    parser.add_argument('--remap', action='append', default=[], metavar='FROM:=TO',
+                        dest='remaps', help='the bag topic of a sensor topic, as run_graph '
+                        "'s --remap (e.g. /joint_states:=/base/joint_states); default: the "
+                        "bag's only topic of that type")
     parser.add_argument('--source', choices=('auto', 'truth', 'sensors', 'estimate'),
                         default='auto',
                         help='state signals: ground truth (a simulation), the sensors '
@@ -486,18 +633,26 @@ Examples
                         'default: the first of these the run has')
     parser.add_argument('--rolling-encoders', action='store_true',
                         help='the wheel angles are rolling angles (against the ground), not '
-                        'joint angles against the body')
-    parser.add_argument('--model', choices=('paper', 'full'), default='paper',
-                        help="rows to fit: eq. (1) ('paper', what the controllers use) or "
-                        "the full plant's (motor reaction torque, centrifugal and Coriolis "
-                        'terms, yaw gain d/(2r); a real robot)')
-    parser.add_argument('--friction', action='store_true',
-                        help="also fit the wheels' viscous axle friction b (not in eq. (1))")
+                        'joint angles against the body (default: the wiring\'s '
+                        'encoders_relative_to_body)')
+    parser.add_argument('--model', choices=('auto', 'paper', 'full'), default='auto',
+                        help="rows to fit: eq. (1) ('paper') or the full plant's (motor "
+                        'reaction torque, centrifugal and Coriolis terms, yaw gain d/(2r): a '
+                        "robot); auto: 'full' without ground truth, else the simulated "
+                        "plant's (its scenario.yaml)")
+    parser.add_argument('--friction', action=argparse.BooleanOptionalAction, default=None,
+                        help="also fit the wheels' viscous axle friction b and the rolling "
+                        "resistance F_rr (not in eq. (1)); default: with the full rows")
+    parser.add_argument('--motor-lag', type=float, default=0.0, metavar='S',
+                        help='time constant [s] of a first-order lag of the motors behind '
+                        'the torques recorded (default 0; docs/identification.md §7)')
     parser.add_argument('--scenario', help='scenario YAML whose controller_model gives '
                         'the known r, d, g, m_w, J_w (default: the nominal parameters)')
     add_exit_codes(parser)
     args = parser.parse_args(None if argv is None else list(argv))
     try:
+        from wip_tools.run_wiring import (load_wiring, parse_remaps, run_params_files,
+                                          WiringError)
         nominal = WipParameters()
         if args.scenario:
             from wip_control.core.config import ConfigError
@@ -506,16 +661,35 @@ Examples
                 nominal = load_scenario(args.scenario).controller_model.parameters
             except (ConfigError, OSError) as err:
                 raise IdentifyError(f'--scenario {args.scenario}: {err}') from err
-        record = load_record(args.run)
-        result = identify(record, nominal, args.source, args.friction, model=args.model,
-                          encoders_relative_to_body=not args.rolling_encoders)
+        try:
+            files = args.params_files or run_params_files(args.run)
+            wiring = load_wiring(files)
+            remaps = parse_remaps(args.remaps)
+        except WiringError as err:
+            raise IdentifyError(str(err)) from err
+        record = load_record(args.run, wiring, remaps)
+        source = _best_source(record) if args.source == 'auto' else args.source
+        model = choose_model(record, args.run, source) if args.model == 'auto' \
+            else args.model
+        friction = (model == 'full') if args.friction is None else args.friction
+        relative = wiring.encoders_relative_to_body and not args.rolling_encoders
+        try:
+            result = identify(record, nominal, source, friction, model=model,
+                              encoders_relative_to_body=relative,
+                              motor_lag=args.motor_lag)
+        except IdentifyError as err:
+            if source == 'sensors' or 'sensor' in str(err):
+                raise IdentifyError(f'{err}; wiring read: {wiring.describe()}') from err
+            raise
     except IdentifyError as err:
         print(f'ERROR: {" ".join(str(err).split())}', file=sys.stderr)
         return EXIT_USAGE
+    print(f'rows: {model}{" with friction" if friction else ""}'
+          + (f'; sensors read with {wiring.describe()}' if source == 'sensors' else ''))
     print(table(result))
     overrides, notes = to_parameters(result, nominal)
     if args.out:
-        text = model_yaml(overrides, notes, args.params_file)
+        text = model_yaml(overrides, notes, args.write_params)
         try:
             pathlib.Path(args.out).write_text(text, encoding='utf-8')
         except OSError as err:
@@ -523,7 +697,7 @@ Examples
             return EXIT_USAGE
         print(f'wrote {args.out}')
     else:
-        print(model_yaml(overrides, notes, args.params_file), end='')
+        print(model_yaml(overrides, notes, args.write_params), end='')
     return EXIT_OK
 
 
