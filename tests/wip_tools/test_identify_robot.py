@@ -154,7 +154,7 @@ def test_the_mujoco_plant_is_identified_from_its_sensors(seed):
 # ------------------------------------------------- a base's bag, read with its wiring
 
 def _base_bag(directory, record, wiring, namespace='/base'):
-    """A bag of what a base with ``wiring`` publishes for ``record``'s sensor readings.
+    """Write a bag of what a base with ``wiring`` publishes for ``record``'s readings.
 
     /base/joint_states and /base/imu as the stand-in base writes them
     (:class:`wip_sim.standin_base.BaseConventions`), and the controllers'
@@ -238,3 +238,37 @@ def test_a_params_file_given_wins_and_a_wrong_wiring_is_said(tmp_path, capsys):
     true = identify.true_values(scenario.plant.parameters)
     assert fit.value('effective_mass') is None or abs(
         fit.value('effective_mass') / true['effective_mass'] - 1.0) > 0.05
+
+
+# ------------------------------------------- end to end: hardware mode, recorded, real time
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.wallclock
+def test_hardware_mode_against_the_standin_base_recorded_then_identified(tmp_path, capsys):
+    """The shipped excitation run through hardware mode, recorded, then scripts/identify.
+
+    The stand-in base in its own process (full plant, RK4 at 1 kHz, real time) with the
+    robot's plant, sensors and wiring; the controllers as ``scripts/run_graph --mode
+    hardware --params-file controllers.yaml --remap ... --record BAG``; the bag identified
+    with nothing but the bag (its params.yaml gives the wiring, the topics are found by
+    type).
+    """
+    from wip_bringup.standin_run import CONTROL_RATE, run_against_standin
+    data = yaml.safe_load(EXCITATION.read_text())
+    data['plant'] = dict(PLANT, model='full')
+    data.update(seed=1, sensors=SENSORS, rates={'control_rate': CONTROL_RATE},
+                eso={'sample_period': 1.0 / CONTROL_RATE})
+    run = run_against_standin(tmp_path, dict(WIRING), data['duration'], scenario=data,
+                              base_extra=dict(WIRING), record=True)
+    assert run.base_code == 0 and not run.stats['fell'], run.stats['end_reason']
+    bag = tmp_path / 'bag'
+    out = tmp_path / 'model.yaml'
+    assert identify.main([str(bag), '--out', str(out)]) == EXIT_OK
+    printed = capsys.readouterr().out
+    assert 'from sensors' in printed and "'wheel_r_joint' (sign -1)" in printed, printed
+    fit = identify.identify(
+        identify.load_record(bag, run_wiring.load_wiring([bag / 'params.yaml'])),
+        scenario_from_mapping(data).controller_model.parameters, model='full',
+        friction=True)
+    _check(fit, scenario_from_mapping(data))

@@ -62,6 +62,10 @@ CUTOFF_HZ = 1.0
 MAX_CONDITION = 1e4         #: of the column-scaled, weighted regressor matrix
 MAX_RELATIVE_CI = 0.05      #: 95 % half-width / |value| above which a value is not given
 MIN_DURATION_S = 5.0
+#: A gap between two samples of a stream longer than this many sample periods (a stalled
+#: driver, a lost message burst) is not interpolated across: the rows whose filter window
+#: reaches into it are left out.
+MAX_GAP_PERIODS = 3.0
 Z95 = 1.96
 
 
@@ -89,14 +93,19 @@ class Identification:
         return self.estimates[name].value
 
 
+def _kernel_half(dt: float, cutoff_hz: float) -> tuple[float, int]:
+    """(σ [s], half-width [samples]) of :func:`gaussian_lowpass`'s kernel."""
+    sigma_t = math.sqrt(math.log(2.0)) / (2.0 * math.pi * cutoff_hz)   # |H| = 1/√2 at fc
+    return sigma_t, max(1, int(math.ceil(4.0 * sigma_t / dt)))
+
+
 def gaussian_lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:
     """Zero-phase low-pass: convolution with a Gaussian.
 
     The Gaussian's −3 dB point is ``cutoff_hz``. It is pure numpy, with a symmetric kernel
     so that there is no phase lag between regressors and torques.
     """
-    sigma_t = math.sqrt(math.log(2.0)) / (2.0 * math.pi * cutoff_hz)   # |H| = 1/√2 at fc
-    half = max(1, int(math.ceil(4.0 * sigma_t / dt)))
+    sigma_t, half = _kernel_half(dt, cutoff_hz)
     k = np.exp(-0.5 * (np.arange(-half, half + 1) * dt / sigma_t) ** 2)
     k /= k.sum()
     return np.convolve(x, k, mode='same')
@@ -161,8 +170,10 @@ def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters()
     """
     if source == 'sensors':
         group = _sensor_group(record, wheel_radius, encoders_relative_to_body)
+        streams = [record['encoders']['t'], record['imu']['t']]
     else:
         group = record[source] if source in record else None
+        streams = [group['t']] if group is not None else []
     if group is None or len(group['t']) == 0:
         raise IdentifyError(f'no {source} samples (topic /wip/ground_truth or '
                             '/wip/state_estimate missing)')
@@ -174,6 +185,7 @@ def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters()
         wheels = record['wheels'] if 'wheels' in record else None
         if wheels is None or len(wheels['t']) < 2:
             raise IdentifyError('no wheel torques (topic /wip/wheel_torques missing)')
+        streams.append(wheels['t'])
         idx = np.clip(np.searchsorted(wheels['t'], t, side='right') - 1, 0,
                       len(wheels['t']) - 1)
         tl, tr = np.asarray(wheels['tau_left'])[idx], np.asarray(wheels['tau_right'])[idx]
@@ -196,7 +208,20 @@ def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters()
             not np.allclose(grid, t) else values
     for name in ('tau_left', 'tau_right'):
         out[name] = motor_lagged(out[name], dt, motor_lag)
+    out['valid'] = _without_gaps(grid, streams, MAX_GAP_PERIODS * dt)
     return out
+
+
+def _without_gaps(grid: np.ndarray, streams: Iterable[np.ndarray], gap: float) -> np.ndarray:
+    """Whether each grid time lies between two samples of every stream at most ``gap`` apart."""
+    valid = np.ones(len(grid), dtype=bool)
+    for t in streams:
+        t = np.asarray(t, dtype=float)
+        if len(t) < 2:
+            continue
+        i = np.clip(np.searchsorted(t, grid, side='right'), 1, len(t) - 1)
+        valid &= (t[i] - t[i - 1] <= gap) | (grid < t[0]) | (grid > t[-1])
+    return valid
 
 
 def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
@@ -244,6 +269,12 @@ def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
     yaw = np.stack([z, full * s * v * om, z, s * s * omd + 2.0 * s * c * thd * om, omd,
                     yaw_gain * d * om / r, 0.5 * yaw_gain * r * (sign_r - sign_l)], axis=1)
     ys = (tau_v / r, -full * tau_v, yaw_gain * tau_w)
+    # Rows whose filter window reaches a gap in the data are left out (after filtering:
+    # the filter needs the uniform grid).
+    valid = np.asarray(sig.get('valid', np.ones(len(sig['t']), dtype=bool)))
+    bad = ~(valid[1:] & valid[:-1])
+    half = _kernel_half(dt, cutoff_hz)[1]
+    keep_rows = np.convolve(bad.astype(float), np.ones(2 * half + 1), mode='same') == 0.0
     blocks, outs = [], []
     for a, y in zip((lon, pitch, yaw), ys):
         af = np.stack([gaussian_lowpass(a[:, j], dt, cutoff_hz) for j in range(a.shape[1])],
@@ -251,8 +282,9 @@ def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
         yf = gaussian_lowpass(y, dt, cutoff_hz)
         # Drop the filter's edges (the kernel runs off the record there).
         edge = min(len(yf) // 4, int(math.ceil(1.0 / (cutoff_hz * dt))))
-        blocks.append(af[edge:len(af) - edge])
-        outs.append(yf[edge:len(yf) - edge])
+        rows = keep_rows[edge:len(yf) - edge]
+        blocks.append(af[edge:len(af) - edge][rows])
+        outs.append(yf[edge:len(yf) - edge][rows])
     excitation = {'v_dot': _rms(gaussian_lowpass(vd, dt, cutoff_hz)),
                   'theta_ddot': _rms(gaussian_lowpass(thdd, dt, cutoff_hz)),
                   'omega_dot': _rms(gaussian_lowpass(omd, dt, cutoff_hz)),
@@ -498,7 +530,7 @@ BAG_TOPICS = {'/wip/ground_truth': ('truth', 'wip_msgs/msg/GroundTruth'),
 
 
 def _sensor_converters(wiring):
-    """(encoders, imu) row functions of the ESO node's own conversions for ``wiring``.
+    """Return the (encoders, imu) row functions: the ESO node's conversions for ``wiring``.
 
     A message they cannot read (the joints absent, no orientation...) gives None: the row
     is skipped, as the ESO node drops it.
@@ -575,7 +607,7 @@ def load_record(path: str | pathlib.Path, wiring=None,
 
 
 def run_plant_model(run: str | pathlib.Path) -> str | None:
-    """The plant model of a simulated run's scenario.yaml (in the bag or the run's directory)."""
+    """Return the plant model of a simulated run's scenario.yaml (in the bag or beside it)."""
     run = pathlib.Path(run)
     directory = run if run.is_dir() else run.parent
     for candidate in (directory / 'scenario.yaml', directory.parent / 'scenario.yaml'):
@@ -633,7 +665,7 @@ Examples
                         'default: the first of these the run has')
     parser.add_argument('--rolling-encoders', action='store_true',
                         help='the wheel angles are rolling angles (against the ground), not '
-                        'joint angles against the body (default: the wiring\'s '
+                        "joint angles against the body (default: the wiring's "
                         'encoders_relative_to_body)')
     parser.add_argument('--model', choices=('auto', 'paper', 'full'), default='auto',
                         help="rows to fit: eq. (1) ('paper') or the full plant's (motor "
