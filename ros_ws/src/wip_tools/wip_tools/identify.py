@@ -59,6 +59,9 @@ MIN_EXCITATION = {'v_dot': 0.02, 'theta_ddot': 0.02, 'omega_dot': 0.02, 'omega_s
 #: 0.01 rad/s) 4 Hz gave m_v 10 % low from the sensors, 1 Hz within 1.5 %
 #: (docs/identification.md §5).
 CUTOFF_HZ = 1.0
+#: A sample whose filtered residual in any row is beyond this many robust standard
+#: deviations (1.4826 × the median absolute residual) is left out of the fit.
+REJECT_SIGMAS = 5.0
 MAX_CONDITION = 1e4         #: of the column-scaled, weighted regressor matrix
 MAX_RELATIVE_CI = 0.05      #: 95 % half-width / |value| above which a value is not given
 MIN_DURATION_S = 5.0
@@ -88,6 +91,8 @@ class Identification:
     residual_rms: dict[str, float]   # per equation, in its own units (N, N m, N m)
     samples: int
     source: str
+    #: Fraction of the samples left out as outliers (REJECT_SIGMAS).
+    rejected: float = 0.0
 
     def value(self, name: str) -> float | None:
         return self.estimates[name].value
@@ -191,6 +196,17 @@ def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters()
         tl, tr = np.asarray(wheels['tau_left'])[idx], np.asarray(wheels['tau_right'])[idx]
     cols = {'theta': group['theta'], 'theta_dot': group['theta_dot'], 'v': group['v'],
             'omega': group['omega'], 'tau_left': tl, 'tau_right': tr}
+    if source != 'truth':
+        # Only while the controllers drove the wheels: between the first and the last
+        # non-zero torque, within the torques' record. Before it a robot is held (a hand's
+        # forces are not in the model; a stand-in base is frozen), after it it is stopped
+        # or caught; outside the record the torque is not known.
+        w_t = np.asarray(wheels['t'], dtype=float)
+        driven = (np.asarray(tl) != 0.0) | (np.asarray(tr) != 0.0)
+        active = np.flatnonzero(driven & (t >= w_t[0]) & (t <= w_t[-1]))
+        span = slice(active[0], active[-1] + 1) if len(active) else slice(0, 0)
+        t = t[span]
+        cols = {name: np.asarray(values)[span] for name, values in cols.items()}
     if len(t) < 3 or t[-1] - t[0] < MIN_DURATION_S:
         raise IdentifyError(f'too little data: {len(t)} samples over '
                             f'{max(0.0, t[-1] - t[0]) if len(t) else 0.0:.2f} s '
@@ -375,21 +391,32 @@ def identify(record: Mapping, params: WipParameters | None = None, source: str =
         sol, *_ = np.linalg.lstsq(a[:, keep], y, rcond=None)
         mpl2_fixed = float(sol[keep.index(1)]) * params.com_height
         y = y - a[:, 3] * (mpl2_fixed - nominal['mpl2'])
+    inlier = np.ones(n, dtype=bool)
     if keep:
-        # Two passes: ordinary LS, then each equation weighted by 1/its residual RMS (the
-        # rows are in different units: N, N·m, N·m).
+        # Passes: ordinary LS, then each equation weighted by 1/its residual RMS (the rows
+        # are in different units: N, N·m, N·m), then twice without the samples whose
+        # residual in any row is beyond REJECT_SIGMAS robust standard deviations (what the
+        # model does not describe: a hand, a bump, a stalled driver's aftermath).
         w = np.ones(3)
-        for _ in range(2):
-            aw = a[:, keep] * np.repeat(w, n)[:, None]
-            yw = y * np.repeat(w, n)
+        for pass_ in range(4):
+            rows = np.tile(inlier, 3)
+            aw = (a[:, keep] * np.repeat(w, n)[:, None])[rows]
+            yw = (y * np.repeat(w, n))[rows]
             scale = np.linalg.norm(aw, axis=0)
             scale[scale == 0.0] = 1.0
             sol, *_ = np.linalg.lstsq(aw / scale, yw, rcond=None)
             p = sol / scale
             res = y - a[:, keep] @ p
-            rms = np.array([_rms(res[i * n:(i + 1) * n]) for i in range(3)])
+            blocks = [res[i * n:(i + 1) * n] for i in range(3)]
+            rms = np.array([_rms(b[inlier]) for b in blocks])
             floor = max(1e-12, 1e-9 * _rms(y))
             w = 1.0 / np.maximum(rms, floor)
+            if pass_ >= 1:
+                sigma = [1.4826 * float(np.median(np.abs(b[inlier]))) for b in blocks]
+                inlier = np.all([np.abs(b) <= REJECT_SIGMAS * max(sd, floor)
+                                 for b, sd in zip(blocks, sigma)], axis=0)
+                if inlier.sum() < max(10, n // 2):     # not outliers: the model is wrong
+                    inlier = np.ones(n, dtype=bool)
         condition = float(np.linalg.cond(aw / scale))
         residual_rms = dict(zip(('forward', 'pitch', 'yaw'), map(float, rms)))
         # Covariance from the weighted residual variance and (AᵀA)⁻¹. The filtered
@@ -437,7 +464,8 @@ def identify(record: Mapping, params: WipParameters | None = None, source: str =
     else:
         estimates['com_height'] = Estimate('com_height', None, None,
                                            'needs m_p l and m_p l^2')
-    return Identification(estimates, condition, residual_rms, n, source)
+    return Identification(estimates, condition, residual_rms, n, source,
+                          float(1.0 - inlier.mean()))
 
 
 def to_parameters(result: Identification, nominal: WipParameters) -> tuple[dict, list[str]]:
@@ -482,7 +510,8 @@ def true_values(params: WipParameters) -> dict[str, float]:
 
 
 def table(result: Identification, truth: Mapping[str, float] | None = None) -> str:
-    lines = [f'identify: {result.samples} samples per equation from {result.source}; '
+    lines = [f'identify: {result.samples} samples per equation from {result.source} '
+             f'({result.rejected:.1%} left out as outliers); '
              f'condition number {result.condition:.3g}; residual RMS forward '
              f'{result.residual_rms["forward"]:.3g} N, pitch {result.residual_rms["pitch"]:.3g}'
              f' N m, yaw {result.residual_rms["yaw"]:.3g} N m']
@@ -537,7 +566,8 @@ def _sensor_converters(wiring):
     """
     from wip_control.nodes.conversions import InvalidMessage
     from wip_control.nodes.hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates,
-                                                   mounting_inverse, signed_wheel_angles)
+                                                   mounting_inverse, signed_efforts,
+                                                   signed_wheel_angles)
     inverse = mounting_inverse(wiring.imu_mounting_rpy)
 
     def encoders(m):
@@ -553,17 +583,42 @@ def _sensor_converters(wiring):
             return (pitch, yaw, *body_pitch_yaw_rates(m, inverse, pitch))
         except (InvalidMessage, ValueError):
             return None
-    return encoders, imu
+
+    def efforts(m):
+        # The joints' effort state, in their own signs: the sign maps both ways.
+        names = list(m.name)
+        if len(m.effort) != len(names) or wiring.left_joint not in names or \
+                wiring.right_joint not in names:
+            return None
+        left = float(m.effort[names.index(wiring.left_joint)])
+        right = float(m.effort[names.index(wiring.right_joint)])
+        if not math.isfinite(left + right):
+            return None
+        return signed_efforts(left, right, wiring.left_wheel_sign, wiring.right_wheel_sign)
+    return encoders, imu, efforts
+
+
+#: Where a bag's wheel torques come from (``torques``): the base's joint effort state, or
+#: the controllers' commands.
+TORQUE_SOURCES = ('auto', 'efforts', 'commands')
 
 
 def load_record(path: str | pathlib.Path, wiring=None,
-                remaps: Iterable[tuple[str, str]] = ()) -> dict:
+                remaps: Iterable[tuple[str, str]] = (), torques: str = 'auto') -> dict:
     """Return a record from a bag (directory or .mcap) or a timeseries.npz of scripts/simulate.
 
     A bag's /joint_states and /imu/data are read with ``wiring`` (a
     :class:`wip_tools.run_wiring.Wiring`, default the project's conventions) by the ESO
     node's own conversions; its topics are found as :func:`run_wiring.sensor_topic` says.
+    ``torques``: the wheels group from the JointState efforts ('efforts': what the motors
+    applied, the effort of a sample taken as the torque over the period that ended at
+    it), from /wip/wheel_torques ('commands': stamped with the sensor sample they answer,
+    so they lag the motors by the controllers' latency and the motor lag), or 'auto'
+    (efforts where the base reports non-zero ones). The record's ``torque_source`` says
+    which.
     """
+    if torques not in TORQUE_SOURCES:
+        raise IdentifyError(f'torques {torques!r}: expected one of {list(TORQUE_SOURCES)}')
     path = pathlib.Path(path)
     if not path.exists():
         raise IdentifyError(f'{path}: no such file or directory')
@@ -583,7 +638,7 @@ def load_record(path: str | pathlib.Path, wiring=None,
         kinds = {name: meta.type_name for name, meta in read_topics(path).items()}
     except BagReadError as err:
         raise IdentifyError(str(err)) from err
-    encoders, imu = _sensor_converters(wiring)
+    encoders, imu, efforts = _sensor_converters(wiring)
     convert = dict(report.TOPICS, **{'/joint_states': ('encoders', encoders),
                                      '/imu/data': ('imu', imu)})
     topics = {}
@@ -603,6 +658,28 @@ def load_record(path: str | pathlib.Path, wiring=None,
         raise IdentifyError(str(err)) from err
     out = {g: record[g] for g in ('truth', 'estimate', 'wheels', 'encoders', 'imu')
            if g in record}
+    out['torque_source'] = 'commands'
+    joint_topic = next((n for n, (g, _) in topics.items() if g == 'encoders'), None)
+    if torques != 'commands' and joint_topic is not None:
+        try:
+            applied = report.record_from_bag(path, {joint_topic: ('wheels', efforts)})
+        except report.ReportError:
+            applied = None
+        wheels = applied['wheels'] if applied is not None else None
+        usable = wheels is not None and len(wheels['t']) > 2 and (
+            np.any(wheels['tau_left'] != 0.0) or np.any(wheels['tau_right'] != 0.0))
+        if usable:
+            # The same time origin as the rest; each effort acted over the period that
+            # ended at its sample: it is stamped with the sample before.
+            t = wheels['t'] + (applied.attributes['time_origin_ns']
+                               - record.attributes['time_origin_ns']) * 1e-9
+            period = float(np.median(np.diff(t)))
+            out['wheels'] = {'t': np.concatenate([[t[0] - period], t[:-1]]),
+                             'tau_left': wheels['tau_left'], 'tau_right': wheels['tau_right']}
+            out['torque_source'] = 'efforts'
+        elif torques == 'efforts':
+            raise IdentifyError(f'{joint_topic}: no effort of both wheel joints (the base '
+                                'does not report its effort state); use the commands')
     return out
 
 
@@ -675,6 +752,11 @@ Examples
     parser.add_argument('--friction', action=argparse.BooleanOptionalAction, default=None,
                         help="also fit the wheels' viscous axle friction b and the rolling "
                         "resistance F_rr (not in eq. (1)); default: with the full rows")
+    parser.add_argument('--torques', choices=TORQUE_SOURCES, default='auto',
+                        help="a bag's wheel torques: the joints' effort state on "
+                        "/joint_states (what the motors applied), the controllers' commands "
+                        "(/wip/wheel_torques), or auto: the efforts where the base reports "
+                        'them')
     parser.add_argument('--motor-lag', type=float, default=0.0, metavar='S',
                         help='time constant [s] of a first-order lag of the motors behind '
                         'the torques recorded (default 0; docs/identification.md §7)')
@@ -699,7 +781,7 @@ Examples
             remaps = parse_remaps(args.remaps)
         except WiringError as err:
             raise IdentifyError(str(err)) from err
-        record = load_record(args.run, wiring, remaps)
+        record = load_record(args.run, wiring, remaps, args.torques)
         source = _best_source(record) if args.source == 'auto' else args.source
         model = choose_model(record, args.run, source) if args.model == 'auto' \
             else args.model
@@ -716,7 +798,10 @@ Examples
     except IdentifyError as err:
         print(f'ERROR: {" ".join(str(err).split())}', file=sys.stderr)
         return EXIT_USAGE
-    print(f'rows: {model}{" with friction" if friction else ""}'
+    torque_source = record.get('torque_source', 'commands') if isinstance(record, dict) \
+        else 'commands'
+    print(f'rows: {model}{" with friction" if friction else ""}; torques: '
+          + ('the joint efforts' if torque_source == 'efforts' else 'the commands')
           + (f'; sensors read with {wiring.describe()}' if source == 'sensors' else ''))
     print(table(result))
     overrides, notes = to_parameters(result, nominal)

@@ -89,6 +89,8 @@ class Simulation:
                           if lag > 0.0 else None)
         #: (τl, τr) [N m] the motors apply now (the lag's state).
         self.applied = (0.0, 0.0)
+        #: (τl, τr) [N m] the plant was given over the last period (after the lag).
+        self.last_torques = (0.0, 0.0)
 
     def fallen(self) -> bool:
         """|θ| at or past the scenario's ``fall_threshold``."""
@@ -129,6 +131,7 @@ class Simulation:
                             tau_right + (a_right - tau_right) * decay)
             tau_left = tau_left + (a_left - tau_left) * mean
             tau_right = tau_right + (a_right - tau_right) * mean
+        self.last_torques = (tau_left, tau_right)
         state = self._hold(self.state, tau_left, tau_right, self._blocks.rows(k)[0],
                            self.dt_plant)
         # One sum (a NaN or inf propagates), each value only if that is not finite.
