@@ -24,15 +24,11 @@ from wip_tools import identify, run_wiring
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 EXCITATION = ROOT / 'scenarios' / 'identification_excitation.yaml'
+#: The excitation run on a real robot's plant and sensors: 8 ms motor lag, axle friction,
+#: a body 15 % heavier (25 -> 28.75 kg), IMU noise, 4096-count encoders on the body.
+ROBOT = ROOT / 'scenarios' / 'identification_standin_robot.yaml'
 DETERMINED = ('effective_mass', 'mpl', 'pitch_inertia', 'yaw_inertia_total')
 SEEDS = (1, 2, 3)
-#: A real robot's sensors: IMU noise, 4096-count encoders on the body (the default).
-SENSORS = {'imu_pitch_noise_std': 0.002, 'imu_yaw_noise_std': 0.002, 'gyro_noise_std': 0.01,
-           'gps_noise_std': 0.02, 'encoder_counts_per_rev': 4096,
-           'encoders_relative_to_body': True}
-#: Its plant: 8 ms motor lag, axle friction, a body 15 % heavier (25 -> 28.75 kg).
-PLANT = {'wheel_friction': 0.05, 'motor_time_constant': 0.008,
-         'parameters': {'body_mass': 28.75}}
 #: Its wiring: joints of its own listed [right, left], the right motor mirrored, the IMU
 #: yawed by pi (what the ESO node is given, and what the base publishes with).
 WIRING = {'left_joint': 'wheel_l_joint', 'right_joint': 'wheel_r_joint',
@@ -45,9 +41,9 @@ _RUNS = {}
 def _robot_run(model, seed):
     key = (model, seed)
     if key not in _RUNS:
-        data = yaml.safe_load(EXCITATION.read_text())
-        data['plant'] = dict(PLANT, model=model)
-        data.update(seed=seed, sensors=SENSORS)
+        data = yaml.safe_load(ROBOT.read_text())
+        data['plant']['model'] = model
+        data['seed'] = seed
         scenario = scenario_from_mapping(data)
         _RUNS[key] = (scenario, run_scenario(scenario))
     return _RUNS[key]
@@ -128,6 +124,9 @@ def test_the_motor_lag_model_is_the_plants():
 @pytest.mark.parametrize('seed', SEEDS)
 def test_the_full_plant_of_a_real_robot_is_identified_from_its_sensors(seed):
     scenario, result = _robot_run('full', seed)
+    excitation = scenario_from_mapping(yaml.safe_load(EXCITATION.read_text()))
+    assert (scenario.reference, scenario.duration) == (excitation.reference,
+                                                       excitation.duration)
     assert not result.fell
     record = {g: result.record[g] for g in ('wheels', 'encoders', 'imu')}
     fit = identify.identify(record, scenario.controller_model.parameters, model='full',
@@ -255,9 +254,8 @@ def test_hardware_mode_against_the_standin_base_recorded_then_identified(tmp_pat
     type).
     """
     from wip_bringup.standin_run import CONTROL_RATE, run_against_standin
-    data = yaml.safe_load(EXCITATION.read_text())
-    data['plant'] = dict(PLANT, model='full')
-    data.update(seed=1, sensors=SENSORS, rates={'control_rate': CONTROL_RATE},
+    data = yaml.safe_load(ROBOT.read_text())
+    data.update(seed=1, rates={'control_rate': CONTROL_RATE},
                 eso={'sample_period': 1.0 / CONTROL_RATE})
     run = run_against_standin(tmp_path, dict(WIRING), data['duration'], scenario=data,
                               base_extra=dict(WIRING), record=True)
