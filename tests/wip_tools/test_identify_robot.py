@@ -270,3 +270,29 @@ def test_hardware_mode_against_the_standin_base_recorded_then_identified(tmp_pat
         scenario_from_mapping(data).controller_model.parameters, model='full',
         friction=True)
     _check(fit, scenario_from_mapping(data))
+
+
+@pytest.mark.parametrize('args', [['--params-file', 'absent.yaml'], ['--remap', 'joint_states'],
+                                  ['--motor-lag', '-0.1'], ['--params-file', 'bad.yaml']])
+def test_bad_wiring_arguments_are_one_line_and_exit_2(tmp_path, capsys, args, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / 'bad.yaml').write_text('/**:\n  ros__parameters:\n    left_wheel_sign: 0\n')
+    scenario, result = _robot_run('full', 1)
+    result.record.save_npz(tmp_path / 'timeseries.npz')
+    assert identify.main([str(tmp_path / 'timeseries.npz'), *args]) == EXIT_USAGE
+    err = capsys.readouterr().err.strip()
+    assert err.startswith('ERROR: ') and '\n' not in err, err
+
+
+@pytest.mark.ros
+def test_the_real_time_tests_base_wiring_is_read_too(tmp_path):
+    # The stand-in base of the real-time tests: joints wheel_l/wheel_r listed right first,
+    # the LEFT joint's sign -1, an IMU upside down and turned a quarter turn.
+    from wip_bringup.standin_run import BASE
+    scenario, result = _robot_run('full', 2)
+    bag = _base_bag(tmp_path / 'bag', result.record, BASE, namespace='/robot1')
+    _params(bag / 'params.yaml', {'/**': dict(BASE)})
+    fit = identify.identify(
+        identify.load_record(bag, run_wiring.load_wiring([bag / 'params.yaml'])),
+        scenario.controller_model.parameters, model='full', friction=True)
+    _check(fit, scenario)
