@@ -11,13 +11,17 @@ wip_sim/core/plant.py, multiplied out; τυ = τl + τr, τω = τr − τl, REP
     J_ϕ ω̇ + m_p l² (sin²θ ω̇ + sin2θ θ̇ ω)           [+ (d/r) b d ω / r] = (d / r) τω
 
 with b the wheels' viscous axle friction (``--friction``; a torque −b × the wheel's rate
-against the body, as wip_sim/core/plant.py's ``wheel_friction``),
+against the body, as wip_sim/core/plant.py's ``wheel_friction``) and, also with
+``--friction``, the rolling resistance F_rr (a ground torque on each wheel against its
+rolling: forward and yaw rows only),
 
-linear in p = (m_v, m_p l, J_θ, m_p l², J_ϕ [, b]) with r, d and g known. The three rows
-are stacked and solved by weighted linear least squares on low-pass-filtered signals; see
-docs/identification.md for the regressors, the method, the assumptions and the limits.
-Reads a rosbag2 directory (or .mcap) through wip_tools.report.record_from_bag, or a
-record saved as timeseries.npz (scripts/simulate --out). Exit codes: wip_control.tools.cli.
+linear in p = (m_v, m_p l, J_θ, m_p l², J_ϕ [, b, F_rr]) with r, d and g known. The three
+rows are stacked and solved by weighted linear least squares on low-pass-filtered
+signals, outliers left out; see docs/identification.md for the regressors, the method,
+the assumptions and the limits. Reads a rosbag2 directory (or .mcap) through
+wip_tools.report.record_from_bag, a robot's sensors with its wiring
+(:mod:`wip_tools.run_wiring`), or a record saved as timeseries.npz (scripts/simulate
+--out). Exit codes: wip_control.tools.cli.
 """
 
 from __future__ import annotations
