@@ -55,7 +55,9 @@ graph shows (a base on another domain or discovery range shows none of them).
 
 Outputs in OUT: ``params.yaml``, ``scenario.yaml``, ``logs/``, ``run.json`` (exit status,
 start-up timeline, safety events, node rates, CPU time and last /diagnostics of every
-node).
+node). With ``--record BAG``, also ``BAG/scenario.yaml`` and ``BAG/params.yaml``: the
+parameters each node had, every ``--params-file`` merged in (``scripts/identify`` reads
+the robot's wiring from it).
 
 Exit status (``wip_control.tools.cli``): 0 the controllers engaged and the run ended without
 a safety fault, stopped by SIGINT, SIGTERM or SIGHUP (the end of a run without
@@ -379,7 +381,23 @@ class HardwareRunner(RunnerBase):
         view = self.view_parameters(self.scenario.controller_model.parameters)
         path.write_text(header + yaml.dump({**self.generated, **view}, Dumper=_NoAliasDumper,
                                            sort_keys=False, width=99), encoding='utf-8')
+        # What each node ran with, the --params-file files merged in: the bag keeps it,
+        # so that offline tools read the robot's wiring (joints, signs, IMU mounting).
+        effective = {node: {'ros__parameters': node_parameters(node, self.generated,
+                                                               self.extra, self.namespace)}
+                     for node in self.generated}
+        self.run_parameters_text = (
+            '# ROS parameters each controller node of this hardware-mode run had: the '
+            'generated ones\n# with every --params-file merged in (written by '
+            'wip_bringup.hardware).\n' + yaml.dump(effective, Dumper=_NoAliasDumper,
+                                                  sort_keys=False, width=99))
         return path
+
+    def finish(self, result: RunResult) -> None:
+        super().finish(result)
+        text = getattr(self, 'run_parameters_text', None)
+        if text and self.bag_created and self.bag.is_dir():
+            self.write_output(result, self.bag / 'params.yaml', text)
 
     def extra_arguments(self, name: str) -> tuple[list[str], list[str]]:
         """Every --params-file after the generated one, every --remap, for every node."""

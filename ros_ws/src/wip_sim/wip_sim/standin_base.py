@@ -16,7 +16,9 @@ Publishes
     ``/joint_states`` (sensor_msgs/JointState): the wheel joints in the order of ``joints``,
     position [rad] and velocity [rad/s] in each JOINT's own sign convention
     (``left_wheel_sign``, ``right_wheel_sign``: −1 for a joint whose positive direction
-    rolls the robot backwards), effort [N m] = the command applied;
+    rolls the robot backwards), effort [N m] = the torque the motor applied over the
+    period that ended at the sample (the command held, after the scenario's
+    ``plant.motor_time_constant``), as a motor driver's effort state reports it;
     ``/imu/data`` (sensor_msgs/Imu, frame ``imu_frame``): the orientation of the IMU frame
     in ENU (REP 145), q_imu = q_body ⊗ q_mount with q_mount from ``imu_mounting_rpy``
     (the same convention as the eso node's parameter, see
@@ -403,7 +405,8 @@ class StandinBase(Node):
         # Delays, noise and bias: the runner's readings of this tick.
         reading = self.sim.read_sensors(self.k)
         joint, imu = self._joint_msg, self._imu_msg
-        self.conventions.fill(joint, imu, reading.encoders, reading.wheel_rates, self.tau,
+        applied = self.sim.last_torques if self.steps else self.tau
+        self.conventions.fill(joint, imu, reading.encoders, reading.wheel_rates, applied,
                               *reading.imu, *reading.imu_rates, self.gravity)
         joint.header.stamp.sec, joint.header.stamp.nanosec = sec, nanosec
         imu.header.stamp.sec, imu.header.stamp.nanosec = sec, nanosec

@@ -1,6 +1,7 @@
 """Fit the identifiable parameters of the paper's model (1) to a recorded run.
 
-    scripts/identify BAG_OR_RECORD [--out FILE] [--write-params] [--source SOURCE]
+    scripts/identify BAG_OR_RECORD [--out FILE] [--write-params] [--params-file FILE]
+                     [--source SOURCE] [--model auto|paper|full]
 
 Model (1) of Yue, An, Li (2016), written in its Euler-Lagrange form (the paper plant of
 wip_sim/core/plant.py, multiplied out; τυ = τl + τr, τω = τr − τl, REP 103)::
@@ -10,13 +11,17 @@ wip_sim/core/plant.py, multiplied out; τυ = τl + τr, τω = τr − τl, REP
     J_ϕ ω̇ + m_p l² (sin²θ ω̇ + sin2θ θ̇ ω)           [+ (d/r) b d ω / r] = (d / r) τω
 
 with b the wheels' viscous axle friction (``--friction``; a torque −b × the wheel's rate
-against the body, as wip_sim/core/plant.py's ``wheel_friction``),
+against the body, as wip_sim/core/plant.py's ``wheel_friction``) and, also with
+``--friction``, the rolling resistance F_rr (a ground torque on each wheel against its
+rolling: forward and yaw rows only),
 
-linear in p = (m_v, m_p l, J_θ, m_p l², J_ϕ [, b]) with r, d and g known. The three rows
-are stacked and solved by weighted linear least squares on low-pass-filtered signals; see
-docs/identification.md for the regressors, the method, the assumptions and the limits.
-Reads a rosbag2 directory (or .mcap) through wip_tools.report.record_from_bag, or a
-record saved as timeseries.npz (scripts/simulate --out). Exit codes: wip_control.tools.cli.
+linear in p = (m_v, m_p l, J_θ, m_p l², J_ϕ [, b, F_rr]) with r, d and g known. The three
+rows are stacked and solved by weighted linear least squares on low-pass-filtered
+signals, outliers left out; see docs/identification.md for the regressors, the method,
+the assumptions and the limits. Reads a rosbag2 directory (or .mcap) through
+wip_tools.report.record_from_bag, a robot's sensors with its wiring
+(:mod:`wip_tools.run_wiring`), or a record saved as timeseries.npz (scripts/simulate
+--out). Exit codes: wip_control.tools.cli.
 """
 
 from __future__ import annotations
@@ -34,11 +39,20 @@ from wip_control.core.params import WipParameters
 from wip_control.tools.cli import add_exit_codes, EXIT_OK, EXIT_USAGE, exit_with
 
 #: The fitted parameters, in the column order of the regressor matrix.
-NAMES = ('effective_mass', 'mpl', 'pitch_inertia', 'mpl2', 'yaw_inertia_total', 'friction')
+NAMES = ('effective_mass', 'mpl', 'pitch_inertia', 'mpl2', 'yaw_inertia_total', 'friction',
+         'rolling_resistance')
 SYMBOLS = {'effective_mass': 'm_v [kg]', 'mpl': 'm_p l [kg m]',
            'pitch_inertia': 'J_theta [kg m^2]', 'mpl2': 'm_p l^2 [kg m^2]',
            'yaw_inertia_total': 'J_phi [kg m^2]', 'friction': 'b [N m s/rad]',
-           'com_height': 'l = m_p l^2 / m_p l [m]'}
+           'rolling_resistance': 'F_rr [N]', 'com_height': 'l = m_p l^2 / m_p l [m]'}
+#: The friction columns (``friction=True``): viscous axle friction b, rolling resistance.
+FRICTION = ('friction', 'rolling_resistance')
+#: Wheel ground speed [m/s] at which the rolling resistance's sign is tanh(1) = 0.76 of its
+#: full value: a smooth sign, so that encoder noise about a standstill does not toggle it.
+SIGN_SPEED = 0.02
+#: Low-pass [Hz] of the wheel speeds whose sign the rolling resistance takes (the raw speed
+#: from quantised encoders is noisy to about 0.05 m/s at 200 Hz).
+SIGN_CUTOFF_HZ = 5.0
 #: Smallest RMS excitation [SI] of a regressor signal that counts (about what an IMU and
 #: the wheel encoders resolve after the filter): below it the column is noise.
 MIN_EXCITATION = {'v_dot': 0.02, 'theta_ddot': 0.02, 'omega_dot': 0.02, 'omega_sq': 0.005}
@@ -49,9 +63,16 @@ MIN_EXCITATION = {'v_dot': 0.02, 'theta_ddot': 0.02, 'omega_dot': 0.02, 'omega_s
 #: 0.01 rad/s) 4 Hz gave m_v 10 % low from the sensors, 1 Hz within 1.5 %
 #: (docs/identification.md §5).
 CUTOFF_HZ = 1.0
+#: A sample whose filtered residual in any row is beyond this many robust standard
+#: deviations (1.4826 × the median absolute residual) is left out of the fit.
+REJECT_SIGMAS = 5.0
 MAX_CONDITION = 1e4         #: of the column-scaled, weighted regressor matrix
 MAX_RELATIVE_CI = 0.05      #: 95 % half-width / |value| above which a value is not given
 MIN_DURATION_S = 5.0
+#: A gap between two samples of a stream longer than this many sample periods (a stalled
+#: driver, a lost message burst) is not interpolated across: the rows whose filter window
+#: reaches into it are left out.
+MAX_GAP_PERIODS = 3.0
 Z95 = 1.96
 
 
@@ -74,9 +95,17 @@ class Identification:
     residual_rms: dict[str, float]   # per equation, in its own units (N, N m, N m)
     samples: int
     source: str
+    #: Fraction of the samples left out as outliers (REJECT_SIGMAS).
+    rejected: float = 0.0
 
     def value(self, name: str) -> float | None:
         return self.estimates[name].value
+
+
+def _kernel_half(dt: float, cutoff_hz: float) -> tuple[float, int]:
+    """(σ [s], half-width [samples]) of :func:`gaussian_lowpass`'s kernel."""
+    sigma_t = math.sqrt(math.log(2.0)) / (2.0 * math.pi * cutoff_hz)   # |H| = 1/√2 at fc
+    return sigma_t, max(1, int(math.ceil(4.0 * sigma_t / dt)))
 
 
 def gaussian_lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:
@@ -85,8 +114,7 @@ def gaussian_lowpass(x: np.ndarray, dt: float, cutoff_hz: float = CUTOFF_HZ) -> 
     The Gaussian's −3 dB point is ``cutoff_hz``. It is pure numpy, with a symmetric kernel
     so that there is no phase lag between regressors and torques.
     """
-    sigma_t = math.sqrt(math.log(2.0)) / (2.0 * math.pi * cutoff_hz)   # |H| = 1/√2 at fc
-    half = max(1, int(math.ceil(4.0 * sigma_t / dt)))
+    sigma_t, half = _kernel_half(dt, cutoff_hz)
     k = np.exp(-0.5 * (np.arange(-half, half + 1) * dt / sigma_t) ** 2)
     k /= k.sum()
     return np.convolve(x, k, mode='same')
@@ -104,9 +132,9 @@ def _sensor_group(record: Mapping, wheel_radius: float,
     encoders = record['encoders'] if 'encoders' in record else None
     imu = record['imu'] if 'imu' in record else None
     if encoders is None or imu is None or len(encoders['t']) < 3 or len(imu['t']) < 3:
-        raise IdentifyError('no sensor samples (topics /joint_states with the joints '
-                            'left_wheel_joint and right_wheel_joint, and /imu/data with '
-                            'orientation and angular velocity)')
+        raise IdentifyError('no sensor samples (a JointState topic naming both wheel '
+                            'joints, and an Imu topic with orientation and angular '
+                            'velocity)')
     t = np.asarray(imu['t'], dtype=float)
     mean_angle = np.interp(t, encoders['t'], 0.5 * (np.asarray(encoders['left'])
                                                    + np.asarray(encoders['right'])))
@@ -120,8 +148,28 @@ def _sensor_group(record: Mapping, wheel_radius: float,
             'v': wheel_radius * rolling_rate, 'omega': imu['yaw_rate']}
 
 
+def motor_lagged(torque: np.ndarray, dt: float, time_constant: float) -> np.ndarray:
+    """Mean torque over each interval of a first-order motor lag behind ``torque``.
+
+    ``torque[k]`` is the command held over [t_k, t_k + dt); the motor's torque a relaxes
+    towards it as c + (a₀ − c) e^(−t/T). Returns each interval's mean, the torque the
+    plant felt (the same form as wip_sim's ``plant.motor_time_constant``).
+    """
+    if time_constant <= 0.0:
+        return torque
+    decay = math.exp(-dt / time_constant)
+    mean = time_constant / dt * (1.0 - decay)
+    out = np.empty_like(torque)
+    applied = 0.0
+    for k, command in enumerate(torque.tolist()):
+        out[k] = command + (applied - command) * mean
+        applied = command + (applied - command) * decay
+    return out
+
+
 def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters().wheel_radius,
-             encoders_relative_to_body: bool = True) -> dict[str, np.ndarray]:
+             encoders_relative_to_body: bool = True,
+             motor_lag: float = 0.0) -> dict[str, np.ndarray]:
     """Uniformly sampled (t, θ, θ̇, υ, ω, τl, τr) from the record's ``source`` group.
 
     truth: the torques of row k were applied over [t_{k−1}, t_k) (wip_sim/core/runner.py), so they
@@ -131,8 +179,10 @@ def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters()
     """
     if source == 'sensors':
         group = _sensor_group(record, wheel_radius, encoders_relative_to_body)
+        streams = [record['encoders']['t'], record['imu']['t']]
     else:
         group = record[source] if source in record else None
+        streams = [group['t']] if group is not None else []
     if group is None or len(group['t']) == 0:
         raise IdentifyError(f'no {source} samples (topic /wip/ground_truth or '
                             '/wip/state_estimate missing)')
@@ -144,11 +194,23 @@ def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters()
         wheels = record['wheels'] if 'wheels' in record else None
         if wheels is None or len(wheels['t']) < 2:
             raise IdentifyError('no wheel torques (topic /wip/wheel_torques missing)')
+        streams.append(wheels['t'])
         idx = np.clip(np.searchsorted(wheels['t'], t, side='right') - 1, 0,
                       len(wheels['t']) - 1)
         tl, tr = np.asarray(wheels['tau_left'])[idx], np.asarray(wheels['tau_right'])[idx]
     cols = {'theta': group['theta'], 'theta_dot': group['theta_dot'], 'v': group['v'],
             'omega': group['omega'], 'tau_left': tl, 'tau_right': tr}
+    if source != 'truth':
+        # Only while the controllers drove the wheels: between the first and the last
+        # non-zero torque, within the torques' record. Before it a robot is held (a hand's
+        # forces are not in the model; a stand-in base is frozen), after it it is stopped
+        # or caught; outside the record the torque is not known.
+        w_t = np.asarray(wheels['t'], dtype=float)
+        driven = (np.asarray(tl) != 0.0) | (np.asarray(tr) != 0.0)
+        active = np.flatnonzero(driven & (t >= w_t[0]) & (t <= w_t[-1]))
+        span = slice(active[0], active[-1] + 1) if len(active) else slice(0, 0)
+        t = t[span]
+        cols = {name: np.asarray(values)[span] for name, values in cols.items()}
     if len(t) < 3 or t[-1] - t[0] < MIN_DURATION_S:
         raise IdentifyError(f'too little data: {len(t)} samples over '
                             f'{max(0.0, t[-1] - t[0]) if len(t) else 0.0:.2f} s '
@@ -164,13 +226,28 @@ def _signals(record: Mapping, source: str, wheel_radius: float = WipParameters()
             raise IdentifyError(f'{source}.{name} has non-finite values')
         out[name] = np.interp(grid, t, values) if len(grid) != len(t) or \
             not np.allclose(grid, t) else values
+    for name in ('tau_left', 'tau_right'):
+        out[name] = motor_lagged(out[name], dt, motor_lag)
+    out['valid'] = _without_gaps(grid, streams, MAX_GAP_PERIODS * dt)
     return out
+
+
+def _without_gaps(grid: np.ndarray, streams: Iterable[np.ndarray], gap: float) -> np.ndarray:
+    """Whether each grid time lies between two samples of every stream at most ``gap`` apart."""
+    valid = np.ones(len(grid), dtype=bool)
+    for t in streams:
+        t = np.asarray(t, dtype=float)
+        if len(t) < 2:
+            continue
+        i = np.clip(np.searchsorted(t, grid, side='right'), 1, len(t) - 1)
+        valid &= (t[i] - t[i - 1] <= gap) | (grid < t[0]) | (grid > t[-1])
+    return valid
 
 
 def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
                cutoff_hz: float = CUTOFF_HZ,
                model: str = 'paper') -> tuple[np.ndarray, np.ndarray, dict]:
-    """Rows (A, y) of the three equations, each of n rows, stacked (3n × 6, 3n).
+    """Rows (A, y) of the three equations, each of n rows, stacked (3n × 7, 3n).
 
     ``model='full'``: the rows of the full plant (wip_sim/core/plant.py) instead of (1): the
     centrifugal −m_p l sinθ ω² in the forward row, the motor reaction −τυ on the right of
@@ -191,18 +268,33 @@ def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
     s, c = np.sin(th), np.cos(th)
     g, r, d = params.gravity, params.wheel_radius, params.track_width
     z = np.zeros_like(th)
-    # Columns: m_v, m_p l, J_θ, m_p l², J_ϕ, b.
+    # Rolling resistance F_rr [N] (both wheels, equal loads): a ground torque on each wheel
+    # against its rolling, F_rr r/2 · sgn(wheel ground speed). It acts on the wheels from
+    # the ground, so unlike the motors and the axle friction it has no reaction on the body:
+    # no pitch-row term.
+    v_smooth = gaussian_lowpass(v, dt, SIGN_CUTOFF_HZ)
+    om_smooth = gaussian_lowpass(om, dt, SIGN_CUTOFF_HZ)
+    sign_l = np.tanh((v_smooth - 0.5 * d * om_smooth) / SIGN_SPEED)
+    sign_r = np.tanh((v_smooth + 0.5 * d * om_smooth) / SIGN_SPEED)
+    # Columns: m_v, m_p l, J_θ, m_p l², J_ϕ, b, F_rr.
     full = 1.0 if model == 'full' else 0.0
     yaw_gain = d / (r * (2.0 if full else 1.0))
     # Axle friction b acts as the motors do: τυ loses 2b (υ/r − θ̇) and τω loses b d ω / r
     # (wip_sim/core/plant.py); moved to the left, those are b's columns in each row.
     slip_v = 2.0 * (v / r - thd)
-    lon = np.stack([vd, c * thdd - s * (thd ** 2 + full * om ** 2), z, z, z, slip_v / r],
-                   axis=1)
-    pitch = np.stack([z, c * vd - g * s, thdd, -s * c * om ** 2, z, -full * slip_v], axis=1)
+    lon = np.stack([vd, c * thdd - s * (thd ** 2 + full * om ** 2), z, z, z, slip_v / r,
+                    0.5 * (sign_l + sign_r)], axis=1)
+    pitch = np.stack([z, c * vd - g * s, thdd, -s * c * om ** 2, z, -full * slip_v, z],
+                     axis=1)
     yaw = np.stack([z, full * s * v * om, z, s * s * omd + 2.0 * s * c * thd * om, omd,
-                    yaw_gain * d * om / r], axis=1)
+                    yaw_gain * d * om / r, 0.5 * yaw_gain * r * (sign_r - sign_l)], axis=1)
     ys = (tau_v / r, -full * tau_v, yaw_gain * tau_w)
+    # Rows whose filter window reaches a gap in the data are left out (after filtering:
+    # the filter needs the uniform grid).
+    valid = np.asarray(sig.get('valid', np.ones(len(sig['t']), dtype=bool)))
+    bad = ~(valid[1:] & valid[:-1])
+    half = _kernel_half(dt, cutoff_hz)[1]
+    keep_rows = np.convolve(bad.astype(float), np.ones(2 * half + 1), mode='same') == 0.0
     blocks, outs = [], []
     for a, y in zip((lon, pitch, yaw), ys):
         af = np.stack([gaussian_lowpass(a[:, j], dt, cutoff_hz) for j in range(a.shape[1])],
@@ -210,8 +302,9 @@ def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
         yf = gaussian_lowpass(y, dt, cutoff_hz)
         # Drop the filter's edges (the kernel runs off the record there).
         edge = min(len(yf) // 4, int(math.ceil(1.0 / (cutoff_hz * dt))))
-        blocks.append(af[edge:len(af) - edge])
-        outs.append(yf[edge:len(yf) - edge])
+        rows = keep_rows[edge:len(yf) - edge]
+        blocks.append(af[edge:len(af) - edge][rows])
+        outs.append(yf[edge:len(yf) - edge][rows])
     excitation = {'v_dot': _rms(gaussian_lowpass(vd, dt, cutoff_hz)),
                   'theta_ddot': _rms(gaussian_lowpass(thdd, dt, cutoff_hz)),
                   'omega_dot': _rms(gaussian_lowpass(omd, dt, cutoff_hz)),
@@ -242,26 +335,30 @@ def _best_source(record: Mapping) -> str:
 
 def identify(record: Mapping, params: WipParameters | None = None, source: str = 'auto',
              friction: bool = False, cutoff_hz: float = CUTOFF_HZ,
-             model: str = 'paper', encoders_relative_to_body: bool = True) -> Identification:
+             model: str = 'paper', encoders_relative_to_body: bool = True,
+             motor_lag: float = 0.0) -> Identification:
     """Fit p = (m_v, m_p l, J_θ, m_p l², J_ϕ[, b]) of eq. (1) to ``record``.
 
     ``params`` supplies the known r, d, g (default: the nominal ones). ``source``:
     'truth', 'sensors', 'estimate' or 'auto' (the first the record has, in that order).
     ``model``: fit the rows of eq. (1) ('paper') or of the full plant ('full', see
     :func:`regressors`). ``encoders_relative_to_body``: the wheel joint angles are measured
-    against the body (a robot's joints), not against the ground.
+    against the body (a robot's joints), not against the ground. ``motor_lag`` [s]: the
+    torques recorded are commands that the motors follow with this first-order lag.
     """
     if model not in ('paper', 'full'):
         raise IdentifyError(f"model {model!r}: expected 'paper' or 'full'")
     params = WipParameters() if params is None else params
     if source == 'auto':
         source = _best_source(record)
-    sig = _signals(record, source, params.wheel_radius, encoders_relative_to_body)
+    if not (math.isfinite(motor_lag) and 0.0 <= motor_lag <= 1.0):
+        raise IdentifyError(f'motor lag {motor_lag!r} s: expected 0 to 1 s')
+    sig = _signals(record, source, params.wheel_radius, encoders_relative_to_body, motor_lag)
     a, y, excitation = regressors(sig, params, cutoff_hz, model)
     n = len(y) // 3
     if n < 10:
         raise IdentifyError(f'too little data after filtering: {n} samples')
-    used = list(range(6 if friction else 5))
+    used = list(range(7 if friction else 5))
     a = a[:, used]
     names = [NAMES[j] for j in used]
     # Which columns carry enough excitation (physical floors, MIN_EXCITATION).
@@ -280,7 +377,8 @@ def identify(record: Mapping, params: WipParameters | None = None, source: str =
         why['mpl2'] = (f'turning at a tilt too small (RMS sinθcosθω² '
                        f'{excitation["omega_sq"]:.3g} < {MIN_EXCITATION["omega_sq"]})')
     if 'effective_mass' in why:
-        why.setdefault('friction', why['effective_mass'])
+        for name in FRICTION:
+            why.setdefault(name, why['effective_mass'])
     keep = [j for j, name in enumerate(names)
             if name not in why and np.any(a[:, j] != 0.0)]
     estimates = {name: Estimate(name, None, None, why.get(name, 'no excitation'))
@@ -297,21 +395,32 @@ def identify(record: Mapping, params: WipParameters | None = None, source: str =
         sol, *_ = np.linalg.lstsq(a[:, keep], y, rcond=None)
         mpl2_fixed = float(sol[keep.index(1)]) * params.com_height
         y = y - a[:, 3] * (mpl2_fixed - nominal['mpl2'])
+    inlier = np.ones(n, dtype=bool)
     if keep:
-        # Two passes: ordinary LS, then each equation weighted by 1/its residual RMS (the
-        # rows are in different units: N, N·m, N·m).
+        # Passes: ordinary LS, then each equation weighted by 1/its residual RMS (the rows
+        # are in different units: N, N·m, N·m), then twice without the samples whose
+        # residual in any row is beyond REJECT_SIGMAS robust standard deviations (what the
+        # model does not describe: a hand, a bump, a stalled driver's aftermath).
         w = np.ones(3)
-        for _ in range(2):
-            aw = a[:, keep] * np.repeat(w, n)[:, None]
-            yw = y * np.repeat(w, n)
+        for pass_ in range(4):
+            rows = np.tile(inlier, 3)
+            aw = (a[:, keep] * np.repeat(w, n)[:, None])[rows]
+            yw = (y * np.repeat(w, n))[rows]
             scale = np.linalg.norm(aw, axis=0)
             scale[scale == 0.0] = 1.0
             sol, *_ = np.linalg.lstsq(aw / scale, yw, rcond=None)
             p = sol / scale
             res = y - a[:, keep] @ p
-            rms = np.array([_rms(res[i * n:(i + 1) * n]) for i in range(3)])
+            blocks = [res[i * n:(i + 1) * n] for i in range(3)]
+            rms = np.array([_rms(b[inlier]) for b in blocks])
             floor = max(1e-12, 1e-9 * _rms(y))
             w = 1.0 / np.maximum(rms, floor)
+            if pass_ >= 1:
+                sigma = [1.4826 * float(np.median(np.abs(b[inlier]))) for b in blocks]
+                inlier = np.all([np.abs(b) <= REJECT_SIGMAS * max(sd, floor)
+                                 for b, sd in zip(blocks, sigma)], axis=0)
+                if inlier.sum() < max(10, n // 2):     # not outliers: the model is wrong
+                    inlier = np.ones(n, dtype=bool)
         condition = float(np.linalg.cond(aw / scale))
         residual_rms = dict(zip(('forward', 'pitch', 'yaw'), map(float, rms)))
         # Covariance from the weighted residual variance and (AᵀA)⁻¹. The filtered
@@ -333,15 +442,17 @@ def identify(record: Mapping, params: WipParameters | None = None, source: str =
                 estimates[name] = Estimate(name, None, None,
                                            f'condition number {condition:.3g} > '
                                            f'{MAX_CONDITION:g}')
-            elif name == 'friction':
-                # Its true value may be 0: judged by its forward-row coefficient 2b/r²
-                # [N s/m] against m_v per second instead.
+            elif name in FRICTION:
+                # Their true value may be 0: judged by their forward-row force at 1 m/s
+                # (2b/r² × 1 m/s for b, F_rr itself) against m_v × 1 m/s² instead.
                 mv = float(p[keep.index(0)]) if 0 in keep else params.effective_mass
                 radius = params.wheel_radius
-                ok = 2.0 * hw / radius ** 2 <= MAX_RELATIVE_CI * abs(mv)
+                force = 2.0 * hw / radius ** 2 if name == 'friction' else hw
+                ok = force <= MAX_RELATIVE_CI * abs(mv)
+                unit = 'N m s/rad: 2b/r² × 1 m/s' if name == 'friction' else 'N:'
                 estimates[name] = (Estimate(name, value, hw) if ok else Estimate(
-                    name, None, None, f'95 % CI ±{hw:.3g} N m s/rad: 2b/r² uncertain by more '
-                    f'than {MAX_RELATIVE_CI:.0%} of m_v per second'))
+                    name, None, None, f'95 % CI ±{hw:.3g} {unit} uncertain by more than '
+                    f'{MAX_RELATIVE_CI:.0%} of m_v × 1 m/s^2'))
             elif value <= 0.0 or hw > MAX_RELATIVE_CI * abs(value):
                 estimates[name] = Estimate(name, None, None,
                                            f'relative 95 % CI {hw / max(abs(value), 1e-300):.1%}'
@@ -357,7 +468,8 @@ def identify(record: Mapping, params: WipParameters | None = None, source: str =
     else:
         estimates['com_height'] = Estimate('com_height', None, None,
                                            'needs m_p l and m_p l^2')
-    return Identification(estimates, condition, residual_rms, n, source)
+    return Identification(estimates, condition, residual_rms, n, source,
+                          float(1.0 - inlier.mean()))
 
 
 def to_parameters(result: Identification, nominal: WipParameters) -> tuple[dict, list[str]]:
@@ -398,11 +510,12 @@ def true_values(params: WipParameters) -> dict[str, float]:
     return {'effective_mass': params.effective_mass, 'mpl': mp * l,
             'pitch_inertia': params.pitch_inertia, 'mpl2': mp * l * l,
             'yaw_inertia_total': params.yaw_inertia_total, 'friction': 0.0,
-            'com_height': l}
+            'rolling_resistance': 0.0, 'com_height': l}
 
 
 def table(result: Identification, truth: Mapping[str, float] | None = None) -> str:
-    lines = [f'identify: {result.samples} samples per equation from {result.source}; '
+    lines = [f'identify: {result.samples} samples per equation from {result.source} '
+             f'({result.rejected:.1%} left out as outliers); '
              f'condition number {result.condition:.3g}; residual RMS forward '
              f'{result.residual_rms["forward"]:.3g} N, pitch {result.residual_rms["pitch"]:.3g}'
              f' N m, yaw {result.residual_rms["yaw"]:.3g} N m']
@@ -441,8 +554,75 @@ def model_yaml(overrides: Mapping[str, float], notes: Iterable[str], params_file
     return f'{head}controller_model:\n  parameters:\n{body}'
 
 
-def load_record(path: str | pathlib.Path) -> dict:
-    """Return a record from a bag (directory or .mcap) or a timeseries.npz of scripts/simulate."""
+#: The bag topics a fit reads: default name -> (group, message type).
+BAG_TOPICS = {'/wip/ground_truth': ('truth', 'wip_msgs/msg/GroundTruth'),
+              '/wip/state_estimate': ('estimate', 'wip_msgs/msg/StateEstimate'),
+              '/wip/wheel_torques': ('wheels', 'wip_msgs/msg/WheelTorques'),
+              '/joint_states': ('encoders', 'sensor_msgs/msg/JointState'),
+              '/imu/data': ('imu', 'sensor_msgs/msg/Imu')}
+
+
+def _sensor_converters(wiring):
+    """Return the (encoders, imu) row functions: the ESO node's conversions for ``wiring``.
+
+    A message they cannot read (the joints absent, no orientation...) gives None: the row
+    is skipped, as the ESO node drops it.
+    """
+    from wip_control.nodes.conversions import InvalidMessage
+    from wip_control.nodes.hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates,
+                                                   mounting_inverse, signed_efforts,
+                                                   signed_wheel_angles)
+    inverse = mounting_inverse(wiring.imu_mounting_rpy)
+
+    def encoders(m):
+        try:
+            return signed_wheel_angles(m, wiring.left_joint, wiring.right_joint,
+                                       wiring.left_wheel_sign, wiring.right_wheel_sign)
+        except (InvalidMessage, ValueError, IndexError):
+            return None
+
+    def imu(m):
+        try:
+            pitch, yaw = body_pitch_yaw(m, inverse)
+            return (pitch, yaw, *body_pitch_yaw_rates(m, inverse, pitch))
+        except (InvalidMessage, ValueError):
+            return None
+
+    def efforts(m):
+        # The joints' effort state, in their own signs: the sign maps both ways.
+        names = list(m.name)
+        if len(m.effort) != len(names) or wiring.left_joint not in names or \
+                wiring.right_joint not in names:
+            return None
+        left = float(m.effort[names.index(wiring.left_joint)])
+        right = float(m.effort[names.index(wiring.right_joint)])
+        if not math.isfinite(left + right):
+            return None
+        return signed_efforts(left, right, wiring.left_wheel_sign, wiring.right_wheel_sign)
+    return encoders, imu, efforts
+
+
+#: Where a bag's wheel torques come from (``torques``): the base's joint effort state, or
+#: the controllers' commands.
+TORQUE_SOURCES = ('auto', 'efforts', 'commands')
+
+
+def load_record(path: str | pathlib.Path, wiring=None,
+                remaps: Iterable[tuple[str, str]] = (), torques: str = 'auto') -> dict:
+    """Return a record from a bag (directory or .mcap) or a timeseries.npz of scripts/simulate.
+
+    A bag's /joint_states and /imu/data are read with ``wiring`` (a
+    :class:`wip_tools.run_wiring.Wiring`, default the project's conventions) by the ESO
+    node's own conversions; its topics are found as :func:`run_wiring.sensor_topic` says.
+    ``torques``: the wheels group from the JointState efforts ('efforts': what the motors
+    applied, the effort of a sample taken as the torque over the period that ended at
+    it), from /wip/wheel_torques ('commands': stamped with the sensor sample they answer,
+    so they lag the motors by the controllers' latency and the motor lag), or 'auto'
+    (efforts where the base reports non-zero ones). The record's ``torque_source`` says
+    which.
+    """
+    if torques not in TORQUE_SOURCES:
+        raise IdentifyError(f'torques {torques!r}: expected one of {list(TORQUE_SOURCES)}')
     path = pathlib.Path(path)
     if not path.exists():
         raise IdentifyError(f'{path}: no such file or directory')
@@ -454,13 +634,83 @@ def load_record(path: str | pathlib.Path) -> dict:
             return RunRecord.load_npz(path)
         except (OSError, ValueError, KeyError) as err:
             raise IdentifyError(f'{path}: not a readable timeseries.npz ({err})') from err
-    from wip_tools.report import ReportError, record_from_bag  # rosbag2
+    from wip_bag.bag_reader import BagReadError, read_topics
+    from wip_tools import report  # rosbag2
+    from wip_tools.run_wiring import sensor_topic, Wiring, WiringError
+    wiring = Wiring() if wiring is None else wiring
     try:
-        record = record_from_bag(path)
-    except ReportError as err:
+        kinds = {name: meta.type_name for name, meta in read_topics(path).items()}
+    except BagReadError as err:
         raise IdentifyError(str(err)) from err
-    return {g: record[g] for g in ('truth', 'estimate', 'wheels', 'encoders', 'imu')
-            if g in record}
+    encoders, imu, efforts = _sensor_converters(wiring)
+    convert = dict(report.TOPICS, **{'/joint_states': ('encoders', encoders),
+                                     '/imu/data': ('imu', imu)})
+    topics = {}
+    for default, (group, type_name) in BAG_TOPICS.items():
+        try:
+            name = sensor_topic(default, type_name, kinds, list(remaps))
+        except WiringError as err:
+            raise IdentifyError(str(err)) from err
+        if name is not None:
+            topics[name] = (group, convert[default][1])
+    if not topics:
+        raise IdentifyError(f'{path}: none of the topics {sorted(BAG_TOPICS)} (or of their '
+                            'types) is in the bag')
+    try:
+        record = report.record_from_bag(path, topics)
+    except report.ReportError as err:
+        raise IdentifyError(str(err)) from err
+    out = {g: record[g] for g in ('truth', 'estimate', 'wheels', 'encoders', 'imu')
+           if g in record}
+    out['torque_source'] = 'commands'
+    joint_topic = next((n for n, (g, _) in topics.items() if g == 'encoders'), None)
+    if torques != 'commands' and joint_topic is not None:
+        try:
+            applied = report.record_from_bag(path, {joint_topic: ('wheels', efforts)})
+        except report.ReportError:
+            applied = None
+        wheels = applied['wheels'] if applied is not None else None
+        usable = wheels is not None and len(wheels['t']) > 2 and (
+            np.any(wheels['tau_left'] != 0.0) or np.any(wheels['tau_right'] != 0.0))
+        if usable:
+            # The same time origin as the rest; each effort acted over the period that
+            # ended at its sample: it is stamped with the sample before.
+            t = wheels['t'] + (applied.attributes['time_origin_ns']
+                               - record.attributes['time_origin_ns']) * 1e-9
+            period = float(np.median(np.diff(t)))
+            out['wheels'] = {'t': np.concatenate([[t[0] - period], t[:-1]]),
+                             'tau_left': wheels['tau_left'], 'tau_right': wheels['tau_right']}
+            out['torque_source'] = 'efforts'
+        elif torques == 'efforts':
+            raise IdentifyError(f'{joint_topic}: no effort of both wheel joints (the base '
+                                'does not report its effort state); use the commands')
+    return out
+
+
+def run_plant_model(run: str | pathlib.Path) -> str | None:
+    """Return the plant model of a simulated run's scenario.yaml (in the bag or beside it)."""
+    run = pathlib.Path(run)
+    directory = run if run.is_dir() else run.parent
+    for candidate in (directory / 'scenario.yaml', directory.parent / 'scenario.yaml'):
+        if candidate.is_file():
+            try:
+                from wip_sim.core.scenario import load_scenario
+                return load_scenario(candidate).plant.model.model
+            except (ValueError, OSError):
+                return None
+    return None
+
+
+def choose_model(record: Mapping, run: str | pathlib.Path, source: str) -> str:
+    """'paper' or 'full' for ``--model auto``.
+
+    Without ground truth the record is a robot's (or a base's): the full plant's rows. A
+    simulation's rows are those of its plant, from its scenario.yaml ('paper' if none).
+    """
+    if source != 'truth' and not _has(record, 'truth'):
+        return 'full'
+    model = run_plant_model(run)
+    return 'paper' if model in (None, 'paper') else 'full'
 
 
 def main(argv: Iterable[str] | None = None) -> int:
@@ -471,15 +721,24 @@ Examples
 --------
     scripts/identify robot_run/bag --out my_robot.yaml      # a scenario controller_model
     scripts/identify robot_run/bag --out my_robot_params.yaml --write-params
-    scripts/identify robot_run/bag --model full --friction  # a real robot's rows
+    scripts/identify robot_run/bag --params-file my_base.yaml   # the robot's wiring
     scripts/identify out/sim/timeseries.npz --source truth  # a simulated run""")
     parser.add_argument('run', help='rosbag2 directory, .mcap file, or timeseries.npz '
                         '(or a scripts/simulate output directory)')
     parser.add_argument('--out', help='write the identified model here: a scenario '
                         'controller_model section (.yaml), see --write-params')
-    parser.add_argument('--write-params', action='store_true', dest='params_file',
-                        help='write --out as a ROS params file (/**: model.*) instead '
-                        '(a switch; elsewhere --params-file takes a file to read)')
+    parser.add_argument('--write-params', action='store_true',
+                        help='write --out as a ROS params file (/**: model.*) instead')
+    parser.add_argument('--params-file', action='append', default=[], metavar='FILE',
+                        dest='params_files',
+                        help="the robot's ROS params file (joint names, wheel signs, "
+                        'imu_mounting_rpy, encoders_relative_to_body), as given to '
+                        'run_graph; repeatable, later wins; default: the params.yaml the '
+                        'run left in the bag (or beside it)')
+    parser.add_argument('--remap', action='append', default=[], metavar='FROM:=TO',
+                        dest='remaps', help='the bag topic of a sensor topic, as run_graph '
+                        "'s --remap (e.g. /joint_states:=/base/joint_states); default: the "
+                        "bag's only topic of that type")
     parser.add_argument('--source', choices=('auto', 'truth', 'sensors', 'estimate'),
                         default='auto',
                         help='state signals: ground truth (a simulation), the sensors '
@@ -487,18 +746,31 @@ Examples
                         'default: the first of these the run has')
     parser.add_argument('--rolling-encoders', action='store_true',
                         help='the wheel angles are rolling angles (against the ground), not '
-                        'joint angles against the body')
-    parser.add_argument('--model', choices=('paper', 'full'), default='paper',
-                        help="rows to fit: eq. (1) ('paper', what the controllers use) or "
-                        "the full plant's (motor reaction torque, centrifugal and Coriolis "
-                        'terms, yaw gain d/(2r); a real robot)')
-    parser.add_argument('--friction', action='store_true',
-                        help="also fit the wheels' viscous axle friction b (not in eq. (1))")
+                        "joint angles against the body (default: the wiring's "
+                        'encoders_relative_to_body)')
+    parser.add_argument('--model', choices=('auto', 'paper', 'full'), default='auto',
+                        help="rows to fit: eq. (1) ('paper') or the full plant's (motor "
+                        'reaction torque, centrifugal and Coriolis terms, yaw gain d/(2r): a '
+                        "robot); auto: 'full' without ground truth, else the simulated "
+                        "plant's (its scenario.yaml)")
+    parser.add_argument('--friction', action=argparse.BooleanOptionalAction, default=None,
+                        help="also fit the wheels' viscous axle friction b and the rolling "
+                        "resistance F_rr (not in eq. (1)); default: with the full rows")
+    parser.add_argument('--torques', choices=TORQUE_SOURCES, default='auto',
+                        help="a bag's wheel torques: the joints' effort state on "
+                        "/joint_states (what the motors applied), the controllers' commands "
+                        "(/wip/wheel_torques), or auto: the efforts where the base reports "
+                        'them')
+    parser.add_argument('--motor-lag', type=float, default=0.0, metavar='S',
+                        help='time constant [s] of a first-order lag of the motors behind '
+                        'the torques recorded (default 0; docs/identification.md §7)')
     parser.add_argument('--scenario', help='scenario YAML whose controller_model gives '
                         'the known r, d, g, m_w, J_w (default: the nominal parameters)')
     add_exit_codes(parser)
     args = parser.parse_args(None if argv is None else list(argv))
     try:
+        from wip_tools.run_wiring import (load_wiring, parse_remaps, run_params_files,
+                                          WiringError)
         nominal = WipParameters()
         if args.scenario:
             from wip_control.core.config import ConfigError
@@ -507,16 +779,38 @@ Examples
                 nominal = load_scenario(args.scenario).controller_model.parameters
             except (ConfigError, OSError) as err:
                 raise IdentifyError(f'--scenario {args.scenario}: {err}') from err
-        record = load_record(args.run)
-        result = identify(record, nominal, args.source, args.friction, model=args.model,
-                          encoders_relative_to_body=not args.rolling_encoders)
+        try:
+            files = args.params_files or run_params_files(args.run)
+            wiring = load_wiring(files)
+            remaps = parse_remaps(args.remaps)
+        except WiringError as err:
+            raise IdentifyError(str(err)) from err
+        record = load_record(args.run, wiring, remaps, args.torques)
+        source = _best_source(record) if args.source == 'auto' else args.source
+        model = choose_model(record, args.run, source) if args.model == 'auto' \
+            else args.model
+        friction = (model == 'full') if args.friction is None else args.friction
+        relative = wiring.encoders_relative_to_body and not args.rolling_encoders
+        try:
+            result = identify(record, nominal, source, friction, model=model,
+                              encoders_relative_to_body=relative,
+                              motor_lag=args.motor_lag)
+        except IdentifyError as err:
+            if source == 'sensors' or 'sensor' in str(err):
+                raise IdentifyError(f'{err}; wiring read: {wiring.describe()}') from err
+            raise
     except IdentifyError as err:
         print(f'ERROR: {" ".join(str(err).split())}', file=sys.stderr)
         return EXIT_USAGE
+    torque_source = record.get('torque_source', 'commands') if isinstance(record, dict) \
+        else 'commands'
+    print(f'rows: {model}{" with friction" if friction else ""}; torques: '
+          + ('the joint efforts' if torque_source == 'efforts' else 'the commands')
+          + (f'; sensors read with {wiring.describe()}' if source == 'sensors' else ''))
     print(table(result))
     overrides, notes = to_parameters(result, nominal)
     if args.out:
-        text = model_yaml(overrides, notes, args.params_file)
+        text = model_yaml(overrides, notes, args.write_params)
         try:
             pathlib.Path(args.out).write_text(text, encoding='utf-8')
         except OSError as err:
@@ -524,7 +818,7 @@ Examples
             return EXIT_USAGE
         print(f'wrote {args.out}')
     else:
-        print(model_yaml(overrides, notes, args.params_file), end='')
+        print(model_yaml(overrides, notes, args.write_params), end='')
     return EXIT_OK
 
 

@@ -147,6 +147,9 @@ class PlantConfig:
                                   'axle: a torque -b (wheel rate - body tilt rate) between '
                                   'wheel and body, acting as the motor torque does',
                                   minimum=0.0, maximum=10.0)
+    motor_time_constant: float = param(0.0, 's', 'first-order lag of each wheel torque '
+                                       'behind its command (motor current loop); 0 = none',
+                                       minimum=0.0, maximum=0.1)
 
 
 def equation_model(model: str) -> str:

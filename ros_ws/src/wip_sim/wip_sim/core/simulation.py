@@ -81,6 +81,16 @@ class Simulation:
         self._blocks = DisturbanceBlocks(self.disturbances, self.dt_control, self.dt_plant,
                                          self.substeps)
         self._hold = self.plant.hold_floats
+        lag = scenario.plant.model.motor_time_constant
+        # The applied torque follows the command as a first-order lag, held over each
+        # control period at its exact mean over that period (see :meth:`step`).
+        self._lag_decay = math.exp(-self.dt_control / lag) if lag > 0.0 else None
+        self._lag_mean = (lag / self.dt_control * (1.0 - self._lag_decay)
+                          if lag > 0.0 else None)
+        #: (τl, τr) [N m] the motors apply now (the lag's state).
+        self.applied = (0.0, 0.0)
+        #: (τl, τr) [N m] the plant was given over the last period (after the lag).
+        self.last_torques = (0.0, 0.0)
 
     def fallen(self) -> bool:
         """|θ| at or past the scenario's ``fall_threshold``."""
@@ -110,8 +120,18 @@ class Simulation:
         """Integrate [t_k, t_k+1] with the wheel torques [N m] held; the new state.
 
         ``substeps`` RK4 steps of the plant, the disturbance sampled at each step's start;
-        ValueError if the state becomes non-finite.
+        ValueError if the state becomes non-finite. With ``plant.motor_time_constant``
+        T the torques commanded are not applied at once: the applied torque a(t) relaxes
+        towards the command c as c + (a₀ − c) e^(−t/T), and the plant is given its mean
+        over the period, c + (a₀ − c) (T/Δt)(1 − e^(−Δt/T)).
         """
+        if self._lag_decay is not None:
+            (a_left, a_right), mean, decay = self.applied, self._lag_mean, self._lag_decay
+            self.applied = (tau_left + (a_left - tau_left) * decay,
+                            tau_right + (a_right - tau_right) * decay)
+            tau_left = tau_left + (a_left - tau_left) * mean
+            tau_right = tau_right + (a_right - tau_right) * mean
+        self.last_torques = (tau_left, tau_right)
         state = self._hold(self.state, tau_left, tau_right, self._blocks.rows(k)[0],
                            self.dt_plant)
         # One sum (a NaN or inf propagates), each value only if that is not finite.
