@@ -37,8 +37,12 @@ State mapping (read after every hold)
     horizontal heading; x_v = r ((φ_l + φ_r)/2 + θ) from the wheel joint angles φ_i, so
     that the encoders (:class:`~wip_sim.core.sensor_models.Sensors`, which give back
     x_v / r − θ) read the wheels' mean joint angle, slip included. Without slip x_v is
-    the distance rolled, as in the equation plants. The heading difference of the
-    encoders is taken from ϕ (true heading): a differential slip is not seen there.
+    the distance rolled, as in the equation plants. Each encoder reads its own joint:
+    :meth:`MujocoPlant.wheel_readout` gives, for a state this plant returned, the
+    heading the wheels' difference implies, ϕ_w = ϕ_0 + r (φ_r − φ_l) / d (ϕ_w = ϕ
+    while both roll; apart by ∫ (s_r − s_l) dt / d when they slip by s_i), and the
+    joint rates; the sensors take the difference from it, so the slip of one wheel
+    shows in the encoders and the joint rates as on a real robot.
 
 Disturbances (d1, d2, d3), defined as accelerations added to (ω̇, υ̇, θ̈), are applied
 as the generalised forces M(θ) d of the full model's mass matrix: a yaw couple
@@ -78,6 +82,9 @@ IMPEDANCE_RATIO = 10.0
 #: Seconds the vehicle settles on its wheels at construction to find the contact's
 #: static height (25 contact time constants at 1 ms: the settling has died out).
 SETTLE_TIME_S = 0.05
+#: Number of returned states whose wheel readout is kept: more than any sensor delay in
+#: holds (a hold per control tick; sensor_delay is at most 0.1 s, 20 ticks at 200 Hz).
+READOUT_MEMORY = 256
 
 
 def _import_mujoco():
@@ -126,8 +133,9 @@ def terrain_geoms(terrain: TerrainConfig, patch_contact: str = '') -> str:
     grade, pitched by atan(grade) (MuJoCo's rotation about y by −a lifts +x). Bump: a
     capsule across the ground (axis y) whose arc rises ``bump_height`` above the plane and
     meets it ``bump_length`` apart: radius R = (L²/4 + h²) / (2h), centre at h − R.
-    Patch: a box whose top is ``PATCH_RISE`` above the plane, with ``patch_contact`` (its
-    friction, at a priority above the wheels', so that its friction applies).
+    Patch: a box whose top is ``PATCH_RISE`` above the plane between ``patch_y_min`` and
+    ``patch_y_max``, with ``patch_contact`` (its friction, at a priority above the
+    wheels', so that its friction applies).
     """
     out = []
     ground = 'contype="1" conaffinity="2"'
@@ -149,9 +157,12 @@ def terrain_geoms(terrain: TerrainConfig, patch_contact: str = '') -> str:
     if terrain.has_patch:
         half_length = 0.5 * (terrain.patch_end - terrain.patch_start)
         centre = 0.5 * (terrain.patch_start + terrain.patch_end)
-        out.append(f'<geom name="patch" type="box" size="{half_length!r} {TERRAIN_EXTENT!r} '
-                   f'0.5" pos="{centre!r} 0 {PATCH_RISE - 0.5!r}" {ground} priority="2" '
-                   f'{patch_contact}/>')
+        y_min = max(terrain.patch_y_min, -TERRAIN_EXTENT)
+        y_max = min(terrain.patch_y_max, TERRAIN_EXTENT)
+        half_width, y_centre = 0.5 * (y_max - y_min), 0.5 * (y_min + y_max)
+        out.append(f'<geom name="patch" type="box" size="{half_length!r} {half_width!r} '
+                   f'0.5" pos="{centre!r} {y_centre!r} {PATCH_RISE - 0.5!r}" {ground} '
+                   f'priority="2" {patch_contact}/>')
     return '\n    '.join(out)
 
 
@@ -254,6 +265,11 @@ class MujocoPlant:
         self._r, self._half = p.wheel_radius, 0.5 * p.track_width
         self._last: tuple | None = None
         self._phi = 0.0
+        # ϕ_w − r (φ_r − φ_l) / d, set at a reset so that ϕ_w = ϕ there (continuous).
+        self._wheel_yaw_offset = 0.0
+        # Wheel readouts of the states returned lately, by state: the sensors may read a
+        # state some samples old (sensor_delay); a state set from outside has none.
+        self._readouts: dict[tuple, tuple[float, float, float]] = {}
         self._height = self._settle()
 
     # ------------------------------------------------------------------ interface
@@ -307,6 +323,15 @@ class MujocoPlant:
         """One step of ``dt`` [s] with torques and disturbance held."""
         return self.simulate_hold(state, tau_left, tau_right,
                                   lambda _t: tuple(disturbance), 0.0, dt, 1)
+
+    def wheel_readout(self, state: Sequence[float]) -> tuple[float, float, float] | None:
+        """(ϕ_w [rad], φ̇_l, φ̇_r [rad/s]) of a state this plant returned lately, else None.
+
+        ϕ_w: the heading the wheels' joint angles imply (module docstring); φ̇_i: the joint
+        rates (against the body), slip included. None for a state it did not return (or
+        one older than :data:`READOUT_MEMORY` holds): the sensors then use the rolling model.
+        """
+        return self._readouts.get(state if isinstance(state, tuple) else tuple(state))
 
     @staticmethod
     def has_fallen(state: Sequence[float], limit: float = DEFAULT_FALL_LIMIT) -> bool:
@@ -400,6 +425,7 @@ class MujocoPlant:
                         (v + self._half * om) / self._r - thd)
         data.qacc_warmstart[:] = 0.0
         self._phi = phi
+        self._wheel_yaw_offset = phi       # the joints start equal: ϕ_w = ϕ
 
     def _terrain_clearance(self, x: float) -> float:
         """Height [m] to lift a state reset at ``x`` so that no wheel starts inside the terrain.
@@ -433,7 +459,13 @@ class MujocoPlant:
         omega = (qr * sr + rr * cr) / math.cos(theta)
         v = w[0] * math.cos(phi) + w[1] * math.sin(phi)
         xv = self._r * (0.5 * (q[7] + q[8]) + theta)
-        return (q[0], q[1], phi, xv, theta, omega, v, theta_dot)
+        state = (q[0], q[1], phi, xv, theta, omega, v, theta_dot)
+        readouts = self._readouts
+        if len(readouts) >= READOUT_MEMORY:
+            del readouts[next(iter(readouts))]          # the oldest (insertion order)
+        readouts[state] = (self._wheel_yaw_offset + self._r * (q[8] - q[7]) / (2.0 * self._half),
+                           w[6], w[7])
+        return state
 
 
 def _euler_zyx(quat) -> tuple[float, float, float]:

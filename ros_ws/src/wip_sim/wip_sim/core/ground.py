@@ -37,7 +37,8 @@ class TerrainConfig:
     """Ground along the map's x axis (east), across the whole width.
 
     A slope that starts at ``slope_start``, a bump whose crest is at ``bump_position`` and a patch
-    of other friction between ``patch_start`` and ``patch_end``. Defaults: flat, one friction.
+    of other friction between ``patch_start`` and ``patch_end`` (and, to put it under one
+    wheel only, between ``patch_y_min`` and ``patch_y_max``). Defaults: flat, one friction.
     """
 
     slope_start: float = param(0.0, 'm', 'x where an uphill slope starts (map frame; the '
@@ -58,11 +59,19 @@ class TerrainConfig:
     patch_friction: float = param(0.3, '1', 'sliding friction coefficient on the patch '
                                   '(wet polished concrete or packed snow about 0.3, ice '
                                   '0.1)', minimum=0.0, maximum=2.0, exclusive_minimum=True)
+    patch_y_min: float = param(-1e4, 'm', 'y where the patch starts across the path (map '
+                               'frame; 0 with a path along y = 0: under the left wheel only)',
+                               minimum=-1e4, maximum=1e4)
+    patch_y_max: float = param(1e4, 'm', 'y where the patch ends across the path',
+                               minimum=-1e4, maximum=1e4)
 
     def validate(self) -> None:
         if self.patch_end < self.patch_start:
             raise ConfigError(f'patch_end: must be >= patch_start = {self.patch_start}, '
                               f'got {self.patch_end}')
+        if self.patch_y_max <= self.patch_y_min:
+            raise ConfigError(f'patch_y_max: must be > patch_y_min = {self.patch_y_min}, '
+                              f'got {self.patch_y_max}')
 
     @property
     def has_patch(self) -> bool:
