@@ -60,6 +60,13 @@ SUITE = {
         'ground moves, the speed from the encoders overshoots (2.1 against 1.15 m/s) and '
         'the braking that follows tips the vehicle backwards. Noise-free it crosses '
         '(tilt at most 0.097 rad; tests/wip_sim/test_mujoco_plant.py)'),
+    'mujoco_bump_1cm': None,
+    'mujoco_kerb': (
+        'a 4 cm step (twice what the torque lifts): it meets the edge at 0.51 m/s '
+        '(catching up with the reference), the wheels stop dead, the body keeps falling '
+        'forward (0.14 rad at 16.5 s, 0.45 at 17.4 s) with the drive torque saturated '
+        'at 30 N m, which cannot hold it with the wheels blocked: falls at 17.46 s '
+        '(seeds 1 and 2 stop at the edge balanced; nothing says why yet)'),
     'mujoco_one_wheel_patch': (
         'mu 0.2 under the left wheel from 3 to 6 m, push at 9 s: it stays up but ends '
         '0.159 m from the end of the reference (limit 0.15)'),

@@ -36,7 +36,8 @@ class ContactConfig:
 class TerrainConfig:
     """Ground along the map's x axis (east), across the whole width.
 
-    A slope that starts at ``slope_start``, a bump whose crest is at ``bump_position`` and a patch
+    A slope that starts at ``slope_start``, a bump whose crest is at ``bump_position``, a
+    step up at ``step_position`` and a patch
     of other friction between ``patch_start`` and ``patch_end`` (and, to put it under one
     wheel only, between ``patch_y_min`` and ``patch_y_max``). Defaults: flat, one friction.
     """
@@ -51,6 +52,10 @@ class TerrainConfig:
                                '0 = no bump', minimum=0.0, maximum=0.2)
     bump_length: float = param(0.2, 'm', 'length of the bump along x where it meets the '
                                'ground', minimum=0.0, maximum=5.0, exclusive_minimum=True)
+    step_position: float = param(0.0, 'm', 'x of the edge of a kerb-like step up (the ground '
+                                 'is step_height higher beyond it)', minimum=-1e4, maximum=1e4)
+    step_height: float = param(0.0, 'm', 'height of the step up; 0 = no step', minimum=0.0,
+                               maximum=0.2)
     patch_start: float = param(0.0, 'm', 'x where a patch of other friction starts (on the '
                                'flat ground, across the whole width)', minimum=-1e4,
                                maximum=1e4)
