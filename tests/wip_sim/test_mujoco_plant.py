@@ -255,6 +255,29 @@ def test_the_slope_lifts_the_vehicle_by_its_grade():
     assert expected > 0.39
 
 
+def test_a_step_is_a_square_edge_of_its_height():
+    # Beyond the edge the axle rests step_height higher; before it, on the plane; a wheel
+    # rolled slowly into the edge (0.1 m/s, no torque) stops at it: its centre cannot come
+    # nearer the edge than sqrt(r² − (r − h)²) horizontally.
+    from wip_sim.core.ground import TerrainConfig
+    h, r = 0.04, PARAMS.wheel_radius
+    terrain = TerrainConfig(step_position=1.0, step_height=h)
+    heights = {}
+    for x in (0.5, 1.5):
+        plant = MujocoPlant(PARAMS, LOSSLESS, terrain=terrain)
+        _hold(plant, (x, 0.0, 0.0, x, 0.0, 0.0, 0.0, 0.0), 0.0, 0.0, 50)
+        heights[x] = plant._data.qpos[2]
+    assert heights[1.5] - heights[0.5] == pytest.approx(h, abs=2e-4)
+    plant = MujocoPlant(PARAMS, LOSSLESS, terrain=terrain)
+    state = (0.86, 0.0, 0.0, 0.86, 0.0, 0.0, 0.1, 0.0)
+    farthest = 0.0
+    for _ in range(30):                  # 0.3 s: it meets the edge after about 0.2 s
+        state = _hold(plant, state, 0.0, 0.0, 10)
+        farthest = max(farthest, state[0])
+    reach = math.sqrt(r * r - (r - h) ** 2)
+    assert farthest == pytest.approx(1.0 - reach, abs=2e-3)
+
+
 def test_a_low_friction_patch_slips_where_the_ground_around_it_does_not():
     # μ = 0.3 on the patch (x in [−1, 1]), 0.8 around: a torque step between the two
     # thresholds (12.2 and 32.4 N m per wheel) slips on the patch only.
