@@ -57,6 +57,7 @@ roll, wheels rolling without slip, at the contact's static height.
 
 from __future__ import annotations
 
+import collections
 import math
 from typing import Callable, Sequence
 
@@ -276,7 +277,7 @@ class MujocoPlant:
         self._wheel_yaw_offset = 0.0
         # Wheel readouts of the states returned lately, by state: the sensors may read a
         # state some samples old (sensor_delay); a state set from outside has none.
-        self._readouts: dict[tuple, tuple[float, float, float]] = {}
+        self._readouts: collections.OrderedDict = collections.OrderedDict()
         self._height = self._settle()
 
     # ------------------------------------------------------------------ interface
@@ -472,7 +473,7 @@ class MujocoPlant:
         state = (q[0], q[1], phi, xv, theta, omega, v, theta_dot)
         readouts = self._readouts
         if len(readouts) >= READOUT_MEMORY:
-            del readouts[next(iter(readouts))]          # the oldest (insertion order)
+            readouts.popitem(last=False)                # the oldest
         readouts[state] = (self._wheel_yaw_offset + self._r * (q[8] - q[7]) / (2.0 * self._half),
                            w[6], w[7])
         return state
