@@ -105,3 +105,12 @@ def test_off_by_default_and_on_in_the_estimator_with_the_gyro():
     assert isinstance(on.slip, SlipMonitor)
     assert StateEstimator(PARAMS, EsoConfig(estimator='paper',
                                             slip_max_acceleration=20.0)).slip is None
+
+
+def test_non_finite_input_is_refused_and_changes_nothing():
+    monitor = SlipMonitor(PARAMS)
+    drive(monitor, lambda t: 0.5, 1.0)
+    before = (monitor._w_hat, monitor._last, monitor.offset)
+    with pytest.raises(ValueError, match='non-finite input'):
+        monitor.update(1.005, 0.5, 0.5, 0.5, 0.0, math.nan, 0.0)
+    assert (monitor._w_hat, monitor._last, monitor.offset) == before

@@ -18,8 +18,8 @@ Rules per sample (period h):
       (mean of the last two), exceeds ``max_acceleration`` in magnitude (no ground force does
       that: friction gives at most μ g ≈ 8 m/s², the paper's push 10 m/s²) in the direction
       of its motor's torque: a wheel spun up by a driving torque or locked by a braking one.
-      A wheel stopped against the torque is an obstacle's force (a bump's edge: −80 m/s²
-      measured on the MuJoCo plant as the wheel meets it), real motion, not slip;
+      A wheel stopped against the torque is an obstacle's force (a bump's edge), real
+      motion, not slip (docs/estimation.md has the measurements);
     - it stops when the two wheels' w agree within ``agreement`` and their mean is within
       3 ``agreement`` of ŵ for ``hold`` s (a wheel that spun alone rolls with the other
       again; both that spun roll at the speed the IMU followed), or after
@@ -64,7 +64,9 @@ class SlipMonitor:
     max_acceleration : [m/s²] residual beyond which a wheel slips.
     agreement : [m/s] |w_l − w_r| under which the wheels grip again (after ``hold`` s).
     bandwidth : ω_c [rad/s] of the complementary filter of w.
-    hold : [s].
+    hold : [s] how long the wheels must agree to be believed again.
+    longest : [s] the longest slip: then the wheels are believed again.
+    relative_to_body : the encoders measure the wheels against the body (the default).
     """
 
     def __init__(self, params: WipParameters, max_acceleration: float = 20.0,
@@ -108,6 +110,9 @@ class SlipMonitor:
         ``x_v`` the odometry's; θ [rad], θ̇, ω [rad/s] from the IMU; the wheel torques
         [N m] applied over the last period.
         """
+        if not math.isfinite(t + left + right + x_v + theta + pitch_rate + yaw_rate
+                             + tau_left + tau_right):
+            raise ValueError('SlipMonitor.update: non-finite input (nothing changed)')
         last = self._last
         if last is None or t <= last[0]:
             if last is None:
