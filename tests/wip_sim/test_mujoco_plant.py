@@ -255,6 +255,29 @@ def test_the_slope_lifts_the_vehicle_by_its_grade():
     assert expected > 0.39
 
 
+def test_a_step_is_a_square_edge_of_its_height():
+    # Beyond the edge the axle rests step_height higher; before it, on the plane; a wheel
+    # rolled slowly into the edge (0.1 m/s, no torque) stops at it: its centre cannot come
+    # nearer the edge than sqrt(r² − (r − h)²) horizontally.
+    from wip_sim.core.ground import TerrainConfig
+    h, r = 0.04, PARAMS.wheel_radius
+    terrain = TerrainConfig(step_position=1.0, step_height=h)
+    heights = {}
+    for x in (0.5, 1.5):
+        plant = MujocoPlant(PARAMS, LOSSLESS, terrain=terrain)
+        _hold(plant, (x, 0.0, 0.0, x, 0.0, 0.0, 0.0, 0.0), 0.0, 0.0, 50)
+        heights[x] = plant._data.qpos[2]
+    assert heights[1.5] - heights[0.5] == pytest.approx(h, abs=2e-4)
+    plant = MujocoPlant(PARAMS, LOSSLESS, terrain=terrain)
+    state = (0.86, 0.0, 0.0, 0.86, 0.0, 0.0, 0.1, 0.0)
+    farthest = 0.0
+    for _ in range(30):                  # 0.3 s: it meets the edge after about 0.2 s
+        state = _hold(plant, state, 0.0, 0.0, 10)
+        farthest = max(farthest, state[0])
+    reach = math.sqrt(r * r - (r - h) ** 2)
+    assert farthest == pytest.approx(1.0 - reach, abs=2e-3)
+
+
 def test_a_low_friction_patch_slips_where_the_ground_around_it_does_not():
     # μ = 0.3 on the patch (x in [−1, 1]), 0.8 around: a torque step between the two
     # thresholds (12.2 and 32.4 N m per wheel) slips on the patch only.
@@ -273,6 +296,76 @@ def test_a_low_friction_patch_slips_where_the_ground_around_it_does_not():
         peaks[x] = peak
     assert peaks[0.0] > 0.05
     assert peaks[3.0] < 1e-3
+
+
+def test_each_encoder_reads_its_own_wheel_so_one_wheel_slip_shows():
+    # μ = 0.3 under the left wheel only (y > 0), 0.8 under the right: 15 N m on each
+    # wheel (between the two slip thresholds, 12.2 and 32.4 N m) spins the left wheel
+    # alone. Kinematics: the heading the wheels imply, ϕ_w = ϕ0 + r (φr − φl)/d, runs
+    # from the true one by ∫ (s_r − s_l) dt / d (s_i: a wheel's slip speed).
+    from wip_sim.core.ground import TerrainConfig
+    from wip_sim.core.sensor_models import Sensors
+    terrain = TerrainConfig(patch_start=-1.0, patch_end=1.0, patch_friction=0.3,
+                            patch_y_min=0.0)
+    assert 1.1 * _slip_threshold(PARAMS, 0.3) < 15.0 < 0.9 * _slip_threshold(PARAMS, 0.8)
+    plant = MujocoPlant(PARAMS, LOSSLESS, terrain=terrain)
+    sensors = Sensors(PARAMS)
+    state = _hold(plant, (0.0,) * 8, 0.0, 0.0, 40)       # the right wheel drops 1 mm
+    yaw0, _, _ = plant.wheel_readout(state)
+    assert yaw0 == pytest.approx(state[2], abs=1e-6)
+    slip_integral, slips = 0.0, []
+    for _ in range(30):
+        state = _hold(plant, state, 15.0, 15.0, 1)
+        left, right = plant.wheel_slip()
+        slips.append((left, right))
+        slip_integral += (right - left) * DT
+    assert max(s[0] for s in slips) > 1.0 and max(abs(s[1]) for s in slips) < 1e-3
+    wheel_yaw, left_rate, right_rate = plant.wheel_readout(state)
+    d, r = PARAMS.track_width, PARAMS.wheel_radius
+    apart = d * (wheel_yaw - state[2])
+    assert apart == pytest.approx(slip_integral, rel=0.1)
+    assert abs(apart) > 0.02
+    # The encoders: the left one ahead of the right by the slip (the true heading turned
+    # the other way, left wheel held back), their rates the joints'.
+    left, right = sensors.encoders(state, wheel_yaw)
+    assert (left - right) * r == pytest.approx(-d * (wheel_yaw - yaw0), rel=1e-9)
+    assert left - right > 0.1 and state[2] > 0.0
+    assert sensors.wheel_rates(state, (left_rate, right_rate)) == (left_rate, right_rate)
+    assert left_rate - right_rate > 5.0
+    # A state it did not return has no readout (the sensors then use the rolling model).
+    assert plant.wheel_readout((1.0,) * 8) is None
+
+
+@pytest.mark.slow
+def test_one_wheel_slip_shows_in_odometry_and_is_no_wiring_fault():
+    # The robustness class with μ 0.2 under the left wheel (and a push on it): the
+    # odometry's heading, r (φr − φl) / d, departs from the true one, and the wiring
+    # check fed the run's sensors (wheel rates from the encoders, as a base's joint
+    # velocities) finds nothing wrong.
+    from wip_control.core.wiring_check import WiringCheck, WiringCheckConfig
+    from wip_tools.campaign import load_campaign
+    campaign = load_campaign(pathlib.Path(__file__).parents[1] / 'wip_tools/robustness/'
+                             'scenarios/mujoco_one_wheel_patch.yaml')
+    mapping = dict(campaign.base, duration=13.0)
+    result = run_scenario(scenario_from_mapping(mapping))
+    assert not result.fell
+    rec = result.record
+    enc, imu, wheels, truth = rec['encoders'], rec['imu'], rec['wheels'], rec['truth']
+    t = enc['t']
+    d, r = PARAMS.track_width, PARAMS.wheel_radius
+    odometry = r * (enc['right'] - enc['left']) / d
+    true = np.interp(t, truth['t'], truth['phi']) - truth['phi'][0]
+    assert np.max(np.abs(odometry - true)) > 0.02
+    assert np.max(np.abs(odometry - true)[t < 5.0]) < 1e-3     # before the patch
+    check = WiringCheck(WiringCheckConfig(), PARAMS, t[1] - t[0])
+    left_rate, right_rate = np.gradient(enc['left'], t), np.gradient(enc['right'], t)
+    for i in range(len(t)):
+        check.wheels(t[i], left_rate[i], right_rate[i])
+        tau_l, tau_r = wheels['tau_left'][i], wheels['tau_right'][i]
+        check.torque(t[i], tau_l + tau_r, True, tau_r - tau_l)
+        verdict = check.imu(t[i], imu['pitch'][i], imu['pitch_rate'][i],
+                            imu['yaw_rate'][i], None)
+        assert verdict is None, verdict.reason
 
 
 def test_the_plant_nodes_stepping_gives_the_runners_floats():

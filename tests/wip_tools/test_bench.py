@@ -100,3 +100,13 @@ def test_node_cost_refuses_absurd_durations_in_one_line(capsys):
         node_cost.main(['--seconds', 'nan'])
     assert refused.value.code == 2
     assert '--seconds: must be in (0, 3600]' in capsys.readouterr().err
+
+
+def test_bench_push_only_prints_each_case_against_its_bound(tmp_path, capsys):
+    out = tmp_path / 'bench.json'
+    assert bench.main(['--push-only', '--json', str(out)]) == 0
+    rows = json.loads(out.read_text())['push_recovery']
+    assert len(rows) == 8 and all(row['ratio'] > 1.0 for row in rows)
+    assert 'mpc' not in json.loads(out.read_text())
+    printed = capsys.readouterr().out
+    assert printed.count('ratio') >= 8 and 'bound 0.70' in printed

@@ -17,6 +17,13 @@ made within one invocation, interleaved where possible:
    process), unrecorded and recorded (``--record``: every topic, the bag checked), next
    to the in-process one (goals: ≥ 5× recorded or not, within 10× of in-process) and
    with its final state compared with the in-process run's.
+5. **Push recovery against the physical limit** (first, since it is quick): after a 1 m/s
+   push (10 m/s² for 0.1 s) on a line and a circle at 0.5 m/s, the peak excursion ahead
+   of the reference, in-process, beside the clairvoyant lower bound of
+   :mod:`wip_tools.analysis.push_bound` (an LP over the torque sequence for the true
+   plant and the MPC's limits), as a ratio: the paper's plant, the full plant with the
+   body 20 % heavier and the centre of mass 10 % higher, each without and with a consumer
+   IMU's noise (goals: <= 1.15x on the paper's plant, <= 1.3x with mismatch and noise).
 4. **Real time**: the controllers at 200 Hz against the stand-in base (its own process),
    per layout (separate, composed, composed at SCHED_FIFO priority, the same with the base
    and the controllers each pinned to a CPU of its own, and composed at SCHED_FIFO with idle
@@ -33,6 +40,7 @@ Examples
 --------
     scripts/bench                      # everything
     scripts/bench --no-graph --json out/bench.json
+    scripts/bench --push-only          # only the push recovery against its bound
 """
 
 from __future__ import annotations
@@ -379,6 +387,23 @@ def _section_realtime(seconds: float, in_process: dict, report: dict) -> None:
             print(f'-> rclpy floor ({kind}): {measured}')
 
 
+def _section_push(report: dict) -> None:
+    """5. Push recovery: the measured excursion beside the clairvoyant bound."""
+    from .analysis.push_bound import push_recovery_rows
+    print('\n== 5. Push recovery: 1 m/s push (10 m/s^2 for 0.1 s) at 10 s, reference at '
+          '0.5 m/s; peak excursion ahead of the reference against the clairvoyant bound')
+    rows = push_recovery_rows()
+    report['push_recovery'] = rows
+    for row in rows:
+        plant = ('paper plant' if row['plant'] == 'paper'
+                 else 'full plant, body +20 %, CoM +10 %')
+        print(f'{row["reference"]:6s} {plant:32s} {"noise" if row["noise"] else "clean":5s}: '
+              + ('FELL' if row['fell'] else
+                 f'measured {row["measured_m"]:.3f} m, bound {row["bound_m"]:.3f} m, '
+                 f'ratio {row["ratio"]:.2f}x'))
+    print('   (goals: <= 1.15x on the paper plant, <= 1.3x with mismatch and noise)')
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog='scripts/bench', description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -389,6 +414,8 @@ def main(argv: list[str] | None = None) -> int:
                         help='skip the real-time runs against the stand-in base')
     parser.add_argument('--realtime-seconds', type=float, default=20.0, metavar='S',
                         help='length of each real-time run [s] (default 20)')
+    parser.add_argument('--push-only', action='store_true',
+                        help='only the push recovery against its bound (section 5)')
     parser.add_argument('--json', help='also write the results to this JSON file')
     add_exit_codes(parser)
     args = parser.parse_args(argv)
@@ -398,16 +425,24 @@ def main(argv: list[str] | None = None) -> int:
     scenario = load_scenario(args.scenario)
     report: dict = {'environment': _environment(), 'scenario': scenario.name}
 
+    _section_push(report)
+    if args.push_only:
+        _write_json(args.json, report)
+        return 0
     _section_mpc(scenario, args.repeats, report)
     in_process = _section_in_process(scenario, args, report)
     if not args.no_graph:
         _section_graph(args.scenario, in_process, report)
     if not args.no_graph and not args.no_realtime:
         _section_realtime(args.realtime_seconds, in_process, report)
-    if args.json:
-        with open(args.json, 'w', encoding='utf-8') as stream:
-            json.dump(report, stream, indent=2, default=str)
+    _write_json(args.json, report)
     return 0
+
+
+def _write_json(path: str | None, report: dict) -> None:
+    if path:
+        with open(path, 'w', encoding='utf-8') as stream:
+            json.dump(report, stream, indent=2, default=str)
 
 
 if __name__ == '__main__':

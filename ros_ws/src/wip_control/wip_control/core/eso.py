@@ -211,6 +211,10 @@ class EsoConfig:
         'distance difference over the period (a vehicle started at speed brakes from its '
         'true speed: f2 transient 23.5 m/s2 -> 0, docs/estimation.md)',
         choices=SPEED_STARTS)
+    slip_max_acceleration: float = param(
+        0.0, 'm/s^2', "'gyro': a wheel whose speed changes this much faster than the tilt "
+        'allows slips and is left out of x_v (core/slip.py); 0 = off', minimum=0.0,
+        maximum=1000.0)
 
     def validate(self) -> None:
         for name in ('yaw_gains', 'longitudinal_gains', 'tilt_gains'):

@@ -19,6 +19,7 @@ from .params import WipParameters
 from .position import (DEAD_RECKONING, FAULT, NO_FIX, PlanarPositionEstimator,
                        PositionConfig, TRACKING)
 from .sensors import wheel_odometry
+from .slip import SlipMonitor
 
 
 class EstimatorOverflow(ValueError):
@@ -82,6 +83,11 @@ class StateEstimator:
     def restart(self) -> None:
         """Forget everything: the next sample starts the observer and the position."""
         self.observer: WipStateObserver | None = None
+        # Wheel slip (core/slip.py): the x_v that only the gripping wheels saw.
+        self.slip = (SlipMonitor(self.model, self.eso_config.slip_max_acceleration,
+                                 relative_to_body=self.relative_to_body)
+                     if self.eso_config.slip_max_acceleration > 0.0
+                     and self.eso_config.estimator == 'gyro' else None)
         self.position = PlanarPositionEstimator(self.position_config)
         self.yaw_unwrapped: float | None = None
         self.has_fix = False
@@ -130,6 +136,10 @@ class StateEstimator:
             self.yaw_unwrapped, yaw)
         x_v, _ = wheel_odometry(phi_left, phi_right, pitch, self.model, 0.0,
                                 self.relative_to_body)
+        if self.slip is not None and rates is not None:
+            r = self.model.wheel_radius
+            x_v = self.slip.update(t, r * phi_left, r * phi_right, x_v, pitch, rates[0],
+                                   rates[1], tau_left, tau_right).x_v
         observer = self.observer
         if observer is None:
             observer = WipStateObserver(

@@ -36,8 +36,10 @@ class ContactConfig:
 class TerrainConfig:
     """Ground along the map's x axis (east), across the whole width.
 
-    A slope that starts at ``slope_start``, a bump whose crest is at ``bump_position`` and a patch
-    of other friction between ``patch_start`` and ``patch_end``. Defaults: flat, one friction.
+    A slope that starts at ``slope_start``, a bump whose crest is at ``bump_position``, a
+    step up at ``step_position`` and a patch
+    of other friction between ``patch_start`` and ``patch_end`` (and, to put it under one
+    wheel only, between ``patch_y_min`` and ``patch_y_max``). Defaults: flat, one friction.
     """
 
     slope_start: float = param(0.0, 'm', 'x where an uphill slope starts (map frame; the '
@@ -50,6 +52,10 @@ class TerrainConfig:
                                '0 = no bump', minimum=0.0, maximum=0.2)
     bump_length: float = param(0.2, 'm', 'length of the bump along x where it meets the '
                                'ground', minimum=0.0, maximum=5.0, exclusive_minimum=True)
+    step_position: float = param(0.0, 'm', 'x of the edge of a kerb-like step up (the ground '
+                                 'is step_height higher beyond it)', minimum=-1e4, maximum=1e4)
+    step_height: float = param(0.0, 'm', 'height of the step up; 0 = no step', minimum=0.0,
+                               maximum=0.2)
     patch_start: float = param(0.0, 'm', 'x where a patch of other friction starts (on the '
                                'flat ground, across the whole width)', minimum=-1e4,
                                maximum=1e4)
@@ -58,11 +64,19 @@ class TerrainConfig:
     patch_friction: float = param(0.3, '1', 'sliding friction coefficient on the patch '
                                   '(wet polished concrete or packed snow about 0.3, ice '
                                   '0.1)', minimum=0.0, maximum=2.0, exclusive_minimum=True)
+    patch_y_min: float = param(-1e4, 'm', 'y where the patch starts across the path (map '
+                               'frame; 0 with a path along y = 0: under the left wheel only)',
+                               minimum=-1e4, maximum=1e4)
+    patch_y_max: float = param(1e4, 'm', 'y where the patch ends across the path',
+                               minimum=-1e4, maximum=1e4)
 
     def validate(self) -> None:
         if self.patch_end < self.patch_start:
             raise ConfigError(f'patch_end: must be >= patch_start = {self.patch_start}, '
                               f'got {self.patch_end}')
+        if self.patch_y_max <= self.patch_y_min:
+            raise ConfigError(f'patch_y_max: must be > patch_y_min = {self.patch_y_min}, '
+                              f'got {self.patch_y_max}')
 
     @property
     def has_patch(self) -> bool:

@@ -86,22 +86,35 @@ class Sensors:
             return True
         return bool(self._rng_dropout.random() >= p)
 
-    def wheel_rates(self, state: Sequence[float]) -> tuple[float, float]:
+    def wheel_rates(self, state: Sequence[float],
+                    joint_rates: tuple[float, float] | None = None) -> tuple[float, float]:
         """(φ̇l, φ̇r) [rad/s]: joint rates of the true motion, noise-free.
 
         They are the rates of :meth:`encoders`: the rolling rate (υ ∓ (d/2) ω) / r, minus
-        the tilt rate when the encoders measure against the body.
+        the tilt rate when the encoders measure against the body. ``joint_rates``: the
+        joint rates against the body a plant with wheel contacts reports (slip included),
+        used instead of the rolling rates.
         """
         p = self.params
+        if joint_rates is not None:
+            body = 0.0 if self.config.encoders_relative_to_body else float(state[THETA_DOT])
+            return joint_rates[0] + body, joint_rates[1] + body
         v, omega, half_track = float(state[V]), float(state[OMEGA]), 0.5 * p.track_width
         body = float(state[THETA_DOT]) if self.config.encoders_relative_to_body else 0.0
         return ((v - half_track * omega) / p.wheel_radius - body,
                 (v + half_track * omega) / p.wheel_radius - body)
 
-    def encoders(self, state: Sequence[float]) -> tuple[float, float]:
-        """(φl, φr) [rad]: wheel joint angles (or rolling angles, see the config)."""
+    def encoders(self, state: Sequence[float],
+                 wheel_yaw: float | None = None) -> tuple[float, float]:
+        """(φl, φr) [rad]: wheel joint angles (or rolling angles, see the config).
+
+        Their difference is d (ϕ − ϕ0) / r, rolling without slip; ``wheel_yaw``: the
+        heading a plant with wheel contacts reads from its joints instead of ϕ (the
+        two differ by the wheels' differential slip).
+        """
         p = self.params
-        half_turn = 0.5 * p.track_width * (float(state[PHI]) - self.initial_yaw)
+        yaw = float(state[PHI]) if wheel_yaw is None else wheel_yaw
+        half_turn = 0.5 * p.track_width * (yaw - self.initial_yaw)
         x_v = float(state[XV])
         left = (x_v - half_turn) / p.wheel_radius
         right = (x_v + half_turn) / p.wheel_radius

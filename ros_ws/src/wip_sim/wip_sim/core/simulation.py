@@ -91,6 +91,8 @@ class Simulation:
         self.applied = (0.0, 0.0)
         #: (τl, τr) [N m] the plant was given over the last period (after the lag).
         self.last_torques = (0.0, 0.0)
+        # A plant with wheel contacts reports its wheels' own readout (slip included).
+        self._wheel_readout = getattr(self.plant, 'wheel_readout', None)
 
     def fallen(self) -> bool:
         """|θ| at or past the scenario's ``fall_threshold``."""
@@ -112,8 +114,14 @@ class Simulation:
         sensed, gps_seen = sensors.delayed(self.state if state is None else state)
         gps_due = k % self.gps_every == 0
         gps = sensors.gps(gps_seen) if gps_due and sensors.gps_fix_available() else None
-        return SensorReading(sensors.encoders(sensed),
-                             sensors.wheel_rates(sensed) if wheel_rates else None,
+        wheels = self._wheel_readout(sensed) if self._wheel_readout is not None else None
+        if wheels is None:
+            encoders = sensors.encoders(sensed)
+            rates = sensors.wheel_rates(sensed) if wheel_rates else None
+        else:
+            encoders = sensors.encoders(sensed, wheels[0])
+            rates = sensors.wheel_rates(sensed, wheels[1:]) if wheel_rates else None
+        return SensorReading(encoders, rates,
                              sensors.imu(sensed), sensors.imu_rates(sensed), gps_due, gps)
 
     def step(self, k: int, tau_left: float, tau_right: float) -> tuple:

@@ -1,0 +1,123 @@
+"""The clairvoyant push-recovery bound (wip_tools.analysis.push_bound) against closed forms.
+
+Model (1) linearised about upright: with w = u + J_θ θ̇ / (mp l), ẇ = g θ + d, so a push of
+Δv is absorbed only by leaning, ∫ θ dt = −Δv / g. With the tilt the only limit (torque and
+torque rate unbounded), the least peak e lies within J_θ θmax / (mp l) of
+E1 = ∫ (P(t) − g θmax t) dt up to the time that integrand reaches 0 (P(t) the push's speed
+so far): leaning back at once by θmax reaches it with the lean's own +J_θ θmax/(mp l);
+no sequence can do better than E1 less that lean.
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from wip_control.core.params import WipParameters
+from wip_tools.analysis.push_bound import (absorption_rate, measured_excursion,
+                                           push_excursion_bound)
+
+PARAMS = WipParameters()
+FAST = dict(horizon=6.0)
+UNLIMITED = dict(max_torque=1e5, max_delta_torque=1e5)
+
+
+def _tilt_only_integral(delta_v, push_time, max_tilt, g):
+    """E1 of the module docstring, by quadrature on a fine grid."""
+    t = np.linspace(0.0, 5.0 * delta_v / (g * max_tilt) + push_time, 200001)
+    speed = np.minimum(t / push_time, 1.0) * delta_v - g * max_tilt * t
+    return float(np.trapezoid(np.clip(speed, 0.0, None), t))
+
+
+@pytest.mark.parametrize('body_mass, com_height', [(25.0, 0.6), (30.0, 0.66), (10.0, 1.2)])
+def test_a_lean_absorbs_speed_at_g_per_radian_whatever_the_body(body_mass, com_height):
+    params = dataclasses.replace(PARAMS, body_mass=body_mass, com_height=com_height)
+    assert absorption_rate(params) == pytest.approx(params.gravity, rel=1e-12)
+
+
+def test_no_push_needs_no_excursion():
+    bound = push_excursion_bound(PARAMS, 0.0)
+    assert bound.excursion == 0.0 and not np.any(bound.torque)
+
+
+def test_with_the_tilt_the_only_limit_the_bound_is_the_closed_forms():
+    g, theta_max = PARAMS.gravity, 0.1
+    lean = PARAMS.pitch_inertia / (PARAMS.body_mass * PARAMS.com_height) * theta_max
+    e1 = _tilt_only_integral(1.0, 0.1, theta_max, g)
+    assert e1 == pytest.approx(0.4597, abs=1e-3)       # 1 / (2 g θmax) less the push's ramp
+    bound = push_excursion_bound(PARAMS, 1.0, **UNLIMITED, **FAST)
+    assert e1 - lean - 1e-3 <= bound.excursion <= e1 + lean + 0.01
+    assert np.max(np.abs(bound.tilt)) <= theta_max + 1e-6
+
+
+def test_the_torque_limits_cost_excursion_and_the_paper_plant_needs_0_70_m():
+    unlimited = push_excursion_bound(PARAMS, 1.0, **UNLIMITED, **FAST).excursion
+    bound = push_excursion_bound(PARAMS, 1.0, step=0.02, **FAST)
+    assert bound.excursion > unlimited + 0.1
+    assert bound.excursion == pytest.approx(0.70, abs=0.01)
+    # The optimal sequence keeps every limit and ends at rest.
+    assert np.max(np.abs(bound.torque)) <= 30.0 + 1e-6
+    lag = 5                                               # 0.1 s on the 0.02 s grid
+    torque = np.concatenate([np.zeros(lag), bound.torque])
+    assert np.max(np.abs(torque[lag:] - torque[:-lag])) <= 10.0 + 1e-6
+    assert abs(bound.tilt[-1]) < 1e-6 and np.max(bound.error) == pytest.approx(
+        bound.excursion, abs=1e-6)
+
+
+def test_scaling_the_push_and_every_limit_together_scales_the_bound():
+    # The LP is homogeneous: (Δv, θmax, τmax, Δτmax) → λ (…) scales every feasible
+    # sequence, and so the optimum, by λ.
+    limits = dict(max_tilt=0.1, max_torque=30.0, max_delta_torque=10.0)
+    full = push_excursion_bound(PARAMS, 1.0, **limits, **FAST).excursion
+    half = push_excursion_bound(PARAMS, 0.5, **{k: 0.5 * v for k, v in limits.items()},
+                                **FAST).excursion
+    assert half == pytest.approx(0.5 * full, rel=1e-5)
+
+
+def test_the_bound_grows_with_the_push_convexly_and_is_symmetric():
+    values = [push_excursion_bound(PARAMS, dv, **FAST).excursion for dv in (0.25, 0.5, 1.0)]
+    assert 0.0 < values[0] < values[1] < values[2]
+    # An LP's value is convex in a right-hand side linear in Δv, and 0 at Δv = 0.
+    assert values[1] >= 2.0 * values[0] - 1e-6 and values[2] >= 2.0 * values[1] - 1e-6
+    backward = push_excursion_bound(PARAMS, -0.5, **FAST).excursion
+    assert backward == pytest.approx(values[1], rel=1e-6)
+
+
+def test_the_grid_is_fine_enough():
+    coarse = push_excursion_bound(PARAMS, 1.0, step=0.02, **FAST).excursion
+    fine = push_excursion_bound(PARAMS, 1.0, step=0.01, **FAST).excursion
+    assert fine == pytest.approx(coarse, rel=0.005)
+
+
+@pytest.mark.parametrize('kwargs, message', [
+    (dict(delta_v=math.nan), 'delta_v must be a finite number'),
+    (dict(delta_v=1.0, max_tilt=0.0), 'max_tilt must be > 0'),
+    (dict(delta_v=1.0, step=0.5), 'need step <='),
+    (dict(delta_v=20.0, horizon=1.0), 'no torque sequence within the limits'),
+])
+def test_bad_arguments_and_impossible_pushes_are_one_line_errors(kwargs, message):
+    with pytest.raises(ValueError, match=message) as error:
+        push_excursion_bound(PARAMS, **kwargs)
+    assert '\n' not in str(error.value)
+
+
+def test_the_measured_excursion_is_the_along_track_peak_after_the_push():
+    # A reference on the circle of radius 2 at 0.5 m/s; the vehicle on it, then 0.3 m
+    # ahead along its tangent between 11 and 12 s (a push at 10 s), 0.1 m ahead before.
+    t = np.arange(0.0, 20.0, 0.005)
+    beta = 0.25 * t
+    ahead = np.where((t >= 11.0) & (t < 12.0), 0.3, 0.1)
+    ref = {'t': t, 'x': 2 * np.cos(beta), 'y': 2 * np.sin(beta), 'phi': beta + math.pi / 2}
+    truth = {'t': t, 'x': ref['x'] + ahead * np.cos(ref['phi']),
+             'y': ref['y'] + ahead * np.sin(ref['phi'])}
+    assert measured_excursion({'truth': truth, 'reference': ref}, 10.0) == pytest.approx(0.2)
+
+
+def test_a_case_runs_and_its_excursion_is_above_the_bound():
+    from wip_tools.analysis.push_bound import push_recovery_rows
+    (row,) = push_recovery_rows([('line', 'paper', False, False)])
+    assert not row['fell']
+    assert row['bound_m'] == pytest.approx(0.70, abs=0.01)
+    # No controller beats the clairvoyant one on its own model (the paper plant is it).
+    assert 1.0 < row['ratio'] == pytest.approx(row['measured_m'] / row['bound_m'])
