@@ -8,6 +8,7 @@ domain.
 from __future__ import annotations
 
 import os
+import pathlib
 import subprocess
 import sys
 
@@ -17,6 +18,8 @@ pytest.importorskip('rclpy')
 from ros_harness import spinning_in_background  # noqa: E402
 
 pytestmark = pytest.mark.ros
+
+REPO_ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 
 def front_door(*args, domain=None, timeout=60):
@@ -62,8 +65,7 @@ def test_engage_release_and_reset_reach_the_mixer(domain, mixer):
 
 
 def test_bad_arguments_are_one_line_errors(domain):
-    for args, text in ((('engage',), 'no --domain and no $ROS_DOMAIN_ID'),
-                       (('stop', '--domain', '3'), "invalid choice: 'stop'"),
+    for args, text in ((('stop', '--domain', '3'), "invalid choice: 'stop'"),
                        (('engage', '--domain', '999'), 'not in 0..232')):
         result = front_door(*args)
         assert result.returncode == 2, result
@@ -72,3 +74,22 @@ def test_bad_arguments_are_one_line_errors(domain):
     lonely = front_door('engage', '--domain', str(domain), '--timeout', '1')
     assert lonely.returncode == 1
     assert 'nothing subscribes to /wip/estop' in lonely.stderr
+
+
+def test_scripts_estop_drops_the_private_defaults_of_scripts_env_as_hardware_mode_does():
+    # scripts/_env.sh gives a shell without ROS settings a pid-derived domain and
+    # localhost-only discovery, and lists them in WIP_ROS_DEFAULTS: the e-stop must go to
+    # the robot's network instead, ROS's defaults (domain 0, SUBNET), as hardware mode.
+    env = {k: v for k, v in os.environ.items()
+           if k not in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'WIP_ROS_DEFAULTS')}
+    script = REPO_ROOT / 'scripts' / 'estop'
+    result = subprocess.run([str(script), 'engage', '--timeout', '0.5'], env=env,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1, result
+    assert 'in domain 0 (discovery range SUBNET)' in result.stderr, result.stderr
+    # A domain the user set is theirs (kept), whatever scripts/_env.sh would choose.
+    env['ROS_DOMAIN_ID'] = '0'
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    mine = subprocess.run([str(script), 'engage', '--timeout', '0.5'], env=env,
+                          capture_output=True, text=True, timeout=60)
+    assert 'in domain 0 (discovery range LOCALHOST)' in mine.stderr, mine.stderr
