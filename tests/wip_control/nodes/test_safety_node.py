@@ -305,7 +305,8 @@ def test_an_mpc_failure_status_zeroes_at_the_next_tick(context, harnesses, statu
 
 
 def test_estop_zeroes_at_the_next_tick_and_latches_until_reset(context, harnesses):
-    g = graph(harnesses, context)
+    # A hold time shorter than the 0.3 s between the release and the reset below.
+    g = graph(harnesses, context, **{'safety.estop_hold_time': 0.2})
     client = g.io.create_client(Trigger, '/torque_mixer/reset_estop')
     g.wait_active()
     start = time.monotonic()
@@ -338,7 +339,7 @@ def test_estop_zeroes_at_the_next_tick_and_latches_until_reset(context, harnesse
 
 def test_estop_reset_topic_works_like_the_service(context, harnesses):
     from std_msgs.msg import Empty
-    g = graph(harnesses, context)
+    g = graph(harnesses, context, **{'safety.estop_hold_time': 0.1})
     reset = g.io.create_publisher(Empty, '/wip/estop_reset', 10)
     g.wait_active()
     g.pubs['/wip/estop'].publish(Bool(data=True))
