@@ -131,8 +131,8 @@ from .hardware import add_arguments, run_from_args
 # LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
 from .launcher import (add_view_arguments, EXIT_DISK_FULL, EXIT_FAILED, EXIT_FELL, EXIT_OK,
                        EXIT_NOT_ENGAGED, EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError,
-                       in_namespace, LAYOUTS, Probe, PROBE_PERIOD, Scheduling, VIEWER_TOPICS,
-                       viewer_wanted)  # noqa: F401 - imported from here (the comment above)
+                       in_namespace, INPUT_TOPICS, LAYOUTS, Probe, PROBE_PERIOD, Scheduling,
+                       VIEWER_TOPICS, viewer_wanted)  # noqa: F401 - imported from here (the comment above)
 from .runner_base import (DiskFull, is_disk_full, options_from_args, print_result,
                           RunnerBase, RunResult, STOP_EXIT_CODES, stop_signal_number,
                           stop_signals)
@@ -175,9 +175,9 @@ CLOCK_SUBSCRIPTIONS = {'separate': len(CONTROLLER_NODES), 'composed': 1, 'single
 #: Nodes with a /clock subscription of their own in lockstep, per layout.
 CLOCK_NODES = {'separate': CONTROLLER_NODES, 'composed': ('reference',),
                'single': ('reference',)}
-#: Topics recorded with --record (with /clock in lockstep; with the viewer's topics,
-#: :data:`VIEWER_TOPICS`, when the viewer runs).
-RECORDED_TOPICS = tuple(PUBLISHERS) + ('/diagnostics',)
+#: Topics recorded with --record: the graph's, its inputs (with /clock in lockstep; with the
+#: viewer's topics, :data:`VIEWER_TOPICS`, when the viewer runs).
+RECORDED_TOPICS = tuple(PUBLISHERS) + ('/diagnostics',) + INPUT_TOPICS
 
 #: /diagnostics key prefixes of a node's DDS match counts of one topic, '<KEY> <topic>':
 #: subscriptions matched by its publisher, publishers matched by its subscription (see

@@ -93,8 +93,8 @@ from wip_bringup.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
 
 from .params_check import check_remap, check_run_inputs, ParamsError
 from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_FELL, EXIT_NOT_ENGAGED, EXIT_OK,
-                       EXIT_USAGE, GraphError, in_namespace, LAYOUTS, parse_cpus, Probe,
-                       Scheduling, use_user_ros_environment)
+                       EXIT_USAGE, GraphError, in_namespace, INPUT_TOPICS, LAYOUTS,
+                       parse_cpus, Probe, Scheduling, use_user_ros_environment)
 from .runner_base import (options_from_args, print_result, RunnerBase, RunResult,
                           stop_signal_number, stop_signals)
 
@@ -109,8 +109,6 @@ BASE_DISCOVERY_WAIT = 2.0
 CONTROLLER_TOPICS = ('/wip/reference', '/wip/state_estimate', '/wip/velocity_command',
                      '/wip/yaw_torque', '/wip/drive_torque', '/wip/wheel_torques',
                      '/diagnostics')
-#: The run's inputs, recorded with --record: the references and the e-stop's topics.
-INPUT_TOPICS = ('/cmd_vel', '/plan', '/wip/estop', '/wip/estop_reset', '/wip/heartbeat')
 #: The mixer's ``safety.max_estop_age`` in hardware mode [s] and the heartbeat period [s].
 HEARTBEAT_MAX_AGE = 1.0
 HEARTBEAT_PERIOD = 0.1

@@ -83,6 +83,11 @@ EXECUTABLES = {
 #: /diagnostics (statuses carry the node's full name, namespace included), and a
 #: simulation's /clock is the time of every node of its ROS domain.
 GLOBAL_TOPICS = ('/diagnostics', '/clock', '/rosout', '/parameter_events')
+#: The run's inputs from outside the graph, recorded with --record: the references (a
+#: teleop's /cmd_vel, a planner's /plan) and the e-stop (button, reset topic, the
+#: supervisor's heartbeat). A reset through the mixer's service is no topic: the mixer's
+#: /diagnostics (recorded) show its effect.
+INPUT_TOPICS = ('/cmd_vel', '/plan', '/wip/estop', '/wip/estop_reset', '/wip/heartbeat')
 
 
 def in_namespace(topic: str, namespace: str) -> str:
