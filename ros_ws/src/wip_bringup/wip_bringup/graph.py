@@ -715,7 +715,7 @@ class GraphRunner(RunnerBase):
             self.timeline['recorder drained'] = time.monotonic() - self.t0
             if code == 0:
                 result.exit_code, result.message = EXIT_OK, 'the scenario ran to its end'
-            elif code == 3:
+            elif code == EXIT_FELL:     # the plant's fall: the table's 1, as the run's
                 result.exit_code, result.message = EXIT_FELL, 'the vehicle fell'
             else:
                 plant = self.processes[self.plant_process]
@@ -844,7 +844,8 @@ def format_result(result: GraphResult) -> str:
         lines.append(f'CPU per tick: {sum(per_tick.values()):.0f} us in all ('
                      + ', '.join(f'{n} {v:.0f}' for n, v in sorted(
                          per_tick.items(), key=lambda item: -item[1])) + ')')
-    failed = {n: c for n, c in result.node_exit_codes.items() if c not in (0, None, 3)}
+    failed = {n: c for n, c in result.node_exit_codes.items()
+              if c not in (0, None, EXIT_FELL)}
     if failed and result.exit_code != 0:
         lines.append('node exit codes: ' + ', '.join(f'{n}={c}' for n, c in failed.items()))
     lines.append(f'outputs: {result.out} (run.json, params.yaml, scenario.yaml, logs/)')

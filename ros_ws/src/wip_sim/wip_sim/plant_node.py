@@ -91,14 +91,14 @@ from wip_control.nodes.intra_process import local_match_count
 from wip_control.nodes.diagnostics import create_diagnostics_timer
 from wip_control.nodes.parameters import ConfigParameters
 from wip_control.nodes.settings import WheelJoints
+from wip_control.tools.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
 
 from .sensor_messages import gps_message, imu_message, write_fix
 from .settings import PlantSettings, StartHandshake
 
-EXIT_OK = 0
-EXIT_ERROR = 1
-EXIT_CONFIG = 2
-EXIT_FELL = 3
+# The tools' table (wip_control.tools.cli): a fall is 1, a bad parameter 2, a simulation
+# that failed (non-finite state) an internal error, 3.
+EXIT_FELL, EXIT_CONFIG, EXIT_ERROR = EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL
 
 SENSOR_DEPTH = 10  # keep-last depth of every publisher/subscription [messages]
 SPIN_TIMEOUT = 0.1  # [s] of one spin_once: bounds the reaction time to a shutdown

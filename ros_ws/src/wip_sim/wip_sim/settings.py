@@ -75,7 +75,7 @@ class StandinSettings:
     hold_until_engaged: bool = param(True, '1', 'frozen at the initial state until the first '
                                      'non-zero command (someone holds the robot)')
     exit_after_fall: float = param(1.0, 's', 'keep publishing this long after a fall, then '
-                                   'exit with code 3', minimum=0.0, maximum=3600.0)
+                                   'exit with code 1 (fell)', minimum=0.0, maximum=3600.0)
     duration: float = param(0.0, 's', 'exit with code 0 after this long from the release; 0: '
                             'until SIGINT', minimum=0.0, maximum=1e6)
     truth_period: float = param(0.02, 's', 'sampling of the ground truth in the stats file',
