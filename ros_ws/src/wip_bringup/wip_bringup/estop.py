@@ -34,6 +34,17 @@ import time
 from wip_control.tools.cli import add_exit_codes
 
 ACTIONS = ('engage', 'release', 'reset')
+#: Longest wait for the acknowledgement of a publication [s].
+ACK_WAIT = 1.0
+#: Copies of an engage sent after the first, 0.05 s apart.
+ENGAGE_COPIES = 3
+
+
+def process_age() -> float:
+    """Seconds since this process started (its start-up included), from /proc (Linux)."""
+    with open('/proc/self/stat', encoding='ascii') as stream:
+        start_ticks = int(stream.read().rsplit(')', 1)[1].split()[19])
+    return time.clock_gettime(time.CLOCK_BOOTTIME) - start_ticks / os.sysconf('SC_CLK_TCK')
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -53,7 +64,6 @@ def main(argv: list[str] | None = None) -> int:
                         help='longest wait for the mixer [s] (default 10)')
     add_exit_codes(parser)
     args = parser.parse_args(argv)
-    started = time.monotonic()
     # Not wip_bringup.launcher nor the nodes' modules (numpy, scipy: a few tenths of a
     # second of start-up, part of the e-stop's latency).
     from .ros_env import (FASTDDS_PROFILE, FASTDDS_PROFILE_VARIABLES, GraphError,
@@ -96,18 +106,39 @@ def main(argv: list[str] | None = None) -> int:
             # The mixer's subscription: reliable, volatile (wip_control.nodes.common).
             publisher = node.create_publisher(
                 Bool, topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-            while publisher.get_subscription_count() == 0:
+            mixer_namespace, _, mixer_name = mixer.rpartition('/')
+
+            def mixer_matched() -> bool:
+                # The mixer's own subscription, not any (a recorder's also matches).
+                return publisher.get_subscription_count() > 0 and any(
+                    info.node_name == mixer_name
+                    and info.node_namespace == (mixer_namespace or '/')
+                    for info in node.get_subscriptions_info_by_topic(topic))
+
+            matched_after = None
+            while not mixer_matched():
                 if time.monotonic() > deadline:
-                    print(f'estop: nothing subscribes to {topic} in domain {domain} '
+                    print(f'estop: {mixer} does not subscribe to {topic} in domain {domain} '
                           f'(discovery range {network.discovery_range}) after '
                           f'{args.timeout:g} s: is the graph running there?', file=sys.stderr)
                     return 1
-                executor.spin_once(timeout_sec=0.05)
-            publisher.publish(Bool(data=args.action == 'engage'))
-            publisher.wait_for_all_acked(rclpy.duration.Duration(
-                seconds=max(0.1, deadline - time.monotonic())))
+                executor.spin_once(timeout_sec=0.02)
+            matched_after = process_age()
+            message = Bool(data=args.action == 'engage')
+            publisher.publish(message)
+            # The reliable delivery to every matched reader (a reader of a process that
+            # died without saying so never acknowledges: not waited for past ACK_WAIT).
+            publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=ACK_WAIT))
+            if message.data:
+                # Again, in case the mixer's side matched only after the first copy (DDS
+                # matches each side on its own): an engaged e-stop latches, copies are free.
+                for _ in range(ENGAGE_COPIES):
+                    executor.spin_once(timeout_sec=0.05)
+                    publisher.publish(message)
+                publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=ACK_WAIT))
             print(f'estop: {topic} = {str(args.action == "engage").lower()} published '
-                  f'(domain {domain}, {time.monotonic() - started:.2f} s after the start)')
+                  f'(domain {domain}; {mixer} matched {matched_after:.2f} s after this '
+                  'command started)')
             return 0
         client = node.create_client(Trigger, f'{mixer.rstrip("/")}/reset_estop')
         while not client.service_is_ready():

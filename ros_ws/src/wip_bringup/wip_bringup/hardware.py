@@ -17,7 +17,8 @@ What it does
    ``OUT/params.yaml`` (clock_mode realtime, no use_sim_time; the reference node starts
    its path when the safety layer first engages: ``realtime_start: engaged``).
 2. Starts reference, eso, trajectory_generator, arc, mpc and torque_mixer (and, with
-   ``--record BAG``, the recorder of every controller topic and of the base's topics),
+   ``--record BAG``, the recorder of every controller topic, of the base's topics and of
+   the run's inputs: /cmd_vel, /plan, /wip/estop, /wip/estop_reset, /wip/heartbeat),
    each as its own process running ``<prefix>/lib/<package>/<executable>`` (what ``ros2
    run`` runs) with ``--ros-args --params-file OUT/params.yaml`` followed by every
    ``--params-file`` given (a later file overrides an earlier one, as in ROS: use
