@@ -302,6 +302,9 @@ class GraphRunner(RunnerBase):
         #: The process that holds the plant (and, single, the controllers): the run ends
         #: with it.
         self.plant_process = 'simulation' if options.layout == 'single' else 'plant'
+        #: Nodes stopped at the end of a real-time run before the plant (stop_held_plant).
+        self.stopped_at_end: list[str] = []
+        self.cpu_at_end: dict[str, float | None] = {}
         #: The run ends before the plant did (a stop signal, a failure): the recorder is
         #: drained once the nodes have stopped (nodes_stopped).
         self.drain_at_stop = False
@@ -417,6 +420,9 @@ class GraphRunner(RunnerBase):
                 CLOCK_SUBSCRIPTIONS[options.layout] + 2 * (recorder is not None)
                 if options.clock == 'lockstep' else 0),
             'stats_file': str(self.out / 'plant_stats.json'),
+            # Real time, the plant in its own process: the controllers are stopped at the
+            # scenario's end while the plant still feeds them (see watch()).
+            'hold_at_end': options.clock == 'realtime' and options.layout != 'single',
         }
         params_file = write_params_file(scenario, self.out / 'params.yaml', options.clock,
                                         scenario_path, plant_extra=plant_extra,
@@ -486,6 +492,32 @@ class GraphRunner(RunnerBase):
             self.probe.spin(0.1)
         raise GraphError(f'the plant did not start: {last}', EXIT_TIMEOUT)
 
+    def cpu_snapshot(self) -> dict[str, float | None]:
+        """CPU time [s] of each process; of one stopped at the end, as it ended."""
+        snapshot = super().cpu_snapshot()
+        for name, seconds in self.cpu_at_end.items():
+            if snapshot.get(name) is None:
+                snapshot[name] = seconds
+        return snapshot
+
+    def stop_held_plant(self, plant) -> int | None:
+        """Stop every node, then the plant that holds its sensors at the scenario's end.
+
+        The plant's ``hold_at_end``: every node but the recorder is stopped first, while
+        its inputs still come, so that its end is a stop and not the loss of its inputs
+        (which the safety layer would judge a fault); then the plant. Its exit code.
+        """
+        self.stopped_at_end = [n for n in self.processes
+                               if n not in (self.plant_process, 'recorder')]
+        # Their CPU time as they end (/proc forgets an exited process).
+        self.cpu_at_end = {n: self.processes[n].cpu_seconds() for n in self.stopped_at_end}
+        for name in self.stopped_at_end:
+            self.processes[name].interrupt()
+        deadline = time.monotonic() + GRACE_PERIOD
+        for name in self.stopped_at_end:
+            self.processes[name].stop(deadline - time.monotonic())
+        return plant.stop(GRACE_PERIOD)
+
     def watch(self) -> int:
         """Until the plant exits: progress, node health, stall detection; its exit code."""
         plant = self.processes[self.plant_process]
@@ -503,6 +535,8 @@ class GraphRunner(RunnerBase):
             if found is None:
                 continue
             status, values = found
+            if values.get('ended') == 'yes' and plant.poll() is None:
+                return self.stop_held_plant(plant)
             try:
                 sim = float(values.get('sim time [s]', 'nan'))
             except ValueError:
@@ -710,7 +744,7 @@ class GraphRunner(RunnerBase):
             if not self.options.quiet and self._interactive:
                 sys.stderr.write('\n')
             self.timeline['plant ended'] = time.monotonic() - self.t0
-            self.check_alive(exempt=(self.plant_process,))
+            self.check_alive(exempt=(self.plant_process, *self.stopped_at_end))
             self.drain_recorder()
             self.timeline['recorder drained'] = time.monotonic() - self.t0
             if code == 0:

@@ -41,6 +41,10 @@ class PlantSettings:
         True, '1', 'realtime: the vehicle is held at its initial state (sensors published, '
         'time not advancing) until the first wheel torques the safety layer did not zero, '
         'as someone holds a robot until its controller runs; false: free from the start')
+    hold_at_end: bool = param(
+        False, '1', 'realtime: at the end of the scenario (not after a fall) keep publishing '
+        "the last state's sensors, frozen, until stopped, so that the controllers are "
+        'stopped while their inputs still come')
     max_torque_age: float = param(0.05, 's', 'realtime: wheel torques older than this (stamp '
                                   'against the wall clock) are replaced by zero', minimum=0.0,
                                   exclusive_minimum=True, maximum=3600.0)
