@@ -58,7 +58,11 @@ What it does
    (about 1 message/s: no per-tick traffic into this process), polls every process, and
    stops the run when a node dies (which it names, with the end of its log) or the
    simulation stalls (with every node's latest /diagnostics: inputs received and pending).
-6. When the plant has exited: waits until the recorder has received what was published
+6. In real time with the plant in its own process, the plant holds its last sensors at
+   the scenario's end (``hold_at_end``) and says so on /diagnostics: the other nodes but
+   the recorder are stopped first, while their inputs still come (their end is then a
+   stop, not a safety fault), then the plant.
+   When the plant has exited: waits until the recorder has received what was published
    (lockstep: the counts implied by the plant's tick count; else stable counts), stops
    the other nodes with SIGINT (SIGKILL after a grace period), then the recorder (SIGINT:
    it writes the bag's summary and metadata.yaml), and copies the scenario into the bag

@@ -32,7 +32,10 @@ Clock modes (parameter ``clock_mode``)
     state until the controllers engage (the first wheel torques with ``zeroed`` false):
     the sensors of that state are published each tick, the time stays at t = 0. Without
     it the vehicle falls freely while the safety layer settles (0.3-0.5 s measured: long
-    enough to drop the paper's initial tilt of 0.05 rad).
+    enough to drop the paper's initial tilt of 0.05 rad). With ``hold_at_end`` (set by
+    ``scripts/run_graph``) the end of the scenario does not end the process: the last
+    state's sensors go on, frozen, until SIGINT/SIGTERM (exit 0), so that the launcher
+    stops the controllers while their inputs still come; a fall still ends it at once.
 
 Start handshake
 ---------------
@@ -54,8 +57,8 @@ left_joint, right_joint, map_frame, imu_frame, gps_frame,
 datum.latitude/longitude/altitude [deg, deg, m] (default: the scenario's
 ``sensors.gps_datum_*``; ``scripts/run_graph`` writes the same values for the plant and
 the eso), autostart (default true), start.* (default 1 subscription per sensor topic, none
-for the ground truth and /clock), hold_until_engaged and max_torque_age [s] (realtime
-only), stats_file (JSON
+for the ground truth and /clock), hold_until_engaged, hold_at_end and max_torque_age [s]
+(realtime only), stats_file (JSON
 with per-tick timings and CPU time, written at exit; '' = none). All read-only.
 
 The in-process runner's time t_k = k * dt is used for the dynamics, the disturbances and
