@@ -2,7 +2,8 @@
 
 A recorded lockstep run while this test publishes, as a user's teleop, planner, e-stop
 button and reset would, on /cmd_vel, /plan, /wip/estop (false: released) and
-/wip/estop_reset: each is in the bag, with the messages as sent.
+/wip/estop_reset: each is in the bag, with the messages as sent, and the mixer's
+/diagnostics say what the reset did.
 """
 
 from __future__ import annotations
@@ -70,3 +71,9 @@ def test_the_runs_inputs_are_in_the_bag(tmp_path, test_node, domain):
     assert first['/cmd_vel'].twist.linear.x == 0.25
     assert first['/plan'].header.frame_id == 'map' and len(first['/plan'].poses) == 1
     assert first['/wip/estop'].data is False
+    # A reset leaves its trace in the mixer's /diagnostics (the service's too).
+    resets = [kv.value for _t, _type, _s, array in read_bag(tmp_path / 'bag',
+                                                            topics=['/diagnostics'])
+              for status in array.status for kv in status.values
+              if kv.key == 'last e-stop reset']
+    assert resets and resets[-1].startswith('done via /wip/estop_reset at '), resets[-1:]

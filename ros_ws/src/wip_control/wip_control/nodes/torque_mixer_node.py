@@ -345,6 +345,11 @@ class TorqueMixerNode(ControllerNode):
             self.get_logger().warning(f'reset via {source}: {message}')
         else:
             self.get_logger().error(f'reset refused via {source}: {message}')
+        # On /diagnostics at once: a recorded run keeps every reset, also the service's.
+        self.diagnostics.values['last e-stop reset'] = (
+            f'{"done" if ok else "refused"} via {source} at {self.now_ns() * 1e-9:.3f} s: '
+            f'{message}')
+        self.diagnostics.publish()
         return ok, message
 
     # -- ticks ---------------------------------------------------------------------------------
