@@ -38,7 +38,8 @@ States
               fault too. Returns to STARTING when every condition has cleared (with
               ``latch_faults``: only on :meth:`SafetyMonitor.reset`).
 ``ESTOP``     zero torque: an e-stop message said engaged; latched until
-              :meth:`SafetyMonitor.reset`, which refuses while the e-stop is still engaged.
+              :meth:`SafetyMonitor.reset`, which refuses while the e-stop is still engaged
+              or said so within ``estop_hold_time`` (a held button repeats it).
 
 Priority: ESTOP > FAULT > STARTING > DEGRADED > ACTIVE/SHADOW. :attr:`SafetyDecision.reasons` lists
 every reason present, so /diagnostics says why.
