@@ -419,19 +419,19 @@ def test_estop_heartbeat_when_configured():
     config = SafetyConfig(max_estop_age=0.02, settle_time=0.0)
     monitor = SafetyMonitor(config, TAU_MAX, RATE, H)
     clock = Clock(monitor)
-    assert_zeroed(clock.tick(), STARTING, 'no estop yet')
+    assert_zeroed(clock.tick(), STARTING, 'no heartbeat (/wip/heartbeat or /wip/estop) yet')
     monitor.estop(clock.t, False)
     assert clock.tick().state == ACTIVE
     for _ in range(3):                               # up to 0.02 s old: still fresh
         assert clock.tick().state == ACTIVE
-    assert_zeroed(clock.tick(), FAULT, 'estop stale')
+    assert_zeroed(clock.tick(), FAULT, 'heartbeat (/wip/heartbeat or /wip/estop) stale')
 
 
 def test_the_heartbeat_topic_keeps_the_link_fresh_but_never_releases_an_estop():
     config = SafetyConfig(max_estop_age=0.02, settle_time=0.0)
     monitor = SafetyMonitor(config, TAU_MAX, RATE, H)
     clock = Clock(monitor)
-    assert_zeroed(clock.tick(), STARTING, 'no estop yet')
+    assert_zeroed(clock.tick(), STARTING, 'no heartbeat (/wip/heartbeat or /wip/estop) yet')
     monitor.heartbeat(clock.t)                       # a heartbeat alone arms
     assert clock.tick().state == ACTIVE
     for _ in range(20):                              # heartbeats every tick: fresh
@@ -444,7 +444,8 @@ def test_the_heartbeat_topic_keeps_the_link_fresh_but_never_releases_an_estop():
     assert not monitor.reset(clock.t)[0]
     for _ in range(5):                               # heartbeat stops: stale, and ESTOP wins
         clock.tick()
-    assert_zeroed(clock.tick(), ESTOP, 'e-stop engaged', 'estop stale')
+    assert_zeroed(clock.tick(), ESTOP, 'e-stop engaged',
+                  'heartbeat (/wip/heartbeat or /wip/estop) stale')
 
 
 def test_a_held_estop_blocks_the_reset_whatever_else_publishes():

@@ -434,15 +434,18 @@ class SafetyMonitor:
             watched.append(ESTOP_INPUT)
         for name in watched:
             slot = self.inputs[name]
-            arrival = slot.arrival
-            if name == ESTOP_INPUT and self.heartbeat_at is not None:
+            arrival, label = slot.arrival, name
+            if name == ESTOP_INPUT:
                 # The link is alive if either the heartbeat or an e-stop message came.
-                arrival = max(self.heartbeat_at, arrival if arrival is not None else -math.inf)
+                label = 'heartbeat (/wip/heartbeat or /wip/estop)'
+                if self.heartbeat_at is not None:
+                    arrival = max(self.heartbeat_at,
+                                  arrival if arrival is not None else -math.inf)
             if slot.invalid:
                 faults.append(f'{name} invalid: {slot.invalid}')
             elif arrival is None:
                 if self.timing_checks or name in (YAW_TORQUE, DRIVE_TORQUE):
-                    waiting.append(f'no {name} yet')
+                    waiting.append(f'no {label} yet')
             elif self.timing_checks and now - arrival > max_age[name] + TIME_TOLERANCE:
                 age = now - arrival
                 bridge = cfg.bridge_time if name != ESTOP_INPUT else 0.0
@@ -450,7 +453,7 @@ class SafetyMonitor:
                     late.append(f'{name} late: {age:.3f} s old > {max_age[name]:g} s, '
                                 f'bridged up to {max_age[name] + bridge:g} s')
                 else:
-                    faults.append(f'{name} stale: {age:.3f} s old > '
+                    faults.append(f'{label} stale: {age:.3f} s old > '
                                   f'{max_age[name] + bridge:g} s (age limit '
                                   f'{max_age[name]:g} s + bridge {bridge:g} s; publisher '
                                   'stopped?)')
