@@ -107,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
                              start_parameter_services=False, enable_rosout=False)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
+    node_ready_after = process_age()
     deadline = time.monotonic() + args.timeout
     try:
         if args.action in ('engage', 'release'):
@@ -144,8 +145,8 @@ def main(argv: list[str] | None = None) -> int:
                     publisher.publish(message)
                 publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=ACK_WAIT))
             print(f'estop: {topic} = {str(args.action == "engage").lower()} published '
-                  f'(domain {domain}; {mixer} matched {matched_after:.2f} s after this '
-                  'command started)')
+                  f'(domain {domain}; {node_ready_after:.2f} s after this command started '
+                  f'its node was up, {matched_after:.2f} s {mixer} matched)')
             return 0
         client = node.create_client(Trigger, f'{mixer.rstrip("/")}/reset_estop')
         while not client.service_is_ready():
