@@ -354,7 +354,7 @@ def test_mixer_refuses_inf_warns_about_unknown_overrides_and_stops_quietly(tmp_p
     module = [sys.executable, '-m', 'wip_control.nodes.torque_mixer_node', '--ros-args']
     bad = subprocess.run(module + ['-p', 'mpc.sampling_period:=inf'], capture_output=True,
                          text=True, timeout=60, env=env)
-    assert bad.returncode == 1
+    assert bad.returncode == 2     # the table's usage or input error
     assert bad.stderr.strip() == \
         'torque_mixer: error: mpc.sampling_period: must be finite, got inf'
     log = tmp_path / 'mixer.log'

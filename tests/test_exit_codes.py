@@ -23,6 +23,8 @@ NOT_COMMANDS = {'_env.sh'}
 #: ros2_run, whose exit status is the executable's own).
 NOT_TOOLS = {'setup', 'demo', 'test', 'ros2_run'}
 HELP_TIMEOUT = 300.0  # [s] every --help at once on a slow, shared 2-core machine
+#: [s] for every node refusing its arguments at once (a node that accepts them runs on).
+REFUSE_TIMEOUT = 120.0
 
 
 def table_codes(rows):
@@ -235,20 +237,66 @@ def test_a_typo_in_an_option_is_exit_2_in_one_line_and_writes_nothing(tmp_path, 
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize('package, executable, status', [
-    ('wip_control', 'eso', 1), ('wip_control', 'controllers', 1), ('wip_sim', 'plant', 2),
-    ('wip_bag', 'recorder', 1), ('wip_viewer', 'viewer', 1)])
-def test_a_node_given_a_bad_ros_argument_says_so_in_one_line(tmp_path, package, executable,
-                                                             status):
+def _run_all(runs, tmp_path_factory):
+    """Run every command of ``runs`` (key -> argv) at once, each in an empty folder.
+
+    key -> (status, stdout + stderr, files the folder holds after).
+    """
+    folders, processes, results = {}, {}, {}
+    try:
+        for key, command in runs.items():
+            folders[key] = tmp_path_factory.mktemp(key.replace('/', '_'))
+            processes[key] = subprocess.Popen(command, cwd=folders[key], text=True,
+                                              stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                              stdin=subprocess.DEVNULL)
+        for key, process in processes.items():
+            try:
+                out, err = process.communicate(timeout=REFUSE_TIMEOUT)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                out, err = process.communicate()
+            results[key] = (process.returncode, out, err,
+                            sorted(p.name for p in folders[key].iterdir()))
+    finally:
+        for process in processes.values():
+            if process.poll() is None:
+                process.kill()
+                process.communicate()
+    return results
+
+
+def test_every_node_given_a_bad_ros_argument_exits_2_in_one_line(tmp_path_factory):
     pytest.importorskip('rclpy')
-    from ament_index_python.packages import get_package_prefix
-    path = pathlib.Path(get_package_prefix(package)) / 'lib' / package / executable
-    done = subprocess.run([str(path), '--ros-args', '-r', '/imu/data:=/my imu'], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=HELP_TIMEOUT,
-                          stdin=subprocess.DEVNULL)
-    assert done.returncode == status, done.stderr   # the node's parameter-error status
-    assert 'Traceback' not in done.stderr + done.stdout
-    (line,) = [line for line in done.stderr.splitlines() if 'error: ' in line
-               and not line.startswith('[ERROR]')]   # rcl logs its own line first
-    assert line.startswith(f'{executable}: error: bad ROS arguments: ') and '/my imu' in line
-    assert list(tmp_path.iterdir()) == []
+    runs = {f'{package}/{name}': [str(path), '--ros-args', '-r', '/imu/data:=/my imu']
+            for package, name, path in node_executables()}
+    for key, (status, out, err, files) in _run_all(runs, tmp_path_factory).items():
+        executable = key.split('/')[1]
+        assert status == cli.EXIT_USAGE, f'{key}: exit {status}\n{err}'
+        assert 'Traceback' not in err + out, key
+        (line,) = [line for line in err.splitlines() if 'error: ' in line
+                   and not line.startswith('[ERROR]')]   # rcl logs its own line first
+        assert line.startswith(f'{executable}: error: bad ROS arguments: ') and '/my imu' in line
+        assert files == [], key
+
+
+def test_every_node_given_a_bad_parameter_exits_2_naming_it(tmp_path_factory):
+    # A value out of its declared range: the configuration error of the table (2), the
+    # message naming the parameter; not 1 ("the vehicle fell").
+    pytest.importorskip('rclpy')
+    bad = {'wip_bag/recorder': 'discovery_period:=-1.0',
+           'wip_bag/replay': 'rate:=-1.0',
+           'wip_viewer/viewer': 'viewer.pose_rate:=-1.0',
+           'wip_viewer/foxglove_bridge': 'port:=-5',
+           'wip_sim/plant': 'clock_mode:=bogus',
+           'wip_sim/simulation': 'clock_mode:=bogus',
+           'wip_sim/standin_base': 'exit_after_fall:=-1.0'}
+    runs = {}
+    for package, name, path in node_executables():
+        key = f'{package}/{name}'
+        runs[key] = [str(path), '--ros-args', '-p', bad.get(key, 'clock_mode:=bogus')]
+    for key, (status, out, err, files) in _run_all(runs, tmp_path_factory).items():
+        name = bad.get(key, 'clock_mode:=bogus').split(':=')[0]
+        assert status == cli.EXIT_USAGE, f'{key}: exit {status}\n{err}'
+        assert 'Traceback' not in err + out, key
+        assert name in err, f'{key}\n{err}'
+        assert files == [], key

@@ -143,6 +143,6 @@ def test_refuses_to_overwrite_an_existing_bag(test_node, tools, tmp_path):
     recorder = start_recorder(test_node, bag)
     tools.append(recorder)
     output, _ = communicate(recorder.process, 30.0)
-    assert recorder.process.returncode == 1
+    assert recorder.process.returncode == 2     # an output error: the table's 2
     assert 'refusing to overwrite' in output
     assert (bag / 'metadata.yaml').read_text() == 'precious'

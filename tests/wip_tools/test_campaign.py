@@ -126,7 +126,8 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.startswith('ERROR: --scheduler nowhere:')
     # Nothing ran: the same command may be given again without --force or --resume.
-    assert [p.name for p in (tmp_path / 'out').iterdir()] == ['campaign.yaml']
+    assert sorted(p.name for p in (tmp_path / 'out').iterdir()) == ['.run_graph.lock',
+                                                                    'campaign.yaml']
     assert cmp.main([str(good), '--out', str(tmp_path / 'out'), '--scheduler', 'nowhere']) == 2
     assert 'exists' not in capsys.readouterr().err
 
@@ -248,3 +249,33 @@ def test_the_example_campaigns_are_valid(name):
     campaign = cmp.load_campaign(path)
     specs = cmp.run_specs(campaign)
     assert len(specs) == campaign.total_runs >= 1
+
+
+def test_a_campaign_into_a_folder_another_run_holds_is_refused_and_removes_nothing(
+        tmp_path, capsys):
+    # --force replaces a finished campaign's results, but never under a live one: the
+    # output lock (run_graph's) is taken before anything is removed.
+    import subprocess
+    import sys
+    import textwrap
+    out = tmp_path / 'out'
+    out.mkdir()
+    (out / 'runs.jsonl').write_text('{"run": 0}\n')
+    holder = subprocess.Popen([sys.executable, '-c', textwrap.dedent(f"""
+        import pathlib, time
+        from wip_bringup.launcher import lock_output
+        lock_output(pathlib.Path({str(out)!r}), '--out')
+        print('locked', flush=True)
+        time.sleep(600)
+    """)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == 'locked'
+        good = tmp_path / 'good.yaml'
+        good.write_text(yaml.safe_dump({'overrides': {'duration': 0.5}}))
+        assert cmp.main([str(good), '--out', str(out), '--force', '--no-progress']) == 2
+        err = capsys.readouterr().err
+        assert f'another run (pid {holder.pid}) is writing there' in err
+        assert (out / 'runs.jsonl').read_text() == '{"run": 0}\n'
+    finally:
+        holder.kill()
+        holder.wait()

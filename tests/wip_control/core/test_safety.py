@@ -419,12 +419,57 @@ def test_estop_heartbeat_when_configured():
     config = SafetyConfig(max_estop_age=0.02, settle_time=0.0)
     monitor = SafetyMonitor(config, TAU_MAX, RATE, H)
     clock = Clock(monitor)
-    assert_zeroed(clock.tick(), STARTING, 'no estop yet')
+    assert_zeroed(clock.tick(), STARTING, 'no heartbeat (/wip/heartbeat or /wip/estop) yet')
     monitor.estop(clock.t, False)
     assert clock.tick().state == ACTIVE
     for _ in range(3):                               # up to 0.02 s old: still fresh
         assert clock.tick().state == ACTIVE
-    assert_zeroed(clock.tick(), FAULT, 'estop stale')
+    assert_zeroed(clock.tick(), FAULT, 'heartbeat (/wip/heartbeat or /wip/estop) stale')
+
+
+def test_the_heartbeat_topic_keeps_the_link_fresh_but_never_releases_an_estop():
+    config = SafetyConfig(max_estop_age=0.02, settle_time=0.0)
+    monitor = SafetyMonitor(config, TAU_MAX, RATE, H)
+    clock = Clock(monitor)
+    assert_zeroed(clock.tick(), STARTING, 'no heartbeat (/wip/heartbeat or /wip/estop) yet')
+    monitor.heartbeat(clock.t)                       # a heartbeat alone arms
+    assert clock.tick().state == ACTIVE
+    for _ in range(20):                              # heartbeats every tick: fresh
+        monitor.heartbeat(clock.t)
+        assert clock.tick().state == ACTIVE
+    monitor.estop(clock.t, True)
+    for _ in range(400):                             # 2 s of heartbeats: still held
+        monitor.heartbeat(clock.t)
+        assert_zeroed(clock.tick(), ESTOP, 'e-stop engaged')
+    assert not monitor.reset(clock.t)[0]
+    for _ in range(5):                               # heartbeat stops: stale, and ESTOP wins
+        clock.tick()
+    assert_zeroed(clock.tick(), ESTOP, 'e-stop engaged',
+                  'heartbeat (/wip/heartbeat or /wip/estop) stale')
+
+
+def test_a_held_estop_blocks_the_reset_whatever_else_publishes():
+    # A button that repeats true every 0.1 s, and another publisher's false between two
+    # of its messages: the reset is refused until no true came for estop_hold_time.
+    config = SafetyConfig(settle_time=0.0, estop_hold_time=0.5)
+    monitor, clock = active(config)
+    for _ in range(10):
+        monitor.estop(clock.t, True)
+        for _ in range(20):                          # 0.1 s at 200 Hz
+            assert_zeroed(clock.tick(), ESTOP, 'e-stop engaged')
+    monitor.estop(clock.t, True)
+    clock.tick()
+    monitor.estop(clock.t, False)                    # someone else's release
+    ok, message = monitor.reset(clock.t)
+    assert not ok and 'e-stop held' in message and '< estop_hold_time 0.5 s' in message
+    for _ in range(98):                              # 0.49 s after the last true: held
+        clock.tick()
+    assert not monitor.reset(clock.t)[0]
+    for _ in range(2):                               # 0.5 s: released
+        clock.tick()
+    ok, message = monitor.reset(clock.t)
+    assert ok and 'e-stop' in message
+    assert clock.tick().state == ACTIVE
 
 
 # ----------------------------------------------------------------------------- limits

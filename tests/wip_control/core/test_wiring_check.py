@@ -205,3 +205,47 @@ def test_a_wrong_wheel_sign_is_not_named_as_the_imu_mounting_before_the_yaw_chec
     # The IMU turned by π with the same torques: the response is −X, and it is named.
     verdict = _open_loop('imu_yaw_pi', tau_v=5.0, tau_omega=-4.0)
     assert verdict is not None and verdict.parameter == MOUNTING, verdict
+
+
+def test_fall_pick_up_reset_and_engage_again_gives_no_gravity_fault():
+    # A correctly mounted IMU: at rest upright, engaged and balancing, a fall (torque cut,
+    # the body rotates to 1.4 rad onto its bumper and lies there still, gravity 1.4 rad
+    # from +z: past max_gravity_angle 1.0), a reset while lying, picked up, held upright
+    # and still, engaged again. Lying still on the bumper is the gravity check's
+    # signature of an IMU on its side: only a check limited to before the first engage
+    # tells the two apart (the sensors cannot).
+    check = WiringCheck(WiringCheckConfig(), PARAMS, PERIOD, configured=CONFIGURED)
+    g = PARAMS.gravity
+    t = 0.0
+    theta = 0.0
+
+    def samples(seconds, engaged, target=None):
+        nonlocal t, theta
+        n = int(round(seconds / PERIOD))
+        start = theta
+        for k in range(n):
+            previous = theta
+            if target is not None:          # a smooth rotation from start to target
+                theta = start + (target - start) * 0.5 * (1 - math.cos(math.pi * (k + 1) / n))
+            rate = (theta - previous) / PERIOD
+            check.wheels(t, 0.0, 0.0)
+            verdict = check.imu(t, theta, rate, 0.0,
+                                (g * math.sin(theta), 0.0, g * math.cos(theta)))
+            assert verdict is None, (t, theta, verdict.reason)
+            check.torque(t, 2.0 if engaged else 0.0, engaged, 0.0)
+            t += PERIOD
+
+    samples(0.5, False)                     # at rest before the first engage: checked
+    samples(1.0, True)                      # balancing
+    samples(0.4, False, target=1.4)         # the fall: torque cut at once
+    samples(5.0, False)                     # lying still on the bumper
+    check.reset()                           # the user resets the safety layer
+    samples(1.0, False)
+    samples(1.0, False, target=0.0)         # picked up
+    samples(1.0, False)                     # held upright and still
+    samples(1.0, True)                      # engaged again
+    # The same lying still before any engage is a verdict: the check itself still works.
+    fresh = WiringCheck(WiringCheckConfig(), PARAMS, PERIOD, configured=CONFIGURED)
+    lying = (g * math.sin(1.4), 0.0, g * math.cos(1.4))
+    verdicts = [fresh.imu(k * PERIOD, 1.4, 0.0, 0.0, lying) for k in range(20)]
+    assert verdicts[-1] is not None and 'on its side' in verdicts[-1].message

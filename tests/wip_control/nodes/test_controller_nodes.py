@@ -1062,7 +1062,7 @@ def test_node_process_refuses_to_start_on_a_bad_params_file(domain_id, tmp_path)
         'arc': {'yaw_rate_gain': -3.0}}}}))
     with _node_process('arc_node', '--params-file', str(path)) as process:
         _, stderr = communicate(process, PROCESS_START_TIMEOUT)
-    assert process.returncode == 1
+    assert process.returncode == 2     # the table's usage or input error
     assert 'arc: error: arc.yaw_rate_gain: must be > 0.0, got -3.0' in stderr
 
 

@@ -249,6 +249,8 @@ def make_node(context, node_cls, mode):
               'diagnostics_period': 0.0}
     if node_cls is TorqueMixerNode:
         params['safety.settle_time'] = 0.0
+        # The recovery check resets at once after the fuzzing's e-stop messages.
+        params['safety.estop_hold_time'] = 0.0
     node = node_cls(context=context, parameter_overrides=[
         Parameter(k, value=v) for k, v in params.items()])
     if mode == 'realtime':

@@ -305,7 +305,8 @@ def test_an_mpc_failure_status_zeroes_at_the_next_tick(context, harnesses, statu
 
 
 def test_estop_zeroes_at_the_next_tick_and_latches_until_reset(context, harnesses):
-    g = graph(harnesses, context)
+    # A hold time shorter than the 0.3 s between the release and the reset below.
+    g = graph(harnesses, context, **{'safety.estop_hold_time': 0.2})
     client = g.io.create_client(Trigger, '/torque_mixer/reset_estop')
     g.wait_active()
     start = time.monotonic()
@@ -338,7 +339,7 @@ def test_estop_zeroes_at_the_next_tick_and_latches_until_reset(context, harnesse
 
 def test_estop_reset_topic_works_like_the_service(context, harnesses):
     from std_msgs.msg import Empty
-    g = graph(harnesses, context)
+    g = graph(harnesses, context, **{'safety.estop_hold_time': 0.1})
     reset = g.io.create_publisher(Empty, '/wip/estop_reset', 10)
     g.wait_active()
     g.pubs['/wip/estop'].publish(Bool(data=True))
@@ -455,3 +456,40 @@ def test_mixer_process_stopped_sends_a_last_zero_command_to_the_base(context, ha
         assert list(efforts[-1].data) == [0.0, 0.0]
         assert any(max(abs(v) for v in m.data) > 0.0 for m in efforts[-10:-1]), \
             'the mixer was not commanding torque when it was stopped'
+
+
+def test_fall_pick_up_reset_and_engage_again_gives_no_gravity_fault(context, harnesses):
+    # The mixer's wiring check on its own /imu/data (a correctly mounted IMU): engaged,
+    # a fall (the estimate past fall_threshold, the body lying still at 1.4 rad on its
+    # bumper: gravity 1.4 rad from +z, past max_gravity_angle 1 rad), a reset while
+    # lying, picked up, engaged again. No wiring verdict: the gravity check is over once
+    # the robot has engaged (lying still reads as an IMU on its side).
+    from sensor_msgs.msg import Imu
+    g = graph(harnesses, context)
+    g.wait_active()
+
+    def imu(pitch: float) -> Imu:
+        msg = Imu()
+        msg.header = make_header(g.io.get_clock().now().nanoseconds)
+        msg.orientation.y, msg.orientation.w = math.sin(pitch / 2), math.cos(pitch / 2)
+        msg.linear_acceleration.x = 9.81 * math.sin(pitch)
+        msg.linear_acceleration.z = 9.81 * math.cos(pitch)
+        return msg
+
+    def lie_still(pitch: float, seconds: float) -> None:
+        for _ in range(int(seconds / PERIOD)):
+            g.node._on_imu(imu(pitch))
+            g.spin_for(PERIOD)
+
+    lie_still(0.02, 0.2)                     # upright, engaged
+    g.estimate = dict(theta=1.4, v=0.0, settled=True)
+    lie_still(1.4, 0.5)                      # fallen, still, torque cut
+    assert g.state == FAULT and 'fallen' in g.node.last_decision.reason
+    ok, message = g.node.reset_estop('test')
+    assert ok, message
+    lie_still(1.4, 0.3)                      # still lying after the reset
+    g.estimate = dict(theta=0.02, v=0.1, settled=True)
+    lie_still(0.02, 0.3)                     # picked up, held upright and still
+    g.wait_active()
+    assert g.node.monitor.wiring == '' and g.node.wiring_check.verdict is None
+    assert not any('wiring' in d.reason for _, d in g.log.ticks)

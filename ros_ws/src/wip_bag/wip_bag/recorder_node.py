@@ -109,7 +109,7 @@ from wip_control.nodes.launched import end_with_launcher
 from wip_control.nodes.common import init_rclpy
 from wip_control.nodes.diagnostics import create_diagnostics_timer
 from wip_control.nodes.parameters import ConfigParameters
-from wip_control.tools.cli import answer_node_help
+from wip_control.tools.cli import answer_node_help, EXIT_USAGE
 
 from .bag_writer import (BagExistsError, BagWriterError, message_definition,
                          Rosbag2McapWriter, type_description_hash)
@@ -564,7 +564,7 @@ def main(args=None):
     # Our own handlers (stop_signals): rclpy's would shut the context down and raise
     # KeyboardInterrupt wherever the main thread is, also inside the bag's close.
     if not init_rclpy('recorder', args, SignalHandlerOptions.NO):
-        return 1
+        return EXIT_USAGE
     stop = StopSignals()
     node = None
     status = 0
@@ -578,7 +578,7 @@ def main(args=None):
     except (BagExistsError, RecorderStartError, ValueError) as err:
         rclpy.logging.get_logger('recorder').error(str(err))
         print(f'recorder: error: {err}', file=sys.stderr)
-        status = 1
+        status = EXIT_USAGE
     except Exception:  # noqa: BLE001
         # A signal shuts the context down at any point, also inside a ROS call (e.g. "failed
         # to initialize wait set: the given context is not valid"): that is a normal stop.

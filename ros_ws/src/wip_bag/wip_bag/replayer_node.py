@@ -104,9 +104,11 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSLivelinessPolicy, QoSProfile,
                        QoSReliabilityPolicy)
+from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_srvs.srv import SetBool, Trigger
 
+from wip_control.nodes.common import init_rclpy
 from wip_control.nodes.launched import end_with_launcher
 from wip_control.nodes.parameters import ConfigParameters
 from wip_control.tools.cli import (add_exit_codes, EXIT_INTERNAL, EXIT_USAGE, log_trace,
@@ -577,7 +579,8 @@ def main(args=None):
     argv = sys.argv[1:] if args is None else list(args)
     overrides, ros_args = parse_command_line(argv)
     end_with_launcher()
-    rclpy.init(args=[sys.argv[0]] + ros_args)
+    if not init_rclpy('replay', [sys.argv[0]] + ros_args, SignalHandlerOptions.ALL):
+        return EXIT_BAD_PARAMETERS
     node = None
     status = EXIT_OK
     try:

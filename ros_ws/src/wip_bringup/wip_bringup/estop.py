@@ -2,15 +2,25 @@
 
 Examples
 --------
-    scripts/estop engage --domain 42      # /wip/estop = true: the mixer latches zero torque
-    scripts/estop release --domain 42     # /wip/estop = false (the button released)
-    scripts/estop reset --domain 42       # /torque_mixer/reset_estop: its answer is printed
+    scripts/estop engage                  # /wip/estop = true: the mixer latches zero torque
+    scripts/estop release                 # /wip/estop = false (the button released)
+    scripts/estop reset                   # /torque_mixer/reset_estop: its answer is printed
+    scripts/estop engage --domain 42      # a simulation's private domain (run_graph prints it)
 
-The DDS domain is ``--domain``, else ``$ROS_DOMAIN_ID`` (``scripts/run_graph`` prints the
-one it uses). ``engage`` and ``release`` wait until the mixer's /wip/estop subscription
-has matched (a message published before the match would be lost), publish, and wait for
-the reliable delivery. ``reset`` calls the mixer's ``~/reset_estop`` (std_srvs/Trigger),
-which refuses while /wip/estop still says true.
+The ROS network is yours, as in hardware mode: ``$ROS_DOMAIN_ID`` and
+``$ROS_AUTOMATIC_DISCOVERY_RANGE`` as you set them, ROS's defaults (domain 0, SUBNET) where
+you did not; the private defaults that scripts/_env.sh gives simulations are dropped.
+``--domain`` overrides the domain. ``engage`` and ``release`` wait until the mixer's own
+/wip/estop subscription has matched (a message published before the match would be lost),
+publish (an engage three more times, 0.05 s apart), and wait for the reliable delivery.
+``reset`` calls the mixer's ``~/reset_estop`` (std_srvs/Trigger), which refuses while
+/wip/estop still says true or said it within ``safety.estop_hold_time`` (a button that
+keeps publishing true holds it).
+
+A one-shot command first has to start and be discovered by the graph: 0.6-1.5 s from
+the command to zero torque measured on a heavily loaded 2-core machine, most of it
+start-up (docs/real-base.md, "E-stop"). A node that keeps publishing (a teleop button) is
+faster: it is matched already when pressed.
 
 Exit status (the tools' table, ``wip_control.tools.cli``): 0 done (reset: the mixer said
 success); 1 refused, or nothing answered in ``--timeout`` seconds; 2 bad arguments; 130
@@ -20,12 +30,28 @@ Ctrl-C.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
 from wip_control.tools.cli import add_exit_codes
 
 ACTIONS = ('engage', 'release', 'reset')
+#: Longest wait for the acknowledgement of a publication [s].
+ACK_WAIT = 1.0
+#: Copies of an engage sent after the first, 0.05 s apart.
+ENGAGE_COPIES = 3
+
+
+def process_age() -> float:
+    """Seconds since this process started (its start-up included); NaN without /proc."""
+    try:
+        with open('/proc/self/stat', encoding='ascii') as stream:
+            start_ticks = int(stream.read().rsplit(')', 1)[1].split()[19])
+        return (time.clock_gettime(time.CLOCK_BOOTTIME)
+                - start_ticks / os.sysconf('SC_CLK_TCK'))
+    except (OSError, ValueError, IndexError, AttributeError):
+        return math.nan
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -33,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('action', choices=ACTIONS)
     parser.add_argument('--domain', type=int, default=None, metavar='ID',
-                        help='ROS_DOMAIN_ID of the graph (default: $ROS_DOMAIN_ID)')
+                        help='ROS_DOMAIN_ID of the graph (default: yours, as hardware mode '
+                        'uses it: $ROS_DOMAIN_ID if you set it, else 0)')
     parser.add_argument('--namespace', default='', metavar='NS',
                         help="the vehicle's namespace (run_graph --namespace NS): NS/wip/estop"
                         ' and NS/torque_mixer')
@@ -44,21 +71,19 @@ def main(argv: list[str] | None = None) -> int:
                         help='longest wait for the mixer [s] (default 10)')
     add_exit_codes(parser)
     args = parser.parse_args(argv)
-    domain = args.domain
-    if domain is None:
-        text = os.environ.get('ROS_DOMAIN_ID', '').strip()
-        if not text:
-            parser.error('no --domain and no $ROS_DOMAIN_ID: give the domain that '
-                         'scripts/run_graph printed')
-        try:
-            domain = int(text)
-        except ValueError:
-            parser.error(f'ROS_DOMAIN_ID={text!r} is not an integer')
+    # Not wip_bringup.launcher nor the nodes' modules (numpy, scipy: a few tenths of a
+    # second of start-up, part of the e-stop's latency).
+    from .ros_env import (FASTDDS_PROFILE, FASTDDS_PROFILE_VARIABLES, GraphError,
+                          parse_namespace, use_user_ros_environment)
+    try:
+        network = use_user_ros_environment()
+    except GraphError as err:
+        parser.error(str(err))
+    domain = network.domain_id if args.domain is None else args.domain
     if not 0 <= domain <= 232:
         parser.error(f'--domain: {domain} is not in 0..232')
     if not args.timeout > 0:
         parser.error('--timeout: must be > 0')
-    from .launcher import GraphError, parse_namespace
     try:
         namespace = parse_namespace(args.namespace)
     except GraphError as err:
@@ -66,34 +91,62 @@ def main(argv: list[str] | None = None) -> int:
     mixer = args.mixer or f'{namespace}/torque_mixer'
     topic = f'{namespace}/wip/estop'
 
+    # The graph's Fast DDS profile where the user has none (reliable repairs in
+    # milliseconds; wip_bringup.launcher.graph_environment).
+    if not any(os.environ.get(name) for name in FASTDDS_PROFILE_VARIABLES):
+        os.environ[FASTDDS_PROFILE_VARIABLES[0]] = str(FASTDDS_PROFILE)
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from std_msgs.msg import Bool
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_srvs.srv import Trigger
-
-    from wip_control.nodes.common import RELIABLE_QOS
 
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain, args=[])
     node = rclpy.create_node('estop_front_door', context=context,
-                             start_parameter_services=False)
+                             start_parameter_services=False, enable_rosout=False)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
+    node_ready_after = process_age()
     deadline = time.monotonic() + args.timeout
     try:
         if args.action in ('engage', 'release'):
-            publisher = node.create_publisher(Bool, topic, RELIABLE_QOS)
-            while publisher.get_subscription_count() == 0:
+            # The mixer's subscription: reliable, volatile (wip_control.nodes.common).
+            publisher = node.create_publisher(
+                Bool, topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+            mixer_namespace, _, mixer_name = mixer.rpartition('/')
+
+            def mixer_matched() -> bool:
+                # The mixer's own subscription, not any (a recorder's also matches).
+                return publisher.get_subscription_count() > 0 and any(
+                    info.node_name == mixer_name
+                    and info.node_namespace == (mixer_namespace or '/')
+                    for info in node.get_subscriptions_info_by_topic(topic))
+
+            matched_after = None
+            while not mixer_matched():
                 if time.monotonic() > deadline:
-                    print(f'estop: nothing subscribes to {topic} in domain {domain} after '
+                    print(f'estop: {mixer} does not subscribe to {topic} in domain {domain} '
+                          f'(discovery range {network.discovery_range}) after '
                           f'{args.timeout:g} s: is the graph running there?', file=sys.stderr)
                     return 1
-                executor.spin_once(timeout_sec=0.05)
-            publisher.publish(Bool(data=args.action == 'engage'))
-            publisher.wait_for_all_acked(rclpy.duration.Duration(
-                seconds=max(0.1, deadline - time.monotonic())))
+                executor.spin_once(timeout_sec=0.02)
+            matched_after = process_age()
+            message = Bool(data=args.action == 'engage')
+            publisher.publish(message)
+            # The reliable delivery to every matched reader (a reader of a process that
+            # died without saying so never acknowledges: not waited for past ACK_WAIT).
+            publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=ACK_WAIT))
+            if message.data:
+                # Again, in case the mixer's side matched only after the first copy (DDS
+                # matches each side on its own): an engaged e-stop latches, copies are free.
+                for _ in range(ENGAGE_COPIES):
+                    executor.spin_once(timeout_sec=0.05)
+                    publisher.publish(message)
+                publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=ACK_WAIT))
             print(f'estop: {topic} = {str(args.action == "engage").lower()} published '
-                  f'(domain {domain})')
+                  f'(domain {domain}; {node_ready_after:.2f} s after this command started '
+                  f'its node was up, {matched_after:.2f} s {mixer} matched)')
             return 0
         client = node.create_client(Trigger, f'{mixer.rstrip("/")}/reset_estop')
         while not client.service_is_ready():

@@ -58,7 +58,11 @@ What it does
    (about 1 message/s: no per-tick traffic into this process), polls every process, and
    stops the run when a node dies (which it names, with the end of its log) or the
    simulation stalls (with every node's latest /diagnostics: inputs received and pending).
-6. When the plant has exited: waits until the recorder has received what was published
+6. In real time with the plant in its own process, the plant holds its last sensors at
+   the scenario's end (``hold_at_end``) and says so on /diagnostics: the other nodes but
+   the recorder are stopped first, while their inputs still come (their end is then a
+   stop, not a safety fault), then the plant.
+   When the plant has exited: waits until the recorder has received what was published
    (lockstep: the counts implied by the plant's tick count; else stable counts), stops
    the other nodes with SIGINT (SIGKILL after a grace period), then the recorder (SIGINT:
    it writes the bag's summary and metadata.yaml), and copies the scenario into the bag
@@ -132,8 +136,8 @@ from .hardware import add_arguments, run_from_args
 # LAYOUTS and viewer_wanted are imported from here by other modules and tests too.
 from .launcher import (add_view_arguments, EXIT_DISK_FULL, EXIT_FAILED, EXIT_FELL, EXIT_OK,
                        EXIT_NOT_ENGAGED, EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError,
-                       in_namespace, LAYOUTS, Probe, PROBE_PERIOD, Scheduling, VIEWER_TOPICS,
-                       viewer_wanted)  # noqa: F401 - imported from here (the comment above)
+                       in_namespace, INPUT_TOPICS, LAYOUTS, Probe, PROBE_PERIOD, Scheduling,
+                       VIEWER_TOPICS, viewer_wanted)  # noqa: F401 - imported from here (the comment above)
 from .runner_base import (DiskFull, is_disk_full, options_from_args, print_result,
                           RunnerBase, RunResult, STOP_EXIT_CODES, stop_signal_number,
                           stop_signals)
@@ -176,9 +180,9 @@ CLOCK_SUBSCRIPTIONS = {'separate': len(CONTROLLER_NODES), 'composed': 1, 'single
 #: Nodes with a /clock subscription of their own in lockstep, per layout.
 CLOCK_NODES = {'separate': CONTROLLER_NODES, 'composed': ('reference',),
                'single': ('reference',)}
-#: Topics recorded with --record (with /clock in lockstep; with the viewer's topics,
-#: :data:`VIEWER_TOPICS`, when the viewer runs).
-RECORDED_TOPICS = tuple(PUBLISHERS) + ('/diagnostics',)
+#: Topics recorded with --record: the graph's, its inputs (with /clock in lockstep; with the
+#: viewer's topics, :data:`VIEWER_TOPICS`, when the viewer runs).
+RECORDED_TOPICS = tuple(PUBLISHERS) + ('/diagnostics',) + INPUT_TOPICS
 
 #: /diagnostics key prefixes of a node's DDS match counts of one topic, '<KEY> <topic>':
 #: subscriptions matched by its publisher, publishers matched by its subscription (see
@@ -305,6 +309,9 @@ class GraphRunner(RunnerBase):
         #: The process that holds the plant (and, single, the controllers): the run ends
         #: with it.
         self.plant_process = 'simulation' if options.layout == 'single' else 'plant'
+        #: Nodes stopped at the end of a real-time run before the plant (stop_held_plant).
+        self.stopped_at_end: list[str] = []
+        self.cpu_at_end: dict[str, float | None] = {}
         #: The run ends before the plant did (a stop signal, a failure): the recorder is
         #: drained once the nodes have stopped (nodes_stopped).
         self.drain_at_stop = False
@@ -420,6 +427,9 @@ class GraphRunner(RunnerBase):
                 CLOCK_SUBSCRIPTIONS[options.layout] + 2 * (recorder is not None)
                 if options.clock == 'lockstep' else 0),
             'stats_file': str(self.out / 'plant_stats.json'),
+            # Real time, the plant in its own process: the controllers are stopped at the
+            # scenario's end while the plant still feeds them (see watch()).
+            'hold_at_end': options.clock == 'realtime' and options.layout != 'single',
         }
         # The robot model hangs from base_link: with the viewer, the ESO's /odom and
         # odom -> base_link run in lockstep too (otherwise off there), so that a view or a
@@ -495,6 +505,32 @@ class GraphRunner(RunnerBase):
             self.probe.spin(0.1)
         raise GraphError(f'the plant did not start: {last}', EXIT_TIMEOUT)
 
+    def cpu_snapshot(self) -> dict[str, float | None]:
+        """CPU time [s] of each process; of one stopped at the end, as it ended."""
+        snapshot = super().cpu_snapshot()
+        for name, seconds in self.cpu_at_end.items():
+            if snapshot.get(name) is None:
+                snapshot[name] = seconds
+        return snapshot
+
+    def stop_held_plant(self, plant) -> int | None:
+        """Stop every node, then the plant that holds its sensors at the scenario's end.
+
+        The plant's ``hold_at_end``: every node but the recorder is stopped first, while
+        its inputs still come, so that its end is a stop and not the loss of its inputs
+        (which the safety layer would judge a fault); then the plant. Its exit code.
+        """
+        self.stopped_at_end = [n for n in self.processes
+                               if n not in (self.plant_process, 'recorder')]
+        # Their CPU time as they end (/proc forgets an exited process).
+        self.cpu_at_end = {n: self.processes[n].cpu_seconds() for n in self.stopped_at_end}
+        for name in self.stopped_at_end:
+            self.processes[name].interrupt()
+        deadline = time.monotonic() + GRACE_PERIOD
+        for name in self.stopped_at_end:
+            self.processes[name].stop(deadline - time.monotonic())
+        return plant.stop(GRACE_PERIOD)
+
     def watch(self) -> int:
         """Until the plant exits: progress, node health, stall detection; its exit code."""
         plant = self.processes[self.plant_process]
@@ -512,6 +548,8 @@ class GraphRunner(RunnerBase):
             if found is None:
                 continue
             status, values = found
+            if values.get('ended') == 'yes' and plant.poll() is None:
+                return self.stop_held_plant(plant)
             try:
                 sim = float(values.get('sim time [s]', 'nan'))
             except ValueError:
@@ -719,12 +757,12 @@ class GraphRunner(RunnerBase):
             if not self.options.quiet and self._interactive:
                 sys.stderr.write('\n')
             self.timeline['plant ended'] = time.monotonic() - self.t0
-            self.check_alive(exempt=(self.plant_process,))
+            self.check_alive(exempt=(self.plant_process, *self.stopped_at_end))
             self.drain_recorder()
             self.timeline['recorder drained'] = time.monotonic() - self.t0
             if code == 0:
                 result.exit_code, result.message = EXIT_OK, 'the scenario ran to its end'
-            elif code == 3:
+            elif code == EXIT_FELL:     # the plant's fall: the table's 1, as the run's
                 result.exit_code, result.message = EXIT_FELL, 'the vehicle fell'
             else:
                 plant = self.processes[self.plant_process]
@@ -853,7 +891,8 @@ def format_result(result: GraphResult) -> str:
         lines.append(f'CPU per tick: {sum(per_tick.values()):.0f} us in all ('
                      + ', '.join(f'{n} {v:.0f}' for n, v in sorted(
                          per_tick.items(), key=lambda item: -item[1])) + ')')
-    failed = {n: c for n, c in result.node_exit_codes.items() if c not in (0, None, 3)}
+    failed = {n: c for n, c in result.node_exit_codes.items()
+              if c not in (0, None, EXIT_FELL)}
     if failed and result.exit_code != 0:
         lines.append('node exit codes: ' + ', '.join(f'{n}={c}' for n, c in failed.items()))
     lines.append(f'outputs: {result.out} (run.json, params.yaml, scenario.yaml, logs/)')

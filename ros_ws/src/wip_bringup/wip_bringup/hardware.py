@@ -17,7 +17,8 @@ What it does
    ``OUT/params.yaml`` (clock_mode realtime, no use_sim_time; the reference node starts
    its path when the safety layer first engages: ``realtime_start: engaged``).
 2. Starts reference, eso, trajectory_generator, arc, mpc and torque_mixer (and, with
-   ``--record BAG``, the recorder of every controller topic and of the base's topics),
+   ``--record BAG``, the recorder of every controller topic, of the base's topics and of
+   the run's inputs: /cmd_vel, /plan, /wip/estop, /wip/estop_reset, /wip/heartbeat),
    each as its own process running ``<prefix>/lib/<package>/<executable>`` (what ``ros2
    run`` runs) with ``--ros-args --params-file OUT/params.yaml`` followed by every
    ``--params-file`` given (a later file overrides an earlier one, as in ROS: use
@@ -27,14 +28,17 @@ What it does
    base's topics (after the remaps) have a publisher (sensors) or a subscription (the
    effort command). A missing base is not an error: the safety layer commands zero
    torque until every input has arrived and the ESO has settled.
-   **Arming**: the generated parameters make ``/wip/estop`` a heartbeat of the mixer
-   (``safety.max_estop_age`` = 1 s): no torque before the first e-stop message, zero
-   torque (FAULT) when none came for 1 s. This process publishes ``/wip/estop`` = false
-   at 10 Hz, starting ``--arm-delay`` seconds (default 2) after every node is up: the
+   **Arming**: the generated parameters make the mixer require a heartbeat
+   (``safety.max_estop_age`` = 1 s): no torque before the first ``/wip/heartbeat``
+   (or e-stop) message, zero torque (FAULT) when none came for 1 s. This process
+   publishes ``/wip/heartbeat`` (std_msgs/Empty) at 10 Hz, starting ``--arm-delay``
+   seconds (default 2) after every node is up: the
    controllers engage only once the start-up, and its DDS discovery, is over (measured:
    a process's publish() can stall for 0.33 s while the others start, which a robot
    released at that moment does not survive), and torque stops if this supervisor dies.
-   An e-stop of your own (``/wip/estop`` = true, from a joystick...) still latches.
+   The heartbeat is its own topic, never a release: an e-stop of your own (``/wip/estop``
+   = true, from a joystick...) latches, and while it keeps saying true the reset is
+   refused.
    ``--no-heartbeat``: no heartbeat, no arm delay (the mixer engages as soon as ready).
 4. Runs until SIGINT (Ctrl-C) or ``--duration`` [s of wall time], printing the safety
    state and the node rates every few seconds and recording every change of the safety
@@ -92,8 +96,8 @@ from wip_bringup.params_files import (CONTROLLER_NODES, DEFAULT_JOINTS, flatten,
 
 from .params_check import check_remap, check_run_inputs, ParamsError
 from .launcher import (add_view_arguments, EXIT_FAILED, EXIT_FELL, EXIT_NOT_ENGAGED, EXIT_OK,
-                       EXIT_USAGE, GraphError, in_namespace, LAYOUTS, parse_cpus, Probe,
-                       Scheduling, use_user_ros_environment)
+                       EXIT_USAGE, GraphError, in_namespace, INPUT_TOPICS, LAYOUTS,
+                       parse_cpus, Probe, Scheduling, use_user_ros_environment)
 from .runner_base import (options_from_args, print_result, RunnerBase, RunResult,
                           stop_signal_number, stop_signals)
 
@@ -107,7 +111,7 @@ BASE_DISCOVERY_WAIT = 2.0
 #: Topics of the controllers recorded with --record (plus the base's, remapped).
 CONTROLLER_TOPICS = ('/wip/reference', '/wip/state_estimate', '/wip/velocity_command',
                      '/wip/yaw_torque', '/wip/drive_torque', '/wip/wheel_torques',
-                     '/wip/estop', '/diagnostics')
+                     '/diagnostics')
 #: The mixer's ``safety.max_estop_age`` in hardware mode [s] and the heartbeat period [s].
 HEARTBEAT_MAX_AGE = 1.0
 HEARTBEAT_PERIOD = 0.1
@@ -136,7 +140,7 @@ class HardwareOptions:
     discovery_timeout: float = 60.0  # [s] wall: processes started -> every node reporting
     quiet: bool = False
     arm_delay: float = 2.0  # [s] wall: every node up -> the e-stop heartbeat starts
-    heartbeat: bool = True  # publish the /wip/estop heartbeat (see the module docstring)
+    heartbeat: bool = True  # publish the /wip/heartbeat (see the module docstring)
     layout: str = 'composed'  # controller processes: see wip_bringup.launcher.LAYOUTS
     scheduling: Scheduling = Scheduling()  # of the controller processes
     #: Programmatic stop (tests): polled while running; a non-empty string ends the run
@@ -260,8 +264,8 @@ def hardware_parameters(scenario: ControllerSettings, recorder: Mapping[str, Any
 
     The generated params file of a hardware run: the controller nodes of
     :func:`~wip_bringup.params_files.graph_parameters` in real time, no plant (there the
-    reference starts when the safety layer engages); with ``heartbeat``, /wip/estop is the
-    mixer's heartbeat (``safety.max_estop_age``).
+    reference starts when the safety layer engages); with ``heartbeat``, the mixer requires
+    /wip/heartbeat (``safety.max_estop_age``).
     """
     data = graph_parameters(scenario, 'realtime', None, joints, recorder=recorder,
                             plant=False)
@@ -354,14 +358,16 @@ class HardwareRunner(RunnerBase):
         self.extra = [load_params_file(path) for path in options.params_files]
         # Before anything is written or started: the files against the nodes' declarations.
         run_topics = [in_namespace(topic, self.namespace) for topic in
-                      (*BASE_SENSOR_TOPICS, DEFAULT_EFFORT_TOPIC, *CONTROLLER_TOPICS)]
+                      (*BASE_SENSOR_TOPICS, DEFAULT_EFFORT_TOPIC, *CONTROLLER_TOPICS,
+                       *INPUT_TOPICS)]
         for line in check_run_inputs(options.params_files, self.extra, self.node_names(),
                                      hardware_parameters(self.scenario), self.remaps,
                                      run_topics):
             self.say(f'warning: {line}')
         self.prepare_outputs()
         recorder = self.recorder_parameters(
-            list(CONTROLLER_TOPICS) + list(BASE_SENSOR_TOPICS) + [DEFAULT_EFFORT_TOPIC],
+            list(CONTROLLER_TOPICS) + list(INPUT_TOPICS) + list(BASE_SENSOR_TOPICS)
+            + [DEFAULT_EFFORT_TOPIC],
             discovery_period=0.5)
         self.generated = hardware_parameters(self.scenario, recorder,
                                              heartbeat=options.heartbeat)
@@ -423,16 +429,16 @@ class HardwareRunner(RunnerBase):
             Float64MultiArray, self.effort_topic,
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         if self.options.heartbeat:
-            from std_msgs.msg import Bool
-            self._bool = Bool
-            self.estop_publisher = node.create_publisher(
-                Bool, remapped(in_namespace('/wip/estop', self.namespace), self.remaps),
+            from std_msgs.msg import Empty
+            self._empty = Empty
+            self.heartbeat_publisher = node.create_publisher(
+                Empty, remapped(in_namespace('/wip/heartbeat', self.namespace), self.remaps),
                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
             node.create_timer(HEARTBEAT_PERIOD, self._heartbeat)
 
     def _heartbeat(self) -> None:
         if self.armed:
-            self.estop_publisher.publish(self._bool(data=False))
+            self.heartbeat_publisher.publish(self._empty())
 
     def arm(self) -> None:
         """Wait ``arm_delay`` (nodes watched), then start the e-stop heartbeat."""
@@ -444,7 +450,7 @@ class HardwareRunner(RunnerBase):
             self.probe.spin(min(PROBE_PERIOD, max(0.0, deadline - time.monotonic())))
         self.armed = True
         self.timeline['armed'] = time.monotonic() - self.t0
-        self.say('armed: /wip/estop heartbeat started; the safety layer engages once every '
+        self.say('armed: /wip/heartbeat started; the safety layer engages once every '
                  'input is fresh and the ESO has settled')
 
     def _on_diagnostics(self, msg) -> None:
@@ -691,7 +697,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--arm-delay', type=bounded(float, 0.0, 3600.0), default=2.0,
                         metavar='S',
                         help='hardware mode: seconds after every node is up before the '
-                             '/wip/estop heartbeat starts and the controllers may engage')
+                             '/wip/heartbeat starts and the controllers may engage')
     parser.add_argument('--layout', choices=LAYOUTS, default=None,
                         help='controller processes: separate (one per node, as six ros2 '
                         'run), composed (the six nodes in one process, one executor: '
@@ -717,7 +723,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'robot1: /robot1/cmd_vel, frames robot1/odom, robot1/base_link); '
                         'two vehicles in one domain (docs/driving.md)')
     parser.add_argument('--no-heartbeat', action='store_true',
-                        help='hardware mode: no /wip/estop heartbeat (and no arm delay): '
+                        help='hardware mode: no /wip/heartbeat (and no arm delay): '
                              'the mixer engages as soon as its inputs are ready')
 
 

@@ -32,7 +32,10 @@ Clock modes (parameter ``clock_mode``)
     state until the controllers engage (the first wheel torques with ``zeroed`` false):
     the sensors of that state are published each tick, the time stays at t = 0. Without
     it the vehicle falls freely while the safety layer settles (0.3-0.5 s measured: long
-    enough to drop the paper's initial tilt of 0.05 rad).
+    enough to drop the paper's initial tilt of 0.05 rad). With ``hold_at_end`` (set by
+    ``scripts/run_graph``) the end of the scenario does not end the process: the last
+    state's sensors go on, frozen, until SIGINT/SIGTERM (exit 0), so that the launcher
+    stops the controllers while their inputs still come; a fall still ends it at once.
 
 Start handshake
 ---------------
@@ -54,8 +57,8 @@ left_joint, right_joint, map_frame, imu_frame, gps_frame,
 datum.latitude/longitude/altitude [deg, deg, m] (default: the scenario's
 ``sensors.gps_datum_*``; ``scripts/run_graph`` writes the same values for the plant and
 the eso), autostart (default true), start.* (default 1 subscription per sensor topic, none
-for the ground truth and /clock), hold_until_engaged and max_torque_age [s] (realtime
-only), stats_file (JSON
+for the ground truth and /clock), hold_until_engaged, hold_at_end and max_torque_age [s]
+(realtime only), stats_file (JSON
 with per-tick timings and CPU time, written at exit; '' = none). All read-only.
 
 The in-process runner's time t_k = k * dt is used for the dynamics, the disturbances and
@@ -91,14 +94,14 @@ from wip_control.nodes.intra_process import local_match_count
 from wip_control.nodes.diagnostics import create_diagnostics_timer
 from wip_control.nodes.parameters import ConfigParameters
 from wip_control.nodes.settings import WheelJoints
+from wip_control.tools.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
 
 from .sensor_messages import gps_message, imu_message, write_fix
 from .settings import PlantSettings, StartHandshake
 
-EXIT_OK = 0
-EXIT_ERROR = 1
-EXIT_CONFIG = 2
-EXIT_FELL = 3
+# The tools' table (wip_control.tools.cli): a fall is 1, a bad parameter 2, a simulation
+# that failed (non-finite state) an internal error, 3.
+EXIT_FELL, EXIT_CONFIG, EXIT_ERROR = EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL
 
 SENSOR_DEPTH = 10  # keep-last depth of every publisher/subscription [messages]
 SPIN_TIMEOUT = 0.1  # [s] of one spin_once: bounds the reaction time to a shutdown
@@ -162,6 +165,11 @@ class PlantNode(IntraProcessNode):
         #: realtime: held at the initial state until the controllers engage
         self.held = self.clock_mode != 'lockstep' and settings.hold_until_engaged
         self.held_ticks = 0
+        #: realtime: the scenario's end was reached and the last sensors are held until
+        #: the stop (hold_at_end); the exit status it will be.
+        self.hold_at_end = self.clock_mode != 'lockstep' and settings.hold_at_end
+        self.ended = False
+        self.final_exit_code: int | None = None
         self.stats_file = settings.stats_file
         self.sim = Simulation(scenario)
         self.dt_control, self.n_ticks = self.sim.dt_control, self.sim.n_ticks
@@ -419,6 +427,11 @@ class PlantNode(IntraProcessNode):
     def _realtime_tick(self) -> None:
         if self.exit_code is not None:
             return
+        if self.ended:
+            # hold_at_end: the last state's sensors, frozen, until the stop (no truth: the
+            # run ended at its last sample).
+            self._publish_sensors(self.get_clock().now().nanoseconds, self.k, self.state)
+            return
         if self.held:
             # The initial state, measured each tick; no step, the time stays at t = 0.
             self.held_ticks += 1
@@ -445,7 +458,8 @@ class PlantNode(IntraProcessNode):
             self.exit_code = EXIT_ERROR
 
     def _finish(self, fell: bool, t: float) -> None:
-        if self.realtime_timer is not None:
+        hold = self.hold_at_end and not fell
+        if self.realtime_timer is not None and not hold:
             self.realtime_timer.cancel()
         self.wall_end = time.perf_counter()
         self.cpu_end = time.process_time()
@@ -458,12 +472,19 @@ class PlantNode(IntraProcessNode):
             self.exit_code = EXIT_FELL
         else:
             self.end_reason = f'end of the scenario at t = {t:g} s'
-            self.exit_code = EXIT_OK
+            if hold:
+                # The launcher sees it on /diagnostics, stops the controllers, then this.
+                self.ended, self.final_exit_code = True, EXIT_OK
+                self.end_reason += ' (sensors held until the stop)'
+            else:
+                self.exit_code = EXIT_OK
         self.get_logger().info(
             f'{self.end_reason}; {self.k} control ticks in {wall:.2f} s wall '
             f'({factor:.1f}x real time); per tick: publish '
             f'{_fmt(self.publish_time.summary())}, step {_fmt(self.step_time.summary())}, '
             f'wait for torques {_fmt(self.wait_time.summary())}')
+        if hold:
+            self.publish_diagnostics()   # the launcher waits for it
 
     # -- reporting ------------------------------------------------------------------------
     def stats(self) -> dict:
@@ -480,7 +501,8 @@ class PlantNode(IntraProcessNode):
             # CPU time of this process (all threads, DDS included) from start to end [s].
             'cpu_s': ((self.cpu_end or time.process_time()) - self.cpu_start
                       if self.cpu_start is not None else None),
-            'exit_code': self.exit_code,
+            'exit_code': (self.exit_code if self.exit_code is not None
+                          else self.final_exit_code),
             'end_reason': self.end_reason,
             'publish_s': self.publish_time.summary(),
             'step_s': self.step_time.summary(),
@@ -515,8 +537,9 @@ class PlantNode(IntraProcessNode):
         status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: plant',
                                   hardware_id='simulation')
         t = self.k * self.dt_control
-        if self.exit_code is not None:
-            status.level = (DiagnosticStatus.OK if self.exit_code == EXIT_OK
+        if self.exit_code is not None or self.ended:
+            status.level = (DiagnosticStatus.OK if EXIT_OK in (self.exit_code,
+                                                                self.final_exit_code)
                             else DiagnosticStatus.ERROR)
             status.message = self.end_reason
         elif not self.started:
@@ -550,6 +573,7 @@ class PlantNode(IntraProcessNode):
                 f'{1e6 * sum(wait) / len(wait):.0f}' if wait else 'n/a',
             'stale torque messages': str(self.stale_torques),
             'ticks with zero torques (stale or none)': str(self.zeroed_torques),
+            'ended': 'yes' if self.ended or self.exit_code is not None else 'no',
         }
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         array = DiagnosticArray(status=[status])

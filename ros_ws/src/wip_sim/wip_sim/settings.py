@@ -41,6 +41,10 @@ class PlantSettings:
         True, '1', 'realtime: the vehicle is held at its initial state (sensors published, '
         'time not advancing) until the first wheel torques the safety layer did not zero, '
         'as someone holds a robot until its controller runs; false: free from the start')
+    hold_at_end: bool = param(
+        False, '1', 'realtime: at the end of the scenario (not after a fall) keep publishing '
+        "the last state's sensors, frozen, until stopped, so that the controllers are "
+        'stopped while their inputs still come')
     max_torque_age: float = param(0.05, 's', 'realtime: wheel torques older than this (stamp '
                                   'against the wall clock) are replaced by zero', minimum=0.0,
                                   exclusive_minimum=True, maximum=3600.0)
@@ -75,7 +79,7 @@ class StandinSettings:
     hold_until_engaged: bool = param(True, '1', 'frozen at the initial state until the first '
                                      'non-zero command (someone holds the robot)')
     exit_after_fall: float = param(1.0, 's', 'keep publishing this long after a fall, then '
-                                   'exit with code 3', minimum=0.0, maximum=3600.0)
+                                   'exit with code 1 (fell)', minimum=0.0, maximum=3600.0)
     duration: float = param(0.0, 's', 'exit with code 0 after this long from the release; 0: '
                             'until SIGINT', minimum=0.0, maximum=1e6)
     truth_period: float = param(0.02, 's', 'sampling of the ground truth in the stats file',

@@ -46,7 +46,8 @@ initial state (still publishing its sensors) until the first command with a non-
 effort arrives — the hand lets go when the controller engages. Its time t = 0 is that
 moment. After a fall (|θ| >= the scenario's ``fall_threshold``) the body lies still
 (the state is frozen), the node logs an error, keeps publishing and recording the
-commands it receives for ``exit_after_fall`` seconds, then exits with code 3.
+commands it receives for ``exit_after_fall`` seconds, then exits with code 1
+(the tools' table: the vehicle fell).
 
 Parameters (read-only)
 ----------------------
@@ -97,11 +98,14 @@ from wip_control.nodes.diagnostics import create_diagnostics_timer
 from wip_control.nodes.hardware_inputs import (imu_orientation_of_body, rotate_vector_into)
 from wip_control.nodes.parameters import ConfigParameters, declare_effort_interface
 from wip_control.nodes.settings import DatumConfig, ImuMounting
+from wip_control.tools.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
 
 from .sensor_messages import gps_message, imu_message, write_fix
 from .settings import CommandTiming, PositionFault, StandinSettings
 
-EXIT_OK, EXIT_ERROR, EXIT_CONFIG, EXIT_FELL = 0, 1, 2, 3
+# The tools' table (wip_control.tools.cli): a fall is 1, a bad parameter 2, a simulation
+# that failed (non-finite state) an internal error, 3.
+EXIT_FELL, EXIT_CONFIG, EXIT_ERROR = EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL
 SPIN_TIMEOUT = 0.1  # [s]
 DIAGNOSTICS_PERIOD = 1.0  # [s] wall
 #: A tick whose newest command is older than this many command periods is a deadline miss.

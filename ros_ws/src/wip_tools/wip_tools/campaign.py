@@ -762,12 +762,34 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     out = pathlib.Path(args.out or f'out/campaign/{campaign.name}')
+    # One campaign per folder: run_graph's output lock, taken before anything there is
+    # removed or written, held until this returns.
+    from wip_bringup.launcher import GraphError, LOCK_FILE, lock_output
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        lock = lock_output(out, '--out')
+    except (GraphError, OSError) as err:
+        return _fail(str(err))
+    try:
+        return _run(campaign, specs, args, out, LOCK_FILE)
+    finally:
+        os.close(lock)
+
+
+def _run(campaign, specs, args, out: pathlib.Path, lock_file: str) -> int:
+    """Run the campaign into ``out``, whose output lock the caller holds; the exit status."""
     jsonl = out / 'runs.jsonl'
     stamp = out / 'campaign.yaml'
     # A folder holding only the campaign file (a start that failed) has no results.
-    if out.exists() and any(p.name != stamp.name for p in out.iterdir()):
+    if any(p.name not in (stamp.name, lock_file) for p in out.iterdir()):
         if args.force:
-            shutil.rmtree(out)
+            for entry in out.iterdir():    # all but the lock, which this process holds
+                if entry.name == lock_file:
+                    continue
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry)
+                else:
+                    entry.unlink()
         elif args.resume:
             if not stamp.exists() or stamp.read_text(encoding='utf-8') != campaign.source:
                 return _fail(f'{out}: holds another campaign (its campaign.yaml differs); '

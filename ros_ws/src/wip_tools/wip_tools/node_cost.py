@@ -9,7 +9,7 @@ tick calls the ESO's two sensor callbacks with serialized JointState and Imu sta
 now, drains the bus (estimate → reference → generator → ARC → mixer → effort command),
 and spins the executor once for its due timers (the MPC at 10 Hz, diagnostics, the
 mixer's watchdog); an outside subscription of the effort command makes the mixer write it
-to DDS, as against a base. The /wip/estop heartbeat is fed every 0.2 s. The vehicle stands
+to DDS, as against a base. The /wip/heartbeat is fed every 0.2 s. The vehicle stands
 still, upright (the cost of a tick hardly depends on the state). Paced ticks first, until
 the safety layer has engaged (its settle time is wall time); then the measured ticks.
 
@@ -31,7 +31,7 @@ import tempfile
 import time
 
 CONTROL_PERIOD = 0.005  # [s], 200 Hz
-HEARTBEAT_EVERY = 40    # ticks between two /wip/estop heartbeats (0.2 s)
+HEARTBEAT_EVERY = 40    # ticks between two /wip/heartbeat messages (0.2 s)
 ENGAGE_TIMEOUT = 10.0   # [s] of paced ticks at most for the safety layer to engage
 
 
@@ -45,7 +45,7 @@ def measure(seconds: float, paced: bool) -> dict:
     import rclpy  # ROS only where measured
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
-    from std_msgs.msg import Bool, Float64MultiArray
+    from std_msgs.msg import Empty, Float64MultiArray
     import yaml
 
     from wip_bringup.hardware import hardware_parameters
@@ -73,8 +73,8 @@ def measure(seconds: float, paced: bool) -> dict:
         eso = {s.topic_name: s.callback for s in nodes['eso'].subscriptions}
         on_joint_states, on_imu = eso['/joint_states'], eso['/imu/data']
         on_fix = eso['/gps/fix']
-        on_estop = {s.topic_name: s.callback
-                    for s in nodes['torque_mixer'].subscriptions}['/wip/estop']
+        on_heartbeat = {s.topic_name: s.callback
+                        for s in nodes['torque_mixer'].subscriptions}['/wip/heartbeat']
         listener = rclpy.create_node('node_cost_listener')
         listener.create_subscription(Float64MultiArray, '/effort_controller/commands',
                                      lambda _msg: None, RELIABLE_QOS)
@@ -107,7 +107,7 @@ def measure(seconds: float, paced: bool) -> dict:
                 if delay > 0.0:
                     time.sleep(delay)
             if k % HEARTBEAT_EVERY == 0:
-                on_estop(Bool(data=False))
+                on_heartbeat(Empty())
                 bus.drain()
             sec, nanosec = divmod(time.time_ns(), 10 ** 9)
             for msg in (joint, imu):

@@ -19,7 +19,8 @@ E-stop from the viewer (no ros2cli needed)
   ``/wip/estop/engage`` publishes ``/wip/estop`` = true (the mixer latches it),
   ``/wip/estop/release`` publishes ``/wip/estop`` = false (the button released),
   ``/wip/estop/reset`` publishes ``/wip/estop_reset`` (std_msgs/Empty: the mixer resets a
-  latched e-stop unless ``/wip/estop`` still says true; its /diagnostics say which).
+  latched e-stop unless ``/wip/estop`` still says true or said it within
+  ``safety.estop_hold_time``; its /diagnostics say which).
 - Client publish (Foxglove "Publish" panel): ``/wip/estop`` (std_msgs/msg/Bool) and
   ``/wip/estop_reset`` (std_msgs/msg/Empty), in ``json`` or ``cdr``; other topics are
   refused with a status message (a viewer must not drive the robot).

@@ -40,7 +40,8 @@ States
               fault too. Returns to STARTING when every condition has cleared (with
               ``latch_faults``: only on :meth:`SafetyMonitor.reset`).
 ``ESTOP``     zero torque: an e-stop message said engaged; latched until
-              :meth:`SafetyMonitor.reset`, which refuses while the e-stop is still engaged.
+              :meth:`SafetyMonitor.reset`, which refuses while the e-stop is still engaged
+              or said so within ``estop_hold_time`` (a held button repeats it).
 
 Priority: ESTOP > FAULT > STARTING > DEGRADED > ACTIVE/SHADOW. :attr:`SafetyDecision.reasons` lists
 every reason present, so /diagnostics says why.
@@ -162,8 +163,12 @@ class SafetyConfig:
         'a tilt error at most quadruples; 0: zero torque at the age limit', minimum=0.0,
         maximum=1.0)
     max_estop_age: float = param(
-        0.0, 's', 'if > 0: the e-stop topic is a heartbeat that must be received at least '
-        'this often (zero torque otherwise); 0: not required', minimum=0.0)
+        0.0, 's', 'if > 0: a heartbeat (/wip/heartbeat, or any /wip/estop message) must be '
+        'received at least this often (zero torque otherwise); 0: not required', minimum=0.0)
+    estop_hold_time: float = param(
+        1.0, 's', 'reset is refused while an e-stop true was received this recently, even '
+        'after a later false (a held button that keeps publishing true)', minimum=0.0,
+        maximum=60.0)
     fall_threshold: float = param(
         0.35, 'rad', 'zero torque when the estimated tilt |theta_hat| exceeds this',
         minimum=0.0, exclusive_minimum=True, maximum=1.5)
@@ -269,6 +274,8 @@ class SafetyMonitor:
         self.drive_plan: tuple[tuple[float, ...], float] = ((), 0.0)
         self.estop_engaged = False      # the e-stop input says engaged now
         self.estop_latched = False
+        self.estop_true_at: float | None = None   # when an e-stop last said engaged
+        self.heartbeat_at: float | None = None    # when the last heartbeat arrived
         self.fault_latched: tuple[str, ...] = ()
         self.wiring = ''   # a wiring verdict (core.wiring_check): latched until reset()
         self.guard = RunawayGuard(runaway)
@@ -385,6 +392,15 @@ class SafetyMonitor:
         self.estop_engaged = bool(engaged)
         if engaged:
             self.estop_latched = True
+            self.estop_true_at = float(t)
+
+    def heartbeat(self, t: float) -> None:
+        """Take a heartbeat received at ``t`` [s] (fresh link, see ``max_estop_age``).
+
+        Its own input, not a false on the e-stop topic: a supervisor's heartbeat must not
+        release a button that another publisher holds engaged.
+        """
+        self.heartbeat_at = float(t)
 
     def wiring_fault(self, reason: str) -> None:
         """Take a wiring contradiction (``core.wiring_check.Verdict.reason``).
@@ -395,14 +411,21 @@ class SafetyMonitor:
         """
         self.wiring = str(reason) or 'wiring: contradiction'
 
-    def reset(self) -> tuple[bool, str]:
+    def reset(self, now: float | None = None) -> tuple[bool, str]:
         """Explicit reset of a latched e-stop (and latched faults): (success, message).
 
-        Refused while the e-stop input still says engaged. After a reset the monitor
-        re-arms through STARTING (``settle_time``).
+        Refused while the e-stop input still says engaged, and (given ``now`` [s]) while
+        an engaged e-stop was received within ``estop_hold_time``: the messages of several
+        publishers interleave, and a false from one must not undo a button held by
+        another. After a reset the monitor re-arms through STARTING (``settle_time``).
         """
         if self.estop_engaged:
             return False, 'e-stop still engaged: release it (publish false) before the reset'
+        if (now is not None and self.estop_true_at is not None
+                and now - self.estop_true_at < self.config.estop_hold_time):
+            return False, (f'e-stop held: an engaged e-stop was received '
+                           f'{now - self.estop_true_at:.2f} s ago (< estop_hold_time '
+                           f'{self.config.estop_hold_time:g} s); release every e-stop first')
         was = []
         if self.estop_latched:
             was.append('e-stop')
@@ -445,19 +468,26 @@ class SafetyMonitor:
             watched.append(ESTOP_INPUT)
         for name in watched:
             slot = self.inputs[name]
+            arrival, label = slot.arrival, name
+            if name == ESTOP_INPUT:
+                # The link is alive if either the heartbeat or an e-stop message came.
+                label = 'heartbeat (/wip/heartbeat or /wip/estop)'
+                if self.heartbeat_at is not None:
+                    arrival = max(self.heartbeat_at,
+                                  arrival if arrival is not None else -math.inf)
             if slot.invalid:
                 faults.append(f'{name} invalid: {slot.invalid}')
-            elif slot.arrival is None:
+            elif arrival is None:
                 if self.timing_checks or name in (YAW_TORQUE, DRIVE_TORQUE):
-                    waiting.append(f'no {name} yet')
-            elif self.timing_checks and now - slot.arrival > max_age[name] + TIME_TOLERANCE:
-                age = now - slot.arrival
+                    waiting.append(f'no {label} yet')
+            elif self.timing_checks and now - arrival > max_age[name] + TIME_TOLERANCE:
+                age = now - arrival
                 bridge = cfg.bridge_time if name != ESTOP_INPUT else 0.0
                 if age <= max_age[name] + bridge + TIME_TOLERANCE:
                     late.append(f'{name} late: {age:.3f} s old > {max_age[name]:g} s, '
                                 f'bridged up to {max_age[name] + bridge:g} s')
                 else:
-                    faults.append(f'{name} stale: {age:.3f} s old > '
+                    faults.append(f'{label} stale: {age:.3f} s old > '
                                   f'{max_age[name] + bridge:g} s (age limit '
                                   f'{max_age[name]:g} s + bridge {bridge:g} s; publisher '
                                   'stopped?)')

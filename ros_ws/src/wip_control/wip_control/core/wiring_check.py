@@ -37,12 +37,16 @@ after engaging
     (Y dominated by τd3) must not look like a wiring fault (thresholds and measurements:
     docs/decisions/wiring-checks.md).
 
-Gravity (accelerometer against the mounting), before engaging
+Gravity (accelerometer against the mounting), before the first engage
     At rest the specific force is +g along the body's up axis, within the tilt (a robot
     the controllers engage is within ``fall_threshold`` 0.35 rad of upright). An IMU
     upside down or turned by π/2 about x or y puts it on the wrong axis or sign: verdict
     when, with |a| in [0.5 g, 1.5 g] and the gyro still (|rate| < 0.5 rad/s), the angle
-    from +z exceeds ``max_gravity_angle`` for ``hold`` seconds.
+    from +z exceeds ``max_gravity_angle`` for ``hold`` seconds. Only until the first
+    engage, not again after a reset: a robot lying on its bumper after a fall is at rest
+    with gravity far from +z, which is no wiring fault, and nothing in the sensors tells
+    it from a body held upright with a wrong mounting. The mounting was judged before
+    that engage, and the tilt check judges it again at every engage.
 
 Thresholds (defaults, derived; docs/decisions/wiring-checks.md has the measurements)
 ----------------------------------------------------------------------------------
@@ -109,9 +113,10 @@ class WiringCheckConfig:
                                     exclusive_minimum=True, maximum=10.0)
     tilt_check_time: float = param(0.3, 's', 'tilt check: runs this long after engaging '
                                    '(0: off)', minimum=0.0, maximum=60.0)
-    max_gravity_angle: float = param(1.0, 'rad', 'gravity check (before engaging): angle of '
-                                     'the measured gravity from the body z axis beyond which '
-                                     'the IMU mounting is wrong', minimum=0.4, maximum=3.2)
+    max_gravity_angle: float = param(1.0, 'rad', 'gravity check (before the first engage): '
+                                     'angle of the measured gravity from the body z axis '
+                                     'beyond which the IMU mounting is wrong', minimum=0.4,
+                                     maximum=3.2)
 
 
 class Verdict(NamedTuple):
@@ -148,6 +153,8 @@ class WiringCheck:
         self.period = float(period)
         self.configured = dict(configured or {})
         self.window = max(2, int(round(config.window / self.period)))
+        # Torque was sent once: the gravity check is over for good (kept by reset()).
+        self.ever_engaged = False
         self.reset()
 
     def reset(self) -> None:
@@ -192,6 +199,7 @@ class WiringCheck:
         self.tau_omega = float(tau_omega) if sent else 0.0
         if engaged and self.engaged_at is None:
             self.engaged_at = float(t)
+            self.ever_engaged = True
         elif not engaged:
             self.engaged_at = None
             self.tilt = None
@@ -335,7 +343,7 @@ class WiringCheck:
 
     def _gravity(self, t: float, pitch_rate: float, yaw_rate: float,
                  accel: Sequence[float] | None) -> Verdict | None:
-        if accel is None or self.engaged_at is not None:
+        if accel is None or self.ever_engaged:
             return None
         ax, ay, az = (float(a) for a in accel)
         norm = math.sqrt(ax * ax + ay * ay + az * az)

@@ -54,7 +54,7 @@ from .launched import end_with_launcher
 from .parameters import ConfigParameters
 from .settings import ControllerNodeSettings, RETIRED
 from .sync import on_grid
-from ..tools.cli import answer_node_help
+from ..tools.cli import answer_node_help, EXIT_USAGE
 
 #: One spin_once of the EventsExecutor [s]: bounds the reaction time to a shutdown.
 SPIN_TIMEOUT = 0.1
@@ -403,7 +403,7 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
 
     A configuration error (a parameter out of range, of the wrong type, an unknown choice)
     makes the process refuse to start: the message, which names the parameter, goes to
-    stderr and the status is 1.
+    stderr and the status is 2 (EXIT_USAGE: the tools' table, ``wip_control.tools.cli``).
 
     ``on_stop(node)`` runs on SIGINT/SIGTERM before the node is destroyed, with the
     context still valid so that it can publish (the mixer's last zero command). rclpy's
@@ -423,7 +423,7 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
     handles_signals = any(on_stop is not None for _, on_stop in nodes)
     if not init_rclpy(program, args, SignalHandlerOptions.NO if handles_signals
                       else SignalHandlerOptions.ALL):
-        return 1
+        return EXIT_USAGE
     if handles_signals:
         _stop_signal.clear()
         signal.signal(signal.SIGINT, _request_stop)
@@ -442,7 +442,7 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
         stopping = True
     except (ConfigError, ParameterException) as err:
         print(f'{program}: error: {err}', file=sys.stderr)
-        status = 1
+        status = EXIT_USAGE
     finally:
         built = list(zip(built_nodes, [on_stop for _, on_stop in nodes]))
         if handles_signals and stopping and rclpy.ok():

@@ -11,7 +11,9 @@ Subscribes
     τυ and the MPC's status, held between MPC ticks), ``/wip/state_estimate``
     (wip_msgs/StateEstimate: θ̂ for the fall threshold, rates and disturbances for the ESO
     divergence check, ``settled`` for the start-up), ``/wip/estop`` (std_msgs/Bool: true
-    engages the e-stop, latched; false releases the button, which allows a reset),
+    engages the e-stop, latched; false releases the button, which allows a reset once no
+    true came for ``safety.estop_hold_time``), ``/wip/heartbeat`` (std_msgs/Empty: the
+    supervisor's arming heartbeat, ``safety.max_estop_age``; never a release),
     ``/wip/estop_reset`` (std_msgs/Empty: the reset, as the service below); in real
     time with ``runaway.enabled``, ``/wip/reference`` (wip_msgs/ReferenceState: the
     reference position, for the runaway guard of ``core/runaway.py``); in real
@@ -34,7 +36,8 @@ Publishes
     on each change of the safety state).
 Service
     ``~/reset_estop`` (std_srvs/Trigger): reset a latched e-stop (and latched faults);
-    refused, with the reason, while ``/wip/estop`` still says true.
+    refused, with the reason, while ``/wip/estop`` still says true or said it within
+    ``safety.estop_hold_time``.
 
 Per tick: ``core.safety.SafetyMonitor.update`` — ``core.mixer.mix(τυ, τω, τmax)`` (the
 runner's step 7: yaw first, each wheel within ±τmax) when every check passes, rate limited
@@ -180,6 +183,8 @@ class TorqueMixerNode(ControllerNode):
             self.subscribe(ReferenceStateMsg, 'wip/reference', 'reference',
                            self._on_reference)
         self.subscribe(Bool, 'wip/estop', 'estop', self._on_estop)
+        self.subscribe(Empty, 'wip/heartbeat', 'heartbeat',
+                       lambda _msg: self.monitor.heartbeat(self.monitor_time()))
         self.subscribe(Empty, 'wip/estop_reset', 'estop_reset',
                        lambda _msg: self.reset_estop('/wip/estop_reset'))
         self.create_service(Trigger, '~/reset_estop', self._on_reset_service)
@@ -345,13 +350,18 @@ class TorqueMixerNode(ControllerNode):
 
     def reset_estop(self, source: str) -> tuple[bool, str]:
         """Reset a latched e-stop (and latched faults); (success, message), logged."""
-        ok, message = self.monitor.reset()
+        ok, message = self.monitor.reset(self.monitor_time())
         if ok and self.wiring_check is not None:
             self.wiring_check.reset()
         if ok:
             self.get_logger().warning(f'reset via {source}: {message}')
         else:
             self.get_logger().error(f'reset refused via {source}: {message}')
+        # On /diagnostics at once: a recorded run keeps every reset, also the service's.
+        self.diagnostics.values['last e-stop reset'] = (
+            f'{"done" if ok else "refused"} via {source} at {self.now_ns() * 1e-9:.3f} s: '
+            f'{message}')
+        self.diagnostics.publish()
         return ok, message
 
     # -- ticks ---------------------------------------------------------------------------------
