@@ -118,6 +118,18 @@ _build_wheel_torques = StampedBuilder(WheelTorques, ('left', 'right', 'tau_v', '
                                                      'zeroed', 'reason'))
 
 
+def _check_finite_record(what: str, record, skip: str = '') -> None:
+    """:func:`_check_finite` of a NamedTuple's fields but ``skip``, without building a dict.
+
+    A dict of the fields is built only to name the bad ones.
+    """
+    if all(map(math.isfinite, record)):   # the common case
+        return
+    values = record._asdict()
+    values.pop(skip, None)
+    _check_finite(what, **values)
+
+
 def _check_finite(what: str, **values: float) -> None:
     if all(map(math.isfinite, values.values())):  # the common case, at C speed
         return
@@ -330,7 +342,7 @@ def reference_to_msg(ref: ReferenceState, stamp_ns: int, frame_id: str) -> Refer
 
 def reference_from_msg(msg: ReferenceStateMsg) -> ReferenceState:
     ref = ReferenceState(msg.x, msg.y, msg.phi, msg.v, msg.omega, msg.omega_dot)
-    _check_finite('reference', **ref._asdict())
+    _check_finite_record('reference', ref)
     return ref
 
 
@@ -377,8 +389,10 @@ def estimate_from_msg(msg: StateEstimateMsg, check: bool = True) -> PoseEstimate
     est = StateEstimate(msg.phi, msg.omega, msg.f1, msg.x_v, msg.v, msg.f2, msg.theta,
                         msg.theta_dot, msg.f3, msg.epsilon)
     out = PoseEstimate(est, msg.x, msg.y, bool(msg.settled), int(msg.position_status))
-    if check:
-        # ε is inf at the very start of the paper's ramp: not an input of any controller.
+    # ε (the last field) is inf at the very start of the paper's ramp: not an input of any
+    # controller. The names of the bad fields are only built when there is one.
+    if check and not (all(map(math.isfinite, est[:-1])) and math.isfinite(out.x)
+                      and math.isfinite(out.y)):
         values = est._asdict()
         del values['epsilon']
         _check_finite('state_estimate', x=out.x, y=out.y, **values)
@@ -396,7 +410,7 @@ def command_from_msg(msg: VelocityCommandMsg, check: bool = True) -> VelocityCom
         return cached
     cmd = VelocityCommand(msg.v_d, msg.omega_d, msg.omega_d_dot, msg.x_e, msg.y_e, msg.phi_e)
     if check:
-        _check_finite('velocity_command', **cmd._asdict())
+        _check_finite_record('velocity_command', cmd)
     return _last_command.keep(msg, cmd, check)
 
 
@@ -407,7 +421,7 @@ def arc_to_msg(out: ArcOutput, stamp_ns: int) -> ArcState:
 def arc_from_msg(msg: ArcState, check: bool = True) -> ArcOutput:
     out = ArcOutput(msg.tau_omega, msg.alpha_hat, msg.e_omega)
     if check:
-        _check_finite('yaw_torque', **out._asdict())
+        _check_finite_record('yaw_torque', out)
     return out
 
 
