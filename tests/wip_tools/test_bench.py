@@ -85,6 +85,12 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
             assert run['effort_commands_to_dds'] >= run['ticks'] // 2, run
             assert 0.0 < run['median_us'] <= run['p90_us'], run
     assert cost['paced_over_back_to_back'] > 0.0
+    # The mixer's wiring checks are served by the ESO's sensor subscriptions (one take).
+    assert all(run['other_sensor_subscriptions'] == 0
+               for key in ('back_to_back', 'paced') for run in cost[key])
+    figures = report['overhead']
+    assert figures['overhead_ratio'] is not None and figures['pi_class_share'] > 0.0
+    assert figures['paced_over_in_process'] > 0.0
     printed = capsys.readouterr().out
     assert 'rclpy floor, taken as messages' in printed
     assert 'rclpy floor, taken as serialized' in printed
@@ -92,6 +98,7 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
     assert 'composed, recorded' in printed and 'bit-identical' in printed
     assert 'sensor->command latency' in printed
     assert 'fed directly' in printed
+    assert 'overhead ratio' in printed and 'Pi-class estimate' in printed
 
 
 def test_node_cost_refuses_absurd_durations_in_one_line(capsys):

@@ -238,6 +238,62 @@ def bench_node_cost(seconds: float, pairs: int = 2) -> dict:
             'paced_over_back_to_back': medians['paced'] / medians['back_to_back']}
 
 
+#: Thread CPU [s] of :func:`calibration_loop` on a Raspberry Pi 4-class core (Cortex-A72 at
+#: 1.5-1.8 GHz) with CPython 3.11: an assumption, not measured on a Pi, taken as 3x this
+#: project's 2-vCPU development machine (0.019-0.020 s there, 2026-12-05). Replace it with a
+#: measurement on the target (``python -c 'from wip_tools.bench import calibration_loop as
+#: c; print(c())'``) for a figure that is no longer an estimate.
+PI_CLASS_CALIBRATION_S = 0.060
+
+
+def calibration_loop(repeats: int = 5) -> float:
+    """Return the least thread CPU [s] of a fixed pure-Python workload: this core's speed.
+
+    Small-object work like the nodes' (dict and attribute access, float arithmetic, calls);
+    the least of ``repeats`` so that a busy neighbour counts as little as possible.
+    """
+    def step(state: dict, k: int) -> float:
+        x = state['x'] * 0.999 + 0.001 * k
+        state['x'] = x
+        return x
+
+    best = float('inf')
+    for _ in range(repeats):
+        start = time.thread_time()
+        state, total = {'x': 0.0}, 0.0
+        for k in range(200_000):
+            total += step(state, k)
+        best = min(best, time.thread_time() - start)
+    return best
+
+
+def overhead_figures(rows: list[dict], floor: dict, cost: dict, per_tick_s: float,
+                     calibration_s: float) -> dict:
+    """Return the real-time section's ratios (the goals of the composed controllers' cost).
+
+    - ``overhead_ratio``: (composed controllers at normal priority - rclpy's floor taken
+      serialized) / the in-process loop, as CPU shares at 200 Hz;
+    - ``paced_over_in_process``: the nodes' own code paced at 200 Hz / the in-process tick;
+    - ``pi_class_share``: the composed share scaled by this core's speed against a Pi
+      4-class core (:data:`PI_CLASS_CALIBRATION_S`): an estimate.
+    A figure whose inputs are missing is None.
+    """
+    composed = next((r.get('controller_cpu_fraction') for r in rows
+                     if r.get('layout') == 'composed' and not r.get('rt_priority')
+                     and not r.get('pinned') and r.get('cpu_latency') is None), None)
+    serialized = (floor.get('serialized') or {}).get('cpu_fraction')
+    in_process = 200.0 * per_tick_s
+    paced = (cost.get('median_us') or {}).get('paced')
+    return {
+        'composed_share': composed,
+        'overhead_ratio': (None if composed is None or serialized is None
+                           else (composed - serialized) / in_process),
+        'paced_over_in_process': None if paced is None else 1e-6 * paced / per_tick_s,
+        'calibration_s': calibration_s,
+        'pi_class_share': (None if composed is None
+                           else composed * PI_CLASS_CALIBRATION_S / calibration_s)}
+
+
 def final_state_difference(graph: dict | None, in_process: dict | None) -> float | None:
     """Return the largest difference between two final states (None if one is missing).
 
@@ -385,6 +441,19 @@ def _section_realtime(seconds: float, in_process: dict, report: dict) -> None:
                   f'{measured["context_switches_per_s"]:.0f} context switches/s')
         else:
             print(f'-> rclpy floor ({kind}): {measured}')
+    figures = overhead_figures(rows, floor, cost, per_tick_s, calibration_loop())
+    report['overhead'] = figures
+
+    def show(value, form):
+        return 'n/a' if value is None else format(value, form)
+    print(f"-> overhead ratio (composed - rclpy floor serialized) / in-process: "
+          f"{show(figures['overhead_ratio'], '.1f')} (goal <= 3); the nodes' own code paced "
+          f"/ in-process tick: {show(figures['paced_over_in_process'], '.1f')}x (goal <= 2)")
+    share = figures['pi_class_share']
+    print(f'-> Pi-class estimate: composed {show(share and 100 * share, ".0f")} % of a Raspberry '
+          f'Pi 4-class core (this core {1e3 * figures["calibration_s"]:.0f} ms on the '
+          f'calibration loop against an assumed {1e3 * PI_CLASS_CALIBRATION_S:.0f} ms there; '
+          'an estimate, not a measurement)')
 
 
 def _section_push(report: dict) -> None:

@@ -6,10 +6,13 @@ it).
 The nodes are built as ``ros2 run wip_control controllers`` builds them (hardware-mode
 parameters, the stand-in base's conventions, one executor, the intra-process bus). Each
 tick calls the ESO's two sensor callbacks with serialized JointState and Imu stamped
-now, drains the bus (estimate → reference → generator → ARC → mixer → effort command),
-and spins the executor once for its due timers (the MPC at 10 Hz, diagnostics, the
-mixer's watchdog); an outside subscription of the effort command makes the mixer write it
-to DDS, as against a base. The /wip/heartbeat is fed every 0.2 s. The vehicle stands
+now (and any other node's own subscription of them with the message deserialized, as
+rclpy would take it for that subscription: the mixer's wiring checks where the ESO's
+subscriptions do not serve them), drains the bus (estimate → reference → generator →
+ARC → mixer → effort command), and spins the executor once for its due timers (the MPC
+at 10 Hz, diagnostics, the mixer's watchdog); an outside subscription of the effort
+command makes the mixer write it to DDS, as against a base. The /wip/heartbeat is
+fed every 0.2 s. The vehicle stands
 still, upright (the cost of a tick hardly depends on the state). Paced ticks first, until
 the safety layer has engaged (its settle time is wall time); then the measured ticks.
 
@@ -43,7 +46,7 @@ def measure(seconds: float, paced: bool) -> dict:
     warm-up, left out), and how many ticks ran.
     """
     import rclpy  # ROS only where measured
-    from rclpy.serialization import serialize_message
+    from rclpy.serialization import deserialize_message, serialize_message
     from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
     from std_msgs.msg import Empty, Float64MultiArray
     import yaml
@@ -73,6 +76,12 @@ def measure(seconds: float, paced: bool) -> dict:
         eso = {s.topic_name: s.callback for s in nodes['eso'].subscriptions}
         on_joint_states, on_imu = eso['/joint_states'], eso['/imu/data']
         on_fix = eso['/gps/fix']
+        # Other nodes' own subscriptions of the sensors (the mixer's wiring checks), each
+        # taking a message of its own as rclpy would deliver it; none where the ESO's
+        # subscriptions serve them (common.share_raw_subscriptions).
+        others = [(s.msg_type, s.callback) for name, node in nodes.items() if name != 'eso'
+                  for s in node.subscriptions if s.topic_name in ('/joint_states', '/imu/data')
+                  and not s.raw]
         on_heartbeat = {s.topic_name: s.callback
                         for s in nodes['torque_mixer'].subscriptions}['/wip/heartbeat']
         listener = rclpy.create_node('node_cost_listener')
@@ -118,8 +127,14 @@ def measure(seconds: float, paced: bool) -> dict:
                 fix.header.stamp.sec, fix.header.stamp.nanosec = sec, nanosec
                 on_fix(fix)
             on_joint_states(joint_bytes)
+            for msg_type, callback in others:
+                if msg_type is JointState:
+                    callback(deserialize_message(joint_bytes, JointState))
             bus.drain()
             on_imu(imu_bytes)
+            for msg_type, callback in others:
+                if msg_type is Imu:
+                    callback(deserialize_message(imu_bytes, Imu))
             bus.drain()
             executor.spin_once(timeout_sec=0.0)
             bus.drain()
@@ -131,7 +146,8 @@ def measure(seconds: float, paced: bool) -> dict:
                 'median_us': 1e6 * statistics.median(kept),
                 'mean_us': 1e6 * statistics.fmean(kept),
                 'p90_us': 1e6 * kept[int(0.9 * (len(kept) - 1))],
-                'effort_commands_to_dds': bus.published_dds}
+                'effort_commands_to_dds': bus.published_dds,
+                'other_sensor_subscriptions': len(others)}
     finally:
         for node in built:
             node.destroy_node()

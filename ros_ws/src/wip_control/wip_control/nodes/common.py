@@ -31,7 +31,7 @@ import math
 import signal
 import sys
 import time
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 from builtin_interfaces.msg import Time
 import rclpy
@@ -541,9 +541,44 @@ def connect_intra_process(nodes: Sequence[Node]) -> IntraProcessBus | None:
                 connected.append(f'{publisher.topic_name} -> {local}')
     if bus.dds_ignores_local:
         count_local_matches(members)
+    shared = share_raw_subscriptions(members)
+    if shared:
+        connected.append(f'one take for {", ".join(shared)}')
     logger.debug(f'intra-process (DDS ignores local endpoints: {bus.dds_ignores_local}): '
                  f'{", ".join(connected) or "no topic"}')
     return bus
+
+
+def share_raw_subscriptions(members: Sequence[IntraProcessNode]) -> list[str]:
+    """One DDS subscription per outside input: drop a node's duplicate of a raw subscription.
+
+    In a composed process the ESO takes the base's sensor messages serialized, and the mixer
+    (its wiring checks) subscribed the same topics as messages: each sample was taken twice
+    from DDS and also converted to a Python message by rclpy (docs/realtime.md has the
+    cost). Where a node's subscription has the topic, type and QoS of another node's raw
+    subscription (:meth:`ControllerNode.subscribe`) and no node of the process publishes
+    that topic (the bus delivers those), the duplicate is destroyed and its callback served
+    by the raw one, with the object decoded once. The graph shows one subscription of the
+    topic in this process fewer. Returns the topics shared.
+    """
+    published = {p.topic_name for node in members for p in node.intra_publishers}
+    leaders = {}
+    for node in members:
+        for subscription, followers in getattr(node, 'raw_subscriptions', ()):
+            if subscription.topic_name not in published:
+                leaders.setdefault((subscription.topic_name, subscription.msg_type),
+                                   (subscription, followers))
+    shared = []
+    for node in members:
+        for subscription in list(node.subscriptions):
+            leader = leaders.get((subscription.topic_name, subscription.msg_type))
+            if (leader is None or subscription is leader[0] or subscription.raw
+                    or subscription.qos_profile != leader[0].qos_profile):
+                continue
+            leader[1].append(subscription.callback)
+            shared.append(subscription.topic_name)
+            node.destroy_subscription(subscription)
+    return shared
 
 
 def count_local_matches(members: Sequence[IntraProcessNode]) -> None:
@@ -705,6 +740,8 @@ class IntraProcessNode(Node):
         self.use_intra_process_comms = enabled
         self.intra_publishers: list[IntraProcessPublisher] = []
         self.intra_subscriptions: list[tuple[type, str, Callable]] = []
+        #: (subscription taking serialized messages, callbacks it also serves)
+        self.raw_subscriptions: list[tuple[Any, list[Callable]]] = []
 
     def add_intra_subscription(self, msg_type, subscription, callback: Callable) -> None:
         """Also deliver the process's own messages of ``subscription``'s topic to ``callback``.
@@ -771,16 +808,33 @@ class ControllerNode(IntraProcessNode):
 
         ``raw``: DDS delivers the serialized bytes (decoded by the handler, see
         ``conversions.decode_serialized``); the intra-process bus still delivers objects.
+        A raw subscription can also serve other nodes of a composed process
+        (:func:`share_raw_subscriptions`): each message is then decoded once, here, and the
+        decoded object goes to the handler and to each of theirs.
         """
+        followers: list[Callable] = []
+
         def callback(msg) -> None:
             try:
+                if followers and msg.__class__ is bytes:
+                    msg = decode(msg, typename)
                 handler(msg)
             except ValueError as err:
                 self.diagnostics.drop(name, 'invalid', str(err))
             except Exception as err:  # noqa: BLE001 - a callback must not stop the executor
                 self.diagnostics.drop(name, 'error', f'{type(err).__name__}: {err}')
+            if followers and msg.__class__ is not bytes:
+                for follower in followers:
+                    try:
+                        follower(msg)
+                    except Exception as err:  # noqa: BLE001 - the others still get it
+                        self.diagnostics.drop(name, 'error', f'{type(err).__name__}: {err}')
         subscription = self.create_subscription(msg_type, topic, callback, qos, raw=raw)
         self.add_intra_subscription(msg_type, subscription, callback)
+        if raw:
+            from .conversions import decode_serialized as decode   # conversions imports this
+            typename = f'{msg_type.__module__.split(".")[0]}/msg/{msg_type.__name__}'
+            self.raw_subscriptions.append((subscription, followers))
 
     def subscribe_input(self, msg_type, topic: str, name: str, convert: Callable,
                         qos: QoSProfile = RELIABLE_QOS) -> None:

@@ -200,6 +200,7 @@ class LatestSync:
         #: Stamp [ns] of the latest value of each input.
         self.stamps: dict[str, int] = {}
         self._fresh: set[str] = set()
+        self._have_required = not self.required
         self.dropped: collections.Counter = collections.Counter()
         self.emitted = 0
 
@@ -216,20 +217,28 @@ class LatestSync:
         self.stamps[name] = stamp_ns
         if name not in self.triggers:
             return False
-        self._fresh.add(name)
-        if len(self._fresh) < len(self.triggers) or not all(
-                n in self._values for n in self.required):
+        fresh = self._fresh
+        fresh.add(name)
+        if len(fresh) < len(self.triggers):
             return False
-        if self.max_skew_ns is not None and len(self.triggers) > 1:
-            newest = max(self.stamps[n] for n in self.triggers)
-            behind = [n for n in self.triggers if newest - self.stamps[n] > self.max_skew_ns]
-            if behind:
-                self._fresh.difference_update(behind)
-                self.dropped['skewed'] += 1
+        if not self._have_required:   # values are never removed: checked until true once
+            if not all(n in self._values for n in self.required):
                 return False
-        self._fresh.clear()
+            self._have_required = True
+        if len(self.triggers) == 1:
+            newest = stamp_ns    # this input is the trigger, stored just above
+        else:
+            newest = max(self.stamps[n] for n in self.triggers)
+            if self.max_skew_ns is not None:
+                behind = [n for n in self.triggers
+                          if newest - self.stamps[n] > self.max_skew_ns]
+                if behind:
+                    fresh.difference_update(behind)
+                    self.dropped['skewed'] += 1
+                    return False
+        fresh.clear()
         self.emitted += 1
-        self._callback(max(self.stamps[n] for n in self.triggers), dict(self._values))
+        self._callback(newest, dict(self._values))
         return True
 
     def latest(self, name: str) -> Any:
