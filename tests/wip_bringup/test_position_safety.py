@@ -155,7 +155,7 @@ class OpenLoopTeleop:
     pause between), four times, then zero; it keeps the newest state estimate.
     """
 
-    SIDE, SPEED, TURN, PAUSE = 5.0, 1.0, 1.0, 1.0
+    SIDE, SPEED, TURN, PAUSE = 5.0, 1.0, 0.3, 1.0   # TURN: the limit of the reference
 
     def __init__(self) -> None:
         import os
@@ -208,7 +208,12 @@ def test_dead_reckoning_drives_a_20_m_teleop_square_with_its_drift_measured(tmp_
     # No GPS at all: position_source wheels (the ESO subscribes no position topic, and
     # hardware mode looks for none), a cmd_vel reference, a teleop square.
     wheels = dict(BASE, position_source='wheels')
-    scenario = line_scenario(OpenLoopTeleop.SPEED, kind='cmd_vel')
+    # The teleop's speed and turn rate within the commanded reference's limits.
+    scenario = line_scenario(OpenLoopTeleop.SPEED, kind='cmd_vel',
+                             commanded_max_speed=OpenLoopTeleop.SPEED,
+                             commanded_max_acceleration=1.0,
+                             commanded_max_yaw_rate=OpenLoopTeleop.TURN,
+                             commanded_max_yaw_acceleration=1.0)
     final = {}
 
     def teleop(_runner, _processes):
