@@ -175,7 +175,8 @@ def test_an_unwritable_path_fails_clearly_at_start(test_node, tools, tmp_path):
     blocker.write_text('not a directory')  # fails for root too, unlike permissions
     recorder = start_recorder(test_node, blocker / 'bag', ['/x'])
     tools.append(recorder)
-    output = recorder.wait(30.0, expected_code=1)
+    # An output path that cannot be created is a usage error of the exit table (2).
+    output = recorder.wait(30.0, expected_code=2)
     assert '[ERROR]' in output
     assert f'cannot create the bag {blocker / "bag"}: Not a directory' in output
 

@@ -130,20 +130,6 @@ def make_header(stamp_ns: int, frame_id: str = '') -> Header:
     return Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
 
 
-def stamped(msg, stamp_ns: int, frame_id: str = ''):
-    """``msg`` with its own header set, in place, to the stamp [ns] and frame; returns it.
-
-    On the hot path instead of ``Msg(header=make_header(...))``: the generated constructors
-    evaluate their defaults eagerly, so that also builds a Header and a Time to drop
-    (1.8 us of 5.5 per message measured, six messages per control tick).
-    """
-    header = msg.header
-    header.stamp.sec, header.stamp.nanosec = divmod(int(stamp_ns), _NS_PER_S)
-    if frame_id:
-        header.frame_id = frame_id
-    return msg
-
-
 class TimeBase:
     """Float seconds of a stamp for the core, relative to an origin.
 

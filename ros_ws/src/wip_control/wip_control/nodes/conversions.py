@@ -35,7 +35,6 @@ from ..core.references import ReferenceState
 from ..core.sensors import geodetic_to_local
 from ..core.state_estimation import PoseEstimate
 from ..core.trajectory_generator import VelocityCommand
-from .common import stamped
 
 #: Quaternions whose norm is further than this from 1 are rejected as malformed [1]
 #: (a normalised float quaternion is within 1e-15; 1e-3 tolerates single-precision drivers).
@@ -128,6 +127,20 @@ def _check_finite_record(what: str, record, skip: str = '') -> None:
     values = record._asdict()
     values.pop(skip, None)
     _check_finite(what, **values)
+
+
+def stamped(msg, stamp_ns: int, frame_id: str = ''):
+    """``msg`` with its own header set, in place, to the stamp [ns] and frame; returns it.
+
+    On the hot path instead of ``Msg(header=make_header(...))``: the generated constructors
+    evaluate their defaults eagerly, so that also builds a Header and a Time to drop
+    (1.8 us of 5.5 per message measured, six messages per control tick).
+    """
+    header = msg.header
+    header.stamp.sec, header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    if frame_id:
+        header.frame_id = frame_id
+    return msg
 
 
 def _check_finite(what: str, **values: float) -> None:
