@@ -119,28 +119,8 @@ def helped(tmp_path_factory):
     runs = {f'scripts/{name}': [str(SCRIPTS / name), '--help'] for name in commands()}
     runs.update({f'{package}/{name}': [str(path), '--help']
                  for package, name, path in node_executables()})
-    folders, processes, results = {}, {}, {}
-    try:
-        for key, command in runs.items():
-            folders[key] = tmp_path_factory.mktemp(key.replace('/', '_'))
-            processes[key] = subprocess.Popen(command, cwd=folders[key], text=True,
-                                              stdout=subprocess.PIPE,
-                                              stderr=subprocess.STDOUT,
-                                              stdin=subprocess.DEVNULL)
-        for key, process in processes.items():
-            try:
-                output, _ = process.communicate(timeout=HELP_TIMEOUT)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                output, _ = process.communicate()
-            results[key] = (process.returncode, output,
-                            sorted(p.name for p in folders[key].iterdir()))
-    finally:
-        for process in processes.values():
-            if process.poll() is None:
-                process.kill()
-                process.communicate()
-    return results
+    return {key: (status, out, files) for key, (status, out, _, files)
+            in _run_all(runs, tmp_path_factory, HELP_TIMEOUT, merge=True).items()}
 
 
 def test_every_script_and_node_answers_help_without_starting_anything(helped):
@@ -237,25 +217,27 @@ def test_a_typo_in_an_option_is_exit_2_in_one_line_and_writes_nothing(tmp_path, 
     assert list(tmp_path.iterdir()) == []
 
 
-def _run_all(runs, tmp_path_factory):
+def _run_all(runs, tmp_path_factory, timeout=REFUSE_TIMEOUT, merge=False):
     """Run every command of ``runs`` (key -> argv) at once, each in an empty folder.
 
-    key -> (status, stdout + stderr, files the folder holds after).
+    key -> (status, stdout, stderr, files the folder holds after); with ``merge`` stderr
+    goes into stdout (and the stderr slot is '').
     """
     folders, processes, results = {}, {}, {}
     try:
         for key, command in runs.items():
             folders[key] = tmp_path_factory.mktemp(key.replace('/', '_'))
-            processes[key] = subprocess.Popen(command, cwd=folders[key], text=True,
-                                              stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                              stdin=subprocess.DEVNULL)
+            processes[key] = subprocess.Popen(
+                command, cwd=folders[key], text=True, stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT if merge else subprocess.PIPE,
+                stdin=subprocess.DEVNULL)
         for key, process in processes.items():
             try:
-                out, err = process.communicate(timeout=REFUSE_TIMEOUT)
+                out, err = process.communicate(timeout=timeout)
             except subprocess.TimeoutExpired:
                 process.kill()
                 out, err = process.communicate()
-            results[key] = (process.returncode, out, err,
+            results[key] = (process.returncode, out, err or '',
                             sorted(p.name for p in folders[key].iterdir()))
     finally:
         for process in processes.values():

@@ -80,6 +80,20 @@ def wait_for(runner, thread, outcome, timeout: float):
     return outcome['result']
 
 
+def path_message(stamp, points):
+    """nav_msgs/Path in ``map`` of ``points`` (x, y) [m], every pose stamped ``stamp``."""
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Path
+    path = Path()
+    path.header.stamp, path.header.frame_id = stamp, 'map'
+    for x, y in points:
+        pose = PoseStamped()
+        pose.header = path.header
+        pose.pose.position.x, pose.pose.position.y = float(x), float(y)
+        path.poses.append(pose)
+    return path
+
+
 def wrap(angle: float) -> float:
     return math.remainder(angle, 2.0 * math.pi)
 
@@ -176,7 +190,6 @@ def test_teleop_drives_a_square_and_the_vehicle_ends_at_its_start(tmp_path, test
 
 
 def test_a_path_is_followed_to_its_end(tmp_path, test_node):
-    from geometry_msgs.msg import PoseStamped
     from nav_msgs.msg import Path
     from wip_msgs.msg import StateEstimate
     from wip_bringup.graph import EXIT_OK, GraphOptions
@@ -195,14 +208,7 @@ def test_a_path_is_followed_to_its_end(tmp_path, test_node):
         if publisher.get_subscription_count() < 1 or len(sent) >= 4 or (
                 sent and t < sent[-1] + 0.25):
             return
-        path = Path()
-        path.header.stamp, path.header.frame_id = msg.header.stamp, 'map'
-        for x, y in goal:
-            pose = PoseStamped()
-            pose.header = path.header
-            pose.pose.position.x, pose.pose.position.y = x, y
-            path.poses.append(pose)
-        publisher.publish(path)
+        publisher.publish(path_message(msg.header.stamp, goal))
         sent.append(t)
     estimates = test_node.create_subscription(StateEstimate, '/wip/state_estimate',
                                               on_estimate, 1)
@@ -227,7 +233,6 @@ def test_a_route_published_every_second_is_driven_to_its_end_in_lockstep(tmp_pat
     # A route publisher repeating its route once a second of simulated time (paced on the
     # estimates' stamps, as the path test above): each copy is the same path, so the robot
     # drives it once to its end (1.5 m ahead, then 1 m left of its start) and stands there.
-    from geometry_msgs.msg import PoseStamped
     from nav_msgs.msg import Path
     from wip_msgs.msg import StateEstimate
     from wip_bringup.graph import EXIT_OK, GraphOptions
@@ -239,14 +244,7 @@ def test_a_route_published_every_second_is_driven_to_its_end_in_lockstep(tmp_pat
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         if publisher.get_subscription_count() < 1 or (sent and t < sent[-1] + 1.0):
             return
-        path = Path()
-        path.header.stamp, path.header.frame_id = msg.header.stamp, 'map'
-        for x, y in ROUTE:
-            pose = PoseStamped()
-            pose.header = path.header
-            pose.pose.position.x, pose.pose.position.y = x, y
-            path.poses.append(pose)
-        publisher.publish(path)
+        publisher.publish(path_message(msg.header.stamp, ROUTE))
         sent.append(t)
     estimates = test_node.create_subscription(StateEstimate, '/wip/state_estimate',
                                               on_estimate, 1)
@@ -333,23 +331,14 @@ class RoutePublisher:
 
     def __init__(self, node, make, goal) -> None:
         from nav_msgs.msg import Odometry, Path
-        self.node, self.make, self.goal, self.Path = node, make, goal, Path
+        self.node, self.make, self.goal = node, make, goal
         self.publisher = node.create_publisher(Path, 'plan', 10)
         self.odom = []
         node.create_subscription(Odometry, '/odom', self.odom.append, 10)
         self.sent, self.start, self.arrived_after = [], None, None
 
     def message(self, points):
-        from geometry_msgs.msg import PoseStamped
-        path = self.Path()
-        path.header.stamp = self.node.get_clock().now().to_msg()
-        path.header.frame_id = 'map'
-        for x, y in points:
-            pose = PoseStamped()
-            pose.header = path.header
-            pose.pose.position.x, pose.pose.position.y = float(x), float(y)
-            path.poses.append(pose)
-        return path
+        return path_message(self.node.get_clock().now().to_msg(), points)
 
     def __call__(self, _runner, _processes, deadline: float = 120.0) -> None:
         began = time.monotonic()
