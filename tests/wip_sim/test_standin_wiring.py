@@ -69,11 +69,6 @@ def zero_torque_from(stats) -> float | None:
     return samples[last_nonzero + 1][0]
 
 
-# Rerun once on failure: with a busy core the 'joint names only' case fell before its
-# verdict in 2 of 5 full-suite runs (the tilt-response check's 0.3 s window against a first
-# drive torque that can come 0.15 s after the engagement; docs/testing.md). The assertions
-# are the same on the rerun.
-@pytest.mark.flaky(reruns=1)
 @pytest.mark.parametrize('case', list(MISTAKES))
 def test_a_wiring_mistake_zeroes_the_torque_within_half_a_second_and_names_it(
         tmp_path, case):

@@ -16,8 +16,8 @@ import pytest
 
 from wip_control.core.model import nominal_terms
 from wip_control.core.params import WipParameters
-from wip_control.core.wiring_check import (JOINTS, LEFT_SIGN, MOUNTING, RIGHT_SIGN,
-                                           WiringCheck, WiringCheckConfig)
+from wip_control.core.wiring_check import (JOINTS, LEFT_SIGN, mirrored_tilt_band, MOUNTING,
+                                           RIGHT_SIGN, WiringCheck, WiringCheckConfig)
 
 PERIOD = 0.005
 PARAMS = WipParameters()
@@ -26,7 +26,7 @@ CONFIGURED = {'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'left_wheel_sig
 
 
 def run(mistake=None, *, seconds=1.5, rest=0.5, noise=0.01, gyro_bias=0.05, push=0.0,
-        push_at=0.3, yaw_rate_ref=0.5, config=WiringCheckConfig(), seed=1):
+        push_at=0.3, yaw_rate_ref=0.5, config=WiringCheckConfig(), seed=1, g3_scale=1.0):
     """Feed a check ``rest`` s at rest, then ``seconds`` engaged.
 
     Feed a check ``rest`` s at rest (held, not engaged), then ``seconds`` engaged;
@@ -82,7 +82,7 @@ def run(mistake=None, *, seconds=1.5, rest=0.5, noise=0.01, gyro_bias=0.05, push
         if engaged:
             terms = nominal_terms(p, theta, yaw_rate, theta_dot)
             disturbance = push if push_at <= t - rest < push_at + 0.2 else 0.0
-            theta_ddot = terms.f3 + terms.g3 * (phys_l + phys_r) + disturbance
+            theta_ddot = terms.f3 + g3_scale * terms.g3 * (phys_l + phys_r) + disturbance
             v += (terms.f2 + terms.g2 * (phys_l + phys_r)) * PERIOD
             yaw_rate += (terms.f1 + terms.g1 * (phys_r - phys_l)) * PERIOD
             theta_dot += theta_ddot * PERIOD
@@ -100,6 +100,37 @@ def test_a_wiring_mistake_is_named_within_half_a_second_of_engaging(mistake, par
     assert 0.0 <= after <= 0.5, (after, verdict.reason)
     assert verdict.reason.startswith(f'wiring: {parameter}: ')
     assert verdict.evidence
+
+
+def reaction_factor(params):
+    """g3 with the motors' reaction torque over model (1)'s, upright: (m_v r + m_p l)/(m_p l)."""
+    return (params.effective_mass * params.wheel_radius + params.body_mass
+            * params.com_height) / (params.body_mass * params.com_height)
+
+
+def test_the_tilt_band_holds_the_mirrored_response_with_and_without_reaction_torque():
+    low, high = mirrored_tilt_band(PARAMS)
+    k = reaction_factor(PARAMS)
+    assert k > 1.2                      # the default model: 1.5
+    # Model (1) mirrored gives -1, a base whose motors push back on the body -k; each
+    # with 0.5 of model error to spare, and correct wiring (+1) far outside.
+    assert low <= -k - 0.5 + 1e-12 and -1.0 + 0.5 <= high + 1e-12 and high < 0.0
+
+
+@pytest.mark.parametrize('seed', [1, 2, 3])
+def test_a_mirrored_drive_is_named_on_a_base_whose_motors_push_back_on_the_body(seed):
+    # The stand-in base's full plant has g3 = k times model (1)'s: the mirrored response
+    # is then -k X, which a band ending at -1.5 caught only some of the time.
+    verdict, after = run('imu_yaw_pi', g3_scale=reaction_factor(PARAMS), seed=seed)
+    assert verdict is not None and verdict.parameter == MOUNTING
+    assert 0.0 <= after <= 0.3, (after, verdict.reason)
+
+
+@pytest.mark.parametrize('seed', [1, 2, 3])
+def test_correct_wiring_on_a_base_whose_motors_push_back_gives_no_verdict(seed):
+    verdict, _ = run(None, seconds=3.0, push=3.0, push_at=0.05, seed=seed,
+                     g3_scale=reaction_factor(PARAMS))
+    assert verdict is None, verdict.reason
 
 
 def test_the_advice_names_the_value_to_set():

@@ -28,11 +28,15 @@ after engaging
     Correct wiring: Y ≈ X (up to model error and disturbance); tilt sign wrong (IMU
     turned by π about z) or the drive mirrored (both wheels): Y ≈ −X, the controller
     then pushes the robot over. Verdict when |X| >= ``min_tilt_impulse`` and Y/X is
-    within [−1.5, −0.5] (−1 within 50 % model error) for ``hold`` seconds, unless a
+    within [−(k + 0.5), −0.5] for ``hold`` seconds, unless a
     single wheel explains Y better: one wheel mirrored makes the base's drive torque the
     commanded yaw torque (±τω), so Y ≈ ±X' with X' = ∫ g3 τω dt and Y/X is arbitrary;
     while |Y ∓ X'| < |Y + X|, or while the yaw check already sees a wheel wrong, the
     verdict is left to the yaw check, which names the wheel.
+    The band: model (1) leaves out the reaction torque of a motor whose stator is fixed
+    to the body, which makes the true g3 larger by k = 1 + m_v r / (m_p l) (1.5 with the
+    default model; the full plant's g3); the mirrored response is thus −1 (no reaction)
+    to −k (hub motors) times X, with 0.5 of model error either side.
     The check runs only the first ``tilt_check_time`` after engaging: a hard push later
     (Y dominated by τd3) must not look like a wiring fault (thresholds and measurements:
     docs/decisions/wiring-checks.md).
@@ -83,9 +87,8 @@ LEFT_SIGN, RIGHT_SIGN, JOINTS, MOUNTING = ('left_wheel_sign', 'right_wheel_sign'
                                            'left_joint/right_joint', 'imu_mounting_rpy')
 #: Relative misses of the yaw check (see the module docstring).
 _YAW_MISS, _YAW_FIT = 0.75, 0.3
-#: Y/X within this band is the tilt responding the wrong way: the mirrored response
-#: −X within 50 % (model error); a push against the torque gives any Y, rarely this.
-_TILT_BAND = (-1.5, -0.5)
+#: Model error either side of the mirrored tilt response −1 .. −k (the module docstring).
+_TILT_MODEL_ERROR = 0.5
 #: Specific force at rest accepted for the gravity check, in g.
 _GRAVITY_RANGE = (0.5, 1.5)
 #: Gyro rates [rad/s] below which the body counts as at rest for the gravity check.
@@ -117,6 +120,13 @@ class WiringCheckConfig:
                                      'angle of the measured gravity from the body z axis '
                                      'beyond which the IMU mounting is wrong', minimum=0.4,
                                      maximum=3.2)
+
+
+def mirrored_tilt_band(params: WipParameters) -> tuple[float, float]:
+    """Band of the tilt ratio Y/X [1] that a mirrored drive gives (the module docstring)."""
+    reaction = 1.0 + params.effective_mass * params.wheel_radius / (
+        params.body_mass * params.com_height)
+    return -(reaction + _TILT_MODEL_ERROR), -_TILT_MODEL_ERROR
 
 
 class Verdict(NamedTuple):
@@ -153,6 +163,7 @@ class WiringCheck:
         self.period = float(period)
         self.configured = dict(configured or {})
         self.window = max(2, int(round(config.window / self.period)))
+        self.tilt_band = mirrored_tilt_band(params)
         # Torque was sent once: the gravity check is over for good (kept by reset()).
         self.ever_engaged = False
         self.reset()
@@ -177,7 +188,8 @@ class WiringCheck:
         """Return the margins seen so far, one line (correct wiring: Y/X near 1, misses near 0)."""
         tilt = 'n/a' if self.tilt_ratio is None else f'{self.tilt_ratio:.2f}'
         yaw = 'n/a' if self.yaw_worst_miss is None else f'{self.yaw_worst_miss:.2f}'
-        return (f'tilt Y/X {tilt} (fault in [{_TILT_BAND[0]:g}, {_TILT_BAND[1]:g}]); '
+        low, high = self.tilt_band
+        return (f'tilt Y/X {tilt} (fault in [{low:.3g}, {high:.3g}]); '
                 f'largest yaw miss {yaw} of the gyro rate (fault >= {_YAW_MISS:g})')
 
     # -- inputs -------------------------------------------------------------------------------
@@ -315,7 +327,7 @@ class WiringCheck:
         response = (pitch_rate - rate0) - drift
         ratio = response / impulse
         self.tilt_ratio = ratio
-        if not _TILT_BAND[0] <= ratio <= _TILT_BAND[1]:
+        if not self.tilt_band[0] <= ratio <= self.tilt_band[1]:
             return None
         # One wheel sign wrong turns the yaw torque into the base's drive torque: the tilt
         # then contradicts too, with Y ≈ ±X' instead of −X. If that explains Y better, or
