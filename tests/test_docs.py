@@ -9,7 +9,7 @@ Rules of docs/contributing.md ("Documentation"):
   reference: no heading of it names history (a date, "history", "what changed", "what was
   cut", "session", "issue", "before → after"), and its first section (the first ``##``
   heading) is not a measurement or a rationale ("measured", "results", "why", "not done",
-  "limits", "how measured", "design notes");
+  "limits", "design notes"), nor is its title;
 - every reference and history page is listed in docs/index.md.
 """
 
@@ -37,8 +37,16 @@ def reference_pages():
     return sorted(DOCS.glob('*.md'))
 
 
+def test_the_readme_opens_with_its_reference():
+    found = list(headings((ROOT / 'README.md').read_text(encoding='utf-8')))
+    history = [title for _, title in found if HISTORY.search(title)]
+    assert not history, f'README.md: history belongs in docs/history/: {history}'
+    sections = [title for level, title in found if level == 2]
+    assert sections[0] == 'Two commands', 'README.md: the demo and the tests come first'
+
+
 def prose(text: str) -> str:
-    """The text without fenced code blocks (a ``# comment`` there is no heading)."""
+    """Drop the fenced code blocks (a ``# comment`` there is no heading)."""
     return re.sub(r'^```.*?^```', '', text, flags=re.MULTILINE | re.DOTALL)
 
 
@@ -49,7 +57,7 @@ def headings(text: str):
 
 
 def slug(title: str) -> str:
-    """The anchor GitHub gives a heading: lower case, punctuation dropped, spaces to '-'."""
+    """Return the anchor GitHub gives a heading: lower case, no punctuation, '-' for spaces."""
     title = re.sub(r'`|\*\*|\[([^\]]*)\]\([^)]*\)', r'\1', title).lower()
     return re.sub(r'[^\w\- ]', '', title).replace(' ', '-')
 
@@ -65,7 +73,7 @@ def anchors(path: pathlib.Path) -> set:
 
 
 def test_the_slug_is_githubs():
-    assert slug("2. What the graph costs, and the composed layout") == \
+    assert slug('2. What the graph costs, and the composed layout') == \
         '2-what-the-graph-costs-and-the-composed-layout'
     assert slug('`cmd_vel`: velocity commands (teleop)') == 'cmd_vel-velocity-commands-teleop'
     assert slug('Two robots in one domain: namespaces') == 'two-robots-in-one-domain-namespaces'
@@ -95,6 +103,8 @@ def test_each_page_opens_with_its_reference(path):
     history = [title for _, title in found if HISTORY.search(title)]
     assert not history, (f'{path.name}: history belongs in docs/history/ or docs/decisions/, '
                          f'linked from the page: {history}')
+    assert not NOT_REFERENCE.search(found[0][1]), \
+        f'{path.name}: the title names the reference, not a rationale'
     sections = [title for level, title in found if level == 2]
     assert not sections or not NOT_REFERENCE.search(sections[0]), \
         f'{path.name}: the first section is reference, not "{sections[0]}"'
