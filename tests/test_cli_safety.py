@@ -170,8 +170,9 @@ def test_run_graph_refuses_an_out_that_is_a_file_and_a_non_utf8_scenario(tmp_pat
 
 
 def test_a_dead_recorder_points_to_scripts_bag_repair(tmp_path):
-    runner = graph.GraphRunner(graph.GraphOptions(out=str(tmp_path / 'o'),
-                                                  record=str(tmp_path / 'bag'), quiet=True))
+    from wip_bringup.graph_runner import GraphRunner
+    runner = GraphRunner(graph.GraphOptions(out=str(tmp_path / 'o'), record=str(tmp_path / 'bag'),
+                                            quiet=True))
     said = []
     runner.say = said.append
 

@@ -67,14 +67,14 @@ def test_the_constants_the_docstring_and_the_readme_agree():
 
 
 def test_the_runners_use_the_table():
-    from wip_bringup import launcher, runner_base
-    from wip_bringup.hardware import hardware_outcome
+    from wip_bringup import launcher, run_stop
+    from wip_bringup.hardware_outcome import hardware_outcome
     assert (launcher.EXIT_OK, launcher.EXIT_FELL, launcher.EXIT_USAGE, launcher.EXIT_FAILED,
             launcher.EXIT_DISK_FULL, launcher.EXIT_NOT_ENGAGED, launcher.EXIT_INTERRUPTED) == (
         cli.EXIT_OK, cli.EXIT_FAILED, cli.EXIT_USAGE, cli.EXIT_INTERNAL, cli.EXIT_DISK_FULL,
         cli.EXIT_NOT_ENGAGED, cli.EXIT_INTERRUPTED)
-    assert set(runner_base.STOP_EXIT_CODES) == {cli.EXIT_INTERRUPTED, cli.EXIT_TERMINATED,
-                                                cli.EXIT_HANGUP}
+    assert set(run_stop.STOP_EXIT_CODES) == {cli.EXIT_INTERRUPTED, cli.EXIT_TERMINATED,
+                                             cli.EXIT_HANGUP}
     # Hardware mode: 0 engaged and no fault (also at the user's stop), 1 a fault while
     # engaged, 5 never engaged; the README says the same.
     engaged = [{'t': 0.0, 'state': 'STARTING', 'reasons': ''},

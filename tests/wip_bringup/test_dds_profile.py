@@ -4,8 +4,8 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from wip_bringup.launcher import (FASTDDS_PROFILE, FASTDDS_PROFILE_VARIABLES,
-                                  graph_environment)
+from wip_bringup.launcher import FASTDDS_PROFILE, FASTDDS_PROFILE_VARIABLES
+from wip_bringup.processes import graph_environment
 from wip_control.nodes.dds_profile import (process_ignores_local_endpoints,
                                            profile_ignores_local_endpoints)
 
@@ -78,11 +78,11 @@ def test_only_the_single_layouts_simulation_publishes_asynchronously(monkeypatch
                                                                       layout, user_mode):
     """Its writers feed observers only; where the loop crosses processes they stay as set."""
     pytest.importorskip('ament_index_python')
-    from wip_bringup import graph, runner_base
+    from wip_bringup import graph_runner, runner_base
     if user_mode is None:
-        monkeypatch.delenv(graph.PUBLICATION_MODE_VARIABLE, raising=False)
+        monkeypatch.delenv(graph_runner.PUBLICATION_MODE_VARIABLE, raising=False)
     else:
-        monkeypatch.setenv(graph.PUBLICATION_MODE_VARIABLE, user_mode)
+        monkeypatch.setenv(graph_runner.PUBLICATION_MODE_VARIABLE, user_mode)
     started = {}
 
     class Started:
@@ -90,12 +90,12 @@ def test_only_the_single_layouts_simulation_publishes_asynchronously(monkeypatch
             started[name] = env
 
     monkeypatch.setattr(runner_base, 'NodeProcess', Started)
-    runner = graph.GraphRunner(graph.GraphOptions(out=str(tmp_path / 'o'), layout=layout,
-                                                  record=str(tmp_path / 'bag'), quiet=True))
+    runner = graph_runner.GraphRunner(graph_runner.GraphOptions(
+        out=str(tmp_path / 'o'), layout=layout, record=str(tmp_path / 'bag'), quiet=True))
     runner.start_processes(tmp_path / 'params.yaml')
     assert 'recorder' in started and len(started) > 1
     for name, env in started.items():
         expected = ('ASYNCHRONOUS' if name == 'simulation' and user_mode is None
                     else user_mode)
-        assert env.get(graph.PUBLICATION_MODE_VARIABLE) == expected, name
+        assert env.get(graph_runner.PUBLICATION_MODE_VARIABLE) == expected, name
     assert ('simulation' in started) == (layout == 'single')

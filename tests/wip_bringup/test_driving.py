@@ -48,7 +48,7 @@ def run_in_thread(options, listening=None):
     real user's teleop or planner would before driving. Without it the run's first
     seconds race DDS discovery, whose delays lockstep multiplies (docs/testing.md).
     """
-    from wip_bringup.graph import GraphRunner
+    from wip_bringup.graph_runner import GraphRunner
     from wip_bringup.launcher import EXIT_TIMEOUT, GraphError
 
     class DriverFirstRunner(GraphRunner):

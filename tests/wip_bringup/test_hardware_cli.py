@@ -20,9 +20,9 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 
 from ros_harness import spinning_in_background  # noqa: E402
 
-from wip_bringup.hardware import (load_params_file, node_parameters,  # noqa: E402
-                              parse_remap, remapped)
-from wip_bringup.graph import GraphError  # noqa: E402
+from wip_bringup.hardware_params import (load_params_file, node_parameters,  # noqa: E402
+                                     parse_remap, remapped)
+from wip_bringup.launcher import GraphError  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 

@@ -12,9 +12,11 @@ import pytest
 
 from wip_control.tools import cli
 from wip_bringup import graph, hardware
-from wip_bringup.hardware import hardware_outcome, HardwareOptions, HardwareRunner
-from wip_bringup.launcher import (graph_environment, ROS_DEFAULTS_VARIABLE, ros_network,
-                                  use_user_ros_environment)
+from wip_bringup.hardware_outcome import format_result, hardware_outcome, HardwareResult
+from wip_bringup.hardware_runner import HardwareOptions, HardwareRunner
+from wip_bringup.launcher import (EXIT_FELL, EXIT_NOT_ENGAGED, ROS_DEFAULTS_VARIABLE,
+                                  ros_network, use_user_ros_environment)
+from wip_bringup.processes import graph_environment
 
 ENGAGED = [{'t': 1.0, 'state': 'STARTING', 'reasons': 'waiting: ESO not settled'},
            {'t': 3.0, 'state': 'ACTIVE', 'reasons': 'none'}]
@@ -108,25 +110,25 @@ def test_every_exit_code_is_in_the_table_and_the_docs_that_list_codes():
     assert codes == set(cli.EXIT_CODES)
     rows = {int(code) for code in re.findall(r'^(\d+) {2,}\S', cli.__doc__, re.MULTILINE)}
     assert codes <= rows, codes - rows
-    assert graph.EXIT_NOT_ENGAGED == hardware.EXIT_NOT_ENGAGED == cli.EXIT_NOT_ENGAGED
-    assert graph.EXIT_FELL == cli.EXIT_FAILED
+    assert EXIT_NOT_ENGAGED == cli.EXIT_NOT_ENGAGED
+    assert EXIT_FELL == cli.EXIT_FAILED
     # The codes hardware mode and a real-time simulation end with, in their --help.
-    hardware_doc = ' '.join(hardware.__doc__.split())
+    hardware_help = ' '.join(hardware.build_parser().format_help().split())
     for text in ('0 the controllers engaged and the run ended without a safety fault',
                  '1 the vehicle fell or the safety layer went to FAULT after engaging',
                  '5 the controllers never engaged'):
-        assert text in hardware_doc
-    # scripts/run_graph --help (either mode) shows graph's docstring.
-    graph_doc = ' '.join(graph.__doc__.split())
+        assert text in hardware_help
+    # scripts/run_graph --help (either mode) shows them too.
+    graph_help = ' '.join(graph.build_parser().format_help().split())
     for text in ('5 (with --clock realtime) the controllers never engaged',
                  'Hardware mode: 0 the controllers engaged and the run ended without a safety '
                  'fault', '1 the vehicle fell or the safety layer went to FAULT after engaging',
                  '5 the controllers never engaged (no inputs from the base'):
-        assert text in graph_doc
+        assert text in graph_help
 
 
 @pytest.mark.parametrize('code, word', [(0, 'OK'), (1, 'FELL OR FAULT'),
                                         (5, 'NEVER ENGAGED'), (3, 'FAILED')])
 def test_the_result_line_names_the_outcome(tmp_path, code, word):
-    result = hardware.HardwareResult(code, 'why', tmp_path, None, 0)
-    assert hardware.format_result(result).splitlines()[0] == f'{word}: why'
+    result = HardwareResult(code, 'why', tmp_path, None, 0)
+    assert format_result(result).splitlines()[0] == f'{word}: why'

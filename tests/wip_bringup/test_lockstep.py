@@ -43,7 +43,7 @@ from wip_sim.core.runner import run_scenario  # noqa: E402
 from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_bag.bag_reader import read_bag  # noqa: E402
 from wip_bag.bag_reader import bag_summary  # noqa: E402
-from wip_bringup.graph import GraphOptions, GraphRunner, run_graph  # noqa: E402
+from wip_bringup.graph_runner import GraphOptions, GraphRunner, run_graph  # noqa: E402
 from wip_tools.report import record_from_bag, report  # noqa: E402
 from wip_bringup.private_domain import take_private_domain  # noqa: E402
 

@@ -20,7 +20,7 @@ import time
 
 import pytest
 
-from wip_bringup.hardware import parse_remap
+from wip_bringup.hardware_params import parse_remap
 from wip_bringup.launcher import EXIT_USAGE, GraphError, in_namespace, parse_namespace
 from wip_control.nodes.common import stamp_to_ns
 
@@ -112,7 +112,7 @@ def stamp_seconds(message) -> float:
 
 
 def run_in_thread(options):
-    from wip_bringup.graph import GraphRunner
+    from wip_bringup.graph_runner import GraphRunner
     runner = GraphRunner(options)
     outcome = {}
     thread = threading.Thread(target=lambda: outcome.setdefault('result', runner.run()))
@@ -141,7 +141,7 @@ def test_two_vehicles_in_one_domain_each_follow_their_own_reference(tmp_path, te
     from nav_msgs.msg import Odometry
     from ros_harness import spinning_in_background
     from wip_bringup.graph import EXIT_OK, GraphOptions
-    from wip_bringup.launcher import Scheduling
+    from wip_bringup.scheduling import Scheduling
     from wip_bringup.standin_run import CONTROLLER_PRIORITY, permitted, RT_CPU_LIMIT
 
     statuses: set[str] = set()

@@ -12,8 +12,8 @@ import textwrap
 
 import pytest
 
-from wip_bringup.launcher import (EXIT_USAGE, GraphError, LOCK_FILE, lock_output,
-                                  prepare_run_directory)
+from wip_bringup.launcher import EXIT_USAGE, GraphError
+from wip_bringup.output_lock import LOCK_FILE, lock_output, prepare_run_directory
 
 
 def _release(fds):
@@ -47,7 +47,7 @@ def _lock_holder(folder):
     holder = subprocess.Popen(
         [sys.executable, '-c', textwrap.dedent(f"""
             import pathlib, time
-            from wip_bringup.launcher import lock_output
+            from wip_bringup.output_lock import lock_output
             lock_output(pathlib.Path({str(folder)!r}), '--out')
             print('locked', flush=True)
             time.sleep(600)

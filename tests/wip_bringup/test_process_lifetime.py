@@ -19,8 +19,9 @@ import time
 
 import pytest
 
-from wip_bringup.launcher import (CpuLatencyRequest, executable_path, EXIT_USAGE,
-                                  graph_environment, GraphError, NodeProcess, Scheduling)
+from wip_bringup.launcher import EXIT_USAGE, GraphError
+from wip_bringup.processes import executable_path, graph_environment, NodeProcess
+from wip_bringup.scheduling import CpuLatencyRequest, Scheduling
 from wip_control.nodes.launched import end_with_launcher, LAUNCHER_PID_VARIABLE
 
 START_UP = 60.0   # [s] generous: a loaded CI machine starts a Python process slowly
@@ -180,7 +181,7 @@ def test_the_priority_is_raised_on_the_running_process_its_threads_and_their_chi
 
 LAUNCHER = textwrap.dedent("""
     import pathlib, sys, time
-    from wip_bringup.launcher import graph_environment, NodeProcess
+    from wip_bringup.processes import graph_environment, NodeProcess
     out = pathlib.Path(sys.argv[1])
     node = NodeProcess('child', sys.argv[2:], out / 'child.log', graph_environment(7))
     # Written whole, then renamed: the test polls for the file and reads it at once.

@@ -18,7 +18,8 @@ import pytest
 pytest.importorskip('rclpy')
 
 from wip_bag.bag_reader import bag_summary  # noqa: E402
-from wip_bringup.graph import EXIT_FELL, EXIT_NOT_ENGAGED, GraphOptions, run_graph  # noqa: E402
+from wip_bringup.graph_runner import GraphOptions, run_graph  # noqa: E402
+from wip_bringup.launcher import EXIT_FELL, EXIT_NOT_ENGAGED  # noqa: E402
 from wip_sim.settings import PlantSettings  # noqa: E402
 from wip_tools.report import record_from_bag  # noqa: E402
 from wip_bringup.private_domain import take_private_domain  # noqa: E402

@@ -10,8 +10,8 @@ from __future__ import annotations
 import pytest
 
 pytest.importorskip('rclpy')
-from wip_bringup import graph  # noqa: E402
-from wip_bringup.graph import GraphOptions, GraphRunner  # noqa: E402
+from wip_bringup import graph_recording  # noqa: E402
+from wip_bringup.graph_runner import GraphOptions, GraphRunner  # noqa: E402
 
 EXPECTED = {'/imu/data': 2000, '/wip/ground_truth': 2001}
 
@@ -41,7 +41,7 @@ class CheckedRunner(GraphRunner):
 
 
 def drained(tmp_path, monkeypatch, script) -> CheckedRunner:
-    monkeypatch.setattr(graph, 'DRAIN_STALL', 0.0)
+    monkeypatch.setattr(graph_recording, 'DRAIN_STALL', 0.0)
     runner = CheckedRunner(GraphOptions(out=str(tmp_path / 'run'), quiet=True))
     runner.processes = {'recorder': LiveProcess()}
     runner.probe = ScriptedProbe(script)

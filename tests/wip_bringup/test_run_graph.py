@@ -11,8 +11,8 @@ import pytest
 
 pytest.importorskip('rclpy')
 
-from wip_bringup import graph  # noqa: E402
-from wip_bringup.graph import GraphOptions, GraphRunner  # noqa: E402
+from wip_bringup import graph_runner  # noqa: E402
+from wip_bringup.graph_runner import GraphOptions, GraphRunner  # noqa: E402
 from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -41,7 +41,7 @@ def test_run_graph_names_a_process_that_dies_and_stops_the_others(tmp_path, layo
     thread.join(timeout=60.0)
     assert not thread.is_alive()
     result = outcome['result']
-    assert result.exit_code == graph.EXIT_FAILED
+    assert result.exit_code == graph_runner.EXIT_FAILED
     assert f"node '{victim}'" in result.message and 'exited with code -9' in result.message
     assert all(process.poll() is not None for process in runner.processes.values())
     # The others were stopped with SIGINT and exited cleanly.
@@ -62,7 +62,7 @@ def test_a_stall_on_the_first_ticks_starts_the_graph_again(tmp_path, monkeypatch
     def watch():
         calls.append(runner.domain_id)
         if len(calls) == 1:  # as if a first-tick message had been lost
-            raise graph.StartupStall('no progress at t = 0 s (simulated by the test)')
+            raise graph_runner.StartupStall('no progress at t = 0 s (simulated by the test)')
         return real_watch()
     monkeypatch.setattr(runner, 'watch', watch)
     result = runner.run()

@@ -13,7 +13,7 @@ import sys
 import pytest
 import yaml
 
-from wip_bringup.hardware import hardware_parameters
+from wip_bringup.hardware_params import hardware_parameters
 from wip_bringup.params_check import (check_params_files, check_remap, ParamsError,
                                       unmatched_remaps)
 from wip_bringup.params_files import CONTROLLER_NODES

@@ -263,7 +263,7 @@ def test_a_campaign_into_a_folder_another_run_holds_is_refused_and_removes_nothi
     (out / 'runs.jsonl').write_text('{"run": 0}\n')
     holder = subprocess.Popen([sys.executable, '-c', textwrap.dedent(f"""
         import pathlib, time
-        from wip_bringup.launcher import lock_output
+        from wip_bringup.output_lock import lock_output
         lock_output(pathlib.Path({str(out)!r}), '--out')
         print('locked', flush=True)
         time.sleep(600)

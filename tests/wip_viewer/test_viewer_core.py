@@ -114,7 +114,8 @@ def test_stamp_is_read_from_the_cdr_bytes_without_deserializing():
 
 
 def test_the_viewer_runs_when_someone_will_look():
-    from wip_bringup.graph import GraphOptions, viewer_wanted
+    from wip_bringup.graph import GraphOptions
+    from wip_bringup.view_options import viewer_wanted
     assert not viewer_wanted(GraphOptions())
     assert viewer_wanted(GraphOptions(record='bag'))
     assert viewer_wanted(GraphOptions(foxglove_port=0))

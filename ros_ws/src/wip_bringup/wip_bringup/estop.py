@@ -1,35 +1,14 @@
 """``scripts/estop``: engage, release or reset the e-stop of a running graph, without ros2cli.
 
-Examples
---------
-    scripts/estop engage                  # /wip/estop = true: the mixer latches zero torque
-    scripts/estop release                 # /wip/estop = false (the button released)
-    scripts/estop reset                   # /torque_mixer/reset_estop: its answer is printed
-    scripts/estop engage --domain 42      # a simulation's private domain (run_graph prints it)
-
-The ROS network is yours, as in hardware mode: ``$ROS_DOMAIN_ID`` and
-``$ROS_AUTOMATIC_DISCOVERY_RANGE`` as you set them, ROS's defaults (domain 0, SUBNET) where
-you did not; the private defaults that scripts/_env.sh gives simulations are dropped.
-``--domain`` overrides the domain. ``engage`` and ``release`` wait until the mixer's own
-/wip/estop subscription has matched (a message published before the match would be lost),
-publish (an engage three more times, 0.05 s apart), and wait for the reliable delivery.
-``reset`` calls the mixer's ``~/reset_estop`` (std_srvs/Trigger), which refuses while
-/wip/estop still says true or said it within ``safety.estop_hold_time`` (a button that
-keeps publishing true holds it).
-
-A one-shot command first has to start and be discovered by the graph: 0.6-1.5 s from
-the command to zero torque measured on a heavily loaded 2-core machine, most of it
-start-up (docs/real-base.md, "E-stop"). A node that keeps publishing (a teleop button) is
-faster: it is matched already when pressed.
-
-Exit status (the tools' table, ``wip_control.tools.cli``): 0 done (reset: the mixer said
-success); 1 refused, or nothing answered in ``--timeout`` seconds; 2 bad arguments; 130
-Ctrl-C.
+Light on purpose: only rclpy and ``wip_bringup.ros_env`` are imported (no numpy, no node
+code), since the start-up of this command is part of the e-stop's latency
+(docs/real-base.md, "E-stop").
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import sys
@@ -41,6 +20,38 @@ ACTIONS = ('engage', 'release', 'reset')
 ACK_WAIT = 1.0
 #: Copies of an engage sent after the first, 0.05 s apart.
 ENGAGE_COPIES = 3
+
+DESCRIPTION = """\
+Engage, release or reset the e-stop of a running graph (no ros2cli needed). engage and
+release publish /wip/estop (true: the mixer latches zero torque; false: the button
+released) once the mixer's own subscription has matched; reset calls the mixer's
+~/reset_estop, which refuses while /wip/estop says true or said it within
+safety.estop_hold_time.
+
+The ROS network is yours, as in hardware mode ($ROS_DOMAIN_ID and
+$ROS_AUTOMATIC_DISCOVERY_RANGE as you set them, ROS's defaults where you did not);
+--domain overrides the domain. Latency and a faster, persistent e-stop:
+docs/real-base.md (E-stop)."""
+
+EPILOG = """\
+Examples
+  scripts/estop engage                  # /wip/estop = true: the mixer latches zero torque
+  scripts/estop release                 # /wip/estop = false (the button released)
+  scripts/estop reset                   # /torque_mixer/reset_estop: its answer is printed
+  scripts/estop engage --domain 42      # a simulation's private domain (run_graph prints it)
+
+Exit status: 0 done (reset: the mixer said success); 1 refused, or nothing answered in
+--timeout seconds; 2 bad arguments; 130 Ctrl-C."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Target:
+    """Where the command goes: the domain, the network, the mixer and its e-stop topic."""
+
+    domain: int
+    network: object
+    mixer: str
+    topic: str
 
 
 def process_age() -> float:
@@ -54,8 +65,10 @@ def process_age() -> float:
         return math.nan
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog='scripts/estop', description=__doc__,
+def build_parser() -> argparse.ArgumentParser:
+    """``scripts/estop``'s options."""
+    parser = argparse.ArgumentParser(prog='scripts/estop', description=DESCRIPTION,
+                                     epilog=EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('action', choices=ACTIONS)
     parser.add_argument('--domain', type=int, default=None, metavar='ID',
@@ -70,7 +83,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--timeout', type=float, default=10.0, metavar='S',
                         help='longest wait for the mixer [s] (default 10)')
     add_exit_codes(parser)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def target(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Target:
+    """Return where the command goes; a usage error (exit 2) if an argument is bad."""
     # Not wip_bringup.launcher nor the nodes' modules (numpy, scipy: a few tenths of a
     # second of start-up, part of the e-stop's latency).
     from .ros_env import (FASTDDS_PROFILE, FASTDDS_PROFILE_VARIABLES, GraphError,
@@ -88,21 +105,89 @@ def main(argv: list[str] | None = None) -> int:
         namespace = parse_namespace(args.namespace)
     except GraphError as err:
         parser.error(str(err))
-    mixer = args.mixer or f'{namespace}/torque_mixer'
-    topic = f'{namespace}/wip/estop'
-
     # The graph's Fast DDS profile where the user has none (reliable repairs in
-    # milliseconds; wip_bringup.launcher.graph_environment).
+    # milliseconds; wip_bringup.processes.graph_environment).
     if not any(os.environ.get(name) for name in FASTDDS_PROFILE_VARIABLES):
         os.environ[FASTDDS_PROFILE_VARIABLES[0]] = str(FASTDDS_PROFILE)
+    return Target(domain, network, args.mixer or f'{namespace}/torque_mixer',
+                  f'{namespace}/wip/estop')
+
+
+def publish_estop(node, executor, to: Target, engage: bool, deadline: float,
+                  timeout: float, node_ready_after: float) -> int:
+    """Engage or release: wait for the mixer's subscription, publish, wait for delivery."""
+    import rclpy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Bool
+    # The mixer's subscription: reliable, volatile (wip_control.nodes.common).
+    publisher = node.create_publisher(
+        Bool, to.topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    mixer_namespace, _, mixer_name = to.mixer.rpartition('/')
+
+    def mixer_matched() -> bool:
+        # The mixer's own subscription, not any (a recorder's also matches).
+        return publisher.get_subscription_count() > 0 and any(
+            info.node_name == mixer_name
+            and info.node_namespace == (mixer_namespace or '/')
+            for info in node.get_subscriptions_info_by_topic(to.topic))
+
+    while not mixer_matched():
+        if time.monotonic() > deadline:
+            print(f'estop: {to.mixer} does not subscribe to {to.topic} in domain {to.domain} '
+                  f'(discovery range {to.network.discovery_range}) after '
+                  f'{timeout:g} s: is the graph running there?', file=sys.stderr)
+            return 1
+        executor.spin_once(timeout_sec=0.02)
+    matched_after = process_age()
+    message = Bool(data=engage)
+    publisher.publish(message)
+    # The reliable delivery to every matched reader (a reader of a process that
+    # died without saying so never acknowledges: not waited for past ACK_WAIT).
+    publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=ACK_WAIT))
+    if message.data:
+        # Again, in case the mixer's side matched only after the first copy (DDS
+        # matches each side on its own): an engaged e-stop latches, copies are free.
+        for _ in range(ENGAGE_COPIES):
+            executor.spin_once(timeout_sec=0.05)
+            publisher.publish(message)
+        publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=ACK_WAIT))
+    print(f'estop: {to.topic} = {str(engage).lower()} published '
+          f'(domain {to.domain}; {node_ready_after:.2f} s after this command started '
+          f'its node was up, {matched_after:.2f} s {to.mixer} matched)')
+    return 0
+
+
+def call_reset(node, executor, to: Target, deadline: float, timeout: float) -> int:
+    """Reset: call the mixer's ``~/reset_estop`` and print its answer."""
+    from std_srvs.srv import Trigger
+    client = node.create_client(Trigger, f'{to.mixer.rstrip("/")}/reset_estop')
+    while not client.service_is_ready():
+        if time.monotonic() > deadline:
+            print(f'estop: {client.srv_name} is not available in domain {to.domain} after '
+                  f'{timeout:g} s', file=sys.stderr)
+            return 1
+        executor.spin_once(timeout_sec=0.05)
+    future = client.call_async(Trigger.Request())
+    while not future.done() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+    if not future.done():
+        print(f'estop: {client.srv_name} did not answer in {timeout:g} s',
+              file=sys.stderr)
+        return 1
+    response = future.result()
+    print(f'estop: reset {"done" if response.success else "refused"}: {response.message}')
+    return 0 if response.success else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    to = target(parser, args)
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from std_msgs.msg import Bool
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from std_srvs.srv import Trigger
 
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain, args=[])
+    rclpy.init(context=context, domain_id=to.domain, args=[])
     node = rclpy.create_node('estop_front_door', context=context,
                              start_parameter_services=False, enable_rosout=False)
     executor = SingleThreadedExecutor(context=context)
@@ -111,60 +196,9 @@ def main(argv: list[str] | None = None) -> int:
     deadline = time.monotonic() + args.timeout
     try:
         if args.action in ('engage', 'release'):
-            # The mixer's subscription: reliable, volatile (wip_control.nodes.common).
-            publisher = node.create_publisher(
-                Bool, topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-            mixer_namespace, _, mixer_name = mixer.rpartition('/')
-
-            def mixer_matched() -> bool:
-                # The mixer's own subscription, not any (a recorder's also matches).
-                return publisher.get_subscription_count() > 0 and any(
-                    info.node_name == mixer_name
-                    and info.node_namespace == (mixer_namespace or '/')
-                    for info in node.get_subscriptions_info_by_topic(topic))
-
-            matched_after = None
-            while not mixer_matched():
-                if time.monotonic() > deadline:
-                    print(f'estop: {mixer} does not subscribe to {topic} in domain {domain} '
-                          f'(discovery range {network.discovery_range}) after '
-                          f'{args.timeout:g} s: is the graph running there?', file=sys.stderr)
-                    return 1
-                executor.spin_once(timeout_sec=0.02)
-            matched_after = process_age()
-            message = Bool(data=args.action == 'engage')
-            publisher.publish(message)
-            # The reliable delivery to every matched reader (a reader of a process that
-            # died without saying so never acknowledges: not waited for past ACK_WAIT).
-            publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=ACK_WAIT))
-            if message.data:
-                # Again, in case the mixer's side matched only after the first copy (DDS
-                # matches each side on its own): an engaged e-stop latches, copies are free.
-                for _ in range(ENGAGE_COPIES):
-                    executor.spin_once(timeout_sec=0.05)
-                    publisher.publish(message)
-                publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=ACK_WAIT))
-            print(f'estop: {topic} = {str(args.action == "engage").lower()} published '
-                  f'(domain {domain}; {node_ready_after:.2f} s after this command started '
-                  f'its node was up, {matched_after:.2f} s {mixer} matched)')
-            return 0
-        client = node.create_client(Trigger, f'{mixer.rstrip("/")}/reset_estop')
-        while not client.service_is_ready():
-            if time.monotonic() > deadline:
-                print(f'estop: {client.srv_name} is not available in domain {domain} after '
-                      f'{args.timeout:g} s', file=sys.stderr)
-                return 1
-            executor.spin_once(timeout_sec=0.05)
-        future = client.call_async(Trigger.Request())
-        while not future.done() and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-        if not future.done():
-            print(f'estop: {client.srv_name} did not answer in {args.timeout:g} s',
-                  file=sys.stderr)
-            return 1
-        response = future.result()
-        print(f'estop: reset {"done" if response.success else "refused"}: {response.message}')
-        return 0 if response.success else 1
+            return publish_estop(node, executor, to, args.action == 'engage', deadline,
+                                 args.timeout, node_ready_after)
+        return call_reset(node, executor, to, deadline, args.timeout)
     except KeyboardInterrupt:
         return 130
     finally:

@@ -109,30 +109,13 @@ def config_section(instance: Any) -> dict[str, Any]:
     return out
 
 
-def graph_parameters(scenario: ControllerSettings, clock_mode: str = 'lockstep',
-                     scenario_path: str | pathlib.Path | None = None,
-                     joints: tuple[str, str] = DEFAULT_JOINTS,
-                     plant_extra: Mapping[str, Any] | None = None,
-                     recorder: Mapping[str, Any] | None = None,
-                     plant: bool = True,
-                     eso_extra: Mapping[str, Any] | None = None) -> dict[str, dict]:
-    """``{node_name: {'ros__parameters': {...}}}`` of every node of a graph run.
+def controller_sections(scenario: ControllerSettings, lockstep: bool,
+                        joints: tuple[str, str],
+                        eso_extra: Mapping[str, Any] | None = None) -> dict[str, dict[str, Any]]:
+    """Return the sections of each controller node, from the scenario's controller half.
 
-    Parameters
-    ----------
-    scenario : the run's scenario.
-    clock_mode : 'lockstep' or 'realtime'.
-    scenario_path : file the plant loads (it must hold ``scenario``); ``None``: '' (the
-        plant's default, the paper scenario; only right for the default scenario).
-    joints : (left, right) wheel joint names.
-    plant_extra : more plant parameters (start handshake, stats file, ...).
-    recorder : parameters of a ``recorder`` node; ``None``: no recorder section.
-    plant : include the plant's section (false: a real base, hardware mode).
-    eso_extra : more ESO parameters (the odometry output when the viewer runs).
+    Without ``clock_mode`` and ``use_sim_time`` (:func:`graph_parameters` adds them).
     """
-    if clock_mode not in CLOCK_MODES:
-        raise ValueError(f'clock_mode: {clock_mode!r} is not one of {list(CLOCK_MODES)}')
-    lockstep = clock_mode == 'lockstep'
     left, right = joints
     sensors = scenario.sensors
     datum = {'latitude': float(sensors.gps_datum_latitude),
@@ -170,6 +153,35 @@ def graph_parameters(scenario: ControllerSettings, clock_mode: str = 'lockstep',
                          'left_joint': left, 'right_joint': right,
                          'joints': [left, right]},
     }
+    return nodes
+
+
+def graph_parameters(scenario: ControllerSettings, clock_mode: str = 'lockstep',
+                     scenario_path: str | pathlib.Path | None = None,
+                     joints: tuple[str, str] = DEFAULT_JOINTS,
+                     plant_extra: Mapping[str, Any] | None = None,
+                     recorder: Mapping[str, Any] | None = None,
+                     plant: bool = True,
+                     eso_extra: Mapping[str, Any] | None = None) -> dict[str, dict]:
+    """``{node_name: {'ros__parameters': {...}}}`` of every node of a graph run.
+
+    Parameters
+    ----------
+    scenario : the run's scenario.
+    clock_mode : 'lockstep' or 'realtime'.
+    scenario_path : file the plant loads (it must hold ``scenario``); ``None``: '' (the
+        plant's default, the paper scenario; only right for the default scenario).
+    joints : (left, right) wheel joint names.
+    plant_extra : more plant parameters (start handshake, stats file, ...).
+    recorder : parameters of a ``recorder`` node; ``None``: no recorder section.
+    plant : include the plant's section (false: a real base, hardware mode).
+    eso_extra : more ESO parameters (the odometry output when the viewer runs).
+    """
+    if clock_mode not in CLOCK_MODES:
+        raise ValueError(f'clock_mode: {clock_mode!r} is not one of {list(CLOCK_MODES)}')
+    lockstep = clock_mode == 'lockstep'
+    left, right = joints
+    nodes = controller_sections(scenario, lockstep, joints, eso_extra)
     out: dict[str, dict] = {}
     for name in CONTROLLER_NODES:
         parameters = {'clock_mode': clock_mode, **nodes[name]}
@@ -200,6 +212,41 @@ def flatten(parameters: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
         else:
             flat[name] = value
     return flat
+
+
+def namespaced_params(text: str, namespace: str) -> str:
+    """Return the text of a generated params file under ``namespace``.
+
+    Under a namespace, the generated params file's node keys ('eso') become the
+    nodes' full names ('/robot1/eso': a key without a leading slash names a node of
+    the root namespace only), and the odometry frames get the namespace as a prefix
+    ('robot1/odom', 'robot1/base_link': the usual frame_prefix of a robot among
+    several; 'map' stays shared). A --params-file of the user comes after it.
+    """
+    header = ''.join(line for line in text.splitlines(keepends=True)
+                     if line.startswith('#'))
+    data = yaml.safe_load(text) or {}
+    prefix = namespace.lstrip('/') + '/'
+
+    def prefixed(frame: str) -> str:   # once: a retried start reads its own output
+        frame = str(frame).lstrip('/')
+        return frame if frame.startswith(prefix) else prefix + frame
+    out = {}
+    for key, section in data.items():
+        if not str(key).startswith('/'):
+            key = f'{namespace}/{key}'
+        params = (section or {}).get('ros__parameters') if isinstance(section, dict) else None
+        if key == f'{namespace}/eso' and isinstance(params, dict):
+            params.setdefault('odometry_frame_id', 'odom')
+            params.setdefault('odometry_child_frame_id', 'base_link')
+            for name in ('odometry_frame_id', 'odometry_child_frame_id'):
+                params[name] = prefixed(params[name])
+        if key == f'{namespace}/viewer' and isinstance(params, dict):
+            viewer = params.setdefault('viewer', {})
+            viewer['child_frame_id'] = prefixed(viewer.get('child_frame_id', 'base_link'))
+            viewer['frame_prefix'] = prefix
+        out[key] = section
+    return header + yaml.safe_dump(out, sort_keys=False)
 
 
 class _NoAliasDumper(yaml.SafeDumper):

@@ -15,16 +15,14 @@ below (``EXTRA_PROCESSES``, :meth:`RunnerBase.missing_from_view`,
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import errno
 import json
 import pathlib
 import signal
 import sys
 import threading
 import time
-from typing import Any, Callable, Iterable
+from typing import Any, Iterable
 
 import yaml
 
@@ -33,101 +31,18 @@ from wip_control.core.controller_settings import (controller_settings_to_mapping
                                                   ControllerSettings, load_controller_settings)
 from wip_control.tools.cli import write_atomic
 
-from .launcher import (choose_domain_id, CONTROLLER_LAYOUTS, CpuLatencyRequest,
-                       executable_path, EXECUTABLES, EXIT_DISK_FULL, in_namespace,
-                       EXIT_USAGE, EXIT_TIMEOUT, GRACE_PERIOD, graph_environment, GraphError,
-                       LAYOUTS, live_view_line, MULTI_NODE_PROCESSES, NodeProcess,
-                       parse_namespace, prepare_run_directory, Probe,
-                       RECORDER_GRACE_PERIOD, Scheduling, VIEWER_TOPICS,
-                       viewer_wanted)
-from .params_files import config_section, CONTROLLER_NODES
-
-
-#: Signals that stop a run as Ctrl-C does: a service manager's stop (systemd, docker
-#: stop) and a closed terminal. The exit status of such a stop is 128 + the signal's number,
-#: what a shell reports for a process that a signal ended (130 SIGINT, 143 SIGTERM, 129
-#: SIGHUP), but after the whole stop: nodes stopped, recorder drained, bag closed,
-#: run.json written.
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-STOP_EXIT_CODES = tuple(128 + int(number) for number in STOP_SIGNALS)
-
-
-class StopRequested(KeyboardInterrupt):
-    """SIGTERM or SIGHUP as a KeyboardInterrupt.
-
-    SIGTERM or SIGHUP: a KeyboardInterrupt, so that every place that stops cleanly on
-    Ctrl-C does on these too; ``signum`` says which.
-    """
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-def _raise_stop(signum, frame) -> None:
-    raise StopRequested(signum)
-
-
-@contextlib.contextmanager
-def stop_signals():
-    """Turn SIGTERM, SIGHUP and SIGINT into exceptions in the main thread.
-
-    SIGTERM and SIGHUP raise :class:`StopRequested` in the main thread while a run is
-    in this block, and SIGINT KeyboardInterrupt: set here too, because a program started in
-    the background by a non-interactive shell (a CI step, ``cmd &``) inherits SIGINT
-    ignored, and Python then installs no handler of its own.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield   # handlers can only be set from the main thread; the caller stops it
-        return
-    previous = {n: signal.signal(n, _raise_stop) for n in (signal.SIGTERM, signal.SIGHUP)}
-    previous[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        yield
-    finally:
-        for number, handler in previous.items():
-            signal.signal(number, handler)
-
-
-def stop_signal_number(error: KeyboardInterrupt) -> int:
-    """Return the signal behind a KeyboardInterrupt (SIGINT unless it is a StopRequested)."""
-    return error.signum if isinstance(error, StopRequested) else int(signal.SIGINT)
-
-
-class DiskFull(Exception):
-    """An output could not be written: no space left (or a quota); ``where`` names it."""
-
-
-def is_disk_full(error: BaseException) -> bool:
-    return isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT)
-
-
-@dataclasses.dataclass
-class RunResult:
-    """What both runners return and write to ``OUT/run.json`` (each adds its own fields)."""
-
-    exit_code: int
-    message: str
-    out: pathlib.Path
-    bag: pathlib.Path | None
-    domain_id: int
-    node_exit_codes: dict[str, int | None] = dataclasses.field(default_factory=dict)
-    startup_s: float | None = None
-    wall_time_s: float | None = None
-    #: CPU time [s] of each node process during the run.
-    cpu_s: dict[str, float] = dataclasses.field(default_factory=dict)
-    #: Wall times [s] of the start-up steps, from the start of the run.
-    timeline: dict[str, Any] = dataclasses.field(default_factory=dict)
-    #: Latest /diagnostics status of every node: name -> {'message': ..., key: value}.
-    node_diagnostics: dict[str, dict[str, str]] = dataclasses.field(default_factory=dict)
-
-    def summary(self) -> dict[str, Any]:
-        return {'exit_code': self.exit_code, 'message': self.message,
-                'out': str(self.out), 'bag': str(self.bag) if self.bag else None,
-                'domain_id': self.domain_id, 'startup_s': self.startup_s,
-                'wall_time_s': self.wall_time_s, 'node_exit_codes': self.node_exit_codes,
-                'cpu_s': self.cpu_s, 'timeline': self.timeline,
-                'node_diagnostics': self.node_diagnostics}
+from .launcher import (CONTROLLER_LAYOUTS, EXECUTABLES, EXIT_DISK_FULL, EXIT_TIMEOUT,
+                       EXIT_USAGE, GRACE_PERIOD, GraphError, in_namespace, LAYOUTS,
+                       MULTI_NODE_PROCESSES, parse_namespace, RECORDER_GRACE_PERIOD,
+                       VIEWER_TOPICS)
+from .output_lock import prepare_run_directory
+from .params_files import config_section, CONTROLLER_NODES, namespaced_params
+from .probe import Probe
+from .processes import choose_domain_id, executable_path, graph_environment, NodeProcess
+from .run_result import RunResult
+from .run_stop import is_disk_full, STOP_SIGNALS
+from .scheduling import CpuLatencyRequest, Scheduling
+from .view_options import live_view_line, viewer_wanted
 
 
 class RunnerBase:
@@ -200,41 +115,11 @@ class RunnerBase:
         self.namespace = parse_namespace(self.options.namespace)
 
     def namespaced_params_file(self, params_file: pathlib.Path) -> None:
-        """Put the generated params file under the run's namespace.
-
-        Under a namespace, the generated params file's node keys ('eso') become the
-        nodes' full names ('/robot1/eso': a key without a leading slash names a node of
-        the root namespace only), and the odometry frames get the namespace as a prefix
-        ('robot1/odom', 'robot1/base_link': the usual frame_prefix of a robot among
-        several; 'map' stays shared). A --params-file of the user comes after it.
-        """
+        """Put the generated params file under the run's namespace (:func:`namespaced_params`)."""
         if not self.namespace:
             return
-        text = params_file.read_text(encoding='utf-8')
-        header = ''.join(line for line in text.splitlines(keepends=True)
-                         if line.startswith('#'))
-        data = yaml.safe_load(text) or {}
-        prefix = self.namespace.lstrip('/') + '/'
-
-        def prefixed(frame: str) -> str:   # once: a retried start reads its own output
-            frame = str(frame).lstrip('/')
-            return frame if frame.startswith(prefix) else prefix + frame
-        out = {}
-        for key, section in data.items():
-            if not str(key).startswith('/'):
-                key = f'{self.namespace}/{key}'
-            params = (section or {}).get('ros__parameters') if isinstance(section, dict) else None
-            if key == f'{self.namespace}/eso' and isinstance(params, dict):
-                params.setdefault('odometry_frame_id', 'odom')
-                params.setdefault('odometry_child_frame_id', 'base_link')
-                for name in ('odometry_frame_id', 'odometry_child_frame_id'):
-                    params[name] = prefixed(params[name])
-            if key == f'{self.namespace}/viewer' and isinstance(params, dict):
-                viewer = params.setdefault('viewer', {})
-                viewer['child_frame_id'] = prefixed(viewer.get('child_frame_id', 'base_link'))
-                viewer['frame_prefix'] = prefix
-            out[key] = section
-        write_atomic(params_file, header + yaml.safe_dump(out, sort_keys=False))
+        write_atomic(params_file, namespaced_params(params_file.read_text(encoding='utf-8'),
+                                                    self.namespace))
 
     def check_layout_and_scheduling(self) -> None:
         if self.options.layout not in self.LAYOUTS:
@@ -585,19 +470,6 @@ class RunnerBase:
                 result.exit_code = EXIT_DISK_FULL
                 result.message = (f'disk full: {path} not written; '
                                   + (result.message or ''))
-
-
-def print_result(result: RunResult, formatted: Callable[[RunResult], str]) -> int:
-    """Print the result of ``scripts/run_graph`` and return its exit status.
-
-    The end of ``scripts/run_graph`` in either mode: the result on stdout (a run refused
-    before anything ran: only its error, on stderr); the exit status.
-    """
-    if result.exit_code == EXIT_USAGE:  # Refused before anything ran: nothing to show.
-        print(f'run_graph: error: {result.message}', file=sys.stderr)
-        return EXIT_USAGE
-    print(formatted(result))
-    return result.exit_code
 
 
 def options_from_args(args, **own) -> dict[str, Any]:

@@ -14,6 +14,7 @@ controllers run as ``scripts/run_graph --mode hardware`` with ``--remap`` and a
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -27,9 +28,11 @@ from typing import Any, Callable, Mapping
 
 import yaml
 
-from .hardware import HardwareOptions, HardwareResult, run_hardware
-from .launcher import (choose_domain_id, executable_path, graph_environment, GraphError,
-                       ROS_DEFAULTS_VARIABLE, Scheduling)
+from .hardware_outcome import HardwareResult
+from .hardware_runner import HardwareOptions, run_hardware
+from .launcher import GraphError, ROS_DEFAULTS_VARIABLE
+from .processes import choose_domain_id, executable_path, graph_environment
+from .scheduling import Scheduling
 
 CONTROL_RATE = 200.0  # [Hz]
 #: SCHED_FIFO priorities where permitted: the base above the controllers, as a base's
@@ -176,51 +179,15 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
     (the runner, once it started, or None). ``runner_duration`` [s]: the hardware run's
     own cap (default ``run_time`` + 40: a base that is never released runs until then).
     """
-    base_scheduling = controller_scheduling = Scheduling()
-    if realtime_priority and permitted(Scheduling(BASE_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)):
-        base_scheduling = Scheduling(BASE_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)
-        controller_scheduling = Scheduling(CONTROLLER_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)
-    cpus = pinned_cpus() if pin_cpus else None
-    if cpus is not None:
-        base_scheduling = dataclasses.replace(base_scheduling, cpus=(cpus[0],))
-        controller_scheduling = dataclasses.replace(controller_scheduling, cpus=(cpus[1],))
-    if cpu_latency is not None:
-        controller_scheduling = dataclasses.replace(controller_scheduling,
-                                                    cpu_latency=cpu_latency)
-    directory.mkdir(parents=True, exist_ok=True)
-    scenario_path = directory / 'scenario.yaml'
-    scenario_path.write_text(yaml.safe_dump(dict(scenario or line_scenario())))
-    base_params = write_params(directory / 'base.yaml', dict(
-        BASE, **(base_extra or {}), duration=float(run_time),
-        exit_after_fall=float(exit_after_fall),
-        stats_file=str(directory / 'base_stats.json'), scenario_file=str(scenario_path)))
-    controller_params = write_params(directory / 'controllers.yaml', controller_conventions)
+    base_scheduling, controller_scheduling = standin_scheduling(realtime_priority, pin_cpus,
+                                                                cpu_latency)
+    scenario_path, base_params, controller_params = _write_inputs(
+        directory, controller_conventions, run_time, scenario, exit_after_fall, base_extra)
     domain = str(choose_domain_id())
-    # The controllers' environment (the base too ends with this process, same transport),
-    # on localhost whatever the user's discovery range.
-    env = dict(graph_environment(int(domain)), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    command = [str(executable_path('wip_sim', 'standin_base')), '--ros-args',
-               '--params-file', str(base_params)]
-    for remap in REMAPS:
-        command += ['-r', remap]
-    if namespace:
-        command += ['-r', f'__ns:=/{namespace.lstrip("/")}']
-    # Hardware mode (in this process) uses the environment's ROS settings as the user's:
-    # give it this run's private domain and localhost-only discovery, with no record of
-    # scripts/_env.sh's defaults that would make it drop them.
-    private = {'ROS_DOMAIN_ID': domain, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
-               ROS_DEFAULTS_VARIABLE: None}
-    previous = {name: os.environ.get(name) for name in private}
-    for name, value in private.items():
-        if value is None:
-            os.environ.pop(name, None)
-        else:
-            os.environ[name] = value
     runner_holder: dict[str, Any] = {}
     injector = None
     with open(directory / 'base.log', 'w', encoding='utf-8') as log:
-        base = subprocess.Popen(base_scheduling.command_prefix() + command, stdout=log,
-                                stderr=subprocess.STDOUT, env=env)
+        base = _start_base(base_params, namespace, domain, base_scheduling, log)
         try:
             options = HardwareOptions(
                 scenario=str(scenario_path), params_files=[str(controller_params)],
@@ -241,32 +208,116 @@ def run_against_standin(directory: pathlib.Path, controller_conventions: Mapping
                     target=_when_engaged, daemon=True,
                     args=(runner_holder, during, base, end_after_during))
                 injector.start()
-            result = run_hardware(options)
+            with _private_ros_environment(domain):
+                result = run_hardware(options)
         finally:
-            for name, value in previous.items():
-                if value is None:
-                    os.environ.pop(name, None)
-                else:
-                    os.environ[name] = value
-            if base.poll() is None:
-                base.send_signal(signal.SIGINT)
-            try:
-                base.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                base.kill()
-                base.wait()
+            _stop_base(base)
             if injector is not None:
                 injector.join(timeout=30)
     stats = json.loads((directory / 'base_stats.json').read_text(encoding='utf-8'))
     run = StandinRun(result, stats, base.returncode, base_scheduling.priority,
                      controller_scheduling.priority, base_scheduling.cpus,
                      controller_scheduling.cpus)
+    _write_measured(directory, run, layout)
+    return run
+
+
+def standin_scheduling(realtime_priority: bool, pin_cpus: bool,
+                       cpu_latency: int | None) -> tuple[Scheduling, Scheduling]:
+    """Return the scheduling of the stand-in base and of the controllers.
+
+    SCHED_FIFO priorities where this user may (the base above the controllers), the CPUs
+    of :func:`pinned_cpus` with ``pin_cpus``, the controllers' ``--cpu-latency``.
+    """
+    base_scheduling = controller_scheduling = Scheduling()
+    if realtime_priority and permitted(Scheduling(BASE_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)):
+        base_scheduling = Scheduling(BASE_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)
+        controller_scheduling = Scheduling(CONTROLLER_PRIORITY, rt_cpu_limit=RT_CPU_LIMIT)
+    cpus = pinned_cpus() if pin_cpus else None
+    if cpus is not None:
+        base_scheduling = dataclasses.replace(base_scheduling, cpus=(cpus[0],))
+        controller_scheduling = dataclasses.replace(controller_scheduling, cpus=(cpus[1],))
+    if cpu_latency is not None:
+        controller_scheduling = dataclasses.replace(controller_scheduling,
+                                                    cpu_latency=cpu_latency)
+    return base_scheduling, controller_scheduling
+
+
+def _write_inputs(directory: pathlib.Path, controller_conventions: Mapping[str, Any],
+                  run_time: float, scenario: Mapping[str, Any] | None,
+                  exit_after_fall: float, base_extra: Mapping[str, Any] | None):
+    """Write the scenario, the base's and the controllers' params files; their paths."""
+    directory.mkdir(parents=True, exist_ok=True)
+    scenario_path = directory / 'scenario.yaml'
+    scenario_path.write_text(yaml.safe_dump(dict(scenario or line_scenario())))
+    base_params = write_params(directory / 'base.yaml', dict(
+        BASE, **(base_extra or {}), duration=float(run_time),
+        exit_after_fall=float(exit_after_fall),
+        stats_file=str(directory / 'base_stats.json'), scenario_file=str(scenario_path)))
+    controller_params = write_params(directory / 'controllers.yaml', controller_conventions)
+    return scenario_path, base_params, controller_params
+
+
+def _start_base(base_params: pathlib.Path, namespace: str, domain: str,
+                scheduling: Scheduling, log) -> subprocess.Popen:
+    """Start ``wip_sim standin_base`` in the run's domain, its output into ``log``."""
+    # The controllers' environment (the base too ends with this process, same transport),
+    # on localhost whatever the user's discovery range.
+    env = dict(graph_environment(int(domain)), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    command = [str(executable_path('wip_sim', 'standin_base')), '--ros-args',
+               '--params-file', str(base_params)]
+    for remap in REMAPS:
+        command += ['-r', remap]
+    if namespace:
+        command += ['-r', f'__ns:=/{namespace.lstrip("/")}']
+    return subprocess.Popen(scheduling.command_prefix() + command, stdout=log,
+                            stderr=subprocess.STDOUT, env=env)
+
+
+@contextlib.contextmanager
+def _private_ros_environment(domain: str):
+    """Give hardware mode (in this process) the run's private domain, as the user's.
+
+    Hardware mode uses the environment's ROS settings as the user's: this run's private
+    domain and localhost-only discovery, with no record of scripts/_env.sh's defaults that
+    would make it drop them; restored afterwards.
+    """
+    private = {'ROS_DOMAIN_ID': domain, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+               ROS_DEFAULTS_VARIABLE: None}
+    previous = {name: os.environ.get(name) for name in private}
+    try:
+        for name, value in private.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+        yield
+    finally:
+        for name, value in previous.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def _stop_base(base: subprocess.Popen) -> None:
+    """SIGINT to the base if it still runs; SIGKILL after 10 s."""
+    if base.poll() is None:
+        base.send_signal(signal.SIGINT)
+    try:
+        base.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        base.kill()
+        base.wait()
+
+
+def _write_measured(directory: pathlib.Path, run: StandinRun, layout: str) -> None:
+    """``directory/measured.json``: the run's summary, with its priorities and CPUs."""
     measured = dict(run.summary(), base_priority=run.base_priority,
                     controller_priority=run.controller_priority,
                     base_cpus=list(run.base_cpus), controller_cpus=list(run.controller_cpus),
                     layout=layout)
     (directory / 'measured.json').write_text(json.dumps(measured, indent=2))
-    return run
 
 
 def pinned_cpus() -> tuple[int, int] | None:

@@ -764,7 +764,8 @@ def main(argv: list[str] | None = None) -> int:
     out = pathlib.Path(args.out or f'out/campaign/{campaign.name}')
     # One campaign per folder: run_graph's output lock, taken before anything there is
     # removed or written, held until this returns.
-    from wip_bringup.launcher import GraphError, LOCK_FILE, lock_output
+    from wip_bringup.launcher import GraphError
+    from wip_bringup.output_lock import LOCK_FILE, lock_output
     try:
         out.mkdir(parents=True, exist_ok=True)
         lock = lock_output(out, '--out')

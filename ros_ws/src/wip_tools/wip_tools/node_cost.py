@@ -51,7 +51,7 @@ def measure(seconds: float, paced: bool) -> dict:
     from std_msgs.msg import Empty, Float64MultiArray
     import yaml
 
-    from wip_bringup.hardware import hardware_parameters
+    from wip_bringup.hardware_params import hardware_parameters
     from wip_bringup.params_files import _NoAliasDumper
     from wip_bringup.standin_run import BASE
     from wip_sim.core.scenario import load_scenario

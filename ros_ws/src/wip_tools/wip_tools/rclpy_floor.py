@@ -80,7 +80,7 @@ def measure_floor(seconds: float = 10.0, raw: bool = False) -> dict:
 
     ``raw``: the messages are taken serialized.
     """
-    from wip_bringup.launcher import choose_domain_id, graph_environment
+    from wip_bringup.processes import choose_domain_id, graph_environment
     env = graph_environment(choose_domain_id())
     module = [sys.executable, '-m', 'wip_tools.rclpy_floor']
     base = subprocess.Popen(module + ['publish', str(seconds + WARM_UP + 8.0)], env=env,

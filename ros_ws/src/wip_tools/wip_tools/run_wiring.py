@@ -4,8 +4,9 @@ Offline tools that read a robot's own sensors from a bag (``scripts/identify --s
 sensors``) must read them as the ESO node did. The wiring is what the ESO node was given:
 its parameters ``left_joint``, ``right_joint``, ``left_wheel_sign``, ``right_wheel_sign``,
 ``imu_mounting_rpy`` and ``encoders_relative_to_body`` from ROS params files (later files
-win, ``/**`` and node sections as ROS applies them: :func:`wip_bringup.hardware.node_parameters`),
-and the topics it subscribed to, after the run's remaps.
+win, ``/**`` and node sections as ROS applies them:
+:func:`wip_bringup.hardware_params.node_parameters`), and the topics it subscribed to, after
+the run's remaps.
 
 A hardware-mode run leaves its parameters in the bag (``BAG/params.yaml``: the generated
 parameters with the ``--params-file`` files merged in); ``OUT/params.yaml`` beside the bag
@@ -67,7 +68,7 @@ def run_params_files(run: str | pathlib.Path) -> list[pathlib.Path]:
 
 def load_wiring(files: Iterable[str | pathlib.Path], namespace: str = '') -> Wiring:
     """Return the ESO node's wiring from ROS params ``files`` (later wins)."""
-    from wip_bringup.hardware import load_params_file, node_parameters
+    from wip_bringup.hardware_params import load_params_file, node_parameters
     from wip_bringup.launcher import GraphError
     from wip_control.nodes.hardware_inputs import check_mounting_rpy, check_wheel_sign
     files = [str(f) for f in files]
