@@ -7,7 +7,7 @@ its own: ``/base/joint_states``, ``/base/imu``, ``/base/fix`` out and
 differ from the simulator's on purpose: joints named ``wheel_l``/``wheel_r`` listed
 right first, the left joint's positive direction rolling backwards (sign −1), an IMU
 mounted upside down and turned a quarter turn. The controllers run as in
-``scripts/run_graph --mode hardware`` (:func:`wip_bringup.hardware.run_hardware`), in the
+``scripts/run_graph --mode hardware`` (:func:`wip_bringup.hardware_runner.run_hardware`), in the
 default (composed) layout unless a test says otherwise, with ``--remap`` for the topic
 names and a ``--params-file`` with the base's conventions (the harness is
 :mod:`wip_bringup.standin_run`).
