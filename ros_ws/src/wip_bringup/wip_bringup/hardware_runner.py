@@ -72,7 +72,7 @@ class HardwareOptions:
     #: e.g. to reach its processes and safety events from another thread.
     on_start: Callable[[Any], None] | None = None
     #: The viewer node (Odometry, Path, markers of the estimate); None: with --record or
-    #: --foxglove (see wip_bringup.launcher.viewer_wanted).
+    #: --foxglove (see wip_bringup.view_options.viewer_wanted).
     viewer: bool | None = None
     foxglove_port: int | None = None  # serve the topics to Foxglove on this port
     foxglove_host: str = '127.0.0.1'

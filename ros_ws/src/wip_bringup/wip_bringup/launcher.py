@@ -22,7 +22,7 @@ from .ros_env import (FASTDDS_PROFILE, FASTDDS_PROFILE_VARIABLES, GraphError,  #
 # The exit-code table of every tool (wip_control.tools.cli): 0 ok, 1 the vehicle fell (or a
 # safety fault while engaged), 2 usage or input error, 3 internal error (a node crashed, the
 # graph stalled), 4 disk full, 5 the controllers never engaged, 130 Ctrl-C (143 SIGTERM,
-# 129 SIGHUP: 128 + the signal, runner_base.STOP_SIGNALS).
+# 129 SIGHUP: 128 + the signal, run_stop.STOP_SIGNALS).
 EXIT_OK, EXIT_FELL, EXIT_USAGE, EXIT_FAILED = 0, 1, 2, 3
 EXIT_TIMEOUT = EXIT_FAILED
 EXIT_INTERRUPTED = 130

@@ -23,7 +23,7 @@ class Probe:
         self.context = rclpy.Context()
         # No rclpy signal handlers: they would shut this context down at a SIGINT or
         # SIGTERM, and the launcher still needs the probe to drain the recorder while it
-        # stops the run (runner_base.stop_signals raises in the main thread instead).
+        # stops the run (run_stop.stop_signals raises in the main thread instead).
         rclpy.init(context=self.context, domain_id=domain_id, args=[],
                    signal_handler_options=SignalHandlerOptions.NO)
         #: The run's namespace ('' or '/robot1'): the probe sits in it, so relative

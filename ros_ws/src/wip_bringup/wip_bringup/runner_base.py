@@ -1,12 +1,12 @@
 """What the two runners of ``scripts/run_graph`` share.
 
 :class:`RunnerBase`, the life of one run (output directory, node processes, probe, waiting for the
-nodes, watching them, stopping them, ``OUT/run.json``), and :class:`RunResult`, the part of its
-result both write.
+nodes, watching them, stopping them, ``OUT/run.json``); the part of its result both write is
+:class:`wip_bringup.run_result.RunResult`.
 
-The simulation runner (:class:`wip_bringup.graph.GraphRunner`: the plant, a /clock in
+The simulation runner (:class:`wip_bringup.graph_runner.GraphRunner`: the plant, a /clock in
 lockstep, the ``/plant/start`` service) and the hardware runner
-(:class:`wip_bringup.hardware.HardwareRunner`: the e-stop heartbeat, the base's topics, zero
+(:class:`wip_bringup.hardware_runner.HardwareRunner`: the e-stop heartbeat, the base's topics, zero
 commands at the stop) subclass it and add only their own behaviour through the hooks named
 below (``EXTRA_PROCESSES``, :meth:`RunnerBase.missing_from_view`,
 :meth:`RunnerBase.unmatched_endpoints`, :meth:`RunnerBase.node_died`,
@@ -146,7 +146,7 @@ class RunnerBase:
         """Prepare the run directory.
 
         Check and create the run directory (nothing written before: see
-        :func:`~wip_bringup.launcher.prepare_run_directory`), remove the ``stale`` outputs
+        :func:`~wip_bringup.output_lock.prepare_run_directory`), remove the ``stale`` outputs
         of an earlier run, write ``OUT/scenario.yaml``; returns its path.
         """
         self.locks = prepare_run_directory(self.out, self.bag, extra_logs=extra_logs)

@@ -119,8 +119,8 @@ class Scheduling:
         """Return what a process gets at its start when its priority is raised later.
 
         The priority is raised only once the process is up
-        (:meth:`NodeProcess.raise_priority`); until then it gets its CPUs and the normal
-        policy.
+        (:meth:`wip_bringup.processes.NodeProcess.raise_priority`); until then it gets its
+        CPUs and the normal policy.
         """
         return dataclasses.replace(self, priority=0, rt_cpu_limit=0.0)
 
