@@ -13,7 +13,12 @@ import math
 import os
 import sys
 import time
+from typing import TYPE_CHECKING
+
 from wip_control.tools.cli import add_exit_codes
+
+if TYPE_CHECKING:
+    from .ros_env import RosNetwork
 
 ACTIONS = ('engage', 'release', 'reset')
 #: Longest wait for the acknowledgement of a publication [s].
@@ -49,7 +54,7 @@ class Target:
     """Where the command goes: the domain, the network, the mixer and its e-stop topic."""
 
     domain: int
-    network: object
+    network: RosNetwork
     mixer: str
     topic: str
 

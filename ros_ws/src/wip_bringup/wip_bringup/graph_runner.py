@@ -442,7 +442,8 @@ class GraphRunner(RecordingMixin, RunnerBase):
 
         Returns the plant's exit code, and the wall time and CPU times at the run's start.
         """
-        for attempt in range(self.options.startup_retries + 1):
+        attempt = 0
+        while True:
             try:
                 self.start_graph(params_file)
                 result.startup_s = time.monotonic() - started
@@ -457,8 +458,8 @@ class GraphRunner(RecordingMixin, RunnerBase):
                 self.say(f'warning: {err}\nrun_graph: a message of the first tick was '
                          'lost (published before its subscription matched): '
                          f'starting the graph again (attempt {attempt + 2})')
-                self.retry(attempt + 1)
-        raise AssertionError('unreachable: the last attempt returns or raises')
+                attempt += 1
+                self.retry(attempt)
 
     def conclude(self, result: GraphResult, stopped_by: str) -> None:
         """Complete ``result`` once every process has stopped, and write ``OUT/run.json``."""
