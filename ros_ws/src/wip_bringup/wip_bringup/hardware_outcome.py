@@ -12,12 +12,11 @@ from .run_result import RunResult
 ENGAGED_STATES = ('ACTIVE', 'DEGRADED', 'SHADOW')
 #: Latency [s] of the mixer's safety state through its /diagnostics (period 1 s), as a margin.
 DIAGNOSTICS_LATENCY = 0.5
-#: Topics of every node, left out of the "the graph shows" list of the base's absence.
 
 
 @dataclasses.dataclass
 class HardwareResult(RunResult):
-    """What :func:`run_hardware` returns (also written to ``OUT/run.json``)."""
+    """What ``hardware_runner.run_hardware`` returns (also written to ``OUT/run.json``)."""
 
     #: Each change of the mixer's safety state: {'t': [s] since the run start, 'state',
     #: 'reasons'}.
