@@ -36,7 +36,7 @@ import pytest
 pytest.importorskip('rclpy')
 
 from wip_control.core.references import make_reference, ReferenceConfig  # noqa: E402
-from wip_control.core.safety import SafetyConfig  # noqa: E402
+from wip_control.core.safety_config import SafetyConfig  # noqa: E402
 from wip_bringup.standin_run import (BASE, CONTROL_RATE, engaged, freeze_process,  # noqa: E402
                                  run_against_standin)
 

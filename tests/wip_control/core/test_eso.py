@@ -4,12 +4,12 @@ import math
 
 import numpy as np
 import pytest
-from reference_rk4 import rk4_step
+from wip_control.core.integration import rk4_step
 
 from wip_control.core.config import ConfigError, from_mapping
-from wip_control.core.eso import (EsoConfig, ExtendedStateObserver, StateEstimate,
-                                  WipStateObserver, check_hurwitz, discretise,
-                                  observer_matrices)
+from wip_control.core.eso import (check_hurwitz, discretise, EsoConfig,
+                                  ExtendedStateObserver, observer_matrices, StateEstimate)
+from wip_control.core.state_observer import WipStateObserver
 from wip_control.core.model import input_gains, nominal_terms
 from wip_control.core.params import WipParameters
 

@@ -3,19 +3,20 @@
 Closed forms of its two loops, noise gains against bandwidth, bias and disturbance convergence, the
 WIP observer with it.
 
-See core/eso.py (RateAidedChannel) and docs/estimation.md.
+See core/rate_aided.py (RateAidedChannel) and docs/estimation.md.
 """
 
 import math
 
 import numpy as np
 import pytest
-from reference_rk4 import rk4_step
+from wip_control.core.integration import rk4_step
 
 from wip_control.core.config import ConfigError, from_mapping
-from wip_control.core.eso import (EsoConfig, RateAidedChannel, WipStateObserver,
-                                  complementary_bandwidth, discrete_pole_gains,
-                                  rate_eso_noise_variance)
+from wip_control.core.eso import EsoConfig
+from wip_control.core.rate_aided import (complementary_bandwidth, discrete_pole_gains,
+                                         rate_eso_noise_variance, RateAidedChannel)
+from wip_control.core.state_observer import WipStateObserver
 from wip_control.core.params import WipParameters
 
 H = 0.005

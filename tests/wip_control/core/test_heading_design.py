@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from wip_control.core.references import ReferenceState
+from wip_control.core.reference_state import ReferenceState
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import scenario_from_mapping
 from wip_control.core.trajectory_generator import (TrajectoryGeneratorConfig, heading_gains,

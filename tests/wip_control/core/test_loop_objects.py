@@ -16,7 +16,7 @@ from wip_control.core.eso import EsoConfig
 from wip_control.core.mpc import MpcConfig
 from wip_control.core.params import WipParameters
 from wip_control.core.position import PositionConfig
-from wip_control.core.references import ReferenceState
+from wip_control.core.reference_state import ReferenceState
 from wip_sim.core.scenario import Scenario
 from wip_control.core.sensors import wheel_odometry
 from wip_control.core.state_estimation import EstimatorOverflow, StateEstimator

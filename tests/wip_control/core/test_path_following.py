@@ -1,4 +1,4 @@
-"""Path following by time scaling (references.TimeScaled, the default).
+"""Path following by time scaling (time_scaling.TimeScaled, the default).
 
 The reference slows where the path would exceed υmax or ωmax, every kind, and the trifolium goal.
 """
@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from wip_control.core.config import ConfigError
-from wip_control.core.references import (ReferenceConfig, TimeScaled, Trifolium,
-                                         distance_to_path, make_reference)
+from wip_control.core.reference_curves import Trifolium
+from wip_control.core.references import distance_to_path, make_reference, ReferenceConfig
+from wip_control.core.time_scaling import TimeScaled
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import scenario_from_mapping
 
@@ -177,23 +178,23 @@ def test_rate_at_is_the_interpolated_sigma_to_the_bit():
 
 def test_shared_tables_are_bounded_per_thread(monkeypatch):
     import threading
-    from wip_control.core import references
+    from wip_control.core import time_scaling
     config = ReferenceConfig(kind='circle')
-    tables = references.shared_tables(('test', config))
-    assert references.shared_tables(('test', config)) is tables
+    tables = time_scaling.shared_tables(('test', config))
+    assert time_scaling.shared_tables(('test', config)) is tables
     # Only the last MAX_SHARED_CONFIGURATIONS configurations are kept.
-    for i in range(references.MAX_SHARED_CONFIGURATIONS):
-        references.shared_tables(('test', i))
-    assert references.shared_tables(('test', config)) is not tables
+    for i in range(time_scaling.MAX_SHARED_CONFIGURATIONS):
+        time_scaling.shared_tables(('test', i))
+    assert time_scaling.shared_tables(('test', config)) is not tables
     # Another thread has tables of its own.
     seen = []
     thread = threading.Thread(target=lambda: seen.append(
-        references.shared_tables(('test', config))))
+        time_scaling.shared_tables(('test', config))))
     thread.start()
     thread.join(timeout=10.0)
-    assert seen and seen[0] is not references.shared_tables(('test', config))
+    assert seen and seen[0] is not time_scaling.shared_tables(('test', config))
     # Tables grown beyond MAX_SHARED_NODES are no longer offered (nor kept for sharing).
-    monkeypatch.setattr(references.RetimingTables, 'MAX_SHARED_NODES', 500)
+    monkeypatch.setattr(time_scaling.RetimingTables, 'MAX_SHARED_NODES', 500)
     long_run = make_reference(config)
     long_run.sample(4.0)                                  # 400 nodes: still shared
     assert make_reference(config)._s is long_run._s

@@ -7,9 +7,11 @@ import numpy as np
 import pytest
 
 from wip_control.core.config import ConfigError, from_mapping
-from wip_control.core.references import (Circle, FigureEight, ReferenceConfig, TimeScaled,
-                                         ReferenceState, StraightLine, Trifolium, Waypoints,
-                                         make_reference)
+from wip_control.core.reference_curves import Circle, FigureEight, StraightLine, Trifolium
+from wip_control.core.reference_state import ReferenceState
+from wip_control.core.reference_waypoints import Waypoints
+from wip_control.core.references import make_reference, ReferenceConfig
+from wip_control.core.time_scaling import TimeScaled
 
 SMOOTH = [Trifolium(), Circle(center=(1.0, -2.0), radius=1.5, speed=0.4, direction='cw',
                               start_angle=0.7),

@@ -16,8 +16,9 @@ from wip_control.core.eso import StateEstimate
 from wip_control.core.mixer import mix
 from wip_control.core.params import WipParameters
 from wip_control.core.safety import (ACTIVE, DEGRADED, DriveStatus, ESTOP, FAULT,
-                                     SafetyConfig, SafetyMonitor, SHADOW, STARTING,
-                                     TIME_TOLERANCE, tilt_divergence_rate)
+                                     SafetyMonitor, SHADOW, STARTING, TIME_TOLERANCE,
+                                     tilt_divergence_rate)
+from wip_control.core.safety_config import SafetyConfig
 
 H = 0.005                   # tick period [s]
 TAU_MAX = 15.0              # [N m], the default MixerConfig

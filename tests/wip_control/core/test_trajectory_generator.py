@@ -5,11 +5,12 @@ import math
 
 import numpy as np
 import pytest
-from reference_rk4 import rk4_step
+from wip_control.core.integration import rk4_step
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wip_control.core.references import Circle, ReferenceState
+from wip_control.core.reference_curves import Circle
+from wip_control.core.reference_state import ReferenceState
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,
                                                    TrajectoryGeneratorConfig,
                                                    tracking_errors, unsaturated_commands)

@@ -177,7 +177,8 @@ def test_non_finite_samples_are_skipped():
 
 def test_a_wiring_fault_zeroes_the_torque_at_once_is_latched_and_listed_first():
     from wip_control.core.eso import StateEstimate
-    from wip_control.core.safety import ACTIVE, FAULT, SafetyConfig, SafetyMonitor, STARTING
+    from wip_control.core.safety import ACTIVE, FAULT, SafetyMonitor, STARTING
+    from wip_control.core.safety_config import SafetyConfig
     monitor = SafetyMonitor(SafetyConfig(), 10.0, 1e6, PERIOD, timing_checks=False)
     estimate = [0.0] * len(StateEstimate._fields)
 

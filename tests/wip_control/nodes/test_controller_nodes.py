@@ -42,7 +42,8 @@ from wip_control.core.lqr import LongitudinalLqr  # noqa: E402
 from wip_control.core.mpc import LongitudinalMpc, MpcConfig  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
 from wip_sim.core.plant import Plant  # noqa: E402
-from wip_control.core.references import make_reference, ReferenceState  # noqa: E402
+from wip_control.core.reference_state import ReferenceState  # noqa: E402
+from wip_control.core.references import make_reference  # noqa: E402
 from wip_sim.core.runner import run_scenario  # noqa: E402
 from wip_sim.core.simulation import initial_state  # noqa: E402
 from wip_sim.core.scenario import Scenario  # noqa: E402

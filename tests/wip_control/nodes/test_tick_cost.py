@@ -19,7 +19,7 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 
 from wip_control.core.arc import ArcOutput  # noqa: E402
 from wip_control.core.eso import StateEstimate  # noqa: E402
-from wip_control.core.references import ReferenceState  # noqa: E402
+from wip_control.core.reference_state import ReferenceState  # noqa: E402
 from wip_control.core.trajectory_generator import VelocityCommand  # noqa: E402
 from wip_control.nodes import conversions  # noqa: E402
 from wip_control.nodes.common import (connect_intra_process, ControllerNode,  # noqa: E402

@@ -31,7 +31,7 @@ def test_the_recorded_columns_are_the_named_tuples_fields_in_order():
     from wip_control.core.arc import ArcOutput
     from wip_control.core.eso import StateEstimate
     from wip_sim.core.record import GROUPS
-    from wip_control.core.references import ReferenceState
+    from wip_control.core.reference_state import ReferenceState
     from wip_control.core.trajectory_generator import VelocityCommand
     assert GROUPS['reference'] == ('t', *ReferenceState._fields[:5])
     assert GROUPS['estimate'] == ('t', *StateEstimate._fields[:9], 'x', 'y')
@@ -66,7 +66,7 @@ def test_each_tick_row_lands_in_its_groups_columns():
     from wip_control.core.arc import ArcOutput
     from wip_control.core.control_step import ControlOutputs
     from wip_control.core.eso import StateEstimate
-    from wip_control.core.references import ReferenceState
+    from wip_control.core.reference_state import ReferenceState
     from wip_control.core.state_estimation import PoseEstimate
     from wip_control.core.trajectory_generator import VelocityCommand
     from wip_sim.core import runner

@@ -89,7 +89,8 @@ import yaml
 
 from wip_control.core.config import ConfigError
 from wip_control.core.control_step import ControlStep
-from wip_control.core.eso import StateEstimate, WipStateObserver
+from wip_control.core.eso import StateEstimate
+from wip_control.core.state_observer import WipStateObserver
 from wip_tools.analysis.metrics import compute_metrics
 from wip_sim.core.record import GROUPS, RunRecord
 from wip_control.core.references import make_reference

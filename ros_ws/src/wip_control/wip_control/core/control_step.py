@@ -20,7 +20,7 @@ from .mixer import drive_torque_limit, mix
 from .model import input_gains
 from .mpc import MpcConfig, MpcResult, resolves_faster
 from .params import WipParameters
-from .references import ReferenceState
+from .reference_state import ReferenceState
 from .state_estimation import PoseEstimate
 from .trajectory_generator import (TrajectoryGenerator, TrajectoryGeneratorConfig,
                                    VelocityCommand)

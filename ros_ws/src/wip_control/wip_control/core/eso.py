@@ -9,8 +9,9 @@ Each channel is the third-order observer
     \dot{\hat f} = \frac{\alpha_3}{\varepsilon^3}(y - \hat x_1)
 
 of a double integrator ``ÿ = b u + f`` with the lumped disturbance ``f`` as an extra state.
-:class:`WipStateObserver` runs three of them: yaw (y = ϕ, b u = ĝ1(θ̂) τω), distance
-rolled (y = x_v, b u = g2(θ̂) τυ) and tilt (y = θ, b u = g3(θ̂) τυ), eq. (1).
+:class:`.state_observer.WipStateObserver` runs three of them: yaw (y = ϕ,
+b u = ĝ1(θ̂) τω), distance rolled (y = x_v, b u = g2(θ̂) τυ) and tilt (y = θ,
+b u = g3(θ̂) τυ), eq. (1).
 
 Discretisation
 --------------
@@ -57,14 +58,13 @@ import numpy as np
 import scipy.linalg
 
 from .config import ConfigError, param
-from .model import input_gains
-from .params import WipParameters
+from .integration import rk4_step
 
 _TWO_PI = 2.0 * math.pi
 #: Longest RK4 sub-step while the ε ramp lasts [s] (docs/paper.md §2: at most 1 ms).
 MAX_RAMP_SUBSTEP = 1e-3
 #: Relative mismatch of the period below which the precomputed matrices are used [1].
-_PERIOD_TOLERANCE = 1e-6
+PERIOD_TOLERANCE = 1e-6
 #: Off-nominal sample periods (real-time stamps jitter by microseconds to milliseconds) are
 #: discretised for the period rounded to this resolution [s], once per distinct value:
 #: a timing error of at most 0.5 µs (0.75 µm at 1.5 m/s), where a matrix exponential per
@@ -75,7 +75,7 @@ _MAX_CACHED_PERIODS = 4096
 SCHEDULES = ('constant', 'paper_ramp')
 MEASUREMENT_HOLDS = ('linear', 'zero_order')
 #: 'paper': three third-order ESOs on the measured positions, eqs. (4), (8);
-#: 'gyro': the IMU's angular rate measured, see :class:`RateAidedChannel`.
+#: 'gyro': the IMU's angular rate measured, see :class:`.rate_aided.RateAidedChannel`.
 ESTIMATORS = ('paper', 'gyro')
 #: How the x_v ESO's speed estimate starts (:class:`EsoConfig` ``speed_start``).
 SPEED_STARTS = ('zero', 'first_difference')
@@ -234,7 +234,7 @@ class EsoConfig:
                                       f'{getattr(self, name)} rad/s')
 
 
-class _ChannelEstimate:
+class ChannelEstimate:
     """The read-out of a second-order channel observer.
 
     It holds x̂1, x̂2 and f̂ at ``_t_prev``, and is the same for the ESO (25) and the
@@ -267,7 +267,7 @@ class _ChannelEstimate:
         self.f = 0.0
 
 
-class ExtendedStateObserver(_ChannelEstimate):
+class ExtendedStateObserver(ChannelEstimate):
     """One third-order ESO channel, eq. (4) in [1]_, exactly discretised.
 
     Parameters
@@ -372,7 +372,7 @@ class ExtendedStateObserver(_ChannelEstimate):
         elif self.schedule == 'paper_ramp' and self._t_prev - self._t0 < self.ramp_duration:
             self._integrate_ramp(dt, y, b_u)
         else:
-            if abs(dt - self.sample_period) <= _PERIOD_TOLERANCE * self.sample_period:
+            if abs(dt - self.sample_period) <= PERIOD_TOLERANCE * self.sample_period:
                 m = self._nominal
             else:
                 m = self._off_nominal(dt)
@@ -416,182 +416,20 @@ class ExtendedStateObserver(_ChannelEstimate):
         t_start, y_prev = self._t_prev, self._y_prev
         slope = (y - y_prev) / dt if self.measurement_hold == 'linear' else 0.0
         y_base = y_prev if self.measurement_hold == 'linear' else y
-        x1, x2, x3 = self.x1, self.x2, self.f
 
-        def rates(tau: float, z1: float, z2: float, z3: float) -> tuple[float, float, float]:
+        def rates(tau: float, z: tuple[float, float, float]) -> tuple[float, float, float]:
             k1, k2, k3 = self._gains_at(tau)
-            e = y_base + slope * (tau - t_start) - z1
-            return z2 + k1 * e, b_u + z3 + k2 * e, k3 * e
+            e = y_base + slope * (tau - t_start) - z[0]
+            return z[1] + k1 * e, b_u + z[2] + k2 * e, k3 * e
 
+        z = (self.x1, self.x2, self.f)
         for i in range(n):
-            tau = t_start + i * h
-            a = rates(tau, x1, x2, x3)
-            b = rates(tau + 0.5 * h, x1 + 0.5 * h * a[0], x2 + 0.5 * h * a[1],
-                      x3 + 0.5 * h * a[2])
-            c = rates(tau + 0.5 * h, x1 + 0.5 * h * b[0], x2 + 0.5 * h * b[1],
-                      x3 + 0.5 * h * b[2])
-            d = rates(tau + h, x1 + h * c[0], x2 + h * c[1], x3 + h * c[2])
-            x1 += h / 6.0 * (a[0] + 2.0 * b[0] + 2.0 * c[0] + d[0])
-            x2 += h / 6.0 * (a[1] + 2.0 * b[1] + 2.0 * c[1] + d[1])
-            x3 += h / 6.0 * (a[2] + 2.0 * b[2] + 2.0 * c[2] + d[2])
-        self.x1, self.x2, self.f = x1, x2, x3
-
-
-def complementary_bandwidth(angle_noise_std: float, rate_noise_std: float) -> float:
-    """Crossover ω_c [rad/s] of the angle/gyro complementary filter.
-
-    This crossover minimises the angle error variance for white angle noise σ_a [rad] and
-    white rate noise σ_g [rad/s] sampled at the same period: ω_c = σ_g / σ_a.
-
-    Why: the filter θ̂̇ = r + ω_c (θ_m − θ̂) is the steady-state Kalman filter of θ̇ = r
-    with process noise PSD q = σ_g² h and measurement noise PSD ρ = σ_a² h, whose gain
-    is √(q/ρ). The variance is then h (σ_a² ω_c + σ_g²/ω_c)/2 = h σ_a σ_g.
-    """
-    if not (angle_noise_std > 0.0 and rate_noise_std > 0.0):
-        raise ValueError('complementary_bandwidth: both noise levels must be > 0, got '
-                         f'{angle_noise_std!r}, {rate_noise_std!r}')
-    return rate_noise_std / angle_noise_std
-
-
-def discrete_pole_gains(pole_a: float, pole_b: float, period: float) -> tuple[float, float]:
-    """Gains (L1, L2) of the two-state predictor-corrector of :class:`RateAidedChannel`.
-
-    The channel uses the predictor-corrector twice. The gains put its error poles at
-    e^{−a h}, e^{−b h}.
-
-    Both loops have the error matrix [[1 − L1, ∓(1 − L1) h], [±L2, 1 − L2 h]], whose
-    characteristic polynomial is z² − (2 − L1 − L2 h) z + (1 − L1): with p, q the wanted
-    discrete poles, L1 = 1 − p q and L2 = (1 − p)(1 − q)/h.
-    """
-    p, q = math.exp(-pole_a * period), math.exp(-pole_b * period)
-    return 1.0 - p * q, (1.0 - p) * (1.0 - q) / period
-
-
-class RateAidedChannel(_ChannelEstimate):
-    """One angle channel (tilt or yaw) of a WIP whose IMU measures the angle AND its rate.
-
-    Two discrete loops per sample of period h (the gyro reading r = ẏ + b + noise, b a
-    slowly drifting bias):
-
-    1. complementary filter with bias estimate (angle â, bias b̂):
-       â⁻ = â + h ((r_prev + r)/2 − b̂);  e = y_m − â⁻;  â = â⁻ + L1 e;  b̂ = b̂ − L2 e.
-       Error poles at −``angle_bandwidth`` and −``bias_bandwidth`` (discrete e^{−ω h}).
-       The angle noise passes below ω_c, the integrated gyro noise above it;
-    2. reduced-order ESO of the rate (the paper's eq. (4) with the position channel
-       removed, since the rate is measured): the rate ẑ1 and lumped disturbance f̂ of
-       ÿ = b u + f from the bias-corrected rate r − b̂:
-       ẑ1⁻ = ẑ1 + h (b u + f̂);  e = r − b̂ − ẑ1⁻;  ẑ1 = ẑ1⁻ + M1 e;  f̂ = f̂ + M2 e,
-       a double pole at −``rate_bandwidth``. f̂ is thereby a second-order low-pass of
-       the true f; its noise variance for white rate noise σ_g is ≈ σ_g² h ω_o³/4
-       (H2 norm of ω_o² s/(s + ω_o)², see :func:`rate_eso_noise_variance`).
-
-    The outputs (â, ẑ1, f̂) replace the paper ESO's (x̂1, x̂2, f̂).
-    """
-
-    def __init__(self, angle_bandwidth: float, bias_bandwidth: float,
-                 rate_bandwidth: float, sample_period: float, name: str = 'channel',
-                 initial_output: float = 0.0, initial_time: float = 0.0) -> None:
-        for label, value in (('angle_bandwidth', angle_bandwidth),
-                             ('bias_bandwidth', bias_bandwidth),
-                             ('rate_bandwidth', rate_bandwidth),
-                             ('sample_period', sample_period)):
-            if not (math.isfinite(value) and value > 0.0):
-                raise ConfigError(f'{name}.{label}: must be finite and > 0, got {value!r}')
-        self.name = name
-        self.angle_bandwidth = float(angle_bandwidth)
-        self.bias_bandwidth = float(bias_bandwidth)
-        self.rate_bandwidth = float(rate_bandwidth)
-        self.sample_period = float(sample_period)
-        self._gains_cache: dict[float, tuple[float, float, float, float]] = {}
-        self._nominal_gains = self._gains(self.sample_period)
-        self.reset(initial_output, initial_time)
-
-    def _gains(self, h: float) -> tuple[float, float, float, float]:
-        gains = self._gains_cache.get(h)
-        if gains is None:
-            if len(self._gains_cache) > 16:
-                self._gains_cache.clear()
-            l1, l2 = discrete_pole_gains(self.angle_bandwidth, self.bias_bandwidth, h)
-            m1, m2 = discrete_pole_gains(self.rate_bandwidth, self.rate_bandwidth, h)
-            gains = self._gains_cache[h] = (l1, l2, m1, m2)
-        return gains
-
-    def reset(self, initial_output: float, initial_time: float = 0.0) -> None:
-        """Angle y0 at ``initial_time`` [s]; rate, bias, disturbance zero.
-
-        The first update at the same time takes the measured rate as the rate estimate.
-        """
-        self._reset_estimate(initial_output, initial_time)
-        self.bias = 0.0
-        self._t_prev = float(initial_time)
-        self._rate_started = False
-        self._rate_prev = 0.0
-
-    def update(self, t: float, y: float, rate: float, b_u: float) -> tuple[float, float, float]:
-        """Advance to ``t`` [s] with the angle ``y`` [rad] and the gyro ``rate`` [rad/s].
-
-        Both are measured at t; ``b_u`` [rad/s²] is the input held since the previous
-        update. Return (â, ẑ1, f̂).
-        """
-        if not math.isfinite(t + y + rate + b_u):
-            raise ValueError(f'{self.name}: non-finite input t={t!r}, y={y!r}, '
-                             f'rate={rate!r}, b_u={b_u!r}')
-        h = t - self._t_prev
-        if h < 0.0:
-            raise ValueError(f'{self.name}: time went backwards from {self._t_prev} to {t}')
-        if not self._rate_started:
-            self.x2 = rate - self.bias
-            self._rate_prev = rate
-            self._rate_started = True
-        if h == 0.0:
-            return self.x1, self.x2, self.f
-        if abs(h - self.sample_period) <= _PERIOD_TOLERANCE * self.sample_period:
-            h = self.sample_period
-            l1, l2, m1, m2 = self._nominal_gains
-        else:
-            l1, l2, m1, m2 = self._gains(h)
-        # 1: complementary filter with bias (predict with the corrected gyro, correct
-        # with the angle).
-        # Trapezoidal integration of the gyro: exact for a constant acceleration (the
-        # rectangle rule would leave a bias estimate off by h θ̈/2).
-        angle = self.x1 + h * (0.5 * (self._rate_prev + rate) - self.bias)
-        self._rate_prev = rate
-        e = y - angle
-        self.x1 = angle + l1 * e
-        self.bias -= l2 * e
-        # 2: reduced-order ESO on the bias-corrected rate.
-        w = self.x2 + h * (b_u + self.f)
-        e = rate - self.bias - w
-        self.x2 = w + m1 * e
-        self.f += m2 * e
-        self._t_prev = t
-        return self.x1, self.x2, self.f
-
-
-def rate_eso_noise_variance(rate_noise_std: float, bandwidth: float, period: float,
-                            exact: bool = True) -> float:
-    """Stationary variance of f̂ [(rad/s²)²] of the reduced-order rate ESO.
-
-    The ESO is the one of :class:`RateAidedChannel`, and the rate noise is white with std
-    σ [rad/s] per sample.
-
-    ``exact``: the discrete Lyapunov equation of the error loop; else the continuous
-    approximation σ² h ω³/4 (valid for ω h ≪ 1).
-    """
-    if not exact:
-        return rate_noise_std ** 2 * period * bandwidth ** 3 / 4.0
-    m1, m2 = discrete_pole_gains(bandwidth, bandwidth, period)
-    # Error e = (e1, e2) = (w − ẑ1, f − f̂), noise n on the measured rate:
-    # e⁺ = A e + B n, A = [[1 − M1, (1 − M1) h], [−M2, 1 − M2 h]], B = (−M1, −M2)... sign
-    # irrelevant for the variance.
-    a = np.array([[1.0 - m1, (1.0 - m1) * period], [-m2, 1.0 - m2 * period]])
-    b = np.array([[m1], [m2]])
-    cov = scipy.linalg.solve_discrete_lyapunov(a, rate_noise_std ** 2 * (b @ b.T))
-    return float(cov[1, 1])
+            z = rk4_step(rates, t_start + i * h, z, h)
+        self.x1, self.x2, self.f = z
 
 
 class StateEstimate(NamedTuple):
-    """Output of :class:`WipStateObserver` at one sample."""
+    """Output of :class:`.state_observer.WipStateObserver` at one sample."""
 
     phi: float        #: ϕ̂, yaw, continuous (not wrapped) [rad]
     omega: float      #: ω̂, yaw rate [rad/s]
@@ -603,158 +441,3 @@ class StateEstimate(NamedTuple):
     theta_dot: float  #: θ̂̇, tilt rate [rad/s]
     f3: float         #: f̂3, lumped tilt disturbance (fθ3 + τd3) [rad/s²]
     epsilon: float    #: ε in use at this sample [s] (inf at the start of the ramp)
-
-
-class WipStateObserver:
-    """The three ESOs of [1]_ for a WIP: yaw, eq. (4); distance and tilt, eq. (8).
-
-    The input gains are those of eq. (1) at the current tilt estimate θ̂ (taken at the
-    start of each period and held with the torques); the yaw channel uses
-    ĝ1 = ``yaw_input_gain_scale`` · g1(θ̂), the paper's 20 % error.
-
-    Parameters
-    ----------
-    params : nominal WIP parameters (the controllers' model).
-    config : observer tunables.
-    initial_positions : (ϕ [rad], x_v [m], θ [rad]) at ``initial_time``; the ESOs start
-        there with zero rates and disturbances (Section V).
-    initial_time : time [s] of the initial state, and origin of the ε ramp.
-    """
-
-    def __init__(self, params: WipParameters, config: EsoConfig | None = None,
-                 initial_positions: Sequence[float] = (0.0, 0.0, 0.0),
-                 initial_time: float = 0.0, *,
-                 encoders_relative_to_body: bool = False) -> None:
-        self.params = params
-        # 'gyro': x_v = r((φl + φr)/2 + θ) is recomputed with the filtered θ̂ instead of
-        # the raw IMU pitch, whose noise r·σθ the x_v ESO would otherwise differentiate.
-        self._xv_pitch_correction = (params.wheel_radius if encoders_relative_to_body
-                                     else 0.0)
-        self.config = config = config if config is not None else EsoConfig()
-        config.validate()
-        common = dict(epsilon=config.epsilon, sample_period=config.sample_period,
-                      schedule=config.epsilon_schedule, ramp_duration=config.ramp_duration,
-                      measurement_hold=config.measurement_hold)
-        self.gyro = config.estimator == 'gyro'
-        if self.gyro:
-            # The rates are measured: angle/rate channels, and a bandwidth-parameterised
-            # x_v ESO (all three poles at −ω_l: gains (3, 3, 1), ε = 1/ω_l).
-            h = config.sample_period
-            self.yaw = RateAidedChannel(config.yaw_angle_bandwidth,
-                                        config.gyro_bias_bandwidth,
-                                        config.yaw_rate_bandwidth, h, name='yaw')
-            self.tilt = RateAidedChannel(config.tilt_angle_bandwidth,
-                                         config.gyro_bias_bandwidth,
-                                         config.tilt_rate_bandwidth, h, name='tilt')
-            self.longitudinal = ExtendedStateObserver(
-                (3.0, 3.0, 1.0), 1.0 / config.longitudinal_bandwidth, h,
-                measurement_hold=config.measurement_hold, name='longitudinal',
-                rate_start=config.speed_start)
-        else:
-            self.yaw = ExtendedStateObserver(config.yaw_gains, name='yaw_gains', **common)
-            self.longitudinal = ExtendedStateObserver(config.longitudinal_gains,
-                                                      name='longitudinal_gains',
-                                                      rate_start=config.speed_start, **common)
-            self.tilt = ExtendedStateObserver(config.tilt_gains, name='tilt_gains',
-                                              **common)
-        self._yaw_scale = config.yaw_input_gain_scale
-        self.reset(initial_positions, initial_time)
-
-    def reset(self, initial_positions: Sequence[float], initial_time: float = 0.0) -> None:
-        """Restart from positions (ϕ, x_v, θ) with zero rates and disturbances."""
-        if len(initial_positions) != 3:
-            raise ValueError('initial_positions: expected (phi, x_v, theta), got '
-                             f'{initial_positions!r}')
-        phi, x_v, theta = (float(v) for v in initial_positions)
-        for label, value in (('phi', phi), ('x_v', x_v), ('theta', theta),
-                             ('initial_time', initial_time)):
-            if not math.isfinite(value):
-                raise ValueError(f'initial {label} must be finite, got {value!r}')
-        self.yaw.reset(phi, initial_time)
-        self.longitudinal.reset(x_v, initial_time)
-        self.tilt.reset(theta, initial_time)
-        self._phi_meas = phi
-        self._estimate = self._make_estimate(initial_time)
-
-    @property
-    def estimate(self) -> StateEstimate:
-        """The latest estimate."""
-        return self._estimate
-
-    def _make_estimate(self, t: float) -> StateEstimate:
-        y, lon, tilt = self.yaw, self.longitudinal, self.tilt
-        return StateEstimate(y.x1, y.x2, y.f, lon.x1, lon.x2, lon.f, tilt.x1, tilt.x2,
-                             tilt.f, self.epsilon_at(t))
-
-    def epsilon_at(self, t: float) -> float:
-        """ε [s] in use at ``t`` (gyro estimator: 1/ω_l of the x_v ESO, constant)."""
-        return self.longitudinal.epsilon_at(t) if self.gyro else self.yaw.epsilon_at(t)
-
-    def in_ramp(self, t: float) -> bool:
-        """Return True while the paper's ε ramp runs (never with the gyro estimator)."""
-        return False if self.gyro else self.yaw.in_ramp(t)
-
-    @property
-    def needs_rates(self) -> bool:
-        """Whether :meth:`update` needs the IMU angular rates."""
-        return self.gyro
-
-    def update(self, t: float, phi_meas: float, xv_meas: float, theta_meas: float,
-               tau_v_applied: float, tau_omega_applied: float,
-               rates: Sequence[float] | None = None) -> StateEstimate:
-        """Advance the three ESOs to time ``t`` [s].
-
-        Parameters
-        ----------
-        t : sample time [s], ≥ the previous one (equal: estimate unchanged).
-        phi_meas : measured yaw ϕ [rad]; moved to the 2π branch nearest the previous
-            sample, so a wrapped (−π, π] yaw is accepted.
-        xv_meas : measured distance rolled x_v [m] (wheel odometry; with
-            ``encoders_relative_to_body`` the 'gyro' estimator replaces the raw pitch in
-            it by θ̂).
-        theta_meas : measured tilt θ [rad] (IMU).
-        tau_v_applied, tau_omega_applied : τυ = τl + τr and τω = τr − τl [N·m] applied
-            (held) since the previous update.
-        rates : (θ̇, ϕ̇) [rad/s] measured by the IMU's gyro (sensor_msgs/Imu
-            angular_velocity, as Euler rates); required by the 'gyro' estimator,
-            ignored by the 'paper' one.
-
-        Raises
-        ------
-        ValueError
-            on a non-finite input or a time going backwards; the state is unchanged.
-        """
-        # One sum detects any NaN/inf among the inputs (inf − inf = NaN).
-        if not math.isfinite(t + phi_meas + xv_meas + theta_meas + tau_v_applied
-                             + tau_omega_applied):
-            names = ('t', 'phi_meas', 'xv_meas', 'theta_meas', 'tau_v_applied',
-                     'tau_omega_applied')
-            values = (t, phi_meas, xv_meas, theta_meas, tau_v_applied, tau_omega_applied)
-            bad = [f'{n}={v!r}' for n, v in zip(names, values) if not math.isfinite(v)]
-            raise ValueError(f'WipStateObserver.update: non-finite input {", ".join(bad)}')
-        if t < self.yaw.time:
-            raise ValueError(f'WipStateObserver.update: time went backwards from '
-                             f'{self.yaw.time} to {t}')
-        d = phi_meas - self._phi_meas
-        if d > math.pi or d < -math.pi:
-            phi_meas -= _TWO_PI * round(d / _TWO_PI)
-        self._phi_meas = phi_meas
-        # Eq. (1) input gains at θ̂ of the start of the period, held like the torques.
-        g1, g2, g3 = input_gains(self.params, self.tilt.x1)
-        if self.gyro:
-            if rates is None or len(rates) != 2:
-                raise ValueError("WipStateObserver.update: the 'gyro' estimator needs the "
-                                 f'IMU rates (pitch_rate, yaw_rate), got {rates!r}')
-            pitch_rate, yaw_rate = float(rates[0]), float(rates[1])
-            if not math.isfinite(pitch_rate + yaw_rate):
-                raise ValueError(f'WipStateObserver.update: non-finite rates {rates!r}')
-            self.yaw.update(t, phi_meas, yaw_rate, self._yaw_scale * g1 * tau_omega_applied)
-            theta_hat = self.tilt.update(t, theta_meas, pitch_rate, g3 * tau_v_applied)[0]
-            xv_meas += self._xv_pitch_correction * (theta_hat - theta_meas)
-            self.longitudinal.update(t, xv_meas, g2 * tau_v_applied)
-        else:
-            self.yaw.update(t, phi_meas, self._yaw_scale * g1 * tau_omega_applied)
-            self.longitudinal.update(t, xv_meas, g2 * tau_v_applied)
-            self.tilt.update(t, theta_meas, g3 * tau_v_applied)
-        self._estimate = estimate = self._make_estimate(t)
-        return estimate

@@ -6,87 +6,10 @@ Not part of the paper [1]_; written for the drop-in use on a real two-wheeled ba
 (docs/real-base.md), whose ros2_control
 ``JointGroupEffortController`` holds the last command forever and has no timeout.
 
-The fail-safe state is zero torque
-----------------------------------
-Every fault sets both wheel torques to exactly zero *in the tick at which it is seen*,
-without any rate limit. For a wheeled inverted pendulum zero torque is not a stable state:
-a balancing robot whose torque is cut falls over. That is the accepted fail-safe here. A
-robot commanded by a controller that is blind (stale or NaN estimates), confused (a diverged
-observer) or already falling past recovery is far more dangerous: it can drive off at full
-torque into people. Without torque it tips over where it stands, with the energy of one
-fall and no more (wheels unpowered, so it does not run away). A soft landing (e.g. driving
-the wheels to keep the body off the ground) needs trustworthy estimates, which is exactly
-what is missing at a fault; it is not attempted.
-
-States
-------
-``STARTING``  zero torque. Waiting for every input to arrive, the ESO to report
-              ``settled``, the MPC to be ready, and then for all of it to hold for
-              ``settle_time`` (re-arming after a fault or an e-stop reset goes through
-              here too, so torque never comes back abruptly).
-``ACTIVE``    torque = eq. (24) mix of the latest τυ, τω, within the per-wheel torque
-              limit and rate limited toward it (from zero after a zeroed tick).
-``DEGRADED``  ACTIVE, riding through a late input (see "Ride-through" below): torque
-              continues from the last values, the drive torque along the MPC's plan,
-              and the reasons say which input is late and until when it is bridged.
-``SHADOW``    ``shadow_mode``: ACTIVE, but the torques are only reported
-              (:attr:`SafetyDecision.tau_left` ...) and :attr:`SafetyDecision.command`,
-              what goes to the base, is zero.
-``FAULT``     zero torque: an input is stale, invalid (non-finite, wrong size), the tilt
-              is past ``fall_threshold``, the ESO diverged, the MPC failed, the ESO
-              refused the position source, or the runaway guard (``core/runaway.py``)
-              saw the vehicle driven away from its reference (latched until reset). A "not
-              yet" condition (e.g. the ESO not settled) that appears while ACTIVE is a
-              fault too. Returns to STARTING when every condition has cleared (with
-              ``latch_faults``: only on :meth:`SafetyMonitor.reset`).
-``ESTOP``     zero torque: an e-stop message said engaged; latched until
-              :meth:`SafetyMonitor.reset`, which refuses while the e-stop is still engaged
-              or said so within ``estop_hold_time`` (a held button repeats it).
-
-Priority: ESTOP > FAULT > STARTING > DEGRADED > ACTIVE/SHADOW. :attr:`SafetyDecision.reasons` lists
-every reason present, so /diagnostics says why.
-
-Controller failure: the MPC's status (values of ``wip_msgs/MpcOutput``, :class:`DriveStatus`).
-SOLVED is fine; FALLBACK_SHIFTED_PLAN (the previous plan, shifted: a valid plan for up to
-Np periods) is tolerated for ``max_mpc_fallbacks`` consecutive MPC outputs; FAILED_ZERO,
-INPUT_INVALID and unknown statuses are faults at once; NOT_READY is a "not yet" condition.
-A controller that stops publishing is a stale input (ages below).
-
-Timing
-------
-An input's age is ``now`` minus the time the monitor *received* its last valid value (the
-caller's clock; the node uses its steady clock in real time), not its header stamp: a
-watchdog must see a stream that stops, whatever the stamps of the sender's clock say (no
-clock synchronisation with the base is required). With ``timing_checks=False`` (the
-node's lockstep mode, a deterministic simulation) ages, the start-up wait and the
-``settled`` flag are not checked: the exact-time synchronisation already guarantees that
-each tick's inputs are the ones of that tick, and lockstep must reproduce the in-process
-runner, which starts controlling at t = 0; the value checks (non-finite, tilt, ESO
-divergence, MPC failure, e-stop) and the limits still apply. The position checks (no fix
-yet, a refused position source) and the runaway guard are timing checks too: the
-simulation's position is right by construction, and the in-process runner has no
-safety layer to agree with.
-
-Ride-through
-------------
-A control input that is older than its age limit while the layer is ACTIVE is first
-*bridged* for ``bridge_time`` (state DEGRADED), and only then a fault. While bridged the
-layer sends the mix of the last yaw torque and of the drive torque that the MPC's last
-plan (``MpcOutput.planned_tau_v``) gives for the time elapsed since it arrived, so a late
-MPC output is followed along its own prediction rather than held. The bound: with the
-torque not corrected a tilt error grows at most like exp(λ t), λ the unstable pole of the
-linearised tilt dynamics of the nominal model (:func:`tilt_divergence_rate`); the default
-``bridge_time`` ln 4 / λ at most quadruples it. The same bound applies to the layer's own
-ticks: if it was not run for longer (its process frozen or starved), the first tick after
-it is a fault. ``bridge_time: 0`` restores the strict behaviour (fault at the age limit).
-Invalid values (NaN, wrong size), a fall, a diverged ESO and the e-stop are never
-bridged. Why, with the measurements: docs/realtime.md §1.
-
-Limits: the mix (``core.mixer.mix``) keeps each wheel within ±τmax; the rate limit moves
-each wheel by at most ``max_wheel_torque_rate`` · Δt per tick toward the mixed value
-(Δt = ``now`` − the previous update, the nominal ``period`` at the first). Both come
-from ``MixerConfig`` (section ``mixer``), not from :class:`SafetyConfig`, so each limit
-has one source.
+Every fault zeroes both wheel torques in the tick it is seen (the fail-safe state is zero
+torque); the states STARTING, ACTIVE, DEGRADED, SHADOW, FAULT and ESTOP, the ages of the
+inputs, the ride-through of a late input (bounded by :func:`tilt_divergence_rate`) and the
+limits: docs/decisions/safety-layer.md.
 
 References
 ----------
@@ -95,16 +18,15 @@ References
 
 from __future__ import annotations
 
-import dataclasses
 import enum
 import math
 from typing import NamedTuple, Sequence
 
-from .config import param
 from .eso import StateEstimate
 from .mixer import mix
 from .position import FAULT as POSITION_FAULT, NO_FIX, TRACKING
 from .runaway import RunawayConfig, RunawayGuard
+from .safety_config import SafetyConfig
 
 STARTING, ACTIVE, DEGRADED, SHADOW, FAULT, ESTOP = (
     'STARTING', 'ACTIVE', 'DEGRADED', 'SHADOW', 'FAULT', 'ESTOP')
@@ -131,77 +53,6 @@ class DriveStatus(enum.IntEnum):
     FAILED_ZERO = 2
     INPUT_INVALID = 3
     NOT_READY = 4
-
-
-@dataclasses.dataclass(frozen=True)
-class SafetyConfig:
-    """Tunables of the safety layer (ROS section ``safety`` of the torque_mixer node).
-
-    Defaults: the inputs come at 200 Hz (estimate, yaw torque: 0.05 s = 10 periods of
-    tolerated jitter) and 10 Hz (drive torque: 0.25 s = 2.5 MPC periods). The fall
-    threshold of 0.35 rad (20°) is far beyond anything the controllers recover from (the
-    MPC's soft tilt limit is 0.1 rad; the paper run stays below 0.092 rad) and before the
-    body hits the ground; the simulator's scenarios count a fall at 0.5 rad. The divergence
-    bounds are 5 to 40 times the largest estimates of the paper run (|υ̂| 1.35 m/s, |ω̂|
-    0.31 rad/s, |θ̂̇| 0.35 rad/s, |f̂1| 1.2 rad/s², |f̂2| 10 m/s² during the collision
-    pulse, |f̂3| 1.9 rad/s²): an observer beyond them is diverging, not estimating.
-    """
-
-    max_estimate_age: float = param(
-        0.05, 's', 'zero torque when the last valid /wip/state_estimate was received longer '
-        'ago than this', minimum=0.0, exclusive_minimum=True)
-    max_yaw_torque_age: float = param(
-        0.05, 's', 'zero torque when the last valid /wip/yaw_torque (ARC) was received '
-        'longer ago than this', minimum=0.0, exclusive_minimum=True)
-    max_drive_torque_age: float = param(
-        0.25, 's', 'zero torque when the last valid /wip/drive_torque (MPC, 10 Hz) was '
-        'received longer ago than this', minimum=0.0, exclusive_minimum=True)
-    bridge_time: float = param(
-        0.3, 's', 'ride-through: an input older than its age limit is bridged this much '
-        'longer (state DEGRADED: last yaw torque, drive torque along the MPC plan) before '
-        'zero torque; default ln 4 / (unstable tilt pole of the nominal model, 4.6 rad/s): '
-        'a tilt error at most quadruples; 0: zero torque at the age limit', minimum=0.0,
-        maximum=1.0)
-    max_estop_age: float = param(
-        0.0, 's', 'if > 0: a heartbeat (/wip/heartbeat, or any /wip/estop message) must be '
-        'received at least this often (zero torque otherwise); 0: not required', minimum=0.0)
-    estop_hold_time: float = param(
-        1.0, 's', 'reset is refused while an e-stop true was received this recently, even '
-        'after a later false (a held button that keeps publishing true)', minimum=0.0,
-        maximum=60.0)
-    fall_threshold: float = param(
-        0.35, 'rad', 'zero torque when the estimated tilt |theta_hat| exceeds this',
-        minimum=0.0, exclusive_minimum=True, maximum=1.5)
-    max_speed_estimate: float = param(
-        5.0, 'm/s', 'ESO divergence: zero torque when |v_hat| exceeds this', minimum=0.0,
-        exclusive_minimum=True)
-    max_yaw_rate_estimate: float = param(
-        10.0, 'rad/s', 'ESO divergence: zero torque when |omega_hat| exceeds this',
-        minimum=0.0, exclusive_minimum=True)
-    max_tilt_rate_estimate: float = param(
-        10.0, 'rad/s', 'ESO divergence: zero torque when |theta_dot_hat| exceeds this',
-        minimum=0.0, exclusive_minimum=True)
-    max_yaw_disturbance_estimate: float = param(
-        50.0, 'rad/s^2', 'ESO divergence: zero torque when |f1_hat| exceeds this',
-        minimum=0.0, exclusive_minimum=True)
-    max_longitudinal_disturbance_estimate: float = param(
-        50.0, 'm/s^2', 'ESO divergence: zero torque when |f2_hat| exceeds this',
-        minimum=0.0, exclusive_minimum=True)
-    max_tilt_disturbance_estimate: float = param(
-        100.0, 'rad/s^2', 'ESO divergence: zero torque when |f3_hat| exceeds this',
-        minimum=0.0, exclusive_minimum=True)
-    max_mpc_fallbacks: int = param(
-        3, '1', 'consecutive MPC outputs with status FALLBACK_SHIFTED_PLAN tolerated; one '
-        'more is a fault', minimum=0)
-    settle_time: float = param(
-        0.25, 's', 'start-up and re-arming: every input present and valid and the ESO '
-        'settled for this long before torque is sent', minimum=0.0)
-    shadow_mode: bool = param(
-        False, '1', 'compute and report the torques (on /wip/wheel_torques) but send zero '
-        'to the base (/effort_controller/commands)')
-    latch_faults: bool = param(
-        False, '1', 'a fault stays until an explicit reset (like the e-stop) instead of '
-        'clearing when its cause does')
 
 
 class SafetyDecision(NamedTuple):
@@ -242,7 +93,7 @@ class _Input:
 
 
 class SafetyMonitor:
-    """State machine of the safety layer (see the module docstring).
+    """State machine of the safety layer (docs/decisions/safety-layer.md).
 
     Feed each input as it arrives (:meth:`estimate`, :meth:`yaw_torque`,
     :meth:`drive_torque`, :meth:`invalid_input`, :meth:`estop`); call :meth:`update` once
@@ -454,13 +305,31 @@ class SafetyMonitor:
 
     def _conditions(self, now: float) -> tuple[list[str], list[str], list[str]]:
         """(faults, not-yet conditions, late inputs within the bridge) at ``now``."""
-        cfg = self.config
         # A wiring verdict first: it is the cause, a fall that follows is its effect.
         faults: list[str] = [self.wiring] if self.wiring else []
         if self.runaway:
             faults.append(self.runaway + ' (latched: reset required)')
         waiting: list[str] = []
         late: list[str] = []
+        self._input_conditions(now, faults, waiting, late)
+        estimate = self.inputs[ESTIMATE]
+        if estimate.value is not None and not estimate.invalid:
+            faults += self.config.estimate_faults(estimate.value)
+            if self.timing_checks and not self.settled:
+                waiting.append('ESO not settled')
+            if self.timing_checks and self.position_status == POSITION_FAULT:
+                faults.append('position source refused by the ESO (its /diagnostics says '
+                              'why): check datum.* and position_source')
+            elif self.timing_checks and self.position_status == NO_FIX:
+                waiting.append('no position fix yet (position_source gps or odometry; '
+                               'without GPS set position_source: wheels)')
+        self._drive_conditions(faults, waiting)
+        return faults, waiting, late
+
+    def _input_conditions(self, now: float, faults: list[str], waiting: list[str],
+                          late: list[str]) -> None:
+        """Append each watched input's invalid, missing, late or stale condition."""
+        cfg = self.config
         max_age = {ESTIMATE: cfg.max_estimate_age, YAW_TORQUE: cfg.max_yaw_torque_age,
                    DRIVE_TORQUE: cfg.max_drive_torque_age, ESTOP_INPUT: cfg.max_estop_age}
         watched = list(_CONTROL_INPUTS)
@@ -491,48 +360,24 @@ class SafetyMonitor:
                                   f'{max_age[name] + bridge:g} s (age limit '
                                   f'{max_age[name]:g} s + bridge {bridge:g} s; publisher '
                                   'stopped?)')
-        estimate = self.inputs[ESTIMATE]
-        if estimate.value is not None and not estimate.invalid:
-            faults += self._estimate_faults(estimate.value)
-            if self.timing_checks and not self.settled:
-                waiting.append('ESO not settled')
-            if self.timing_checks and self.position_status == POSITION_FAULT:
-                faults.append('position source refused by the ESO (its /diagnostics says '
-                              'why): check datum.* and position_source')
-            elif self.timing_checks and self.position_status == NO_FIX:
-                waiting.append('no position fix yet (position_source gps or odometry; '
-                               'without GPS set position_source: wheels)')
-        drive = self.inputs[DRIVE_TORQUE]
-        if drive.value is not None and not drive.invalid:
-            status = drive.value[1]
-            if status == DriveStatus.NOT_READY:
-                waiting.append('MPC not ready (NOT_READY)')
-            elif status == DriveStatus.FALLBACK_SHIFTED_PLAN:
-                if self.consecutive_fallbacks > cfg.max_mpc_fallbacks:
-                    faults.append(f'MPC failed: {self.consecutive_fallbacks} consecutive '
-                                  f'FALLBACK_SHIFTED_PLAN outputs > {cfg.max_mpc_fallbacks}')
-            elif status in (DriveStatus.FAILED_ZERO, DriveStatus.INPUT_INVALID):
-                faults.append(f'MPC failed: status {DriveStatus(status).name}')
-            elif status != DriveStatus.SOLVED:
-                faults.append(f'MPC failed: unknown status {status}')
-        return faults, waiting, late
 
-    def _estimate_faults(self, est: StateEstimate) -> list[str]:
-        cfg = self.config
-        faults = []
-        if abs(est.theta) > cfg.fall_threshold:
-            faults.append(f'fallen: |theta_hat| {abs(est.theta):.3f} rad > fall_threshold '
-                          f'{cfg.fall_threshold:g} rad')
-        for label, value, bound, unit in (
-                ('v_hat', est.v, cfg.max_speed_estimate, 'm/s'),
-                ('omega_hat', est.omega, cfg.max_yaw_rate_estimate, 'rad/s'),
-                ('theta_dot_hat', est.theta_dot, cfg.max_tilt_rate_estimate, 'rad/s'),
-                ('f1_hat', est.f1, cfg.max_yaw_disturbance_estimate, 'rad/s^2'),
-                ('f2_hat', est.f2, cfg.max_longitudinal_disturbance_estimate, 'm/s^2'),
-                ('f3_hat', est.f3, cfg.max_tilt_disturbance_estimate, 'rad/s^2')):
-            if abs(value) > bound:
-                faults.append(f'ESO diverged: |{label}| {abs(value):.4g} {unit} > {bound:g}')
-        return faults
+    def _drive_conditions(self, faults: list[str], waiting: list[str]) -> None:
+        """Append the MPC status's condition: not ready, too many fallbacks, failed."""
+        drive = self.inputs[DRIVE_TORQUE]
+        if drive.value is None or drive.invalid:
+            return
+        status = drive.value[1]
+        max_fallbacks = self.config.max_mpc_fallbacks
+        if status == DriveStatus.NOT_READY:
+            waiting.append('MPC not ready (NOT_READY)')
+        elif status == DriveStatus.FALLBACK_SHIFTED_PLAN:
+            if self.consecutive_fallbacks > max_fallbacks:
+                faults.append(f'MPC failed: {self.consecutive_fallbacks} consecutive '
+                              f'FALLBACK_SHIFTED_PLAN outputs > {max_fallbacks}')
+        elif status in (DriveStatus.FAILED_ZERO, DriveStatus.INPUT_INVALID):
+            faults.append(f'MPC failed: status {DriveStatus(status).name}')
+        elif status != DriveStatus.SOLVED:
+            faults.append(f'MPC failed: unknown status {status}')
 
     def update(self, now: float) -> SafetyDecision:
         """Return the torques of the tick at ``now`` [s] (one call per control tick)."""

@@ -129,36 +129,11 @@ class SlipMonitor:
         w_now = ((left - left0) / h + turn + body, (right - right0) / h - turn + body)
         model = g * theta + self._d_hat
         w_prev = w_now if self._w_prev is None else self._w_prev
-        judging = t - self._start >= 3.0 / self.bandwidth
-        slipping = self._slipping
-        for i in (0, 1):
-            residual = (w_now[i] - w_prev[i]) / h - model
-            mean = 0.5 * (residual + self._residual[i])
-            self._residual[i] = residual
-            torque = tau_left if i == 0 else tau_right
-            if (not slipping[i] and judging and abs(mean) > self.max_acceleration
-                    and mean * torque > 0.0):
-                slipping[i] = True
-                self._since[i] = t
-                self._agree_since = math.inf
-                self.events += 1
+        self._detect(t, h, w_now, w_prev, model, (tau_left, tau_right))
         self._w_prev = w_now
+        slipping = self._slipping
         if slipping[0] or slipping[1]:
-            # Gripping again: the two wheels agree (the gyro's yaw taken out) for ``hold``
-            # s: a wheel that spun alone is back with the other; both that spun roll
-            # alike again. Or the slip has lasted ``longest``.
-            mean_w = 0.5 * (w_now[0] + w_now[1])
-            if (abs(w_now[0] - w_now[1]) < self.agreement
-                    and abs(mean_w - self._w_hat) < 3.0 * self.agreement):
-                self._agree_since = min(self._agree_since, t)
-            else:
-                self._agree_since = math.inf
-            if (t - self._agree_since >= self.hold - 1e-9
-                    or t - min(self._since) >= self.longest):
-                both = slipping[0] and slipping[1]
-                slipping[0] = slipping[1] = False
-                if both:
-                    self._w_hat = mean_w
+            self._release(t, w_now)
         gripping = [w for w, slips in zip(w_now, slipping) if not slips]
         if gripping:
             measured = sum(gripping) / len(gripping)
@@ -181,3 +156,39 @@ class SlipMonitor:
         self._last = (t, left, right, x_v, pitch_rate)
         return SlipState(x_v - self.offset, self._slipping[0], self._slipping[1],
                          self.offset, speed)
+
+    def _detect(self, t: float, h: float, w_now: tuple[float, float],
+                w_prev: tuple[float, float], model: float,
+                torques: tuple[float, float]) -> None:
+        """Mark a wheel slipping whose acceleration leaves the tilt's, driven by its torque."""
+        judging = t - self._start >= 3.0 / self.bandwidth
+        slipping = self._slipping
+        for i in (0, 1):
+            residual = (w_now[i] - w_prev[i]) / h - model
+            mean = 0.5 * (residual + self._residual[i])
+            self._residual[i] = residual
+            if (not slipping[i] and judging and abs(mean) > self.max_acceleration
+                    and mean * torques[i] > 0.0):
+                slipping[i] = True
+                self._since[i] = t
+                self._agree_since = math.inf
+                self.events += 1
+
+    def _release(self, t: float, w_now: tuple[float, float]) -> None:
+        """End the slip once the wheels grip again, or once it has lasted ``longest``."""
+        # Gripping again: the two wheels agree (the gyro's yaw taken out) for ``hold``
+        # s: a wheel that spun alone is back with the other; both that spun roll
+        # alike again. Or the slip has lasted ``longest``.
+        slipping = self._slipping
+        mean_w = 0.5 * (w_now[0] + w_now[1])
+        if (abs(w_now[0] - w_now[1]) < self.agreement
+                and abs(mean_w - self._w_hat) < 3.0 * self.agreement):
+            self._agree_since = min(self._agree_since, t)
+        else:
+            self._agree_since = math.inf
+        if (t - self._agree_since >= self.hold - 1e-9
+                or t - min(self._since) >= self.longest):
+            both = slipping[0] and slipping[1]
+            slipping[0] = slipping[1] = False
+            if both:
+                self._w_hat = mean_w

@@ -14,7 +14,8 @@ import math
 from typing import NamedTuple, Sequence
 
 from .angles import unwrap_next
-from .eso import EsoConfig, StateEstimate, WipStateObserver
+from .eso import EsoConfig, StateEstimate
+from .state_observer import WipStateObserver
 from .params import WipParameters
 from .position import (DEAD_RECKONING, FAULT, NO_FIX, PlanarPositionEstimator,
                        PositionConfig, TRACKING)
@@ -149,21 +150,7 @@ class StateEstimator:
         estimate = observer.update(t, yaw_unwrapped, x_v, pitch, tau_left + tau_right,
                                    tau_right - tau_left, rates)
         self.observer, self.yaw_unwrapped = observer, yaw_unwrapped
-        position = self.position
-        try:
-            if fix is not None and not self.has_fix:
-                # The position starts at the first fix (odometry then adds nothing, and
-                # the fix itself is a zero innovation).
-                position.reset(fix[0], fix[1], x_v, estimate.phi)
-                self.has_fix = True
-            elif not self.position_started:
-                position.reset(0.0, 0.0, x_v, estimate.phi)
-            self.position_started = True
-            x, y = position.update_odometry(x_v, estimate.phi)
-            if fix is not None:
-                x, y = position.update_gps(fix[0], fix[1], t)
-        except ValueError:
-            x = y = math.nan
+        x, y = self._position(t, x_v, estimate.phi, fix)
         # ε (the last field) is inf at the start of the paper's ramp: not checked. One sum
         # first (NaN and inf propagate), each value only if it is not finite.
         a, b, c, d, e, f, g, h, i, _ = estimate
@@ -176,3 +163,23 @@ class StateEstimator:
         if not self.settled:
             self.settled = not observer.in_ramp(t)
         return PoseEstimate(estimate, x, y, self.settled, self.position_status)
+
+    def _position(self, t: float, x_v: float, phi: float,
+                  fix: Sequence[float] | None) -> tuple[float, float]:
+        """(x, y) [m]: the odometry at (x_v, ϕ̂) and the fix if any; NaN on a refusal."""
+        position = self.position
+        try:
+            if fix is not None and not self.has_fix:
+                # The position starts at the first fix (odometry then adds nothing, and
+                # the fix itself is a zero innovation).
+                position.reset(fix[0], fix[1], x_v, phi)
+                self.has_fix = True
+            elif not self.position_started:
+                position.reset(0.0, 0.0, x_v, phi)
+            self.position_started = True
+            x, y = position.update_odometry(x_v, phi)
+            if fix is not None:
+                x, y = position.update_gps(fix[0], fix[1], t)
+        except ValueError:
+            x = y = math.nan
+        return x, y

@@ -47,7 +47,7 @@ import math
 from typing import NamedTuple
 
 from .config import param
-from .references import ReferenceState
+from .reference_state import ReferenceState
 
 _TWO_PI = 2.0 * math.pi
 HEADING_DESIGNS = ('paper', 'poles')

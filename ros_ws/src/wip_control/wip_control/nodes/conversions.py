@@ -31,7 +31,7 @@ from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateM
 from ..core.arc import ArcOutput
 from ..core.eso import StateEstimate
 from ..core.mpc import HELD_STATUS_TEXT, MpcResult, MpcStatus
-from ..core.references import ReferenceState
+from ..core.reference_state import ReferenceState
 from ..core.sensors import geodetic_to_local
 from ..core.state_estimation import PoseEstimate
 from ..core.trajectory_generator import VelocityCommand

@@ -23,7 +23,7 @@ from ..core.params import WipParameters
 from ..core.position import PositionConfig
 from ..core.references import ReferenceConfig
 from ..core.runaway import RunawayConfig
-from ..core.safety import SafetyConfig
+from ..core.safety_config import SafetyConfig
 from ..core.controller_settings import RatesConfig
 from ..core.sensors import SensorConfig
 from ..core.trajectory_generator import TrajectoryGeneratorConfig

@@ -99,8 +99,9 @@ from ..core.config import ConfigError
 from ..core.mixer import MixerConfig
 from ..core.mpc import resolves_faster
 from ..core.params import WipParameters
-from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyConfig, SafetyDecision,
-                           SafetyMonitor, SHADOW, STARTING)
+from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyDecision, SafetyMonitor,
+                           SHADOW, STARTING)
+from ..core.safety_config import SafetyConfig
 from ..core.controller_settings import RatesConfig
 from ..core.runaway import RunawayConfig
 from ..core.wiring_check import WiringCheck, WiringCheckConfig

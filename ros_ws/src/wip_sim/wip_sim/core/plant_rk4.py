@@ -4,6 +4,11 @@ A process that reads the plant's equations without stepping it (the metrics of a
 the identification) does not import numba and llvmlite: about 0.2 s of import and 50 MB of
 memory. :class:`~.plant.Plant` imports this module at its construction. The dynamics are
 those of :func:`.plant._make_accelerations`, inlined.
+
+The stages are those of the project's one RK4, ``wip_control.core.integration.rk4_step``,
+unrolled on floats and compiled for speed (the plant steps at 1 kHz); the tests check this
+kernel against that step on :meth:`.plant.Plant.derivative`
+(``tests/wip_sim/core/test_plant.py``).
 """
 
 from __future__ import annotations
@@ -48,16 +53,12 @@ def rk4_hold(k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right, disturbance,
     """``len(disturbance)`` classic RK4 steps of ``h`` [s], wheel torques held.
 
     ``k``: the constants of :data:`.plant._CONSTANT_NAMES`; ``disturbance``: (n, 3) array of
-    (d1, d2, d3) per step, held over it. Returns the new state as an 8-tuple. The stages
-    (:func:`_slopes`, inlined) do the same operations in the same order as the interpreted
-    step this replaced, hence the same results bit for bit.
+    (d1, d2, d3) per step, held over it. Returns the new state as an 8-tuple.
     """
-    sin = math.sin
-    cos = math.cos
+    sin, cos = math.sin, math.cos
     tw = tau_right - tau_left
     tv = tau_left + tau_right
-    hh = 0.5 * h
-    h6 = h / 6.0
+    hh, h6 = 0.5 * h, h / 6.0
 
     for i in range(disturbance.shape[0]):
         d1 = disturbance[i, 0]

@@ -32,6 +32,7 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
+from wip_control.core.integration import rk4_step
 from wip_control.core.model import nominal_terms
 from wip_control.core.mpc import LongitudinalMpc, MpcConfig, MpcStatus
 from wip_control.core.params import WipParameters
@@ -110,16 +111,8 @@ def simulate_longitudinal(params: WipParameters, config: MpcConfig, duration: fl
             tau = result.tau_v
             out[k, 4] = tau
         # RK4, disturbance held over the step.
-        h = plant_period
-        k1 = derivative(v, theta, theta_dot, tau, d2)
-        k2 = derivative(v + 0.5 * h * k1[0], theta + 0.5 * h * k1[1],
-                        theta_dot + 0.5 * h * k1[2], tau, d2)
-        k3 = derivative(v + 0.5 * h * k2[0], theta + 0.5 * h * k2[1],
-                        theta_dot + 0.5 * h * k2[2], tau, d2)
-        k4 = derivative(v + h * k3[0], theta + h * k3[1], theta_dot + h * k3[2], tau, d2)
-        v += h / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
-        theta += h / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
-        theta_dot += h / 6.0 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
+        v, theta, theta_dot = rk4_step(
+            lambda _, x: derivative(*x, tau, d2), t, (v, theta, theta_dot), plant_period)
     out = out[:k_last + 1]
     return LongitudinalRun(out[:, 0], out[:, 1], out[:, 2], out[:, 3], out[:, 4], inputs,
                            results, fell)

@@ -1,0 +1,96 @@
+"""Tunables of the safety layer (``core/safety.py``) and the value checks against them.
+
+Not part of the paper [1]_; the defaults and their margins: docs/decisions/safety-layer.md.
+
+References
+----------
+.. [1] M. Yue, C. An, Z. Li, IEEE T-SMC: Systems, 2016 (see ``eso.py``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from .config import param
+
+
+@dataclasses.dataclass(frozen=True)
+class SafetyConfig:
+    """Tunables of the safety layer (ROS section ``safety`` of the torque_mixer node).
+
+    The defaults and their margins: docs/decisions/safety-layer.md.
+    """
+
+    max_estimate_age: float = param(
+        0.05, 's', 'zero torque when the last valid /wip/state_estimate was received longer '
+        'ago than this', minimum=0.0, exclusive_minimum=True)
+    max_yaw_torque_age: float = param(
+        0.05, 's', 'zero torque when the last valid /wip/yaw_torque (ARC) was received '
+        'longer ago than this', minimum=0.0, exclusive_minimum=True)
+    max_drive_torque_age: float = param(
+        0.25, 's', 'zero torque when the last valid /wip/drive_torque (MPC, 10 Hz) was '
+        'received longer ago than this', minimum=0.0, exclusive_minimum=True)
+    bridge_time: float = param(
+        0.3, 's', 'ride-through: an input older than its age limit is bridged this much '
+        'longer (state DEGRADED: last yaw torque, drive torque along the MPC plan) before '
+        'zero torque; default ln 4 / (unstable tilt pole of the nominal model, 4.6 rad/s): '
+        'a tilt error at most quadruples; 0: zero torque at the age limit', minimum=0.0,
+        maximum=1.0)
+    max_estop_age: float = param(
+        0.0, 's', 'if > 0: a heartbeat (/wip/heartbeat, or any /wip/estop message) must be '
+        'received at least this often (zero torque otherwise); 0: not required', minimum=0.0)
+    estop_hold_time: float = param(
+        1.0, 's', 'reset is refused while an e-stop true was received this recently, even '
+        'after a later false (a held button that keeps publishing true)', minimum=0.0,
+        maximum=60.0)
+    fall_threshold: float = param(
+        0.35, 'rad', 'zero torque when the estimated tilt |theta_hat| exceeds this',
+        minimum=0.0, exclusive_minimum=True, maximum=1.5)
+    max_speed_estimate: float = param(
+        5.0, 'm/s', 'ESO divergence: zero torque when |v_hat| exceeds this', minimum=0.0,
+        exclusive_minimum=True)
+    max_yaw_rate_estimate: float = param(
+        10.0, 'rad/s', 'ESO divergence: zero torque when |omega_hat| exceeds this',
+        minimum=0.0, exclusive_minimum=True)
+    max_tilt_rate_estimate: float = param(
+        10.0, 'rad/s', 'ESO divergence: zero torque when |theta_dot_hat| exceeds this',
+        minimum=0.0, exclusive_minimum=True)
+    max_yaw_disturbance_estimate: float = param(
+        50.0, 'rad/s^2', 'ESO divergence: zero torque when |f1_hat| exceeds this',
+        minimum=0.0, exclusive_minimum=True)
+    max_longitudinal_disturbance_estimate: float = param(
+        50.0, 'm/s^2', 'ESO divergence: zero torque when |f2_hat| exceeds this',
+        minimum=0.0, exclusive_minimum=True)
+    max_tilt_disturbance_estimate: float = param(
+        100.0, 'rad/s^2', 'ESO divergence: zero torque when |f3_hat| exceeds this',
+        minimum=0.0, exclusive_minimum=True)
+    max_mpc_fallbacks: int = param(
+        3, '1', 'consecutive MPC outputs with status FALLBACK_SHIFTED_PLAN tolerated; one '
+        'more is a fault', minimum=0)
+    settle_time: float = param(
+        0.25, 's', 'start-up and re-arming: every input present and valid and the ESO '
+        'settled for this long before torque is sent', minimum=0.0)
+    shadow_mode: bool = param(
+        False, '1', 'compute and report the torques (on /wip/wheel_torques) but send zero '
+        'to the base (/effort_controller/commands)')
+    latch_faults: bool = param(
+        False, '1', 'a fault stays until an explicit reset (like the e-stop) instead of '
+        'clearing when its cause does')
+
+    def estimate_faults(self, est) -> list[str]:
+        """Return the faults of a state estimate (``core.eso.StateEstimate``): fall, divergence."""
+        cfg = self
+        faults = []
+        if abs(est.theta) > cfg.fall_threshold:
+            faults.append(f'fallen: |theta_hat| {abs(est.theta):.3f} rad > fall_threshold '
+                          f'{cfg.fall_threshold:g} rad')
+        for label, value, bound, unit in (
+                ('v_hat', est.v, cfg.max_speed_estimate, 'm/s'),
+                ('omega_hat', est.omega, cfg.max_yaw_rate_estimate, 'rad/s'),
+                ('theta_dot_hat', est.theta_dot, cfg.max_tilt_rate_estimate, 'rad/s'),
+                ('f1_hat', est.f1, cfg.max_yaw_disturbance_estimate, 'rad/s^2'),
+                ('f2_hat', est.f2, cfg.max_longitudinal_disturbance_estimate, 'm/s^2'),
+                ('f3_hat', est.f3, cfg.max_tilt_disturbance_estimate, 'rad/s^2')):
+            if abs(value) > bound:
+                faults.append(f'ESO diverged: |{label}| {abs(value):.4g} {unit} > {bound:g}')
+        return faults
