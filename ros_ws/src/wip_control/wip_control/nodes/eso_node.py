@@ -140,6 +140,33 @@ class EsoNode(ControllerNode):
     def __init__(self, **kwargs) -> None:
         super().__init__('eso', 'extended state observer', (*_SENSORS, 'wheel_torques'),
                          **kwargs)
+        settings = self._read_parameters()
+        self.estimator = StateEstimator(self.model, self.eso_config, self.position_config,
+                                        encoders_relative_to_body=self.relative_to_body,
+                                        dead_reckoning=self.position_source == 'wheels')
+        self.reported_fault = ''
+        self.last_update_ns: int | None = None
+        # Real time: the observer's sample clock (see _observer_time).
+        self.sample_index: int | None = None
+        self.sample_origin = self.last_sample_time = 0.0
+        self.last_gps_ns: int | None = None
+        self.torques_by_stamp: dict[int, tuple[float, float]] = {}
+        self.latest_torques = (0.0, 0.0)
+        if self.lockstep:
+            self.sync = ExactTimeSync(self.sensors, self._update, required=self._required,
+                                      gate=self._torques_ready)
+        else:
+            # Encoder and IMU samples of one set at most one sample period apart (see
+            # LatestSync.max_skew_ns: a burst after a stall must not pair old with new).
+            self.sync = LatestSync(self.sensors, self._update, triggers=('joint_states', 'imu'),
+                                   required=('joint_states', 'imu'),
+                                   max_skew_ns=round(self.sample_period * 1e9))
+        self._init_topics()
+        self._init_odometry(settings)
+        self.diagnostics.state(OK, 'waiting for the first measurement set')
+
+    def _read_parameters(self) -> EsoNodeSettings:
+        """Declare and read the parameters: observer, position, model, wiring, datum."""
         self.eso_config = ConfigParameters(self, 'eso', EsoConfig).config
         self.position_config = ConfigParameters(self, 'position', PositionConfig).config
         self.model = ConfigParameters(self, 'model', WipParameters).config
@@ -165,28 +192,10 @@ class EsoNode(ControllerNode):
         self.gps_every = decimation(gps_period, self.sample_period)
         # 'wheels': no position input at all (the sets are encoders and IMU).
         self.sensors = _SENSORS if self.position_source != 'wheels' else _SENSORS[:2]
+        return settings
 
-        self.estimator = StateEstimator(self.model, self.eso_config, self.position_config,
-                                        encoders_relative_to_body=self.relative_to_body,
-                                        dead_reckoning=self.position_source == 'wheels')
-        self.reported_fault = ''
-        self.last_update_ns: int | None = None
-        # Real time: the observer's sample clock (see _observer_time).
-        self.sample_index: int | None = None
-        self.sample_origin = self.last_sample_time = 0.0
-        self.last_gps_ns: int | None = None
-        self.torques_by_stamp: dict[int, tuple[float, float]] = {}
-        self.latest_torques = (0.0, 0.0)
-        if self.lockstep:
-            self.sync = ExactTimeSync(self.sensors, self._update, required=self._required,
-                                      gate=self._torques_ready)
-        else:
-            # Encoder and IMU samples of one set at most one sample period apart (see
-            # LatestSync.max_skew_ns: a burst after a stall must not pair old with new).
-            self.sync = LatestSync(self.sensors, self._update, triggers=('joint_states', 'imu'),
-                                   required=('joint_states', 'imu'),
-                                   max_skew_ns=round(self.sample_period * 1e9))
-
+    def _init_topics(self) -> None:
+        """Create the estimate's publisher and the sensor and torque subscriptions."""
         self.publisher = self.create_publisher(StateEstimateMsg, 'wip/state_estimate',
                                                RELIABLE_QOS)
         # The base's sensors: reliable in lockstep (every sample counts), sensor-data QoS
@@ -208,8 +217,6 @@ class EsoNode(ControllerNode):
         else:
             self.subscribe(NavSatFix, 'gps/fix', 'gps', self._on_gps, sensor_qos)
         self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques', self._on_torques)
-        self._init_odometry(settings)
-        self.diagnostics.state(OK, 'waiting for the first measurement set')
 
     def _init_odometry(self, settings: EsoNodeSettings) -> None:
         """Set up the /odom output (nav_msgs/Odometry of the estimate, REP 105)."""

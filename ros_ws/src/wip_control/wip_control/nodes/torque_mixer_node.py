@@ -1,8 +1,8 @@
 """Torque mixer node: wheel torques from (τυ, τω), eq. (24) in [1]_, behind the safety layer.
 
 This node is the only one that commands the wheels, so it is the safety layer of the
-drop-in controller (``core/safety.py`` has the state machine and why zero torque is the
-fail-safe of a balancing robot).
+drop-in controller (``core/safety.py``; why zero torque is the fail-safe of a balancing
+robot: docs/decisions/safety-layer.md).
 
 Topics
 ------
@@ -29,9 +29,9 @@ Publishes
     order of ``joints``, for a ros2_control ``JointGroupEffortController``; each effort is
     the wheel torque times the joint's ``left_wheel_sign`` / ``right_wheel_sign`` (−1 for
     a joint whose positive direction rolls the robot backwards; the wheel torques are
-    REP 103, positive driving forward); zero in shadow
-    mode: the ESO, which reads /wip/wheel_torques as the applied torques, then assumes
-    torques the base does not get, and its disturbance estimates absorb the difference),
+    REP 103, positive driving forward); zero in shadow mode: the ESO, which reads
+    /wip/wheel_torques as the applied torques, then assumes torques the base does not
+    get, and its disturbance estimates absorb the difference),
     ``/diagnostics`` (safety state, every reason, input ages, counters; also at once
     on each change of the safety state).
 Service
@@ -55,13 +55,12 @@ happens upstream). Input ages are measured from the steady-clock time of arrival
 (independent of the sender's clock). /diagnostics reports the sensor -> command latency
 (node clock minus the yaw torque's stamp, which is the sensor sample's; meaningful when
 the base's clock is this computer's): p50, p99 and max over the last
-:data:`LATENCY_WINDOW` commands. (Before, the commands came from a free-running timer
-with the latest inputs: up to one period more latency, 2.5 ms on average at 200 Hz.)
+:data:`LATENCY_WINDOW` commands (why not a free-running timer: docs/realtime.md).
 lockstep: one command per stamp t_k, computed when yaw_torque(t_k) has arrived, plus
 drive_torque(t_k) when t_k is an MPC tick (k = round(t_k / h) a multiple of
-round(``mpc.sampling_period`` / h), or of round(``mpc.fast_resolve_period`` / h) when that is
-set, h = 1/``rates.control_rate``, from t = 0, as in the runner),
-else the drive torque of the last tick; once a state estimate has been received, also
+round(``mpc.sampling_period`` / h), or of round(``mpc.fast_resolve_period`` / h) when that
+is set, h = 1/``rates.control_rate``, from t = 0, as in the runner), else the drive torque
+of the last tick; once a state estimate has been received, also
 estimate(t_k), so that the checks use the estimate of the same sample whatever the
 arrival order. The safety layer runs without ages and start-up wait (see
 ``core/safety.py``: exact-time sets guarantee freshness, and lockstep reproduces the
@@ -176,11 +175,19 @@ class TorqueMixerNode(ControllerNode):
                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.latencies = collections.deque(maxlen=LATENCY_WINDOW)   # [s]
         self._init_wiring_check()
+        self._init_subscriptions(runaway.enabled)
+        self.diagnostics.state(WARN, 'STARTING: waiting for the first inputs')
+        # Ages and counters are filled in when a status is made, not at every tick.
+        self._base_status = self.diagnostics.status
+        self.diagnostics.status = self._status
+
+    def _init_subscriptions(self, runaway_guard: bool) -> None:
+        """Subscribe to the controllers' outputs, the e-stop, heartbeat and reset inputs."""
         self.subscribe(ArcState, 'wip/yaw_torque', 'yaw_torque', self._on_yaw)
         self.subscribe(MpcOutput, 'wip/drive_torque', 'drive_torque', self._on_drive)
         self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                        self._on_estimate)
-        if not self.lockstep and runaway.enabled:
+        if not self.lockstep and runaway_guard:
             self.subscribe(ReferenceStateMsg, 'wip/reference', 'reference',
                            self._on_reference)
         self.subscribe(Bool, 'wip/estop', 'estop', self._on_estop)
@@ -189,10 +196,6 @@ class TorqueMixerNode(ControllerNode):
         self.subscribe(Empty, 'wip/estop_reset', 'estop_reset',
                        lambda _msg: self.reset_estop('/wip/estop_reset'))
         self.create_service(Trigger, '~/reset_estop', self._on_reset_service)
-        self.diagnostics.state(WARN, 'STARTING: waiting for the first inputs')
-        # Ages and counters are filled in when a status is made, not at every tick.
-        self._base_status = self.diagnostics.status
-        self.diagnostics.status = self._status
 
     def _init_wiring_check(self) -> None:
         """Real time: the wiring checks (core/wiring_check.py) on the base's own sensors.
@@ -221,11 +224,7 @@ class TorqueMixerNode(ControllerNode):
         self.add_intra_subscription(Imu, imu, self._on_imu)
 
     def _on_joint_states(self, msg: JointState) -> None:
-        """Wheel rates as configured.
-
-        The joint velocities (else the positions' difference) by name, times the signs. A bad
-        message is the ESO's to report: skipped here.
-        """
+        """Feed the wiring check the signed wheel rates (a bad message is the ESO's to report)."""
         t = self.monitor_time()
         try:
             left, right = signed_wheel_angles(msg, self.left_joint, self.right_joint,
@@ -367,10 +366,9 @@ class TorqueMixerNode(ControllerNode):
 
     # -- ticks ---------------------------------------------------------------------------------
     def _tick(self, sensor_stamp: int | None = None) -> None:
-        """Realtime: one command with the latest inputs.
+        """Realtime: one command with the latest inputs, on a yaw torque or from the watchdog.
 
-        On a yaw torque (stamped with its sensor sample: the latency is recorded) or from the
-        watchdog.
+        A yaw torque carries its sensor sample's stamp: the latency is recorded.
         """
         try:
             now = self.now_ns()
