@@ -129,9 +129,9 @@ MAX_SCENARIO_FILE_BYTES = 4 * 1024 * 1024
 CONTROLLER_SCALARS = {
     'name': (str, 'free-text name of the scenario'),
     'description': (str, 'free-text description'),
-    'design': (str, "'robust' (default: what a real robot needs) or 'paper': the defaults "
-               "of PAPER_DESIGN (the paper's ESOs, adaptation law (13), lambda1, lambda2 "
-               'and a reference without time scaling); keys given explicitly still apply'),
+    'design': (str, "'robust' or 'paper': the paper's ESOs (4), (8), adaptation law (13), "
+               'lambda1, lambda2 of (9), no time scaling; explicit keys still apply '
+               '(docs/decisions/reference-parameters.md)'),
 }
 #: Unit and admissible values of those scalars.
 CONTROLLER_SCALAR_RANGES = {

@@ -178,10 +178,9 @@ class EsoConfig:
         "(unbiased on ramps) or 'zero_order' hold of the newest sample (biased, see "
         'eso.py)', choices=MEASUREMENT_HOLDS)
     estimator: str = param(
-        'gyro', '1', "'paper': third-order ESOs on the measured angles, eqs. (4), (8) "
-        "(Section V); 'gyro': the IMU angular rate is measured: complementary filter of "
-        'angle and gyro with bias estimation, and a reduced-order ESO on the rate for '
-        'the disturbance (docs/estimation.md)', choices=ESTIMATORS)
+        'gyro', '1', "'paper': third-order ESOs (4), (8) on the angles; 'gyro': "
+        'complementary filter with gyro bias and a reduced-order rate ESO (4) '
+        '(docs/decisions/estimation-parameters.md)', choices=ESTIMATORS)
     tilt_angle_bandwidth: float = param(
         5.0, 'rad/s', "'gyro': crossover of the tilt complementary filter; the "
         'steady-state Kalman choice is sigma_gyro / sigma_angle (0.01 / 0.002)',
@@ -193,10 +192,8 @@ class EsoConfig:
         0.2, 'rad/s', "'gyro': pole of the gyro bias estimate (slower than the angle "
         'bandwidths: the bias is a slow drift)', minimum=0.001, maximum=10.0)
     tilt_rate_bandwidth: float = param(
-        40.0, 'rad/s', "'gyro': double pole of the reduced-order ESO of the tilt rate "
-        '(gives f3, which holds the gravity torque: it must track the pendulum, about '
-        '10x its 4 rad/s unstable pole); f3 noise std grows as bandwidth^1.5',
-        minimum=0.1, maximum=150.0)
+        40.0, 'rad/s', "'gyro': double pole w_o of the reduced-order tilt-rate ESO (8), "
+        'giving f3 (docs/decisions/estimation-parameters.md)', minimum=0.1, maximum=150.0)
     yaw_rate_bandwidth: float = param(
         20.0, 'rad/s', "'gyro': double pole of the reduced-order ESO of the yaw rate "
         "(gives f1 to the ARC; the yaw disturbances are slower than the tilt's and f1 "
@@ -205,12 +202,9 @@ class EsoConfig:
         60.0, 'rad/s', "'gyro': triple pole of the x_v ESO (eq. (8), gains (3w, 3w^2, "
         'w^3)); it differentiates encoder and pitch noise', minimum=0.1, maximum=300.0)
     speed_start: str = param(
-        'first_difference', '1', "start of the x_v ESO's speed estimate: 'zero' (Section "
-        "V: the ESOs start at rest, and one at speed first reads 0 m/s, then overshoots the "
-        "true speed by 0.1 m/s at 0.1 s); 'first_difference': at the second sample, the "
-        'distance difference over the period (a vehicle started at speed brakes from its '
-        'true speed: f2 transient 23.5 m/s2 -> 0, docs/estimation.md)',
-        choices=SPEED_STARTS)
+        'first_difference', '1', "start of the x_v ESO's (8) speed: 'zero' (Section V) or "
+        "'first_difference', x_v difference over the first period "
+        '(docs/decisions/estimation-parameters.md)', choices=SPEED_STARTS)
     slip_max_acceleration: float = param(
         0.0, 'm/s^2', "'gyro': a wheel whose speed changes this much faster than the tilt "
         'allows slips and is left out of x_v (core/slip.py); 0 = off', minimum=0.0,

@@ -153,17 +153,12 @@ class ReferenceConfig:
         'of path (the speed changes by at most this fraction of the path speed per '
         'second, and slows before a sharp bend)', minimum=0.01, maximum=100.0)
     path_speed_lead_time: float = param(
-        0.75, 's', 'time_scaling: the reference speed (the feed-forward of eq. (9)) is the '
-        're-timed speed this long ahead, for a speed loop that lags its command by about '
-        'as much: the vehicle is slow when it reaches a bend or the end instead of later '
-        '(sharp corners: 0.52 m off the path without it, 0.08 m with 0.75 s; '
-        'docs/mpc.md §8). 0: the speed at t', minimum=0.0, maximum=5.0)
+        0.75, 's', 'time_scaling: the speed feed-forward of eq. (9) is the re-timed speed '
+        'this long ahead; 0: at t (docs/decisions/reference-parameters.md)', minimum=0.0,
+        maximum=5.0)
     path_speed_lead_time_accelerating: float = param(
-        0.6, 's', 'time_scaling: the lead of path_speed_lead_time where the speed ahead is '
-        'larger (speeding up). Shorter than the braking lead: with 0.75 s the trifolium '
-        'under noise recovered more slowly from the forward push at 30 s (the vehicle no '
-        'longer lags the reference point); 0.6 s is the shortest that still brings the '
-        'sharp corners within 0.1 m of the end point (docs/mpc.md §8)', minimum=0.0,
+        0.6, 's', 'time_scaling: path_speed_lead_time used where the speed ahead of eq. (9) '
+        'is larger (speeding up) (docs/decisions/reference-parameters.md)', minimum=0.0,
         maximum=5.0)
 
     def validate(self) -> None:

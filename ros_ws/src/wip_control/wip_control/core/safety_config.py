@@ -31,11 +31,9 @@ class SafetyConfig:
         0.25, 's', 'zero torque when the last valid /wip/drive_torque (MPC, 10 Hz) was '
         'received longer ago than this', minimum=0.0, exclusive_minimum=True)
     bridge_time: float = param(
-        0.3, 's', 'ride-through: an input older than its age limit is bridged this much '
-        'longer (state DEGRADED: last yaw torque, drive torque along the MPC plan) before '
-        'zero torque; default ln 4 / (unstable tilt pole of the nominal model, 4.6 rad/s): '
-        'a tilt error at most quadruples; 0: zero torque at the age limit', minimum=0.0,
-        maximum=1.0)
+        0.3, 's', 'ride-through: a late input is bridged this much longer (DEGRADED) before '
+        'zero torque; default ln 4 / lambda of model (1); 0: none '
+        '(docs/decisions/safety-layer.md)', minimum=0.0, maximum=1.0)
     max_estop_age: float = param(
         0.0, 's', 'if > 0: a heartbeat (/wip/heartbeat, or any /wip/estop message) must be '
         'received at least this often (zero torque otherwise); 0: not required', minimum=0.0)

@@ -75,10 +75,9 @@ class TrajectoryGeneratorConfig:
         2.0, 'rad/s^2', '|omega_d_dot| clip (about the yaw authority tau_omega_max * g1)',
         minimum=0.0, exclusive_minimum=True)
     heading_design: str = param(
-        'poles', '1', "'paper': lambda1, lambda2 as given; 'poles': lambda1 = "
-        'w_n^2 / v_r^2 and lambda2 = 2 zeta w_n, which place the poles of the linearised '
-        'lateral/heading loop s^2 + lambda2 s + lambda1 v_r^2 at natural frequency w_n '
-        'and damping zeta at every reference speed', choices=HEADING_DESIGNS)
+        'poles', '1', "gains of eq. (9): 'paper' lambda1, lambda2 as given; 'poles' "
+        'lambda1 = w_n^2/v_r^2, lambda2 = 2 zeta w_n (docs/decisions/reference-parameters.md)',
+        choices=HEADING_DESIGNS)
     heading_bandwidth: float = param(
         1.2, 'rad/s', "'poles': natural frequency w_n of the lateral/heading loop",
         minimum=0.01, maximum=10.0)

@@ -55,9 +55,8 @@ class ControllerNodeSettings:
     """Declared by every controller node (nodes/common.py ControllerNode)."""
 
     use_intra_process_comms: bool = param(
-        True, '1', "composed process: messages to another node of the same process skip "
-        "DDS unless someone outside the process subscribes the topic (as rclcpp's "
-        'intra-process communication); no effect on a node alone in its process')
+        True, '1', 'composed process: a message to a node of the same process skips DDS '
+        'unless one outside subscribes the topic (docs/decisions/node-settings.md)')
     clock_mode: str = param(DEFAULT_CLOCK_MODE, TEXT, "'lockstep' (deterministic simulation "
                             "on /clock, exact-time input sets) or 'realtime' (latest inputs, "
                             'timers)', choices=CLOCK_MODES)
@@ -154,10 +153,9 @@ class EsoNodeSettings:
         minimum=0.0, exclusive_minimum=True)
     frame_id: str = param('map', TEXT, 'frame of the planar position x, y')
     odometry_output: str = param(
-        'realtime', TEXT, "nav_msgs/Odometry of the estimate on /odom: 'realtime' (real "
-        "time and hardware mode; not in lockstep, where the viewer's /wip/odom/estimate "
-        "and the ground truth serve), 'always' or 'off'; never with position_source "
-        "'odometry' (the ESO reads /odom then)", choices=ODOMETRY_OUTPUTS)
+        'realtime', TEXT, "the estimate as nav_msgs/Odometry on /odom: 'realtime' (not in "
+        "lockstep), 'always' or 'off' (docs/decisions/node-settings.md)",
+        choices=ODOMETRY_OUTPUTS)
     odometry_decimation: int = param(
         4, '1', '/odom carries every n-th estimate (4: 50 Hz at the 200 Hz control rate)',
         minimum=1, maximum=1000)
@@ -243,11 +241,10 @@ class ReferenceNodeSettings:
                                 "first tick ('first_tick') or when the safety layer first "
                                 "sends torque ('engaged': the first /wip/wheel_torques not "
                                 'zeroed)', choices=REALTIME_STARTS)
-    realtime_trigger: str = param('state_estimate', TEXT, "realtime: what makes the node "
-                                  "publish a sample: 'state_estimate' (one per "
-                                  '/wip/state_estimate, at its stamp: no wake-up of its own, '
-                                  "docs/realtime.md) or 'timer' (a wall-clock timer at "
-                                  'rates.control_rate, stamped with the node clock)',
+    realtime_trigger: str = param('state_estimate', TEXT, "realtime: a sample per "
+                                  "/wip/state_estimate at its stamp ('state_estimate') or per "
+                                  "tick of a timer at rates.control_rate ('timer') "
+                                  '(docs/decisions/node-settings.md)',
                                   choices=REALTIME_TRIGGERS)
 
 
