@@ -25,12 +25,22 @@ CONFIGURED = {'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'left_wheel_sig
               'right_wheel_sign': 1, 'imu_mounting_rpy': (0.0, 0.0, 0.0)}
 
 
+def _wired(mistake, left, right):
+    """(left, right) of a base wired with ``mistake``: its sensors and its torques alike."""
+    if mistake == 'right_sign':
+        return left, -right
+    if mistake == 'left_sign':
+        return -left, right
+    if mistake == 'swap':
+        return right, left
+    return left, right
+
+
 def run(mistake=None, *, seconds=1.5, rest=0.5, noise=0.01, gyro_bias=0.05, push=0.0,
         push_at=0.3, yaw_rate_ref=0.5, config=WiringCheckConfig(), seed=1, g3_scale=1.0):
-    """Feed a check ``rest`` s at rest, then ``seconds`` engaged.
+    """Feed a check ``rest`` s at rest (held, not engaged), then ``seconds`` engaged.
 
-    Feed a check ``rest`` s at rest (held, not engaged), then ``seconds`` engaged;
-    the verdict and the time after engaging it came (None, None without one).
+    Return the verdict and the time after engaging it came (None, None without one).
     """
     rng = np.random.default_rng(seed)
     check = WiringCheck(config, PARAMS, PERIOD, configured=CONFIGURED)
@@ -43,13 +53,7 @@ def run(mistake=None, *, seconds=1.5, rest=0.5, noise=0.01, gyro_bias=0.05, push
         t = k * PERIOD
         engaged = k >= n_rest
         # The base's sensors, through its real wiring.
-        wl, wr = (v - 0.5 * d * yaw_rate) / r, (v + 0.5 * d * yaw_rate) / r
-        if mistake == 'right_sign':
-            wr = -wr
-        elif mistake == 'left_sign':
-            wl = -wl
-        elif mistake == 'swap':
-            wl, wr = wr, wl
+        wl, wr = _wired(mistake, (v - 0.5 * d * yaw_rate) / r, (v + 0.5 * d * yaw_rate) / r)
         wl += noise * rng.standard_normal()
         wr += noise * rng.standard_normal()
         pitch, pitch_rate = theta, theta_dot + gyro_bias
@@ -72,13 +76,7 @@ def run(mistake=None, *, seconds=1.5, rest=0.5, noise=0.01, gyro_bias=0.05, push
             tau_l, tau_r = 0.5 * (tau_v - tau_w), 0.5 * (tau_v + tau_w)
         check.torque(t, tau_l + tau_r, engaged, tau_r - tau_l)
         # The real plant: what the wheels really get.
-        phys_l, phys_r = tau_l, tau_r
-        if mistake == 'right_sign':
-            phys_r = -phys_r
-        elif mistake == 'left_sign':
-            phys_l = -phys_l
-        elif mistake == 'swap':
-            phys_l, phys_r = phys_r, phys_l
+        phys_l, phys_r = _wired(mistake, tau_l, tau_r)
         if engaged:
             terms = nominal_terms(p, theta, yaw_rate, theta_dot)
             disturbance = push if push_at <= t - rest < push_at + 0.2 else 0.0
