@@ -22,15 +22,11 @@ held), and the measurement is reconstructed between two samples. With a constant
 transition matrices are computed once with ``scipy.linalg.expm`` and each update is a
 3×3 mat-vec in plain floats.
 
-*Deviation from the obvious choice*: the measurement is, by default, **linearly
-interpolated** between the previous and the newest sample (first-order hold), not held.
-A held (staircase) measurement biases a fast observer badly: on a ramp y = 0.6 t at
-h = 5 ms and ε = 0.01 the held-sample observer settles with x̂2 = 0.47 instead of 0.6
-(−21 %) and f̂ = −6.8 instead of 0, because within each period it sees a motionless
-output for 5 ms against time constants of 3–10 ms. The interpolated measurement is
-exact for a ramp (zero error) and leaves a bias of about 0.3 % of the acceleration in f̂.
-Both are available (``measurement_hold``); both are the exact solution of the
-continuous observer for their input reconstruction (tested against RK4).
+The measurement is, by default, **linearly interpolated** between the previous and the
+newest sample (first-order hold), not held: a held one biases a fast observer (why, with
+the figures: docs/decisions/estimation-parameters.md). Both are available
+(``measurement_hold``); both are the exact solution of the continuous observer for their
+input reconstruction (tested against RK4).
 
 With the paper's ε schedule (``'paper_ramp'``) the gains change with time, so each
 period is integrated by classic RK4 in equal sub-steps of at most 1 ms (and at most
@@ -174,9 +170,9 @@ class EsoConfig:
         0.005, 's', 'measurement period the observer is discretised at', minimum=0.0,
         exclusive_minimum=True, maximum=1.0)
     measurement_hold: str = param(
-        'linear', '1', "reconstruction of y between samples: 'linear' interpolation "
-        "(unbiased on ramps) or 'zero_order' hold of the newest sample (biased, see "
-        'eso.py)', choices=MEASUREMENT_HOLDS)
+        'linear', '1', "y between samples in the exact ESO (4), (8): 'linear' interpolation "
+        "or 'zero_order' hold (docs/decisions/estimation-parameters.md)",
+        choices=MEASUREMENT_HOLDS)
     estimator: str = param(
         'gyro', '1', "'paper': third-order ESOs (4), (8) on the angles; 'gyro': "
         'complementary filter with gyro bias and a reduced-order rate ESO (4) '
