@@ -61,9 +61,8 @@ class ArcConfig:
     alpha_max: float = param(5.0, 'kg m^2', 'upper projection bound of alpha_hat',
                              minimum=0.0, exclusive_minimum=True)
     adaptation_dead_zone: float = param(
-        0.005, 'rad/s', 'no adaptation while |e_omega| is below this (robust adaptive '
-        'control: noise and bounded disturbances alone must not drive alpha_hat; paper: 0)',
-        minimum=0.0, maximum=10.0)
+        0.005, 'rad/s', 'no adaptation (13) of alpha_hat while |e_omega| is below this '
+        '(paper: 0; docs/decisions/estimation-parameters.md)', minimum=0.0, maximum=10.0)
     adaptation_normalisation: float = param(
         1.0, 's^4/rad^2', 'nu in d(alpha_hat)/dt = -gamma e phi / (1 + nu phi^2), phi = '
         'omega_d_dot - f1_hat: bounds the step when phi jumps (corners, GPS jumps; '
@@ -73,8 +72,8 @@ class ArcConfig:
         'returns to the nominal 1/g1 when not excited (paper: 0)', minimum=0.0,
         maximum=100.0)
     adapt_while_saturated: bool = param(
-        False, '1', 'run the adaptation while tau_omega is saturated (paper: true); false '
-        'freezes alpha_hat then, since e_omega no longer reflects the model error (wind-up)')
+        False, '1', 'run the adaptation (13) while tau_omega is saturated (paper: true; '
+        'docs/decisions/estimation-parameters.md)')
 
     def validate(self) -> None:
         if not self.alpha_max > self.alpha_min:

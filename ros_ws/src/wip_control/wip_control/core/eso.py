@@ -178,9 +178,8 @@ class EsoConfig:
         'complementary filter with gyro bias and a reduced-order rate ESO (4) '
         '(docs/decisions/estimation-parameters.md)', choices=ESTIMATORS)
     tilt_angle_bandwidth: float = param(
-        5.0, 'rad/s', "'gyro': crossover of the tilt complementary filter; the "
-        'steady-state Kalman choice is sigma_gyro / sigma_angle (0.01 / 0.002)',
-        minimum=0.01, maximum=100.0)
+        5.0, 'rad/s', "'gyro': crossover w_c of the tilt complementary filter "
+        '(docs/decisions/estimation-parameters.md)', minimum=0.01, maximum=100.0)
     yaw_angle_bandwidth: float = param(
         5.0, 'rad/s', "'gyro': crossover of the yaw complementary filter (as the tilt's)",
         minimum=0.01, maximum=100.0)
@@ -191,9 +190,8 @@ class EsoConfig:
         40.0, 'rad/s', "'gyro': double pole w_o of the reduced-order tilt-rate ESO (8), "
         'giving f3 (docs/decisions/estimation-parameters.md)', minimum=0.1, maximum=150.0)
     yaw_rate_bandwidth: float = param(
-        20.0, 'rad/s', "'gyro': double pole of the reduced-order ESO of the yaw rate "
-        "(gives f1 to the ARC; the yaw disturbances are slower than the tilt's and f1 "
-        'noise drives the adaptation)', minimum=0.1, maximum=150.0)
+        20.0, 'rad/s', "'gyro': double pole w_o of the reduced-order yaw-rate ESO (4), "
+        'giving f1 (docs/decisions/estimation-parameters.md)', minimum=0.1, maximum=150.0)
     longitudinal_bandwidth: float = param(
         60.0, 'rad/s', "'gyro': triple pole of the x_v ESO (eq. (8), gains (3w, 3w^2, "
         'w^3)); it differentiates encoder and pitch noise', minimum=0.1, maximum=300.0)

@@ -149,9 +149,9 @@ class ReferenceConfig:
         0.2, 'rad/s', 'time_scaling: yaw-rate limit of the reference (keep below the '
         'generator max_yaw_rate)', minimum=0.0, exclusive_minimum=True)
     path_progress_rate_limit: float = param(
-        0.5, '1/s', 'time_scaling: largest change of the progress rate ds/dt per second '
-        'of path (the speed changes by at most this fraction of the path speed per '
-        'second, and slows before a sharp bend)', minimum=0.01, maximum=100.0)
+        0.5, '1/s', 'time_scaling: largest |d sigma/ds|, the change of the progress rate '
+        'ds/dt per second of path (docs/decisions/reference-parameters.md)', minimum=0.01,
+        maximum=100.0)
     path_speed_lead_time: float = param(
         0.75, 's', 'time_scaling: the speed feed-forward of eq. (9) is the re-timed speed '
         'this long ahead; 0: at t (docs/decisions/reference-parameters.md)', minimum=0.0,

@@ -64,8 +64,7 @@ class ControllerNodeSettings:
                                       'time); 0: none', minimum=0.0, maximum=3600.0)
     max_stamp_lead: float = param(
         0.5, 's', 'real time: an input stamped more than this ahead of the node clock is '
-        'refused (inputs are taken newest stamp first, so one far-future stamp would block '
-        'the stream until the clock caught up)', minimum=0.0, exclusive_minimum=True,
+        'refused (docs/decisions/node-settings.md)', minimum=0.0, exclusive_minimum=True,
         maximum=3600.0)
 
 
