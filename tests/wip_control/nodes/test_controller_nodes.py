@@ -982,6 +982,21 @@ def test_six_nodes_in_lockstep_reproduce_the_in_process_runner(context, harnesse
 
 # ----------------------------------------------------------------------------- bad input
 
+def _publish_bad_inputs(harness, bad):
+    """Publish each bad message with valid other inputs of its stamp: (topics, count)."""
+    topics = {t: m for t, m, _ in bad}
+    published = 0
+    for k, (topic, msg_type, fields) in enumerate(bad):
+        stamp = k * 20 * H_NS              # MPC ticks, so the MPC answers them
+        harness.publish(topic, msg_type(header=make_header(stamp), **fields))
+        # The other inputs of the same stamp, valid, so that lockstep sets complete.
+        for other, other_type in topics.items():
+            if other != topic:
+                harness.publish(other, other_type(header=make_header(stamp)))
+        published += len(topics)
+    return topics, published
+
+
 def test_bad_input_into_every_subscription_never_raises_or_outputs_non_finite(
         context, harnesses):
     nan, inf = float('nan'), float('inf')
@@ -1017,16 +1032,7 @@ def test_bad_input_into_every_subscription_never_raises_or_outputs_non_finite(
                     harness.publisher(msg_type, topic)
             out = harness.listen(*outputs[node_cls])
             harness.wait_matched()
-            topics = {t: m for t, m, _ in bad}
-            published = 0
-            for k, (topic, msg_type, fields) in enumerate(bad):
-                stamp = k * 20 * H_NS              # MPC ticks, so the MPC answers them
-                harness.publish(topic, msg_type(header=make_header(stamp), **fields))
-                # The other inputs of the same stamp, valid, so that lockstep sets complete.
-                for other, other_type in topics.items():
-                    if other != topic:
-                        harness.publish(other, other_type(header=make_header(stamp)))
-                published += len(topics)
+            topics, published = _publish_bad_inputs(harness, bad)
             received = harness.node.diagnostics.received
             harness.spin_until(lambda: sum(received.values()) == published,
                                'every message')
