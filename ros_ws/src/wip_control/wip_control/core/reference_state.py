@@ -1,9 +1,9 @@
 """The reference's sample and the interface of every reference.
 
-The reference's sample (:class:`ReferenceState`) and the interface of every reference
-(:class:`Reference`): a module of their own so that both the fixed curves
-(``references.py``) and the commanded references (``commanded.py``) build on them, and
-``references.make_reference`` builds either without an import cycle.
+:class:`ReferenceState` and :class:`Reference` have a module of their own so that the
+closed-form curves, the waypoint paths, the time scaling and the commanded references
+(``commanded.py``) all build on them, and ``references.make_reference`` builds any of them
+without an import cycle.
 """
 
 from __future__ import annotations

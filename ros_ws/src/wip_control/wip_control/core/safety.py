@@ -160,8 +160,7 @@ class SafetyMonitor:
     def invalid_input(self, name: str, t: float, reason: str) -> None:
         """Take an unusable message of input ``name`` (e.g. failed to convert).
 
-        A message of input ``name`` was unusable (e.g. failed to convert): a fault
-        until the next valid one. The last valid value is kept but not used.
+        It is a fault until the next valid one; the last valid value is kept but not used.
         """
         self.inputs[name].invalid = reason or 'invalid'
 
@@ -170,8 +169,8 @@ class SafetyMonitor:
                  y: float = math.nan) -> None:
         """Take a state estimate received at ``t`` [s].
 
-        A state estimate (a ``core.eso.StateEstimate`` or a sequence in its field
-        order) received at ``t`` [s]; ``settled``: the ESO's start-up flag;
+        ``estimate``: a ``core.eso.StateEstimate`` or a sequence in its field order;
+        ``settled``: the ESO's start-up flag;
         ``position_status``: ``core.position`` NO_FIX ... FAULT; (x, y): the planar
         position [m] (the runaway guard's input).
         """
@@ -236,8 +235,8 @@ class SafetyMonitor:
     def estop(self, t: float, engaged: bool) -> None:
         """Take an e-stop message received at ``t`` [s].
 
-        An e-stop message received at ``t`` [s]: engaged latches the e-stop; not engaged
-        only allows a later :meth:`reset` (and is the heartbeat if ``max_estop_age`` > 0).
+        Engaged latches the e-stop; not engaged only allows a later :meth:`reset` (and is
+        the heartbeat if ``max_estop_age`` > 0).
         """
         self._accept(ESTOP_INPUT, t, bool(engaged))
         self.estop_engaged = bool(engaged)
@@ -256,9 +255,8 @@ class SafetyMonitor:
     def wiring_fault(self, reason: str) -> None:
         """Take a wiring contradiction (``core.wiring_check.Verdict.reason``).
 
-        A wiring contradiction (``core.wiring_check.Verdict.reason``): a fault from the
-        next tick, latched whatever ``latch_faults`` says (a wrong parameter does not go
-        away by itself) until :meth:`reset`.
+        It is a fault from the next tick, latched whatever ``latch_faults`` says (a wrong
+        parameter does not go away by itself) until :meth:`reset`.
         """
         self.wiring = str(reason) or 'wiring: contradiction'
 

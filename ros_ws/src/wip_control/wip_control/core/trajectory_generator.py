@@ -162,8 +162,7 @@ class TrajectoryGenerator:
     def state(self) -> tuple:
         """Everything :meth:`step` changes, for :meth:`restore`.
 
-        Everything :meth:`step` changes (the derivative filter and the saturation
-        flags), for :meth:`restore`.
+        That is the derivative filter and the saturation flags.
         """
         return (self._t_prev, self._omega_prev, self._omega_dot, self._sat_sign_prev,
                 self.saturated_speed, self.saturated_yaw_rate)
