@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from wip_tools.analysis.metrics import compute_metrics
-from wip_control.core.mpc import PAPER_MPC_SETTINGS
+from wip_control.core.mpc_config import PAPER_MPC_SETTINGS
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import paper_scenario, Scenario, scenario_from_mapping
 

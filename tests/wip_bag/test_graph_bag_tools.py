@@ -53,7 +53,7 @@ def test_bag_info_and_repair_of_a_graph_bag(graph_bag, tmp_path):
     assert counts['/joint_states'] == counts['/imu/data'] == ticks
     assert counts['/wip/ground_truth'] == ticks + 1
     # In lockstep the MPC node answers every tick of its 50 ms re-solve grid (a solve, or
-    # its held torque between solves: docs/mpc.md §10).
+    # its held torque between solves: docs/history/mpc.md §10).
     assert counts['/wip/drive_torque'] == ticks // 10
     before = yaml.safe_load((graph_bag / 'metadata.yaml').read_text())
     # A healthy bag: its file copied as it is, the same metadata, the original untouched.

@@ -24,7 +24,7 @@ from wip_control.core.arc import ArcConfig  # noqa: E402
 from wip_control.core.config import from_mapping  # noqa: E402
 from wip_control.core.eso import EsoConfig  # noqa: E402
 from wip_control.core.mixer import MixerConfig  # noqa: E402
-from wip_control.core.mpc import MpcConfig  # noqa: E402
+from wip_control.core.mpc_config import MpcConfig  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
 from wip_control.core.position import PositionConfig  # noqa: E402
 from wip_control.core.references import ReferenceConfig  # noqa: E402

@@ -27,7 +27,7 @@ from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState,  # noqa: E402
                           StateEstimate as StateEstimateMsg, VelocityCommand, WheelTorques)
 
 from wip_control.core.control_step import ControlStep  # noqa: E402
-from wip_control.core.mpc import HELD_STATUS_TEXT  # noqa: E402
+from wip_control.core.mpc_plan import HELD_STATUS_TEXT  # noqa: E402
 from wip_sim.core.runner import run_scenario  # noqa: E402
 from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_control.core.state_estimation import StateEstimator  # noqa: E402

@@ -13,7 +13,7 @@ import pytest
 from wip_control.core.control_step import (ControlOverflow, ControlStep, DriveStage,
                                            GuidanceStage, YawStage)
 from wip_control.core.eso import EsoConfig
-from wip_control.core.mpc import MpcConfig
+from wip_control.core.mpc_config import MpcConfig
 from wip_control.core.params import WipParameters
 from wip_control.core.position import PositionConfig
 from wip_control.core.reference_state import ReferenceState

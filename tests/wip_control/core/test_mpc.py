@@ -24,9 +24,12 @@ from wip_tools.analysis.bench_mpc import (STEP_KEYS, bench_mpc_against_daqp,
                                             simulate_longitudinal)
 from wip_control.core.config import ConfigError, from_mapping
 from wip_control.core.model import input_gains, nominal_terms
-from wip_control.core.mpc import (PAPER_MPC_SETTINGS, LongitudinalMpc, MpcConfig,
-                                  MpcInputError, MpcResult, MpcStatus)
+from wip_control.core.mpc import LongitudinalMpc, MpcInputError, MpcStatus
+from wip_control.core.mpc_config import MpcConfig, PAPER_MPC_SETTINGS
+from wip_control.core.mpc_plan import MpcResult
 from wip_control.core.mpc_prediction import CondensedPrediction
+from wip_control.core.mpc_qp import TickData
+from wip_control.core.mpc_reference import reference_qp
 from wip_control.core.params import WipParameters
 from wip_control.core.qp import QpSolution, make_solver
 
@@ -878,7 +881,7 @@ def test_a_hard_push_predicted_to_pass_no_longer_drops_the_robot():
             'duration': 24.0, 'mpc': {'disturbance_decay_time_constant': decay,
                                       'speed_slack_quadratic_penalty': 1e4,
                                       'fast_resolve_period': 0.0}}))
-    # The speed slacks' penalty as when this draw was traced (1e4; docs/mpc.md §5): with
+    # The speed slacks' penalty as when this draw was traced (1e4; docs/history/mpc.md §5): with
     # the default of §7 (100) the held prediction survives this draw too; and the torque
     # held for the MPC period, as then: re-solving after the push (§10) saves it too.
     held = run(0.0)
@@ -971,7 +974,7 @@ def test_speed_preview_brakes_earlier_for_a_falling_command_and_bounds_the_trend
     mpc.step(1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     gain = config.sampling_period / (config.speed_trend_filter_time_constant
                                      + config.sampling_period)
-    assert mpc._v_d_trend == pytest.approx(-gain * config.max_speed_trend, rel=1e-12)
+    assert mpc._preview.trend == pytest.approx(-gain * config.max_speed_trend, rel=1e-12)
 
 
 def test_start_up_rule_ignores_the_estimators_zero_start_and_its_transient():
@@ -1014,7 +1017,7 @@ def _min_peak_speed_after_push(v0, push=10.0, width=0.1, first_tick=0.1, back_by
     """Lower bound on the peak speed of any causal controller after a forward push.
 
     Lower bound on the peak speed of any causal controller after a forward push
-    (docs/mpc.md §7): an LP on the linearisation of the paper plant at rest (υ, θ, θ̇),
+    (docs/history/mpc.md §7): an LP on the linearisation of the paper plant at rest (υ, θ, θ̇),
     exact zero-order-hold discretisation at ``dt``; the push d2 = ``push`` m/s² over
     [0, width); τυ held over 0.1 s ticks from ``first_tick`` (0 before: the controller
     has not seen the push), |τυ| ≤ 30 N·m, |Δτυ| ≤ 10 N·m per tick, |θ| ≤ max_tilt, υ ≤
@@ -1098,7 +1101,8 @@ def test_a_process_that_exits_holding_an_mpc_prints_no_binding_leak_report():
     """
     import subprocess
     import sys
-    program = ('from wip_control.core.mpc import LongitudinalMpc, MpcConfig\n'
+    program = ('from wip_control.core.mpc import LongitudinalMpc\n'
+               'from wip_control.core.mpc_config import MpcConfig\n'
                'from wip_control.core.params import WipParameters\n'
                'HELD = LongitudinalMpc(WipParameters(), MpcConfig())\n'
                'result = HELD.step(v_hat=0.0, theta_hat=0.05, theta_dot_hat=0.0, f2_hat=0.0,'
@@ -1114,52 +1118,6 @@ def test_a_process_that_exits_holding_an_mpc_prints_no_binding_leak_report():
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == 'SOLVED'
     assert 'leaked' not in done.stderr, done.stderr
-
-
-def numpy_qp(mpc, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit, g2, g3, g2p,
-             g3p, tau_prev, transient, speed_trend):
-    """H, g, C, l, u of eqs. (20)–(22) with numpy array operations, from mpc's data.
-
-    The formulation the compiled kernel (core/mpc_qp.py) replaced, written as array
-    expressions: the kernel must give the same QP to round-off.
-    """
-    cfg, pred = mpc.config, mpc.prediction
-    n_c, n_p = cfg.control_horizon, cfg.prediction_horizon
-    h, g, c = mpc.last_qp.H.copy(), mpc.last_qp.g.copy(), mpc.last_qp.C.copy()
-    lower, upper = mpc.last_qp.l.copy(), mpc.last_qp.u.copy()
-    free = (pred.free_state_matrix @ [v_hat, theta_hat, theta_dot_hat]
-            + pred.free_v_column * (f2_hat + g2 * tau_prev)
-            + pred.free_theta_dot_column * (f3_hat + g3 * tau_prev)
-            + mpc._transient_v * transient[0] + mpc._transient_theta_dot * transient[1])
-    coef = np.array([2 * g2p * g2p, 2 * g2p * g3p, 2 * g3p * g3p, 2.0])
-    h[:n_c, :n_c] = (coef @ mpc._hessian_blocks).reshape(n_c, n_c)
-    error = np.zeros(3 * n_p)
-    error[0::3] = (np.clip(v_d + mpc._preview_ramp * speed_trend, -cfg.max_speed,
-                           cfg.max_speed) if cfg.speed_preview_time > 0.0 else v_d)
-    error[1::3] = mpc.target_theta
-    error -= free
-    projected = mpc._weighted_gains @ error
-    g[:n_c] = -2.0 * (g2p * projected[:n_c] + g3p * projected[n_c:])
-    rows = (np.array([g2p, g3p]) @ mpc._row_blocks).reshape(2 * n_p, n_c)
-    c[n_c:n_c + 2 * n_p, :n_c] = rows
-    c[n_c + 2 * n_p:n_c + 4 * n_p, :n_c] = rows
-    outputs = np.concatenate((free[0::3], free[1::3]))
-    upper[n_c:n_c + 2 * n_p] = mpc._limits - outputs
-    lower[n_c + 2 * n_p:n_c + 4 * n_p] = -mpc._limits - outputs
-    n_free = min(cfg.speed_limit_first_step - 1, n_p)
-    upper[n_c:n_c + n_free] = np.inf
-    lower[n_c + 2 * n_p:n_c + 2 * n_p + n_free] = -np.inf
-    n_rise = mpc._n_rise
-    if n_rise:
-        sign = 1.0 if v_hat >= 0.0 else -1.0
-        c[n_c + 4 * n_p:, :n_c] = sign * rows[:n_rise]
-        braking = (sign * v_hat >= cfg.max_speed
-                   and sign * (theta_hat + cfg.sampling_period * theta_dot_hat) <= 0.0)
-        upper[n_c + 4 * n_p:] = (sign * v_hat - sign * outputs[:n_rise] if braking
-                                 else np.inf)
-    upper[:n_c] = np.maximum(limit, tau_prev - mpc._reach) - tau_prev
-    lower[:n_c] = np.minimum(-limit, tau_prev + mpc._reach) - tau_prev
-    return h, g, c, lower, upper, free
 
 
 @pytest.mark.parametrize('seed', range(12))
@@ -1179,21 +1137,23 @@ def test_the_compiled_qp_is_the_numpy_formulation(seed):
     transient = (rng.uniform(-2, 2), rng.uniform(-10, 10))
     mpc._target.transient = transient
     mpc._target.theta = rng.uniform(-0.05, 0.05)
-    mpc._v_d_last, mpc._v_d_trend = v_d - 0.01, rng.uniform(-1, 1)
-    trend_before, last_before = mpc._v_d_trend, mpc._v_d_last
-    free = mpc._build(v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit, g2, g3,
-                      g2p, g3p, tau_prev)
-    # The trend filter's update of this tick, as _speed_trend does it.
-    trend = trend_before
+    preview = mpc._preview
+    preview.v_d_last, preview.trend = v_d - 0.01, rng.uniform(-1, 1)
+    trend_before, last_before = preview.trend, preview.v_d_last
+    # The trend filter's update of this tick, as SpeedPreview.update does it.
+    trend = preview.update(v_d, config.sampling_period)
     if config.speed_preview_time > 0.0:
         ts = config.sampling_period
         rate = min(max((v_d - last_before) / ts, -config.max_speed_trend),
                    config.max_speed_trend)
-        trend += ts / (config.speed_trend_filter_time_constant + ts) * (rate - trend)
+        assert trend == trend_before + ts / (config.speed_trend_filter_time_constant + ts) * (
+            rate - trend_before)
     zone = config.disturbance_decay_dead_zone
     excess = [max(abs(t) - b, 0.0) * math.copysign(1.0, t) for t, b in zip(transient, zone)]
-    expected = numpy_qp(mpc, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit,
-                        g2, g3, g2p, g3p, tau_prev, excess, trend)
+    tick = TickData(v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, g2, g3, g2p, g3p,
+                    tau_prev, limit, *excess, v_d, trend, mpc.target_theta)
+    free = mpc.qp.update(tick)
+    expected = reference_qp(mpc.qp, tick)
     qp = mpc.last_qp
     for name, got, want in zip(('H', 'g', 'C', 'l', 'u', 'free'),
                                (qp.H, qp.g, qp.C, qp.l, qp.u, free), expected):

@@ -62,7 +62,7 @@ def test_the_speed_lead_is_the_speed_ahead_and_changes_nothing_else(kind):
 
     path_speed_lead_time: υ(t) is the lead-free reference's υ at t + T where that is
     not faster (braking, cruising), at t + T_a where it is (speeding up); pose, ω and ω̇
-    are those at t. Every kind (docs/mpc.md §8).
+    are those at t. Every kind (docs/history/mpc.md §8).
     """
     common = dict(kind=kind, time_scaling=True, path_max_speed=0.8, path_max_yaw_rate=0.2,
                   **KIND_OPTIONS[kind])

@@ -39,7 +39,8 @@ from wip_control.core.eso import EsoConfig  # noqa: E402
 from wip_control.core.mixer import drive_torque_limit, mix  # noqa: E402
 from wip_control.core.model import PHI  # noqa: E402
 from wip_control.core.lqr import LongitudinalLqr  # noqa: E402
-from wip_control.core.mpc import LongitudinalMpc, MpcConfig  # noqa: E402
+from wip_control.core.mpc import LongitudinalMpc  # noqa: E402
+from wip_control.core.mpc_config import MpcConfig  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
 from wip_sim.core.plant import Plant  # noqa: E402
 from wip_control.core.reference_state import ReferenceState  # noqa: E402

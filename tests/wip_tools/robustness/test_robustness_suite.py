@@ -37,10 +37,10 @@ SUITE = {
     'full_plant_mismatch': None,
     'pushes': None,
     'stop_and_hold': None,
-    # Passes since the MPC's speed-rise slack (docs/mpc.md §9): max speed 1.554 m/s at the
+    # Passes since the MPC's speed-rise slack (docs/history/mpc.md §9): max speed 1.554 m/s at the
     # cold start before (limit 1.55), 1.542 after; 2.49 after the push (limit 2.5).
     'speed_limit': None,
-    # Passes since the reference's speed lead (docs/mpc.md §8): 0.52 m off the path
+    # Passes since the reference's speed lead (docs/history/mpc.md §8): 0.52 m off the path
     # before, 0.08 m after.
     'sharp_corners': None,
     'large_initial_error': None,
@@ -126,7 +126,7 @@ def test_a_push_above_the_speed_limit_on_a_heavy_tall_body_is_caught(run, body_m
     Acceptance runs 78 (28.6 kg, CoM 0.69 m, +7.6 m/s² at 46.4 s), 84 (26.8 kg, CoM
     0.54 m, +8 m/s² at 29.2 s) and 255 (29.7 kg, CoM 0.63 m, -8.8 m/s² at 20.7 s),
     trifolium under noise, full plant. The MPC's rise slack would weigh the acceleration
-    of the recovery: without its gates (docs/mpc.md §9) run 78 fell at 48.8 s, run 84 at
+    of the recovery: without its gates (docs/history/mpc.md §9) run 78 fell at 48.8 s, run 84 at
     30.3 s (speed_rise_penalty 1e5), run 255 at 22.5 s. They must stay up and within the
     hard limits.
     """
@@ -147,7 +147,7 @@ def test_the_pulse_on_the_paper_plant_under_noise_is_caught(run):
     (its 10 m/s² pulse at 30 s) on the paper plant under IMU 0.002 rad and gyro 0.01 rad/s
     noise. With the drive torque held for the 0.1 s MPC period they fell 2.5 s after the
     pulse, the tilt swinging from -0.17 to +0.31 rad with the torque at its limits; the
-    MPC re-solving every 50 ms after a push (mpc.fast_resolve_period, docs/mpc.md §10)
+    MPC re-solving every 50 ms after a push (mpc.fast_resolve_period, docs/history/mpc.md §10)
     keeps them within 0.1 rad outside the pulse.
     """
     campaign = load_campaign(NOISE_100)
@@ -171,4 +171,5 @@ def test_without_re_solving_after_a_push_noise_run_25_falls():
                                      'fast_resolve_period': 0.0}}
     row = run_one(spec, base, criteria_to_mapping(campaign.criteria))
     assert not row['error'], row['error']
-    assert row['fell'], 'run 25 no longer falls without re-solving: revisit docs/mpc.md §10'
+    assert row['fell'], ('run 25 no longer falls without re-solving: revisit '
+                         'docs/history/mpc.md §10')

@@ -69,7 +69,7 @@ import numpy as np
 
 from wip_control.core.config import ConfigError
 from wip_tools.analysis.metrics import compute_metrics
-from wip_control.core.mpc import HELD_STATUS_TEXT
+from wip_control.core.mpc_plan import HELD_STATUS_TEXT
 from wip_sim.core.record import GROUPS, RunRecord
 from wip_sim.core.scenario import Scenario
 from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE,
@@ -90,7 +90,7 @@ def _truth(m) -> tuple:
 
 def _mpc(m) -> tuple | None:
     if m.status_text == HELD_STATUS_TEXT:
-        # A tick of the re-solve grid without a solve (lockstep, docs/mpc.md §10): not an
+        # A tick of the re-solve grid without a solve (lockstep, docs/history/mpc.md §10): not an
         # MPC tick of the record (the runner records its solves only).
         return None
     return (m.tau_v, m.delta_tau, float(m.status), float(m.iterations), m.solve_time,

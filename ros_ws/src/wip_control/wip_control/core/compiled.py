@@ -1,6 +1,6 @@
 """The numba-compiled kernels of the core, imported and warmed up once per process.
 
-Each kernel module (``mpc_qp``, ``qp_polish``) has a ``warm_up()`` that loads its code
+Each kernel module (``mpc_kernel``, ``qp_polish``) has a ``warm_up()`` that loads its code
 from numba's cache or compiles it. It is called where a controller is made, not in its
 first tick, and a process that makes no MPC does not import numba.
 ``python3 -m wip_control.core.compiled`` fills numba's cache of all of them (scripts/setup
@@ -13,9 +13,9 @@ import importlib
 from types import ModuleType
 
 #: The kernel modules of the controllers: the MPC's QP assembly, the QP's polish.
-MPC_QP = f'{__package__}.mpc_qp'
+MPC_KERNEL = f'{__package__}.mpc_kernel'
 QP_POLISH = f'{__package__}.qp_polish'
-KERNELS = (MPC_QP, QP_POLISH)
+KERNELS = (MPC_KERNEL, QP_POLISH)
 
 _loaded: dict[str, ModuleType] = {}
 

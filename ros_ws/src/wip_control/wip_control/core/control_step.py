@@ -18,7 +18,8 @@ from .arc import AdaptiveRobustYawController, ArcConfig, ArcOutput
 from .lqr import make_longitudinal_controller
 from .mixer import drive_torque_limit, mix
 from .model import input_gains
-from .mpc import MpcConfig, MpcResult, resolves_faster
+from .mpc_config import MpcConfig, resolves_faster
+from .mpc_plan import MpcResult
 from .params import WipParameters
 from .reference_state import ReferenceState
 from .state_estimation import PoseEstimate
@@ -103,7 +104,7 @@ class DriveStage:
     With ``fast_decimation`` (control ticks per ``mpc.fast_resolve_period``, < decimation)
     the MPC also solves at the ticks of that finer grid for ``mpc.fast_resolve_time``
     after a push (``LongitudinalMpc.push_detected``, checked at every tick of the grid;
-    docs/mpc.md §10). Then every increment is bounded so that the increments within any
+    docs/history/mpc.md §10). Then every increment is bounded so that the increments within any
     ``decimation`` ticks sum to at most ``max_delta_torque``, and to its share
     ``max_delta_torque · fast_decimation / decimation`` while re-solving. The ticks of
     the fine grid are :meth:`is_tick` (where the loop hands the stage its inputs);

@@ -28,7 +28,7 @@ from .arc import ArcConfig
 from .config import ConfigError, _show, from_mapping, load_yaml_text, param, to_mapping
 from .eso import EsoConfig
 from .mixer import MixerConfig
-from .mpc import MpcConfig, PAPER_MPC_SETTINGS, resolves_faster
+from .mpc_config import MpcConfig, PAPER_MPC_SETTINGS, resolves_faster
 from .params import WipParameters
 from .position import PositionConfig
 from .references import ReferenceConfig

@@ -7,7 +7,7 @@ Model: the MPC's gravity-aware Euler prediction at θ = 0 (:mod:`.mpc_prediction
 x = (υ, θ, θ̇), x(k+1) = A x(k) + B τ(k) + c with B = Ts (g2(0), 0, g3(0)), and the
 increment form of (23), τ(k) = τ(k−1) + Δτ(k). Augmented with τ(k−1), the deviation
 ξ = (υ − υd, θ − θs, θ̇, τ(k−1) − τs) from the steady-state target of
-:meth:`LongitudinalMpc._update_target` (θs = 0 unless ``offset_free``) obeys
+:class:`~.mpc_steps.OffsetFreeTarget` (θs = 0 unless ``offset_free``) obeys
 
 .. math::
 
@@ -23,7 +23,7 @@ limits, with the same return-at-the-increment-limit rule when |τ(k−1)| is bey
 shrunken limit). There is no speed or tilt limit: an LQR cannot anticipate them, which
 is the point of the comparison.
 
-The result is an :class:`~.mpc.MpcResult` (status SOLVED, 0 iterations, slacks 0, the
+The result is an :class:`~.mpc_plan.MpcResult` (status SOLVED, 0 iterations, slacks 0, the
 predicted outputs and plan of the closed-loop linear model), so the runner, the mpc node
 and the metrics use either controller unchanged.
 """
@@ -36,8 +36,9 @@ import numpy as np
 import scipy.linalg
 
 from .model import input_gains
-from .mpc import (admissible_increment, LongitudinalMpc, MpcConfig, MpcResult,
-                  OffsetFreeTarget, PreviousTorque)
+from .mpc import LongitudinalController, LongitudinalMpc
+from .mpc_config import MpcConfig
+from .mpc_plan import admissible_increment, MpcResult
 from .mpc_prediction import gravity_aware_state_matrix
 from .params import WipParameters
 from .qp import MpcStatus
@@ -61,7 +62,7 @@ def dlqr(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray
     return k, p
 
 
-class LongitudinalLqr(PreviousTorque):
+class LongitudinalLqr(LongitudinalController):
     """Saturated discrete LQR with the interface of :class:`~.mpc.LongitudinalMpc`.
 
     Parameters
@@ -74,9 +75,7 @@ class LongitudinalLqr(PreviousTorque):
 
     def __init__(self, params: WipParameters, config: MpcConfig | None = None) -> None:
         config = MpcConfig() if config is None else config
-        config.validate()
-        self.params = params
-        self.config = config
+        super().__init__(params, config)
         ts = config.sampling_period
         a = gravity_aware_state_matrix(params, ts)
         _, g2, g3 = input_gains(params, 0.0)
@@ -95,16 +94,9 @@ class LongitudinalLqr(PreviousTorque):
         self.riccati = p
         self.a_aug, self.b_aug = a_aug, b_aug
         self.closed_loop = a_aug - b_aug @ gain
-        self._target = OffsetFreeTarget(params, config)
-        self._tau_previous = 0.0
         self.n_variables = config.control_horizon
         self.n_constraints = 0
         self.last_qp = None
-
-    @property
-    def target_theta(self) -> float:
-        """θs [rad] of the last tick (0 unless ``offset_free``)."""
-        return self._target.theta
 
     def reset(self, tau_previous: float = 0.0) -> None:
         """Forget the disturbance filter; τυ(k−1) = ``tau_previous`` [N m]."""

@@ -1,134 +1,146 @@
-"""The MPC's QP filled in place and its prediction, compiled with numba (``cache=True``).
+r"""The MPC's QP (22), built once from its problem and updated every tick.
 
-:class:`.mpc.LongitudinalMpc` holds the data (its constructor says what each block is);
-these kernels do the per-tick arithmetic of eqs. (20)–(22): the free response, the
-Hessian and gradient of the increments, the rows of the soft limits on υ and θ, the τ and
-rise rows, compiled because as numpy code their cost was the overhead of many
-small-array calls (measured: docs/runner-speed.md). No ``fastmath``: every sum runs in
-the order of the loops below, so the bits depend on the data only.
+.. math::
+
+    \min_z \tfrac12 z^T H z + g^T z \quad \text{s.t.} \quad
+    l \le C z \le u, \quad lb \le z \le ub
+
+with z = (Δτ̄, sυ, sθ[, r]) (:mod:`.mpc_problem`). The constant entries (slack
+penalties ρ1, ρ2, the τ rows' lower-triangular ones, the slacks' columns of the soft
+rows, the boxes) are set in :class:`MpcQp`'s constructor; :meth:`MpcQp.update` fills
+the rest from one :class:`TickData` with the compiled kernel :func:`.mpc_kernel.fill`,
+whose numpy reference is :func:`.mpc_reference.reference_qp`.
+
+Hard rows (19): |Δτ(k+j)| ≤ Δτmax (box; the first one ≤ :meth:`MpcQp.set_first_bound`)
+and |τ(k+j)| ≤ τlim for j < Nc, relaxed to the reachable
+max(τlim, |τ(k−1)| − (j+1) Δτmax) when |τ(k−1)| > τlim, so the QP is always feasible.
+Soft rows (21): |υ(k+i)| ≤ υmax (1 + sυ,i) from ``speed_limit_first_step`` on and
+|θ(k+i)| ≤ θmax (1 + sθ,i), slacks ≥ 0 relative to the limit.
 """
 
 from __future__ import annotations
 
-import numba
+from typing import NamedTuple
+
 import numpy as np
 
+from .compiled import load_compiled, MPC_KERNEL
+from .mpc_problem import MpcProblem
 
-@numba.njit(cache=True, nogil=True)
-def fill(v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, g2, g3, g2p, g3p, tau_prev, limit,
-         transient_v, transient_theta_dot, v_d, speed_trend, preview, target_theta,
-         max_speed, sampling_period, n_free_speed, n_rise,
-         free_state, free_v, free_theta_dot, transient_v_column, transient_theta_dot_column,
-         hessian_blocks, weighted_gains, row_blocks, limits, reach, preview_ramp,
-         h, g, c, lower, upper, free):
-    """Fill H, g, C, l, u (``h`` … ``upper``) and the free response ``free`` (3Np) in place.
 
-    ``transient_v``, ``transient_theta_dot``: the disturbance's transient beyond its dead
-    zone (decays over the horizon). ``preview``: υd's reference continues its trend
-    ``speed_trend`` over ``preview_ramp`` (clipped to ±υmax), else υd is held as in (20).
-    ``n_free_speed``: speed rows of the first steps left free; ``n_rise``: rise rows.
+class TickData(NamedTuple):
+    """Everything of one tick that the QP depends on (floats only: the kernel's types)."""
+
+    v_hat: float                #: υ̂ [m/s]
+    theta_hat: float            #: θ̂ [rad]
+    theta_dot_hat: float        #: θ̂̇ [rad/s]
+    f2_hat: float               #: f̂2 used by the prediction [m/s²]
+    f3_hat: float               #: f̂3 used by the prediction [rad/s²]
+    g2: float                   #: input gain of υ̇ of model (1) at θ̂
+    g3: float                   #: input gain of θ̈ of model (1) at θ̂
+    g2p: float                  #: g2 of the increments' prediction (scaled)
+    g3p: float                  #: g3 of the increments' prediction (scaled)
+    tau_prev: float             #: τυ(k−1) [N m]
+    limit: float                #: |τυ| limit of the tick [N m]
+    transient_v: float          #: decaying part of the disturbance on υ̇ [m/s²]
+    transient_theta_dot: float  #: decaying part on θ̈ [rad/s²]
+    v_d: float                  #: υd [m/s]
+    speed_trend: float          #: filtered dυd/dt of the preview [m/s²]
+    target_theta: float         #: θs of the offset-free target [rad]
+
+
+class QpBuffers(NamedTuple):
+    """The arrays the kernel writes (H … u) and the τ rows' reach it reads."""
+
+    h: np.ndarray
+    g: np.ndarray
+    c: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    reach: np.ndarray   #: reachable |τ(k+j) − τ(k−1)| under the increment bounds [N m]
+
+
+class QpData(NamedTuple):
+    """The QP of the last tick: ½ zᵀHz + gᵀz, l ≤ Cz ≤ u, lb ≤ z ≤ ub (live buffers)."""
+
+    H: np.ndarray
+    g: np.ndarray
+    C: np.ndarray
+    l: np.ndarray  # noqa: E741 (the solvers' name)
+    u: np.ndarray
+    lb: np.ndarray
+    ub: np.ndarray
+
+
+class MpcQp:
+    """The QP of a :class:`~.mpc_problem.MpcProblem`: buffers built once, updated per tick.
+
+    Why the Hessian is not whitened: docs/decisions/proxsuite-settings.md.
     """
-    n_c = reach.shape[0]
-    n_out = free.shape[0]          # 3 Np
-    n_p = n_out // 3
-    # Free response ȳ_free = M x̂ + (f̂2 + g2 τ(k−1)) b_υ + (f̂3 + g3 τ(k−1)) b_θ̇ [+ transient].
-    drive_v = f2_hat + g2 * tau_prev
-    drive_theta_dot = f3_hat + g3 * tau_prev
-    with_transient = transient_v != 0.0 or transient_theta_dot != 0.0
-    for i in range(n_out):
-        value = (free_state[i, 0] * v_hat + free_state[i, 1] * theta_hat
-                 + free_state[i, 2] * theta_dot_hat)
-        value += free_v[i] * drive_v
-        value += free_theta_dot[i] * drive_theta_dot
-        if with_transient:
-            value += transient_v_column[i] * transient_v
-            value += transient_theta_dot_column[i] * transient_theta_dot
-        free[i] = value
-    # Eq. (22): H_ΔΔ = 2(G̃ᵀQG̃ + R) = Σ coef_k K_k, coef = (2g2², 2g2g3, 2g3², 2).
-    c0, c1, c2 = 2.0 * g2p * g2p, 2.0 * g2p * g3p, 2.0 * g3p * g3p
-    for i in range(n_c):
-        for j in range(n_c):
-            k = i * n_c + j
-            h[i, j] = (c0 * hessian_blocks[0, k] + c1 * hessian_blocks[1, k]
-                       + c2 * hessian_blocks[2, k] + 2.0 * hessian_blocks[3, k])
-    # g_Δ = −2 (g2 G2ᵀQ e + g3 G3ᵀQ e), e = ȳr − ȳ_free, ȳr = 1 ⊗ (υd, θs, 0).
-    error = np.empty(n_out)
-    for i in range(n_p):
-        if preview:
-            reference = min(max(v_d + preview_ramp[i] * speed_trend, -max_speed), max_speed)
-        else:
-            reference = v_d
-        error[3 * i] = reference - free[3 * i]
-        error[3 * i + 1] = target_theta - free[3 * i + 1]
-        error[3 * i + 2] = 0.0 - free[3 * i + 2]
-    for j in range(n_c):
-        projected_v = 0.0
-        projected_theta = 0.0
-        for i in range(n_out):
-            projected_v += weighted_gains[j, i] * error[i]
-            projected_theta += weighted_gains[n_c + j, i] * error[i]
-        g[j] = -2.0 * (g2p * projected_v + g3p * projected_theta)
-    # Rows (21): υ and θ of the plan (g2 C2 + g3 C3), identical for the ≤ and ≥ halves,
-    # against the limits minus the free response.
-    upper_rows, lower_rows = n_c, n_c + 2 * n_p
-    for r in range(2 * n_p):
-        for j in range(n_c):
-            k = r * n_c + j
-            value = g2p * row_blocks[0, k] + g3p * row_blocks[1, k]
-            c[upper_rows + r, j] = value
-            c[lower_rows + r, j] = value
-        free_output = free[3 * r] if r < n_p else free[3 * (r - n_p) + 1]
-        upper[upper_rows + r] = limits[r] - free_output
-        lower[lower_rows + r] = -limits[r] - free_output
-    # Speed rows of the first steps are free (``speed_limit_first_step``).
-    for r in range(n_free_speed):
-        upper[upper_rows + r] = np.inf
-        lower[lower_rows + r] = -np.inf
-    if n_rise:
-        # ±υ(k+i) ≤ ±υ̂ + υmax r. Only braking from at or above the limit: below it, going
-        # beyond the limit is the speed slacks' business (a recovery from a hard push may
-        # need it), and leaning (one MPC period ahead) the way it travels, the wheels must
-        # speed up to catch the body: that is balance, not the rise before braking.
-        sign = 1.0 if v_hat >= 0.0 else -1.0
-        rise_rows = n_c + 4 * n_p
-        for r in range(n_rise):
-            for j in range(n_c):
-                c[rise_rows + r, j] = sign * c[upper_rows + r, j]
-        free_rise = (sign * v_hat < max_speed
-                     or sign * (theta_hat + sampling_period * theta_dot_hat) > 0.0)
-        for r in range(n_rise):
-            upper[rise_rows + r] = (np.inf if free_rise
-                                    else sign * v_hat - sign * free[3 * r])
-    # τ rows, relaxed to the reachable set if |τ(k−1)| is beyond the limit.
-    for j in range(n_c):
-        upper[j] = max(limit, tau_prev - reach[j]) - tau_prev
-        lower[j] = min(-limit, tau_prev + reach[j]) - tau_prev
 
+    def __init__(self, problem: MpcProblem) -> None:
+        config = problem.config
+        n_p, n_c, n_s = problem.prediction_horizon, problem.control_horizon, problem.n_slacks
+        n, m = problem.n_variables, problem.n_constraints
+        self.problem = problem
+        h = np.zeros((n, n))
+        slack_index = np.arange(n_c, n)
+        h[slack_index, slack_index] = 2.0 * config.slack_quadratic_penalty
+        h[slack_index[:n_s], slack_index[:n_s]] = 2.0 * config.speed_slack_quadratic_penalty
+        g = np.zeros(n)
+        g[n_c:n_c + n_s] = config.speed_slack_linear_penalty
+        g[n_c + n_s:n_c + 2 * n_s] = config.slack_linear_penalty
+        c = np.zeros((m, n))
+        c[:n_c, :n_c] = np.tril(np.ones((n_c, n_c)))
+        # Row i of the υ (θ) block uses slack column i (per step) or the single column.
+        slack_map = np.eye(n_p) if n_s == n_p else np.ones((n_p, 1))
+        v_cols, theta_cols = slice(n_c, n_c + n_s), slice(n_c + n_s, n_c + 2 * n_s)
+        if problem.n_rise:
+            h[n - 1, n - 1] = 2.0 * config.speed_rise_penalty
+            c[n_c + 4 * n_p:m, n - 1] = -config.max_speed
+        for rows, sign in ((slice(n_c, n_c + 2 * n_p), -1.0),
+                           (slice(n_c + 2 * n_p, n_c + 4 * n_p), 1.0)):
+            block = c[rows]
+            block[:n_p, v_cols] = sign * config.max_speed * slack_map
+            block[n_p:, theta_cols] = sign * config.max_tilt * slack_map
+        lb, ub = np.zeros(n), np.full(n, np.inf)
+        lb[:n_c] = -config.max_delta_torque
+        ub[:n_c] = config.max_delta_torque
+        self.data = QpData(h, g, c, np.full(m, -np.inf), np.full(m, np.inf), lb, ub)
+        self._buffers = QpBuffers(h, g, c, self.data.l, self.data.u,
+                                  config.max_delta_torque * np.arange(1, n_c + 1))
+        self._first_bound = config.max_delta_torque
+        self._kernels = load_compiled(MPC_KERNEL)   # at construction, not in the first tick
 
-def warm_up() -> None:
-    """Load or compile the kernels (several seconds when compiling; once per process)."""
-    n_c, n_p, n_rise = 1, 1, 1
-    n, m = n_c + 2 * n_p + 1, n_c + 4 * n_p + n_rise
-    out = 3 * n_p
-    free = np.empty(out)
-    fill(0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, True,
-         0.0, 1.0, 0.1, 0, n_rise, np.zeros((out, 3)), np.zeros(out), np.zeros(out),
-         np.zeros(out), np.zeros(out), np.zeros((4, n_c * n_c)), np.zeros((2 * n_c, out)),
-         np.zeros((2, 2 * n_p * n_c)), np.ones(2 * n_p), np.ones(n_c), np.zeros(n_p),
-         np.zeros((n, n)), np.zeros(n), np.zeros((m, n)), np.zeros(m), np.zeros(m), free)
-    predict(free, 1.0, 1.0, np.zeros((out, n_c)), np.zeros((out, n_c)), np.zeros(n_c))
+    def set_first_bound(self, bound: float) -> None:
+        """Bound |Δτ(k|k)| by ``bound`` [N m].
 
+        |Δτ(k|k)| ≤ ``bound``: its box and the reachable |τ(k+j) − τ(k−1)| of the τ
+        rows, bound + j Δτmax (the later increments keep Δτmax).
+        """
+        if bound == self._first_bound:
+            return
+        self._first_bound = bound
+        self.data.lb[0], self.data.ub[0] = -bound, bound
+        dmax = self.problem.config.max_delta_torque
+        self._buffers.reach[:] = bound + dmax * np.arange(self.problem.control_horizon)
 
-@numba.njit(cache=True, nogil=True)
-def predict(free, g2p, g3p, gain_matrix_v, gain_matrix_theta_dot, plan):
-    """ȳ = ȳ_free + g2 G2 Δτ̄ + g3 G3 Δτ̄ over the horizon, as (Np, 3)."""
-    n_out = free.shape[0]
-    predicted = np.empty((n_out // 3, 3))
-    for i in range(n_out):
-        by_v = 0.0
-        by_theta_dot = 0.0
-        for j in range(plan.shape[0]):
-            by_v += gain_matrix_v[i, j] * plan[j]
-            by_theta_dot += gain_matrix_theta_dot[i, j] * plan[j]
-        predicted[i // 3, i % 3] = free[i] + g2p * by_v + g3p * by_theta_dot
-    return predicted
+    @property
+    def reach(self) -> np.ndarray:
+        """Reachable |τ(k+j) − τ(k−1)| under the increment bounds [N m] (Nc)."""
+        return self._buffers.reach
+
+    @property
+    def first_bound(self) -> float:
+        """The bound of |Δτ(k|k)| of the last :meth:`set_first_bound` [N m]."""
+        return self._first_bound
+
+    def update(self, tick: TickData) -> np.ndarray:
+        """Fill H, g, C, l, u for ``tick``; return the free response ȳ_free (3Np)."""
+        return self._kernels.fill(tick, self.problem.blocks, self._buffers)
+
+    def predict(self, free: np.ndarray, g2p: float, g3p: float,
+                plan: np.ndarray) -> np.ndarray:
+        """ȳ = ȳ_free + G̃ Δτ̄ of ``plan`` over the horizon, as (Np, 3)."""
+        return self._kernels.predict(free, float(g2p), float(g3p),
+                                     *self.problem.gain_matrices, plan)

@@ -73,8 +73,34 @@ def _kkt_solve(h, g, c, lo, hi, at_upper, at_lower, tolerance, z, y, over, under
     layout), and over, under (constraints violated beyond ``tolerance``) and wrong (active
     ones whose multiplier has the wrong sign).
     """
-    n = h.shape[0]
     m = c.shape[0]
+    free, n_free = _fix_at_bounds(lo, hi, at_upper, at_lower, m, z)
+    rows = np.empty(m, np.int64)
+    n_rows = 0
+    for i in range(m):
+        if at_upper[i] or at_lower[i]:
+            rows[n_rows] = i
+            n_rows += 1
+    kkt, rhs = _kkt_system(h, g, c, lo, hi, at_upper, free, n_free, rows, n_rows, z)
+    if not lu_solve(kkt, rhs):
+        return SINGULAR
+    for a in range(n_free + n_rows):
+        if not math.isfinite(rhs[a]):
+            return SINGULAR
+    for a in range(n_free):
+        z[free[a]] = rhs[a]
+    y[:] = 0.0
+    for r in range(n_rows):
+        y[rows[r]] = rhs[n_free + r]
+    if not _close_stationarity(h, g, c, at_upper, at_lower, tolerance, rows, n_rows, z, y):
+        return STATIONARITY
+    return _check(c, lo, hi, at_upper, at_lower, tolerance, z, y, over, under, wrong)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fix_at_bounds(lo, hi, at_upper, at_lower, m, z):
+    """Fix the variables at an active bound in ``z`` (0 elsewhere); the free ones' indices."""
+    n = z.shape[0]
     free = np.empty(n, np.int64)
     n_free = 0
     for j in range(n):
@@ -86,12 +112,13 @@ def _kkt_solve(h, g, c, lo, hi, at_upper, at_lower, tolerance, z, y, over, under
             z[j] = 0.0
             free[n_free] = j
             n_free += 1
-    rows = np.empty(m, np.int64)
-    n_rows = 0
-    for i in range(m):
-        if at_upper[i] or at_lower[i]:
-            rows[n_rows] = i
-            n_rows += 1
+    return free, n_free
+
+
+@numba.njit(cache=True, nogil=True)
+def _kkt_system(h, g, c, lo, hi, at_upper, free, n_free, rows, n_rows, z):
+    """Return the KKT matrix and right-hand side of :func:`_kkt_solve` (free variables)."""
+    n = h.shape[0]
     size = n_free + n_rows
     kkt = np.zeros((size, size))
     rhs = np.empty(size)
@@ -113,17 +140,17 @@ def _kkt_solve(h, g, c, lo, hi, at_upper, at_lower, tolerance, z, y, over, under
             value = c[i, free[b]]
             kkt[n_free + r, b] = value
             kkt[b, n_free + r] = value
-    if not lu_solve(kkt, rhs):
-        return SINGULAR
-    for a in range(size):
-        if not math.isfinite(rhs[a]):
-            return SINGULAR
-    for a in range(n_free):
-        z[free[a]] = rhs[a]
-    y[:] = 0.0
-    for r in range(n_rows):
-        y[rows[r]] = rhs[n_free + r]
-    # Stationarity, H z + g + Cᵀ y_C = 0 on the free variables; the rest is the boxes'.
+    return kkt, rhs
+
+
+@numba.njit(cache=True, nogil=True)
+def _close_stationarity(h, g, c, at_upper, at_lower, tolerance, rows, n_rows, z, y):
+    """Box multipliers of the fixed variables; False if a free one is not stationary.
+
+    Stationarity, H z + g + Cᵀ y_C = 0 on the free variables; the rest is the boxes'.
+    """
+    n = h.shape[0]
+    m = c.shape[0]
     for j in range(n):
         total = 0.0
         for i in range(n):
@@ -134,7 +161,15 @@ def _kkt_solve(h, g, c, lo, hi, at_upper, at_lower, tolerance, z, y, over, under
         if at_upper[m + j] or at_lower[m + j]:
             y[m + j] = -total
         elif not abs(total) <= tolerance:    # (NaN too)
-            return STATIONARITY
+            return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _check(c, lo, hi, at_upper, at_lower, tolerance, z, y, over, under, wrong):
+    """Primal feasibility and the multipliers' signs: OK, or why not (and which ones)."""
+    n = z.shape[0]
+    m = c.shape[0]
     infeasible = False
     for i in range(m + n):
         if i < m:

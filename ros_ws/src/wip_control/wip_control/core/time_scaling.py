@@ -55,7 +55,7 @@ class TimeScaled(Reference):
     speed_lead_time : T [s] ≥ 0. The speed υ of the sample at t is the re-timed speed at
         t + T (the pose, ω and ω̇ stay those at t): a speed feed-forward for a speed loop
         that lags the command by about T, so that the vehicle is at the bend's speed when
-        it reaches the bend instead of T later (docs/mpc.md §8). 0: υ at t.
+        it reaches the bend instead of T later (docs/history/mpc.md §8). 0: υ at t.
     speed_lead_time_accelerating : T_a [s], 0 ≤ T_a; used instead of T where the speed
         at t + T is larger than at t (None: T).
     tables : tables to use and extend, shared with the other TimeScaled of the same

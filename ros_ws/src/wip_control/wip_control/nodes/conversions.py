@@ -30,7 +30,8 @@ from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateM
 
 from ..core.arc import ArcOutput
 from ..core.eso import StateEstimate
-from ..core.mpc import HELD_STATUS_TEXT, MpcResult, MpcStatus
+from ..core.mpc_plan import HELD_STATUS_TEXT, MpcResult
+from ..core.qp import MpcStatus
 from ..core.reference_state import ReferenceState
 from ..core.sensors import geodetic_to_local
 from ..core.state_estimation import PoseEstimate

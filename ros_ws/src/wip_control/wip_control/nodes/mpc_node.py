@@ -58,7 +58,7 @@ from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
 
 from ..core.control_step import DriveStage
-from ..core.mpc import MpcConfig, resolves_faster
+from ..core.mpc_config import MpcConfig, resolves_faster
 from ..core.params import WipParameters
 from ..core.controller_settings import RatesConfig
 from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns

@@ -18,7 +18,7 @@ from ..core.arc import ArcConfig
 from ..core.config import ConfigError, param
 from ..core.eso import EsoConfig
 from ..core.mixer import MixerConfig
-from ..core.mpc import MpcConfig
+from ..core.mpc_config import MpcConfig
 from ..core.params import WipParameters
 from ..core.position import PositionConfig
 from ..core.references import ReferenceConfig

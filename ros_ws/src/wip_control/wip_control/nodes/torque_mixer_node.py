@@ -96,7 +96,7 @@ from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateM
 
 from ..core.config import ConfigError
 from ..core.mixer import MixerConfig
-from ..core.mpc import resolves_faster
+from ..core.mpc_config import resolves_faster
 from ..core.params import WipParameters
 from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyDecision, SafetyMonitor,
                            SHADOW, STARTING)

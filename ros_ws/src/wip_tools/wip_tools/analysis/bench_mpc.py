@@ -34,7 +34,8 @@ import numpy as np
 
 from wip_control.core.integration import rk4_step
 from wip_control.core.model import nominal_terms
-from wip_control.core.mpc import LongitudinalMpc, MpcConfig, MpcStatus
+from wip_control.core.mpc import LongitudinalMpc, MpcStatus
+from wip_control.core.mpc_config import MpcConfig
 from wip_control.core.params import WipParameters
 from wip_control.core.qp import DaqpSolver
 
