@@ -25,7 +25,7 @@ def fill(tick, problem, qp):
     """
     free = _free_response(tick, problem)
     _cost(tick, problem, qp, free)
-    _soft_rows(tick, problem, qp, free)
+    _output_rows(tick, problem, qp, free)
     # τ rows, relaxed to the reachable set if |τ(k−1)| is beyond the limit.
     limit, tau_prev, reach = tick.limit, tick.tau_prev, qp.reach
     for j in range(reach.shape[0]):
@@ -93,29 +93,21 @@ def _cost(tick, problem, qp, free):
 
 
 @numba.njit(cache=True, nogil=True)
-def _soft_rows(tick, problem, qp, free):
-    """Rows (21) on υ and θ of the plan, and the rise rows of ``speed_rise_penalty``."""
+def _output_rows(tick, problem, qp, free):
+    """Rows of C on the predicted outputs (21), and the rise rows of ``speed_rise_penalty``."""
     g2p, g3p = tick.g2p, tick.g3p
     c, lower, upper = qp.c, qp.lower, qp.upper
     n_c = qp.reach.shape[0]
-    n_p = free.shape[0] // 3
-    row_blocks, limits = problem.row_blocks, problem.limits
-    # υ and θ of the plan (g2 C2 + g3 C3), identical for the ≤ and ≥ halves, against the
-    # limits minus the free response.
-    upper_rows, lower_rows = n_c, n_c + 2 * n_p
-    for r in range(2 * n_p):
+    row_blocks, outputs = problem.row_blocks, problem.row_outputs
+    # Each row bounds one output of the plan, ȳ_free + (g2 C2 + g3 C3) Δτ̄: its bounds
+    # minus the free response (±inf: that side free).
+    for r in range(outputs.shape[0]):
         for j in range(n_c):
             k = r * n_c + j
-            value = g2p * row_blocks[0, k] + g3p * row_blocks[1, k]
-            c[upper_rows + r, j] = value
-            c[lower_rows + r, j] = value
-        free_output = free[3 * r] if r < n_p else free[3 * (r - n_p) + 1]
-        upper[upper_rows + r] = limits[r] - free_output
-        lower[lower_rows + r] = -limits[r] - free_output
-    # Speed rows of the first steps are free (``speed_limit_first_step``).
-    for r in range(problem.n_free_speed):
-        upper[upper_rows + r] = np.inf
-        lower[lower_rows + r] = -np.inf
+            c[n_c + r, j] = g2p * row_blocks[0, k] + g3p * row_blocks[1, k]
+        free_output = free[outputs[r]]
+        upper[n_c + r] = problem.row_upper[r] - free_output
+        lower[n_c + r] = problem.row_lower[r] - free_output
     n_rise = problem.n_rise
     if n_rise:
         # ±υ(k+i) ≤ ±υ̂ + υmax r. Only braking from at or above the limit: below it, going
@@ -124,10 +116,10 @@ def _soft_rows(tick, problem, qp, free):
         # speed up to catch the body: that is balance, not the rise before braking.
         v_hat = tick.v_hat
         sign = 1.0 if v_hat >= 0.0 else -1.0
-        rise_rows = n_c + 4 * n_p
+        rise_rows = problem.rise_row
         for r in range(n_rise):
             for j in range(n_c):
-                c[rise_rows + r, j] = sign * c[upper_rows + r, j]
+                c[rise_rows + r, j] = sign * c[n_c + r, j]   # the υ(k+1+r) ≤ rows
         free_rise = (sign * v_hat < problem.max_speed
                      or sign * (tick.theta_hat + problem.sampling_period
                                 * tick.theta_dot_hat) > 0.0)
@@ -145,8 +137,9 @@ def warm_up() -> None:
     out = 3 * n_p
     problem = ProblemBlocks(
         np.zeros((out, 3)), np.zeros(out), np.zeros(out), np.zeros(out), np.zeros(out),
-        np.zeros((4, n_c * n_c)), np.zeros((2 * n_c, out)), np.zeros((2, 2 * n_p * n_c)),
-        np.ones(2 * n_p), np.zeros(n_p), True, 1.0, 0.1, 0, n_rise)
+        np.zeros((4, n_c * n_c)), np.zeros((2 * n_c, out)), np.zeros(4 * n_p, np.int64),
+        np.zeros((2, 4 * n_p * n_c)), np.ones(4 * n_p), -np.ones(4 * n_p), np.zeros(n_p),
+        True, 1.0, 0.1, n_c + 4 * n_p, n_rise)
     qp = QpBuffers(np.zeros((n, n)), np.zeros(n), np.zeros((m, n)), np.zeros(m),
                    np.zeros(m), np.ones(n_c))
     free = fill(TickData(0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0,

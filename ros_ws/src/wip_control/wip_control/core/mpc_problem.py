@@ -3,13 +3,15 @@ r"""The MPC's problem: horizons, weights, limits and the blocks of (20)–(22) b
 G̃ of the condensed prediction (18) is bilinear in the input gains (g2, g3) at θ̂
 (:mod:`.mpc_prediction`: G̃ = g2 G2 + g3 G3), so everything of the QP (22) that does not
 depend on the tick's data is computed here, once: G̃ᵀQG̃ = g2² K22 + g2 g3 K23 + g3² K33
-with fixed K's, the gradient's Q-weighted G2ᵀ, G3ᵀ, and the rows of C on υ and θ,
-g2 C2 + g3 C3. A tick then costs a few small matrix–vector products
+with fixed K's, the gradient's Q-weighted G2ᵀ, G3ᵀ, and the rows of C on the predicted
+outputs, g2 C2 + g3 C3. A tick then costs a few small matrix–vector products
 (:mod:`.mpc_qp`, compiled in :mod:`.mpc_kernel`).
 
 Decision vector z = (Δτ̄ (Nc), sυ (Ns), sθ (Ns)[, r]); Ns = Np (``soft_limits:
 per_step``) or 1 (``worst_case``), r the rise slack (``speed_rise_penalty`` > 0).
-Rows of C: τ(k..k+Nc−1) (Nc), υ ≤ (Np), θ ≤ (Np), υ ≥ (Np), θ ≥ (Np), rise rows.
+Rows of C: τ(k..k+Nc−1) (Nc); the output rows (:func:`_output_rows`: υ ≤, θ ≤, υ ≥,
+θ ≥, Np each), each bounding one entry of ȳ, so that a new bound on a predicted output
+is rows added there; the rise rows.
 
 References
 ----------
@@ -41,13 +43,15 @@ class ProblemBlocks(NamedTuple):
     transient_theta_dot: np.ndarray   #: the same on θ̈ (3Np)
     hessian_blocks: np.ndarray        #: (K22, K23, K33, R), each Nc² (4 × Nc²)
     weighted_gains: np.ndarray        #: (QG2; QG3)ᵀ (2Nc × 3Np) of the gradient
-    row_blocks: np.ndarray            #: (C2, C3) of the υ and θ rows (2 × 2Np·Nc)
-    limits: np.ndarray                #: (υmax …, θmax …) (2Np) of (19)
+    row_outputs: np.ndarray           #: index in ȳ of each output row of C (int64)
+    row_blocks: np.ndarray            #: (C2, C3) of the output rows (2 × rows·Nc)
+    row_upper: np.ndarray             #: bound of each output row on ȳ (inf: none)
+    row_lower: np.ndarray             #: lower bound of each output row on ȳ (−inf: none)
     preview_ramp: np.ndarray          #: min(i Ts, T) (Np) of the speed preview
     preview: bool                     #: whether the speed reference previews υd's trend
     max_speed: float                  #: υmax [m/s]
     sampling_period: float            #: Ts [s]
-    n_free_speed: int                 #: speed rows of the first steps left free
+    rise_row: int                     #: first rise row of C
     n_rise: int                       #: rise rows (0: no rise slack)
 
 
@@ -78,8 +82,9 @@ class MpcProblem:
         # The rise slack r (last variable) and its rows: ±υ(k+i) ≤ ±υ̂ + υmax r for
         # i = 1..speed_rise_steps, the sign that of υ̂, while ±υ̂ ≥ υmax.
         self.n_rise = config.speed_rise_steps if config.speed_rise_penalty > 0.0 else 0
+        outputs, upper, lower = _output_rows(config, n_p)
         self.n_variables = n_c + 2 * self.n_slacks + (1 if self.n_rise else 0)
-        self.n_constraints = n_c + 4 * n_p + self.n_rise
+        self.n_constraints = n_c + outputs.shape[0] + self.n_rise
         pred = self.prediction
         #: G2, G3 (3Np × Nc) as the kernel's prediction of the plan takes them.
         self.gain_matrices = tuple(np.ascontiguousarray(a) for a in (
@@ -87,14 +92,68 @@ class MpcProblem:
         self.blocks = ProblemBlocks(
             *(np.ascontiguousarray(a) for a in (
                 pred.free_state_matrix, pred.free_v_column, pred.free_theta_dot_column)),
-            *_transient_columns(pred, config), *_cost_blocks(pred, config),
-            _row_blocks(pred), np.repeat([config.max_speed, config.max_tilt], n_p),
+            *_transient_columns(pred, config), *_cost_blocks(pred, config), outputs,
+            np.stack([pred.gain_matrix_v[outputs].reshape(-1),
+                      pred.gain_matrix_theta_dot[outputs].reshape(-1)]), upper, lower,
             # υd trend preview: the reference of step i is υd + min(i Ts, T) · dυd/dt.
             np.minimum(np.arange(1, n_p + 1) * config.sampling_period,
                        config.speed_preview_time),
             config.speed_preview_time > 0.0, float(config.max_speed),
-            float(config.sampling_period), min(config.speed_limit_first_step - 1, n_p),
-            self.n_rise)
+            float(config.sampling_period), n_c + outputs.shape[0], self.n_rise)
+
+    def constant_qp(self) -> tuple[np.ndarray, ...]:
+        """H, g, C, l, u, lb, ub with the entries that do not change between ticks.
+
+        The slacks' penalties ρ2 (diagonal of H) and ρ1 (g), the τ rows' lower-triangular
+        ones, the slacks' columns of the soft rows (21), the rise slack's column, the
+        boxes (19); the rest is the tick's (:meth:`.mpc_qp.MpcQp.update`).
+        """
+        config = self.config
+        n_p, n_c, n_s = self.prediction_horizon, self.control_horizon, self.n_slacks
+        n, m = self.n_variables, self.n_constraints
+        h = np.zeros((n, n))
+        slack_index = np.arange(n_c, n)
+        h[slack_index, slack_index] = 2.0 * config.slack_quadratic_penalty
+        h[slack_index[:n_s], slack_index[:n_s]] = 2.0 * config.speed_slack_quadratic_penalty
+        g = np.zeros(n)
+        g[n_c:n_c + n_s] = config.speed_slack_linear_penalty
+        g[n_c + n_s:n_c + 2 * n_s] = config.slack_linear_penalty
+        c = np.zeros((m, n))
+        c[:n_c, :n_c] = np.tril(np.ones((n_c, n_c)))
+        # Row i of the υ (θ) block uses slack column i (per step) or the single column.
+        slack_map = np.eye(n_p) if n_s == n_p else np.ones((n_p, 1))
+        v_cols, theta_cols = slice(n_c, n_c + n_s), slice(n_c + n_s, n_c + 2 * n_s)
+        if self.n_rise:
+            h[n - 1, n - 1] = 2.0 * config.speed_rise_penalty
+            c[self.blocks.rise_row:m, n - 1] = -config.max_speed
+        for rows, sign in ((slice(n_c, n_c + 2 * n_p), -1.0),
+                           (slice(n_c + 2 * n_p, n_c + 4 * n_p), 1.0)):
+            block = c[rows]
+            block[:n_p, v_cols] = sign * config.max_speed * slack_map
+            block[n_p:, theta_cols] = sign * config.max_tilt * slack_map
+        lb, ub = np.zeros(n), np.full(n, np.inf)
+        lb[:n_c] = -config.max_delta_torque
+        ub[:n_c] = config.max_delta_torque
+        return h, g, c, np.full(m, -np.inf), np.full(m, np.inf), lb, ub
+
+
+def _output_rows(config: MpcConfig, n_p: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return the rows of C on the predicted outputs: their index in ȳ and bounds.
+
+    υ ≤ υmax (1 + sυ), θ ≤ θmax (1 + sθ), υ ≥ −υmax (1 + sυ), θ ≥ −θmax (1 + sθ) for
+    steps 1..Np (21); the speed rows of the steps before ``speed_limit_first_step``
+    free. The rows on υ (≤) come first: the rise rows copy them.
+    """
+    steps = np.arange(n_p)
+    v, theta = 3 * steps, 3 * steps + 1
+    outputs = np.concatenate((v, theta, v, theta))
+    limits = np.repeat([config.max_speed, config.max_tilt], n_p)
+    upper = np.concatenate((limits, np.full(2 * n_p, np.inf)))
+    lower = np.concatenate((np.full(2 * n_p, -np.inf), -limits))
+    n_free = min(config.speed_limit_first_step - 1, n_p)
+    upper[:n_free] = np.inf
+    lower[2 * n_p:2 * n_p + n_free] = -np.inf
+    return outputs, upper, lower
 
 
 def _transient_columns(pred: CondensedPrediction,
@@ -124,10 +183,3 @@ def _cost_blocks(pred: CondensedPrediction,
     # Gradient: g_Δ = −2 (g2 G2ᵀQ e + g3 G3ᵀQ e), e = ȳr − ȳ_free.
     weighted_gains = np.ascontiguousarray(np.vstack([qg2.T, qg3.T]))  # (2Nc, 3Np)
     return hessian_blocks, weighted_gains
-
-
-def _row_blocks(pred: CondensedPrediction) -> np.ndarray:
-    """Constraint rows on υ and θ (21): [υ rows; θ rows] = g2 C2 + g3 C3, (2, 2Np·Nc)."""
-    g2m, g3m = pred.gain_matrix_v, pred.gain_matrix_theta_dot
-    return np.stack([np.vstack([g2m[0::3], g2m[1::3]]).reshape(-1),
-                     np.vstack([g3m[0::3], g3m[1::3]]).reshape(-1)])

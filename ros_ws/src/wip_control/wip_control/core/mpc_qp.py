@@ -80,35 +80,11 @@ class MpcQp:
 
     def __init__(self, problem: MpcProblem) -> None:
         config = problem.config
-        n_p, n_c, n_s = problem.prediction_horizon, problem.control_horizon, problem.n_slacks
-        n, m = problem.n_variables, problem.n_constraints
         self.problem = problem
-        h = np.zeros((n, n))
-        slack_index = np.arange(n_c, n)
-        h[slack_index, slack_index] = 2.0 * config.slack_quadratic_penalty
-        h[slack_index[:n_s], slack_index[:n_s]] = 2.0 * config.speed_slack_quadratic_penalty
-        g = np.zeros(n)
-        g[n_c:n_c + n_s] = config.speed_slack_linear_penalty
-        g[n_c + n_s:n_c + 2 * n_s] = config.slack_linear_penalty
-        c = np.zeros((m, n))
-        c[:n_c, :n_c] = np.tril(np.ones((n_c, n_c)))
-        # Row i of the υ (θ) block uses slack column i (per step) or the single column.
-        slack_map = np.eye(n_p) if n_s == n_p else np.ones((n_p, 1))
-        v_cols, theta_cols = slice(n_c, n_c + n_s), slice(n_c + n_s, n_c + 2 * n_s)
-        if problem.n_rise:
-            h[n - 1, n - 1] = 2.0 * config.speed_rise_penalty
-            c[n_c + 4 * n_p:m, n - 1] = -config.max_speed
-        for rows, sign in ((slice(n_c, n_c + 2 * n_p), -1.0),
-                           (slice(n_c + 2 * n_p, n_c + 4 * n_p), 1.0)):
-            block = c[rows]
-            block[:n_p, v_cols] = sign * config.max_speed * slack_map
-            block[n_p:, theta_cols] = sign * config.max_tilt * slack_map
-        lb, ub = np.zeros(n), np.full(n, np.inf)
-        lb[:n_c] = -config.max_delta_torque
-        ub[:n_c] = config.max_delta_torque
-        self.data = QpData(h, g, c, np.full(m, -np.inf), np.full(m, np.inf), lb, ub)
-        self._buffers = QpBuffers(h, g, c, self.data.l, self.data.u,
-                                  config.max_delta_torque * np.arange(1, n_c + 1))
+        h, g, c, lower, upper, lb, ub = problem.constant_qp()
+        self.data = QpData(h, g, c, lower, upper, lb, ub)
+        self._buffers = QpBuffers(h, g, c, lower, upper, config.max_delta_torque
+                                  * np.arange(1, problem.control_horizon + 1))
         self._first_bound = config.max_delta_torque
         self._kernels = load_compiled(MPC_KERNEL)   # at construction, not in the first tick
 

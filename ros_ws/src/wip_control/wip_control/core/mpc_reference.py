@@ -8,8 +8,9 @@ With :class:`~.mpc_qp.TickData` t and the problem's blocks (:mod:`.mpc_problem`)
   ȳ_free = M x̂ + γ2 (f̂2 + g2 τ(k−1)) + γ3 (f̂3 + g3 τ(k−1)) + δ2 t2 + δ3 t3;
 - Hessian (22): H_ΔΔ = 2(G̃ᵀQG̃ + R) = 2g2p² K22 + 2g2p g3p K23 + 2g3p² K33 + 2R;
 - gradient (22): g_Δ = −2 G̃ᵀQ (ȳr − ȳ_free), ȳr = 1 ⊗ (υd + preview, θs, 0) (20);
-- soft rows (21): ±(υ, θ)(k+i) of the plan, g2p C2 + g3p C3, against ±limit minus
-  ȳ_free; the first ``speed_limit_first_step`` − 1 speed rows free;
+- output rows (21): one output of the plan each, g2p C2 + g3p C3, between its bounds
+  minus ȳ_free (the soft limits on υ and θ; the first ``speed_limit_first_step`` − 1
+  speed rows free);
 - rise rows: ±υ(k+i) ≤ ±υ̂ + υmax r (sign of υ̂) while braking from at or above υmax;
 - τ rows (19): τ(k+j) − τ(k−1) within ±τlim − τ(k−1), relaxed to the reachable set.
 
@@ -47,23 +48,20 @@ def reference_qp(qp: MpcQp, tick: TickData) -> tuple[np.ndarray, ...]:
     error -= free
     projected = blocks.weighted_gains @ error
     g[:n_c] = -2.0 * (t.g2p * projected[:n_c] + t.g3p * projected[n_c:])
-    rows = (np.array([t.g2p, t.g3p]) @ blocks.row_blocks).reshape(2 * n_p, n_c)
-    c[n_c:n_c + 2 * n_p, :n_c] = rows
-    c[n_c + 2 * n_p:n_c + 4 * n_p, :n_c] = rows
-    outputs = np.concatenate((free[0::3], free[1::3]))
-    upper[n_c:n_c + 2 * n_p] = blocks.limits - outputs
-    lower[n_c + 2 * n_p:n_c + 4 * n_p] = -blocks.limits - outputs
-    n_free = blocks.n_free_speed
-    upper[n_c:n_c + n_free] = np.inf
-    lower[n_c + 2 * n_p:n_c + 2 * n_p + n_free] = -np.inf
+    n_rows = blocks.row_outputs.shape[0]
+    rows = (np.array([t.g2p, t.g3p]) @ blocks.row_blocks).reshape(n_rows, n_c)
+    c[n_c:n_c + n_rows, :n_c] = rows
+    outputs = free[blocks.row_outputs]
+    upper[n_c:n_c + n_rows] = blocks.row_upper - outputs
+    lower[n_c:n_c + n_rows] = blocks.row_lower - outputs
     n_rise = blocks.n_rise
     if n_rise:
         sign = 1.0 if t.v_hat >= 0.0 else -1.0
-        c[n_c + 4 * n_p:, :n_c] = sign * rows[:n_rise]
+        rise = slice(blocks.rise_row, blocks.rise_row + n_rise)
+        c[rise, :n_c] = sign * rows[:n_rise]
         braking = (sign * t.v_hat >= cfg.max_speed
                    and sign * (t.theta_hat + cfg.sampling_period * t.theta_dot_hat) <= 0.0)
-        upper[n_c + 4 * n_p:] = (sign * t.v_hat - sign * outputs[:n_rise] if braking
-                                 else np.inf)
+        upper[rise] = sign * t.v_hat - sign * free[0:3 * n_rise:3] if braking else np.inf
     upper[:n_c] = np.maximum(t.limit, t.tau_prev - qp.reach) - t.tau_prev
     lower[:n_c] = np.minimum(-t.limit, t.tau_prev + qp.reach) - t.tau_prev
     return h, g, c, lower, upper, free
