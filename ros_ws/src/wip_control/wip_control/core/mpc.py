@@ -63,9 +63,9 @@ def tick_gains(params: WipParameters, config: MpcConfig,
                theta_hat: float) -> tuple[float, float, float, float]:
     """Input gains of model (1) at θ̂ and the scaled gains of the increments.
 
-    (g2, g3, g2p, g3p): the input gains of model (1) at θ̂ (what the ESO assumes, so
-    f̂ + g τ(k−1) is its estimate of the present accelerations) and the scaled gains the
-    increments are predicted with (``prediction_gain_scale``).
+    Returns (g2, g3, g2p, g3p): g2, g3 are what the ESO assumes, so f̂ + g τ(k−1) is its
+    estimate of the present accelerations; g2p, g3p are scaled by
+    ``prediction_gain_scale`` for the prediction of the increments.
     """
     _, g2, g3 = input_gains(params, theta_hat)
     scale2, scale3 = config.prediction_gain_scale
@@ -255,11 +255,11 @@ class LongitudinalMpc(LongitudinalController):
     def push_detected(self, theta_hat: float, f2_hat: float, f3_hat: float) -> bool:
         """Whether the disturbance estimate shows a push.
 
-        Whether the disturbance estimate (f̂2, f̂3) at θ̂, against the offset-free
-        target's slow estimate, has a transient beyond ``disturbance_decay_dead_zone`` (what
-        the prediction lets decay: a push). Reads the filter without updating it; False
-        before its first tick, within ``disturbance_startup_time`` of a reset (the MPC
-        does not use the estimator's start-up f̂ then) or with ``offset_free`` off.
+        A push: (f̂2, f̂3) at θ̂, against the offset-free target's slow estimate, has a
+        transient beyond ``disturbance_decay_dead_zone`` (what the prediction lets decay).
+        Reads the filter without updating it; False before its first tick, within
+        ``disturbance_startup_time`` of a reset (the MPC does not use the estimator's
+        start-up f̂ then) or with ``offset_free`` off.
         """
         if self._startup.active:
             return False

@@ -33,7 +33,7 @@ _WHY = 'docs/decisions/mpc-parameters.md'
 
 
 def resolves_faster(sampling_period: float, fast_resolve_period: float) -> bool:
-    """Whether the MPC re-solves every ``fast_resolve_period`` after a push (docs/mpc.md).
+    """Whether the MPC re-solves every ``fast_resolve_period`` after a push.
 
     On when it is above 0 and shorter than ``sampling_period``, else off.
     """

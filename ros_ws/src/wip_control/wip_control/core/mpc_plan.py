@@ -25,8 +25,8 @@ from .mpc_config import MpcConfig
 from .qp import MpcStatus, QpSolution
 
 #: Status text of a drive torque published at a tick of the re-solve grid without a solve
-#: (``mpc.fast_resolve_period``, lockstep; docs/mpc.md): the held τυ, no plan. Readers of
-#: a record (the report, the viewer, tests) tell it from a solve by this text.
+#: (``mpc.fast_resolve_period``, lockstep; docs/history/mpc.md §10): the held τυ, no
+#: plan. Readers of a record (the report, the viewer, tests) tell it from a solve by it.
 HELD_STATUS_TEXT = 'HELD'
 
 

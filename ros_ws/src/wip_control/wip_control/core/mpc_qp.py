@@ -87,12 +87,13 @@ class MpcQp:
                                   * np.arange(1, problem.control_horizon + 1))
         self._first_bound = config.max_delta_torque
         self._kernels = load_compiled(MPC_KERNEL)   # at construction, not in the first tick
+        self._fill = self._kernels.fill_for(problem.blocks, self._buffers)
 
     def set_first_bound(self, bound: float) -> None:
         """Bound |Δτ(k|k)| by ``bound`` [N m].
 
-        |Δτ(k|k)| ≤ ``bound``: its box and the reachable |τ(k+j) − τ(k−1)| of the τ
-        rows, bound + j Δτmax (the later increments keep Δτmax).
+        Sets its box and the reachable |τ(k+j) − τ(k−1)| of the τ rows, bound + j Δτmax
+        (the later increments keep Δτmax).
         """
         if bound == self._first_bound:
             return
@@ -113,7 +114,7 @@ class MpcQp:
 
     def update(self, tick: TickData) -> np.ndarray:
         """Fill H, g, C, l, u for ``tick``; return the free response ȳ_free (3Np)."""
-        return self._kernels.fill(tick, self.problem.blocks, self._buffers)
+        return self._fill(tick, self.problem.blocks, self._buffers)
 
     def predict(self, free: np.ndarray, g2p: float, g3p: float,
                 plan: np.ndarray) -> np.ndarray:
