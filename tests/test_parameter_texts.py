@@ -10,14 +10,9 @@ from wip_tools.parameters import node_registry, node_rows, scenario_rows
 
 MAX_LENGTH = 200
 
-# Shortened on their branches (the MPC's and the simulator's parameters): the lead empties
+# Shortened on their branches (the simulator's parameters): the lead empties
 # this list when those branches land.
 ALLOWED_LONG = {
-    'mpc.disturbance_decay_dead_zone', 'mpc.disturbance_decay_time_constant',
-    'mpc.disturbance_startup_time', 'mpc.eps_abs', 'mpc.fast_resolve_period',
-    'mpc.fast_resolve_time', 'mpc.prediction_gain_scale', 'mpc.soft_limits',
-    'mpc.speed_limit_first_step', 'mpc.speed_preview_time', 'mpc.speed_rise_penalty',
-    'mpc.speed_slack_linear_penalty', 'mpc.speed_slack_quadratic_penalty',
     'hold_until_engaged', 'plant.contact.friction', 'plant.model',
 }
 
