@@ -14,6 +14,8 @@ import pytest
 from hypothesis import settings
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
+#: [s] for every scripts/ --help at once on a slow, shared 2-core machine.
+SCRIPT_HELP_TIMEOUT = 300.0
 
 # Property-based tests: in CI (CI set, as .ci/run's environment has it) the same examples
 # on every run, so that a submission is judged on its code, not on what a random search
@@ -129,6 +131,41 @@ def context(module_domain):
     rclpy.init(context=ctx, domain_id=module_domain)
     yield ctx
     rclpy.try_shutdown(context=ctx)
+
+
+@pytest.fixture(scope='session')
+def script_helps(tmp_path_factory):
+    """``scripts/NAME --help`` of every command of scripts/, all at once, for the session.
+
+    Each in an empty folder of its own (stderr into stdout): name -> (status, output, files
+    the folder holds after). One start of each front door for the tests that read their
+    help (tests/test_exit_codes.py, tests/test_doc_commands.py).
+    """
+    import subprocess
+    scripts = REPO_ROOT / 'scripts'
+    names = sorted(p.name for p in scripts.iterdir()
+                   if p.is_file() and os.access(p, os.X_OK) and p.name != '_env.sh')
+    folders, processes, results = {}, {}, {}
+    try:
+        for name in names:
+            folders[name] = tmp_path_factory.mktemp(f'scripts_{name}')
+            processes[name] = subprocess.Popen(
+                [str(scripts / name), '--help'], cwd=folders[name], text=True,
+                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        for name, process in processes.items():
+            try:
+                out, _ = process.communicate(timeout=SCRIPT_HELP_TIMEOUT)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                out, _ = process.communicate()
+            results[name] = (process.returncode, out,
+                             sorted(p.name for p in folders[name].iterdir()))
+    finally:
+        for process in processes.values():
+            if process.poll() is None:
+                process.kill()
+                process.communicate()
+    return results
 
 
 @pytest.fixture

@@ -31,7 +31,6 @@ REDIRECTIONS = {'>', '>>', '<', '2>', '&>'}
 SHELL = {'printf', 'echo', 'export', 'source', 'cd', 'mkdir', 'cat', 'python', 'kill'}
 #: The front doors whose options go on to another one.
 PASSES_ON = {'demo': 'run_graph'}
-HELP_TIMEOUT = 300.0  # [s] every --help at once, on a loaded 2-core machine
 
 
 def blocks(text: str):
@@ -112,19 +111,11 @@ def front_door(tokens) -> str | None:
 
 
 @pytest.fixture(scope='module')
-def helps():
-    """``scripts/NAME --help`` of every front door the documents use, all at once."""
+def helps(script_helps):
+    """``scripts/NAME --help`` of every front door the documents use (the session's runs)."""
     names = {front_door(tokens) for _, _, _, tokens in COMMANDS} - {None}
     names |= {PASSES_ON[name] for name in names if name in PASSES_ON}
-    processes = {name: subprocess.Popen(
-        [str(REPO_ROOT / 'scripts' / name), '--help'], cwd=REPO_ROOT, text=True,
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
-        for name in sorted(names) if (REPO_ROOT / 'scripts' / name).is_file()}
-    out = {}
-    for name, process in processes.items():
-        text, _ = process.communicate(timeout=HELP_TIMEOUT)
-        out[name] = (process.returncode, text)
-    return out
+    return {name: script_helps[name][:2] for name in sorted(names) if name in script_helps}
 
 
 def test_the_documents_have_commands_to_check():

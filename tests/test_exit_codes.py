@@ -110,17 +110,19 @@ def node_executables():
 
 
 @pytest.fixture(scope='module')
-def helped(tmp_path_factory):
-    """``--help`` of every scripts/ command and node executable, all at once.
+def helped(tmp_path_factory, script_helps):
+    """``--help`` of every scripts/ command (the session's) and node executable (all at once).
 
     Each in an empty folder of its own: name -> (status, output, files the folder holds after).
     """
     pytest.importorskip('rclpy')
-    runs = {f'scripts/{name}': [str(SCRIPTS / name), '--help'] for name in commands()}
-    runs.update({f'{package}/{name}': [str(path), '--help']
-                 for package, name, path in node_executables()})
-    return {key: (status, out, files) for key, (status, out, _, files)
-            in _run_all(runs, tmp_path_factory, HELP_TIMEOUT, merge=True).items()}
+    assert sorted(script_helps) == commands()
+    runs = {f'{package}/{name}': [str(path), '--help']
+            for package, name, path in node_executables()}
+    found = {f'scripts/{name}': result for name, result in script_helps.items()}
+    found.update({key: (status, out, files) for key, (status, out, _, files)
+                  in _run_all(runs, tmp_path_factory, HELP_TIMEOUT, merge=True).items()})
+    return found
 
 
 def test_every_script_and_node_answers_help_without_starting_anything(helped):
