@@ -194,6 +194,7 @@ pytest.importorskip('wip_msgs.msg', reason='wip_msgs not built (scripts/setup bu
 from wip_sim.core.runner import run_scenario  # noqa: E402
 from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_bag import bag_info, bag_repair  # noqa: E402
+from record_bag import write_record_as_bag  # noqa: E402
 from wip_tools import report, rerun  # noqa: E402
 from wip_bag.bag_integrity import scan_file  # noqa: E402
 from wip_bag.bag_reader import BagIntegrityError, iter_raw_messages, read_bag  # noqa: E402
@@ -206,7 +207,7 @@ def run_bag(tmp_path_factory):
     scenario = scenario_from_mapping({'duration': 4.0})
     result = run_scenario(scenario)
     directory = tmp_path_factory.mktemp('run') / 'bag'
-    rerun.write_record_as_bag(result, scenario, directory, chunk_size=32 * 1024)
+    write_record_as_bag(result, scenario, directory, chunk_size=32 * 1024)
     return directory
 
 

@@ -1,7 +1,7 @@
 """Open-loop re-run of the controllers on a recorded bag (``scripts/rerun``).
 
 The bag is an in-process run of a short scenario written as the node graph records it
-(:func:`wip_tools.rerun.write_record_as_bag`: same topics, types and stamps; sensor samples
+(``tests/record_bag.py``: same topics, types and stamps; sensor samples
 drawn again from the true states with the scenario's seed). Re-running the unchanged
 controllers on it must reproduce what they computed; changing a gain must change it.
 """
@@ -17,7 +17,8 @@ from rosbags.rosbag2 import Reader  # noqa: E402
 from wip_sim.core.runner import run_scenario  # noqa: E402
 from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_bag.bag_reader import read_topics  # noqa: E402
-from wip_tools.rerun import main, rerun, write_record_as_bag  # noqa: E402
+from record_bag import write_record_as_bag  # noqa: E402
+from wip_tools.rerun import main, rerun  # noqa: E402
 
 pytestmark = pytest.mark.ros
 

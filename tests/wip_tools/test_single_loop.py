@@ -5,7 +5,7 @@ the reference and the wheel torques applied) goes through
 
 (a) ``StateEstimator`` and ``ControlStep`` called as ``core.runner.run_scenario`` calls
     them (the inputs decoded from the messages, t = stamp / 1e9 as the nodes take it);
-(b) ``wip_tools.rerun.rerun_controllers`` (its lockstep timing);
+(b) ``wip_tools.rerun_loop.rerun_controllers`` (its lockstep timing);
 (c) the ESO, generator, ARC, MPC and mixer nodes, in-process in lockstep, each message
     handed to the callback the node registered and each output passed on to the next
     nodes' callbacks (no DDS, so no arrival order to depend on);
@@ -39,8 +39,9 @@ from wip_control.nodes.mpc_node import MpcNode  # noqa: E402
 from wip_control.nodes.torque_mixer_node import TorqueMixerNode  # noqa: E402
 from wip_control.nodes.trajectory_generator_node import TrajectoryGeneratorNode  # noqa: E402
 from wip_bag.bag_reader import iter_raw_messages  # noqa: E402
-from wip_tools.rerun import read_recorded_run, rerun_controllers, TOPICS, \
-    write_record_as_bag  # noqa: E402
+from record_bag import write_record_as_bag  # noqa: E402
+from wip_tools.rerun_inputs import read_recorded_run, TOPICS  # noqa: E402
+from wip_tools.rerun_loop import rerun_controllers  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
