@@ -16,7 +16,7 @@ from wip_sim.core.plant import Plant
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import scenario_from_mapping
 from wip_control.tools.cli import EXIT_OK, EXIT_USAGE
-from wip_tools import identify
+from wip_tools import identify, identify_record
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 EXCITATION = ROOT / 'scenarios' / 'identification_excitation.yaml'
@@ -268,7 +268,7 @@ def test_cli_on_a_bag(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert 'J_theta' in printed and 'model.' not in printed and 'controller_model:' in printed
     # The bag's record gives the same fit as the in-process one.
-    fit = identify.identify(identify.load_record(tmp_path / 'bag'),
+    fit = identify.identify(identify_record.load_record(tmp_path / 'bag'),
                             scenario.controller_model.parameters)
     true = identify.true_values(scenario.plant.parameters)
     for key in DETERMINED:

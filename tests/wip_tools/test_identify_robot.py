@@ -20,7 +20,7 @@ import yaml
 from wip_control.tools.cli import EXIT_OK, EXIT_USAGE
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import scenario_from_mapping
-from wip_tools import identify, run_wiring
+from wip_tools import identify, identify_record, identify_signals, run_wiring
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 EXCITATION = ROOT / 'scenarios' / 'identification_excitation.yaml'
@@ -106,7 +106,7 @@ def test_the_motor_lag_model_is_the_plants():
     # A unit step commanded from rest: the applied torque is 1 − e^(−t/T); the mean over
     # [kΔt, (k+1)Δt) is 1 − (T/Δt) e^(−kΔt/T) (1 − e^(−Δt/T)).
     dt, lag = 0.005, 0.008
-    mean = identify.motor_lagged(np.ones(6), dt, lag)
+    mean = identify_signals.motor_lagged(np.ones(6), dt, lag)
     k = np.arange(6)
     closed = 1.0 - lag / dt * np.exp(-k * dt / lag) * (1.0 - math.exp(-dt / lag))
     np.testing.assert_allclose(mean, closed, rtol=1e-12)
@@ -205,7 +205,7 @@ def test_a_bag_of_the_base_is_identified_with_the_wiring_the_run_left(tmp_path, 
     printed = capsys.readouterr().out
     assert 'rows: full with friction' in printed and "'wheel_r_joint' (sign -1)" in printed
     wiring = run_wiring.load_wiring([bag / 'params.yaml'])
-    fit = identify.identify(identify.load_record(bag, wiring),
+    fit = identify.identify(identify_record.load_record(bag, wiring),
                             scenario.controller_model.parameters, model='full',
                             friction=True)
     _check(fit, scenario)
@@ -232,7 +232,7 @@ def test_a_params_file_given_wins_and_a_wrong_wiring_is_said(tmp_path, capsys):
     # not the plant's (not determined, or far off).
     wrong = _params(tmp_path / 'wrong.yaml', {'/**': dict(WIRING, right_wheel_sign=1)})
     fit = identify.identify(
-        identify.load_record(bag, run_wiring.load_wiring([wrong])),
+        identify_record.load_record(bag, run_wiring.load_wiring([wrong])),
         scenario.controller_model.parameters, model='full', friction=True)
     true = identify.true_values(scenario.plant.parameters)
     assert fit.value('effective_mass') is None or abs(
@@ -266,7 +266,7 @@ def test_hardware_mode_against_the_standin_base_recorded_then_identified(tmp_pat
     printed = capsys.readouterr().out
     assert 'from sensors' in printed and "'wheel_r_joint' (sign -1)" in printed, printed
     fit = identify.identify(
-        identify.load_record(bag, run_wiring.load_wiring([bag / 'params.yaml'])),
+        identify_record.load_record(bag, run_wiring.load_wiring([bag / 'params.yaml'])),
         scenario_from_mapping(data).controller_model.parameters, model='full',
         friction=True)
     _check(fit, scenario_from_mapping(data))
@@ -293,6 +293,6 @@ def test_the_real_time_tests_base_wiring_is_read_too(tmp_path):
     bag = _base_bag(tmp_path / 'bag', result.record, BASE, namespace='/robot1')
     _params(bag / 'params.yaml', {'/**': dict(BASE)})
     fit = identify.identify(
-        identify.load_record(bag, run_wiring.load_wiring([bag / 'params.yaml'])),
+        identify_record.load_record(bag, run_wiring.load_wiring([bag / 'params.yaml'])),
         scenario.controller_model.parameters, model='full', friction=True)
     _check(fit, scenario)
