@@ -343,7 +343,7 @@ def test_one_wheel_slip_shows_in_odometry_and_is_no_wiring_fault():
     # check fed the run's sensors (wheel rates from the encoders, as a base's joint
     # velocities) finds nothing wrong.
     from wip_control.core.wiring_check import WiringCheck, WiringCheckConfig
-    from wip_tools.campaign import load_campaign
+    from wip_tools.campaign_file import load_campaign
     campaign = load_campaign(pathlib.Path(__file__).parents[1] / 'wip_tools/robustness/'
                              'scenarios/mujoco_one_wheel_patch.yaml')
     mapping = dict(campaign.base, duration=13.0)

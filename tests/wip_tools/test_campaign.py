@@ -17,11 +17,11 @@ import yaml
 from wip_tools.analysis.criteria import Criteria, evaluate, path_errors, pulse_mask
 from wip_sim.core.record import RunRecord
 from wip_sim.core.scenario import scenario_from_mapping
-from wip_tools import campaign as cmp
+from wip_tools import campaign as cmp, campaign_file
 
 
 def _campaign(data, tmp_path=None):
-    return cmp.campaign_from_mapping(data, tmp_path)
+    return campaign_file.campaign_from_mapping(data, tmp_path)
 
 
 # ----------------------------------------------------------------------------- draws
@@ -33,8 +33,8 @@ def test_draws_are_reproducible_per_run_and_within_their_distributions():
                      'sensors.gps_noise_std': {'log_uniform': [0.01, 0.1]},
                      'disturbances.longitudinal[0].amplitude': {'choice': [-10.0, 10.0]},
                      'initial_state.pose[1]': {'integers': [-2, 2]}}}
-    specs = cmp.run_specs(_campaign(data))
-    again = cmp.run_specs(_campaign(data))
+    specs = campaign_file.run_specs(_campaign(data))
+    again = campaign_file.run_specs(_campaign(data))
     assert [s['values'] for s in specs] == [s['values'] for s in again]
     mass = np.array([s['values']['plant.parameters.body_mass'] for s in specs])
     assert np.all((mass >= 0.8 * 25.0) & (mass <= 1.2 * 25.0))      # base body mass 25 kg
@@ -46,7 +46,7 @@ def test_draws_are_reproducible_per_run_and_within_their_distributions():
     assert {s['values']['initial_state.pose[1]'] for s in specs} == {-2, -1, 0, 1, 2}
     # The value lands where its key says, in a valid scenario; every run its own seed.
     spec = specs[3]
-    scenario = scenario_from_mapping(cmp.scenario_mapping(_campaign(data).base, spec))
+    scenario = scenario_from_mapping(campaign_file.scenario_mapping(_campaign(data).base, spec))
     assert scenario.plant.parameters.body_mass == spec['values']['plant.parameters.body_mass']
     assert scenario.controller_model.parameters.body_mass == 25.0    # nominal untouched
     assert scenario.disturbances.longitudinal[0].amplitude == \
@@ -58,8 +58,8 @@ def test_draws_are_reproducible_per_run_and_within_their_distributions():
 def test_a_run_draws_the_same_values_whatever_the_number_of_runs():
     # Resume and bigger campaigns reuse the first runs exactly: run i has its own stream.
     base = {'seed': 3, 'vary': {'plant.parameters.com_height': {'normal': [0.6, 0.05]}}}
-    few = cmp.run_specs(_campaign({**base, 'runs': 3}))
-    many = cmp.run_specs(_campaign({**base, 'runs': 10}))
+    few = campaign_file.run_specs(_campaign({**base, 'runs': 3}))
+    many = campaign_file.run_specs(_campaign({**base, 'runs': 10}))
     assert [s['values'] for s in few] == [s['values'] for s in many[:3]]
 
 
@@ -67,7 +67,7 @@ def test_a_grid_is_the_product_of_its_values_times_the_runs():
     data = {'runs': 2, 'grid': {'sensors.gps_rate': [1.0, 10.0],
                                 'plant.parameters.com_height': [0.5, 0.6, 0.7]}}
     campaign = _campaign(data)
-    specs = cmp.run_specs(campaign)
+    specs = campaign_file.run_specs(campaign)
     assert campaign.total_runs == len(specs) == 12
     cells = {(s['values']['sensors.gps_rate'], s['values']['plant.parameters.com_height'])
              for s in specs}
@@ -95,15 +95,15 @@ def test_a_grid_is_the_product_of_its_values_times_the_runs():
     ({'criteria': {'max_sped': 1.0}}, 'campaign.criteria.max_sped: unknown key'),
 ])
 def test_bad_campaign_files_name_the_key(data, message):
-    with pytest.raises(cmp.CampaignError) as err:
+    with pytest.raises(campaign_file.CampaignError) as err:
         _campaign(data)
     assert message in str(err.value)
 
 
 def test_a_drawn_value_out_of_range_names_the_run_and_the_scenario_key():
     data = {'runs': 5, 'vary': {'plant.parameters.body_mass': {'uniform': [-10.0, -1.0]}}}
-    with pytest.raises(cmp.CampaignError) as err:
-        cmp.run_specs(_campaign(data))
+    with pytest.raises(campaign_file.CampaignError) as err:
+        campaign_file.run_specs(_campaign(data))
     assert 'run 0' in str(err.value) and 'plant.parameters.body_mass' in str(err.value)
 
 
@@ -246,8 +246,8 @@ CAMPAIGNS = pathlib.Path(__file__).parents[2] / 'campaigns'
 @pytest.mark.parametrize('name', sorted(p.name for p in CAMPAIGNS.glob('*.yaml')))
 def test_the_example_campaigns_are_valid(name):
     path = CAMPAIGNS / name
-    campaign = cmp.load_campaign(path)
-    specs = cmp.run_specs(campaign)
+    campaign = campaign_file.load_campaign(path)
+    specs = campaign_file.run_specs(campaign)
     assert len(specs) == campaign.total_runs >= 1
 
 

@@ -17,7 +17,8 @@ import pathlib
 import pytest
 
 from wip_tools.analysis.criteria import Criteria, criteria_to_mapping
-from wip_tools.campaign import load_campaign, run_one, run_specs
+from wip_tools.campaign import run_one
+from wip_tools.campaign_file import load_campaign, run_specs
 
 SCENARIOS = pathlib.Path(__file__).parent / 'scenarios'
 ACCEPTANCE = (pathlib.Path(__file__).parents[3] / 'campaigns'
