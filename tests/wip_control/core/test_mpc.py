@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from wip_tools.analysis.bench_mpc import (STEP_KEYS, bench_mpc_against_daqp,
-                                            simulate_longitudinal)
+from longitudinal_mpc import simulate_longitudinal
+from wip_tools.analysis.bench_mpc import STEP_KEYS, bench_mpc_against_daqp
 from wip_control.core.config import ConfigError, from_mapping
 from wip_control.core.model import input_gains, nominal_terms
 from wip_control.core.mpc import LongitudinalMpc, MpcInputError, MpcStatus
