@@ -46,63 +46,18 @@ def measure(seconds: float, paced: bool) -> dict:
     warm-up, left out), and how many ticks ran.
     """
     import rclpy  # ROS only where measured
-    from rclpy.serialization import deserialize_message, serialize_message
-    from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
-    from std_msgs.msg import Empty, Float64MultiArray
-    import yaml
 
-    from wip_bringup.hardware_params import hardware_parameters
-    from wip_bringup.params_files import _NoAliasDumper
-    from wip_bringup.standin_run import BASE
-    from wip_sim.core.scenario import load_scenario
-    from wip_control.nodes.common import compose, make_executor, RELIABLE_QOS
+    from wip_control.nodes.common import compose, make_executor
     from wip_control.nodes.controllers import NODE_CLASSES
-    from wip_sim.standin_base import BaseConventions
 
-    with tempfile.TemporaryDirectory(prefix='wip_node_cost_') as directory:
-        params = pathlib.Path(directory) / 'params.yaml'
-        params.write_text(yaml.dump(hardware_parameters(load_scenario(None)),
-                                    Dumper=_NoAliasDumper), encoding='utf-8')
-        base = pathlib.Path(directory) / 'base.yaml'
-        base.write_text(yaml.safe_dump({'/**': {'ros__parameters': dict(BASE)}}),
-                        encoding='utf-8')
-        rclpy.init(args=['--ros-args', '--params-file', str(params), '--params-file',
-                         str(base)])
+    _init_rclpy()
     built: list = []
     try:
         executor = make_executor()
         bus = compose(executor, list(NODE_CLASSES), built)
-        nodes = {node.get_name(): node for node in built}
-        eso = {s.topic_name: s.callback for s in nodes['eso'].subscriptions}
-        on_joint_states, on_imu = eso['/joint_states'], eso['/imu/data']
-        on_fix = eso['/gps/fix']
-        # Other nodes' own subscriptions of the sensors (the mixer's wiring checks), each
-        # taking a message of its own as rclpy would deliver it; none where the ESO's
-        # subscriptions serve them (common.share_raw_subscriptions).
-        others = [(s.msg_type, s.callback) for name, node in nodes.items() if name != 'eso'
-                  for s in node.subscriptions if s.topic_name in ('/joint_states', '/imu/data')
-                  and not s.raw]
-        on_heartbeat = {s.topic_name: s.callback
-                        for s in nodes['torque_mixer'].subscriptions}['/wip/heartbeat']
-        listener = rclpy.create_node('node_cost_listener')
-        listener.create_subscription(Float64MultiArray, '/effort_controller/commands',
-                                     lambda _msg: None, RELIABLE_QOS)
-        conventions = BaseConventions(BASE['joints'], BASE['left_joint'], BASE['right_joint'],
-                                      BASE['left_wheel_sign'], BASE['right_wheel_sign'],
-                                      BASE['imu_mounting_rpy'])
-        joint, imu = JointState(), Imu()
-        conventions.fill(joint, imu, (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), 0.0, 0.0, 0.0, 0.0,
-                         9.81)
-        # A fix at the datum every GPS period, as the base's receiver (the safety layer
-        # engages only once the position is known).
-        sensors = load_scenario(None).sensors
-        fix = NavSatFix(latitude=sensors.gps_datum_latitude,
-                        longitude=sensors.gps_datum_longitude,
-                        altitude=sensors.gps_datum_altitude)
-        fix.status.status = NavSatStatus.STATUS_FIX
-        gps_every = max(1, round(1.0 / (sensors.gps_rate * CONTROL_PERIOD)))
+        feed = _SensorFeed({node.get_name(): node for node in built})
         time.sleep(1.0)    # DDS matching of the effort command
-        mixer = nodes['torque_mixer']
+        mixer = feed.nodes['torque_mixer']
         engage_ticks = int(ENGAGE_TIMEOUT / CONTROL_PERIOD)
         ticks = max(50, int(seconds / CONTROL_PERIOD))
         costs = []
@@ -115,31 +70,9 @@ def measure(seconds: float, paced: bool) -> dict:
                 delay = due - time.monotonic()
                 if delay > 0.0:
                     time.sleep(delay)
-            if k % HEARTBEAT_EVERY == 0:
-                on_heartbeat(Empty())
-                bus.drain()
-            sec, nanosec = divmod(time.time_ns(), 10 ** 9)
-            for msg in (joint, imu):
-                msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
-            joint_bytes, imu_bytes = serialize_message(joint), serialize_message(imu)
-            start = time.thread_time()
-            if k % gps_every == 0:
-                fix.header.stamp.sec, fix.header.stamp.nanosec = sec, nanosec
-                on_fix(fix)
-            on_joint_states(joint_bytes)
-            for msg_type, callback in others:
-                if msg_type is JointState:
-                    callback(deserialize_message(joint_bytes, JointState))
-            bus.drain()
-            on_imu(imu_bytes)
-            for msg_type, callback in others:
-                if msg_type is Imu:
-                    callback(deserialize_message(imu_bytes, Imu))
-            bus.drain()
-            executor.spin_once(timeout_sec=0.0)
-            bus.drain()
+            cost = feed.tick(k, bus, executor)
             if k >= 0:
-                costs.append(time.thread_time() - start)
+                costs.append(cost)
         engaged = str(mixer.monitor.state)
         kept = sorted(costs[len(costs) // 5:])
         return {'paced': paced, 'ticks': ticks, 'safety_state': engaged,
@@ -147,11 +80,107 @@ def measure(seconds: float, paced: bool) -> dict:
                 'mean_us': 1e6 * statistics.fmean(kept),
                 'p90_us': 1e6 * kept[int(0.9 * (len(kept) - 1))],
                 'effort_commands_to_dds': bus.published_dds,
-                'other_sensor_subscriptions': len(others)}
+                'other_sensor_subscriptions': len(feed.others)}
     finally:
         for node in built:
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def _init_rclpy() -> None:
+    """Initialise rclpy with hardware mode's parameters and the stand-in base's."""
+    import rclpy
+    import yaml
+
+    from wip_bringup.hardware_params import hardware_parameters
+    from wip_bringup.params_files import _NoAliasDumper
+    from wip_bringup.standin_run import BASE
+    from wip_sim.core.scenario import load_scenario
+
+    with tempfile.TemporaryDirectory(prefix='wip_node_cost_') as directory:
+        params = pathlib.Path(directory) / 'params.yaml'
+        params.write_text(yaml.dump(hardware_parameters(load_scenario(None)),
+                                    Dumper=_NoAliasDumper), encoding='utf-8')
+        base = pathlib.Path(directory) / 'base.yaml'
+        base.write_text(yaml.safe_dump({'/**': {'ros__parameters': dict(BASE)}}),
+                        encoding='utf-8')
+        rclpy.init(args=['--ros-args', '--params-file', str(params), '--params-file',
+                         str(base)])
+
+
+class _SensorFeed:
+    """The sensor messages of a standing vehicle, handed to the nodes' callbacks."""
+
+    def __init__(self, nodes: dict):
+        import rclpy
+        from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
+        from std_msgs.msg import Float64MultiArray
+
+        from wip_bringup.standin_run import BASE
+        from wip_control.nodes.common import RELIABLE_QOS
+        from wip_sim.core.scenario import load_scenario
+        from wip_sim.standin_base import BaseConventions
+
+        self.nodes = nodes
+        eso = {s.topic_name: s.callback for s in nodes['eso'].subscriptions}
+        self.on_joint_states, self.on_imu = eso['/joint_states'], eso['/imu/data']
+        self.on_fix = eso['/gps/fix']
+        # Other nodes' own subscriptions of the sensors (the mixer's wiring checks), each
+        # taking a message of its own as rclpy would deliver it; none where the ESO's
+        # subscriptions serve them (common.share_raw_subscriptions).
+        self.others = [(s.msg_type, s.callback) for name, node in nodes.items() if name != 'eso'
+                       for s in node.subscriptions
+                       if s.topic_name in ('/joint_states', '/imu/data') and not s.raw]
+        self.on_heartbeat = {s.topic_name: s.callback
+                             for s in nodes['torque_mixer'].subscriptions}['/wip/heartbeat']
+        self.listener = rclpy.create_node('node_cost_listener')
+        self.listener.create_subscription(Float64MultiArray, '/effort_controller/commands',
+                                          lambda _msg: None, RELIABLE_QOS)
+        conventions = BaseConventions(BASE['joints'], BASE['left_joint'], BASE['right_joint'],
+                                      BASE['left_wheel_sign'], BASE['right_wheel_sign'],
+                                      BASE['imu_mounting_rpy'])
+        self.joint, self.imu = JointState(), Imu()
+        conventions.fill(self.joint, self.imu, (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), 0.0, 0.0,
+                         0.0, 0.0, 9.81)
+        # A fix at the datum every GPS period, as the base's receiver (the safety layer
+        # engages only once the position is known).
+        sensors = load_scenario(None).sensors
+        self.fix = NavSatFix(latitude=sensors.gps_datum_latitude,
+                             longitude=sensors.gps_datum_longitude,
+                             altitude=sensors.gps_datum_altitude)
+        self.fix.status.status = NavSatStatus.STATUS_FIX
+        self.gps_every = max(1, round(1.0 / (sensors.gps_rate * CONTROL_PERIOD)))
+
+    def tick(self, k: int, bus, executor) -> float:
+        """Run control tick ``k``; return its thread CPU time [s]."""
+        from rclpy.serialization import deserialize_message, serialize_message
+        from sensor_msgs.msg import Imu, JointState
+        from std_msgs.msg import Empty
+
+        if k % HEARTBEAT_EVERY == 0:
+            self.on_heartbeat(Empty())
+            bus.drain()
+        sec, nanosec = divmod(time.time_ns(), 10 ** 9)
+        for msg in (self.joint, self.imu):
+            msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+        joint_bytes, imu_bytes = serialize_message(self.joint), serialize_message(self.imu)
+        start = time.thread_time()
+        if k % self.gps_every == 0:
+            self.fix.header.stamp.sec, self.fix.header.stamp.nanosec = sec, nanosec
+            self.on_fix(self.fix)
+        self.on_joint_states(joint_bytes)
+        for msg_type, callback in self.others:
+            if msg_type is JointState:
+                callback(deserialize_message(joint_bytes, JointState))
+        bus.drain()
+        self.on_imu(imu_bytes)
+        for msg_type, callback in self.others:
+            if msg_type is Imu:
+                callback(deserialize_message(imu_bytes, Imu))
+        bus.drain()
+        executor.spin_once(timeout_sec=0.0)
+        bus.drain()
+        return time.thread_time() - start
 
 
 def main(argv: list[str] | None = None) -> int:
