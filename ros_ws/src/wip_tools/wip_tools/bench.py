@@ -66,6 +66,7 @@ from wip_sim.core.plant import MODELS, PlantConfig
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import load_scenario
 from wip_control.tools.cli import add_exit_codes
+from wip_tools.realtime_bench import section_realtime
 
 
 def _environment() -> dict:
@@ -190,110 +191,6 @@ def bench_reproducibility(scenario_path: str | None, processes: int = 3) -> dict
                 'identical': not differing}
 
 
-def bench_realtime(seconds: float) -> list[dict]:
-    """Real-time runs against the stand-in base (see ``wip_bringup.standin_run``)."""
-    import tempfile
-    try:
-        from wip_bringup.standin_run import realtime_benchmark  # needs ROS
-    except ImportError as err:
-        return [{'skipped': f'node graph not available: {err}'}]
-    with tempfile.TemporaryDirectory(prefix='wip_bench_rt_') as directory:
-        import pathlib
-        return realtime_benchmark(pathlib.Path(directory), seconds)
-
-
-def bench_rclpy_floor(seconds: float) -> dict:
-    """CPU of receiving the sensor streams alone (:mod:`wip_tools.rclpy_floor`).
-
-    Taken as message objects and serialized (as the eso node takes them), alternately.
-    """
-    try:
-        from wip_tools.rclpy_floor import measure_floor  # needs ROS
-    except ImportError as err:
-        return {'skipped': f'rclpy not available: {err}'}
-    return {'messages': measure_floor(seconds, raw=False),
-            'serialized': measure_floor(seconds, raw=True)}
-
-
-def bench_node_cost(seconds: float, pairs: int = 2) -> dict:
-    """Return the controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`).
-
-    The controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`),
-    back to back and paced at 200 Hz, alternately, each in a process of its own.
-    """
-    runs: dict[str, list[dict]] = {'back_to_back': [], 'paced': []}
-    for _ in range(pairs):
-        for key, pace in (('back_to_back', 0), ('paced', 1)):
-            done = subprocess.run([sys.executable, '-m', 'wip_tools.node_cost', '--seconds',
-                                   f'{seconds:g}', '--pace', str(pace)], capture_output=True,
-                                  text=True, timeout=600, check=False)
-            lines = done.stdout.strip().splitlines()
-            if done.returncode != 0 or not lines:
-                tail = (done.stderr.strip().splitlines() or ['no output'])[-1]
-                return {'failed': f'node_cost --pace {pace}: exit {done.returncode}: {tail}'}
-            runs[key].append(json.loads(lines[-1]))
-    medians = {key: statistics.median(r['median_us'] for r in rows)
-               for key, rows in runs.items()}
-    return {**runs, 'median_us': medians,
-            'paced_over_back_to_back': medians['paced'] / medians['back_to_back']}
-
-
-#: Thread CPU [s] of :func:`calibration_loop` on a Raspberry Pi 4-class core (Cortex-A72 at
-#: 1.5-1.8 GHz) with CPython 3.11: an assumption, not measured on a Pi, taken as 3x this
-#: project's 2-vCPU development machine (0.019-0.020 s there, 2026-12-05). Replace it with a
-#: measurement on the target (``python -c 'from wip_tools.bench import calibration_loop as
-#: c; print(c())'``) for a figure that is no longer an estimate.
-PI_CLASS_CALIBRATION_S = 0.060
-
-
-def calibration_loop(repeats: int = 5) -> float:
-    """Return the least thread CPU [s] of a fixed pure-Python workload: this core's speed.
-
-    Small-object work like the nodes' (dict and attribute access, float arithmetic, calls);
-    the least of ``repeats`` so that a busy neighbour counts as little as possible.
-    """
-    def step(state: dict, k: int) -> float:
-        x = state['x'] * 0.999 + 0.001 * k
-        state['x'] = x
-        return x
-
-    best = float('inf')
-    for _ in range(repeats):
-        start = time.thread_time()
-        state, total = {'x': 0.0}, 0.0
-        for k in range(200_000):
-            total += step(state, k)
-        best = min(best, time.thread_time() - start)
-    return best
-
-
-def overhead_figures(rows: list[dict], floor: dict, cost: dict, per_tick_s: float,
-                     calibration_s: float) -> dict:
-    """Return the real-time section's ratios (the goals of the composed controllers' cost).
-
-    - ``overhead_ratio``: (composed controllers at normal priority - rclpy's floor taken
-      serialized) / the in-process loop, as CPU shares at 200 Hz;
-    - ``paced_over_in_process``: the nodes' own code paced at 200 Hz / the in-process tick;
-    - ``pi_class_share``: the composed share scaled by this core's speed against a Pi
-      4-class core (:data:`PI_CLASS_CALIBRATION_S`): an estimate.
-    A figure whose inputs are missing is None.
-    """
-    composed = next((r.get('controller_cpu_fraction') for r in rows
-                     if r.get('layout') == 'composed' and not r.get('rt_priority')
-                     and not r.get('pinned') and r.get('cpu_latency') is None), None)
-    serialized = (floor.get('serialized') or {}).get('cpu_fraction')
-    in_process = 200.0 * per_tick_s
-    paced = (cost.get('median_us') or {}).get('paced')
-    return {
-        'composed_share': composed,
-        'overhead_ratio': (None if composed is None or serialized is None
-                           else (composed - serialized) / in_process),
-        'paced_over_in_process': None if paced is None else 1e-6 * paced / per_tick_s,
-        'calibration_s': calibration_s,
-        'pi_class_share': (None if composed is None
-                           else composed * PI_CLASS_CALIBRATION_S / calibration_s)}
-
-
 def final_state_difference(graph: dict | None, in_process: dict | None) -> float | None:
     """Return the largest difference between two final states (None if one is missing).
 
@@ -388,74 +285,6 @@ def _section_graph(scenario_path: str | None, in_process: dict, report: dict) ->
             _print_graph_row(graph, layout, record, in_process, final, report, key)
 
 
-def _section_realtime(seconds: float, in_process: dict, report: dict) -> None:
-    """4. Real time against the stand-in base, the nodes' own cost, rclpy's floor."""
-    print(f'\n== 4. Real time: controllers at 200 Hz against the stand-in base, '
-          f'{seconds:g} s per layout')
-    per_tick_s = 1.0 / (in_process['real_time_factor_median'] * 200.0)
-    report['in_process_core_share_at_200hz'] = 200.0 * per_tick_s
-    print(f'in-process, the same loop (plant included): {1e6 * per_tick_s:.0f} us per '
-          f'tick = {100 * 200.0 * per_tick_s:.1f} % of a core at 200 Hz')
-    rows = bench_realtime(seconds)
-    report['realtime'] = rows
-    for row in rows:
-        if 'skipped' in row:
-            print(f'-> {row}')
-            continue
-        lat = row['latency_ms'] or {}
-        age = row['command_age_ms'] or {}
-        latency_request = row.get('cpu_latency')
-        case = (f'rt-priority {"yes" if row["rt_priority"] else "no"}'
-                f'{", pinned" if row["pinned"] else ""}'
-                + ('' if latency_request is None
-                   else f', cpu-latency {latency_request} us'))
-        print(f'{row["layout"]:9s} {case:48s}: '
-              f'controllers {100 * (row["controller_cpu_fraction"] or 0):.1f} % of a core; '
-              f'sensor->command latency p50 {lat.get("p50", float("nan")):.2f} ms, p99 '
-              f'{lat.get("p99", float("nan")):.2f} ms, max {lat.get("max", float("nan")):.2f}'
-              f' ms; base: oldest command held {age.get("max_ms", float("nan")):.1f} ms, '
-              f'{row["deadline_misses"]} deadline misses'
-              f'{"; FELL" if row["fell"] else ""}')
-    print('   (goals: <= 15 % of a core; latency p99 <= 2 ms, max <= 10 ms)')
-    cost = bench_node_cost(min(10.0, max(3.0, seconds / 3.0)))
-    report['node_cost'] = cost
-    if 'failed' in cost:
-        print(f'-> node cost: {cost}')
-    else:
-        print("the six nodes' own code, fed directly (no DDS take, no wake-up by a "
-              'message), thread CPU per tick, medians: back to back '
-              + ' / '.join(f'{r["median_us"]:.0f}' for r in cost['back_to_back'])
-              + ' us; paced at 200 Hz '
-              + ' / '.join(f'{r["median_us"]:.0f}' for r in cost['paced'])
-              + f' us: {cost["paced_over_back_to_back"]:.1f}x (what running after an '
-              'idle period costs on this machine)')
-    floor = bench_rclpy_floor(min(10.0, max(3.0, seconds / 2.0)))
-    report['rclpy_floor'] = floor
-    for kind, measured in floor.items():
-        if 'cpu_fraction' in measured:
-            print(f"rclpy floor, taken as {kind}: a process that only receives the base's "
-                  f'two sensor streams ({measured["messages_per_s"]:.0f} msg/s, empty '
-                  f'callbacks, {measured["executor"]}): '
-                  f'{100 * measured["cpu_fraction"]:.1f} % of a core, '
-                  f'{measured["cpu_per_message_us"]:.0f} us per message, '
-                  f'{measured["context_switches_per_s"]:.0f} context switches/s')
-        else:
-            print(f'-> rclpy floor ({kind}): {measured}')
-    figures = overhead_figures(rows, floor, cost, per_tick_s, calibration_loop())
-    report['overhead'] = figures
-
-    def show(value, form):
-        return 'n/a' if value is None else format(value, form)
-    print(f"-> overhead ratio (composed - rclpy floor serialized) / in-process: "
-          f"{show(figures['overhead_ratio'], '.1f')} (goal <= 3); the nodes' own code paced "
-          f"/ in-process tick: {show(figures['paced_over_in_process'], '.1f')}x (goal <= 2)")
-    share = figures['pi_class_share']
-    print(f'-> Pi-class estimate: composed {show(share and 100 * share, ".0f")} % of a Raspberry '
-          f'Pi 4-class core (this core {1e3 * figures["calibration_s"]:.0f} ms on the '
-          f'calibration loop against an assumed {1e3 * PI_CLASS_CALIBRATION_S:.0f} ms there; '
-          'an estimate, not a measurement)')
-
-
 def _section_push(report: dict) -> None:
     """5. Push recovery: the measured excursion beside the clairvoyant bound."""
     from .analysis.push_bound import push_recovery_rows
@@ -503,7 +332,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_graph:
         _section_graph(args.scenario, in_process, report)
     if not args.no_graph and not args.no_realtime:
-        _section_realtime(args.realtime_seconds, in_process, report)
+        section_realtime(args.realtime_seconds, in_process, report)
     _write_json(args.json, report)
     return 0
 
