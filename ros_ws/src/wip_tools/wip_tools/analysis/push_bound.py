@@ -88,35 +88,18 @@ def push_excursion_bound(params: WipParameters, delta_v: float, *, push_time: fl
     ``horizon`` [s]: the time by which it must be at rest. ValueError on bad arguments or
     when no sequence can bring it to rest by then (the push is beyond the limits).
     """
-    from scipy import sparse
-    from scipy.linalg import expm
     from scipy.optimize import linprog
 
-    values = dict(delta_v=delta_v, push_time=push_time, max_tilt=max_tilt,
-                  max_torque=max_torque, max_delta_torque=max_delta_torque,
-                  delta_period=delta_period, step=step, horizon=horizon)
-    for name, value in values.items():
-        if not (isinstance(value, (int, float)) and math.isfinite(value)):
-            raise ValueError(f'push_excursion_bound: {name} must be a finite number, '
-                             f'got {value!r}')
-        if name != 'delta_v' and value <= 0.0:
-            raise ValueError(f'push_excursion_bound: {name} must be > 0, got {value!r}')
-    if not push_time <= horizon or not step <= min(push_time, delta_period):
-        raise ValueError('push_excursion_bound: need step <= push_time, delta_period and '
-                         f'push_time <= horizon (got {step}, {push_time}, {delta_period}, '
-                         f'{horizon})')
+    _check_arguments(dict(delta_v=delta_v, push_time=push_time, max_tilt=max_tilt,
+                          max_torque=max_torque, max_delta_torque=max_delta_torque,
+                          delta_period=delta_period, step=step, horizon=horizon))
     dv = abs(float(delta_v))
     n = int(round(horizon / step))
     times = step * np.arange(n + 1)
     if dv == 0.0:
         zeros = np.zeros(n + 1)
         return PushBound(0.0, times, zeros, zeros.copy(), np.zeros(n), 'no push')
-    # Exact discretisation (zero-order hold) of the torque and the push over one step.
-    a, b, e = linear_model(params)
-    big = np.zeros((6, 6))
-    big[:4, :4], big[:4, 4], big[:4, 5] = a * step, b * step, e * step
-    phi = expm(big)
-    ad, bd, ed = phi[:4, :4], phi[:4, 4], phi[:4, 5]
+    ad, bd, ed = _discretised(params, step)
     lag = max(1, int(round(delta_period / step)))
     push = np.where(times[:-1] < push_time - 1e-9, dv / push_time, 0.0)
     # Sparse, not condensed: the tilt's unstable pole (√a_θ ≈ 4.6 /s) makes a condensed
@@ -125,29 +108,8 @@ def push_excursion_bound(params: WipParameters, delta_v: float, *, push_time: fl
     nz, nt = 4 * (n + 1), n
     nv = nz + nt + 1
     pi = nz + nt                                     # index of P; z_k[j] at 4k + j
-    k = np.arange(n)
-    # Equalities: z_0 = 0 (at rest on the reference); z_{k+1} − Ad z_k − Bd τ_k = Ed d_k.
-    rows, cols, vals = [np.arange(4)], [np.arange(4)], [np.ones(4)]
-    for j in range(4):
-        row = 4 * (k + 1) + j
-        rows.append(row), cols.append(row), vals.append(np.ones(n))
-        for i in range(4):
-            if ad[j, i] != 0.0:
-                rows.append(row), cols.append(4 * k + i), vals.append(np.full(n, -ad[j, i]))
-        rows.append(row), cols.append(nz + k), vals.append(np.full(n, -bd[j]))
-    eq = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                           shape=(4 * (n + 1), nv))
-    beq = np.zeros(4 * (n + 1))
-    beq[4:] = (ed[None, :] * push[:, None]).ravel()
-    # Inequalities: e_k − P ≤ 0; ±(τ_k − τ_{k−lag}) ≤ Δτ (τ = 0 before the push).
-    late = k[k >= lag]
-    rows = [k, k, n + k, n + late, 2 * n + k, 2 * n + late]
-    cols = [4 * (k + 1), np.full(n, pi), nz + k, nz + late - lag, nz + k, nz + late - lag]
-    vals = [np.ones(n), -np.ones(n), np.ones(n), -np.ones(len(late)), -np.ones(n),
-            np.ones(len(late))]
-    ub = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                           shape=(3 * n, nv))
-    bub = np.concatenate([np.zeros(n), np.full(2 * n, max_delta_torque)])
+    eq, beq = _dynamics(ad, bd, ed, push, n, nv)
+    ub, bub = _peak_and_rate_limits(n, nv, lag, max_delta_torque)
     bounds = [(None, None)] * nz + [(-max_torque, max_torque)] * nt + [(None, None)]
     for i in range(1, n + 1):
         bounds[4 * i + 2] = (-max_tilt, max_tilt)
@@ -165,6 +127,74 @@ def push_excursion_bound(params: WipParameters, delta_v: float, *, push_time: fl
     states = result.x[:nz].reshape(n + 1, 4)
     return PushBound(float(max(result.x[pi], 0.0)), times, states[:, 0], states[:, 2],
                      result.x[nz:nz + nt], result.message)
+
+
+def _check_arguments(values: dict) -> None:
+    """Raise ValueError unless the arguments of :func:`push_excursion_bound` are usable."""
+    for name, value in values.items():
+        if not (isinstance(value, (int, float)) and math.isfinite(value)):
+            raise ValueError(f'push_excursion_bound: {name} must be a finite number, '
+                             f'got {value!r}')
+        if name != 'delta_v' and value <= 0.0:
+            raise ValueError(f'push_excursion_bound: {name} must be > 0, got {value!r}')
+    step, push_time, delta_period, horizon = (values[name] for name in (
+        'step', 'push_time', 'delta_period', 'horizon'))
+    if not push_time <= horizon or not step <= min(push_time, delta_period):
+        raise ValueError('push_excursion_bound: need step <= push_time, delta_period and '
+                         f'push_time <= horizon (got {step}, {push_time}, {delta_period}, '
+                         f'{horizon})')
+
+
+def _discretised(params: WipParameters, step: float) -> tuple:
+    """Return (Ad, Bd, Ed): the exact zero-order-hold discretisation over one step."""
+    from scipy.linalg import expm
+
+    a, b, e = linear_model(params)
+    big = np.zeros((6, 6))
+    big[:4, :4], big[:4, 4], big[:4, 5] = a * step, b * step, e * step
+    phi = expm(big)
+    return phi[:4, :4], phi[:4, 4], phi[:4, 5]
+
+
+def _dynamics(ad, bd, ed, push: np.ndarray, n: int, nv: int) -> tuple:
+    """Return the equalities of the motion: z_{k+1} − Ad z_k − Bd τ_k = Ed d_k.
+
+    And z_0 = 0: at rest on the reference.
+    """
+    from scipy import sparse
+
+    nz = 4 * (n + 1)
+    k = np.arange(n)
+    rows, cols, vals = [np.arange(4)], [np.arange(4)], [np.ones(4)]
+    for j in range(4):
+        row = 4 * (k + 1) + j
+        rows.append(row), cols.append(row), vals.append(np.ones(n))
+        for i in range(4):
+            if ad[j, i] != 0.0:
+                rows.append(row), cols.append(4 * k + i), vals.append(np.full(n, -ad[j, i]))
+        rows.append(row), cols.append(nz + k), vals.append(np.full(n, -bd[j]))
+    eq = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                           shape=(4 * (n + 1), nv))
+    beq = np.zeros(4 * (n + 1))
+    beq[4:] = (ed[None, :] * push[:, None]).ravel()
+    return eq, beq
+
+
+def _peak_and_rate_limits(n: int, nv: int, lag: int, max_delta_torque: float) -> tuple:
+    """Return the inequalities e_k − P ≤ 0; ±(τ_k − τ_{k−lag}) ≤ Δτ (τ = 0 before the push)."""
+    from scipy import sparse
+
+    nz, nt = 4 * (n + 1), n
+    pi = nz + nt
+    k = np.arange(n)
+    late = k[k >= lag]
+    rows = [k, k, n + k, n + late, 2 * n + k, 2 * n + late]
+    cols = [4 * (k + 1), np.full(n, pi), nz + k, nz + late - lag, nz + k, nz + late - lag]
+    vals = [np.ones(n), -np.ones(n), np.ones(n), -np.ones(len(late)), -np.ones(n),
+            np.ones(len(late))]
+    ub = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                           shape=(3 * n, nv))
+    return ub, np.concatenate([np.zeros(n), np.full(2 * n, max_delta_torque)])
 
 
 #: Seconds after the start at which the benchmark's push comes: the start from rest on the
