@@ -93,6 +93,21 @@ def compute_metrics(record: RunRecord, scenario, fell: bool | None = None,
                     duration_s: float | None = None) -> dict[str, Any]:
     """Return the metrics dictionary written to ``metrics.json`` (keys documented in README)."""
     metrics: dict[str, Any] = {'scenario': scenario.name}
+    _tilt_metrics(metrics, record, scenario, fell, duration_s)
+    _actuation_metrics(metrics, record)
+    reference = record['reference']
+    if 'truth' in record:
+        _tracking_metrics(metrics, record, reference, scenario)
+    else:
+        for key in ('convergence_time_s', 'rms_position_error_m', 'max_position_error_m',
+                    'rms_heading_error_rad', 'eso_rms_error', 'max_abs_v_mps'):
+            metrics[key] = None
+    return metrics
+
+
+def _tilt_metrics(metrics: dict[str, Any], record: RunRecord, scenario, fell: bool | None,
+                  duration_s: float | None) -> None:
+    """Add whether it fell, the run's length and the tilt's extremes (truth, else estimate)."""
     has_truth = 'truth' in record
     tilt_source = record['truth'] if has_truth else record['estimate']
     theta = tilt_source['theta']
@@ -111,6 +126,9 @@ def compute_metrics(record: RunRecord, scenario, fell: bool | None = None,
         np.sum(np.abs(theta) > scenario.mpc.max_tilt) * (
             np.median(np.diff(t_tilt)) if len(t_tilt) > 1 else 0.0))
 
+
+def _actuation_metrics(metrics: dict[str, Any], record: RunRecord) -> None:
+    """Add the torques, the MPC's solves and the desired velocities' extremes."""
     wheels = record['wheels']
     metrics['max_abs_wheel_torque_nm'] = _max_abs(
         np.concatenate([wheels['tau_left'], wheels['tau_right']]))
@@ -135,34 +153,31 @@ def compute_metrics(record: RunRecord, scenario, fell: bool | None = None,
     metrics['alpha_hat_range'] = [_none_if_nan(float(np.min(alpha))),
                                   _none_if_nan(float(np.max(alpha)))] if len(alpha) else None
 
-    reference = record['reference']
-    if has_truth:
-        truth = record['truth']
-        metrics['max_abs_v_mps'] = _max_abs(truth['v'])
-        t = truth['t']
-        xr = _interp(t, reference['t'], reference['x'])
-        yr = _interp(t, reference['t'], reference['y'])
-        phir = _interp(t, reference['t'], reference['phi'])
-        position_error = np.hypot(xr - truth['x'], yr - truth['y'])
-        heading_error = np.array([wrap_to_pi(a) for a in phir - truth['phi']])
-        converged = np.nonzero(position_error <= CONVERGENCE_RADIUS_M)[0]
-        metrics['convergence_time_s'] = float(t[converged[0]]) if len(converged) else None
-        late = t >= SETTLE_TIME_S
-        metrics['rms_position_error_m'] = _rms(position_error[late])
-        metrics['max_position_error_m'] = _max_abs(position_error[late])
-        metrics['rms_heading_error_rad'] = _rms(heading_error[late])
-        metrics['eso_rms_error'] = _eso_errors(record, scenario)
-        # 1/g1 is monotonic in θ² for both models: its range is set by the extremes of |θ|.
-        abs_theta = np.abs(truth['theta'])
-        g1 = [plant_input_gains(scenario.plant.parameters, scenario.plant.model.model,
-                                float(th))[0] for th in (np.min(abs_theta), np.max(abs_theta))]
-        metrics['one_over_g1_range'] = [float(np.min(1 / np.array(g1))),
-                                        float(np.max(1 / np.array(g1)))]
-    else:
-        for key in ('convergence_time_s', 'rms_position_error_m', 'max_position_error_m',
-                    'rms_heading_error_rad', 'eso_rms_error', 'max_abs_v_mps'):
-            metrics[key] = None
-    return metrics
+
+def _tracking_metrics(metrics: dict[str, Any], record: RunRecord, reference: dict,
+                      scenario) -> None:
+    """Add the tracking errors against the truth, the ESOs' errors and 1/g1's range."""
+    truth = record['truth']
+    metrics['max_abs_v_mps'] = _max_abs(truth['v'])
+    t = truth['t']
+    xr = _interp(t, reference['t'], reference['x'])
+    yr = _interp(t, reference['t'], reference['y'])
+    phir = _interp(t, reference['t'], reference['phi'])
+    position_error = np.hypot(xr - truth['x'], yr - truth['y'])
+    heading_error = np.array([wrap_to_pi(a) for a in phir - truth['phi']])
+    converged = np.nonzero(position_error <= CONVERGENCE_RADIUS_M)[0]
+    metrics['convergence_time_s'] = float(t[converged[0]]) if len(converged) else None
+    late = t >= SETTLE_TIME_S
+    metrics['rms_position_error_m'] = _rms(position_error[late])
+    metrics['max_position_error_m'] = _max_abs(position_error[late])
+    metrics['rms_heading_error_rad'] = _rms(heading_error[late])
+    metrics['eso_rms_error'] = _eso_errors(record, scenario)
+    # 1/g1 is monotonic in θ² for both models: its range is set by the extremes of |θ|.
+    abs_theta = np.abs(truth['theta'])
+    g1 = [plant_input_gains(scenario.plant.parameters, scenario.plant.model.model,
+                            float(th))[0] for th in (np.min(abs_theta), np.max(abs_theta))]
+    metrics['one_over_g1_range'] = [float(np.min(1 / np.array(g1))),
+                                    float(np.max(1 / np.array(g1)))]
 
 
 def _eso_errors(record: RunRecord, scenario) -> dict[str, float | None]:

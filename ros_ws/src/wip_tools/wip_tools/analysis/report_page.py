@@ -134,13 +134,20 @@ def claims(metrics: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]
     Verdict: 'yes', 'no' (with the known reason) or 'n/a' (the run lacks the data).
     """
     m = metrics
-    tg, mpc = scenario.trajectory_generator, scenario.mpc
-    rows = []
+    rows = [('falls', 'no', 'yes' if m['fell'] else 'no', _verdict(not m['fell']))]
+    rows += _tracking_rows(m, scenario)
+    rows += _limit_rows(m, scenario)
+    rows += _estimation_rows(m)
+    return rows
 
-    def verdict(ok):
-        return 'n/a' if ok is None else ('yes' if ok else 'no')
 
-    rows.append(('falls', 'no', 'yes' if m['fell'] else 'no', verdict(not m['fell'])))
+def _verdict(ok):
+    return 'n/a' if ok is None else ('yes' if ok else 'no')
+
+
+def _tracking_rows(m: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]:
+    """Return the claims on convergence and on the tracking error afterwards."""
+    tg = scenario.trajectory_generator
     conv = m.get('convergence_time_s')
     has_truth = m.get('tilt_source') == 'truth'
     saturated = (m.get('max_abs_omega_d_radps') or 0.0) >= tg.max_yaw_rate - 1e-6
@@ -158,54 +165,64 @@ def claims(metrics: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]
     # failed (a 5 s run says nothing of "within 8 s" unless it converged within 5 s).
     duration = m.get('duration_s')
     short = NOT_TESTED if duration is not None else 'n/a'
-    rows.append(('initial errors rejected (position error ≤ 0.1 m)',
-                 f'within {CONVERGENCE_CLAIM_S:g} s',
-                 _fmt(conv) + (' s' if conv is not None else ''),
-                 'n/a' if not has_truth else
-                 'yes' if conv is not None and conv <= CONVERGENCE_CLAIM_S else
-                 short if duration is None or duration < CONVERGENCE_CLAIM_S else
-                 f'no: {why}'))
     rms, worst = m.get('rms_position_error_m'), m.get('max_position_error_m')
-    rows.append((f'tracking error afterwards (t ≥ {SETTLE_TIME_S:g} s)',
-                 'fluctuates in a small range',
-                 f'RMS {_fmt(rms)} m, max {_fmt(worst)} m',
-                 NOT_TESTED if duration is not None and duration <= SETTLE_TIME_S else
-                 'n/a' if worst is None else
-                 ('yes' if worst <= 0.1 else f'partly: bounded, not small ({why})')))
+    return [('initial errors rejected (position error ≤ 0.1 m)',
+             f'within {CONVERGENCE_CLAIM_S:g} s',
+             _fmt(conv) + (' s' if conv is not None else ''),
+             'n/a' if not has_truth else
+             'yes' if conv is not None and conv <= CONVERGENCE_CLAIM_S else
+             short if duration is None or duration < CONVERGENCE_CLAIM_S else
+             f'no: {why}'),
+            (f'tracking error afterwards (t ≥ {SETTLE_TIME_S:g} s)',
+             'fluctuates in a small range',
+             f'RMS {_fmt(rms)} m, max {_fmt(worst)} m',
+             NOT_TESTED if duration is not None and duration <= SETTLE_TIME_S else
+             'n/a' if worst is None else
+             ('yes' if worst <= 0.1 else f'partly: bounded, not small ({why})'))]
+
+
+def _limit_rows(m: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]:
+    """Return the claims on the limits: tilt, torques, torque steps, desired velocities, QP."""
+    tg, mpc = scenario.trajectory_generator, scenario.mpc
+    rows = []
     tilt = m.get('max_abs_theta_outside_pulse_windows_rad')
     rows.append(('tilt (outside the pulse windows)', f'within {mpc.max_tilt:g} rad',
                  f'max {_fmt(tilt)} rad',
-                 verdict(None if tilt is None else tilt <= mpc.max_tilt)))
+                 _verdict(None if tilt is None else tilt <= mpc.max_tilt)))
     torque = m.get('max_abs_wheel_torque_nm')
     rows.append(('wheel torques', f'within ±{scenario.mixer.max_wheel_torque:g} N·m',
                  f'max {_fmt(torque)} N·m',
-                 verdict(None if torque is None
-                         else torque <= scenario.mixer.max_wheel_torque + 1e-9)))
+                 _verdict(None if torque is None
+                          else torque <= scenario.mixer.max_wheel_torque + 1e-9)))
     delta = m.get('max_abs_delta_tau_v_nm')
     rows.append(('Δτυ per MPC step', f'within ±{mpc.max_delta_torque:g} N·m',
                  f'max {_fmt(delta)} N·m',
-                 verdict(None if delta is None else delta <= mpc.max_delta_torque + 1e-6)))
+                 _verdict(None if delta is None else delta <= mpc.max_delta_torque + 1e-6)))
     vd, wd = m.get('max_abs_v_d_mps'), m.get('max_abs_omega_d_radps')
     rows.append(('desired velocities', f'|υd| ≤ {tg.max_speed:g} m/s, |ωd| ≤ '
                  f'{tg.max_yaw_rate:g} rad/s', f'{_fmt(vd)} m/s, {_fmt(wd)} rad/s',
-                 verdict(None if vd is None or wd is None else
-                         vd <= tg.max_speed + 1e-9 and wd <= tg.max_yaw_rate + 1e-9)))
+                 _verdict(None if vd is None or wd is None else
+                          vd <= tg.max_speed + 1e-9 and wd <= tg.max_yaw_rate + 1e-9)))
     rows.append(('QP solved every tick', '(implied)',
                  f"{m['qp_failures']} failures in {m['mpc_ticks']} ticks",
-                 verdict(m['qp_failures'] == 0)))
+                 _verdict(m['qp_failures'] == 0)))
+    return rows
+
+
+def _estimation_rows(m: dict[str, Any]) -> list[tuple[str, str, str, str]]:
+    """Return the claims on the ESO estimates and the adaptive parameter."""
     eso = m.get('eso_rms_error') or {}
     # "Match": the state estimates within 0.01 (rad/s, m/s) RMS; f1 is judged in Fig. 8.
     states_ok = None if not eso else all(
         eso.get(k) is not None and eso[k] <= 0.01 for k in ('omega', 'v', 'theta_dot'))
-    rows.append(('ESO estimates (Figs. 8, 9)', 'match the truth; small f1 error from the '
-                 '20 % error in ĝ1', _fmt(eso) if eso else 'n/a',
-                 'n/a' if states_ok is None else
-                 ('yes (states within 0.01 RMS; f1 offset from ĝ1)' if states_ok else 'no')))
     alpha, g1 = m.get('alpha_hat_range'), m.get('one_over_g1_range')
-    rows.append(('α̂ (Fig. 10)', 'bounded; need not converge to 1/g1',
-                 f'α̂ in {_fmt(alpha)}, 1/g1 in {_fmt(g1)}',
-                 verdict(None if not alpha else all(a is not None for a in alpha))))
-    return rows
+    return [('ESO estimates (Figs. 8, 9)', 'match the truth; small f1 error from the '
+             '20 % error in ĝ1', _fmt(eso) if eso else 'n/a',
+             'n/a' if states_ok is None else
+             ('yes (states within 0.01 RMS; f1 offset from ĝ1)' if states_ok else 'no')),
+            ('α̂ (Fig. 10)', 'bounded; need not converge to 1/g1',
+             f'α̂ in {_fmt(alpha)}, 1/g1 in {_fmt(g1)}',
+             _verdict(None if not alpha else all(a is not None for a in alpha)))]
 
 
 # -- the captions ---------------------------------------------------------------------------
@@ -213,12 +230,18 @@ def claims(metrics: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]
 def captions(metrics: dict[str, Any], scenario) -> dict[str, str]:
     """Caption of each figure (file stem -> text), with the run's numbers."""
     from wip_tools.analysis.metrics import pulse_windows
-    m = metrics
-    tg = scenario.trajectory_generator
     windows = pulse_windows(scenario)
     pulses = ('; '.join(f'{start:g}–{end:g} s' for start, end in windows)
               if windows else 'none in this scenario')
     pulse_text = f'Pulse-disturbance windows (pulse + 3 s recovery): {pulses}.'
+    tips = _turning_note(scenario)
+    return {**_tracking_captions(metrics, scenario, tips, pulse_text),
+            **_estimation_captions(metrics, scenario, pulse_text)}
+
+
+def _turning_note(scenario) -> str:
+    """Why the vehicle may not follow the reference's turns exactly, in this scenario."""
+    tg = scenario.trajectory_generator
     ref = scenario.reference
     if getattr(ref, 'time_scaling', False):
         tips = (f'The reference is time-scaled (path following): its progress slows wherever '
@@ -234,7 +257,12 @@ def captions(metrics: dict[str, Any], scenario) -> dict[str, str]:
     else:
         tips = (f'Wherever the reference turns faster than the ω_d limit '
                 f'({tg.max_yaw_rate:g} rad/s), the vehicle cannot follow it exactly.')
-    scale = scenario.eso.yaw_input_gain_scale
+    return tips
+
+
+def _tracking_captions(m: dict[str, Any], scenario, tips: str,
+                       pulse_text: str) -> dict[str, str]:
+    """Captions of the path, posture error, tilt and velocity figures."""
     return {
         'fig04_path': (
             'Path in the map frame: reference (wide blue), true path (black), estimate from '
@@ -258,6 +286,13 @@ def captions(metrics: dict[str, Any], scenario) -> dict[str, str]:
             'lean forward (its speed response is non-minimum phase) and the MPC keeps the '
             'lean within the tilt limit. ω_d sits on its limit wherever ω_r plus the '
             f'feedback goes past it: {tips} {pulse_text}'),
+    }
+
+
+def _estimation_captions(m: dict[str, Any], scenario, pulse_text: str) -> dict[str, str]:
+    """Captions of the ESO, adaptive parameter and torque figures."""
+    scale = scenario.eso.yaw_input_gain_scale
+    return {
         'fig08_eso_rotational': (
             'Yaw ESO: ω and the lumped disturbance f1 against the truth (the true '
             'acceleration minus the nominal input term, ω̇ − g1 τω). The yaw ESO uses '
