@@ -303,8 +303,12 @@ def _section_push(report: dict) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog='scripts/bench', description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog='scripts/bench', formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=__doc__.split('\n\n')[0] + '\nSections: 1 MPC tick vs bare DAQP, 2 '
+        'in-process real-time factor, 3 node graph\nin lockstep, 4 real time against the '
+        'stand-in base, 5 push recovery against its bound\n(docs/benchmarks.md).\n\n'
+        + __doc__[__doc__.index('Examples'):])
     parser.add_argument('--scenario', help='scenario file (default: the paper Section V)')
     parser.add_argument('--repeats', type=int, default=5, help='passes / runs per benchmark')
     parser.add_argument('--no-graph', action='store_true', help='skip the node-graph run')

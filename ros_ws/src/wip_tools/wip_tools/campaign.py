@@ -189,8 +189,10 @@ def _fail(message: str) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog='scripts/campaign', description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog='scripts/campaign', formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=__doc__.split('\n\n')[0] + '\nThe campaign file and the outputs: '
+        'docs/campaign.md.\n\n' + __doc__[__doc__.index('Examples'):])
     parser.add_argument('campaign', help='campaign YAML file (format: docs/campaign.md)')
     parser.add_argument('--out', help='output folder (default: out/campaign/<name>)')
     parser.add_argument('--scheduler', metavar='ADDRESS',

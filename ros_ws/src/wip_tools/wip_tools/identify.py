@@ -343,8 +343,11 @@ def model_yaml(overrides: Mapping[str, float], notes: Iterable[str], params_file
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog='scripts/identify', description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter, epilog="""\
+        prog='scripts/identify', formatter_class=argparse.RawDescriptionHelpFormatter,
+        description='Fit the identifiable parameters of model (1) (m_v, m_p l, J_theta, '
+        'J_phi,\noptionally the friction) to a recorded run, with 95 % confidence intervals, '
+        "and\nwrite the controllers' model. Equations, method and limits: "
+        'docs/identification.md.', epilog="""\
 Examples
 --------
     scripts/identify robot_run/bag --out my_robot.yaml      # a scenario controller_model

@@ -6,55 +6,10 @@ Examples
     scripts/report robot_bag --out out/robot --scenario my_robot.yaml
     scripts/report BAG --out DIR --no-figures
 
-The bag's messages are turned into the same :class:`~wip_sim.core.record.RunRecord`
-as the in-process runner builds, and the outputs are written by the same code as
-``scripts/simulate`` (:func:`wip_tools.simulate.write_run_outputs`,
-:func:`wip_tools.analysis.metrics.compute_metrics`): ``metrics.json``, ``timeseries.npz``,
-``scenario.yaml``, ``figures/*.png`` (and ``*.svg``) and ``report.html`` (one
-self-contained page: metrics against the paper's claims, every figure with a caption
-that explains its known effects, the scenario). Progress goes to stderr. A run of the
-graph in lockstep and the same scenario in-process therefore give the same metrics.
-
-Record groups and their topics (time = the message's header stamp)
-------------------------------------------------------------------
-========== ========================== ==============================================
-group      topic                      columns
-========== ========================== ==============================================
-truth      /wip/ground_truth          state, tau_d1..3 -> d1..d3, tau_left, tau_right
-reference  /wip/reference             x, y, phi, v, omega
-estimate   /wip/state_estimate        phi, omega, f1, x_v, v, f2, theta, theta_dot, f3,
-                                      x, y
-command    /wip/velocity_command      v_d, omega_d, omega_d_dot, x_e, y_e, phi_e
-arc        /wip/yaw_torque            tau_omega, alpha_hat, e_omega
-wheels     /wip/wheel_torques         left, right -> tau_left, tau_right
-mpc        /wip/drive_torque          tau_v, delta_tau, status, iterations, solve_time,
-                                      used_fallback, slack_v, slack_theta
-========== ========================== ==============================================
-
-``mpc.status`` holds the MpcOutput status constant (SOLVED = 0, ...), and
-``mpc.solve_time`` the message's build + solve time. A drive torque whose ``status_text``
-is HELD (the lockstep MPC node's answer at a tick of its re-solve grid where it did not
-solve, ``mpc.fast_resolve_period``) is not a row: the record has the solves, as the
-runner's. A bag without ground truth (recorded
-on a robot) gives every metric that needs no truth; the others are null.
-
-Time origin: a bag in simulation time (stamps from t = 0) keeps its times; a bag in
-wall-clock time (the realtime graph, a robot) is shifted so that its first ground truth
-(else its first state estimate) is at t = 0, so that the metrics' windows (settling after
-10 s, pulse windows) apply. Samples before that origin get negative times.
-
-The scenario (limits, disturbance windows, parameters of the metrics) is the bag's own
-(its metadata's ``custom_data``, else ``BAG/scenario.yaml``, where ``scripts/run_graph
---record`` copies the run's scenario), with ``--scenario FILE`` applied over it, else the
-paper's Section V with a warning: :mod:`wip_tools.bag_scenario`, the rule rerun uses too.
-
-Integrity: the bag is checked before it is read (every chunk's CRC, a proper end). A
-damaged or unfinished bag is refused with the time range and topics it lost (exit 2);
-with ``--partial`` the intact part is reported and ``metrics.json`` says
-``partial: true`` and lists what was lost in ``lost``.
-
-Exit status: 0 done, 1 the run fell, 2 the bag, the scenario or --out cannot be used
-(nothing written), 3 internal error.
+The bag's messages become the record the in-process runner builds, and the outputs are
+written by the same code as ``scripts/simulate``: the same metrics for the same run. The
+record groups and their topics, the time origin, the scenario used and the integrity
+check: docs/recording.md ("What scripts/report reads").
 """
 
 from __future__ import annotations
