@@ -32,7 +32,7 @@ from typing import Any, Optional
 import numpy as np
 from scipy.spatial import cKDTree
 
-from wip_control.core.config import describe, from_mapping, param, to_mapping
+from wip_control.core.config import from_mapping, param, to_mapping
 from wip_control.core.runaway import RunawayGuard
 from wip_sim.core.record import RunRecord
 
@@ -99,11 +99,6 @@ def criteria_from_mapping(mapping: Any, path: str = 'criteria') -> Criteria:
 
 def criteria_to_mapping(criteria: Criteria) -> dict[str, Any]:
     return to_mapping(criteria)
-
-
-def criteria_table() -> list[dict[str, Any]]:
-    """Name, default, unit, description of every criterion (for the documentation)."""
-    return describe(Criteria)
 
 
 def _zoh(t_to: np.ndarray, t_from: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -248,7 +243,3 @@ def evaluate(measured: dict[str, Any], criteria: Criteria,
             failures and criteria.no_fall:
         failures['no_fall'] = f'run ended at t = {measured["end_time"]:.2f} s of {duration:g} s'
     return failures
-
-
-def criteria_fields() -> tuple[str, ...]:
-    return tuple(f.name for f in dataclasses.fields(Criteria))
