@@ -1,67 +1,11 @@
 """Open-loop re-run of the controllers on a recorded bag: ``scripts/rerun BAG --out DIR``.
 
 How a user checks a tuning change against a recorded run (or a recorded fall): the
-recorded sensor and command inputs of a bag are fed into the loop's two core objects,
-freshly built (``core.state_estimation.StateEstimator``, ``core.control_step.ControlStep``:
-the ones the in-process runner and the controller nodes drive), in this process, and what
-they compute now is written next to what was recorded.
-
-Inputs read from the bag (sensor_msgs / wip_msgs, as the node graph publishes them):
-``/joint_states`` (wheel joint angles), ``/imu/data`` (orientation -> pitch, yaw),
-``/gps/fix`` (-> map-frame x, y about the scenario's datum), ``/wip/reference`` (the
-recorded reference, not recomputed), ``/wip/wheel_torques`` (the recorded commands, used as
-the torques applied over the following period, the ESO's input).
-
-Per control tick k (the stamps t_k present on both /joint_states and /imu/data, in order):
-
-1. the ESO (eqs. (4), (8)) with the measurements of t_k and the wheel torques stamped
-   t_{k-1} (the last recorded command before t_k; zero before the first), built at the
-   first tick from the measured positions (as the ESO node does);
-2. the planar position: odometry, then the GPS fix stamped t_k if there is one (the
-   estimator starts at the first fix);
-3. the trajectory generator (eq. (9)) with the recorded reference stamped t_k (or the
-   newest before it), then the ARC (eqs. (12), (13));
-4. every ``mpc.sampling_period`` (every ``mpc_decimation``-th tick from the first) the MPC
-   (eqs. (16)-(23)), its torque held in between; then the mixer (eq. (24)).
-
-This is exact for a bag recorded in lockstep (it holds ``/clock``; ``--timing stamps``):
-the graph then computes exactly this, and the re-run of unchanged controllers reproduces
-its recording to rounding. For a bag recorded in real time (``--timing receive``, the
-default without ``/clock``) what each node used is decided by arrival order, which a bag
-records only as the recorder's receive times: the ticks are those the recorded ESO
-estimated; the command applied is the newest the recorder had received before the tick's
-samples; a GPS fix is used at the first tick after it was received; the MPC runs on the
-estimates its recorded outputs are stamped with, and its torque is mixed from the first
-recorded command received after that output. This approximates the nodes' own arrival
-order (measured on a 3 s real-time graph run: estimates and positions reproduced except
-around scheduling gaps, wheel torques within 0.7 N m RMS).
-
-The message conversions are those of the controller nodes
-(``wip_control.nodes.conversions``), so the re-run reads a bag exactly as the nodes read the
-live topics.
-
-**Open loop**: the applied torques come from the bag, so the recorded states (the sensors,
-the ground truth) do not respond to the recomputed torques. With the controllers unchanged
-the re-run reproduces the recorded estimates, commands and torques (to rounding); with a
-change it shows how the controllers would have reacted to the same data at the first
-instants, diverging in meaning as the recorded trajectory no longer follows them.
-
-Outputs in ``--out DIR``:
-
-- ``bag/``: a rosbag2 MCAP bag with every recorded topic copied (same bytes and times) and
-  the recomputed ``/rerun/wip/state_estimate``, ``/rerun/wip/velocity_command``,
-  ``/rerun/wip/yaw_torque``, ``/rerun/wip/drive_torque``, ``/rerun/wip/wheel_torques``
-  (prefix ``--prefix``), stamped like the recorded ones;
-- ``comparison.json``: per compared field, the max and RMS difference recomputed - recorded
-  on the common stamps, and the largest recorded magnitude for scale;
-- the report of :func:`wip_tools.simulate.write_run_outputs` on the recomputed
-  run: ``metrics.json`` (with the comparison under ``rerun``), ``timeseries.npz``,
-  ``scenario.yaml``, ``figures/`` (unless ``--no-figures``; plus
-  ``figures/rerun_comparison.png``).
-
-The scenario (controller parameters, rates, datum) is the bag's own, with ``--scenario
-FILE`` applied over it (a partial file changes only its keys): the lookup rule of
-:mod:`wip_tools.bag_scenario`, shared with ``scripts/report``.
+recorded sensor and command inputs of a bag are fed to freshly built controllers in this
+process (:mod:`wip_tools.rerun_loop`), and what they compute now is written next to what
+was recorded (:mod:`wip_tools.rerun_outputs`). The inputs, the steps of a tick, the two
+timings (lockstep and real-time bags) and the outputs: docs/recording.md ("The open-loop
+re-run").
 """
 
 from __future__ import annotations

@@ -6,8 +6,8 @@ drive). Per control tick k (the stamps t_k present on both /joint_states and /im
 order): the ESO (eqs. (4), (8)) with the measurements of t_k and the torques applied over
 [t_{k-1}, t_k); the planar position from odometry and a GPS fix; the trajectory generator
 (eq. (9)) with the recorded reference, the ARC (eqs. (12), (13)); the MPC (eqs. (16)-(23))
-at its ticks, held in between; the mixer (eq. (24)). :mod:`wip_tools.rerun` says how the
-two timings decide which recorded command and fix a tick uses.
+at its ticks, held in between; the mixer (eq. (24)). docs/recording.md says how
+the two timings decide which recorded command and fix a tick uses.
 """
 
 from __future__ import annotations
