@@ -39,12 +39,21 @@ def build_layout(scenario: ControllerSettings | None = None, live: bool = False)
     """Return the layout; limits (labels, axis ranges) from ``scenario`` (default: the paper's)."""
     import foxglove.layouts as fl
     scenario = scenario or ControllerSettings()
-    max_tilt = scenario.mpc.max_tilt
-    max_speed = scenario.trajectory_generator.max_speed
-    max_yaw_rate = scenario.trajectory_generator.max_yaw_rate
-    max_torque = scenario.mixer.max_wheel_torque
+    diagnostics = fl.DiagnosticsSummaryPanel(
+        title='Diagnostics', config=fl.DiagnosticsSummaryConfig(topic_to_render='/diagnostics'))
+    left = [fl.SplitItem(proportion=3, content=_three_d_panel(fl)),
+            fl.SplitItem(proportion=1, content=diagnostics)]
+    if live:
+        left.append(fl.SplitItem(proportion=0.5, content=_estop_buttons(fl)))
+    return fl.Layout(content=fl.SplitContainer(direction='row', items=[
+        fl.SplitItem(proportion=3, content=fl.SplitContainer(direction='column', items=left)),
+        fl.SplitItem(proportion=2, content=_plots(fl, scenario))]))
+
+
+def _three_d_panel(fl):
+    """Return the vehicle in the map frame: robot model, prediction, paths and poses."""
     marker = fl.BaseRendererRosMarkerTopicSettings
-    three_d = fl.ThreeDeePanel(title='Vehicle in map', config=fl.ThreeDeeConfig(
+    return fl.ThreeDeePanel(title='Vehicle in map', config=fl.ThreeDeeConfig(
         follow_tf='map', fixed_frame='map', follow_mode='follow-none',
         topics={
             # The robot model (URDF on /robot_description, placed by /tf); the boxes of
@@ -64,6 +73,14 @@ def build_layout(scenario: ControllerSettings | None = None, live: bool = False)
             '/wip/odom/estimate': fl.BaseRendererPoseTopicSettings(
                 visible=True, type='arrow', color='#d62728'),
         }))
+
+
+def _plots(fl, scenario: ControllerSettings):
+    """Return tilt, torques, speed and yaw rate, one above the other, with the limits."""
+    max_tilt = scenario.mpc.max_tilt
+    max_speed = scenario.trajectory_generator.max_speed
+    max_yaw_rate = scenario.trajectory_generator.max_yaw_rate
+    max_torque = scenario.mixer.max_wheel_torque
     tilt = fl.PlotPanel(title='Tilt θ [rad]', config=fl.PlotConfig(
         min_y_value=-1.25 * max_tilt, max_y_value=1.25 * max_tilt, show_legend=True,
         paths=[_series('/wip/ground_truth.theta', f'θ true (limit ±{max_tilt:g} rad)',
@@ -86,27 +103,22 @@ def build_layout(scenario: ControllerSettings | None = None, live: bool = False)
                        '#000000'),
                _series('/wip/velocity_command.omega_d', 'ω_d', '#2ca02c'),
                _series('/wip/reference.omega', 'ω_r', '#1f77b4', dashed=True)]))
-    diagnostics = fl.DiagnosticsSummaryPanel(
-        title='Diagnostics', config=fl.DiagnosticsSummaryConfig(topic_to_render='/diagnostics'))
-    plots = fl.SplitContainer(direction='column', items=[
+    return fl.SplitContainer(direction='column', items=[
         fl.SplitItem(content=tilt), fl.SplitItem(content=torques),
         fl.SplitItem(content=speed), fl.SplitItem(content=yaw)])
-    left = [fl.SplitItem(proportion=3, content=three_d),
-            fl.SplitItem(proportion=1, content=diagnostics)]
-    if live:
-        buttons = [
-            fl.ServiceCallPanel(title=text, config=fl.ServiceCallConfig(
-                service_name=name, request_payload='{}', button_text=text,
-                button_color=color, editing_mode=False, timeout_seconds=5))
-            for name, text, color in (
-                ('/wip/estop/engage', 'E-STOP', '#d62728'),
-                ('/wip/estop/release', 'Release e-stop', '#7f7f7f'),
-                ('/wip/estop/reset', 'Reset e-stop', '#2ca02c'))]
-        left.append(fl.SplitItem(proportion=0.5, content=fl.SplitContainer(
-            direction='row', items=[fl.SplitItem(content=b) for b in buttons])))
-    return fl.Layout(content=fl.SplitContainer(direction='row', items=[
-        fl.SplitItem(proportion=3, content=fl.SplitContainer(direction='column', items=left)),
-        fl.SplitItem(proportion=2, content=plots)]))
+
+
+def _estop_buttons(fl):
+    """Return the live view's e-stop buttons: engage, release, reset (the viewer's services)."""
+    buttons = [
+        fl.ServiceCallPanel(title=text, config=fl.ServiceCallConfig(
+            service_name=name, request_payload='{}', button_text=text,
+            button_color=color, editing_mode=False, timeout_seconds=5))
+        for name, text, color in (
+            ('/wip/estop/engage', 'E-STOP', '#d62728'),
+            ('/wip/estop/release', 'Release e-stop', '#7f7f7f'),
+            ('/wip/estop/reset', 'Reset e-stop', '#2ca02c'))]
+    return fl.SplitContainer(direction='row', items=[fl.SplitItem(content=b) for b in buttons])
 
 
 def layout_json(live: bool) -> str:
