@@ -17,23 +17,16 @@ import shlex
 import os
 import sys
 import pathlib
-import struct
 from typing import Any, NamedTuple
 
-from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
 from mcap.records import Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 import yaml
 
 from .bag_integrity import FileScan, iter_chunk_records, scan_file
 
 METADATA_FILE_NAME = 'metadata.yaml'
-
-# What a truncated file raises while its last record is read.
-_TRUNCATION_ERRORS = (McapError, EOFError, ValueError, IndexError, OSError, MemoryError,
-                      struct.error)
 
 
 class BagReadError(Exception):
@@ -190,36 +183,6 @@ def record_kind(record) -> str | None:
         if isinstance(record, cls):
             return kind
     return None
-
-
-def scan_mcap_records(path):
-    """Yield ``(kind, record)`` for the schemas, channels and messages of an MCAP file.
-
-    Reads the file front to back and stops quietly at a truncated or corrupt tail (a writer
-    killed before ``finish()``), so it recovers everything up to the last complete chunk.
-    ``kind`` is 'schema', 'channel' or 'message'.
-    """
-    with open(path, 'rb') as stream:
-        records = StreamReader(stream).records
-        while True:
-            try:
-                record = next(records)
-            except StopIteration:
-                return
-            except _TRUNCATION_ERRORS:
-                return
-            kind = record_kind(record)
-            if kind in ('schema', 'channel', 'message'):
-                yield kind, record
-
-
-def _has_summary(stream):
-    try:
-        return SeekingReader(stream).get_summary() is not None
-    except _TRUNCATION_ERRORS:
-        return False
-    finally:
-        stream.seek(0)
 
 
 def _read_file(path, topics, file_scan):

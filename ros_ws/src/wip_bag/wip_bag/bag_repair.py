@@ -39,12 +39,10 @@ import os
 import pathlib
 import re
 import shutil
-import struct
 import sys
 import tempfile
 from typing import NamedTuple
 
-from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
 from mcap.writer import Writer
 import yaml
@@ -61,9 +59,6 @@ from .bag_writer import (bag_metadata, BagWriterError, COMPRESSION, FileStatisti
 from .qos_yaml import normalize_offered_qos
 
 UNFINISHED_SUFFIX = '.unfinished'
-# What reading a truncated or corrupt tail raises (CRC errors are ValueErrors).
-_READ_ERRORS = (McapError, EOFError, ValueError, IndexError, OSError, MemoryError,
-                struct.error)
 _INDEX_RE = re.compile(r'_(\d+)\.mcap$')
 
 
@@ -109,15 +104,6 @@ def mcap_files_by_index(directory):
         match = _INDEX_RE.search(path.name)
         return (0, int(match.group(1)), path.name) if match else (1, 0, path.name)
     return sorted(pathlib.Path(directory).glob('*.mcap'), key=key)
-
-
-def is_finished(path):
-    """Return True if an MCAP file has its summary section (was closed properly)."""
-    try:
-        with open(path, 'rb') as stream:
-            return SeekingReader(stream).get_summary() is not None
-    except _READ_ERRORS:
-        return False
 
 
 def _topic_info(channel, schema):

@@ -367,15 +367,6 @@ class MujocoPlant:
             out.append(float(self._r * velocity[:3] @ axis - velocity[3:] @ forward))
         return out[0], out[1]
 
-    def contact_normal_forces(self) -> float:
-        """Sum of the wheel-ground normal forces [N] now."""
-        mj = _import_mujoco()
-        total, force = 0.0, np.zeros(6)
-        for i in range(self._data.ncon):
-            mj.mj_contactForce(self._model, self._data, i, force)
-            total += force[0]
-        return total
-
     # ------------------------------------------------------------------ internals
 
     def _disturbance_load(self, quat, d1, d2, d3) -> tuple:

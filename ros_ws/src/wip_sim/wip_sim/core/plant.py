@@ -297,10 +297,6 @@ class Plant:
         self._k = tuple(float(self._consts[name]) for name in _CONSTANT_NAMES)
         _load_integrator()
 
-    @classmethod
-    def from_config(cls, params: WipParameters, config: PlantConfig) -> 'Plant':
-        return cls(params, config.model, config.wheel_friction)
-
     # ------------------------------------------------------------------ dynamics
 
     def derivative(self, state: Sequence[float], tau_left: float, tau_right: float,
