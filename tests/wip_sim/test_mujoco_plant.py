@@ -21,7 +21,8 @@ from wip_control.core.config import ConfigError  # noqa: E402
 from wip_sim.core.ground import ContactConfig  # noqa: E402
 from wip_tools.analysis.metrics import compute_metrics  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
-from wip_sim.core.plant import Plant, full_input_gains, scenario_plant  # noqa: E402
+from wip_sim.core.plant import (full_input_gains, Plant, scenario_plant,  # noqa: E402
+                                simulate_hold)
 from wip_sim.core.runner import run_scenario  # noqa: E402
 from wip_sim.core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
 from wip_sim.mujoco_plant import MujocoPlant, body_inertias  # noqa: E402
@@ -161,7 +162,7 @@ def test_a_free_fall_keeps_the_full_models_energy_and_motion():
     e0 = full.energy(start)
     while abs(state[4]) < 0.4:
         state = _hold(mujoco, state, 0.0, 0.0, 5)
-        reference = full.simulate_hold(reference, 0.0, 0.0, None, 0.0, DT, 5)
+        reference = simulate_hold(full, reference, 0.0, 0.0, None, 0.0, DT, 5)
     kinetic = e0 - PARAMS.body_mass * PARAMS.gravity * PARAMS.com_height * math.cos(state[4])
     assert kinetic > 10.0
     assert abs(full.energy(state) - e0) < 0.01 * kinetic
@@ -205,7 +206,7 @@ def test_disturbances_add_their_accelerations():
     # MuJoCo plant over 20 ms from rest upright, the rates change as the full plant's do.
     d = np.tile((0.5, 1.0, -0.5), (20, 1))
     start = (0.0,) * 8
-    full = Plant(PARAMS, 'full').simulate_hold(start, 0.0, 0.0, lambda t: d[0], 0.0, DT, 20)
+    full = simulate_hold(Plant(PARAMS, 'full'), start, 0.0, 0.0, lambda t: d[0], 0.0, DT, 20)
     mujoco = MujocoPlant(PARAMS, LOSSLESS).hold_floats(start, 0.0, 0.0, d, DT)
     for i in (5, 6, 7):            # ω, υ, θ̇
         assert mujoco[i] == pytest.approx(full[i], rel=0.02, abs=1e-4)
@@ -385,8 +386,8 @@ def test_the_plant_nodes_stepping_gives_the_runners_floats():
         t = k * period
         # Each wheel: a tilt PD (drive under the lean) and a varying turn.
         tau = 60.0 * node_state[4] + 10.0 * node_state[7] + math.sin(0.7 * t)
-        node_state = tuple(node.simulate_hold(node_state, tau, tau + 0.5,
-                                              disturbances.sample, t, dt, substeps).tolist())
+        node_state = tuple(simulate_hold(node, node_state, tau, tau + 0.5,
+                                         disturbances.sample, t, dt, substeps).tolist())
         rows = disturbances.sample_many([t + j * dt for j in range(substeps)])
         runner_state = runner.hold_floats(runner_state, tau, tau + 0.5, rows, dt)
         assert node_state == runner_state

@@ -3,7 +3,7 @@
 The node runs in this process (a private rclpy context and domain) next to a test node
 that plays the controllers: it reads what the plant publishes and publishes wheel
 torques. The expected values come from the same core objects the in-process runner uses
-(``Plant.simulate_hold``, ``Sensors`` with the same seed, ``runner.initial_state``), so
+(``simulate_hold``, ``Sensors`` with the same seed, ``runner.initial_state``), so
 states must be equal to the last bit and sensor values to the precision of their
 message encoding.
 """
@@ -26,7 +26,7 @@ import yaml  # noqa: E402
 
 from wip_sim.core.disturbances import Disturbances  # noqa: E402
 from wip_control.core.model import PHI  # noqa: E402
-from wip_sim.core.plant import Plant  # noqa: E402
+from wip_sim.core.plant import Plant, simulate_hold  # noqa: E402
 from wip_control.core.references import make_reference  # noqa: E402
 from wip_sim.core.simulation import initial_state  # noqa: E402
 from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
@@ -173,7 +173,7 @@ def test_lockstep_waits_for_the_torques_of_t_k_then_steps_exactly_one_period(
     harness.spin_until(lambda: harness.plant.stale_torques == 2, 'two ignored commands')
     assert len(received['truth']) == 1 and len(received['clock']) == 1
 
-    # The torques of t_0: exactly one control period, as core Plant.simulate_hold.
+    # The torques of t_0: exactly one control period, as the core simulate_hold.
     tau_left, tau_right = 0.4, -0.25
     harness.publish_torques(tau_left, tau_right, 0)
     harness.spin_until(lambda: len(received['truth']) == 2 and len(received['joint']) == 2,
@@ -182,8 +182,8 @@ def test_lockstep_waits_for_the_torques_of_t_k_then_steps_exactly_one_period(
     assert len(received['truth']) == 2, 'the plant went on without torques'
     plant = Plant(scenario.plant.parameters, scenario.plant.model.model)
     dt = scenario.control_period
-    state1 = plant.simulate_hold(state0, tau_left, tau_right, disturbances.sample, 0.0,
-                                 dt / scenario.rates.substeps, scenario.rates.substeps)
+    state1 = simulate_hold(plant, state0, tau_left, tau_right, disturbances.sample, 0.0,
+                           dt / scenario.rates.substeps, scenario.rates.substeps)
     truth1 = received['truth'][1]
     assert stamp_ns(received['clock'][1].clock) == CONTROL_PERIOD_NS
     assert stamp_ns(truth1.header.stamp) == CONTROL_PERIOD_NS

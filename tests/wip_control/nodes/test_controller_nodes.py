@@ -42,7 +42,7 @@ from wip_control.core.lqr import LongitudinalLqr  # noqa: E402
 from wip_control.core.mpc import LongitudinalMpc  # noqa: E402
 from wip_control.core.mpc_config import MpcConfig  # noqa: E402
 from wip_control.core.params import WipParameters  # noqa: E402
-from wip_sim.core.plant import Plant  # noqa: E402
+from wip_sim.core.plant import Plant, simulate_hold  # noqa: E402
 from wip_control.core.reference_state import ReferenceState  # noqa: E402
 from wip_control.core.references import make_reference  # noqa: E402
 from wip_sim.core.runner import run_scenario  # noqa: E402
@@ -963,8 +963,8 @@ def test_six_nodes_in_lockstep_reproduce_the_in_process_runner(context, harnesse
             harness.publish('/gps/fix', gps_fix(stamp, *sensors.gps(state)))
         harness.spin_until(lambda: len(out) == k + 1, f'wheel torques at step {k}')
         assert out[-1].header.stamp == ns_to_stamp(stamp)
-        state = plant.simulate_hold(state, out[-1].left, out[-1].right, disturbances.sample,
-                                    k * 0.005, 0.001, 5)
+        state = simulate_hold(plant, state, out[-1].left, out[-1].right, disturbances.sample,
+                              k * 0.005, 0.001, 5)
     graph = [v for m in out for v in (m.left, m.right)]
     runner = [float(v) for pair in zip(wheels['tau_left'][:n], wheels['tau_right'][:n])
               for v in pair]

@@ -12,7 +12,8 @@ from scipy.integrate import simpson
 from wip_control.core.config import ConfigError, from_mapping
 from wip_control.core.model import OMEGA, PHI, THETA, THETA_DOT, V, XV, nominal_terms
 from wip_control.core.params import WipParameters
-from wip_sim.core.plant import Plant, PlantConfig, full_input_gains, tilt_pole
+from wip_sim.core.plant import (full_input_gains, Plant, PlantConfig, simulate_hold,
+                                tilt_pole)
 
 PARAMS = WipParameters()
 MODELS = ('paper', 'full')
@@ -30,6 +31,13 @@ disturbances = st.tuples(*[st.floats(-10, 10, **finite)] * 3)
 # turning: kinetic and potential energy are exchanged and J(θ) = J_ϕ + m_p l² sin²θ
 # varies, so energy and yaw momentum are informative, and nothing escapes to infinity.
 SWINGING = (0.0, 0.0, 0.0, 0.0, math.pi - 0.8, 0.5, 0.4, 1.0)
+NO_DISTURBANCE = np.zeros((1, 3))
+
+
+def step(plant, state, tau_left, tau_right, disturbance, dt):
+    """One checked RK4 step of ``dt`` [s], torques and disturbance held."""
+    return simulate_hold(plant, state, tau_left, tau_right, lambda _t: disturbance, 0.0, dt,
+                         1)
 
 
 def rk4_reference(f, x, h):
@@ -142,7 +150,7 @@ def test_step_is_classic_rk4_of_the_derivative(model, state, tau_left, tau_right
     expected = rk4_reference(lambda x: plant.derivative(x, tau_left, tau_right, dist),
                              np.array(state), h)
     # Same arithmetic in another order: rounding only, relative to |state| ≤ 50.
-    np.testing.assert_allclose(plant.step(state, tau_left, tau_right, dist, h), expected,
+    np.testing.assert_allclose(step(plant, state, tau_left, tau_right, dist, h), expected,
                                rtol=1e-12, atol=1e-12)
 
 
@@ -156,16 +164,16 @@ def test_simulate_hold_samples_the_disturbance_at_each_step_start(model):
         return (math.sin(0.5 * t), 10.0 if 0.002 <= t < 0.004 else 0.0, 0.0)
 
     t0, dt = 0.5, 1e-3
-    held = plant.simulate_hold(SWINGING, 1.5, -0.5, disturbance, t0, dt, 5)
+    held = simulate_hold(plant, SWINGING, 1.5, -0.5, disturbance, t0, dt, 5)
     assert calls == pytest.approx([t0 + k * dt for k in range(5)], abs=1e-15)
     x = np.array(SWINGING)
     for t in list(calls):
-        x = plant.step(x, 1.5, -0.5, disturbance(t), dt)
+        x = step(plant, x, 1.5, -0.5, disturbance(t), dt)
     np.testing.assert_array_equal(held, x)   # the same float operations: bit-identical
-    no_disturbance = plant.simulate_hold(SWINGING, 0.0, 0.0, None, 0.0, dt, 3)
+    no_disturbance = simulate_hold(plant, SWINGING, 0.0, 0.0, None, 0.0, dt, 3)
     expected = SWINGING
     for _ in range(3):
-        expected = plant.step(expected, 0.0, 0.0, (0.0, 0.0, 0.0), dt)
+        expected = step(plant, expected, 0.0, 0.0, (0.0, 0.0, 0.0), dt)
     np.testing.assert_array_equal(no_disturbance, expected)
 
 
@@ -176,7 +184,7 @@ def _free_run(plant, state, dt, duration):
     out[0] = state
     x = tuple(state)
     for k in range(n):
-        x = plant.step_floats(*x, 0.0, 0.0, 0.0, 0.0, 0.0, dt)
+        x = plant.hold_floats(x, 0.0, 0.0, NO_DISTURBANCE, dt)
         out[k + 1] = x
     return out
 
@@ -241,7 +249,7 @@ def test_rk4_converges_to_the_exact_solution_at_fourth_order(model):
     for dt in (0.02, 0.01):
         x = state0
         for _ in range(int(round(1.0 / dt))):
-            x = plant.step(x, *torque, (0.0, 0.0, 0.0), dt)
+            x = step(plant, x, *torque, (0.0, 0.0, 0.0), dt)
         errors.append(np.max(np.abs(x - exact)))
     # Global error ∝ dt⁴: ratio 16 in the asymptotic range (measured 15.5); DOP853's own error at
     # 1e-13 tolerance is far below either.
@@ -286,7 +294,7 @@ def test_linearisation_at_rest_has_the_closed_form_tilt_pole(model, params):
 def test_bad_state_raises_value_error(bad):
     plant = Plant(PARAMS)
     with pytest.raises(ValueError, match='plant state'):
-        plant.step(bad, 0.0, 0.0, (0.0, 0.0, 0.0), 1e-3)
+        step(plant, bad, 0.0, 0.0, (0.0, 0.0, 0.0), 1e-3)
     with pytest.raises(ValueError, match='plant state'):
         plant.derivative(bad, 0.0, 0.0)
 
@@ -294,13 +302,13 @@ def test_bad_state_raises_value_error(bad):
 def test_bad_inputs_raise_value_error():
     plant = Plant(PARAMS)
     with pytest.raises(ValueError, match='finite'):
-        plant.step(SWINGING, math.nan, 0.0, (0.0, 0.0, 0.0), 1e-3)
+        step(plant, SWINGING, math.nan, 0.0, (0.0, 0.0, 0.0), 1e-3)
     with pytest.raises(ValueError, match='finite'):
-        plant.simulate_hold(SWINGING, 0.0, math.inf, None, 0.0, 1e-3, 5)
+        simulate_hold(plant, SWINGING, 0.0, math.inf, None, 0.0, 1e-3, 5)
     with pytest.raises(ValueError, match='dt'):
-        plant.step(SWINGING, 0.0, 0.0, (0.0, 0.0, 0.0), 0.0)
+        step(plant, SWINGING, 0.0, 0.0, (0.0, 0.0, 0.0), 0.0)
     with pytest.raises(ValueError, match='n_steps'):
-        plant.simulate_hold(SWINGING, 0.0, 0.0, None, 0.0, 1e-3, -1)
+        simulate_hold(plant, SWINGING, 0.0, 0.0, None, 0.0, 1e-3, -1)
     with pytest.raises(ValueError, match="unknown plant model 'exact'"):
         Plant(PARAMS, 'exact')
 
@@ -354,9 +362,9 @@ def test_axle_friction_dissipates_what_its_power_balance_says():
     # RK4 and Simpson, both O(dt⁴) at 1 ms (the conservative runs drift 1e-9 J): 1e-6 J.
     assert change == pytest.approx(-dissipated, abs=1e-6)
     # Without friction the same run conserves energy (the test above): b = 0 changes nothing.
-    assert Plant(PARAMS, 'full', wheel_friction=0.0).step(SWINGING, 1.0, -2.0, (0, 0, 0),
-                                                          0.01).tolist() == \
-        Plant(PARAMS, 'full').step(SWINGING, 1.0, -2.0, (0, 0, 0), 0.01).tolist()
+    assert step(Plant(PARAMS, 'full', wheel_friction=0.0), SWINGING, 1.0, -2.0, (0, 0, 0),
+                0.01).tolist() == \
+        step(Plant(PARAMS, 'full'), SWINGING, 1.0, -2.0, (0, 0, 0), 0.01).tolist()
 
 
 @pytest.mark.parametrize('model', MODELS)
@@ -366,7 +374,7 @@ def test_axle_friction_matches_the_right_hand_side_it_extends(model):
     plant = Plant(PARAMS, model, wheel_friction=0.3)
     x = np.array(SWINGING)
     expected = rk4_reference(lambda y: plant.derivative(y, 2.0, -1.0), x, 0.002)
-    assert plant.step(x, 2.0, -1.0, (0.0, 0.0, 0.0), 0.002) == pytest.approx(expected,
+    assert step(plant, x, 2.0, -1.0, (0.0, 0.0, 0.0), 0.002) == pytest.approx(expected,
                                                                                rel=1e-12,
                                                                                abs=1e-12)
 

@@ -164,10 +164,9 @@ def equation_model(model: str) -> str:
 def scenario_plant(scenario):
     """Return the true plant of ``scenario`` (a :class:`.scenario.Scenario`).
 
-    The true plant of ``scenario`` (a :class:`.scenario.Scenario`): model, parameters
-    and, for an engine model, contact and terrain, stepped at the scenario's plant rate.
-    Equation models give a :class:`Plant`; an engine model an object with the same
-    ``hold_floats`` and ``simulate_hold``.
+    Model, parameters and, for an engine model, contact and terrain, stepped at the
+    scenario's plant rate. Equation models give a :class:`Plant`; an engine model an
+    object with the same ``hold_floats`` (and ``has_fallen``).
     """
     section = scenario.plant
     model = section.model.model
@@ -260,9 +259,8 @@ class Plant:
     params : true physical parameters (may differ from the controllers' nominal ones).
     model : ``'paper'`` (eq. (1)) or ``'full'`` (see the module docstring).
 
-    The fast paths without input checks are :meth:`hold_floats` (used by the in-process
-    runner) and :meth:`step_floats`; :meth:`step` and :meth:`simulate_hold` check their
-    inputs and run the same compiled code.
+    :meth:`hold_floats` integrates, without input checks (the in-process runner);
+    :func:`simulate_hold` checks the inputs and the result around it.
     """
 
     def __init__(self, params: WipParameters, model: str = 'paper',
@@ -320,41 +318,13 @@ class Plant:
         return self._accelerations_array(theta, omega, v, theta_dot, tau_left + tau_right,
                                          tau_right - tau_left)
 
-    def step(self, state: Sequence[float], tau_left: float, tau_right: float,
-             disturbance: Disturbance, dt: float) -> np.ndarray:
-        """One classic RK4 step of ``dt`` [s], torques and disturbance held over it."""
-        values = _state_floats(state)
-        tl, tr, d1, d2, d3 = _check_inputs(tau_left, tau_right, disturbance)
-        _check_dt(dt)
-        return np.array(_rk4_hold(self._k, *values, tl, tr,
-                                  np.array(((d1, d2, d3),)), dt))
-
-    def simulate_hold(self, state: Sequence[float], tau_left: float, tau_right: float,
-                      disturbance_fn: DisturbanceFunction | None, t0: float, dt: float,
-                      n_steps: int) -> np.ndarray:
-        """``n_steps`` RK4 steps of ``dt`` [s] from time ``t0`` [s], torques held.
-
-        The disturbance is sampled at each step's start, ``disturbance_fn(t0 + k dt)``,
-        and held over that step (``None``: no disturbance). Returns the final state.
-        """
-        values, tl, tr, disturbance = hold_inputs(state, tau_left, tau_right, disturbance_fn,
-                                                  t0, dt, n_steps)
-        return checked_state(_rk4_hold(self._k, *values, tl, tr, disturbance, dt))
-
-    def step_floats(self, x: float, y: float, phi: float, xv: float, th: float, om: float,
-                    v: float, thd: float, tau_left: float, tau_right: float, d1: float,
-                    d2: float, d3: float, dt: float) -> tuple:
-        """One RK4 step on plain floats, no input checks; returns the new 8-tuple."""
-        return _rk4_hold(self._k, x, y, phi, xv, th, om, v, thd, tau_left, tau_right,
-                         np.array(((d1, d2, d3),)), dt)
-
     def hold_floats(self, state: tuple, tau_left: float, tau_right: float,
                     disturbance: np.ndarray, dt: float) -> tuple:
         """``len(disturbance)`` RK4 steps of ``dt`` [s] on a float 8-tuple, no checks.
 
-        ``disturbance`` is a C-contiguous float array (n, 3) of (d1, d2, d3) per step.
-        The caller checks the result for finiteness. Same arithmetic as
-        :meth:`simulate_hold`, which validates and then calls the same compiled code.
+        The plant's one integration entry. ``disturbance`` is a C-contiguous float array
+        (n, 3) of (d1, d2, d3) per step. The caller checks the result for finiteness;
+        :func:`simulate_hold` checks the inputs and the result around it.
         """
         return _rk4_hold(self._k, *state, tau_left, tau_right, disturbance, dt)
 
@@ -410,15 +380,26 @@ class Plant:
         return a, b
 
 
-def hold_inputs(state: Sequence[float], tau_left: float, tau_right: float,
-                disturbance_fn: DisturbanceFunction | None, t0: float, dt: float,
-                n_steps: int) -> tuple[list[float], float, float, np.ndarray]:
-    """Check the arguments of a plant's ``simulate_hold``.
+def simulate_hold(plant, state: Sequence[float], tau_left: float, tau_right: float,
+                  disturbance_fn: DisturbanceFunction | None, t0: float, dt: float,
+                  n_steps: int) -> np.ndarray:
+    """Integrate ``n_steps`` RK4 steps of ``dt`` [s] from ``t0`` [s], torques [N m] held.
 
-    Returns (state floats, τl, τr, the disturbance rows (n_steps, 3) sampled at each
-    step's start); ValueError on a wrong size, NaN/inf, a non-positive ``dt`` or a
-    negative or fractional ``n_steps``.
+    ``plant`` is a :class:`Plant` or any plant with its ``hold_floats`` (the MuJoCo
+    plant). The disturbance is sampled at each step's start, ``disturbance_fn(t0 + k dt)``,
+    and held over that step (``None``: no disturbance). Returns the final state;
+    ValueError on a wrong size, NaN/inf, a non-positive ``dt``, a negative or fractional
+    ``n_steps``, or a state that became non-finite.
     """
+    values, tl, tr, disturbance = _hold_inputs(state, tau_left, tau_right, disturbance_fn,
+                                               t0, dt, n_steps)
+    return _checked_state(plant.hold_floats(tuple(values), tl, tr, disturbance, dt))
+
+
+def _hold_inputs(state: Sequence[float], tau_left: float, tau_right: float,
+                 disturbance_fn: DisturbanceFunction | None, t0: float, dt: float,
+                 n_steps: int) -> tuple[list[float], float, float, np.ndarray]:
+    """Return the checked state floats, τl, τr and disturbance rows (n_steps, 3)."""
     values = _state_floats(state)
     tl, tr, _, _, _ = _check_inputs(tau_left, tau_right, (0.0, 0.0, 0.0))
     _check_dt(dt)
@@ -434,7 +415,7 @@ def hold_inputs(state: Sequence[float], tau_left: float, tau_right: float,
     return values, tl, tr, disturbance
 
 
-def checked_state(x: Sequence[float]) -> np.ndarray:
+def _checked_state(x: Sequence[float]) -> np.ndarray:
     """Return a plant's new state as an array; ValueError if it is not finite."""
     if not math.isfinite(math.fsum(x)):
         raise ValueError(f'plant state became non-finite: {x} (check the disturbances)')

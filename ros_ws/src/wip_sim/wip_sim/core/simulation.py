@@ -154,7 +154,7 @@ class Simulation:
 class DisturbanceBlocks:
     """(d1, d2, d3) at t_k + j dt_plant, j < substeps, computed ``ticks`` ticks at a time.
 
-    The same scalar functions at the same float times as ``Plant.simulate_hold``
+    The same scalar functions at the same float times as :func:`.plant.simulate_hold`
     (t0 + j dt with t0 = k dt_control), so the values are identical; batching only
     saves building a small array per tick (and row j = 0, recorded, is kept as Python
     floats, cheaper to record than numpy scalars).
