@@ -27,8 +27,8 @@ import yaml
 
 from wip_bag.bag_reader import bag_summary, read_bag
 from wip_bag.bag_repair import repair_bag
-from wip_bag.bag_writer import (BagExistsError, message_definition, Rosbag2McapWriter,
-                                type_description_hash)
+from wip_bag.bag_writer import BagExistsError, Rosbag2McapWriter
+from wip_bag.message_definitions import message_definition, type_description_hash
 from wip_bag.qos_yaml import dump_offered_qos, qos_profile_to_dict
 
 START_NS = 1_700_000_000_000_000_000  # an epoch time [ns]
@@ -247,7 +247,7 @@ def test_message_definition_is_rosbag2s_full_text():
     blocks = text.split('\n' + '=' * 80 + '\n')
     # The type's own .msg file first, verbatim, then each dependency once, depth first with
     # the dependencies of a type in sorted order (std::set in rosbag2).
-    from wip_bag.bag_writer import interface_file
+    from wip_bag.message_definitions import interface_file
     assert blocks[0] == interface_file('sensor_msgs/msg/Imu', '.msg').read_text()
     assert [b.split('\n', 1)[0] for b in blocks[1:]] == [
         'MSG: geometry_msgs/Quaternion', 'MSG: geometry_msgs/Vector3', 'MSG: std_msgs/Header',

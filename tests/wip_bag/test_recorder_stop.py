@@ -1,6 +1,6 @@
 """When the recorder drains after a stop signal, and when its drain ends (no processes, no DDS).
 
-``wip_bag.recorder_node.spin`` and ``drain`` with a scripted executor and a simulated
+``wip_bag.recorder_stop.spin`` and ``drain`` with a scripted executor and a simulated
 clock: which signals start a drain, that a drain waits for spins without a message (not
 for wall time, which a descheduled recorder loses), and that it ends at its bound while
 messages keep coming. The same behaviour end to end: ``test_recorder_robust.py`` (a live
@@ -11,7 +11,7 @@ import signal
 
 import pytest
 
-from wip_bag import recorder_node
+from wip_bag import recorder_stop
 
 pytestmark = pytest.mark.ros
 
@@ -56,21 +56,21 @@ class FakeNode:
 
 
 class Signals:
-    """What :class:`recorder_node.StopSignals` records, without installing handlers."""
+    """What :class:`recorder_stop.StopSignals` records, without installing handlers."""
 
     def __init__(self):
         self.count = 0
         self.first = None
 
     def receive(self, number):
-        recorder_node.StopSignals._on_signal(self, number, None)
+        recorder_stop.StopSignals._on_signal(self, number, None)
 
 
 @pytest.fixture
 def clock(monkeypatch):
     fake = FakeClock()
-    monkeypatch.setattr(recorder_node.time, 'monotonic', fake)
-    monkeypatch.setattr(recorder_node.rclpy, 'ok', lambda context=None: True)
+    monkeypatch.setattr(recorder_stop.time, 'monotonic', fake)
+    monkeypatch.setattr(recorder_stop.rclpy, 'ok', lambda context=None: True)
     return fake
 
 
@@ -86,10 +86,10 @@ def test_only_a_launched_recorders_sigint_starts_a_drain(clock, launched, number
     # Messages keep coming for 20 spins; the signal arrives at the 3rd.
     executor = ScriptedExecutor(node, clock, messages=20, seconds_per_spin=0.01,
                                 on_spin=lambda k: stop.receive(number) if k == 3 else None)
-    recorder_node.spin(node, executor, stop, launched)
+    recorder_stop.spin(node, executor, stop, launched)
     assert stop.first == number
     if drains:   # every message, then the quiet spins
-        empty = round(recorder_node.STOP_QUIET / recorder_node.SPIN_TIMEOUT)
+        empty = round(recorder_stop.STOP_QUIET / recorder_stop.SPIN_TIMEOUT)
         assert executor.spins == 20 + empty
     else:
         assert executor.spins == 3
@@ -102,7 +102,7 @@ def test_a_starved_drain_still_takes_what_came_meanwhile(clock):
     node, stop = FakeNode(), Signals()
     stop.receive(signal.SIGINT)
     executor = ScriptedExecutor(node, clock, messages=10, seconds_per_spin=1.0)
-    recorder_node.drain(node, executor, stop, quiet=0.5, longest=60.0)
+    recorder_stop.drain(node, executor, stop, quiet=0.5, longest=60.0)
     assert executor.messages == 0
     assert executor.spins == 10 + 5   # then five empty spins of 0.1 s
 
@@ -111,7 +111,7 @@ def test_a_drain_ends_at_its_bound_when_messages_never_stop(clock):
     node, stop = FakeNode(), Signals()
     stop.receive(signal.SIGINT)
     executor = ScriptedExecutor(node, clock, messages=None, seconds_per_spin=0.1)
-    recorder_node.drain(node, executor, stop, quiet=0.5, longest=30.0)
+    recorder_stop.drain(node, executor, stop, quiet=0.5, longest=30.0)
     assert executor.spins == pytest.approx(300, abs=1)
 
 
@@ -120,5 +120,5 @@ def test_a_second_signal_ends_a_drain(clock):
     stop.receive(signal.SIGINT)
     executor = ScriptedExecutor(node, clock, messages=None, seconds_per_spin=0.1,
                                 on_spin=lambda k: stop.receive(signal.SIGINT) if k == 7 else None)
-    recorder_node.drain(node, executor, stop, quiet=0.5, longest=30.0)
+    recorder_stop.drain(node, executor, stop, quiet=0.5, longest=30.0)
     assert executor.spins == 7 and stop.count == 2 and stop.first == signal.SIGINT

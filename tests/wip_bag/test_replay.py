@@ -338,7 +338,8 @@ def test_start_offset_duration_loop_and_topic_selection(test_node, tools, tmp_pa
 
 def test_command_line_and_qos_rules():
     from rclpy.qos import QoSDurabilityPolicy
-    from wip_bag.replayer_node import parse_command_line, playback_qos
+    from wip_bag.playback import playback_qos
+    from wip_bag.replayer_node import parse_command_line
     overrides, ros_args = parse_command_line([
         'bag_dir', '--rate', '2', '--clock', '--topics', '/a', '/b', '--stay',
         '--ros-args', '-r', '/a:=/c'])

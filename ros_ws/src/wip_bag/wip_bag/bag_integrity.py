@@ -31,6 +31,7 @@ MAGIC = b'\x89MCAP0\r\n'
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
 OP_MESSAGE_INDEX, OP_DATA_END = 7, 15
 _KNOWN_OPCODES = set(range(1, 16))
+_UNFINISHED = 'unfinished file (cut short, or its recorder was killed)'
 _FOOTER_SIZE = 1 + 8 + 20  # opcode, length, summary_start, summary_offset_start, crc
 _COMPRESSIONS = (b'', b'zstd', b'lz4')
 # What decoding damaged bytes can raise.
@@ -218,88 +219,34 @@ def scan_file(path: str | pathlib.Path) -> FileScan:
     return scan
 
 
+class _DamageTracker:
+    """Damaged stretches of a file: one opens at a bad record, the next good chunk closes it."""
+
+    def __init__(self) -> None:
+        self.last_end_ns: int | None = None  # end of the last good chunk's messages
+        self.open: list | None = None  # [offset, reason, after_ns, channel ids]
+        self.closed: list[list] = []  # [offset, reason, after_ns, before_ns, channel ids]
+
+    def begin(self, offset: int, reason: str) -> None:
+        if self.open is None:
+            self.open = [offset, reason, self.last_end_ns, set()]
+
+    def close(self, before_ns: int | None) -> None:
+        if self.open is not None:
+            offset, reason, after, channels = self.open
+            self.closed.append([offset, reason, after, before_ns, channels])
+            self.open = None
+
+
 def _scan(data, size: int, scan: FileScan) -> None:
     footer = _footer(data, size)
-    limit = footer[0] if footer is not None else size
-    pos: int | None = len(MAGIC)
-    last_end_ns: int | None = None
-    open_damage: list | None = None  # [offset, reason, after_ns, channel ids]
-    raw: list[list] = []  # closed: [offset, reason, after_ns, before_ns, channel ids]
-    data_end = None
-
-    def begin(offset: int, reason: str) -> None:
-        nonlocal open_damage
-        if open_damage is None:
-            open_damage = [offset, reason, last_end_ns, set()]
-
-    def close(before_ns: int | None) -> None:
-        nonlocal open_damage
-        if open_damage is not None:
-            offset, reason, after, channels = open_damage
-            raw.append([offset, reason, after, before_ns, channels])
-            open_damage = None
-
-    if bytes(data[:len(MAGIC)]) != MAGIC:
-        begin(0, 'damaged file header')
-        pos = _resync(data, 0, limit)
-    while pos is not None and pos < limit:
-        if pos + 9 > limit:
-            begin(pos, 'unfinished file (cut short, or its recorder was killed)')
-            break
-        opcode = data[pos]
-        length = _u64(data, pos + 1)
-        end = pos + 9 + length
-        if opcode not in _KNOWN_OPCODES or end > limit:
-            if footer is None and opcode in _KNOWN_OPCODES and _resync(
-                    data, pos + 1, limit) is None:
-                begin(pos, 'unfinished file (cut short, or its recorder was killed)')
-                break
-            begin(pos, 'broken record framing')
-            pos = _resync(data, pos + 1, limit)
-            continue
-        if opcode == OP_CHUNK:
-            parsed = _parse_chunk(data, pos, limit)
-            records = chunk_records(parsed[0]) if parsed is not None else None
-            if records is None:
-                begin(pos, 'chunk CRC mismatch' if parsed is not None
-                      else 'broken chunk header')
-                pos = end
-                continue
-            chunk = parsed[0]
-            close(chunk.message_start_time)
-            for record in records:
-                _keep(scan, record)
-            scan.chunks.append(GoodChunk(pos, chunk.message_start_time,
-                                         chunk.message_end_time, chunk.compression))
-            last_end_ns = chunk.message_end_time if last_end_ns is None else max(
-                last_end_ns, chunk.message_end_time)
-        elif opcode == OP_MESSAGE_INDEX:
-            if open_damage is not None:  # The index of the damaged chunk: its channels.
-                record = _try_read(opcode, data, pos, end)
-                if record is not None:
-                    open_damage[3].add(record.channel_id)
-        elif opcode == OP_DATA_END:
-            data_end = pos
-            crc = _u32(data, pos + 9) if length >= 4 else 0
-            if crc and open_damage is None and not raw and zlib.crc32(data[:pos]) != crc:
-                begin(pos, 'data section CRC mismatch')
-            break
-        elif opcode in (OP_SCHEMA, OP_CHANNEL, 0x0C):
-            record = _try_read(opcode, data, pos, end)
-            if record is None:
-                begin(pos, 'damaged record')
-            else:
-                _keep(scan, record)
-        elif opcode == OP_MESSAGE:
-            scan.loose.append((pos, length))
-        elif opcode == OP_FOOTER:
-            break
-        pos = end
+    damage = _DamageTracker()
+    pos, data_end = _walk_records(data, footer[0] if footer is not None else size,
+                                  footer is not None, scan, damage)
     if data_end is None:
         scan.unfinished = True
-        begin(pos if pos is not None else size,
-              'unfinished file (cut short, or its recorder was killed)')
-    close(None)
+        damage.begin(pos if pos is not None else size, _UNFINISHED)
+    damage.close(None)
     if footer is not None and data_end is not None and footer[1]:
         # The summary's channels name the topics of a damaged chunk that defined them.
         _read_summary(data, footer[1], footer[0], scan)
@@ -308,12 +255,78 @@ def _scan(data, size: int, scan: FileScan) -> None:
         scan.notes.append(f'{scan.path.name}: damaged summary or footer (every message is '
                           'intact; scripts/bag_repair rebuilds it)')
     every_topic = {channel.topic for channel in scan.channels.values()}
-    for offset, reason, after, before, channels in raw:
+    for offset, reason, after, before, channels in damage.closed:
         # A file cut short lost the tail of every topic; a damaged chunk those of its index.
         topics = ({scan.topic_of(c) for c in channels} if channels
                   else every_topic if reason.startswith('unfinished') or before is None
                   else set())
         scan.damage.append(Damage(offset, reason, after, before, tuple(sorted(topics))))
+
+
+def _walk_records(data, limit: int, has_footer: bool, scan: FileScan,
+                  damage: _DamageTracker) -> tuple[int | None, int | None]:
+    """Read the data section's records up to ``limit``; (where it stopped, DataEnd's offset)."""
+    pos: int | None = len(MAGIC)
+    if bytes(data[:len(MAGIC)]) != MAGIC:
+        damage.begin(0, 'damaged file header')
+        pos = _resync(data, 0, limit)
+    while pos is not None and pos < limit:
+        if pos + 9 > limit:
+            damage.begin(pos, _UNFINISHED)
+            break
+        opcode = data[pos]
+        length = _u64(data, pos + 1)
+        end = pos + 9 + length
+        if opcode not in _KNOWN_OPCODES or end > limit:
+            if not has_footer and opcode in _KNOWN_OPCODES and _resync(
+                    data, pos + 1, limit) is None:
+                damage.begin(pos, _UNFINISHED)
+                break
+            damage.begin(pos, 'broken record framing')
+            pos = _resync(data, pos + 1, limit)
+            continue
+        if opcode == OP_CHUNK:
+            _keep_chunk(data, pos, limit, scan, damage)
+        elif opcode == OP_MESSAGE_INDEX:
+            if damage.open is not None:  # The index of the damaged chunk: its channels.
+                record = _try_read(opcode, data, pos, end)
+                if record is not None:
+                    damage.open[3].add(record.channel_id)
+        elif opcode == OP_DATA_END:
+            crc = _u32(data, pos + 9) if length >= 4 else 0
+            if (crc and damage.open is None and not damage.closed
+                    and zlib.crc32(data[:pos]) != crc):
+                damage.begin(pos, 'data section CRC mismatch')
+            return pos, pos
+        elif opcode in (OP_SCHEMA, OP_CHANNEL, 0x0C):
+            record = _try_read(opcode, data, pos, end)
+            if record is None:
+                damage.begin(pos, 'damaged record')
+            else:
+                _keep(scan, record)
+        elif opcode == OP_MESSAGE:
+            scan.loose.append((pos, length))
+        elif opcode == OP_FOOTER:
+            break
+        pos = end
+    return pos, None
+
+
+def _keep_chunk(data, pos: int, limit: int, scan: FileScan, damage: _DamageTracker) -> None:
+    """Keep the records of an intact chunk; a damaged one opens a damaged stretch."""
+    parsed = _parse_chunk(data, pos, limit)
+    records = chunk_records(parsed[0]) if parsed is not None else None
+    if records is None:
+        damage.begin(pos, 'chunk CRC mismatch' if parsed is not None else 'broken chunk header')
+        return
+    chunk = parsed[0]
+    damage.close(chunk.message_start_time)
+    for record in records:
+        _keep(scan, record)
+    scan.chunks.append(GoodChunk(pos, chunk.message_start_time, chunk.message_end_time,
+                                 chunk.compression))
+    damage.last_end_ns = (chunk.message_end_time if damage.last_end_ns is None
+                          else max(damage.last_end_ns, chunk.message_end_time))
 
 
 def _keep(scan: FileScan, record) -> None:

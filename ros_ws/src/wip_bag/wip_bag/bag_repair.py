@@ -170,10 +170,9 @@ def _parse_serialized(metadata):
 
 
 def _rewrite(path, target, compression):
-    """Write the intact chunks of ``path`` into a finished MCAP file.
+    """Write the intact chunks of ``path`` into a finished MCAP file ``target``.
 
-    The intact chunks of ``path`` into a finished MCAP file ``target`` (None: only
-    count); returns its FileContents.
+    ``target`` None: only count. Returns the file's FileContents.
     """
     file_scan = scan(path)
     contents = FileContents(path.name, False)
@@ -317,25 +316,7 @@ def repair_bag(directory, out=None, compression=None, dry_run=False):
         If the directory holds no ``.mcap`` file, or ``out`` exists or cannot be written.
     """
     directory = pathlib.Path(directory)
-    if compression is not None and compression not in COMPRESSION:
-        raise ValueError(f'compression {compression!r} not supported; expected one of '
-                         f'{sorted(COMPRESSION)}')
-    if not directory.is_dir():
-        raise BagWriterError(f'{directory} is not a bag directory')
-    paths = mcap_files_by_index(directory)
-    if not paths:
-        raise BagWriterError(f'{directory}: no .mcap file to repair')
-    out = pathlib.Path(out) if out is not None else default_output(directory)
-    if out.exists() or out.is_symlink():
-        raise BagWriterError(f'--out {out} exists: the repaired bag goes to a new directory '
-                             '(give another --out)')
-    resolved = out.resolve()
-    if resolved == directory.resolve() or directory.resolve() in resolved.parents:
-        raise BagWriterError(f'--out {out}: inside the original bag, which is never touched')
-    try:
-        check_output_directory(out, '--out')
-    except ValueError as err:
-        raise BagWriterError(str(err)) from err
+    paths, out = _check_repair_arguments(directory, out, compression)
     work = None
     if not dry_run:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -357,6 +338,30 @@ def repair_bag(directory, out=None, compression=None, dry_run=False):
         if work is not None:
             shutil.rmtree(work, ignore_errors=True)  # Ours: created above.
     return RepairResult(information, reports, out)
+
+
+def _check_repair_arguments(directory, out, compression):
+    """Return the bag's MCAP files and the new bag's path; ValueError, BagWriterError."""
+    if compression is not None and compression not in COMPRESSION:
+        raise ValueError(f'compression {compression!r} not supported; expected one of '
+                         f'{sorted(COMPRESSION)}')
+    if not directory.is_dir():
+        raise BagWriterError(f'{directory} is not a bag directory')
+    paths = mcap_files_by_index(directory)
+    if not paths:
+        raise BagWriterError(f'{directory}: no .mcap file to repair')
+    out = pathlib.Path(out) if out is not None else default_output(directory)
+    if out.exists() or out.is_symlink():
+        raise BagWriterError(f'--out {out} exists: the repaired bag goes to a new directory '
+                             '(give another --out)')
+    resolved = out.resolve()
+    if resolved == directory.resolve() or directory.resolve() in resolved.parents:
+        raise BagWriterError(f'--out {out}: inside the original bag, which is never touched')
+    try:
+        check_output_directory(out, '--out')
+    except ValueError as err:
+        raise BagWriterError(str(err)) from err
+    return paths, out
 
 
 def current_umask() -> int:

@@ -6,38 +6,14 @@ project's report read them).
 
 Parameters (all read-only, read at start-up)
 --------------------------------------------
-output : str
-    Bag directory to create; default ``rosbag2_YYYY_MM_DD-HH_MM_SS`` in the working directory.
-    An existing non-empty directory is an error (a bag is never overwritten).
-topics : string array
-    Topics to record; empty (default) = every topic of the graph, including topics that
-    appear later (the graph is polled every ``discovery_period``), hidden topics excepted.
-exclude : string array
-    Topics never recorded (exact names, resolved like ``topics``).
-compression : str
-    MCAP chunk compression: 'zstd' (default), 'lz4' or 'none'.
-chunk_size : int
-    Uncompressed size of an MCAP chunk [bytes] (default 1 MiB); a chunk is also closed at
-    each flush.
-max_bag_size : int
-    Split the bag into files ``<name>_0.mcap``, ``<name>_1.mcap`` ... of at most this
-    many bytes of data each (plus a few KiB of summary); 0 (default) = no limit.
-max_bag_duration : float
-    Split the bag into files covering at most this long [s] (of receive time); 0 (default)
-    = no limit.
-discovery_period : float
-    Period of the graph polling that subscribes to new topics [s] (wall time).
-flush_period : float
-    The bag file is flushed at least this often [s] (chunk closed, data handed to the OS
-    and fsync'ed to the disk), bounding what a crash (SIGKILL, power loss) loses: every
-    chunk flushed is recovered by ``scripts/bag_repair``; 0 = only at close.
-close_timeout : float
-    Longest wait [s] at shutdown for the writer to write what is queued and close the bag
-    (default 30); past it the recorder exits anyway and says so (the bag is then repaired
-    with ``scripts/bag_repair``).
-scenario_file : str
-    Optional scenario YAML stored in the bag's ``custom_data['wip.scenario']``, where
-    ``scripts/rerun`` finds the controller parameters of the run.
+:class:`wip_bag.settings.RecorderSettings` (docs/parameters.md): the bag directory (never
+overwritten), the topics (empty: every topic of the graph, also later ones, hidden topics
+excepted) and those excluded, the chunk compression and size (a chunk is also closed at
+each flush), the splits into ``<name>_0.mcap``, ``<name>_1.mcap`` ... by size or receive
+time, the flush period (chunk closed and fsync'ed: what a crash loses, every flushed chunk
+being recovered by ``scripts/bag_repair``), the close timeout (past it the recorder exits
+anyway and says so) and the scenario file stored in ``custom_data['wip.scenario']`` for
+``scripts/rerun``.
 
 Behaviour
 ---------
@@ -57,12 +33,10 @@ Behaviour
   resting :data:`WRITE_BATCH_PAUSE` between them. Nothing received is dropped.
 - SIGINT, SIGTERM, SIGHUP (and the launcher's death, which the kernel turns into SIGINT:
   ``wip_control.nodes.launched``): at a SIGINT a recorder that a launcher started first
-  takes what the graph already sent (it spins on until nothing has arrived for
-  :data:`STOP_QUIET` s, at most :data:`STOP_DRAIN` s; a second signal cuts this short); a
-  live launcher drains it itself and stops it with SIGTERM, and a recorder run by hand
-  stops at once. Then the subscriptions stop,
-  the queue is drained and the bag is closed (MCAP summary and ``metadata.yaml``
-  written). The signals only set a flag (rclpy's own handler is off): no
+  takes what the graph already sent (:mod:`.recorder_stop`); a live launcher drains it
+  itself and stops it with SIGTERM, and a recorder run by hand stops at once. Then the
+  subscriptions stop, the queue is drained and the bag is closed (MCAP summary and
+  ``metadata.yaml`` written). The signals only set a flag (rclpy's own handler is off): no
   KeyboardInterrupt can land inside the close and leave the bag unfinished, whatever
   arrives meanwhile. The main thread never blocks (it spins with a timeout), so a signal
   is served within 0.1 s even while the writer is busy.
@@ -87,7 +61,6 @@ Behaviour
 """
 
 import datetime
-import math
 import os
 import queue
 import signal
@@ -99,7 +72,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import rclpy
 import rclpy.logging
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
                        QoSReliabilityPolicy)
@@ -111,9 +84,10 @@ from wip_control.nodes.diagnostics import create_diagnostics_timer
 from wip_control.nodes.parameters import ConfigParameters
 from wip_control.tools.cli import answer_node_help, EXIT_USAGE
 
-from .bag_writer import (BagExistsError, BagWriterError, message_definition,
-                         Rosbag2McapWriter, type_description_hash)
+from .bag_writer import BagExistsError, BagWriterError, Rosbag2McapWriter
+from .message_definitions import message_definition, type_description_hash
 from .message_types import message_class
+from .recorder_stop import make_executor, spin, STOP_SIGNALS, StopSignals
 from .settings import RecorderSettings
 
 #: Keep-last depth of the recording subscriptions [messages]. A lockstep graph publishes
@@ -123,22 +97,12 @@ from .settings import RecorderSettings
 #: The DDS layer fills the cache lazily, so the depth costs memory only when it is used.
 SUBSCRIPTION_DEPTH = 20000
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
-SPIN_TIMEOUT = 0.1  # [s] of one spin_once; bounds the reaction time to a shutdown
 _STOP = object()  # Sentinel that ends the writer thread.
-#: After a SIGINT to a recorder that a launcher started [s, wall]: it keeps receiving until
-#: nothing has arrived for STOP_QUIET, at most STOP_DRAIN. At the launcher's death every node
-#: gets its signal at once, and the recorder may still be behind the publishers (seconds on
-#: a loaded machine). A live launcher drains it before it stops it (SIGTERM: at once), and a
-#: recorder run by hand stops at once.
-STOP_QUIET = 0.5
-STOP_DRAIN = 30.0
 #: Free space [bytes] kept for the MCAP summary, metadata.yaml and the run's last files.
 SUMMARY_MARGIN = 128 * 1024
 SPACE_CHECK_PERIOD = 0.25  # [s] between two looks at the free space (statvfs)
 #: [s] the writer thread rests after writing what was queued (it writes in batches).
 WRITE_BATCH_PAUSE = 0.005
-#: The signals that stop the recorder: Ctrl-C, a service manager's stop, a closed terminal.
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 SCENARIO_KEY = 'wip.scenario'  # custom_data key read by scripts/rerun
 
 
@@ -190,31 +154,7 @@ class RecorderNode(Node):
         discovery_period = settings.discovery_period
         self.flush_period = settings.flush_period
         self.close_timeout = settings.close_timeout
-        custom_data = {'recorder': self.get_fully_qualified_name()}
-        # Under a namespace (one vehicle of several in a domain) the topics of that
-        # namespace are stored without it: a vehicle's bag then reads the same whatever
-        # namespace it ran under, and the bag tools, which know the graph's names
-        # (/wip/state_estimate, ...), read it as it is. The namespace is kept here.
-        self.namespace = self.get_namespace().rstrip('/')
-        if self.namespace:
-            custom_data['namespace'] = self.namespace
-        scenario_file = settings.scenario_file
-        if scenario_file:
-            try:
-                with open(scenario_file, encoding='utf-8') as stream:
-                    custom_data[SCENARIO_KEY] = stream.read()
-            except OSError as err:
-                raise ValueError(f'scenario_file {scenario_file!r}: {err.strerror}') from err
-        try:
-            self.bag = Rosbag2McapWriter(
-                self.output, compression=compression, custom_data=custom_data,
-                chunk_size=settings.chunk_size, max_bag_size=settings.max_bag_size,
-                max_bag_duration=settings.max_bag_duration)
-        except BagExistsError:
-            raise
-        except OSError as err:
-            raise RecorderStartError(f'cannot create the bag {self.output}: '
-                                     f'{err.strerror or err}') from err
+        self.bag = self._open_bag(settings)
         self._dropped = 0  # messages received after a write failure
         self._disk_full = False  # recording stopped for want of space, the bag finished
         self._file_size = 0  # [bytes] of the bag file at the last look
@@ -247,7 +187,34 @@ class RecorderNode(Node):
             self.close()  # Leave a valid (maybe empty) bag, never a half-written one.
             raise
 
-    # -- parameters ------------------------------------------------------------------------
+    def _open_bag(self, settings):
+        """Create the bag with its custom data (the recorder, namespace and scenario)."""
+        custom_data = {'recorder': self.get_fully_qualified_name()}
+        # Under a namespace (one vehicle of several in a domain) the topics of that
+        # namespace are stored without it: a vehicle's bag then reads the same whatever
+        # namespace it ran under, and the bag tools, which know the graph's names
+        # (/wip/state_estimate, ...), read it as it is. The namespace is kept here.
+        self.namespace = self.get_namespace().rstrip('/')
+        if self.namespace:
+            custom_data['namespace'] = self.namespace
+        scenario_file = settings.scenario_file
+        if scenario_file:
+            try:
+                with open(scenario_file, encoding='utf-8') as stream:
+                    custom_data[SCENARIO_KEY] = stream.read()
+            except OSError as err:
+                raise ValueError(f'scenario_file {scenario_file!r}: {err.strerror}') from err
+        try:
+            return Rosbag2McapWriter(
+                self.output, compression=settings.compression, custom_data=custom_data,
+                chunk_size=settings.chunk_size, max_bag_size=settings.max_bag_size,
+                max_bag_duration=settings.max_bag_duration)
+        except BagExistsError:
+            raise
+        except OSError as err:
+            raise RecorderStartError(f'cannot create the bag {self.output}: '
+                                     f'{err.strerror or err}') from err
+
     # -- topics ----------------------------------------------------------------------------
     def _wanted(self, topic):
         if topic in self.excluded or topic in self._recorded or topic in self._failed:
@@ -488,72 +455,6 @@ class RecorderNode(Node):
     def destroy_node(self):
         self.close()
         return super().destroy_node()
-
-
-def make_executor(context=None):
-    """EventsExecutor when this rclpy has it (10x lower latency), else SingleThreaded."""
-    try:
-        from rclpy.experimental import EventsExecutor
-        return EventsExecutor(context=context)
-    except (ImportError, AttributeError, RuntimeError):
-        return SingleThreadedExecutor(context=context)
-
-
-class StopSignals:
-    """Stop signals as a flag instead of an exception.
-
-    SIGINT, SIGTERM and SIGHUP set a flag (counted) instead of raising: the spin loop
-    and the stop's drain look at it, and the close that follows cannot be cut by one.
-    """
-
-    def __init__(self):
-        self.count = 0
-        self.first: int | None = None   # the first signal's number
-        for number in STOP_SIGNALS:
-            signal.signal(number, self._on_signal)
-
-    def _on_signal(self, number, frame):
-        if not self.count:
-            self.first = number
-        self.count += 1
-
-
-def spin(node, executor, stop=None, launched=False):
-    """Spin until a stop signal; then :func:`drain` if it was a launched recorder's SIGINT.
-
-    Spin with a timeout (the EventsExecutor's spin() ignores SIGINT, ros-from-pip.md).
-    ``launched``: started by a wip launcher, which stops it with SIGTERM once it has drained
-    it; a SIGINT then means that the launcher died (the kernel's death signal) or someone
-    else stops the run, and what the graph already sent is still coming.
-    """
-    executor.add_node(node)
-    while rclpy.ok(context=node.context) and not (stop and stop.count):
-        executor.spin_once(timeout_sec=SPIN_TIMEOUT)
-    # The signal, not getppid(), tells the launcher's death: the kernel sends the death
-    # signal when the thread that started this process exits, and first hands the process
-    # to another thread of the dying launcher, so getppid() still names the launcher then
-    # (seen: the recorder stopped at once and lost the plant's last ticks).
-    if stop is not None and launched and stop.first == signal.SIGINT:
-        drain(node, executor, stop)
-
-
-def drain(node, executor, stop, quiet=STOP_QUIET, longest=STOP_DRAIN):
-    """Receive what is still coming after the first stop signal.
-
-    Receive until nothing arrived for ``quiet`` [s], at most ``longest`` [s], or until a
-    second signal. Quiet means spins that waited without a message, not wall time since
-    the last one: a recorder descheduled for longer than ``quiet`` on a loaded machine
-    finds the messages that came meanwhile at its next spin.
-    """
-    started = time.monotonic()
-    timeout = min(SPIN_TIMEOUT, quiet)
-    empty_needed = max(1, math.ceil(quiet / timeout - 1e-9))
-    empty = 0
-    while (rclpy.ok(context=node.context) and stop.count < 2 and empty < empty_needed
-           and time.monotonic() - started < longest):
-        before = node.last_received
-        executor.spin_once(timeout_sec=timeout)
-        empty = empty + 1 if node.last_received == before else 0
 
 
 def main(args=None):

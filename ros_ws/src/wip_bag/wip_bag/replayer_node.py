@@ -13,48 +13,14 @@ of the same name) or ``ros2 run wip_bag replay --ros-args -p bag:=BAG ...``.
 
 Parameters (read-only, read at start-up)
 ----------------------------------------
-bag : str
-    Bag directory or ``.mcap`` file (required; also the first positional argument).
-rate : float
-    Playback speed factor: 2 plays twice as fast as recorded (default 1).
-start_offset : float
-    Start this many seconds [s] after the bag's first message (default 0).
-duration : float
-    Play only this many seconds [s] of the bag from the start point; 0 = to the end.
-loop : bool
-    Play again from the start point when the end is reached (default false).
-topics : string array
-    Topics to play; empty (default) = all topics of the bag.
-exclude : string array
-    Topics never played.
-remap : string array
-    ``'from:=to'`` pairs renaming played topics (ROS remapping arguments
-    ``--ros-args -r from:=to`` work too, as for any node).
-clock : bool
-    Publish ``/clock`` (rosgraph_msgs/Clock) with the recorded time (default false): before
-    each message with a newer receive time than the last clock published, and in between
-    at ``clock_rate``. A recorded ``/clock`` topic is then not played.
-clock_rate : float
-    Rate [Hz] of the ``/clock`` messages between recorded messages, in wall time (default
-    100); 0 = only with the messages.
-start_paused : bool
-    Start paused (resume with the ``~/pause`` service).
-wait_for_subscribers : int
-    Before playing, wait until every topic of ``wait_topics`` has at least this many
-    matched subscriptions (default 0: do not wait) ...
-wait_topics : string array
-    ... (played names, after remapping; empty = every played topic) ...
-wait_timeout : float
-    ... for at most this long [s] (wall time), then play anyway with a warning (default 10).
-delay : float
-    Wall-clock delay [s] before playing (after the wait for subscribers).
-qos_depth : int
-    History depth (keep last) of the publishers (default 1000).
-partial : bool
-    Play the intact part of a damaged or unfinished bag (default false: refuse it).
-exit_when_done : bool
-    Exit at the end of the bag (default true); false: stay up (paused at the end) until
-    stopped, e.g. to keep transient-local topics available.
+:class:`wip_bag.settings.ReplayerSettings` (docs/parameters.md): the bag (also the first
+positional argument), rate, start offset, duration and loop, the topics played, excluded
+and remapped (``from:=to``; ``--ros-args -r`` works too), ``/clock`` (the recorded time,
+before each newer message and at ``clock_rate`` in between; a recorded ``/clock`` is then
+not played), a paused start, the wait for subscribers (how many, on which played topics,
+for how long before playing anyway), a delay, the publishers' history depth, a partial
+bag's intact part (``partial``) and whether to exit at the end (``exit_when_done``: false
+stays up, paused at the end, e.g. for transient-local topics).
 
 QoS
 ---
@@ -95,15 +61,12 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import rclpy
-from rclpy.exceptions import InvalidTopicNameException
-from rclpy.validate_full_topic_name import validate_full_topic_name
 from rclpy.clock import Clock, ClockType
-from rclpy.duration import Duration, Infinite
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSLivelinessPolicy, QoSProfile,
-                       QoSReliabilityPolicy)
+from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_srvs.srv import SetBool, Trigger
@@ -116,7 +79,7 @@ from wip_control.tools.cli import (add_exit_codes, EXIT_INTERNAL, EXIT_USAGE, lo
 
 from .bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
 from .message_types import message_class
-from .qos_yaml import INFINITE_DURATION_NS, normalize_offered_qos
+from .playback import parse_remaps, playback_qos, PlaybackClock
 from .settings import ReplayerSettings
 
 # The exit-code table of every tool (wip_control.tools.cli).
@@ -134,119 +97,9 @@ SPIN_SLICE = 0.05  # [s]: longest spin_once while waiting; bounds the reaction t
 FINE_WAIT = 0.002  # [s]: the last part of a wait is a plain sleep, more precise than spinning
 FLUSH_TIMEOUT = 5.0  # [s] to wait for the acknowledgements of the last messages
 
-_RELIABILITY = {'system_default': QoSReliabilityPolicy.SYSTEM_DEFAULT,
-                'reliable': QoSReliabilityPolicy.RELIABLE,
-                'best_effort': QoSReliabilityPolicy.BEST_EFFORT,
-                'best_available': QoSReliabilityPolicy.BEST_AVAILABLE}
-_DURABILITY = {'system_default': QoSDurabilityPolicy.SYSTEM_DEFAULT,
-               'transient_local': QoSDurabilityPolicy.TRANSIENT_LOCAL,
-               'volatile': QoSDurabilityPolicy.VOLATILE,
-               'best_available': QoSDurabilityPolicy.BEST_AVAILABLE}
-_LIVELINESS = {'system_default': QoSLivelinessPolicy.SYSTEM_DEFAULT,
-               'automatic': QoSLivelinessPolicy.AUTOMATIC,
-               'manual_by_topic': QoSLivelinessPolicy.MANUAL_BY_TOPIC,
-               'best_available': QoSLivelinessPolicy.BEST_AVAILABLE}
-
 
 class ReplayError(Exception):
     """The bag cannot be played as asked."""
-
-
-def _duration(mapping):
-    nanoseconds = int(mapping['sec']) * 1_000_000_000 + int(mapping['nsec'])
-    if nanoseconds >= INFINITE_DURATION_NS:
-        return Infinite
-    return Duration(nanoseconds=nanoseconds)
-
-
-def playback_qos(offered_profiles, depth):
-    """QoS to publish a recorded topic with (rosbag2's adapt_offer_to_recorded_offers).
-
-    Parameters
-    ----------
-    offered_profiles : str or sequence
-        The recorded ``offered_qos_profiles`` (YAML string or v9 mappings).
-    depth : int
-        Keep-last depth of the history.
-    """
-    profiles = normalize_offered_qos(offered_profiles)
-    default = QoSProfile(history=QoSHistoryPolicy.KEEP_LAST, depth=depth,
-                         reliability=QoSReliabilityPolicy.RELIABLE,
-                         durability=QoSDurabilityPolicy.VOLATILE)
-    if not profiles:
-        return default
-    keys = ('reliability', 'durability', 'deadline', 'liveliness', 'liveliness_lease_duration')
-    first = profiles[0]
-    if any(tuple(p[k] for k in keys) != tuple(first[k] for k in keys) for p in profiles[1:]):
-        return default
-    try:
-        return QoSProfile(
-            history=QoSHistoryPolicy.KEEP_LAST, depth=depth,
-            reliability=_RELIABILITY[first['reliability']],
-            durability=_DURABILITY[first['durability']],
-            deadline=_duration(first['deadline']),
-            lifespan=_duration(first['lifespan']),
-            liveliness=_LIVELINESS[first['liveliness']],
-            liveliness_lease_duration=_duration(first['liveliness_lease_duration']),
-            avoid_ros_namespace_conventions=bool(first['avoid_ros_namespace_conventions']))
-    except KeyError:  # 'unknown' policies: fall back like rosbag2
-        return default
-
-
-def parse_remaps(pairs):
-    """{'from': 'to'} from ``['from:=to', ...]``."""
-    out = {}
-    for pair in pairs:
-        source, sep, target = pair.partition(':=')
-        if not sep or not source or not target:
-            raise ValueError(f'remap {pair!r} is not of the form from:=to')
-        for name in (source, target):
-            try:
-                validate_full_topic_name('/' + name.lstrip('/'))
-            except InvalidTopicNameException:
-                raise ValueError(f'remap {pair!r}: {name!r} is not a valid ROS topic name '
-                                 '(letters, digits and underscores in /-separated tokens, '
-                                 'none starting with a digit)') from None
-        out[source] = target
-    return out
-
-
-class PlaybackClock:
-    """Bag time as a function of the steady wall clock, with a rate and pauses.
-
-    bag_time(now) = anchor_bag + (now - anchor_wall) * rate while playing; frozen while
-    paused. Times in integer nanoseconds (bag) and float seconds (wall).
-    """
-
-    def __init__(self, rate, start_bag_ns, now):
-        self.rate = float(rate)
-        self.paused = False
-        self.restart(start_bag_ns, now)
-
-    def restart(self, start_bag_ns, now):
-        self.anchor_bag_ns = int(start_bag_ns)
-        self.anchor_wall = now
-
-    def bag_time_ns(self, now):
-        if self.paused:
-            return self.anchor_bag_ns
-        return self.anchor_bag_ns + int(round((now - self.anchor_wall) * self.rate * 1e9))
-
-    def wall_time(self, bag_ns):
-        """Wall time [s] at which bag time ``bag_ns`` is reached (inf while paused)."""
-        if self.paused:
-            return float('inf')
-        return self.anchor_wall + (bag_ns - self.anchor_bag_ns) * 1e-9 / self.rate
-
-    def pause(self, now):
-        if not self.paused:
-            self.anchor_bag_ns = self.bag_time_ns(now)
-            self.paused = True
-
-    def resume(self, now):
-        if self.paused:
-            self.paused = False
-            self.anchor_wall = now
 
 
 class ReplayerNode(Node):
@@ -272,7 +125,12 @@ class ReplayerNode(Node):
             raise ValueError('parameter bag: no bag given')
         remaps = parse_remaps(list(settings.remap))
 
-        # -- the bag's topics and their publishers ---------------------------------------
+        self._create_publishers(settings, remaps)
+        self._set_time_window()
+        self._start(settings)
+
+    def _create_publishers(self, settings, remaps):
+        """Create a publisher per recorded topic played (and /clock); note those skipped."""
         try:
             recorded = read_topics(self.bag, self.allow_partial)
             lost = bag_summary(self.bag)['problems'] if self.allow_partial else []
@@ -319,7 +177,8 @@ class ReplayerNode(Node):
         self.wait_publishers = [p for p in self.publishers_by_topic.values()
                                 if not wait_topics or p.topic_name in wait_topics]
 
-        # -- the time window ----------------------------------------------------------------
+    def _set_time_window(self):
+        """Set the bag time [ns] played from (``start_offset``) and to (``duration``)."""
         starts = []
         for file_start in self._first_times():
             starts.append(file_start)
@@ -330,7 +189,8 @@ class ReplayerNode(Node):
         self.end_ns = (self.start_ns + int(round(self.duration * 1e9))
                        if self.duration > 0.0 else None)
 
-        # -- state, services, diagnostics -------------------------------------------------
+    def _start(self, settings):
+        """Set the playback state up; start the pause services and the diagnostics."""
         self.clock = PlaybackClock(self.rate, self.start_ns, time.monotonic())
         self.clock.paused = settings.start_paused
         self.published = 0

@@ -56,7 +56,8 @@ from wip_control.nodes.common import RELIABLE_QOS, run_node
 from wip_control.nodes.diagnostics import NodeDiagnostics
 from wip_control.nodes.parameters import ConfigParameters
 
-from wip_bag.bag_writer import BagWriterError, message_definition
+from wip_bag.bag_writer import BagWriterError
+from wip_bag.message_definitions import message_definition
 from wip_bag.recorder_node import import_message_class, is_hidden_topic
 
 from .settings import FoxgloveSettings
