@@ -2,7 +2,7 @@
 
 A helper in this process publishes a base's /base/joint_states and /base/imu at 100 Hz
 from a kinematic state (wheel rolling angles, body pitch and yaw) with the base's own
-conventions (``wip_sim.standin_base.BaseConventions``, what the stand-in base publishes
+conventions (``wip_sim.base_conventions.BaseConventions``, what the stand-in base publishes
 with: joints ``wheel_r``, ``wheel_l`` in that order, the left joint's sign −1, an IMU
 upside down and turned a quarter turn, encoders measuring against the body). The
 tool runs as its own process (``python -m wip_bringup.check_base``); in ``--script`` mode the
@@ -28,7 +28,7 @@ from sensor_msgs.msg import Imu, JointState  # noqa: E402
 
 from wip_control.core.params import WipParameters  # noqa: E402
 from wip_bringup.private_domain import take_private_domain  # noqa: E402
-from wip_sim.standin_base import BaseConventions  # noqa: E402
+from wip_sim.base_conventions import BaseConventions  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.wallclock]
 

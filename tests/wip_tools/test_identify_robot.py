@@ -156,14 +156,14 @@ def _base_bag(directory, record, wiring, namespace='/base'):
     """Write a bag of what a base with ``wiring`` publishes for ``record``'s readings.
 
     /base/joint_states and /base/imu as the stand-in base writes them
-    (:class:`wip_sim.standin_base.BaseConventions`), and the controllers'
+    (:class:`wip_sim.base_conventions.BaseConventions`), and the controllers'
     /wip/wheel_torques; stamps are the record's times.
     """
     serialization = pytest.importorskip('rclpy.serialization')
     from sensor_msgs.msg import Imu, JointState
     from wip_bag.bag_writer import Rosbag2McapWriter
     from wip_msgs.msg import WheelTorques
-    from wip_sim.standin_base import BaseConventions
+    from wip_sim.base_conventions import BaseConventions
     base = BaseConventions(wiring['joints'], wiring['left_joint'], wiring['right_joint'],
                            wiring['left_wheel_sign'], wiring['right_wheel_sign'],
                            wiring['imu_mounting_rpy'])

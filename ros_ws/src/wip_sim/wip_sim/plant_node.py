@@ -51,15 +51,12 @@ graph view: a message published before the match would be lost). The service ans
 
 Parameters
 ----------
-scenario_file (str, default '': the paper's Section V), clock_mode (default 'lockstep':
-the plant is a simulator; the controller nodes default to 'realtime', for a real base),
-left_joint, right_joint, map_frame, imu_frame, gps_frame,
-datum.latitude/longitude/altitude [deg, deg, m] (default: the scenario's
-``sensors.gps_datum_*``; ``scripts/run_graph`` writes the same values for the plant and
-the eso), autostart (default true), start.* (default 1 subscription per sensor topic, none
-for the ground truth and /clock), hold_until_engaged, hold_at_end and max_torque_age [s]
-(realtime only), stats_file (JSON
-with per-tick timings and CPU time, written at exit; '' = none). All read-only.
+:class:`wip_sim.settings.PlantSettings` (docs/parameters.md), all read-only: the scenario
+file (default: the paper's Section V), the clock mode (default lockstep: the plant is a
+simulator; the controller nodes default to realtime, for a real base), the joint and frame
+names, autostart and the start handshake's ``start.*``, the realtime holds and
+``max_torque_age``, and ``stats_file`` (per-tick timings and CPU time, written at exit).
+The GPS datum is the scenario's ``sensors.gps_datum_*``.
 
 The in-process runner's time t_k = k * dt is used for the dynamics, the disturbances and
 the sensors; the stamps carry round(t_k * 1e9) ns.
@@ -75,7 +72,7 @@ import math
 import sys
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.clock import Clock, ClockType
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -83,7 +80,7 @@ from sensor_msgs.msg import Imu, JointState, NavSatFix
 from std_srvs.srv import Trigger
 from wip_msgs.msg import GroundTruth, WheelTorques
 
-from wip_control.core.model import STATE_NAMES, THETA
+from wip_control.core.model import THETA
 from wip_sim.core.scenario import load_scenario
 from wip_sim.core.simulation import Simulation
 from wip_control.nodes.common import (IntraProcessNode, LOCKSTEP_WRITER_DEPTH,
@@ -96,6 +93,7 @@ from wip_control.nodes.parameters import ConfigParameters
 from wip_control.nodes.settings import WheelJoints
 from wip_control.tools.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
 
+from .plant_report import diagnostic_status, format_timing, run_stats, TickTimer
 from .sensor_messages import gps_message, imu_message, write_fix
 from .settings import PlantSettings, StartHandshake
 
@@ -116,27 +114,6 @@ def set_stamp(stamp, nanoseconds: int) -> None:
     message.
     """
     stamp.sec, stamp.nanosec = divmod(nanoseconds, 1_000_000_000)
-
-
-class TickTimer:
-    """Per-tick durations [s] kept in a growing list; summary statistics at the end."""
-
-    def __init__(self) -> None:
-        self.values: list[float] = []
-
-    def add(self, seconds: float) -> None:
-        self.values.append(seconds)
-
-    def summary(self) -> dict[str, float | int | None]:
-        values = sorted(self.values)
-        n = len(values)
-        if n == 0:
-            return {'count': 0, 'mean_us': None, 'p50_us': None, 'p99_us': None,
-                    'max_us': None}
-        return {'count': n, 'mean_us': 1e6 * math.fsum(values) / n,
-                'p50_us': 1e6 * values[n // 2], 'p99_us': 1e6 * values[min(n - 1,
-                                                                          int(0.99 * n))],
-                'max_us': 1e6 * values[-1]}
 
 
 class PlantNode(IntraProcessNode):
@@ -249,7 +226,7 @@ class PlantNode(IntraProcessNode):
         self.wait_time = TickTimer()  # sample published -> torques of that tick received
         self.step_time = TickTimer()  # the plant's step [s]
         self.loop_time = TickTimer()  # /clock published -> torques of that tick received
-        self._published_at = 0.0
+        self.published_at = 0.0
         self._tick_started_at = 0.0
         self.stale_torques = 0  # lockstep: torque messages with an unexpected stamp
         self.zeroed_torques = 0  # realtime: ticks run with zero torques (none or stale)
@@ -335,7 +312,7 @@ class PlantNode(IntraProcessNode):
         self._publish_sensors(stamp_ns, k, state)
         # The controllers are at work now: the ground truth (for recorders only) last.
         self._publish_truth(stamp_ns, state, d1, d2, d3)
-        self._published_at = now = time.perf_counter()
+        self.published_at = now = time.perf_counter()
         self._tick_started_at = started_at
         self.publish_time.add(now - started_at)
 
@@ -398,7 +375,7 @@ class PlantNode(IntraProcessNode):
                     f'wheel torques stamped {stamp_ns * 1e-9:.9f} s, ahead of the plant '
                     f'at {expected_ns * 1e-9:.9f} s: is another plant running?')
             return
-        self.wait_time.add(received_at - self._published_at)
+        self.wait_time.add(received_at - self.published_at)
         self.loop_time.add(received_at - self._tick_started_at)
         try:
             left, right = wheel_torques_from_msg(msg)  # ValueError if not finite
@@ -481,45 +458,16 @@ class PlantNode(IntraProcessNode):
         self.get_logger().info(
             f'{self.end_reason}; {self.k} control ticks in {wall:.2f} s wall '
             f'({factor:.1f}x real time); per tick: publish '
-            f'{_fmt(self.publish_time.summary())}, step {_fmt(self.step_time.summary())}, '
-            f'wait for torques {_fmt(self.wait_time.summary())}')
+            f'{format_timing(self.publish_time.summary())}, '
+            f'step {format_timing(self.step_time.summary())}, '
+            f'wait for torques {format_timing(self.wait_time.summary())}')
         if hold:
             self.publish_diagnostics()   # the launcher waits for it
 
     # -- reporting ------------------------------------------------------------------------
     def stats(self) -> dict:
         """Return the timings and counters of the run so far (also in ``stats_file``)."""
-        wall = self._wall_elapsed()
-        t = self.k * self.dt_control
-        return {
-            'clock_mode': self.clock_mode,
-            'scenario': self.scenario.name,
-            'ticks': self.k,
-            'sim_time_s': t,
-            'wall_time_s': wall,
-            'real_time_factor': t / wall if wall > 0 else None,
-            # CPU time of this process (all threads, DDS included) from start to end [s].
-            'cpu_s': ((self.cpu_end or time.process_time()) - self.cpu_start
-                      if self.cpu_start is not None else None),
-            'exit_code': (self.exit_code if self.exit_code is not None
-                          else self.final_exit_code),
-            'end_reason': self.end_reason,
-            'publish_s': self.publish_time.summary(),
-            'step_s': self.step_time.summary(),
-            'wait_for_torques_s': self.wait_time.summary(),
-            'clock_to_torques_s': self.loop_time.summary(),
-            'stale_torque_messages': self.stale_torques,
-            # Topics whose readers had not acknowledged every sample when the process
-            # ended (common.wait_for_acknowledgements).
-            'unacknowledged_topics': self.unacknowledged_topics,
-            'zeroed_torque_ticks': self.zeroed_torques,
-            'zeroed_torque_ticks_before_first': self.zeroed_torques_before_first,
-            # realtime: wall time [s] held at the initial state before the controllers
-            # engaged (hold_until_engaged; not in wall_time_s).
-            'held_s': self.held_s,
-            # The true state at the last tick [SI, rad].
-            'final_state': dict(zip(STATE_NAMES, self.state)),
-        }
+        return run_stats(self)
 
     def write_stats(self) -> None:
         if self.stats_file:
@@ -527,64 +475,16 @@ class PlantNode(IntraProcessNode):
                 json.dump(self.stats(), stream, indent=2)
                 stream.write('\n')
 
-    def _wall_elapsed(self) -> float:
+    def wall_elapsed(self) -> float:
         if self.wall_start is None:
             return 0.0
         return (self.wall_end or time.perf_counter()) - self.wall_start
 
     def publish_diagnostics(self) -> None:
         """/diagnostics, once per second of wall time (every 0.1 s until the start)."""
-        status = DiagnosticStatus(name=f'{self.get_fully_qualified_name()}: plant',
-                                  hardware_id='simulation')
-        t = self.k * self.dt_control
-        if self.exit_code is not None or self.ended:
-            status.level = (DiagnosticStatus.OK if EXIT_OK in (self.exit_code,
-                                                                self.final_exit_code)
-                            else DiagnosticStatus.ERROR)
-            status.message = self.end_reason
-        elif not self.started:
-            status.level = DiagnosticStatus.WARN
-            missing = self.unmatched()
-            status.message = ('waiting for the start' if not missing
-                              else 'waiting for the graph: ' + '; '.join(missing))
-        elif self.held:
-            status.level = DiagnosticStatus.WARN
-            status.message = (f'held at the initial state for '
-                              f'{self.held_s:.1f} s: the controllers '
-                              'have not engaged (no wheel torques that are not zeroed)')
-        else:
-            waiting = time.perf_counter() - self._published_at
-            if self.clock_mode == 'lockstep' and waiting > 1.0:
-                status.level = DiagnosticStatus.WARN
-                status.message = (f'waiting {waiting:.1f} s for /wip/wheel_torques stamped '
-                                  f'{t:.3f} s')
-            else:
-                status.level = DiagnosticStatus.OK
-                status.message = f'running, t = {t:.2f} s'
-        wall = self._wall_elapsed()
-        wait = self.wait_time.values[-200:]
-        values = {
-            'clock_mode': self.clock_mode,
-            'sim time [s]': f'{t:.3f}',
-            'duration [s]': f'{self.scenario.duration:g}',
-            'ticks': str(self.k),
-            'real-time factor': f'{t / wall:.2f}' if wall > 0 else 'n/a',
-            'mean wait for torques, last 200 ticks [us]':
-                f'{1e6 * sum(wait) / len(wait):.0f}' if wait else 'n/a',
-            'stale torque messages': str(self.stale_torques),
-            'ticks with zero torques (stale or none)': str(self.zeroed_torques),
-            'ended': 'yes' if self.ended or self.exit_code is not None else 'no',
-        }
-        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
-        array = DiagnosticArray(status=[status])
+        array = DiagnosticArray(status=[diagnostic_status(self)])
         array.header.stamp = self.get_clock().now().to_msg()
         self.diagnostics_pub.publish(array)
-
-
-def _fmt(summary: dict) -> str:
-    if not summary['count']:
-        return 'n/a'
-    return f'mean {summary["mean_us"]:.0f} us / p99 {summary["p99_us"]:.0f} us'
 
 
 def main(args=None) -> int:

@@ -95,11 +95,11 @@ from wip_sim.core.simulation import Simulation
 from wip_control.nodes.common import run_simulator_node
 from wip_control.nodes.conversions import quaternion_from_euler
 from wip_control.nodes.diagnostics import create_diagnostics_timer
-from wip_control.nodes.hardware_inputs import (imu_orientation_of_body, rotate_vector_into)
 from wip_control.nodes.parameters import ConfigParameters, declare_effort_interface
 from wip_control.nodes.settings import DatumConfig, ImuMounting
 from wip_control.tools.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
 
+from .base_conventions import BaseConventions
 from .sensor_messages import gps_message, imu_message, write_fix
 from .settings import CommandTiming, PositionFault, StandinSettings
 
@@ -126,63 +126,6 @@ def percentiles(values: list[float]) -> dict[str, float | int | None]:
     return {'count': n, 'mean_ms': 1e3 * math.fsum(ordered) / n,
             'p50_ms': 1e3 * ordered[n // 2],
             'p99_ms': 1e3 * ordered[min(n - 1, int(0.99 * n))], 'max_ms': 1e3 * ordered[-1]}
-
-
-def body_quaternion(pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """Orientation of base_link (roll 0) in ENU."""
-    return quaternion_from_euler(0.0, pitch, yaw)
-
-
-def body_angular_velocity(pitch: float, pitch_rate: float,
-                          yaw_rate: float) -> tuple[float, float, float]:
-    """Return the angular velocity [rad/s] in base_link of R = Rz(ϕ) Ry(θ) (roll 0).
-
-    It is (−ϕ̇ sin θ, θ̇, ϕ̇ cos θ).
-    """
-    return (-yaw_rate * math.sin(pitch), pitch_rate, yaw_rate * math.cos(pitch))
-
-
-class BaseConventions:
-    """How a base reports its wheels and IMU.
-
-    Joint names and order, per-joint signs, IMU mounting. :meth:`fill` writes a
-    JointState and an Imu from the body's motion in the project's conventions (REP 103
-    wheel angles, body pitch and yaw); the stand-in base publishes with it, and tests that
-    play a base's motions by hand use it too.
-    """
-
-    def __init__(self, joints, left_joint: str, right_joint: str, left_sign: float,
-                 right_sign: float, mounting) -> None:
-        self.joints = list(joints)
-        self.left_joint, self.right_joint = left_joint, right_joint
-        self.sign = {left_joint: float(left_sign), right_joint: float(right_sign)}
-        self.mounting = tuple(float(a) for a in mounting)
-        self.mount_q = quaternion_from_euler(*self.mounting)
-
-    def fill(self, joint: JointState, imu: Imu, wheels: tuple[float, float],
-             wheel_rates: tuple[float, float], torques: tuple[float, float], pitch: float,
-             yaw: float, pitch_rate: float, yaw_rate: float, gravity: float) -> None:
-        """Write the fields (not the headers) of ``joint`` and ``imu``.
-
-        wheels, wheel_rates, torques : (left, right) joint angle [rad], rate [rad/s], effort
-            [N m], positive rolling/driving forward; pitch, yaw [rad] and their rates
-            [rad/s] of the body; gravity [m/s²].
-        """
-        left, right = self.left_joint, self.right_joint
-        angle = {left: wheels[0], right: wheels[1]}
-        rate = {left: wheel_rates[0], right: wheel_rates[1]}
-        effort = {left: torques[0], right: torques[1]}
-        joint.name = self.joints
-        joint.position = [self.sign[j] * angle[j] for j in self.joints]
-        joint.velocity = [self.sign[j] * rate[j] for j in self.joints]
-        joint.effort = [self.sign[j] * effort[j] for j in self.joints]
-        q_imu = imu_orientation_of_body(body_quaternion(pitch, yaw), self.mounting)
-        imu.orientation.x, imu.orientation.y, imu.orientation.z, imu.orientation.w = q_imu
-        w_body = body_angular_velocity(pitch, pitch_rate, yaw_rate)
-        (imu.angular_velocity.x, imu.angular_velocity.y,
-         imu.angular_velocity.z) = rotate_vector_into(self.mount_q, w_body)
-        (imu.linear_acceleration.x, imu.linear_acceleration.y,
-         imu.linear_acceleration.z) = rotate_vector_into(q_imu, (0.0, 0.0, gravity))
 
 
 class StandinBase(Node):

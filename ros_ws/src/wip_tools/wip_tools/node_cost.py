@@ -119,7 +119,7 @@ class _SensorFeed:
         from wip_bringup.standin_run import BASE
         from wip_control.nodes.common import RELIABLE_QOS
         from wip_sim.core.scenario import load_scenario
-        from wip_sim.standin_base import BaseConventions
+        from wip_sim.base_conventions import BaseConventions
 
         self.nodes = nodes
         eso = {s.topic_name: s.callback for s in nodes['eso'].subscriptions}
