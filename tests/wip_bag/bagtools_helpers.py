@@ -105,8 +105,8 @@ def start_recorder(node, bag, topics=None, *params, preexec_fn=None, env=None):
 def assert_metadata_matches_content(directory):
     """metadata.yaml agrees with what the files hold.
 
-    metadata.yaml agrees with what the files hold (counted by reading every message,
-    and by rosbags, an independent reader); returns its rosbag2_bagfile_information.
+    Counted by reading every message, and by rosbags, an independent reader. Returns its
+    rosbag2_bagfile_information.
     """
     info = yaml.safe_load((directory / 'metadata.yaml').read_text())[
         'rosbag2_bagfile_information']

@@ -108,8 +108,7 @@ def test_closed_loop_motion_agrees_with_the_full_plant_over_10_s(wheel_friction)
 def _slip_threshold(params, friction):
     """Wheel torque [N m] (each wheel, both equal) at which the wheels start to slip.
 
-    Wheel torque [N m] (each wheel, both equal) at which the wheels start to slip from
-    rest upright. The ground force of a wheel is F = (τ − J_w φ̈)/r, its spin following
+    From rest upright. The ground force of a wheel is F = (τ − J_w φ̈)/r, its spin following
     the rolling υ̇ = g2 (2τ) of the full model: F = τ (1 − 2 J_w g2 / r)/r. It reaches
     the cone's μN, N = (m_p + m_c + 2 m_w) g / 2 (the centre of mass does not yet move
     vertically), at τ* = μ N r / (1 − 2 J_w g2 / r): above μ N r, because the motor also

@@ -12,9 +12,9 @@ import importlib
 def message_class(type_name: str, error: type[Exception] = LookupError):
     """Return the class of the ROS message type ``'pkg/msg/Type'``.
 
-    The class of the ROS message type ``'pkg/msg/Type'`` (rosidl_runtime_py's
-    ``get_message``, which is not in the PyPI wheels); ``error`` (the caller's exception
-    class) with the reason when the name is malformed or the type is not installed.
+    What rosidl_runtime_py's ``get_message`` does (it is not in the PyPI wheels). Raises
+    ``error`` (the caller's exception class) with the reason when the name is malformed
+    or the type is not installed.
     """
     try:
         package, namespace, name = type_name.split('/')

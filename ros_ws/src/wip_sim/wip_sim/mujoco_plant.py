@@ -178,9 +178,8 @@ def mjcf(params: WipParameters, contact: ContactConfig, timestep: float,
          terrain: TerrainConfig | None = None, wheel_friction: float = 0.0) -> str:
     """Return the MJCF model of the WIP on the ground (see the module docstring).
 
-    The MJCF model of the WIP on the ground (see the module docstring); the wheels'
-    viscous axle friction is their hinges' damping (a torque against the joint's rate,
-    which is the wheel's rate against the body, as in the equation plants).
+    The wheels' viscous axle friction is their hinges' damping (a torque against the
+    joint's rate, which is the wheel's rate against the body, as in the equation plants).
     """
     p = params
     b = body_inertias(p)
@@ -462,9 +461,5 @@ def _euler_zyx(quat) -> tuple[float, float, float]:
 def make_plant(params: WipParameters, contact: ContactConfig, timestep: float,
                terrain: TerrainConfig | None = None,
                wheel_friction: float = 0.0) -> MujocoPlant:
-    """Return the plant of ``plant: {model: mujoco}``.
-
-    The plant of ``plant: {model: mujoco}`` (called by
-    :func:`wip_sim.core.plant.scenario_plant`).
-    """
+    """Return the plant of ``plant: {model: mujoco}`` (for :func:`.core.plant.scenario_plant`)."""
     return MujocoPlant(params, contact, timestep, terrain, wheel_friction)

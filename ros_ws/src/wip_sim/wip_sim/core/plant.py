@@ -155,8 +155,8 @@ class PlantConfig:
 def equation_model(model: str) -> str:
     """Return the equation model whose equations describe ``model``.
 
-    The equation model whose equations describe ``model``: itself, or 'full' for an
-    engine model (the same bodies; used for the metrics' lumped disturbances and gains).
+    ``model`` itself, or 'full' for an engine model (the same bodies; used for the
+    metrics' lumped disturbances and gains).
     """
     return 'full' if model in ENGINE_MODELS else model
 
