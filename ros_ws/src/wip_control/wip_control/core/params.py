@@ -94,7 +94,3 @@ class WipParameters:
     def replace(self, **overrides: float) -> 'WipParameters':
         """Return a copy with some fields changed; unknown names raise ``TypeError``."""
         return dataclasses.replace(self, **overrides)
-
-    @classmethod
-    def field_names(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in dataclasses.fields(cls))

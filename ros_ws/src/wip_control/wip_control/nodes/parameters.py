@@ -53,10 +53,6 @@ def _ros_default(value: Any, field_type: Any) -> Any:
         if all(isinstance(v, str) for v in value):
             return list(value)
         return [float(v) for v in value]
-    if isinstance(value, int) and not isinstance(value, bool):
-        return value
-    if isinstance(value, float):
-        return value
     return value
 
 
