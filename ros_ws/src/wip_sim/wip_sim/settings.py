@@ -38,9 +38,9 @@ class PlantSettings:
     autostart: bool = param(True, '1', 'start by itself once the endpoints are matched; '
                             'false: wait for the ~/start service')
     hold_until_engaged: bool = param(
-        True, '1', 'realtime: the vehicle is held at its initial state (sensors published, '
-        'time not advancing) until the first wheel torques the safety layer did not zero, '
-        'as someone holds a robot until its controller runs; false: free from the start')
+        True, '1', 'realtime: hold the vehicle at its initial state (sensors published, time '
+        'stopped) until the first wheel torques not zeroed by the safety layer; false: free '
+        '(docs/decisions/sim-parameters.md)')
     hold_at_end: bool = param(
         False, '1', 'realtime: at the end of the scenario (not after a fall) keep publishing '
         "the last state's sensors, frozen, until stopped, so that the controllers are "

@@ -22,9 +22,9 @@ class ContactConfig:
     """Friction of the wheel-ground contact (Coulomb cone and rolling resistance)."""
 
     friction: float = param(
-        0.8, '1', 'sliding friction coefficient mu of the wheel-ground contact (Coulomb '
-        'cone: the ground force along it is at most mu times the normal force; rubber on '
-        'dry concrete 0.6-0.85, wet 0.45-0.75, ice about 0.1)', minimum=0.0,
+        0.8, '1', 'sliding friction coefficient mu of the wheel-ground contact: the ground '
+        'force along it is at most mu times the normal force '
+        '(docs/decisions/sim-parameters.md)', minimum=0.0,
         maximum=2.0, exclusive_minimum=True)
     rolling_resistance: float = param(
         0.01, '1', 'rolling resistance coefficient c_rr: a torque c_rr r N opposes each '

@@ -137,11 +137,9 @@ DisturbanceFunction = Callable[[float], Sequence[float]]
 class PlantConfig:
     """Which dynamics the simulated plant integrates."""
 
-    model: str = param('paper', '1', "plant dynamics: 'paper' = eq. (1) of the paper, "
-                       "'full' = Lagrange-d'Alembert model with the motor reaction torque, "
-                       'centrifugal and Coriolis terms and the physical yaw gain d/(2 r J), '
-                       "'mujoco' = the full model's bodies in the MuJoCo physics engine, "
-                       'with wheel-ground contact and friction (plant.contact)',
+    model: str = param('paper', '1', "plant dynamics: 'paper' = eq. (1), 'full' = "
+                       "Lagrange-d'Alembert model, 'mujoco' = its bodies in MuJoCo with wheel "
+                       'contacts (plant.contact); docs/decisions/sim-parameters.md',
                        choices=MODELS)
     wheel_friction: float = param(0.0, 'N m s/rad', 'viscous friction of each wheel on its '
                                   'axle: a torque -b (wheel rate - body tilt rate) between '
