@@ -47,29 +47,8 @@ def test_record_replay_record_gives_identical_bytes_in_order_with_recorded_timin
     topics = [chatter, imu_topic]
     # 1. Record what the test publishes: two topics of two types, alternating, 50 Hz each.
     first = tmp_path / 'first'
-    recorder = start_recorder(test_node, first, topics)
-    tools.append(recorder)
-    reliable = QoSProfile(depth=100)
-    chatter_pub = test_node.create_publisher(String, chatter, reliable)
-    imu_pub = test_node.create_publisher(Imu, imu_topic, reliable)
-    recorder.spin_until(lambda: chatter_pub.get_subscription_count() >= 1
-                        and imu_pub.get_subscription_count() >= 1, DISCOVERY_TIMEOUT,
-                        'the first recorder to subscribe')
     n = 60
-    next_time = time.monotonic()
-    for k in range(n):
-        chatter_pub.publish(String(data=f'message {k} ' + 'é' * (k % 7)))
-        imu = Imu()
-        imu.header.stamp.sec, imu.header.frame_id = k, 'imu_link'
-        imu.angular_velocity.y = 0.01 * k
-        imu.orientation.w = 1.0
-        imu_pub.publish(imu)
-        next_time += SPACING
-        test_node.executor_for_test.spin_once(
-            timeout_sec=max(0.0, next_time - time.monotonic()))
-    recorder.spin_until(lambda: recorder.counts == {chatter: n, imu_topic: n}, 10.0,
-                        'the first recording')
-    recorder.stop()
+    _record_published(test_node, tools, first, chatter, imu_topic, n)
 
     # 2. Replay it into a second recorder. The replayer waits until its publishers have
     # matched the recorder's subscriptions, but DDS matches each side on its own: seen once
@@ -95,6 +74,37 @@ def test_record_replay_record_gives_identical_bytes_in_order_with_recorded_timin
     for topic in topics:
         assert [m.data for m in replayed if m.topic == topic] == [
             m.data for m in original if m.topic == topic]
+    _assert_recorded_timing(original, replayed, chatter)
+
+
+def _record_published(test_node, tools, path, chatter, imu_topic, n):
+    """Record ``n`` String and Imu messages the test publishes, alternating, 50 Hz each."""
+    recorder = start_recorder(test_node, path, [chatter, imu_topic])
+    tools.append(recorder)
+    reliable = QoSProfile(depth=100)
+    chatter_pub = test_node.create_publisher(String, chatter, reliable)
+    imu_pub = test_node.create_publisher(Imu, imu_topic, reliable)
+    recorder.spin_until(lambda: chatter_pub.get_subscription_count() >= 1
+                        and imu_pub.get_subscription_count() >= 1, DISCOVERY_TIMEOUT,
+                        'the first recorder to subscribe')
+    next_time = time.monotonic()
+    for k in range(n):
+        chatter_pub.publish(String(data=f'message {k} ' + 'é' * (k % 7)))
+        imu = Imu()
+        imu.header.stamp.sec, imu.header.frame_id = k, 'imu_link'
+        imu.angular_velocity.y = 0.01 * k
+        imu.orientation.w = 1.0
+        imu_pub.publish(imu)
+        next_time += SPACING
+        test_node.executor_for_test.spin_once(
+            timeout_sec=max(0.0, next_time - time.monotonic()))
+    recorder.spin_until(lambda: recorder.counts == {chatter: n, imu_topic: n}, 10.0,
+                        'the first recording')
+    recorder.stop()
+
+
+def _assert_recorded_timing(original, replayed, topic):
+    """Assert that the replayed receive times of ``topic`` follow the recorded ones."""
     # Timing: the replayed receive times against the recorded ones, up to a constant shift
     # (the start of the replay), as a fraction of the recorded spacing: error_i =
     # ((t2_i - t1_i) - median(t2 - t1)) / spacing. The median, not the first message, is the
@@ -118,8 +128,8 @@ def test_record_replay_record_gives_identical_bytes_in_order_with_recorded_timin
     # median error about the median shift within half a spacing (a replayer off its
     # schedule moves most messages out of their slots). The quiet-machine figures are
     # printed (measured: median 0.003, 90th percentile < 0.02 spacing).
-    t1 = [m.log_time_ns for m in original if m.topic == chatter]
-    t2 = [m.log_time_ns for m in replayed if m.topic == chatter]
+    t1 = [m.log_time_ns for m in original if m.topic == topic]
+    t2 = [m.log_time_ns for m in replayed if m.topic == topic]
     slope = statistics.median(
         (t2[j] - t2[i]) / (t1[j] - t1[i]) for i in range(len(t1))
         for j in range(i + 1, len(t1)) if t1[j] - t1[i] >= 5 * SPACING * 1e9)
@@ -137,6 +147,28 @@ def _clock_bag(path, start_ns, n, period_ns):
         bag.add_topic(DATA, 'std_msgs/msg/String', qos_profiles=[QoSProfile(depth=10)])
         for k in range(n):
             bag.write(DATA, serialize_message(String(data=str(k))), start_ns + k * period_ns)
+
+
+def _assert_timer_fired_at_recorded_times(test_node, fired, start_ns, period_ns,
+                                          timer_period):
+    """Assert that a sim-time timer fired at each period of the bag played at rate 1."""
+    # Timers on simulation time fire at the recorded times: at each multiple of
+    # 0.1 s in (1000, 1001], seen by now() within 2 recorded spacings (the clock
+    # advances in steps of one spacing, the message times; one more clock message
+    # may be handled before the timer's callback runs). The timer also fires once
+    # when the clock jumps from 0 to 1000 s (its missed periods collapse into one
+    # call at about 1000.00 s): that call is not one of the periods of the bag.
+    def times():
+        return [t.nanoseconds for t in fired if t.nanoseconds > start_ns + 5 * period_ns]
+
+    expected = [start_ns + round(j * timer_period * 1e9) for j in range(1, 11)]
+    # The last call (at 1001 s, the last message's time) may still be pending.
+    spin_until(test_node, lambda: len(times()) >= len(expected), 5.0,
+               'the timer call at the end of the bag')
+    times = times()
+    assert len(times) == len(expected), [(t - start_ns) / 1e9 for t in times]
+    for got, want in zip(times, expected):
+        assert 0 <= got - want <= 2 * period_ns, (got, want)
 
 
 def test_clock_drives_sim_time_timers_and_rate_two_halves_the_wall_time(
@@ -176,23 +208,8 @@ def test_clock_drives_sim_time_timers_and_rate_two_halves_the_wall_time(
         spans[rate] = (n - 1) * statistics.median(
             (sent[j] - sent[i]) / (j - i) for i in range(n) for j in range(i + 10, n, 7))
         if rate == 1.0:
-            # Timers on simulation time fire at the recorded times: at each multiple of
-            # 0.1 s in (1000, 1001], seen by now() within 2 recorded spacings (the clock
-            # advances in steps of one spacing, the message times; one more clock message
-            # may be handled before the timer's callback runs). The timer also fires once
-            # when the clock jumps from 0 to 1000 s (its missed periods collapse into one
-            # call at about 1000.00 s): that call is not one of the periods of the bag.
-            def times():
-                return [t.nanoseconds for t in fired if t.nanoseconds > start_ns + 5 * period_ns]
-
-            expected = [start_ns + round(j * timer_period * 1e9) for j in range(1, 11)]
-            # The last call (at 1001 s, the last message's time) may still be pending.
-            spin_until(test_node, lambda: len(times()) >= len(expected), 5.0,
-                       'the timer call at the end of the bag')
-            times = times()
-            assert len(times) == len(expected), [(t - start_ns) / 1e9 for t in times]
-            for got, want in zip(times, expected):
-                assert 0 <= got - want <= 2 * period_ns, (got, want)
+            _assert_timer_fired_at_recorded_times(test_node, fired, start_ns, period_ns,
+                                                  timer_period)
     # Rate 2 halves the wall time of the playback. The spans (1 s and 0.5 s) are taken
     # from the replayer's send stamps, robustly: measured at this subscriber they moved
     # by the test process's own scheduling (a ratio of 0.553 with a busy core); 5 % of
@@ -244,6 +261,11 @@ def _rosbags_bag(path):
     return written
 
 
+def _padded_to_words(data):
+    """Return ``data`` with zero bytes appended up to a whole number of 4-byte words."""
+    return data + b'\x00' * (-len(data) % 4)
+
+
 def test_replays_a_bag_written_by_rosbags_with_pause_remap_and_recorded_qos(
         test_node, tools, tmp_path):
     bag = tmp_path / 'from_rosbags'
@@ -288,16 +310,12 @@ def test_replays_a_bag_written_by_rosbags_with_pause_remap_and_recorded_qos(
     # serialized payload as a whole number of 4-byte words: a message whose CDR is not
     # (rosbags does not pad, rclpy does) arrives with up to 3 zero bytes appended, which CDR
     # readers ignore.
-
-    def padded(data):
-        return data + b'\x00' * (-len(data) % 4)
-
     for topic in (CHATTER, IMU):        # per topic: the order of arrival itself
         assert [d for _, t, d in received if t == topic] == [
-            padded(d) for t, d in written if t == topic]
+            _padded_to_words(d) for t, d in written if t == topic]
     received.sort(key=lambda item: item[0])
     assert [t for _, t, _ in received] == [t for t, _ in written]
-    assert [d for _, _, d in received] == [padded(d) for _, d in written]
+    assert [d for _, _, d in received] == [_padded_to_words(d) for _, d in written]
     assert any(len(d) % 4 for _, d in written)  # the padding case is exercised
     msg = deserialize_message(received[1][2], Imu)
     assert (msg.header.frame_id, msg.angular_velocity.y) == ('imu', 0.0)
