@@ -19,15 +19,15 @@ Behaviour
 ---------
 - A topic is subscribed once the graph knows its type (a publisher exists), with a raw
   subscription (serialized CDR, no deserialization). Its QoS follows rosbag2's
-  ``adapt_request_to_offers``: reliable if every publisher offers reliable, else best effort;
-  transient local if every publisher offers it, else volatile; history keep-last with depth
-  SUBSCRIPTION_DEPTH (a deep queue: the recorder must not drop a burst). The offered profiles and
-  the publishers' RIHS01 type hash are stored in the bag.
+  ``adapt_request_to_offers``: reliable if every publisher offers reliable, else best
+  effort; transient local if every publisher offers it, else volatile; history keep-last
+  with depth SUBSCRIPTION_DEPTH (a deep queue: the recorder must not drop a burst). The
+  offered profiles and the publishers' RIHS01 type hash are stored in the bag.
 - Each message is stamped with its receive time on the node's clock: simulation time when
   ``use_sim_time`` is true (lockstep runs then give bags in simulation time), else system
-  time. rosbag2 also stores a send time from the middleware's message info, which this
-  node cannot get with the EventsExecutor (its callbacks take one argument), so the receive
-  time is used for both.
+  time. rosbag2 also stores a send time from the middleware's message info, which this node
+  cannot get with the EventsExecutor (its callbacks take one argument), so the receive time
+  is used for both.
 - Callbacks only queue ``(topic, bytes, time)``; a writer thread writes the bag, so a
   compressing chunk write never delays the executor. It writes what is queued in batches,
   resting :data:`WRITE_BATCH_PAUSE` between them. Nothing received is dropped.
@@ -37,27 +37,25 @@ Behaviour
   itself and stops it with SIGTERM, and a recorder run by hand stops at once. Then the
   subscriptions stop, the queue is drained and the bag is closed (MCAP summary and
   ``metadata.yaml`` written). The signals only set a flag (rclpy's own handler is off): no
-  KeyboardInterrupt can land inside the close and leave the bag unfinished, whatever
-  arrives meanwhile. The main thread never blocks (it spins with a timeout), so a signal
-  is served within 0.1 s even while the writer is busy.
+  KeyboardInterrupt can land inside the close and leave the bag unfinished, whatever arrives
+  meanwhile. The main thread never blocks (it spins with a timeout), so a signal is served
+  within 0.1 s even while the writer is busy.
 - Failures. A bag that exists (never overwritten) or cannot be created (unwritable path):
-  ERROR log and exit code 1 at once. A write that fails during the run (disk full, file
-  size limit, I/O error): the recorder logs it at ERROR level, reports it on
-  ``/diagnostics`` (level ERROR, with the count of messages dropped since), stops writing
-  (the file is closed as it is, without a summary: ``scripts/bag_repair`` recovers every
-  complete chunk) and drops what it receives from then on, without buffering it; it stays
-  up until it is stopped (exit code 1) so that nothing else of the graph is disturbed.
-  A full disk is seen coming: while the bag's file system has less free space than a
-  margin (twice the largest chunk written so far, or a quarter of ``chunk_size`` before
-  the first, plus :data:`SUMMARY_MARGIN` for the summary and ``metadata.yaml``), the
-  recorder stops writing and finishes the bag with what it holds (a valid bag, no repair
-  needed), reports ``disk full`` on ``/diagnostics`` (level ERROR) and drops the rest. The
-  nodes being recorded never wait for the recorder: it is a separate process and its
-  subscriptions are keep-last, so a stalled recorder only loses its own messages.
+  ERROR log and exit code 1 at once. A write that fails during the run (disk full, file size
+  limit, I/O error): the recorder logs it at ERROR level, reports it on ``/diagnostics``
+  (level ERROR, with the count of messages dropped since), stops writing (the file is closed
+  as it is, without a summary: ``scripts/bag_repair`` recovers every complete chunk) and
+  drops what it receives from then on, without buffering it; it stays up until it is stopped
+  (exit code 1) so that nothing else of the graph is disturbed. A full disk is seen coming
+  (less free space than twice the largest chunk plus :data:`SUMMARY_MARGIN`): the recorder
+  finishes the bag with what it holds (valid, no repair needed), reports ``disk full`` on
+  ``/diagnostics`` (level ERROR) and drops the rest. The nodes being recorded
+  never wait for the recorder: it is a separate process and its subscriptions are keep-last,
+  so a stalled recorder only loses its own messages.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once per second (wall time; every 0.1 s
-  for its first 10 s, while a launcher waits for every node to report): the bag
-  path, the file being written, the messages recorded in total and per topic, the write
-  backlog, and any topic that could not be recorded.
+  for its first 10 s, while a launcher waits for every node to report): the bag path, the
+  file being written, the messages recorded in total and per topic, the write backlog, and
+  any topic that could not be recorded.
 """
 
 import datetime

@@ -94,7 +94,7 @@ from wip_control.nodes.settings import WheelJoints
 from wip_control.tools.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
 
 from .plant_report import diagnostic_status, format_timing, run_stats, TickTimer
-from .sensor_messages import gps_message, imu_message, write_fix
+from .sensor_messages import gps_message, imu_message, set_stamp, write_fix
 from .settings import PlantSettings, StartHandshake
 
 # The tools' table (wip_control.tools.cli): a fall is 1, a bad parameter 2, a simulation
@@ -105,15 +105,6 @@ SENSOR_DEPTH = 10  # keep-last depth of every publisher/subscription [messages]
 SPIN_TIMEOUT = 0.1  # [s] of one spin_once: bounds the reaction time to a shutdown
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
 AUTOSTART_PERIOD = 0.05  # [s], wall time: how often autostart checks the matches
-
-
-def set_stamp(stamp, nanoseconds: int) -> None:
-    """Write integer nanoseconds into a builtin_interfaces/Time in place.
-
-    The messages are preallocated; ``common.ns_to_stamp`` would allocate a new Time per
-    message.
-    """
-    stamp.sec, stamp.nanosec = divmod(nanoseconds, 1_000_000_000)
 
 
 class PlantNode(IntraProcessNode):

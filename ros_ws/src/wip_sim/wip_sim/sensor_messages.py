@@ -69,3 +69,12 @@ def write_fix(msg: NavSatFix, position: tuple[float, float] | None,
     else:
         msg.status.status = NavSatStatus.STATUS_NO_FIX
         msg.latitude = msg.longitude = msg.altitude = math.nan
+
+
+def set_stamp(stamp, nanoseconds: int) -> None:
+    """Write integer nanoseconds into a builtin_interfaces/Time in place.
+
+    The messages are preallocated; ``common.ns_to_stamp`` would allocate a new Time per
+    message.
+    """
+    stamp.sec, stamp.nanosec = divmod(nanoseconds, 1_000_000_000)
