@@ -10,11 +10,8 @@ from wip_tools.parameters import node_registry, node_rows, scenario_rows
 
 MAX_LENGTH = 200
 
-# Shortened on their branches (the simulator's parameters): the lead empties
-# this list when those branches land.
-ALLOWED_LONG = {
-    'hold_until_engaged', 'plant.contact.friction', 'plant.model',
-}
+# Descriptions allowed over the limit, by parameter name (none: every one is short).
+ALLOWED_LONG: set[str] = set()
 
 
 def _rows():
