@@ -15,7 +15,7 @@ from wip_control.core.integration import rk4_step
 from wip_control.core.model import nominal_terms
 from wip_control.core.mpc import LongitudinalMpc
 from wip_control.core.mpc_config import MpcConfig
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 
 
 class LongitudinalRun(NamedTuple):

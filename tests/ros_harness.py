@@ -22,7 +22,7 @@ from typing import Callable, Iterator
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
+from wip_runtime.launched import LAUNCHER_PID_VARIABLE
 
 TIMEOUT = 10.0  # [s] default of any single wait; normally milliseconds
 #: [s] start-up of a node process and its DDS discovery on a slow, shared 2-core machine.
@@ -163,7 +163,7 @@ def ros_child_environment(**extra: str) -> dict[str, str]:
     The environment of a node process started by a test: this one's (its DDS domain),
     without the marker of the ROS wheels bootstrap (the child bootstraps itself), and with
     this process as its launcher: a node this test starts ends with it, even when the test
-    run is killed (wip_control.nodes.launched).
+    run is killed (wip_runtime.launched).
     """
     env = dict(os.environ, **extra)
     env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)

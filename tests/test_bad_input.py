@@ -29,7 +29,7 @@ from hypothesis import given, HealthCheck, settings, strategies as st
 import pytest
 import yaml
 
-from wip_control.core.config import ConfigError, load_yaml_text
+from wip_runtime.config import ConfigError, load_yaml_text
 from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping
 from wip_tools import simulate
 

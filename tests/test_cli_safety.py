@@ -17,9 +17,9 @@ import time
 import pytest
 import yaml
 
-from wip_control.core.config import ConfigError
+from wip_runtime.config import ConfigError
 from wip_sim.core.scenario import load_scenario
-from wip_control.tools import cli
+from wip_runtime import cli
 from wip_tools import simulate
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -380,7 +380,7 @@ def test_mixer_refuses_inf_warns_about_unknown_overrides_and_stops_quietly(tmp_p
 
 
 def test_a_command_line_splits_at_the_first_ros_args():
-    from wip_control.tools.cli import split_ros_args
+    from wip_runtime.cli import split_ros_args
     assert split_ros_args(['--with-viewer', '--ros-args', '-p', 'a:=1', '--ros-args']) == (
         ['--with-viewer'], ['--ros-args', '-p', 'a:=1', '--ros-args'])
     assert split_ros_args(('--help',)) == (['--help'], [])

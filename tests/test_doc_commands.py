@@ -154,7 +154,7 @@ def test_the_readme_params_file_is_the_shipped_standin_base():
     # What the stand-in base uses unless told otherwise: its wiring parameters' defaults,
     # the scenario's sensors (GPS datum, encoders) and its plant's wheel radius and track.
     import dataclasses
-    from wip_control.nodes.settings import EffortCommand, ImuMounting, WheelJoints, WheelSigns
+    from wip_description.wiring import EffortCommand, ImuMounting, WheelJoints, WheelSigns
     from wip_sim.core.scenario import Scenario
     readme = (REPO_ROOT / 'README.md').read_text(encoding='utf-8')
     block = next(b for b in re.findall(r'```yaml\n(.*?)```', readme, re.S)

@@ -1,6 +1,6 @@
 """One exit-code table.
 
-The constants of wip_control.tools.cli, its docstring, the README's table and every tool's
+The constants of wip_runtime.cli, its docstring, the README's table and every tool's
 ``--help`` say the same. Every script of scripts/ and every node executable answers ``--help``
 (exit 0, usage, nothing started or written), and a typo in an option is exit 2 in one line before
 anything is written.
@@ -13,7 +13,7 @@ import subprocess
 
 import pytest
 
-from wip_control.tools import cli
+from wip_runtime import cli
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parent.parent
 SCRIPTS = REPO_ROOT / 'scripts'

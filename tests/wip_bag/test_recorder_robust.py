@@ -23,7 +23,7 @@ from wip_bag.bag_info import bag_information
 from wip_bag.bag_reader import read_bag
 from wip_bag.bag_repair import mcap_files_by_index, read_file_contents, repair_bag
 from wip_bag.recorder_stop import STOP_DRAIN
-from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
+from wip_runtime.launched import LAUNCHER_PID_VARIABLE
 
 pytestmark = pytest.mark.ros
 

@@ -26,7 +26,7 @@ rclpy = pytest.importorskip('rclpy')
 
 from sensor_msgs.msg import Imu, JointState  # noqa: E402
 
-from wip_control.core.params import WipParameters  # noqa: E402
+from wip_description.params import WipParameters  # noqa: E402
 from wip_bringup.private_domain import take_private_domain  # noqa: E402
 from wip_sim.base_conventions import BaseConventions  # noqa: E402
 

@@ -4,10 +4,10 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from wip_bringup.launcher import FASTDDS_PROFILE, FASTDDS_PROFILE_VARIABLES
 from wip_bringup.processes import graph_environment
-from wip_control.nodes.dds_profile import (process_ignores_local_endpoints,
-                                           profile_ignores_local_endpoints)
+from wip_runtime.dds_profile import (FASTDDS_PROFILE, process_ignores_local_endpoints,
+                                     profile_ignores_local_endpoints,
+                                     PROFILE_VARIABLES as FASTDDS_PROFILE_VARIABLES)
 
 NS = {'dds': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
 

@@ -10,7 +10,7 @@ import re
 
 import pytest
 
-from wip_control.tools import cli
+from wip_runtime import cli
 from wip_bringup import graph, hardware
 from wip_bringup.hardware_outcome import format_result, hardware_outcome, HardwareResult
 from wip_bringup.hardware_runner import HardwareOptions, HardwareRunner

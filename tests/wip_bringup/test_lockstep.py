@@ -283,7 +283,7 @@ RECORDER_FREEZE = 0.8
 def test_a_recorder_frozen_mid_run_still_records_every_message(scenario_file, scenario,
                                                                tmp_path):
     # Lockstep waits for the controllers' torques, not for the recorder: every writer must
-    # keep what a lagging reader has not acknowledged (common.LOCKSTEP_WRITER_DEPTH, more
+    # keep what a lagging reader has not acknowledged (wip_runtime.qos.LOCKSTEP_WRITER_DEPTH, more
     # than this run's 2001 samples of a topic), and the plant must not end before its
     # readers have acknowledged everything. With the graph design's keep-last 10 writers
     # this frozen recorder lost about 420 samples of every topic, and on a busy machine a

@@ -22,7 +22,7 @@ import pytest
 
 from wip_bringup.hardware_params import parse_remap
 from wip_bringup.launcher import EXIT_USAGE, GraphError, in_namespace, parse_namespace
-from wip_control.nodes.common import stamp_to_ns
+from wip_runtime.stamps import stamp_to_ns
 
 ROBOTS = ('robot1', 'robot2')
 DURATION = 10.0   # [s] of each real-time simulation

@@ -21,11 +21,11 @@ from rclpy.parameter import Parameter  # noqa: E402
 import yaml  # noqa: E402
 
 from wip_control.core.arc import ArcConfig  # noqa: E402
-from wip_control.core.config import from_mapping  # noqa: E402
+from wip_runtime.config import from_mapping  # noqa: E402
 from wip_control.core.eso import EsoConfig  # noqa: E402
 from wip_control.core.mixer import MixerConfig  # noqa: E402
 from wip_control.core.mpc_config import MpcConfig  # noqa: E402
-from wip_control.core.params import WipParameters  # noqa: E402
+from wip_description.params import WipParameters  # noqa: E402
 from wip_control.core.position import PositionConfig  # noqa: E402
 from wip_control.core.references import ReferenceConfig  # noqa: E402
 from wip_control.core.controller_settings import RatesConfig  # noqa: E402

@@ -27,7 +27,7 @@ import pytest
 pytest.importorskip('rclpy')
 
 from wip_bringup.standin_run import BASE, line_scenario, run_against_standin  # noqa: E402
-from wip_control.core.sensors import SensorConfig  # noqa: E402
+from wip_description.sensors import SensorConfig  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 

@@ -22,7 +22,7 @@ import pytest
 from wip_bringup.launcher import EXIT_USAGE, GraphError
 from wip_bringup.processes import executable_path, graph_environment, NodeProcess
 from wip_bringup.scheduling import CpuLatencyRequest, Scheduling
-from wip_control.nodes.launched import end_with_launcher, LAUNCHER_PID_VARIABLE
+from wip_runtime.launched import end_with_launcher, LAUNCHER_PID_VARIABLE
 
 START_UP = 60.0   # [s] generous: a loaded CI machine starts a Python process slowly
 
@@ -199,7 +199,7 @@ def _start_launcher(tmp_path, child_command):
 def test_a_child_ends_with_its_launcher_killed_by_sigkill(tmp_path):
     program = textwrap.dedent(f"""
         import signal, sys, time
-        from wip_control.nodes.launched import end_with_launcher
+        from wip_runtime.launched import end_with_launcher
         def stop(signum, frame):
             open({str(tmp_path / 'stopped')!r}, 'w').write(str(signum)); sys.exit(0)
         signal.signal(signal.SIGINT, stop)

@@ -17,10 +17,10 @@ import pytest
 
 pytest.importorskip('mujoco')
 
-from wip_control.core.config import ConfigError  # noqa: E402
+from wip_runtime.config import ConfigError  # noqa: E402
 from wip_sim.core.ground import ContactConfig  # noqa: E402
 from wip_tools.analysis.metrics import compute_metrics  # noqa: E402
-from wip_control.core.params import WipParameters  # noqa: E402
+from wip_description.params import WipParameters  # noqa: E402
 from wip_sim.core.plant import (full_input_gains, Plant, scenario_plant,  # noqa: E402
                                 simulate_hold)
 from wip_sim.core.runner import run_scenario  # noqa: E402

@@ -9,7 +9,7 @@ import yaml
 
 pytest.importorskip('rclpy')
 
-from wip_control.core.config import ConfigError  # noqa: E402
+from wip_runtime.config import ConfigError  # noqa: E402
 from wip_sim.core.scenario import Scenario  # noqa: E402
 from wip_tools.bag_scenario import merged, scenario_for_bag  # noqa: E402
 

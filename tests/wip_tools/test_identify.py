@@ -15,7 +15,7 @@ from wip_tools.analysis.metrics import true_lumped_disturbances
 from wip_sim.core.plant import Plant
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import scenario_from_mapping
-from wip_control.tools.cli import EXIT_OK, EXIT_USAGE
+from wip_runtime.cli import EXIT_OK, EXIT_USAGE
 from wip_tools import identify, identify_record
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from wip_control.tools.cli import EXIT_OK, EXIT_USAGE
+from wip_runtime.cli import EXIT_OK, EXIT_USAGE
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import scenario_from_mapping
 from wip_tools import identify, identify_record, identify_signals, run_wiring

@@ -152,7 +152,7 @@ def test_a_value_out_of_its_declared_range_is_refused_naming_the_parameter(
     # The range checks come from the declarations, also where rclpy's descriptor range
     # would have refused the value first (integers: sensor_bunch).
     from rclpy.parameter import Parameter
-    from wip_control.core.config import ConfigError
+    from wip_runtime.config import ConfigError
     context = rclpy.Context()
     rclpy.init(context=context)
     cls = _node_classes()[executable]

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_tools.analysis.push_bound import (absorption_rate, measured_excursion,
                                            push_excursion_bound)
 

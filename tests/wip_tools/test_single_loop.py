@@ -32,7 +32,7 @@ from wip_sim.core.runner import run_scenario  # noqa: E402
 from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_control.core.state_estimation import StateEstimator  # noqa: E402
 from wip_control.nodes.arc_node import ArcNode  # noqa: E402
-from wip_control.nodes.common import stamp_to_ns  # noqa: E402
+from wip_runtime.stamps import stamp_to_ns  # noqa: E402
 from wip_control.nodes.conversions import gps_local_position  # noqa: E402
 from wip_control.nodes.eso_node import EsoNode  # noqa: E402
 from wip_control.nodes.mpc_node import MpcNode  # noqa: E402

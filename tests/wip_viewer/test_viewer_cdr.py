@@ -28,8 +28,9 @@ def ros():
     from std_msgs.msg import ColorRGBA
     from visualization_msgs.msg import Marker, MarkerArray
 
-    from wip_control.nodes.common import make_header
-    from wip_control.nodes.conversions import odometry_to_msg, quaternion_from_euler
+    from wip_runtime.stamps import make_header
+    from wip_control.nodes.conversions import odometry_to_msg
+    from wip_runtime.messages import quaternion_from_euler
     return dict(Point=Point, PoseStamped=PoseStamped, Path=Path, ColorRGBA=ColorRGBA,
                 Marker=Marker, MarkerArray=MarkerArray, make_header=make_header,
                 odometry_to_msg=odometry_to_msg, quaternion_from_euler=quaternion_from_euler,

@@ -5,9 +5,6 @@ Self-contained on purpose, like every package's setup.py: colcon builds each pac
 its own, so there is no shared helper to import and the files are alike.
 """
 
-from glob import glob
-import os
-
 from setuptools import find_packages, setup
 
 package_name = 'wip_tools'
@@ -19,7 +16,6 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        (os.path.join('share', package_name, 'config'), sorted(glob('config/*.yaml'))),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

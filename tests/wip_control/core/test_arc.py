@@ -8,9 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from wip_control.core.arc import AdaptiveRobustYawController, ArcConfig
-from wip_control.core.config import ConfigError, from_mapping
+from wip_runtime.config import ConfigError, from_mapping
 from wip_control.core.model import input_gains
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_control.core.controller_settings import PAPER_DESIGN
 
 G1 = input_gains(WipParameters(), 0.05)[0]  # ≈ 2.55 rad/s² per N·m

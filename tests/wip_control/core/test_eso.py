@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from wip_control.core.integration import rk4_step
 
-from wip_control.core.config import ConfigError, from_mapping
+from wip_runtime.config import ConfigError, from_mapping
 from wip_control.core.eso import (check_hurwitz, discretise, EsoConfig,
                                   ExtendedStateObserver, observer_matrices, StateEstimate)
 from wip_control.core.state_observer import WipStateObserver
 from wip_control.core.model import input_gains, nominal_terms
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 
 # The paper's ESOs, eqs. (4), (8) (the gyro estimator is tested in test_gyro_estimator.py).
 PAPER_ESO = EsoConfig(estimator='paper')

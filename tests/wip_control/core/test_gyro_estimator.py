@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from wip_control.core.integration import rk4_step
 
-from wip_control.core.config import ConfigError, from_mapping
+from wip_runtime.config import ConfigError, from_mapping
 from wip_control.core.eso import EsoConfig
 from wip_control.core.rate_aided import (complementary_bandwidth, discrete_pole_gains,
                                          rate_eso_noise_variance, RateAidedChannel)
 from wip_control.core.state_observer import WipStateObserver
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 
 H = 0.005
 

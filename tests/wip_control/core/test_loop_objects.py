@@ -14,11 +14,11 @@ from wip_control.core.control_step import (ControlOverflow, ControlStep, DriveSt
                                            GuidanceStage, YawStage)
 from wip_control.core.eso import EsoConfig
 from wip_control.core.mpc_config import MpcConfig
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_control.core.position import PositionConfig
 from wip_control.core.reference_state import ReferenceState
 from wip_sim.core.scenario import Scenario
-from wip_control.core.sensors import wheel_odometry
+from wip_description.sensors import wheel_odometry
 from wip_control.core.state_estimation import EstimatorOverflow, StateEstimator
 from wip_control.core.trajectory_generator import VelocityCommand
 
@@ -187,7 +187,7 @@ def test_after_a_push_the_stage_re_solves_within_the_torque_rate_limit():
 
 
 def test_fast_resolve_period_must_divide_the_sampling_period():
-    from wip_control.core.config import ConfigError
+    from wip_runtime.config import ConfigError
     MpcConfig(fast_resolve_period=0.025).validate()
     MpcConfig(fast_resolve_period=0.1).validate()      # not shorter: off
     MpcConfig(sampling_period=0.01).validate()         # (the default 0.05 then off)

@@ -15,13 +15,13 @@ import math
 import numpy as np
 import pytest
 
-from wip_control.core.config import ConfigError
+from wip_runtime.config import ConfigError
 from wip_control.core.lqr import LongitudinalLqr, dlqr, make_longitudinal_controller
 from wip_control.core.model import nominal_terms
 from wip_control.core.mpc import LongitudinalMpc, MpcStatus
 from wip_control.core.mpc_config import MpcConfig
 from wip_control.core.mpc_prediction import gravity_aware_state_matrix
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import scenario_from_mapping
 

@@ -6,10 +6,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wip_control.core.config import ConfigError, from_mapping
+from wip_runtime.config import ConfigError, from_mapping
 from wip_control.core.mixer import MixerConfig, WheelTorqueRateLimiter, drive_torque_limit, mix
 from wip_control.core.model import input_gains, wheel_to_body_torques
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 
 finite = dict(allow_nan=False, allow_infinity=False)
 MAX = 15.0

@@ -22,7 +22,7 @@ from hypothesis import given, settings, strategies as st
 
 from longitudinal_mpc import simulate_longitudinal
 from wip_tools.analysis.bench_mpc import STEP_KEYS, bench_mpc_against_daqp
-from wip_control.core.config import ConfigError, from_mapping
+from wip_runtime.config import ConfigError, from_mapping
 from wip_control.core.model import input_gains, nominal_terms
 from wip_control.core.mpc import LongitudinalMpc, MpcInputError, MpcStatus
 from wip_control.core.mpc_config import MpcConfig, PAPER_MPC_SETTINGS
@@ -30,7 +30,7 @@ from wip_control.core.mpc_plan import MpcResult
 from wip_control.core.mpc_prediction import CondensedPrediction
 from wip_control.core.mpc_qp import TickData
 from wip_control.core.mpc_reference import reference_qp
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_control.core.qp import QpSolution, make_solver
 
 PARAMS = WipParameters()
@@ -1103,7 +1103,7 @@ def test_a_process_that_exits_holding_an_mpc_prints_no_binding_leak_report():
     import sys
     program = ('from wip_control.core.mpc import LongitudinalMpc\n'
                'from wip_control.core.mpc_config import MpcConfig\n'
-               'from wip_control.core.params import WipParameters\n'
+               'from wip_description.params import WipParameters\n'
                'HELD = LongitudinalMpc(WipParameters(), MpcConfig())\n'
                'result = HELD.step(v_hat=0.0, theta_hat=0.05, theta_dot_hat=0.0, f2_hat=0.0,'
                ' f3_hat=0.0, v_d=0.3, tau_limit=20.0)\n'

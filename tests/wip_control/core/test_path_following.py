@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from wip_control.core.config import ConfigError
+from wip_runtime.config import ConfigError
 from wip_control.core.reference_curves import Trifolium
 from wip_control.core.references import distance_to_path, make_reference, ReferenceConfig
 from wip_control.core.time_scaling import TimeScaled

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from wip_control.core.config import ConfigError, from_mapping
+from wip_runtime.config import ConfigError, from_mapping
 from wip_control.core.position import PlanarPositionEstimator, PositionConfig
 
 

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from wip_control.core.config import ConfigError, from_mapping
+from wip_runtime.config import ConfigError, from_mapping
 from wip_control.core.reference_curves import Circle, FigureEight, StraightLine, Trifolium
 from wip_control.core.reference_state import ReferenceState
 from wip_control.core.reference_waypoints import Waypoints

@@ -11,7 +11,7 @@ import pytest
 
 from wip_control.core.arc import AdaptiveRobustYawController, ArcConfig
 from wip_control.core.model import input_gains
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_sim.core.runner import initial_alpha, run_scenario
 from wip_sim.core.scenario import scenario_from_mapping
 

@@ -10,10 +10,10 @@ import math
 import pytest
 
 from safety_harness import active, assert_zeroed, Clock, ESTIMATE, H, RATE, TAU_MAX
-from wip_control.core.config import ConfigError, from_mapping
+from wip_runtime.config import ConfigError, from_mapping
 from wip_control.core.eso import StateEstimate
 from wip_control.core.mixer import mix
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_control.core.safety import (ACTIVE, DEGRADED, DriveStatus, FAULT,
                                      SafetyMonitor, STARTING, TIME_TOLERANCE,
                                      tilt_divergence_rate)

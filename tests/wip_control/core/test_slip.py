@@ -10,7 +10,7 @@ import math
 
 import pytest
 
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_control.core.slip import SlipMonitor
 from wip_control.core.state_estimation import StateEstimator
 from wip_control.core.eso import EsoConfig

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from wip_control.core.model import nominal_terms
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_control.core.wiring_check import (JOINTS, LEFT_SIGN, mirrored_tilt_band, MOUNTING,
                                            RIGHT_SIGN, WiringCheck, WiringCheckConfig)
 

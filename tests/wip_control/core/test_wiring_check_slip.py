@@ -11,7 +11,7 @@ numbers with the left wheel's sign flipped must still give one (so that the test
 import numpy as np
 import pytest
 
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_control.core.wiring_check import LEFT_SIGN, WiringCheck, WiringCheckConfig
 
 PERIOD = 0.005

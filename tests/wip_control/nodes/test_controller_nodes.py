@@ -33,7 +33,7 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 import yaml  # noqa: E402
 
 from wip_control.core.arc import AdaptiveRobustYawController, ArcConfig  # noqa: E402
-from wip_control.core.config import ConfigError  # noqa: E402
+from wip_runtime.config import ConfigError  # noqa: E402
 from wip_sim.core.disturbances import Disturbances  # noqa: E402
 from wip_control.core.eso import EsoConfig  # noqa: E402
 from wip_control.core.mixer import drive_torque_limit, mix  # noqa: E402
@@ -41,27 +41,27 @@ from wip_control.core.model import PHI  # noqa: E402
 from wip_control.core.lqr import LongitudinalLqr  # noqa: E402
 from wip_control.core.mpc import LongitudinalMpc  # noqa: E402
 from wip_control.core.mpc_config import MpcConfig  # noqa: E402
-from wip_control.core.params import WipParameters  # noqa: E402
+from wip_description.params import WipParameters  # noqa: E402
 from wip_sim.core.plant import Plant, simulate_hold  # noqa: E402
 from wip_control.core.reference_state import ReferenceState  # noqa: E402
 from wip_control.core.references import make_reference  # noqa: E402
 from wip_sim.core.runner import run_scenario  # noqa: E402
 from wip_sim.core.simulation import initial_state  # noqa: E402
 from wip_sim.core.scenario import Scenario  # noqa: E402
-from wip_control.core.sensors import geodetic_to_local, local_to_geodetic, SensorConfig  # noqa: E402
+from wip_description.sensors import (geodetic_to_local, local_to_geodetic,  # noqa: E402
+                                     SensorConfig)
 from wip_sim.core.sensor_models import Sensors  # noqa: E402
 from wip_control.core.state_estimation import StateEstimator  # noqa: E402
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa: E402
                                                    TrajectoryGeneratorConfig)
 from wip_control.core.control_step import initial_alpha  # noqa: E402
 from wip_control.nodes.arc_node import ArcNode  # noqa: E402
-from wip_control.nodes.common import (CLOCK_QOS, connect_intra_process,  # noqa: E402
-                                      make_header, ns_to_stamp, share_sim_clock,
-                                      stamp_to_ns)
+from wip_runtime.composition import connect_intra_process, share_sim_clock  # noqa: E402
+from wip_runtime.qos import CLOCK_QOS  # noqa: E402
+from wip_runtime.stamps import make_header, ns_to_stamp, stamp_to_ns  # noqa: E402
 from wip_control.nodes.conversions import (body_rates_from_euler,  # noqa: E402
-                                           euler_rates_from_body, mpc_status,
-                                           pitch_yaw_from_quaternion,
-                                           quaternion_from_euler)
+                                           euler_rates_from_body, mpc_status)
+from wip_runtime.messages import pitch_yaw_from_quaternion, quaternion_from_euler  # noqa: E402
 from wip_control.nodes.eso_node import EsoNode  # noqa: E402
 from wip_control.nodes.mpc_node import MpcNode  # noqa: E402
 from wip_control.nodes.reference_node import ReferenceNode  # noqa: E402
@@ -926,7 +926,7 @@ def test_six_nodes_in_lockstep_reproduce_the_in_process_runner(context, harnesse
     A minimal plant (the runner's plant, sensors and disturbances) drives the six nodes
     in lockstep: the wheel torques equal the runner's from t = 0 on. ``composed``: as in
     ``ros2 run wip_control controllers``, one /clock subscription for all six and the
-    messages between them delivered in-process (common.connect_intra_process).
+    messages between them delivered in-process (wip_runtime.composition.connect_intra_process).
 
     Not bit-exact: GPS goes through a geodetic round trip (1e-9 m), the IMU through a
     quaternion (1e-16 rad), t = ns/1e9 instead of k h, and ProxSuite's last bits depend
@@ -1138,7 +1138,7 @@ def test_reference_message_and_core_tuple_have_the_same_fields():
 
 def test_an_executor_error_after_shutdown_is_a_stop_and_before_it_an_error():
     from rclpy.executors import ExternalShutdownException
-    from wip_control.nodes.common import spin_once_or_stop
+    from wip_runtime.executors import spin_once_or_stop
 
     class Failing:
         def spin_once(self, timeout_sec):

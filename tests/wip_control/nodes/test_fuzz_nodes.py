@@ -40,11 +40,12 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg,  # noqa: E402
                           WheelTorques)
 
-from wip_control.core.sensors import local_to_geodetic, SensorConfig  # noqa: E402
+from wip_description.sensors import local_to_geodetic, SensorConfig  # noqa: E402
 from wip_control.nodes.arc_node import ArcNode  # noqa: E402
-from wip_control.nodes.conversions import quaternion_from_euler  # noqa: E402
-from wip_control.nodes.common import (CLOCK_QOS, make_executor, make_header,  # noqa: E402
-                                      spin_once_guarded)
+from wip_runtime.messages import quaternion_from_euler  # noqa: E402
+from wip_runtime.executors import make_executor, spin_once_guarded  # noqa: E402
+from wip_runtime.qos import CLOCK_QOS  # noqa: E402
+from wip_runtime.stamps import make_header  # noqa: E402
 from wip_control.nodes.eso_node import EsoNode  # noqa: E402
 from wip_control.nodes.mpc_node import MpcNode  # noqa: E402
 from wip_control.nodes.reference_node import ReferenceNode  # noqa: E402

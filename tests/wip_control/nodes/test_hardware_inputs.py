@@ -21,14 +21,14 @@ from sensor_msgs.msg import Imu, JointState  # noqa: E402
 from wip_msgs.msg import ArcState, MpcOutput, StateEstimate, VelocityCommand  # noqa: E402
 from wip_msgs.msg import WheelTorques  # noqa: E402
 
-from wip_control.core.config import ConfigError  # noqa: E402
+from wip_runtime.config import ConfigError  # noqa: E402
 from wip_control.core.references import make_reference, ReferenceConfig  # noqa: E402
 from wip_control.core.safety import SafetyDecision  # noqa: E402
-from wip_control.nodes.common import make_header  # noqa: E402
+from wip_runtime.stamps import make_header  # noqa: E402
 from wip_control.nodes.conversions import (arc_from_msg, command_from_msg,  # noqa: E402
-                                           estimate_from_msg, imu_pitch_yaw,
-                                           InvalidMessage, pitch_yaw_from_quaternion,
-                                           quaternion_from_euler, wheel_angles)
+                                           estimate_from_msg, imu_pitch_yaw, wheel_angles)
+from wip_runtime.messages import (InvalidMessage, pitch_yaw_from_quaternion,  # noqa: E402
+                                  quaternion_from_euler)
 from wip_control.nodes.eso_node import EsoNode  # noqa: E402
 from wip_control.nodes.hardware_inputs import (body_pitch_yaw,  # noqa: E402
                                                check_mounting_rpy, check_position_source,
@@ -266,7 +266,7 @@ def test_eso_fed_serialized_sensors_estimates_bit_for_bit_what_message_objects_g
     """The ESO fed serialized sensors estimates bit for bit what message objects give.
 
     The ESO takes /joint_states and /imu/data serialized (raw=True, decoded by
-    conversions.decode_serialized): the same estimates as from rclpy's message objects.
+    messages.decode_serialized): the same estimates as from rclpy's message objects.
     """
     from rclpy.serialization import serialize_message
 

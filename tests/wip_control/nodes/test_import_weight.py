@@ -34,7 +34,7 @@ def test_the_controller_nodes_do_not_import_numba(module):
 
 def test_a_plant_loads_its_compiled_integrator():
     program = _PROGRAM.format(module='wip_sim.core.plant') + """
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 plant = wip_sim.core.plant.Plant(WipParameters())
 print('numba' in sys.modules)
 """

@@ -1,4 +1,4 @@
-"""Intra-process delivery of the composed controllers (wip_control.nodes.intra_process).
+"""Intra-process delivery of the composed controllers (wip_runtime.intra_process).
 
 The bus is checked without ROS (fake publishers: which path a message takes, the order,
 errors), then with rclpy: two controller nodes of one context connected as the composed
@@ -11,8 +11,7 @@ import time
 
 import pytest
 
-from wip_control.nodes.intra_process import (IntraProcessBus, IntraProcessPublisher,
-                                              local_match_count)
+from wip_runtime.intra_process import IntraProcessBus, IntraProcessPublisher, local_match_count
 
 
 class FakeDdsPublisher:
@@ -170,8 +169,10 @@ wip_msgs = pytest.importorskip('wip_msgs.msg')
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
-from wip_control.nodes.common import (connect_intra_process, ControllerNode,  # noqa: E402
-                                      make_header, RELIABLE_QOS, stamp_to_ns)
+from wip_control.nodes.common import ControllerNode  # noqa: E402
+from wip_runtime.composition import connect_intra_process  # noqa: E402
+from wip_runtime.qos import RELIABLE_QOS  # noqa: E402
+from wip_runtime.stamps import make_header, stamp_to_ns  # noqa: E402
 
 DEADLINE = 60.0   # [s] discovery and matching on a slow, shared machine
 TOPIC = '/wip/velocity_command'

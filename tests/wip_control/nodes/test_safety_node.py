@@ -44,7 +44,7 @@ from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg
 from wip_control.core.mixer import mix  # noqa: E402
 from wip_control.core.safety import (ACTIVE, DEGRADED, DriveStatus, ESTOP,  # noqa: E402
                                      FAULT, SHADOW, STARTING, TIME_TOLERANCE)
-from wip_control.nodes.common import make_header  # noqa: E402
+from wip_runtime.stamps import make_header  # noqa: E402
 from wip_control.nodes.torque_mixer_node import TorqueMixerNode  # noqa: E402
 
 pytestmark = pytest.mark.ros

@@ -1,7 +1,8 @@
 """What the per-tick savings of the composed controllers keep: the same messages, every input.
 
-Message builders (conversions.StampedBuilder) against the generated constructors, and one DDS
-subscription per outside sensor topic in a composed process (common.share_raw_subscriptions).
+Message builders (wip_runtime.messages.StampedBuilder) against the generated constructors, and
+one DDS subscription per outside sensor topic in a composed process
+(wip_runtime.composition.share_raw_subscriptions).
 """
 
 import time
@@ -22,8 +23,11 @@ from wip_control.core.eso import StateEstimate  # noqa: E402
 from wip_control.core.reference_state import ReferenceState  # noqa: E402
 from wip_control.core.trajectory_generator import VelocityCommand  # noqa: E402
 from wip_control.nodes import conversions  # noqa: E402
-from wip_control.nodes.common import (connect_intra_process, ControllerNode,  # noqa: E402
-                                      make_header, SENSOR_QOS, stamp_to_ns)
+from wip_runtime import messages  # noqa: E402
+from wip_control.nodes.common import ControllerNode  # noqa: E402
+from wip_runtime.composition import connect_intra_process  # noqa: E402
+from wip_runtime.qos import SENSOR_QOS  # noqa: E402
+from wip_runtime.stamps import make_header, stamp_to_ns  # noqa: E402
 
 STAMP = 1_700_000_123_456_789_012   # [ns] a wall-clock stamp, nanoseconds not zero
 DEADLINE = 60.0   # [s] discovery and matching on a slow, shared machine
@@ -60,9 +64,9 @@ def test_the_builders_give_the_constructors_messages_field_for_field_and_byte_fo
 
 def test_a_builder_refuses_a_message_type_whose_fields_it_does_not_list():
     with pytest.raises(TypeError, match='tau_omega'):
-        conversions.StampedBuilder(wip_msgs.ArcState, ('alpha_hat', 'e_omega'))
+        messages.StampedBuilder(wip_msgs.ArcState, ('alpha_hat', 'e_omega'))
     with pytest.raises(TypeError, match='header'):
-        conversions.StampedBuilder(Float64MultiArray, ('layout', 'data'))
+        messages.StampedBuilder(Float64MultiArray, ('layout', 'data'))
 
 
 class RawSensor(ControllerNode):
@@ -75,7 +79,7 @@ class RawSensor(ControllerNode):
                        raw=True)
 
     def _on(self, msg):
-        msg = conversions.decode_serialized(msg, 'sensor_msgs/msg/JointState')
+        msg = messages.decode_serialized(msg, 'sensor_msgs/msg/JointState')
         self.received.append(list(msg.position))
 
 

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wip_control.core.config import ConfigError
+from wip_runtime.config import ConfigError
 from wip_sim.core.disturbances import (EDGE_TOLERANCE, DisturbanceComponent,
                                            DisturbanceConfig, Disturbances)
 

@@ -9,9 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.integrate import simpson
 
-from wip_control.core.config import ConfigError, from_mapping
+from wip_runtime.config import ConfigError, from_mapping
 from wip_control.core.model import OMEGA, PHI, THETA, THETA_DOT, V, XV, nominal_terms
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_sim.core.plant import (full_input_gains, Plant, PlantConfig, simulate_hold,
                                 tilt_pole)
 

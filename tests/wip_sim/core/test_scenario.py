@@ -5,7 +5,7 @@ import math
 import pytest
 import yaml
 
-from wip_control.core.config import ConfigError
+from wip_runtime.config import ConfigError
 from wip_control.core.references import make_reference
 from wip_sim.core.simulation import initial_state
 from wip_sim.core.scenario import (load_scenario, Scenario, scenario_from_mapping,

@@ -29,7 +29,7 @@ import pathlib
 import sys
 import time
 
-from wip_control.tools.cli import add_exit_codes, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with
+from wip_runtime.cli import add_exit_codes, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with
 
 from .bag_reader import (BagReadError, integrity_problems, missing_metadata,
                          read_metadata_file, scan)

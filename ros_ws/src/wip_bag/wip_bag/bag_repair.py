@@ -47,9 +47,8 @@ from mcap.reader import SeekingReader
 from mcap.writer import Writer
 import yaml
 
-from wip_control.tools.cli import (check_output_directory, EXIT_DISK_FULL, EXIT_FAILED,
-                                   EXIT_OK, EXIT_USAGE)
-from wip_control.tools.cli import add_exit_codes, exit_with
+from wip_runtime.cli import (add_exit_codes, check_output_directory, EXIT_DISK_FULL, EXIT_FAILED,
+                             EXIT_OK, EXIT_USAGE, exit_with)
 
 from .bag_integrity import iter_chunk_records
 from .bag_reader import BagReadError, record_kind, scan

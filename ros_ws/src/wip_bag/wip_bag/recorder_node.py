@@ -32,7 +32,7 @@ Behaviour
   compressing chunk write never delays the executor. It writes what is queued in batches,
   resting :data:`WRITE_BATCH_PAUSE` between them. Nothing received is dropped.
 - SIGINT, SIGTERM, SIGHUP (and the launcher's death, which the kernel turns into SIGINT:
-  ``wip_control.nodes.launched``): at a SIGINT a recorder that a launcher started first
+  ``wip_runtime.launched``): at a SIGINT a recorder that a launcher started first
   takes what the graph already sent (:mod:`.recorder_stop`); a live launcher drains it
   itself and stops it with SIGTERM, and a recorder run by hand stops at once. Then the
   subscriptions stop, the queue is drained and the bag is closed (MCAP summary and
@@ -76,11 +76,11 @@ from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSProfile,
                        QoSReliabilityPolicy)
 from rclpy.signals import SignalHandlerOptions
 
-from wip_control.nodes.launched import end_with_launcher
-from wip_control.nodes.common import init_rclpy
-from wip_control.nodes.diagnostics import create_diagnostics_timer
-from wip_control.nodes.parameters import ConfigParameters
-from wip_control.tools.cli import answer_node_help, EXIT_USAGE
+from wip_runtime.launched import end_with_launcher
+from wip_runtime.node_main import init_rclpy
+from wip_runtime.diagnostics import create_diagnostics_timer
+from wip_runtime.parameters import ConfigParameters
+from wip_runtime.cli import answer_node_help, EXIT_USAGE
 
 from .bag_writer import BagExistsError, BagWriterError, Rosbag2McapWriter
 from .message_definitions import message_definition, type_description_hash

@@ -71,18 +71,18 @@ from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_srvs.srv import SetBool, Trigger
 
-from wip_control.nodes.common import init_rclpy
-from wip_control.nodes.launched import end_with_launcher
-from wip_control.nodes.parameters import ConfigParameters
-from wip_control.tools.cli import (add_exit_codes, EXIT_INTERNAL, EXIT_USAGE, log_trace,
-                                   one_line, split_ros_args)
+from wip_runtime.node_main import init_rclpy
+from wip_runtime.launched import end_with_launcher
+from wip_runtime.parameters import ConfigParameters
+from wip_runtime.cli import (add_exit_codes, EXIT_INTERNAL, EXIT_USAGE, log_trace, one_line,
+                             split_ros_args)
 
 from .bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
 from .message_types import message_class
 from .playback import parse_remaps, playback_qos, PlaybackClock
 from .settings import ReplayerSettings
 
-# The exit-code table of every tool (wip_control.tools.cli).
+# The exit-code table of every tool (wip_runtime.cli).
 EXIT_OK = 0
 EXIT_BAG_ERROR = EXIT_USAGE  # the bag cannot be played: an input error
 EXIT_BAD_PARAMETERS = EXIT_USAGE

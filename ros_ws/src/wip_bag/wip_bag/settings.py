@@ -8,8 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from wip_control.core.config import param
-from wip_control.nodes.settings import TEXT
+from wip_runtime.config import param, TEXT
 
 from .bag_writer import COMPRESSION, DEFAULT_CHUNK_SIZE
 

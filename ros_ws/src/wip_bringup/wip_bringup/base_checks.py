@@ -11,7 +11,7 @@ import dataclasses
 import math
 from typing import Any
 
-from wip_control.nodes.conversions import quaternion_from_euler
+from wip_runtime.messages import quaternion_from_euler
 from wip_control.nodes.hardware_inputs import (check_mounting_rpy, check_wheel_sign,
                                                quaternion_multiply, rotate_vector_into)
 

@@ -17,9 +17,9 @@ import threading
 import time
 from typing import Any, Callable, TextIO
 
-from wip_control.core.config import ConfigError
+from wip_runtime.config import ConfigError
 from wip_control.core.controller_settings import load_controller_settings
-from wip_control.tools.cli import add_exit_codes
+from wip_runtime.cli import add_exit_codes
 
 from .base_checks import (AUTO_STILL_TIME, Check, check_connection, check_tilt, check_turn,
                           check_upright, check_wheel, Conventions, FAIL, OK, Reading, SKIP,
@@ -32,7 +32,7 @@ from .params_check import check_run_inputs, unmatched_remaps
 from .params_files import CONTROLLER_NODES
 
 
-# The exit-code table of every tool (wip_control.tools.cli); no data from the base is a
+# The exit-code table of every tool (wip_runtime.cli); no data from the base is a
 # failed check (the connection check).
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_NO_DATA = EXIT_FAILED
@@ -371,5 +371,5 @@ def main(argv: list[str] | None = None, stdin: TextIO | None = None,
 
 
 if __name__ == '__main__':
-    from wip_control.tools.cli import exit_with
+    from wip_runtime.cli import exit_with
     exit_with(main, 'check_base')

@@ -15,7 +15,7 @@ import sys
 import time
 from typing import TYPE_CHECKING
 
-from wip_control.tools.cli import add_exit_codes
+from wip_runtime.cli import add_exit_codes
 
 if TYPE_CHECKING:
     from .ros_env import RosNetwork
@@ -95,8 +95,9 @@ def target(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Target:
     """Return where the command goes; a usage error (exit 2) if an argument is bad."""
     # Not wip_bringup.launcher nor the nodes' modules (numpy, scipy: a few tenths of a
     # second of start-up, part of the e-stop's latency).
-    from .ros_env import (FASTDDS_PROFILE, FASTDDS_PROFILE_VARIABLES, GraphError,
-                          parse_namespace, use_user_ros_environment)
+    from wip_runtime.dds_profile import (FASTDDS_PROFILE,
+                                         PROFILE_VARIABLES as FASTDDS_PROFILE_VARIABLES)
+    from .ros_env import GraphError, parse_namespace, use_user_ros_environment
     try:
         network = use_user_ros_environment()
     except GraphError as err:
@@ -124,7 +125,7 @@ def publish_estop(node, executor, to: Target, engage: bool, deadline: float,
     import rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Bool
-    # The mixer's subscription: reliable, volatile (wip_control.nodes.common).
+    # The mixer's subscription: reliable, volatile (wip_runtime.qos).
     publisher = node.create_publisher(
         Bool, to.topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
     mixer_namespace, _, mixer_name = to.mixer.rpartition('/')
@@ -213,5 +214,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == '__main__':
-    from wip_control.tools.cli import exit_with
+    from wip_runtime.cli import exit_with
     exit_with(main, 'estop')

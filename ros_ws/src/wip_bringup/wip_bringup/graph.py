@@ -13,7 +13,7 @@ import shlex
 import tempfile
 from typing import Any
 
-from wip_control.tools.cli import add_exit_codes, bounded, exit_with
+from wip_runtime.cli import add_exit_codes, bounded, exit_with
 
 from .graph_runner import GraphOptions, GraphResult, run_graph
 from .hardware import add_arguments, run_from_args

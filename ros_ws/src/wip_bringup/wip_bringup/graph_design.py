@@ -47,8 +47,8 @@ SUBSCRIBERS = {
 }
 #: Lockstep: /clock is published by the plant; every controller node's time source
 #: subscribes to it, except the reference node's, which its /clock ticker drives
-#: (wip_control.nodes.common.ClockTicker). Composed, the nodes share the reference node's
-#: time source (wip_control.nodes.common.share_sim_clock): one subscription.
+#: (wip_runtime.clock.ClockTicker). Composed, the nodes share the reference node's
+#: time source (wip_runtime.composition.share_sim_clock): one subscription.
 CLOCK_SUBSCRIPTIONS = {'separate': len(CONTROLLER_NODES), 'composed': 1, 'single': 1}
 #: Nodes with a /clock subscription of their own in lockstep, per layout.
 CLOCK_NODES = {'separate': CONTROLLER_NODES, 'composed': ('reference',),
@@ -59,7 +59,7 @@ RECORDED_TOPICS = tuple(PUBLISHERS) + ('/diagnostics',) + INPUT_TOPICS
 
 #: /diagnostics key prefixes of a node's DDS match counts of one topic, '<KEY> <topic>':
 #: subscriptions matched by its publisher, publishers matched by its subscription (see
-#: :func:`unmatched_pairs`, ``wip_control.nodes.diagnostics``).
+#: :func:`unmatched_pairs`, ``wip_runtime.diagnostics``).
 MATCHED_KEY = 'matched subscriptions'
 MATCHED_PUBLISHERS_KEY = 'matched publishers'
 

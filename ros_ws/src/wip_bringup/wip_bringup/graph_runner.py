@@ -17,8 +17,8 @@ from typing import Any
 
 import yaml
 
-from wip_control.core.config import ConfigError
-from wip_control.tools.cli import write_atomic
+from wip_runtime.config import ConfigError
+from wip_runtime.cli import write_atomic
 from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping, with_duration
 from wip_sim.settings import WITH_VIEWER
 

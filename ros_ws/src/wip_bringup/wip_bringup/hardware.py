@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from wip_control.tools.cli import add_exit_codes, bounded
+from wip_runtime.cli import add_exit_codes, bounded
 
 from .hardware_outcome import format_result
 from .hardware_runner import HardwareOptions, run_hardware

@@ -10,7 +10,7 @@ import fnmatch
 import pathlib
 from typing import Any, Iterable, Mapping
 
-from wip_control.core.config import ConfigError, load_yaml_text
+from wip_runtime.config import ConfigError, load_yaml_text
 from wip_control.core.controller_settings import ControllerSettings
 
 from .launcher import EXIT_USAGE, GraphError

@@ -10,16 +10,15 @@ internals.
 
 from __future__ import annotations
 
-from wip_control.tools.cli import EXIT_DISK_FULL as CLI_EXIT_DISK_FULL
-from wip_control.tools.cli import EXIT_NOT_ENGAGED as CLI_EXIT_NOT_ENGAGED
+from wip_runtime.cli import EXIT_DISK_FULL as CLI_EXIT_DISK_FULL
+from wip_runtime.cli import EXIT_NOT_ENGAGED as CLI_EXIT_NOT_ENGAGED
 from wip_viewer.viewer_core import MODEL_TOPICS, VIEWER_TOPICS as VIEWER_TOPIC_TYPES
 
-from .ros_env import (FASTDDS_PROFILE, FASTDDS_PROFILE_VARIABLES, GraphError,  # noqa: F401
-                      parse_namespace, ROS_DEFAULTS_VARIABLE, ros_network, RosNetwork,
-                      use_user_ros_environment)
+from .ros_env import (GraphError, parse_namespace, ROS_DEFAULTS_VARIABLE,  # noqa: F401
+                      ros_network, RosNetwork, use_user_ros_environment)
 
 
-# The exit-code table of every tool (wip_control.tools.cli): 0 ok, 1 the vehicle fell (or a
+# The exit-code table of every tool (wip_runtime.cli): 0 ok, 1 the vehicle fell (or a
 # safety fault while engaged), 2 usage or input error, 3 internal error (a node crashed, the
 # graph stalled), 4 disk full, 5 the controllers never engaged, 130 Ctrl-C (143 SIGTERM,
 # 129 SIGHUP: 128 + the signal, run_stop.STOP_SIGNALS).

@@ -7,7 +7,7 @@ import os
 import pathlib
 import shutil
 
-from wip_control.tools.cli import check_output_directory
+from wip_runtime.cli import check_output_directory
 
 from .launcher import EXECUTABLES, EXIT_USAGE, GraphError
 

@@ -8,7 +8,7 @@ registries of :mod:`wip_control.nodes.settings`, :mod:`wip_bag.settings` and
 read it: an unknown node section or parameter name (with the nearest known name), a value
 of the wrong ROS type (ROS reads ``1`` as an integer, which a double parameter refuses),
 out of its range, or a section that the node's own checks refuse
-(:func:`~wip_control.core.config.from_mapping`). Without these checks a typo was ignored
+(:func:`~wip_runtime.config.from_mapping`). Without these checks a typo was ignored
 with a warning in a node's log, and a bad value stopped a node after the others had
 started.
 
@@ -26,8 +26,8 @@ import re
 import typing
 from typing import Any, Iterable, Mapping, Sequence
 
-from wip_control.core.config import check_value, ConfigError, from_mapping
-from wip_control.nodes.settings import check_effort_joints, EffortCommand, WheelJoints
+from wip_runtime.config import check_value, ConfigError, from_mapping
+from wip_description.wiring import check_effort_joints, EffortCommand, WheelJoints
 
 from .params_files import flatten
 

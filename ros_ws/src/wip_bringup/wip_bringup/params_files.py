@@ -18,7 +18,7 @@ config dataclasses, ``wip_control.nodes.*_node``);
         eso: {yaw_gains: [...], epsilon: 0.01, ...}   # flattened by ROS to eso.yaw_gains
         ...
 
-Sections of config dataclasses are written with :func:`~wip_control.core.config.to_mapping`
+Sections of config dataclasses are written with :func:`~wip_runtime.config.to_mapping`
 and then typed from the dataclass field types, because the type of a ROS parameter is the
 type of its value: a ``float`` field is always written as a float (``25.0``, never ``25``,
 which ROS would reject as an integer for a double parameter), an ``int`` field as an int,
@@ -57,9 +57,9 @@ from typing import Any, Mapping
 
 import yaml
 
-from wip_control.core.config import to_mapping
+from wip_runtime.config import to_mapping
 from wip_control.core.controller_settings import ControllerSettings
-from wip_control.tools.cli import write_atomic
+from wip_runtime.cli import write_atomic
 
 CLOCK_MODES = ('lockstep', 'realtime')
 #: Node names of the graph, in start order (the plant last: it waits for the others).

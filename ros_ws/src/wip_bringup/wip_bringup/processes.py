@@ -10,11 +10,13 @@ import pathlib
 import signal
 import subprocess
 
-from wip_control.nodes.launched import LAUNCHER_PID_VARIABLE
+from wip_runtime.dds_profile import (FASTDDS_PROFILE,
+                                     PROFILE_VARIABLES as FASTDDS_PROFILE_VARIABLES)
+from wip_runtime.launched import LAUNCHER_PID_VARIABLE
 
 from .launcher import EXIT_USAGE, GraphError
 from .private_domain import reserve_private_domain
-from .ros_env import FASTDDS_PROFILE, FASTDDS_PROFILE_VARIABLES, ROS_DEFAULTS_VARIABLE
+from .ros_env import ROS_DEFAULTS_VARIABLE
 from .scheduling import Scheduling
 
 LOG_TAIL_LINES = 15

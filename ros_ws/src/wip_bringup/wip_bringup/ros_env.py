@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import pathlib
 import re
 from typing import Mapping, MutableMapping
 
-from wip_control.tools.cli import EXIT_INTERNAL as EXIT_FAILED, EXIT_USAGE
+from wip_runtime.cli import EXIT_INTERNAL as EXIT_FAILED, EXIT_USAGE
 
 
 class GraphError(Exception):
@@ -42,13 +41,6 @@ def parse_namespace(text: str | None) -> str:
                          'digits and _ separated by /, no token starting with a digit)',
                          EXIT_USAGE)
     return '/' + text.lstrip('/')
-
-
-#: The Fast DDS profile of the node processes where the user has none of their own (the
-#: variables, Fast DDS 2's and 3's names): reliable writers' heartbeats every 20 ms (the file
-#: says why).
-FASTDDS_PROFILE = pathlib.Path(__file__).with_name('fastdds_profile.xml')
-FASTDDS_PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
 
 
 #: Set by scripts/_env.sh: the ROS variables it gave a private default ("NAME=VALUE ..."), so

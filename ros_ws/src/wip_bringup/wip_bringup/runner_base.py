@@ -26,10 +26,10 @@ from typing import Any, Iterable
 
 import yaml
 
-from wip_control.core.config import ConfigError
+from wip_runtime.config import ConfigError
 from wip_control.core.controller_settings import (controller_settings_to_mapping,
                                                   ControllerSettings, load_controller_settings)
-from wip_control.tools.cli import write_atomic
+from wip_runtime.cli import write_atomic
 
 from .launcher import (CONTROLLER_LAYOUTS, EXECUTABLES, EXIT_DISK_FULL, EXIT_TIMEOUT,
                        EXIT_USAGE, GRACE_PERIOD, GraphError, in_namespace, LAYOUTS,
@@ -347,7 +347,7 @@ class RunnerBase:
         message of every node sent after that moment (the probe's view can be complete
         before two *other* nodes have matched each other; their exchange takes
         milliseconds; the nodes report every 0.1 s while they start, so the wait is short,
-        ``wip_control.nodes.diagnostics.STARTUP_PERIOD``) and no :meth:`unmatched_endpoints`.
+        ``wip_runtime.diagnostics.STARTUP_PERIOD``) and no :meth:`unmatched_endpoints`.
         """
         nodes = self.node_names()
         deadline = time.monotonic() + self.options.discovery_timeout

@@ -10,7 +10,7 @@ import math
 
 from sensor_msgs.msg import Imu, JointState
 
-from wip_control.nodes.conversions import quaternion_from_euler
+from wip_runtime.messages import quaternion_from_euler
 from wip_control.nodes.hardware_inputs import imu_orientation_of_body, rotate_vector_into
 
 

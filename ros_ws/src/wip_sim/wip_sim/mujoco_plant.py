@@ -65,7 +65,7 @@ import numpy as np
 
 from wip_sim.core.ground import ContactConfig, TerrainConfig
 from wip_control.core.model import THETA
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_sim.core.plant import DEFAULT_FALL_LIMIT
 
 #: The pinned version (requirements.txt), for the error when mujoco is missing.

@@ -83,21 +83,23 @@ from wip_msgs.msg import GroundTruth, WheelTorques
 from wip_control.core.model import THETA
 from wip_sim.core.scenario import load_scenario
 from wip_sim.core.simulation import Simulation
-from wip_control.nodes.common import (IntraProcessNode, LOCKSTEP_WRITER_DEPTH,
-                                      run_simulator_node, stamp_to_ns)
-from wip_control.nodes.conversions import (body_rates_from_euler, quaternion_from_euler,
-                                           wheel_torques_from_msg)
-from wip_control.nodes.intra_process import local_match_count
-from wip_control.nodes.diagnostics import create_diagnostics_timer
-from wip_control.nodes.parameters import ConfigParameters
-from wip_control.nodes.settings import WheelJoints
-from wip_control.tools.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
+from wip_runtime.composition import IntraProcessNode
+from wip_runtime.qos import LOCKSTEP_WRITER_DEPTH
+from wip_runtime.stamps import stamp_to_ns
+from wip_sim.simulator_main import run_simulator_node
+from wip_control.nodes.conversions import body_rates_from_euler, wheel_torques_from_msg
+from wip_runtime.messages import quaternion_from_euler
+from wip_runtime.intra_process import local_match_count
+from wip_runtime.diagnostics import create_diagnostics_timer
+from wip_runtime.parameters import ConfigParameters
+from wip_description.wiring import WheelJoints
+from wip_runtime.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
 
 from .plant_report import diagnostic_status, format_timing, run_stats, TickTimer
 from .sensor_messages import gps_message, imu_message, set_stamp, write_fix
 from .settings import PlantSettings, StartHandshake
 
-# The tools' table (wip_control.tools.cli): a fall is 1, a bad parameter 2, a simulation
+# The tools' table (wip_runtime.cli): a fall is 1, a bad parameter 2, a simulation
 # that failed (non-finite state) an internal error, 3.
 EXIT_FELL, EXIT_CONFIG, EXIT_ERROR = EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL
 
@@ -164,7 +166,7 @@ class PlantNode(IntraProcessNode):
         # durability: compatible with volatile subscriptions, and a subscription that asks
         # for transient-local gets the samples published before it matched.
         # Lockstep: a deep writer history, so that a reader that lags loses nothing
-        # (common.LOCKSTEP_WRITER_DEPTH).
+        # (wip_runtime.qos.LOCKSTEP_WRITER_DEPTH).
         qos = QoSProfile(depth=(LOCKSTEP_WRITER_DEPTH if self.clock_mode == 'lockstep'
                                 else SENSOR_DEPTH),
                          reliability=ReliabilityPolicy.RELIABLE,

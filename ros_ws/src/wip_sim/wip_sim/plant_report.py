@@ -12,7 +12,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from wip_control.core.model import STATE_NAMES
-from wip_control.tools.cli import EXIT_OK
+from wip_runtime.cli import EXIT_OK
 
 
 class TickTimer:
@@ -66,7 +66,7 @@ def run_stats(node) -> dict:
         'clock_to_torques_s': node.loop_time.summary(),
         'stale_torque_messages': node.stale_torques,
         # Topics whose readers had not acknowledged every sample when the process
-        # ended (common.wait_for_acknowledgements).
+        # ended (wip_runtime.node_main.wait_for_acknowledgements).
         'unacknowledged_topics': node.unacknowledged_topics,
         'zeroed_torque_ticks': node.zeroed_torques,
         'zeroed_torque_ticks_before_first': node.zeroed_torques_before_first,

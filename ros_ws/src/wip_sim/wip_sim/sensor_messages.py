@@ -13,7 +13,7 @@ import math
 
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
-from wip_control.core.sensors import local_to_geodetic, SensorConfig
+from wip_description.sensors import local_to_geodetic, SensorConfig
 
 # Variance reported when a quantity is exact (noise-free simulation): REP 145 reserves
 # -1 for "not provided", 0 is a legitimate "known exactly".

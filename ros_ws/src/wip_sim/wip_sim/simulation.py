@@ -5,7 +5,7 @@ ROS 2 composition of a whole simulation (``scripts/run_graph --layout single``):
 torque_mixer keep their names, parameters (params-file sections by node name), topics and
 /diagnostics, and share one process and one executor. A lockstep tick then crosses no
 process boundary: the controllers hand their messages to each other directly
-(``wip_control.nodes.intra_process``), and the plant's topics go through DDS within the
+(``wip_runtime.intra_process``), and the plant's topics go through DDS within the
 process, without a transport or a thread switch. It ends when the plant does, with its
 exit status. Measured (docs/realtime.md): the fastest lockstep layout.
 
@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import sys
 
-from wip_control.nodes.common import run_simulator_node
+from wip_sim.simulator_main import run_simulator_node
 from wip_control.nodes.controllers import NODE_CLASSES
-from wip_control.tools.cli import split_ros_args
+from wip_runtime.cli import split_ros_args
 
 from .plant_node import EXIT_CONFIG, PlantNode
 from .settings import WITH_VIEWER

@@ -92,18 +92,19 @@ from std_msgs.msg import Float64MultiArray
 from wip_control.core.model import OMEGA, PHI, THETA, V, X, Y
 from wip_sim.core.scenario import load_scenario
 from wip_sim.core.simulation import Simulation
-from wip_control.nodes.common import run_simulator_node
-from wip_control.nodes.conversions import quaternion_from_euler
-from wip_control.nodes.diagnostics import create_diagnostics_timer
-from wip_control.nodes.parameters import ConfigParameters, declare_effort_interface
-from wip_control.nodes.settings import DatumConfig, ImuMounting
-from wip_control.tools.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
+from wip_sim.simulator_main import run_simulator_node
+from wip_runtime.messages import quaternion_from_euler
+from wip_runtime.diagnostics import create_diagnostics_timer
+from wip_control.nodes.effort_interface import declare_effort_interface
+from wip_runtime.parameters import ConfigParameters
+from wip_description.wiring import DatumConfig, ImuMounting
+from wip_runtime.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
 
 from .base_conventions import BaseConventions
 from .sensor_messages import gps_message, imu_message, write_fix
 from .settings import CommandTiming, PositionFault, StandinSettings
 
-# The tools' table (wip_control.tools.cli): a fall is 1, a bad parameter 2, a simulation
+# The tools' table (wip_runtime.cli): a fall is 1, a bad parameter 2, a simulation
 # that failed (non-finite state) an internal error, 3.
 EXIT_FELL, EXIT_CONFIG, EXIT_ERROR = EXIT_FAILED, EXIT_USAGE, EXIT_INTERNAL
 SPIN_TIMEOUT = 0.1  # [s]

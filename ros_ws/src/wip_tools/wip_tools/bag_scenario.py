@@ -23,7 +23,7 @@ import pathlib
 from typing import Any, Mapping
 
 from wip_bag.bag_reader import read_metadata_file
-from wip_control.core.config import ConfigError, load_yaml_text
+from wip_runtime.config import ConfigError, load_yaml_text
 from wip_control.core.controller_settings import read_scenario_file
 from wip_sim.core.scenario import Scenario, scenario_from_mapping
 

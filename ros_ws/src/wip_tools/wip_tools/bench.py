@@ -65,7 +65,7 @@ from wip_control.core.model import STATE_NAMES
 from wip_sim.core.plant import MODELS, PlantConfig
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import load_scenario
-from wip_control.tools.cli import add_exit_codes
+from wip_runtime.cli import add_exit_codes
 from wip_tools.realtime_bench import section_realtime
 
 
@@ -348,5 +348,5 @@ def _write_json(path: str | None, report: dict) -> None:
 
 
 if __name__ == '__main__':
-    from wip_control.tools.cli import exit_with
+    from wip_runtime.cli import exit_with
     exit_with(main, 'bench')

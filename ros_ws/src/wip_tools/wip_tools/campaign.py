@@ -47,11 +47,11 @@ import time
 import traceback
 from typing import Any, Mapping
 
-from wip_control.core.config import ConfigError
+from wip_runtime.config import ConfigError
 from wip_tools.analysis.criteria import (criteria_from_mapping, criteria_to_mapping, evaluate,
                                          measure)
 from wip_sim.core.scenario import scenario_from_mapping
-from wip_control.tools.cli import add_exit_codes
+from wip_runtime.cli import add_exit_codes
 from wip_tools.campaign_file import (Campaign, CampaignError, load_campaign, run_specs,
                                      scenario_mapping)
 from wip_tools.campaign_results import summarise, summary_text, write_figures, write_table

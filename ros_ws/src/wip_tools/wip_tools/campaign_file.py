@@ -13,7 +13,7 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from wip_control.core.config import ConfigError
+from wip_runtime.config import ConfigError
 from wip_tools.analysis.criteria import Criteria, criteria_from_mapping
 from wip_sim.core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
 

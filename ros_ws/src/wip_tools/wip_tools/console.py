@@ -1,11 +1,11 @@
 """Console scripts of wip_tools.
 
 What ``ros2 run wip_tools <tool>`` starts: each tool's ``main`` through the exit-code table and
-last-resort error handler of wip_control.tools.cli, as ``python -m <module>`` (the scripts/ front
+last-resort error handler of wip_runtime.cli, as ``python -m <module>`` (the scripts/ front
 doors) runs it.
 """
 
-from wip_control.tools.cli import console_script
+from wip_runtime.cli import console_script
 
 simulate = console_script('wip_tools.simulate', 'simulate')
 report = console_script('wip_tools.report', 'report')

@@ -21,7 +21,7 @@ signals, outliers left out; see docs/identification.md for the regressors, the m
 the assumptions and the limits. Reads a rosbag2 directory (or .mcap) through
 wip_tools.report.record_from_bag, a robot's sensors with its wiring
 (:mod:`wip_tools.run_wiring`), or a record saved as timeseries.npz (scripts/simulate
---out). Exit codes: wip_control.tools.cli.
+--out). Exit codes: wip_runtime.cli.
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from wip_control.core.params import WipParameters
-from wip_control.tools.cli import add_exit_codes, EXIT_OK, EXIT_USAGE, exit_with
+from wip_description.params import WipParameters
+from wip_runtime.cli import add_exit_codes, EXIT_OK, EXIT_USAGE, exit_with
 from wip_tools.identify_record import best_source, choose_model, load_record, TORQUE_SOURCES
 from wip_tools.identify_signals import (CUTOFF_HZ, IdentifyError, regressors,
                                         root_mean_square, uniform_signals)
@@ -436,7 +436,7 @@ def _inputs(args: argparse.Namespace) -> tuple:
                                       WiringError)
     nominal = WipParameters()
     if args.scenario:
-        from wip_control.core.config import ConfigError
+        from wip_runtime.config import ConfigError
         from wip_sim.core.scenario import load_scenario
         try:
             nominal = load_scenario(args.scenario).controller_model.parameters

@@ -29,7 +29,7 @@ def _sensor_converters(wiring):
     A message they cannot read (the joints absent, no orientation...) gives None: the row
     is skipped, as the ESO node drops it.
     """
-    from wip_control.nodes.conversions import InvalidMessage
+    from wip_runtime.messages import InvalidMessage
     from wip_control.nodes.hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates,
                                                    mounting_inverse, signed_efforts,
                                                    signed_wheel_angles)

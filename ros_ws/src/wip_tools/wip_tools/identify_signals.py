@@ -13,7 +13,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 
 #: Wheel ground speed [m/s] at which the rolling resistance's sign is tanh(1) = 0.76 of its
 #: full value: a smooth sign, so that encoder noise about a standstill does not toggle it.

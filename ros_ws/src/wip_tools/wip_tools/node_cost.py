@@ -47,7 +47,8 @@ def measure(seconds: float, paced: bool) -> dict:
     """
     import rclpy  # ROS only where measured
 
-    from wip_control.nodes.common import compose, make_executor
+    from wip_runtime.composition import compose
+    from wip_runtime.executors import make_executor
     from wip_control.nodes.controllers import NODE_CLASSES
 
     _init_rclpy()
@@ -117,7 +118,7 @@ class _SensorFeed:
         from std_msgs.msg import Float64MultiArray
 
         from wip_bringup.standin_run import BASE
-        from wip_control.nodes.common import RELIABLE_QOS
+        from wip_runtime.qos import RELIABLE_QOS
         from wip_sim.core.scenario import load_scenario
         from wip_sim.base_conventions import BaseConventions
 
@@ -127,7 +128,7 @@ class _SensorFeed:
         self.on_fix = eso['/gps/fix']
         # Other nodes' own subscriptions of the sensors (the mixer's wiring checks), each
         # taking a message of its own as rclpy would deliver it; none where the ESO's
-        # subscriptions serve them (common.share_raw_subscriptions).
+        # subscriptions serve them (wip_runtime.composition.share_raw_subscriptions).
         self.others = [(s.msg_type, s.callback) for name, node in nodes.items() if name != 'eso'
                        for s in node.subscriptions
                        if s.topic_name in ('/joint_states', '/imu/data') and not s.raw]

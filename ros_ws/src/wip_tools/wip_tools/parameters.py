@@ -23,7 +23,7 @@ import typing
 from typing import Any, NamedTuple
 
 from wip_sim.core.scenario import Scenario, TOP_LEVEL_RANGES, TOP_LEVEL_SCALARS
-from wip_control.tools.cli import add_exit_codes, EXIT_USAGE, exit_with
+from wip_runtime.cli import add_exit_codes, EXIT_USAGE, exit_with
 
 #: Modules holding a ``NODES`` registry, one per package with nodes.
 REGISTRY_MODULES = ('wip_control.nodes.settings', 'wip_sim.settings', 'wip_bag.settings',

@@ -48,7 +48,7 @@ def _receive(seconds: float, raw: bool) -> dict:
     import rclpy
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import Imu, JointState
-    from wip_control.nodes.common import make_executor
+    from wip_runtime.executors import make_executor
     rclpy.init()
     node = rclpy.create_node('floor_receiver')
     count = [0]
@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         print('usage: python -m wip_tools.rclpy_floor publish|receive|receive-raw SECONDS',
               file=sys.stderr)
         return 2
-    from wip_control.nodes.launched import end_with_launcher
+    from wip_runtime.launched import end_with_launcher
     end_with_launcher()
     if argv[0] == 'publish':
         _publish(float(argv[1]))

@@ -22,17 +22,16 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from wip_control.core.config import ConfigError
+from wip_runtime.config import ConfigError
 from wip_tools.analysis.metrics import compute_metrics
 from wip_control.core.mpc_plan import HELD_STATUS_TEXT
 from wip_sim.core.record import GROUPS, RunRecord
 from wip_sim.core.scenario import Scenario
-from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE,
-                                   exit_with)
+from wip_runtime.cli import check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with
 
 from wip_bag.bag_reader import bag_summary, BagReadError, read_bag
 from wip_tools.bag_scenario import scenario_for_bag
-from wip_control.tools.cli import add_exit_codes
+from wip_runtime.cli import add_exit_codes
 
 #: Stamps beyond this [s] are wall-clock (epoch) times, not simulation times (~3 years).
 WALL_CLOCK_THRESHOLD_S = 1e8

@@ -17,9 +17,9 @@ import shutil
 import sys
 import tempfile
 
-from wip_control.core.config import ConfigError
-from wip_control.tools.cli import (add_exit_codes, check_output_directory, EXIT_USAGE,
-                                   exit_with, write_atomic)
+from wip_runtime.config import ConfigError
+from wip_runtime.cli import (add_exit_codes, check_output_directory, EXIT_USAGE, exit_with,
+                             write_atomic)
 from wip_tools.analysis.metrics import compute_metrics
 
 from wip_bag.bag_reader import bag_summary, BagReadError

@@ -14,10 +14,11 @@ from wip_msgs.msg import (ArcState, GroundTruth, MpcOutput, ReferenceState as Re
                           StateEstimate as StateEstimateMsg, VelocityCommand as CommandMsg,
                           WheelTorques)
 
-from wip_control.nodes.common import stamp_to_ns
+from wip_runtime.stamps import stamp_to_ns
 from wip_control.nodes.conversions import (euler_rates_from_body, imu_has_rates, imu_pitch_yaw,
-                                           InvalidMessage, reference_from_msg, wheel_angles,
+                                           reference_from_msg, wheel_angles,
                                            wheel_torques_from_msg)
+from wip_runtime.messages import InvalidMessage
 
 from wip_bag.bag_reader import iter_raw_messages, read_topics
 

@@ -19,7 +19,8 @@ from sensor_msgs.msg import NavSatStatus
 
 from wip_control.core.control_step import ControlStep
 from wip_control.core.state_estimation import StateEstimator
-from wip_control.nodes.conversions import gps_local_position, InvalidMessage
+from wip_control.nodes.conversions import gps_local_position
+from wip_runtime.messages import InvalidMessage
 from wip_sim.core.scenario import Scenario
 from wip_tools.rerun_inputs import RecordedRun, RerunError
 

@@ -15,7 +15,7 @@ import pathlib
 import re
 import sys
 
-from wip_control.tools.cli import add_exit_codes, exit_with, EXIT_FAILED, EXIT_OK, EXIT_USAGE
+from wip_runtime.cli import add_exit_codes, exit_with, EXIT_FAILED, EXIT_OK, EXIT_USAGE
 
 BEGIN = '<!-- results-table:begin (generated: scripts/ros2_run wip_tools results_table) -->'
 END = '<!-- results-table:end -->'

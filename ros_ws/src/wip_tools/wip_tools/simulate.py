@@ -19,14 +19,14 @@ import time
 
 import yaml
 
-from wip_control.core.config import ConfigError
+from wip_runtime.config import ConfigError
 from wip_tools.analysis.metrics import compute_metrics
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping
-from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE,
-                                   exit_with, write_atomic)
+from wip_runtime.cli import (check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with,
+                             write_atomic)
 from .parameters import parameter_table
-from wip_control.tools.cli import add_exit_codes
+from wip_runtime.cli import add_exit_codes
 
 
 def progress_printer(stream=sys.stderr):

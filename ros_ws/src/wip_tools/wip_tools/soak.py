@@ -24,11 +24,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from wip_control.tools.cli import (check_output_directory, EXIT_FAILED, EXIT_OK,
-                                   EXIT_USAGE, exit_with)
+from wip_runtime.cli import check_output_directory, EXIT_FAILED, EXIT_OK, EXIT_USAGE, exit_with
 
 from wip_bringup.standin_run import BASE, freeze_process, line_scenario, run_against_standin
-from wip_control.tools.cli import add_exit_codes
+from wip_runtime.cli import add_exit_codes
 
 #: Path speed [m/s] of both references; the circle's radius [m].
 SPEED = 0.5

@@ -51,10 +51,11 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Bool, Empty
 from std_srvs.srv import Trigger
 
-from wip_control.core.config import ConfigError
-from wip_control.nodes.common import RELIABLE_QOS, run_node
-from wip_control.nodes.diagnostics import NodeDiagnostics
-from wip_control.nodes.parameters import ConfigParameters
+from wip_runtime.config import ConfigError
+from wip_runtime.node_main import run_node
+from wip_runtime.qos import RELIABLE_QOS
+from wip_runtime.diagnostics import NodeDiagnostics
+from wip_runtime.parameters import ConfigParameters
 
 from wip_bag.bag_writer import BagWriterError
 from wip_bag.message_definitions import message_definition

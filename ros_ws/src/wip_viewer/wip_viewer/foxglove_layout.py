@@ -19,13 +19,27 @@ the /diagnostics summary.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import pathlib
 
-from wip_control.core.controller_settings import ControllerSettings
-from wip_control.tools.cli import add_exit_codes
+from wip_runtime.cli import add_exit_codes
 
 #: Written by :func:`main`: file name -> whether it carries the live-only e-stop panels.
 LAYOUT_FILES = {'wip_bag.json': False, 'wip_live.json': True}
+
+
+@dataclasses.dataclass(frozen=True)
+class PlotLimits:
+    """The limits the plots show in their labels and axis ranges.
+
+    The controllers' defaults (the paper's Section V), written here because the viewer
+    imports nothing of the controllers; ``tests/test_packages.py`` compares them.
+    """
+
+    max_tilt: float = 0.1   # [rad] mpc.max_tilt
+    max_speed: float = 1.5   # [m/s] trajectory_generator.max_speed
+    max_yaw_rate: float = 0.3   # [rad/s] trajectory_generator.max_yaw_rate
+    max_wheel_torque: float = 15.0   # [N m] mixer.max_wheel_torque
 
 
 def _series(value: str, label: str, color: str | None = None, dashed: bool = False):
@@ -35,10 +49,10 @@ def _series(value: str, label: str, color: str | None = None, dashed: bool = Fal
                          line_style='dashed' if dashed else None)
 
 
-def build_layout(scenario: ControllerSettings | None = None, live: bool = False):
-    """Return the layout; limits (labels, axis ranges) from ``scenario`` (default: the paper's)."""
+def build_layout(limits: PlotLimits | None = None, live: bool = False):
+    """Return the layout; ``limits`` in the plots' labels and axes (default: the paper's)."""
     import foxglove.layouts as fl
-    scenario = scenario or ControllerSettings()
+    limits = limits or PlotLimits()
     diagnostics = fl.DiagnosticsSummaryPanel(
         title='Diagnostics', config=fl.DiagnosticsSummaryConfig(topic_to_render='/diagnostics'))
     left = [fl.SplitItem(proportion=3, content=_three_d_panel(fl)),
@@ -47,7 +61,7 @@ def build_layout(scenario: ControllerSettings | None = None, live: bool = False)
         left.append(fl.SplitItem(proportion=0.5, content=_estop_buttons(fl)))
     return fl.Layout(content=fl.SplitContainer(direction='row', items=[
         fl.SplitItem(proportion=3, content=fl.SplitContainer(direction='column', items=left)),
-        fl.SplitItem(proportion=2, content=_plots(fl, scenario))]))
+        fl.SplitItem(proportion=2, content=_plots(fl, limits))]))
 
 
 def _three_d_panel(fl):
@@ -75,12 +89,12 @@ def _three_d_panel(fl):
         }))
 
 
-def _plots(fl, scenario: ControllerSettings):
+def _plots(fl, limits: PlotLimits):
     """Return tilt, torques, speed and yaw rate, one above the other, with the limits."""
-    max_tilt = scenario.mpc.max_tilt
-    max_speed = scenario.trajectory_generator.max_speed
-    max_yaw_rate = scenario.trajectory_generator.max_yaw_rate
-    max_torque = scenario.mixer.max_wheel_torque
+    max_tilt = limits.max_tilt
+    max_speed = limits.max_speed
+    max_yaw_rate = limits.max_yaw_rate
+    max_torque = limits.max_wheel_torque
     tilt = fl.PlotPanel(title='Tilt θ [rad]', config=fl.PlotConfig(
         min_y_value=-1.25 * max_tilt, max_y_value=1.25 * max_tilt, show_legend=True,
         paths=[_series('/wip/ground_truth.theta', f'θ true (limit ±{max_tilt:g} rad)',
@@ -144,5 +158,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == '__main__':
-    from wip_control.tools.cli import exit_with
+    from wip_runtime.cli import exit_with
     exit_with(main, 'foxglove_layout')

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import dataclasses
 
-from wip_control.core.config import param
-from wip_control.core.params import WipParameters
-from wip_control.core.sensors import SensorConfig
-from wip_control.nodes.settings import like, TEXT, WheelJoints, WheelSigns
+from wip_runtime.config import param
+from wip_description.params import WipParameters
+from wip_description.sensors import SensorConfig
+from wip_description.wiring import WheelJoints, WheelSigns
+from wip_runtime.config import like, TEXT
 
 from .viewer_core import ViewerConfig
 

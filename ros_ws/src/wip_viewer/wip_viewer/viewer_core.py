@@ -16,7 +16,7 @@ import struct
 
 import numpy as np
 
-from wip_control.core.config import param
+from wip_runtime.config import param
 
 
 @dataclasses.dataclass(frozen=True)

@@ -33,7 +33,7 @@ topic                       type                           from / rate
 
 Robot model (``viewer.robot_model``, default on): ``robot_description`` (std_msgs/String,
 transient local; relative, so under the vehicle's namespace) holds the URDF of the
-``model.*`` parameters (``wip_control.core.robot_model``); the viewer is its
+``model.*`` parameters (``wip_description.robot_model``); the viewer is its
 robot_state_publisher: ``/tf_static`` the fixed joint (base_link -> chassis), ``/tf`` the
 wheel joints from ``/joint_states`` and the body's tilt (chassis -> body) from the estimate
 at pose_rate, and in simulation ``map -> truth/base_link`` from the ground truth. Every
@@ -69,12 +69,14 @@ from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
-from wip_control.core.robot_model import RobotModel, urdf
-from wip_control.nodes.common import (IntraProcessNode, run_node, stamp_to_ns, TF_QOS,
-                                      TF_STATIC_QOS)
-from wip_control.nodes.conversions import quaternion_from_euler
-from wip_control.nodes.diagnostics import NodeDiagnostics
-from wip_control.nodes.parameters import ConfigParameters
+from wip_description.robot_model import RobotModel, urdf
+from wip_runtime.composition import IntraProcessNode
+from wip_runtime.node_main import run_node
+from wip_runtime.qos import TF_QOS, TF_STATIC_QOS
+from wip_runtime.stamps import stamp_to_ns
+from wip_runtime.messages import quaternion_from_euler
+from wip_runtime.diagnostics import NodeDiagnostics
+from wip_runtime.parameters import ConfigParameters
 from wip_msgs.msg import GroundTruth, MpcOutput, ReferenceState, StateEstimate
 
 from . import cdr

@@ -39,7 +39,7 @@ import dataclasses
 import math
 from typing import NamedTuple
 
-from .config import ConfigError, param
+from wip_runtime.config import ConfigError, param
 
 
 @dataclasses.dataclass(frozen=True)

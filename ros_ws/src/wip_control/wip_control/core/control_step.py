@@ -20,7 +20,7 @@ from .mixer import drive_torque_limit, mix
 from .model import input_gains
 from .mpc_config import MpcConfig, resolves_faster
 from .mpc_plan import MpcResult
-from .params import WipParameters
+from wip_description.params import WipParameters
 from .reference_state import ReferenceState
 from .state_estimation import PoseEstimate
 from .trajectory_generator import (TrajectoryGenerator, TrajectoryGeneratorConfig,

@@ -6,7 +6,7 @@ it. :class:`ControllerSettings` holds it: the design, the loop rates, the nomina
 (eq. (1) of [1]_), the reference, the sensors as the estimators read them, and the ESO,
 position, trajectory generator, ARC, MPC and mixer sections. Every key is optional: its
 default is the paper's Section V as decoded in docs/paper.md §6. Unknown keys, values of the
-wrong type and values out of range raise :class:`~wip_control.core.config.ConfigError`
+wrong type and values out of range raise :class:`~wip_runtime.config.ConfigError`
 whose message starts with the dotted path of the key (``mpc.max_tilt: must be > 0``).
 
 :func:`load_controller_settings` reads a whole scenario file and skips the keys that describe
@@ -25,14 +25,14 @@ import pathlib
 from typing import Any, Callable, Mapping
 
 from .arc import ArcConfig
-from .config import ConfigError, _show, from_mapping, load_yaml_text, param, to_mapping
+from wip_runtime.config import ConfigError, _show, from_mapping, load_yaml_text, param, to_mapping
 from .eso import EsoConfig
 from .mixer import MixerConfig
 from .mpc_config import MpcConfig, PAPER_MPC_SETTINGS, resolves_faster
-from .params import WipParameters
+from wip_description.params import WipParameters
 from .position import PositionConfig
 from .references import ReferenceConfig
-from .sensors import SensorConfig
+from wip_description.sensors import SensorConfig
 from .trajectory_generator import TrajectoryGeneratorConfig
 
 

@@ -53,7 +53,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 import scipy.linalg
 
-from .config import ConfigError, param
+from wip_runtime.config import ConfigError, param
 from .integration import rk4_step
 
 _TWO_PI = 2.0 * math.pi

@@ -40,7 +40,7 @@ from .mpc import LongitudinalController, LongitudinalMpc
 from .mpc_config import MpcConfig
 from .mpc_plan import admissible_increment, MpcResult
 from .mpc_prediction import gravity_aware_state_matrix
-from .params import WipParameters
+from wip_description.params import WipParameters
 from .qp import MpcStatus
 
 __all__ = ['CONTROLLERS', 'LongitudinalLqr', 'dlqr', 'make_longitudinal_controller']

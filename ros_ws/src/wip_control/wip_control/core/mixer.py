@@ -31,7 +31,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from .config import param
+from wip_runtime.config import param
 
 
 @dataclasses.dataclass(frozen=True)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from .params import WipParameters
+from wip_description.params import WipParameters
 
 # Layout of the plant state vector, used everywhere a full state is an array:
 # planar position (REP 103 world frame, x east / y north in the simulator's map frame),

@@ -44,7 +44,7 @@ from .mpc_plan import admissible_increment, invalid_input_result, MpcResult, pla
 from .mpc_problem import MpcProblem
 from .mpc_qp import MpcQp, TickData
 from .mpc_steps import beyond, decaying_excess, OffsetFreeTarget, SpeedPreview, StartUp
-from .params import WipParameters
+from wip_description.params import WipParameters
 from .qp import MpcStatus, make_solver
 
 #: Largest magnitude of an input (SI units: m/s, rad, rad/s, m/s², rad/s², N m) taken as

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .config import ConfigError, param
+from wip_runtime.config import ConfigError, param
 from .mpc_prediction import PREDICTION_MODELS
 from .qp import QpSettings
 

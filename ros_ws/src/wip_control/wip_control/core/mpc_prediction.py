@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .params import WipParameters
+from wip_description.params import WipParameters
 
 #: Prediction models understood by :class:`CondensedPrediction`.
 PREDICTION_MODELS = ('gravity_aware', 'paper')

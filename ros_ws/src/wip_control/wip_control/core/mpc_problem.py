@@ -27,7 +27,7 @@ import numpy as np
 
 from .mpc_config import MpcConfig
 from .mpc_prediction import CondensedPrediction
-from .params import WipParameters
+from wip_description.params import WipParameters
 
 
 class ProblemBlocks(NamedTuple):

@@ -24,7 +24,7 @@ import math
 from .model import nominal_terms
 from .mpc_config import MpcConfig
 from .mpc_prediction import gravity_aware_state_matrix
-from .params import WipParameters
+from wip_description.params import WipParameters
 
 
 class StartUp:

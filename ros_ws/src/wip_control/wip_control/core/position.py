@@ -45,7 +45,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from .config import param
+from wip_runtime.config import param
 
 #: Position status (the values of wip_msgs/StateEstimate's POSITION_* constants).
 TRACKING, NO_FIX, DEAD_RECKONING, FAULT = 0, 1, 2, 3

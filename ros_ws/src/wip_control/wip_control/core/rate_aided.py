@@ -17,7 +17,7 @@ import math
 import numpy as np
 import scipy.linalg
 
-from .config import ConfigError
+from wip_runtime.config import ConfigError
 from .eso import ChannelEstimate, PERIOD_TOLERANCE
 
 

@@ -27,7 +27,7 @@ import math
 from typing import Sequence
 
 from .commanded import CmdVelReference, PathReference, UnicycleLimits
-from .config import ConfigError, param
+from wip_runtime.config import ConfigError, param
 from .reference_curves import Circle, FigureEight, StraightLine, Trifolium
 from .reference_state import Reference
 from .reference_waypoints import Waypoints

@@ -36,7 +36,7 @@ import collections
 import dataclasses
 import math
 
-from .config import param
+from wip_runtime.config import param
 
 
 @dataclasses.dataclass(frozen=True)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .config import param
+from wip_runtime.config import param
 
 
 @dataclasses.dataclass(frozen=True)

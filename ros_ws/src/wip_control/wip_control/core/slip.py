@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from .params import WipParameters
+from wip_description.params import WipParameters
 
 
 class SlipState(NamedTuple):

@@ -16,10 +16,10 @@ from typing import NamedTuple, Sequence
 from .angles import unwrap_next
 from .eso import EsoConfig, StateEstimate
 from .state_observer import WipStateObserver
-from .params import WipParameters
+from wip_description.params import WipParameters
 from .position import (DEAD_RECKONING, FAULT, NO_FIX, PlanarPositionEstimator,
                        PositionConfig, TRACKING)
-from .sensors import wheel_odometry
+from wip_description.sensors import wheel_odometry
 from .slip import SlipMonitor
 
 

@@ -15,7 +15,7 @@ from typing import Sequence
 
 from .eso import EsoConfig, ExtendedStateObserver, StateEstimate
 from .model import input_gains
-from .params import WipParameters
+from wip_description.params import WipParameters
 from .rate_aided import RateAidedChannel
 
 _TWO_PI = 2.0 * math.pi

@@ -46,7 +46,7 @@ import dataclasses
 import math
 from typing import NamedTuple
 
-from .config import param
+from wip_runtime.config import param
 from .reference_state import ReferenceState
 
 _TWO_PI = 2.0 * math.pi

@@ -78,9 +78,9 @@ import dataclasses
 import math
 from typing import NamedTuple, Sequence
 
-from .config import param
+from wip_runtime.config import param
 from .model import nominal_terms
-from .params import WipParameters
+from wip_description.params import WipParameters
 
 #: Names of the parameters a verdict can point at (the eso and torque_mixer nodes').
 LEFT_SIGN, RIGHT_SIGN, JOINTS, MOUNTING = ('left_wheel_sign', 'right_wheel_sign',

@@ -36,14 +36,16 @@ from wip_msgs.msg import (ArcState, StateEstimate as StateEstimateMsg,
 
 from ..core.arc import ArcConfig
 from ..core.control_step import YawStage, initial_alpha
-from ..core.params import WipParameters
+from wip_description.params import WipParameters
 from ..core.controller_settings import RatesConfig
-from .common import ControllerNode, RELIABLE_QOS, run_node
+from .common import ControllerNode
+from wip_runtime.node_main import run_node
+from wip_runtime.qos import RELIABLE_QOS
 from .conversions import arc_to_msg, command_from_msg, estimate_from_msg
-from .diagnostics import OK
-from .parameters import ConfigParameters
+from wip_runtime.diagnostics import OK
+from wip_runtime.parameters import ConfigParameters
 from .settings import YawInputGainScale
-from .sync import ExactTimeSync, LatestSync
+from wip_runtime.sync import ExactTimeSync, LatestSync
 
 _INPUTS = ('velocity_command', 'state_estimate')
 

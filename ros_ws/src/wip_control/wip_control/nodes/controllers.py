@@ -14,7 +14,7 @@ from __future__ import annotations
 import sys
 
 from .arc_node import ArcNode
-from .common import run_nodes
+from wip_runtime.node_main import run_nodes
 from .eso_node import EsoNode
 from .mpc_node import MpcNode
 from .reference_node import ReferenceNode

@@ -6,7 +6,7 @@ left-pointing y axis tips the body's z axis toward +x). Orientation quaternions 
 the ZYX (yaw, pitch, roll) Euler composition R = Rz(ϕ) Ry(θ) Rx(roll), as tf2 and
 the plant node use ("orientation from roll 0, pitch θ, yaw ϕ").
 
-Every ``*_from_msg`` that reads an external message raises :class:`InvalidMessage`
+Every ``*_from_msg`` that reads an external message raises ``InvalidMessage``
 (a ValueError) with the reason on malformed or non-finite content; the nodes drop or
 neutralise such input and report it on /diagnostics.
 """
@@ -15,96 +15,28 @@ from __future__ import annotations
 
 import array
 import math
-import os
 import struct
 from typing import Sequence
 
-from builtin_interfaces.msg import Time
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
-from std_msgs.msg import Float64MultiArray, Header
+from std_msgs.msg import Float64MultiArray
+from wip_description.sensors import geodetic_to_local
 from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateMsg,
                           StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
+from wip_runtime.messages import (check_finite_record, check_finite_values, InvalidMessage,
+                                  pitch_yaw_from_quaternion, quaternion_from_euler, stamped,
+                                  StampedBuilder)
 
 from ..core.arc import ArcOutput
 from ..core.eso import StateEstimate
 from ..core.mpc_plan import HELD_STATUS_TEXT, MpcResult
 from ..core.qp import MpcStatus
 from ..core.reference_state import ReferenceState
-from ..core.sensors import geodetic_to_local
 from ..core.state_estimation import PoseEstimate
 from ..core.trajectory_generator import VelocityCommand
-
-#: Quaternions whose norm is further than this from 1 are rejected as malformed [1]
-#: (a normalised float quaternion is within 1e-15; 1e-3 tolerates single-precision drivers).
-QUATERNION_NORM_TOLERANCE = 1e-3
-
-
-class InvalidMessage(ValueError):
-    """A message is malformed (missing field, wrong size) or carries non-finite numbers."""
-
-
-# --------------------------------------------------------------------- building messages
-
-#: The generated message classes check each field's type only when this is '1' (rosidl's
-#: ``ROS_PYTHON_CHECK_FIELDS``); the builders below then use their constructors, checks and all.
-_CHECK_FIELDS = os.environ.get('ROS_PYTHON_CHECK_FIELDS', '') == '1'
-_NS_PER_S = 1_000_000_000
-
-
-def _bare(cls):
-    """Return an instance of a generated message class: no field set yet, type checks off."""
-    msg = cls.__new__(cls)
-    msg._check_fields = False
-    return msg
-
-
-def fast_header(stamp_ns: int, frame_id: str = '') -> Header:
-    """std_msgs/Header with the stamp [ns] and frame, equal to ``common.make_header``'s."""
-    if _CHECK_FIELDS:
-        return Header(stamp=Time(sec=int(stamp_ns) // _NS_PER_S,
-                                 nanosec=int(stamp_ns) % _NS_PER_S), frame_id=frame_id)
-    stamp = _bare(Time)
-    stamp._sec, stamp._nanosec = divmod(int(stamp_ns), _NS_PER_S)
-    header = _bare(Header)
-    header._stamp, header._frame_id = stamp, frame_id
-    return header
-
-
-class StampedBuilder:
-    """Builds a stamped message of one flat type: its header and every other field, in order.
-
-    The project's messages of a control tick (an estimate, a reference, a command, ...) are
-    built once per tick each. The generated constructor evaluates every default (a Header
-    and a Time to drop), looks each keyword up and imports Header on every call: 4.4 us
-    per message here, against 0.7 us for filling the instance's slots directly
-    (docs/realtime.md). The result is the same message (``==``, the same CDR bytes).
-    Refuses, at import, a type whose fields are not the header and ``fields``: a message
-    definition that changed must not leave a field unset.
-    """
-
-    __slots__ = ('cls', 'fields', 'slots')
-
-    def __init__(self, cls, fields: Sequence[str]) -> None:
-        self.cls, self.fields = cls, tuple(fields)
-        self.slots = tuple('_' + name for name in self.fields)
-        expected = set(cls.__slots__) - {'_header', '_check_fields'}
-        if '_header' not in cls.__slots__ or set(self.slots) != expected:
-            raise TypeError(f'{cls.__name__}: fields {sorted(expected)} besides the header, '
-                            f'the builder has {sorted(self.slots)}')
-
-    def __call__(self, stamp_ns: int, frame_id: str, *values):
-        if _CHECK_FIELDS:
-            return self.cls(header=fast_header(stamp_ns, frame_id),
-                            **dict(zip(self.fields, values)))
-        msg = _bare(self.cls)
-        msg._header = fast_header(stamp_ns, frame_id)
-        for slot, value in zip(self.slots, values):
-            setattr(msg, slot, value)
-        return msg
-
 
 _build_reference = StampedBuilder(ReferenceStateMsg, ('x', 'y', 'phi', 'v', 'omega',
                                                       'omega_dot'))
@@ -118,119 +50,7 @@ _build_wheel_torques = StampedBuilder(WheelTorques, ('left', 'right', 'tau_v', '
                                                      'zeroed', 'reason'))
 
 
-def _check_finite_record(what: str, record, skip: str = '') -> None:
-    """:func:`_check_finite` of a NamedTuple's fields but ``skip``, without building a dict.
-
-    A dict of the fields is built only to name the bad ones.
-    """
-    if all(map(math.isfinite, record)):   # the common case
-        return
-    values = record._asdict()
-    values.pop(skip, None)
-    _check_finite(what, **values)
-
-
-def stamped(msg, stamp_ns: int, frame_id: str = ''):
-    """``msg`` with its own header set, in place, to the stamp [ns] and frame; returns it.
-
-    On the hot path instead of ``Msg(header=make_header(...))``: the generated constructors
-    evaluate their defaults eagerly, so that also builds a Header and a Time to drop
-    (1.8 us of 5.5 per message measured, six messages per control tick).
-    """
-    header = msg.header
-    header.stamp.sec, header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
-    if frame_id:
-        header.frame_id = frame_id
-    return msg
-
-
-def _check_finite(what: str, **values: float) -> None:
-    if all(map(math.isfinite, values.values())):  # the common case, at C speed
-        return
-    bad = [f'{k}={v!r}' for k, v in values.items() if not math.isfinite(v)]
-    raise InvalidMessage(f'{what}: non-finite {", ".join(bad)}')
-
-
-# --------------------------------------------------------------------- orientation
-
-def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, ...]:
-    """(x, y, z, w) of R = Rz(yaw) Ry(pitch) Rx(roll) [rad] (REP 103, as tf2)."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-            cr * cp * cy + sr * sp * sy)
-
-
-def pitch_yaw_from_quaternion(x: float, y: float, z: float, w: float) -> tuple[float, float]:
-    """(pitch θ, yaw ϕ) [rad] of the ZYX decomposition; yaw in (−π, π].
-
-    Inverse of :func:`quaternion_from_euler` for |pitch| < π/2 (the round trip is exact to
-    about 1e-16 rad). The quaternion is normalised first; its roll is ignored (the WIP
-    does not roll).
-    """
-    _check_finite('orientation', x=x, y=y, z=z, w=w)
-    norm = math.sqrt(x * x + y * y + z * z + w * w)
-    if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
-        raise InvalidMessage(f'orientation: quaternion norm {norm!r} is not 1')
-    x, y, z, w = x / norm, y / norm, z / norm, w / norm
-    sin_pitch = 2.0 * (w * y - z * x)
-    pitch = math.asin(max(-1.0, min(1.0, sin_pitch)))
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return pitch, yaw
-
-
 # --------------------------------------------------------------------- sensors
-
-#: rosbags' type store of ROS 2 Jazzy's messages, built on the first raw message.
-_typestore = None
-
-
-def prepare_decoder(*typenames: str) -> None:
-    """Build the type store and the decoders of ``typenames`` now.
-
-    This takes about 0.16 s of CPU here, more on a slow machine, so it is done at a node's
-    start rather than in the callback of its first sensor sample.
-    """
-    global _typestore  # noqa: PLW0603 - one store per process
-    if _typestore is None:
-        from rosbags.typesys import get_typestore, Stores
-        _typestore = get_typestore(Stores.ROS2_JAZZY)
-    for typename in typenames:
-        _typestore.get_msgdef(typename)
-
-
-def decode_serialized(msg, typename: str):
-    """Decode a sensor message taken serialized (``create_subscription(..., raw=True)``).
-
-    A sensor message taken serialized (``create_subscription(..., raw=True)``) as an
-    object with the message's fields (rosbags' CDR decoder, pinned version); a message
-    object is returned as is (the intra-process bus and tests deliver objects).
-
-    Why: for a 200 Hz sensor stream, rclpy building the Python message in its take costs
-    more than the control math (the base's two streams: 5.2 % of a core taken as
-    messages, 2.7 % taken serialized and decoded here; docs/realtime.md).
-    """
-    if msg.__class__ is not bytes:
-        return msg
-    if _typestore is None:
-        prepare_decoder()
-    try:
-        if len(msg) < 4 or msg[0] != 0 or msg[1] not in (0, 1) or msg[2:4] != b'\x00\x00':
-            raise ValueError('not a plain CDR encapsulation header')
-        msgdef = _typestore.get_msgdef(typename)
-        decode = msgdef.deserialize_cdr_le if msg[1] else msgdef.deserialize_cdr_be
-        # A truncated message fails in decode. Bytes after the last field are the
-        # serializer's and ignored: Fast CDR (rclpy, rmw_fastrtps) sizes an empty trailing
-        # float64[] with its 8-byte alignment, so a JointState without efforts ends 8 bytes
-        # early (rosbags' public deserialize_cdr allows 3 and rejects it).
-        return decode(msg[4:], 0, msgdef.cls, _typestore)[0]
-    except Exception as err:  # noqa: BLE001 - any decoding failure is a malformed message
-        raise InvalidMessage(f'{typename}: undecodable CDR message of {len(msg)} bytes '
-                             f'({type(err).__name__}: {err})') from None
-
 
 def wheel_angles(msg: JointState, left_joint: str, right_joint: str) -> tuple[float, float]:
     """(φl, φr) [rad]: the positions of the two wheel joints, found by name."""
@@ -245,7 +65,7 @@ def wheel_angles(msg: JointState, left_joint: str, right_joint: str) -> tuple[fl
         raise InvalidMessage(f'joint_states: {len(names)} names but {len(positions)} '
                              'positions')
     left, right = float(positions[i_left]), float(positions[i_right])
-    _check_finite('joint_states', left=left, right=right)
+    check_finite_values('joint_states', left=left, right=right)
     return left, right
 
 
@@ -264,7 +84,7 @@ def euler_rates_from_body(pitch: float, w_body: Sequence[float]) -> tuple[float,
     reading), so θ̇ = ω_y and ϕ̇ = ω_z cos θ − ω_x sin θ.
     """
     wx, wy, wz = (float(v) for v in w_body)
-    _check_finite('angular_velocity', x=wx, y=wy, z=wz)
+    check_finite_values('angular_velocity', x=wx, y=wy, z=wz)
     return wy, wz * math.cos(pitch) - wx * math.sin(pitch)
 
 
@@ -290,7 +110,7 @@ def gps_local_position(msg: NavSatFix, datum_latitude: float, datum_longitude: f
     if msg.status.status < NavSatStatus.STATUS_FIX:
         raise InvalidMessage(f'gps: no fix (status {msg.status.status})')
     lat, lon, alt = float(msg.latitude), float(msg.longitude), float(msg.altitude)
-    _check_finite('gps', latitude=lat, longitude=lon, altitude=alt)
+    check_finite_values('gps', latitude=lat, longitude=lon, altitude=alt)
     if not -90.0 <= lat <= 90.0:
         raise InvalidMessage(f'gps: latitude {lat!r} outside [-90, 90] deg')
     east, north, _ = geodetic_to_local(lat, lon, alt, datum_latitude, datum_longitude,
@@ -301,7 +121,7 @@ def gps_local_position(msg: NavSatFix, datum_latitude: float, datum_longitude: f
 def wheel_torques_from_msg(msg: WheelTorques) -> tuple[float, float]:
     """(τl, τr) [N m] of an applied command."""
     left, right = float(msg.left), float(msg.right)
-    _check_finite('wheel_torques', left=left, right=right)
+    check_finite_values('wheel_torques', left=left, right=right)
     return left, right
 
 
@@ -356,7 +176,7 @@ def reference_to_msg(ref: ReferenceState, stamp_ns: int, frame_id: str) -> Refer
 
 def reference_from_msg(msg: ReferenceStateMsg) -> ReferenceState:
     ref = ReferenceState(msg.x, msg.y, msg.phi, msg.v, msg.omega, msg.omega_dot)
-    _check_finite_record('reference', ref)
+    check_finite_record('reference', ref)
     return ref
 
 
@@ -409,7 +229,7 @@ def estimate_from_msg(msg: StateEstimateMsg, check: bool = True) -> PoseEstimate
                       and math.isfinite(out.y)):
         values = est._asdict()
         del values['epsilon']
-        _check_finite('state_estimate', x=out.x, y=out.y, **values)
+        check_finite_values('state_estimate', x=out.x, y=out.y, **values)
     return _last_estimate.keep(msg, out, check)
 
 
@@ -424,7 +244,7 @@ def command_from_msg(msg: VelocityCommandMsg, check: bool = True) -> VelocityCom
         return cached
     cmd = VelocityCommand(msg.v_d, msg.omega_d, msg.omega_d_dot, msg.x_e, msg.y_e, msg.phi_e)
     if check:
-        _check_finite_record('velocity_command', cmd)
+        check_finite_record('velocity_command', cmd)
     return _last_command.keep(msg, cmd, check)
 
 
@@ -435,7 +255,7 @@ def arc_to_msg(out: ArcOutput, stamp_ns: int) -> ArcState:
 def arc_from_msg(msg: ArcState, check: bool = True) -> ArcOutput:
     out = ArcOutput(msg.tau_omega, msg.alpha_hat, msg.e_omega)
     if check:
-        _check_finite_record('yaw_torque', out)
+        check_finite_record('yaw_torque', out)
     return out
 
 

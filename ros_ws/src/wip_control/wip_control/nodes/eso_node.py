@@ -97,23 +97,26 @@ from sensor_msgs.msg import Imu, JointState, NavSatFix
 from tf2_msgs.msg import TFMessage
 from wip_msgs.msg import StateEstimate as StateEstimateMsg, WheelTorques
 
-from ..core.config import ConfigError
+from wip_runtime.config import ConfigError
 from ..core.eso import EsoConfig
-from ..core.params import WipParameters
+from wip_description.params import WipParameters
 from ..core.position import PositionConfig
 from ..core.state_estimation import EstimatorOverflow, StateEstimator
-from .common import (ControllerNode, RELIABLE_QOS, run_node, SENSOR_QOS,
-                     stamp_to_ns, TF_QOS, TF_STATIC_QOS)
-from .conversions import (decode_serialized, estimate_to_msg, gps_has_fix, gps_local_position,
-                          identity_transform, odometry_to_msg, prepare_decoder,
-                          transform_from_odometry, wheel_torques_from_msg)
+from .common import ControllerNode
+from wip_runtime.node_main import run_node
+from wip_runtime.qos import RELIABLE_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
+from wip_runtime.stamps import stamp_to_ns
+from .conversions import (estimate_to_msg, gps_has_fix, gps_local_position, identity_transform,
+                          odometry_to_msg, transform_from_odometry, wheel_torques_from_msg)
+from wip_runtime.messages import decode_serialized, prepare_decoder
 from ..core.position import DEAD_RECKONING, TRACKING
-from .diagnostics import ERROR, OK, WARN
+from wip_runtime.diagnostics import ERROR, OK, WARN
 from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
                               odometry_position, signed_wheel_angles)
-from .parameters import ConfigParameters
-from .settings import DatumConfig, EsoNodeSettings, ImuMounting, WheelJoints, WheelSigns
-from .sync import decimation, ExactTimeSync, is_decimated_tick, LatestSync
+from wip_runtime.parameters import ConfigParameters
+from .settings import EsoNodeSettings
+from wip_description.wiring import DatumConfig, ImuMounting, WheelJoints, WheelSigns
+from wip_runtime.sync import decimation, ExactTimeSync, is_decimated_tick, LatestSync
 
 _SENSORS = ('joint_states', 'imu', 'gps')
 #: Torque messages kept by stamp in lockstep (only the previous period's is needed).

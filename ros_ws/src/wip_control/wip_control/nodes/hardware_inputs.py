@@ -48,10 +48,11 @@ from typing import Sequence
 
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState
+from wip_runtime.messages import (check_finite_values as _check_finite, InvalidMessage,
+                                  pitch_yaw_from_quaternion, quaternion_from_euler,
+                                  QUATERNION_NORM_TOLERANCE)
 
-from .conversions import (_check_finite, euler_rates_from_body, imu_has_rates, imu_pitch_yaw,
-                          InvalidMessage, pitch_yaw_from_quaternion,
-                          quaternion_from_euler, QUATERNION_NORM_TOLERANCE, wheel_angles)
+from .conversions import euler_rates_from_body, imu_has_rates, imu_pitch_yaw, wheel_angles
 from .settings import POSITION_SOURCES  # noqa: F401 (values of position_source)
 
 #: The identity rotation (x, y, z, w).

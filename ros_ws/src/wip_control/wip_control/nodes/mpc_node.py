@@ -59,15 +59,18 @@ from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg
 
 from ..core.control_step import DriveStage
 from ..core.mpc_config import MpcConfig, resolves_faster
-from ..core.params import WipParameters
+from wip_description.params import WipParameters
 from ..core.controller_settings import RatesConfig
-from .common import ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
+from .common import ControllerNode
+from wip_runtime.node_main import run_node
+from wip_runtime.qos import RELIABLE_QOS
+from wip_runtime.stamps import stamp_to_ns
 from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc_hold_msg,
                           mpc_idle_msg, mpc_to_msg, wheel_torques_from_msg)
-from .diagnostics import OK, WARN
-from .parameters import ConfigParameters
+from wip_runtime.diagnostics import OK, WARN
+from wip_runtime.parameters import ConfigParameters
 from .settings import MpcNodeSettings, WheelTorqueLimit
-from .sync import decimation, ExactTimeSync, tick_index
+from wip_runtime.sync import decimation, ExactTimeSync, tick_index
 
 _INPUTS = ('state_estimate', 'velocity_command', 'yaw_torque')
 

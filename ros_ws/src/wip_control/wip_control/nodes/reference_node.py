@@ -62,10 +62,14 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg, StateEstimate as 
 
 from ..core.references import COMMANDED_KINDS, make_reference, ReferenceConfig
 from ..core.controller_settings import RatesConfig
-from .common import ClockTicker, ControllerNode, RELIABLE_QOS, run_node, stamp_to_ns
+from .common import ControllerNode
+from wip_runtime.clock import ClockTicker
+from wip_runtime.node_main import run_node
+from wip_runtime.qos import RELIABLE_QOS
+from wip_runtime.stamps import stamp_to_ns
 from .conversions import reference_to_msg
-from .diagnostics import OK, WARN
-from .parameters import ConfigParameters
+from wip_runtime.diagnostics import OK, WARN
+from wip_runtime.parameters import ConfigParameters
 from .settings import ReferenceNodeSettings
 
 

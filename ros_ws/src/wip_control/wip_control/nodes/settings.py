@@ -1,9 +1,10 @@
 """Node-level parameters of the control nodes, and which node declares which groups.
 
 The core's config dataclasses hold the control parameters; the small frozen dataclasses
-here hold what only a node has (clock mode, joint names, wheel signs, IMU mounting, the
-GPS datum, ...), declared with the same :func:`~wip_control.core.config.param` so the
-range checks come from the declaration. :data:`NODES` is the registry: executable ->
+here hold what only a node has (clock mode, triggers, periods, ...; a base's wiring, joint
+names, wheel signs, IMU mounting and the GPS datum, is :mod:`wip_description.wiring`'s),
+declared with the same :func:`~wip_runtime.config.param` so the range checks come from
+the declaration. :data:`NODES` is the registry: executable ->
 ``(prefix, dataclass)`` groups it declares (prefix ``''``: names without a section).
 No rclpy import here: the parameter reference (``ros2 run wip_tools parameters``,
 docs/parameters.md) is generated from this module.
@@ -12,22 +13,23 @@ docs/parameters.md) is generated from this module.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 from ..core.arc import ArcConfig
-from ..core.config import ConfigError, param
 from ..core.eso import EsoConfig
 from ..core.mixer import MixerConfig
 from ..core.mpc_config import MpcConfig
-from ..core.params import WipParameters
+from wip_description.params import WipParameters
 from ..core.position import PositionConfig
 from ..core.references import ReferenceConfig
 from ..core.runaway import RunawayConfig
 from ..core.safety_config import SafetyConfig
 from ..core.controller_settings import RatesConfig
-from ..core.sensors import SensorConfig
+from wip_description.sensors import SensorConfig
 from ..core.trajectory_generator import TrajectoryGeneratorConfig
 from ..core.wiring_check import WiringCheckConfig
+from wip_description.wiring import (DatumConfig, EffortCommand, ImuMounting, WheelJoints,
+                                    WheelSigns)
+from wip_runtime.config import like, param, TEXT
 
 CLOCK_MODES = ('lockstep', 'realtime')
 #: The nodes are drop-in controllers for a real base; the graph runner sets 'lockstep'.
@@ -36,18 +38,6 @@ POSITION_SOURCES = ('gps', 'odometry', 'wheels')
 REALTIME_STARTS = ('first_tick', 'engaged')
 REALTIME_TRIGGERS = ('state_estimate', 'timer')
 ODOMETRY_OUTPUTS = ('realtime', 'always', 'off')
-#: Unit of a string parameter (a name, a path): its range is 'any' unless it has choices.
-TEXT = '-'
-
-
-def like(cls: type, name: str, default: Any = None, description: str | None = None) -> Any:
-    """Return a field with the unit and range of ``cls.name`` (one declaration of a range)."""
-    field = {f.name: f for f in dataclasses.fields(cls)}[name]
-    metadata = dict(field.metadata)
-    if description is not None:
-        metadata['description'] = description
-    return dataclasses.field(default=field.default if default is None else default,
-                             metadata=metadata)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,71 +56,6 @@ class ControllerNodeSettings:
         0.5, 's', 'real time: an input stamped more than this ahead of the node clock is '
         'refused (docs/decisions/node-settings.md)', minimum=0.0, exclusive_minimum=True,
         maximum=3600.0)
-
-
-@dataclasses.dataclass(frozen=True)
-class WheelJoints:
-    """Names of the wheel joints in /joint_states and in the effort command."""
-
-    left_joint: str = param('left_wheel_joint', TEXT, 'name of the left wheel joint')
-    right_joint: str = param('right_wheel_joint', TEXT, 'name of the right wheel joint')
-
-
-@dataclasses.dataclass(frozen=True)
-class WheelSigns:
-    """Direction conventions of the wheel joints of a real base."""
-
-    left_wheel_sign: int = param(1, '1', '+1: the left joint angle (and a positive effort) '
-                                 'turns the wheel so that the robot rolls forward; -1: the '
-                                 'joint turns the other way', choices=(1, -1))
-    right_wheel_sign: int = param(1, '1', 'as left_wheel_sign, for the right wheel',
-                                  choices=(1, -1))
-
-
-@dataclasses.dataclass(frozen=True)
-class ImuMounting:
-    """How the IMU is mounted on base_link."""
-
-    imu_mounting_rpy: tuple[float, float, float] = param(
-        (0.0, 0.0, 0.0), 'rad', 'rotation from base_link to the IMU frame: roll, pitch, yaw '
-        'about the fixed x, y, z axes of base_link (a URDF joint rpy)', minimum=-10.0,
-        maximum=10.0)
-
-
-@dataclasses.dataclass(frozen=True)
-class EffortCommand:
-    """Joint order of the ros2_control effort command."""
-
-    joints: tuple[str, ...] = param(
-        ('left_wheel_joint', 'right_wheel_joint'), TEXT, 'joints of the effort command (and '
-        'of /joint_states for the stand-in base), in the order of its data; must list '
-        'left_joint and right_joint once each', max_length=2)
-
-
-def check_effort_joints(left_joint: str, right_joint: str, joints: tuple[str, ...]) -> None:
-    """ConfigError unless ``joints`` lists ``left_joint`` and ``right_joint`` once each.
-
-    The check of the nodes that command efforts, and of a params file before a run.
-    """
-    if sorted(joints) != sorted([left_joint, right_joint]):
-        raise ConfigError(f'joints: must list left_joint {left_joint!r} and right_joint '
-                          f'{right_joint!r} once each, got {list(joints)}')
-
-
-@dataclasses.dataclass(frozen=True)
-class DatumConfig:
-    """Map origin of the NavSatFix messages (``datum.*``)."""
-
-    latitude: float = like(SensorConfig, 'gps_datum_latitude',
-                           description='latitude of the map origin')
-    longitude: float = like(SensorConfig, 'gps_datum_longitude')
-    altitude: float = like(SensorConfig, 'gps_datum_altitude')
-
-    @classmethod
-    def of(cls, sensors: SensorConfig) -> 'DatumConfig':
-        """Return the datum of a scenario's sensors section."""
-        return cls(sensors.gps_datum_latitude, sensors.gps_datum_longitude,
-                   sensors.gps_datum_altitude)
 
 
 @dataclasses.dataclass(frozen=True)

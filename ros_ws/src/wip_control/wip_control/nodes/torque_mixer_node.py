@@ -94,25 +94,31 @@ from std_srvs.srv import Trigger
 from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateMsg,
                           StateEstimate as StateEstimateMsg, WheelTorques)
 
-from ..core.config import ConfigError
+from wip_runtime.config import ConfigError
 from ..core.mixer import MixerConfig
 from ..core.mpc_config import resolves_faster
-from ..core.params import WipParameters
+from wip_description.params import WipParameters
 from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyDecision, SafetyMonitor,
                            SHADOW, STARTING)
 from ..core.safety_config import SafetyConfig
 from ..core.controller_settings import RatesConfig
 from ..core.runaway import RunawayConfig
 from ..core.wiring_check import WiringCheck, WiringCheckConfig
-from .common import ControllerNode, RELIABLE_QOS, run_node, SENSOR_QOS, stamp_to_ns
+from .common import ControllerNode
+from wip_runtime.node_main import run_node
+from wip_runtime.qos import RELIABLE_QOS, SENSOR_QOS
+from wip_runtime.stamps import stamp_to_ns
 from .conversions import (effort_command, effort_command_cdr, estimate_from_msg,
-                          InvalidMessage, wheel_torques_to_msg)
-from .diagnostics import ERROR, OK, WARN
+                          wheel_torques_to_msg)
+from wip_runtime.messages import InvalidMessage
+from wip_runtime.diagnostics import ERROR, OK, WARN
 from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
                               rotate_vector_into, signed_efforts, signed_wheel_angles)
-from .parameters import ConfigParameters, declare_effort_interface
-from .settings import ImuMounting, MixerNodeSettings, MpcPeriod
-from .sync import decimation, ExactTimeSync, is_decimated_tick
+from .effort_interface import declare_effort_interface
+from wip_runtime.parameters import ConfigParameters
+from .settings import MixerNodeSettings, MpcPeriod
+from wip_description.wiring import ImuMounting
+from wip_runtime.sync import decimation, ExactTimeSync, is_decimated_tick
 
 _INPUTS = ('yaw_torque', 'drive_torque')
 _DIAGNOSED = (*_INPUTS, 'state_estimate', 'estop')

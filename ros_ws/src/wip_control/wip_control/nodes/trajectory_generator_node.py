@@ -34,11 +34,13 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg,
 
 from ..core.control_step import GuidanceStage
 from ..core.trajectory_generator import TrajectoryGeneratorConfig
-from .common import ControllerNode, RELIABLE_QOS, run_node
+from .common import ControllerNode
+from wip_runtime.node_main import run_node
+from wip_runtime.qos import RELIABLE_QOS
 from .conversions import command_to_msg, estimate_from_msg, reference_from_msg
-from .diagnostics import OK
-from .parameters import ConfigParameters
-from .sync import ExactTimeSync, LatestSync
+from wip_runtime.diagnostics import OK
+from wip_runtime.parameters import ConfigParameters
+from wip_runtime.sync import ExactTimeSync, LatestSync
 
 _INPUTS = ('reference', 'state_estimate')
 

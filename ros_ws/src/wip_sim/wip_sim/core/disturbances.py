@@ -43,8 +43,8 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from wip_control.core import config as _config
-from wip_control.core.config import ConfigError, param
+from wip_runtime import config as _config
+from wip_runtime.config import ConfigError, param
 
 #: Channel names in the order of (d1, d2, d3).
 CHANNELS = ('yaw', 'longitudinal', 'tilt')

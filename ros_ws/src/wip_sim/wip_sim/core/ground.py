@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from wip_control.core.config import ConfigError, param
+from wip_runtime.config import ConfigError, param
 
 
 @dataclasses.dataclass(frozen=True)

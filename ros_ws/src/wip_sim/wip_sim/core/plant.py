@@ -113,9 +113,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from wip_control.core.config import param
+from wip_runtime.config import param
 from wip_control.core.model import STATE_SIZE, THETA, input_gains
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 
 #: Plant models integrated here: the paper's eq. (1) and the full Lagrange–d'Alembert model.
 EQUATION_MODELS = ('paper', 'full')

@@ -6,7 +6,7 @@ the same file) and the simulation: the duration, the seed, the initial state, th
 (model and parameter overrides, so the plant can differ from the controllers' nominal
 model) and the disturbances. Every key is optional: its default is the paper's Section V
 [1]_ as decoded in docs/paper.md §6. Unknown keys, values of the wrong type and values out
-of range raise :class:`~wip_control.core.config.ConfigError` whose message starts with the
+of range raise :class:`~wip_runtime.config.ConfigError` whose message starts with the
 dotted path of the key (``mpc.max_tilt: must be > 0``).
 
 Schema (top level; ``scripts/simulate --list-parameters`` prints every leaf with its
@@ -40,14 +40,14 @@ import dataclasses
 import pathlib
 from typing import Any, Mapping
 
-from wip_control.core.config import ConfigError, _show, from_mapping, param
+from wip_runtime.config import ConfigError, _show, from_mapping, param
 from wip_control.core.controller_settings import (check_controller_consistency,
                                                   checked_scalar, controller_fields,
                                                   CONTROLLER_SCALAR_RANGES, CONTROLLER_SCALARS,
                                                   controller_settings_to_mapping,
                                                   ControllerSettings, load_scenario_file,
                                                   section)
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 
 from .disturbances import DisturbanceConfig
 from .ground import ContactConfig, TerrainConfig

@@ -1,6 +1,6 @@
 """Forward sensor models of the simulated WIP: what the encoders, the IMU and the GPS report.
 
-The quantities and their conventions are those of :mod:`wip_control.core.sensors`, whose
+The quantities and their conventions are those of :mod:`wip_description.sensors`, whose
 inverse maps the estimators use. Noise (zero-mean Gaussian, independent per sample and per
 axis) is off by default, so the paper scenario is clean; scenarios enable it. The random
 streams of encoders, IMU, GPS and GPS dropouts are separate (a change in one sensor's noise
@@ -18,8 +18,8 @@ from typing import Sequence
 import numpy as np
 
 from wip_control.core.model import OMEGA, PHI, THETA, THETA_DOT, V, X, XV, Y
-from wip_control.core.params import WipParameters
-from wip_control.core.sensors import check_finite, local_to_geodetic, SensorConfig
+from wip_description.params import WipParameters
+from wip_description.sensors import check_finite, local_to_geodetic, SensorConfig
 
 _TWO_PI = 2.0 * math.pi
 # Independent random streams, one per sensor (spawn keys of the run seed).

@@ -20,7 +20,7 @@ import numpy as np
 
 from wip_control.core.mpc import LongitudinalMpc, MpcStatus
 from wip_control.core.mpc_config import MpcConfig
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 from wip_control.core.qp import DaqpSolver
 
 #: Keys of one recorded MPC call besides ``tau_previous``.

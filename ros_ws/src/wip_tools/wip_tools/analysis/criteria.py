@@ -32,7 +32,7 @@ from typing import Any, Optional
 import numpy as np
 from scipy.spatial import cKDTree
 
-from wip_control.core.config import from_mapping, param, to_mapping
+from wip_runtime.config import from_mapping, param, to_mapping
 from wip_control.core.runaway import RunawayGuard
 from wip_sim.core.record import RunRecord
 

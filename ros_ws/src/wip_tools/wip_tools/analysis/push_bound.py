@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from wip_control.core.params import WipParameters
+from wip_description.params import WipParameters
 
 
 @dataclasses.dataclass(frozen=True)

@@ -415,7 +415,7 @@ def write_report_page(out: pathlib.Path, metrics: dict[str, Any], scenario,
                       progress: Callable[[str], None] | None = None) -> pathlib.Path:
     """Write ``out/report.html``; returns its path."""
     from wip_sim.core.scenario import scenario_to_mapping
-    from wip_control.tools.cli import write_atomic
+    from wip_runtime.cli import write_atomic
     if progress is not None:
         progress('report.html')
     path = pathlib.Path(out) / 'report.html'

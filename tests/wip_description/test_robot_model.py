@@ -1,4 +1,4 @@
-"""The robot model (wip_control.core.robot_model) read back by an independent URDF parser.
+"""The robot model (wip_description.robot_model) read back by an independent URDF parser.
 
 urdf_parser_py (PyPI) loads the generated robot_description; the joints, masses and
 inertias it finds must be the parameters', and the model's derived quantities (m_v, J_θ,
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from urdf_parser_py.urdf import URDF
 
-from wip_control.core.params import WipParameters
-from wip_control.core.robot_model import RobotModel, urdf
+from wip_description.params import WipParameters
+from wip_description.robot_model import RobotModel, urdf
 
 #: Parameters unlike the defaults and unlike each other, so that a swapped field shows.
 PARAMS = WipParameters(body_mass=31.0, com_height=0.47, body_pitch_inertia_com=3.3,

@@ -18,10 +18,12 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from .config import param
+from wip_runtime.config import check_number, param
 
 #: Standard gravity [m/s²].
 STANDARD_GRAVITY = 9.81
+#: Every quantity of the model is finite and positive (a ConfigError, a ValueError, else).
+_POSITIVE = {'minimum': 0.0, 'exclusive_minimum': True}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,13 +58,9 @@ class WipParameters:
                            minimum=0.0, exclusive_minimum=True)
 
     def __post_init__(self) -> None:
-        for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f'WipParameters.{field.name} must be a finite number, '
-                                 f'got {value!r}')
-            if value <= 0.0:
-                raise ValueError(f'WipParameters.{field.name} must be > 0, got {value!r}')
+        for field in dataclasses.fields(self):   # however the instance is made
+            check_number(f'WipParameters.{field.name}', getattr(self, field.name), _POSITIVE,
+                         want_int=False)
         # Derived quantities (docs/paper.md §1: the only reading under which (1) is the
         # Euler-Lagrange system of a consistent Lagrangian), computed once (the instance
         # is frozen; the estimator evaluates eq. (1)'s input gains every period). Plain

@@ -95,6 +95,20 @@ def param(default: Any, unit: str, description: str, *, minimum: float | None = 
     return dataclasses.field(default=default, metadata=metadata)
 
 
+#: Unit of a string parameter (a name, a path): its range is 'any' unless it has choices.
+TEXT = '-'
+
+
+def like(cls: type, name: str, default: Any = None, description: str | None = None) -> Any:
+    """Return a field with the unit and range of ``cls.name`` (one declaration of a range)."""
+    field = {f.name: f for f in dataclasses.fields(cls)}[name]
+    metadata = dict(field.metadata)
+    if description is not None:
+        metadata['description'] = description
+    return dataclasses.field(default=field.default if default is None else default,
+                             metadata=metadata)
+
+
 def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
@@ -114,7 +128,14 @@ def _field_types(cls: type) -> dict[str, Any]:
     return typing.get_type_hints(cls)
 
 
-def _check_number(path: str, value: Any, meta: Mapping[str, Any], want_int: bool) -> float:
+def check_number(path: str, value: Any, meta: Mapping[str, Any], want_int: bool) -> float:
+    """Return ``value`` as an int (``want_int``) or a float; ConfigError naming ``path`` else.
+
+    The one check of a number in the project: a scenario key, a node parameter, a params
+    file, a command-line option (:func:`.cli.bounded`) and the robot's parameters. ``meta``
+    is a :func:`param` field's metadata (``minimum``, ``maximum``, ``exclusive_minimum``,
+    ``floor``; each optional). A bool is not a number, nor is a non-finite float.
+    """
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f'{path}: expected a number, got {_show(value)}')
     if isinstance(value, float):
@@ -142,7 +163,7 @@ def check_value(path: str, value: Any, field_type: Any, meta: Mapping[str, Any])
     """Validate and normalise one value against its declared type and metadata."""
     origin = typing.get_origin(field_type)
     if field_type is float or field_type is int:
-        number = _check_number(path, value, meta, want_int=field_type is int)
+        number = check_number(path, value, meta, want_int=field_type is int)
         choices = meta.get('choices')
         if choices and number not in choices:
             raise ConfigError(f"{path}: must be {' or '.join(map(str, choices))}, "

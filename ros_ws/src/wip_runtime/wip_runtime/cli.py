@@ -276,27 +276,28 @@ def bounded(kind: type, minimum: float | None = None, maximum: float | None = No
     """Return an argparse ``type=`` for a finite number in a range.
 
     An argparse ``type=``: a finite ``kind`` (int or float) in [minimum, maximum]
-    ((minimum, maximum] with ``exclusive_minimum``); argparse's usage error (exit 2)
-    naming the range otherwise.
+    ((minimum, maximum] with ``exclusive_minimum``), checked by
+    :func:`.config.check_number`; argparse's usage error (exit 2) naming the range otherwise.
     """
+    from .config import check_number, ConfigError
+    limits = {'minimum': minimum, 'maximum': maximum, 'exclusive_minimum': exclusive_minimum}
+    low = '' if minimum is None else (f'> {minimum:g}' if exclusive_minimum
+                                      else f'>= {minimum:g}')
+    high = '' if maximum is None else f'<= {maximum:g}'
+
     def convert(text: str):
         try:
             value = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(
                 f'{text!r} is not {"an integer" if kind is int else "a number"}') from None
-        if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f'{text!r} is not a finite number')
-        low = '' if minimum is None else (f'> {minimum:g}' if exclusive_minimum
-                                          else f'>= {minimum:g}')
-        high = '' if maximum is None else f'<= {maximum:g}'
-        too_low = minimum is not None and (value <= minimum if exclusive_minimum
-                                           else value < minimum)
-        too_high = maximum is not None and value > maximum
-        if too_low or too_high:
+        try:
+            return check_number(text, value, limits, want_int=kind is int)
+        except ConfigError:
+            if not math.isfinite(value):
+                raise argparse.ArgumentTypeError(f'{text!r} is not a finite number') from None
             raise argparse.ArgumentTypeError(
-                f'must be {" and ".join(p for p in (low, high) if p)}, got {text}')
-        return value
+                f'must be {" and ".join(p for p in (low, high) if p)}, got {text}') from None
 
     convert.__name__ = kind.__name__   # argparse names the type in some messages
     return convert

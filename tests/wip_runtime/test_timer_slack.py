@@ -29,8 +29,7 @@ def in_a_thread(function):
 
 
 def test_make_executor_shortens_the_slack_of_its_thread_and_of_threads_started_later(context):
-    from wip_control.nodes.common import (make_executor, set_timer_slack, TIMER_SLACK_NS,
-                                          timer_slack)
+    from wip_runtime.executors import make_executor, set_timer_slack, TIMER_SLACK_NS, timer_slack
 
     def scenario():
         assert set_timer_slack(50_000)
@@ -48,13 +47,13 @@ def test_make_executor_shortens_the_slack_of_its_thread_and_of_threads_started_l
 
 
 def test_without_prctl_the_executor_is_made_all_the_same(monkeypatch, context):
-    from wip_control.nodes import common
+    from wip_runtime import executors
 
     def no_libc(*args, **kwargs):
         raise OSError('no libc here')
 
-    monkeypatch.setattr(common.ctypes, 'CDLL', no_libc)
-    assert common.set_timer_slack() is False
-    assert common.timer_slack() is None
-    executor = common.make_executor(context=context)
+    monkeypatch.setattr(executors.ctypes, 'CDLL', no_libc)
+    assert executors.set_timer_slack() is False
+    assert executors.timer_slack() is None
+    executor = executors.make_executor(context=context)
     executor.shutdown()

@@ -14,7 +14,7 @@ pytest.importorskip('rclpy')
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 
-from wip_control.nodes import diagnostics  # noqa: E402
+from wip_runtime import diagnostics  # noqa: E402
 
 FAST_NS, STEADY_NS = 100_000_000, 1_000_000_000
 

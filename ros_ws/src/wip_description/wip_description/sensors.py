@@ -24,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from .config import ConfigError, param
+from wip_runtime.config import ConfigError, param
 from .params import WipParameters
 
 #: WGS84 semi-major axis [m] and flattening [2]_.

@@ -1,4 +1,4 @@
-"""Input synchronisation of the controller nodes (``wip_control.nodes.sync``, pure Python).
+"""Input synchronisation of the controller nodes (``wip_runtime.sync``, pure Python).
 
 The lockstep graph is deterministic only if a node computes t_k from exactly the inputs
 stamped t_k whatever order DDS delivers them in; these tests check that property over
@@ -10,8 +10,8 @@ import itertools
 from hypothesis import given, settings, strategies as st
 import pytest
 
-from wip_control.nodes.sync import (decimation, ExactTimeSync, is_decimated_tick, LatestSync,
-                                    on_grid, tick_index)
+from wip_runtime.sync import (decimation, ExactTimeSync, is_decimated_tick, LatestSync, on_grid,
+                              tick_index)
 
 NAMES = ('a', 'b', 'c')
 

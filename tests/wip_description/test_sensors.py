@@ -8,10 +8,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wip_control.core.config import ConfigError, from_mapping
-from wip_control.core.params import WipParameters
-from wip_control.core.sensors import (geodetic_to_local, local_to_geodetic, SensorConfig, WGS84_A,
-                                      WGS84_E2, wheel_odometry)
+from wip_runtime.config import ConfigError, from_mapping
+from wip_description.params import WipParameters
+from wip_description.sensors import (geodetic_to_local, local_to_geodetic, SensorConfig, WGS84_A,
+                                     WGS84_E2, wheel_odometry)
 from wip_sim.core.sensor_models import Sensors
 
 PARAMS = WipParameters()

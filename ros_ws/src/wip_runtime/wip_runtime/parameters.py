@@ -1,11 +1,11 @@
 """ROS parameters declared from config dataclasses: the one way a node declares one.
 
-Every field of a config dataclass (see :mod:`wip_control.core.config`) becomes one ROS
+Every field of a config dataclass (see :mod:`wip_runtime.config`) becomes one ROS
 parameter named ``<section>.<field>`` (or ``<field>`` when the section is ``''``, for
 the node-level settings) with a descriptor carrying its unit, description and range.
 Which node declares which dataclasses is listed in :mod:`wip_control.nodes.settings`
 (importable without rclpy, so the parameter reference is generated from it). Values are
-validated by the same :func:`~wip_control.core.config.from_mapping` as a scenario file, so a
+validated by the same :func:`~wip_runtime.config.from_mapping` as a scenario file, so a
 params file with a typo'd value fails with the same message, and a parameter set at run time
 to a bad value is rejected with the reason.
 """
@@ -23,7 +23,7 @@ from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from ..core.config import check_value, ConfigError, from_mapping
+from .config import check_value, ConfigError, from_mapping
 
 
 class OutOfRangeError(ConfigError, InvalidParameterValueException):
@@ -166,33 +166,3 @@ def _from_ros(value: Any) -> Any:
     if isinstance(value, (list, tuple)) or type(value).__name__ == 'array':
         return tuple(value)
     return value
-
-
-@dataclasses.dataclass(frozen=True)
-class EffortInterface:
-    """The wheels of a base as a node that commands efforts sees them."""
-
-    left_joint: str
-    right_joint: str
-    joints: tuple[str, ...]  # order of the effort command's data
-    left_sign: float  # +1 or -1: see settings.WheelSigns
-    right_sign: float
-
-
-def declare_effort_interface(node: Node) -> EffortInterface:
-    """Declare and read the parameters of the effort interface.
-
-    These are the parameters of settings.WheelJoints, EffortCommand and WheelSigns (the
-    mixer and the stand-in base read the same ones). Raise ConfigError if ``joints`` does
-    not list ``left_joint`` and ``right_joint`` once each.
-    """
-    from .settings import check_effort_joints, EffortCommand, WheelJoints, WheelSigns
-    wheels = ConfigParameters(node, '', WheelJoints).config
-    left, right = wheels.left_joint, wheels.right_joint
-    # joints defaults to (left_joint, right_joint) as set, so renaming both is enough.
-    joints = tuple(ConfigParameters(node, '', EffortCommand,
-                                    defaults=EffortCommand((left, right))).config.joints)
-    check_effort_joints(left, right, joints)
-    signs = ConfigParameters(node, '', WheelSigns).config
-    return EffortInterface(left, right, joints, float(signs.left_wheel_sign),
-                           float(signs.right_wheel_sign))

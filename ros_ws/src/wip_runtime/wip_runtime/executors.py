@@ -1,0 +1,137 @@
+"""Executors of the node processes: their choice, timer slack, guarded spinning."""
+
+from __future__ import annotations
+
+import ctypes
+import sys
+from typing import Callable
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+
+from .intra_process import IntraProcessBus
+
+#: One spin_once of the EventsExecutor [s]: bounds the reaction time to a shutdown.
+SPIN_TIMEOUT = 0.1
+
+
+#: [ns] Timer slack of a node process's threads (Linux's default: 50 000). The kernel may
+#: end a timed wait this late; the EventsExecutor's ``spin_once(timeout_sec=0)`` is such a
+#: wait (asio's ``run_one_for``), which the composed spin loop makes about once a tick.
+TIMER_SLACK_NS = 1000
+_PR_SET_TIMERSLACK, _PR_GET_TIMERSLACK = 29, 30
+
+
+def set_timer_slack(slack_ns: int = TIMER_SLACK_NS) -> bool:
+    """Set the calling thread's timer slack (Linux prctl); threads it starts later inherit it.
+
+    Returns False where it cannot (not Linux). Threads at a real-time priority have none.
+    """
+    try:
+        return _prctl(_PR_SET_TIMERSLACK, int(slack_ns)) == 0
+    except (OSError, AttributeError):   # not Linux, or a libc without prctl
+        return False
+
+
+def timer_slack() -> int | None:
+    """Return the calling thread's timer slack [ns] (None where unknown)."""
+    try:
+        return _prctl(_PR_GET_TIMERSLACK, 0)
+    except (OSError, AttributeError):
+        return None
+
+
+def _prctl(option: int, value: int) -> int:
+    if not sys.platform.startswith('linux'):
+        raise OSError('prctl is a Linux call')
+    return ctypes.CDLL(None, use_errno=True).prctl(option, value, 0, 0, 0)
+
+
+def make_executor(context=None):
+    """EventsExecutor (10x lower latency) if this rclpy has it, else SingleThreadedExecutor.
+
+    Verified with rclpy 7.1.6: the EventsExecutor fires sim-time timers driven by /clock and
+    steady-clock timers, and runs one-argument subscription callbacks; it must be driven by
+    ``spin_once(timeout_sec=...)`` (its ``spin()`` ignores SIGINT). The thread that will
+    spin it gets a short timer slack (:data:`TIMER_SLACK_NS`).
+    """
+    set_timer_slack()
+    try:
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    except (ImportError, AttributeError, RuntimeError):
+        return SingleThreadedExecutor(context=context)
+
+
+def spin_once_or_stop(executor, timeout_sec: float = SPIN_TIMEOUT, context=None) -> None:
+    """``executor.spin_once``; an error raised once the context is shut down is a stop.
+
+    On SIGINT rclpy shuts the context down while the executor may be busy, and rclpy's
+    EventsExecutor then sometimes fails inside pybind11 ("Unable to convert call argument
+    '0' to Python object", seen under load). That is raised as ExternalShutdownException,
+    which every entry point treats as a clean stop; any other error propagates.
+    """
+    try:
+        executor.spin_once(timeout_sec=timeout_sec)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        raise
+    except Exception as err:  # noqa: BLE001 - re-raised unless the context is shut down
+        if rclpy.ok(context=context):
+            raise
+        raise ExternalShutdownException(f'{type(err).__name__}: {err}') from err
+
+
+_callback_failures = 0
+
+
+def spin_once_guarded(executor, node: Node, timeout_sec: float = SPIN_TIMEOUT) -> bool:
+    """``executor.spin_once``; an exception from a callback is logged, not fatal. False then.
+
+    The nodes' own callbacks never raise (:meth:`ControllerNode.subscribe`), but rclpy's
+    callbacks are not theirs: with ``use_sim_time`` rclpy's /clock subscription raises
+    ValueError on a message with a negative time, which would end the node. A controller
+    keeps running (its safety layer judges its inputs); the log says what happened.
+    """
+    global _callback_failures  # noqa: PLW0603 - one count per process
+    try:
+        executor.spin_once(timeout_sec=timeout_sec)
+        return True
+    except (KeyboardInterrupt, ExternalShutdownException):
+        raise
+    except Exception as err:  # noqa: BLE001 - any callback error, see the docstring
+        if not rclpy.ok(context=node.context):
+            # The context was shut down (SIGINT) while the executor was busy: rclpy's
+            # EventsExecutor then sometimes fails inside pybind11 ("Unable to convert
+            # call argument '0' to Python object", seen under load). That is a stop.
+            raise ExternalShutdownException(f'{type(err).__name__}: {err}') from err
+        _callback_failures += 1
+        if _callback_failures <= 5 or _callback_failures % 1000 == 0:
+            node.get_logger().error(f'a callback failed (#{_callback_failures}), node goes '
+                                    f'on: {type(err).__name__}: {err}')
+        return False
+
+
+#: Intra-process deliveries between two turns of the executor: about one control tick of
+#: the single layout (some 20 deliveries), so a message from another process (cmd_vel, an
+#: e-stop, a service call) waits at most about a tick (docs/decisions/recording-speed.md).
+DRAIN_BATCH = 20
+
+
+def spin_composed(executor, node: Node, bus: IntraProcessBus | None,
+                  running: Callable[[], bool]) -> None:
+    """Spin while the context is up and ``running()``.
+
+    Spin (:func:`spin_once_guarded`, errors reported by ``node``) while the context is
+    up and ``running()``; after each spin_once, deliver up to :data:`DRAIN_BATCH`
+    intra-process messages (:meth:`~.intra_process.IntraProcessBus.drain`): a lockstep loop
+    closed within the process still lets the executor serve other processes' messages.
+    """
+    if bus is None:
+        while rclpy.ok() and running():
+            spin_once_guarded(executor, node)
+        return
+    while rclpy.ok() and running():
+        # Messages waiting on the bus: take what the executor has ready, without waiting.
+        spin_once_guarded(executor, node, 0.0 if bus.pending else SPIN_TIMEOUT)
+        bus.drain(DRAIN_BATCH)
