@@ -33,7 +33,7 @@ PACKAGES = ('wip_msgs', 'wip_runtime', 'wip_description', 'wip_control', 'wip_si
             'wip_bringup', 'wip_tools', 'wip_viewer')
 #: The packages from the bottom up (docs/packages.md, "Layers"): a package imports only
 #: packages of the layers below its own.
-LAYERS = (('wip_msgs',), ('wip_runtime',), ('wip_description',), ('wip_control', 'wip_bag'),
+LAYERS = (('wip_msgs',), ('wip_runtime',), ('wip_description',), ('wip_bag', 'wip_control'),
           ('wip_viewer',), ('wip_sim',), ('wip_bringup',), ('wip_tools',))
 #: Dependencies that no import statement shows: (package, dependency) -> how it is used.
 IMPORTED_BY_NAME = {('wip_tools', 'wip_viewer'): 'wip_tools.parameters imports '
@@ -224,6 +224,14 @@ def layer_of(package):
 def test_the_layers_hold_every_package_once():
     layered = [package for layer in LAYERS for package in layer]
     assert sorted(layered) == sorted(PACKAGES)
+
+
+def test_docs_list_the_layers_checked_here():
+    text = (ROOT / 'docs' / 'packages.md').read_text(encoding='utf-8')
+    section = text.split('\n## Layers\n', 1)[1].split('\n## ', 1)[0]
+    listed = [tuple(line.split('. ', 1)[1].split(', ')) for line in section.splitlines()
+              if re.match(r'^\d+\. ', line)]
+    assert listed == [tuple(sorted(layer)) for layer in LAYERS]
 
 
 @pytest.mark.parametrize('package', PACKAGES)

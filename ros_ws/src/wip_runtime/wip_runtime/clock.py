@@ -70,7 +70,8 @@ class ClockTicker:
     On sim time the ticker's subscription also drives the node's clock (rclpy's
     ``TimeSource.clock_callback``, before the tick) and the time source's own /clock
     subscription is removed: one delivery per sample instead of two of the same message.
-    Every clock attached to that time source (:func:`share_sim_clock`) still reads sim time.
+    Every clock attached to that time source (:func:`.composition.share_sim_clock`) still
+    reads sim time.
     """
 
     def __init__(self, node: Node, period: float, callback: Callable[[int], None],

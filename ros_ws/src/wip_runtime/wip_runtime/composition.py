@@ -97,12 +97,13 @@ def compose(executor, factories: Sequence[Callable[[], Node]],
             built: list[Node]) -> IntraProcessBus | None:
     """ROS 2 composition by hand.
 
-    For :func:`run_nodes` and :func:`run_simulator_node`: build each node into ``built`` (as it is
-    made, so that the caller destroys what was built if a later factory fails) and add it to
-    ``executor``; warn of overrides no node declares; one sim clock (:func:`share_sim_clock`);
-    intra-process delivery (:func:`connect_intra_process`, the bus to drain, or None); then move
-    the start-up's objects out of the garbage collector's reach (``gc.freeze``), so that the
-    collections that still run during control (young objects only) do not walk them.
+    For :func:`.node_main.run_nodes` and the simulator nodes' main: build each node into
+    ``built`` (as it is made, so that the caller destroys what was built if a later factory
+    fails) and add it to ``executor``; warn of overrides no node declares; one sim clock
+    (:func:`share_sim_clock`); intra-process delivery (:func:`connect_intra_process`, the bus
+    to drain, or None); then move the start-up's objects out of the garbage collector's
+    reach (``gc.freeze``), so that the collections that still run during control (young
+    objects only) do not walk them.
     """
     for factory in factories:
         built.append(factory())
@@ -161,8 +162,8 @@ def share_raw_subscriptions(members: Sequence[IntraProcessNode]) -> list[str]:
     (its wiring checks) subscribed the same topics as messages: each sample was taken twice
     from DDS and also converted to a Python message by rclpy (docs/realtime.md has the
     cost). Where a node's subscription has the topic, type and QoS of another node's raw
-    subscription (:meth:`ControllerNode.subscribe`) and no node of the process publishes
-    that topic (the bus delivers those), the duplicate is destroyed and its callback served
+    subscription (``ControllerNode.subscribe``) and no node of the process publishes that
+    topic (the bus delivers those), the duplicate is destroyed and its callback served
     by the raw one, with the object decoded once. The graph shows one subscription of the
     topic in this process fewer. Returns the topics shared.
     """

@@ -88,7 +88,7 @@ _callback_failures = 0
 def spin_once_guarded(executor, node: Node, timeout_sec: float = SPIN_TIMEOUT) -> bool:
     """``executor.spin_once``; an exception from a callback is logged, not fatal. False then.
 
-    The nodes' own callbacks never raise (:meth:`ControllerNode.subscribe`), but rclpy's
+    The nodes' own callbacks never raise (``ControllerNode.subscribe``), but rclpy's
     callbacks are not theirs: with ``use_sim_time`` rclpy's /clock subscription raises
     ValueError on a message with a negative time, which would end the node. A controller
     keeps running (its safety layer judges its inputs); the log says what happened.

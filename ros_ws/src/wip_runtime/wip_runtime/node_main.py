@@ -95,9 +95,9 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
     raising from the handler would land inside a callback, which rclpy's executor
     logs as FATAL with a stack).
 
-    The nodes are composed by :func:`compose` (one sim clock; messages between them skip
-    DDS while no one outside the process subscribes; ``gc.freeze`` after start-up) and
-    spun by :func:`spin_composed`, as ``wip_sim``'s simulator nodes are.
+    The nodes are composed by :func:`.composition.compose` (one sim clock; messages between
+    them skip DDS while no one outside the process subscribes; ``gc.freeze`` after start-up)
+    and spun by :func:`.executors.spin_composed`, as ``wip_sim``'s simulator nodes are.
     """
     if answer_node_help(program, package_of(nodes[0][0]), args):
         return 0

@@ -25,7 +25,7 @@ round(``mpc.sampling_period`` / h), or of round(``mpc.fast_resolve_period`` / h)
 is set, h = 1/``rates.control_rate`` (the runner's ``DriveStage.is_tick(k)``, t = 0
 included); the tick is computed as soon as estimate(t_k), command(t_k) and yaw_torque(t_k)
 have all arrived, in any order. Inputs at other stamps are not needed. (Not a sim-time
-timer: see ``common.py`` for why.) At a tick of the re-solve grid where the stage does not
+timer: see ``wip_runtime.clock``.) At a tick of the re-solve grid where the stage does not
 solve (``DriveStage.solves``: no push), the held τυ is published (status SOLVED,
 ``status_text`` HELD, no plan), so the mixer gets an answer at every tick of the grid.
 realtime: a timer of period ``mpc.sampling_period`` (``mpc.fast_resolve_period`` when set;

@@ -7,7 +7,7 @@ figure eight, waypoints), and ``/diagnostics``.
 lockstep: one reference per ``/clock`` sample on the control grid (t = k / control_rate,
 t = 0 included), stamped with that sample's time, so that the generator finds
 reference(t_k) for every estimate(t_k). (A sim-time timer would first fire one period
-after t = 0: see ``common.py``.)
+after t = 0: see ``wip_runtime.clock``.)
 realtime, ``realtime_trigger``:
 
 - ``'state_estimate'`` (default): one reference per ``/wip/state_estimate``, stamped with

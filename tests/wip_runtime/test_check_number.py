@@ -1,0 +1,47 @@
+"""One number check: a scenario key, a node parameter, a command-line option, the robot's model.
+
+``wip_runtime.config.check_number`` decides; each reader words the refusal its own way.
+"""
+
+import argparse
+import math
+
+import pytest
+
+from wip_description.params import WipParameters
+from wip_runtime.cli import bounded
+from wip_runtime.config import check_number, ConfigError
+
+RANGE = {'minimum': 0.0, 'maximum': 10.0, 'exclusive_minimum': True}
+
+
+@pytest.mark.parametrize('value', [1e-9, 0.5, 10.0, 3])
+def test_a_number_in_range_passes_every_reader(value):
+    assert check_number('x', value, RANGE, want_int=False) == float(value)
+    assert bounded(float, 0.0, 10.0, exclusive_minimum=True)(repr(value)) == float(value)
+
+
+@pytest.mark.parametrize('value', [0.0, -1.0, 10.5, math.inf, -math.inf, math.nan])
+def test_a_number_out_of_range_is_refused_by_every_reader(value):
+    with pytest.raises(ConfigError):
+        check_number('x', value, RANGE, want_int=False)
+    with pytest.raises(argparse.ArgumentTypeError):
+        bounded(float, 0.0, 10.0, exclusive_minimum=True)(repr(value))
+
+
+def test_the_command_line_keeps_its_words():
+    with pytest.raises(argparse.ArgumentTypeError, match=r'^must be >= 0 and <= 99, got 100$'):
+        bounded(int, 0, 99)('100')
+    with pytest.raises(argparse.ArgumentTypeError, match="^'nan' is not a finite number$"):
+        bounded(float, 0.0)('nan')
+    with pytest.raises(argparse.ArgumentTypeError, match="^'1.5' is not an integer$"):
+        bounded(int, 0, 99)('1.5')
+    assert bounded(int, 0, 99)('7') == 7 and isinstance(bounded(int, 0, 99)('7'), int)
+
+
+@pytest.mark.parametrize('name, value', [('body_mass', 0.0), ('wheel_radius', -0.1),
+                                         ('gravity', math.nan), ('track_width', math.inf),
+                                         ('yaw_inertia', True)])
+def test_the_robot_model_refuses_what_is_not_a_positive_finite_number(name, value):
+    with pytest.raises(ConfigError, match=f'^WipParameters.{name}: '):
+        WipParameters(**{name: value})
