@@ -1,6 +1,6 @@
 """Parameters of the recorder and replayer nodes, and the registry of both.
 
-Declared like every node parameter (:mod:`wip_control.nodes.settings`); no rclpy import,
+Declared like every node parameter (:func:`wip_runtime.config.param`); no rclpy import,
 so the parameter reference is generated from :data:`NODES`.
 """
 

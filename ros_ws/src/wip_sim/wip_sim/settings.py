@@ -8,10 +8,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from wip_runtime.config import param
 from wip_control.nodes.settings import CLOCK_MODES
 from wip_description.wiring import DatumConfig, EffortCommand, ImuMounting, WheelJoints, WheelSigns
-from wip_runtime.config import TEXT
+from wip_runtime.config import param, TEXT
 from wip_sim.core.scenario import Scenario
 
 #: Command-line flag of ``ros2 run wip_sim simulation`` (before ``--ros-args``) that

@@ -1,6 +1,6 @@
 """Parameters of the viewer and Foxglove bridge nodes, and the registry of both.
 
-Declared like every node parameter (:mod:`wip_control.nodes.settings`); no rclpy import,
+Declared like every node parameter (:func:`wip_runtime.config.param`); no rclpy import,
 so the parameter reference is generated from :data:`NODES`.
 """
 
@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import dataclasses
 
-from wip_runtime.config import param
 from wip_description.params import WipParameters
 from wip_description.sensors import SensorConfig
 from wip_description.wiring import WheelJoints, WheelSigns
-from wip_runtime.config import like, TEXT
+from wip_runtime.config import like, param, TEXT
 
 from .viewer_core import ViewerConfig
 
