@@ -173,7 +173,7 @@ class ReferenceNodeSettings:
 
 
 #: Parameters that existed before and what replaces them, for the warning a params file
-#: that still sets one gets (``common.undeclared_overrides``).
+#: that still sets one gets (``ControllerNode.retired_parameters``).
 RETIRED = {
     'mpc_period': "the mixer reads the MPC's period from 'mpc.sampling_period'",
     'alpha_initial': "the ARC computes alpha_hat(0) = 1/g1 from 'model.*' and "
