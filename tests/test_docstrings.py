@@ -32,8 +32,6 @@ ALLOWED = {
     ('ros_ws/src/wip_bringup/wip_bringup/runner_base.py', 'RunnerBase.recorder_parameters'),
     ('ros_ws/src/wip_bringup/wip_bringup/runner_base.py', 'RunnerBase.commands'),
     ('ros_ws/src/wip_bringup/wip_bringup/standin_run.py', '_base_ends_now'),
-    ('ros_ws/src/wip_control/wip_control/nodes/common.py', 'IntraProcessNode.create_publisher'),
-    ('ros_ws/src/wip_control/wip_control/nodes/conversions.py', 'decode_serialized'),
     ('ros_ws/src/wip_tools/wip_tools/bench.py', 'bench_plant_models'),
     ('ros_ws/src/wip_tools/wip_tools/parameters.py', '_component'),
     ('ros_ws/src/wip_tools/wip_tools/realtime_bench.py', 'bench_node_cost'),

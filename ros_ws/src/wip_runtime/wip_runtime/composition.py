@@ -40,9 +40,9 @@ class IntraProcessNode(Node):
     def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
         """Create rclpy's publisher wrapped in an :class:`IntraProcessPublisher`.
 
-        rclpy's publisher wrapped in an :class:`IntraProcessPublisher`: it publishes
-        nothing while no subscription is matched (volatile topics), and in a composed
-        process hands messages to the process's own subscriptions directly.
+        The wrapper publishes nothing while no subscription is matched (volatile topics),
+        and in a composed process hands messages to the process's own subscriptions
+        directly.
         """
         publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
         if not hasattr(self, 'intra_publishers'):   # rclpy's own, from Node.__init__

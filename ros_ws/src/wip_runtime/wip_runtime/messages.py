@@ -170,9 +170,9 @@ def prepare_decoder(*typenames: str) -> None:
 def decode_serialized(msg, typename: str):
     """Decode a sensor message taken serialized (``create_subscription(..., raw=True)``).
 
-    A sensor message taken serialized (``create_subscription(..., raw=True)``) as an
-    object with the message's fields (rosbags' CDR decoder, pinned version); a message
-    object is returned as is (the intra-process bus and tests deliver objects).
+    The result is an object with the message's fields (rosbags' CDR decoder, pinned
+    version); a message object is returned as is (the intra-process bus and tests deliver
+    objects).
 
     Why: for a 200 Hz sensor stream, rclpy building the Python message in its take costs
     more than the control math (the base's two streams: 5.2 % of a core taken as
