@@ -21,7 +21,7 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 DOCS = ROOT / 'docs'
 #: Pages rewritten by their owners in the same pass; they follow the rule once that lands.
-NOT_YET_REFERENCE_FIRST = {'packages.md'}
+NOT_YET_REFERENCE_FIRST: set[str] = set()
 LINK = re.compile(r'(?<!!)\[[^\]]*\]\(([^)\s]+)\)')
 HISTORY = re.compile(r'\b20\d\d-\d\d-\d\d\b|history|what changed|what was cut|session|'
                      r'\bissue\b|before\s*(→|->)\s*after', re.IGNORECASE)

@@ -45,27 +45,10 @@ by ``mixer.max_wheel_torque_rate``; zero torque at once, with the reason, otherw
 
 Clock modes
 -----------
-realtime: a command is computed and sent as soon as a yaw torque arrives (the end of the
-sensor -> ESO -> generator -> ARC chain, so the command follows the sensor sample by the
-chain's latency alone), with the latest drive torque and estimate; a watchdog timer of
-period 1/``rates.control_rate`` on the steady clock, restarted by every such command,
-sends one when none was sent for a period (so an input stream that stops is still seen at
-the first period after its age limit, and the base gets a command every period whatever
-happens upstream). Input ages are measured from the steady-clock time of arrival
-(independent of the sender's clock). /diagnostics reports the sensor -> command latency
-(node clock minus the yaw torque's stamp, which is the sensor sample's; meaningful when
-the base's clock is this computer's): p50, p99 and max over the last
-:data:`LATENCY_WINDOW` commands (why not a free-running timer: docs/realtime.md).
-lockstep: one command per stamp t_k, computed when yaw_torque(t_k) has arrived, plus
-drive_torque(t_k) when t_k is an MPC tick (k = round(t_k / h) a multiple of
-round(``mpc.sampling_period`` / h), or of round(``mpc.fast_resolve_period`` / h) when that
-is set, h = 1/``rates.control_rate``, from t = 0, as in the runner), else the drive torque
-of the last tick; once a state estimate has been received, also
-estimate(t_k), so that the checks use the estimate of the same sample whatever the
-arrival order. The safety layer runs without ages and start-up wait (see
-``core/safety.py``: exact-time sets guarantee freshness, and lockstep reproduces the
-in-process runner, which controls from t = 0); the value checks and limits apply. A tick
-is answered even when zeroed, so a lockstep plant never waits forever.
+realtime: a command as soon as a yaw torque arrives, with the latest drive torque and
+estimate, and a watchdog timer of period 1/``rates.control_rate`` in between; lockstep:
+one command per stamp t_k once that tick's inputs have arrived (docs/control-loop.md,
+"The torque mixer's clock modes").
 
 Parameters: section ``mixer`` (changeable at run time, validated), sections ``rates`` and
 ``safety`` (read-only: a safety setting does not change under a running robot),
