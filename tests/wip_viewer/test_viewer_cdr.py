@@ -1,6 +1,6 @@
 """The viewer's hand-written CDR is rclpy's serialization of the same message.
 
-Each encoder of :mod:`wip_viewer.cdr` is checked against ``rclpy.serialization``: the bytes
+Each encoder of :mod:`wip_runtime.cdr` is checked against ``rclpy.serialization``: the bytes
 decode to a message equal to one built as objects, and have the same length as rclpy's
 serialization of it (the same layout: rclpy's padding bytes are not zeroed, so the bytes
 themselves are compared only through decoding). Frame names of every length mod 8 move the
@@ -46,7 +46,7 @@ def assert_same_message(ros, data: bytes, expected) -> None:
 @pytest.mark.parametrize('frame_id', FRAMES)
 @pytest.mark.parametrize('child_frame_id', ('', 'b', 'base_link'))
 def test_odometry_is_what_odometry_to_msg_builds(ros, frame_id, child_frame_id):
-    from wip_viewer import cdr
+    from wip_runtime import cdr
     rng = random.Random(f'{frame_id}/{child_frame_id}')
     stamp_ns = rng.randrange(0, 10 ** 12)
     x, y, phi, v, omega = (rng.uniform(-3.0, 3.0) for _ in range(5))
@@ -62,7 +62,7 @@ def test_odometry_is_what_odometry_to_msg_builds(ros, frame_id, child_frame_id):
 @pytest.mark.parametrize('frame_id', FRAMES)
 @pytest.mark.parametrize('count', [0, 1, 3])
 def test_marker_array_with_and_without_points(ros, frame_id, count):
-    from wip_viewer import cdr
+    from wip_runtime import cdr
     rng = random.Random(f'{frame_id}/{count}')
     writer = cdr.CdrWriter()
     writer.u32(count)
@@ -96,7 +96,7 @@ def test_marker_array_with_and_without_points(ros, frame_id, count):
 @pytest.mark.parametrize('count', [0, 1, 2, 5])
 def test_path_from_poses_encoded_once(ros, frame_id, count):
     """The first pose's padding follows the header; every later pose starts 8-aligned."""
-    from wip_viewer import cdr
+    from wip_runtime import cdr
     rng = random.Random(f'{frame_id}/{count}')
     stamp_ns = rng.randrange(10 ** 12)
     expected = ros['Path'](header=ros['make_header'](stamp_ns, frame_id))
@@ -121,7 +121,7 @@ def test_tf_message_of_transforms(ros, count):
     from geometry_msgs.msg import TransformStamped
     from tf2_msgs.msg import TFMessage
 
-    from wip_viewer import cdr
+    from wip_runtime import cdr
     rng = random.Random(count)
     transforms, expected = [], TFMessage()
     for k in range(count):
@@ -140,7 +140,7 @@ def test_tf_message_of_transforms(ros, count):
 
 
 def test_bad_arguments_are_refused():
-    from wip_viewer import cdr
+    from wip_runtime import cdr
     with pytest.raises(ValueError, match='triples'):
         cdr.marker(cdr.CdrWriter(), 0, 'map', '', 0, 0, 0, (0, 0, 0), (0, 0, 0, 1),
                    (1, 1, 1), (1, 1, 1, 1), [0.0, 1.0])

@@ -11,7 +11,7 @@ control tick small. Composed with the simulation (``ros2 run wip_sim simulation
 --with-viewer``, what run_graph starts for a recorded run in the single layout) it is an
 intra-process node like the controllers: its inputs arrive from the process's own nodes as
 message objects, every one of them (the bus ignores the best-effort depth), and nothing is
-decoded. Its own messages are published already serialized, written by :mod:`.cdr` (the
+decoded. Its own messages are published already serialized, written by :mod:`wip_runtime.cdr` (the
 same messages; rclpy's conversion of message objects was most of the node's cost), and a
 Path's poses are encoded once each.
 
@@ -79,7 +79,7 @@ from wip_runtime.diagnostics import NodeDiagnostics
 from wip_runtime.parameters import ConfigParameters
 from wip_msgs.msg import GroundTruth, MpcOutput, ReferenceState, StateEstimate
 
-from . import cdr
+from wip_runtime import cdr
 from .settings import ROBOT_MODEL_GROUPS
 from .viewer_core import (cdr_stamp_ns, PathBuffer, planar_pose_covariance, predicted_track,
                           quaternion_yaw_pitch, RateGate, vehicle_geometry, VIEWER_TOPICS,

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import array
 import math
-import struct
 from typing import Sequence
 
 from geometry_msgs.msg import TransformStamped
@@ -26,6 +25,7 @@ from wip_description.sensors import geodetic_to_local
 from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateMsg,
                           StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
+from wip_runtime import cdr
 from wip_runtime.messages import (check_finite_record, check_finite_values, InvalidMessage,
                                   pitch_yaw_from_quaternion, quaternion_from_euler, stamped,
                                   StampedBuilder)
@@ -368,8 +368,5 @@ def effort_command_cdr(left: float, right: float, joints: Sequence[str], left_jo
     :func:`effort_command` leaves it; the bytes differ from rclpy's only in the alignment padding,
     which Fast CDR leaves uninitialised.
     """
-    values = [float(v) for v in _in_joint_order(left, right, joints, left_joint, right_joint)]
-    # encapsulation CDR_LE | layout.dim length 0 | layout.data_offset 0 | data length |
-    # padding to the doubles' 8-byte alignment (counted from after the encapsulation)
-    return struct.pack(f'<4sIII4x{len(values)}d', b'\x00\x01\x00\x00', 0, 0, len(values),
-                       *values)
+    return cdr.float64_multi_array(
+        [float(v) for v in _in_joint_order(left, right, joints, left_joint, right_joint)])

@@ -1,12 +1,13 @@
-"""The viewer's messages written directly as serialized ROS 2 messages (CDR), without rclpy.
+"""ROS 2 messages written directly as serialized bytes (CDR), without rclpy.
 
 rclpy publishes a message object by converting it field by field into its C structure and
 serializing that, which was most of the viewer's cost (measured:
 docs/decisions/recording-speed.md). The viewer publishes the bytes instead
 (``Publisher.publish`` takes serialized messages), written here with :mod:`struct`, for the
-types the viewer sends: the layout of ``rclpy.serialization.serialize_message`` of the
-message object, with zeros where rclpy leaves its padding bytes as they were (the tests
-compare the lengths and the decoded messages). A Path's poses never change once added, so
+types the viewer and the torque mixer send: the layout of
+``rclpy.serialization.serialize_message`` of the message object, with zeros where rclpy
+leaves its padding bytes as they were (the tests compare the lengths and the decoded
+messages). A Path's poses never change once added, so
 each pose is encoded once and a Path is the concatenation of its poses' bytes.
 
 Encoding: plain CDR (XCDR1, what rmw_fastrtps writes for ROS 2), little endian: a 4-byte
@@ -181,3 +182,13 @@ def tf_message(transforms: Sequence[tuple]) -> bytes:
         w.string(child_frame_id)
         w.pose(translation, rotation)
     return w.message()
+
+
+def float64_multi_array(values: Sequence[float]) -> bytes:
+    """std_msgs/Float64MultiArray with an empty layout (no dimensions, data_offset 0).
+
+    One struct call: the torque mixer sends one per tick (the effort command). The same
+    bytes as :class:`CdrWriter` would write: two uint32 (dim count, data_offset), the
+    data's count, 4 bytes of padding to the doubles' 8-byte alignment, the doubles.
+    """
+    return struct.pack(f'<4sIII4x{len(values)}d', ENCAPSULATION, 0, 0, len(values), *values)
