@@ -14,8 +14,8 @@ import numpy as np
 from wip_control.core.integration import rk4_step
 from wip_control.core.model import nominal_terms
 from wip_control.core.mpc import LongitudinalMpc
-from wip_control.core.mpc_config import MpcConfig
-from wip_description.params import WipParameters
+from wip_control.core.mpc_config import MpcParams
+from wip_description.params import ModelParams
 
 
 class LongitudinalRun(NamedTuple):
@@ -35,7 +35,7 @@ def _constant(value: float) -> Callable[[float], float]:
     return lambda t: value
 
 
-def simulate_longitudinal(params: WipParameters, config: MpcConfig, duration: float = 10.0,
+def simulate_longitudinal(params: ModelParams, config: MpcParams, duration: float = 10.0,
                           theta_initial: float = 0.05, v_d: float | Callable = 0.5,
                           tau_limit: float | Callable = 30.0,
                           disturbance_v: Callable[[float], float] | None = None,

@@ -7,7 +7,7 @@ keys, bytes that are not UTF-8) and bags (valid, truncated, bit-flipped, garbage
 metadata.yaml, odd paths). The properties:
 
 - a scenario file loads into a :class:`Scenario` whose every number is within its declared
-  range, or raises :class:`ConfigError` (a one-line message); nothing else;
+  range, or raises :class:`ParamError` (a one-line message); nothing else;
 - reading a bag gives exactly the messages written, or raises :class:`BagReadError`
   (a damaged bag is never decoded into other values);
 - a partial read gives a subsequence of the messages written (nothing invented);
@@ -29,7 +29,7 @@ from hypothesis import given, HealthCheck, settings, strategies as st
 import pytest
 import yaml
 
-from wip_runtime.config import ConfigError, load_yaml_text
+from wip_runtime.config import ParamError, load_yaml_text
 from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping
 from wip_tools import simulate
 
@@ -140,7 +140,7 @@ def test_a_scenario_file_loads_within_its_ranges_or_is_refused_in_one_line(tmp_p
     path.write_bytes(text)
     try:
         scenario = load_scenario(path)
-    except ConfigError as err:
+    except ParamError as err:
         message = str(err)
         assert message and '\n' not in message.strip() or 'YAML' in message
         assert 'Traceback' not in message
@@ -181,7 +181,7 @@ def test_duplicate_keys_are_refused_at_any_depth(key, depth):
     inner = f'{key}: 1\n{key}: 2\n'
     text = ''.join(f'{"  " * i}s{i}:\n' for i in range(depth - 1)) + ''.join(
         '  ' * (depth - 1) + line + '\n' for line in inner.splitlines())
-    with pytest.raises(ConfigError, match='duplicate key'):
+    with pytest.raises(ParamError, match='duplicate key'):
         load_yaml_text(text, 'test')
 
 

@@ -17,7 +17,7 @@ import time
 import pytest
 import yaml
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_sim.core.scenario import load_scenario
 from wip_runtime import cli
 from wip_tools import simulate
@@ -79,7 +79,7 @@ def test_an_internal_error_is_one_line_exit_3_and_the_trace_is_in_a_file(
 def test_a_bad_scenario_is_refused_before_anything_runs_in_one_line(tmp_path, monkeypatch,
                                                                     capsys, text, message):
     path = _scenario(tmp_path, text)
-    with pytest.raises(ConfigError, match='.*' + message.replace('[', r'\[').replace(
+    with pytest.raises(ParamError, match='.*' + message.replace('[', r'\[').replace(
             '(', r'\(').replace('*', r'\*').replace('+', r'\+')):
         load_scenario(path)
     monkeypatch.setattr(simulate, 'run_scenario', lambda *a, **k: pytest.fail('ran'))
@@ -96,7 +96,7 @@ def test_exponent_notation_and_short_runs(tmp_path):
     assert load_scenario(_scenario(tmp_path, 'duration: 1e2\n')).duration == 100.0
     # Less than half a control period is no control tick at all: refused in one line.
     for text in ('duration: 0.001\n', 'duration: 1e-9\n'):
-        with pytest.raises(ConfigError, match='the run would have no control tick'):
+        with pytest.raises(ParamError, match='the run would have no control tick'):
             load_scenario(_scenario(tmp_path, text))
     # One control period, or a fall on the first tick: metrics, no IndexError.
     for text in ('duration: 0.005\n', 'initial_state: {theta: 0.49, theta_dot: 10}\n'

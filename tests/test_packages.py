@@ -296,10 +296,10 @@ def test_the_robot_description_needs_no_ros_client_library(graph):
 
 def test_the_viewer_shows_the_controllers_default_limits():
     # foxglove_layout writes the controllers' defaults (the viewer imports no controller).
-    from wip_control.core.controller_settings import ControllerSettings
+    from wip_control.core.controller_settings import ControllerParams
     from wip_viewer.foxglove_layout import PlotLimits
 
-    settings, limits = ControllerSettings(), PlotLimits()
+    settings, limits = ControllerParams(), PlotLimits()
     assert (limits.max_tilt, limits.max_speed, limits.max_yaw_rate,
             limits.max_wheel_torque) == (
         settings.mpc.max_tilt, settings.trajectory_generator.max_speed,

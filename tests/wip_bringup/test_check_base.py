@@ -26,7 +26,7 @@ rclpy = pytest.importorskip('rclpy')
 
 from sensor_msgs.msg import Imu, JointState  # noqa: E402
 
-from wip_description.params import WipParameters  # noqa: E402
+from wip_description.params import ModelParams  # noqa: E402
 from wip_bringup.private_domain import take_private_domain  # noqa: E402
 from wip_sim.base_conventions import BaseConventions  # noqa: E402
 
@@ -38,7 +38,7 @@ BASE = {
     'imu_mounting_rpy': [math.pi, 0.0, math.pi / 2],
 }
 REMAPS = ['/joint_states:=/base/joint_states', '/imu/data:=/base/imu']
-PARAMS = WipParameters()
+PARAMS = ModelParams()
 TILT = math.radians(10.0)       # what the person does: 0.1745 rad
 HOLD = 0.45                     # [s] held still before confirming (> the 0.3 s window)
 MOTION = 0.3                    # [s] of a motion

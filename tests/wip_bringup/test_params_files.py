@@ -20,17 +20,17 @@ rclpy = pytest.importorskip('rclpy')
 from rclpy.parameter import Parameter  # noqa: E402
 import yaml  # noqa: E402
 
-from wip_control.core.arc import ArcConfig  # noqa: E402
+from wip_control.core.arc import ArcParams  # noqa: E402
 from wip_runtime.config import from_mapping  # noqa: E402
-from wip_control.core.eso import EsoConfig  # noqa: E402
-from wip_control.core.mixer import MixerConfig  # noqa: E402
-from wip_control.core.mpc_config import MpcConfig  # noqa: E402
-from wip_description.params import WipParameters  # noqa: E402
-from wip_control.core.position import PositionConfig  # noqa: E402
-from wip_control.core.references import ReferenceConfig  # noqa: E402
-from wip_control.core.controller_settings import RatesConfig  # noqa: E402
+from wip_control.core.eso import EsoParams  # noqa: E402
+from wip_control.core.mixer import MixerParams  # noqa: E402
+from wip_control.core.mpc_config import MpcParams  # noqa: E402
+from wip_description.params import ModelParams  # noqa: E402
+from wip_control.core.position import PositionParams  # noqa: E402
+from wip_control.core.references import ReferenceParams  # noqa: E402
+from wip_control.core.controller_settings import RatesParams  # noqa: E402
 from wip_sim.core.scenario import scenario_from_mapping, scenario_to_mapping  # noqa: E402
-from wip_control.core.trajectory_generator import TrajectoryGeneratorConfig  # noqa: E402
+from wip_control.core.trajectory_generator import TrajectoryGeneratorParams  # noqa: E402
 from wip_control.nodes.settings import WheelTorqueLimit  # noqa: E402
 from wip_bringup.params_files import (flatten, graph_parameters,  # noqa: E402
                                             write_params_file)
@@ -58,21 +58,21 @@ SCENARIO = {
 
 #: node -> {parameter section: (config class, scenario value getter)}.
 SECTIONS = {
-    'reference': {'reference': (ReferenceConfig, lambda s: s.reference),
-                  'rates': (RatesConfig, lambda s: s.rates)},
-    'eso': {'eso': (EsoConfig, lambda s: s.eso),
-            'position': (PositionConfig, lambda s: s.position),
-            'model': (WipParameters, lambda s: s.controller_model.parameters)},
-    'trajectory_generator': {'trajectory_generator': (TrajectoryGeneratorConfig,
+    'reference': {'reference': (ReferenceParams, lambda s: s.reference),
+                  'rates': (RatesParams, lambda s: s.rates)},
+    'eso': {'eso': (EsoParams, lambda s: s.eso),
+            'position': (PositionParams, lambda s: s.position),
+            'model': (ModelParams, lambda s: s.controller_model.parameters)},
+    'trajectory_generator': {'trajectory_generator': (TrajectoryGeneratorParams,
                                                       lambda s: s.trajectory_generator)},
-    'arc': {'arc': (ArcConfig, lambda s: s.arc), 'rates': (RatesConfig, lambda s: s.rates)},
-    'mpc': {'mpc': (MpcConfig, lambda s: s.mpc),
-            'model': (WipParameters, lambda s: s.controller_model.parameters),
+    'arc': {'arc': (ArcParams, lambda s: s.arc), 'rates': (RatesParams, lambda s: s.rates)},
+    'mpc': {'mpc': (MpcParams, lambda s: s.mpc),
+            'model': (ModelParams, lambda s: s.controller_model.parameters),
             'mixer': (WheelTorqueLimit, lambda s: WheelTorqueLimit(s.mixer.max_wheel_torque)),
-            'rates': (RatesConfig, lambda s: s.rates)},
-    'torque_mixer': {'mixer': (MixerConfig, lambda s: s.mixer),
-                     'rates': (RatesConfig, lambda s: s.rates),
-                     'model': (WipParameters, lambda s: s.controller_model.parameters)},
+            'rates': (RatesParams, lambda s: s.rates)},
+    'torque_mixer': {'mixer': (MixerParams, lambda s: s.mixer),
+                     'rates': (RatesParams, lambda s: s.rates),
+                     'model': (ModelParams, lambda s: s.controller_model.parameters)},
 }
 
 

@@ -27,7 +27,7 @@ import pytest
 pytest.importorskip('rclpy')
 
 from wip_bringup.standin_run import BASE, line_scenario, run_against_standin  # noqa: E402
-from wip_description.sensors import SensorConfig  # noqa: E402
+from wip_description.sensors import SensorParams  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 
@@ -55,7 +55,7 @@ def fault_event(result):
 @pytest.mark.parametrize('kind', ['line', 'cmd_vel'])
 def test_a_datum_hundreds_of_km_off_is_refused_before_engaging(tmp_path, kind):
     # A path and a teleop alike: the controllers never engage on a position 490 km away.
-    wrong = dict(BASE, **{'datum.latitude': SensorConfig().gps_datum_latitude + 4.4})
+    wrong = dict(BASE, **{'datum.latitude': SensorParams().gps_datum_latitude + 4.4})
 
     def refused(runner):
         return (runner is not None and runner.position_error
@@ -74,7 +74,7 @@ def test_a_datum_2_km_off_is_stopped_by_the_runaway_guard_before_the_base_runs_a
     # Under max_datum_distance, so the fixes are believed: the line's start is then 2 km
     # from the estimate, and the generator drives at its limit toward it. The guard's
     # absurd-error rule cuts the torque 1 s after the engagement.
-    wrong = dict(BASE, **{'datum.latitude': SensorConfig().gps_datum_latitude + 0.018})
+    wrong = dict(BASE, **{'datum.latitude': SensorParams().gps_datum_latitude + 0.018})
     run = run_against_standin(tmp_path / 'datum2km', wrong, 10.0)
     result = run.result
     assert result.exit_code == 1, result.message

@@ -20,7 +20,7 @@ pytest.importorskip('rclpy')
 from wip_bag.bag_reader import bag_summary  # noqa: E402
 from wip_bringup.graph_runner import GraphOptions, run_graph  # noqa: E402
 from wip_bringup.launcher import EXIT_FELL, EXIT_NOT_ENGAGED  # noqa: E402
-from wip_sim.settings import PlantSettings  # noqa: E402
+from wip_sim.settings import PlantNodeParams  # noqa: E402
 from wip_tools.report import record_from_bag  # noqa: E402
 from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
@@ -28,7 +28,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 
 DURATION = 4.0  # [s]
 CONTROL_PERIOD = 0.005  # [s], 200 Hz
-MAX_TORQUE_AGE = PlantSettings().max_torque_age  # [s], 0.05
+MAX_TORQUE_AGE = PlantNodeParams().max_torque_age  # [s], 0.05
 
 
 @pytest.fixture(scope='module')

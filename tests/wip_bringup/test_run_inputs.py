@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from wip_bringup.hardware_params import hardware_parameters
-from wip_bringup.params_check import (check_params_files, check_remap, ParamsError,
+from wip_bringup.params_check import (check_params_files, check_remap, ParamsFileError,
                                       unmatched_remaps)
 from wip_bringup.params_files import CONTROLLER_NODES
 from wip_sim.core.scenario import Scenario
@@ -65,7 +65,7 @@ def test_the_readme_params_file_passes():
     (section({'use_sim_time': 'yes'}), 'use_sim_time: expected true or false'),
 ])
 def test_a_bad_params_file_is_refused_in_one_line(data, message):
-    with pytest.raises(ParamsError) as refused:
+    with pytest.raises(ParamsFileError) as refused:
         check(data)
     assert message in str(refused.value) and '\n' not in str(refused.value)
 
@@ -87,7 +87,7 @@ def test_sections_by_node_name_namespace_and_wildcard_apply():
     ('/imu/data:=', '--remap: expected FROM:=TO'),
 ])
 def test_a_bad_remap_rule_is_refused(rule, message):
-    with pytest.raises(ParamsError, match=re.escape(message)):
+    with pytest.raises(ParamsFileError, match=re.escape(message)):
         check_remap(rule)
 
 

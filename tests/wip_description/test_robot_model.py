@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from urdf_parser_py.urdf import URDF
 
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from wip_description.robot_model import RobotModel, urdf
 
 #: Parameters unlike the defaults and unlike each other, so that a swapped field shows.
-PARAMS = WipParameters(body_mass=31.0, com_height=0.47, body_pitch_inertia_com=3.3,
+PARAMS = ModelParams(body_mass=31.0, com_height=0.47, body_pitch_inertia_com=3.3,
                        chassis_mass=6.5, wheel_mass=1.9, wheel_radius=0.23,
                        wheel_inertia=0.041, track_width=0.58, yaw_inertia=0.71)
 

@@ -8,13 +8,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wip_runtime.config import ConfigError, from_mapping
-from wip_description.params import WipParameters
-from wip_description.sensors import (geodetic_to_local, local_to_geodetic, SensorConfig, WGS84_A,
+from wip_runtime.config import ParamError, from_mapping
+from wip_description.params import ModelParams
+from wip_description.sensors import (geodetic_to_local, local_to_geodetic, SensorParams, WGS84_A,
                                      WGS84_E2, wheel_odometry)
 from wip_sim.core.sensor_models import Sensors
 
-PARAMS = WipParameters()
+PARAMS = ModelParams()
 finite = dict(allow_nan=False, allow_infinity=False)
 
 states = st.tuples(
@@ -29,7 +29,7 @@ def state_of(x=0.0, y=0.0, phi=0.0, x_v=0.0, theta=0.0, omega=0.0, v=0.0, theta_
 
 
 def noisy(**overrides):
-    return dataclasses.replace(SensorConfig(), **overrides)
+    return dataclasses.replace(SensorParams(), **overrides)
 
 
 # ----------------------------------------------------------------------------- encoders
@@ -57,14 +57,14 @@ def test_encoder_signs_follow_the_rolling_kinematics():
     assert (left, right) == pytest.approx((-0.4 * d / (2 * r), 0.4 * d / (2 * r)))
     # Joint encoders: leaning forward over a wheel that stays put turns the wheel
     # backward relative to the body by θ.
-    joint = Sensors(PARAMS, SensorConfig())
+    joint = Sensors(PARAMS, SensorParams())
     assert joint.encoders(state_of(theta=0.1)) == pytest.approx((-0.1, -0.1))
 
 
 @settings(max_examples=300, deadline=None)
 @given(state=states, counts=st.integers(16, 100000))
 def test_quantisation_error_is_at_most_half_a_count(state, counts):
-    exact = Sensors(PARAMS, SensorConfig()).encoders(state)
+    exact = Sensors(PARAMS, SensorParams()).encoders(state)
     quantised = Sensors(PARAMS, noisy(encoder_counts_per_rev=counts)).encoders(state)
     count = 2 * math.pi / counts
     for q, e in zip(quantised, exact):
@@ -76,7 +76,7 @@ def test_quantisation_error_is_at_most_half_a_count(state, counts):
 # ----------------------------------------------------------------------------- IMU, GPS
 
 def test_default_sensors_are_noise_free_and_unquantised():
-    config = SensorConfig()
+    config = SensorParams()
     assert config.encoder_counts_per_rev == 0
     assert (config.imu_pitch_noise_std, config.imu_yaw_noise_std, config.gyro_noise_std,
             config.gps_noise_std) == (0.0, 0.0, 0.0, 0.0)
@@ -189,8 +189,8 @@ def test_gps_fix_is_the_gps_position_about_the_configured_datum():
     ({'gps_rate_hz': 10.0}, 'sensors.gps_rate_hz: unknown key'),
 ])
 def test_bad_sensor_config_names_the_key(mapping, key):
-    with pytest.raises(ConfigError, match='^' + key.replace('.', r'\.')):
-        from_mapping(SensorConfig, mapping, 'sensors')
+    with pytest.raises(ParamError, match='^' + key.replace('.', r'\.')):
+        from_mapping(SensorParams, mapping, 'sensors')
 
 
 def test_bad_inputs_raise_value_error():
@@ -210,7 +210,7 @@ STATE = np.array([1.0, 2.0, 0.3, 4.0, 0.05, 0.2, 0.5, -0.1])
 
 
 def test_gyro_bias_adds_to_the_rates():
-    sensors = Sensors(WipParameters(), SensorConfig(gyro_pitch_bias=0.02,
+    sensors = Sensors(ModelParams(), SensorParams(gyro_pitch_bias=0.02,
                                                     gyro_yaw_bias=-0.01))
     assert sensors.imu_rates(STATE) == pytest.approx((-0.1 + 0.02, 0.2 - 0.01), abs=1e-15)
 
@@ -218,21 +218,21 @@ def test_gyro_bias_adds_to_the_rates():
 def test_gps_dropouts_follow_the_configured_probability_on_their_own_stream():
     # 4000 fixes at p = 0.3: binomial std √(n p (1 − p)) = 29, bound 4 std. The dropout
     # draws do not shift the GPS noise sequence (separate stream).
-    config = SensorConfig(gps_dropout_probability=0.3, gps_noise_std=0.1)
-    sensors = Sensors(WipParameters(), config, seed=5)
-    reference = Sensors(WipParameters(), dataclasses.replace(
+    config = SensorParams(gps_dropout_probability=0.3, gps_noise_std=0.1)
+    sensors = Sensors(ModelParams(), config, seed=5)
+    reference = Sensors(ModelParams(), dataclasses.replace(
         config, gps_dropout_probability=0.0), seed=5)
     available = [sensors.gps_fix_available() for _ in range(4000)]
     assert abs(available.count(False) - 1200) < 4 * 29
     assert sensors.gps(STATE) == reference.gps(STATE)
-    assert all(Sensors(WipParameters()).gps_fix_available() for _ in range(10))
+    assert all(Sensors(ModelParams()).gps_fix_available() for _ in range(10))
 
 
 def test_delays_return_the_states_of_earlier_samples():
     # 200 Hz IMU: sensor_delay 0.01 s = 2 samples, gps_latency 0.1 s = 20 samples; the
     # first state is repeated until the history is long enough.
-    config = SensorConfig(sensor_delay=0.01, gps_latency=0.1)
-    sensors = Sensors(WipParameters(), config)
+    config = SensorParams(sensor_delay=0.01, gps_latency=0.1)
+    sensors = Sensors(ModelParams(), config)
     assert (sensors.sensor_delay_samples, sensors.gps_latency_samples) == (2, 20)
     states = [np.full(8, float(k)) for k in range(30)]
     seen = [sensors.delayed(s) for s in states]
@@ -240,5 +240,5 @@ def test_delays_return_the_states_of_earlier_samples():
         assert sensed[0] == max(0, k - 2)
         assert gps[0] == max(0, k - 20)
     # No delay: the state itself, nothing stored.
-    plain = Sensors(WipParameters())
+    plain = Sensors(ModelParams())
     assert plain.delayed(STATE)[0] is STATE and plain.delayed(STATE)[1] is STATE

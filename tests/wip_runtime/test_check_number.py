@@ -8,9 +8,9 @@ import math
 
 import pytest
 
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from wip_runtime.cli import bounded
-from wip_runtime.config import check_number, ConfigError
+from wip_runtime.config import check_number, ParamError
 
 RANGE = {'minimum': 0.0, 'maximum': 10.0, 'exclusive_minimum': True}
 
@@ -23,7 +23,7 @@ def test_a_number_in_range_passes_every_reader(value):
 
 @pytest.mark.parametrize('value', [0.0, -1.0, 10.5, math.inf, -math.inf, math.nan])
 def test_a_number_out_of_range_is_refused_by_every_reader(value):
-    with pytest.raises(ConfigError):
+    with pytest.raises(ParamError):
         check_number('x', value, RANGE, want_int=False)
     with pytest.raises(argparse.ArgumentTypeError):
         bounded(float, 0.0, 10.0, exclusive_minimum=True)(repr(value))
@@ -43,5 +43,5 @@ def test_the_command_line_keeps_its_words():
                                          ('gravity', math.nan), ('track_width', math.inf),
                                          ('yaw_inertia', True)])
 def test_the_robot_model_refuses_what_is_not_a_positive_finite_number(name, value):
-    with pytest.raises(ConfigError, match=f'^WipParameters.{name}: '):
-        WipParameters(**{name: value})
+    with pytest.raises(ParamError, match=f'^ModelParams.{name}: '):
+        ModelParams(**{name: value})

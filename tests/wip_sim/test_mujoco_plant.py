@@ -17,19 +17,19 @@ import pytest
 
 pytest.importorskip('mujoco')
 
-from wip_runtime.config import ConfigError  # noqa: E402
-from wip_sim.core.ground import ContactConfig  # noqa: E402
+from wip_runtime.config import ParamError  # noqa: E402
+from wip_sim.core.ground import ContactParams  # noqa: E402
 from wip_tools.analysis.metrics import compute_metrics  # noqa: E402
-from wip_description.params import WipParameters  # noqa: E402
+from wip_description.params import ModelParams  # noqa: E402
 from wip_sim.core.plant import (full_input_gains, Plant, scenario_plant,  # noqa: E402
                                 simulate_hold)
 from wip_sim.core.runner import run_scenario  # noqa: E402
 from wip_sim.core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
 from wip_sim.mujoco_plant import MujocoPlant, body_inertias  # noqa: E402
 
-PARAMS = WipParameters()
+PARAMS = ModelParams()
 DT = 1e-3
-LOSSLESS = ContactConfig(rolling_resistance=0.0)
+LOSSLESS = ContactParams(rolling_resistance=0.0)
 NO_DISTURBANCE = np.zeros((1, 3))
 
 
@@ -42,13 +42,13 @@ def test_scenario_builds_the_mujoco_plant_and_keeps_its_contact():
                                                 'contact': {'friction': 0.5}}})
     plant = scenario_plant(scenario)
     assert isinstance(plant, MujocoPlant)
-    assert plant.contact == ContactConfig(friction=0.5)
+    assert plant.contact == ContactParams(friction=0.5)
     assert plant.timestep == scenario.control_period / scenario.rates.substeps
     assert scenario_from_mapping(scenario_to_mapping(scenario)) == scenario
     # The equation plants roll without slip: a contact section there is a mistake.
-    with pytest.raises(ConfigError, match='plant.contact: only used by'):
+    with pytest.raises(ParamError, match='plant.contact: only used by'):
         scenario_from_mapping({'plant': {'model': 'full', 'contact': {'friction': 0.5}}})
-    with pytest.raises(ConfigError, match='plant.contact.friction'):
+    with pytest.raises(ParamError, match='plant.contact.friction'):
         scenario_from_mapping({'plant': {'model': 'mujoco', 'contact': {'friction': -1.0}}})
 
 
@@ -127,7 +127,7 @@ def test_the_wheels_slip_where_the_friction_cone_says(friction):
     assert threshold > friction * normal * PARAMS.wheel_radius
     slips = {}
     for factor in (0.9, 1.1):
-        plant = MujocoPlant(PARAMS, ContactConfig(friction=friction, rolling_resistance=0.0))
+        plant = MujocoPlant(PARAMS, ContactParams(friction=friction, rolling_resistance=0.0))
         state = (0.0,) * 8
         peak = 0.0
         for _ in range(30):        # 30 ms of a torque step on both wheels, from rest
@@ -142,7 +142,7 @@ def test_the_wheels_slip_where_the_friction_cone_says(friction):
 
 
 def test_upright_at_rest_with_zero_torque_stays_at_rest():
-    plant = MujocoPlant(PARAMS, ContactConfig())
+    plant = MujocoPlant(PARAMS, ContactParams())
     start = (1.0, 2.0, 0.3, 0.5, 0.0, 0.0, 0.0, 0.0)
     state = start
     for _ in range(400):          # 2 s in control periods of 5 steps
@@ -169,7 +169,7 @@ def test_a_free_fall_keeps_the_full_models_energy_and_motion():
     assert abs(state[4] - reference[4]) < 3e-3
     assert abs(state[3] - reference[3]) < 3e-3
     # With rolling resistance the fall loses energy, as it should.
-    lossy = MujocoPlant(PARAMS, ContactConfig(rolling_resistance=0.01))
+    lossy = MujocoPlant(PARAMS, ContactParams(rolling_resistance=0.01))
     state = start
     while abs(state[4]) < 0.4:
         state = _hold(lossy, state, 0.0, 0.0, 5)
@@ -240,8 +240,8 @@ def test_robust_default_stays_up_and_on_the_line_over_the_terrain(name):
 def test_the_slope_lifts_the_vehicle_by_its_grade():
     # Rolled 4 m up a 10 % slope, the axle is 0.4 m higher: the terrain is where the
     # scenario puts it (the height is read from the engine, not from the 8-state).
-    from wip_sim.core.ground import TerrainConfig
-    plant = MujocoPlant(PARAMS, LOSSLESS, terrain=TerrainConfig(slope_start=1.0,
+    from wip_sim.core.ground import TerrainParams
+    plant = MujocoPlant(PARAMS, LOSSLESS, terrain=TerrainParams(slope_start=1.0,
                                                                 slope_grade=0.1))
     state = (5.0, 0.0, 0.0, 5.0, 0.0, 0.0, 0.0, 0.0)
     moved = _hold(plant, state, 0.0, 0.0, 50)     # 50 ms on the wheels (it rolls back)
@@ -259,9 +259,9 @@ def test_a_step_is_a_square_edge_of_its_height():
     # Beyond the edge the axle rests step_height higher; before it, on the plane; a wheel
     # rolled slowly into the edge (0.1 m/s, no torque) stops at it: its centre cannot come
     # nearer the edge than sqrt(r² − (r − h)²) horizontally.
-    from wip_sim.core.ground import TerrainConfig
+    from wip_sim.core.ground import TerrainParams
     h, r = 0.04, PARAMS.wheel_radius
-    terrain = TerrainConfig(step_position=1.0, step_height=h)
+    terrain = TerrainParams(step_position=1.0, step_height=h)
     heights = {}
     for x in (0.5, 1.5):
         plant = MujocoPlant(PARAMS, LOSSLESS, terrain=terrain)
@@ -281,8 +281,8 @@ def test_a_step_is_a_square_edge_of_its_height():
 def test_a_low_friction_patch_slips_where_the_ground_around_it_does_not():
     # μ = 0.3 on the patch (x in [−1, 1]), 0.8 around: a torque step between the two
     # thresholds (12.2 and 32.4 N m per wheel) slips on the patch only.
-    from wip_sim.core.ground import TerrainConfig
-    terrain = TerrainConfig(patch_start=-1.0, patch_end=1.0, patch_friction=0.3)
+    from wip_sim.core.ground import TerrainParams
+    terrain = TerrainParams(patch_start=-1.0, patch_end=1.0, patch_friction=0.3)
     tau = 1.2 * _slip_threshold(PARAMS, 0.3)
     assert tau < 0.9 * _slip_threshold(PARAMS, 0.8)
     peaks = {}
@@ -303,9 +303,9 @@ def test_each_encoder_reads_its_own_wheel_so_one_wheel_slip_shows():
     # wheel (between the two slip thresholds, 12.2 and 32.4 N m) spins the left wheel
     # alone. Kinematics: the heading the wheels imply, ϕ_w = ϕ0 + r (φr − φl)/d, runs
     # from the true one by ∫ (s_r − s_l) dt / d (s_i: a wheel's slip speed).
-    from wip_sim.core.ground import TerrainConfig
+    from wip_sim.core.ground import TerrainParams
     from wip_sim.core.sensor_models import Sensors
-    terrain = TerrainConfig(patch_start=-1.0, patch_end=1.0, patch_friction=0.3,
+    terrain = TerrainParams(patch_start=-1.0, patch_end=1.0, patch_friction=0.3,
                             patch_y_min=0.0)
     assert 1.1 * _slip_threshold(PARAMS, 0.3) < 15.0 < 0.9 * _slip_threshold(PARAMS, 0.8)
     plant = MujocoPlant(PARAMS, LOSSLESS, terrain=terrain)
@@ -342,7 +342,7 @@ def test_one_wheel_slip_shows_in_odometry_and_is_no_wiring_fault():
     # odometry's heading, r (φr − φl) / d, departs from the true one, and the wiring
     # check fed the run's sensors (wheel rates from the encoders, as a base's joint
     # velocities) finds nothing wrong.
-    from wip_control.core.wiring_check import WiringCheck, WiringCheckConfig
+    from wip_control.core.wiring_check import WiringCheck, WiringCheckParams
     from wip_tools.campaign_file import load_campaign
     campaign = load_campaign(pathlib.Path(__file__).parents[1] / 'wip_tools/robustness/'
                              'scenarios/mujoco_one_wheel_patch.yaml')
@@ -357,7 +357,7 @@ def test_one_wheel_slip_shows_in_odometry_and_is_no_wiring_fault():
     true = np.interp(t, truth['t'], truth['phi']) - truth['phi'][0]
     assert np.max(np.abs(odometry - true)) > 0.02
     assert np.max(np.abs(odometry - true)[t < 5.0]) < 1e-3     # before the patch
-    check = WiringCheck(WiringCheckConfig(), PARAMS, t[1] - t[0])
+    check = WiringCheck(WiringCheckParams(), PARAMS, t[1] - t[0])
     left_rate, right_rate = np.gradient(enc['left'], t), np.gradient(enc['right'], t)
     for i in range(len(t)):
         check.wheels(t[i], left_rate[i], right_rate[i])

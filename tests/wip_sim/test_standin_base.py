@@ -35,8 +35,8 @@ import pytest
 
 pytest.importorskip('rclpy')
 
-from wip_control.core.references import make_reference, ReferenceConfig  # noqa: E402
-from wip_control.core.safety_config import SafetyConfig  # noqa: E402
+from wip_control.core.references import make_reference, ReferenceParams  # noqa: E402
+from wip_control.core.safety_config import SafetyParams  # noqa: E402
 from wip_bringup.standin_run import (BASE, CONTROL_RATE, engaged, freeze_process,  # noqa: E402
                                  run_against_standin)
 
@@ -77,7 +77,7 @@ def test_hardware_mode_keeps_the_standin_base_up_and_on_the_line(consistent_run)
     # graph, with one or two control periods of latency, 0.74-2.34 m (0.31-0.48 m across
     # the line) over 7 runs. With the paper's model the graph tracks like the runner
     # (0.21 vs 0.24 m). Bounds: 3 m along, 0.6 m across the line after 10 s.
-    reference = make_reference(ReferenceConfig(kind='line', line_speed=0.5))
+    reference = make_reference(ReferenceParams(kind='line', line_speed=0.5))
     later = truth['t'] > 10.0
     ref = [reference.sample(t) for t in truth['t'][later]]
     error = np.hypot(truth['x'][later] - [r.x for r in ref],
@@ -96,7 +96,7 @@ def test_hardware_mode_sustains_the_rate_the_control_needs_in_real_time(consiste
     #   than its age limit plus the ride-through (max_estimate_age 0.05 s + bridge_time
     #   0.3 s) is a fault, so a larger gap at the base would be one the controllers
     #   should have reported.
-    bound_ms = 1e3 * (SafetyConfig().max_estimate_age + SafetyConfig().bridge_time)
+    bound_ms = 1e3 * (SafetyParams().max_estimate_age + SafetyParams().bridge_time)
     assert stats['command_age']['max_ms'] <= bound_ms, stats['command_age']
     assert stats['rejected_commands'] == 0
     # - Half the control rate at least, over the run: the ESO's discretisation requires

@@ -9,7 +9,7 @@ import yaml
 
 pytest.importorskip('rclpy')
 
-from wip_runtime.config import ConfigError  # noqa: E402
+from wip_runtime.config import ParamError  # noqa: E402
 from wip_sim.core.scenario import Scenario  # noqa: E402
 from wip_tools.bag_scenario import merged, scenario_for_bag  # noqa: E402
 
@@ -67,14 +67,14 @@ def test_the_metadata_scenario_comes_before_the_file_and_nothing_outside_counts(
 
 def test_bad_scenarios_are_one_clear_error(tmp_path):
     bag = bag_with(tmp_path, {'mpc': {'input_weight': -1.0}})
-    with pytest.raises(ConfigError, match=r'mpc\.input_weight'):
+    with pytest.raises(ParamError, match=r'mpc\.input_weight'):
         scenario_for_bag(bag)
     bag2 = tmp_path / 'b2'
     bag2.mkdir()
     (bag2 / 'scenario.yaml').write_text('- a list\n')
-    with pytest.raises(ConfigError, match='a scenario is a mapping'):
+    with pytest.raises(ParamError, match='a scenario is a mapping'):
         scenario_for_bag(bag2)
-    with pytest.raises(ConfigError, match='No such file'):
+    with pytest.raises(ParamError, match='No such file'):
         scenario_for_bag(tmp_path / 'lone_bag', tmp_path / 'missing.yaml')
 
 
@@ -95,9 +95,9 @@ def test_an_empty_scenario_file_in_the_bag_is_refused_not_taken_for_the_defaults
     """
     bag = bag_with(tmp_path)
     (bag / 'scenario.yaml').write_text(content)
-    with pytest.raises(ConfigError, match='empty scenario file'):
+    with pytest.raises(ParamError, match='empty scenario file'):
         scenario_for_bag(bag)
-    with pytest.raises(ConfigError, match='empty scenario file'):
+    with pytest.raises(ParamError, match='empty scenario file'):
         scenario_for_bag(bag, bag / 'scenario.yaml')
 
 

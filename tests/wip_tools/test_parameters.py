@@ -152,13 +152,13 @@ def test_a_value_out_of_its_declared_range_is_refused_naming_the_parameter(
     # The range checks come from the declarations, also where rclpy's descriptor range
     # would have refused the value first (integers: sensor_bunch).
     from rclpy.parameter import Parameter
-    from wip_runtime.config import ConfigError
+    from wip_runtime.config import ParamError
     context = rclpy.Context()
     rclpy.init(context=context)
     cls = _node_classes()[executable]
     values = {'output': str(tmp_path / 'bag')} if executable == 'recorder' else {}
     try:
-        with pytest.raises(ConfigError) as caught:
+        with pytest.raises(ParamError) as caught:
             cls(context=context, parameter_overrides=[
                 Parameter(k, value=v) for k, v in {**values, **overrides}.items()])
         assert str(caught.value).startswith(message), str(caught.value)

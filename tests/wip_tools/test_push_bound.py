@@ -14,11 +14,11 @@ import math
 import numpy as np
 import pytest
 
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from wip_tools.analysis.push_bound import (absorption_rate, measured_excursion,
                                            push_excursion_bound)
 
-PARAMS = WipParameters()
+PARAMS = ModelParams()
 FAST = dict(horizon=6.0)
 UNLIMITED = dict(max_torque=1e5, max_delta_torque=1e5)
 

@@ -62,7 +62,7 @@ def yaw_pitch(q) -> tuple[float, float]:
 
 
 def test_the_bag_holds_the_viewer_topics_with_standard_types(demo, messages):
-    from wip_viewer.viewer_core import VIEWER_TOPICS, ViewerConfig
+    from wip_viewer.viewer_core import VIEWER_TOPICS, ViewerParams
     by_topic, types = messages
     for topic, type_name in VIEWER_TOPICS.items():
         assert types.get(topic) == type_name, f'{topic}: {types.get(topic)}'
@@ -70,10 +70,10 @@ def test_the_bag_holds_the_viewer_topics_with_standard_types(demo, messages):
     # lockstep run) the viewer is composed into the simulation process: it gets every
     # input from the intra-process bus, none lost to its best-effort queue, so every pose
     # of the rate is there.
-    expected = ViewerConfig().pose_rate * DURATION
+    expected = ViewerParams().pose_rate * DURATION
     for topic in ('/wip/odom/truth', '/wip/odom/estimate', '/wip/markers/vehicle'):
         assert expected <= len(by_topic[topic]) <= expected + 2, topic
-    assert 1 <= len(by_topic['/wip/path/reference']) <= ViewerConfig().path_rate * DURATION + 2
+    assert 1 <= len(by_topic['/wip/path/reference']) <= ViewerParams().path_rate * DURATION + 2
     # One prediction per MPC solve (10 Hz; the ticks of the stage's finer grid that held
     # the torque carry no plan), each drawn.
     solves = [m for m in by_topic['/wip/drive_torque'] if len(m.predicted_v)]

@@ -7,7 +7,7 @@ import pytest
 
 from wip_viewer.viewer_core import (PathBuffer, planar_pose_covariance, predicted_track,
                                  quaternion_yaw_pitch, RateGate, vehicle_geometry,
-                                 ViewerConfig)
+                                 ViewerParams)
 
 
 def rotate(q, v):
@@ -34,7 +34,7 @@ def test_body_axis_leans_forward_along_the_heading_by_theta(phi, theta):
 
 
 def test_vehicle_wheels_sit_on_the_axle_across_the_heading_and_touch_the_ground():
-    config = ViewerConfig(wheel_radius=0.2, track_width=0.5, com_height=0.6)
+    config = ViewerParams(wheel_radius=0.2, track_width=0.5, com_height=0.6)
     phi, theta = 0.9, 0.12
     g = vehicle_geometry(1.0, 2.0, phi, theta, config)
     left, right = np.array(g.left_wheel), np.array(g.right_wheel)

@@ -6,11 +6,11 @@ mixer's 200 Hz timer.
 
 from wip_control.core.eso import StateEstimate
 from wip_control.core.safety import ACTIVE, DriveStatus, SafetyMonitor, SHADOW
-from wip_control.core.safety_config import SafetyConfig
+from wip_control.core.safety_config import SafetyParams
 
 H = 0.005                   # tick period [s]
-TAU_MAX = 15.0              # [N m], the default MixerConfig
-RATE = 1.0e4                # [N m/s], the default MixerConfig: 50 N m per tick, no limit
+TAU_MAX = 15.0              # [N m], the default MixerParams
+RATE = 1.0e4                # [N m/s], the default MixerParams: 50 N m per tick, no limit
 ESTIMATE = StateEstimate(phi=0.1, omega=0.2, f1=0.3, x_v=1.0, v=0.5, f2=-0.4, theta=0.02,
                          theta_dot=-0.1, f3=0.5, epsilon=0.01)
 
@@ -36,7 +36,7 @@ class Clock:
         return self.monitor.update(self.t)
 
 
-def active(config=SafetyConfig(), rate=RATE, **kwargs):
+def active(config=SafetyParams(), rate=RATE, **kwargs):
     """Return a monitor driven to ACTIVE, with its clock."""
     monitor = SafetyMonitor(config, TAU_MAX, rate, H, **kwargs)
     clock = Clock(monitor)

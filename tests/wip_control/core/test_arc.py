@@ -7,16 +7,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wip_control.core.arc import AdaptiveRobustYawController, ArcConfig
-from wip_runtime.config import ConfigError, from_mapping
+from wip_control.core.arc import AdaptiveRobustYawController, ArcParams
+from wip_runtime.config import ParamError, from_mapping
 from wip_control.core.model import input_gains
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from wip_control.core.controller_settings import PAPER_DESIGN
 
-G1 = input_gains(WipParameters(), 0.05)[0]  # ≈ 2.55 rad/s² per N·m
+G1 = input_gains(ModelParams(), 0.05)[0]  # ≈ 2.55 rad/s² per N·m
 # The paper's law (13): the tests of this module check it; the robust modifications
 # (the default) are tested in test_robust_adaptation.py.
-CONFIG = from_mapping(ArcConfig, PAPER_DESIGN['arc'], 'arc')
+CONFIG = from_mapping(ArcParams, PAPER_DESIGN['arc'], 'arc')
 H = 0.005
 
 
@@ -118,11 +118,11 @@ def test_bad_inputs_raise_and_leave_alpha_unchanged(args):
 
 
 def test_projection_bounds_are_validated():
-    with pytest.raises(ConfigError, match=r'^arc\.alpha_max: must exceed alpha_min'):
-        from_mapping(ArcConfig, {'alpha_min': 2.0, 'alpha_max': 1.0}, 'arc')
-    with pytest.raises(ConfigError, match=r'^arc\.alpha_min: must be > 0'):
-        from_mapping(ArcConfig, {'alpha_min': 0.0}, 'arc')
+    with pytest.raises(ParamError, match=r'^arc\.alpha_max: must exceed alpha_min'):
+        from_mapping(ArcParams, {'alpha_min': 2.0, 'alpha_max': 1.0}, 'arc')
+    with pytest.raises(ParamError, match=r'^arc\.alpha_min: must be > 0'):
+        from_mapping(ArcParams, {'alpha_min': 0.0}, 'arc')
     # The default interval contains α = 1/g1 for every tilt of the default robot.
-    params = WipParameters()
+    params = ModelParams()
     for theta in (0.0, 0.5, 1.0, math.pi / 2):
         assert CONFIG.alpha_min < 1 / input_gains(params, theta)[0] < CONFIG.alpha_max

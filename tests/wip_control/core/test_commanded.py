@@ -7,7 +7,7 @@ from hypothesis import given, settings, strategies as st
 
 from wip_control.core.commanded import (CmdVelReference, MAX_PATH_COORDINATE,
                                         PATH_END_TOLERANCE, PathReference, UnicycleLimits)
-from wip_control.core.references import make_reference, ReferenceConfig
+from wip_control.core.references import make_reference, ReferenceParams
 
 LIMITS = UnicycleLimits(max_speed=0.5, max_acceleration=0.3, max_yaw_rate=0.25,
                         max_yaw_acceleration=0.5)
@@ -89,11 +89,11 @@ def test_cmd_vel_refuses_bad_and_badly_stamped_commands():
 
 
 def test_make_reference_builds_the_commanded_kinds_at_the_start_pose():
-    config = ReferenceConfig(kind='cmd_vel', line_start=(1.0, -1.0), line_heading=0.3)
+    config = ReferenceParams(kind='cmd_vel', line_start=(1.0, -1.0), line_heading=0.3)
     ref = make_reference(config)
     assert isinstance(ref, CmdVelReference)
     assert tuple(ref.sample(5.0))[:4] == (1.0, -1.0, 0.3, 0.0)
-    assert isinstance(make_reference(ReferenceConfig(kind='path')), PathReference)
+    assert isinstance(make_reference(ReferenceParams(kind='path')), PathReference)
 
 
 def drive_path(ref, t0, t1):

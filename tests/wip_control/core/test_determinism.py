@@ -15,7 +15,7 @@ import numpy as np
 import proxsuite
 import pytest
 
-from wip_control.core.qp import DaqpSolver, QpSettings, polish
+from wip_control.core.qp import DaqpSolver, QpSolverParams, polish
 
 _PROXQP = proxsuite.proxqp
 N_VARIABLES, N_ROWS = 47, 91  # the default MPC's QP: z = (plan, slacks), rows of C
@@ -47,8 +47,8 @@ _SCENARIO = _PRELUDE + textwrap.dedent("""
 _FIXED_QP = _PRELUDE + textwrap.dedent("""
     sys.path.insert(0, sys.argv[3])
     from test_determinism import random_qp
-    from wip_control.core.qp import ProxsuiteSolver, QpSettings
-    solver = ProxsuiteSolver(47, 91, QpSettings(eps_abs=1e-7))
+    from wip_control.core.qp import ProxsuiteSolver, QpSolverParams
+    solver = ProxsuiteSolver(47, 91, QpSolverParams(eps_abs=1e-7))
     zs = [solver.solve(*random_qp(seed)).z for seed in range(20)]
     np.savez(out, z=np.array(zs))
 """)
@@ -144,13 +144,13 @@ def test_polished_point_satisfies_kkt_and_matches_the_raw_answer(seed):
     # ProxSuite's raw answer is within its tolerance of the same optimum; DAQP (exact
     # active set) agrees with the polished point to round-off.
     assert np.abs(z - x_raw).max() <= 1e3 * eps
-    exact = DaqpSolver(N_VARIABLES, N_ROWS, QpSettings()).solve(*qp_data)
+    exact = DaqpSolver(N_VARIABLES, N_ROWS, QpSolverParams()).solve(*qp_data)
     assert np.abs(z - exact.z).max() <= 1e-9 * (1.0 + np.abs(exact.z).max())
 
 
 def test_polish_is_reported_in_the_solver_stats():
     from wip_control.core.qp import ProxsuiteSolver
-    solver = ProxsuiteSolver(N_VARIABLES, N_ROWS, QpSettings(eps_abs=1e-7))
+    solver = ProxsuiteSolver(N_VARIABLES, N_ROWS, QpSolverParams(eps_abs=1e-7))
     for seed in range(5):
         solver.solve(*random_qp(seed))
     stats = solver.stats

@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 from wip_control.core.integration import rk4_step
 
-from wip_runtime.config import ConfigError, from_mapping
-from wip_control.core.eso import (check_hurwitz, discretise, EsoConfig,
+from wip_runtime.config import ParamError, from_mapping
+from wip_control.core.eso import (check_hurwitz, discretise, EsoParams,
                                   ExtendedStateObserver, observer_matrices, StateEstimate)
 from wip_control.core.state_observer import WipStateObserver
 from wip_control.core.model import input_gains, nominal_terms
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
 # The paper's ESOs, eqs. (4), (8) (the gyro estimator is tested in test_gyro_estimator.py).
-PAPER_ESO = EsoConfig(estimator='paper')
+PAPER_ESO = EsoParams(estimator='paper')
 
 PAPER_GAINS = (6.0, 11.0, 6.0)
 H = 0.005  # measurement period [s]
@@ -82,18 +82,18 @@ def test_paper_gains_are_hurwitz_with_poles_at_minus_one_two_three_over_epsilon(
     ((2.0, 3.0, 6.0), 'alpha1*alpha2 = 6 must exceed alpha3 = 6'),  # marginal: poles on jω
 ])
 def test_non_hurwitz_gains_are_rejected_with_the_reason(gains, reason):
-    with pytest.raises(ConfigError, match='not Hurwitz') as info:
+    with pytest.raises(ParamError, match='not Hurwitz') as info:
         ExtendedStateObserver(gains, name='yaw_gains')
     assert reason in str(info.value)
     assert str(info.value).startswith('yaw_gains:')
     # The same check runs when a scenario file is loaded, and names the key.
-    with pytest.raises(ConfigError) as info:
-        from_mapping(EsoConfig, {'tilt_gains': list(gains)}, 'eso')
+    with pytest.raises(ParamError) as info:
+        from_mapping(EsoParams, {'tilt_gains': list(gains)}, 'eso')
     assert str(info.value).startswith('eso.tilt_gains:') and reason in str(info.value)
 
 
 def test_wrong_number_of_gains_is_rejected():
-    with pytest.raises(ConfigError, match='expected 3 gains'):
+    with pytest.raises(ParamError, match='expected 3 gains'):
         check_hurwitz((6.0, 11.0))
 
 
@@ -292,7 +292,7 @@ def test_paper_ramp_reduces_peaking_from_an_initial_error():
 
 # --- The three channels on the model of eq. (1) --------------------------------------
 
-def simulate_wip(config, duration, params=WipParameters()):
+def simulate_wip(config, duration, params=ModelParams()):
     """Paper plant (1) by RK4 at 1 ms, torques held 5 ms, known disturbances.
 
     Returns (truth, estimates, applied torques) at the samples after 0.5 s.
@@ -330,7 +330,7 @@ def simulate_wip(config, duration, params=WipParameters()):
 
 def test_wip_observer_estimates_velocities_and_lumped_disturbances_of_the_model():
     epsilon = 0.01
-    rows = simulate_wip(EsoConfig(estimator='paper', epsilon=epsilon,
+    rows = simulate_wip(EsoParams(estimator='paper', epsilon=epsilon,
                                   yaw_input_gain_scale=1.0), 3.0)
     truth = np.array([r[0][:6] for r in rows])
     est = np.array([(r[1].omega, r[1].v, r[1].theta_dot, r[1].f1, r[1].f2, r[1].f3)
@@ -365,7 +365,7 @@ def test_yaw_channel_with_scaled_input_gain_absorbs_the_error_into_f1():
 
 
 def test_initial_estimate_is_the_initial_positions_and_a_first_update_at_t0_is_a_no_op():
-    observer = WipStateObserver(WipParameters(), PAPER_ESO, (0.5, 0.1, 0.05))
+    observer = WipStateObserver(ModelParams(), PAPER_ESO, (0.5, 0.1, 0.05))
     expected = StateEstimate(0.5, 0.0, 0.0, 0.1, 0.0, 0.0, 0.05, 0.0, 0.0, 0.01)
     assert observer.estimate == expected
     assert observer.update(0.0, 0.5, 0.1, 0.05, 3.0, 0.2) == expected
@@ -379,7 +379,7 @@ def test_initial_estimate_is_the_initial_positions_and_a_first_update_at_t0_is_a
     dict(phi_meas=math.nan), dict(xv_meas=math.inf), dict(theta_meas=-math.inf),
     dict(tau_v_applied=math.nan), dict(tau_omega_applied=math.inf), dict(t=math.nan)])
 def test_non_finite_inputs_raise_and_leave_the_state_unchanged(bad):
-    observer = WipStateObserver(WipParameters(), PAPER_ESO, (0.0, 0.0, 0.0))
+    observer = WipStateObserver(ModelParams(), PAPER_ESO, (0.0, 0.0, 0.0))
     observer.update(H, 0.01, 0.01, 0.01, 1.0, 0.1)
     before = observer.estimate
     args = dict(t=2 * H, phi_meas=0.02, xv_meas=0.02, theta_meas=0.0, tau_v_applied=1.0,
@@ -401,7 +401,7 @@ def test_single_channel_rejects_non_finite_input():
 
 
 def test_time_going_backwards_raises():
-    observer = WipStateObserver(WipParameters(), PAPER_ESO, (0.0, 0.0, 0.0))
+    observer = WipStateObserver(ModelParams(), PAPER_ESO, (0.0, 0.0, 0.0))
     observer.update(2 * H, 0.0, 0.0, 0.0, 0.0, 0.0)
     with pytest.raises(ValueError, match='backwards'):
         observer.update(H, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -409,8 +409,8 @@ def test_time_going_backwards_raises():
 
 def test_wrapped_yaw_measurements_give_the_same_estimate_as_continuous_ones():
     # A vehicle spinning at 2 rad/s through ±π: the IMU reports yaw in (−π, π].
-    a = WipStateObserver(WipParameters(), PAPER_ESO, (3.0, 0.0, 0.0))
-    b = WipStateObserver(WipParameters(), PAPER_ESO, (3.0, 0.0, 0.0))
+    a = WipStateObserver(ModelParams(), PAPER_ESO, (3.0, 0.0, 0.0))
+    b = WipStateObserver(ModelParams(), PAPER_ESO, (3.0, 0.0, 0.0))
     for k in range(1, 200):
         phi = 3.0 + 2.0 * k * H
         ea = a.update(k * H, phi, 0.0, 0.0, 0.0, 0.0)
@@ -424,7 +424,7 @@ def test_wrapped_yaw_measurements_give_the_same_estimate_as_continuous_ones():
 def test_input_gains_use_the_tilt_estimate():
     # Constant τυ on a "frozen" tilt measurement: f̂3 must cancel g3(θ̂)τυ exactly, which
     # only happens if the tilt channel used g3 at θ̂ = 0.3.
-    params = WipParameters()
+    params = ModelParams()
     observer = WipStateObserver(params, PAPER_ESO, (0.0, 0.0, 0.3))
     for k in range(1, 400):
         est = observer.update(k * H, 0.0, 0.0, 0.3, 5.0, 0.0)

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from wip_control.core.integration import rk4_step
 
-from wip_runtime.config import ConfigError, from_mapping
-from wip_control.core.eso import EsoConfig
+from wip_runtime.config import ParamError, from_mapping
+from wip_control.core.eso import EsoParams
 from wip_control.core.rate_aided import (complementary_bandwidth, discrete_pole_gains,
                                          rate_eso_noise_variance, RateAidedChannel)
 from wip_control.core.state_observer import WipStateObserver
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
 H = 0.005
 
@@ -92,23 +92,23 @@ def test_channel_rejects_bad_input_with_one_line_errors():
         channel.update(H, math.nan, 0.0, 0.0)
     with pytest.raises(ValueError, match='backwards'):
         channel.update(-1.0, 0.0, 0.0, 0.0)
-    with pytest.raises(ConfigError, match='rate_bandwidth'):
+    with pytest.raises(ParamError, match='rate_bandwidth'):
         RateAidedChannel(5.0, 0.2, 0.0, H)
     with pytest.raises(ValueError, match='noise levels'):
         complementary_bandwidth(0.0, 0.01)
 
 
 def test_config_checks_bandwidths_against_the_sample_period_and_each_other():
-    with pytest.raises(ConfigError, match=r'^eso\.sample_period: the fastest'):
-        from_mapping(EsoConfig, {'longitudinal_bandwidth': 250.0}, 'eso')
-    with pytest.raises(ConfigError, match=r'^eso\.gyro_bias_bandwidth: must be below'):
-        from_mapping(EsoConfig, {'gyro_bias_bandwidth': 6.0}, 'eso')
+    with pytest.raises(ParamError, match=r'^eso\.sample_period: the fastest'):
+        from_mapping(EsoParams, {'longitudinal_bandwidth': 250.0}, 'eso')
+    with pytest.raises(ParamError, match=r'^eso\.gyro_bias_bandwidth: must be below'):
+        from_mapping(EsoParams, {'gyro_bias_bandwidth': 6.0}, 'eso')
     # The paper's estimator ignores the gyro bandwidths.
-    from_mapping(EsoConfig, {'estimator': 'paper', 'gyro_bias_bandwidth': 6.0}, 'eso')
+    from_mapping(EsoParams, {'estimator': 'paper', 'gyro_bias_bandwidth': 6.0}, 'eso')
 
 
 def test_wip_observer_needs_the_rates_with_the_gyro_estimator():
-    observer = WipStateObserver(WipParameters(), EsoConfig(), (0.0, 0.0, 0.0))
+    observer = WipStateObserver(ModelParams(), EsoParams(), (0.0, 0.0, 0.0))
     assert observer.needs_rates and not observer.in_ramp(0.0)
     with pytest.raises(ValueError, match="'gyro' estimator needs the IMU rates"):
         observer.update(H, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -116,7 +116,7 @@ def test_wip_observer_needs_the_rates_with_the_gyro_estimator():
         observer.update(H, 0.0, 0.0, 0.0, 0.0, 0.0, (math.inf, 0.0))
 
 
-def _simulate(config, duration, params=WipParameters(), pitch_noise=0.0, seed=0):
+def _simulate(config, duration, params=ModelParams(), pitch_noise=0.0, seed=0):
     """Paper plant (1), RK4 at 1 ms, torques held 5 ms; returns truth and estimates."""
     from wip_control.core.model import nominal_terms
     rng = np.random.default_rng(seed)
@@ -154,7 +154,7 @@ def _simulate(config, duration, params=WipParameters(), pitch_noise=0.0, seed=0)
 
 
 def test_wip_observer_with_gyro_tracks_states_and_disturbances_of_the_model():
-    config = EsoConfig(yaw_input_gain_scale=1.0)
+    config = EsoParams(yaw_input_gain_scale=1.0)
     rows = _simulate(config, 3.0)
     truth = np.array([r[0] for r in rows])
     est = np.array([(r[1].omega, r[1].v, r[1].theta_dot, r[1].f1, r[1].f2, r[1].f3,
@@ -182,8 +182,8 @@ def test_pitch_noise_is_filtered_before_it_reaches_the_mpc():
     # the angle noise through the bias estimate) against 0.26 rad/s (paper); bounds 0.01 and
     # 0.2. θ̂ error 0.00027 against 0.0017 rad (paper); bound
     # σ/3.
-    gyro = _simulate(EsoConfig(), 3.0, pitch_noise=0.002, seed=1)
-    paper = _simulate(EsoConfig(estimator='paper'), 3.0, pitch_noise=0.002, seed=1)
+    gyro = _simulate(EsoParams(), 3.0, pitch_noise=0.002, seed=1)
+    paper = _simulate(EsoParams(estimator='paper'), 3.0, pitch_noise=0.002, seed=1)
 
     def errors(rows):
         truth = np.array([(r[0][2], r[0][6]) for r in rows])
@@ -203,11 +203,11 @@ def test_a_vehicle_engaged_at_speed_reads_its_speed_from_the_second_sample(estim
     disturbance) the speed estimate is exactly the ramp's slope from the second sample on,
     and f2 stays 0; 'zero' (Section V) reads rest first and then a disturbance transient.
     """
-    params = WipParameters()
+    params = ModelParams()
     h, speed = 0.005, 1.5
 
     def run(speed_start):
-        config = from_mapping(EsoConfig, {'estimator': estimator, 'speed_start': speed_start,
+        config = from_mapping(EsoParams, {'estimator': estimator, 'speed_start': speed_start,
                                           'epsilon_schedule': 'constant'}, 'eso')
         observer = WipStateObserver(params, config, initial_positions=(0.0, 0.0, 0.0))
         out = []

@@ -11,7 +11,7 @@ import pytest
 from wip_control.core.reference_state import ReferenceState
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import scenario_from_mapping
-from wip_control.core.trajectory_generator import (TrajectoryGeneratorConfig, heading_gains,
+from wip_control.core.trajectory_generator import (TrajectoryGeneratorParams, heading_gains,
                                                    unsaturated_commands)
 
 
@@ -41,7 +41,7 @@ def jacobian(config, v_r, step=1e-6):
 @pytest.mark.parametrize('v_r', [0.2, 0.42, 0.63, 1.2])
 @pytest.mark.parametrize('w_n, zeta', [(1.2, 0.5), (0.8, 0.7), (2.0, 0.3)])
 def test_poles_of_the_linearised_loop_are_the_designed_ones(v_r, w_n, zeta):
-    config = TrajectoryGeneratorConfig(heading_bandwidth=w_n, heading_damping=zeta)
+    config = TrajectoryGeneratorParams(heading_bandwidth=w_n, heading_damping=zeta)
     poles = np.linalg.eigvals(jacobian(config, v_r))
     # The along-track error decays at λ3 (x_e decouples at the origin); the lateral and
     # heading pair are ω_n (−ζ ± j√(1 − ζ²)) whatever the speed.
@@ -56,7 +56,7 @@ def test_poles_of_the_linearised_loop_are_the_designed_ones(v_r, w_n, zeta):
 def test_the_papers_gains_give_a_damping_of_about_0_1_on_the_trifolium():
     # s² + λ2 s + λ1 υ_r²: ζ = λ2/(2 υ_r √λ1) = 0.1/(2 · 0.42) at the trifolium's mean
     # speed, 0.08-0.24 over its speed range 0.21-0.63 m/s.
-    config = TrajectoryGeneratorConfig(heading_design='paper')
+    config = TrajectoryGeneratorParams(heading_design='paper')
     for v_r, zeta in ((0.21, 0.238), (0.42, 0.119), (0.63, 0.079)):
         poly = np.poly(np.linalg.eigvals(jacobian(config, v_r)))
         # Divide out the along-track pole λ3 = 1: (s + 1)(s² + a s + b).
@@ -67,7 +67,7 @@ def test_the_papers_gains_give_a_damping_of_about_0_1_on_the_trifolium():
 
 
 def test_lambda1_stops_growing_below_the_minimum_design_speed():
-    config = TrajectoryGeneratorConfig()
+    config = TrajectoryGeneratorParams()
     slow = heading_gains(config, 0.01)
     assert slow == heading_gains(config, config.min_design_speed)
     assert slow[0] == pytest.approx(config.heading_bandwidth ** 2

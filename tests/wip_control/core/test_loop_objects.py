@@ -10,24 +10,24 @@ import math
 
 import pytest
 
-from wip_control.core.control_step import (ControlOverflow, ControlStep, DriveStage,
-                                           GuidanceStage, YawStage)
-from wip_control.core.eso import EsoConfig
-from wip_control.core.mpc_config import MpcConfig
-from wip_description.params import WipParameters
-from wip_control.core.position import PositionConfig
+from wip_control.core.control_step import (ControlOverflow, ControlStep, DriveControllerStage,
+                                           TrajectoryGeneratorStage, YawControllerStage)
+from wip_control.core.eso import EsoParams
+from wip_control.core.mpc_config import MpcParams
+from wip_description.params import ModelParams
+from wip_control.core.position import PositionParams
 from wip_control.core.reference_state import ReferenceState
 from wip_sim.core.scenario import Scenario
 from wip_description.sensors import wheel_odometry
 from wip_control.core.state_estimation import EstimatorOverflow, StateEstimator
 from wip_control.core.trajectory_generator import VelocityCommand
 
-MODEL = WipParameters()
+MODEL = ModelParams()
 H = 0.005
 
 
 def estimator(**eso):
-    return StateEstimator(MODEL, EsoConfig(**eso), encoders_relative_to_body=True)
+    return StateEstimator(MODEL, EsoParams(**eso), encoders_relative_to_body=True)
 
 
 def test_the_estimator_starts_at_the_first_measurements_and_the_position_at_the_first_fix():
@@ -44,7 +44,7 @@ def test_the_estimator_starts_at_the_first_measurements_and_the_position_at_the_
     pose = est.update(2 * H, 0.4, 0.6, 0.02, 3.0, 0.0, 0.0, fix=(5.0, -2.0))
     assert (pose.x, pose.y) == (5.0, -2.0) and est.has_fix
     pose = est.update(3 * H, 0.4, 0.6, 0.02, 3.0, 0.0, 0.0, fix=(5.2, -2.0))
-    gain = PositionConfig().gps_blend_gain    # no odometry motion: the blend alone
+    gain = PositionParams().gps_blend_gain    # no odometry motion: the blend alone
     assert pose.x == pytest.approx(5.0 + gain * 0.2, abs=1e-12)
 
 
@@ -74,13 +74,13 @@ def test_an_overflow_raises_and_restarts_the_estimator_from_the_next_sample():
 
 
 def test_the_guidance_and_yaw_stages_keep_their_state_on_overflow():
-    guidance = GuidanceStage()
+    guidance = TrajectoryGeneratorStage()
     guidance.step(0.0, ReferenceState(0.0, 0.0, 0.0, 0.5, 0.0, 0.0), 0.0, 0.0, 0.0)
     saved = dict(vars(guidance.generator))
     with pytest.raises(ControlOverflow):
         guidance.step(H, ReferenceState(1e308, 0.0, 0.0, 0.5, 0.0, 0.0), -1e308, 0.0, 0.0)
     assert dict(vars(guidance.generator)) == saved
-    yaw = YawStage(None, 0.4, H)
+    yaw = YawControllerStage(None, 0.4, H)
     alpha = yaw.controller.alpha_hat
     # eω = ω̂ − ωd overflows to inf and (13) would give α̂ = inf·0 = NaN.
     with pytest.raises(ControlOverflow):
@@ -92,7 +92,7 @@ def test_the_guidance_and_yaw_stages_keep_their_state_on_overflow():
 def test_the_generators_state_is_everything_its_step_changes():
     # The guidance stage restores generator.state() after an overflow: every attribute
     # that step() changes (filter, saturation flags) must be in it.
-    guidance = GuidanceStage()
+    guidance = TrajectoryGeneratorStage()
     generator = guidance.generator
     reference = ReferenceState(0.0, 0.0, 0.0, 0.5, 0.0, 0.0)
     flags = set()
@@ -111,8 +111,8 @@ def test_the_generators_state_is_everything_its_step_changes():
 def test_the_drive_stage_solves_at_its_ticks_and_holds_its_torque():
     # Without the MPC's start-up rule (its first tick acts on no speed error; tested in
     # test_mpc.py): this test asks the first tick for a torque.
-    drive = DriveStage(MODEL, MpcConfig(backend='daqp', disturbance_startup_time=0.0), 15.0,
-                       decimation=4)
+    drive = DriveControllerStage(MODEL, MpcParams(backend='daqp', disturbance_startup_time=0.0),
+                                 15.0, decimation=4)
     assert [k for k in range(9) if drive.is_tick(k)] == [0, 4, 8]
     # Standing, asked for 0.5 m/s: a torque, held.
     result = drive.step(0.0, 0.0, 0.0, 0.0, 0.0, 0.5, 0.0)
@@ -139,9 +139,9 @@ def test_without_a_push_re_solving_changes_nothing():
     fast_resolve_period on: the stage takes inputs at the finer grid but, without a
     push, solves at the MPC's ticks only, with the same floats as with it off.
     """
-    config = MpcConfig(backend='daqp')
-    fast = DriveStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
-    off = DriveStage(MODEL, dataclasses.replace(config, fast_resolve_period=0.0), 15.0,
+    config = MpcParams(backend='daqp')
+    fast = DriveControllerStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
+    off = DriveControllerStage(MODEL, dataclasses.replace(config, fast_resolve_period=0.0), 15.0,
                      decimation=20, fast_decimation=None)
     assert [k for k in range(41) if fast.is_tick(k)] == [0, 10, 20, 30, 40]
     assert [k for k in range(41) if off.is_tick(k)] == [0, 20, 40]
@@ -161,8 +161,8 @@ def test_after_a_push_the_stage_re_solves_within_the_torque_rate_limit():
     for fast_resolve_time after it, each increment at most Δτmax/2, and the increments
     within any MPC period sum to at most Δτmax; then back to the MPC's ticks.
     """
-    config = MpcConfig(backend='daqp')
-    drive = DriveStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
+    config = MpcParams(backend='daqp')
+    drive = DriveControllerStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
     dmax = config.max_delta_torque
 
     def f2(k):   # the push from tick 410 (2.05 s) to 430
@@ -187,13 +187,13 @@ def test_after_a_push_the_stage_re_solves_within_the_torque_rate_limit():
 
 
 def test_fast_resolve_period_must_divide_the_sampling_period():
-    from wip_runtime.config import ConfigError
-    MpcConfig(fast_resolve_period=0.025).validate()
-    MpcConfig(fast_resolve_period=0.1).validate()      # not shorter: off
-    MpcConfig(sampling_period=0.01).validate()         # (the default 0.05 then off)
+    from wip_runtime.config import ParamError
+    MpcParams(fast_resolve_period=0.025).validate()
+    MpcParams(fast_resolve_period=0.1).validate()      # not shorter: off
+    MpcParams(sampling_period=0.01).validate()         # (the default 0.05 then off)
     for bad in (0.03, 0.07):
-        with pytest.raises(ConfigError, match='fast_resolve_period'):
-            MpcConfig(fast_resolve_period=bad).validate()
+        with pytest.raises(ParamError, match='fast_resolve_period'):
+            MpcParams(fast_resolve_period=bad).validate()
 
 
 def test_the_paper_design_holds_the_torque_for_the_mpc_period():

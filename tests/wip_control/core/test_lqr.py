@@ -15,18 +15,18 @@ import math
 import numpy as np
 import pytest
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_control.core.lqr import LongitudinalLqr, dlqr, make_longitudinal_controller
 from wip_control.core.model import nominal_terms
 from wip_control.core.mpc import LongitudinalMpc, MpcStatus
-from wip_control.core.mpc_config import MpcConfig
+from wip_control.core.mpc_config import MpcParams
 from wip_control.core.mpc_prediction import gravity_aware_state_matrix
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import scenario_from_mapping
 
-PARAMS = WipParameters()
-CONFIG = MpcConfig(controller='lqr')
+PARAMS = ModelParams()
+CONFIG = MpcParams(controller='lqr')
 
 
 def scalar_riccati(a, b, q, r):
@@ -114,9 +114,9 @@ def test_invalid_input_ramps_the_torque_toward_zero():
 
 
 def test_controller_selection_builds_either_and_rejects_others():
-    assert isinstance(make_longitudinal_controller(PARAMS, MpcConfig()), LongitudinalMpc)
+    assert isinstance(make_longitudinal_controller(PARAMS, MpcParams()), LongitudinalMpc)
     assert isinstance(make_longitudinal_controller(PARAMS, CONFIG), LongitudinalLqr)
-    with pytest.raises(ConfigError, match=r"^mpc\.controller: 'pid' is not one of"):
+    with pytest.raises(ParamError, match=r"^mpc\.controller: 'pid' is not one of"):
         scenario_from_mapping({'mpc': {'controller': 'pid'}})
 
 

@@ -6,10 +6,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wip_runtime.config import ConfigError, from_mapping
-from wip_control.core.mixer import MixerConfig, WheelTorqueRateLimiter, drive_torque_limit, mix
+from wip_runtime.config import ParamError, from_mapping
+from wip_control.core.mixer import MixerParams, WheelTorqueRateLimiter, drive_torque_limit, mix
 from wip_control.core.model import input_gains, wheel_to_body_torques
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
 finite = dict(allow_nan=False, allow_infinity=False)
 MAX = 15.0
@@ -26,7 +26,7 @@ def test_positive_yaw_torque_pushes_the_right_wheel_forward_and_turns_ccw():
     tau_l, tau_r = mix(0.0, 0.5, MAX)
     assert tau_r > 0.0 > tau_l
     # With g1 > 0 (eq. (1)), τω = τr − τl > 0 gives ω̇ > 0: counter-clockwise (REP 103).
-    g1 = input_gains(WipParameters(), 0.0)[0]
+    g1 = input_gains(ModelParams(), 0.0)[0]
     assert g1 * wheel_to_body_torques(tau_l, tau_r)[1] > 0.0
 
 
@@ -86,12 +86,12 @@ def test_rate_limiter_bounds_each_change_and_reaches_reachable_targets(requests,
 
 def test_default_rate_limit_does_not_bind_at_200_hz():
     # Default 1e4 N·m/s allows 50 N·m per 5 ms period, more than the 30 N·m full swing.
-    limiter = WheelTorqueRateLimiter(MixerConfig().max_wheel_torque_rate)
+    limiter = WheelTorqueRateLimiter(MixerParams().max_wheel_torque_rate)
     assert limiter.step(0.005, 15.0, -15.0) == (15.0, -15.0)
     assert limiter.step(0.005, -15.0, 15.0) == (-15.0, 15.0)
 
 
 def test_mixer_config_rejects_non_positive_limit():
-    with pytest.raises(ConfigError, match=r'^mixer\.max_wheel_torque: must be > 0'):
-        from_mapping(MixerConfig, {'max_wheel_torque': 0.0}, 'mixer')
-    assert from_mapping(MixerConfig, {}, 'mixer').max_wheel_torque == 15.0
+    with pytest.raises(ParamError, match=r'^mixer\.max_wheel_torque: must be > 0'):
+        from_mapping(MixerParams, {'max_wheel_torque': 0.0}, 'mixer')
+    assert from_mapping(MixerParams, {}, 'mixer').max_wheel_torque == 15.0

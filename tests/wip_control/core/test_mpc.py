@@ -22,21 +22,21 @@ from hypothesis import given, settings, strategies as st
 
 from longitudinal_mpc import simulate_longitudinal
 from wip_tools.analysis.bench_mpc import STEP_KEYS, bench_mpc_against_daqp
-from wip_runtime.config import ConfigError, from_mapping
+from wip_runtime.config import ParamError, from_mapping
 from wip_control.core.model import input_gains, nominal_terms
 from wip_control.core.mpc import LongitudinalMpc, MpcInputError, MpcStatus
-from wip_control.core.mpc_config import MpcConfig, PAPER_MPC_SETTINGS
+from wip_control.core.mpc_config import MpcParams, PAPER_MPC_SETTINGS
 from wip_control.core.mpc_plan import MpcResult
 from wip_control.core.mpc_prediction import CondensedPrediction
 from wip_control.core.mpc_qp import TickData
 from wip_control.core.mpc_reference import reference_qp
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from wip_control.core.qp import QpSolution, make_solver
 
-PARAMS = WipParameters()
+PARAMS = ModelParams()
 # Single ticks of the formulation: without the start-up rule (disturbance_startup_time),
 # which replaces the first ticks' estimates; it has tests of its own below.
-CONFIG = MpcConfig(disturbance_startup_time=0.0)
+CONFIG = MpcParams(disturbance_startup_time=0.0)
 TS = CONFIG.sampling_period
 NP, NC = CONFIG.prediction_horizon, CONFIG.control_horizon
 DMAX = CONFIG.max_delta_torque
@@ -399,21 +399,21 @@ def test_invalid_input_ramps_the_torque_toward_zero_without_solving():
 # ---------------------------------------------------------------- config, result, bench
 
 def test_config_from_mapping_checks_keys_and_horizons():
-    config = from_mapping(MpcConfig, {'prediction_horizon': 30, 'output_weights': [1, 10, 1]},
+    config = from_mapping(MpcParams, {'prediction_horizon': 30, 'output_weights': [1, 10, 1]},
                           'mpc')
     assert config.prediction_horizon == 30 and config.output_weights == (1.0, 10.0, 1.0)
-    with pytest.raises(ConfigError, match='mpc.control_horizon'):
-        from_mapping(MpcConfig, {'control_horizon': 25}, 'mpc')
-    with pytest.raises(ConfigError, match='mpc.prediction: '):
-        from_mapping(MpcConfig, {'prediction': 'linear'}, 'mpc')
-    with pytest.raises(ConfigError, match='mpc.epsilon: unknown key'):
-        from_mapping(MpcConfig, {'epsilon': 0.1}, 'mpc')
-    with pytest.raises(ConfigError, match=r'^mpc\.speed_limit_first_step: must be <= '):
-        from_mapping(MpcConfig, {'speed_limit_first_step': 21}, 'mpc')
-    with pytest.raises(ConfigError, match=r"^mpc\.soft_limits: 'max' is not one of"):
-        from_mapping(MpcConfig, {'soft_limits': 'max'}, 'mpc')
+    with pytest.raises(ParamError, match='mpc.control_horizon'):
+        from_mapping(MpcParams, {'control_horizon': 25}, 'mpc')
+    with pytest.raises(ParamError, match='mpc.prediction: '):
+        from_mapping(MpcParams, {'prediction': 'linear'}, 'mpc')
+    with pytest.raises(ParamError, match='mpc.epsilon: unknown key'):
+        from_mapping(MpcParams, {'epsilon': 0.1}, 'mpc')
+    with pytest.raises(ParamError, match=r'^mpc\.speed_limit_first_step: must be <= '):
+        from_mapping(MpcParams, {'speed_limit_first_step': 21}, 'mpc')
+    with pytest.raises(ParamError, match=r"^mpc\.soft_limits: 'max' is not one of"):
+        from_mapping(MpcParams, {'soft_limits': 'max'}, 'mpc')
     # The paper's formulation is one mapping of ordinary keys.
-    paper = from_mapping(MpcConfig, dict(PAPER_MPC_SETTINGS), 'mpc')
+    paper = from_mapping(MpcParams, dict(PAPER_MPC_SETTINGS), 'mpc')
     assert paper.soft_limits == 'worst_case' and not paper.offset_free
 
 
@@ -639,7 +639,7 @@ def test_the_speed_rise_slack_is_off_below_the_speed_limit_even_when_the_plan_ex
 
 
 def test_speed_rise_steps_beyond_the_horizon_is_refused():
-    with pytest.raises(ConfigError, match='speed_rise_steps: must be <= prediction_horizon'):
+    with pytest.raises(ParamError, match='speed_rise_steps: must be <= prediction_horizon'):
         LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, speed_rise_steps=NP + 1))
 
 
@@ -912,8 +912,8 @@ def test_a_transient_within_the_dead_zone_is_held_as_in_the_paper_prediction():
     decay off; beyond it (a push) the prediction and the torque change. Without the dead
     zone even the small transient decays (so the first assertion is not vacuous).
     """
-    held = MpcConfig(disturbance_decay_time_constant=0.0)
-    default = MpcConfig()
+    held = MpcParams(disturbance_decay_time_constant=0.0)
+    default = MpcParams()
     assert default.disturbance_decay_time_constant > 0.0
     zone_v, zone_theta_dot = default.disturbance_decay_dead_zone
     no_zone = dataclasses.replace(default, disturbance_decay_dead_zone=(0.0, 0.0))
@@ -948,8 +948,8 @@ def test_speed_preview_is_the_paper_reference_for_a_constant_command():
     With υd constant the trend is 0 and the reference over the horizon is the held υd
     of (20): the same torques and plans as with the preview off.
     """
-    off = MpcConfig(speed_preview_time=0.0)
-    on = MpcConfig()
+    off = MpcParams(speed_preview_time=0.0)
+    on = MpcParams()
     assert on.speed_preview_time > 0.0
     for a, b in zip(_speed_ticks(off, [0.8] * 4), _speed_ticks(on, [0.8] * 4)):
         assert b.tau_v == pytest.approx(a.tau_v, abs=1e-9)
@@ -964,11 +964,11 @@ def test_speed_preview_brakes_earlier_for_a_falling_command_and_bounds_the_trend
     push moves x_e) is extrapolated at most at ``max_speed_trend``.
     """
     falling = [1.0 - 0.05 * k for k in range(6)]
-    off = _speed_ticks(MpcConfig(speed_preview_time=0.0), falling)[-1]
-    on = _speed_ticks(MpcConfig(), falling)[-1]
+    off = _speed_ticks(MpcParams(speed_preview_time=0.0), falling)[-1]
+    on = _speed_ticks(MpcParams(), falling)[-1]
     assert on.predicted[-1, 0] < off.predicted[-1, 0] - 0.05
     # The trend of a jump is clipped: a 1 m/s step of υd looks like max_speed_trend.
-    config = MpcConfig()
+    config = MpcParams()
     mpc = LongitudinalMpc(PARAMS, config)
     mpc.step(1.0, 0.0, 0.0, 0.0, 0.0, 1.0)
     mpc.step(1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -985,7 +985,7 @@ def test_start_up_rule_ignores_the_estimators_zero_start_and_its_transient():
     passed, f̂2, f̂3 are replaced by model (1)'s own drift at the estimate (the ESO's
     start-up transient is not a disturbance). After it, the estimates count again.
     """
-    config = MpcConfig()
+    config = MpcParams()
     ticks = math.ceil(config.disturbance_startup_time / config.sampling_period - 1e-9)
     assert ticks >= 2
     state = dict(theta_hat=0.01, theta_dot_hat=0.02)
@@ -1102,9 +1102,9 @@ def test_a_process_that_exits_holding_an_mpc_prints_no_binding_leak_report():
     import subprocess
     import sys
     program = ('from wip_control.core.mpc import LongitudinalMpc\n'
-               'from wip_control.core.mpc_config import MpcConfig\n'
-               'from wip_description.params import WipParameters\n'
-               'HELD = LongitudinalMpc(WipParameters(), MpcConfig())\n'
+               'from wip_control.core.mpc_config import MpcParams\n'
+               'from wip_description.params import ModelParams\n'
+               'HELD = LongitudinalMpc(ModelParams(), MpcParams())\n'
                'result = HELD.step(v_hat=0.0, theta_hat=0.05, theta_dot_hat=0.0, f2_hat=0.0,'
                ' f3_hat=0.0, v_d=0.3, tau_limit=20.0)\n'
                'print(result.status.name)\n'

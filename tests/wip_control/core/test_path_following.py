@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_control.core.reference_curves import Trifolium
-from wip_control.core.references import distance_to_path, make_reference, ReferenceConfig
+from wip_control.core.references import distance_to_path, make_reference, ReferenceParams
 from wip_control.core.time_scaling import TimeScaled
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import scenario_from_mapping
@@ -29,7 +29,7 @@ KIND_OPTIONS = {
 def test_every_kind_respects_the_limits_on_the_same_path(kind):
     # The re-timing itself: without the speed lead (which makes υ the speed ahead, so
     # ẋ = υ cos ϕ holds only where the speed is constant; tested below).
-    config = ReferenceConfig(kind=kind, time_scaling=True, path_max_speed=0.8,
+    config = ReferenceParams(kind=kind, time_scaling=True, path_max_speed=0.8,
                              path_max_yaw_rate=0.2, path_speed_lead_time=0.0,
                              path_speed_lead_time_accelerating=0.0, **KIND_OPTIONS[kind])
     timed = make_reference(config)
@@ -66,10 +66,10 @@ def test_the_speed_lead_is_the_speed_ahead_and_changes_nothing_else(kind):
     """
     common = dict(kind=kind, time_scaling=True, path_max_speed=0.8, path_max_yaw_rate=0.2,
                   **KIND_OPTIONS[kind])
-    plain = make_reference(ReferenceConfig(**common, path_speed_lead_time=0.0,
+    plain = make_reference(ReferenceParams(**common, path_speed_lead_time=0.0,
                                            path_speed_lead_time_accelerating=0.0))
     lead, lead_up = 0.75, 0.6
-    led = make_reference(ReferenceConfig(**common, path_speed_lead_time=lead,
+    led = make_reference(ReferenceParams(**common, path_speed_lead_time=lead,
                                          path_speed_lead_time_accelerating=lead_up))
     changed = 0
     for t in np.arange(0.0, 40.0, 0.37):
@@ -117,7 +117,7 @@ def test_references_of_one_configuration_share_their_tables_and_values():
     # make_reference shares the re-timing tables among the TimeScaled of one path and
     # limits (every run of a campaign re-times the same path once): the samples are those
     # of a TimeScaled with tables of its own, whatever the order of the queries.
-    config = ReferenceConfig(kind='figure_eight', figure_eight_period=20.0,
+    config = ReferenceParams(kind='figure_eight', figure_eight_period=20.0,
                              path_max_speed=0.8, path_max_yaw_rate=0.2)
     own = make_reference(dataclasses.replace(config, path_max_speed=0.7))
     first, second = make_reference(config), make_reference(config)
@@ -139,7 +139,7 @@ def test_remembered_states_give_the_same_samples_in_any_order():
     # asks for times sampled again later): the samples are those computed afresh, for a
     # loop running forward at 200 Hz (where most are remembered), backwards, at random
     # times and repeated times; and what is remembered stays bounded.
-    config = ReferenceConfig(path_speed_lead_time=0.75, path_speed_lead_time_accelerating=0.6)
+    config = ReferenceParams(path_speed_lead_time=0.75, path_speed_lead_time_accelerating=0.6)
     lead, lead_up = config.path_speed_lead_time, config.path_speed_lead_time_accelerating
 
     def fresh(t):
@@ -179,7 +179,7 @@ def test_rate_at_is_the_interpolated_sigma_to_the_bit():
 def test_shared_tables_are_bounded_per_thread(monkeypatch):
     import threading
     from wip_control.core import time_scaling
-    config = ReferenceConfig(kind='circle')
+    config = ReferenceParams(kind='circle')
     tables = time_scaling.shared_tables(('test', config))
     assert time_scaling.shared_tables(('test', config)) is tables
     # Only the last MAX_SHARED_CONFIGURATIONS configurations are kept.
@@ -203,7 +203,7 @@ def test_shared_tables_are_bounded_per_thread(monkeypatch):
 
 
 def test_omega_dot_is_the_derivative_of_omega():
-    timed = make_reference(ReferenceConfig())
+    timed = make_reference(ReferenceParams())
     t = np.arange(0.0, 60.0, 0.01)
     samples = [timed.sample(ti) for ti in t]
     omega = np.array([s.omega for s in samples])
@@ -217,9 +217,9 @@ def test_omega_dot_is_the_derivative_of_omega():
 
 
 def test_path_limits_above_the_generator_limits_are_rejected():
-    with pytest.raises(ConfigError, match=r'^reference\.path_max_yaw_rate: must not exceed'):
+    with pytest.raises(ParamError, match=r'^reference\.path_max_yaw_rate: must not exceed'):
         scenario_from_mapping({'reference': {'path_max_yaw_rate': 0.5}})
-    with pytest.raises(ConfigError, match=r'^reference\.path_max_speed: must not exceed'):
+    with pytest.raises(ParamError, match=r'^reference\.path_max_speed: must not exceed'):
         scenario_from_mapping({'reference': {'path_max_speed': 2.0}})
     # Without time scaling the path limits are unused.
     scenario_from_mapping({'reference': {'time_scaling': False, 'path_max_speed': 2.0}})

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from wip_runtime.config import ConfigError, from_mapping
-from wip_control.core.position import PlanarPositionEstimator, PositionConfig
+from wip_runtime.config import ParamError, from_mapping
+from wip_control.core.position import PlanarPositionEstimator, PositionParams
 
 
 def test_odometry_is_exact_on_a_circular_arc():
@@ -41,7 +41,7 @@ def test_gps_fix_resets_the_estimate_with_unit_gain_and_blends_with_smaller_gain
     est.reset(0.0, 0.0, 0.0, 0.0)
     est.update_odometry(1.0, 0.0)
     assert est.update_gps(1.2, -0.1) == (1.2, -0.1)
-    half = PlanarPositionEstimator(PositionConfig(gps_blend_gain=0.25, max_gps_innovation=10.0))
+    half = PlanarPositionEstimator(PositionParams(gps_blend_gain=0.25, max_gps_innovation=10.0))
     half.reset(0.0, 0.0, 0.0, 0.0)
     assert half.update_gps(4.0, -8.0) == pytest.approx((1.0, -2.0), abs=1e-15)
 
@@ -50,7 +50,7 @@ def test_blend_gain_reduces_fix_noise_as_predicted():
     # e+ = (1 − k) e + k n: stationary std σ √(k/(2 − k)) (position.py docstring).
     k, sigma, n = 0.2, 0.5, 20000
     rng = np.random.default_rng(3)
-    est = PlanarPositionEstimator(PositionConfig(gps_blend_gain=k, max_gps_innovation=100.0))
+    est = PlanarPositionEstimator(PositionParams(gps_blend_gain=k, max_gps_innovation=100.0))
     est.reset(0.0, 0.0, 0.0, 0.0)
     xs = [est.update_gps(*rng.normal(0.0, sigma, 2))[0] for _ in range(n)]
     predicted = sigma * math.sqrt(k / (2 - k))
@@ -68,7 +68,7 @@ def test_non_finite_fixes_are_rejected(fix):
 
 
 def test_outlier_fixes_beyond_the_gate_are_rejected():
-    est = PlanarPositionEstimator(PositionConfig(max_gps_innovation=2.0))
+    est = PlanarPositionEstimator(PositionParams(max_gps_innovation=2.0))
     est.reset(0.0, 0.0, 0.0, 0.0)
     assert est.update_gps(3.0, 0.0) == (0.0, 0.0)
     assert est.update_gps(1.0, 1.0) == (1.0, 1.0)
@@ -77,7 +77,7 @@ def test_outlier_fixes_beyond_the_gate_are_rejected():
 
 def test_the_gate_widens_with_the_distance_rolled_since_the_last_accepted_fix():
     # r = r0 + d s: after rolling 20 m without a fix, 3 + 0.1 * 20 = 5 m.
-    est = PlanarPositionEstimator(PositionConfig(max_gps_innovation=3.0, odometry_drift=0.1))
+    est = PlanarPositionEstimator(PositionParams(max_gps_innovation=3.0, odometry_drift=0.1))
     est.reset(0.0, 0.0, 0.0, 0.0)
     assert est.gate() == 3.0
     est.update_odometry(20.0, 0.0)
@@ -89,7 +89,7 @@ def test_the_gate_widens_with_the_distance_rolled_since_the_last_accepted_fix():
 
 def test_a_jump_is_rejected_and_a_persistent_one_becomes_a_fault_after_the_time():
     # 10 Hz fixes of a vehicle at rest; from t = 1 s the receiver reports 50 m east.
-    config = PositionConfig(max_rejection_time=1.0)
+    config = PositionParams(max_rejection_time=1.0)
     est = PlanarPositionEstimator(config)
     est.reset(0.0, 0.0, 0.0, 0.0)
     for k in range(10):
@@ -123,7 +123,7 @@ def test_non_finite_odometry_raises_and_keeps_the_state():
 
 
 def test_config_rejects_gain_outside_unit_interval():
-    with pytest.raises(ConfigError, match='position.gps_blend_gain'):
-        from_mapping(PositionConfig, {'gps_blend_gain': 0.0}, 'position')
-    with pytest.raises(ConfigError, match='position.gps_blend_gain'):
-        from_mapping(PositionConfig, {'gps_blend_gain': 1.5}, 'position')
+    with pytest.raises(ParamError, match='position.gps_blend_gain'):
+        from_mapping(PositionParams, {'gps_blend_gain': 0.0}, 'position')
+    with pytest.raises(ParamError, match='position.gps_blend_gain'):
+        from_mapping(PositionParams, {'gps_blend_gain': 1.5}, 'position')

@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from wip_runtime.config import ConfigError, from_mapping
+from wip_runtime.config import ParamError, from_mapping
 from wip_control.core.reference_curves import Circle, FigureEight, StraightLine, Trifolium
 from wip_control.core.reference_state import ReferenceState
 from wip_control.core.reference_waypoints import Waypoints
-from wip_control.core.references import make_reference, ReferenceConfig
+from wip_control.core.references import make_reference, ReferenceParams
 from wip_control.core.time_scaling import TimeScaled
 
 SMOOTH = [Trifolium(), Circle(center=(1.0, -2.0), radius=1.5, speed=0.4, direction='cw',
@@ -190,7 +190,7 @@ def test_make_reference_defaults_to_the_papers_trifolium():
                                        ('figure_eight', FigureEight),
                                        ('waypoints', Waypoints), ('trifolium', Trifolium)])
 def test_make_reference_builds_each_kind_from_yaml_data(kind, cls):
-    config = from_mapping(ReferenceConfig, {'kind': kind, 'circle_radius': 3.0,
+    config = from_mapping(ReferenceParams, {'kind': kind, 'circle_radius': 3.0,
                                             'waypoints_x': [0, 2, 2],
                                             'waypoints_y': [0, 0, 2]}, 'reference')
     timed = make_reference(config)
@@ -200,15 +200,15 @@ def test_make_reference_builds_each_kind_from_yaml_data(kind, cls):
 
 
 def test_unknown_keys_and_bad_values_are_rejected_naming_the_key():
-    with pytest.raises(ConfigError, match=r'^reference\.radius: unknown key'):
-        from_mapping(ReferenceConfig, {'radius': 2.0}, 'reference')
-    with pytest.raises(ConfigError, match=r'^reference\.kind: .*not one of'):
-        from_mapping(ReferenceConfig, {'kind': 'spiral'}, 'reference')
-    with pytest.raises(ConfigError, match=r'^reference\.circle_radius: must be > 0'):
-        from_mapping(ReferenceConfig, {'circle_radius': 0.0}, 'reference')
-    with pytest.raises(ConfigError, match=r'^reference\.waypoints_y: has 2 values'):
-        from_mapping(ReferenceConfig, {'waypoints_x': [0, 1, 2], 'waypoints_y': [0, 1]},
+    with pytest.raises(ParamError, match=r'^reference\.radius: unknown key'):
+        from_mapping(ReferenceParams, {'radius': 2.0}, 'reference')
+    with pytest.raises(ParamError, match=r'^reference\.kind: .*not one of'):
+        from_mapping(ReferenceParams, {'kind': 'spiral'}, 'reference')
+    with pytest.raises(ParamError, match=r'^reference\.circle_radius: must be > 0'):
+        from_mapping(ReferenceParams, {'circle_radius': 0.0}, 'reference')
+    with pytest.raises(ParamError, match=r'^reference\.waypoints_y: has 2 values'):
+        from_mapping(ReferenceParams, {'waypoints_x': [0, 1, 2], 'waypoints_y': [0, 1]},
                      'reference')
-    with pytest.raises(ConfigError, match=r'^reference\.waypoints_x: .*coincide'):
-        from_mapping(ReferenceConfig, {'kind': 'waypoints', 'waypoints_x': [0, 0, 1],
+    with pytest.raises(ParamError, match=r'^reference\.waypoints_x: .*coincide'):
+        from_mapping(ReferenceParams, {'kind': 'waypoints', 'waypoints_x': [0, 0, 1],
                                        'waypoints_y': [0, 0, 1]}, 'reference')

@@ -1,4 +1,4 @@
-"""Robust modifications of the adaptation law (13) (the default ArcConfig).
+"""Robust modifications of the adaptation law (13) (the default ArcParams).
 
 Dead zone, normalisation, leakage, no adaptation while saturated (Ioannou & Sun, ch. 8).
 """
@@ -9,16 +9,16 @@ import math
 import numpy as np
 import pytest
 
-from wip_control.core.arc import AdaptiveRobustYawController, ArcConfig
+from wip_control.core.arc import AdaptiveRobustYawController, ArcParams
 from wip_control.core.model import input_gains
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from wip_sim.core.runner import initial_alpha, run_scenario
 from wip_sim.core.scenario import scenario_from_mapping
 
-G1 = input_gains(WipParameters(), 0.0)[0]
+G1 = input_gains(ModelParams(), 0.0)[0]
 H = 0.005
-ROBUST = ArcConfig()
-PAPER = ArcConfig(adaptation_dead_zone=0.0, adaptation_normalisation=0.0,
+ROBUST = ArcParams()
+PAPER = ArcParams(adaptation_dead_zone=0.0, adaptation_normalisation=0.0,
                   adaptation_leakage=0.0, adapt_while_saturated=True)
 
 

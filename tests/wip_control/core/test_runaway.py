@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from wip_control.core.runaway import RunawayConfig, RunawayGuard
+from wip_control.core.runaway import RunawayParams, RunawayGuard
 
 DT = 0.005   # [s] 200 Hz, the estimate's rate
 
@@ -37,7 +37,7 @@ def test_driving_against_the_reference_is_caught_when_the_growth_passes_the_boun
     # roll backwards at 0.9 m/s while the reference goes forward at 0.3 m/s. ε_w grows at
     # 1.2 m/s, pulled back by (e − ε_w)/T_a = 0 (the estimate is the truth): the verdict
     # comes when 1.2 t > 2 m, at t = 1.667 s, 1.5 m driven.
-    config = RunawayConfig(max_error_growth=2.0, growth_window=4.0)
+    config = RunawayParams(max_error_growth=2.0, growth_window=4.0)
     guard = RunawayGuard(config)
     when, verdict = drive(guard, 10.0, lambda t: (-0.9 * t, 0.0, 0.0, -0.9),
                           lambda t: (0.3 * t, 0.0))
@@ -51,7 +51,7 @@ def test_a_frozen_position_estimate_is_caught_by_the_wheels():
     # modest; by the wheels ε_w' = 1 − 0.3 + (e − ε_w)/T_a, ε_w(0) = 0, whose solution is
     # ε_w = T_a (1 − exp(−t/T_a)) − 0.3 t. The verdict comes when it reaches the bound.
     anchor, bound = 10.0, 2.0
-    guard = RunawayGuard(RunawayConfig(max_error_growth=bound, anchor_time=anchor))
+    guard = RunawayGuard(RunawayParams(max_error_growth=bound, anchor_time=anchor))
     when, verdict = drive(guard, 20.0, lambda t: (1.0 * t, 0.0, 0.0, 1.0),
                           lambda t: (0.3 * t, 0.0), estimate=lambda t: (0.0, 0.0))
     low, high = 0.0, 20.0
@@ -83,7 +83,7 @@ def test_odometry_drift_is_not_a_runaway_over_a_long_run():
 def test_an_absurd_tracking_error_is_caught_after_its_time():
     # A datum 1 km off: the estimate is 1 km from the reference, and the generator
     # drives "back" toward it (ε_w shrinks: no growth), yet the error is absurd.
-    config = RunawayConfig(max_tracking_error=10.0, tracking_error_time=1.0)
+    config = RunawayParams(max_tracking_error=10.0, tracking_error_time=1.0)
     guard = RunawayGuard(config)
     when, verdict = drive(guard, 5.0, lambda t: (1000.0 - 1.5 * t, 0.0, math.pi, 1.5),
                           lambda t: (0.3 * t, 0.0))

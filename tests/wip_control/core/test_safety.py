@@ -10,42 +10,42 @@ import math
 import pytest
 
 from safety_harness import active, assert_zeroed, Clock, ESTIMATE, H, RATE, TAU_MAX
-from wip_runtime.config import ConfigError, from_mapping
+from wip_runtime.config import ParamError, from_mapping
 from wip_control.core.eso import StateEstimate
 from wip_control.core.mixer import mix
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from wip_control.core.safety import (ACTIVE, DEGRADED, DriveStatus, FAULT,
                                      SafetyMonitor, STARTING, TIME_TOLERANCE,
                                      tilt_divergence_rate)
-from wip_control.core.safety_config import SafetyConfig
+from wip_control.core.safety_config import SafetyParams
 
 
 # ----------------------------------------------------------------------------- config
 
 def test_config_defaults_load_and_bad_values_name_the_key():
-    assert from_mapping(SafetyConfig, {}, 'safety') == SafetyConfig()
-    with pytest.raises(ConfigError, match=r'safety\.fall_threshold: must be > 0'):
-        from_mapping(SafetyConfig, {'fall_threshold': 0.0}, 'safety')
-    with pytest.raises(ConfigError, match=r'safety\.max_estimate_age: must be finite'):
-        from_mapping(SafetyConfig, {'max_estimate_age': math.nan}, 'safety')
-    with pytest.raises(ConfigError, match=r'safety\.shadow_mode: expected true or false'):
-        from_mapping(SafetyConfig, {'shadow_mode': 1}, 'safety')
+    assert from_mapping(SafetyParams, {}, 'safety') == SafetyParams()
+    with pytest.raises(ParamError, match=r'safety\.fall_threshold: must be > 0'):
+        from_mapping(SafetyParams, {'fall_threshold': 0.0}, 'safety')
+    with pytest.raises(ParamError, match=r'safety\.max_estimate_age: must be finite'):
+        from_mapping(SafetyParams, {'max_estimate_age': math.nan}, 'safety')
+    with pytest.raises(ParamError, match=r'safety\.shadow_mode: expected true or false'):
+        from_mapping(SafetyParams, {'shadow_mode': 1}, 'safety')
 
 
 def test_limits_and_period_must_be_finite_and_positive():
     for bad in (0.0, -1.0, math.nan, math.inf):
         with pytest.raises(ValueError, match='max_wheel_torque'):
-            SafetyMonitor(SafetyConfig(), bad, RATE, H)
+            SafetyMonitor(SafetyParams(), bad, RATE, H)
         with pytest.raises(ValueError, match='max_wheel_torque_rate'):
-            SafetyMonitor(SafetyConfig(), TAU_MAX, bad, H)
+            SafetyMonitor(SafetyParams(), TAU_MAX, bad, H)
         with pytest.raises(ValueError, match='period'):
-            SafetyMonitor(SafetyConfig(), TAU_MAX, RATE, bad)
+            SafetyMonitor(SafetyParams(), TAU_MAX, RATE, bad)
 
 
 # ----------------------------------------------------------------------------- start-up
 
 def test_no_torque_until_every_input_arrived_the_eso_settled_and_settle_time_passed():
-    config = SafetyConfig(settle_time=0.1)
+    config = SafetyParams(settle_time=0.1)
     monitor = SafetyMonitor(config, TAU_MAX, RATE, H)
     clock = Clock(monitor)
     d = clock.tick(feed=False)
@@ -73,7 +73,7 @@ def test_no_torque_until_every_input_arrived_the_eso_settled_and_settle_time_pas
 
 
 def test_a_fault_during_start_up_restarts_the_settle_time():
-    config = SafetyConfig(settle_time=0.05)
+    config = SafetyParams(settle_time=0.05)
     monitor = SafetyMonitor(config, TAU_MAX, RATE, H)
     clock = Clock(monitor)
     for _ in range(5):                 # 4 ticks of settling: not yet ACTIVE
@@ -88,7 +88,7 @@ def test_a_fault_during_start_up_restarts_the_settle_time():
 
 
 def test_without_timing_checks_torque_flows_from_the_first_tick_as_in_lockstep():
-    monitor = SafetyMonitor(SafetyConfig(), TAU_MAX, RATE, H, timing_checks=False)
+    monitor = SafetyMonitor(SafetyParams(), TAU_MAX, RATE, H, timing_checks=False)
     monitor.yaw_torque(0.0, 0.5)
     monitor.drive_torque(0.0, 3.0)
     d = monitor.update(0.0)            # no estimate at all, never settled, t = 0
@@ -108,7 +108,7 @@ def test_without_timing_checks_torque_flows_from_the_first_tick_as_in_lockstep()
 
 # ----------------------------------------------------------------------------- triggers
 
-@pytest.mark.parametrize('bridge', [0.0, SafetyConfig().bridge_time])
+@pytest.mark.parametrize('bridge', [0.0, SafetyParams().bridge_time])
 @pytest.mark.parametrize('name, age_field', [
     ('state_estimate', 'max_estimate_age'), ('yaw_torque', 'max_yaw_torque_age'),
     ('drive_torque', 'max_drive_torque_age')])
@@ -120,8 +120,8 @@ def test_an_input_older_than_its_age_is_bridged_then_zeroes_at_the_first_tick_pa
     bridge_time more, zero torque at the first tick past age + bridge (bridge 0: at the
     first tick past the age, the strict behaviour).
     """
-    monitor, clock = active(SafetyConfig(bridge_time=bridge))
-    max_age = getattr(SafetyConfig(), age_field)
+    monitor, clock = active(SafetyParams(bridge_time=bridge))
+    max_age = getattr(SafetyParams(), age_field)
     last = clock.t
     degraded = 0
     while True:
@@ -148,13 +148,13 @@ def test_an_input_older_than_its_age_is_bridged_then_zeroes_at_the_first_tick_pa
             break
     assert degraded == round(bridge / H)
     # It recovers through STARTING once the stream resumes.
-    states = [clock.tick().state for _ in range(int(SafetyConfig().settle_time / H) + 2)]
+    states = [clock.tick().state for _ in range(int(SafetyParams().settle_time / H) + 2)]
     assert states[0] == STARTING and states[-1] == ACTIVE
 
 
 def test_a_late_input_that_resumes_within_the_bridge_returns_to_active_without_a_gap():
     monitor, clock = active()
-    gap = SafetyConfig().max_estimate_age + 0.5 * SafetyConfig().bridge_time   # 0.2 s
+    gap = SafetyParams().max_estimate_age + 0.5 * SafetyParams().bridge_time   # 0.2 s
     t_last = clock.t
     states = []
     while clock.t - t_last < gap:
@@ -171,7 +171,7 @@ def test_a_late_input_that_resumes_within_the_bridge_returns_to_active_without_a
 def test_a_late_mpc_output_is_followed_along_its_plan_then_held_at_its_end():
     period = 0.1
     plan = (4.0, 6.0, 7.0, 7.5)
-    monitor, clock = active(SafetyConfig(max_drive_torque_age=0.25, bridge_time=0.2))
+    monitor, clock = active(SafetyParams(max_drive_torque_age=0.25, bridge_time=0.2))
     clock.t += H
     monitor.drive_torque(clock.t, plan[0], DriveStatus.SOLVED, plan=plan,
                          plan_period=period)
@@ -202,7 +202,7 @@ def test_a_late_mpc_output_is_followed_along_its_plan_then_held_at_its_end():
 
 
 def test_late_inputs_before_engaging_are_never_bridged():
-    config = SafetyConfig(settle_time=0.05)
+    config = SafetyParams(settle_time=0.05)
     monitor = SafetyMonitor(config, TAU_MAX, RATE, H)
     clock = Clock(monitor)
     clock.tick()
@@ -220,14 +220,14 @@ def test_the_default_bridge_is_ln4_over_the_unstable_tilt_pole_of_the_nominal_mo
     eigenvalues of the tilt dynamics integrated numerically from the model's own terms.
     """
     from wip_control.core.model import nominal_terms
-    params = WipParameters()
+    params = ModelParams()
     lam = tilt_divergence_rate(params)
     eps = 1e-6                      # d f3 / d θ at the upright equilibrium, numerically
     slope = (nominal_terms(params, eps, 0.0, 0.0).f3
              - nominal_terms(params, -eps, 0.0, 0.0).f3) / (2 * eps)
     assert lam == pytest.approx(math.sqrt(slope), rel=1e-6)
     assert 4.0 < lam < 5.0          # the default robot: 4.6 rad/s
-    assert SafetyConfig().bridge_time == pytest.approx(math.log(4.0) / lam, abs=0.005)
+    assert SafetyParams().bridge_time == pytest.approx(math.log(4.0) / lam, abs=0.005)
 
 
 def test_non_finite_or_wrong_size_estimate_zeroes_in_the_same_tick():
@@ -308,7 +308,7 @@ def test_mpc_not_ready_after_start_is_a_fault():
 
 
 def test_mpc_fallbacks_are_tolerated_for_max_mpc_fallbacks_consecutive_outputs():
-    config = SafetyConfig(max_mpc_fallbacks=3)
+    config = SafetyParams(max_mpc_fallbacks=3)
     monitor, clock = active(config)
     for episode in range(2):
         # The MPC publishes at 10 Hz: one fallback output every 20 ticks.

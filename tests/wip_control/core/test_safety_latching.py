@@ -13,13 +13,13 @@ from safety_harness import active, assert_zeroed, Clock, ESTIMATE, H, RATE, TAU_
 from wip_control.core.mixer import mix
 from wip_control.core.safety import (ACTIVE, ESTOP, FAULT,
                                      SafetyMonitor, SHADOW, STARTING)
-from wip_control.core.safety_config import SafetyConfig
+from wip_control.core.safety_config import SafetyParams
 
 
 # ----------------------------------------------------------------------------- e-stop
 
 def test_estop_latches_until_an_explicit_reset_after_release():
-    config = SafetyConfig(settle_time=0.02)
+    config = SafetyParams(settle_time=0.02)
     monitor, clock = active(config)
     monitor.estop(clock.t, True)
     assert_zeroed(clock.tick(), ESTOP, 'e-stop engaged')
@@ -44,7 +44,7 @@ def test_estop_wins_over_faults_and_reports_them_too():
 
 
 def test_latched_faults_stay_until_reset():
-    config = SafetyConfig(latch_faults=True, settle_time=0.0)
+    config = SafetyParams(latch_faults=True, settle_time=0.0)
     monitor, clock = active(config)
     clock.estimate = ESTIMATE._replace(theta=1.0)
     assert_zeroed(clock.tick(), FAULT, 'fallen')
@@ -58,7 +58,7 @@ def test_latched_faults_stay_until_reset():
 # ----------------------------------------------------------------------------- heartbeat
 
 def test_estop_heartbeat_when_configured():
-    config = SafetyConfig(max_estop_age=0.02, settle_time=0.0)
+    config = SafetyParams(max_estop_age=0.02, settle_time=0.0)
     monitor = SafetyMonitor(config, TAU_MAX, RATE, H)
     clock = Clock(monitor)
     assert_zeroed(clock.tick(), STARTING, 'no heartbeat (/wip/heartbeat or /wip/estop) yet')
@@ -70,7 +70,7 @@ def test_estop_heartbeat_when_configured():
 
 
 def test_the_heartbeat_topic_keeps_the_link_fresh_but_never_releases_an_estop():
-    config = SafetyConfig(max_estop_age=0.02, settle_time=0.0)
+    config = SafetyParams(max_estop_age=0.02, settle_time=0.0)
     monitor = SafetyMonitor(config, TAU_MAX, RATE, H)
     clock = Clock(monitor)
     assert_zeroed(clock.tick(), STARTING, 'no heartbeat (/wip/heartbeat or /wip/estop) yet')
@@ -93,7 +93,7 @@ def test_the_heartbeat_topic_keeps_the_link_fresh_but_never_releases_an_estop():
 def test_a_held_estop_blocks_the_reset_whatever_else_publishes():
     # A button that repeats true every 0.1 s, and another publisher's false between two
     # of its messages: the reset is refused until no true came for estop_hold_time.
-    config = SafetyConfig(settle_time=0.0, estop_hold_time=0.5)
+    config = SafetyParams(settle_time=0.0, estop_hold_time=0.5)
     monitor, clock = active(config)
     for _ in range(10):
         monitor.estop(clock.t, True)
@@ -118,7 +118,7 @@ def test_a_held_estop_blocks_the_reset_whatever_else_publishes():
 
 def test_zeroing_is_immediate_and_torque_comes_back_rate_limited_from_zero():
     rate = 200.0                                     # [N m/s]: 1 N m per tick
-    config = SafetyConfig(settle_time=0.0)
+    config = SafetyParams(settle_time=0.0)
     monitor, clock = active(config, rate=rate)
     clock.tau_v, clock.tau_omega = 20.0, 0.0         # 10 N m per wheel
     for _ in range(12):
@@ -142,7 +142,7 @@ commands = st.lists(st.tuples(st.floats(0.0, 0.05),               # dt [s]
 @settings(max_examples=150, deadline=None)
 @given(commands=commands, rate=st.floats(1.0, 1e4), tau_max=st.floats(0.1, 50.0))
 def test_rate_and_torque_limits_hold_for_any_command_sequence(commands, rate, tau_max):
-    config = SafetyConfig(settle_time=0.0)
+    config = SafetyParams(settle_time=0.0)
     monitor = SafetyMonitor(config, tau_max, rate, H, timing_checks=False)
     t = 0.0
     previous = (0.0, 0.0)
@@ -170,7 +170,7 @@ def test_rate_and_torque_limits_hold_for_any_command_sequence(commands, rate, ta
 # ----------------------------------------------------------------------------- shadow
 
 def test_shadow_mode_reports_the_torques_but_commands_zero():
-    config = SafetyConfig(shadow_mode=True)
+    config = SafetyParams(shadow_mode=True)
     monitor, clock = active(config)
     d = clock.tick()
     assert (d.state, d.zeroed, d.shadow) == (SHADOW, False, True)
@@ -191,7 +191,7 @@ def test_a_stall_of_the_layer_itself_past_the_bridge_is_a_fault_even_with_fresh_
     the layer's own tick; the gap since its previous tick still makes it a fault (the
     base held the last command, blind, for that long).
     """
-    config = SafetyConfig()
+    config = SafetyParams()
     bound = config.max_estimate_age + config.bridge_time
     monitor, clock = active(config)
     clock.t += bound - H                    # within the bound: ridden through
@@ -207,7 +207,7 @@ def test_a_stall_of_the_layer_itself_past_the_bridge_is_a_fault_even_with_fresh_
 
 def test_no_position_fix_yet_holds_the_start_and_a_refused_source_is_a_fault():
     from wip_control.core.position import FAULT as POSITION_FAULT, NO_FIX, TRACKING
-    monitor = SafetyMonitor(SafetyConfig(), TAU_MAX, RATE, H)
+    monitor = SafetyMonitor(SafetyParams(), TAU_MAX, RATE, H)
     clock = Clock(monitor)
     for _ in range(100):
         monitor.estimate(clock.t, ESTIMATE, True, NO_FIX, 0.0, 0.0)
@@ -254,6 +254,6 @@ def test_a_runaway_is_a_latched_fault_until_reset():
     assert_zeroed(decision, FAULT, 'runaway', 'reset required')
     ok, message = monitor.reset()
     assert ok and 'runaway' in message
-    for _ in range(int(SafetyConfig().settle_time / H) + 3):
+    for _ in range(int(SafetyParams().settle_time / H) + 3):
         decision = clock.tick()
     assert decision.state == ACTIVE

@@ -10,12 +10,12 @@ import math
 
 import pytest
 
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from wip_control.core.slip import SlipMonitor
 from wip_control.core.state_estimation import StateEstimator
-from wip_control.core.eso import EsoConfig
+from wip_control.core.eso import EsoParams
 
-PARAMS = WipParameters()
+PARAMS = ModelParams()
 H = 0.005
 
 
@@ -101,9 +101,9 @@ def test_bad_settings_are_one_line_errors(name, value):
 
 def test_off_by_default_and_on_in_the_estimator_with_the_gyro():
     assert StateEstimator(PARAMS).slip is None
-    on = StateEstimator(PARAMS, EsoConfig(slip_max_acceleration=20.0))
+    on = StateEstimator(PARAMS, EsoParams(slip_max_acceleration=20.0))
     assert isinstance(on.slip, SlipMonitor)
-    assert StateEstimator(PARAMS, EsoConfig(estimator='paper',
+    assert StateEstimator(PARAMS, EsoParams(estimator='paper',
                                             slip_max_acceleration=20.0)).slip is None
 
 

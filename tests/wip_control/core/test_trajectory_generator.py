@@ -12,11 +12,11 @@ from hypothesis import strategies as st
 from wip_control.core.reference_curves import Circle
 from wip_control.core.reference_state import ReferenceState
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,
-                                                   TrajectoryGeneratorConfig,
+                                                   TrajectoryGeneratorParams,
                                                    tracking_errors, unsaturated_commands)
 
 # Eq. (9) with the paper's lambda1, lambda2 (the pole-placed design: test_heading_design.py).
-CONFIG = TrajectoryGeneratorConfig(heading_design='paper', lambda3=1.0)
+CONFIG = TrajectoryGeneratorParams(heading_design='paper', lambda3=1.0)
 DT = 0.005
 
 finite = dict(allow_nan=False, allow_infinity=False)

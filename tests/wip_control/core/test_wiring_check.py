@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from wip_control.core.model import nominal_terms
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from wip_control.core.wiring_check import (JOINTS, LEFT_SIGN, mirrored_tilt_band, MOUNTING,
-                                           RIGHT_SIGN, WiringCheck, WiringCheckConfig)
+                                           RIGHT_SIGN, WiringCheck, WiringCheckParams)
 
 PERIOD = 0.005
-PARAMS = WipParameters()
+PARAMS = ModelParams()
 CONFIGURED = {'left_joint': 'wheel_l', 'right_joint': 'wheel_r', 'left_wheel_sign': 1,
               'right_wheel_sign': 1, 'imu_mounting_rpy': (0.0, 0.0, 0.0)}
 
@@ -37,7 +37,7 @@ def _wired(mistake, left, right):
 
 
 def run(mistake=None, *, seconds=1.5, rest=0.5, noise=0.01, gyro_bias=0.05, push=0.0,
-        push_at=0.3, yaw_rate_ref=0.5, config=WiringCheckConfig(), seed=1, g3_scale=1.0):
+        push_at=0.3, yaw_rate_ref=0.5, config=WiringCheckParams(), seed=1, g3_scale=1.0):
     """Feed a check ``rest`` s at rest (held, not engaged), then ``seconds`` engaged.
 
     Return the verdict and the time after engaging it came (None, None without one).
@@ -161,23 +161,23 @@ def test_no_verdict_without_excitation_and_when_disabled():
     # Held at rest, never engaged: no motion, nothing to compare.
     verdict, _ = run('swap', rest=1.0, seconds=0.0)
     assert verdict is None
-    verdict, _ = run('right_sign', seconds=0.5, config=WiringCheckConfig(enabled=False))
+    verdict, _ = run('right_sign', seconds=0.5, config=WiringCheckParams(enabled=False))
     assert verdict is None
 
 
 def test_non_finite_samples_are_skipped():
-    check = WiringCheck(WiringCheckConfig(), PARAMS, PERIOD)
+    check = WiringCheck(WiringCheckParams(), PARAMS, PERIOD)
     check.wheels(0.0, math.nan, 1.0)
     assert check.imu(0.0, math.nan, 0.0, 0.0, (0.0, 0.0, 9.8)) is None
     with pytest.raises(ValueError):
-        WiringCheck(WiringCheckConfig(), PARAMS, 0.0)
+        WiringCheck(WiringCheckParams(), PARAMS, 0.0)
 
 
 def test_a_wiring_fault_zeroes_the_torque_at_once_is_latched_and_listed_first():
     from wip_control.core.eso import StateEstimate
     from wip_control.core.safety import ACTIVE, FAULT, SafetyMonitor, STARTING
-    from wip_control.core.safety_config import SafetyConfig
-    monitor = SafetyMonitor(SafetyConfig(), 10.0, 1e6, PERIOD, timing_checks=False)
+    from wip_control.core.safety_config import SafetyParams
+    monitor = SafetyMonitor(SafetyParams(), 10.0, 1e6, PERIOD, timing_checks=False)
     estimate = [0.0] * len(StateEstimate._fields)
 
     def tick(t):
@@ -205,7 +205,7 @@ def _open_loop(mistake, tau_v, tau_omega, seconds=0.3):
     The base's tilt follows eq. (1) with the drive torque it really gets; its yaw rate stays
     at 0.1 rad/s (below min_yaw_rate: the yaw check has no excitation). Returns the verdict.
     """
-    check = WiringCheck(WiringCheckConfig(), PARAMS, PERIOD, configured=CONFIGURED)
+    check = WiringCheck(WiringCheckParams(), PARAMS, PERIOD, configured=CONFIGURED)
     theta, theta_dot, yaw_rate = 0.0, 0.0, 0.1
     tau_l, tau_r = 0.5 * (tau_v - tau_omega), 0.5 * (tau_v + tau_omega)
     physical = {'left_sign': -tau_l + tau_r, 'imu_yaw_pi': tau_l + tau_r}[mistake]
@@ -244,7 +244,7 @@ def test_fall_pick_up_reset_and_engage_again_gives_no_gravity_fault():
     # and still, engaged again. Lying still on the bumper is the gravity check's
     # signature of an IMU on its side: only a check limited to before the first engage
     # tells the two apart (the sensors cannot).
-    check = WiringCheck(WiringCheckConfig(), PARAMS, PERIOD, configured=CONFIGURED)
+    check = WiringCheck(WiringCheckParams(), PARAMS, PERIOD, configured=CONFIGURED)
     g = PARAMS.gravity
     t = 0.0
     theta = 0.0
@@ -275,7 +275,7 @@ def test_fall_pick_up_reset_and_engage_again_gives_no_gravity_fault():
     samples(1.0, False)                     # held upright and still
     samples(1.0, True)                      # engaged again
     # The same lying still before any engage is a verdict: the check itself still works.
-    fresh = WiringCheck(WiringCheckConfig(), PARAMS, PERIOD, configured=CONFIGURED)
+    fresh = WiringCheck(WiringCheckParams(), PARAMS, PERIOD, configured=CONFIGURED)
     lying = (g * math.sin(1.4), 0.0, g * math.cos(1.4))
     verdicts = [fresh.imu(k * PERIOD, 1.4, 0.0, 0.0, lying) for k in range(20)]
     assert verdicts[-1] is not None and 'on its side' in verdicts[-1].message

@@ -11,18 +11,18 @@ numbers with the left wheel's sign flipped must still give one (so that the test
 import numpy as np
 import pytest
 
-from wip_description.params import WipParameters
-from wip_control.core.wiring_check import LEFT_SIGN, WiringCheck, WiringCheckConfig
+from wip_description.params import ModelParams
+from wip_control.core.wiring_check import LEFT_SIGN, WiringCheck, WiringCheckParams
 
 PERIOD = 0.005
-PARAMS = WipParameters()
+PARAMS = ModelParams()
 
 
 def feed(slip, *, seconds=2.0, v=0.5, omega=0.5, left_sign=1.0, noise=0.01, seed=0):
     """Feed a check the circle with the left wheel's slip ``slip(t)`` [m/s]; its verdict."""
     rng = np.random.default_rng(seed)
     r, d = PARAMS.wheel_radius, PARAMS.track_width
-    check = WiringCheck(WiringCheckConfig(), PARAMS, PERIOD)
+    check = WiringCheck(WiringCheckParams(), PARAMS, PERIOD)
     for k in range(int(round(seconds / PERIOD))):
         t = k * PERIOD
         left = left_sign * (v - 0.5 * d * omega + slip(t)) / r

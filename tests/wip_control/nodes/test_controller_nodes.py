@@ -32,16 +32,16 @@ from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus  # noqa: E4
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 import yaml  # noqa: E402
 
-from wip_control.core.arc import AdaptiveRobustYawController, ArcConfig  # noqa: E402
-from wip_runtime.config import ConfigError  # noqa: E402
+from wip_control.core.arc import AdaptiveRobustYawController, ArcParams  # noqa: E402
+from wip_runtime.config import ParamError  # noqa: E402
 from wip_sim.core.disturbances import Disturbances  # noqa: E402
-from wip_control.core.eso import EsoConfig  # noqa: E402
+from wip_control.core.eso import EsoParams  # noqa: E402
 from wip_control.core.mixer import drive_torque_limit, mix  # noqa: E402
 from wip_control.core.model import PHI  # noqa: E402
 from wip_control.core.lqr import LongitudinalLqr  # noqa: E402
 from wip_control.core.mpc import LongitudinalMpc  # noqa: E402
-from wip_control.core.mpc_config import MpcConfig  # noqa: E402
-from wip_description.params import WipParameters  # noqa: E402
+from wip_control.core.mpc_config import MpcParams  # noqa: E402
+from wip_description.params import ModelParams  # noqa: E402
 from wip_sim.core.plant import Plant, simulate_hold  # noqa: E402
 from wip_control.core.reference_state import ReferenceState  # noqa: E402
 from wip_control.core.references import make_reference  # noqa: E402
@@ -49,11 +49,11 @@ from wip_sim.core.runner import run_scenario  # noqa: E402
 from wip_sim.core.simulation import initial_state  # noqa: E402
 from wip_sim.core.scenario import Scenario  # noqa: E402
 from wip_description.sensors import (geodetic_to_local, local_to_geodetic,  # noqa: E402
-                                     SensorConfig)
+                                     SensorParams)
 from wip_sim.core.sensor_models import Sensors  # noqa: E402
 from wip_control.core.state_estimation import StateEstimator  # noqa: E402
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa: E402
-                                                   TrajectoryGeneratorConfig)
+                                                   TrajectoryGeneratorParams)
 from wip_control.core.control_step import initial_alpha  # noqa: E402
 from wip_control.nodes.arc_node import ArcNode  # noqa: E402
 from wip_runtime.composition import connect_intra_process, share_sim_clock  # noqa: E402
@@ -79,7 +79,7 @@ WheelTorques = wip_msgs.WheelTorques
 
 H_NS = 5_000_000          # control period 1/200 Hz [ns] (the default rates)
 TIMEOUT = 10.0            # [s] for any single wait; normally milliseconds
-SENSORS = SensorConfig()
+SENSORS = SensorParams()
 DATUM = (SENSORS.gps_datum_latitude, SENSORS.gps_datum_longitude, SENSORS.gps_datum_altitude)
 
 
@@ -265,7 +265,7 @@ def test_mpc_status_mapping_covers_every_core_status():
 
 def eso_measurements(n=60):
     """Synthetic noise-free sensor samples: yaw crosses +pi (wrap), GPS every 20 samples."""
-    p = WipParameters()
+    p = ModelParams()
     samples = []
     yaw0 = 3.0
     for k in range(n):
@@ -285,7 +285,7 @@ def eso_measurements(n=60):
     return samples
 
 
-def eso_expected(samples, config=EsoConfig(), applied_before=None, use_gps=True,
+def eso_expected(samples, config=EsoParams(), applied_before=None, use_gps=True,
                  origin_ns=0):
     """Return the runner's steps 1-3 on the values the node decodes from the messages.
 
@@ -296,7 +296,7 @@ def eso_expected(samples, config=EsoConfig(), applied_before=None, use_gps=True,
     if applied_before is None:
         def applied_before(k):
             return samples[k - 1]['applied'] if k else (0.0, 0.0)
-    estimator = StateEstimator(WipParameters(), config, encoders_relative_to_body=True)
+    estimator = StateEstimator(ModelParams(), config, encoders_relative_to_body=True)
     out = []
     for k, s in enumerate(samples):
         t = (s['stamp'] - origin_ns) / 1e9
@@ -383,7 +383,7 @@ def test_eso_epsilon_from_a_params_file_changes_the_estimate_as_the_core_predict
     ctx = params_context('eso', {'eso': section})
     samples = eso_measurements(30)
     harness = eso_harness(harnesses, ctx)
-    config = EsoConfig(**section)
+    config = EsoParams(**section)
     assert harness.node.get_parameter('eso.epsilon').value == config.epsilon
     out = run_eso_lockstep(harness, samples)
     expected = eso_expected(samples, config)
@@ -482,10 +482,10 @@ def test_eso_lockstep_waits_for_the_fix_at_gps_ticks_and_drops_fixes_off_them(
 
 def test_eso_refuses_to_start_on_out_of_range_or_non_hurwitz_parameters(params_context):
     ctx = params_context('eso', {'eso': {'epsilon': -0.01}})
-    with pytest.raises(ConfigError, match=r'eso\.epsilon: must be > 0'):
+    with pytest.raises(ParamError, match=r'eso\.epsilon: must be > 0'):
         EsoNode(context=ctx)
     ctx = params_context('eso', {'eso': {'yaw_gains': [1.0, 1.0, 5.0]}})
-    with pytest.raises(ConfigError, match=r'eso\.yaw_gains: .*not Hurwitz'):
+    with pytest.raises(ParamError, match=r'eso\.yaw_gains: .*not Hurwitz'):
         EsoNode(context=ctx)
 
 
@@ -596,7 +596,7 @@ def test_trajectory_generator_lockstep_equals_the_core(context, harnesses):
                     **{'trajectory_generator.max_yaw_rate': 0.2})
     out = harness.outputs['/wip/velocity_command']
     reference = make_reference()
-    generator = TrajectoryGenerator(TrajectoryGeneratorConfig(max_yaw_rate=0.2))
+    generator = TrajectoryGenerator(TrajectoryGeneratorParams(max_yaw_rate=0.2))
     rng = random.Random(2)
     for k, (stamp, pose) in enumerate(pose_stream(40)):
         ref = reference.sample(stamp / 1e9)
@@ -642,7 +642,7 @@ def arc_harness(harnesses, context, mode='lockstep', **params):
 
 def arc_expected(config, n, alpha_initial=None):
     if alpha_initial is None:
-        alpha_initial = initial_alpha(WipParameters(), EsoConfig().yaw_input_gain_scale)
+        alpha_initial = initial_alpha(ModelParams(), EsoParams().yaw_input_gain_scale)
     arc = AdaptiveRobustYawController(config, alpha_initial)
     return [arc.step(1.0 / 200.0, est['omega'], est['f1'], cmd['omega_d'], cmd['omega_d_dot'])
             for _, est, cmd in arc_inputs(n)]
@@ -654,8 +654,8 @@ def test_arc_yaw_rate_gain_from_a_params_file_equals_the_core(params_context, ha
                    ['/wip/yaw_torque'])
     assert harness.node.lockstep
     out = run_arc(harness, 30)
-    expected = arc_expected(ArcConfig(yaw_rate_gain=5.0), 30)
-    default = arc_expected(ArcConfig(), 30)
+    expected = arc_expected(ArcParams(yaw_rate_gain=5.0), 30)
+    default = arc_expected(ArcParams(), 30)
     for msg, exp in zip(out, expected):
         assert (msg.tau_omega, msg.alpha_hat, msg.e_omega) == tuple(exp)
     assert out[-1].tau_omega != default[-1].tau_omega
@@ -665,17 +665,17 @@ def test_arc_computes_its_initial_alpha_from_the_model_and_the_eso_gain_scale_it
         params_context, harnesses):
     # α̂(0) = 1/ĝ1 is derived in the node from model.* and eso.yaw_input_gain_scale (one
     # source each, as the runner's ControlStep), not passed in as a number of its own.
-    model = WipParameters(body_mass=30.0, yaw_inertia=1.5)
+    model = ModelParams(body_mass=30.0, yaw_inertia=1.5)
     ctx = params_context('arc', {'clock_mode': 'lockstep', 'eso': {'yaw_input_gain_scale': 1.5},
                                  'model': {'body_mass': 30.0, 'yaw_inertia': 1.5}})
     harness = wire(harness_of(harnesses, ArcNode(context=ctx)), ARC_INPUTS,
                    ['/wip/yaw_torque'])
     alpha0 = initial_alpha(model, 1.5)
-    default_alpha = initial_alpha(WipParameters(), EsoConfig().yaw_input_gain_scale)
+    default_alpha = initial_alpha(ModelParams(), EsoParams().yaw_input_gain_scale)
     assert alpha0 != pytest.approx(default_alpha)
     assert harness.node.controller.alpha_hat == alpha0
     out = run_arc(harness, 20)
-    expected = arc_expected(ArcConfig(), 20, alpha0)
+    expected = arc_expected(ArcParams(), 20, alpha0)
     assert [(m.tau_omega, m.alpha_hat) for m in out] == \
         [(e.tau_omega, e.alpha_hat) for e in expected]
 
@@ -692,7 +692,7 @@ def test_arc_rejects_a_bad_run_time_parameter_with_the_reason_and_applies_a_good
     assert not result.successful                     # read-only at run time
     assert node.set_parameters([Parameter('arc.yaw_rate_gain', value=7.0)])[0].successful
     out = run_arc(harness, 10)
-    expected = arc_expected(ArcConfig(yaw_rate_gain=7.0), 10)
+    expected = arc_expected(ArcParams(yaw_rate_gain=7.0), 10)
     assert [m.tau_omega for m in out] == [e.tau_omega for e in expected]
 
 
@@ -720,7 +720,7 @@ def test_mpc_lockstep_solves_at_each_tick_from_t0_and_equals_the_core(
         context, harnesses, backend, tolerance):
     harness = mpc_harness(harnesses, context, **{'mpc.backend': backend})
     out = harness.outputs['/wip/drive_torque']
-    mpc = LongitudinalMpc(WipParameters(), MpcConfig(backend=backend))
+    mpc = LongitudinalMpc(ModelParams(), MpcParams(backend=backend))
     rng = random.Random(4)
     ticks = 0
     for stamp, est, v_d, tau_omega in mpc_inputs(45):
@@ -758,7 +758,7 @@ def test_mpc_node_runs_the_lqr_baseline_when_selected(context, harnesses):
     # deterministic: exact equality).
     harness = mpc_harness(harnesses, context, **{'mpc.controller': 'lqr'})
     out = harness.outputs['/wip/drive_torque']
-    lqr = LongitudinalLqr(WipParameters(), MpcConfig(controller='lqr'))
+    lqr = LongitudinalLqr(ModelParams(), MpcParams(controller='lqr'))
     ticks = 0
     for stamp, est, v_d, tau_omega in mpc_inputs(45):
         harness.publish('/wip/state_estimate', estimate_msg(stamp, **est))
@@ -902,7 +902,7 @@ def test_mixer_run_time_limit_change_and_bad_joints(context, params_context, har
     active = next(m for m in wheels if not m.zeroed)
     assert (active.left, active.right) == mix(10.0, 0.5, 2.0)
     ctx = params_context('torque_mixer', {'joints': ['left_wheel_joint', 'caster']})
-    with pytest.raises(ConfigError, match=r'joints: must list'):
+    with pytest.raises(ParamError, match=r'joints: must list'):
         TorqueMixerNode(context=ctx)
 
 

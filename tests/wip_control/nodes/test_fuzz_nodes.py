@@ -40,7 +40,7 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg,  # noqa: E402
                           WheelTorques)
 
-from wip_description.sensors import local_to_geodetic, SensorConfig  # noqa: E402
+from wip_description.sensors import local_to_geodetic, SensorParams  # noqa: E402
 from wip_control.nodes.arc_node import ArcNode  # noqa: E402
 from wip_runtime.messages import quaternion_from_euler  # noqa: E402
 from wip_runtime.executors import make_executor, spin_once_guarded  # noqa: E402
@@ -59,7 +59,7 @@ MAX_WHEEL_TORQUE = 15.0        # [N m], the default mixer.max_wheel_torque
 H_NS = 5_000_000               # control period [ns]
 #: Examples per node and mode (12 node/mode pairs): the whole file runs in about 15 s.
 EXAMPLES = 100
-_SENSORS = SensorConfig()
+_SENSORS = SensorParams()
 DATUM = (_SENSORS.gps_datum_latitude, _SENSORS.gps_datum_longitude, _SENSORS.gps_datum_altitude)
 
 

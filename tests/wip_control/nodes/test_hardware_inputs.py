@@ -21,8 +21,8 @@ from sensor_msgs.msg import Imu, JointState  # noqa: E402
 from wip_msgs.msg import ArcState, MpcOutput, StateEstimate, VelocityCommand  # noqa: E402
 from wip_msgs.msg import WheelTorques  # noqa: E402
 
-from wip_runtime.config import ConfigError  # noqa: E402
-from wip_control.core.references import make_reference, ReferenceConfig  # noqa: E402
+from wip_runtime.config import ParamError  # noqa: E402
+from wip_control.core.references import make_reference, ReferenceParams  # noqa: E402
 from wip_control.core.safety import SafetyDecision  # noqa: E402
 from wip_runtime.stamps import make_header  # noqa: E402
 from wip_control.nodes.conversions import (arc_from_msg, command_from_msg,  # noqa: E402
@@ -327,14 +327,14 @@ def test_eso_takes_its_position_from_odometry_when_asked(context, nodes):
 
 
 def test_eso_refuses_odometry_in_lockstep_and_bad_hardware_parameters(context, nodes):
-    with pytest.raises(ConfigError, match="position_source: 'odometry' needs clock_mode"):
+    with pytest.raises(ParamError, match="position_source: 'odometry' needs clock_mode"):
         make(nodes, context, EsoNode, clock_mode='lockstep', use_sim_time=True,
              position_source='odometry')
-    with pytest.raises(ConfigError, match='left_wheel_sign: must be 1 or -1'):
+    with pytest.raises(ParamError, match='left_wheel_sign: must be 1 or -1'):
         make(nodes, context, EsoNode, left_wheel_sign=2)
-    with pytest.raises(ConfigError, match='imu_mounting_rpy'):
+    with pytest.raises(ParamError, match='imu_mounting_rpy'):
         make(nodes, context, EsoNode, imu_mounting_rpy=[0.0, 1.0])
-    with pytest.raises(ConfigError, match='right_wheel_sign'):
+    with pytest.raises(ParamError, match='right_wheel_sign'):
         make(nodes, context, TorqueMixerNode, right_wheel_sign=0)
 
 
@@ -364,7 +364,7 @@ def test_mixer_sends_each_effort_with_its_joint_sign(context, nodes):
 
 
 def test_reference_engaged_holds_the_start_until_the_first_torque_not_zeroed(context, nodes):
-    config = ReferenceConfig(kind='line')
+    config = ReferenceParams(kind='line')
     node = make(nodes, context, ReferenceNode, realtime_start='engaged',
                 **{'reference.kind': 'line'})
     out = capture(node.publisher)
@@ -378,7 +378,7 @@ def test_reference_engaged_holds_the_start_until_the_first_torque_not_zeroed(con
     node.publish_at(7_000_000_000)     # 2 s after the engagement
     expected = make_reference(config).sample(2.0)
     assert (out[-1].x, out[-1].y) == pytest.approx((expected.x, expected.y), abs=1e-12)
-    with pytest.raises(ConfigError, match='realtime_start'):
+    with pytest.raises(ParamError, match='realtime_start'):
         make(nodes, context, ReferenceNode, realtime_start='later')
 
 

@@ -34,8 +34,8 @@ def test_the_controller_nodes_do_not_import_numba(module):
 
 def test_a_plant_loads_its_compiled_integrator():
     program = _PROGRAM.format(module='wip_sim.core.plant') + """
-from wip_description.params import WipParameters
-plant = wip_sim.core.plant.Plant(WipParameters())
+from wip_description.params import ModelParams
+plant = wip_sim.core.plant.Plant(ModelParams())
 print('numba' in sys.modules)
 """
     done = subprocess.run([sys.executable, '-c', program], capture_output=True, text=True,

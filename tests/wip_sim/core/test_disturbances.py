@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_sim.core.disturbances import (EDGE_TOLERANCE, DisturbanceComponent,
-                                           DisturbanceConfig, Disturbances)
+                                           DisturbanceParams, Disturbances)
 
 finite = dict(allow_nan=False, allow_infinity=False)
 times = st.floats(0.0, 200.0, **finite)
@@ -17,14 +17,14 @@ times = st.floats(0.0, 200.0, **finite)
 
 def only(channel, *components):
     """Config with ``components`` on ``channel`` and nothing elsewhere."""
-    return DisturbanceConfig(**{'yaw': (), 'longitudinal': (), 'tilt': (),
+    return DisturbanceParams(**{'yaw': (), 'longitudinal': (), 'tilt': (),
                                 channel: tuple(components)})
 
 
 @settings(max_examples=200, deadline=None)
 @given(t=times)
 def test_default_is_the_papers_section_v(t):
-    d1, d2, d3 = Disturbances(DisturbanceConfig()).sample(t)
+    d1, d2, d3 = Disturbances(DisturbanceParams()).sample(t)
     assert d1 == pytest.approx(math.sin(0.5 * t), abs=1e-12)    # τd1 = sin(0.5 t)
     assert d2 == (10.0 if 30.0 <= t < 30.1 else 0.0)             # collision pulse
     assert d3 == 0.0
@@ -57,7 +57,7 @@ def test_pulse_is_its_amplitude_on_the_half_open_window_only():
 def test_pulse_covers_width_over_dt_integrator_steps_whatever_the_rounding_of_k_dt(dt):
     # Step starts k·dt carry rounding errors of a few ulps around 30 s; the 1 ns edge
     # tolerance makes the pulse cover exactly width/dt steps, as it should.
-    sample = Disturbances(DisturbanceConfig()).sample
+    sample = Disturbances(DisturbanceParams()).sample
     active = sum(sample(k * dt)[1] == 10.0 for k in range(int(40.0 / dt)))
     assert active == round(0.1 / dt)
 
@@ -69,7 +69,7 @@ def test_step_holds_its_amplitude_from_the_start_time():
 
 
 def test_components_of_a_channel_add_up_and_channels_are_separate():
-    config = DisturbanceConfig(
+    config = DisturbanceParams(
         yaw=(DisturbanceComponent(kind='step', amplitude=1.0),
              DisturbanceComponent(kind='sine', amplitude=2.0, frequency=1.0)),
         longitudinal=(DisturbanceComponent(kind='step', amplitude=-4.0, start_time=1.0),),
@@ -143,43 +143,43 @@ def test_noise_has_the_configured_standard_deviation():
     ({'roll': []}, r'^disturbances\.roll: unknown key'),
 ])
 def test_bad_disturbance_config_names_the_key(mapping, message):
-    with pytest.raises(ConfigError, match=message):
-        DisturbanceConfig.from_mapping(mapping, 'disturbances')
+    with pytest.raises(ParamError, match=message):
+        DisturbanceParams.from_mapping(mapping, 'disturbances')
 
 
 def test_missing_channels_keep_the_paper_default_and_empty_lists_disable():
-    config = DisturbanceConfig.from_mapping({'yaw': []}, 'disturbances')
-    assert config.yaw == () and config.longitudinal == DisturbanceConfig().longitudinal
-    assert DisturbanceConfig.from_mapping(None, 'disturbances') == DisturbanceConfig()
-    assert Disturbances(DisturbanceConfig.disabled()).sample(30.05) == (0.0, 0.0, 0.0)
+    config = DisturbanceParams.from_mapping({'yaw': []}, 'disturbances')
+    assert config.yaw == () and config.longitudinal == DisturbanceParams().longitudinal
+    assert DisturbanceParams.from_mapping(None, 'disturbances') == DisturbanceParams()
+    assert Disturbances(DisturbanceParams.disabled()).sample(30.05) == (0.0, 0.0, 0.0)
 
 
 def test_to_mapping_round_trips():
-    config = DisturbanceConfig(
+    config = DisturbanceParams(
         tilt=(DisturbanceComponent(kind='noise', std=0.1, noise_period=0.02, seed=4),
               DisturbanceComponent(kind='step', amplitude=2.0, start_time=3.0)))
-    assert DisturbanceConfig.from_mapping(config.to_mapping(), 'd') == config
+    assert DisturbanceParams.from_mapping(config.to_mapping(), 'd') == config
 
 
 def test_programmatic_config_is_checked_when_used():
     bad = only('longitudinal', DisturbanceComponent(kind='step', amplitude=1.0),
                DisturbanceComponent(kind='step', frequency=2.0))
-    with pytest.raises(ConfigError, match=r'^longitudinal\[1\]\.frequency: not used by kind'):
+    with pytest.raises(ParamError, match=r'^longitudinal\[1\]\.frequency: not used by kind'):
         Disturbances(bad)
     with pytest.raises(ValueError, match='seed'):
-        Disturbances(DisturbanceConfig(), seed=-1)
+        Disturbances(DisturbanceParams(), seed=-1)
 
 
 def test_sample_many_equals_sample_at_every_time():
     # The runner evaluates a block of plant steps at once: same values, all channels,
     # including an empty one (tilt) and held noise.
-    config = DisturbanceConfig.from_mapping({
+    config = DisturbanceParams.from_mapping({
         'yaw': [{'kind': 'sine', 'amplitude': 1.0, 'frequency': 0.5}],
         'longitudinal': [{'kind': 'pulse', 'amplitude': 10.0, 'start_time': 0.3, 'width': 0.1},
                          {'kind': 'noise', 'std': 0.2, 'noise_period': 0.01}],
         'tilt': []}, 'disturbances')
     # Every kind, and a channel of three components (summed in the same order).
-    config_every_kind = DisturbanceConfig.from_mapping({
+    config_every_kind = DisturbanceParams.from_mapping({
         'yaw': [{'kind': 'step', 'amplitude': -0.7, 'start_time': 0.5}],
         'longitudinal': [{'kind': 'sine', 'amplitude': 0.3, 'frequency': 7.0, 'phase': 0.2,
                           'start_time': 0.25},

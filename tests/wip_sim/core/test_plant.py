@@ -9,13 +9,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.integrate import simpson
 
-from wip_runtime.config import ConfigError, from_mapping
+from wip_runtime.config import ParamError, from_mapping
 from wip_control.core.model import OMEGA, PHI, THETA, THETA_DOT, V, XV, nominal_terms
-from wip_description.params import WipParameters
-from wip_sim.core.plant import (full_input_gains, Plant, PlantConfig, simulate_hold,
+from wip_description.params import ModelParams
+from wip_sim.core.plant import (full_input_gains, Plant, PlantParams, simulate_hold,
                                 tilt_pole)
 
-PARAMS = WipParameters()
+PARAMS = ModelParams()
 MODELS = ('paper', 'full')
 finite = dict(allow_nan=False, allow_infinity=False)
 
@@ -314,10 +314,10 @@ def test_bad_inputs_raise_value_error():
 
 
 def test_plant_config_accepts_only_the_two_models():
-    assert from_mapping(PlantConfig, {'model': 'full'}, 'plant').model == 'full'
-    assert PlantConfig().model == 'paper'
-    with pytest.raises(ConfigError, match=r'plant\.model'):
-        from_mapping(PlantConfig, {'model': 'exact'}, 'plant')
+    assert from_mapping(PlantParams, {'model': 'full'}, 'plant').model == 'full'
+    assert PlantParams().model == 'paper'
+    with pytest.raises(ParamError, match=r'plant\.model'):
+        from_mapping(PlantParams, {'model': 'exact'}, 'plant')
 
 
 def test_has_fallen_uses_the_tilt_limit():
@@ -330,7 +330,7 @@ def test_has_fallen_uses_the_tilt_limit():
 def test_accelerations_on_arrays_equal_the_scalar_derivative(model):
     # The metrics evaluate the dynamics of a whole run at once; they must be the same
     # expressions as Plant.derivative (to rounding) at arbitrary states and torques.
-    plant = Plant(WipParameters(), model)
+    plant = Plant(ModelParams(), model)
     rng = np.random.default_rng(3)
     n = 50
     theta, omega = rng.uniform(-0.8, 0.8, n), rng.uniform(-2, 2, n)
@@ -383,5 +383,5 @@ def test_axle_friction_is_refused_when_negative_or_not_finite():
     for bad in (-0.01, math.nan, math.inf):
         with pytest.raises(ValueError, match='wheel_friction'):
             Plant(PARAMS, 'paper', wheel_friction=bad)
-    with pytest.raises(ConfigError):
-        from_mapping(PlantConfig, {'wheel_friction': -1.0}, 'plant')
+    with pytest.raises(ParamError):
+        from_mapping(PlantParams, {'wheel_friction': -1.0}, 'plant')

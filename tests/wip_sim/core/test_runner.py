@@ -109,15 +109,15 @@ def test_the_reference_sampled_in_blocks_is_the_reference_sampled_at_each_tick()
     # The runner samples a pure reference ahead, a block of ticks at a time: the same
     # calls at the same float times, so the same values, across the blocks' ends too. A
     # commanded reference (its sample depends on the commands so far) is not pure.
-    from wip_control.core.references import ReferenceConfig, make_reference
+    from wip_control.core.references import ReferenceParams, make_reference
     from wip_sim.core import runner
     dt = 0.005
     for kind in ('trifolium', 'waypoints', 'figure_eight'):
-        blocks = runner._ReferenceBlocks(make_reference(ReferenceConfig(kind=kind)), dt,
+        blocks = runner._ReferenceBlocks(make_reference(ReferenceParams(kind=kind)), dt,
                                          ticks=7)
-        fresh = make_reference(ReferenceConfig(kind=kind))
+        fresh = make_reference(ReferenceParams(kind=kind))
         assert fresh.pure
         for k in range(40):
             assert blocks.at(k) == fresh.sample(k * dt), (kind, k)
     for kind in ('cmd_vel', 'path'):
-        assert not make_reference(ReferenceConfig(kind=kind)).pure
+        assert not make_reference(ReferenceParams(kind=kind)).pure

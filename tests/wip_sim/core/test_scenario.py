@@ -5,7 +5,7 @@ import math
 import pytest
 import yaml
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_control.core.references import make_reference
 from wip_sim.core.simulation import initial_state
 from wip_sim.core.scenario import (load_scenario, Scenario, scenario_from_mapping,
@@ -50,7 +50,7 @@ def test_round_trip_through_yaml(tmp_path):
     ({'rates': {'plant_rate': 1000.0, 'control_rate': 300.0}}, 'rates.plant_rate'),
 ])
 def test_bad_keys_and_values_name_the_key(document, key):
-    with pytest.raises(ConfigError) as info:
+    with pytest.raises(ParamError) as info:
         scenario_from_mapping(document)
     assert str(info.value).startswith(key), str(info.value)
 
@@ -58,16 +58,16 @@ def test_bad_keys_and_values_name_the_key(document, key):
 def test_typo_in_a_file_names_the_file_and_key(tmp_path):
     path = tmp_path / 'typo.yaml'
     path.write_text('duration: 5.0\narc:\n  yaw_gian: 10.0\n')
-    with pytest.raises(ConfigError, match=r'typo\.yaml: arc\.yaw_gian: unknown key'):
+    with pytest.raises(ParamError, match=r'typo\.yaml: arc\.yaw_gian: unknown key'):
         load_scenario(path)
 
 
 def test_missing_file_and_invalid_yaml_are_clear_errors(tmp_path):
-    with pytest.raises(ConfigError, match='No such file'):
+    with pytest.raises(ParamError, match='No such file'):
         load_scenario(tmp_path / 'absent.yaml')
     bad = tmp_path / 'bad.yaml'
     bad.write_text('mpc: [unclosed\n')
-    with pytest.raises(ConfigError, match='not valid YAML'):
+    with pytest.raises(ParamError, match='not valid YAML'):
         load_scenario(bad)
 
 

@@ -6,7 +6,7 @@ project's report read them).
 
 Parameters (all read-only, read at start-up)
 --------------------------------------------
-:class:`wip_bag.settings.RecorderSettings` (docs/parameters.md): the bag directory (never
+:class:`wip_bag.settings.RecorderParams` (docs/parameters.md): the bag directory (never
 overwritten), the topics (empty: every topic of the graph, also later ones, hidden topics
 excepted) and those excluded, the chunk compression and size (a chunk is also closed at
 each flush), the splits into ``<name>_0.mcap``, ``<name>_1.mcap`` ... by size or receive
@@ -79,14 +79,14 @@ from rclpy.signals import SignalHandlerOptions
 from wip_runtime.launched import end_with_launcher
 from wip_runtime.node_main import init_rclpy
 from wip_runtime.diagnostics import create_diagnostics_timer
-from wip_runtime.parameters import ConfigParameters
+from wip_runtime.parameters import RosParams
 from wip_runtime.cli import answer_node_help, EXIT_USAGE
 
 from .bag_writer import BagExistsError, BagWriterError, Rosbag2McapWriter
 from .message_definitions import message_definition, type_description_hash
 from .message_types import message_class
 from .recorder_stop import make_executor, spin, STOP_SIGNALS, StopSignals
-from .settings import RecorderSettings
+from .settings import RecorderParams
 
 #: Keep-last depth of the recording subscriptions [messages]. A lockstep graph publishes
 #: each topic at 200 Hz times its real-time factor (1000-3000 messages/s of wall time): with
@@ -143,7 +143,7 @@ class RecorderNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__('recorder', **kwargs)
-        settings = ConfigParameters(self, '', RecorderSettings).config
+        settings = RosParams(self, '', RecorderParams).config
         output = settings.output or default_output_name()
         self.output = os.path.abspath(os.path.expanduser(output))
         self.requested = [self.resolve_topic_name(t) for t in settings.topics]

@@ -13,7 +13,7 @@ of the same name) or ``ros2 run wip_bag replay --ros-args -p bag:=BAG ...``.
 
 Parameters (read-only, read at start-up)
 ----------------------------------------
-:class:`wip_bag.settings.ReplayerSettings` (docs/parameters.md): the bag (also the first
+:class:`wip_bag.settings.ReplayerParams` (docs/parameters.md): the bag (also the first
 positional argument), rate, start offset, duration and loop, the topics played, excluded
 and remapped (``from:=to``; ``--ros-args -r`` works too), ``/clock`` (the recorded time,
 before each newer message and at ``clock_rate`` in between; a recorded ``/clock`` is then
@@ -73,14 +73,14 @@ from std_srvs.srv import SetBool, Trigger
 
 from wip_runtime.node_main import init_rclpy
 from wip_runtime.launched import end_with_launcher
-from wip_runtime.parameters import ConfigParameters
+from wip_runtime.parameters import RosParams
 from wip_runtime.cli import (add_exit_codes, EXIT_INTERNAL, EXIT_USAGE, log_trace, one_line,
                              split_ros_args)
 
 from .bag_reader import bag_summary, BagReadError, iter_raw_messages, read_topics
 from .message_types import message_class
 from .playback import parse_remaps, playback_qos, PlaybackClock
-from .settings import ReplayerSettings
+from .settings import ReplayerParams
 
 # The exit-code table of every tool (wip_runtime.cli).
 EXIT_OK = 0
@@ -107,7 +107,7 @@ class ReplayerNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__('replayer', **kwargs)
-        settings = ConfigParameters(self, '', ReplayerSettings).config
+        settings = RosParams(self, '', ReplayerParams).config
         self.bag = settings.bag
         self.rate = settings.rate
         self.start_offset = settings.start_offset

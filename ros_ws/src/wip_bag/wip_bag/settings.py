@@ -17,7 +17,7 @@ _LARGEST_BYTES = 2 ** 60
 
 
 @dataclasses.dataclass(frozen=True)
-class RecorderSettings:
+class RecorderParams:
     """Parameters of the ``recorder`` node (``ros2 bag record`` replacement)."""
 
     output: str = param('', TEXT, 'bag directory to create (must not exist or be empty); '
@@ -46,7 +46,7 @@ class RecorderSettings:
 
 
 @dataclasses.dataclass(frozen=True)
-class ReplayerSettings:
+class ReplayerParams:
     """Parameters of the ``replayer`` node (``ros2 bag play`` replacement)."""
 
     bag: str = param('', TEXT, 'bag directory or .mcap file to play (required)')
@@ -81,6 +81,6 @@ class ReplayerSettings:
 
 #: executable -> the (prefix, dataclass) groups it declares.
 NODES: dict[str, tuple[tuple[str, type], ...]] = {
-    'recorder': (('', RecorderSettings),),
-    'replay': (('', ReplayerSettings),),
+    'recorder': (('', RecorderParams),),
+    'replay': (('', ReplayerParams),),
 }

@@ -17,7 +17,7 @@ import threading
 import time
 from typing import Any, Callable, TextIO
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_control.core.controller_settings import load_controller_settings
 from wip_runtime.cli import add_exit_codes
 
@@ -42,7 +42,7 @@ def eso_parameters(scenario_path: str | None, params_files: list[str]) -> dict[s
     """Return the eso node's parameters in hardware mode: the scenario's, then the files'."""
     try:
         scenario = load_controller_settings(scenario_path)
-    except ConfigError as err:
+    except ParamError as err:
         raise GraphError(str(err), EXIT_USAGE) from err
     extra = [load_params_file(path) for path in params_files]
     generated = hardware_parameters(scenario)

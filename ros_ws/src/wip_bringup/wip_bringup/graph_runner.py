@@ -17,7 +17,7 @@ from typing import Any
 
 import yaml
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_runtime.cli import write_atomic
 from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping, with_duration
 from wip_sim.settings import WITH_VIEWER
@@ -217,7 +217,7 @@ class GraphRunner(RecordingMixin, RunnerBase):
         if options.duration is not None:
             try:   # the scenario's checks of a duration (range, control ticks, memory)
                 scenario = with_duration(scenario, options.duration)
-            except ConfigError as err:
+            except ParamError as err:
                 raise GraphError(f'--duration: {str(err).removeprefix("duration: ")}',
                                  EXIT_USAGE) from None
         self.scenario = scenario

@@ -10,11 +10,11 @@ import fnmatch
 import pathlib
 from typing import Any, Iterable, Mapping
 
-from wip_runtime.config import ConfigError, load_yaml_text
-from wip_control.core.controller_settings import ControllerSettings
+from wip_runtime.config import ParamError, load_yaml_text
+from wip_control.core.controller_settings import ControllerParams
 
 from .launcher import EXIT_USAGE, GraphError
-from .params_check import check_remap, ParamsError
+from .params_check import check_remap, ParamsFileError
 from .params_files import DEFAULT_JOINTS, flatten, graph_parameters
 
 #: The mixer's ``safety.max_estop_age`` in hardware mode [s].
@@ -32,7 +32,7 @@ def parse_remap(text: str, namespace: str = '') -> tuple[str, str]:
     """
     try:
         check_remap(text)   # FROM:=TO, both sides valid ROS topic names
-    except ParamsError as err:
+    except ParamsFileError as err:
         raise GraphError(str(err), EXIT_USAGE) from None
     source, _, target = text.partition(':=')
     return tuple(name if name.startswith('/') else f'{namespace}/{name}'
@@ -54,7 +54,7 @@ def load_params_file(path: str | pathlib.Path) -> dict[str, Any]:
         data = load_yaml_text(path.read_bytes(), f'--params-file {path}')
     except OSError as err:
         raise GraphError(f'--params-file {path}: {err.strerror or err}', EXIT_USAGE) from err
-    except ConfigError as err:
+    except ParamError as err:
         raise GraphError(str(err), EXIT_USAGE) from err
     if not isinstance(data, Mapping):
         raise GraphError(f'--params-file {path}: expected a mapping of node names',
@@ -95,7 +95,7 @@ def node_parameters(node: str, generated: Mapping[str, Any],
     return flat
 
 
-def hardware_parameters(scenario: ControllerSettings, recorder: Mapping[str, Any] | None = None,
+def hardware_parameters(scenario: ControllerParams, recorder: Mapping[str, Any] | None = None,
                         joints: tuple[str, str] = DEFAULT_JOINTS,
                         heartbeat: bool = True) -> dict[str, dict]:
     """Return the generated params file of a hardware run.

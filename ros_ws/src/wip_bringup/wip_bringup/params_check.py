@@ -12,7 +12,7 @@ out of its range, or a section that the node's own checks refuse
 with a warning in a node's log, and a bad value stopped a node after the others had
 started.
 
-Every problem is one line (:class:`ParamsError`, a ``ValueError``); the callers turn it
+Every problem is one line (:class:`ParamsFileError`, a ``ValueError``); the callers turn it
 into exit 2 before anything is written or started.
 """
 
@@ -26,7 +26,7 @@ import re
 import typing
 from typing import Any, Iterable, Mapping, Sequence
 
-from wip_runtime.config import check_value, ConfigError, from_mapping
+from wip_runtime.config import check_value, ParamError, from_mapping
 from wip_description.wiring import check_effort_joints, EffortCommand, WheelJoints
 
 from .params_files import flatten
@@ -43,7 +43,7 @@ ROS_BUILTIN_PREFIXES = ('qos_overrides.',)
 TOPIC_NAME = re.compile(r'^(/[A-Za-z_][A-Za-z0-9_]*)+$')
 
 
-class ParamsError(ValueError):
+class ParamsFileError(ValueError):
     """One line: what is wrong in a params file or a remap rule."""
 
 
@@ -101,7 +101,7 @@ def _nearest(name: str, candidates: Iterable[str]) -> str:
 def _ros_typed(name: str, value: Any, field_type: Any) -> None:
     """Check that ROS takes ``value`` for a parameter of the type of ``field_type``.
 
-    ConfigError if ROS would refuse ``value`` for a parameter declared with the type of
+    ParamError if ROS would refuse ``value`` for a parameter declared with the type of
     ``field_type`` (rclpy: 'Wrong parameter type'): ROS reads ``1`` as an integer.
     """
     origin = typing.get_origin(field_type)
@@ -112,19 +112,19 @@ def _ros_typed(name: str, value: Any, field_type: Any) -> None:
                 _ros_typed(f'{name}[{i}]', item, element)
         return
     if field_type is float and isinstance(value, int) and not isinstance(value, bool):
-        raise ConfigError(f'{name}: expected a floating-point number (ROS reads {value} as '
+        raise ParamError(f'{name}: expected a floating-point number (ROS reads {value} as '
                           f'an integer: write {value}.0), got {value!r}')
     if field_type is int and isinstance(value, float):
-        raise ConfigError(f'{name}: expected an integer, got {value!r}')
+        raise ParamError(f'{name}: expected an integer, got {value!r}')
 
 
 def _check_value(name: str, value: Any, declared: Declared) -> None:
     if isinstance(value, (list, tuple)) and not value and typing.get_origin(
             declared.type) is tuple:
-        raise ConfigError(f'{name}: an empty list has no type in a ROS params file (leave '
+        raise ParamError(f'{name}: an empty list has no type in a ROS params file (leave '
                           'the parameter out for its default)')
     if isinstance(value, Mapping):
-        raise ConfigError(f'{name}: expected a value, got a mapping {list(value)[:3]}')
+        raise ParamError(f'{name}: expected a value, got a mapping {list(value)[:3]}')
     check_value(name, value, declared.type, declared.metadata)
     _ros_typed(name, value, declared.type)
 
@@ -136,7 +136,7 @@ def check_params_files(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Se
     Check parsed params files (``(path, {section: {'ros__parameters': {...}}})`` each)
     for a run of the nodes ``nodes``; ``generated`` is the run's own params file, which
     comes first on each command line (the sections a node builds from its parameters are
-    checked with it). Raises :class:`ParamsError` (one line) on the first problem; returns
+    checked with it). Raises :class:`ParamsFileError` (one line) on the first problem; returns
     warnings (a section for a known node that this run does not start).
     """
     registry = node_registry()
@@ -152,7 +152,7 @@ def check_params_files(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Se
                     warnings.append(f'{where}: section {str(key)!r}: no such node in this '
                                     'run (ignored)')
                     continue
-                raise ParamsError(f'{where}: unknown node section {str(key)!r}'
+                raise ParamsFileError(f'{where}: unknown node section {str(key)!r}'
                                   f'{_nearest(last, running or registry)}; the nodes of '
                                   f'this run: {", ".join(running)}')
             parameters = flatten(section.get('ros__parameters') or {})
@@ -160,7 +160,7 @@ def check_params_files(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Se
                 if name in ROS_BUILTIN or name.startswith(ROS_BUILTIN_PREFIXES):
                     expected = ROS_BUILTIN.get(name)
                     if expected is bool and not isinstance(value, bool):
-                        raise ParamsError(f'{where}: {name}: expected true or false, got '
+                        raise ParamsFileError(f'{where}: {name}: expected true or false, got '
                                           f'{value!r}')
                     continue
                 declaring = [(n, declarations(n).get(name)) for n in matched]
@@ -169,13 +169,13 @@ def check_params_files(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Se
                     known = set().union(*(declarations(n) for n in matched))
                     whom = (f'node {matched[0]}' if len(matched) == 1 else
                             f'any node of section {str(key)!r}')
-                    raise ParamsError(f'{where}: unknown parameter {name!r} for {whom}'
+                    raise ParamsFileError(f'{where}: unknown parameter {name!r} for {whom}'
                                       f'{_nearest(name, known)}')
                 for node, declared in declaring:
                     try:
                         _check_value(name, value, declared)
-                    except ConfigError as err:
-                        raise ParamsError(f'{where}: node {node}: {err}') from None
+                    except ParamError as err:
+                        raise ParamsFileError(f'{where}: node {node}: {err}') from None
     _check_groups(files, running, generated or {})
     return warnings
 
@@ -212,34 +212,34 @@ def _check_groups(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequenc
                 try:
                     check_effort_joints(left, right, tuple(merged.get('joints',
                                                                       (left, right))))
-                except ConfigError as err:
-                    raise ParamsError(f'--params-file: node {node}: {err}') from None
+                except ParamError as err:
+                    raise ParamsFileError(f'--params-file: node {node}: {err}') from None
         for (prefix, cls), values in groups.items():
             if not any((f'{prefix}.{f}' if prefix else f) in given for f in values):
                 continue   # the generated values alone: checked where they come from
             try:
                 from_mapping(cls, values, prefix or '@')
-            except ConfigError as err:
-                raise ParamsError(f'--params-file: node {node}: '
+            except ParamError as err:
+                raise ParamsFileError(f'--params-file: node {node}: '
                                   f'{str(err).removeprefix("@.")}') from None
 
 
 def check_remap(text: str) -> tuple[str, str]:
     """Parse a ``--remap`` rule ``'FROM:=TO'`` into absolute topic names.
 
-    ``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; :class:`ParamsError` on a bad
+    ``'FROM:=TO'`` -> (FROM, TO) as absolute topic names; :class:`ParamsFileError` on a bad
     rule (not FROM:=TO, or a side that is not a valid ROS topic name).
     """
     source, sep, target = text.partition(':=')
     source, target = source.strip(), target.strip()
     if not sep or not source or not target or ':=' in target:
-        raise ParamsError(f'--remap: expected FROM:=TO (e.g. /joint_states:=/base/'
+        raise ParamsFileError(f'--remap: expected FROM:=TO (e.g. /joint_states:=/base/'
                           f'joint_states), got {text!r}')
     names = []
     for side in (source, target):
         name = '/' + side.lstrip('/')
         if not TOPIC_NAME.match(name):
-            raise ParamsError(f'--remap {text!r}: {side!r} is not a valid ROS topic name '
+            raise ParamsFileError(f'--remap {text!r}: {side!r} is not a valid ROS topic name '
                               '(letters, digits and underscores in /-separated tokens, '
                               'none starting with a digit)')
         names.append(name)
@@ -278,7 +278,7 @@ def check_run_inputs(paths: Sequence[str], files: Sequence[Mapping[str, Any]],
     from .launcher import EXIT_USAGE, GraphError
     try:
         warnings = check_params_files(list(zip(paths, files)), nodes, generated)
-    except ParamsError as err:
+    except ParamsFileError as err:
         raise GraphError(str(err), EXIT_USAGE) from None
     effort = {str(flatten(section.get('ros__parameters') or {}).get('effort_topic', ''))
               for data in files for section in data.values()} - {''}

@@ -1,7 +1,7 @@
 """The ROS params file of one graph run, made from a scenario (one source of truth).
 
 :func:`graph_parameters` maps the controller settings of a scenario
-(:class:`~wip_control.core.controller_settings.ControllerSettings`) to the
+(:class:`~wip_control.core.controller_settings.ControllerParams`) to the
 parameters of every node of the graph (the sections each node declares from the core's
 config dataclasses, ``wip_control.nodes.*_node``);
 :func:`write_params_file` writes them as one params YAML::
@@ -58,7 +58,7 @@ from typing import Any, Mapping
 import yaml
 
 from wip_runtime.config import to_mapping
-from wip_control.core.controller_settings import ControllerSettings
+from wip_control.core.controller_settings import ControllerParams
 from wip_runtime.cli import write_atomic
 
 CLOCK_MODES = ('lockstep', 'realtime')
@@ -109,7 +109,7 @@ def config_section(instance: Any) -> dict[str, Any]:
     return out
 
 
-def controller_sections(scenario: ControllerSettings, lockstep: bool,
+def controller_sections(scenario: ControllerParams, lockstep: bool,
                         joints: tuple[str, str],
                         eso_extra: Mapping[str, Any] | None = None) -> dict[str, dict[str, Any]]:
     """Return the sections of each controller node, from the scenario's controller half.
@@ -156,7 +156,7 @@ def controller_sections(scenario: ControllerSettings, lockstep: bool,
     return nodes
 
 
-def graph_parameters(scenario: ControllerSettings, clock_mode: str = 'lockstep',
+def graph_parameters(scenario: ControllerParams, clock_mode: str = 'lockstep',
                      scenario_path: str | pathlib.Path | None = None,
                      joints: tuple[str, str] = DEFAULT_JOINTS,
                      plant_extra: Mapping[str, Any] | None = None,
@@ -256,7 +256,7 @@ class _NoAliasDumper(yaml.SafeDumper):
         return True
 
 
-def write_params_file(scenario: ControllerSettings, path: str | pathlib.Path, clock_mode: str,
+def write_params_file(scenario: ControllerParams, path: str | pathlib.Path, clock_mode: str,
                       scenario_path: str | pathlib.Path | None,
                       joints: tuple[str, str] = DEFAULT_JOINTS,
                       plant_extra: Mapping[str, Any] | None = None,

@@ -26,9 +26,9 @@ from typing import Any, Iterable
 
 import yaml
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_control.core.controller_settings import (controller_settings_to_mapping,
-                                                  ControllerSettings, load_controller_settings)
+                                                  ControllerParams, load_controller_settings)
 from wip_runtime.cli import write_atomic
 
 from .launcher import (CONTROLLER_LAYOUTS, EXECUTABLES, EXIT_DISK_FULL, EXIT_TIMEOUT,
@@ -82,7 +82,7 @@ class RunnerBase:
         self.domain_id = choose_domain_id()
         #: The run's namespace ('' or '/robot1'), checked by :meth:`check_namespace`.
         self.namespace = ''
-        self.scenario: ControllerSettings | None = None
+        self.scenario: ControllerParams | None = None
         self._interactive = sys.stderr.isatty()
         self.t0 = time.monotonic()
         #: Wall times [s] of the start-up steps, from the start of the run.
@@ -134,11 +134,11 @@ class RunnerBase:
     read_settings = staticmethod(load_controller_settings)
     settings_to_mapping = staticmethod(controller_settings_to_mapping)
 
-    def load_scenario(self, path: str | None) -> ControllerSettings:
+    def load_scenario(self, path: str | None) -> ControllerParams:
         """Return the scenario file (None: the paper's); GraphError (usage) if it is invalid."""
         try:
             return self.read_settings(path)
-        except ConfigError as err:
+        except ParamError as err:
             raise GraphError(str(err), EXIT_USAGE) from err
 
     def prepare_outputs(self, stale: Iterable[str] = ('run.json',),

@@ -22,12 +22,12 @@ from wip_runtime.config import check_number, param
 
 #: Standard gravity [m/s²].
 STANDARD_GRAVITY = 9.81
-#: Every quantity of the model is finite and positive (a ConfigError, a ValueError, else).
+#: Every quantity of the model is finite and positive (a ParamError, a ValueError, else).
 _POSITIVE = {'minimum': 0.0, 'exclusive_minimum': True}
 
 
 @dataclasses.dataclass(frozen=True)
-class WipParameters:
+class ModelParams:
     """Masses, lengths and inertias of a WIP, in SI units.
 
     Attribute names are descriptive; the paper's symbol is given for each. Derived, set
@@ -59,7 +59,7 @@ class WipParameters:
 
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):   # however the instance is made
-            check_number(f'WipParameters.{field.name}', getattr(self, field.name), _POSITIVE,
+            check_number(f'ModelParams.{field.name}', getattr(self, field.name), _POSITIVE,
                          want_int=False)
         # Derived quantities (docs/paper.md §1: the only reading under which (1) is the
         # Euler-Lagrange system of a consistent Lagrangian), computed once (the instance
@@ -89,6 +89,6 @@ class WipParameters:
         return (self.effective_mass * self.pitch_inertia
                 - (self.body_mass * self.com_height * c) ** 2)
 
-    def replace(self, **overrides: float) -> 'WipParameters':
+    def replace(self, **overrides: float) -> 'ModelParams':
         """Return a copy with some fields changed; unknown names raise ``TypeError``."""
         return dataclasses.replace(self, **overrides)

@@ -31,7 +31,7 @@ import dataclasses
 import math
 from xml.sax.saxutils import quoteattr
 
-from .params import WipParameters
+from .params import ModelParams
 
 #: Width [m] of the wheels and depth [m] of the body box drawn (the model has neither).
 WHEEL_WIDTH = 0.06
@@ -67,7 +67,7 @@ class Joint:
 class RobotModel:
     """The WIP's links and joints for the given parameters (see the module docstring)."""
 
-    params: WipParameters
+    params: ModelParams
     left_joint: str = 'left_wheel_joint'
     right_joint: str = 'right_wheel_joint'
     left_sign: int = 1

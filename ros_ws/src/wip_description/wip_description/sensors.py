@@ -1,6 +1,6 @@
 """The robot's sensors as the controllers read them, and the inverse sensor maps.
 
-:class:`SensorConfig` describes the sensors (rates, resolution, noise, the GPS datum, whether
+:class:`SensorParams` describes the sensors (rates, resolution, noise, the GPS datum, whether
 the encoders measure the wheel relative to the tilting body): the simulator samples them with
 it (``wip_sim.core.sensor_models``) and the estimators read them back with the same figures.
 
@@ -24,8 +24,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from wip_runtime.config import ConfigError, param
-from .params import WipParameters
+from wip_runtime.config import ParamError, param
+from .params import ModelParams
 
 #: WGS84 semi-major axis [m] and flattening [2]_.
 WGS84_A = 6378137.0
@@ -34,7 +34,7 @@ WGS84_E2 = WGS84_F * (2.0 - WGS84_F)      # first eccentricity squared
 
 
 @dataclasses.dataclass(frozen=True)
-class SensorConfig:
+class SensorParams:
     """Rates, resolution and noise of the simulated sensors; GPS datum of the fixes."""
 
     encoder_rate: float = param(200.0, 'Hz', 'wheel encoder sampling rate', minimum=0.0,
@@ -81,10 +81,10 @@ class SensorConfig:
 
     def validate(self) -> None:
         if self.encoder_counts_per_rev < 0:
-            raise ConfigError('encoder_counts_per_rev: must be >= 0')
+            raise ParamError('encoder_counts_per_rev: must be >= 0')
 
 
-def wheel_odometry(phi_left: float, phi_right: float, pitch: float, params: WipParameters,
+def wheel_odometry(phi_left: float, phi_right: float, pitch: float, params: ModelParams,
                    initial_yaw: float = 0.0,
                    relative_to_body: bool = True) -> tuple[float, float]:
     """(x_v [m], ϕ [rad]) from the wheel angles, the inverse of :meth:`Sensors.encoders`.

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from wip_runtime.config import ConfigError, like, param, TEXT
+from wip_runtime.config import ParamError, like, param, TEXT
 
-from .sensors import SensorConfig
+from .sensors import SensorParams
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,26 +53,26 @@ class EffortCommand:
 
 
 def check_effort_joints(left_joint: str, right_joint: str, joints: tuple[str, ...]) -> None:
-    """ConfigError unless ``joints`` lists ``left_joint`` and ``right_joint`` once each.
+    """ParamError unless ``joints`` lists ``left_joint`` and ``right_joint`` once each.
 
     The check of the nodes that command efforts, and of a params file before a run.
     """
     if sorted(joints) != sorted([left_joint, right_joint]):
-        raise ConfigError(f'joints: must list left_joint {left_joint!r} and right_joint '
+        raise ParamError(f'joints: must list left_joint {left_joint!r} and right_joint '
                           f'{right_joint!r} once each, got {list(joints)}')
 
 
 @dataclasses.dataclass(frozen=True)
-class DatumConfig:
+class DatumParams:
     """Map origin of the NavSatFix messages (``datum.*``)."""
 
-    latitude: float = like(SensorConfig, 'gps_datum_latitude',
+    latitude: float = like(SensorParams, 'gps_datum_latitude',
                            description='latitude of the map origin')
-    longitude: float = like(SensorConfig, 'gps_datum_longitude')
-    altitude: float = like(SensorConfig, 'gps_datum_altitude')
+    longitude: float = like(SensorParams, 'gps_datum_longitude')
+    altitude: float = like(SensorParams, 'gps_datum_altitude')
 
     @classmethod
-    def of(cls, sensors: SensorConfig) -> 'DatumConfig':
+    def of(cls, sensors: SensorParams) -> 'DatumParams':
         """Return the datum of a scenario's sensors section."""
         return cls(sensors.gps_datum_latitude, sensors.gps_datum_longitude,
                    sensors.gps_datum_altitude)

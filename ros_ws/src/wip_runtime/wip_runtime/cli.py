@@ -279,7 +279,7 @@ def bounded(kind: type, minimum: float | None = None, maximum: float | None = No
     ((minimum, maximum] with ``exclusive_minimum``), checked by
     :func:`.config.check_number`; argparse's usage error (exit 2) naming the range otherwise.
     """
-    from .config import check_number, ConfigError
+    from .config import check_number, ParamError
     limits = {'minimum': minimum, 'maximum': maximum, 'exclusive_minimum': exclusive_minimum}
     low = '' if minimum is None else (f'> {minimum:g}' if exclusive_minimum
                                       else f'>= {minimum:g}')
@@ -293,7 +293,7 @@ def bounded(kind: type, minimum: float | None = None, maximum: float | None = No
                 f'{text!r} is not {"an integer" if kind is int else "a number"}') from None
         try:
             return check_number(text, value, limits, want_int=kind is int)
-        except ConfigError:
+        except ParamError:
             if not math.isfinite(value):
                 raise argparse.ArgumentTypeError(f'{text!r} is not a finite number') from None
             raise argparse.ArgumentTypeError(

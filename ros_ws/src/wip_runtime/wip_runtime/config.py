@@ -13,9 +13,9 @@ Each component of the core declares a frozen dataclass whose fields are made wit
 Example
 -------
 >>> @dataclasses.dataclass(frozen=True)
-... class ArcConfig:
+... class ArcParams:
 ...     yaw_gain: float = param(20.0, '1/s', 'k_ω of eq. (12)', minimum=0.0)
->>> from_mapping(ArcConfig, {'yaw_gain': 10.0}, 'arc').yaw_gain
+>>> from_mapping(ArcParams, {'yaw_gain': 10.0}, 'arc').yaw_gain
 10.0
 """
 
@@ -30,7 +30,7 @@ from typing import Any, Mapping
 import yaml
 
 
-class ConfigError(ValueError):
+class ParamError(ValueError):
     """A configuration value is unknown, of the wrong type or out of range.
 
     The message always starts with the dotted path of the offending key.
@@ -129,7 +129,7 @@ def _field_types(cls: type) -> dict[str, Any]:
 
 
 def check_number(path: str, value: Any, meta: Mapping[str, Any], want_int: bool) -> float:
-    """Return ``value`` as an int (``want_int``) or a float; ConfigError naming ``path`` else.
+    """Return ``value`` as an int (``want_int``) or a float; ParamError naming ``path`` else.
 
     The one check of a number in the project: a scenario key, a node parameter, a params
     file, a command-line option (:func:`.cli.bounded`) and the robot's parameters. ``meta``
@@ -137,25 +137,25 @@ def check_number(path: str, value: Any, meta: Mapping[str, Any], want_int: bool)
     ``floor``; each optional). A bool is not a number, nor is a non-finite float.
     """
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f'{path}: expected a number, got {_show(value)}')
+        raise ParamError(f'{path}: expected a number, got {_show(value)}')
     if isinstance(value, float):
         if not math.isfinite(value):
-            raise ConfigError(f'{path}: must be finite, got {_show(value)}')
+            raise ParamError(f'{path}: must be finite, got {_show(value)}')
         if want_int and not value.is_integer():
-            raise ConfigError(f'{path}: expected an integer, got {_show(value)}')
+            raise ParamError(f'{path}: expected an integer, got {_show(value)}')
     # An int is compared exactly (a 5000-digit seed must not overflow float()).
     lo, hi = meta.get('minimum'), meta.get('maximum')
     if lo is not None:
         if meta.get('exclusive_minimum') and not value > lo:
-            raise ConfigError(f'{path}: must be > {lo}, got {_show(value)}')
+            raise ParamError(f'{path}: must be > {lo}, got {_show(value)}')
         if value < lo:
-            raise ConfigError(f'{path}: must be >= {lo}, got {_show(value)}')
+            raise ParamError(f'{path}: must be >= {lo}, got {_show(value)}')
     floor = meta.get('floor')
     if floor is not None and value < floor:
-        raise ConfigError(f'{path}: must be >= {floor:g} (a smaller value is not physically '
+        raise ParamError(f'{path}: must be >= {floor:g} (a smaller value is not physically '
                           f'meaningful), got {_show(value)}')
     if hi is not None and value > hi:
-        raise ConfigError(f'{path}: must be <= {hi}, got {_show(value)}')
+        raise ParamError(f'{path}: must be <= {hi}, got {_show(value)}')
     return int(value) if want_int else float(value)
 
 
@@ -166,33 +166,33 @@ def check_value(path: str, value: Any, field_type: Any, meta: Mapping[str, Any])
         number = check_number(path, value, meta, want_int=field_type is int)
         choices = meta.get('choices')
         if choices and number not in choices:
-            raise ConfigError(f"{path}: must be {' or '.join(map(str, choices))}, "
+            raise ParamError(f"{path}: must be {' or '.join(map(str, choices))}, "
                               f'got {_show(value)}')
         return number
     if field_type is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f'{path}: expected true or false, got {_show(value)}')
+            raise ParamError(f'{path}: expected true or false, got {_show(value)}')
         return value
     if field_type is str:
         if not isinstance(value, str):
-            raise ConfigError(f'{path}: expected a string, got {_show(value)}')
+            raise ParamError(f'{path}: expected a string, got {_show(value)}')
         choices = meta.get('choices')
         if choices and value not in choices:
-            raise ConfigError(f'{path}: {_show(value)} is not one of {list(choices)}')
+            raise ParamError(f'{path}: {_show(value)} is not one of {list(choices)}')
         return value
     if origin is tuple:
         args = typing.get_args(field_type)
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f'{path}: expected a list, got {_show(value)}')
+            raise ParamError(f'{path}: expected a list, got {_show(value)}')
         if len(args) == 2 and args[1] is Ellipsis:
             longest = meta.get('max_length') or MAX_LIST_LENGTH
             if len(value) > longest:
-                raise ConfigError(f'{path}: at most {longest} values, got {len(value)}')
+                raise ParamError(f'{path}: at most {longest} values, got {len(value)}')
             element_types = [args[0]] * len(value)
         else:
             element_types = list(args)
             if len(value) != len(element_types):
-                raise ConfigError(f'{path}: expected {len(element_types)} values, '
+                raise ParamError(f'{path}: expected {len(element_types)} values, '
                                   f'got {len(value)}')
         return tuple(check_value(f'{path}[{i}]', v, t, meta)
                      for i, (v, t) in enumerate(zip(value, element_types)))
@@ -216,13 +216,13 @@ def from_mapping(cls: type, mapping: Mapping[str, Any] | None, path: str) -> Any
     if mapping is None:
         mapping = {}
     if not isinstance(mapping, Mapping):
-        raise ConfigError(f'{path}: expected a mapping, got {mapping!r}')
+        raise ParamError(f'{path}: expected a mapping, got {mapping!r}')
     types = _field_types(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(mapping) - set(fields))
     if unknown:
         key = unknown[0]
-        raise ConfigError(f'{path}.{key}: unknown key; expected one of {sorted(fields)}')
+        raise ParamError(f'{path}.{key}: unknown key; expected one of {sorted(fields)}')
     values = {}
     for name, value in mapping.items():
         values[name] = check_value(f'{path}.{name}', value, types[name],
@@ -232,8 +232,8 @@ def from_mapping(cls: type, mapping: Mapping[str, Any] | None, path: str) -> Any
     if callable(validate):
         try:
             validate()
-        except ConfigError as err:
-            raise ConfigError(f'{path}.{err}') from err
+        except ParamError as err:
+            raise ParamError(f'{path}.{err}') from err
     return instance
 
 
@@ -301,7 +301,7 @@ _StrictLoader.add_implicit_resolver(
 
 
 def load_yaml_text(data: bytes | str, source: str) -> Any:
-    """Parse a configuration file's content strictly; any problem is one ConfigError.
+    """Parse a configuration file's content strictly; any problem is one ParamError.
 
     ``source`` names the file in the message. Refused: bytes that are not UTF-8, invalid
     YAML, duplicate keys, and numbers Python cannot even convert (a 5000-digit integer).
@@ -310,15 +310,15 @@ def load_yaml_text(data: bytes | str, source: str) -> Any:
         try:
             data = data.decode('utf-8')
         except UnicodeDecodeError as err:
-            raise ConfigError(f'{source}: not a UTF-8 text file (byte {err.start}: '
+            raise ParamError(f'{source}: not a UTF-8 text file (byte {err.start}: '
                               f'{data[err.start:err.start + 1]!r})') from None
     try:
         return yaml.load(data, Loader=_StrictLoader)  # noqa: S506 (a SafeLoader subclass)
     except yaml.YAMLError as err:
         text = ' '.join(str(err).split())
-        raise ConfigError(f'{source}: not valid YAML: {text}') from None
+        raise ParamError(f'{source}: not valid YAML: {text}') from None
     except (ValueError, OverflowError, RecursionError) as err:
         # int('9' * 5000) is a ValueError since Python 3.11; deep nesting a RecursionError.
         if 'digits' in str(err):
-            raise ConfigError(f'{source}: a number has more than 4300 digits') from None
-        raise ConfigError(f'{source}: a value cannot be read: {str(err)[:120]}') from None
+            raise ParamError(f'{source}: a number has more than 4300 digits') from None
+        raise ParamError(f'{source}: a value cannot be read: {str(err)[:120]}') from None

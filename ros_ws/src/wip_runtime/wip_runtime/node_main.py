@@ -17,7 +17,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from .cli import answer_node_help, EXIT_USAGE
 from .composition import compose
-from .config import ConfigError
+from .config import ParamError
 from .executors import make_executor, spin_composed
 from .launched import end_with_launcher
 
@@ -120,7 +120,7 @@ def run_nodes(nodes: Sequence[tuple[Callable[[], Node], Callable[[Node], None] |
         stopping = bool(stop_requests)
     except (KeyboardInterrupt, ExternalShutdownException):
         stopping = True
-    except (ConfigError, ParameterException) as err:
+    except (ParamError, ParameterException) as err:
         print(f'{program}: error: {err}', file=sys.stderr)
         status = EXIT_USAGE
     finally:

@@ -23,17 +23,17 @@ from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from .config import check_value, ConfigError, from_mapping
+from .config import check_value, ParamError, from_mapping
 
 
-class OutOfRangeError(ConfigError, InvalidParameterValueException):
+class OutOfRangeError(ParamError, InvalidParameterValueException):
     """An override outside the declared range.
 
-    A ConfigError (one line naming the parameter) that is also the exception rclpy raises for it.
+    A ParamError (one line naming the parameter) that is also the exception rclpy raises for it.
     """
 
     def __init__(self, message: str) -> None:
-        ConfigError.__init__(self, message)
+        ParamError.__init__(self, message)
 
 
 def _ros_default(value: Any, field_type: Any) -> Any:
@@ -82,7 +82,7 @@ def _descriptor(name: str, field: dataclasses.Field, field_type: Any,
     return descriptor
 
 
-class ConfigParameters:
+class RosParams:
     """Declares a config dataclass as ROS parameters and keeps the built instance current.
 
     Parameters
@@ -122,7 +122,7 @@ class ConfigParameters:
                 try:
                     check_value(full, _from_ros(getattr(override, 'value', None)),
                                 self._types[name], field.metadata)
-                except ConfigError as err:
+                except ParamError as err:
                     raise OutOfRangeError(str(err)) from None
                 raise
             values[name] = _from_ros(param.value)
@@ -130,15 +130,15 @@ class ConfigParameters:
         node.add_on_set_parameters_callback(self._validate_change)
 
     def _build(self, values: dict[str, Any]) -> Any:
-        # Raises ConfigError naming the parameter: the node refuses to start on a bad
+        # Raises ParamError naming the parameter: the node refuses to start on a bad
         # params file rather than running with a silently different value.
         try:
             return from_mapping(self._cls, values, self._section or '@')
-        except ConfigError as err:
+        except ParamError as err:
             if self._section:
                 raise
             # Top-level names: the message starts with the bare name (`left_wheel_sign: ...`).
-            raise ConfigError(str(err).removeprefix('@.')) from None
+            raise ParamError(str(err).removeprefix('@.')) from None
 
     def _validate_change(self, parameters: list[Parameter]) -> SetParametersResult:
         mine = [p for p in parameters if p.name.startswith(self._prefix)
@@ -153,7 +153,7 @@ class ConfigParameters:
             values[p.name[len(self._prefix):]] = _from_ros(p.value)
         try:
             new_config = self._build(values)
-        except ConfigError as err:
+        except ParamError as err:
             return SetParametersResult(successful=False, reason=str(err))
         self.config = new_config
         self._on_change(new_config)

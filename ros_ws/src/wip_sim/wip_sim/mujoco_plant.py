@@ -1,7 +1,7 @@
 """The WIP in the MuJoCo physics engine: ``plant: {model: mujoco}`` (no ROS import).
 
 The same bodies as the 'full' plant (:mod:`wip_sim.core.plant`), generated as MJCF
-from the scenario's :class:`WipParameters`, but with real wheel-ground contacts instead
+from the scenario's :class:`ModelParams`, but with real wheel-ground contacts instead
 of the rolling constraints: the wheels can slip (Coulomb cone, ``plant.contact``), lose
 energy to rolling resistance, and the contact is compliant. Behind the interface of
 :class:`~wip_sim.core.plant.Plant` that the runner, the plant node and the stand-in
@@ -63,9 +63,9 @@ from typing import Sequence
 
 import numpy as np
 
-from wip_sim.core.ground import ContactConfig, TerrainConfig
+from wip_sim.core.ground import ContactParams, TerrainParams
 from wip_control.core.model import THETA
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from wip_sim.core.plant import DEFAULT_FALL_LIMIT
 
 #: The pinned version (requirements.txt), for the error when mujoco is missing.
@@ -97,7 +97,7 @@ def _import_mujoco():
     return mujoco
 
 
-def body_inertias(params: WipParameters) -> dict[str, float]:
+def body_inertias(params: ModelParams) -> dict[str, float]:
     """Return the rigid-body values of the MJCF (see the module docstring), SI units."""
     p = params
     base_mass = p.body_mass + p.chassis_mass
@@ -127,7 +127,7 @@ PATCH_RISE = 1e-3
 TERRAIN_EXTENT = 1e4
 
 
-def terrain_geoms(terrain: TerrainConfig, patch_contact: str = '') -> str:
+def terrain_geoms(terrain: TerrainParams, patch_contact: str = '') -> str:
     """MJCF geoms of the terrain above the ground plane (they collide like the plane).
 
     Slope: a box whose top face starts on the plane at x = slope_start and rises at the
@@ -174,8 +174,8 @@ def terrain_geoms(terrain: TerrainConfig, patch_contact: str = '') -> str:
     return '\n    '.join(out)
 
 
-def mjcf(params: WipParameters, contact: ContactConfig, timestep: float,
-         terrain: TerrainConfig | None = None, wheel_friction: float = 0.0) -> str:
+def mjcf(params: ModelParams, contact: ContactParams, timestep: float,
+         terrain: TerrainParams | None = None, wheel_friction: float = 0.0) -> str:
     """Return the MJCF model of the WIP on the ground (see the module docstring).
 
     The wheels' viscous axle friction is their hinges' damping (a torque against the
@@ -191,7 +191,7 @@ def mjcf(params: WipParameters, contact: ContactConfig, timestep: float,
     # parameter: MuJoCo's minimum (1e-5 m) makes it negligible.
     condim = 6 if rolling > 0.0 else 3
     friction = f'{contact.friction!r} 1e-5 {max(rolling, 1e-5)!r}'
-    terrain = terrain or TerrainConfig()
+    terrain = terrain or TerrainParams()
     patch = (f'condim="{condim}" friction="{terrain.patch_friction!r} 1e-5 '
              f'{max(rolling, 1e-5)!r}" solref="{tc!r} 1"')
     wheel = ('<inertial pos="0 0 0" mass="{m}" diaginertia="{i} {j} {i}"/>'
@@ -242,17 +242,17 @@ class MujocoPlant:
 
     model = 'mujoco'
 
-    def __init__(self, params: WipParameters, contact: ContactConfig | None = None,
-                 timestep: float = 1e-3, terrain: TerrainConfig | None = None,
+    def __init__(self, params: ModelParams, contact: ContactParams | None = None,
+                 timestep: float = 1e-3, terrain: TerrainParams | None = None,
                  wheel_friction: float = 0.0) -> None:
         if not (math.isfinite(timestep) and timestep > 0.0):
             raise ValueError(f'timestep must be a positive finite time [s], got {timestep!r}')
         mj = _import_mujoco()
         self._mj_step = mj.mj_step
         self.params = params
-        self.contact = ContactConfig() if contact is None else contact
+        self.contact = ContactParams() if contact is None else contact
         self.timestep = float(timestep)
-        self.terrain = TerrainConfig() if terrain is None else terrain
+        self.terrain = TerrainParams() if terrain is None else terrain
         self.wheel_friction = float(wheel_friction)
         self.xml = mjcf(params, self.contact, self.timestep, self.terrain, self.wheel_friction)
         self._model = mj.MjModel.from_xml_string(self.xml)
@@ -458,8 +458,8 @@ def _euler_zyx(quat) -> tuple[float, float, float]:
     return yaw, math.asin(sin_pitch), roll
 
 
-def make_plant(params: WipParameters, contact: ContactConfig, timestep: float,
-               terrain: TerrainConfig | None = None,
+def make_plant(params: ModelParams, contact: ContactParams, timestep: float,
+               terrain: TerrainParams | None = None,
                wheel_friction: float = 0.0) -> MujocoPlant:
     """Return the plant of ``plant: {model: mujoco}`` (for :func:`.core.plant.scenario_plant`)."""
     return MujocoPlant(params, contact, timestep, terrain, wheel_friction)

@@ -51,7 +51,7 @@ graph view: a message published before the match would be lost). The service ans
 
 Parameters
 ----------
-:class:`wip_sim.settings.PlantSettings` (docs/parameters.md), all read-only: the scenario
+:class:`wip_sim.settings.PlantNodeParams` (docs/parameters.md), all read-only: the scenario
 file (default: the paper's Section V), the clock mode (default lockstep: the plant is a
 simulator; the controller nodes default to realtime, for a real base), the joint and frame
 names, autostart and the start handshake's ``start.*``, the realtime holds and
@@ -91,13 +91,13 @@ from wip_control.nodes.conversions import body_rates_from_euler, wheel_torques_f
 from wip_runtime.messages import quaternion_from_euler
 from wip_runtime.intra_process import local_match_count
 from wip_runtime.diagnostics import create_diagnostics_timer
-from wip_runtime.parameters import ConfigParameters
+from wip_runtime.parameters import RosParams
 from wip_description.wiring import WheelJoints
 from wip_runtime.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
 
 from .plant_report import diagnostic_status, format_timing, run_stats, TickTimer
 from .sensor_messages import gps_message, imu_message, set_stamp, write_fix
-from .settings import PlantSettings, StartHandshake
+from .settings import PlantNodeParams, StartHandshake
 
 # The tools' table (wip_runtime.cli): a fall is 1, a bad parameter 2, a simulation
 # that failed (non-finite state) an internal error, 3.
@@ -118,16 +118,16 @@ class PlantNode(IntraProcessNode):
         # wheel torques skip DDS while no one outside subscribes; alone, plain rclpy.
         self.init_intra_process(True)
         self.exit_code: int | None = None  # set when the run is over
-        settings = ConfigParameters(self, '', PlantSettings).config
+        settings = RosParams(self, '', PlantNodeParams).config
         self.clock_mode = settings.clock_mode
         self.scenario = scenario = load_scenario(settings.scenario_file or None)
-        joints = ConfigParameters(self, '', WheelJoints).config
+        joints = RosParams(self, '', WheelJoints).config
         self.left_joint, self.right_joint = joints.left_joint, joints.right_joint
         sensors = scenario.sensors
         # The datum is the scenario's (sensors.gps_datum_*): one source, no datum.* here.
         self.datum = (sensors.gps_datum_latitude, sensors.gps_datum_longitude,
                       sensors.gps_datum_altitude)
-        start = ConfigParameters(self, 'start', StartHandshake).config
+        start = RosParams(self, 'start', StartHandshake).config
         self.expected = {'sensors': start.expected_sensor_subscribers,
                          'ground_truth': start.expected_ground_truth_subscribers,
                          'clock': start.expected_clock_subscribers}
@@ -160,7 +160,7 @@ class PlantNode(IntraProcessNode):
         """The true state now (layout of ``core.model``)."""
         return self.sim.state
 
-    def _create_interfaces(self, settings: PlantSettings) -> None:
+    def _create_interfaces(self, settings: PlantNodeParams) -> None:
         """Create the publishers, the torque subscription, the start service, timers."""
         # Reliable, keep last 10 (the graph design). Publishers offer transient-local
         # durability: compatible with volatile subscriptions, and a subscription that asks

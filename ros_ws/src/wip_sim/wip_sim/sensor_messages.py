@@ -13,7 +13,7 @@ import math
 
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
-from wip_description.sensors import local_to_geodetic, SensorConfig
+from wip_description.sensors import local_to_geodetic, SensorParams
 
 # Variance reported when a quantity is exact (noise-free simulation): REP 145 reserves
 # -1 for "not provided", 0 is a legitimate "known exactly".
@@ -21,7 +21,7 @@ EXACT = 0.0
 NOT_PROVIDED = -1.0
 
 
-def imu_message(config: SensorConfig, frame_id: str, acceleration: bool) -> Imu:
+def imu_message(config: SensorParams, frame_id: str, acceleration: bool) -> Imu:
     """Make an Imu in ``frame_id`` with the covariances of ``config``'s noise.
 
     Pitch, yaw and the gyro's noise; roll exact. ``acceleration``: whether
@@ -40,7 +40,7 @@ def imu_message(config: SensorConfig, frame_id: str, acceleration: bool) -> Imu:
     return msg
 
 
-def gps_message(config: SensorConfig, frame_id: str) -> NavSatFix:
+def gps_message(config: SensorParams, frame_id: str) -> NavSatFix:
     """Make a NavSatFix in ``frame_id``: GPS service, ``config``'s horizontal noise.
 
     The horizontal variance is that of ``config``'s noise; the altitude is exact.

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 
 from wip_control.nodes.settings import CLOCK_MODES
-from wip_description.wiring import DatumConfig, EffortCommand, ImuMounting, WheelJoints, WheelSigns
+from wip_description.wiring import DatumParams, EffortCommand, ImuMounting, WheelJoints, WheelSigns
 from wip_runtime.config import param, TEXT
 from wip_sim.core.scenario import Scenario
 
@@ -25,7 +25,7 @@ def _scenario_file():
 
 
 @dataclasses.dataclass(frozen=True)
-class PlantSettings:
+class PlantNodeParams:
     """Node-level settings of the plant (the scenario file holds the simulation)."""
 
     scenario_file: str = _scenario_file()
@@ -68,7 +68,7 @@ class StartHandshake:
 
 
 @dataclasses.dataclass(frozen=True)
-class StandinSettings:
+class StandinParams:
     """Node-level settings of the stand-in base."""
 
     scenario_file: str = _scenario_file()
@@ -124,8 +124,8 @@ class CommandTiming:
 #: expected_command_period default to the scenario file's values at run time; the plant
 #: takes its datum from the scenario file only.
 NODES: dict[str, tuple[tuple[str, type], ...]] = {
-    'plant': (('', PlantSettings), ('', WheelJoints), ('start', StartHandshake)),
-    'standin_base': (('', StandinSettings), ('', WheelJoints), ('', EffortCommand),
+    'plant': (('', PlantNodeParams), ('', WheelJoints), ('start', StartHandshake)),
+    'standin_base': (('', StandinParams), ('', WheelJoints), ('', EffortCommand),
                      ('', WheelSigns), ('', ImuMounting), ('', CommandTiming),
-                     ('datum', DatumConfig), ('position_fault', PositionFault)),
+                     ('datum', DatumParams), ('position_fault', PositionFault)),
 }

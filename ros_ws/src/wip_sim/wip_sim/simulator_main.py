@@ -12,7 +12,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from wip_runtime.cli import answer_node_help
 from wip_runtime.composition import compose
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_runtime.executors import make_executor, SPIN_TIMEOUT, spin_composed, spin_once_or_stop
 from wip_runtime.launched import end_with_launcher
 from wip_runtime.node_main import (ignore_stop_signals, init_rclpy, package_of,
@@ -72,7 +72,7 @@ def run_simulator_node(node_factory: Callable[[], Node], program: str, args=None
             node.unacknowledged_topics = wait_for_acknowledgements(built, STOP_ACK_TIMEOUT)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except (ConfigError, ParameterException) as err:
+    except (ParamError, ParameterException) as err:
         print(f'{program}: error: {err}', file=sys.stderr)
         status = config_status
     finally:

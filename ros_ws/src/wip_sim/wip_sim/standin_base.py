@@ -96,13 +96,13 @@ from wip_sim.simulator_main import run_simulator_node
 from wip_runtime.messages import quaternion_from_euler
 from wip_runtime.diagnostics import create_diagnostics_timer
 from wip_control.nodes.effort_interface import declare_effort_interface
-from wip_runtime.parameters import ConfigParameters
-from wip_description.wiring import DatumConfig, ImuMounting
+from wip_runtime.parameters import RosParams
+from wip_description.wiring import DatumParams, ImuMounting
 from wip_runtime.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
 
 from .base_conventions import BaseConventions
 from .sensor_messages import gps_message, imu_message, write_fix
-from .settings import CommandTiming, PositionFault, StandinSettings
+from .settings import CommandTiming, PositionFault, StandinParams
 
 # The tools' table (wip_runtime.cli): a fall is 1, a bad parameter 2, a simulation
 # that failed (non-finite state) an internal error, 3.
@@ -135,24 +135,24 @@ class StandinBase(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('standin_base', **kwargs)
         self.exit_code: int | None = None
-        settings = ConfigParameters(self, '', StandinSettings).config
+        settings = RosParams(self, '', StandinParams).config
         self.scenario = scenario = load_scenario(settings.scenario_file or None)
         wheels = declare_effort_interface(self)
         self.left_joint, self.right_joint = wheels.left_joint, wheels.right_joint
         self.joints = list(wheels.joints)
         self.left_sign, self.right_sign = wheels.left_sign, wheels.right_sign
-        self.mounting = ConfigParameters(self, '', ImuMounting).config.imu_mounting_rpy
+        self.mounting = RosParams(self, '', ImuMounting).config.imu_mounting_rpy
         self.publish_odometry = settings.publish_odometry
         # The datum defaults to the scenario's (sensors.gps_datum_*).
-        datum = ConfigParameters(self, 'datum', DatumConfig,
-                                 defaults=DatumConfig.of(scenario.sensors)).config
+        datum = RosParams(self, 'datum', DatumParams,
+                                 defaults=DatumParams.of(scenario.sensors)).config
         self.datum = (datum.latitude, datum.longitude, datum.altitude)
-        self.position_fault = ConfigParameters(self, 'position_fault', PositionFault).config
+        self.position_fault = RosParams(self, 'position_fault', PositionFault).config
         self._frozen_position: tuple[float, float] | None = None
         self.hold = settings.hold_until_engaged
         self.exit_after_fall = settings.exit_after_fall
         self.duration = settings.duration
-        self.command_period = ConfigParameters(
+        self.command_period = RosParams(
             self, '', CommandTiming,
             defaults=CommandTiming(scenario.control_period)).config.expected_command_period
         self.truth_period = settings.truth_period
@@ -213,7 +213,7 @@ class StandinBase(Node):
         self._next_truth = 0.0
         self.end_reason = ''
 
-    def _create_interfaces(self, settings: StandinSettings) -> None:
+    def _create_interfaces(self, settings: StandinParams) -> None:
         # Sensors: best effort, like drivers with sensor-data QoS (a reliable publisher can
         # block in publish() for 0.33 s while a new subscriber matches: measured here);
         # the command: reliable, like JointGroupEffortController's subscription.

@@ -23,7 +23,7 @@ import pathlib
 from typing import Any, Mapping
 
 from wip_bag.bag_reader import read_metadata_file
-from wip_runtime.config import ConfigError, load_yaml_text
+from wip_runtime.config import ParamError, load_yaml_text
 from wip_control.core.controller_settings import read_scenario_file
 from wip_sim.core.scenario import Scenario, scenario_from_mapping
 
@@ -57,7 +57,7 @@ def own_scenario(bag: str | pathlib.Path) -> tuple[dict[str, Any] | None, str]:
         if data is None:
             # Never the default scenario in its place: an empty file is a run cut short
             # (a full disk), and the defaults would give metrics of another scenario.
-            raise ConfigError(f'{candidate}: empty scenario file (cut short when it was '
+            raise ParamError(f'{candidate}: empty scenario file (cut short when it was '
                               'written?); remove it and give the scenario with --scenario')
         return _mapping(data, str(candidate)), str(candidate)
     return None, 'none in the bag'
@@ -67,7 +67,7 @@ def scenario_for_bag(bag: str | pathlib.Path,
                      override: str | pathlib.Path | None = None) -> tuple[Scenario, str]:
     """(Scenario, where it came from): the bag's own, with ``override`` applied over it.
 
-    Raises ConfigError (naming the file and the key) on an unreadable or invalid scenario.
+    Raises ParamError (naming the file and the key) on an unreadable or invalid scenario.
     """
     base, where = own_scenario(bag)
     if base is None:
@@ -79,8 +79,8 @@ def scenario_for_bag(bag: str | pathlib.Path,
         where = f'{path} over {where}'
     try:
         return scenario_from_mapping(base), where
-    except ConfigError as err:
-        raise ConfigError(f'{where}: {err}') from err
+    except ParamError as err:
+        raise ParamError(f'{where}: {err}') from err
 
 
 def merged(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
@@ -98,6 +98,6 @@ def _mapping(data: Any, where: str) -> dict[str, Any]:
     if data is None:
         return {}
     if not isinstance(data, Mapping):
-        raise ConfigError(f'{where}: a scenario is a mapping of sections, got '
+        raise ParamError(f'{where}: a scenario is a mapping of sections, got '
                           f'{type(data).__name__}')
     return dict(data)

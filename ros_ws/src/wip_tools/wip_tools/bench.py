@@ -62,7 +62,7 @@ import numpy as np
 
 from .analysis.bench_mpc import _format, bench_mpc_against_daqp
 from wip_control.core.model import STATE_NAMES
-from wip_sim.core.plant import MODELS, PlantConfig
+from wip_sim.core.plant import MODELS, PlantParams
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import load_scenario
 from wip_runtime.cli import add_exit_codes
@@ -115,7 +115,7 @@ def bench_plant_models(scenario, repeats: int) -> dict:
     reported as skipped.
     """
     per_model = {model: dataclasses.replace(scenario, plant=dataclasses.replace(
-        scenario.plant, model=PlantConfig(model))) for model in MODELS}
+        scenario.plant, model=PlantParams(model))) for model in MODELS}
     factors: dict[str, dict[str, list[float]]] = {m: {'wall': [], 'cpu': []} for m in MODELS}
     skipped: dict[str, str] = {}
     for _ in range(repeats):

@@ -47,7 +47,7 @@ import time
 import traceback
 from typing import Any, Mapping
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_tools.analysis.criteria import (criteria_from_mapping, criteria_to_mapping, evaluate,
                                          measure)
 from wip_sim.core.scenario import scenario_from_mapping
@@ -218,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         campaign = load_campaign(args.campaign)
         specs = run_specs(campaign)
-    except ConfigError as err:
+    except ParamError as err:
         return _fail(str(err))
 
     if args.dry_run:

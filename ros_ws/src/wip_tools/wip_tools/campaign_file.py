@@ -13,7 +13,7 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_tools.analysis.criteria import Criteria, criteria_from_mapping
 from wip_sim.core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
 
@@ -34,7 +34,7 @@ MAX_RUNS = 100_000
 #: Metrics of a run copied into its row (see wip_tools/analysis/metrics.py for their definitions).
 
 
-class CampaignError(ConfigError):
+class CampaignError(ParamError):
     """A campaign file or option is wrong; the message names the key."""
 
 
@@ -206,7 +206,7 @@ def campaign_from_mapping(data: Any, source_dir: pathlib.Path | None = None,
     grid = _grid(data, base, vary)
     try:
         criteria = criteria_from_mapping(data.get('criteria'), 'campaign.criteria')
-    except ConfigError as err:
+    except ParamError as err:
         raise CampaignError(str(err)) from err
     campaign = Campaign(name=name, description=description, base=base, runs=runs, seed=seed,
                         vary=vary, grid=grid, criteria=criteria)
@@ -234,7 +234,7 @@ def _base_scenario(data: Mapping, source_dir: pathlib.Path | None) -> dict:
                                 f'{scenario!r}')
     except CampaignError:
         raise
-    except ConfigError as err:
+    except ParamError as err:
         raise CampaignError(f'campaign.scenario: {err}') from err
 
     overrides = data.get('overrides') or {}
@@ -243,7 +243,7 @@ def _base_scenario(data: Mapping, source_dir: pathlib.Path | None) -> dict:
     base = _merge(base, overrides, 'campaign.overrides')
     try:
         return scenario_to_mapping(scenario_from_mapping(base))
-    except ConfigError as err:
+    except ParamError as err:
         raise CampaignError(f'campaign.overrides: {err}') from err
 
 
@@ -325,7 +325,7 @@ def run_specs(campaign: Campaign) -> list[dict]:
             spec = {'run': run, 'values': values, 'seed': seed}
             try:
                 scenario_from_mapping(scenario_mapping(campaign.base, spec))
-            except ConfigError as err:
+            except ParamError as err:
                 shown = ', '.join(f'{k} = {v!r}' for k, v in values.items())
                 raise CampaignError(f'campaign: run {run} ({shown}) is not a valid scenario: '
                                     f'{err}') from err

@@ -35,7 +35,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from wip_runtime.cli import add_exit_codes, EXIT_OK, EXIT_USAGE, exit_with
 from wip_tools.identify_record import best_source, choose_model, load_record, TORQUE_SOURCES
 from wip_tools.identify_signals import (CUTOFF_HZ, IdentifyError, regressors,
@@ -83,7 +83,7 @@ class Identification:
         return self.estimates[name].value
 
 
-def identify(record: Mapping, params: WipParameters | None = None, source: str = 'auto',
+def identify(record: Mapping, params: ModelParams | None = None, source: str = 'auto',
              friction: bool = False, cutoff_hz: float = CUTOFF_HZ,
              model: str = 'paper', encoders_relative_to_body: bool = True,
              motor_lag: float = 0.0) -> Identification:
@@ -98,7 +98,7 @@ def identify(record: Mapping, params: WipParameters | None = None, source: str =
     """
     if model not in ('paper', 'full'):
         raise IdentifyError(f"model {model!r}: expected 'paper' or 'full'")
-    params = WipParameters() if params is None else params
+    params = ModelParams() if params is None else params
     if source == 'auto':
         source = best_source(record)
     if not (math.isfinite(motor_lag) and 0.0 <= motor_lag <= 1.0):
@@ -157,7 +157,7 @@ def _unexcited(excitation: Mapping[str, float]) -> dict[str, str]:
 
 
 def _unfitted_moved_right(a: np.ndarray, y: np.ndarray, names: list[str], keep: list[int],
-                          params: WipParameters) -> np.ndarray:
+                          params: ModelParams) -> np.ndarray:
     """Return y with the terms of the columns not fitted moved to it.
 
     A column left out is not dropped (that would bias the others by its term) but fixed
@@ -225,7 +225,7 @@ def _covariance(aw: np.ndarray, yw: np.ndarray, p: np.ndarray, scale: np.ndarray
 
 
 def _judged(name: str, value: float, variance: float, condition: float, p: np.ndarray,
-            keep: list[int], params: WipParameters) -> Estimate:
+            keep: list[int], params: ModelParams) -> Estimate:
     """Return the estimate of ``name``, or why it is not given (condition, CI)."""
     hw = Z95 * math.sqrt(max(variance, 0.0))
     if condition > MAX_CONDITION:
@@ -259,12 +259,12 @@ def _com_height(estimates: Mapping[str, Estimate]) -> Estimate:
     return Estimate('com_height', None, None, 'needs m_p l and m_p l^2')
 
 
-def to_parameters(result: Identification, nominal: WipParameters) -> tuple[dict, list[str]]:
-    """Return overrides of :class:`WipParameters` for the controllers' model and notes on them.
+def to_parameters(result: Identification, nominal: ModelParams) -> tuple[dict, list[str]]:
+    """Return overrides of :class:`ModelParams` for the controllers' model and notes on them.
 
     r, d, g, m_w, J_w are kept (assumed known); what was not determined keeps its
     nominal value. m_p = (m_p l)/l, I_c = J_θ − m_p l², m_c = m_v − m_p − 2(m_w + J_w/r²),
-    J_υ = J_ϕ − d²(m_w + J_w/r²)/2 (the inverse of WipParameters' derived values).
+    J_υ = J_ϕ − d²(m_w + J_w/r²)/2 (the inverse of ModelParams' derived values).
     """
     notes = []
     l = result.value('com_height') or nominal.com_height  # noqa: E741 - the paper's symbol
@@ -291,7 +291,7 @@ def to_parameters(result: Identification, nominal: WipParameters) -> tuple[dict,
     return {k: float(v) for k, v in out.items()}, notes
 
 
-def true_values(params: WipParameters) -> dict[str, float]:
+def true_values(params: ModelParams) -> dict[str, float]:
     """Return the combinations of ``params`` that :func:`identify` estimates."""
     mp, l = params.body_mass, params.com_height  # noqa: E741 - the paper's symbol
     return {'effective_mass': params.effective_mass, 'mpl': mp * l,
@@ -434,13 +434,13 @@ def _inputs(args: argparse.Namespace) -> tuple:
     """Return the record of ``args.run``, the robot's wiring and the nominal parameters."""
     from wip_tools.run_wiring import (load_wiring, parse_remaps, run_params_files,
                                       WiringError)
-    nominal = WipParameters()
+    nominal = ModelParams()
     if args.scenario:
-        from wip_runtime.config import ConfigError
+        from wip_runtime.config import ParamError
         from wip_sim.core.scenario import load_scenario
         try:
             nominal = load_scenario(args.scenario).controller_model.parameters
-        except (ConfigError, OSError) as err:
+        except (ParamError, OSError) as err:
             raise IdentifyError(f'--scenario {args.scenario}: {err}') from err
     try:
         files = args.params_files or run_params_files(args.run)

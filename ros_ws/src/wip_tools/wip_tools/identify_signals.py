@@ -13,7 +13,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
 #: Wheel ground speed [m/s] at which the rolling resistance's sign is tanh(1) = 0.76 of its
 #: full value: a smooth sign, so that encoder noise about a standstill does not toggle it.
@@ -105,7 +105,7 @@ def motor_lagged(torque: np.ndarray, dt: float, time_constant: float) -> np.ndar
 
 
 def uniform_signals(record: Mapping, source: str,
-                    wheel_radius: float = WipParameters().wheel_radius,
+                    wheel_radius: float = ModelParams().wheel_radius,
                     encoders_relative_to_body: bool = True,
                     motor_lag: float = 0.0) -> dict[str, np.ndarray]:
     """Uniformly sampled (t, θ, θ̇, υ, ω, τl, τr) from the record's ``source`` group.
@@ -205,7 +205,7 @@ def _without_gaps(grid: np.ndarray, streams: Iterable[np.ndarray], gap: float) -
     return valid
 
 
-def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
+def regressors(sig: Mapping[str, np.ndarray], params: ModelParams,
                cutoff_hz: float = CUTOFF_HZ,
                model: str = 'paper') -> tuple[np.ndarray, np.ndarray, dict]:
     """Rows (A, y) of the three equations, each of n rows, stacked (3n × 7, 3n).
@@ -247,7 +247,7 @@ def regressors(sig: Mapping[str, np.ndarray], params: WipParameters,
     return np.vstack(blocks), np.concatenate(outs), excitation
 
 
-def _equation_rows(params: WipParameters, model: str, dt: float, states: tuple,
+def _equation_rows(params: ModelParams, model: str, dt: float, states: tuple,
                    rates: tuple, tau_v: np.ndarray, tau_w: np.ndarray) -> tuple:
     """Return the unfiltered (A, y) of the forward, pitch and yaw rows at the midpoints."""
     th, thd, v, om = states

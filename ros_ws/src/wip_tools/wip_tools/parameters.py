@@ -119,7 +119,7 @@ def config_rows(cls: type, prefix: str) -> list[Row]:
     """Rows of the fields of config dataclass ``cls``, named ``prefix + field``.
 
     A nested dataclass section is listed field by field; one with a field of the section's
-    own name is read flat from its parent's mapping (PlantConfig: ``plant.model``,
+    own name is read flat from its parent's mapping (PlantParams: ``plant.model``,
     ``plant.wheel_friction``), so its keys are listed there.
     A tuple of small dataclasses (disturbance components) is listed once with its
     default, then the keys of one element as ``name[i].key``.
@@ -167,7 +167,7 @@ def scenario_rows() -> list[Row]:
     for field in dataclasses.fields(Scenario):
         field_type = hints[field.name]
         if dataclasses.is_dataclass(field_type):
-            if field_type.__name__ == 'DisturbanceConfig':
+            if field_type.__name__ == 'DisturbanceParams':
                 from wip_sim.core.disturbances import DisturbanceComponent
                 rows += config_rows(field_type, f'{field.name}.')
                 rows += config_rows(DisturbanceComponent, f'{field.name}.<channel>[i].')

@@ -22,7 +22,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_tools.analysis.metrics import compute_metrics
 from wip_control.core.mpc_plan import HELD_STATUS_TEXT
 from wip_sim.core.record import GROUPS, RunRecord
@@ -161,7 +161,7 @@ def scenario_for(bag: str | pathlib.Path,
     """
     try:
         return scenario_for_bag(bag, scenario_path)
-    except ConfigError as err:
+    except ParamError as err:
         raise ReportError(str(err)) from err
 
 

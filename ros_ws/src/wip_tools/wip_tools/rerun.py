@@ -17,7 +17,7 @@ import shutil
 import sys
 import tempfile
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_runtime.cli import (add_exit_codes, check_output_directory, EXIT_USAGE, exit_with,
                              write_atomic)
 from wip_tools.analysis.metrics import compute_metrics
@@ -165,7 +165,7 @@ Examples
         _, comparison = rerun(args.bag, args.out, args.scenario, figures=not args.no_figures,
                               prefix=args.prefix.rstrip('/'), quiet=args.quiet,
                               timing=args.timing, allow_partial=args.partial)
-    except (RerunError, BagReadError, BagWriterError, ConfigError, OSError,
+    except (RerunError, BagReadError, BagWriterError, ParamError, OSError,
             ValueError) as err:
         print(f'rerun: error: {err}', file=sys.stderr)
         return EXIT_USAGE

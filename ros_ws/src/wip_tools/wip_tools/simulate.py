@@ -19,7 +19,7 @@ import time
 
 import yaml
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_tools.analysis.metrics import compute_metrics
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping
@@ -90,7 +90,7 @@ def simulate(scenario_path: str | None, out_dir: str, figures: bool = True,
     try:
         scenario = load_scenario(scenario_path)
         out = check_output_directory(out_dir)
-    except (ConfigError, ValueError) as err:
+    except (ParamError, ValueError) as err:
         print(f'ERROR: {err}', file=sys.stderr)
         return EXIT_USAGE
     if not quiet:
@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.dump_scenario:
         try:
             scenario = load_scenario(args.scenario)
-        except ConfigError as err:
+        except ParamError as err:
             print(f'ERROR: {err}', file=sys.stderr)
             return EXIT_USAGE
         print(yaml.safe_dump(scenario_to_mapping(scenario), sort_keys=False), end='')

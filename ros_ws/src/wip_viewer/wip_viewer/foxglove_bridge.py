@@ -51,17 +51,17 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Bool, Empty
 from std_srvs.srv import Trigger
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
 from wip_runtime.diagnostics import NodeDiagnostics
-from wip_runtime.parameters import ConfigParameters
+from wip_runtime.parameters import RosParams
 
 from wip_bag.bag_writer import BagWriterError
 from wip_bag.message_definitions import message_definition
 from wip_bag.recorder_node import import_message_class, is_hidden_topic
 
-from .settings import FoxgloveSettings
+from .settings import FoxgloveParams
 
 ESTOP_TOPIC = '/wip/estop'
 ESTOP_RESET_TOPIC = '/wip/estop_reset'
@@ -163,7 +163,7 @@ class FoxgloveBridge(Node):
         import foxglove
         from foxglove import Service
         from foxglove.websocket import Capability
-        settings = ConfigParameters(self, '', FoxgloveSettings).config
+        settings = RosParams(self, '', FoxgloveParams).config
         self.host, self.port = settings.host, settings.port
         self.requested = set(settings.topics)
         self.requested.discard('')
@@ -192,7 +192,7 @@ class FoxgloveBridge(Node):
                 supported_encodings=['json', 'cdr'], server_listener=self.listener,
                 services=services)
         except Exception as err:  # noqa: BLE001 - the SDK raises its own types (port in use)
-            raise ConfigError(f'cannot serve on {self.host}:{self.port}: {err}') from err
+            raise ParamError(f'cannot serve on {self.host}:{self.port}: {err}') from err
         self.url = f'ws://{self.host}:{self.server.port}'
         print(f'foxglove_bridge: serving {self.url}', flush=True)
         self.get_logger().info(f'serving {self.url} (Foxglove: Open connection, '

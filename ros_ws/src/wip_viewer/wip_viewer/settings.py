@@ -8,18 +8,18 @@ from __future__ import annotations
 
 import dataclasses
 
-from wip_description.params import WipParameters
-from wip_description.sensors import SensorConfig
+from wip_description.params import ModelParams
+from wip_description.sensors import SensorParams
 from wip_description.wiring import WheelJoints, WheelSigns
 from wip_runtime.config import like, param, TEXT
 
-from .viewer_core import ViewerConfig
+from .viewer_core import ViewerParams
 
 DEFAULT_PORT = 8765
 
 
 @dataclasses.dataclass(frozen=True)
-class FoxgloveSettings:
+class FoxgloveParams:
     """Parameters of the ``foxglove_bridge`` node."""
 
     host: str = param('127.0.0.1', TEXT, 'address to serve on (127.0.0.1: this machine only)')
@@ -34,16 +34,16 @@ class FoxgloveSettings:
 class EncoderMounting:
     """Where the wheel encoders sit: decides the wheels' parent link in the robot model."""
 
-    encoders_relative_to_body: bool = like(SensorConfig, 'encoders_relative_to_body')
+    encoders_relative_to_body: bool = like(SensorParams, 'encoders_relative_to_body')
 
 
 #: The robot model's parameters (``viewer.robot_model``), named as the controllers' are, so
 #: that a params file's ``/**:`` section describes the base to both.
-ROBOT_MODEL_GROUPS = (('model', WipParameters), ('', WheelJoints), ('', WheelSigns),
+ROBOT_MODEL_GROUPS = (('model', ModelParams), ('', WheelJoints), ('', WheelSigns),
                       ('', EncoderMounting))
 
 #: executable -> the (prefix, dataclass) groups it declares.
 NODES: dict[str, tuple[tuple[str, type], ...]] = {
-    'viewer': (('viewer', ViewerConfig), *ROBOT_MODEL_GROUPS),
-    'foxglove_bridge': (('', FoxgloveSettings),),
+    'viewer': (('viewer', ViewerParams), *ROBOT_MODEL_GROUPS),
+    'foxglove_bridge': (('', FoxgloveParams),),
 }

@@ -20,7 +20,7 @@ from wip_runtime.config import param
 
 
 @dataclasses.dataclass(frozen=True)
-class ViewerConfig:
+class ViewerParams:
     """Parameters of the viewer node (ROS parameters ``viewer.<field>``)."""
 
     pose_rate: float = param(25.0, 'Hz', 'rate of the Odometry and marker messages (of '
@@ -111,7 +111,7 @@ class BodyGeometry:
 
 
 def vehicle_geometry(x: float, y: float, phi: float, theta: float,
-                     config: ViewerConfig) -> BodyGeometry:
+                     config: ViewerParams) -> BodyGeometry:
     """Return the vehicle at axle centre (x, y) on the ground, heading ϕ, tilt θ.
 
     The axle is at height r; the body is a box of length 2 l whose bottom is on the axle,

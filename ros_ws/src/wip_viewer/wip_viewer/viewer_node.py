@@ -49,7 +49,7 @@ is zero (exact); the estimate's holds ``viewer.position_std``² on x and y when 
 noise, written by ``scripts/run_graph``), very large on z, roll, pitch; else all zero
 (unknown, the ROS convention).
 
-Parameters: ``viewer.*`` (:class:`~wip_viewer.viewer_core.ViewerConfig`), read-only.
+Parameters: ``viewer.*`` (:class:`~wip_viewer.viewer_core.ViewerParams`), read-only.
 """
 
 from __future__ import annotations
@@ -76,14 +76,14 @@ from wip_runtime.qos import TF_QOS, TF_STATIC_QOS
 from wip_runtime.stamps import stamp_to_ns
 from wip_runtime.messages import quaternion_from_euler
 from wip_runtime.diagnostics import NodeDiagnostics
-from wip_runtime.parameters import ConfigParameters
+from wip_runtime.parameters import RosParams
 from wip_msgs.msg import GroundTruth, MpcOutput, ReferenceState, StateEstimate
 
 from wip_runtime import cdr
 from .settings import ROBOT_MODEL_GROUPS
 from .viewer_core import (cdr_stamp_ns, PathBuffer, planar_pose_covariance, predicted_track,
                           quaternion_yaw_pitch, RateGate, vehicle_geometry, VIEWER_TOPICS,
-                          ViewerConfig)
+                          ViewerParams)
 
 #: Topics it reads.
 VIEWER_INPUTS = ('/wip/state_estimate', '/wip/ground_truth', '/wip/reference',
@@ -109,7 +109,7 @@ class ViewerNode(IntraProcessNode):
         # Composed with the simulation (``ros2 run wip_sim simulation --with-viewer``), its
         # inputs come from the intra-process bus as message objects; alone, raw from DDS.
         self.init_intra_process(True)
-        self.config: ViewerConfig = ConfigParameters(self, 'viewer', ViewerConfig).config
+        self.config: ViewerParams = RosParams(self, 'viewer', ViewerParams).config
         c = self.config
         # No input ages: the node runs on the wall clock also in lockstep (no /clock
         # subscription, one callback less per tick); received counts are reported instead.
@@ -155,7 +155,7 @@ class ViewerNode(IntraProcessNode):
 
     def _init_robot_model(self) -> None:
         """robot_description, the fixed joints on /tf_static, the joints' inputs."""
-        model, joints, signs, mounting = (ConfigParameters(self, prefix, cls).config
+        model, joints, signs, mounting = (RosParams(self, prefix, cls).config
                                           for prefix, cls in ROBOT_MODEL_GROUPS)
         self.robot = RobotModel(model, joints.left_joint, joints.right_joint,
                                 signs.left_wheel_sign, signs.right_wheel_sign,

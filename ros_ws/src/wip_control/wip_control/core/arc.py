@@ -39,11 +39,11 @@ import dataclasses
 import math
 from typing import NamedTuple
 
-from wip_runtime.config import ConfigError, param
+from wip_runtime.config import ParamError, param
 
 
 @dataclasses.dataclass(frozen=True)
-class ArcConfig:
+class ArcParams:
     """Gains and limits of the yaw ARC, eqs. (12), (13) in [1]_.
 
     Gains: Section V; the robust adaptation terms default on, the scenario key ``design: paper``
@@ -77,7 +77,7 @@ class ArcConfig:
 
     def validate(self) -> None:
         if not self.alpha_max > self.alpha_min:
-            raise ConfigError(f'alpha_max: must exceed alpha_min = {self.alpha_min}, got '
+            raise ParamError(f'alpha_max: must exceed alpha_min = {self.alpha_min}, got '
                               f'{self.alpha_max}')
 
 
@@ -98,8 +98,8 @@ class AdaptiveRobustYawController:
     alpha_initial : α̂(0) [kg m²], the paper's 1/ĝ1; clipped into the projection interval.
     """
 
-    def __init__(self, config: ArcConfig | None = None, alpha_initial: float = 1.0) -> None:
-        self.config = config = config if config is not None else ArcConfig()
+    def __init__(self, config: ArcParams | None = None, alpha_initial: float = 1.0) -> None:
+        self.config = config = config if config is not None else ArcParams()
         config.validate()
         self.reset(alpha_initial)
 

@@ -14,16 +14,16 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from .arc import AdaptiveRobustYawController, ArcConfig, ArcOutput
+from .arc import AdaptiveRobustYawController, ArcParams, ArcOutput
 from .lqr import make_longitudinal_controller
 from .mixer import drive_torque_limit, mix
 from .model import input_gains
-from .mpc_config import MpcConfig, resolves_faster
+from .mpc_config import MpcParams, resolves_faster
 from .mpc_plan import MpcResult
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from .reference_state import ReferenceState
 from .state_estimation import PoseEstimate
-from .trajectory_generator import (TrajectoryGenerator, TrajectoryGeneratorConfig,
+from .trajectory_generator import (TrajectoryGenerator, TrajectoryGeneratorParams,
                                    VelocityCommand)
 
 
@@ -40,7 +40,7 @@ def _all_finite(total: float, values: tuple) -> bool:
     return math.isfinite(total) or all(map(math.isfinite, values))
 
 
-def initial_alpha(model: WipParameters, yaw_input_gain_scale: float) -> float:
+def initial_alpha(model: ModelParams, yaw_input_gain_scale: float) -> float:
     """α̂(0) = 1/ĝ1 of eq. (13), with ĝ1 the ESO's yaw input gain at θ = 0.
 
     Evaluated upright rather than at θ(0) so that the yaw stage needs no initial tilt
@@ -49,10 +49,10 @@ def initial_alpha(model: WipParameters, yaw_input_gain_scale: float) -> float:
     return 1.0 / (yaw_input_gain_scale * input_gains(model, 0.0)[0])
 
 
-class GuidanceStage:
+class TrajectoryGeneratorStage:
     """Reference sample and estimated pose -> (υd, ωd, ω̇d): the generator of eq. (9)."""
 
-    def __init__(self, config: TrajectoryGeneratorConfig | None = None) -> None:
+    def __init__(self, config: TrajectoryGeneratorParams | None = None) -> None:
         self.generator = TrajectoryGenerator(config)
 
     def step(self, t: float, reference: ReferenceState, x: float, y: float,
@@ -72,10 +72,10 @@ class GuidanceStage:
         return command
 
 
-class YawStage:
+class YawControllerStage:
     """(ω̂, f̂1) and the command -> τω: the ARC of eqs. (12), (13), at period ``dt``."""
 
-    def __init__(self, config: ArcConfig | None, alpha_initial: float, dt: float) -> None:
+    def __init__(self, config: ArcParams | None, alpha_initial: float, dt: float) -> None:
         self.controller = AdaptiveRobustYawController(config, alpha_initial)
         self.dt = dt
 
@@ -96,7 +96,7 @@ class YawStage:
         return out
 
 
-class DriveStage:
+class DriveControllerStage:
     """Estimate, υd and τω -> τυ: the MPC (or LQR) every ``decimation``-th control tick.
 
     Its torque held in between (:attr:`tau_v`).
@@ -111,7 +111,7 @@ class DriveStage:
     :meth:`solves` says whether it solves there.
     """
 
-    def __init__(self, model: WipParameters, config: MpcConfig, max_wheel_torque: float,
+    def __init__(self, model: ModelParams, config: MpcParams, max_wheel_torque: float,
                  decimation: int = 1, fast_decimation: int | None = None) -> None:
         self.controller = make_longitudinal_controller(model, config)
         self.max_wheel_torque = max_wheel_torque
@@ -224,10 +224,10 @@ class ControlOutputs(NamedTuple):
 
 
 class ControlStep:
-    """guidance -> yaw -> drive (held) -> mixer, for one control tick."""
+    """Trajectory generator -> yaw controller -> drive controller (held) -> mixer, one tick."""
 
-    def __init__(self, guidance: GuidanceStage, yaw: YawStage, drive: DriveStage,
-                 max_wheel_torque: float) -> None:
+    def __init__(self, guidance: TrajectoryGeneratorStage, yaw: YawControllerStage,
+                 drive: DriveControllerStage, max_wheel_torque: float) -> None:
         self.guidance, self.yaw, self.drive = guidance, yaw, drive
         self.max_wheel_torque = max_wheel_torque
 
@@ -236,10 +236,10 @@ class ControlStep:
         """Return the stages of a scenario's controller settings, with the nominal model."""
         nominal = scenario.controller_model.parameters
         max_wheel = scenario.mixer.max_wheel_torque
-        return cls(GuidanceStage(scenario.trajectory_generator),
-                   YawStage(scenario.arc, initial_alpha(
+        return cls(TrajectoryGeneratorStage(scenario.trajectory_generator),
+                   YawControllerStage(scenario.arc, initial_alpha(
                        nominal, scenario.eso.yaw_input_gain_scale), scenario.control_period),
-                   DriveStage(nominal, scenario.mpc, max_wheel, scenario.mpc_decimation,
+                   DriveControllerStage(nominal, scenario.mpc, max_wheel, scenario.mpc_decimation,
                               scenario.mpc_fast_decimation),
                    max_wheel)
 

@@ -2,11 +2,11 @@
 
 A scenario file (``wip_sim.core.scenario``) describes one simulated run; most of it is the
 controllers' configuration, and that part is all hardware mode and ``check_base`` read from
-it. :class:`ControllerSettings` holds it: the design, the loop rates, the nominal model
+it. :class:`ControllerParams` holds it: the design, the loop rates, the nominal model
 (eq. (1) of [1]_), the reference, the sensors as the estimators read them, and the ESO,
 position, trajectory generator, ARC, MPC and mixer sections. Every key is optional: its
 default is the paper's Section V as decoded in docs/paper.md §6. Unknown keys, values of the
-wrong type and values out of range raise :class:`~wip_runtime.config.ConfigError`
+wrong type and values out of range raise :class:`~wip_runtime.config.ParamError`
 whose message starts with the dotted path of the key (``mpc.max_tilt: must be > 0``).
 
 :func:`load_controller_settings` reads a whole scenario file and skips the keys that describe
@@ -24,20 +24,20 @@ import math
 import pathlib
 from typing import Any, Callable, Mapping
 
-from .arc import ArcConfig
-from wip_runtime.config import ConfigError, _show, from_mapping, load_yaml_text, param, to_mapping
-from .eso import EsoConfig
-from .mixer import MixerConfig
-from .mpc_config import MpcConfig, PAPER_MPC_SETTINGS, resolves_faster
-from wip_description.params import WipParameters
-from .position import PositionConfig
-from .references import ReferenceConfig
-from wip_description.sensors import SensorConfig
-from .trajectory_generator import TrajectoryGeneratorConfig
+from .arc import ArcParams
+from wip_runtime.config import ParamError, _show, from_mapping, load_yaml_text, param, to_mapping
+from .eso import EsoParams
+from .mixer import MixerParams
+from .mpc_config import MpcParams, PAPER_MPC_SETTINGS, resolves_faster
+from wip_description.params import ModelParams
+from .position import PositionParams
+from .references import ReferenceParams
+from wip_description.sensors import SensorParams
+from .trajectory_generator import TrajectoryGeneratorParams
 
 
 @dataclasses.dataclass(frozen=True)
-class RatesConfig:
+class RatesParams:
     """Loop rates shared by the in-process runner and the node graph."""
 
     plant_rate: float = param(1000.0, 'Hz', 'RK4 integration rate of the plant',
@@ -49,7 +49,7 @@ class RatesConfig:
     def validate(self) -> None:
         ratio = self.plant_rate / self.control_rate
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise ConfigError('plant_rate: must be an integer multiple of control_rate '
+            raise ParamError('plant_rate: must be an integer multiple of control_rate '
                               f'({self.plant_rate} / {self.control_rate} = {ratio})')
 
     @property
@@ -59,14 +59,14 @@ class RatesConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class ControllerModelSection:
+class ControllerModelParams:
     """The controllers' nominal model (eq. (1)); defaults equal the true plant's."""
 
-    parameters: WipParameters = dataclasses.field(default_factory=WipParameters)
+    parameters: ModelParams = dataclasses.field(default_factory=ModelParams)
 
 
 @dataclasses.dataclass(frozen=True)
-class ControllerSettings:
+class ControllerParams:
     """What the controllers of one run need.
 
     Build with :func:`controller_settings_from_mapping` or :func:`load_controller_settings`.
@@ -76,18 +76,18 @@ class ControllerSettings:
     description: str = ('Section V of Yue, An, Li (2016): trifolium, sine yaw disturbance, '
                         'collision pulse at 30 s, 90 s')
     design: str = 'robust'
-    rates: RatesConfig = dataclasses.field(default_factory=RatesConfig)
-    controller_model: ControllerModelSection = dataclasses.field(
-        default_factory=ControllerModelSection)
-    reference: ReferenceConfig = dataclasses.field(default_factory=ReferenceConfig)
-    sensors: SensorConfig = dataclasses.field(default_factory=SensorConfig)
-    eso: EsoConfig = dataclasses.field(default_factory=EsoConfig)
-    position: PositionConfig = dataclasses.field(default_factory=PositionConfig)
-    trajectory_generator: TrajectoryGeneratorConfig = dataclasses.field(
-        default_factory=TrajectoryGeneratorConfig)
-    arc: ArcConfig = dataclasses.field(default_factory=ArcConfig)
-    mpc: MpcConfig = dataclasses.field(default_factory=MpcConfig)
-    mixer: MixerConfig = dataclasses.field(default_factory=MixerConfig)
+    rates: RatesParams = dataclasses.field(default_factory=RatesParams)
+    controller_model: ControllerModelParams = dataclasses.field(
+        default_factory=ControllerModelParams)
+    reference: ReferenceParams = dataclasses.field(default_factory=ReferenceParams)
+    sensors: SensorParams = dataclasses.field(default_factory=SensorParams)
+    eso: EsoParams = dataclasses.field(default_factory=EsoParams)
+    position: PositionParams = dataclasses.field(default_factory=PositionParams)
+    trajectory_generator: TrajectoryGeneratorParams = dataclasses.field(
+        default_factory=TrajectoryGeneratorParams)
+    arc: ArcParams = dataclasses.field(default_factory=ArcParams)
+    mpc: MpcParams = dataclasses.field(default_factory=MpcParams)
+    mixer: MixerParams = dataclasses.field(default_factory=MixerParams)
 
     @property
     def control_period(self) -> float:
@@ -105,7 +105,7 @@ class ControllerSettings:
 
         Where it takes its inputs and (lockstep) publishes a drive torque:
         ``mpc.fast_resolve_period`` when set, else ``mpc.sampling_period``
-        (``DriveStage.is_tick``).
+        (``DriveControllerStage.is_tick``).
         """
         fast = self.mpc_fast_decimation
         return fast if fast is not None and fast < self.mpc_decimation else self.mpc_decimation
@@ -140,10 +140,10 @@ CONTROLLER_SCALAR_RANGES = {
 }
 #: The sections of the controllers and their dataclasses (``controller_model`` apart).
 CONTROLLER_SECTIONS: dict[str, type] = {
-    'rates': RatesConfig, 'reference': ReferenceConfig, 'sensors': SensorConfig,
-    'eso': EsoConfig, 'position': PositionConfig,
-    'trajectory_generator': TrajectoryGeneratorConfig, 'arc': ArcConfig, 'mpc': MpcConfig,
-    'mixer': MixerConfig}
+    'rates': RatesParams, 'reference': ReferenceParams, 'sensors': SensorParams,
+    'eso': EsoParams, 'position': PositionParams,
+    'trajectory_generator': TrajectoryGeneratorParams, 'arc': ArcParams, 'mpc': MpcParams,
+    'mixer': MixerParams}
 #: The keys of a scenario file that describe only the simulation (the true plant, its
 #: initial state, disturbances and the run's length): the simulator's to check.
 SIMULATION_KEYS = ('duration', 'seed', 'fall_threshold', 'initial_state', 'plant',
@@ -170,93 +170,93 @@ def section(mapping: Mapping[str, Any], key: str) -> Any:
 
 
 def checked_scalar(key: str, value: Any, kind: type) -> Any:
-    """``value`` of the top-level scalar ``key`` as ``kind``; ConfigError if it is not one."""
+    """``value`` of the top-level scalar ``key`` as ``kind``; ParamError if it is not one."""
     if kind is str and not isinstance(value, str):
-        raise ConfigError(f'{key}: expected a string, got {value!r}')
+        raise ParamError(f'{key}: expected a string, got {value!r}')
     if kind in (int, float):
         if isinstance(value, bool) or not isinstance(value, (int, float)) \
                 or (isinstance(value, float) and not math.isfinite(value)):
-            raise ConfigError(f'{key}: expected a finite number, got {_show(value)}')
+            raise ParamError(f'{key}: expected a finite number, got {_show(value)}')
         if kind is int and isinstance(value, float) and not value.is_integer():
-            raise ConfigError(f'{key}: expected an integer, got {_show(value)}')
+            raise ParamError(f'{key}: expected an integer, got {_show(value)}')
         if kind is float and isinstance(value, int) and abs(value) > 1e300:
-            raise ConfigError(f'{key}: out of range, got {_show(value)}')
+            raise ParamError(f'{key}: out of range, got {_show(value)}')
         value = kind(value)
     return value
 
 
 def controller_fields(data: Mapping[str, Any] | None,
                       other_keys: frozenset[str] | set[str] = frozenset()) -> dict[str, Any]:
-    """Return the :class:`ControllerSettings` fields of a parsed scenario mapping, validated.
+    """Return the :class:`ControllerParams` fields of a parsed scenario mapping, validated.
 
     ``other_keys`` are the further top-level keys the caller reads itself; any other unknown
     key is an error.
     """
     data = {} if data is None else data
     if not isinstance(data, Mapping):
-        raise ConfigError('scenario: expected a mapping at the top level, '
+        raise ParamError('scenario: expected a mapping at the top level, '
                           f'got {type(data).__name__}')
     known = set(CONTROLLER_SCALARS) | set(CONTROLLER_SECTIONS) | {'controller_model'} \
         | set(other_keys)
     for key in data:
         if key not in known:
-            raise ConfigError(f'{key}: unknown key; expected one of {sorted(known)}')
+            raise ParamError(f'{key}: unknown key; expected one of {sorted(known)}')
     fields = {key: checked_scalar(key, data[key], kind)
               for key, (kind, _) in CONTROLLER_SCALARS.items() if key in data}
     design = fields.get('design', 'robust')
     if design not in DESIGNS:
-        raise ConfigError(f'design: {design!r} is not one of {list(DESIGNS)}')
+        raise ParamError(f'design: {design!r} is not one of {list(DESIGNS)}')
     if design == 'paper':
         data = dict(data)
         for name, defaults in PAPER_DESIGN.items():
             given = section(data, name)
             if not isinstance(given, Mapping):
-                raise ConfigError(f'{name}: expected a mapping, got {given!r}')
+                raise ParamError(f'{name}: expected a mapping, got {given!r}')
             data[name] = {**defaults, **given}
     nominal = section(data, 'controller_model')
     if not isinstance(nominal, Mapping):
-        raise ConfigError(f'controller_model: expected a mapping, got {nominal!r}')
+        raise ParamError(f'controller_model: expected a mapping, got {nominal!r}')
     for key in nominal:
         if key != 'parameters':
-            raise ConfigError(f"controller_model.{key}: unknown key; expected ['parameters']")
-    fields['controller_model'] = ControllerModelSection(parameters=from_mapping(
-        WipParameters, nominal.get('parameters'), 'controller_model.parameters'))
+            raise ParamError(f"controller_model.{key}: unknown key; expected ['parameters']")
+    fields['controller_model'] = ControllerModelParams(parameters=from_mapping(
+        ModelParams, nominal.get('parameters'), 'controller_model.parameters'))
     for key, cls in CONTROLLER_SECTIONS.items():
         fields[key] = from_mapping(cls, section(data, key), key)
     return fields
 
 
-def check_controller_consistency(settings: ControllerSettings) -> None:
+def check_controller_consistency(settings: ControllerParams) -> None:
     """Cross-section checks: periods that must divide each other, reference within limits."""
     period = settings.control_period
     ratio = settings.mpc.sampling_period * settings.rates.control_rate
     if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
-        raise ConfigError('mpc.sampling_period: must be an integer multiple of the control '
+        raise ParamError('mpc.sampling_period: must be an integer multiple of the control '
                           f'period 1/rates.control_rate = {period} s')
     ratio = settings.mpc.fast_resolve_period * settings.rates.control_rate
     if (resolves_faster(settings.mpc.sampling_period, settings.mpc.fast_resolve_period)
             and (abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1)):
-        raise ConfigError('mpc.fast_resolve_period: must be 0 or an integer multiple of '
+        raise ParamError('mpc.fast_resolve_period: must be 0 or an integer multiple of '
                           f'the control period 1/rates.control_rate = {period} s')
     ref, generator = settings.reference, settings.trajectory_generator
     if ref.time_scaling:
         if ref.path_max_speed > generator.max_speed:
-            raise ConfigError(f'reference.path_max_speed: must not exceed '
+            raise ParamError(f'reference.path_max_speed: must not exceed '
                               f'trajectory_generator.max_speed = {generator.max_speed} m/s '
                               f'(the generator saturates there), got {ref.path_max_speed}')
         if ref.path_max_yaw_rate > generator.max_yaw_rate:
-            raise ConfigError(f'reference.path_max_yaw_rate: must not exceed '
+            raise ParamError(f'reference.path_max_yaw_rate: must not exceed '
                               f'trajectory_generator.max_yaw_rate = {generator.max_yaw_rate} '
                               f'rad/s, got {ref.path_max_yaw_rate}')
     eso_period = settings.eso.sample_period
     if abs(eso_period - period) > 1e-12:
-        raise ConfigError(f'eso.sample_period: must equal 1/rates.control_rate = '
+        raise ParamError(f'eso.sample_period: must equal 1/rates.control_rate = '
                           f'{period} s (the ESO runs at the sensor rate), got {eso_period}')
 
 
-def controller_settings_from_mapping(data: Mapping[str, Any] | None) -> ControllerSettings:
+def controller_settings_from_mapping(data: Mapping[str, Any] | None) -> ControllerParams:
     """Validate the controller part of a parsed scenario mapping; skip its simulation keys."""
-    settings = ControllerSettings(**controller_fields(data, set(SIMULATION_KEYS)))
+    settings = ControllerParams(**controller_fields(data, set(SIMULATION_KEYS)))
     check_controller_consistency(settings)
     return settings
 
@@ -264,15 +264,15 @@ def controller_settings_from_mapping(data: Mapping[str, Any] | None) -> Controll
 def read_scenario_file(path: str | pathlib.Path) -> Any:
     """Return the parsed content of a scenario file, not yet validated.
 
-    Strict YAML, size-checked; ConfigError naming the file on any problem.
+    Strict YAML, size-checked; ParamError naming the file on any problem.
     """
     path = pathlib.Path(path)
     try:
         raw = path.read_bytes()
     except OSError as err:
-        raise ConfigError(f'scenario file {str(path)!r}: {err.strerror}') from err
+        raise ParamError(f'scenario file {str(path)!r}: {err.strerror}') from err
     if len(raw) > MAX_SCENARIO_FILE_BYTES:
-        raise ConfigError(f'scenario file {str(path)!r}: {len(raw)} bytes, more than the '
+        raise ParamError(f'scenario file {str(path)!r}: {len(raw)} bytes, more than the '
                           f'{MAX_SCENARIO_FILE_BYTES} a scenario file may have')
     return load_yaml_text(raw, f'scenario file {str(path)!r}')
 
@@ -290,18 +290,18 @@ def load_scenario_file(path: str | pathlib.Path, from_mapping: Callable[[Any], A
         data = {'name': path.stem}
     try:
         return from_mapping(data)
-    except ConfigError as err:
-        raise ConfigError(f'{path}: {err}') from err
+    except ParamError as err:
+        raise ParamError(f'{path}: {err}') from err
 
 
-def load_controller_settings(path: str | pathlib.Path | None = None) -> ControllerSettings:
+def load_controller_settings(path: str | pathlib.Path | None = None) -> ControllerParams:
     """Load the controller settings of a scenario file; ``None``: the paper's Section V."""
     if path is None:
-        return ControllerSettings()
+        return ControllerParams()
     return load_scenario_file(path, controller_settings_from_mapping)
 
 
-def controller_settings_to_mapping(settings: ControllerSettings) -> dict[str, Any]:
+def controller_settings_to_mapping(settings: ControllerParams) -> dict[str, Any]:
     """Plain-data form (round-trips through :func:`controller_settings_from_mapping`)."""
     out = to_mapping(settings)
     out['controller_model'] = {

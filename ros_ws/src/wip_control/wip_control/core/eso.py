@@ -53,7 +53,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 import scipy.linalg
 
-from wip_runtime.config import ConfigError, param
+from wip_runtime.config import ParamError, param
 from .integration import rk4_step
 
 _TWO_PI = 2.0 * math.pi
@@ -73,26 +73,26 @@ MEASUREMENT_HOLDS = ('linear', 'zero_order')
 #: 'paper': three third-order ESOs on the measured positions, eqs. (4), (8);
 #: 'gyro': the IMU's angular rate measured, see :class:`.rate_aided.RateAidedChannel`.
 ESTIMATORS = ('paper', 'gyro')
-#: How the x_v ESO's speed estimate starts (:class:`EsoConfig` ``speed_start``).
+#: How the x_v ESO's speed estimate starts (:class:`EsoParams` ``speed_start``).
 SPEED_STARTS = ('zero', 'first_difference')
 
 
 def check_hurwitz(gains: Sequence[float], name: str = 'gains') -> None:
-    """Raise :class:`ConfigError` unless s³ + α1 s² + α2 s + α3 is Hurwitz.
+    """Raise :class:`ParamError` unless s³ + α1 s² + α2 s + α3 is Hurwitz.
 
     Routh–Hurwitz for a cubic: all coefficients positive and α1 α2 > α3.
     """
     if len(gains) != 3:
-        raise ConfigError(f'{name}: expected 3 gains (alpha1, alpha2, alpha3), '
+        raise ParamError(f'{name}: expected 3 gains (alpha1, alpha2, alpha3), '
                           f'got {len(gains)}')
     a1, a2, a3 = (float(g) for g in gains)
     if not all(math.isfinite(a) for a in (a1, a2, a3)):
-        raise ConfigError(f'{name}: gains must be finite, got {tuple(gains)}')
+        raise ParamError(f'{name}: gains must be finite, got {tuple(gains)}')
     if min(a1, a2, a3) <= 0.0:
-        raise ConfigError(f'{name}: s^3 + {a1:g} s^2 + {a2:g} s + {a3:g} is not Hurwitz: '
+        raise ParamError(f'{name}: s^3 + {a1:g} s^2 + {a2:g} s + {a3:g} is not Hurwitz: '
                           f'every gain must be > 0, got {tuple(gains)}')
     if not a1 * a2 > a3:
-        raise ConfigError(f'{name}: s^3 + {a1:g} s^2 + {a2:g} s + {a3:g} is not Hurwitz: '
+        raise ParamError(f'{name}: s^3 + {a1:g} s^2 + {a2:g} s + {a3:g} is not Hurwitz: '
                           f'alpha1*alpha2 = {a1 * a2:g} must exceed alpha3 = {a3:g}')
 
 
@@ -138,7 +138,7 @@ def discretise(gains: Sequence[float], epsilon: float, period: float,
 
 
 @dataclasses.dataclass(frozen=True)
-class EsoConfig:
+class EsoParams:
     """Tunables of the observers: the paper's three ESOs or the gyro-aided design.
 
     The paper's three ESOs, eqs. (4) and (8) in [1]_ (gains and ε: Section V), or the gyro-aided
@@ -213,12 +213,12 @@ class EsoConfig:
                           self.tilt_rate_bandwidth, self.yaw_rate_bandwidth,
                           self.longitudinal_bandwidth)
             if fastest * h > 1.0:
-                raise ConfigError(f'sample_period: the fastest observer pole '
+                raise ParamError(f'sample_period: the fastest observer pole '
                                   f'{fastest:g} rad/s times sample_period {h:g} s must be '
                                   '<= 1 (discrete observer)')
             for name in ('tilt_angle_bandwidth', 'yaw_angle_bandwidth'):
                 if not self.gyro_bias_bandwidth < getattr(self, name):
-                    raise ConfigError(f'gyro_bias_bandwidth: must be below {name} = '
+                    raise ParamError(f'gyro_bias_bandwidth: must be below {name} = '
                                       f'{getattr(self, name)} rad/s')
 
 
@@ -280,15 +280,15 @@ class ExtendedStateObserver(ChannelEstimate):
         for label, value in (('epsilon', epsilon), ('sample_period', sample_period),
                              ('ramp_duration', ramp_duration)):
             if not (math.isfinite(value) and value > 0.0):
-                raise ConfigError(f'{name}.{label}: must be finite and > 0, got {value!r}')
+                raise ParamError(f'{name}.{label}: must be finite and > 0, got {value!r}')
         if schedule not in SCHEDULES:
-            raise ConfigError(f'{name}.schedule: {schedule!r} is not one of {list(SCHEDULES)}')
+            raise ParamError(f'{name}.schedule: {schedule!r} is not one of {list(SCHEDULES)}')
         if rate_start not in SPEED_STARTS:
-            raise ConfigError(f'{name}.rate_start: {rate_start!r} is not one of '
+            raise ParamError(f'{name}.rate_start: {rate_start!r} is not one of '
                               f'{list(SPEED_STARTS)}')
         self.rate_start = rate_start
         if measurement_hold not in MEASUREMENT_HOLDS:
-            raise ConfigError(f'{name}.measurement_hold: {measurement_hold!r} is not one of '
+            raise ParamError(f'{name}.measurement_hold: {measurement_hold!r} is not one of '
                               f'{list(MEASUREMENT_HOLDS)}')
         self.name = name
         self.gains = tuple(float(g) for g in gains)

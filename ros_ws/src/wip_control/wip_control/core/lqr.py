@@ -37,10 +37,10 @@ import scipy.linalg
 
 from .model import input_gains
 from .mpc import LongitudinalController, LongitudinalMpc
-from .mpc_config import MpcConfig
+from .mpc_config import MpcParams
 from .mpc_plan import admissible_increment, MpcResult
 from .mpc_prediction import gravity_aware_state_matrix
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from .qp import MpcStatus
 
 __all__ = ['CONTROLLERS', 'LongitudinalLqr', 'dlqr', 'make_longitudinal_controller']
@@ -73,8 +73,8 @@ class LongitudinalLqr(LongitudinalController):
         ``prediction_gain_scale``; the QP and soft-limit settings are not used.
     """
 
-    def __init__(self, params: WipParameters, config: MpcConfig | None = None) -> None:
-        config = MpcConfig() if config is None else config
+    def __init__(self, params: ModelParams, config: MpcParams | None = None) -> None:
+        config = MpcParams() if config is None else config
         super().__init__(params, config)
         ts = config.sampling_period
         a = gravity_aware_state_matrix(params, ts)
@@ -136,7 +136,7 @@ class LongitudinalLqr(LongitudinalController):
                          0.0, False, predicted, plan, theta_s)
 
 
-def make_longitudinal_controller(params: WipParameters, config: MpcConfig
+def make_longitudinal_controller(params: ModelParams, config: MpcParams
                                  ) -> LongitudinalMpc | LongitudinalLqr:
     """Return the controller named by ``config.controller``: the MPC (default) or the LQR."""
     if config.controller == 'lqr':

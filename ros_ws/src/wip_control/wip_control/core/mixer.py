@@ -35,7 +35,7 @@ from wip_runtime.config import param
 
 
 @dataclasses.dataclass(frozen=True)
-class MixerConfig:
+class MixerParams:
     """Per-wheel limits of the mixer (defaults: Section V, τmax = 15 N·m)."""
 
     max_wheel_torque: float = param(15.0, 'N m', 'tau_max: limit of each wheel torque '

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
 # Layout of the plant state vector, used everywhere a full state is an array:
 # planar position (REP 103 world frame, x east / y north in the simulator's map frame),
@@ -46,7 +46,7 @@ class ModelTerms(NamedTuple):
     g3: float  #: g_3 [rad/s² per N·m of τυ]
 
 
-def input_gains(params: WipParameters, theta: float) -> tuple[float, float, float]:
+def input_gains(params: ModelParams, theta: float) -> tuple[float, float, float]:
     """(g1, g2, g3) of eq. (1) at tilt ``theta`` [rad]."""
     p = params
     mp, l, r, d = p.body_mass, p.com_height, p.wheel_radius, p.track_width  # noqa: E741 - the paper's symbol
@@ -58,7 +58,7 @@ def input_gains(params: WipParameters, theta: float) -> tuple[float, float, floa
     return g1, g2, g3
 
 
-def nominal_terms(params: WipParameters, theta: float, omega: float,
+def nominal_terms(params: ModelParams, theta: float, omega: float,
                   theta_dot: float) -> ModelTerms:
     """All terms of eq. (1) at (θ [rad], ω [rad/s], θ̇ [rad/s])."""
     p = params

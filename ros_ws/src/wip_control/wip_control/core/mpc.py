@@ -39,12 +39,12 @@ import time
 import numpy as np
 
 from .model import input_gains
-from .mpc_config import MpcConfig
+from .mpc_config import MpcParams
 from .mpc_plan import admissible_increment, invalid_input_result, MpcResult, plan_of
 from .mpc_problem import MpcProblem
 from .mpc_qp import MpcQp, TickData
 from .mpc_steps import beyond, decaying_excess, OffsetFreeTarget, SpeedPreview, StartUp
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from .qp import MpcStatus, make_solver
 
 #: Largest magnitude of an input (SI units: m/s, rad, rad/s, m/s², rad/s², N m) taken as
@@ -59,7 +59,7 @@ class MpcInputError(ValueError):
     """An argument of :meth:`LongitudinalMpc.step` or ``reset`` is not admissible."""
 
 
-def tick_gains(params: WipParameters, config: MpcConfig,
+def tick_gains(params: ModelParams, config: MpcParams,
                theta_hat: float) -> tuple[float, float, float, float]:
     """Input gains of model (1) at θ̂ and the scaled gains of the increments.
 
@@ -72,7 +72,7 @@ def tick_gains(params: WipParameters, config: MpcConfig,
     return g2, g3, scale2 * g2, scale3 * g3
 
 
-def drive_limit(config: MpcConfig, tau_limit: float | None, *inputs: float) -> float | None:
+def drive_limit(config: MpcParams, tau_limit: float | None, *inputs: float) -> float | None:
     """Return the |τυ| limit of a tick, capped to ``max_drive_torque``.
 
     ``tau_limit`` None: that cap. None when an input or the limit is not finite or beyond
@@ -95,7 +95,7 @@ class LongitudinalController:
     torque applied since the last tick.
     """
 
-    def __init__(self, params: WipParameters, config: MpcConfig) -> None:
+    def __init__(self, params: ModelParams, config: MpcParams) -> None:
         config.validate()
         self.params = params
         self.config = config
@@ -155,15 +155,15 @@ class LongitudinalMpc(LongitudinalController):
     Parameters
     ----------
     params : nominal physical parameters (the controller's model).
-    config : tunables; see :class:`~.mpc_config.MpcConfig`.
+    config : tunables; see :class:`~.mpc_config.MpcParams`.
     solver : optional replacement of the backend named by ``config.backend``: any object
         with ``solve(H, g, C, l, u, lb, ub) -> QpSolution`` and ``reset()`` (tests inject
         a failing one). It keeps one persistent workspace (see :mod:`.qp`).
     """
 
-    def __init__(self, params: WipParameters, config: MpcConfig | None = None,
+    def __init__(self, params: ModelParams, config: MpcParams | None = None,
                  solver=None) -> None:
-        config = MpcConfig() if config is None else config
+        config = MpcParams() if config is None else config
         super().__init__(params, config)
         self.problem = MpcProblem(params, config)
         self.prediction = self.problem.prediction

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import dataclasses
 
-from wip_runtime.config import ConfigError, param
+from wip_runtime.config import ParamError, param
 from .mpc_prediction import PREDICTION_MODELS
-from .qp import QpSettings
+from .qp import QpSolverParams
 
-#: Soft-limit formulations understood by :class:`MpcConfig`.
+#: Soft-limit formulations understood by :class:`MpcParams`.
 SOFT_LIMITS = ('per_step', 'worst_case')
 
 #: The settings that reproduce the paper's formulation of (19)–(21) as first implemented
@@ -41,7 +41,7 @@ def resolves_faster(sampling_period: float, fast_resolve_period: float) -> bool:
 
 
 @dataclasses.dataclass(frozen=True)
-class MpcConfig:
+class MpcParams:
     """Tunables of the longitudinal/tilt MPC (eqs. (16)–(23) in [1])."""
 
     controller: str = param(
@@ -167,19 +167,19 @@ class MpcConfig:
         if resolves_faster(self.sampling_period, self.fast_resolve_period):
             ratio = self.sampling_period / self.fast_resolve_period
             if abs(ratio - round(ratio)) > 1e-6:
-                raise ConfigError(f'fast_resolve_period: must divide sampling_period '
+                raise ParamError(f'fast_resolve_period: must divide sampling_period '
                                   f'({self.sampling_period}) when shorter, got '
                                   f'{self.fast_resolve_period}')
         if self.speed_rise_steps > self.prediction_horizon:
-            raise ConfigError(f'speed_rise_steps: must be <= prediction_horizon '
+            raise ParamError(f'speed_rise_steps: must be <= prediction_horizon '
                               f'({self.prediction_horizon}), got {self.speed_rise_steps}')
         if self.speed_limit_first_step > self.prediction_horizon:
-            raise ConfigError(f'speed_limit_first_step: must be <= prediction_horizon '
+            raise ParamError(f'speed_limit_first_step: must be <= prediction_horizon '
                               f'({self.prediction_horizon}), got {self.speed_limit_first_step}')
         if self.control_horizon > self.prediction_horizon:
-            raise ConfigError(f'control_horizon: must be <= prediction_horizon '
+            raise ParamError(f'control_horizon: must be <= prediction_horizon '
                               f'({self.prediction_horizon}), got {self.control_horizon}')
 
-    def qp_settings(self) -> QpSettings:
-        return QpSettings(self.eps_abs, self.eps_rel, self.eps_primal_inf, self.eps_dual_inf,
+    def qp_settings(self) -> QpSolverParams:
+        return QpSolverParams(self.eps_abs, self.eps_rel, self.eps_primal_inf, self.eps_dual_inf,
                           self.max_iter, self.max_inner_iter)

@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .mpc_config import MpcConfig
+from .mpc_config import MpcParams
 from .qp import MpcStatus, QpSolution
 
 #: Status text of a drive torque published at a tick of the re-solve grid without a solve
@@ -89,7 +89,7 @@ def admissible_increment(delta: float, tau_prev: float, limit: float, dmax: floa
     return tau - tau_prev
 
 
-def invalid_input_result(config: MpcConfig, tau_prev: float) -> MpcResult:
+def invalid_input_result(config: MpcParams, tau_prev: float) -> MpcResult:
     """Return the tick's result on NaN/inf input: τ ramps toward 0 by at most Δτmax."""
     delta = min(max(-tau_prev, -config.max_delta_torque), config.max_delta_torque)
     plan = np.zeros(config.control_horizon)

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
 #: Prediction models understood by :class:`CondensedPrediction`.
 PREDICTION_MODELS = ('gravity_aware', 'paper')
@@ -64,7 +64,7 @@ def paper_state_matrix(sampling_period: float) -> np.ndarray:
                      [0.0, 0.0, 1.0]])
 
 
-def gravity_aware_state_matrix(params: WipParameters, sampling_period: float) -> np.ndarray:
+def gravity_aware_state_matrix(params: ModelParams, sampling_period: float) -> np.ndarray:
     """A_paper plus the linearised gravity coupling of f_υ2 and f_θ3 at θ = 0.
 
     d f_υ2/dθ (0) = −mp² l² g / Ω0 and d f_θ3/dθ (0) = mv mp g l / Ω0 (eq. (1)).
@@ -98,7 +98,7 @@ class CondensedPrediction:
         (3·Np): ȳ_free = M x̂ + γ2 (f̂2 + g2 τ(k−1)) + γ3 (f̂3 + g3 τ(k−1)).
     """
 
-    def __init__(self, params: WipParameters, sampling_period: float,
+    def __init__(self, params: ModelParams, sampling_period: float,
                  prediction_horizon: int, control_horizon: int,
                  model: str = 'gravity_aware') -> None:
         if model not in PREDICTION_MODELS:

@@ -25,9 +25,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .mpc_config import MpcConfig
+from .mpc_config import MpcParams
 from .mpc_prediction import CondensedPrediction
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
 
 class ProblemBlocks(NamedTuple):
@@ -61,10 +61,10 @@ class MpcProblem:
     Parameters
     ----------
     params : nominal physical parameters (the controller's model).
-    config : tunables; see :class:`~.mpc_config.MpcConfig`.
+    config : tunables; see :class:`~.mpc_config.MpcParams`.
     """
 
-    def __init__(self, params: WipParameters, config: MpcConfig) -> None:
+    def __init__(self, params: ModelParams, config: MpcParams) -> None:
         config.validate()
         self.config = config
         n_p, n_c = config.prediction_horizon, config.control_horizon
@@ -137,7 +137,7 @@ class MpcProblem:
         return h, g, c, np.full(m, -np.inf), np.full(m, np.inf), lb, ub
 
 
-def _output_rows(config: MpcConfig, n_p: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _output_rows(config: MpcParams, n_p: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return the rows of C on the predicted outputs: their index in ȳ and bounds.
 
     υ ≤ υmax (1 + sυ), θ ≤ θmax (1 + sθ), υ ≥ −υmax (1 + sυ), θ ≥ −θmax (1 + sθ) for
@@ -157,7 +157,7 @@ def _output_rows(config: MpcConfig, n_p: int) -> tuple[np.ndarray, np.ndarray, n
 
 
 def _transient_columns(pred: CondensedPrediction,
-                       config: MpcConfig) -> tuple[np.ndarray, np.ndarray]:
+                       config: MpcParams) -> tuple[np.ndarray, np.ndarray]:
     """Response to the transient part of the disturbance: decaying minus held.
 
     The free response already holds it constant (17); what
@@ -170,7 +170,7 @@ def _transient_columns(pred: CondensedPrediction,
 
 
 def _cost_blocks(pred: CondensedPrediction,
-                 config: MpcConfig) -> tuple[np.ndarray, np.ndarray]:
+                 config: MpcParams) -> tuple[np.ndarray, np.ndarray]:
     """(K22, K23, K33, R) of H and the Q-weighted gains of g, eqs. (20), (22)."""
     n_c = pred.control_horizon
     q = np.tile(np.asarray(config.output_weights, dtype=float), pred.prediction_horizon)

@@ -22,9 +22,9 @@ from __future__ import annotations
 import math
 
 from .model import nominal_terms
-from .mpc_config import MpcConfig
+from .mpc_config import MpcParams
 from .mpc_prediction import gravity_aware_state_matrix
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
 
 class StartUp:
@@ -35,7 +35,7 @@ class StartUp:
     υ̂ is the zero start, not a measurement).
     """
 
-    def __init__(self, params: WipParameters, config: MpcConfig) -> None:
+    def __init__(self, params: ModelParams, config: MpcParams) -> None:
         self.params = params
         self.duration = config.disturbance_startup_time
         self.reset()
@@ -70,7 +70,7 @@ class SpeedPreview:
     (``speed_preview_time`` T > 0); else υd held, as in (20).
     """
 
-    def __init__(self, config: MpcConfig) -> None:
+    def __init__(self, config: MpcParams) -> None:
         self.on = config.speed_preview_time > 0.0
         self.time_constant = config.speed_trend_filter_time_constant
         self.max_trend = config.max_speed_trend
@@ -137,7 +137,7 @@ class OffsetFreeTarget:
     position offset. |θs| ≤ ``max_target_tilt``. With ``offset_free`` false, θs = 0.
     """
 
-    def __init__(self, params: WipParameters, config: MpcConfig) -> None:
+    def __init__(self, params: ModelParams, config: MpcParams) -> None:
         ts = config.sampling_period
         a = gravity_aware_state_matrix(params, ts)
         self.config = config

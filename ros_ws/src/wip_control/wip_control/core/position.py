@@ -54,7 +54,7 @@ POSITION_STATUS_NAMES = {NO_FIX: 'NO_FIX', TRACKING: 'TRACKING',
 
 
 @dataclasses.dataclass(frozen=True)
-class PositionConfig:
+class PositionParams:
     """Tunables of :class:`PlanarPositionEstimator`."""
 
     gps_blend_gain: float = param(
@@ -81,8 +81,8 @@ class PlanarPositionEstimator:
     config : blend gain and outlier gate.
     """
 
-    def __init__(self, config: PositionConfig | None = None) -> None:
-        self.config = config if config is not None else PositionConfig()
+    def __init__(self, config: PositionParams | None = None) -> None:
+        self.config = config if config is not None else PositionParams()
         self.rejected_fixes = 0   #: fixes rejected since the last reset
         self.accepted_fixes = 0   #: fixes used since the last reset
         self.reset(0.0, 0.0, 0.0, 0.0)

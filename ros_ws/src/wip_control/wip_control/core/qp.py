@@ -12,7 +12,7 @@ calls only update the data (docs/paper.md §7, measured facts of ProxSuite on th
 
 ProxSuite's tolerances and iteration limits (``eps_abs``, ``eps_rel``, the infeasibility
 tolerances, ``max_iter``, ``max_inner_iter``) are fields of
-:class:`~wip_control.core.mpc.MpcConfig`; its initial guess (cold start with the previous
+:class:`~wip_control.core.mpc.MpcParams`; its initial guess (cold start with the previous
 result) and dense backend (``PrimalDualLDLT``) are set here. Why each, with the measured
 failures of the alternatives: docs/decisions/proxsuite-settings.md.
 
@@ -86,7 +86,7 @@ class QpSolution(NamedTuple):
     iterations: int
 
 
-class QpSettings(NamedTuple):
+class QpSolverParams(NamedTuple):
     """Solver tolerances (ProxSuite names; DAQP uses ``max_iter`` only, it is exact).
 
     ``polish``: replace ProxSuite's solved point by the exact solution on its active set
@@ -200,7 +200,7 @@ class ProxsuiteSolver:
 
     name = 'proxsuite'
 
-    def __init__(self, n_variables: int, n_constraints: int, settings: QpSettings) -> None:
+    def __init__(self, n_variables: int, n_constraints: int, settings: QpSolverParams) -> None:
         self._sizes = (n_variables, n_constraints)
         self._settings = settings
         self._qp = None
@@ -343,7 +343,7 @@ class DaqpSolver:
 
     name = 'daqp'
 
-    def __init__(self, n_variables: int, n_constraints: int, settings: QpSettings) -> None:
+    def __init__(self, n_variables: int, n_constraints: int, settings: QpSolverParams) -> None:
         self._n = n_variables
         self._upper = np.empty(n_variables + n_constraints)
         self._lower = np.empty(n_variables + n_constraints)
@@ -380,7 +380,7 @@ class DaqpSolver:
 
 
 def make_solver(backend: str, n_variables: int, n_constraints: int,
-                settings: QpSettings) -> ProxsuiteSolver | DaqpSolver:
+                settings: QpSolverParams) -> ProxsuiteSolver | DaqpSolver:
     """Return the persistent solver named ``backend`` (``'proxsuite'`` or ``'daqp'``)."""
     if backend == 'proxsuite':
         return ProxsuiteSolver(n_variables, n_constraints, settings)

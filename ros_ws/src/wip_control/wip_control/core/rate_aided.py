@@ -17,7 +17,7 @@ import math
 import numpy as np
 import scipy.linalg
 
-from wip_runtime.config import ConfigError
+from wip_runtime.config import ParamError
 from .eso import ChannelEstimate, PERIOD_TOLERANCE
 
 
@@ -80,7 +80,7 @@ class RateAidedChannel(ChannelEstimate):
                              ('rate_bandwidth', rate_bandwidth),
                              ('sample_period', sample_period)):
             if not (math.isfinite(value) and value > 0.0):
-                raise ConfigError(f'{name}.{label}: must be finite and > 0, got {value!r}')
+                raise ParamError(f'{name}.{label}: must be finite and > 0, got {value!r}')
         self.name = name
         self.angle_bandwidth = float(angle_bandwidth)
         self.bias_bandwidth = float(bias_bandwidth)

@@ -1,7 +1,7 @@
 r"""Reference trajectories (x_r, y_r, ϕ_r, υ_r, ω_r, ω̇_r) for the generator of eq. (9) in [1]_.
 
 Every reference is a planar path with its speed along it, sampled as a pure function of
-time. This module holds the configuration (:class:`ReferenceConfig`) and builds the
+time. This module holds the configuration (:class:`ReferenceParams`) and builds the
 reference a configuration selects (:func:`make_reference`).
 
 Kinds
@@ -27,7 +27,7 @@ import math
 from typing import Sequence
 
 from .commanded import CmdVelReference, PathReference, UnicycleLimits
-from wip_runtime.config import ConfigError, param
+from wip_runtime.config import ParamError, param
 from .reference_curves import Circle, FigureEight, StraightLine, Trifolium
 from .reference_state import Reference
 from .reference_waypoints import Waypoints
@@ -61,7 +61,7 @@ def distance_to_path(reference: Reference, x: Sequence[float], y: Sequence[float
 
 
 @dataclasses.dataclass(frozen=True)
-class ReferenceConfig:
+class ReferenceParams:
     """Which reference to follow and its parameters (prefixed by the kind).
 
     Only the fields of the selected ``kind`` are used; all are validated.
@@ -163,19 +163,19 @@ class ReferenceConfig:
 
     def validate(self) -> None:
         if len(self.waypoints_x) != len(self.waypoints_y):
-            raise ConfigError(f'waypoints_y: has {len(self.waypoints_y)} values but '
+            raise ParamError(f'waypoints_y: has {len(self.waypoints_y)} values but '
                               f'waypoints_x has {len(self.waypoints_x)}')
         if len(self.waypoints_x) < 2:
-            raise ConfigError(f'waypoints_x: need at least 2 waypoints, got '
+            raise ParamError(f'waypoints_x: need at least 2 waypoints, got '
                               f'{len(self.waypoints_x)}')
         if self.kind == 'waypoints':
             try:
                 _make_waypoints(self)
             except ValueError as err:
-                raise ConfigError(f'waypoints_x: {err}') from err
+                raise ParamError(f'waypoints_x: {err}') from err
 
 
-def _make_waypoints(config: ReferenceConfig) -> Waypoints:
+def _make_waypoints(config: ReferenceParams) -> Waypoints:
     return Waypoints(list(zip(config.waypoints_x, config.waypoints_y)),
                      speed=config.waypoints_speed,
                      acceleration=config.waypoints_acceleration,
@@ -183,12 +183,12 @@ def _make_waypoints(config: ReferenceConfig) -> Waypoints:
                      max_yaw_rate=config.waypoints_max_yaw_rate)
 
 
-def make_reference(config: ReferenceConfig | None = None) -> Reference:
+def make_reference(config: ReferenceParams | None = None) -> Reference:
     """Build the reference selected by ``config.kind`` (default: the paper's trifolium).
 
     Time-scaled (:class:`TimeScaled`) if ``config.time_scaling``.
     """
-    config = config if config is not None else ReferenceConfig()
+    config = config if config is not None else ReferenceParams()
     config.validate()
     if config.kind in COMMANDED_KINDS:
         return make_commanded(config)
@@ -205,7 +205,7 @@ def make_reference(config: ReferenceConfig | None = None) -> Reference:
     return base
 
 
-def _make_base_reference(config: ReferenceConfig) -> Reference:
+def _make_base_reference(config: ReferenceParams) -> Reference:
     if config.kind == 'trifolium':
         return Trifolium(config.trifolium_size, config.trifolium_angular_frequency)
     if config.kind == 'circle':
@@ -220,10 +220,10 @@ def _make_base_reference(config: ReferenceConfig) -> Reference:
                            config.figure_eight_period)
     if config.kind == 'waypoints':
         return _make_waypoints(config)
-    raise ConfigError(f'kind: {config.kind!r} is not one of {list(KINDS)}')
+    raise ParamError(f'kind: {config.kind!r} is not one of {list(KINDS)}')
 
 
-def make_commanded(config: ReferenceConfig,
+def make_commanded(config: ReferenceParams,
                    t0: float = 0.0) -> CmdVelReference | PathReference:
     """Return the reference of a commanded kind (``cmd_vel``, ``path``).
 
@@ -239,4 +239,4 @@ def make_commanded(config: ReferenceConfig,
     if config.kind == 'path':
         return PathReference(limits, config.path_speed, config.path_lookahead, start=start,
                              t0=t0)
-    raise ConfigError(f'kind: {config.kind!r} is not one of {list(COMMANDED_KINDS)}')
+    raise ParamError(f'kind: {config.kind!r} is not one of {list(COMMANDED_KINDS)}')

@@ -40,7 +40,7 @@ from wip_runtime.config import param
 
 
 @dataclasses.dataclass(frozen=True)
-class RunawayConfig:
+class RunawayParams:
     """Tunables of :class:`RunawayGuard` (ROS section ``runaway`` of the torque_mixer)."""
 
     enabled: bool = param(True, '1', 'judge the motion by the wheels and IMU against the '
@@ -71,8 +71,8 @@ class RunawayGuard:
     :meth:`reset` when the safety layer stops sending torque; the next update anchors anew.
     """
 
-    def __init__(self, config: RunawayConfig | None = None) -> None:
-        self.config = config if config is not None else RunawayConfig()
+    def __init__(self, config: RunawayParams | None = None) -> None:
+        self.config = config if config is not None else RunawayParams()
         self.reset()
 
     def reset(self) -> None:

@@ -25,8 +25,8 @@ from typing import NamedTuple, Sequence
 from .eso import StateEstimate
 from .mixer import mix
 from .position import FAULT as POSITION_FAULT, NO_FIX, TRACKING
-from .runaway import RunawayConfig, RunawayGuard
-from .safety_config import SafetyConfig
+from .runaway import RunawayParams, RunawayGuard
+from .safety_config import SafetyParams
 
 STARTING, ACTIVE, DEGRADED, SHADOW, FAULT, ESTOP = (
     'STARTING', 'ACTIVE', 'DEGRADED', 'SHADOW', 'FAULT', 'ESTOP')
@@ -102,17 +102,17 @@ class SafetyMonitor:
     Parameters
     ----------
     config : the safety tunables.
-    max_wheel_torque : τmax [N·m] of each wheel (``MixerConfig.max_wheel_torque``).
-    max_wheel_torque_rate : [N·m/s] (``MixerConfig.max_wheel_torque_rate``).
+    max_wheel_torque : τmax [N·m] of each wheel (``MixerParams.max_wheel_torque``).
+    max_wheel_torque_rate : [N·m/s] (``MixerParams.max_wheel_torque_rate``).
     period : nominal tick period [s], the Δt of the rate limit at the first update.
     timing_checks : False in lockstep: no ages, no start-up wait, ``settled`` not required,
         no position checks, no runaway guard.
-    runaway : the runaway guard's tunables (``core.runaway.RunawayConfig``).
+    runaway : the runaway guard's tunables (``core.runaway.RunawayParams``).
     """
 
-    def __init__(self, config: SafetyConfig, max_wheel_torque: float,
+    def __init__(self, config: SafetyParams, max_wheel_torque: float,
                  max_wheel_torque_rate: float, period: float,
-                 timing_checks: bool = True, runaway: RunawayConfig | None = None) -> None:
+                 timing_checks: bool = True, runaway: RunawayParams | None = None) -> None:
         if not (math.isfinite(period) and period > 0.0):
             raise ValueError(f'SafetyMonitor: period must be finite and > 0, got {period!r}')
         self.config = config

@@ -15,7 +15,7 @@ from wip_runtime.config import param
 
 
 @dataclasses.dataclass(frozen=True)
-class SafetyConfig:
+class SafetyParams:
     """Tunables of the safety layer (ROS section ``safety`` of the torque_mixer node).
 
     The defaults and their margins: docs/decisions/safety-layer.md.

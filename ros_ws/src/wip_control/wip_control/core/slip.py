@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
 
 class SlipState(NamedTuple):
@@ -69,7 +69,7 @@ class SlipMonitor:
     relative_to_body : the encoders measure the wheels against the body (the default).
     """
 
-    def __init__(self, params: WipParameters, max_acceleration: float = 20.0,
+    def __init__(self, params: ModelParams, max_acceleration: float = 20.0,
                  agreement: float = 0.1, bandwidth: float = 3.0, hold: float = 0.05,
                  longest: float = 1.0, relative_to_body: bool = True) -> None:
         for name, value in (('max_acceleration', max_acceleration), ('agreement', agreement),

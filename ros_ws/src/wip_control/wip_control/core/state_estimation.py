@@ -14,11 +14,11 @@ import math
 from typing import NamedTuple, Sequence
 
 from .angles import unwrap_next
-from .eso import EsoConfig, StateEstimate
+from .eso import EsoParams, StateEstimate
 from .state_observer import WipStateObserver
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from .position import (DEAD_RECKONING, FAULT, NO_FIX, PlanarPositionEstimator,
-                       PositionConfig, TRACKING)
+                       PositionParams, TRACKING)
 from wip_description.sensors import wheel_odometry
 from .slip import SlipMonitor
 
@@ -56,13 +56,13 @@ class StateEstimator:
     overflow at every later sample. Non-finite input raises ValueError and changes nothing.
     """
 
-    def __init__(self, model: WipParameters, eso_config: EsoConfig | None = None,
-                 position_config: PositionConfig | None = None, *,
+    def __init__(self, model: ModelParams, eso_config: EsoParams | None = None,
+                 position_config: PositionParams | None = None, *,
                  encoders_relative_to_body: bool = True, dead_reckoning: bool = False) -> None:
         self.model = model
-        self.eso_config = eso_config if eso_config is not None else EsoConfig()
+        self.eso_config = eso_config if eso_config is not None else EsoParams()
         self.position_config = (position_config if position_config is not None
-                                else PositionConfig())
+                                else PositionParams())
         self.relative_to_body = encoders_relative_to_body
         self.dead_reckoning = bool(dead_reckoning)
         self.refused = ''   #: why the caller refused the position source ('' if not)
@@ -74,7 +74,7 @@ class StateEstimator:
     def from_scenario(cls, scenario) -> 'StateEstimator':
         """Return the estimator of a scenario's controller settings.
 
-        ``scenario`` is a :class:`~.controller_settings.ControllerSettings` (a simulation's
+        ``scenario`` is a :class:`~.controller_settings.ControllerParams` (a simulation's
         scenario is one). The model is the nominal one, as the controllers know it (a
         mismatch with the plant shows up in x_v).
         """

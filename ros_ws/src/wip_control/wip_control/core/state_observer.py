@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
-from .eso import EsoConfig, ExtendedStateObserver, StateEstimate
+from .eso import EsoParams, ExtendedStateObserver, StateEstimate
 from .model import input_gains
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from .rate_aided import RateAidedChannel
 
 _TWO_PI = 2.0 * math.pi
@@ -37,7 +37,7 @@ class WipStateObserver:
     initial_time : time [s] of the initial state, and origin of the ε ramp.
     """
 
-    def __init__(self, params: WipParameters, config: EsoConfig | None = None,
+    def __init__(self, params: ModelParams, config: EsoParams | None = None,
                  initial_positions: Sequence[float] = (0.0, 0.0, 0.0),
                  initial_time: float = 0.0, *,
                  encoders_relative_to_body: bool = False) -> None:
@@ -46,7 +46,7 @@ class WipStateObserver:
         # the raw IMU pitch, whose noise r·σθ the x_v ESO would otherwise differentiate.
         self._xv_pitch_correction = (params.wheel_radius if encoders_relative_to_body
                                      else 0.0)
-        self.config = config = config if config is not None else EsoConfig()
+        self.config = config = config if config is not None else EsoParams()
         config.validate()
         common = dict(epsilon=config.epsilon, sample_period=config.sample_period,
                       schedule=config.epsilon_schedule, ramp_duration=config.ramp_duration,

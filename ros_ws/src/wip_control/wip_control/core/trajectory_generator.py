@@ -54,7 +54,7 @@ HEADING_DESIGNS = ('paper', 'poles')
 
 
 @dataclasses.dataclass(frozen=True)
-class TrajectoryGeneratorConfig:
+class TrajectoryGeneratorParams:
     """Gains and limits of the saturated trajectory generator, eq. (9) in [1]_."""
 
     lambda1: float = param(1.0, '1', 'lambda1 of eq. (9): weight of the lateral error y_e',
@@ -109,7 +109,7 @@ def tracking_errors(ref: ReferenceState, x: float, y: float,
     return c * dx + s * dy, -s * dx + c * dy, phi_e
 
 
-def heading_gains(config: TrajectoryGeneratorConfig, v_r: float) -> tuple[float, float]:
+def heading_gains(config: TrajectoryGeneratorParams, v_r: float) -> tuple[float, float]:
     """(λ1 [1], λ2 [rad/s]) of eq. (9) at the reference speed ``v_r`` [m/s].
 
     'poles': near the path (x_e, y_e, ϕ_e small, υ ≈ υ_r) the body-frame errors obey
@@ -126,7 +126,7 @@ def heading_gains(config: TrajectoryGeneratorConfig, v_r: float) -> tuple[float,
     return w_n * w_n / (speed * speed), 2.0 * config.heading_damping * w_n
 
 
-def unsaturated_commands(config: TrajectoryGeneratorConfig, ref: ReferenceState,
+def unsaturated_commands(config: TrajectoryGeneratorParams, ref: ReferenceState,
                          x_e: float, y_e: float, phi_e: float) -> tuple[float, float]:
     """(υ_d [m/s], ω_d [rad/s]) of eq. (9) before saturation."""
     sinc = math.sin(phi_e) / phi_e if abs(phi_e) > 1e-6 else 1.0 - phi_e * phi_e / 6.0
@@ -146,8 +146,8 @@ class TrajectoryGenerator:
     config : gains λ1..λ3, limits ω_max, υ_max, derivative filter.
     """
 
-    def __init__(self, config: TrajectoryGeneratorConfig | None = None) -> None:
-        self.config = config if config is not None else TrajectoryGeneratorConfig()
+    def __init__(self, config: TrajectoryGeneratorParams | None = None) -> None:
+        self.config = config if config is not None else TrajectoryGeneratorParams()
         self.reset()
 
     def reset(self) -> None:

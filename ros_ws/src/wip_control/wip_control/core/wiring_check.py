@@ -80,7 +80,7 @@ from typing import NamedTuple, Sequence
 
 from wip_runtime.config import param
 from .model import nominal_terms
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
 #: Names of the parameters a verdict can point at (the eso and torque_mixer nodes').
 LEFT_SIGN, RIGHT_SIGN, JOINTS, MOUNTING = ('left_wheel_sign', 'right_wheel_sign',
@@ -98,7 +98,7 @@ _MAX_STEP = 0.05
 
 
 @dataclasses.dataclass(frozen=True)
-class WiringCheckConfig:
+class WiringCheckParams:
     """Tunables of the wiring checks (ROS section ``wiring_check`` of the torque_mixer)."""
 
     enabled: bool = param(True, '1', 'compare wheels, gyro, accelerometer and drive torque '
@@ -122,7 +122,7 @@ class WiringCheckConfig:
                                      maximum=3.2)
 
 
-def mirrored_tilt_band(params: WipParameters) -> tuple[float, float]:
+def mirrored_tilt_band(params: ModelParams) -> tuple[float, float]:
     """Band of the tilt ratio Y/X [1] that a mirrored drive gives (the module docstring)."""
     reaction = 1.0 + params.effective_mass * params.wheel_radius / (
         params.body_mass * params.com_height)
@@ -154,7 +154,7 @@ class WiringCheck:
     values of the hardware parameters (names as the node's), quoted in the messages.
     """
 
-    def __init__(self, config: WiringCheckConfig, params: WipParameters, period: float,
+    def __init__(self, config: WiringCheckParams, params: ModelParams, period: float,
                  configured: dict | None = None) -> None:
         if not (math.isfinite(period) and period > 0.0):
             raise ValueError(f'WiringCheck: period must be finite and > 0, got {period!r}')

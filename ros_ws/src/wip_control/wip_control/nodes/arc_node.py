@@ -6,7 +6,7 @@ Subscribes ``/wip/velocity_command`` (ωd, ω̇d) and ``/wip/state_estimate`` (�
 Publishes ``/wip/yaw_torque`` (wip_msgs/ArcState: τω, α̂, eω) stamped like the estimate,
 and ``/diagnostics``.
 
-Per sample: the yaw stage of the loop, ``core.control_step.YawStage`` (the ARC
+Per sample: the yaw stage of the loop, ``core.control_step.YawControllerStage`` (the ARC
 ``core.arc.AdaptiveRobustYawController``, as the runner's ``ControlStep``), with dt the
 control period 1/``rates.control_rate`` (the same nominal dt is
 used in real time: the controller runs at the sensor rate).
@@ -34,16 +34,16 @@ import time
 from wip_msgs.msg import (ArcState, StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg)
 
-from ..core.arc import ArcConfig
-from ..core.control_step import YawStage, initial_alpha
-from wip_description.params import WipParameters
-from ..core.controller_settings import RatesConfig
+from ..core.arc import ArcParams
+from ..core.control_step import YawControllerStage, initial_alpha
+from wip_description.params import ModelParams
+from ..core.controller_settings import RatesParams
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
 from .conversions import arc_to_msg, command_from_msg, estimate_from_msg
 from wip_runtime.diagnostics import OK
-from wip_runtime.parameters import ConfigParameters
+from wip_runtime.parameters import RosParams
 from .settings import YawInputGainScale
 from wip_runtime.sync import ExactTimeSync, LatestSync
 
@@ -55,14 +55,14 @@ class ArcNode(ControllerNode):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('arc', 'adaptive robust yaw control (12)-(13)', _INPUTS, **kwargs)
-        self.parameters = ConfigParameters(self, 'arc', ArcConfig, self._on_config)
-        self.rates = ConfigParameters(self, 'rates', RatesConfig).config
-        model = ConfigParameters(self, 'model', WipParameters).config
-        scale = ConfigParameters(self, 'eso', YawInputGainScale).config.yaw_input_gain_scale
+        self.parameters = RosParams(self, 'arc', ArcParams, self._on_config)
+        self.rates = RosParams(self, 'rates', RatesParams).config
+        model = RosParams(self, 'model', ModelParams).config
+        scale = RosParams(self, 'eso', YawInputGainScale).config.yaw_input_gain_scale
         alpha_initial = initial_alpha(model, scale)
         self.dt = 1.0 / self.rates.control_rate
         # The yaw stage of the loop (core/control_step.py).
-        self.stage = YawStage(self.parameters.config, alpha_initial, self.dt)
+        self.stage = YawControllerStage(self.parameters.config, alpha_initial, self.dt)
         self.controller = self.stage.controller
         if self.lockstep:
             self.sync = ExactTimeSync(_INPUTS, self._compute)
@@ -75,7 +75,7 @@ class ArcNode(ControllerNode):
         self.subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                              estimate_from_msg)
 
-    def _on_config(self, config: ArcConfig) -> None:
+    def _on_config(self, config: ArcParams) -> None:
         self.controller.config = config
         self.controller.reset(self.controller.alpha_hat)  # Project into the new bounds.
 

@@ -13,17 +13,17 @@ from wip_runtime.clock import TimeBase, warn_lockstep_without_sim_time
 from wip_runtime.composition import IntraProcessNode
 from wip_runtime.diagnostics import NodeDiagnostics
 from wip_runtime.messages import decode_serialized
-from wip_runtime.parameters import ConfigParameters
+from wip_runtime.parameters import RosParams
 from wip_runtime.qos import lockstep_writer_qos, RELIABLE_QOS
 from wip_runtime.stamps import stamp_to_ns
 
-from .settings import ControllerNodeSettings, RETIRED
+from .settings import ControllerNodeParams, RETIRED
 
 
 class ControllerNode(IntraProcessNode):
     """Base of the controller nodes: clock mode, time base, diagnostics, guarded callbacks.
 
-    Parameters declared here: :class:`~wip_control.nodes.settings.ControllerNodeSettings`
+    Parameters declared here: :class:`~wip_control.nodes.settings.ControllerNodeParams`
     (``use_intra_process_comms``, ``clock_mode``, ``diagnostics_period`` [s],
     ``max_stamp_lead`` [s]).
     """
@@ -34,7 +34,7 @@ class ControllerNode(IntraProcessNode):
     def __init__(self, node_name: str, role: str, inputs: Sequence[str], **kwargs) -> None:
         super().__init__(node_name, **kwargs)
         self.init_intra_process(False)
-        settings = ConfigParameters(self, '', ControllerNodeSettings).config
+        settings = RosParams(self, '', ControllerNodeParams).config
         self.use_intra_process_comms = settings.use_intra_process_comms
         self.clock_mode = warn_lockstep_without_sim_time(self, settings.clock_mode)
         self._system_clock = not self.get_parameter('use_sim_time').value

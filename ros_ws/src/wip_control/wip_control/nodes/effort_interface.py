@@ -6,7 +6,7 @@ import dataclasses
 
 from rclpy.node import Node
 from wip_description.wiring import check_effort_joints, EffortCommand, WheelJoints, WheelSigns
-from wip_runtime.parameters import ConfigParameters
+from wip_runtime.parameters import RosParams
 
 
 @dataclasses.dataclass(frozen=True)
@@ -24,15 +24,15 @@ def declare_effort_interface(node: Node) -> EffortInterface:
     """Declare and read the parameters of the effort interface.
 
     These are the parameters of WheelJoints, EffortCommand and WheelSigns (the
-    mixer and the stand-in base read the same ones). Raise ConfigError if ``joints`` does
+    mixer and the stand-in base read the same ones). Raise ParamError if ``joints`` does
     not list ``left_joint`` and ``right_joint`` once each.
     """
-    wheels = ConfigParameters(node, '', WheelJoints).config
+    wheels = RosParams(node, '', WheelJoints).config
     left, right = wheels.left_joint, wheels.right_joint
     # joints defaults to (left_joint, right_joint) as set, so renaming both is enough.
-    joints = tuple(ConfigParameters(node, '', EffortCommand,
+    joints = tuple(RosParams(node, '', EffortCommand,
                                     defaults=EffortCommand((left, right))).config.joints)
     check_effort_joints(left, right, joints)
-    signs = ConfigParameters(node, '', WheelSigns).config
+    signs = RosParams(node, '', WheelSigns).config
     return EffortInterface(left, right, joints, float(signs.left_wheel_sign),
                            float(signs.right_wheel_sign))

@@ -97,10 +97,10 @@ from sensor_msgs.msg import Imu, JointState, NavSatFix
 from tf2_msgs.msg import TFMessage
 from wip_msgs.msg import StateEstimate as StateEstimateMsg, WheelTorques
 
-from wip_runtime.config import ConfigError
-from ..core.eso import EsoConfig
-from wip_description.params import WipParameters
-from ..core.position import PositionConfig
+from wip_runtime.config import ParamError
+from ..core.eso import EsoParams
+from wip_description.params import ModelParams
+from ..core.position import PositionParams
 from ..core.state_estimation import EstimatorOverflow, StateEstimator
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
@@ -113,9 +113,9 @@ from ..core.position import DEAD_RECKONING, TRACKING
 from wip_runtime.diagnostics import ERROR, OK, WARN
 from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
                               odometry_position, signed_wheel_angles)
-from wip_runtime.parameters import ConfigParameters
-from .settings import EsoNodeSettings
-from wip_description.wiring import DatumConfig, ImuMounting, WheelJoints, WheelSigns
+from wip_runtime.parameters import RosParams
+from .settings import EsoNodeParams
+from wip_description.wiring import DatumParams, ImuMounting, WheelJoints, WheelSigns
 from wip_runtime.sync import decimation, ExactTimeSync, is_decimated_tick, LatestSync
 
 _SENSORS = ('joint_states', 'imu', 'gps')
@@ -168,15 +168,15 @@ class EsoNode(ControllerNode):
         self._init_odometry(settings)
         self.diagnostics.state(OK, 'waiting for the first measurement set')
 
-    def _read_parameters(self) -> EsoNodeSettings:
+    def _read_parameters(self) -> EsoNodeParams:
         """Declare and read the parameters: observer, position, model, wiring, datum."""
-        self.eso_config = ConfigParameters(self, 'eso', EsoConfig).config
-        self.position_config = ConfigParameters(self, 'position', PositionConfig).config
-        self.model = ConfigParameters(self, 'model', WipParameters).config
-        settings = ConfigParameters(self, '', EsoNodeSettings).config
-        joints = ConfigParameters(self, '', WheelJoints).config
-        signs = ConfigParameters(self, '', WheelSigns).config
-        mounting = ConfigParameters(self, '', ImuMounting).config
+        self.eso_config = RosParams(self, 'eso', EsoParams).config
+        self.position_config = RosParams(self, 'position', PositionParams).config
+        self.model = RosParams(self, 'model', ModelParams).config
+        settings = RosParams(self, '', EsoNodeParams).config
+        joints = RosParams(self, '', WheelJoints).config
+        signs = RosParams(self, '', WheelSigns).config
+        mounting = RosParams(self, '', ImuMounting).config
         self.relative_to_body = settings.encoders_relative_to_body
         gps_period = settings.gps_period
         self.left_joint, self.right_joint = joints.left_joint, joints.right_joint
@@ -185,9 +185,9 @@ class EsoNode(ControllerNode):
         self.imu_inverse_mount = mounting_inverse(mounting.imu_mounting_rpy)
         self.position_source = settings.position_source
         if self.position_source == 'odometry' and self.lockstep:
-            raise ConfigError("position_source: 'odometry' needs clock_mode realtime (the "
+            raise ParamError("position_source: 'odometry' needs clock_mode realtime (the "
                               'lockstep sets wait for GPS fixes)')
-        datum = ConfigParameters(self, 'datum', DatumConfig).config
+        datum = RosParams(self, 'datum', DatumParams).config
         self.datum = (datum.latitude, datum.longitude, datum.altitude)
         self.max_datum_distance = settings.max_datum_distance
         self.frame_id = settings.frame_id
@@ -221,7 +221,7 @@ class EsoNode(ControllerNode):
             self.subscribe(NavSatFix, 'gps/fix', 'gps', self._on_gps, sensor_qos)
         self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques', self._on_torques)
 
-    def _init_odometry(self, settings: EsoNodeSettings) -> None:
+    def _init_odometry(self, settings: EsoNodeParams) -> None:
         """Set up the /odom output (nav_msgs/Odometry of the estimate, REP 105)."""
         wanted = (settings.odometry_output == 'always'
                   or (settings.odometry_output == 'realtime' and not self.lockstep))

@@ -8,7 +8,7 @@ Subscribes ``/wip/state_estimate`` (υ̂, θ̂, θ̂̇, f̂2, f̂3), ``/wip/velo
 Publishes ``/wip/drive_torque`` (wip_msgs/MpcOutput: τυ, Δτ, status, iterations, build +
 solve time, slacks, predicted υ/θ/θ̇) every ``mpc.sampling_period``, and ``/diagnostics``.
 
-Per tick: the drive stage of the loop, ``core.control_step.DriveStage.step`` (as the
+Per tick: the drive stage of the loop, ``core.control_step.DriveControllerStage.step`` (as the
 runner's ``ControlStep``): ``core.mpc.LongitudinalMpc``, or the LQR baseline
 ``core.lqr.LongitudinalLqr`` when ``mpc.controller`` is ``lqr`` (same interface and
 message). The core keeps
@@ -22,11 +22,11 @@ Ticks
 -----
 lockstep: t_k is a tick when k = round(t_k / h) is a multiple of
 round(``mpc.sampling_period`` / h), or of round(``mpc.fast_resolve_period`` / h) when that
-is set, h = 1/``rates.control_rate`` (the runner's ``DriveStage.is_tick(k)``, t = 0
+is set, h = 1/``rates.control_rate`` (the runner's ``DriveControllerStage.is_tick(k)``, t = 0
 included); the tick is computed as soon as estimate(t_k), command(t_k) and yaw_torque(t_k)
 have all arrived, in any order. Inputs at other stamps are not needed. (Not a sim-time
 timer: see ``wip_runtime.clock``.) At a tick of the re-solve grid where the stage does not
-solve (``DriveStage.solves``: no push), the held τυ is published (status SOLVED,
+solve (``DriveControllerStage.solves``: no push), the held τυ is published (status SOLVED,
 ``status_text`` HELD, no plan), so the mixer gets an answer at every tick of the grid.
 realtime: a timer of period ``mpc.sampling_period`` (``mpc.fast_resolve_period`` when set;
 then only the ticks at which the stage solves publish) on the node clock computes with the
@@ -57,10 +57,10 @@ import time
 from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
 
-from ..core.control_step import DriveStage
-from ..core.mpc_config import MpcConfig, resolves_faster
-from wip_description.params import WipParameters
-from ..core.controller_settings import RatesConfig
+from ..core.control_step import DriveControllerStage
+from ..core.mpc_config import MpcParams, resolves_faster
+from wip_description.params import ModelParams
+from ..core.controller_settings import RatesParams
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
@@ -68,8 +68,8 @@ from wip_runtime.stamps import stamp_to_ns
 from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc_hold_msg,
                           mpc_idle_msg, mpc_to_msg, wheel_torques_from_msg)
 from wip_runtime.diagnostics import OK, WARN
-from wip_runtime.parameters import ConfigParameters
-from .settings import MpcNodeSettings, WheelTorqueLimit
+from wip_runtime.parameters import RosParams
+from .settings import MpcNodeParams, WheelTorqueLimit
 from wip_runtime.sync import decimation, ExactTimeSync, tick_index
 
 _INPUTS = ('state_estimate', 'velocity_command', 'yaw_torque')
@@ -80,18 +80,18 @@ class MpcNode(ControllerNode):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('mpc', 'longitudinal/tilt MPC (16)-(23)', _INPUTS, **kwargs)
-        self.config = ConfigParameters(self, 'mpc', MpcConfig).config
-        self.model = ConfigParameters(self, 'model', WipParameters).config
-        self.max_wheel_torque = ConfigParameters(self, 'mixer',
+        self.config = RosParams(self, 'mpc', MpcParams).config
+        self.model = RosParams(self, 'model', ModelParams).config
+        self.max_wheel_torque = RosParams(self, 'mixer',
                                                  WheelTorqueLimit).config.max_wheel_torque
-        self.rates = ConfigParameters(self, 'rates', RatesConfig).config
-        self.max_input_age = ConfigParameters(self, '', MpcNodeSettings).config.max_input_age
+        self.rates = RosParams(self, 'rates', RatesParams).config
+        self.max_input_age = RosParams(self, '', MpcNodeParams).config.max_input_age
         self.sampling_period = self.config.sampling_period
         self.control_period = 1.0 / self.rates.control_rate
         fast = self.config.fast_resolve_period
         # The drive stage of the loop (core/control_step.py): the MPC or the LQR, and its
         # grid (every sampling_period, or every fast_resolve_period when that is set).
-        self.stage = DriveStage(self.model, self.config, self.max_wheel_torque,
+        self.stage = DriveControllerStage(self.model, self.config, self.max_wheel_torque,
                                 decimation(self.sampling_period, self.control_period),
                                 decimation(fast, self.control_period)
                                 if resolves_faster(self.sampling_period, fast) else None)

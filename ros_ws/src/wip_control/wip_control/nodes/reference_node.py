@@ -60,8 +60,8 @@ from nav_msgs.msg import Path
 from wip_msgs.msg import (ReferenceState as ReferenceStateMsg, StateEstimate as StateEstimateMsg,
                           WheelTorques)
 
-from ..core.references import COMMANDED_KINDS, make_reference, ReferenceConfig
-from ..core.controller_settings import RatesConfig
+from ..core.references import COMMANDED_KINDS, make_reference, ReferenceParams
+from ..core.controller_settings import RatesParams
 from .common import ControllerNode
 from wip_runtime.clock import ClockTicker
 from wip_runtime.node_main import run_node
@@ -69,8 +69,8 @@ from wip_runtime.qos import RELIABLE_QOS
 from wip_runtime.stamps import stamp_to_ns
 from .conversions import reference_to_msg
 from wip_runtime.diagnostics import OK, WARN
-from wip_runtime.parameters import ConfigParameters
-from .settings import ReferenceNodeSettings
+from wip_runtime.parameters import RosParams
+from .settings import ReferenceNodeParams
 
 
 class ReferenceNode(ControllerNode):
@@ -79,9 +79,9 @@ class ReferenceNode(ControllerNode):
     def __init__(self, **kwargs) -> None:
         # 'tick': what makes the node publish (/clock, the state estimate or its timer).
         super().__init__('reference', 'reference trajectory', ('tick',), **kwargs)
-        self.config = ConfigParameters(self, 'reference', ReferenceConfig).config
-        self.rates = ConfigParameters(self, 'rates', RatesConfig).config
-        settings = ConfigParameters(self, '', ReferenceNodeSettings).config
+        self.config = RosParams(self, 'reference', ReferenceParams).config
+        self.rates = RosParams(self, 'rates', RatesParams).config
+        settings = RosParams(self, '', ReferenceNodeParams).config
         self.frame_id = settings.frame_id
         self.realtime_start = settings.realtime_start
         self.waiting = not self.lockstep and self.realtime_start == 'engaged'

@@ -14,20 +14,20 @@ from __future__ import annotations
 
 import dataclasses
 
-from ..core.arc import ArcConfig
-from ..core.eso import EsoConfig
-from ..core.mixer import MixerConfig
-from ..core.mpc_config import MpcConfig
-from wip_description.params import WipParameters
-from ..core.position import PositionConfig
-from ..core.references import ReferenceConfig
-from ..core.runaway import RunawayConfig
-from ..core.safety_config import SafetyConfig
-from ..core.controller_settings import RatesConfig
-from wip_description.sensors import SensorConfig
-from ..core.trajectory_generator import TrajectoryGeneratorConfig
-from ..core.wiring_check import WiringCheckConfig
-from wip_description.wiring import (DatumConfig, EffortCommand, ImuMounting, WheelJoints,
+from ..core.arc import ArcParams
+from ..core.eso import EsoParams
+from ..core.mixer import MixerParams
+from ..core.mpc_config import MpcParams
+from wip_description.params import ModelParams
+from ..core.position import PositionParams
+from ..core.references import ReferenceParams
+from ..core.runaway import RunawayParams
+from ..core.safety_config import SafetyParams
+from ..core.controller_settings import RatesParams
+from wip_description.sensors import SensorParams
+from ..core.trajectory_generator import TrajectoryGeneratorParams
+from ..core.wiring_check import WiringCheckParams
+from wip_description.wiring import (DatumParams, EffortCommand, ImuMounting, WheelJoints,
                                     WheelSigns)
 from wip_runtime.config import like, param, TEXT
 
@@ -41,7 +41,7 @@ ODOMETRY_OUTPUTS = ('realtime', 'always', 'off')
 
 
 @dataclasses.dataclass(frozen=True)
-class ControllerNodeSettings:
+class ControllerNodeParams:
     """Declared by every controller node (nodes/common.py ControllerNode)."""
 
     use_intra_process_comms: bool = param(
@@ -59,11 +59,11 @@ class ControllerNodeSettings:
 
 
 @dataclasses.dataclass(frozen=True)
-class EsoNodeSettings:
+class EsoNodeParams:
     """Node-level settings of the ESO node."""
 
-    encoders_relative_to_body: bool = like(SensorConfig, 'encoders_relative_to_body')
-    gps_period: float = param(1.0 / SensorConfig().gps_rate, 's', 'period of the GPS fixes '
+    encoders_relative_to_body: bool = like(SensorParams, 'encoders_relative_to_body')
+    gps_period: float = param(1.0 / SensorParams().gps_rate, 's', 'period of the GPS fixes '
                               '(lockstep: a fix is expected every round(gps_period / '
                               'eso.sample_period) samples)', minimum=0.0,
                               exclusive_minimum=True, maximum=3600.0)
@@ -114,11 +114,11 @@ class YawInputGainScale:
     From which it computes α̂(0) = 1/ĝ1 with the model (``core.control_step.initial_alpha``).
     """
 
-    yaw_input_gain_scale: float = like(EsoConfig, 'yaw_input_gain_scale')
+    yaw_input_gain_scale: float = like(EsoParams, 'yaw_input_gain_scale')
 
 
 @dataclasses.dataclass(frozen=True)
-class MpcNodeSettings:
+class MpcNodeParams:
     """Node-level settings of the MPC node."""
 
     max_input_age: float = param(0.25, 's', 'realtime: inputs older than this make the MPC '
@@ -133,7 +133,7 @@ class WheelTorqueLimit:
     2 τmax − |τω|, core.mixer.drive_torque_limit.
     """
 
-    max_wheel_torque: float = like(MixerConfig, 'max_wheel_torque')
+    max_wheel_torque: float = like(MixerParams, 'max_wheel_torque')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,12 +143,12 @@ class MpcPeriod:
     From which the mixer computes the ticks at which (in lockstep) it awaits a drive torque.
     """
 
-    sampling_period: float = like(MpcConfig, 'sampling_period')
-    fast_resolve_period: float = like(MpcConfig, 'fast_resolve_period')
+    sampling_period: float = like(MpcParams, 'sampling_period')
+    fast_resolve_period: float = like(MpcParams, 'fast_resolve_period')
 
 
 @dataclasses.dataclass(frozen=True)
-class MixerNodeSettings:
+class MixerNodeParams:
     """Node-level settings of the torque mixer node."""
 
     effort_topic: str = param('effort_controller/commands', TEXT, 'topic of the '
@@ -157,7 +157,7 @@ class MixerNodeSettings:
 
 
 @dataclasses.dataclass(frozen=True)
-class ReferenceNodeSettings:
+class ReferenceNodeParams:
     """Node-level settings of the reference node."""
 
     frame_id: str = param('map', TEXT, 'frame of the reference position')
@@ -180,23 +180,23 @@ RETIRED = {
                      "'eso.yaw_input_gain_scale'",
 }
 
-_BASE = (('', ControllerNodeSettings),)
+_BASE = (('', ControllerNodeParams),)
 
 #: executable -> the (prefix, dataclass) groups it declares, in declaration order.
 NODES: dict[str, tuple[tuple[str, type], ...]] = {
-    'reference': (*_BASE, ('reference', ReferenceConfig), ('rates', RatesConfig),
-                  ('', ReferenceNodeSettings)),
-    'eso': (*_BASE, ('eso', EsoConfig), ('position', PositionConfig),
-            ('model', WipParameters), ('', EsoNodeSettings), ('', WheelJoints),
-            ('', WheelSigns), ('', ImuMounting), ('datum', DatumConfig)),
-    'trajectory_generator': (*_BASE, ('trajectory_generator', TrajectoryGeneratorConfig)),
-    'arc': (*_BASE, ('arc', ArcConfig), ('rates', RatesConfig), ('model', WipParameters),
+    'reference': (*_BASE, ('reference', ReferenceParams), ('rates', RatesParams),
+                  ('', ReferenceNodeParams)),
+    'eso': (*_BASE, ('eso', EsoParams), ('position', PositionParams),
+            ('model', ModelParams), ('', EsoNodeParams), ('', WheelJoints),
+            ('', WheelSigns), ('', ImuMounting), ('datum', DatumParams)),
+    'trajectory_generator': (*_BASE, ('trajectory_generator', TrajectoryGeneratorParams)),
+    'arc': (*_BASE, ('arc', ArcParams), ('rates', RatesParams), ('model', ModelParams),
             ('eso', YawInputGainScale)),
-    'mpc': (*_BASE, ('mpc', MpcConfig), ('model', WipParameters), ('mixer', WheelTorqueLimit),
-            ('rates', RatesConfig), ('', MpcNodeSettings)),
-    'torque_mixer': (*_BASE, ('mixer', MixerConfig), ('rates', RatesConfig),
-                     ('mpc', MpcPeriod), ('safety', SafetyConfig), ('', MixerNodeSettings),
+    'mpc': (*_BASE, ('mpc', MpcParams), ('model', ModelParams), ('mixer', WheelTorqueLimit),
+            ('rates', RatesParams), ('', MpcNodeParams)),
+    'torque_mixer': (*_BASE, ('mixer', MixerParams), ('rates', RatesParams),
+                     ('mpc', MpcPeriod), ('safety', SafetyParams), ('', MixerNodeParams),
                      ('', WheelJoints), ('', EffortCommand), ('', WheelSigns),
-                     ('wiring_check', WiringCheckConfig), ('model', WipParameters),
-                     ('', ImuMounting), ('runaway', RunawayConfig)),
+                     ('wiring_check', WiringCheckParams), ('model', ModelParams),
+                     ('', ImuMounting), ('runaway', RunawayParams)),
 }

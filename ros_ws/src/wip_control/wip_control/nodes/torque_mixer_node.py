@@ -77,16 +77,16 @@ from std_srvs.srv import Trigger
 from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateMsg,
                           StateEstimate as StateEstimateMsg, WheelTorques)
 
-from wip_runtime.config import ConfigError
-from ..core.mixer import MixerConfig
+from wip_runtime.config import ParamError
+from ..core.mixer import MixerParams
 from ..core.mpc_config import resolves_faster
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyDecision, SafetyMonitor,
                            SHADOW, STARTING)
-from ..core.safety_config import SafetyConfig
-from ..core.controller_settings import RatesConfig
-from ..core.runaway import RunawayConfig
-from ..core.wiring_check import WiringCheck, WiringCheckConfig
+from ..core.safety_config import SafetyParams
+from ..core.controller_settings import RatesParams
+from ..core.runaway import RunawayParams
+from ..core.wiring_check import WiringCheck, WiringCheckParams
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS, SENSOR_QOS
@@ -98,8 +98,8 @@ from wip_runtime.diagnostics import ERROR, OK, WARN
 from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
                               rotate_vector_into, signed_efforts, signed_wheel_angles)
 from .effort_interface import declare_effort_interface
-from wip_runtime.parameters import ConfigParameters
-from .settings import MixerNodeSettings, MpcPeriod
+from wip_runtime.parameters import RosParams
+from .settings import MixerNodeParams, MpcPeriod
 from wip_description.wiring import ImuMounting
 from wip_runtime.sync import decimation, ExactTimeSync, is_decimated_tick
 
@@ -122,25 +122,26 @@ class TorqueMixerNode(ControllerNode):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('torque_mixer', 'torque mixer (24) and safety', _DIAGNOSED, **kwargs)
-        self.parameters = ConfigParameters(self, 'mixer', MixerConfig, self._on_config)
+        self.parameters = RosParams(self, 'mixer', MixerParams, self._on_config)
         self.mixer = self.parameters.config
-        self.rates = ConfigParameters(self, 'rates', RatesConfig).config
-        mpc_periods = ConfigParameters(self, 'mpc', MpcPeriod).config
-        # The drive stage's grid (core.control_step.DriveStage.is_tick): its re-solve period
-        # when set (in lockstep the MPC node answers each of its ticks, held or solved).
+        self.rates = RosParams(self, 'rates', RatesParams).config
+        mpc_periods = RosParams(self, 'mpc', MpcPeriod).config
+        # The drive stage's grid (core.control_step.DriveControllerStage.is_tick): its
+        # re-solve period when set (in lockstep the MPC node answers each of its ticks, held
+        # or solved).
         self.mpc_period = mpc_periods.sampling_period
         if resolves_faster(mpc_periods.sampling_period, mpc_periods.fast_resolve_period):
             self.mpc_period = mpc_periods.fast_resolve_period
-        self.safety = ConfigParameters(self, 'safety', SafetyConfig).config
-        runaway = ConfigParameters(self, 'runaway', RunawayConfig).config
-        settings = ConfigParameters(self, '', MixerNodeSettings).config
+        self.safety = RosParams(self, 'safety', SafetyParams).config
+        runaway = RosParams(self, 'runaway', RunawayParams).config
+        settings = RosParams(self, '', MixerNodeParams).config
         wheels = declare_effort_interface(self)
         self.left_joint, self.right_joint = wheels.left_joint, wheels.right_joint
         self.joints = list(wheels.joints)
         self.left_sign, self.right_sign = wheels.left_sign, wheels.right_sign
         effort_topic = settings.effort_topic
         if not effort_topic:
-            raise ConfigError(f'effort_topic: must be a topic name, got {effort_topic!r}')
+            raise ParamError(f'effort_topic: must be a topic name, got {effort_topic!r}')
         self.control_period = 1.0 / self.rates.control_rate
         self.every = decimation(self.mpc_period, self.control_period)
         self.monitor = SafetyMonitor(self.safety, self.mixer.max_wheel_torque,
@@ -193,9 +194,9 @@ class TorqueMixerNode(ControllerNode):
         check compares raw sensors with each other and with the torque this node sends,
         and its verdict must reach the safety layer in the same process without a hop.
         """
-        config = ConfigParameters(self, 'wiring_check', WiringCheckConfig).config
-        model = ConfigParameters(self, 'model', WipParameters).config
-        mounting = ConfigParameters(self, '', ImuMounting).config.imu_mounting_rpy
+        config = RosParams(self, 'wiring_check', WiringCheckParams).config
+        model = RosParams(self, 'model', ModelParams).config
+        mounting = RosParams(self, '', ImuMounting).config.imu_mounting_rpy
         self.wiring_check = None
         if self.lockstep or not config.enabled:
             return
@@ -254,7 +255,7 @@ class TorqueMixerNode(ControllerNode):
             self._tick()    # zero torque now, not at the next yaw torque
 
     # -- parameters and time -------------------------------------------------------------------
-    def _on_config(self, config: MixerConfig) -> None:
+    def _on_config(self, config: MixerParams) -> None:
         self.mixer = config
         self.monitor.set_limits(config.max_wheel_torque, config.max_wheel_torque_rate)
 

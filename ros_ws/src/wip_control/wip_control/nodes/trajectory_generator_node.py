@@ -6,7 +6,7 @@ Subscribes ``/wip/reference`` (wip_msgs/ReferenceState) and ``/wip/state_estimat
 (wip_msgs/StateEstimate: x̂, ŷ, ϕ̂). Publishes ``/wip/velocity_command``
 (wip_msgs/VelocityCommand) stamped like the estimate, and ``/diagnostics``.
 
-Per sample: the guidance stage of the loop, ``core.control_step.GuidanceStage`` (the
+Per sample: the guidance stage of the loop, ``core.control_step.TrajectoryGeneratorStage`` (the
 generator ``core.trajectory_generator.TrajectoryGenerator``: body-frame errors, saturated
 (9), filtered ω̇d), as the runner's ``ControlStep``.
 
@@ -32,14 +32,14 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg,
                           StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg)
 
-from ..core.control_step import GuidanceStage
-from ..core.trajectory_generator import TrajectoryGeneratorConfig
+from ..core.control_step import TrajectoryGeneratorStage
+from ..core.trajectory_generator import TrajectoryGeneratorParams
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
 from .conversions import command_to_msg, estimate_from_msg, reference_from_msg
 from wip_runtime.diagnostics import OK
-from wip_runtime.parameters import ConfigParameters
+from wip_runtime.parameters import RosParams
 from wip_runtime.sync import ExactTimeSync, LatestSync
 
 _INPUTS = ('reference', 'state_estimate')
@@ -51,10 +51,10 @@ class TrajectoryGeneratorNode(ControllerNode):
     def __init__(self, **kwargs) -> None:
         super().__init__('trajectory_generator', 'saturated trajectory generator (9)',
                          _INPUTS, **kwargs)
-        self.parameters = ConfigParameters(self, 'trajectory_generator',
-                                           TrajectoryGeneratorConfig, self._on_config)
+        self.parameters = RosParams(self, 'trajectory_generator',
+                                           TrajectoryGeneratorParams, self._on_config)
         # The guidance stage of the loop (core/control_step.py).
-        self.stage = GuidanceStage(self.parameters.config)
+        self.stage = TrajectoryGeneratorStage(self.parameters.config)
         self.generator = self.stage.generator
         if self.lockstep:
             self.sync = ExactTimeSync(_INPUTS, self._compute)
@@ -68,7 +68,7 @@ class TrajectoryGeneratorNode(ControllerNode):
         self.subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                              estimate_from_msg)
 
-    def _on_config(self, config: TrajectoryGeneratorConfig) -> None:
+    def _on_config(self, config: TrajectoryGeneratorParams) -> None:
         self.generator.config = config
 
     def _compute(self, stamp: int, values) -> None:

@@ -44,7 +44,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from wip_runtime import config as _config
-from wip_runtime.config import ConfigError, param
+from wip_runtime.config import ParamError, param
 
 #: Channel names in the order of (d1, d2, d3).
 CHANNELS = ('yaw', 'longitudinal', 'tilt')
@@ -85,20 +85,20 @@ class DisturbanceComponent:
     def validate(self) -> None:
         """Reject an unknown kind, fields the kind does not use, a pulse without width."""
         if self.kind not in KINDS:
-            raise ConfigError(f'kind: {self.kind!r} is not one of {list(KINDS)}')
+            raise ParamError(f'kind: {self.kind!r} is not one of {list(KINDS)}')
         used = KIND_FIELDS[self.kind]
         for f in dataclasses.fields(self):
             if f.name != 'kind' and f.name not in used and getattr(self, f.name) != f.default:
-                raise ConfigError(f'{f.name}: not used by kind {self.kind!r} '
+                raise ParamError(f'{f.name}: not used by kind {self.kind!r} '
                                   f'(it uses {list(used)})')
         if self.kind == 'pulse' and not self.width > 0.0:
-            raise ConfigError('width: a pulse needs width > 0')
+            raise ParamError('width: a pulse needs width > 0')
         if self.kind == 'noise' and not self.noise_period > 0.0:
-            raise ConfigError('noise_period: must be > 0')
+            raise ParamError('noise_period: must be > 0')
 
 
 @dataclasses.dataclass(frozen=True)
-class DisturbanceConfig:
+class DisturbanceParams:
     """Components of the three disturbance channels; defaults = the paper's Section V."""
 
     yaw: tuple[DisturbanceComponent, ...] = param(
@@ -118,24 +118,24 @@ class DisturbanceConfig:
         for name, components in zip(CHANNELS, self.channels()):
             for i, component in enumerate(components):
                 if not isinstance(component, DisturbanceComponent):
-                    raise ConfigError(f'{name}[{i}]: expected a DisturbanceComponent, '
+                    raise ParamError(f'{name}[{i}]: expected a DisturbanceComponent, '
                                       f'got {component!r}')
                 try:
                     component.validate()
-                except ConfigError as err:
-                    raise ConfigError(f'{name}[{i}].{err}') from err
+                except ParamError as err:
+                    raise ParamError(f'{name}[{i}].{err}') from err
 
     def channels(self) -> tuple[tuple[DisturbanceComponent, ...], ...]:
         """Return the component tuples in the order (yaw, longitudinal, tilt) = (d1, d2, d3)."""
         return self.yaw, self.longitudinal, self.tilt
 
     @classmethod
-    def disabled(cls) -> 'DisturbanceConfig':
+    def disabled(cls) -> 'DisturbanceParams':
         """No disturbance on any channel."""
         return cls(yaw=(), longitudinal=(), tilt=())
 
     @classmethod
-    def from_mapping(cls, mapping: Mapping[str, Any] | None, path: str) -> 'DisturbanceConfig':
+    def from_mapping(cls, mapping: Mapping[str, Any] | None, path: str) -> 'DisturbanceParams':
         """Build from YAML data; errors name the key, e.g. ``disturbances.yaw[0].widht``.
 
         A missing channel keeps its default; an empty list disables the channel.
@@ -152,7 +152,7 @@ class DisturbanceConfig:
 
 
 class Disturbances:
-    """Evaluates a :class:`DisturbanceConfig` at any time.
+    """Evaluates a :class:`DisturbanceParams` at any time.
 
     Parameters
     ----------
@@ -160,10 +160,10 @@ class Disturbances:
     seed : run seed (non-negative integer) of the noise components.
     """
 
-    def __init__(self, config: DisturbanceConfig | None = None, seed: int = 0) -> None:
+    def __init__(self, config: DisturbanceParams | None = None, seed: int = 0) -> None:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f'seed must be a non-negative integer, got {seed!r}')
-        self.config = DisturbanceConfig() if config is None else config
+        self.config = DisturbanceParams() if config is None else config
         self.config.validate()
         self.seed = int(seed)
         d1, d2, d3 = (_channel_function([_component_function(c, self.seed, ch, i)

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import dataclasses
 
-from wip_runtime.config import ConfigError, param
+from wip_runtime.config import ParamError, param
 
 
 @dataclasses.dataclass(frozen=True)
-class ContactConfig:
+class ContactParams:
     """Friction of the wheel-ground contact (Coulomb cone and rolling resistance)."""
 
     friction: float = param(
@@ -33,7 +33,7 @@ class ContactConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class TerrainConfig:
+class TerrainParams:
     """Ground along the map's x axis (east), across the whole width.
 
     A slope that starts at ``slope_start``, a bump whose crest is at ``bump_position``, a
@@ -72,10 +72,10 @@ class TerrainConfig:
 
     def validate(self) -> None:
         if self.patch_end < self.patch_start:
-            raise ConfigError(f'patch_end: must be >= patch_start = {self.patch_start}, '
+            raise ParamError(f'patch_end: must be >= patch_start = {self.patch_start}, '
                               f'got {self.patch_end}')
         if self.patch_y_max <= self.patch_y_min:
-            raise ConfigError(f'patch_y_max: must be > patch_y_min = {self.patch_y_min}, '
+            raise ParamError(f'patch_y_max: must be > patch_y_min = {self.patch_y_min}, '
                               f'got {self.patch_y_max}')
 
     @property

@@ -16,7 +16,7 @@ Model ``'paper'``
     :mod:`.model`); the tests check it against :func:`.model.nominal_terms`.
 
 Model ``'full'``: derivation
-    Same bodies and parameters as the reading of (1) in docs/paper.md §1 (``WipParameters``):
+    Same bodies and parameters as the reading of (1) in docs/paper.md §1 (``ModelParams``):
 
     - body (pendulum): mass m_p, centre of mass at distance l above the axle along
       the body axis, pitch inertia I_c about its centre of mass, tilt θ (positive
@@ -64,7 +64,7 @@ Model ``'full'``: derivation
         m_p l \cos\theta\, \dot\upsilon + J_\theta \ddot\theta - m_p g l \sin\theta
             - m_p l^2 \sin\theta\cos\theta\, \omega^2 = -\tau_\upsilon
 
-    with J(θ) = J_ϕ + m_p l² sin²θ, m_v, J_θ, J_ϕ as in ``WipParameters``. Solving the
+    with J(θ) = J_ϕ + m_p l² sin²θ, m_v, J_θ, J_ϕ as in ``ModelParams``. Solving the
     2×2 block (determinant Ω) gives g2 = (J_θ + m_p l r cosθ)/(Ω r),
     g3 = −(m_v r + m_p l cosθ)/(Ω r), as docs/paper.md §1 lists.
 
@@ -115,7 +115,7 @@ import numpy as np
 
 from wip_runtime.config import param
 from wip_control.core.model import STATE_SIZE, THETA, input_gains
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
 #: Plant models integrated here: the paper's eq. (1) and the full Lagrange–d'Alembert model.
 EQUATION_MODELS = ('paper', 'full')
@@ -134,7 +134,7 @@ DisturbanceFunction = Callable[[float], Sequence[float]]
 
 
 @dataclasses.dataclass(frozen=True)
-class PlantConfig:
+class PlantParams:
     """Which dynamics the simulated plant integrates."""
 
     model: str = param('paper', '1', "plant dynamics: 'paper' = eq. (1), 'full' = "
@@ -180,7 +180,7 @@ def scenario_plant(scenario):
                              section.terrain, section.model.wheel_friction)
 
 
-def tilt_pole(params: WipParameters, model: str = 'paper') -> float:
+def tilt_pole(params: ModelParams, model: str = 'paper') -> float:
     r"""Unstable pitch pole [rad/s] of the linearisation at rest (θ = 0, all rates 0).
 
     .. math:: \lambda = \sqrt{m_v m_p g l / \Omega_0}, \quad
@@ -196,7 +196,7 @@ def tilt_pole(params: WipParameters, model: str = 'paper') -> float:
                      / p.omega_denominator(0.0))
 
 
-def plant_input_gains(params: WipParameters, model: str,
+def plant_input_gains(params: ModelParams, model: str,
                       theta: float) -> tuple[float, float, float]:
     """(g1, g2, g3) of the plant ``model`` ('paper' or 'full') at tilt θ [rad]."""
     if equation_model(model) == 'full':
@@ -204,7 +204,7 @@ def plant_input_gains(params: WipParameters, model: str,
     return input_gains(params, theta)
 
 
-def full_input_gains(params: WipParameters, theta: float) -> tuple[float, float, float]:
+def full_input_gains(params: ModelParams, theta: float) -> tuple[float, float, float]:
     """(g1, g2, g3) of the full model at tilt θ [rad] (units as in eq. (1)).
 
     g1 = d / (2 r J(θ)), g2 = (J_θ + m_p l r cosθ)/(Ω r), g3 = −(m_v r + m_p l cosθ)/(Ω r).
@@ -261,7 +261,7 @@ class Plant:
     :func:`simulate_hold` checks the inputs and the result around it.
     """
 
-    def __init__(self, params: WipParameters, model: str = 'paper',
+    def __init__(self, params: ModelParams, model: str = 'paper',
                  wheel_friction: float = 0.0) -> None:
         _check_model(model)
         if not (math.isfinite(wheel_friction) and wheel_friction >= 0.0):

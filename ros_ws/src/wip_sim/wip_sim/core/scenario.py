@@ -1,12 +1,12 @@
 """Scenario files: one YAML file describes one run.
 
 A scenario holds the controllers' settings
-(:class:`~wip_control.core.controller_settings.ControllerSettings`, what a robot reads from
+(:class:`~wip_control.core.controller_settings.ControllerParams`, what a robot reads from
 the same file) and the simulation: the duration, the seed, the initial state, the true plant
 (model and parameter overrides, so the plant can differ from the controllers' nominal
 model) and the disturbances. Every key is optional: its default is the paper's Section V
 [1]_ as decoded in docs/paper.md §6. Unknown keys, values of the wrong type and values out
-of range raise :class:`~wip_runtime.config.ConfigError` whose message starts with the
+of range raise :class:`~wip_runtime.config.ParamError` whose message starts with the
 dotted path of the key (``mpc.max_tilt: must be > 0``).
 
 Schema (top level; ``scripts/simulate --list-parameters`` prints every leaf with its
@@ -20,7 +20,7 @@ unit, default and range)::
     fall_threshold: float [rad]
     design: robust|paper          # paper: the paper's estimator, ARC, generator, reference
     initial_state: {pose_relative_to_reference, pose, x_v, theta, omega, v, theta_dot}
-    plant: {model: paper|full|mujoco, wheel_friction: b, parameters: {<WipParameters field>:
+    plant: {model: paper|full|mujoco, wheel_friction: b, parameters: {<ModelParams field>:
             value}, contact: {friction, rolling_resistance},    # contact, terrain: mujoco only
             terrain: {slope_start, slope_grade, bump_position, bump_height, bump_length,
                       patch_start, patch_end, patch_friction}}
@@ -40,22 +40,22 @@ import dataclasses
 import pathlib
 from typing import Any, Mapping
 
-from wip_runtime.config import ConfigError, _show, from_mapping, param
+from wip_runtime.config import ParamError, _show, from_mapping, param
 from wip_control.core.controller_settings import (check_controller_consistency,
                                                   checked_scalar, controller_fields,
                                                   CONTROLLER_SCALAR_RANGES, CONTROLLER_SCALARS,
                                                   controller_settings_to_mapping,
-                                                  ControllerSettings, load_scenario_file,
+                                                  ControllerParams, load_scenario_file,
                                                   section)
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
-from .disturbances import DisturbanceConfig
-from .ground import ContactConfig, TerrainConfig
-from .plant import ENGINE_MODELS, PlantConfig
+from .disturbances import DisturbanceParams
+from .ground import ContactParams, TerrainParams
+from .plant import ENGINE_MODELS, PlantParams
 
 
 @dataclasses.dataclass(frozen=True)
-class InitialStateConfig:
+class InitialStateParams:
     """Initial state of the true plant; all velocities default to zero (Section V)."""
 
     pose_relative_to_reference: bool = param(
@@ -78,18 +78,18 @@ class InitialStateConfig:
 class PlantSection:
     """The true plant.
 
-    Model, parameter overrides of :class:`WipParameters` and, for an engine model, the wheel-ground
+    Model, parameter overrides of :class:`ModelParams` and, for an engine model, the wheel-ground
     contact.
     """
 
-    model: PlantConfig = dataclasses.field(default_factory=PlantConfig)
-    parameters: WipParameters = dataclasses.field(default_factory=WipParameters)
-    contact: ContactConfig = dataclasses.field(default_factory=ContactConfig)
-    terrain: TerrainConfig = dataclasses.field(default_factory=TerrainConfig)
+    model: PlantParams = dataclasses.field(default_factory=PlantParams)
+    parameters: ModelParams = dataclasses.field(default_factory=ModelParams)
+    contact: ContactParams = dataclasses.field(default_factory=ContactParams)
+    terrain: TerrainParams = dataclasses.field(default_factory=TerrainParams)
 
 
 @dataclasses.dataclass(frozen=True)
-class Scenario(ControllerSettings):
+class Scenario(ControllerParams):
     """Everything one simulated run needs: the controllers' settings and the simulation.
 
     Build with :func:`load_scenario` or :func:`scenario_from_mapping`.
@@ -98,9 +98,9 @@ class Scenario(ControllerSettings):
     duration: float = 90.0
     seed: int = 0
     fall_threshold: float = 0.5
-    initial_state: InitialStateConfig = dataclasses.field(default_factory=InitialStateConfig)
+    initial_state: InitialStateParams = dataclasses.field(default_factory=InitialStateParams)
     plant: PlantSection = dataclasses.field(default_factory=PlantSection)
-    disturbances: DisturbanceConfig = dataclasses.field(default_factory=DisturbanceConfig)
+    disturbances: DisturbanceParams = dataclasses.field(default_factory=DisturbanceParams)
 
 
 MAX_DURATION_S = 36000.0
@@ -139,17 +139,17 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
     fields.update({key: checked_scalar(key, data[key], kind)
                    for key, (kind, _) in SIMULATION_SCALARS.items() if key in data})
     if 'duration' in fields and not 0.0 < fields['duration'] <= MAX_DURATION_S:
-        raise ConfigError(f'duration: must be in (0, {MAX_DURATION_S:g}] s, got '
+        raise ParamError(f'duration: must be in (0, {MAX_DURATION_S:g}] s, got '
                           f'{_show(fields["duration"])}')
     if 'fall_threshold' in fields and not 0.0 < fields['fall_threshold'] <= 1.5:
-        raise ConfigError('fall_threshold: must be in (0, 1.5] rad, got '
+        raise ParamError('fall_threshold: must be in (0, 1.5] rad, got '
                           f'{_show(fields["fall_threshold"])}')
     if 'seed' in fields and not 0 <= fields['seed'] <= MAX_SEED:
-        raise ConfigError(f'seed: must be in [0, 2**63 - 1], got {_show(fields["seed"])}')
+        raise ParamError(f'seed: must be in [0, 2**63 - 1], got {_show(fields["seed"])}')
     fields['plant'] = _plant_section(section(data, 'plant'))
-    fields['disturbances'] = DisturbanceConfig.from_mapping(
+    fields['disturbances'] = DisturbanceParams.from_mapping(
         section(data, 'disturbances'), 'disturbances')
-    fields['initial_state'] = from_mapping(InitialStateConfig, section(data, 'initial_state'),
+    fields['initial_state'] = from_mapping(InitialStateParams, section(data, 'initial_state'),
                                            'initial_state')
     scenario = Scenario(**fields)
     _check_consistency(scenario)
@@ -158,35 +158,35 @@ def scenario_from_mapping(data: Mapping[str, Any] | None) -> Scenario:
 
 def _plant_section(plant: Any) -> PlantSection:
     if not isinstance(plant, Mapping):
-        raise ConfigError(f'plant: expected a mapping, got {plant!r}')
-    config_keys = tuple(field.name for field in dataclasses.fields(PlantConfig))
+        raise ParamError(f'plant: expected a mapping, got {plant!r}')
+    config_keys = tuple(field.name for field in dataclasses.fields(PlantParams))
     for key in plant:
         if key not in (*config_keys, 'parameters', 'contact', 'terrain'):
-            raise ConfigError(f'plant.{key}: unknown key; expected one of '
+            raise ParamError(f'plant.{key}: unknown key; expected one of '
                               f'{sorted([*config_keys, "parameters", "contact", "terrain"])}')
-    model = from_mapping(PlantConfig, {key: plant[key] for key in config_keys if key in plant},
+    model = from_mapping(PlantParams, {key: plant[key] for key in config_keys if key in plant},
                          'plant')
     for key in ('contact', 'terrain'):
         if key in plant and model.model not in ENGINE_MODELS:
             # The equation plants roll without slip on flat ground: a friction or a
             # terrain would silently do nothing.
-            raise ConfigError(f'plant.{key}: only used by the plant models '
+            raise ParamError(f'plant.{key}: only used by the plant models '
                               f'{sorted(ENGINE_MODELS)}, not by {model.model!r}')
     return PlantSection(
         model=model,
-        parameters=from_mapping(WipParameters, plant.get('parameters'), 'plant.parameters'),
-        contact=from_mapping(ContactConfig, plant.get('contact'), 'plant.contact'),
-        terrain=from_mapping(TerrainConfig, plant.get('terrain'), 'plant.terrain'))
+        parameters=from_mapping(ModelParams, plant.get('parameters'), 'plant.parameters'),
+        contact=from_mapping(ContactParams, plant.get('contact'), 'plant.contact'),
+        terrain=from_mapping(TerrainParams, plant.get('terrain'), 'plant.terrain'))
 
 
 def with_duration(scenario: Scenario, duration: float) -> Scenario:
     """``scenario`` with another duration [s], checked as a scenario file's would be.
 
-    Range, at least one control tick, the most control periods a run may have; ConfigError
+    Range, at least one control tick, the most control periods a run may have; ParamError
     otherwise.
     """
     if not 0.0 < duration <= MAX_DURATION_S:
-        raise ConfigError(f'duration: must be in (0, {MAX_DURATION_S:g}] s, got '
+        raise ParamError(f'duration: must be in (0, {MAX_DURATION_S:g}] s, got '
                           f'{_show(duration)}')
     scenario = dataclasses.replace(scenario, duration=float(duration))
     _check_consistency(scenario)
@@ -197,17 +197,17 @@ def _check_consistency(scenario: Scenario) -> None:
     """Cross-section checks: run size, initial tilt, then the controllers' own."""
     samples = scenario.duration * scenario.rates.control_rate
     if round(samples) < 1:
-        raise ConfigError(f'duration: {scenario.duration:g} s is less than one control '
+        raise ParamError(f'duration: {scenario.duration:g} s is less than one control '
                           f'period ({scenario.control_period:g} s at rates.control_rate '
                           f'{scenario.rates.control_rate:g} Hz): the run would have no '
                           'control tick')
     if samples > MAX_CONTROL_SAMPLES:
-        raise ConfigError(f'duration: {scenario.duration:g} s at rates.control_rate '
+        raise ParamError(f'duration: {scenario.duration:g} s at rates.control_rate '
                           f'{scenario.rates.control_rate:g} Hz is {samples:.3g} control '
                           f'periods, more than the {MAX_CONTROL_SAMPLES:.0e} one run may have '
                           '(memory); shorten the run or lower the rate')
     if abs(scenario.initial_state.theta) >= scenario.fall_threshold:
-        raise ConfigError(f'initial_state.theta: |{scenario.initial_state.theta:g}| rad is at '
+        raise ParamError(f'initial_state.theta: |{scenario.initial_state.theta:g}| rad is at '
                           f'or beyond fall_threshold {scenario.fall_threshold:g} rad: the run '
                           'would count as a fall before it starts')
     check_controller_consistency(scenario)

@@ -18,8 +18,8 @@ from typing import Sequence
 import numpy as np
 
 from wip_control.core.model import OMEGA, PHI, THETA, THETA_DOT, V, X, XV, Y
-from wip_description.params import WipParameters
-from wip_description.sensors import check_finite, local_to_geodetic, SensorConfig
+from wip_description.params import ModelParams
+from wip_description.sensors import check_finite, local_to_geodetic, SensorParams
 
 _TWO_PI = 2.0 * math.pi
 # Independent random streams, one per sensor (spawn keys of the run seed).
@@ -38,14 +38,14 @@ class Sensors:
     seed : run seed of the noise (non-negative integer).
     """
 
-    def __init__(self, params: WipParameters, config: SensorConfig | None = None,
+    def __init__(self, params: ModelParams, config: SensorParams | None = None,
                  initial_yaw: float = 0.0, seed: int = 0) -> None:
         if not math.isfinite(initial_yaw):
             raise ValueError(f'initial_yaw must be finite, got {initial_yaw!r}')
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f'seed must be a non-negative integer, got {seed!r}')
         self.params = params
-        self.config = SensorConfig() if config is None else config
+        self.config = SensorParams() if config is None else config
         self.config.validate()
         self.initial_yaw = float(initial_yaw)
         self.seed = int(seed)

@@ -19,8 +19,8 @@ from typing import Sequence
 import numpy as np
 
 from wip_control.core.mpc import LongitudinalMpc, MpcStatus
-from wip_control.core.mpc_config import MpcConfig
-from wip_description.params import WipParameters
+from wip_control.core.mpc_config import MpcParams
+from wip_description.params import ModelParams
 from wip_control.core.qp import DaqpSolver
 
 #: Keys of one recorded MPC call besides ``tau_previous``.
@@ -35,7 +35,7 @@ def _stats_us(samples: Sequence[float]) -> dict:
             'max': float(a.max())}
 
 
-def bench_mpc_against_daqp(inputs: list[dict], params: WipParameters, config: MpcConfig,
+def bench_mpc_against_daqp(inputs: list[dict], params: ModelParams, config: MpcParams,
                            repeats: int = 3) -> dict:
     """Replay recorded MPC calls; time ProxSuite ticks and DAQP solves of the same QPs.
 

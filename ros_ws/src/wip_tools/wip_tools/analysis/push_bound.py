@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from wip_description.params import WipParameters
+from wip_description.params import ModelParams
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,7 +52,7 @@ class PushBound:
     status: str               #: the solver's message
 
 
-def linear_model(params: WipParameters) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def linear_model(params: ModelParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return (A, B, E) of ż = A z + B τυ + E d for z = (e, u, θ, θ̇) about upright."""
     p = params
     omega0 = p.omega_denominator(0.0)
@@ -68,13 +68,13 @@ def linear_model(params: WipParameters) -> tuple[np.ndarray, np.ndarray, np.ndar
     return a, np.array([0.0, g2, 0.0, g3]), np.array([0.0, 1.0, 0.0, 0.0])
 
 
-def absorption_rate(params: WipParameters) -> float:
+def absorption_rate(params: ModelParams) -> float:
     """Return k [m/s² per rad] of ẇ = k θ + d (module docstring): g, whatever the body."""
     a, b, _ = linear_model(params)
     return a[1, 2] - b[1] * a[3, 2] / b[3]
 
 
-def push_excursion_bound(params: WipParameters, delta_v: float, *, push_time: float = 0.1,
+def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: float = 0.1,
                          max_tilt: float = 0.1, max_torque: float = 30.0,
                          max_delta_torque: float = 10.0, delta_period: float = 0.1,
                          step: float = 0.02, horizon: float = 8.0) -> PushBound:
@@ -145,7 +145,7 @@ def _check_arguments(values: dict) -> None:
                          f'{horizon})')
 
 
-def _discretised(params: WipParameters, step: float) -> tuple:
+def _discretised(params: ModelParams, step: float) -> tuple:
     """Return (Ad, Bd, Ed): the exact zero-order-hold discretisation over one step."""
     from scipy.linalg import expm
 
@@ -220,7 +220,7 @@ def push_scenario_mapping(reference: str, plant: str = 'paper', *, mismatch: boo
         raise ValueError(f"reference must be 'line' or 'circle', got {reference!r}")
     plant_section: dict = {'model': plant}
     if mismatch:
-        base = WipParameters()
+        base = ModelParams()
         plant_section['parameters'] = {'body_mass': 1.2 * base.body_mass,
                                        'com_height': 1.1 * base.com_height}
     mapping = {
