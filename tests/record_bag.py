@@ -17,7 +17,7 @@ import math
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
-from wip_msgs.msg import ArcState, GroundTruth, MpcOutput, VelocityCommand as CommandMsg
+from wip_msgs.msg import YawTorque, GroundTruth, DriveTorque, VelocityCommand as CommandMsg
 import yaml
 
 from wip_control.core.eso import StateEstimate
@@ -132,7 +132,7 @@ class _TickMessages:
         yield 'command', CommandMsg(header=make_header(s), **{f: float(cmd[f][k]) for f in (
             'v_d', 'omega_d', 'omega_d_dot', 'x_e', 'y_e', 'phi_e')})
         arc = record['arc']
-        yield 'arc', ArcState(header=make_header(s), **{f: float(arc[f][k]) for f in (
+        yield 'arc', YawTorque(header=make_header(s), **{f: float(arc[f][k]) for f in (
             'tau_omega', 'alpha_hat', 'e_omega')})
         row = self.mpc_rows.get(k)
         if row is not None:
@@ -182,10 +182,10 @@ def _fix(x, y, datum, stamp, config):
 def _mpc_output(mpc, row, stamp, scenario):
     used_fallback = bool(mpc['used_fallback'][row] > 0.5)
     slack_v, slack_theta = float(mpc['slack_v'][row]), float(mpc['slack_theta'][row])
-    return MpcOutput(
+    return DriveTorque(
         header=make_header(stamp), tau_v=float(mpc['tau_v'][row]),
         delta_tau=float(mpc['delta_tau'][row]),
-        status=MpcOutput.FALLBACK_SHIFTED_PLAN if used_fallback else MpcOutput.SOLVED,
+        status=DriveTorque.FALLBACK_SHIFTED_PLAN if used_fallback else DriveTorque.SOLVED,
         status_text='', iterations=int(mpc['iterations'][row]),
         solve_time=float(mpc['solve_time'][row]),
         slack_v=slack_v if math.isfinite(slack_v) else 0.0,

@@ -32,7 +32,7 @@ INSTALL = REPO_ROOT / 'ros_ws' / 'install'
 MSG_DIR = REPO_ROOT / 'ros_ws' / 'src' / 'wip_msgs' / 'msg'
 
 MESSAGES = (
-    'ArcState', 'GroundTruth', 'MpcOutput', 'ReferenceState', 'StateEstimate',
+    'YawTorque', 'GroundTruth', 'DriveTorque', 'ReferenceState', 'StateEstimate',
     'VelocityCommand', 'WheelTorques',
 )
 EXECUTABLES = {
@@ -221,12 +221,12 @@ def test_message_round_trips_through_cdr_serialization(name):
 @pytest.mark.ros
 def test_mpc_output_status_constants_are_distinct():
     _require_workspace()
-    from wip_msgs.msg import MpcOutput
+    from wip_msgs.msg import DriveTorque
 
     names = ('SOLVED', 'FALLBACK_SHIFTED_PLAN', 'FAILED_ZERO', 'INPUT_INVALID', 'NOT_READY')
-    values = [getattr(MpcOutput, constant) for constant in names]
+    values = [getattr(DriveTorque, constant) for constant in names]
     assert len(set(values)) == len(values)
-    assert MpcOutput.SOLVED == 0
+    assert DriveTorque.SOLVED == 0
 
 
 # --- standard interfaces that ROS may lack (tf2_msgs) -----------------------------------------

@@ -161,7 +161,7 @@ def test_lockstep_graph_reproduces_the_in_process_runner(graph_runs, in_process,
                                    err_msg=group)
         for name, values in columns.items():
             if name in ('t', 'solve_time', 'status'):
-                continue  # timing; status: core enum vs MpcOutput constant
+                continue  # timing; status: core enum vs DriveTorque constant
             np.testing.assert_allclose(record[group][name], values, rtol=0, atol=VALUE_ATOL,
                                        err_msg=f'{group}.{name}')
 

@@ -23,7 +23,7 @@ pytest.importorskip('wip_msgs.msg')
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus  # noqa: E402
-from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState,  # noqa: E402
+from wip_msgs.msg import (YawTorque, DriveTorque, ReferenceState,  # noqa: E402
                           StateEstimate as StateEstimateMsg, VelocityCommand, WheelTorques)
 
 from wip_control.core.control_step import ControlStep  # noqa: E402
@@ -150,9 +150,9 @@ def node_callbacks(context, bag):
             (command,) = out[TrajectoryGeneratorNode].take(VelocityCommand)
             cb[ArcNode]['/wip/velocity_command'](command)
             cb[MpcNode]['/wip/velocity_command'](command)
-            (arc,) = out[ArcNode].take(ArcState)
+            (arc,) = out[ArcNode].take(YawTorque)
             cb[MpcNode]['/wip/yaw_torque'](arc)
-            drive = out[MpcNode].take(MpcOutput)
+            drive = out[MpcNode].take(DriveTorque)
             for msg in drive:
                 cb[TorqueMixerNode]['/wip/drive_torque'](msg)
             cb[TorqueMixerNode]['/wip/yaw_torque'](arc)

@@ -258,7 +258,7 @@ def test_client_subscribes_receives_and_decodes_graph_messages_and_reaches_the_e
                 {'id': 3, 'topic': '/wip/estop', 'encoding': 'json',
                  'schemaName': 'std_msgs/msg/Bool'},
                 {'id': 4, 'topic': '/wip/drive_torque', 'encoding': 'json',
-                 'schemaName': 'wip_msgs/msg/MpcOutput'}]}))
+                 'schemaName': 'wip_msgs/msg/DriveTorque'}]}))
             ws.send(struct.pack('<BI', 0x01, 3) + b'{"data": false}')
             ws.send(struct.pack('<BI', 0x01, 4) + b'{"tau_v": 100.0}')
             status = client.receive_json('status',

@@ -70,8 +70,8 @@ from wip_control.nodes.trajectory_generator_node import TrajectoryGeneratorNode 
 
 pytestmark = pytest.mark.ros
 
-ArcState = wip_msgs.ArcState
-MpcOutput = wip_msgs.MpcOutput
+YawTorque = wip_msgs.YawTorque
+DriveTorque = wip_msgs.DriveTorque
 ReferenceStateMsg = wip_msgs.ReferenceState
 StateEstimateMsg = wip_msgs.StateEstimate
 VelocityCommandMsg = wip_msgs.VelocityCommand
@@ -134,8 +134,8 @@ def overrides(mode='lockstep', **params):
 TOPIC_TYPES = {'/clock': Clock, '/joint_states': JointState, '/imu/data': Imu,
                '/gps/fix': NavSatFix, '/wip/wheel_torques': WheelTorques,
                '/wip/reference': ReferenceStateMsg, '/wip/state_estimate': StateEstimateMsg,
-               '/wip/velocity_command': VelocityCommandMsg, '/wip/yaw_torque': ArcState,
-               '/wip/drive_torque': MpcOutput,
+               '/wip/velocity_command': VelocityCommandMsg, '/wip/yaw_torque': YawTorque,
+               '/wip/drive_torque': DriveTorque,
                '/effort_controller/commands': Float64MultiArray}
 
 
@@ -254,11 +254,11 @@ def test_imu_quaternion_round_trip_and_rep103_pitch_sign():
 
 def test_mpc_status_mapping_covers_every_core_status():
     from wip_control.core.mpc import MpcStatus
-    assert mpc_status(MpcStatus.SOLVED) == MpcOutput.SOLVED
-    assert mpc_status(MpcStatus.INPUT_INVALID) == MpcOutput.INPUT_INVALID
+    assert mpc_status(MpcStatus.SOLVED) == DriveTorque.SOLVED
+    assert mpc_status(MpcStatus.INPUT_INVALID) == DriveTorque.INPUT_INVALID
     for status in MpcStatus:
         if status not in (MpcStatus.SOLVED, MpcStatus.INPUT_INVALID):
-            assert mpc_status(status) == MpcOutput.FALLBACK_SHIFTED_PLAN
+            assert mpc_status(status) == DriveTorque.FALLBACK_SHIFTED_PLAN
 
 
 # ----------------------------------------------------------------------------- ESO
@@ -727,7 +727,7 @@ def test_mpc_lockstep_solves_at_each_tick_from_t0_and_equals_the_core(
         msgs = [('/wip/state_estimate', estimate_msg(stamp, **est)),
                 ('/wip/velocity_command', VelocityCommandMsg(header=make_header(stamp),
                                                              v_d=v_d)),
-                ('/wip/yaw_torque', ArcState(header=make_header(stamp), tau_omega=tau_omega))]
+                ('/wip/yaw_torque', YawTorque(header=make_header(stamp), tau_omega=tau_omega))]
         publish_shuffled(harness, msgs, rng)
         if stamp % (20 * H_NS) != 0:
             continue  # not a tick: no output (checked below: outputs only at ticks)
@@ -741,7 +741,7 @@ def test_mpc_lockstep_solves_at_each_tick_from_t0_and_equals_the_core(
         assert got == pytest.approx((expected.tau_v, expected.delta_tau, expected.slack_v,
                                      expected.slack_theta), rel=0.0, abs=tolerance)
         assert (msg.status, msg.status_text, msg.used_fallback) == (
-            MpcOutput.SOLVED, 'SOLVED', False)
+            DriveTorque.SOLVED, 'SOLVED', False)
         if tolerance == 0.0:
             assert msg.iterations == expected.iterations
         for i, name in enumerate(('predicted_v', 'predicted_theta', 'predicted_theta_dot')):
@@ -765,7 +765,7 @@ def test_mpc_node_runs_the_lqr_baseline_when_selected(context, harnesses):
         harness.publish('/wip/velocity_command',
                         VelocityCommandMsg(header=make_header(stamp), v_d=v_d))
         harness.publish('/wip/yaw_torque',
-                        ArcState(header=make_header(stamp), tau_omega=tau_omega))
+                        YawTorque(header=make_header(stamp), tau_omega=tau_omega))
         if stamp % (20 * H_NS) != 0:
             continue
         ticks += 1
@@ -773,7 +773,7 @@ def test_mpc_node_runs_the_lqr_baseline_when_selected(context, harnesses):
         expected = lqr.step(est['v'], est['theta'], est['theta_dot'], est['f2'], est['f3'],
                             v_d, drive_torque_limit(tau_omega, 15.0))
         assert (out[-1].tau_v, out[-1].delta_tau) == (expected.tau_v, expected.delta_tau)
-        assert out[-1].status == MpcOutput.SOLVED and out[-1].iterations == 0
+        assert out[-1].status == DriveTorque.SOLVED and out[-1].iterations == 0
     assert ticks == 3
 
 
@@ -782,16 +782,16 @@ def test_mpc_non_finite_input_answers_input_invalid_with_a_finite_torque(context
     out = harness.outputs['/wip/drive_torque']
     harness.publish('/wip/state_estimate', estimate_msg(0, theta=float('nan')))
     harness.publish('/wip/velocity_command', VelocityCommandMsg(header=make_header(0)))
-    harness.publish('/wip/yaw_torque', ArcState(header=make_header(0)))
+    harness.publish('/wip/yaw_torque', YawTorque(header=make_header(0)))
     harness.spin_until(lambda: out, 'the tick at t = 0')
     stamp = 20 * H_NS
     harness.publish('/wip/state_estimate', estimate_msg(stamp))
     harness.publish('/wip/velocity_command', VelocityCommandMsg(header=make_header(stamp)))
-    harness.publish('/wip/yaw_torque', ArcState(header=make_header(stamp),
+    harness.publish('/wip/yaw_torque', YawTorque(header=make_header(stamp),
                                                 tau_omega=float('inf')))
     harness.spin_until(lambda: len(out) == 2, 'the tick at t = 0.1')
     for msg in out:
-        assert msg.status == MpcOutput.INPUT_INVALID and msg.used_fallback
+        assert msg.status == DriveTorque.INPUT_INVALID and msg.used_fallback
         assert_finite(msg)
         assert len(msg.predicted_v) == 0 and msg.tau_v == 0.0
 
@@ -801,16 +801,16 @@ def test_mpc_realtime_not_ready_then_solved_then_stale(context, harnesses):
         'mpc.sampling_period': 0.02, 'max_input_age': 0.15})
     out = harness.outputs['/wip/drive_torque']
     harness.spin_until(lambda: out, 'a timer tick')
-    assert out[0].status == MpcOutput.NOT_READY and out[0].tau_v == 0.0
+    assert out[0].status == DriveTorque.NOT_READY and out[0].tau_v == 0.0
     assert 'NOT_READY' in out[0].status_text
     now = harness.node.now_ns()
     harness.publish('/wip/state_estimate', estimate_msg(now, theta=0.02))
     harness.publish('/wip/velocity_command', VelocityCommandMsg(header=make_header(now),
                                                                 v_d=0.3))
-    harness.publish('/wip/yaw_torque', ArcState(header=make_header(now)))
-    harness.spin_until(lambda: out[-1].status == MpcOutput.SOLVED, 'a solved tick')
+    harness.publish('/wip/yaw_torque', YawTorque(header=make_header(now)))
+    harness.spin_until(lambda: out[-1].status == DriveTorque.SOLVED, 'a solved tick')
     assert out[-1].header.stamp == ns_to_stamp(now)  # stamped with the estimate's time
-    harness.spin_until(lambda: out[-1].status == MpcOutput.INPUT_INVALID, 'stale inputs')
+    harness.spin_until(lambda: out[-1].status == DriveTorque.INPUT_INVALID, 'stale inputs')
     assert out[-1].tau_v == 0.0 and 'stale' in out[-1].status_text
     assert harness.node.mpc.tau_previous == 0.0       # the core knows 0 is applied
 
@@ -840,12 +840,12 @@ def test_mixer_lockstep_waits_for_the_drive_torque_at_ticks_and_holds_it_between
     drives = {0: 12.0, 10: 12.0, 20: -29.0}           # -29: the limit 30 - |tau_w| acts
     for k in range(25):
         stamp, tau_omega = k * H_NS, 1.5 * math.sin(k)
-        harness.publish('/wip/yaw_torque', ArcState(header=make_header(stamp),
+        harness.publish('/wip/yaw_torque', YawTorque(header=make_header(stamp),
                                                     tau_omega=tau_omega))
         if k in drives:
             harness.spin_for(0.03)
             assert len(wheels) == k, 'the mixer must wait for the drive torque of a tick'
-            harness.publish('/wip/drive_torque', MpcOutput(header=make_header(stamp),
+            harness.publish('/wip/drive_torque', DriveTorque(header=make_header(stamp),
                                                            tau_v=drives[k]))
         harness.spin_until(lambda: len(wheels) == k + 1 and len(efforts) == k + 1,
                            f'wheel torques {k}')
@@ -862,16 +862,16 @@ def test_mixer_lockstep_waits_for_the_drive_torque_at_ticks_and_holds_it_between
 def test_mixer_zeroes_both_wheels_on_non_finite_input_and_says_why(context, harnesses):
     harness = mixer_harness(harnesses, context)
     wheels = harness.outputs['/wip/wheel_torques']
-    harness.publish('/wip/drive_torque', MpcOutput(header=make_header(0), tau_v=5.0))
-    harness.publish('/wip/yaw_torque', ArcState(header=make_header(0), tau_omega=math.nan))
-    harness.publish('/wip/yaw_torque', ArcState(header=make_header(H_NS), tau_omega=0.1))
+    harness.publish('/wip/drive_torque', DriveTorque(header=make_header(0), tau_v=5.0))
+    harness.publish('/wip/yaw_torque', YawTorque(header=make_header(0), tau_omega=math.nan))
+    harness.publish('/wip/yaw_torque', YawTorque(header=make_header(H_NS), tau_omega=0.1))
     harness.spin_until(lambda: len(wheels) == 2, 'two wheel torques')
     assert (wheels[0].left, wheels[0].right, wheels[0].zeroed) == (0.0, 0.0, True)
     assert 'non-finite yaw torque' in wheels[0].reason
     assert (wheels[1].left, wheels[1].right) == mix(5.0, 0.1, 15.0)
-    harness.publish('/wip/drive_torque', MpcOutput(header=make_header(20 * H_NS),
+    harness.publish('/wip/drive_torque', DriveTorque(header=make_header(20 * H_NS),
                                                    tau_v=math.inf))
-    harness.publish('/wip/yaw_torque', ArcState(header=make_header(20 * H_NS)))
+    harness.publish('/wip/yaw_torque', YawTorque(header=make_header(20 * H_NS)))
     harness.spin_until(lambda: len(wheels) == 3, 'the tick with an infinite drive torque')
     assert wheels[2].zeroed and 'non-finite drive torque' in wheels[2].reason
     for msg in wheels + harness.outputs['/effort_controller/commands']:
@@ -895,9 +895,9 @@ def test_mixer_run_time_limit_change_and_bad_joints(context, params_context, har
         .successful
     assert node.set_parameters([Parameter('mixer.max_wheel_torque', value=2.0)])[0].successful
     harness.publish('/wip/state_estimate', estimate_msg(4, settled=True))
-    harness.publish('/wip/drive_torque', MpcOutput(header=make_header(5), tau_v=10.0))
+    harness.publish('/wip/drive_torque', DriveTorque(header=make_header(5), tau_v=10.0))
     harness.spin_for(0.02)
-    harness.publish('/wip/yaw_torque', ArcState(header=make_header(6), tau_omega=0.5))
+    harness.publish('/wip/yaw_torque', YawTorque(header=make_header(6), tau_omega=0.5))
     harness.spin_until(lambda: any(not m.zeroed for m in wheels), 'wheel torques')
     active = next(m for m in wheels if not m.zeroed)
     assert (active.left, active.right) == mix(10.0, 0.5, 2.0)
@@ -910,10 +910,10 @@ def test_topics_are_remappable(context, harnesses):
     node = TorqueMixerNode(context=context, parameter_overrides=overrides('realtime'),
                            cli_args=['--ros-args', '-r', '/wip/wheel_torques:=/robot/torques'])
     harness = harness_of(harnesses, node)
-    harness.publisher(ArcState, '/wip/yaw_torque')
+    harness.publisher(YawTorque, '/wip/yaw_torque')
     out = harness.listen(WheelTorques, '/robot/torques')
     harness.wait_matched()
-    harness.publish('/wip/yaw_torque', ArcState(header=make_header(1), tau_omega=0.2))
+    harness.publish('/wip/yaw_torque', YawTorque(header=make_header(1), tau_omega=0.2))
     harness.spin_until(lambda: out, 'wheel torques on the remapped topic')
 
 
@@ -1015,14 +1015,14 @@ def test_bad_input_into_every_subscription_never_raises_or_outputs_non_finite(
         MpcNode: [
             ('/wip/state_estimate', StateEstimateMsg, dict(v=nan)),
             ('/wip/velocity_command', VelocityCommandMsg, dict(v_d=inf)),
-            ('/wip/yaw_torque', ArcState, dict(tau_omega=nan))],
+            ('/wip/yaw_torque', YawTorque, dict(tau_omega=nan))],
         TorqueMixerNode: [
-            ('/wip/drive_torque', MpcOutput, dict(tau_v=nan, predicted_v=[nan, 1.0])),
-            ('/wip/yaw_torque', ArcState, dict(tau_omega=-inf))],
+            ('/wip/drive_torque', DriveTorque, dict(tau_v=nan, predicted_v=[nan, 1.0])),
+            ('/wip/yaw_torque', YawTorque, dict(tau_omega=-inf))],
     }
     outputs = {TrajectoryGeneratorNode: (VelocityCommandMsg, '/wip/velocity_command'),
-               ArcNode: (ArcState, '/wip/yaw_torque'),
-               MpcNode: (MpcOutput, '/wip/drive_torque'),
+               ArcNode: (YawTorque, '/wip/yaw_torque'),
+               MpcNode: (DriveTorque, '/wip/drive_torque'),
                TorqueMixerNode: (WheelTorques, '/wip/wheel_torques')}
     for node_cls, bad in cases.items():
         for mode in ('lockstep', 'realtime'):
@@ -1049,7 +1049,7 @@ def test_bad_input_into_every_subscription_never_raises_or_outputs_non_finite(
                 # Passed on and neutralised: one answer per stamp, never NaN.
                 assert len(out) == len(bad) and not dropped
                 if node_cls is MpcNode:
-                    assert {m.status for m in out} == {MpcOutput.INPUT_INVALID}
+                    assert {m.status for m in out} == {DriveTorque.INPUT_INVALID}
                 else:
                     assert all(m.zeroed and (m.left, m.right) == (0.0, 0.0) for m in out)
             harness.close()

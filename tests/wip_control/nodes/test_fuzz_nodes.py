@@ -37,7 +37,7 @@ from rclpy.serialization import deserialize_message  # noqa: E402
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
-from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg,  # noqa: E402
+from wip_msgs.msg import (YawTorque, DriveTorque, StateEstimate as StateEstimateMsg,  # noqa: E402
                           WheelTorques)
 
 from wip_description.sensors import local_to_geodetic, SensorParams  # noqa: E402
@@ -347,8 +347,8 @@ def assert_mixer_recovers(node, subscriptions, timers, outputs, mode):
     for k in range(3):
         s = stamp + k * 20 * H_NS
         by_topic['/wip/state_estimate'](plausible_estimate(s))
-        by_topic['/wip/drive_torque'](MpcOutput(header=make_header(s), tau_v=2.0))
-        by_topic['/wip/yaw_torque'](ArcState(header=make_header(s), tau_omega=0.2))
+        by_topic['/wip/drive_torque'](DriveTorque(header=make_header(s), tau_v=2.0))
+        by_topic['/wip/yaw_torque'](YawTorque(header=make_header(s), tau_omega=0.2))
         for timer in timers:
             timer.callback()
     last = [m for m in outputs.messages if isinstance(m, WheelTorques)][-1]

@@ -18,7 +18,7 @@ rclpy = pytest.importorskip('rclpy')
 from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import Imu, JointState  # noqa: E402
-from wip_msgs.msg import ArcState, MpcOutput, StateEstimate, VelocityCommand  # noqa: E402
+from wip_msgs.msg import YawTorque, DriveTorque, StateEstimate, VelocityCommand  # noqa: E402
 from wip_msgs.msg import WheelTorques  # noqa: E402
 
 from wip_runtime.config import ParamError  # noqa: E402
@@ -388,13 +388,13 @@ def test_mpc_in_real_time_plans_from_the_torque_the_mixer_applied(context, nodes
     stamp = node.now_ns()
     estimate = StateEstimate(header=make_header(stamp), theta=0.05, settled=True)
     command = VelocityCommand(header=make_header(stamp), v_d=0.5)
-    arc = ArcState(header=make_header(stamp))
+    arc = YawTorque(header=make_header(stamp))
     node._on_input('state_estimate', estimate, estimate_from_msg(estimate))
     node._on_input('velocity_command', command, command_from_msg(command))
     node._on_input('yaw_torque', arc, arc_from_msg(arc))
     node._realtime_tick()
     first = out[-1]
-    assert first.status == MpcOutput.SOLVED and first.tau_v != 0.0
+    assert first.status == DriveTorque.SOLVED and first.tau_v != 0.0
     # The mixer held the torque at zero (start-up): the next tick starts from 0, not from
     # the MPC's own unapplied output.
     node._on_applied(WheelTorques(header=make_header(stamp), zeroed=True))

@@ -38,7 +38,7 @@ from ros_harness import (installed_executable, node_process, NodeHarness,  # noq
 from rclpy.parameter import Parameter  # noqa: E402
 from std_msgs.msg import Bool, Float64MultiArray  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
-from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg,  # noqa: E402
+from wip_msgs.msg import (YawTorque, DriveTorque, StateEstimate as StateEstimateMsg,  # noqa: E402
                           VelocityCommand, WheelTorques)
 
 from wip_control.core.mixer import mix  # noqa: E402
@@ -115,13 +115,13 @@ class Graph(NodeHarness):
         self.wheels = self.listen(WheelTorques, '/wip/wheel_torques', 1000)
         self.diagnostics = self.listen(DiagnosticArray, '/diagnostics')
         self.pubs = {topic: self.publisher(kind, topic) for topic, kind in (
-            ('/wip/state_estimate', StateEstimateMsg), ('/wip/yaw_torque', ArcState),
-            ('/wip/drive_torque', MpcOutput), ('/wip/estop', Bool),
+            ('/wip/state_estimate', StateEstimateMsg), ('/wip/yaw_torque', YawTorque),
+            ('/wip/drive_torque', DriveTorque), ('/wip/estop', Bool),
             ('/wip/velocity_command', VelocityCommand))}
         self.log = Log(self.node.monitor)
         # Upstream stand-in: what the ESO, ARC and MPC would publish.
         self.estimate = dict(theta=0.02, v=0.1, settled=True)
-        self.status = MpcOutput.SOLVED
+        self.status = DriveTorque.SOLVED
         self.sending = {'/wip/state_estimate', '/wip/yaw_torque', '/wip/drive_torque'}
         self.k = 0
         if upstream:
@@ -137,12 +137,12 @@ class Graph(NodeHarness):
             self.pubs['/wip/state_estimate'].publish(StateEstimateMsg(header=stamp,
                                                                       **self.estimate))
         if '/wip/yaw_torque' in self.sending:
-            self.pubs['/wip/yaw_torque'].publish(ArcState(header=stamp, tau_omega=TAU_OMEGA))
+            self.pubs['/wip/yaw_torque'].publish(YawTorque(header=stamp, tau_omega=TAU_OMEGA))
         if '/wip/velocity_command' in self.sending:
             self.pubs['/wip/velocity_command'].publish(VelocityCommand(header=stamp,
                                                                        v_d=0.1))
         if self.k % 20 == 0 and '/wip/drive_torque' in self.sending:
-            self.pubs['/wip/drive_torque'].publish(MpcOutput(header=stamp, tau_v=TAU_V,
+            self.pubs['/wip/drive_torque'].publish(DriveTorque(header=stamp, tau_v=TAU_V,
                                                              status=self.status))
         self.k += 1
 
@@ -290,8 +290,8 @@ def test_a_bad_estimate_zeroes_at_the_next_tick_and_diagnostics_say_why(context,
 
 
 @pytest.mark.parametrize('status, words', [
-    (MpcOutput.FAILED_ZERO, ('MPC failed', 'FAILED_ZERO')),
-    (MpcOutput.INPUT_INVALID, ('MPC failed', 'INPUT_INVALID'))])
+    (DriveTorque.FAILED_ZERO, ('MPC failed', 'FAILED_ZERO')),
+    (DriveTorque.INPUT_INVALID, ('MPC failed', 'INPUT_INVALID'))])
 def test_an_mpc_failure_status_zeroes_at_the_next_tick(context, harnesses, status, words):
     g = graph(harnesses, context)
     g.wait_active()
@@ -410,7 +410,7 @@ def test_mpc_process_killed_mid_run_zeroes_at_the_first_tick_past_the_drive_age(
 
 def test_drive_status_values_are_the_mpc_output_constants():
     assert {s.name: int(s) for s in DriveStatus} == {
-        name: getattr(MpcOutput, name) for name in
+        name: getattr(DriveTorque, name) for name in
         ('SOLVED', 'FALLBACK_SHIFTED_PLAN', 'FAILED_ZERO', 'INPUT_INVALID', 'NOT_READY')}
 
 
@@ -427,15 +427,15 @@ def test_mixer_process_stopped_sends_a_last_zero_command_to_the_base(context, ha
     harnesses.append(harness)
     efforts = harness.listen(Float64MultiArray, '/effort_controller/commands', 1000)
     pubs = {topic: harness.publisher(kind, topic) for topic, kind in (
-        ('/wip/state_estimate', StateEstimateMsg), ('/wip/yaw_torque', ArcState),
-        ('/wip/drive_torque', MpcOutput))}
+        ('/wip/state_estimate', StateEstimateMsg), ('/wip/yaw_torque', YawTorque),
+        ('/wip/drive_torque', DriveTorque))}
 
     def upstream():
         stamp = make_header(harness.io.get_clock().now().nanoseconds)
         pubs['/wip/state_estimate'].publish(StateEstimateMsg(header=stamp, theta=0.02,
                                                              settled=True))
-        pubs['/wip/yaw_torque'].publish(ArcState(header=stamp, tau_omega=TAU_OMEGA))
-        pubs['/wip/drive_torque'].publish(MpcOutput(header=stamp, tau_v=TAU_V))
+        pubs['/wip/yaw_torque'].publish(YawTorque(header=stamp, tau_omega=TAU_OMEGA))
+        pubs['/wip/drive_torque'].publish(DriveTorque(header=stamp, tau_v=TAU_V))
     harness.io.create_timer(PERIOD, upstream)
     torque = mix(TAU_V, TAU_OMEGA, 15.0)
     with node_process(

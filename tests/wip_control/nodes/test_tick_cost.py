@@ -53,7 +53,7 @@ def test_the_builders_give_the_constructors_messages_field_for_field_and_byte_fo
           wip_msgs.VelocityCommand(header=make_header(STAMP), **cmd._asdict()))
     out = ArcOutput(0.7, 0.02, -0.001)
     _same(conversions.arc_to_msg(out, STAMP),
-          wip_msgs.ArcState(header=make_header(STAMP), **out._asdict()))
+          wip_msgs.YawTorque(header=make_header(STAMP), **out._asdict()))
     _same(conversions.wheel_torques_to_msg(1.25, -0.5, STAMP, True, 'FAULT: tilt'),
           wip_msgs.WheelTorques(header=make_header(STAMP), left=1.25, right=-0.5, tau_v=0.75,
                                 tau_omega=-1.75, zeroed=True, reason='FAULT: tilt'))
@@ -64,7 +64,7 @@ def test_the_builders_give_the_constructors_messages_field_for_field_and_byte_fo
 
 def test_a_builder_refuses_a_message_type_whose_fields_it_does_not_list():
     with pytest.raises(TypeError, match='tau_omega'):
-        messages.StampedBuilder(wip_msgs.ArcState, ('alpha_hat', 'e_omega'))
+        messages.StampedBuilder(wip_msgs.YawTorque, ('alpha_hat', 'e_omega'))
     with pytest.raises(TypeError, match='header'):
         messages.StampedBuilder(Float64MultiArray, ('layout', 'data'))
 

@@ -10,7 +10,7 @@ import dataclasses
 
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, JointState, NavSatFix
-from wip_msgs.msg import (ArcState, GroundTruth, MpcOutput, ReferenceState as ReferenceMsg,
+from wip_msgs.msg import (YawTorque, GroundTruth, DriveTorque, ReferenceState as ReferenceMsg,
                           StateEstimate as StateEstimateMsg, VelocityCommand as CommandMsg,
                           WheelTorques)
 
@@ -36,15 +36,15 @@ TOPICS = {
     'wheel_torques': ('/wip/wheel_torques', 'wip_msgs/msg/WheelTorques'),
     'estimate': ('/wip/state_estimate', 'wip_msgs/msg/StateEstimate'),
     'command': ('/wip/velocity_command', 'wip_msgs/msg/VelocityCommand'),
-    'arc': ('/wip/yaw_torque', 'wip_msgs/msg/ArcState'),
-    'mpc': ('/wip/drive_torque', 'wip_msgs/msg/MpcOutput'),
+    'arc': ('/wip/yaw_torque', 'wip_msgs/msg/YawTorque'),
+    'mpc': ('/wip/drive_torque', 'wip_msgs/msg/DriveTorque'),
     'truth': ('/wip/ground_truth', 'wip_msgs/msg/GroundTruth'),
     'clock': ('/clock', 'rosgraph_msgs/msg/Clock'),
 }
 _CLASSES = {'joint_states': JointState, 'imu': Imu, 'gps': NavSatFix,
             'reference': ReferenceMsg, 'wheel_torques': WheelTorques,
-            'estimate': StateEstimateMsg, 'command': CommandMsg, 'arc': ArcState,
-            'mpc': MpcOutput, 'truth': GroundTruth}
+            'estimate': StateEstimateMsg, 'command': CommandMsg, 'arc': YawTorque,
+            'mpc': DriveTorque, 'truth': GroundTruth}
 #: Recomputed outputs: (key, record group, fields compared with the recorded message).
 COMPARED = (
     ('estimate', ('phi', 'omega', 'f1', 'x_v', 'v', 'f2', 'theta', 'theta_dot', 'f3', 'x',

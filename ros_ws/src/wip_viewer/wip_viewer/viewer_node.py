@@ -1,6 +1,6 @@
 """Viewer node: standard messages that a 3-D viewer (Foxglove, RViz) draws, from the graph.
 
-The graph's own messages (StateEstimate, GroundTruth, ReferenceState, MpcOutput) are custom
+The graph's own messages (StateEstimate, GroundTruth, ReferenceState, DriveTorque) are custom
 types that no viewer can place in 3-D. This node turns them into standard ones, off the
 control loop: it only subscribes to the controllers' topics (best effort, keep-last 5:
 a slow viewer loses its own samples and never makes a publisher wait), and nothing in the
@@ -77,7 +77,7 @@ from wip_runtime.stamps import stamp_to_ns
 from wip_runtime.messages import quaternion_from_euler
 from wip_runtime.diagnostics import NodeDiagnostics
 from wip_runtime.parameters import RosParams
-from wip_msgs.msg import GroundTruth, MpcOutput, ReferenceState, StateEstimate
+from wip_msgs.msg import GroundTruth, DriveTorque, ReferenceState, StateEstimate
 
 from wip_runtime import cdr
 from .settings import ROBOT_MODEL_GROUPS
@@ -145,9 +145,9 @@ class ViewerNode(IntraProcessNode):
                 raw=True)
             self.add_intra_subscription(msg_type, subscription,
                                         self._gated_local(name, gate, handler))
-        subscription = self.create_subscription(MpcOutput, 'wip/drive_torque', self._on_mpc,
+        subscription = self.create_subscription(DriveTorque, 'wip/drive_torque', self._on_mpc,
                                                  _INPUT_QOS)
-        self.add_intra_subscription(MpcOutput, subscription, self._on_mpc)
+        self.add_intra_subscription(DriveTorque, subscription, self._on_mpc)
         self.robot: RobotModel | None = None
         if c.robot_model:
             self._init_robot_model()
@@ -316,7 +316,7 @@ class ViewerNode(IntraProcessNode):
         self.paths['reference'].add(stamp_ns, msg.x, msg.y, msg.phi)
         self._publish_paths(stamp_ns)
 
-    def _on_mpc(self, msg: MpcOutput) -> None:
+    def _on_mpc(self, msg: DriveTorque) -> None:
         stamp_ns = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input('drive_torque', stamp_ns)
         if not len(msg.predicted_v):

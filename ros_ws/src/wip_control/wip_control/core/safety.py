@@ -46,7 +46,7 @@ _EPSILON = StateEstimate._fields.index('epsilon')
 
 
 class DriveStatus(enum.IntEnum):
-    """Status of a drive torque: the values of the ``wip_msgs/MpcOutput`` constants."""
+    """Status of a drive torque: the values of the ``wip_msgs/DriveTorque`` constants."""
 
     SOLVED = 0
     FALLBACK_SHIFTED_PLAN = 1
@@ -211,7 +211,7 @@ class SafetyMonitor:
         """τυ [N·m] and status of the MPC, received at ``t`` [s].
 
         ``plan``: the MPC's planned τυ for its periods k, k+1, … (held after the last),
-        ``plan_period`` [s] apart (``MpcOutput.planned_tau_v``, ``sampling_period``); the
+        ``plan_period`` [s] apart (``DriveTorque.planned_tau_v``, ``sampling_period``); the
         drive torque follows it when no newer output arrives. Empty: τυ is held. A plan
         that is not finite or has no positive period is ignored (τυ is held).
         """

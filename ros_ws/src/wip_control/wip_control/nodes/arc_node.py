@@ -3,7 +3,7 @@
 Topics
 ------
 Subscribes ``/wip/velocity_command`` (ωd, ω̇d) and ``/wip/state_estimate`` (ω̂, f̂1).
-Publishes ``/wip/yaw_torque`` (wip_msgs/ArcState: τω, α̂, eω) stamped like the estimate,
+Publishes ``/wip/yaw_torque`` (wip_msgs/YawTorque: τω, α̂, eω) stamped like the estimate,
 and ``/diagnostics``.
 
 Per sample: the yaw stage of the loop, ``core.control_step.YawControllerStage`` (the ARC
@@ -31,7 +31,7 @@ import math
 import sys
 import time
 
-from wip_msgs.msg import (ArcState, StateEstimate as StateEstimateMsg,
+from wip_msgs.msg import (YawTorque, StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg)
 
 from ..core.arc import ArcParams
@@ -69,7 +69,7 @@ class ArcNode(ControllerNode):
         else:
             self.sync = LatestSync(_INPUTS, self._compute, triggers=('state_estimate',),
                                    required=('velocity_command',))
-        self.publisher = self.create_publisher(ArcState, 'wip/yaw_torque', RELIABLE_QOS)
+        self.publisher = self.create_publisher(YawTorque, 'wip/yaw_torque', RELIABLE_QOS)
         self.subscribe_input(VelocityCommandMsg, 'wip/velocity_command', 'velocity_command',
                              command_from_msg)
         self.subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',

@@ -22,7 +22,7 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState, NavSatFix, NavSatStatus
 from std_msgs.msg import Float64MultiArray
 from wip_description.sensors import geodetic_to_local
-from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateMsg,
+from wip_msgs.msg import (YawTorque, DriveTorque, ReferenceState as ReferenceStateMsg,
                           StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
 from wip_runtime import cdr
@@ -45,7 +45,7 @@ _build_estimate = StampedBuilder(StateEstimateMsg, (
     'settled', 'position_status'))
 _build_command = StampedBuilder(VelocityCommandMsg, ('v_d', 'omega_d', 'omega_d_dot', 'x_e',
                                                      'y_e', 'phi_e'))
-_build_arc = StampedBuilder(ArcState, ('tau_omega', 'alpha_hat', 'e_omega'))
+_build_arc = StampedBuilder(YawTorque, ('tau_omega', 'alpha_hat', 'e_omega'))
 _build_wheel_torques = StampedBuilder(WheelTorques, ('left', 'right', 'tau_v', 'tau_omega',
                                                      'zeroed', 'reason'))
 
@@ -248,11 +248,11 @@ def command_from_msg(msg: VelocityCommandMsg, check: bool = True) -> VelocityCom
     return _last_command.keep(msg, cmd, check)
 
 
-def arc_to_msg(out: ArcOutput, stamp_ns: int) -> ArcState:
+def arc_to_msg(out: ArcOutput, stamp_ns: int) -> YawTorque:
     return _build_arc(stamp_ns, '', out.tau_omega, out.alpha_hat, out.e_omega)
 
 
-def arc_from_msg(msg: ArcState, check: bool = True) -> ArcOutput:
+def arc_from_msg(msg: YawTorque, check: bool = True) -> ArcOutput:
     out = ArcOutput(msg.tau_omega, msg.alpha_hat, msg.e_omega)
     if check:
         check_finite_record('yaw_torque', out)
@@ -262,25 +262,25 @@ def arc_from_msg(msg: ArcState, check: bool = True) -> ArcOutput:
 # --------------------------------------------------------------------- MPC
 
 def mpc_status(status: MpcStatus) -> int:
-    """MpcOutput status constant of a core status.
+    """DriveTorque status constant of a core status.
 
     SOLVED -> SOLVED; INPUT_INVALID -> INPUT_INVALID; every solver failure -> the core's
     documented fallback, the previous plan shifted (which holds τ(k−1) when there is no
     plan yet): FALLBACK_SHIFTED_PLAN. ``status_text`` carries the core status name.
     """
     if status == MpcStatus.SOLVED:
-        return MpcOutput.SOLVED
+        return DriveTorque.SOLVED
     if status == MpcStatus.INPUT_INVALID:
-        return MpcOutput.INPUT_INVALID
-    return MpcOutput.FALLBACK_SHIFTED_PLAN
+        return DriveTorque.INPUT_INVALID
+    return DriveTorque.FALLBACK_SHIFTED_PLAN
 
 
 def _column(values: Sequence[float]) -> array.array:
     return array.array('d', values)
 
 
-def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> MpcOutput:
-    """MpcOutput of a core tick.
+def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> DriveTorque:
+    """DriveTorque of a core tick.
 
     Unknown quantities are not sent as NaN: slacks are 0 and the predictions empty when the QP was
     not solved (``status`` says so).
@@ -289,7 +289,7 @@ def mpc_to_msg(result: MpcResult, stamp_ns: int, sampling_period: float) -> MpcO
     have_prediction = bool(predicted.size) and bool(math.isfinite(float(predicted.sum())))
     slack_v = result.slack_v if math.isfinite(result.slack_v) else 0.0
     slack_theta = result.slack_theta if math.isfinite(result.slack_theta) else 0.0
-    return stamped(MpcOutput(
+    return stamped(DriveTorque(
         tau_v=float(result.tau_v),
         delta_tau=float(result.delta_tau), status=mpc_status(result.status),
         status_text=result.status.name, iterations=int(result.iterations),
@@ -317,21 +317,21 @@ def planned_drive_torque(result: MpcResult) -> list[float]:
     return planned
 
 
-def mpc_hold_msg(stamp_ns: int, tau_v: float, sampling_period: float) -> MpcOutput:
-    """MpcOutput of a tick of the re-solve grid at which the MPC did not solve.
+def mpc_hold_msg(stamp_ns: int, tau_v: float, sampling_period: float) -> DriveTorque:
+    """DriveTorque of a tick of the re-solve grid at which the MPC did not solve.
 
     The re-solve grid is that of ``mpc.fast_resolve_period`` in lockstep. The message has
     the held τυ, status SOLVED (of the last solve), ``status_text`` HELD, Δτ 0, and no plan
     or prediction.
     """
-    return stamped(MpcOutput(tau_v=float(tau_v), delta_tau=0.0, status=MpcOutput.SOLVED,
+    return stamped(DriveTorque(tau_v=float(tau_v), delta_tau=0.0, status=DriveTorque.SOLVED,
                              status_text=HELD_STATUS_TEXT, sampling_period=float(sampling_period),
                              used_fallback=False), stamp_ns)
 
 
-def mpc_idle_msg(stamp_ns: int, status: int, text: str, sampling_period: float) -> MpcOutput:
-    """MpcOutput with τυ = 0 when the MPC did not run (NOT_READY, INPUT_INVALID)."""
-    return stamped(MpcOutput(tau_v=0.0, delta_tau=0.0, status=status, status_text=text,
+def mpc_idle_msg(stamp_ns: int, status: int, text: str, sampling_period: float) -> DriveTorque:
+    """DriveTorque with τυ = 0 when the MPC did not run (NOT_READY, INPUT_INVALID)."""
+    return stamped(DriveTorque(tau_v=0.0, delta_tau=0.0, status=status, status_text=text,
                              sampling_period=float(sampling_period), used_fallback=True),
                    stamp_ns)
 

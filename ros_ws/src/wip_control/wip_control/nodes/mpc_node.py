@@ -5,7 +5,7 @@ Topics
 Subscribes ``/wip/state_estimate`` (υ̂, θ̂, θ̂̇, f̂2, f̂3), ``/wip/velocity_command`` (υd) and
 ``/wip/yaw_torque`` (τω, which sets the drive torque bound
 ``core.mixer.drive_torque_limit(τω, mixer.max_wheel_torque)`` = 2 τmax − |τω|).
-Publishes ``/wip/drive_torque`` (wip_msgs/MpcOutput: τυ, Δτ, status, iterations, build +
+Publishes ``/wip/drive_torque`` (wip_msgs/DriveTorque: τυ, Δτ, status, iterations, build +
 solve time, slacks, predicted υ/θ/θ̇) every ``mpc.sampling_period``, and ``/diagnostics``.
 
 Per tick: the drive stage of the loop, ``core.control_step.DriveControllerStage.step`` (as the
@@ -54,7 +54,7 @@ from __future__ import annotations
 import sys
 import time
 
-from wip_msgs.msg import (ArcState, MpcOutput, StateEstimate as StateEstimateMsg,
+from wip_msgs.msg import (YawTorque, DriveTorque, StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
 
 from ..core.control_step import DriveControllerStage
@@ -100,7 +100,7 @@ class MpcNode(ControllerNode):
         self.realtime_k = 0   # realtime: the control tick of the next timer tick
         self.mpc = self.stage.controller
         self.latest: dict[str, tuple[int, object]] = {}
-        self.publisher = self.create_publisher(MpcOutput, 'wip/drive_torque', RELIABLE_QOS)
+        self.publisher = self.create_publisher(DriveTorque, 'wip/drive_torque', RELIABLE_QOS)
         if self.lockstep:
             self.sync = ExactTimeSync(_INPUTS, self._tick)
         else:
@@ -114,7 +114,7 @@ class MpcNode(ControllerNode):
         self.subscribe(VelocityCommandMsg, 'wip/velocity_command', 'velocity_command',
                        lambda msg: self._on_input('velocity_command', msg,
                                                   command_from_msg(msg, check=False)))
-        self.subscribe(ArcState, 'wip/yaw_torque', 'yaw_torque',
+        self.subscribe(YawTorque, 'wip/yaw_torque', 'yaw_torque',
                        lambda msg: self._on_input('yaw_torque', msg,
                                                   arc_from_msg(msg, check=False)))
         self.diagnostics.state(OK, 'waiting for the first tick')
@@ -148,12 +148,12 @@ class MpcNode(ControllerNode):
             now = self.now_ns()
             missing = [n for n in _INPUTS if n not in self.latest]
             if missing:
-                self._idle(now, MpcOutput.NOT_READY, f'NOT_READY: no {", ".join(missing)} yet')
+                self._idle(now, DriveTorque.NOT_READY, f'NOT_READY: no {", ".join(missing)} yet')
                 return
             stale = [f'{n} {(now - s) * 1e-9:.3f} s old' for n, (s, _) in self.latest.items()
                      if now - s > self.max_input_age * 1e9]
             if stale:
-                self._idle(now, MpcOutput.INPUT_INVALID, f'INPUT_INVALID: stale {stale}')
+                self._idle(now, DriveTorque.INPUT_INVALID, f'INPUT_INVALID: stale {stale}')
                 return
             self._tick(self.latest['state_estimate'][0],
                        {n: v for n, (_, v) in self.latest.items()}, k)

@@ -7,7 +7,7 @@ robot: docs/decisions/safety-layer.md).
 Topics
 ------
 Subscribes
-    ``/wip/yaw_torque`` (wip_msgs/ArcState: τω), ``/wip/drive_torque`` (wip_msgs/MpcOutput:
+    ``/wip/yaw_torque`` (wip_msgs/YawTorque: τω), ``/wip/drive_torque`` (wip_msgs/DriveTorque:
     τυ and the MPC's status, held between MPC ticks), ``/wip/state_estimate``
     (wip_msgs/StateEstimate: θ̂ for the fall threshold, rates and disturbances for the ESO
     divergence check, ``settled`` for the start-up), ``/wip/estop`` (std_msgs/Bool: true
@@ -74,7 +74,7 @@ from rclpy.duration import Duration
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, Empty, Float64MultiArray
 from std_srvs.srv import Trigger
-from wip_msgs.msg import (ArcState, MpcOutput, ReferenceState as ReferenceStateMsg,
+from wip_msgs.msg import (YawTorque, DriveTorque, ReferenceState as ReferenceStateMsg,
                           StateEstimate as StateEstimateMsg, WheelTorques)
 
 from wip_runtime.config import ParamError
@@ -173,8 +173,8 @@ class TorqueMixerNode(ControllerNode):
 
     def _init_subscriptions(self, runaway_guard: bool) -> None:
         """Subscribe to the controllers' outputs, the e-stop, heartbeat and reset inputs."""
-        self.subscribe(ArcState, 'wip/yaw_torque', 'yaw_torque', self._on_yaw)
-        self.subscribe(MpcOutput, 'wip/drive_torque', 'drive_torque', self._on_drive)
+        self.subscribe(YawTorque, 'wip/yaw_torque', 'yaw_torque', self._on_yaw)
+        self.subscribe(DriveTorque, 'wip/drive_torque', 'drive_torque', self._on_drive)
         self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                        self._on_estimate)
         if not self.lockstep and runaway_guard:
@@ -277,7 +277,7 @@ class TorqueMixerNode(ControllerNode):
         return self.latest_estimate_stamp is None or self.latest_estimate_stamp >= stamp_ns
 
     # -- subscriptions -----------------------------------------------------------------------
-    def _on_yaw(self, msg: ArcState) -> None:
+    def _on_yaw(self, msg: YawTorque) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input('yaw_torque', stamp)
         if self.lockstep:
@@ -287,7 +287,7 @@ class TorqueMixerNode(ControllerNode):
             self.timer.reset()
             self._tick(sensor_stamp=stamp)
 
-    def _on_drive(self, msg: MpcOutput) -> None:
+    def _on_drive(self, msg: DriveTorque) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input('drive_torque', stamp)
         value = (msg.tau_v, msg.status)
