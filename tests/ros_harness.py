@@ -60,10 +60,9 @@ def spin_for(executor, seconds: float, step: float = 0.01) -> None:
 
 @contextlib.contextmanager
 def spinning_in_background(executor, step: float = 0.05) -> Iterator[None]:
-    """``executor`` spun in a daemon thread for the duration of the block.
+    """Spin ``executor`` in a daemon thread for the duration of the block; stop at its end.
 
-    ``executor`` spun in a daemon thread for the duration of the block (for a test that
-    blocks on something else meanwhile: a subprocess, a WebSocket); stopped at its end.
+    For a test that blocks on something else meanwhile: a subprocess, a WebSocket.
     """
     stop = threading.Event()
 
@@ -160,10 +159,9 @@ def installed_executable(package: str, name: str) -> str:
 def ros_child_environment(**extra: str) -> dict[str, str]:
     """Return the environment of a node process started by a test.
 
-    The environment of a node process started by a test: this one's (its DDS domain),
-    without the marker of the ROS wheels bootstrap (the child bootstraps itself), and with
-    this process as its launcher: a node this test starts ends with it, even when the test
-    run is killed (wip_runtime.launched).
+    It is this process's (its DDS domain), without the marker of the ROS wheels bootstrap
+    (the child bootstraps itself), and with this process as its launcher: a node this test
+    starts ends with it, even when the test run is killed (wip_runtime.launched).
     """
     env = dict(os.environ, **extra)
     env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)

@@ -19,39 +19,9 @@ MIN_WORDS = 3
 #: Words of the body that may come before the repeated summary.
 LEAD_WORDS = 2
 
-#: Docstrings that repeat their summary, in files of other owners, as
+#: Docstrings that may repeat their summary, each an exception with a reason given here, as
 #: (path from the repository root, qualified name); '<module>' is the module docstring.
-#: An entry that no longer repeats is not an error: the owner fixes it on their branch.
-ALLOWED = {
-    ('ros_ws/src/wip_bringup/wip_bringup/hardware_params.py', 'hardware_parameters'),
-    ('ros_ws/src/wip_bringup/wip_bringup/hardware_runner.py', 'HardwareRunner.outcome'),
-    ('ros_ws/src/wip_bringup/wip_bringup/launcher.py', 'in_namespace'),
-    ('ros_ws/src/wip_bringup/wip_bringup/private_domain.py', 'reserve_private_domain'),
-    ('ros_ws/src/wip_bringup/wip_bringup/private_domain.py', 'take_private_domain'),
-    ('ros_ws/src/wip_bringup/wip_bringup/ros_env.py', 'ros_network'),
-    ('ros_ws/src/wip_bringup/wip_bringup/runner_base.py', 'RunnerBase.recorder_parameters'),
-    ('ros_ws/src/wip_bringup/wip_bringup/runner_base.py', 'RunnerBase.commands'),
-    ('ros_ws/src/wip_bringup/wip_bringup/standin_run.py', '_base_ends_now'),
-    ('ros_ws/src/wip_tools/wip_tools/bench.py', 'bench_plant_models'),
-    ('ros_ws/src/wip_tools/wip_tools/parameters.py', '_component'),
-    ('ros_ws/src/wip_tools/wip_tools/realtime_bench.py', 'bench_node_cost'),
-    ('ros_ws/src/wip_tools/wip_tools/report.py', 'scenario_for'),
-    ('ros_ws/src/wip_tools/wip_tools/simulate.py', 'step_printer'),
-    ('tests/ros_harness.py', 'spinning_in_background'),
-    ('tests/ros_harness.py', 'ros_child_environment'),
-    ('tests/test_ros2_run_contract.py', 'entry_point_module'),
-    ('tests/wip_bringup/test_lockstep.py', '_assert_same_bits'),
-    ('tests/wip_bringup/test_lockstep.py', '_FrozenRecorderRunner'),
-    ('tests/wip_control/core/test_mpc.py', '_first_tick'),
-    ('tests/wip_control/core/test_mpc.py', '_min_peak_speed_after_push'),
-    ('tests/wip_control/nodes/test_controller_nodes.py', 'start'),
-    ('tests/wip_tools/test_campaign.py', '<module>'),
-    ('tests/wip_tools/test_identify.py', '<module>'),
-    ('tests/wip_tools/test_identify.py', '_write_bag'),
-    ('tests/wip_tools/test_report_short_run.py', '<module>'),
-    ('tests/wip_tools/test_tuning.py', '<module>'),
-    ('tests/wip_viewer/test_foxglove_live.py', 'Client.receive_binary'),
-}
+ALLOWED: set[tuple[str, str]] = set()
 
 
 def words(text):

@@ -219,8 +219,8 @@ def test_every_executable_has_a_contract_entry():
 def entry_point_module(package, executable):
     """Return the module whose ``main`` a console script runs.
 
-    The module whose ``main`` a console script runs, from the package's setup.py (and
-    its console.py for the tools, see wip_runtime.cli.console_script).
+    Read from the package's setup.py (and its console.py for the tools, see
+    wip_runtime.cli.console_script).
     """
     source = REPO_ROOT / 'ros_ws' / 'src' / package
     text = (source / 'setup.py').read_text(encoding='utf-8')

@@ -167,10 +167,9 @@ def test_lockstep_graph_reproduces_the_in_process_runner(graph_runs, in_process,
 
 
 def _assert_same_bits(expected_bag, actual_bag):
-    """Every recorded value of the two bags is the same, bit for bit.
+    """Assert that every recorded value of the two bags is the same, bit for bit.
 
-    Every recorded value of the two bags is the same, bit for bit (NaN included), but the
-    solve times (wall-clock timings).
+    NaN included; the solve times (wall-clock timings) are not compared.
     """
     expected, actual = record_from_bag(expected_bag), record_from_bag(actual_bag)
     for group, columns in expected.groups.items():
@@ -258,8 +257,8 @@ def test_the_bag_decodes_with_rosbags_and_mcap_ros2_and_holds_every_message(grap
 class _FrozenRecorderRunner(GraphRunner):
     """The recorder's process frozen (SIGSTOP) for RECORDER_FREEZE of wall time.
 
-    The recorder's process frozen (SIGSTOP) for RECORDER_FREEZE of wall time from the
-    plant's start: what a loaded machine does to it for a few milliseconds, made long.
+    The freeze starts with the plant: what a loaded machine does to the recorder for a few
+    milliseconds, made long.
     """
 
     def watch(self) -> int:

@@ -1,7 +1,7 @@
 """scripts/campaign: the file format, the draws, the criteria, and a small campaign.
 
-scripts/campaign: the file format, the draws, the criteria, and a small campaign on a
-Dask LocalCluster end to end (outputs, summary, figures, resume, no overwrite).
+The small campaign runs on a Dask LocalCluster end to end: outputs, summary, figures,
+resume, no overwrite.
 """
 
 import csv

@@ -1,8 +1,8 @@
 """Model identification (wip_tools.identify, docs/identification.md).
 
-Model identification (wip_tools.identify, docs/identification.md) on in-process runs of
-the excitation scenario: off-nominal paper plants are recovered, a standing-still run
-determines nothing, the identified model as the controllers' one, and the CLI.
+Tested on in-process runs of the excitation scenario: off-nominal paper plants are
+recovered, a standing-still run determines nothing, the identified model as the
+controllers' one, and the CLI.
 """
 
 import pathlib
@@ -239,8 +239,7 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
 def _write_bag(directory, record, groups=('truth',)):
     """Write the record's truth as /wip/ground_truth messages in a rosbag2 MCAP bag.
 
-    The record's truth as /wip/ground_truth messages in a rosbag2 MCAP bag (what the
-    plant node publishes; stamps are the simulated times).
+    They are what the plant node publishes; stamps are the simulated times.
     """
     serialization = pytest.importorskip('rclpy.serialization')
     from wip_bag.bag_writer import Rosbag2McapWriter

@@ -1,7 +1,7 @@
 """A claim whose time window is longer than the run is "not tested (run too short)".
 
-A claim whose time window is longer than the run is "not tested (run too short)" in the
-report, neither passed nor failed; run_graph's hint to make the report is shell-quoted.
+In the report it is neither passed nor failed; run_graph's hint to make the report is
+shell-quoted.
 """
 
 import json

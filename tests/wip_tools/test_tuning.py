@@ -1,8 +1,8 @@
 """docs/tuning.md's first example: halving the MPC's tilt limit.
 
-docs/tuning.md's first example: halving the MPC's tilt limit (mpc.max_tilt 0.1 -> 0.05)
-on the paper's Section V under the robust default makes the run gentler (smaller peak
-torque and speed) and the tracking worse, as the document says with its measured numbers.
+With mpc.max_tilt 0.1 -> 0.05 on the paper's Section V under the robust default, the run
+is gentler (smaller peak torque and speed) and the tracking worse, as the document says
+with its measured numbers.
 """
 
 import pytest

@@ -156,10 +156,10 @@ class Client:
 
     def receive_binary(self, opcode: int | None, timeout: float = TIMEOUT,
                        required: bool = True) -> bytes | None:
-        """Return the next binary frame with this opcode.
+        """Return the next binary frame with opcode ``opcode``.
 
-        The next binary frame with this opcode (None: read one frame, return None);
-        ``required``: fail if none comes within ``timeout`` (else return None).
+        With ``opcode`` None, read one frame and return None. ``required``: fail if none
+        comes within ``timeout`` (else return None).
         """
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:

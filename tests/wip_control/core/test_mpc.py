@@ -568,10 +568,10 @@ def _rise(predicted_v, v_hat, steps):
 
 
 def _first_tick(state, v_d, **config):
-    """(mpc, result) of the first tick of a fresh MPC.
+    """Return (mpc, result) of the first tick of a fresh MPC.
 
-    (mpc, result) of the first tick of a fresh MPC (CONFIG with ``config`` replaced)
-    from the ideal-ESO estimates ``state`` (:func:`realistic_state`'s arguments).
+    The MPC has CONFIG with ``config`` replaced; the tick starts from the ideal-ESO
+    estimates ``state`` (:func:`realistic_state`'s arguments).
     """
     mpc = LongitudinalMpc(PARAMS, dataclasses.replace(CONFIG, **config))
     mpc.reset(0.0)
@@ -1014,12 +1014,11 @@ def test_start_up_rule_ignores_the_estimators_zero_start_and_its_transient():
 
 def _min_peak_speed_after_push(v0, push=10.0, width=0.1, first_tick=0.1, back_by=2.1,
                                back_to=1.55, max_tilt=0.1, horizon=5.0, dt=0.005):
-    """Lower bound on the peak speed of any causal controller after a forward push.
+    """Return a lower bound on the peak speed of any causal controller after a forward push.
 
-    Lower bound on the peak speed of any causal controller after a forward push
-    (docs/history/mpc.md §7): an LP on the linearisation of the paper plant at rest (υ, θ, θ̇),
-    exact zero-order-hold discretisation at ``dt``; the push d2 = ``push`` m/s² over
-    [0, width); τυ held over 0.1 s ticks from ``first_tick`` (0 before: the controller
+    See docs/history/mpc.md §7. An LP on the linearisation of the paper plant at rest
+    (υ, θ, θ̇), exact zero-order-hold discretisation at ``dt``; the push d2 = ``push`` m/s²
+    over [0, width); τυ held over 0.1 s ticks from ``first_tick`` (0 before: the controller
     has not seen the push), |τυ| ≤ 30 N·m, |Δτυ| ≤ 10 N·m per tick, |θ| ≤ max_tilt, υ ≤
     back_to from back_by on, θ = θ̇ = 0 at the end (caught). Minimises max υ.
     """

@@ -163,8 +163,7 @@ def harness_of(harnesses, node):
 def start(harnesses, context, node_cls, mode='lockstep', inputs=(), outputs=(), **params):
     """Start a node of ``node_cls`` with the test's parameter overrides, in a harness.
 
-    A node of ``node_cls`` with the test's parameter overrides, in a harness; wired to
-    ``inputs`` and ``outputs`` (see :func:`wire`) if given.
+    Wire it to ``inputs`` and ``outputs`` (see :func:`wire`) if given.
     """
     harness = harness_of(harnesses, node_cls(context=context, parameter_overrides=overrides(
         mode, **params)))

@@ -100,7 +100,7 @@ def hardware_parameters(scenario: ControllerParams, recorder: Mapping[str, Any] 
                         heartbeat: bool = True) -> dict[str, dict]:
     """Return the generated params file of a hardware run.
 
-    The generated params file of a hardware run: the controller nodes of
+    It holds the controller nodes of
     :func:`~wip_bringup.params_files.graph_parameters` in real time, no plant (there the
     reference starts when the safety layer engages); with ``heartbeat``, the mixer requires
     /wip/heartbeat (``safety.max_estop_age``).

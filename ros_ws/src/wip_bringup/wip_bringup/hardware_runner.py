@@ -378,8 +378,7 @@ class HardwareRunner(RunnerBase):
     def outcome(self, ended: str) -> tuple[int, str]:
         """Return the run's exit code and message from the safety events seen until now.
 
-        The run's exit code and message from the safety events seen until now (the
-        states the stop itself causes come later and are not judged).
+        The states the stop itself causes come later and are not judged.
         """
         code, message = hardware_outcome(list(self.safety_events), ended,
                                          self.options.base_end_after, self.missing)

@@ -76,9 +76,8 @@ INPUT_TOPICS = ('/cmd_vel', '/plan', '/wip/estop', '/wip/estop_reset', '/wip/hea
 def in_namespace(topic: str, namespace: str) -> str:
     """Return the name a node of ``namespace`` gives its topic ``topic``.
 
-    The name a node of ``namespace`` gives its topic ``topic`` (written absolute, as
-    in the graph's tables): the nodes use relative names, so it resolves under their
-    namespace; :data:`GLOBAL_TOPICS` stay as they are.
+    ``topic`` is written absolute, as in the graph's tables; the nodes use relative names,
+    so it resolves under their namespace. :data:`GLOBAL_TOPICS` stay as they are.
     """
     if not namespace or topic in GLOBAL_TOPICS:
         return topic

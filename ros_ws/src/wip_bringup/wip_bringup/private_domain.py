@@ -27,9 +27,9 @@ LOCK_DIRECTORY = pathlib.Path(tempfile.gettempdir()) / 'wip-ros-domains'
 def reserve_private_domain(rng: random.Random | None = None) -> tuple[int, int]:
     """Reserve a domain id no other process of this host holds.
 
-    A domain id no other process of this host holds, and the descriptor that holds it
-    (close it to release the domain). Falls back to a random id, unreserved (-1), when all
-    are taken or the lock directory cannot be used.
+    Return the id and the descriptor that holds it (close it to release the domain). Fall
+    back to a random id, unreserved (descriptor -1), when all are taken or the lock
+    directory cannot be used.
     """
     rng = rng or random.Random()
     candidates = list(range(FIRST_DOMAIN_ID, LAST_DOMAIN_ID + 1))
@@ -66,8 +66,7 @@ _TAKEN: list[int] = []
 def take_private_domain() -> int:
     """Return a reserved domain id held until :func:`release_taken_domains`.
 
-    A reserved domain id held until :func:`release_taken_domains` (for a test harness:
-    its fixture releases them after each test).
+    For a test harness: its fixture releases them after each test.
     """
     domain_id, descriptor = reserve_private_domain()
     _TAKEN.append(descriptor)

@@ -64,10 +64,9 @@ class RosNetwork:
 
 
 def ros_network(environ: Mapping[str, str] | None = None) -> RosNetwork:
-    """Return the ROS network settings of ``environ``.
+    """Return the ROS network settings of ``environ`` (default ``os.environ``).
 
-    The ROS network settings of ``environ`` (default ``os.environ``), with ROS's own
-    defaults where unset: domain 0, discovery range SUBNET.
+    Where a setting is unset, ROS's own default: domain 0, discovery range SUBNET.
     """
     environ = os.environ if environ is None else environ
     value = environ.get('ROS_DOMAIN_ID', '').strip()

@@ -160,10 +160,9 @@ class RunnerBase:
 
     def recorder_parameters(self, topics: list[str],
                             discovery_period: float) -> dict[str, Any] | None:
-        """Return the recorder's parameters.
+        """Return the recorder's parameters (None without --record).
 
-        The recorder's parameters (None without --record): ``topics`` and, when the
-        viewer runs, its topics.
+        They are ``topics`` and, when the viewer runs, its topics.
         """
         if self.bag is None:
             return None
@@ -241,8 +240,7 @@ class RunnerBase:
     def commands(self, params_file: pathlib.Path) -> dict[str, list[str]]:
         """Return the command line of every process, in start order.
 
-        The command line of every process, in start order (the recorder first: it must
-        not miss the start).
+        The recorder comes first: it must not miss the start.
         """
         names = ((['recorder'] if self.bag is not None else []) + self.controller_processes()
                  + self.extra_processes() + self.view_processes())

@@ -366,11 +366,11 @@ def _when_engaged(holder: dict, during: Callable, base: subprocess.Popen,
 
 
 def _base_ends_now(runner) -> None:
-    """Whether the base is stopped now, before its run time.
+    """Stop the base now, before its run time.
 
-    The base is stopped now, before its run time: from here its inputs stop, and a FAULT
-    is the end of the run, not a failure (``HardwareOptions.base_end_after``, counted from
-    the engagement, which the outcome reads when the run is over).
+    From here its inputs stop, and a FAULT is the end of the run, not a failure
+    (``HardwareOptions.base_end_after``, counted from the engagement, which the outcome
+    reads when the run is over).
     """
     start = next(e['t'] for e in runner.safety_events if e['state'] == 'ACTIVE')
     now = time.monotonic() - runner.t0

@@ -109,10 +109,9 @@ def bench_in_process(scenario, repeats: int) -> dict:
 def bench_plant_models(scenario, repeats: int) -> dict:
     """Return the in-process real-time factor of ``scenario`` on each plant model.
 
-    The in-process real-time factor of ``scenario`` on each plant model, the models
-    interleaved run by run (the machine's load drifts alike for all): medians by wall and
-    by CPU time, per model. A model that cannot be built (mujoco not installed) is
-    reported as skipped.
+    The models are interleaved run by run (the machine's load drifts alike for all); the
+    factors are medians by wall and by CPU time, per model. A model that cannot be built
+    (mujoco not installed) is reported as skipped.
     """
     per_model = {model: dataclasses.replace(scenario, plant=dataclasses.replace(
         scenario.plant, model=PlantParams(model))) for model in MODELS}

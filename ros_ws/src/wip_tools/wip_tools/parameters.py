@@ -75,8 +75,8 @@ def _number(value: Any) -> str:
 def _component(value: Any) -> str:
     """Return a disturbance component (a small dataclass) as ``kind(field=value, ...)``.
 
-    A disturbance component (a small dataclass) as ``kind(field=value, ...)``: only the
-    fields that differ from their defaults, as one would write them in the YAML file.
+    Only the fields that differ from their defaults, as one would write them in the YAML
+    file.
     """
     fields = [f for f in dataclasses.fields(value)
               if f.name != 'kind' and getattr(value, f.name) != f.default]

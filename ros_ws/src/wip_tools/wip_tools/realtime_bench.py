@@ -42,8 +42,7 @@ def bench_rclpy_floor(seconds: float) -> dict:
 def bench_node_cost(seconds: float, pairs: int = 2) -> dict:
     """Return the controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`).
 
-    The controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`),
-    back to back and paced at 200 Hz, alternately, each in a process of its own.
+    Measured back to back and paced at 200 Hz, alternately, each in a process of its own.
     """
     runs: dict[str, list[dict]] = {'back_to_back': [], 'paced': []}
     for _ in range(pairs):

@@ -156,8 +156,8 @@ def scenario_for(bag: str | pathlib.Path,
                  scenario_path: str | pathlib.Path | None) -> tuple[Scenario, str]:
     """Return the scenario of a report and where it came from.
 
-    The scenario of a report and where it came from: the bag's own, with
-    ``scenario_path`` over it (:mod:`wip_tools.bag_scenario`, the rule rerun uses too).
+    It is the bag's own, with ``scenario_path`` over it (:mod:`wip_tools.bag_scenario`,
+    the rule rerun uses too).
     """
     try:
         return scenario_for_bag(bag, scenario_path)

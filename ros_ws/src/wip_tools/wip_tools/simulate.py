@@ -47,10 +47,9 @@ def progress_printer(stream=sys.stderr):
 
 
 def step_printer(program: str, stream=sys.stderr):
-    """Return a progress callback for the long steps of a command.
+    """Return a progress callback for the long steps of a command (reading a bag, each figure).
 
-    A progress callback for the long steps of a command (reading a bag, each figure):
-    prints ``program: [elapsed] step`` on ``stream`` (stderr: stdout stays the result).
+    It prints ``program: [elapsed] step`` on ``stream`` (stderr: stdout stays the result).
     """
     start = time.perf_counter()
 
