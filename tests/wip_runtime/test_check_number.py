@@ -45,3 +45,23 @@ def test_the_command_line_keeps_its_words():
 def test_the_robot_model_refuses_what_is_not_a_positive_finite_number(name, value):
     with pytest.raises(ParamError, match=f'^ModelParams.{name}: '):
         ModelParams(**{name: value})
+
+
+def test_an_int_too_large_for_a_float_is_refused_in_one_line_not_overflowed():
+    # float(10**400) raises OverflowError: a scenario key or campaign value written as a
+    # 400-digit integer gets the one-line error instead.
+    with pytest.raises(ParamError, match='duration: out of range'):
+        check_number('duration', 10 ** 400, {}, want_int=False)
+    assert check_number('seed', 10 ** 400, {}, want_int=True) == 10 ** 400
+
+
+def test_the_scenario_scalars_and_the_campaign_values_use_the_one_check():
+    from wip_control.core.controller_settings import checked_scalar
+    from wip_tools.campaign_file import _number, CampaignError
+    with pytest.raises(ParamError, match='control_rate: expected an integer'):
+        checked_scalar('control_rate', 2.5, int)
+    with pytest.raises(ParamError, match='out of range'):
+        checked_scalar('duration', 10 ** 400, float)
+    with pytest.raises(CampaignError, match='campaign.vary.x: must be finite'):
+        _number(float('nan'), 'campaign.vary.x')
+    assert checked_scalar('duration', 3, float) == 3.0 and _number(2, 'x') == 2.0

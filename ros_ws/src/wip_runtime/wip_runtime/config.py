@@ -128,6 +128,10 @@ def _field_types(cls: type) -> dict[str, Any]:
     return typing.get_type_hints(cls)
 
 
+#: Largest magnitude accepted for a float (an int beyond has no float or no use).
+_LARGEST_FLOAT_INPUT = 1e300
+
+
 def check_number(path: str, value: Any, meta: Mapping[str, Any], want_int: bool) -> float:
     """Return ``value`` as an int (``want_int``) or a float; ParamError naming ``path`` else.
 
@@ -156,6 +160,9 @@ def check_number(path: str, value: Any, meta: Mapping[str, Any], want_int: bool)
                           f'meaningful), got {_show(value)}')
     if hi is not None and value > hi:
         raise ParamError(f'{path}: must be <= {hi}, got {_show(value)}')
+    if not want_int and abs(value) > _LARGEST_FLOAT_INPUT:
+        # An int this large has no float (OverflowError) or none any quantity needs.
+        raise ParamError(f'{path}: out of range, got {_show(value)}')
     return int(value) if want_int else float(value)
 
 

@@ -13,7 +13,7 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from wip_runtime.config import ParamError
+from wip_runtime.config import check_number, ParamError
 from wip_tools.analysis.criteria import Criteria, criteria_from_mapping
 from wip_sim.core.scenario import load_scenario, scenario_from_mapping, scenario_to_mapping
 
@@ -126,9 +126,10 @@ def _merge(base: dict, overrides: Mapping, where: str) -> dict:
 
 
 def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise CampaignError(f'{where}: expected a finite number, got {value!r}')
-    return float(value)
+    try:
+        return check_number(where, value, {}, want_int=False)
+    except ParamError as err:
+        raise CampaignError(str(err)) from None
 
 
 def _parse_distribution(key: str, spec: Any, base_value: Any) -> tuple[str, list]:

@@ -20,12 +20,12 @@ References
 from __future__ import annotations
 
 import dataclasses
-import math
 import pathlib
 from typing import Any, Callable, Mapping
 
 from .arc import ArcParams
-from wip_runtime.config import ParamError, _show, from_mapping, load_yaml_text, param, to_mapping
+from wip_runtime.config import (check_number, from_mapping, load_yaml_text, param, ParamError,
+                                to_mapping)
 from .eso import EsoParams
 from .mixer import MixerParams
 from .mpc_config import MpcParams, PAPER_MPC_SETTINGS, resolves_faster
@@ -174,14 +174,7 @@ def checked_scalar(key: str, value: Any, kind: type) -> Any:
     if kind is str and not isinstance(value, str):
         raise ParamError(f'{key}: expected a string, got {value!r}')
     if kind in (int, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                or (isinstance(value, float) and not math.isfinite(value)):
-            raise ParamError(f'{key}: expected a finite number, got {_show(value)}')
-        if kind is int and isinstance(value, float) and not value.is_integer():
-            raise ParamError(f'{key}: expected an integer, got {_show(value)}')
-        if kind is float and isinstance(value, int) and abs(value) > 1e300:
-            raise ParamError(f'{key}: out of range, got {_show(value)}')
-        value = kind(value)
+        return check_number(key, value, {}, want_int=kind is int)
     return value
 
 
