@@ -141,31 +141,14 @@ def script_helps(tmp_path_factory):
     the folder holds after). One start of each front door for the tests that read their
     help (tests/test_exit_codes.py, tests/test_doc_commands.py).
     """
-    import subprocess
+    from processes import run_at_once
     scripts = REPO_ROOT / 'scripts'
     names = sorted(p.name for p in scripts.iterdir()
                    if p.is_file() and os.access(p, os.X_OK) and p.name != '_env.sh')
-    folders, processes, results = {}, {}, {}
-    try:
-        for name in names:
-            folders[name] = tmp_path_factory.mktemp(f'scripts_{name}')
-            processes[name] = subprocess.Popen(
-                [str(scripts / name), '--help'], cwd=folders[name], text=True,
-                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
-        for name, process in processes.items():
-            try:
-                out, _ = process.communicate(timeout=SCRIPT_HELP_TIMEOUT)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                out, _ = process.communicate()
-            results[name] = (process.returncode, out,
-                             sorted(p.name for p in folders[name].iterdir()))
-    finally:
-        for process in processes.values():
-            if process.poll() is None:
-                process.kill()
-                process.communicate()
-    return results
+    results = run_at_once({name: [str(scripts / name), '--help'] for name in names},
+                          lambda name: tmp_path_factory.mktemp(f'scripts_{name}'),
+                          SCRIPT_HELP_TIMEOUT, merge=True)
+    return {name: (status, out, files) for name, (status, out, _, files) in results.items()}
 
 
 @pytest.fixture

@@ -13,6 +13,7 @@ import subprocess
 
 import pytest
 
+from processes import run_at_once
 from wip_runtime import cli
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parent.parent
@@ -225,28 +226,8 @@ def _run_all(runs, tmp_path_factory, timeout=REFUSE_TIMEOUT, merge=False):
     key -> (status, stdout, stderr, files the folder holds after); with ``merge`` stderr
     goes into stdout (and the stderr slot is '').
     """
-    folders, processes, results = {}, {}, {}
-    try:
-        for key, command in runs.items():
-            folders[key] = tmp_path_factory.mktemp(key.replace('/', '_'))
-            processes[key] = subprocess.Popen(
-                command, cwd=folders[key], text=True, stdout=subprocess.PIPE,
-                stderr=subprocess.STDOUT if merge else subprocess.PIPE,
-                stdin=subprocess.DEVNULL)
-        for key, process in processes.items():
-            try:
-                out, err = process.communicate(timeout=timeout)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                out, err = process.communicate()
-            results[key] = (process.returncode, out, err or '',
-                            sorted(p.name for p in folders[key].iterdir()))
-    finally:
-        for process in processes.values():
-            if process.poll() is None:
-                process.kill()
-                process.communicate()
-    return results
+    return run_at_once(runs, lambda key: tmp_path_factory.mktemp(key.replace('/', '_')),
+                       timeout, merge)
 
 
 def test_every_node_given_a_bad_ros_argument_exits_2_in_one_line(tmp_path_factory):

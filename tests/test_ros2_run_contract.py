@@ -29,6 +29,7 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 from ament_index_python.packages import get_package_prefix  # noqa: E402
+from processes import run_at_once  # noqa: E402
 from ros_harness import communicate  # noqa: E402
 from wip_bringup.private_domain import (release_private_domain,  # noqa: E402
                                         reserve_private_domain)
@@ -271,25 +272,11 @@ def helped(tmp_path_factory):
     """``<exe> --help`` of every tool, all started at once: executable -> (status, output)."""
     work = tmp_path_factory.mktemp('help')
     paths = {executable: path for package, executable, path in executables()}
-    processes = {executable: subprocess.Popen(
-        [str(paths[executable]), '--help'], cwd=work, stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True)
-        for executable in TOOLS}
-    results = {}
-    try:
-        for executable, process in processes.items():
-            try:
-                output, _ = process.communicate(timeout=HELP_TIMEOUT)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                output, _ = process.communicate()
-            results[executable] = (process.returncode, output)
-    finally:
-        for process in processes.values():
-            if process.poll() is None:
-                process.kill()
-                process.communicate()
-    return results
+    results = run_at_once({executable: [str(paths[executable]), '--help']
+                           for executable in TOOLS}, lambda executable: work, HELP_TIMEOUT,
+                          merge=True)
+    return {executable: (status, output) for executable, (status, output, _, _)
+            in results.items()}
 
 
 @pytest.mark.slow  # 13 processes importing numpy and rclpy at once: about 20 s on 2 cores
