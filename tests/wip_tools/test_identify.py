@@ -89,6 +89,22 @@ def test_the_sensors_of_a_noisy_run_recover_every_combination_within_5_percent(m
         assert fit.value(key) == pytest.approx(true[key], rel=0.05), key
 
 
+def test_stamps_of_publishing_not_of_reading_are_noted_as_irregular():
+    # A sample stamped late by 0.3-0.9 period puts its two intervals a quarter or more off
+    # the period: with 10 % of them late, about 2 p (1 - p) = 18 % of the intervals.
+    scenario, result = _run('noisy_paper_1', PLANTS['heavy_high'], model='paper', seed=1,
+                            sensors=IMU_NOISE)
+    record = {g: dict(result.record[g]) for g in ('wheels', 'encoders', 'imu')}
+    assert identify.irregular_stamps(record) == 0.0
+    t = np.asarray(record['encoders']['t'], dtype=float)
+    period = float(np.median(np.diff(t)))
+    rng = np.random.default_rng(0)
+    late = rng.random(len(t)) < 0.1
+    record['encoders']['t'] = t + np.where(late, rng.uniform(0.3, 0.9, len(t)) * period, 0.0)
+    assert identify.irregular_stamps(record) == pytest.approx(2 * 0.1 * 0.9, abs=0.02)
+    assert identify.irregular_stamps({}) == 0.0
+
+
 @pytest.mark.parametrize('model', ['paper', 'full'])
 def test_axle_friction_is_identified_with_the_others_from_noisy_sensors(model):
     # A plant whose wheels have viscous axle friction b = 0.05 N m s/rad (plant

@@ -38,8 +38,9 @@ import numpy as np
 from wip_description.params import ModelParams
 from wip_runtime.cli import add_exit_codes, EXIT_OK, EXIT_USAGE, exit_with
 from wip_tools.identify_record import best_source, choose_model, load_record, TORQUE_SOURCES
-from wip_tools.identify_signals import (CUTOFF_HZ, IdentifyError, regressors,
-                                        root_mean_square, uniform_signals)
+from wip_tools.identify_signals import (CUTOFF_HZ, IRREGULAR_STAMPS_NOTED, IdentifyError,
+                                        irregular_stamps, regressors, root_mean_square,
+                                        uniform_signals)
 
 #: The fitted parameters, in the column order of the regressor matrix.
 NAMES = ('effective_mass', 'mpl', 'pitch_inertia', 'mpl2', 'yaw_inertia_total', 'friction',
@@ -426,6 +427,12 @@ def main(argv: Iterable[str] | None = None) -> int:
     print(f'rows: {model}{" with friction" if friction else ""}; torques: '
           + ('the joint efforts' if torque_source == 'efforts' else 'the commands')
           + (f'; sensors read with {wiring.describe()}' if source == 'sensors' else ''))
+    if source == 'sensors':
+        irregular = irregular_stamps(record)
+        if irregular > IRREGULAR_STAMPS_NOTED:
+            print(f"note: {irregular:.1%} of the joint states' stamp intervals are more "
+                  'than a quarter off the median period; a driver should stamp a sample '
+                  'with the time it read it, not the time it published it')
     print(table(result))
     return _write_model(args, *to_parameters(result, nominal))
 

@@ -33,6 +33,10 @@ MIN_DURATION_S = 5.0
 #: driver, a lost message burst) is not interpolated across: the rows whose filter window
 #: reaches into it are left out.
 MAX_GAP_PERIODS = 3.0
+#: A stamp interval this far (a fraction of the median period) from the median is irregular.
+IRREGULAR_STAMP_FRACTION = 0.25
+#: scripts/identify notes irregular stamps above this fraction of the intervals.
+IRREGULAR_STAMPS_NOTED = 0.01
 
 
 class IdentifyError(ValueError):
@@ -287,6 +291,23 @@ def _rows_clear_of_gaps(sig: Mapping[str, np.ndarray], dt: float, cutoff_hz: flo
     bad = ~(valid[1:] & valid[:-1])
     half = _kernel_half(dt, cutoff_hz)[1]
     return np.convolve(bad.astype(float), np.ones(2 * half + 1), mode='same') == 0.0
+
+
+def irregular_stamps(record: Mapping, group: str = 'encoders') -> float:
+    """Return the fraction of ``group``'s stamp intervals a quarter off the median period.
+
+    A driver that stamps a sample when it publishes it, not when it read it, gives
+    stamps jittered against the instants the values stand for; the speeds differentiated
+    over them are then wrong sample by sample and the estimates' intervals widen
+    (docs/identification.md §7).
+    """
+    if group not in record or len(record[group]['t']) < 3:
+        return 0.0
+    gaps = np.diff(np.asarray(record[group]['t'], dtype=float))
+    period = float(np.median(gaps))
+    if not period > 0.0:
+        return 0.0
+    return float(np.mean(np.abs(gaps - period) > IRREGULAR_STAMP_FRACTION * period))
 
 
 def root_mean_square(x: np.ndarray) -> float:
