@@ -336,24 +336,19 @@ class StandinBase(Node):
         # One step per tick on time (a tick up to 0.9 period late included: timer jitter
         # is not a stall, and the plant never runs ahead of the wall clock).
         due = math.floor((now - self._physics_origin - self.t) / self.dt + 1.1)
-        if due > MAX_CATCH_UP_STEPS:
-            # The stall's remainder is lost (the plant resumes at the wall clock), so that
-            # the samples' stamps (``_sample_stamp_ns``) stay on the wall clock.
+        if due > MAX_CATCH_UP_STEPS:   # the rest is lost: the stamps stay on the wall clock
             self._physics_origin += (due - MAX_CATCH_UP_STEPS) * self.dt
         return min(MAX_CATCH_UP_STEPS, max(1, due))
 
     def _sample_stamp_ns(self, now_ns: int, now: float) -> int:
         """Return the stamp of the sample published now: the instant it was read.
 
-        ``now_ns`` is the ROS clock and ``now`` perf_counter at the same moment. A real
-        driver stamps a sample with the time it read it, on its loop's grid. The state
-        just stepped to, ``t``, is the reading of the tick at ``origin + t − dt`` (its
-        step takes the held command from that tick on, as ros2_control writes the
-        command read at the previous update): a tick late by L publishes it L after it
-        was read. Stamped with the tick's own time instead, the stamps would carry the
-        timer's jitter while the physics' steps are uniform, and a speed differentiated
-        over them would be wrong sample by sample (docs/identification.md §7). A tick
-        earlier than the grid stamps its own time (a stamp is never in the future).
+        ``now_ns`` is the ROS clock and ``now`` perf_counter at the same moment. As a real
+        driver stamps the time it read a sample, on its loop's grid: the state just
+        stepped to, ``t``, is the tick's reading at ``origin + t − dt`` (its step takes the
+        held command from then on), published by a late tick after that. The tick's own
+        time would put the timer's jitter into the stamps but not into the uniform steps
+        (docs/identification.md §7). An early tick stamps its own time (never the future).
         """
         if self._physics_origin is None:
             return now_ns
