@@ -23,11 +23,16 @@ is a lower bound for every controller of that model and those limits (the nonlin
 excursion differs by the linearisation, a few % at θ ≤ 0.1 rad).
 
 Why a peak of e at all: the only force that slows the vehicle for long is gravity on a
-tilted body. The combination w = u − (g2/g3) θ̇ = u + J_θ θ̇ / (mp l), which the torque does
-not drive, obeys ẇ = k θ + d with k = a_υ − g2 a_θ / g3 = g (Ω0 = mv J_θ − mp² l²): the push's
-Δv is absorbed only by ∫ θ dt = −Δv / g, at |θ| ≤ θmax in at least Δv / (g θmax), and e grows
-meanwhile, by Δv² / (2 g θmax) (0.51 m for 1 m/s at 0.1 rad), give or take the lean itself,
-e = ∫ w dt + (g2/g3) θ (±J_θ θmax / (mp l), 0.087 m). The tests check the LP against these.
+tilted body. The combination w = u − (g2/g3) θ̇, which the torque does not drive, obeys
+ẇ = k θ + d with k = a_υ − g2 a_θ / g3: the push's Δv is absorbed only by ∫ θ dt = −Δv / k,
+at |θ| ≤ θmax in at least Δv / (k θmax), and e grows meanwhile, by Δv² / (2 k θmax), give
+or take the lean itself, e = ∫ w dt + (g2/g3) θ. For model (1) (``model='paper'``)
+k = g whatever the body (Ω0 = mv J_θ − mp² l²; 0.51 m for 1 m/s at 0.1 rad, the lean
+±J_θ θmax / (mp l), 0.087 m). The full plant (``model='full'``, ``wip_sim``'s derivation)
+also puts the motors' reaction torque −τυ on the body: g2 = (J_θ + mp l r)/(Ω0 r),
+g3 = −(mv r + mp l)/(Ω0 r), and then k = g mp l / (mv r + mp l) < g: holding a lean
+takes a torque that also drives the wheels forward, so the same lean slows the vehicle
+less and the least excursion is larger. The tests check the LP against these.
 """
 
 from __future__ import annotations
@@ -52,15 +57,28 @@ class PushBound:
     status: str               #: the solver's message
 
 
-def linear_model(params: ModelParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Return (A, B, E) of ż = A z + B τυ + E d for z = (e, u, θ, θ̇) about upright."""
+#: The plant models whose linearisation :func:`linear_model` knows (engine models such as
+#: mujoco are the full model's bodies: :func:`wip_sim.core.plant.equation_model`).
+BOUND_MODELS = ('paper', 'full')
+
+
+def linear_model(params: ModelParams,
+                 model: str = 'paper') -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return (A, B, E) of ż = A z + B τυ + E d for z = (e, u, θ, θ̇) about upright.
+
+    ``model``: 'paper', model (1); 'full', with the reaction torque −τυ on the body (the
+    input gains of ``wip_sim.core.plant.full_input_gains`` at θ = 0; A is the same).
+    """
+    if model not in BOUND_MODELS:
+        raise ValueError(f'model must be one of {BOUND_MODELS}, got {model!r}')
     p = params
     omega0 = p.omega_denominator(0.0)
     mp_l = p.body_mass * p.com_height
     a_v = -mp_l * mp_l * p.gravity / omega0
     a_t = p.effective_mass * mp_l * p.gravity / omega0
-    g2 = p.pitch_inertia / (omega0 * p.wheel_radius)
-    g3 = -mp_l / (omega0 * p.wheel_radius)
+    reaction = 1.0 if model == 'full' else 0.0
+    g2 = (p.pitch_inertia + reaction * mp_l * p.wheel_radius) / (omega0 * p.wheel_radius)
+    g3 = -(mp_l + reaction * p.effective_mass * p.wheel_radius) / (omega0 * p.wheel_radius)
     a = np.array([[0.0, 1.0, 0.0, 0.0],
                   [0.0, 0.0, a_v, 0.0],
                   [0.0, 0.0, 0.0, 1.0],
@@ -68,16 +86,17 @@ def linear_model(params: ModelParams) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return a, np.array([0.0, g2, 0.0, g3]), np.array([0.0, 1.0, 0.0, 0.0])
 
 
-def absorption_rate(params: ModelParams) -> float:
-    """Return k [m/s² per rad] of ẇ = k θ + d (module docstring): g, whatever the body."""
-    a, b, _ = linear_model(params)
+def absorption_rate(params: ModelParams, model: str = 'paper') -> float:
+    """Return k [m/s² per rad] of ẇ = k θ + d (module docstring): g for model (1)."""
+    a, b, _ = linear_model(params, model)
     return a[1, 2] - b[1] * a[3, 2] / b[3]
 
 
 def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: float = 0.1,
                          max_tilt: float = 0.1, max_torque: float = 30.0,
                          max_delta_torque: float = 10.0, delta_period: float = 0.1,
-                         step: float = 0.02, horizon: float = 8.0) -> PushBound:
+                         step: float = 0.02, horizon: float = 8.0,
+                         model: str = 'paper') -> PushBound:
     """Return the least peak excursion ahead of the reference after a push.
 
     ``delta_v`` [m/s]: the push's speed change, a constant acceleration delta_v / push_time
@@ -85,7 +104,8 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
     (the excursion is then behind, reported positive: the model is symmetric).
     ``max_torque``: |τυ| = |τl + τr| [N m] (two wheels of 15 N m: 30);
     ``max_delta_torque`` [N m] per ``delta_period`` [s]; ``step`` [s]: the grid;
-    ``horizon`` [s]: the time by which it must be at rest. ValueError on bad arguments or
+    ``horizon`` [s]: the time by which it must be at rest; ``model``: the plant's
+    equations, 'paper' or 'full' (:func:`linear_model`). ValueError on bad arguments or
     when no sequence can bring it to rest by then (the push is beyond the limits).
     """
     from scipy.optimize import linprog
@@ -99,7 +119,7 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
     if dv == 0.0:
         zeros = np.zeros(n + 1)
         return PushBound(0.0, times, zeros, zeros.copy(), np.zeros(n), 'no push')
-    ad, bd, ed = _discretised(params, step)
+    ad, bd, ed = _discretised(params, step, model)
     lag = max(1, int(round(delta_period / step)))
     push = np.where(times[:-1] < push_time - 1e-9, dv / push_time, 0.0)
     # Sparse, not condensed: the tilt's unstable pole (√a_θ ≈ 4.6 /s) makes a condensed
@@ -145,11 +165,11 @@ def _check_arguments(values: dict) -> None:
                          f'{horizon})')
 
 
-def _discretised(params: ModelParams, step: float) -> tuple:
+def _discretised(params: ModelParams, step: float, model: str) -> tuple:
     """Return (Ad, Bd, Ed): the exact zero-order-hold discretisation over one step."""
     from scipy.linalg import expm
 
-    a, b, e = linear_model(params)
+    a, b, e = linear_model(params, model)
     big = np.zeros((6, 6))
     big[:4, :4], big[:4, 4], big[:4, 5] = a * step, b * step, e * step
     phi = expm(big)
@@ -267,12 +287,19 @@ PUSH_CASES = tuple((reference, plant, mismatch, noise)
 
 
 def scenario_bound(scenario, delta_v: float, push_time: float) -> PushBound:
-    """Return the bound for the true plant of ``scenario`` and its MPC limits (``mpc.*``)."""
+    """Return the bound for the true plant of ``scenario`` and its MPC limits (``mpc.*``).
+
+    The true plant's parameters and equations: the full model's for 'full' and the engine
+    models, which have the motors' reaction torque on the body.
+    """
+    from wip_sim.core.plant import equation_model
+
     mpc = scenario.mpc
     return push_excursion_bound(scenario.plant.parameters, delta_v, push_time=push_time,
                                 max_tilt=mpc.max_tilt, max_torque=mpc.max_drive_torque,
                                 max_delta_torque=mpc.max_delta_torque,
-                                delta_period=mpc.sampling_period)
+                                delta_period=mpc.sampling_period,
+                                model=equation_model(scenario.plant.model.model))
 
 
 def push_recovery_rows(cases=PUSH_CASES, delta_v: float = 1.0, push_width: float = 0.1,
@@ -293,7 +320,8 @@ def push_recovery_rows(cases=PUSH_CASES, delta_v: float = 1.0, push_width: float
             mapping[key] = ({**mapping[key], **value} if isinstance(value, dict)
                             and isinstance(mapping.get(key), dict) else value)
         scenario = scenario_from_mapping(mapping)
-        key = (scenario.plant.parameters, scenario.mpc.max_tilt, scenario.mpc.max_drive_torque,
+        key = (scenario.plant.parameters, scenario.plant.model.model, scenario.mpc.max_tilt,
+               scenario.mpc.max_drive_torque,
                scenario.mpc.max_delta_torque, scenario.mpc.sampling_period)
         if key not in bounds:
             bounds[key] = scenario_bound(scenario, delta_v, push_width).excursion
