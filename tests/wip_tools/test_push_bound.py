@@ -115,6 +115,16 @@ def test_the_bound_grows_with_the_push_convexly_and_is_symmetric():
     assert backward == pytest.approx(values[1], rel=1e-6)
 
 
+@pytest.mark.parametrize('delay', [0.04, 0.06, 0.1])
+def test_a_late_reaction_costs_at_most_the_push_times_the_delay(delay):
+    # Fewer choices: not less. The zero-delay optimum applied `delay` late is feasible,
+    # and e then exceeds its peak by at most what the push adds meanwhile, Δv · delay.
+    on_time = push_excursion_bound(PARAMS, 1.0, **FAST).excursion
+    late = push_excursion_bound(PARAMS, 1.0, **FAST, reaction_delay=delay)
+    assert on_time - 1e-6 <= late.excursion <= on_time + 1.0 * delay + 1e-6
+    assert not np.any(late.torque[:int(round(delay / 0.02))])
+
+
 def test_the_grid_is_fine_enough():
     coarse = push_excursion_bound(PARAMS, 1.0, step=0.02, **FAST).excursion
     fine = push_excursion_bound(PARAMS, 1.0, step=0.01, **FAST).excursion
@@ -127,6 +137,7 @@ def test_the_grid_is_fine_enough():
     (dict(delta_v=1.0, step=0.5), 'need step <='),
     (dict(delta_v=20.0, horizon=1.0), 'no torque sequence within the limits'),
     (dict(delta_v=1.0, model='mujoco'), 'model must be one of'),
+    (dict(delta_v=1.0, reaction_delay=-0.1), 'reaction_delay must be in'),
 ])
 def test_bad_arguments_and_impossible_pushes_are_one_line_errors(kwargs, message):
     with pytest.raises(ValueError, match=message) as error:

@@ -96,7 +96,7 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
                          max_tilt: float = 0.1, max_torque: float = 30.0,
                          max_delta_torque: float = 10.0, delta_period: float = 0.1,
                          step: float = 0.02, horizon: float = 8.0,
-                         model: str = 'paper') -> PushBound:
+                         model: str = 'paper', reaction_delay: float = 0.0) -> PushBound:
     """Return the least peak excursion ahead of the reference after a push.
 
     ``delta_v`` [m/s]: the push's speed change, a constant acceleration delta_v / push_time
@@ -105,8 +105,10 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
     ``max_torque``: |τυ| = |τl + τr| [N m] (two wheels of 15 N m: 30);
     ``max_delta_torque`` [N m] per ``delta_period`` [s]; ``step`` [s]: the grid;
     ``horizon`` [s]: the time by which it must be at rest; ``model``: the plant's
-    equations, 'paper' or 'full' (:func:`linear_model`). ValueError on bad arguments or
-    when no sequence can bring it to rest by then (the push is beyond the limits).
+    equations, 'paper' or 'full' (:func:`linear_model`); ``reaction_delay`` [s]: the
+    torque stays 0 for this long after the push starts (a controller that must first see
+    the push; rounded to the grid). ValueError on bad arguments or when no sequence can
+    bring it to rest by then (the push is beyond the limits).
     """
     from scipy.optimize import linprog
 
@@ -116,6 +118,9 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
     dv = abs(float(delta_v))
     n = int(round(horizon / step))
     times = step * np.arange(n + 1)
+    if not (math.isfinite(reaction_delay) and 0.0 <= reaction_delay < horizon):
+        raise ValueError(f'push_excursion_bound: reaction_delay must be in [0, horizon), '
+                         f'got {reaction_delay!r}')
     if dv == 0.0:
         zeros = np.zeros(n + 1)
         return PushBound(0.0, times, zeros, zeros.copy(), np.zeros(n), 'no push')
@@ -130,16 +135,16 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
     pi = nz + nt                                     # index of P; z_k[j] at 4k + j
     eq, beq = _dynamics(ad, bd, ed, push, n, nv)
     ub, bub = _peak_and_rate_limits(n, nv, lag, max_delta_torque)
-    bounds = [(None, None)] * nz + [(-max_torque, max_torque)] * nt + [(None, None)]
-    for i in range(1, n + 1):
-        bounds[4 * i + 2] = (-max_tilt, max_tilt)
-    for j in (1, 2, 3):                              # at rest at the end, torque off
-        bounds[4 * n + j] = (0.0, 0.0)
-    bounds[nz + n - 1] = (0.0, 0.0)
+    bounds = _variable_bounds(n, max_tilt, max_torque, int(round(reaction_delay / step)))
     cost = np.zeros(nv)
     cost[pi] = 1.0
     result = linprog(cost, A_ub=ub, b_ub=bub, A_eq=eq, b_eq=beq,
                      bounds=bounds, method='highs')
+    if result.status != 0:
+        # HiGHS' automatic choice (dual simplex) sometimes stops without a status on
+        # these LPs, where its interior-point method solves them.
+        result = linprog(cost, A_ub=ub, b_ub=bub, A_eq=eq, b_eq=beq,
+                         bounds=bounds, method='highs-ipm')
     if result.status != 0:
         raise ValueError(f'push_excursion_bound: no torque sequence within the limits '
                          f'brings a push of {dv} m/s to rest in {horizon} s '
@@ -147,6 +152,22 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
     states = result.x[:nz].reshape(n + 1, 4)
     return PushBound(float(max(result.x[pi], 0.0)), times, states[:, 0], states[:, 2],
                      result.x[nz:nz + nt], result.message)
+
+
+def _variable_bounds(n: int, max_tilt: float, max_torque: float, idle: int) -> list:
+    """Return the boxes of z_0..z_n, τ_0..τ_{n−1}, P: |θ|, |τ|, at rest at the end.
+
+    The first ``idle`` torques are 0 (the reaction delay).
+    """
+    nz = 4 * (n + 1)
+    bounds = [(None, None)] * nz + [(-max_torque, max_torque)] * n + [(None, None)]
+    for i in range(1, n + 1):
+        bounds[4 * i + 2] = (-max_tilt, max_tilt)
+    for j in (1, 2, 3):                              # at rest at the end, torque off
+        bounds[4 * n + j] = (0.0, 0.0)
+    for k in list(range(min(idle, n))) + [n - 1]:
+        bounds[nz + k] = (0.0, 0.0)
+    return bounds
 
 
 def _check_arguments(values: dict) -> None:
