@@ -1,17 +1,18 @@
 """Clairvoyant lower bound of the excursion after a push (pure numpy/scipy, no ROS).
 
 How far must ANY controller let the vehicle run ahead of its reference after a push, given
-the physical limits? Model (1) linearised about upright (the tilt's gravity coupling kept,
-as :func:`wip_control.core.mpc_prediction.gravity_aware_state_matrix`), in the frame of
-a reference moving at constant speed, with the along-track error e, the speed error u:
+the physical limits? Model (1) (or the full plant's equations, below) linearised about
+upright (the tilt's gravity coupling kept, as
+:func:`wip_control.core.mpc_prediction.gravity_aware_state_matrix`), in the frame of a
+reference moving at constant speed, with the along-track error e, the speed error u:
 
     ė = u,   u̇ = a_υ θ + g2 τυ + d(t),   θ̈ = a_θ θ + g3 τυ,
 
 a_υ = −mp² l² g / Ω0, a_θ = mv mp g l / Ω0, g2, g3 at θ = 0, d(t) the push (an
 acceleration added to υ̇, as the scenarios' longitudinal disturbance). A controller that
-knows the push in advance (from its start: it may react at once, not before), starting
-from rest on the reference, chooses the drive torque τυ(t) piecewise constant on a fine
-grid (``step``) under
+knows the push in advance (from its start: it may react at once, not before; or only
+after ``reaction_delay``), starting from rest on the reference, chooses the drive torque
+τυ(t) piecewise constant on a fine grid (``step``) under
 
     |θ| ≤ θmax,   |τυ| ≤ τmax,   |τυ(t) − τυ(t − Ts)| ≤ Δτmax  (Ts the MPC period),
 
