@@ -117,3 +117,8 @@ def test_bench_push_only_prints_each_case_against_its_bound(tmp_path, capsys):
     assert 'mpc' not in json.loads(out.read_text())
     printed = capsys.readouterr().out
     assert printed.count('ratio') >= 8 and 'bound 0.70' in printed
+    # A noisy case is the median of its seeds, within their range; a clean one runs once.
+    for row in rows:
+        assert row['runs'] == (5 if row['noise'] else 1)
+        assert row['ratio_min'] <= row['ratio'] <= row['ratio_max']
+    assert printed.count('median of 5 seeds') == 4

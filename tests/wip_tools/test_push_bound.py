@@ -5,7 +5,9 @@ Model (1) linearised about upright: with w = u + J_θ θ̇ / (mp l), ẇ = g θ 
 torque rate unbounded), the least peak e lies within J_θ θmax / (mp l) of
 E1 = ∫ (P(t) − g θmax t) dt up to the time that integrand reaches 0 (P(t) the push's speed
 so far): leaning back at once by θmax reaches it with the lean's own +J_θ θmax/(mp l);
-no sequence can do better than E1 less that lean.
+no sequence can do better than E1 less that lean. The full plant also puts the motors'
+reaction torque on the body: then ẇ = k θ + d with k = g mp l / (mv r + mp l) and the lean
+term (J_θ + mp l r) θmax / (mv r + mp l) (the elimination of τυ from its two equations).
 """
 
 import dataclasses
@@ -36,6 +38,24 @@ def test_a_lean_absorbs_speed_at_g_per_radian_whatever_the_body(body_mass, com_h
     assert absorption_rate(params) == pytest.approx(params.gravity, rel=1e-12)
 
 
+def _full_rate_and_lean(params, max_tilt):
+    """Return (k, the lean term) of the full plant, from its equations of motion."""
+    mp_l, r = params.body_mass * params.com_height, params.wheel_radius
+    inertia = params.effective_mass * r + mp_l
+    return (params.gravity * mp_l / inertia,
+            (params.pitch_inertia + mp_l * r) / inertia * max_tilt)
+
+
+@pytest.mark.parametrize('body_mass, com_height', [(25.0, 0.6), (30.0, 0.66), (10.0, 1.2)])
+def test_with_the_reaction_torque_a_lean_absorbs_less_than_g(body_mass, com_height):
+    # m_v υ̇ + mp l θ̈ = τ/r and mp l υ̇ + J_θ θ̈ − mp g l θ = −τ: r times the first plus the
+    # second has no τ, (mv r + mp l) υ̇ + (J_θ + mp l r) θ̈ = mp g l θ.
+    params = dataclasses.replace(PARAMS, body_mass=body_mass, com_height=com_height)
+    rate, _ = _full_rate_and_lean(params, 0.1)
+    assert absorption_rate(params, 'full') == pytest.approx(rate, rel=1e-12)
+    assert rate < params.gravity
+
+
 def test_no_push_needs_no_excursion():
     bound = push_excursion_bound(PARAMS, 0.0)
     assert bound.excursion == 0.0 and not np.any(bound.torque)
@@ -49,6 +69,17 @@ def test_with_the_tilt_the_only_limit_the_bound_is_the_closed_forms():
     bound = push_excursion_bound(PARAMS, 1.0, **UNLIMITED, **FAST)
     assert e1 - lean - 1e-3 <= bound.excursion <= e1 + lean + 0.01
     assert np.max(np.abs(bound.tilt)) <= theta_max + 1e-6
+
+
+def test_with_the_reaction_torque_the_tilt_only_bound_is_its_closed_form():
+    theta_max = 0.1
+    rate, lean = _full_rate_and_lean(PARAMS, theta_max)
+    e1 = _tilt_only_integral(1.0, 0.1, theta_max, rate)
+    bound = push_excursion_bound(PARAMS, 1.0, **UNLIMITED, **FAST, model='full')
+    assert e1 - lean - 1e-3 <= bound.excursion <= e1 + lean + 0.01
+    # And with the torque limits it needs more than model (1) (0.70 m).
+    limited = push_excursion_bound(PARAMS, 1.0, **FAST, model='full').excursion
+    assert limited > push_excursion_bound(PARAMS, 1.0, **FAST).excursion + 0.1
 
 
 def test_the_torque_limits_cost_excursion_and_the_paper_plant_needs_0_70_m():
@@ -84,6 +115,16 @@ def test_the_bound_grows_with_the_push_convexly_and_is_symmetric():
     assert backward == pytest.approx(values[1], rel=1e-6)
 
 
+@pytest.mark.parametrize('delay', [0.04, 0.06, 0.1])
+def test_a_late_reaction_costs_at_most_the_push_times_the_delay(delay):
+    # Fewer choices: not less. The zero-delay optimum applied `delay` late is feasible,
+    # and e then exceeds its peak by at most what the push adds meanwhile, Δv · delay.
+    on_time = push_excursion_bound(PARAMS, 1.0, **FAST).excursion
+    late = push_excursion_bound(PARAMS, 1.0, **FAST, reaction_delay=delay)
+    assert on_time - 1e-6 <= late.excursion <= on_time + 1.0 * delay + 1e-6
+    assert not np.any(late.torque[:int(round(delay / 0.02))])
+
+
 def test_the_grid_is_fine_enough():
     coarse = push_excursion_bound(PARAMS, 1.0, step=0.02, **FAST).excursion
     fine = push_excursion_bound(PARAMS, 1.0, step=0.01, **FAST).excursion
@@ -95,6 +136,8 @@ def test_the_grid_is_fine_enough():
     (dict(delta_v=1.0, max_tilt=0.0), 'max_tilt must be > 0'),
     (dict(delta_v=1.0, step=0.5), 'need step <='),
     (dict(delta_v=20.0, horizon=1.0), 'no torque sequence within the limits'),
+    (dict(delta_v=1.0, model='mujoco'), 'model must be one of'),
+    (dict(delta_v=1.0, reaction_delay=-0.1), 'reaction_delay must be in'),
 ])
 def test_bad_arguments_and_impossible_pushes_are_one_line_errors(kwargs, message):
     with pytest.raises(ValueError, match=message) as error:
@@ -121,3 +164,15 @@ def test_a_case_runs_and_its_excursion_is_above_the_bound():
     assert row['bound_m'] == pytest.approx(0.70, abs=0.01)
     # No controller beats the clairvoyant one on its own model (the paper plant is it).
     assert 1.0 < row['ratio'] == pytest.approx(row['measured_m'] / row['bound_m'])
+
+
+def test_the_full_plant_is_measured_against_its_own_equations():
+    from wip_sim.core.scenario import scenario_from_mapping
+    from wip_tools.analysis.push_bound import push_scenario_mapping, scenario_bound
+    scenario = scenario_from_mapping(push_scenario_mapping('line', 'full', mismatch=True))
+    rate, _ = _full_rate_and_lean(scenario.plant.parameters, 0.1)
+    bound = scenario_bound(scenario, 1.0, 0.1)
+    model_one = push_excursion_bound(scenario.plant.parameters, 1.0)
+    # The run-on Δv²/(2 k θmax) grows as 1/k; the torque limits' share stays about the same.
+    assert bound.excursion - model_one.excursion == pytest.approx(
+        0.5 / (0.1 * rate) - 0.5 / (0.1 * scenario.plant.parameters.gravity), rel=0.35)

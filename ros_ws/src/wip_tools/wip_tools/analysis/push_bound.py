@@ -1,17 +1,18 @@
 """Clairvoyant lower bound of the excursion after a push (pure numpy/scipy, no ROS).
 
 How far must ANY controller let the vehicle run ahead of its reference after a push, given
-the physical limits? Model (1) linearised about upright (the tilt's gravity coupling kept,
-as :func:`wip_control.core.mpc_prediction.gravity_aware_state_matrix`), in the frame of
-a reference moving at constant speed, with the along-track error e, the speed error u:
+the physical limits? Model (1) (or the full plant's equations, below) linearised about
+upright (the tilt's gravity coupling kept, as
+:func:`wip_control.core.mpc_prediction.gravity_aware_state_matrix`), in the frame of a
+reference moving at constant speed, with the along-track error e, the speed error u:
 
     ė = u,   u̇ = a_υ θ + g2 τυ + d(t),   θ̈ = a_θ θ + g3 τυ,
 
 a_υ = −mp² l² g / Ω0, a_θ = mv mp g l / Ω0, g2, g3 at θ = 0, d(t) the push (an
 acceleration added to υ̇, as the scenarios' longitudinal disturbance). A controller that
-knows the push in advance (from its start: it may react at once, not before), starting
-from rest on the reference, chooses the drive torque τυ(t) piecewise constant on a fine
-grid (``step``) under
+knows the push in advance (from its start: it may react at once, not before; or only
+after ``reaction_delay``), starting from rest on the reference, chooses the drive torque
+τυ(t) piecewise constant on a fine grid (``step``) under
 
     |θ| ≤ θmax,   |τυ| ≤ τmax,   |τυ(t) − τυ(t − Ts)| ≤ Δτmax  (Ts the MPC period),
 
@@ -23,11 +24,16 @@ is a lower bound for every controller of that model and those limits (the nonlin
 excursion differs by the linearisation, a few % at θ ≤ 0.1 rad).
 
 Why a peak of e at all: the only force that slows the vehicle for long is gravity on a
-tilted body. The combination w = u − (g2/g3) θ̇ = u + J_θ θ̇ / (mp l), which the torque does
-not drive, obeys ẇ = k θ + d with k = a_υ − g2 a_θ / g3 = g (Ω0 = mv J_θ − mp² l²): the push's
-Δv is absorbed only by ∫ θ dt = −Δv / g, at |θ| ≤ θmax in at least Δv / (g θmax), and e grows
-meanwhile, by Δv² / (2 g θmax) (0.51 m for 1 m/s at 0.1 rad), give or take the lean itself,
-e = ∫ w dt + (g2/g3) θ (±J_θ θmax / (mp l), 0.087 m). The tests check the LP against these.
+tilted body. The combination w = u − (g2/g3) θ̇, which the torque does not drive, obeys
+ẇ = k θ + d with k = a_υ − g2 a_θ / g3: the push's Δv is absorbed only by ∫ θ dt = −Δv / k,
+at |θ| ≤ θmax in at least Δv / (k θmax), and e grows meanwhile, by Δv² / (2 k θmax), give
+or take the lean itself, e = ∫ w dt + (g2/g3) θ. For model (1) (``model='paper'``)
+k = g whatever the body (Ω0 = mv J_θ − mp² l²; 0.51 m for 1 m/s at 0.1 rad, the lean
+±J_θ θmax / (mp l), 0.087 m). The full plant (``model='full'``, ``wip_sim``'s derivation)
+also puts the motors' reaction torque −τυ on the body: g2 = (J_θ + mp l r)/(Ω0 r),
+g3 = −(mv r + mp l)/(Ω0 r), and then k = g mp l / (mv r + mp l) < g: holding a lean
+takes a torque that also drives the wheels forward, so the same lean slows the vehicle
+less and the least excursion is larger. The tests check the LP against these.
 """
 
 from __future__ import annotations
@@ -52,15 +58,28 @@ class PushBound:
     status: str               #: the solver's message
 
 
-def linear_model(params: ModelParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Return (A, B, E) of ż = A z + B τυ + E d for z = (e, u, θ, θ̇) about upright."""
+#: The plant models whose linearisation :func:`linear_model` knows (engine models such as
+#: mujoco are the full model's bodies: :func:`wip_sim.core.plant.equation_model`).
+BOUND_MODELS = ('paper', 'full')
+
+
+def linear_model(params: ModelParams,
+                 model: str = 'paper') -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return (A, B, E) of ż = A z + B τυ + E d for z = (e, u, θ, θ̇) about upright.
+
+    ``model``: 'paper', model (1); 'full', with the reaction torque −τυ on the body (the
+    input gains of ``wip_sim.core.plant.full_input_gains`` at θ = 0; A is the same).
+    """
+    if model not in BOUND_MODELS:
+        raise ValueError(f'model must be one of {BOUND_MODELS}, got {model!r}')
     p = params
     omega0 = p.omega_denominator(0.0)
     mp_l = p.body_mass * p.com_height
     a_v = -mp_l * mp_l * p.gravity / omega0
     a_t = p.effective_mass * mp_l * p.gravity / omega0
-    g2 = p.pitch_inertia / (omega0 * p.wheel_radius)
-    g3 = -mp_l / (omega0 * p.wheel_radius)
+    reaction = 1.0 if model == 'full' else 0.0
+    g2 = (p.pitch_inertia + reaction * mp_l * p.wheel_radius) / (omega0 * p.wheel_radius)
+    g3 = -(mp_l + reaction * p.effective_mass * p.wheel_radius) / (omega0 * p.wheel_radius)
     a = np.array([[0.0, 1.0, 0.0, 0.0],
                   [0.0, 0.0, a_v, 0.0],
                   [0.0, 0.0, 0.0, 1.0],
@@ -68,16 +87,17 @@ def linear_model(params: ModelParams) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return a, np.array([0.0, g2, 0.0, g3]), np.array([0.0, 1.0, 0.0, 0.0])
 
 
-def absorption_rate(params: ModelParams) -> float:
-    """Return k [m/s² per rad] of ẇ = k θ + d (module docstring): g, whatever the body."""
-    a, b, _ = linear_model(params)
+def absorption_rate(params: ModelParams, model: str = 'paper') -> float:
+    """Return k [m/s² per rad] of ẇ = k θ + d (module docstring): g for model (1)."""
+    a, b, _ = linear_model(params, model)
     return a[1, 2] - b[1] * a[3, 2] / b[3]
 
 
 def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: float = 0.1,
                          max_tilt: float = 0.1, max_torque: float = 30.0,
                          max_delta_torque: float = 10.0, delta_period: float = 0.1,
-                         step: float = 0.02, horizon: float = 8.0) -> PushBound:
+                         step: float = 0.02, horizon: float = 8.0,
+                         model: str = 'paper', reaction_delay: float = 0.0) -> PushBound:
     """Return the least peak excursion ahead of the reference after a push.
 
     ``delta_v`` [m/s]: the push's speed change, a constant acceleration delta_v / push_time
@@ -85,8 +105,11 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
     (the excursion is then behind, reported positive: the model is symmetric).
     ``max_torque``: |τυ| = |τl + τr| [N m] (two wheels of 15 N m: 30);
     ``max_delta_torque`` [N m] per ``delta_period`` [s]; ``step`` [s]: the grid;
-    ``horizon`` [s]: the time by which it must be at rest. ValueError on bad arguments or
-    when no sequence can bring it to rest by then (the push is beyond the limits).
+    ``horizon`` [s]: the time by which it must be at rest; ``model``: the plant's
+    equations, 'paper' or 'full' (:func:`linear_model`); ``reaction_delay`` [s]: the
+    torque stays 0 for this long after the push starts (a controller that must first see
+    the push; rounded to the grid). ValueError on bad arguments or when no sequence can
+    bring it to rest by then (the push is beyond the limits).
     """
     from scipy.optimize import linprog
 
@@ -96,10 +119,13 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
     dv = abs(float(delta_v))
     n = int(round(horizon / step))
     times = step * np.arange(n + 1)
+    if not (math.isfinite(reaction_delay) and 0.0 <= reaction_delay < horizon):
+        raise ValueError(f'push_excursion_bound: reaction_delay must be in [0, horizon), '
+                         f'got {reaction_delay!r}')
     if dv == 0.0:
         zeros = np.zeros(n + 1)
         return PushBound(0.0, times, zeros, zeros.copy(), np.zeros(n), 'no push')
-    ad, bd, ed = _discretised(params, step)
+    ad, bd, ed = _discretised(params, step, model)
     lag = max(1, int(round(delta_period / step)))
     push = np.where(times[:-1] < push_time - 1e-9, dv / push_time, 0.0)
     # Sparse, not condensed: the tilt's unstable pole (√a_θ ≈ 4.6 /s) makes a condensed
@@ -110,16 +136,16 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
     pi = nz + nt                                     # index of P; z_k[j] at 4k + j
     eq, beq = _dynamics(ad, bd, ed, push, n, nv)
     ub, bub = _peak_and_rate_limits(n, nv, lag, max_delta_torque)
-    bounds = [(None, None)] * nz + [(-max_torque, max_torque)] * nt + [(None, None)]
-    for i in range(1, n + 1):
-        bounds[4 * i + 2] = (-max_tilt, max_tilt)
-    for j in (1, 2, 3):                              # at rest at the end, torque off
-        bounds[4 * n + j] = (0.0, 0.0)
-    bounds[nz + n - 1] = (0.0, 0.0)
+    bounds = _variable_bounds(n, max_tilt, max_torque, int(round(reaction_delay / step)))
     cost = np.zeros(nv)
     cost[pi] = 1.0
     result = linprog(cost, A_ub=ub, b_ub=bub, A_eq=eq, b_eq=beq,
                      bounds=bounds, method='highs')
+    if result.status != 0:
+        # HiGHS' automatic choice (dual simplex) sometimes stops without a status on
+        # these LPs, where its interior-point method solves them.
+        result = linprog(cost, A_ub=ub, b_ub=bub, A_eq=eq, b_eq=beq,
+                         bounds=bounds, method='highs-ipm')
     if result.status != 0:
         raise ValueError(f'push_excursion_bound: no torque sequence within the limits '
                          f'brings a push of {dv} m/s to rest in {horizon} s '
@@ -127,6 +153,22 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
     states = result.x[:nz].reshape(n + 1, 4)
     return PushBound(float(max(result.x[pi], 0.0)), times, states[:, 0], states[:, 2],
                      result.x[nz:nz + nt], result.message)
+
+
+def _variable_bounds(n: int, max_tilt: float, max_torque: float, idle: int) -> list:
+    """Return the boxes of z_0..z_n, τ_0..τ_{n−1}, P: |θ|, |τ|, at rest at the end.
+
+    The first ``idle`` torques are 0 (the reaction delay).
+    """
+    nz = 4 * (n + 1)
+    bounds = [(None, None)] * nz + [(-max_torque, max_torque)] * n + [(None, None)]
+    for i in range(1, n + 1):
+        bounds[4 * i + 2] = (-max_tilt, max_tilt)
+    for j in (1, 2, 3):                              # at rest at the end, torque off
+        bounds[4 * n + j] = (0.0, 0.0)
+    for k in list(range(min(idle, n))) + [n - 1]:
+        bounds[nz + k] = (0.0, 0.0)
+    return bounds
 
 
 def _check_arguments(values: dict) -> None:
@@ -145,11 +187,11 @@ def _check_arguments(values: dict) -> None:
                          f'{horizon})')
 
 
-def _discretised(params: ModelParams, step: float) -> tuple:
+def _discretised(params: ModelParams, step: float, model: str) -> tuple:
     """Return (Ad, Bd, Ed): the exact zero-order-hold discretisation over one step."""
     from scipy.linalg import expm
 
-    a, b, e = linear_model(params)
+    a, b, e = linear_model(params, model)
     big = np.zeros((6, 6))
     big[:4, :4], big[:4, 4], big[:4, 5] = a * step, b * step, e * step
     phi = expm(big)
@@ -267,21 +309,34 @@ PUSH_CASES = tuple((reference, plant, mismatch, noise)
 
 
 def scenario_bound(scenario, delta_v: float, push_time: float) -> PushBound:
-    """Return the bound for the true plant of ``scenario`` and its MPC limits (``mpc.*``)."""
+    """Return the bound for the true plant of ``scenario`` and its MPC limits (``mpc.*``).
+
+    The true plant's parameters and equations: the full model's for 'full' and the engine
+    models, which have the motors' reaction torque on the body.
+    """
+    from wip_sim.core.plant import equation_model
+
     mpc = scenario.mpc
     return push_excursion_bound(scenario.plant.parameters, delta_v, push_time=push_time,
                                 max_tilt=mpc.max_tilt, max_torque=mpc.max_drive_torque,
                                 max_delta_torque=mpc.max_delta_torque,
-                                delta_period=mpc.sampling_period)
+                                delta_period=mpc.sampling_period,
+                                model=equation_model(scenario.plant.model.model))
+
+
+#: Sensor-noise seeds of each noisy case: the noise moves the state the push finds, and
+#: one seed's excursion says little (docs/benchmarks.md), so the median counts.
+NOISE_SEEDS = (0, 1, 2, 3, 4)
 
 
 def push_recovery_rows(cases=PUSH_CASES, delta_v: float = 1.0, push_width: float = 0.1,
-                       overrides: dict | None = None) -> list[dict]:
+                       overrides: dict | None = None, seeds=NOISE_SEEDS) -> list[dict]:
     """Run each case in-process; its measured excursion, the bound and their ratio.
 
-    ``overrides``: scenario keys merged into every case (e.g. a controller setting).
+    ``overrides``: scenario keys merged into every case (e.g. a controller setting). A
+    case with noise runs once per seed of ``seeds``: its excursion is the median, with
+    the least and largest ratio (a clean case runs once: it does not depend on the seed).
     """
-    from wip_sim.core.runner import run_scenario
     from wip_sim.core.scenario import scenario_from_mapping
 
     bounds: dict = {}
@@ -293,13 +348,26 @@ def push_recovery_rows(cases=PUSH_CASES, delta_v: float = 1.0, push_width: float
             mapping[key] = ({**mapping[key], **value} if isinstance(value, dict)
                             and isinstance(mapping.get(key), dict) else value)
         scenario = scenario_from_mapping(mapping)
-        key = (scenario.plant.parameters, scenario.mpc.max_tilt, scenario.mpc.max_drive_torque,
-               scenario.mpc.max_delta_torque, scenario.mpc.sampling_period)
+        key = (scenario.plant.parameters, scenario.plant.model.model, scenario.mpc.max_tilt,
+               scenario.mpc.max_drive_torque, scenario.mpc.max_delta_torque,
+               scenario.mpc.sampling_period)
         if key not in bounds:
             bounds[key] = scenario_bound(scenario, delta_v, push_width).excursion
-        result = run_scenario(scenario)
-        measured = math.inf if result.fell else measured_excursion(result.record)
+        runs = [_excursion(scenario_from_mapping({**mapping, 'seed': seed}))
+                for seed in (seeds if noise else (mapping.get('seed', 0),))]
+        fell = any(math.isinf(run) for run in runs)
+        measured = math.inf if fell else float(np.median(runs))
         rows.append({'reference': reference, 'plant': plant, 'mismatch': mismatch,
-                     'noise': noise, 'fell': result.fell, 'measured_m': measured,
-                     'bound_m': bounds[key], 'ratio': measured / bounds[key]})
+                     'noise': noise, 'fell': fell, 'measured_m': measured,
+                     'bound_m': bounds[key], 'ratio': measured / bounds[key],
+                     'runs': len(runs), 'ratio_min': min(runs) / bounds[key],
+                     'ratio_max': max(runs) / bounds[key]})
     return rows
+
+
+def _excursion(scenario) -> float:
+    """Return the measured excursion of one run of ``scenario`` [m] (inf: it fell)."""
+    from wip_sim.core.runner import run_scenario
+
+    result = run_scenario(scenario)
+    return math.inf if result.fell else measured_excursion(result.record)
