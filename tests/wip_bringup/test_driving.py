@@ -164,6 +164,7 @@ class SquareDriver:
         self.commands += 1
 
 
+@pytest.mark.wallclock
 def test_teleop_drives_a_square_and_the_vehicle_ends_at_its_start(tmp_path, test_node):
     from wip_bringup.graph import EXIT_OK, GraphOptions
     # cmd_vel_timeout 2 s: lockstep runs ~10x real time, so this process's wall-clock
@@ -266,6 +267,7 @@ def test_a_route_published_every_second_is_driven_to_its_end_in_lockstep(tmp_pat
     assert abs(final['theta']) < 0.02 and abs(final['v']) < 0.02, final
 
 
+@pytest.mark.wallclock
 def test_teleop_drives_the_standin_base_in_real_time_and_odom_comes_out(tmp_path, test_node):
     # Hardware mode against the stand-in base (full plant, its own process, wall clock):
     # 5 s of 0.3 m/s forward on cmd_vel at 10 Hz, then silence. The reference starts at
