@@ -11,6 +11,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile
 
 from .dds_profile import process_ignores_local_endpoints
+from .executors import adopt_watchdogs
 from .intra_process import IntraProcessBus, IntraProcessPublisher
 
 
@@ -101,9 +102,10 @@ def compose(executor, factories: Sequence[Callable[[], Node]],
     ``built`` (as it is made, so that the caller destroys what was built if a later factory
     fails) and add it to ``executor``; warn of overrides no node declares; one sim clock
     (:func:`share_sim_clock`); intra-process delivery (:func:`connect_intra_process`, the bus
-    to drain, or None); then move the start-up's objects out of the garbage collector's
-    reach (``gc.freeze``), so that the collections that still run during control (young
-    objects only) do not walk them.
+    to drain, or None) with the nodes' watchdogs adopted into the spin loop
+    (:func:`.executors.adopt_watchdogs`); then move the start-up's objects out of the
+    garbage collector's reach (``gc.freeze``), so that the collections that still run
+    during control (young objects only) do not walk them.
     """
     for factory in factories:
         built.append(factory())
@@ -111,6 +113,8 @@ def compose(executor, factories: Sequence[Callable[[], Node]],
     warn_undeclared_overrides(built)
     share_sim_clock(built)
     bus = connect_intra_process(built)
+    if bus is not None:
+        bus.watchdogs = adopt_watchdogs(built)
     gc.collect()
     gc.freeze()
     return bus

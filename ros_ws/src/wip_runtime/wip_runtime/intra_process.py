@@ -148,6 +148,8 @@ class IntraProcessBus:
         self.delivered = 0
         self.published_dds = 0
         self.errors = 0
+        #: Watchdogs whose deadlines the spin loop keeps (``executors.adopt_watchdogs``).
+        self.watchdogs: list = []
 
     def add_subscription(self, topic: str, msg_type: type, callback: Callback) -> None:
         self.subscriptions[topic].append((msg_type, callback))
