@@ -7,6 +7,7 @@ import gc
 from typing import Any, Callable, Sequence
 
 import rclpy
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile
 
@@ -45,12 +46,18 @@ class IntraProcessNode(Node):
         and in a composed process hands messages to the process's own subscriptions
         directly.
         """
-        publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
         if not hasattr(self, 'intra_publishers'):   # rclpy's own, from Node.__init__
-            return publisher
+            return super().create_publisher(msg_type, topic, qos_profile, **kwargs)
+        wrapper: list[IntraProcessPublisher] = []
+        if kwargs.get('event_callbacks') is None:
+            # The match count from DDS's matched events: no query per publication.
+            kwargs['event_callbacks'] = PublisherEventCallbacks(
+                matched=lambda status: wrapper and wrapper[0].on_matched(status))
+        publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
         volatile = (not isinstance(qos_profile, QoSProfile)
                     or qos_profile.durability != QoSDurabilityPolicy.TRANSIENT_LOCAL)
         wrapped = IntraProcessPublisher(publisher, msg_type, skip_unmatched=volatile)
+        wrapper.append(wrapped)
         self.intra_publishers.append(wrapped)
         return wrapped
 

@@ -435,12 +435,13 @@ class TorqueMixerNode(ControllerNode):
         else:
             diag.state(_LEVEL[decision.state], f'{decision.state}: zero torque: '
                        f'{decision.reason}')
-        diag.values['safety state'] = decision.state
-        diag.values['safety reasons'] = decision.reason or 'none'
 
     def _status(self):
         """Return the node's DiagnosticStatus with the safety counters and input ages of now."""
         values = self.diagnostics.values
+        if self.last_decision is not None:
+            values['safety state'] = self.last_decision.state
+            values['safety reasons'] = self.last_decision.reason or 'none'
         for name, age in self.monitor.ages(self.monitor_time()).items():
             values[f'received {name} ago [s]'] = 'never' if age is None else f'{age:.4f}'
         values['ticks'] = str(self.monitor.ticks)
