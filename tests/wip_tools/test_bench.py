@@ -69,10 +69,11 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
         assert 0.0 < row['latency_ms']['p50'] <= row['latency_ms']['p99'] \
             <= row['latency_ms']['max']
     # The floor: the receiver got the two 200 Hz streams and spent CPU on them, taken
-    # as message objects and serialized.
-    for kind, raw in (('messages', False), ('serialized', True)):
+    # as message objects, serialized, and serialized with a command sent per tick.
+    for kind, raw, reply in (('messages', False, False), ('serialized', True, False),
+                             ('loop', True, True)):
         floor = report['rclpy_floor'][kind]
-        assert floor['raw'] is raw
+        assert floor['raw'] is raw and floor['reply'] is reply
         assert floor['messages_per_s'] > 100.0 and floor['cpu_fraction'] > 0.0, floor
     # The nodes fed directly: every run engaged, wrote each effort command to DDS but the
     # first, and reported a cost; both ways measured.
@@ -90,10 +91,12 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
                for key in ('back_to_back', 'paced') for run in cost[key])
     figures = report['overhead']
     assert figures['overhead_ratio'] is not None and figures['pi_class_share'] > 0.0
+    assert figures['overhead_ratio_loop'] is not None
     assert figures['paced_over_in_process'] > 0.0
     printed = capsys.readouterr().out
     assert 'rclpy floor, taken as messages' in printed
     assert 'rclpy floor, taken as serialized' in printed
+    assert 'rclpy floor, taken as loop' in printed and 'against the loop floor' in printed
     assert 'in-process / graph' in printed and 'CPU' in printed
     assert 'composed, recorded' in printed and 'bit-identical' in printed
     assert 'sensor->command latency' in printed

@@ -20,7 +20,8 @@ def _rows():
 
 
 def test_the_overhead_figures_are_the_issues_ratios_of_the_plain_composed_case():
-    floor = {'messages': {'cpu_fraction': 0.05}, 'serialized': {'cpu_fraction': 0.027}}
+    floor = {'messages': {'cpu_fraction': 0.05}, 'serialized': {'cpu_fraction': 0.027},
+             'loop': {'cpu_fraction': 0.045}}
     cost = {'median_us': {'back_to_back': 280.0, 'paced': 560.0}}
     per_tick = 103e-6                 # [s] the in-process loop: 2.06 % of a core at 200 Hz
     figures = realtime_bench.overhead_figures(_rows(), floor, cost, per_tick,
@@ -29,6 +30,8 @@ def test_the_overhead_figures_are_the_issues_ratios_of_the_plain_composed_case()
     # (19 - 2.7) / 2.06 and 560 / 103, as the issue computes them.
     assert figures['overhead_ratio'] == pytest.approx((0.19 - 0.027) / (200 * per_tick))
     assert figures['paced_over_in_process'] == pytest.approx(560.0 / 103.0)
+    # Against the floor that also sends the command: (19 - 4.5) / 2.06.
+    assert figures['overhead_ratio_loop'] == pytest.approx((0.19 - 0.045) / (200 * per_tick))
     # A core three times faster than the Pi-class reference: three times the share there.
     assert figures['pi_class_share'] == pytest.approx(3 * 0.19)
 
@@ -38,6 +41,7 @@ def test_a_figure_whose_measurement_is_missing_is_none_not_an_error():
         [{'layout': 'composed', 'skipped': 'no graph'}], {'skipped': 'rclpy not available'},
         {'failed': 'x'}, 100e-6, 0.02)
     assert figures['overhead_ratio'] is None and figures['pi_class_share'] is None
+    assert figures['overhead_ratio_loop'] is None
     assert figures['paced_over_in_process'] is None
 
 

@@ -11,6 +11,7 @@ import time
 
 import pytest
 
+from wip_runtime import intra_process
 from wip_runtime.intra_process import IntraProcessBus, IntraProcessPublisher, local_match_count
 
 
@@ -21,9 +22,16 @@ class FakeDdsPublisher:
         self.topic_name = topic
         self.matched = matched
         self.sent = []
+        self.queries = 0
 
     def get_subscription_count(self):
+        self.queries += 1
         return self.matched
+
+    def match(self, wrapper, count):
+        """DDS matches ``count`` subscriptions now, and the executor delivers the event."""
+        self.matched = count
+        wrapper.on_matched(type('Matched', (), {'current_count': count})())
 
     def publish(self, msg):
         self.sent.append(msg)
@@ -62,9 +70,36 @@ def test_with_a_subscriber_outside_every_message_goes_to_dds_once_and_not_locall
     message = Msg(1)
     publisher.publish(message)
     assert dds.sent == [message] and bus.pending == 0 and bus.published_dds == 1
-    dds.matched = 1                          # the outside subscriber left
+    dds.match(publisher, 1)                  # the outside subscriber left
     publisher.publish(Msg(2))
     assert bus.drain() == 1 and [m.value for m in got] == [2] and len(dds.sent) == 1
+
+
+def test_the_match_count_comes_from_the_matched_events_and_a_query_per_second_at_most(
+        monkeypatch):
+    # DDS's query costs about 2 us and a tick publishes about 6 messages: the count is
+    # kept from the matched events, and asked again only once it is a second old (an
+    # event missed: DDS matched before the node joined an executor).
+    now = [50.0]
+    monkeypatch.setattr(intra_process.time, 'monotonic', lambda: now[0])
+    bus = IntraProcessBus()
+    bus.add_subscription('/wip/t', Msg, lambda m: None)
+    dds = FakeDdsPublisher(matched=1)
+    publisher = IntraProcessPublisher(dds, Msg)
+    bus.attach(publisher)
+    for value in range(100):
+        publisher.publish(Msg(value))
+        now[0] += 0.005
+    assert dds.queries == 1 and bus.drain() == 100   # 0.5 s: asked at the first publication
+    dds.matched = 2                                   # matched, its event not yet taken
+    publisher.publish(Msg(100))
+    assert dds.sent == [] and bus.pending == 1
+    now[0] += intra_process.MATCH_COUNT_MAX_AGE       # the safety net asks DDS again
+    publisher.publish(Msg(101))
+    assert [m.value for m in dds.sent] == [101] and dds.queries == 2
+    dds.match(publisher, 1)                           # the event: at once, no query
+    publisher.publish(Msg(102))
+    assert len(dds.sent) == 1 and bus.pending == 2 and dds.queries == 2
 
 
 def test_a_message_published_by_a_local_callback_is_queued_behind_the_others():
@@ -96,7 +131,7 @@ def test_an_unattached_publisher_is_plain_and_an_attached_one_skips_what_no_one_
     assert bus.attach(volatile) == 0        # no subscription of this process on the topic
     volatile.publish(Msg(1))                # no subscriber: DDS would deliver to no one
     assert dds.sent == [] and bus.pending == 0
-    dds.matched = 1
+    dds.match(volatile, 1)
     volatile.publish(Msg(2))
     assert [m.value for m in dds.sent] == [2]
     latched = FakeDdsPublisher(matched=0)
@@ -135,7 +170,7 @@ def test_where_dds_ignores_local_endpoints_local_ones_take_the_bus_and_outsiders
     assert publisher.get_subscription_count() == 1   # DDS's 0 and the bus's 1
     publisher.publish(Msg(1))
     assert dds.sent == [] and bus.drain() == 1
-    dds.matched = 1                          # a recorder subscribes
+    dds.match(publisher, 1)                  # a recorder subscribes
     publisher.publish(Msg(2))
     assert [m.value for m in dds.sent] == [2] and bus.drain() == 1
     assert [m.value for m in got] == [1, 2] and bus.published_dds == 1

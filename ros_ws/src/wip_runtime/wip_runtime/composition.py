@@ -7,10 +7,12 @@ import gc
 from typing import Any, Callable, Sequence
 
 import rclpy
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile
 
 from .dds_profile import process_ignores_local_endpoints
+from .executors import adopt_watchdogs
 from .intra_process import IntraProcessBus, IntraProcessPublisher
 
 
@@ -44,12 +46,18 @@ class IntraProcessNode(Node):
         and in a composed process hands messages to the process's own subscriptions
         directly.
         """
-        publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
         if not hasattr(self, 'intra_publishers'):   # rclpy's own, from Node.__init__
-            return publisher
+            return super().create_publisher(msg_type, topic, qos_profile, **kwargs)
+        wrapper: list[IntraProcessPublisher] = []
+        if kwargs.get('event_callbacks') is None:
+            # The match count from DDS's matched events: no query per publication.
+            kwargs['event_callbacks'] = PublisherEventCallbacks(
+                matched=lambda status: wrapper and wrapper[0].on_matched(status))
+        publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
         volatile = (not isinstance(qos_profile, QoSProfile)
                     or qos_profile.durability != QoSDurabilityPolicy.TRANSIENT_LOCAL)
         wrapped = IntraProcessPublisher(publisher, msg_type, skip_unmatched=volatile)
+        wrapper.append(wrapped)
         self.intra_publishers.append(wrapped)
         return wrapped
 
@@ -101,9 +109,10 @@ def compose(executor, factories: Sequence[Callable[[], Node]],
     ``built`` (as it is made, so that the caller destroys what was built if a later factory
     fails) and add it to ``executor``; warn of overrides no node declares; one sim clock
     (:func:`share_sim_clock`); intra-process delivery (:func:`connect_intra_process`, the bus
-    to drain, or None); then move the start-up's objects out of the garbage collector's
-    reach (``gc.freeze``), so that the collections that still run during control (young
-    objects only) do not walk them.
+    to drain, or None) with the nodes' watchdogs adopted into the spin loop
+    (:func:`.executors.adopt_watchdogs`); then move the start-up's objects out of the
+    garbage collector's reach (``gc.freeze``), so that the collections that still run
+    during control (young objects only) do not walk them.
     """
     for factory in factories:
         built.append(factory())
@@ -111,6 +120,8 @@ def compose(executor, factories: Sequence[Callable[[], Node]],
     warn_undeclared_overrides(built)
     share_sim_clock(built)
     bus = connect_intra_process(built)
+    if bus is not None:
+        bus.watchdogs = adopt_watchdogs(built)
     gc.collect()
     gc.freeze()
     return bus

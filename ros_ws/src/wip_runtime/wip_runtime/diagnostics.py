@@ -91,6 +91,9 @@ class NodeDiagnostics:
         self.level = OK
         self.message = 'waiting for inputs'
         self.values: dict[str, str] = {}
+        #: Called before each status is made: values that change every tick are formatted
+        #: there, once per status, not once per tick.
+        self.reporters: list[Callable[[], None]] = []
         self.last_drop = ''
         self._drops_reported = 0
         self._previous = (time.monotonic(), 0, None)  # wall time, outputs, last stamp
@@ -129,6 +132,8 @@ class NodeDiagnostics:
     # -- publishing ------------------------------------------------------------------------
     def status(self) -> DiagnosticStatus:
         """Return the DiagnosticStatus of now (also resets the per-period rates)."""
+        for reporter in self.reporters:
+            reporter()
         wall, outputs, stamp = time.monotonic(), self.outputs, self.last_output_ns
         wall0, outputs0, stamp0 = self._previous
         self._previous = (wall, outputs, stamp)

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import ctypes
 import sys
-from typing import Callable
+import time
+from typing import Callable, Sequence
 
 import rclpy
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
@@ -118,6 +120,68 @@ def spin_once_guarded(executor, node: Node, timeout_sec: float = SPIN_TIMEOUT) -
 DRAIN_BATCH = 20
 
 
+class Watchdog:
+    """A callback every ``period`` [s] of steady time that passes without a :meth:`kick`.
+
+    An rclpy steady-clock timer, restarted by each kick, until a composed spin loop
+    adopts it (:func:`adopt_watchdogs`): then the loop keeps the deadline itself, as the
+    timeout of its wait. Restarting an rclpy timer wakes the thread that the
+    EventsExecutor keeps for the timer's clock, twice per restart: at 200 Hz that was
+    about 400 wake-ups a second of a thread that does nothing else
+    (docs/realtime.md, section 2).
+    """
+
+    def __init__(self, node: Node, period: float, callback: Callable[[], None]) -> None:
+        self.period = period
+        self.callback = callback
+        self.node = node
+        #: The rclpy timer while not adopted (cancelled once adopted).
+        self.timer = node.create_timer(period, callback,
+                                       clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.adopted = False
+        #: Steady time [s] of the next call when adopted.
+        self.due = 0.0
+        node.watchdogs = [*getattr(node, 'watchdogs', ()), self]
+
+    def adopt(self) -> None:
+        """Stop the rclpy timer; the spin loop calls :meth:`fire_if_due` from now on."""
+        self.timer.cancel()
+        self.adopted = True
+        self.due = time.monotonic() + self.period
+
+    def kick(self) -> None:
+        """Restart the period (the callback's work was just done some other way)."""
+        if self.adopted:
+            self.due = time.monotonic() + self.period
+        else:
+            self.timer.reset()
+
+    def fire_if_due(self, now: float) -> None:
+        """Call back if the deadline has passed; the next one a period later.
+
+        On the timer's grid, as an rclpy timer, unless a whole period was missed (a
+        stalled process): then a period from now, one call for the stall.
+        """
+        if now < self.due:
+            return
+        self.due += self.period
+        if self.due <= now:
+            self.due = now + self.period
+        try:
+            self.callback()
+        except Exception as err:  # noqa: BLE001 - as a timer callback: reported, not fatal
+            self.node.get_logger().error(f'watchdog callback failed: '
+                                         f'{type(err).__name__}: {err}')
+
+
+def adopt_watchdogs(nodes: Sequence[Node]) -> list[Watchdog]:
+    """Adopt every :class:`Watchdog` of ``nodes`` into the spin loop; return them."""
+    adopted = [w for node in nodes for w in getattr(node, 'watchdogs', ())]
+    for watchdog in adopted:
+        watchdog.adopt()
+    return adopted
+
+
 def spin_composed(executor, node: Node, bus: IntraProcessBus | None,
                   running: Callable[[], bool]) -> None:
     """Spin while the context is up and ``running()``.
@@ -126,12 +190,22 @@ def spin_composed(executor, node: Node, bus: IntraProcessBus | None,
     up and ``running()``; after each spin_once, deliver up to :data:`DRAIN_BATCH`
     intra-process messages (:meth:`~.intra_process.IntraProcessBus.drain`): a lockstep loop
     closed within the process still lets the executor serve other processes' messages.
+    The bus's adopted watchdogs (``bus.watchdogs``) are kept here: the wait for the
+    executor ends at the next one's deadline.
     """
     if bus is None:
         while rclpy.ok() and running():
             spin_once_guarded(executor, node)
         return
+    watchdogs = bus.watchdogs
     while rclpy.ok() and running():
         # Messages waiting on the bus: take what the executor has ready, without waiting.
-        spin_once_guarded(executor, node, 0.0 if bus.pending else SPIN_TIMEOUT)
+        timeout = 0.0 if bus.pending else SPIN_TIMEOUT
+        if watchdogs:
+            timeout = min(timeout, max(0.0, min(w.due for w in watchdogs) - time.monotonic()))
+        spin_once_guarded(executor, node, timeout)
         bus.drain(DRAIN_BATCH)
+        if watchdogs:
+            now = time.monotonic()
+            for watchdog in watchdogs:
+                watchdog.fire_if_due(now)

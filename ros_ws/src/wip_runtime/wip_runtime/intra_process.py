@@ -11,8 +11,11 @@ measured with py-spy: half the process's samples), against a few for a Python ca
 
 Rules (what stays observable):
 
-- **Outside subscribers see every message.** A publisher asks DDS how many subscriptions
-  it matches (``get_subscription_count``, ~2 us). When the process's DDS participant
+- **Outside subscribers see every message.** A publisher knows how many subscriptions
+  it matches from DDS's matched events (``on_matched``, delivered by the executor before
+  any message that arrives after the match), and asks DDS again
+  (``get_subscription_count``, ~2 us) when its count is older than
+  :data:`MATCH_COUNT_MAX_AGE`: a publication costs no query. When the process's DDS participant
   matches its own endpoints (Fast DDS's default), that count includes the subscriptions of
   this process: if it is more than they, someone outside listens (the plant, a recorder, a
   viewer, a user's ``ros2 topic echo``), the message is published to DDS exactly as without
@@ -50,9 +53,15 @@ Pure Python (no rclpy import): tested without ROS, and with rclpy in
 from __future__ import annotations
 
 import collections
+import time
 from typing import Any, Callable, Iterable
 
 Callback = Callable[[Any], None]
+
+#: [s] of steady time a publisher uses its DDS match count before it asks DDS again. The
+#: matched events keep the count current; the query is the safety net for an event missed
+#: (one before the node joined an executor, say).
+MATCH_COUNT_MAX_AGE = 1.0
 
 
 class IntraProcessPublisher:
@@ -74,6 +83,9 @@ class IntraProcessPublisher:
         self.skip_unmatched = skip_unmatched
         self._bus: IntraProcessBus | None = None
         self._local: tuple[Callback, ...] = ()
+        #: DDS's match count, and the steady time [s] after which it is asked again.
+        self._matched = 0
+        self._matched_until = 0.0
 
     def __getattr__(self, name: str):
         return getattr(self.publisher, name)
@@ -84,10 +96,20 @@ class IntraProcessPublisher:
         Where DDS ignores the process's own endpoints, the local subscriptions are not among
         its matches, yet they receive every message (through the bus).
         """
-        count = self.publisher.get_subscription_count()
+        count = self._refresh_match_count(time.monotonic())
         if self._bus is not None and self._bus.dds_ignores_local:
             count += len(self._local)
         return count
+
+    def on_matched(self, status) -> None:
+        """DDS matched a subscription or lost one (the publisher's matched event)."""
+        self._matched = status.current_count
+        self._matched_until = time.monotonic() + MATCH_COUNT_MAX_AGE
+
+    def _refresh_match_count(self, now: float) -> int:
+        self._matched = self.publisher.get_subscription_count()
+        self._matched_until = now + MATCH_COUNT_MAX_AGE
+        return self._matched
 
     @property
     def local_subscriptions(self) -> int:
@@ -104,7 +126,9 @@ class IntraProcessPublisher:
         if bus is None:                      # a node alone in its process: plain rclpy
             self.publisher.publish(msg)
             return
-        matched = self.publisher.get_subscription_count()
+        now = time.monotonic()
+        matched = (self._matched if now < self._matched_until
+                   else self._refresh_match_count(now))
         local = self._local
         if bus.dds_ignores_local:            # DDS: outside alone; the bus: this process
             if matched or not (local or self.skip_unmatched):
@@ -148,6 +172,8 @@ class IntraProcessBus:
         self.delivered = 0
         self.published_dds = 0
         self.errors = 0
+        #: Watchdogs whose deadlines the spin loop keeps (``executors.adopt_watchdogs``).
+        self.watchdogs: list = []
 
     def add_subscription(self, topic: str, msg_type: type, callback: Callback) -> None:
         self.subscriptions[topic].append((msg_type, callback))

@@ -29,14 +29,17 @@ def bench_realtime(seconds: float) -> list[dict]:
 def bench_rclpy_floor(seconds: float) -> dict:
     """CPU of receiving the sensor streams alone (:mod:`wip_tools.rclpy_floor`).
 
-    Taken as message objects and serialized (as the eso node takes them), alternately.
+    Taken as message objects, serialized (as the eso node takes them), and serialized with
+    an effort command sent per tick (``loop``: the floor of a controller), one after the
+    other.
     """
     try:
         from wip_tools.rclpy_floor import measure_floor  # needs ROS
     except ImportError as err:
         return {'skipped': f'rclpy not available: {err}'}
     return {'messages': measure_floor(seconds, raw=False),
-            'serialized': measure_floor(seconds, raw=True)}
+            'serialized': measure_floor(seconds, raw=True),
+            'loop': measure_floor(seconds, raw=True, reply=True)}
 
 
 def bench_node_cost(seconds: float, pairs: int = 2) -> dict:
@@ -96,6 +99,8 @@ def overhead_figures(rows: list[dict], floor: dict, cost: dict, per_tick_s: floa
 
     - ``overhead_ratio``: (composed controllers at normal priority - rclpy's floor taken
       serialized) / the in-process loop, as CPU shares at 200 Hz;
+    - ``overhead_ratio_loop``: the same against the ``loop`` floor (the sensors taken and
+      one effort command sent per tick), which no controller process can go below;
     - ``paced_over_in_process``: the nodes' own code paced at 200 Hz / the in-process tick;
     - ``pi_class_share``: the composed share scaled by this core's speed against a Pi
       4-class core (:data:`PI_CLASS_CALIBRATION_S`): an estimate.
@@ -105,12 +110,15 @@ def overhead_figures(rows: list[dict], floor: dict, cost: dict, per_tick_s: floa
                      if r.get('layout') == 'composed' and not r.get('rt_priority')
                      and not r.get('pinned') and r.get('cpu_latency') is None), None)
     serialized = (floor.get('serialized') or {}).get('cpu_fraction')
+    loop = (floor.get('loop') or {}).get('cpu_fraction')
     in_process = 200.0 * per_tick_s
     paced = (cost.get('median_us') or {}).get('paced')
     return {
         'composed_share': composed,
         'overhead_ratio': (None if composed is None or serialized is None
                            else (composed - serialized) / in_process),
+        'overhead_ratio_loop': (None if composed is None or loop is None
+                                else (composed - loop) / in_process),
         'paced_over_in_process': None if paced is None else 1e-6 * paced / per_tick_s,
         'calibration_s': calibration_s,
         'pi_class_share': (None if composed is None
@@ -174,8 +182,11 @@ def _print_realtime_row(row: dict) -> None:
 def _print_floor(floor: dict) -> None:
     for kind, measured in floor.items():
         if 'cpu_fraction' in measured:
-            print(f"rclpy floor, taken as {kind}: a process that only receives the base's "
-                  f'two sensor streams ({measured["messages_per_s"]:.0f} msg/s, empty '
+            what = ('a process that receives the two sensor streams serialized and sends '
+                    'one effort command per tick' if kind == 'loop' else
+                    "a process that only receives the base's two sensor streams")
+            print(f'rclpy floor, taken as {kind}: {what} '
+                  f'({measured["messages_per_s"]:.0f} msg/s, empty '
                   f'callbacks, {measured["executor"]}): '
                   f'{100 * measured["cpu_fraction"]:.1f} % of a core, '
                   f'{measured["cpu_per_message_us"]:.0f} us per message, '
@@ -188,7 +199,8 @@ def _print_overhead(figures: dict) -> None:
     def show(value, form):
         return 'n/a' if value is None else format(value, form)
     print(f"-> overhead ratio (composed - rclpy floor serialized) / in-process: "
-          f"{show(figures['overhead_ratio'], '.1f')} (goal <= 3); the nodes' own code paced "
+          f"{show(figures['overhead_ratio'], '.1f')} (goal <= 3; against the loop floor "
+          f"{show(figures.get('overhead_ratio_loop'), '.1f')}); the nodes' own code paced "
           f"/ in-process tick: {show(figures['paced_over_in_process'], '.1f')}x (goal <= 2)")
     share = figures['pi_class_share']
     print(f'-> Pi-class estimate: composed {show(share and 100 * share, ".0f")} % of a Raspberry '

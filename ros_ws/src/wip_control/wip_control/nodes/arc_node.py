@@ -74,6 +74,12 @@ class ArcNode(ControllerNode):
                              command_from_msg)
         self.subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                              estimate_from_msg)
+        self.diagnostics.reporters.append(self._report_values)
+
+    def _report_values(self) -> None:
+        """Report α̂ once per status (it changes every tick), once there is an output."""
+        if self.diagnostics.outputs:
+            self.diagnostics.values['alpha_hat [kg m^2]'] = f'{self.controller.alpha_hat:.6g}'
 
     def _on_config(self, config: ArcParams) -> None:
         self.controller.config = config
@@ -91,7 +97,6 @@ class ArcNode(ControllerNode):
         limit = self.controller.config.max_yaw_torque
         self.diagnostics.state(OK, f'tau_omega saturated at {math.copysign(limit, out.tau_omega)}'
                                ' N m' if abs(out.tau_omega) >= limit else 'tracking omega_d')
-        self.diagnostics.values['alpha_hat [kg m^2]'] = f'{self.controller.alpha_hat:.6g}'
 
 
 def main(args=None) -> int:

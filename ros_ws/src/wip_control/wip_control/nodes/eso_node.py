@@ -166,6 +166,7 @@ class EsoNode(ControllerNode):
                                    max_skew_ns=round(self.sample_period * 1e9))
         self._init_topics()
         self._init_odometry(settings)
+        self.diagnostics.reporters.append(self._report_values)
         self.diagnostics.state(OK, 'waiting for the first measurement set')
 
     def _read_parameters(self) -> EsoNodeParams:
@@ -429,14 +430,19 @@ class EsoNode(ControllerNode):
             diag.state(OK, 'estimating; epsilon ramp still running (not settled)')
         else:
             diag.state(OK, 'estimating')
+
+    def _report_values(self) -> None:
+        """Report the position source's and the synchronisation's counters, once per status."""
+        values = self.diagnostics.values
         position = self.estimator.position
         if self.position_source != 'wheels':
-            diag.values[f'{source} fixes accepted'] = str(position.accepted_fixes)
-            diag.values[f'{source} fixes rejected'] = str(position.rejected_fixes)
-            diag.values['last fix innovation [m]'] = f'{position.last_innovation:.3f}'
+            source = {'gps': 'GPS', 'odometry': 'odometry'}[self.position_source]
+            values[f'{source} fixes accepted'] = str(position.accepted_fixes)
+            values[f'{source} fixes rejected'] = str(position.rejected_fixes)
+            values['last fix innovation [m]'] = f'{position.last_innovation:.3f}'
         if self.lockstep:
-            diag.values['pending sets'] = str(self.sync.pending)
-            diag.values['sets superseded/evicted'] = (
+            values['pending sets'] = str(self.sync.pending)
+            values['sets superseded/evicted'] = (
                 f'{self.sync.dropped["superseded"]}/{self.sync.dropped["evicted"]}')
 
 

@@ -69,7 +69,6 @@ import sys
 import time
 
 import numpy as np
-from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, Empty, Float64MultiArray
@@ -95,6 +94,7 @@ from .conversions import (effort_command, effort_command_cdr, estimate_from_msg,
                           wheel_torques_to_msg)
 from wip_runtime.messages import InvalidMessage
 from wip_runtime.diagnostics import ERROR, OK, WARN
+from wip_runtime.executors import Watchdog
 from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
                               rotate_vector_into, signed_efforts, signed_wheel_angles)
 from .effort_interface import declare_effort_interface
@@ -160,9 +160,10 @@ class TorqueMixerNode(ControllerNode):
             self.sync = ExactTimeSync(_INPUTS, self._mix_set, required=self._required,
                                       gate=self._estimate_ready)
         else:
-            # Watchdog: restarted by every command sent on a yaw torque's arrival.
-            self.timer = self.create_timer(self.control_period, self._tick,
-                                           clock=Clock(clock_type=ClockType.STEADY_TIME))
+            # Watchdog: restarted by every command sent on a yaw torque's arrival; a
+            # composed process keeps it in its spin loop (wip_runtime.executors.Watchdog).
+            self.watchdog = Watchdog(self, self.control_period, self._tick)
+            self.timer = self.watchdog.timer
         self.latencies = collections.deque(maxlen=LATENCY_WINDOW)   # [s]
         self._init_wiring_check()
         self._init_subscriptions(runaway.enabled)
@@ -284,7 +285,7 @@ class TorqueMixerNode(ControllerNode):
             self.feed('yaw_torque', stamp, msg.tau_omega)
         else:
             self.monitor.yaw_torque(self.monitor_time(), msg.tau_omega)
-            self.timer.reset()
+            self.watchdog.kick()
             self._tick(sensor_stamp=stamp)
 
     def _on_drive(self, msg: DriveTorque) -> None:
@@ -434,12 +435,13 @@ class TorqueMixerNode(ControllerNode):
         else:
             diag.state(_LEVEL[decision.state], f'{decision.state}: zero torque: '
                        f'{decision.reason}')
-        diag.values['safety state'] = decision.state
-        diag.values['safety reasons'] = decision.reason or 'none'
 
     def _status(self):
         """Return the node's DiagnosticStatus with the safety counters and input ages of now."""
         values = self.diagnostics.values
+        if self.last_decision is not None:
+            values['safety state'] = self.last_decision.state
+            values['safety reasons'] = self.last_decision.reason or 'none'
         for name, age in self.monitor.ages(self.monitor_time()).items():
             values[f'received {name} ago [s]'] = 'never' if age is None else f'{age:.4f}'
         values['ticks'] = str(self.monitor.ticks)
