@@ -20,7 +20,7 @@ G = PARAMS.gravity
 
 
 def feed(monitor, seconds, speed, theta, torque, start=0.0, x_v=0.0):
-    """Samples of an axle at ``speed(t)``; rows (t, state); the last x_v."""
+    """Feed samples of an axle at ``speed(t)``; return rows (t, state) and the last x_v."""
     rows = []
     for k in range(int(round(seconds / H)) + 1):
         t = start + k * H
