@@ -59,6 +59,7 @@ def test_wheels_held_still_against_the_torque_are_blocked_after_the_stall_time()
     assert all(s.blocked for t, s in rows if t >= blocked[0])
     state = rows[-1][1]
     assert state.since == pytest.approx(2.0 + H) and monitor.events == 1
+    assert monitor.first == state
     assert '2.0 cm' in state.reason and '0.21 rad' in state.reason
 
 

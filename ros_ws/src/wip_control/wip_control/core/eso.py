@@ -200,7 +200,7 @@ class EsoParams:
         "'first_difference', x_v difference over the first period "
         '(docs/decisions/estimation-parameters.md)', choices=SPEED_STARTS)
     slip_max_acceleration: float = param(
-        0.0, 'm/s^2', "'gyro': a wheel whose speed changes this much faster than the tilt "
+        20.0, 'm/s^2', "'gyro': a wheel whose speed changes this much faster than the tilt "
         'allows slips and is left out of x_v (core/slip.py); 0 = off', minimum=0.0,
         maximum=1000.0)
     obstacle_stall_time: float = param(

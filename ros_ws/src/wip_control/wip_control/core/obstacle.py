@@ -97,6 +97,7 @@ class ObstacleMonitor:
         self._stall_start = math.nan
         self.state = ObstacleState(False, math.nan, '')
         self.events = 0   #: blockings since the start
+        self.first: ObstacleState | None = None   #: the first blocking
 
     def update(self, t: float, x_v: float, theta: float, tau_v: float) -> ObstacleState:
         """Take one sample: the axle's distance x_v [m], lean θ [rad], drive torque τυ [N m]."""
@@ -126,6 +127,8 @@ class ObstacleMonitor:
         if not self.state.blocked:
             self.events += 1
             self.state = ObstacleState(True, self._stall_start, self._reason(x_v, theta, tau_v))
+            if self.first is None:
+                self.first = self.state
         return self.state
 
     def _reason(self, x_v: float, theta: float, tau_v: float) -> str:
