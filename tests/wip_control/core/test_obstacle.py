@@ -10,7 +10,8 @@ import pytest
 
 from wip_description.params import ModelParams
 from wip_control.core.eso import EsoParams
-from wip_control.core.obstacle import (ObstacleMonitor, climbable_edge_height,
+from wip_control.core.obstacle import (ObstacleMonitor, ObstacleRelease,
+                                       climbable_edge_height,
                                        holding_lean)
 from wip_control.core.state_estimation import StateEstimator
 
@@ -104,3 +105,40 @@ def test_on_by_default_in_the_estimator_and_off_with_a_zero_stall_time():
     assert not estimator.obstacle_state.blocked
     off = StateEstimator(PARAMS, EsoParams(obstacle_stall_time=0.0))
     assert off.obstacle is None and off.obstacle_state is None
+
+
+def test_the_disturbances_are_held_back_once_the_wheels_roll_on_from_a_stall():
+    # 0.5 m/s cruising with 3 N m: nothing held. A stall (20 N m, still, leaning 0.1 rad)
+    # at 1 s, the wheels roll on at 0.3 m/s from 1.2 s: f2, f3 held back for the 0.5 s
+    # hold from the first rolling sample, once; a later sample without a new stall is not.
+    release = ObstacleRelease(hold=0.5)
+    held = []
+    for k in range(400):
+        t = k * H
+        if t < 1.0:
+            v, theta, tau = 0.5, 0.0, 3.0
+        elif t < 1.2:
+            v, theta, tau = 0.0, 0.1, 20.0
+        else:
+            v, theta, tau = 0.3, 0.05, 20.0
+        held.append((t, release.update(t, v, theta, tau)))
+    times = [t for t, on in held if on]
+    assert times[0] == pytest.approx(1.2, abs=1e-9)
+    assert times[-1] == pytest.approx(1.7 - H, abs=1e-9) and release.events == 1
+    assert len(times) == round(0.5 / H)
+
+
+def test_a_start_a_slope_hold_and_a_slow_creep_hold_nothing_back():
+    # Speeding up from rest leaning forward with little torque, standing on a slope with
+    # 6.9 N m, creeping forward at 0.15 m/s after a stall (below the 0.2 m/s of rolling on).
+    for rows in ([(0.0, 0.1, 5.0), (0.5, 0.1, 5.0)], [(0.0, 0.05, 6.9), (0.5, 0.05, 6.9)],
+                 [(0.0, 0.1, 20.0), (0.15, 0.1, 20.0)]):
+        release = ObstacleRelease()
+        assert not any(release.update(k * H, *rows[k >= 50]) for k in range(200)), rows
+
+
+def test_release_hold_on_by_default_and_off_with_zero():
+    assert isinstance(StateEstimator(PARAMS).release, ObstacleRelease)
+    assert StateEstimator(PARAMS, EsoParams(obstacle_release_hold=0.0)).release is None
+    with pytest.raises(ValueError, match='ObstacleRelease: hold must be finite and > 0'):
+        ObstacleRelease(hold=0.0)

@@ -207,6 +207,10 @@ class EsoParams:
         0.3, 's', 'wheels that stay still this long against a forward drive torque and lean '
         'are reported blocked by an obstacle (core/obstacle.py); 0 = off', minimum=0.0,
         maximum=10.0)
+    obstacle_release_hold: float = param(
+        0.5, 's', 'after the wheels roll on from a stall against the torque, f2 and f3 are '
+        'handed on as zero this long (core/obstacle.py); 0 = off (the paper)', minimum=0.0,
+        maximum=5.0)
     obstacle_stall_torque: float = param(
         10.0, 'N m', 'least forward drive torque of a stall against an obstacle (above the '
         'torque that holds the vehicle on a 10 % slope, 6.9 N m)', minimum=0.1, maximum=1000.0)

@@ -137,3 +137,53 @@ class ObstacleMonitor:
                 f'{self.max_drive_torque:.0f} N m climbs a square edge of at most '
                 f'{100.0 * self.edge_height:.1f} cm and holds the body over blocked '
                 f'wheels up to a lean of {self.lean_limit:.2f} rad')
+
+
+class ObstacleRelease:
+    """Hold back the lumped disturbances for a while after the wheels roll on from a stall.
+
+    While an obstacle holds the wheels, the ESOs (eqs. (4), (8)) put its force into the
+    lumped disturbances f̂2, f̂3, and the offset-free MPC pushes against them. Once the
+    wheels roll on (up a bump), that force shrinks to nothing at the crest and reverses
+    down the far side within a few tenths of a second, while the MPC predicts it constant
+    over its horizon and keeps the torque up; with the torque moving at most 10 N m per
+    0.1 s the vehicle then leaves the crest too fast and tips back (docs/mujoco-plant.md).
+    For ``hold`` s after the wheels roll on, f̂2 and f̂3 are handed on as zero: the
+    controllers act on the measured state alone.
+
+    A *stall*: τυ ≥ ``STALL_TORQUE``, |υ̂| < ``STALL_SPEED`` and θ̂ > ``STALL_LEAN`` (the
+    motors push, the body leans into it and the axle does not move); the wheels *roll on*
+    when υ̂ > ``ROLL_SPEED`` within ``WINDOW`` s of the last stalled sample.
+    """
+
+    STALL_TORQUE = 8.0    #: [N m] above the 6.9 N m that hold the vehicle on a 10 % slope
+    STALL_SPEED = 0.1     #: [m/s]
+    STALL_LEAN = 0.06     #: [rad] 30 times the IMU's pitch noise
+    ROLL_SPEED = 0.2      #: [m/s]
+    WINDOW = 1.0          #: [s]
+
+    def __init__(self, hold: float = 0.5) -> None:
+        if not (math.isfinite(hold) and hold > 0.0):
+            raise ValueError(f'ObstacleRelease: hold must be finite and > 0, got {hold!r}')
+        self.hold = hold
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything: no stall seen."""
+        self._stalled_at: float | None = None
+        self._until = -math.inf
+        self.events = 0   #: releases since the start
+
+    def update(self, t: float, v: float, theta: float, tau_v: float) -> bool:
+        """Take one sample (υ̂ [m/s], θ̂ [rad], τυ [N m]); whether to hold f̂2, f̂3 at zero."""
+        if not math.isfinite(t + v + theta + tau_v):
+            raise ValueError('ObstacleRelease.update: non-finite input (nothing changed)')
+        if (tau_v >= self.STALL_TORQUE and abs(v) < self.STALL_SPEED
+                and theta > self.STALL_LEAN):
+            self._stalled_at = t
+        elif (self._stalled_at is not None and v > self.ROLL_SPEED
+              and t - self._stalled_at < self.WINDOW and t >= self._until):
+            self._until = t + self.hold
+            self._stalled_at = None
+            self.events += 1
+        return t < self._until

@@ -20,7 +20,7 @@ from wip_description.params import ModelParams
 from .position import (DEAD_RECKONING, FAULT, NO_FIX, PlanarPositionEstimator,
                        PositionParams, TRACKING)
 from wip_description.sensors import wheel_odometry
-from .obstacle import ObstacleMonitor, ObstacleState
+from .obstacle import ObstacleMonitor, ObstacleRelease, ObstacleState
 from .slip import SlipMonitor
 
 
@@ -99,6 +99,9 @@ class StateEstimator:
                                          config.obstacle_stall_torque,
                                          max_drive_torque=self.max_drive_torque)
                          if config.obstacle_stall_time > 0.0 else None)
+        # After a stall, the obstacle's force is not handed on as a disturbance.
+        self.release = (ObstacleRelease(config.obstacle_release_hold)
+                        if config.obstacle_release_hold > 0.0 else None)
         self.position = PlanarPositionEstimator(self.position_config)
         self.yaw_unwrapped: float | None = None
         self.has_fix = False
@@ -179,6 +182,9 @@ class StateEstimator:
             self.settled = not observer.in_ramp(t)
         if self.obstacle is not None:
             self.obstacle.update(t, estimate.x_v, estimate.theta, tau_left + tau_right)
+        if self.release is not None and self.release.update(
+                t, estimate.v, estimate.theta, tau_left + tau_right):
+            estimate = estimate._replace(f2=0.0, f3=0.0)
         return PoseEstimate(estimate, x, y, self.settled, self.position_status)
 
     def _position(self, t: float, x_v: float, phi: float,
