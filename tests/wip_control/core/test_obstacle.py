@@ -137,8 +137,9 @@ def test_a_start_a_slope_hold_and_a_slow_creep_hold_nothing_back():
         assert not any(release.update(k * H, *rows[k >= 50]) for k in range(200)), rows
 
 
-def test_release_hold_on_by_default_and_off_with_zero():
-    assert isinstance(StateEstimator(PARAMS).release, ObstacleRelease)
-    assert StateEstimator(PARAMS, EsoParams(obstacle_release_hold=0.0)).release is None
+def test_release_hold_off_by_default_and_on_with_a_hold():
+    assert StateEstimator(PARAMS).release is None
+    on = StateEstimator(PARAMS, EsoParams(obstacle_release_hold=0.5))
+    assert isinstance(on.release, ObstacleRelease) and on.release.hold == 0.5
     with pytest.raises(ValueError, match='ObstacleRelease: hold must be finite and > 0'):
         ObstacleRelease(hold=0.0)

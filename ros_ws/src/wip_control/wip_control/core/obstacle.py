@@ -153,12 +153,14 @@ class ObstacleRelease:
 
     A *stall*: τυ ≥ ``STALL_TORQUE``, |υ̂| < ``STALL_SPEED`` and θ̂ > ``STALL_LEAN`` (the
     motors push, the body leans into it and the axle does not move); the wheels *roll on*
-    when υ̂ > ``ROLL_SPEED`` within ``WINDOW`` s of the last stalled sample.
+    when υ̂ > ``ROLL_SPEED`` within ``WINDOW`` s of the last stalled sample. A push on the
+    body that stops the wheels gives the same signature, so the estimator runs it only when
+    asked (docs/estimation.md §7).
     """
 
     STALL_TORQUE = 8.0    #: [N m] above the 6.9 N m that hold the vehicle on a 10 % slope
     STALL_SPEED = 0.1     #: [m/s]
-    STALL_LEAN = 0.06     #: [rad] 30 times the IMU's pitch noise
+    STALL_LEAN = 0.06     #: [rad] 30 times the pitch noise (0.04 caught the 1 cm bump too)
     ROLL_SPEED = 0.2      #: [m/s]
     WINDOW = 1.0          #: [s]
 
