@@ -519,7 +519,7 @@ def test_eso_says_why_when_an_obstacle_blocks_the_wheels(context, harnesses):
     assert status.level == DiagnosticStatus.WARN
     assert 'stopped by an obstacle' in status.message
     values = {v.key: v.value for v in status.values}
-    assert '2.0 cm' in values['obstacle']
+    assert '2.0 cm' in values['obstacle'] and values['wheel slip'].startswith('none;')
 
 
 # ----------------------------------------------------------------------------- reference
