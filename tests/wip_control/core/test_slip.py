@@ -99,10 +99,10 @@ def test_bad_settings_are_one_line_errors(name, value):
         SlipMonitor(PARAMS, **{name: value})
 
 
-def test_off_by_default_and_on_in_the_estimator_with_the_gyro():
-    assert StateEstimator(PARAMS).slip is None
-    on = StateEstimator(PARAMS, EsoParams(slip_max_acceleration=20.0))
-    assert isinstance(on.slip, SlipMonitor)
+def test_on_by_default_with_the_gyro_and_off_with_zero():
+    assert StateEstimator(PARAMS, EsoParams(slip_max_acceleration=0.0)).slip is None
+    on = StateEstimator(PARAMS)
+    assert isinstance(on.slip, SlipMonitor) and on.slip.max_acceleration == 20.0
     assert StateEstimator(PARAMS, EsoParams(estimator='paper',
                                             slip_max_acceleration=20.0)).slip is None
 

@@ -505,6 +505,23 @@ def test_eso_reports_drops_on_diagnostics(context, harnesses):
         'never received'
 
 
+def test_eso_says_why_when_an_obstacle_blocks_the_wheels(context, harnesses):
+    # Wheels held still, the body leaning 0.1 rad forward, 8 N m per wheel (16 N m of
+    # drive torque, above the 10 N m stall torque): after the 0.3 s stall time the node's
+    # state is a WARN that names the obstacle and the 2.0 cm edge 2 x 15 N m can climb.
+    n = 100   # 0.5 s at the 200 Hz of H_NS
+    samples = [dict(stamp=k * H_NS, left=-0.1, right=-0.1, pitch=0.1, yaw=0.0,
+                    gps=(0.0, 0.0) if k % 20 == 0 else None, applied=(8.0, 8.0),
+                    rates=(0.0, 0.0)) for k in range(n)]
+    harness = eso_harness(harnesses, context)
+    run_eso_lockstep(harness, samples)
+    status = harness.node.diagnostics.status()
+    assert status.level == DiagnosticStatus.WARN
+    assert 'stopped by an obstacle' in status.message
+    values = {v.key: v.value for v in status.values}
+    assert '2.0 cm' in values['obstacle'] and values['wheel slip'].startswith('none;')
+
+
 # ----------------------------------------------------------------------------- reference
 
 def test_reference_lockstep_publishes_one_sample_per_clock_tick_from_zero(context, harnesses):

@@ -200,9 +200,20 @@ class EsoParams:
         "'first_difference', x_v difference over the first period "
         '(docs/decisions/estimation-parameters.md)', choices=SPEED_STARTS)
     slip_max_acceleration: float = param(
-        0.0, 'm/s^2', "'gyro': a wheel whose speed changes this much faster than the tilt "
+        20.0, 'm/s^2', "'gyro': a wheel whose speed changes this much faster than the tilt "
         'allows slips and is left out of x_v (core/slip.py); 0 = off', minimum=0.0,
         maximum=1000.0)
+    obstacle_stall_time: float = param(
+        0.3, 's', 'wheels that stay still this long against a forward drive torque and lean '
+        'are reported blocked by an obstacle (core/obstacle.py); 0 = off', minimum=0.0,
+        maximum=10.0)
+    obstacle_release_hold: float = param(
+        0.0, 's', 'after the wheels roll on from a stall against the torque, f2 and f3 are '
+        'handed on as zero this long (core/obstacle.py; 0.5 measured); 0 = off', minimum=0.0,
+        maximum=5.0)
+    obstacle_stall_torque: float = param(
+        10.0, 'N m', 'least forward drive torque of a stall against an obstacle (above the '
+        'torque that holds the vehicle on a 10 % slope, 6.9 N m)', minimum=0.1, maximum=1000.0)
 
     def validate(self) -> None:
         for name in ('yaw_gains', 'longitudinal_gains', 'tilt_gains'):

@@ -101,6 +101,11 @@ class SlipMonitor:
         self.offset = 0.0
         self.events = 0                      #: slips begun since the start
 
+    @property
+    def slipping_wheels(self) -> tuple[bool, bool]:
+        """Whether the (left, right) wheel slips now."""
+        return self._slipping[0], self._slipping[1]
+
     def update(self, t: float, left: float, right: float, x_v: float, theta: float,
                pitch_rate: float, yaw_rate: float, tau_left: float = 0.0,
                tau_right: float = 0.0) -> SlipState:

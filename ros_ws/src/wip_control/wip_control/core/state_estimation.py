@@ -20,6 +20,7 @@ from wip_description.params import ModelParams
 from .position import (DEAD_RECKONING, FAULT, NO_FIX, PlanarPositionEstimator,
                        PositionParams, TRACKING)
 from wip_description.sensors import wheel_odometry
+from .obstacle import ObstacleMonitor, ObstacleRelease, ObstacleState
 from .slip import SlipMonitor
 
 
@@ -58,8 +59,10 @@ class StateEstimator:
 
     def __init__(self, model: ModelParams, eso_config: EsoParams | None = None,
                  position_config: PositionParams | None = None, *,
-                 encoders_relative_to_body: bool = True, dead_reckoning: bool = False) -> None:
+                 encoders_relative_to_body: bool = True, dead_reckoning: bool = False,
+                 max_drive_torque: float = 30.0) -> None:
         self.model = model
+        self.max_drive_torque = max_drive_torque
         self.eso_config = eso_config if eso_config is not None else EsoParams()
         self.position_config = (position_config if position_config is not None
                                 else PositionParams())
@@ -79,7 +82,8 @@ class StateEstimator:
         mismatch with the plant shows up in x_v).
         """
         return cls(scenario.controller_model.parameters, scenario.eso, scenario.position,
-                   encoders_relative_to_body=scenario.sensors.encoders_relative_to_body)
+                   encoders_relative_to_body=scenario.sensors.encoders_relative_to_body,
+                   max_drive_torque=2.0 * scenario.mixer.max_wheel_torque)
 
     def restart(self) -> None:
         """Forget everything: the next sample starts the observer and the position."""
@@ -89,6 +93,15 @@ class StateEstimator:
                                  relative_to_body=self.relative_to_body)
                      if self.eso_config.slip_max_acceleration > 0.0
                      and self.eso_config.estimator == 'gyro' else None)
+        # Wheels blocked by an obstacle (core/obstacle.py): reported, not acted on.
+        config = self.eso_config
+        self.obstacle = (ObstacleMonitor(self.model, config.obstacle_stall_time,
+                                         config.obstacle_stall_torque,
+                                         max_drive_torque=self.max_drive_torque)
+                         if config.obstacle_stall_time > 0.0 else None)
+        # After a stall, the obstacle's force is not handed on as a disturbance.
+        self.release = (ObstacleRelease(config.obstacle_release_hold)
+                        if config.obstacle_release_hold > 0.0 else None)
         self.position = PlanarPositionEstimator(self.position_config)
         self.yaw_unwrapped: float | None = None
         self.has_fix = False
@@ -99,6 +112,11 @@ class StateEstimator:
     @property
     def started(self) -> bool:
         return self.observer is not None
+
+    @property
+    def obstacle_state(self) -> ObstacleState | None:
+        """What the obstacle monitor says now (None when it is off)."""
+        return None if self.obstacle is None else self.obstacle.state
 
     @property
     def position_fault(self) -> str:
@@ -162,6 +180,11 @@ class StateEstimator:
                 f'y={y!r}; the estimator restarts at the next sample')
         if not self.settled:
             self.settled = not observer.in_ramp(t)
+        if self.obstacle is not None:
+            self.obstacle.update(t, estimate.x_v, estimate.theta, tau_left + tau_right)
+        if self.release is not None and self.release.update(
+                t, estimate.v, estimate.theta, tau_left + tau_right):
+            estimate = estimate._replace(f2=0.0, f3=0.0)
         return PoseEstimate(estimate, x, y, self.settled, self.position_status)
 
     def _position(self, t: float, x_v: float, phi: float,

@@ -430,10 +430,14 @@ class EsoNode(ControllerNode):
             diag.state(OK, 'estimating; epsilon ramp still running (not settled)')
         else:
             diag.state(OK, 'estimating')
+        obstacle = self.estimator.obstacle_state
+        if obstacle is not None and obstacle.blocked and not fault:
+            diag.state(WARN, f'stopped by an obstacle: {obstacle.reason}')
 
     def _report_values(self) -> None:
         """Report the position source's and the synchronisation's counters, once per status."""
         values = self.diagnostics.values
+        self._report_ground(values)
         position = self.estimator.position
         if self.position_source != 'wheels':
             source = {'gps': 'GPS', 'odometry': 'odometry'}[self.position_source]
@@ -444,6 +448,18 @@ class EsoNode(ControllerNode):
             values['pending sets'] = str(self.sync.pending)
             values['sets superseded/evicted'] = (
                 f'{self.sync.dropped["superseded"]}/{self.sync.dropped["evicted"]}')
+
+    def _report_ground(self, values: dict) -> None:
+        """Wheel slip and an obstacle that blocks the wheels (core/slip.py, core/obstacle.py)."""
+        estimator = self.estimator
+        slip = estimator.slip
+        if slip is not None:
+            wheels = [side for side, on in zip(('left', 'right'), slip.slipping_wheels) if on]
+            values['wheel slip'] = (f"{' and '.join(wheels) or 'none'}; {slip.events} slips, "
+                                    f'{slip.offset:.3f} m spun away (left out of x_v)')
+        obstacle = estimator.obstacle_state
+        if obstacle is not None:
+            values['obstacle'] = obstacle.reason or 'none'
 
 
 def main(args=None) -> int:

@@ -18,6 +18,7 @@ from typing import Callable
 from wip_control.core import control_step
 from wip_control.core.control_step import ControlStep
 from wip_control.core.references import make_reference
+from wip_control.core.obstacle import ObstacleState
 from wip_control.core.state_estimation import StateEstimator
 
 from .record import GROUPS, RecordBuffer, RunRecord
@@ -35,6 +36,9 @@ class RunResult:
     wall_time_s: float
     simulated_time_s: float
     mpc_inputs: list[dict] | None = None
+    #: The first time the estimator found the wheels blocked by an obstacle, and why
+    #: (core/obstacle.py); None if never (or the monitor is off).
+    obstacle: ObstacleState | None = None
 
 
 ProgressCallback = Callable[[float, float], None]
@@ -145,7 +149,8 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
                      fell=fell, fall_time=fall_time,
                      wall_time_s=time.perf_counter() - wall_start,
                      simulated_time_s=float(groups['truth']['t'][-1]),
-                     mpc_inputs=mpc_inputs)
+                     mpc_inputs=mpc_inputs,
+                     obstacle=estimator.obstacle.first if estimator.obstacle else None)
 
 
 class _ReferenceBlocks:
