@@ -209,7 +209,7 @@ class EsoParams:
         maximum=10.0)
     obstacle_release_hold: float = param(
         0.0, 's', 'after the wheels roll on from a stall against the torque, f2 and f3 are '
-        'handed on as zero this long (core/obstacle.py; 0.5 measured); 0 = off', minimum=0.0,
+        'handed on as zero this long (core/obstacle.py); 0 = off', minimum=0.0,
         maximum=5.0)
     obstacle_stall_torque: float = param(
         10.0, 'N m', 'least forward drive torque of a stall against an obstacle (above the '

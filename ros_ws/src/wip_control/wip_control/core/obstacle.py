@@ -28,6 +28,12 @@ from typing import NamedTuple
 
 from wip_description.params import ModelParams
 
+from .mixer import MixerParams
+
+#: τυ,max [N m] of the default mixer, both wheels: what h_max and the holding lean assume
+#: when no limit is given.
+DEFAULT_MAX_DRIVE_TORQUE = 2.0 * MixerParams().max_wheel_torque
+
 
 def climbable_edge_height(wheel_radius: float, drive_torque: float, total_mass: float,
                           gravity: float) -> float:
@@ -74,7 +80,7 @@ class ObstacleMonitor:
 
     def __init__(self, params: ModelParams, stall_time: float = 0.3,
                  stall_torque: float = 10.0, stall_speed: float = 0.05,
-                 max_drive_torque: float = 30.0) -> None:
+                 max_drive_torque: float = DEFAULT_MAX_DRIVE_TORQUE) -> None:
         for name, value in (('stall_time', stall_time), ('stall_torque', stall_torque),
                             ('stall_speed', stall_speed),
                             ('max_drive_torque', max_drive_torque)):

@@ -20,7 +20,8 @@ from wip_description.params import ModelParams
 from .position import (DEAD_RECKONING, FAULT, NO_FIX, PlanarPositionEstimator,
                        PositionParams, TRACKING)
 from wip_description.sensors import wheel_odometry
-from .obstacle import ObstacleMonitor, ObstacleRelease, ObstacleState
+from .obstacle import (DEFAULT_MAX_DRIVE_TORQUE, ObstacleMonitor, ObstacleRelease,
+                       ObstacleState)
 from .slip import SlipMonitor
 
 
@@ -60,7 +61,7 @@ class StateEstimator:
     def __init__(self, model: ModelParams, eso_config: EsoParams | None = None,
                  position_config: PositionParams | None = None, *,
                  encoders_relative_to_body: bool = True, dead_reckoning: bool = False,
-                 max_drive_torque: float = 30.0) -> None:
+                 max_drive_torque: float = DEFAULT_MAX_DRIVE_TORQUE) -> None:
         self.model = model
         self.max_drive_torque = max_drive_torque
         self.eso_config = eso_config if eso_config is not None else EsoParams()
