@@ -60,6 +60,7 @@ from nav_msgs.msg import Path
 from wip_msgs.msg import (ReferenceState as ReferenceStateMsg, StateEstimate as StateEstimateMsg,
                           WheelTorques)
 
+from ..core.obstacle_refusal import back_off_point
 from ..core.references import COMMANDED_KINDS, make_reference, ReferenceParams
 from ..core.controller_settings import RatesParams
 from .common import ControllerNode
@@ -70,7 +71,7 @@ from wip_runtime.stamps import stamp_to_ns
 from .conversions import reference_to_msg
 from wip_runtime.diagnostics import OK, WARN
 from wip_runtime.parameters import RosParams
-from .settings import ReferenceNodeParams
+from .settings import ObstacleBackOff, ReferenceNodeParams
 
 
 class ReferenceNode(ControllerNode):
@@ -82,6 +83,8 @@ class ReferenceNode(ControllerNode):
         self.config = RosParams(self, 'reference', ReferenceParams).config
         self.rates = RosParams(self, 'rates', RatesParams).config
         settings = RosParams(self, '', ReferenceNodeParams).config
+        back_off = RosParams(self, 'trajectory_generator',
+                             ObstacleBackOff).config.obstacle_back_off
         self.frame_id = settings.frame_id
         self.realtime_start = settings.realtime_start
         self.waiting = not self.lockstep and self.realtime_start == 'engaged'
@@ -113,6 +116,14 @@ class ReferenceNode(ControllerNode):
         elif self.config.kind == 'path':
             self._add_input('plan')
             self.subscribe(Path, 'plan', 'plan', self._on_path)
+        # A commanded reference restarts at rest where the generator holds after an
+        # obstacle refused (core/obstacle_refusal.py): a new command or path resumes from there.
+        self.back_off = back_off if self.commanded else 0.0
+        self.blocked = False
+        triggered = not self.lockstep and settings.realtime_trigger == 'state_estimate'
+        if self.back_off > 0.0 and not triggered:
+            self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
+                           self._on_obstacle)
         if self.waiting:
             self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
                            self._on_torques)
@@ -142,7 +153,26 @@ class ReferenceNode(ControllerNode):
                 # Until the path's time starts, t stays 0 (see publish_at).
                 self.reference.reset(0.0, *pose)
                 self.started_at_estimate = True
+        if self.back_off > 0.0:
+            self._on_obstacle(msg)
         self._guarded(stamp)
+
+    def _on_obstacle(self, msg: StateEstimateMsg) -> None:
+        """Restart a commanded reference at rest where a refusal holds (obstacle_blocked)."""
+        start = msg.obstacle_blocked and not self.blocked
+        self.blocked = msg.obstacle_blocked
+        times = self._command_times(stamp_to_ns(msg.header.stamp))
+        if not start or times is None or not all(map(math.isfinite, (msg.x, msg.y, msg.phi))):
+            return
+        t = times[0]
+        hold = back_off_point(msg.x, msg.y, msg.phi, self.back_off)
+        self.reference.reset(t, hold.x, hold.y, hold.phi)
+        self.diagnostics.values['obstacle'] = (
+            f'refused at {t:.2f} s: the {self.config.kind} reference restarted at rest at '
+            f'({hold.x:.2f}, {hold.y:.2f}) m, {self.back_off:.2f} m back')
+        self.get_logger().warning(
+            f'wheels blocked by an obstacle: the {self.config.kind} reference restarts at rest '
+            f'{self.back_off:.2f} m back; a new command or path resumes')
 
     def _command_times(self, stamp_ns: int) -> tuple[float, float] | None:
         """(stamp, now) [s] of the reference's time base; None before it starts."""
