@@ -23,7 +23,7 @@ X0, Y0 = 1.0, -2.0             # where the axle starts [m]
 
 
 def reference(t, speed=0.3, lead=0.1):
-    """A line along ϕ at ``speed``, ``lead`` m ahead of an axle that starts with it."""
+    """Return a line along ϕ at ``speed``, ``lead`` m ahead of an axle starting with it."""
     d = lead + speed * t
     return ReferenceState(X0 + d * C, Y0 + d * S, PHI, speed, 0.0, 0.0)
 

@@ -123,7 +123,7 @@ class ReferenceNode(ControllerNode):
         triggered = not self.lockstep and settings.realtime_trigger == 'state_estimate'
         if self.back_off > 0.0 and not triggered:
             self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
-                           self._on_obstacle)
+                           self._on_state_estimate)
         if self.waiting:
             self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
                            self._on_torques)
@@ -156,6 +156,11 @@ class ReferenceNode(ControllerNode):
         if self.back_off > 0.0:
             self._on_obstacle(msg)
         self._guarded(stamp)
+
+    def _on_state_estimate(self, msg: StateEstimateMsg) -> None:
+        """Count an estimate that is not the node's trigger, then look at its obstacle."""
+        self.diagnostics.input('state_estimate', stamp_to_ns(msg.header.stamp))
+        self._on_obstacle(msg)
 
     def _on_obstacle(self, msg: StateEstimateMsg) -> None:
         """Restart a commanded reference at rest where a refusal holds (obstacle_blocked)."""
