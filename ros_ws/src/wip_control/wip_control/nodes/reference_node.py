@@ -39,13 +39,19 @@ Commanded kinds (``reference.kind``, docs/driving.md):
   path is taken up where the reference is (``PathReference.set_path``): the same path
   again changes nothing.
 
+An obstacle the wheels cannot climb (``obstacle_blocked`` in a /wip/state_estimate, read
+for the commanded kinds): the commanded reference restarts at rest
+``trajectory_generator.obstacle_back_off`` behind the blocked pose, where the trajectory
+generator holds (core/obstacle_refusal.py); the next command or path resumes from there.
+
 Both start at rest at ``line_start``, ``line_heading``; in real time with the
 ``state_estimate`` trigger at the estimated pose instead (the first estimate, or with
 ``realtime_start: 'engaged'`` the last one before the safety layer engaged), so that a
 robot put down anywhere is not driven back to the map origin. Commands and paths before
 the reference time starts (``'engaged'``) are refused as 'waiting'.
 
-Parameters (read-only): sections ``reference`` and ``rates``; ``frame_id``,
+Parameters (read-only): sections ``reference`` and ``rates``;
+``trajectory_generator.obstacle_back_off``; ``frame_id``,
 ``realtime_start``, ``realtime_trigger``, ``clock_mode``, ``diagnostics_period``.
 """
 
