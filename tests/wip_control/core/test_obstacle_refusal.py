@@ -43,20 +43,25 @@ def drive(stage, monitor, phases, t=0.0, x_v=0.0):
 
 def test_a_blocked_axle_is_refused_backing_off_to_a_point_held_at_rest():
     # 0.3 m/s for 2 s, then an edge holds the axle while 20 N m push with a 0.1 rad lean:
-    # the monitor calls it blocked 0.3 s after the stop, and from that sample on the
-    # generator of eq. (9) follows a point at rest 0.2 m behind the axle on its heading:
-    # xe = −0.2, ye = ϕe = 0, so υd = λ3 tanh(−0.2) (eq. (9) with υr = 0) and ωd = 0,
-    # while the reference runs on ahead.
-    stage = TrajectoryGeneratorStage(TrajectoryGeneratorParams(obstacle_back_off=0.2))
+    # the monitor calls it blocked 0.3 s after the stop, the refusal follows 0.2 s
+    # (obstacle_refuse_delay) later, and from that sample on the generator of eq. (9)
+    # follows a point at rest 0.2 m behind the axle on its heading: xe = −0.2,
+    # ye = ϕe = 0, so υd = λ3 tanh(−0.2) (eq. (9) with υr = 0) and ωd = 0, while the
+    # reference runs on ahead.
+    config = TrajectoryGeneratorParams(obstacle_back_off=0.2, obstacle_refuse_delay=0.2)
+    stage = TrajectoryGeneratorStage(config)
     rows = drive(stage, ObstacleMonitor(ModelParams()),
                  [(2.0, 0.3, 0.02, 5.0), (1.0, 0.0, 0.1, 20.0)])
     stop = 2.0
-    first = next(i for i, row in enumerate(rows) if row[2])
-    assert rows[first][0] == pytest.approx(stop + 0.3, abs=1.5 * H)
+    blocked = next(i for i, row in enumerate(rows) if row[2])
+    assert rows[blocked][0] == pytest.approx(stop + 0.3, abs=1.5 * H)
+    first = next(i for i, row in enumerate(rows) if row[3].x_e < -0.19)
+    assert rows[first][0] == pytest.approx(stop + 0.3 + 0.2, abs=1.5 * H)
     assert all(cmd.v_d > 0.0 for _, _, _, cmd in rows[:first])   # pushing on before it
     x_v = rows[first][1]
     refusal = stage.refusal.refusal
     assert (refusal.x, refusal.y) == pytest.approx((X0 + x_v * C, Y0 + x_v * S), abs=1e-12)
+    assert refusal.since == rows[blocked][0]
     assert refusal.hold == back_off_point(refusal.x, refusal.y, PHI, 0.2)
     assert (refusal.hold.x, refusal.hold.y) == pytest.approx(
         (refusal.x - 0.2 * C, refusal.y - 0.2 * S), abs=1e-15)
@@ -85,6 +90,18 @@ def test_a_stall_that_climbs_within_half_a_second_is_a_crossing_not_refused():
         assert cmd == plain.step(t, reference(t), X0 + x_v * C, Y0 + x_v * S, PHI)
 
 
+def test_a_stall_that_climbs_before_the_delay_is_not_refused():
+    # Blocked 0.3 s after the stop, then rolling on 0.15 s later (a 3 cm bump climbed
+    # after a 0.45 s stall): within the 0.2 s delay, so never refused; with no delay the
+    # same trace is refused at the blocking.
+    phases = [(1.0, 0.3, 0.02, 5.0), (0.45, 0.0, 0.15, 28.0), (1.0, 0.3, 0.05, 12.0)]
+    for delay, refusals in ((0.2, 0), (0.0, 1)):
+        stage = TrajectoryGeneratorStage(TrajectoryGeneratorParams(obstacle_refuse_delay=delay))
+        rows = drive(stage, ObstacleMonitor(ModelParams()), phases)
+        assert any(row[2] for row in rows)
+        assert stage.refusal.refusals == refusals, delay
+
+
 def test_a_reference_that_no_longer_leads_past_the_obstacle_resumes():
     refusal = ObstacleRefusal(0.2)
     ahead = ReferenceState(X0 + 0.5 * C, Y0 + 0.5 * S, PHI, 0.3, 0.0, 0.0)
@@ -110,8 +127,9 @@ def test_a_reference_that_no_longer_leads_past_the_obstacle_resumes():
 def test_a_failed_step_keeps_the_refusal():
     # A non-finite reference while refusing is dropped (ValueError) and must not end the
     # refusal (a NaN reference is behind no line); a non-finite pose starts none.
-    stage = TrajectoryGeneratorStage()
+    stage = TrajectoryGeneratorStage(TrajectoryGeneratorParams(obstacle_refuse_delay=0.0))
     stage.step(1.0, reference(1.0), X0, Y0, PHI, True)
+    assert stage.refusal.refusing
     held = stage.refusal.state()
     nan = ReferenceState(math.nan, 0.0, 0.0, 0.3, 0.0, 0.0)
     with pytest.raises(ValueError):
@@ -123,6 +141,9 @@ def test_a_failed_step_keeps_the_refusal():
 
 
 @pytest.mark.parametrize('value', [0.0, -0.1, math.inf, math.nan])
-def test_bad_back_off_is_a_one_line_error(value):
+def test_bad_settings_are_one_line_errors(value):
     with pytest.raises(ValueError, match='back_off'):
         ObstacleRefusal(value)
+    if value != 0.0:
+        with pytest.raises(ValueError, match='delay'):
+            ObstacleRefusal(0.2, value)

@@ -651,16 +651,18 @@ def test_trajectory_generator_lockstep_equals_the_core(context, harnesses):
 
 
 def test_trajectory_generator_refuses_a_blocked_estimate_and_says_why(context, harnesses):
-    # From the estimate that says obstacle_blocked, the commands are eq. (9) on a point at
-    # rest 0.2 m (obstacle_back_off) behind the pose it was blocked at: the core stage on
-    # the same inputs, exactly, and υd = λ3 tanh(-0.2) < 0 while the vehicle is still
-    # there; /diagnostics is a WARN that says where, why and what resumes. A reference
-    # behind the line across the stopped axle (a new path that turns back) resumes.
+    # From obstacle_refuse_delay after the estimate says obstacle_blocked, the commands
+    # are eq. (9) on a point at rest 0.2 m (obstacle_back_off) behind the blocked pose:
+    # the core stage on the same inputs, exactly, and υd = λ3 tanh(-0.2) < 0 while the
+    # vehicle is still there; /diagnostics is a WARN that says where, why and what
+    # resumes. A reference behind the line across the stopped axle (a new path that turns
+    # back) resumes.
     harness = start(harnesses, context, TrajectoryGeneratorNode,
                     inputs=['/wip/reference', '/wip/state_estimate'],
-                    outputs=['/wip/velocity_command'])
+                    outputs=['/wip/velocity_command'],
+                    **{'trajectory_generator.obstacle_refuse_delay': 0.02})
     out = harness.outputs['/wip/velocity_command']
-    stage = TrajectoryGeneratorStage(TrajectoryGeneratorParams())
+    stage = TrajectoryGeneratorStage(TrajectoryGeneratorParams(obstacle_refuse_delay=0.02))
     line = ReferenceState(0.0, 0.0, 0.5, 0.3, 0.0, 0.0)
     pose = dict(x=1.0, y=0.5, phi=0.5)
     rng = random.Random(4)
@@ -681,26 +683,28 @@ def test_trajectory_generator_refuses_a_blocked_estimate_and_says_why(context, h
         assert (msg.v_d, msg.omega_d, msg.omega_d_dot, msg.x_e, msg.y_e, msg.phi_e) == \
             tuple(expected)
         status = harness.node.diagnostics.status()
-        if 10 <= k < 25:
+        if 14 <= k < 25:   # blocked from k = 10, refused 0.02 s (4 samples) later
             assert msg.v_d == pytest.approx(math.tanh(-0.2), abs=1e-12)
             assert status.level == DiagnosticStatus.WARN
             assert 'refused' in status.message and 'plan around it' in status.message
             assert '(1.00, 0.50) m' in status.message
         else:   # pushing on before it; following the turned-back reference after it
             assert status.level == DiagnosticStatus.OK
-            assert (msg.v_d > 0.0) == (k < 10)
+            assert (msg.v_d > 0.0) == (k < 14)
     values = {v.key: v.value for v in harness.node.diagnostics.status().values}
     assert values['obstacle refusals'] == '1'
 
 
 def test_reference_cmd_vel_restarts_at_rest_behind_a_blocked_estimate(context, harnesses):
     # A commanded reference that ran on ahead restarts at rest obstacle_back_off behind
-    # the pose of the first estimate that says obstacle_blocked, so that the generator's
-    # refusal ends and a new command resumes from there (core/obstacle_refusal.py).
+    # the pose of the estimate at which the generator refuses (obstacle_refuse_delay after
+    # the first that says obstacle_blocked), so that the generator's refusal ends and a
+    # new command resumes from there (core/obstacle_refusal.py).
     from geometry_msgs.msg import TwistStamped
     harness = start(harnesses, context, ReferenceNode,
                     inputs=['/clock', '/wip/state_estimate'], outputs=['/wip/reference'],
-                    **{'reference.kind': 'cmd_vel'})
+                    **{'reference.kind': 'cmd_vel',
+                       'trajectory_generator.obstacle_refuse_delay': 0.0})
     harness.publisher(TwistStamped, '/cmd_vel')
     harness.wait_matched()
     out, node = harness.outputs['/wip/reference'], harness.node

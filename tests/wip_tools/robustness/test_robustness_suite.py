@@ -138,7 +138,8 @@ def test_the_kerb_that_stops_the_vehicle_is_refused_balanced_and_a_bump_crossed_
     mujoco_kerb_slow: the wheels stop against the 4 cm edge with their centre
     a = √(r² − (r − h)²) = 12 cm before it (docs/mujoco-plant.md); the obstacle monitor
     must name it within its 0.3 s stall time (plus 0.1 s for the estimate) of the stop,
-    with the 2.0 cm the torque climbs. Refused balanced: the axle never passes the point
+    with the 2.0 cm the torque climbs, and the generator refuse 0.2 s later
+    (obstacle_refuse_delay). Refused balanced: the axle never passes the point
     where the wheel meets the edge (5 m − 12 cm, 1 cm for the contact's give), the
     generator then follows the point 0.2 m (obstacle_back_off) behind where it stopped,
     and the vehicle ends within 0.1 m of it, at rest (|υ| < 0.05 m/s), the tilt within
@@ -167,7 +168,8 @@ def test_the_kerb_that_stops_the_vehicle_is_refused_balanced_and_a_bump_crossed_
     command = kerb.record['command']
     t_c, x_e = np.asarray(command['t']), np.asarray(command['x_e'])
     refused = t_c[np.argmax((t_c >= kerb.obstacle.since) & (x_e < -0.19))]
-    assert refused == pytest.approx(kerb.obstacle.since + 0.3, abs=0.006)   # one tick
+    # Blocked 0.3 s after the stall began, refused obstacle_refuse_delay (0.2 s) later.
+    assert refused == pytest.approx(kerb.obstacle.since + 0.5, abs=0.006)   # one tick
     assert x[-1] == pytest.approx(x.max() - 0.2, abs=0.1) and abs(v[-1]) < 0.05
     for name in ('mujoco_bump_1cm', 'mujoco_bump_2cm_slow'):
         assert run(name).obstacle is None, name

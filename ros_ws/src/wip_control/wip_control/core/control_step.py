@@ -18,7 +18,7 @@ from .arc import AdaptiveRobustYawController, ArcParams, ArcOutput
 from .lqr import make_longitudinal_controller
 from .mixer import drive_torque_limit, mix
 from .model import input_gains
-from .obstacle_refusal import ObstacleRefusal
+from .obstacle_refusal import make_refusal
 from .mpc_config import MpcParams, resolves_faster
 from .mpc_plan import MpcResult
 from wip_description.params import ModelParams
@@ -60,8 +60,7 @@ class TrajectoryGeneratorStage:
 
     def __init__(self, config: TrajectoryGeneratorParams | None = None) -> None:
         self.generator = TrajectoryGenerator(config)
-        back_off = self.generator.config.obstacle_back_off
-        self.refusal = ObstacleRefusal(back_off) if back_off > 0.0 else None
+        self.refusal = make_refusal(self.generator.config)
 
     def step(self, t: float, reference: ReferenceState, x: float, y: float,
              phi: float, blocked: bool = False) -> VelocityCommand:

@@ -13,9 +13,10 @@ It lasts until the reference no longer leads past the obstacle: a reference poin
 ahead of where the axle stopped, along the heading it had (a new path or goal that turns
 away or goes back, a velocity command backing off; the reference node restarts a commanded
 reference at the held point, docs/estimation.md §7). A reference that runs on through the
-obstacle (a timed path) stays refused. A new refusal needs a new blocking (the monitor's
-blocked going from false to true), so a resumed vehicle that is still held is not caught
-again at once.
+obstacle (a timed path) stays refused. The refusal waits ``delay`` s of blocking (beyond the
+monitor's stall time) so that a stall that climbs soon after is a crossing, and a new
+refusal needs a new blocking (the monitor's blocked going from false to true), so a resumed
+vehicle that is still held is not caught again at once.
 """
 
 from __future__ import annotations
@@ -48,20 +49,25 @@ class ObstacleRefusal:
     Parameters
     ----------
     back_off : [m] how far behind the blocked axle the vehicle holds, > 0.
+    delay : [s] how long the wheels stay blocked before the refusal, ≥ 0: a stall that
+        climbs sooner is a crossing.
     """
 
-    def __init__(self, back_off: float) -> None:
+    def __init__(self, back_off: float, delay: float = 0.0) -> None:
         if not (math.isfinite(back_off) and back_off > 0.0):
             raise ValueError(f'ObstacleRefusal: back_off must be finite and > 0, '
                              f'got {back_off!r}')
-        self.back_off = back_off
+        if not (math.isfinite(delay) and delay >= 0.0):
+            raise ValueError(f'ObstacleRefusal: delay must be finite and >= 0, got {delay!r}')
+        self.back_off, self.delay = back_off, delay
         self.reset()
 
     def reset(self) -> None:
         """Forget everything: no refusal, no blocking seen."""
         self.refusal: Refusal | None = None   #: the refusal in force (None if none)
         self.refusals = 0                     #: refusals since the start
-        self._blocked = False
+        self._since: float | None = None      # start of the blocking in force
+        self._armed = False                   # the blocking in force has not refused yet
 
     @property
     def refusing(self) -> bool:
@@ -69,16 +75,32 @@ class ObstacleRefusal:
 
     def state(self) -> tuple:
         """Everything :meth:`update` changes, for :meth:`restore`."""
-        return self.refusal, self.refusals, self._blocked
+        return self.refusal, self.refusals, self._since, self._armed
 
     def restore(self, state: tuple) -> None:
         """Go back to a :meth:`state` (the guidance stage does when its step fails)."""
-        self.refusal, self.refusals, self._blocked = state
+        self.refusal, self.refusals, self._since, self._armed = state
 
     def leads_past(self, reference: ReferenceState) -> bool:
         """Whether ``reference`` is ahead of where the axle stopped, along its heading then."""
         r = self.refusal
         return (reference.x - r.x) * math.cos(r.phi) + (reference.y - r.y) * math.sin(r.phi) > 0.0
+
+    def blocking(self, t: float, blocked: bool, x: float, y: float,
+                 phi: float) -> Refusal | None:
+        """Take the monitor's verdict at ``t`` [s] and the pose; the refusal it starts, if any."""
+        if not blocked:
+            self._since = None
+            return None
+        if self._since is None:
+            self._since, self._armed = t, True
+        if not (self._armed and t - self._since >= self.delay - 1e-9
+                and all(map(math.isfinite, (t, x, y, phi)))):
+            return None
+        self.refusal = Refusal(self._since, x, y, phi, back_off_point(x, y, phi, self.back_off))
+        self.refusals += 1
+        self._armed = False
+        return self.refusal
 
     def update(self, t: float, blocked: bool, reference: ReferenceState, x: float, y: float,
                phi: float) -> ReferenceState:
@@ -87,11 +109,7 @@ class ObstacleRefusal:
         ``reference`` itself, or the held point while refusing; ``blocked``: the obstacle
         monitor's verdict on this sample; (x, y, ϕ): the estimated pose [m, m, rad].
         """
-        start = blocked and not self._blocked
-        self._blocked = blocked
-        if start and all(map(math.isfinite, (t, x, y, phi))):
-            self.refusal = Refusal(t, x, y, phi, back_off_point(x, y, phi, self.back_off))
-            self.refusals += 1
+        self.blocking(t, blocked, x, y, phi)
         if self.refusal is None:
             return reference
         if not self.leads_past(reference):
@@ -109,3 +127,10 @@ class ObstacleRefusal:
                 f'{self.back_off:.2f} m back at ({r.hold.x:.2f}, {r.hold.y:.2f}) m. '
                 'Clear the obstacle or plan around it: a path, goal or command that does '
                 'not lead past it resumes')
+
+
+def make_refusal(config) -> ObstacleRefusal | None:
+    """Return the refusal of a ``TrajectoryGeneratorParams`` (None: obstacle_back_off 0, off)."""
+    if config.obstacle_back_off <= 0.0:
+        return None
+    return ObstacleRefusal(config.obstacle_back_off, config.obstacle_refuse_delay)

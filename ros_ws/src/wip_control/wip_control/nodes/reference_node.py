@@ -40,9 +40,10 @@ Commanded kinds (``reference.kind``, docs/driving.md):
   again changes nothing.
 
 An obstacle the wheels cannot climb (``obstacle_blocked`` in a /wip/state_estimate, read
-for the commanded kinds): the commanded reference restarts at rest
-``trajectory_generator.obstacle_back_off`` behind the blocked pose, where the trajectory
-generator holds (core/obstacle_refusal.py); the next command or path resumes from there.
+for the commanded kinds): when the trajectory generator refuses (blocked for
+``trajectory_generator.obstacle_refuse_delay``), the commanded reference restarts at rest
+``trajectory_generator.obstacle_back_off`` behind the blocked pose, where the generator
+holds (core/obstacle_refusal.py); the next command or path resumes from there.
 
 Both start at rest at ``line_start``, ``line_heading``; in real time with the
 ``state_estimate`` trigger at the estimated pose instead (the first estimate, or with
@@ -51,7 +52,7 @@ robot put down anywhere is not driven back to the map origin. Commands and paths
 the reference time starts (``'engaged'``) are refused as 'waiting'.
 
 Parameters (read-only): sections ``reference`` and ``rates``;
-``trajectory_generator.obstacle_back_off``; ``frame_id``,
+``trajectory_generator.obstacle_back_off``, ``obstacle_refuse_delay``; ``frame_id``,
 ``realtime_start``, ``realtime_trigger``, ``clock_mode``, ``diagnostics_period``.
 """
 
@@ -66,7 +67,7 @@ from nav_msgs.msg import Path
 from wip_msgs.msg import (ReferenceState as ReferenceStateMsg, StateEstimate as StateEstimateMsg,
                           WheelTorques)
 
-from ..core.obstacle_refusal import back_off_point
+from ..core.obstacle_refusal import make_refusal
 from ..core.references import COMMANDED_KINDS, make_reference, ReferenceParams
 from ..core.controller_settings import RatesParams
 from .common import ControllerNode
@@ -77,7 +78,7 @@ from wip_runtime.stamps import stamp_to_ns
 from .conversions import reference_to_msg
 from wip_runtime.diagnostics import OK, WARN
 from wip_runtime.parameters import RosParams
-from .settings import ObstacleBackOff, ReferenceNodeParams
+from .settings import ObstacleRefusalParams, ReferenceNodeParams
 
 
 class ReferenceNode(ControllerNode):
@@ -89,8 +90,7 @@ class ReferenceNode(ControllerNode):
         self.config = RosParams(self, 'reference', ReferenceParams).config
         self.rates = RosParams(self, 'rates', RatesParams).config
         settings = RosParams(self, '', ReferenceNodeParams).config
-        back_off = RosParams(self, 'trajectory_generator',
-                             ObstacleBackOff).config.obstacle_back_off
+        refusal = RosParams(self, 'trajectory_generator', ObstacleRefusalParams).config
         self.frame_id = settings.frame_id
         self.realtime_start = settings.realtime_start
         self.waiting = not self.lockstep and self.realtime_start == 'engaged'
@@ -124,10 +124,9 @@ class ReferenceNode(ControllerNode):
             self.subscribe(Path, 'plan', 'plan', self._on_path)
         # A commanded reference restarts at rest where the generator holds after an
         # obstacle refused (core/obstacle_refusal.py): a new command or path resumes from there.
-        self.back_off = back_off if self.commanded else 0.0
-        self.blocked = False
+        self.refusal = make_refusal(refusal) if self.commanded else None
         triggered = not self.lockstep and settings.realtime_trigger == 'state_estimate'
-        if self.back_off > 0.0 and not triggered:
+        if self.refusal is not None and not triggered:
             self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                            self._on_state_estimate)
         if self.waiting:
@@ -159,7 +158,7 @@ class ReferenceNode(ControllerNode):
                 # Until the path's time starts, t stays 0 (see publish_at).
                 self.reference.reset(0.0, *pose)
                 self.started_at_estimate = True
-        if self.back_off > 0.0:
+        if self.refusal is not None:
             self._on_obstacle(msg)
         self._guarded(stamp)
 
@@ -170,20 +169,21 @@ class ReferenceNode(ControllerNode):
 
     def _on_obstacle(self, msg: StateEstimateMsg) -> None:
         """Restart a commanded reference at rest where a refusal holds (obstacle_blocked)."""
-        start = msg.obstacle_blocked and not self.blocked
-        self.blocked = msg.obstacle_blocked
         times = self._command_times(stamp_to_ns(msg.header.stamp))
-        if not start or times is None or not all(map(math.isfinite, (msg.x, msg.y, msg.phi))):
+        if times is None:
             return
         t = times[0]
-        hold = back_off_point(msg.x, msg.y, msg.phi, self.back_off)
+        refusal = self.refusal.blocking(t, msg.obstacle_blocked, msg.x, msg.y, msg.phi)
+        if refusal is None:
+            return
+        hold, back_off = refusal.hold, self.refusal.back_off
         self.reference.reset(t, hold.x, hold.y, hold.phi)
         self.diagnostics.values['obstacle'] = (
             f'refused at {t:.2f} s: the {self.config.kind} reference restarted at rest at '
-            f'({hold.x:.2f}, {hold.y:.2f}) m, {self.back_off:.2f} m back')
+            f'({hold.x:.2f}, {hold.y:.2f}) m, {back_off:.2f} m back')
         self.get_logger().warning(
             f'wheels blocked by an obstacle: the {self.config.kind} reference restarts at rest '
-            f'{self.back_off:.2f} m back; a new command or path resumes')
+            f'{back_off:.2f} m back; a new command or path resumes')
 
     def _command_times(self, stamp_ns: int) -> tuple[float, float] | None:
         """(stamp, now) [s] of the reference's time base; None before it starts."""

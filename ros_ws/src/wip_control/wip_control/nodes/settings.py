@@ -137,13 +137,14 @@ class WheelTorqueLimit:
 
 
 @dataclasses.dataclass(frozen=True)
-class ObstacleBackOff:
-    """The one generator value the reference node needs: where a refusal holds.
+class ObstacleRefusalParams:
+    """The generator values the reference node needs: when and where a refusal holds.
 
     A commanded reference restarts at rest there (core/obstacle_refusal.py).
     """
 
     obstacle_back_off: float = like(TrajectoryGeneratorParams, 'obstacle_back_off')
+    obstacle_refuse_delay: float = like(TrajectoryGeneratorParams, 'obstacle_refuse_delay')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -195,7 +196,7 @@ _BASE = (('', ControllerNodeParams),)
 #: executable -> the (prefix, dataclass) groups it declares, in declaration order.
 NODES: dict[str, tuple[tuple[str, type], ...]] = {
     'reference': (*_BASE, ('reference', ReferenceParams), ('rates', RatesParams),
-                  ('', ReferenceNodeParams), ('trajectory_generator', ObstacleBackOff)),
+                  ('', ReferenceNodeParams), ('trajectory_generator', ObstacleRefusalParams)),
     'eso': (*_BASE, ('eso', EsoParams), ('position', PositionParams),
             ('model', ModelParams), ('mixer', WheelTorqueLimit), ('', EsoNodeParams),
             ('', WheelJoints),

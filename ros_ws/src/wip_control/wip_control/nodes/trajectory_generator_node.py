@@ -38,7 +38,7 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg,
                           VelocityCommand as VelocityCommandMsg)
 
 from ..core.control_step import TrajectoryGeneratorStage
-from ..core.obstacle_refusal import ObstacleRefusal
+from ..core.obstacle_refusal import make_refusal
 from ..core.trajectory_generator import TrajectoryGeneratorParams
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
@@ -75,12 +75,12 @@ class TrajectoryGeneratorNode(ControllerNode):
                              estimate_from_msg)
 
     def _on_config(self, config: TrajectoryGeneratorParams) -> None:
-        back_off = self.generator.config.obstacle_back_off
+        old = self.generator.config
         self.generator.config = config
-        if config.obstacle_back_off != back_off:
-            # A new back-off distance takes effect at the next blocking.
-            self.stage.refusal = (ObstacleRefusal(config.obstacle_back_off)
-                                  if config.obstacle_back_off > 0.0 else None)
+        if (config.obstacle_back_off, config.obstacle_refuse_delay) != (
+                old.obstacle_back_off, old.obstacle_refuse_delay):
+            # New refusal settings take effect at the next blocking.
+            self.stage.refusal = make_refusal(config)
 
     def _compute(self, stamp: int, values) -> None:
         start = time.perf_counter()
