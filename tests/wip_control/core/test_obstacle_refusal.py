@@ -91,15 +91,17 @@ def test_a_stall_that_climbs_within_half_a_second_is_a_crossing_not_refused():
 
 
 def test_a_stall_that_climbs_before_the_delay_is_not_refused():
-    # Blocked 0.3 s after the stop, then rolling on 0.15 s later (a 3 cm bump climbed
-    # after a 0.45 s stall): within the 0.2 s delay, so never refused; with no delay the
-    # same trace is refused at the blocking.
-    phases = [(1.0, 0.3, 0.02, 5.0), (0.45, 0.0, 0.15, 28.0), (1.0, 0.3, 0.05, 12.0)]
-    for delay, refusals in ((0.2, 0), (0.0, 1)):
-        stage = TrajectoryGeneratorStage(TrajectoryGeneratorParams(obstacle_refuse_delay=delay))
+    # Blocked 0.3 s after the stop, then rolling on 0.6 s later (a 3 cm bump climbed after
+    # a 0.9 s stall): within the default 0.7 s delay, so never refused; with no delay the
+    # same trace is refused at the blocking, with 0.5 s once blocked for 0.5 s.
+    phases = [(1.0, 0.3, 0.02, 5.0), (0.9, 0.0, 0.15, 28.0), (1.0, 0.3, 0.05, 12.0)]
+    for config, refusals in ((TrajectoryGeneratorParams(), 0),
+                             (TrajectoryGeneratorParams(obstacle_refuse_delay=0.0), 1),
+                             (TrajectoryGeneratorParams(obstacle_refuse_delay=0.5), 1)):
+        stage = TrajectoryGeneratorStage(config)
         rows = drive(stage, ObstacleMonitor(ModelParams()), phases)
         assert any(row[2] for row in rows)
-        assert stage.refusal.refusals == refusals, delay
+        assert stage.refusal.refusals == refusals, config.obstacle_refuse_delay
 
 
 def test_a_reference_that_no_longer_leads_past_the_obstacle_resumes():
