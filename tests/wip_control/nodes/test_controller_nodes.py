@@ -1538,3 +1538,46 @@ def test_reference_cmd_vel_in_real_time_starts_at_the_estimated_pose(context, ha
     assert out[1].v > 0.0 and out[1].phi == 1.0
     assert out[1].x > 2.0 and out[1].y < -3.0 + 0.2 and out[1].y > -3.0
     assert node.diagnostics.values['command'] == 'following the command'
+
+
+def test_reference_path_in_real_time_restarts_at_rest_when_refused(context, harnesses):
+    # The estimate-triggered reference (real time) restarts a path reference at rest
+    # obstacle_back_off behind the pose of the estimate at which the refusal begins
+    # (obstacle_refuse_delay after the first blocked one), dropping the path, and publishes
+    # that for the same stamp: the generator's refusal then ends on a reference not ahead
+    # of the obstacle, and a new path starts from there.
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Path
+    harness = start(harnesses, context, ReferenceNode, 'realtime',
+                    inputs=['/wip/state_estimate'], outputs=['/wip/reference'],
+                    **{'reference.kind': 'path',
+                       'trajectory_generator.obstacle_refuse_delay': 0.1})
+    harness.publisher(Path, '/plan')
+    harness.wait_matched()
+    out, node = harness.outputs['/wip/reference'], harness.node
+    t0 = time.time_ns()
+
+    def estimate(dt, blocked=False):
+        count = len(out)
+        harness.publish('/wip/state_estimate', StateEstimateMsg(
+            header=make_header(t0 + int(dt * 1e9)), x=1.0, y=0.0, phi=0.0,
+            obstacle_blocked=blocked))
+        harness.spin_until(lambda: len(out) == count + 1, f'the reference at {dt} s')
+        return out[-1]
+    estimate(0.0)
+    msg = Path(header=make_header(time.time_ns(), 'map'))
+    for x in (1.0, 5.0):
+        pose = PoseStamped()
+        pose.pose.position.x = x
+        msg.poses.append(pose)
+    harness.publish('/plan', msg)
+    harness.spin_until(lambda: node.diagnostics.received['plan'] == 1, 'the path')
+    assert estimate(1.0).x > 1.0 and not node.reference.done
+    ahead = estimate(1.5, blocked=True)           # blocked: not refused before 0.1 s
+    assert ahead.x > 1.0 and ahead.v > 0.0
+    held = estimate(1.6, blocked=True)
+    assert (held.x, held.y, held.phi, held.v, held.omega) == pytest.approx(
+        (1.0 - 0.2, 0.0, 0.0, 0.0, 0.0), abs=1e-12)
+    assert node.reference.done and not node.reference.points
+    assert 'restarted at rest at (0.80, 0.00) m' in node.diagnostics.values['obstacle']
+    assert estimate(2.0, blocked=True).x == held.x   # one refusal per blocking: at rest
