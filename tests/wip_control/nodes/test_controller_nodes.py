@@ -54,7 +54,8 @@ from wip_sim.core.sensor_models import Sensors  # noqa: E402
 from wip_control.core.state_estimation import StateEstimator  # noqa: E402
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa: E402
                                                    TrajectoryGeneratorParams)
-from wip_control.core.control_step import initial_alpha  # noqa: E402
+from wip_control.core.control_step import (initial_alpha,  # noqa: E402
+                                           TrajectoryGeneratorStage)
 from wip_control.nodes.arc_node import ArcNode  # noqa: E402
 from wip_runtime.composition import connect_intra_process, share_sim_clock  # noqa: E402
 from wip_runtime.qos import CLOCK_QOS  # noqa: E402
@@ -520,6 +521,27 @@ def test_eso_says_why_when_an_obstacle_blocks_the_wheels(context, harnesses):
     assert 'stopped by an obstacle' in status.message
     values = {v.key: v.value for v in status.values}
     assert '2.0 cm' in values['obstacle'] and values['wheel slip'].startswith('none;')
+    assert 'plan around it' in status.message
+    # The verdict goes out with the estimate, for the trajectory generator to refuse.
+    estimates = harness.outputs['/wip/state_estimate']
+    assert estimates[-1].obstacle_blocked and not estimates[0].obstacle_blocked
+
+
+def test_eso_derives_the_climbable_edge_from_the_mixers_torque_limit(context, harnesses):
+    # mixer.max_wheel_torque 20 N m: 2 x 20 N m climb h_max = r - sqrt(r^2 - (tau/(M g))^2)
+    # (docs/mujoco-plant.md), 3.7 cm with the default model, not the 2.0 cm of 2 x 15 N m.
+    from wip_control.core.obstacle import climbable_edge_height
+    model = ModelParams()
+    total = model.body_mass + model.chassis_mass + 2.0 * model.wheel_mass
+    h_max = climbable_edge_height(model.wheel_radius, 40.0, total, model.gravity)
+    samples = [dict(stamp=k * H_NS, left=-0.1, right=-0.1, pitch=0.1, yaw=0.0,
+                    gps=(0.0, 0.0) if k % 20 == 0 else None, applied=(8.0, 8.0),
+                    rates=(0.0, 0.0)) for k in range(100)]
+    harness = eso_harness(harnesses, context, **{'mixer.max_wheel_torque': 20.0})
+    run_eso_lockstep(harness, samples)
+    reason = harness.node.estimator.obstacle_state.reason
+    assert f'{100.0 * h_max:.1f} cm' in reason and '40 N m climbs' in reason
+    assert f'{100.0 * h_max:.1f}' != '2.0'
 
 
 # ----------------------------------------------------------------------------- reference
@@ -626,6 +648,84 @@ def test_trajectory_generator_lockstep_equals_the_core(context, harnesses):
         assert (msg.v_d, msg.omega_d, msg.omega_d_dot, msg.x_e, msg.y_e, msg.phi_e) == \
             tuple(expected)
     assert any(abs(m.omega_d) == 0.2 for m in out)  # the overridden limit was active
+
+
+def test_trajectory_generator_refuses_a_blocked_estimate_and_says_why(context, harnesses):
+    # From obstacle_refuse_delay after the estimate says obstacle_blocked, the commands
+    # are eq. (9) on a point at rest 0.2 m (obstacle_back_off) behind the blocked pose:
+    # the core stage on the same inputs, exactly, and υd = λ3 tanh(-0.2) < 0 while the
+    # vehicle is still there; /diagnostics is a WARN that says where, why and what
+    # resumes. A reference behind the line across the stopped axle (a new path that turns
+    # back) resumes.
+    harness = start(harnesses, context, TrajectoryGeneratorNode,
+                    inputs=['/wip/reference', '/wip/state_estimate'],
+                    outputs=['/wip/velocity_command'],
+                    **{'trajectory_generator.obstacle_refuse_delay': 0.02})
+    out = harness.outputs['/wip/velocity_command']
+    stage = TrajectoryGeneratorStage(TrajectoryGeneratorParams(obstacle_refuse_delay=0.02))
+    line = ReferenceState(0.0, 0.0, 0.5, 0.3, 0.0, 0.0)
+    pose = dict(x=1.0, y=0.5, phi=0.5)
+    rng = random.Random(4)
+    for k in range(30):
+        stamp, blocked = k * H_NS, 10 <= k < 20
+        d = 0.3 * k * H_NS / 1e9
+        ref = line._replace(x=1.2 + d * math.cos(0.5), y=0.6 + d * math.sin(0.5))
+        if k >= 25:   # turned back: behind the line across the stopped axle
+            ref = line._replace(x=0.5, y=0.3, phi=0.5 + math.pi, v=0.1)
+        msgs = [('/wip/reference', ReferenceStateMsg(header=make_header(stamp),
+                                                     **ref._asdict())),
+                ('/wip/state_estimate', estimate_msg(stamp, obstacle_blocked=blocked,
+                                                     **pose))]
+        publish_shuffled(harness, msgs, rng)
+        harness.spin_until(lambda: len(out) == k + 1, f'command {k}')
+        expected = stage.step(stamp / 1e9, ref, pose['x'], pose['y'], pose['phi'], blocked)
+        msg = out[-1]
+        assert (msg.v_d, msg.omega_d, msg.omega_d_dot, msg.x_e, msg.y_e, msg.phi_e) == \
+            tuple(expected)
+        status = harness.node.diagnostics.status()
+        if 14 <= k < 25:   # blocked from k = 10, refused 0.02 s (4 samples) later
+            assert msg.v_d == pytest.approx(math.tanh(-0.2), abs=1e-12)
+            assert status.level == DiagnosticStatus.WARN
+            assert 'refused' in status.message and 'plan around it' in status.message
+            assert '(1.00, 0.50) m' in status.message
+        else:   # pushing on before it; following the turned-back reference after it
+            assert status.level == DiagnosticStatus.OK
+            assert (msg.v_d > 0.0) == (k < 14)
+    values = {v.key: v.value for v in harness.node.diagnostics.status().values}
+    assert values['obstacle refusals'] == '1'
+
+
+def test_reference_cmd_vel_restarts_at_rest_behind_a_blocked_estimate(context, harnesses):
+    # A commanded reference that ran on ahead restarts at rest obstacle_back_off behind
+    # the pose of the estimate at which the generator refuses (obstacle_refuse_delay after
+    # the first that says obstacle_blocked), so that the generator's refusal ends and a
+    # new command resumes from there (core/obstacle_refusal.py).
+    from geometry_msgs.msg import TwistStamped
+    harness = start(harnesses, context, ReferenceNode,
+                    inputs=['/clock', '/wip/state_estimate'], outputs=['/wip/reference'],
+                    **{'reference.kind': 'cmd_vel',
+                       'trajectory_generator.obstacle_refuse_delay': 0.0})
+    harness.publisher(TwistStamped, '/cmd_vel')
+    harness.wait_matched()
+    out, node = harness.outputs['/wip/reference'], harness.node
+    harness.publish('/clock', clock(0))
+    harness.spin_until(lambda: out, 'the first reference')
+    msg = TwistStamped(header=make_header(0))
+    msg.twist.linear.x = 0.3
+    harness.publish('/cmd_vel', msg)
+    harness.spin_until(lambda: node.diagnostics.received['cmd_vel'] == 1, 'the command')
+    tick_every(harness, out, 10 * H_NS, 0.3)
+    assert out[-1].v > 0.0
+    received = node.diagnostics.received
+    harness.publish('/wip/state_estimate', estimate_msg(
+        6 * 10 * H_NS, x=0.05, y=0.0, phi=0.0, obstacle_blocked=True))
+    harness.spin_until(lambda: received['state_estimate'] == 1, 'the estimate')
+    harness.publish('/clock', clock(40 * H_NS * 10))
+    harness.spin_until(lambda: out[-1].header.stamp == ns_to_stamp(400 * H_NS),
+                       'the reference after it')
+    assert (out[-1].x, out[-1].y, out[-1].v, out[-1].omega) == pytest.approx(
+        (0.05 - 0.2, 0.0, 0.0, 0.0), abs=1e-12)
+    assert 'restarted at rest at (-0.15, 0.00) m' in node.diagnostics.values['obstacle']
 
 
 # ----------------------------------------------------------------------------- ARC
@@ -1438,3 +1538,46 @@ def test_reference_cmd_vel_in_real_time_starts_at_the_estimated_pose(context, ha
     assert out[1].v > 0.0 and out[1].phi == 1.0
     assert out[1].x > 2.0 and out[1].y < -3.0 + 0.2 and out[1].y > -3.0
     assert node.diagnostics.values['command'] == 'following the command'
+
+
+def test_reference_path_in_real_time_restarts_at_rest_when_refused(context, harnesses):
+    # The estimate-triggered reference (real time) restarts a path reference at rest
+    # obstacle_back_off behind the pose of the estimate at which the refusal begins
+    # (obstacle_refuse_delay after the first blocked one), dropping the path, and publishes
+    # that for the same stamp: the generator's refusal then ends on a reference not ahead
+    # of the obstacle, and a new path starts from there.
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Path
+    harness = start(harnesses, context, ReferenceNode, 'realtime',
+                    inputs=['/wip/state_estimate'], outputs=['/wip/reference'],
+                    **{'reference.kind': 'path',
+                       'trajectory_generator.obstacle_refuse_delay': 0.1})
+    harness.publisher(Path, '/plan')
+    harness.wait_matched()
+    out, node = harness.outputs['/wip/reference'], harness.node
+    t0 = time.time_ns()
+
+    def estimate(dt, blocked=False):
+        count = len(out)
+        harness.publish('/wip/state_estimate', StateEstimateMsg(
+            header=make_header(t0 + int(dt * 1e9)), x=1.0, y=0.0, phi=0.0,
+            obstacle_blocked=blocked))
+        harness.spin_until(lambda: len(out) == count + 1, f'the reference at {dt} s')
+        return out[-1]
+    estimate(0.0)
+    msg = Path(header=make_header(time.time_ns(), 'map'))
+    for x in (1.0, 5.0):
+        pose = PoseStamped()
+        pose.pose.position.x = x
+        msg.poses.append(pose)
+    harness.publish('/plan', msg)
+    harness.spin_until(lambda: node.diagnostics.received['plan'] == 1, 'the path')
+    assert estimate(1.0).x > 1.0 and not node.reference.done
+    ahead = estimate(1.5, blocked=True)           # blocked: not refused before 0.1 s
+    assert ahead.x > 1.0 and ahead.v > 0.0
+    held = estimate(1.6, blocked=True)
+    assert (held.x, held.y, held.phi, held.v, held.omega) == pytest.approx(
+        (1.0 - 0.2, 0.0, 0.0, 0.0, 0.0), abs=1e-12)
+    assert node.reference.done and not node.reference.points
+    assert 'restarted at rest at (0.80, 0.00) m' in node.diagnostics.values['obstacle']
+    assert estimate(2.0, blocked=True).x == held.x   # one refusal per blocking: at rest

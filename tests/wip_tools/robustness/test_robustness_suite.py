@@ -75,11 +75,13 @@ SUITE = {
         'falls at 17.12 s: met at 0.3 m/s the climb needs more lean than the torque can '
         'take back at 10 N m per 0.1 s'),
     'mujoco_kerb': (
-        'a 4 cm step (twice what the torque lifts): it meets the edge at 0.47-0.51 m/s '
-        '(the speed overshoots the 0.3 m/s reference while catching up), the wheels stop '
-        'dead and the body swings forward past 0.21 rad, the lean the saturated 30 N m '
-        'holds over blocked wheels: falls at 17.33 s. The estimator names the obstacle '
-        '0.3 s after the stall; met at 0.2 m/s (mujoco_kerb_slow) it stops balanced'),
+        'a 4 cm step (twice what the torque lifts): it meets the edge at 0.51 m/s (the '
+        'speed loop swings 0-0.69 m/s about the 0.3 m/s reference under the IMU noise), the '
+        'wheels stop dead and the body swings forward past 0.21 rad, the lean the '
+        'saturated 30 N m holds over blocked wheels (blocked at 16.51 s), and falls at '
+        '17.33 s, before the refusal could help: the fall is decided within 0.2 s of the '
+        'impact (docs/decisions/obstacle-refusal.md). Met slower (mujoco_kerb_slow) it is '
+        'refused balanced'),
     'mujoco_kerb_slow': None,
     'mujoco_one_wheel_patch': None,
 }
@@ -131,13 +133,19 @@ def test_robustness_class_meets_its_criterion(name):
 
 
 @pytest.mark.slow
-def test_the_kerb_that_stops_the_vehicle_is_named_and_a_bump_crossed_is_not():
-    """The estimator names the kerb that stops the vehicle, and not a bump it crosses.
+def test_the_kerb_that_stops_the_vehicle_is_refused_balanced_and_a_bump_crossed_is_not():
+    """The kerb that stops the vehicle is refused balanced; a bump it crosses is not refused.
 
     mujoco_kerb_slow: the wheels stop against the 4 cm edge with their centre
     a = √(r² − (r − h)²) = 12 cm before it (docs/mujoco-plant.md); the obstacle monitor
     must name it within its 0.3 s stall time (plus 0.1 s for the estimate) of the stop,
-    with the 2.0 cm the torque climbs. mujoco_bump_1cm: climbed, nothing named.
+    with the 2.0 cm the torque climbs, and the generator refuse 0.7 s later
+    (obstacle_refuse_delay). Refused balanced: the axle never passes the point
+    where the wheel meets the edge (5 m − 12 cm, 1 cm for the contact's give), the
+    generator then follows the point 0.2 m (obstacle_back_off) behind where it stopped,
+    and the vehicle ends within 0.1 m of it, at rest (|υ| < 0.05 m/s on average over the
+    last 2 s), the tilt within 0.15 rad throughout. mujoco_bump_1cm and
+    mujoco_bump_2cm_slow: climbed, nothing named or refused.
     """
     import numpy as np
 
@@ -152,12 +160,21 @@ def test_the_kerb_that_stops_the_vehicle_is_named_and_a_bump_crossed_is_not():
 
     kerb = run('mujoco_kerb_slow')
     truth = kerb.record['truth']
-    t, x, v = (np.asarray(truth[key]) for key in ('t', 'x', 'v'))
+    t, x, v, theta = (np.asarray(truth[key]) for key in ('t', 'x', 'v', 'theta'))
     stop = t[np.argmax((x > 4.8) & (np.abs(v) < 0.02))]
-    assert not kerb.fell and x[-1] == pytest.approx(5.0 - 0.12, abs=0.01)
+    edge = 5.0 - 0.12
+    assert not kerb.fell and x.max() <= edge + 0.01 and np.abs(theta).max() <= 0.15
     assert kerb.obstacle is not None and '2.0 cm' in kerb.obstacle.reason
     assert stop - 0.1 <= kerb.obstacle.since and kerb.obstacle.since <= stop + 0.1
-    assert run('mujoco_bump_1cm').obstacle is None
+    command = kerb.record['command']
+    t_c, x_e = np.asarray(command['t']), np.asarray(command['x_e'])
+    refused = t_c[np.argmax((t_c >= kerb.obstacle.since) & (x_e < -0.19))]
+    # Blocked 0.3 s after the stall began, refused obstacle_refuse_delay (0.7 s) later.
+    assert refused == pytest.approx(kerb.obstacle.since + 1.0, abs=0.006)   # one tick
+    assert x[-1] == pytest.approx(x.max() - 0.2, abs=0.1)
+    assert np.abs(v[t > t[-1] - 2.0]).mean() < 0.05
+    for name in ('mujoco_bump_1cm', 'mujoco_bump_2cm_slow'):
+        assert run(name).obstacle is None, name
 
 
 @pytest.mark.slow

@@ -18,6 +18,7 @@ from .arc import AdaptiveRobustYawController, ArcParams, ArcOutput
 from .lqr import make_longitudinal_controller
 from .mixer import drive_torque_limit, mix
 from .model import input_gains
+from .obstacle_refusal import make_refusal
 from .mpc_config import MpcParams, resolves_faster
 from .mpc_plan import MpcResult
 from wip_description.params import ModelParams
@@ -50,23 +51,40 @@ def initial_alpha(model: ModelParams, yaw_input_gain_scale: float) -> float:
 
 
 class TrajectoryGeneratorStage:
-    """Reference sample and estimated pose -> (υd, ωd, ω̇d): the generator of eq. (9)."""
+    """Reference sample and estimated pose -> (υd, ωd, ω̇d): the generator of eq. (9).
+
+    With ``obstacle_back_off`` > 0, the reference passes through the obstacle refusal
+    (core/obstacle_refusal.py) first: the estimate's ``obstacle_blocked`` is handed to
+    :meth:`step` as ``blocked``.
+    """
 
     def __init__(self, config: TrajectoryGeneratorParams | None = None) -> None:
         self.generator = TrajectoryGenerator(config)
+        self.refusal = make_refusal(self.generator.config)
 
     def step(self, t: float, reference: ReferenceState, x: float, y: float,
-             phi: float) -> VelocityCommand:
+             phi: float, blocked: bool = False) -> VelocityCommand:
         # (Not a copy of vars(generator): that gives the object a dict of its own, which
         # slows every attribute access to it afterwards, 4 % of a run of the runner.)
         generator = self.generator
         saved = generator.state()
-        command = generator.step(t, reference, x, y, phi)
+        refusal = self.refusal
+        held = refusal.state() if refusal is not None else None
+        try:
+            if refusal is not None:
+                reference = refusal.update(t, blocked, reference, x, y, phi)
+            command = generator.step(t, reference, x, y, phi)
+        except ValueError:
+            if refusal is not None:
+                refusal.restore(held)
+            raise
         v_d, omega_d, omega_d_dot, x_e, y_e, phi_e = command
         if not _all_finite(v_d + omega_d + omega_d_dot + x_e + y_e + phi_e, command):
             # Finite but huge inputs (a heading of 1e308 rad) can overflow: keep the
             # derivative filter's state unpoisoned.
             generator.restore(saved)
+            if refusal is not None:
+                refusal.restore(held)
             raise ControlOverflow(f'non-finite command {tuple(command)} from finite inputs '
                                   '(overflow); generator state kept')
         return command
@@ -254,7 +272,8 @@ class ControlStep:
         mixer got it).
         """
         est = pose.estimate
-        command = self.guidance.step(t, reference, pose.x, pose.y, est.phi)
+        command = self.guidance.step(t, reference, pose.x, pose.y, est.phi,
+                                     pose.obstacle_blocked)
         arc = self.yaw.step(est.omega, est.f1, command)
         result = None
         drive = self.drive

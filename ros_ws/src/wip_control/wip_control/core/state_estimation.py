@@ -37,6 +37,7 @@ class PoseEstimate(NamedTuple):
     y: float               #: ŷ [m]
     settled: bool = True   #: False while the paper's ε ramp runs
     position_status: int = TRACKING   #: core.position NO_FIX, TRACKING, DEAD_RECKONING or FAULT
+    obstacle_blocked: bool = False   #: the wheels are blocked by an obstacle (core/obstacle.py)
 
 
 class StateEstimator:
@@ -94,7 +95,8 @@ class StateEstimator:
                                  relative_to_body=self.relative_to_body)
                      if self.eso_config.slip_max_acceleration > 0.0
                      and self.eso_config.estimator == 'gyro' else None)
-        # Wheels blocked by an obstacle (core/obstacle.py): reported, not acted on.
+        # Wheels blocked by an obstacle (core/obstacle.py): reported, and handed on in the
+        # estimate (the trajectory generator refuses to push on, core/obstacle_refusal.py).
         config = self.eso_config
         self.obstacle = (ObstacleMonitor(self.model, config.obstacle_stall_time,
                                          config.obstacle_stall_torque,
@@ -181,12 +183,14 @@ class StateEstimator:
                 f'y={y!r}; the estimator restarts at the next sample')
         if not self.settled:
             self.settled = not observer.in_ramp(t)
+        blocked = False
         if self.obstacle is not None:
-            self.obstacle.update(t, estimate.x_v, estimate.theta, tau_left + tau_right)
+            blocked = self.obstacle.update(t, estimate.x_v, estimate.theta,
+                                           tau_left + tau_right).blocked
         if self.release is not None and self.release.update(
                 t, estimate.v, estimate.theta, tau_left + tau_right):
             estimate = estimate._replace(f2=0.0, f3=0.0)
-        return PoseEstimate(estimate, x, y, self.settled, self.position_status)
+        return PoseEstimate(estimate, x, y, self.settled, self.position_status, blocked)
 
     def _position(self, t: float, x_v: float, phi: float,
                   fix: Sequence[float] | None) -> tuple[float, float]:

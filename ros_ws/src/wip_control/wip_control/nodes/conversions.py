@@ -42,7 +42,7 @@ _build_reference = StampedBuilder(ReferenceStateMsg, ('x', 'y', 'phi', 'v', 'ome
                                                       'omega_dot'))
 _build_estimate = StampedBuilder(StateEstimateMsg, (
     'phi', 'omega', 'f1', 'x_v', 'v', 'f2', 'theta', 'theta_dot', 'f3', 'epsilon', 'x', 'y',
-    'settled', 'position_status'))
+    'settled', 'position_status', 'obstacle_blocked'))
 _build_command = StampedBuilder(VelocityCommandMsg, ('v_d', 'omega_d', 'omega_d_dot', 'x_e',
                                                      'y_e', 'phi_e'))
 _build_arc = StampedBuilder(YawTorque, ('tau_omega', 'alpha_hat', 'e_omega'))
@@ -181,10 +181,11 @@ def reference_from_msg(msg: ReferenceStateMsg) -> ReferenceState:
 
 
 def estimate_to_msg(est: StateEstimate, x: float, y: float, settled: bool, stamp_ns: int,
-                    frame_id: str, position_status: int = 0) -> StateEstimateMsg:
+                    frame_id: str, position_status: int = 0,
+                    obstacle_blocked: bool = False) -> StateEstimateMsg:
     return _build_estimate(stamp_ns, frame_id, est.phi, est.omega, est.f1, est.x_v, est.v,
                            est.f2, est.theta, est.theta_dot, est.f3, est.epsilon, x, y,
-                           settled, position_status)
+                           settled, position_status, obstacle_blocked)
 
 
 class _LastConversion:
@@ -222,7 +223,8 @@ def estimate_from_msg(msg: StateEstimateMsg, check: bool = True) -> PoseEstimate
         return cached
     est = StateEstimate(msg.phi, msg.omega, msg.f1, msg.x_v, msg.v, msg.f2, msg.theta,
                         msg.theta_dot, msg.f3, msg.epsilon)
-    out = PoseEstimate(est, msg.x, msg.y, bool(msg.settled), int(msg.position_status))
+    out = PoseEstimate(est, msg.x, msg.y, bool(msg.settled), int(msg.position_status),
+                       bool(msg.obstacle_blocked))
     # ε (the last field) is inf at the very start of the paper's ramp: not an input of any
     # controller. The names of the bad fields are only built when there is one.
     if check and not (all(map(math.isfinite, est[:-1])) and math.isfinite(out.x)

@@ -114,7 +114,7 @@ from wip_runtime.diagnostics import ERROR, OK, WARN
 from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
                               odometry_position, signed_wheel_angles)
 from wip_runtime.parameters import RosParams
-from .settings import EsoNodeParams
+from .settings import EsoNodeParams, WheelTorqueLimit
 from wip_description.wiring import DatumParams, ImuMounting, WheelJoints, WheelSigns
 from wip_runtime.sync import decimation, ExactTimeSync, is_decimated_tick, LatestSync
 
@@ -146,7 +146,8 @@ class EsoNode(ControllerNode):
         settings = self._read_parameters()
         self.estimator = StateEstimator(self.model, self.eso_config, self.position_config,
                                         encoders_relative_to_body=self.relative_to_body,
-                                        dead_reckoning=self.position_source == 'wheels')
+                                        dead_reckoning=self.position_source == 'wheels',
+                                        max_drive_torque=2.0 * self.max_wheel_torque)
         self.reported_fault = ''
         self.last_update_ns: int | None = None
         # Real time: the observer's sample clock (see _observer_time).
@@ -174,6 +175,9 @@ class EsoNode(ControllerNode):
         self.eso_config = RosParams(self, 'eso', EsoParams).config
         self.position_config = RosParams(self, 'position', PositionParams).config
         self.model = RosParams(self, 'model', ModelParams).config
+        # The obstacle monitor's h_max and holding lean are those of the mixer's limit.
+        self.max_wheel_torque = RosParams(self, 'mixer',
+                                          WheelTorqueLimit).config.max_wheel_torque
         settings = RosParams(self, '', EsoNodeParams).config
         joints = RosParams(self, '', WheelJoints).config
         signs = RosParams(self, '', WheelSigns).config
@@ -386,7 +390,8 @@ class EsoNode(ControllerNode):
             raise
         self.last_update_ns = stamp
         self.publisher.publish(estimate_to_msg(pose.estimate, pose.x, pose.y, pose.settled,
-                                               stamp, self.frame_id, pose.position_status))
+                                               stamp, self.frame_id, pose.position_status,
+                                               pose.obstacle_blocked))
         if self.odometry_publisher is not None and pose.position_status in (
                 TRACKING, DEAD_RECKONING):
             self._publish_odometry(stamp, pose)
@@ -432,7 +437,8 @@ class EsoNode(ControllerNode):
             diag.state(OK, 'estimating')
         obstacle = self.estimator.obstacle_state
         if obstacle is not None and obstacle.blocked and not fault:
-            diag.state(WARN, f'stopped by an obstacle: {obstacle.reason}')
+            diag.state(WARN, f'stopped by an obstacle: {obstacle.reason}; the trajectory '
+                       'generator backs off and holds: clear the obstacle or plan around it')
 
     def _report_values(self) -> None:
         """Report the position source's and the synchronisation's counters, once per status."""

@@ -39,13 +39,20 @@ Commanded kinds (``reference.kind``, docs/driving.md):
   path is taken up where the reference is (``PathReference.set_path``): the same path
   again changes nothing.
 
+An obstacle the wheels cannot climb (``obstacle_blocked`` in a /wip/state_estimate, read
+for the commanded kinds): when the trajectory generator refuses (blocked for
+``trajectory_generator.obstacle_refuse_delay``), the commanded reference restarts at rest
+``trajectory_generator.obstacle_back_off`` behind the blocked pose, where the generator
+holds (core/obstacle_refusal.py); the next command or path resumes from there.
+
 Both start at rest at ``line_start``, ``line_heading``; in real time with the
 ``state_estimate`` trigger at the estimated pose instead (the first estimate, or with
 ``realtime_start: 'engaged'`` the last one before the safety layer engaged), so that a
 robot put down anywhere is not driven back to the map origin. Commands and paths before
 the reference time starts (``'engaged'``) are refused as 'waiting'.
 
-Parameters (read-only): sections ``reference`` and ``rates``; ``frame_id``,
+Parameters (read-only): sections ``reference`` and ``rates``;
+``trajectory_generator.obstacle_back_off``, ``obstacle_refuse_delay``; ``frame_id``,
 ``realtime_start``, ``realtime_trigger``, ``clock_mode``, ``diagnostics_period``.
 """
 
@@ -60,6 +67,7 @@ from nav_msgs.msg import Path
 from wip_msgs.msg import (ReferenceState as ReferenceStateMsg, StateEstimate as StateEstimateMsg,
                           WheelTorques)
 
+from ..core.obstacle_refusal import make_refusal
 from ..core.references import COMMANDED_KINDS, make_reference, ReferenceParams
 from ..core.controller_settings import RatesParams
 from .common import ControllerNode
@@ -70,7 +78,7 @@ from wip_runtime.stamps import stamp_to_ns
 from .conversions import reference_to_msg
 from wip_runtime.diagnostics import OK, WARN
 from wip_runtime.parameters import RosParams
-from .settings import ReferenceNodeParams
+from .settings import ObstacleRefusalParams, ReferenceNodeParams
 
 
 class ReferenceNode(ControllerNode):
@@ -82,6 +90,7 @@ class ReferenceNode(ControllerNode):
         self.config = RosParams(self, 'reference', ReferenceParams).config
         self.rates = RosParams(self, 'rates', RatesParams).config
         settings = RosParams(self, '', ReferenceNodeParams).config
+        refusal = RosParams(self, 'trajectory_generator', ObstacleRefusalParams).config
         self.frame_id = settings.frame_id
         self.realtime_start = settings.realtime_start
         self.waiting = not self.lockstep and self.realtime_start == 'engaged'
@@ -113,6 +122,13 @@ class ReferenceNode(ControllerNode):
         elif self.config.kind == 'path':
             self._add_input('plan')
             self.subscribe(Path, 'plan', 'plan', self._on_path)
+        # A commanded reference restarts at rest where the generator holds after an
+        # obstacle refused (core/obstacle_refusal.py): a new command or path resumes from there.
+        self.refusal = make_refusal(refusal) if self.commanded else None
+        triggered = not self.lockstep and settings.realtime_trigger == 'state_estimate'
+        if self.refusal is not None and not triggered:
+            self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
+                           self._on_state_estimate)
         if self.waiting:
             self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
                            self._on_torques)
@@ -142,7 +158,32 @@ class ReferenceNode(ControllerNode):
                 # Until the path's time starts, t stays 0 (see publish_at).
                 self.reference.reset(0.0, *pose)
                 self.started_at_estimate = True
+        if self.refusal is not None:
+            self._on_obstacle(msg)
         self._guarded(stamp)
+
+    def _on_state_estimate(self, msg: StateEstimateMsg) -> None:
+        """Count an estimate that is not the node's trigger, then look at its obstacle."""
+        self.diagnostics.input('state_estimate', stamp_to_ns(msg.header.stamp))
+        self._on_obstacle(msg)
+
+    def _on_obstacle(self, msg: StateEstimateMsg) -> None:
+        """Restart a commanded reference at rest where a refusal holds (obstacle_blocked)."""
+        times = self._command_times(stamp_to_ns(msg.header.stamp))
+        if times is None:
+            return
+        t = times[0]
+        refusal = self.refusal.blocking(t, msg.obstacle_blocked, msg.x, msg.y, msg.phi)
+        if refusal is None:
+            return
+        hold, back_off = refusal.hold, self.refusal.back_off
+        self.reference.reset(t, hold.x, hold.y, hold.phi)
+        self.diagnostics.values['obstacle'] = (
+            f'refused at {t:.2f} s: the {self.config.kind} reference restarted at rest at '
+            f'({hold.x:.2f}, {hold.y:.2f}) m, {back_off:.2f} m back')
+        self.get_logger().warning(
+            f'wheels blocked by an obstacle: the {self.config.kind} reference restarts at rest '
+            f'{back_off:.2f} m back; a new command or path resumes')
 
     def _command_times(self, stamp_ns: int) -> tuple[float, float] | None:
         """(stamp, now) [s] of the reference's time base; None before it starts."""

@@ -137,6 +137,17 @@ class WheelTorqueLimit:
 
 
 @dataclasses.dataclass(frozen=True)
+class ObstacleRefusalParams:
+    """The generator values the reference node needs: when and where a refusal holds.
+
+    A commanded reference restarts at rest there (core/obstacle_refusal.py).
+    """
+
+    obstacle_back_off: float = like(TrajectoryGeneratorParams, 'obstacle_back_off')
+    obstacle_refuse_delay: float = like(TrajectoryGeneratorParams, 'obstacle_refuse_delay')
+
+
+@dataclasses.dataclass(frozen=True)
 class MpcPeriod:
     """The MPC values the mixer needs: its sampling period and re-solve period.
 
@@ -185,9 +196,10 @@ _BASE = (('', ControllerNodeParams),)
 #: executable -> the (prefix, dataclass) groups it declares, in declaration order.
 NODES: dict[str, tuple[tuple[str, type], ...]] = {
     'reference': (*_BASE, ('reference', ReferenceParams), ('rates', RatesParams),
-                  ('', ReferenceNodeParams)),
+                  ('', ReferenceNodeParams), ('trajectory_generator', ObstacleRefusalParams)),
     'eso': (*_BASE, ('eso', EsoParams), ('position', PositionParams),
-            ('model', ModelParams), ('', EsoNodeParams), ('', WheelJoints),
+            ('model', ModelParams), ('mixer', WheelTorqueLimit), ('', EsoNodeParams),
+            ('', WheelJoints),
             ('', WheelSigns), ('', ImuMounting), ('datum', DatumParams)),
     'trajectory_generator': (*_BASE, ('trajectory_generator', TrajectoryGeneratorParams)),
     'arc': (*_BASE, ('arc', ArcParams), ('rates', RatesParams), ('model', ModelParams),

@@ -10,6 +10,11 @@ Per sample: the guidance stage of the loop, ``core.control_step.TrajectoryGenera
 generator ``core.trajectory_generator.TrajectoryGenerator``: body-frame errors, saturated
 (9), filtered ω̇d), as the runner's ``ControlStep``.
 
+Obstacles: while the estimate says ``obstacle_blocked``, the stage refuses to push on
+(``core.obstacle_refusal``, parameter ``trajectory_generator.obstacle_back_off``): it backs
+off and holds until the reference no longer leads past the obstacle; /diagnostics is then
+a WARN that says where, why and what resumes it.
+
 Synchronisation: lockstep: estimate(t_k) + reference(t_k); realtime: on each estimate,
 with the latest reference. Malformed or non-finite input is dropped and reported; so is
 input whose command overflows (a non-finite command is never published, and the
@@ -33,12 +38,13 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg,
                           VelocityCommand as VelocityCommandMsg)
 
 from ..core.control_step import TrajectoryGeneratorStage
+from ..core.obstacle_refusal import make_refusal
 from ..core.trajectory_generator import TrajectoryGeneratorParams
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
 from .conversions import command_to_msg, estimate_from_msg, reference_from_msg
-from wip_runtime.diagnostics import OK
+from wip_runtime.diagnostics import OK, WARN
 from wip_runtime.parameters import RosParams
 from wip_runtime.sync import ExactTimeSync, LatestSync
 
@@ -69,7 +75,12 @@ class TrajectoryGeneratorNode(ControllerNode):
                              estimate_from_msg)
 
     def _on_config(self, config: TrajectoryGeneratorParams) -> None:
+        old = self.generator.config
         self.generator.config = config
+        if (config.obstacle_back_off, config.obstacle_refuse_delay) != (
+                old.obstacle_back_off, old.obstacle_refuse_delay):
+            # New refusal settings take effect at the next blocking.
+            self.stage.refusal = make_refusal(config)
 
     def _compute(self, stamp: int, values) -> None:
         start = time.perf_counter()
@@ -77,9 +88,15 @@ class TrajectoryGeneratorNode(ControllerNode):
         # An overflow raises (ControlOverflow, a ValueError: the input is dropped and
         # reported) with the generator's state kept.
         command = self.stage.step(self.time_base.seconds(stamp), values['reference'],
-                                  pose.x, pose.y, pose.estimate.phi)
+                                  pose.x, pose.y, pose.estimate.phi, pose.obstacle_blocked)
         self.publisher.publish(command_to_msg(command, stamp))
         self.diagnostics.output(stamp, time.perf_counter() - start)
+        refusal = self.stage.refusal
+        if refusal is not None:
+            self.diagnostics.values['obstacle refusals'] = str(refusal.refusals)
+            if refusal.refusing:
+                self.diagnostics.state(WARN, refusal.reason())
+                return
         limits = [name for name, on in (('v_d', self.generator.saturated_speed),
                                         ('omega_d', self.generator.saturated_yaw_rate)) if on]
         self.diagnostics.state(OK, f'{" and ".join(limits)} saturated' if limits
