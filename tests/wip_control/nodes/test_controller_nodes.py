@@ -734,7 +734,10 @@ def mpc_harness(harnesses, context, mode='lockstep', **params):
 @pytest.mark.parametrize('backend, tolerance', [('daqp', 0.0), ('proxsuite', 1e-9)])
 def test_mpc_lockstep_solves_at_each_tick_from_t0_and_equals_the_core(
         context, harnesses, backend, tolerance):
-    harness = mpc_harness(harnesses, context, **{'mpc.backend': backend})
+    # Without the push trigger: its inputs (f̂3 falls by 1 rad/s² per second) would show a
+    # push between the MPC's ticks, which the bare core below does not look for.
+    harness = mpc_harness(harnesses, context, **{'mpc.backend': backend,
+                                                 'mpc.push_trigger': False})
     out = harness.outputs['/wip/drive_torque']
     mpc = LongitudinalMpc(ModelParams(), MpcParams(backend=backend))
     rng = random.Random(4)
@@ -772,7 +775,8 @@ def test_mpc_lockstep_solves_at_each_tick_from_t0_and_equals_the_core(
 def test_mpc_node_runs_the_lqr_baseline_when_selected(context, harnesses):
     # mpc.controller: lqr -> the node publishes core.lqr.LongitudinalLqr's torque (no QP,
     # deterministic: exact equality).
-    harness = mpc_harness(harnesses, context, **{'mpc.controller': 'lqr'})
+    harness = mpc_harness(harnesses, context, **{'mpc.controller': 'lqr',
+                                                 'mpc.push_trigger': False})
     out = harness.outputs['/wip/drive_torque']
     lqr = LongitudinalLqr(ModelParams(), MpcParams(controller='lqr'))
     ticks = 0
@@ -845,15 +849,18 @@ def mixer_harness(harnesses, context, mode='lockstep', **params):
                  ['/wip/wheel_torques', '/effort_controller/commands'], **params)
 
 
+@pytest.mark.parametrize('trigger', [False, True])
 def test_mixer_lockstep_waits_for_the_drive_torque_at_ticks_and_holds_it_between(
-        context, harnesses):
-    harness = mixer_harness(harnesses, context,
+        context, harnesses, trigger):
+    harness = mixer_harness(harnesses, context, **{'mpc.push_trigger': trigger},
                             joints=['right_wheel_joint', 'left_wheel_joint'])
     wheels = harness.outputs['/wip/wheel_torques']
     efforts = harness.outputs['/effort_controller/commands']
     # A drive torque every 10 ticks: the grid of mpc.fast_resolve_period (50 ms), where
-    # the MPC node answers every tick (at 10 its HELD answer, the same torque).
-    drives = {0: 12.0, 10: 12.0, 20: -29.0}           # -29: the limit 30 - |tau_w| acts
+    # the MPC node answers every tick (at 10 its HELD answer, the same torque); with the
+    # push trigger at every control tick.
+    drives = ({k: 12.0 if k < 20 else -29.0 for k in range(25)} if trigger
+              else {0: 12.0, 10: 12.0, 20: -29.0})    # -29: the limit 30 - |tau_w| acts
     for k in range(25):
         stamp, tau_omega = k * H_NS, 1.5 * math.sin(k)
         harness.publish('/wip/yaw_torque', YawTorque(header=make_header(stamp),
@@ -876,7 +883,8 @@ def test_mixer_lockstep_waits_for_the_drive_torque_at_ticks_and_holds_it_between
 
 
 def test_mixer_zeroes_both_wheels_on_non_finite_input_and_says_why(context, harnesses):
-    harness = mixer_harness(harnesses, context)
+    # On the 50 ms grid of the drive torque (no push trigger): ticks 1-19 need none.
+    harness = mixer_harness(harnesses, context, **{'mpc.push_trigger': False})
     wheels = harness.outputs['/wip/wheel_torques']
     harness.publish('/wip/drive_torque', DriveTorque(header=make_header(0), tau_v=5.0))
     harness.publish('/wip/yaw_torque', YawTorque(header=make_header(0), tau_omega=math.nan))
