@@ -55,6 +55,7 @@ from wip_control.core.state_estimation import StateEstimator  # noqa: E402
 from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa: E402
                                                    TrajectoryGeneratorParams)
 from wip_control.core.control_step import initial_alpha  # noqa: E402
+from wip_control.core.mpc_plan import HELD_STATUS_TEXT  # noqa: E402
 from wip_control.nodes.arc_node import ArcNode  # noqa: E402
 from wip_runtime.composition import connect_intra_process, share_sim_clock  # noqa: E402
 from wip_runtime.qos import CLOCK_QOS  # noqa: E402
@@ -770,6 +771,44 @@ def test_mpc_lockstep_solves_at_each_tick_from_t0_and_equals_the_core(
     harness.spin_for(0.05)
     assert [m.header.stamp for m in out] == [ns_to_stamp(k * H_NS) for k in (0, 20, 40)]
     assert len({round(m.tau_v, 6) for m in out}) == 3  # three different torques
+
+
+def test_mpc_lockstep_holds_on_the_estimate_alone_and_solves_on_a_push(context, harnesses):
+    """With the push trigger the node answers every control tick.
+
+    Where the stage does not solve, HELD as soon as the tick's estimate has come (whether
+    it solves depends on the estimate only; the command and yaw torque of that tick are
+    then not needed); where the estimate shows a push (f̂2 10 m/s², beyond the 1 m/s² dead
+    zone), it waits for the tick's inputs and solves, at that tick, off the 50 ms grid.
+    """
+    harness = mpc_harness(harnesses, context, **{'mpc.backend': 'daqp',
+                                                 'mpc.disturbance_startup_time': 0.0})
+    out = harness.outputs['/wip/drive_torque']
+
+    def command_and_yaw(stamp):
+        harness.publish('/wip/velocity_command',
+                        VelocityCommandMsg(header=make_header(stamp), v_d=0.3))
+        harness.publish('/wip/yaw_torque', YawTorque(header=make_header(stamp)))
+    harness.publish('/wip/state_estimate', estimate_msg(0))
+    command_and_yaw(0)
+    harness.spin_until(lambda: len(out) == 1, 'the MPC tick at t = 0')
+    assert out[0].status_text == 'SOLVED'
+    harness.publish('/wip/state_estimate', estimate_msg(H_NS))
+    harness.spin_until(lambda: len(out) == 2, 'the HELD answer on the estimate alone')
+    assert out[1].header.stamp == ns_to_stamp(H_NS)
+    assert (out[1].status_text, out[1].tau_v) == (HELD_STATUS_TEXT, out[0].tau_v)
+    command_and_yaw(H_NS)                                   # not needed: no answer
+    stamp = 3 * H_NS
+    harness.publish('/wip/state_estimate', estimate_msg(2 * H_NS))
+    harness.spin_until(lambda: len(out) == 3, 'the HELD answer at tick 2')
+    harness.publish('/wip/state_estimate', estimate_msg(stamp, f2=10.0))
+    harness.spin_for(0.05)
+    assert len(out) == 3, 'a push: the node must wait for the command and the yaw torque'
+    command_and_yaw(2 * H_NS)
+    command_and_yaw(stamp)
+    harness.spin_until(lambda: len(out) == 4, 'the solve on the push')
+    assert out[3].header.stamp == ns_to_stamp(stamp) and out[3].status_text == 'SOLVED'
+    assert out[3].delta_tau != 0.0
 
 
 def test_mpc_node_runs_the_lqr_baseline_when_selected(context, harnesses):
