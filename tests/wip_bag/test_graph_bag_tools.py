@@ -52,9 +52,9 @@ def test_bag_info_and_repair_of_a_graph_bag(graph_bag, tmp_path):
     ticks = int(round(DURATION * 200))
     assert counts['/joint_states'] == counts['/imu/data'] == ticks
     assert counts['/wip/ground_truth'] == ticks + 1
-    # In lockstep the MPC node answers every tick of its 50 ms re-solve grid (a solve, or
-    # its held torque between solves: docs/history/mpc.md §10).
-    assert counts['/wip/drive_torque'] == ticks // 10
+    # In lockstep the MPC node answers every control tick, where it looks for a push (a
+    # solve, or its held torque between solves: docs/history/mpc.md §10, §14).
+    assert counts['/wip/drive_torque'] == ticks
     before = yaml.safe_load((graph_bag / 'metadata.yaml').read_text())
     # A healthy bag: its file copied as it is, the same metadata, the original untouched.
     result = repair_bag(graph_bag, out=tmp_path / 'repaired')

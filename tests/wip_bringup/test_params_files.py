@@ -177,7 +177,8 @@ def test_plain_parameters_follow_the_scenario(scenario, params_file):
     assert arc['model'] == data['eso']['ros__parameters']['model']
     assert arc['eso'] == {'yaw_input_gain_scale': scenario.eso.yaw_input_gain_scale}
     assert data['torque_mixer']['ros__parameters']['mpc'] == {'sampling_period': 0.2,
-                                                              'fast_resolve_period': 0.05}
+                                                              'fast_resolve_period': 0.05,
+                                                              'push_trigger': True}
 
 
 def test_the_file_has_no_yaml_aliases_and_ints_stay_ints(scenario, params_file):

@@ -71,6 +71,18 @@ def test_exact_sync_superseded_incomplete_sets_are_dropped():
     assert sync.dropped['superseded'] == 1 and not sync.pending
 
 
+def test_exact_sync_discard_forgets_one_stamp_only():
+    out, callback = _recorder()
+    sync = ExactTimeSync(('a', 'b'), callback)
+    sync.add('a', 1, 'answered elsewhere')
+    sync.add('a', 2, 'x')
+    sync.discard(1)
+    sync.discard(7)                  # nothing buffered: no effect
+    assert sync.pending == {2: ('a',)}
+    sync.add('b', 2, 'y')
+    assert out == [(2, {'a': 'x', 'b': 'y'})] and not sync.dropped['superseded']
+
+
 def test_exact_sync_buffer_is_bounded_and_evicts_the_oldest_stamp():
     out, callback = _recorder()
     sync = ExactTimeSync(('a', 'b'), callback, max_pending=4)

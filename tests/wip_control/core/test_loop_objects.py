@@ -133,17 +133,20 @@ def _drive_ticks(drive, f2_of_k, ticks, v_d=0.0):
     return out
 
 
-def test_without_a_push_re_solving_changes_nothing():
+@pytest.mark.parametrize('trigger', [False, True])
+def test_without_a_push_re_solving_changes_nothing(trigger):
     """Without a push, re-solving changes nothing.
 
-    fast_resolve_period on: the stage takes inputs at the finer grid but, without a
-    push, solves at the MPC's ticks only, with the same floats as with it off.
+    fast_resolve_period on: the stage takes inputs at the finer grid (every control tick
+    with push_trigger) but, without a push, solves at the MPC's ticks only, with the same
+    floats as with it off.
     """
-    config = MpcParams(backend='daqp')
+    config = MpcParams(backend='daqp', push_trigger=trigger)
     fast = DriveControllerStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
     off = DriveControllerStage(MODEL, dataclasses.replace(config, fast_resolve_period=0.0), 15.0,
                      decimation=20, fast_decimation=None)
-    assert [k for k in range(41) if fast.is_tick(k)] == [0, 10, 20, 30, 40]
+    assert ([k for k in range(41) if fast.is_tick(k)]
+            == (list(range(41)) if trigger else [0, 10, 20, 30, 40]))
     assert [k for k in range(41) if off.is_tick(k)] == [0, 20, 40]
 
     def f2(k):   # a slow drift, within the dead zone
@@ -154,32 +157,38 @@ def test_without_a_push_re_solving_changes_nothing():
     assert [r.tau_v for _, r in a] == [r.tau_v for _, r in b]
 
 
-def test_after_a_push_the_stage_re_solves_within_the_torque_rate_limit():
+@pytest.mark.parametrize('trigger', [False, True])
+def test_after_a_push_the_stage_re_solves_within_the_torque_rate_limit(trigger):
     """After a push the stage re-solves within the torque rate limit.
 
-    A 10 m/s² push seen by the ESO: the stage solves at every tick of the finer grid
-    for fast_resolve_time after it, each increment at most Δτmax/2, and the increments
-    within any MPC period sum to at most Δτmax; then back to the MPC's ticks.
+    A 10 m/s² push seen by the ESO from tick 413, between two ticks of the finer grid:
+    with push_trigger the stage solves at once and the finer grid runs from there (413,
+    423, ...), without it from the grid's next tick (420, 430, ...); either way at every
+    tick of that grid for fast_resolve_time, each increment at most Δτmax ·
+    push_resolve_share, and the increments within any MPC period sum to at most Δτmax
+    (the limit (19) holds however the solves fall); then back to the MPC's ticks.
     """
-    config = MpcParams(backend='daqp')
+    config = MpcParams(backend='daqp', push_trigger=trigger)
     drive = DriveControllerStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
     dmax = config.max_delta_torque
 
-    def f2(k):   # the push from tick 410 (2.05 s) to 430
-        return 10.0 if 410 <= k < 430 else 0.0
+    def f2(k):   # the push from tick 413 (2.065 s) to 433
+        return 10.0 if 413 <= k < 433 else 0.0
     ticks = _drive_ticks(drive, f2, 2000)
     solved = [k for k, _ in ticks]
-    assert 410 in solved                       # seen at the finer grid's tick
-    fast = [k for k in solved if k % 20]
-    assert fast and min(fast) == 410
+    first = 413 if trigger else 420
+    assert min(k for k in solved if k > 400) == first
     # Re-solving lasts fast_resolve_time (4 s = 800 ticks) after the last push seen (the
     # estimate's drop back below the slow estimate, after the push, is seen too), and
     # ends: the MPC's ticks only in the last second.
     hold = round(config.fast_resolve_time / H)
-    assert set(range(410, 410 + hold, 10)) <= set(solved)
+    assert set(range(first, first + hold, 10)) <= set(solved)
+    assert all(k % 20 == 0 or (k - first) % 10 == 0 for k in solved)
     assert all(k % 20 == 0 for k in solved if k >= 1800)
+    fast = [k for k in solved if k % 20]
     moves = {k: abs(r.delta_tau) for k, r in ticks}
-    assert max(moves[k] for k in solved if 410 <= k <= max(fast)) <= dmax / 2 + 1e-9
+    share = dmax * config.push_resolve_share
+    assert max(moves[k] for k in solved if first <= k <= max(fast)) <= share + 1e-9
     assert max(moves.values()) > 1.0           # it did act
     for k in solved:
         window = sum(m for j, m in moves.items() if k - 20 < j <= k)
@@ -201,9 +210,15 @@ def test_the_paper_design_holds_the_torque_for_the_mpc_period():
     paper = scenario_from_mapping({'design': 'paper'})
     assert paper.mpc.fast_resolve_period == 0.0 and paper.mpc_fast_decimation is None
     assert paper.drive_decimation == paper.mpc_decimation == 20
+    # The robust design looks for a push at every control tick (mpc.push_trigger), and
+    # without it takes its inputs at the re-solve grid's ticks.
     robust = scenario_from_mapping({})
-    assert robust.mpc_fast_decimation == 10 and robust.drive_decimation == 10
+    assert robust.mpc_fast_decimation == 10 and robust.drive_decimation == 1
+    grid = scenario_from_mapping({'mpc': {'push_trigger': False}})
+    assert grid.drive_decimation == 10
     assert ControlStep.from_scenario(paper).drive.every == 20
+    for scenario in (paper, robust, grid):
+        assert ControlStep.from_scenario(scenario).drive.every == scenario.drive_decimation
 
 
 def test_the_control_step_mixes_the_held_drive_torque_between_mpc_ticks():

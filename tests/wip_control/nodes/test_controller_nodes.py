@@ -56,6 +56,7 @@ from wip_control.core.trajectory_generator import (TrajectoryGenerator,  # noqa:
                                                    TrajectoryGeneratorParams)
 from wip_control.core.control_step import (initial_alpha,  # noqa: E402
                                            TrajectoryGeneratorStage)
+from wip_control.core.mpc_plan import HELD_STATUS_TEXT  # noqa: E402
 from wip_control.nodes.arc_node import ArcNode  # noqa: E402
 from wip_runtime.composition import connect_intra_process, share_sim_clock  # noqa: E402
 from wip_runtime.qos import CLOCK_QOS  # noqa: E402
@@ -834,7 +835,10 @@ def mpc_harness(harnesses, context, mode='lockstep', **params):
 @pytest.mark.parametrize('backend, tolerance', [('daqp', 0.0), ('proxsuite', 1e-9)])
 def test_mpc_lockstep_solves_at_each_tick_from_t0_and_equals_the_core(
         context, harnesses, backend, tolerance):
-    harness = mpc_harness(harnesses, context, **{'mpc.backend': backend})
+    # Without the push trigger: its inputs (f̂3 falls by 1 rad/s² per second) would show a
+    # push between the MPC's ticks, which the bare core below does not look for.
+    harness = mpc_harness(harnesses, context, **{'mpc.backend': backend,
+                                                 'mpc.push_trigger': False})
     out = harness.outputs['/wip/drive_torque']
     mpc = LongitudinalMpc(ModelParams(), MpcParams(backend=backend))
     rng = random.Random(4)
@@ -869,10 +873,49 @@ def test_mpc_lockstep_solves_at_each_tick_from_t0_and_equals_the_core(
     assert len({round(m.tau_v, 6) for m in out}) == 3  # three different torques
 
 
+def test_mpc_lockstep_holds_on_the_estimate_alone_and_solves_on_a_push(context, harnesses):
+    """With the push trigger the node answers every control tick.
+
+    Where the stage does not solve, HELD as soon as the tick's estimate has come (whether
+    it solves depends on the estimate only; the command and yaw torque of that tick are
+    then not needed); where the estimate shows a push (f̂2 10 m/s², beyond the 1 m/s² dead
+    zone), it waits for the tick's inputs and solves, at that tick, off the 50 ms grid.
+    """
+    harness = mpc_harness(harnesses, context, **{'mpc.backend': 'daqp',
+                                                 'mpc.disturbance_startup_time': 0.0})
+    out = harness.outputs['/wip/drive_torque']
+
+    def command_and_yaw(stamp):
+        harness.publish('/wip/velocity_command',
+                        VelocityCommandMsg(header=make_header(stamp), v_d=0.3))
+        harness.publish('/wip/yaw_torque', YawTorque(header=make_header(stamp)))
+    harness.publish('/wip/state_estimate', estimate_msg(0))
+    command_and_yaw(0)
+    harness.spin_until(lambda: len(out) == 1, 'the MPC tick at t = 0')
+    assert out[0].status_text == 'SOLVED'
+    harness.publish('/wip/state_estimate', estimate_msg(H_NS))
+    harness.spin_until(lambda: len(out) == 2, 'the HELD answer on the estimate alone')
+    assert out[1].header.stamp == ns_to_stamp(H_NS)
+    assert (out[1].status_text, out[1].tau_v) == (HELD_STATUS_TEXT, out[0].tau_v)
+    command_and_yaw(H_NS)                                   # not needed: no answer
+    stamp = 3 * H_NS
+    harness.publish('/wip/state_estimate', estimate_msg(2 * H_NS))
+    harness.spin_until(lambda: len(out) == 3, 'the HELD answer at tick 2')
+    harness.publish('/wip/state_estimate', estimate_msg(stamp, f2=10.0))
+    harness.spin_for(0.05)
+    assert len(out) == 3, 'a push: the node must wait for the command and the yaw torque'
+    command_and_yaw(2 * H_NS)
+    command_and_yaw(stamp)
+    harness.spin_until(lambda: len(out) == 4, 'the solve on the push')
+    assert out[3].header.stamp == ns_to_stamp(stamp) and out[3].status_text == 'SOLVED'
+    assert out[3].delta_tau != 0.0
+
+
 def test_mpc_node_runs_the_lqr_baseline_when_selected(context, harnesses):
     # mpc.controller: lqr -> the node publishes core.lqr.LongitudinalLqr's torque (no QP,
     # deterministic: exact equality).
-    harness = mpc_harness(harnesses, context, **{'mpc.controller': 'lqr'})
+    harness = mpc_harness(harnesses, context, **{'mpc.controller': 'lqr',
+                                                 'mpc.push_trigger': False})
     out = harness.outputs['/wip/drive_torque']
     lqr = LongitudinalLqr(ModelParams(), MpcParams(controller='lqr'))
     ticks = 0
@@ -945,15 +988,18 @@ def mixer_harness(harnesses, context, mode='lockstep', **params):
                  ['/wip/wheel_torques', '/effort_controller/commands'], **params)
 
 
+@pytest.mark.parametrize('trigger', [False, True])
 def test_mixer_lockstep_waits_for_the_drive_torque_at_ticks_and_holds_it_between(
-        context, harnesses):
-    harness = mixer_harness(harnesses, context,
+        context, harnesses, trigger):
+    harness = mixer_harness(harnesses, context, **{'mpc.push_trigger': trigger},
                             joints=['right_wheel_joint', 'left_wheel_joint'])
     wheels = harness.outputs['/wip/wheel_torques']
     efforts = harness.outputs['/effort_controller/commands']
     # A drive torque every 10 ticks: the grid of mpc.fast_resolve_period (50 ms), where
-    # the MPC node answers every tick (at 10 its HELD answer, the same torque).
-    drives = {0: 12.0, 10: 12.0, 20: -29.0}           # -29: the limit 30 - |tau_w| acts
+    # the MPC node answers every tick (at 10 its HELD answer, the same torque); with the
+    # push trigger at every control tick.
+    drives = ({k: 12.0 if k < 20 else -29.0 for k in range(25)} if trigger
+              else {0: 12.0, 10: 12.0, 20: -29.0})    # -29: the limit 30 - |tau_w| acts
     for k in range(25):
         stamp, tau_omega = k * H_NS, 1.5 * math.sin(k)
         harness.publish('/wip/yaw_torque', YawTorque(header=make_header(stamp),
@@ -976,7 +1022,8 @@ def test_mixer_lockstep_waits_for_the_drive_torque_at_ticks_and_holds_it_between
 
 
 def test_mixer_zeroes_both_wheels_on_non_finite_input_and_says_why(context, harnesses):
-    harness = mixer_harness(harnesses, context)
+    # On the 50 ms grid of the drive torque (no push trigger): ticks 1-19 need none.
+    harness = mixer_harness(harnesses, context, **{'mpc.push_trigger': False})
     wheels = harness.outputs['/wip/wheel_torques']
     harness.publish('/wip/drive_torque', DriveTorque(header=make_header(0), tau_v=5.0))
     harness.publish('/wip/yaw_torque', YawTorque(header=make_header(0), tau_omega=math.nan))

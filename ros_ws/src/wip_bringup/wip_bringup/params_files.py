@@ -149,7 +149,8 @@ def controller_sections(scenario: ControllerParams, lockstep: bool,
         'torque_mixer': {'mixer': mixer, 'rates': rates, 'model': model,
                          'mpc': {'sampling_period': float(scenario.mpc.sampling_period),
                                  'fast_resolve_period':
-                                     float(scenario.mpc.fast_resolve_period)},
+                                     float(scenario.mpc.fast_resolve_period),
+                                 'push_trigger': bool(scenario.mpc.push_trigger)},
                          'left_joint': left, 'right_joint': right,
                          'joints': [left, right]},
     }

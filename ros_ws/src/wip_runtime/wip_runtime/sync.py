@@ -157,6 +157,10 @@ class ExactTimeSync:
                 break
         return emitted
 
+    def discard(self, stamp_ns: int) -> None:
+        """Forget the inputs buffered for ``stamp_ns`` (a stamp answered without its set)."""
+        self._pending.pop(int(stamp_ns), None)
+
     def reset(self) -> None:
         """Forget every buffered input and the last emitted stamp."""
         self._pending.clear()

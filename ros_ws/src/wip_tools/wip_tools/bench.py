@@ -298,7 +298,7 @@ def _section_push(report: dict) -> None:
         print(f'{row["reference"]:6s} {plant:32s} {"noise" if row["noise"] else "clean":5s}: '
               + ('FELL' if row['fell'] else
                  f'measured {row["measured_m"]:.3f} m, bound {row["bound_m"]:.3f} m, '
-                 f'ratio {row["ratio"]:.2f}x'
+                 f'ratio {row["ratio"]:.3f}x'
                  + (f' (median of {row["runs"]} seeds, {row["ratio_min"]:.2f}-'
                     f'{row["ratio_max"]:.2f}x)' if row['runs'] > 1 else '')))
     print('   (goals: <= 1.15x on the paper plant, <= 1.3x with mismatch and noise)')

@@ -121,12 +121,13 @@ class DriveControllerStage:
 
     With ``fast_decimation`` (control ticks per ``mpc.fast_resolve_period``, < decimation)
     the MPC also solves at the ticks of that finer grid for ``mpc.fast_resolve_time``
-    after a push (``LongitudinalMpc.push_detected``, checked at every tick of the grid;
-    docs/history/mpc.md §10). Then every increment is bounded so that the increments within any
-    ``decimation`` ticks sum to at most ``max_delta_torque``, and to its share
-    ``max_delta_torque · fast_decimation / decimation`` while re-solving. The ticks of
-    the fine grid are :meth:`is_tick` (where the loop hands the stage its inputs);
-    :meth:`solves` says whether it solves there.
+    after a push (``LongitudinalMpc.push_detected``; docs/history/mpc.md §10). With
+    ``mpc.push_trigger`` the stage looks for a push at every control tick and solves on
+    the tick it first sees one; the finer grid then runs from that tick (§14). Every
+    increment is bounded so that the increments within any ``decimation`` ticks sum to at
+    most ``max_delta_torque``, and each, while re-solving, to at most
+    ``max_delta_torque · push_resolve_share``. The ticks at which the stage takes inputs
+    are :meth:`is_tick`; :meth:`solves` says whether it solves there.
     """
 
     def __init__(self, model: ModelParams, config: MpcParams, max_wheel_torque: float,
@@ -138,13 +139,17 @@ class DriveControllerStage:
         fast = (fast_decimation is not None
                 and resolves_faster(config.sampling_period, config.fast_resolve_period)
                 and 1 <= fast_decimation < decimation)
-        #: Control ticks between the ticks at which the stage takes inputs.
-        self.every = fast_decimation if fast else decimation
+        #: Control ticks between the ticks at which the stage takes inputs
+        #: (``mpc_config.drive_tick_period``).
+        self.every = (decimation if not fast
+                      else 1 if config.push_trigger else fast_decimation)
         # Re-solving applies to the MPC; the LQR (a fixed gain for Ts) solves at Ts only.
         self._fast = fast and config.controller == 'mpc'
+        self._fast_every = fast_decimation if fast else decimation
         self._fast_ticks = (int(round(config.fast_resolve_time / config.fast_resolve_period))
                             * fast_decimation if self._fast else 0)
         self._fast_until = -1      # re-solve at the fine grid's ticks before this tick
+        self._grid_start = 0       # the fine grid's ticks are those ≡ this (mod _fast_every)
         self._moves: list[tuple[int, float]] = []   # (tick, |Δτ|) of the last decimation ticks
         self._last_solve: int | None = None
 
@@ -162,23 +167,24 @@ class DriveControllerStage:
         """Whether control tick ``k`` (from 0) is a tick of the stage.
 
         The stage's ticks are the MPC's or, with re-solving after a push, those of its
-        finer grid. At these ticks the stage takes its inputs and, in lockstep, the drive
-        torque is published.
+        finer grid, or every control tick with ``mpc.push_trigger``. At these ticks the
+        stage takes its inputs and, in lockstep, the drive torque is published.
         """
         return k % self.every == 0
 
     def solves(self, k: int, theta_hat: float, f2_hat: float, f3_hat: float) -> bool:
         """Whether the controller solves at tick ``k`` of :meth:`is_tick`.
 
-        At every ``decimation``-th tick, and at the finer grid's while re-solving after a push (or
-        when the estimate shows one now).
+        At every ``decimation``-th tick; while re-solving after a push, at the finer
+        grid's; else when the estimate shows a push now.
         """
         if k % self.decimation == 0:
             return True
         if not self._fast:
             return False
-        return k < self._fast_until or self.controller.push_detected(theta_hat, f2_hat,
-                                                                     f3_hat)
+        if k < self._fast_until:
+            return (k - self._grid_start) % self._fast_every == 0
+        return self.controller.push_detected(theta_hat, f2_hat, f3_hat)
 
     def step(self, v_hat: float, theta_hat: float, theta_dot_hat: float, f2_hat: float,
              f3_hat: float, v_d: float, tau_omega: float, hold: bool = True,
@@ -217,8 +223,9 @@ class DriveControllerStage:
         self._moves = [(tick, move) for tick, move in self._moves if tick > window]
         bound = dmax - sum(move for _, move in self._moves)
         pushed = mpc.push_detected(theta_hat, f2_hat, f3_hat)
-        if pushed or k < self._fast_until:
-            bound = min(bound, dmax * self.every / self.decimation)
+        resolving = k < self._fast_until
+        if pushed or resolving:
+            bound = min(bound, dmax * mpc.config.push_resolve_share)
         elapsed = (None if self._last_solve is None
                    else (k - self._last_solve) * mpc.config.sampling_period / self.decimation)
         result = mpc.step(v_hat=v_hat, theta_hat=theta_hat, theta_dot_hat=theta_dot_hat,
@@ -227,6 +234,10 @@ class DriveControllerStage:
         self._last_solve = k
         self._moves.append((k, abs(result.delta_tau)))
         if pushed or mpc.push_detected(theta_hat, f2_hat, f3_hat):   # (after its update)
+            if not resolving:
+                # The finer grid runs from the push: the old grid's next tick, coming a
+                # few ticks later, tipped the heavier body further (docs/history/mpc.md §14).
+                self._grid_start = k
             self._fast_until = k + self._fast_ticks
         return result
 

@@ -104,11 +104,13 @@ class ControllerParams:
         """Control periods between the drive stage's ticks.
 
         Where it takes its inputs and (lockstep) publishes a drive torque:
-        ``mpc.fast_resolve_period`` when set, else ``mpc.sampling_period``
-        (``DriveControllerStage.is_tick``).
+        ``mpc.fast_resolve_period`` when set (every control period with ``mpc.push_trigger``),
+        else ``mpc.sampling_period`` (``DriveControllerStage.is_tick``).
         """
         fast = self.mpc_fast_decimation
-        return fast if fast is not None and fast < self.mpc_decimation else self.mpc_decimation
+        if fast is None or fast >= self.mpc_decimation:
+            return self.mpc_decimation
+        return 1 if self.mpc.push_trigger else fast
 
     @property
     def mpc_fast_decimation(self) -> int | None:

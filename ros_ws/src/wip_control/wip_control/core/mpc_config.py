@@ -40,6 +40,18 @@ def resolves_faster(sampling_period: float, fast_resolve_period: float) -> bool:
     return 0.0 < fast_resolve_period < sampling_period
 
 
+def drive_tick_period(sampling_period: float, fast_resolve_period: float, push_trigger: bool,
+                      control_period: float) -> float:
+    """Period [s] of the drive stage's ticks, where it takes inputs and answers in lockstep.
+
+    ``sampling_period``; ``fast_resolve_period`` when the MPC re-solves after a push; the
+    control period when it also looks for a push at every control tick (``push_trigger``).
+    """
+    if not resolves_faster(sampling_period, fast_resolve_period):
+        return sampling_period
+    return control_period if push_trigger else fast_resolve_period
+
+
 @dataclasses.dataclass(frozen=True)
 class MpcParams:
     """Tunables of the longitudinal/tilt MPC (eqs. (16)–(23) in [1])."""
@@ -55,6 +67,14 @@ class MpcParams:
         0.05, 's', 'after a push the MPC re-solves (23) every this long for '
         f'fast_resolve_time, within max_delta_torque per Ts; divides Ts; 0: off; {_WHY}',
         minimum=0.0, maximum=10.0)
+    push_trigger: bool = param(
+        True, '-', 'with fast_resolve_period set, look for a push at every control tick and '
+        're-solve on the tick it is seen, the re-solve grid starting there; false: at the '
+        f"grid's ticks; {_WHY}")
+    push_resolve_share: float = param(
+        0.75, '1', 'while re-solving after a push, the share of max_delta_torque one solve '
+        f'may use (within max_delta_torque per Ts in all); {_WHY}', minimum=0.0,
+        exclusive_minimum=True, maximum=1.0)
     fast_resolve_time: float = param(
         4.0, 's', 'how long after the last push detected the MPC keeps re-solving every '
         f'fast_resolve_period; {_WHY}', minimum=0.0, maximum=10.0)

@@ -322,7 +322,8 @@ def planned_drive_torque(result: MpcResult) -> list[float]:
 def mpc_hold_msg(stamp_ns: int, tau_v: float, sampling_period: float) -> DriveTorque:
     """DriveTorque of a tick of the re-solve grid at which the MPC did not solve.
 
-    The re-solve grid is that of ``mpc.fast_resolve_period`` in lockstep. The message has
+    The re-solve grid is that of ``mpc.fast_resolve_period`` in lockstep (every control tick
+    with ``mpc.push_trigger``). The message has
     the held τυ, status SOLVED (of the last solve), ``status_text`` HELD, Δτ 0, and no plan
     or prediction.
     """

@@ -22,21 +22,24 @@ Ticks
 -----
 lockstep: t_k is a tick when k = round(t_k / h) is a multiple of
 round(``mpc.sampling_period`` / h), or of round(``mpc.fast_resolve_period`` / h) when that
-is set, h = 1/``rates.control_rate`` (the runner's ``DriveControllerStage.is_tick(k)``, t = 0
+is set (every k with ``mpc.push_trigger``, which looks for a push at every control tick),
+h = 1/``rates.control_rate`` (the runner's ``DriveControllerStage.is_tick(k)``, t = 0
 included); the tick is computed as soon as estimate(t_k), command(t_k) and yaw_torque(t_k)
 have all arrived, in any order. Inputs at other stamps are not needed. (Not a sim-time
 timer: see ``wip_runtime.clock``.) At a tick of the re-solve grid where the stage does not
-solve (``DriveControllerStage.solves``: no push), the held τυ is published (status SOLVED,
-``status_text`` HELD, no plan), so the mixer gets an answer at every tick of the grid.
-realtime: a timer of period ``mpc.sampling_period`` (``mpc.fast_resolve_period`` when set;
-then only the ticks at which the stage solves publish) on the node clock computes with the
-latest inputs; if one is missing (NOT_READY) or older than ``max_input_age``
-(INPUT_INVALID) it publishes τυ = 0 and tells the core that 0 was applied. The node also
-subscribes ``/wip/wheel_torques`` and, before each tick, gives the core the drive torque
-τυ = τl + τr the mixer last applied (``LongitudinalMpc.set_previous_torque``): when the
-safety layer holds the torque at zero (start-up, a fault) or limits it, the next plan
-starts from what the wheels really got, not from the MPC's own unapplied output. Without
-this, an MPC that runs for seconds while the mixer waits for the ESO to settle (a robot
+solve (``DriveControllerStage.solves``, which needs the estimate only: no push), the held
+τυ is published (status SOLVED, ``status_text`` HELD, no plan) as soon as estimate(t_k)
+has arrived, so the mixer gets an answer at every tick of the grid.
+realtime: a timer of period ``mpc.sampling_period`` (``mpc.fast_resolve_period`` when set,
+h with ``mpc.push_trigger``; then only the ticks at which the stage solves publish) on the
+node clock computes with the latest inputs; if one is missing (NOT_READY) or older than
+``max_input_age`` (INPUT_INVALID) it publishes τυ = 0 and tells the core that 0 was
+applied. The node also subscribes ``/wip/wheel_torques`` and, before each tick, gives the
+core the drive torque τυ = τl + τr the mixer last applied
+(``LongitudinalMpc.set_previous_torque``): when the safety layer holds the torque at zero
+(start-up, a fault) or limits it, the next plan starts from what the wheels really got,
+not from the MPC's own unapplied output. Without this, an MPC that runs for seconds while
+the mixer waits for the ESO to settle (a robot
 held by hand before it is released) starts with a torque step when the mixer engages.
 (lockstep reproduces the in-process runner, where the applied torque is the MPC's.)
 
@@ -90,7 +93,7 @@ class MpcNode(ControllerNode):
         self.control_period = 1.0 / self.rates.control_rate
         fast = self.config.fast_resolve_period
         # The drive stage of the loop (core/control_step.py): the MPC or the LQR, and its
-        # grid (every sampling_period, or every fast_resolve_period when that is set).
+        # grid (core.mpc_config.drive_tick_period).
         self.stage = DriveControllerStage(self.model, self.config, self.max_wheel_torque,
                                 decimation(self.sampling_period, self.control_period),
                                 decimation(fast, self.control_period)
@@ -100,6 +103,7 @@ class MpcNode(ControllerNode):
         self.realtime_k = 0   # realtime: the control tick of the next timer tick
         self.mpc = self.stage.controller
         self.latest: dict[str, tuple[int, object]] = {}
+        self._held_stamp: int | None = None   # lockstep: the last tick answered HELD early
         self.publisher = self.create_publisher(DriveTorque, 'wip/drive_torque', RELIABLE_QOS)
         if self.lockstep:
             self.sync = ExactTimeSync(_INPUTS, self._tick)
@@ -129,10 +133,32 @@ class MpcNode(ControllerNode):
         stamp = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input(name, stamp)
         if self.lockstep:
-            if self.is_tick(stamp):
+            if self.is_tick(stamp) and not self._held_early(name, stamp, value):
                 self.feed(name, stamp, value)
         else:
             self.latest[name] = (stamp, value)
+
+    def _held_early(self, name: str, stamp: int, value) -> bool:
+        """Lockstep: answer a tick where the stage does not solve as soon as its estimate comes.
+
+        Whether it solves depends on the estimate alone (``DriveControllerStage.solves``),
+        so the HELD answer need not wait for the command and the yaw torque, which come
+        after the estimate: with the push trigger the mixer awaits a drive torque at every
+        control tick, and this keeps the MPC node off that tick's critical path. True when
+        the input is not needed (the tick is answered).
+        """
+        if stamp == self._held_stamp:
+            return True
+        if name != 'state_estimate':
+            return False
+        k = tick_index(stamp, self.control_period)
+        estimate = value.estimate
+        if self.stage.solves(k, estimate.theta, estimate.f2, estimate.f3):
+            return False
+        self.sync.discard(stamp)
+        self._held_stamp = stamp
+        self.publisher.publish(mpc_hold_msg(stamp, self.stage.tau_v, self.sampling_period))
+        return True
 
     def _on_applied(self, msg: WheelTorques) -> None:
         """realtime: the torques the mixer applied (ValueError on non-finite: dropped)."""

@@ -149,13 +149,14 @@ class ObstacleRefusalParams:
 
 @dataclasses.dataclass(frozen=True)
 class MpcPeriod:
-    """The MPC values the mixer needs: its sampling period and re-solve period.
+    """The MPC values the mixer needs: its sampling and re-solve periods, its push trigger.
 
     From which the mixer computes the ticks at which (in lockstep) it awaits a drive torque.
     """
 
     sampling_period: float = like(MpcParams, 'sampling_period')
     fast_resolve_period: float = like(MpcParams, 'fast_resolve_period')
+    push_trigger: bool = like(MpcParams, 'push_trigger')
 
 
 @dataclasses.dataclass(frozen=True)

@@ -52,9 +52,9 @@ one command per stamp t_k once that tick's inputs have arrived (docs/control-loo
 
 Parameters: section ``mixer`` (changeable at run time, validated), sections ``rates`` and
 ``safety`` (read-only: a safety setting does not change under a running robot),
-``mpc.sampling_period``, ``mpc.fast_resolve_period`` [s], ``joints``, ``left_joint``,
-``right_joint``, ``left_wheel_sign``, ``right_wheel_sign`` (1 or −1), ``effort_topic``,
-``clock_mode``, ``diagnostics_period``, section ``wiring_check``, ``model.*`` and
+``mpc.sampling_period``, ``mpc.fast_resolve_period`` [s], ``mpc.push_trigger``, ``joints``,
+``left_joint``, ``right_joint``, ``left_wheel_sign``, ``right_wheel_sign`` (1 or −1),
+``effort_topic``, ``clock_mode``, ``diagnostics_period``, section ``wiring_check``, ``model.*`` and
 ``imu_mounting_rpy`` (the wiring checks; all read-only).
 
 References
@@ -78,7 +78,7 @@ from wip_msgs.msg import (YawTorque, DriveTorque, ReferenceState as ReferenceSta
 
 from wip_runtime.config import ParamError
 from ..core.mixer import MixerParams
-from ..core.mpc_config import resolves_faster
+from ..core.mpc_config import drive_tick_period
 from wip_description.params import ModelParams
 from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyDecision, SafetyMonitor,
                            SHADOW, STARTING)
@@ -127,11 +127,11 @@ class TorqueMixerNode(ControllerNode):
         self.rates = RosParams(self, 'rates', RatesParams).config
         mpc_periods = RosParams(self, 'mpc', MpcPeriod).config
         # The drive stage's grid (core.control_step.DriveControllerStage.is_tick): its
-        # re-solve period when set (in lockstep the MPC node answers each of its ticks, held
-        # or solved).
-        self.mpc_period = mpc_periods.sampling_period
-        if resolves_faster(mpc_periods.sampling_period, mpc_periods.fast_resolve_period):
-            self.mpc_period = mpc_periods.fast_resolve_period
+        # re-solve period when set, every control tick with the push trigger (in lockstep
+        # the MPC node answers each of its ticks, held or solved).
+        self.mpc_period = drive_tick_period(
+            mpc_periods.sampling_period, mpc_periods.fast_resolve_period,
+            mpc_periods.push_trigger, 1.0 / self.rates.control_rate)
         self.safety = RosParams(self, 'safety', SafetyParams).config
         runaway = RosParams(self, 'runaway', RunawayParams).config
         settings = RosParams(self, '', MixerNodeParams).config
