@@ -66,6 +66,34 @@ def test_a_frozen_position_estimate_is_caught_by_the_wheels():
     assert 'position estimate is likely wrong' in verdict
 
 
+def test_a_vehicle_held_at_an_obstacle_while_the_reference_goes_on_is_not_a_runaway():
+    # Wheels stopped at an edge it cannot climb, the reference going on at 1 m/s: ε_w
+    # grows by 4 m every 4 s, twice the bound, all of it the reference's; the vehicle's
+    # own share is 0. (Cutting the torque of a balancing vehicle that stands still would
+    # tip it over.) The error stays under max_tracking_error (10 m) for the 9 s.
+    guard = RunawayGuard()
+    when, _ = drive(guard, 9.0, lambda t: (0.0, 0.0, 0.0, 0.0), lambda t: (1.0 * t, 0.0))
+    assert when is None
+    assert guard.largest_growth == pytest.approx(2.0 * RunawayParams().max_error_growth,
+                                                 abs=0.01)
+
+
+@pytest.mark.parametrize('backwards, caught', [(0.2, False), (0.6, True)])
+def test_the_growth_counts_when_the_vehicle_makes_its_share_of_it(backwards, caught):
+    # The reference goes on at 0.5 m/s while the wheels roll backwards: ε_w grows at
+    # 0.5 + b m/s, the vehicle's share is b / (0.5 + b): 0.29 at 0.2 m/s (below
+    # min_own_share 0.5: it lags), 0.55 at 0.6 m/s (it runs away, caught when
+    # 1.1 t > 2 m, at t = 1.818 s).
+    guard = RunawayGuard(RunawayParams(max_error_growth=2.0, min_own_share=0.5))
+    when, verdict = drive(guard, 8.0, lambda t: (-backwards * t, 0.0, 0.0, -backwards),
+                          lambda t: (0.5 * t, 0.0))
+    if caught:
+        assert when == pytest.approx(2.0 / (0.5 + backwards), abs=2 * DT)
+        assert 'by its own motion' in verdict
+    else:
+        assert when is None
+
+
 def test_odometry_drift_is_not_a_runaway_over_a_long_run():
     # The wheels read 5 % fast (a wheel radius off) on a 10-minute circle of radius 5 m at
     # 0.5 m/s, the estimate (GPS) exact: ε_w's drift is bounded by 0.05 v T_a = 0.25 m.

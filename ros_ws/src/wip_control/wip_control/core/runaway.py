@@ -18,7 +18,10 @@ guard judges the motion without the position estimate:
   divergence faster than T_a shows in full. A vehicle that follows its reference keeps
   |ε_w| small or shrinking; one that is driven away grows it.
 - **growth**: |ε_w| more than ``max_error_growth`` above its least value over the last
-  ``growth_window`` seconds is a runaway;
+  ``growth_window`` seconds is a runaway if the vehicle's own motion (υ̂ along ϕ̂ since
+  that least value, along ε_w) made at least ``min_own_share`` of the growth. A vehicle
+  held still while its reference goes on (wheels stopped or spinning at an edge it cannot
+  climb) falls behind, it does not run away: cutting its torque would tip it over;
 - **absurd error**: |e| above ``max_tracking_error`` for ``tracking_error_time`` is one
   too (a datum off by hundreds of metres: the generator then "converges" on a reference
   that is somewhere else, and ε_w shrinks while the vehicle drives off).
@@ -59,6 +62,10 @@ class RunawayParams:
     anchor_time: float = param(
         30.0, 's', 'time constant with which the wheel-propagated error is pulled back to '
         'the estimated one (bounds the odometry drift)', minimum=0.1, maximum=1000.0)
+    min_own_share: float = param(
+        0.5, '1', "runaway: the least share of the growth that the vehicle's own motion "
+        '(wheels, IMU) must make; a vehicle held at an obstacle while the reference goes on '
+        'is not one', minimum=0.0, maximum=1.0)
     max_reference_step: float = param(
         0.5, 'm', 'a reference that moves farther than this in one step was replaced (a new '
         'path or a reset): the guard re-anchors instead of counting it', minimum=0.0,
@@ -78,7 +85,10 @@ class RunawayGuard:
     def reset(self) -> None:
         self._last: tuple[float, float, float, float, float] | None = None  # t, xr, yr, ϕ, υ
         self.error_x = self.error_y = 0.0       # ε_w [m]
-        self._history: collections.deque[tuple[float, float]] = collections.deque()
+        # (t, |ε_w|, own_x, own_y): the sliding window's candidates for its least |ε_w|.
+        self._history: collections.deque[tuple[float, float, float, float]] = (
+            collections.deque())
+        self.own_x = self.own_y = 0.0   # the vehicle's own path by wheels and IMU [m]
         self._absurd_since: float | None = None
         self.largest_growth = 0.0               # [m] since the last reset, for /diagnostics
 
@@ -105,7 +115,7 @@ class RunawayGuard:
         if last is None:
             self.error_x, self.error_y = ex, ey
             self._history.clear()
-            self._history.append((t, math.hypot(ex, ey)))
+            self._history.append((t, math.hypot(ex, ey), self.own_x, self.own_y))
             return self._absurd(t, ex, ey)
         dt = t - last[0]
         dxr, dyr = x_ref - last[1], y_ref - last[2]
@@ -117,23 +127,34 @@ class RunawayGuard:
             heading = last[3] + 0.5 * math.remainder(phi - last[3], 2.0 * math.pi)
             rolled = 0.5 * (v + last[4]) * dt
             pull = min(1.0, dt / cfg.anchor_time)
-            self.error_x += rolled * math.cos(heading) - dxr + pull * (ex - self.error_x)
-            self.error_y += rolled * math.sin(heading) - dyr + pull * (ey - self.error_y)
+            own_dx, own_dy = rolled * math.cos(heading), rolled * math.sin(heading)
+            self.own_x += own_dx
+            self.own_y += own_dy
+            self.error_x += own_dx - dxr + pull * (ex - self.error_x)
+            self.error_y += own_dy - dyr + pull * (ey - self.error_y)
         size = self.wheel_error
         # Sliding minimum over the window: a deque of increasing sizes (each sample is
         # pushed and popped once, so a tick costs O(1) whatever the window).
         history = self._history
         while history and history[-1][1] >= size:
             history.pop()
-        history.append((t, size))
+        history.append((t, size, self.own_x, self.own_y))
         while history[0][0] < t - cfg.growth_window:
             history.popleft()
-        growth = size - history[0][1]
+        _, least, own_x0, own_y0 = history[0]
+        growth = size - least
         self.largest_growth = max(self.largest_growth, growth)
-        if growth > cfg.max_error_growth:
+        if growth <= cfg.max_error_growth:
+            return self._absurd(t, ex, ey)
+        # The part of the growth the vehicle made itself: its own path since the window's
+        # least error, along the error now (the rest is the reference leaving it behind).
+        own = ((self.own_x - own_x0) * self.error_x
+               + (self.own_y - own_y0) * self.error_y) / size
+        if own >= cfg.min_own_share * growth:
             return (f'runaway: by its wheels and IMU the vehicle moved {growth:.2f} m farther '
-                    f'from the reference within {cfg.growth_window:g} s (> max_error_growth '
-                    f'{cfg.max_error_growth:g} m; the position estimate says '
+                    f'from the reference within {cfg.growth_window:g} s, {own:.2f} m of it by '
+                    f'its own motion (> max_error_growth {cfg.max_error_growth:g} m; the '
+                    'position estimate says '
                     f'{math.hypot(ex, ey):.2f} m off): the position estimate is likely wrong '
                     '(datum.*, position_source, a jump) or the wheels drive against the '
                     'command (wheel signs)')
