@@ -18,7 +18,7 @@ import pytest
 
 from wip_description.params import ModelParams
 from wip_tools.analysis.push_bound import (absorption_rate, measured_excursion,
-                                           push_excursion_bound)
+                                           push_excursion_bound, state_at_push)
 
 PARAMS = ModelParams()
 FAST = dict(horizon=6.0)
@@ -157,10 +157,22 @@ def test_the_measured_excursion_is_the_along_track_peak_after_the_push():
     assert measured_excursion({'truth': truth, 'reference': ref}, 10.0) == pytest.approx(0.2)
 
 
+def test_the_state_at_the_push_is_the_speed_error_and_tilt_interpolated_there():
+    # The vehicle 0.1 m/s faster than a 0.5 m/s reference and leaning 0.02 rad at 10 s,
+    # both varying linearly in time between the samples.
+    t = np.arange(0.0, 20.0, 0.01)
+    truth = {'t': t, 'v': 0.5 + 0.01 * t, 'theta': 0.002 * t}
+    ref = {'t': t, 'v': np.full_like(t, 0.5)}
+    speed_error, tilt = state_at_push({'truth': truth, 'reference': ref}, 10.0)
+    assert (speed_error, tilt) == pytest.approx((0.1, 0.02), abs=1e-12)
+
+
 def test_a_case_runs_and_its_excursion_is_above_the_bound():
     from wip_tools.analysis.push_bound import push_recovery_rows
     (row,) = push_recovery_rows([('line', 'paper', False, False)])
     assert not row['fell']
+    # Without noise the push finds the vehicle at rest on its reference: the bound's start.
+    assert row['at_rest'] and row['speed_error_at_push'] < 1e-3
     assert row['bound_m'] == pytest.approx(0.70, abs=0.01)
     # No controller beats the clairvoyant one on its own model (the paper plant is it).
     assert 1.0 < row['ratio'] == pytest.approx(row['measured_m'] / row['bound_m'])

@@ -300,7 +300,11 @@ def _section_push(report: dict) -> None:
                  f'measured {row["measured_m"]:.3f} m, bound {row["bound_m"]:.3f} m, '
                  f'ratio {row["ratio"]:.3f}x'
                  + (f' (median of {row["runs"]} seeds, {row["ratio_min"]:.2f}-'
-                    f'{row["ratio_max"]:.2f}x)' if row['runs'] > 1 else '')))
+                    f'{row["ratio_max"]:.2f}x)' if row['runs'] > 1 else ''))
+              + ('' if row['at_rest'] else
+                 f'; met the push up to {row["speed_error_at_push"]:.2f} m/s and '
+                 f'{row["tilt_at_push"]:.3f} rad off rest on the reference (the bound\'s '
+                 'start): indicative only'))
     print('   (goals: <= 1.15x on the paper plant, <= 1.3x with mismatch and noise)')
 
 
