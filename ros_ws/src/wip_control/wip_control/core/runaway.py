@@ -141,24 +141,31 @@ class RunawayGuard:
         history.append((t, size, self.own_x, self.own_y))
         while history[0][0] < t - cfg.growth_window:
             history.popleft()
-        _, least, own_x0, own_y0 = history[0]
-        growth = size - least
+        return self._growth(size, history[0], ex, ey) or self._absurd(t, ex, ey)
+
+    def _growth(self, size: float, least: tuple, ex: float, ey: float) -> str:
+        """Return the growth verdict, '' or why.
+
+        ``least``: the window's sample of least |ε_w|, (t, |ε_w|, own_x, own_y).
+        """
+        cfg = self.config
+        _, smallest, own_x0, own_y0 = least
+        growth = size - smallest
         self.largest_growth = max(self.largest_growth, growth)
         if growth <= cfg.max_error_growth:
-            return self._absurd(t, ex, ey)
+            return ''
         # The part of the growth the vehicle made itself: its own path since the window's
         # least error, along the error now (the rest is the reference leaving it behind).
         own = ((self.own_x - own_x0) * self.error_x
                + (self.own_y - own_y0) * self.error_y) / size
-        if own >= cfg.min_own_share * growth:
-            return (f'runaway: by its wheels and IMU the vehicle moved {growth:.2f} m farther '
-                    f'from the reference within {cfg.growth_window:g} s, {own:.2f} m of it by '
-                    f'its own motion (> max_error_growth {cfg.max_error_growth:g} m; the '
-                    'position estimate says '
-                    f'{math.hypot(ex, ey):.2f} m off): the position estimate is likely wrong '
-                    '(datum.*, position_source, a jump) or the wheels drive against the '
-                    'command (wheel signs)')
-        return self._absurd(t, ex, ey)
+        if own < cfg.min_own_share * growth:
+            return ''
+        return (f'runaway: by its wheels and IMU the vehicle moved {growth:.2f} m farther '
+                f'from the reference within {cfg.growth_window:g} s, {own:.2f} m of it by '
+                f'its own motion (> max_error_growth {cfg.max_error_growth:g} m; the '
+                f'position estimate says {math.hypot(ex, ey):.2f} m off): the position '
+                'estimate is likely wrong (datum.*, position_source, a jump) or the wheels '
+                'drive against the command (wheel signs)')
 
     def _absurd(self, t: float, ex: float, ey: float) -> str:
         cfg = self.config
