@@ -19,7 +19,7 @@ from .lqr import make_longitudinal_controller
 from .mixer import drive_torque_limit, mix
 from .model import input_gains
 from .obstacle_refusal import make_refusal
-from .mpc_config import MpcParams, resolves_faster
+from .mpc_config import drive_tick_decimation, MpcParams, resolves_faster
 from .mpc_plan import MpcResult
 from wip_description.params import ModelParams
 from .reference_state import ReferenceState
@@ -139,10 +139,9 @@ class DriveControllerStage:
         fast = (fast_decimation is not None
                 and resolves_faster(config.sampling_period, config.fast_resolve_period)
                 and 1 <= fast_decimation < decimation)
-        #: Control ticks between the ticks at which the stage takes inputs
-        #: (``mpc_config.drive_tick_period``).
-        self.every = (decimation if not fast
-                      else 1 if config.push_trigger else fast_decimation)
+        #: Control ticks between the ticks at which the stage takes inputs.
+        self.every = drive_tick_decimation(decimation, fast_decimation if fast else None,
+                                           config.push_trigger)
         # Re-solving applies to the MPC; the LQR (a fixed gain for Ts) solves at Ts only.
         self._fast = fast and config.controller == 'mpc'
         self._fast_every = fast_decimation if fast else decimation

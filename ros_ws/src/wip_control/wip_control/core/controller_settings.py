@@ -28,7 +28,8 @@ from wip_runtime.config import (check_number, from_mapping, load_yaml_text, para
                                 to_mapping)
 from .eso import EsoParams
 from .mixer import MixerParams
-from .mpc_config import MpcParams, PAPER_MPC_SETTINGS, resolves_faster
+from .mpc_config import (drive_tick_decimation, MpcParams, PAPER_MPC_SETTINGS,
+                         resolves_faster)
 from wip_description.params import ModelParams
 from .position import PositionParams
 from .references import ReferenceParams
@@ -107,10 +108,8 @@ class ControllerParams:
         ``mpc.fast_resolve_period`` when set (every control period with ``mpc.push_trigger``),
         else ``mpc.sampling_period`` (``DriveControllerStage.is_tick``).
         """
-        fast = self.mpc_fast_decimation
-        if fast is None or fast >= self.mpc_decimation:
-            return self.mpc_decimation
-        return 1 if self.mpc.push_trigger else fast
+        return drive_tick_decimation(self.mpc_decimation, self.mpc_fast_decimation,
+                                     self.mpc.push_trigger)
 
     @property
     def mpc_fast_decimation(self) -> int | None:

@@ -40,16 +40,18 @@ def resolves_faster(sampling_period: float, fast_resolve_period: float) -> bool:
     return 0.0 < fast_resolve_period < sampling_period
 
 
-def drive_tick_period(sampling_period: float, fast_resolve_period: float, push_trigger: bool,
-                      control_period: float) -> float:
-    """Period [s] of the drive stage's ticks, where it takes inputs and answers in lockstep.
+def drive_tick_decimation(decimation: int, fast_decimation: int | None,
+                          push_trigger: bool) -> int:
+    """Return the control ticks between the drive stage's ticks.
 
-    ``sampling_period``; ``fast_resolve_period`` when the MPC re-solves after a push; the
-    control period when it also looks for a push at every control tick (``push_trigger``).
+    There it takes its inputs and, in lockstep, answers with a drive torque:
+    ``decimation`` (control ticks per ``sampling_period``); ``fast_decimation`` (per
+    ``fast_resolve_period``; None: no re-solving) when the MPC re-solves after a push; 1
+    when it also looks for a push at every control tick (``push_trigger``).
     """
-    if not resolves_faster(sampling_period, fast_resolve_period):
-        return sampling_period
-    return control_period if push_trigger else fast_resolve_period
+    if fast_decimation is None or not 1 <= fast_decimation < decimation:
+        return decimation
+    return 1 if push_trigger else fast_decimation
 
 
 @dataclasses.dataclass(frozen=True)

@@ -93,7 +93,7 @@ class MpcNode(ControllerNode):
         self.control_period = 1.0 / self.rates.control_rate
         fast = self.config.fast_resolve_period
         # The drive stage of the loop (core/control_step.py): the MPC or the LQR, and its
-        # grid (core.mpc_config.drive_tick_period).
+        # grid (core.mpc_config.drive_tick_decimation).
         self.stage = DriveControllerStage(self.model, self.config, self.max_wheel_torque,
                                 decimation(self.sampling_period, self.control_period),
                                 decimation(fast, self.control_period)

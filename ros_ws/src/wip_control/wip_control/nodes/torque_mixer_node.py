@@ -78,7 +78,7 @@ from wip_msgs.msg import (YawTorque, DriveTorque, ReferenceState as ReferenceSta
 
 from wip_runtime.config import ParamError
 from ..core.mixer import MixerParams
-from ..core.mpc_config import drive_tick_period
+from ..core.mpc_config import drive_tick_decimation, resolves_faster
 from wip_description.params import ModelParams
 from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyDecision, SafetyMonitor,
                            SHADOW, STARTING)
@@ -126,12 +126,6 @@ class TorqueMixerNode(ControllerNode):
         self.mixer = self.parameters.config
         self.rates = RosParams(self, 'rates', RatesParams).config
         mpc_periods = RosParams(self, 'mpc', MpcPeriod).config
-        # The drive stage's grid (core.control_step.DriveControllerStage.is_tick): its
-        # re-solve period when set, every control tick with the push trigger (in lockstep
-        # the MPC node answers each of its ticks, held or solved).
-        self.mpc_period = drive_tick_period(
-            mpc_periods.sampling_period, mpc_periods.fast_resolve_period,
-            mpc_periods.push_trigger, 1.0 / self.rates.control_rate)
         self.safety = RosParams(self, 'safety', SafetyParams).config
         runaway = RosParams(self, 'runaway', RunawayParams).config
         settings = RosParams(self, '', MixerNodeParams).config
@@ -143,7 +137,15 @@ class TorqueMixerNode(ControllerNode):
         if not effort_topic:
             raise ParamError(f'effort_topic: must be a topic name, got {effort_topic!r}')
         self.control_period = 1.0 / self.rates.control_rate
-        self.every = decimation(self.mpc_period, self.control_period)
+        # The drive stage's grid (core.control_step.DriveControllerStage.is_tick): its
+        # re-solve period when set, every control tick with the push trigger (in lockstep
+        # the MPC node answers each of its ticks, held or solved).
+        fast = mpc_periods.fast_resolve_period
+        self.every = drive_tick_decimation(
+            decimation(mpc_periods.sampling_period, self.control_period),
+            decimation(fast, self.control_period)
+            if resolves_faster(mpc_periods.sampling_period, fast) else None,
+            mpc_periods.push_trigger)
         self.monitor = SafetyMonitor(self.safety, self.mixer.max_wheel_torque,
                                      self.mixer.max_wheel_torque_rate, self.control_period,
                                      timing_checks=not self.lockstep, runaway=runaway)
