@@ -114,6 +114,19 @@ class YawControllerStage:
         return out
 
 
+def net_change_box(window: list[float], tau_previous: float,
+                   dmax: float) -> tuple[float, float]:
+    """Bounds (lower, upper) of the next increment from τ(k−1) [N m] under the limit (19).
+
+    The torque applied now must be within ``dmax`` of each torque of ``window`` and of
+    ``tau_previous``: [max τj − Δτmax, min τj + Δτmax] − τ(k−1). Then no two torques
+    applied within Ts differ by more than Δτmax, whatever their increments in between;
+    with ``window`` holding τ(k−1) alone the box is exactly ±Δτmax, eq. (19).
+    """
+    offsets = [tau - tau_previous for tau in window]
+    return max([0.0, *offsets]) - dmax, min([0.0, *offsets]) + dmax
+
+
 class DriveControllerStage:
     """Estimate, υd and τω -> τυ: the MPC (or LQR) every ``decimation``-th control tick.
 
@@ -123,11 +136,12 @@ class DriveControllerStage:
     the MPC also solves at the ticks of that finer grid for ``mpc.fast_resolve_time``
     after a push (``LongitudinalMpc.push_detected``; docs/history/mpc.md §10). With
     ``mpc.push_trigger`` the stage looks for a push at every control tick and solves on
-    the tick it first sees one; the finer grid then runs from that tick (§14). Every
-    increment is bounded so that the increments within any ``decimation`` ticks sum to at
-    most ``max_delta_torque``, and each, while re-solving, to at most
-    ``max_delta_torque · push_resolve_share``. The ticks at which the stage takes inputs
-    are :meth:`is_tick`; :meth:`solves` says whether it solves there.
+    the tick it first sees one; the finer grid then runs from that tick (§14). The limit
+    (19), |Δτυ| ≤ Δτmax per Ts, holds as a net change: the torque applied at a tick is
+    within ``max_delta_torque`` of every torque applied over the last ``decimation``
+    ticks (:func:`net_change_box`; docs/mpc.md), and each increment, while re-solving,
+    within ``max_delta_torque · push_resolve_share``. The ticks at which the stage takes
+    inputs are :meth:`is_tick`; :meth:`solves` says whether it solves there.
     """
 
     def __init__(self, model: ModelParams, config: MpcParams, max_wheel_torque: float,
@@ -149,8 +163,10 @@ class DriveControllerStage:
                             * fast_decimation if self._fast else 0)
         self._fast_until = -1      # re-solve at the fine grid's ticks before this tick
         self._grid_start = 0       # the fine grid's ticks are those ≡ this (mod _fast_every)
-        self._moves: list[tuple[int, float]] = []   # (tick, |Δτ|) of the last decimation ticks
+        #: (tick, τυ) of the solves since the last one at or before ``decimation`` ticks ago.
+        self._applied: list[tuple[int, float]] = []
         self._last_solve: int | None = None
+        self._strong_seen = False   # a transient beyond the decay's dead zone at the last solve
 
     def limit(self, tau_omega: float) -> float:
         """Bound on |τυ| [N m]: 2 τmax − |τω| (``core.mixer.drive_torque_limit``).
@@ -182,7 +198,9 @@ class DriveControllerStage:
         if not self._fast:
             return False
         if k < self._fast_until:
-            return (k - self._grid_start) % self._fast_every == 0
+            return ((k - self._grid_start) % self._fast_every == 0
+                    or (self.controller.config.push_restart and not self._strong_seen
+                        and self._strong_push(theta_hat, f2_hat, f3_hat)))
         return self.controller.push_detected(theta_hat, f2_hat, f3_hat)
 
     def step(self, v_hat: float, theta_hat: float, theta_dot_hat: float, f2_hat: float,
@@ -219,26 +237,42 @@ class DriveControllerStage:
         mpc = self.controller
         dmax = mpc.config.max_delta_torque
         window = k - self.decimation
-        self._moves = [(tick, move) for tick, move in self._moves if tick > window]
-        bound = dmax - sum(move for _, move in self._moves)
+        # The torque in force ``decimation`` ticks ago and those applied since.
+        held = [entry for entry in self._applied if entry[0] <= window][-1:]
+        self._applied = held + [entry for entry in self._applied if entry[0] > window]
+        lower, upper = net_change_box([tau for _, tau in self._applied], mpc.tau_previous,
+                                      dmax)
         pushed = mpc.push_detected(theta_hat, f2_hat, f3_hat)
+        fresh = False
+        if mpc.config.push_restart:
+            # A push, not the noise that a threshold below the dead zone also sees.
+            strong = self._strong_push(theta_hat, f2_hat, f3_hat)
+            fresh, self._strong_seen = strong and not self._strong_seen, strong
         resolving = k < self._fast_until
         if pushed or resolving:
-            bound = min(bound, dmax * mpc.config.push_resolve_share)
+            share = dmax * mpc.config.push_resolve_share
+            lower, upper = max(lower, -share), min(upper, share)
         elapsed = (None if self._last_solve is None
                    else (k - self._last_solve) * mpc.config.sampling_period / self.decimation)
         result = mpc.step(v_hat=v_hat, theta_hat=theta_hat, theta_dot_hat=theta_dot_hat,
                           f2_hat=f2_hat, f3_hat=f3_hat, v_d=v_d, tau_limit=limit,
-                          max_first_delta=bound, elapsed=elapsed)
+                          first_box=(lower, upper), elapsed=elapsed)
         self._last_solve = k
-        self._moves.append((k, abs(result.delta_tau)))
+        if math.isfinite(result.tau_v):
+            self._applied.append((k, result.tau_v))
         if pushed or mpc.push_detected(theta_hat, f2_hat, f3_hat):   # (after its update)
-            if not resolving:
+            if not resolving or fresh:
                 # The finer grid runs from the push: the old grid's next tick, coming a
                 # few ticks later, tipped the heavier body further (docs/history/mpc.md §14).
                 self._grid_start = k
             self._fast_until = k + self._fast_ticks
         return result
+
+    def _strong_push(self, theta_hat: float, f2_hat: float, f3_hat: float) -> bool:
+        """Whether the transient is beyond ``disturbance_decay_dead_zone`` (a push)."""
+        mpc = self.controller
+        return mpc.push_detected(theta_hat, f2_hat, f3_hat,
+                                 mpc.config.disturbance_decay_dead_zone)
 
 
 class ControlOutputs(NamedTuple):

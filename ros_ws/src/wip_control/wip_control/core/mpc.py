@@ -88,6 +88,19 @@ def drive_limit(config: MpcParams, tau_limit: float | None, *inputs: float) -> f
     return min(limit, config.max_drive_torque)
 
 
+def _first_box(box: tuple[float, float] | None, dmax: float) -> tuple[float, float]:
+    """Return the bounds of Δτ(k|k) [N m]: ``box`` within ±``dmax`` (None: ±``dmax``).
+
+    MpcInputError when its lower bound is above its upper one or either is NaN.
+    """
+    if box is None:
+        return -dmax, dmax
+    lower, upper = min(max(float(box[0]), -dmax), dmax), min(max(float(box[1]), -dmax), dmax)
+    if not lower <= upper:
+        raise MpcInputError(f'first_box must have lower <= upper, got {box!r}')
+    return lower, upper
+
+
 class LongitudinalController:
     """τυ(k−1) and the start of a tick, shared by the MPC and the LQR baseline.
 
@@ -191,7 +204,7 @@ class LongitudinalMpc(LongitudinalController):
 
     def step(self, v_hat: float, theta_hat: float, theta_dot_hat: float, f2_hat: float,
              f3_hat: float, v_d: float, tau_limit: float | None = None,
-             max_first_delta: float | None = None,
+             first_box: tuple[float, float] | None = None,
              elapsed: float | None = None) -> MpcResult:
         """One MPC tick: build and solve the QP, apply τ(k) = τ(k−1) + Δτ(k|k) (23).
 
@@ -202,18 +215,16 @@ class LongitudinalMpc(LongitudinalController):
         v_d : desired speed υd [m/s] from the trajectory generator (9).
         tau_limit : |τυ| limit for this tick [N m], 2τmax − |τω| so that each wheel stays
             within τmax after mixing (24); capped to ``max_drive_torque``; None uses it.
-        max_first_delta : bound of this tick's increment |Δτ(k|k)| [N m], at most (None:)
-            ``max_delta_torque``; the later increments keep ``max_delta_torque`` (a tick
-            between the sampling instants, ``fast_resolve_period``).
+        first_box : (lower, upper) bounds of this tick's increment Δτ(k|k) [N m], within
+            (None:) ±``max_delta_torque``; the later increments keep ±``max_delta_torque``
+            (a tick between the sampling instants, ``fast_resolve_period``).
         elapsed : time since the previous tick [s] (None: ``sampling_period``), for the
             filters that run once per tick (υd trend, offset-free target, start-up).
         """
         cfg = self.config
         tau_prev = self._tau_previous
         t_start = time.perf_counter()
-        self.qp.set_first_bound(cfg.max_delta_torque if max_first_delta is None
-                                else min(max(float(max_first_delta), 0.0),
-                                         cfg.max_delta_torque))
+        self.qp.set_first_box(*_first_box(first_box, cfg.max_delta_torque))
         period = cfg.sampling_period if elapsed is None else float(elapsed)
         self._period = period
         v_hat, f2_hat, f3_hat = self._startup.estimates(v_hat, theta_hat, theta_dot_hat,
@@ -243,7 +254,8 @@ class LongitudinalMpc(LongitudinalController):
         proposed = plan_of(solution, cfg.control_horizon, self.n_slacks, self._plan,
                            cfg.max_delta_torque)
         plan = proposed.increments
-        delta = admissible_increment(plan[0], tau_prev, limit, self.qp.first_bound)
+        lower, upper = self.qp.first_box
+        delta = admissible_increment(plan[0], tau_prev, limit, upper, lower)
         plan[0] = delta
         self._plan = plan
         self._tau_previous = tau_prev + delta
@@ -252,14 +264,15 @@ class LongitudinalMpc(LongitudinalController):
                          solve_time, build_time, proposed.slack_v, proposed.slack_theta,
                          proposed.used_fallback, predicted, plan.copy(), self._target.theta)
 
-    def push_detected(self, theta_hat: float, f2_hat: float, f3_hat: float) -> bool:
+    def push_detected(self, theta_hat: float, f2_hat: float, f3_hat: float,
+                      band: tuple[float, float] | None = None) -> bool:
         """Whether the disturbance estimate shows a push.
 
         A push: (f̂2, f̂3) at θ̂, against the offset-free target's slow estimate, has a
-        transient beyond ``disturbance_decay_dead_zone`` (what the prediction lets decay).
-        Reads the filter without updating it; False before its first tick, within
-        ``disturbance_startup_time`` of a reset (the MPC does not use the estimator's
-        start-up f̂ then) or with ``offset_free`` off.
+        transient beyond ``band`` (None: ``push_threshold``). Reads the filter without
+        updating it; False before its first tick, within ``disturbance_startup_time`` of a
+        reset (the MPC does not use the estimator's start-up f̂ then) or with
+        ``offset_free`` off.
         """
         if self._startup.active:
             return False
@@ -267,7 +280,7 @@ class LongitudinalMpc(LongitudinalController):
                                               *tick_gains(self.params, self.config, theta_hat),
                                               self._tau_previous)
         return (transient is not None
-                and beyond(transient, self.config.disturbance_decay_dead_zone))
+                and beyond(transient, self.config.push_threshold if band is None else band))
 
     def _hold_invalid_input(self) -> MpcResult:
         self._plan = None

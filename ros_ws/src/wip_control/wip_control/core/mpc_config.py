@@ -74,8 +74,8 @@ class MpcParams:
         're-solve on the tick it is seen, the re-solve grid starting there; false: at the '
         f"grid's ticks; {_WHY}")
     push_resolve_share: float = param(
-        0.75, '1', 'while re-solving after a push, the share of max_delta_torque one solve '
-        f'may use (within max_delta_torque per Ts in all); {_WHY}', minimum=0.0,
+        0.75, '1', 'while re-solving after a push, the largest |increment| of one solve as a '
+        f'share of max_delta_torque (the net change per Ts stays within it); {_WHY}', minimum=0.0,
         exclusive_minimum=True, maximum=1.0)
     fast_resolve_time: float = param(
         4.0, 's', 'how long after the last push detected the MPC keeps re-solving every '
@@ -129,6 +129,13 @@ class MpcParams:
         (1.0, 1.0), 'm/s², rad/s²', '(d2, d3): the part of the transient disturbance '
         f'estimate within this band is held over the horizon as in (17); {_WHY}',
         minimum=0.0)
+    push_threshold: tuple[float, float] = param(
+        (1.0, 1.0), 'm/s², rad/s²', '(d2, d3): a transient disturbance estimate beyond this '
+        f'band is a push, on which the MPC re-solves (fast_resolve_period); {_WHY}',
+        minimum=0.0)
+    push_restart: bool = param(
+        False, '-', 'while re-solving, a transient newly beyond disturbance_decay_dead_zone '
+        f'solves at once and restarts the re-solve grid there; {_WHY}')
     speed_preview_time: float = param(
         0.5, 's', 'the speed reference of (20) continues the low-passed trend of υd for '
         f'this long over the horizon, then holds; 0: υd held (the paper); {_WHY}',

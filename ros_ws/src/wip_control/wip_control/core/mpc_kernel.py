@@ -27,10 +27,10 @@ def fill(tick, problem, qp):
     _cost(tick, problem, qp, free)
     _output_rows(tick, problem, qp, free)
     # τ rows, relaxed to the reachable set if |τ(k−1)| is beyond the limit.
-    limit, tau_prev, reach = tick.limit, tick.tau_prev, qp.reach
-    for j in range(reach.shape[0]):
-        qp.upper[j] = max(limit, tau_prev - reach[j]) - tau_prev
-        qp.lower[j] = min(-limit, tau_prev + reach[j]) - tau_prev
+    limit, tau_prev, reach_up, reach_down = tick.limit, tick.tau_prev, qp.reach_up, qp.reach_down
+    for j in range(reach_up.shape[0]):
+        qp.upper[j] = max(limit, tau_prev - reach_down[j]) - tau_prev
+        qp.lower[j] = min(-limit, tau_prev + reach_up[j]) - tau_prev
     return free
 
 
@@ -60,7 +60,7 @@ def _free_response(tick, problem):
 def _cost(tick, problem, qp, free):
     """H_ΔΔ and g_Δ of eq. (22) from the cost (20)."""
     g2p, g3p = tick.g2p, tick.g3p
-    n_c = qp.reach.shape[0]
+    n_c = qp.reach_up.shape[0]
     n_out = free.shape[0]
     n_p = n_out // 3
     hessian_blocks, weighted_gains = problem.hessian_blocks, problem.weighted_gains
@@ -97,7 +97,7 @@ def _output_rows(tick, problem, qp, free):
     """Rows of C on the predicted outputs (21), and the rise rows of ``speed_rise_penalty``."""
     g2p, g3p = tick.g2p, tick.g3p
     c, lower, upper = qp.c, qp.lower, qp.upper
-    n_c = qp.reach.shape[0]
+    n_c = qp.reach_up.shape[0]
     row_blocks, outputs = problem.row_blocks, problem.row_outputs
     # Each row bounds one output of the plan, ȳ_free + (g2 C2 + g3 C3) Δτ̄: its bounds
     # minus the free response (±inf: that side free).
@@ -154,7 +154,7 @@ def warm_up() -> None:
         np.zeros((2, 4 * n_p * n_c)), np.ones(4 * n_p), -np.ones(4 * n_p), np.zeros(n_p),
         True, 1.0, 0.1, n_c + 4 * n_p, n_rise)
     qp = QpBuffers(np.zeros((n, n)), np.zeros(n), np.zeros((m, n)), np.zeros(m),
-                   np.zeros(m), np.ones(n_c))
+                   np.zeros(m), np.ones(n_c), np.ones(n_c))
     free = fill(TickData(0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0,
                          0.0, 0.0), problem, qp)
     predict(free, 1.0, 1.0, np.zeros((out, n_c)), np.zeros((out, n_c)), np.zeros(n_c))

@@ -11,9 +11,10 @@ rows, the boxes) are set in :class:`MpcQp`'s constructor; :meth:`MpcQp.update` f
 the rest from one :class:`TickData` with the compiled kernel :func:`.mpc_kernel.fill`,
 whose numpy reference is :func:`.mpc_reference.reference_qp`.
 
-Hard rows (19): |Δτ(k+j)| ≤ Δτmax (box; the first one ≤ :meth:`MpcQp.set_first_bound`)
-and |τ(k+j)| ≤ τlim for j < Nc, relaxed to the reachable
-max(τlim, |τ(k−1)| − (j+1) Δτmax) when |τ(k−1)| > τlim, so the QP is always feasible.
+Hard rows (19): |Δτ(k+j)| ≤ Δτmax (box; the first one within the box of
+:meth:`MpcQp.set_first_box`, lo ≤ Δτ(k|k) ≤ hi) and |τ(k+j)| ≤ τlim for j < Nc, relaxed
+to what the increments can reach when |τ(k−1)| > τlim (τ(k−1) − (−lo + j Δτmax) from
+above, τ(k−1) + (hi + j Δτmax) from below), so the QP is always feasible.
 Soft rows (21): |υ(k+i)| ≤ υmax (1 + sυ,i) from ``speed_limit_first_step`` on and
 |θ(k+i)| ≤ θmax (1 + sθ,i), slacks ≥ 0 relative to the limit.
 """
@@ -57,7 +58,8 @@ class QpBuffers(NamedTuple):
     c: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
-    reach: np.ndarray   #: reachable |τ(k+j) − τ(k−1)| under the increment bounds [N m]
+    reach_up: np.ndarray     #: largest reachable τ(k+j) − τ(k−1) under the bounds [N m]
+    reach_down: np.ndarray   #: largest reachable τ(k−1) − τ(k+j) under the bounds [N m]
 
 
 class QpData(NamedTuple):
@@ -83,34 +85,39 @@ class MpcQp:
         self.problem = problem
         h, g, c, lower, upper, lb, ub = problem.constant_qp()
         self.data = QpData(h, g, c, lower, upper, lb, ub)
-        self._buffers = QpBuffers(h, g, c, lower, upper, config.max_delta_torque
-                                  * np.arange(1, problem.control_horizon + 1))
-        self._first_bound = config.max_delta_torque
+        reach = config.max_delta_torque * np.arange(1, problem.control_horizon + 1)
+        self._buffers = QpBuffers(h, g, c, lower, upper, reach, reach.copy())
+        self._first_box = (-config.max_delta_torque, config.max_delta_torque)
         self._kernels = load_compiled(MPC_KERNEL)   # at construction, not in the first tick
         self._fill = self._kernels.fill_for(problem.blocks, self._buffers)
 
     def set_first_bound(self, bound: float) -> None:
-        """Bound |Δτ(k|k)| by ``bound`` [N m].
+        """Bound |Δτ(k|k)| by ``bound`` [N m]: :meth:`set_first_box` (−bound, bound)."""
+        self.set_first_box(-bound, bound)
 
-        Sets its box and the reachable |τ(k+j) − τ(k−1)| of the τ rows, bound + j Δτmax
-        (the later increments keep Δτmax).
+    def set_first_box(self, lower: float, upper: float) -> None:
+        """Bound Δτ(k|k) to [``lower``, ``upper``] [N m] (lower ≤ 0 ≤ upper).
+
+        Sets its box and what the τ rows can reach, upper + j Δτmax up and −lower + j Δτmax
+        down (the later increments keep ±Δτmax).
         """
-        if bound == self._first_bound:
+        if (lower, upper) == self._first_box:
             return
-        self._first_bound = bound
-        self.data.lb[0], self.data.ub[0] = -bound, bound
-        dmax = self.problem.config.max_delta_torque
-        self._buffers.reach[:] = bound + dmax * np.arange(self.problem.control_horizon)
+        self._first_box = (lower, upper)
+        self.data.lb[0], self.data.ub[0] = lower, upper
+        steps = self.problem.config.max_delta_torque * np.arange(self.problem.control_horizon)
+        self._buffers.reach_up[:] = upper + steps
+        self._buffers.reach_down[:] = -lower + steps
 
     @property
-    def reach(self) -> np.ndarray:
-        """Reachable |τ(k+j) − τ(k−1)| under the increment bounds [N m] (Nc)."""
-        return self._buffers.reach
+    def reach(self) -> tuple[np.ndarray, np.ndarray]:
+        """(up, down): the reachable τ(k+j) − τ(k−1) and τ(k−1) − τ(k+j) [N m] (Nc each)."""
+        return self._buffers.reach_up, self._buffers.reach_down
 
     @property
-    def first_bound(self) -> float:
-        """The bound of |Δτ(k|k)| of the last :meth:`set_first_bound` [N m]."""
-        return self._first_bound
+    def first_box(self) -> tuple[float, float]:
+        """(lower, upper) of Δτ(k|k) of the last :meth:`set_first_box` [N m]."""
+        return self._first_box
 
     def update(self, tick: TickData) -> np.ndarray:
         """Fill H, g, C, l, u for ``tick``; return the free response ȳ_free (3Np)."""

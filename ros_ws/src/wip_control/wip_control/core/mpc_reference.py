@@ -62,6 +62,7 @@ def reference_qp(qp: MpcQp, tick: TickData) -> tuple[np.ndarray, ...]:
         braking = (sign * t.v_hat >= cfg.max_speed
                    and sign * (t.theta_hat + cfg.sampling_period * t.theta_dot_hat) <= 0.0)
         upper[rise] = sign * t.v_hat - sign * free[0:3 * n_rise:3] if braking else np.inf
-    upper[:n_c] = np.maximum(t.limit, t.tau_prev - qp.reach) - t.tau_prev
-    lower[:n_c] = np.minimum(-t.limit, t.tau_prev + qp.reach) - t.tau_prev
+    reach_up, reach_down = qp.reach
+    upper[:n_c] = np.maximum(t.limit, t.tau_prev - reach_down) - t.tau_prev
+    lower[:n_c] = np.minimum(-t.limit, t.tau_prev + reach_up) - t.tau_prev
     return h, g, c, lower, upper, free
