@@ -137,11 +137,13 @@ class DriveControllerStage:
     after a push (``LongitudinalMpc.push_detected``; docs/history/mpc.md §10). With
     ``mpc.push_trigger`` the stage looks for a push at every control tick and solves on
     the tick it first sees one; the finer grid then runs from that tick (§14). The limit
-    (19), |Δτυ| ≤ Δτmax per Ts, holds as a net change: the torque applied at a tick is
-    within ``max_delta_torque`` of every torque applied over the last ``decimation``
-    ticks (:func:`net_change_box`; docs/mpc.md), and each increment, while re-solving,
-    within ``max_delta_torque · push_resolve_share``. The ticks at which the stage takes
-    inputs are :meth:`is_tick`; :meth:`solves` says whether it solves there.
+    (19), |Δτυ| ≤ Δτmax per Ts, holds over any ``decimation`` ticks by
+    ``mpc.resolve_rate_rule``: the increments' |Δτ| sum to at most ``max_delta_torque``
+    (``sum``), or the torque applied at a tick is within it of every torque in force
+    over the last ``decimation`` ticks (``net``, :func:`net_change_box`); each increment,
+    while re-solving, within ``max_delta_torque · push_resolve_share``. The ticks at
+    which the stage takes inputs are :meth:`is_tick`; :meth:`solves` says whether it
+    solves there.
     """
 
     def __init__(self, model: ModelParams, config: MpcParams, max_wheel_torque: float,
@@ -163,8 +165,9 @@ class DriveControllerStage:
                             * fast_decimation if self._fast else 0)
         self._fast_until = -1      # re-solve at the fine grid's ticks before this tick
         self._grid_start = 0       # the fine grid's ticks are those ≡ this (mod _fast_every)
-        #: (tick, τυ) of the solves since the last one at or before ``decimation`` ticks ago.
-        self._applied: list[tuple[int, float]] = []
+        #: (tick, τυ, |Δτ|) of the solves since the last one at or before ``decimation``
+        #: ticks ago.
+        self._applied: list[tuple[int, float, float]] = []
         self._last_solve: int | None = None
         self._strong_seen = False   # a transient beyond the decay's dead zone at the last solve
 
@@ -240,8 +243,7 @@ class DriveControllerStage:
         # The torque in force ``decimation`` ticks ago and those applied since.
         held = [entry for entry in self._applied if entry[0] <= window][-1:]
         self._applied = held + [entry for entry in self._applied if entry[0] > window]
-        lower, upper = net_change_box([tau for _, tau in self._applied], mpc.tau_previous,
-                                      dmax)
+        lower, upper = self._rate_box(window, dmax)
         pushed = mpc.push_detected(theta_hat, f2_hat, f3_hat)
         fresh = False
         if mpc.config.push_restart:
@@ -259,7 +261,7 @@ class DriveControllerStage:
                           first_box=(lower, upper), elapsed=elapsed)
         self._last_solve = k
         if math.isfinite(result.tau_v):
-            self._applied.append((k, result.tau_v))
+            self._applied.append((k, result.tau_v, abs(result.delta_tau)))
         if pushed or mpc.push_detected(theta_hat, f2_hat, f3_hat):   # (after its update)
             if not resolving or fresh:
                 # The finer grid runs from the push: the old grid's next tick, coming a
@@ -267,6 +269,15 @@ class DriveControllerStage:
                 self._grid_start = k
             self._fast_until = k + self._fast_ticks
         return result
+
+    def _rate_box(self, window: int, dmax: float) -> tuple[float, float]:
+        """Bounds of the next increment [N m] under ``resolve_rate_rule`` (19)."""
+        if self.controller.config.resolve_rate_rule == 'net':
+            return net_change_box([tau for _, tau, _ in self._applied],
+                                  self.controller.tau_previous, dmax)
+        # The increments since ``window`` count by their size, a back-and-forth too (§10).
+        bound = max(dmax - sum(move for tick, _, move in self._applied if tick > window), 0.0)
+        return -bound, bound
 
     def _strong_push(self, theta_hat: float, f2_hat: float, f3_hat: float) -> bool:
         """Whether the transient is beyond ``disturbance_decay_dead_zone`` (a push)."""

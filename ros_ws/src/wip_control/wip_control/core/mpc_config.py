@@ -73,9 +73,13 @@ class MpcParams:
         True, '-', 'with fast_resolve_period set, look for a push at every control tick and '
         're-solve on the tick it is seen, the re-solve grid starting there; false: at the '
         f"grid's ticks; {_WHY}")
+    resolve_rate_rule: str = param(
+        'sum', '-', "while re-solving, how |Δτυ| <= max_delta_torque per Ts holds: 'sum' of "
+        "|increments| over the last Ts, or 'net': the torque within it of each torque of the "
+        f'last Ts; {_WHY}', choices=('sum', 'net'))
     push_resolve_share: float = param(
         0.75, '1', 'while re-solving after a push, the largest |increment| of one solve as a '
-        f'share of max_delta_torque (the net change per Ts stays within it); {_WHY}', minimum=0.0,
+        f'share of max_delta_torque (the rate rule holds besides); {_WHY}', minimum=0.0,
         exclusive_minimum=True, maximum=1.0)
     fast_resolve_time: float = param(
         4.0, 's', 'how long after the last push detected the MPC keeps re-solving every '
