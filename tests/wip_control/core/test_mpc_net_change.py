@@ -182,3 +182,14 @@ def test_admissible_increment_clips_to_the_box_and_the_reachable_limit():
     assert admissible_increment(0.0, -20.0, 15.0, 2.0, -5.0) == 2.0
     assert admissible_increment(1.0, 14.0, 15.0, 5.0, -2.0) == 1.0
     assert admissible_increment(3.0, 14.0, 15.0, 5.0, -2.0) == 1.0     # τ clipped to 15
+
+
+def test_a_first_box_upside_down_or_nan_is_refused_and_one_beyond_the_limit_is_cut():
+    """(lower, upper) with lower > upper or NaN: MpcInputError; beyond ±Δτmax: cut to it."""
+    from wip_control.core.mpc import LongitudinalMpc, MpcInputError
+    mpc = LongitudinalMpc(MODEL, MpcParams(backend='daqp', disturbance_startup_time=0.0))
+    for box in ((1.0, -1.0), (float('nan'), 1.0), (-1.0, float('nan'))):
+        with pytest.raises(MpcInputError, match='first_box'):
+            mpc.step(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, first_box=box)
+    mpc.step(0.0, 0.05, 0.0, 0.0, 0.0, 0.0, first_box=(-50.0, 50.0))
+    assert mpc.qp.first_box == (-DMAX, DMAX)
