@@ -66,12 +66,14 @@ SUITE = {
     # 0.107 m off the path after the bump before (limit 0.1 m), 0.078 m after.
     'mujoco_bump_2cm_slow': None,
     'mujoco_bump_3cm': (
-        'falls at 10.92 s: 3 cm is above the 2.0 cm the 30 N m lift quasi-statically, and '
-        'the climb on momentum leaves the crest too fast for the 10 N m per 0.1 s torque '
-        'rate, as mujoco_bump'),
+        'falls at 13.08 s: 3 cm is above the 2.0 cm the 30 N m lift quasi-statically; met '
+        'at 0.32 m/s (the speed wanders under the IMU noise) it climbs nearly to the crest, '
+        'brakes there and rolls back over the edge with the wheels spinning (estimated '
+        '-1.4 m/s against a true -0.5 m/s), and falls on the second climb'),
     'mujoco_bump_3cm_slow': (
-        'falls at 17.12 s: met at 0.3 m/s the climb needs more lean than the torque can '
-        'take back at 10 N m per 0.1 s'),
+        'crosses without a fall (climbs at 0.14 m/s leaning 0.088 rad at 13-25 N m) but '
+        'then runs 0.33 m ahead of the reference and ends 0.13 m past its end: 0.134 m '
+        'from the path after the settle time (limit 0.1 m)'),
     'mujoco_kerb': (
         'a 4 cm step (twice what the torque lifts): it meets the edge at 0.51 m/s (the '
         'speed loop swings 0-0.69 m/s about the 0.3 m/s reference under the IMU noise), the '
