@@ -131,13 +131,15 @@ class Watchdog:
     (docs/realtime.md, section 2).
     """
 
-    def __init__(self, node: Node, period: float, callback: Callable[[], None]) -> None:
+    def __init__(self, node: Node, period: float, callback: Callable[[], None],
+                 clock: Clock | None = None) -> None:
         self.period = period
         self.callback = callback
         self.node = node
-        #: The rclpy timer while not adopted (cancelled once adopted).
+        #: The rclpy timer while not adopted (cancelled once adopted), on ``clock`` (the
+        #: steady clock unless given; adopted, the spin loop keeps steady time).
         self.timer = node.create_timer(period, callback,
-                                       clock=Clock(clock_type=ClockType.STEADY_TIME))
+                                       clock=clock or Clock(clock_type=ClockType.STEADY_TIME))
         self.adopted = False
         #: Steady time [s] of the next call when adopted.
         self.due = 0.0

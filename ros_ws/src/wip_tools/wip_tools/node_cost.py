@@ -9,8 +9,9 @@ tick calls the ESO's two sensor callbacks with serialized JointState and Imu sta
 now (and any other node's own subscription of them with the message deserialized, as
 rclpy would take it for that subscription: the mixer's wiring checks where the ESO's
 subscriptions do not serve them), drains the bus (estimate → reference → generator →
-ARC → mixer → effort command), and spins the executor once for its due timers (the MPC
-at 10 Hz, diagnostics, the mixer's watchdog); an outside subscription of the effort
+ARC → mixer → effort command, whose wheel torques run the MPC's due tick), spins the
+executor once for its due timers (diagnostics) and fires the deadlines the composed spin
+loop keeps (the mixer's and the MPC's, due only when a chain is late); an outside subscription of the effort
 command makes the mixer write it to DDS, as against a base. The /wip/heartbeat is
 fed every 0.2 s. The vehicle stands
 still, upright (the cost of a tick hardly depends on the state). Paced ticks first, until
@@ -180,6 +181,9 @@ class _SensorFeed:
                 callback(deserialize_message(imu_bytes, Imu))
         bus.drain()
         executor.spin_once(timeout_sec=0.0)
+        now = time.monotonic()
+        for watchdog in bus.watchdogs:      # the deadlines the composed spin loop keeps
+            watchdog.fire_if_due(now)
         bus.drain()
         return time.thread_time() - start
 

@@ -30,10 +30,16 @@ timer: see ``wip_runtime.clock``.) At a tick of the re-solve grid where the stag
 solve (``DriveControllerStage.solves``, which needs the estimate only: no push), the held
 τυ is published (status SOLVED, ``status_text`` HELD, no plan) as soon as estimate(t_k)
 has arrived, so the mixer gets an answer at every tick of the grid.
-realtime: a timer of period ``mpc.sampling_period`` (``mpc.fast_resolve_period`` when set,
-h with ``mpc.push_trigger``; then only the ticks at which the stage solves publish) on the
-node clock computes with the latest inputs; if one is missing (NOT_READY) or older than
-``max_input_age`` (INPUT_INVALID) it publishes τυ = 0 and tells the core that 0 was
+realtime: a tick every ``mpc.sampling_period`` (``mpc.fast_resolve_period`` when set,
+h with ``mpc.push_trigger``; then only the ticks at which the stage solves publish)
+computes with the latest inputs. Alone in its process the tick is a timer of the node
+clock. Composed, it runs when the mixer's wheel torques end the chain of a sensor sample
+at least a tick period less half a control period after the last tick, and on a deadline
+that the spin loop keeps (an adopted ``wip_runtime.executors.Watchdog``, half a control
+period late) for a chain that does not come: the same inputs as a timer firing between
+that chain and the next (either way the drive torque is applied from the next chain on),
+without a wake-up of its own. If an input is missing (NOT_READY) or older than
+``max_input_age`` (INPUT_INVALID) the tick publishes τυ = 0 and tells the core that 0 was
 applied. The node also subscribes ``/wip/wheel_torques`` and, before each tick, gives the
 core the drive torque τυ = τl + τr the mixer last applied
 (``LongitudinalMpc.set_previous_torque``): when the safety layer holds the torque at zero
@@ -54,6 +60,7 @@ References
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -71,6 +78,7 @@ from wip_runtime.stamps import stamp_to_ns
 from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc_hold_msg,
                           mpc_idle_msg, mpc_to_msg, wheel_torques_from_msg)
 from wip_runtime.diagnostics import OK, WARN
+from wip_runtime.executors import Watchdog
 from wip_runtime.parameters import RosParams
 from .settings import MpcNodeParams, WheelTorqueLimit
 from wip_runtime.sync import decimation, ExactTimeSync, tick_index
@@ -108,7 +116,12 @@ class MpcNode(ControllerNode):
         if self.lockstep:
             self.sync = ExactTimeSync(_INPUTS, self._tick)
         else:
-            self.create_timer(self.tick_period, self._realtime_tick)
+            # The tick's deadline; composed, the chain's end runs the tick (_on_applied).
+            self.watchdog = Watchdog(self, self.tick_period, self._realtime_tick,
+                                     clock=self.get_clock())
+            self.chain_slack = 0.5 * self.control_period
+            self.ticked_at = -math.inf   # steady time [s] of the last tick
+            self.max_input_age_ns = self.max_input_age * 1e9
             self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
                            self._on_applied)
         self.applied_drive_torque: float | None = None
@@ -161,28 +174,44 @@ class MpcNode(ControllerNode):
         return True
 
     def _on_applied(self, msg: WheelTorques) -> None:
-        """realtime: the torques the mixer applied (ValueError on non-finite: dropped)."""
+        """realtime: the torques the mixer applied (ValueError on non-finite: dropped).
+
+        Composed, they end the chain of a sensor sample: a tick due within half a control
+        period runs now, with that chain's inputs and applied torque, as a timer firing
+        between this chain and the next would have run it.
+        """
         left, right = wheel_torques_from_msg(msg)
         self.applied_drive_torque = left + right
+        watchdog = self.watchdog
+        if (watchdog.adopted
+                and time.monotonic() - self.ticked_at >= self.tick_period - self.chain_slack):
+            # The deadline is for a chain that does not come: half a control period late,
+            # so that a chain a little later than one period never meets a tick just run.
+            watchdog.kick()
+            watchdog.due += self.chain_slack
+            self._realtime_tick()
 
     def _realtime_tick(self) -> None:
+        self.ticked_at = time.monotonic()
         k = self.realtime_k
         self.realtime_k += self.every
         try:
             if self.applied_drive_torque is not None:
                 self.mpc.set_previous_torque(self.applied_drive_torque)
             now = self.now_ns()
-            missing = [n for n in _INPUTS if n not in self.latest]
-            if missing:
+            latest = self.latest
+            if len(latest) < len(_INPUTS):
+                missing = [n for n in _INPUTS if n not in latest]
                 self._idle(now, DriveTorque.NOT_READY, f'NOT_READY: no {", ".join(missing)} yet')
                 return
-            stale = [f'{n} {(now - s) * 1e-9:.3f} s old' for n, (s, _) in self.latest.items()
-                     if now - s > self.max_input_age * 1e9]
-            if stale:
+            estimate, command, yaw = (latest[n] for n in _INPUTS)
+            if now - min(estimate[0], command[0], yaw[0]) > self.max_input_age_ns:
+                stale = [f'{n} {(now - s) * 1e-9:.3f} s old' for n, (s, _) in latest.items()
+                         if now - s > self.max_input_age_ns]
                 self._idle(now, DriveTorque.INPUT_INVALID, f'INPUT_INVALID: stale {stale}')
                 return
-            self._tick(self.latest['state_estimate'][0],
-                       {n: v for n, (_, v) in self.latest.items()}, k)
+            self._tick(estimate[0], {'state_estimate': estimate[1],
+                                     'velocity_command': command[1], 'yaw_torque': yaw[1]}, k)
         except Exception as err:  # noqa: BLE001 - a timer callback must not stop the node
             self.diagnostics.drop('tick', 'error', f'{type(err).__name__}: {err}')
 
