@@ -123,20 +123,25 @@ def test_a_message_published_by_a_local_callback_is_queued_behind_the_others():
 
 def test_an_unattached_publisher_is_plain_and_an_attached_one_skips_what_no_one_reads():
     alone = FakeDdsPublisher(matched=0)
-    IntraProcessPublisher(alone, Msg).publish(Msg(0))   # a node alone: plain rclpy
+    plain = IntraProcessPublisher(alone, Msg)
+    assert plain.reaches_anyone()           # unattached: rclpy's, whatever it matches
+    plain.publish(Msg(0))                   # a node alone: plain rclpy
     assert [m.value for m in alone.sent] == [0]
     bus = IntraProcessBus()
     dds = FakeDdsPublisher(matched=0)
     volatile = IntraProcessPublisher(dds, Msg)
     assert bus.attach(volatile) == 0        # no subscription of this process on the topic
+    assert not volatile.reaches_anyone()    # so a node need not build the message
     volatile.publish(Msg(1))                # no subscriber: DDS would deliver to no one
     assert dds.sent == [] and bus.pending == 0
     dds.match(volatile, 1)
+    assert volatile.reaches_anyone()
     volatile.publish(Msg(2))
     assert [m.value for m in dds.sent] == [2]
     latched = FakeDdsPublisher(matched=0)
     kept = IntraProcessPublisher(latched, Msg, skip_unmatched=False)
     bus.attach(kept)
+    assert kept.reaches_anyone()
     kept.publish(Msg(3))
     assert [m.value for m in latched.sent] == [3]   # transient local: kept for late joiners
     assert volatile.topic_name == '/wip/t' and volatile.get_subscription_count() == 1
@@ -180,6 +185,7 @@ def test_where_dds_ignores_local_endpoints_local_ones_take_the_bus_and_outsiders
     lonely = FakeDdsPublisher('/wip/lonely', matched=0)
     volatile = IntraProcessPublisher(lonely, Msg)
     bus.attach(volatile)
+    assert not volatile.reaches_anyone() and publisher.reaches_anyone()
     volatile.publish(Msg(3))
     latched = IntraProcessPublisher(lonely, Msg, skip_unmatched=False)
     bus.attach(latched)

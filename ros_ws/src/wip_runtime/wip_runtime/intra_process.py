@@ -121,6 +121,18 @@ class IntraProcessPublisher:
         self._bus = bus
         self._local = tuple(callbacks)
 
+    def reaches_anyone(self) -> bool:
+        """Whether :meth:`publish` would send a message now, to DDS or to this process.
+
+        False only for an attached volatile publisher that no subscription reaches: a node
+        need not build a message that would go nowhere.
+        """
+        if self._bus is None or self._local or not self.skip_unmatched:
+            return True
+        now = time.monotonic()
+        return bool(self._matched if now < self._matched_until
+                    else self._refresh_match_count(now))
+
     def publish(self, msg) -> None:
         bus = self._bus
         if bus is None:                      # a node alone in its process: plain rclpy

@@ -266,15 +266,18 @@ class EsoNode(ControllerNode):
         self.odometry_count += 1
         if (self.odometry_count - 1) % self.odometry_every:
             return
+        tf = self.odometry_tf_publisher
+        if not (self.odometry_publisher.reaches_anyone()
+                or (tf is not None and tf.reaches_anyone())):
+            return   # composed, and no one listens: no message to build
         settings, est = self.odometry_settings, pose.estimate
         msg = odometry_to_msg(
             stamp, settings.odometry_frame_id, settings.odometry_child_frame_id, pose.x,
             pose.y, est.phi, est.v, est.omega, self.odometry_pose_covariance,
             self.odometry_twist_covariance)
         self.odometry_publisher.publish(msg)
-        if self.odometry_tf_publisher is not None:
-            self.odometry_tf_publisher.publish(TFMessage(transforms=[
-                transform_from_odometry(msg)]))
+        if tf is not None:
+            tf.publish(TFMessage(transforms=[transform_from_odometry(msg)]))
 
     # -- lockstep set definition ------------------------------------------------------------
     def _is_gps_tick(self, stamp_ns: int) -> bool:
