@@ -51,6 +51,27 @@ def test_an_adopted_watchdog_calls_a_period_after_the_last_kick_then_on_its_grid
     assert len(calls) == 2 and watchdog.due == pytest.approx(100.019)
 
 
+def test_a_grace_delays_the_first_call_after_a_kick_not_the_grid_after_it(test_node, clock):
+    # The MPC's deadline in a composed process: the chain that runs its tick may end a
+    # little later than a period after the last; a call just before it would be a second
+    # tick of that period.
+    calls = []
+    watchdog = executors.Watchdog(test_node, PERIOD, lambda: calls.append(clock.now),
+                                  grace=0.25 * PERIOD)
+    watchdog.adopt()
+    watchdog.kick()
+    clock.now += PERIOD + 0.001                  # a late chain, within the grace: no call
+    watchdog.fire_if_due(clock.now)
+    assert calls == []
+    watchdog.kick()
+    clock.now += 1.25 * PERIOD
+    watchdog.fire_if_due(clock.now)              # no chain within the grace: a call
+    clock.now += PERIOD
+    watchdog.fire_if_due(clock.now)              # then every period, without the grace
+    assert calls == [pytest.approx(100.0 + 2.25 * PERIOD + 0.001),
+                     pytest.approx(100.0 + 3.25 * PERIOD + 0.001)]
+
+
 def test_a_stall_longer_than_a_period_gives_one_call_then_a_period_from_now(
         test_node, clock):
     calls = []

@@ -9,6 +9,7 @@ directly, capturing what it publishes: no DDS traffic, no timing.
 """
 
 import math
+import time
 
 from hypothesis import given, settings, strategies as st
 import pytest
@@ -403,6 +404,41 @@ def test_mpc_in_real_time_plans_from_the_torque_the_mixer_applied(context, nodes
     node._on_applied(WheelTorques(header=make_header(stamp), left=1.25, right=2.0))
     third = solve_tick(node, out)
     assert third.tau_v - third.delta_tau == pytest.approx(3.25, abs=1e-12)
+
+
+def test_composed_mpc_ticks_at_the_chains_end_and_on_a_late_deadline_without_one(
+        context, nodes, monkeypatch):
+    # Composed (its watchdog adopted by the spin loop), the real-time tick runs when the
+    # mixer's wheel torques end a chain at least a tick period less half a control period
+    # after the last tick, so a second command of the same period (the mixer's watchdog)
+    # is no tick; without a chain the deadline, half a control period late, runs it. The
+    # counter of control ticks advances by one tick period per tick either way, as the
+    # timer's did.
+    clock = [100.0]
+    monkeypatch.setattr(time, 'monotonic', lambda: clock[0])
+    node = make(nodes, context, MpcNode)
+    capture(node.publisher)
+    period, half = node.tick_period, 0.5 * node.control_period
+    node.watchdog.adopt()
+    applied = WheelTorques(header=make_header(node.now_ns()))
+    node._on_applied(applied)
+    assert node.realtime_k == node.every                  # the first chain: a tick
+    clock[0] += period - half - 1e-6
+    node._on_applied(applied)
+    assert node.realtime_k == node.every                  # too soon after the last tick
+    clock[0] += 2e-6
+    node._on_applied(applied)
+    assert node.realtime_k == 2 * node.every and node.watchdog.due == pytest.approx(
+        clock[0] + period + half)
+    clock[0] = node.watchdog.due - 1e-6                   # no chain comes
+    node.watchdog.fire_if_due(clock[0])
+    assert node.realtime_k == 2 * node.every
+    clock[0] += 2e-6
+    node.watchdog.fire_if_due(clock[0])
+    assert node.realtime_k == 3 * node.every
+    alone = make(nodes, context, MpcNode)                 # not adopted: its timer ticks
+    alone._on_applied(applied)
+    assert alone.realtime_k == 0 and not alone.watchdog.timer.is_canceled()
 
 
 def solve_tick(node, out):

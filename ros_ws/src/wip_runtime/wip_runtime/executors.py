@@ -129,11 +129,17 @@ class Watchdog:
     EventsExecutor keeps for the timer's clock, twice per restart: at 200 Hz that was
     about 400 wake-ups a second of a thread that does nothing else
     (docs/realtime.md, section 2).
+
+    ``grace`` [s]: adopted, the first call after a kick comes this much later than a
+    period (then every period on that grid): the work a kick stands for often comes a
+    little later than a period after the last (the stages before it vary in time), and a
+    call just before it would be a second, needless one. The rclpy timer has none.
     """
 
     def __init__(self, node: Node, period: float, callback: Callable[[], None],
-                 clock: Clock | None = None) -> None:
+                 clock: Clock | None = None, grace: float = 0.0) -> None:
         self.period = period
+        self.grace = grace
         self.callback = callback
         self.node = node
         #: The rclpy timer while not adopted (cancelled once adopted), on ``clock`` (the
@@ -154,7 +160,7 @@ class Watchdog:
     def kick(self) -> None:
         """Restart the period (the callback's work was just done some other way)."""
         if self.adopted:
-            self.due = time.monotonic() + self.period
+            self.due = time.monotonic() + self.period + self.grace
         else:
             self.timer.reset()
 

@@ -11,11 +11,11 @@ rclpy would take it for that subscription: the mixer's wiring checks where the E
 subscriptions do not serve them), drains the bus (estimate → reference → generator →
 ARC → mixer → effort command, whose wheel torques run the MPC's due tick), spins the
 executor once for its due timers (diagnostics) and fires the deadlines the composed spin
-loop keeps (the mixer's and the MPC's, due only when a chain is late); an outside subscription of the effort
-command makes the mixer write it to DDS, as against a base. The /wip/heartbeat is
-fed every 0.2 s. The vehicle stands
-still, upright (the cost of a tick hardly depends on the state). Paced ticks first, until
-the safety layer has engaged (its settle time is wall time); then the measured ticks.
+loop keeps (the mixer's and the MPC's, due only when a chain is late); an outside
+subscription of the effort command makes the mixer write it to DDS, as against a base.
+The /wip/heartbeat is fed every 0.2 s. The vehicle stands still, upright (the cost of a
+tick hardly depends on the state). Paced ticks first, until the safety layer has engaged
+(its settle time is wall time); then the measured ticks.
 
 The thread CPU time of each tick is measured, ``--pace 1`` with the ticks at 200 Hz
 (sleeping between them, as in real time) or ``--pace 0`` back to back. Their ratio is what

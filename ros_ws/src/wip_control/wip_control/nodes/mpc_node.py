@@ -117,9 +117,9 @@ class MpcNode(ControllerNode):
             self.sync = ExactTimeSync(_INPUTS, self._tick)
         else:
             # The tick's deadline; composed, the chain's end runs the tick (_on_applied).
-            self.watchdog = Watchdog(self, self.tick_period, self._realtime_tick,
-                                     clock=self.get_clock())
             self.chain_slack = 0.5 * self.control_period
+            self.watchdog = Watchdog(self, self.tick_period, self._realtime_tick,
+                                     clock=self.get_clock(), grace=self.chain_slack)
             self.ticked_at = -math.inf   # steady time [s] of the last tick
             self.max_input_age_ns = self.max_input_age * 1e9
             self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
@@ -185,10 +185,9 @@ class MpcNode(ControllerNode):
         watchdog = self.watchdog
         if (watchdog.adopted
                 and time.monotonic() - self.ticked_at >= self.tick_period - self.chain_slack):
-            # The deadline is for a chain that does not come: half a control period late,
-            # so that a chain a little later than one period never meets a tick just run.
+            # The deadline (half a control period late: the grace) is for a chain that
+            # does not come, so a chain a little late never meets a tick just run.
             watchdog.kick()
-            watchdog.due += self.chain_slack
             self._realtime_tick()
 
     def _realtime_tick(self) -> None:
