@@ -4,6 +4,8 @@ Every part runs and reports (the numbers are benchmarks, not pass/fail; only the
 sanity are checked).
 """
 
+import contextlib
+import io
 import json
 
 import pytest
@@ -17,7 +19,27 @@ from wip_tools import bench  # noqa: E402
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 
 
-def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys):
+@pytest.fixture(scope='module')
+def push_only(tmp_path_factory):
+    """``scripts/bench --push-only`` once for the module: (its JSON report, what it printed).
+
+    The push section is 24 in-process runs (four noisy cases of five seeds, four clean),
+    deterministic bit for bit; the whole bench's run takes its rows from here instead of
+    running them again (its own checks are about the other sections).
+    """
+    out = tmp_path_factory.mktemp('bench_push') / 'bench.json'
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        status = bench.main(['--push-only', '--json', str(out)])
+    assert status == 0
+    return json.loads(out.read_text()), printed.getvalue()
+
+
+def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys, push_only,
+                                                                monkeypatch):
+    from wip_tools.analysis import push_bound
+    # Section 5 is the push-only run's (test_bench_push_only_...), printed again here.
+    monkeypatch.setattr(push_bound, 'push_recovery_rows', lambda: push_only[0]['push_recovery'])
     scenario = tmp_path / 'short.yaml'
     scenario.write_text(yaml.safe_dump({'name': 'bench_short', 'duration': 2.0}))
     out = tmp_path / 'bench.json'
@@ -102,6 +124,8 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
     assert 'sensor->command latency' in printed
     assert 'fed directly' in printed
     assert 'overhead ratio' in printed and 'Pi-class estimate' in printed
+    assert report['push_recovery'] == push_only[0]['push_recovery']
+    assert printed.count('bound 0.70') == push_only[1].count('bound 0.70') > 0
 
 
 def test_node_cost_refuses_absurd_durations_in_one_line(capsys):
@@ -112,13 +136,11 @@ def test_node_cost_refuses_absurd_durations_in_one_line(capsys):
     assert '--seconds: must be in (0, 3600]' in capsys.readouterr().err
 
 
-def test_bench_push_only_prints_each_case_against_its_bound(tmp_path, capsys):
-    out = tmp_path / 'bench.json'
-    assert bench.main(['--push-only', '--json', str(out)]) == 0
-    rows = json.loads(out.read_text())['push_recovery']
+def test_bench_push_only_prints_each_case_against_its_bound(push_only):
+    report, printed = push_only
+    rows = report['push_recovery']
     assert len(rows) == 8 and all(row['ratio'] > 1.0 for row in rows)
-    assert 'mpc' not in json.loads(out.read_text())
-    printed = capsys.readouterr().out
+    assert 'mpc' not in report
     assert printed.count('ratio') >= 8 and 'bound 0.70' in printed
     # A noisy case is the median of its seeds, within their range; a clean one runs once.
     for row in rows:
