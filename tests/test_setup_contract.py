@@ -367,6 +367,7 @@ def test_bootstrap_keeps_a_domain_id_given_by_the_caller():
 
 
 @pytest.mark.ros
+@pytest.mark.serial   # it runs scripts/setup: not beside tests that use the install tree
 def test_setup_is_idempotent():
     # The first run brings everything up to date (normally already done by scripts/test);
     # the second must find nothing to do.

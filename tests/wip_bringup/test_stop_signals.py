@@ -28,7 +28,9 @@ from wip_bag.bag_info import main as bag_info_main  # noqa: E402
 from wip_bag.bag_reader import read_bag  # noqa: E402
 from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+# serial: each stop is judged by the nodes' clean exits within their grace periods, which
+# the other tests on a second worker once made them miss (docs/testing.md).
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.serial]
 
 TIMEOUT = 240.0  # [s] for any one step on a loaded 2-core machine
 # [s] simulated. The signal follows 0.5 s of it; the fastest recorded layout runs about
