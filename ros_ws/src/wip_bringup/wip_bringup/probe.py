@@ -7,6 +7,8 @@ import threading
 import time
 from typing import Any
 
+from .run_stop import stop_raised_in_native_code
+
 PROBE_CLOSE_TIMEOUT = 10.0  # [s] wall: the probe node's destruction (Probe.close)
 
 
@@ -76,7 +78,8 @@ class Probe:
             left = deadline - time.monotonic()
             if left <= 0:
                 return
-            self.executor.spin_once(timeout_sec=left)
+            with stop_raised_in_native_code():
+                self.executor.spin_once(timeout_sec=left)
 
     def node_names(self) -> set[str]:
         return {name for name, namespace in self.node.get_node_names_and_namespaces()
@@ -110,7 +113,8 @@ class Probe:
         future = self.start_client.call_async(self._trigger.Request())
         deadline = time.monotonic() + timeout
         while not future.done() and time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.05)
+            with stop_raised_in_native_code():
+                self.executor.spin_once(timeout_sec=0.05)
         return future.result() if future.done() else None
 
     def close(self) -> None:

@@ -33,8 +33,40 @@ class StopRequested(KeyboardInterrupt):
         self.signum = signum
 
 
+#: The stop signals received in this process, in order (see :func:`stop_raised_in_native_code`).
+_received: list[int] = []
+
+
 def _raise_stop(signum, frame) -> None:
+    _received.append(signum)
     raise StopRequested(signum)
+
+
+def _raise_interrupt(signum, frame) -> None:
+    _received.append(signum)
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def stop_raised_in_native_code():
+    """Give back a stop signal's exception that native code turned into another error.
+
+    A signal handler runs at the next Python instruction, which may be inside a native
+    call: an exception it raises while pybind11 converts a value (rclpy's take of a
+    message) comes out as ``RuntimeError: Unable to convert call argument``, and the stop
+    would end as an internal error. A signal received within this block while such an
+    error leaves it is raised again as the stop (KeyboardInterrupt or StopRequested).
+    """
+    mark = len(_received)
+    try:
+        yield
+    except Exception as error:
+        if len(_received) == mark:
+            raise
+        signum = _received[-1]
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt from error
+        raise StopRequested(signum) from error
 
 
 @contextlib.contextmanager
@@ -50,7 +82,7 @@ def stop_signals():
         yield   # handlers can only be set from the main thread; the caller stops it
         return
     previous = {n: signal.signal(n, _raise_stop) for n in (signal.SIGTERM, signal.SIGHUP)}
-    previous[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
+    previous[signal.SIGINT] = signal.signal(signal.SIGINT, _raise_interrupt)
     try:
         yield
     finally:
