@@ -20,7 +20,9 @@ tick hardly depends on the state). Paced ticks first, until the safety layer has
 The thread CPU time of each tick is measured, ``--pace 1`` with the ticks at 200 Hz
 (sleeping between them, as in real time) or ``--pace 0`` back to back. Their ratio is what
 the machine charges for running after an idle period (cold caches, a halted vCPU):
-docs/realtime.md §2 (measured on the 2-core development machine).
+docs/realtime.md §2 (measured on the 2-core development machine). With it, per tick: the
+measuring thread's context switches, migrations, minor faults and time waiting for a CPU,
+and the CPU time of the whole process (``per_tick``).
 """
 
 from __future__ import annotations
@@ -62,7 +64,7 @@ def measure(seconds: float, paced: bool) -> dict:
         mixer = feed.nodes['torque_mixer']
         engage_ticks = int(ENGAGE_TIMEOUT / CONTROL_PERIOD)
         ticks = max(50, int(seconds / CONTROL_PERIOD))
-        costs = []
+        costs, counted = [], None
         due = time.monotonic()
         for k in range(-engage_ticks, ticks):
             if k < 0 and str(mixer.monitor.state).endswith('ACTIVE'):
@@ -72,9 +74,12 @@ def measure(seconds: float, paced: bool) -> dict:
                 delay = due - time.monotonic()
                 if delay > 0.0:
                     time.sleep(delay)
+            if k == 0:
+                counted = _scheduler_counters()
             cost = feed.tick(k, bus, executor)
             if k >= 0:
                 costs.append(cost)
+        counters = _per_tick(counted, _scheduler_counters(), ticks)
         engaged = str(mixer.monitor.state)
         kept = sorted(costs[len(costs) // 5:])
         return {'paced': paced, 'ticks': ticks, 'safety_state': engaged,
@@ -82,11 +87,46 @@ def measure(seconds: float, paced: bool) -> dict:
                 'mean_us': 1e6 * statistics.fmean(kept),
                 'p90_us': 1e6 * kept[int(0.9 * (len(kept) - 1))],
                 'effort_commands_to_dds': bus.published_dds,
+                'per_tick': counters,
                 'other_sensor_subscriptions': len(feed.others)}
     finally:
         for node in built:
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def _scheduler_counters() -> dict[str, float] | None:
+    """Return the measuring thread's scheduler counters, the process's CPU time (Linux).
+
+    Context switches and migrations from ``/proc/thread-self/sched``, the time spent
+    runnable but waiting for a CPU from its ``schedstat`` [ns], minor page faults of the
+    thread, and the CPU time of all the process's threads [s] (the DDS threads that the
+    effort command's write wakes). None where there is no such file.
+    """
+    import resource
+
+    try:
+        with open('/proc/thread-self/sched', encoding='ascii') as stream:
+            fields = {name.strip(): value for name, value in
+                      (line.split(':', 1) for line in stream if ':' in line)}
+        with open('/proc/thread-self/schedstat', encoding='ascii') as stream:
+            wait_ns = int(stream.read().split()[1])
+    except (OSError, IndexError, ValueError):
+        return None
+    thread = resource.getrusage(resource.RUSAGE_THREAD)
+    process = resource.getrusage(resource.RUSAGE_SELF)
+    return {'voluntary_switches': float(fields['nr_voluntary_switches']),
+            'involuntary_switches': float(fields['nr_involuntary_switches']),
+            'migrations': float(fields['se.nr_migrations']),
+            'runnable_wait_us': wait_ns * 1e-3, 'minor_faults': float(thread.ru_minflt),
+            'process_cpu_us': 1e6 * (process.ru_utime + process.ru_stime)}
+
+
+def _per_tick(before: dict | None, after: dict | None, ticks: int) -> dict | None:
+    """Each counter's change from ``before`` to ``after`` per tick (None if unknown)."""
+    if before is None or after is None:
+        return None
+    return {name: (after[name] - before[name]) / ticks for name in before}
 
 
 def _init_rclpy() -> None:

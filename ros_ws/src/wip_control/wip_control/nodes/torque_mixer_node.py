@@ -111,6 +111,9 @@ _MAX_ESTIMATE_STAMPS = 64
 _DIAGNOSTICS_ON_CHANGE_PERIOD = 0.05
 #: Commands over which the sensor -> command latency percentiles are reported (60 s).
 LATENCY_WINDOW = 12000
+#: Composed: the watchdog's first call comes a period and this many more after the sensor
+#: sample of the last chain (room for the next chain's latency), in control periods.
+CHAIN_GRACE = 0.5
 #: Longest wait [s] for the base to acknowledge the zero command sent on stopping.
 STOP_ACK_TIMEOUT = 1.0
 _LEVEL = {ACTIVE: OK, DEGRADED: WARN, SHADOW: WARN, STARTING: WARN, FAULT: ERROR,
@@ -162,9 +165,12 @@ class TorqueMixerNode(ControllerNode):
             self.sync = ExactTimeSync(_INPUTS, self._mix_set, required=self._required,
                                       gate=self._estimate_ready)
         else:
-            # Watchdog: restarted by every command sent on a yaw torque's arrival; a
-            # composed process keeps it in its spin loop (wip_runtime.executors.Watchdog).
-            self.watchdog = Watchdog(self, self.control_period, self._tick)
+            # Watchdog: restarted by every command sent on a yaw torque's arrival; composed,
+            # the spin loop keeps it (wip_runtime.executors.Watchdog), due 1.5 periods after
+            # the chain's sensor sample: one command per sample, and a base's last command
+            # at most 1.5 periods old when a chain does not come (docs/realtime.md, §2).
+            self.watchdog = Watchdog(self, self.control_period, self._tick,
+                                     grace=CHAIN_GRACE * self.control_period)
             self.timer = self.watchdog.timer
         self.latencies = collections.deque(maxlen=LATENCY_WINDOW)   # [s]
         self._init_wiring_check()
@@ -287,7 +293,7 @@ class TorqueMixerNode(ControllerNode):
             self.feed('yaw_torque', stamp, msg.tau_omega)
         else:
             self.monitor.yaw_torque(self.monitor_time(), msg.tau_omega)
-            self.watchdog.kick()
+            self.watchdog.kick(age=(self.now_ns() - stamp) * 1e-9)
             self._tick(sensor_stamp=stamp)
 
     def _on_drive(self, msg: DriveTorque) -> None:
