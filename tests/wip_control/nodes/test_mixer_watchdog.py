@@ -1,9 +1,9 @@
-"""The real-time mixer's watchdog in a composed process: counted from the sensor sample.
+"""The real-time mixer's watchdog in a composed process: its deadline after a chain.
 
 The yaw torque that ends a chain carries its sensor sample's stamp. Adopted by the spin
-loop, the watchdog's next call is due 1.5 control periods after that sample, however late
-the chain ended, and never less than a period after the command: the next chain, a
-period later, then sends its command before the watchdog would send a second one.
+loop, the watchdog's next call is due ``CHAIN_GRACE`` periods after a period from that
+sample, however late the chain ended, and never less than a period after the command
+(``CHAIN_GRACE`` 0: a period after the command, docs/realtime.md §2).
 """
 
 import time
@@ -31,7 +31,7 @@ def mixer(context):
 
 
 @pytest.mark.parametrize('chain_latency', [0.2, 0.9])   # [control periods]
-def test_the_watchdog_is_due_a_period_and_a_half_after_the_chains_sample(
+def test_the_watchdog_is_due_a_period_after_the_command_or_the_grace_after_the_sample(
         mixer, chain_latency):
     assert not mixer.lockstep
     period = mixer.control_period
@@ -43,7 +43,7 @@ def test_the_watchdog_is_due_a_period_and_a_half_after_the_chains_sample(
     after = time.monotonic()
     due = mixer.watchdog.due
     if chain_latency < CHAIN_GRACE:
-        # 1.5 periods after the sample (the two clocks read within the tolerance).
+        # The grace after a period from the sample (clocks read within the tolerance).
         assert due == pytest.approx(sample + (1.0 + CHAIN_GRACE) * period, abs=0.2e-3)
     else:
         assert before + period <= due <= after + period   # a period after the command

@@ -112,8 +112,10 @@ _DIAGNOSTICS_ON_CHANGE_PERIOD = 0.05
 #: Commands over which the sensor -> command latency percentiles are reported (60 s).
 LATENCY_WINDOW = 12000
 #: Composed: the watchdog's first call comes a period and this many more after the sensor
-#: sample of the last chain (room for the next chain's latency), in control periods.
-CHAIN_GRACE = 0.5
+#: sample of the last chain, in control periods, and never less than a period after the
+#: command. 0: a period after the command; 0.5 sent one command per sample but let the base
+#: see more deadline misses (docs/realtime.md §2).
+CHAIN_GRACE = 0.0
 #: Longest wait [s] for the base to acknowledge the zero command sent on stopping.
 STOP_ACK_TIMEOUT = 1.0
 _LEVEL = {ACTIVE: OK, DEGRADED: WARN, SHADOW: WARN, STARTING: WARN, FAULT: ERROR,
@@ -166,9 +168,8 @@ class TorqueMixerNode(ControllerNode):
                                       gate=self._estimate_ready)
         else:
             # Watchdog: restarted by every command sent on a yaw torque's arrival; composed,
-            # the spin loop keeps it (wip_runtime.executors.Watchdog), due 1.5 periods after
-            # the chain's sensor sample: one command per sample, and a base's last command
-            # at most 1.5 periods old when a chain does not come (docs/realtime.md, §2).
+            # the spin loop keeps it (wip_runtime.executors.Watchdog), due CHAIN_GRACE after
+            # a period from the chain's sensor sample, at least a period after the command.
             self.watchdog = Watchdog(self, self.control_period, self._tick,
                                      grace=CHAIN_GRACE * self.control_period)
             self.timer = self.watchdog.timer
