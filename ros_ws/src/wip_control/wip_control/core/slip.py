@@ -22,8 +22,11 @@ Rules per sample (period h):
       motion, not slip (docs/estimation.md has the measurements);
     - it stops when the two wheels' w agree within ``agreement`` and their mean is within
       3 ``agreement`` of ŵ for ``hold`` s (a wheel that spun alone rolls with the other
-      again; both that spun roll at the speed the IMU followed), or after
-      ``longest`` s (the wheels are then believed again and ŵ restarts from them);
+      again; both that spun roll at the speed the IMU followed), or, once it has lasted
+      ``longest`` s, when the two wheels agree with each other for ``hold`` s whatever ŵ
+      says (ŵ may have coasted off the truth; the wheels are believed again and ŵ restarts
+      from them). Never while the wheels disagree with each other and with ŵ: wheels that
+      spin in turns on an edge they cannot climb stay out of x_v however long they spin;
     - nothing is judged for the first 3 / ω_c after the start (the filter converging);
     - the measured w is the mean of the gripping wheels'; with none, the least of the two
       wheels' and ŵ's prediction under a driving torque (spin only makes a wheel faster),
@@ -65,7 +68,7 @@ class SlipMonitor:
     agreement : [m/s] |w_l − w_r| under which the wheels grip again (after ``hold`` s).
     bandwidth : ω_c [rad/s] of the complementary filter of w.
     hold : [s] how long the wheels must agree to be believed again.
-    longest : [s] the longest slip: then the wheels are believed again.
+    longest : [s] after it, two wheels that roll alike are believed whatever ŵ says.
     relative_to_body : the encoders measure the wheels against the body (the default).
     """
 
@@ -95,7 +98,8 @@ class SlipMonitor:
         self._residual = [0.0, 0.0]          # previous residual acceleration per wheel
         self._w_prev: tuple | None = None
         self._slipping = [False, False]
-        self._agree_since = math.inf        # since when the two wheels agree
+        self._agree_since = math.inf        # since when the wheels agree with ŵ
+        self._together_since = math.inf     # since when the two wheels agree
         self._since = [math.inf, math.inf]   # when each wheel's slip began
         self._start: float | None = None
         self.offset = 0.0
@@ -176,24 +180,31 @@ class SlipMonitor:
                     and mean * torques[i] > 0.0):
                 slipping[i] = True
                 self._since[i] = t
-                self._agree_since = math.inf
+                self._agree_since = self._together_since = math.inf
                 self.events += 1
 
     def _release(self, t: float, w_now: tuple[float, float]) -> None:
-        """End the slip once the wheels grip again, or once it has lasted ``longest``."""
-        # Gripping again: the two wheels agree (the gyro's yaw taken out) for ``hold``
-        # s: a wheel that spun alone is back with the other; both that spun roll
-        # alike again. Or the slip has lasted ``longest``.
+        """End the slip once the wheels grip again (with ŵ, or together after ``longest``)."""
         slipping = self._slipping
         mean_w = 0.5 * (w_now[0] + w_now[1])
-        if (abs(w_now[0] - w_now[1]) < self.agreement
-                and abs(mean_w - self._w_hat) < 3.0 * self.agreement):
+        together = abs(w_now[0] - w_now[1]) < self.agreement
+        self._together_since = min(self._together_since, t) if together else math.inf
+        if together and abs(mean_w - self._w_hat) < 3.0 * self.agreement:
             self._agree_since = min(self._agree_since, t)
         else:
             self._agree_since = math.inf
-        if (t - self._agree_since >= self.hold - 1e-9
-                or t - min(self._since) >= self.longest):
+        # Gripping: the two wheels roll alike (the gyro's yaw taken out) at the speed ŵ
+        # followed from the IMU (ẇ = g θ + d̂). Past ``longest`` ŵ may have coasted off
+        # the truth, so two wheels rolling alike are enough; a wheel that still
+        # disagrees with the other is still spinning (or the other is), and the axle
+        # cannot move at its speed.
+        hold = self.hold - 1e-9
+        if (t - self._agree_since >= hold
+                or (t - min(self._since) >= self.longest
+                    and t - self._together_since >= hold)):
             both = slipping[0] and slipping[1]
             slipping[0] = slipping[1] = False
+            # A later slip is timed from its own start, not from this one's.
+            self._since = [math.inf, math.inf]
             if both:
                 self._w_hat = mean_w
