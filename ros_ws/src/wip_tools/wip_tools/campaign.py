@@ -65,7 +65,8 @@ METRIC_COLUMNS = ('max_abs_theta_rad', 'max_abs_theta_outside_pulse_windows_rad'
 MEASURE_COLUMNS = ('max_speed_outside_pulses', 'convergence_time',
                    'rms_path_error_after_settle', 'max_path_error_after_settle',
                    'final_position_error', 'final_path_error', 'final_oscillation',
-                   'final_abs_theta', 'runaway_growth')
+                   'final_abs_theta', 'runaway_growth', 'outcome', 'refused_at',
+                   'refusal_hold_error', 'final_speed')
 
 
 def run_one(spec: Mapping[str, Any], base: Mapping[str, Any],
@@ -88,7 +89,7 @@ def run_one(spec: Mapping[str, Any], base: Mapping[str, Any],
         result = run_scenario(scenario)
         metrics = compute_metrics(result.record, scenario, fell=result.fell,
                                   duration_s=result.simulated_time_s)
-        measured = measure(result.record, scenario, metrics, criteria)
+        measured = measure(result.record, scenario, metrics, criteria, result.obstacle)
         failures = evaluate(measured, criteria, scenario.duration)
         row.update({'fell': bool(result.fell), 'fall_time_s': result.fall_time,
                     'simulated_s': result.simulated_time_s})

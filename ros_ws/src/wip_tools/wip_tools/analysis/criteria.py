@@ -21,6 +21,12 @@ What is measured (true states, SI units):
   disturbance; tilt and speed limits are checked outside them ("back within
   ``pulse_recovery_time`` after a push").
 - **final window**: the last ``final_window`` seconds of the run.
+- **outcome** at an obstacle of the terrain (a bump or a kerb): ``fell``; ``refused``
+  (the obstacle monitor named it and the trajectory generator's reference stepped back to
+  the back-off point, core/obstacle_refusal.py); ``crossed`` (the axle passed it);
+  ``stopped`` (none of these); '' without an obstacle. With ``refusal_passes`` a refused
+  run is judged on the refusal (at rest near the point held) instead of the path and
+  the end of the reference, which the obstacle puts out of reach.
 """
 
 from __future__ import annotations
@@ -90,6 +96,16 @@ class Criteria:
         minimum=0.0)
     max_final_abs_theta: Optional[float] = param(
         None, 'rad', 'limit of |theta| in the final window', minimum=0.0)
+    refusal_passes: bool = param(
+        False, '1', 'a run refused before an obstacle passes without the path and end '
+        'criteria if it holds at rest near the back-off point (for obstacles at or above '
+        'the height the torque lifts)')
+    refusal_hold_radius: float = param(
+        0.1, 'm', 'refusal_passes: largest distance to the back-off point at the end of the run',
+        minimum=0.0, exclusive_minimum=True)
+    refusal_rest_speed: float = param(
+        0.05, 'm/s', 'refusal_passes: largest mean |v| over the final window (at rest)',
+        minimum=0.0, exclusive_minimum=True)
 
 
 def criteria_from_mapping(mapping: Any, path: str = 'criteria') -> Criteria:
@@ -131,8 +147,12 @@ def _max(values: np.ndarray) -> float | None:
     return float(np.max(values)) if len(values) else None
 
 
-def measure(record: RunRecord, scenario, metrics: dict, criteria: Criteria) -> dict[str, Any]:
-    """Return the quantities the criteria compare, measured on the run (None if not defined)."""
+def measure(record: RunRecord, scenario, metrics: dict, criteria: Criteria,
+            obstacle=None) -> dict[str, Any]:
+    """Return the quantities the criteria compare, measured on the run (None if not defined).
+
+    ``obstacle``: the run's first blocking by an obstacle (``RunResult.obstacle``), if any.
+    """
     truth = record['truth']
     t = truth['t']
     end = float(t[-1]) if len(t) else 0.0
@@ -172,7 +192,52 @@ def measure(record: RunRecord, scenario, metrics: dict, criteria: Criteria) -> d
         'final_abs_theta': _max(np.abs(truth['theta'][final])),
         'end_time': end,
         **runaway_replay(record),
+        **obstacle_outcome(record, scenario, bool(metrics['fell']), obstacle, final),
     }
+
+
+def obstacle_outcome(record: RunRecord, scenario, fell: bool, obstacle,
+                     final: np.ndarray) -> dict[str, Any]:
+    """Return the run's outcome at the terrain's obstacle and, if refused, how it holds.
+
+    Refused: named by the obstacle monitor, then the generator's reference stepped back
+    by at least 0.9 ``obstacle_back_off`` in one tick (x_e: the held point replaced a
+    reference ahead of the axle). The point held is the estimated pose of that tick
+    moved back along its heading (core/obstacle_refusal.py); ``refusal_hold_error`` [m]
+    is the true position's distance to it at the end, ``final_speed`` [m/s] the mean |v|
+    over the final window.
+    """
+    truth, terrain = record['truth'], scenario.plant.terrain
+    out: dict[str, Any] = {'outcome': '', 'refused_at': None, 'refusal_hold_error': None,
+                           'final_speed': _mean(np.abs(truth['v'][final]))}
+    back_off = scenario.trajectory_generator.obstacle_back_off
+    if obstacle is not None and obstacle.reason and back_off > 0.0:
+        command, estimate = record['command'], record['estimate']
+        step = np.diff(command['x_e'], prepend=command['x_e'][:1])
+        k = np.nonzero((command['t'] >= obstacle.since) & (step <= -0.9 * back_off))[0]
+        if len(k) and len(estimate['t']) == len(command['t']):
+            i = int(k[0])
+            phi = estimate['phi'][i]
+            hold = (estimate['x'][i] - back_off * np.cos(phi),
+                    estimate['y'][i] - back_off * np.sin(phi))
+            out['refused_at'] = float(command['t'][i])
+            out['refusal_hold_error'] = float(np.hypot(truth['x'][-1] - hold[0],
+                                                       truth['y'][-1] - hold[1]))
+    if terrain.bump_height > 0.0:
+        beyond = terrain.bump_position + 0.5 * terrain.bump_length
+    else:
+        beyond = terrain.step_position if terrain.step_height > 0.0 else None
+    if fell:
+        out['outcome'] = 'fell'
+    elif out['refused_at'] is not None:
+        out['outcome'] = 'refused'
+    elif beyond is not None:
+        out['outcome'] = 'crossed' if np.max(truth['x'], initial=-np.inf) > beyond else 'stopped'
+    return out
+
+
+def _mean(values: np.ndarray) -> float | None:
+    return float(np.mean(values)) if len(values) else None
 
 
 def runaway_replay(record: RunRecord) -> dict[str, Any]:
@@ -216,6 +281,25 @@ _CHECKS = {
 }
 
 
+#: Criteria a refused run cannot meet: the obstacle keeps the path and its end out of reach.
+_OUT_OF_REACH = ('max_convergence_time', 'max_rms_path_error_after_settle',
+                 'max_path_error_after_settle', 'max_final_position_error',
+                 'max_final_path_error')
+
+
+def _refusal_failures(measured: dict[str, Any], criteria: Criteria) -> dict[str, str]:
+    """Failures of a refused run's own criterion: at rest near the point held, at the end."""
+    failures = {}
+    error, speed = measured.get('refusal_hold_error'), measured.get('final_speed')
+    if error is None or error > criteria.refusal_hold_radius:
+        failures['refusal_hold_radius'] = (f'refusal_hold_error = {error} > '
+                                           f'{criteria.refusal_hold_radius:g}')
+    if speed is None or speed > criteria.refusal_rest_speed:
+        failures['refusal_rest_speed'] = (f'final_speed = {speed} > '
+                                          f'{criteria.refusal_rest_speed:g}')
+    return failures
+
+
 def evaluate(measured: dict[str, Any], criteria: Criteria,
              duration: float | None = None) -> dict[str, str]:
     """Failed criteria -> a one-line reason; empty if the run passes.
@@ -224,13 +308,16 @@ def evaluate(measured: dict[str, Any], criteria: Criteria,
     or a quantity never reached (no convergence) fails, with its reason.
     """
     failures: dict[str, str] = {}
+    refused = criteria.refusal_passes and measured.get('outcome') == 'refused'
+    if refused:
+        failures.update(_refusal_failures(measured, criteria))
     if criteria.no_fall and measured['fell']:
         failures['no_fall'] = f'fell at t = {measured["end_time"]:.2f} s'
     if criteria.no_runaway_alarm and measured.get('runaway_alarm') and not measured['fell']:
         failures['no_runaway_alarm'] = f'runaway guard at {measured["runaway_alarm"]}'
     for name, (key, kind) in _CHECKS.items():
         threshold = getattr(criteria, name)
-        if threshold is None:
+        if threshold is None or (refused and name in _OUT_OF_REACH):
             continue
         value = measured.get(key)
         if value is None or (isinstance(value, float) and math.isnan(value)):
