@@ -101,11 +101,12 @@ class Criteria:
         'criteria if it holds at rest near the back-off point (for obstacles at or above '
         'the height the torque lifts)')
     refusal_hold_radius: float = param(
-        0.1, 'm', 'refusal_passes: largest distance to the back-off point at the end of the run',
+        0.2, 'm', 'refusal_passes: largest distance to the back-off point at the end of the run '
+        '(the back-off distance: behind where the axle stopped)',
         minimum=0.0, exclusive_minimum=True)
     refusal_rest_speed: float = param(
-        0.05, 'm/s', 'refusal_passes: largest mean |v| over the final window (at rest)',
-        minimum=0.0, exclusive_minimum=True)
+        0.05, 'm/s', 'refusal_passes: largest |mean v| over the final window (at rest: the '
+        "noise's wander about the point averages out)", minimum=0.0, exclusive_minimum=True)
 
 
 def criteria_from_mapping(mapping: Any, path: str = 'criteria') -> Criteria:
@@ -204,12 +205,12 @@ def obstacle_outcome(record: RunRecord, scenario, fell: bool, obstacle,
     by at least 0.9 ``obstacle_back_off`` in one tick (x_e: the held point replaced a
     reference ahead of the axle). The point held is the estimated pose of that tick
     moved back along its heading (core/obstacle_refusal.py); ``refusal_hold_error`` [m]
-    is the true position's distance to it at the end, ``final_speed`` [m/s] the mean |v|
-    over the final window.
+    is the true position's distance to it at the end, ``final_speed`` [m/s] |mean υ| over
+    the final window (the net motion: the speed's wander under noise averages out).
     """
     truth, terrain = record['truth'], scenario.plant.terrain
     out: dict[str, Any] = {'outcome': '', 'refused_at': None, 'refusal_hold_error': None,
-                           'final_speed': _mean(np.abs(truth['v'][final]))}
+                           'final_speed': _abs_mean(truth['v'][final])}
     back_off = scenario.trajectory_generator.obstacle_back_off
     if obstacle is not None and obstacle.reason and back_off > 0.0:
         command, estimate = record['command'], record['estimate']
@@ -236,8 +237,8 @@ def obstacle_outcome(record: RunRecord, scenario, fell: bool, obstacle,
     return out
 
 
-def _mean(values: np.ndarray) -> float | None:
-    return float(np.mean(values)) if len(values) else None
+def _abs_mean(values: np.ndarray) -> float | None:
+    return abs(float(np.mean(values))) if len(values) else None
 
 
 def runaway_replay(record: RunRecord) -> dict[str, Any]:
