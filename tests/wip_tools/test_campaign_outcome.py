@@ -53,6 +53,9 @@ def test_a_run_refused_balanced_is_refused_and_holds_the_back_off_point():
     assert out['outcome'] == 'refused' and out['refused_at'] == pytest.approx(18.0, abs=H)
     assert out['refusal_hold_error'] == pytest.approx(0.0, abs=1e-9)
     assert out['final_speed'] == pytest.approx(0.0, abs=1e-9)
+    creeping = refused_run(-0.92, 0.08)
+    assert obstacle_outcome(creeping, KERB, False, NAMED, final(creeping))['final_speed'] == (
+        pytest.approx(0.08, rel=1e-6))
 
 
 def test_the_outcomes_are_told_apart():
@@ -81,8 +84,8 @@ def _measured(outcome_values, **overrides):
     (0.0, 0.0, set()),                       # at the point, at rest
     (0.19, 0.0, set()),                      # 0.19 m beyond it: within 0.2 m
     (0.22, 0.0, {'refusal_hold_radius'}),    # 0.22 m beyond it
-    (-0.69, 0.06, {'refusal_rest_speed'}),   # at the point at the end, creeping at 0.06 m/s
-])
+    (-0.92, 0.08, {'refusal_hold_radius'}),  # at the point at the end, creeping at 0.08 m/s:
+])                                           # 0.24 m from it 3 s before
 def test_with_refusal_passes_a_refused_run_is_judged_on_the_refusal(end_offset, creep, failed):
     record = refused_run(end_offset, creep)
     criteria = Criteria(max_abs_theta_outside_pulses=0.15, max_final_position_error=0.15,

@@ -25,7 +25,7 @@ What is measured (true states, SI units):
   (the obstacle monitor named it and the trajectory generator's reference stepped back to
   the back-off point, core/obstacle_refusal.py); ``crossed`` (the axle passed it);
   ``stopped`` (none of these); '' without an obstacle. With ``refusal_passes`` a refused
-  run is judged on the refusal (at rest near the point held) instead of the path and
+  run is judged on the refusal (holding near the point held) instead of the path and
   the end of the reference, which the obstacle puts out of reach.
 """
 
@@ -98,15 +98,12 @@ class Criteria:
         None, 'rad', 'limit of |theta| in the final window', minimum=0.0)
     refusal_passes: bool = param(
         False, '1', 'a run refused before an obstacle passes without the path and end '
-        'criteria if it holds at rest near the back-off point (for obstacles at or above '
-        'the height the torque lifts)')
+        'criteria if it holds near the back-off point to the end (for obstacles at or '
+        'above the height the torque lifts)')
     refusal_hold_radius: float = param(
-        0.2, 'm', 'refusal_passes: largest distance to the back-off point at the end of the run '
-        '(the back-off distance: behind where the axle stopped)',
+        0.2, 'm', 'refusal_passes: largest distance to the back-off point in the final window '
+        '(the back-off distance: it holds behind where the axle stopped)',
         minimum=0.0, exclusive_minimum=True)
-    refusal_rest_speed: float = param(
-        0.05, 'm/s', 'refusal_passes: largest |mean v| over the final window (at rest: the '
-        "noise's wander about the point averages out)", minimum=0.0, exclusive_minimum=True)
 
 
 def criteria_from_mapping(mapping: Any, path: str = 'criteria') -> Criteria:
@@ -205,8 +202,8 @@ def obstacle_outcome(record: RunRecord, scenario, fell: bool, obstacle,
     by at least 0.9 ``obstacle_back_off`` in one tick (x_e: the held point replaced a
     reference ahead of the axle). The point held is the estimated pose of that tick
     moved back along its heading (core/obstacle_refusal.py); ``refusal_hold_error`` [m]
-    is the true position's distance to it at the end, ``final_speed`` [m/s] |mean υ| over
-    the final window (the net motion: the speed's wander under noise averages out).
+    is the true position's largest distance to it in the final window, ``final_speed``
+    [m/s] |mean υ| there (the net motion).
     """
     truth, terrain = record['truth'], scenario.plant.terrain
     out: dict[str, Any] = {'outcome': '', 'refused_at': None, 'refusal_hold_error': None,
@@ -222,8 +219,8 @@ def obstacle_outcome(record: RunRecord, scenario, fell: bool, obstacle,
             hold = (estimate['x'][i] - back_off * np.cos(phi),
                     estimate['y'][i] - back_off * np.sin(phi))
             out['refused_at'] = float(command['t'][i])
-            out['refusal_hold_error'] = float(np.hypot(truth['x'][-1] - hold[0],
-                                                       truth['y'][-1] - hold[1]))
+            out['refusal_hold_error'] = _max(np.hypot(truth['x'][final] - hold[0],
+                                                      truth['y'][final] - hold[1]))
     if terrain.bump_height > 0.0:
         beyond = terrain.bump_position + 0.5 * terrain.bump_length
     else:
@@ -289,16 +286,12 @@ _OUT_OF_REACH = ('max_convergence_time', 'max_rms_path_error_after_settle',
 
 
 def _refusal_failures(measured: dict[str, Any], criteria: Criteria) -> dict[str, str]:
-    """Failures of a refused run's own criterion: at rest near the point held, at the end."""
-    failures = {}
-    error, speed = measured.get('refusal_hold_error'), measured.get('final_speed')
+    """Failures of a refused run's own criterion: it holds near the point, to the end."""
+    error = measured.get('refusal_hold_error')
     if error is None or error > criteria.refusal_hold_radius:
-        failures['refusal_hold_radius'] = (f'refusal_hold_error = {error} > '
-                                           f'{criteria.refusal_hold_radius:g}')
-    if speed is None or speed > criteria.refusal_rest_speed:
-        failures['refusal_rest_speed'] = (f'final_speed = {speed} > '
-                                          f'{criteria.refusal_rest_speed:g}')
-    return failures
+        return {'refusal_hold_radius': (f'refusal_hold_error = {error} > '
+                                        f'{criteria.refusal_hold_radius:g}')}
+    return {}
 
 
 def evaluate(measured: dict[str, Any], criteria: Criteria,
