@@ -59,29 +59,35 @@ SUITE = {
         'fall since the MPC re-solves on the tick a push is seen (the stall at the edge is '
         'one; it fell at 11.61 s before), tilt within 0.0997 rad, but ends 0.17 m from the '
         'end of the reference (limit 0.15 m). Noise seeds 100-199: none fall, 63 meet the '
-        'whole criterion (docs/history/mpc.md §13)'),
+        'whole criterion (docs/history/mpc.md §13); seeds 0-19: 20 crossed, 10 pass, none '
+        'refused (docs/history/mpc.md §18)'),
     'mujoco_bump_1cm': None,
     'mujoco_bump_1cm_slow': None,
     # Passes since the MPC re-solves on the tick it sees a push (docs/history/mpc.md §14):
-    # 0.107 m off the path after the bump before (limit 0.1 m), 0.078 m after.
+    # 0.107 m off the path after the bump before (limit 0.1 m), 0.078 m after. Seeds 0-19
+    # with refusal_passes (docs/history/mpc.md §18): 12 crossed (7 pass), 7 refused (all
+    # pass), 1 fell.
     'mujoco_bump_2cm_slow': None,
     'mujoco_bump_3cm': (
-        'falls at 13.08 s: 3 cm is above the 2.0 cm the 30 N m lift quasi-statically; met '
+        'falls at 14.72 s (13.08 s before the slip monitor kept a spin in turns out of '
+        'x_v): 3 cm needs 26.7 N m and a lean of 0.18 rad to roll up quasi-statically; met '
         'at 0.32 m/s (the speed wanders under the IMU noise) it climbs nearly to the crest, '
-        'brakes there and rolls back over the edge with the wheels spinning (estimated '
-        '-1.4 m/s against a true -0.5 m/s), and falls on the second climb'),
+        'brakes there, rolls back and falls on the second climb. Seeds 0-19: 11 crossed (6 '
+        'pass), 3 refused (all pass), 6 fell (docs/history/mpc.md §18)'),
     'mujoco_bump_3cm_slow': (
         'crosses without a fall (climbs at 0.14 m/s leaning 0.088 rad at 13-25 N m) but '
         'then runs 0.33 m ahead of the reference and ends 0.13 m past its end: 0.134 m '
-        'from the path after the settle time (limit 0.1 m)'),
+        'from the path after the settle time (limit 0.1 m). Seeds 0-19: 8 crossed (2 '
+        'pass), 8 refused (all pass), 4 fell (docs/history/mpc.md §18)'),
     'mujoco_kerb': (
         'a 4 cm step (twice what the torque lifts): it meets the edge at 0.51 m/s (the '
         'speed loop swings 0-0.69 m/s about the 0.3 m/s reference under the IMU noise), the '
         'wheels stop dead and the body swings forward past 0.21 rad, the lean the '
-        'saturated 30 N m holds over blocked wheels (blocked at 16.51 s), and falls at '
-        '17.33 s, before the refusal could help: the fall is decided within 0.2 s of the '
+        'saturated 30 N m holds over blocked wheels (blocked at 16.21 s), and falls at '
+        '17.57 s, before the refusal could help: the fall is decided within 0.2 s of the '
         'impact (docs/decisions/obstacle-refusal.md). Met slower (mujoco_kerb_slow) it is '
-        'refused balanced'),
+        'refused balanced. Seeds 0-19: 11 refused (all pass), 9 fell (history/mpc.md §18)'),
+    # Seeds 0-19: 20 refused, 19 hold within 0.2 m of the point (seed 7: 0.201 m).
     'mujoco_kerb_slow': None,
     'mujoco_one_wheel_patch': None,
 }
