@@ -59,6 +59,7 @@ from wip_control.core.control_step import (initial_alpha,  # noqa: E402
 from wip_control.core.mpc_plan import HELD_STATUS_TEXT  # noqa: E402
 from wip_control.nodes.arc_node import ArcNode  # noqa: E402
 from wip_runtime.composition import connect_intra_process, share_sim_clock  # noqa: E402
+from wip_runtime.diagnostics import WARN  # noqa: E402
 from wip_runtime.qos import CLOCK_QOS  # noqa: E402
 from wip_runtime.stamps import make_header, ns_to_stamp, stamp_to_ns  # noqa: E402
 from wip_control.nodes.conversions import (body_rates_from_euler,  # noqa: E402
@@ -955,9 +956,16 @@ def test_mpc_non_finite_input_answers_input_invalid_with_a_finite_torque(context
         assert len(msg.predicted_v) == 0 and msg.tau_v == 0.0
 
 
-def test_mpc_realtime_not_ready_then_solved_then_stale(context, harnesses):
+def test_mpc_realtime_not_ready_then_solved_then_late_then_stale(context, harnesses):
+    """Inputs that stop are first late (held, WARN), then stale (INPUT_INVALID, τυ = 0).
+
+    The limits are the safety layer's: late past ``safety.max_estimate_age``, which the
+    mixer bridges, so the MPC holds its tick rather than make it a fault; stale past the
+    bridge too (``safety.bridge_time``), where the mixer faults anyway.
+    """
     harness = mpc_harness(harnesses, context, 'realtime', **{
-        'mpc.sampling_period': 0.02, 'max_input_age': 0.15})
+        'mpc.sampling_period': 0.02, 'safety.max_estimate_age': 0.05,
+        'safety.bridge_time': 0.1})
     out = harness.outputs['/wip/drive_torque']
     harness.spin_until(lambda: out, 'a timer tick')
     assert out[0].status == DriveTorque.NOT_READY and out[0].tau_v == 0.0
@@ -969,8 +977,14 @@ def test_mpc_realtime_not_ready_then_solved_then_stale(context, harnesses):
     harness.publish('/wip/yaw_torque', YawTorque(header=make_header(now)))
     harness.spin_until(lambda: out[-1].status == DriveTorque.SOLVED, 'a solved tick')
     assert out[-1].header.stamp == ns_to_stamp(now)  # stamped with the estimate's time
+    diagnostics = harness.node.diagnostics
+    harness.spin_until(lambda: 'late' in diagnostics.message, 'late inputs held')
+    assert diagnostics.level == WARN
+    assert DriveTorque.INPUT_INVALID not in [m.status for m in out]
     harness.spin_until(lambda: out[-1].status == DriveTorque.INPUT_INVALID, 'stale inputs')
     assert out[-1].tau_v == 0.0 and 'stale' in out[-1].status_text
+    # Received no earlier than stamped: stale only past the whole ride-through.
+    assert stamp_to_ns(out[-1].header.stamp) - now >= 0.15e9
     assert harness.node.mpc.tau_previous == 0.0       # the core knows 0 is applied
 
 

@@ -14,9 +14,9 @@ runner's ``ControlStep``): ``core.mpc.LongitudinalMpc``, or the LQR baseline
 message). The core keeps
 τυ(k−1). Status: SOLVED; FALLBACK_SHIFTED_PLAN on any solver failure (``status_text`` is
 the core's status name); INPUT_INVALID when an input is not finite (the core then ramps
-τυ toward 0) or, in real time, stale; NOT_READY (τυ = 0) in real time before every input
-has arrived once. Unknown slacks are sent as 0 and unknown predictions as empty arrays,
-never NaN.
+τυ toward 0) or, in real time, older than the safety layer's whole ride-through; NOT_READY
+(τυ = 0) in real time before every input has arrived once. Unknown slacks are sent as 0
+and unknown predictions as empty arrays, never NaN.
 
 Ticks
 -----
@@ -38,20 +38,27 @@ at least a tick period less half a control period after the last tick, and on a 
 that the spin loop keeps (an adopted ``wip_runtime.executors.Watchdog``, half a control
 period late) for a chain that does not come: the same inputs as a timer firing between
 that chain and the next (either way the drive torque is applied from the next chain on),
-without a wake-up of its own. If an input is missing (NOT_READY) or older than
-``max_input_age`` (INPUT_INVALID) the tick publishes τυ = 0 and tells the core that 0 was
-applied. The node also subscribes ``/wip/wheel_torques`` and, before each tick, gives the
-core the drive torque τυ = τl + τr the mixer last applied
-(``LongitudinalMpc.set_previous_torque``): when the safety layer holds the torque at zero
-(start-up, a fault) or limits it, the next plan starts from what the wheels really got,
-not from the MPC's own unapplied output. Without this, an MPC that runs for seconds while
-the mixer waits for the ESO to settle (a robot
+without a wake-up of its own. If an input is missing (NOT_READY) the tick publishes
+τυ = 0 and tells the core that 0 was applied. Lateness is the safety layer's to judge, by
+its rule and values (``safety.max_estimate_age``, ``safety.bridge_time``; ages since the
+inputs were received, as the mixer counts them): when the oldest input is late (older than
+the age limit) the tick is held, not run: nothing is published (the mixer bridges along
+the last plan), ``/diagnostics`` says WARN, and the next chain's end (composed) or timer
+tick (alone) runs it. A deadline that a stall of the process left past due fires before
+the executor takes the chain queued during the stall, so without the hold a stall the
+mixer rides through would become a fault. Older than the whole ride-through (age limit +
+bridge time) the tick publishes τυ = 0 with INPUT_INVALID, as the mixer faults then. The
+node also subscribes ``/wip/wheel_torques`` and, before each tick, gives the core the drive
+torque τυ = τl + τr the mixer last applied (``LongitudinalMpc.set_previous_torque``): when
+the safety layer holds the torque at zero (start-up, a fault) or limits it, the next plan
+starts from what the wheels really got, not from the MPC's own unapplied output. Without
+this, an MPC that runs for seconds while the mixer waits for the ESO to settle (a robot
 held by hand before it is released) starts with a torque step when the mixer engages.
 (lockstep reproduces the in-process runner, where the applied torque is the MPC's.)
 
 Parameters (all read-only): sections ``mpc``, ``model`` (the nominal model), ``mixer``
-(max_wheel_torque), ``rates`` (control_rate, for the tick grid); ``max_input_age`` [s],
-``clock_mode``, ``diagnostics_period``.
+(max_wheel_torque), ``rates`` (control_rate, for the tick grid), ``safety``
+(max_estimate_age, bridge_time: the mixer's values), ``clock_mode``, ``diagnostics_period``.
 
 References
 ----------
@@ -80,7 +87,7 @@ from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc
 from wip_runtime.diagnostics import OK, WARN
 from wip_runtime.executors import Watchdog
 from wip_runtime.parameters import RosParams
-from .settings import MpcNodeParams, WheelTorqueLimit
+from .settings import SafetyRideThrough, WheelTorqueLimit
 from wip_runtime.sync import decimation, ExactTimeSync, tick_index
 
 _INPUTS = ('state_estimate', 'velocity_command', 'yaw_torque')
@@ -96,7 +103,11 @@ class MpcNode(ControllerNode):
         self.max_wheel_torque = RosParams(self, 'mixer',
                                                  WheelTorqueLimit).config.max_wheel_torque
         self.rates = RosParams(self, 'rates', RatesParams).config
-        self.max_input_age = RosParams(self, '', MpcNodeParams).config.max_input_age
+        ride = RosParams(self, 'safety', SafetyRideThrough).config
+        # The safety layer's limits (docs/decisions/safety-layer.md, ride-through): late
+        # past the estimate's age limit, stale past the bridge too (its stall bound).
+        self.late_after = ride.max_estimate_age
+        self.stale_after = ride.max_estimate_age + ride.bridge_time
         self.sampling_period = self.config.sampling_period
         self.control_period = 1.0 / self.rates.control_rate
         fast = self.config.fast_resolve_period
@@ -121,7 +132,7 @@ class MpcNode(ControllerNode):
             self.watchdog = Watchdog(self, self.tick_period, self._realtime_tick,
                                      clock=self.get_clock(), grace=self.chain_slack)
             self.ticked_at = -math.inf   # steady time [s] of the last tick
-            self.max_input_age_ns = self.max_input_age * 1e9
+            self.received: dict[str, float] = {}   # steady time [s] of each input's arrival
             self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
                            self._on_applied)
         self.applied_drive_torque: float | None = None
@@ -150,6 +161,7 @@ class MpcNode(ControllerNode):
                 self.feed(name, stamp, value)
         else:
             self.latest[name] = (stamp, value)
+            self.received[name] = time.monotonic()
 
     def _held_early(self, name: str, stamp: int, value) -> bool:
         """Lockstep: answer a tick where the stage does not solve as soon as its estimate comes.
@@ -191,6 +203,13 @@ class MpcNode(ControllerNode):
             self._realtime_tick()
 
     def _realtime_tick(self) -> None:
+        # One rule of lateness, the safety layer's: a late input is bridged by the mixer
+        # (DEGRADED, along the last plan), so merely late inputs hold the tick; only past
+        # the whole ride-through, where the mixer faults anyway, is it INPUT_INVALID.
+        ages = {n: time.monotonic() - t for n, t in self.received.items()}
+        if len(ages) == len(_INPUTS) and self.late_after < max(ages.values()) <= self.stale_after:
+            self._hold(ages)
+            return
         self.ticked_at = time.monotonic()
         k = self.realtime_k
         self.realtime_k += self.every
@@ -203,16 +222,30 @@ class MpcNode(ControllerNode):
                 missing = [n for n in _INPUTS if n not in latest]
                 self._idle(now, DriveTorque.NOT_READY, f'NOT_READY: no {", ".join(missing)} yet')
                 return
-            estimate, command, yaw = (latest[n] for n in _INPUTS)
-            if now - min(estimate[0], command[0], yaw[0]) > self.max_input_age_ns:
-                stale = [f'{n} {(now - s) * 1e-9:.3f} s old' for n, (s, _) in latest.items()
-                         if now - s > self.max_input_age_ns]
-                self._idle(now, DriveTorque.INPUT_INVALID, f'INPUT_INVALID: stale {stale}')
+            if max(ages.values()) > self.stale_after:
+                stale = [f'{n} received {age:.3f} s ago' for n, age in ages.items()
+                         if age > self.stale_after]
+                self._idle(now, DriveTorque.INPUT_INVALID,
+                           f'INPUT_INVALID: stale {stale} > {self.stale_after:g} s (safety '
+                           'age limit + bridge)')
                 return
+            estimate, command, yaw = (latest[n] for n in _INPUTS)
             self._tick(estimate[0], {'state_estimate': estimate[1],
                                      'velocity_command': command[1], 'yaw_torque': yaw[1]}, k)
         except Exception as err:  # noqa: BLE001 - a timer callback must not stop the node
             self.diagnostics.drop('tick', 'error', f'{type(err).__name__}: {err}')
+
+    def _hold(self, ages: dict[str, float]) -> None:
+        """realtime: hold the tick on late inputs; the safety layer bridges them.
+
+        Not a tick (the last tick's time and the tick count stay): composed, the next
+        chain's end runs it with the inputs it brings; alone, the next timer tick.
+        """
+        late = ', '.join(f'{n} {age:.3f} s' for n, age in ages.items()
+                         if age > self.late_after)
+        self.diagnostics.state(WARN, f'late inputs (received {late} ago > '
+                                     f'{self.late_after:g} s): tick held, the mixer bridges '
+                                     f'up to {self.stale_after:g} s')
 
     def _idle(self, stamp: int, status: int, text: str) -> None:
         """Publish τυ = 0 without solving; the core's τυ(k−1) becomes the applied 0."""

@@ -118,12 +118,15 @@ class YawInputGainScale:
 
 
 @dataclasses.dataclass(frozen=True)
-class MpcNodeParams:
-    """Node-level settings of the MPC node."""
+class SafetyRideThrough:
+    """The safety-layer values the MPC needs: how long a late input is ridden through.
 
-    max_input_age: float = param(0.25, 's', 'realtime: inputs older than this make the MPC '
-                                 'publish tau_v = 0 with status INPUT_INVALID', minimum=0.0,
-                                 exclusive_minimum=True, maximum=3600.0)
+    Real time: inputs older than ``max_estimate_age`` hold the MPC's tick (the mixer
+    bridges), older than ``max_estimate_age + bridge_time`` make it INPUT_INVALID.
+    """
+
+    max_estimate_age: float = like(SafetyParams, 'max_estimate_age')
+    bridge_time: float = like(SafetyParams, 'bridge_time')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -190,6 +193,8 @@ RETIRED = {
     'mpc_period': "the mixer reads the MPC's period from 'mpc.sampling_period'",
     'alpha_initial': "the ARC computes alpha_hat(0) = 1/g1 from 'model.*' and "
                      "'eso.yaw_input_gain_scale'",
+    'max_input_age': "the MPC holds a tick on inputs older than 'safety.max_estimate_age' "
+                     "(the mixer bridges) and is INPUT_INVALID past 'safety.bridge_time' more",
 }
 
 _BASE = (('', ControllerNodeParams),)
@@ -206,7 +211,7 @@ NODES: dict[str, tuple[tuple[str, type], ...]] = {
     'arc': (*_BASE, ('arc', ArcParams), ('rates', RatesParams), ('model', ModelParams),
             ('eso', YawInputGainScale)),
     'mpc': (*_BASE, ('mpc', MpcParams), ('model', ModelParams), ('mixer', WheelTorqueLimit),
-            ('rates', RatesParams), ('', MpcNodeParams)),
+            ('rates', RatesParams), ('safety', SafetyRideThrough)),
     'torque_mixer': (*_BASE, ('mixer', MixerParams), ('rates', RatesParams),
                      ('mpc', MpcPeriod), ('safety', SafetyParams), ('', MixerNodeParams),
                      ('', WheelJoints), ('', EffortCommand), ('', WheelSigns),
