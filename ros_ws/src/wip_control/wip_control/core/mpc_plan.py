@@ -78,20 +78,20 @@ def shifted_plan(previous: np.ndarray | None, n_c: int, max_delta: float) -> np.
     return np.clip(shifted, -max_delta, max_delta)
 
 
-def admissible_increment(delta: float, tau_prev: float, limit: float, dmax: float,
+def admissible_increment(delta: float, tau_prev: float, limit: float, upper: float,
                          lower: float | None = None) -> float:
-    """Clip Δτ to the hard limits (19): ``lower`` ≤ Δτ ≤ ``dmax``, |τ(k−1) + Δτ| ≤ limit.
+    """Clip Δτ to the hard limits (19): ``lower`` ≤ Δτ ≤ ``upper``, |τ(k−1) + Δτ| ≤ limit.
 
-    ``lower`` None: −``dmax``. The |τ| limit holds when the box can reach it, else the
-    box's nearest end.
+    ``lower`` None: −``upper`` (the symmetric |Δτ| ≤ Δτmax). The |τ| limit holds when the
+    box can reach it, else the box's nearest end.
     """
-    lower = -dmax if lower is None else lower
-    delta = min(max(float(delta), lower), dmax)
+    lower = -upper if lower is None else lower
+    delta = min(max(float(delta), lower), upper)
     tau = tau_prev + delta
     if tau > limit:
         tau = max(limit, tau_prev + lower)
     elif tau < -limit:
-        tau = min(-limit, tau_prev + dmax)
+        tau = min(-limit, tau_prev + upper)
     return tau - tau_prev
 
 

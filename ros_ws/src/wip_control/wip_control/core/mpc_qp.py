@@ -91,10 +91,6 @@ class MpcQp:
         self._kernels = load_compiled(MPC_KERNEL)   # at construction, not in the first tick
         self._fill = self._kernels.fill_for(problem.blocks, self._buffers)
 
-    def set_first_bound(self, bound: float) -> None:
-        """Bound |Δτ(k|k)| by ``bound`` [N m]: :meth:`set_first_box` (−bound, bound)."""
-        self.set_first_box(-bound, bound)
-
     def set_first_box(self, lower: float, upper: float) -> None:
         """Bound Δτ(k|k) to [``lower``, ``upper``] [N m] (lower ≤ 0 ≤ upper).
 
