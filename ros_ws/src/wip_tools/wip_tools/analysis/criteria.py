@@ -39,6 +39,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wip_runtime.config import from_mapping, param, to_mapping
+from wip_control.core.obstacle_refusal import back_off_point
 from wip_control.core.runaway import RunawayGuard
 from wip_sim.core.record import RunRecord
 
@@ -201,9 +202,9 @@ def obstacle_outcome(record: RunRecord, scenario, fell: bool, obstacle,
     Refused: named by the obstacle monitor, then the generator's reference stepped back
     by at least 0.9 ``obstacle_back_off`` in one tick (x_e: the held point replaced a
     reference ahead of the axle). The point held is the estimated pose of that tick
-    moved back along its heading (core/obstacle_refusal.py); ``refusal_hold_error`` [m]
-    is the true position's largest distance to it in the final window, ``final_speed``
-    [m/s] |mean υ| there (the net motion).
+    moved back along its heading (``obstacle_refusal.back_off_point``);
+    ``refusal_hold_error`` [m] is the true position's largest distance to it in the final
+    window, ``final_speed`` [m/s] |mean υ| there (the net motion).
     """
     truth, terrain = record['truth'], scenario.plant.terrain
     out: dict[str, Any] = {'outcome': '', 'refused_at': None, 'refusal_hold_error': None,
@@ -215,12 +216,11 @@ def obstacle_outcome(record: RunRecord, scenario, fell: bool, obstacle,
         k = np.nonzero((command['t'] >= obstacle.since) & (step <= -0.9 * back_off))[0]
         if len(k) and len(estimate['t']) == len(command['t']):
             i = int(k[0])
-            phi = estimate['phi'][i]
-            hold = (estimate['x'][i] - back_off * np.cos(phi),
-                    estimate['y'][i] - back_off * np.sin(phi))
+            hold = back_off_point(float(estimate['x'][i]), float(estimate['y'][i]),
+                                  float(estimate['phi'][i]), back_off)
             out['refused_at'] = float(command['t'][i])
-            out['refusal_hold_error'] = _max(np.hypot(truth['x'][final] - hold[0],
-                                                      truth['y'][final] - hold[1]))
+            out['refusal_hold_error'] = _max(np.hypot(truth['x'][final] - hold.x,
+                                                      truth['y'][final] - hold.y))
     if terrain.bump_height > 0.0:
         beyond = terrain.bump_position + 0.5 * terrain.bump_length
     else:
