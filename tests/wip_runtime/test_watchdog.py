@@ -104,29 +104,3 @@ def test_an_unadopted_watchdog_is_the_rclpy_timer_restarted_by_each_kick(test_no
 def test_a_bus_starts_without_watchdogs():
     # spin_composed reads bus.watchdogs; compose() fills it for a composed process.
     assert IntraProcessBus().watchdogs == []
-
-
-@pytest.mark.parametrize('age, due_after_kick', [
-    (0.0, 1.5 * PERIOD),         # the sample just taken: a period and the whole grace
-    (0.2 * PERIOD, 1.3 * PERIOD),  # 1.5 periods after the sample, wherever the chain ended
-    (0.8 * PERIOD, PERIOD),      # a chain later than the grace: never under a period
-    (-0.3 * PERIOD, 1.5 * PERIOD),  # a stamp ahead of this clock counts as age zero
-])
-def test_a_kick_counts_the_grace_from_the_origin_of_the_kicked_work(
-        test_node, clock, age, due_after_kick):
-    # The mixer's deadline in a composed process: 1.5 periods after the sensor sample
-    # of the last chain, so the next chain ending within half a period of its own
-    # sample (a period later) comes before the call, and no command is sent twice.
-    calls = []
-    watchdog = executors.Watchdog(test_node, PERIOD, lambda: calls.append(clock.now),
-                                  grace=0.5 * PERIOD)
-    watchdog.adopt()
-    kicked = clock.now
-    watchdog.kick(age=age)
-    assert watchdog.due == pytest.approx(kicked + due_after_kick)
-    clock.now = kicked + due_after_kick - 1e-6
-    watchdog.fire_if_due(clock.now)
-    assert calls == []
-    clock.now = kicked + due_after_kick
-    watchdog.fire_if_due(clock.now)
-    assert calls == [pytest.approx(kicked + due_after_kick)]

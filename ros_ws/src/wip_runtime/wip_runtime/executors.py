@@ -131,11 +131,9 @@ class Watchdog:
     (docs/realtime.md, section 2).
 
     ``grace`` [s]: adopted, the first call after a kick comes a period and this much
-    after the origin of the kicked work (then every period on that grid), never less than
-    a period after the kick (:meth:`kick`'s ``age``): the work a kick stands for often
-    comes a little later than a period after the last (the stages before it vary in
-    time), and a call just before it would be a second, needless one. The rclpy timer
-    has none.
+    after it (then every period on that grid): the work a kick stands for often comes a
+    little later than a period after the last (the stages before it vary in time), and a
+    call just before it would be a second, needless one. The rclpy timer has none.
     """
 
     def __init__(self, node: Node, period: float, callback: Callable[[], None],
@@ -159,16 +157,10 @@ class Watchdog:
         self.adopted = True
         self.due = time.monotonic() + self.period
 
-    def kick(self, age: float = 0.0) -> None:
-        """Restart the period (the callback's work was just done some other way).
-
-        ``age`` [s]: how long ago that work's origin was (a sensor sample's stamp for the
-        chain it started). Counted from the origin, the deadline does not move with how
-        late this chain ended, only with when the next one began; a negative age (a
-        clock ahead of this one) counts as none.
-        """
+    def kick(self) -> None:
+        """Restart the period (the callback's work was just done some other way)."""
         if self.adopted:
-            self.due = time.monotonic() + self.period + max(0.0, self.grace - max(age, 0.0))
+            self.due = time.monotonic() + self.period + self.grace
         else:
             self.timer.reset()
 

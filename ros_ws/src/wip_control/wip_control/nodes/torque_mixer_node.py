@@ -111,11 +111,6 @@ _MAX_ESTIMATE_STAMPS = 64
 _DIAGNOSTICS_ON_CHANGE_PERIOD = 0.05
 #: Commands over which the sensor -> command latency percentiles are reported (60 s).
 LATENCY_WINDOW = 12000
-#: Composed: the watchdog's first call comes a period and this many more after the sensor
-#: sample of the last chain, in control periods, and never less than a period after the
-#: command. 0: a period after the command; 0.5 sent one command per sample but let the base
-#: see more deadline misses (docs/realtime.md §2).
-CHAIN_GRACE = 0.0
 #: Longest wait [s] for the base to acknowledge the zero command sent on stopping.
 STOP_ACK_TIMEOUT = 1.0
 _LEVEL = {ACTIVE: OK, DEGRADED: WARN, SHADOW: WARN, STARTING: WARN, FAULT: ERROR,
@@ -167,11 +162,9 @@ class TorqueMixerNode(ControllerNode):
             self.sync = ExactTimeSync(_INPUTS, self._mix_set, required=self._required,
                                       gate=self._estimate_ready)
         else:
-            # Watchdog: restarted by every command sent on a yaw torque's arrival; composed,
-            # the spin loop keeps it (wip_runtime.executors.Watchdog), due CHAIN_GRACE after
-            # a period from the chain's sensor sample, at least a period after the command.
-            self.watchdog = Watchdog(self, self.control_period, self._tick,
-                                     grace=CHAIN_GRACE * self.control_period)
+            # Watchdog: restarted by every command sent on a yaw torque's arrival; a
+            # composed process keeps it in its spin loop (wip_runtime.executors.Watchdog).
+            self.watchdog = Watchdog(self, self.control_period, self._tick)
             self.timer = self.watchdog.timer
         self.latencies = collections.deque(maxlen=LATENCY_WINDOW)   # [s]
         self._init_wiring_check()
@@ -294,7 +287,7 @@ class TorqueMixerNode(ControllerNode):
             self.feed('yaw_torque', stamp, msg.tau_omega)
         else:
             self.monitor.yaw_torque(self.monitor_time(), msg.tau_omega)
-            self.watchdog.kick(age=(self.now_ns() - stamp) * 1e-9)
+            self.watchdog.kick()
             self._tick(sensor_stamp=stamp)
 
     def _on_drive(self, msg: DriveTorque) -> None:
