@@ -17,7 +17,7 @@ from wip_description.params import ModelParams
 from wip_control.core.safety import (ACTIVE, DEGRADED, DriveStatus, FAULT,
                                      SafetyMonitor, STARTING, TIME_TOLERANCE,
                                      tilt_divergence_rate)
-from wip_control.core.safety_config import SafetyParams
+from wip_control.core.safety_config import FRESH, LATE, lateness, SafetyParams, STALE
 
 
 # ----------------------------------------------------------------------------- config
@@ -327,3 +327,10 @@ def test_mpc_fallbacks_are_tolerated_for_max_mpc_fallbacks_consecutive_outputs()
         # A SOLVED output resets the count.
         while d.state != ACTIVE:
             d = clock.tick()
+
+
+def test_lateness_is_fresh_within_the_age_limit_late_within_the_bridge_then_stale():
+    # The defaults: 0.05 s age limit, 0.3 s bridge; the boundaries belong to the milder side.
+    assert [lateness(age, 0.05, 0.3) for age in (0.0, 0.05, 0.0501, 0.35, 0.3501)] == [
+        FRESH, FRESH, LATE, LATE, STALE]
+    assert lateness(0.0501, 0.05, 0.0) == STALE   # no bridge: late is stale at once

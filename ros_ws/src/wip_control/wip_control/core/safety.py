@@ -26,7 +26,7 @@ from .eso import StateEstimate
 from .mixer import mix
 from .position import FAULT as POSITION_FAULT, NO_FIX, TRACKING
 from .runaway import RunawayParams, RunawayGuard
-from .safety_config import SafetyParams
+from .safety_config import LATE, lateness, SafetyParams, STALE, TIME_TOLERANCE
 
 STARTING, ACTIVE, DEGRADED, SHADOW, FAULT, ESTOP = (
     'STARTING', 'ACTIVE', 'DEGRADED', 'SHADOW', 'FAULT', 'ESTOP')
@@ -38,9 +38,6 @@ _TORQUE_STATES = (ACTIVE, DEGRADED, SHADOW)
 ESTIMATE, YAW_TORQUE, DRIVE_TORQUE, ESTOP_INPUT = ('state_estimate', 'yaw_torque',
                                                    'drive_torque', 'estop')
 _CONTROL_INPUTS = (ESTIMATE, YAW_TORQUE, DRIVE_TORQUE)
-#: Tolerance of the time comparisons (ages, settle time) [s]: absorbs the rounding of
-#: sums of float times (1e-13 s at 1e3 s) and is far below any period (>= 1 ms).
-TIME_TOLERANCE = 1e-9
 #: Index of ε in a StateEstimate: inf at the start of the paper's ramp, not checked.
 _EPSILON = StateEstimate._fields.index('epsilon')
 
@@ -347,13 +344,14 @@ class SafetyMonitor:
             elif arrival is None:
                 if self.timing_checks or name in (YAW_TORQUE, DRIVE_TORQUE):
                     waiting.append(f'no {label} yet')
-            elif self.timing_checks and now - arrival > max_age[name] + TIME_TOLERANCE:
+            elif self.timing_checks:
                 age = now - arrival
                 bridge = cfg.bridge_time if name != ESTOP_INPUT else 0.0
-                if age <= max_age[name] + bridge + TIME_TOLERANCE:
+                verdict = lateness(age, max_age[name], bridge)
+                if verdict == LATE:
                     late.append(f'{name} late: {age:.3f} s old > {max_age[name]:g} s, '
                                 f'bridged up to {max_age[name] + bridge:g} s')
-                else:
+                elif verdict == STALE:
                     faults.append(f'{label} stale: {age:.3f} s old > '
                                   f'{max_age[name] + bridge:g} s (age limit '
                                   f'{max_age[name]:g} s + bridge {bridge:g} s; publisher '

@@ -14,6 +14,25 @@ import dataclasses
 from wip_runtime.config import param
 
 
+#: Tolerance of the time comparisons (ages, settle time) [s]: absorbs the rounding of
+#: sums of float times (1e-13 s at 1e3 s) and is far below any period (>= 1 ms).
+TIME_TOLERANCE = 1e-9
+#: Verdicts of :func:`lateness`.
+FRESH, LATE, STALE = 'fresh', 'late', 'stale'
+
+
+def lateness(age: float, max_age: float, bridge: float) -> str:
+    """Return the ride-through's verdict on an input received ``age`` [s] ago.
+
+    FRESH within ``max_age``; LATE within ``max_age + bridge`` (bridged: DEGRADED); STALE
+    beyond (zero torque). The mixer's monitor and the MPC node's real-time tick judge
+    lateness by this one rule (docs/decisions/safety-layer.md).
+    """
+    if age <= max_age + TIME_TOLERANCE:
+        return FRESH
+    return LATE if age <= max_age + bridge + TIME_TOLERANCE else STALE
+
+
 @dataclasses.dataclass(frozen=True)
 class SafetyParams:
     """Tunables of the safety layer (ROS section ``safety`` of the torque_mixer node).

@@ -75,6 +75,7 @@ from wip_msgs.msg import (YawTorque, DriveTorque, StateEstimate as StateEstimate
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
 
 from ..core.control_step import DriveControllerStage
+from ..core.safety_config import LATE, lateness, STALE
 from ..core.mpc_config import MpcParams, resolves_faster
 from wip_description.params import ModelParams
 from ..core.controller_settings import RatesParams
@@ -103,11 +104,11 @@ class MpcNode(ControllerNode):
         self.max_wheel_torque = RosParams(self, 'mixer',
                                                  WheelTorqueLimit).config.max_wheel_torque
         self.rates = RosParams(self, 'rates', RatesParams).config
-        ride = RosParams(self, 'safety', SafetyRideThrough).config
-        # The safety layer's limits (docs/decisions/safety-layer.md, ride-through): late
-        # past the estimate's age limit, stale past the bridge too (its stall bound).
-        self.late_after = ride.max_estimate_age
-        self.stale_after = ride.max_estimate_age + ride.bridge_time
+        #: The safety layer's ride-through (docs/decisions/safety-layer.md): late past the
+        #: estimate's age limit, stale past the bridge too (``core.safety.lateness``).
+        self.ride = RosParams(self, 'safety', SafetyRideThrough).config
+        self.late_after = self.ride.max_estimate_age
+        self.stale_after = self.ride.max_estimate_age + self.ride.bridge_time
         self.sampling_period = self.config.sampling_period
         self.control_period = 1.0 / self.rates.control_rate
         fast = self.config.fast_resolve_period
@@ -207,7 +208,9 @@ class MpcNode(ControllerNode):
         # (DEGRADED, along the last plan), so merely late inputs hold the tick; only past
         # the whole ride-through, where the mixer faults anyway, is it INPUT_INVALID.
         ages = {n: time.monotonic() - t for n, t in self.received.items()}
-        if len(ages) == len(_INPUTS) and self.late_after < max(ages.values()) <= self.stale_after:
+        verdict = lateness(max(ages.values(), default=0.0), self.ride.max_estimate_age,
+                           self.ride.bridge_time)
+        if verdict == LATE and len(ages) == len(_INPUTS):
             self._hold(ages)
             return
         self.ticked_at = time.monotonic()
@@ -222,7 +225,7 @@ class MpcNode(ControllerNode):
                 missing = [n for n in _INPUTS if n not in latest]
                 self._idle(now, DriveTorque.NOT_READY, f'NOT_READY: no {", ".join(missing)} yet')
                 return
-            if max(ages.values()) > self.stale_after:
+            if verdict == STALE:
                 stale = [f'{n} received {age:.3f} s ago' for n, age in ages.items()
                          if age > self.stale_after]
                 self._idle(now, DriveTorque.INPUT_INVALID,
