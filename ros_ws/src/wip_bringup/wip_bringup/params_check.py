@@ -30,6 +30,7 @@ from wip_runtime.config import check_value, ParamError, from_mapping
 from wip_description.wiring import check_effort_joints, EffortCommand, WheelJoints
 
 from .params_files import flatten
+from .ride_through_check import RIDE_THROUGH, ride_through_mismatch, Setting
 
 #: Modules holding a ``NODES`` registry (executable -> (prefix, dataclass) groups) of the
 #: nodes a run of wip_bringup starts (the plant's, wip_sim's, is simulation only).
@@ -136,8 +137,9 @@ def check_params_files(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Se
     Check parsed params files (``(path, {section: {'ros__parameters': {...}}})`` each)
     for a run of the nodes ``nodes``; ``generated`` is the run's own params file, which
     comes first on each command line (the sections a node builds from its parameters are
-    checked with it). Raises :class:`ParamsFileError` (one line) on the first problem; returns
-    warnings (a section for a known node that this run does not start).
+    checked with it), and that the MPC and the mixer get one ride-through
+    (:mod:`.ride_through_check`). Raises :class:`ParamsFileError` (one line) on the first
+    problem; returns warnings (a section for a known node that this run does not start).
     """
     registry = node_registry()
     warnings: list[str] = []
@@ -180,6 +182,27 @@ def check_params_files(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Se
     return warnings
 
 
+#: Where a value of the run's own params file comes from, in messages.
+GENERATED = "the run's own params file"
+
+
+def _merged(files: Sequence[tuple[str, Mapping[str, Any]]], node: str,
+            generated: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, str]]:
+    """Return the parameters ``node`` gets, flattened, and where each one comes from.
+
+    The generated file's, then each file's matching sections in order (later wins).
+    """
+    merged = flatten(generated.get(node, {}).get('ros__parameters', {}))
+    sources = dict.fromkeys(merged, GENERATED)
+    for path, data in files:
+        for key, section in data.items():
+            if section_matches(key, node):
+                flat = flatten(section.get('ros__parameters') or {})
+                merged.update(flat)
+                sources.update(dict.fromkeys(flat, f'{path}, section {str(key)!r}'))
+    return merged, sources
+
+
 def _check_groups(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequence[str],
                   generated: Mapping[str, Any]) -> None:
     """Check each node's groups as the node builds them.
@@ -188,16 +211,15 @@ def _check_groups(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequenc
     file's matching sections in order) as the node builds them: the checks across fields
     of a group (a dataclass's ``validate``).
     """
+    ride_through: dict[str, dict[str, Setting]] = {}
     for node in nodes:
-        merged = flatten(generated.get(node, {}).get('ros__parameters', {}))
-        given = set()
-        for _, data in files:
-            for key, section in data.items():
-                if section_matches(key, node):
-                    flat = flatten(section.get('ros__parameters') or {})
-                    merged.update(flat)
-                    given.update(flat)
+        merged, sources = _merged(files, node, generated)
+        given = {name for name, source in sources.items() if source != GENERATED}
         declared = declarations(node)
+        if all(name in declared for name in RIDE_THROUGH):
+            ride_through[node] = {
+                name: Setting(merged[name], sources[name]) if name in merged else
+                Setting(_default(declared[name]), 'default') for name in RIDE_THROUGH}
         groups: dict[tuple[str, type], dict[str, Any]] = {}
         for name, value in merged.items():
             entry = declared.get(name)
@@ -222,6 +244,13 @@ def _check_groups(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequenc
             except ParamError as err:
                 raise ParamsFileError(f'--params-file: node {node}: '
                                   f'{str(err).removeprefix("@.")}') from None
+    mismatch = ride_through_mismatch(ride_through)
+    if mismatch:
+        raise ParamsFileError(f'--params-file: {mismatch}')
+
+
+def _default(declared: Declared) -> Any:
+    return {f.name: f.default for f in dataclasses.fields(declared.cls)}[declared.field]
 
 
 def check_remap(text: str) -> tuple[str, str]:
