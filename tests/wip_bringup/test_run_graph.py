@@ -4,6 +4,8 @@ Both tests run the real graph (eight processes) on the paper scenario; the event
 provoked from the test: a node killed with SIGKILL, a stall simulated on the first attempt.
 """
 
+import os
+import sys
 import threading
 import time
 
@@ -13,7 +15,10 @@ pytest.importorskip('rclpy')
 
 from wip_bringup import graph_runner  # noqa: E402
 from wip_bringup.graph_runner import GraphOptions, GraphRunner  # noqa: E402
+from wip_bringup.launcher import GRACE_PERIOD  # noqa: E402
 from wip_bringup.private_domain import take_private_domain  # noqa: E402
+from wip_bringup.processes import NodeProcess  # noqa: E402
+from wip_runtime.node_main import STOP_ACK_TIMEOUT  # noqa: E402
 
 # serial: the other nodes must exit cleanly within their grace period once one dies, which
 # the other tests on a second worker once made one miss (docs/testing.md).
@@ -46,7 +51,9 @@ def test_run_graph_names_a_process_that_dies_and_stops_the_others(tmp_path, layo
     assert result.exit_code == graph_runner.EXIT_FAILED
     assert f"node '{victim}'" in result.message and 'exited with code -9' in result.message
     assert all(process.poll() is not None for process in runner.processes.values())
-    # The others were stopped with SIGINT and exited cleanly.
+    # The others were stopped (SIGINT; the plant SIGTERM) and exited cleanly. In the
+    # composed layout the plant's readers in the killed process never acknowledge its last
+    # samples, so its stop waits its whole STOP_ACK_TIMEOUT: its grace holds that wait.
     others = {n: c for n, c in result.node_exit_codes.items() if n != victim}
     assert all(code == 0 for code in others.values()), others
     expected = {'plant'} | ({'reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
@@ -76,3 +83,39 @@ def test_a_stall_on_the_first_ticks_starts_the_graph_again(tmp_path, monkeypatch
     from wip_bag.bag_reader import bag_summary
     summary = bag_summary(result.bag)
     assert summary['topics']['/wip/ground_truth']['message_count'] == 201
+
+
+#: A process that takes argv[1] seconds to end after its stop signal (SIGINT or SIGTERM).
+SLOW_STOP = """
+import signal, sys, time
+stopped = []
+for number in (signal.SIGINT, signal.SIGTERM):
+    signal.signal(number, lambda *args: stopped.append(1))
+print('ready', flush=True)
+while not stopped:
+    time.sleep(0.01)
+time.sleep(float(sys.argv[1]))
+"""
+
+
+def test_the_plants_grace_holds_its_acknowledgement_wait(tmp_path):
+    # Both take GRACE_PERIOD + 1 s to end. The plant's stop may wait its whole
+    # STOP_ACK_TIMEOUT (a reader killed) before its clean-up: it ends cleanly, since that
+    # wait is its own by design. The controllers have no such wait: killed, so the rule
+    # still bounds an operator's stop.
+    runner = GraphRunner(GraphOptions(out=str(tmp_path / 'run'), quiet=True))
+    assert STOP_ACK_TIMEOUT > 1.0
+    for name in ('plant', 'controllers'):
+        log = tmp_path / f'{name}.log'
+        runner.processes[name] = NodeProcess(
+            name, [sys.executable, '-c', SLOW_STOP, str(GRACE_PERIOD + 1.0)], log,
+            dict(os.environ),
+            stop_signal=runner.stop_signal(name))
+        deadline = time.monotonic() + START_TIMEOUT
+        while 'ready' not in log.read_text(encoding='utf-8'):
+            assert time.monotonic() < deadline, f'{name} did not start'
+            time.sleep(0.05)
+    runner.stop_processes(list(runner.processes.values()))
+    plant, controllers = runner.processes['plant'], runner.processes['controllers']
+    assert plant.returncode == 0 and not plant.killed
+    assert controllers.killed and controllers.returncode == -9

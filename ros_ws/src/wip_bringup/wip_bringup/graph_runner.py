@@ -18,6 +18,7 @@ from typing import Any
 import yaml
 
 from wip_runtime.config import ParamError
+from wip_runtime.node_main import STOP_ACK_TIMEOUT
 from wip_runtime.cli import write_atomic
 from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping, with_duration
 from wip_sim.settings import WITH_VIEWER
@@ -26,8 +27,7 @@ from .graph_design import (expected_endpoints, missing_endpoints, plant_paramete
                            RECORDED_TOPICS, unmatched_pairs)
 from .graph_recording import RecordingMixin
 from .launcher import (EXIT_DISK_FULL, EXIT_FAILED, EXIT_FELL, EXIT_NOT_ENGAGED, EXIT_OK,
-                       EXIT_TIMEOUT, EXIT_USAGE, GRACE_PERIOD, GraphError, in_namespace, LAYOUTS,
-                       PROBE_PERIOD)
+                       EXIT_TIMEOUT, EXIT_USAGE, GraphError, in_namespace, LAYOUTS, PROBE_PERIOD)
 from .params_files import write_params_file
 from .probe import Probe
 from .run_result import RunResult
@@ -139,12 +139,8 @@ class GraphRunner(RecordingMixin, RunnerBase):
         if (self.drain_at_stop and self.options.clock == 'lockstep'
                 and 'recorder' in self.processes and self.plant_process == 'plant'
                 and self.probe is not None):
-            first = [p for n, p in self.processes.items() if n not in ('recorder', 'plant')]
-            for process in first:
-                process.interrupt()
-            deadline = time.monotonic() + GRACE_PERIOD
-            for process in first:
-                process.stop(deadline - time.monotonic())
+            self.stop_processes([p for n, p in self.processes.items()
+                                 if n not in ('recorder', 'plant')])
             self.drain_recorder(quiet=True)
             self.timeline['controllers stopped, recorder drained'] = (
                 time.monotonic() - self.t0)
@@ -158,6 +154,16 @@ class GraphRunner(RecordingMixin, RunnerBase):
         mid-run).
         """
         return signal.SIGTERM if name == self.plant_process else super().stop_signal(name)
+
+    def grace_period(self, name: str) -> float:
+        """Add to the plant's grace its wait for its readers' acknowledgements.
+
+        Stopped by a signal, a simulator waits up to ``STOP_ACK_TIMEOUT`` for them
+        (``wip_sim.simulator_main``); a reader in a killed process never acknowledges
+        (docs/decisions/stopping-and-data-safety.md).
+        """
+        grace = super().grace_period(name)
+        return grace + STOP_ACK_TIMEOUT if name == self.plant_process else grace
 
     def nodes_stopped(self) -> None:
         if self.drain_at_stop and self.probe is not None:
@@ -296,12 +302,9 @@ class GraphRunner(RecordingMixin, RunnerBase):
                                if n not in (self.plant_process, 'recorder')]
         # Their CPU time as they end (/proc forgets an exited process).
         self.cpu_at_end = {n: self.processes[n].cpu_seconds() for n in self.stopped_at_end}
-        for name in self.stopped_at_end:
-            self.processes[name].interrupt()
-        deadline = time.monotonic() + GRACE_PERIOD
-        for name in self.stopped_at_end:
-            self.processes[name].stop(deadline - time.monotonic())
-        return plant.stop(GRACE_PERIOD)
+        self.stop_processes([self.processes[name] for name in self.stopped_at_end])
+        self.stop_processes([plant])
+        return plant.returncode
 
     def watch(self) -> int:
         """Until the plant exits: progress, node health, stall detection; its exit code."""

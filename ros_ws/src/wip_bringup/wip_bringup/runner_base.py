@@ -375,17 +375,31 @@ class RunnerBase:
     def nodes_stopped(self) -> None:
         """Handle the stop of every process but the recorder (hook)."""
 
+    def grace_period(self, name: str) -> float:
+        """Return how long [s] the process ``name`` may take to end after its stop signal (hook).
+
+        :data:`~.launcher.GRACE_PERIOD`, a node's clean-up, on top of any bounded wait that
+        its stop makes by design (the plant's: :class:`~.graph_runner.GraphRunner`); then
+        SIGKILL.
+        """
+        return GRACE_PERIOD
+
+    def stop_processes(self, processes: list[NodeProcess]) -> None:
+        """Send each its stop signal at once (they end in parallel); SIGKILL after its grace."""
+        for process in processes:
+            process.interrupt()
+        signalled = time.monotonic()
+        # The shortest grace first, so that each process is killed at its own deadline.
+        for process in sorted(processes, key=lambda p: self.grace_period(p.name)):
+            grace = self.grace_period(process.name)
+            process.stop(signalled + grace - time.monotonic())
+            if process.killed:
+                self.say(f'warning: {process.name} (pid {process.pid}) ignored '
+                         f'{signal.Signals(process.stop_signal).name} for {grace:g} s: killed')
+
     def stop_all(self) -> None:
         """Stop every process (:meth:`stop_signal`; the recorder last), SIGKILL after a grace."""
-        others = [p for n, p in self.processes.items() if n != 'recorder']
-        for process in others:  # All at once: they shut down in parallel.
-            process.interrupt()
-        deadline = time.monotonic() + GRACE_PERIOD
-        for process in others:
-            process.stop(deadline - time.monotonic())
-            if process.killed:
-                self.say(f'warning: {process.name} (pid {process.pid}) ignored SIGINT for '
-                         f'{GRACE_PERIOD:g} s: killed')
+        self.stop_processes([p for n, p in self.processes.items() if n != 'recorder'])
         self.timeline['nodes stopped'] = time.monotonic() - self.t0
         self.nodes_stopped()
         if 'recorder' in self.processes:
