@@ -25,13 +25,19 @@ class FakeClock:
 
 
 class ScriptedExecutor:
-    """spin_once: a message while ``messages`` lasts, then nothing; the clock moves on."""
+    """spin_once: a message while ``messages`` lasts, then nothing; the clock moves on.
 
-    def __init__(self, node, clock, messages, seconds_per_spin, on_spin=None):
+    A spin without a message lasts its timeout at least, as a real wait does; ``instant``
+    (a set of spin numbers): those return at once without a message, as a spin that served
+    one of the recorder's own timers does.
+    """
+
+    def __init__(self, node, clock, messages, seconds_per_spin, on_spin=None, instant=()):
         self.node, self.clock = node, clock
         self.messages = messages
         self.seconds_per_spin = seconds_per_spin
         self.on_spin = on_spin
+        self.instant = set(instant)
         self.spins = 0
 
     def add_node(self, node):
@@ -39,13 +45,17 @@ class ScriptedExecutor:
 
     def spin_once(self, timeout_sec=None):
         self.spins += 1
-        self.clock.now += self.seconds_per_spin
         if self.on_spin is not None:
             self.on_spin(self.spins)
-        if self.messages is None or self.messages > 0:   # None: they never stop
+        if self.spins in self.instant:
+            self.clock.now += 1e-4
+        elif self.messages is None or self.messages > 0:   # None: they never stop
+            self.clock.now += self.seconds_per_spin
             if self.messages is not None:
                 self.messages -= 1
             self.node.last_received = self.clock.now
+        else:
+            self.clock.now += max(self.seconds_per_spin, timeout_sec or 0.0)
 
 
 class FakeNode:
@@ -53,6 +63,13 @@ class FakeNode:
 
     def __init__(self):
         self.last_received = 0.0
+        self.logged = []
+
+    def get_logger(self):
+        return self
+
+    def info(self, text):
+        self.logged.append(text)
 
 
 class Signals:
@@ -61,6 +78,7 @@ class Signals:
     def __init__(self):
         self.count = 0
         self.first = None
+        self.cut_short = False
 
     def receive(self, number):
         recorder_stop.StopSignals._on_signal(self, number, None)
@@ -91,8 +109,10 @@ def test_only_a_launched_recorders_sigint_starts_a_drain(clock, launched, number
     if drains:   # every message, then the quiet spins
         empty = round(recorder_stop.STOP_QUIET / recorder_stop.SPIN_TIMEOUT)
         assert executor.spins == 20 + empty
+        assert node.logged == ['stop: took 17 messages in 0.67 s after the SIGINT; ended by '
+                               'nothing for 0.5 s']
     else:
-        assert executor.spins == 3
+        assert executor.spins == 3 and node.logged == []
 
 
 def test_a_starved_drain_still_takes_what_came_meanwhile(clock):
@@ -115,10 +135,38 @@ def test_a_drain_ends_at_its_bound_when_messages_never_stop(clock):
     assert executor.spins == pytest.approx(300, abs=1)
 
 
-def test_a_second_signal_ends_a_drain(clock):
+@pytest.mark.parametrize('second', [signal.SIGTERM, signal.SIGHUP])
+def test_a_second_signal_of_another_kind_ends_a_drain(clock, second):
     node, stop = FakeNode(), Signals()
     stop.receive(signal.SIGINT)
     executor = ScriptedExecutor(node, clock, messages=None, seconds_per_spin=0.1,
-                                on_spin=lambda k: stop.receive(signal.SIGINT) if k == 7 else None)
-    recorder_stop.drain(node, executor, stop, quiet=0.5, longest=30.0)
+                                on_spin=lambda k: stop.receive(second) if k == 7 else None)
+    reason, _, _ = recorder_stop.drain(node, executor, stop, quiet=0.5, longest=30.0)
     assert executor.spins == 7 and stop.count == 2 and stop.first == signal.SIGINT
+    assert reason == 'a second signal'
+
+
+def test_the_kernels_repeated_sigint_does_not_end_a_drain(clock):
+    # At the launcher's death the kernel sends SIGINT again for each of the launcher's
+    # threads that holds this process while it dies: a drain cut at the second one lost
+    # the plant's last ticks. Messages for 20 spins, the repeat at the 2nd: every message.
+    node, stop = FakeNode(), Signals()
+    stop.receive(signal.SIGINT)
+    executor = ScriptedExecutor(node, clock, messages=20, seconds_per_spin=0.01,
+                                on_spin=lambda k: stop.receive(signal.SIGINT) if k == 2 else None)
+    reason, taken, _ = recorder_stop.drain(node, executor, stop, quiet=0.5, longest=30.0)
+    assert stop.count == 2 and executor.messages == 0 and taken == 20
+    assert reason == 'nothing for 0.5 s'
+
+
+def test_spins_that_return_at_once_are_not_quiet(clock):
+    # Ten spins that serve the recorder's timers (0.1 ms each, no message), then the
+    # plant's last samples: five empty spins are not 0.5 s of quiet, so the drain takes them.
+    node, stop = FakeNode(), Signals()
+    stop.receive(signal.SIGINT)
+    executor = ScriptedExecutor(node, clock, messages=3, seconds_per_spin=0.01,
+                                instant=range(1, 11))
+    reason, taken, seconds = recorder_stop.drain(node, executor, stop, quiet=0.5,
+                                                 longest=30.0)
+    assert taken == 3 and executor.spins == 10 + 3 + 5
+    assert reason == 'nothing for 0.5 s' and seconds >= 0.5

@@ -1,7 +1,7 @@
 """Every way a run_graph run ends finalises its bag.
 
 SIGINT, SIGTERM and SIGHUP to run_graph, and SIGKILL of run_graph (its nodes then get SIGINT from
-the kernel and the recorder finishes on its own).
+the kernel, once or more, and the recorder drains and finishes on its own).
 
 Each test runs ``python -m wip_bringup.graph`` (what ``scripts/run_graph`` execs) on a minute
 of the paper scenario in lockstep with ``--record``, sends the signal mid-run (or
@@ -126,6 +126,11 @@ def test_a_stopped_run_finishes_its_bag(tmp_path, capsys, number, when):
         # The nodes stop on their own (parent-death signal); the recorder closes the bag.
         _wait_for(lambda: not _processes_of(run), 'the orphaned nodes to end')
         assert not (run / 'run.json').exists()
+        # The recorder's drain ended because nothing more came: not at the kernel's
+        # repeated death signal (one per thread of the dying launcher that held it), which
+        # once cut it short before the plant's last ticks (wip_bag.recorder_stop.drain).
+        log = (run / 'logs' / 'recorder.log').read_text(encoding='utf-8', errors='replace')
+        assert 'ended by nothing for 0.5 s' in log, log[-1500:]
     else:
         assert process.returncode == 128 + number, stderr
         summary = json.loads((run / 'run.json').read_text(encoding='utf-8'))
