@@ -64,7 +64,7 @@ class StopSignals:
 def spin(node, executor, stop=None, launched=False):
     """Spin until a stop signal; then :func:`drain` if it was a launched recorder's SIGINT.
 
-    The drain's end goes to the log: why it ended, the messages it took, how long it took.
+    The drain's end goes to the log: why it ended, how long it took.
 
     Spin with a timeout (the EventsExecutor's spin() ignores SIGINT, ros-from-pip.md).
     ``launched``: started by a wip launcher, which stops it with SIGTERM once it has drained
@@ -80,14 +80,15 @@ def spin(node, executor, stop=None, launched=False):
     # (seen: the recorder stopped at once and lost the plant's last ticks).
     if stop is not None and launched and stop.first == signal.SIGINT:
         reason, taken, seconds = drain(node, executor, stop)
-        node.get_logger().info(f'stop: took {taken} messages in {seconds:.2f} s after the '
-                               f'SIGINT; ended by {reason}')
+        node.get_logger().info(f'stop: drained {seconds:.2f} s after the SIGINT (messages at '
+                               f'{taken} spins); ended by {reason}')
 
 
 def drain(node, executor, stop, quiet=STOP_QUIET, longest=STOP_DRAIN):
-    """Receive what is still coming after the first stop signal; return why it ended.
+    """Receive what is still coming after the first stop signal.
 
-    Receive until nothing arrived for ``quiet`` [s], at most ``longest`` [s], or until
+    Return why the drain ended, the spins that took messages and its length [s].
+    It receives until nothing arrived for ``quiet`` [s], at most ``longest`` [s], or until
     ``stop.cut_short``. Quiet means consecutive spins without a message that both number
     ``quiet / SPIN_TIMEOUT`` and last ``quiet`` in all. Not wall time since the last message:
     a recorder descheduled for longer than ``quiet`` on a loaded machine finds the messages
