@@ -294,6 +294,12 @@ def test_teleop_drives_the_standin_base_in_real_time_and_odom_comes_out(tmp_path
             publisher.publish(cmd)
             sent.append(time.monotonic())
             time.sleep(max(0.0, start + 0.1 * len(sent) - time.monotonic()))
+        # Then until the odometry has stood still for the 2 s the criterion below looks at
+        # (the command timeout, the 1 s brake, the sway), 8 s at most as before: the run
+        # then ends 0.5 s later, not after a fixed 8 s.
+        deadline = time.monotonic() + 8.0
+        while time.monotonic() < deadline and not standing_for(odom, 2.0):
+            time.sleep(0.05)
 
     # The paper's plant model: with the full one the controllers' speed loop oscillates
     # (about +-0.2 m/s with a 6 s period, tests/wip_sim/test_standin_base.py), which is not
@@ -301,7 +307,7 @@ def test_teleop_drives_the_standin_base_in_real_time_and_odom_comes_out(tmp_path
     scenario = dict(line_scenario(kind='cmd_vel'), plant={'model': 'paper'})
     with spinning_in_background(test_node.executor_for_test):
         run = run_against_standin(tmp_path / 'standin', BASE, 40.0, scenario=scenario,
-                                  during=during, end_after_during=8.0)
+                                  during=during, end_after_during=0.5)
     result, stats = run.result, run.stats
     assert result.exit_code == 0, result.message
     assert stats['released'] and not stats['fell'], stats.get('end_reason')
@@ -319,6 +325,18 @@ def test_teleop_drives_the_standin_base_in_real_time_and_odom_comes_out(tmp_path
     assert 1.0 < travelled < 2.0
     assert max(last) < 0.05 and theta_max < 0.3
     assert odom and odom[-1].header.frame_id == 'odom' and odom[-1].child_frame_id == 'base_link'
+
+
+def standing_for(odom, seconds: float, speed: float = 0.02) -> bool:
+    """Whether the odometry messages of the last ``seconds`` (by their stamps) are at rest."""
+    messages = list(odom)      # a copy: the subscription appends from another thread
+    if not messages:
+        return False
+    stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in messages]
+    if stamps[-1] - stamps[0] < seconds:
+        return False
+    return all(abs(m.twist.twist.linear.x) < speed and abs(m.twist.twist.angular.z) < speed
+               for m, t in zip(messages, stamps) if t >= stamps[-1] - seconds)
 
 
 class RoutePublisher:

@@ -24,7 +24,7 @@ from wip_bringup.hardware_params import (load_params_file, node_parameters,  # n
                                      parse_remap, remapped)
 from wip_bringup.launcher import GraphError  # noqa: E402
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 EFFORT = '/base/effort_controller/commands'
 
@@ -65,6 +65,8 @@ def test_the_single_process_layout_is_refused_in_hardware_mode(tmp_path):
     assert not (tmp_path / 'out').exists()
 
 
+# Wall clock: a 3 s real-time run whose zero commands this process must take in time.
+@pytest.mark.wallclock
 def test_no_plant_without_a_base_never_commands_torque(tmp_path, test_node):
     params = tmp_path / 'base.yaml'
     params.write_text(yaml.safe_dump({'/**': {'ros__parameters': {

@@ -42,6 +42,7 @@ Examples
     scripts/bench                      # everything
     scripts/bench --no-graph --json out/bench.json
     scripts/bench --push-only          # only the push recovery against its bound
+    scripts/bench --realtime-only      # only section 4 (with the in-process run it compares)
 """
 
 from __future__ import annotations
@@ -308,7 +309,7 @@ def _section_push(report: dict) -> None:
     print('   (goals: <= 1.15x on the paper plant, <= 1.3x with mismatch and noise)')
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='scripts/bench', formatter_class=argparse.RawDescriptionHelpFormatter,
         description=__doc__.split('\n\n')[0] + '\nSections: 1 MPC tick vs bare DAQP, 2 '
@@ -322,16 +323,33 @@ def main(argv: list[str] | None = None) -> int:
                         help='skip the real-time runs against the stand-in base')
     parser.add_argument('--realtime-seconds', type=float, default=20.0, metavar='S',
                         help='length of each real-time run [s] (default 20)')
-    parser.add_argument('--push-only', action='store_true',
-                        help='only the push recovery against its bound (section 5)')
+    only = parser.add_mutually_exclusive_group()
+    only.add_argument('--push-only', action='store_true',
+                      help='only the push recovery against its bound (section 5)')
+    only.add_argument('--realtime-only', action='store_true',
+                      help='only the real-time section (4), beside an in-process run')
     parser.add_argument('--json', help='also write the results to this JSON file')
     add_exit_codes(parser)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _parser()
     args = parser.parse_args(argv)
     if args.repeats < 1:
         print('ERROR: --repeats must be >= 1', file=sys.stderr)
         return 2
+    if args.realtime_only and (args.no_graph or args.no_realtime):
+        parser.error('--realtime-only runs the real-time section: not with --no-graph or '
+                     '--no-realtime')
     scenario = load_scenario(args.scenario)
     report: dict = {'environment': _environment(), 'scenario': scenario.name}
+    if args.realtime_only:
+        # Section 4 sets the controllers' CPU beside the in-process loop's: that run alone.
+        report['in_process'] = in_process = bench_in_process(scenario, args.repeats)
+        section_realtime(args.realtime_seconds, in_process, report)
+        _write_json(args.json, report)
+        return 0
 
     _section_push(report)
     if args.push_only:
