@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 
 from wip_description.params import ModelParams
-from wip_tools.analysis.push_bound import (absorption_rate, measured_excursion,
-                                           push_excursion_bound, state_at_push)
+from wip_tools.analysis.push_bound import absorption_rate, push_excursion_bound
+from wip_tools.analysis.push_recovery import (measured_excursion, state_at_push,
+                                              torques_before_push)
 
 PARAMS = ModelParams()
 FAST = dict(horizon=6.0)
@@ -157,30 +158,87 @@ def test_the_measured_excursion_is_the_along_track_peak_after_the_push():
     assert measured_excursion({'truth': truth, 'reference': ref}, 10.0) == pytest.approx(0.2)
 
 
-def test_the_state_at_the_push_is_the_speed_error_and_tilt_interpolated_there():
-    # The vehicle 0.1 m/s faster than a 0.5 m/s reference and leaning 0.02 rad at 10 s,
-    # both varying linearly in time between the samples.
+def test_the_state_at_the_push_is_the_speed_error_tilt_and_rate_interpolated_there():
+    # The vehicle 0.1 m/s faster than a 0.5 m/s reference, leaning 0.02 rad at 0.002
+    # rad/s at 10 s, all varying linearly in time between the samples.
     t = np.arange(0.0, 20.0, 0.01)
-    truth = {'t': t, 'v': 0.5 + 0.01 * t, 'theta': 0.002 * t}
+    truth = {'t': t, 'v': 0.5 + 0.01 * t, 'theta': 0.002 * t, 'theta_dot': 0.0002 * t}
     ref = {'t': t, 'v': np.full_like(t, 0.5)}
-    speed_error, tilt = state_at_push({'truth': truth, 'reference': ref}, 10.0)
-    assert (speed_error, tilt) == pytest.approx((0.1, 0.02), abs=1e-12)
+    state = state_at_push({'truth': truth, 'reference': ref}, 10.0)
+    assert state == pytest.approx((0.1, 0.02, 0.002), abs=1e-12)
+
+
+def test_the_torques_before_the_push_are_those_in_force_on_the_bounds_grid():
+    # A truth row at t holds the torques applied over the 5 ms that end at t: a torque
+    # that is 1 N m per wheel until 9.95 s and 3 N m after is recorded from 9.955 s on.
+    t = np.round(np.arange(0.0, 20.0, 0.005), 9)
+    per_wheel = np.where(t <= 9.95 + 1e-9, 1.0, 3.0)
+    record = {'truth': {'t': t, 'tau_left': per_wheel, 'tau_right': per_wheel}}
+    # In force at 9.90, 9.92, 9.94 (2 N m), then 9.96, 9.98 (6 N m).
+    assert torques_before_push(record, 0.1, 0.02, 10.0) == pytest.approx([2, 2, 2, 6, 6])
+
+
+def test_from_a_state_on_the_optimal_path_the_bound_is_the_rest_of_its_peak():
+    # Bellman: the optimum's tail from its state at 0.1 s (the push over) is optimal for
+    # the problem that starts there, with the torques of the last 0.1 s as the rate
+    # limit's past and the time left as the horizon; its peak is the rest, P − e(0.1).
+    whole = push_excursion_bound(PARAMS, 1.0, horizon=6.0)
+    k = 5                                                   # 0.1 s on the 0.02 s grid
+    state = (whole.speed[k], whole.tilt[k], whole.tilt_rate[k])
+
+    def tail(earlier):
+        return push_excursion_bound(PARAMS, 0.0, horizon=6.0 - 0.1, initial_state=state,
+                                    earlier_torques=earlier).excursion
+
+    assert whole.error[k] > 0.05 and np.all(np.diff(whole.error[:k + 1]) > 0.0)
+    assert tail(whole.torque[:k]) == pytest.approx(whole.excursion - whole.error[k], abs=1e-4)
+    # The past torques (+10 N m) bind the first windows: a past of 0 lets the torque
+    # reverse sooner (less run-on), a past of −10 N m holds it back (more).
+    assert tail(()) < tail(whole.torque[:k]) - 3e-3
+    assert tail(-whole.torque[:k]) > tail(whole.torque[:k]) + 3e-3
+
+
+def test_from_a_state_a_push_back_is_the_mirror_of_one_ahead():
+    start, earlier = (0.08, 0.015, -0.05), (1.0, 2.0, 3.0, 2.5, 2.0)
+    ahead = push_excursion_bound(PARAMS, 1.0, initial_state=start, earlier_torques=earlier,
+                                 **FAST)
+    back = push_excursion_bound(PARAMS, -1.0, initial_state=[-v for v in start],
+                                earlier_torques=[-v for v in earlier], **FAST)
+    assert back.excursion == pytest.approx(ahead.excursion, rel=1e-6)
+    assert back.tilt == pytest.approx(-ahead.tilt, abs=1e-6)
+    # Met moving ahead already, the push needs more run-on than from rest (0.70 m).
+    assert ahead.excursion > push_excursion_bound(PARAMS, 1.0, **FAST).excursion + 0.05
+
+
+def test_a_row_is_the_median_and_percentiles_of_its_runs_ratios():
+    from wip_tools.analysis.push_recovery import _summary
+    # Ten runs, ratios 1.0 .. 1.9 against their own bounds (1 m), excursions 1.0 .. 1.9 m.
+    runs = [{'excursion': 1.0 + 0.1 * i, 'bound': 1.0, 'state': (0.0, 0.0, 0.0)}
+            for i in range(10)]
+    row = _summary(runs, 0.5, 1.3)
+    assert row['ratio'] == pytest.approx(1.45) and row['ratio_rest'] == pytest.approx(2.9)
+    assert (row['ratio_p10'], row['ratio_p90']) == pytest.approx((1.09, 1.81))
+    assert row['halves'] == pytest.approx([1.2, 1.7]) and not row['met']
+    fell = _summary(runs[:9] + [{**runs[9], 'excursion': math.inf}], 0.5, 2.0)
+    assert fell['fell'] and fell['falls'] == 1 and not fell['met']
 
 
 def test_a_case_runs_and_its_excursion_is_above_the_bound():
-    from wip_tools.analysis.push_bound import push_recovery_rows
+    from wip_tools.analysis.push_recovery import push_recovery_rows
     (row,) = push_recovery_rows([('line', 'paper', False, False)])
     assert not row['fell']
     # Without noise the push finds the vehicle at rest on its reference: the bound's start.
     assert row['at_rest'] and row['speed_error_at_push'] < 1e-3
     assert row['bound_m'] == pytest.approx(0.70, abs=0.01)
+    # At rest, the bound from the state the push found is the one from rest.
+    assert row['bound_m'] == pytest.approx(row['bound_rest_m'], abs=1e-3)
     # No controller beats the clairvoyant one on its own model (the paper plant is it).
     assert 1.0 < row['ratio'] == pytest.approx(row['measured_m'] / row['bound_m'])
 
 
 def test_the_full_plant_is_measured_against_its_own_equations():
     from wip_sim.core.scenario import scenario_from_mapping
-    from wip_tools.analysis.push_bound import push_scenario_mapping, scenario_bound
+    from wip_tools.analysis.push_recovery import push_scenario_mapping, scenario_bound
     scenario = scenario_from_mapping(push_scenario_mapping('line', 'full', mismatch=True))
     rate, _ = _full_rate_and_lean(scenario.plant.parameters, 0.1)
     bound = scenario_bound(scenario, 1.0, 0.1)

@@ -23,8 +23,10 @@ made within one invocation, interleaved where possible:
    :mod:`wip_tools.analysis.push_bound` (an LP over the torque sequence for the true
    plant and the MPC's limits), as a ratio: the paper's plant, the full plant with the
    body 20 % heavier and the centre of mass 10 % higher, each without and with a consumer
-   IMU's noise (the median over five noise seeds) (goals: <= 1.15x on the paper's plant,
-   <= 1.3x with mismatch and noise).
+   IMU's noise (``--push-seeds N`` seeds, default 40: the median and the 10th-90th
+   percentile of the runs' ratios, each run against the bound from the state the push
+   found, and the medians of the seeds' two halves) (goals: <= 1.15x on the paper plant
+   clean, <= 1.3x with mismatch or noise).
 4. **Real time**: the controllers at 200 Hz against the stand-in base (its own process),
    per layout (separate, composed, composed at SCHED_FIFO priority, the same with the base
    and the controllers each pinned to a CPU of its own, and composed at SCHED_FIFO with idle
@@ -42,6 +44,7 @@ Examples
     scripts/bench                      # everything
     scripts/bench --no-graph --json out/bench.json
     scripts/bench --push-only          # only the push recovery against its bound
+    scripts/bench --push-only --push-seeds 2    # the same, quick (2 seeds per noisy case)
     scripts/bench --realtime-only      # only section 4 (with the in-process run it compares)
 """
 
@@ -286,27 +289,42 @@ def _section_graph(scenario_path: str | None, in_process: dict, report: dict) ->
             _print_graph_row(graph, layout, record, in_process, final, report, key)
 
 
-def _section_push(report: dict) -> None:
+def _section_push(report: dict, seeds: int) -> None:
     """5. Push recovery: the measured excursion beside the clairvoyant bound."""
-    from .analysis.push_bound import push_recovery_rows
+    from .analysis.push_recovery import HALVES_TOLERANCE, push_recovery_rows
     print('\n== 5. Push recovery: 1 m/s push (10 m/s^2 for 0.1 s) at 10 s, reference at '
-          '0.5 m/s; peak excursion ahead of the reference against the clairvoyant bound')
-    rows = push_recovery_rows()
+          '0.5 m/s; peak excursion ahead of the reference against the clairvoyant bound '
+          'from the state the push found (noisy rows: median and 10th-90th percentile of '
+          f'{seeds} seeds)')
+    rows = push_recovery_rows(seeds=tuple(range(seeds)))
     report['push_recovery'] = rows
     for row in rows:
-        plant = ('paper plant' if row['plant'] == 'paper'
-                 else 'full plant, body +20 %, CoM +10 %')
-        print(f'{row["reference"]:6s} {plant:32s} {"noise" if row["noise"] else "clean":5s}: '
-              + ('FELL' if row['fell'] else
-                 f'measured {row["measured_m"]:.3f} m, bound {row["bound_m"]:.3f} m, '
-                 f'ratio {row["ratio"]:.3f}x'
-                 + (f' (median of {row["runs"]} seeds, {row["ratio_min"]:.2f}-'
-                    f'{row["ratio_max"]:.2f}x)' if row['runs'] > 1 else ''))
-              + ('' if row['at_rest'] else
-                 f'; met the push up to {row["speed_error_at_push"]:.2f} m/s and '
-                 f'{row["tilt_at_push"]:.3f} rad off rest on the reference (the bound\'s '
-                 'start): indicative only'))
-    print('   (goals: <= 1.15x on the paper plant, <= 1.3x with mismatch and noise)')
+        print(_push_line(row, HALVES_TOLERANCE))
+    met = sum(row['met'] for row in rows)
+    print(f'-> {met} of {len(rows)} goals met (goals: <= 1.15x on the paper plant clean, '
+          '<= 1.3x with mismatch or noise)')
+
+
+def _push_line(row: dict, tolerance: float) -> str:
+    """Return one case's line of section 5."""
+    plant = 'paper plant' if row['plant'] == 'paper' else 'full plant, body +20 %, CoM +10 %'
+    head = (f'{row["reference"]:6s} {plant:32s} {"noise" if row["noise"] else "clean":5s}: ')
+    if row['fell']:
+        return head + f'FELL in {row["falls"]} of {row["runs"]} runs; goal: NOT MET'
+    spread = ''
+    if row['runs'] > 1:
+        low, high = row['halves']
+        seeds = row['seeds']
+        half = len(seeds) // 2
+        spread = (f' (p10-p90 {row["ratio_p10"]:.2f}-{row["ratio_p90"]:.2f}x, median of '
+                  f'{row["runs"]} seeds; seeds {seeds[0]}-{seeds[half - 1]} {low:.3f}x, '
+                  f'{seeds[half]}-{seeds[-1]} {high:.3f}x: '
+                  + ('agree' if abs(low - high) <= tolerance else 'DISAGREE')
+                  + f' within {tolerance:.2f})')
+    return (head + f'excursion {row["measured_m"]:.3f} m, bound {row["bound_m"]:.3f} m, '
+            f'ratio {row["ratio"]:.3f}x{spread}; from rest: bound {row["bound_rest_m"]:.3f} m, '
+            f'ratio {row["ratio_rest"]:.3f}x; goal <= {row["goal"]:.2f}x: '
+            + ('met' if row['met'] else 'NOT MET'))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -328,6 +346,9 @@ def _parser() -> argparse.ArgumentParser:
                       help='only the push recovery against its bound (section 5)')
     only.add_argument('--realtime-only', action='store_true',
                       help='only the real-time section (4), beside an in-process run')
+    parser.add_argument('--push-seeds', type=int, default=40, metavar='N',
+                        help='noise seeds per noisy push case, 0..N-1, compared in two '
+                        'halves (default 40; 2 for a quick look)')
     parser.add_argument('--json', help='also write the results to this JSON file')
     add_exit_codes(parser)
     return parser
@@ -336,8 +357,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
-    if args.repeats < 1:
-        print('ERROR: --repeats must be >= 1', file=sys.stderr)
+    if args.repeats < 1 or args.push_seeds < 1:
+        print('ERROR: --repeats and --push-seeds must be >= 1', file=sys.stderr)
         return 2
     if args.realtime_only and (args.no_graph or args.no_realtime):
         parser.error('--realtime-only runs the real-time section: not with --no-graph or '
@@ -351,7 +372,7 @@ def main(argv: list[str] | None = None) -> int:
         _write_json(args.json, report)
         return 0
 
-    _section_push(report)
+    _section_push(report, args.push_seeds)
     if args.push_only:
         _write_json(args.json, report)
         return 0

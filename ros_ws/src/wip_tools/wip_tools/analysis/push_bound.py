@@ -11,8 +11,9 @@ reference moving at constant speed, with the along-track error e, the speed erro
 a_υ = −mp² l² g / Ω0, a_θ = mv mp g l / Ω0, g2, g3 at θ = 0, d(t) the push (an
 acceleration added to υ̇, as the scenarios' longitudinal disturbance). A controller that
 knows the push in advance (from its start: it may react at once, not before; or only
-after ``reaction_delay``), starting from rest on the reference, chooses the drive torque
-τυ(t) piecewise constant on a fine grid (``step``) under
+after ``reaction_delay``), starting from rest on the reference (or from a given speed
+error, tilt and tilt rate, with the torques of the last Ts before the push), chooses the
+drive torque τυ(t) piecewise constant on a fine grid (``step``) under
 
     |θ| ≤ θmax,   |τυ| ≤ τmax,   |τυ(t) − τυ(t − Ts)| ≤ Δτmax  (Ts the MPC period),
 
@@ -56,6 +57,8 @@ class PushBound:
     tilt: np.ndarray          #: θ of the optimal sequence [rad]
     torque: np.ndarray        #: τυ of the optimal sequence [N m], one per grid step
     status: str               #: the solver's message
+    speed: np.ndarray | None = None      #: u = υ − υr of the optimal sequence [m/s]
+    tilt_rate: np.ndarray | None = None  #: θ̇ of the optimal sequence [rad/s]
 
 
 #: The plant models whose linearisation :func:`linear_model` knows (engine models such as
@@ -97,7 +100,8 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
                          max_tilt: float = 0.1, max_torque: float = 30.0,
                          max_delta_torque: float = 10.0, delta_period: float = 0.1,
                          step: float = 0.02, horizon: float = 8.0,
-                         model: str = 'paper', reaction_delay: float = 0.0) -> PushBound:
+                         model: str = 'paper', reaction_delay: float = 0.0,
+                         initial_state=(0.0, 0.0, 0.0), earlier_torques=()) -> PushBound:
     """Return the least peak excursion ahead of the reference after a push.
 
     ``delta_v`` [m/s]: the push's speed change, a constant acceleration delta_v / push_time
@@ -107,38 +111,89 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
     ``max_delta_torque`` [N m] per ``delta_period`` [s]; ``step`` [s]: the grid;
     ``horizon`` [s]: the time by which it must be at rest; ``model``: the plant's
     equations, 'paper' or 'full' (:func:`linear_model`); ``reaction_delay`` [s]: the
-    torque stays 0 for this long after the push starts (a controller that must first see
-    the push; rounded to the grid). ValueError on bad arguments or when no sequence can
-    bring it to rest by then (the push is beyond the limits).
+    torque stays as it was (0, or the last of ``earlier_torques``) for this long after
+    the push starts (a controller that must first see the push; rounded to the grid).
+    ``initial_state``: (u [m/s], θ [rad], θ̇ [rad/s]) when the push starts (e = 0 there:
+    the excursion is counted from it); ``earlier_torques`` [N m]: τυ on the grid over the
+    last ``delta_period`` before the push, oldest first (missing ones: 0), which the
+    rate limit's first windows reach back to. ValueError on bad arguments or when no
+    sequence can bring it to rest by then (the push is beyond the limits).
     """
-    from scipy.optimize import linprog
-
     _check_arguments(dict(delta_v=delta_v, push_time=push_time, max_tilt=max_tilt,
                           max_torque=max_torque, max_delta_torque=max_delta_torque,
                           delta_period=delta_period, step=step, horizon=horizon))
-    dv = abs(float(delta_v))
     n = int(round(horizon / step))
     times = step * np.arange(n + 1)
     if not (math.isfinite(reaction_delay) and 0.0 <= reaction_delay < horizon):
         raise ValueError(f'push_excursion_bound: reaction_delay must be in [0, horizon), '
                          f'got {reaction_delay!r}')
-    if dv == 0.0:
-        zeros = np.zeros(n + 1)
-        return PushBound(0.0, times, zeros, zeros.copy(), np.zeros(n), 'no push')
-    ad, bd, ed = _discretised(params, step, model)
     lag = max(1, int(round(delta_period / step)))
+    # The model is odd in (push, state, torque): a push back is the mirror of one ahead.
+    sign = -1.0 if delta_v < 0.0 else 1.0
+    start = sign * _initial_state(initial_state)
+    earlier = sign * _earlier_torques(earlier_torques, lag)
+    dv = abs(float(delta_v))
+    if dv == 0.0 and not (np.any(start) or np.any(earlier)):
+        zeros = np.zeros(n + 1)
+        return PushBound(0.0, times, zeros, zeros.copy(), np.zeros(n), 'no push',
+                         zeros.copy(), zeros.copy())
     push = np.where(times[:-1] < push_time - 1e-9, dv / push_time, 0.0)
+    result, nz = _solve(params, model, step, push, start, earlier,
+                        (max_tilt, max_torque, max_delta_torque),
+                        int(round(reaction_delay / step)))
+    if result.status != 0:
+        raise ValueError(f'push_excursion_bound: no torque sequence within the limits '
+                         f'brings a push of {dv} m/s to rest in {horizon} s '
+                         f'({result.message})')
+    states = sign * result.x[:nz].reshape(n + 1, 4)
+    return PushBound(float(max(result.x[-1], 0.0)), times, states[:, 0], states[:, 2],
+                     sign * result.x[nz:nz + n], result.message, states[:, 1], states[:, 3])
+
+
+def _initial_state(values) -> np.ndarray:
+    """Return z_0 = (0, u, θ, θ̇) from (u, θ, θ̇), or raise ValueError."""
+    state = np.asarray(values, dtype=float)
+    if state.shape != (3,) or not np.all(np.isfinite(state)):
+        raise ValueError('push_excursion_bound: initial_state must be three finite numbers '
+                         f'(u, theta, theta_dot), got {values!r}')
+    return np.concatenate([[0.0], state])
+
+
+def _earlier_torques(values, lag: int) -> np.ndarray:
+    """Return the ``lag`` torques before the push, oldest first (0 where not given)."""
+    torques = np.asarray(values, dtype=float).ravel()
+    if torques.size > lag or not np.all(np.isfinite(torques)):
+        raise ValueError(f'push_excursion_bound: earlier_torques must be at most {lag} '
+                         f'finite numbers (delta_period / step), got {values!r}')
+    return np.concatenate([np.zeros(lag - torques.size), torques])
+
+
+def _solve(params, model, step, push, start, earlier, limits, idle) -> tuple:
+    """Return (scipy's result, the number of state variables) of the LP (module docstring).
+
+    ``limits``: (θmax, τmax, Δτmax); the first ``idle`` torques hold the last earlier one.
+    """
+    from scipy.optimize import linprog
+
+    max_tilt, max_torque, max_delta_torque = limits
+    n = push.size
+    ad, bd, ed = _discretised(params, step, model)
     # Sparse, not condensed: the tilt's unstable pole (√a_θ ≈ 4.6 /s) makes a condensed
     # prediction over seconds ill-conditioned (e^{4.6 · 8} ≈ 1e16). Variables:
     # z_0 .. z_n (4 each), τ_0 .. τ_{n-1}, P; minimise P.
     nz, nt = 4 * (n + 1), n
     nv = nz + nt + 1
-    pi = nz + nt                                     # index of P; z_k[j] at 4k + j
     eq, beq = _dynamics(ad, bd, ed, push, n, nv)
-    ub, bub = _peak_and_rate_limits(n, nv, lag, max_delta_torque)
-    bounds = _variable_bounds(n, max_tilt, max_torque, int(round(reaction_delay / step)))
+    beq[:4] = start
+    ub, bub = _peak_and_rate_limits(n, nv, earlier.size, max_delta_torque)
+    # The first windows reach back before the push: ±(τ_k − τ_{k−lag}) ≤ Δτ with the
+    # earlier torque on the right.
+    first = np.arange(min(earlier.size, n))
+    bub[n + first] += earlier[first]
+    bub[2 * n + first] -= earlier[first]
+    bounds = _variable_bounds(n, max_tilt, max_torque, idle, earlier[-1])
     cost = np.zeros(nv)
-    cost[pi] = 1.0
+    cost[-1] = 1.0
     result = linprog(cost, A_ub=ub, b_ub=bub, A_eq=eq, b_eq=beq,
                      bounds=bounds, method='highs')
     if result.status != 0:
@@ -146,19 +201,14 @@ def push_excursion_bound(params: ModelParams, delta_v: float, *, push_time: floa
         # these LPs, where its interior-point method solves them.
         result = linprog(cost, A_ub=ub, b_ub=bub, A_eq=eq, b_eq=beq,
                          bounds=bounds, method='highs-ipm')
-    if result.status != 0:
-        raise ValueError(f'push_excursion_bound: no torque sequence within the limits '
-                         f'brings a push of {dv} m/s to rest in {horizon} s '
-                         f'({result.message})')
-    states = result.x[:nz].reshape(n + 1, 4)
-    return PushBound(float(max(result.x[pi], 0.0)), times, states[:, 0], states[:, 2],
-                     result.x[nz:nz + nt], result.message)
+    return result, nz
 
 
-def _variable_bounds(n: int, max_tilt: float, max_torque: float, idle: int) -> list:
+def _variable_bounds(n: int, max_tilt: float, max_torque: float, idle: int,
+                     held: float = 0.0) -> list:
     """Return the boxes of z_0..z_n, τ_0..τ_{n−1}, P: |θ|, |τ|, at rest at the end.
 
-    The first ``idle`` torques are 0 (the reaction delay).
+    The first ``idle`` torques are ``held`` (the reaction delay).
     """
     nz = 4 * (n + 1)
     bounds = [(None, None)] * nz + [(-max_torque, max_torque)] * n + [(None, None)]
@@ -166,8 +216,9 @@ def _variable_bounds(n: int, max_tilt: float, max_torque: float, idle: int) -> l
         bounds[4 * i + 2] = (-max_tilt, max_tilt)
     for j in (1, 2, 3):                              # at rest at the end, torque off
         bounds[4 * n + j] = (0.0, 0.0)
-    for k in list(range(min(idle, n))) + [n - 1]:
-        bounds[nz + k] = (0.0, 0.0)
+    for k in range(min(idle, n)):
+        bounds[nz + k] = (held, held)
+    bounds[nz + n - 1] = (0.0, 0.0)
     return bounds
 
 
@@ -201,7 +252,7 @@ def _discretised(params: ModelParams, step: float, model: str) -> tuple:
 def _dynamics(ad, bd, ed, push: np.ndarray, n: int, nv: int) -> tuple:
     """Return the equalities of the motion: z_{k+1} − Ad z_k − Bd τ_k = Ed d_k.
 
-    And z_0 = 0: at rest on the reference.
+    And z_0 = 0: at rest on the reference (the caller may set another start in beq[:4]).
     """
     from scipy import sparse
 
@@ -237,166 +288,3 @@ def _peak_and_rate_limits(n: int, nv: int, lag: int, max_delta_torque: float) ->
     ub = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                            shape=(3 * n, nv))
     return ub, np.concatenate([np.zeros(n), np.full(2 * n, max_delta_torque)])
-
-
-#: Seconds after the start at which the benchmark's push comes: the start from rest on the
-#: reference has settled by then (the paper scenario converges within 5.3 s).
-PUSH_AT = 10.0
-
-
-def push_scenario_mapping(reference: str, plant: str = 'paper', *, mismatch: bool = False,
-                          noise: bool = False, delta_v: float = 1.0, push_width: float = 0.1,
-                          speed: float = 0.5, duration: float = 20.0) -> dict:
-    """Return the scenario mapping of one push-recovery case (``reference``: line or circle).
-
-    Starts on the reference at rest; the push, delta_v / push_width for push_width [s], at
-    :data:`PUSH_AT`. ``mismatch``: body 20 % heavier, centre of mass 10 % higher (the plant's
-    parameters; the controllers keep the nominal model); ``noise``: a consumer IMU's
-    (pitch 0.002 rad, gyro 0.01 rad/s), as the robustness suite's.
-    """
-    if reference == 'line':
-        ref = {'kind': 'line', 'line_speed': speed}
-    elif reference == 'circle':
-        ref = {'kind': 'circle', 'circle_speed': speed}
-    else:
-        raise ValueError(f"reference must be 'line' or 'circle', got {reference!r}")
-    plant_section: dict = {'model': plant}
-    if mismatch:
-        base = ModelParams()
-        plant_section['parameters'] = {'body_mass': 1.2 * base.body_mass,
-                                       'com_height': 1.1 * base.com_height}
-    mapping = {
-        'name': f'push_{reference}_{plant}' + ('_mismatch' if mismatch else '')
-                + ('_noise' if noise else ''),
-        'duration': duration,
-        'initial_state': {'pose_relative_to_reference': True, 'pose': [0.0, 0.0, 0.0],
-                          'x_v': 0.0, 'theta': 0.0},
-        'reference': ref,
-        'plant': plant_section,
-        'disturbances': {'yaw': [], 'tilt': [], 'longitudinal': [
-            {'kind': 'pulse', 'amplitude': delta_v / push_width, 'start_time': PUSH_AT,
-             'width': push_width}]},
-    }
-    if noise:
-        mapping['sensors'] = {'imu_pitch_noise_std': 0.002, 'gyro_noise_std': 0.01}
-    return mapping
-
-
-def measured_excursion(record, push_at: float = PUSH_AT) -> float:
-    """Peak along-track error [m] ahead of the reference after ``push_at``, less the one before.
-
-    The along-track error of the axle centre in the reference's frame, (p − p_r) · (cos ϕr,
-    sin ϕr), from the record's truth and reference (sampled at the control ticks); the
-    value at the push is subtracted (the tracking error the push found).
-    """
-    truth, ref = record['truth'], record['reference']
-    t = np.asarray(ref['t'])
-    x = np.interp(t, truth['t'], truth['x'])
-    y = np.interp(t, truth['t'], truth['y'])
-    along = ((x - ref['x']) * np.cos(ref['phi']) + (y - ref['y']) * np.sin(ref['phi']))
-    after = t >= push_at
-    if not after.any():
-        raise ValueError(f'the record ends at {t[-1]:.2f} s, before the push at {push_at} s')
-    at_push = float(np.interp(push_at, t, along))
-    return float(np.max(along[after]) - at_push)
-
-
-#: [m/s], [rad]: the largest speed error and tilt at the push of a run "at rest on its
-#: reference", the state the bound starts from. A noisy run meets the push up to 0.1 m/s
-#: and 0.04 rad off it (docs/benchmarks.md): its ratio is then only indicative.
-AT_REST_SPEED, AT_REST_TILT = 0.02, 0.01
-
-
-def state_at_push(record, push_at: float = PUSH_AT) -> tuple[float, float]:
-    """Return (υ − υr [m/s], θ [rad]) of the true plant at ``push_at``.
-
-    The bound starts at rest on the reference (υ = υr, θ = 0); a run that meets the push
-    elsewhere is compared with a bound that is not its own.
-    """
-    truth, ref = record['truth'], record['reference']
-    speed = float(np.interp(push_at, truth['t'], truth['v']))
-    return (speed - float(np.interp(push_at, ref['t'], ref['v'])),
-            float(np.interp(push_at, truth['t'], truth['theta'])))
-
-
-#: The benchmark's cases: (reference, plant model, mismatch, noise).
-PUSH_CASES = tuple((reference, plant, mismatch, noise)
-                   for reference in ('line', 'circle')
-                   for plant, mismatch in (('paper', False), ('full', True))
-                   for noise in (False, True))
-
-
-def scenario_bound(scenario, delta_v: float, push_time: float) -> PushBound:
-    """Return the bound for the true plant of ``scenario`` and its MPC limits (``mpc.*``).
-
-    The true plant's parameters and equations: the full model's for 'full' and the engine
-    models, which have the motors' reaction torque on the body.
-    """
-    from wip_sim.core.plant import equation_model
-
-    mpc = scenario.mpc
-    return push_excursion_bound(scenario.plant.parameters, delta_v, push_time=push_time,
-                                max_tilt=mpc.max_tilt, max_torque=mpc.max_drive_torque,
-                                max_delta_torque=mpc.max_delta_torque,
-                                delta_period=mpc.sampling_period,
-                                model=equation_model(scenario.plant.model.model))
-
-
-#: Sensor-noise seeds of each noisy case: the noise moves the state the push finds, and
-#: one seed's excursion says little (docs/benchmarks.md), so the median counts.
-NOISE_SEEDS = (0, 1, 2, 3, 4)
-
-
-def push_recovery_rows(cases=PUSH_CASES, delta_v: float = 1.0, push_width: float = 0.1,
-                       overrides: dict | None = None, seeds=NOISE_SEEDS) -> list[dict]:
-    """Run each case in-process; its measured excursion, the bound and their ratio.
-
-    ``overrides``: scenario keys merged into every case (e.g. a controller setting). A
-    case with noise runs once per seed of ``seeds``: its excursion is the median, with
-    the least and largest ratio (a clean case runs once: it does not depend on the seed).
-    """
-    from wip_sim.core.scenario import scenario_from_mapping
-
-    bounds: dict = {}
-    rows = []
-    for reference, plant, mismatch, noise in cases:
-        mapping = push_scenario_mapping(reference, plant, mismatch=mismatch, noise=noise,
-                                        delta_v=delta_v, push_width=push_width)
-        for key, value in (overrides or {}).items():
-            mapping[key] = ({**mapping[key], **value} if isinstance(value, dict)
-                            and isinstance(mapping.get(key), dict) else value)
-        scenario = scenario_from_mapping(mapping)
-        key = (scenario.plant.parameters, scenario.plant.model.model, scenario.mpc.max_tilt,
-               scenario.mpc.max_drive_torque, scenario.mpc.max_delta_torque,
-               scenario.mpc.sampling_period)
-        if key not in bounds:
-            bounds[key] = scenario_bound(scenario, delta_v, push_width).excursion
-        results = [_excursion(scenario_from_mapping({**mapping, 'seed': seed}))
-                   for seed in (seeds if noise else (mapping.get('seed', 0),))]
-        runs = [excursion for excursion, _ in results]
-        off_speed = max(abs(state[0]) for _, state in results)
-        off_tilt = max(abs(state[1]) for _, state in results)
-        fell = any(math.isinf(run) for run in runs)
-        measured = math.inf if fell else float(np.median(runs))
-        rows.append({'reference': reference, 'plant': plant, 'mismatch': mismatch,
-                     'noise': noise, 'fell': fell, 'measured_m': measured,
-                     'bound_m': bounds[key], 'ratio': measured / bounds[key],
-                     'runs': len(runs), 'ratio_min': min(runs) / bounds[key],
-                     'ratio_max': max(runs) / bounds[key],
-                     # The worst of the runs: how far from rest on the reference the push
-                     # found the vehicle (the bound's start), and whether all were at rest.
-                     'speed_error_at_push': off_speed, 'tilt_at_push': off_tilt,
-                     'at_rest': off_speed <= AT_REST_SPEED and off_tilt <= AT_REST_TILT})
-    return rows
-
-
-def _excursion(scenario) -> tuple[float, tuple[float, float]]:
-    """Return the measured excursion of one run of ``scenario`` [m] (inf: it fell).
-
-    Also :func:`state_at_push` of the run.
-    """
-    from wip_sim.core.runner import run_scenario
-
-    result = run_scenario(scenario)
-    state = state_at_push(result.record)
-    return (math.inf if result.fell else measured_excursion(result.record)), state
