@@ -219,6 +219,7 @@ def test_a_row_is_the_median_and_percentiles_of_its_runs_ratios():
     assert row['ratio'] == pytest.approx(1.45) and row['ratio_rest'] == pytest.approx(2.9)
     assert (row['ratio_p10'], row['ratio_p90']) == pytest.approx((1.09, 1.81))
     assert row['halves'] == pytest.approx([1.2, 1.7]) and not row['met']
+    assert row['halves_rest'] == pytest.approx([2.4, 3.4])
     fell = _summary(runs[:9] + [{**runs[9], 'excursion': math.inf}], 0.5, 2.0)
     assert fell['fell'] and fell['falls'] == 1 and not fell['met']
 

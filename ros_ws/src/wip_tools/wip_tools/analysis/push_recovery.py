@@ -225,6 +225,9 @@ def _summary(runs: list[dict], rest_bound: float, goal: float) -> dict:
         # Two disjoint seed sets: their medians agree when the row is a measurement.
         'halves': ([float(np.median(ratios[:half])), float(np.median(ratios[half:]))]
                    if half else None),
+        'halves_rest': ([float(np.median(excursions[:half])) / rest_bound,
+                         float(np.median(excursions[half:])) / rest_bound] if half else None),
+        'run_excursions_m': excursions.tolist(), 'run_bounds_m': bounds.tolist(),
         'goal': goal, 'met': falls == 0 and ratio <= goal,
         # The worst of the runs: how far from rest on the reference the push found it.
         'speed_error_at_push': off_speed, 'tilt_at_push': off_tilt,
