@@ -301,7 +301,7 @@ def _section_push(report: dict, seeds: int) -> None:
     report['push_recovery'] = rows
     print(f'{"reference":9s} {"plant":16s} {"sensors":7s} {"bound":>7s} {"excursion":>9s} '
           f'{"ratio":>7s} {"p10-p90":>11s} {"seeds: halves":28s} {"from rest":>9s} '
-          f'{"goal":>10s}')
+          f'{"goal":>9s}')
     for row in rows:
         print(_push_line(row, HALVES_TOLERANCE))
     met = sum(row['met'] for row in rows)
