@@ -17,7 +17,7 @@ made within one invocation, interleaved where possible:
    process), unrecorded and recorded (``--record``: every topic, the bag checked), next
    to the in-process one (goals: ≥ 5× recorded or not, within 10× of in-process) and
    with its final state compared with the in-process run's.
-5. **Push recovery against the physical limit** (first, since it is quick): after a 1 m/s
+5. **Push recovery against the physical limit** (first): after a 1 m/s
    push (10 m/s² for 0.1 s) on a line and a circle at 0.5 m/s, the peak excursion ahead
    of the reference, in-process, beside the clairvoyant lower bound of
    :mod:`wip_tools.analysis.push_bound` (an LP over the torque sequence for the true
