@@ -311,7 +311,11 @@ def _section_push(report: dict, seeds: int) -> None:
 
 
 def _push_line(row: dict, tolerance: float) -> str:
-    """Return one case's row of the table of section 5 (medians over a noisy case's seeds)."""
+    """Return one case's row of the table of section 5 (medians over a noisy case's seeds).
+
+    The halves' verdict needs :data:`HALVES_SEEDS` seeds in each ('-' with fewer).
+    """
+    from .analysis.push_recovery import HALVES_SEEDS
     plant = 'paper' if row['plant'] == 'paper' else 'full, mismatched'
     head = (f'{row["reference"]:9s} {plant:16s} {"noise" if row["noise"] else "clean":7s} ')
     if row['fell']:
@@ -323,7 +327,8 @@ def _push_line(row: dict, tolerance: float) -> str:
         spread = f'{row["ratio_p10"]:.2f}-{row["ratio_p90"]:.2f}x'
         halves = (f'{row["runs"]}: {seeds[0]}-{seeds[half - 1]} {low:.3f}, '
                   f'{seeds[half]}-{seeds[-1]} {high:.3f} '
-                  + ('ok' if abs(low - high) <= tolerance else 'DIFFER'))
+                  + ('-' if half < HALVES_SEEDS else 'ok' if abs(low - high) <= tolerance
+                     else 'DIFFER'))
     return (head + f'{row["bound_m"]:5.3f} m {row["measured_m"]:7.3f} m {row["ratio"]:6.3f}x '
             f'{spread:>11s} {halves:28s} {row["ratio_rest"]:8.3f}x <= {row["goal"]:.2f}x '
             + ('met' if row['met'] else 'NOT MET'))

@@ -150,8 +150,9 @@ def scenario_bound(scenario, delta_v: float, push_time: float, initial_state=(0.
 #: Sensor-noise seeds of each noisy case: two disjoint sets of 20 (0–19, 20–39), whose
 #: medians must agree for the row to be a measurement (docs/benchmarks.md).
 NOISE_SEEDS = tuple(range(40))
-#: How far the two halves' median ratios may differ [-]; docs/benchmarks.md.
-HALVES_TOLERANCE = 0.03
+#: How far the two halves' median ratios may differ [-] when each half has at least
+#: HALVES_SEEDS seeds (fewer: no verdict); docs/benchmarks.md.
+HALVES_TOLERANCE, HALVES_SEEDS = 0.03, 20
 
 
 def push_recovery_rows(cases=PUSH_CASES, delta_v: float = 1.0, push_width: float = 0.1,
