@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import array
 import math
+import struct
 from typing import Sequence
 
 from geometry_msgs.msg import TransformStamped
@@ -39,15 +40,15 @@ from ..core.state_estimation import PoseEstimate
 from ..core.trajectory_generator import VelocityCommand
 
 _build_reference = StampedBuilder(ReferenceStateMsg, ('x', 'y', 'phi', 'v', 'omega',
-                                                      'omega_dot'))
+                                                      'omega_dot')).build
 _build_estimate = StampedBuilder(StateEstimateMsg, (
     'phi', 'omega', 'f1', 'x_v', 'v', 'f2', 'theta', 'theta_dot', 'f3', 'epsilon', 'x', 'y',
-    'settled', 'position_status', 'obstacle_blocked'))
+    'settled', 'position_status', 'obstacle_blocked')).build
 _build_command = StampedBuilder(VelocityCommandMsg, ('v_d', 'omega_d', 'omega_d_dot', 'x_e',
-                                                     'y_e', 'phi_e'))
-_build_arc = StampedBuilder(YawTorque, ('tau_omega', 'alpha_hat', 'e_omega'))
+                                                     'y_e', 'phi_e')).build
+_build_arc = StampedBuilder(YawTorque, ('tau_omega', 'alpha_hat', 'e_omega')).build
 _build_wheel_torques = StampedBuilder(WheelTorques, ('left', 'right', 'tau_v', 'tau_omega',
-                                                     'zeroed', 'reason'))
+                                                     'zeroed', 'reason')).build
 
 
 # --------------------------------------------------------------------- sensors
@@ -373,3 +374,26 @@ def effort_command_cdr(left: float, right: float, joints: Sequence[str], left_jo
     """
     return cdr.float64_multi_array(
         [float(v) for v in _in_joint_order(left, right, joints, left_joint, right_joint)])
+
+
+class EffortCommandCdr:
+    """:func:`effort_command_cdr` for one joint layout: its bytes but the efforts made once.
+
+    ``(left, right)`` -> the same bytes. The mixer sends one command per tick in a layout
+    that never changes: the joint order, the data's count and the CDR prefix are worked
+    out here, not per command.
+    """
+
+    __slots__ = ('prefix', 'doubles', 'left_at')
+
+    def __init__(self, joints: Sequence[str], left_joint: str, right_joint: str) -> None:
+        unknown = [j for j in joints if j not in (left_joint, right_joint)]
+        if unknown:
+            raise KeyError(f'joints {unknown} are neither {left_joint!r} nor {right_joint!r}')
+        self.left_at = tuple(j == left_joint for j in joints)
+        self.prefix = cdr.float64_multi_array([0.0] * len(joints))[:-8 * len(joints) or None]
+        self.doubles = struct.Struct(f'<{len(joints)}d')
+
+    def __call__(self, left: float, right: float) -> bytes:
+        return self.prefix + self.doubles.pack(*[left if is_left else right
+                                                 for is_left in self.left_at])

@@ -111,7 +111,7 @@ from .conversions import (estimate_to_msg, gps_has_fix, gps_local_position, iden
 from wip_runtime.messages import decode_serialized, prepare_decoder
 from ..core.position import DEAD_RECKONING, TRACKING
 from wip_runtime.diagnostics import ERROR, OK, WARN
-from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
+from .hardware_inputs import (body_attitude, mounting_inverse,
                               odometry_position, signed_wheel_angles)
 from wip_runtime.parameters import RosParams
 from .settings import EsoNodeParams, WheelTorqueLimit
@@ -302,10 +302,9 @@ class EsoNode(ControllerNode):
         msg = decode_serialized(msg, 'sensor_msgs/msg/Imu')
         stamp = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input('imu', stamp)
-        pitch, yaw = body_pitch_yaw(msg, self.imu_inverse_mount)
         # The gyro estimator needs the angular velocity (a message without it is dropped).
-        rates = (body_pitch_yaw_rates(msg, self.imu_inverse_mount, pitch)
-                 if self.eso_config.estimator == 'gyro' else None)
+        pitch, yaw, rates = body_attitude(msg, self.imu_inverse_mount,
+                                          self.eso_config.estimator == 'gyro')
         self.feed('imu', stamp, (pitch, yaw, rates))
 
     def _on_gps(self, msg: NavSatFix) -> None:

@@ -49,7 +49,7 @@ from typing import Sequence
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState
 from wip_runtime.messages import (check_finite_values as _check_finite, InvalidMessage,
-                                  pitch_yaw_from_quaternion, quaternion_from_euler,
+                                  is_decoded, pitch_yaw_from_quaternion, quaternion_from_euler,
                                   QUATERNION_NORM_TOLERANCE)
 
 from .conversions import euler_rates_from_body, imu_has_rates, imu_pitch_yaw, wheel_angles
@@ -182,6 +182,47 @@ def body_pitch_yaw_rates(msg: Imu, inverse_mount: Sequence[float] | None,
     # R(q)ᵀ v with q = q_mount⁻¹ is R_mount v: the IMU-frame vector in base_link.
     w_body = w_imu if inverse_mount is None else rotate_vector_into(inverse_mount, w_imu)
     return euler_rates_from_body(pitch, w_body)
+
+
+class _LastAttitude:
+    """The attitude of the last decoded IMU message, for the next node that reads it.
+
+    In a composed process the ESO and the mixer's wiring checks read the same decoded IMU
+    object (composition.share_raw_subscriptions) with the same mounting: the second gets
+    the first one's angles and rates instead of computing them again.
+    """
+
+    __slots__ = ('msg', 'inverse_mount', 'pitch_yaw', 'rates')
+
+    def __init__(self) -> None:
+        self.msg = self.inverse_mount = self.pitch_yaw = self.rates = None
+
+
+_last_attitude = _LastAttitude()
+
+
+def body_attitude(msg: Imu, inverse_mount: Sequence[float] | None,
+                  with_rates: bool) -> tuple[float, float, tuple[float, float] | None]:
+    """(θ, ϕ, (θ̇, ϕ̇) or None): :func:`body_pitch_yaw`, and :func:`body_pitch_yaw_rates`.
+
+    The rates only ``with_rates``. A message :func:`~wip_runtime.messages.decode_serialized`
+    made is converted once for every reader with the same mounting; an invalid one raises
+    InvalidMessage for each reader, as the two functions do.
+    """
+    last = _last_attitude
+    if msg is not last.msg or inverse_mount != last.inverse_mount:
+        pitch_yaw = body_pitch_yaw(msg, inverse_mount)
+        if not is_decoded(msg):
+            rates = body_pitch_yaw_rates(msg, inverse_mount, pitch_yaw[0]) if with_rates else None
+            return pitch_yaw[0], pitch_yaw[1], rates
+        last.msg, last.inverse_mount, last.pitch_yaw, last.rates = (msg, inverse_mount,
+                                                                    pitch_yaw, None)
+    pitch, yaw = last.pitch_yaw
+    if not with_rates:
+        return pitch, yaw, None
+    if last.rates is None:
+        last.rates = body_pitch_yaw_rates(msg, inverse_mount, pitch)
+    return pitch, yaw, last.rates
 
 
 def odometry_position(msg: Odometry) -> tuple[float, float]:

@@ -90,12 +90,12 @@ from .common import ControllerNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS, SENSOR_QOS
 from wip_runtime.stamps import stamp_to_ns
-from .conversions import (effort_command, effort_command_cdr, estimate_from_msg,
+from .conversions import (effort_command, EffortCommandCdr, estimate_from_msg,
                           wheel_torques_to_msg)
 from wip_runtime.messages import InvalidMessage
 from wip_runtime.diagnostics import ERROR, OK, WARN
 from wip_runtime.executors import Watchdog
-from .hardware_inputs import (body_pitch_yaw, body_pitch_yaw_rates, mounting_inverse,
+from .hardware_inputs import (body_attitude, mounting_inverse,
                               rotate_vector_into, signed_efforts, signed_wheel_angles)
 from .effort_interface import declare_effort_interface
 from wip_runtime.parameters import RosParams
@@ -133,6 +133,8 @@ class TorqueMixerNode(ControllerNode):
         self.left_joint, self.right_joint = wheels.left_joint, wheels.right_joint
         self.joints = list(wheels.joints)
         self.left_sign, self.right_sign = wheels.left_sign, wheels.right_sign
+        self.effort_command_cdr = EffortCommandCdr(self.joints, self.left_joint,
+                                                   self.right_joint)
         effort_topic = settings.effort_topic
         if not effort_topic:
             raise ParamError(f'effort_topic: must be a topic name, got {effort_topic!r}')
@@ -240,8 +242,7 @@ class TorqueMixerNode(ControllerNode):
     def _on_imu(self, msg: Imu) -> None:
         t = self.monitor_time()
         try:
-            pitch, _yaw = body_pitch_yaw(msg, self.inverse_mount)
-            pitch_rate, yaw_rate = body_pitch_yaw_rates(msg, self.inverse_mount, pitch)
+            pitch, _yaw, (pitch_rate, yaw_rate) = body_attitude(msg, self.inverse_mount, True)
             accel = None
             if msg.linear_acceleration_covariance[0] != -1.0:
                 a = msg.linear_acceleration
@@ -395,8 +396,7 @@ class TorqueMixerNode(ControllerNode):
         efforts = signed_efforts(*decision.command, self.left_sign, self.right_sign)
         # Serialized: no node of ours subscribes the effort topic, so the intra-process bus
         # never hands these bytes to a callback; DDS sends them as rclpy would the message.
-        self.effort_publisher.publish(effort_command_cdr(*efforts, self.joints,
-                                                         self.left_joint, self.right_joint))
+        self.effort_publisher.publish(self.effort_command_cdr(*efforts))
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self.zeroed_ticks += decision.zeroed
         if self.wiring_check is not None:
