@@ -8,6 +8,7 @@ R = Rz(ϕ) Ry(θ) Rx(roll) (REP 103, as tf2). A reader of an external message ra
 from __future__ import annotations
 
 import math
+from math import isfinite
 import os
 import struct
 from typing import Sequence
@@ -157,7 +158,8 @@ def pitch_yaw_from_quaternion(x: float, y: float, z: float, w: float) -> tuple[f
     about 1e-16 rad). The quaternion is normalised first; its roll is ignored (the WIP
     does not roll).
     """
-    check_finite_values('orientation', x=x, y=y, z=z, w=w)
+    if not (isfinite(x) and isfinite(y) and isfinite(z) and isfinite(w)):
+        check_finite_values('orientation', x=x, y=y, z=z, w=w)
     norm = math.sqrt(x * x + y * y + z * z + w * w)
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise InvalidMessage(f'orientation: quaternion norm {norm!r} is not 1')

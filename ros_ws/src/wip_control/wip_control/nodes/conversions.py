@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import array
 import math
+from math import isfinite
 import struct
 from typing import Sequence
 
@@ -66,7 +67,8 @@ def wheel_angles(msg: JointState, left_joint: str, right_joint: str) -> tuple[fl
         raise InvalidMessage(f'joint_states: {len(names)} names but {len(positions)} '
                              'positions')
     left, right = float(positions[i_left]), float(positions[i_right])
-    check_finite_values('joint_states', left=left, right=right)
+    if not (isfinite(left) and isfinite(right)):   # the common case without a kwargs call
+        check_finite_values('joint_states', left=left, right=right)
     return left, right
 
 
@@ -85,7 +87,8 @@ def euler_rates_from_body(pitch: float, w_body: Sequence[float]) -> tuple[float,
     reading), so θ̇ = ω_y and ϕ̇ = ω_z cos θ − ω_x sin θ.
     """
     wx, wy, wz = (float(v) for v in w_body)
-    check_finite_values('angular_velocity', x=wx, y=wy, z=wz)
+    if not (isfinite(wx) and isfinite(wy) and isfinite(wz)):
+        check_finite_values('angular_velocity', x=wx, y=wy, z=wz)
     return wy, wz * math.cos(pitch) - wx * math.sin(pitch)
 
 
@@ -122,7 +125,8 @@ def gps_local_position(msg: NavSatFix, datum_latitude: float, datum_longitude: f
 def wheel_torques_from_msg(msg: WheelTorques) -> tuple[float, float]:
     """(τl, τr) [N m] of an applied command."""
     left, right = float(msg.left), float(msg.right)
-    check_finite_values('wheel_torques', left=left, right=right)
+    if not (isfinite(left) and isfinite(right)):
+        check_finite_values('wheel_torques', left=left, right=right)
     return left, right
 
 

@@ -121,6 +121,8 @@ from wip_runtime.sync import decimation, ExactTimeSync, is_decimated_tick, Lates
 _SENSORS = ('joint_states', 'imu', 'gps')
 #: Torque messages kept by stamp in lockstep (only the previous period's is needed).
 _MAX_TORQUE_STAMPS = 64
+#: How /diagnostics names each position source.
+_SOURCE_NAMES = {'gps': 'GPS', 'odometry': 'odometry', 'wheels': 'wheels'}
 
 
 #: Variance [m², rad², ...] of the axes a planar estimate does not observe (z, roll,
@@ -419,7 +421,7 @@ class EsoNode(ControllerNode):
 
     def _report(self, settled: bool) -> None:
         diag = self.diagnostics
-        source = {'gps': 'GPS', 'odometry': 'odometry', 'wheels': 'wheels'}[self.position_source]
+        source = _SOURCE_NAMES[self.position_source]
         fault = self.estimator.position_fault
         if fault:
             diag.state(ERROR, f'position source refused: {fault}')
@@ -448,7 +450,7 @@ class EsoNode(ControllerNode):
         self._report_ground(values)
         position = self.estimator.position
         if self.position_source != 'wheels':
-            source = {'gps': 'GPS', 'odometry': 'odometry'}[self.position_source]
+            source = _SOURCE_NAMES[self.position_source]
             values[f'{source} fixes accepted'] = str(position.accepted_fixes)
             values[f'{source} fixes rejected'] = str(position.rejected_fixes)
             values['last fix innovation [m]'] = f'{position.last_innovation:.3f}'

@@ -44,6 +44,7 @@ Position source (parameter ``position_source``: 'gps' | 'odometry')
 from __future__ import annotations
 
 import math
+from math import isfinite
 from typing import Sequence
 
 from nav_msgs.msg import Odometry
@@ -159,7 +160,8 @@ def body_pitch_yaw(msg: Imu, inverse_mount: Sequence[float] | None = None) -> tu
         raise InvalidMessage('imu: no orientation (orientation_covariance[0] == -1)')
     q = msg.orientation
     x, y, z, w = q.x, q.y, q.z, q.w
-    _check_finite('orientation', x=x, y=y, z=z, w=w)
+    if not (isfinite(x) and isfinite(y) and isfinite(z) and isfinite(w)):
+        _check_finite('orientation', x=x, y=y, z=z, w=w)
     norm = math.sqrt(x * x + y * y + z * z + w * w)
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise InvalidMessage(f'orientation: quaternion norm {norm!r} is not 1')
@@ -178,7 +180,8 @@ def body_pitch_yaw_rates(msg: Imu, inverse_mount: Sequence[float] | None,
                              '-1), needed by the gyro estimator')
     w = msg.angular_velocity
     w_imu = (float(w.x), float(w.y), float(w.z))
-    _check_finite('angular_velocity', x=w_imu[0], y=w_imu[1], z=w_imu[2])
+    if not (isfinite(w_imu[0]) and isfinite(w_imu[1]) and isfinite(w_imu[2])):
+        _check_finite('angular_velocity', x=w_imu[0], y=w_imu[1], z=w_imu[2])
     # R(q)ᵀ v with q = q_mount⁻¹ is R_mount v: the IMU-frame vector in base_link.
     w_body = w_imu if inverse_mount is None else rotate_vector_into(inverse_mount, w_imu)
     return euler_rates_from_body(pitch, w_body)
