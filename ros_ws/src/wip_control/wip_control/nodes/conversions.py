@@ -381,11 +381,10 @@ def effort_command_cdr(left: float, right: float, joints: Sequence[str], left_jo
 
 
 class EffortCommandCdr:
-    """:func:`effort_command_cdr` for one joint layout: its bytes but the efforts made once.
+    """:func:`effort_command_cdr` of one joint layout: ``(left, right)`` -> the same bytes.
 
-    ``(left, right)`` -> the same bytes. The mixer sends one command per tick in a layout
-    that never changes: the joint order, the data's count and the CDR prefix are worked
-    out here, not per command.
+    The mixer sends one command per tick in a layout that never changes: the joint order,
+    the data's count and the CDR prefix are worked out here, not per command.
     """
 
     __slots__ = ('prefix', 'doubles', 'left_at')
