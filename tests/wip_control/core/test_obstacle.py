@@ -143,3 +143,44 @@ def test_release_hold_off_by_default_and_on_with_a_hold():
     assert isinstance(on.release, ObstacleRelease) and on.release.hold == 0.5
     with pytest.raises(ValueError, match='ObstacleRelease: hold must be finite and > 0'):
         ObstacleRelease(hold=0.0)
+
+
+def blocked_at_an_edge(monitor):
+    """Stop an axle at x_v = 0 with 15 N m and a 0.1 rad lean; return (t blocked, x_v)."""
+    rows, x_v = feed(monitor, 0.5, lambda t: 0.0, 0.1, 15.0)
+    assert rows[-1][1].blocked and monitor.events == 1
+    return rows[-1][0], x_v
+
+
+def test_an_axle_rocking_on_the_edge_without_progress_stays_blocked():
+    # Blocked, then the axle rocks back from the edge and up it again: x_v = −A (1 − cos
+    # 2πt/T) with A = 1.5 cm, T = 0.4 s, 3 s long (peak speed 2πA/T = 0.24 m/s), then
+    # 2 cm beyond where it stopped (a wheel pressed a little up the edge, the estimate's
+    # creep), half of the release distance. Over any 0.3 s window the axle moves up to
+    # 2A = 3 cm, twice what the 0.05 m/s stall speed allows: a speed rule would let go
+    # every rocking. It gains no ground past the edge, so the one blocking holds.
+    monitor = ObstacleMonitor(PARAMS)
+    t0, x0 = blocked_at_an_edge(monitor)
+    states = []
+    for k in range(1, int(round(3.0 / H)) + 1):
+        t = t0 + k * H
+        x_v = x0 - 0.015 * (1.0 - math.cos(2.0 * math.pi * (t - t0) / 0.4))
+        states.append(monitor.update(t, x_v, 0.1, 15.0))
+    for k in range(1, 101):
+        states.append(monitor.update(t + k * H, x0 + 0.02 * min(k, 50) / 50, 0.1, 15.0))
+    assert all(s.blocked for s in states) and monitor.events == 1
+    assert states[-1].since == 0.0
+
+
+@pytest.mark.parametrize('speed', [0.13, 0.3])
+def test_a_real_crossing_releases_once_past_the_edge_by_the_release_distance(speed):
+    # Blocked, then the wheels climb: the axle rolls on at 0.13 m/s (the slowest roll-on
+    # traced at a 2 cm bump, docs/history/mpc.md §13) or 0.3 m/s. Released on the first
+    # sample at or past 4 cm (release_distance) beyond where it stopped: 0.04/υ after the
+    # roll-on, 0.31 s and 0.13 s, within one sample; the torque and lean still push.
+    monitor = ObstacleMonitor(PARAMS)
+    t0, x0 = blocked_at_an_edge(monitor)
+    rows, _ = feed(monitor, 1.0, lambda t: speed, 0.1, 15.0, start=t0, x_v=x0)
+    released = next(t for t, s in rows if not s.blocked)
+    assert released - t0 == pytest.approx(0.04 / speed, abs=H + 1e-9)
+    assert not any(s.blocked for t, s in rows if t >= released)

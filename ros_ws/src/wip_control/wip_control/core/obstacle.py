@@ -11,7 +11,10 @@ Rule per sample: the vehicle is *stalled* while the drive torque τυ is at leas
 distance the axle advanced over the last ``stall_time`` s of a stall is less than
 ``stall_speed`` · ``stall_time`` (a mean speed, so the noise of one speed sample does
 not decide). It is released as soon as the torque (below half ``stall_torque`` once blocked)
-or the lean stops pushing forward, or the axle moves on faster than that.
+or the lean stops pushing forward, or the axle makes progress: it passes the farthest
+point it reached during the stall by ``release_distance``. Motion alone does not release
+it: an axle that rocks on the edge (forward and back by a few cm, real motion) gains no
+ground, and a wheel that climbs must pass the point where it met the edge.
 
 The closed forms it reports (docs/mujoco-plant.md derives them): a wheel of radius r
 against a square edge of height h pivots on the edge a = √(r² − (r − h)²) ahead of the
@@ -76,20 +79,28 @@ class ObstacleMonitor:
     stall_torque : [N m] the least forward drive torque τυ of a stall, > 0.
     stall_speed : [m/s] the mean speed under which the axle counts as still, > 0.
     max_drive_torque : [N m] the largest τυ the motors give (for h_max in the reason).
+    release_distance : [m] how far past the farthest point of the stall the axle must
+        get to end a blocking, > 0.
     """
 
     def __init__(self, params: ModelParams, stall_time: float = 0.3,
                  stall_torque: float = 10.0, stall_speed: float = 0.05,
-                 max_drive_torque: float = DEFAULT_MAX_DRIVE_TORQUE) -> None:
+                 max_drive_torque: float = DEFAULT_MAX_DRIVE_TORQUE,
+                 release_distance: float = 0.04) -> None:
         for name, value in (('stall_time', stall_time), ('stall_torque', stall_torque),
                             ('stall_speed', stall_speed),
-                            ('max_drive_torque', max_drive_torque)):
+                            ('max_drive_torque', max_drive_torque),
+                            ('release_distance', release_distance)):
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'ObstacleMonitor: {name} must be finite and > 0, '
                                  f'got {value!r}')
         self.params = params
         self.stall_time, self.stall_torque = stall_time, stall_torque
         self.stall_speed, self.max_drive_torque = stall_speed, max_drive_torque
+        # The default 4 cm: under half the 8.7 cm a wheel travels from meeting an edge of
+        # h_max to standing on it, and beyond how far the axle rocks up an edge it cannot
+        # climb (docs/decisions/obstacle-refusal.md).
+        self.release_distance = release_distance
         total = params.body_mass + params.chassis_mass + 2.0 * params.wheel_mass
         self.edge_height = climbable_edge_height(params.wheel_radius, max_drive_torque,
                                                  total, params.gravity)
@@ -101,6 +112,7 @@ class ObstacleMonitor:
         """Forget everything: no stall."""
         self._samples: collections.deque = collections.deque()   # (t, x_v) of the stall
         self._stall_start = math.nan
+        self._farthest = -math.inf   # the farthest x_v of the stall until blocked [m]
         self.state = ObstacleState(False, math.nan, '')
         self.events = 0   #: blockings since the start
         self.first: ObstacleState | None = None   #: the first blocking
@@ -113,13 +125,16 @@ class ObstacleMonitor:
         # Once blocked, half the stall torque keeps it so (the torque of a held body
         # wanders about the stall torque: one report, not one per crossing).
         least = 0.5 * self.stall_torque if self.state.blocked else self.stall_torque
-        if tau_v < least or theta <= 0.0:
-            samples.clear()
-            self._stall_start = math.nan
-            self.state = ObstacleState(False, math.nan, '')
+        if tau_v < least or theta <= 0.0 or (
+                self.state.blocked and x_v >= self._farthest + self.release_distance):
+            return self._release()
+        if self.state.blocked:
+            # Only progress past the edge releases a blocking (above): an axle that rocks
+            # on the edge moves faster than the stall speed but gains no ground.
             return self.state
         if not samples:
             self._stall_start = t
+        self._farthest = max(self._farthest, x_v)
         samples.append((t, x_v))
         # Keep one sample at or before t − stall_time: the window's start.
         while len(samples) > 1 and samples[1][0] <= t - self.stall_time + 1e-9:
@@ -135,6 +150,12 @@ class ObstacleMonitor:
             self.state = ObstacleState(True, self._stall_start, self._reason(x_v, theta, tau_v))
             if self.first is None:
                 self.first = self.state
+        return self.state
+
+    def _release(self) -> ObstacleState:
+        self._samples.clear()
+        self._stall_start, self._farthest = math.nan, -math.inf
+        self.state = ObstacleState(False, math.nan, '')
         return self.state
 
     def _reason(self, x_v: float, theta: float, tau_v: float) -> str:
