@@ -85,7 +85,6 @@ class NodeDiagnostics:
         self.dropped: collections.Counter = collections.Counter()  # (input, reason)
         self.outputs = 0
         self.last_output_ns: int | None = None
-        self.compute_count = 0
         self.compute_total = 0.0
         self.compute_max = 0.0
         self.level = OK
@@ -121,9 +120,14 @@ class NodeDiagnostics:
         """Count a published output; ``compute_time`` [s] from inputs to message."""
         self.outputs += 1
         self.last_output_ns = stamp_ns
-        self.compute_count += 1
         self.compute_total += compute_time
-        self.compute_max = max(self.compute_max, compute_time)
+        if compute_time > self.compute_max:   # not max(): a call per output of every node
+            self.compute_max = compute_time
+
+    @property
+    def compute_count(self) -> int:
+        """Outputs with a compute time: every output."""
+        return self.outputs
 
     def state(self, level: int, message: str) -> None:
         """Why the node commands what it commands (or why it does not)."""

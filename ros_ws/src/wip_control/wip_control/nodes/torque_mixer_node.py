@@ -152,6 +152,7 @@ class TorqueMixerNode(ControllerNode):
                                      self.mixer.max_wheel_torque_rate, self.control_period,
                                      timing_checks=not self.lockstep, runaway=runaway)
         self.last_decision: SafetyDecision | None = None
+        self._decision_limits = self.mixer   # the limits the last decision was mixed with
         self.zeroed_ticks = 0
         self._diagnostics_sent_at = 0.0
         self.estimates: dict[int, tuple] = {}        # lockstep: stamp -> (estimate, settled)
@@ -404,8 +405,8 @@ class TorqueMixerNode(ControllerNode):
             self.wiring_check.torque(self.monitor_time(), tau_l + tau_r,
                                      decision.state in (ACTIVE, DEGRADED), tau_r - tau_l)
         previous = self.last_decision
-        self.last_decision = decision
-        self._report(decision)
+        # The status text is made once per status (_status), with the limits of this tick.
+        self.last_decision, self._decision_limits = decision, self.mixer
         changed = previous is None or previous.state != decision.state
         if changed:
             log = self.get_logger()
@@ -423,10 +424,10 @@ class TorqueMixerNode(ControllerNode):
                 self._diagnostics_sent_at = wall
                 self.diagnostics.publish()
 
-    def _report(self, decision: SafetyDecision) -> None:
+    def _report(self, decision: SafetyDecision, limits: MixerParams) -> None:
         diag = self.diagnostics
         if decision.state == ACTIVE:
-            limit = self.mixer.max_wheel_torque
+            limit = limits.max_wheel_torque
             clipped = max(abs(decision.tau_left), abs(decision.tau_right)) >= limit
             diag.state(OK, f'ACTIVE: wheel torque at the {limit:g} N m limit' if clipped
                        else 'ACTIVE: mixing within the limits')
@@ -442,6 +443,7 @@ class TorqueMixerNode(ControllerNode):
         """Return the node's DiagnosticStatus with the safety counters and input ages of now."""
         values = self.diagnostics.values
         if self.last_decision is not None:
+            self._report(self.last_decision, self._decision_limits)
             values['safety state'] = self.last_decision.state
             values['safety reasons'] = self.last_decision.reason or 'none'
         for name, age in self.monitor.ages(self.monitor_time()).items():

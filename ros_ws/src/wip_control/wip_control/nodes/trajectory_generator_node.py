@@ -73,6 +73,9 @@ class TrajectoryGeneratorNode(ControllerNode):
                              reference_from_msg)
         self.subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                              estimate_from_msg)
+        self._ticked: tuple | None = None   # the last tick's refusal and saturation flags
+        self._counted = None                # the refusal of the last tick that had one
+        self.diagnostics.reporters.append(self._report_state)
 
     def _on_config(self, config: TrajectoryGeneratorParams) -> None:
         old = self.generator.config
@@ -91,14 +94,26 @@ class TrajectoryGeneratorNode(ControllerNode):
                                   pose.x, pose.y, pose.estimate.phi, pose.obstacle_blocked)
         self.publisher.publish(command_to_msg(command, stamp))
         self.diagnostics.output(stamp, time.perf_counter() - start)
-        refusal = self.stage.refusal
+        # What the status says is made once per status (_report_state), from what this
+        # tick leaves: the refusal in force and the saturation flags (a later failed step
+        # may change the flags, a new setting the refusal).
+        generator, refusal = self.generator, self.stage.refusal
+        self._ticked = (refusal, generator.saturated_speed, generator.saturated_yaw_rate)
         if refusal is not None:
-            self.diagnostics.values['obstacle refusals'] = str(refusal.refusals)
-            if refusal.refusing:
-                self.diagnostics.state(WARN, refusal.reason())
-                return
-        limits = [name for name, on in (('v_d', self.generator.saturated_speed),
-                                        ('omega_d', self.generator.saturated_yaw_rate)) if on]
+            self._counted = refusal
+
+    def _report_state(self) -> None:
+        """Why the generator commands what it commands, as of its last tick."""
+        if self._counted is not None:
+            # Only a tick changes a refusal's count; one replaced by new settings keeps it.
+            self.diagnostics.values['obstacle refusals'] = str(self._counted.refusals)
+        if self._ticked is None:
+            return
+        refusal, speed, yaw_rate = self._ticked
+        if refusal is not None and refusal.refusing:
+            self.diagnostics.state(WARN, refusal.reason())
+            return
+        limits = [name for name, on in (('v_d', speed), ('omega_d', yaw_rate)) if on]
         self.diagnostics.state(OK, f'{" and ".join(limits)} saturated' if limits
                                else 'tracking, commands within limits')
 
