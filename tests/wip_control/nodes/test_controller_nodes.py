@@ -697,6 +697,44 @@ def test_trajectory_generator_refuses_a_blocked_estimate_and_says_why(context, h
     assert values['obstacle refusals'] == '1'
 
 
+def test_trajectory_generator_status_says_what_its_last_tick_did(context, harnesses):
+    # The status is made when it is sent, from what the last tick left: new refusal
+    # settings between two ticks apply from the next one, so the status still says where
+    # the last tick held (0.2 m back, the default) until a tick with the new settings.
+    harness = start(harnesses, context, TrajectoryGeneratorNode,
+                    inputs=['/wip/reference', '/wip/state_estimate'],
+                    outputs=['/wip/velocity_command'],
+                    **{'trajectory_generator.obstacle_refuse_delay': 0.0})
+    node, out = harness.node, harness.outputs['/wip/velocity_command']
+    status = node.diagnostics.status()
+    assert status.message == 'waiting for inputs'
+    assert 'obstacle refusals' not in {v.key for v in status.values}
+    ref = ReferenceState(1.5, 0.7, 0.5, 0.3, 0.0, 0.0)   # ahead of the pose: leads past it
+
+    def tick(k: int, blocked: bool) -> DiagnosticStatus:
+        harness.publish('/wip/reference', ReferenceStateMsg(header=make_header(k * H_NS),
+                                                            **ref._asdict()))
+        harness.publish('/wip/state_estimate', estimate_msg(
+            k * H_NS, obstacle_blocked=blocked, x=1.0, y=0.5, phi=0.5))
+        harness.spin_until(lambda: len(out) == k + 1, f'command {k}')
+        return node.diagnostics.status()
+
+    def refusals(status: DiagnosticStatus) -> str:
+        return {v.key: v.value for v in status.values}['obstacle refusals']
+
+    assert tick(0, False).level == DiagnosticStatus.OK
+    status = tick(1, True)   # refused at once (obstacle_refuse_delay 0)
+    assert status.level == DiagnosticStatus.WARN and 'holding 0.20 m back' in status.message
+    assert node.set_parameters([Parameter('trajectory_generator.obstacle_back_off',
+                                          value=0.3)])[0].successful
+    status = node.diagnostics.status()
+    assert status.level == DiagnosticStatus.WARN and 'holding 0.20 m back' in status.message
+    assert refusals(status) == '1'
+    status = tick(2, False)  # the new refusal has seen no blocking: eq. (9) on the reference
+    assert status.level == DiagnosticStatus.OK and refusals(status) == '0'
+    assert out[-1].v_d > 0.0
+
+
 def test_reference_cmd_vel_restarts_at_rest_behind_a_blocked_estimate(context, harnesses):
     # A commanded reference that ran on ahead restarts at rest obstacle_back_off behind
     # the pose of the estimate at which the generator refuses (obstacle_refuse_delay after
