@@ -74,17 +74,12 @@ class ArcNode(ControllerNode):
                              command_from_msg)
         self.subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                              estimate_from_msg)
-        self._ticked: tuple[float, float] | None = None   # the last tick's τω and its limit
         self.diagnostics.reporters.append(self._report_values)
 
     def _report_values(self) -> None:
-        """Report α̂ and the last tick's saturation once per status, once there is an output."""
+        """Report α̂ once per status (it changes every tick), once there is an output."""
         if self.diagnostics.outputs:
             self.diagnostics.values['alpha_hat [kg m^2]'] = f'{self.controller.alpha_hat:.6g}'
-        if self._ticked is not None:
-            tau_omega, limit = self._ticked
-            self.diagnostics.state(OK, f'tau_omega saturated at {math.copysign(limit, tau_omega)}'
-                                   ' N m' if abs(tau_omega) >= limit else 'tracking omega_d')
 
     def _on_config(self, config: ArcParams) -> None:
         self.controller.config = config
@@ -99,8 +94,9 @@ class ArcNode(ControllerNode):
         out = self.stage.step(estimate.omega, estimate.f1, command)
         self.publisher.publish(arc_to_msg(out, stamp))
         self.diagnostics.output(stamp, time.perf_counter() - start)
-        # The status text is made once per status (_report_values), with the limit of the tick.
-        self._ticked = (out.tau_omega, self.controller.config.max_yaw_torque)
+        limit = self.controller.config.max_yaw_torque
+        self.diagnostics.state(OK, f'tau_omega saturated at {math.copysign(limit, out.tau_omega)}'
+                               ' N m' if abs(out.tau_omega) >= limit else 'tracking omega_d')
 
 
 def main(args=None) -> int:
