@@ -1116,6 +1116,12 @@ def test_mixer_run_time_limit_change_and_bad_joints(context, params_context, har
     harness.spin_until(lambda: any(not m.zeroed for m in wheels), 'wheel torques')
     active = next(m for m in wheels if not m.zeroed)
     assert (active.left, active.right) == mix(10.0, 0.5, 2.0)
+    # The status is made when it is sent, from the last tick: a new limit applies from
+    # the next tick, and the status still says the one the last tick was mixed with.
+    clipped = 'ACTIVE: wheel torque at the 2 N m limit'
+    assert node.diagnostics.status().message == clipped
+    assert node.set_parameters([Parameter('mixer.max_wheel_torque', value=20.0)])[0].successful
+    assert node.diagnostics.status().message == clipped
     ctx = params_context('torque_mixer', {'joints': ['left_wheel_joint', 'caster']})
     with pytest.raises(ParamError, match=r'joints: must list'):
         TorqueMixerNode(context=ctx)
