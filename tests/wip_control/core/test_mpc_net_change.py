@@ -44,7 +44,8 @@ class RandomIncrements:
         self.config, self.rng, self.wide = config, rng, wide
         self.tau_previous = 0.0
 
-    def push_detected(self, theta_hat, f2_hat, f3_hat):
+    def push_detected(self, theta_hat, f2_hat, f3_hat, band=None):
+        # The MPC's signature: with `push_restart` the control step asks with a band too.
         return f2_hat > 0.0
 
     def step(self, first_box, tau_limit, **_):
