@@ -32,7 +32,7 @@ from wip_control.core.controller_settings import RatesParams  # noqa: E402
 from wip_sim.core.scenario import scenario_from_mapping, scenario_to_mapping  # noqa: E402
 from wip_control.core.trajectory_generator import TrajectoryGeneratorParams  # noqa: E402
 from wip_control.nodes.settings import WheelTorqueLimit  # noqa: E402
-from wip_bringup.params_files import (flatten, graph_parameters,  # noqa: E402
+from wip_bringup.params_files import (flatten, graph_parameters, section_applies,  # noqa: E402
                                             write_params_file)
 from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
@@ -195,3 +195,29 @@ def test_the_file_has_no_yaml_aliases_and_ints_stay_ints(scenario, params_file):
 def test_unknown_clock_mode_is_refused(scenario):
     with pytest.raises(ValueError, match='clock_mode'):
         graph_parameters(scenario, 'fast')
+
+
+SECTION_KEYS = ('/**', 'eso', '/eso', '*', '/*', '/**/eso', '/*/eso', '/robot/eso',
+                'robot/eso', '/robot/*', '/robot/**', '/**/robot/eso', '/a/b/eso', '/a/*/eso',
+                '/a/**', 'mpc')
+
+
+@pytest.mark.parametrize('namespace', ['', 'robot', '/a/b'])
+def test_section_applies_as_rcl_gives_sections_to_a_real_node(tmp_path, namespace):
+    # Each key sets a parameter of its own; a real node shows which sections rcl gave it.
+    names = {key: f'p{index}' for index, key in enumerate(SECTION_KEYS)}
+    path = tmp_path / 'sections.yaml'
+    path.write_text(yaml.safe_dump({key: {'ros__parameters': {name: 1}}
+                                    for key, name in names.items()}))
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=take_private_domain(),
+               args=['--ros-args', '--params-file', str(path)])
+    try:
+        node = rclpy.node.Node('eso', namespace=namespace, context=context,
+                               automatically_declare_parameters_from_overrides=True)
+        given = {key for key, name in names.items() if node.has_parameter(name)}
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+    assert given == {key for key in SECTION_KEYS if section_applies(key, 'eso', namespace)}
+    assert '/**' in given and 'mpc' not in given

@@ -72,6 +72,19 @@ def test_one_ride_through_passes(data):
     assert check(data) == []
 
 
+def test_under_a_namespace_only_the_sections_rcl_gives_each_node_count():
+    # 'mpc' is the root namespace's node (rcl): under /robot the MPC keeps its default
+    # while the mixer's own section sets 0.1, a mismatch a last-name match would miss.
+    data = {**section('mpc', max_estimate_age=0.1),
+            **section('/robot/torque_mixer', max_estimate_age=0.1)}
+    with pytest.raises(ParamsFileError, match=f'mpc {AGE:g} s .default. but torque_mixer 0.1'):
+        check_params_files([('base.yaml', data)], CONTROLLER_NODES, GENERATED, 'robot')
+    both = {**section('/*/mpc', max_estimate_age=0.1),
+            **section('/robot/torque_mixer', max_estimate_age=0.1)}
+    assert check_params_files([('base.yaml', both)], CONTROLLER_NODES, GENERATED,
+                              'robot') == []
+
+
 def test_a_run_without_both_nodes_is_not_judged():
     assert check(section('torque_mixer', max_estimate_age=0.1), nodes=['torque_mixer']) == []
 

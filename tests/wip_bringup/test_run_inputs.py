@@ -31,8 +31,8 @@ def readme_params_file():
     return yaml.safe_load(block)
 
 
-def check(data, nodes=CONTROLLER_NODES):
-    return check_params_files([('base.yaml', data)], nodes, GENERATED)
+def check(data, nodes=CONTROLLER_NODES, namespace=''):
+    return check_params_files([('base.yaml', data)], nodes, GENERATED, namespace)
 
 
 def section(parameters, key='/**'):
@@ -73,11 +73,22 @@ def test_a_bad_params_file_is_refused_in_one_line(data, message):
 def test_sections_by_node_name_namespace_and_wildcard_apply():
     assert check(section({'mpc.max_tilt': 0.2}, 'mpc')) == []
     assert check(section({'mpc.max_tilt': 0.2}, '/**/mpc')) == []
-    assert check(section({'mpc.max_tilt': 0.2}, '/robot/mpc')) == []
+    assert check(section({'mpc.max_tilt': 0.2}, '/robot/mpc'), namespace='robot') == []
+    assert check(section({'mpc.max_tilt': 0.2}, '/*/mpc'), namespace='/robot') == []
     assert check(section({'use_sim_time': False, 'qos_overrides./x.depth': 5})) == []
     # A node of the project that this run does not start: a warning, not an error.
     assert check(section({'output': '/tmp/x'}, 'recorder')) == [
         "--params-file base.yaml: section 'recorder': no such node in this run (ignored)"]
+    # rcl gives a section to the node of that namespace only: 'mpc' is /mpc.
+    assert check(section({'mpc.max_tilt': 0.2}, '/robot/mpc')) == [
+        "--params-file base.yaml: section '/robot/mpc': no such node in this run (ignored)"]
+    assert check(section({'mpc.max_tilt': 0.2}, 'mpc'), namespace='robot') == [
+        "--params-file base.yaml: section 'mpc': no such node in this run under /robot "
+        '(ignored)']
+    # ... and its values are not checked against that node (rcl never gives them to it).
+    assert check(section({'mpc.max_tilt': -5.0}, '/other/mpc'), namespace='robot') != []
+    with pytest.raises(ParamsFileError, match='max_tilt'):
+        check(section({'mpc.max_tilt': -5.0}, '/**/mpc'), namespace='robot')
 
 
 @pytest.mark.parametrize('rule, message', [

@@ -6,7 +6,6 @@ later file winning, and the controllers' generated parameters in real time witho
 
 from __future__ import annotations
 
-import fnmatch
 import pathlib
 from typing import Any, Iterable, Mapping
 
@@ -15,7 +14,7 @@ from wip_control.core.controller_settings import ControllerParams
 
 from .launcher import EXIT_USAGE, GraphError
 from .params_check import check_remap, ParamsFileError
-from .params_files import DEFAULT_JOINTS, flatten, graph_parameters
+from .params_files import DEFAULT_JOINTS, flatten, graph_parameters, section_applies
 
 #: The mixer's ``safety.max_estop_age`` in hardware mode [s].
 HEARTBEAT_MAX_AGE = 1.0
@@ -67,16 +66,6 @@ def load_params_file(path: str | pathlib.Path) -> dict[str, Any]:
     return dict(data)
 
 
-def _matches(pattern: str, node: str) -> bool:
-    """Whether a params-file key applies to the node ``node``.
-
-    The key is one such as ``/**``, ``eso``, ``/eso`` or ``/**/eso``. ``node`` is the node's
-    full name without the leading slash, such as ``eso`` or ``robot1/eso``.
-    """
-    pattern = str(pattern).lstrip('/')
-    return pattern == node or fnmatch.fnmatchcase(node, pattern.replace('**', '*'))
-
-
 def node_parameters(node: str, generated: Mapping[str, Any],
                     params_files: Iterable[Mapping[str, Any]],
                     namespace: str = '') -> dict[str, Any]:
@@ -87,10 +76,9 @@ def node_parameters(node: str, generated: Mapping[str, Any],
     matching sections in order (later wins).
     """
     flat = flatten(generated.get(node, {}).get('ros__parameters', {}))
-    full_name = f'{namespace.strip("/")}/{node}'.lstrip('/')
     for data in params_files:
         for key, section in data.items():
-            if _matches(key, full_name):
+            if section_applies(key, node, namespace):
                 flat.update(flatten(section['ros__parameters']))
     return flat
 

@@ -135,7 +135,7 @@ class HardwareRunner(RunnerBase):
                        *INPUT_TOPICS)]
         for line in check_run_inputs(options.params_files, self.extra, self.node_names(),
                                      hardware_parameters(self.scenario), self.remaps,
-                                     run_topics):
+                                     run_topics, self.namespace):
             self.say(f'warning: {line}')
         self.prepare_outputs()
         recorder = self.recorder_parameters(

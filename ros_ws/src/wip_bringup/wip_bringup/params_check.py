@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import fnmatch
 import importlib
 import re
 import typing
@@ -29,7 +28,7 @@ from typing import Any, Iterable, Mapping, Sequence
 from wip_runtime.config import check_value, ParamError, from_mapping
 from wip_description.wiring import check_effort_joints, EffortCommand, WheelJoints
 
-from .params_files import flatten
+from .params_files import flatten, section_applies
 from .ride_through_check import RIDE_THROUGH, ride_through_mismatch, Setting
 
 #: Modules holding a ``NODES`` registry (executable -> (prefix, dataclass) groups) of the
@@ -78,18 +77,10 @@ def declarations(node: str) -> dict[str, Declared]:
     return out
 
 
-def section_matches(key: str, node: str) -> bool:
-    """Whether the params-file section ``key`` applies to the node ``node``.
-
-    ``key`` is one such as ``/**``, ``eso``, ``/eso``, ``/**/eso`` or ``/robot/eso``. Only its
-    last name component counts, as a glob (``**`` and ``*`` match every node), whatever the
-    namespace.
-    """
-    pattern = str(key).strip().rstrip('/')
-    last = pattern.rsplit('/', 1)[-1] if pattern else ''
-    if last in ('', '*', '**'):
-        return True
-    return fnmatch.fnmatchcase(node, last.replace('**', '*'))
+def _names_a_node(key: str, node: str) -> bool:
+    """Whether the section ``key`` names ``node`` in some namespace (a known node's section)."""
+    last = str(key).strip().rstrip('/').rsplit('/', 1)[-1]
+    return last in ('', '*', '**') or last == node
 
 
 def _nearest(name: str, candidates: Iterable[str]) -> str:
@@ -131,7 +122,8 @@ def _check_value(name: str, value: Any, declared: Declared) -> None:
 
 
 def check_params_files(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequence[str],
-                       generated: Mapping[str, Any] | None = None) -> list[str]:
+                       generated: Mapping[str, Any] | None = None,
+                       namespace: str = '') -> list[str]:
     """Check parsed params files for a run of the nodes ``nodes``.
 
     Check parsed params files (``(path, {section: {'ros__parameters': {...}}})`` each)
@@ -147,12 +139,13 @@ def check_params_files(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Se
     for path, data in files:
         where = f'--params-file {path}'
         for key, section in data.items():
-            matched = [n for n in running if section_matches(key, n)]
+            matched = [n for n in running if section_applies(key, n, namespace)]
             if not matched:
                 last = str(key).strip().rstrip('/').rsplit('/', 1)[-1]
-                if any(section_matches(key, n) for n in registry):
+                if any(_names_a_node(key, n) for n in registry):
+                    where_run = f' under /{namespace.strip("/")}' if namespace else ''
                     warnings.append(f'{where}: section {str(key)!r}: no such node in this '
-                                    'run (ignored)')
+                                    f'run{where_run} (ignored)')
                     continue
                 raise ParamsFileError(f'{where}: unknown node section {str(key)!r}'
                                   f'{_nearest(last, running or registry)}; the nodes of '
@@ -178,7 +171,7 @@ def check_params_files(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Se
                         _check_value(name, value, declared)
                     except ParamError as err:
                         raise ParamsFileError(f'{where}: node {node}: {err}') from None
-    _check_groups(files, running, generated or {})
+    _check_groups(files, running, generated or {}, namespace)
     return warnings
 
 
@@ -187,7 +180,8 @@ GENERATED = "the run's own params file"
 
 
 def _merged(files: Sequence[tuple[str, Mapping[str, Any]]], node: str,
-            generated: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, str]]:
+            generated: Mapping[str, Any], namespace: str
+            ) -> tuple[dict[str, Any], dict[str, str]]:
     """Return the parameters ``node`` gets, flattened, and where each one comes from.
 
     The generated file's, then each file's matching sections in order (later wins).
@@ -196,7 +190,7 @@ def _merged(files: Sequence[tuple[str, Mapping[str, Any]]], node: str,
     sources = dict.fromkeys(merged, GENERATED)
     for path, data in files:
         for key, section in data.items():
-            if section_matches(key, node):
+            if section_applies(key, node, namespace):
                 flat = flatten(section.get('ros__parameters') or {})
                 merged.update(flat)
                 sources.update(dict.fromkeys(flat, f'{path}, section {str(key)!r}'))
@@ -204,7 +198,7 @@ def _merged(files: Sequence[tuple[str, Mapping[str, Any]]], node: str,
 
 
 def _check_groups(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequence[str],
-                  generated: Mapping[str, Any]) -> None:
+                  generated: Mapping[str, Any], namespace: str) -> None:
     """Check each node's groups as the node builds them.
 
     Each node's groups built from its merged parameters (generated file, then each
@@ -213,7 +207,7 @@ def _check_groups(files: Sequence[tuple[str, Mapping[str, Any]]], nodes: Sequenc
     """
     ride_through: dict[str, dict[str, Setting]] = {}
     for node in nodes:
-        merged, sources = _merged(files, node, generated)
+        merged, sources = _merged(files, node, generated, namespace)
         given = {name for name, source in sources.items() if source != GENERATED}
         declared = declarations(node)
         if all(name in declared for name in RIDE_THROUGH):
@@ -294,8 +288,8 @@ OTHER_TOPICS = ('/clock', '/cmd_vel', '/plan', '/odom', '/wip/estop_reset',
 
 def check_run_inputs(paths: Sequence[str], files: Sequence[Mapping[str, Any]],
                      nodes: Sequence[str], generated: Mapping[str, Any],
-                     remaps: Sequence[tuple[str, str]], topics: Iterable[str] = ()
-                     ) -> list[str]:
+                     remaps: Sequence[tuple[str, str]], topics: Iterable[str] = (),
+                     namespace: str = '') -> list[str]:
     """Check the params files and remappings of a run.
 
     :func:`check_params_files` of the parsed ``files`` (given as ``paths``) and the
@@ -306,7 +300,7 @@ def check_run_inputs(paths: Sequence[str], files: Sequence[Mapping[str, Any]],
     from wip_viewer.viewer_core import VIEWER_TOPICS
     from .launcher import EXIT_USAGE, GraphError
     try:
-        warnings = check_params_files(list(zip(paths, files)), nodes, generated)
+        warnings = check_params_files(list(zip(paths, files)), nodes, generated, namespace)
     except ParamsFileError as err:
         raise GraphError(str(err), EXIT_USAGE) from None
     effort = {str(flatten(section.get('ros__parameters') or {}).get('effort_topic', ''))

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import dataclasses
 import pathlib
+import re
 import typing
 from typing import Any, Mapping
 
@@ -213,6 +214,20 @@ def flatten(parameters: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:
         else:
             flat[name] = value
     return flat
+
+
+def section_applies(key: str, node: str, namespace: str = '') -> bool:
+    """Whether rcl gives the params-file section ``key`` to ``node`` under ``namespace``.
+
+    As rcl reads a params file: a key without a leading slash is in the root namespace
+    (``eso`` is ``/eso``, so it misses ``/robot/eso``), ``*`` stands for one name and ``**``
+    for any number of them, none included (``/**/eso`` is ``/eso`` and ``/robot/eso``).
+    """
+    pattern = ''.join('(/[^/]+)*' if token == '**' else '/[^/]+' if token == '*'
+                      else '/' + re.escape(token)
+                      for token in str(key).strip().split('/') if token)
+    full_name = ''.join(f'/{part}' for part in (*namespace.split('/'), node) if part)
+    return bool(pattern) and re.fullmatch(pattern, full_name) is not None
 
 
 def namespaced_params(text: str, namespace: str) -> str:
