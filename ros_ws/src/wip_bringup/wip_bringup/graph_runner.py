@@ -5,7 +5,6 @@ The steps, the start-up race and the outputs: docs/run_graph.md.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import pathlib
 import random
@@ -13,16 +12,16 @@ import shutil
 import signal
 import sys
 import time
-from typing import Any
 
 import yaml
 
 from wip_runtime.config import ParamError
 from wip_runtime.node_main import STOP_ACK_TIMEOUT
 from wip_runtime.cli import write_atomic
-from wip_sim.core.scenario import load_scenario, Scenario, scenario_to_mapping, with_duration
+from wip_sim.core.scenario import load_scenario, scenario_to_mapping, with_duration
 from wip_sim.settings import WITH_VIEWER
 
+from .graph_options import GraphOptions, GraphResult, StartupStall
 from .graph_design import (expected_endpoints, missing_endpoints, plant_parameters,
                            RECORDED_TOPICS, unmatched_pairs)
 from .graph_recording import RecordingMixin
@@ -30,10 +29,8 @@ from .launcher import (EXIT_DISK_FULL, EXIT_FAILED, EXIT_FELL, EXIT_NOT_ENGAGED,
                        EXIT_TIMEOUT, EXIT_USAGE, GraphError, in_namespace, LAYOUTS, PROBE_PERIOD)
 from .params_files import write_params_file
 from .probe import Probe
-from .run_result import RunResult
 from .run_stop import DiskFull, is_disk_full, stop_signal_number
 from .runner_base import RunnerBase
-from .scheduling import Scheduling
 
 #: A run whose plant has not passed its second tick this long [s] after its start has
 #: stalled at start-up (the first ticks normally take milliseconds; 10 s covers the
@@ -41,64 +38,6 @@ from .scheduling import Scheduling
 STARTUP_STALL_TIMEOUT = 10.0
 #: rmw_fastrtps's publication mode of every writer of a process (SYNCHRONOUS by default).
 PUBLICATION_MODE_VARIABLE = 'RMW_FASTRTPS_PUBLICATION_MODE'
-
-
-class StartupStall(GraphError):
-    """The run stalled on its first ticks.
-
-    A message published before its subscription was matched is lost (see :meth:`GraphRunner.run`).
-    """
-
-    def __init__(self, message: str) -> None:
-        super().__init__(message, EXIT_TIMEOUT)
-
-
-@dataclasses.dataclass
-class GraphOptions:
-    """Arguments of :func:`run_graph` (see ``scripts/run_graph --help``)."""
-
-    scenario: str | None = None
-    clock: str = 'lockstep'
-    record: str | None = None
-    duration: float | None = None
-    out: str = 'out/graph'
-    discovery_timeout: float = 60.0  # [s] wall: processes started -> graph complete
-    stall_timeout: float = 30.0  # [s] wall without simulated-time progress
-    startup_retries: int = 1  # new attempts after a stall on the first ticks
-    quiet: bool = False
-    layout: str = 'composed'  # see LAYOUTS
-    scheduling: Scheduling = Scheduling()  # of the controller processes
-    #: The viewer node (Odometry, Path, markers; recorded). None: when someone will look,
-    #: i.e. with --record or --foxglove (it costs the lockstep run about a quarter of its
-    #: speed on 2 cores: docs/viewing.md).
-    viewer: bool | None = None
-    foxglove_port: int | None = None  # serve the topics to Foxglove on this port
-    foxglove_host: str = '127.0.0.1'
-    #: ROS namespace of every node and topic of the run ('' none; e.g. 'robot1'): two
-    #: vehicles in one domain (--namespace).
-    namespace: str = ''
-
-
-@dataclasses.dataclass
-class GraphResult(RunResult):
-    """What :func:`run_graph` returns (also written to ``OUT/run.json``).
-
-    ``cpu_s`` of the plant from its own stats, ``timeline`` with the plant's refusals to start.
-    """
-
-    scenario: Scenario | None = None
-    plant_stats: dict | None = None
-    #: topic -> 'received/expected' when the recorder lacked messages at the end.
-    recorder_shortfall: dict[str, str] = dataclasses.field(default_factory=dict)
-
-    def summary(self) -> dict[str, Any]:
-        stats = self.plant_stats or {}
-        return {**super().summary(),
-                'scenario': self.scenario.name if self.scenario else None,
-                'sim_time_s': stats.get('sim_time_s'),
-                'real_time_factor': stats.get('real_time_factor'),
-                'recorder_shortfall': self.recorder_shortfall,
-                'plant_stats': self.plant_stats}
 
 
 class GraphRunner(RecordingMixin, RunnerBase):
