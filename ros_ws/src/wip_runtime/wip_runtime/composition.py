@@ -28,24 +28,32 @@ class IntraProcessNode(Node):
     def init_intra_process(self, enabled: bool) -> None:
         self.use_intra_process_comms = enabled
         self.intra_publishers: list[IntraProcessPublisher] = []
-        self.intra_subscriptions: list[tuple[type, str, Callable]] = []
+        #: (message type, topic, callback, direct callback or None, its value type)
+        self.intra_subscriptions: list[tuple] = []
         #: (subscription taking serialized messages, callbacks it also serves)
         self.raw_subscriptions: list[tuple[Any, list[Callable]]] = []
 
-    def add_intra_subscription(self, msg_type, subscription, callback: Callable) -> None:
+    def add_intra_subscription(self, msg_type, subscription, callback: Callable,
+                               direct: Callable | None = None,
+                               value_type: type | None = None) -> None:
         """Also deliver the process's own messages of ``subscription``'s topic to ``callback``.
 
-        Which must be the subscription's.
+        Which must be the subscription's. ``direct(stamp_ns, value)``: the process's
+        publishers of values of ``value_type`` on the topic hand them to it instead
+        (:meth:`.intra_process.IntraProcessPublisher.publish_value`).
         """
-        self.intra_subscriptions.append((msg_type, subscription.topic_name, callback))
+        self.intra_subscriptions.append((msg_type, subscription.topic_name, callback,
+                                         direct, value_type))
 
     def create_publisher(self, msg_type, topic, qos_profile, **kwargs):
         """Create rclpy's publisher wrapped in an :class:`IntraProcessPublisher`.
 
         The wrapper publishes nothing while no subscription is matched (volatile topics),
         and in a composed process hands messages to the process's own subscriptions
-        directly.
+        directly. ``direct_type``: the type of the values the node publishes with
+        ``publish_value``.
         """
+        direct_type = kwargs.pop('direct_type', None)
         if not hasattr(self, 'intra_publishers'):   # rclpy's own, from Node.__init__
             return super().create_publisher(msg_type, topic, qos_profile, **kwargs)
         wrapper: list[IntraProcessPublisher] = []
@@ -56,7 +64,8 @@ class IntraProcessNode(Node):
         publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
         volatile = (not isinstance(qos_profile, QoSProfile)
                     or qos_profile.durability != QoSDurabilityPolicy.TRANSIENT_LOCAL)
-        wrapped = IntraProcessPublisher(publisher, msg_type, skip_unmatched=volatile)
+        wrapped = IntraProcessPublisher(publisher, msg_type, skip_unmatched=volatile,
+                                        direct_type=direct_type)
         wrapper.append(wrapped)
         self.intra_publishers.append(wrapped)
         return wrapped
@@ -148,8 +157,8 @@ def connect_intra_process(nodes: Sequence[Node]) -> IntraProcessBus | None:
     bus = IntraProcessBus(on_error, dds_ignores_local=process_ignores_local_endpoints(
         rclpy.utilities.get_rmw_implementation_identifier()))
     for node in members:
-        for msg_type, topic, callback in node.intra_subscriptions:
-            bus.add_subscription(topic, msg_type, callback)
+        for msg_type, topic, callback, direct, value_type in node.intra_subscriptions:
+            bus.add_subscription(topic, msg_type, callback, direct, value_type)
     connected = []
     for node in members:
         for publisher in node.intra_publishers:
@@ -212,7 +221,7 @@ def count_local_matches(members: Sequence[IntraProcessNode]) -> None:
         for publisher in node.intra_publishers:
             key = ('subscriptions', publisher.topic_name)
             matches[key] = matches.get(key, 0) + publisher.local_subscriptions
-        for msg_type, topic, _ in node.intra_subscriptions:
+        for msg_type, topic, *_ in node.intra_subscriptions:
             key = ('publishers', topic)
             matches[key] = matches.get(key, 0) + publishers.count((topic, msg_type))
         node.local_matches = matches

@@ -41,6 +41,14 @@ Rules (what stays observable):
 - **Shared, not copied.** Local subscribers receive the publisher's message object, as
   rclcpp's intra-process subscribers get a shared const pointer: the nodes build a new
   message per publication and never modify one they received.
+- **Values, not messages, where both sides know them.** A publisher that declares the
+  value its messages are made from (``direct_type``: an immutable core object, the ESO's
+  ``PoseEstimate`` say) publishes it with :meth:`IntraProcessPublisher.publish_value`; a
+  local subscription that declared a ``direct`` callback for that value type gets
+  ``(stamp_ns, value)`` instead of a message, and the message is built only for DDS (an
+  outside subscriber) or for a local subscription without such a callback. The queue,
+  its order and the DDS rules above are the same for both paths; the subscriber applies
+  the same input rules to both (``ControllerNode.subscribe_input``).
 
 When an outside subscriber leaves, messages that DDS still holds for a local subscription
 may be taken after later local ones: the nodes' input synchronisation (:mod:`.sync`) drops
@@ -57,6 +65,8 @@ import time
 from typing import Any, Callable, Iterable
 
 Callback = Callable[[Any], None]
+#: ``direct(stamp_ns, value)``: a subscription's callback for a publisher's value.
+DirectCallback = Callable[[int, Any], None]
 
 #: [s] of steady time a publisher uses its DDS match count before it asks DDS again. The
 #: matched events keep the count current; the query is the safety net for an event missed
@@ -75,14 +85,21 @@ class IntraProcessPublisher:
     # No __slots__: like an rclpy Publisher, an instance's ``publish`` can be replaced
     # (tests record what a node sends that way).
 
-    def __init__(self, publisher, msg_type, skip_unmatched: bool = True) -> None:
+    def __init__(self, publisher, msg_type, skip_unmatched: bool = True,
+                 direct_type: type | None = None) -> None:
         self.publisher = publisher
         self.msg_type = msg_type
         self.topic_name = publisher.topic_name
         #: False for a transient-local publisher: a late subscriber gets its history.
         self.skip_unmatched = skip_unmatched
+        #: The type of the values :meth:`publish_value` publishes (None: messages only).
+        self.direct_type = direct_type
         self._bus: IntraProcessBus | None = None
         self._local: tuple[Callback, ...] = ()
+        #: For :meth:`publish_value`: every local subscription in order, each taking the
+        #: item (stamp_ns, value, message); whether one of them needs the message.
+        self._items: tuple[Callable[[tuple], None], ...] = ()
+        self._items_need_msg = False
         #: DDS's match count, and the steady time [s] after which it is asked again.
         self._matched = 0
         self._matched_until = 0.0
@@ -116,10 +133,18 @@ class IntraProcessPublisher:
         """Subscriptions of this process that receive this publisher's messages locally."""
         return len(self._local)
 
-    def attach(self, bus: 'IntraProcessBus', callbacks: Iterable[Callback]) -> None:
-        """Deliver to ``callbacks`` through ``bus`` while no one outside subscribes."""
+    def attach(self, bus: 'IntraProcessBus', callbacks: Iterable[Callback],
+               direct: Iterable[DirectCallback | None] = ()) -> None:
+        """Deliver to ``callbacks`` through ``bus`` while no one outside subscribes.
+
+        ``direct``: for each of ``callbacks``, its subscription's callback for this
+        publisher's values, or None (that subscription gets a message built from the value).
+        """
         self._bus = bus
         self._local = tuple(callbacks)
+        direct = tuple(direct) or (None,) * len(self._local)
+        self._items = tuple(_item_callback(cb, dc) for cb, dc in zip(self._local, direct))
+        self._items_need_msg = None in direct
 
     def reaches_anyone(self) -> bool:
         """Whether :meth:`publish` would send a message now, to DDS or to this process.
@@ -132,6 +157,34 @@ class IntraProcessPublisher:
         now = time.monotonic()
         return bool(self._matched if now < self._matched_until
                     else self._refresh_match_count(now))
+
+    def publish_value(self, stamp_ns: int, value, to_msg: Callable[[Any, int], Any]) -> None:
+        """Publish ``to_msg(value, stamp_ns)``, handing ``value`` itself to local subscriptions.
+
+        Who receives what follows :meth:`publish`'s rules; the message is built only for
+        DDS or for a local subscription without a direct callback.
+        """
+        bus = self._bus
+        if bus is None or not self._items:
+            if self.reaches_anyone():
+                self.publish(to_msg(value, stamp_ns))
+            return
+        now = time.monotonic()
+        matched = (self._matched if now < self._matched_until
+                   else self._refresh_match_count(now))
+        msg = None
+        if bus.dds_ignores_local:
+            if matched or not self.skip_unmatched:
+                msg = to_msg(value, stamp_ns)
+                self.publisher.publish(msg)
+                bus.published_dds += 1
+        elif matched > len(self._local):     # someone outside: DDS, for everyone
+            self.publisher.publish(to_msg(value, stamp_ns))
+            bus.published_dds += 1
+            return
+        if msg is None and self._items_need_msg:
+            msg = to_msg(value, stamp_ns)
+        bus.post(self._items, (stamp_ns, value, msg))
 
     def publish(self, msg) -> None:
         bus = self._bus
@@ -157,6 +210,14 @@ class IntraProcessPublisher:
             self.publisher.publish(msg)
 
 
+def _item_callback(callback: Callback,
+                   direct: DirectCallback | None) -> Callable[[tuple], None]:
+    """Return a local subscription's callback of an item (stamp_ns, value, message)."""
+    if direct is None:
+        return lambda item: callback(item[2])
+    return lambda item: direct(item[0], item[1])
+
+
 def local_match_count(node: Any, kind: str, topic: str) -> int:
     """Local endpoints a node's endpoint on ``topic`` reaches through the bus, not DDS.
 
@@ -174,9 +235,8 @@ class IntraProcessBus:
                  dds_ignores_local: bool = False) -> None:
         #: The process's DDS participant does not match its own endpoints (see the rules).
         self.dds_ignores_local = dds_ignores_local
-        #: topic -> [(message type, callback)]
-        self.subscriptions: dict[str, list[tuple[type, Callback]]] = (
-            collections.defaultdict(list))
+        #: topic -> [(message type, callback, direct callback or None, its value type)]
+        self.subscriptions: dict[str, list[tuple]] = collections.defaultdict(list)
         self._queue: collections.deque = collections.deque()
         self._on_error = on_error
         #: Messages delivered locally (one per message, whatever the number of callbacks),
@@ -187,8 +247,14 @@ class IntraProcessBus:
         #: Watchdogs whose deadlines the spin loop keeps (``executors.adopt_watchdogs``).
         self.watchdogs: list = []
 
-    def add_subscription(self, topic: str, msg_type: type, callback: Callback) -> None:
-        self.subscriptions[topic].append((msg_type, callback))
+    def add_subscription(self, topic: str, msg_type: type, callback: Callback,
+                         direct: DirectCallback | None = None,
+                         value_type: type | None = None) -> None:
+        """Deliver ``topic``'s messages to ``callback``.
+
+        Or its publishers' values of ``value_type`` to ``direct(stamp_ns, value)``.
+        """
+        self.subscriptions[topic].append((msg_type, callback, direct, value_type))
 
     def attach(self, publisher: IntraProcessPublisher) -> int:
         """Attach ``publisher`` to the local subscriptions of its topic and type.
@@ -196,9 +262,12 @@ class IntraProcessBus:
         Return their count. There may be none; the publisher then publishes only while a
         subscription is matched.
         """
-        local = [cb for msg_type, cb in self.subscriptions.get(publisher.topic_name, ())
-                 if msg_type is publisher.msg_type]
-        publisher.attach(self, local)
+        local = [entry for entry in self.subscriptions.get(publisher.topic_name, ())
+                 if entry[0] is publisher.msg_type]
+        value_type = publisher.direct_type
+        publisher.attach(self, [entry[1] for entry in local],
+                         [entry[2] if value_type is not None and entry[3] is value_type
+                          else None for entry in local])
         return len(local)
 
     def post(self, callbacks: tuple[Callback, ...], msg) -> None:

@@ -34,14 +34,17 @@ import time
 from wip_msgs.msg import (YawTorque, StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg)
 
-from ..core.arc import ArcParams
+from ..core.arc import ArcOutput, ArcParams
 from ..core.control_step import YawControllerStage, initial_alpha
 from wip_description.params import ModelParams
 from ..core.controller_settings import RatesParams
+from ..core.state_estimation import PoseEstimate
+from ..core.trajectory_generator import VelocityCommand
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
-from .conversions import arc_to_msg, command_from_msg, estimate_from_msg
+from .conversions import (arc_to_msg, checked_command, checked_estimate, command_from_msg,
+                          estimate_from_msg)
 from wip_runtime.diagnostics import OK
 from wip_runtime.parameters import RosParams
 from .settings import YawInputGainScale
@@ -69,11 +72,14 @@ class ArcNode(ControllerNode):
         else:
             self.sync = LatestSync(_INPUTS, self._compute, triggers=('state_estimate',),
                                    required=('velocity_command',))
-        self.publisher = self.create_publisher(YawTorque, 'wip/yaw_torque', RELIABLE_QOS)
+        self.publisher = self.create_publisher(YawTorque, 'wip/yaw_torque', RELIABLE_QOS,
+                                               direct_type=ArcOutput)
         self.subscribe_input(VelocityCommandMsg, 'wip/velocity_command', 'velocity_command',
-                             command_from_msg)
+                             command_from_msg, check=checked_command,
+                             value_type=VelocityCommand)
         self.subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
-                             estimate_from_msg)
+                             estimate_from_msg, check=checked_estimate,
+                             value_type=PoseEstimate)
         self.diagnostics.reporters.append(self._report_values)
 
     def _report_values(self) -> None:
@@ -92,7 +98,7 @@ class ArcNode(ControllerNode):
         # An overflow raises (ControlOverflow, a ValueError: the input is dropped and
         # reported) with alpha_hat kept.
         out = self.stage.step(estimate.omega, estimate.f1, command)
-        self.publisher.publish(arc_to_msg(out, stamp))
+        self.publisher.publish_value(stamp, out, arc_to_msg)
         self.diagnostics.output(stamp, time.perf_counter() - start)
         limit = self.controller.config.max_yaw_torque
         self.diagnostics.state(OK, f'tau_omega saturated at {math.copysign(limit, out.tau_omega)}'

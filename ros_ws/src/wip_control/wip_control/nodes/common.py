@@ -55,7 +55,8 @@ class ControllerNode(IntraProcessNode):
         return super().create_publisher(msg_type, topic, qos_profile, **kwargs)
 
     def subscribe(self, msg_type, topic: str, name: str, handler: Callable,
-                  qos: QoSProfile = RELIABLE_QOS, raw: bool = False) -> None:
+                  qos: QoSProfile = RELIABLE_QOS, raw: bool = False,
+                  direct: Callable | None = None, value_type: type | None = None) -> None:
         """Subscription whose callback never raises.
 
         A ValueError (malformed or non-finite input, rejected by a conversion or the core) drops
@@ -68,6 +69,10 @@ class ControllerNode(IntraProcessNode):
         process (:func:`~wip_runtime.composition.share_raw_subscriptions`): each message is
         then decoded once, here, and the decoded object goes to the handler and to each of
         theirs.
+
+        ``direct(stamp_ns, value)``: in a composed process, a publisher of the same process
+        that publishes values of ``value_type`` on the topic hands them here instead of a
+        message (:mod:`wip_runtime.intra_process`), guarded the same way.
         """
         followers: list[Callable] = []
 
@@ -76,34 +81,71 @@ class ControllerNode(IntraProcessNode):
                 if followers and msg.__class__ is bytes:
                     msg = decode_serialized(msg, typename)
                 handler(msg)
-            except ValueError as err:
-                self.diagnostics.drop(name, 'invalid', str(err))
             except Exception as err:  # noqa: BLE001 - a callback must not stop the executor
-                self.diagnostics.drop(name, 'error', f'{type(err).__name__}: {err}')
+                self._drop(name, err)
             if followers and msg.__class__ is not bytes:
                 for follower in followers:
                     try:
                         follower(msg)
                     except Exception as err:  # noqa: BLE001 - the others still get it
                         self.diagnostics.drop(name, 'error', f'{type(err).__name__}: {err}')
+
+        def direct_callback(stamp_ns: int, value) -> None:
+            try:
+                direct(stamp_ns, value)
+            except Exception as err:  # noqa: BLE001 - a callback must not stop the executor
+                self._drop(name, err)
         subscription = self.create_subscription(msg_type, topic, callback, qos, raw=raw)
-        self.add_intra_subscription(msg_type, subscription, callback)
+        self.add_intra_subscription(msg_type, subscription, callback,
+                                    direct_callback if direct is not None else None,
+                                    value_type)
         if raw:
             typename = f'{msg_type.__module__.split(".")[0]}/msg/{msg_type.__name__}'
             self.raw_subscriptions.append((subscription, followers))
 
+    def _drop(self, name: str, err: Exception) -> None:
+        """Report an input that a callback refused: 'invalid' for a ValueError, else 'error'."""
+        if isinstance(err, ValueError):
+            self.diagnostics.drop(name, 'invalid', str(err))
+        else:
+            self.diagnostics.drop(name, 'error', f'{type(err).__name__}: {err}')
+
     def subscribe_input(self, msg_type, topic: str, name: str, convert: Callable,
-                        qos: QoSProfile = RELIABLE_QOS) -> None:
+                        qos: QoSProfile = RELIABLE_QOS, check: Callable | None = None,
+                        value_type: type | None = None) -> None:
         """:meth:`subscribe` to a stamped input of the node's LatestSync.
 
         Each message's stamp counted on /diagnostics, then ``convert(msg)`` fed as ``name`` (a
-        ValueError of the conversion drops the message).
+        ValueError of the conversion drops the message). With ``check``, a value of
+        ``value_type`` handed directly by a node of the same process goes the same way,
+        through ``check(value)``: the input rules that ``convert`` applies to a message's
+        value (finiteness), so that both paths refuse the same inputs.
         """
-        def handler(msg) -> None:
-            stamp = stamp_to_ns(msg.header.stamp)
+        def accept(stamp: int, to_value: Callable, arrived) -> None:
+            # Counted before it is checked: a refused input still shows as arrived.
             self.diagnostics.input(name, stamp)
-            self.feed(name, stamp, convert(msg))
-        self.subscribe(msg_type, topic, name, handler, qos)
+            self.feed(name, stamp, to_value(arrived))
+
+        def handler(msg) -> None:
+            accept(stamp_to_ns(msg.header.stamp), convert, msg)
+
+        def direct(stamp: int, value) -> None:
+            accept(stamp, check, value)
+        self.subscribe(msg_type, topic, name, handler, qos,
+                       direct=direct if check is not None else None, value_type=value_type)
+
+    def subscribe_value(self, msg_type, topic: str, name: str, on_value: Callable,
+                        value_type: type, convert: Callable = lambda msg: msg,
+                        qos: QoSProfile = RELIABLE_QOS) -> None:
+        """:meth:`subscribe` with one handler for both paths: ``on_value(stamp_ns, value)``.
+
+        A message gives its stamp and ``convert(msg)``; a node of the same process hands its
+        value of ``value_type`` as it is. ``convert`` may return the message itself where
+        the handler reads only fields the value has under the same names.
+        """
+        self.subscribe(msg_type, topic, name,
+                       lambda msg: on_value(stamp_to_ns(msg.header.stamp), convert(msg)),
+                       qos, direct=on_value, value_type=value_type)
 
     def now_ns(self) -> int:
         """Return the node clock [ns].

@@ -180,7 +180,12 @@ def reference_to_msg(ref: ReferenceState, stamp_ns: int, frame_id: str) -> Refer
 
 
 def reference_from_msg(msg: ReferenceStateMsg) -> ReferenceState:
-    ref = ReferenceState(msg.x, msg.y, msg.phi, msg.v, msg.omega, msg.omega_dot)
+    return checked_reference(ReferenceState(msg.x, msg.y, msg.phi, msg.v, msg.omega,
+                                            msg.omega_dot))
+
+
+def checked_reference(ref: ReferenceState) -> ReferenceState:
+    """``ref`` if every field is finite (InvalidMessage otherwise), from a message or not."""
     check_finite_record('reference', ref)
     return ref
 
@@ -191,6 +196,14 @@ def estimate_to_msg(est: StateEstimate, x: float, y: float, settled: bool, stamp
     return _build_estimate(stamp_ns, frame_id, est.phi, est.omega, est.f1, est.x_v, est.v,
                            est.f2, est.theta, est.theta_dot, est.f3, est.epsilon, x, y,
                            settled, position_status, obstacle_blocked)
+
+
+def pose_to_msg(pose: PoseEstimate, stamp_ns: int, frame_id: str) -> StateEstimateMsg:
+    """:func:`estimate_to_msg` of the estimator's output."""
+    est = pose.estimate
+    return _build_estimate(stamp_ns, frame_id, est.phi, est.omega, est.f1, est.x_v, est.v,
+                           est.f2, est.theta, est.theta_dot, est.f3, est.epsilon, pose.x,
+                           pose.y, pose.settled, pose.position_status, pose.obstacle_blocked)
 
 
 class _LastConversion:
@@ -230,14 +243,23 @@ def estimate_from_msg(msg: StateEstimateMsg, check: bool = True) -> PoseEstimate
                         msg.theta_dot, msg.f3, msg.epsilon)
     out = PoseEstimate(est, msg.x, msg.y, bool(msg.settled), int(msg.position_status),
                        bool(msg.obstacle_blocked))
+    return _last_estimate.keep(msg, checked_estimate(out) if check else out, check)
+
+
+def checked_estimate(pose: PoseEstimate) -> PoseEstimate:
+    """``pose`` if what the controllers read of it is finite (InvalidMessage otherwise).
+
+    The rule for an estimate from a message and for one handed along the composed chain.
+    """
+    est = pose.estimate
     # ε (the last field) is inf at the very start of the paper's ramp: not an input of any
     # controller. The names of the bad fields are only built when there is one.
-    if check and not (all(map(math.isfinite, est[:-1])) and math.isfinite(out.x)
-                      and math.isfinite(out.y)):
+    if not (all(map(math.isfinite, est[:-1])) and math.isfinite(pose.x)
+            and math.isfinite(pose.y)):
         values = est._asdict()
         del values['epsilon']
-        check_finite_values('state_estimate', x=out.x, y=out.y, **values)
-    return _last_estimate.keep(msg, out, check)
+        check_finite_values('state_estimate', x=pose.x, y=pose.y, **values)
+    return pose
 
 
 def command_to_msg(cmd: VelocityCommand, stamp_ns: int) -> VelocityCommandMsg:
@@ -250,9 +272,13 @@ def command_from_msg(msg: VelocityCommandMsg, check: bool = True) -> VelocityCom
     if cached is not None:
         return cached
     cmd = VelocityCommand(msg.v_d, msg.omega_d, msg.omega_d_dot, msg.x_e, msg.y_e, msg.phi_e)
-    if check:
-        check_finite_record('velocity_command', cmd)
-    return _last_command.keep(msg, cmd, check)
+    return _last_command.keep(msg, checked_command(cmd) if check else cmd, check)
+
+
+def checked_command(cmd: VelocityCommand) -> VelocityCommand:
+    """``cmd`` if every field is finite (InvalidMessage otherwise), from a message or not."""
+    check_finite_record('velocity_command', cmd)
+    return cmd
 
 
 def arc_to_msg(out: ArcOutput, stamp_ns: int) -> YawTorque:

@@ -101,13 +101,14 @@ from wip_runtime.config import ParamError
 from ..core.eso import EsoParams
 from wip_description.params import ModelParams
 from ..core.position import PositionParams
-from ..core.state_estimation import EstimatorOverflow, StateEstimator
+from ..core.state_estimation import EstimatorOverflow, PoseEstimate, StateEstimator
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
 from wip_runtime.stamps import stamp_to_ns
-from .conversions import (estimate_to_msg, gps_has_fix, gps_local_position, identity_transform,
-                          odometry_to_msg, transform_from_odometry, wheel_torques_from_msg)
+from .conversions import (gps_has_fix, gps_local_position, identity_transform,
+                          odometry_to_msg, pose_to_msg, transform_from_odometry,
+                          wheel_torques_from_msg)
 from wip_runtime.messages import decode_serialized, prepare_decoder
 from ..core.position import DEAD_RECKONING, TRACKING
 from wip_runtime.diagnostics import ERROR, OK, WARN
@@ -206,8 +207,9 @@ class EsoNode(ControllerNode):
 
     def _init_topics(self) -> None:
         """Create the estimate's publisher and the sensor and torque subscriptions."""
+        # The estimator's PoseEstimate goes as it is to this process's controllers.
         self.publisher = self.create_publisher(StateEstimateMsg, 'wip/state_estimate',
-                                               RELIABLE_QOS)
+                                               RELIABLE_QOS, direct_type=PoseEstimate)
         # The base's sensors: reliable in lockstep (every sample counts), sensor-data QoS
         # in real time (see common.SENSOR_QOS).
         sensor_qos = RELIABLE_QOS if self.lockstep else SENSOR_QOS
@@ -393,14 +395,15 @@ class EsoNode(ControllerNode):
             self.last_update_ns = stamp
             raise
         self.last_update_ns = stamp
-        self.publisher.publish(estimate_to_msg(pose.estimate, pose.x, pose.y, pose.settled,
-                                               stamp, self.frame_id, pose.position_status,
-                                               pose.obstacle_blocked))
+        self.publisher.publish_value(stamp, pose, self._pose_to_msg)
         if self.odometry_publisher is not None and pose.position_status in (
                 TRACKING, DEAD_RECKONING):
             self._publish_odometry(stamp, pose)
         self.diagnostics.output(stamp, time.perf_counter() - start)
         self._report(pose.settled)
+
+    def _pose_to_msg(self, pose: PoseEstimate, stamp: int) -> StateEstimateMsg:
+        return pose_to_msg(pose, stamp, self.frame_id)
 
     def _observer_time(self, stamp: int) -> float:
         """Time [s] of the sample for the observer.

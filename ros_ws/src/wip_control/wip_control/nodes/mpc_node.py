@@ -67,6 +67,7 @@ References
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
 import time
@@ -74,11 +75,14 @@ import time
 from wip_msgs.msg import (YawTorque, DriveTorque, StateEstimate as StateEstimateMsg,
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
 
+from ..core.arc import ArcOutput
 from ..core.control_step import DriveControllerStage
 from ..core.safety_config import LATE, lateness, STALE
 from ..core.mpc_config import MpcParams, resolves_faster
 from wip_description.params import ModelParams
 from ..core.controller_settings import RatesParams
+from ..core.state_estimation import PoseEstimate
+from ..core.trajectory_generator import VelocityCommand
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
@@ -137,25 +141,30 @@ class MpcNode(ControllerNode):
             self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
                            self._on_applied)
         self.applied_drive_torque: float | None = None
-        self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
-                       lambda msg: self._on_input('state_estimate', msg,
-                                                  estimate_from_msg(msg, check=False)))
-        self.subscribe(VelocityCommandMsg, 'wip/velocity_command', 'velocity_command',
-                       lambda msg: self._on_input('velocity_command', msg,
-                                                  command_from_msg(msg, check=False)))
-        self.subscribe(YawTorque, 'wip/yaw_torque', 'yaw_torque',
-                       lambda msg: self._on_input('yaw_torque', msg,
-                                                  arc_from_msg(msg, check=False)))
+        self._subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
+                              estimate_from_msg, PoseEstimate)
+        self._subscribe_input(VelocityCommandMsg, 'wip/velocity_command', 'velocity_command',
+                              command_from_msg, VelocityCommand)
+        self._subscribe_input(YawTorque, 'wip/yaw_torque', 'yaw_torque', arc_from_msg,
+                              ArcOutput)
         self.diagnostics.state(OK, 'waiting for the first tick')
 
     def is_tick(self, stamp_ns: int) -> bool:
         """Whether ``stamp_ns`` is an MPC tick of the lockstep grid (from t = 0)."""
         return self.stage.is_tick(tick_index(stamp_ns, self.control_period))
 
+    def _subscribe_input(self, msg_type, topic: str, name: str, convert, value_type) -> None:
+        """Take an input from a message (not checked: see _on_value) or from the chain."""
+        self.subscribe(msg_type, topic, name,
+                       lambda msg: self._on_input(name, msg, convert(msg, check=False)),
+                       direct=functools.partial(self._on_value, name), value_type=value_type)
+
     def _on_input(self, name: str, msg, value) -> None:
+        self._on_value(name, stamp_to_ns(msg.header.stamp), value)
+
+    def _on_value(self, name: str, stamp: int, value) -> None:
         # Non-finite values are passed on: the core answers INPUT_INVALID with a finite
         # torque, and in lockstep the tick must be answered or the graph would stop.
-        stamp = stamp_to_ns(msg.header.stamp)
         self.diagnostics.input(name, stamp)
         if self.lockstep:
             if self.is_tick(stamp) and not self._held_early(name, stamp, value):

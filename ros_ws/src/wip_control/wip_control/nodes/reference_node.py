@@ -58,6 +58,7 @@ Parameters (read-only): sections ``reference`` and ``rates``;
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
 import time
@@ -68,6 +69,8 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg, StateEstimate as 
                           WheelTorques)
 
 from ..core.obstacle_refusal import make_refusal
+from ..core.reference_state import ReferenceState
+from ..core.state_estimation import PoseEstimate
 from ..core.references import COMMANDED_KINDS, make_reference, ReferenceParams
 from ..core.controller_settings import RatesParams
 from .common import ControllerNode
@@ -75,10 +78,15 @@ from wip_runtime.clock import ClockTicker
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
 from wip_runtime.stamps import stamp_to_ns
-from .conversions import reference_to_msg
+from .conversions import estimate_from_msg, reference_to_msg
 from wip_runtime.diagnostics import OK, WARN
 from wip_runtime.parameters import RosParams
 from .settings import ObstacleRefusalParams, ReferenceNodeParams
+
+
+#: The estimate's inputs of this node, read from a message (not checked: the values are
+#: checked where they are used, a non-finite start is not taken).
+_estimate = functools.partial(estimate_from_msg, check=False)
 
 
 class ReferenceNode(ControllerNode):
@@ -105,12 +113,13 @@ class ReferenceNode(ControllerNode):
         self.started_at_estimate = False
         self.period = 1.0 / self.rates.control_rate
         self.publisher = self.create_publisher(ReferenceStateMsg, 'wip/reference',
-                                               RELIABLE_QOS)
+                                               RELIABLE_QOS, direct_type=ReferenceState)
         self.last_stamp_ns: int | None = None
         if self.lockstep:
             self.ticker = ClockTicker(self, self.period, self._guarded)
         elif settings.realtime_trigger == 'state_estimate':
-            self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'tick', self._on_estimate)
+            self.subscribe_value(StateEstimateMsg, 'wip/state_estimate', 'tick',
+                                 self._on_estimate, PoseEstimate, _estimate)
         else:
             self.create_timer(self.period, lambda: self._guarded(self.now_ns()))
         if self.config.kind == 'cmd_vel':
@@ -127,8 +136,8 @@ class ReferenceNode(ControllerNode):
         self.refusal = make_refusal(refusal) if self.commanded else None
         triggered = not self.lockstep and settings.realtime_trigger == 'state_estimate'
         if self.refusal is not None and not triggered:
-            self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
-                           self._on_state_estimate)
+            self.subscribe_value(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
+                                 self._on_state_estimate, PoseEstimate, _estimate)
         if self.waiting:
             self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
                            self._on_torques)
@@ -144,36 +153,36 @@ class ReferenceNode(ControllerNode):
         self.diagnostics.inputs = (*self.diagnostics.inputs, name)
         self.diagnostics.last_stamp[name] = None
 
-    def _on_estimate(self, msg: StateEstimateMsg) -> None:
+    def _on_estimate(self, stamp: int, pose: PoseEstimate) -> None:
         """realtime_trigger 'state_estimate': the reference at the estimate's time."""
-        stamp = stamp_to_ns(msg.header.stamp)
         if self.last_stamp_ns is not None and stamp <= self.last_stamp_ns:
             self.diagnostics.input('tick', stamp)
             self.diagnostics.drop('tick', 'stale', f'stamp {stamp} ns not after the last '
                                   f'published {self.last_stamp_ns} ns')
             return
         if self.start_at_estimate and (self.waiting or not self.started_at_estimate):
-            pose = (msg.x, msg.y, msg.phi)
-            if all(math.isfinite(value) for value in pose):
+            start = (pose.x, pose.y, pose.estimate.phi)
+            if all(math.isfinite(value) for value in start):
                 # Until the path's time starts, t stays 0 (see publish_at).
-                self.reference.reset(0.0, *pose)
+                self.reference.reset(0.0, *start)
                 self.started_at_estimate = True
         if self.refusal is not None:
-            self._on_obstacle(msg)
+            self._on_obstacle(stamp, pose)
         self._guarded(stamp)
 
-    def _on_state_estimate(self, msg: StateEstimateMsg) -> None:
+    def _on_state_estimate(self, stamp: int, pose: PoseEstimate) -> None:
         """Count an estimate that is not the node's trigger, then look at its obstacle."""
-        self.diagnostics.input('state_estimate', stamp_to_ns(msg.header.stamp))
-        self._on_obstacle(msg)
+        self.diagnostics.input('state_estimate', stamp)
+        self._on_obstacle(stamp, pose)
 
-    def _on_obstacle(self, msg: StateEstimateMsg) -> None:
+    def _on_obstacle(self, stamp: int, pose: PoseEstimate) -> None:
         """Restart a commanded reference at rest where a refusal holds (obstacle_blocked)."""
-        times = self._command_times(stamp_to_ns(msg.header.stamp))
+        times = self._command_times(stamp)
         if times is None:
             return
         t = times[0]
-        refusal = self.refusal.blocking(t, msg.obstacle_blocked, msg.x, msg.y, msg.phi)
+        refusal = self.refusal.blocking(t, pose.obstacle_blocked, pose.x, pose.y,
+                                        pose.estimate.phi)
         if refusal is None:
             return
         hold, back_off = refusal.hold, self.refusal.back_off
@@ -260,10 +269,13 @@ class ReferenceNode(ControllerNode):
         # path's start point.
         t = 0.0 if self.waiting else max(0.0, self.time_base.seconds(stamp_ns))
         ref = self.reference.update(t) if self.commanded else self.reference.sample(t)
-        self.publisher.publish(reference_to_msg(ref, stamp_ns, self.frame_id))
+        self.publisher.publish_value(stamp_ns, ref, self._reference_to_msg)
         if self.commanded:
             self._report_command(ref)
         self.diagnostics.output(stamp_ns, time.perf_counter() - start)
+
+    def _reference_to_msg(self, ref: ReferenceState, stamp_ns: int) -> ReferenceStateMsg:
+        return reference_to_msg(ref, stamp_ns, self.frame_id)
 
     def _report_command(self, ref) -> None:
         """Report what the commanded reference does, on /diagnostics (value 'command')."""

@@ -65,6 +65,7 @@ References
 from __future__ import annotations
 
 import collections
+import functools
 import sys
 import time
 
@@ -77,6 +78,7 @@ from wip_msgs.msg import (YawTorque, DriveTorque, ReferenceState as ReferenceSta
                           StateEstimate as StateEstimateMsg, WheelTorques)
 
 from wip_runtime.config import ParamError
+from ..core.arc import ArcOutput
 from ..core.mixer import MixerParams
 from ..core.mpc_config import drive_tick_decimation, resolves_faster
 from wip_description.params import ModelParams
@@ -84,7 +86,9 @@ from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyDecision, Safet
                            SHADOW, STARTING)
 from ..core.safety_config import SafetyParams
 from ..core.controller_settings import RatesParams
+from ..core.reference_state import ReferenceState
 from ..core.runaway import RunawayParams
+from ..core.state_estimation import PoseEstimate
 from ..core.wiring_check import WiringCheck, WiringCheckParams
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
@@ -179,13 +183,15 @@ class TorqueMixerNode(ControllerNode):
 
     def _init_subscriptions(self, runaway_guard: bool) -> None:
         """Subscribe to the controllers' outputs, the e-stop, heartbeat and reset inputs."""
-        self.subscribe(YawTorque, 'wip/yaw_torque', 'yaw_torque', self._on_yaw)
+        self.subscribe(YawTorque, 'wip/yaw_torque', 'yaw_torque', self._on_yaw,
+                       direct=self._on_yaw_value, value_type=ArcOutput)
         self.subscribe(DriveTorque, 'wip/drive_torque', 'drive_torque', self._on_drive)
-        self.subscribe(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
-                       self._on_estimate)
+        self.subscribe_value(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
+                             self._on_estimate, PoseEstimate,
+                             functools.partial(estimate_from_msg, check=False))
         if not self.lockstep and runaway_guard:
-            self.subscribe(ReferenceStateMsg, 'wip/reference', 'reference',
-                           self._on_reference)
+            self.subscribe_value(ReferenceStateMsg, 'wip/reference', 'reference',
+                                 self._on_reference, ReferenceState)
         self.subscribe(Bool, 'wip/estop', 'estop', self._on_estop)
         self.subscribe(Empty, 'wip/heartbeat', 'heartbeat',
                        lambda _msg: self.monitor.heartbeat(self.monitor_time()))
@@ -283,7 +289,9 @@ class TorqueMixerNode(ControllerNode):
 
     # -- subscriptions -----------------------------------------------------------------------
     def _on_yaw(self, msg: YawTorque) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
+        self._on_yaw_value(stamp_to_ns(msg.header.stamp), msg)
+
+    def _on_yaw_value(self, stamp: int, msg: YawTorque | ArcOutput) -> None:
         self.diagnostics.input('yaw_torque', stamp)
         if self.lockstep:
             self.feed('yaw_torque', stamp, msg.tau_omega)
@@ -308,11 +316,9 @@ class TorqueMixerNode(ControllerNode):
         else:
             self.feed('drive_torque', stamp, value)
 
-    def _on_estimate(self, msg: StateEstimateMsg) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
+    def _on_estimate(self, stamp: int, pose: PoseEstimate) -> None:
         self.diagnostics.input('state_estimate', stamp)
-        value = (estimate_from_msg(msg, check=False).estimate, bool(msg.settled),
-                 int(msg.position_status), msg.x, msg.y)
+        value = (pose.estimate, bool(pose.settled), int(pose.position_status), pose.x, pose.y)
         if not self.lockstep:
             self.monitor.estimate(self.monitor_time(), *value)
             return
@@ -328,7 +334,7 @@ class TorqueMixerNode(ControllerNode):
             self.latest_estimate_stamp = stamp
         self.sync.drain()
 
-    def _on_reference(self, msg: ReferenceStateMsg) -> None:
+    def _on_reference(self, _stamp: int, msg: ReferenceStateMsg | ReferenceState) -> None:
         self.monitor.reference(self.monitor_time(), msg.x, msg.y)
 
     def _on_estop(self, msg: Bool) -> None:

@@ -39,11 +39,14 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg,
 
 from ..core.control_step import TrajectoryGeneratorStage
 from ..core.obstacle_refusal import make_refusal
-from ..core.trajectory_generator import TrajectoryGeneratorParams
+from ..core.reference_state import ReferenceState
+from ..core.state_estimation import PoseEstimate
+from ..core.trajectory_generator import TrajectoryGeneratorParams, VelocityCommand
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
-from .conversions import command_to_msg, estimate_from_msg, reference_from_msg
+from .conversions import (checked_estimate, checked_reference, command_to_msg,
+                          estimate_from_msg, reference_from_msg)
 from wip_runtime.diagnostics import OK, WARN
 from wip_runtime.parameters import RosParams
 from wip_runtime.sync import ExactTimeSync, LatestSync
@@ -68,11 +71,13 @@ class TrajectoryGeneratorNode(ControllerNode):
             self.sync = LatestSync(_INPUTS, self._compute, triggers=('state_estimate',),
                                    required=('reference',))
         self.publisher = self.create_publisher(VelocityCommandMsg, 'wip/velocity_command',
-                                               RELIABLE_QOS)
+                                               RELIABLE_QOS, direct_type=VelocityCommand)
         self.subscribe_input(ReferenceStateMsg, 'wip/reference', 'reference',
-                             reference_from_msg)
+                             reference_from_msg, check=checked_reference,
+                             value_type=ReferenceState)
         self.subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
-                             estimate_from_msg)
+                             estimate_from_msg, check=checked_estimate,
+                             value_type=PoseEstimate)
         self._ticked: tuple | None = None   # the last tick's refusal and saturation flags
         self._counted = None                # the refusal of the last tick that had one
         self.diagnostics.reporters.append(self._report_state)
@@ -92,7 +97,7 @@ class TrajectoryGeneratorNode(ControllerNode):
         # reported) with the generator's state kept.
         command = self.stage.step(self.time_base.seconds(stamp), values['reference'],
                                   pose.x, pose.y, pose.estimate.phi, pose.obstacle_blocked)
-        self.publisher.publish(command_to_msg(command, stamp))
+        self.publisher.publish_value(stamp, command, command_to_msg)
         self.diagnostics.output(stamp, time.perf_counter() - start)
         # What the status says is made once per status (_report_state), from what this
         # tick leaves: the refusal in force and the saturation flags (a later failed step
