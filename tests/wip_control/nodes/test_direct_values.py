@@ -8,6 +8,7 @@ value.
 """
 
 import math
+import time
 
 import pytest
 
@@ -121,14 +122,18 @@ def test_an_unattached_publisher_publishes_the_message():
 rclpy = pytest.importorskip('rclpy')
 wip_msgs = pytest.importorskip('wip_msgs.msg')
 
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
 from wip_control.core.trajectory_generator import VelocityCommand  # noqa: E402
 from wip_control.nodes.common import ControllerNode  # noqa: E402
 from wip_control.nodes.conversions import (checked_command, command_from_msg,  # noqa: E402
                                            command_to_msg)
+from wip_runtime.composition import connect_intra_process  # noqa: E402
+from wip_runtime.qos import RELIABLE_QOS  # noqa: E402
 from wip_runtime.sync import LatestSync  # noqa: E402
 
+DEADLINE = 60.0   # [s] discovery and matching on a slow, shared machine
 TOPIC = '/wip/velocity_command'
 
 
@@ -176,3 +181,51 @@ def test_the_input_rules_refuse_the_same_inputs_from_a_message_and_from_a_value(
     finally:
         by_message.destroy_node()
         by_value.destroy_node()
+
+
+class Sender(ControllerNode):
+    def __init__(self, **kwargs):
+        super().__init__('direct_sender', 'test sender', (), **kwargs)
+        self.publisher = self.create_publisher(wip_msgs.VelocityCommand, TOPIC, RELIABLE_QOS,
+                                               direct_type=VelocityCommand)
+
+
+def _spin_until(executor, bus, condition, what):
+    end = time.monotonic() + DEADLINE
+    while not condition():
+        assert time.monotonic() < end, f'not within {DEADLINE} s: {what}'
+        executor.spin_once(timeout_sec=0.05)
+        bus.drain()
+
+
+@pytest.mark.ros
+def test_a_value_handed_in_the_process_is_the_message_an_outside_subscriber_sees(context):
+    # `ros2 topic echo` must see the topic: the value goes to the process's subscription as
+    # it is and, once someone outside listens, as its message to DDS, same stamp and fields.
+    params = [Parameter('clock_mode', value='realtime'),
+              Parameter('diagnostics_period', value=0.0)]
+    sender = Sender(context=context, parameter_overrides=params)
+    receiver = Receiver('direct_receiver', context=context, parameter_overrides=params)
+    outside = rclpy.create_node('direct_outside', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    for node in (sender, receiver, outside):
+        executor.add_node(node)
+    try:
+        bus = connect_intra_process([sender, receiver])
+        seen = []
+        outside.create_subscription(wip_msgs.VelocityCommand, TOPIC, seen.append,
+                                    RELIABLE_QOS)
+        # The process's subscription and the outside one (DDS's match count, or the
+        # outside one and the bus's where DDS ignores the process's own endpoints).
+        _spin_until(executor, bus, lambda: sender.publisher.get_subscription_count() >= 2,
+                    'the outside subscription matched')
+        stamp = receiver.now_ns()
+        command = VelocityCommand(0.25, -0.5, 0.125, 1.0, 2.0, 0.75)
+        sender.publisher.publish_value(stamp, command, command_to_msg)
+        _spin_until(executor, bus, lambda: seen and receiver.computed, 'both deliveries')
+        assert seen[0] == command_to_msg(command, stamp)       # every field and the stamp
+        assert receiver.computed[0][0] == stamp
+        assert tuple(receiver.computed[0][1]) == tuple(command)
+    finally:
+        for node in (sender, receiver, outside):
+            node.destroy_node()
