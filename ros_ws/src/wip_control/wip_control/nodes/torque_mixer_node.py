@@ -71,7 +71,6 @@ import time
 
 import numpy as np
 from rclpy.duration import Duration
-from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, Empty, Float64MultiArray
 from std_srvs.srv import Trigger
 from wip_msgs.msg import (YawTorque, DriveTorque, ReferenceState as ReferenceStateMsg,
@@ -81,7 +80,6 @@ from wip_runtime.config import ParamError
 from ..core.arc import ArcOutput
 from ..core.mixer import MixerParams
 from ..core.mpc_config import drive_tick_decimation, resolves_faster
-from wip_description.params import ModelParams
 from ..core.safety import (ACTIVE, DEGRADED, ESTOP, FAULT, SafetyDecision, SafetyMonitor,
                            SHADOW, STARTING)
 from ..core.safety_config import SafetyParams
@@ -89,22 +87,19 @@ from ..core.controller_settings import RatesParams
 from ..core.reference_state import ReferenceState
 from ..core.runaway import RunawayParams
 from ..core.state_estimation import PoseEstimate
-from ..core.wiring_check import WiringCheck, WiringCheckParams
 from .common import ControllerNode
+from .mixer_wiring import WiringCheckInputs
 from wip_runtime.node_main import run_node
-from wip_runtime.qos import RELIABLE_QOS, SENSOR_QOS
+from wip_runtime.qos import RELIABLE_QOS
 from wip_runtime.stamps import stamp_to_ns
 from .conversions import (effort_command, EffortCommandCdr, estimate_from_msg,
                           wheel_torques_to_msg)
-from wip_runtime.messages import InvalidMessage
 from wip_runtime.diagnostics import ERROR, OK, WARN
 from wip_runtime.executors import Watchdog
-from .hardware_inputs import (body_attitude, mounting_inverse,
-                              rotate_vector_into, signed_efforts, signed_wheel_angles)
+from .hardware_inputs import (signed_efforts)
 from .effort_interface import declare_effort_interface
 from wip_runtime.parameters import RosParams
 from .settings import MixerNodeParams, MpcPeriod
-from wip_description.wiring import ImuMounting
 from wip_runtime.sync import decimation, ExactTimeSync, is_decimated_tick
 
 _INPUTS = ('yaw_torque', 'drive_torque')
@@ -121,7 +116,7 @@ _LEVEL = {ACTIVE: OK, DEGRADED: WARN, SHADOW: WARN, STARTING: WARN, FAULT: ERROR
           ESTOP: ERROR}
 
 
-class TorqueMixerNode(ControllerNode):
+class TorqueMixerNode(WiringCheckInputs, ControllerNode):
     """See the module docstring."""
 
     def __init__(self, **kwargs) -> None:
@@ -198,72 +193,6 @@ class TorqueMixerNode(ControllerNode):
         self.subscribe(Empty, 'wip/estop_reset', 'estop_reset',
                        lambda _msg: self.reset_estop('/wip/estop_reset'))
         self.create_service(Trigger, '~/reset_estop', self._on_reset_service)
-
-    def _init_wiring_check(self) -> None:
-        """Real time: the wiring checks (core/wiring_check.py) on the base's own sensors.
-
-        The mixer reads /joint_states and /imu/data itself (not the ESO's estimates): the
-        check compares raw sensors with each other and with the torque this node sends,
-        and its verdict must reach the safety layer in the same process without a hop.
-        """
-        config = RosParams(self, 'wiring_check', WiringCheckParams).config
-        model = RosParams(self, 'model', ModelParams).config
-        mounting = RosParams(self, '', ImuMounting).config.imu_mounting_rpy
-        self.wiring_check = None
-        if self.lockstep or not config.enabled:
-            return
-        self.inverse_mount = mounting_inverse(mounting)
-        self.wiring_check = WiringCheck(config, model, self.control_period, configured={
-            'left_joint': self.left_joint, 'right_joint': self.right_joint,
-            'left_wheel_sign': int(self.left_sign), 'right_wheel_sign': int(self.right_sign),
-            'imu_mounting_rpy': tuple(mounting)})
-        self._last_wheels: tuple[float, float, float] | None = None   # (t, φl, φr)
-        # Also taken from the plant of the same process (the single layout).
-        joints = self.create_subscription(JointState, 'joint_states', self._on_joint_states,
-                                          SENSOR_QOS)
-        self.add_intra_subscription(JointState, joints, self._on_joint_states)
-        imu = self.create_subscription(Imu, 'imu/data', self._on_imu, SENSOR_QOS)
-        self.add_intra_subscription(Imu, imu, self._on_imu)
-
-    def _on_joint_states(self, msg: JointState) -> None:
-        """Feed the wiring check the signed wheel rates (a bad message is the ESO's to report)."""
-        t = self.monitor_time()
-        try:
-            left, right = signed_wheel_angles(msg, self.left_joint, self.right_joint,
-                                              self.left_sign, self.right_sign)
-            names = list(msg.name)
-            if len(msg.velocity) == len(names):
-                rates = (self.left_sign * float(msg.velocity[names.index(self.left_joint)]),
-                         self.right_sign * float(msg.velocity[names.index(self.right_joint)]))
-            elif self._last_wheels is not None and t > self._last_wheels[0]:
-                dt = t - self._last_wheels[0]
-                rates = ((left - self._last_wheels[1]) / dt, (right - self._last_wheels[2]) / dt)
-            else:
-                rates = None
-            self._last_wheels = (t, left, right)
-            if rates is not None:
-                self.wiring_check.wheels(t, *rates)
-        except (InvalidMessage, ValueError, TypeError):
-            return
-
-    def _on_imu(self, msg: Imu) -> None:
-        t = self.monitor_time()
-        try:
-            pitch, _yaw, (pitch_rate, yaw_rate) = body_attitude(msg, self.inverse_mount, True)
-            accel = None
-            if msg.linear_acceleration_covariance[0] != -1.0:
-                a = msg.linear_acceleration
-                accel = (float(a.x), float(a.y), float(a.z))
-                if self.inverse_mount is not None:
-                    accel = rotate_vector_into(self.inverse_mount, accel)
-        except (InvalidMessage, ValueError, TypeError):
-            return
-        verdict = self.wiring_check.imu(t, pitch, pitch_rate, yaw_rate, accel)
-        if verdict is not None and not self.monitor.wiring:
-            self.monitor.wiring_fault(verdict.reason)
-            self.get_logger().error(f'{verdict.reason}: zero torque (latched; fix the '
-                                    'parameter, then restart or reset)')
-            self._tick()    # zero torque now, not at the next yaw torque
 
     # -- parameters and time -------------------------------------------------------------------
     def _on_config(self, config: MixerParams) -> None:
