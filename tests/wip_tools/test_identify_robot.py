@@ -10,6 +10,7 @@ the plant's, over three seeds. The real-time end to end run (hardware mode again
 stand-in base, recorded) is the last test, marked slow and wallclock.
 """
 
+import copy
 import math
 import pathlib
 
@@ -244,7 +245,8 @@ def test_a_params_file_given_wins_and_a_wrong_wiring_is_said(tmp_path, capsys):
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.wallclock
-def test_hardware_mode_against_the_standin_base_recorded_then_identified(tmp_path, capsys):
+def test_hardware_mode_against_the_standin_base_recorded_then_identified(tmp_path, capsys,
+                                                                         monkeypatch):
     """The shipped excitation run through hardware mode, recorded, then scripts/identify.
 
     The stand-in base in its own process (full plant, RK4 at 1 kHz, real time) with the
@@ -262,13 +264,25 @@ def test_hardware_mode_against_the_standin_base_recorded_then_identified(tmp_pat
     assert run.base_code == 0 and not run.stats['fell'], run.stats['end_reason']
     bag = tmp_path / 'bag'
     out = tmp_path / 'model.yaml'
+    # The bag is read once (seconds for a 40 s bag on a loaded machine): the fit below
+    # takes a copy of the record scripts/identify read, after checking that it read this
+    # bag with the wiring of its params.yaml, no remaps and the default torques, which is
+    # what load_record(bag, that wiring) reads.
+    read = []
+
+    def load_record(*args):
+        record = identify_record.load_record(*args)
+        read.append((args, copy.deepcopy(record)))
+        return record
+    monkeypatch.setattr(identify, 'load_record', load_record)
     assert identify.main([str(bag), '--out', str(out)]) == EXIT_OK
     printed = capsys.readouterr().out
     assert 'from sensors' in printed and "'wheel_r_joint' (sign -1)" in printed, printed
-    fit = identify.identify(
-        identify_record.load_record(bag, run_wiring.load_wiring([bag / 'params.yaml'])),
-        scenario_from_mapping(data).controller_model.parameters, model='full',
-        friction=True)
+    ((path, wiring, remaps, torques), record), = read
+    assert pathlib.Path(path) == bag and list(remaps) == [] and torques == 'auto'
+    assert wiring == run_wiring.load_wiring([bag / 'params.yaml'])
+    fit = identify.identify(record, scenario_from_mapping(data).controller_model.parameters,
+                            model='full', friction=True)
     _check(fit, scenario_from_mapping(data))
 
 
