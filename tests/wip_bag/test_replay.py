@@ -40,6 +40,7 @@ def _replayer(node, bag, *options):
     return Tool(node, 'replayer_node', [str(bag), *options], '/replayer')
 
 
+@pytest.mark.wallclock   # judges the replay's pace on the wall clock
 def test_record_replay_record_gives_identical_bytes_in_order_with_recorded_timing(
         test_node, tools, tmp_path):
     prefix = f'/rrr_{os.getpid()}'
@@ -171,6 +172,7 @@ def _assert_timer_fired_at_recorded_times(test_node, fired, start_ns, period_ns,
         assert 0 <= got - want <= 2 * period_ns, (got, want)
 
 
+@pytest.mark.wallclock   # judges the replay's pace on the wall clock
 def test_clock_drives_sim_time_timers_and_rate_two_halves_the_wall_time(
         test_node, tools, tmp_path):
     bag = tmp_path / 'timed'
