@@ -77,3 +77,40 @@ def test_a_fresh_push_restarts_the_re_solve_grid_with_push_restart(restart):
     assert {100, 110, 120, 400, 410, 420} <= set(solved)
     after = [k for k in solved if 410 < k < 450]
     assert after == ([413, 420, 423, 433, 440, 443] if restart else [420, 430, 440])
+
+
+class _ReportedSlack:
+    """The MPC, reporting a chosen tilt slack sθ of (20) for every plan."""
+
+    def __init__(self, mpc, slack):
+        self._mpc, self.slack = mpc, slack
+
+    def __getattr__(self, name):
+        return getattr(self._mpc, name)
+
+    def step(self, **inputs):
+        return self._mpc.step(**inputs)._replace(slack_theta=self.slack)
+
+
+@pytest.mark.parametrize('slack, restarts', [(0.0, True), (0.25, True), (0.2501, False),
+                                             (1.5, False), (float('nan'), False)])
+def test_a_fresh_push_restarts_the_grid_only_within_the_tilt_margin(slack, restarts):
+    """The restart moves the grid only if the plan solved there has sθ ≤ the margin.
+
+    The setting of the test above with ``push_restart_max_slack`` 0.25: the push at 413
+    is solved at once either way; a plan leaning past (1 + 0.25)·θmax (or no plan)
+    leaves the grid where it was (420, 430, 440), since the next solve would come later.
+    """
+    from wip_control.core.control_step import DriveControllerStage
+    config = dataclasses.replace(CONFIG, backend='daqp', push_threshold=(0.3, 0.3),
+                                 push_restart=True, push_restart_max_slack=0.25)
+    drive = DriveControllerStage(PARAMS, config, 15.0, decimation=20, fast_decimation=10)
+    drive.controller = _ReportedSlack(drive.controller, slack)
+    solved = []
+    for k in range(600):
+        f2 = 10.0 if 413 <= k < 433 else 0.5 if 100 <= k < 140 else 0.0
+        if drive.is_tick(k) and drive.solves(k, 0.0, f2, 0.0):
+            drive.step(0.0, 0.0, 0.0, f2, 0.0, 0.0, 0.0, k=k)
+            solved.append(k)
+    after = [k for k in solved if 410 < k < 450]
+    assert after == ([413, 420, 423, 433, 440, 443] if restarts else [413, 420, 430, 440])

@@ -263,12 +263,24 @@ class DriveControllerStage:
         if math.isfinite(result.tau_v):
             self._applied.append((k, result.tau_v, abs(result.delta_tau)))
         if pushed or mpc.push_detected(theta_hat, f2_hat, f3_hat):   # (after its update)
-            if not resolving or fresh:
+            if not resolving or (fresh and self._restart_keeps_tilt(result)):
                 # The finer grid runs from the push: the old grid's next tick, coming a
                 # few ticks later, tipped the heavier body further (docs/history/mpc.md §14).
                 self._grid_start = k
             self._fast_until = k + self._fast_ticks
         return result
+
+    def _restart_keeps_tilt(self, result: MpcResult) -> bool:
+        """Whether a fresh push's solve may restart the grid: its plan within the tilt margin.
+
+        A fresh push while re-solving is mostly the rebound of the push being recovered
+        (the transient of f̂2 turning sign). Restarting there moves the next solve up to
+        Ts/2 later; when the plan already leans past the soft limit |θ| ≤ θmax of (19)
+        (its slack sθ of (20) large), the catch of the lean, rate-limited by (19), then
+        comes too late and overshoots (docs/history/mpc.md §21, §23).
+        """
+        slack = result.slack_theta
+        return math.isfinite(slack) and slack <= self.controller.config.push_restart_max_slack
 
     def _rate_box(self, window: int, dmax: float) -> tuple[float, float]:
         """Bounds of the next increment [N m] under ``resolve_rate_rule`` (19)."""

@@ -140,6 +140,9 @@ class MpcParams:
     push_restart: bool = param(
         False, '-', 'while re-solving, a transient newly beyond disturbance_decay_dead_zone '
         f'solves at once and restarts the re-solve grid there; {_WHY}')
+    push_restart_max_slack: float = param(
+        0.15, '1', 'push_restart moves the grid only if the plan solved there keeps |θ| '
+        f'within (1 + this)·max_tilt (the tilt slack of (20)); {_WHY}', minimum=0.0)
     speed_preview_time: float = param(
         0.5, 's', 'the speed reference of (20) continues the low-passed trend of υd for '
         f'this long over the horizon, then holds; 0: υd held (the paper); {_WHY}',
