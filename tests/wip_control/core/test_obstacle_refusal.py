@@ -91,15 +91,15 @@ def test_a_stall_that_climbs_within_half_a_second_is_a_crossing_not_refused():
 
 
 def test_a_stall_that_climbs_before_the_delay_is_not_refused():
-    # Blocked 0.3 s after the stop, then rolling on at 0.3 m/s 0.1 s later (a 3 cm bump
-    # climbed after a 0.4 s stall): 0.04 m / 0.3 m/s = 0.13 s later the axle is past the
-    # edge by the monitor's release distance, 0.23 s after the blocking, within the
-    # default 0.3 s delay, so never refused; with no delay the same trace is refused at
-    # the blocking, with 0.2 s once blocked for 0.2 s (3 cm rolled: still blocked).
-    phases = [(1.0, 0.3, 0.02, 5.0), (0.4, 0.0, 0.15, 28.0), (1.0, 0.3, 0.05, 12.0)]
+    # Blocked 0.3 s after the stop, then rolling on at 0.3 m/s 0.45 s later (a 3 cm bump
+    # climbed after a 0.75 s stall): 0.04 m / 0.3 m/s = 0.13 s later the axle is past the
+    # edge by the monitor's release distance, 0.58 s after the blocking, within the
+    # default 0.7 s delay, so never refused; with no delay the same trace is refused at
+    # the blocking, with 0.5 s once blocked for 0.5 s (1.6 cm rolled: still blocked).
+    phases = [(1.0, 0.3, 0.02, 5.0), (0.75, 0.0, 0.15, 28.0), (1.0, 0.3, 0.05, 12.0)]
     for config, refusals in ((TrajectoryGeneratorParams(), 0),
                              (TrajectoryGeneratorParams(obstacle_refuse_delay=0.0), 1),
-                             (TrajectoryGeneratorParams(obstacle_refuse_delay=0.2), 1)):
+                             (TrajectoryGeneratorParams(obstacle_refuse_delay=0.5), 1)):
         stage = TrajectoryGeneratorStage(config)
         rows = drive(stage, ObstacleMonitor(ModelParams()), phases)
         assert any(row[2] for row in rows)
