@@ -55,6 +55,17 @@ def test_the_threshold_leaves_the_prediction_alone():
         assert np.array_equal(pred_a, pred_b)
 
 
+def _solved_ticks(drive):
+    """Control ticks 0-599 of a push (10 m/s² at 413-432) and noise (0.5 at 100-139): solves."""
+    solved = []
+    for k in range(600):
+        f2 = 10.0 if 413 <= k < 433 else 0.5 if 100 <= k < 140 else 0.0
+        if drive.is_tick(k) and drive.solves(k, 0.0, f2, 0.0):
+            drive.step(0.0, 0.0, 0.0, f2, 0.0, 0.0, 0.0, k=k)
+            solved.append(k)
+    return solved
+
+
 @pytest.mark.parametrize('restart', [False, True])
 def test_a_fresh_push_restarts_the_re_solve_grid_with_push_restart(restart):
     """While re-solving on a small transient, a push solves at once with ``push_restart``.
@@ -68,12 +79,7 @@ def test_a_fresh_push_restarts_the_re_solve_grid_with_push_restart(restart):
     config = dataclasses.replace(CONFIG, backend='daqp', push_threshold=(0.3, 0.3),
                                  push_restart=restart)
     drive = DriveControllerStage(PARAMS, config, 15.0, decimation=20, fast_decimation=10)
-    solved = []
-    for k in range(600):
-        f2 = 10.0 if 413 <= k < 433 else 0.5 if 100 <= k < 140 else 0.0
-        if drive.is_tick(k) and drive.solves(k, 0.0, f2, 0.0):
-            drive.step(0.0, 0.0, 0.0, f2, 0.0, 0.0, 0.0, k=k)
-            solved.append(k)
+    solved = _solved_ticks(drive)
     assert {100, 110, 120, 400, 410, 420} <= set(solved)
     after = [k for k in solved if 410 < k < 450]
     assert after == ([413, 420, 423, 433, 440, 443] if restart else [420, 430, 440])
@@ -106,11 +112,6 @@ def test_a_fresh_push_restarts_the_grid_only_within_the_tilt_margin(slack, resta
                                  push_restart=True, push_restart_max_slack=0.25)
     drive = DriveControllerStage(PARAMS, config, 15.0, decimation=20, fast_decimation=10)
     drive.controller = _ReportedSlack(drive.controller, slack)
-    solved = []
-    for k in range(600):
-        f2 = 10.0 if 413 <= k < 433 else 0.5 if 100 <= k < 140 else 0.0
-        if drive.is_tick(k) and drive.solves(k, 0.0, f2, 0.0):
-            drive.step(0.0, 0.0, 0.0, f2, 0.0, 0.0, 0.0, k=k)
-            solved.append(k)
+    solved = _solved_ticks(drive)
     after = [k for k in solved if 410 < k < 450]
     assert after == ([413, 420, 423, 433, 440, 443] if restarts else [413, 420, 430, 440])
