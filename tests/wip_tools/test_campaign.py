@@ -243,6 +243,20 @@ def test_campaign_on_a_dask_cluster_end_to_end(tmp_path, capsys, dask_cluster):
 CAMPAIGNS = pathlib.Path(__file__).parents[2] / 'campaigns'
 
 
+def test_a_runaway_alarm_without_a_fall_is_not_up_on_a_robot():
+    from wip_tools.campaign_results import summarise, summary_text
+    campaign = campaign_file.load_campaign(CAMPAIGNS / 'mujoco_kerb_noise.yaml')
+    rows = [{'success': True, 'fell': False, 'runaway_alarm': ''},
+            {'success': False, 'fell': False, 'failed': 'no_runaway_alarm',
+             'runaway_alarm': 't = 21.71 s: runaway: ...'},
+            {'success': False, 'fell': True, 'failed': 'no_fall', 'runaway_alarm': ''},
+            {'success': False, 'fell': None, 'failed': 'error', 'error': 'ValueError: x'}]
+    summary = summarise(campaign, rows)
+    assert (summary['falls'], summary['runaway_alarms_without_fall'],
+            summary['up_on_a_robot'], summary['errors']) == (1, 1, 1, 1)
+    assert 'up on a robot: 1 / 4' in summary_text(summary)
+
+
 @pytest.mark.parametrize('name', sorted(p.name for p in CAMPAIGNS.glob('*.yaml')))
 def test_the_example_campaigns_are_valid(name):
     path = CAMPAIGNS / name

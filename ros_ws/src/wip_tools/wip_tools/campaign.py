@@ -65,8 +65,8 @@ METRIC_COLUMNS = ('max_abs_theta_rad', 'max_abs_theta_outside_pulse_windows_rad'
 MEASURE_COLUMNS = ('max_speed_outside_pulses', 'convergence_time',
                    'rms_path_error_after_settle', 'max_path_error_after_settle',
                    'final_position_error', 'final_path_error', 'final_oscillation',
-                   'final_abs_theta', 'runaway_growth', 'outcome', 'refused_at',
-                   'refusal_hold_error', 'final_speed')
+                   'final_abs_theta', 'runaway_growth', 'runaway_alarm', 'outcome',
+                   'refused_at', 'refusal_hold_error', 'final_speed')
 
 
 def run_one(spec: Mapping[str, Any], base: Mapping[str, Any],

@@ -48,11 +48,17 @@ def summarise(campaign: Campaign, rows: list[dict]) -> dict[str, Any]:
             failures[name] = failures.get(name, 0) + 1
     successes = sum(1 for r in rows if r['success'])
     falls = sum(1 for r in rows if r.get('fell'))
+    # The runs simulate the runaway guard's verdict without acting on it (the runner has
+    # no safety layer); on a robot it is zero torque, so a run that alarms without falling
+    # is down there too.
+    alarms = sum(1 for r in rows if not r.get('fell') and r.get('runaway_alarm'))
     qp = _values(rows, 'qp_failures')
     summary: dict[str, Any] = {
         'campaign': campaign.name, 'runs': n, 'successes': successes,
         'success_rate': successes / n if n else None,
-        'falls': falls, 'errors': sum(1 for r in rows if r.get('error')),
+        'falls': falls, 'runaway_alarms_without_fall': alarms,
+        'up_on_a_robot': n - falls - alarms - sum(1 for r in rows if r.get('fell') is None),
+        'errors': sum(1 for r in rows if r.get('error')),
         'failed_criteria': failures,
         'qp_failures_total': int(np.nansum(qp)) if n else 0,
         'criteria': criteria_to_mapping(campaign.criteria),
@@ -93,6 +99,9 @@ def summary_text(summary: dict) -> str:
              f'success: {summary["successes"]} / {summary["runs"]} '
              f'({100 * (summary["success_rate"] or 0):.1f} %)   falls {summary["falls"]}   '
              f'QP failures {summary["qp_failures_total"]}   run errors {summary["errors"]}',
+             f'up on a robot: {summary["up_on_a_robot"]} / {summary["runs"]} (neither fell '
+             f'nor alarmed the runaway guard, which zeroes the torque: '
+             f'{summary["runaway_alarms_without_fall"]} alarmed without a fall)',
              'criteria: no fall' if c['no_fall'] else 'criteria:',
              ]
     active = [f'{k} <= {v}' for k, v in c.items()
