@@ -262,6 +262,11 @@ def checked_estimate(pose: PoseEstimate) -> PoseEstimate:
     return pose
 
 
+def unchecked_estimate_from_msg(msg: StateEstimateMsg) -> PoseEstimate:
+    """:func:`estimate_from_msg` for a node that checks what it uses itself (mixer, reference)."""
+    return estimate_from_msg(msg, check=False)
+
+
 def command_to_msg(cmd: VelocityCommand, stamp_ns: int) -> VelocityCommandMsg:
     return _build_command(stamp_ns, '', cmd.v_d, cmd.omega_d, cmd.omega_d_dot, cmd.x_e,
                           cmd.y_e, cmd.phi_e)

@@ -58,7 +58,6 @@ Parameters (read-only): sections ``reference`` and ``rates``;
 
 from __future__ import annotations
 
-import functools
 import math
 import sys
 import time
@@ -78,15 +77,10 @@ from wip_runtime.clock import ClockTicker
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
 from wip_runtime.stamps import stamp_to_ns
-from .conversions import estimate_from_msg, reference_to_msg
+from .conversions import reference_to_msg, unchecked_estimate_from_msg
 from wip_runtime.diagnostics import OK, WARN
 from wip_runtime.parameters import RosParams
 from .settings import ObstacleRefusalParams, ReferenceNodeParams
-
-
-#: The estimate's inputs of this node, read from a message (not checked: the values are
-#: checked where they are used, a non-finite start is not taken).
-_estimate = functools.partial(estimate_from_msg, check=False)
 
 
 class ReferenceNode(ControllerNode):
@@ -119,7 +113,8 @@ class ReferenceNode(ControllerNode):
             self.ticker = ClockTicker(self, self.period, self._guarded)
         elif settings.realtime_trigger == 'state_estimate':
             self.subscribe_value(StateEstimateMsg, 'wip/state_estimate', 'tick',
-                                 self._on_estimate, PoseEstimate, _estimate)
+                                 self._on_estimate, PoseEstimate,
+                                 unchecked_estimate_from_msg)
         else:
             self.create_timer(self.period, lambda: self._guarded(self.now_ns()))
         if self.config.kind == 'cmd_vel':
@@ -137,7 +132,8 @@ class ReferenceNode(ControllerNode):
         triggered = not self.lockstep and settings.realtime_trigger == 'state_estimate'
         if self.refusal is not None and not triggered:
             self.subscribe_value(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
-                                 self._on_state_estimate, PoseEstimate, _estimate)
+                                 self._on_state_estimate, PoseEstimate,
+                                 unchecked_estimate_from_msg)
         if self.waiting:
             self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
                            self._on_torques)

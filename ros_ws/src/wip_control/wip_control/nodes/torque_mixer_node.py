@@ -65,7 +65,6 @@ References
 from __future__ import annotations
 
 import collections
-import functools
 import sys
 import time
 
@@ -92,11 +91,11 @@ from .mixer_wiring import WiringCheckInputs
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
 from wip_runtime.stamps import stamp_to_ns
-from .conversions import (effort_command, EffortCommandCdr, estimate_from_msg,
+from .conversions import (effort_command, EffortCommandCdr, unchecked_estimate_from_msg,
                           wheel_torques_to_msg)
 from wip_runtime.diagnostics import ERROR, OK, WARN
 from wip_runtime.executors import Watchdog
-from .hardware_inputs import (signed_efforts)
+from .hardware_inputs import signed_efforts
 from .effort_interface import declare_effort_interface
 from wip_runtime.parameters import RosParams
 from .settings import MixerNodeParams, MpcPeriod
@@ -183,7 +182,7 @@ class TorqueMixerNode(WiringCheckInputs, ControllerNode):
         self.subscribe(DriveTorque, 'wip/drive_torque', 'drive_torque', self._on_drive)
         self.subscribe_value(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                              self._on_estimate, PoseEstimate,
-                             functools.partial(estimate_from_msg, check=False))
+                             unchecked_estimate_from_msg)
         if not self.lockstep and runaway_guard:
             self.subscribe_value(ReferenceStateMsg, 'wip/reference', 'reference',
                                  self._on_reference, ReferenceState)
