@@ -1113,9 +1113,13 @@ def test_mixer_run_time_limit_change_and_bad_joints(context, params_context, har
     harness.publish('/wip/drive_torque', DriveTorque(header=make_header(5), tau_v=10.0))
     harness.spin_for(0.02)
     harness.publish('/wip/yaw_torque', YawTorque(header=make_header(6), tau_omega=0.5))
-    harness.spin_until(lambda: any(not m.zeroed for m in wheels), 'wheel torques')
-    active = next(m for m in wheels if not m.zeroed)
-    assert (active.left, active.right) == mix(10.0, 0.5, 2.0)
+    # The safety layer's rate limit is per second of the clock: the tick the yaw torque
+    # triggers may come a fraction of a millisecond after a watchdog tick and take only a
+    # step toward the mix; the ticks after it reach the mix, never beyond the limit.
+    limited = mix(10.0, 0.5, 2.0)
+    harness.spin_until(lambda: any((m.left, m.right) == limited for m in wheels if not m.zeroed),
+                       'wheel torques mixed within the 2 N m limit')
+    assert all(abs(m.left) <= 2.0 and abs(m.right) <= 2.0 for m in wheels)
     # The status is made when it is sent, from the last tick: a new limit applies from
     # the next tick, and the status still says the one the last tick was mixed with.
     clipped = 'ACTIVE: wheel torque at the 2 N m limit'
