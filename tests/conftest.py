@@ -19,9 +19,10 @@ SCRIPT_HELP_TIMEOUT = 300.0
 
 # Property-based tests: in CI (CI set, as .ci/run's environment has it) the same examples
 # on every run, so that a submission is judged on its code, not on what a random search
-# happened to draw that day; on a developer's machine each run draws new examples and keeps
+# happened to draw that day, and no deadline (an example's time is the machine's load, not
+# the code's); on a developer's machine each run draws new examples and keeps
 # what fails in .hypothesis/ to replay it.
-settings.register_profile('ci', derandomize=True, database=None)
+settings.register_profile('ci', derandomize=True, database=None, deadline=None)
 if os.environ.get('CI'):
     settings.load_profile('ci')
 # A child process that hangs is ended with SIGABRT first (ros_harness.stop_with_stacks):

@@ -25,7 +25,9 @@ from wip_bag.bag_repair import mcap_files_by_index, read_file_contents, repair_b
 from wip_bag.recorder_stop import STOP_DRAIN
 from wip_runtime.launched import LAUNCHER_PID_VARIABLE
 
-pytestmark = pytest.mark.ros
+# The recorder must keep up with 500 Hz publishing and a publish may not block for
+# 0.2 s: a wall-clock test (pytest.ini).
+pytestmark = [pytest.mark.ros, pytest.mark.wallclock]
 
 PUBLISH_PERIOD = 0.002  # [s]: 500 Hz, above every rate of the project's graph
 SPLIT_TIMEOUT = 30.0  # [s]: a split normally comes within 1 s of publishing

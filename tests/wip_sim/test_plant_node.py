@@ -220,6 +220,7 @@ def test_a_fall_ends_the_run_with_the_falling_sample_and_no_clock(tmp_path, harn
     assert len(received['clock']) == len(received['joint']) == len(received['truth']) - 1
 
 
+@pytest.mark.wallclock   # torques older than 0.05 s
 def test_realtime_steps_on_the_wall_clock_with_zero_torques_until_fresh_ones_arrive(
         tmp_path, harnesses):
     harness = Harness(write_scenario(tmp_path, {'duration': 30.0}), clock_mode='realtime',

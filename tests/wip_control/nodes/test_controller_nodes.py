@@ -571,6 +571,7 @@ def test_reference_lockstep_publishes_one_sample_per_clock_tick_from_zero(contex
         assert msg.header.frame_id == 'map'
 
 
+@pytest.mark.wallclock   # judges the timer rate on the wall clock
 def test_reference_realtime_runs_on_a_timer_from_its_first_tick(context, harnesses):
     harness = start(harnesses, context, ReferenceNode, 'realtime',
                     outputs=['/wip/reference'], realtime_trigger='timer',
@@ -994,6 +995,7 @@ def test_mpc_non_finite_input_answers_input_invalid_with_a_finite_torque(context
         assert len(msg.predicted_v) == 0 and msg.tau_v == 0.0
 
 
+@pytest.mark.wallclock   # late at 0.05 s, stale at 0.15 s
 def test_mpc_realtime_not_ready_then_solved_then_late_then_stale(context, harnesses):
     """Inputs that stop are first late (held, WARN), then stale (INPUT_INVALID, τυ = 0).
 

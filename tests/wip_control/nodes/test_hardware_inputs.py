@@ -383,6 +383,7 @@ def test_reference_engaged_holds_the_start_until_the_first_torque_not_zeroed(con
         make(nodes, context, ReferenceNode, realtime_start='later')
 
 
+@pytest.mark.wallclock   # inputs late past 0.05 s
 def test_mpc_in_real_time_plans_from_the_torque_the_mixer_applied(context, nodes):
     node = make(nodes, context, MpcNode)
     out = capture(node.publisher)

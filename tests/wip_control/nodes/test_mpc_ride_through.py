@@ -27,7 +27,9 @@ from wip_runtime.diagnostics import OK, WARN  # noqa: E402
 from wip_runtime.executors import adopt_watchdogs  # noqa: E402
 from wip_runtime.stamps import make_header  # noqa: E402
 
-pytestmark = pytest.mark.ros
+# A stall of 0.3 s timed against a 0.35 s ride-through on the wall clock: a wall-clock
+# test (pytest.ini), or a starved process would oversleep it.
+pytestmark = [pytest.mark.ros, pytest.mark.wallclock]
 
 #: The stall [s]: longer than the MPC's tick period and than the safety layer's age limit
 #: of the estimate (0.05 s), within its ride-through (age limit + bridge_time, 0.35 s by
