@@ -44,11 +44,14 @@ from wip_bringup.private_domain import (release_private_domain, release_taken_do
 # scripts/_env.sh's pid-derived default, which is not reserved (a test session beside another
 # put its stand-in base and controllers into the other session's lockstep graph), but one
 # reserved on this host for the session's life (the kernel frees it when pytest exits). A
-# domain the user set themselves is kept.
+# domain the user set themselves is kept. A pytest-xdist worker inherits its controller's
+# session domain: it reserves one of its own, or two workers' graphs would meet in it.
 if ('ROS_DOMAIN_ID' not in os.environ
-        or f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}" in _ENV_DEFAULTS):
+        or f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}" in _ENV_DEFAULTS
+        or os.environ['ROS_DOMAIN_ID'] == os.environ.get('WIP_TEST_SESSION_DOMAIN')):
     _SESSION_DOMAIN = reserve_private_domain()
-    os.environ['ROS_DOMAIN_ID'] = str(_SESSION_DOMAIN[0])
+    os.environ['ROS_DOMAIN_ID'] = os.environ['WIP_TEST_SESSION_DOMAIN'] = str(
+        _SESSION_DOMAIN[0])
 
 
 # ----------------------------------------------------------------- ROS test isolation
