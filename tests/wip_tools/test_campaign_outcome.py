@@ -71,6 +71,22 @@ def test_the_outcomes_are_told_apart():
     assert obstacle_outcome(crossed, flat, False, None, final(crossed))['outcome'] == ''
 
 
+def test_a_refusal_the_vehicle_went_on_past_is_a_crossing():
+    # Refused at 18 s as the wheels start over the kerb (the reference steps back to the
+    # hold point), the axle goes on past the edge (core/obstacle_refusal.py ends the
+    # refusal): past it over the whole final window, it crossed and is judged on the path
+    # and its end; back before the edge for one sample of that window, it is refused.
+    t = np.arange(0.0, 30.0 + H / 2, H)
+    x = np.where(t < 18.0, np.minimum(0.3 * t, STOP), STOP + 0.3 * (t - 18.0))
+    x_e = np.where(t < 18.0, 0.3 * t - x, (STOP - 0.2) - x)
+    went_on = _record(x, x_e)
+    out = obstacle_outcome(went_on, KERB, False, NAMED, final(went_on))
+    assert out['outcome'] == 'crossed' and out['refused_at'] == pytest.approx(18.0, abs=H)
+    x[-1] = 4.99
+    back = _record(x, x_e)
+    assert obstacle_outcome(back, KERB, False, NAMED, final(back))['outcome'] == 'refused'
+
+
 def _measured(outcome_values, **overrides):
     values = {'fell': False, 'end_time': 30.0, 'max_wheel_torque': 15.0,
               'max_delta_tau_v': 10.0, 'qp_failures': 0, 'final_position_error': 4.3,

@@ -106,6 +106,50 @@ def test_a_stall_that_climbs_before_the_delay_is_not_refused():
         assert stage.refusal.refusals == refusals, config.obstacle_refuse_delay
 
 
+def test_a_refusal_ends_once_the_vehicle_has_gone_on_past_the_edge():
+    # A slow climb refused as the wheels start over the edge: stopped 1.2 s against 25 N m
+    # (blocked at 0.3 s, refused at 1.0 s with the 0.7 s delay), then rolling on at
+    # 0.3 m/s. The position is ahead of where it was refused by CROSSED = 0.2 m after
+    # 0.2 / 0.3 s of rolling past the 0.2 s of the stall left; the refusal ends
+    # CROSSED_TIME = 0.15 s later, and from then on every command is eq. (9) on the
+    # reference itself, as without a refusal (ω̇d aside: a difference across the switch).
+    stage = TrajectoryGeneratorStage()
+    plain = TrajectoryGeneratorStage(TrajectoryGeneratorParams(obstacle_back_off=0.0))
+    rows = drive(stage, ObstacleMonitor(ModelParams()),
+                 [(1.0, 0.3, 0.02, 5.0), (1.2, 0.0, 0.12, 25.0), (2.0, 0.3, 0.05, 12.0)])
+    refused = next(i for i, row in enumerate(rows) if row[3].x_e < -0.19)
+    assert rows[refused][0] == pytest.approx(1.0 + 1.0, abs=1.5 * H)
+    end = 1.0 + 1.2 + 0.2 / 0.3 + 0.15
+    for t, x_v, _, cmd in rows[refused:]:
+        if t < end - 1.5 * H:
+            assert cmd.x_e == pytest.approx(-0.2 - (x_v - rows[refused][1]), abs=1e-9)
+        elif t > end + 1.5 * H:
+            free = plain.step(t, reference(t), X0 + x_v * C, Y0 + x_v * S, PHI)
+            assert (cmd.v_d, cmd.omega_d, cmd.x_e, cmd.y_e, cmd.phi_e) == pytest.approx(
+                (free.v_d, free.omega_d, free.x_e, free.y_e, free.phi_e), abs=1e-12), t
+    assert stage.refusal.refusals == 1 and stage.refusal.crossings == 1
+    assert not stage.refusal.refusing
+
+
+def test_a_position_pushed_ahead_between_fixes_does_not_end_a_refusal():
+    # Wheels spinning at 2.5 m/s against the edge push the odometry ahead between the
+    # 10 Hz fixes, 0.25 m just before each (past CROSSED = 0.2 m for 0.02 s of every
+    # 0.1 s, under CROSSED_TIME), and each fix takes it back to the still axle: held.
+    refusal = ObstacleRefusal(0.2, 0.0)
+    ahead = reference(10.0)
+    refusal.update(0.0, True, ahead, X0, Y0, PHI)
+    for k in range(1, 600):
+        t = k * H
+        leak = 2.5 * (t % 0.1)
+        held = refusal.update(t, True, ahead, X0 + leak * C, Y0 + leak * S, PHI)
+        assert held == refusal.refusal.hold, t
+    assert refusal.crossings == 0
+    # The same 0.25 m held for 0.15 s ends it.
+    for k in range(600, 631):
+        held = refusal.update(k * H, True, ahead, X0 + 0.25 * C, Y0 + 0.25 * S, PHI)
+    assert held is ahead and refusal.crossings == 1
+
+
 def test_a_reference_that_no_longer_leads_past_the_obstacle_resumes():
     refusal = ObstacleRefusal(0.2)
     ahead = ReferenceState(X0 + 0.5 * C, Y0 + 0.5 * S, PHI, 0.3, 0.0, 0.0)
@@ -151,3 +195,7 @@ def test_bad_settings_are_one_line_errors(value):
     if value != 0.0:
         with pytest.raises(ValueError, match='delay'):
             ObstacleRefusal(0.2, value)
+        with pytest.raises(ValueError, match='crossed_time'):
+            ObstacleRefusal(0.2, 0.7, 0.2, value)
+    with pytest.raises(ValueError, match='crossed'):
+        ObstacleRefusal(0.2, 0.7, value)

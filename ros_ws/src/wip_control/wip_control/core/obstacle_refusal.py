@@ -13,10 +13,17 @@ It lasts until the reference no longer leads past the obstacle: a reference poin
 ahead of where the axle stopped, along the heading it had (a new path or goal that turns
 away or goes back, a velocity command backing off; the reference node restarts a commanded
 reference at the held point, docs/estimation.md §7). A reference that runs on through the
-obstacle (a timed path) stays refused. The refusal waits ``delay`` s of blocking (beyond the
-monitor's stall time) so that a stall that climbs soon after is a crossing, and a new
-refusal needs a new blocking (the monitor's blocked going from false to true), so a resumed
-vehicle that is still held is not caught again at once.
+obstacle (a timed path) stays refused, unless the vehicle itself goes on past it: a
+refusal that comes as the wheels start over the edge (a slow climb) must not pull back a
+vehicle already crossing. Its progress is judged on the estimated position, which the
+position source fixes (not on the wheels, which spin against an edge): once it has stayed
+``crossed`` m ahead of where it was refused, along the heading then, for ``crossed_time`` s,
+the refusal ends and the reference is followed again.
+
+The refusal waits ``delay`` s of blocking (beyond the monitor's stall time) so that a
+stall that climbs soon after is a crossing, and a new refusal needs a new blocking (the
+monitor's blocked going from false to true), so a resumed vehicle that is still held is
+not caught again at once.
 """
 
 from __future__ import annotations
@@ -25,6 +32,17 @@ import math
 from typing import NamedTuple
 
 from .reference_state import ReferenceState
+
+
+#: [m] A wheel of radius r blocked by an edge up to r high has its axle at most r short of
+#: the edge's line (a = √(r² − (r − h)²) ≤ r, docs/mujoco-plant.md): an axle r (0.2 m)
+#: ahead of where it was refused has passed over the edge. The tip-back of a refused body
+#: moves a blocked axle a few cm forward (docs/decisions/obstacle-refusal.md).
+CROSSED = 0.2
+#: [s] Longer than the 0.1 s between the position source's fixes (10 Hz): between two, the
+#: position is odometry, which wheels spinning against the edge push ahead, and the next
+#: fix takes it back (docs/decisions/obstacle-refusal.md).
+CROSSED_TIME = 0.15
 
 
 def back_off_point(x: float, y: float, phi: float, distance: float) -> ReferenceState:
@@ -51,15 +69,22 @@ class ObstacleRefusal:
     back_off : [m] how far behind the blocked axle the vehicle holds, > 0.
     delay : [s] how long the wheels stay blocked before the refusal, ≥ 0: a stall that
         climbs sooner is a crossing.
+    crossed : [m] how far ahead of where it was refused the vehicle is over the edge, > 0.
+    crossed_time : [s] how long it must stay that far ahead, ≥ 0.
     """
 
-    def __init__(self, back_off: float, delay: float = 0.0) -> None:
-        if not (math.isfinite(back_off) and back_off > 0.0):
-            raise ValueError(f'ObstacleRefusal: back_off must be finite and > 0, '
-                             f'got {back_off!r}')
-        if not (math.isfinite(delay) and delay >= 0.0):
-            raise ValueError(f'ObstacleRefusal: delay must be finite and >= 0, got {delay!r}')
+    def __init__(self, back_off: float, delay: float = 0.0, crossed: float = CROSSED,
+                 crossed_time: float = CROSSED_TIME) -> None:
+        for name, value, least in (('back_off', back_off, 0.0), ('crossed', crossed, 0.0)):
+            if not (math.isfinite(value) and value > least):
+                raise ValueError(f'ObstacleRefusal: {name} must be finite and > 0, '
+                                 f'got {value!r}')
+        for name, value in (('delay', delay), ('crossed_time', crossed_time)):
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'ObstacleRefusal: {name} must be finite and >= 0, '
+                                 f'got {value!r}')
         self.back_off, self.delay = back_off, delay
+        self.crossed, self.crossed_time = crossed, crossed_time
         self.reset()
 
     def reset(self) -> None:
@@ -68,6 +93,8 @@ class ObstacleRefusal:
         self.refusals = 0                     #: refusals since the start
         self._since: float | None = None      # start of the blocking in force
         self._armed = False                   # the blocking in force has not refused yet
+        self._ahead: float | None = None      # since when the vehicle is `crossed` ahead
+        self.crossings = 0                    #: refusals ended by the vehicle going on past
 
     @property
     def refusing(self) -> bool:
@@ -75,11 +102,13 @@ class ObstacleRefusal:
 
     def state(self) -> tuple:
         """Everything :meth:`update` changes, for :meth:`restore`."""
-        return self.refusal, self.refusals, self._since, self._armed
+        return (self.refusal, self.refusals, self._since, self._armed, self._ahead,
+                self.crossings)
 
     def restore(self, state: tuple) -> None:
         """Go back to a :meth:`state` (the guidance stage does when its step fails)."""
-        self.refusal, self.refusals, self._since, self._armed = state
+        (self.refusal, self.refusals, self._since, self._armed, self._ahead,
+         self.crossings) = state
 
     def leads_past(self, reference: ReferenceState) -> bool:
         """Whether ``reference`` is ahead of where the axle stopped, along its heading then."""
@@ -99,8 +128,19 @@ class ObstacleRefusal:
             return None
         self.refusal = Refusal(self._since, x, y, phi, back_off_point(x, y, phi, self.back_off))
         self.refusals += 1
-        self._armed = False
+        self._armed, self._ahead = False, None
         return self.refusal
+
+    def went_past(self, t: float, x: float, y: float) -> bool:
+        """Whether the vehicle at (x, y) [m] has stayed ``crossed`` ahead of the refusal."""
+        r = self.refusal
+        ahead = (x - r.x) * math.cos(r.phi) + (y - r.y) * math.sin(r.phi)
+        if not ahead >= self.crossed:
+            self._ahead = None
+            return False
+        if self._ahead is None:
+            self._ahead = t
+        return t - self._ahead >= self.crossed_time - 1e-9
 
     def update(self, t: float, blocked: bool, reference: ReferenceState, x: float, y: float,
                phi: float) -> ReferenceState:
@@ -114,6 +154,10 @@ class ObstacleRefusal:
             return reference
         if not self.leads_past(reference):
             self.refusal = None
+            return reference
+        if self.went_past(t, x, y):
+            self.refusal = None
+            self.crossings += 1
             return reference
         return self.refusal.hold
 

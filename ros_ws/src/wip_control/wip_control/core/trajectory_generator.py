@@ -89,7 +89,8 @@ class TrajectoryGeneratorParams:
         'v_r stays bounded when the reference stops)', minimum=0.01, maximum=10.0)
     obstacle_back_off: float = param(
         0.2, 'm', 'when an obstacle blocks the wheels, back off this far and hold there '
-        'until the reference no longer leads past it (core/obstacle_refusal.py); 0 = off',
+        'until the reference no longer leads past it or the vehicle goes on over it '
+        '(core/obstacle_refusal.py); 0 = off',
         minimum=0.0, maximum=2.0)
     obstacle_refuse_delay: float = param(
         0.7, 's', 'obstacle_back_off: how long the wheels stay blocked (after the eso stall '

@@ -200,7 +200,8 @@ def obstacle_outcome(record: RunRecord, scenario, fell: bool, obstacle,
     """Return the run's outcome at the terrain's obstacle and, if refused, how it holds.
 
     Refused: named by the obstacle monitor, then the generator's reference stepped back
-    by at least 0.9 ``obstacle_back_off`` in one tick (x_e: the held point replaced a
+    by at least 0.9 ``obstacle_back_off`` in one tick, and not past the obstacle over the
+    whole final window (else crossed) (x_e: the held point replaced a
     reference ahead of the axle). The point held is the estimated pose of that tick
     moved back along its heading (``obstacle_refusal.back_off_point``);
     ``refusal_hold_error`` [m] is the true position's largest distance to it in the final
@@ -225,9 +226,13 @@ def obstacle_outcome(record: RunRecord, scenario, fell: bool, obstacle,
         beyond = terrain.bump_position + 0.5 * terrain.bump_length
     else:
         beyond = terrain.step_position if terrain.step_height > 0.0 else None
+    # A refusal that the vehicle went on past (core/obstacle_refusal.py: it ended with the
+    # axle over the edge) is a crossing when the whole final window is past the obstacle.
+    past = (beyond is not None and len(truth['x'][final])
+            and float(np.min(truth['x'][final])) > beyond)
     if fell:
         out['outcome'] = 'fell'
-    elif out['refused_at'] is not None:
+    elif out['refused_at'] is not None and not past:
         out['outcome'] = 'refused'
     elif beyond is not None:
         out['outcome'] = 'crossed' if np.max(truth['x'], initial=-np.inf) > beyond else 'stopped'
