@@ -91,15 +91,15 @@ def test_a_stall_that_climbs_within_half_a_second_is_a_crossing_not_refused():
 
 
 def test_a_stall_that_climbs_before_the_delay_is_not_refused():
-    # Blocked 0.3 s after the stop, then rolling on at 0.3 m/s 0.45 s later (a 3 cm bump
-    # climbed after a 0.75 s stall): 0.04 m / 0.3 m/s = 0.13 s later the axle is past the
-    # edge by the monitor's release distance, 0.58 s after the blocking, within the
-    # default 0.7 s delay, so never refused; with no delay the same trace is refused at
-    # the blocking, with 0.5 s once blocked for 0.5 s (1.6 cm rolled: still blocked).
-    phases = [(1.0, 0.3, 0.02, 5.0), (0.75, 0.0, 0.15, 28.0), (1.0, 0.3, 0.05, 12.0)]
+    # Blocked 0.3 s after the stop, then rolling on at 0.3 m/s 0.1 s later (a bump climbed
+    # after a 0.4 s stall): 0.04 m / 0.3 m/s = 0.13 s later the axle is past the edge by
+    # the monitor's release distance, 0.23 s after the blocking, within the default
+    # 0.3 s delay, so never refused; with no delay the same trace is refused at the
+    # blocking, with 0.2 s once blocked for 0.2 s (3 cm rolled: still blocked).
+    phases = [(1.0, 0.3, 0.02, 5.0), (0.4, 0.0, 0.15, 28.0), (1.0, 0.3, 0.05, 12.0)]
     for config, refusals in ((TrajectoryGeneratorParams(), 0),
                              (TrajectoryGeneratorParams(obstacle_refuse_delay=0.0), 1),
-                             (TrajectoryGeneratorParams(obstacle_refuse_delay=0.5), 1)):
+                             (TrajectoryGeneratorParams(obstacle_refuse_delay=0.2), 1)):
         stage = TrajectoryGeneratorStage(config)
         rows = drive(stage, ObstacleMonitor(ModelParams()), phases)
         assert any(row[2] for row in rows)
@@ -108,9 +108,9 @@ def test_a_stall_that_climbs_before_the_delay_is_not_refused():
 
 def test_a_refusal_ends_once_the_vehicle_has_gone_on_past_the_edge():
     # A slow climb refused as the wheels start over the edge: stopped 1.2 s against 25 N m
-    # (blocked at 0.3 s, refused at 1.0 s with the 0.7 s delay), then rolling on at
-    # 0.3 m/s. The position is ahead of where it was refused by CROSSED = 0.2 m after
-    # 0.2 / 0.3 s of rolling past the 0.2 s of the stall left; the refusal ends
+    # (blocked at 0.3 s, refused at 0.6 s with the default 0.3 s delay), then rolling on
+    # at 0.3 m/s. The position is ahead of where it was refused by CROSSED = 0.2 m after
+    # 0.2 / 0.3 s of rolling; the refusal ends
     # CROSSED_TIME = 0.15 s later, and from then on every command is eq. (9) on the
     # reference itself, as without a refusal (ω̇d aside: a difference across the switch).
     stage = TrajectoryGeneratorStage()
@@ -118,7 +118,7 @@ def test_a_refusal_ends_once_the_vehicle_has_gone_on_past_the_edge():
     rows = drive(stage, ObstacleMonitor(ModelParams()),
                  [(1.0, 0.3, 0.02, 5.0), (1.2, 0.0, 0.12, 25.0), (2.0, 0.3, 0.05, 12.0)])
     refused = next(i for i, row in enumerate(rows) if row[3].x_e < -0.19)
-    assert rows[refused][0] == pytest.approx(1.0 + 1.0, abs=1.5 * H)
+    assert rows[refused][0] == pytest.approx(1.0 + 0.6, abs=1.5 * H)
     end = 1.0 + 1.2 + 0.2 / 0.3 + 0.15
     for t, x_v, _, cmd in rows[refused:]:
         if t < end - 1.5 * H:

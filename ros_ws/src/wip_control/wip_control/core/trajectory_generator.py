@@ -93,7 +93,7 @@ class TrajectoryGeneratorParams:
         '(core/obstacle_refusal.py); 0 = off',
         minimum=0.0, maximum=2.0)
     obstacle_refuse_delay: float = param(
-        0.7, 's', 'obstacle_back_off: how long the wheels stay blocked (after the eso stall '
+        0.3, 's', 'obstacle_back_off: how long the wheels stay blocked (after the eso stall '
         'time) before the refusal; a stall that climbs sooner is a crossing', minimum=0.0,
         maximum=10.0)
 
