@@ -150,6 +150,23 @@ def test_a_position_pushed_ahead_between_fixes_does_not_end_a_refusal():
     assert held is ahead and refusal.crossings == 1
 
 
+def test_dead_reckoning_progress_never_ends_a_refusal():
+    # position_source wheels: the position is the wheels' distance, which spinning wheels
+    # move on; 0.25 m ahead for a whole second ends nothing, and the first fixed sample
+    # after CROSSED_TIME does.
+    refusal = ObstacleRefusal(0.2, 0.0)
+    ahead = reference(10.0)
+    refusal.update(0.0, True, ahead, X0, Y0, PHI, fixed=False)
+    for k in range(1, 201):
+        held = refusal.update(k * H, True, ahead, X0 + 0.25 * C, Y0 + 0.25 * S, PHI,
+                              fixed=False)
+        assert held == refusal.refusal.hold
+    assert refusal.crossings == 0
+    for k in range(201, 232):
+        held = refusal.update(k * H, True, ahead, X0 + 0.25 * C, Y0 + 0.25 * S, PHI)
+    assert held is ahead and refusal.crossings == 1
+
+
 def test_a_reference_that_no_longer_leads_past_the_obstacle_resumes():
     refusal = ObstacleRefusal(0.2)
     ahead = ReferenceState(X0 + 0.5 * C, Y0 + 0.5 * S, PHI, 0.3, 0.0, 0.0)

@@ -18,6 +18,7 @@ from .arc import AdaptiveRobustYawController, ArcParams, ArcOutput
 from .lqr import make_longitudinal_controller
 from .mixer import drive_torque_limit, mix
 from .model import input_gains
+from .position import TRACKING
 from .obstacle_refusal import make_refusal
 from .mpc_config import drive_tick_decimation, MpcParams, resolves_faster
 from .mpc_plan import MpcResult
@@ -63,7 +64,7 @@ class TrajectoryGeneratorStage:
         self.refusal = make_refusal(self.generator.config)
 
     def step(self, t: float, reference: ReferenceState, x: float, y: float,
-             phi: float, blocked: bool = False) -> VelocityCommand:
+             phi: float, blocked: bool = False, fixed: bool = True) -> VelocityCommand:
         # (Not a copy of vars(generator): that gives the object a dict of its own, which
         # slows every attribute access to it afterwards, 4 % of a run of the runner.)
         generator = self.generator
@@ -72,7 +73,7 @@ class TrajectoryGeneratorStage:
         held = refusal.state() if refusal is not None else None
         try:
             if refusal is not None:
-                reference = refusal.update(t, blocked, reference, x, y, phi)
+                reference = refusal.update(t, blocked, reference, x, y, phi, fixed)
             command = generator.step(t, reference, x, y, phi)
         except ValueError:
             if refusal is not None:
@@ -340,7 +341,7 @@ class ControlStep:
         """
         est = pose.estimate
         command = self.guidance.step(t, reference, pose.x, pose.y, est.phi,
-                                     pose.obstacle_blocked)
+                                     pose.obstacle_blocked, pose.position_status == TRACKING)
         arc = self.yaw.step(est.omega, est.f1, command)
         result = None
         drive = self.drive

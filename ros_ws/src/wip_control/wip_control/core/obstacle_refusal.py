@@ -143,11 +143,13 @@ class ObstacleRefusal:
         return t - self._ahead >= self.crossed_time - 1e-9
 
     def update(self, t: float, blocked: bool, reference: ReferenceState, x: float, y: float,
-               phi: float) -> ReferenceState:
+               phi: float, fixed: bool = True) -> ReferenceState:
         """Return the reference to follow at ``t`` [s].
 
         ``reference`` itself, or the held point while refusing; ``blocked``: the obstacle
-        monitor's verdict on this sample; (x, y, ϕ): the estimated pose [m, m, rad].
+        monitor's verdict on this sample; (x, y, ϕ): the estimated pose [m, m, rad];
+        ``fixed``: whether a source other than the wheels fixes the position (the
+        estimate's position status TRACKING), without which no progress ends a refusal.
         """
         self.blocking(t, blocked, x, y, phi)
         if self.refusal is None:
@@ -155,7 +157,9 @@ class ObstacleRefusal:
         if not self.leads_past(reference):
             self.refusal = None
             return reference
-        if self.went_past(t, x, y):
+        # Dead reckoning (position_source wheels) is the wheels' own distance, which a
+        # spin against the edge moves on: it cannot tell a crossing.
+        if fixed and self.went_past(t, x, y):
             self.refusal = None
             self.crossings += 1
             return reference

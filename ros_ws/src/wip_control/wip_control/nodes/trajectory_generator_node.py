@@ -39,6 +39,7 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg,
 
 from ..core.control_step import TrajectoryGeneratorStage
 from ..core.obstacle_refusal import make_refusal
+from ..core.position import TRACKING
 from ..core.reference_state import ReferenceState
 from ..core.state_estimation import PoseEstimate
 from ..core.trajectory_generator import TrajectoryGeneratorParams, VelocityCommand
@@ -96,7 +97,8 @@ class TrajectoryGeneratorNode(ControllerNode):
         # An overflow raises (ControlOverflow, a ValueError: the input is dropped and
         # reported) with the generator's state kept.
         command = self.stage.step(self.time_base.seconds(stamp), values['reference'],
-                                  pose.x, pose.y, pose.estimate.phi, pose.obstacle_blocked)
+                                  pose.x, pose.y, pose.estimate.phi, pose.obstacle_blocked,
+                                  pose.position_status == TRACKING)
         self.publisher.publish_value(stamp, command, command_to_msg)
         self.diagnostics.output(stamp, time.perf_counter() - start)
         # What the status says is made once per status (_report_state), from what this
