@@ -229,3 +229,104 @@ def test_a_value_handed_in_the_process_is_the_message_an_outside_subscriber_sees
     finally:
         for node in (sender, receiver, outside):
             node.destroy_node()
+
+
+# ------------------------------------------------- the mixer's decision as wheel torques
+
+from wip_control.core.safety import SafetyDecision  # noqa: E402
+from wip_control.nodes.conversions import decision_to_msg  # noqa: E402
+from wip_control.nodes.eso_node import EsoNode  # noqa: E402
+from wip_control.nodes.mpc_node import MpcNode  # noqa: E402
+
+WHEELS = '/wip/wheel_torques'
+
+
+def _wheel_callbacks(node):
+    """Return the message and the value callback of the node's /wip/wheel_torques input."""
+    (on_message, on_value), = [(cb, direct) for _, topic, cb, direct, _ in
+                               node.intra_subscriptions if topic == WHEELS]
+    return on_message, on_value
+
+
+def _realtime(cls, context):
+    return cls(context=context, parameter_overrides=[
+        Parameter('clock_mode', value='realtime'), Parameter('diagnostics_period', value=0.0)])
+
+
+@pytest.mark.ros
+def test_the_eso_and_the_mpc_take_a_decision_as_they_take_its_message(context):
+    # The torques the mixer applied are the ESO's input and the MPC's previous torque: a
+    # decision handed as it is must give them the same values, and a non-finite one must be
+    # refused for the same reason, as the message (every field of which comes from it).
+    pairs = [(_realtime(EsoNode, context), _realtime(EsoNode, context)),
+             (_realtime(MpcNode, context), _realtime(MpcNode, context))]
+    decisions = [SafetyDecision(1.25, -0.5, False, (), 'ACTIVE'),
+                 SafetyDecision(math.nan, 0.5, False, (), 'ACTIVE'),
+                 SafetyDecision(0.0, 0.0, True, ('tilt',), 'FAULT'),
+                 SafetyDecision(-0.75, 2.0, False, (), 'DEGRADED')]
+    try:
+        for k, decision in enumerate(decisions):
+            stamp = 1_000_000_000 + 5_000_000 * k
+            for by_message, by_value in pairs:
+                _wheel_callbacks(by_message)[0](decision_to_msg(decision, stamp))
+                _wheel_callbacks(by_value)[1](stamp, decision)
+            (eso_msg, eso_value), (mpc_msg, mpc_value) = pairs
+            if k != 1:   # the NaN leaves the last finite torques in force
+                assert eso_value.latest_torques == eso_msg.latest_torques \
+                    == (decision.tau_left, decision.tau_right)
+                assert mpc_value.applied_drive_torque == mpc_msg.applied_drive_torque \
+                    == decision.tau_left + decision.tau_right
+        (eso_msg, eso_value), (mpc_msg, mpc_value) = pairs
+        assert eso_value.latest_torques == (-0.75, 2.0)
+        for by_message, by_value in pairs:
+            assert by_value.diagnostics.dropped == by_message.diagnostics.dropped
+            assert by_value.diagnostics.last_drop == by_message.diagnostics.last_drop
+        assert eso_value.diagnostics.dropped == {('wheel_torques', 'invalid'): 1}
+        assert eso_value.diagnostics.received['wheel_torques'] == len(decisions)
+    finally:
+        for pair in pairs:
+            for node in pair:
+                node.destroy_node()
+
+
+class Mixer(ControllerNode):
+    def __init__(self, **kwargs):
+        super().__init__('direct_mixer', 'test mixer', (), **kwargs)
+        self.publisher = self.create_publisher(wip_msgs.WheelTorques, WHEELS, RELIABLE_QOS,
+                                               direct_type=SafetyDecision)
+
+
+@pytest.mark.ros
+def test_wheel_torques_reach_an_outside_subscriber_while_the_eso_takes_the_decision(context):
+    # `ros2 topic echo /wip/wheel_torques` (a recorder, the plant of a lockstep run) must get
+    # every message, each the one the mixer built before, while the process's ESO gets the
+    # decision itself.
+    params = [Parameter('clock_mode', value='realtime'),
+              Parameter('diagnostics_period', value=0.0)]
+    mixer = Mixer(context=context, parameter_overrides=params)
+    eso = EsoNode(context=context, parameter_overrides=params)
+    outside = rclpy.create_node('direct_wheels_outside', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    for node in (mixer, eso, outside):
+        executor.add_node(node)
+    try:
+        bus = connect_intra_process([mixer, eso])
+        assert mixer.publisher.local_subscriptions == 1
+        seen = []
+        outside.create_subscription(wip_msgs.WheelTorques, WHEELS, seen.append, RELIABLE_QOS)
+        _spin_until(executor, bus, lambda: mixer.publisher.get_subscription_count() >= 2,
+                    'the outside subscription matched')
+        stamp = eso.now_ns()
+        decisions = [SafetyDecision(0.5 * k, -0.25 * k, k == 2, ('tilt',) if k == 2 else (),
+                                    'FAULT' if k == 2 else 'ACTIVE') for k in range(4)]
+        for k, decision in enumerate(decisions):
+            mixer.publisher.publish_value(stamp + k, decision, decision_to_msg)
+        _spin_until(executor, bus, lambda: len(seen) == len(decisions)
+                    and eso.diagnostics.received['wheel_torques'] == len(decisions),
+                    'every message outside, every decision inside')
+        assert seen == [decision_to_msg(d, stamp + k) for k, d in enumerate(decisions)]
+        assert seen[2].zeroed and seen[2].reason == 'tilt'
+        assert eso.latest_torques == (decisions[-1].tau_left, decisions[-1].tau_right)
+    finally:
+        for node in (mixer, eso, outside):
+            node.destroy_node()

@@ -80,12 +80,17 @@ class ArcNode(ControllerNode):
         self.subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                              estimate_from_msg, check=checked_estimate,
                              value_type=PoseEstimate)
+        self._ticked: tuple[float, float] | None = None   # the last tick's (τω, its limit)
         self.diagnostics.reporters.append(self._report_values)
 
     def _report_values(self) -> None:
-        """Report α̂ once per status (it changes every tick), once there is an output."""
+        """Report α̂ and the last τω against its limit once per status (both change per tick)."""
         if self.diagnostics.outputs:
             self.diagnostics.values['alpha_hat [kg m^2]'] = f'{self.controller.alpha_hat:.6g}'
+        if self._ticked is not None:
+            tau_omega, limit = self._ticked
+            self.diagnostics.state(OK, f'tau_omega saturated at {math.copysign(limit, tau_omega)}'
+                                   ' N m' if abs(tau_omega) >= limit else 'tracking omega_d')
 
     def _on_config(self, config: ArcParams) -> None:
         self.controller.config = config
@@ -100,9 +105,9 @@ class ArcNode(ControllerNode):
         out = self.stage.step(estimate.omega, estimate.f1, command)
         self.publisher.publish_value(stamp, out, arc_to_msg)
         self.diagnostics.output(stamp, time.perf_counter() - start)
-        limit = self.controller.config.max_yaw_torque
-        self.diagnostics.state(OK, f'tau_omega saturated at {math.copysign(limit, out.tau_omega)}'
-                               ' N m' if abs(out.tau_omega) >= limit else 'tracking omega_d')
+        # The status text is made once per status (_report_values), from this tick's torque
+        # and the limit it was computed with (arc.max_yaw_torque may change at run time).
+        self._ticked = (out.tau_omega, self.controller.config.max_yaw_torque)
 
 
 def main(args=None) -> int:

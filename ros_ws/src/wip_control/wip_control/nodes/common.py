@@ -5,6 +5,7 @@ The clock modes (parameter ``clock_mode``) are described in :mod:`wip_runtime.cl
 
 from __future__ import annotations
 
+import functools
 import time
 from typing import Callable, Sequence
 
@@ -112,27 +113,29 @@ class ControllerNode(IntraProcessNode):
 
     def subscribe_input(self, msg_type, topic: str, name: str, convert: Callable,
                         qos: QoSProfile = RELIABLE_QOS, check: Callable | None = None,
-                        value_type: type | None = None) -> None:
+                        value_type: type | None = None,
+                        on_value: Callable[[int, object], None] | None = None) -> None:
         """:meth:`subscribe` to a stamped input of the node's LatestSync.
 
         Each message's stamp counted on /diagnostics, then ``convert(msg)`` fed as ``name`` (a
         ValueError of the conversion drops the message). With ``check``, a value of
         ``value_type`` handed directly by a node of the same process goes the same way,
         through ``check(value)``: the input rules that ``convert`` applies to a message's
-        value (finiteness), so that both paths refuse the same inputs.
+        value (finiteness), so that both paths refuse the same inputs. ``on_value(stamp_ns,
+        value)`` takes the converted input instead of the LatestSync.
         """
-        def accept(stamp: int, to_value: Callable, arrived) -> None:
+        on_value = on_value or functools.partial(self.feed, name)
+
+        def accept(to_value: Callable, stamp: int, arrived) -> None:
             # Counted before it is checked: a refused input still shows as arrived.
             self.diagnostics.input(name, stamp)
-            self.feed(name, stamp, to_value(arrived))
+            on_value(stamp, to_value(arrived))
 
-        def handler(msg) -> None:
-            accept(stamp_to_ns(msg.header.stamp), convert, msg)
-
-        def direct(stamp: int, value) -> None:
-            accept(stamp, check, value)
-        self.subscribe(msg_type, topic, name, handler, qos,
-                       direct=direct if check is not None else None, value_type=value_type)
+        # The value path calls accept through a partial (no Python frame of its own).
+        self.subscribe(msg_type, topic, name,
+                       lambda msg: accept(convert, stamp_to_ns(msg.header.stamp), msg), qos,
+                       direct=functools.partial(accept, check) if check is not None else None,
+                       value_type=value_type)
 
     def subscribe_value(self, msg_type, topic: str, name: str, on_value: Callable,
                         value_type: type, convert: Callable = lambda msg: msg,

@@ -37,6 +37,7 @@ from ..core.eso import StateEstimate
 from ..core.mpc_plan import HELD_STATUS_TEXT, MpcResult
 from ..core.qp import MpcStatus
 from ..core.reference_state import ReferenceState
+from ..core.safety import SafetyDecision
 from ..core.state_estimation import PoseEstimate
 from ..core.trajectory_generator import VelocityCommand
 
@@ -124,7 +125,21 @@ def gps_local_position(msg: NavSatFix, datum_latitude: float, datum_longitude: f
 
 def wheel_torques_from_msg(msg: WheelTorques) -> tuple[float, float]:
     """(τl, τr) [N m] of an applied command."""
-    left, right = float(msg.left), float(msg.right)
+    return checked_torques(msg.left, msg.right)
+
+
+def applied_torques(decision: SafetyDecision) -> tuple[float, float]:
+    """(τl, τr) [N m] of a safety decision handed along the composed chain.
+
+    The same values and the same rule as :func:`wheel_torques_from_msg` of its message
+    (:func:`decision_to_msg`).
+    """
+    return checked_torques(decision.tau_left, decision.tau_right)
+
+
+def checked_torques(left: float, right: float) -> tuple[float, float]:
+    """(τl, τr) as floats if both are finite (InvalidMessage otherwise)."""
+    left, right = float(left), float(right)
     if not (isfinite(left) and isfinite(right)):
         check_finite_values('wheel_torques', left=left, right=right)
     return left, right
@@ -381,6 +396,12 @@ def wheel_torques_to_msg(left: float, right: float, stamp_ns: int, zeroed: bool 
                          reason: str = '') -> WheelTorques:
     return _build_wheel_torques(stamp_ns, '', left, right, left + right, right - left, zeroed,
                                 reason)
+
+
+def decision_to_msg(decision: SafetyDecision, stamp_ns: int) -> WheelTorques:
+    """/wip/wheel_torques of one safety decision: its torques, ``zeroed`` and reasons."""
+    return wheel_torques_to_msg(decision.tau_left, decision.tau_right, stamp_ns,
+                                decision.zeroed, decision.reason)
 
 
 def effort_command(left: float, right: float, joints: Sequence[str], left_joint: str,

@@ -101,14 +101,15 @@ from wip_runtime.config import ParamError
 from ..core.eso import EsoParams
 from wip_description.params import ModelParams
 from ..core.position import PositionParams
+from ..core.safety import SafetyDecision
 from ..core.state_estimation import EstimatorOverflow, PoseEstimate, StateEstimator
 from .common import ControllerNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
 from wip_runtime.stamps import stamp_to_ns
-from .conversions import (gps_has_fix, gps_local_position, identity_transform,
-                          odometry_to_msg, pose_to_msg, transform_from_odometry,
-                          wheel_torques_from_msg)
+from .conversions import (applied_torques, gps_has_fix, gps_local_position,
+                          identity_transform, odometry_to_msg, pose_to_msg,
+                          transform_from_odometry, wheel_torques_from_msg)
 from wip_runtime.messages import decode_serialized, prepare_decoder
 from ..core.position import DEAD_RECKONING, TRACKING
 from wip_runtime.diagnostics import ERROR, OK, WARN
@@ -228,7 +229,10 @@ class EsoNode(ControllerNode):
             self.diagnostics.last_stamp = {n: None for n in self.diagnostics.inputs}
         else:
             self.subscribe(NavSatFix, 'gps/fix', 'gps', self._on_gps, sensor_qos)
-        self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques', self._on_torques)
+        # The mixer's SafetyDecision as it is, from a mixer of the same process.
+        self.subscribe_input(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
+                             wheel_torques_from_msg, check=applied_torques,
+                             value_type=SafetyDecision, on_value=self._on_torques)
 
     def _init_odometry(self, settings: EsoNodeParams) -> None:
         """Set up the /odom output (nav_msgs/Odometry of the estimate, REP 105)."""
@@ -353,10 +357,7 @@ class EsoNode(ControllerNode):
         self.diagnostics.input('odom', stamp)
         self.feed('gps', stamp, odometry_position(msg))
 
-    def _on_torques(self, msg: WheelTorques) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
-        self.diagnostics.input('wheel_torques', stamp)
-        torques = wheel_torques_from_msg(msg)
+    def _on_torques(self, stamp: int, torques: tuple[float, float]) -> None:
         if self.lockstep:
             if len(self.torques_by_stamp) >= _MAX_TORQUE_STAMPS:
                 del self.torques_by_stamp[min(self.torques_by_stamp)]

@@ -77,6 +77,7 @@ from wip_msgs.msg import (YawTorque, DriveTorque, StateEstimate as StateEstimate
 
 from ..core.arc import ArcOutput
 from ..core.control_step import DriveControllerStage
+from ..core.safety import SafetyDecision
 from ..core.safety_config import LATE, lateness, STALE
 from ..core.mpc_config import MpcParams, resolves_faster
 from wip_description.params import ModelParams
@@ -87,8 +88,8 @@ from .common import ControllerNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
 from wip_runtime.stamps import stamp_to_ns
-from .conversions import (arc_from_msg, command_from_msg, estimate_from_msg, mpc_hold_msg,
-                          mpc_idle_msg, mpc_to_msg, wheel_torques_from_msg)
+from .conversions import (applied_torques, arc_from_msg, command_from_msg, estimate_from_msg,
+                          mpc_hold_msg, mpc_idle_msg, mpc_to_msg, wheel_torques_from_msg)
 from wip_runtime.diagnostics import OK, WARN
 from wip_runtime.executors import Watchdog
 from wip_runtime.parameters import RosParams
@@ -139,7 +140,8 @@ class MpcNode(ControllerNode):
             self.ticked_at = -math.inf   # steady time [s] of the last tick
             self.received: dict[str, float] = {}   # steady time [s] of each input's arrival
             self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
-                           self._on_applied)
+                           self._on_applied, direct=self._on_applied_value,
+                           value_type=SafetyDecision)
         self.applied_drive_torque: float | None = None
         self._subscribe_input(StateEstimateMsg, 'wip/state_estimate', 'state_estimate',
                               estimate_from_msg, PoseEstimate)
@@ -196,13 +198,19 @@ class MpcNode(ControllerNode):
         return True
 
     def _on_applied(self, msg: WheelTorques) -> None:
-        """realtime: the torques the mixer applied (ValueError on non-finite: dropped).
+        """realtime: the torques the mixer applied (ValueError on non-finite: dropped)."""
+        self._applied(*wheel_torques_from_msg(msg))
 
-        Composed, they end the chain of a sensor sample: a tick due within half a control
-        period runs now, with that chain's inputs and applied torque, as a timer firing
-        between this chain and the next would have run it.
+    def _on_applied_value(self, _stamp: int, decision: SafetyDecision) -> None:
+        """realtime: the mixer's decision of the same process (the message's rule)."""
+        self._applied(*applied_torques(decision))
+
+    def _applied(self, left: float, right: float) -> None:
+        """Take the applied torques; composed, the end of a sensor sample's chain.
+
+        A tick due within half a control period runs now, with that chain's inputs and
+        applied torque, as a timer firing between this chain and the next would have run it.
         """
-        left, right = wheel_torques_from_msg(msg)
         self.applied_drive_torque = left + right
         watchdog = self.watchdog
         if (watchdog.adopted

@@ -69,6 +69,7 @@ from wip_msgs.msg import (ReferenceState as ReferenceStateMsg, StateEstimate as 
 
 from ..core.obstacle_refusal import make_refusal
 from ..core.reference_state import ReferenceState
+from ..core.safety import SafetyDecision
 from ..core.state_estimation import PoseEstimate
 from ..core.references import COMMANDED_KINDS, make_reference, ReferenceParams
 from ..core.controller_settings import RatesParams
@@ -136,7 +137,8 @@ class ReferenceNode(ControllerNode):
                                  unchecked_estimate_from_msg)
         if self.waiting:
             self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
-                           self._on_torques)
+                           self._on_torques, direct=self._on_torques_value,
+                           value_type=SafetyDecision)
             self.diagnostics.state(WARN, f'{self.config.kind} reference at '
                                    f'{self.rates.control_rate:g} Hz: holding its start '
                                    'until the safety layer engages')
@@ -240,9 +242,12 @@ class ReferenceNode(ControllerNode):
                                f'{self.reference.length:.2f} m to go')
 
     def _on_torques(self, msg: WheelTorques) -> None:
+        if self.waiting:
+            self._on_torques_value(stamp_to_ns(msg.header.stamp), msg)
+
+    def _on_torques_value(self, stamp: int, torques: WheelTorques | SafetyDecision) -> None:
         """realtime_start 'engaged': the path's time starts at the first torque sent."""
-        if self.waiting and not msg.zeroed:
-            stamp = stamp_to_ns(msg.header.stamp)
+        if self.waiting and not torques.zeroed:
             self.time_base.origin_ns = stamp
             self.waiting = False
             self.get_logger().info('the safety layer engaged: the path starts now')

@@ -91,8 +91,8 @@ from .mixer_wiring import WiringCheckInputs
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import RELIABLE_QOS
 from wip_runtime.stamps import stamp_to_ns
-from .conversions import (effort_command, EffortCommandCdr, unchecked_estimate_from_msg,
-                          wheel_torques_to_msg)
+from .conversions import (decision_to_msg, effort_command, EffortCommandCdr,
+                          unchecked_estimate_from_msg)
 from wip_runtime.diagnostics import ERROR, OK, WARN
 from wip_runtime.executors import Watchdog
 from .hardware_inputs import signed_efforts
@@ -155,8 +155,9 @@ class TorqueMixerNode(WiringCheckInputs, ControllerNode):
         self._diagnostics_sent_at = 0.0
         self.estimates: dict[int, tuple] = {}        # lockstep: stamp -> (estimate, settled)
         self.latest_estimate_stamp: int | None = None
+        # The decision goes as it is to this process's ESO, MPC and reference.
         self.torques_publisher = self.create_publisher(WheelTorques, 'wip/wheel_torques',
-                                                       RELIABLE_QOS)
+                                                       RELIABLE_QOS, direct_type=SafetyDecision)
         self.effort_publisher = self.create_publisher(Float64MultiArray, effort_topic,
                                                       RELIABLE_QOS)
         if self.lockstep:
@@ -325,9 +326,7 @@ class TorqueMixerNode(WiringCheckInputs, ControllerNode):
 
     def _publish(self, stamp: int, decision: SafetyDecision) -> None:
         start = time.perf_counter()
-        left, right = decision.tau_left, decision.tau_right
-        self.torques_publisher.publish(wheel_torques_to_msg(
-            left, right, stamp, decision.zeroed, decision.reason))
+        self.torques_publisher.publish_value(stamp, decision, decision_to_msg)
         efforts = signed_efforts(*decision.command, self.left_sign, self.right_sign)
         # Serialized: no node of ours subscribes the effort topic, so the intra-process bus
         # never hands these bytes to a callback; DDS sends them as rclpy would the message.
