@@ -16,6 +16,7 @@ from typing import Any, Callable
 import yaml
 
 from .hardware_outcome import hardware_outcome, HardwareResult
+from .heartbeat import Heartbeat
 from .hardware_params import (hardware_parameters, load_params_file, node_parameters,
                               parse_remap, remapped)
 from .launcher import (EXIT_FAILED, EXIT_OK, EXIT_USAGE, GraphError, in_namespace, INPUT_TOPICS,
@@ -109,7 +110,7 @@ class HardwareRunner(RunnerBase):
         self.position_error = ''   # the eso's "position source refused: ..." if any
         self.zero_command: list[float] = [0.0, 0.0]
         self.zero_commands_sent = 0
-        self.armed = False
+        self.heartbeat: Heartbeat | None = None
 
     # -- set-up ---------------------------------------------------------------------------
     def prepare(self) -> pathlib.Path:
@@ -203,15 +204,11 @@ class HardwareRunner(RunnerBase):
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         if self.options.heartbeat:
             from std_msgs.msg import Empty
-            self._empty = Empty
-            self.heartbeat_publisher = node.create_publisher(
+            publisher = node.create_publisher(
                 Empty, remapped(in_namespace('/wip/heartbeat', self.namespace), self.remaps),
                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-            node.create_timer(HEARTBEAT_PERIOD, self._heartbeat)
-
-    def _heartbeat(self) -> None:
-        if self.armed:
-            self.heartbeat_publisher.publish(self._empty())
+            # Not a timer of the probe: that runs only when this loop spins (Heartbeat).
+            self.heartbeat = Heartbeat(lambda: publisher.publish(Empty()), HEARTBEAT_PERIOD)
 
     def arm(self) -> None:
         """Wait ``arm_delay`` (nodes watched), then start the e-stop heartbeat."""
@@ -221,7 +218,7 @@ class HardwareRunner(RunnerBase):
         while time.monotonic() < deadline:
             self.check_alive()
             self.probe.spin(min(PROBE_PERIOD, max(0.0, deadline - time.monotonic())))
-        self.armed = True
+        self.heartbeat.arm()
         self.timeline['armed'] = time.monotonic() - self.t0
         self.say('armed: /wip/heartbeat started; the safety layer engages once every '
                  'input is fresh and the ESO has settled')
@@ -374,6 +371,12 @@ class HardwareRunner(RunnerBase):
 
     def nodes_stopped(self) -> None:
         self.send_zero_commands()
+
+    def shut_down(self, result: HardwareResult) -> None:
+        # Before the probe's node (the publisher's) is destroyed; the nodes are stopped next.
+        if self.heartbeat is not None:
+            self.heartbeat.stop()
+        super().shut_down(result)
 
     def outcome(self, ended: str) -> tuple[int, str]:
         """Return the run's exit code and message from the safety events seen until now.
