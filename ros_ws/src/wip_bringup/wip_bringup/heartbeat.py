@@ -46,7 +46,10 @@ class Heartbeat:
         while not self._stopped.is_set():
             self._publish()
             self.beats += 1
-            # On the period's grid; after a stall of the process, one beat at once and the
-            # grid again from there (no burst of the beats missed).
-            next_beat = max(next_beat + self.period, time.monotonic())
-            self._stopped.wait(max(0.0, next_beat - time.monotonic()))
+            # On the period's grid; after a stall of the thread (this beat late), a period
+            # from now: no burst of the beats missed.
+            next_beat += self.period
+            now = time.monotonic()
+            if next_beat <= now:
+                next_beat = now + self.period
+            self._stopped.wait(next_beat - now)
