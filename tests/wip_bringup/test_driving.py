@@ -280,7 +280,8 @@ def test_teleop_drives_the_standin_base_in_real_time_and_odom_comes_out(tmp_path
     # real base"), which was seen to topple the robot; the arming delay covers start-up.
     from geometry_msgs.msg import TwistStamped
     from nav_msgs.msg import Odometry
-    from wip_bringup.standin_run import BASE, line_scenario, run_against_standin
+    from wip_bringup.standin_run import (BASE, line_scenario, run_against_standin,
+                                         SHORT_ARM_DELAY)
     sent, odom = [], []
     test_node.create_subscription(Odometry, '/odom', odom.append, 10)
     publisher = test_node.create_publisher(TwistStamped, 'cmd_vel', 10)
@@ -307,7 +308,7 @@ def test_teleop_drives_the_standin_base_in_real_time_and_odom_comes_out(tmp_path
     scenario = dict(line_scenario(kind='cmd_vel'), plant={'model': 'paper'})
     with spinning_in_background(test_node.executor_for_test):
         run = run_against_standin(tmp_path / 'standin', BASE, 40.0, scenario=scenario,
-                                  during=during, end_after_during=0.5)
+                                  during=during, end_after_during=0.5, arm_delay=SHORT_ARM_DELAY)
     result, stats = run.result, run.stats
     assert result.exit_code == 0, result.message
     assert stats['released'] and not stats['fell'], stats.get('end_reason')
@@ -382,11 +383,13 @@ class RoutePublisher:
 
 def drive_standin_on_plan(tmp_path, test_node, publisher):
     """Hardware mode against the stand-in base (paper plant model) on ``reference.kind: path``."""
-    from wip_bringup.standin_run import BASE, line_scenario, run_against_standin
+    from wip_bringup.standin_run import (BASE, line_scenario, run_against_standin,
+                                         SHORT_ARM_DELAY)
     scenario = dict(line_scenario(kind='path', path_speed=SPEED), plant={'model': 'paper'})
     with spinning_in_background(test_node.executor_for_test):
         run = run_against_standin(tmp_path / 'standin', BASE, 200.0, scenario=scenario,
-                                  during=publisher, end_after_during=3.0)
+                                  during=publisher, end_after_during=3.0,
+                                  arm_delay=SHORT_ARM_DELAY)
     result, stats = run.result, run.stats
     assert result.exit_code == 0, result.message
     assert stats['released'] and not stats['fell'], stats.get('end_reason')

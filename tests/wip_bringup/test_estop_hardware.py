@@ -46,7 +46,7 @@ def test_scripts_estop_zeroes_the_torque_at_the_next_tick_and_a_held_estop_block
         tmp_path, test_node):
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Bool, Float64MultiArray
-    from wip_bringup.standin_run import BASE, run_against_standin
+    from wip_bringup.standin_run import BASE, run_against_standin, SHORT_ARM_DELAY
     # (when the mixer sent it [s, system clock], efforts): the DDS source timestamp, not
     # the arrival in this process, which lags on a loaded machine.
     commands: list[tuple[float, tuple[float, ...]]] = []
@@ -94,7 +94,8 @@ def test_scripts_estop_zeroes_the_torque_at_the_next_tick_and_a_held_estop_block
 
     with spinning_in_background(test_node.executor_for_test):
         run = run_against_standin(tmp_path / 'standin', BASE, 60.0, during=during,
-                                  end_after_during=0.5, exit_after_fall=60.0)
+                                  end_after_during=0.5, exit_after_fall=60.0,
+                                  arm_delay=SHORT_ARM_DELAY)
     engage = seen['engage']
     assert engage.returncode == 0, engage.stderr
     start = seen['engage_start']

@@ -17,7 +17,8 @@ from wip_sim.core.runner import run_scenario  # noqa: E402
 from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_bringup.graph import GraphOptions, run_graph  # noqa: E402
 from wip_bringup.private_domain import take_private_domain  # noqa: E402
-from wip_bringup.standin_run import BASE, line_scenario, run_against_standin  # noqa: E402
+from wip_bringup.standin_run import (BASE, line_scenario, run_against_standin,  # noqa: E402
+                                     SHORT_ARM_DELAY)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -71,7 +72,8 @@ def test_the_standin_base_simulates_a_mujoco_robot_for_hardware_mode(tmp_path):
     run_time = 8.0
     scenario = dict(line_scenario(), plant={'model': 'mujoco'})
     assert scenario_from_mapping(scenario).plant.model.model == 'mujoco'
-    run = run_against_standin(tmp_path / 'mujoco', BASE, run_time, scenario=scenario)
+    run = run_against_standin(tmp_path / 'mujoco', BASE, run_time, scenario=scenario,
+                              arm_delay=SHORT_ARM_DELAY)
     result, stats, code = run.result, run.stats, run.base_code
     assert result.exit_code == 0, result.message
     assert code == 0, stats['end_reason']

@@ -272,13 +272,14 @@ def test_hardware_mode_under_a_namespace_drives_the_standin_base_in_it(tmp_path)
     # The stand-in base and the controllers (run_graph --mode hardware, composed) both
     # under robot1, the base's names remapped with relative rules: the controllers find
     # the base, engage, and the base receives their commands and stays up.
-    from wip_bringup.standin_run import BASE, line_scenario, run_against_standin
+    from wip_bringup.standin_run import (BASE, line_scenario, run_against_standin,
+                                         SHORT_ARM_DELAY)
     run_time = 8.0  # [s] after the release
     # The paper's plant model: with the full one the speed loop oscillates
     # (tests/wip_sim/test_standin_base.py), which is not what this test is about.
     scenario = dict(line_scenario(), plant={'model': 'paper'})
     run = run_against_standin(tmp_path / 'standin', BASE, run_time, scenario=scenario,
-                              namespace='robot1')
+                              namespace='robot1', arm_delay=SHORT_ARM_DELAY)
     result, stats = run.result, run.stats
     assert result.exit_code == 0, result.message
     assert run.base_code == 0, stats.get('end_reason')

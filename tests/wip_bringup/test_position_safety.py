@@ -26,7 +26,8 @@ import pytest
 
 pytest.importorskip('rclpy')
 
-from wip_bringup.standin_run import BASE, line_scenario, run_against_standin  # noqa: E402
+from wip_bringup.standin_run import (BASE, line_scenario, run_against_standin,  # noqa: E402
+                                     SHORT_ARM_DELAY)
 from wip_description.sensors import SensorParams  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
@@ -62,7 +63,8 @@ def test_a_datum_hundreds_of_km_off_is_refused_before_engaging(tmp_path, kind):
                 and any(e['state'] == 'FAULT' for e in runner.safety_events)
                 and 'the datum was refused')
     run = run_against_standin(tmp_path / 'datum', wrong, 5.0, stop_when=refused,
-                              runner_duration=90.0, scenario=line_scenario(SPEED, kind=kind))
+                              runner_duration=90.0, scenario=line_scenario(SPEED, kind=kind),
+                              arm_delay=SHORT_ARM_DELAY)
     result = run.result
     assert result.exit_code == 5, result.message          # never engaged
     assert not run.stats['released']                        # no torque ever reached it
@@ -75,7 +77,7 @@ def test_a_datum_2_km_off_is_stopped_by_the_runaway_guard_before_the_base_runs_a
     # from the estimate, and the generator drives at its limit toward it. The guard's
     # absurd-error rule cuts the torque 1 s after the engagement.
     wrong = dict(BASE, **{'datum.latitude': SensorParams().gps_datum_latitude + 0.018})
-    run = run_against_standin(tmp_path / 'datum2km', wrong, 10.0)
+    run = run_against_standin(tmp_path / 'datum2km', wrong, 10.0, arm_delay=SHORT_ARM_DELAY)
     result = run.result
     assert result.exit_code == 1, result.message
     assert 'max_tracking_error' in result.message and 'datum' in result.message
@@ -88,7 +90,8 @@ def test_a_datum_2_km_off_is_stopped_by_the_runaway_guard_before_the_base_runs_a
 def test_a_brief_50_m_jump_is_rejected_and_does_not_move_the_base(tmp_path):
     fault = {'position_fault.kind': 'offset', 'position_fault.start': FAULT_START,
              'position_fault.duration': 0.5, 'position_fault.offset': [50.0, 0.0]}
-    run = run_against_standin(tmp_path / 'jump', BASE, 10.0, base_extra=fault)
+    run = run_against_standin(tmp_path / 'jump', BASE, 10.0, base_extra=fault,
+                              arm_delay=SHORT_ARM_DELAY)
     result, stats = run.result, run.stats
     assert result.exit_code == 0, result.message
     assert stats['released'] and not stats['fell']
@@ -110,7 +113,8 @@ def test_a_brief_50_m_jump_is_rejected_and_does_not_move_the_base(tmp_path):
 def test_a_persistent_50_m_jump_is_a_position_fault_with_its_cause(tmp_path):
     fault = {'position_fault.kind': 'offset', 'position_fault.start': FAULT_START,
              'position_fault.offset': [50.0, 0.0]}
-    run = run_against_standin(tmp_path / 'jump_for_good', BASE, 12.0, base_extra=fault)
+    run = run_against_standin(tmp_path / 'jump_for_good', BASE, 12.0, base_extra=fault,
+                              arm_delay=SHORT_ARM_DELAY)
     result = run.result
     assert result.exit_code == 1, result.message
     assert 'position source refused' in result.message, result.message
@@ -130,7 +134,8 @@ def test_a_persistent_50_m_jump_is_a_position_fault_with_its_cause(tmp_path):
 
 def test_a_frozen_position_is_a_runaway_stopped_within_its_bound(tmp_path):
     fault = {'position_fault.kind': 'freeze', 'position_fault.start': FAULT_START}
-    run = run_against_standin(tmp_path / 'freeze', BASE, 16.0, base_extra=fault)
+    run = run_against_standin(tmp_path / 'freeze', BASE, 16.0, base_extra=fault,
+                              arm_delay=SHORT_ARM_DELAY)
     result = run.result
     assert result.exit_code == 1, result.message
     assert 'runaway' in result.message, result.message
@@ -226,7 +231,7 @@ def test_dead_reckoning_drives_a_20_m_teleop_square_with_its_drift_measured(tmp_
         final['estimate'] = driver.estimate
     try:
         run = run_against_standin(tmp_path / 'square', wheels, 200.0, scenario=scenario,
-                                  during=teleop, end_after_during=0.5)
+                                  during=teleop, end_after_during=0.5, arm_delay=SHORT_ARM_DELAY)
     finally:
         driver.close()
     stats = run.stats

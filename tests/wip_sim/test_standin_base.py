@@ -39,7 +39,7 @@ pytest.importorskip('rclpy')
 from wip_control.core.references import make_reference, ReferenceParams  # noqa: E402
 from wip_control.core.safety_config import SafetyParams  # noqa: E402
 from wip_bringup.standin_run import (BASE, CONTROL_RATE, engaged, freeze_process,  # noqa: E402
-                                 run_against_standin)
+                                 run_against_standin, SHORT_ARM_DELAY)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 
@@ -172,7 +172,8 @@ def test_hardware_mode_sustains_the_rate_the_control_needs_in_real_time(consiste
 
 def test_a_wrong_wheel_sign_makes_the_safety_layer_zero_the_torque(tmp_path):
     wrong = dict(BASE, left_wheel_sign=1)
-    run = run_against_standin(tmp_path / 'wrong_sign', wrong, 10.0, exit_after_fall=1.0)
+    run = run_against_standin(tmp_path / 'wrong_sign', wrong, 10.0, exit_after_fall=1.0,
+                              arm_delay=SHORT_ARM_DELAY)
     result, stats, code = run.result, run.stats, run.base_code
     # A fall while engaged: exit 1, and the message names the mixer's reason.
     assert result.exit_code == 1, result.message
@@ -209,7 +210,7 @@ def test_position_from_odometry_instead_of_gps_keeps_the_base_up_and_on_the_line
     run_time = RUN_TIME
     run = run_against_standin(
         tmp_path / 'odometry', dict(BASE, position_source='odometry'), run_time,
-        base_extra={'publish_odometry': True})
+        base_extra={'publish_odometry': True}, arm_delay=SHORT_ARM_DELAY)
     result, stats, code = run.result, run.stats, run.base_code
     assert result.exit_code == 0, result.message
     assert code == 0, stats['end_reason']
@@ -262,7 +263,7 @@ def test_each_separate_controller_process_frozen_for_150_ms_is_ridden_through(tm
         run = run_against_standin(tmp_path / f'freeze_each_{attempt}', BASE, run_time,
                                   layout='separate',
                                   during=_freezes(names, (0.15,), log, starts),
-                                  end_after_during=FREEZE_SPACING)
+                                  end_after_during=FREEZE_SPACING, arm_delay=SHORT_ARM_DELAY)
         # Six processes starting at once at SCHED_FIFO on a busy 2-core machine: once a
         # node never came up (Fast DDS's shared-memory port lock timed out in one, another
         # ran 30 s without sleeping and RLIMIT_RTTIME killed it; docs/realtime.md). That is
@@ -296,7 +297,8 @@ def test_each_separate_controller_process_frozen_for_150_ms_is_ridden_through(tm
 def test_a_freeze_past_the_bound_zeroes_the_torque_and_names_the_cause(tmp_path):
     log = []
     run = run_against_standin(tmp_path / 'long_freeze', BASE, 8.0, exit_after_fall=1.0,
-                              during=_freezes(['controllers'], (0.5,), log))
+                              during=_freezes(['controllers'], (0.5,), log),
+                              arm_delay=SHORT_ARM_DELAY)
     result = run.result
     assert log and log[0][1] >= 0.5
     assert all(c == 0 for c in result.node_exit_codes.values()), result.node_exit_codes
@@ -317,7 +319,7 @@ def test_sensor_samples_delivered_late_in_bunches_are_ridden_through(tmp_path):
     lost sample, and the robot balances as with a steady stream.
     """
     run = run_against_standin(tmp_path / 'bunched', BASE, RUN_TIME,
-                              base_extra={'sensor_bunch': 4})
+                              base_extra={'sensor_bunch': 4}, arm_delay=SHORT_ARM_DELAY)
     stats = run.stats
     assert run.base_code == 0 and not stats['fell'], stats['end_reason']
     theta_max, y_max = _on_the_line(stats, after=10.0)

@@ -26,7 +26,8 @@ import pytest
 
 pytest.importorskip('rclpy')
 
-from wip_bringup.standin_run import BASE, line_scenario, run_against_standin  # noqa: E402
+from wip_bringup.standin_run import (BASE, line_scenario, run_against_standin,  # noqa: E402
+                                     SHORT_ARM_DELAY)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.wallclock]
 
@@ -76,7 +77,7 @@ def test_a_wiring_mistake_zeroes_the_torque_within_half_a_second_and_names_it(
     run = run_against_standin(tmp_path / case.replace('/', '_').replace(' ', '_'),
                               MISTAKES[case],
                               RUN_TIME, exit_after_fall=1.0,
-                              base_extra={'truth_period': TRUTH_PERIOD})
+                              base_extra={'truth_period': TRUTH_PERIOD}, arm_delay=SHORT_ARM_DELAY)
     result, stats = run.result, run.stats
     assert stats['released'], result.message          # the controllers engaged
     zero_at = zero_torque_from(stats)
@@ -113,7 +114,8 @@ def test_correct_wiring_with_sensor_noise_gyro_bias_and_pushes_gives_no_wiring_f
                              'width': 0.2}],
         'longitudinal': [{'kind': 'pulse', 'amplitude': 3.0, 'start_time': 3.0,
                           'width': 0.2}]}
-    run = run_against_standin(tmp_path / 'noisy', BASE, 8.0, scenario=scenario)
+    run = run_against_standin(tmp_path / 'noisy', BASE, 8.0, scenario=scenario,
+                              arm_delay=SHORT_ARM_DELAY)
     result, stats = run.result, run.stats
     assert not any('wiring' in e['reasons'] for e in result.safety_events), \
         result.safety_events

@@ -255,12 +255,12 @@ def test_hardware_mode_against_the_standin_base_recorded_then_identified(tmp_pat
     with nothing but the bag (its params.yaml gives the wiring, the topics are found by
     type).
     """
-    from wip_bringup.standin_run import CONTROL_RATE, run_against_standin
+    from wip_bringup.standin_run import CONTROL_RATE, run_against_standin, SHORT_ARM_DELAY
     data = yaml.safe_load(ROBOT.read_text())
     data.update(seed=1, rates={'control_rate': CONTROL_RATE},
                 eso={'sample_period': 1.0 / CONTROL_RATE})
     run = run_against_standin(tmp_path, dict(WIRING), data['duration'], scenario=data,
-                              base_extra=dict(WIRING), record=True)
+                              base_extra=dict(WIRING), record=True, arm_delay=SHORT_ARM_DELAY)
     assert run.base_code == 0 and not run.stats['fell'], run.stats['end_reason']
     bag = tmp_path / 'bag'
     out = tmp_path / 'model.yaml'

@@ -348,6 +348,9 @@ def _parser() -> argparse.ArgumentParser:
                         help='skip the real-time runs against the stand-in base')
     parser.add_argument('--realtime-seconds', type=float, default=20.0, metavar='S',
                         help='length of each real-time run [s] (default 20)')
+    parser.add_argument('--arm-delay', type=float, default=None, metavar='S',
+                        help='seconds from every node up to the arming in each real-time '
+                        "run (default: hardware mode's --arm-delay, 2)")
     only = parser.add_mutually_exclusive_group()
     only.add_argument('--push-only', action='store_true',
                       help='only the push recovery against its bound (section 5)')
@@ -375,7 +378,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.realtime_only:
         # Section 4 sets the controllers' CPU beside the in-process loop's: that run alone.
         report['in_process'] = in_process = bench_in_process(scenario, args.repeats)
-        section_realtime(args.realtime_seconds, in_process, report)
+        section_realtime(args.realtime_seconds, in_process, report, args.arm_delay)
         _write_json(args.json, report)
         return 0
 
@@ -388,7 +391,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_graph:
         _section_graph(args.scenario, in_process, report)
     if not args.no_graph and not args.no_realtime:
-        section_realtime(args.realtime_seconds, in_process, report)
+        section_realtime(args.realtime_seconds, in_process, report, args.arm_delay)
     _write_json(args.json, report)
     return 0
 

@@ -14,8 +14,11 @@ import sys
 import time
 
 
-def bench_realtime(seconds: float) -> list[dict]:
-    """Real-time runs against the stand-in base (see ``wip_bringup.standin_run``)."""
+def bench_realtime(seconds: float, arm_delay: float | None = None) -> list[dict]:
+    """Real-time runs against the stand-in base (see ``wip_bringup.standin_run``).
+
+    ``arm_delay`` [s]: hardware mode's ``--arm-delay`` in each (None: its default).
+    """
     import tempfile
     try:
         from wip_bringup.standin_run import realtime_benchmark  # needs ROS
@@ -23,7 +26,7 @@ def bench_realtime(seconds: float) -> list[dict]:
         return [{'skipped': f'node graph not available: {err}'}]
     with tempfile.TemporaryDirectory(prefix='wip_bench_rt_') as directory:
         import pathlib
-        return realtime_benchmark(pathlib.Path(directory), seconds)
+        return realtime_benchmark(pathlib.Path(directory), seconds, arm_delay=arm_delay)
 
 
 def bench_rclpy_floor(seconds: float) -> dict:
@@ -125,7 +128,8 @@ def overhead_figures(rows: list[dict], floor: dict, cost: dict, per_tick_s: floa
                            else composed * PI_CLASS_CALIBRATION_S / calibration_s)}
 
 
-def section_realtime(seconds: float, in_process: dict, report: dict) -> None:
+def section_realtime(seconds: float, in_process: dict, report: dict,
+                     arm_delay: float | None = None) -> None:
     """4. Real time against the stand-in base, the nodes' own cost, rclpy's floor."""
     print(f'\n== 4. Real time: controllers at 200 Hz against the stand-in base, '
           f'{seconds:g} s per layout')
@@ -133,7 +137,7 @@ def section_realtime(seconds: float, in_process: dict, report: dict) -> None:
     report['in_process_core_share_at_200hz'] = 200.0 * per_tick_s
     print(f'in-process, the same loop (plant included): {1e6 * per_tick_s:.0f} us per '
           f'tick = {100 * 200.0 * per_tick_s:.1f} % of a core at 200 Hz')
-    rows = bench_realtime(seconds)
+    rows = bench_realtime(seconds, arm_delay)
     report['realtime'] = rows
     for row in rows:
         _print_realtime_row(row)
