@@ -168,6 +168,13 @@ def test_bench_options_that_contradict_each_other_are_refused_in_one_line(capsys
         assert said in capsys.readouterr().err, argv
 
 
+def test_bench_refuses_a_negative_arm_delay_in_one_line(capsys):
+    with pytest.raises(SystemExit) as refused:
+        bench.main(['--arm-delay', '-1'])
+    assert refused.value.code == 2
+    assert '--arm-delay: must be >= 0' in capsys.readouterr().err
+
+
 def test_node_cost_refuses_absurd_durations_in_one_line(capsys):
     from wip_tools import node_cost
     with pytest.raises(SystemExit) as refused:

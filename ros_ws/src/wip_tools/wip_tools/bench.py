@@ -70,7 +70,7 @@ from wip_control.core.model import STATE_NAMES
 from wip_sim.core.plant import MODELS, PlantParams
 from wip_sim.core.runner import run_scenario
 from wip_sim.core.scenario import load_scenario
-from wip_runtime.cli import add_exit_codes
+from wip_runtime.cli import add_exit_codes, bounded
 from wip_tools.realtime_bench import section_realtime
 
 
@@ -348,7 +348,8 @@ def _parser() -> argparse.ArgumentParser:
                         help='skip the real-time runs against the stand-in base')
     parser.add_argument('--realtime-seconds', type=float, default=20.0, metavar='S',
                         help='length of each real-time run [s] (default 20)')
-    parser.add_argument('--arm-delay', type=float, default=None, metavar='S',
+    parser.add_argument('--arm-delay', type=bounded(float, 0.0, 3600.0), default=None,
+                        metavar='S',
                         help='seconds from every node up to the arming in each real-time '
                         "run (default: hardware mode's --arm-delay, 2)")
     only = parser.add_mutually_exclusive_group()
