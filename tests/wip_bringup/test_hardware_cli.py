@@ -23,6 +23,7 @@ from ros_harness import spinning_in_background  # noqa: E402
 from wip_bringup.hardware_params import (load_params_file, node_parameters,  # noqa: E402
                                      parse_remap, remapped)
 from wip_bringup.launcher import GraphError  # noqa: E402
+from wip_bringup.standin_run import SHORT_ARM_DELAY  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -76,10 +77,13 @@ def test_no_plant_without_a_base_never_commands_torque(tmp_path, test_node):
     test_node.create_subscription(Float64MultiArray, EFFORT,
                                   lambda m: received.append(list(m.data)), 100)
     out = tmp_path / 'run'
-    # The run inherits the test's DDS domain (conftest's private_dds_domain).
+    # The run inherits the test's DDS domain (conftest's private_dds_domain). Armed after
+    # the tests' short delay (the arming is not under test here): the 3 s of --duration
+    # count from the arming, armed and without a base.
     with spinning_in_background(test_node.executor_for_test):
         result = subprocess.run(
             [sys.executable, '-m', 'wip_bringup.graph', '--no-plant', '--duration', '3',
+             '--arm-delay', str(SHORT_ARM_DELAY),
              '--out', str(out), '--params-file', str(params), '--remap',
              '/joint_states:=/base/joint_states', '--remap',
              f'/effort_controller/commands:={EFFORT}', '--foxglove', '0'],
