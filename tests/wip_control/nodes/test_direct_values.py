@@ -7,6 +7,7 @@ refuse the same inputs, with the same reasons, whether they come as a message or
 value.
 """
 
+import contextlib
 import math
 import time
 
@@ -137,6 +138,11 @@ DEADLINE = 60.0   # [s] discovery and matching on a slow, shared machine
 TOPIC = '/wip/velocity_command'
 
 
+def _realtime_params():
+    return [Parameter('clock_mode', value='realtime'),
+            Parameter('diagnostics_period', value=0.0)]
+
+
 class Receiver(ControllerNode):
     """An input of a LatestSync, subscribed as the controllers subscribe theirs."""
 
@@ -156,8 +162,7 @@ class Receiver(ControllerNode):
 
 @pytest.mark.ros
 def test_the_input_rules_refuse_the_same_inputs_from_a_message_and_from_a_value(context):
-    params = [Parameter('clock_mode', value='realtime'),
-              Parameter('diagnostics_period', value=0.0)]
+    params = _realtime_params()
     by_message = Receiver('direct_by_message', context=context, parameter_overrides=params)
     by_value = Receiver('direct_by_value', context=context, parameter_overrides=params)
     now = by_value.now_ns()
@@ -184,10 +189,27 @@ def test_the_input_rules_refuse_the_same_inputs_from_a_message_and_from_a_value(
 
 
 class Sender(ControllerNode):
-    def __init__(self, **kwargs):
-        super().__init__('direct_sender', 'test sender', (), **kwargs)
-        self.publisher = self.create_publisher(wip_msgs.VelocityCommand, TOPIC, RELIABLE_QOS,
-                                               direct_type=VelocityCommand)
+    """A node publishing ``value_type`` values on ``topic`` (the message ``msg_type``)."""
+
+    def __init__(self, name='direct_sender', msg_type=None, topic=TOPIC,
+                 value_type=VelocityCommand, **kwargs):
+        super().__init__(name, 'test sender', (), **kwargs)
+        self.publisher = self.create_publisher(msg_type or wip_msgs.VelocityCommand, topic,
+                                               RELIABLE_QOS, direct_type=value_type)
+
+
+@contextlib.contextmanager
+def _composed_beside_outside(context, nodes, outside_name):
+    """Yield (bus, executor, outside): ``nodes`` composed, one more node of the test."""
+    outside = rclpy.create_node(outside_name, context=context)
+    executor = SingleThreadedExecutor(context=context)
+    for node in (*nodes, outside):
+        executor.add_node(node)
+    try:
+        yield connect_intra_process(list(nodes)), executor, outside
+    finally:
+        for node in (*nodes, outside):
+            node.destroy_node()
 
 
 def _spin_until(executor, bus, condition, what):
@@ -202,16 +224,11 @@ def _spin_until(executor, bus, condition, what):
 def test_a_value_handed_in_the_process_is_the_message_an_outside_subscriber_sees(context):
     # `ros2 topic echo` must see the topic: the value goes to the process's subscription as
     # it is and, once someone outside listens, as its message to DDS, same stamp and fields.
-    params = [Parameter('clock_mode', value='realtime'),
-              Parameter('diagnostics_period', value=0.0)]
-    sender = Sender(context=context, parameter_overrides=params)
-    receiver = Receiver('direct_receiver', context=context, parameter_overrides=params)
-    outside = rclpy.create_node('direct_outside', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    for node in (sender, receiver, outside):
-        executor.add_node(node)
-    try:
-        bus = connect_intra_process([sender, receiver])
+    sender = Sender(context=context, parameter_overrides=_realtime_params())
+    receiver = Receiver('direct_receiver', context=context,
+                        parameter_overrides=_realtime_params())
+    with _composed_beside_outside(context, (sender, receiver),
+                                  'direct_outside') as (bus, executor, outside):
         seen = []
         outside.create_subscription(wip_msgs.VelocityCommand, TOPIC, seen.append,
                                     RELIABLE_QOS)
@@ -226,9 +243,6 @@ def test_a_value_handed_in_the_process_is_the_message_an_outside_subscriber_sees
         assert seen[0] == command_to_msg(command, stamp)       # every field and the stamp
         assert receiver.computed[0][0] == stamp
         assert tuple(receiver.computed[0][1]) == tuple(command)
-    finally:
-        for node in (sender, receiver, outside):
-            node.destroy_node()
 
 
 # ------------------------------------------------- the mixer's decision as wheel torques
@@ -249,8 +263,7 @@ def _wheel_callbacks(node):
 
 
 def _realtime(cls, context):
-    return cls(context=context, parameter_overrides=[
-        Parameter('clock_mode', value='realtime'), Parameter('diagnostics_period', value=0.0)])
+    return cls(context=context, parameter_overrides=_realtime_params())
 
 
 @pytest.mark.ros
@@ -289,28 +302,16 @@ def test_the_eso_and_the_mpc_take_a_decision_as_they_take_its_message(context):
                 node.destroy_node()
 
 
-class Mixer(ControllerNode):
-    def __init__(self, **kwargs):
-        super().__init__('direct_mixer', 'test mixer', (), **kwargs)
-        self.publisher = self.create_publisher(wip_msgs.WheelTorques, WHEELS, RELIABLE_QOS,
-                                               direct_type=SafetyDecision)
-
-
 @pytest.mark.ros
 def test_wheel_torques_reach_an_outside_subscriber_while_the_eso_takes_the_decision(context):
     # `ros2 topic echo /wip/wheel_torques` (a recorder, the plant of a lockstep run) must get
     # every message, each the one the mixer built before, while the process's ESO gets the
     # decision itself.
-    params = [Parameter('clock_mode', value='realtime'),
-              Parameter('diagnostics_period', value=0.0)]
-    mixer = Mixer(context=context, parameter_overrides=params)
-    eso = EsoNode(context=context, parameter_overrides=params)
-    outside = rclpy.create_node('direct_wheels_outside', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    for node in (mixer, eso, outside):
-        executor.add_node(node)
-    try:
-        bus = connect_intra_process([mixer, eso])
+    mixer = Sender('direct_mixer', wip_msgs.WheelTorques, WHEELS, SafetyDecision,
+                   context=context, parameter_overrides=_realtime_params())
+    eso = _realtime(EsoNode, context)
+    with _composed_beside_outside(context, (mixer, eso),
+                                  'direct_wheels_outside') as (bus, executor, outside):
         assert mixer.publisher.local_subscriptions == 1
         seen = []
         outside.create_subscription(wip_msgs.WheelTorques, WHEELS, seen.append, RELIABLE_QOS)
@@ -327,6 +328,3 @@ def test_wheel_torques_reach_an_outside_subscriber_while_the_eso_takes_the_decis
         assert seen == [decision_to_msg(d, stamp + k) for k, d in enumerate(decisions)]
         assert seen[2].zeroed and seen[2].reason == 'tilt'
         assert eso.latest_torques == (decisions[-1].tau_left, decisions[-1].tau_right)
-    finally:
-        for node in (mixer, eso, outside):
-            node.destroy_node()
