@@ -26,7 +26,6 @@ class Heartbeat:
         self.period = period
         self._stopped = threading.Event()
         self._thread = threading.Thread(target=self._run, name='heartbeat', daemon=True)
-        self.beats = 0
 
     @property
     def armed(self) -> bool:
@@ -45,7 +44,6 @@ class Heartbeat:
         next_beat = time.monotonic()
         while not self._stopped.is_set():
             self._publish()
-            self.beats += 1
             # On the period's grid; after a stall of the thread (this beat late), a period
             # from now: no burst of the beats missed.
             next_beat += self.period

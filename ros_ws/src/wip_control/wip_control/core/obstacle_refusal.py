@@ -75,8 +75,8 @@ class ObstacleRefusal:
 
     def __init__(self, back_off: float, delay: float = 0.0, crossed: float = CROSSED,
                  crossed_time: float = CROSSED_TIME) -> None:
-        for name, value, least in (('back_off', back_off, 0.0), ('crossed', crossed, 0.0)):
-            if not (math.isfinite(value) and value > least):
+        for name, value in (('back_off', back_off), ('crossed', crossed)):
+            if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'ObstacleRefusal: {name} must be finite and > 0, '
                                  f'got {value!r}')
         for name, value in (('delay', delay), ('crossed_time', crossed_time)):
