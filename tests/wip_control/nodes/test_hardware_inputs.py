@@ -372,10 +372,12 @@ def test_reference_engaged_holds_the_start_until_the_first_torque_not_zeroed(con
     start = make_reference(config).sample(0.0)
     node.publish_at(1_000_000_000)
     node.publish_at(3_000_000_000)
-    node._on_torques(WheelTorques(header=make_header(3_500_000_000), zeroed=True))
+    on_torques, = [cb for _, topic, cb, _, _ in node.intra_subscriptions
+                   if topic == '/wip/wheel_torques']     # the message callback
+    on_torques(WheelTorques(header=make_header(3_500_000_000), zeroed=True))
     node.publish_at(4_000_000_000)
     assert [(m.x, m.y) for m in out] == [(start.x, start.y)] * 3
-    node._on_torques(WheelTorques(header=make_header(5_000_000_000), left=1.0))
+    on_torques(WheelTorques(header=make_header(5_000_000_000), left=1.0))
     node.publish_at(7_000_000_000)     # 2 s after the engagement
     expected = make_reference(config).sample(2.0)
     assert (out[-1].x, out[-1].y) == pytest.approx((expected.x, expected.y), abs=1e-12)

@@ -136,9 +136,10 @@ class ReferenceNode(ControllerNode):
                                  self._on_state_estimate, PoseEstimate,
                                  unchecked_estimate_from_msg)
         if self.waiting:
-            self.subscribe(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
-                           self._on_torques, direct=self._on_torques_value,
-                           value_type=SafetyDecision)
+            # The message as it is: _on_torques reads only `zeroed`, which the mixer's
+            # SafetyDecision (handed in the same process) has under the same name.
+            self.subscribe_value(WheelTorques, 'wip/wheel_torques', 'wheel_torques',
+                                 self._on_torques, SafetyDecision)
             self.diagnostics.state(WARN, f'{self.config.kind} reference at '
                                    f'{self.rates.control_rate:g} Hz: holding its start '
                                    'until the safety layer engages')
@@ -241,11 +242,7 @@ class ReferenceNode(ControllerNode):
                                f'{how.get(self.reference.joined, self.reference.joined)}, '
                                f'{self.reference.length:.2f} m to go')
 
-    def _on_torques(self, msg: WheelTorques) -> None:
-        if self.waiting:
-            self._on_torques_value(stamp_to_ns(msg.header.stamp), msg)
-
-    def _on_torques_value(self, stamp: int, torques: WheelTorques | SafetyDecision) -> None:
+    def _on_torques(self, stamp: int, torques: WheelTorques | SafetyDecision) -> None:
         """realtime_start 'engaged': the path's time starts at the first torque sent."""
         if self.waiting and not torques.zeroed:
             self.time_base.origin_ns = stamp
