@@ -213,13 +213,13 @@ def test_from_a_state_a_push_back_is_the_mirror_of_one_ahead():
 def test_a_row_is_the_median_and_percentiles_of_its_runs_ratios():
     from wip_tools.analysis.push_recovery import _summary
     # Ten runs, ratios 1.0 .. 1.9 against their own bounds (1 m), excursions 1.0 .. 1.9 m.
-    runs = [{'excursion': 1.0 + 0.1 * i, 'bound': 1.0, 'state': (0.0, 0.0, 0.0)}
-            for i in range(10)]
+    runs = [{'excursion': 1.0 + 0.1 * i, 'bound': 1.0, 'state': (0.0, 0.0, 0.0),
+             'rate_kept': i != 3} for i in range(10)]
     row = _summary(runs, 0.5, 1.3)
     assert row['ratio'] == pytest.approx(1.45) and row['ratio_rest'] == pytest.approx(2.9)
     assert (row['ratio_p10'], row['ratio_p90']) == pytest.approx((1.09, 1.81))
     assert row['halves'] == pytest.approx([1.2, 1.7]) and not row['met']
-    assert row['halves_rest'] == pytest.approx([2.4, 3.4])
+    assert row['halves_rest'] == pytest.approx([2.4, 3.4]) and row['rate_kept'] == 9
     fell = _summary(runs[:9] + [{**runs[9], 'excursion': math.inf}], 0.5, 2.0)
     assert fell['fell'] and fell['falls'] == 1 and not fell['met']
 
@@ -235,6 +235,22 @@ def test_a_case_runs_and_its_excursion_is_above_the_bound():
     assert row['bound_m'] == pytest.approx(row['bound_rest_m'], abs=1e-3)
     # No controller beats the clairvoyant one on its own model (the paper plant is it).
     assert 1.0 < row['ratio'] == pytest.approx(row['measured_m'] / row['bound_m'])
+    # A push along the motion never lifts the rate limit: the bound's limit is the run's.
+    assert row['rate_kept'] == row['runs'] == 1
+
+
+def test_the_largest_change_within_a_period_counts_the_torque_in_force_before_it():
+    from wip_tools.analysis.push_recovery import largest_change_within
+    # Solves every 0.05 s (the re-solve grid), Ts = 0.1 s: 0 -> 6 -> 10 -> 16 -> 16. The 0
+    # is in force until 0.05 s, so within 0.1 s of the 10 applied at 0.1 s: 10, as the
+    # 6 -> 16 of 0.05 -> 0.15 s; over 0.2 s the whole 0 -> 16.
+    group = {'t': [0.0, 0.05, 0.1, 0.15, 0.2], 'tau_v': [0.0, 6.0, 10.0, 16.0, 16.0]}
+    assert largest_change_within(group, 0.1) == pytest.approx(10.0)
+    assert largest_change_within(group, 0.2) == pytest.approx(16.0)
+    # Two re-solves of 6 N m within Ts move the torque by 12 N m in it.
+    assert largest_change_within({'t': [0.0, 0.05, 0.1], 'tau_v': [0.0, 6.0, 12.0]},
+                                 0.1) == pytest.approx(12.0)
+    assert largest_change_within({'t': [], 'tau_v': []}, 0.1) == 0.0
 
 
 def test_the_full_plant_is_measured_against_its_own_equations():

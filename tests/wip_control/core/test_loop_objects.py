@@ -195,6 +195,49 @@ def test_after_a_push_the_stage_re_solves_within_the_torque_rate_limit(trigger):
         assert window <= dmax + 1e-9, k
 
 
+def _largest_window_move(ticks, decimation=20):
+    """Return the largest sum of |Δτ| of the solves within one MPC period [N m]."""
+    moves = {k: abs(r.delta_tau) for k, r in ticks}
+    return max(sum(m for j, m in moves.items() if k - decimation < j <= k) for k in moves)
+
+
+def test_an_obstacle_stopping_the_base_lifts_the_rate_to_the_impact_limit():
+    """A drift against the motion lifts the limit (19) to impact_delta_torque, no other.
+
+    Driven at υd = 0.5 m/s, a 10 m/s² drift of f̂2 backwards (a wheel stopped by an edge)
+    from tick 413: the torque then moves by more than max_delta_torque within one MPC
+    period, and by at most impact_delta_torque. The same drift forwards (a push along the
+    motion, the push bench's) keeps max_delta_torque, as does a standing vehicle (υd = 0);
+    impact_delta_torque at max_delta_torque is the paper's limit alone.
+    """
+    config = MpcParams(backend='daqp')
+    assert config.impact_delta_torque > config.max_delta_torque
+    dmax, relieved = config.max_delta_torque, config.largest_delta_torque()
+
+    def run(sign, v_d, **changes):
+        drive = DriveControllerStage(MODEL, dataclasses.replace(config, **changes), 15.0,
+                                     decimation=20, fast_decimation=10)
+        return _drive_ticks(drive, lambda k: sign * 10.0 if 413 <= k < 433 else 0.0, 1200,
+                            v_d=v_d)
+    for sign, v_d in ((-1.0, 0.5), (1.0, -0.5)):   # against the motion, either way
+        assert dmax + 1.0 < _largest_window_move(run(sign, v_d)) <= relieved + 1e-9
+    for sign, v_d, changes in ((1.0, 0.5, {}), (-1.0, -0.5, {}), (-1.0, 0.0, {}),
+                               (-1.0, 0.5, {'impact_delta_torque': dmax})):
+        assert _largest_window_move(run(sign, v_d, **changes)) <= dmax + 1e-9, (sign, v_d)
+    assert MpcParams(impact_delta_torque=0.0).largest_delta_torque() == dmax
+    assert MpcParams(fast_resolve_period=0.0).largest_delta_torque() == dmax
+
+
+def test_the_impact_limit_ends_impact_hold_after_the_drift():
+    """impact_hold after the last solve that saw the drift, the limit is Δτmax again."""
+    config = MpcParams(backend='daqp', impact_hold=1.0)
+    drive = DriveControllerStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
+    ticks = _drive_ticks(drive, lambda k: -10.0 if 413 <= k < 433 else 0.0, 1200, v_d=0.5)
+    last_seen = max(k for k, _ in ticks if k < 433)
+    after = [(k, r) for k, r in ticks if k >= last_seen + round(1.0 / H) + 20]
+    assert after and _largest_window_move(after) <= config.max_delta_torque + 1e-9
+
+
 def test_fast_resolve_period_must_divide_the_sampling_period():
     from wip_runtime.config import ParamError
     MpcParams(fast_resolve_period=0.025).validate()

@@ -54,13 +54,10 @@ SUITE = {
     # patch of half the friction with a push on it pass.
     'mujoco_slope': None,
     'mujoco_low_friction_patch': None,
-    'mujoco_bump': (
-        'with IMU noise (0.002 rad, gyro 0.01 rad/s) it crosses the 2 cm bump without a '
-        'fall since the MPC re-solves on the tick a push is seen (the stall at the edge is '
-        'one; it fell at 11.61 s before), tilt within 0.0997 rad, but ends 0.17 m from the '
-        'end of the reference (limit 0.15 m). Noise seeds 100-199: none fall, 63 meet the '
-        'whole criterion (docs/history/mpc.md §13); seeds 0-19: 20 crossed, 10 pass, none '
-        'refused (docs/history/mpc.md §18); seeds 0-99: none fall (§22)'),
+    # Passes since the drive torque may rise at impact_delta_torque against an obstacle
+    # (docs/history/mpc.md §26): it ended 0.17 m from the end of the reference before
+    # (limit 0.15 m), 0.141 m after. Seeds 0-99: none fall, before or after.
+    'mujoco_bump': None,
     'mujoco_bump_1cm': None,
     'mujoco_bump_1cm_slow': None,
     # Passes since the MPC re-solves on the tick it sees a push (docs/history/mpc.md §14):
@@ -69,27 +66,22 @@ SUITE = {
     # pass), none fell.
     'mujoco_bump_2cm_slow': None,
     'mujoco_bump_3cm': (
-        'falls at 14.72 s (13.08 s before the slip monitor kept a spin in turns out of '
-        'x_v): 3 cm needs 26.7 N m and a lean of 0.18 rad to roll up quasi-statically; met '
-        'at 0.32 m/s (the speed wanders under the IMU noise) it climbs nearly to the crest, '
-        'brakes there, rolls back and falls on the second climb. Seeds 0-19: 11 crossed (6 '
-        'pass), 4 refused (all pass), 5 fell (docs/history/mpc.md §19); seeds 0-99: 85 up '
-        'without a runaway alarm (§25)'),
+        'crosses without a fall since the drive torque may rise at impact_delta_torque '
+        'against an obstacle (it fell at 14.72 s before; tilt 0.145 rad, limit 0.15), but '
+        'ends 0.46 m from the end of the reference (limit 0.15 m): the climb at the edge '
+        'stalls long enough for the timed reference to run on. Seeds 0-99: 100 up without '
+        'a runaway alarm (85 before), 73 pass (docs/history/mpc.md §26)'),
     'mujoco_bump_3cm_slow': (
         'crosses without a fall (climbs at 0.14 m/s leaning 0.088 rad at 13-25 N m) but '
-        'then runs 0.33 m ahead of the reference and ends 0.13 m past its end: 0.134 m '
-        'from the path after the settle time (limit 0.1 m). Seeds 0-19: 8 crossed (2 '
-        'pass), 12 refused (10 pass), none fell (docs/history/mpc.md §19); seeds 0-99: 94 '
-        'up without a runaway alarm (§25)'),
-    'mujoco_kerb': (
-        'a 4 cm step (twice what the torque lifts): it meets the edge at 0.51 m/s (the '
-        'speed loop swings 0-0.69 m/s about the 0.3 m/s reference under the IMU noise), the '
-        'wheels stop dead and the body swings forward past 0.21 rad, the lean the '
-        'saturated 30 N m holds over blocked wheels (blocked at 16.21 s), and falls at '
-        '17.57 s, before the refusal could help: the fall is decided within 0.2 s of the '
-        'impact (docs/decisions/obstacle-refusal.md). Met slower (mujoco_kerb_slow) it is '
-        'refused balanced. Seeds 0-19: 11 refused (all pass), 9 fell (history/mpc.md §19); '
-        'seeds 0-99: 76 up without a runaway alarm (§25)'),
+        'then runs ahead of the reference: 0.108 m from the path after the settle time '
+        '(limit 0.1 m; 0.134 m before the impact rate). Seeds 0-99: 100 up without a '
+        'runaway alarm (94 before), 83 pass (docs/history/mpc.md §26)'),
+    # Passes since the drive torque may rise at impact_delta_torque against an obstacle
+    # (docs/history/mpc.md §26): it met the edge at 0.51 m/s and fell at 17.57 s before;
+    # now refused balanced (tilt 0.106 rad, limit 0.15), holding 0.099 m from its point.
+    # Seeds 0-99: 94 up without a runaway alarm (76 before); the 6 falls met the edge at
+    # 0.40-0.59 m/s (the speed's wander about 0.3 m/s under the IMU noise).
+    'mujoco_kerb': None,
     # Seeds 0-19: 20 refused, 19 hold within 0.2 m of the point (seed 7: 0.201 m).
     'mujoco_kerb_slow': None,
     'mujoco_one_wheel_patch': None,
@@ -129,7 +121,7 @@ def test_scenario_file_is_one_run_with_its_criterion_beside_it(name):
     header = path.read_text(encoding='utf-8').split('\nname:')[0]
     assert 'Criterion' in header and 'Class' in header, f'{name}: no comment with the why'
     assert campaign.criteria.max_wheel_torque == 15.0
-    assert campaign.criteria.max_delta_tau_v == 10.0
+    assert campaign.criteria.max_delta_tau_v is None   # the controller's own limit (19)
     assert campaign.criteria.max_qp_failures == 0 and campaign.criteria.no_fall
 
 

@@ -171,6 +171,10 @@ class DriveControllerStage:
         self._applied: list[tuple[int, float, float]] = []
         self._last_solve: int | None = None
         self._strong_seen = False   # a transient beyond the decay's dead zone at the last solve
+        # The rate limit while an obstacle stops the base, and until which tick it holds.
+        self._impact_rate = max(config.impact_delta_torque, config.max_delta_torque)
+        self._impact_ticks = int(round(config.impact_hold / config.sampling_period * decimation))
+        self._impact_until = -1
 
     def limit(self, tau_omega: float) -> float:
         """Bound on |τυ| [N m]: 2 τmax − |τω| (``core.mixer.drive_torque_limit``).
@@ -239,7 +243,7 @@ class DriveControllerStage:
         solve. A push seen now (re)starts the re-solving.
         """
         mpc = self.controller
-        dmax = mpc.config.max_delta_torque
+        dmax = self._rate_limit(k, f2_hat, v_d)
         window = k - self.decimation
         # The torque in force ``decimation`` ticks ago and those applied since.
         held = [entry for entry in self._applied if entry[0] <= window][-1:]
@@ -259,7 +263,7 @@ class DriveControllerStage:
                    else (k - self._last_solve) * mpc.config.sampling_period / self.decimation)
         result = mpc.step(v_hat=v_hat, theta_hat=theta_hat, theta_dot_hat=theta_dot_hat,
                           f2_hat=f2_hat, f3_hat=f3_hat, v_d=v_d, tau_limit=limit,
-                          first_box=(lower, upper), elapsed=elapsed)
+                          first_box=(lower, upper), elapsed=elapsed, rate=dmax)
         self._last_solve = k
         if math.isfinite(result.tau_v):
             self._applied.append((k, result.tau_v, abs(result.delta_tau)))
@@ -270,6 +274,22 @@ class DriveControllerStage:
                 self._grid_start = k
             self._fast_until = k + self._fast_ticks
         return result
+
+    def _rate_limit(self, k: int, f2_hat: float, v_d: float) -> float:
+        """Return the |Δτυ| limit per Ts of (19) for a solve at tick ``k`` [N m].
+
+        ``max_delta_torque``, or ``impact_delta_torque`` for ``impact_hold`` after a solve
+        that saw the drift f̂2 oppose the desired motion υd by more than
+        ``impact_deceleration`` (an obstacle stopping the base, or a push against the
+        motion; docs/decisions/mpc-parameters.md).
+        """
+        config = self.controller.config
+        if self._impact_rate <= config.max_delta_torque:
+            return config.max_delta_torque
+        if (math.isfinite(f2_hat) and math.isfinite(v_d) and v_d != 0.0
+                and -f2_hat * math.copysign(1.0, v_d) > config.impact_deceleration):
+            self._impact_until = k + self._impact_ticks
+        return self._impact_rate if k < self._impact_until else config.max_delta_torque
 
     def _restart_keeps_tilt(self, result: MpcResult) -> bool:
         """Whether a fresh push's solve may restart the grid: its plan within the tilt margin.

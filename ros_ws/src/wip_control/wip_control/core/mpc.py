@@ -205,7 +205,7 @@ class LongitudinalMpc(LongitudinalController):
     def step(self, v_hat: float, theta_hat: float, theta_dot_hat: float, f2_hat: float,
              f3_hat: float, v_d: float, tau_limit: float | None = None,
              first_box: tuple[float, float] | None = None,
-             elapsed: float | None = None) -> MpcResult:
+             elapsed: float | None = None, rate: float | None = None) -> MpcResult:
         """One MPC tick: build and solve the QP, apply τ(k) = τ(k−1) + Δτ(k|k) (23).
 
         Parameters
@@ -216,15 +216,19 @@ class LongitudinalMpc(LongitudinalController):
         tau_limit : |τυ| limit for this tick [N m], 2τmax − |τω| so that each wheel stays
             within τmax after mixing (24); capped to ``max_drive_torque``; None uses it.
         first_box : (lower, upper) bounds of this tick's increment Δτ(k|k) [N m], within
-            (None:) ±``max_delta_torque``; the later increments keep ±``max_delta_torque``
+            (None:) ±``rate``; the later increments keep ±``rate``
             (a tick between the sampling instants, ``fast_resolve_period``).
         elapsed : time since the previous tick [s] (None: ``sampling_period``), for the
             filters that run once per tick (υd trend, offset-free target, start-up).
+        rate : the |Δτυ| limit per Ts of (19) for this tick [N m] (None:
+            ``max_delta_torque``).
         """
         cfg = self.config
         tau_prev = self._tau_previous
         t_start = time.perf_counter()
-        self.qp.set_first_box(*_first_box(first_box, cfg.max_delta_torque))
+        rate = cfg.max_delta_torque if rate is None else float(rate)
+        self.qp.set_rate(rate)
+        self.qp.set_first_box(*_first_box(first_box, rate))
         period = cfg.sampling_period if elapsed is None else float(elapsed)
         self._period = period
         v_hat, f2_hat, f3_hat = self._startup.estimates(v_hat, theta_hat, theta_dot_hat,
@@ -244,15 +248,15 @@ class LongitudinalMpc(LongitudinalController):
         solution = self._solver.solve(*self.qp.data)
         t_solved = time.perf_counter()
         self.last_solution = solution
-        return self._apply(solution, tau_prev, limit, free, g2p, g3p,
+        return self._apply(solution, tau_prev, limit, free, g2p, g3p, rate,
                            t_solved - t_built, t_built - t_start)
 
-    def _apply(self, solution, tau_prev: float, limit: float, free: np.ndarray,
-               g2p: float, g3p: float, solve_time: float, build_time: float) -> MpcResult:
+    def _apply(self, solution, tau_prev: float, limit: float, free: np.ndarray, g2p: float,
+               g3p: float, rate: float, solve_time: float, build_time: float) -> MpcResult:
         """Apply the first increment (23) of the plan of ``solution`` (or of the fallback)."""
         cfg = self.config
         proposed = plan_of(solution, cfg.control_horizon, self.n_slacks, self._plan,
-                           cfg.max_delta_torque)
+                           rate)
         plan = proposed.increments
         lower, upper = self.qp.first_box
         delta = admissible_increment(plan[0], tau_prev, limit, upper, lower)

@@ -27,7 +27,7 @@ PAPER_MPC_SETTINGS = {'soft_limits': 'worst_case', 'speed_limit_first_step': 1,
                       'output_weights': (1.0, 50.0, 1.0), 'input_weight': 1.0,
                       'speed_preview_time': 0.0, 'speed_slack_quadratic_penalty': 1e4,
                       'disturbance_startup_time': 0.0, 'speed_rise_penalty': 0.0,
-                      'fast_resolve_period': 0.0}
+                      'fast_resolve_period': 0.0, 'impact_delta_torque': 0.0}
 
 _WHY = 'docs/decisions/mpc-parameters.md'
 
@@ -102,6 +102,18 @@ class MpcParams:
         minimum=0.0, exclusive_minimum=True)
     max_delta_torque: float = param(10.0, 'N m', 'hard |Δτυ| limit per sampling period (19)',
                                     minimum=0.0, exclusive_minimum=True)
+    impact_delta_torque: float = param(
+        20.0, 'N m', 'hard |Δτυ| limit per sampling period for impact_hold after a solve saw '
+        'f̂2 oppose υd by more than impact_deceleration (an obstacle); <= max_delta_torque: '
+        f'off; {_WHY}',
+        minimum=0.0)
+    impact_deceleration: float = param(
+        2.0, 'm/s²', 'the drift f̂2 against the direction of υd that a solve takes for an '
+        f'obstacle stopping the base (impact_delta_torque); {_WHY}', minimum=0.0,
+        exclusive_minimum=True)
+    impact_hold: float = param(
+        2.0, 's', 'how long after a solve last saw an obstacle stopping the base the rate '
+        f'limit stays impact_delta_torque; {_WHY}', minimum=0.0, maximum=60.0)
     max_speed: float = param(1.5, 'm/s', 'soft |υ| limit (19)', minimum=0.0,
                              exclusive_minimum=True)
     max_tilt: float = param(0.1, 'rad', 'soft |θ| limit (19)', minimum=0.0,
@@ -215,6 +227,17 @@ class MpcParams:
         if self.control_horizon > self.prediction_horizon:
             raise ParamError(f'control_horizon: must be <= prediction_horizon '
                               f'({self.prediction_horizon}), got {self.control_horizon}')
+
+    def largest_delta_torque(self) -> float:
+        """Return the largest |Δτυ| per Ts the drive stage may apply [N m] (19).
+
+        ``impact_delta_torque`` where it is larger and can act (the MPC re-solving after a
+        push, which the obstacle's drift sets off), else ``max_delta_torque``.
+        """
+        if (self.controller == 'mpc'
+                and resolves_faster(self.sampling_period, self.fast_resolve_period)):
+            return max(self.max_delta_torque, self.impact_delta_torque)
+        return self.max_delta_torque
 
     def qp_settings(self) -> QpSolverParams:
         return QpSolverParams(self.eps_abs, self.eps_rel, self.eps_primal_inf, self.eps_dual_inf,

@@ -88,6 +88,7 @@ class MpcQp:
         reach = config.max_delta_torque * np.arange(1, problem.control_horizon + 1)
         self._buffers = QpBuffers(h, g, c, lower, upper, reach, reach.copy())
         self._first_box = (-config.max_delta_torque, config.max_delta_torque)
+        self._rate = config.max_delta_torque   #: |Δτ| bound of the later increments [N m]
         self._kernels = load_compiled(MPC_KERNEL)   # at construction, not in the first tick
         self._fill = self._kernels.fill_for(problem.blocks, self._buffers)
 
@@ -95,13 +96,31 @@ class MpcQp:
         """Bound Δτ(k|k) to [``lower``, ``upper``] [N m] (lower ≤ 0 ≤ upper).
 
         Sets its box and what the τ rows can reach, upper + j Δτmax up and −lower + j Δτmax
-        down (the later increments keep ±Δτmax).
+        down (the later increments keep ±Δτmax, :meth:`set_rate`).
         """
         if (lower, upper) == self._first_box:
             return
         self._first_box = (lower, upper)
         self.data.lb[0], self.data.ub[0] = lower, upper
-        steps = self.problem.config.max_delta_torque * np.arange(self.problem.control_horizon)
+        self._set_reach()
+
+    def set_rate(self, rate: float) -> None:
+        """Bound the later increments Δτ(k+j|k), j ≥ 1, to ±``rate`` [N m] (19).
+
+        ``max_delta_torque`` normally; ``impact_delta_torque`` while an obstacle stops the
+        base (:class:`~.control_step.DriveControllerStage`).
+        """
+        if rate == self._rate:
+            return
+        self._rate = rate
+        self.data.lb[1:self.problem.control_horizon] = -rate
+        self.data.ub[1:self.problem.control_horizon] = rate
+        self._set_reach()
+
+    def _set_reach(self) -> None:
+        """Set what the τ rows can reach: upper + j Δτmax up, −lower + j Δτmax down."""
+        lower, upper = self._first_box
+        steps = self._rate * np.arange(self.problem.control_horizon)
         self._buffers.reach_up[:] = upper + steps
         self._buffers.reach_down[:] = -lower + steps
 

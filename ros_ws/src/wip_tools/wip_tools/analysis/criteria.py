@@ -58,7 +58,9 @@ class Criteria:
     max_wheel_torque: Optional[float] = param(
         15.0, 'N m', 'limit of |tau_l|, |tau_r| (commanded)', minimum=0.0)
     max_delta_tau_v: Optional[float] = param(
-        10.0, 'N m', 'limit of |delta tau_v| between two MPC steps (eq. (23))', minimum=0.0)
+        None, 'N m', 'limit of |delta tau_v| between two MPC steps (eq. (23)); null: the '
+        "controller's own, mpc.max_delta_torque or, where larger, mpc.impact_delta_torque",
+        minimum=0.0)
     max_qp_failures: Optional[int] = param(
         0, '1', 'MPC ticks that used the fallback (QP not solved)', minimum=0)
     max_abs_theta: Optional[float] = param(
@@ -176,6 +178,7 @@ def measure(record: RunRecord, scenario, metrics: dict, criteria: Criteria,
         'fell': bool(metrics['fell']),
         'max_wheel_torque': metrics['max_abs_wheel_torque_nm'],
         'max_delta_tau_v': metrics['max_abs_delta_tau_v_nm'],
+        'delta_tau_limit': scenario.mpc.largest_delta_torque(),
         'qp_failures': metrics['qp_failures'],
         'max_abs_theta': _max(np.abs(truth['theta'])),
         'max_abs_theta_outside_pulses': _max(np.abs(truth['theta'][outside])),
@@ -316,6 +319,8 @@ def evaluate(measured: dict[str, Any], criteria: Criteria,
         failures['no_runaway_alarm'] = f'runaway guard at {measured["runaway_alarm"]}'
     for name, (key, kind) in _CHECKS.items():
         threshold = getattr(criteria, name)
+        if threshold is None and name == 'max_delta_tau_v':
+            threshold = measured.get('delta_tau_limit')   # the controller's own (19)
         if threshold is None or (refused and name in _OUT_OF_REACH):
             continue
         value = measured.get(key)

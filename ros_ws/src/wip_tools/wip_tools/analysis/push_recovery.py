@@ -129,19 +129,21 @@ def push_goal(plant: str, mismatch: bool, noise: bool) -> float:
 
 
 def scenario_bound(scenario, delta_v: float, push_time: float, initial_state=(0.0, 0.0, 0.0),
-                   earlier_torques=()):
+                   earlier_torques=(), max_delta_torque: float | None = None):
     """Return the bound for the true plant of ``scenario`` and its MPC limits (``mpc.*``).
 
     The true plant's parameters and equations: the full model's for 'full' and the engine
     models, which have the motors' reaction torque on the body. ``initial_state``,
-    ``earlier_torques``: as :func:`~wip_tools.analysis.push_bound.push_excursion_bound`.
+    ``earlier_torques``: as :func:`~wip_tools.analysis.push_bound.push_excursion_bound`;
+    ``max_delta_torque``: the rate limit (None: ``mpc.max_delta_torque``).
     """
     from wip_sim.core.plant import equation_model
 
     mpc = scenario.mpc
+    rate = mpc.max_delta_torque if max_delta_torque is None else max_delta_torque
     return push_excursion_bound(scenario.plant.parameters, delta_v, push_time=push_time,
                                 max_tilt=mpc.max_tilt, max_torque=mpc.max_drive_torque,
-                                max_delta_torque=mpc.max_delta_torque,
+                                max_delta_torque=rate,
                                 delta_period=mpc.sampling_period, step=BOUND_STEP,
                                 model=equation_model(scenario.plant.model.model),
                                 initial_state=initial_state, earlier_torques=earlier_torques)
@@ -197,10 +199,32 @@ def _run(scenario, delta_v: float, push_width: float) -> dict:
 
     result = run_scenario(scenario)
     state = state_at_push(result.record)
-    earlier = torques_before_push(result.record, scenario.mpc.sampling_period)
-    bound = scenario_bound(scenario, delta_v, push_width, state, earlier).excursion
+    mpc = scenario.mpc
+    earlier = torques_before_push(result.record, mpc.sampling_period)
+    # A run whose torque moved faster than max_delta_torque within Ts (the impact rate
+    # against an obstacle, mpc.impact_delta_torque) is set against the bound at that rate.
+    kept = largest_change_within(result.record['mpc'], mpc.sampling_period) \
+        <= mpc.max_delta_torque + 1e-9
+    rate = mpc.max_delta_torque if kept else mpc.largest_delta_torque()
+    bound = scenario_bound(scenario, delta_v, push_width, state, earlier, rate).excursion
     excursion = math.inf if result.fell else measured_excursion(result.record)
-    return {'excursion': excursion, 'state': state, 'bound': bound}
+    return {'excursion': excursion, 'state': state, 'bound': bound, 'rate_kept': kept}
+
+
+def largest_change_within(mpc_group, period: float) -> float:
+    """Return the largest |τυ(t) − τυ(s)| over applied torques with t − s < ``period`` [N m].
+
+    ``mpc_group``: a record's ``mpc`` group (t, tau_v); each torque holds until the next.
+    """
+    t, tau = np.asarray(mpc_group['t']), np.asarray(mpc_group['tau_v'])
+    largest, start = 0.0, 0
+    for i in range(len(t)):
+        while t[i] - t[start] >= period - 1e-9:
+            start += 1
+        # The torque in force just before the window, and those applied within it.
+        window = tau[max(start - 1, 0):i + 1]
+        largest = max(largest, float(np.max(window) - np.min(window)))
+    return largest
 
 
 def _summary(runs: list[dict], rest_bound: float, goal: float) -> dict:
@@ -230,6 +254,8 @@ def _summary(runs: list[dict], rest_bound: float, goal: float) -> dict:
                          float(np.median(excursions[half:])) / rest_bound] if half else None),
         'run_excursions_m': excursions.tolist(), 'run_bounds_m': bounds.tolist(),
         'goal': goal, 'met': falls == 0 and ratio <= goal,
+        # Runs whose torque kept max_delta_torque within Ts (the others: the impact rate's).
+        'rate_kept': sum(bool(run['rate_kept']) for run in runs),
         # The worst of the runs: how far from rest on the reference the push found it.
         'speed_error_at_push': off_speed, 'tilt_at_push': off_tilt,
         'at_rest': off_speed <= AT_REST_SPEED and off_tilt <= AT_REST_TILT}

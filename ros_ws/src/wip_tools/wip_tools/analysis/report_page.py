@@ -195,9 +195,12 @@ def _limit_rows(m: dict[str, Any], scenario) -> list[tuple[str, str, str, str]]:
                  _verdict(None if torque is None
                           else torque <= scenario.mixer.max_wheel_torque + 1e-9)))
     delta = m.get('max_abs_delta_tau_v_nm')
-    rows.append(('Δτυ per MPC step', f'within ±{mpc.max_delta_torque:g} N·m',
-                 f'max {_fmt(delta)} N·m',
-                 _verdict(None if delta is None else delta <= mpc.max_delta_torque + 1e-6)))
+    largest = mpc.largest_delta_torque()
+    rate_text = f'within ±{mpc.max_delta_torque:g} N·m' + (
+        f' (±{largest:g} while an obstacle stops the base)'
+        if largest > mpc.max_delta_torque else '')
+    rows.append(('Δτυ per MPC step', rate_text, f'max {_fmt(delta)} N·m',
+                 _verdict(None if delta is None else delta <= largest + 1e-6)))
     vd, wd = m.get('max_abs_v_d_mps'), m.get('max_abs_omega_d_radps')
     rows.append(('desired velocities', f'|υd| ≤ {tg.max_speed:g} m/s, |ωd| ≤ '
                  f'{tg.max_yaw_rate:g} rad/s', f'{_fmt(vd)} m/s, {_fmt(wd)} rad/s',
