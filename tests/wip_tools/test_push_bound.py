@@ -263,3 +263,9 @@ def test_the_full_plant_is_measured_against_its_own_equations():
     # The run-on Δv²/(2 k θmax) grows as 1/k; the torque limits' share stays about the same.
     assert bound.excursion - model_one.excursion == pytest.approx(
         0.5 / (0.1 * rate) - 0.5 / (0.1 * scenario.plant.parameters.gravity), rel=0.35)
+
+
+def test_the_bench_names_the_runs_set_against_the_impact_rate():
+    from wip_tools.bench import _impact_note
+    assert _impact_note({'runs': 40, 'rate_kept': 40}) == ''
+    assert _impact_note({'runs': 40, 'rate_kept': 38}) == ' (2 of 40 runs at the impact rate)'

@@ -331,7 +331,13 @@ def _push_line(row: dict, tolerance: float) -> str:
                      else 'DIFFER'))
     return (head + f'{row["bound_m"]:5.3f} m {row["measured_m"]:7.3f} m {row["ratio"]:6.3f}x '
             f'{spread:>11s} {halves:28s} {row["ratio_rest"]:8.3f}x <= {row["goal"]:.2f}x '
-            + ('met' if row['met'] else 'NOT MET'))
+            + ('met' if row['met'] else 'NOT MET') + _impact_note(row))
+
+
+def _impact_note(row: dict) -> str:
+    """Return a note of the runs set against the bound at the impact rate ('' if none)."""
+    faster = row['runs'] - row.get('rate_kept', row['runs'])
+    return f' ({faster} of {row["runs"]} runs at the impact rate)' if faster else ''
 
 
 def _parser() -> argparse.ArgumentParser:
