@@ -72,8 +72,20 @@ def test_scripts_estop_zeroes_the_torque_at_the_next_tick_and_a_held_estop_block
             stop.wait(0.1)
 
     def during(_runner, _processes) -> None:
+        # This process's subscription may match the mixer's command well after the
+        # arming (discovery, up to seconds on a loaded machine): the commands it takes
+        # begin then.
+        deadline = time.time() + 30.0
+        while time.time() < deadline and not commands:
+            time.sleep(0.02)
         time.sleep(1.0)    # balancing, with torque
-        seen['before'] = [c for t, c in commands if t > time.time() - 0.5]
+        # The commands sent in the last 0.5 s, once this process has taken them (it may
+        # lag the sender on a loaded machine: wait for one sent after the mark).
+        mark = time.time()
+        deadline = mark + 10.0
+        while time.time() < deadline and not any(t >= mark for t, _ in list(commands)):
+            time.sleep(0.02)
+        seen['before'] = [c for t, c in list(commands) if mark - 0.5 < t <= mark]
         start = time.time()
         seen['engage'] = scripts_estop('engage')
         seen['engage_start'] = start

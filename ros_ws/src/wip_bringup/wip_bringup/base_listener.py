@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
+import signal
 import threading
 import time
 
@@ -14,6 +16,24 @@ from .base_checks import (AUTO_STILL_BAND, body_angles, Conventions, Reading, TW
 
 #: The base's topics check_base listens to (before remapping).
 LISTENED_TOPICS = ('/joint_states', '/imu/data')
+
+
+@contextlib.contextmanager
+def _sigint_deferred():
+    """Hold a SIGINT until the block ends, then raise it there (the main thread only).
+
+    A KeyboardInterrupt inside rclpy's Executor constructor leaves an object whose
+    ``__del__`` prints a traceback; held, the interrupt comes after the constructor, and the
+    spinning thread started in the block inherits the signal blocked.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 class BaseListener:
@@ -40,7 +60,8 @@ class BaseListener:
         rclpy.init(args=args, context=self.context,
                    **({'domain_id': domain_id} if domain_id is not None else {}))
         try:
-            self._start()
+            with _sigint_deferred():
+                self._start()
         except BaseException:
             # A SIGINT here (the subscriptions are visible before the thread runs) must
             # not leave the thread spinning into interpreter shutdown: a daemon thread
