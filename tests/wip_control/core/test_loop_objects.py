@@ -232,7 +232,11 @@ def test_the_impact_limit_ends_impact_hold_after_the_drift():
     """impact_hold after the last solve that saw the drift, the limit is Δτmax again."""
     config = MpcParams(backend='daqp', impact_hold=1.0)
     drive = DriveControllerStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
+    _drive_ticks(drive, lambda k: -10.0 if 413 <= k < 433 else 0.0, 433, v_d=0.5)
+    assert drive.rate == config.impact_delta_torque    # what the MPC's /diagnostics shows
+    drive = DriveControllerStage(MODEL, config, 15.0, decimation=20, fast_decimation=10)
     ticks = _drive_ticks(drive, lambda k: -10.0 if 413 <= k < 433 else 0.0, 1200, v_d=0.5)
+    assert drive.rate == config.max_delta_torque
     last_seen = max(k for k, _ in ticks if k < 433)
     after = [(k, r) for k, r in ticks if k >= last_seen + round(1.0 / H) + 20]
     assert after and _largest_window_move(after) <= config.max_delta_torque + 1e-9

@@ -175,6 +175,9 @@ class DriveControllerStage:
         self._impact_rate = max(config.impact_delta_torque, config.max_delta_torque)
         self._impact_ticks = int(round(config.impact_hold / config.sampling_period * decimation))
         self._impact_until = -1
+        #: The |Δτυ| limit per Ts of the last solve [N m] (``impact_delta_torque`` while an
+        #: obstacle stops the base).
+        self.rate = config.max_delta_torque
 
     def limit(self, tau_omega: float) -> float:
         """Bound on |τυ| [N m]: 2 τmax − |τω| (``core.mixer.drive_torque_limit``).
@@ -289,7 +292,8 @@ class DriveControllerStage:
         if (math.isfinite(f2_hat) and math.isfinite(v_d) and v_d != 0.0
                 and -f2_hat * math.copysign(1.0, v_d) > config.impact_deceleration):
             self._impact_until = k + self._impact_ticks
-        return self._impact_rate if k < self._impact_until else config.max_delta_torque
+        self.rate = self._impact_rate if k < self._impact_until else config.max_delta_torque
+        return self.rate
 
     def _restart_keeps_tilt(self, result: MpcResult) -> bool:
         """Whether a fresh push's solve may restart the grid: its plan within the tilt margin.

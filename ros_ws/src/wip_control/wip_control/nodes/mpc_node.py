@@ -150,6 +150,7 @@ class MpcNode(ControllerNode):
         self._subscribe_input(YawTorque, 'wip/yaw_torque', 'yaw_torque', arc_from_msg,
                               ArcOutput)
         self.diagnostics.state(OK, 'waiting for the first tick')
+        self._shown_rate = None   # the rate limit last put in /diagnostics' values
 
     def is_tick(self, stamp_ns: int) -> bool:
         """Whether ``stamp_ns`` is an MPC tick of the lockstep grid (from t = 0)."""
@@ -297,6 +298,12 @@ class MpcNode(ControllerNode):
                                f'|tau_v| limit {self._limit(tau_omega):.4g} N m')
         self.diagnostics.values['last solve [us]'] = (
             f'{1e6 * (result.solve_time_s + result.build_time_s):.1f}')
+        if self.stage.rate != self._shown_rate:
+            self._shown_rate = self.stage.rate
+            self.diagnostics.values['|delta tau_v| limit per Ts [N m]'] = (
+                f'{self.stage.rate:g}' + (' (lifted: an obstacle stops the base)'
+                                          if self.stage.rate > self.config.max_delta_torque
+                                          else ''))
 
     def _limit(self, tau_omega: float) -> float:
         return min(self.stage.limit(tau_omega), self.config.max_drive_torque)
