@@ -172,7 +172,7 @@ class DriveControllerStage:
         self._last_solve: int | None = None
         self._strong_seen = False   # a transient beyond the decay's dead zone at the last solve
         # The rate limit while an obstacle stops the base, and until which tick it holds.
-        self._impact_rate = max(config.impact_delta_torque, config.max_delta_torque)
+        self._impact_rate = config.largest_delta_torque()   # used only while re-solving
         self._impact_ticks = int(round(config.impact_hold / config.sampling_period * decimation))
         self._impact_until = -1
         #: The |Δτυ| limit per Ts of the last solve [N m] (``impact_delta_torque`` while an
