@@ -269,3 +269,18 @@ def test_the_bench_names_the_runs_set_against_the_impact_rate():
     from wip_tools.bench import _impact_note
     assert _impact_note({'runs': 40, 'rate_kept': 40}) == ''
     assert _impact_note({'runs': 40, 'rate_kept': 38}) == ' (2 of 40 runs at the impact rate)'
+
+
+def test_a_state_where_highs_stops_without_a_status_is_solved_by_another_method():
+    """Solve a state where HiGHS stops without a status (paper plant's noisy push, seed 23).
+
+    Its automatic choice, dual simplex and interior point stop with 'model status Unknown';
+    without presolve it solves, as do the states 1e-6 m/s beside it, within 1e-5 m.
+    """
+    state = (-0.02653194694638844, 0.005628279822642661, 0.017383473416211992)
+    earlier = [0.056235950275114244] * 5
+    bound = push_excursion_bound(PARAMS, 1.0, initial_state=state, earlier_torques=earlier)
+    for du in (-1e-6, 1e-6):
+        beside = push_excursion_bound(PARAMS, 1.0, initial_state=(state[0] + du, *state[1:]),
+                                      earlier_torques=earlier)
+        assert bound.excursion == pytest.approx(beside.excursion, abs=1e-5)

@@ -194,14 +194,22 @@ def _solve(params, model, step, push, start, earlier, limits, idle) -> tuple:
     bounds = _variable_bounds(n, max_tilt, max_torque, idle, earlier[-1])
     cost = np.zeros(nv)
     cost[-1] = 1.0
-    result = linprog(cost, A_ub=ub, b_ub=bub, A_eq=eq, b_eq=beq,
-                     bounds=bounds, method='highs')
-    if result.status != 0:
-        # HiGHS' automatic choice (dual simplex) sometimes stops without a status on
-        # these LPs, where its interior-point method solves them.
-        result = linprog(cost, A_ub=ub, b_ub=bub, A_eq=eq, b_eq=beq,
-                         bounds=bounds, method='highs-ipm')
+    # HiGHS sometimes stops on these LPs without a status (numerical trouble, 'model
+    # status Unknown') where the same LP solves without its presolve or with a tighter
+    # tolerance (a noisy push case's state: its automatic choice, dual simplex and interior
+    # point all stop; without presolve or at 1e-9 it solves, the answers within 1e-8 m).
+    for method, options in _LP_METHODS:
+        result = linprog(cost, A_ub=ub, b_ub=bub, A_eq=eq, b_eq=beq, bounds=bounds,
+                         method=method, options=options)
+        if result.status == 0:
+            break
     return result, nz
+
+
+#: (method, options) of scipy's linprog tried in turn by :func:`_solve`.
+_LP_METHODS = (('highs', {}), ('highs-ipm', {}), ('highs', {'presolve': False}),
+               ('highs-ds', {'dual_feasibility_tolerance': 1e-9}),
+               ('highs-ipm', {'primal_feasibility_tolerance': 1e-9}))
 
 
 def _variable_bounds(n: int, max_tilt: float, max_torque: float, idle: int,
