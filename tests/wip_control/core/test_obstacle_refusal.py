@@ -68,7 +68,7 @@ def test_a_blocked_axle_is_refused_backing_off_to_a_point_held_at_rest():
     for _, _, _, cmd in rows[first:]:
         assert cmd.x_e == pytest.approx(-0.2, abs=1e-12)
         assert cmd.y_e == pytest.approx(0.0, abs=1e-12) and cmd.phi_e == 0.0
-        assert cmd.v_d == pytest.approx(math.tanh(-0.2), abs=1e-12)   # λ3 = 1 m/s
+        assert cmd.v_d == pytest.approx(config.lambda3 * math.tanh(-0.2), abs=1e-12)
         assert cmd.omega_d == pytest.approx(0.0, abs=1e-12)
     assert stage.refusal.refusals == 1
     reason = stage.refusal.reason()

@@ -687,7 +687,9 @@ def test_trajectory_generator_refuses_a_blocked_estimate_and_says_why(context, h
             tuple(expected)
         status = harness.node.diagnostics.status()
         if 14 <= k < 25:   # blocked from k = 10, refused 0.02 s (4 samples) later
-            assert msg.v_d == pytest.approx(math.tanh(-0.2), abs=1e-12)
+            # eq. (9) with υr = 0 toward the point 0.2 m back: λ3 tanh(−0.2)
+            assert msg.v_d == pytest.approx(
+                TrajectoryGeneratorParams().lambda3 * math.tanh(-0.2), abs=1e-12)
             assert status.level == DiagnosticStatus.WARN
             assert 'refused' in status.message and 'plan around it' in status.message
             assert '(1.00, 0.50) m' in status.message

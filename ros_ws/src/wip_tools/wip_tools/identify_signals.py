@@ -26,8 +26,9 @@ SIGN_CUTOFF_HZ = 5.0
 #: about 0.5 Hz (a 20 s lap, the speed varying twice a lap); noise in a regressor biases
 #: least squares towards zero (errors in variables). With an IMU's noise (0.002 rad,
 #: 0.01 rad/s) 4 Hz gave m_v 10 % low from the sensors, 1 Hz within 1.5 %
-#: (docs/identification.md §5).
-CUTOFF_HZ = 1.0
+#: (docs/identification.md §5) while the controller's torque jittered with the noise; with
+#: its mean drift (quieter) 1 Hz left m_p l up to 6.8 % low, 0.8 Hz within 5 % (§4).
+CUTOFF_HZ = 0.8
 MIN_DURATION_S = 5.0
 #: A gap between two samples of a stream longer than this many sample periods (a stalled
 #: driver, a lost message burst) is not interpolated across: the rows whose filter window

@@ -11,6 +11,7 @@ finite input that overflows it restores what it had and raises :class:`ControlOv
 
 from __future__ import annotations
 
+import collections
 import math
 from typing import NamedTuple
 
@@ -22,6 +23,7 @@ from .position import TRACKING
 from .obstacle_refusal import make_refusal
 from .mpc_config import drive_tick_decimation, MpcParams, resolves_faster
 from .mpc_plan import MpcResult
+from .mpc_prediction import gravity_aware_state_matrix
 from wip_description.params import ModelParams
 from .reference_state import ReferenceState
 from .state_estimation import PoseEstimate
@@ -178,6 +180,15 @@ class DriveControllerStage:
         #: The |Δτυ| limit per Ts of the last solve [N m] (``impact_delta_torque`` while an
         #: obstacle stops the base).
         self.rate = config.max_delta_torque
+        # The mean drift of a solve (disturbance_average_time): f̂2, f̂3 less their part
+        # linear in θ̂ (the gravity-aware prediction's a_υθ, a_θθ), which changes within
+        # the window and is taken at the solve's θ̂. (tick, d2, d3) of the ticks taken.
+        ts = config.sampling_period
+        gravity = gravity_aware_state_matrix(model, ts)
+        self._gravity = (float(gravity[0, 1]) / ts, float(gravity[2, 1]) / ts)
+        self._average_ticks = (int(round(config.disturbance_average_time / ts * decimation))
+                               if config.controller == 'mpc' else 0)
+        self._drifts: collections.deque = collections.deque(maxlen=max(self._average_ticks, 1))
 
     def limit(self, tau_omega: float) -> float:
         """Bound on |τυ| [N m]: 2 τmax − |τω| (``core.mixer.drive_torque_limit``).
@@ -214,23 +225,64 @@ class DriveControllerStage:
                         and self._strong_push(theta_hat, f2_hat, f3_hat)))
         return self.controller.push_detected(theta_hat, f2_hat, f3_hat)
 
+    def observe(self, k: int, theta_hat: float, f2_hat: float, f3_hat: float) -> None:
+        """Take the estimate of control tick ``k`` for the mean drift of the next solve.
+
+        Called at each of the stage's ticks (:meth:`is_tick`); again for the same tick it
+        does nothing. A non-finite estimate is left out (the solve answers it).
+        """
+        drifts = self._drifts
+        if self._average_ticks <= 1 or (drifts and drifts[-1][0] == k):
+            return
+        if not math.isfinite(theta_hat + f2_hat + f3_hat):
+            return
+        if drifts and k < drifts[-1][0]:
+            drifts.clear()   # the ticks restarted
+        a_v_theta, a_theta_theta = self._gravity
+        drifts.append((k, f2_hat - a_v_theta * theta_hat, f3_hat - a_theta_theta * theta_hat))
+
+    def solve_drifts(self, k: int | None, theta_hat: float, f2_hat: float,
+                     f3_hat: float) -> tuple[float, float]:
+        """(f̂2, f̂3) a solve at tick ``k`` takes: their mean over disturbance_average_time.
+
+        The ESO's f̂ passes noise up to its bandwidth, far above the Nyquist rate of a solve
+        every Ts: sampled, that noise folds down into the band of the position loop (9). The
+        mean over the period is the decimation's anti-alias filter. A push and the re-solves
+        after it take the sample, which keeps the push's first, sharp estimate.
+        """
+        if self._average_ticks <= 1 or k is None or k < self._fast_until:
+            return f2_hat, f3_hat
+        if self.controller.push_detected(theta_hat, f2_hat, f3_hat):
+            return f2_hat, f3_hat
+        self.observe(k, theta_hat, f2_hat, f3_hat)
+        start = k - self._average_ticks
+        window = [entry for entry in self._drifts if entry[0] > start]
+        if not window or not math.isfinite(theta_hat):
+            return f2_hat, f3_hat
+        count = len(window)
+        a_v_theta, a_theta_theta = self._gravity
+        return (sum(entry[1] for entry in window) / count + a_v_theta * theta_hat,
+                sum(entry[2] for entry in window) / count + a_theta_theta * theta_hat)
+
     def step(self, v_hat: float, theta_hat: float, theta_dot_hat: float, f2_hat: float,
              f3_hat: float, v_d: float, tau_omega: float, hold: bool = True,
              k: int | None = None) -> MpcResult:
         """Solve once with the bound :meth:`limit`.
 
         ``hold``: the result's τυ becomes the held torque. ``k``: the control tick (needed with
-        re-solving after a push, for the increment bound and the push's time).
+        re-solving after a push, for the increment bound and the push's time, and for the
+        mean drift of :meth:`solve_drifts`).
         """
         limit = self.limit(tau_omega)
         previous = self.controller.tau_previous
+        f2_solve, f3_solve = self.solve_drifts(k, theta_hat, f2_hat, f3_hat)
         if self._fast and k is not None:
-            result = self._step_fast(k, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d,
-                                     limit)
+            result = self._step_fast(k, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat,
+                                     (f2_solve, f3_solve), v_d, limit)
         else:
             result = self.controller.step(v_hat=v_hat, theta_hat=theta_hat,
-                                          theta_dot_hat=theta_dot_hat, f2_hat=f2_hat,
-                                          f3_hat=f3_hat, v_d=v_d, tau_limit=limit)
+                                          theta_dot_hat=theta_dot_hat, f2_hat=f2_solve,
+                                          f3_hat=f3_solve, v_d=v_d, tau_limit=limit)
         if not math.isfinite(result.tau_v):
             self.controller.set_previous_torque(previous)
             raise ControlOverflow(f'non-finite drive torque {result.tau_v!r} (overflow); '
@@ -239,11 +291,13 @@ class DriveControllerStage:
             self.tau_v = result.tau_v
         return result
 
-    def _step_fast(self, k, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, v_d, limit):
+    def _step_fast(self, k, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, drifts, v_d,
+                   limit):
         """Solve with re-solving after a push.
 
-        The solve gets the increment bound of the window and the time since the last
-        solve. A push seen now (re)starts the re-solving.
+        The solve gets the increment bound of the window, the time since the last solve and
+        ``drifts``, the (f̂2, f̂3) of :meth:`solve_drifts`; the sample (``f2_hat``, ``f3_hat``)
+        finds pushes and obstacles. A push seen now (re)starts the re-solving.
         """
         mpc = self.controller
         dmax = self._rate_limit(k, f2_hat, v_d)
@@ -265,7 +319,7 @@ class DriveControllerStage:
         elapsed = (None if self._last_solve is None
                    else (k - self._last_solve) * mpc.config.sampling_period / self.decimation)
         result = mpc.step(v_hat=v_hat, theta_hat=theta_hat, theta_dot_hat=theta_dot_hat,
-                          f2_hat=f2_hat, f3_hat=f3_hat, v_d=v_d, tau_limit=limit,
+                          f2_hat=drifts[0], f3_hat=drifts[1], v_d=v_d, tau_limit=limit,
                           first_box=(lower, upper), elapsed=elapsed, rate=dmax)
         self._last_solve = k
         if math.isfinite(result.tau_v):
@@ -369,6 +423,8 @@ class ControlStep:
         arc = self.yaw.step(est.omega, est.f1, command)
         result = None
         drive = self.drive
+        if k is not None and drive.is_tick(k):
+            drive.observe(k, est.theta, est.f2, est.f3)
         if mpc_tick and (not decide or k is None
                          or drive.solves(k, est.theta, est.f2, est.f3)):
             result = drive.step(est.v, est.theta, est.theta_dot, est.f2, est.f3,

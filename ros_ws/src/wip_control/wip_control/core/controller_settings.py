@@ -131,7 +131,7 @@ CONTROLLER_SCALARS = {
     'name': (str, 'free-text name of the scenario'),
     'description': (str, 'free-text description'),
     'design': (str, "'robust' or 'paper': the paper's ESOs (4), (8), adaptation law (13), "
-               'lambda1, lambda2 of (9), no time scaling; explicit keys still apply '
+               'lambda1-3 of (9), MPC, no time scaling; explicit keys still apply '
                '(docs/decisions/reference-parameters.md)'),
 }
 #: Unit and admissible values of those scalars.
@@ -158,7 +158,7 @@ PAPER_DESIGN: dict[str, dict[str, Any]] = {
     'eso': {'estimator': 'paper', 'speed_start': 'zero'},
     'arc': {'adaptation_dead_zone': 0.0, 'adaptation_normalisation': 0.0,
             'adaptation_leakage': 0.0, 'adapt_while_saturated': True},
-    'trajectory_generator': {'heading_design': 'paper'},
+    'trajectory_generator': {'heading_design': 'paper', 'lambda3': 1.0},
     'reference': {'time_scaling': False},
     'mpc': dict(PAPER_MPC_SETTINGS),
 }

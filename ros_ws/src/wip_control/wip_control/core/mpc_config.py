@@ -27,7 +27,8 @@ PAPER_MPC_SETTINGS = {'soft_limits': 'worst_case', 'speed_limit_first_step': 1,
                       'output_weights': (1.0, 50.0, 1.0), 'input_weight': 1.0,
                       'speed_preview_time': 0.0, 'speed_slack_quadratic_penalty': 1e4,
                       'disturbance_startup_time': 0.0, 'speed_rise_penalty': 0.0,
-                      'fast_resolve_period': 0.0, 'impact_delta_torque': 0.0}
+                      'fast_resolve_period': 0.0, 'impact_delta_torque': 0.0,
+                      'disturbance_average_time': 0.0}
 
 _WHY = 'docs/decisions/mpc-parameters.md'
 
@@ -137,6 +138,10 @@ class MpcParams:
     disturbance_filter_time_constant: float = param(
         0.5, 's', 'low-pass time constant of the constant-disturbance estimate behind the '
         'offset-free target', minimum=0.0)
+    disturbance_average_time: float = param(
+        0.1, 's', 'a solve takes the mean over this long of f̂2, f̂3 less their gravity part, '
+        'not their sample (but on a push and while re-solving); 0: the sample (the paper); '
+        f'{_WHY}', minimum=0.0, maximum=10.0)
     disturbance_decay_time_constant: float = param(
         0.1, 's', 'the transient of the disturbance estimate beyond the dead zone decays '
         f'with this time constant over the horizon of (17); 0: held (the paper); {_WHY}',

@@ -61,8 +61,9 @@ class TrajectoryGeneratorParams:
                            minimum=0.0, exclusive_minimum=True)
     lambda2: float = param(0.1, 'rad/s', 'lambda2 of eq. (9): weight of tanh(phi_e)',
                            minimum=0.0, exclusive_minimum=True)
-    lambda3: float = param(1.0, 'm/s', 'lambda3 of eq. (9): weight of tanh(x_e); near the '
-                           'path x_e decays at lambda3 [1/s per m] (Section V: 1)',
+    lambda3: float = param(0.85, 'm/s', 'lambda3 of eq. (9): weight of tanh(x_e); near the '
+                           'path x_e decays at lambda3 [1/s per m] (Section V: 1; '
+                           'docs/decisions/reference-parameters.md)',
                            minimum=0.0, exclusive_minimum=True)
     max_yaw_rate: float = param(0.3, 'rad/s', 'omega_max: |omega_d| saturation (Section V)',
                                 minimum=0.0, exclusive_minimum=True)

@@ -191,6 +191,7 @@ class MpcNode(ControllerNode):
             return False
         k = tick_index(stamp, self.control_period)
         estimate = value.estimate
+        self.stage.observe(k, estimate.theta, estimate.f2, estimate.f3)
         if self.stage.solves(k, estimate.theta, estimate.f2, estimate.f3):
             return False
         self.sync.discard(stamp)
@@ -281,6 +282,7 @@ class MpcNode(ControllerNode):
         tau_omega = values['yaw_torque'].tau_omega
         if k is None:   # lockstep: the stamp's control tick
             k = tick_index(stamp, self.control_period)
+        self.stage.observe(k, estimate.theta, estimate.f2, estimate.f3)
         if not self.stage.solves(k, estimate.theta, estimate.f2, estimate.f3):
             # A tick of the re-solve grid without a push: the torque stays held (lockstep
             # answers it, as the mixer awaits a drive torque at each tick of the grid).
