@@ -482,6 +482,8 @@ class RunnerBase:
                 result.exit_code = EXIT_DISK_FULL
                 result.message = (f'disk full: {path} not written; '
                                   + (result.message or ''))
+            else:   # already a disk-full run: the file it lacks is said too (even --quiet)
+                result.message = f'{result.message or "disk full"}; {path} not written'
 
 
 def options_from_args(args, **own) -> dict[str, Any]:
