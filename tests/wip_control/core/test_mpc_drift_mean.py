@@ -16,14 +16,14 @@ import pytest
 
 from wip_control.core.control_step import DriveControllerStage
 from wip_control.core.mpc_config import MpcParams
-from wip_control.core.mpc_prediction import gravity_aware_state_matrix
+from wip_control.core.mpc_prediction import gravity_coefficients
 from wip_description.params import ModelParams
 
 MODEL = ModelParams()
 CONFIG = MpcParams(backend='daqp')
 TS = CONFIG.sampling_period
 DECIMATION = 20
-A_V_THETA, A_THETA_THETA = gravity_aware_state_matrix(MODEL, TS)[[0, 2], 1] / TS
+A_V_THETA, A_THETA_THETA = gravity_coefficients(MODEL, TS)
 
 
 def _stage(**changes) -> DriveControllerStage:

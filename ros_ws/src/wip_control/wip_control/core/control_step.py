@@ -23,7 +23,7 @@ from .position import TRACKING
 from .obstacle_refusal import make_refusal
 from .mpc_config import drive_tick_decimation, MpcParams, resolves_faster
 from .mpc_plan import MpcResult
-from .mpc_prediction import gravity_aware_state_matrix
+from .mpc_prediction import gravity_coefficients
 from wip_description.params import ModelParams
 from .reference_state import ReferenceState
 from .state_estimation import PoseEstimate
@@ -183,10 +183,9 @@ class DriveControllerStage:
         # The mean drift of a solve (disturbance_average_time): f̂2, f̂3 less their part
         # linear in θ̂ (the gravity-aware prediction's a_υθ, a_θθ), which changes within
         # the window and is taken at the solve's θ̂. (tick, d2, d3) of the ticks taken.
-        ts = config.sampling_period
-        gravity = gravity_aware_state_matrix(model, ts)
-        self._gravity = (float(gravity[0, 1]) / ts, float(gravity[2, 1]) / ts)
-        self._average_ticks = (int(round(config.disturbance_average_time / ts * decimation))
+        self._gravity = gravity_coefficients(model, config.sampling_period)
+        self._average_ticks = (int(round(config.disturbance_average_time
+                                         / config.sampling_period * decimation))
                                if config.controller == 'mpc' else 0)
         self._drifts: collections.deque = collections.deque(maxlen=max(self._average_ticks, 1))
 

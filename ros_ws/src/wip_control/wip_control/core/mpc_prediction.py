@@ -79,6 +79,17 @@ def gravity_aware_state_matrix(params: ModelParams, sampling_period: float) -> n
     return a
 
 
+def gravity_coefficients(params: ModelParams, sampling_period: float) -> tuple[float, float]:
+    """(a_υθ [m/s² per rad], a_θθ [1/s²]): the gravity terms of A per second, f ≈ a θ.
+
+    The part of the drifts f̂2, f̂3 linear in θ that the gravity-aware prediction models
+    itself (:func:`gravity_aware_state_matrix`, divided by Ts).
+    """
+    a = gravity_aware_state_matrix(params, sampling_period)
+    return (float(a[V_ROW, THETA_ROW]) / sampling_period,
+            float(a[THETA_DOT_ROW, THETA_ROW]) / sampling_period)
+
+
 class CondensedPrediction:
     """State-independent parts of the condensed prediction ȳ = G̃ Δτ̄ + ȳ_free.
 

@@ -23,7 +23,7 @@ import math
 
 from .model import nominal_terms
 from .mpc_config import MpcParams
-from .mpc_prediction import gravity_aware_state_matrix
+from .mpc_prediction import gravity_coefficients
 from wip_description.params import ModelParams
 
 
@@ -138,11 +138,9 @@ class OffsetFreeTarget:
     """
 
     def __init__(self, params: ModelParams, config: MpcParams) -> None:
-        ts = config.sampling_period
-        a = gravity_aware_state_matrix(params, ts)
         self.config = config
-        self.a_v_theta = a[0, 1] / ts
-        self.a_theta_theta = a[2, 1] / ts
+        self.a_v_theta, self.a_theta_theta = gravity_coefficients(params,
+                                                                  config.sampling_period)
         self.reset()
 
     def reset(self) -> None:
