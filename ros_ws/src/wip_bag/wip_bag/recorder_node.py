@@ -96,8 +96,10 @@ from .settings import RecorderParams
 SUBSCRIPTION_DEPTH = 20000
 DIAGNOSTICS_PERIOD = 1.0  # [s], wall time
 _STOP = object()  # Sentinel that ends the writer thread.
-#: Free space [bytes] kept for the MCAP summary, metadata.yaml and the run's last files.
+#: Free space [bytes] kept for the MCAP summary and metadata.yaml.
 SUMMARY_MARGIN = 128 * 1024
+#: Free space [bytes] kept for the run's files written after its bag (50-70 KiB: run.json...).
+RUN_FILES_MARGIN = 128 * 1024
 SPACE_CHECK_PERIOD = 0.25  # [s] between two looks at the free space (statvfs)
 #: [s] the writer thread rests after writing what was queued (it writes in batches).
 WRITE_BATCH_PAUSE = 0.005
@@ -282,7 +284,7 @@ class RecorderNode(Node):
 
     # -- writer thread ---------------------------------------------------------------------
     def _space_left(self):
-        """(free bytes on the bag's file system, the margin needed to finish the bag)."""
+        """(free bytes on the bag's file system, the margin needed to finish the bag and run)."""
         try:
             size = os.path.getsize(self.bag.mcap_path)
             info = os.statvfs(self.output)
@@ -293,7 +295,7 @@ class RecorderNode(Node):
             self._largest_write = grown
         self._file_size = size
         largest = self._largest_write or self.bag.chunk_size // 4
-        return info.f_bavail * info.f_frsize, 2 * largest + SUMMARY_MARGIN
+        return info.f_bavail * info.f_frsize, 2 * largest + SUMMARY_MARGIN + RUN_FILES_MARGIN
 
     def _check_space(self):
         """Finish the bag while it still fits (writer thread); True if recording stopped."""

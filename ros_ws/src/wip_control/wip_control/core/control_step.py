@@ -241,17 +241,20 @@ class DriveControllerStage:
         drifts.append((k, f2_hat - a_v_theta * theta_hat, f3_hat - a_theta_theta * theta_hat))
 
     def solve_drifts(self, k: int | None, theta_hat: float, f2_hat: float,
-                     f3_hat: float) -> tuple[float, float]:
+                     f3_hat: float, pushed: bool | None = None) -> tuple[float, float]:
         """(f̂2, f̂3) a solve at tick ``k`` takes: their mean over disturbance_average_time.
 
         The ESO's f̂ passes noise up to its bandwidth, far above the Nyquist rate of a solve
         every Ts: sampled, that noise folds down into the band of the position loop (9). The
         mean over the period is the decimation's anti-alias filter. A push and the re-solves
-        after it take the sample, which keeps the push's first, sharp estimate.
+        after it take the sample, which keeps the push's first, sharp estimate. ``pushed``:
+        the controller's ``push_detected`` for this estimate, if the caller has it.
         """
         if self._average_ticks <= 1 or k is None or k < self._fast_until:
             return f2_hat, f3_hat
-        if self.controller.push_detected(theta_hat, f2_hat, f3_hat):
+        if pushed is None:
+            pushed = self.controller.push_detected(theta_hat, f2_hat, f3_hat)
+        if pushed:
             return f2_hat, f3_hat
         self.observe(k, theta_hat, f2_hat, f3_hat)
         start = k - self._average_ticks
@@ -274,10 +277,14 @@ class DriveControllerStage:
         """
         limit = self.limit(tau_omega)
         previous = self.controller.tau_previous
-        f2_solve, f3_solve = self.solve_drifts(k, theta_hat, f2_hat, f3_hat)
-        if self._fast and k is not None:
+        fast = self._fast and k is not None
+        # Asked once: the mean drift and the re-solving both need it (a pure read).
+        pushed = (self.controller.push_detected(theta_hat, f2_hat, f3_hat) if fast
+                  else None)
+        f2_solve, f3_solve = self.solve_drifts(k, theta_hat, f2_hat, f3_hat, pushed)
+        if fast:
             result = self._step_fast(k, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat,
-                                     (f2_solve, f3_solve), v_d, limit)
+                                     (f2_solve, f3_solve), v_d, limit, pushed)
         else:
             result = self.controller.step(v_hat=v_hat, theta_hat=theta_hat,
                                           theta_dot_hat=theta_dot_hat, f2_hat=f2_solve,
@@ -291,12 +298,13 @@ class DriveControllerStage:
         return result
 
     def _step_fast(self, k, v_hat, theta_hat, theta_dot_hat, f2_hat, f3_hat, drifts, v_d,
-                   limit):
+                   limit, pushed):
         """Solve with re-solving after a push.
 
         The solve gets the increment bound of the window, the time since the last solve and
         ``drifts``, the (f̂2, f̂3) of :meth:`solve_drifts`; the sample (``f2_hat``, ``f3_hat``)
-        finds pushes and obstacles. A push seen now (re)starts the re-solving.
+        finds pushes and obstacles (``pushed``: a push seen in it before this solve). A push
+        seen now (re)starts the re-solving.
         """
         mpc = self.controller
         dmax = self._rate_limit(k, f2_hat, v_d)
@@ -305,7 +313,6 @@ class DriveControllerStage:
         held = [entry for entry in self._applied if entry[0] <= window][-1:]
         self._applied = held + [entry for entry in self._applied if entry[0] > window]
         lower, upper = self._rate_box(window, dmax)
-        pushed = mpc.push_detected(theta_hat, f2_hat, f3_hat)
         fresh = False
         if mpc.config.push_restart:
             # A push, not the noise that a threshold below the dead zone also sees.
