@@ -51,7 +51,6 @@ import math
 from typing import NamedTuple, Sequence
 
 import numpy as np
-import scipy.linalg
 
 from wip_runtime.config import ParamError, param
 from .integration import rk4_step
@@ -129,6 +128,7 @@ def discretise(gains: Sequence[float], epsilon: float, period: float,
     m[:3, 3] = b_y          # y(τ) = w(τ), state 3
     m[3, 4] = 1.0 / period  # ẇ = (y_new − y_prev)/h, slope in state 4
     m[:3, 5] = b_u          # b u in state 5
+    import scipy.linalg   # here: SciPy is loaded only where an observer is built
     e = scipy.linalg.expm(m * period)
     ad, g_w, g_slope, g_u = e[:3, :3], e[:3, 3], e[:3, 4], e[:3, 5]
     if measurement_hold == 'linear':

@@ -33,7 +33,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.linalg
 
 from .model import input_gains
 from .mpc import LongitudinalController, LongitudinalMpc
@@ -57,6 +56,7 @@ def dlqr(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray
     """
     a, b = np.atleast_2d(a).astype(float), np.atleast_2d(b).astype(float)
     q, r = np.atleast_2d(q).astype(float), np.atleast_2d(r).astype(float)
+    import scipy.linalg   # here: SciPy is loaded only where an LQR is built
     p = scipy.linalg.solve_discrete_are(a, b, q, r)
     k = np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a)
     return k, p

@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.linalg
 
 from wip_runtime.config import ParamError
 from .eso import ChannelEstimate, PERIOD_TOLERANCE
@@ -170,5 +169,6 @@ def rate_eso_noise_variance(rate_noise_std: float, bandwidth: float, period: flo
     # irrelevant for the variance.
     a = np.array([[1.0 - m1, (1.0 - m1) * period], [-m2, 1.0 - m2 * period]])
     b = np.array([[m1], [m2]])
+    import scipy.linalg   # here: only this variance needs SciPy, not the observer
     cov = scipy.linalg.solve_discrete_lyapunov(a, rate_noise_std ** 2 * (b @ b.T))
     return float(cov[1, 1])
