@@ -234,3 +234,25 @@ def test_wheel_transforms_from_joint_states_and_bad_ones_dropped(ros, context):
         assert plain.robot is None and '/tf' not in plain.publishers_
     finally:
         plain.destroy_node()
+
+
+def test_a_simulations_viewer_keeps_what_its_recorder_has_not_acknowledged(ros, context):
+    # Composed with a simulation (a recorded run) the viewer's reliable writers keep the
+    # lockstep history, so a recorder descheduled for a while loses no pose (with 10 one
+    # was lost under load); alone, beside a robot, they keep the graph design's 10 (/tf:
+    # tf2's 100) and a stalled viewer client holds no backlog of minutes.
+    from wip_runtime.qos import LOCKSTEP_WRITER_DEPTH
+    from wip_viewer.viewer_node import ViewerNode
+
+    for keep, depth, tf_depth in ((True, LOCKSTEP_WRITER_DEPTH, LOCKSTEP_WRITER_DEPTH),
+                                  (False, 10, 100)):
+        node = ViewerNode(context=context, keep_unacknowledged=keep)
+        try:
+            depths = {topic: publisher.qos_profile.depth
+                      for topic, publisher in node.publishers_.items()}
+            assert depths.pop('/tf') == tf_depth
+            assert set(depths.values()) == {depth}, depths
+            assert all(publisher.qos_profile.reliability.name == 'RELIABLE'
+                       for publisher in node.publishers_.values())
+        finally:
+            node.destroy_node()

@@ -18,6 +18,7 @@ docs/decisions/recording-speed.md).
 
 from __future__ import annotations
 
+import functools
 import sys
 
 from wip_sim.simulator_main import run_simulator_node
@@ -37,7 +38,8 @@ def main(args=None) -> int:
         own.remove(WITH_VIEWER)
         argv = [*argv[:1], *own, *ros_args]
         from wip_viewer.viewer_node import ViewerNode   # only then: rendering imports
-        companions += (ViewerNode,)
+        # A simulation's viewer feeds a recording: its writers keep what is not acknowledged.
+        companions += (functools.partial(ViewerNode, keep_unacknowledged=True),)
     return run_simulator_node(PlantNode, 'simulation', argv, config_status=EXIT_CONFIG,
                               on_end=PlantNode.publish_diagnostics, companions=companions)
 

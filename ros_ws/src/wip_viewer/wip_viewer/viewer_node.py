@@ -72,7 +72,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from wip_description.robot_model import RobotModel, urdf
 from wip_runtime.composition import IntraProcessNode
 from wip_runtime.node_main import run_node
-from wip_runtime.qos import TF_QOS, TF_STATIC_QOS
+from wip_runtime.qos import lockstep_writer_qos, RELIABLE_QOS, TF_QOS, TF_STATIC_QOS
 from wip_runtime.stamps import stamp_to_ns
 from wip_runtime.messages import quaternion_from_euler
 from wip_runtime.diagnostics import NodeDiagnostics
@@ -104,11 +104,17 @@ _ORIGIN = (0.0, 0.0, 0.0)
 class ViewerNode(IntraProcessNode):
     """See the module docstring."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, keep_unacknowledged: bool = False, **kwargs) -> None:
         super().__init__('viewer', **kwargs)
         # Composed with the simulation (``ros2 run wip_sim simulation --with-viewer``), its
         # inputs come from the intra-process bus as message objects; alone, raw from DDS.
         self.init_intra_process(True)
+        # Composed with a simulation (keep_unacknowledged), a recorded run: its writers keep
+        # what the recorder has not acknowledged, as the lockstep nodes' do. With a history
+        # of 10 a recorder descheduled for some 30 ms of wall time lost a pose (49 of 50).
+        self._output_qos = (lockstep_writer_qos(RELIABLE_QOS) if keep_unacknowledged
+                            else RELIABLE_QOS)
+        self._tf_qos = lockstep_writer_qos(TF_QOS) if keep_unacknowledged else TF_QOS
         self.config: ViewerParams = RosParams(self, 'viewer', ViewerParams).config
         c = self.config
         # No input ages: the node runs on the wall clock also in lockstep (no /clock
@@ -118,7 +124,7 @@ class ViewerNode(IntraProcessNode):
         self.publishers_ = {topic: self.create_publisher(
             {'nav_msgs/msg/Odometry': Odometry,
              'visualization_msgs/msg/MarkerArray': MarkerArray,
-             'nav_msgs/msg/Path': Path}[kind], topic.lstrip('/'), 10)
+             'nav_msgs/msg/Path': Path}[kind], topic.lstrip('/'), self._output_qos)
             for topic, kind in VIEWER_TOPICS.items()}  # relative: under the vehicle's namespace
         self.estimate_gate, self.truth_gate = RateGate(c.pose_rate), RateGate(c.pose_rate)
         self.reference_gate = RateGate(c.pose_rate)
@@ -160,7 +166,7 @@ class ViewerNode(IntraProcessNode):
         self.robot = RobotModel(model, joints.left_joint, joints.right_joint,
                                 signs.left_wheel_sign, signs.right_wheel_sign,
                                 mounting.encoders_relative_to_body)
-        self.publishers_['/tf'] = self.create_publisher(TFMessage, '/tf', TF_QOS)
+        self.publishers_['/tf'] = self.create_publisher(TFMessage, '/tf', self._tf_qos)
         static = self.create_publisher(TFMessage, '/tf_static', TF_STATIC_QOS)
         description = self.create_publisher(String, 'robot_description', TF_STATIC_QOS)
         description.publish(String(data=urdf(self.robot)))
