@@ -245,3 +245,38 @@ def test_trifolium_goal_with_path_following():
     t, distance = path_errors(scenario_from_mapping({}))
     assert distance[t <= 8.0].min() <= 0.1
     assert math.sqrt(np.mean(distance[t >= 8.0] ** 2)) <= 0.1
+
+
+def test_a_loop_whose_times_never_repeat_gives_up_the_memo_with_the_same_states():
+    # A node in real time samples at sensor stamps, off any grid: no time is asked twice,
+    # so remembering states is in vain. After MEMO_TRIAL_TIME past the first lead without
+    # a hit the memo is dropped; the states are the definition's, to the bit, before and
+    # after (the lead's speeds from _speed_at, the same floats as a re-timed state's υ).
+    config = ReferenceParams(path_speed_lead_time=0.75, path_speed_lead_time_accelerating=0.6)
+    lead, lead_up = config.path_speed_lead_time, config.path_speed_lead_time_accelerating
+
+    def fresh(t):
+        timed = TimeScaled(Trifolium(), config.path_max_speed, config.path_max_yaw_rate,
+                           config.path_progress_rate_limit)
+        state = timed.sample(t)
+        ahead = timed.sample(t + lead).v
+        if abs(ahead) > abs(state.v):
+            ahead = timed.sample(t + lead_up).v
+        return state._replace(v=ahead)
+
+    rng = np.random.default_rng(5)
+    # Waiting at t = 0 first (a node before the safety layer engages: the same t, hits).
+    jittered = [0.0] * 100 + np.cumsum(0.005 + rng.uniform(-2e-4, 2e-4, 6000)).tolist()
+    timed = make_reference(config)
+    samples = [timed.sample(t) for t in jittered]
+    assert timed._memo is None
+    given_up = next(k for k, t in enumerate(jittered)
+                    if t > lead + TimeScaled.MEMO_TRIAL_TIME)
+    checked = sorted({0, 150, given_up - 1, given_up, given_up + 1, 6099,
+                      *rng.choice(6100, 30, replace=False).tolist()})
+    assert [samples[k] for k in checked] == [fresh(jittered[k]) for k in checked]
+    # A loop on a grid keeps it (its times come back at t + lead).
+    grid = make_reference(config)
+    for k in range(2000):
+        grid.sample(k * 0.005)
+    assert grid._memo is not None and grid._memo_kept

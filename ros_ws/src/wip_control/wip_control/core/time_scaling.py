@@ -68,6 +68,11 @@ class TimeScaled(Reference):
     #: and at most kept after that (a 5 s lead at 1 kHz remembers 5000 states ahead).
     MEMO_MIN_SIZE = 512
     MEMO_MAX_SIZE = 8192
+    #: [s] of sampled time, from the first sample's lead on, over which the memo must serve
+    #: at least half of the samples, else it is given up: the loop's times do not repeat (a
+    #: node in real time samples at sensor stamps, off any grid; its t = 0 while it waits
+    #: to start repeats, but before the lead), and each sample would keep a state in vain.
+    MEMO_TRIAL_TIME = 1.0
 
     def __init__(self, base: Reference, max_speed: float, max_yaw_rate: float,
                  rate_limit: float = 0.5, step: float = 0.01,
@@ -102,8 +107,13 @@ class TimeScaled(Reference):
             if not self._s:
                 self._rate.append(self.rate_at(0.0))
                 self._s.append(0.0)
-        self._memo: dict[float, ReferenceState] = {}   # t -> _timed(t), see sample
+        #: t -> _timed(t), see sample; None once given up (MEMO_TRIAL_TIME).
+        self._memo: dict[float, ReferenceState] | None = {}
         self._memo_limit = self.MEMO_MIN_SIZE
+        #: The memo's trial: [from, until] (sampled times [s]), samples, hits; None once
+        #: decided (see MEMO_TRIAL_TIME).
+        self._memo_trial: list | None = None
+        self._memo_kept = False
 
     def _raw_rate(self, v: float, omega: float) -> float:
         """σ0 for the base's speed ``v`` and yaw rate ``omega``."""
@@ -239,7 +249,11 @@ class TimeScaled(Reference):
         # runner's t_k + 0.75 is t_{k+150} to the bit at 98 % of the ticks, t_k + 0.6 is
         # the t_j + 0.75 of a tick 30 earlier at 70 %), so most states are computed once.
         memo = self._memo
+        if memo is None:
+            return self._sample_unremembered(t)
         state = memo.get(t)
+        if not self._memo_kept and self._memo_given_up(t, state is not None):
+            return self._sample_unremembered(t)
         if state is None:
             state = memo[t] = self._timed(t)
         t_lead = t + self.speed_lead_time
@@ -259,6 +273,35 @@ class TimeScaled(Reference):
             memo = {time: kept for time, kept in memo.items() if time >= t}
             self._memo = memo if len(memo) <= self.MEMO_MAX_SIZE else {}
             self._memo_limit = max(self.MEMO_MIN_SIZE, 2 * len(self._memo))
+        return ReferenceState(state.x, state.y, state.phi, v_ahead, state.omega,
+                              state.omega_dot)
+
+    def _memo_given_up(self, t: float, hit: bool) -> bool:
+        """Count the sample of ``t`` in the memo's trial; whether the memo is given up now."""
+        trial = self._memo_trial
+        if trial is None:
+            start = t + self.speed_lead_time
+            trial = self._memo_trial = [start, start + self.MEMO_TRIAL_TIME, 0, 0]
+        if t < trial[0]:
+            return False
+        if t <= trial[1]:
+            trial[2] += 1
+            trial[3] += hit
+            return False
+        self._memo_kept = 2 * trial[3] >= trial[2]
+        self._memo_trial = None
+        if self._memo_kept:
+            return False
+        self._memo = None
+        return True
+
+    def _sample_unremembered(self, t: float) -> ReferenceState:
+        """:meth:`sample` without the memo: the lead's speeds alone, the same floats."""
+        state = self._timed(t)
+        v_ahead = self._speed_at(t + self.speed_lead_time)
+        lead_up = self.speed_lead_time_accelerating
+        if abs(v_ahead) > abs(state.v) and lead_up != self.speed_lead_time:
+            v_ahead = self._speed_at(t + lead_up)
         return ReferenceState(state.x, state.y, state.phi, v_ahead, state.omega,
                               state.omega_dot)
 
