@@ -134,23 +134,28 @@ def test_references_of_one_configuration_share_their_tables_and_values():
     assert [first.sample(t) for t in times] == late[::-1] == [alone.sample(t) for t in times]
 
 
+#: A reference with a speed lead, shorter while accelerating (the memo's tests).
+LEAD_CONFIG = ReferenceParams(path_speed_lead_time=0.75, path_speed_lead_time_accelerating=0.6)
+
+
+def sampled_afresh(t: float):
+    """Return the lead's definition at ``t``, on a time-scaled reference that sampled nothing."""
+    config = LEAD_CONFIG
+    timed = TimeScaled(Trifolium(), config.path_max_speed, config.path_max_yaw_rate,
+                       config.path_progress_rate_limit)
+    state = timed.sample(t)
+    ahead = timed.sample(t + config.path_speed_lead_time).v
+    if abs(ahead) > abs(state.v):
+        ahead = timed.sample(t + config.path_speed_lead_time_accelerating).v
+    return state._replace(v=ahead)
+
+
 def test_remembered_states_give_the_same_samples_in_any_order():
     # With a speed lead, sample(t) remembers the re-timed states by their time (the lead
     # asks for times sampled again later): the samples are those computed afresh, for a
     # loop running forward at 200 Hz (where most are remembered), backwards, at random
     # times and repeated times; and what is remembered stays bounded.
-    config = ReferenceParams(path_speed_lead_time=0.75, path_speed_lead_time_accelerating=0.6)
-    lead, lead_up = config.path_speed_lead_time, config.path_speed_lead_time_accelerating
-
-    def fresh(t):
-        # The definition, on a reference that has sampled nothing.
-        timed = TimeScaled(Trifolium(), config.path_max_speed, config.path_max_yaw_rate,
-                           config.path_progress_rate_limit)
-        state = timed.sample(t)
-        ahead = timed.sample(t + lead).v
-        if abs(ahead) > abs(state.v):
-            ahead = timed.sample(t + lead_up).v
-        return state._replace(v=ahead)
+    config = LEAD_CONFIG
 
     timed = make_reference(config)
     forward = [k * 0.005 for k in range(6001)]
@@ -158,9 +163,9 @@ def test_remembered_states_give_the_same_samples_in_any_order():
     assert len(timed._memo) <= 2 * max(TimeScaled.MEMO_MIN_SIZE, 400)
     rng = np.random.default_rng(3)
     checked = list(rng.choice(6001, 40, replace=False))
-    assert [samples[k] for k in checked] == [fresh(forward[k]) for k in checked]
+    assert [samples[k] for k in checked] == [sampled_afresh(forward[k]) for k in checked]
     others = [29.999, 0.0, 12.345, 12.345, 3.0, -0.2] + list(rng.uniform(0.0, 40.0, 20))
-    assert [timed.sample(t) for t in others] == [fresh(t) for t in others]
+    assert [timed.sample(t) for t in others] == [sampled_afresh(t) for t in others]
     assert [timed.sample(t) for t in forward[::-97]] == [samples[k] for k in range(6000, -1, -97)]
     # Running backwards nothing is behind t to forget: bounded all the same.
     for t in forward[::-1]:
@@ -249,21 +254,11 @@ def test_trifolium_goal_with_path_following():
 
 def test_a_loop_whose_times_never_repeat_gives_up_the_memo_with_the_same_states():
     # A node in real time samples at sensor stamps, off any grid: no time is asked twice,
-    # so remembering states is in vain. After MEMO_TRIAL_TIME past the first lead without
-    # a hit the memo is dropped; the states are the definition's, to the bit, before and
-    # after (the lead's speeds from _speed_at, the same floats as a re-timed state's υ).
-    config = ReferenceParams(path_speed_lead_time=0.75, path_speed_lead_time_accelerating=0.6)
-    lead, lead_up = config.path_speed_lead_time, config.path_speed_lead_time_accelerating
-
-    def fresh(t):
-        timed = TimeScaled(Trifolium(), config.path_max_speed, config.path_max_yaw_rate,
-                           config.path_progress_rate_limit)
-        state = timed.sample(t)
-        ahead = timed.sample(t + lead).v
-        if abs(ahead) > abs(state.v):
-            ahead = timed.sample(t + lead_up).v
-        return state._replace(v=ahead)
-
+    # so remembering states is in vain. A memo that serves fewer than half of the samples
+    # over MEMO_TRIAL_TIME from the first lead on is dropped; the states are the
+    # definition's, to the bit, before and after (the lead's speeds from _speed_at, the
+    # same floats as a re-timed state's υ).
+    config, lead = LEAD_CONFIG, LEAD_CONFIG.path_speed_lead_time
     rng = np.random.default_rng(5)
     # Waiting at t = 0 first (a node before the safety layer engages: the same t, hits).
     jittered = [0.0] * 100 + np.cumsum(0.005 + rng.uniform(-2e-4, 2e-4, 6000)).tolist()
@@ -274,7 +269,7 @@ def test_a_loop_whose_times_never_repeat_gives_up_the_memo_with_the_same_states(
                     if t > lead + TimeScaled.MEMO_TRIAL_TIME)
     checked = sorted({0, 150, given_up - 1, given_up, given_up + 1, 6099,
                       *rng.choice(6100, 30, replace=False).tolist()})
-    assert [samples[k] for k in checked] == [fresh(jittered[k]) for k in checked]
+    assert [samples[k] for k in checked] == [sampled_afresh(jittered[k]) for k in checked]
     # A loop on a grid keeps it (its times come back at t + lead).
     grid = make_reference(config)
     for k in range(2000):
