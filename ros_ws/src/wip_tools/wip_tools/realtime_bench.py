@@ -68,11 +68,14 @@ def bench_node_cost(seconds: float, pairs: int = 2) -> dict:
 
 
 #: Thread CPU [s] of :func:`calibration_loop` on a Raspberry Pi 4-class core (Cortex-A72 at
-#: 1.5-1.8 GHz) with CPython 3.11: an assumption, not measured on a Pi, taken as 3x this
-#: project's 2-vCPU development machine (0.019-0.020 s there, 2026-12-05). Replace it with a
-#: measurement on the target (``python -c 'from wip_tools.realtime_bench import calibration_loop as
-#: c; print(c())'``) for a figure that is no longer an estimate.
-PI_CLASS_CALIBRATION_S = 0.060
+#: 1.5-1.8 GHz) with its distribution's CPython 3.11: an assumption, not measured on a Pi,
+#: taken as 3x this project's 2-vCPU development machine with Debian 12's python3.11
+#: (0.015 s there). A plain source build of CPython (no PGO/LTO, pyenv's default) slows
+#: this loop far more than the nodes, and the estimate then reads low: measure with the
+#: interpreter the robot uses (docs/realtime.md has the figures). Replace it
+#: with a measurement on the target (``python -c 'from wip_tools.realtime_bench import
+#: calibration_loop as c; print(c())'``) for a figure that is no longer an estimate.
+PI_CLASS_CALIBRATION_S = 0.045
 
 
 def calibration_loop(repeats: int = 5) -> float:
