@@ -206,15 +206,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             rows.append(row)
             writer.writerow(dataclasses.asdict(row))
             stream.flush()
-    print(f'{"path":7s} {"load":6s} passed  max|θ| [rad]  path error max/RMS [m]  '
+    # The path error in mm: the stand-in's runs track within millimetres, which [m] with two
+    # decimals printed as 0.00.
+    print(f'{"path":7s} {"load":6s} passed  max|θ| [rad]  path error max/RMS [mm]  '
           'latency p99/max [ms]  CPU')
     for path in args.paths:
         for load in args.loads:
             group = [r for r in rows if r.path == path and r.load == load]
             print(f'{path:7s} {load:6s} {sum(r.passed for r in group)}/{len(group)}   '
                   f'{max(r.max_tilt_rad for r in group):.3f}         '
-                  f'{max(r.max_path_error_m for r in group):.2f} / '
-                  f'{max(r.rms_path_error_m for r in group):.2f}              '
+                  f'{1e3 * max(r.max_path_error_m for r in group):6.1f} / '
+                  f'{1e3 * max(r.rms_path_error_m for r in group):<6.1f}          '
                   f'{max(r.latency_p99_ms for r in group):.1f} / '
                   f'{max(r.latency_max_ms for r in group):.1f}           '
                   f'{np.mean([r.controller_cpu_fraction for r in group]):.0%}')
