@@ -8,6 +8,8 @@ marked wallclock); the others are in-process and lockstep runs (docs/testing.md)
 import contextlib
 import io
 import json
+import os
+import sys
 
 import pytest
 import yaml
@@ -55,6 +57,8 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
                        '--json', str(out), '--no-realtime']) == 0
     report = json.loads(out.read_text())
     assert 'realtime' not in report and 'rclpy_floor' not in report     # --no-realtime
+    # The interpreter the figures were measured on, as the first line printed says.
+    assert report['environment']['python_executable'] == os.path.realpath(sys.executable)
     assert report['mpc']['ratio_tick'] > 0.0
     assert report['in_process']['real_time_factor_median'] > 0.0
     graph = report['graph']
@@ -83,6 +87,7 @@ def test_bench_reports_the_mpc_ratio_and_both_real_time_factors(tmp_path, capsys
     assert report['in_process_over_graph'] == pytest.approx(
         report['in_process']['real_time_factor_median'] / graph['real_time_factor'])
     printed = capsys.readouterr().out
+    assert printed.startswith('bench: commit ') and os.path.realpath(sys.executable) in printed
     assert 'in-process / graph' in printed and 'CPU' in printed
     assert 'composed, recorded' in printed and 'bit-identical' in printed
     assert report['push_recovery'] == push_only[0]['push_recovery']

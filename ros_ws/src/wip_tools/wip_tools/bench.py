@@ -81,8 +81,8 @@ def _environment() -> dict:
                                 text=True, check=False, timeout=5).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         pass
-    # The interpreter behind the venv: builds differ (a distribution's optimised one ran
-    # the nodes' code about 7 % faster than a plain source build here, docs/realtime.md).
+    # The interpreter behind the venv: an optimised build and a plain source build of the
+    # same version give different figures (docs/realtime.md).
     return {'commit': commit, 'python': platform.python_version(),
             'python_executable': os.path.realpath(sys.executable),
             'machine': platform.machine(), 'cpus': os.cpu_count(),

@@ -41,9 +41,9 @@ CONTROL_PERIOD = 0.005  # [s], 200 Hz
 HEARTBEAT_EVERY = 40    # ticks between two /wip/heartbeat messages (0.2 s)
 ENGAGE_TIMEOUT = 10.0   # [s] of paced ticks at most for the safety layer to engage
 #: Ticks between two turns of the executor for its due timers (0.1 s; the only active ones
-#: are the nodes' 1 Hz diagnostics). Not every tick: an idle spin_once is rclpy's cost, not
-#: the nodes' (27 µs a call back to back, measured), and the composed process turns its
-#: executor once per message taken, which rclpy's floor in scripts/bench measures.
+#: are the nodes' 1 Hz diagnostics). Not every tick: an idle turn is rclpy's cost, and it
+#: slows the Python after it (docs/realtime.md); the composed process turns its executor
+#: once per message taken, which rclpy's floor in scripts/bench measures.
 SPIN_EVERY = 20
 
 
