@@ -261,10 +261,9 @@ class TimeScaled(Reference):
         if ahead is None:
             ahead = memo[t_lead] = self._timed(t_lead)
         v_ahead = ahead.v
-        lead_up = self.speed_lead_time_accelerating
-        if abs(v_ahead) > abs(state.v) and lead_up != self.speed_lead_time:
-            # Speeding up: the (shorter) lead of the accelerations, the speed only if it
-            # is not remembered.
+        if self._speeding_up(v_ahead, state.v):
+            # The (shorter) lead of the accelerations, the speed only if not remembered.
+            lead_up = self.speed_lead_time_accelerating
             ahead = memo.get(t + lead_up)
             v_ahead = ahead.v if ahead is not None else self._speed_at(t + lead_up)
         if len(memo) > self._memo_limit:
@@ -295,13 +294,17 @@ class TimeScaled(Reference):
         self._memo = None
         return True
 
+    def _speeding_up(self, v_ahead: float, v: float) -> bool:
+        """Whether the lead of the accelerations replaces the speed lead's υ ``v_ahead``."""
+        return (abs(v_ahead) > abs(v)
+                and self.speed_lead_time_accelerating != self.speed_lead_time)
+
     def _sample_unremembered(self, t: float) -> ReferenceState:
         """:meth:`sample` without the memo: the lead's speeds alone, the same floats."""
         state = self._timed(t)
         v_ahead = self._speed_at(t + self.speed_lead_time)
-        lead_up = self.speed_lead_time_accelerating
-        if abs(v_ahead) > abs(state.v) and lead_up != self.speed_lead_time:
-            v_ahead = self._speed_at(t + lead_up)
+        if self._speeding_up(v_ahead, state.v):
+            v_ahead = self._speed_at(t + self.speed_lead_time_accelerating)
         return ReferenceState(state.x, state.y, state.phi, v_ahead, state.omega,
                               state.omega_dot)
 
