@@ -36,7 +36,7 @@ WIRING = {'left_joint': 'wheel_l_joint', 'right_joint': 'wheel_r_joint',
           'joints': ['wheel_r_joint', 'wheel_l_joint'], 'left_wheel_sign': 1,
           'right_wheel_sign': -1, 'imu_mounting_rpy': [0.0, 0.0, math.pi]}
 
-#: The real-time run's gyro [rad/s]: a MEMS gyro's white noise at 200 Hz. The scenario's
+#: The real-time run's gyro [rad/s]: a MEMS gyro's white noise over 100 Hz. The scenario's
 #: 0.01 rad/s biases J_theta by +3 to +4 % in closed loop (docs/identification.md section 7),
 #: tested in process above; this run tests what real time adds.
 GYRO_NOISE_REAL_TIME = 0.0025
