@@ -13,6 +13,7 @@ stand-in base, recorded) is the last test, marked slow and wallclock.
 import copy
 import math
 import pathlib
+import re
 
 import numpy as np
 import pytest
@@ -229,6 +230,9 @@ def test_a_bag_of_the_base_is_identified_with_the_wiring_the_run_left(tmp_path, 
     assert identify.main([str(bag), '--out', str(out), '--write-params']) == EXIT_OK
     printed = capsys.readouterr().out
     assert 'rows: full with friction' in printed and "'wheel_r_joint' (sign -1)" in printed
+    # The scenario's 0.01 rad/s gyro, measured and noted with the closed loop's bias.
+    noted = re.search(r"note: the gyro's white noise is about ([0-9.e-]+) rad/s", printed)
+    assert noted and float(noted.group(1)) == pytest.approx(0.01, rel=0.05), printed
     wiring = run_wiring.load_wiring([bag / 'params.yaml'])
     fit = identify.identify(identify_record.load_record(bag, wiring),
                             scenario.controller_model.parameters, model='full',
@@ -303,6 +307,7 @@ def test_hardware_mode_against_the_standin_base_recorded_then_identified(tmp_pat
     assert identify.main([str(bag), '--out', str(out)]) == EXIT_OK
     printed = capsys.readouterr().out
     assert 'from sensors' in printed and "'wheel_r_joint' (sign -1)" in printed, printed
+    assert "gyro's white noise" not in printed, printed    # 0.0025 rad/s: no note
     ((path, wiring, remaps, torques), record), = read
     assert pathlib.Path(path) == bag and list(remaps) == [] and torques == 'auto'
     assert wiring == run_wiring.load_wiring([bag / 'params.yaml'])

@@ -38,9 +38,9 @@ import numpy as np
 from wip_description.params import ModelParams
 from wip_runtime.cli import add_exit_codes, EXIT_OK, EXIT_USAGE, exit_with
 from wip_tools.identify_record import best_source, choose_model, load_record, TORQUE_SOURCES
-from wip_tools.identify_signals import (CUTOFF_HZ, IRREGULAR_STAMPS_NOTED, IdentifyError,
-                                        irregular_stamps, regressors, root_mean_square,
-                                        uniform_signals)
+from wip_tools.identify_signals import (CUTOFF_HZ, GYRO_NOISE_NOTED, IRREGULAR_STAMPS_NOTED,
+                                        IdentifyError, gyro_white_noise, irregular_stamps,
+                                        regressors, root_mean_square, uniform_signals)
 
 #: The fitted parameters, in the column order of the regressor matrix.
 NAMES = ('effective_mass', 'mpl', 'pitch_inertia', 'mpl2', 'yaw_inertia_total', 'friction',
@@ -428,13 +428,24 @@ def main(argv: Iterable[str] | None = None) -> int:
           + ('the joint efforts' if torque_source == 'efforts' else 'the commands')
           + (f'; sensors read with {wiring.describe()}' if source == 'sensors' else ''))
     if source == 'sensors':
-        irregular = irregular_stamps(record)
-        if irregular > IRREGULAR_STAMPS_NOTED:
-            print(f"note: {irregular:.1%} of the joint states' stamp intervals are more "
-                  'than a quarter off the median period; a driver should stamp a sample '
-                  'with the time it read it, not the time it published it')
+        _print_sensor_notes(record)
     print(table(result))
     return _write_model(args, *to_parameters(result, nominal))
+
+
+def _print_sensor_notes(record: Mapping) -> None:
+    """Note what in the sensors biases the fit: jittered stamps, a noisy gyro in closed loop."""
+    irregular = irregular_stamps(record)
+    if irregular > IRREGULAR_STAMPS_NOTED:
+        print(f"note: {irregular:.1%} of the joint states' stamp intervals are more "
+              'than a quarter off the median period; a driver should stamp a sample '
+              'with the time it read it, not the time it published it')
+    noise = gyro_white_noise(record)
+    if noise > GYRO_NOISE_NOTED:
+        print(f"note: the gyro's white noise is about {noise:.3g} rad/s; from a run in "
+              'closed loop J_theta comes out high (the controllers acted on that noise): '
+              'about +3 to +4 % at 0.01 rad/s on the shipped excitation '
+              '(docs/identification.md section 7)')
 
 
 def _inputs(args: argparse.Namespace) -> tuple:

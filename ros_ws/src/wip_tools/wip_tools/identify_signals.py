@@ -38,6 +38,9 @@ MAX_GAP_PERIODS = 3.0
 IRREGULAR_STAMP_FRACTION = 0.25
 #: scripts/identify notes irregular stamps above this fraction of the intervals.
 IRREGULAR_STAMPS_NOTED = 0.01
+#: [rad/s] Gyro white noise above which scripts/identify notes the closed loop's bias of
+#: J_theta (over 2 % on the shipped excitation; docs/identification.md §7).
+GYRO_NOISE_NOTED = 0.005
 
 
 class IdentifyError(ValueError):
@@ -309,6 +312,22 @@ def irregular_stamps(record: Mapping, group: str = 'encoders') -> float:
     if not period > 0.0:
         return 0.0
     return float(np.mean(np.abs(gaps - period) > IRREGULAR_STAMP_FRACTION * period))
+
+
+def gyro_white_noise(record: Mapping) -> float:
+    """Return the std [rad/s] of the white noise on the IMU's pitch rate (0 without one).
+
+    From the second differences of the samples: white noise of std σ gives them the
+    variance 6σ², the body's motion next to nothing at a sensor's rate; the median
+    absolute deviation (× 1.4826) keeps bursts out of it.
+    """
+    if 'imu' not in record or len(record['imu']['t']) < 3:
+        return 0.0
+    second = np.diff(np.asarray(record['imu']['pitch_rate'], dtype=float), 2)
+    second = second[np.isfinite(second)]
+    if not len(second):
+        return 0.0
+    return float(1.4826 * np.median(np.abs(second - np.median(second))) / math.sqrt(6.0))
 
 
 def root_mean_square(x: np.ndarray) -> float:
