@@ -200,3 +200,14 @@ def test_bench_push_only_prints_each_case_against_its_bound(push_only):
         assert row['runs'] == (2 if row['noise'] else 1)
         assert row['ratio_min'] <= row['ratio'] <= row['ratio_max']
     assert printed.count('2: 0-0') == 4
+
+
+def test_the_commit_is_the_checkouts_wherever_the_bench_is_started(tmp_path, monkeypatch):
+    # scripts/bench writes into the working directory, which may be outside the checkout:
+    # the commit recorded is still the one of the code that ran.
+    import subprocess
+    root = os.path.dirname(os.path.realpath(bench.__file__))
+    expected = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], capture_output=True,
+                              text=True, check=False, cwd=root).stdout.strip()
+    monkeypatch.chdir(tmp_path)
+    assert bench._environment()['commit'] == expected

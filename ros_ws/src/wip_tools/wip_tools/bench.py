@@ -77,8 +77,11 @@ from wip_tools.realtime_bench import section_realtime
 def _environment() -> dict:
     commit = ''
     try:
+        # The checkout this code is in (the workspace links its sources), wherever the
+        # bench is started from: it writes its outputs into the working directory.
         commit = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], capture_output=True,
-                                text=True, check=False, timeout=5).stdout.strip()
+                                text=True, check=False, timeout=5,
+                                cwd=os.path.dirname(os.path.realpath(__file__))).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         pass
     # The interpreter behind the venv: an optimised build and a plain source build of the
