@@ -85,6 +85,32 @@ def test_a_stall_on_the_first_ticks_starts_the_graph_again(tmp_path, monkeypatch
     assert summary['topics']['/wip/ground_truth']['message_count'] == 201
 
 
+def test_a_start_answer_lost_while_a_short_run_ends_is_not_a_failure(tmp_path, monkeypatch):
+    # On a loaded machine the plant's answer to /plant/start can come later than the call's
+    # timeout; a 1 s scenario may meanwhile have run to its end. Simulated: the first
+    # successful answer is withheld until the plant has exited.
+    from wip_bringup.probe import Probe
+    runner = GraphRunner(GraphOptions(out=str(tmp_path / 'run'), duration=1.0, quiet=True))
+    real_call_start = Probe.call_start
+    withheld = []
+
+    def call_start(probe, timeout):
+        response = real_call_start(probe, timeout)
+        if response is not None and response.success and not withheld:
+            withheld.append(response)
+            plant = runner.processes[runner.plant_process]
+            deadline = time.monotonic() + START_TIMEOUT
+            while plant.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.05)
+            return None
+        return response
+    monkeypatch.setattr(Probe, 'call_start', call_start)
+    result = runner.run()
+    assert withheld, 'the plant was never started'
+    assert result.exit_code == 0, result.message
+    assert result.plant_stats['ticks'] == 200
+
+
 #: A process that takes argv[1] seconds to end after its stop signal (SIGINT or SIGTERM).
 SLOW_STOP = """
 import signal, sys, time

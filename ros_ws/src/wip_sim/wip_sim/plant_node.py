@@ -97,7 +97,7 @@ from wip_runtime.cli import EXIT_FAILED, EXIT_INTERNAL, EXIT_OK, EXIT_USAGE
 
 from .plant_report import diagnostic_status, format_timing, run_stats, TickTimer
 from .sensor_messages import gps_message, imu_message, set_stamp, write_fix
-from .settings import PlantNodeParams, StartHandshake
+from .settings import ALREADY_STARTED, PlantNodeParams, StartHandshake
 
 # The tools' table (wip_runtime.cli): a fall is 1, a bad parameter 2, a simulation
 # that failed (non-finite state) an internal error, 3.
@@ -248,7 +248,7 @@ class PlantNode(IntraProcessNode):
     def _on_start(self, request, response):
         if self.started:
             response.success = False
-            response.message = 'already started'
+            response.message = ALREADY_STARTED
             return response
         missing = self.unmatched()
         if missing:

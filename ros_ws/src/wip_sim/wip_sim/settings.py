@@ -17,6 +17,9 @@ from wip_sim.core.scenario import Scenario
 #: composes the viewer node too. Here, not in :mod:`wip_sim.simulation`, so that a launcher
 #: reads it without importing the nodes.
 WITH_VIEWER = '--with-viewer'
+#: The plant's answer to a start request once it has started (a launcher whose first
+#: request's answer was lost or late reads it as started).
+ALREADY_STARTED = 'already started'
 
 
 def _scenario_file():
