@@ -9,6 +9,7 @@ import contextlib
 import io
 import json
 import os
+import subprocess
 import sys
 
 import pytest
@@ -205,7 +206,6 @@ def test_bench_push_only_prints_each_case_against_its_bound(push_only):
 def test_the_commit_is_the_checkouts_wherever_the_bench_is_started(tmp_path, monkeypatch):
     # scripts/bench writes into the working directory, which may be outside the checkout:
     # the commit recorded is still the one of the code that ran.
-    import subprocess
     root = os.path.dirname(os.path.realpath(bench.__file__))
     expected = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], capture_output=True,
                               text=True, check=False, cwd=root).stdout.strip()

@@ -55,12 +55,12 @@ def _robot_run(model, seed):
     return _RUNS[key]
 
 
-def _check(fit, scenario):
+def _check(fit, scenario, tolerance=0.05):
     true = identify.true_values(scenario.plant.parameters)
     errors = {k: fit.value(k) / true[k] - 1.0 if fit.value(k) else None for k in DETERMINED}
     for key, error in errors.items():
         assert error is not None, (key, fit.estimates[key].reason)
-        assert abs(error) < 0.05, (key, errors)
+        assert abs(error) < tolerance, (key, errors)
     return errors
 
 
@@ -156,9 +156,7 @@ def test_the_fit_is_unbiased_when_the_gyro_noise_is_not_the_one_the_controllers_
                   'imu': dict(imu, pitch_rate=rate + noise)}
         fit = identify.identify(record, scenario.controller_model.parameters, model='full',
                                 friction=True)
-        true = identify.true_values(scenario.plant.parameters)
-        for key in DETERMINED:
-            assert abs(fit.value(key) / true[key] - 1.0) < 0.015, (seed, key, fit.value(key))
+        _check(fit, scenario, tolerance=0.015)
 
 
 @pytest.mark.parametrize('seed', SEEDS)

@@ -40,7 +40,8 @@ from wip_runtime.cli import add_exit_codes, EXIT_OK, EXIT_USAGE, exit_with
 from wip_tools.identify_record import best_source, choose_model, load_record, TORQUE_SOURCES
 from wip_tools.identify_signals import (CUTOFF_HZ, GYRO_NOISE_NOTED, IRREGULAR_STAMPS_NOTED,
                                         IdentifyError, gyro_white_noise, irregular_stamps,
-                                        regressors, root_mean_square, uniform_signals)
+                                        regressors, robust_std, root_mean_square,
+                                        uniform_signals)
 
 #: The fitted parameters, in the column order of the regressor matrix.
 NAMES = ('effective_mass', 'mpl', 'pitch_inertia', 'mpl2', 'yaw_inertia_total', 'friction',
@@ -199,7 +200,7 @@ def _weighted_fit(a: np.ndarray, y: np.ndarray, n: int) -> tuple:
         floor = max(1e-12, 1e-9 * root_mean_square(y))
         w = 1.0 / np.maximum(rms, floor)
         if pass_ >= 1:
-            sigma = [1.4826 * float(np.median(np.abs(b[inlier]))) for b in blocks]
+            sigma = [robust_std(b[inlier]) for b in blocks]
             inlier = np.all([np.abs(b) <= REJECT_SIGMAS * max(sd, floor)
                              for b, sd in zip(blocks, sigma)], axis=0)
             if inlier.sum() < max(10, n // 2):     # not outliers: the model is wrong

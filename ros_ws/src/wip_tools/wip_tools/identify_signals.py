@@ -327,7 +327,12 @@ def gyro_white_noise(record: Mapping) -> float:
     second = second[np.isfinite(second)]
     if not len(second):
         return 0.0
-    return float(1.4826 * np.median(np.abs(second - np.median(second))) / math.sqrt(6.0))
+    return robust_std(second - np.median(second)) / math.sqrt(6.0)
+
+
+def robust_std(deviations: np.ndarray) -> float:
+    """1.4826 × the median |deviation|: the std of normal deviations, outliers aside."""
+    return 1.4826 * float(np.median(np.abs(deviations)))
 
 
 def root_mean_square(x: np.ndarray) -> float:
