@@ -1,8 +1,9 @@
 """The numba-compiled kernels of the core, imported and warmed up once per process.
 
-Each kernel module (``mpc_kernel``, ``qp_polish``) has a ``warm_up()`` that loads its code
-from numba's cache or compiles it. It is called where a controller is made, not in its
-first tick, and a process that makes no MPC does not import numba.
+Each kernel module (``mpc_kernel``, ``qp_polish``, ``retiming_kernel``) has a ``warm_up()``
+that loads its code from numba's cache or compiles it. It is called where a controller is
+made, not in its first tick, and a process that makes no MPC (or a real-time reference
+node) does not import numba.
 ``python3 -m wip_control.core.compiled`` fills numba's cache of all of them (scripts/setup
 and the Docker image do, after building).
 """
@@ -12,10 +13,12 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
-#: The kernel modules of the controllers: the MPC's QP assembly, the QP's polish.
+#: The kernel modules of the controllers: the MPC's QP assembly, the QP's polish, the
+#: time-scaled reference's real-time sample.
 MPC_KERNEL = f'{__package__}.mpc_kernel'
 QP_POLISH = f'{__package__}.qp_polish'
-KERNELS = (MPC_KERNEL, QP_POLISH)
+RETIMING_KERNEL = f'{__package__}.retiming_kernel'
+KERNELS = (MPC_KERNEL, QP_POLISH, RETIMING_KERNEL)
 
 _loaded: dict[str, ModuleType] = {}
 

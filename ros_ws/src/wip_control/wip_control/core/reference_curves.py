@@ -33,26 +33,133 @@ from .reference_state import Reference, ReferenceState
 _HALF_PI = 0.5 * math.pi
 
 
-def _from_derivatives(x: float, y: float, phi: float, xd: float, yd: float, xdd: float,
-                      ydd: float, xddd: float, yddd: float) -> ReferenceState:
-    """ReferenceState from position derivatives (speed must be > 0)."""
+# The closed forms are module functions of a parameter tuple ``p`` and t, with ``math``
+# only, so that the time scaling's compiled kernel (retiming_kernel.py) compiles these very
+# functions: one home for each formula, the same floats interpreted or compiled.
+
+def state_from_derivatives(x: float, y: float, phi: float, xd: float, yd: float, xdd: float,
+                           ydd: float, xddd: float, yddd: float) -> tuple[float, ...]:
+    """(x, y, ϕ, υ, ω, ω̇) from position derivatives (speed must be > 0)."""
     v2 = xd * xd + yd * yd
     omega = (xd * ydd - yd * xdd) / v2
     omega_dot = ((xd * yddd - yd * xddd) - 2.0 * omega * (xd * xdd + yd * ydd)) / v2
-    return ReferenceState(x, y, phi, math.sqrt(v2), omega, omega_dot)
+    return x, y, phi, math.sqrt(v2), omega, omega_dot
 
 
-def _speed_and_yaw_rate(xd: float, yd: float, xdd: float, ydd: float,
-                        *_third: float) -> tuple[float, float]:
+def speed_and_yaw_rate_from_derivatives(xd: float, yd: float, xdd: float,
+                                        ydd: float) -> tuple[float, float]:
     """(υ_r, ω_r) from the derivatives.
 
-    The expressions of :func:`_from_derivatives`, so the same floats.
+    The expressions of :func:`state_from_derivatives`, so the same floats.
     """
     v2 = xd * xd + yd * yd
     return math.sqrt(v2), (xd * ydd - yd * xdd) / v2
 
 
-class Trifolium(Reference):
+def trifolium_derivatives(p: tuple, t: float) -> tuple[float, ...]:
+    """(ẋ, ẏ, ẍ, ÿ, x⃛, y⃛) of the trifolium p = (κ, Ω) at t."""
+    a_half, w = 0.5 * p[0], p[1]
+    angle_a, angle_b = 4.0 * w * t, 2.0 * w * t
+    ca, sa = math.cos(angle_a), math.sin(angle_a)
+    cb, sb = math.cos(angle_b), math.sin(angle_b)
+    w2, w3 = w * w, w * w * w
+    return (a_half * w * (-4.0 * sa - 2.0 * sb), a_half * w * (4.0 * ca - 2.0 * cb),
+            -a_half * w2 * (16.0 * ca + 4.0 * cb), -a_half * w2 * (16.0 * sa - 4.0 * sb),
+            a_half * w3 * (64.0 * sa + 8.0 * sb), a_half * w3 * (-64.0 * ca + 8.0 * cb))
+
+
+def trifolium_state(p: tuple, t: float) -> tuple[float, ...]:
+    """(x, y, ϕ, υ, ω, ω̇) of the trifolium p = (κ, Ω) at t."""
+    w = p[1]
+    u = 3.0 * w * t
+    r = p[0] * math.cos(u)
+    su = math.sin(u)
+    wt = w * t
+    phi = 4.0 * w * t + _HALF_PI + math.atan2(math.sin(6.0 * w * t), 1.0 + 2.0 * su * su)
+    xd, yd, xdd, ydd, xddd, yddd = trifolium_derivatives(p, t)
+    return state_from_derivatives(r * math.cos(wt), r * math.sin(wt), phi, xd, yd, xdd, ydd,
+                                  xddd, yddd)
+
+
+def trifolium_speed_and_yaw_rate(p: tuple, t: float) -> tuple[float, float]:
+    """(υ_r, ω_r): the first two derivatives of :func:`trifolium_derivatives`, the same floats."""
+    a_half, w = 0.5 * p[0], p[1]
+    angle_a, angle_b = 4.0 * w * t, 2.0 * w * t
+    ca, sa = math.cos(angle_a), math.sin(angle_a)
+    cb, sb = math.cos(angle_b), math.sin(angle_b)
+    w2 = w * w
+    return speed_and_yaw_rate_from_derivatives(
+        a_half * w * (-4.0 * sa - 2.0 * sb), a_half * w * (4.0 * ca - 2.0 * cb),
+        -a_half * w2 * (16.0 * ca + 4.0 * cb), -a_half * w2 * (16.0 * sa - 4.0 * sb))
+
+
+def circle_state(p: tuple, t: float) -> tuple[float, ...]:
+    """(x, y, ϕ, υ, ω, ω̇) of the circle p = (cx, cy, R, υ, start angle, ±1, ω) at t."""
+    beta = p[4] + p[6] * t
+    return (p[0] + p[2] * math.cos(beta), p[1] + p[2] * math.sin(beta),
+            beta + p[5] * _HALF_PI, p[3], p[6], 0.0)
+
+
+def circle_speed_and_yaw_rate(p: tuple, t: float) -> tuple[float, float]:
+    """(υ_r, ω_r) of the circle: constant."""
+    return p[3], p[6]
+
+
+def line_state(p: tuple, t: float) -> tuple[float, ...]:
+    """(x, y, ϕ, υ, ω, ω̇) of the line p = (x0, y0, heading, υ, cos heading, sin heading)."""
+    d = p[3] * t
+    return p[0] + d * p[4], p[1] + d * p[5], p[2], p[3], 0.0, 0.0
+
+
+def line_speed_and_yaw_rate(p: tuple, t: float) -> tuple[float, float]:
+    """(υ_r, ω_r) of the line: constant."""
+    return p[3], 0.0
+
+
+def figure_eight_derivatives(p: tuple, t: float) -> tuple[float, ...]:
+    """(ẋ, ẏ, ẍ, ÿ, x⃛, y⃛) of the figure eight p = (cx, cy, a, 2π/P) at t."""
+    a, w = p[2], p[3]
+    tau = w * t
+    c1, s1 = math.cos(tau), math.sin(tau)
+    c2, s2 = math.cos(2.0 * tau), math.sin(2.0 * tau)
+    return (a * w * c1, a * w * c2, -a * w * w * s1, -2.0 * a * w * w * s2,
+            -a * w ** 3 * c1, -4.0 * a * w ** 3 * c2)
+
+
+def figure_eight_state(p: tuple, t: float) -> tuple[float, ...]:
+    """(x, y, ϕ, υ, ω, ω̇) of the figure eight p = (cx, cy, a, 2π/P) at t."""
+    tau = p[3] * t
+    c = math.cos(tau)
+    phi = -_HALF_PI + math.atan2(c, 1.0 - 2.0 * c * c)
+    xd, yd, xdd, ydd, xddd, yddd = figure_eight_derivatives(p, t)
+    return state_from_derivatives(p[0] + p[2] * math.sin(tau),
+                                  p[1] + 0.5 * p[2] * math.sin(2.0 * tau), phi,
+                                  xd, yd, xdd, ydd, xddd, yddd)
+
+
+def figure_eight_speed_and_yaw_rate(p: tuple, t: float) -> tuple[float, float]:
+    """(υ_r, ω_r) of the figure eight, the same floats as its state."""
+    xd, yd, xdd, ydd, _, _ = figure_eight_derivatives(p, t)
+    return speed_and_yaw_rate_from_derivatives(xd, yd, xdd, ydd)
+
+
+class ClosedFormCurve(Reference):
+    """A curve whose closed forms are the module functions of its ``parameters``.
+
+    ``KERNEL_KIND`` names it for the compiled time scaling (retiming_kernel.py).
+    """
+
+    KERNEL_KIND = -1
+    parameters: tuple = ()
+
+    def sample(self, t: float) -> ReferenceState:
+        return ReferenceState(*self._state(self.parameters, t))
+
+    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
+        return self._speed_and_yaw_rate(self.parameters, t)
+
+
+class Trifolium(ClosedFormCurve):
     """The paper's trifolium, Section V of [1]_: r = κ cos(3Ω t) at polar angle Ω t.
 
     Written as p = (κ/2)(e^{i4Ωt} + e^{−i2Ωt}) (complex plane), so every derivative is a
@@ -66,45 +173,22 @@ class Trifolium(Reference):
     angular_frequency : Ω [rad/s], > 0.
     """
 
+    KERNEL_KIND = 0
+    _state = staticmethod(trifolium_state)
+    _speed_and_yaw_rate = staticmethod(trifolium_speed_and_yaw_rate)
+
     def __init__(self, size: float = 3.0, angular_frequency: float = math.pi / 45.0) -> None:
         if not (size > 0.0 and angular_frequency > 0.0):
             raise ValueError('Trifolium: size and angular_frequency must be > 0')
         self.size = size
         self.angular_frequency = angular_frequency
+        self.parameters = (float(size), float(angular_frequency))
 
     def derivatives(self, t: float) -> tuple[float, ...]:
-        a_half, w = 0.5 * self.size, self.angular_frequency
-        angle_a, angle_b = 4.0 * w * t, 2.0 * w * t
-        ca, sa = math.cos(angle_a), math.sin(angle_a)
-        cb, sb = math.cos(angle_b), math.sin(angle_b)
-        w2, w3 = w * w, w * w * w
-        return (a_half * w * (-4.0 * sa - 2.0 * sb), a_half * w * (4.0 * ca - 2.0 * cb),
-                -a_half * w2 * (16.0 * ca + 4.0 * cb), -a_half * w2 * (16.0 * sa - 4.0 * sb),
-                a_half * w3 * (64.0 * sa + 8.0 * sb), a_half * w3 * (-64.0 * ca + 8.0 * cb))
-
-    def sample(self, t: float) -> ReferenceState:
-        w = self.angular_frequency
-        u = 3.0 * w * t
-        r = self.size * math.cos(u)
-        su = math.sin(u)
-        wt = w * t
-        phi = 4.0 * w * t + _HALF_PI + math.atan2(math.sin(6.0 * w * t), 1.0 + 2.0 * su * su)
-        return _from_derivatives(r * math.cos(wt), r * math.sin(wt), phi,
-                                 *self.derivatives(t))
-
-    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
-        # The first two derivatives of :meth:`derivatives`, the same expressions.
-        a_half, w = 0.5 * self.size, self.angular_frequency
-        angle_a, angle_b = 4.0 * w * t, 2.0 * w * t
-        ca, sa = math.cos(angle_a), math.sin(angle_a)
-        cb, sb = math.cos(angle_b), math.sin(angle_b)
-        w2 = w * w
-        return _speed_and_yaw_rate(
-            a_half * w * (-4.0 * sa - 2.0 * sb), a_half * w * (4.0 * ca - 2.0 * cb),
-            -a_half * w2 * (16.0 * ca + 4.0 * cb), -a_half * w2 * (16.0 * sa - 4.0 * sb))
+        return trifolium_derivatives(self.parameters, t)
 
 
-class Circle(Reference):
+class Circle(ClosedFormCurve):
     """Uniform motion on a circle.
 
     Parameters
@@ -116,6 +200,10 @@ class Circle(Reference):
     start_angle : polar angle of the start point about the centre [rad].
     """
 
+    KERNEL_KIND = 1
+    _state = staticmethod(circle_state)
+    _speed_and_yaw_rate = staticmethod(circle_speed_and_yaw_rate)
+
     def __init__(self, center: Sequence[float] = (0.0, 0.0), radius: float = 2.0,
                  speed: float = 0.5, direction: str = 'ccw', start_angle: float = 0.0) -> None:
         if not (radius > 0.0 and speed > 0.0):
@@ -126,6 +214,8 @@ class Circle(Reference):
         self.radius, self.speed, self.start_angle = radius, speed, start_angle
         self.sign = 1.0 if direction == 'ccw' else -1.0
         self.rate = self.sign * speed / radius
+        self.parameters = tuple(float(v) for v in (self.cx, self.cy, radius, speed,
+                                                   start_angle, self.sign, self.rate))
 
     def derivatives(self, t: float) -> tuple[float, ...]:
         beta = self.start_angle + self.rate * t
@@ -134,22 +224,17 @@ class Circle(Reference):
         return (-r * w * s, r * w * c, -r * w * w * c, -r * w * w * s, r * w ** 3 * s,
                 -r * w ** 3 * c)
 
-    def sample(self, t: float) -> ReferenceState:
-        beta = self.start_angle + self.rate * t
-        return ReferenceState(self.cx + self.radius * math.cos(beta),
-                              self.cy + self.radius * math.sin(beta),
-                              beta + self.sign * _HALF_PI, self.speed, self.rate, 0.0)
 
-    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
-        return self.speed, self.rate
-
-
-class StraightLine(Reference):
+class StraightLine(ClosedFormCurve):
     """Uniform motion on a straight line.
 
     The motion starts at ``start`` [m] and goes along ``heading`` [rad] at ``speed``
     [m/s] (≥ 0).
     """
+
+    KERNEL_KIND = 2
+    _state = staticmethod(line_state)
+    _speed_and_yaw_rate = staticmethod(line_speed_and_yaw_rate)
 
     def __init__(self, start: Sequence[float] = (0.0, 0.0), heading: float = 0.0,
                  speed: float = 0.5) -> None:
@@ -158,20 +243,14 @@ class StraightLine(Reference):
         self.x0, self.y0 = start
         self.heading, self.speed = heading, speed
         self._c, self._s = math.cos(heading), math.sin(heading)
+        self.parameters = tuple(float(v) for v in (self.x0, self.y0, heading, speed,
+                                                   self._c, self._s))
 
     def derivatives(self, t: float) -> tuple[float, ...]:
         return (self.speed * self._c, self.speed * self._s, 0.0, 0.0, 0.0, 0.0)
 
-    def sample(self, t: float) -> ReferenceState:
-        d = self.speed * t
-        return ReferenceState(self.x0 + d * self._c, self.y0 + d * self._s, self.heading,
-                              self.speed, 0.0, 0.0)
 
-    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
-        return self.speed, 0.0
-
-
-class FigureEight(Reference):
+class FigureEight(ClosedFormCurve):
     """Lemniscate of Gerono: x = cx + a sin τ, y = cy + (a/2) sin 2τ, τ = 2π t/P.
 
     Starts at the centre heading 45°, first lobe to the right (counter-clockwise), the
@@ -186,6 +265,10 @@ class FigureEight(Reference):
     period : P, time for the whole figure [s], > 0.
     """
 
+    KERNEL_KIND = 3
+    _state = staticmethod(figure_eight_state)
+    _speed_and_yaw_rate = staticmethod(figure_eight_speed_and_yaw_rate)
+
     def __init__(self, center: Sequence[float] = (0.0, 0.0), size: float = 3.0,
                  period: float = 60.0) -> None:
         if not (size > 0.0 and period > 0.0):
@@ -193,22 +276,7 @@ class FigureEight(Reference):
         self.cx, self.cy = center
         self.size, self.period = size, period
         self.rate = 2.0 * math.pi / period
+        self.parameters = tuple(float(v) for v in (self.cx, self.cy, size, self.rate))
 
     def derivatives(self, t: float) -> tuple[float, ...]:
-        a, w = self.size, self.rate
-        tau = w * t
-        c1, s1 = math.cos(tau), math.sin(tau)
-        c2, s2 = math.cos(2.0 * tau), math.sin(2.0 * tau)
-        return (a * w * c1, a * w * c2, -a * w * w * s1, -2.0 * a * w * w * s2,
-                -a * w ** 3 * c1, -4.0 * a * w ** 3 * c2)
-
-    def sample(self, t: float) -> ReferenceState:
-        tau = self.rate * t
-        c = math.cos(tau)
-        phi = -_HALF_PI + math.atan2(c, 1.0 - 2.0 * c * c)
-        return _from_derivatives(self.cx + self.size * math.sin(tau),
-                                 self.cy + 0.5 * self.size * math.sin(2.0 * tau), phi,
-                                 *self.derivatives(t))
-
-    def speed_and_yaw_rate(self, t: float) -> tuple[float, float]:
-        return _speed_and_yaw_rate(*self.derivatives(t))
+        return figure_eight_derivatives(self.parameters, t)

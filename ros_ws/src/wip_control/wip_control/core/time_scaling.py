@@ -13,6 +13,8 @@ import threading
 from typing import Hashable
 
 from .integration import rk4_step
+from .retiming import (hermite_progress, interpolated_rate, interpolated_sigma, raw_rate,
+                       retimed_speed, retimed_state, speeding_up)
 from .reference_state import Reference, ReferenceState
 
 
@@ -91,6 +93,7 @@ class TimeScaled(Reference):
                 raise ValueError(f'TimeScaled: {label} must be finite and >= 0, got {value!r}')
         self.speed_lead_time = float(speed_lead_time)
         self.speed_lead_time_accelerating = float(speed_lead_time_accelerating)
+        self._lead_max = max(self.speed_lead_time, self.speed_lead_time_accelerating)
         self.base = base
         self.max_speed = float(max_speed)
         self.max_yaw_rate = float(max_yaw_rate)
@@ -114,15 +117,14 @@ class TimeScaled(Reference):
         #: decided (see MEMO_TRIAL_TIME).
         self._memo_trial: list | None = None
         self._memo_kept = False
+        #: The compiled sample (retiming_kernel.sample) and the base's parameters as an
+        #: array, once :meth:`use_compiled` has checked them; None: interpreted.
+        self._kernel = None
+        self._kernel_parameters = None
 
     def _raw_rate(self, v: float, omega: float) -> float:
         """σ0 for the base's speed ``v`` and yaw rate ``omega``."""
-        sigma = 1.0
-        if v > self.max_speed:
-            sigma = self.max_speed / v
-        if abs(omega) * sigma > self.max_yaw_rate:
-            sigma = self.max_yaw_rate / abs(omega)
-        return sigma
+        return raw_rate(v, omega, self.max_speed, self.max_yaw_rate)
 
     def _extend_sigma(self, index: int) -> None:
         """Tabulate σ up to grid node ``index`` (σ0 up to ``index`` + window)."""
@@ -152,31 +154,20 @@ class TimeScaled(Reference):
 
     def _sigma_and_slope(self, s: float) -> tuple[float, float]:
         """σ(s) (linear between grid nodes) and dσ/ds; s < 0 takes σ(0)."""
-        if s <= 0.0:
-            self._extend_sigma(1)
-            return self._sigma[0], 0.0
-        u = s / self.step
-        i = int(u)
-        sigma = self._sigma
-        if i + 1 >= len(sigma):   # (tested here: a call per sample costs more than the test)
+        i = int(s / self.step) if s > 0.0 else 0
+        if i + 1 >= len(self._sigma):   # (tested here: a call per sample costs more than the test)
             self._extend_sigma(i + 1)
-        a, b = sigma[i], sigma[i + 1]
-        return a + (b - a) * (u - i), (b - a) / self.step
+        return interpolated_sigma(s, self.step, self._sigma)
 
     def rate_at(self, s: float) -> float:
         """σ(s) = ds/dt ∈ (0, 1] (linear between the grid nodes).
 
         The σ of :meth:`_sigma_and_slope`, without the slope.
         """
-        if s <= 0.0:
-            return self._sigma_and_slope(s)[0]
-        u = s / self.step
-        i = int(u)
-        sigma = self._sigma
-        if i + 1 >= len(sigma):
+        i = int(s / self.step) if s > 0.0 else 0
+        if i + 1 >= len(self._sigma):
             self._extend_sigma(i + 1)
-        a = sigma[i]
-        return a + (sigma[i + 1] - a) * (u - i)
+        return interpolated_rate(s, self.step, self._sigma)
 
     def _rate_of_progress(self, _t: float, s: float) -> float:
         """ṡ = σ(s), the right-hand side whose solution is s(t)."""
@@ -204,30 +195,27 @@ class TimeScaled(Reference):
         """
         if not math.isfinite(t):
             raise ValueError(f'TimeScaled: time must be finite, got {t!r}')
-        if t <= 0.0:
-            return self._rate[0] * t
-        n = int(t / self.step)
-        if n + 1 >= len(self._s):   # beyond the table (else t < the last node)
-            known = (len(self._s) - 1) * self.step
-            if t > known + self.MAX_EXTENSION:
-                raise ValueError(f'TimeScaled: t = {t:g} s is more than '
-                                 f'{self.MAX_EXTENSION:g} s beyond the times sampled so far '
-                                 f'({known:g} s); the time-scaled reference is integrated '
-                                 'from t = 0')
-            self._extend(n + 1)
-        h = self.step
-        u = t / h - n
-        s0, s1, r0, r1 = self._s[n], self._s[n + 1], self._rate[n], self._rate[n + 1]
-        u2, u3 = u * u, u * u * u
-        return ((2 * u3 - 3 * u2 + 1) * s0 + (u3 - 2 * u2 + u) * h * r0
-                + (-2 * u3 + 3 * u2) * s1 + (u3 - u2) * h * r1)
+        if t > 0.0:
+            n = int(t / self.step)
+            if n + 1 >= len(self._s):   # beyond the table (else t < the last node)
+                self._extend_to(t, n + 1)
+        return hermite_progress(t, self.step, self._s, self._rate)
+
+    def _extend_to(self, t: float, n: int) -> None:
+        """Extend s(t) to node ``n`` (for time ``t``), unless t is absurdly far ahead."""
+        known = (len(self._s) - 1) * self.step
+        if t > known + self.MAX_EXTENSION:
+            raise ValueError(f'TimeScaled: t = {t:g} s is more than '
+                             f'{self.MAX_EXTENSION:g} s beyond the times sampled so far '
+                             f'({known:g} s); the time-scaled reference is integrated '
+                             'from t = 0')
+        self._extend(n)
 
     def _speed_at(self, t: float) -> float:
         """Re-timed speed υ_r(s) σ(s) at s = s(t): ``sample(t).v`` without the lead."""
         s = self.progress(t)
         v, omega = self.base.speed_and_yaw_rate(s)
-        # Between grid nodes the linear σ may exceed σ0 by O(step²): never above it.
-        return v * min(self.rate_at(s), self._raw_rate(v, omega))
+        return retimed_speed(v, omega, self.rate_at(s), self.max_speed, self.max_yaw_rate)
 
     def _timed(self, t: float) -> ReferenceState:
         """Return the re-timed state at t, without the speed lead.
@@ -235,11 +223,9 @@ class TimeScaled(Reference):
         The base's pose at s(t), υ_r σ, ω_r σ and σ (ω̇_r σ + ω_r dσ/ds).
         """
         s = self.progress(t)
-        ref = self.base.sample(s)
         sigma, d_sigma = self._sigma_and_slope(s)
-        sigma = min(sigma, self._raw_rate(ref.v, ref.omega))   # as in _speed_at
-        return ReferenceState(ref.x, ref.y, ref.phi, ref.v * sigma, ref.omega * sigma,
-                              sigma * (ref.omega_dot * sigma + ref.omega * d_sigma))
+        return ReferenceState(*retimed_state(*self.base.sample(s), sigma, d_sigma,
+                                             self.max_speed, self.max_yaw_rate))
 
     def sample(self, t: float) -> ReferenceState:
         if self.speed_lead_time <= 0.0:
@@ -294,13 +280,95 @@ class TimeScaled(Reference):
         self._memo = None
         return True
 
+    def use_compiled(self) -> str:
+        """Sample with the compiled kernel, without the memo: for a loop in real time.
+
+        Only for a closed-form base (``KERNEL_KIND``). The kernel is checked against the
+        interpreted sample at times over the first seconds first. Return '' when it is used,
+        else why not. The memo serves loops on a time grid; a node in real time samples at
+        sensor stamps, where the memo would only run its trial in vain (the samples are the
+        same floats either way).
+        """
+        kind = getattr(self.base, 'KERNEL_KIND', -1)
+        if kind < 0:
+            return f'no compiled form of a {type(self.base).__name__} base'
+        from .compiled import load_compiled, RETIMING_KERNEL
+        import numpy as np
+        module = load_compiled(RETIMING_KERNEL)
+        parameters = np.array(self.base.parameters, dtype=float)
+        difference = self._kernel_difference(module.sample, kind, parameters)
+        if difference:
+            module.refresh()   # numba's cache stale (a formula changed since it was filled)
+            difference = self._kernel_difference(module.sample, kind, parameters)
+        if difference:
+            return f'the compiled sample differs from the interpreted one {difference}'
+        self._kernel, self._kernel_parameters = module.sample, parameters
+        self._memo = None
+        return ''
+
+    def _kernel_difference(self, kernel, kind: int, parameters) -> str:
+        """Where ``kernel`` differs from the interpreted sample over the first seconds ('')."""
+        for k in range(_KERNEL_CHECKS):
+            t = k * _KERNEL_CHECK_SPACING - 0.5
+            self._cover(t)
+            arrays = self._tables.arrays
+            compiled = kernel(t, self.speed_lead_time, self.speed_lead_time_accelerating,
+                              self.step, arrays.s, arrays.rate, arrays.sigma, self.max_speed,
+                              self.max_yaw_rate, kind, parameters)
+            interpreted = tuple(self._interpreted_sample(t))
+            if tuple(compiled) != interpreted:
+                return f'at t = {t!r}: {tuple(compiled)} != {interpreted}'
+        return ''
+
+    def _cover(self, t: float) -> bool:
+        """Make the tables' arrays reach t and t + either lead; False if t is not finite.
+
+        Or if it is too far ahead (:meth:`progress` raises then). The tables are extended
+        ``_KERNEL_AHEAD`` nodes beyond the need, so that they grow in chunks.
+        """
+        t_max = t + self._lead_max
+        if not math.isfinite(t_max):
+            return False
+        arrays = self._tables.arrays
+        if arrays is None:
+            arrays = self._tables.arrays = _NodeArrays()
+        elif t_max < arrays.covered_until:
+            return True
+        h = self.step
+        n = int(max(t_max, 0.0) / h) + _KERNEL_AHEAD
+        if n + 1 >= len(self._s):
+            known = (len(self._s) - 1) * h
+            if t_max > known + self.MAX_EXTENSION:
+                return False
+            self._extend(n + 1)
+        # σ one node beyond the last s: Hermite between two nodes may overshoot s a little.
+        self._extend_sigma(int(self._s[-1] / h) + 2)
+        arrays.update(self._tables)
+        arrays.covered_until = (len(self._s) - 2) * h
+        return True
+
     def _speeding_up(self, v_ahead: float, v: float) -> bool:
         """Whether the lead of the accelerations replaces the speed lead's υ ``v_ahead``."""
-        return (abs(v_ahead) > abs(v)
-                and self.speed_lead_time_accelerating != self.speed_lead_time)
+        return speeding_up(v_ahead, v, self.speed_lead_time, self.speed_lead_time_accelerating)
 
     def _sample_unremembered(self, t: float) -> ReferenceState:
         """:meth:`sample` without the memo: the lead's speeds alone, the same floats."""
+        kernel = self._kernel
+        # (-inf < t: −inf and NaN go to _cover, which refuses them: interpreted, they raise.)
+        if kernel is not None and (
+                _NEGATIVE_INFINITY < t
+                and t + self._lead_max < self._tables.arrays.covered_until
+                or self._cover(t)):
+            arrays = self._tables.arrays
+            return ReferenceState(*kernel(
+                t, self.speed_lead_time, self.speed_lead_time_accelerating, self.step,
+                arrays.s, arrays.rate, arrays.sigma, self.max_speed, self.max_yaw_rate,
+                self.base.KERNEL_KIND, self._kernel_parameters))
+        return self._interpreted_sample(t)
+
+    def _interpreted_sample(self, t: float) -> ReferenceState:
+        # retiming_kernel.sample is this method compiled (tests check that they agree to the
+        # bit); a change here is a change there.
         state = self._timed(t)
         v_ahead = self._speed_at(t + self.speed_lead_time)
         if self._speeding_up(v_ahead, state.v):
@@ -324,7 +392,7 @@ class RetimingTables:
     #: tables of a long run after it.
     MAX_SHARED_NODES = 100_000
 
-    __slots__ = ('raw', 'sigma', 's', 'rate', 'lock')
+    __slots__ = ('raw', 'sigma', 's', 'rate', 'lock', 'arrays')
 
     def __init__(self) -> None:
         self.raw: list[float] = []
@@ -332,7 +400,48 @@ class RetimingTables:
         self.s: list[float] = []
         self.rate: list[float] = []
         self.lock = threading.RLock()   # reentrant: extending s extends σ
+        #: The nodes as arrays for the compiled kernel (made by its first use).
+        self.arrays: _NodeArrays | None = None
 
+
+class _NodeArrays:
+    """The nodes of s, σ(s) and σ as numpy arrays, for the compiled kernel.
+
+    Copied from the tables' lists as they grow (only the new nodes; the buffers double).
+    ``s``, ``rate`` and ``sigma`` are views of the nodes known; ``covered_until`` [s] is
+    the last time the kernel may sample (``TimeScaled._cover``).
+    """
+
+    __slots__ = ('_empty', '_buffers', 's', 'rate', 'sigma', 'covered_until')
+
+    def __init__(self) -> None:
+        import numpy as np   # only where the kernel is used
+        self._empty = np.empty
+        self._buffers = [np.empty(0), np.empty(0), np.empty(0)]
+        self.s = self.rate = self.sigma = self._buffers[0]
+        self.covered_until = -math.inf
+
+    def update(self, tables: 'RetimingTables') -> None:
+        views = []
+        for i, (values, view) in enumerate(((tables.s, self.s), (tables.rate, self.rate),
+                                            (tables.sigma, self.sigma))):
+            known, size = len(view), len(values)
+            buffer = self._buffers[i]
+            if size > len(buffer):
+                grown = self._empty(max(size, 2 * len(buffer), 1024))
+                grown[:known] = buffer[:known]
+                buffer = self._buffers[i] = grown
+            buffer[known:size] = values[known:size]
+            views.append(buffer[:size])
+        self.s, self.rate, self.sigma = views
+
+
+_NEGATIVE_INFINITY = -math.inf
+#: Extra s nodes the tables are extended by for the compiled kernel, so they grow in chunks.
+_KERNEL_AHEAD = 25
+#: Times at which :meth:`TimeScaled.use_compiled` compares the kernel with the interpreted
+#: sample, spaced off the grid, from t = -0.5 s.
+_KERNEL_CHECKS, _KERNEL_CHECK_SPACING = 24, 0.2513
 
 #: Per thread: configuration key -> RetimingTables, the most recently used last.
 _shared = threading.local()

@@ -72,6 +72,7 @@ from ..core.reference_state import ReferenceState
 from ..core.safety import SafetyDecision
 from ..core.state_estimation import PoseEstimate
 from ..core.references import COMMANDED_KINDS, make_reference, ReferenceParams
+from ..core.time_scaling import TimeScaled
 from ..core.controller_settings import RatesParams
 from .common import ControllerNode
 from wip_runtime.clock import ClockTicker
@@ -98,6 +99,7 @@ class ReferenceNode(ControllerNode):
         self.realtime_start = settings.realtime_start
         self.waiting = not self.lockstep and self.realtime_start == 'engaged'
         self.reference = make_reference(self.config)
+        self._compile_reference()
         self.commanded = self.config.kind in COMMANDED_KINDS
         if self.config.kind == 'cmd_vel':
             # A teleop on another computer: its clock may lead ours a little (chrony).
@@ -146,6 +148,20 @@ class ReferenceNode(ControllerNode):
         else:
             self.diagnostics.state(OK, f'{self.config.kind} reference at '
                                    f'{self.rates.control_rate:g} Hz')
+
+    def _compile_reference(self) -> None:
+        """Sample a time-scaled reference compiled in real time (at sensor stamps).
+
+        Off the control grid the reference cannot remember its states
+        (``TimeScaled.sample``); the compiled sample does the same in one call.
+        """
+        if self.lockstep or not isinstance(self.reference, TimeScaled):
+            return
+        why_not = self.reference.use_compiled()
+        if not why_not:
+            self.get_logger().info('time-scaled reference: the compiled sample')
+        elif getattr(self.reference.base, 'KERNEL_KIND', -1) >= 0:
+            self.get_logger().warning(f'time-scaled reference interpreted: {why_not}')
 
     def _add_input(self, name: str) -> None:
         """Report the age of the command input on /diagnostics too."""
