@@ -172,20 +172,27 @@ class SafetyMonitor:
         position [m] (the runaway guard's input).
         """
         n = len(StateEstimate._fields)
-        try:
-            values = tuple(float(v) for v in estimate)
-        except (TypeError, ValueError) as err:
-            self.invalid_input(ESTIMATE, t, f'not a sequence of numbers: {err}')
-            return
-        if len(values) != n:
-            self.invalid_input(ESTIMATE, t, f'{len(values)} values, expected {n}')
-            return
-        bad = [f'{k}={v!r}' for i, (k, v) in enumerate(zip(StateEstimate._fields, values))
-               if i != _EPSILON and not math.isfinite(v)]
-        if bad:
-            self.invalid_input(ESTIMATE, t, f'non-finite {", ".join(bad)}')
-            return
-        self._accept(ESTIMATE, t, StateEstimate(*values))
+        if estimate.__class__ is StateEstimate:   # the estimator's own: numbers already
+            values = estimate
+        else:
+            try:
+                values = tuple(float(v) for v in estimate)
+            except (TypeError, ValueError) as err:
+                self.invalid_input(ESTIMATE, t, f'not a sequence of numbers: {err}')
+                return
+            if len(values) != n:
+                self.invalid_input(ESTIMATE, t, f'{len(values)} values, expected {n}')
+                return
+            values = StateEstimate(*values)
+        # One sum first (NaN and inf propagate; ε may be inf), each value only if it is not
+        # finite.
+        if not math.isfinite(sum(values) - values[_EPSILON]):
+            bad = [f'{k}={v!r}' for i, (k, v) in enumerate(zip(StateEstimate._fields, values))
+                   if i != _EPSILON and not math.isfinite(v)]
+            if bad:
+                self.invalid_input(ESTIMATE, t, f'non-finite {", ".join(bad)}')
+                return
+        self._accept(ESTIMATE, t, values)
         self.settled = bool(settled)
         self.position_status = int(position_status)
         self.pose = (float(x), float(y))

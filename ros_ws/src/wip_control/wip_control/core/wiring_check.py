@@ -176,7 +176,9 @@ class WiringCheck:
         self.tau_v = 0.0
         self.tau_omega = 0.0
         self.engaged_at: float | None = None
-        self.yaw = collections.deque(maxlen=self.window)     # (y, dw, sw) [rad/s]
+        # The yaw window's terms per sample [rad/s], a deque each (their sums are the
+        # window's, added in order): |y|, |dw − y|, |dw + y|, |sw − y|, |sw + y|.
+        self.yaw = tuple(collections.deque(maxlen=self.window) for _ in range(5))
         self.tilt: tuple | None = None   # (t, pitch_rate0, ∫fθ3, X, X', last t)
         self.since: dict[str, float] = {}   # check -> time its contradiction began
         # The margins seen (for /diagnostics): the last tilt ratio Y/X with enough
@@ -225,8 +227,9 @@ class WiringCheck:
         """
         if self.verdict is not None or not self.config.enabled:
             return self.verdict
-        values = (pitch, pitch_rate, yaw_rate, *(accel or ()))
-        if not all(math.isfinite(v) for v in values):
+        # One sum first (NaN and inf propagate), each value only if it is not finite.
+        if not (math.isfinite(pitch + pitch_rate + yaw_rate + (sum(accel) if accel else 0.0))
+                or all(map(math.isfinite, (pitch, pitch_rate, yaw_rate, *(accel or ()))))):
             return None
         for name, verdict in (('yaw', self._yaw(t, yaw_rate)),
                               ('tilt', self._tilt(t, pitch, pitch_rate, yaw_rate)),
@@ -242,25 +245,27 @@ class WiringCheck:
 
     # -- the checks ---------------------------------------------------------------------------
     def _yaw(self, t: float, yaw_rate: float) -> Verdict | None:
+        gyro, configured, joints, left_sign, right_sign = self.yaw
         if self.wheel_rates is None or t - self.wheel_time > 4.0 * self.period:
-            self.yaw.clear()
+            for terms in self.yaw:
+                terms.clear()
             return None
         k = self.params.wheel_radius / self.params.track_width
         left, right = self.wheel_rates
-        self.yaw.append((yaw_rate, k * (right - left), k * (right + left)))
-        if len(self.yaw) < self.window:
+        y, dw, sw = yaw_rate, k * (right - left), k * (right + left)
+        gyro.append(abs(y))
+        configured.append(abs(dw - y))
+        joints.append(abs(dw + y))
+        left_sign.append(abs(sw - y))
+        right_sign.append(abs(sw + y))
+        n = len(gyro)
+        if n < self.window:
             return None
-        y, dw, sw = (list(c) for c in zip(*self.yaw))
-        n = len(y)
-        excitation = sum(abs(v) for v in y) / n
+        excitation = sum(gyro) / n
         if excitation < self.config.min_yaw_rate:
             return None
-        miss = {
-            'configured': sum(abs(a - b) for a, b in zip(dw, y)) / n,
-            JOINTS: sum(abs(a + b) for a, b in zip(dw, y)) / n,
-            LEFT_SIGN: sum(abs(a - b) for a, b in zip(sw, y)) / n,
-            RIGHT_SIGN: sum(abs(a + b) for a, b in zip(sw, y)) / n,
-        }
+        miss = {'configured': sum(configured) / n, JOINTS: sum(joints) / n,
+                LEFT_SIGN: sum(left_sign) / n, RIGHT_SIGN: sum(right_sign) / n}
         relative = miss['configured'] / excitation
         if self.yaw_worst_miss is None or relative > self.yaw_worst_miss:
             self.yaw_worst_miss = relative
@@ -280,11 +285,12 @@ class WiringCheck:
         The recent samples (even fewer than a window) show the gyro turning and the
         configured wheels missing it: the yaw check, not the tilt, has the cause.
         """
-        if not self.yaw:
+        gyro, configured = self.yaw[:2]
+        if not gyro:
             return False
-        n = len(self.yaw)
-        excitation = sum(abs(y) for y, _, _ in self.yaw) / n
-        miss = sum(abs(dw - y) for y, dw, _ in self.yaw) / n
+        n = len(gyro)
+        excitation = sum(gyro) / n
+        miss = sum(configured) / n
         return excitation >= self.config.min_yaw_rate and miss >= _YAW_MISS * excitation
 
     def _yaw_advice(self, suspect: str) -> str:
