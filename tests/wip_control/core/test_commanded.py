@@ -5,7 +5,8 @@ import math
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from wip_control.core.commanded import (CmdVelReference, MAX_PATH_COORDINATE,
+from wip_control.core.commanded import (_cumulative, _point_on, _point_within, _polyline,
+                                        CmdVelReference, MAX_PATH_COORDINATE,
                                         PATH_END_TOLERANCE, PathReference, UnicycleLimits)
 from wip_control.core.references import make_reference, ReferenceParams
 
@@ -270,3 +271,26 @@ def test_any_sequence_of_paths_is_refused_or_followed_within_the_limits(sequence
     for (_, a), (_, b) in zip(samples, samples[1:]):
         assert all(math.isfinite(v) for v in b)
         assert math.hypot(b.x - a.x, b.y - a.y) <= LIMITS.max_speed * DT + 1e-9
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.tuples(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0)), min_size=2,
+                max_size=12),
+       st.lists(st.floats(0.0, 1.0), min_size=1, max_size=6))
+def test_a_point_within_a_segment_is_the_searched_one_to_the_bit(points, fractions):
+    # The path's projection finds the point on a segment directly: the same floats as
+    # the search along the whole path (_point_on), so a route is driven bit for bit as
+    # before; at a segment's end the search may take the next segment (None: searched).
+    polyline = _polyline(points)
+    if len(polyline) < 2:
+        return
+    cumulative = _cumulative(polyline)
+    for i in range(len(polyline) - 1):
+        (x0, y0), (x1, y1) = polyline[i], polyline[i + 1]
+        s0, s1 = cumulative[i], cumulative[i + 1]
+        for s in (s0, s1, s0 + (s1 - s0), *(s0 + f * (s1 - s0) for f in fractions)):
+            direct = _point_within(s, s0, s1, x0, y0, x1 - x0, y1 - y0)
+            if s == s0 or s0 < s < s1:
+                assert direct == _point_on(polyline, cumulative, s)
+            else:
+                assert direct is None

@@ -212,6 +212,21 @@ def _point_on(polyline: Sequence[tuple[float, float]], cumulative: Sequence[floa
     return x0 + f * (x1 - x0), y0 + f * (y1 - y0)
 
 
+def _point_within(s: float, s0: float, s1: float, x0: float, y0: float, dx: float,
+                  dy: float) -> tuple[float, float] | None:
+    """:func:`_point_on` of a point of the segment from (x0, y0) by (dx, dy), s in [s0, s1].
+
+    Without its search, the same floats (at the segment's start _point_on's point is
+    x0 + 0 dx). None at its end, where _point_on may take the next segment.
+    """
+    if s == s0:
+        return x0, y0
+    if s0 < s < s1:
+        f = (s - s0) / (s1 - s0)
+        return x0 + f * dx, y0 + f * dy
+    return None
+
+
 def _closest(polyline: Sequence[tuple[float, float]], cumulative: Sequence[float],
              x: float, y: float, window: float) -> float:
     """Arc length of the point of a polyline's first ``window`` [m] closest to (x, y).
@@ -395,7 +410,7 @@ class PathReference(Reference):
             dx, dy, seg = x1 - x0, y1 - y0, s1 - s0
             f = ((x - x0) * dx + (y - y0) * dy) / (seg * seg) if seg > 0.0 else 0.0
             s = max(self.progress, min(horizon, s0 + max(0.0, min(1.0, f)) * seg))
-            px, py = self._point_at(s)
+            px, py = _point_within(s, s0, s1, x0, y0, dx, dy) or self._point_at(s)
             d2 = (px - x) ** 2 + (py - y) ** 2
             if d2 < best_d2:
                 best, best_d2 = s, d2
