@@ -133,3 +133,34 @@ def test_references_sharing_tables_share_the_arrays_too():
                        first.step, first.speed_lead_time, first.speed_lead_time_accelerating,
                        tables=time_scaling.RetimingTables())
     assert [fresh._interpreted_sample(t) for t in np.arange(0.0, 50.0, 0.0137)] == far
+
+
+def test_a_loop_samples_a_closed_form_curve_compiled_and_a_waypoint_path_interpreted():
+    from wip_control.core.references import make_loop_reference
+
+    compiled, warning = make_loop_reference(ReferenceParams())
+    assert warning == '' and compiled.compiled
+    waypoints, warning = make_loop_reference(ReferenceParams(
+        kind='waypoints', time_scaling=True, waypoints_speed=1.0, waypoints_max_yaw_rate=0.5))
+    assert warning == '' and not waypoints.compiled
+    commanded, warning = make_loop_reference(ReferenceParams(kind='cmd_vel'))
+    assert warning == '' and not isinstance(commanded, TimeScaled)
+
+
+def test_the_in_process_run_records_the_same_bits_compiled_or_not(monkeypatch):
+    # The runner samples the reference compiled: every recorded channel is the interpreted
+    # run's to the bit (but the QP's wall-clock solve time).
+    import wip_sim.core.runner as runner
+    from wip_sim.core.scenario import scenario_from_mapping
+
+    scenario = scenario_from_mapping({'duration': 12.0})
+    compiled = runner.run_scenario(scenario).record.groups
+    monkeypatch.setattr(runner, 'make_loop_reference',
+                        lambda config: (make_reference(config), ''))
+    interpreted = runner.run_scenario(scenario).record.groups
+    assert compiled.keys() == interpreted.keys()
+    for group, channels in compiled.items():
+        for name, values in channels.items():
+            if (group, name) != ('mpc', 'solve_time'):
+                assert np.asarray(values).tobytes() == \
+                    np.asarray(interpreted[group][name]).tobytes(), (group, name)

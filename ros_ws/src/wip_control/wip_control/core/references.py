@@ -205,6 +205,18 @@ def make_reference(config: ReferenceParams | None = None) -> Reference:
     return base
 
 
+def make_loop_reference(config: ReferenceParams | None = None) -> tuple[Reference, str]:
+    """:func:`make_reference` for a control loop, and a warning ('' if none).
+
+    A time-scaled closed-form curve is sampled compiled (``TimeScaled.use_compiled``: the
+    same floats in one call); the warning says why a curve that has a compiled form is not.
+    """
+    reference = make_reference(config)
+    if not isinstance(reference, TimeScaled) or reference.base_kernel_kind < 0:
+        return reference, ''
+    return reference, reference.use_compiled()
+
+
 def _make_base_reference(config: ReferenceParams) -> Reference:
     if config.kind == 'trifolium':
         return Trifolium(config.trifolium_size, config.trifolium_angular_frequency)

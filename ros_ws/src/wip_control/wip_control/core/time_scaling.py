@@ -280,16 +280,26 @@ class TimeScaled(Reference):
         self._memo = None
         return True
 
+    @property
+    def base_kernel_kind(self) -> int:
+        """The base curve's kind for the compiled kernel (-1: none, e.g. a waypoint path)."""
+        return getattr(self.base, 'KERNEL_KIND', -1)
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the compiled kernel samples (:meth:`use_compiled`)."""
+        return self._kernel is not None
+
     def use_compiled(self) -> str:
-        """Sample with the compiled kernel, without the memo: for a loop in real time.
+        """Sample with the compiled kernel (retiming_kernel.py) instead of the memo.
 
         Only for a closed-form base (``KERNEL_KIND``). The kernel is checked against the
         interpreted sample at times over the first seconds first. Return '' when it is used,
-        else why not. The memo serves loops on a time grid; a node in real time samples at
-        sensor stamps, where the memo would only run its trial in vain (the samples are the
-        same floats either way).
+        else why not. The samples are the same floats either way; the kernel costs less than
+        the memo on a time grid (the runner, lockstep) and is the only fast way at sensor
+        stamps (real time), where the memo would only run its trial in vain.
         """
-        kind = getattr(self.base, 'KERNEL_KIND', -1)
+        kind = self.base_kernel_kind
         if kind < 0:
             return f'no compiled form of a {type(self.base).__name__} base'
         from .compiled import load_compiled, RETIMING_KERNEL

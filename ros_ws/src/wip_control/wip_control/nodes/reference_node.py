@@ -71,8 +71,7 @@ from ..core.obstacle_refusal import make_refusal
 from ..core.reference_state import ReferenceState
 from ..core.safety import SafetyDecision
 from ..core.state_estimation import PoseEstimate
-from ..core.references import COMMANDED_KINDS, make_reference, ReferenceParams
-from ..core.time_scaling import TimeScaled
+from ..core.references import COMMANDED_KINDS, make_loop_reference, ReferenceParams
 from ..core.controller_settings import RatesParams
 from .common import ControllerNode
 from wip_runtime.clock import ClockTicker
@@ -98,8 +97,7 @@ class ReferenceNode(ControllerNode):
         self.frame_id = settings.frame_id
         self.realtime_start = settings.realtime_start
         self.waiting = not self.lockstep and self.realtime_start == 'engaged'
-        self.reference = make_reference(self.config)
-        self._compile_reference()
+        self.reference = self._loop_reference()
         self.commanded = self.config.kind in COMMANDED_KINDS
         if self.config.kind == 'cmd_vel':
             # A teleop on another computer: its clock may lead ours a little (chrony).
@@ -149,19 +147,14 @@ class ReferenceNode(ControllerNode):
             self.diagnostics.state(OK, f'{self.config.kind} reference at '
                                    f'{self.rates.control_rate:g} Hz')
 
-    def _compile_reference(self) -> None:
-        """Sample a time-scaled reference compiled in real time (at sensor stamps).
-
-        Off the control grid the reference cannot remember its states
-        (``TimeScaled.sample``); the compiled sample does the same in one call.
-        """
-        if self.lockstep or not isinstance(self.reference, TimeScaled):
-            return
-        why_not = self.reference.use_compiled()
-        if not why_not:
+    def _loop_reference(self):
+        """Make the reference; a time-scaled curve sampled compiled (the same floats)."""
+        reference, warning = make_loop_reference(self.config)
+        if warning:
+            self.get_logger().warning(f'time-scaled reference interpreted: {warning}')
+        elif getattr(reference, 'compiled', False):
             self.get_logger().info('time-scaled reference: the compiled sample')
-        elif getattr(self.reference.base, 'KERNEL_KIND', -1) >= 0:
-            self.get_logger().warning(f'time-scaled reference interpreted: {why_not}')
+        return reference
 
     def _add_input(self, name: str) -> None:
         """Report the age of the command input on /diagnostics too."""

@@ -17,7 +17,7 @@ from typing import Callable
 
 from wip_control.core import control_step
 from wip_control.core.control_step import ControlStep
-from wip_control.core.references import make_reference
+from wip_control.core.references import make_loop_reference
 from wip_control.core.obstacle import ObstacleState
 from wip_control.core.state_estimation import StateEstimator
 
@@ -101,7 +101,7 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
     record_mpc_inputs : keep the arguments of every MPC call (for ``scripts/bench``).
     """
     wall_start = time.perf_counter()
-    reference = make_reference(scenario.reference)
+    reference, _ = make_loop_reference(scenario.reference)
     sim = Simulation(scenario, reference)
     # The estimator starts from the first measurements and the first GPS fix, as the ESO
     # node does (core/state_estimation.py).
