@@ -229,6 +229,10 @@ class TimeScaled(Reference):
 
     def sample(self, t: float) -> ReferenceState:
         if self.speed_lead_time <= 0.0:
+            # The kernel with no lead at all gives the re-timed state itself (its υ is
+            # _speed_at's, the same float), whatever the accelerating lead.
+            if self._kernel is not None and self._covered(t):
+                return self._compiled_sample(t, 0.0, 0.0)
             return self._timed(t)
         # With a speed lead, the re-timed states are remembered by their time (the float):
         # a loop sampling every h asks at t + T for a time it samples again later (the
@@ -363,18 +367,23 @@ class TimeScaled(Reference):
 
     def _sample_unremembered(self, t: float) -> ReferenceState:
         """:meth:`sample` without the memo: the lead's speeds alone, the same floats."""
-        kernel = self._kernel
-        # (-inf < t: −inf and NaN go to _cover, which refuses them: interpreted, they raise.)
-        if kernel is not None and (
-                _NEGATIVE_INFINITY < t
-                and t + self._lead_max < self._tables.arrays.covered_until
-                or self._cover(t)):
-            arrays = self._tables.arrays
-            return ReferenceState(*kernel(
-                t, self.speed_lead_time, self.speed_lead_time_accelerating, self.step,
-                arrays.s, arrays.rate, arrays.sigma, self.max_speed, self.max_yaw_rate,
-                self.base.KERNEL_KIND, self._kernel_parameters))
+        if self._kernel is not None and self._covered(t):
+            return self._compiled_sample(t, self.speed_lead_time,
+                                         self.speed_lead_time_accelerating)
         return self._interpreted_sample(t)
+
+    def _covered(self, t: float) -> bool:
+        """Whether the kernel may sample at ``t`` (the tables extended if needed)."""
+        # (-inf < t: −inf and NaN go to _cover, which refuses them: interpreted, they raise.)
+        return (_NEGATIVE_INFINITY < t
+                and t + self._lead_max < self._tables.arrays.covered_until
+                or self._cover(t))
+
+    def _compiled_sample(self, t: float, lead: float, lead_accelerating: float) -> ReferenceState:
+        arrays = self._tables.arrays
+        return ReferenceState(*self._kernel(
+            t, lead, lead_accelerating, self.step, arrays.s, arrays.rate, arrays.sigma,
+            self.max_speed, self.max_yaw_rate, self.base.KERNEL_KIND, self._kernel_parameters))
 
     def _interpreted_sample(self, t: float) -> ReferenceState:
         # retiming_kernel.sample is this method compiled (tests check that they agree to the
