@@ -9,12 +9,18 @@ a time grid (the in-process runner, lockstep) it also costs less than rememberin
 Nothing is written twice: numba compiles the module functions of ``retiming`` and
 ``reference_curves`` themselves (``register_jitable``), and :func:`sample` composes them as
 ``TimeScaled._sample_unremembered`` does (tests check the two agree to the bit). numba's
-cache knows only this file's date, not theirs: :meth:`TimeScaled.use_compiled` therefore
-compares the kernel with the interpreted sample before using it, compiles it afresh once
-(:func:`refresh`) if they differ, and samples interpreted if they still do.
+cache knows only this file's date, not theirs: :func:`warm_up` compiles afresh when a digest
+of the three files differs from the one kept beside the cache, and
+:meth:`TimeScaled.use_compiled` compares the kernel with the interpreted sample before using
+it, compiles it afresh once (:func:`refresh`) if they differ, and samples interpreted if
+they still do.
 """
 
 from __future__ import annotations
+
+import hashlib
+import pathlib
+import sys
 
 import numba
 import numpy as np
@@ -95,11 +101,39 @@ def sample(t, lead, lead_accelerating, h, s_nodes, rate_nodes, sigma_nodes, max_
 
 
 def warm_up() -> None:
-    """Load the kernel from numba's cache (or compile it) for every curve at once."""
+    """Load the kernel from numba's cache (or compile it) for every curve at once.
+
+    Compiled afresh if the sources it compiles changed since numba's cache was filled
+    (:data:`SOURCES_STAMP` beside the cache holds their digest).
+    """
     nodes = np.array([0.0, 0.01, 0.02])
     for kind in (TRIFOLIUM, CIRCLE, LINE, FIGURE_EIGHT):
         sample(0.005, 0.0, 0.0, 0.01, nodes, np.ones(3), np.ones(3), 1.0, 1.0, kind,
                np.ones(7))
+    stamp = pathlib.Path(sample.stats.cache_path) / SOURCES_STAMP
+    digest = sources_digest()
+    try:
+        known = stamp.read_text(encoding='utf-8')
+    except OSError:
+        known = ''
+    if known != digest:
+        refresh()
+        try:
+            stamp.write_text(digest, encoding='utf-8')
+        except OSError:
+            pass    # a read-only cache: compiled afresh in every process, still correct
+
+
+#: The file beside numba's cache with the digest of the sources the kernel was compiled from.
+SOURCES_STAMP = 'retiming_kernel.sources'
+
+
+def sources_digest() -> str:
+    """SHA-256 of the files whose functions the kernel compiles, and of this one."""
+    digest = hashlib.sha256()
+    for module in (retiming, curves, sys.modules[__name__]):
+        digest.update(pathlib.Path(module.__file__).read_bytes())
+    return digest.hexdigest()
 
 
 def refresh() -> None:
