@@ -8,7 +8,7 @@ a time grid (the in-process runner, lockstep) it also costs less than rememberin
 
 Nothing is written twice: numba compiles the module functions of ``retiming`` and
 ``reference_curves`` themselves (``register_jitable``), and :func:`sample` composes them as
-``TimeScaled._sample_unremembered`` does (tests check the two agree to the bit). numba's
+``TimeScaled._interpreted_sample`` does (tests check the two agree to the bit). numba's
 cache knows only this file's date, not theirs: :func:`warm_up` compiles afresh when a digest
 of the three files differs from the one kept beside the cache, and
 :meth:`TimeScaled.use_compiled` compares the kernel with the interpreted sample before using
@@ -83,7 +83,7 @@ def _speed_at(t, h, s_nodes, rate_nodes, sigma_nodes, max_speed, max_yaw_rate, k
 @numba.njit(cache=True, nogil=True, boundscheck=True)
 def sample(t, lead, lead_accelerating, h, s_nodes, rate_nodes, sigma_nodes, max_speed,
            max_yaw_rate, kind, p):
-    """``TimeScaled._sample_unremembered(t)`` of a curve ``kind`` with parameters ``p``.
+    """``TimeScaled._interpreted_sample(t)`` of a curve ``kind`` with parameters ``p``.
 
     The tables must reach t + either lead (``TimeScaled._cover``).
     """
