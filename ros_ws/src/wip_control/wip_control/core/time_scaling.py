@@ -351,10 +351,10 @@ class TimeScaled(Reference):
         h = self.step
         n = int(max(t_max, 0.0) / h) + _KERNEL_AHEAD
         if n + 1 >= len(self._s):
-            known = (len(self._s) - 1) * h
-            if t_max > known + self.MAX_EXTENSION:
-                return False
-            self._extend(n + 1)
+            try:
+                self._extend_to(t_max, n + 1)
+            except ValueError:
+                return False    # too far ahead: the interpreted sample raises it
         # σ one node beyond the last s: Hermite between two nodes may overshoot s a little.
         self._extend_sigma(int(self._s[-1] / h) + 2)
         arrays.update(self._tables)
