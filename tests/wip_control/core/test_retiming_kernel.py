@@ -166,31 +166,3 @@ def test_the_in_process_run_records_the_same_bits_compiled_or_not(monkeypatch):
             if (group, name) != ('mpc', 'solve_time'):
                 assert np.asarray(values).tobytes() == \
                     np.asarray(interpreted[group][name]).tobytes(), (group, name)
-
-
-def test_the_kernel_is_compiled_afresh_when_the_sources_it_compiles_change(monkeypatch):
-    # numba's cache knows only the kernel file's date: a formula changed in retiming.py or
-    # reference_curves.py would be served stale (measured: the old floats, silently). The
-    # digest of the three files beside the cache decides.
-    import os
-    import pathlib
-
-    from wip_control.core import retiming_kernel
-
-    refreshed = []
-    monkeypatch.setattr(retiming_kernel, 'refresh', lambda: refreshed.append(True))
-    name = f'retiming_kernel.sources.test-{os.getpid()}'
-    monkeypatch.setattr(retiming_kernel, 'SOURCES_STAMP', name)
-    stamp = pathlib.Path(retiming_kernel.sample.stats.cache_path) / name
-    try:
-        retiming_kernel.warm_up()     # no digest kept: compiled afresh, the digest written
-        assert refreshed == [True]
-        assert stamp.read_text(encoding='utf-8') == retiming_kernel.sources_digest()
-        retiming_kernel.warm_up()     # the same sources: the cache is used
-        assert refreshed == [True]
-        monkeypatch.setattr(retiming_kernel, 'sources_digest', lambda: 'a formula changed')
-        retiming_kernel.warm_up()
-        assert refreshed == [True, True]
-        assert stamp.read_text(encoding='utf-8') == 'a formula changed'
-    finally:
-        stamp.unlink(missing_ok=True)

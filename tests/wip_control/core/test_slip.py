@@ -156,7 +156,7 @@ def test_on_by_default_with_the_gyro_and_off_with_zero():
 def test_non_finite_input_is_refused_and_changes_nothing():
     monitor = SlipMonitor(PARAMS)
     drive(monitor, lambda t: 0.5, 1.0)
-    before = (monitor._w_hat, monitor._last, monitor.offset)
+    before = monitor.state.copy()
     with pytest.raises(ValueError, match='non-finite input'):
         monitor.update(1.005, 0.5, 0.5, 0.5, 0.0, math.nan, 0.0)
-    assert (monitor._w_hat, monitor._last, monitor.offset) == before
+    assert monitor.state.tobytes() == before.tobytes()

@@ -111,7 +111,7 @@ class _Replay:
         self.datum = (sensors.gps_datum_latitude, sensors.gps_datum_longitude,
                       sensors.gps_datum_altitude)
         # The loop's two core objects, as the runner and the nodes drive them.
-        self.estimator = StateEstimator.from_scenario(scenario)
+        self.estimator = StateEstimator.from_scenario(scenario, compiled=True)
         self.control = ControlStep.from_scenario(scenario)
         self.torque_stamps = sorted(run.wheel_torques)
         self.reference_stamps = sorted(run.reference)

@@ -1,6 +1,7 @@
 """The numba-compiled kernels of the core, imported and warmed up once per process.
 
-Each kernel module (``mpc_kernel``, ``qp_polish``, ``retiming_kernel``) has a ``warm_up()``
+Each kernel module (``mpc_kernel``, ``qp_polish``, ``retiming_kernel``,
+``estimator_kernel``) has a ``warm_up()``
 that loads its code from numba's cache or compiles it. It is called where a controller is
 made, not in its first tick, and a process that makes no MPC (or a real-time reference
 node) does not import numba.
@@ -11,14 +12,17 @@ and the Docker image do, after building).
 from __future__ import annotations
 
 import importlib
+import pathlib
 from types import ModuleType
+from typing import Callable
 
 #: The kernel modules of the controllers: the MPC's QP assembly, the QP's polish, the
-#: time-scaled reference's real-time sample.
+#: time-scaled reference's real-time sample, the gyro estimator's sample.
 MPC_KERNEL = f'{__package__}.mpc_kernel'
 QP_POLISH = f'{__package__}.qp_polish'
 RETIMING_KERNEL = f'{__package__}.retiming_kernel'
-KERNELS = (MPC_KERNEL, QP_POLISH, RETIMING_KERNEL)
+ESTIMATOR_KERNEL = f'{__package__}.estimator_kernel'
+KERNELS = (MPC_KERNEL, QP_POLISH, RETIMING_KERNEL, ESTIMATOR_KERNEL)
 
 _loaded: dict[str, ModuleType] = {}
 
@@ -31,6 +35,27 @@ def load_compiled(module_name: str) -> ModuleType:
         module.warm_up()
         _loaded[module_name] = module
     return module
+
+
+def refresh_if_sources_changed(cache_path: str, stamp_name: str, digest: str,
+                               refresh: Callable[[], None]) -> None:
+    """Compile a kernel afresh (``refresh``) when its sources' ``digest`` is not the one kept.
+
+    numba's cache knows only the kernel file's date, not that of the files whose functions
+    it compiles (``register_jitable``): the digest of all of them is kept in ``stamp_name``
+    beside the cache (``cache_path``), and written after compiling afresh.
+    """
+    stamp = pathlib.Path(cache_path) / stamp_name
+    try:
+        known = stamp.read_text(encoding='utf-8')
+    except OSError:
+        known = ''
+    if known != digest:
+        refresh()
+        try:
+            stamp.write_text(digest, encoding='utf-8')
+        except OSError:
+            pass    # a read-only cache: compiled afresh in every process, still correct
 
 
 if __name__ == '__main__':

@@ -233,18 +233,32 @@ class EsoParams:
                                       f'{getattr(self, name)} rad/s')
 
 
+def _slot(index: int, doc: str) -> property:
+    """Return a float attribute kept in the channel's state array at ``index``."""
+    return property(lambda self: float(self._s[index]),
+                    lambda self, value: self._s.__setitem__(index, value), doc=doc)
+
+
+#: The slots of a channel's state array shared by both kinds of channel; each kind's own
+#: state follows from ``_OWN``.
+X1, X2, F, TIME, _OWN = 0, 1, 2, 3, 4
+
+
 class ChannelEstimate:
     """The read-out of a second-order channel observer.
 
     It holds x̂1, x̂2 and f̂ at ``_t_prev``, and is the same for the ESO (25) and the
-    rate-aided channel.
+    rate-aided channel. The state lives in one float64 array, ``_s`` (slots ``X1``,
+    ``X2``, ``F``, ``TIME``, then the channel's own), which the methods and the compiled
+    estimator (``estimator_kernel.py``) update in place.
     """
 
     name: str
-    x1: float
-    x2: float
-    f: float
-    _t_prev: float
+    _s: np.ndarray
+    x1 = _slot(X1, 'x̂1, the output estimate')
+    x2 = _slot(X2, 'x̂2, the rate estimate')
+    f = _slot(F, 'f̂, the lumped-disturbance estimate')
+    _t_prev = _slot(TIME, 'time [s] of the estimate')
 
     @property
     def state(self) -> tuple[float, float, float]:
@@ -264,6 +278,26 @@ class ChannelEstimate:
         self.x1 = float(initial_output)
         self.x2 = 0.0
         self.f = 0.0
+
+
+#: The ESO's own slots: the previous measurement, and 1.0 while its first period's rate is
+#: still to be seeded (``rate_start`` 'first_difference').
+Y_PREV, UNSEEDED = _OWN, _OWN + 1
+
+
+def eso_step(s: np.ndarray, t: float, y: float, b_u: float, m) -> None:
+    """Advance an ESO's state ``s`` in place by one period, to ``t`` [s] with ``y`` at t.
+
+    ``m``: the period's 18 floats (``ExtendedStateObserver._as_floats``). The exact ZOH/FOH
+    solution of eq. (4) over the period (see the module docstring); the compiled estimator
+    runs this very function.
+    """
+    x1, x2, x3, yp = s[X1], s[X2], s[F], s[Y_PREV]
+    s[X1] = m[0] * x1 + m[1] * x2 + m[2] * x3 + m[9] * yp + m[12] * y + m[15] * b_u
+    s[X2] = m[3] * x1 + m[4] * x2 + m[5] * x3 + m[10] * yp + m[13] * y + m[16] * b_u
+    s[F] = m[6] * x1 + m[7] * x2 + m[8] * x3 + m[11] * yp + m[14] * y + m[17] * b_u
+    s[Y_PREV] = y
+    s[TIME] = t
 
 
 class ExtendedStateObserver(ChannelEstimate):
@@ -308,14 +342,18 @@ class ExtendedStateObserver(ChannelEstimate):
         self.schedule = schedule
         self.ramp_duration = float(ramp_duration)
         self.measurement_hold = measurement_hold
-        # Built once: the per-sample update is then 3 dot products of plain floats.
-        self._nominal = self._as_floats(discretise(self.gains, self.epsilon,
-                                                   self.sample_period, measurement_hold))
+        self._s = np.zeros(_OWN + 2)
+        # Built once: the per-sample update is then 3 dot products.
+        self._nominal = np.array(self._as_floats(discretise(self.gains, self.epsilon,
+                                                            self.sample_period,
+                                                            measurement_hold)))
         self._cached: dict[int, tuple[float, ...]] = {}   # period in PERIOD_RESOLUTION
         # RK4 sub-step during the ramp: ≤ 1 ms and ≤ 1/|λ|max of the final observer.
         fastest_pole = max(abs(r) for r in np.roots([1.0, *self.gains])) / self.epsilon
         self._max_substep = min(MAX_RAMP_SUBSTEP, 1.0 / fastest_pole)
         self.reset(initial_output, initial_time)
+
+    _y_prev = _slot(Y_PREV, 'the previous measurement')
 
     @staticmethod
     def _as_floats(matrices: tuple[np.ndarray, ...]) -> tuple[float, ...]:
@@ -328,7 +366,7 @@ class ExtendedStateObserver(ChannelEstimate):
         self._y_prev = float(initial_output)
         self._t_prev = float(initial_time)
         self._t0 = float(initial_time)
-        self._rate_unseeded = self.rate_start == 'first_difference'
+        self._s[UNSEEDED] = 1.0 if self.rate_start == 'first_difference' else 0.0
 
     def epsilon_at(self, t: float) -> float:
         """ε(t) [s]; ``inf`` at the very start of the ramp (zero gains)."""
@@ -362,11 +400,11 @@ class ExtendedStateObserver(ChannelEstimate):
                 raise ValueError(f'{self.name}: time went backwards from {self._t_prev} '
                                  f'to {t}')
             return self.x1, self.x2, self.f
-        if self._rate_unseeded:
+        if self._s[UNSEEDED]:
             # The first period after a reset: the rate is the difference of the first two
             # samples rather than 0, so a channel started in motion does not first read
             # rest and then overshoot (the disturbance starts at 0 as in Section V).
-            self._rate_unseeded = False
+            self._s[UNSEEDED] = 0.0
             self.x1, self.x2, self.f = y, (y - self._y_prev) / dt, 0.0
         elif self.schedule == 'paper_ramp' and self._t_prev - self._t0 < self.ramp_duration:
             self._integrate_ramp(dt, y, b_u)
@@ -375,11 +413,8 @@ class ExtendedStateObserver(ChannelEstimate):
                 m = self._nominal
             else:
                 m = self._off_nominal(dt)
-            x1, x2, x3, yp = self.x1, self.x2, self.f, self._y_prev
-            # Exact ZOH/FOH solution of eq. (4) over the period (see module docstring).
-            self.x1 = m[0] * x1 + m[1] * x2 + m[2] * x3 + m[9] * yp + m[12] * y + m[15] * b_u
-            self.x2 = m[3] * x1 + m[4] * x2 + m[5] * x3 + m[10] * yp + m[13] * y + m[16] * b_u
-            self.f = m[6] * x1 + m[7] * x2 + m[8] * x3 + m[11] * yp + m[14] * y + m[17] * b_u
+            eso_step(self._s, t, y, b_u, m)
+            return self.x1, self.x2, self.f
         self._y_prev = y
         self._t_prev = t
         return self.x1, self.x2, self.f

@@ -45,12 +45,42 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
+
 from wip_runtime.config import param
 
 #: Position status (the values of wip_msgs/StateEstimate's POSITION_* constants).
 TRACKING, NO_FIX, DEAD_RECKONING, FAULT = 0, 1, 2, 3
 POSITION_STATUS_NAMES = {NO_FIX: 'NO_FIX', TRACKING: 'TRACKING',
                          DEAD_RECKONING: 'DEAD_RECKONING', FAULT: 'FAULT'}
+#: The slots of the estimator's state array: (x̂, ŷ), the odometry's last x_v and ϕ, and the
+#: distance rolled since the last accepted fix.
+X, Y, X_V, PHI, ROLLED = range(5)
+
+
+def _slot(index: int, doc: str) -> property:
+    return property(lambda self: float(self.state[index]),
+                    lambda self, value: self.state.__setitem__(index, value), doc=doc)
+
+
+def odometry_step(s: np.ndarray, x_v: float, phi: float) -> None:
+    """Dead-reckon the state ``s`` in place to the distance rolled x_v [m] and heading ϕ [rad].
+
+    The step of :meth:`PlanarPositionEstimator.update_odometry` (finite inputs); the
+    compiled estimator runs this very function.
+    """
+    ds = x_v - s[X_V]
+    s[ROLLED] += abs(ds)
+    dphi = phi - s[PHI]
+    if dphi > math.pi or dphi < -math.pi:
+        dphi = math.remainder(dphi, 2.0 * math.pi)
+    half = 0.5 * dphi
+    # Chord of a constant-curvature arc: length ds·sinc(Δϕ/2), direction ϕ + Δϕ/2.
+    chord = ds * (math.sin(half) / half if abs(half) > 1e-8 else 1.0 - half * half / 6.0)
+    heading = s[PHI] + half
+    s[X] += chord * math.cos(heading)
+    s[Y] += chord * math.sin(heading)
+    s[X_V], s[PHI] = x_v, phi
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,6 +113,8 @@ class PlanarPositionEstimator:
 
     def __init__(self, config: PositionParams | None = None) -> None:
         self.config = config if config is not None else PositionParams()
+        #: (x̂, ŷ, x_v, ϕ, distance rolled since the last fix): the slots ``X`` … ``ROLLED``.
+        self.state = np.zeros(ROLLED + 1)
         self.rejected_fixes = 0   #: fixes rejected since the last reset
         self.accepted_fixes = 0   #: fixes used since the last reset
         self.reset(0.0, 0.0, 0.0, 0.0)
@@ -90,15 +122,17 @@ class PlanarPositionEstimator:
     def reset(self, x: float, y: float, x_v: float, phi: float) -> None:
         """Start at (x, y) [m] with the odometry reading x_v [m] and heading ϕ [rad]."""
         _check_finite('reset', x=x, y=y, x_v=x_v, phi=phi)
-        self.x, self.y = float(x), float(y)
-        self._x_v, self._phi = float(x_v), float(phi)
+        self.state[:] = (x, y, x_v, phi, 0.0)
         self.rejected_fixes = 0
         self.accepted_fixes = 0
-        self.rolled_since_fix = 0.0          #: distance rolled since the last accepted fix [m]
         self.rejected_since: float | None = None   #: time of the first of a run of rejections
         self.rejected_in_row = 0
         self.last_innovation = 0.0           #: |innovation| of the last fix [m]
         self.fault = ''                      #: why the position source is refused ('' if not)
+
+    x = _slot(X, 'x̂ [m]')
+    y = _slot(Y, 'ŷ [m]')
+    rolled_since_fix = _slot(ROLLED, 'distance rolled since the last accepted fix [m]')
 
     @property
     def position(self) -> tuple[float, float]:
@@ -112,18 +146,7 @@ class PlanarPositionEstimator:
         """
         if not math.isfinite(x_v + phi):
             _check_finite('update_odometry', x_v=x_v, phi=phi)
-        ds = x_v - self._x_v
-        self.rolled_since_fix += abs(ds)
-        dphi = phi - self._phi
-        if dphi > math.pi or dphi < -math.pi:
-            dphi = math.remainder(dphi, 2.0 * math.pi)
-        half = 0.5 * dphi
-        # Chord of a constant-curvature arc: length ds·sinc(Δϕ/2), direction ϕ + Δϕ/2.
-        chord = ds * (math.sin(half) / half if abs(half) > 1e-8 else 1.0 - half * half / 6.0)
-        heading = self._phi + half
-        self.x += chord * math.cos(heading)
-        self.y += chord * math.sin(heading)
-        self._x_v, self._phi = x_v, phi
+        odometry_step(self.state, x_v, phi)
         return self.x, self.y
 
     def gate(self) -> float:

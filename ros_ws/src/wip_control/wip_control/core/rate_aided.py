@@ -17,7 +17,11 @@ import math
 import numpy as np
 
 from wip_runtime.config import ParamError
-from .eso import ChannelEstimate, PERIOD_TOLERANCE
+from .eso import _OWN, _slot, ChannelEstimate, F, PERIOD_TOLERANCE, TIME, X1, X2
+
+#: The rate-aided channel's own slots: the gyro bias b̂, the previous gyro reading, and 1.0
+#: once the rate estimate has started from a gyro reading.
+BIAS, RATE_PREV, RATE_STARTED = _OWN, _OWN + 1, _OWN + 2
 
 
 def complementary_bandwidth(angle_noise_std: float, rate_noise_std: float) -> float:
@@ -48,6 +52,30 @@ def discrete_pole_gains(pole_a: float, pole_b: float, period: float) -> tuple[fl
     """
     p, q = math.exp(-pole_a * period), math.exp(-pole_b * period)
     return 1.0 - p * q, (1.0 - p) * (1.0 - q) / period
+
+
+def rate_aided_step(s: np.ndarray, t: float, h: float, y: float, rate: float, b_u: float,
+                    l1: float, l2: float, m1: float, m2: float) -> None:
+    """Advance a rate-aided channel's state ``s`` in place by one period h, to ``t`` [s].
+
+    The two loops of :class:`RateAidedChannel` with their gains; the compiled estimator
+    runs this very function.
+    """
+    # 1: complementary filter with bias (predict with the corrected gyro, correct
+    # with the angle).
+    # Trapezoidal integration of the gyro: exact for a constant acceleration (the
+    # rectangle rule would leave a bias estimate off by h θ̈/2).
+    angle = s[X1] + h * (0.5 * (s[RATE_PREV] + rate) - s[BIAS])
+    s[RATE_PREV] = rate
+    e = y - angle
+    s[X1] = angle + l1 * e
+    s[BIAS] -= l2 * e
+    # 2: reduced-order ESO on the bias-corrected rate.
+    w = s[X2] + h * (b_u + s[F])
+    e = rate - s[BIAS] - w
+    s[X2] = w + m1 * e
+    s[F] += m2 * e
+    s[TIME] = t
 
 
 class RateAidedChannel(ChannelEstimate):
@@ -85,6 +113,7 @@ class RateAidedChannel(ChannelEstimate):
         self.bias_bandwidth = float(bias_bandwidth)
         self.rate_bandwidth = float(rate_bandwidth)
         self.sample_period = float(sample_period)
+        self._s = np.zeros(_OWN + 3)
         self._gains_cache: dict[float, tuple[float, float, float, float]] = {}
         self._nominal_gains = self._gains(self.sample_period)
         self.reset(initial_output, initial_time)
@@ -107,8 +136,10 @@ class RateAidedChannel(ChannelEstimate):
         self._reset_estimate(initial_output, initial_time)
         self.bias = 0.0
         self._t_prev = float(initial_time)
-        self._rate_started = False
-        self._rate_prev = 0.0
+        self._s[RATE_STARTED] = 0.0
+        self._s[RATE_PREV] = 0.0
+
+    bias = _slot(BIAS, 'b̂, the gyro bias estimate [rad/s]')
 
     def update(self, t: float, y: float, rate: float, b_u: float) -> tuple[float, float, float]:
         """Advance to ``t`` [s] with the angle ``y`` [rad] and the gyro ``rate`` [rad/s].
@@ -122,10 +153,11 @@ class RateAidedChannel(ChannelEstimate):
         h = t - self._t_prev
         if h < 0.0:
             raise ValueError(f'{self.name}: time went backwards from {self._t_prev} to {t}')
-        if not self._rate_started:
-            self.x2 = rate - self.bias
-            self._rate_prev = rate
-            self._rate_started = True
+        s = self._s
+        if not s[RATE_STARTED]:
+            s[X2] = rate - s[BIAS]
+            s[RATE_PREV] = rate
+            s[RATE_STARTED] = 1.0
         if h == 0.0:
             return self.x1, self.x2, self.f
         if abs(h - self.sample_period) <= PERIOD_TOLERANCE * self.sample_period:
@@ -133,21 +165,7 @@ class RateAidedChannel(ChannelEstimate):
             l1, l2, m1, m2 = self._nominal_gains
         else:
             l1, l2, m1, m2 = self._gains(h)
-        # 1: complementary filter with bias (predict with the corrected gyro, correct
-        # with the angle).
-        # Trapezoidal integration of the gyro: exact for a constant acceleration (the
-        # rectangle rule would leave a bias estimate off by h θ̈/2).
-        angle = self.x1 + h * (0.5 * (self._rate_prev + rate) - self.bias)
-        self._rate_prev = rate
-        e = y - angle
-        self.x1 = angle + l1 * e
-        self.bias -= l2 * e
-        # 2: reduced-order ESO on the bias-corrected rate.
-        w = self.x2 + h * (b_u + self.f)
-        e = rate - self.bias - w
-        self.x2 = w + m1 * e
-        self.f += m2 * e
-        self._t_prev = t
+        rate_aided_step(s, t, h, y, rate, b_u, l1, l2, m1, m2)
         return self.x1, self.x2, self.f
 
 

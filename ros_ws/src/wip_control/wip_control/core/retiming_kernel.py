@@ -27,6 +27,7 @@ import numpy as np
 from numba.extending import register_jitable
 
 from . import reference_curves as curves
+from .compiled import refresh_if_sources_changed
 from . import retiming
 
 for _function in (retiming.hermite_progress, retiming.interpolated_sigma,
@@ -110,18 +111,8 @@ def warm_up() -> None:
     for kind in (TRIFOLIUM, CIRCLE, LINE, FIGURE_EIGHT):
         sample(0.005, 0.0, 0.0, 0.01, nodes, np.ones(3), np.ones(3), 1.0, 1.0, kind,
                np.ones(7))
-    stamp = pathlib.Path(sample.stats.cache_path) / SOURCES_STAMP
-    digest = sources_digest()
-    try:
-        known = stamp.read_text(encoding='utf-8')
-    except OSError:
-        known = ''
-    if known != digest:
-        refresh()
-        try:
-            stamp.write_text(digest, encoding='utf-8')
-        except OSError:
-            pass    # a read-only cache: compiled afresh in every process, still correct
+    refresh_if_sources_changed(sample.stats.cache_path, SOURCES_STAMP, sources_digest(),
+                               refresh)
 
 
 #: The file beside numba's cache with the digest of the sources the kernel was compiled from.

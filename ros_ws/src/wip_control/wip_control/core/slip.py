@@ -41,6 +41,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import numpy as np
+
 from wip_description.params import ModelParams
 
 
@@ -58,6 +60,19 @@ class SlipState(NamedTuple):
         return self.left or self.right
 
 
+#: The slots of the monitor's state array: the last sample (t, r φ_l, r φ_r, x_v, θ̇) and
+#: 1.0 once there is one, the filter's ŵ and d̂, each wheel's previous residual and w, 1.0
+#: once there is a previous w, each wheel's slip flag, since when the wheels agree with ŵ
+#: and with each other, when each wheel's slip began, the start, the offset, the events.
+(T_LAST, LEFT_LAST, RIGHT_LAST, XV_LAST, RATE_LAST, HAS_LAST, W_HAT, D_HAT, RESIDUAL_LEFT,
+ RESIDUAL_RIGHT, W_PREV_LEFT, W_PREV_RIGHT, HAS_W_PREV, SLIPS_LEFT, SLIPS_RIGHT, AGREE_SINCE,
+ TOGETHER_SINCE, SINCE_LEFT, SINCE_RIGHT, START, OFFSET, EVENTS) = range(22)
+#: The slots of its constants: q = J_θ/(mp l), the encoders' body-rate gain, g, d/2, then
+#: the tunables.
+(Q, BODY_RATE_GAIN, GRAVITY, HALF_TRACK, MAX_ACCELERATION, AGREEMENT, BANDWIDTH, HOLD,
+ LONGEST) = range(9)
+
+
 class SlipMonitor:
     """See the module docstring.
 
@@ -70,6 +85,10 @@ class SlipMonitor:
     hold : [s] how long the wheels must agree to be believed again.
     longest : [s] after it, two wheels that roll alike are believed whatever ŵ says.
     relative_to_body : the encoders measure the wheels against the body (the default).
+
+    The state lives in one float64 array (the ``*_LAST`` … ``EVENTS`` slots), which
+    :func:`slip_step` updates in place, interpreted here and compiled in the estimator's
+    kernel (``estimator_kernel.py``).
     """
 
     def __init__(self, params: ModelParams, max_acceleration: float = 20.0,
@@ -88,27 +107,32 @@ class SlipMonitor:
         self.half_track = 0.5 * params.track_width
         self.max_acceleration, self.agreement = max_acceleration, agreement
         self.bandwidth, self.hold, self.longest = bandwidth, hold, longest
+        self.constants = np.array([self.q, self.body_rate_gain, self.g, self.half_track,
+                                   max_acceleration, agreement, bandwidth, hold, longest],
+                                  dtype=float)
+        self.state = np.zeros(EVENTS + 1)
         self.reset()
 
     def reset(self) -> None:
         """Forget everything: the next sample starts the monitor."""
-        self._last: tuple | None = None     # (t, s_l, s_r, x_v, θ̇)
-        self._w_hat = 0.0
-        self._d_hat = 0.0
-        self._residual = [0.0, 0.0]          # previous residual acceleration per wheel
-        self._w_prev: tuple | None = None
-        self._slipping = [False, False]
-        self._agree_since = math.inf        # since when the wheels agree with ŵ
-        self._together_since = math.inf     # since when the two wheels agree
-        self._since = [math.inf, math.inf]   # when each wheel's slip began
-        self._start: float | None = None
-        self.offset = 0.0
-        self.events = 0                      #: slips begun since the start
+        s = self.state
+        s[:] = 0.0
+        s[AGREE_SINCE] = s[TOGETHER_SINCE] = s[SINCE_LEFT] = s[SINCE_RIGHT] = math.inf
+
+    @property
+    def offset(self) -> float:
+        """Distance [m] the wheels spun (or skidded) away so far."""
+        return float(self.state[OFFSET])
+
+    @property
+    def events(self) -> int:
+        """Slips begun since the start."""
+        return int(self.state[EVENTS])
 
     @property
     def slipping_wheels(self) -> tuple[bool, bool]:
         """Whether the (left, right) wheel slips now."""
-        return self._slipping[0], self._slipping[1]
+        return bool(self.state[SLIPS_LEFT]), bool(self.state[SLIPS_RIGHT])
 
     def update(self, t: float, left: float, right: float, x_v: float, theta: float,
                pitch_rate: float, yaw_rate: float, tau_left: float = 0.0,
@@ -122,89 +146,134 @@ class SlipMonitor:
         if not math.isfinite(t + left + right + x_v + theta + pitch_rate + yaw_rate
                              + tau_left + tau_right):
             raise ValueError('SlipMonitor.update: non-finite input (nothing changed)')
-        last = self._last
-        if last is None or t <= last[0]:
-            if last is None:
-                self._w_hat = self.q * pitch_rate
-                self._start = t
-            self._last = (t, left, right, x_v, pitch_rate)
-            return SlipState(x_v - self.offset, *self._slipping, self.offset,
-                             self._w_hat - self.q * pitch_rate)
-        t0, left0, right0, x_v0, rate0 = last
-        h = t - t0
-        q, g = self.q, self.g
-        turn = self.half_track * yaw_rate
-        body = (q + self.body_rate_gain) * 0.5 * (pitch_rate + rate0)
-        w_now = ((left - left0) / h + turn + body, (right - right0) / h - turn + body)
-        model = g * theta + self._d_hat
-        w_prev = w_now if self._w_prev is None else self._w_prev
-        self._detect(t, h, w_now, w_prev, model, (tau_left, tau_right))
-        self._w_prev = w_now
-        slipping = self._slipping
-        if slipping[0] or slipping[1]:
-            self._release(t, w_now)
-        gripping = [w for w, slips in zip(w_now, slipping) if not slips]
-        if gripping:
-            measured = sum(gripping) / len(gripping)
-        else:
-            # Both slip: a driving torque only makes a wheel faster than the ground, a
-            # braking one slower: the least affected of the two wheels and the model's
-            # prediction (both wheels may spin alike) is the nearest the truth.
-            coast = self._w_hat + h * model
-            measured = (min(*w_now, coast) if tau_left + tau_right >= 0.0
-                        else max(*w_now, coast))
-        # The complementary filter of w (PI: the slope's or a push's d̂ integrated).
-        innovation = measured - self._w_hat
-        wc = self.bandwidth
-        self._w_hat += h * (model + 2.0 * wc * innovation)
-        self._d_hat += h * wc * wc * innovation
-        mean_rate = 0.5 * (pitch_rate + rate0)
-        speed = self._w_hat - q * mean_rate
-        if slipping[0] or slipping[1]:
-            self.offset += (x_v - x_v0) - h * (measured - q * mean_rate)
-        self._last = (t, left, right, x_v, pitch_rate)
-        return SlipState(x_v - self.offset, self._slipping[0], self._slipping[1],
-                         self.offset, speed)
+        x_v_used, speed = slip_step(self.state, self.constants, t, left, right, x_v, theta,
+                                    pitch_rate, yaw_rate, tau_left, tau_right)
+        return SlipState(float(x_v_used), *self.slipping_wheels, self.offset, float(speed))
 
-    def _detect(self, t: float, h: float, w_now: tuple[float, float],
-                w_prev: tuple[float, float], model: float,
-                torques: tuple[float, float]) -> None:
-        """Mark a wheel slipping whose acceleration leaves the tilt's, driven by its torque."""
-        judging = t - self._start >= 3.0 / self.bandwidth
-        slipping = self._slipping
-        for i in (0, 1):
-            residual = (w_now[i] - w_prev[i]) / h - model
-            mean = 0.5 * (residual + self._residual[i])
-            self._residual[i] = residual
-            if (not slipping[i] and judging and abs(mean) > self.max_acceleration
-                    and mean * torques[i] > 0.0):
-                slipping[i] = True
-                self._since[i] = t
-                self._agree_since = self._together_since = math.inf
-                self.events += 1
 
-    def _release(self, t: float, w_now: tuple[float, float]) -> None:
-        """End the slip once the wheels grip again (with ŵ, or together after ``longest``)."""
-        slipping = self._slipping
-        mean_w = 0.5 * (w_now[0] + w_now[1])
-        together = abs(w_now[0] - w_now[1]) < self.agreement
-        self._together_since = min(self._together_since, t) if together else math.inf
-        if together and abs(mean_w - self._w_hat) < 3.0 * self.agreement:
-            self._agree_since = min(self._agree_since, t)
-        else:
-            self._agree_since = math.inf
-        # Gripping: the two wheels roll alike (the gyro's yaw taken out) at the speed ŵ
-        # followed from the IMU (ẇ = g θ + d̂). Past ``longest`` ŵ may have coasted off
-        # the truth, so two wheels rolling alike are enough; a wheel that still
-        # disagrees with the other is still spinning (or the other is), and the axle
-        # cannot move at its speed.
-        hold = self.hold - 1e-9
-        if (t - self._agree_since >= hold
-                or (t - min(self._since) >= self.longest
-                    and t - self._together_since >= hold)):
-            both = slipping[0] and slipping[1]
-            slipping[0] = slipping[1] = False
-            # A later slip is timed from its own start, not from this one's.
-            self._since = [math.inf, math.inf]
-            if both:
-                self._w_hat = mean_w
+def slip_step(s: np.ndarray, c: np.ndarray, t: float, left: float, right: float,
+              x_v: float, theta: float, pitch_rate: float, yaw_rate: float,
+              tau_left: float, tau_right: float) -> tuple[float, float]:
+    """Take one finite sample into the monitor's state ``s`` (constants ``c``), in place.
+
+    Return (the x_v to use, the physical axle speed ŵ − q θ̇). The arguments are those of
+    :meth:`SlipMonitor.update`.
+    """
+    q = c[Q]
+    if s[HAS_LAST] == 0.0 or t <= s[T_LAST]:
+        if s[HAS_LAST] == 0.0:
+            s[W_HAT] = q * pitch_rate
+            s[START] = t
+        _keep_last(s, t, left, right, x_v, pitch_rate)
+        return x_v - s[OFFSET], s[W_HAT] - q * pitch_rate
+    t0, left0, right0, x_v0, rate0 = (s[T_LAST], s[LEFT_LAST], s[RIGHT_LAST], s[XV_LAST],
+                                      s[RATE_LAST])
+    h = t - t0
+    turn = c[HALF_TRACK] * yaw_rate
+    body = (q + c[BODY_RATE_GAIN]) * 0.5 * (pitch_rate + rate0)
+    w_left = (left - left0) / h + turn + body
+    w_right = (right - right0) / h - turn + body
+    model = c[GRAVITY] * theta + s[D_HAT]
+    if s[HAS_W_PREV] == 0.0:
+        s[W_PREV_LEFT], s[W_PREV_RIGHT] = w_left, w_right
+    judging = t - s[START] >= 3.0 / c[BANDWIDTH]
+    _detect(s, c, t, h, judging, 0, w_left, model, tau_left)
+    _detect(s, c, t, h, judging, 1, w_right, model, tau_right)
+    s[W_PREV_LEFT], s[W_PREV_RIGHT], s[HAS_W_PREV] = w_left, w_right, 1.0
+    slips_left, slips_right = s[SLIPS_LEFT] != 0.0, s[SLIPS_RIGHT] != 0.0
+    if slips_left or slips_right:
+        _release(s, c, t, w_left, w_right)
+        slips_left, slips_right = s[SLIPS_LEFT] != 0.0, s[SLIPS_RIGHT] != 0.0
+    measured = _measured(slips_left, slips_right, w_left, w_right, s[W_HAT] + h * model,
+                         tau_left + tau_right)
+    # The complementary filter of w (PI: the slope's or a push's d̂ integrated).
+    innovation = measured - s[W_HAT]
+    wc = c[BANDWIDTH]
+    s[W_HAT] += h * (model + 2.0 * wc * innovation)
+    s[D_HAT] += h * wc * wc * innovation
+    mean_rate = 0.5 * (pitch_rate + rate0)
+    speed = s[W_HAT] - q * mean_rate
+    if slips_left or slips_right:
+        s[OFFSET] += (x_v - x_v0) - h * (measured - q * mean_rate)
+    _keep_last(s, t, left, right, x_v, pitch_rate)
+    return x_v - s[OFFSET], speed
+
+
+def _measured(slips_left: bool, slips_right: bool, w_left: float, w_right: float,
+              coast: float, tau_v: float) -> float:
+    """Return the measured w: the gripping wheels' mean (as Python's sum, from 0.0)."""
+    if not (slips_left and slips_right):
+        if slips_left:
+            return (0.0 + w_right) / 1
+        if slips_right:
+            return (0.0 + w_left) / 1
+        return (0.0 + w_left + w_right) / 2
+    # Both slip: a driving torque only makes a wheel faster than the ground, a braking one
+    # slower: the least affected of the two wheels and the model's prediction ``coast``
+    # (both wheels may spin alike) is the nearest the truth (Python's min and max: the
+    # first of equals).
+    measured = w_left
+    if tau_v >= 0.0:
+        if w_right < measured:
+            measured = w_right
+        if coast < measured:
+            measured = coast
+    else:
+        if w_right > measured:
+            measured = w_right
+        if coast > measured:
+            measured = coast
+    return measured
+
+
+def _keep_last(s: np.ndarray, t: float, left: float, right: float, x_v: float,
+               pitch_rate: float) -> None:
+    s[T_LAST], s[LEFT_LAST], s[RIGHT_LAST], s[XV_LAST] = t, left, right, x_v
+    s[RATE_LAST], s[HAS_LAST] = pitch_rate, 1.0
+
+
+def _detect(s: np.ndarray, c: np.ndarray, t: float, h: float, judging: bool, wheel: int,
+            w_now: float, model: float, torque: float) -> None:
+    """Mark a wheel slipping whose acceleration leaves the tilt's, driven by its torque."""
+    residual = (w_now - s[W_PREV_LEFT + wheel]) / h - model
+    mean = 0.5 * (residual + s[RESIDUAL_LEFT + wheel])
+    s[RESIDUAL_LEFT + wheel] = residual
+    if (s[SLIPS_LEFT + wheel] == 0.0 and judging and abs(mean) > c[MAX_ACCELERATION]
+            and mean * torque > 0.0):
+        s[SLIPS_LEFT + wheel] = 1.0
+        s[SINCE_LEFT + wheel] = t
+        s[AGREE_SINCE] = s[TOGETHER_SINCE] = math.inf
+        s[EVENTS] += 1.0
+
+
+def _release(s: np.ndarray, c: np.ndarray, t: float, w_left: float, w_right: float) -> None:
+    """End the slip once the wheels grip again (with ŵ, or together after ``longest``)."""
+    mean_w = 0.5 * (w_left + w_right)
+    agreement = c[AGREEMENT]
+    together = abs(w_left - w_right) < agreement
+    # min(since, t) as Python's min: the first of equals.
+    if together:
+        if t < s[TOGETHER_SINCE]:
+            s[TOGETHER_SINCE] = t
+    else:
+        s[TOGETHER_SINCE] = math.inf
+    if together and abs(mean_w - s[W_HAT]) < 3.0 * agreement:
+        if t < s[AGREE_SINCE]:
+            s[AGREE_SINCE] = t
+    else:
+        s[AGREE_SINCE] = math.inf
+    # Gripping: the two wheels roll alike (the gyro's yaw taken out) at the speed ŵ
+    # followed from the IMU (ẇ = g θ + d̂). Past ``longest`` ŵ may have coasted off
+    # the truth, so two wheels rolling alike are enough; a wheel that still
+    # disagrees with the other is still spinning (or the other is), and the axle
+    # cannot move at its speed.
+    hold = c[HOLD] - 1e-9
+    first_since = s[SINCE_RIGHT] if s[SINCE_RIGHT] < s[SINCE_LEFT] else s[SINCE_LEFT]
+    if (t - s[AGREE_SINCE] >= hold
+            or (t - first_since >= c[LONGEST] and t - s[TOGETHER_SINCE] >= hold)):
+        both = s[SLIPS_LEFT] != 0.0 and s[SLIPS_RIGHT] != 0.0
+        s[SLIPS_LEFT] = s[SLIPS_RIGHT] = 0.0
+        # A later slip is timed from its own start, not from this one's.
+        s[SINCE_LEFT] = s[SINCE_RIGHT] = math.inf
+        if both:
+            s[W_HAT] = mean_w

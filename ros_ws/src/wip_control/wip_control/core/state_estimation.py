@@ -11,10 +11,14 @@ rules for starting and restarting them (docs/control-loop.md).
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 from typing import NamedTuple, Sequence
+
+import numpy as np
 
 from .angles import unwrap_next
 from .eso import EsoParams, StateEstimate
+from .model import input_gains
 from .state_observer import WipStateObserver
 from wip_description.params import ModelParams
 from .position import (DEAD_RECKONING, FAULT, NO_FIX, PlanarPositionEstimator,
@@ -22,7 +26,15 @@ from .position import (DEAD_RECKONING, FAULT, NO_FIX, PlanarPositionEstimator,
 from wip_description.sensors import wheel_odometry
 from .obstacle import (DEFAULT_MAX_DRIVE_TORQUE, ObstacleMonitor, ObstacleRelease,
                        ObstacleState)
+from . import slip as slip_monitor
 from .slip import SlipMonitor
+
+#: The slip monitor's arrays that the compiled kernel is given when there is no monitor.
+_NO_SLIP = SimpleNamespace(state=np.zeros(slip_monitor.EVENTS + 1),
+                           constants=np.ones(slip_monitor.LONGEST + 1))
+#: The samples over which the compiled kernel is compared with the interpreter, at the
+#: period: past the slip monitor's first 1 s, with a wheel spun up at 1.5 s.
+_KERNEL_CHECKS = 400
 
 
 class EstimatorOverflow(ValueError):
@@ -72,20 +84,30 @@ class StateEstimator:
         self.dead_reckoning = bool(dead_reckoning)
         self.refused = ''   #: why the caller refused the position source ('' if not)
         self.restarts = 0   #: restarts after an overflow
+        # The compiled steady sample (use_compiled), its module, and its constants and ε
+        # for an observer.
+        self._kernel = None
+        self._kernel_module = None
+        self._kernel_constants: tuple = (None, None, math.nan)
         self.restart()
         self.restarts = 0
 
     @classmethod
-    def from_scenario(cls, scenario) -> 'StateEstimator':
+    def from_scenario(cls, scenario, compiled: bool = False) -> 'StateEstimator':
         """Return the estimator of a scenario's controller settings.
 
         ``scenario`` is a :class:`~.controller_settings.ControllerParams` (a simulation's
         scenario is one). The model is the nominal one, as the controllers know it (a
-        mismatch with the plant shows up in x_v).
+        mismatch with the plant shows up in x_v). ``compiled``: take the steady samples
+        compiled where the estimator has a compiled form (:meth:`use_compiled`; the same
+        floats either way).
         """
-        return cls(scenario.controller_model.parameters, scenario.eso, scenario.position,
-                   encoders_relative_to_body=scenario.sensors.encoders_relative_to_body,
-                   max_drive_torque=2.0 * scenario.mixer.max_wheel_torque)
+        estimator = cls(scenario.controller_model.parameters, scenario.eso, scenario.position,
+                        encoders_relative_to_body=scenario.sensors.encoders_relative_to_body,
+                        max_drive_torque=2.0 * scenario.mixer.max_wheel_torque)
+        if compiled:
+            estimator.use_compiled()
+        return estimator
 
     def restart(self) -> None:
         """Forget everything: the next sample starts the observer and the position."""
@@ -111,6 +133,54 @@ class StateEstimator:
         self.position_started = False
         self.settled = False   # the ε ramp is over (it does not start again until a restart)
         self.restarts += 1
+
+    def use_compiled(self) -> str:
+        """Take the steady samples with the compiled kernel (``estimator_kernel.py``).
+
+        Only for the gyro estimator. The kernel is compared with the interpreter on a
+        scratch estimator of the same settings first. Return '' when it is used, else why
+        not. The estimates are the same floats either way.
+        """
+        if self.eso_config.estimator != 'gyro':
+            return f"no compiled form of the '{self.eso_config.estimator}' estimator"
+        from . import estimator_kernel
+        from .compiled import ESTIMATOR_KERNEL, load_compiled
+        module = load_compiled(ESTIMATOR_KERNEL)
+        difference = self._kernel_difference(module.step)
+        if difference:
+            module.refresh()   # numba's cache stale (a formula changed since it was filled)
+            difference = self._kernel_difference(module.step)
+        if difference:
+            return f'the compiled estimator differs from the interpreted one {difference}'
+        self._kernel, self._kernel_module = module.step, estimator_kernel
+        return ''
+
+    def _kernel_difference(self, kernel) -> str:
+        """Where ``kernel`` differs from the interpreter on a made-up drive ('' nowhere)."""
+        from . import estimator_kernel   # its status codes and constants (numba loaded)
+        pair = []
+        for compiled in (kernel, None):
+            estimator = StateEstimator(self.model, self.eso_config, self.position_config,
+                                       encoders_relative_to_body=self.relative_to_body,
+                                       dead_reckoning=self.dead_reckoning,
+                                       max_drive_torque=self.max_drive_torque)
+            estimator._kernel, estimator._kernel_module = compiled, estimator_kernel
+            pair.append(estimator)
+        h = self.eso_config.sample_period
+        for k in range(_KERNEL_CHECKS):
+            t = k * h
+            # Rolling and turning, the yaw wrapping past ±π, the left wheel spun up for
+            # 0.1 s at 1.5 s, a fix now and then.
+            spin = 40.0 * (t - 1.5) ** 2 if 1.5 <= t < 1.6 else 0.0
+            sample = (t, 2.0 * t + 0.1 * math.sin(3.0 * t) + spin, 2.1 * t,
+                      0.05 * math.sin(2.0 * t), math.remainder(3.0 + 0.8 * t, 2.0 * math.pi),
+                      2.0 * math.cos(5.0 * t), 1.5 * math.sin(4.0 * t),
+                      (0.1 * math.cos(2.0 * t), 0.8), (0.5 * t, 0.1) if k % 37 == 5 else None)
+            compiled, interpreted = (estimator.update(*sample[:-2], rates=sample[-2],
+                                                      fix=sample[-1]) for estimator in pair)
+            if compiled != interpreted:
+                return f'at t = {t!r}: {compiled} != {interpreted}'
+        return ''
 
     @property
     def started(self) -> bool:
@@ -154,6 +224,13 @@ class StateEstimator:
             on non-finite input (state unchanged); :class:`EstimatorOverflow` when the
             result overflows (the estimator restarted).
         """
+        observer = self.observer
+        if (self._kernel is not None and fix is None and rates is not None
+                and observer is not None and self.position_started):
+            pose = self._compiled_update(observer, t, phi_left, phi_right, pitch, yaw,
+                                         tau_left, tau_right, rates)
+            if pose is not None:
+                return pose
         yaw_unwrapped = yaw if self.yaw_unwrapped is None else unwrap_next(
             self.yaw_unwrapped, yaw)
         x_v, _ = wheel_odometry(phi_left, phi_right, pitch, self.model, 0.0,
@@ -162,6 +239,12 @@ class StateEstimator:
             r = self.model.wheel_radius
             x_v = self.slip.update(t, r * phi_left, r * phi_right, x_v, pitch, rates[0],
                                    rates[1], tau_left, tau_right).x_v
+        return self._observe(t, yaw_unwrapped, x_v, pitch, tau_left, tau_right, rates, fix)
+
+    def _observe(self, t: float, yaw_unwrapped: float, x_v: float, pitch: float,
+                 tau_left: float, tau_right: float, rates: Sequence[float] | None,
+                 fix: Sequence[float] | None) -> PoseEstimate:
+        """Take the sample from the observer on, the yaw unwrapped and x_v measured."""
         observer = self.observer
         if observer is None:
             observer = WipStateObserver(
@@ -172,6 +255,11 @@ class StateEstimator:
                                    tau_right - tau_left, rates)
         self.observer, self.yaw_unwrapped = observer, yaw_unwrapped
         x, y = self._position(t, x_v, estimate.phi, fix)
+        return self._finish(t, estimate, x, y, tau_left + tau_right)
+
+    def _finish(self, t: float, estimate: StateEstimate, x: float, y: float,
+                tau_v: float) -> PoseEstimate:
+        """Run the checks and monitors after the observer and the position."""
         # ε (the last field) is inf at the start of the paper's ramp: not checked. One sum
         # first (NaN and inf propagate), each value only if it is not finite.
         a, b, c, d, e, f, g, h, i, _ = estimate
@@ -182,15 +270,43 @@ class StateEstimator:
                 f'non-finite estimate from finite inputs (overflow): {estimate}, x={x!r}, '
                 f'y={y!r}; the estimator restarts at the next sample')
         if not self.settled:
-            self.settled = not observer.in_ramp(t)
+            self.settled = not self.observer.in_ramp(t)
         blocked = False
         if self.obstacle is not None:
-            blocked = self.obstacle.update(t, estimate.x_v, estimate.theta,
-                                           tau_left + tau_right).blocked
-        if self.release is not None and self.release.update(
-                t, estimate.v, estimate.theta, tau_left + tau_right):
+            blocked = self.obstacle.update(t, estimate.x_v, estimate.theta, tau_v).blocked
+        if self.release is not None and self.release.update(t, estimate.v, estimate.theta,
+                                                            tau_v):
             estimate = estimate._replace(f2=0.0, f3=0.0)
         return PoseEstimate(estimate, x, y, self.settled, self.position_status, blocked)
+
+    def _compiled_update(self, observer: WipStateObserver, t: float, phi_left: float,
+                         phi_right: float, pitch: float, yaw: float, tau_left: float,
+                         tau_right: float, rates: Sequence[float]) -> PoseEstimate | None:
+        """Take a steady sample compiled; None if the kernel leaves it to the interpreter."""
+        kernel = self._kernel_module
+        for_observer, constants, epsilon = self._kernel_constants
+        if for_observer is not observer:
+            constants = kernel.constants(observer, self.relative_to_body, self.slip is not None,
+                                         self.model.wheel_radius)
+            # The gyro estimator's ε: 1/ω_l of the x_v ESO, constant.
+            epsilon = observer.epsilon_at(t)
+            self._kernel_constants = observer, constants, epsilon
+        slip = self.slip if self.slip is not None else _NO_SLIP
+        g1, g2, g3 = input_gains(self.model, observer.tilt.x1)
+        longitudinal = observer.longitudinal
+        out = self._kernel(constants, observer.yaw._s, observer.tilt._s, longitudinal._s,
+                           longitudinal._nominal, slip.state, slip.constants,
+                           self.position.state, self.yaw_unwrapped, observer._phi_meas, g1,
+                           g2, g3, t, phi_left, phi_right, pitch, yaw, tau_left, tau_right,
+                           rates[0], rates[1])
+        status = out[0]
+        if status == kernel.TAKEN:
+            estimate = StateEstimate._make((*out[6:], epsilon))
+            observer._estimate = estimate
+            observer._phi_meas = out[2]
+            self.yaw_unwrapped = out[1]
+            return self._finish(t, estimate, out[4], out[5], tau_left + tau_right)
+        return None
 
     def _position(self, t: float, x_v: float, phi: float,
                   fix: Sequence[float] | None) -> tuple[float, float]:

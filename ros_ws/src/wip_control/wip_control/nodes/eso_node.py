@@ -152,6 +152,7 @@ class EsoNode(ControllerNode):
                                         encoders_relative_to_body=self.relative_to_body,
                                         dead_reckoning=self.position_source == 'wheels',
                                         max_drive_torque=2.0 * self.max_wheel_torque)
+        self._use_compiled_estimator()
         self.reported_fault = ''
         self.last_update_ns: int | None = None
         # Real time: the observer's sample clock (see _observer_time).
@@ -305,6 +306,16 @@ class EsoNode(ControllerNode):
         angles = signed_wheel_angles(msg, self.left_joint, self.right_joint, self.left_sign,
                                      self.right_sign)
         self.feed('joint_states', stamp, angles)
+
+    def _use_compiled_estimator(self) -> None:
+        """Take the gyro estimator's steady samples compiled (the same floats, one call)."""
+        if self.eso_config.estimator != 'gyro':
+            return
+        warning = self.estimator.use_compiled()
+        if warning:
+            self.get_logger().warning(f'estimator interpreted: {warning}')
+        else:
+            self.get_logger().info("the estimator's steady sample: compiled")
 
     def _on_imu(self, msg: Imu | bytes) -> None:
         msg = decode_serialized(msg, 'sensor_msgs/msg/Imu')

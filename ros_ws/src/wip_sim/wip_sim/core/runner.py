@@ -105,7 +105,7 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None,
     sim = Simulation(scenario, reference)
     # The estimator starts from the first measurements and the first GPS fix, as the ESO
     # node does (core/state_estimation.py).
-    estimator = StateEstimator.from_scenario(scenario)
+    estimator = StateEstimator.from_scenario(scenario, compiled=True)
     control = ControlStep.from_scenario(scenario)
     rec = _Recorder()
     mpc_inputs: list[dict] | None = [] if record_mpc_inputs else None
