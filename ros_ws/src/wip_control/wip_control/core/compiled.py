@@ -1,10 +1,9 @@
 """The numba-compiled kernels of the core, imported and warmed up once per process.
 
 Each kernel module (``mpc_kernel``, ``qp_polish``, ``retiming_kernel``,
-``estimator_kernel``) has a ``warm_up()``
-that loads its code from numba's cache or compiles it. It is called where a controller is
-made, not in its first tick, and a process that makes no MPC (or a real-time reference
-node) does not import numba.
+``estimator_kernel``) has a ``warm_up()`` that loads its code from numba's cache or compiles
+it. It is called where a controller is made (an MPC, a loop's reference, a gyro
+estimator), not in its first tick; a process that makes none of them does not import numba.
 ``python3 -m wip_control.core.compiled`` fills numba's cache of all of them (scripts/setup
 and the Docker image do, after building).
 """

@@ -250,7 +250,9 @@ class ChannelEstimate:
     It holds x̂1, x̂2 and f̂ at ``_t_prev``, and is the same for the ESO (25) and the
     rate-aided channel. The state lives in one float64 array, ``_s`` (slots ``X1``,
     ``X2``, ``F``, ``TIME``, then the channel's own), which the methods and the compiled
-    estimator (``estimator_kernel.py``) update in place.
+    estimator (``estimator_kernel.py``) update in place. The methods run the step functions
+    on a list of the state's Python floats and write it back (numpy's scalars would print
+    warnings on an overflow: absurd input gets its one error).
     """
 
     name: str
@@ -285,7 +287,7 @@ class ChannelEstimate:
 Y_PREV, UNSEEDED = _OWN, _OWN + 1
 
 
-def eso_step(s: np.ndarray, t: float, y: float, b_u: float, m) -> None:
+def eso_step(s: np.ndarray | list[float], t: float, y: float, b_u: float, m) -> None:
     """Advance an ESO's state ``s`` in place by one period, to ``t`` [s] with ``y`` at t.
 
     ``m``: the period's 18 floats (``ExtendedStateObserver._as_floats``). The exact ZOH/FOH
@@ -343,10 +345,11 @@ class ExtendedStateObserver(ChannelEstimate):
         self.ramp_duration = float(ramp_duration)
         self.measurement_hold = measurement_hold
         self._s = np.zeros(_OWN + 2)
-        # Built once: the per-sample update is then 3 dot products.
-        self._nominal = np.array(self._as_floats(discretise(self.gains, self.epsilon,
-                                                            self.sample_period,
-                                                            measurement_hold)))
+        # Built once: the per-sample update is then 3 dot products (the compiled estimator
+        # reads the array).
+        self._nominal = self._as_floats(discretise(self.gains, self.epsilon,
+                                                   self.sample_period, measurement_hold))
+        self._nominal_array = np.array(self._nominal)
         self._cached: dict[int, tuple[float, ...]] = {}   # period in PERIOD_RESOLUTION
         # RK4 sub-step during the ramp: ≤ 1 ms and ≤ 1/|λ|max of the final observer.
         fastest_pole = max(abs(r) for r in np.roots([1.0, *self.gains])) / self.epsilon
@@ -413,8 +416,10 @@ class ExtendedStateObserver(ChannelEstimate):
                 m = self._nominal
             else:
                 m = self._off_nominal(dt)
-            eso_step(self._s, t, y, b_u, m)
-            return self.x1, self.x2, self.f
+            state = self._s.tolist()
+            eso_step(state, t, y, b_u, m)
+            self._s[:] = state
+            return state[X1], state[X2], state[F]
         self._y_prev = y
         self._t_prev = t
         return self.x1, self.x2, self.f

@@ -63,7 +63,7 @@ def _slot(index: int, doc: str) -> property:
                     lambda self, value: self.state.__setitem__(index, value), doc=doc)
 
 
-def odometry_step(s: np.ndarray, x_v: float, phi: float) -> None:
+def odometry_step(s: np.ndarray | list[float], x_v: float, phi: float) -> None:
     """Dead-reckon the state ``s`` in place to the distance rolled x_v [m] and heading ϕ [rad].
 
     The step of :meth:`PlanarPositionEstimator.update_odometry` (finite inputs); the
@@ -146,8 +146,10 @@ class PlanarPositionEstimator:
         """
         if not math.isfinite(x_v + phi):
             _check_finite('update_odometry', x_v=x_v, phi=phi)
-        odometry_step(self.state, x_v, phi)
-        return self.x, self.y
+        state = self.state.tolist()   # Python floats: no numpy warning on an overflow
+        odometry_step(state, x_v, phi)
+        self.state[:] = state
+        return state[X], state[Y]
 
     def gate(self) -> float:
         """Radius [m] within which a fix is accepted now (see the module docstring)."""

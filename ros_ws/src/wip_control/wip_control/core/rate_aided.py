@@ -54,8 +54,8 @@ def discrete_pole_gains(pole_a: float, pole_b: float, period: float) -> tuple[fl
     return 1.0 - p * q, (1.0 - p) * (1.0 - q) / period
 
 
-def rate_aided_step(s: np.ndarray, t: float, h: float, y: float, rate: float, b_u: float,
-                    l1: float, l2: float, m1: float, m2: float) -> None:
+def rate_aided_step(s: np.ndarray | list[float], t: float, h: float, y: float, rate: float,
+                    b_u: float, l1: float, l2: float, m1: float, m2: float) -> None:
     """Advance a rate-aided channel's state ``s`` in place by one period h, to ``t`` [s].
 
     The two loops of :class:`RateAidedChannel` with their gains; the compiled estimator
@@ -153,20 +153,20 @@ class RateAidedChannel(ChannelEstimate):
         h = t - self._t_prev
         if h < 0.0:
             raise ValueError(f'{self.name}: time went backwards from {self._t_prev} to {t}')
-        s = self._s
+        s = self._s.tolist()   # Python floats (see ChannelEstimate)
         if not s[RATE_STARTED]:
             s[X2] = rate - s[BIAS]
             s[RATE_PREV] = rate
             s[RATE_STARTED] = 1.0
-        if h == 0.0:
-            return self.x1, self.x2, self.f
-        if abs(h - self.sample_period) <= PERIOD_TOLERANCE * self.sample_period:
-            h = self.sample_period
-            l1, l2, m1, m2 = self._nominal_gains
-        else:
-            l1, l2, m1, m2 = self._gains(h)
-        rate_aided_step(s, t, h, y, rate, b_u, l1, l2, m1, m2)
-        return self.x1, self.x2, self.f
+        if h != 0.0:
+            if abs(h - self.sample_period) <= PERIOD_TOLERANCE * self.sample_period:
+                h = self.sample_period
+                l1, l2, m1, m2 = self._nominal_gains
+            else:
+                l1, l2, m1, m2 = self._gains(h)
+            rate_aided_step(s, t, h, y, rate, b_u, l1, l2, m1, m2)
+        self._s[:] = s
+        return s[X1], s[X2], s[F]
 
 
 def rate_eso_noise_variance(rate_noise_std: float, bandwidth: float, period: float,

@@ -71,6 +71,8 @@ class SlipState(NamedTuple):
 #: the tunables.
 (Q, BODY_RATE_GAIN, GRAVITY, HALF_TRACK, MAX_ACCELERATION, AGREEMENT, BANDWIDTH, HOLD,
  LONGEST) = range(9)
+#: The step functions' state and constants: the arrays, or lists of their floats.
+_State = np.ndarray | list[float]
 
 
 class SlipMonitor:
@@ -87,8 +89,9 @@ class SlipMonitor:
     relative_to_body : the encoders measure the wheels against the body (the default).
 
     The state lives in one float64 array (the ``*_LAST`` … ``EVENTS`` slots), which
-    :func:`slip_step` updates in place, interpreted here and compiled in the estimator's
-    kernel (``estimator_kernel.py``).
+    :func:`slip_step` updates in place, compiled in the estimator's kernel
+    (``estimator_kernel.py``), and here on a list of its Python floats written back (numpy's
+    scalars would print warnings on an overflow: absurd input gets its one error).
     """
 
     def __init__(self, params: ModelParams, max_acceleration: float = 20.0,
@@ -110,6 +113,7 @@ class SlipMonitor:
         self.constants = np.array([self.q, self.body_rate_gain, self.g, self.half_track,
                                    max_acceleration, agreement, bandwidth, hold, longest],
                                   dtype=float)
+        self._constants = self.constants.tolist()
         self.state = np.zeros(EVENTS + 1)
         self.reset()
 
@@ -146,12 +150,15 @@ class SlipMonitor:
         if not math.isfinite(t + left + right + x_v + theta + pitch_rate + yaw_rate
                              + tau_left + tau_right):
             raise ValueError('SlipMonitor.update: non-finite input (nothing changed)')
-        x_v_used, speed = slip_step(self.state, self.constants, t, left, right, x_v, theta,
+        state = self.state.tolist()
+        x_v_used, speed = slip_step(state, self._constants, t, left, right, x_v, theta,
                                     pitch_rate, yaw_rate, tau_left, tau_right)
-        return SlipState(float(x_v_used), *self.slipping_wheels, self.offset, float(speed))
+        self.state[:] = state
+        return SlipState(x_v_used, state[SLIPS_LEFT] != 0.0, state[SLIPS_RIGHT] != 0.0,
+                         state[OFFSET], speed)
 
 
-def slip_step(s: np.ndarray, c: np.ndarray, t: float, left: float, right: float,
+def slip_step(s: _State, c: _State, t: float, left: float, right: float,
               x_v: float, theta: float, pitch_rate: float, yaw_rate: float,
               tau_left: float, tau_right: float) -> tuple[float, float]:
     """Take one finite sample into the monitor's state ``s`` (constants ``c``), in place.
@@ -226,13 +233,13 @@ def _measured(slips_left: bool, slips_right: bool, w_left: float, w_right: float
     return measured
 
 
-def _keep_last(s: np.ndarray, t: float, left: float, right: float, x_v: float,
+def _keep_last(s: _State, t: float, left: float, right: float, x_v: float,
                pitch_rate: float) -> None:
     s[T_LAST], s[LEFT_LAST], s[RIGHT_LAST], s[XV_LAST] = t, left, right, x_v
     s[RATE_LAST], s[HAS_LAST] = pitch_rate, 1.0
 
 
-def _detect(s: np.ndarray, c: np.ndarray, t: float, h: float, judging: bool, wheel: int,
+def _detect(s: _State, c: _State, t: float, h: float, judging: bool, wheel: int,
             w_now: float, model: float, torque: float) -> None:
     """Mark a wheel slipping whose acceleration leaves the tilt's, driven by its torque."""
     residual = (w_now - s[W_PREV_LEFT + wheel]) / h - model
@@ -246,7 +253,7 @@ def _detect(s: np.ndarray, c: np.ndarray, t: float, h: float, judging: bool, whe
         s[EVENTS] += 1.0
 
 
-def _release(s: np.ndarray, c: np.ndarray, t: float, w_left: float, w_right: float) -> None:
+def _release(s: _State, c: _State, t: float, w_left: float, w_right: float) -> None:
     """End the slip once the wheels grip again (with ŵ, or together after ``longest``)."""
     mean_w = 0.5 * (w_left + w_right)
     agreement = c[AGREEMENT]

@@ -295,7 +295,7 @@ class StateEstimator:
         g1, g2, g3 = input_gains(self.model, observer.tilt.x1)
         longitudinal = observer.longitudinal
         out = self._kernel(constants, observer.yaw._s, observer.tilt._s, longitudinal._s,
-                           longitudinal._nominal, slip.state, slip.constants,
+                           longitudinal._nominal_array, slip.state, slip.constants,
                            self.position.state, self.yaw_unwrapped, observer._phi_meas, g1,
                            g2, g3, t, phi_left, phi_right, pitch, yaw, tau_left, tau_right,
                            rates[0], rates[1])
