@@ -21,6 +21,9 @@ from wip_description.params import ModelParams
 
 MODEL = ModelParams()
 H = 0.005
+#: Absurd input gets its one error: no numpy warning on the way (the interpreted methods
+#: compute on Python floats).
+pytestmark = pytest.mark.filterwarnings('error::RuntimeWarning')
 
 
 def twins(config=EsoParams(), **kwargs):
