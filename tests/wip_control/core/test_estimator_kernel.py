@@ -166,7 +166,7 @@ def test_an_int_time_is_converted_not_compiled_anew():
     assert_same_bits(run(compiled, samples), run(interpreted, samples))
     assert len(estimator_kernel.step.signatures) == 1
     with pytest.raises(TypeError):
-        compiled._kernel(*[None] * 22)
+        compiled._kernel(*[None] * 19)
 
 
 def test_the_paper_estimator_stays_interpreted():

@@ -17,9 +17,9 @@ below :data:`MODERATE` in magnitude, so that nothing it computes (sums, and prod
 most three such values with the model's constants) can overflow where the interpreter would
 have raised midway; anything else returns :data:`NOT_TAKEN` before changing a thing, and the
 interpreter takes the sample (and raises what it raises).
-The input gains of eq. (1) come from the caller (``model.input_gains``): CPython's
-``x ** 2`` calls the C library's ``pow``, which LLVM would turn into ``x * x``, a last bit
-apart now and then.
+The input gains of eq. (1) (``model.input_gains_of``) take their exponent 2 from the
+constants: CPython's ``x ** 2`` calls the C library's ``pow``, which LLVM would turn into
+``x * x`` for a constant exponent, a last bit apart now and then.
 
 numba's cache knows only this file's date, not theirs: :func:`warm_up` compiles afresh when
 a digest of the sources differs from the one kept beside the cache, and
@@ -38,10 +38,10 @@ import numba
 import numpy as np
 from numba.extending import overload, register_jitable
 
-from . import angles, eso, position, rate_aided, slip
+from . import angles, eso, model, position, rate_aided, slip
 from .compiled import refresh_if_sources_changed
 
-for _function in (angles.wrap_to_pi, angles.unwrap_next, eso.eso_step,
+for _function in (angles.wrap_to_pi, angles.unwrap_next, eso.eso_step, model.input_gains_of,
                   rate_aided.rate_aided_step, slip.slip_step, slip._measured, slip._keep_last,
                   slip._detect, slip._release, position.odometry_step):
     register_jitable(_function)
@@ -80,16 +80,19 @@ MODERATE = 1e100
 #: The slots of the constants array (:func:`constants`).
 (PERIOD, PERIOD_TOLERANCE, WHEEL_RADIUS, RELATIVE_TO_BODY, HAS_SLIP, YAW_SCALE,
  XV_PITCH_CORRECTION, YAW_L1, YAW_L2, YAW_M1, YAW_M2, TILT_L1, TILT_L2, TILT_M1,
- TILT_M2) = range(15)
+ TILT_M2, BODY_MASS, COM_HEIGHT, TRACK_WIDTH, EFFECTIVE_MASS, PITCH_INERTIA,
+ YAW_INERTIA, SQUARE) = range(22)
 
 
-def constants(observer, relative_to_body: bool, has_slip: bool, wheel_radius: float
-              ) -> np.ndarray:
+def constants(observer, relative_to_body: bool, has_slip: bool) -> np.ndarray:
     """Return the kernel's constants of a gyro ``WipStateObserver`` (the slots above)."""
-    return np.array([observer.config.sample_period, eso.PERIOD_TOLERANCE, wheel_radius,
+    p = observer.params
+    return np.array([observer.config.sample_period, eso.PERIOD_TOLERANCE, p.wheel_radius,
                      float(relative_to_body), float(has_slip), observer._yaw_scale,
                      observer._xv_pitch_correction, *observer.yaw._nominal_gains,
-                     *observer.tilt._nominal_gains], dtype=float)
+                     *observer.tilt._nominal_gains, p.body_mass, p.com_height,
+                     p.track_width, p.effective_mass, p.pitch_inertia, p.yaw_inertia_total,
+                     2.0], dtype=float)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -105,24 +108,22 @@ _ARRAY = numba.float64[::1]
 #: One signature, compiled once: arguments of another type are converted (an int time) or
 #: refused, never compiled anew in a control tick.
 _SIGNATURE = numba.types.Tuple((numba.int64,) + (numba.float64,) * 14)(
-    *(_ARRAY,) * 8, *(numba.float64,) * 14)
+    *(_ARRAY,) * 8, *(numba.float64,) * 11)
 
 
 @numba.njit(_SIGNATURE, cache=True, nogil=True, boundscheck=True)
 def step(c, yaw, tilt, longitudinal, nominal, slip_state, slip_constants, position_state,
-         previous_yaw, previous_phi_meas, g1, g2, g3, t, phi_left, phi_right, pitch,
-         yaw_meas, tau_left, tau_right, pitch_rate, yaw_rate):
+         previous_yaw, previous_phi_meas, t, phi_left, phi_right, pitch, yaw_meas, tau_left,
+         tau_right, pitch_rate, yaw_rate):
     """One steady sample of the gyro estimator, on the objects' state arrays in place.
 
     Return (what it did, yaw unwrapped, the observer's ϕ measurement, x_v after the slip
     monitor, x̂, ŷ, then the estimate's nine values: the channels' (x̂1, x̂2, f̂) of yaw,
-    x_v and tilt). ``nominal``: the x_v ESO's matrices for the period. ``g1``, ``g2``,
-    ``g3``: eq. (1)'s input gains at the tilt estimate before the sample.
+    x_v and tilt). ``nominal``: the x_v ESO's matrices for the period.
     """
     nan = math.nan
     if not (_moderate(np.array((t, phi_left, phi_right, pitch, yaw_meas, tau_left, tau_right,
-                                pitch_rate, yaw_rate, previous_yaw, previous_phi_meas, g1,
-                                g2, g3)))
+                                pitch_rate, yaw_rate, previous_yaw, previous_phi_meas)))
             and _moderate(yaw[:rate_aided.RATE_STARTED])
             and _moderate(tilt[:rate_aided.RATE_STARTED])
             and _moderate(longitudinal[:eso.UNSEEDED])
@@ -150,7 +151,11 @@ def step(c, yaw, tilt, longitudinal, nominal, slip_state, slip_constants, positi
         x_v = slip.slip_step(slip_state, slip_constants, t, r * phi_left, r * phi_right, x_v,
                              pitch, pitch_rate, yaw_rate, tau_left, tau_right)[0]
     tau_v, tau_omega = tau_left + tau_right, tau_right - tau_left
-    # WipStateObserver.update, the gyro estimator.
+    # WipStateObserver.update, the gyro estimator: eq. (1)'s input gains at θ̂ of the start
+    # of the period.
+    g1, g2, g3 = model.input_gains_of(c[BODY_MASS], c[COM_HEIGHT], r, c[TRACK_WIDTH],
+                                      c[EFFECTIVE_MASS], c[PITCH_INERTIA], c[YAW_INERTIA],
+                                      tilt[eso.X1], c[SQUARE])
     phi_meas = yaw_unwrapped
     d = phi_meas - previous_phi_meas
     if d > math.pi or d < -math.pi:
@@ -177,9 +182,9 @@ def warm_up() -> None:
     (:data:`SOURCES_STAMP` beside the cache holds their digest).
     """
     state = np.zeros(8)
-    step(np.zeros(TILT_M2 + 1), state, state.copy(), state.copy(), np.zeros(18),
+    step(np.zeros(SQUARE + 1), state, state.copy(), state.copy(), np.zeros(18),
          np.zeros(slip.EVENTS + 1), np.ones(slip.LONGEST + 1), np.zeros(position.ROLLED + 1),
-         0.0, 0.0, 1.0, 1.0, 1.0, math.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+         0.0, 0.0, math.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     refresh_if_sources_changed(step.stats.cache_path, SOURCES_STAMP, sources_digest(),
                                refresh)
 

@@ -49,11 +49,22 @@ class ModelTerms(NamedTuple):
 def input_gains(params: ModelParams, theta: float) -> tuple[float, float, float]:
     """(g1, g2, g3) of eq. (1) at tilt ``theta`` [rad]."""
     p = params
-    mp, l, r, d = p.body_mass, p.com_height, p.wheel_radius, p.track_width  # noqa: E741 - the paper's symbol
+    return input_gains_of(p.body_mass, p.com_height, p.wheel_radius, p.track_width,
+                          p.effective_mass, p.pitch_inertia, p.yaw_inertia_total, theta)
+
+
+def input_gains_of(mp: float, l: float, r: float, d: float, mv: float, jt: float,  # noqa: E741 - the paper's symbol
+                   j_yaw: float, theta: float, square: float = 2) -> tuple[float, float, float]:
+    """(g1, g2, g3) of eq. (1) at tilt ``theta`` [rad], from the model's terms.
+
+    ``square`` is the exponent 2, an argument so that compiled code (``estimator_kernel``)
+    calls the C library's ``pow`` as CPython's ``x ** 2`` does: LLVM turns a constant
+    exponent 2 into ``x * x``, a last bit apart now and then.
+    """
     s, c = math.sin(theta), math.cos(theta)
-    big_omega = p.effective_mass * p.pitch_inertia - (mp * l * c) ** 2
-    g1 = d / (r * (p.yaw_inertia_total + mp * l * l * s * s))
-    g2 = p.pitch_inertia / (big_omega * r)
+    big_omega = mv * jt - (mp * l * c) ** square
+    g1 = d / (r * (j_yaw + mp * l * l * s * s))
+    g2 = jt / (big_omega * r)
     g3 = -mp * l * c / (big_omega * r)
     return g1, g2, g3
 

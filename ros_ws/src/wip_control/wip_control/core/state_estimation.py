@@ -18,7 +18,6 @@ import numpy as np
 
 from .angles import unwrap_next
 from .eso import EsoParams, StateEstimate
-from .model import input_gains
 from .state_observer import WipStateObserver
 from wip_description.params import ModelParams
 from .position import (DEAD_RECKONING, FAULT, NO_FIX, PlanarPositionEstimator,
@@ -286,19 +285,17 @@ class StateEstimator:
         kernel = self._kernel_module
         for_observer, constants, epsilon = self._kernel_constants
         if for_observer is not observer:
-            constants = kernel.constants(observer, self.relative_to_body, self.slip is not None,
-                                         self.model.wheel_radius)
+            constants = kernel.constants(observer, self.relative_to_body, self.slip is not None)
             # The gyro estimator's ε: 1/ω_l of the x_v ESO, constant.
             epsilon = observer.epsilon_at(t)
             self._kernel_constants = observer, constants, epsilon
         slip = self.slip if self.slip is not None else _NO_SLIP
-        g1, g2, g3 = input_gains(self.model, observer.tilt.x1)
         longitudinal = observer.longitudinal
         out = self._kernel(constants, observer.yaw._s, observer.tilt._s, longitudinal._s,
                            longitudinal._nominal_array, slip.state, slip.constants,
-                           self.position.state, self.yaw_unwrapped, observer._phi_meas, g1,
-                           g2, g3, t, phi_left, phi_right, pitch, yaw, tau_left, tau_right,
-                           rates[0], rates[1])
+                           self.position.state, self.yaw_unwrapped, observer._phi_meas, t,
+                           phi_left, phi_right, pitch, yaw, tau_left, tau_right, rates[0],
+                           rates[1])
         status = out[0]
         if status == kernel.TAKEN:
             estimate = StateEstimate._make((*out[6:], epsilon))
