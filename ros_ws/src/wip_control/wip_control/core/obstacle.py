@@ -153,9 +153,11 @@ class ObstacleMonitor:
         return self.state
 
     def _release(self) -> ObstacleState:
-        self._samples.clear()
-        self._stall_start, self._farthest = math.nan, -math.inf
-        self.state = ObstacleState(False, math.nan, '')
+        # Nothing to release (most samples: no stall under way): the state as it is.
+        if self._samples or self.state.blocked:
+            self._samples.clear()
+            self._stall_start, self._farthest = math.nan, -math.inf
+            self.state = ObstacleState(False, math.nan, '')
         return self.state
 
     def _reason(self, x_v: float, theta: float, tau_v: float) -> str:
