@@ -104,6 +104,29 @@ def _moderate(values) -> bool:
     return True
 
 
+@numba.njit(cache=True, nogil=True)
+def _steady(c, yaw, tilt, longitudinal, slip_state, position_state, inputs) -> bool:
+    """Whether :func:`step` takes the sample (``inputs``: t first): see the module docstring."""
+    if not (_moderate(inputs) and _moderate(yaw[:rate_aided.RATE_STARTED])
+            and _moderate(tilt[:rate_aided.RATE_STARTED])
+            and _moderate(longitudinal[:eso.UNSEEDED])
+            and _moderate(slip_state[:slip.AGREE_SINCE]) and _moderate(slip_state[slip.OFFSET:])
+            and _moderate(position_state)):
+        return False
+    t, period = inputs[0], c[PERIOD]
+    tolerance = c[PERIOD_TOLERANCE] * period
+    # The interpreter's nominal-period tests, each channel's own (RateAidedChannel.update,
+    # ExtendedStateObserver.update); the x_v ESO started, its speed seeded.
+    return not (yaw[rate_aided.RATE_STARTED] == 0.0 or tilt[rate_aided.RATE_STARTED] == 0.0
+                or longitudinal[eso.UNSEEDED] != 0.0
+                or not abs(t - yaw[eso.TIME] - period) <= tolerance
+                or not abs(t - tilt[eso.TIME] - period) <= tolerance
+                or not abs(t - longitudinal[eso.TIME] - period) <= tolerance
+                or not t - longitudinal[eso.TIME] > 0.0)
+
+
+#: What :func:`step` returns for a sample it leaves to the interpreter.
+_LEFT = (NOT_TAKEN,) + (math.nan,) * 14
 _ARRAY = numba.float64[::1]
 #: One signature, compiled once: arguments of another type are converted (an int time) or
 #: refused, never compiled anew in a control tick.
@@ -121,25 +144,11 @@ def step(c, yaw, tilt, longitudinal, nominal, slip_state, slip_constants, positi
     monitor, x̂, ŷ, then the estimate's nine values: the channels' (x̂1, x̂2, f̂) of yaw,
     x_v and tilt). ``nominal``: the x_v ESO's matrices for the period.
     """
-    nan = math.nan
-    if not (_moderate(np.array((t, phi_left, phi_right, pitch, yaw_meas, tau_left, tau_right,
-                                pitch_rate, yaw_rate, previous_yaw, previous_phi_meas)))
-            and _moderate(yaw[:rate_aided.RATE_STARTED])
-            and _moderate(tilt[:rate_aided.RATE_STARTED])
-            and _moderate(longitudinal[:eso.UNSEEDED])
-            and _moderate(slip_state[:slip.AGREE_SINCE]) and _moderate(slip_state[slip.OFFSET:])
-            and _moderate(position_state)):
-        return NOT_TAKEN, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan
-    period, tolerance = c[PERIOD], c[PERIOD_TOLERANCE] * c[PERIOD]
-    # The interpreter's nominal-period tests, each channel's own (RateAidedChannel.update,
-    # ExtendedStateObserver.update); the x_v ESO started, its speed seeded.
-    if (yaw[rate_aided.RATE_STARTED] == 0.0 or tilt[rate_aided.RATE_STARTED] == 0.0
-            or longitudinal[eso.UNSEEDED] != 0.0
-            or not abs(t - yaw[eso.TIME] - period) <= tolerance
-            or not abs(t - tilt[eso.TIME] - period) <= tolerance
-            or not abs(t - longitudinal[eso.TIME] - period) <= tolerance
-            or not t - longitudinal[eso.TIME] > 0.0):
-        return NOT_TAKEN, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan
+    if not _steady(c, yaw, tilt, longitudinal, slip_state, position_state,
+                   np.array((t, phi_left, phi_right, pitch, yaw_meas, tau_left, tau_right,
+                             pitch_rate, yaw_rate, previous_yaw, previous_phi_meas))):
+        return _LEFT
+    period = c[PERIOD]
     # StateEstimator.update: the yaw unwrapped, the wheel odometry, the slip monitor.
     yaw_unwrapped = angles.unwrap_next(previous_yaw, yaw_meas)
     r = c[WHEEL_RADIUS]

@@ -36,6 +36,11 @@ _NO_SLIP = SimpleNamespace(state=np.zeros(slip_monitor.EVENTS + 1),
 _KERNEL_CHECKS = 400
 
 
+def _bits(pose: 'PoseEstimate') -> bytes:
+    """Return the bytes of a pose's numbers (its estimate's, position, flags, status)."""
+    return np.array((*pose.estimate, *pose[1:]), dtype=float).tobytes()
+
+
 class EstimatorOverflow(ValueError):
     """Finite inputs gave a non-finite estimate; the estimator restarted (nothing kept)."""
 
@@ -177,7 +182,8 @@ class StateEstimator:
                       (0.1 * math.cos(2.0 * t), 0.8), (0.5 * t, 0.1) if k % 37 == 5 else None)
             compiled, interpreted = (estimator.update(*sample[:-2], rates=sample[-2],
                                                       fix=sample[-1]) for estimator in pair)
-            if compiled != interpreted:
+            # To the bit (== would take -0.0 for 0.0).
+            if _bits(compiled) != _bits(interpreted):
                 return f'at t = {t!r}: {compiled} != {interpreted}'
         return ''
 
