@@ -145,11 +145,11 @@ Examples
 --------
     scripts/soak --runs 1 --seconds 20 --out /tmp/soak     # a quick look
     scripts/soak --paths line --loads busy --freeze 60     # one case, a 60 ms freeze
-    scripts/soak --record-runs --out soak_out              # keep a bag per run
+    scripts/soak --record-runs --out out/soak-bags         # keep a bag per run
 
 A run fails (exit 1 at the end) when the base fell or stopped early, the path error
 after 15 s exceeded --max-path-error, or a freeze did not happen before the run ended.""")
-    parser.add_argument('--out', default='soak_out',
+    parser.add_argument('--out', default='out/soak',
                         help='output directory (default: %(default)s)')
     parser.add_argument('--runs', type=int, default=5, help='runs per case (default: 5)')
     parser.add_argument('--seconds', type=float, default=60.0,
