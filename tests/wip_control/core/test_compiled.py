@@ -8,6 +8,7 @@ decides.
 
 import os
 import pathlib
+import sys
 
 import pytest
 
@@ -35,3 +36,22 @@ def test_a_kernel_is_compiled_afresh_when_the_sources_it_compiles_change(monkeyp
         assert stamp.read_text(encoding='utf-8') == 'a formula changed'
     finally:
         stamp.unlink(missing_ok=True)
+
+
+@pytest.mark.parametrize('module', [retiming_kernel, estimator_kernel])
+def test_the_digest_covers_every_file_whose_functions_the_kernel_compiles(monkeypatch,
+                                                                          module):
+    # A formula changed in any of them (model.py's input gains, say) gives another digest.
+    files = {pathlib.Path(sys.modules[f.__module__].__file__)
+             for f in module.COMPILED_FUNCTIONS} | {pathlib.Path(module.__file__)}
+    assert len(files) >= 3
+    before = module.sources_digest()
+    read_bytes = pathlib.Path.read_bytes
+    for changed in files:
+        monkeypatch.setattr(pathlib.Path, 'read_bytes', lambda self, changed=changed: (
+            read_bytes(self) + b'#' if self == changed else read_bytes(self)))
+        assert module.sources_digest() != before, changed
+        monkeypatch.setattr(pathlib.Path, 'read_bytes', read_bytes)
+    assert module.sources_digest() == before
+    assert 'model' in {f.__module__.rsplit('.', 1)[-1] for f in
+                       estimator_kernel.COMPILED_FUNCTIONS}

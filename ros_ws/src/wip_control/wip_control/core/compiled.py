@@ -10,10 +10,12 @@ and the Docker image do, after building).
 
 from __future__ import annotations
 
+import hashlib
 import importlib
 import pathlib
+import sys
 from types import ModuleType
-from typing import Callable
+from typing import Callable, Iterable
 
 #: The kernel modules of the controllers: the MPC's QP assembly, the QP's polish, the
 #: time-scaled reference's real-time sample, the gyro estimator's sample.
@@ -34,6 +36,18 @@ def load_compiled(module_name: str) -> ModuleType:
         module.warm_up()
         _loaded[module_name] = module
     return module
+
+
+def sources_digest(functions: Iterable[Callable], kernel_module: str) -> str:
+    """SHA-256 of the files of ``functions`` (those a kernel compiles) and of the kernel's own.
+
+    Derived from the functions themselves, so that a file whose function a kernel starts to
+    compile is in its digest.
+    """
+    digest = hashlib.sha256()
+    for name in sorted({function.__module__ for function in functions} | {kernel_module}):
+        digest.update(pathlib.Path(sys.modules[name].__file__).read_bytes())
+    return digest.hexdigest()
 
 
 def refresh_if_sources_changed(cache_path: str, stamp_name: str, digest: str,

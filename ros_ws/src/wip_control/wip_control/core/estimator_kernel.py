@@ -29,21 +29,21 @@ compares the kernel with the interpreter before using it.
 
 from __future__ import annotations
 
-import hashlib
 import math
-import pathlib
-import sys
 
 import numba
 import numpy as np
 from numba.extending import overload, register_jitable
 
 from . import angles, eso, model, position, rate_aided, slip
-from .compiled import refresh_if_sources_changed
+from . import compiled
 
-for _function in (angles.wrap_to_pi, angles.unwrap_next, eso.eso_step, model.input_gains_of,
-                  rate_aided.rate_aided_step, slip.slip_step, slip._measured, slip._keep_last,
-                  slip._detect, slip._release, position.odometry_step):
+#: The interpreter's functions the kernel compiles; their files make its sources' digest.
+COMPILED_FUNCTIONS = (angles.wrap_to_pi, angles.unwrap_next, eso.eso_step,
+                      model.input_gains_of, rate_aided.rate_aided_step, slip.slip_step,
+                      slip._measured, slip._keep_last, slip._detect, slip._release,
+                      position.odometry_step)
+for _function in COMPILED_FUNCTIONS:
     register_jitable(_function)
 
 
@@ -194,8 +194,8 @@ def warm_up() -> None:
     step(np.zeros(SQUARE + 1), state, state.copy(), state.copy(), np.zeros(18),
          np.zeros(slip.EVENTS + 1), np.ones(slip.LONGEST + 1), np.zeros(position.ROLLED + 1),
          0.0, 0.0, math.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    refresh_if_sources_changed(step.stats.cache_path, SOURCES_STAMP, sources_digest(),
-                               refresh)
+    compiled.refresh_if_sources_changed(step.stats.cache_path, SOURCES_STAMP, sources_digest(),
+                                        refresh)
 
 
 #: The file beside numba's cache with the digest of the sources the kernel was compiled from.
@@ -204,10 +204,7 @@ SOURCES_STAMP = 'estimator_kernel.sources'
 
 def sources_digest() -> str:
     """SHA-256 of the files whose functions the kernel compiles, and of this one."""
-    digest = hashlib.sha256()
-    for module in (angles, eso, rate_aided, slip, position, sys.modules[__name__]):
-        digest.update(pathlib.Path(module.__file__).read_bytes())
-    return digest.hexdigest()
+    return compiled.sources_digest(COMPILED_FUNCTIONS, __name__)
 
 
 def refresh() -> None:

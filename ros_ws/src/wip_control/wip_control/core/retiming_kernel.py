@@ -18,27 +18,26 @@ they still do.
 
 from __future__ import annotations
 
-import hashlib
-import pathlib
-import sys
-
 import numba
 import numpy as np
 from numba.extending import register_jitable
 
+from . import compiled
 from . import reference_curves as curves
-from .compiled import refresh_if_sources_changed
 from . import retiming
 
-for _function in (retiming.hermite_progress, retiming.interpolated_sigma,
-                  retiming.interpolated_rate, retiming.raw_rate, retiming.retimed_state,
-                  retiming.retimed_speed, retiming.speeding_up,
-                  curves.state_from_derivatives, curves.speed_and_yaw_rate_from_derivatives,
-                  curves.trifolium_derivatives, curves.trifolium_state,
-                  curves.trifolium_speed_and_yaw_rate, curves.circle_state,
-                  curves.circle_speed_and_yaw_rate, curves.line_state,
-                  curves.line_speed_and_yaw_rate, curves.figure_eight_derivatives,
-                  curves.figure_eight_state, curves.figure_eight_speed_and_yaw_rate):
+#: The interpreter's functions the kernel compiles; their files make its sources' digest.
+COMPILED_FUNCTIONS = (retiming.hermite_progress, retiming.interpolated_sigma,
+                      retiming.interpolated_rate, retiming.raw_rate, retiming.retimed_state,
+                      retiming.retimed_speed, retiming.speeding_up,
+                      curves.state_from_derivatives,
+                      curves.speed_and_yaw_rate_from_derivatives,
+                      curves.trifolium_derivatives, curves.trifolium_state,
+                      curves.trifolium_speed_and_yaw_rate, curves.circle_state,
+                      curves.circle_speed_and_yaw_rate, curves.line_state,
+                      curves.line_speed_and_yaw_rate, curves.figure_eight_derivatives,
+                      curves.figure_eight_state, curves.figure_eight_speed_and_yaw_rate)
+for _function in COMPILED_FUNCTIONS:
     register_jitable(_function)
 
 #: The curves by ``KERNEL_KIND``; a curve's parameters are its ``parameters`` as an array.
@@ -111,8 +110,8 @@ def warm_up() -> None:
     for kind in (TRIFOLIUM, CIRCLE, LINE, FIGURE_EIGHT):
         sample(0.005, 0.0, 0.0, 0.01, nodes, np.ones(3), np.ones(3), 1.0, 1.0, kind,
                np.ones(7))
-    refresh_if_sources_changed(sample.stats.cache_path, SOURCES_STAMP, sources_digest(),
-                               refresh)
+    compiled.refresh_if_sources_changed(sample.stats.cache_path, SOURCES_STAMP,
+                                        sources_digest(), refresh)
 
 
 #: The file beside numba's cache with the digest of the sources the kernel was compiled from.
@@ -121,10 +120,7 @@ SOURCES_STAMP = 'retiming_kernel.sources'
 
 def sources_digest() -> str:
     """SHA-256 of the files whose functions the kernel compiles, and of this one."""
-    digest = hashlib.sha256()
-    for module in (retiming, curves, sys.modules[__name__]):
-        digest.update(pathlib.Path(module.__file__).read_bytes())
-    return digest.hexdigest()
+    return compiled.sources_digest(COMPILED_FUNCTIONS, __name__)
 
 
 def refresh() -> None:
