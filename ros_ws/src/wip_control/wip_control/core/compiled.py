@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import operator
 import pathlib
 import sys
 from types import ModuleType
@@ -36,6 +37,17 @@ def load_compiled(module_name: str) -> ModuleType:
         module.warm_up()
         _loaded[module_name] = module
     return module
+
+
+def array_slot(array: str, index: int, doc: str) -> property:
+    """Return a float attribute kept at ``index`` of the object's state array ``array``.
+
+    The objects whose state a kernel advances in place (the channels, the slip monitor, the
+    position) keep it in a float64 array; their attributes read and write its slots.
+    """
+    get = operator.attrgetter(array)
+    return property(lambda self: float(get(self)[index]),
+                    lambda self, value: get(self).__setitem__(index, value), doc=doc)
 
 
 def sources_digest(functions: Iterable[Callable], kernel_module: str) -> str:

@@ -53,6 +53,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from wip_runtime.config import ParamError, param
+from .compiled import array_slot
 from .integration import rk4_step
 
 _TWO_PI = 2.0 * math.pi
@@ -233,12 +234,6 @@ class EsoParams:
                                       f'{getattr(self, name)} rad/s')
 
 
-def _slot(index: int, doc: str) -> property:
-    """Return a float attribute kept in the channel's state array at ``index``."""
-    return property(lambda self: float(self._s[index]),
-                    lambda self, value: self._s.__setitem__(index, value), doc=doc)
-
-
 #: The slots of a channel's state array shared by both kinds of channel; each kind's own
 #: state follows from ``_OWN``.
 X1, X2, F, TIME, _OWN = 0, 1, 2, 3, 4
@@ -257,10 +252,10 @@ class ChannelEstimate:
 
     name: str
     _s: np.ndarray
-    x1 = _slot(X1, 'x̂1, the output estimate')
-    x2 = _slot(X2, 'x̂2, the rate estimate')
-    f = _slot(F, 'f̂, the lumped-disturbance estimate')
-    _t_prev = _slot(TIME, 'time [s] of the estimate')
+    x1 = array_slot('_s', X1, 'x̂1, the output estimate')
+    x2 = array_slot('_s', X2, 'x̂2, the rate estimate')
+    f = array_slot('_s', F, 'f̂, the lumped-disturbance estimate')
+    _t_prev = array_slot('_s', TIME, 'time [s] of the estimate')
 
     @property
     def state(self) -> tuple[float, float, float]:
@@ -356,7 +351,7 @@ class ExtendedStateObserver(ChannelEstimate):
         self._max_substep = min(MAX_RAMP_SUBSTEP, 1.0 / fastest_pole)
         self.reset(initial_output, initial_time)
 
-    _y_prev = _slot(Y_PREV, 'the previous measurement')
+    _y_prev = array_slot('_s', Y_PREV, 'the previous measurement')
 
     @staticmethod
     def _as_floats(matrices: tuple[np.ndarray, ...]) -> tuple[float, ...]:

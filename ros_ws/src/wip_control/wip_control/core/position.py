@@ -49,6 +49,8 @@ import numpy as np
 
 from wip_runtime.config import param
 
+from .compiled import array_slot
+
 #: Position status (the values of wip_msgs/StateEstimate's POSITION_* constants).
 TRACKING, NO_FIX, DEAD_RECKONING, FAULT = 0, 1, 2, 3
 POSITION_STATUS_NAMES = {NO_FIX: 'NO_FIX', TRACKING: 'TRACKING',
@@ -56,11 +58,6 @@ POSITION_STATUS_NAMES = {NO_FIX: 'NO_FIX', TRACKING: 'TRACKING',
 #: The slots of the estimator's state array: (x̂, ŷ), the odometry's last x_v and ϕ, and the
 #: distance rolled since the last accepted fix.
 X, Y, X_V, PHI, ROLLED = range(5)
-
-
-def _slot(index: int, doc: str) -> property:
-    return property(lambda self: float(self.state[index]),
-                    lambda self, value: self.state.__setitem__(index, value), doc=doc)
 
 
 def odometry_step(s: np.ndarray | list[float], x_v: float, phi: float) -> None:
@@ -130,9 +127,10 @@ class PlanarPositionEstimator:
         self.last_innovation = 0.0           #: |innovation| of the last fix [m]
         self.fault = ''                      #: why the position source is refused ('' if not)
 
-    x = _slot(X, 'x̂ [m]')
-    y = _slot(Y, 'ŷ [m]')
-    rolled_since_fix = _slot(ROLLED, 'distance rolled since the last accepted fix [m]')
+    x = array_slot('state', X, 'x̂ [m]')
+    y = array_slot('state', Y, 'ŷ [m]')
+    rolled_since_fix = array_slot('state', ROLLED,
+                                  'distance rolled since the last accepted fix [m]')
 
     @property
     def position(self) -> tuple[float, float]:

@@ -17,7 +17,8 @@ import math
 import numpy as np
 
 from wip_runtime.config import ParamError
-from .eso import _OWN, _slot, ChannelEstimate, F, PERIOD_TOLERANCE, TIME, X1, X2
+from .compiled import array_slot
+from .eso import _OWN, ChannelEstimate, F, PERIOD_TOLERANCE, TIME, X1, X2
 
 #: The rate-aided channel's own slots: the gyro bias b̂, the previous gyro reading, and 1.0
 #: once the rate estimate has started from a gyro reading.
@@ -139,7 +140,7 @@ class RateAidedChannel(ChannelEstimate):
         self._s[RATE_STARTED] = 0.0
         self._s[RATE_PREV] = 0.0
 
-    bias = _slot(BIAS, 'b̂, the gyro bias estimate [rad/s]')
+    bias = array_slot('_s', BIAS, 'b̂, the gyro bias estimate [rad/s]')
 
     def update(self, t: float, y: float, rate: float, b_u: float) -> tuple[float, float, float]:
         """Advance to ``t`` [s] with the angle ``y`` [rad] and the gyro ``rate`` [rad/s].
