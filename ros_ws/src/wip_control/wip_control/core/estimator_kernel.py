@@ -121,8 +121,7 @@ def _steady(c, yaw, tilt, longitudinal, slip_state, position_state, inputs) -> b
                 or longitudinal[eso.UNSEEDED] != 0.0
                 or not abs(t - yaw[eso.TIME] - period) <= tolerance
                 or not abs(t - tilt[eso.TIME] - period) <= tolerance
-                or not abs(t - longitudinal[eso.TIME] - period) <= tolerance
-                or not t - longitudinal[eso.TIME] > 0.0)
+                or not abs(t - longitudinal[eso.TIME] - period) <= tolerance)
 
 
 #: What :func:`step` returns for a sample it leaves to the interpreter.

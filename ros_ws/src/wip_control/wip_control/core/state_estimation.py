@@ -244,13 +244,6 @@ class StateEstimator:
             r = self.model.wheel_radius
             x_v = self.slip.update(t, r * phi_left, r * phi_right, x_v, pitch, rates[0],
                                    rates[1], tau_left, tau_right).x_v
-        return self._observe(t, yaw_unwrapped, x_v, pitch, tau_left, tau_right, rates, fix)
-
-    def _observe(self, t: float, yaw_unwrapped: float, x_v: float, pitch: float,
-                 tau_left: float, tau_right: float, rates: Sequence[float] | None,
-                 fix: Sequence[float] | None) -> PoseEstimate:
-        """Take the sample from the observer on, the yaw unwrapped and x_v measured."""
-        observer = self.observer
         if observer is None:
             observer = WipStateObserver(
                 self.model, self.eso_config, initial_positions=(yaw_unwrapped, x_v, pitch),
