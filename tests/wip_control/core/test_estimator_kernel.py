@@ -13,6 +13,8 @@ import math
 import numpy as np
 import pytest
 
+from compiled_harness import assert_records_the_same_bits
+
 from wip_control.core import estimator_kernel
 from wip_control.core.eso import EsoParams
 from wip_control.core.position import PositionParams
@@ -214,19 +216,11 @@ def test_the_in_process_run_records_the_same_bits_compiled_or_not(monkeypatch):
     # The runner takes the estimator's steady samples compiled: every recorded channel is
     # the interpreted run's to the bit (but the QP's wall-clock solve time), on the MuJoCo
     # plant over a bump (wheels that slip and stall).
-    import wip_sim.core.runner as runner
     from wip_sim.core.scenario import load_scenario
 
     scenario = dataclasses.replace(load_scenario('scenarios/mujoco_bump.yaml'), duration=8.0)
-    compiled = runner.run_scenario(scenario).record.groups
-    monkeypatch.setattr(StateEstimator, 'use_compiled', lambda self: 'off')
-    interpreted = runner.run_scenario(scenario).record.groups
-    assert compiled.keys() == interpreted.keys()
-    for group, channels in compiled.items():
-        for name, values in channels.items():
-            if (group, name) != ('mpc', 'solve_time'):
-                assert np.asarray(values).tobytes() == \
-                    np.asarray(interpreted[group][name]).tobytes(), (group, name)
+    assert_records_the_same_bits(scenario, lambda: monkeypatch.setattr(
+        StateEstimator, 'use_compiled', lambda self: 'off'))
 
 
 def test_the_compiled_remainder_and_fmod_are_the_c_librarys():

@@ -12,6 +12,8 @@ import math
 import numpy as np
 import pytest
 
+from compiled_harness import assert_records_the_same_bits
+
 from wip_control.core import time_scaling
 from wip_control.core.references import make_reference, ReferenceParams
 from wip_control.core.time_scaling import TimeScaled
@@ -155,14 +157,6 @@ def test_the_in_process_run_records_the_same_bits_compiled_or_not(monkeypatch):
     import wip_sim.core.runner as runner
     from wip_sim.core.scenario import scenario_from_mapping
 
-    scenario = scenario_from_mapping({'duration': 12.0})
-    compiled = runner.run_scenario(scenario).record.groups
-    monkeypatch.setattr(runner, 'make_loop_reference',
-                        lambda config: (make_reference(config), ''))
-    interpreted = runner.run_scenario(scenario).record.groups
-    assert compiled.keys() == interpreted.keys()
-    for group, channels in compiled.items():
-        for name, values in channels.items():
-            if (group, name) != ('mpc', 'solve_time'):
-                assert np.asarray(values).tobytes() == \
-                    np.asarray(interpreted[group][name]).tobytes(), (group, name)
+    assert_records_the_same_bits(scenario_from_mapping({'duration': 12.0}), lambda: (
+        monkeypatch.setattr(runner, 'make_loop_reference',
+                            lambda config: (make_reference(config), ''))))
