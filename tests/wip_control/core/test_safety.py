@@ -19,6 +19,9 @@ from wip_control.core.safety import (ACTIVE, DEGRADED, DriveStatus, FAULT,
                                      tilt_divergence_rate)
 from wip_control.core.safety_config import FRESH, LATE, lateness, SafetyParams, STALE
 
+#: Each test with the interpreted tick and with the compiled one (safety_kernel.py).
+pytestmark = pytest.mark.usefixtures('safety_tick')
+
 
 # ----------------------------------------------------------------------------- config
 

@@ -15,6 +15,9 @@ from wip_control.core.safety import (ACTIVE, ESTOP, FAULT,
                                      SafetyMonitor, SHADOW, STARTING)
 from wip_control.core.safety_config import SafetyParams
 
+#: Each test with the interpreted tick and with the compiled one (safety_kernel.py).
+pytestmark = pytest.mark.usefixtures('safety_tick')
+
 
 # ----------------------------------------------------------------------------- e-stop
 

@@ -1,17 +1,18 @@
 """The numba-compiled kernels of the core, imported and warmed up once per process.
 
 Each kernel module (``mpc_kernel``, ``qp_polish``, ``retiming_kernel``,
-``estimator_kernel``) has a ``warm_up()`` that loads its code from numba's cache or compiles
-it. It is called where a controller is made (an MPC, a loop's reference, a gyro
-estimator), not in its first tick; a process that makes none of them does not import numba.
-``python3 -m wip_control.core.compiled`` fills numba's cache of all of them (scripts/setup
-and the Docker image do, after building).
+``estimator_kernel``, ``safety_kernel``) has a ``warm_up()`` that loads its code from
+numba's cache or compiles it. It is called where a controller is made (an MPC, a loop's
+reference, a gyro estimator, the mixer's safety monitor), not in its first tick; a process
+that makes none of them does not import numba. ``python3 -m wip_control.core.compiled``
+fills numba's cache of all of them (scripts/setup and the Docker image do, after building).
 """
 
 from __future__ import annotations
 
 import hashlib
 import importlib
+import math
 import operator
 import pathlib
 import sys
@@ -19,12 +20,14 @@ from types import ModuleType
 from typing import Callable, Iterable
 
 #: The kernel modules of the controllers: the MPC's QP assembly, the QP's polish, the
-#: time-scaled reference's real-time sample, the gyro estimator's sample.
+#: time-scaled reference's real-time sample, the gyro estimator's sample, the safety
+#: layer's steady tick.
 MPC_KERNEL = f'{__package__}.mpc_kernel'
 QP_POLISH = f'{__package__}.qp_polish'
 RETIMING_KERNEL = f'{__package__}.retiming_kernel'
 ESTIMATOR_KERNEL = f'{__package__}.estimator_kernel'
-KERNELS = (MPC_KERNEL, QP_POLISH, RETIMING_KERNEL, ESTIMATOR_KERNEL)
+SAFETY_KERNEL = f'{__package__}.safety_kernel'
+KERNELS = (MPC_KERNEL, QP_POLISH, RETIMING_KERNEL, ESTIMATOR_KERNEL, SAFETY_KERNEL)
 
 _loaded: dict[str, ModuleType] = {}
 
@@ -39,6 +42,22 @@ def load_compiled(module_name: str) -> ModuleType:
     return module
 
 
+def load_checked(module_name: str,
+                 difference: Callable[[ModuleType], str]) -> tuple[ModuleType | None, str]:
+    """Return the kernel module ``module_name`` and '' if ``difference(module)`` finds none.
+
+    ``difference`` compares the kernel with the interpreter ('' when they agree). Where they
+    differ, numba's cache may be stale (a formula changed since it was filled): compiled
+    afresh once and compared again; (None, the difference) if they still differ.
+    """
+    module = load_compiled(module_name)
+    found = difference(module)
+    if found:
+        module.refresh()
+        found = difference(module)
+    return (None, found) if found else (module, '')
+
+
 def array_slot(array: str, index: int, doc: str) -> property:
     """Return a float attribute kept at ``index`` of the object's state array ``array``.
 
@@ -50,14 +69,38 @@ def array_slot(array: str, index: int, doc: str) -> property:
                     lambda self, value: get(self).__setitem__(index, value), doc=doc)
 
 
-def sources_digest(functions: Iterable[Callable], kernel_module: str) -> str:
+def typed_slot(array: str, index: int, kind: type, doc: str) -> property:
+    """Return an attribute of type ``kind`` (bool, int, float) kept at ``index`` of ``array``."""
+    get = operator.attrgetter(array)
+    return property(lambda self: kind(get(self)[index]),
+                    lambda self, value: get(self).__setitem__(index, kind(value)), doc=doc)
+
+
+def optional_slot(array: str, index: int, doc: str) -> property:
+    """Return a float attribute kept at ``index`` of ``array`` that may be None (NaN there)."""
+    get = operator.attrgetter(array)
+
+    def read(self) -> float | None:
+        value = float(get(self)[index])
+        return None if math.isnan(value) else value
+
+    def write(self, value: float | None) -> None:
+        get(self)[index] = math.nan if value is None else value
+    return property(read, write, doc=doc)
+
+
+def sources_digest(functions: Iterable[Callable], kernel_module: str,
+                   constants_from: Iterable[ModuleType] = ()) -> str:
     """SHA-256 of the files of ``functions`` (those a kernel compiles) and of the kernel's own.
 
     Derived from the functions themselves, so that a file whose function a kernel starts to
-    compile is in its digest.
+    compile is in its digest. ``constants_from``: modules whose constants the compiled
+    functions read (numba keeps a global's value in the compiled code).
     """
     digest = hashlib.sha256()
-    for name in sorted({function.__module__ for function in functions} | {kernel_module}):
+    names = ({function.__module__ for function in functions} | {kernel_module}
+             | {module.__name__ for module in constants_from})
+    for name in sorted(names):
         digest.update(pathlib.Path(sys.modules[name].__file__).read_bytes())
     return digest.hexdigest()
 

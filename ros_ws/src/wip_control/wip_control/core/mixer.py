@@ -60,10 +60,20 @@ def mix(tau_v: float, tau_omega: float, max_wheel_torque: float) -> tuple[float,
     ValueError
         on non-finite torques or a non-positive limit.
     """
-    if not (math.isfinite(tau_v + tau_omega + max_wheel_torque) and max_wheel_torque > 0.0):
+    if not mixable(tau_v, tau_omega, max_wheel_torque):
         raise ValueError(f'mix: need finite torques and max_wheel_torque > 0, got '
                          f'tau_v={tau_v!r}, tau_omega={tau_omega!r}, '
                          f'max_wheel_torque={max_wheel_torque!r}')
+    return mixed(tau_v, tau_omega, max_wheel_torque)
+
+
+def mixable(tau_v: float, tau_omega: float, max_wheel_torque: float) -> bool:
+    """Whether :func:`mix` takes these: finite torques and a positive limit."""
+    return math.isfinite(tau_v + tau_omega + max_wheel_torque) and max_wheel_torque > 0.0
+
+
+def mixed(tau_v: float, tau_omega: float, max_wheel_torque: float) -> tuple[float, float]:
+    """:func:`mix` of values it takes (:func:`mixable`); compiled too (``safety_kernel``)."""
     yaw_limit = 2.0 * max_wheel_torque
     tau_omega = max(-yaw_limit, min(yaw_limit, tau_omega))
     drive_limit = yaw_limit - abs(tau_omega)

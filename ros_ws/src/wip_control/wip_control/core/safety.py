@@ -22,34 +22,37 @@ import enum
 import math
 from typing import NamedTuple, Sequence
 
+import numpy as np
+
+from . import safety_rules as rules
+from .compiled import optional_slot, typed_slot
 from .eso import StateEstimate
 from .mixer import mix
-from .position import FAULT as POSITION_FAULT, NO_FIX, TRACKING
+from .position import TRACKING
 from .runaway import RunawayParams, RunawayGuard
-from .safety_config import LATE, lateness, SafetyParams, STALE, TIME_TOLERANCE
+from .safety_config import SafetyParams, TIME_TOLERANCE
+from .safety_rules import (ACTIVE, DEGRADED, DRIVE_INDEX, ESTIMATE, ESTIMATE_INDEX, ESTOP,
+                           ESTOP_INDEX, FAULT, INPUTS, SHADOW, STARTING, STATES,
+                           YAW_INDEX, YAW_TORQUE, DRIVE_TORQUE)
+from .safety_texts import condition_texts
 
-STARTING, ACTIVE, DEGRADED, SHADOW, FAULT, ESTOP = (
-    'STARTING', 'ACTIVE', 'DEGRADED', 'SHADOW', 'FAULT', 'ESTOP')
-STATES = (STARTING, ACTIVE, DEGRADED, SHADOW, FAULT, ESTOP)
 #: States in which the mixed torque is sent (to the base unless in shadow mode).
 _TORQUE_STATES = (ACTIVE, DEGRADED, SHADOW)
-
-#: Inputs watched by the monitor (the torque_mixer node's subscriptions).
-ESTIMATE, YAW_TORQUE, DRIVE_TORQUE, ESTOP_INPUT = ('state_estimate', 'yaw_torque',
-                                                   'drive_torque', 'estop')
-_CONTROL_INPUTS = (ESTIMATE, YAW_TORQUE, DRIVE_TORQUE)
+_TORQUE_CODES = tuple(STATES.index(state) for state in _TORQUE_STATES)
+_INDEX = {name: i for i, name in enumerate(INPUTS)}
 #: Index of ε in a StateEstimate: inf at the start of the paper's ramp, not checked.
 _EPSILON = StateEstimate._fields.index('epsilon')
+_NO_PLAN = np.zeros(0)
 
 
 class DriveStatus(enum.IntEnum):
     """Status of a drive torque: the values of the ``wip_msgs/DriveTorque`` constants."""
 
-    SOLVED = 0
-    FALLBACK_SHIFTED_PLAN = 1
-    FAILED_ZERO = 2
-    INPUT_INVALID = 3
-    NOT_READY = 4
+    SOLVED = rules.SOLVED
+    FALLBACK_SHIFTED_PLAN = rules.FALLBACK_SHIFTED_PLAN
+    FAILED_ZERO = rules.FAILED_ZERO
+    INPUT_INVALID = rules.INPUT_INVALID
+    NOT_READY = rules.NOT_READY
 
 
 class SafetyDecision(NamedTuple):
@@ -78,15 +81,15 @@ class SafetyDecision(NamedTuple):
         return '; '.join(self.reasons)
 
 
-class _Input:
-    """The last valid value of one input, when it arrived, and whether the last was bad."""
+def _verdict(name: str, index: int, doc: str) -> property:
+    """Return a latched verdict's property (a text or texts), flagged in the state array."""
+    def get(self):
+        return getattr(self, name)
 
-    __slots__ = ('value', 'arrival', 'invalid')
-
-    def __init__(self) -> None:
-        self.value = None
-        self.arrival: float | None = None
-        self.invalid = ''
+    def put(self, value) -> None:
+        setattr(self, name, value)
+        self.numbers[index] = 1.0 if value else 0.0
+    return property(get, put, doc=doc)
 
 
 class SafetyMonitor:
@@ -95,6 +98,8 @@ class SafetyMonitor:
     Feed each input as it arrives (:meth:`estimate`, :meth:`yaw_torque`,
     :meth:`drive_torque`, :meth:`invalid_input`, :meth:`estop`); call :meth:`update` once
     per control tick. Times are seconds of one monotonic clock of the caller's choice.
+    The state is kept in a float64 array (``numbers``, the slots of ``safety_rules``), so
+    that a compiled tick (:meth:`use_compiled`) and the interpreter share it.
 
     Parameters
     ----------
@@ -107,37 +112,76 @@ class SafetyMonitor:
     runaway : the runaway guard's tunables (``core.runaway.RunawayParams``).
     """
 
+    ticks = typed_slot('numbers', rules.TICKS, int, 'updates so far')
+    last_update = optional_slot('numbers', rules.LAST_UPDATE, 'time of the last update [s]')
+    ready_since = optional_slot('numbers', rules.READY_SINCE,
+                                'since when every input is ready [s]')
+    tau_left = typed_slot('numbers', rules.TAU_LEFT, float,
+                          'left wheel torque of the previous tick [N m]')
+    tau_right = typed_slot('numbers', rules.TAU_RIGHT, float,
+                           'right wheel torque of the previous tick [N m]')
+    settled = typed_slot('numbers', rules.SETTLED, bool, "the ESO's start-up flag")
+    position_status = typed_slot('numbers', rules.POSITION_STATUS, int,
+                                 'core.position NO_FIX ... FAULT of the last estimate')
+    consecutive_fallbacks = typed_slot('numbers', rules.CONSECUTIVE_FALLBACKS, int,
+                                       'MPC outputs in a row with FALLBACK_SHIFTED_PLAN')
+    estop_latched = typed_slot('numbers', rules.ESTOP_LATCHED, bool,
+                               'an e-stop latched until reset')
+    heartbeat_at = optional_slot('numbers', rules.HEARTBEAT_AT,
+                                 'when the last heartbeat arrived [s]')
+    wiring = _verdict('_wiring', rules.WIRING,
+                      'a wiring verdict (core.wiring_check): latched until reset()')
+    runaway = _verdict('_runaway', rules.RUNAWAY,
+                       "the runaway guard's verdict: latched until reset()")
+    fault_latched = _verdict('_fault_latched', rules.FAULT_LATCHED,
+                             'the faults latched (latch_faults) until reset()')
+
     def __init__(self, config: SafetyParams, max_wheel_torque: float,
                  max_wheel_torque_rate: float, period: float,
                  timing_checks: bool = True, runaway: RunawayParams | None = None) -> None:
         if not (math.isfinite(period) and period > 0.0):
             raise ValueError(f'SafetyMonitor: period must be finite and > 0, got {period!r}')
-        self.config = config
-        self.set_limits(max_wheel_torque, max_wheel_torque_rate)
+        self.numbers = np.zeros(rules.SIZE)
+        self.numbers[[rules.LAST_UPDATE, rules.READY_SINCE, rules.HEARTBEAT_AT]] = math.nan
+        self.numbers[rules.ARRIVAL:rules.ARRIVAL + len(INPUTS)] = math.nan
+        self.numbers[rules.POSITION_STATUS] = TRACKING
+        self.plan = _NO_PLAN                    # the MPC's planned τυ (drive_torque)
         self.period = float(period)
         self.timing_checks = bool(timing_checks)
-        self.inputs = {name: _Input() for name in (*_CONTROL_INPUTS, ESTOP_INPUT)}
-        self.settled = False
-        self.consecutive_fallbacks = 0
-        self.drive_plan: tuple[tuple[float, ...], float] = ((), 0.0)
+        self._config = config
+        self.set_limits(max_wheel_torque, max_wheel_torque_rate)
+        self.invalid_reasons = [''] * len(INPUTS)   # why each input's last message was bad
+        self.estimate_value: StateEstimate | None = None   # the last valid estimate
         self.estop_engaged = False      # the e-stop input says engaged now
-        self.estop_latched = False
         self.estop_true_at: float | None = None   # when an e-stop last said engaged
-        self.heartbeat_at: float | None = None    # when the last heartbeat arrived
         self.fault_latched: tuple[str, ...] = ()
-        self.wiring = ''   # a wiring verdict (core.wiring_check): latched until reset()
+        self.wiring = ''
+        self.runaway = ''
         self.guard = RunawayGuard(runaway)
-        self.runaway = ''  # the guard's verdict: latched until reset()
-        self.position_status = TRACKING
         self.pose = (math.nan, math.nan)        # (x̂, ŷ) of the last valid estimate [m]
         self.reference_position: tuple[float, float] | None = None
         self._reference_fresh = False            # a reference arrived since the guard's step
         self._guard_estimate_time: float | None = None
-        self.state = STARTING
-        self.ready_since: float | None = None
-        self.last_update: float | None = None
-        self.tau_left = self.tau_right = 0.0   # output of the previous tick
-        self.ticks = 0
+        self._kernel = None                      # the compiled tick (use_compiled)
+
+    @property
+    def config(self) -> SafetyParams:
+        """The safety tunables."""
+        return self._config
+
+    @config.setter
+    def config(self, config: SafetyParams) -> None:
+        self._config = config
+        self._make_constants()
+
+    @property
+    def state(self) -> str:
+        """One of :data:`STATES`."""
+        return STATES[int(self.numbers[rules.STATE])]
+
+    @state.setter
+    def state(self, state: str) -> None:
+        self.numbers[rules.STATE] = STATES.index(state)
 
     # -- limits ----------------------------------------------------------------------------
     def set_limits(self, max_wheel_torque: float, max_wheel_torque_rate: float) -> None:
@@ -148,18 +192,28 @@ class SafetyMonitor:
                 raise ValueError(f'SafetyMonitor: {name} must be finite and > 0, got {value!r}')
         self.max_wheel_torque = float(max_wheel_torque)
         self.max_wheel_torque_rate = float(max_wheel_torque_rate)
+        self._make_constants()
+
+    def _make_constants(self) -> None:
+        self.constants = np.array(rules.constants(
+            self._config, self.max_wheel_torque, self.max_wheel_torque_rate,
+            self.timing_checks))
 
     # -- inputs ------------------------------------------------------------------------------
-    def _accept(self, name: str, t: float, value) -> None:
-        slot = self.inputs[name]
-        slot.value, slot.arrival, slot.invalid = value, float(t), ''
+    def _accept(self, index: int, t: float) -> None:
+        n = self.numbers
+        n[rules.ARRIVAL + index] = t
+        n[rules.INVALID + index] = 0.0
+        self.invalid_reasons[index] = ''
 
     def invalid_input(self, name: str, t: float, reason: str) -> None:
         """Take an unusable message of input ``name`` (e.g. failed to convert).
 
         It is a fault until the next valid one; the last valid value is kept but not used.
         """
-        self.inputs[name].invalid = reason or 'invalid'
+        index = _INDEX[name]
+        self.invalid_reasons[index] = reason or 'invalid'
+        self.numbers[rules.INVALID + index] = 1.0
 
     def estimate(self, t: float, estimate: Sequence[float], settled: bool,
                  position_status: int = TRACKING, x: float = math.nan,
@@ -192,9 +246,12 @@ class SafetyMonitor:
             if bad:
                 self.invalid_input(ESTIMATE, t, f'non-finite {", ".join(bad)}')
                 return
-        self._accept(ESTIMATE, t, values)
-        self.settled = bool(settled)
-        self.position_status = int(position_status)
+        self._accept(ESTIMATE_INDEX, t)
+        self.estimate_value = values
+        numbers = self.numbers
+        numbers[rules.ESTIMATE_VALUES:] = values
+        numbers[rules.SETTLED] = 1.0 if settled else 0.0
+        numbers[rules.POSITION_STATUS] = int(position_status)
         self.pose = (float(x), float(y))
 
     def reference(self, t: float, x: float, y: float) -> None:
@@ -208,7 +265,8 @@ class SafetyMonitor:
         if not _is_finite_number(tau_omega):
             self.invalid_input(YAW_TORQUE, t, f'non-finite yaw torque {tau_omega!r}')
             return
-        self._accept(YAW_TORQUE, t, float(tau_omega))
+        self._accept(YAW_INDEX, t)
+        self.numbers[rules.YAW_TAU] = tau_omega
 
     def drive_torque(self, t: float, tau_v: float, status: int = DriveStatus.SOLVED,
                      plan: Sequence[float] = (), plan_period: float = 0.0) -> None:
@@ -229,12 +287,16 @@ class SafetyMonitor:
         if not (planned and all(math.isfinite(v) for v in planned)
                 and _is_finite_number(plan_period) and plan_period > 0.0):
             planned = ()
-        self.drive_plan = (planned, float(plan_period) if planned else 0.0)
-        if status == DriveStatus.FALLBACK_SHIFTED_PLAN:
-            self.consecutive_fallbacks += 1
-        else:
-            self.consecutive_fallbacks = 0
-        self._accept(DRIVE_TORQUE, t, (float(tau_v), int(status)))
+        n = self.numbers
+        self.plan = np.array(planned) if planned else _NO_PLAN
+        n[rules.PLAN_LENGTH] = len(planned)
+        n[rules.PLAN_PERIOD] = float(plan_period) if planned else 0.0
+        n[rules.CONSECUTIVE_FALLBACKS] = (n[rules.CONSECUTIVE_FALLBACKS] + 1.0
+                                          if status == DriveStatus.FALLBACK_SHIFTED_PLAN
+                                          else 0.0)
+        self._accept(DRIVE_INDEX, t)
+        n[rules.DRIVE_TAU] = tau_v
+        n[rules.DRIVE_STATUS] = int(status)
 
     def estop(self, t: float, engaged: bool) -> None:
         """Take an e-stop message received at ``t`` [s].
@@ -242,7 +304,7 @@ class SafetyMonitor:
         Engaged latches the e-stop; not engaged only allows a later :meth:`reset` (and is
         the heartbeat if ``max_estop_age`` > 0).
         """
-        self._accept(ESTOP_INPUT, t, bool(engaged))
+        self._accept(ESTOP_INDEX, t)
         self.estop_engaged = bool(engaged)
         if engaged:
             self.estop_latched = True
@@ -302,101 +364,53 @@ class SafetyMonitor:
     # -- the tick ----------------------------------------------------------------------------
     def ages(self, now: float) -> dict[str, float | None]:
         """Seconds since each input's last valid value (None: never received)."""
-        return {name: None if slot.arrival is None else now - slot.arrival
-                for name, slot in self.inputs.items()}
+        arrivals = self.numbers[rules.ARRIVAL:rules.ARRIVAL + len(INPUTS)].tolist()
+        return {name: None if math.isnan(arrival) else now - arrival
+                for name, arrival in zip(INPUTS, arrivals)}
 
-    def _conditions(self, now: float) -> tuple[list[str], list[str], list[str]]:
-        """(faults, not-yet conditions, late inputs within the bridge) at ``now``."""
-        # A wiring verdict first: it is the cause, a fall that follows is its effect.
-        faults: list[str] = [self.wiring] if self.wiring else []
-        if self.runaway:
-            faults.append(self.runaway + ' (latched: reset required)')
-        waiting: list[str] = []
-        late: list[str] = []
-        self._input_conditions(now, faults, waiting, late)
-        estimate = self.inputs[ESTIMATE]
-        if estimate.value is not None and not estimate.invalid:
-            faults += self.config.estimate_faults(estimate.value)
-            if self.timing_checks and not self.settled:
-                waiting.append('ESO not settled')
-            if self.timing_checks and self.position_status == POSITION_FAULT:
-                faults.append('position source refused by the ESO (its /diagnostics says '
-                              'why): check datum.* and position_source')
-            elif self.timing_checks and self.position_status == NO_FIX:
-                waiting.append('no position fix yet (position_source gps or odometry; '
-                               'without GPS set position_source: wheels)')
-        self._drive_conditions(faults, waiting)
-        return faults, waiting, late
+    def use_compiled(self) -> str:
+        """Take the steady ticks with the compiled kernel (``safety_kernel.py``).
 
-    def _input_conditions(self, now: float, faults: list[str], waiting: list[str],
-                          late: list[str]) -> None:
-        """Append each watched input's invalid, missing, late or stale condition."""
-        cfg = self.config
-        max_age = {ESTIMATE: cfg.max_estimate_age, YAW_TORQUE: cfg.max_yaw_torque_age,
-                   DRIVE_TORQUE: cfg.max_drive_torque_age, ESTOP_INPUT: cfg.max_estop_age}
-        watched = list(_CONTROL_INPUTS)
-        if cfg.max_estop_age > 0.0:
-            watched.append(ESTOP_INPUT)
-        for name in watched:
-            slot = self.inputs[name]
-            arrival, label = slot.arrival, name
-            if name == ESTOP_INPUT:
-                # The link is alive if either the heartbeat or an e-stop message came.
-                label = 'heartbeat (/wip/heartbeat or /wip/estop)'
-                if self.heartbeat_at is not None:
-                    arrival = max(self.heartbeat_at,
-                                  arrival if arrival is not None else -math.inf)
-            if slot.invalid:
-                faults.append(f'{name} invalid: {slot.invalid}')
-            elif arrival is None:
-                if self.timing_checks or name in (YAW_TORQUE, DRIVE_TORQUE):
-                    waiting.append(f'no {label} yet')
-            elif self.timing_checks:
-                age = now - arrival
-                bridge = cfg.bridge_time if name != ESTOP_INPUT else 0.0
-                verdict = lateness(age, max_age[name], bridge)
-                if verdict == LATE:
-                    late.append(f'{name} late: {age:.3f} s old > {max_age[name]:g} s, '
-                                f'bridged up to {max_age[name] + bridge:g} s')
-                elif verdict == STALE:
-                    faults.append(f'{label} stale: {age:.3f} s old > '
-                                  f'{max_age[name] + bridge:g} s (age limit '
-                                  f'{max_age[name]:g} s + bridge {bridge:g} s; publisher '
-                                  'stopped?)')
+        The kernel is compared with the interpreter on scratch monitors of the same
+        settings first. Return '' when it is used, else why not. The decisions are the
+        same floats either way.
+        """
+        from .compiled import load_checked, SAFETY_KERNEL
+        module, difference = load_checked(SAFETY_KERNEL, lambda m: m.difference(self._scratch))
+        if difference:
+            return f'the compiled safety tick differs from the interpreted one {difference}'
+        self._kernel = module.tick
+        return ''
 
-    def _drive_conditions(self, faults: list[str], waiting: list[str]) -> None:
-        """Append the MPC status's condition: not ready, too many fallbacks, failed."""
-        drive = self.inputs[DRIVE_TORQUE]
-        if drive.value is None or drive.invalid:
-            return
-        status = drive.value[1]
-        max_fallbacks = self.config.max_mpc_fallbacks
-        if status == DriveStatus.NOT_READY:
-            waiting.append('MPC not ready (NOT_READY)')
-        elif status == DriveStatus.FALLBACK_SHIFTED_PLAN:
-            if self.consecutive_fallbacks > max_fallbacks:
-                faults.append(f'MPC failed: {self.consecutive_fallbacks} consecutive '
-                              f'FALLBACK_SHIFTED_PLAN outputs > {max_fallbacks}')
-        elif status in (DriveStatus.FAILED_ZERO, DriveStatus.INPUT_INVALID):
-            faults.append(f'MPC failed: status {DriveStatus(status).name}')
-        elif status != DriveStatus.SOLVED:
-            faults.append(f'MPC failed: unknown status {status}')
+    def _scratch(self) -> 'SafetyMonitor':
+        """Return a new monitor of the same settings."""
+        return SafetyMonitor(self._config, self.max_wheel_torque, self.max_wheel_torque_rate,
+                             self.period, self.timing_checks, self.guard.config)
 
     def update(self, now: float) -> SafetyDecision:
         """Return the torques of the tick at ``now`` [s] (one call per control tick)."""
-        self.ticks += 1
-        dt = self.period if self.last_update is None else max(0.0, now - self.last_update)
-        self.last_update = now
-        if self.timing_checks and self.state in _TORQUE_STATES:
+        if self.timing_checks and self.numbers[rules.STATE] in _TORQUE_CODES:
             self._guard_step()
-        faults, waiting, late = self._conditions(now)
-        # The layer itself not run for longer than the bridge covers (its process frozen
-        # or starved): the base held the last command that long, blind. A fault even if
-        # fresh inputs arrived first on waking up.
-        stall_bound = self.config.max_estimate_age + self.config.bridge_time
-        if self.timing_checks and self.ticks > 1 and dt > stall_bound + TIME_TOLERANCE:
-            faults.append(f'stalled: no safety tick for {dt:.3f} s > {stall_bound:g} s '
-                          '(estimate age limit + bridge; this process was not scheduled)')
+        if self._kernel is not None:
+            # The steady tick (a torque state, no condition), or nothing changed.
+            taken, tau_left, tau_right = self._kernel(now, self.numbers, self.constants,
+                                                      self.plan)
+            if taken:
+                return SafetyDecision(tau_left, tau_right, False, (), self.state,
+                                      self._config.shadow_mode)
+        return self._interpreted_update(now)
+
+    def _interpreted_update(self, now: float) -> SafetyDecision:
+        n = self.numbers
+        ticks = self.ticks + 1
+        n[rules.TICKS] = ticks
+        last = self.last_update
+        dt = self.period if last is None else max(0.0, now - last)
+        n[rules.LAST_UPDATE] = now
+        values = n.tolist()
+        codes = rules.condition_codes(now, dt, ticks, values, self.constants.tolist())
+        faults, waiting, late = (condition_texts(self, codes, now, dt, values) if codes
+                                 else ([], [], []))
         if self.fault_latched and not faults:
             faults = [f'latched fault ({"; ".join(self.fault_latched)}): reset required']
         was_active = self.state in _TORQUE_STATES
@@ -430,46 +444,33 @@ class SafetyMonitor:
         self.state = state
         if state not in _TORQUE_STATES:
             self.guard.reset()   # re-anchored when torque is sent again
-            self.tau_left = self.tau_right = 0.0   # Immediate, not rate limited.
+            n[rules.TAU_LEFT] = n[rules.TAU_RIGHT] = 0.0   # Immediate, not rate limited.
             return SafetyDecision(0.0, 0.0, True, tuple(reasons), state,
                                   self.config.shadow_mode)
-        tau_v = self._drive_torque_now(now)
-        tau_omega = self.inputs[YAW_TORQUE].value
-        left, right = mix(tau_v, tau_omega, self.max_wheel_torque)
+        tau_v = rules.drive_torque_now(now, values, self.plan.tolist())
+        left, right = mix(tau_v, values[rules.YAW_TAU], self.max_wheel_torque)
         step = self.max_wheel_torque_rate * dt
-        self.tau_left = _toward(self.tau_left, left, step)
-        self.tau_right = _toward(self.tau_right, right, step)
-        return SafetyDecision(self.tau_left, self.tau_right, False, tuple(late), state,
+        tau_left = rules.toward(values[rules.TAU_LEFT], left, step)
+        tau_right = rules.toward(values[rules.TAU_RIGHT], right, step)
+        n[rules.TAU_LEFT], n[rules.TAU_RIGHT] = tau_left, tau_right
+        return SafetyDecision(tau_left, tau_right, False, tuple(late), state,
                               self.config.shadow_mode)
 
     def _guard_step(self) -> None:
         """Feed the runaway guard the newest estimate and reference (once each)."""
-        slot = self.inputs[ESTIMATE]
-        if (not self.guard.config.enabled or self.runaway or not self._reference_fresh
-                or slot.value is None or slot.invalid):
+        arrival = float(self.numbers[rules.ARRIVAL + ESTIMATE_INDEX])
+        if (not self.guard.config.enabled or self._runaway or not self._reference_fresh
+                or math.isnan(arrival) or self.invalid_reasons[ESTIMATE_INDEX]):
             return
-        if slot.arrival == self._guard_estimate_time:
+        if arrival == self._guard_estimate_time:
             return   # the same estimate as at the last step (a watchdog tick)
         self._reference_fresh = False
-        self._guard_estimate_time = slot.arrival
-        est = slot.value
-        verdict = self.guard.update(slot.arrival, *self.pose, est.phi, est.v,
+        self._guard_estimate_time = arrival
+        est = self.estimate_value
+        verdict = self.guard.update(arrival, *self.pose, est.phi, est.v,
                                     *self.reference_position)
         if verdict:
             self.runaway = verdict
-
-    def _drive_torque_now(self, now: float) -> float:
-        """τυ of the MPC's last output at ``now``.
-
-        Its plan's entry for the periods elapsed since it arrived (the last entry after the plan),
-        or τυ itself without a plan.
-        """
-        slot = self.inputs[DRIVE_TORQUE]
-        planned, period = self.drive_plan
-        if not planned:
-            return slot.value[0]
-        elapsed = max(0.0, now - slot.arrival)
-        return planned[min(len(planned) - 1, int(elapsed / period + TIME_TOLERANCE))]
 
 
 def tilt_divergence_rate(params) -> float:
@@ -482,13 +483,6 @@ def tilt_divergence_rate(params) -> float:
     mv, mp, l = params.effective_mass, params.body_mass, params.com_height  # noqa: E741 - the paper's symbol
     omega0 = mv * params.pitch_inertia - (mp * l) ** 2
     return math.sqrt(mv * mp * params.gravity * l / omega0)
-
-
-def _toward(previous: float, target: float, step: float) -> float:
-    """``target`` if within ``step`` of ``previous`` (exactly), else previous ± step."""
-    if abs(target - previous) <= step:
-        return target
-    return previous + math.copysign(step, target - previous)
 
 
 def _is_finite_number(value) -> bool:

@@ -21,16 +21,25 @@ TIME_TOLERANCE = 1e-9
 FRESH, LATE, STALE = 'fresh', 'late', 'stale'
 
 
-def lateness(age: float, max_age: float, bridge: float) -> str:
-    """Return the ride-through's verdict on an input received ``age`` [s] ago.
+#: The same verdicts as numbers (:func:`lateness_code`, for compiled code).
+FRESH_CODE, LATE_CODE, STALE_CODE = 0, 1, 2
+
+
+def lateness_code(age: float, max_age: float, bridge: float) -> int:
+    """Return the ride-through's verdict on an input received ``age`` [s] ago, as a code.
 
     FRESH within ``max_age``; LATE within ``max_age + bridge`` (bridged: DEGRADED); STALE
     beyond (zero torque). The mixer's monitor and the MPC node's real-time tick judge
     lateness by this one rule (docs/decisions/safety-layer.md).
     """
     if age <= max_age + TIME_TOLERANCE:
-        return FRESH
-    return LATE if age <= max_age + bridge + TIME_TOLERANCE else STALE
+        return FRESH_CODE
+    return LATE_CODE if age <= max_age + bridge + TIME_TOLERANCE else STALE_CODE
+
+
+def lateness(age: float, max_age: float, bridge: float) -> str:
+    """Return :func:`lateness_code`'s verdict as FRESH, LATE or STALE."""
+    return (FRESH, LATE, STALE)[lateness_code(age, max_age, bridge)]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,21 +102,3 @@ class SafetyParams:
     latch_faults: bool = param(
         False, '1', 'a fault stays until an explicit reset (like the e-stop) instead of '
         'clearing when its cause does')
-
-    def estimate_faults(self, est) -> list[str]:
-        """Return the faults of a state estimate (``core.eso.StateEstimate``): fall, divergence."""
-        cfg = self
-        faults = []
-        if abs(est.theta) > cfg.fall_threshold:
-            faults.append(f'fallen: |theta_hat| {abs(est.theta):.3f} rad > fall_threshold '
-                          f'{cfg.fall_threshold:g} rad')
-        for label, value, bound, unit in (
-                ('v_hat', est.v, cfg.max_speed_estimate, 'm/s'),
-                ('omega_hat', est.omega, cfg.max_yaw_rate_estimate, 'rad/s'),
-                ('theta_dot_hat', est.theta_dot, cfg.max_tilt_rate_estimate, 'rad/s'),
-                ('f1_hat', est.f1, cfg.max_yaw_disturbance_estimate, 'rad/s^2'),
-                ('f2_hat', est.f2, cfg.max_longitudinal_disturbance_estimate, 'm/s^2'),
-                ('f3_hat', est.f3, cfg.max_tilt_disturbance_estimate, 'rad/s^2')):
-            if abs(value) > bound:
-                faults.append(f'ESO diverged: |{label}| {abs(value):.4g} {unit} > {bound:g}')
-        return faults

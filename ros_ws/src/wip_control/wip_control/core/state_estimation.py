@@ -148,12 +148,9 @@ class StateEstimator:
         if self.eso_config.estimator != 'gyro':
             return f"no compiled form of the '{self.eso_config.estimator}' estimator"
         from . import estimator_kernel
-        from .compiled import ESTIMATOR_KERNEL, load_compiled
-        module = load_compiled(ESTIMATOR_KERNEL)
-        difference = self._kernel_difference(module.step)
-        if difference:
-            module.refresh()   # numba's cache stale (a formula changed since it was filled)
-            difference = self._kernel_difference(module.step)
+        from .compiled import ESTIMATOR_KERNEL, load_checked
+        module, difference = load_checked(ESTIMATOR_KERNEL,
+                                          lambda m: self._kernel_difference(m.step))
         if difference:
             return f'the compiled estimator differs from the interpreted one {difference}'
         self._kernel, self._kernel_module = module.step, estimator_kernel

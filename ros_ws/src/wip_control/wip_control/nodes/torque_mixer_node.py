@@ -149,6 +149,9 @@ class TorqueMixerNode(WiringCheckInputs, ControllerNode):
         self.monitor = SafetyMonitor(self.safety, self.mixer.max_wheel_torque,
                                      self.mixer.max_wheel_torque_rate, self.control_period,
                                      timing_checks=not self.lockstep, runaway=runaway)
+        warning = self.monitor.use_compiled()
+        if warning:
+            self.get_logger().warning(f'safety tick interpreted: {warning}')
         self.last_decision: SafetyDecision | None = None
         self._decision_limits = self.mixer   # the limits the last decision was mixed with
         self.zeroed_ticks = 0
