@@ -333,7 +333,7 @@ def test_the_controllers_hold_no_plant(graph):
     # and the in-process runner are the simulator's (wip_sim); analysis is wip_tools'. Of
     # the controllers only the MPC's QP assembly and polish, the time-scaled reference's
     # real-time sample, the gyro estimator's steady sample and the safety layer's steady
-    # tick are compiled with numba, declared.
+    # tick are compiled with numba (and numba_math, what they call), declared.
     control = {name: targets for name, targets in graph.items()
                if name.startswith('wip_control')}
     simulator = {'plant', 'plant_rk4', 'sensor_models', 'disturbances', 'ground', 'runner',
@@ -342,8 +342,8 @@ def test_the_controllers_hold_no_plant(graph):
     assert sorted(name for name, targets in control.items()
                   if any(t.split('.')[0] in ('numba', 'llvmlite') for t in targets)) == [
                       'wip_control.core.estimator_kernel', 'wip_control.core.mpc_kernel',
-                      'wip_control.core.qp_polish', 'wip_control.core.retiming_kernel',
-                      'wip_control.core.safety_kernel']
+                      'wip_control.core.numba_math', 'wip_control.core.qp_polish',
+                      'wip_control.core.retiming_kernel', 'wip_control.core.safety_kernel']
     assert 'python3-numba' in declared('wip_control')
     # The checks see the modules they look for where they are.
     assert {'wip_sim.core.plant', 'wip_sim.core.plant_rk4', 'wip_sim.core.runner',

@@ -45,7 +45,7 @@ def test_the_digest_covers_every_file_whose_functions_the_kernel_compiles(monkey
     # A formula changed in any of them (model.py's input gains, say) gives another digest.
     files = ({pathlib.Path(sys.modules[f.__module__].__file__)
               for f in module.COMPILED_FUNCTIONS} | {pathlib.Path(module.__file__)}
-             | {pathlib.Path(m.__file__) for m in getattr(module, 'CONSTANTS_FROM', ())})
+             | {pathlib.Path(m.__file__) for m in getattr(module, 'ALSO_COMPILED', ())})
     assert len(files) >= 3
     before = module.sources_digest()
     read_bytes = pathlib.Path.read_bytes

@@ -142,3 +142,16 @@ def test_the_same_sample_twice_changes_nothing():
     before = guard.wheel_error
     assert guard.update(0.005, 50.0, 0.0, 0.0, 0.0, 0.0, 0.0) == ''
     assert guard.wheel_error == before
+
+
+def test_absurd_positions_are_a_runaway_said_with_finite_figures():
+    # Positions near the largest float (a datum in the wrong unit, garbage): the squares
+    # of the norm would overflow; the verdict still comes, with its figures.
+    guard = RunawayGuard()
+    verdict = ''
+    for k in range(400):
+        verdict = guard.update(k * DT, 1e200 * (k % 3), 1e300, 0.1, 1.0, -1e300, 0.0)
+        if verdict:
+            break
+    assert verdict.startswith('runaway') and 'nan' not in verdict and 'inf' not in verdict
+    assert math.isfinite(guard.largest_growth)

@@ -90,16 +90,16 @@ def optional_slot(array: str, index: int, doc: str) -> property:
 
 
 def sources_digest(functions: Iterable[Callable], kernel_module: str,
-                   constants_from: Iterable[ModuleType] = ()) -> str:
+                   also: Iterable[ModuleType] = ()) -> str:
     """SHA-256 of the files of ``functions`` (those a kernel compiles) and of the kernel's own.
 
     Derived from the functions themselves, so that a file whose function a kernel starts to
-    compile is in its digest. ``constants_from``: modules whose constants the compiled
-    functions read (numba keeps a global's value in the compiled code).
+    compile is in its digest. ``also``: modules whose constants the compiled functions read
+    (numba keeps a global's value in the compiled code) or whose overloads they call.
     """
     digest = hashlib.sha256()
     names = ({function.__module__ for function in functions} | {kernel_module}
-             | {module.__name__ for module in constants_from})
+             | {module.__name__ for module in also})
     for name in sorted(names):
         digest.update(pathlib.Path(sys.modules[name].__file__).read_bytes())
     return digest.hexdigest()

@@ -33,10 +33,9 @@ import math
 
 import numba
 import numpy as np
-from numba.extending import overload, register_jitable
+from numba.extending import register_jitable
 
-from . import angles, eso, model, position, rate_aided, slip
-from . import compiled
+from . import angles, compiled, eso, model, numba_math, position, rate_aided, slip
 
 #: The interpreter's functions the kernel compiles; their files make its sources' digest.
 COMPILED_FUNCTIONS = (angles.wrap_to_pi, angles.unwrap_next, eso.eso_step,
@@ -45,31 +44,9 @@ COMPILED_FUNCTIONS = (angles.wrap_to_pi, angles.unwrap_next, eso.eso_step,
                       position.odometry_step)
 for _function in COMPILED_FUNCTIONS:
     register_jitable(_function)
-
-
-@overload(math.fmod)
-def _fmod(x, y):
-    """``math.fmod`` in compiled code (numba has none): C's fmod, exact like CPython's."""
-    return lambda x, y: np.fmod(x, y)
-
-
-@overload(math.remainder)
-def _remainder(x, y):
-    """``math.remainder`` in compiled code (numba has none): the IEEE remainder, exact.
-
-    x − n y with n the integer nearest x / y (ties to even), from C's fmod: r = fmod(x, |y|)
-    is x − trunc(x / |y|) |y| exactly, one |y| is taken from it past |y| / 2 (exactly: the
-    two are within a factor of two), and at |y| / 2 when trunc(x / |y|) is odd, which is
-    when fmod(x, 2 |y|) is |y| or more.
-    """
-    def remainder(x, y):
-        size = abs(y)
-        r = np.fmod(x, size)
-        half = 0.5 * size
-        if abs(r) > half or (abs(r) == half and abs(np.fmod(x, 2.0 * size)) >= size):
-            r -= math.copysign(size, r)
-        return r
-    return remainder
+#: Modules whose code (math.fmod and math.remainder in compiled code) the kernel compiles
+#: too: in the digest.
+ALSO_COMPILED = (numba_math,)
 
 
 #: What :func:`step` did: took the sample, or left it untouched to the interpreter.
@@ -203,7 +180,7 @@ SOURCES_STAMP = 'estimator_kernel.sources'
 
 def sources_digest() -> str:
     """SHA-256 of the files whose functions the kernel compiles, and of this one."""
-    return compiled.sources_digest(COMPILED_FUNCTIONS, __name__)
+    return compiled.sources_digest(COMPILED_FUNCTIONS, __name__, ALSO_COMPILED)
 
 
 def refresh() -> None:

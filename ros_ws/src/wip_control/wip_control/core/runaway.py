@@ -35,11 +35,14 @@ References
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import math
 
+import numpy as np
+
 from wip_runtime.config import param
+
+from .compiled import array_slot
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,30 +75,74 @@ class RunawayParams:
         exclusive_minimum=True)
 
 
+#: The slots of the guard's state array (``RunawayGuard.state``); NaN: none yet.
+(T_LAST, XR_LAST, YR_LAST, PHI_LAST, V_LAST, ERROR_X, ERROR_Y, OWN_X, OWN_Y, ABSURD_SINCE,
+ LARGEST_GROWTH, HEAD, COUNT, VERDICT, GROWTH, OWN, TRACKING_ERROR, ABSURD_FOR) = range(18)
+STATE_SIZE = 18
+#: The slots of its constants (:func:`constants`).
+(MAX_ERROR_GROWTH, GROWTH_WINDOW, MAX_TRACKING_ERROR, TRACKING_ERROR_TIME, ANCHOR_TIME,
+ MIN_OWN_SHARE, MAX_REFERENCE_STEP) = range(7)
+#: Verdicts of :func:`guard_step`.
+NO_VERDICT, GROWTH_VERDICT, ABSURD_VERDICT = 0, 1, 2
+#: Each sample of the sliding window's history: (t, |ε_w|, own_x, own_y).
+HISTORY_FIELDS = 4
+
+
+def constants(config: RunawayParams) -> np.ndarray:
+    """Return the constants of :func:`guard_step` (the slots above)."""
+    return np.array([config.max_error_growth, config.growth_window,
+                     config.max_tracking_error, config.tracking_error_time,
+                     config.anchor_time, config.min_own_share, config.max_reference_step])
+
+
 class RunawayGuard:
     """See the module docstring. Feed :meth:`update` at each estimate while engaged.
 
     :meth:`reset` when the safety layer stops sending torque; the next update anchors anew.
+    The state is kept in float64 arrays (``state``, ``history``) that :func:`guard_step`
+    advances, interpreted or compiled (``safety_kernel``).
     """
+
+    error_x = array_slot('state', ERROR_X, 'ε_w along x [m]')
+    error_y = array_slot('state', ERROR_Y, 'ε_w along y [m]')
+    own_x = array_slot('state', OWN_X, "the vehicle's own path by wheels and IMU, x [m]")
+    own_y = array_slot('state', OWN_Y, "the vehicle's own path by wheels and IMU, y [m]")
+    largest_growth = array_slot('state', LARGEST_GROWTH,
+                                'the largest growth since the last reset [m] (/diagnostics)')
 
     def __init__(self, config: RunawayParams | None = None) -> None:
         self.config = config if config is not None else RunawayParams()
+        self.constants = constants(self.config)
+        self.constants_list = self.constants.tolist()   # for the interpreter: floats
+        self.state = np.zeros(STATE_SIZE)
+        # The sliding window's candidates for its least |ε_w|, a ring (HEAD, COUNT); grown
+        # by make_room when full.
+        self.history = np.zeros(64 * HISTORY_FIELDS)
         self.reset()
 
     def reset(self) -> None:
-        self._last: tuple[float, float, float, float, float] | None = None  # t, xr, yr, ϕ, υ
-        self.error_x = self.error_y = 0.0       # ε_w [m]
-        # (t, |ε_w|, own_x, own_y): the sliding window's candidates for its least |ε_w|.
-        self._history: collections.deque[tuple[float, float, float, float]] = (
-            collections.deque())
-        self.own_x = self.own_y = 0.0   # the vehicle's own path by wheels and IMU [m]
-        self._absurd_since: float | None = None
-        self.largest_growth = 0.0               # [m] since the last reset, for /diagnostics
+        """Forget everything: the next update anchors anew."""
+        s = self.state
+        s[:] = 0.0
+        s[T_LAST] = s[ABSURD_SINCE] = math.nan
 
     @property
     def wheel_error(self) -> float:
         """|ε_w| [m]."""
-        return math.hypot(self.error_x, self.error_y)
+        return _norm(self.error_x, self.error_y)
+
+    def make_room(self) -> None:
+        """Double the history's ring if it is full (before a step)."""
+        s, h = self.state, self.history
+        size = len(h) // HISTORY_FIELDS
+        if s[COUNT] < size:
+            return
+        head = int(s[HEAD])
+        ring = h.reshape(size, HISTORY_FIELDS)
+        grown = np.zeros(2 * len(h))
+        grown[:len(h)] = np.concatenate((ring[head:], ring[:head])).ravel()
+        self.history = grown
+        s[HEAD] = 0.0
 
     def update(self, t: float, x: float, y: float, phi: float, v: float, x_ref: float,
                y_ref: float) -> str:
@@ -103,81 +150,133 @@ class RunawayGuard:
 
         Returns the verdict: '' or why the vehicle is running away.
         """
-        cfg = self.config
-        ex, ey = x - x_ref, y - y_ref
-        values = (t, x, y, phi, v, x_ref, y_ref)
-        if not all(map(math.isfinite, values)):
-            return ''   # the safety layer's own checks refuse non-finite estimates
-        last = self._last
-        if last is not None and t <= last[0]:
-            return ''   # not a new sample
-        self._last = (t, x_ref, y_ref, phi, v)
-        if last is None:
-            self.error_x, self.error_y = ex, ey
-            self._history.clear()
-            self._history.append((t, math.hypot(ex, ey), self.own_x, self.own_y))
-            return self._absurd(t, ex, ey)
-        dt = t - last[0]
-        dxr, dyr = x_ref - last[1], y_ref - last[2]
-        if math.hypot(dxr, dyr) > cfg.max_reference_step:
-            # The reference was replaced, not followed: start again from the estimate.
-            self.error_x, self.error_y = ex, ey
-            self._history.clear()
-        else:
-            heading = last[3] + 0.5 * math.remainder(phi - last[3], 2.0 * math.pi)
-            rolled = 0.5 * (v + last[4]) * dt
-            pull = min(1.0, dt / cfg.anchor_time)
-            own_dx, own_dy = rolled * math.cos(heading), rolled * math.sin(heading)
-            self.own_x += own_dx
-            self.own_y += own_dy
-            self.error_x += own_dx - dxr + pull * (ex - self.error_x)
-            self.error_y += own_dy - dyr + pull * (ey - self.error_y)
-        size = self.wheel_error
-        # Sliding minimum over the window: a deque of increasing sizes (each sample is
-        # pushed and popped once, so a tick costs O(1) whatever the window).
-        history = self._history
-        while history and history[-1][1] >= size:
-            history.pop()
-        history.append((t, size, self.own_x, self.own_y))
-        while history[0][0] < t - cfg.growth_window:
-            history.popleft()
-        return self._growth(size, history[0], ex, ey) or self._absurd(t, ex, ey)
+        self.make_room()
+        guard_step(self.state, self.history, self.constants_list, t, x, y, phi, v, x_ref,
+                   y_ref)
+        return self.verdict()
 
-    def _growth(self, size: float, least: tuple, ex: float, ey: float) -> str:
-        """Return the growth verdict, '' or why.
-
-        ``least``: the window's sample of least |ε_w|, (t, |ε_w|, own_x, own_y).
-        """
-        cfg = self.config
-        _, smallest, own_x0, own_y0 = least
-        growth = size - smallest
-        self.largest_growth = max(self.largest_growth, growth)
-        if growth <= cfg.max_error_growth:
-            return ''
-        # The part of the growth the vehicle made itself: its own path since the window's
-        # least error, along the error now (the rest is the reference leaving it behind).
-        own = ((self.own_x - own_x0) * self.error_x
-               + (self.own_y - own_y0) * self.error_y) / size
-        if own < cfg.min_own_share * growth:
-            return ''
-        return (f'runaway: by its wheels and IMU the vehicle moved {growth:.2f} m farther '
-                f'from the reference within {cfg.growth_window:g} s, {own:.2f} m of it by '
-                f'its own motion (> max_error_growth {cfg.max_error_growth:g} m; the '
-                f'position estimate says {math.hypot(ex, ey):.2f} m off): the position '
-                'estimate is likely wrong (datum.*, position_source, a jump) or the wheels '
-                'drive against the command (wheel signs)')
-
-    def _absurd(self, t: float, ex: float, ey: float) -> str:
-        cfg = self.config
-        error = math.hypot(ex, ey)
-        if error <= cfg.max_tracking_error:
-            self._absurd_since = None
-            return ''
-        if self._absurd_since is None:
-            self._absurd_since = t
-        if t - self._absurd_since >= cfg.tracking_error_time:
-            return (f'runaway: tracking error {error:.4g} m > max_tracking_error '
-                    f'{cfg.max_tracking_error:g} m for {t - self._absurd_since:.2f} s: the '
-                    "position and the reference disagree (datum.*, position_source, the "
-                    "path's frame)")
+    def verdict(self) -> str:
+        """Return the last step's verdict: '' or why the vehicle is running away."""
+        s, cfg = self.state, self.config
+        kind = s[VERDICT]
+        if kind == GROWTH_VERDICT:
+            return (f'runaway: by its wheels and IMU the vehicle moved {s[GROWTH]:.2f} m '
+                    f'farther from the reference within {cfg.growth_window:g} s, '
+                    f'{s[OWN]:.2f} m of it by its own motion (> max_error_growth '
+                    f'{cfg.max_error_growth:g} m; the position estimate says '
+                    f'{s[TRACKING_ERROR]:.2f} m off): the position estimate is likely wrong '
+                    '(datum.*, position_source, a jump) or the wheels drive against the '
+                    'command (wheel signs)')
+        if kind == ABSURD_VERDICT:
+            return (f'runaway: tracking error {s[TRACKING_ERROR]:.4g} m > max_tracking_error '
+                    f'{cfg.max_tracking_error:g} m for {s[ABSURD_FOR]:.2f} s: the position '
+                    "and the reference disagree (datum.*, position_source, the path's frame)")
         return ''
+
+
+def _norm(a: float, b: float) -> float:
+    """sqrt(a² + b²): the same floats interpreted and compiled (math.hypot is not)."""
+    largest = max(abs(a), abs(b))
+    if largest > 1e150:     # the squares would overflow: scaled (absurd positions only)
+        a, b = a / largest, b / largest
+        return largest * math.sqrt(a * a + b * b)
+    return math.sqrt(a * a + b * b)
+
+
+def guard_step(s, h, c, t: float, x: float, y: float, phi: float, v: float, x_ref: float,
+               y_ref: float) -> int:
+    """Advance the guard's state ``s`` and history ``h`` by one sample; return the verdict.
+
+    ``c``: :func:`constants`. The history must have room for one more sample
+    (:meth:`RunawayGuard.make_room`). The verdict and its figures are kept in ``s``.
+    """
+    s[VERDICT] = NO_VERDICT
+    if not (math.isfinite(t) and math.isfinite(x) and math.isfinite(y)
+            and math.isfinite(phi) and math.isfinite(v) and math.isfinite(x_ref)
+            and math.isfinite(y_ref)):
+        return NO_VERDICT   # the safety layer's own checks refuse non-finite estimates
+    t_last = float(s[T_LAST])
+    if t <= t_last:
+        return NO_VERDICT   # not a new sample
+    ex, ey = x - x_ref, y - y_ref
+    dt = t - t_last
+    dxr, dyr = x_ref - float(s[XR_LAST]), y_ref - float(s[YR_LAST])
+    phi_last, v_last = float(s[PHI_LAST]), float(s[V_LAST])
+    s[T_LAST], s[XR_LAST], s[YR_LAST], s[PHI_LAST], s[V_LAST] = t, x_ref, y_ref, phi, v
+    if math.isnan(t_last) or _norm(dxr, dyr) > c[MAX_REFERENCE_STEP]:
+        # The first sample, or the reference was replaced, not followed: start again
+        # from the estimate.
+        s[ERROR_X], s[ERROR_Y] = ex, ey
+        s[HEAD] = s[COUNT] = 0.0
+        if math.isnan(t_last):
+            _push(s, h, t, _norm(ex, ey), c[GROWTH_WINDOW])
+            return _absurd(s, c, t, ex, ey)
+    else:
+        heading = phi_last + 0.5 * math.remainder(phi - phi_last, 2.0 * math.pi)
+        rolled = 0.5 * (v + v_last) * dt
+        pull = min(1.0, dt / c[ANCHOR_TIME])
+        own_dx, own_dy = rolled * math.cos(heading), rolled * math.sin(heading)
+        s[OWN_X] = float(s[OWN_X]) + own_dx
+        s[OWN_Y] = float(s[OWN_Y]) + own_dy
+        error_x, error_y = float(s[ERROR_X]), float(s[ERROR_Y])
+        s[ERROR_X] = error_x + (own_dx - dxr + pull * (ex - error_x))
+        s[ERROR_Y] = error_y + (own_dy - dyr + pull * (ey - error_y))
+    size = _norm(float(s[ERROR_X]), float(s[ERROR_Y]))
+    _push(s, h, t, size, c[GROWTH_WINDOW])
+    verdict = _growth(s, h, c, size, ex, ey)
+    return verdict if verdict != NO_VERDICT else _absurd(s, c, t, ex, ey)
+
+
+def _push(s, h, t: float, size: float, window: float) -> None:
+    """Add the sample to the window's candidates for its least |ε_w|; drop the old ones.
+
+    A ring of increasing sizes: each sample is pushed and popped once, so a step costs
+    O(1) whatever the window.
+    """
+    slots = len(h) // HISTORY_FIELDS
+    head, count = int(s[HEAD]), int(s[COUNT])
+    while count > 0 and h[((head + count - 1) % slots) * HISTORY_FIELDS + 1] >= size:
+        count -= 1
+    i = ((head + count) % slots) * HISTORY_FIELDS
+    h[i], h[i + 1], h[i + 2], h[i + 3] = t, size, s[OWN_X], s[OWN_Y]
+    count += 1
+    while h[head * HISTORY_FIELDS] < t - window:
+        head = (head + 1) % slots
+        count -= 1
+    s[HEAD], s[COUNT] = head, count
+
+
+def _growth(s, h, c, size: float, ex: float, ey: float) -> int:
+    """Return the growth verdict; its figures in ``s``.
+
+    From the window's sample of least |ε_w| (the oldest of the ring).
+    """
+    i = int(s[HEAD]) * HISTORY_FIELDS
+    smallest, own_x0, own_y0 = float(h[i + 1]), float(h[i + 2]), float(h[i + 3])
+    growth = size - smallest
+    s[LARGEST_GROWTH] = max(float(s[LARGEST_GROWTH]), growth)
+    if growth <= c[MAX_ERROR_GROWTH]:
+        return NO_VERDICT
+    # The part of the growth the vehicle made itself: its own path since the window's
+    # least error, along the error now (the rest is the reference leaving it behind).
+    own = ((float(s[OWN_X]) - own_x0) * float(s[ERROR_X])
+           + (float(s[OWN_Y]) - own_y0) * float(s[ERROR_Y])) / size
+    if own < c[MIN_OWN_SHARE] * growth:
+        return NO_VERDICT
+    s[VERDICT], s[GROWTH], s[OWN], s[TRACKING_ERROR] = GROWTH_VERDICT, growth, own, _norm(ex, ey)
+    return GROWTH_VERDICT
+
+
+def _absurd(s, c, t: float, ex: float, ey: float) -> int:
+    """Return the absurd-error verdict (|e| too large for too long); its figures in ``s``."""
+    error = _norm(ex, ey)
+    if error <= c[MAX_TRACKING_ERROR]:
+        s[ABSURD_SINCE] = math.nan
+        return NO_VERDICT
+    if math.isnan(s[ABSURD_SINCE]):
+        s[ABSURD_SINCE] = t
+    since = t - float(s[ABSURD_SINCE])
+    if since >= c[TRACKING_ERROR_TIME]:
+        s[VERDICT], s[TRACKING_ERROR], s[ABSURD_FOR] = ABSURD_VERDICT, error, since
+        return ABSURD_VERDICT
+    return NO_VERDICT

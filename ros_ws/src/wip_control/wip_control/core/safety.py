@@ -142,12 +142,14 @@ class SafetyMonitor:
         if not (math.isfinite(period) and period > 0.0):
             raise ValueError(f'SafetyMonitor: period must be finite and > 0, got {period!r}')
         self.numbers = np.zeros(rules.SIZE)
-        self.numbers[[rules.LAST_UPDATE, rules.READY_SINCE, rules.HEARTBEAT_AT]] = math.nan
+        self.numbers[[rules.LAST_UPDATE, rules.READY_SINCE, rules.HEARTBEAT_AT, rules.POSE_X,
+                      rules.POSE_Y, rules.GUARD_ESTIMATE_TIME]] = math.nan
         self.numbers[rules.ARRIVAL:rules.ARRIVAL + len(INPUTS)] = math.nan
         self.numbers[rules.POSITION_STATUS] = TRACKING
         self.plan = _NO_PLAN                    # the MPC's planned τυ (drive_torque)
         self.period = float(period)
         self.timing_checks = bool(timing_checks)
+        self.guard = RunawayGuard(runaway)
         self._config = config
         self.set_limits(max_wheel_torque, max_wheel_torque_rate)
         self.invalid_reasons = [''] * len(INPUTS)   # why each input's last message was bad
@@ -157,11 +159,6 @@ class SafetyMonitor:
         self.fault_latched: tuple[str, ...] = ()
         self.wiring = ''
         self.runaway = ''
-        self.guard = RunawayGuard(runaway)
-        self.pose = (math.nan, math.nan)        # (x̂, ŷ) of the last valid estimate [m]
-        self.reference_position: tuple[float, float] | None = None
-        self._reference_fresh = False            # a reference arrived since the guard's step
-        self._guard_estimate_time: float | None = None
         self._kernel = None                      # the compiled tick (use_compiled)
 
     @property
@@ -197,7 +194,7 @@ class SafetyMonitor:
     def _make_constants(self) -> None:
         self.constants = np.array(rules.constants(
             self._config, self.max_wheel_torque, self.max_wheel_torque_rate,
-            self.timing_checks))
+            self.timing_checks, self.guard.config.enabled))
 
     # -- inputs ------------------------------------------------------------------------------
     def _accept(self, index: int, t: float) -> None:
@@ -252,13 +249,14 @@ class SafetyMonitor:
         numbers[rules.ESTIMATE_VALUES:] = values
         numbers[rules.SETTLED] = 1.0 if settled else 0.0
         numbers[rules.POSITION_STATUS] = int(position_status)
-        self.pose = (float(x), float(y))
+        numbers[rules.POSE_X], numbers[rules.POSE_Y] = float(x), float(y)
 
     def reference(self, t: float, x: float, y: float) -> None:
         """Take the reference position (x_r, y_r) [m] received at ``t`` [s] (runaway guard)."""
         if _is_finite_number(x) and _is_finite_number(y):
-            self.reference_position = (float(x), float(y))
-            self._reference_fresh = True
+            n = self.numbers
+            n[rules.REFERENCE_X], n[rules.REFERENCE_Y] = float(x), float(y)
+            n[rules.REFERENCE_FRESH] = 1.0
 
     def yaw_torque(self, t: float, tau_omega: float) -> None:
         """τω [N·m] of the ARC, received at ``t`` [s]."""
@@ -389,15 +387,20 @@ class SafetyMonitor:
 
     def update(self, now: float) -> SafetyDecision:
         """Return the torques of the tick at ``now`` [s] (one call per control tick)."""
-        if self.timing_checks and self.numbers[rules.STATE] in _TORQUE_CODES:
-            self._guard_step()
         if self._kernel is not None:
-            # The steady tick (a torque state, no condition), or nothing changed.
-            taken, tau_left, tau_right = self._kernel(now, self.numbers, self.constants,
-                                                      self.plan)
-            if taken:
+            # The steady tick (a torque state, no condition), the guard's step only (with
+            # a runaway found: its text is made here), or nothing changed.
+            guard = self.guard
+            status, tau_left, tau_right = self._kernel(
+                now, self.numbers, self.constants, self.plan, guard.state, guard.history,
+                guard.constants)
+            if status == rules.TICK_TAKEN:
                 return SafetyDecision(tau_left, tau_right, False, (), self.state,
                                       self._config.shadow_mode)
+            if status == rules.RUNAWAY_FOUND:
+                self.runaway = guard.verdict()
+        if self.timing_checks and self.numbers[rules.STATE] in _TORQUE_CODES:
+            self._guard_step()
         return self._interpreted_update(now)
 
     def _interpreted_update(self, now: float) -> SafetyDecision:
@@ -458,19 +461,12 @@ class SafetyMonitor:
 
     def _guard_step(self) -> None:
         """Feed the runaway guard the newest estimate and reference (once each)."""
-        arrival = float(self.numbers[rules.ARRIVAL + ESTIMATE_INDEX])
-        if (not self.guard.config.enabled or self._runaway or not self._reference_fresh
-                or math.isnan(arrival) or self.invalid_reasons[ESTIMATE_INDEX]):
-            return
-        if arrival == self._guard_estimate_time:
-            return   # the same estimate as at the last step (a watchdog tick)
-        self._reference_fresh = False
-        self._guard_estimate_time = arrival
-        est = self.estimate_value
-        verdict = self.guard.update(arrival, *self.pose, est.phi, est.v,
-                                    *self.reference_position)
-        if verdict:
-            self.runaway = verdict
+        if rules.guard_due(self.numbers, self.constants):
+            self.guard.make_room()
+            guard = self.guard
+            if rules.step_guard(self.numbers, guard.state, guard.history,
+                                guard.constants_list):
+                self.runaway = guard.verdict()
 
 
 def tilt_divergence_rate(params) -> float:

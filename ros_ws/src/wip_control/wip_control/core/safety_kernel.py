@@ -30,43 +30,55 @@ import numba
 import numpy as np
 from numba.extending import register_jitable
 
-from . import compiled, eso, mixer, position, safety_config, safety_rules
+from . import (compiled, eso, mixer, numba_math, position, runaway, safety_config,
+               safety_rules)
 from .safety_rules import (ACTIVE_CODE, DEGRADED_CODE, ESTOP_LATCHED, FAULT_LATCHED,
                            LAST_UPDATE, MAX_WHEEL_TORQUE, MAX_WHEEL_TORQUE_RATE, READY_SINCE,
-                           SHADOW_CODE, SHADOW_MODE, STATE, TAU_LEFT, TAU_RIGHT, TICKS,
-                           YAW_TAU)
+                           RUNAWAY_FOUND, SHADOW_CODE, SHADOW_MODE, STATE, TAU_LEFT,
+                           TAU_RIGHT, TICK_LEFT, TICK_TAKEN, TICKS, TIMING_CHECKS, YAW_TAU)
 
 #: The interpreter's functions the kernel compiles; their files make its sources' digest.
 COMPILED_FUNCTIONS = (safety_config.lateness_code, safety_rules.condition_codes,
                       safety_rules._estimate_codes, safety_rules._drive_codes,
-                      safety_rules.drive_torque_now, safety_rules.toward, mixer.mixable,
-                      mixer.mixed)
+                      safety_rules.drive_torque_now, safety_rules.toward,
+                      safety_rules.guard_due, safety_rules.step_guard, mixer.mixable,
+                      mixer.mixed, runaway.guard_step, runaway._norm, runaway._push,
+                      runaway._growth, runaway._absurd)
 for _function in COMPILED_FUNCTIONS:
     register_jitable(_function)
 #: Modules whose constants the rules read (the estimate's field order, the position
-#: statuses): in the digest too.
-CONSTANTS_FROM = (eso, position)
+#: statuses) or whose code it compiles too (math.remainder): in the digest.
+ALSO_COMPILED = (eso, position, numba_math)
 
 #: What :func:`tick` returns for a tick it leaves to the interpreter.
-_LEFT = (0, math.nan, math.nan)
+_LEFT = (TICK_LEFT, math.nan, math.nan)
 _ARRAY = numba.float64[::1]
 #: One signature, compiled once: arguments of another type are converted (an int time) or
 #: refused, never compiled anew in a control tick.
 _SIGNATURE = numba.types.Tuple((numba.int64, numba.float64, numba.float64))(
-    numba.float64, _ARRAY, _ARRAY, _ARRAY)
+    numba.float64, *(_ARRAY,) * 6)
 
 
 @numba.njit(_SIGNATURE, cache=True, nogil=True, boundscheck=True)
-def tick(now, n, c, plan):
-    """Take the steady tick at ``now`` [s] on the state ``n`` in place: (1, τl, τr) or (0, …).
+def tick(now, n, c, plan, guard_state, guard_history, guard_constants):
+    """Take the steady tick at ``now`` [s] on the state ``n`` in place: (TICK_TAKEN, τl, τr).
 
-    ``c``: the constants (``safety_rules.constants``); ``plan``: the MPC's planned τυ.
+    ``c``: the constants (``safety_rules.constants``); ``plan``: the MPC's planned τυ; the
+    runaway guard's state, history and constants (``RunawayGuard``). Or (TICK_LEFT, …):
+    the interpreter's tick (the guard may have stepped), (RUNAWAY_FOUND, …): the guard
+    found a runaway, the interpreter words it and takes the tick.
     """
     state = n[STATE]
     if (not (state == ACTIVE_CODE or state == DEGRADED_CODE or state == SHADOW_CODE)
             or n[ESTOP_LATCHED] != 0.0 or n[FAULT_LATCHED] != 0.0
             or math.isnan(n[LAST_UPDATE]) or not math.isfinite(now)):
         return _LEFT
+    # SafetyMonitor.update: the runaway guard first (a torque state, real time).
+    if c[TIMING_CHECKS] != 0.0 and safety_rules.guard_due(n, c):
+        if guard_state[runaway.COUNT] * runaway.HISTORY_FIELDS >= len(guard_history):
+            return _LEFT    # its history full: the interpreter makes room
+        if safety_rules.step_guard(n, guard_state, guard_history, guard_constants) != 0:
+            return (RUNAWAY_FOUND, math.nan, math.nan)
     dt = max(0.0, now - n[LAST_UPDATE])
     ticks = n[TICKS] + 1.0
     if safety_rules.condition_codes(now, dt, ticks, n, c) != 0:
@@ -85,7 +97,7 @@ def tick(now, n, c, plan):
     n[READY_SINCE] = math.nan
     n[TAU_LEFT] = tau_left
     n[TAU_RIGHT] = tau_right
-    return (1, tau_left, tau_right)
+    return (TICK_TAKEN, tau_left, tau_right)
 
 
 def difference(make_monitor: Callable) -> str:
@@ -133,7 +145,8 @@ def warm_up() -> None:
     Compiled afresh if the sources it compiles changed since numba's cache was filled
     (:data:`SOURCES_STAMP` beside the cache holds their digest).
     """
-    tick(0.0, np.zeros(safety_rules.SIZE), np.zeros(safety_rules.CONSTANTS), np.zeros(0))
+    tick(0.0, np.zeros(safety_rules.SIZE), np.zeros(safety_rules.CONSTANTS), np.zeros(0),
+         np.zeros(runaway.STATE_SIZE), np.zeros(runaway.HISTORY_FIELDS), np.zeros(7))
     compiled.refresh_if_sources_changed(tick.stats.cache_path, SOURCES_STAMP, sources_digest(),
                                         refresh)
 
@@ -144,7 +157,7 @@ SOURCES_STAMP = 'safety_kernel.sources'
 
 def sources_digest() -> str:
     """SHA-256 of the files whose functions or constants the kernel compiles, and of this one."""
-    return compiled.sources_digest(COMPILED_FUNCTIONS, __name__, CONSTANTS_FROM)
+    return compiled.sources_digest(COMPILED_FUNCTIONS, __name__, ALSO_COMPILED)
 
 
 def refresh() -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 
+from . import runaway
 from .eso import StateEstimate
 from .position import FAULT as POSITION_FAULT, NO_FIX
 from .safety_config import lateness_code, LATE_CODE, STALE_CODE, TIME_TOLERANCE
@@ -27,6 +28,11 @@ STARTING, ACTIVE, DEGRADED, SHADOW, FAULT, ESTOP = (
     'STARTING', 'ACTIVE', 'DEGRADED', 'SHADOW', 'FAULT', 'ESTOP')
 STATES = (STARTING, ACTIVE, DEGRADED, SHADOW, FAULT, ESTOP)
 STARTING_CODE, ACTIVE_CODE, DEGRADED_CODE, SHADOW_CODE, FAULT_CODE, ESTOP_CODE = range(6)
+
+#: What the compiled tick did (``safety_kernel.tick``): left the tick to the interpreter
+#: (having stepped the runaway guard or not), took it, or found a runaway (the guard
+#: stepped, its verdict to be worded: the rest is the interpreter's).
+TICK_LEFT, TICK_TAKEN, RUNAWAY_FOUND = 0, 1, 2
 
 #: The watched inputs, by their index in the state array's per-input slots.
 ESTIMATE, YAW_TORQUE, DRIVE_TORQUE, ESTOP_INPUT = ('state_estimate', 'yaw_torque',
@@ -41,9 +47,12 @@ SOLVED, FALLBACK_SHIFTED_PLAN, FAILED_ZERO, INPUT_INVALID, NOT_READY = range(5)
 (TICKS, LAST_UPDATE, STATE, READY_SINCE, TAU_LEFT, TAU_RIGHT, SETTLED, POSITION_STATUS,
  CONSECUTIVE_FALLBACKS, ESTOP_LATCHED, FAULT_LATCHED, WIRING, RUNAWAY, HEARTBEAT_AT,
  YAW_TAU, DRIVE_TAU, DRIVE_STATUS, PLAN_PERIOD, PLAN_LENGTH) = range(19)
-ARRIVAL = 19          # 4 slots, one per input: when its last valid value arrived [s]
-INVALID = 23          # 4 slots: 1 when its last message was unusable
-ESTIMATE_VALUES = 27  # the last valid estimate, in StateEstimate's field order
+# The runaway guard's inputs: the estimate's planar position, the reference's and whether
+# it is new since the guard's step, and the estimate's arrival at that step.
+POSE_X, POSE_Y, REFERENCE_X, REFERENCE_Y, REFERENCE_FRESH, GUARD_ESTIMATE_TIME = range(19, 25)
+ARRIVAL = 25          # 4 slots, one per input: when its last valid value arrived [s]
+INVALID = 29          # 4 slots: 1 when its last message was unusable
+ESTIMATE_VALUES = 33  # the last valid estimate, in StateEstimate's field order
 SIZE = ESTIMATE_VALUES + len(StateEstimate._fields)
 
 #: The estimate values whose bound is a divergence of the observer, in the order of the
@@ -56,14 +65,16 @@ DIVERGENCE_CHECKS = (('v', 'max_speed_estimate'), ('omega', 'max_yaw_rate_estima
 _DIVERGENCE_SLOTS = tuple(ESTIMATE_VALUES + StateEstimate._fields.index(field)
                           for field, _ in DIVERGENCE_CHECKS)
 _THETA_SLOT = ESTIMATE_VALUES + StateEstimate._fields.index('theta')
+_PHI_SLOT = ESTIMATE_VALUES + StateEstimate._fields.index('phi')
+_V_SLOT = ESTIMATE_VALUES + StateEstimate._fields.index('v')
 
 #: The slots of the constants array (:func:`constants`).
 MAX_AGE = 0           # 4 slots, one per input
 (BRIDGE, FALL_THRESHOLD) = (4, 5)
 BOUNDS = 6            # 6 slots, DIVERGENCE_CHECKS' bounds
 (MAX_MPC_FALLBACKS, TIMING_CHECKS, SHADOW_MODE, WATCH_LINK, MAX_WHEEL_TORQUE,
- MAX_WHEEL_TORQUE_RATE) = range(12, 18)
-CONSTANTS = 18
+ MAX_WHEEL_TORQUE_RATE, GUARD_ENABLED) = range(12, 19)
+CONSTANTS = 19
 
 #: The conditions' bits (:func:`condition_codes`), in the order of the reasons.
 WIRING_BIT, RUNAWAY_BIT = 0, 1
@@ -77,13 +88,39 @@ DIVERGED_BITS = FALLEN_BIT + 1     # one per DIVERGENCE_CHECKS
 
 
 def constants(config, max_wheel_torque: float, max_wheel_torque_rate: float,
-              timing_checks: bool) -> list[float]:
-    """Return the constants (the slots above) of a ``SafetyParams`` and the limits."""
+              timing_checks: bool, guard_enabled: bool) -> list[float]:
+    """Return the constants (the slots above) of a ``SafetyParams``, the limits, the guard's."""
     return [config.max_estimate_age, config.max_yaw_torque_age, config.max_drive_torque_age,
             config.max_estop_age, config.bridge_time, config.fall_threshold,
             *(getattr(config, bound) for _, bound in DIVERGENCE_CHECKS),
             float(config.max_mpc_fallbacks), float(timing_checks), float(config.shadow_mode),
-            float(config.max_estop_age > 0.0), max_wheel_torque, max_wheel_torque_rate]
+            float(config.max_estop_age > 0.0), max_wheel_torque, max_wheel_torque_rate,
+            float(guard_enabled)]
+
+
+def guard_due(n, c) -> bool:
+    """Whether the runaway guard takes a step now: a new valid estimate and a new reference.
+
+    Not once it has found a runaway (latched), nor twice on one estimate (a watchdog tick).
+    """
+    arrival = n[ARRIVAL + ESTIMATE_INDEX]
+    return (c[GUARD_ENABLED] != 0.0 and n[RUNAWAY] == 0.0 and n[REFERENCE_FRESH] != 0.0
+            and not math.isnan(arrival) and n[INVALID + ESTIMATE_INDEX] == 0.0
+            and arrival != n[GUARD_ESTIMATE_TIME])
+
+
+def step_guard(n, guard_state, guard_history, guard_constants) -> int:
+    """Feed the runaway guard the newest estimate and reference (``runaway.guard_step``).
+
+    Return its verdict. The guard's history must have room (``RunawayGuard.make_room``).
+    """
+    arrival = float(n[ARRIVAL + ESTIMATE_INDEX])
+    n[REFERENCE_FRESH] = 0.0
+    n[GUARD_ESTIMATE_TIME] = arrival
+    return runaway.guard_step(guard_state, guard_history, guard_constants, arrival,
+                              float(n[POSE_X]), float(n[POSE_Y]), float(n[_PHI_SLOT]),
+                              float(n[_V_SLOT]), float(n[REFERENCE_X]),
+                              float(n[REFERENCE_Y]))
 
 
 def condition_codes(now: float, dt: float, ticks: float, n, c) -> int:
