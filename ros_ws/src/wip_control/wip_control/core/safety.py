@@ -153,7 +153,6 @@ class SafetyMonitor:
         self._config = config
         self.set_limits(max_wheel_torque, max_wheel_torque_rate)
         self.invalid_reasons = [''] * len(INPUTS)   # why each input's last message was bad
-        self.estimate_value: StateEstimate | None = None   # the last valid estimate
         self.estop_engaged = False      # the e-stop input says engaged now
         self.estop_true_at: float | None = None   # when an e-stop last said engaged
         self.fault_latched: tuple[str, ...] = ()
@@ -244,7 +243,6 @@ class SafetyMonitor:
                 self.invalid_input(ESTIMATE, t, f'non-finite {", ".join(bad)}')
                 return
         self._accept(ESTIMATE_INDEX, t)
-        self.estimate_value = values
         numbers = self.numbers
         numbers[rules.ESTIMATE_VALUES:] = values
         numbers[rules.SETTLED] = 1.0 if settled else 0.0

@@ -41,7 +41,7 @@ def condition_texts(monitor, codes: int, now: float, dt: float,
         faults.append(monitor.wiring)
     if codes >> RUNAWAY_BIT & 1:
         faults.append(monitor.runaway + ' (latched: reset required)')
-    c = monitor.constants
+    c = monitor.constants.tolist()
     for i, name in enumerate(INPUTS):
         bits = codes >> (INPUT_BITS + 4 * i) & 0b1111
         if not bits:
