@@ -194,6 +194,11 @@ class WiringCheck:
         return (f'tilt Y/X {tilt} (fault in [{low:.3g}, {high:.3g}]); '
                 f'largest yaw miss {yaw} of the gyro rate (fault >= {_YAW_MISS:g})')
 
+    @property
+    def wants_gravity(self) -> bool:
+        """Whether the gravity check still reads the specific force (no torque sent yet)."""
+        return not self.ever_engaged
+
     # -- inputs -------------------------------------------------------------------------------
     def wheels(self, t: float, left_rate: float, right_rate: float) -> None:
         """Wheel rates [rad/s], positive rolling forward AS CONFIGURED (signs applied)."""
@@ -361,7 +366,7 @@ class WiringCheck:
 
     def _gravity(self, t: float, pitch_rate: float, yaw_rate: float,
                  accel: Sequence[float] | None) -> Verdict | None:
-        if accel is None or self.ever_engaged:
+        if accel is None or not self.wants_gravity:
             return None
         ax, ay, az = (float(a) for a in accel)
         norm = math.sqrt(ax * ax + ay * ay + az * az)

@@ -73,8 +73,9 @@ class WiringCheckInputs:
         t = self.monitor_time()
         try:
             pitch, _yaw, (pitch_rate, yaw_rate) = body_attitude(msg, self.inverse_mount, True)
-            accel = None
-            if msg.linear_acceleration_covariance[0] != -1.0:
+            accel = None    # read only while the gravity check runs (before any torque)
+            if (self.wiring_check.wants_gravity
+                    and msg.linear_acceleration_covariance[0] != -1.0):
                 a = msg.linear_acceleration
                 accel = (float(a.x), float(a.y), float(a.z))
                 if self.inverse_mount is not None:
