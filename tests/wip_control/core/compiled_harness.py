@@ -1,4 +1,4 @@
-"""What the tests of the compiled kernels share: a run recorded both ways, to the bit."""
+"""What the tests of the compiled kernels share: a run recorded both ways; a stale kernel."""
 
 from typing import Callable
 
@@ -23,3 +23,25 @@ def assert_records_the_same_bits(scenario, interpret: Callable[[], None]) -> Non
             if (group, name) != ('mpc', 'solve_time'):
                 assert np.asarray(values).tobytes() == \
                     np.asarray(interpreted[group][name]).tobytes(), (group, name)
+
+
+def stale_kernel_module(function: str, real: Callable, perturb: Callable, fixed_by: int = 2):
+    """Return a stand-in kernel module whose ``function`` disagrees until compiled afresh.
+
+    ``function`` is ``real`` with ``perturb`` applied to its output (a last bit off, as a
+    stale numba cache gives) until ``refresh`` has been called ``fixed_by`` times.
+    """
+    class Stale:
+        refreshed = 0
+
+        @classmethod
+        def refresh(cls):
+            cls.refreshed += 1
+
+    Stale.fixed_by = fixed_by
+
+    def call(*args):
+        out = real(*args)
+        return perturb(out) if Stale.refreshed < Stale.fixed_by else out
+    setattr(Stale, function, staticmethod(call))
+    return Stale

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from compiled_harness import assert_records_the_same_bits
+from compiled_harness import assert_records_the_same_bits, stale_kernel_module
 
 from wip_control.core import estimator_kernel
 from wip_control.core.eso import EsoParams
@@ -184,22 +184,9 @@ def test_a_kernel_that_disagrees_is_not_used(monkeypatch):
 
     real = compiled_module.load_compiled(compiled_module.ESTIMATOR_KERNEL)
 
-    class Stale:
-        """A kernel one ulp off in ŷ, compiled afresh ``fixed_by`` times over."""
-
-        refreshed = 0
-        fixed_by = 2
-
-        @classmethod
-        def step(cls, *args):
-            out = real.step(*args)
-            if cls.refreshed < cls.fixed_by:
-                return (*out[:5], math.nextafter(out[5], math.inf), *out[6:])
-            return out
-
-        @classmethod
-        def refresh(cls):
-            cls.refreshed += 1
+    # One ulp off in ŷ until compiled afresh twice.
+    Stale = stale_kernel_module('step', real.step, lambda out: (
+        *out[:5], math.nextafter(out[5], math.inf), *out[6:]))
 
     monkeypatch.setattr(compiled_module, 'load_compiled', lambda name: Stale)
     estimator = StateEstimator(MODEL)

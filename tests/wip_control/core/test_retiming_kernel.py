@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from compiled_harness import assert_records_the_same_bits
+from compiled_harness import assert_records_the_same_bits, stale_kernel_module
 
 from wip_control.core import time_scaling
 from wip_control.core.references import make_reference, ReferenceParams
@@ -83,22 +83,9 @@ def test_a_kernel_that_disagrees_is_not_used(monkeypatch):
 
     real = compiled_module.load_compiled(compiled_module.RETIMING_KERNEL)
 
-    class Stale:
-        """A kernel one ulp off in υ, compiled afresh ``fixed_by`` times over."""
-
-        refreshed = 0
-        fixed_by = 2
-
-        @classmethod
-        def sample(cls, *args):
-            x, y, phi, v, omega, omega_dot = real.sample(*args)
-            if cls.refreshed < cls.fixed_by:
-                v = math.nextafter(v, math.inf)
-            return x, y, phi, v, omega, omega_dot
-
-        @classmethod
-        def refresh(cls):
-            cls.refreshed += 1
+    # One ulp off in υ until compiled afresh twice.
+    Stale = stale_kernel_module('sample', real.sample, lambda out: (
+        *out[:3], math.nextafter(out[3], math.inf), *out[4:]))
 
     monkeypatch.setattr(compiled_module, 'load_compiled', lambda name: Stale)
     reference = make_reference(ReferenceParams())
