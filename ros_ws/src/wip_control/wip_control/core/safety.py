@@ -25,7 +25,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from . import safety_rules as rules
-from .compiled import optional_slot, typed_slot
+from .compiled import array_slot, optional_slot, typed_slot
 from .eso import StateEstimate
 from .mixer import mix
 from .position import TRACKING
@@ -116,9 +116,9 @@ class SafetyMonitor:
     last_update = optional_slot('numbers', rules.LAST_UPDATE, 'time of the last update [s]')
     ready_since = optional_slot('numbers', rules.READY_SINCE,
                                 'since when every input is ready [s]')
-    tau_left = typed_slot('numbers', rules.TAU_LEFT, float,
+    tau_left = array_slot('numbers', rules.TAU_LEFT,
                           'left wheel torque of the previous tick [N m]')
-    tau_right = typed_slot('numbers', rules.TAU_RIGHT, float,
+    tau_right = array_slot('numbers', rules.TAU_RIGHT,
                            'right wheel torque of the previous tick [N m]')
     settled = typed_slot('numbers', rules.SETTLED, bool, "the ESO's start-up flag")
     position_status = typed_slot('numbers', rules.POSITION_STATUS, int,
@@ -408,9 +408,9 @@ class SafetyMonitor:
         last = self.last_update
         dt = self.period if last is None else max(0.0, now - last)
         n[rules.LAST_UPDATE] = now
-        values = n.tolist()
-        codes = rules.condition_codes(now, dt, ticks, values, self.constants.tolist())
-        faults, waiting, late = (condition_texts(self, codes, now, dt, values) if codes
+        values, c = n.tolist(), self.constants.tolist()
+        codes = rules.condition_codes(now, dt, ticks, values, c)
+        faults, waiting, late = (condition_texts(self, codes, now, dt, values, c) if codes
                                  else ([], [], []))
         if self.fault_latched and not faults:
             faults = [f'latched fault ({"; ".join(self.fault_latched)}): reset required']

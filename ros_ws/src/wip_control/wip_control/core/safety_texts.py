@@ -27,12 +27,12 @@ _FIELD = {name: ESTIMATE_VALUES + i for i, name in enumerate(StateEstimate._fiel
 _STATUS_NAMES = {FAILED_ZERO: 'FAILED_ZERO', INPUT_INVALID: 'INPUT_INVALID'}
 
 
-def condition_texts(monitor, codes: int, now: float, dt: float,
-                    n: list[float]) -> tuple[list[str], list[str], list[str]]:
+def condition_texts(monitor, codes: int, now: float, dt: float, n: list[float],
+                    c: list[float]) -> tuple[list[str], list[str], list[str]]:
     """(faults, not-yet conditions, late inputs within the bridge) of ``codes`` at ``now``.
 
-    ``monitor``: the ``SafetyMonitor`` (its verdict texts, invalid reasons, config); ``n``:
-    its state as floats; ``dt`` [s]: the time since its last tick.
+    ``monitor``: the ``SafetyMonitor`` (its verdict texts, invalid reasons, config); ``n``,
+    ``c``: its state and constants as floats; ``dt`` [s]: the time since its last tick.
     """
     faults: list[str] = []
     waiting: list[str] = []
@@ -41,7 +41,6 @@ def condition_texts(monitor, codes: int, now: float, dt: float,
         faults.append(monitor.wiring)
     if codes >> RUNAWAY_BIT & 1:
         faults.append(monitor.runaway + ' (latched: reset required)')
-    c = monitor.constants.tolist()
     for i, name in enumerate(INPUTS):
         bits = codes >> (INPUT_BITS + 4 * i) & 0b1111
         if not bits:
