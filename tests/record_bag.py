@@ -27,7 +27,7 @@ from wip_control.core.state_observer import WipStateObserver
 from wip_runtime.stamps import make_header, ns_to_stamp
 from wip_control.nodes.conversions import (body_rates_from_euler, estimate_to_msg,
                                            reference_to_msg, wheel_torques_to_msg)
-from wip_runtime.messages import quaternion_from_euler
+from wip_runtime.rotations import quaternion_from_euler
 from wip_sim.core.scenario import Scenario, scenario_to_mapping
 from wip_sim.core.sensor_models import Sensors
 from wip_bag.bag_writer import Rosbag2McapWriter

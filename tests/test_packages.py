@@ -332,8 +332,9 @@ def test_the_controllers_hold_no_plant(graph):
     # step. The plant, its compiled integrator, the forward sensor models, the disturbances
     # and the in-process runner are the simulator's (wip_sim); analysis is wip_tools'. Of
     # the controllers only the MPC's QP assembly and polish, the time-scaled reference's
-    # real-time sample, the gyro estimator's steady sample and the safety layer's steady
-    # tick are compiled with numba (and numba_math, what they call), declared.
+    # real-time sample, the gyro estimator's steady sample, the safety layer's steady tick
+    # and the body's attitude from an IMU sample are compiled with numba (and numba_math,
+    # what they call), declared.
     control = {name: targets for name, targets in graph.items()
                if name.startswith('wip_control')}
     simulator = {'plant', 'plant_rk4', 'sensor_models', 'disturbances', 'ground', 'runner',
@@ -341,8 +342,9 @@ def test_the_controllers_hold_no_plant(graph):
     assert not sorted(name for name in control if name.rsplit('.', 1)[-1] in simulator)
     assert sorted(name for name, targets in control.items()
                   if any(t.split('.')[0] in ('numba', 'llvmlite') for t in targets)) == [
-                      'wip_control.core.estimator_kernel', 'wip_control.core.mpc_kernel',
-                      'wip_control.core.numba_math', 'wip_control.core.qp_polish',
+                      'wip_control.core.attitude_kernel', 'wip_control.core.estimator_kernel',
+                      'wip_control.core.mpc_kernel', 'wip_control.core.numba_math',
+                      'wip_control.core.qp_polish',
                       'wip_control.core.retiming_kernel', 'wip_control.core.safety_kernel']
     assert 'python3-numba' in declared('wip_control')
     # The checks see the modules they look for where they are.

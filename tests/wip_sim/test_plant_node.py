@@ -33,7 +33,8 @@ from wip_sim.core.scenario import scenario_from_mapping  # noqa: E402
 from wip_description.sensors import geodetic_to_local  # noqa: E402
 from wip_sim.core.sensor_models import Sensors  # noqa: E402
 from wip_control.nodes.conversions import euler_rates_from_body  # noqa: E402
-from wip_runtime.messages import pitch_yaw_from_quaternion, quaternion_from_euler  # noqa: E402
+from wip_runtime.messages import pitch_yaw_from_quaternion  # noqa: E402
+from wip_runtime.rotations import quaternion_from_euler  # noqa: E402
 from wip_bringup.private_domain import take_private_domain  # noqa: E402
 
 pytestmark = pytest.mark.ros

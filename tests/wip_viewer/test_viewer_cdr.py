@@ -30,7 +30,7 @@ def ros():
 
     from wip_runtime.stamps import make_header
     from wip_control.nodes.conversions import odometry_to_msg
-    from wip_runtime.messages import quaternion_from_euler
+    from wip_runtime.rotations import quaternion_from_euler
     return dict(Point=Point, PoseStamped=PoseStamped, Path=Path, ColorRGBA=ColorRGBA,
                 Marker=Marker, MarkerArray=MarkerArray, make_header=make_header,
                 odometry_to_msg=odometry_to_msg, quaternion_from_euler=quaternion_from_euler,

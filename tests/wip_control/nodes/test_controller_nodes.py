@@ -64,7 +64,8 @@ from wip_runtime.qos import CLOCK_QOS  # noqa: E402
 from wip_runtime.stamps import make_header, ns_to_stamp, stamp_to_ns  # noqa: E402
 from wip_control.nodes.conversions import (body_rates_from_euler,  # noqa: E402
                                            euler_rates_from_body, mpc_status)
-from wip_runtime.messages import pitch_yaw_from_quaternion, quaternion_from_euler  # noqa: E402
+from wip_runtime.messages import pitch_yaw_from_quaternion  # noqa: E402
+from wip_runtime.rotations import quaternion_from_euler  # noqa: E402
 from wip_control.nodes.eso_node import EsoNode  # noqa: E402
 from wip_control.nodes.mpc_node import MpcNode  # noqa: E402
 from wip_control.nodes.reference_node import ReferenceNode  # noqa: E402

@@ -42,7 +42,7 @@ from wip_msgs.msg import (YawTorque, DriveTorque, StateEstimate as StateEstimate
 
 from wip_description.sensors import local_to_geodetic, SensorParams  # noqa: E402
 from wip_control.nodes.arc_node import ArcNode  # noqa: E402
-from wip_runtime.messages import quaternion_from_euler  # noqa: E402
+from wip_runtime.rotations import quaternion_from_euler  # noqa: E402
 from wip_runtime.executors import make_executor, spin_once_guarded  # noqa: E402
 from wip_runtime.qos import CLOCK_QOS  # noqa: E402
 from wip_runtime.stamps import make_header  # noqa: E402

@@ -28,14 +28,14 @@ from wip_control.core.safety import SafetyDecision  # noqa: E402
 from wip_runtime.stamps import make_header  # noqa: E402
 from wip_control.nodes.conversions import (arc_from_msg, command_from_msg,  # noqa: E402
                                            estimate_from_msg, imu_pitch_yaw, wheel_angles)
-from wip_runtime.messages import (InvalidMessage, pitch_yaw_from_quaternion,  # noqa: E402
-                                  quaternion_from_euler)
+from wip_runtime.messages import InvalidMessage, pitch_yaw_from_quaternion  # noqa: E402
+from wip_runtime.rotations import (quaternion_from_euler, quaternion_multiply,  # noqa: E402
+                                   rotate_vector_into)
 from wip_control.nodes.eso_node import EsoNode  # noqa: E402
 from wip_control.nodes.hardware_inputs import (body_pitch_yaw,  # noqa: E402
                                                check_mounting_rpy, check_position_source,
                                                check_wheel_sign, imu_orientation_of_body,
                                                mounting_inverse, odometry_position,
-                                               quaternion_multiply, rotate_vector_into,
                                                signed_efforts, signed_wheel_angles)
 from wip_control.nodes.mpc_node import MpcNode  # noqa: E402
 from wip_control.nodes.reference_node import ReferenceNode  # noqa: E402

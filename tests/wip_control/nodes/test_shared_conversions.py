@@ -1,10 +1,11 @@
 """Conversions done once per message or per layout give what the per-call ones give.
 
 ``hardware_inputs.body_attitude`` (the ESO's IMU conversion, kept for the mixer's wiring
-checks on the same decoded message) and ``conversions.EffortCommandCdr`` (the mixer's effort
-command with its layout worked out once). Criterion: bit for bit the values and bytes of
-the functions they stand for, and a message object of rclpy's classes, which a sender may
-fill again, never served from what an earlier content gave.
+checks on the same decoded message; interpreted and compiled) and
+``conversions.EffortCommandCdr`` (the mixer's effort command with its layout worked out
+once). Criterion: bit for bit the values and bytes of the functions they stand for, and a
+message object of rclpy's classes, which a sender may fill again, never served from what an
+earlier content gave.
 """
 
 import math
@@ -19,13 +20,26 @@ from rclpy.serialization import serialize_message  # noqa: E402
 from sensor_msgs.msg import Imu  # noqa: E402
 
 from wip_control.nodes.conversions import EffortCommandCdr, effort_command_cdr  # noqa: E402
+from wip_control.nodes import hardware_inputs  # noqa: E402
 from wip_control.nodes.hardware_inputs import (body_attitude, body_pitch_yaw,  # noqa: E402
                                                body_pitch_yaw_rates, mounting_inverse)
-from wip_runtime.messages import (decode_serialized, InvalidMessage,  # noqa: E402
-                                  quaternion_from_euler)
+from wip_runtime.messages import decode_serialized, InvalidMessage  # noqa: E402
+from wip_runtime.rotations import quaternion_from_euler  # noqa: E402
 
 IMU = 'sensor_msgs/msg/Imu'
 MOUNTINGS = [None, mounting_inverse((math.pi, 0.0, 0.0)), mounting_inverse((0.1, -0.2, 1.5))]
+
+
+@pytest.fixture(scope='module', params=['interpreted', 'compiled'], autouse=True)
+def attitude_reading(request):
+    """Every test of the module twice: the attitude read interpreted, then compiled."""
+    last = hardware_inputs._last_attitude
+    kept = last.kernel
+    last.kernel = None
+    if request.param == 'compiled':
+        assert hardware_inputs.use_compiled_attitude() == ''
+    yield request.param
+    last.kernel, last.msg = kept, None
 
 
 def _imu(pitch: float, yaw: float, rates: tuple[float, float, float]) -> Imu:

@@ -11,9 +11,8 @@ import dataclasses
 import math
 from typing import Any
 
-from wip_runtime.messages import quaternion_from_euler
-from wip_control.nodes.hardware_inputs import (check_mounting_rpy, check_wheel_sign,
-                                               quaternion_multiply, rotate_vector_into)
+from wip_runtime.rotations import quaternion_from_euler, quaternion_multiply, rotate_vector_into
+from wip_control.nodes.hardware_inputs import check_mounting_rpy, check_wheel_sign
 
 from .launcher import EXIT_USAGE, GraphError
 

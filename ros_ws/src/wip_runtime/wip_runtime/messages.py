@@ -1,8 +1,8 @@
 """Messages of any package: fast builders, finiteness checks, orientation, CDR decoding.
 
-Orientation quaternions are the ZYX (yaw, pitch, roll) Euler composition
-R = Rz(ϕ) Ry(θ) Rx(roll) (REP 103, as tf2). A reader of an external message raises
-:class:`InvalidMessage` (a ValueError) with the reason on malformed or non-finite content.
+A reader of an external message raises :class:`InvalidMessage` (a ValueError) with the
+reason on malformed or non-finite content; an orientation read from a message is checked
+here, then decomposed by :mod:`wip_runtime.rotations` (REP 103's ZYX Euler angles).
 """
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ from typing import Sequence
 
 from builtin_interfaces.msg import Time
 from std_msgs.msg import Header
+
+from .rotations import pitch_yaw_of_quaternion, quaternion_norm
 
 #: Quaternions whose norm is further than this from 1 are rejected as malformed [1]
 #: (a normalised float quaternion is within 1e-15; 1e-3 tolerates single-precision drivers).
@@ -140,34 +142,19 @@ def check_finite_values(what: str, **values: float) -> None:
 
 # --------------------------------------------------------------------- orientation
 
-def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float, ...]:
-    """(x, y, z, w) of R = Rz(yaw) Ry(pitch) Rx(roll) [rad] (REP 103, as tf2)."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-            cr * cp * cy + sr * sp * sy)
-
-
 def pitch_yaw_from_quaternion(x: float, y: float, z: float, w: float) -> tuple[float, float]:
-    """(pitch θ, yaw ϕ) [rad] of the ZYX decomposition; yaw in (−π, π].
+    """(pitch θ, yaw ϕ) [rad] of an orientation read from a message; yaw in (−π, π].
 
-    Inverse of :func:`quaternion_from_euler` for |pitch| < π/2 (the round trip is exact to
-    about 1e-16 rad). The quaternion is normalised first; its roll is ignored (the WIP
-    does not roll).
+    :func:`~wip_runtime.rotations.pitch_yaw_of_quaternion` of the normalised quaternion,
+    after the reader's checks: InvalidMessage if a value is not finite or the norm is not 1
+    within :data:`QUATERNION_NORM_TOLERANCE`.
     """
     if not (isfinite(x) and isfinite(y) and isfinite(z) and isfinite(w)):
         check_finite_values('orientation', x=x, y=y, z=z, w=w)
-    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    norm = quaternion_norm(x, y, z, w)
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise InvalidMessage(f'orientation: quaternion norm {norm!r} is not 1')
-    x, y, z, w = x / norm, y / norm, z / norm, w / norm
-    sin_pitch = 2.0 * (w * y - z * x)
-    pitch = math.asin(max(-1.0, min(1.0, sin_pitch)))
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return pitch, yaw
+    return pitch_yaw_of_quaternion(x, y, z, w, norm)
 
 
 # --------------------------------------------------------------------- sensors

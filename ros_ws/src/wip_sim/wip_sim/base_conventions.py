@@ -10,8 +10,8 @@ import math
 
 from sensor_msgs.msg import Imu, JointState
 
-from wip_runtime.messages import quaternion_from_euler
-from wip_control.nodes.hardware_inputs import imu_orientation_of_body, rotate_vector_into
+from wip_runtime.rotations import quaternion_from_euler, rotate_vector_into
+from wip_control.nodes.hardware_inputs import imu_orientation_of_body
 
 
 def body_quaternion(pitch: float, yaw: float) -> tuple[float, float, float, float]:

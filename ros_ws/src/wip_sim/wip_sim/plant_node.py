@@ -88,7 +88,7 @@ from wip_runtime.qos import LOCKSTEP_WRITER_DEPTH
 from wip_runtime.stamps import stamp_to_ns
 from wip_sim.simulator_main import run_simulator_node
 from wip_control.nodes.conversions import body_rates_from_euler, wheel_torques_from_msg
-from wip_runtime.messages import quaternion_from_euler
+from wip_runtime.rotations import quaternion_from_euler
 from wip_runtime.intra_process import local_match_count
 from wip_runtime.diagnostics import create_diagnostics_timer
 from wip_runtime.parameters import RosParams

@@ -93,7 +93,7 @@ from wip_control.core.model import OMEGA, PHI, THETA, V, X, Y
 from wip_sim.core.scenario import load_scenario
 from wip_sim.core.simulation import Simulation
 from wip_sim.simulator_main import run_simulator_node
-from wip_runtime.messages import quaternion_from_euler
+from wip_runtime.rotations import quaternion_from_euler
 from wip_runtime.diagnostics import create_diagnostics_timer
 from wip_control.nodes.effort_interface import declare_effort_interface
 from wip_runtime.parameters import RosParams

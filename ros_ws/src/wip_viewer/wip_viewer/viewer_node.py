@@ -74,7 +74,7 @@ from wip_runtime.composition import IntraProcessNode
 from wip_runtime.node_main import run_node
 from wip_runtime.qos import lockstep_writer_qos, RELIABLE_QOS, TF_QOS, TF_STATIC_QOS
 from wip_runtime.stamps import stamp_to_ns
-from wip_runtime.messages import quaternion_from_euler
+from wip_runtime.rotations import quaternion_from_euler
 from wip_runtime.diagnostics import NodeDiagnostics
 from wip_runtime.parameters import RosParams
 from wip_msgs.msg import GroundTruth, DriveTorque, ReferenceState, StateEstimate

@@ -1,11 +1,12 @@
 """The numba-compiled kernels of the core, imported and warmed up once per process.
 
 Each kernel module (``mpc_kernel``, ``qp_polish``, ``retiming_kernel``,
-``estimator_kernel``, ``safety_kernel``) has a ``warm_up()`` that loads its code from
-numba's cache or compiles it. It is called where a controller is made (an MPC, a loop's
-reference, a gyro estimator, the mixer's safety monitor), not in its first tick; a process
-that makes none of them does not import numba. ``python3 -m wip_control.core.compiled``
-fills numba's cache of all of them (scripts/setup and the Docker image do, after building).
+``estimator_kernel``, ``safety_kernel``, ``attitude_kernel``) has a ``warm_up()`` that
+loads its code from numba's cache or compiles it. It is called where a controller is made
+(an MPC, a loop's reference, a gyro estimator, the mixer's safety monitor, a node that reads
+an IMU), not in its first tick; a process that makes none of them does not import numba.
+``python3 -m wip_control.core.compiled`` fills numba's cache of all of them (scripts/setup
+and the Docker image do, after building).
 """
 
 from __future__ import annotations
@@ -21,13 +22,15 @@ from typing import Callable, Iterable
 
 #: The kernel modules of the controllers: the MPC's QP assembly, the QP's polish, the
 #: time-scaled reference's real-time sample, the gyro estimator's sample, the safety
-#: layer's steady tick.
+#: layer's steady tick, the body's attitude from an IMU sample.
 MPC_KERNEL = f'{__package__}.mpc_kernel'
 QP_POLISH = f'{__package__}.qp_polish'
 RETIMING_KERNEL = f'{__package__}.retiming_kernel'
 ESTIMATOR_KERNEL = f'{__package__}.estimator_kernel'
 SAFETY_KERNEL = f'{__package__}.safety_kernel'
-KERNELS = (MPC_KERNEL, QP_POLISH, RETIMING_KERNEL, ESTIMATOR_KERNEL, SAFETY_KERNEL)
+ATTITUDE_KERNEL = f'{__package__}.attitude_kernel'
+KERNELS = (MPC_KERNEL, QP_POLISH, RETIMING_KERNEL, ESTIMATOR_KERNEL, SAFETY_KERNEL,
+           ATTITUDE_KERNEL)
 
 _loaded: dict[str, ModuleType] = {}
 

@@ -29,8 +29,8 @@ from wip_msgs.msg import (YawTorque, DriveTorque, ReferenceState as ReferenceSta
                           VelocityCommand as VelocityCommandMsg, WheelTorques)
 from wip_runtime import cdr
 from wip_runtime.messages import (check_finite_record, check_finite_values, InvalidMessage,
-                                  pitch_yaw_from_quaternion, quaternion_from_euler, stamped,
-                                  StampedBuilder)
+                                  pitch_yaw_from_quaternion, stamped, StampedBuilder)
+from wip_runtime.rotations import euler_rates, quaternion_from_euler
 
 from ..core.arc import ArcOutput
 from ..core.eso import StateEstimate
@@ -82,15 +82,15 @@ def imu_pitch_yaw(msg: Imu) -> tuple[float, float]:
 
 
 def euler_rates_from_body(pitch: float, w_body: Sequence[float]) -> tuple[float, float]:
-    """(θ̇, ϕ̇) [rad/s] from the body angular velocity (base_link axes, roll 0) at pitch θ.
+    """(θ̇, ϕ̇) [rad/s] from a message's body angular velocity (base_link axes) at pitch θ.
 
-    The body of R = Rz(ϕ) Ry(θ) turns at ω_body = (−ϕ̇ sin θ, θ̇, ϕ̇ cos θ) (a gyro's
-    reading), so θ̇ = ω_y and ϕ̇ = ω_z cos θ − ω_x sin θ.
+    :func:`~wip_runtime.rotations.euler_rates` of the three rates, after the reader's
+    check: InvalidMessage if one is not finite.
     """
     wx, wy, wz = (float(v) for v in w_body)
     if not (isfinite(wx) and isfinite(wy) and isfinite(wz)):
         check_finite_values('angular_velocity', x=wx, y=wy, z=wz)
-    return wy, wz * math.cos(pitch) - wx * math.sin(pitch)
+    return euler_rates(pitch, wx, wy, wz)
 
 
 def body_rates_from_euler(pitch: float, pitch_rate: float,

@@ -113,8 +113,8 @@ from .conversions import (applied_torques, gps_has_fix, gps_local_position,
 from wip_runtime.messages import decode_serialized, prepare_decoder
 from ..core.position import DEAD_RECKONING, TRACKING
 from wip_runtime.diagnostics import ERROR, OK, WARN
-from .hardware_inputs import (body_attitude, mounting_inverse,
-                              odometry_position, signed_wheel_angles)
+from .hardware_inputs import (body_attitude, mounting_inverse, odometry_position,
+                              signed_wheel_angles, use_compiled_attitude)
 from wip_runtime.parameters import RosParams
 from .settings import EsoNodeParams, WheelTorqueLimit
 from wip_description.wiring import DatumParams, ImuMounting, WheelJoints, WheelSigns
@@ -152,7 +152,7 @@ class EsoNode(ControllerNode):
                                         encoders_relative_to_body=self.relative_to_body,
                                         dead_reckoning=self.position_source == 'wheels',
                                         max_drive_torque=2.0 * self.max_wheel_torque)
-        self._use_compiled_estimator()
+        self._use_compiled_kernels()
         self.reported_fault = ''
         self.last_update_ns: int | None = None
         # Real time: the observer's sample clock (see _observer_time).
@@ -307,8 +307,11 @@ class EsoNode(ControllerNode):
                                      self.right_sign)
         self.feed('joint_states', stamp, angles)
 
-    def _use_compiled_estimator(self) -> None:
-        """Take the gyro estimator's steady samples compiled (the same floats, one call)."""
+    def _use_compiled_kernels(self) -> None:
+        """Read the IMU's attitude, take the gyro estimator's steady samples: compiled."""
+        warning = use_compiled_attitude()
+        if warning:
+            self.get_logger().warning(f'attitude interpreted: {warning}')
         if self.eso_config.estimator != 'gyro':
             return
         warning = self.estimator.use_compiled()

@@ -50,16 +50,16 @@ from typing import Sequence
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState
 from wip_runtime.messages import (check_finite_values as _check_finite, InvalidMessage,
-                                  is_decoded, pitch_yaw_from_quaternion, quaternion_from_euler,
+                                  is_decoded, pitch_yaw_from_quaternion,
                                   QUATERNION_NORM_TOLERANCE)
+from wip_runtime.rotations import (Quaternion, quaternion_conjugate, quaternion_from_euler,
+                                   quaternion_multiply, quaternion_norm, rotate_vector_into)
 
 from .conversions import euler_rates_from_body, imu_has_rates, imu_pitch_yaw, wheel_angles
 from .settings import POSITION_SOURCES  # noqa: F401 (values of position_source)
 
 #: The identity rotation (x, y, z, w).
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
-
-Quaternion = tuple[float, float, float, float]
 
 
 # --------------------------------------------------------------------- parameters
@@ -91,22 +91,6 @@ def check_position_source(name: str, value) -> str:
 
 # --------------------------------------------------------------------- quaternions
 
-def quaternion_multiply(a: Sequence[float], b: Sequence[float]) -> Quaternion:
-    """Hamilton product a ⊗ b of (x, y, z, w) quaternions (rotation b first, then a)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return (aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz)
-
-
-def quaternion_conjugate(q: Sequence[float]) -> Quaternion:
-    """Inverse rotation of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = q
-    return (-x, -y, -z, w)
-
-
 def mounting_inverse(rpy: Sequence[float]) -> Quaternion | None:
     """q_mount⁻¹ of ``imu_mounting_rpy`` [rad]; None for the identity (no rotation done)."""
     roll, pitch, yaw = check_mounting_rpy('imu_mounting_rpy', rpy)
@@ -123,15 +107,6 @@ def imu_orientation_of_body(body: Sequence[float], rpy: Sequence[float]) -> Quat
     """
     roll, pitch, yaw = check_mounting_rpy('imu_mounting_rpy', rpy)
     return quaternion_multiply(body, quaternion_from_euler(roll, pitch, yaw))
-
-
-def rotate_vector_into(q: Sequence[float], v: Sequence[float]) -> tuple[float, float, float]:
-    """Coordinates in the rotated frame of a vector given in the parent frame: R(q)ᵀ v."""
-    x, y, z, w = q
-    # R(q)^T v = conj(q) v q
-    p = quaternion_multiply(quaternion_multiply((-x, -y, -z, w), (v[0], v[1], v[2], 0.0)),
-                            (x, y, z, w))
-    return p[0], p[1], p[2]
 
 
 # --------------------------------------------------------------------- messages
@@ -162,7 +137,7 @@ def body_pitch_yaw(msg: Imu, inverse_mount: Sequence[float] | None = None) -> tu
     x, y, z, w = q.x, q.y, q.z, q.w
     if not (isfinite(x) and isfinite(y) and isfinite(z) and isfinite(w)):
         _check_finite('orientation', x=x, y=y, z=z, w=w)
-    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    norm = quaternion_norm(x, y, z, w)
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise InvalidMessage(f'orientation: quaternion norm {norm!r} is not 1')
     return pitch_yaw_from_quaternion(*quaternion_multiply((x, y, z, w), inverse_mount))
@@ -192,13 +167,14 @@ class _LastAttitude:
 
     In a composed process the ESO and the mixer's wiring checks read the same decoded IMU
     object (composition.share_raw_subscriptions) with the same mounting: the second gets
-    the first one's angles and rates instead of computing them again.
+    the first one's angles and rates instead of computing them again. ``kernel``: the
+    compiled reading (:func:`use_compiled_attitude`), None until then.
     """
 
-    __slots__ = ('msg', 'inverse_mount', 'pitch_yaw', 'rates')
+    __slots__ = ('msg', 'inverse_mount', 'pitch_yaw', 'rates', 'kernel')
 
     def __init__(self) -> None:
-        self.msg = self.inverse_mount = self.pitch_yaw = self.rates = None
+        self.msg = self.inverse_mount = self.pitch_yaw = self.rates = self.kernel = None
 
 
 _last_attitude = _LastAttitude()
@@ -214,6 +190,13 @@ def body_attitude(msg: Imu, inverse_mount: Sequence[float] | None,
     """
     last = _last_attitude
     if msg is not last.msg or inverse_mount != last.inverse_mount:
+        read = (None if last.kernel is None
+                else _compiled_attitude(last.kernel, msg, inverse_mount, with_rates))
+        if read is not None:
+            if is_decoded(msg):
+                last.msg, last.inverse_mount, last.pitch_yaw, last.rates = (
+                    msg, inverse_mount, read[:2], read[2])
+            return read
         pitch_yaw = body_pitch_yaw(msg, inverse_mount)
         if not is_decoded(msg):
             rates = body_pitch_yaw_rates(msg, inverse_mount, pitch_yaw[0]) if with_rates else None
@@ -226,6 +209,78 @@ def body_attitude(msg: Imu, inverse_mount: Sequence[float] | None,
     if last.rates is None:
         last.rates = body_pitch_yaw_rates(msg, inverse_mount, pitch)
     return pitch, yaw, last.rates
+
+
+def _compiled_attitude(kernel, msg: Imu, inverse_mount: Sequence[float] | None,
+                       with_rates: bool) -> tuple[float, float, tuple[float, float] | None] | None:
+    """:func:`body_attitude` of ``msg`` by the compiled kernel; None where it leaves it."""
+    q, w = msg.orientation, msg.angular_velocity
+    mount = IDENTITY if inverse_mount is None else inverse_mount
+    try:
+        taken, pitch, yaw, pitch_rate, yaw_rate = kernel(
+            q.x, q.y, q.z, q.w, w.x, w.y, w.z, mount[0], mount[1], mount[2], mount[3],
+            inverse_mount is not None, with_rates, msg.orientation_covariance[0],
+            msg.angular_velocity_covariance[0], QUATERNION_NORM_TOLERANCE)
+    except (TypeError, ValueError, IndexError):
+        return None     # fields of another type or size: the interpreter says what is wrong
+    if taken:
+        return None
+    return pitch, yaw, (pitch_rate, yaw_rate) if with_rates else None
+
+
+def use_compiled_attitude() -> str:
+    """Read the body's attitude compiled in this process (``core/attitude_kernel.py``).
+
+    The kernel is compared with the interpreter first (:func:`attitude_difference`). Return
+    '' when it is used, else why not. The angles and rates are the same floats either way.
+    """
+    if _last_attitude.kernel is not None:
+        return ''
+    from ..core.compiled import ATTITUDE_KERNEL, load_checked
+    module, difference = load_checked(ATTITUDE_KERNEL, attitude_difference)
+    if difference:
+        return f'the compiled attitude differs from the interpreted one {difference}'
+    _last_attitude.kernel = module.attitude
+    return ''
+
+
+def attitude_difference(module) -> str:
+    """Where ``module.attitude`` differs from the interpreter on made-up samples ('' nowhere).
+
+    Four mountings, attitudes all round (the yaw across ±π, the pitch near ±π/2), rates up
+    to overflowing, and the samples the checks refuse: no orientation or rates, values not
+    finite, quaternion norms just inside and outside the tolerance.
+    """
+    for index, (msg, inverse_mount, with_rates) in enumerate(_attitude_samples()):
+        try:
+            pitch, yaw = body_pitch_yaw(msg, inverse_mount)
+            expected = (pitch, yaw, body_pitch_yaw_rates(msg, inverse_mount, pitch)
+                        if with_rates else None)
+        except InvalidMessage:
+            expected = None
+        got = _compiled_attitude(module.attitude, msg, inverse_mount, with_rates)
+        if repr(got) != repr(expected):
+            return f'at sample {index}: {got} against {expected}'
+    return ''
+
+
+def _attitude_samples():
+    """Yield (Imu message, q_mount⁻¹ or None, with rates) for :func:`attitude_difference`."""
+    mounts = [None] + [mounting_inverse(rpy) for rpy in
+                       ((math.pi, 0.0, 0.0), (0.1, -0.2, 1.5), (0.0, 0.0, -0.5 * math.pi))]
+    for k in range(240):
+        pitch, yaw = 1.5 * math.sin(0.37 * k), math.remainder(0.71 * k, 2.0 * math.pi)
+        q = quaternion_from_euler(0.02 * math.cos(k), pitch, yaw)
+        scale = (1.0, 1.0 + 0.9e-3, 1.0 - 1.1e-3, math.nan, math.inf)[k % 5] if k % 3 else 1.0
+        msg = Imu()
+        o, w = msg.orientation, msg.angular_velocity
+        o.x, o.y, o.z, o.w = (scale * v for v in q)
+        w.x, w.y, w.z = 3.0 * math.cos(k), -2.0 * math.sin(k), (1e308 if k % 31 == 7 else 0.5)
+        if k % 23 == 11:
+            msg.orientation_covariance[0] = -1.0
+        if k % 19 == 3:
+            msg.angular_velocity_covariance[0] = -1.0
+        yield msg, mounts[k % len(mounts)], k % 7 != 0
 
 
 def odometry_position(msg: Odometry) -> tuple[float, float]:

@@ -15,8 +15,9 @@ from wip_runtime.messages import InvalidMessage
 from wip_runtime.parameters import RosParams
 from wip_runtime.qos import SENSOR_QOS
 from ..core.wiring_check import WiringCheck, WiringCheckParams
-from .hardware_inputs import (body_attitude, mounting_inverse, rotate_vector_into,
-                              signed_wheel_angles)
+from wip_runtime.rotations import rotate_vector_into
+from .hardware_inputs import (body_attitude, mounting_inverse, signed_wheel_angles,
+                              use_compiled_attitude)
 
 
 class WiringCheckInputs:
@@ -40,6 +41,9 @@ class WiringCheckInputs:
             'left_joint': self.left_joint, 'right_joint': self.right_joint,
             'left_wheel_sign': int(self.left_sign), 'right_wheel_sign': int(self.right_sign),
             'imu_mounting_rpy': tuple(mounting)})
+        warning = use_compiled_attitude()    # done already where an ESO shares the process
+        if warning:
+            self.get_logger().warning(f'attitude interpreted: {warning}')
         self._last_wheels: tuple[float, float, float] | None = None   # (t, φl, φr)
         # Also taken from the plant of the same process (the single layout).
         joints = self.create_subscription(JointState, 'joint_states', self._on_joint_states,
