@@ -149,6 +149,14 @@ def test_bench_reports_each_real_time_case_beside_the_rclpy_floor_and_the_nodes_
             assert run['effort_commands_to_dds'] >= run['ticks'] // 2, run
             assert 0.0 < run['median_us'] <= run['p90_us'], run
     assert cost['paced_over_back_to_back'] > 0.0
+    # By node: each of the six ran every tick (its callbacks took time); the rest of the
+    # tick (the bus's deliveries, the harness) is a part of it; the parts make the tick.
+    split = cost['split_us']
+    nodes = ('arc', 'eso', 'mpc', 'reference', 'torque_mixer', 'trajectory_generator')
+    assert set(split) == {*nodes, 'the rest (bus, harness)', 'tick'}, split
+    assert all(split[name] > 0.0 for name in nodes), split
+    assert split['tick'] > 0.0 and split['tick'] > split['the rest (bus, harness)']
+    assert sum(split.values()) - split['tick'] == pytest.approx(split['tick'])
     # The mixer's wiring checks are served by the ESO's sensor subscriptions (one take).
     assert all(run['other_sensor_subscriptions'] == 0
                for key in ('back_to_back', 'paced') for run in cost[key])
@@ -161,7 +169,7 @@ def test_bench_reports_each_real_time_case_beside_the_rclpy_floor_and_the_nodes_
     assert 'rclpy floor, taken as serialized' in printed
     assert 'rclpy floor, taken as loop' in printed and 'against the loop floor' in printed
     assert 'sensor->command latency' in printed
-    assert 'fed directly' in printed
+    assert 'fed directly' in printed and 'by node, back to back' in printed
     assert 'overhead ratio' in printed and 'Pi-class estimate' in printed
 
 

@@ -24,11 +24,20 @@ the machine charges for running after an idle period (cold caches, a halted vCPU
 docs/realtime.md §2 (measured on the 2-core development machine). With it, per tick: the
 measuring thread's context switches, migrations, minor faults and time waiting for a CPU,
 and the CPU time of the whole process (``per_tick``).
+
+``--split``: the tick's time by node as well (``split_us``): the time inside each node's
+callbacks (its subscriptions', its values' and its deadlines'; a callback's time less that
+of another node's callback it calls, such as the mixer's wiring checks served by the ESO's
+sensor subscription), and the rest of the tick, the bus's deliveries and the harness.
+Each call timed by the clock (``perf_counter``, about 0.1 µs a call: read the split beside
+a plain run's median, not in place of it), back to back (``--pace 0``) where nothing else
+runs within a tick.
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import math
 import pathlib
@@ -47,12 +56,14 @@ ENGAGE_TIMEOUT = 10.0   # [s] of paced ticks at most for the safety layer to eng
 SPIN_EVERY = 20
 
 
-def measure(seconds: float, paced: bool) -> dict:
+def measure(seconds: float, paced: bool, split: bool = False) -> dict:
     """Measure the thread CPU per tick of a controller node.
 
     In a process of its own (it initialises rclpy's default context): thread CPU per tick [us]
     (median, mean, p90) over ``seconds`` of 200 Hz ticks (the first fifth, start-up and
-    warm-up, left out), and how many ticks ran.
+    warm-up, left out), and how many ticks ran; with ``split``, the mean time per tick in
+    each node's callbacks and in the rest of the tick [us] (``split_us``, the module
+    docstring).
     """
     import rclpy  # ROS only where measured
 
@@ -62,9 +73,11 @@ def measure(seconds: float, paced: bool) -> dict:
 
     _init_rclpy()
     built: list = []
+    timing = _Split() if split else None
     try:
         executor = make_executor()
-        bus = compose(executor, list(NODE_CLASSES), built)
+        bus = compose(executor, [timing.build(node_class) if timing else node_class
+                                 for node_class in NODE_CLASSES], built)
         feed = _SensorFeed({node.get_name(): node for node in built})
         time.sleep(1.0)    # DDS matching of the effort command
         mixer = feed.nodes['torque_mixer']
@@ -82,7 +95,8 @@ def measure(seconds: float, paced: bool) -> dict:
                     time.sleep(delay)
             if k == 0:
                 counted = _scheduler_counters()
-            cost = feed.tick(k, bus, executor)
+            cost = (feed.tick(k, bus, executor) if timing is None
+                    else timing.tick(feed, k, bus, executor, first=ticks // 5))
             if k >= 0:
                 costs.append(cost)
         counters = _per_tick(counted, _scheduler_counters(), ticks)
@@ -94,11 +108,83 @@ def measure(seconds: float, paced: bool) -> dict:
                 'p90_us': 1e6 * kept[int(0.9 * (len(kept) - 1))],
                 'effort_commands_to_dds': bus.published_dds,
                 'per_tick': counters,
-                'other_sensor_subscriptions': len(feed.others)}
+                'other_sensor_subscriptions': len(feed.others),
+                **({'split_us': timing.result()} if timing else {})}
     finally:
         for node in built:
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+class _Split:
+    """The time of the measured ticks inside each node's callbacks (``--split``)."""
+
+    #: The name of what is not inside a node's callback: the bus's deliveries, the harness.
+    REST = 'the rest (bus, harness)'
+
+    def __init__(self) -> None:
+        self.own: dict[str, float] = collections.defaultdict(float)
+        self.nested = [0.0]      # per call being timed: the time of timed calls inside it
+        self.ticks = 0
+        self.tick_time = 0.0
+
+    def build(self, node_class):
+        """Return a factory of ``node_class`` whose callbacks are timed.
+
+        Wrapped when the node is made, before the composition connects the bus and the
+        shared sensor subscriptions to them: its subscriptions' callbacks, its direct-value
+        callbacks and its deadlines'.
+        """
+        def factory():
+            node = node_class()
+            name = node.get_name()
+            for subscription in node.subscriptions:
+                subscription.callback = self._timed(subscription.callback, name)
+            node.intra_subscriptions = [
+                (msg_type, topic, self._timed(callback, name),
+                 None if direct is None else self._timed(direct, name), value_type)
+                for msg_type, topic, callback, direct, value_type in node.intra_subscriptions]
+            for watchdog in getattr(node, 'watchdogs', ()):
+                watchdog.callback = self._timed(watchdog.callback, name)
+            return node
+        return factory
+
+    def _timed(self, callback, name: str):
+        own, nested = self.own, self.nested
+
+        def timed(*args):
+            nested.append(0.0)
+            start = time.perf_counter()
+            try:
+                return callback(*args)
+            finally:
+                elapsed = time.perf_counter() - start
+                own[name] += elapsed - nested.pop()
+                nested[-1] += elapsed
+        return timed
+
+    def tick(self, feed: '_SensorFeed', k: int, bus, executor, first: int) -> float:
+        """Run ``feed.tick``; count its cost from tick ``first`` on (the measured ticks)."""
+        if k == first:
+            self.own.clear()
+            self.ticks, self.tick_time = 0, 0.0
+        cost = feed.tick(k, bus, executor)
+        if k >= first:
+            self.tick_time += cost
+            self.ticks += 1
+        return cost
+
+    def result(self) -> dict[str, float]:
+        """Mean µs per tick inside each node's callbacks, the rest, and the whole tick.
+
+        The tick's thread CPU time, as measured; the callbacks' by the clock (the same
+        back to back, where nothing else runs in between).
+        """
+        ticks = max(1, self.ticks)
+        split = {name: 1e6 * own / ticks for name, own in sorted(self.own.items())}
+        split[self.REST] = 1e6 * (self.tick_time - sum(self.own.values())) / ticks
+        split['tick'] = 1e6 * self.tick_time / ticks
+        return split
 
 
 def _scheduler_counters() -> dict[str, float] | None:
@@ -242,10 +328,12 @@ def main(argv: list[str] | None = None) -> int:
                         help='ticks of 5 ms to run (default 10 s of them)')
     parser.add_argument('--pace', type=int, choices=(0, 1), default=1,
                         help='1: at 200 Hz, sleeping between ticks; 0: back to back')
+    parser.add_argument('--split', action='store_true',
+                        help="also the tick's time inside each node's callbacks (split_us)")
     args = parser.parse_args(argv)
     if not (math.isfinite(args.seconds) and 0.0 < args.seconds <= 3600.0):
         parser.error(f'--seconds: must be in (0, 3600], got {args.seconds}')
-    print(json.dumps(measure(args.seconds, bool(args.pace))))
+    print(json.dumps(measure(args.seconds, bool(args.pace), args.split)))
     return 0
 
 

@@ -48,22 +48,26 @@ def bench_rclpy_floor(seconds: float) -> dict:
 def bench_node_cost(seconds: float, pairs: int = 2) -> dict:
     """Return the controller nodes' own CPU per tick, fed directly (:mod:`wip_tools.node_cost`).
 
-    Measured back to back and paced at 200 Hz, alternately, each in a process of its own.
+    Measured back to back and paced at 200 Hz, alternately, each in a process of its own;
+    then once back to back by node (``split``: µs per tick inside each node's callbacks and
+    the rest, node_cost's ``--split``).
     """
-    runs: dict[str, list[dict]] = {'back_to_back': [], 'paced': []}
-    for _ in range(pairs):
-        for key, pace in (('back_to_back', 0), ('paced', 1)):
-            done = subprocess.run([sys.executable, '-m', 'wip_tools.node_cost', '--seconds',
-                                   f'{seconds:g}', '--pace', str(pace)], capture_output=True,
-                                  text=True, timeout=600, check=False)
-            lines = done.stdout.strip().splitlines()
-            if done.returncode != 0 or not lines:
-                tail = (done.stderr.strip().splitlines() or ['no output'])[-1]
-                return {'failed': f'node_cost --pace {pace}: exit {done.returncode}: {tail}'}
-            runs[key].append(json.loads(lines[-1]))
+    runs: dict[str, list[dict]] = {'back_to_back': [], 'paced': [], 'split': []}
+    for key, pace, *more in [*((('back_to_back', 0), ('paced', 1)) * pairs),
+                             ('split', 0, '--split')]:
+        done = subprocess.run([sys.executable, '-m', 'wip_tools.node_cost', '--seconds',
+                               f'{seconds:g}', '--pace', str(pace), *more],
+                              capture_output=True, text=True, timeout=600, check=False)
+        lines = done.stdout.strip().splitlines()
+        if done.returncode != 0 or not lines:
+            tail = (done.stderr.strip().splitlines() or ['no output'])[-1]
+            return {'failed': f'node_cost --pace {pace} {" ".join(more)}: exit '
+                              f'{done.returncode}: {tail}'}
+        runs[key].append(json.loads(lines[-1]))
+    split = runs.pop('split')[0]['split_us']
     medians = {key: statistics.median(r['median_us'] for r in rows)
                for key, rows in runs.items()}
-    return {**runs, 'median_us': medians,
+    return {**runs, 'median_us': medians, 'split_us': split,
             'paced_over_back_to_back': medians['paced'] / medians['back_to_back']}
 
 
@@ -157,6 +161,10 @@ def section_realtime(seconds: float, in_process: dict, report: dict,
               + ' / '.join(f'{r["median_us"]:.0f}' for r in cost['paced'])
               + f' us: {cost["paced_over_back_to_back"]:.1f}x (what running after an '
               'idle period costs on this machine)')
+        split = cost['split_us']
+        print('   by node, back to back, mean us per tick inside its callbacks: '
+              + ', '.join(f'{name} {split[name]:.0f}' for name in split if name != 'tick')
+              + f' (a tick {split["tick"]:.0f} us)')
     floor = bench_rclpy_floor(min(10.0, max(3.0, seconds / 2.0)))
     report['rclpy_floor'] = floor
     _print_floor(floor)
