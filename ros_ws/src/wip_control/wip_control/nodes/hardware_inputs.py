@@ -89,7 +89,7 @@ def check_position_source(name: str, value) -> str:
     return value
 
 
-# --------------------------------------------------------------------- quaternions
+# --------------------------------------------------------------------- the IMU mounting
 
 def mounting_inverse(rpy: Sequence[float]) -> Quaternion | None:
     """q_mount⁻¹ of ``imu_mounting_rpy`` [rad]; None for the identity (no rotation done)."""
