@@ -28,7 +28,8 @@ and the CPU time of the whole process (``per_tick``).
 ``--split``: the tick's time by node as well (``split_us``): the time inside each node's
 callbacks (its subscriptions', its values' and its deadlines'; a callback's time less that
 of another node's callback it calls, such as the mixer's wiring checks served by the ESO's
-sensor subscription), and the rest of the tick, the bus's deliveries and the harness.
+sensor subscription), the harness's executor turns (the nodes' timers) and the rest of the
+tick, the bus's deliveries and the harness.
 Each call timed by the clock (``perf_counter``, about 0.1 µs a call: read the split beside
 a plain run's median, not in place of it), back to back (``--pace 0``) where nothing else
 runs within a tick.
@@ -121,12 +122,15 @@ class _Split:
 
     #: The name of what is not inside a node's callback: the bus's deliveries, the harness.
     REST = 'the rest (bus, harness)'
+    #: The harness's turns of the executor for the nodes' due timers (SPIN_EVERY).
+    TURNS = 'executor turns (timers)'
 
     def __init__(self) -> None:
         self.own: dict[str, float] = collections.defaultdict(float)
         self.nested = [0.0]      # per call being timed: the time of timed calls inside it
         self.ticks = 0
         self.tick_time = 0.0
+        self._executor = None
 
     def build(self, node_class):
         """Return a factory of ``node_class`` whose callbacks are timed.
@@ -152,11 +156,11 @@ class _Split:
     def _timed(self, callback, name: str):
         own, nested = self.own, self.nested
 
-        def timed(*args):
+        def timed(*args, **kwargs):
             nested.append(0.0)
             start = time.perf_counter()
             try:
-                return callback(*args)
+                return callback(*args, **kwargs)
             finally:
                 elapsed = time.perf_counter() - start
                 own[name] += elapsed - nested.pop()
@@ -168,7 +172,9 @@ class _Split:
         if k == first:
             self.own.clear()
             self.ticks, self.tick_time = 0, 0.0
-        cost = feed.tick(k, bus, executor)
+        if self._executor is None:
+            self._executor = _TimedTurns(executor, self._timed(executor.spin_once, self.TURNS))
+        cost = feed.tick(k, bus, self._executor)
         if k >= first:
             self.tick_time += cost
             self.ticks += 1
@@ -185,6 +191,13 @@ class _Split:
         split[self.REST] = 1e6 * (self.tick_time - sum(self.own.values())) / ticks
         split['tick'] = 1e6 * self.tick_time / ticks
         return split
+
+
+class _TimedTurns:
+    """An executor as ``_SensorFeed.tick`` uses it, its turns timed (rclpy's are read-only)."""
+
+    def __init__(self, executor, spin_once) -> None:
+        self.executor, self.spin_once = executor, spin_once
 
 
 def _scheduler_counters() -> dict[str, float] | None:
