@@ -64,7 +64,6 @@ References
 
 from __future__ import annotations
 
-import collections
 import sys
 import time
 
@@ -113,6 +112,29 @@ LATENCY_WINDOW = 12000
 STOP_ACK_TIMEOUT = 1.0
 _LEVEL = {ACTIVE: OK, DEGRADED: WARN, SHADOW: WARN, STARTING: WARN, FAULT: ERROR,
           ESTOP: ERROR}
+
+
+class LatencyWindow:
+    """The last ``size`` sensor -> command latencies [s], a ring of floats.
+
+    A status takes their percentiles once a second, on the control thread, from the ring as
+    it is: no copy of the window first.
+    """
+
+    __slots__ = ('values', 'count')
+
+    def __init__(self, size: int) -> None:
+        self.values = np.empty(size)
+        self.count = 0      # latencies added so far
+
+    def add(self, latency: float) -> None:
+        """Take a command's latency [s], in place of the oldest once the window is full."""
+        self.values[self.count % len(self.values)] = latency
+        self.count += 1
+
+    def percentiles(self, q) -> np.ndarray:
+        """``np.percentile`` of the window's latencies (at least one added)."""
+        return np.percentile(self.values[:self.count], q)
 
 
 class TorqueMixerNode(WiringCheckInputs, ControllerNode):
@@ -171,7 +193,7 @@ class TorqueMixerNode(WiringCheckInputs, ControllerNode):
             # composed process keeps it in its spin loop (wip_runtime.executors.Watchdog).
             self.watchdog = Watchdog(self, self.control_period, self._tick)
             self.timer = self.watchdog.timer
-        self.latencies = collections.deque(maxlen=LATENCY_WINDOW)   # [s]
+        self.latencies = LatencyWindow(LATENCY_WINDOW)
         self._init_wiring_check()
         self._init_subscriptions(runaway.enabled)
         self.diagnostics.state(WARN, 'STARTING: waiting for the first inputs')
@@ -308,7 +330,7 @@ class TorqueMixerNode(WiringCheckInputs, ControllerNode):
             decision = self.monitor.update(self.monitor_time())
             self._publish(now, decision)
             if sensor_stamp is not None and not decision.zeroed:
-                self.latencies.append((self.now_ns() - sensor_stamp) * 1e-9)
+                self.latencies.add((self.now_ns() - sensor_stamp) * 1e-9)
         except Exception as err:  # noqa: BLE001 - a timer callback must not stop the node
             self.diagnostics.drop('tick', 'error', f'{type(err).__name__}: {err}')
 
@@ -394,11 +416,11 @@ class TorqueMixerNode(WiringCheckInputs, ControllerNode):
             values['runaway guard'] = (
                 self.monitor.runaway or f'wheel-propagated tracking error '
                 f'{guard.wheel_error:.3f} m, largest growth {guard.largest_growth:.3f} m')
-        if self.latencies:
-            p50, p99, p100 = np.percentile(np.fromiter(self.latencies, float), (50, 99, 100))
+        if self.latencies.count:
+            p50, p99, p100 = self.latencies.percentiles((50, 99, 100))
             values['sensor to command latency [ms] p50/p99/max'] = (
                 f'{1e3 * p50:.3f}/{1e3 * p99:.3f}/{1e3 * p100:.3f} over '
-                f'{len(self.latencies)} commands')
+                f'{min(self.latencies.count, LATENCY_WINDOW)} commands')
         return self._base_status()
 
     def send_stop_command(self) -> bool:
