@@ -23,6 +23,6 @@ def test_the_percentiles_are_those_of_the_last_size_latencies(size, latencies):
     window = LatencyWindow(size)
     for k, latency in enumerate(latencies, start=1):
         window.add(latency)
-        assert window.count == k
+        assert window.count == k and len(window) == min(k, size)
         expected = np.percentile(np.array(latencies[max(0, k - size):k]), Q)
         assert window.percentiles(Q).tobytes() == expected.tobytes()

@@ -46,6 +46,7 @@ import statistics
 import sys
 import tempfile
 import time
+import types
 
 CONTROL_PERIOD = 0.005  # [s], 200 Hz
 HEARTBEAT_EVERY = 40    # ticks between two /wip/heartbeat messages (0.2 s)
@@ -173,7 +174,10 @@ class _Split:
             self.own.clear()
             self.ticks, self.tick_time = 0, 0.0
         if self._executor is None:
-            self._executor = _TimedTurns(executor, self._timed(executor.spin_once, self.TURNS))
+            # What feed.tick uses of the executor, its turns, timed (rclpy's executor's own
+            # attributes are read-only).
+            self._executor = types.SimpleNamespace(
+                spin_once=self._timed(executor.spin_once, self.TURNS))
         cost = feed.tick(k, bus, self._executor)
         if k >= first:
             self.tick_time += cost
@@ -191,13 +195,6 @@ class _Split:
         split[self.REST] = 1e6 * (self.tick_time - sum(self.own.values())) / ticks
         split['tick'] = 1e6 * self.tick_time / ticks
         return split
-
-
-class _TimedTurns:
-    """An executor as ``_SensorFeed.tick`` uses it, its turns timed (rclpy's are read-only)."""
-
-    def __init__(self, executor, spin_once) -> None:
-        self.executor, self.spin_once = executor, spin_once
 
 
 def _scheduler_counters() -> dict[str, float] | None:

@@ -132,9 +132,13 @@ class LatencyWindow:
         self.values[self.count % len(self.values)] = latency
         self.count += 1
 
+    def __len__(self) -> int:
+        """Return how many latencies the window holds (at most its size)."""
+        return min(self.count, len(self.values))
+
     def percentiles(self, q) -> np.ndarray:
         """``np.percentile`` of the window's latencies (at least one added)."""
-        return np.percentile(self.values[:self.count], q)
+        return np.percentile(self.values[:len(self)], q)
 
 
 class TorqueMixerNode(WiringCheckInputs, ControllerNode):
@@ -416,11 +420,11 @@ class TorqueMixerNode(WiringCheckInputs, ControllerNode):
             values['runaway guard'] = (
                 self.monitor.runaway or f'wheel-propagated tracking error '
                 f'{guard.wheel_error:.3f} m, largest growth {guard.largest_growth:.3f} m')
-        if self.latencies.count:
+        if self.latencies:
             p50, p99, p100 = self.latencies.percentiles((50, 99, 100))
             values['sensor to command latency [ms] p50/p99/max'] = (
                 f'{1e3 * p50:.3f}/{1e3 * p99:.3f}/{1e3 * p100:.3f} over '
-                f'{min(self.latencies.count, LATENCY_WINDOW)} commands')
+                f'{len(self.latencies)} commands')
         return self._base_status()
 
     def send_stop_command(self) -> bool:
