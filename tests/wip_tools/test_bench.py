@@ -129,6 +129,17 @@ def test_bench_reports_each_real_time_case_beside_the_rclpy_floor_and_the_nodes_
         assert [r['pinned'] for r in rows[4:]] == [False, pinned]
     for row in rows:
         assert 0.0 < row['controller_cpu_fraction'] < 2.0          # 2 cores at most
+        # By thread: each controller process's first thread spun the nodes (it ran and
+        # waited for its inputs), and the threads' shares add up to the process's.
+        threads = row['threads']
+        assert set(threads) == ({'controllers'} if row['layout'] == 'composed' else
+                                {'reference', 'eso', 'trajectory_generator', 'arc', 'mpc',
+                                 'torque_mixer'}), threads
+        for kinds in threads.values():
+            assert kinds['spinning']['cpu_fraction'] > 0.0 < kinds['spinning']['waits_per_s']
+        assert sum(used['cpu_fraction'] for kinds in threads.values()
+                   for used in kinds.values()) == pytest.approx(
+                       row['controller_cpu_fraction'], abs=0.05)
         assert 0.0 < row['latency_ms']['p50'] <= row['latency_ms']['p99'] \
             <= row['latency_ms']['max']
     # The floor: the receiver got the two 200 Hz streams and spent CPU on them, taken
@@ -170,7 +181,7 @@ def test_bench_reports_each_real_time_case_beside_the_rclpy_floor_and_the_nodes_
     assert 'rclpy floor, taken as messages' in printed
     assert 'rclpy floor, taken as serialized' in printed
     assert 'rclpy floor, taken as loop' in printed and 'against the loop floor' in printed
-    assert 'sensor->command latency' in printed
+    assert 'sensor->command latency' in printed and 'controllers by thread: spinning' in printed
     assert 'fed directly' in printed and 'by node, back to back' in printed
     assert 'overhead ratio' in printed and 'Pi-class estimate' in printed
 

@@ -26,11 +26,15 @@ class HardwareResult(RunResult):
     #: Base topics (remapped) -> publisher / subscription counts seen at the start.
     base_topics: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
     zero_commands_sent: int = 0
+    #: What the controller processes' threads did during the run, by kind
+    #: (:func:`.thread_usage.usage_since`).
+    threads: dict[str, dict[str, dict[str, float]]] = dataclasses.field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         return {'mode': 'hardware', **super().summary(),
                 'safety_events': self.safety_events, 'rates': self.rates,
-                'base_topics': self.base_topics, 'zero_commands_sent': self.zero_commands_sent}
+                'base_topics': self.base_topics, 'zero_commands_sent': self.zero_commands_sent,
+                'threads': self.threads}
 
 
 def hardware_outcome(events: list[dict[str, Any]], ended: str,

@@ -28,6 +28,7 @@ from .run_result import RunResult
 from .run_stop import stop_signal_number
 from .runner_base import RunnerBase
 from .scheduling import Scheduling
+from . import thread_usage
 
 #: The nodes of hardware mode, in start order.
 HARDWARE_NODES = CONTROLLER_NODES
@@ -389,10 +390,16 @@ class HardwareRunner(RunnerBase):
             message += f'; eso: {self.position_error}'
         return code, message
 
+    def controller_pids(self) -> dict[str, int]:
+        """Return the controller processes' pids (all but the recorder's) by name."""
+        return {name: process.pid for name, process in self.processes.items()
+                if name != 'recorder'}
+
     # -- the run ----------------------------------------------------------------------------
     def run(self) -> HardwareResult:
         result = HardwareResult(EXIT_FAILED, '', self.out, self.bag, self.domain_id)
         cpu_start: dict[str, float | None] = {}
+        threads_start: dict = {}
         run_start = None
         if self.options.on_start is not None:
             self.options.on_start(self)
@@ -413,6 +420,7 @@ class HardwareRunner(RunnerBase):
                         else 'until Ctrl-C'))
             run_start = time.monotonic()
             cpu_start = self.cpu_snapshot()
+            threads_start = thread_usage.snapshot(self.controller_pids())
             reason = self.watch()
             result.exit_code, result.message = self.outcome(reason)
         except GraphError as err:
@@ -426,6 +434,9 @@ class HardwareRunner(RunnerBase):
             if run_start is not None:
                 result.wall_time_s = time.monotonic() - run_start
                 result.cpu_s.update(self.cpu_since(cpu_start))
+                result.threads = thread_usage.usage_since(
+                    threads_start, thread_usage.snapshot(self.controller_pids()),
+                    result.wall_time_s)
             self.shut_down(result)
         result.rates = self.rates()
         result.safety_events = list(self.safety_events)

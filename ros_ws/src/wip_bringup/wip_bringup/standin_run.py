@@ -122,6 +122,7 @@ class StandinRun:
             'process_cpu_fraction': {n: c / wall for n, c in result.cpu_s.items()}
             if wall else {},
             'sensor_to_command_latency_ms': mixer_latency_ms(result),
+            'controller_threads': result.threads,
             'safety_events': result.safety_events,
         }
 
@@ -436,5 +437,7 @@ def realtime_benchmark(directory: pathlib.Path, seconds: float = 20.0,
                      'controller_cpu_fraction': summary['controller_cpu_fraction'],
                      'latency_ms': summary['sensor_to_command_latency_ms'],
                      'command_gap_ms': summary['command_gap_ms'],
-                     'deadline_misses': summary['deadline_misses']})
+                     'deadline_misses': summary['deadline_misses'],
+                     'threads': summary['controller_threads'],
+                     'control_rate_hz': summary['control_rate_hz']})
     return rows

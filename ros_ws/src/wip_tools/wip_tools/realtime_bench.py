@@ -174,7 +174,11 @@ def section_realtime(seconds: float, in_process: dict, report: dict,
 
 
 def _print_realtime_row(row: dict) -> None:
-    """Print one real-time run: CPU share, latency, the base's oldest command held."""
+    """Print one real-time run: CPU share, latency, the base's oldest command held.
+
+    Then each controller process's threads by kind: CPU share, and per control tick how
+    often they waited and were preempted (:mod:`wip_bringup.thread_usage`).
+    """
     if 'skipped' in row:
         print(f'-> {row}')
         return
@@ -192,6 +196,13 @@ def _print_realtime_row(row: dict) -> None:
           f' ms; base: oldest command held {age.get("max_ms", float("nan")):.1f} ms, '
           f'{row["deadline_misses"]} deadline misses'
           f'{"; FELL" if row["fell"] else ""}')
+    rate = row['control_rate_hz']
+    for process, kinds in row['threads'].items():
+        parts = ', '.join(
+            f'{kind} {100 * used["cpu_fraction"]:.1f} % ({used["waits_per_s"] / rate:.1f} '
+            f'waits, {used["preempted_per_s"] / rate:.1f} preempted a tick)'
+            for kind, used in kinds.items() if used['cpu_fraction'] >= 0.001)
+        print(f'{"":10s}{process} by thread: {parts}')
 
 
 def _print_floor(floor: dict) -> None:
