@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 import sys
 import threading
@@ -64,3 +65,16 @@ def test_a_thread_that_sleeps_fifty_times_waited_at_least_fifty_times():
     assert mine[1] - start['self'][thread.native_id][1] >= 50
     assert mine[3] == 'other' and end['self'][os.getpid()][3] == SPINNING
     assert thread_usage.read_threads(2 ** 22 + 1) == {}     # no such process
+
+
+def test_a_proc_without_the_switch_counts_gives_no_figures_not_an_error(monkeypatch):
+    # A run must never fail on its monitoring: a status file without the fields is skipped.
+    real_open = open
+
+    def status_without_counts(path, *args, **kwargs):
+        if str(path).endswith('/status'):
+            return io.StringIO('Name:\tprobe\nState:\tS (sleeping)\n')
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr('builtins.open', status_without_counts)
+    assert thread_usage.read_threads(os.getpid()) == {}

@@ -51,15 +51,17 @@ def read_threads(pid: int) -> dict[int, Counters]:
             with open(f'/proc/{pid}/task/{entry}/status', encoding='ascii',
                       errors='replace') as stream:
                 status = dict(line.split(':', 1) for line in stream if ':' in line)
-        except OSError:   # the thread ended between the listing and the read
+            name = stat[stat.index('(') + 1:stat.rindex(')')]
+            fields = stat.rsplit(')', 1)[1].split()
+            thread = int(entry)
+            threads[thread] = ((int(fields[11]) + int(fields[12])) / tick,
+                               int(status['voluntary_ctxt_switches']),
+                               int(status['nonvoluntary_ctxt_switches']),
+                               thread_kind(name, thread == pid))
+        except (OSError, ValueError, IndexError, KeyError):
+            # The thread ended between the listing and the read, or a kernel without
+            # these fields: a figure for the bench, never a reason for a run to fail.
             continue
-        name = stat[stat.index('(') + 1:stat.rindex(')')]
-        fields = stat.rsplit(')', 1)[1].split()
-        thread = int(entry)
-        threads[thread] = ((int(fields[11]) + int(fields[12])) / tick,
-                           int(status['voluntary_ctxt_switches']),
-                           int(status['nonvoluntary_ctxt_switches']),
-                           thread_kind(name, thread == pid))
     return threads
 
 
