@@ -18,6 +18,7 @@ from .launcher import EXIT_USAGE, GraphError
 from .private_domain import reserve_private_domain
 from .ros_env import ROS_DEFAULTS_VARIABLE
 from .scheduling import Scheduling
+from .thread_usage import stat_name_and_cpu
 
 LOG_TAIL_LINES = 15
 
@@ -179,8 +180,7 @@ class NodeProcess:
         """
         try:
             with open(f'/proc/{self.pid}/stat', encoding='ascii') as stream:
-                fields = stream.read().rsplit(')', 1)[1].split()
-            return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+                return stat_name_and_cpu(stream.read())[1]
         except (OSError, ValueError, IndexError):
             return None
 

@@ -13,10 +13,14 @@ from __future__ import annotations
 import os
 from typing import Mapping
 
-#: Thread kinds, in the order they are reported; Fast DDS names its threads "dds.<role>.<id>".
+#: Thread kinds; Fast DDS names its threads "dds.<role>.<id>".
 SPINNING = 'spinning'
-KINDS = (SPINNING, 'DDS shared-memory receive', 'DDS UDP receive', 'DDS timed events',
-         'other')
+SHM_RECEIVE = 'DDS shared-memory receive'
+UDP_RECEIVE = 'DDS UDP receive'
+TIMED_EVENTS = 'DDS timed events'
+OTHER = 'other'
+#: The kinds in the order they are reported.
+KINDS = (SPINNING, SHM_RECEIVE, UDP_RECEIVE, TIMED_EVENTS, OTHER)
 
 #: (cpu [s], voluntary switches, involuntary switches, kind) of a thread.
 Counters = tuple[float, int, int, str]
@@ -27,18 +31,24 @@ def thread_kind(name: str, is_first: bool) -> str:
     if is_first:
         return SPINNING
     if name.startswith('dds.shm.') and name != 'dds.shm.wdog':
-        return KINDS[1]
+        return SHM_RECEIVE
     if name.startswith('dds.udp.'):
-        return KINDS[2]
+        return UDP_RECEIVE
     if name.startswith('dds.ev.'):
-        return KINDS[3]
-    return KINDS[4]
+        return TIMED_EVENTS
+    return OTHER
+
+
+def stat_name_and_cpu(stat: str) -> tuple[str, float]:
+    """Return the name and the CPU time [s] (user + system) of a proc(5) ``stat`` line."""
+    fields = stat.rsplit(')', 1)[1].split()
+    return (stat[stat.index('(') + 1:stat.rindex(')')],
+            (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK'))
 
 
 def read_threads(pid: int) -> dict[int, Counters]:
     """Return each live thread's counters by thread id ({} if the process is gone)."""
     threads = {}
-    tick = os.sysconf('SC_CLK_TCK')
     try:
         ids = os.listdir(f'/proc/{pid}/task')
     except OSError:
@@ -51,11 +61,9 @@ def read_threads(pid: int) -> dict[int, Counters]:
             with open(f'/proc/{pid}/task/{entry}/status', encoding='ascii',
                       errors='replace') as stream:
                 status = dict(line.split(':', 1) for line in stream if ':' in line)
-            name = stat[stat.index('(') + 1:stat.rindex(')')]
-            fields = stat.rsplit(')', 1)[1].split()
+            name, cpu = stat_name_and_cpu(stat)
             thread = int(entry)
-            threads[thread] = ((int(fields[11]) + int(fields[12])) / tick,
-                               int(status['voluntary_ctxt_switches']),
+            threads[thread] = (cpu, int(status['voluntary_ctxt_switches']),
                                int(status['nonvoluntary_ctxt_switches']),
                                thread_kind(name, thread == pid))
         except (OSError, ValueError, IndexError, KeyError):
