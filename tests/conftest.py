@@ -39,6 +39,12 @@ for package in ('wip_control', 'wip_sim', 'wip_bag', 'wip_bringup', 'wip_tools',
 
 from wip_bringup.private_domain import (release_private_domain, release_taken_domains,  # noqa: E402
                                         reserve_private_domain)
+from wip_runtime.dds_profile import use_launcher_profile  # noqa: E402
+
+# The test processes' own participants (harness nodes, run_graph's probe) announce themselves
+# as often as the graphs' nodes do, where the user has no Fast DDS profile: set before any
+# participant of this process is made (wip_runtime/fastdds_launcher_profile.xml says why).
+use_launcher_profile()
 
 # The session's own domain, for the tests that start graphs without a domain fixture: not
 # scripts/_env.sh's pid-derived default, which is not reserved (a test session beside another

@@ -5,8 +5,9 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from wip_bringup.processes import graph_environment
-from wip_runtime.dds_profile import (FASTDDS_PROFILE, process_ignores_local_endpoints,
-                                     profile_ignores_local_endpoints,
+from wip_runtime.dds_profile import (FASTDDS_PROFILE, LAUNCHER_PROFILE,
+                                     process_ignores_local_endpoints,
+                                     profile_ignores_local_endpoints, use_launcher_profile,
                                      PROFILE_VARIABLES as FASTDDS_PROFILE_VARIABLES)
 
 NS = {'dds': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
@@ -35,6 +36,33 @@ def test_the_launcher_uses_it_only_where_the_user_has_no_profile(monkeypatch, tm
         assert all(env.get(other) in (None, '') for other in FASTDDS_PROFILE_VARIABLES
                    if other != name)
         monkeypatch.delenv(name)
+
+
+def test_the_launchers_own_profile_is_set_where_the_user_has_none_and_never_reaches_a_node(
+        monkeypatch, tmp_path):
+    # Its participants announce every 0.1 s, as the nodes' do; they match their own endpoints.
+    root = ET.parse(LAUNCHER_PROFILE).getroot()
+    participant = root.find('dds:profiles/dds:participant', NS)
+    assert participant.get('is_default_profile') == 'true'
+    period = participant.find('dds:rtps/dds:builtin/dds:discovery_config/'
+                              'dds:leaseAnnouncement', NS)
+    assert (int(period.find('dds:sec', NS).text), int(period.find('dds:nanosec', NS).text)) \
+        == (0, 100_000_000)
+    assert not profile_ignores_local_endpoints(LAUNCHER_PROFILE.read_text(encoding='utf-8'))
+    environ = {}
+    assert use_launcher_profile(environ)
+    assert environ == {'FASTRTPS_DEFAULT_PROFILES_FILE': str(LAUNCHER_PROFILE)}
+    assert not process_ignores_local_endpoints('rmw_fastrtps_cpp', environ)
+    for name in FASTDDS_PROFILE_VARIABLES:     # the user's own, in either variable, stays
+        own = {name: str(tmp_path / 'mine.xml')}
+        assert not use_launcher_profile(own) and own == {name: str(tmp_path / 'mine.xml')}
+    # A node process started from a launcher that set it for itself gets the nodes' profile.
+    for name in FASTDDS_PROFILE_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv('FASTRTPS_DEFAULT_PROFILES_FILE', str(LAUNCHER_PROFILE))
+    env = graph_environment(7)
+    assert env['FASTRTPS_DEFAULT_PROFILES_FILE'] == str(FASTDDS_PROFILE)
+    assert not env.get('FASTDDS_DEFAULT_PROFILES_FILE')
 
 
 def test_the_profile_keeps_a_process_from_matching_its_own_endpoints():

@@ -95,8 +95,7 @@ def target(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Target:
     """Return where the command goes; a usage error (exit 2) if an argument is bad."""
     # Not wip_bringup.launcher nor the nodes' modules (numpy, scipy: a few tenths of a
     # second of start-up, part of the e-stop's latency).
-    from wip_runtime.dds_profile import (FASTDDS_PROFILE,
-                                         PROFILE_VARIABLES as FASTDDS_PROFILE_VARIABLES)
+    from wip_runtime.dds_profile import use_node_profile
     from .ros_env import GraphError, parse_namespace, use_user_ros_environment
     try:
         network = use_user_ros_environment()
@@ -113,8 +112,7 @@ def target(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Target:
         parser.error(str(err))
     # The graph's Fast DDS profile where the user has none (reliable repairs in
     # milliseconds; wip_bringup.processes.graph_environment).
-    if not any(os.environ.get(name) for name in FASTDDS_PROFILE_VARIABLES):
-        os.environ[FASTDDS_PROFILE_VARIABLES[0]] = str(FASTDDS_PROFILE)
+    use_node_profile(os.environ)
     return Target(domain, network, args.mixer or f'{namespace}/torque_mixer',
                   f'{namespace}/wip/estop')
 

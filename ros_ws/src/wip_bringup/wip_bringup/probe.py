@@ -22,6 +22,10 @@ class Probe:
         from rclpy.qos import QoSProfile
         self._rclpy = rclpy
         from rclpy.signals import SignalHandlerOptions
+        from wip_runtime.dds_profile import use_launcher_profile
+        # Made before the nodes it starts, the probe must announce itself as often as they
+        # do, or some of them see it (and it them) only seconds later (the profile says why).
+        use_launcher_profile()
         self.context = rclpy.Context()
         # No rclpy signal handlers: they would shut this context down at a SIGINT or
         # SIGTERM, and the launcher still needs the probe to drain the recorder while it

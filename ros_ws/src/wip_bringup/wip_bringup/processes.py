@@ -10,8 +10,7 @@ import pathlib
 import signal
 import subprocess
 
-from wip_runtime.dds_profile import (FASTDDS_PROFILE,
-                                     PROFILE_VARIABLES as FASTDDS_PROFILE_VARIABLES)
+from wip_runtime.dds_profile import use_node_profile
 from wip_runtime.launched import LAUNCHER_PID_VARIABLE
 
 from .launcher import EXIT_USAGE, GraphError
@@ -56,8 +55,7 @@ def graph_environment(domain_id: int, private: bool = True) -> dict[str, str]:
     # One BLAS thread per node process: small matrices, where a thread pool only adds
     # wake-ups (docs/realtime.md).
     env.setdefault('OPENBLAS_NUM_THREADS', '1')
-    if not any(env.get(name) for name in FASTDDS_PROFILE_VARIABLES):
-        env[FASTDDS_PROFILE_VARIABLES[0]] = str(FASTDDS_PROFILE)
+    use_node_profile(env)
     return env
 
 

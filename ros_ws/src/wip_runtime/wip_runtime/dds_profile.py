@@ -23,6 +23,43 @@ FAST_DDS_RMWS = ('rmw_fastrtps_cpp', 'rmw_fastrtps_dynamic_cpp')
 #: none of :data:`PROFILE_VARIABLES`, Fast DDS 2's and 3's names): reliable writers'
 #: heartbeats every 20 ms (the file says why).
 FASTDDS_PROFILE = pathlib.Path(__file__).with_name('fastdds_profile.xml')
+#: The Fast DDS profile of the launchers' own processes (the probe of run_graph and hardware
+#: mode, the tests' processes) where the user has none: the participant announces itself
+#: every 0.1 s, nothing else (the file says why).
+LAUNCHER_PROFILE = pathlib.Path(__file__).with_name('fastdds_launcher_profile.xml')
+
+
+def user_profile(environ: Mapping[str, str] = os.environ) -> str | None:
+    """Return the user's own Fast DDS profiles file, or None.
+
+    The first of :data:`PROFILE_VARIABLES` set, unless it is :data:`LAUNCHER_PROFILE` (which
+    a launcher set for itself and its children inherit: not the user's).
+    """
+    path = next((environ[name] for name in PROFILE_VARIABLES if environ.get(name)), None)
+    if path is None or path == str(LAUNCHER_PROFILE):
+        return None
+    return path
+
+
+def use_node_profile(env: dict[str, str]) -> None:
+    """Give a node process's environment :data:`FASTDDS_PROFILE` where the user has none."""
+    if user_profile(env) is None:
+        for name in PROFILE_VARIABLES:
+            env.pop(name, None)
+        env[PROFILE_VARIABLES[0]] = str(FASTDDS_PROFILE)
+
+
+def use_launcher_profile(environ: dict[str, str] = os.environ) -> bool:
+    """Give this process :data:`LAUNCHER_PROFILE` where the user has none; True if set.
+
+    Fast DDS reads the file when the process makes its first participant: called before
+    that, it applies to every participant of the process; after, to none (and the process
+    keeps matching its own endpoints, as that file says: nothing depends on which).
+    """
+    if any(environ.get(name) for name in PROFILE_VARIABLES):
+        return False
+    environ[PROFILE_VARIABLES[0]] = str(LAUNCHER_PROFILE)
+    return True
 
 
 def _local_name(tag: str) -> str:
