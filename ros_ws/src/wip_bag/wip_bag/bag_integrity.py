@@ -24,8 +24,8 @@ from typing import Iterator, NamedTuple
 
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
-from mcap.records import Channel, Chunk, MessageIndex, Metadata, Schema
-from mcap.stream_reader import breakup_chunk
+from mcap.records import Channel, Chunk, Message, MessageIndex, Metadata, Schema
+from mcap.stream_reader import get_chunk_data_stream
 
 MAGIC = b'\x89MCAP0\r\n'
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 1, 2, 3, 4, 5, 6
@@ -154,10 +154,40 @@ def _parse_chunk(data, pos: int, limit: int) -> tuple[Chunk, int] | None:
     return chunk, end
 
 
+_MESSAGE_HEAD = struct.Struct('<HIQQ')   # channel id, sequence, log time, publish time
+
+
 def chunk_records(chunk: Chunk) -> list | None:
-    """Return the records of a chunk if its CRC (and decompression) is intact, else None."""
+    """Return the records of a chunk if its CRC (and decompression) is intact, else None.
+
+    What mcap's ``breakup_chunk`` returns (its schemas, channels and messages), with the
+    messages' headers read by one ``struct`` unpack each where mcap reads field by field;
+    a record running past the chunk's end makes it damaged.
+    """
     try:
-        return breakup_chunk(chunk, validate_crc=True)
+        stream, size = get_chunk_data_stream(chunk, validate_crc=True)
+        data = stream.read(size)
+        records: list = []
+        pos = 0
+        while pos < size:
+            opcode = data[pos]
+            body = pos + 9
+            end = body + _u64(data, pos + 1)
+            if end > size:
+                return None
+            if opcode == OP_MESSAGE:
+                if end - body < _MESSAGE_HEAD.size:
+                    return None
+                channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(
+                    data, body)
+                records.append(Message(channel_id=channel_id, log_time=log_time,
+                                       data=data[body + _MESSAGE_HEAD.size:end],
+                                       publish_time=publish_time, sequence=sequence))
+            elif opcode in (OP_SCHEMA, OP_CHANNEL):
+                kind = Schema if opcode == OP_SCHEMA else Channel
+                records.append(kind.read(ReadDataStream(io.BytesIO(data[body:end]))))
+            pos = end
+        return records
     except Exception:  # noqa: BLE001 (zstd and lz4 raise types of their own on bad data)
         return None
 
@@ -359,13 +389,18 @@ def _read_summary(data, start: int, footer_pos: int, scan: FileScan) -> None:
         pos = end
 
 
-def iter_chunk_records(path: str | pathlib.Path, scan: FileScan) -> Iterator[list]:
-    """Yield the records of each intact chunk of ``scan``, in file order (re-read from disk)."""
-    if not scan.chunks:
+def iter_chunk_records(path: str | pathlib.Path, scan: FileScan,
+                       chunks: list[GoodChunk] | None = None) -> Iterator[list]:
+    """Yield ``(chunk, records)`` of each intact chunk of ``scan`` (re-read from disk).
+
+    In file order, or in the order of ``chunks`` (some of ``scan.chunks``).
+    """
+    chunks = scan.chunks if chunks is None else chunks
+    if not chunks:
         return
     with open(path, 'rb') as stream, mmap.mmap(stream.fileno(), 0,
                                                access=mmap.ACCESS_READ) as data:
-        for good in scan.chunks:
+        for good in chunks:
             parsed = _parse_chunk(data, good.offset, len(data))
             records = chunk_records(parsed[0]) if parsed is not None else None
             if records is not None:  # (changed on disk since the scan otherwise)
