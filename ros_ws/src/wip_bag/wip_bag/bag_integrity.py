@@ -72,6 +72,8 @@ class FileScan:
         self.channels: dict[int, Channel] = {}
         self.metadata: list[Metadata] = []
         self.loose: list[tuple[int, int]] = []  # (offset, length) of records outside chunks
+        #: channel id -> [message count, first and last log time] of the intact chunks.
+        self.message_stats: dict[int, list[int]] = {}
         self.notes: list[str] = []  # damage that loses no message (a broken summary)
 
     @property
@@ -351,8 +353,18 @@ def _keep_chunk(data, pos: int, limit: int, scan: FileScan, damage: _DamageTrack
         return
     chunk = parsed[0]
     damage.close(chunk.message_start_time)
+    stats = scan.message_stats
     for record in records:
-        _keep(scan, record)
+        if record.__class__ is Message:
+            found = stats.get(record.channel_id)
+            if found is None:
+                stats[record.channel_id] = [1, record.log_time, record.log_time]
+            else:
+                found[0] += 1
+                found[1] = min(found[1], record.log_time)
+                found[2] = max(found[2], record.log_time)
+        else:
+            _keep(scan, record)
     scan.chunks.append(GoodChunk(pos, chunk.message_start_time, chunk.message_end_time,
                                  chunk.compression))
     damage.last_end_ns = (chunk.message_end_time if damage.last_end_ns is None

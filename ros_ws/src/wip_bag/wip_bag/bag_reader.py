@@ -347,13 +347,16 @@ def bag_summary(path):
             topics.setdefault(channel.topic, {
                 'type': schema.name if schema else '', 'message_count': 0,
                 'start_ns': None, 'end_ns': None})
-        for channel, _, message in _intact_messages(file_scan.path, file_scan):
+        for channel_id, (count, first, last) in file_scan.message_stats.items():
+            channel = file_scan.channels.get(channel_id)
+            if channel is None:
+                continue
             entry = topics[channel.topic]
-            entry['message_count'] += 1
-            if entry['start_ns'] is None or message.log_time < entry['start_ns']:
-                entry['start_ns'] = message.log_time
-            if entry['end_ns'] is None or message.log_time > entry['end_ns']:
-                entry['end_ns'] = message.log_time
+            entry['message_count'] += count
+            if entry['start_ns'] is None or first < entry['start_ns']:
+                entry['start_ns'] = first
+            if entry['end_ns'] is None or last > entry['end_ns']:
+                entry['end_ns'] = last
     starts = [t['start_ns'] for t in topics.values() if t['start_ns'] is not None]
     ends = [t['end_ns'] for t in topics.values() if t['end_ns'] is not None]
     start_ns = min(starts) if starts else None
@@ -397,9 +400,7 @@ class TopicMetadata(NamedTuple):
 
 def _channels_and_counts(file_scan):
     """(schemas, channels, counts per channel id) of one scanned MCAP file."""
-    counts = {cid: 0 for cid in file_scan.channels}
-    for channel, _, _ in _intact_messages(file_scan.path, file_scan):
-        counts[channel.id] = counts.get(channel.id, 0) + 1
+    counts = {cid: file_scan.message_stats.get(cid, (0,))[0] for cid in file_scan.channels}
     return dict(file_scan.schemas), dict(file_scan.channels), counts
 
 
