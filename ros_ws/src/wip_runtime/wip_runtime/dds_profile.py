@@ -29,16 +29,22 @@ FASTDDS_PROFILE = pathlib.Path(__file__).with_name('fastdds_profile.xml')
 LAUNCHER_PROFILE = pathlib.Path(__file__).with_name('fastdds_launcher_profile.xml')
 
 
+def profile_file(environ: Mapping[str, str] = os.environ) -> str | None:
+    """Return the profiles file Fast DDS reads in a process with ``environ``, or None.
+
+    The first of :data:`PROFILE_VARIABLES` set.
+    """
+    return next((environ[name] for name in PROFILE_VARIABLES if environ.get(name)), None)
+
+
 def user_profile(environ: Mapping[str, str] = os.environ) -> str | None:
     """Return the user's own Fast DDS profiles file, or None.
 
-    The first of :data:`PROFILE_VARIABLES` set, unless it is :data:`LAUNCHER_PROFILE` (which
-    a launcher set for itself and its children inherit: not the user's).
+    :func:`profile_file`, unless it is :data:`LAUNCHER_PROFILE` (which a launcher set for
+    itself and its children inherit: not the user's).
     """
-    path = next((environ[name] for name in PROFILE_VARIABLES if environ.get(name)), None)
-    if path is None or path == str(LAUNCHER_PROFILE):
-        return None
-    return path
+    path = profile_file(environ)
+    return None if path == str(LAUNCHER_PROFILE) else path
 
 
 def use_node_profile(env: dict[str, str]) -> None:
@@ -56,7 +62,7 @@ def use_launcher_profile(environ: dict[str, str] = os.environ) -> bool:
     that, it applies to every participant of the process; after, to none (and the process
     keeps matching its own endpoints, as that file says: nothing depends on which).
     """
-    if any(environ.get(name) for name in PROFILE_VARIABLES):
+    if profile_file(environ) is not None:
         return False
     environ[PROFILE_VARIABLES[0]] = str(LAUNCHER_PROFILE)
     return True
@@ -96,7 +102,7 @@ def process_ignores_local_endpoints(rmw_identifier: str,
     """Return True if the participant of a process with ``environ`` ignores its endpoints."""
     if rmw_identifier not in FAST_DDS_RMWS:
         return False
-    path = next((environ[name] for name in PROFILE_VARIABLES if environ.get(name)), None)
+    path = profile_file(environ)
     if path is None:
         return False
     try:
